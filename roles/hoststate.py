@@ -1,0 +1,176 @@
+"""One round trip that reads everything the roles need to know about a host.
+
+pyinfra 3 runs a command per fact per operation (facts are not cached), which
+on a robot behind a slow link makes a converged rerun cost dozens of round
+trips.  Instead each role declares what it needs (files, packages, users,
+units, probes) in a ``Query``; deploy.py reads it all with one command
+(``HostSnapshot``), and the roles' operations compare desired state with that
+snapshot, yielding commands only for differences.
+
+The snapshot describes the host as it was when the deploy started; each
+operation owns distinct things, and dependent steps are chained with ``_if``.
+"""
+
+from __future__ import annotations
+
+import base64
+import shlex
+from dataclasses import dataclass, field
+
+from pyinfra.api import FactBase
+
+
+@dataclass
+class Query:
+    files: set[str] = field(default_factory=set)
+    packages: set[str] = field(default_factory=set)
+    users: set[str] = field(default_factory=set)
+    units: set[str] = field(default_factory=set)
+    commands: set[str] = field(default_factory=set)
+    # name -> shell snippet; its stdout is returned verbatim.
+    probes: dict[str, str] = field(default_factory=dict)
+
+    def as_kwargs(self) -> dict:
+        return {
+            "files": sorted(self.files),
+            "packages": sorted(self.packages),
+            "users": sorted(self.users),
+            "units": sorted(self.units),
+            "commands": sorted(self.commands),
+            "probes": dict(sorted(self.probes.items())),
+        }
+
+
+@dataclass(frozen=True)
+class FileState:
+    kind: str  # "file" or "dir"
+    sha256: str | None
+    mode: str  # octal, e.g. "644"
+    owner: str
+    group: str
+
+
+@dataclass
+class Snapshot:
+    os_release: dict[str, str] = field(default_factory=dict)
+    arch: str = ""
+    packages: dict[str, str] = field(default_factory=dict)  # installed only: name -> version
+    files: dict[str, FileState | None] = field(default_factory=dict)
+    users: dict[str, list[str] | None] = field(default_factory=dict)  # None: no such user
+    units: dict[str, tuple[str, str]] = field(default_factory=dict)  # (is-enabled, is-active)
+    commands: dict[str, str | None] = field(default_factory=dict)
+    probes: dict[str, str] = field(default_factory=dict)
+
+    def installed(self, package: str) -> bool:
+        return package in self.packages
+
+    def unit_enabled(self, unit: str) -> bool:
+        return self.units.get(unit, ("", ""))[0] in ("enabled", "static", "alias")
+
+    def unit_active(self, unit: str) -> bool:
+        return self.units.get(unit, ("", ""))[1] == "active"
+
+
+def _q(value: str) -> str:
+    return shlex.quote(value)
+
+
+def script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
+    """The shell script behind the snapshot (POSIX sh, read-only)."""
+    lines = [
+        "export LC_ALL=C",
+        "T=$(printf '\\t')",
+        'echo "os${T}$(base64 -w0 < /etc/os-release 2>/dev/null)"',
+        'echo "arch${T}$(dpkg --print-architecture 2>/dev/null)"',
+    ]
+    if packages:
+        names = " ".join(_q(p) for p in packages)
+        lines.append(
+            "dpkg-query -W -f='pkg\\t${Package}\\t${Status}\\t${Version}\\n' "
+            f"{names} 2>/dev/null"
+        )
+    for path in files:
+        p = _q(path)
+        lines.append(
+            f"if [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"else echo \"file${{T}}\"{p}\"${{T}}none\"; fi"
+        )
+    for user in users:
+        u = _q(user)
+        lines.append(
+            f"if id -u {u} >/dev/null 2>&1; then echo \"user${{T}}\"{u}\"${{T}}$(id -nG {u})\"; "
+            f"else echo \"user${{T}}\"{u}\"${{T}}-\"; fi"
+        )
+    for unit in units:
+        u = _q(unit)
+        lines.append(
+            f"echo \"unit${{T}}\"{u}\"${{T}}$(systemctl is-enabled {u} 2>/dev/null)${{T}}$(systemctl is-active {u} 2>/dev/null)\""
+        )
+    for command in commands:
+        cmd = _q(command)
+        lines.append(f"echo \"cmd${{T}}\"{cmd}\"${{T}}$(command -v {cmd})\"")
+    for name, snippet in (probes or {}).items():
+        lines.append(f"echo \"probe${{T}}\"{_q(name)}\"${{T}}$( ( {snippet} ) 2>/dev/null | base64 -w0)\"")
+    lines.append("true")
+    return "\n".join(lines)
+
+
+def parse(lines: list[str]) -> Snapshot:
+    snap = Snapshot()
+    for line in lines:
+        kind, _, rest = line.partition("\t")
+        parts = rest.split("\t")
+        if kind == "os":
+            text = base64.b64decode(parts[0]).decode() if parts[0] else ""
+            snap.os_release = parse_os_release(text)
+        elif kind == "arch":
+            snap.arch = parts[0].strip()
+        elif kind == "pkg" and len(parts) >= 3:
+            name, status, version = parts[0], parts[1], parts[2]
+            if status.endswith(" installed"):
+                snap.packages[name] = version
+        elif kind == "file":
+            path = parts[0]
+            if len(parts) >= 4 and parts[1] in ("file", "dir"):
+                mode, owner, group = (parts[3].split() + ["", "", ""])[:3]
+                sha = parts[2] if parts[1] == "file" else None
+                snap.files[path] = FileState(parts[1], sha, mode, owner, group)
+            else:
+                snap.files[path] = None
+        elif kind == "user":
+            snap.users[parts[0]] = None if parts[1] == "-" else parts[1].split()
+        elif kind == "unit":
+            snap.units[parts[0]] = (parts[1], parts[2] if len(parts) > 2 else "")
+        elif kind == "cmd":
+            snap.commands[parts[0]] = parts[1] or None if len(parts) > 1 else None
+        elif kind == "probe":
+            snap.probes[parts[0]] = base64.b64decode(parts[1]).decode() if len(parts) > 1 and parts[1] else ""
+    return snap
+
+
+def parse_os_release(text: str) -> dict[str, str]:
+    values = {}
+    for line in text.splitlines():
+        key, sep, value = line.partition("=")
+        if sep and key.strip() and not key.startswith("#"):
+            try:
+                parts = shlex.split(value)
+            except ValueError:
+                parts = [value.strip("\"'")]
+            values[key.strip().lower()] = parts[0] if parts else ""
+    return values
+
+
+class HostSnapshot(FactBase):
+    """Everything the roles need from a host, read in one command."""
+
+    def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None):
+        return script(files, packages, users, units, commands, probes)
+
+    def process(self, output):
+        return parse(list(output))
+
+    @staticmethod
+    def default():
+        return Snapshot()

@@ -1,0 +1,67 @@
+"""Docker image references: parsing and the pinning policy (pure)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+_COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
+_DOMAIN = r"(?:[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*(?::[0-9]+)?)"
+_REFERENCE = re.compile(
+    rf"(?:(?P<domain>{_DOMAIN})/)?(?P<path>{_COMPONENT}(?:/{_COMPONENT})*)"
+    r"(?::(?P<tag>[\w][\w.-]{0,127}))?(?:@(?P<digest>sha256:[a-f0-9]{64}))?"
+)
+
+
+@dataclass(frozen=True)
+class ImageRef:
+    repository: str  # including the registry, if any
+    tag: str | None
+    digest: str | None
+
+    @property
+    def registry(self) -> str:
+        first, _, rest = self.repository.partition("/")
+        if rest and ("." in first or ":" in first or first == "localhost"):
+            return first
+        return "docker.io"
+
+    def __str__(self) -> str:
+        text = self.repository
+        if self.tag:
+            text += f":{self.tag}"
+        if self.digest:
+            text += f"@{self.digest}"
+        return text
+
+
+def parse(text: str) -> ImageRef:
+    match = _REFERENCE.fullmatch(text)
+    if not match:
+        raise ValueError(f"{text!r} is not a valid image reference")
+    domain = match.group("domain")
+    path = match.group("path")
+    # "host:5000/x" is a registry; "name:tag" without a slash is a tag.
+    if domain and not ("." in domain or ":" in domain or domain == "localhost"):
+        path = f"{domain}/{path}"
+        domain = None
+    repository = f"{domain}/{path}" if domain else path
+    return ImageRef(repository, match.group("tag"), match.group("digest"))
+
+
+def pinning_problem(text: str, allow_latest: bool) -> str | None:
+    """Why ``text`` is not an acceptable payload image, or None."""
+    try:
+        ref = parse(text)
+    except ValueError as error:
+        return str(error)
+    if ref.digest:
+        return None
+    if not ref.tag:
+        return f"{text!r} has no tag or digest; pin a version (e.g. {text}:1.4.2 or @sha256:...)"
+    if ref.tag == "latest" and not allow_latest:
+        return (
+            f"{text!r} uses the moving tag 'latest'; pin a version or digest "
+            "(or set payload_allow_latest: true)"
+        )
+    return None

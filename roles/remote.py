@@ -1,0 +1,198 @@
+"""Operations that compare desired state with the host snapshot.
+
+Each one reads no fact of its own (the snapshot was taken once), does one
+thing, and yields commands only for differences.  Files are written whole:
+content goes over stdin into a temp file beside the target, is checked, then
+renamed, so a dropped link never leaves a half-written file.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import shlex
+
+from pyinfra import host
+from pyinfra.api import StringCommand, operation
+
+from roles.hoststate import FileState
+
+APT_GET = (
+    "DEBIAN_FRONTEND=noninteractive apt-get -y -q -o DPkg::Lock::Timeout=600"
+    " -o Dpkg::Options::=--force-confdef -o Dpkg::Options::=--force-confold"
+)
+APT_UPDATE = "apt-get -q -o DPkg::Lock::Timeout=600 -o Acquire::Retries=3 update"
+
+
+def sha256(content: bytes) -> str:
+    return hashlib.sha256(content).hexdigest()
+
+
+def _mode(mode: str | int) -> str:
+    return f"{int(str(mode), 8):o}"
+
+
+def shell(script: str, stdin: str | list[str] | None = None) -> StringCommand:
+    """A command running ``script`` with sh; sudo wraps it as a whole."""
+    if stdin is None:
+        return StringCommand("sh", "-c", shlex.quote(script))
+    return StringCommand("sh", "-c", shlex.quote(script), _stdin=stdin)
+
+
+def write_file_command(path: str, content: bytes, mode: str, user: str, group: str, validate: str | None = None):
+    """Atomic write: temp file in the same directory, checked, then renamed."""
+    check = ""
+    if validate:
+        check = validate.replace("{}", '"$tmp"') + "\n"
+    script = (
+        "set -e\n"
+        f"dest={shlex.quote(path)}\n"
+        'dir=$(dirname "$dest")\n'
+        'mkdir -p "$dir"\n'
+        'tmp=$(mktemp "$dir/.robotprov.XXXXXX")\n'
+        "trap 'rm -f \"$tmp\"' EXIT\n"
+        'base64 -d > "$tmp"\n'
+        f'chown {shlex.quote(user)}:{shlex.quote(group)} "$tmp"\n'
+        f'chmod {_mode(mode)} "$tmp"\n'
+        f"{check}"
+        'mv -f "$tmp" "$dest"\n'
+        "trap - EXIT\n"
+    )
+    encoded = base64.encodebytes(content).decode().splitlines()
+    return shell(script, stdin=encoded or [""])
+
+
+def file_matches(current: FileState | None, content: bytes, mode, user, group) -> bool:
+    return (
+        current is not None
+        and current.kind == "file"
+        and current.sha256 == sha256(content)
+        and current.mode == _mode(mode)
+        and (current.owner, current.group) == (user, group)
+    )
+
+
+@operation()
+def file(
+    path: str,
+    content: bytes | str,
+    current: FileState | None,
+    mode: str = "0644",
+    user: str = "root",
+    group: str = "root",
+    validate: str | None = None,
+):
+    """Make ``path`` hold exactly ``content`` (checked with ``validate`` first,
+    a shell command in which ``{}`` is the new file)."""
+    if isinstance(content, str):
+        content = content.encode()
+    if file_matches(current, content, mode, user, group):
+        host.noop(f"{path} is up to date")
+        return
+    if current is not None and current.kind == "file" and current.sha256 == sha256(content):
+        yield shell(
+            f"chown {shlex.quote(user)}:{shlex.quote(group)} {shlex.quote(path)}"
+            f" && chmod {_mode(mode)} {shlex.quote(path)}"
+        )
+        return
+    if current is not None and current.kind != "file":
+        yield fail_command(f"{path} exists but is not a regular file; not replacing it")
+        return
+    yield write_file_command(path, content, mode, user, group, validate)
+
+
+@operation()
+def directory(path: str, current: FileState | None, mode: str = "0755", user: str = "root", group: str = "root"):
+    if current is not None and current.kind == "dir" and current.mode == _mode(mode) and (
+        current.owner,
+        current.group,
+    ) == (user, group):
+        host.noop(f"{path} is up to date")
+        return
+    if current is not None and current.kind != "dir":
+        yield fail_command(f"{path} exists but is not a directory")
+        return
+    yield shell(
+        f"install -d -m {_mode(mode)} -o {shlex.quote(user)} -g {shlex.quote(group)} {shlex.quote(path)}"
+        f" && chmod {_mode(mode)} {shlex.quote(path)}"
+    )
+
+
+@operation()
+def absent(paths: list[str], present: dict[str, FileState | None]):
+    """Remove those of ``paths`` that exist."""
+    existing = [p for p in paths if present.get(p) is not None]
+    if not existing:
+        host.noop("nothing to remove")
+        return
+    yield shell("rm -f " + " ".join(shlex.quote(p) for p in existing))
+
+
+def packages_missing(packages: list[str], installed: dict[str, str], versions: dict[str, str] | None = None):
+    versions = versions or {}
+    wanted = []
+    for name in packages:
+        version = versions.get(name)
+        if name not in installed or (version and installed[name] != version):
+            wanted.append(f"{name}={version}" if version else name)
+    return wanted
+
+
+@operation()
+def apt_install(
+    packages: list[str],
+    installed: dict[str, str],
+    versions: dict[str, str] | None = None,
+    update_first: bool = False,
+):
+    """Install what is missing (or at another pinned version).  If apt cannot
+    find a package with stale lists it refreshes them once and retries."""
+    wanted = packages_missing(packages, installed, versions)
+    if not wanted:
+        host.noop(f"{', '.join(packages)} installed")
+        return
+    names = " ".join(shlex.quote(p) for p in wanted)
+    install = f"{APT_GET} --allow-downgrades install {names}"
+    if update_first:
+        yield shell(f"{APT_UPDATE} && {install}")
+    else:
+        yield shell(f"{install} || {{ {APT_UPDATE} && {install}; }}")
+
+
+@operation()
+def apt_remove(packages: list[str]):
+    if not packages:
+        host.noop("nothing to remove")
+        return
+    yield shell(f"{APT_GET} remove " + " ".join(shlex.quote(p) for p in packages))
+
+
+@operation()
+def service(unit: str, enabled_now: bool, active_now: bool, enabled: bool = True, running: bool = True):
+    commands = []
+    if enabled and not enabled_now:
+        commands.append(f"systemctl enable {shlex.quote(unit)}")
+    if not enabled and enabled_now:
+        commands.append(f"systemctl disable {shlex.quote(unit)}")
+    if running and not active_now:
+        commands.append(f"systemctl start {shlex.quote(unit)}")
+    if not commands:
+        host.noop(f"{unit} is {'enabled and ' if enabled else ''}running")
+        return
+    yield shell(" && ".join(commands))
+
+
+def fail_command(message: str) -> StringCommand:
+    return shell(f"echo {shlex.quote(message)} >&2; exit 1")
+
+
+@operation()
+def fail(message: str):
+    """Fail this host (only this host) with one clear line."""
+    yield fail_command(message)
+
+
+@operation(is_idempotent=False)
+def run(script: str):
+    """A command gated by the caller (``_if``); always runs when reached."""
+    yield shell(script)

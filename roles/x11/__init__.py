@@ -1,0 +1,92 @@
+"""roles/x11: X11 access for GUI containers (rviz) with an xauth cookie.
+
+At each login of the desktop user a hook writes a container-usable cookie to
+<x11_cookie_dir>/<user>/Xauthority (directory 0700, file 0600); the payload
+mounts the directory read-only with XAUTHORITY set.  Never `xhost +`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jinja2
+from pyinfra import host
+from pyinfra.api import deploy
+
+from roles import remote
+from roles.hoststate import Query, Snapshot
+
+HERE = Path(__file__).resolve().parent
+SCRIPT = "/usr/local/bin/robot-x11-cookie"
+XSESSION_HOOK = "/etc/X11/Xsession.d/90robot-x11-cookie"
+AUTOSTART = "/etc/xdg/autostart/robot-x11-cookie.desktop"
+CONTAINER_DIR = "/tmp/.robot-x11"
+
+
+def cookie_dir(data) -> str:
+    return f"{data.x11_cookie_dir}/{data.x11_user}"
+
+
+def cookie_script(data) -> str:
+    template = jinja2.Template((HERE / "robot-x11-cookie.sh.j2").read_text(), keep_trailing_newline=True)
+    return template.render(cookie_dir=data.x11_cookie_dir)
+
+
+def compose_settings(data) -> dict:
+    """What a GUI container needs: the X socket, the cookie, and DISPLAY."""
+    return {
+        "environment": {
+            "DISPLAY": data.x11_display,
+            "XAUTHORITY": f"{CONTAINER_DIR}/Xauthority",
+            "QT_X11_NO_MITSHM": "1",
+        },
+        "volumes": [
+            "/tmp/.X11-unix:/tmp/.X11-unix:ro",
+            f"{cookie_dir(data)}:{CONTAINER_DIR}:ro",
+        ],
+    }
+
+
+def wants(data, query: Query) -> None:
+    if not data.display:
+        return
+    query.packages.add("xauth")
+    query.files |= {SCRIPT, XSESSION_HOOK, AUTOSTART, data.x11_cookie_dir, cookie_dir(data)}
+    query.users.add(data.x11_user)
+
+
+@deploy("X11")
+def x11_cookie(snap: Snapshot):
+    data = host.data
+    groups = snap.users.get(data.x11_user)
+    if groups is None:
+        remote.fail(
+            name="Check the desktop user",
+            message=f"x11_user: {data.x11_user} does not exist on this host",
+        )
+        return
+    remote.apt_install(name="Install xauth", packages=["xauth"], installed=snap.packages)
+    remote.file(name=SCRIPT, path=SCRIPT, content=cookie_script(data), current=snap.files.get(SCRIPT), mode="0755")
+    remote.file(
+        name=XSESSION_HOOK,
+        path=XSESSION_HOOK,
+        content=(HERE / "90robot-x11-cookie").read_text(),
+        current=snap.files.get(XSESSION_HOOK),
+    )
+    remote.file(
+        name=AUTOSTART,
+        path=AUTOSTART,
+        content=(HERE / "robot-x11-cookie.desktop").read_text(),
+        current=snap.files.get(AUTOSTART),
+    )
+    remote.directory(
+        name=data.x11_cookie_dir, path=data.x11_cookie_dir, current=snap.files.get(data.x11_cookie_dir)
+    )
+    remote.directory(
+        name=f"Cookie directory of {data.x11_user}",
+        path=cookie_dir(data),
+        current=snap.files.get(cookie_dir(data)),
+        mode="0700",
+        user=data.x11_user,
+        group=groups[0],
+    )
