@@ -1,0 +1,178 @@
+"""The lab's test payload image `ros/payload`: static busybox on scratch.
+
+Tags:
+    1.0, 1.1      healthy heartbeat loops that differ only in their version
+    1.2-broken    keeps logging but never heartbeats, so its health check fails
+
+The build context is tests/lab/payload_image/ plus a generated rootfs/ holding
+Debian's static busybox (busybox-static, fetched with apt-get download) and one
+symlink per applet. No base image from any hub is involved.
+
+CLI: python3 -m tests.lab.payload_images [REGISTRY]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import docker
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+CONTEXT_DIR = Path(__file__).resolve().parent / "payload_image"
+CACHE_DIR = REPO_ROOT / ".lab" / "cache" / "payload-image"
+REPOSITORY = "ros/payload"
+CONTENT_LABEL = "org.robot-lab.payload.content"
+
+# tag -> build args
+TAGS: dict[str, dict[str, str]] = {
+    "1.0": {"PAYLOAD_VERSION": "1.0"},
+    "1.1": {"PAYLOAD_VERSION": "1.1"},
+    "1.2-broken": {"PAYLOAD_VERSION": "1.2-broken", "PAYLOAD_BROKEN": "1"},
+}
+
+
+class PayloadImageError(RuntimeError):
+    pass
+
+
+def _log(msg: str) -> None:
+    print(f"[payload] {msg}", flush=True)
+
+
+def static_busybox(cache_dir: Path = CACHE_DIR) -> Path:
+    """Path to a cached static busybox binary, fetched from Debian on first use."""
+    binary = cache_dir / "busybox"
+    if binary.exists():
+        return binary
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        proc = subprocess.run(
+            ["apt-get", "-q", "-o", "APT::Sandbox::User=root", "download", "busybox-static"],
+            cwd=tmp, capture_output=True, text=True)
+        debs = list(Path(tmp).glob("busybox-static_*.deb"))
+        if proc.returncode != 0 or not debs:
+            raise PayloadImageError(
+                "apt-get download busybox-static failed (run apt-get update?): "
+                + (proc.stderr.strip().splitlines() or ["no output"])[-1])
+        subprocess.run(["dpkg-deb", "-x", str(debs[0]), f"{tmp}/x"], check=True)
+        shutil.copy2(f"{tmp}/x/bin/busybox", binary.with_suffix(".part"))
+    binary.with_suffix(".part").rename(binary)
+    return binary
+
+
+def applets(busybox: Path) -> list[str]:
+    out = subprocess.run([str(busybox), "--list"], capture_output=True, text=True, check=True)
+    return sorted(a for a in out.stdout.split() if a != "busybox")
+
+
+def assemble_context(busybox: Path, dest: Path) -> None:
+    """Committed context files + rootfs/{bin/busybox, bin/<applet> -> busybox, tmp}."""
+    shutil.copytree(CONTEXT_DIR, dest, dirs_exist_ok=True)
+    bin_dir = dest / "rootfs" / "bin"
+    bin_dir.mkdir(parents=True)
+    shutil.copy2(busybox, bin_dir / "busybox")
+    (bin_dir / "busybox").chmod(0o755)
+    for name in applets(busybox):
+        (bin_dir / name).symlink_to("busybox")
+    tmp = dest / "rootfs" / "tmp"
+    tmp.mkdir()
+    tmp.chmod(0o1777)
+
+
+def content_hash(busybox: Path, build_args: dict[str, str]) -> str:
+    """Identifies what a tag is built from: context files, busybox, build args."""
+    h = hashlib.sha256()
+    for f in sorted(p for p in CONTEXT_DIR.rglob("*") if p.is_file()):
+        h.update(f"{f.relative_to(CONTEXT_DIR)}\0{f.stat().st_mode & 0o777:o}\0".encode())
+        h.update(f.read_bytes())
+    h.update(hashlib.sha256(busybox.read_bytes()).digest())
+    h.update(json.dumps(build_args, sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def _existing(client: docker.DockerClient, ref: str):
+    try:
+        return client.images.get(ref)
+    except docker.errors.ImageNotFound:
+        return None
+
+
+def _build(client: docker.DockerClient, context: Path, ref: str, build_args: dict[str, str],
+           content: str):
+    try:
+        image, _ = client.images.build(path=str(context), tag=ref, buildargs=build_args,
+                                       labels={CONTENT_LABEL: content}, rm=True,
+                                       forcerm=True)
+    except docker.errors.BuildError as e:
+        tail = [entry.get("stream", "").strip() for entry in e.build_log][-3:]
+        raise PayloadImageError(f"building {ref} failed: {e.msg} {' | '.join(tail)}") from None
+    return image
+
+
+def _push(client: docker.DockerClient, repository: str, tag: str) -> str | None:
+    digest = None
+    for line in client.images.push(repository, tag=tag, stream=True, decode=True):
+        if "error" in line:
+            raise PayloadImageError(f"pushing {repository}:{tag} failed: {line['error']}")
+        digest = line.get("aux", {}).get("Digest", digest)
+    return digest
+
+
+def build_payload_images(client: docker.DockerClient, registry: str | None = None) -> dict:
+    """Build ros/payload:{1.0,1.1,1.2-broken}; with `registry` ("127.0.0.1:5123")
+    also tag and push <registry>/ros/payload:<tag>.
+
+    Returns {tag: {"id": image id, "ref": full ref, "digest": repo digest or None}}.
+    """
+    start = time.monotonic()
+    busybox = static_busybox()
+    result = {}
+    with tempfile.TemporaryDirectory(prefix="payload-ctx-") as tmp:
+        context = Path(tmp) / "ctx"
+        assembled = False
+        for tag, build_args in TAGS.items():
+            ref = f"{REPOSITORY}:{tag}"
+            content = content_hash(busybox, build_args)
+            image = _existing(client, ref)
+            if image is not None and image.labels.get(CONTENT_LABEL) == content:
+                _log(f"{ref} up to date ({image.short_id})")
+            else:
+                if not assembled:
+                    assemble_context(busybox, context)
+                    assembled = True
+                t = time.monotonic()
+                image = _build(client, context, ref, build_args, content)
+                _log(f"{ref} built in {time.monotonic() - t:.1f}s ({image.short_id})")
+            result[tag] = {"id": image.id, "ref": ref, "digest": None}
+
+    if registry:
+        t = time.monotonic()
+        remote = f"{registry}/{REPOSITORY}"
+        for tag, info in result.items():
+            client.images.get(info["id"]).tag(remote, tag=tag)
+            info["ref"] = f"{remote}:{tag}"
+            info["digest"] = _push(client, remote, tag)
+        _log(f"pushed {len(result)} tags to {remote} in {time.monotonic() - t:.1f}s")
+    _log(f"done in {time.monotonic() - start:.1f}s")
+    return result
+
+
+def main(argv: list[str]) -> int:
+    try:
+        result = build_payload_images(docker.from_env(), argv[0] if argv else None)
+    except PayloadImageError as e:
+        print(f"[payload] error: {e}", file=sys.stderr)
+        return 1
+    print(json.dumps(result, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
