@@ -1,0 +1,204 @@
+"""roles/payload: the ROS payload as releases run by a systemd unit.
+
+The deploy computes the compose document from host data; when it differs from
+the robot's current release (or the unit changed, or the payload is down), it
+hands the spec to payloadctl on the robot, which pulls first, switches,
+waits for health and rolls back on failure.  Nothing changes otherwise.
+"""
+
+from __future__ import annotations
+
+import getpass
+import json
+import os
+import shlex
+import socket
+from pathlib import Path
+
+import jinja2
+from pyinfra import host
+from pyinfra.api import deploy
+
+from roles import imageref, remote, x11
+from roles.hoststate import Query, Snapshot
+from roles.payload import compose, push
+from roles.udev import rules
+
+HERE = Path(__file__).resolve().parent
+HELPER = "/usr/local/lib/robot-payload/payloadctl"
+
+
+def unit_path(data) -> str:
+    return f"/etc/systemd/system/{data.payload_name}.service"
+
+
+def helper_text() -> str:
+    return (HERE / "payloadctl.py").read_text()
+
+
+def unit_text(data, devices: list[str]) -> str:
+    template = jinja2.Template((HERE / "payload.service.j2").read_text(), keep_trailing_newline=True)
+    return template.render(
+        name=data.payload_name,
+        dir=data.payload_dir,
+        helper=HELPER,
+        devices=devices,
+        device_wait=data.payload_device_wait,
+    )
+
+
+def desired_compose(data, address: str) -> dict:
+    devices = rules.devices(data.sensors)
+    gui = x11.compose_settings(data) if data.display else None
+    return compose.document(data, data.payload_image, address, devices, gui)
+
+
+def spec(data, doc: dict) -> dict:
+    return {
+        "name": data.payload_name,
+        "dir": data.payload_dir,
+        "compose": doc,
+        "spec_hash": compose.spec_hash(doc, data.payload_autostart),
+        "autostart": data.payload_autostart,
+        "delivery": data.payload_delivery,
+        "health_timeout": data.payload_health_timeout,
+        "stable_seconds": data.payload_stable_seconds,
+        "keep_releases": data.payload_keep_releases,
+        "lock_file": data.payload_lock_file,
+        "force": data.payload_force,
+        "deployed_by": f"{getpass.getuser()}@{socket.gethostname()} (pyinfra)",
+    }
+
+
+def current_record(snap: Snapshot) -> dict:
+    try:
+        return json.loads(snap.probes.get("payload_record") or "{}")
+    except ValueError:
+        return {}
+
+
+def registry_probe(registry: str) -> str:
+    return f"grep -qF {shlex.quote(json.dumps(registry))} /root/.docker/config.json && echo yes"
+
+
+def wants(data, query: Query) -> None:
+    query.files |= {HELPER, unit_path(data), data.payload_dir}
+    query.units.add(f"{data.payload_name}.service")
+    query.commands |= {"python3", "systemd-run"}
+    query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
+    query.probes["registry_auth"] = registry_probe(imageref.parse(data.payload_image).registry)
+    if data.payload_delivery == "push":
+        query.probes["payload_image_id"] = (
+            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(data.payload_image)}"
+        )
+
+
+def apply_script(data, restart: bool) -> str:
+    q = shlex.quote
+    flag = " --restart" if restart else ""
+    helper = f"/usr/bin/python3 {HELPER}"
+    return (
+        "set -e\n"
+        f"dir={q(data.payload_dir)}\n"
+        'mkdir -p "$dir/staging"\n'
+        'umask 077\ncat > "$dir/staging/spec.json"\n'
+        "if command -v systemd-run >/dev/null 2>&1 && [ -d /run/systemd/system ]; then\n"
+        # A transient unit: the switch and health check go on if SSH drops.
+        f'  systemd-run --quiet --wait --collect --unit="{data.payload_name}-update-$(date +%s)"'
+        f' {helper} apply "$dir/staging/spec.json"{flag} >/dev/null 2>&1 || true\n'
+        "else\n"
+        f'  {helper} apply "$dir/staging/spec.json"{flag} >/dev/null 2>&1 || true\n'
+        "fi\n"
+        f'exec {helper} result --dir "$dir"\n'
+    )
+
+
+@remote.operation()
+def release(data, document: dict, needed: bool, restart: bool):
+    """Apply the release on the robot when it is not what runs there."""
+    if not needed:
+        host.noop("payload release is current")
+        return
+    payload = json.dumps(spec(data, document), sort_keys=True)
+    yield remote.shell(apply_script(data, restart), stdin=payload.splitlines())
+
+
+@remote.operation()
+def registry_login(registry: str, username: str, password: str, logged_in: bool):
+    if logged_in:
+        host.noop(f"logged in to {registry}")
+        return
+    yield remote.shell(
+        f"docker login {shlex.quote(registry)} --username {shlex.quote(username)} --password-stdin >/dev/null",
+        stdin=[password],
+    )
+
+
+@deploy("Payload")
+def deploy_payload(snap: Snapshot):
+    data = host.data
+    address = data.get("ssh_hostname") or host.name
+    doc = desired_compose(data, address)
+    devices = rules.devices(data.sensors)
+
+    if not snap.commands.get("python3"):
+        remote.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
+    remote.directory(name=data.payload_dir, path=data.payload_dir, current=snap.files.get(data.payload_dir))
+    helper_text_now = helper_text()
+    remote.file(
+        name="payloadctl",
+        path=HELPER,
+        content=helper_text_now,
+        current=snap.files.get(HELPER),
+        mode="0755",
+    )
+
+    unit = unit_path(data)
+    unit_content = unit_text(data, devices)
+    unit_changes = data.payload_autostart and not remote.file_matches(
+        snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
+    )
+    if data.payload_autostart:
+        unit_op = remote.file(name=f"{data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
+        remote.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
+        remote.service(
+            name=f"Enable {data.payload_name}.service at boot",
+            unit=f"{data.payload_name}.service",
+            enabled_now=snap.unit_enabled(f"{data.payload_name}.service"),
+            active_now=True,  # starting is the release step's job
+        )
+    else:
+        removed = remote.absent(name="No payload autostart unit", paths=[unit], present=snap.files)
+        remote.run(
+            name="Disable the payload autostart unit",
+            script=f"systemctl disable {shlex.quote(data.payload_name)}.service 2>/dev/null; systemctl daemon-reload",
+            _if=removed.did_change,
+        )
+
+    username = os.environ.get(data.payload_registry_username_env)
+    password = os.environ.get(data.payload_registry_password_env)
+    if data.payload_delivery == "pull" and username and password:
+        registry_login(
+            name="Log in to the payload registry",
+            registry=imageref.parse(data.payload_image).registry,
+            username=username,
+            password=password,
+            logged_in=snap.probes.get("registry_auth", "").strip() == "yes",
+        )
+    if data.payload_delivery == "push":
+        push.push_image(
+            name="Send the payload image over SSH",
+            image=data.payload_image,
+            remote_id=snap.probes.get("payload_image_id", "").strip(),
+        )
+
+    record = current_record(snap)
+    running = snap.unit_active(f"{data.payload_name}.service") or not data.payload_autostart
+    needed = record.get("spec_hash") != compose.spec_hash(doc, data.payload_autostart) or not running
+    release(
+        name="Release the payload (pull, switch, health check, roll back on failure)",
+        data=data,
+        document=doc,
+        needed=needed or unit_changes,
+        restart=unit_changes,
+    )
