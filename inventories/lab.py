@@ -1,0 +1,80 @@
+"""The simulated fleet started by `python3 -m tests.lab up`.
+
+Hosts and settings come from lab.yaml (or $ROBOT_LAB_FLEET); the running lab
+(.lab/<prefix>/state.json, prefix from $ROBOT_LAB_PREFIX, default "lab")
+supplies the SSH ports, the lab key and known_hosts, the registry and the
+Docker CE mirror.  Host keys are checked strictly against the lab's
+known_hosts, like a real fleet.
+"""
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import yaml
+
+from roles.fleet import FleetError, check, read_group_data
+
+_ROOT = Path(__file__).resolve().parent.parent
+_PREFIX = os.environ.get("ROBOT_LAB_PREFIX", "lab")
+_STATE = _ROOT / ".lab" / _PREFIX / "state.json"
+_FLEET = Path(os.environ.get("ROBOT_LAB_FLEET") or Path(__file__).with_suffix(".yaml"))
+
+
+def _fail(message):
+    print(message, file=sys.stderr)
+    sys.stderr.flush()
+    os._exit(2)
+
+
+def _mirror_fingerprint(state):
+    fingerprint = state.get("mirror_fingerprint")
+    if fingerprint:
+        return fingerprint
+    for candidate in (Path(state["mirror_dir"]), Path(state["mirror_dir"]).parent):
+        manifest = candidate / "manifest.json"
+        if manifest.exists():
+            return json.loads(manifest.read_text())["fingerprint"]
+    _fail(f"{_STATE}: the lab has no Docker CE mirror; run python3 -m tests.lab up")
+
+
+def _load():
+    if not _STATE.exists():
+        _fail(f"no lab '{_PREFIX}' is running ({_STATE} missing); start it with: python3 -m tests.lab up")
+    state = json.loads(_STATE.read_text())
+    text = _FLEET.read_text()
+    for key, value in {
+        "@registry@": state["registry"],
+        "@mirror@": state["mirror_url"],
+        "@mirror_fingerprint@": _mirror_fingerprint(state),
+    }.items():
+        text = text.replace(key, value)
+    ports = {h["name"]: h["port"] for h in state["hosts"]}
+    try:
+        fleet = check(yaml.safe_load(text), os.path.relpath(_FLEET), read_group_data())
+    except FleetError as error:
+        _fail("\n".join(error.lines))
+    groups = {}
+    for group, hosts in fleet.groups.items():
+        groups[group] = []
+        for name, data in hosts:
+            if name not in ports:
+                continue  # declared but not started (e.g. `up --robots 2`)
+            data.update(
+                ssh_hostname="127.0.0.1",
+                ssh_port=ports[name],
+                ssh_user=state.get("ssh_user", "ops"),
+                ssh_key=state["ssh_key"],
+                ssh_known_hosts_file=state["known_hosts"],
+                ssh_strict_host_key_checking="yes",
+                ssh_allow_agent=False,
+                ssh_look_for_keys=False,
+            )
+            groups[group].append((name, data))
+    return groups
+
+
+_groups = _load()
+robots = _groups["robots"]
+laptops = _groups["laptops"]

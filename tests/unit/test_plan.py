@@ -1,0 +1,303 @@
+"""The commands deploy.py plans for Ubuntu and Debian hosts (pyinfra @fake
+connector with a canned host snapshot), including converged hosts."""
+
+import base64
+import hashlib
+import json
+import re
+
+import pytest
+
+from roles import payload, x11
+from roles.docker import plan as docker_plan
+from roles.fleet import read_group_data
+from roles.hoststate import FileState
+from roles.payload import compose
+from roles.udev import rules
+from tests.unit.fakefleet import find, fresh_host, plan
+
+IMAGE = "reg.example.com/ros/payload:1.0"
+ROBOT = {
+    "payload_image": IMAGE,
+    "docker_users": ["ops"],
+    "sensors": [
+        {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "1-1.2"},
+        {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3"},
+    ],
+}
+LAPTOP = {"payload_image": IMAGE, "docker_users": ["alice"], "x11_user": "alice"}
+DOCKER_FPR = "9DC858229FC7DD38854AE2D88D81803C0EBFCD88"
+MATRIX = [(os_name, arch) for os_name in ("ubuntu-20.04", "ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13") for arch in ("amd64", "arm64")]
+
+
+class Data(dict):
+    __getattr__ = dict.__getitem__
+
+
+def merged(group: str, data: dict) -> Data:
+    defaults = read_group_data()
+    return Data({**defaults["all"], **defaults[group], **data})
+
+
+def sources_of(commands):
+    """Decode the files the plan writes: path -> content."""
+    written = {}
+    for command in commands:
+        match = re.search(r"dest=(\S+)\n", command)
+        if match and "base64 -d" in command:
+            written[match.group(1)] = command
+    return written
+
+
+@pytest.mark.parametrize("os_name, arch", MATRIX)
+def test_fresh_host_gets_docker_ce_from_dockers_repository(os_name, arch):
+    commands = plan({"r1": ("robots", ROBOT, fresh_host(os_name, arch))})["r1"]
+    dist, suite = os_name.split("-")[0], docker_plan.suite(fresh_host(os_name).os_release)
+    assert plan.failed == set()
+    key = find(commands, "curl -fsSL")
+    assert len(key) == 1
+    assert f"https://download.docker.com/linux/{dist}/gpg" in key[0]
+    assert f"grep -qx {DOCKER_FPR}" in key[0] and "/etc/apt/keyrings/docker.asc" in key[0]
+    assert "/etc/apt/sources.list.d/docker.sources" in sources_of(commands)
+    install = find(commands, "install docker-ce docker-ce-cli containerd.io docker-buildx-plugin docker-compose-plugin")
+    assert len(install) == 1
+    # apt update runs for the new source, before the install.
+    assert commands.index(find(commands, r"^sh -c 'apt-get -q .* update'$")[0]) < commands.index(install[0])
+    assert find(commands, "usermod -aG docker ops")
+    assert find(commands, "/etc/docker/daemon.json")
+    assert find(commands, "systemctl daemon-reload")
+    assert find(commands, "payloadctl apply")
+    del suite
+
+
+@pytest.mark.parametrize("os_name, arch", MATRIX)
+def test_docker_sources_file_names_suite_arch_and_key(os_name, arch):
+    snap = fresh_host(os_name, arch)
+    dist = docker_plan.distribution(snap.os_release)
+    text = docker_plan.sources_text(
+        docker_plan.repo_uri("https://download.docker.com/linux", dist),
+        docker_plan.suite(snap.os_release), "stable", docker_plan.architecture(arch), "/etc/apt/keyrings/docker.asc",
+    )
+    expected_suite = {"ubuntu-20.04": "focal", "ubuntu-22.04": "jammy", "ubuntu-24.04": "noble",
+                      "debian-12": "bookworm", "debian-13": "trixie"}[os_name]
+    assert text.splitlines()[1:] == [
+        "Types: deb",
+        f"URIs: https://download.docker.com/linux/{dist}",
+        f"Suites: {expected_suite}",
+        "Components: stable",
+        f"Architectures: {arch}",
+        "Signed-By: /etc/apt/keyrings/docker.asc",
+    ]
+
+
+def test_derivative_uses_ubuntu_codename():
+    snap = fresh_host("mint-22")
+    assert docker_plan.distribution(snap.os_release) == "ubuntu"
+    assert docker_plan.suite(snap.os_release) == "noble"
+
+
+def test_conflicting_packages_removed_only_where_installed_and_docker_ce_is_not():
+    snap = fresh_host("ubuntu-22.04")
+    snap.packages.update({"docker.io": "24.0", "runc": "1.1", "containerd": "1.7"})
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    remove = find(commands, " remove ")
+    assert len(remove) == 1 and remove[0].endswith("remove docker.io containerd runc'")
+    snap.packages["docker-ce"] = "5:28"
+    assert not find(plan({"r1": ("robots", ROBOT, snap)})["r1"], " remove ")
+
+
+def test_legacy_docker_files_are_removed_before_apt_update():
+    snap = fresh_host("ubuntu-24.04")
+    snap.files["/etc/apt/sources.list.d/docker.list"] = FileState("file", "ab", "644", "root", "root")
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    removal = find(commands, "rm -f /etc/apt/sources.list.d/docker.list")
+    assert removal and commands.index(removal[0]) < commands.index(find(commands, r"update'$")[0])
+
+
+def test_version_pin_and_mirror_urls():
+    data = {**ROBOT, "docker_version": "5:28.5.2-1~ubuntu.24.04~noble",
+            "docker_repo_url": "http://mirror.lan/docker", "docker_apt_key_url": "http://mirror.lan/key.asc",
+            "docker_apt_key_fingerprint": None, "docker_apt_key_sha256": "a" * 64}
+    commands = plan({"r1": ("robots", data, fresh_host("ubuntu-24.04"))})["r1"]
+    install = find(commands, "--allow-downgrades install")[0]
+    assert "docker-ce=5:28.5.2-1~ubuntu.24.04~noble" in install
+    assert "docker-ce-cli=5:28.5.2-1~ubuntu.24.04~noble" in install and "containerd.io=" not in install
+    key = find(commands, "curl -fsSL")[0]
+    assert "http://mirror.lan/key.asc" in key and "a" * 64 in key and "gpg" not in key
+
+
+def test_unsupported_release_fails_that_host_only():
+    snap = fresh_host("debian-13")
+    snap.os_release.update(version_codename="forky", version_id="14")
+    result = plan({"r1": ("robots", ROBOT, snap), "r2": ("robots", ROBOT, fresh_host("debian-13"))})
+    assert plan.failed == {"r1"}
+    assert "debian forky is not supported" in result["r1"][0]
+    assert find(result["r2"], "payloadctl apply")
+
+
+def test_unsupported_architecture_is_refused():
+    result = plan({"r1": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf"))})
+    assert plan.failed == {"r1"} and "architecture armhf is not supported" in result["r1"][0]
+
+
+@pytest.mark.parametrize("os_name, packages", [("debian-13", "docker.io docker-compose"), ("ubuntu-24.04", "docker.io docker-compose-v2")])
+def test_distro_source_installs_the_distributions_engine(os_name, packages):
+    commands = plan({"r1": ("robots", {**ROBOT, "docker_source": "distro"}, fresh_host(os_name))})["r1"]
+    assert find(commands, f"install {packages}")
+    assert not find(commands, "docker.sources") and not find(commands, "curl")
+
+
+@pytest.mark.parametrize("os_name", ["debian-12", "ubuntu-20.04"])
+def test_distro_source_without_compose_v2_is_refused(os_name):
+    result = plan({"r1": ("robots", {**ROBOT, "docker_source": "distro"}, fresh_host(os_name))})
+    assert plan.failed == {"r1"} and "has no compose v2 package" in result["r1"][0]
+
+
+def test_missing_docker_user_fails_that_host_and_is_never_created():
+    result = plan({"r1": ("robots", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"))})
+    assert plan.failed == {"r1"}
+    assert find(result["r1"], "docker_users: ghost does not exist on this host")
+    assert not find(result["r1"], "useradd|usermod")
+
+
+def test_laptop_gets_x11_and_a_staged_payload_without_autostart():
+    commands = plan({"l1": ("laptops", LAPTOP, fresh_host("ubuntu-24.04", users=("alice",)))})["l1"]
+    written = sources_of(commands)
+    assert "/usr/local/bin/robot-x11-cookie" in written
+    assert "/etc/X11/Xsession.d/90robot-x11-cookie" in written
+    assert find(commands, "install -d -m 700 -o alice -g alice /var/lib/robot-x11/alice")
+    assert "/etc/systemd/system/robot-payload.service" not in written
+    assert not find(commands, "xhost")
+    assert find(commands, "payloadctl apply")
+
+
+# --- a converged host plans nothing ------------------------------------------
+
+
+def _file(content: str, mode="644", owner="root", group="root") -> FileState:
+    return FileState("file", hashlib.sha256(content.encode()).hexdigest(), mode, owner, group)
+
+
+def converged(group: str, data: dict, os_name: str):
+    """The snapshot of a host on which a previous run succeeded."""
+    d = merged(group, data)
+    snap = fresh_host(os_name, users=tuple(set(d["docker_users"]) | ({d["x11_user"]} if d.get("x11_user") else set())))
+    dist = docker_plan.distribution(snap.os_release)
+    snap.users = {u: [u, "docker"] for u in snap.users}
+    snap.packages.update({p: "1" for p in d["docker_packages"]})
+    snap.files.update({
+        "/etc/apt/keyrings": FileState("dir", None, "755", "root", "root"),
+        "/etc/apt/keyrings/docker.asc": FileState("file", "f" * 64, "644", "root", "root"),
+        "/etc/apt/sources.list.d/docker.sources": _file(docker_plan.sources_text(
+            docker_plan.repo_uri(d["docker_repo_url"], dist), docker_plan.suite(snap.os_release),
+            "stable", snap.arch, "/etc/apt/keyrings/docker.asc")),
+        "/etc/docker": FileState("dir", None, "755", "root", "root"),
+        "/etc/docker/daemon.json": _file(docker_plan.daemon_json(d["docker_daemon_options"], [], [])),
+        d["payload_dir"]: FileState("dir", None, "755", "root", "root"),
+        payload.HELPER: _file(payload.helper_text(), "755"),
+    })
+    snap.probes["docker_key_fingerprints"] = DOCKER_FPR + "\n"
+    snap.units["docker.service"] = ("enabled", "active")
+    if group == "robots":
+        for name in d["udev_vendor_rules"]:
+            snap.files[f"/etc/udev/rules.d/{name}"] = _file((rules_dir() / name).read_text())
+        snap.files[d["udev_rules_file"]] = _file(rules.render(d["sensors"]))
+        snap.files[payload.unit_path(d)] = _file(payload.unit_text(d, rules.devices(d["sensors"])))
+        snap.units["robot-payload.service"] = ("enabled", "active")
+    else:
+        snap.packages["xauth"] = "1"
+        snap.files.update({
+            x11.SCRIPT: _file(x11.cookie_script(d), "755"),
+            x11.XSESSION_HOOK: _file((x11.HERE / "90robot-x11-cookie").read_text()),
+            x11.AUTOSTART: _file((x11.HERE / "robot-x11-cookie.desktop").read_text()),
+            "/var/lib/robot-x11": FileState("dir", None, "755", "root", "root"),
+            "/var/lib/robot-x11/alice": FileState("dir", None, "700", "alice", "alice"),
+        })
+    doc = payload.desired_compose(d, d.get("ssh_hostname") or f"@fake/{'r1' if group == 'robots' else 'l1'}")
+    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, d["payload_autostart"])})
+    return snap
+
+
+def rules_dir():
+    from roles.udev import VENDOR_RULES_DIR
+    return VENDOR_RULES_DIR
+
+
+@pytest.mark.parametrize("os_name, arch", MATRIX)
+def test_converged_robot_plans_nothing(os_name, arch):
+    snap = converged("robots", ROBOT, os_name)
+    snap.arch = arch
+    snap.files["/etc/apt/sources.list.d/docker.sources"] = converged_sources(snap)
+    result = plan({"r1": ("robots", ROBOT, snap)})
+    assert plan.failed == set()
+    assert result["r1"] == []
+
+
+def converged_sources(snap):
+    dist = docker_plan.distribution(snap.os_release)
+    return _file(docker_plan.sources_text(
+        docker_plan.repo_uri("https://download.docker.com/linux", dist), docker_plan.suite(snap.os_release),
+        "stable", snap.arch, "/etc/apt/keyrings/docker.asc"))
+
+
+def test_converged_laptop_plans_nothing():
+    result = plan({"l1": ("laptops", LAPTOP, converged("laptops", LAPTOP, "ubuntu-24.04"))})
+    assert result["l1"] == []
+
+
+def test_changed_image_tag_only_releases_the_payload():
+    snap = converged("robots", ROBOT, "debian-13")
+    commands = plan({"r1": ("robots", {**ROBOT, "payload_image": "reg.example.com/ros/payload:1.1"}, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" not in commands[0]
+
+
+def test_drifted_file_mode_is_fixed_without_rewriting():
+    snap = converged("robots", ROBOT, "debian-13")
+    state = snap.files["/etc/docker/daemon.json"]
+    snap.files["/etc/docker/daemon.json"] = FileState("file", state.sha256, "666", "root", "root")
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert commands[0] == "sh -c 'chown root:root /etc/docker/daemon.json && chmod 644 /etc/docker/daemon.json'"
+
+
+def test_changed_daemon_json_restarts_docker_after_validation():
+    snap = converged("robots", ROBOT, "debian-13")
+    data = {**ROBOT, "docker_registry_mirrors": ["https://mirror.lan"]}
+    commands = plan({"r1": ("robots", data, snap)})["r1"]
+    assert "dockerd --validate --config-file" in commands[0]
+    assert commands[1:] == ["sh -c 'systemctl restart docker.service'"]
+
+
+def test_changed_unit_reloads_systemd_and_restarts_the_payload():
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files[payload.unit_path(merged("robots", ROBOT))] = _file("old unit")
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert find(commands, "systemctl daemon-reload")
+    assert "--restart" in find(commands, "payloadctl apply")[0]
+
+
+def test_changed_sensor_rules_reload_udev_for_their_subsystems_only():
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files["/etc/udev/rules.d/70-robot-sensors.rules"] = _file("# old\n")
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    reload = find(commands, "udevadm control --reload-rules")
+    assert len(reload) == 1
+    assert "--subsystem-match=tty" in reload[0] and "--subsystem-match=video4linux" in reload[0]
+    assert "--subsystem-match=usb-serial" in reload[0]
+
+
+def test_registry_credentials_come_from_the_environment_and_go_over_stdin(monkeypatch):
+    monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", "robot")
+    monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", "s3cret-token")
+    commands = plan({"r1": ("robots", ROBOT, converged("robots", ROBOT, "debian-13"))})["r1"]
+    login = find(commands, "docker login")
+    assert login == ["sh -c 'docker login reg.example.com --username robot --password-stdin >/dev/null'"]
+    assert not find(commands, "s3cret-token")
+
+
+def test_snapshot_encoding_roundtrip():
+    snap = converged("robots", ROBOT, "debian-13")
+    from roles.hoststate import parse
+    from tests.unit.fakefleet import snapshot_lines
+    again = parse(snapshot_lines(snap))
+    assert again.files == snap.files and again.probes == snap.probes and again.packages == snap.packages
+    assert base64.b64decode  # noqa: B018 (imported for the encoder)

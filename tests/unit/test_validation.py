@@ -1,0 +1,173 @@
+"""Every kind of bad fleet data gets one clear line naming file, host and field."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from roles import fleet, settings
+
+ROOT = Path(__file__).resolve().parents[2]
+PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
+GOOD_HOST = {"address": "10.0.0.1", "payload_image": "reg.example.com/ros/payload:1.0"}
+
+
+def problems(doc) -> list[str]:
+    try:
+        fleet.check(doc, "robots.yaml", fleet.read_group_data())
+    except fleet.FleetError as error:
+        return error.lines
+    return []
+
+
+def robot(**extra):
+    return {"robots": {"hosts": {"robot3": {**GOOD_HOST, **extra}}}}
+
+
+def test_example_fleet_is_valid():
+    loaded = fleet.load(ROOT / "inventories" / "robots.yaml")
+    assert [name for name, _ in loaded.hosts("robots")] == ["robot1", "robot2", "robot3"]
+    assert [name for name, _ in loaded.hosts("laptops")] == ["alice-laptop"]
+    robot1 = dict(loaded.hosts("robots"))["robot1"]
+    assert robot1["ssh_hostname"] == "10.20.0.11" and "address" not in robot1
+    assert robot1["payload_image"].endswith(":1.4.2")  # from all.vars
+
+
+def test_lab_fleet_file_is_valid():
+    text = (ROOT / "inventories" / "lab.yaml").read_text()
+    text = text.replace("@registry@", "lab-services:5000").replace("@mirror@", "http://lab-services:8080/linux")
+    text = text.replace("@mirror_fingerprint@", "6041F729F901FD0081EF611E646BA420EC7C3788")
+    assert problems(yaml.safe_load(text)) == []
+
+
+def test_defaults_satisfy_the_schema_and_cover_every_setting():
+    defaults = fleet.read_group_data()
+    merged = {**defaults["all"], **defaults["robots"], **defaults["laptops"]}
+    assert settings.check_layer(merged) == []
+    missing = set(settings.SCHEMA) - set(merged) - {"ssh_hostname", "ssh_user", "ssh_key"}
+    assert missing == set(), f"settings without a default in group_data/: {missing}"
+
+
+def test_a_setting_has_one_default_only():
+    defaults = fleet.read_group_data()
+    for group in ("robots", "laptops"):
+        for key in defaults[group]:
+            assert key in defaults["all"], f"{key} is only defaulted in group_data/{group}.py"
+    assert not set(defaults["robots"]) & {"docker_users", "payload_image"}
+
+
+def test_readme_documents_every_setting():
+    readme = (ROOT / "README.md").read_text()
+    undocumented = [k for k in settings.SCHEMA if f"`{k}`" not in readme]
+    assert undocumented == []
+
+
+@pytest.mark.parametrize(
+    "doc, expected",
+    [
+        (robot(sensors=[{"name": "cam", "subsystem": "tty", "serial": 42}]),
+         "robots.yaml: robot3.sensors[0].serial: expected a string, got 42"),
+        (robot(sensors=[{"name": "cam", "subsystem": "tty"}]),
+         "robots.yaml: robot3.sensors[0]: needs a match: serial, vendor_id/product_id or usb_port"),
+        (robot(sensors=[{"name": "cam", "subsystem": "tty", "serail": "x", "serial": "x"}]),
+         "robots.yaml: robot3.sensors[0].serail: unknown sensor field (did you mean 'serial'?)"),
+        (robot(sensors=[{"name": "cam", "subsystem": "camera", "serial": "x"}]),
+         "robots.yaml: robot3.sensors[0].subsystem: expected one of tty, video4linux, hidraw, input, usb, sound, got 'camera'"),
+        (robot(sensors=[{"name": "cam", "subsystem": "tty", "vendor_id": "046d"}]),
+         "robots.yaml: robot3.sensors[0].product_id: vendor_id and product_id go together"),
+        (robot(sensors=[{"name": "cam", "subsystem": "tty", "usb_port": "usb2"}]),
+         "robots.yaml: robot3.sensors[0].usb_port: expected a USB port path like 1-2.1, got 'usb2'"),
+        (robot(sensors=[{"name": "cam", "subsystem": "tty", "serial": "a", "mode": "0666"}]),
+         "robots.yaml: robot3.sensors[0].mode: 0666 is world-writable; use a group (or set udev_allow_world_writable)"),
+        (robot(sensors=[{"name": "a", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
+                        {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"}]),
+         "robots.yaml: robot3.sensors[1]: matches the same devices as sensors[0]; add a serial or usb_port to tell them apart"),
+        (robot(sensors=[{"name": "a", "subsystem": "tty", "serial": "1"}, {"name": "a", "subsystem": "tty", "serial": "2"}]),
+         "robots.yaml: robot3.sensors[1].name: duplicate sensor name 'a' (also sensors[0])"),
+        (robot(sensors=[{"name": "a", "subsystem": "tty", "serial": '1", RUN+="/bin/sh'}]),
+         "robots.yaml: robot3.sensors[0].serial: expected a serial of letters, digits and . _ : / + -, got '1\", RUN+=\"/bin/sh'"),
+        (robot(payload_image="reg.example.com/ros/payload"),
+         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload' has no tag or digest; pin a version (e.g. reg.example.com/ros/payload:1.4.2 or @sha256:...)"),
+        (robot(payload_image="reg.example.com/ros/payload:latest"),
+         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload:latest' uses the moving tag 'latest'; pin a version or digest (or set payload_allow_latest: true)"),
+        (robot(payload_image="Reg/Bad Image:1"),
+         "robots.yaml: robot3.payload_image: 'Reg/Bad Image:1' is not a valid image reference"),
+        (robot(docker_users=["Alice"]),
+         "robots.yaml: robot3.docker_users[0]: expected a user name, got 'Alice'"),
+        (robot(docker_users="alice"),
+         "robots.yaml: robot3.docker_users: expected a list, got 'alice'"),
+        (robot(docker_usres=["alice"]),
+         "robots.yaml: robot3.docker_usres: unknown setting (did you mean 'docker_users'?)"),
+        (robot(ssh_port=70000), "robots.yaml: robot3.ssh_port: expected at most 65535, got 70000"),
+        (robot(ssh_port="22"), "robots.yaml: robot3.ssh_port: expected a whole number, got '22'"),
+        (robot(display="yes"), "robots.yaml: robot3.display: expected true or false, got 'yes'"),
+        (robot(display=True), "robots.yaml: robot3.x11_user: required when display is true: the desktop user"),
+        (robot(payload_volumes=["maps:/maps"]),
+         "robots.yaml: robot3.payload_volumes[0]: expected 'host_path:container_path[:ro]' with absolute paths, got 'maps:/maps'"),
+        (robot(payload_dir="/var/lib/../etc"), "robots.yaml: robot3.payload_dir: paths must not contain '..', got '/var/lib/../etc'"),
+        (robot(udev_rules_file="/etc/udev/robot.rules"),
+         "robots.yaml: robot3.udev_rules_file: expected a file in /etc/udev/rules.d/ ending in .rules, got '/etc/udev/robot.rules'"),
+        (robot(docker_source="snap"), "robots.yaml: robot3.docker_source: expected one of docker, distro, got 'snap'"),
+        (robot(payload_environment={"ROS DISTRO": "jazzy"}),
+         "robots.yaml: robot3.payload_environment.ROS DISTRO: expected an environment variable name, got 'ROS DISTRO'"),
+        (robot(ros_master_uri="http://master:11311", ros_domain_id=3),
+         "robots.yaml: robot3.ros_master_uri: set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"),
+        ({"robots": {"hosts": {"robot3": {"address": "10.0.0.1"}}}},
+         "robots.yaml: robot3.payload_image: required: the payload image, pinned by tag or digest"),
+        ({"robots": {"vars": {"payload_imag": "x:1"}, "hosts": {}}},
+         "robots.yaml: robots.vars.payload_imag: unknown setting (did you mean 'payload_image'?)"),
+        ({"robot": {"hosts": {}}},
+         "robots.yaml: robot: unknown top-level key (did you mean 'robots'?); expected all, robots or laptops"),
+        ({"robots": {"hosts": {"a b": GOOD_HOST}}}, "robots.yaml: a b: invalid host name (letters, digits, . _ -)"),
+        ({"robots": {"hosts": {"r1": GOOD_HOST}}, "laptops": {"hosts": {"r1": {**GOOD_HOST, "x11_user": "a"}}}},
+         "robots.yaml: r1: declared in both robots and laptops"),
+        ({"robots": {"hosts": {"r1": ["not", "a", "mapping"]}}}, "robots.yaml: r1: expected a mapping of settings"),
+    ],
+)
+def test_bad_data_gets_one_clear_line(doc, expected):
+    assert expected in problems(doc)
+
+
+def test_every_problem_is_reported_at_once():
+    doc = robot(ssh_port="22", docker_users=["Alice"], sensors=[{"name": "x", "subsystem": "tty", "serial": 1}])
+    assert len(problems(doc)) == 3
+
+
+def test_yaml_syntax_error_names_the_line(tmp_path):
+    path = tmp_path / "robots.yaml"
+    path.write_text("robots:\n  hosts:\n    r1: {address: [\n")
+    with pytest.raises(fleet.FleetError) as error:
+        fleet.load(path)
+    assert error.value.lines[0].endswith("YAML error: " + error.value.lines[0].split("YAML error: ")[1])
+    assert "line 4" in error.value.lines[0] or "line 3" in error.value.lines[0]
+
+
+def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
+    path = tmp_path / "robots.yaml"
+    path.write_text("robots:\n  hosts:\n    r1: {}\n    r1: {}\n")
+    with pytest.raises(fleet.FleetError) as error:
+        fleet.load(path)
+    assert "duplicate key 'r1'" in error.value.lines[0]
+
+
+def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
+    """The real pyinfra CLI: non-zero exit, our lines, no traceback, no connection."""
+    (tmp_path / "inventories").mkdir()
+    (tmp_path / "inventories" / "robots.py").write_text((ROOT / "inventories" / "robots.py").read_text())
+    (tmp_path / "inventories" / "robots.yaml").write_text(
+        "robots:\n  hosts:\n    robot3:\n      address: 192.0.2.1\n"
+        "      payload_image: reg.example.com/p:1\n      sensors:\n"
+        "        - {name: cam, subsystem: tty, serial: 42}\n"
+    )
+    (tmp_path / "deploy.py").write_text("raise SystemExit('deploy must not run')\n")
+    proc = subprocess.run(
+        [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=60,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+    )
+    assert proc.returncode == 2
+    assert "inventories/robots.yaml: robot3.sensors[0].serial: expected a string, got 42" in proc.stderr
+    assert "Traceback" not in proc.stderr + proc.stdout
+    assert "Connecting" not in proc.stderr + proc.stdout
