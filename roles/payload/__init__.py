@@ -202,3 +202,27 @@ def deploy_payload(snap: Snapshot):
         needed=needed or unit_changes,
         restart=unit_changes,
     )
+
+
+def rollback_script(data) -> str:
+    q = shlex.quote
+    helper = f"/usr/bin/python3 {HELPER}"
+    args = (
+        f"--dir {q(data.payload_dir)} --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}"
+        f" --health-timeout {int(data.payload_health_timeout)} --stable-seconds {int(data.payload_stable_seconds)}"
+        + (" --force" if data.payload_force else "")
+    )
+    return (
+        f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
+        "if command -v systemd-run >/dev/null 2>&1 && [ -d /run/systemd/system ]; then\n"
+        f'  systemd-run --quiet --wait --collect --unit="{data.payload_name}-rollback-$(date +%s)" {helper} rollback {args} >/dev/null 2>&1 || true\n'
+        "else\n"
+        f"  {helper} rollback {args} >/dev/null 2>&1 || true\n"
+        "fi\n"
+        f"exec {helper} result --dir {q(data.payload_dir)}\n"
+    )
+
+
+@deploy("Rollback")
+def rollback_release(data):
+    remote.run(name="Switch the payload back to the previous release", script=rollback_script(data))

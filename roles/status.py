@@ -1,0 +1,142 @@
+"""Fleet status: what each host runs and whether it is healthy.
+
+    python3 -m roles.status inventories/robots.py [--limit robot2] [--json]
+
+One row per host: reachable, Docker version, current release, image digest,
+container state and health, previous release, time of the last deploy.
+Unreachable hosts are rows too, never an abort.
+"""
+
+from __future__ import annotations
+
+from gevent import monkey
+
+monkey.patch_all()
+
+import argparse  # noqa: E402
+import fnmatch  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import shlex  # noqa: E402
+import sys  # noqa: E402
+
+import gevent  # noqa: E402
+
+COLUMNS = [
+    ("host", "HOST"),
+    ("reachable", "REACHABLE"),
+    ("docker", "DOCKER"),
+    ("release", "RELEASE"),
+    ("image", "IMAGE"),
+    ("state", "STATE"),
+    ("health", "HEALTH"),
+    ("previous", "PREVIOUS"),
+    ("deployed", "LAST DEPLOY"),
+    ("lock", "LOCK"),
+]
+
+
+def status_command(data) -> str:
+    from roles.payload import HELPER
+
+    q = shlex.quote
+    return (
+        f"if [ -x {HELPER} ]; then /usr/bin/python3 {HELPER} status --dir {q(data.payload_dir)}"
+        f" --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}; "
+        "else printf '{\"docker_version\": \"%s\"}\\n' \"$(docker version -f '{{.Server.Version}}' 2>/dev/null)\"; fi"
+    )
+
+
+def row(name: str, report: dict | None, error: str | None = None) -> dict:
+    """A table row from payloadctl's status report (pure)."""
+    if report is None:
+        return {"host": name, "reachable": False, "error": error}
+    current = report.get("current") or {}
+    previous = report.get("previous") or {}
+    containers = report.get("containers") or []
+    images = [i.get("pinned") for i in (current.get("images") or {}).values()]
+    return {
+        "host": name,
+        "reachable": True,
+        "docker": report.get("docker_version") or None,
+        "release": current.get("id"),
+        "image": images[0] if len(images) == 1 else (", ".join(images) or None),
+        "state": ", ".join(c["status"] for c in containers) or None,
+        "health": ", ".join(c.get("health") or "none" for c in containers) or None,
+        "restarts": sum(c.get("restarts", 0) for c in containers),
+        "previous": previous.get("id"),
+        "deployed": current.get("activated") or current.get("created"),
+        "release_state": current.get("state"),
+        "lock": report.get("update_lock"),
+        "rolled_back_from": current.get("rolled_back_from"),
+    }
+
+
+def table(rows: list[dict]) -> str:
+    def cell(value):
+        if value is True:
+            return "yes"
+        if value is False:
+            return "no"
+        return "-" if value in (None, "") else str(value)
+
+    cells = [[cell(r.get(key)) for key, _ in COLUMNS] for r in rows]
+    widths = [max([len(title)] + [len(c[i]) for c in cells]) for i, (_, title) in enumerate(COLUMNS)]
+    lines = ["  ".join(title.ljust(w) for (_, title), w in zip(COLUMNS, widths)).rstrip()]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in cells]
+    return "\n".join(lines)
+
+
+def collect(inventory_path: str, limits: list[str]) -> list[dict]:
+    from pyinfra.api import Config, State
+    from pyinfra.api.command import StringCommand
+    from pyinfra.api.connect import connect_all
+    from pyinfra.api.exceptions import PyinfraError
+    from pyinfra_cli.inventory import make_inventory
+
+    inventory = make_inventory(inventory_path, cwd=os.getcwd())
+    hosts = [h for h in inventory if not limits or any(
+        fnmatch.fnmatch(h.name, pattern) or pattern in h.groups for pattern in limits
+    )]
+    state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
+    state.limit_hosts = hosts
+    try:
+        connect_all(state)
+    except PyinfraError:
+        pass  # every host unreachable: each still gets its row
+
+    def one(host):
+        if not host.connected:
+            return row(host.name, None, "cannot connect")
+        ok, output = host.run_shell_command(StringCommand(status_command(host.data)), _sudo=True)
+        if not ok:
+            return {**row(host.name, {}), "error": output.stderr.strip()[-200:]}
+        try:
+            return row(host.name, json.loads(output.stdout))
+        except ValueError:
+            return {**row(host.name, {}), "error": "unreadable status"}
+
+    jobs = [gevent.spawn(one, host) for host in hosts]
+    gevent.joinall(jobs)
+    return [job.value for job in jobs]
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python3 -m roles.status", description=__doc__.splitlines()[0])
+    parser.add_argument("inventory")
+    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")
+    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    args = parser.parse_args(argv)
+    if not os.path.exists(args.inventory):
+        print(f"{args.inventory}: no such inventory file", file=sys.stderr)
+        return 2
+    rows = collect(args.inventory, args.limit)
+    if args.json:
+        print(json.dumps(rows, indent=2, sort_keys=True))
+    else:
+        print(table(rows))
+    return 0 if all(r["reachable"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
