@@ -1,0 +1,113 @@
+"""The simulated fleet for end-to-end tests: one lab per session, provisioned
+over SSH with the real pyinfra CLI.  In CI a missing engine is a failure."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PREFIX = os.environ.get("ROBOT_LAB_E2E_PREFIX", "e2e")
+PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if "/e2e/" in str(item.fspath):
+            item.add_marker(pytest.mark.e2e)
+
+
+@dataclass
+class Run:
+    returncode: int
+    output: str
+    results: dict | None
+    seconds: float
+
+    @property
+    def changed_hosts(self) -> set[str]:
+        return {h for op in (self.results or {}).get("operations", []) for h in op["success"]}
+
+    @property
+    def failed_hosts(self) -> set[str]:
+        return {h for op in (self.results or {}).get("operations", []) for h in op["error"]}
+
+    def changes(self, host: str) -> list[str]:
+        return [op["name"] for op in (self.results or {}).get("operations", []) if host in op["success"]]
+
+
+def phase(name: str, started: float) -> None:
+    print(f"\n[e2e] {name}: {time.monotonic() - started:.1f} s", flush=True)
+
+
+class Lab:
+    def __init__(self, state: dict):
+        self.state = state
+        self.prefix = state["prefix"]
+        self.hosts = [h["name"] for h in state["hosts"]]
+        self.robots = [h["name"] for h in state["hosts"] if h["group"] == "robots"]
+        self.laptops = [h["name"] for h in state["hosts"] if h["group"] == "laptops"]
+
+    def sh(self, host: str, command: str, user: str | None = None) -> tuple[int, str]:
+        from tests.lab.state import exec_in
+
+        return exec_in(self.prefix, host, command, user=user)
+
+    def ok(self, host: str, command: str, user: str | None = None) -> str:
+        code, output = self.sh(host, command, user)
+        assert code == 0, f"{host}: {command}: exit {code}: {output}"
+        return output
+
+    def provision(self, *args: str, fleet: Path | None = None, script: str = "deploy.py", label: str = "") -> Run:
+        env = dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, PYINFRA_PROGRESS="off")
+        if fleet:
+            env["ROBOT_LAB_FLEET"] = str(fleet)
+        started = time.monotonic()
+        proc = subprocess.run(
+            [sys.executable, "-c", PYINFRA, "-y", "--json", "inventories/lab.py", script, *args],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500,
+        )
+        seconds = time.monotonic() - started
+        print(f"\n[e2e] pyinfra {script} {label}: {seconds:.1f} s, exit {proc.returncode}", flush=True)
+        try:
+            results = json.loads(proc.stdout)["results"]
+        except (ValueError, KeyError, TypeError):
+            results = None
+        return Run(proc.returncode, proc.stderr + proc.stdout, results, seconds)
+
+    def fleet_with(self, tmp_path: Path, **replacements: str) -> Path:
+        """A copy of inventories/lab.yaml with text replaced (e.g. one tag)."""
+        text = (ROOT / "inventories" / "lab.yaml").read_text()
+        for old, new in replacements.items():
+            assert old in text, old
+            text = text.replace(old, new, 1)
+        path = tmp_path / "lab.yaml"
+        path.write_text(text)
+        return path
+
+
+@pytest.fixture(scope="session")
+def lab():
+    from tests.lab import hosts
+
+    started = time.monotonic()
+    state = hosts.up(PREFIX, robots=3, laptops=1)
+    phase("lab up (images, services, hosts)", started)
+    yield Lab(state)
+    if not os.environ.get("ROBOT_LAB_KEEP"):
+        hosts.down(PREFIX)
+
+
+@pytest.fixture(scope="session")
+def first_run(lab):
+    """The fresh provisioning of the whole lab, shared by every e2e module."""
+    run = lab.provision(label="(fresh fleet)")
+    assert run.returncode == 0, run.output[-6000:]
+    return run

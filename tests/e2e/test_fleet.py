@@ -1,0 +1,113 @@
+"""End to end: provision the simulated fleet over SSH and check every host
+from inside.  The tests build on each other (one lab per session)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytestmark = pytest.mark.e2e
+
+
+def payload_container(lab, host: str) -> dict:
+    ids = lab.ok(host, "docker ps -q --filter label=com.docker.compose.project=robot-payload").split()
+    assert len(ids) == 1, f"{host}: expected one payload container, got {ids}"
+    return json.loads(lab.ok(host, f"docker inspect {ids[0]}"))[0]
+
+
+def test_fresh_run_provisions_every_host(lab, first_run):
+    assert first_run.failed_hosts == set()
+    assert first_run.changed_hosts == set(lab.hosts)
+    for host in lab.hosts:
+        assert lab.ok(host, "systemctl is-active docker").strip() == "active"
+        assert lab.ok(host, "systemctl is-enabled docker").strip() == "enabled"
+        assert "v2." in lab.ok(host, "docker compose version")
+        daemon = json.loads(lab.ok(host, "cat /etc/docker/daemon.json"))
+        assert daemon["live-restore"] is True and daemon["log-opts"]["max-size"] == "10m"
+        assert daemon["insecure-registries"] == [lab.state["registry"]]
+        assert lab.ok(host, "stat -c %a /etc/docker/daemon.json").strip() == "644"
+
+
+def test_robots_run_docker_ce_from_the_mirror(lab, first_run):
+    for host in lab.robots:
+        status = lab.ok(host, "dpkg-query -W -f '${Status} ${Version}' docker-ce docker-compose-plugin")
+        assert status.count("install ok installed") == 2 and "~debian.13~trixie" in status
+        sources = lab.ok(host, "cat /etc/apt/sources.list.d/docker.sources")
+        assert f"URIs: {lab.state['mirror_url']}/debian" in sources
+        assert "Suites: trixie" in sources and "Architectures: amd64" in sources
+        assert "Signed-By: /etc/apt/keyrings/docker.asc" in sources
+        assert lab.ok(host, "stat -c %a /etc/apt/keyrings/docker.asc").strip() == "644"
+        assert lab.sh(host, "dpkg-query -W -f '${Status}' docker.io | grep -q 'ok installed'")[0] != 0
+
+
+def test_laptop_uses_the_distributions_engine(lab, first_run):
+    for host in lab.laptops:
+        assert "ok installed" in lab.ok(host, "dpkg-query -W -f '${Status}' docker.io")
+        assert lab.sh(host, "dpkg-query -W -f '${Status}' docker-ce 2>/dev/null | grep -q 'ok installed'")[0] != 0
+        assert lab.sh(host, "test -e /etc/apt/sources.list.d/docker.sources")[0] != 0
+
+
+def test_users_are_in_the_docker_group(lab, first_run):
+    for host in lab.robots:
+        for user in ("ops", "ros"):
+            assert "docker" in lab.ok(host, f"id -nG {user}").split()
+    for host in lab.laptops:
+        assert "docker" in lab.ok(host, "id -nG alice").split()
+        assert "docker" not in lab.ok(host, "id -nG ros").split()
+
+
+def test_udev_rules_are_in_place_and_accepted(lab, first_run):
+    for host in lab.robots:
+        rules = lab.ok(host, "cat /etc/udev/rules.d/70-robot-sensors.rules")
+        assert 'SYMLINK+="robot/' in rules
+        lab.ok(host, "udevadm verify --resolve-names=never /etc/udev/rules.d/70-robot-sensors.rules "
+                     "/etc/udev/rules.d/60-usb-serial-low-latency.rules")
+    front, back = (line for line in lab.ok("robot1", "cat /etc/udev/rules.d/70-robot-sensors.rules").splitlines()
+                   if "camera" in line and not line.startswith("#"))
+    assert 'KERNELS=="1-1.2"' in front and 'KERNELS=="1-1.3"' in back
+
+
+def test_payload_unit_runs_the_declared_image_healthy(lab, first_run):
+    for host in lab.robots:
+        assert lab.ok(host, "systemctl is-enabled robot-payload").strip() == "enabled"
+        assert lab.ok(host, "systemctl is-active robot-payload").strip() == "active"
+        container = payload_container(lab, host)
+        assert container["State"]["Health"]["Status"] == "healthy"
+        assert container["Config"]["Image"].startswith(f"{lab.state['registry']}/ros/payload@sha256:")
+        assert container["Config"]["Labels"]["org.opencontainers.image.version"] == "1.0"
+        assert "ROS_DOMAIN_ID=7" in container["Config"]["Env"]
+        devices = {d["PathOnHost"] for d in container["HostConfig"]["Devices"]}
+        assert "/dev/robot/imu" in devices or "/dev/robot/lidar" in devices or "/dev/robot/gps" in devices
+        record = json.loads(lab.ok(host, "cat /var/lib/robot-payload/current/record.json"))
+        assert record["state"] == "active"
+    for host in lab.laptops:
+        assert lab.sh(host, "systemctl cat robot-payload")[0] != 0  # no autostart on laptops
+        record = json.loads(lab.ok(host, "cat /var/lib/robot-payload/current/record.json"))
+        assert record["state"] == "staged"
+        lab.ok(host, "docker image inspect " + lab.state["registry"] + "/ros/payload:1.0")
+
+
+def test_second_run_changes_nothing(lab, first_run):
+    run = lab.provision(label="(second run)")
+    assert run.returncode == 0, run.output[-4000:]
+    assert {h: run.changes(h) for h in lab.hosts} == {h: [] for h in lab.hosts}
+
+
+def test_changing_one_robots_tag_changes_that_robot_alone(lab, first_run, tmp_path):
+    before = {h: payload_container(lab, h)["Id"] for h in lab.robots}
+    fleet = lab.fleet_with(
+        tmp_path,
+        **{"      sensors:\n        - {name: imu,": "      payload_image: \"@registry@/ros/payload:1.1\"\n      sensors:\n        - {name: imu,"},
+    )
+    run = lab.provision(fleet=fleet, label="(robot2 to 1.1)")
+    assert run.returncode == 0, run.output[-4000:]
+    assert run.changed_hosts == {"robot2"}
+    assert run.changes("robot2") == ["Payload | Release the payload (pull, switch, health check, roll back on failure)"]
+    container = payload_container(lab, "robot2")
+    assert container["Config"]["Labels"]["org.opencontainers.image.version"] == "1.1"
+    assert container["State"]["Health"]["Status"] == "healthy"
+    for host in set(lab.robots) - {"robot2"}:
+        assert payload_container(lab, host)["Id"] == before[host]  # untouched, not restarted
+    again = lab.provision(fleet=fleet, label="(robot2 at 1.1, rerun)")
+    assert again.changed_hosts == set()
