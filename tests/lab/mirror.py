@@ -32,7 +32,6 @@ import fcntl
 import gzip
 import hashlib
 import json
-import os
 import re
 import shutil
 import subprocess
@@ -54,9 +53,6 @@ ARCH = "amd64"
 KEY_UID = "Robot Lab Docker Mirror (lab only, not Docker) <docker-mirror@robot-lab.invalid>"
 LAB_MAINTAINER = "Robot Lab Docker Mirror <docker-mirror@robot-lab.invalid>"
 
-# Bump when the repackaging logic changes in a way the rules below don't show.
-RECIPE_REVISION = 1
-
 
 @dataclasses.dataclass(frozen=True)
 class Rule:
@@ -70,14 +66,19 @@ class Rule:
     add_recommends: tuple[str, ...] = ()
     drop_relations: tuple[str, ...] = ()  # names dropped from Depends/Recommends/...
     drop_paths: tuple[str, ...] = ()
+    add_symlinks: tuple[tuple[str, str], ...] = ()  # (path, target)
 
 
 RULES: tuple[Rule, ...] = (
     # needrestart (restarts services after upgrades) and criu (pulls python3) are
     # Debian recommendations Docker's packages don't make: they would change what
     # a provisioned host looks like.
+    # Debian installs dockerd in /usr/sbin, Docker in /usr/bin: both paths work
+    # (e.g. for an ExecStart= override written against Docker's layout).
     Rule("docker-ce", ("docker.io",), epoch="5", add_depends=("docker-ce-cli",),
-         drop_relations=("needrestart",)),
+         drop_relations=("needrestart",),
+         add_symlinks=(("usr/bin/dockerd", "../sbin/dockerd"),
+                       ("usr/bin/docker-proxy", "../sbin/docker-proxy"))),
     Rule("docker-ce-cli", ("docker-cli",), epoch="5",
          add_recommends=("docker-buildx-plugin", "docker-compose-plugin")),
     Rule("containerd.io", ("containerd", "runc"), distro_suffix=False,
@@ -323,14 +324,17 @@ def rewrite_control(rule: Rule, controls: list[dict[str, str]], version: str) ->
     if built_using:
         out["Built-Using"] = format_relations(_dedupe(built_using))
 
-    src = primary.get("Source", primary["Package"]).split()[0]
+    # "Source: runc (1.1.15+ds1-2)" names the source version of a binNMU'd package.
+    src_field = primary.get("Source", primary["Package"])
+    src = src_field.split()[0]
+    src_version = src_field.split("(", 1)[1].rstrip(") ") if "(" in src_field else primary["Version"]
     repacked = ", ".join(f"{c['Package']} {c['Version']}" for c in controls)
     description = primary["Description"] + (
         f"\n .\n Lab repackaging of Debian {SUITE} {repacked} under Docker's package name.")
 
     out.update({
         "Package": rule.name,
-        "Source": f"{src} ({primary['Version']})",
+        "Source": f"{src} ({src_version})",
         "Version": version,
         "Maintainer": LAB_MAINTAINER,
         "Installed-Size": str(sum(int(c.get("Installed-Size", 0)) for c in controls)),
@@ -495,6 +499,14 @@ def repack(rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path
             md5.write_text("".join(l for l in md5.read_text().splitlines(True)
                                    if l.split(None, 1)[1].strip() != rel))
 
+    for rel, target in rule.add_symlinks:
+        link = tree / rel
+        if link.exists() or link.is_symlink():
+            raise MirrorError(f"{rule.name}: {rel} already exists in {debs[0].name}")
+        link.symlink_to(target)
+        if not link.exists():
+            raise MirrorError(f"{rule.name}: symlink {rel} -> {target} dangles")
+
     version = docker_version(rule, versions[rule.sources[0]])
     control = rewrite_control(rule, controls, version)
     (meta / "control").write_text(format_paragraph(control))
@@ -551,9 +563,11 @@ class LabKey:
 # ---------------------------------------------------------------- build
 
 def rules_digest() -> str:
-    payload = json.dumps([RECIPE_REVISION, SUITE, [dataclasses.asdict(r) for r in RULES]],
-                         sort_keys=True)
-    return hashlib.sha256(payload.encode()).hexdigest()
+    """The repack rules and the code applying them: any edit here rebuilds."""
+    h = hashlib.sha256(json.dumps([SUITE, [dataclasses.asdict(r) for r in RULES]],
+                                  sort_keys=True).encode())
+    h.update(Path(__file__).read_bytes())
+    return h.hexdigest()
 
 
 def recipe_digest(sources: dict[str, str]) -> str:
@@ -655,7 +669,7 @@ def main(argv: list[str]) -> int:
     out_dir = Path(args[0]) if args else DEFAULT_OUT_DIR
     try:
         result = build_mirror(out_dir, refresh=refresh)
-    except MirrorError as e:
+    except (MirrorError, OSError) as e:
         print(f"[mirror] error: {e}", file=sys.stderr)
         return 1
     print(json.dumps(result, indent=2))

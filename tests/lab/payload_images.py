@@ -167,7 +167,7 @@ def build_payload_images(client: docker.DockerClient, registry: str | None = Non
 def main(argv: list[str]) -> int:
     try:
         result = build_payload_images(docker.from_env(), argv[0] if argv else None)
-    except PayloadImageError as e:
+    except (PayloadImageError, OSError, docker.errors.DockerException) as e:
         print(f"[payload] error: {e}", file=sys.stderr)
         return 1
     print(json.dumps(result, indent=2))

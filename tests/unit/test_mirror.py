@@ -1,5 +1,6 @@
 """Pure parts of the lab's Docker-style apt mirror: no network, no engine."""
 
+import dataclasses
 import hashlib
 
 import pytest
@@ -182,6 +183,12 @@ def test_containerd_io_merges_containerd_and_runc():
     assert ctl["Breaks"] == "docker.io (<< 1.12)"
     assert ctl["Installed-Size"] == str(118977 + 10525)
     assert ctl["Source"] == "containerd (1.7.24~ds1-6+deb13u1)"
+
+
+def test_source_field_keeps_the_binnmu_source_version():
+    rule = dataclasses.replace(RULE["containerd.io"], name="runc-only", sources=("runc",))
+    ctl = rewrite_control(rule, [RUNC], "1.1.15-1")
+    assert ctl["Source"] == "runc (1.1.15+ds1-2)"
 
 
 def test_plugins_recommend_the_docker_cli():
