@@ -1,0 +1,252 @@
+"""The Debian 13 image every simulated robot and laptop runs (systemd as PID 1).
+
+Built in two cached layers, each tagged by a hash of its full recipe so a
+machine builds it once and rebuilds only when the recipe changes:
+  robot-lab-base:<sha12>  debootstrap rootfs (suite, mirror, package list)
+  robot-lab-host:<sha12>  + lab customisation (users, units, no host keys)
+Docker itself is deliberately NOT preinstalled: the provisioner installs it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import subprocess
+import tarfile
+import tempfile
+
+import docker
+import docker.errors
+
+from .engine import LAB_DIR, LabError, timed_phase
+
+SUITE = "trixie"
+MIRROR = "http://deb.debian.org/debian"
+VARIANT = "minbase"
+INCLUDE_PACKAGES = (
+    "systemd", "systemd-sysv", "dbus", "udev", "openssh-server", "sudo",
+    "python3", "ca-certificates", "curl", "gnupg", "iproute2", "procps", "less",
+)
+BASE_REPO = "robot-lab-base"
+HOST_REPO = "robot-lab-host"
+BUILD_DIR = LAB_DIR / "cache" / "build"
+
+OPS_USER = "ops"
+USER_UIDS = {"ops": 1000, "ros": 1001, "alice": 1002}
+
+SENSORS_LIST = "/etc/robot-lab/sensors"
+
+_SENSORS_SCRIPT = """#!/bin/sh
+# Fake udev-named sensors: /dev/robot/NAME -> ../lab-sensors/NAME, a char
+# device 1:3 (what /dev/null is) so compose `devices:` entries can map it.
+set -eu
+mkdir -p /dev/lab-sensors /dev/robot
+rm -f /dev/lab-sensors/*
+for link in /dev/robot/*; do
+    if [ -L "$link" ] && [ ! -e "$link" ]; then rm -f "$link"; fi
+done
+[ -f %(list)s ] || exit 0
+while read -r name; do
+    case "$name" in ''|'#'*) continue ;; esac
+    mknod -m 0660 "/dev/lab-sensors/$name" c 1 3
+    chgrp dialout "/dev/lab-sensors/$name"
+    ln -sfn "../lab-sensors/$name" "/dev/robot/$name"
+done < %(list)s
+""" % {"list": SENSORS_LIST}
+
+_SENSORS_UNIT = """[Unit]
+Description=Robot lab: fake sensor device nodes from %s
+DefaultDependencies=no
+After=systemd-tmpfiles-setup-dev.service
+Before=sysinit.target docker.service
+
+[Service]
+Type=oneshot
+RemainAfterExit=yes
+ExecStart=/usr/local/sbin/robot-lab-sensors
+
+[Install]
+WantedBy=sysinit.target
+""" % SENSORS_LIST
+
+# Debian only generates host keys on "first boot"; our containers are never
+# that (machine-id is written before start), so drop the condition: every
+# host then makes its own keys when it first starts.
+_SSHD_KEYGEN_DROPIN = """[Unit]
+ConditionFirstBoot=
+"""
+
+HOST_FILES = {
+    "usr/local/sbin/robot-lab-sensors": _SENSORS_SCRIPT,
+    "etc/systemd/system/robot-lab-sensors.service": _SENSORS_UNIT,
+    "etc/systemd/system/sshd-keygen.service.d/robot-lab.conf": _SSHD_KEYGEN_DROPIN,
+}
+
+_USERADDS = "\n".join(
+    f"useradd --create-home --shell /bin/bash --uid {uid} {name}\n"
+    f"usermod --password '*' {name}"  # no password, but not "locked" for sshd
+    for name, uid in USER_UIDS.items()
+)
+
+CUSTOMISE_SCRIPT = f"""set -eu
+rm -f /etc/ssh/ssh_host_*
+: > /etc/machine-id
+{_USERADDS}
+install -d -m 0700 -o {OPS_USER} -g {OPS_USER} /home/{OPS_USER}/.ssh
+echo '{OPS_USER} ALL=(ALL) NOPASSWD:ALL' > /etc/sudoers.d/{OPS_USER}
+chmod 0440 /etc/sudoers.d/{OPS_USER}
+chmod 0755 /usr/local/sbin/robot-lab-sensors
+install -d /etc/robot-lab
+systemctl enable robot-lab-sensors.service
+# A timer-started unattended apt run would hold the dpkg lock mid-deploy.
+systemctl mask apt-daily.timer apt-daily-upgrade.timer
+# Like a cloud image: no package lists, so nothing stale; run apt-get update.
+apt-get clean
+rm -rf /var/lib/apt/lists/*
+"""
+
+_HOST_DOCKERFILE = """FROM {base}
+COPY rootfs/ /
+COPY customise.sh /tmp/customise.sh
+RUN sh /tmp/customise.sh && rm /tmp/customise.sh
+STOPSIGNAL SIGRTMIN+3
+CMD ["/lib/systemd/systemd"]
+"""
+
+
+def recipe_hash(recipe: object) -> str:
+    """A short stable hash of a JSON-able recipe."""
+    blob = json.dumps(recipe, sort_keys=True, separators=(",", ":")).encode()
+    return hashlib.sha256(blob).hexdigest()[:12]
+
+
+def base_recipe() -> dict:
+    return {"suite": SUITE, "mirror": MIRROR, "variant": VARIANT,
+            "include": list(INCLUDE_PACKAGES)}
+
+
+def host_recipe() -> dict:
+    return {"base": base_recipe(), "files": HOST_FILES,
+            "script": CUSTOMISE_SCRIPT, "dockerfile": _HOST_DOCKERFILE}
+
+
+def base_tag() -> str:
+    return f"{BASE_REPO}:{recipe_hash(base_recipe())}"
+
+
+def host_tag() -> str:
+    return f"{HOST_REPO}:{recipe_hash(host_recipe())}"
+
+
+def image_exists(dc: docker.DockerClient, tag: str) -> bool:
+    try:
+        dc.images.get(tag)
+        return True
+    except docker.errors.ImageNotFound:
+        return False
+
+
+def ensure_host_image(dc: docker.DockerClient) -> str:
+    """Tag of the host image, building whatever layer is missing."""
+    tag = host_tag()
+    if image_exists(dc, tag):
+        return tag
+    base = base_tag()
+    if not image_exists(dc, base):
+        with timed_phase(f"build base image {base} (debootstrap {SUITE})"):
+            _debootstrap_and_import(dc, base)
+    with timed_phase(f"build host image {tag}"):
+        files = {f"rootfs/{path}": text for path, text in HOST_FILES.items()}
+        files["customise.sh"] = CUSTOMISE_SCRIPT
+        build_image(dc, tag, _HOST_DOCKERFILE.format(base=base), files)
+    return tag
+
+
+def _debootstrap_and_import(dc: docker.DockerClient, tag: str) -> None:
+    BUILD_DIR.mkdir(parents=True, exist_ok=True)
+    log_path = BUILD_DIR / "debootstrap.log"
+    repo, _, version = tag.partition(":")
+    with tempfile.TemporaryDirectory(dir=BUILD_DIR) as tmp:
+        rootfs = f"{tmp}/rootfs"
+        cmd = ["debootstrap", f"--variant={VARIANT}",
+               "--include=" + ",".join(INCLUDE_PACKAGES), SUITE, rootfs, MIRROR]
+        with open(log_path, "wb") as log:
+            try:
+                done = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
+            except FileNotFoundError:
+                raise LabError("cannot build the host image: debootstrap is not "
+                               "installed (apt-get install debootstrap)") from None
+        if done.returncode != 0:
+            raise LabError(f"debootstrap failed (exit {done.returncode}); see {log_path}")
+        tar = subprocess.Popen(["tar", "-C", rootfs, "--numeric-owner", "-c", "."],
+                               stdout=subprocess.PIPE)
+        try:
+            dc.api.import_image_from_stream(tar.stdout, repository=repo, tag=version)
+        finally:
+            tar.stdout.close()
+            if tar.wait() != 0:
+                raise LabError(f"tar of the debootstrap rootfs failed (exit {tar.returncode})")
+
+
+def build_image(dc: docker.DockerClient, tag: str, dockerfile: str,
+                files: dict[str, str]) -> None:
+    """docker build from an in-memory context; the log goes to .lab/cache/build."""
+    context = io.BytesIO()
+    with tarfile.open(fileobj=context, mode="w") as tar:
+        for name, text in {"Dockerfile": dockerfile, **files}.items():
+            data = text.encode()
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            info.mode = 0o644
+            tar.addfile(info, io.BytesIO(data))
+    context.seek(0)
+    BUILD_DIR.mkdir(parents=True, exist_ok=True)
+    log_path = BUILD_DIR / (tag.replace(":", "_").replace("/", "_") + ".log")
+    error = None
+    with open(log_path, "w") as log:
+        for chunk in dc.api.build(fileobj=context, custom_context=True, tag=tag,
+                                  rm=True, forcerm=True, pull=False, decode=True):
+            log.write(chunk.get("stream", "") or json.dumps(chunk) + "\n")
+            if "error" in chunk:
+                error = chunk["error"].strip()
+    if error:
+        raise LabError(f"building {tag} failed: {error} (log: {log_path})")
+
+
+def create_systemd_container(dc: docker.DockerClient, image: str, name: str, *,
+                             hostname: str, network: str, labels: dict[str, str],
+                             ports: dict[int, int], volumes: dict[str, str]):
+    """Create (not start) a container running systemd as PID 1 on this machine.
+
+    `ports` maps container port -> 127.0.0.1 host port; `volumes` maps a named
+    volume or host path -> "container_path[:ro]".
+
+    `--privileged` fails here, so: the capabilities systemd and a nested
+    dockerd need; the host's cgroup tree bound rw with the host cgroup
+    namespace (the host is cgroup v1 hybrid, and trixie's systemd 257 accepts
+    the pre-mounted hybrid tree it finds); and no masked or read-only /proc
+    paths (what `--security-opt systempaths=unconfined` does in the CLI,
+    which the API lacks), because the nested dockerd writes
+    /proc/sys/net/ipv6/conf/*/disable_ipv6 for its containers.
+    """
+    binds = ["/sys/fs/cgroup:/sys/fs/cgroup:rw"]
+    binds += [f"{source}:{target}" for source, target in volumes.items()]
+    host_config = dc.api.create_host_config(
+        binds=binds,
+        port_bindings={f"{c}/tcp": ("127.0.0.1", h) for c, h in ports.items()},
+        cap_add=["SYS_ADMIN", "NET_ADMIN", "MKNOD"],
+        security_opt=["seccomp=unconfined", "apparmor=unconfined"],
+        cgroupns="host",
+        tmpfs={"/run": "", "/run/lock": ""},
+        network_mode=network,
+    )
+    host_config["MaskedPaths"] = []
+    host_config["ReadonlyPaths"] = []
+    created = dc.api.create_container(
+        image, name=name, hostname=hostname, labels=labels, detach=True,
+        ports=list(ports), host_config=host_config,
+        networking_config=dc.api.create_networking_config(
+            {network: dc.api.create_endpoint_config()}),
+    )
+    return dc.containers.get(created["Id"])
