@@ -1,0 +1,57 @@
+"""python3 -m tests.lab up|down|reset|status [--prefix lab] [--robots 3] [--laptops 1]"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import docker.errors
+
+from . import hosts
+from .engine import LabError
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python3 -m tests.lab",
+                                     description="The simulated robot fleet.")
+    commands = parser.add_subparsers(dest="command", required=True)
+    for name, text in (("up", "start or reuse the lab"), ("reset", "down, then up with fresh hosts"),
+                       ("down", "remove the lab's containers, network and volumes"),
+                       ("status", "one line per container")):
+        command = commands.add_parser(name, help=text)
+        command.add_argument("--prefix", default="lab", help="lab name (default: lab)")
+        if name in ("up", "reset"):
+            default = "3/1" if name == "up" else "the previous lab's"
+            command.add_argument("--robots", type=int, help=f"robots (default: {default})")
+            command.add_argument("--laptops", type=int, help="laptops")
+            command.add_argument("--sensor", action="append", metavar="NAME",
+                                 help="fake sensor on every robot (repeatable; default: "
+                                      "the sensors inventories/lab.yaml declares)")
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "up":
+            hosts.up(args.prefix, 3 if args.robots is None else args.robots,
+                     1 if args.laptops is None else args.laptops, args.sensor)
+        elif args.command == "reset":
+            hosts.reset(args.prefix, args.robots, args.laptops, args.sensor)
+        elif args.command == "down":
+            hosts.down(args.prefix)
+        else:
+            print("\n".join(hosts.status(args.prefix)))
+    except LabError as e:
+        print(f"lab: error: {e}", file=sys.stderr)
+        return 1
+    except docker.errors.DockerException as e:
+        print(f"lab: error: docker: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

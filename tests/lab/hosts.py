@@ -1,0 +1,334 @@
+"""Simulated robots and laptops: `<prefix>-robot1..N`, `<prefix>-laptop1..M`.
+
+Each is a systemd container from the host image on `<prefix>-net`, its sshd
+published on a fixed free 127.0.0.1 port, its nested Docker state on its own
+named volumes. `up` is idempotent; `down` removes everything of one prefix
+except the shared apt cache volume and the images.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import subprocess
+import time
+import uuid
+from pathlib import Path
+
+import docker
+import docker.errors
+import paramiko
+import yaml
+
+from . import hostimage, services, state
+from .engine import (REPO_ROOT, LabError, client, pick_free_port, published_ports,
+                     put_files, timed_phase)
+
+GROUP_PREFIXES = {"robots": "robot", "laptops": "laptop"}
+SSH_PORT_START = 22001
+SSH_READY_TIMEOUT_S = 120
+INVENTORY = REPO_ROOT / "inventories" / "lab.yaml"
+APT_PROXY_CONF = "/etc/apt/apt.conf.d/01robot-lab-proxy"
+PREFIX_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{0,30}$")
+SENSOR_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+NESTED_DOCKER_DIRS = {"docker": "/var/lib/docker", "containerd": "/var/lib/containerd"}
+
+
+def check_prefix(prefix: str) -> str:
+    if not PREFIX_PATTERN.match(prefix):
+        raise LabError(f"bad lab prefix {prefix!r}: use lowercase letters, digits and '-'")
+    return prefix
+
+
+def plan_hosts(robots: int, laptops: int) -> list[tuple[str, str]]:
+    """[(host name, group)] for a lab of that size."""
+    counts = {"robots": robots, "laptops": laptops}
+    return [(f"{GROUP_PREFIXES[group]}{i}", group)
+            for group, count in counts.items() for i in range(1, count + 1)]
+
+
+def sensors_from_inventory(path: Path = INVENTORY) -> dict[str, list[str]]:
+    """Sensor names per robot declared in inventories/lab.yaml (if it exists)."""
+    if not path.exists():
+        return {}
+    fleet = yaml.safe_load(path.read_text()) or {}
+    declared = ((fleet.get("robots") or {}).get("hosts") or {})
+    return {host: [s["name"] for s in (data or {}).get("sensors") or []]
+            for host, data in declared.items()}
+
+
+def known_hosts_line(port: int, public_key: str) -> str:
+    """A known_hosts line for a key ("type base64 [comment]") on 127.0.0.1:port."""
+    key_type, key_b64 = public_key.split()[:2]
+    host = "127.0.0.1" if port == 22 else f"[127.0.0.1]:{port}"
+    return f"{host} {key_type} {key_b64}"
+
+
+def apt_proxy_conf(services_host: str) -> str:
+    return (f'Acquire::http::Proxy "http://{services_host}:{services.APT_CACHE_PORT}";\n'
+            f'Acquire::http::Proxy::{services_host} "DIRECT";\n')
+
+
+def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
+       sensors: dict[str, list[str]] | list[str] | None = None) -> dict:
+    """Start (or reuse) a lab and write its state.json; returns the state.
+
+    `sensors`: names per robot, or one list for every robot; default: what
+    inventories/lab.yaml declares.
+    """
+    check_prefix(prefix)
+    sensors_by_host = _sensors_by_host(sensors, robots)
+    dc = client()
+    with timed_phase("build images (cached by recipe)"):
+        host_image = hostimage.ensure_host_image(dc)
+        services_image = services.ensure_services_image(dc, host_image)
+        mirror_dir = services.mirror_dir()
+    network = _ensure_network(dc, prefix)
+    key_path = _ensure_ssh_key(prefix)
+    with timed_phase("start services"):
+        registry_port = services.ensure_services(dc, prefix, network, services_image, mirror_dir)
+    wanted = plan_hosts(robots, laptops)
+    _remove_hosts_not_in(dc, prefix, {name for name, _ in wanted})
+    services_host = services.container_name(prefix)
+    with timed_phase(f"start hosts ({len(wanted)})"):
+        started = [
+            _ensure_host(dc, prefix, name, group, host_image, key_path,
+                         apt_proxy_conf(services_host), sensors_by_host.get(name, []))
+            for name, group in wanted
+        ]
+    known_hosts = state.lab_dir(prefix) / "known_hosts"
+    with timed_phase("wait for ssh"):
+        lines = []
+        for container, port in started:
+            lines += [known_hosts_line(port, k) for k in _wait_for_host_keys(container)]
+        known_hosts.write_text("\n".join(lines) + "\n")
+        for container, port in started:
+            _wait_for_ssh_login(container.name, port, key_path, known_hosts)
+    lab = {
+        "prefix": prefix,
+        "ssh_key": str(key_path),
+        "known_hosts": str(known_hosts),
+        "ssh_user": hostimage.OPS_USER,
+        "hosts": [{"name": name, "group": group, "container": c.name, "port": port}
+                  for (name, group), (c, port) in zip(wanted, started)],
+        "services_host": services_host,
+        "apt_proxy": f"http://{services_host}:{services.APT_CACHE_PORT}",
+        "registry": f"{services_host}:{services.REGISTRY_PORT}",
+        "registry_local": f"127.0.0.1:{registry_port}",
+        "mirror_url": f"http://{services_host}:{services.STATIC_PORT}/linux",
+        "mirror_dir": str(mirror_dir),
+    }
+    path = state.save(lab)
+    print(f"lab: '{prefix}' is up: {len(started)} hosts; state in {path}")
+    return lab
+
+
+def down(prefix: str = "lab") -> None:
+    check_prefix(prefix)
+    dc = client()
+    label = {"label": f"robot-lab.prefix={prefix}"}
+    for container in dc.containers.list(all=True, filters=label):
+        container.remove(force=True)
+    for network in dc.networks.list(filters=label):
+        network.remove()
+    for volume in dc.volumes.list(filters=label):
+        volume.remove(force=True)
+    state.forget(prefix)
+    (state.lab_dir(prefix) / "known_hosts").unlink(missing_ok=True)
+    print(f"lab: '{prefix}' is down")
+
+
+def reset(prefix: str = "lab", robots: int | None = None, laptops: int | None = None,
+          sensors: dict[str, list[str]] | list[str] | None = None) -> dict:
+    """Down then up with fresh hosts; sizes default to the previous lab's."""
+    previous = _previous_sizes(prefix)
+    down(prefix)
+    return up(prefix,
+              robots if robots is not None else previous.get("robots", 3),
+              laptops if laptops is not None else previous.get("laptops", 1),
+              sensors)
+
+
+def status(prefix: str = "lab") -> list[str]:
+    """One line per container of the lab."""
+    check_prefix(prefix)
+    dc = client()
+    containers = dc.containers.list(all=True, filters={"label": f"robot-lab.prefix={prefix}"})
+    if not containers:
+        return [f"lab '{prefix}': no containers (down)"]
+    known_hosts = state.lab_dir(prefix) / "known_hosts"
+    key_path = state.lab_dir(prefix) / "id_ed25519"
+    lines = []
+    for c in sorted(containers, key=lambda c: c.name):
+        if c.labels.get("robot-lab.role") == "services":
+            port = c.labels.get("robot-lab.registry-port")
+            lines.append(f"{c.name:<24} {c.status:<9} registry 127.0.0.1:{port}")
+            continue
+        port = int(c.labels["robot-lab.ssh-port"])
+        reachable = c.status == "running" and _ssh_login_error(port, key_path, known_hosts) is None
+        lines.append(f"{c.name:<24} {c.status:<9} ssh 127.0.0.1:{port:<6} "
+                     f"reachable {'yes' if reachable else 'no'}")
+    return lines
+
+
+def _previous_sizes(prefix: str) -> dict[str, int]:
+    try:
+        hosts = state.load(prefix)["hosts"]
+    except LabError:
+        return {}
+    return {group: sum(h["group"] == group for h in hosts) for group in GROUP_PREFIXES}
+
+
+def _sensors_by_host(sensors, robots: int) -> dict[str, list[str]]:
+    if sensors is None:
+        by_host = sensors_from_inventory()
+    elif isinstance(sensors, dict):
+        by_host = sensors
+    else:
+        by_host = {name: list(sensors) for name, _ in plan_hosts(robots, 0)}
+    for names in by_host.values():
+        for name in names:
+            if not SENSOR_PATTERN.match(name):
+                raise LabError(f"bad sensor name {name!r}")
+    return by_host
+
+
+def _ensure_network(dc: docker.DockerClient, prefix: str) -> str:
+    name = f"{prefix}-net"
+    if not any(n.name == name for n in dc.networks.list(names=[name])):
+        dc.networks.create(name, driver="bridge", labels={"robot-lab.prefix": prefix})
+    return name
+
+
+def _ensure_ssh_key(prefix: str) -> Path:
+    key = state.lab_dir(prefix) / "id_ed25519"
+    key.parent.mkdir(parents=True, exist_ok=True)
+    if not key.exists():
+        subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C",
+                        f"robot-lab-{prefix}", "-f", str(key)], check=True)
+    key.chmod(0o600)
+    return key.resolve()
+
+
+def _remove_hosts_not_in(dc: docker.DockerClient, prefix: str, names: set[str]) -> None:
+    for c in dc.containers.list(all=True, filters={"label": [
+            f"robot-lab.prefix={prefix}", "robot-lab.role=host"]}):
+        host = c.labels.get("robot-lab.host")
+        if host not in names:
+            c.remove(force=True)
+            for volume in _host_volume_names(prefix, host).values():
+                _remove_volume(dc, volume)
+
+
+def _host_volume_names(prefix: str, host: str) -> dict[str, str]:
+    return {f"{prefix}-{host}-{kind}": path for kind, path in NESTED_DOCKER_DIRS.items()}
+
+
+def _remove_volume(dc: docker.DockerClient, name: str) -> None:
+    try:
+        dc.volumes.get(name).remove(force=True)
+    except docker.errors.NotFound:
+        pass
+
+
+def _ensure_host(dc, prefix, host, group, image, key_path: Path, apt_conf: str,
+                 sensors: list[str]):
+    """(container, ssh port) of a started host, created if needed."""
+    name = f"{prefix}-{host}"
+    try:
+        container = dc.containers.get(name)
+    except docker.errors.NotFound:
+        container = None
+    if container is not None and (container.labels.get("robot-lab.image") != image
+                                  or container.labels.get("robot-lab.group") != group):
+        container.remove(force=True)
+        container = None
+    was_running = container is not None and container.status == "running"
+    if container is None:
+        container = _create_host(dc, prefix, host, group, image)
+    old_sensors = _read_file(container, hostimage.SENSORS_LIST) if was_running else None
+    new_sensors = "".join(f"{s}\n" for s in sensors)
+    put_files(container, {APT_PROXY_CONF: apt_conf, hostimage.SENSORS_LIST: new_sensors})
+    put_files(container, {f"/home/{hostimage.OPS_USER}/.ssh/authorized_keys":
+                          key_path.with_suffix(".pub").read_text()},
+              mode=0o600, owner=(hostimage.USER_UIDS[hostimage.OPS_USER],) * 2)
+    if not was_running:
+        container.start()
+    elif old_sensors != new_sensors:
+        container.exec_run(["systemctl", "restart", "robot-lab-sensors.service"])
+    return container, int(container.labels["robot-lab.ssh-port"])
+
+
+def _create_host(dc, prefix, host, group, image):
+    volumes = {}
+    for volume, path in _host_volume_names(prefix, host).items():
+        try:
+            dc.volumes.get(volume)
+        except docker.errors.NotFound:
+            dc.volumes.create(volume, labels={"robot-lab.prefix": prefix})
+        volumes[volume] = path
+    port = pick_free_port(SSH_PORT_START, published_ports(dc))
+    container = hostimage.create_systemd_container(
+        dc, image, f"{prefix}-{host}", hostname=host, network=f"{prefix}-net",
+        labels={"robot-lab.prefix": prefix, "robot-lab.role": "host",
+                "robot-lab.host": host, "robot-lab.group": group,
+                "robot-lab.image": image, "robot-lab.ssh-port": str(port)},
+        ports={22: port}, volumes=volumes,
+    )
+    put_files(container, {"/etc/machine-id": uuid.uuid4().hex + "\n"})
+    return container
+
+
+def _read_file(container, path: str) -> str | None:
+    code, out = container.exec_run(["cat", path])
+    return out.decode() if code == 0 else None
+
+
+def _wait_for_host_keys(container) -> list[str]:
+    """The host's public keys once its sshd runs."""
+    probe = "systemctl is-active --quiet ssh.service && cat /etc/ssh/ssh_host_*_key.pub"
+    deadline = time.monotonic() + SSH_READY_TIMEOUT_S
+    while time.monotonic() < deadline:
+        container.reload()
+        if container.status != "running":
+            raise LabError(f"{container.name} is {container.status}; see `docker logs {container.name}`")
+        code, out = container.exec_run(["sh", "-c", probe])
+        keys = [line for line in out.decode().splitlines() if line.strip()]
+        if code == 0 and keys:
+            return keys
+        time.sleep(0.5)
+    raise LabError(f"{container.name}: sshd not running after {SSH_READY_TIMEOUT_S}s "
+                   f"(docker exec {container.name} systemctl status ssh)")
+
+
+def _ssh_login_error(port: int, key_path: Path, known_hosts: Path) -> str | None:
+    """None if ops can log in with the lab key and sudo, checking host keys strictly."""
+    # Unanswered retries would otherwise print paramiko tracebacks.
+    logging.getLogger("paramiko").addHandler(logging.NullHandler())
+    ssh = paramiko.SSHClient()
+    try:
+        ssh.load_host_keys(str(known_hosts))
+        ssh.set_missing_host_key_policy(paramiko.RejectPolicy())
+        ssh.connect("127.0.0.1", port=port, username=hostimage.OPS_USER,
+                    key_filename=str(key_path), timeout=5, banner_timeout=5,
+                    auth_timeout=5, look_for_keys=False, allow_agent=False)
+        _, stdout, _ = ssh.exec_command("sudo -n true", timeout=10)
+        code = stdout.channel.recv_exit_status()
+        return None if code == 0 else f"`sudo -n true` exited {code}"
+    except paramiko.BadHostKeyException as e:
+        return f"host key mismatch: {e}"
+    except (paramiko.SSHException, OSError) as e:
+        return f"{type(e).__name__}: {e}"
+    finally:
+        ssh.close()
+
+
+def _wait_for_ssh_login(name: str, port: int, key_path: Path, known_hosts: Path) -> None:
+    deadline = time.monotonic() + SSH_READY_TIMEOUT_S
+    while True:
+        error = _ssh_login_error(port, key_path, known_hosts)
+        if error is None:
+            return
+        if error.startswith("host key mismatch") or time.monotonic() > deadline:
+            raise LabError(f"{name}: ssh ops@127.0.0.1:{port} fails: {error}")
+        time.sleep(1)
