@@ -1,0 +1,62 @@
+"""Pure parts of the lab's host handling."""
+
+import pytest
+
+from tests.lab import engine, hosts
+from tests.lab.engine import LabError
+
+
+def test_known_hosts_line_uses_bracketed_host_and_port():
+    key = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIOo root@robot1"
+    assert hosts.known_hosts_line(22001, key) == "[127.0.0.1]:22001 ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIOo"
+    assert hosts.known_hosts_line(22, key) == "127.0.0.1 ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIOo"
+
+
+def test_known_hosts_line_is_what_paramiko_looks_up(tmp_path):
+    paramiko = pytest.importorskip("paramiko")
+    line = hosts.known_hosts_line(
+        22001, "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIEv7c1MIxS1aDiHnkvLJpm9leEXrCUGb/lZ0/a7wfecX x")
+    path = tmp_path / "known_hosts"
+    path.write_text(line + "\n")
+    keys = paramiko.HostKeys(str(path))
+    assert "ssh-ed25519" in keys.lookup("[127.0.0.1]:22001")
+
+
+def test_plan_hosts_names_and_groups():
+    assert hosts.plan_hosts(2, 1) == [("robot1", "robots"), ("robot2", "robots"), ("laptop1", "laptops")]
+    assert hosts.plan_hosts(0, 0) == []
+
+
+def test_sensors_from_inventory(tmp_path):
+    path = tmp_path / "lab.yaml"
+    path.write_text("robots:\n  hosts:\n    robot1:\n      sensors:\n        - {name: lidar, serial: x}\n"
+                    "        - {name: imu}\n    robot2: {}\nlaptops:\n  hosts:\n    laptop1: {}\n")
+    assert hosts.sensors_from_inventory(path) == {"robot1": ["lidar", "imu"], "robot2": []}
+    assert hosts.sensors_from_inventory(tmp_path / "missing.yaml") == {}
+
+
+def test_one_sensor_list_applies_to_every_robot_and_names_are_checked():
+    assert hosts._sensors_by_host(["lidar"], 2) == {"robot1": ["lidar"], "robot2": ["lidar"]}
+    with pytest.raises(LabError):
+        hosts._sensors_by_host(["../etc/passwd"], 1)
+
+
+def test_apt_proxy_goes_direct_to_the_services_host():
+    conf = hosts.apt_proxy_conf("lab-services")
+    assert 'Acquire::http::Proxy "http://lab-services:3142";' in conf
+    assert 'Acquire::http::Proxy::lab-services "DIRECT";' in conf
+
+
+def test_prefix_must_be_a_hostname_part():
+    assert hosts.check_prefix("e2e") == "e2e"
+    for bad in ("", "Lab", "a_b", "-x", "a" * 40):
+        with pytest.raises(LabError):
+            hosts.check_prefix(bad)
+
+
+def test_engine_is_not_started_when_we_may_not(monkeypatch):
+    monkeypatch.delenv("DOCKER_HOST", raising=False)
+    monkeypatch.setattr(engine.os, "geteuid", lambda: 1000)
+    assert engine._why_we_cannot_start_dockerd() == "not root"
+    monkeypatch.setenv("DOCKER_HOST", "tcp://127.0.0.1:1")
+    assert "does not answer" in engine._why_we_cannot_start_dockerd()
