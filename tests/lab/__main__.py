@@ -1,4 +1,7 @@
-"""python3 -m tests.lab up|down|reset|status [--prefix lab] [--robots 3] [--laptops 1]"""
+"""python3 -m tests.lab up|down|reset|status [--prefix lab] [--robots 3] [--laptops 1]
+
+`engine` only makes sure a Docker engine answers (starting dockerd if it may).
+"""
 
 from __future__ import annotations
 
@@ -8,7 +11,7 @@ import sys
 import docker.errors
 
 from . import hosts
-from .engine import LabError
+from .engine import LabError, client
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -17,13 +20,18 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     for name, text in (("up", "start or reuse the lab"), ("reset", "down, then up with fresh hosts"),
                        ("down", "remove the lab's containers, network and volumes"),
-                       ("status", "one line per container")):
+                       ("status", "one line per container"),
+                       ("engine", "make sure a Docker engine answers (start dockerd if needed)")):
         command = commands.add_parser(name, help=text)
+        if name == "engine":
+            continue
         command.add_argument("--prefix", default="lab", help="lab name (default: lab)")
         if name in ("up", "reset"):
-            default = "3/1" if name == "up" else "the previous lab's"
-            command.add_argument("--robots", type=int, help=f"robots (default: {default})")
-            command.add_argument("--laptops", type=int, help="laptops")
+            same = "the previous lab's" if name == "reset" else None
+            command.add_argument("--robots", type=int, metavar="N",
+                                 help=f"number of robots (default: {same or 3})")
+            command.add_argument("--laptops", type=int, metavar="N",
+                                 help=f"number of laptops (default: {same or 1})")
             command.add_argument("--sensor", action="append", metavar="NAME",
                                  help="fake sensor on every robot (repeatable; default: "
                                       "the sensors inventories/lab.yaml declares)")
@@ -38,6 +46,8 @@ def main(argv: list[str]) -> int:
                      1 if args.laptops is None else args.laptops, args.sensor)
         elif args.command == "reset":
             hosts.reset(args.prefix, args.robots, args.laptops, args.sensor)
+        elif args.command == "engine":
+            print(f"lab: Docker engine {client().version()['Version']} answers")
         elif args.command == "down":
             hosts.down(args.prefix)
         else:

@@ -69,6 +69,9 @@ def _os_ids() -> set[str]:
 
 
 def _why_we_cannot_start_dockerd() -> str:
+    docker_host = os.environ.get("DOCKER_HOST", "")
+    if docker_host and docker_host != "unix:///var/run/docker.sock":
+        return f"DOCKER_HOST={docker_host} does not answer"
     if os.geteuid() != 0:
         return "not root"
     if not _os_ids() & {"debian", "ubuntu"}:

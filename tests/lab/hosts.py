@@ -211,24 +211,17 @@ def _ensure_ssh_key(prefix: str) -> Path:
 
 
 def _remove_hosts_not_in(dc: docker.DockerClient, prefix: str, names: set[str]) -> None:
-    for c in dc.containers.list(all=True, filters={"label": [
-            f"robot-lab.prefix={prefix}", "robot-lab.role=host"]}):
-        host = c.labels.get("robot-lab.host")
-        if host not in names:
+    label = f"robot-lab.prefix={prefix}"
+    for c in dc.containers.list(all=True, filters={"label": [label, "robot-lab.role=host"]}):
+        if c.labels.get("robot-lab.host") not in names:
             c.remove(force=True)
-            for volume in _host_volume_names(prefix, host).values():
-                _remove_volume(dc, volume)
+    for volume in dc.volumes.list(filters={"label": [label, "robot-lab.host"]}):
+        if (volume.attrs.get("Labels") or {}).get("robot-lab.host") not in names:
+            volume.remove(force=True)
 
 
 def _host_volume_names(prefix: str, host: str) -> dict[str, str]:
     return {f"{prefix}-{host}-{kind}": path for kind, path in NESTED_DOCKER_DIRS.items()}
-
-
-def _remove_volume(dc: docker.DockerClient, name: str) -> None:
-    try:
-        dc.volumes.get(name).remove(force=True)
-    except docker.errors.NotFound:
-        pass
 
 
 def _ensure_host(dc, prefix, host, group, image, key_path: Path, apt_conf: str,
@@ -265,7 +258,7 @@ def _create_host(dc, prefix, host, group, image):
         try:
             dc.volumes.get(volume)
         except docker.errors.NotFound:
-            dc.volumes.create(volume, labels={"robot-lab.prefix": prefix})
+            dc.volumes.create(volume, labels={"robot-lab.prefix": prefix, "robot-lab.host": host})
         volumes[volume] = path
     port = pick_free_port(SSH_PORT_START, published_ports(dc))
     container = hostimage.create_systemd_container(
