@@ -14,8 +14,10 @@ import tarfile
 import time
 from pathlib import Path
 
-import docker
-import docker.errors
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import docker
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 LAB_DIR = Path(os.environ.get("ROBOT_LAB_DIR", REPO_ROOT / ".lab")).resolve()
@@ -47,6 +49,10 @@ def client() -> docker.DockerClient:
 
 
 def _connect() -> docker.DockerClient | None:
+    # Imported on first use, not with this module: docker imports ssl, which
+    # pyinfra's gevent must patch first when both share a process (unit tests).
+    import docker
+
     try:
         c = docker.from_env(timeout=300)
         c.ping()
@@ -121,6 +127,16 @@ class timed_phase:
         outcome = "done" if exc_type is None else "FAILED"
         print(f"lab: {self.name}: {outcome} in {took:.1f}s", flush=True)
         return False
+
+
+def get_or_none(collection, name: str):
+    """collection.get(name) (containers, images, volumes), or None if absent."""
+    import docker.errors
+
+    try:
+        return collection.get(name)
+    except docker.errors.NotFound:
+        return None
 
 
 def published_ports(dc: docker.DockerClient) -> set[int]:

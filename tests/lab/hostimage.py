@@ -15,11 +15,12 @@ import json
 import subprocess
 import tarfile
 import tempfile
+from typing import TYPE_CHECKING
 
-import docker
-import docker.errors
+from .engine import LAB_DIR, LabError, get_or_none, timed_phase
 
-from .engine import LAB_DIR, LabError, timed_phase
+if TYPE_CHECKING:
+    import docker
 
 SUITE = "trixie"
 MIRROR = "http://deb.debian.org/debian"
@@ -140,11 +141,7 @@ def host_tag() -> str:
 
 
 def image_exists(dc: docker.DockerClient, tag: str) -> bool:
-    try:
-        dc.images.get(tag)
-        return True
-    except docker.errors.ImageNotFound:
-        return False
+    return get_or_none(dc.images, tag) is not None
 
 
 def ensure_host_image(dc: docker.DockerClient) -> str:

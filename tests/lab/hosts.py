@@ -14,15 +14,17 @@ import subprocess
 import time
 import uuid
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import docker
-import docker.errors
 import paramiko
 import yaml
 
 from . import hostimage, services, state
-from .engine import (REPO_ROOT, LabError, client, pick_free_port, published_ports,
-                     put_files, timed_phase)
+from .engine import (REPO_ROOT, LabError, client, get_or_none, pick_free_port,
+                     published_ports, put_files, timed_phase)
+
+if TYPE_CHECKING:
+    import docker
 
 GROUP_PREFIXES = {"robots": "robot", "laptops": "laptop"}
 SSH_PORT_START = 22001
@@ -228,10 +230,7 @@ def _ensure_host(dc, prefix, host, group, image, key_path: Path, apt_conf: str,
                  sensors: list[str]):
     """(container, ssh port) of a started host, created if needed."""
     name = f"{prefix}-{host}"
-    try:
-        container = dc.containers.get(name)
-    except docker.errors.NotFound:
-        container = None
+    container = get_or_none(dc.containers, name)
     if container is not None and (container.labels.get("robot-lab.image") != image
                                   or container.labels.get("robot-lab.group") != group):
         container.remove(force=True)
@@ -255,9 +254,7 @@ def _ensure_host(dc, prefix, host, group, image, key_path: Path, apt_conf: str,
 def _create_host(dc, prefix, host, group, image):
     volumes = {}
     for volume, path in _host_volume_names(prefix, host).items():
-        try:
-            dc.volumes.get(volume)
-        except docker.errors.NotFound:
+        if get_or_none(dc.volumes, volume) is None:
             dc.volumes.create(volume, labels={"robot-lab.prefix": prefix, "robot-lab.host": host})
         volumes[volume] = path
     port = pick_free_port(SSH_PORT_START, published_ports(dc))

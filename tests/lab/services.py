@@ -15,13 +15,14 @@ import time
 import urllib.request
 import uuid
 from pathlib import Path
-
-import docker
-import docker.errors
+from typing import TYPE_CHECKING
 
 from . import hostimage
-from .engine import (LAB_DIR, LabError, pick_free_port, published_ports, put_files,
-                     timed_phase)
+from .engine import (LAB_DIR, LabError, get_or_none, pick_free_port, published_ports,
+                     put_files, timed_phase)
+
+if TYPE_CHECKING:
+    import docker
 
 SERVICES_REPO = "robot-lab-services"
 APT_CACHE_VOLUME = "robot-lab-aptcache"
@@ -147,7 +148,7 @@ def ensure_services(dc: docker.DockerClient, prefix: str, network: str,
     name = container_name(prefix)
     wanted = {"robot-lab.prefix": prefix, "robot-lab.role": "services",
               "robot-lab.image": image, "robot-lab.mirror": str(mirror)}
-    container = _get(dc, name)
+    container = get_or_none(dc.containers, name)
     if container is not None and any(container.labels.get(k) != v for k, v in wanted.items()):
         container.remove(force=True)
         container = None
@@ -174,13 +175,6 @@ def _create(dc, name, network, image, mirror: Path, labels: dict):
         "/etc/machine-id": uuid.uuid4().hex + "\n",
     })
     return container
-
-
-def _get(dc, name):
-    try:
-        return dc.containers.get(name)
-    except docker.errors.NotFound:
-        return None
 
 
 _PROBES = {

@@ -2,17 +2,32 @@
 
 import pytest
 
-from tests.lab import engine, hosts
-from tests.lab.engine import LabError
+# The lab modules import docker (and so ssl); importing them at collection
+# time, before pyinfra's gevent patches ssl in other test modules, makes
+# gevent warn. So they are imported when a test runs.
 
 
-def test_known_hosts_line_uses_bracketed_host_and_port():
+@pytest.fixture
+def hosts():
+    from tests.lab import hosts
+
+    return hosts
+
+
+@pytest.fixture
+def engine():
+    from tests.lab import engine
+
+    return engine
+
+
+def test_known_hosts_line_uses_bracketed_host_and_port(hosts):
     key = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIOo root@robot1"
     assert hosts.known_hosts_line(22001, key) == "[127.0.0.1]:22001 ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIOo"
     assert hosts.known_hosts_line(22, key) == "127.0.0.1 ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIOo"
 
 
-def test_known_hosts_line_is_what_paramiko_looks_up(tmp_path):
+def test_known_hosts_line_is_what_paramiko_looks_up(hosts, tmp_path):
     paramiko = pytest.importorskip("paramiko")
     line = hosts.known_hosts_line(
         22001, "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIEv7c1MIxS1aDiHnkvLJpm9leEXrCUGb/lZ0/a7wfecX x")
@@ -22,12 +37,12 @@ def test_known_hosts_line_is_what_paramiko_looks_up(tmp_path):
     assert "ssh-ed25519" in keys.lookup("[127.0.0.1]:22001")
 
 
-def test_plan_hosts_names_and_groups():
+def test_plan_hosts_names_and_groups(hosts):
     assert hosts.plan_hosts(2, 1) == [("robot1", "robots"), ("robot2", "robots"), ("laptop1", "laptops")]
     assert hosts.plan_hosts(0, 0) == []
 
 
-def test_sensors_from_inventory(tmp_path):
+def test_sensors_from_inventory(hosts, tmp_path):
     path = tmp_path / "lab.yaml"
     path.write_text("robots:\n  hosts:\n    robot1:\n      sensors:\n        - {name: lidar, serial: x}\n"
                     "        - {name: imu}\n    robot2: {}\nlaptops:\n  hosts:\n    laptop1: {}\n")
@@ -35,26 +50,26 @@ def test_sensors_from_inventory(tmp_path):
     assert hosts.sensors_from_inventory(tmp_path / "missing.yaml") == {}
 
 
-def test_one_sensor_list_applies_to_every_robot_and_names_are_checked():
+def test_one_sensor_list_applies_to_every_robot_and_names_are_checked(hosts, engine):
     assert hosts._sensors_by_host(["lidar"], 2) == {"robot1": ["lidar"], "robot2": ["lidar"]}
-    with pytest.raises(LabError):
+    with pytest.raises(engine.LabError):
         hosts._sensors_by_host(["../etc/passwd"], 1)
 
 
-def test_apt_proxy_goes_direct_to_the_services_host():
+def test_apt_proxy_goes_direct_to_the_services_host(hosts):
     conf = hosts.apt_proxy_conf("lab-services")
     assert 'Acquire::http::Proxy "http://lab-services:3142";' in conf
     assert 'Acquire::http::Proxy::lab-services "DIRECT";' in conf
 
 
-def test_prefix_must_be_a_hostname_part():
+def test_prefix_must_be_a_hostname_part(hosts, engine):
     assert hosts.check_prefix("e2e") == "e2e"
     for bad in ("", "Lab", "a_b", "-x", "a" * 40):
-        with pytest.raises(LabError):
+        with pytest.raises(engine.LabError):
             hosts.check_prefix(bad)
 
 
-def test_engine_is_not_started_when_we_may_not(monkeypatch):
+def test_engine_is_not_started_when_we_may_not(engine, monkeypatch):
     monkeypatch.delenv("DOCKER_HOST", raising=False)
     monkeypatch.setattr(engine.os, "geteuid", lambda: 1000)
     assert engine._why_we_cannot_start_dockerd() == "not root"

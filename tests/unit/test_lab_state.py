@@ -2,8 +2,16 @@
 
 import pytest
 
-from tests.lab import state
-from tests.lab.engine import LabError
+# The lab modules import docker (and so ssl); importing them at collection
+# time, before pyinfra's gevent patches ssl in other test modules, makes
+# gevent warn. So they are imported when a test runs.
+
+
+@pytest.fixture
+def state():
+    from tests.lab import state
+
+    return state
 
 
 def sample(prefix="t"):
@@ -16,13 +24,13 @@ def sample(prefix="t"):
     }
 
 
-def test_round_trip(tmp_path):
+def test_round_trip(state, tmp_path):
     path = state.save(sample(), root=tmp_path)
     assert path == tmp_path / "t" / "state.json"
     assert state.load("t", root=tmp_path) == sample()
 
 
-def test_keys_are_exactly_the_contract(tmp_path):
+def test_keys_are_exactly_the_contract(state, tmp_path):
     with pytest.raises(ValueError):
         state.save(dict(sample(), extra=1), root=tmp_path)
     incomplete = sample()
@@ -31,12 +39,14 @@ def test_keys_are_exactly_the_contract(tmp_path):
         state.save(incomplete, root=tmp_path)
 
 
-def test_load_of_a_lab_that_is_not_up_says_how_to_start_it(tmp_path):
+def test_load_of_a_lab_that_is_not_up_says_how_to_start_it(state, tmp_path):
+    from tests.lab.engine import LabError
+
     with pytest.raises(LabError, match="python3 -m tests.lab up --prefix nope"):
         state.load("nope", root=tmp_path)
 
 
-def test_prefix_comes_from_the_environment(monkeypatch):
+def test_prefix_comes_from_the_environment(state, monkeypatch):
     monkeypatch.delenv("ROBOT_LAB_PREFIX", raising=False)
     assert state.lab_prefix() == "lab"
     monkeypatch.setenv("ROBOT_LAB_PREFIX", "e2e")
