@@ -185,8 +185,9 @@ _PROBES = {
 
 
 def _local_registry_answers(port: int) -> bool:
+    direct = urllib.request.build_opener(urllib.request.ProxyHandler({}))
     try:
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}/v2/", timeout=3) as r:
+        with direct.open(f"http://127.0.0.1:{port}/v2/", timeout=3) as r:
             return r.status == 200
     except OSError:
         return False
