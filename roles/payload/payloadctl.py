@@ -291,6 +291,8 @@ def cmd_apply(args):
             return apply_locked(spec, releases, old, args.restart)
         except Failure as error:
             return finish(root, False, "payload: {}".format(error))
+        except Exception as error:  # record it: the deploy reads the result, not our stderr
+            return finish(root, False, "payload: internal error in payloadctl: {!r}".format(error))
 
 
 def apply_locked(spec, releases, old, restart):
@@ -369,6 +371,7 @@ def gc(spec, releases):
     """Keep current, previous and the newest few; their images stay."""
     keep = set(releases.all()[-spec["keep_releases"]:])
     keep |= {releases.pointer("current"), releases.pointer("previous")}
+    keep.discard(None)
     kept_images = set()
     for rid in keep:
         record = releases.record(rid) or {}

@@ -89,6 +89,10 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     key_path = _ensure_ssh_key(prefix)
     with timed_phase("start services"):
         registry_port = services.ensure_services(dc, prefix, network, services_image, mirror_dir)
+    with timed_phase("payload images in the lab registry"):
+        from . import payload_images
+
+        payload_images.build_payload_images(dc, f"127.0.0.1:{registry_port}")
     wanted = plan_hosts(robots, laptops)
     _remove_hosts_not_in(dc, prefix, {name for name, _ in wanted})
     services_host = services.container_name(prefix)
