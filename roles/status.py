@@ -80,7 +80,14 @@ def table(rows: list[dict]) -> str:
             return "no"
         return "-" if value in (None, "") else str(value)
 
-    cells = [[cell(r.get(key)) for key, _ in COLUMNS] for r in rows]
+    def short(key, value):
+        # The table shows the first 12 digits of a digest; --json has it whole.
+        if key == "image" and isinstance(value, str) and "@sha256:" in value:
+            repo, digest = value.split("@sha256:", 1)
+            return f"{repo}@sha256:{digest[:12]}"
+        return value
+
+    cells = [[cell(short(key, r.get(key))) for key, _ in COLUMNS] for r in rows]
     widths = [max([len(title)] + [len(c[i]) for c in cells]) for i, (_, title) in enumerate(COLUMNS)]
     lines = ["  ".join(title.ljust(w) for (_, title), w in zip(COLUMNS, widths)).rstrip()]
     lines += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in cells]
@@ -94,16 +101,27 @@ def collect(inventory_path: str, limits: list[str]) -> list[dict]:
     from pyinfra.api.exceptions import PyinfraError
     from pyinfra_cli.inventory import make_inventory
 
-    inventory = make_inventory(inventory_path, cwd=os.getcwd())
+    from pyinfra.context import ctx_state
+
+    with ctx_state.use(State()):
+        inventory = make_inventory(inventory_path, cwd=os.getcwd())
     hosts = [h for h in inventory if not limits or any(
         fnmatch.fnmatch(h.name, pattern) or pattern in h.groups for pattern in limits
     )]
     state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
     state.limit_hosts = hosts
-    try:
-        connect_all(state)
-    except PyinfraError:
-        pass  # every host unreachable: each still gets its row
+    with ctx_state.use(state):
+        try:
+            connect_all(state)
+        except PyinfraError:
+            pass  # every host unreachable: each still gets its row
+        return _query(hosts)
+
+
+def _query(hosts) -> list[dict]:
+    import json as _json
+
+    from pyinfra.api.command import StringCommand
 
     def one(host):
         if not host.connected:
@@ -112,7 +130,7 @@ def collect(inventory_path: str, limits: list[str]) -> list[dict]:
         if not ok:
             return {**row(host.name, {}), "error": output.stderr.strip()[-200:]}
         try:
-            return row(host.name, json.loads(output.stdout))
+            return row(host.name, _json.loads(output.stdout))
         except ValueError:
             return {**row(host.name, {}), "error": "unreadable status"}
 

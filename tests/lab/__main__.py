@@ -21,7 +21,8 @@ def _parser() -> argparse.ArgumentParser:
     for name, text in (("up", "start or reuse the lab"), ("reset", "down, then up with fresh hosts"),
                        ("down", "remove the lab's containers, network and volumes"),
                        ("status", "one line per container"),
-                       ("engine", "make sure a Docker engine answers (start dockerd if needed)")):
+                       ("engine", "make sure a Docker engine answers (start dockerd if needed)"),
+                       ("demo", "up, then provision the lab with pyinfra and say how to look inside")):
         command = commands.add_parser(name, help=text)
         if name == "engine":
             continue
@@ -46,6 +47,10 @@ def main(argv: list[str]) -> int:
                      1 if args.laptops is None else args.laptops, args.sensor)
         elif args.command == "reset":
             hosts.reset(args.prefix, args.robots, args.laptops, args.sensor)
+        elif args.command == "demo":
+            from .demo import demo
+
+            return demo(args.prefix)
         elif args.command == "engine":
             print(f"lab: Docker engine {client().version()['Version']} answers")
         elif args.command == "down":
