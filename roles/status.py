@@ -65,7 +65,7 @@ def row(name: str, report: dict | None, error: str | None = None) -> dict:
         "health": ", ".join(c.get("health") or "none" for c in containers) or None,
         "restarts": sum(c.get("restarts", 0) for c in containers),
         "previous": previous.get("id"),
-        "deployed": current.get("activated") or current.get("created"),
+        "deployed": current.get("rolled_back_to") or current.get("activated") or current.get("created"),
         "release_state": current.get("state"),
         "lock": report.get("update_lock"),
         "rolled_back_from": current.get("rolled_back_from"),

