@@ -1,0 +1,75 @@
+"""Pure parts of the status table and of layer-aware push delivery."""
+
+import io
+import json
+import tarfile
+
+from roles import status
+from roles.payload import push
+
+A, B, C = ("sha256:" + c * 64 for c in "abc")
+
+
+def test_layers_present_is_the_longest_shared_prefix():
+    assert push.layers_present([A, B, C], []) == 0
+    assert push.layers_present([A, B, C], [[A, C], [A, B]]) == 2
+    assert push.layers_present([A, B], [[A, B, C]]) == 2
+    assert push.layers_present([A, B], [[B, A]]) == 0  # same layers on another base are another chain
+
+
+def test_layer_probe_output_is_parsed_line_by_line():
+    output = json.dumps([A, B]) + "\n" + "garbage\n" + json.dumps([C]) + "\n"
+    assert push.parse_layer_sets(output) == [[A, B], [C]]
+
+
+def test_archive_leaves_out_layers_the_robot_has(tmp_path, monkeypatch):
+    """write_archive on a synthetic `docker save` tar (the engine is faked by
+    a stand-in image object; the rewrite itself is what is tested)."""
+    source = io.BytesIO()
+    with tarfile.open(fileobj=source, mode="w") as tar:
+        def add(name, data):
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            tar.addfile(info, io.BytesIO(data))
+        add("cfg.json", json.dumps({"rootfs": {"diff_ids": [A, B]}}).encode())
+        add("l1/layer.tar", b"x" * 50000)
+        add("l2/layer.tar", b"y" * 70000)
+        add("manifest.json", json.dumps([{"Config": "cfg.json", "RepoTags": ["r/p:1"], "Layers": ["l1/layer.tar", "l2/layer.tar"]}]).encode())
+
+    class Image:
+        def save(self, named):
+            assert named == "r/p:1"
+            yield source.getvalue()
+
+    class Engine:
+        class images:
+            @staticmethod
+            def get(ref):
+                return Image()
+
+    import docker
+    monkeypatch.setattr(docker, "from_env", lambda: Engine())
+    report = {}
+    out = tmp_path / "sent.tar"
+    push.write_archive("r/p:1", str(out), [[A]], report)
+    with tarfile.open(out) as sent:
+        assert sorted(sent.getnames()) == ["cfg.json", "l2/layer.tar", "manifest.json"]
+    assert report["layers"] == 2 and report["skipped"] == 1 and report["sent"] < report["full"]
+
+
+def test_status_rows_and_table():
+    report = {
+        "docker_version": "26.1.5",
+        "current": {"id": "r2", "state": "active", "activated": "2026-11-21T10:00:00Z",
+                    "images": {"reg/p:1.1": {"id": "sha256:1", "pinned": "reg/p@sha256:" + "d" * 64}}},
+        "previous": {"id": "r1"},
+        "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
+        "update_lock": None,
+    }
+    rows = [status.row("robot1", report), status.row("robot2", None, "cannot connect")]
+    assert rows[0]["image"] == "reg/p@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"
+    assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
+    text = status.table(rows).splitlines()
+    assert text[0].split() == ["HOST", "REACHABLE", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK"]
+    assert text[1].split() == ["robot1", "yes", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-"]
+    assert text[2].split()[:2] == ["robot2", "no"]
