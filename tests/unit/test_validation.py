@@ -171,3 +171,23 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
     assert "inventories/robots.yaml: robot3.sensors[0].serial: expected a string, got 42" in proc.stderr
     assert "Traceback" not in proc.stderr + proc.stdout
     assert "Connecting" not in proc.stderr + proc.stdout
+
+
+def _pyinfra(*args, env=None):
+    return subprocess.run(
+        [sys.executable, "-c", PYINFRA, *args], cwd=ROOT, capture_output=True, text=True, timeout=60,
+        env={"PATH": "/usr/bin:/bin", **(env or {})},
+    )
+
+
+def test_mistyped_inventory_path_is_refused():
+    proc = _pyinfra("-y", "inventories/robot.py", "deploy.py")
+    assert proc.returncode == 2 and "inventories/robot.py: no such file" in proc.stderr
+
+
+def test_local_inventory_is_this_laptop_from_the_fleet_file():
+    proc = _pyinfra("inventories/local.py", "debug-inventory", env={"ROBOT_FLEET_HOST": "alice-laptop"})
+    assert proc.returncode == 0, proc.stderr
+    assert "[@local]" in proc.stderr + proc.stdout and '"x11_user": "alice"' in proc.stderr + proc.stdout
+    proc = _pyinfra("inventories/local.py", "debug-inventory", env={"ROBOT_FLEET_HOST": "nobody"})
+    assert proc.returncode == 2 and "no laptop named 'nobody' (laptops: alice-laptop)" in proc.stderr
