@@ -9,20 +9,31 @@ state; the roles then change only what differs.
 
 from pyinfra import host
 
-from roles import docker, payload, udev, users, x11
+from roles import docker, payload, remote, udev, users, x11
 from roles.hoststate import HostSnapshot, Query
+from roles.settings import data_problems
 
 _ROLES = (docker, users, udev, x11, payload)
 
-_query = Query()
-for _role in _ROLES:
-    _role.wants(host.data, _query)
-_snapshot = host.get_fact(HostSnapshot, **_query.as_kwargs())
 
-docker.install_docker(_snapshot)
-users.docker_users(_snapshot)
-if host.data.sensors or host.data.udev_vendor_rules:
-    udev.sensor_rules(_snapshot)
-if host.data.display:
-    x11.x11_cookie(_snapshot)
-payload.deploy_payload(_snapshot)
+def _provision():
+    query = Query()
+    for role in _ROLES:
+        role.wants(host.data, query)
+    snapshot = host.get_fact(HostSnapshot, **query.as_kwargs())
+
+    docker.install_docker(snapshot)
+    users.docker_users(snapshot)
+    if host.data.sensors or host.data.udev_vendor_rules:
+        udev.sensor_rules(snapshot)
+    if host.data.display:
+        x11.x11_cookie(snapshot)
+    payload.deploy_payload(snapshot)
+
+
+# The fleet file was checked before connecting; --data overrides were not.
+_problems = data_problems(host.data)
+if _problems:
+    remote.fail(name="Check the host's settings", message="settings: " + "; ".join(_problems))
+else:
+    _provision()

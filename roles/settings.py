@@ -256,3 +256,16 @@ def _sensor_set_problems(sensors: list, allow_world_writable: bool) -> list[c.Pr
         if isinstance(mode, str) and re.fullmatch(MODE, mode) and int(mode, 8) & 0o002 and not allow_world_writable:
             problems.append((f"{where}.mode", f"{mode} is world-writable; use a group (or set udev_allow_world_writable)"))
     return problems
+
+
+def data_problems(data) -> list[str]:
+    """Problems in a host's final data (pyinfra host.data, including --data
+    overrides, which never went through the fleet file), as 'field: message'."""
+    missing = object()
+    values = {}
+    for key in SCHEMA:
+        value = data.get(key, missing)
+        if value is not missing:
+            values[key] = value
+    problems = check_layer(values) + check_host(values)
+    return [f"{field}: {message}" for field, message in problems]

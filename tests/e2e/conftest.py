@@ -43,8 +43,21 @@ class Run:
         return [op["name"] for op in (self.results or {}).get("operations", []) if host in op["success"]]
 
 
+PHASES: list[str] = []
+
+
 def phase(name: str, started: float) -> None:
-    print(f"\n[e2e] {name}: {time.monotonic() - started:.1f} s", flush=True)
+    line = f"{name}: {time.monotonic() - started:.1f} s"
+    PHASES.append(line)
+    print(f"\n[e2e] {line}", flush=True)
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The time of each end-to-end phase, also when output is captured."""
+    if PHASES:
+        terminalreporter.section("end-to-end phases")
+        for line in PHASES:
+            terminalreporter.write_line(line)
 
 
 class Lab:
@@ -65,8 +78,9 @@ class Lab:
         assert code == 0, f"{host}: {command}: exit {code}: {output}"
         return output
 
-    def provision(self, *args: str, fleet: Path | None = None, script: str = "deploy.py", label: str = "") -> Run:
-        env = dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, PYINFRA_PROGRESS="off")
+    def provision(self, *args: str, fleet: Path | None = None, script: str = "deploy.py", label: str = "",
+                  env: dict | None = None) -> Run:
+        env = dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, PYINFRA_PROGRESS="off", **(env or {}))
         if fleet:
             env["ROBOT_LAB_FLEET"] = str(fleet)
         started = time.monotonic()
@@ -75,7 +89,7 @@ class Lab:
             cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500,
         )
         seconds = time.monotonic() - started
-        print(f"\n[e2e] pyinfra {script} {label}: {seconds:.1f} s, exit {proc.returncode}", flush=True)
+        phase(f"pyinfra {script} {label} (exit {proc.returncode})", started)
         try:
             results = json.loads(proc.stdout)["results"]
         except (ValueError, KeyError, TypeError):

@@ -301,3 +301,13 @@ def test_snapshot_encoding_roundtrip():
     again = parse(snapshot_lines(snap))
     assert again.files == snap.files and again.probes == snap.probes and again.packages == snap.packages
     assert base64.b64decode  # noqa: B018 (imported for the encoder)
+
+
+def test_bad_override_data_fails_that_host_before_anything_runs():
+    result = plan({"r1": ("robots", {**ROBOT, "docker_apt_key_fingerprint": 0, "ssh_port": "x"}, fresh_host("debian-13")),
+                   "r2": ("robots", ROBOT, fresh_host("debian-13"))})
+    assert plan.failed == {"r1"}
+    assert len(result["r1"]) == 1 and "settings: " in result["r1"][0]
+    assert "docker_apt_key_fingerprint: expected a string, got 0" in result["r1"][0]
+    assert "ssh_port: expected a whole number" in result["r1"][0]
+    assert find(result["r2"], "payloadctl apply")
