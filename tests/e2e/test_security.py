@@ -25,7 +25,7 @@ def test_registry_credentials_are_used_but_never_printed(lab, first_run):
     lab.ok("robot2", f"docker logout {lab.state['registry']}")
     run = lab.provision("-vv", "--limit", "robot2", env=env, label="(registry login, -vv)")
     assert run.returncode == 0, run.output[-3000:]
-    assert run.changes("robot2") == ["Payload | Log in to the payload registry"]
+    assert "Payload | Log in to the payload registry" in run.changes("robot2")
     assert secret not in run.output
     config = lab.ok("robot2", "cat /root/.docker/config.json")
     assert lab.state["registry"] in json.loads(config)["auths"]
