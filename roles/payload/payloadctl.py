@@ -297,6 +297,17 @@ def cmd_apply(args):
 
 def apply_locked(spec, releases, old, restart):
     root = spec["dir"]
+    # An apply that waited for another one (e.g. a rerun after a dropped SSH
+    # link) may find the work done: switching again would restart for nothing.
+    running = releases.record(old) if old else None
+    if (
+        running
+        and not restart
+        and running.get("spec_hash") == spec["spec_hash"]
+        and running.get("state") in ("active", "staged")
+        and (not spec["autostart"] or unit_active(spec["name"] + ".service"))
+    ):
+        return finish(root, True, "payload: release {} is already current".format(old), old)
     holder = update_lock_holder(spec["lock_file"])
     if holder and old and not spec.get("force"):
         return finish(

@@ -81,3 +81,18 @@ def test_helper_runs_on_python_3_8_syntax():
     source = (payload.HERE / "payloadctl.py").read_text()
     ast.parse(source, feature_version=(3, 8))  # Ubuntu 20.04 robots run Python 3.8
     assert "from __future__" not in source and Path(payload.HERE / "payloadctl.py").exists()
+
+
+def test_apply_finds_the_release_already_current(tmp_path):
+    """A second apply of the same spec (say, after a dropped link) changes nothing."""
+    releases = payloadctl.Releases(str(tmp_path))
+    (tmp_path / "releases" / "r1").mkdir(parents=True)
+    releases.write_record("r1", {"id": "r1", "created": "x", "spec_hash": "abc", "state": "staged"})
+    releases.point("current", "r1")
+    spec = {"dir": str(tmp_path), "spec_hash": "abc", "autostart": False, "name": "robot-payload",
+            "lock_file": str(tmp_path / "lock"), "compose": {"services": {}}, "delivery": "pull"}
+    (tmp_path / "spec.json").write_text(json.dumps(spec))
+    proc = subprocess.run([sys.executable, str(payload.HERE / "payloadctl.py"), "apply", str(tmp_path / "spec.json")],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0 and "release r1 is already current" in proc.stdout
+    assert sorted(p.name for p in (tmp_path / "releases").iterdir()) == ["r1"]
