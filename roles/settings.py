@@ -223,8 +223,6 @@ def check_host(data: dict) -> list[c.Problem]:
         problems.append(("x11_user", "required when display is true: the desktop user"))
     if data.get("ros_master_uri") and data.get("ros_domain_id"):
         problems.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
-    if data.get("payload_gpu") and data.get("docker_source") == "distro":
-        pass  # allowed: the NVIDIA toolkit works with either engine
     sensors = data.get("sensors") or []
     if isinstance(sensors, list):
         problems += _sensor_set_problems(sensors, data.get("udev_allow_world_writable", False))

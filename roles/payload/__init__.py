@@ -145,11 +145,10 @@ def deploy_payload(snap: Snapshot):
     if not snap.commands.get("python3"):
         remote.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
     remote.directory(name=data.payload_dir, path=data.payload_dir, current=snap.files.get(data.payload_dir))
-    helper_text_now = helper_text()
     remote.file(
         name="payloadctl",
         path=HELPER,
-        content=helper_text_now,
+        content=helper_text(),
         current=snap.files.get(HELPER),
         mode="0755",
     )
@@ -166,7 +165,8 @@ def deploy_payload(snap: Snapshot):
             name=f"Enable {data.payload_name}.service at boot",
             unit=f"{data.payload_name}.service",
             enabled_now=snap.unit_enabled(f"{data.payload_name}.service"),
-            active_now=True,  # starting is the release step's job
+            active_now=snap.unit_active(f"{data.payload_name}.service"),
+            running=False,  # starting it is the release step's job (health-gated)
         )
     else:
         removed = remote.absent(name="No payload autostart unit", paths=[unit], present=snap.files)
