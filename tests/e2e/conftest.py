@@ -112,6 +112,7 @@ def lab():
     from tests.lab import hosts
 
     started = time.monotonic()
+    hosts.down(PREFIX)  # fresh hosts every session, whatever an earlier run left
     state = hosts.up(PREFIX, robots=3, laptops=1)
     phase("lab up (images, services, hosts)", started)
     yield Lab(state)
