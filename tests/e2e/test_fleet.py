@@ -10,6 +10,13 @@ import pytest
 
 pytestmark = pytest.mark.e2e
 
+# What inventories/lab.yaml declares per robot, handed to the payload.
+SENSOR_DEVICES = {
+    "robot1": {"/dev/robot/front_camera", "/dev/robot/back_camera", "/dev/robot/lidar"},
+    "robot2": {"/dev/robot/imu"},
+    "robot3": {"/dev/robot/gps"},
+}
+
 
 def payload_container(lab, host: str) -> dict:
     ids = lab.ok(host, "docker ps -q --filter label=com.docker.compose.project=robot-payload").split()
@@ -79,7 +86,7 @@ def test_payload_unit_runs_the_declared_image_healthy(lab, first_run):
         assert container["Config"]["Labels"]["org.opencontainers.image.version"] == "1.0"
         assert "ROS_DOMAIN_ID=7" in container["Config"]["Env"]
         devices = {d["PathOnHost"] for d in container["HostConfig"]["Devices"]}
-        assert "/dev/robot/imu" in devices or "/dev/robot/lidar" in devices or "/dev/robot/gps" in devices
+        assert devices == SENSOR_DEVICES[host]
         record = json.loads(lab.ok(host, "cat /var/lib/robot-payload/current/record.json"))
         assert record["state"] == "active"
     for host in lab.laptops:

@@ -137,11 +137,11 @@ def test_every_problem_is_reported_at_once():
 
 def test_yaml_syntax_error_names_the_line(tmp_path):
     path = tmp_path / "robots.yaml"
-    path.write_text("robots:\n  hosts:\n    r1: {address: [\n")
+    path.write_text("robots:\n  hosts:\n    r1: {address: 10.0.0.1\n    r2: {}\n")
     with pytest.raises(fleet.FleetError) as error:
         fleet.load(path)
-    assert error.value.lines[0].endswith("YAML error: " + error.value.lines[0].split("YAML error: ")[1])
-    assert "line 4" in error.value.lines[0] or "line 3" in error.value.lines[0]
+    (line,) = error.value.lines
+    assert line.startswith(fleet.display_path(path) + ": line 4: YAML error: ")
 
 
 def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
