@@ -62,13 +62,16 @@ def write_file_command(path: str, content: bytes, mode: str, user: str, group: s
     return shell(script, stdin=encoded or [""])
 
 
+def _attributes_match(current: FileState, mode, user: str, group: str) -> bool:
+    return current.mode == _mode(mode) and (current.owner, current.group) == (user, group)
+
+
 def file_matches(current: FileState | None, content: bytes, mode, user, group) -> bool:
     return (
         current is not None
         and current.kind == "file"
         and current.sha256 == sha256(content)
-        and current.mode == _mode(mode)
-        and (current.owner, current.group) == (user, group)
+        and _attributes_match(current, mode, user, group)
     )
 
 
@@ -86,31 +89,28 @@ def file(
     a shell command in which ``{}`` is the new file)."""
     if isinstance(content, str):
         content = content.encode()
-    if file_matches(current, content, mode, user, group):
-        host.noop(f"{path} is up to date")
-        return
-    if current is not None and current.kind == "file" and current.sha256 == sha256(content):
-        yield shell(
-            f"chown {shlex.quote(user)}:{shlex.quote(group)} {shlex.quote(path)}"
-            f" && chmod {_mode(mode)} {shlex.quote(path)}"
-        )
-        return
     if current is not None and current.kind != "file":
         yield fail_command(f"{path} exists but is not a regular file; not replacing it")
         return
-    yield write_file_command(path, content, mode, user, group, validate)
+    if current is None or current.sha256 != sha256(content):
+        yield write_file_command(path, content, mode, user, group, validate)
+        return
+    if _attributes_match(current, mode, user, group):
+        host.noop(f"{path} is up to date")
+        return
+    yield shell(
+        f"chown {shlex.quote(user)}:{shlex.quote(group)} {shlex.quote(path)}"
+        f" && chmod {_mode(mode)} {shlex.quote(path)}"
+    )
 
 
 @operation()
 def directory(path: str, current: FileState | None, mode: str = "0755", user: str = "root", group: str = "root"):
-    if current is not None and current.kind == "dir" and current.mode == _mode(mode) and (
-        current.owner,
-        current.group,
-    ) == (user, group):
-        host.noop(f"{path} is up to date")
-        return
     if current is not None and current.kind != "dir":
         yield fail_command(f"{path} exists but is not a directory")
+        return
+    if current is not None and _attributes_match(current, mode, user, group):
+        host.noop(f"{path} is up to date")
         return
     yield shell(
         f"install -d -m {_mode(mode)} -o {shlex.quote(user)} -g {shlex.quote(group)} {shlex.quote(path)}"
@@ -177,7 +177,7 @@ def service(unit: str, enabled_now: bool, active_now: bool, enabled: bool = True
     if running and not active_now:
         commands.append(f"systemctl start {shlex.quote(unit)}")
     if not commands:
-        host.noop(f"{unit} is {'enabled and ' if enabled else ''}running")
+        host.noop(f"{unit} is as wanted")
         return
     yield shell(" && ".join(commands))
 

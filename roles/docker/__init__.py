@@ -26,19 +26,21 @@ def sources_path(data) -> str:
     return f"/etc/apt/sources.list.d/{data.docker_apt_filename}.sources"
 
 
+def fingerprints_of(path: str) -> str:
+    """Shell pipeline printing the OpenPGP fingerprints in key file ``path``
+    (a shell word, already quoted) using the throwaway GNUPGHOME ``$h``."""
+    return f"GNUPGHOME=$h gpg --batch --show-keys --with-colons {path} 2>/dev/null | awk -F: '$1==\"fpr\"{{print $10}}'"
+
+
 def key_fingerprints_probe(path: str) -> str:
     p = shlex.quote(path)
-    return (
-        f"[ -f {p} ] && command -v gpg >/dev/null && h=$(mktemp -d) && "
-        f"GNUPGHOME=$h gpg --batch --show-keys --with-colons {p} | awk -F: '$1==\"fpr\"{{print $10}}'; "
-        'rm -rf "$h"'
-    )
+    return f'[ -f {p} ] && command -v gpg >/dev/null && h=$(mktemp -d) && {fingerprints_of(p)}; rm -rf "$h"'
 
 
 def wants(data, query: Query) -> None:
     packages = set(data.docker_packages) | set(data.docker_obsolete_packages) | set(PREREQUISITES)
-    packages |= {"docker.io", "docker-compose", "docker-compose-v2", "docker-ce", "gpg"}
-    packages |= set(data.docker_distro_packages or [])
+    packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
+    packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
     query.files |= {KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON}
     query.files |= set(data.docker_apt_legacy_files)
@@ -66,10 +68,7 @@ def key_download_script(url: str, dest: str, fingerprint: str | None, sha256: st
             f'docker_apt_key_sha256 {sha256}; key not installed" >&2; exit 1; }}'
         )
     if fingerprint:
-        lines.append(
-            'fprs=$(GNUPGHOME=$h gpg --batch --show-keys --with-colons "$tmp" 2>/dev/null '
-            "| awk -F: '$1==\"fpr\"{print $10}')"
-        )
+        lines.append("fprs=$(" + fingerprints_of('"$tmp"') + ")")
         lines.append(
             f'echo "$fprs" | grep -qx {q(fingerprint)} || {{ echo "Docker apt key from {url}: fingerprint '
             f'$(echo $fprs) does not match docker_apt_key_fingerprint {fingerprint}; key not installed" >&2; exit 1; }}'

@@ -203,3 +203,26 @@ def test_file_write_is_atomic_and_validated_before_it_lands(tmp_path):
     assert proc.returncode != 0
     assert dest.read_bytes() == b"first\n"
     assert sorted(p.name for p in dest.parent.iterdir()) == ["x.conf"]
+
+
+def test_key_fingerprint_pin_with_real_gpg(tmp_path):
+    """The download script and the snapshot probe read fingerprints the same way."""
+    from roles import docker
+    home = tmp_path / "gnupg"
+    home.mkdir(mode=0o700)
+    gpg = ["gpg", "--batch", "--homedir", str(home)]
+    subprocess.run(gpg + ["--passphrase", "", "--quick-gen-key", "lab@example", "ed25519", "sign", "never"],
+                   capture_output=True, check=True)
+    (tmp_path / "key.asc").write_bytes(subprocess.run(gpg + ["--armor", "--export"], capture_output=True, check=True).stdout)
+    listing = subprocess.run(gpg + ["--with-colons", "--list-keys"], capture_output=True, text=True).stdout
+    fingerprint = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
+    dest = tmp_path / "keyrings" / "docker.asc"
+    dest.parent.mkdir()
+    url = f"file://{tmp_path}/key.asc"
+    wrong = subprocess.run(["sh", "-c", docker.key_download_script(url, str(dest), "DEAD" * 10, None)], capture_output=True, text=True)
+    assert wrong.returncode == 1 and f"fingerprint {fingerprint} does not match" in wrong.stderr
+    assert list(dest.parent.iterdir()) == []
+    right = subprocess.run(["sh", "-c", docker.key_download_script(url, str(dest), fingerprint, None)], capture_output=True, text=True)
+    assert right.returncode == 0, right.stderr
+    probe = subprocess.run(["sh", "-c", docker.key_fingerprints_probe(str(dest))], capture_output=True, text=True)
+    assert probe.stdout.split() == [fingerprint]
