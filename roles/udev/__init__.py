@@ -66,8 +66,8 @@ def sensor_rules(snap: Snapshot):
     if data.sensors:
         files[data.udev_rules_file] = rules.render(data.sensors)
     for path, text in files.items():
-        problems = rules.lint(text)
-        if problems and not data.udev_allow_world_writable:
+        problems = rules.lint(text, data.udev_allow_world_writable)
+        if problems:
             remote.fail(name="Check udev rules", message=f"udev: {path}: {problems[0]}")
             return
 

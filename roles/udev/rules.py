@@ -69,7 +69,7 @@ KNOWN_KEYS = {
 }
 
 
-def lint(text: str) -> list[str]:
+def lint(text: str, allow_world_writable: bool = False) -> list[str]:
     """Syntax problems in a rules file, as 'line N: message' (empty if fine).
     A cheap check that needs no udevadm; hosts with udevadm verify run it too."""
     problems = []
@@ -92,7 +92,7 @@ def lint(text: str) -> list[str]:
                 problems.append(f"line {start}: cannot parse {item.strip()!r}")
             elif match.group("key") not in KNOWN_KEYS:
                 problems.append(f"line {start}: unknown key {match.group('key')}")
-            elif match.group("key") == "MODE" and _world_writable(match.group("value")):
+            elif match.group("key") == "MODE" and not allow_world_writable and _world_writable(match.group("value")):
                 problems.append(f"line {start}: MODE {match.group('value')} is world-writable")
     return problems
 

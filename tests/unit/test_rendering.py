@@ -42,6 +42,8 @@ def test_udev_lint_catches_broken_and_world_writable_rules():
     assert rules.lint('KERNEL=="ttyUSB0" SYMLINK+="x"\n') != []
     assert rules.lint('KERNEL=="ttyUSB0", SYMLNK+="x"\n') == ["line 1: unknown key SYMLNK"]
     assert rules.lint('KERNEL=="tty*", MODE="0666"\n') == ["line 1: MODE 0666 is world-writable"]
+    assert rules.lint('KERNEL=="tty*", MODE="0666"\n', allow_world_writable=True) == []
+    assert rules.lint('KERNEL=="tty*" MODE="0666"\n', allow_world_writable=True) != []
     assert rules.lint('KERNEL=="a", \\\n  SYMLINK+="b"\n') == []
 
 
