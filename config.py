@@ -5,12 +5,12 @@ import sys
 
 from pyinfra import config
 
+from roles.fleet import refuse
+
 config.REQUIRE_PYINFRA_VERSION = ">=3.10,<4"
 
 # pyinfra treats a mistyped inventory path as an empty inventory and exits 0
 # having done nothing; refuse it instead.
-for _argument in sys.argv[1:]:
-    if _argument.endswith(".py") and not _argument.startswith("-") and not os.path.exists(_argument):
-        print(f"{_argument}: no such file", file=sys.stderr)
-        sys.stderr.flush()
-        os._exit(2)
+_missing = [a for a in sys.argv[1:] if a.endswith(".py") and not a.startswith("-") and not os.path.exists(a)]
+if _missing:
+    refuse([f"{path}: no such file" for path in _missing])

@@ -9,23 +9,14 @@ known_hosts, like a real fleet.
 
 import json
 import os
-import sys
 from pathlib import Path
 
-import yaml
-
-from roles.fleet import FleetError, check, read_group_data
+from roles.fleet import FleetError, parse, refuse
 
 _ROOT = Path(__file__).resolve().parent.parent
 _PREFIX = os.environ.get("ROBOT_LAB_PREFIX", "lab")
 _STATE = _ROOT / ".lab" / _PREFIX / "state.json"
 _FLEET = Path(os.environ.get("ROBOT_LAB_FLEET") or Path(__file__).with_suffix(".yaml"))
-
-
-def _fail(message):
-    print(message, file=sys.stderr)
-    sys.stderr.flush()
-    os._exit(2)
 
 
 def _mirror_fingerprint(state):
@@ -36,12 +27,12 @@ def _mirror_fingerprint(state):
         manifest = candidate / "manifest.json"
         if manifest.exists():
             return json.loads(manifest.read_text())["fingerprint"]
-    _fail(f"{_STATE}: the lab has no Docker CE mirror; run python3 -m tests.lab up")
+    refuse([f"{_STATE}: the lab has no Docker CE mirror; run python3 -m tests.lab up"])
 
 
 def _load():
     if not _STATE.exists():
-        _fail(f"no lab '{_PREFIX}' is running ({_STATE} missing); start it with: python3 -m tests.lab up")
+        refuse([f"no lab '{_PREFIX}' is running ({_STATE} missing); start it with: python3 -m tests.lab up"])
     state = json.loads(_STATE.read_text())
     text = _FLEET.read_text()
     for key, value in {
@@ -52,9 +43,9 @@ def _load():
         text = text.replace(key, value)
     ports = {h["name"]: h["port"] for h in state["hosts"]}
     try:
-        fleet = check(yaml.safe_load(text), os.path.relpath(_FLEET), read_group_data())
+        fleet = parse(text, os.path.relpath(_FLEET))
     except FleetError as error:
-        _fail("\n".join(error.lines))
+        refuse(error.lines)
     groups = {}
     for group, hosts in fleet.groups.items():
         groups[group] = []

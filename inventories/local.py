@@ -8,22 +8,18 @@ name (or $ROBOT_FLEET_HOST).  sudo asks for the password if it needs one.
 
 import os
 import socket
-import sys
 from pathlib import Path
 
-from roles.fleet import load_or_exit
+from roles.fleet import load_or_exit, refuse
 
 _fleet = load_or_exit(Path(__file__).with_name("robots.yaml"))
 _name = os.environ.get("ROBOT_FLEET_HOST") or socket.gethostname()
 _mine = [data for name, data in _fleet.hosts("laptops") if name == _name]
 if not _mine:
     _known = ", ".join(name for name, _ in _fleet.hosts("laptops")) or "none"
-    print(
+    refuse([
         f"inventories/robots.yaml: no laptop named {_name!r} (laptops: {_known}); "
-        "add this machine or set ROBOT_FLEET_HOST",
-        file=sys.stderr,
-    )
-    sys.stderr.flush()
-    os._exit(2)
+        "add this machine or set ROBOT_FLEET_HOST"
+    ])
 
 laptops = [("@local", {k: v for k, v in _mine[0].items() if not k.startswith("ssh_")})]

@@ -71,6 +71,11 @@ def read_group_data(directory: Path = GROUP_DATA_DIR) -> dict[str, dict]:
     return defaults
 
 
+def _setting(field: str) -> str:
+    """The setting a problem's field belongs to: sensors[1].serial -> sensors."""
+    return field.split(".")[0].split("[")[0]
+
+
 def display_path(path: Path) -> str:
     try:
         return os.path.relpath(path)
@@ -80,11 +85,17 @@ def display_path(path: Path) -> str:
 
 def load(path: Path, defaults: dict[str, dict] | None = None) -> Fleet:
     """Parse and check the fleet file; raise FleetError listing every problem."""
-    shown = display_path(path)
     try:
-        raw = yaml.load(path.read_text(), Loader=_UniqueKeyLoader)
+        text = path.read_text()
     except FileNotFoundError:
-        raise FleetError([f"{shown}: fleet file not found"]) from None
+        raise FleetError([f"{display_path(path)}: fleet file not found"]) from None
+    return parse(text, display_path(path), defaults)
+
+
+def parse(text: str, shown: str, defaults: dict[str, dict] | None = None) -> Fleet:
+    """Check fleet YAML ``text``, named ``shown`` in problem lines."""
+    try:
+        raw = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None) or getattr(error, "context_mark", None)
         where = f"line {mark.line + 1}: " if mark else ""
@@ -163,8 +174,8 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
             if "address" in data:
                 data["ssh_hostname"] = data.pop("address")
             merged = {**defaults.get("all", {}), **defaults.get(group, {}), **data}
-            flagged = {sub.split(".")[0].split("[")[0] for sub, _ in layer_problems}
-            report(name, [p for p in settings.check_host(merged) if p[0].split(".")[0].split("[")[0] not in flagged])
+            flagged = {_setting(sub) for sub, _ in layer_problems}
+            report(name, [p for p in settings.check_host(merged) if _setting(p[0]) not in flagged])
             fleet.groups[group].append((name, data))
 
     if lines:
@@ -172,13 +183,18 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
     return fleet
 
 
+def refuse(lines: list[str]) -> None:
+    """Stop the pyinfra run before any connection: the lines, exit status 2.
+    (os._exit: pyinfra would turn an exception here into a traceback.)"""
+    for line in lines:
+        print(line, file=sys.stderr)
+    sys.stderr.flush()
+    os._exit(2)
+
+
 def load_or_exit(path: Path) -> Fleet:
     """For inventory files: print the problems and stop before any connection."""
     try:
         return load(path)
     except FleetError as error:
-        for line in error.lines:
-            print(line, file=sys.stderr)
-        print(f"{len(error.lines)} problem(s) in the fleet file; no host was contacted.", file=sys.stderr)
-        sys.stderr.flush()
-        os._exit(2)
+        refuse(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])

@@ -241,7 +241,7 @@ def _sensor_set_problems(sensors: list, allow_world_writable: bool) -> list[c.Pr
             problems.append((f"{where}.name", f"duplicate sensor name {name!r} (also sensors[{names[name]}])"))
         names.setdefault(name, index)
         link = sensor.get("symlink") or f"robot/{name}"
-        if link in links and name not in (None,):
+        if link in links and name is not None:
             problems.append((f"{where}.symlink", f"/dev/{link} is already used by sensors[{links[link]}]"))
         links.setdefault(link, index)
         match = tuple(sensor.get(k) for k in ("subsystem", "serial", "vendor_id", "product_id", "usb_port"))
