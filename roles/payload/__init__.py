@@ -94,24 +94,31 @@ def wants(data, query: Query) -> None:
         query.probes["docker_layers"] = push.LAYERS_PROBE
 
 
-def apply_script(data, restart: bool) -> str:
+def on_robot(data, action: str, arguments: str, prelude: str = "", unit: str | None = None) -> str:
+    """Run ``payloadctl <action> <arguments>`` as a transient systemd unit (so
+    it goes on if SSH drops), then print its recorded result and exit with it."""
     q = shlex.quote
-    flag = " --restart" if restart else ""
     helper = f"/usr/bin/python3 {HELPER}"
+    command = f"{helper} {action} {arguments} >/dev/null 2>&1 || true"
     return (
-        "set -e\n"
-        f"dir={q(data.payload_dir)}\n"
-        'mkdir -p "$dir/staging"\n'
-        'umask 077\ncat > "$dir/staging/spec.json"\n'
+        f"{prelude}"
         "if command -v systemd-run >/dev/null 2>&1 && [ -d /run/systemd/system ]; then\n"
-        # A transient unit: the switch and health check go on if SSH drops.
-        f'  systemd-run --quiet --wait --collect --unit="{data.payload_name}-update-$(date +%s)"'
-        f' {helper} apply "$dir/staging/spec.json"{flag} >/dev/null 2>&1 || true\n'
+        f'  systemd-run --quiet --wait --collect --unit="{data.payload_name}-{unit or action}-$(date +%s)" {command}\n'
         "else\n"
-        f'  {helper} apply "$dir/staging/spec.json"{flag} >/dev/null 2>&1 || true\n'
+        f"  {command}\n"
         "fi\n"
-        f'exec {helper} result --dir "$dir"\n'
+        f"exec {helper} result --dir {q(data.payload_dir)}\n"
     )
+
+
+def apply_script(data, restart: bool) -> str:
+    spec_path = f"{shlex.quote(data.payload_dir)}/staging/spec.json"
+    prelude = (
+        "set -e\n"
+        f"mkdir -p {shlex.quote(data.payload_dir)}/staging\n"
+        f"umask 077\ncat > {spec_path}\n"
+    )
+    return on_robot(data, "apply", spec_path + (" --restart" if restart else ""), prelude, unit="update")
 
 
 @remote.operation()
@@ -209,21 +216,13 @@ def deploy_payload(snap: Snapshot):
 
 def rollback_script(data) -> str:
     q = shlex.quote
-    helper = f"/usr/bin/python3 {HELPER}"
-    args = (
+    arguments = (
         f"--dir {q(data.payload_dir)} --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}"
         f" --health-timeout {int(data.payload_health_timeout)} --stable-seconds {int(data.payload_stable_seconds)}"
         + (" --force" if data.payload_force else "")
     )
-    return (
-        f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
-        "if command -v systemd-run >/dev/null 2>&1 && [ -d /run/systemd/system ]; then\n"
-        f'  systemd-run --quiet --wait --collect --unit="{data.payload_name}-rollback-$(date +%s)" {helper} rollback {args} >/dev/null 2>&1 || true\n'
-        "else\n"
-        f"  {helper} rollback {args} >/dev/null 2>&1 || true\n"
-        "fi\n"
-        f"exec {helper} result --dir {q(data.payload_dir)}\n"
-    )
+    prelude = f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
+    return on_robot(data, "rollback", arguments, prelude)
 
 
 @deploy("Rollback")

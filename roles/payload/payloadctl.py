@@ -236,13 +236,22 @@ def unit_active(unit):
     return run(["systemctl", "is-active", "--quiet", unit], check=False).returncode == 0
 
 
-def start_release(spec, restart):
-    """Run `current`: through the unit when the payload autostarts."""
-    unit = spec["name"] + ".service"
+def start_release(name, restart):
+    """Run `current` through the payload's unit."""
+    unit = name + ".service"
     if restart or not unit_active(unit):
         run(["systemctl", "restart", unit])
     else:
         run(["systemctl", "reload", unit])
+
+
+def start_and_check(name, restart, timeout, stable_seconds):
+    """Bring `current` up and wait for it: (healthy?, why not)."""
+    try:
+        start_release(name, restart)
+        return wait_healthy(name, timeout, stable_seconds)
+    except Failure as error:
+        return False, str(error)
 
 
 # --- commands -----------------------------------------------------------------
@@ -346,11 +355,7 @@ def apply_locked(spec, releases, old, restart):
         releases.write_record(rid, record)
         gc(spec, releases)
         return finish(root, True, "payload: release {} staged (no autostart)".format(rid), rid)
-    try:
-        start_release(spec, restart)
-        ok, why = wait_healthy(spec["name"], spec["health_timeout"], spec["stable_seconds"])
-    except Failure as error:
-        ok, why = False, str(error)
+    ok, why = start_and_check(spec["name"], restart, spec["health_timeout"], spec["stable_seconds"])
     if ok:
         record["state"] = "active"
         record["activated"] = now()
@@ -367,11 +372,7 @@ def apply_locked(spec, releases, old, restart):
     back = releases.record(old) or {}
     back["rolled_back_from"] = {"id": rid, "reason": why, "time": now()}
     releases.write_record(old, back)
-    try:
-        start_release(spec, restart)
-        back_ok, back_why = wait_healthy(spec["name"], spec["health_timeout"], spec["stable_seconds"])
-    except Failure as error:
-        back_ok, back_why = False, str(error)
+    back_ok, back_why = start_and_check(spec["name"], restart, spec["health_timeout"], spec["stable_seconds"])
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
     return finish(
         root, False, "payload: release {} failed ({}); rolled back to {} {}".format(rid, why, old, state), old
@@ -412,14 +413,9 @@ def cmd_rollback(args):
         record = releases.record(previous) or {}
         record["rolled_back_to"] = now()
         releases.write_record(previous, record)
-        spec = {"name": args.name}
         if not record.get("autostart", True):
             return finish(root, True, "payload: rolled back to {} (staged)".format(previous), previous)
-        try:
-            start_release(spec, restart=False)
-            ok, why = wait_healthy(args.name, args.health_timeout, args.stable_seconds)
-        except Failure as error:
-            ok, why = False, str(error)
+        ok, why = start_and_check(args.name, False, args.health_timeout, args.stable_seconds)
         if ok:
             return finish(root, True, "payload: rolled back from {} to {}".format(current, previous), previous)
         return finish(root, False, "payload: rolled back to {} but it is not healthy: {}".format(previous, why), previous)
