@@ -73,22 +73,27 @@ def write_archive(image: str, path: str, have: list[list[str]], report: dict) ->
         for chunk in docker.from_env().images.get(image).save(named=image):
             full.write(chunk)
         full.flush()
-        with tarfile.open(full.name) as source:
-            manifest = json.load(source.extractfile("manifest.json"))
-            config = json.load(source.extractfile(manifest[0]["Config"]))
-            skip_count = layers_present(config["rootfs"]["diff_ids"], have)
-            skip = set(manifest[0]["Layers"][:skip_count])
-            with tarfile.open(path, "w") as archive:
-                for member in source.getmembers():
-                    if member.name in skip:
-                        continue
+        report.update(strip_layers(full.name, path, have))
+
+
+def strip_layers(saved: str, path: str, have: list[list[str]]) -> dict:
+    """Copy the `docker save` archive `saved` to `path`, leaving out the layer
+    files of the bottom layers `have` already holds; returns the figures."""
+    with tarfile.open(saved) as source:
+        manifest = json.load(source.extractfile("manifest.json"))
+        config = json.load(source.extractfile(manifest[0]["Config"]))
+        skip_count = layers_present(config["rootfs"]["diff_ids"], have)
+        skip = set(manifest[0]["Layers"][:skip_count])
+        with tarfile.open(path, "w") as archive:
+            for member in source.getmembers():
+                if member.name not in skip:
                     archive.addfile(member, source.extractfile(member) if member.isfile() else None)
-        report.update(
-            full=os.path.getsize(full.name),
-            sent=os.path.getsize(path),
-            layers=len(config["rootfs"]["diff_ids"]),
-            skipped=skip_count,
-        )
+    return {
+        "full": os.path.getsize(saved),
+        "sent": os.path.getsize(path),
+        "layers": len(config["rootfs"]["diff_ids"]),
+        "skipped": skip_count,
+    }
 
 
 @remote.operation()

@@ -22,11 +22,10 @@ def test_layer_probe_output_is_parsed_line_by_line():
     assert push.parse_layer_sets(output) == [[A, B], [C]]
 
 
-def test_archive_leaves_out_layers_the_robot_has(tmp_path, monkeypatch):
-    """write_archive on a synthetic `docker save` tar (the engine is faked by
-    a stand-in image object; the rewrite itself is what is tested)."""
-    source = io.BytesIO()
-    with tarfile.open(fileobj=source, mode="w") as tar:
+def test_archive_leaves_out_layers_the_robot_has(tmp_path):
+    """strip_layers on an archive laid out like `docker save` output."""
+    saved = tmp_path / "saved.tar"
+    with tarfile.open(saved, "w") as tar:
         def add(name, data):
             info = tarfile.TarInfo(name)
             info.size = len(data)
@@ -35,25 +34,11 @@ def test_archive_leaves_out_layers_the_robot_has(tmp_path, monkeypatch):
         add("l1/layer.tar", b"x" * 50000)
         add("l2/layer.tar", b"y" * 70000)
         add("manifest.json", json.dumps([{"Config": "cfg.json", "RepoTags": ["r/p:1"], "Layers": ["l1/layer.tar", "l2/layer.tar"]}]).encode())
-
-    class Image:
-        def save(self, named):
-            assert named == "r/p:1"
-            yield source.getvalue()
-
-    class Engine:
-        class images:
-            @staticmethod
-            def get(ref):
-                return Image()
-
-    import docker
-    monkeypatch.setattr(docker, "from_env", lambda: Engine())
-    report = {}
     out = tmp_path / "sent.tar"
-    push.write_archive("r/p:1", str(out), [[A]], report)
+    report = push.strip_layers(str(saved), str(out), [[A]])
     with tarfile.open(out) as sent:
         assert sorted(sent.getnames()) == ["cfg.json", "l2/layer.tar", "manifest.json"]
+        assert sent.extractfile("l2/layer.tar").read() == b"y" * 70000
     assert report["layers"] == 2 and report["skipped"] == 1 and report["sent"] < report["full"]
 
 
