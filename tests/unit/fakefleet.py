@@ -61,9 +61,15 @@ def fresh_host(os_name: str, arch: str = "amd64", users=("ops",)) -> Snapshot:
     )
 
 
-def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True) -> dict[str, list[str]]:
+class Plan(dict):
+    """Host name -> commands sent after the snapshot; ``failed``: host names."""
+
+    failed: set[str]
+
+
+def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True) -> Plan:
     """hosts: name -> (group, host data, snapshot).  Returns name -> commands
-    sent after the snapshot (raw, unmasked)."""
+    sent after the snapshot (raw, unmasked), and which hosts failed."""
     from pyinfra_cli.util import load_deploy_file
 
     defaults = read_group_data()
@@ -86,13 +92,12 @@ def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True) -> dict
             except PyinfraError as error:
                 if "No hosts remaining" not in str(error):
                     raise
-        result = {}
+        result = Plan()
         for host in inventory:
             commands = [c for c in host.connector.executed_commands if SNAPSHOT_MARK not in c]
             result[host.name.removeprefix("@fake/")] = commands
-        failed = {h.name.removeprefix("@fake/") for h in state.failed_hosts}
+        result.failed = {h.name.removeprefix("@fake/") for h in state.failed_hosts}
         disconnect_all(state)
-    plan.failed = failed
     return result
 
 

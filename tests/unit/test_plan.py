@@ -50,9 +50,10 @@ def sources_of(commands):
 
 @pytest.mark.parametrize("os_name, arch", MATRIX)
 def test_fresh_host_gets_docker_ce_from_dockers_repository(os_name, arch):
-    commands = plan({"r1": ("robots", ROBOT, fresh_host(os_name, arch))})["r1"]
+    result = plan({"r1": ("robots", ROBOT, fresh_host(os_name, arch))})
+    commands = result["r1"]
     dist = os_name.split("-")[0]
-    assert plan.failed == set()
+    assert result.failed == set()
     key = find(commands, "curl -fsSL")
     assert len(key) == 1
     assert f"https://download.docker.com/linux/{dist}/gpg" in key[0]
@@ -128,14 +129,14 @@ def test_unsupported_release_fails_that_host_only():
     snap = fresh_host("debian-13")
     snap.os_release.update(version_codename="forky", version_id="14")
     result = plan({"r1": ("robots", ROBOT, snap), "r2": ("robots", ROBOT, fresh_host("debian-13"))})
-    assert plan.failed == {"r1"}
+    assert result.failed == {"r1"}
     assert "debian forky is not supported" in result["r1"][0]
     assert find(result["r2"], "payloadctl apply")
 
 
 def test_unsupported_architecture_is_refused():
     result = plan({"r1": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf"))})
-    assert plan.failed == {"r1"} and "architecture armhf is not supported" in result["r1"][0]
+    assert result.failed == {"r1"} and "architecture armhf is not supported" in result["r1"][0]
 
 
 @pytest.mark.parametrize("os_name, packages", [("debian-13", "docker.io docker-compose"), ("ubuntu-24.04", "docker.io docker-compose-v2")])
@@ -148,12 +149,12 @@ def test_distro_source_installs_the_distributions_engine(os_name, packages):
 @pytest.mark.parametrize("os_name", ["debian-12", "ubuntu-20.04"])
 def test_distro_source_without_compose_v2_is_refused(os_name):
     result = plan({"r1": ("robots", {**ROBOT, "docker_source": "distro"}, fresh_host(os_name))})
-    assert plan.failed == {"r1"} and "has no compose v2 package" in result["r1"][0]
+    assert result.failed == {"r1"} and "has no compose v2 package" in result["r1"][0]
 
 
 def test_missing_docker_user_fails_that_host_and_is_never_created():
     result = plan({"r1": ("robots", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"))})
-    assert plan.failed == {"r1"}
+    assert result.failed == {"r1"}
     assert find(result["r1"], "docker_users: ghost does not exist on this host")
     assert not find(result["r1"], "useradd|usermod")
 
@@ -227,7 +228,7 @@ def test_converged_robot_plans_nothing(os_name, arch):
     snap.arch = arch
     snap.files["/etc/apt/sources.list.d/docker.sources"] = converged_sources(snap)
     result = plan({"r1": ("robots", ROBOT, snap)})
-    assert plan.failed == set()
+    assert result.failed == set()
     assert result["r1"] == []
 
 
@@ -304,7 +305,7 @@ def test_snapshot_encoding_roundtrip():
 def test_bad_override_data_fails_that_host_before_anything_runs():
     result = plan({"r1": ("robots", {**ROBOT, "docker_apt_key_fingerprint": 0, "ssh_port": "x"}, fresh_host("debian-13")),
                    "r2": ("robots", ROBOT, fresh_host("debian-13"))})
-    assert plan.failed == {"r1"}
+    assert result.failed == {"r1"}
     assert len(result["r1"]) == 1 and "settings: " in result["r1"][0]
     assert "docker_apt_key_fingerprint: expected a string, got 0" in result["r1"][0]
     assert "ssh_port: expected a whole number" in result["r1"][0]
