@@ -96,12 +96,10 @@ def table(rows: list[dict]) -> str:
 
 def collect(inventory_path: str, limits: list[str]) -> list[dict]:
     from pyinfra.api import Config, State
-    from pyinfra.api.command import StringCommand
     from pyinfra.api.connect import connect_all
     from pyinfra.api.exceptions import PyinfraError
-    from pyinfra_cli.inventory import make_inventory
-
     from pyinfra.context import ctx_state
+    from pyinfra_cli.inventory import make_inventory
 
     with ctx_state.use(State()):
         inventory = make_inventory(inventory_path, cwd=os.getcwd())
@@ -119,8 +117,6 @@ def collect(inventory_path: str, limits: list[str]) -> list[dict]:
 
 
 def _query(hosts) -> list[dict]:
-    import json as _json
-
     from pyinfra.api.command import StringCommand
 
     def one(host):
@@ -130,7 +126,7 @@ def _query(hosts) -> list[dict]:
         if not ok:
             return {**row(host.name, {}), "error": output.stderr.strip()[-200:]}
         try:
-            return row(host.name, _json.loads(output.stdout))
+            return row(host.name, json.loads(output.stdout))
         except ValueError:
             return {**row(host.name, {}), "error": "unreadable status"}
 

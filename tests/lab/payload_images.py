@@ -24,6 +24,8 @@ from pathlib import Path
 
 import docker
 
+from .engine import get_or_none
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 CONTEXT_DIR = Path(__file__).resolve().parent / "payload_image"
 CACHE_DIR = REPO_ROOT / ".lab" / "cache" / "payload-image"
@@ -97,13 +99,6 @@ def content_hash(busybox: Path, build_args: dict[str, str]) -> str:
     return h.hexdigest()
 
 
-def _existing(client: docker.DockerClient, ref: str):
-    try:
-        return client.images.get(ref)
-    except docker.errors.ImageNotFound:
-        return None
-
-
 def _build(client: docker.DockerClient, context: Path, ref: str, build_args: dict[str, str],
            content: str):
     try:
@@ -140,7 +135,7 @@ def build_payload_images(client: docker.DockerClient, registry: str | None = Non
         for tag, build_args in TAGS.items():
             ref = f"{REPOSITORY}:{tag}"
             content = content_hash(busybox, build_args)
-            image = _existing(client, ref)
+            image = get_or_none(client.images, ref)
             if image is not None and image.labels.get(CONTENT_LABEL) == content:
                 _log(f"{ref} up to date ({image.short_id})")
             else:
