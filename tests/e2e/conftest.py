@@ -78,6 +78,19 @@ class Lab:
         assert code == 0, f"{host}: {command}: exit {code}: {output}"
         return output
 
+    def payload(self, host: str) -> dict:
+        """`docker inspect` of the host's one payload container."""
+        ids = self.ok(host, "docker ps -q --filter label=com.docker.compose.project=robot-payload").split()
+        assert len(ids) == 1, f"{host}: expected one payload container, got {ids}"
+        return json.loads(self.ok(host, f"docker inspect {ids[0]}"))[0]
+
+    def version(self, host: str) -> str:
+        """The test payload's version label (1.0, 1.1, ...) the host runs."""
+        return self.payload(host)["Config"]["Labels"]["org.opencontainers.image.version"]
+
+    def record(self, host: str, link: str = "current") -> dict:
+        return json.loads(self.ok(host, f"cat /var/lib/robot-payload/{link}/record.json"))
+
     def provision(self, *args: str, fleet: Path | None = None, script: str = "deploy.py", label: str = "",
                   env: dict | None = None) -> Run:
         env = dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, PYINFRA_PROGRESS="off", **(env or {}))

@@ -18,12 +18,6 @@ SENSOR_DEVICES = {
 }
 
 
-def payload_container(lab, host: str) -> dict:
-    ids = lab.ok(host, "docker ps -q --filter label=com.docker.compose.project=robot-payload").split()
-    assert len(ids) == 1, f"{host}: expected one payload container, got {ids}"
-    return json.loads(lab.ok(host, f"docker inspect {ids[0]}"))[0]
-
-
 def test_fresh_run_provisions_every_host(lab, first_run):
     assert first_run.failed_hosts == set()
     assert first_run.changed_hosts == set(lab.hosts)
@@ -80,7 +74,7 @@ def test_payload_unit_runs_the_declared_image_healthy(lab, first_run):
     for host in lab.robots:
         assert lab.ok(host, "systemctl is-enabled robot-payload").strip() == "enabled"
         assert lab.ok(host, "systemctl is-active robot-payload").strip() == "active"
-        container = payload_container(lab, host)
+        container = lab.payload(host)
         assert container["State"]["Health"]["Status"] == "healthy"
         assert container["Config"]["Image"].startswith(f"{lab.state['registry']}/ros/payload@sha256:")
         assert container["Config"]["Labels"]["org.opencontainers.image.version"] == "1.0"
@@ -103,7 +97,7 @@ def test_second_run_changes_nothing(lab, first_run):
 
 
 def test_changing_one_robots_tag_changes_that_robot_alone(lab, first_run, tmp_path):
-    before = {h: payload_container(lab, h)["Id"] for h in lab.robots}
+    before = {h: lab.payload(h)["Id"] for h in lab.robots}
     fleet = lab.fleet_with(
         tmp_path,
         **{"      sensors:\n        - {name: imu,": "      payload_image: \"@registry@/ros/payload:1.1\"\n      sensors:\n        - {name: imu,"},
@@ -112,10 +106,10 @@ def test_changing_one_robots_tag_changes_that_robot_alone(lab, first_run, tmp_pa
     assert run.returncode == 0, run.output[-4000:]
     assert run.changed_hosts == {"robot2"}
     assert run.changes("robot2") == ["Payload | Release the payload (pull, switch, health check, roll back on failure)"]
-    container = payload_container(lab, "robot2")
+    container = lab.payload("robot2")
     assert container["Config"]["Labels"]["org.opencontainers.image.version"] == "1.1"
     assert container["State"]["Health"]["Status"] == "healthy"
     for host in set(lab.robots) - {"robot2"}:
-        assert payload_container(lab, host)["Id"] == before[host]  # untouched, not restarted
+        assert lab.payload(host)["Id"] == before[host]  # untouched, not restarted
     again = lab.provision(fleet=fleet, label="(robot2 at 1.1, rerun)")
     assert again.changed_hosts == set()

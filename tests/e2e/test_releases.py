@@ -12,15 +12,10 @@ import sys
 import pytest
 
 from tests.e2e.conftest import ROOT
-from tests.e2e.test_fleet import payload_container
 
 pytestmark = pytest.mark.e2e
 
 ALL_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
-
-
-def version(lab, host: str) -> str:
-    return payload_container(lab, host)["Config"]["Labels"]["org.opencontainers.image.version"]
 
 
 def status(lab) -> dict[str, dict]:
@@ -30,10 +25,6 @@ def status(lab) -> dict[str, dict]:
     )
     assert proc.returncode == 0, proc.stderr
     return {row["host"]: row for row in json.loads(proc.stdout)}
-
-
-def record(lab, host: str, link: str = "current") -> dict:
-    return json.loads(lab.ok(host, f"cat /var/lib/robot-payload/{link}/record.json"))
 
 
 @pytest.fixture(scope="module")
@@ -47,33 +38,33 @@ def fleet_on(lab, first_run, tmp_path_factory):
 
 
 def test_update_to_a_good_tag(lab, fleet_on):
-    behind = {h for h in lab.robots if version(lab, h) != "1.1"}
+    behind = {h for h in lab.robots if lab.version(h) != "1.1"}
     run = lab.provision(fleet=fleet_on("1.1"), label="(fleet to 1.1)")
     assert run.returncode == 0, run.output[-4000:]
     assert run.changed_hosts == behind | set(lab.laptops)  # robot2 is already on 1.1 after test_fleet
     rows = status(lab)
     for host in lab.robots:
-        assert version(lab, host) == "1.1"
-        assert payload_container(lab, host)["State"]["Health"]["Status"] == "healthy"
-        current = record(lab, host)
+        assert lab.version(host) == "1.1"
+        assert lab.payload(host)["State"]["Health"]["Status"] == "healthy"
+        current = lab.record(host)
         assert current["state"] == "active"
         assert rows[host]["release"] == current["id"] and rows[host]["health"] == "healthy"
         assert rows[host]["image"] == current["images"][f"{lab.state['registry']}/ros/payload:1.1"]["pinned"]
-        assert rows[host]["previous"] == record(lab, host, "previous")["id"]
+        assert rows[host]["previous"] == lab.record(host, "previous")["id"]
     assert rows["laptop1"]["release_state"] == "staged"
 
 
 def test_update_to_a_broken_tag_rolls_every_robot_back(lab, fleet_on):
-    before = {h: record(lab, h)["id"] for h in lab.robots}
+    before = {h: lab.record(h)["id"] for h in lab.robots}
     run = lab.provision(fleet=fleet_on("1.2-broken"), label="(fleet to 1.2-broken)")
     assert run.returncode != 0
     assert run.failed_hosts == set(lab.robots)
     for host in lab.robots:
         line = next(line for line in run.output.splitlines() if f"[{host}]" in line and "payload: release" in line)
         assert "unhealthy" in line and f"rolled back to {before[host]} and it is running" in line
-        assert record(lab, host)["id"] == before[host]
-        assert version(lab, host) == "1.1"
-        assert payload_container(lab, host)["State"]["Health"]["Status"] == "healthy"
+        assert lab.record(host)["id"] == before[host]
+        assert lab.version(host) == "1.1"
+        assert lab.payload(host)["State"]["Health"]["Status"] == "healthy"
         failed = [json.loads(lab.ok(host, f"cat {p}")) for p in lab.ok(
             host, "ls -d /var/lib/robot-payload/releases/*/record.json").split()]
         assert any(r["state"] == "failed" and "unhealthy" in r["reason"] for r in failed)
@@ -83,14 +74,14 @@ def test_update_to_a_broken_tag_rolls_every_robot_back(lab, fleet_on):
 
 
 def test_manual_rollback_of_one_robot_changes_it_alone(lab):
-    before = {h: payload_container(lab, h)["Id"] for h in lab.robots}
-    previous = record(lab, "robot1", "previous")["id"]
+    before = {h: lab.payload(h)["Id"] for h in lab.robots}
+    previous = lab.record("robot1", "previous")["id"]
     run = lab.provision("--limit", "robot1", script="rollback.py", label="(rollback robot1)")
     assert run.returncode == 0, run.output[-3000:]
-    assert record(lab, "robot1")["id"] == previous
-    assert version(lab, "robot1") == "1.0"
+    assert lab.record("robot1")["id"] == previous
+    assert lab.version("robot1") == "1.0"
     for host in set(lab.robots) - {"robot1"}:
-        assert payload_container(lab, host)["Id"] == before[host]
+        assert lab.payload(host)["Id"] == before[host]
     rows = status(lab)
     assert rows["robot1"]["release"] == previous and rows["robot1"]["health"] == "healthy"
     assert rows["robot2"]["release"] != previous
@@ -103,11 +94,11 @@ def test_update_lock_refuses_unless_forced(lab, fleet_on):
         run = lab.provision("--limit", "robot3", fleet=fleet, label="(robot3 to 1.0, locked)")
         assert run.returncode != 0
         assert "update refused, /run/robot-payload/update.lock is held (robot is moving)" in run.output
-        assert version(lab, "robot3") == "1.1"
+        assert lab.version("robot3") == "1.1"
         assert status(lab)["robot3"]["lock"] == "robot is moving"
         forced = lab.provision("--limit", "robot3", "--data", "payload_force=true", fleet=fleet, label="(forced)")
         assert forced.returncode == 0, forced.output[-3000:]
-        assert version(lab, "robot3") == "1.0"
+        assert lab.version("robot3") == "1.0"
     finally:
         lab.ok("robot3", "rm -f /run/robot-payload/update.lock")
 
@@ -126,7 +117,7 @@ def test_push_delivery_to_a_robot_without_registry(lab, fleet_on):
     assert lab.sh("robot3", "docker pull offline.invalid/ros/payload:1.1")[0] != 0  # no route to that registry
     run = lab.provision("--limit", "robot3", fleet=fleet, label="(robot3 by push)")
     assert run.returncode == 0, run.output[-3000:]
-    assert version(lab, "robot3") == "1.1"
+    assert lab.version("robot3") == "1.1"
     sent = lab.ok("robot3", "cat /var/lib/robot-payload/push.log").splitlines()
     assert len(sent) == 1
     again = lab.provision("--limit", "robot3", fleet=fleet, label="(robot3 by push, again)")
