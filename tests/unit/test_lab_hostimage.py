@@ -1,25 +1,5 @@
 """The lab's image recipes: hashes are stable and follow every input."""
 
-import pytest
-
-# The lab modules import docker (and so ssl); importing them at collection
-# time, before pyinfra's gevent patches ssl in other test modules, makes
-# gevent warn. So they are imported when a test runs.
-
-
-@pytest.fixture
-def hostimage():
-    from tests.lab import hostimage
-
-    return hostimage
-
-
-@pytest.fixture
-def services():
-    from tests.lab import services
-
-    return services
-
 
 def test_recipe_hash_is_stable_and_ignores_key_order(hostimage):
     assert hostimage.recipe_hash({"a": 1, "b": [1, 2]}) == hostimage.recipe_hash({"b": [1, 2], "a": 1})

@@ -2,24 +2,6 @@
 
 import pytest
 
-# The lab modules import docker (and so ssl); importing them at collection
-# time, before pyinfra's gevent patches ssl in other test modules, makes
-# gevent warn. So they are imported when a test runs.
-
-
-@pytest.fixture
-def hosts():
-    from tests.lab import hosts
-
-    return hosts
-
-
-@pytest.fixture
-def engine():
-    from tests.lab import engine
-
-    return engine
-
 
 def test_known_hosts_line_uses_bracketed_host_and_port(hosts):
     key = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIOo root@robot1"

@@ -2,17 +2,6 @@
 
 import pytest
 
-# The lab modules import docker (and so ssl); importing them at collection
-# time, before pyinfra's gevent patches ssl in other test modules, makes
-# gevent warn. So they are imported when a test runs.
-
-
-@pytest.fixture
-def state():
-    from tests.lab import state
-
-    return state
-
 
 def sample(prefix="t"):
     return {
