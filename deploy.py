@@ -9,17 +9,17 @@ state; the roles then change only what differs.
 
 from pyinfra import host
 
-from roles import docker, payload, remote, udev, users, x11
-from roles.hoststate import HostSnapshot, Query
+from roles import docker, operations, payload, udev, users, x11
+from roles.hoststate import HostSnapshot, SnapshotQuery
 from roles.settings import data_problems
 
 _ROLES = (docker, users, udev, x11, payload)
 
 
 def _provision():
-    query = Query()
+    query = SnapshotQuery()
     for role in _ROLES:
-        role.wants(host.data, query)
+        role.declare_reads(host.data, query)
     snapshot = host.get_fact(HostSnapshot, **query.as_kwargs())
 
     docker.install_docker(snapshot)
@@ -34,6 +34,6 @@ def _provision():
 # The fleet file was checked before connecting; --data overrides were not.
 _problems = data_problems(host.data)
 if _problems:
-    remote.fail(name="Check the host's settings", message="settings: " + "; ".join(_problems))
+    operations.fail(name="Check the host's settings", message="settings: " + "; ".join(_problems))
 else:
     _provision()

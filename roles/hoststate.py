@@ -3,7 +3,7 @@
 pyinfra 3 runs a command per fact per operation (facts are not cached), which
 on a robot behind a slow link makes a converged rerun cost dozens of round
 trips.  Instead each role declares what it needs (files, packages, users,
-units, probes) in a ``Query``; deploy.py reads it all with one command
+units, probes) in a ``SnapshotQuery``; deploy.py reads it all with one command
 (``HostSnapshot``), and the roles' operations compare desired state with that
 snapshot, yielding commands only for differences.
 
@@ -21,7 +21,7 @@ from pyinfra.api import FactBase
 
 
 @dataclass
-class Query:
+class SnapshotQuery:
     files: set[str] = field(default_factory=set)
     packages: set[str] = field(default_factory=set)
     users: set[str] = field(default_factory=set)

@@ -9,9 +9,9 @@ from pyinfra import host
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
-from roles import remote
+from roles import operations
 from roles.docker import plan
-from roles.hoststate import Query, Snapshot
+from roles.hoststate import Snapshot, SnapshotQuery
 
 KEYRING_DIR = "/etc/apt/keyrings"
 DAEMON_JSON = "/etc/docker/daemon.json"
@@ -37,7 +37,7 @@ def key_fingerprints_probe(path: str) -> str:
     return f'[ -f {p} ] && command -v gpg >/dev/null && h=$(mktemp -d) && {fingerprints_of(p)}; rm -rf "$h"'
 
 
-def wants(data, query: Query) -> None:
+def declare_reads(data, query: SnapshotQuery) -> None:
     packages = set(data.docker_packages) | set(data.docker_obsolete_packages) | set(PREREQUISITES)
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
@@ -88,12 +88,12 @@ def key_is_current(snap: Snapshot, path: str, fingerprint: str | None, sha256: s
     return True
 
 
-@remote.operation()
+@operations.operation()
 def apt_key(url: str, path: str, fingerprint: str | None, sha256: str | None, up_to_date: bool):
     if up_to_date:
         host.noop(f"{path} is in place")
         return
-    yield remote.shell(key_download_script(url, path, fingerprint, sha256))
+    yield operations.shell(key_download_script(url, path, fingerprint, sha256))
 
 
 @deploy("Docker")
@@ -106,12 +106,12 @@ def install_docker(snap: Snapshot):
         if data.docker_source == "distro":
             packages = plan.distro_packages(snap.os_release, data.docker_distro_packages)
     except plan.PlanError as error:
-        remote.fail(name="Check the host can run Docker", message=f"docker: {error}")
+        operations.fail(name="Check the host can run Docker", message=f"docker: {error}")
         return
 
     if data.docker_source == "docker":
         _docker_repository(snap, data, dist, codename, arch)
-        remote.apt_install(
+        operations.apt_install(
             name="Install Docker CE and the compose plugin",
             packages=data.docker_packages,
             installed=snap.packages,
@@ -119,20 +119,20 @@ def install_docker(snap: Snapshot):
         )
     else:
         if snap.installed("docker-ce"):
-            remote.fail(
+            operations.fail(
                 name="Check for Docker CE",
                 message="docker: docker_source is distro but Docker CE is installed; "
                 "remove docker-ce first (apt-get purge docker-ce docker-ce-cli containerd.io)",
             )
             return
-        remote.apt_install(
+        operations.apt_install(
             name="Install the distribution's Docker engine and compose",
             packages=packages,
             installed=snap.packages,
         )
 
-    remote.directory(name="/etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
-    daemon = remote.file(
+    operations.directory(name="/etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
+    daemon = operations.file(
         name="Write /etc/docker/daemon.json",
         path=DAEMON_JSON,
         content=plan.daemon_json(
@@ -141,7 +141,7 @@ def install_docker(snap: Snapshot):
         current=snap.files.get(DAEMON_JSON),
         validate=VALIDATE_DAEMON_JSON,
     )
-    remote.service(
+    operations.service(
         name="Docker enabled and running",
         unit="docker.service",
         enabled_now=snap.unit_enabled("docker.service"),
@@ -149,7 +149,7 @@ def install_docker(snap: Snapshot):
         enabled=data.docker_service_enabled,
     )
     action = "reload" if data.docker_restart_handler_state == "reloaded" else "restart"
-    remote.run(
+    operations.run(
         name=f"{action.capitalize()} Docker for the new daemon.json",
         script=f"systemctl {action} docker.service",
         _if=daemon.did_change,
@@ -161,19 +161,19 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
     prerequisites = list(PREREQUISITES)
     if fingerprint and not snap.commands.get("gpg"):
         prerequisites.append("gpg")
-    remote.apt_install(
+    operations.apt_install(
         name="Install apt prerequisites",
         packages=prerequisites,
         installed=snap.packages,
         update_first=True,
     )
     legacy = [p for p in data.docker_apt_legacy_files if p not in (data.docker_apt_key_path, sources_path(data))]
-    legacy_removed = remote.absent(name="Remove legacy Docker apt files", paths=legacy, present=snap.files)
-    remote.apt_remove(
+    legacy_removed = operations.absent(name="Remove legacy Docker apt files", paths=legacy, present=snap.files)
+    operations.apt_remove(
         name="Remove conflicting packages",
         packages=plan.obsolete_to_remove(data.docker_obsolete_packages, snap.packages),
     )
-    remote.directory(name=KEYRING_DIR, path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
+    operations.directory(name=KEYRING_DIR, path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
     key = apt_key(
         name="Docker apt key",
         url=plan.key_url(data.docker_apt_key_url, data.docker_repo_url, dist),
@@ -182,7 +182,7 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
         sha256=data.docker_apt_key_sha256,
         up_to_date=key_is_current(snap, data.docker_apt_key_path, fingerprint, data.docker_apt_key_sha256),
     )
-    source = remote.file(
+    source = operations.file(
         name="Docker apt source",
         path=sources_path(data),
         content=plan.sources_text(
@@ -194,8 +194,8 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
         ),
         current=snap.files.get(sources_path(data)),
     )
-    remote.run(
+    operations.run(
         name="apt update for the Docker repository",
-        script=remote.APT_UPDATE,
+        script=operations.APT_UPDATE,
         _if=any_changed(key, source, legacy_removed),
     )

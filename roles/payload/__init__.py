@@ -19,8 +19,8 @@ import jinja2
 from pyinfra import host
 from pyinfra.api import deploy
 
-from roles import imageref, remote, x11
-from roles.hoststate import Query, Snapshot
+from roles import imageref, operations, x11
+from roles.hoststate import Snapshot, SnapshotQuery
 from roles.payload import compose, push
 from roles.udev import rules
 
@@ -81,7 +81,7 @@ def registry_probe(registry: str) -> str:
     return f"grep -qF {shlex.quote(json.dumps(registry))} /root/.docker/config.json && echo yes"
 
 
-def wants(data, query: Query) -> None:
+def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= {HELPER, unit_path(data), data.payload_dir}
     query.units.add(f"{data.payload_name}.service")
     query.commands |= {"python3", "systemd-run"}
@@ -121,22 +121,22 @@ def apply_script(data, restart: bool) -> str:
     return on_robot(data, "apply", spec_path + (" --restart" if restart else ""), prelude, unit="update")
 
 
-@remote.operation()
+@operations.operation()
 def release(data, document: dict, needed: bool, restart: bool):
     """Apply the release on the robot when it is not what runs there."""
     if not needed:
         host.noop("payload release is current")
         return
     payload = json.dumps(spec(data, document), sort_keys=True)
-    yield remote.shell(apply_script(data, restart), stdin=payload.splitlines())
+    yield operations.shell(apply_script(data, restart), stdin=payload.splitlines())
 
 
-@remote.operation()
+@operations.operation()
 def registry_login(registry: str, username: str, password: str, logged_in: bool):
     if logged_in:
         host.noop(f"logged in to {registry}")
         return
-    yield remote.shell(
+    yield operations.shell(
         f"docker login {shlex.quote(registry)} --username {shlex.quote(username)} --password-stdin >/dev/null",
         stdin=[password],
     )
@@ -150,9 +150,9 @@ def deploy_payload(snap: Snapshot):
     devices = rules.devices(data.sensors)
 
     if not snap.commands.get("python3"):
-        remote.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
-    remote.directory(name=data.payload_dir, path=data.payload_dir, current=snap.files.get(data.payload_dir))
-    remote.file(
+        operations.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
+    operations.directory(name=data.payload_dir, path=data.payload_dir, current=snap.files.get(data.payload_dir))
+    operations.file(
         name="payloadctl",
         path=HELPER,
         content=helper_text(),
@@ -162,13 +162,13 @@ def deploy_payload(snap: Snapshot):
 
     unit = unit_path(data)
     unit_content = unit_text(data, devices)
-    unit_changes = data.payload_autostart and not remote.file_matches(
+    unit_changes = data.payload_autostart and not operations.file_matches(
         snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
     )
     if data.payload_autostart:
-        unit_op = remote.file(name=f"{data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
-        remote.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
-        remote.service(
+        unit_op = operations.file(name=f"{data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
+        operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
+        operations.service(
             name=f"Enable {data.payload_name}.service at boot",
             unit=f"{data.payload_name}.service",
             enabled_now=snap.unit_enabled(f"{data.payload_name}.service"),
@@ -176,8 +176,8 @@ def deploy_payload(snap: Snapshot):
             running=False,  # starting it is the release step's job (health-gated)
         )
     else:
-        removed = remote.absent(name="No payload autostart unit", paths=[unit], present=snap.files)
-        remote.run(
+        removed = operations.absent(name="No payload autostart unit", paths=[unit], present=snap.files)
+        operations.run(
             name="Disable the payload autostart unit",
             script=f"systemctl disable {shlex.quote(data.payload_name)}.service 2>/dev/null; systemctl daemon-reload",
             _if=removed.did_change,
@@ -227,4 +227,4 @@ def rollback_script(data) -> str:
 
 @deploy("Rollback")
 def rollback_release(data):
-    remote.run(name="Switch the payload back to the previous release", script=rollback_script(data))
+    operations.run(name="Switch the payload back to the previous release", script=rollback_script(data))

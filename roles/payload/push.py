@@ -22,7 +22,7 @@ import tempfile
 from pyinfra import host
 from pyinfra.api import FileUploadCommand, FunctionCommand
 
-from roles import remote
+from roles import operations
 
 LAYERS_PROBE = (
     "docker image ls -q --no-trunc | sort -u | "
@@ -96,15 +96,15 @@ def strip_layers(saved: str, path: str, have: list[list[str]]) -> dict:
     }
 
 
-@remote.operation()
+@operations.operation()
 def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_dir: str):
     try:
         local_id = local_image_id(image)
     except Exception as error:  # no engine on the operator machine
-        yield remote.fail_command(f"payload_delivery push: cannot reach the local Docker engine: {error}")
+        yield operations.fail_command(f"payload_delivery push: cannot reach the local Docker engine: {error}")
         return
     if local_id is None:
-        yield remote.fail_command(f"payload_delivery push: {image} is not in the local Docker engine; pull or build it first")
+        yield operations.fail_command(f"payload_delivery push: {image} is not in the local Docker engine; pull or build it first")
         return
     if remote_id == local_id:
         host.noop(f"{image} is already on the host")
@@ -125,7 +125,7 @@ def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_d
         f"{report.get('layers')} layers"
     )
     q = shlex.quote
-    yield remote.shell(
+    yield operations.shell(
         f"docker load -q -i {q(remote_path)} >/dev/null; rc=$?; rm -f {q(remote_path)}; "
         f'[ $rc -eq 0 ] && mkdir -p {q(log_dir)} && echo "{line}" >> {q(log_dir)}/push.log; exit $rc'
     )

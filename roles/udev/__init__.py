@@ -11,8 +11,8 @@ from pyinfra import host
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
-from roles import remote
-from roles.hoststate import Query, Snapshot
+from roles import operations
+from roles.hoststate import Snapshot, SnapshotQuery
 from roles.udev import rules
 
 VENDOR_RULES_DIR = Path(__file__).resolve().parents[2] / "files" / "udev"
@@ -30,7 +30,7 @@ def vendor_rules(data) -> dict[str, str]:
     }
 
 
-def wants(data, query: Query) -> None:
+def declare_reads(data, query: SnapshotQuery) -> None:
     query.files.add(data.udev_rules_file)
     query.files |= {f"{RULES_DIR}/{name}" for name in data.udev_vendor_rules}
     query.probes["udevadm_verify"] = VERIFY_PROBE
@@ -60,7 +60,7 @@ def sensor_rules(snap: Snapshot):
     data = host.data
     for name in data.udev_vendor_rules:
         if not (VENDOR_RULES_DIR / name).is_file():
-            remote.fail(name="Check vendor rules", message=f"udev_vendor_rules: files/udev/{name} does not exist")
+            operations.fail(name="Check vendor rules", message=f"udev_vendor_rules: files/udev/{name} does not exist")
             return
     files = dict(vendor_rules(data))
     if data.sensors:
@@ -68,14 +68,14 @@ def sensor_rules(snap: Snapshot):
     for path, text in files.items():
         problems = rules.lint(text, data.udev_allow_world_writable)
         if problems:
-            remote.fail(name="Check udev rules", message=f"udev: {path}: {problems[0]}")
+            operations.fail(name="Check udev rules", message=f"udev: {path}: {problems[0]}")
             return
 
     validate = verify_command(snap.probes.get("udevadm_verify", ""))
     changes = []
     for path, text in host.loop(sorted(files.items())):
         changes.append(
-            remote.file(
+            operations.file(
                 name=f"udev rules {path}",
                 path=path,
                 content=text,
@@ -85,11 +85,11 @@ def sensor_rules(snap: Snapshot):
         )
     if not data.sensors:
         changes.append(
-            remote.absent(name="Remove sensor rules", paths=[data.udev_rules_file], present=snap.files)
+            operations.absent(name="Remove sensor rules", paths=[data.udev_rules_file], present=snap.files)
         )
     subsystems = set().union(*(rules.subsystems(text) for text in files.values())) if files else set()
     if changes:
-        remote.run(
+        operations.run(
             name="Reload udev rules and trigger the sensors' subsystems",
             script=reload_script(subsystems),
             _if=any_changed(*changes),

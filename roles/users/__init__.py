@@ -12,11 +12,11 @@ import shlex
 from pyinfra import host
 from pyinfra.api import deploy
 
-from roles import remote
-from roles.hoststate import Query, Snapshot
+from roles import operations
+from roles.hoststate import Snapshot, SnapshotQuery
 
 
-def wants(data, query: Query) -> None:
+def declare_reads(data, query: SnapshotQuery) -> None:
     query.users |= set(data.docker_users)
 
 
@@ -27,11 +27,11 @@ def missing_memberships(users: list[str], groups_now: dict[str, list[str] | None
     return absent, to_add
 
 
-@remote.operation()
+@operations.operation()
 def docker_group_members(users: list[str], groups_now: dict[str, list[str] | None]):
     absent, to_add = missing_memberships(users, groups_now)
     if absent:
-        yield remote.fail_command(
+        yield operations.fail_command(
             f"docker_users: {', '.join(absent)} {'does' if len(absent) == 1 else 'do'} not exist on this host; "
             "create the account first (users are never created by this tool)"
         )
@@ -39,7 +39,7 @@ def docker_group_members(users: list[str], groups_now: dict[str, list[str] | Non
     if not to_add:
         host.noop("docker group members in place")
         return
-    yield remote.shell(" && ".join(f"usermod -aG docker {shlex.quote(u)}" for u in to_add))
+    yield operations.shell(" && ".join(f"usermod -aG docker {shlex.quote(u)}" for u in to_add))
 
 
 @deploy("Users")

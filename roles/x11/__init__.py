@@ -13,8 +13,8 @@ import jinja2
 from pyinfra import host
 from pyinfra.api import deploy
 
-from roles import remote
-from roles.hoststate import Query, Snapshot
+from roles import operations
+from roles.hoststate import Snapshot, SnapshotQuery
 
 HERE = Path(__file__).resolve().parent
 SCRIPT = "/usr/local/bin/robot-x11-cookie"
@@ -47,7 +47,7 @@ def compose_settings(data) -> dict:
     }
 
 
-def wants(data, query: Query) -> None:
+def declare_reads(data, query: SnapshotQuery) -> None:
     if not data.display:
         return
     query.packages.add("xauth")
@@ -60,29 +60,29 @@ def x11_cookie(snap: Snapshot):
     data = host.data
     groups = snap.users.get(data.x11_user)
     if groups is None:
-        remote.fail(
+        operations.fail(
             name="Check the desktop user",
             message=f"x11_user: {data.x11_user} does not exist on this host",
         )
         return
-    remote.apt_install(name="Install xauth", packages=["xauth"], installed=snap.packages)
-    remote.file(name=SCRIPT, path=SCRIPT, content=cookie_script(data), current=snap.files.get(SCRIPT), mode="0755")
-    remote.file(
+    operations.apt_install(name="Install xauth", packages=["xauth"], installed=snap.packages)
+    operations.file(name=SCRIPT, path=SCRIPT, content=cookie_script(data), current=snap.files.get(SCRIPT), mode="0755")
+    operations.file(
         name=XSESSION_HOOK,
         path=XSESSION_HOOK,
         content=(HERE / "90robot-x11-cookie").read_text(),
         current=snap.files.get(XSESSION_HOOK),
     )
-    remote.file(
+    operations.file(
         name=AUTOSTART,
         path=AUTOSTART,
         content=(HERE / "robot-x11-cookie.desktop").read_text(),
         current=snap.files.get(AUTOSTART),
     )
-    remote.directory(
+    operations.directory(
         name=data.x11_cookie_dir, path=data.x11_cookie_dir, current=snap.files.get(data.x11_cookie_dir)
     )
-    remote.directory(
+    operations.directory(
         name=f"Cookie directory of {data.x11_user}",
         path=cookie_dir(data),
         current=snap.files.get(cookie_dir(data)),

@@ -75,7 +75,7 @@ def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True) -> Plan
     defaults = read_group_data()
     groups: dict[str, tuple[list, dict]] = {"robots": ([], defaults["robots"]), "laptops": ([], defaults["laptops"])}
     for name, (group, data, snap) in hosts.items():
-        # Our deliberate failures (remote.fail) exit 1 on a real shell.
+        # Our deliberate failures (operations.fail) exit 1 on a real shell.
         responses = {SNAPSHOT_MARK: snapshot_lines(snap), re.compile(r">&2; exit 1'$"): {"stdout": [], "success": False}}
         host_data = {**data, "fake_responses": responses, "fake_delay": 0, "fake_delay_jitter": 0}
         groups[group][0].append((f"@fake/{name}", host_data))

@@ -189,13 +189,13 @@ def test_file_write_is_atomic_and_validated_before_it_lands(tmp_path):
     import os
     import pwd
 
-    from roles import remote
+    from roles import operations
 
     user, group = pwd.getpwuid(os.getuid()).pw_name, grp.getgrgid(os.getgid()).gr_name
     dest = tmp_path / "etc" / "x.conf"
 
     def run(content, validate=None):
-        command = remote.write_file_command(str(dest), content, "0640", user, group, validate)
+        command = operations.write_file_command(str(dest), content, "0640", user, group, validate)
         stdin = "\n".join(command.connector_arguments["_stdin"]) + "\n"
         return subprocess.run(command.get_raw_value(), shell=True, input=stdin, capture_output=True, text=True)
 
