@@ -296,8 +296,8 @@ def test_registry_credentials_come_from_the_environment_and_go_over_stdin(monkey
 def test_snapshot_encoding_roundtrip():
     snap = converged("robots", ROBOT, "debian-13")
     from roles.hoststate import parse
-    from tests.unit.fakefleet import snapshot_lines
-    again = parse(snapshot_lines(snap))
+    from tests.unit.fakefleet import query_of, snapshot_lines
+    again = parse(snapshot_lines(snap, query_of(snap)), query_of(snap))
     assert again.files == snap.files and again.probes == snap.probes and again.packages == snap.packages
     assert again.users == snap.users and again.units == snap.units and again.os_release == snap.os_release
 

@@ -145,15 +145,15 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
     (tmp_path / "f").write_text("hello\n")
     (tmp_path / "f").chmod(0o640)
     (tmp_path / "d").mkdir()
-    script = hoststate.script(
+    query = dict(
         files=[str(tmp_path / "f"), str(tmp_path / "d"), str(tmp_path / "missing file")],
         packages=["dpkg", "surely-not-a-package"],
         users=["root", "surely-not-a-user"],
         commands=["sh", "surely-not-a-command"],
         probes={"two lines": "echo a; echo 'b c'", "fails": "false"},
     )
-    out = subprocess.run(["sh", "-c", script], capture_output=True, text=True, check=True)
-    snap = hoststate.parse(out.stdout.splitlines())
+    out = subprocess.run(["sh", "-c", hoststate.script(**query)], capture_output=True, text=True, check=True)
+    snap = hoststate.parse(out.stdout.splitlines(), query)
     assert snap.os_release.get("id") in ("debian", "ubuntu")
     assert snap.arch
     assert "dpkg" in snap.packages and "surely-not-a-package" not in snap.packages
