@@ -159,7 +159,7 @@ def _output(lines: list[str]):
     return CommandOutput([OutputLine("stdout", line) for line in lines])
 
 
-def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True) -> Plan:
+def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True, deploy_file: str = "deploy.py") -> Plan:
     """hosts: name -> (group, host data, snapshot).  Returns name -> commands
     sent after the snapshot (raw, unmasked), and which hosts failed."""
     from pyinfra_cli.exceptions import UnexpectedExternalError
@@ -179,7 +179,7 @@ def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True) -> Plan
     with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()}) as recorder:
         connect_all(state)
         try:
-            load_deploy_file(state, str(ROOT / "deploy.py"))
+            load_deploy_file(state, str(ROOT / deploy_file))
         except UnexpectedExternalError as error:
             raise error.exception from None  # the deploy's own error (say, UndeclaredRead)
         if run:

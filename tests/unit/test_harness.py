@@ -88,3 +88,58 @@ def test_importing_the_status_module_patches_nothing():
     code = "import roles.status, gevent.monkey as m; print(m.is_module_patched('socket'), m.is_module_patched('ssl'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+# --- decisions a reviewer broke without any unit test noticing (issue 10) ----
+
+
+@pytest.mark.parametrize("role, kind, key", [
+    ("docker", "files", "/etc/docker/daemon.json"),
+    ("docker", "files", "/etc/apt/keyrings/docker.asc"),
+    ("docker", "files", "/etc/apt/sources.list.d/docker.sources"),
+    ("docker", "probes", "docker_key_fingerprints"),
+    ("docker", "units", "docker.service"),
+    ("payload", "files", "/etc/systemd/system/robot-payload.service"),
+    ("payload", "units", "robot-payload.service"),
+])
+def test_a_role_that_stops_declaring_a_read_fails_the_plan(monkeypatch, role, kind, key):
+    import importlib
+
+    module = importlib.import_module(f"roles.{role}")
+    declare = module.declare_reads
+
+    def forgetful(data, query):
+        declare(data, query)
+        readings = getattr(query, kind)
+        readings.pop(key) if isinstance(readings, dict) else readings.discard(key)
+
+    monkeypatch.setattr(module, "declare_reads", forgetful)
+    with pytest.raises(UndeclaredRead, match=f"{kind} '{key}' was not read"):
+        plan({"r1": ("robots", ROBOT, converged("robots", ROBOT, "debian-13"))})
+
+
+@pytest.mark.parametrize("active", ["inactive", "failed"])
+def test_payload_down_on_a_converged_robot_is_released_again(active):
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.units["robot-payload.service"] = ("enabled", active)
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" not in commands[0]
+
+
+def test_docker_service_enabled_false_disables_docker_at_boot():
+    data = {**ROBOT, "docker_service_enabled": False}
+    assert plan({"r1": ("robots", data, converged("robots", ROBOT, "debian-13"))})["r1"] == [
+        "sh -c 'systemctl disable docker.service'"
+    ]
+    fresh = plan({"r1": ("robots", data, fresh_host("debian-13"))})["r1"]
+    assert find(fresh, "systemctl start docker.service") and not find(fresh, "systemctl enable docker.service")
+
+
+def test_rollback_respects_the_update_lock_unless_forced():
+    snap = converged("robots", ROBOT, "debian-13")
+    commands = plan({"r1": ("robots", ROBOT, snap)}, deploy_file="rollback.py")["r1"]
+    assert len(commands) == 1
+    assert "payloadctl rollback --dir /var/lib/robot-payload --name robot-payload --lock-file /run/robot-payload/update.lock" in commands[0]
+    assert "--force" not in commands[0]
+    forced = plan({"r1": ("robots", {**ROBOT, "payload_force": True}, snap)}, deploy_file="rollback.py")["r1"]
+    assert "--force" in forced[0]
