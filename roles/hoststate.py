@@ -120,7 +120,7 @@ def _q(value: str) -> str:
     return shlex.quote(value)
 
 
-def script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
+def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
     """The shell script behind the snapshot (POSIX sh, read-only)."""
     lines = [
         "export LC_ALL=C",
@@ -217,7 +217,7 @@ class HostSnapshot(FactBase):
             "files": files, "packages": packages, "users": users,
             "units": units, "commands": commands, "probes": probes or {},
         }
-        return script(files, packages, users, units, commands, probes)
+        return snapshot_script(files, packages, users, units, commands, probes)
 
     def process(self, output):
         return parse(list(output), self.query)

@@ -109,10 +109,10 @@ def collect(inventory_path: str, limits: list[str]) -> list[dict]:
             connect_all(state)
         except PyinfraError:
             pass  # every host unreachable: each still gets its row
-        return _query(hosts)
+        return _read_status(hosts)
 
 
-def _query(hosts) -> list[dict]:
+def _read_status(hosts) -> list[dict]:
     from pyinfra.api.command import StringCommand
 
     def one(host):

@@ -206,7 +206,7 @@ def converged(group: str, data: dict, os_name: str):
     else:
         snap.packages["xauth"] = "1"
         snap.files.update({
-            x11.SCRIPT: _file(x11.cookie_script(d), "755"),
+            x11.COOKIE_SCRIPT: _file(x11.cookie_script(d), "755"),
             x11.XSESSION_HOOK: _file((x11.HERE / "90robot-x11-cookie").read_text()),
             x11.AUTOSTART: _file((x11.HERE / "robot-x11-cookie.desktop").read_text()),
             "/var/lib/robot-x11": FileState("dir", None, "755", "root", "root"),

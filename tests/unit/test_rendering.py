@@ -144,7 +144,7 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
         commands=["sh", "surely-not-a-command"],
         probes={"two lines": "echo a; echo 'b c'", "fails": "false"},
     )
-    out = subprocess.run(["sh", "-c", hoststate.script(**query)], capture_output=True, text=True, check=True)
+    out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True)
     snap = hoststate.parse(out.stdout.splitlines(), query)
     assert snap.os_release.get("id") in ("debian", "ubuntu")
     assert snap.arch
