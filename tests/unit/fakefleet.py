@@ -120,8 +120,9 @@ class _Recorder:
     the @fake connector answers it from the host's ``Snapshot`` and records
     every other command with its stdin."""
 
-    def __init__(self, snapshots: dict[str, Snapshot]):
+    def __init__(self, snapshots: dict[str, Snapshot], contents: dict[str, dict[str, str]]):
         self.snapshots = snapshots
+        self.contents = contents
         self.queries: dict[str, dict] = {}
         self.sent: dict[str, list[Sent]] = {name: [] for name in snapshots}
 
@@ -142,6 +143,11 @@ class _Recorder:
             if SNAPSHOT_MARK in text:
                 return True, _output(snapshot_lines(recorder.snapshots[name], recorder.queries[name]))
             recorder.sent[name].append(Sent(text, stdin_text(arguments.get("_stdin"))))
+            read = re.match(r"^\( test -e (\S+) && cat \1 \) \|\| echo ", text)  # FileContents
+            if read:
+                path = shlex.split(read.group(1))[0]
+                if path in recorder.contents.get(name, {}):
+                    return True, _output(recorder.contents[name][path].splitlines())
             return recorder._run(connector, command, print_output, print_input, **arguments)
 
         hoststate.HostSnapshot.command = command
@@ -159,9 +165,19 @@ def _output(lines: list[str]):
     return CommandOutput([OutputLine("stdout", line) for line in lines])
 
 
-def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True, deploy_file: str = "deploy.py") -> Plan:
+def plan(
+    hosts: dict[str, tuple[str, dict, Snapshot]],
+    run: bool = True,
+    deploy_file: str = "deploy.py",
+    diff: bool = False,
+    contents: dict[str, dict[str, str]] | None = None,
+) -> Plan:
     """hosts: name -> (group, host data, snapshot).  Returns name -> commands
-    sent after the snapshot (raw, unmasked), and which hosts failed."""
+    sent after the snapshot (raw, unmasked), and which hosts failed.
+
+    ``run=False`` stops after planning (what ``--dry`` does); ``diff`` is
+    ``--diff``; ``contents``: host -> path -> the file's text on that host,
+    for pyinfra's FileContents fact."""
     from pyinfra_cli.exceptions import UnexpectedExternalError
     from pyinfra_cli.util import load_deploy_file
 
@@ -174,9 +190,9 @@ def plan(hosts: dict[str, tuple[str, dict, Snapshot]], run: bool = True, deploy_
         groups[group][0].append((f"@fake/{name}", host_data))
     names = [name for members, _ in groups.values() for name, _ in members]
     inventory = Inventory((names, defaults["all"]), **groups)
-    state = State(inventory=inventory, config=Config())
+    state = State(inventory=inventory, config=Config(DIFF=diff))
     state.cwd = str(ROOT)
-    with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()}) as recorder:
+    with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()}, contents or {}) as recorder:
         connect_all(state)
         try:
             load_deploy_file(state, str(ROOT / deploy_file))
