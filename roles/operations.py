@@ -9,11 +9,15 @@ renamed, so a dropped link never leaves a half-written file.
 from __future__ import annotations
 
 import base64
+import difflib
 import hashlib
 import shlex
 
-from pyinfra import host
+from pyinfra import host, logger
 from pyinfra.api import StringCommand, operation
+from pyinfra.api.util import format_text
+from pyinfra.context import ctx_host
+from pyinfra.facts.files import FileContents
 
 from roles.hoststate import FileState
 
@@ -93,6 +97,8 @@ def file(
         yield fail_command(f"{path} exists but is not a regular file; not replacing it")
         return
     if current is None or current.sha256 != sha256(content):
+        if _planning_output_wanted() and host.state.config.DIFF:
+            show_diff(path, content, exists=current is not None)
         yield write_file_command(path, content, mode, user, group, validate)
         return
     if _attributes_match(current, mode, user, group):
@@ -182,7 +188,42 @@ def service(unit: str, enabled_now: bool, active_now: bool, enabled: bool = True
     yield shell(" && ".join(commands))
 
 
+def _planning_output_wanted() -> bool:
+    """True once per operation: while planning (pyinfra's change detection),
+    or while executing when planning was skipped (-y)."""
+    state = host.state
+    return not (state.is_executing and state.should_check_for_changes())
+
+
+def unified_diff(path: str, old: str, new: str) -> list[str]:
+    return list(difflib.unified_diff(
+        old.splitlines(), new.splitlines(), f"{path} (on the host)", f"{path} (planned)", lineterm=""
+    ))
+
+
+def show_diff(path: str, content: bytes, exists: bool) -> None:
+    """Print what writing ``content`` to ``path`` changes (--diff).  The current
+    content is fetched only here: for a file the snapshot found different."""
+    old = ""
+    if exists:
+        lines = host.get_fact(FileContents, path=path) or []
+        old = "".join(line + "\n" for line in lines)
+    new = content.decode(errors="replace")
+    host.log(f"{'Will modify' if exists else 'Will create'} {format_text(path, bold=True)}", logger.info)
+    for line in unified_diff(path, old, new):
+        colour = {"+": "green", "-": "red"}.get(line[:1]) if not line.startswith(("+++", "---")) else None
+        logger.info("  %s", format_text(line, colour) if colour else line)
+
+
 def fail_command(message: str) -> StringCommand:
+    """The command that fails this host with ``message``.  While planning it
+    also prints the reason and counts the host as failed, so ``--dry`` shows
+    why and exits non-zero (a real run would fail the host at this step)."""
+    state = host.state
+    gated = bool((host.current_op_global_arguments or {}).get("_if"))
+    if not state.is_executing and not gated:
+        host.log_styled(message, log_func=logger.error, fg="red")
+        state.failed_hosts.add(ctx_host.get())
     return shell(f"echo {shlex.quote(message)} >&2; exit 1")
 
 

@@ -131,7 +131,7 @@ def install_docker(snap: Snapshot):
             installed=snap.packages,
         )
 
-    operations.directory(name="/etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
+    operations.directory(name="Docker configuration directory /etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
     daemon = operations.file(
         name="Write /etc/docker/daemon.json",
         path=DAEMON_JSON,
@@ -173,9 +173,9 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
         name="Remove conflicting packages",
         packages=plan.obsolete_to_remove(data.docker_obsolete_packages, snap.packages),
     )
-    operations.directory(name=KEYRING_DIR, path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
+    operations.directory(name=f"apt keyring directory {KEYRING_DIR}", path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
     key = apt_key(
-        name="Docker apt key",
+        name="Download and verify Docker's apt key",
         url=plan.key_url(data.docker_apt_key_url, data.docker_repo_url, dist),
         path=data.docker_apt_key_path,
         fingerprint=fingerprint,
@@ -183,7 +183,7 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
         up_to_date=key_is_current(snap, data.docker_apt_key_path, fingerprint, data.docker_apt_key_sha256),
     )
     source = operations.file(
-        name="Docker apt source",
+        name="Write the Docker apt source",
         path=sources_path(data),
         content=plan.sources_text(
             plan.repo_uri(data.docker_repo_url, dist),

@@ -151,9 +151,9 @@ def deploy_payload(snap: Snapshot):
 
     if not snap.commands.get("python3"):
         operations.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
-    operations.directory(name=data.payload_dir, path=data.payload_dir, current=snap.files.get(data.payload_dir))
+    operations.directory(name=f"Payload releases directory {data.payload_dir}", path=data.payload_dir, current=snap.files.get(data.payload_dir))
     operations.file(
-        name="payloadctl",
+        name="Install the release helper payloadctl",
         path=HELPER,
         content=helper_text(),
         current=snap.files.get(HELPER),
@@ -166,7 +166,7 @@ def deploy_payload(snap: Snapshot):
         snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
     )
     if data.payload_autostart:
-        unit_op = operations.file(name=f"{data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
+        unit_op = operations.file(name=f"Write the autostart unit {data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
         operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
         operations.service(
             name=f"Enable {data.payload_name}.service at boot",
@@ -176,7 +176,7 @@ def deploy_payload(snap: Snapshot):
             running=False,  # starting it is the release step's job (health-gated)
         )
     else:
-        removed = operations.absent(name="No payload autostart unit", paths=[unit], present=snap.files)
+        removed = operations.absent(name="Remove the payload autostart unit", paths=[unit], present=snap.files)
         operations.run(
             name="Disable the payload autostart unit",
             script=f"systemctl disable {shlex.quote(data.payload_name)}.service 2>/dev/null; systemctl daemon-reload",

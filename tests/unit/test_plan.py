@@ -206,7 +206,7 @@ def converged(group: str, data: dict, os_name: str):
     else:
         snap.packages["xauth"] = "1"
         snap.files.update({
-            x11.SCRIPT: _file(x11.cookie_script(d), "755"),
+            x11.COOKIE_SCRIPT: _file(x11.cookie_script(d), "755"),
             x11.XSESSION_HOOK: _file((x11.HERE / "90robot-x11-cookie").read_text()),
             x11.AUTOSTART: _file((x11.HERE / "robot-x11-cookie.desktop").read_text()),
             "/var/lib/robot-x11": FileState("dir", None, "755", "root", "root"),
@@ -296,8 +296,8 @@ def test_registry_credentials_come_from_the_environment_and_go_over_stdin(monkey
 def test_snapshot_encoding_roundtrip():
     snap = converged("robots", ROBOT, "debian-13")
     from roles.hoststate import parse
-    from tests.unit.fakefleet import snapshot_lines
-    again = parse(snapshot_lines(snap))
+    from tests.unit.fakefleet import query_of, snapshot_lines
+    again = parse(snapshot_lines(snap, query_of(snap)), query_of(snap))
     assert again.files == snap.files and again.probes == snap.probes and again.packages == snap.packages
     assert again.users == snap.users and again.units == snap.units and again.os_release == snap.os_release
 
