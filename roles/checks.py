@@ -62,7 +62,8 @@ def describe(value: Any) -> str:
     if isinstance(value, dict):
         return "a mapping"
     if isinstance(value, NotAString):
-        return f"{value.text} (read by YAML as {describe(value.value)})"
+        read = describe(value.value)
+        return read if read == value.text else f"{value.text} (read by YAML as {read})"
     if isinstance(value, (datetime.date, datetime.datetime)):
         return f"a date ({value.isoformat()})"
     return type(value).__name__

@@ -23,6 +23,9 @@ from roles import checks as c
 from roles import fleetyaml, settings
 
 GROUPS = ("robots", "laptops")
+# Top-level keys starting with x- are ignored (as in compose files): a place
+# for YAML anchors shared with merge keys, e.g. x-camera: &camera {...}.
+EXTENSION_PREFIX = "x-"
 HOST_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,62}")
 GROUP_DATA_DIR = Path(__file__).resolve().parent.parent / "group_data"
 
@@ -113,11 +116,13 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
         lines.append(f"{shown}: expected a mapping with all/robots/laptops at the top, got {c.describe(raw)}")
         finish()
     for key in raw:
+        if isinstance(key, str) and key.startswith(EXTENSION_PREFIX):
+            continue
         if not isinstance(key, str) or key not in ("all",) + GROUPS:
             lines.append(
                 f"{shown}: {c.key_name(key)}: unknown top-level key"
                 + settings.did_you_mean(str(key), ("all",) + GROUPS)
-                + "; expected all, robots or laptops"
+                + "; expected all, robots or laptops (or x-... for YAML anchors)"
             )
 
     def section(name):

@@ -176,7 +176,7 @@ def _sensor(value):
 
 # daemon.json keys and value kinds from Docker's dockerd reference ("Daemon
 # configuration file", Linux).  b: boolean, s: string, i: whole number,
-# l: list of strings, m: mapping, j: any JSON (checked by dockerd --validate).
+# l: list of strings, m: mapping, ms: mapping of strings, j: any JSON (checked by dockerd --validate).
 DAEMON_OPTIONS = {
     **dict.fromkeys(
         "debug experimental live-restore icc init ip-forward ip-masq iptables ip6tables ipv6 "
@@ -196,7 +196,8 @@ DAEMON_OPTIONS = {
         "allow-nondistributable-artifacts authorization-plugins cdi-spec-dirs dns dns-opts dns-search "
         "exec-opts hosts insecure-registries labels node-generic-resources registry-mirrors "
         "storage-opts host-gateway-ips".split(), "l"),
-    **dict.fromkeys("builder default-network-opts default-ulimits features log-opts proxies runtimes".split(), "m"),
+    **dict.fromkeys("builder default-network-opts default-ulimits features runtimes".split(), "m"),
+    **dict.fromkeys("log-opts proxies".split(), "ms"),
     **dict.fromkeys("default-address-pools".split(), "j"),
 }
 _DAEMON_KIND = {
@@ -205,6 +206,7 @@ _DAEMON_KIND = {
     "i": c.integer(),
     "l": c.list_of(c.string()),
     "m": c.mapping_of(c.string(), c.any_json),
+    "ms": c.mapping_of(c.string(), c.string()),
     "j": c.any_json,
 }
 

@@ -119,7 +119,7 @@ def test_readme_documents_every_setting():
         ({"robots": {"vars": {"payload_imag": "x:1"}, "hosts": {}}},
          "robots.yaml: robots.vars.payload_imag: unknown setting (did you mean 'payload_image'?)"),
         ({"robot": {"hosts": {}}},
-         "robots.yaml: robot: unknown top-level key (did you mean 'robots'?); expected all, robots or laptops"),
+         "robots.yaml: robot: unknown top-level key (did you mean 'robots'?); expected all, robots or laptops (or x-... for YAML anchors)"),
         ({"robots": {"hosts": {"a b": GOOD_HOST}}}, "robots.yaml: 'a b': invalid host name (letters, digits, . _ -)"),
         ({"robots": {"hosts": {"r1": GOOD_HOST}}, "laptops": {"hosts": {"r1": {**GOOD_HOST, "x11_user": "a"}}}},
          "robots.yaml: r1: declared in both robots and laptops"),
