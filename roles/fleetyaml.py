@@ -105,7 +105,7 @@ class _Builder:
         elif isinstance(node, SequenceNode):
             self.require(node, _SEQ)
             self.building.add(key)
-            value = [self.build(item, depth + 1) for item in node.value]
+            value = [self.value(item, depth + 1) for item in node.value]
             self.building.discard(key)
         else:
             self.require(node, _MAP)
@@ -114,6 +114,12 @@ class _Builder:
             self.building.discard(key)
         self.built[key] = value
         return value
+
+    def value(self, node, depth: int):
+        # Plain strings are most of a fleet file: no bookkeeping for them.
+        if node.tag == _STR and type(node) is ScalarNode:
+            return node.value
+        return self.build(node, depth)
 
     @staticmethod
     def require(node, tag: str):
@@ -139,10 +145,10 @@ class _Builder:
             if key_node.tag == _MERGE:
                 merges.append(value_node)
                 continue
-            key = self.key(key_node)
+            key = key_node.value if key_node.tag == _STR and type(key_node) is ScalarNode else self.key(key_node)
             if key in result:
                 raise YamlProblem(key_node.start_mark.line + 1, f"duplicate key {str(key)!r}")
-            result[key] = self.build(value_node, depth + 1)
+            result[key] = self.value(value_node, depth + 1)
         # Own keys win over merged ones; among merged mappings the first wins.
         for value_node in merges:
             sources = value_node.value if isinstance(value_node, SequenceNode) else [value_node]

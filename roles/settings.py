@@ -139,6 +139,20 @@ def _fingerprint(value):
     return c.string(r"[0-9A-Fa-f]{40}", "a 40-digit hex OpenPGP fingerprint")(value)
 
 
+_SENSOR_FIELDS = {
+    "name": c.string(c.IDENTIFIER, "a name of lowercase letters, digits, - and _"),
+    "subsystem": c.string(choices=SUBSYSTEMS),
+    "serial": c.string(UDEV_VALUE, "a serial of letters, digits and . _ : / + -"),
+    "vendor_id": c.string(c.HEX4, "a 4-digit hex USB vendor id"),
+    "product_id": c.string(c.HEX4, "a 4-digit hex USB product id"),
+    "usb_port": c.string(USB_PORT, "a USB port path like 1-2.1"),
+    "group": c.string(c.USER_NAME, "a group name"),
+    "mode": c.string(MODE, "an octal mode like \"0660\""),
+    "symlink": c.string(SYMLINK, "a path relative to /dev like robot/front_camera"),
+    "passthrough": c.boolean,
+}
+
+
 def _sensor(value):
     if not isinstance(value, dict):
         return [("", f"expected a mapping with at least name and subsystem, got {c.describe(value)}")]
@@ -151,19 +165,7 @@ def _sensor(value):
     for key in ("name", "subsystem"):
         if key not in value:
             problems.append((f".{key}", "required"))
-    field_checks = {
-        "name": c.string(c.IDENTIFIER, "a name of lowercase letters, digits, - and _"),
-        "subsystem": c.string(choices=SUBSYSTEMS),
-        "serial": c.string(UDEV_VALUE, "a serial of letters, digits and . _ : / + -"),
-        "vendor_id": c.string(c.HEX4, "a 4-digit hex USB vendor id"),
-        "product_id": c.string(c.HEX4, "a 4-digit hex USB product id"),
-        "usb_port": c.string(USB_PORT, "a USB port path like 1-2.1"),
-        "group": c.string(c.USER_NAME, "a group name"),
-        "mode": c.string(MODE, "an octal mode like \"0660\""),
-        "symlink": c.string(SYMLINK, "a path relative to /dev like robot/front_camera"),
-        "passthrough": c.boolean,
-    }
-    for key, check in field_checks.items():
+    for key, check in _SENSOR_FIELDS.items():
         if key in value:
             problems += [(f".{key}{sub}", msg) for sub, msg in check(value[key])]
     if ("vendor_id" in value) != ("product_id" in value):
@@ -360,19 +362,20 @@ def check_host(data: dict, refused=frozenset()) -> list[c.Problem]:
         problems.append(("x11_user", "required when display is true: the desktop user"))
     if usable.get("ros_master_uri") and usable.get("ros_domain_id"):
         problems.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
-    sensors = usable.get("sensors")
+    sensors = data.get("sensors")
     if isinstance(sensors, list) and "udev_allow_world_writable" not in refused:
-        problems += _sensor_set_problems(sensors, usable.get("udev_allow_world_writable") is True)
+        # A refused list still has sensors that are valid on their own.
+        valid = [(i, s) for i, s in enumerate(sensors) if "sensors" not in refused or not _sensor(s)]
+        problems += _sensor_set_problems(valid, usable.get("udev_allow_world_writable") is True)
     return problems
 
 
-def _sensor_set_problems(sensors: list, allow_world_writable: bool) -> list[c.Problem]:
-    """Rules across sensors, over the sensors that are valid on their own."""
+def _sensor_set_problems(sensors: list[tuple[int, dict]], allow_world_writable: bool) -> list[c.Problem]:
+    """Rules across sensors, over (index, sensor) pairs of sensors that are
+    valid on their own."""
     problems = []
     names, links, matches = {}, {}, {}
-    for index, sensor in enumerate(sensors):
-        if _sensor(sensor):
-            continue
+    for index, sensor in sensors:
         where = f"sensors[{index}]"
         name = sensor["name"]
         if name in names:
