@@ -6,6 +6,7 @@ import logging
 import pytest
 
 from roles import operations
+from roles.hoststate import FileState
 from tests.unit.fakefleet import find, fresh_host, plan
 from tests.unit.test_plan import ROBOT, _file, converged
 
@@ -74,8 +75,12 @@ def test_diff_is_printed_once_per_file_in_a_full_run(log):
     ("user", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"), "docker_users: ghost does not exist on this host"),
     ("settings", {**ROBOT, "ssh_port": "x"}, fresh_host("debian-13"), "settings: ssh_port: expected a whole number"),
     ("x11", {**ROBOT, "display": True, "x11_user": "alice"}, fresh_host("debian-13"), "x11_user: alice does not exist on this host"),
+    ("dir", ROBOT, "daemon.json is a directory", "/etc/docker/daemon.json exists but is not a regular file"),
 ])
 def test_dry_run_names_the_failure_while_planning_and_counts_it(log, name, data, snap, reason):
+    if snap == "daemon.json is a directory":
+        snap = converged("robots", ROBOT, "debian-13")
+        snap.files[DAEMON_JSON] = FileState("dir", None, "755", "root", "root")
     result = plan({"bad": ("robots", data, snap), "good": ("robots", ROBOT, fresh_host("debian-13"))}, run=False)
     assert result.failed == {"bad"}
     errors = [r.getMessage() for r in log.records if r.levelno >= logging.ERROR]
