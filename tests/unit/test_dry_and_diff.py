@@ -92,3 +92,37 @@ def test_a_planned_failure_still_fails_the_host_when_run():
     result = plan({"bad": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf")), "good": ("robots", ROBOT, fresh_host("debian-13"))})
     assert result.failed == {"bad"} and "architecture armhf is not supported" in result["bad"][0]
     assert find(result["good"], "payloadctl apply")
+
+
+CLI = """
+import sys
+from pyinfra_cli.main import main
+from tests.unit.fakefleet import _Recorder, fresh_host
+sys.argv = ["pyinfra", *sys.argv[1:]]
+with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}, {}):
+    main()
+"""
+
+
+def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
+    """The real CLI (in-process, @fake hosts answered by the harness)."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.unit.fakefleet import ROOT
+
+    host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
+    inventory = tmp_path / "fake.py"
+    inventory.write_text(f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', {host!r})]\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
+    proc = subprocess.run([sys.executable, "-c", CLI, "--dry", str(inventory), "deploy.py"],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 1, output[-3000:]
+    planning = output.split("--> Preparing operation", 1)[1].split("--> Detected changes", 1)[0]
+    reasons = [line.strip() for line in planning.splitlines() if "ghost" in line]
+    assert reasons == [
+        "[@fake/bad]  docker_users: ghost does not exist on this host; "
+        "create the account first (users are never created by this tool)"
+    ]
