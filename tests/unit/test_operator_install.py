@@ -4,6 +4,7 @@ a non-editable install (a wheel) refuses to load with one clear line."""
 
 import re
 import shutil
+import site
 import subprocess
 import sys
 import venv
@@ -43,11 +44,16 @@ def checkout(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def venv_python(tmp_path_factory):
-    # Dependencies come from this machine's site-packages: the unit layer is
-    # offline.  (The README's commands fetch them from PyPI.)
+    """An empty venv whose dependencies are the running interpreter's
+    site-packages (the unit layer is offline; the README's commands fetch
+    them from PyPI).  They are listed in a .pth, so their own .pth files (an
+    editable install of this checkout) are not processed."""
     env = tmp_path_factory.mktemp("venv") / "venv"
-    venv.create(env, system_site_packages=True, with_pip=False)  # this pip installs into it (--python)
-    return env / "bin" / "python"
+    venv.create(env, with_pip=False)  # this interpreter's pip installs into it (--python)
+    python = env / "bin" / "python"
+    purelib = run(str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])", cwd=env).stdout.strip()
+    Path(purelib, "deps-of-the-test-runner.pth").write_text("\n".join(site.getsitepackages()) + "\n")
+    return python
 
 
 def pip_install(python, *args, cwd):
