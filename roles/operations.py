@@ -94,7 +94,7 @@ def file(
     if isinstance(content, str):
         content = content.encode()
     if current is not None and current.kind != "file":
-        yield fail_command(f"{path} exists but is not a regular file; not replacing it")
+        yield refuse(f"{path} exists but is not a regular file; not replacing it")
         return
     if current is None or current.sha256 != sha256(content):
         if _planning_output_wanted() and host.state.config.DIFF:
@@ -113,7 +113,7 @@ def file(
 @operation()
 def directory(path: str, current: FileState | None, mode: str = "0755", user: str = "root", group: str = "root"):
     if current is not None and current.kind != "dir":
-        yield fail_command(f"{path} exists but is not a directory")
+        yield refuse(f"{path} exists but is not a directory")
         return
     if current is not None and _attributes_match(current, mode, user, group):
         host.noop(f"{path} is up to date")
@@ -216,7 +216,12 @@ def show_diff(path: str, content: bytes, exists: bool) -> None:
 
 
 def fail_command(message: str) -> StringCommand:
-    """The command that fails this host with ``message``.  While planning it
+    return shell(f"echo {shlex.quote(message)} >&2; exit 1")
+
+
+def refuse(message: str) -> StringCommand:
+    """What an operation yields when this host cannot reach its declared
+    state: the command failing the host with ``message``.  While planning it
     also prints the reason and counts the host as failed, so ``--dry`` shows
     why and exits non-zero (a real run would fail the host at this step)."""
     state = host.state
@@ -224,13 +229,13 @@ def fail_command(message: str) -> StringCommand:
     if not state.is_executing and not gated:
         host.log_styled(message, log_func=logger.error, fg="red")
         state.failed_hosts.add(ctx_host.get())
-    return shell(f"echo {shlex.quote(message)} >&2; exit 1")
+    return fail_command(message)
 
 
 @operation()
 def fail(message: str):
     """Fail this host (only this host) with one clear line."""
-    yield fail_command(message)
+    yield refuse(message)
 
 
 @operation(is_idempotent=False)
