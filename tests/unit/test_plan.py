@@ -57,7 +57,7 @@ def test_fresh_host_gets_docker_ce_from_dockers_repository(os_name, arch):
     key = find(commands, "curl -fsSL")
     assert len(key) == 1
     assert f"https://download.docker.com/linux/{dist}/gpg" in key[0]
-    assert f"grep -qx {DOCKER_FPR}" in key[0] and "/etc/apt/keyrings/docker.asc" in key[0]
+    assert f"pin={DOCKER_FPR}" in key[0] and "/etc/apt/keyrings/docker.asc" in key[0]
     assert "/etc/apt/sources.list.d/docker.sources" in sources_of(commands)
     install = find(commands, "install docker-ce docker-ce-cli containerd.io docker-buildx-plugin docker-compose-plugin")
     assert len(install) == 1

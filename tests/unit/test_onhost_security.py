@@ -1,0 +1,157 @@
+"""Issue 8, the on-host half: the generated shell scripts run for real here
+(sh, gpg, curl on file:// URLs) so what is proven is what runs on a robot."""
+
+from __future__ import annotations
+
+import base64
+import subprocess
+
+import pytest
+
+from roles import docker
+from roles.hoststate import Snapshot, parse
+
+
+def _gpg(home, *args, **kwargs):
+    return subprocess.run(["gpg", "--batch", "--homedir", str(home), *args], capture_output=True, check=True, **kwargs)
+
+
+def _new_key(tmp_path, name: str, with_subkey: bool = False) -> tuple[str, bytes]:
+    """A fresh key (fingerprint, armored public key) in its own keyring."""
+    home = tmp_path / f"gnupg-{name}"
+    home.mkdir(mode=0o700)
+    _gpg(home, "--passphrase", "", "--quick-gen-key", f"{name}@example", "ed25519", "sign", "never")
+    listing = _gpg(home, "--with-colons", "--list-keys", text=True).stdout
+    fingerprint = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
+    if with_subkey:  # Docker's key has a signing subkey too
+        _gpg(home, "--passphrase", "", "--quick-add-key", fingerprint, "ed25519", "sign", "never")
+    return fingerprint, _gpg(home, "--armor", "--export").stdout
+
+
+@pytest.fixture(scope="module")
+def keys(tmp_path_factory):
+    """The pinned key (with a subkey, like Docker's) and an intruder's key."""
+    base = tmp_path_factory.mktemp("keys")
+    pinned = _new_key(base, "pinned", with_subkey=True)
+    intruder = _new_key(base, "intruder")
+    return pinned, intruder
+
+
+def _sh(script: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["sh", "-c", script], capture_output=True, text=True, timeout=60)
+
+
+def _probe(dest) -> list[str]:
+    return _sh(docker.key_fingerprints_probe(str(dest))).stdout.split()
+
+
+def _snap(path, probe_output: str) -> Snapshot:
+    """A snapshot in which the key file is in place (0644) and the probe said ``probe_output``."""
+    return parse([
+        f"file\t{path}\tfile\t" + "a" * 64 + "\t644 root root",
+        "probe\tdocker_key_fingerprints\t" + base64.b64encode(probe_output.encode()).decode(),
+    ])
+
+
+def test_the_probe_lists_primary_keys_only(tmp_path, keys):
+    (fpr, key), _ = keys
+    dest = tmp_path / "docker.asc"
+    dest.write_bytes(key)
+    assert _probe(dest) == [fpr]  # the subkey's fingerprint is not a key of its own
+
+
+def test_a_key_file_holding_a_second_key_is_refused(tmp_path, keys):
+    (fpr, key), (other, intruder) = keys
+    served = tmp_path / "gpg"
+    served.write_bytes(key + intruder)
+    dest = tmp_path / "keyrings" / "docker.asc"
+    dest.parent.mkdir()
+    proc = _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None))
+    assert proc.returncode == 1
+    assert proc.stderr.count("\n") == 1, proc.stderr  # one line
+    assert f"holds 2 keys ({fpr} {other}); only docker_apt_key_fingerprint {fpr} may be in it; key not installed" in proc.stderr
+    assert list(dest.parent.iterdir()) == []
+
+
+def test_a_poisoned_keyring_on_the_host_is_not_current_and_is_replaced(tmp_path, keys):
+    (fpr, key), (other, intruder) = keys
+    dest = tmp_path / "keyrings" / "docker.asc"
+    dest.parent.mkdir()
+    dest.write_bytes(key + intruder)
+    dest.chmod(0o644)
+    probe = _sh(docker.key_fingerprints_probe(str(dest))).stdout
+    assert not docker.key_is_current(_snap(dest, probe), str(dest), fpr, None)
+    assert docker.key_is_current(_snap(dest, fpr + "\n"), str(dest), fpr, None)
+    served = tmp_path / "gpg"
+    served.write_bytes(key)
+    proc = _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None))
+    assert proc.returncode == 0, proc.stderr
+    assert _probe(dest) == [fpr]
+    assert dest.read_bytes() == key
+
+
+def test_a_poisoned_keyring_is_removed_even_when_the_mirror_still_serves_two_keys(tmp_path, keys):
+    """Fail closed: apt must not go on trusting the intruder's key."""
+    (fpr, key), (_, intruder) = keys
+    dest = tmp_path / "keyrings" / "docker.asc"
+    dest.parent.mkdir()
+    dest.write_bytes(intruder + key)
+    served = tmp_path / "gpg"
+    served.write_bytes(intruder + key)
+    proc = _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None))
+    assert proc.returncode == 1 and "key not installed" in proc.stderr
+    assert list(dest.parent.iterdir()) == []
+
+
+def test_a_single_good_key_is_kept_when_the_download_is_refused(tmp_path, keys):
+    (fpr, key), (_, intruder) = keys
+    dest = tmp_path / "keyrings" / "docker.asc"
+    dest.parent.mkdir()
+    dest.write_bytes(key)
+    served = tmp_path / "gpg"
+    served.write_bytes(key + intruder)
+    assert _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None)).returncode == 1
+    assert dest.read_bytes() == key
+
+
+@pytest.mark.parametrize("payload", ["$(touch${IFS}%s)", "`touch${IFS}%s`", "\"$(touch${IFS}%s)\""])
+def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload):
+    """Both mismatch messages (fingerprint, sha256) print the URL; neither runs it."""
+    (fpr, key), _ = keys
+    served = tmp_path / "gpg"
+    served.write_bytes(key)
+    pwned = tmp_path / "pwned"
+    url = f"file://{served}?x=" + payload % pwned
+    assert subprocess.run(["curl", "-fsS", url], capture_output=True).returncode == 0  # the mismatch path is reached
+    dest = tmp_path / "docker.asc"
+    for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64)):
+        proc = _sh(docker.key_download_script(url, str(dest), fingerprint, sha256))
+        assert proc.returncode == 1, proc.stderr
+        assert "key not installed" in proc.stderr and url in proc.stderr, proc.stderr
+        assert not pwned.exists(), f"the URL ran as a command: {proc.stderr}"
+    assert not dest.exists()
+
+
+# --- compose: values reach the container verbatim (issue 8 item 4) ---------
+
+def test_every_string_written_to_compose_has_its_dollars_escaped():
+    import yaml
+
+    from roles import payload
+    from roles.payload import compose
+    from tests.unit.test_plan import merged
+
+    data = merged("robots", {
+        "payload_image": "reg.lan/ros/payload:1.0",
+        "payload_environment": {"PASSWORD": "s3cr$et", "REQUIRED": "${X:?}", "PLAIN": "a$$b"},
+        "payload_command": ["sh", "-c", "echo $HOME"],
+        "payload_volumes": ["/srv/$data:/data"],
+    })
+    doc = yaml.safe_load(compose.dump(payload.desired_compose(data, "10.0.0.1")))
+    service = doc["services"]["payload"]
+    assert service["environment"]["PASSWORD"] == "s3cr$$et"
+    assert service["environment"]["REQUIRED"] == "$${X:?}"
+    assert service["environment"]["PLAIN"] == "a$$$$b"
+    assert service["command"] == ["sh", "-c", "echo $$HOME"]
+    assert service["volumes"] == ["/srv/$$data:/data"]
+    assert service["image"] == "reg.lan/ros/payload:1.0"
