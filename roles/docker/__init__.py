@@ -97,7 +97,7 @@ def key_download_script(url: str, dest: str, fingerprint: str | None, sha256: st
             '[ "$count" -eq 1 ] || { echo "Docker apt key from $url: holds $count keys ($(echo $fprs)); '
             'only docker_apt_key_fingerprint $pin may be in it; key not installed" >&2; exit 1; }',
         ]
-    lines += ['chmod 644 "$tmp"', 'mv -f "$tmp" "$dest"']
+    lines += ['chmod 644 "$tmp"', 'mv -fT "$tmp" "$dest"']
     return "\n".join(lines)
 
 

@@ -155,3 +155,91 @@ def test_every_string_written_to_compose_has_its_dollars_escaped():
     assert service["command"] == ["sh", "-c", "echo $$HOME"]
     assert service["volumes"] == ["/srv/$$data:/data"]
     assert service["image"] == "reg.lan/ros/payload:1.0"
+
+
+# --- symlinks where a managed file or directory is wanted (items 7, 8) ------
+
+def test_the_snapshot_reports_a_symlink_as_a_link(tmp_path):
+    from roles import hoststate
+
+    (tmp_path / "target").write_text("{}\n")
+    (tmp_path / "dir").mkdir()
+    for name, target in (("to-file", "target"), ("to-dir", "dir"), ("dangling", "nowhere")):
+        (tmp_path / name).symlink_to(tmp_path / target)
+    paths = [str(tmp_path / n) for n in ("to-file", "to-dir", "dangling", "target", "dir")]
+    out = subprocess.run(["sh", "-c", hoststate.script(files=paths)], capture_output=True, text=True, check=True)
+    snap = hoststate.parse(out.stdout.splitlines())
+    kinds = {p.rsplit("/", 1)[1]: (snap.files[p].kind if snap.files[p] else None) for p in paths}
+    assert kinds == {"to-file": "link", "to-dir": "link", "dangling": "link", "target": "file", "dir": "dir"}
+
+
+@pytest.mark.parametrize("target_kind", ["file", "dir"])
+def test_writing_a_file_replaces_a_symlink_and_leaves_its_target_alone(tmp_path, target_kind):
+    import grp
+    import os
+    import pwd
+
+    from roles import operations
+
+    target = tmp_path / "elsewhere"
+    if target_kind == "file":
+        target.write_text("not yours\n")
+    else:
+        target.mkdir()
+    dest = tmp_path / "etc" / "daemon.json"
+    dest.parent.mkdir()
+    dest.symlink_to(target)
+    user, group = pwd.getpwuid(os.getuid()).pw_name, grp.getgrgid(os.getgid()).gr_name
+    command = operations.write_file_command(str(dest), b"{}\n", "0644", user, group)
+    stdin = "\n".join(command.connector_arguments["_stdin"]) + "\n"
+    proc = subprocess.run(command.get_raw_value(), shell=True, input=stdin, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert not dest.is_symlink() and dest.read_bytes() == b"{}\n"
+    if target_kind == "file":
+        assert target.read_text() == "not yours\n"
+    else:
+        assert list(target.iterdir()) == []
+
+
+def test_a_symlinked_daemon_json_is_replaced_by_a_file_and_docker_restarts():
+    from roles.hoststate import FileState
+    from tests.unit.fakefleet import find, plan
+    from tests.unit.test_plan import ROBOT, converged
+
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files["/etc/docker/daemon.json"] = FileState("link", None, "777", "root", "root")
+    result = plan({"r1": ("robots", ROBOT, snap)})
+    assert result.failed == set()
+    commands = result["r1"]
+    assert len(find(commands, r"dest=/etc/docker/daemon.json\n")) == 1
+    assert not find(commands, "chown root:root /etc/docker/daemon.json")
+    assert find(commands, "systemctl restart docker.service")
+
+
+def test_a_symlinked_directory_is_refused_with_one_line(tmp_path):
+    from roles.hoststate import FileState
+    from tests.unit.fakefleet import find, plan
+    from tests.unit.test_plan import ROBOT, converged
+
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files["/etc/docker"] = FileState("link", None, "777", "root", "root")
+    result = plan({"r1": ("robots", ROBOT, snap)})
+    assert result.failed == {"r1"}
+    refusal = find(result["r1"], "symbolic link")
+    assert len(refusal) == 1 and "/etc/docker is a symbolic link; not following it" in refusal[0]
+    assert not find(result["r1"], "install -d")
+
+
+def test_the_directory_command_itself_refuses_a_symlink(tmp_path):
+    """The snapshot is a moment ago: the command checks again before install -d/chmod."""
+    from roles import operations
+
+    real = tmp_path / "real"
+    real.mkdir(mode=0o1777)
+    real.chmod(0o1777)
+    link = tmp_path / "link"
+    link.symlink_to(real)
+    command = operations.directory_command(str(link), "0755", "root", "root")
+    proc = subprocess.run(command.get_raw_value(), shell=True, capture_output=True, text=True)
+    assert proc.returncode == 1 and "is a symbolic link" in proc.stderr
+    assert oct(real.stat().st_mode)[-4:] == "1777"
