@@ -243,3 +243,55 @@ def test_the_directory_command_itself_refuses_a_symlink(tmp_path):
     proc = subprocess.run(command.get_raw_value(), shell=True, capture_output=True, text=True)
     assert proc.returncode == 1 and "is a symbolic link" in proc.stderr
     assert oct(real.stat().st_mode)[-4:] == "1777"
+
+
+# --- registry login decided by a hash of the credentials (item 9) ----------
+
+SECRET = "pa55-w0rd-never-shown"
+
+
+def _login_plan(monkeypatch, probe: str | None, image: str = "reg.example.com/ros/payload:1.0", password=SECRET):
+    from tests.unit.fakefleet import plan
+    from tests.unit.test_plan import ROBOT, converged
+
+    monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", "puller")
+    monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", password)
+    data = {**ROBOT, "payload_image": image}
+    snap = converged("robots", data, "debian-13")
+    if probe is not None:
+        snap.probes["registry_auth"] = probe
+    result = plan({"r1": ("robots", data, snap)})
+    assert result.failed == set()
+    return [c for c in result["r1"] if "docker login" in c]
+
+
+def test_docker_hub_logins_are_looked_up_under_the_key_docker_stores_them_at():
+    from roles import payload
+
+    for registry in ("docker.io", "index.docker.io", "registry-1.docker.io"):
+        assert payload.registry_config_key(registry) == "https://index.docker.io/v1/"
+        assert '"https://index.docker.io/v1/"' in payload.registry_probe(registry)
+    assert payload.registry_config_key("reg.lan:5000") == "reg.lan:5000"
+
+
+def test_login_runs_when_never_logged_in_and_the_secret_is_not_in_the_command(monkeypatch):
+    logins = _login_plan(monkeypatch, probe="")
+    assert len(logins) == 1
+    assert SECRET not in logins[0]
+    assert "--password-stdin" in logins[0] and "read -r record" in logins[0]
+
+
+def test_same_credentials_plan_no_login_and_a_changed_password_logs_in_again(monkeypatch):
+    from roles import payload
+
+    record = payload.credentials_record("reg.example.com", "puller", SECRET, salt="00" * 16)
+    assert SECRET not in record and "puller" not in record
+    assert _login_plan(monkeypatch, probe=record + "\n") == []
+    assert len(_login_plan(monkeypatch, probe=record + "\n", password=SECRET + "-rotated")) == 1
+    # a record for another registry does not count
+    other = payload.credentials_record("other.example.com", "puller", SECRET, salt="00" * 16)
+    assert len(_login_plan(monkeypatch, probe=other + "\n")) == 1
+
+
+def test_an_old_style_yes_from_the_probe_is_not_taken_as_logged_in(monkeypatch):
+    assert len(_login_plan(monkeypatch, probe="yes\n")) == 1

@@ -289,7 +289,8 @@ def test_registry_credentials_come_from_the_environment_and_go_over_stdin(monkey
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", "s3cret-token")
     commands = plan({"r1": ("robots", ROBOT, converged("robots", ROBOT, "debian-13"))})["r1"]
     login = find(commands, "docker login")
-    assert login == ["sh -c 'docker login reg.example.com --username robot --password-stdin >/dev/null'"]
+    assert len(login) == 1
+    assert "docker login reg.example.com --username robot --password-stdin >/dev/null" in login[0]
     assert not find(commands, "s3cret-token")
 
 
