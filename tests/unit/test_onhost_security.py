@@ -295,3 +295,32 @@ def test_same_credentials_plan_no_login_and_a_changed_password_logs_in_again(mon
 
 def test_an_old_style_yes_from_the_probe_is_not_taken_as_logged_in(monkeypatch):
     assert len(_login_plan(monkeypatch, probe="yes\n")) == 1
+
+
+# --- push: the image goes over the command's stdin, no path on the robot (item 6)
+
+def test_the_pushed_archive_goes_over_stdin_intact_through_pyinfras_writer(tmp_path):
+    """pyinfra's own write_stdin sends it, a real base64 -d reads it back."""
+    import os
+
+    from pyinfra.connectors.util import write_stdin
+
+    from roles.payload import push
+
+    archive = tmp_path / "image.tar"
+    archive.write_bytes(os.urandom(3 * push.ArchiveStdin.CHUNK + 12345))
+    command = push.load_command(str(archive), "line", "/var/lib/robot-payload")
+    raw = command.get_raw_value()
+    assert "base64 -d | docker load" in raw
+    assert "/tmp" not in raw and "robotprov-image" not in raw and "-i " not in raw
+    stdin = command.connector_arguments["_stdin"]
+    assert stdin  # pyinfra only writes a truthy stdin
+    received = tmp_path / "received"
+    with open(received, "wb") as sink:
+        proc = subprocess.Popen(["base64", "-d"], stdin=subprocess.PIPE, stdout=sink)
+        write_stdin(stdin, proc.stdin)
+        assert proc.wait(timeout=60) == 0
+    assert received.read_bytes() == archive.read_bytes()
+    # sent twice (sudo password retry): the same bytes again
+    assert "".join(stdin) == "".join(stdin)
+
