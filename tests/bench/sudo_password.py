@@ -20,6 +20,7 @@ prints how many of the sampler's sweeps saw the password and in what.
 from __future__ import annotations
 
 import argparse
+import base64
 import json
 import os
 import secrets
@@ -36,13 +37,13 @@ SAMPLES = "/var/tmp/sudopw-samples.json"
 SAMPLER = r"""
 import json, os, sys, time
 marker, seconds, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
-sweeps, hits, seen = 0, 0, {}
+sweeps, hits, seen, me = 0, 0, {}, str(os.getpid())
 end = time.monotonic() + seconds
 while time.monotonic() < end and not os.path.exists(out + ".stop"):
     sweeps += 1
     hit = False
     for pid in os.listdir("/proc"):
-        if not pid.isdigit():
+        if not pid.isdigit() or pid == me:
             continue
         try:
             with open(f"/proc/{pid}/cmdline", "rb") as f:
@@ -61,7 +62,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "lab"))
     parser.add_argument("--host", default="laptop1")
-    parser.add_argument("--commands", type=int, default=100)
+    parser.add_argument("--commands", type=int, default=50)
     args = parser.parse_args()
 
     from tests.lab.state import exec_in
@@ -97,13 +98,14 @@ def main() -> None:
             f"for i in range({args.commands}):\n"
             "    server.shell(name=f'sudo command {i}', commands=[f'true {i}'], _sudo=True)\n"
         )
-        seconds = 30 + args.commands * 0.5
-        root(f"rm -f {SAMPLES} {SAMPLES}.stop; systemd-run --unit=sudopw-sampler --collect --uid=nobody "
-             f"python3 -c {json.dumps(SAMPLER)} {password} {seconds} {SAMPLES} >/dev/null 2>&1 || "
-             f"(setpriv --reuid=nobody --regid=nogroup --clear-groups python3 -c {json.dumps(SAMPLER)} "
-             f"{password} {seconds} {SAMPLES} &)")
+        seconds = 60 + args.commands * 2
+        sampler = base64.b64encode(SAMPLER.encode()).decode()
+        root(f"rm -f {SAMPLES} {SAMPLES}.stop; echo {sampler} | base64 -d > {SAMPLES}.py && "
+             f"systemd-run --unit=sudopw-sampler --collect --uid=nobody python3 {SAMPLES}.py "
+             f"{password} {seconds} {SAMPLES}")
         started = time.monotonic()
         proc = subprocess.run(
+
             [sys.executable, "-m", "pyinfra", "-y", "--use-sudo-password", str(inventory), str(deploy)],
             input=password + "\n", capture_output=True, text=True, cwd=tmp, start_new_session=True,
             env=dict(os.environ, PYINFRA_PROGRESS="off"), timeout=seconds,
@@ -119,7 +121,7 @@ def main() -> None:
     print(f"password in pyinfra's output: {'yes' if password in proc.stdout + proc.stderr else 'no'}")
     print(f"sampler (as nobody): {samples.get('sweeps')} sweeps of /proc/*/cmdline, "
           f"{samples.get('sweeps_with_password')} saw the password, in: {samples.get('seen_in')}")
-    root(f"rm -f /etc/sudoers.d/{USER} {SAMPLES} {SAMPLES}.stop; userdel -r {USER} 2>/dev/null; true")
+    root(f"rm -f /etc/sudoers.d/{USER} {SAMPLES} {SAMPLES}.stop {SAMPLES}.py; userdel -r {USER} 2>/dev/null; true")
 
 
 if __name__ == "__main__":
