@@ -3,13 +3,12 @@
 
 from __future__ import annotations
 
-import base64
 import subprocess
 
 import pytest
 
 from roles import docker
-from roles.hoststate import Snapshot, parse
+from roles.hoststate import FileState, HostSnapshot, Snapshot
 
 
 def _gpg(home, *args, **kwargs):
@@ -47,10 +46,10 @@ def _probe(dest) -> list[str]:
 
 def _snap(path, probe_output: str) -> Snapshot:
     """A snapshot in which the key file is in place (0644) and the probe said ``probe_output``."""
-    return parse([
-        f"file\t{path}\tfile\t" + "a" * 64 + "\t644 root root",
-        "probe\tdocker_key_fingerprints\t" + base64.b64encode(probe_output.encode()).decode(),
-    ])
+    return Snapshot(
+        files={str(path): FileState("file", "a" * 64, "644", "root", "root")},
+        probes={"docker_key_fingerprints": probe_output},
+    )
 
 
 def test_the_probe_lists_primary_keys_only(tmp_path, keys):
@@ -160,15 +159,14 @@ def test_every_string_written_to_compose_has_its_dollars_escaped():
 # --- symlinks where a managed file or directory is wanted (items 7, 8) ------
 
 def test_the_snapshot_reports_a_symlink_as_a_link(tmp_path):
-    from roles import hoststate
-
     (tmp_path / "target").write_text("{}\n")
     (tmp_path / "dir").mkdir()
     for name, target in (("to-file", "target"), ("to-dir", "dir"), ("dangling", "nowhere")):
         (tmp_path / name).symlink_to(tmp_path / target)
     paths = [str(tmp_path / n) for n in ("to-file", "to-dir", "dangling", "target", "dir")]
-    out = subprocess.run(["sh", "-c", hoststate.script(files=paths)], capture_output=True, text=True, check=True)
-    snap = hoststate.parse(out.stdout.splitlines())
+    fact = HostSnapshot()
+    out = subprocess.run(["sh", "-c", fact.command(files=paths)], capture_output=True, text=True, check=True)
+    snap = fact.process(out.stdout.splitlines())
     kinds = {p.rsplit("/", 1)[1]: (snap.files[p].kind if snap.files[p] else None) for p in paths}
     assert kinds == {"to-file": "link", "to-dir": "link", "dangling": "link", "target": "file", "dir": "dir"}
 
