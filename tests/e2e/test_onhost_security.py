@@ -43,7 +43,7 @@ def test_a_poisoned_keyring_is_repaired_and_a_two_key_file_refused(lab, first_ru
     lab.ok("robot1", poison)
     run = lab.provision("--limit", "robot1", label="(poisoned keyring)")
     assert run.returncode == 0, run.output[-3000:]
-    assert "Docker | Docker apt key" in run.changes("robot1")
+    assert any("apt key" in name for name in run.changes("robot1")), run.changes("robot1")
     assert lab.ok("robot1", f"sha256sum {KEYRING}").split()[0] == good
 
     # The key URL serves Docker's key + another: refused, and the poisoned keyring is not kept.
