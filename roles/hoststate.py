@@ -85,7 +85,7 @@ class Readings(dict):
 
 @dataclass(frozen=True)
 class FileState:
-    kind: str  # "file" or "dir"
+    kind: str  # "file", "dir" or "link" (a symlink, whatever it points at)
     sha256: str | None
     mode: str  # octal, e.g. "644"
     owner: str
@@ -137,7 +137,8 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
     for path in files:
         p = _q(path)
         lines.append(
-            f"if [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"if [ -L {p} ]; then echo \"file${{T}}\"{p}\"${{T}}link${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"elif [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
             f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
             f"else echo \"file${{T}}\"{p}\"${{T}}none\"; fi"
         )
@@ -179,7 +180,7 @@ def parse(lines: list[str], query: dict) -> Snapshot:
                 snap.packages[name] = version
         elif kind == "file":
             path = parts[0]
-            if len(parts) >= 4 and parts[1] in ("file", "dir"):
+            if len(parts) >= 4 and parts[1] in ("file", "dir", "link"):
                 mode, owner, group = (parts[3].split() + ["", "", ""])[:3]
                 sha = parts[2] if parts[1] == "file" else None
                 snap.files[path] = FileState(parts[1], sha, mode, owner, group)

@@ -59,7 +59,7 @@ def write_file_command(path: str, content: bytes, mode: str, user: str, group: s
         f'chown {shlex.quote(user)}:{shlex.quote(group)} "$tmp"\n'
         f'chmod {_mode(mode)} "$tmp"\n'
         f"{check}"
-        'mv -f "$tmp" "$dest"\n'
+        'mv -fT "$tmp" "$dest"\n'
         "trap - EXIT\n"
     )
     encoded = base64.encodebytes(content).decode().splitlines()
@@ -93,12 +93,14 @@ def file(
     a shell command in which ``{}`` is the new file)."""
     if isinstance(content, str):
         content = content.encode()
-    if current is not None and current.kind != "file":
+    if current is not None and current.kind == "dir":
         yield refuse(f"{path} exists but is not a regular file; not replacing it")
         return
-    if current is None or current.sha256 != sha256(content):
+    # A symlink is replaced by the file (the rename replaces the link itself,
+    # its target is left alone): chmod/chown would act on the target.
+    if current is None or current.kind == "link" or current.sha256 != sha256(content):
         if _planning_output_wanted() and host.state.config.DIFF:
-            show_diff(path, content, exists=current is not None)
+            show_diff(path, content, exists=current is not None and current.kind == "file")
         yield write_file_command(path, content, mode, user, group, validate)
         return
     if _attributes_match(current, mode, user, group):
@@ -110,18 +112,33 @@ def file(
     )
 
 
+def directory_command(path: str, mode: str, user: str, group: str) -> StringCommand:
+    """install -d and chmod follow a symlink: refuse one, also if it appeared
+    since the snapshot."""
+    p = shlex.quote(path)
+    return shell(
+        f"if [ -L {p} ]; then echo {shlex.quote(_link_refusal(path))} >&2; exit 1; fi; "
+        f"install -d -m {_mode(mode)} -o {shlex.quote(user)} -g {shlex.quote(group)} {p}"
+        f" && chmod {_mode(mode)} {p}"
+    )
+
+
+def _link_refusal(path: str) -> str:
+    return f"{path} is a symbolic link; not following it (make it a real directory)"
+
+
 @operation()
 def directory(path: str, current: FileState | None, mode: str = "0755", user: str = "root", group: str = "root"):
+    if current is not None and current.kind == "link":
+        yield fail_command(_link_refusal(path))
+        return
     if current is not None and current.kind != "dir":
         yield refuse(f"{path} exists but is not a directory")
         return
     if current is not None and _attributes_match(current, mode, user, group):
         host.noop(f"{path} is up to date")
         return
-    yield shell(
-        f"install -d -m {_mode(mode)} -o {shlex.quote(user)} -g {shlex.quote(group)} {shlex.quote(path)}"
-        f" && chmod {_mode(mode)} {shlex.quote(path)}"
-    )
+    yield directory_command(path, mode, user, group)
 
 
 @operation()

@@ -80,8 +80,10 @@ def test_registry_token_travels_only_as_stdin_of_the_login(monkeypatch):
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", "s3cret-token")
     commands = plan({"r1": ("robots", ROBOT, converged("robots", ROBOT, "debian-13"))})["r1"]
     carrying = [c for c in commands if "s3cret-token" in c or "s3cret-token" in c.stdin]
-    assert carrying == ["sh -c 'docker login reg.example.com --username robot --password-stdin >/dev/null'"]
-    assert carrying[0].stdin == "s3cret-token\n"
+    assert len(carrying) == 1
+    assert "docker login reg.example.com --username robot --password-stdin >/dev/null" in carrying[0]
+    assert "s3cret-token" not in carrying[0]
+    assert carrying[0].stdin.rstrip("\n").endswith("s3cret-token")
 
 
 def test_importing_the_status_module_patches_nothing():
