@@ -130,7 +130,7 @@ def _link_refusal(path: str) -> str:
 @operation()
 def directory(path: str, current: FileState | None, mode: str = "0755", user: str = "root", group: str = "root"):
     if current is not None and current.kind == "link":
-        yield fail_command(_link_refusal(path))
+        yield refuse(_link_refusal(path))
         return
     if current is not None and current.kind != "dir":
         yield refuse(f"{path} exists but is not a directory")
