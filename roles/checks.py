@@ -80,6 +80,18 @@ def expected_string(value: Any, what: str = "a string") -> str:
     return message + "; quote it" if _not_text(value) else message
 
 
+def with_schema(check: Checker, schema: dict) -> Checker:
+    """Attach the JSON Schema of what ``check`` accepts (roles/schema.py
+    builds the fleet file's schema for editors from these)."""
+    check.schema = schema
+    return check
+
+
+def json_pattern(pattern: str) -> str:
+    """A fullmatch pattern as a JSON Schema (ECMA-262, search) pattern."""
+    return f"^(?:{pattern})$"
+
+
 def string(pattern: str | None = None, what: str = "a string", choices=None) -> Checker:
     regex = re.compile(pattern, re.ASCII) if pattern else None
 
@@ -92,13 +104,21 @@ def string(pattern: str | None = None, what: str = "a string", choices=None) -> 
             return [("", f"expected {what}, got {shown(value)}")]
         return []
 
-    return check
+    schema = {"type": "string", "description": what} if what != "a string" else {"type": "string"}
+    if choices is not None:
+        schema["enum"] = list(choices)
+    if pattern:
+        schema["pattern"] = json_pattern(pattern)
+    return with_schema(check, schema)
 
 
 def boolean(value):
     if not isinstance(value, bool):
         return [("", f"expected true or false, got {describe(value)}")]
     return []
+
+
+boolean.schema = {"type": "boolean"}
 
 
 def integer(minimum: int | None = None, maximum: int | None = None) -> Checker:
@@ -111,14 +131,19 @@ def integer(minimum: int | None = None, maximum: int | None = None) -> Checker:
             return [("", f"expected at most {maximum}, got {value}")]
         return []
 
-    return check
+    schema = {"type": "integer"}
+    if minimum is not None:
+        schema["minimum"] = minimum
+    if maximum is not None:
+        schema["maximum"] = maximum
+    return with_schema(check, schema)
 
 
 def optional(inner: Checker) -> Checker:
     def check(value):
         return [] if value is None else inner(value)
 
-    return check
+    return with_schema(check, {"anyOf": [inner.schema, {"type": "null"}]})
 
 
 def list_of(inner: Checker, unique: bool = False) -> Checker:
@@ -141,7 +166,10 @@ def list_of(inner: Checker, unique: bool = False) -> Checker:
                 seen.add(key)
         return problems
 
-    return check
+    schema = {"type": "array", "items": inner.schema}
+    if unique:
+        schema["uniqueItems"] = True
+    return with_schema(check, schema)
 
 
 def key_name(key: Any) -> str:
@@ -167,7 +195,7 @@ def mapping_of(key: Checker, value_check: Checker) -> Checker:
                 problems += [(f"{where}{sub}", msg) for sub, msg in value_check(v)]
         return problems
 
-    return check
+    return with_schema(check, {"type": "object", "propertyNames": key.schema, "additionalProperties": value_check.schema})
 
 
 MAX_JSON_VALUES = 10_000
@@ -211,6 +239,9 @@ def any_json(value):
     return problems
 
 
+any_json.schema = {}
+
+
 def text(value):
     """An environment variable value: a string (YAML 1.1 would silently
     change NO, 1.10, 0755 or 12:30 on the way; quoted, nothing changes)."""
@@ -221,6 +252,9 @@ def text(value):
     if _not_text(value):
         return [("", f"expected a string, got {describe(value)}; quote it (YAML reads NO, 1.10, 0755, 12:30 as non-strings)")]
     return [("", f"expected a string, got {describe(value)}")]
+
+
+text.schema = {"type": "string", "description": "a string: quote values YAML would read as something else"}
 
 
 # Patterns shared by several settings.

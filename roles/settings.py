@@ -72,8 +72,7 @@ def _address(value):
     return []
 
 
-def _url(value):
-    return c.string(URL, URL_WHAT)(value)
+_url = c.string(URL, URL_WHAT)
 
 
 def _image(value):
@@ -129,14 +128,14 @@ def _udev_rules_path(value):
     return problems
 
 
-def _vendor_rule_name(value):
-    return c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules")(value)
+_vendor_rule_name = c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules")
+
+
+_FINGERPRINT = c.string(r"[0-9A-Fa-f]{40}", "a 40-digit hex OpenPGP fingerprint")
 
 
 def _fingerprint(value):
-    if isinstance(value, str):
-        value = value.replace(" ", "")
-    return c.string(r"[0-9A-Fa-f]{40}", "a 40-digit hex OpenPGP fingerprint")(value)
+    return _FINGERPRINT(value.replace(" ", "") if isinstance(value, str) else value)
 
 
 _SENSOR_FIELDS = {
@@ -227,6 +226,33 @@ def _daemon_options(value):
             problems += [(f"{where}{sub}", msg) for sub, msg in _DAEMON_KIND[DAEMON_OPTIONS[key]](option)]
     return problems
 
+
+# What the checkers above accept, as JSON Schema for editors (roles/schema.py).
+_path_schema = {"type": "string", "pattern": c.json_pattern(c.ABS_PATH), "description": "an absolute path without '..'"}
+c.with_schema(_address, {"type": "string", "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)"})
+c.with_schema(_image, {"type": "string", "description": "an image reference, pinned by tag or digest"})
+c.with_schema(_volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"})
+c.with_schema(_abs_path, _path_schema)
+c.with_schema(_private_path, {
+    **_path_schema,
+    "not": {"pattern": "^/+(?:" + "|".join(w.lstrip("/") for w in WORLD_WRITABLE) + ")(?:/|$)"},
+    "description": "an absolute path outside world-writable directories (/tmp, /var/tmp, /dev/shm, ...)",
+})
+c.with_schema(_udev_rules_path, {"type": "string", "pattern": "^/etc/udev/rules\\.d/[A-Za-z0-9._@+-]+\\.rules$"})
+c.with_schema(_fingerprint, {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$", "description": "a 40-digit hex OpenPGP fingerprint"})
+c.with_schema(_sensor, {
+    "type": "object",
+    "properties": {key: check.schema for key, check in _SENSOR_FIELDS.items()},
+    "required": ["name", "subsystem"],
+    "anyOf": [{"required": [key]} for key in ("serial", "vendor_id", "usb_port")],
+    "additionalProperties": False,
+})
+c.with_schema(_daemon_options, {
+    "type": "object",
+    "properties": {key: _DAEMON_KIND[kind].schema for key, kind in DAEMON_OPTIONS.items()},
+    "additionalProperties": False,
+    "description": "/etc/docker/daemon.json",
+})
 
 SCHEMA: dict[str, c.Checker] = {
     # SSH / connection
