@@ -17,10 +17,12 @@ Problem = tuple[str, str]
 Checker = Callable[[Any], list[Problem]]
 
 
-class NotAString:
-    """A mapping key YAML did not read as a string (``010`` is the number 8,
-    ``no`` is false): kept with the text as written so a check can say
-    "quote it" instead of silently renaming a host or a setting."""
+class Misread:
+    """A scalar YAML 1.1 read as something other than what was written: a
+    key (``010`` is the number 8, ``no`` is false) or a number written in a
+    way YAML changes (``0755`` is 493, ``12:30`` is 750, ``1.10`` is 1.1).
+    Kept with its text so a check can say "quote it" instead of silently
+    renaming a host or changing a value."""
 
     __slots__ = ("value", "text")
 
@@ -28,10 +30,10 @@ class NotAString:
         self.value, self.text = value, text
 
     def __hash__(self):
-        return hash((NotAString, self.text))
+        return hash((Misread, self.text))
 
     def __eq__(self, other):
-        return isinstance(other, NotAString) and other.text == self.text
+        return isinstance(other, Misread) and other.text == self.text
 
     def __str__(self):
         return self.text
@@ -61,7 +63,7 @@ def describe(value: Any) -> str:
         return "a list"
     if isinstance(value, dict):
         return "a mapping"
-    if isinstance(value, NotAString):
+    if isinstance(value, Misread):
         read = describe(value.value)
         return read if read == value.text else f"{value.text} (read by YAML as {read})"
     if isinstance(value, (datetime.date, datetime.datetime)):
@@ -72,7 +74,7 @@ def describe(value: Any) -> str:
 def _not_text(value: Any) -> bool:
     """YAML 1.1 reads some unquoted text as another type: no -> false,
     1.10 -> 1.1, 0755 -> 493, 12:30 -> 750, 2026-01-02 -> a date."""
-    return isinstance(value, (bool, int, float, datetime.date)) or isinstance(value, NotAString)
+    return isinstance(value, (bool, int, float, datetime.date)) or isinstance(value, Misread)
 
 
 def expected_string(value: Any, what: str = "a string") -> str:
@@ -176,7 +178,7 @@ def key_name(key: Any) -> str:
     """A mapping key as shown in a field path: plain if it is a simple name."""
     if isinstance(key, str) and _PLAIN_KEY.fullmatch(key):
         return key
-    return str(key) if isinstance(key, NotAString) else shown(key) if isinstance(key, str) else describe(key)
+    return str(key) if isinstance(key, Misread) else shown(key) if isinstance(key, str) else describe(key)
 
 
 _PLAIN_KEY = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:/@+-]*", re.ASCII)

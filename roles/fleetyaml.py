@@ -15,7 +15,7 @@ import yaml
 from yaml.constructor import SafeConstructor
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from roles.checks import NotAString
+from roles.checks import Misread
 
 MAX_DEPTH = 50
 _T = "tag:yaml.org,2002:"
@@ -87,6 +87,12 @@ def _marked_problem(error: yaml.MarkedYAMLError) -> YamlProblem:
     return YamlProblem(primary.line + 1 if primary is not None else None, problem)
 
 
+def _changed(number, text: str) -> bool:
+    """YAML 1.1 reads 0755 as 493, 12:30 as 750, 1.10 as 1.1, 0x1F as 31:
+    a number whose plain spelling is not what was written."""
+    return text != (str(number) if isinstance(number, int) else repr(number))
+
+
 class _Builder:
     def __init__(self):
         self.built: dict[int, object] = {}  # id(node) -> value: aliases share it
@@ -134,9 +140,12 @@ class _Builder:
         if convert is None:
             raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {node.tag!r} is not supported here")
         try:
-            return convert(_constructor, node)
+            value = convert(_constructor, node)
         except (ValueError, TypeError, OverflowError, yaml.YAMLError):
             raise YamlProblem(node.start_mark.line + 1, f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}") from None
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and _changed(value, node.value):
+            return Misread(value, node.value)
+        return value
 
     def mapping(self, node: MappingNode, depth: int) -> dict:
         result: dict = {}
@@ -165,4 +174,5 @@ class _Builder:
             raise YamlProblem(node.start_mark.line + 1, f"a key must be a plain name, not a {kind}")
         if node.tag in (_STR, _VALUE):
             return node.value
-        return NotAString(self.scalar(node), node.value)
+        value = self.scalar(node)
+        return value if isinstance(value, Misread) else Misread(value, node.value)

@@ -73,6 +73,8 @@ def _address(value):
 
 
 _url = c.string(URL, URL_WHAT)
+# A file on the operator's machine (never sent to a host): any printable path.
+_local_path = c.string(r"[^\x00-\x1f\x7f]+", "a path on this machine (no control characters)")
 
 
 def _image(value):
@@ -259,8 +261,8 @@ SCHEMA: dict[str, c.Checker] = {
     "ssh_hostname": _address,
     "ssh_user": c.string(c.USER_NAME, "a user name"),
     "ssh_port": c.integer(1, 65535),
-    "ssh_key": c.string(what="a path to a private key file"),
-    "ssh_known_hosts_file": c.string(what="a path to a known_hosts file"),
+    "ssh_key": _local_path,
+    "ssh_known_hosts_file": _local_path,
     "ssh_strict_host_key_checking": c.string(choices=("yes", "accept-new", "no")),
     "ssh_connect_retries": c.integer(0, 100),
     "ssh_connect_retry_min_delay": c.integer(0, 600),
@@ -273,15 +275,15 @@ SCHEMA: dict[str, c.Checker] = {
     "docker_apt_key_fingerprint": c.optional(_fingerprint),
     "docker_apt_key_sha256": c.optional(c.string(r"[0-9a-f]{64}", "a 64-digit lowercase hex sha256")),
     "docker_apt_key_path": _private_path,
-    "docker_apt_filename": c.string(r"[A-Za-z0-9_.-]+", "a file name"),
+    "docker_apt_filename": c.string(r"[A-Za-z0-9][A-Za-z0-9_.-]*", "a file name"),
     "docker_apt_legacy_files": c.list_of(_abs_path),
     "docker_packages": c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name"), unique=True),
-    "docker_version": c.optional(c.string(r"[0-9A-Za-z.+~:-]+", "an apt version string")),
+    "docker_version": c.optional(c.string(r"[0-9][0-9A-Za-z.+~:-]*", "an apt version string")),
     "docker_distro_packages": c.optional(c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name"))),
     "docker_obsolete_packages": c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name")),
     "docker_daemon_options": _daemon_options,
     "docker_registry_mirrors": c.list_of(_url),
-    "docker_insecure_registries": c.list_of(c.string(r"[A-Za-z0-9.-]+(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
+    "docker_insecure_registries": c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
     "docker_restart_handler_state": c.string(choices=("restarted", "reloaded")),
     "docker_service_enabled": c.boolean,
     "docker_users": c.list_of(c.string(c.USER_NAME, "a user name"), unique=True),
@@ -310,7 +312,7 @@ SCHEMA: dict[str, c.Checker] = {
     "payload_gpu": c.boolean,
     "ros_domain_id": c.integer(0, 232),
     "ros_master_uri": c.optional(c.string(r"https?://[A-Za-z0-9.-]+(?::[0-9]+)?/?", "a URL like http://master:11311")),
-    "ros_hostname": c.optional(c.string(r"[A-Za-z0-9.-]+", "a host name")),
+    "ros_hostname": c.optional(_address),
     "payload_health_timeout": c.integer(5, 3600),
     "payload_stable_seconds": c.integer(0, 600),
     "payload_device_wait": c.integer(0, 600),

@@ -138,7 +138,11 @@ CORPUS = [
     ("environment YAML 1.1 traps", host("payload_environment: {A: NO, B: 1.10, C: 0755, D: 12:30, E: 'NO'}"),
      [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it "
       "(YAML reads NO, 1.10, 0755, 12:30 as non-strings)"
-      for key, got in (("A", "a boolean (false)"), ("B", "1.1"), ("C", "493"), ("D", "750"))]),
+      for key, got in (("A", "a boolean (false)"), ("B", "1.10 (read by YAML as 1.1)"),
+                       ("C", "0755 (read by YAML as 493)"), ("D", "12:30 (read by YAML as 750)"))]),
+    ("YAML 1.1 numbers in number settings", host("ssh_port: 0022", "payload_health_timeout: 1:30"),
+     ["f.yaml: r1.ssh_port: expected a whole number, got 0022 (read by YAML as 18)",
+      "f.yaml: r1.payload_health_timeout: expected a whole number, got 1:30 (read by YAML as 90)"]),
     # issue 8, item 7: paths root creates are not in world-writable directories
     ("payload_dir /tmp", host("payload_dir: /tmp"),
      ["f.yaml: r1.payload_dir: '/tmp' is in the world-writable /tmp; use a directory only root can write (e.g. under /var/lib)"]),
