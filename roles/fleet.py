@@ -13,6 +13,7 @@ line ``FILE: HOST.FIELD: message``.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import sys
@@ -82,7 +83,12 @@ def parse(text: str | bytes, shown: str, defaults: dict[str, dict] | None = None
         raw = fleetyaml.load(text)
     except fleetyaml.YamlProblem as problem:
         raise FleetError([one_line(f"{shown}: {problem}")]) from None
-    return check(raw, shown, read_group_data() if defaults is None else defaults)
+    return check(raw, shown, _group_data() if defaults is None else defaults)
+
+
+@functools.lru_cache(maxsize=1)
+def _group_data() -> dict[str, dict]:
+    return read_group_data()  # read-only below: check() copies what it merges
 
 
 _CONTROL = {i: f"\\x{i:02x}" for i in [*range(0x20), 0x7F, *range(0x80, 0xA0)]}

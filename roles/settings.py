@@ -73,8 +73,14 @@ def _address(value):
 
 
 _url = c.string(URL, URL_WHAT)
-# A file on the operator's machine (never sent to a host): any printable path.
-_local_path = c.string(r"[^\x00-\x1f\x7f]+", "a path on this machine (no control characters)")
+def _local_path(value):
+    """A file on the operator's machine (never sent to a host): any path
+    that prints as itself (no control or direction-changing characters)."""
+    if not isinstance(value, str):
+        return [("", c.expected_string(value, "a path on this machine"))]
+    if not value or not value.isprintable():
+        return [("", f"expected a path on this machine of printable characters, got {c.shown(value)}")]
+    return []
 
 
 def _image(value):
@@ -235,6 +241,7 @@ c.with_schema(_address, {"type": "string", "description": "a host name, an IPv4 
 c.with_schema(_image, {"type": "string", "description": "an image reference, pinned by tag or digest"})
 c.with_schema(_volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"})
 c.with_schema(_abs_path, _path_schema)
+c.with_schema(_local_path, {"type": "string", "description": "a path on this machine"})
 c.with_schema(_private_path, {
     **_path_schema,
     "not": {"pattern": "^/+(?:" + "|".join(w.lstrip("/") for w in WORLD_WRITABLE) + ")(?:/|$)"},
@@ -276,7 +283,7 @@ SCHEMA: dict[str, c.Checker] = {
     "docker_apt_key_sha256": c.optional(c.string(r"[0-9a-f]{64}", "a 64-digit lowercase hex sha256")),
     "docker_apt_key_path": _private_path,
     "docker_apt_filename": c.string(r"[A-Za-z0-9][A-Za-z0-9_.-]*", "a file name"),
-    "docker_apt_legacy_files": c.list_of(_abs_path),
+    "docker_apt_legacy_files": c.list_of(_private_path),
     "docker_packages": c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name"), unique=True),
     "docker_version": c.optional(c.string(r"[0-9][0-9A-Za-z.+~:-]*", "an apt version string")),
     "docker_distro_packages": c.optional(c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name"))),
@@ -317,7 +324,7 @@ SCHEMA: dict[str, c.Checker] = {
     "payload_stable_seconds": c.integer(0, 600),
     "payload_device_wait": c.integer(0, 600),
     "payload_keep_releases": c.integer(2, 50),
-    "payload_lock_file": _abs_path,
+    "payload_lock_file": _private_path,
     "payload_force": c.boolean,
     "payload_registry_username_env": c.string(c.ENV_NAME, "an environment variable name"),
     "payload_registry_password_env": c.string(c.ENV_NAME, "an environment variable name"),

@@ -43,7 +43,7 @@ def accepted_documents():
     for _, text, expected in test_fleet_corpus.CORPUS:
         if not expected:
             yield text if isinstance(text, bytes) else text.encode()
-    for _, data in test_fleet_fuzz.documents(22, 200, seed=4):
+    for _, data in test_fleet_fuzz.documents(22, 100, seed=4):
         if test_fleet_fuzz.outcome(data) is None:
             yield data
     yield (ROOT / "inventories" / "robots.yaml").read_bytes()
