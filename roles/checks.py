@@ -251,8 +251,10 @@ def text(value):
         if "\x00" in value:
             return [("", "NUL characters cannot be in an environment value")]
         return []
+    if isinstance(value, bool):
+        return [("", f"expected a string, got {describe(value)}; quote it (YAML reads an unquoted no/yes/on/off as a boolean)")]
     if _not_text(value):
-        return [("", f"expected a string, got {describe(value)}; quote it (YAML reads NO, 1.10, 0755, 12:30 as non-strings)")]
+        return [("", expected_string(value))]
     return [("", f"expected a string, got {describe(value)}")]
 
 

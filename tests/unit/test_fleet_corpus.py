@@ -2,6 +2,8 @@
 and the validator half of issue 8), each with the exact lines a user sees.
 Every line names the file and the host/field; nothing else is printed."""
 
+from pathlib import Path
+
 import pytest
 
 from roles import fleet
@@ -136,10 +138,11 @@ CORPUS = [
                        "docker_registry_mirrors: ['https://[fd00::1]:5000']"), []),
     # issue 8, item 4: environment values are strings, quoted in YAML
     ("environment YAML 1.1 traps", host("payload_environment: {A: NO, B: 1.10, C: 0755, D: 12:30, E: 'NO'}"),
-     [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it "
-      "(YAML reads NO, 1.10, 0755, 12:30 as non-strings)"
-      for key, got in (("A", "a boolean (false)"), ("B", "1.10 (read by YAML as 1.1)"),
-                       ("C", "0755 (read by YAML as 493)"), ("D", "12:30 (read by YAML as 750)"))]),
+     ["f.yaml: r1.payload_environment.A: expected a string, got a boolean (false); quote it "
+      "(YAML reads an unquoted no/yes/on/off as a boolean)"]
+     + [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it"
+        for key, got in (("B", "1.10 (read by YAML as 1.1)"), ("C", "0755 (read by YAML as 493)"),
+                         ("D", "12:30 (read by YAML as 750)"))]),
     ("YAML 1.1 numbers in number settings", host("ssh_port: 0022", "payload_health_timeout: 1:30"),
      ["f.yaml: r1.ssh_port: expected a whole number, got 0022 (read by YAML as 18)",
       "f.yaml: r1.payload_health_timeout: expected a whole number, got 1:30 (read by YAML as 90)"]),
@@ -177,3 +180,35 @@ def test_merge_keys_give_each_sensor_the_shared_fields_and_its_own():
         {"name": "front", "usb_port": "1-1.2", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
         {"name": "back", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "9-9"},
     ]
+
+
+def readme_mistakes():
+    """The broken fleet file and the lines shown in README's "Describing a fleet"."""
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = text[text.index("## Describing a fleet"):text.index("### Laptops")]
+    blocks = section.split("```")
+    (fleet_block,) = [b for b in blocks if b.startswith("yaml\n") and "docker_usres" in b]
+    (output_block,) = [b for b in blocks if "problem(s) in the fleet file" in b]
+    (syntax_line,) = [line.strip() for line in section.splitlines() if ": YAML error: " in line]
+    return fleet_block.removeprefix("yaml\n"), output_block.strip().splitlines(), syntax_line
+
+
+def test_readme_shows_the_lines_the_common_mistakes_get():
+    document, shown, syntax_line = readme_mistakes()
+    try:
+        fleet.parse(document, "inventories/robots.yaml")
+    except fleet.FleetError as error:
+        got = error.lines
+    else:
+        got = []
+    assert got + [f"{len(got)} problem(s) in the fleet file; no host was contacted."] == shown
+    unclosed = document.replace("serial: 42}", 'serial: "42"')
+    assert lines_of(unclosed) == [syntax_line]
+
+
+def lines_of(text: str) -> list[str]:
+    try:
+        fleet.parse(text, "inventories/robots.yaml")
+    except fleet.FleetError as error:
+        return error.lines
+    return []
