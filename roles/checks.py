@@ -244,6 +244,22 @@ def any_json(value):
 any_json.schema = {}
 
 
+def size_problem(value, limit: int = MAX_JSON_VALUES) -> list[Problem]:
+    """A problem if ``value`` holds more than ``limit`` values, counting each
+    use of a YAML alias (what it would be once written out)."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > limit:
+            return [("", f"more than {limit} values (YAML aliases expand); daemon options are small")]
+        if isinstance(item, dict):
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+    return []
+
+
 def text(value):
     """An environment variable value: a string (YAML 1.1 would silently
     change NO, 1.10, 0755 or 12:30 on the way; quoted, nothing changes)."""

@@ -223,6 +223,9 @@ _DAEMON_KIND = {
 def _daemon_options(value):
     if not isinstance(value, dict):
         return [("", f"expected a mapping of daemon.json options, got {c.describe(value)}")]
+    too_big = c.size_problem(value)
+    if too_big:
+        return too_big
     problems = []
     for key, option in value.items():
         where = f".{c.key_name(key)}"

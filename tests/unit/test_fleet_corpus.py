@@ -69,9 +69,13 @@ CORPUS = [
      ["f.yaml: line 7: YAML error: the YAML tag '!env' is not supported here"]),
     # 2. alias bomb under a free-form setting: bounded, one line
     ("billion laughs", bomb("docker_daemon_options"),
-     ["f.yaml: r1.docker_daemon_options.a: unknown daemon.json option"]),
+     ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
+    ("billion laughs under many options", bomb("docker_daemon_options").replace(
+        "{a: *l9}", "{" + ", ".join(f"features{i}: *l9" for i in range(3)) + ", runtimes: {a: *l9, b: *l9}}"),
+     ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
+    ("too large", "# " + "x" * (32 * 2**20) + "\n", ["f.yaml: larger than 32 MiB; a fleet file is text people edit"]),
     ("billion laughs in a known option", bomb("docker_daemon_options").replace("{a: *l9}", "{features: {a: *l9}}"),
-     ["f.yaml: r1.docker_daemon_options.features.a: more than 10000 values (YAML aliases expand); daemon options are small"]),
+     ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
     # 3. no hosts is an error, not a silent no-op
     ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
     ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
