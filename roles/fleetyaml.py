@@ -31,6 +31,10 @@ _SCALARS = {
 _constructor = SafeConstructor()
 
 
+def _short(tag: str) -> str:
+    return "!!" + tag[len(_T):] if tag.startswith(_T) else tag
+
+
 class YamlProblem(Exception):
     """Why a byte string is not a fleet document we can read, as one line."""
 
@@ -47,7 +51,7 @@ def load(data: bytes | str):
     except yaml.reader.ReaderError as error:
         raise _reader_problem(error, text) from None
     except yaml.MarkedYAMLError as error:
-        raise _marked_problem(error) from None
+        raise _marked_problem(error, text) from None
     except yaml.YAMLError as error:
         raise YamlProblem(None, str(error).replace("\n", " ")) from None
     finally:
@@ -70,7 +74,7 @@ def _reader_problem(error, text: str) -> YamlProblem:
     return YamlProblem(text.count("\n", 0, position) + 1, f"character {shown} is not allowed in YAML")
 
 
-def _marked_problem(error: yaml.MarkedYAMLError) -> YamlProblem:
+def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
     """Unclosed quotes and flow collections are reported where they were
     opened (the parser gives up far below); other errors where they are."""
     context, problem = error.context or "", error.problem or "invalid YAML"
@@ -82,7 +86,15 @@ def _marked_problem(error: yaml.MarkedYAMLError) -> YamlProblem:
             f" is not closed: {problem} (line {found.line + 1}, column {found.column + 1})",
         )
     primary = found or opened
-    if context and opened is not None and found is not None:
+    if found is not None and "cannot start any token" in problem:
+        lines = text.splitlines()
+        line = lines[found.line] if found.line < len(lines) else ""
+        character = line[found.column] if found.column < len(line) else ""
+        problem = f"found {character!r}, which cannot start any token" + (
+            "; indent with spaces, not tabs" if character == "\t" else "")
+    if context.startswith("expected a single document"):
+        problem = "a second YAML document starts here; a fleet file is one document"
+    elif context and opened is not None and found is not None and opened.line != found.line:
         problem += f" ({context} from line {opened.line + 1})"
     return YamlProblem(primary.line + 1 if primary is not None else None, problem)
 
@@ -130,7 +142,7 @@ class _Builder:
     @staticmethod
     def require(node, tag: str):
         if node.tag != tag:
-            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {node.tag!r} is not supported here")
+            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {_short(node.tag)!r} is not supported here")
 
     @staticmethod
     def scalar(node: ScalarNode):
@@ -138,7 +150,7 @@ class _Builder:
             return node.value
         convert = _SCALARS.get(node.tag)
         if convert is None:
-            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {node.tag!r} is not supported here")
+            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {_short(node.tag)!r} is not supported here")
         try:
             value = convert(_constructor, node)
         except (ValueError, TypeError, OverflowError, yaml.YAMLError):
