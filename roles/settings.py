@@ -49,7 +49,7 @@ URL_WHAT = "an http(s) URL without spaces or shell characters ($ ` ; | & quotes)
 # swapped by a local user before root creates, chmods or reads it.
 WORLD_WRITABLE = ("/tmp", "/var/tmp", "/dev/shm", "/run/lock", "/var/lock", "/dev/mqueue")
 _DOTTED_NUMBERS = re.compile(r"[0-9.]+")
-_HOST_PORT = re.compile(r"([^:\s]+):([0-9]+)")
+_HOST_PORT = re.compile(r"([^:\s\[\]]+|\[[^\]]*\]):([0-9]+)")
 _DNS_NAME = re.compile(r"(?=.{1,253}\.?$)[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?(?:\.[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?)*\.?", re.ASCII)
 
 
@@ -62,6 +62,8 @@ def _address(value):
         return []
     except ValueError:
         pass
+    if value.startswith("[") and value.endswith("]"):
+        return [("", f"expected an IPv6 address without brackets, got {c.shown(value)}")]
     host_port = _HOST_PORT.fullmatch(value)
     if host_port:
         return [("", f"expected a host name or an IP address, got {c.shown(value)}; put the port in ssh_port: {host_port.group(2)}")]

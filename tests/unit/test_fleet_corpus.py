@@ -93,6 +93,8 @@ CORPUS = [
     ("bad IPv4", host("address: 127.0.0.300"), ["f.yaml: r1.address: '127.0.0.300' is not a valid IPv4 address"]),
     ("host:port", host("address: '10.0.0.5:2222'"),
      ["f.yaml: r1.address: expected a host name or an IP address, got '10.0.0.5:2222'; put the port in ssh_port: 2222"]),
+    ("[IPv6]:port", host("address: '[fd00::5]:2222'"),
+     ["f.yaml: r1.address: expected a host name or an IP address, got '[fd00::5]:2222'; put the port in ssh_port: 2222"]),
     ("space in address", host("address: robot 1"),
      ["f.yaml: r1.address: expected a host name or an IP address, got 'robot 1'"]),
     ("good addresses", BASE + "robots:\n  hosts:\n    r1: {address: 'fe80::1'}\n    r2: {address: robot2.lan}\n"
