@@ -68,10 +68,11 @@ def _decode(data: bytes) -> str:
 
 
 def _reader_problem(error, text: str) -> YamlProblem:
-    position = min(max(int(getattr(error, "position", 0) or 0), 0), len(text))
+    encoded = text.encode("utf-8", "surrogatepass")  # libyaml's position counts bytes
+    position = min(max(int(getattr(error, "position", 0) or 0), 0), len(encoded))
     character = getattr(error, "character", None)
     shown = f"U+{character:04X}" if isinstance(character, int) else repr(character)
-    return YamlProblem(text.count("\n", 0, position) + 1, f"character {shown} is not allowed in YAML")
+    return YamlProblem(encoded.count(b"\n", 0, position) + 1, f"character {shown} is not allowed in YAML")
 
 
 def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:

@@ -59,6 +59,9 @@ CORPUS = [
      ["f.yaml: line 6: YAML error: not UTF-8 text (byte 0xe9); save the file as UTF-8"]),
     ("control character", BASE + "robots:\n  hosts:\n    r1: {address: a\x07b}\n",
      ["f.yaml: line 6: YAML error: character U+0007 is not allowed in YAML"]),
+    ("control character after multibyte text", BASE + "robots:\n  hosts:\n    r1: {address: " + "\u00e9" * 40 + "}\n"
+                                                  "    r2: {address: a\x07b}\n",
+     ["f.yaml: line 7: YAML error: character U+0007 is not allowed in YAML"]),
     ("deep nesting", host("docker_daemon_options: {a: " + "[" * 5000 + "]" * 5000 + "}"),
      ["f.yaml: line 7: YAML error: nested more than 50 levels deep"]),
     ("recursive alias", host("docker_daemon_options: &a {a: *a}"),
