@@ -17,6 +17,9 @@ from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from roles.checks import Misread
 
+# libyaml's parser where PyYAML was built with it (its wheels are), else the
+# pure-Python one: same nodes, several times slower.
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 MAX_DEPTH = 50
 _T = "tag:yaml.org,2002:"
 _STR, _MERGE, _VALUE = _T + "str", _T + "merge", _T + "value"
@@ -45,8 +48,9 @@ class YamlProblem(Exception):
 def load(data: bytes | str):
     """The document's data (None for an empty document), or YamlProblem."""
     text = _decode(data) if isinstance(data, bytes) else data
-    loader = yaml.CSafeLoader(text)
+    loader = None
     try:
+        loader = _LOADER(text)
         node = loader.get_single_node()
     except yaml.reader.ReaderError as error:
         raise _reader_problem(error, text) from None
@@ -54,8 +58,11 @@ def load(data: bytes | str):
         raise _marked_problem(error, text) from None
     except yaml.YAMLError as error:
         raise YamlProblem(None, str(error).replace("\n", " ")) from None
+    except RecursionError:  # PyYAML's own composer recurses (libyaml's does not)
+        raise YamlProblem(None, f"nested more than {MAX_DEPTH} levels deep") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     return None if node is None else _Builder().build(node, 0)
 
 
@@ -68,11 +75,13 @@ def _decode(data: bytes) -> str:
 
 
 def _reader_problem(error, text: str) -> YamlProblem:
-    encoded = text.encode("utf-8", "surrogatepass")  # libyaml's position counts bytes
+    # libyaml's position counts bytes, PyYAML's own reader characters.
+    encoded = text.encode("utf-8", "surrogatepass") if _LOADER is not yaml.SafeLoader else text
     position = min(max(int(getattr(error, "position", 0) or 0), 0), len(encoded))
     character = getattr(error, "character", None)
     shown = f"U+{character:04X}" if isinstance(character, int) else repr(character)
-    return YamlProblem(encoded.count(b"\n", 0, position) + 1, f"character {shown} is not allowed in YAML")
+    newline = b"\n" if isinstance(encoded, bytes) else "\n"
+    return YamlProblem(encoded.count(newline, 0, position) + 1, f"character {shown} is not allowed in YAML")
 
 
 def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:

@@ -229,3 +229,23 @@ def lines_of(text: str) -> list[str]:
     except fleet.FleetError as error:
         return error.lines
     return []
+
+
+def test_without_libyaml_the_same_problems_are_found(monkeypatch):
+    """Where PyYAML has no libyaml, its own parser is used: the wording of a
+    syntax error may differ, the problems and their places do not."""
+    import yaml
+
+    from roles import fleetyaml
+
+    expected = {name: lines(text) for name, text, _ in CORPUS if name != "too large"}
+    monkeypatch.setattr(fleetyaml, "_LOADER", yaml.SafeLoader)
+    for name, text, _ in CORPUS:
+        if name in expected:
+            got = lines(text)
+            where = [line.split(": YAML error: ")[0] if ": YAML error: " in line else line for line in got]
+            want = [line.split(": YAML error: ")[0] if ": YAML error: " in line else line for line in expected[name]]
+            if name == "deep nesting":  # PyYAML's composer recurses: no line to give
+                assert got == ["f.yaml: YAML error: nested more than 50 levels deep"]
+            else:
+                assert where == want, name
