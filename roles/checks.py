@@ -17,10 +17,12 @@ Problem = tuple[str, str]
 Checker = Callable[[Any], list[Problem]]
 
 
-class NotAString:
-    """A mapping key YAML did not read as a string (``010`` is the number 8,
-    ``no`` is false): kept with the text as written so a check can say
-    "quote it" instead of silently renaming a host or a setting."""
+class Misread:
+    """A scalar YAML 1.1 read as something other than what was written: a
+    key (``010`` is the number 8, ``no`` is false) or a number written in a
+    way YAML changes (``0755`` is 493, ``12:30`` is 750, ``1.10`` is 1.1).
+    Kept with its text so a check can say "quote it" instead of silently
+    renaming a host or changing a value."""
 
     __slots__ = ("value", "text")
 
@@ -28,10 +30,10 @@ class NotAString:
         self.value, self.text = value, text
 
     def __hash__(self):
-        return hash((NotAString, self.text))
+        return hash((Misread, self.text))
 
     def __eq__(self, other):
-        return isinstance(other, NotAString) and other.text == self.text
+        return isinstance(other, Misread) and other.text == self.text
 
     def __str__(self):
         return self.text
@@ -61,7 +63,7 @@ def describe(value: Any) -> str:
         return "a list"
     if isinstance(value, dict):
         return "a mapping"
-    if isinstance(value, NotAString):
+    if isinstance(value, Misread):
         read = describe(value.value)
         return read if read == value.text else f"{value.text} (read by YAML as {read})"
     if isinstance(value, (datetime.date, datetime.datetime)):
@@ -72,12 +74,24 @@ def describe(value: Any) -> str:
 def _not_text(value: Any) -> bool:
     """YAML 1.1 reads some unquoted text as another type: no -> false,
     1.10 -> 1.1, 0755 -> 493, 12:30 -> 750, 2026-01-02 -> a date."""
-    return isinstance(value, (bool, int, float, datetime.date)) or isinstance(value, NotAString)
+    return isinstance(value, (bool, int, float, datetime.date)) or isinstance(value, Misread)
 
 
 def expected_string(value: Any, what: str = "a string") -> str:
     message = f"expected {what}, got {describe(value)}"
     return message + "; quote it" if _not_text(value) else message
+
+
+def with_schema(check: Checker, schema: dict) -> Checker:
+    """Attach the JSON Schema of what ``check`` accepts (roles/schema.py
+    builds the fleet file's schema for editors from these)."""
+    check.schema = schema
+    return check
+
+
+def json_pattern(pattern: str) -> str:
+    """A fullmatch pattern as a JSON Schema (ECMA-262, search) pattern."""
+    return f"^(?:{pattern})$"
 
 
 def string(pattern: str | None = None, what: str = "a string", choices=None) -> Checker:
@@ -92,13 +106,21 @@ def string(pattern: str | None = None, what: str = "a string", choices=None) -> 
             return [("", f"expected {what}, got {shown(value)}")]
         return []
 
-    return check
+    schema = {"type": "string", "description": what} if what != "a string" else {"type": "string"}
+    if choices is not None:
+        schema["enum"] = list(choices)
+    if pattern:
+        schema["pattern"] = json_pattern(pattern)
+    return with_schema(check, schema)
 
 
 def boolean(value):
     if not isinstance(value, bool):
         return [("", f"expected true or false, got {describe(value)}")]
     return []
+
+
+boolean.schema = {"type": "boolean"}
 
 
 def integer(minimum: int | None = None, maximum: int | None = None) -> Checker:
@@ -111,14 +133,19 @@ def integer(minimum: int | None = None, maximum: int | None = None) -> Checker:
             return [("", f"expected at most {maximum}, got {value}")]
         return []
 
-    return check
+    schema = {"type": "integer"}
+    if minimum is not None:
+        schema["minimum"] = minimum
+    if maximum is not None:
+        schema["maximum"] = maximum
+    return with_schema(check, schema)
 
 
 def optional(inner: Checker) -> Checker:
     def check(value):
         return [] if value is None else inner(value)
 
-    return check
+    return with_schema(check, {"anyOf": [inner.schema, {"type": "null"}]})
 
 
 def list_of(inner: Checker, unique: bool = False) -> Checker:
@@ -141,14 +168,17 @@ def list_of(inner: Checker, unique: bool = False) -> Checker:
                 seen.add(key)
         return problems
 
-    return check
+    schema = {"type": "array", "items": inner.schema}
+    if unique:
+        schema["uniqueItems"] = True
+    return with_schema(check, schema)
 
 
 def key_name(key: Any) -> str:
     """A mapping key as shown in a field path: plain if it is a simple name."""
     if isinstance(key, str) and _PLAIN_KEY.fullmatch(key):
         return key
-    return str(key) if isinstance(key, NotAString) else shown(key) if isinstance(key, str) else describe(key)
+    return str(key) if isinstance(key, Misread) else shown(key) if isinstance(key, str) else describe(key)
 
 
 _PLAIN_KEY = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:/@+-]*", re.ASCII)
@@ -167,7 +197,7 @@ def mapping_of(key: Checker, value_check: Checker) -> Checker:
                 problems += [(f"{where}{sub}", msg) for sub, msg in value_check(v)]
         return problems
 
-    return check
+    return with_schema(check, {"type": "object", "propertyNames": key.schema, "additionalProperties": value_check.schema})
 
 
 MAX_JSON_VALUES = 10_000
@@ -211,6 +241,25 @@ def any_json(value):
     return problems
 
 
+any_json.schema = {}
+
+
+def size_problem(value, limit: int = MAX_JSON_VALUES) -> list[Problem]:
+    """A problem if ``value`` holds more than ``limit`` values, counting each
+    use of a YAML alias (what it would be once written out)."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > limit:
+            return [("", f"more than {limit} values (YAML aliases expand); daemon options are small")]
+        if isinstance(item, dict):
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+    return []
+
+
 def text(value):
     """An environment variable value: a string (YAML 1.1 would silently
     change NO, 1.10, 0755 or 12:30 on the way; quoted, nothing changes)."""
@@ -218,9 +267,14 @@ def text(value):
         if "\x00" in value:
             return [("", "NUL characters cannot be in an environment value")]
         return []
+    if isinstance(value, bool):
+        return [("", f"expected a string, got {describe(value)}; quote it (YAML reads an unquoted no/yes/on/off as a boolean)")]
     if _not_text(value):
-        return [("", f"expected a string, got {describe(value)}; quote it (YAML reads NO, 1.10, 0755, 12:30 as non-strings)")]
+        return [("", expected_string(value))]
     return [("", f"expected a string, got {describe(value)}")]
+
+
+text.schema = {"type": "string", "description": "a string: quote values YAML would read as something else"}
 
 
 # Patterns shared by several settings.

@@ -13,6 +13,7 @@ line ``FILE: HOST.FIELD: message``.
 
 from __future__ import annotations
 
+import functools
 import os
 import re
 import sys
@@ -26,6 +27,8 @@ GROUPS = ("robots", "laptops")
 # Top-level keys starting with x- are ignored (as in compose files): a place
 # for YAML anchors shared with merge keys, e.g. x-camera: &camera {...}.
 EXTENSION_PREFIX = "x-"
+# 5,000 robots with sensors are about 1 MiB: anything far larger is a mistake.
+MAX_BYTES = 32 * 2**20
 HOST_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,62}")
 GROUP_DATA_DIR = Path(__file__).resolve().parent.parent / "group_data"
 
@@ -68,7 +71,8 @@ def display_path(path: Path) -> str:
 def load(path: Path, defaults: dict[str, dict] | None = None) -> Fleet:
     """Parse and check the fleet file; raise FleetError listing every problem."""
     try:
-        data = path.read_bytes()
+        with path.open("rb") as file:
+            data = file.read(MAX_BYTES + 1)
     except FileNotFoundError:
         raise FleetError([f"{display_path(path)}: fleet file not found"]) from None
     except OSError as error:
@@ -78,11 +82,18 @@ def load(path: Path, defaults: dict[str, dict] | None = None) -> Fleet:
 
 def parse(text: str | bytes, shown: str, defaults: dict[str, dict] | None = None) -> Fleet:
     """Check fleet YAML ``text``, named ``shown`` in problem lines."""
+    if len(text) > MAX_BYTES:
+        raise FleetError([f"{shown}: larger than {MAX_BYTES // 2**20} MiB; a fleet file is text people edit"])
     try:
         raw = fleetyaml.load(text)
     except fleetyaml.YamlProblem as problem:
         raise FleetError([one_line(f"{shown}: {problem}")]) from None
-    return check(raw, shown, read_group_data() if defaults is None else defaults)
+    return check(raw, shown, _group_data() if defaults is None else defaults)
+
+
+@functools.lru_cache(maxsize=1)
+def _group_data() -> dict[str, dict]:
+    return read_group_data()  # read-only below: check() copies what it merges
 
 
 _CONTROL = {i: f"\\x{i:02x}" for i in [*range(0x20), 0x7F, *range(0x80, 0xA0)]}

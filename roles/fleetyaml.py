@@ -15,8 +15,11 @@ import yaml
 from yaml.constructor import SafeConstructor
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from roles.checks import NotAString
+from roles.checks import Misread
 
+# libyaml's parser where PyYAML was built with it (its wheels are), else the
+# pure-Python one: same nodes, several times slower.
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 MAX_DEPTH = 50
 _T = "tag:yaml.org,2002:"
 _STR, _MERGE, _VALUE = _T + "str", _T + "merge", _T + "value"
@@ -31,6 +34,10 @@ _SCALARS = {
 _constructor = SafeConstructor()
 
 
+def _short(tag: str) -> str:
+    return "!!" + tag[len(_T):] if tag.startswith(_T) else tag
+
+
 class YamlProblem(Exception):
     """Why a byte string is not a fleet document we can read, as one line."""
 
@@ -41,17 +48,21 @@ class YamlProblem(Exception):
 def load(data: bytes | str):
     """The document's data (None for an empty document), or YamlProblem."""
     text = _decode(data) if isinstance(data, bytes) else data
-    loader = yaml.CSafeLoader(text)
+    loader = None
     try:
+        loader = _LOADER(text)
         node = loader.get_single_node()
     except yaml.reader.ReaderError as error:
         raise _reader_problem(error, text) from None
     except yaml.MarkedYAMLError as error:
-        raise _marked_problem(error) from None
+        raise _marked_problem(error, text) from None
     except yaml.YAMLError as error:
         raise YamlProblem(None, str(error).replace("\n", " ")) from None
+    except RecursionError:  # PyYAML's own composer recurses (libyaml's does not)
+        raise YamlProblem(None, f"nested more than {MAX_DEPTH} levels deep") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
     return None if node is None else _Builder().build(node, 0)
 
 
@@ -64,13 +75,16 @@ def _decode(data: bytes) -> str:
 
 
 def _reader_problem(error, text: str) -> YamlProblem:
-    position = min(max(int(getattr(error, "position", 0) or 0), 0), len(text))
+    # libyaml's position counts bytes, PyYAML's own reader characters.
+    encoded = text.encode("utf-8", "surrogatepass") if _LOADER is not yaml.SafeLoader else text
+    position = min(max(int(getattr(error, "position", 0) or 0), 0), len(encoded))
     character = getattr(error, "character", None)
     shown = f"U+{character:04X}" if isinstance(character, int) else repr(character)
-    return YamlProblem(text.count("\n", 0, position) + 1, f"character {shown} is not allowed in YAML")
+    newline = b"\n" if isinstance(encoded, bytes) else "\n"
+    return YamlProblem(encoded.count(newline, 0, position) + 1, f"character {shown} is not allowed in YAML")
 
 
-def _marked_problem(error: yaml.MarkedYAMLError) -> YamlProblem:
+def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
     """Unclosed quotes and flow collections are reported where they were
     opened (the parser gives up far below); other errors where they are."""
     context, problem = error.context or "", error.problem or "invalid YAML"
@@ -82,9 +96,23 @@ def _marked_problem(error: yaml.MarkedYAMLError) -> YamlProblem:
             f" is not closed: {problem} (line {found.line + 1}, column {found.column + 1})",
         )
     primary = found or opened
-    if context and opened is not None and found is not None:
+    if found is not None and "cannot start any token" in problem:
+        lines = text.splitlines()
+        line = lines[found.line] if found.line < len(lines) else ""
+        character = line[found.column] if found.column < len(line) else ""
+        problem = f"found {character!r}, which cannot start any token" + (
+            "; indent with spaces, not tabs" if character == "\t" else "")
+    if context.startswith("expected a single document"):
+        problem = "a second YAML document starts here; a fleet file is one document"
+    elif context and opened is not None and found is not None and opened.line != found.line:
         problem += f" ({context} from line {opened.line + 1})"
     return YamlProblem(primary.line + 1 if primary is not None else None, problem)
+
+
+def _changed(number, text: str) -> bool:
+    """YAML 1.1 reads 0755 as 493, 12:30 as 750, 1.10 as 1.1, 0x1F as 31:
+    a number whose plain spelling is not what was written."""
+    return text != (str(number) if isinstance(number, int) else repr(number))
 
 
 class _Builder:
@@ -124,7 +152,7 @@ class _Builder:
     @staticmethod
     def require(node, tag: str):
         if node.tag != tag:
-            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {node.tag!r} is not supported here")
+            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {_short(node.tag)!r} is not supported here")
 
     @staticmethod
     def scalar(node: ScalarNode):
@@ -132,11 +160,14 @@ class _Builder:
             return node.value
         convert = _SCALARS.get(node.tag)
         if convert is None:
-            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {node.tag!r} is not supported here")
+            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {_short(node.tag)!r} is not supported here")
         try:
-            return convert(_constructor, node)
+            value = convert(_constructor, node)
         except (ValueError, TypeError, OverflowError, yaml.YAMLError):
             raise YamlProblem(node.start_mark.line + 1, f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}") from None
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and _changed(value, node.value):
+            return Misread(value, node.value)
+        return value
 
     def mapping(self, node: MappingNode, depth: int) -> dict:
         result: dict = {}
@@ -165,4 +196,5 @@ class _Builder:
             raise YamlProblem(node.start_mark.line + 1, f"a key must be a plain name, not a {kind}")
         if node.tag in (_STR, _VALUE):
             return node.value
-        return NotAString(self.scalar(node), node.value)
+        value = self.scalar(node)
+        return value if isinstance(value, Misread) else Misread(value, node.value)

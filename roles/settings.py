@@ -49,7 +49,7 @@ URL_WHAT = "an http(s) URL without spaces or shell characters ($ ` ; | & quotes)
 # swapped by a local user before root creates, chmods or reads it.
 WORLD_WRITABLE = ("/tmp", "/var/tmp", "/dev/shm", "/run/lock", "/var/lock", "/dev/mqueue")
 _DOTTED_NUMBERS = re.compile(r"[0-9.]+")
-_HOST_PORT = re.compile(r"([^:\s]+):([0-9]+)")
+_HOST_PORT = re.compile(r"([^:\s\[\]]+|\[[^\]]*\]):([0-9]+)")
 _DNS_NAME = re.compile(r"(?=.{1,253}\.?$)[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?(?:\.[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?)*\.?", re.ASCII)
 
 
@@ -62,6 +62,8 @@ def _address(value):
         return []
     except ValueError:
         pass
+    if value.startswith("[") and value.endswith("]"):
+        return [("", f"expected an IPv6 address without brackets, got {c.shown(value)}")]
     host_port = _HOST_PORT.fullmatch(value)
     if host_port:
         return [("", f"expected a host name or an IP address, got {c.shown(value)}; put the port in ssh_port: {host_port.group(2)}")]
@@ -72,8 +74,15 @@ def _address(value):
     return []
 
 
-def _url(value):
-    return c.string(URL, URL_WHAT)(value)
+_url = c.string(URL, URL_WHAT)
+def _local_path(value):
+    """A file on the operator's machine (never sent to a host): any path
+    that prints as itself (no control or direction-changing characters)."""
+    if not isinstance(value, str):
+        return [("", c.expected_string(value, "a path on this machine"))]
+    if not value or not value.isprintable():
+        return [("", f"expected a path on this machine of printable characters, got {c.shown(value)}")]
+    return []
 
 
 def _image(value):
@@ -129,14 +138,14 @@ def _udev_rules_path(value):
     return problems
 
 
-def _vendor_rule_name(value):
-    return c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules")(value)
+_vendor_rule_name = c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules")
+
+
+_FINGERPRINT = c.string(r"[0-9A-Fa-f]{40}", "a 40-digit hex OpenPGP fingerprint")
 
 
 def _fingerprint(value):
-    if isinstance(value, str):
-        value = value.replace(" ", "")
-    return c.string(r"[0-9A-Fa-f]{40}", "a 40-digit hex OpenPGP fingerprint")(value)
+    return _FINGERPRINT(value.replace(" ", "") if isinstance(value, str) else value)
 
 
 _SENSOR_FIELDS = {
@@ -216,6 +225,9 @@ _DAEMON_KIND = {
 def _daemon_options(value):
     if not isinstance(value, dict):
         return [("", f"expected a mapping of daemon.json options, got {c.describe(value)}")]
+    too_big = c.size_problem(value)
+    if too_big:
+        return too_big
     problems = []
     for key, option in value.items():
         where = f".{c.key_name(key)}"
@@ -228,13 +240,41 @@ def _daemon_options(value):
     return problems
 
 
+# What the checkers above accept, as JSON Schema for editors (roles/schema.py).
+_path_schema = {"type": "string", "pattern": c.json_pattern(c.ABS_PATH), "description": "an absolute path without '..'"}
+c.with_schema(_address, {"type": "string", "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)"})
+c.with_schema(_image, {"type": "string", "description": "an image reference, pinned by tag or digest"})
+c.with_schema(_volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"})
+c.with_schema(_abs_path, _path_schema)
+c.with_schema(_local_path, {"type": "string", "description": "a path on this machine"})
+c.with_schema(_private_path, {
+    **_path_schema,
+    "not": {"pattern": "^/+(?:" + "|".join(w.lstrip("/") for w in WORLD_WRITABLE) + ")(?:/|$)"},
+    "description": "an absolute path outside world-writable directories (/tmp, /var/tmp, /dev/shm, ...)",
+})
+c.with_schema(_udev_rules_path, {"type": "string", "pattern": "^/etc/udev/rules\\.d/[A-Za-z0-9._@+-]+\\.rules$"})
+c.with_schema(_fingerprint, {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$", "description": "a 40-digit hex OpenPGP fingerprint"})
+c.with_schema(_sensor, {
+    "type": "object",
+    "properties": {key: check.schema for key, check in _SENSOR_FIELDS.items()},
+    "required": ["name", "subsystem"],
+    "anyOf": [{"required": [key]} for key in ("serial", "vendor_id", "usb_port")],
+    "additionalProperties": False,
+})
+c.with_schema(_daemon_options, {
+    "type": "object",
+    "properties": {key: _DAEMON_KIND[kind].schema for key, kind in DAEMON_OPTIONS.items()},
+    "additionalProperties": False,
+    "description": "/etc/docker/daemon.json",
+})
+
 SCHEMA: dict[str, c.Checker] = {
     # SSH / connection
     "ssh_hostname": _address,
     "ssh_user": c.string(c.USER_NAME, "a user name"),
     "ssh_port": c.integer(1, 65535),
-    "ssh_key": c.string(what="a path to a private key file"),
-    "ssh_known_hosts_file": c.string(what="a path to a known_hosts file"),
+    "ssh_key": _local_path,
+    "ssh_known_hosts_file": _local_path,
     "ssh_strict_host_key_checking": c.string(choices=("yes", "accept-new", "no")),
     "ssh_connect_retries": c.integer(0, 100),
     "ssh_connect_retry_min_delay": c.integer(0, 600),
@@ -247,15 +287,15 @@ SCHEMA: dict[str, c.Checker] = {
     "docker_apt_key_fingerprint": c.optional(_fingerprint),
     "docker_apt_key_sha256": c.optional(c.string(r"[0-9a-f]{64}", "a 64-digit lowercase hex sha256")),
     "docker_apt_key_path": _private_path,
-    "docker_apt_filename": c.string(r"[A-Za-z0-9_.-]+", "a file name"),
-    "docker_apt_legacy_files": c.list_of(_abs_path),
+    "docker_apt_filename": c.string(r"[A-Za-z0-9][A-Za-z0-9_.-]*", "a file name"),
+    "docker_apt_legacy_files": c.list_of(_private_path),
     "docker_packages": c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name"), unique=True),
-    "docker_version": c.optional(c.string(r"[0-9A-Za-z.+~:-]+", "an apt version string")),
+    "docker_version": c.optional(c.string(r"[0-9][0-9A-Za-z.+~:-]*", "an apt version string")),
     "docker_distro_packages": c.optional(c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name"))),
     "docker_obsolete_packages": c.list_of(c.string(r"[a-z0-9][a-z0-9.+-]+", "a package name")),
     "docker_daemon_options": _daemon_options,
     "docker_registry_mirrors": c.list_of(_url),
-    "docker_insecure_registries": c.list_of(c.string(r"[A-Za-z0-9.-]+(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
+    "docker_insecure_registries": c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
     "docker_restart_handler_state": c.string(choices=("restarted", "reloaded")),
     "docker_service_enabled": c.boolean,
     "docker_users": c.list_of(c.string(c.USER_NAME, "a user name"), unique=True),
@@ -284,12 +324,12 @@ SCHEMA: dict[str, c.Checker] = {
     "payload_gpu": c.boolean,
     "ros_domain_id": c.integer(0, 232),
     "ros_master_uri": c.optional(c.string(r"https?://[A-Za-z0-9.-]+(?::[0-9]+)?/?", "a URL like http://master:11311")),
-    "ros_hostname": c.optional(c.string(r"[A-Za-z0-9.-]+", "a host name")),
+    "ros_hostname": c.optional(_address),
     "payload_health_timeout": c.integer(5, 3600),
     "payload_stable_seconds": c.integer(0, 600),
     "payload_device_wait": c.integer(0, 600),
     "payload_keep_releases": c.integer(2, 50),
-    "payload_lock_file": _abs_path,
+    "payload_lock_file": _private_path,
     "payload_force": c.boolean,
     "payload_registry_username_env": c.string(c.ENV_NAME, "an environment variable name"),
     "payload_registry_password_env": c.string(c.ENV_NAME, "an environment variable name"),

@@ -2,6 +2,8 @@
 and the validator half of issue 8), each with the exact lines a user sees.
 Every line names the file and the host/field; nothing else is printed."""
 
+from pathlib import Path
+
 import pytest
 
 from roles import fleet
@@ -57,19 +59,34 @@ CORPUS = [
      ["f.yaml: line 6: YAML error: not UTF-8 text (byte 0xe9); save the file as UTF-8"]),
     ("control character", BASE + "robots:\n  hosts:\n    r1: {address: a\x07b}\n",
      ["f.yaml: line 6: YAML error: character U+0007 is not allowed in YAML"]),
+    ("control character after multibyte text", BASE + "robots:\n  hosts:\n    r1: {address: " + "\u00e9" * 40 + "}\n"
+                                                  "    r2: {address: a\x07b}\n",
+     ["f.yaml: line 7: YAML error: character U+0007 is not allowed in YAML"]),
     ("deep nesting", host("docker_daemon_options: {a: " + "[" * 5000 + "]" * 5000 + "}"),
      ["f.yaml: line 7: YAML error: nested more than 50 levels deep"]),
     ("recursive alias", host("docker_daemon_options: &a {a: *a}"),
      ["f.yaml: line 7: YAML error: an alias refers to its own anchor (a recursive value)"]),
     ("section of the wrong type", BASE + "robots: [r1, r2]\n",
      ["f.yaml: robots: expected a mapping with vars and hosts, got a list"]),
+    ("tab indentation", BASE + "robots:\n\thosts: {}\n",
+     ["f.yaml: line 5: YAML error: found '\\t', which cannot start any token; indent with spaces, not tabs"]),
+    ("two documents", BASE + "---\nrobots: {}\n",
+     ["f.yaml: line 4: YAML error: a second YAML document starts here; a fleet file is one document"]),
+    ("python tag", host("payload_image: !!python/object/apply:os.system [id]"),
+     ["f.yaml: line 7: YAML error: the YAML tag '!!python/object/apply:os.system' is not supported here"]),
+    ("set tag", host("docker_users: !!set {a, b}"),
+     ["f.yaml: line 7: YAML error: the YAML tag '!!set' is not supported here"]),
     ("unknown tag", host("payload_image: !env IMAGE"),
      ["f.yaml: line 7: YAML error: the YAML tag '!env' is not supported here"]),
     # 2. alias bomb under a free-form setting: bounded, one line
     ("billion laughs", bomb("docker_daemon_options"),
-     ["f.yaml: r1.docker_daemon_options.a: unknown daemon.json option"]),
+     ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
+    ("billion laughs under many options", bomb("docker_daemon_options").replace(
+        "{a: *l9}", "{" + ", ".join(f"features{i}: *l9" for i in range(3)) + ", runtimes: {a: *l9, b: *l9}}"),
+     ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
+    ("too large", "# " + "x" * (32 * 2**20) + "\n", ["f.yaml: larger than 32 MiB; a fleet file is text people edit"]),
     ("billion laughs in a known option", bomb("docker_daemon_options").replace("{a: *l9}", "{features: {a: *l9}}"),
-     ["f.yaml: r1.docker_daemon_options.features.a: more than 10000 values (YAML aliases expand); daemon options are small"]),
+     ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
     # 3. no hosts is an error, not a silent no-op
     ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
     ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
@@ -79,6 +96,8 @@ CORPUS = [
     ("bad IPv4", host("address: 127.0.0.300"), ["f.yaml: r1.address: '127.0.0.300' is not a valid IPv4 address"]),
     ("host:port", host("address: '10.0.0.5:2222'"),
      ["f.yaml: r1.address: expected a host name or an IP address, got '10.0.0.5:2222'; put the port in ssh_port: 2222"]),
+    ("[IPv6]:port", host("address: '[fd00::5]:2222'"),
+     ["f.yaml: r1.address: expected a host name or an IP address, got '[fd00::5]:2222'; put the port in ssh_port: 2222"]),
     ("space in address", host("address: robot 1"),
      ["f.yaml: r1.address: expected a host name or an IP address, got 'robot 1'"]),
     ("good addresses", BASE + "robots:\n  hosts:\n    r1: {address: 'fe80::1'}\n    r2: {address: robot2.lan}\n"
@@ -136,9 +155,14 @@ CORPUS = [
                        "docker_registry_mirrors: ['https://[fd00::1]:5000']"), []),
     # issue 8, item 4: environment values are strings, quoted in YAML
     ("environment YAML 1.1 traps", host("payload_environment: {A: NO, B: 1.10, C: 0755, D: 12:30, E: 'NO'}"),
-     [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it "
-      "(YAML reads NO, 1.10, 0755, 12:30 as non-strings)"
-      for key, got in (("A", "a boolean (false)"), ("B", "1.1"), ("C", "493"), ("D", "750"))]),
+     ["f.yaml: r1.payload_environment.A: expected a string, got a boolean (false); quote it "
+      "(YAML reads an unquoted no/yes/on/off as a boolean)"]
+     + [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it"
+        for key, got in (("B", "1.10 (read by YAML as 1.1)"), ("C", "0755 (read by YAML as 493)"),
+                         ("D", "12:30 (read by YAML as 750)"))]),
+    ("YAML 1.1 numbers in number settings", host("ssh_port: 0022", "payload_health_timeout: 1:30"),
+     ["f.yaml: r1.ssh_port: expected a whole number, got 0022 (read by YAML as 18)",
+      "f.yaml: r1.payload_health_timeout: expected a whole number, got 1:30 (read by YAML as 90)"]),
     # issue 8, item 7: paths root creates are not in world-writable directories
     ("payload_dir /tmp", host("payload_dir: /tmp"),
      ["f.yaml: r1.payload_dir: '/tmp' is in the world-writable /tmp; use a directory only root can write (e.g. under /var/lib)"]),
@@ -173,3 +197,53 @@ def test_merge_keys_give_each_sensor_the_shared_fields_and_its_own():
         {"name": "front", "usb_port": "1-1.2", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
         {"name": "back", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "9-9"},
     ]
+
+
+def readme_mistakes():
+    """The broken fleet file and the lines shown in README's "Describing a fleet"."""
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = text[text.index("## Describing a fleet"):text.index("### Laptops")]
+    blocks = section.split("```")
+    (fleet_block,) = [b for b in blocks if b.startswith("yaml\n") and "docker_usres" in b]
+    (output_block,) = [b for b in blocks if "problem(s) in the fleet file" in b]
+    (syntax_line,) = [line.strip() for line in section.splitlines() if ": YAML error: " in line]
+    return fleet_block.removeprefix("yaml\n"), output_block.strip().splitlines(), syntax_line
+
+
+def test_readme_shows_the_lines_the_common_mistakes_get():
+    document, shown, syntax_line = readme_mistakes()
+    try:
+        fleet.parse(document, "inventories/robots.yaml")
+    except fleet.FleetError as error:
+        got = error.lines
+    else:
+        got = []
+    assert got + [f"{len(got)} problem(s) in the fleet file; no host was contacted."] == shown
+    unclosed = document.replace("serial: 42}", 'serial: "42"')
+    assert lines_of(unclosed) == [syntax_line]
+
+
+def lines_of(text: str) -> list[str]:
+    try:
+        fleet.parse(text, "inventories/robots.yaml")
+    except fleet.FleetError as error:
+        return error.lines
+    return []
+
+
+def test_without_libyaml_the_same_problems_are_found(monkeypatch):
+    """Where PyYAML has no libyaml, its own parser is used: the wording of a
+    syntax error may differ, the problems and their places do not."""
+    import yaml
+
+    from roles import fleetyaml
+
+    # (5,000 levels of nesting only make PyYAML's recursive parser slow.)
+    expected = {name: lines(text) for name, text, _ in CORPUS if name not in ("too large", "deep nesting")}
+    monkeypatch.setattr(fleetyaml, "_LOADER", yaml.SafeLoader)
+    for name, text, _ in CORPUS:
+        if name in expected:
+            got = lines(text)
+            where = [line.split(": YAML error: ")[0] if ": YAML error: " in line else line for line in got]
+            want = [line.split(": YAML error: ")[0] if ": YAML error: " in line else line for line in expected[name]]
+            assert where == want, name

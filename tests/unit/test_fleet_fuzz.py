@@ -194,6 +194,27 @@ def test_random_documents_are_accepted_or_refused_with_problem_lines(seed):
     assert accepted and refused  # the generator reaches both sides
 
 
+WRONG_TYPES = [-1, 2**70, float("nan"), False, None, "", "x" * 500, [[[]]], {1: 2}, {"a": {"b": [None]}},
+               [{"name": None}], "\n"]
+
+
+def test_wrong_types_at_every_setting_in_every_layer():
+    """The sweep behind the random documents: each setting, each layer, each
+    kind of value: a file+field line or acceptance, nothing else."""
+    defaults = fleet.read_group_data()
+    for setting in settings.SCHEMA:
+        for value in WRONG_TYPES:
+            for layer in ("all.vars", "host"):
+                doc = good_fleet(9)
+                target = doc["robots"]["hosts"]["r0"] if layer == "host" else doc[layer.split(".")[0]].setdefault("vars", {})
+                target[setting] = value
+                try:
+                    with hang_guard(HANG_SECONDS):
+                        fleet.check(doc, SHOWN, defaults)
+                except fleet.FleetError as error:
+                    assert_problem_lines(error.lines, f"{setting}={value!r} in {layer}", b"")
+
+
 class Listener:
     """A TCP listener on 127.0.0.1 that records every connection: where the
     hosts of a generated fleet point, so a contact cannot go unnoticed."""

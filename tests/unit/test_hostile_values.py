@@ -1,0 +1,168 @@
+"""The hostile-value corpus (issue 8): every setting, every place in it a
+string can go, every hostile value.  Each is either refused with exactly one
+line naming the host and the setting, or it is one of the few free-text
+places, and then it is shown to reach the host as data: the compose file
+(YAML), daemon.json (JSON) or a quoted udev match value, unchanged.
+
+On-host quoting of the accepted values (e.g. compose's $ escaping) is tested
+with the roles (tests/unit/test_onhost_security.py on the security branch);
+here the validator's half: nothing else gets through.
+"""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import pytest
+import yaml
+
+from roles import fleet, fleetyaml, settings
+from roles.docker import plan
+from roles.payload import compose
+from roles.udev import rules
+
+HOSTILE = [
+    "$(touch /tmp/x)", "`id`", "a;b", "a|b", "a&b", "a'b", 'a"b', "a\nb", "a\rb", "a b", "${X:?}", "s3cr$et",
+    "..", "../../etc", "/var/lib/../../tmp", "/tmp", "/var/tmp/x", "-rf", "--help", "a\\b", "a#b", "*", "~root",
+    "\u0430dmin",  # Cyrillic a
+    "r\u043ebot",  # Cyrillic o
+    "v\uff11",  # fullwidth digit one
+    "x\u202ey",  # right-to-left override
+    "a\u00a0b",  # no-break space
+    "\x00", "a\x1bb",
+]
+# YAML 1.1 traps, written unquoted in the fleet file.
+YAML_TRAPS = ["NO", "off", "yes", "1.10", "0755", "12:30", "0x1F", "2026-01-02", "~"]
+DEFAULTS = fleet.read_group_data()
+
+# Where a free-text value is accepted, and how it travels to the host.
+CARRIED_AS_DATA = {
+    ("payload_environment", "mapping value"): "compose",
+    ("payload_command", "list item"): "compose",
+    ("docker_daemon_options", "log-opts value"): "daemon.json",
+    ("docker_daemon_options", "dns item"): "daemon.json",
+    ("docker_daemon_options", "features key"): "daemon.json",
+    ("docker_daemon_options", "builder value"): "daemon.json",
+    ("sensors", "serial"): "udev",
+}
+# Text that is harmless where it lands: "/var/lib/" + "/tmp" is /var/lib/tmp,
+# an absolute path never reads as an option, and in a URL's query ".." and
+# "/" are just characters the server reads.
+BENIGN_INSIDE = {
+    "in a path": {"/tmp", "/var/tmp/x", "-rf", "--help"},
+    "in a URL": {"..", "../../etc", "/var/lib/../../tmp", "/tmp", "/var/tmp/x", "-rf", "--help", "~root"},
+}
+# Files on the operator's machine, opened there by pyinfra; never sent to a host.
+OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file"}
+
+
+def places(name: str, value):
+    """Every place in setting ``name`` where a string can go."""
+    yield "value", value
+    yield "list item", [value]
+    yield "mapping key", {value: "x"}
+    yield "mapping value", {"X": value}
+    # Inside otherwise valid URLs, paths and image references.
+    for place, text in (("in a URL", f"https://mirror.lan/gpg?x={value}"), ("in a path", f"/var/lib/{value}"),
+                        ("in an image tag", f"reg.example.com/p:{value}")):
+        yield place, text
+        yield f"{place}, list item", [text]
+    if name == "sensors":
+        for field in settings.SENSOR_KEYS:
+            sensor = {"name": "a", "subsystem": "tty", "serial": "1", field: value}
+            if field in ("vendor_id", "product_id"):  # the pair rule is not what is tested here
+                sensor = {"vendor_id": "046d", "product_id": "0825", **sensor}
+            yield field, [sensor]
+    if name == "docker_daemon_options":
+        yield "log-opts value", {"log-opts": {"max-size": value}}
+        yield "dns item", {"dns": [value]}
+        yield "features key", {"features": {value: True}}
+        yield "builder value", {"builder": {"x": value}}
+
+
+def outcome(setting: str, value) -> list[str]:
+    host = {"payload_image": "reg.example.com/p:1", setting: value}
+    try:
+        fleet.check({"robots": {"hosts": {"r1": host}}}, "f.yaml", DEFAULTS)
+    except fleet.FleetError as error:
+        return error.lines
+    return []
+
+
+def host_data(**settings_) -> SimpleNamespace:
+    return SimpleNamespace(**{**DEFAULTS["all"], **DEFAULTS["robots"], **settings_})
+
+
+def reaches_host_unchanged(setting: str, place: str, value, hostile: str) -> bool:
+    carrier = CARRIED_AS_DATA[(setting, place)]
+    if carrier == "compose":
+        data = host_data(**{setting: value})
+        text = compose.dump(compose.document(data, "reg.example.com/p:1", "10.0.0.1", [], None))
+        service = yaml.safe_load(text)["services"][compose.SERVICE]
+        got = service["environment"]["X"] if setting == "payload_environment" else service["command"][0]
+        return got.replace("$$", "$") == hostile  # compose reads $$ as $
+    if carrier == "daemon.json":
+        return json.loads(plan.daemon_json(value, [], [])) == value
+    sensor = value[0]
+    line = rules.rule(sensor)
+    return f'ATTRS{{serial}}=="{hostile}"' in rules._split_items(line) or (
+        f' ATTRS{{serial}}=="{hostile}"' in rules._split_items(line)
+    )
+
+
+@pytest.mark.parametrize("setting", list(settings.SCHEMA))
+def test_every_hostile_value_is_refused_in_one_line_or_reaches_the_host_as_data(setting):
+    accepted = []
+    for hostile in HOSTILE:
+        for place, value in places(setting, hostile):
+            lines = outcome(setting, value)
+            if not lines:
+                accepted.append((place, hostile))
+                continue
+            assert len(lines) == 1, (place, hostile, lines)
+            assert lines[0].startswith(f"f.yaml: r1.{setting}"), (place, hostile, lines)
+            assert "\n" not in lines[0] and "\r" not in lines[0] and "\x1b" not in lines[0]
+    for place, hostile in accepted:
+        if setting in OPERATOR_SIDE:
+            assert place in ("value", "in a path", "in a URL", "in an image tag") and hostile.isprintable()
+            continue
+        if hostile in BENIGN_INSIDE.get(place.removesuffix(", list item"), ()):
+            continue
+        if setting == "payload_command" or (setting == "payload_environment" and place == "mapping value"):
+            place = "list item" if setting == "payload_command" else place  # any text: it is the container's
+        assert (setting, place) in CARRIED_AS_DATA, f"{setting} ({place}) accepts {hostile!r}"
+        value = dict(places(setting, hostile))[place]
+        assert reaches_host_unchanged(setting, place, value, hostile), (setting, place, hostile)
+
+
+def test_the_free_text_places_do_take_hostile_values():
+    """The carriers above are exercised: shell-looking text is data there."""
+    assert outcome("payload_environment", {"X": "$(touch /tmp/x)"}) == []
+    assert outcome("payload_command", ["sh", "-c", "echo a; echo b"]) == []
+    assert outcome("docker_daemon_options", {"log-opts": {"max-size": "`id`"}}) == []
+
+
+@pytest.mark.parametrize("trap", YAML_TRAPS)
+def test_yaml_1_1_traps_in_text_settings_say_quote_it(trap):
+    """Unquoted, these are not the text written; every text setting refuses
+    them with 'quote it' (or, for yes/no settings, reads the documented word)."""
+    text_settings = [
+        name for name, check in settings.SCHEMA.items()
+        if check.schema.get("type") == "string" or "string" in json.dumps(check.schema)[:40]
+    ]
+    for name in text_settings:
+        image = "" if name == "payload_image" else "      payload_image: reg.example.com/p:1\n"
+        doc = fleetyaml.load(f"robots:\n  hosts:\n    r1:\n{image}      {name}: {trap}\n")
+        try:
+            fleet.check(doc, "f.yaml", DEFAULTS)
+        except fleet.FleetError as error:
+            (line,) = [line for line in error.lines if line.startswith(f"f.yaml: r1.{name}")]
+            if trap == "~":
+                assert line.endswith("nothing (null)") or "required" in line, line
+            elif "expected a string" in line or "read by YAML" in line or "a date" in line:
+                assert line.endswith("quote it") or "(read by YAML as" in line or "quote it" in line, line
+            continue
+        # Accepted: only where YAML's reading is the documented value.
+        value = doc["robots"]["hosts"]["r1"][name]
+        assert trap == "~" or name in settings.YES_NO, (name, trap, value)
