@@ -224,3 +224,18 @@ def test_key_download_accepts_exactly_the_pinned_primary_key(tmp_path, case):
         assert proc.returncode == 1
         assert "are not exactly the pinned gpu_apt_key_fingerprint" in proc.stderr
         assert not dest.exists() and list(dest.parent.iterdir()) == []  # nothing left behind
+
+
+def test_gpu_payload_gets_environment_reservation_and_check_command():
+    from roles import payload
+    from tests.unit.test_plan import merged
+
+    data = merged("laptops", {"payload_image": IMAGE, "x11_user": "alice", "payload_gpu": True})
+    service = payload.desired_compose(data, "h")["services"]["payload"]
+    assert service["environment"]["NVIDIA_VISIBLE_DEVICES"] == "all"
+    assert service["environment"]["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
+    assert service["deploy"]["resources"]["reservations"]["devices"][0]["capabilities"] == ["gpu"]
+    assert payload.spec(data, {})["gpu_check"] == ["nvidia-smi", "-L"]
+    plain = merged("robots", {"payload_image": IMAGE})
+    assert payload.spec(plain, {})["gpu_check"] is None
+    assert "NVIDIA_VISIBLE_DEVICES" not in payload.desired_compose(plain, "h")["services"]["payload"]["environment"]
