@@ -9,11 +9,12 @@ state; the roles then change only what differs.
 
 from pyinfra import host
 
-from roles import docker, operations, payload, udev, users, x11
+from roles import docker, gpu, operations, payload, udev, users, x11
+from roles.gpu import plan as gpu_plan
 from roles.hoststate import HostSnapshot, SnapshotQuery
 from roles.settings import data_problems
 
-_ROLES = (docker, users, udev, x11, payload)
+_ROLES = (gpu, docker, users, udev, x11, payload)
 
 
 def _provision():
@@ -22,6 +23,8 @@ def _provision():
         role.declare_reads(host.data, query)
     snapshot = host.get_fact(HostSnapshot, **query.as_kwargs())
 
+    if gpu_plan.wanted(host.data):
+        gpu.nvidia_toolkit(snapshot)  # first: its preconditions fail the host before anything is installed
     docker.install_docker(snapshot)
     users.docker_users(snapshot)
     if host.data.sensors or host.data.udev_vendor_rules:

@@ -163,3 +163,34 @@ payload_force = False
 # credentials; never stored in the repository, never printed.
 payload_registry_username_env = "PAYLOAD_REGISTRY_USERNAME"
 payload_registry_password_env = "PAYLOAD_REGISTRY_PASSWORD"
+
+# --- NVIDIA GPUs (roles/gpu) --------------------------------------------------
+# "nvidia": this host has an NVIDIA GPU for containers (payload_gpu implies it).
+# The NVIDIA driver must already be loaded; this tool does not install drivers.
+gpu = None
+# NVIDIA's container toolkit repository (or a local mirror for air-gapped
+# fleets with the same layout); the source is <url>/<channel>/deb/<arch>.
+gpu_repo_url = "https://nvidia.github.io/libnvidia-container"
+gpu_apt_channel = "stable"
+# Where the signing key comes from; None means "<gpu_repo_url>/gpgkey".
+gpu_apt_key_url = None
+# NVIDIA's published key.  The downloaded key must hold exactly this one
+# primary key, or the host fails and nothing is installed.
+gpu_apt_key_fingerprint = "C95B321B61E88C1809C4F759DDCAE044F796ECB0"
+gpu_apt_key_path = "/etc/apt/keyrings/nvidia-container-toolkit.asc"
+# /etc/apt/sources.list.d/<name>.sources
+gpu_apt_filename = "nvidia-container-toolkit"
+# Pin nvidia-container-toolkit to one apt version (e.g. "1.17.8-1"); None: newest.
+gpu_toolkit_version = None
+# Make "nvidia" Docker's default runtime (daemon.json default-runtime).
+gpu_default_runtime = False
+# Payload environment for the NVIDIA runtime; capabilities None means
+# compute,utility (plus graphics where display is on, for rviz with GL).
+gpu_visible_devices = "all"
+gpu_driver_capabilities = None
+# Run in each payload container after it is healthy; a failure fails the
+# release (rolled back).  None: no check.
+gpu_check_command = ["nvidia-smi", "-L"]
+# The loaded driver announces itself here.  Change it only to test the role
+# without a GPU (the lab does); real hosts keep /proc/driver/nvidia/version.
+gpu_driver_version_file = "/proc/driver/nvidia/version"

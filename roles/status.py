@@ -29,6 +29,8 @@ COLUMNS = [
     ("previous", "PREVIOUS"),
     ("deployed", "LAST DEPLOY"),
     ("lock", "LOCK"),
+    ("gpu_driver", "GPU DRIVER"),
+    ("gpu_runtime", "GPU RUNTIME"),
 ]
 
 
@@ -39,8 +41,33 @@ def status_command(data) -> str:
     return (
         f"if [ -x {HELPER} ]; then /usr/bin/python3 {HELPER} status --dir {q(data.payload_dir)}"
         f" --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}; "
-        "else printf '{\"docker_version\": \"%s\"}\\n' \"$(docker version -f '{{.Server.Version}}' 2>/dev/null)\"; fi"
+        "else printf '{\"docker_version\": \"%s\"}\\n' \"$(docker version -f '{{.Server.Version}}' 2>/dev/null)\"; fi; "
+        + gpu_status_command(data)
     )
+
+
+def gpu_status_command(data) -> str:
+    """One line: 'gpu<TAB><the driver version file's first line><TAB>yes|no'
+    (yes: Docker lists the nvidia runtime)."""
+    path = shlex.quote(data.get("gpu_driver_version_file") or "/proc/driver/nvidia/version")
+    return (
+        f"printf 'gpu\\t%s\\t%s\\n' \"$(head -n 1 {path} 2>/dev/null)\" "
+        "\"$(docker info -f '{{json .Runtimes}}' 2>/dev/null | grep -q '\"nvidia\"' && echo yes || echo no)\""
+    )
+
+
+def parse_report(stdout: str) -> dict:
+    """payloadctl's JSON status plus the GPU line (pure)."""
+    report, gpu = None, {}
+    for line in stdout.splitlines():
+        if line.startswith("gpu\t"):
+            _, driver, runtime = (line.split("\t") + ["", ""])[:3]
+            gpu = {"gpu_driver_line": driver, "gpu_runtime": runtime.strip() == "yes"}
+        elif report is None and line.strip().startswith("{"):
+            report = json.loads(line)
+    if report is None:
+        raise ValueError("no status report")
+    return {**report, **gpu}
 
 
 def row(name: str, report: dict | None, error: str | None = None) -> dict:
@@ -65,7 +92,17 @@ def row(name: str, report: dict | None, error: str | None = None) -> dict:
         "release_state": current.get("state"),
         "lock": report.get("update_lock"),
         "rolled_back_from": current.get("rolled_back_from"),
+        **_gpu_cells(report),
     }
+
+
+def _gpu_cells(report: dict) -> dict:
+    from roles.gpu import plan as gpu_plan
+
+    driver = gpu_plan.driver_version(report.get("gpu_driver_line") or "")
+    runtime = report.get("gpu_runtime")
+    # A host with neither a driver nor the runtime is not a GPU host: "-", not "no".
+    return {"gpu_driver": driver, "gpu_runtime": runtime if (driver or runtime) else None}
 
 
 def table(rows: list[dict]) -> str:
@@ -122,7 +159,7 @@ def _read_status(hosts) -> list[dict]:
         if not ok:
             return {**row(host.name, {}), "error": output.stderr.strip()[-200:]}
         try:
-            return row(host.name, json.loads(output.stdout))
+            return row(host.name, parse_report(output.stdout))
         except ValueError:
             return {**row(host.name, {}), "error": "unreadable status"}
 

@@ -11,6 +11,7 @@ from pyinfra.operations.util import any_changed
 
 from roles import operations
 from roles.docker import plan
+from roles.gpu import plan as gpu_plan
 from roles.hoststate import Snapshot, SnapshotQuery
 
 KEYRING_DIR = "/etc/apt/keyrings"
@@ -161,7 +162,9 @@ def install_docker(snap: Snapshot):
         name="Write /etc/docker/daemon.json",
         path=DAEMON_JSON,
         content=plan.daemon_json(
-            data.docker_daemon_options, data.docker_registry_mirrors, data.docker_insecure_registries
+            gpu_plan.daemon_options(data, data.docker_daemon_options),
+            data.docker_registry_mirrors,
+            data.docker_insecure_registries,
         ),
         current=snap.files.get(DAEMON_JSON),
         validate=VALIDATE_DAEMON_JSON,

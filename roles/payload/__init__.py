@@ -23,6 +23,7 @@ from pyinfra.api import deploy
 
 from roles import imageref, operations, x11
 from roles.hoststate import Snapshot, SnapshotQuery
+from roles.gpu import plan as gpu_plan
 from roles.payload import compose, push
 from roles.udev import rules
 
@@ -69,6 +70,7 @@ def spec(data, doc: dict) -> dict:
         "lock_file": data.payload_lock_file,
         "force": data.payload_force,
         "deployed_by": f"{getpass.getuser()}@{socket.gethostname()} (pyinfra)",
+        "gpu_check": gpu_plan.check_command(data),  # payloadctl: run in each container once healthy
     }
 
 

@@ -7,6 +7,8 @@ import json
 
 import yaml
 
+from roles.gpu import plan as gpu_plan
+
 SERVICE = "payload"
 
 
@@ -41,6 +43,7 @@ def document(data, image: str, address: str, devices: list[str], x11: dict | Non
     if devices:
         service["devices"] = [f"{path}:{path}" for path in devices]
     if data.payload_gpu:
+        service["environment"].update(gpu_plan.payload_environment(data))
         service["deploy"] = {
             "resources": {
                 "reservations": {"devices": [{"driver": "nvidia", "count": "all", "capabilities": ["gpu"]}]}

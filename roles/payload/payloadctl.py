@@ -254,6 +254,23 @@ def start_and_check(name, restart, timeout, stable_seconds):
         return False, str(error)
 
 
+# --- GPU check (roles/gpu) -----------------------------------------------------
+
+
+def gpu_check(name, command):
+    """(True, "") when ``command`` (e.g. nvidia-smi -L) succeeds in every
+    container of the project; (False, why) for the first that cannot see a GPU."""
+    if not command:
+        return True, ""
+    for cid in project_containers(name):
+        proc = run(["docker", "exec", cid] + list(command), check=False)
+        if proc.returncode != 0:
+            who = (container_state(cid) or {}).get("name", cid)
+            said = (proc.stderr or proc.stdout).strip()[-200:] or "exit {}".format(proc.returncode)
+            return False, "{} cannot see a GPU ({} failed: {})".format(who, " ".join(command), said)
+    return True, ""
+
+
 # --- commands -----------------------------------------------------------------
 
 
@@ -356,6 +373,8 @@ def apply_locked(spec, releases, old, restart):
         gc(spec, releases)
         return finish(root, True, "payload: release {} staged (no autostart)".format(rid), rid)
     ok, why = start_and_check(spec["name"], restart, spec["health_timeout"], spec["stable_seconds"])
+    if ok:
+        ok, why = gpu_check(spec["name"], spec.get("gpu_check"))
     if ok:
         record["state"] = "active"
         record["activated"] = now()

@@ -139,7 +139,11 @@ def mirror_dir() -> Path:
     except getattr(mirror, "MirrorError", LabError) as e:
         raise LabError(f"building the Docker CE mirror failed: {e}") from None
     root = built.get("root") if isinstance(built, dict) else built
-    return Path(root or DEFAULT_MIRROR_DIR).resolve()
+    root = Path(root or DEFAULT_MIRROR_DIR).resolve()
+    from . import nvidia_mirror  # the NVIDIA-style repository, served beside Docker's
+
+    nvidia_mirror.build_into(root)
+    return root
 
 
 def ensure_services(dc: docker.DockerClient, prefix: str, network: str,

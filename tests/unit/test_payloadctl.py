@@ -95,3 +95,35 @@ def test_apply_finds_the_release_already_current(tmp_path):
                           capture_output=True, text=True)
     assert proc.returncode == 0 and "release r1 is already current" in proc.stdout
     assert sorted(p.name for p in (tmp_path / "releases").iterdir()) == ["r1"]
+
+
+def _stub_docker(tmp_path, monkeypatch, exec_exit: int):
+    """A `docker` on PATH answering `ps` with one container and `exec` with
+    ``exec_exit`` (no GPU exists on this machine to run the real check)."""
+    stub = tmp_path / "docker"
+    stub.write_text(
+        "#!/bin/sh\n"
+        'echo "$@" >> "$(dirname "$0")/calls"\n'
+        'case "$1" in\n'
+        "  ps) echo c0ffee ;;\n"
+        "  inspect) exit 1 ;;\n"
+        f"  exec) echo 'NVIDIA-SMI has failed because it could not communicate with the NVIDIA driver' >&2; exit {exec_exit} ;;\n"
+        "esac\n"
+    )
+    stub.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path}:" + __import__("os").environ["PATH"])
+    return tmp_path / "calls"
+
+
+def test_gpu_check_fails_a_container_that_cannot_see_a_gpu(tmp_path, monkeypatch):
+    calls = _stub_docker(tmp_path, monkeypatch, exec_exit=9)
+    ok, why = payloadctl.gpu_check("robot-payload", ["nvidia-smi", "-L"])
+    assert not ok and why.startswith("c0ffee cannot see a GPU (nvidia-smi -L failed: NVIDIA-SMI has failed")
+    assert "exec c0ffee nvidia-smi -L" in calls.read_text()
+
+
+def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch):
+    calls = _stub_docker(tmp_path, monkeypatch, exec_exit=0)
+    assert payloadctl.gpu_check("robot-payload", ["nvidia-smi", "-L"]) == (True, "")
+    assert payloadctl.gpu_check("robot-payload", None) == (True, "")
+    assert calls.read_text().count("exec") == 1

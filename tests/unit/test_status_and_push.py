@@ -55,6 +55,27 @@ def test_status_rows_and_table():
     assert rows[0]["image"] == "reg/p@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
     text = status.table(rows).splitlines()
-    assert text[0].split() == ["HOST", "REACHABLE", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK"]
-    assert text[1].split() == ["robot1", "yes", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-"]
+    assert text[0].split() == ["HOST", "REACHABLE", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME"]
+    assert text[1].split() == ["robot1", "yes", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-"]
     assert text[2].split()[:2] == ["robot2", "no"]
+
+
+def test_status_shows_the_gpu_driver_version_and_the_runtime(tmp_path):
+    """The GPU line comes from the real shell snippet (driver file from a
+    setting); the runtime cell from Docker's runtimes list."""
+    import subprocess
+
+    driver = tmp_path / "version"
+    driver.write_text("NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14  Thu Feb 22 01:44:30 UTC 2024\n")
+    data = {"gpu_driver_version_file": str(driver)}
+    line = subprocess.run(["sh", "-c", status.gpu_status_command(data)], capture_output=True, text=True).stdout
+    assert line.startswith("gpu\t") and line.rstrip().endswith(("\tyes", "\tno"))
+    report = status.parse_report('{"docker_version": "26.1.5"}\n' + line.replace("\tno\n", "\tyes\n"))
+    cells = status.row("gpu1", report)
+    assert (cells["gpu_driver"], cells["gpu_runtime"]) == ("550.54.14", True)
+    plain = status.row("r1", status.parse_report('{"docker_version": "26.1.5"}\ngpu\t\tno\n'))
+    assert (plain["gpu_driver"], plain["gpu_runtime"]) == (None, None)
+    broken = status.row("r2", status.parse_report('{}\ngpu\tNVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n'))
+    assert broken["gpu_runtime"] is False
+    text = status.table([cells])
+    assert text.splitlines()[1].split()[-2:] == ["550.54.14", "yes"]

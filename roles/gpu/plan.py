@@ -1,0 +1,178 @@
+"""Pure decisions of the gpu role: which host gets what, computed from host
+readings and data, so they test without a host.
+
+NVIDIA documents the container toolkit's apt repository as one flat
+repository per architecture (``<repo>/stable/deb/$(ARCH) /``) signed by the
+key at ``<repo>/gpgkey``; see roles/gpu/__init__.py for the steps."""
+
+from __future__ import annotations
+
+import shlex
+
+TOOLKIT = "nvidia-container-toolkit"
+RUNTIME_NAME = "nvidia"
+RUNTIME_PATH = "nvidia-container-runtime"
+TEGRA_RELEASE = "/etc/nv_tegra_release"
+ARCHITECTURES = ("amd64", "arm64")
+SUPPORTED = {"ubuntu": ("jammy", "noble"), "debian": ("bookworm", "trixie")}
+DRIVER_MISSING = (
+    "gpu: no NVIDIA driver is loaded ({detail}); install the NVIDIA driver first "
+    "(this tool does not install kernel drivers), then run again"
+)
+
+
+class PlanError(Exception):
+    """The host cannot get what its data asks for; fails that host only."""
+
+
+def wanted(data) -> bool:
+    """The gpu role runs where the payload asks for GPUs or the host is a GPU host."""
+    return data.get("gpu") == "nvidia" or bool(data.get("payload_gpu"))
+
+
+# --- what the host snapshot tells -------------------------------------------
+
+
+def readings_probe(driver_version_file: str) -> str:
+    """Shell snippet (read-only) printing key=value lines: the driver version
+    file's first line, the Jetson release line, nvidia-smi's exit status and
+    output (values base64, one line each)."""
+    f = shlex.quote(driver_version_file)
+    return (
+        f"[ -r {f} ] && echo \"driver=$(head -n 1 {f} | base64 -w0)\"; "
+        f"[ -f {TEGRA_RELEASE} ] && echo \"tegra=$(head -n 1 {TEGRA_RELEASE} | base64 -w0)\"; "
+        "if command -v nvidia-smi >/dev/null 2>&1; then "
+        "o=$(timeout 20 nvidia-smi -L 2>&1); echo \"smi_rc=$?\"; echo \"smi=$(printf %s \"$o\" | head -c 400 | base64 -w0)\"; "
+        "else echo smi_rc=absent; fi"
+    )
+
+
+def parse_readings(text: str) -> dict[str, str]:
+    import base64
+
+    values = {}
+    for line in (text or "").splitlines():
+        key, sep, value = line.partition("=")
+        if not sep:
+            continue
+        if key in ("driver", "tegra", "smi"):
+            try:
+                value = base64.b64decode(value).decode(errors="replace").strip()
+            except ValueError:
+                value = ""
+        values[key] = value
+    return values
+
+
+def driver_version(first_line: str) -> str | None:
+    """'NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14  Thu ...' -> '550.54.14'."""
+    import re
+
+    found = re.search(r"\s(\d+(?:\.\d+)+)(?:\s|$)", first_line)
+    return found.group(1) if found else None
+
+
+def platform(readings: dict[str, str]) -> str:
+    """'jetson' (L4T: the toolkit comes with JetPack) or 'desktop'."""
+    return "jetson" if "tegra" in readings else "desktop"
+
+
+def driver_problem(readings: dict[str, str], driver_version_file: str) -> str | None:
+    """One line if no NVIDIA driver is usable on a desktop/server GPU host.
+    On Jetson the driver is part of L4T's kernel: not checked here."""
+    if platform(readings) == "jetson":
+        return None
+    if "driver" not in readings:
+        return DRIVER_MISSING.format(detail=f"{driver_version_file} is absent")
+    rc = readings.get("smi_rc", "absent")
+    if rc == "absent":
+        return DRIVER_MISSING.format(detail="nvidia-smi is not installed")
+    if rc != "0":
+        said = readings.get("smi", "").splitlines()
+        return DRIVER_MISSING.format(detail=f"nvidia-smi failed: {said[0] if said else 'exit ' + rc}")
+    return None
+
+
+# --- the repository ------------------------------------------------------------
+
+
+def check_os(os_release: dict, arch: str) -> None:
+    ident = os_release.get("id", "")
+    like = os_release.get("id_like", "").split()
+    dist = "ubuntu" if ident == "ubuntu" or "ubuntu" in like else "debian" if ident == "debian" or "debian" in like else None
+    if dist is None:
+        raise PlanError(f"gpu: {os_release.get('pretty_name') or ident or 'this OS'} is not Ubuntu or Debian")
+    codename = (os_release.get("ubuntu_codename") if dist == "ubuntu" else None) or os_release.get("version_codename")
+    if codename not in SUPPORTED[dist]:
+        raise PlanError(f"gpu: {dist} {codename or '(unknown release)'} is not supported for the container toolkit "
+                        f"(supported: {', '.join(SUPPORTED['ubuntu'] + SUPPORTED['debian'])})")
+    if arch not in ARCHITECTURES:
+        raise PlanError(f"gpu: architecture {arch or 'unknown'} is not supported (supported: amd64, arm64)")
+
+
+def repo_uri(repo_url: str, channel: str, arch: str) -> str:
+    """NVIDIA's flat repository for one architecture: <repo>/<channel>/deb/<arch>."""
+    return f"{repo_url.rstrip('/')}/{channel}/deb/{arch}"
+
+
+def key_url(data_key_url: str | None, repo_url: str) -> str:
+    return data_key_url or f"{repo_url.rstrip('/')}/gpgkey"
+
+
+def sources_text(uri: str, key_path: str) -> str:
+    """deb822 form of NVIDIA's one-line source
+    ``deb [signed-by=KEY] <repo>/stable/deb/$(ARCH) /`` (a flat repository:
+    the suite is "/", no components), with the architecture resolved."""
+    return (
+        "# Managed by the robot fleet provisioner (roles/gpu).\n"
+        "Types: deb\n"
+        f"URIs: {uri}\n"
+        "Suites: /\n"
+        f"Signed-By: {key_path}\n"
+    )
+
+
+def package_versions(version: str | None) -> dict[str, str]:
+    return {TOOLKIT: version} if version else {}
+
+
+# --- daemon.json (owned by the docker role) -------------------------------------
+
+
+def daemon_options(data, options: dict) -> dict:
+    """``options`` with the NVIDIA runtime merged in where the host is a GPU
+    host (and ``default-runtime`` when asked).  The docker role calls this
+    while building daemon.json, so the file keeps one owner and Docker
+    restarts only when the result changes.  Runtimes already declared in
+    ``docker_daemon_options`` are kept; an explicit ``nvidia`` entry wins."""
+    if not wanted(data):
+        return options
+    merged = dict(options)
+    runtimes = dict(merged.get("runtimes") or {})
+    runtimes.setdefault(RUNTIME_NAME, {"args": [], "path": RUNTIME_PATH})
+    merged["runtimes"] = runtimes
+    if data.get("gpu_default_runtime"):
+        merged["default-runtime"] = RUNTIME_NAME
+    return merged
+
+
+# --- the payload --------------------------------------------------------------
+
+
+def payload_environment(data) -> dict[str, str]:
+    """What the NVIDIA runtime reads in a GPU payload: which GPUs, and which
+    driver parts to inject (graphics too when the host has a display: rviz with GL)."""
+    capabilities = data.get("gpu_driver_capabilities")
+    if not capabilities:
+        capabilities = "compute,utility,graphics" if data.get("display") else "compute,utility"
+    return {"NVIDIA_VISIBLE_DEVICES": str(data.get("gpu_visible_devices") or "all"),
+            "NVIDIA_DRIVER_CAPABILITIES": capabilities}
+
+
+def check_command(data) -> list[str] | None:
+    """The command payloadctl runs in each payload container after it is
+    healthy; None: no GPU check."""
+    if not data.get("payload_gpu"):
+        return None
+    command = data.get("gpu_check_command")
+    return list(command) if command else None
