@@ -344,15 +344,18 @@ SCHEMA.update({
     "gpu_apt_key_url": c.optional(_url),
     "gpu_apt_key_fingerprint": _fingerprint,
     "gpu_apt_key_path": _private_path,
-    "gpu_apt_filename": c.string(r"[A-Za-z0-9_.-]+", "a file name"),
-    "gpu_toolkit_version": c.optional(c.string(r"[0-9A-Za-z.+~:-]+", "an apt version string")),
+    "gpu_apt_filename": c.string(r"[A-Za-z0-9][A-Za-z0-9_.-]*", "a file name"),
+    "gpu_toolkit_version": c.optional(c.string(r"[0-9][0-9A-Za-z.+~:-]*", "an apt version string")),
     "gpu_default_runtime": c.boolean,
-    "gpu_visible_devices": c.string(r"all|none|void|[0-9A-Za-z,:-]+", "all, none or GPU indexes/UUIDs separated by commas"),
+    "gpu_visible_devices": c.string(
+        r"all|none|void|[0-9A-Za-z][0-9A-Za-z:-]*(?:,[0-9A-Za-z][0-9A-Za-z:-]*)*",
+        "all, none or GPU indexes/UUIDs separated by commas",
+    ),
     "gpu_driver_capabilities": c.optional(c.string(
         r"all|(?:compute|compat32|graphics|utility|video|display)(?:,(?:compute|compat32|graphics|utility|video|display))*",
         "all or a comma-separated list of compute, compat32, graphics, utility, video, display")),
     "gpu_check_command": c.optional(c.list_of(c.string())),
-    "gpu_driver_version_file": _abs_path,
+    "gpu_driver_version_file": _private_path,
 })
 
 # Keys the fleet file may use that are not settings of their own.

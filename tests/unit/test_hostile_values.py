@@ -19,6 +19,7 @@ import yaml
 
 from roles import fleet, fleetyaml, settings
 from roles.docker import plan
+from roles.gpu import plan as gpu_plan
 from roles.payload import compose
 from roles.udev import rules
 
@@ -45,6 +46,8 @@ CARRIED_AS_DATA = {
     ("docker_daemon_options", "features key"): "daemon.json",
     ("docker_daemon_options", "builder value"): "daemon.json",
     ("sensors", "serial"): "udev",
+    # An argv payloadctl hands to `docker exec` (no shell), inside the container.
+    ("gpu_check_command", "list item"): "argv",
 }
 # Text that is harmless where it lands: "/var/lib/" + "/tmp" is /var/lib/tmp,
 # an absolute path never reads as an option, and in a URL's query ".." and
@@ -102,6 +105,9 @@ def reaches_host_unchanged(setting: str, place: str, value, hostile: str) -> boo
         service = yaml.safe_load(text)["services"][compose.SERVICE]
         got = service["environment"]["X"] if setting == "payload_environment" else service["command"][0]
         return got.replace("$$", "$") == hostile  # compose reads $$ as $
+    if carrier == "argv":
+        data = {**DEFAULTS["all"], **DEFAULTS["robots"], "payload_gpu": True, setting: value}
+        return gpu_plan.check_command(data) == [hostile]
     if carrier == "daemon.json":
         return json.loads(plan.daemon_json(value, [], [])) == value
     sensor = value[0]
@@ -129,8 +135,8 @@ def test_every_hostile_value_is_refused_in_one_line_or_reaches_the_host_as_data(
             continue
         if hostile in BENIGN_INSIDE.get(place.removesuffix(", list item"), ()):
             continue
-        if setting == "payload_command" or (setting == "payload_environment" and place == "mapping value"):
-            place = "list item" if setting == "payload_command" else place  # any text: it is the container's
+        if setting in ("payload_command", "gpu_check_command") or (setting == "payload_environment" and place == "mapping value"):
+            place = "list item" if setting != "payload_environment" else place  # any text: it is the container's
         assert (setting, place) in CARRIED_AS_DATA, f"{setting} ({place}) accepts {hostile!r}"
         value = dict(places(setting, hostile))[place]
         assert reaches_host_unchanged(setting, place, value, hostile), (setting, place, hostile)
