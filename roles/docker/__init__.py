@@ -38,7 +38,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
-    query.files |= {KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON}
+    query.files |= {KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING}
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
@@ -148,6 +148,7 @@ def install_docker(snap: Snapshot):
         current=snap.files.get(DAEMON_JSON),
         action=action,
         timeout=data.docker_restart_timeout,
+        pending=snap.files.get(daemon.PENDING) is not None,
     )
 
 

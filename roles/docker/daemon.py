@@ -22,13 +22,18 @@ from roles.hoststate import FileState
 
 DAEMON_JSON = "/etc/docker/daemon.json"
 PREVIOUS = DAEMON_JSON + ".previous"
+# Exists from just before a new daemon.json is renamed in place until Docker
+# runs with it: a dropped link or a power cut in between leaves it behind, and
+# the next run restarts Docker (with the same way back) although the file
+# already matches.
+PENDING = DAEMON_JSON + ".pending"
 NO_VALIDATE_WARNING = (
     "warning: docker: this dockerd has no --validate (Docker < 23); the new daemon.json is checked "
     "by restarting Docker with it, and the previous file comes back if Docker does not start"
 )
 
 
-def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS) -> str:
+def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS, pending: str = PENDING) -> str:
     """Install the daemon.json read (base64) from stdin: temp file, validated,
     fsynced, the old file kept as ``previous`` (or ``previous`` removed when
     there was none), then renamed in place."""
@@ -36,6 +41,7 @@ def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS) -> str:
     return (
         f"dest={q(dest)}\n"
         f"prev={q(previous)}\n"
+        f"pending={q(pending)}\n"
         'dir=$(dirname "$dest")\n'
         'mkdir -p "$dir" || exit 1\n'
         'tmp=$(mktemp "$dir/.robotprov.XXXXXX") || exit 1\n'
@@ -47,17 +53,21 @@ def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS) -> str:
         "else\n"
         f"  echo {q(NO_VALIDATE_WARNING)} >&2\n"
         "fi\n"
-        'if [ -f "$dest" ]; then\n'
+        # A file still pending was never seen working: keep the one before it.
+        'if [ -f "$pending" ]; then\n'
+        "  :\n"
+        'elif [ -f "$dest" ]; then\n'
         '  cp -p "$dest" "$prev.tmp" && sync "$prev.tmp" && mv -f "$prev.tmp" "$prev" || exit 1\n'
         "else\n"
         '  rm -f "$prev"\n'
         "fi\n"
-        'sync "$tmp" && mv -f "$tmp" "$dest" && sync "$dir" || exit 1\n'
+        ': > "$pending" && sync "$tmp" && mv -f "$tmp" "$dest" && sync "$dir" || exit 1\n'
         "trap - EXIT\n"
     )
 
 
-def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous: str = PREVIOUS) -> str:
+def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous: str = PREVIOUS,
+                   pending: str = PENDING) -> str:
     """``systemctl <action> docker``; if Docker is not active within
     ``timeout`` seconds, put the previous daemon.json back (or remove the new
     one when there was none), restart, and fail with dockerd's reason."""
@@ -65,40 +75,45 @@ def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous:
     return (
         f"dest={q(dest)}\n"
         f"prev={q(previous)}\n"
+        f"pending={q(pending)}\n"
         f"timeout={int(timeout)}\n"
         "docker_up() {\n"
         "  systemctl reset-failed docker.service 2>/dev/null\n"
         f'  timeout "$timeout" systemctl {action} docker.service >/dev/null 2>&1 && systemctl is-active --quiet docker.service\n'
         "}\n"
         "dockerd_said() {\n"
-        '  journalctl -u docker.service _COMM=dockerd --since "@$1" -o cat --no-pager 2>/dev/null'
+        '  journalctl -u docker.service SYSLOG_IDENTIFIER=dockerd --since "@$1" -o cat --no-pager 2>/dev/null'
         " | grep -iE 'daemon.json|failed to start|unable to|invalid|level=(error|fatal)' | tail -n 1 | cut -c1-300\n"
         "}\n"
         "since=$(date +%s)\n"
-        "docker_up && exit 0\n"
+        'docker_up && { rm -f "$pending"; exit 0; }\n'
         'reason=$(dockerd_said "$since")\n'
-        'reason=${reason:-"not active within $timeout s (docker_restart_timeout)"}\n'
+        'reason=${reason:-"not active after $timeout s at most (docker_restart_timeout)"}\n'
         'if [ -f "$prev" ]; then mv -f "$prev" "$dest"; else rm -f "$dest"; fi\n'
-        'sync "$(dirname "$dest")"\n'
+        'rm -f "$pending"; sync "$(dirname "$dest")"\n'
         "since=$(date +%s)\n"
         "if docker_up; then\n"
         '  echo "docker: Docker did not start with the new daemon.json ($reason); the previous daemon.json is restored and Docker runs again" >&2\n'
         "else\n"
         '  again=$(dockerd_said "$since")\n'
-        '  echo "docker: Docker did not start with the new daemon.json ($reason); the previous daemon.json is restored but Docker does not start with it either (${again:-not active within $timeout s})" >&2\n'
+        '  echo "docker: Docker did not start with the new daemon.json ($reason); the previous daemon.json is restored but Docker does not start with it either (${again:-not active after $timeout s at most})" >&2\n'
         "fi\n"
         "exit 1\n"
     )
 
 
 @operations.operation()
-def daemon_json(content: str, current: FileState | None, action: str, timeout: int):
+def daemon_json(content: str, current: FileState | None, action: str, timeout: int, pending: bool):
     """Make daemon.json hold ``content`` and apply it (``action``: restart or
     reload) with a way back; the file's owner and mode alone are fixed
-    without touching Docker."""
+    without touching Docker.  ``pending``: an earlier run wrote the file but
+    may not have restarted Docker."""
     data = content.encode()
     if current is not None and current.kind != "file":
         yield operations.fail_command(f"{DAEMON_JSON} exists but is not a regular file; not replacing it")
+        return
+    if pending and current is not None and current.sha256 == operations.sha256(data):
+        yield operations.shell_with_warnings(restart_script(action, timeout))
         return
     if current is not None and current.sha256 == operations.sha256(data):
         if operations.file_matches(current, data, "0644", "root", "root"):

@@ -273,6 +273,15 @@ def test_changed_daemon_json_is_validated_kept_and_restored_if_docker_does_not_s
     assert "the previous daemon.json is restored" in script
 
 
+def test_daemon_json_written_but_not_applied_restarts_docker_on_the_next_run():
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files["/etc/docker/daemon.json.pending"] = FileState("file", "e3" * 32, "644", "root", "root")
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert len(commands) == 1
+    assert "systemctl restart docker.service" in commands[0] and 'rm -f "$pending"' in commands[0]
+    assert "base64 -d" not in commands[0]
+
+
 def test_interrupted_dpkg_is_finished_before_any_install():
     snap = fresh_host("ubuntu-24.04")
     snap.probes["dpkg_audit"] = "dpkg journal not empty\n"
