@@ -192,7 +192,9 @@ def cut_when(lab, operator: subprocess.Popen, host: str, probe: str, what: str, 
             wait_for(lambda: lab.sh(host, "systemctl is-active ssh.service")[0] == 0, 120, f"{host} to boot")
 
 
-DPKG_UNPACKS_DOCKER = "pgrep -f '^/usr/bin/dpkg .*--unpack.*(docker-ce|containerd)' >/dev/null"
+# dpkg marks a package half-installed (H), unpacked (U), half-configured (F)
+# while it works on it; apt hands it the .debs in a directory, not by name.
+DPKG_UNPACKS_DOCKER = "dpkg-query -W -f='${db:Status-Abbrev}\\n' containerd.io docker-ce 2>/dev/null | grep -q '^.[HUF]'"
 DAEMON_JSON_OR_RELEASE = (
     "test -e /etc/docker/daemon.json.pending || "
     "systemctl list-units --no-legend 'robot-payload-update-*' | grep -q update"
