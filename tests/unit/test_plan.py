@@ -271,6 +271,8 @@ def test_changed_daemon_json_is_validated_kept_and_restored_if_docker_does_not_s
     assert "prev=/etc/docker/daemon.json.previous" in script and "timeout=20" in script
     assert 'if [ -f "$prev" ]; then mv -f "$prev" "$dest"; else rm -f "$dest"; fi' in script
     assert "the previous daemon.json is restored" in script
+    # Where dockerd has no --validate the operator is told so.
+    assert "warning: docker: this dockerd has no --validate (Docker < 23)" in script
 
 
 def test_daemon_json_written_but_not_applied_restarts_docker_on_the_next_run():
