@@ -23,6 +23,12 @@ ssh_connect_retries = 3
 ssh_connect_retry_min_delay = 1
 ssh_connect_retry_max_delay = 5
 
+# --- apt (every role that installs packages) ----------------------------------
+# Seconds apt and dpkg wait in all for the apt/dpkg locks another process
+# holds (unattended-upgrades runs at boot and can take minutes); then the host
+# fails naming the lock's holder, with nothing installed.
+apt_lock_timeout = 300
+
 # --- Docker engine (roles/docker) ---------------------------------------------
 # "docker": Docker CE from Docker's apt repository; "distro": the
 # distribution's own docker.io + compose v2 packages.
@@ -91,6 +97,10 @@ docker_registry_mirrors = []
 docker_insecure_registries = []
 # What a daemon.json change does to the engine: "restarted" or "reloaded".
 docker_restart_handler_state = "restarted"
+# Seconds Docker has to be active again after a daemon.json change; if it is
+# not, the previous daemon.json is put back, Docker restarted with it, and the
+# host fails with dockerd's reason.
+docker_restart_timeout = 60
 docker_service_enabled = True
 # Existing users added to the docker group (root-equivalent!).  A user that
 # does not exist fails that host; users are never created.

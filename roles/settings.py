@@ -279,6 +279,8 @@ SCHEMA: dict[str, c.Checker] = {
     "ssh_connect_retries": c.integer(0, 100),
     "ssh_connect_retry_min_delay": c.integer(0, 600),
     "ssh_connect_retry_max_delay": c.integer(0, 600),
+    # apt
+    "apt_lock_timeout": c.integer(0, 86400),
     # Docker engine
     "docker_source": c.string(choices=("docker", "distro")),
     "docker_repo_url": _url,
@@ -297,6 +299,7 @@ SCHEMA: dict[str, c.Checker] = {
     "docker_registry_mirrors": c.list_of(_url),
     "docker_insecure_registries": c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
     "docker_restart_handler_state": c.string(choices=("restarted", "reloaded")),
+    "docker_restart_timeout": c.integer(5, 3600),
     "docker_service_enabled": c.boolean,
     "docker_users": c.list_of(c.string(c.USER_NAME, "a user name"), unique=True),
     # udev

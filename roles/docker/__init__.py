@@ -10,17 +10,13 @@ from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
 from roles import operations
-from roles.docker import plan
+from roles.docker import daemon, plan
 from roles.gpu import plan as gpu_plan
 from roles.hoststate import Snapshot, SnapshotQuery
 
 KEYRING_DIR = "/etc/apt/keyrings"
-DAEMON_JSON = "/etc/docker/daemon.json"
+DAEMON_JSON = daemon.DAEMON_JSON
 PREREQUISITES = ["ca-certificates", "curl"]
-VALIDATE_DAEMON_JSON = (
-    "if dockerd --help 2>&1 | grep -q -- '--validate'; then "
-    "dockerd --validate --config-file {} >/dev/null; fi"
-)
 
 
 def sources_path(data) -> str:
@@ -47,11 +43,12 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
-    query.files |= {KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON}
+    query.files |= {KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING}
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
     query.probes["docker_key_fingerprints"] = key_fingerprints_probe(data.docker_apt_key_path)
+    query.probes["dpkg_audit"] = operations.DPKG_AUDIT_PROBE
 
 
 def key_download_script(url: str, dest: str, fingerprint: str | None, sha256: str | None) -> str:
@@ -135,6 +132,9 @@ def install_docker(snap: Snapshot):
         operations.fail(name="Check the host can run Docker", message=f"docker: {error}")
         return
 
+    # A power cut or a dropped link during an earlier install left dpkg
+    # half-way: finish it first, or every apt-get below refuses to run.
+    operations.dpkg_repair(name="Finish an interrupted dpkg run", audit=snap.probes.get("dpkg_audit", ""))
     if data.docker_source == "docker":
         _docker_repository(snap, data, dist, codename, arch)
         operations.apt_install(
@@ -158,17 +158,6 @@ def install_docker(snap: Snapshot):
         )
 
     operations.directory(name="Docker configuration directory /etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
-    daemon = operations.file(
-        name="Write /etc/docker/daemon.json",
-        path=DAEMON_JSON,
-        content=plan.daemon_json(
-            gpu_plan.daemon_options(data, data.docker_daemon_options),
-            data.docker_registry_mirrors,
-            data.docker_insecure_registries,
-        ),
-        current=snap.files.get(DAEMON_JSON),
-        validate=VALIDATE_DAEMON_JSON,
-    )
     operations.service(
         name="Docker enabled and running",
         unit="docker.service",
@@ -177,10 +166,17 @@ def install_docker(snap: Snapshot):
         enabled=data.docker_service_enabled,
     )
     action = "reload" if data.docker_restart_handler_state == "reloaded" else "restart"
-    operations.run(
-        name=f"{action.capitalize()} Docker for the new daemon.json",
-        script=f"systemctl {action} docker.service",
-        _if=daemon.did_change,
+    daemon.daemon_json(
+        name=f"Write /etc/docker/daemon.json and {action} Docker (the previous file comes back if Docker does not start)",
+        content=plan.daemon_json(
+            gpu_plan.daemon_options(data, data.docker_daemon_options),
+            data.docker_registry_mirrors,
+            data.docker_insecure_registries,
+        ),
+        current=snap.files.get(DAEMON_JSON),
+        action=action,
+        timeout=data.docker_restart_timeout,
+        pending=snap.files.get(daemon.PENDING) is not None,
     )
 
 
@@ -222,8 +218,7 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
         ),
         current=snap.files.get(sources_path(data)),
     )
-    operations.run(
+    operations.apt_update(
         name="apt update for the Docker repository",
-        script=operations.APT_UPDATE,
         _if=any_changed(key, source, legacy_removed),
     )

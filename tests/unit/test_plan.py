@@ -62,7 +62,7 @@ def test_fresh_host_gets_docker_ce_from_dockers_repository(os_name, arch):
     install = find(commands, "install docker-ce docker-ce-cli containerd.io docker-buildx-plugin docker-compose-plugin")
     assert len(install) == 1
     # apt update runs for the new source, before the install.
-    assert commands.index(find(commands, r"^sh -c 'apt-get -q .* update'$")[0]) < commands.index(install[0])
+    assert commands.index(find(commands, r"\napt_locked apt-get -q .* update\n'$")[0]) < commands.index(install[0])
     assert find(commands, "usermod -aG docker ops")
     assert find(commands, "/etc/docker/daemon.json")
     assert find(commands, "systemctl daemon-reload")
@@ -100,7 +100,7 @@ def test_conflicting_packages_removed_only_where_installed_and_docker_ce_is_not(
     snap.packages.update({"docker.io": "24.0", "runc": "1.1", "containerd": "1.7"})
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     remove = find(commands, " remove ")
-    assert len(remove) == 1 and remove[0].endswith("remove docker.io containerd runc'")
+    assert len(remove) == 1 and remove[0].endswith("remove docker.io containerd runc\n'")
     snap.packages["docker-ce"] = "5:28"
     assert not find(plan({"r1": ("robots", ROBOT, snap)})["r1"], " remove ")
 
@@ -110,7 +110,7 @@ def test_legacy_docker_files_are_removed_before_apt_update():
     snap.files["/etc/apt/sources.list.d/docker.list"] = FileState("file", "ab", "644", "root", "root")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     removal = find(commands, "rm -f /etc/apt/sources.list.d/docker.list")
-    assert removal and commands.index(removal[0]) < commands.index(find(commands, r"update'$")[0])
+    assert removal and commands.index(removal[0]) < commands.index(find(commands, r"update\n'$")[0])
 
 
 def test_version_pin_and_mirror_urls():
@@ -255,15 +255,51 @@ def test_drifted_file_mode_is_fixed_without_rewriting():
     state = snap.files["/etc/docker/daemon.json"]
     snap.files["/etc/docker/daemon.json"] = FileState("file", state.sha256, "666", "root", "root")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
-    assert commands[0] == "sh -c 'chown root:root /etc/docker/daemon.json && chmod 644 /etc/docker/daemon.json'"
+    # Owner and mode only: Docker is not restarted.
+    assert commands == ["sh -c 'chown root:root /etc/docker/daemon.json && chmod 644 /etc/docker/daemon.json'"]
 
 
-def test_changed_daemon_json_restarts_docker_after_validation():
+def test_changed_daemon_json_is_validated_kept_and_restored_if_docker_does_not_start():
     snap = converged("robots", ROBOT, "debian-13")
-    data = {**ROBOT, "docker_registry_mirrors": ["https://mirror.lan"]}
+    data = {**ROBOT, "docker_registry_mirrors": ["https://mirror.lan"], "docker_restart_timeout": 20}
     commands = plan({"r1": ("robots", data, snap)})["r1"]
-    assert "dockerd --validate --config-file" in commands[0]
-    assert commands[1:] == ["sh -c 'systemctl restart docker.service'"]
+    assert len(commands) == 1
+    script = commands[0]
+    # Validated first, the old file kept, then the restart with a bound.
+    assert script.index("dockerd --validate --config-file") < script.index('cp -Pp "$dest" "$prev.tmp"')
+    assert script.index('mv -fT "$tmp" "$dest"') < script.index("systemctl restart docker.service")
+    assert "prev=/etc/docker/daemon.json.previous" in script and "timeout=20" in script
+    assert 'if [ -f "$prev" ]; then mv -fT "$prev" "$dest"; else rm -f "$dest"; fi' in script
+    assert "the previous daemon.json is restored" in script
+    # Where dockerd has no --validate the operator is told so.
+    assert "warning: docker: this dockerd has no --validate (Docker < 23)" in script
+
+
+def test_daemon_json_written_but_not_applied_restarts_docker_on_the_next_run():
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files["/etc/docker/daemon.json.pending"] = FileState("file", "e3" * 32, "644", "root", "root")
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert len(commands) == 1
+    assert "systemctl restart docker.service" in commands[0] and 'rm -f "$pending"' in commands[0]
+    assert "base64 -d" not in commands[0]
+
+
+def test_interrupted_dpkg_is_finished_before_any_install():
+    snap = fresh_host("ubuntu-24.04")
+    snap.probes["dpkg_audit"] = "dpkg journal not empty\n"
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    repair = find(commands, "dpkg --force-confdef --force-confold --configure -a")
+    installs = find(commands, " install ")
+    assert len(repair) == 1 and commands.index(repair[0]) < commands.index(installs[0])
+    snap.probes["dpkg_audit"] = ""
+    assert not find(plan({"r1": ("robots", ROBOT, snap)})["r1"], "--configure -a")
+
+
+def test_apt_waits_for_its_locks_with_the_configured_bound():
+    commands = plan({"r1": ("robots", {**ROBOT, "apt_lock_timeout": 7}, fresh_host("debian-13"))})["r1"]
+    apt = find(commands, "apt-get")
+    assert apt and all("apt_lock_timeout=7\n" in c and "apt_locked " in c for c in apt)
+    assert not find(commands, "Lock::Timeout=600")
 
 
 def test_changed_unit_reloads_systemd_and_restarts_the_payload():

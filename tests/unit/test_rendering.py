@@ -119,6 +119,10 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     (test_generated_files.py); here only what a golden copy cannot say."""
     data = merged("robots", {"payload_image": "r.lan/p:1.0"})
     text = payload.unit_text(data, ["/dev/robot/lidar"])
+    lines = text.splitlines()
+    # A Docker restart must not stop the payload: ordering and a weak dependency only.
+    assert not [line for line in lines if line.startswith(("Requires=", "BindsTo=", "PartOf="))]
+    assert "Wants=docker.service network-online.target" in lines
     assert " -v" not in text
     assert "ExecStartPre" not in payload.unit_text(data, [])
 
