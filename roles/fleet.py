@@ -171,6 +171,7 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
             layer_problems = settings.check_layer(host_vars)
             report(name, layer_problems)
             data = {**all_vars, **group_vars, **host_vars}
+            settings._services().merge_into(data, [all_vars, group_vars, host_vars])  # per service
             if "address" in data:
                 data["ssh_hostname"] = data.pop("address")
             merged = {**defaults.get("all", {}), **defaults.get(group, {}), **data}

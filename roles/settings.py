@@ -29,6 +29,7 @@ SENSOR_KEYS = (
     "mode",
     "symlink",
     "passthrough",
+    "services",  # roles/payload/services.py: the compose services that get the device
 )
 USB_PORT = r"[0-9]+-[0-9]+(?:\.[0-9]+)*(?::[0-9]+\.[0-9]+)?"
 # udev match values are quoted strings: keep them to characters that need no
@@ -108,6 +109,7 @@ def _sensor(value):
         "mode": c.string(MODE, "an octal mode like \"0660\""),
         "symlink": c.string(SYMLINK, "a path relative to /dev like robot/front_camera"),
         "passthrough": c.boolean,
+        "services": c.list_of(c.string(r"[a-zA-Z0-9][a-zA-Z0-9._-]*", "a service name"), unique=True),
     }
     for key, check in field_checks.items():
         if key in value:
@@ -118,6 +120,12 @@ def _sensor(value):
     if not any(k in value for k in ("serial", "vendor_id", "usb_port")):
         problems.append(("", "needs a match: serial, vendor_id/product_id or usb_port"))
     return problems
+
+
+def _services():
+    from roles.payload import services  # late: roles.payload imports this module
+
+    return services
 
 
 SCHEMA: dict[str, c.Checker] = {
@@ -185,6 +193,14 @@ SCHEMA: dict[str, c.Checker] = {
     "payload_force": c.boolean,
     "payload_registry_username_env": c.string(c.ENV_NAME, "an environment variable name"),
     "payload_registry_password_env": c.string(c.ENV_NAME, "an environment variable name"),
+    # --- the payload as a compose project (roles/payload/services.py) ---
+    "payload_services": lambda value: _services().layer_problems(value),
+    "payload_replaces": c.list_of(c.string(r"[a-zA-Z0-9][a-zA-Z0-9_.-]*", "a container or compose project name"), unique=True),
+    "payload_allow_privileged": c.boolean,
+    "ros_preset": c.optional(c.string(choices=("ros1", "ros2"))),
+    "ros_roscore": c.boolean,
+    "ros_roscore_image": c.optional(_image),
+    "ros_dds_profile": c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
 }
 
 # Keys the fleet file may use that are not settings of their own.
@@ -213,12 +229,11 @@ def check_host(data: dict) -> list[c.Problem]:
     """Rules that need a host's merged data (defaults + every layer)."""
     problems = []
     image = data.get("payload_image")
-    if image is None:
-        problems.append(("payload_image", "required: the payload image, pinned by tag or digest"))
-    else:
+    if image is not None and not data.get("payload_services"):
         why = imageref.pinning_problem(image, data.get("payload_allow_latest", False))
         if why:
             problems.append(("payload_image", why))
+    problems += _services().host_problems(data)  # the compose project (roles/payload/services.py)
     if data.get("display") and not data.get("x11_user"):
         problems.append(("x11_user", "required when display is true: the desktop user"))
     if data.get("ros_master_uri") and data.get("ros_domain_id"):
