@@ -249,3 +249,63 @@ def test_the_schema_comes_from_the_maintained_package_with_its_licence():
     assert "compose" in json.dumps(services.compose_schema()["$id"]).lower()
     assert "Apache License" in (vendor / "licenses" / "LICENSE.compose-spec").read_text()
     assert {"ipc", "cap_add", "ulimits", "shm_size", "tty", "stdin_open"} <= set(services.service_keys())
+
+
+# --- the deploy's side: what it reads and what it sends -------------------------
+
+from roles.payload import project  # noqa: E402
+from tests.unit.fakefleet import plan  # noqa: E402
+from tests.unit.test_plan import ROBOT, converged  # noqa: E402
+
+
+def probe_line(cid, name, image, project_label, running, policy):
+    return json.dumps("\t".join([cid, name, image, project_label, running, policy]))
+
+
+FOREIGN = "\n".join([
+    probe_line("a" * 64, "/robot-payload-payload-1", f"{REG}/ros/payload@sha256:" + "1" * 64, "robot-payload", "true", "unless-stopped"),
+    probe_line("b" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "<no value>", "true", "always"),
+    probe_line("c" * 64, "/old_bridge", f"{REG}/other/bridge:1", "rosapp", "false", "always"),
+    probe_line("d" * 64, "/unrelated", f"{REG}/other/db:1", "<no value>", "true", "always"),
+    probe_line("e" * 64, "/dead", f"{REG}/ros/payload:0.9", "<no value>", "false", "no"),
+])
+
+
+def test_foreign_containers_are_found_by_repository_name_or_project():
+    found = project.foreign(FOREIGN, "robot-payload", [f"{REG}/ros/payload"], ["rosapp"])
+    assert [(c["name"], c["restart"], c["running"], c["project"]) for c in found] == [
+        ("ros_payload", "always", True, None), ("old_bridge", "always", False, "rosapp")]
+    assert project.takeover_line(found[:1]) == (
+        "payload: taking over what runs the payload another way (stopped, restart policy no): "
+        f"ros_payload ({REG}/ros/payload:1.0, running, restart always)")
+
+
+def test_a_converged_robot_with_a_foreign_payload_container_releases_and_says_so(caplog):
+    snap = converged("robots", ROBOT, "debian-13")
+    assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []
+    snap.probes[project.FOREIGN_PROBE] = FOREIGN
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" in commands[0]
+    assert "[@fake/r1] payload: taking over what runs the payload another way" in caplog.text
+
+
+def test_a_converged_two_service_robot_plans_nothing_and_a_new_tag_only_releases():
+    data = {**ROBOT, "payload_image": None, "payload_services": TWO}
+    snap = converged("robots", data, "debian-13")
+    assert plan({"r1": ("robots", data, snap)})["r1"] == []
+    newer = {**data, "payload_services": services.merge(TWO, {"slam": {"image": f"{REG}/ros/slam:1.1"}})}
+    commands = plan({"r1": ("robots", newer, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" not in commands[0]
+
+
+def test_the_readme_example_project_is_valid_and_uses_the_shipped_profile():
+    from tests.unit.test_validation import ROOT
+
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("### The payload as a compose project", 1)[1]
+    example = yaml.safe_load(section.split("```yaml\n", 1)[1].split("```", 1)[0])
+    example["robots"]["hosts"]["robot2"]["address"] = "10.0.0.2"
+    hosts = dict(fleet.check(example, "README.md", fleet.read_group_data()).hosts("robots"))
+    robot2 = hosts["robot2"]["payload_services"]
+    assert robot2["slam"]["image"].endswith(":1.5.0-rc1") and robot2["slam"]["shm_size"] == "1g"
+    assert services.dds_vendor((services.FILES_DIR / "dds" / "cyclonedds-localhost.xml").read_text()) == "cyclonedds"
