@@ -309,3 +309,17 @@ def test_the_readme_example_project_is_valid_and_uses_the_shipped_profile():
     robot2 = hosts["robot2"]["payload_services"]
     assert robot2["slam"]["image"].endswith(":1.5.0-rc1") and robot2["slam"]["shm_size"] == "1g"
     assert services.dds_vendor((services.FILES_DIR / "dds" / "cyclonedds-localhost.xml").read_text()) == "cyclonedds"
+
+
+def test_status_shows_each_service_image_state_and_health():
+    from roles import status
+
+    digest = "reg/ros/driver@sha256:" + "d" * 64
+    report = {"current": {"id": "r2", "images": {}}, "containers": [], "services": {
+        "payload": {"image": "reg/ros/payload@sha256:" + "e" * 64, "state": "running", "health": "healthy"},
+        "driver": {"image": digest, "state": "restarting", "health": None}}}
+    row = status.row("robot1", report)
+    assert row["state"] == "driver:restarting, payload:running"
+    assert row["health"] == "driver:none, payload:healthy"
+    line = status.table([row]).splitlines()[1]
+    assert f"driver=reg/ros/driver@sha256:{'d' * 12}, payload=reg/ros/payload@sha256:{'e' * 12}" in line
