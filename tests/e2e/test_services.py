@@ -22,7 +22,7 @@ def two_services(payload: str = "1.1", driver: str = "1.0", driver_extra: str = 
     return (
         "    payload_image: null\n"
         "    payload_services:\n"
-        f'      payload: {{image: "@registry@/ros/payload:{payload}", ipc: host, cap_add: [SYS_NICE], stop_grace_period: 3s}}\n'
+        f'      payload: {{image: "@registry@/ros/payload:{payload}", ipc: host, cap_add: [NET_ADMIN], stop_grace_period: 3s}}\n'
         f'      driver: {{image: "@registry@/ros/driver:{driver}", devices: [], tty: true, stop_grace_period: 3s{driver_extra}}}\n'
     )
 
@@ -56,6 +56,12 @@ def wait_for(predicate, seconds: float, what: str):
     raise AssertionError(f"timed out after {seconds} s waiting for {what}")
 
 
+def failed_alone(run, host: str) -> bool:
+    """The one host of a --limit run failed (pyinfra then prints no JSON results)."""
+    return run.returncode != 0 and (run.failed_hosts == {host} or (
+        run.results is None and "No hosts remaining" in run.output and f"[{host}]  Error" in run.output))
+
+
 def limits(*hosts: str) -> list[str]:
     return [arg for host in hosts for arg in ("--limit", host)]
 
@@ -77,8 +83,7 @@ def test_two_service_payload_deploys(lab, fleet):
         assert "Health" not in running["driver"]["State"]  # no HEALTHCHECK: gated on running without restarts
         assert version(running["payload"]) == "1.1" and version(running["driver"]) == "driver-1.0"
         assert running["payload"]["HostConfig"]["IpcMode"] == "host"
-        assert running["payload"]["HostConfig"]["CapAdd"] == ["CAP_SYS_NICE"] or \
-            running["payload"]["HostConfig"]["CapAdd"] == ["SYS_NICE"]
+        assert running["payload"]["HostConfig"]["CapAdd"] in (["CAP_NET_ADMIN"], ["NET_ADMIN"])
         record = lab.record(host)
         assert record["state"] == "active"
         for ref, image in record["images"].items():
@@ -116,7 +121,7 @@ def test_a_failing_service_rolls_the_whole_project_back(lab, fleet):
     before = lab.record("robot1")["id"]
     run = lab.provision(*limits("robot1"), fleet=fleet(two_services(payload="1.2-broken", driver="1.0")),
                         label="(robot1 payload broken, driver 1.0)")
-    assert run.returncode != 0 and run.failed_hosts == {"robot1"}
+    assert failed_alone(run, "robot1"), run.output[-3000:]
     line = next(x for x in run.output.splitlines() if "[robot1]" in x and "payload: release" in x)
     assert "unhealthy" in line and f"rolled back to {before} and it is running" in line
     assert lab.record("robot1")["id"] == before
@@ -133,7 +138,7 @@ def test_compose_config_refusal_on_the_robot_fails_before_anything_switches(lab,
     missing = ", env_file: [/etc/robot-payload-missing.env]"
     run = lab.provision(*limits("robot1"), fleet=fleet(two_services(driver="1.0", driver_extra=missing)),
                         label="(robot1 env_file missing)")
-    assert run.returncode != 0 and run.failed_hosts == {"robot1"}
+    assert failed_alone(run, "robot1"), run.output[-3000:]
     assert "docker compose config refused the release (nothing switched)" in run.output
     assert "robot-payload-missing.env" in run.output
     assert lab.record("robot1")["id"] == before_record
@@ -155,6 +160,7 @@ def set_up_another_way(lab, host: str, how: str) -> None:
     """Our payload gone (as on a robot we never provisioned), theirs running."""
     lab.ok(host, "systemctl disable --now robot-payload.service && rm -f /etc/systemd/system/robot-payload.service"
                  " && systemctl daemon-reload && rm -rf /var/lib/robot-payload")
+    lab.ok(host, "docker rm -f ros_payload >/dev/null 2>&1; true")  # a rerun on a kept lab
     registry = lab.state["registry"]
     if how == "docker run":
         lab.ok(host, f"docker run -d --restart always --name ros_payload {registry}/ros/payload:1.0")
@@ -177,7 +183,7 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     # A first release that fails gives the robot back as it was.
     failed = lab.provision(*limits("robot3"), fleet=fleet('    payload_image: "@registry@/ros/payload:1.2-broken"\n'),
                            label="(robot3 first release broken)")
-    assert failed.returncode != 0 and failed.failed_hosts == {"robot3"}
+    assert failed_alone(failed, "robot3"), failed.output[-3000:]
     assert "taking over what runs the payload another way" in failed.output and "ros_payload" in failed.output
     assert "restored what it had taken over: ros_payload" in failed.output
     assert foreign_state(lab, "robot3") == ("running", "always")
