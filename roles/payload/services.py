@@ -23,7 +23,7 @@ import json
 import re
 import xml.etree.ElementTree as ElementTree
 from functools import lru_cache
-from importlib import resources
+import importlib.util
 from pathlib import Path
 
 from roles import imageref
@@ -256,8 +256,15 @@ def repositories(data) -> list[str]:
 @lru_cache(maxsize=1)
 def compose_schema() -> dict:
     """The Compose Specification's JSON Schema as check-jsonschema vendors it."""
-    vendor = resources.files("check_jsonschema.builtin_schemas.vendor")
-    return json.loads((vendor / "compose-spec.json").read_text())
+    return json.loads(compose_schema_path().read_text())
+
+
+def compose_schema_path() -> Path:
+    """Found without importing check_jsonschema (its CLI imports take a second)."""
+    spec = importlib.util.find_spec("check_jsonschema")
+    if spec is None or not spec.submodule_search_locations:
+        raise RuntimeError("check-jsonschema is not installed (pip install -e .): it carries the Compose schema")
+    return Path(list(spec.submodule_search_locations)[0]) / "builtin_schemas" / "vendor" / "compose-spec.json"
 
 
 @lru_cache(maxsize=1)
@@ -289,6 +296,13 @@ def _field(path) -> str:
 def schema_problems(doc: dict) -> list[tuple[str, str]]:
     """The document against the Compose Specification, as
     (payload_services.<service>.<key...>, message)."""
+    # Hosts of a group mostly share one project: validate each distinct one once.
+    return list(_schema_problems(json.dumps(doc, sort_keys=True)))
+
+
+@lru_cache(maxsize=256)
+def _schema_problems(canonical: str) -> tuple:
+    doc = json.loads(canonical)
     problems = []
     for error in sorted(_validator().iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path]):
         path = list(error.absolute_path)
@@ -311,7 +325,7 @@ def schema_problems(doc: dict) -> list[tuple[str, str]]:
         if error.validator in ("oneOf", "anyOf") and error.context:
             message = f"{error.instance!r} is not valid here ({error.context[0].message})"
         problems.append((where, f"Compose Specification: {message}"))
-    return problems
+    return tuple(problems)
 
 
 def _under(path: str, directory: str) -> bool:

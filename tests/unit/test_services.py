@@ -246,6 +246,7 @@ def test_the_schema_comes_from_the_maintained_package_with_its_licence():
     from importlib import resources
 
     vendor = resources.files("check_jsonschema.builtin_schemas.vendor")
+    assert services.compose_schema_path().read_bytes() == (vendor / "compose-spec.json").read_bytes()
     assert "compose" in json.dumps(services.compose_schema()["$id"]).lower()
     assert "Apache License" in (vendor / "licenses" / "LICENSE.compose-spec").read_text()
     assert {"ipc", "cap_add", "ulimits", "shm_size", "tty", "stdin_open"} <= set(services.service_keys())
