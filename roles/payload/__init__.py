@@ -89,7 +89,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     project.declare_reads(data, query)  # issue 13
     if data.payload_delivery == "push":
         query.probes["payload_image_id"] = (
-            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(data.payload_image)}"
+            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(project.primary_image(data))}"
         )
         query.probes["docker_layers"] = push.LAYERS_PROBE
 
@@ -196,11 +196,12 @@ def deploy_payload(snap: Snapshot):
     if data.payload_delivery == "push":
         push.push_image(
             name="Send the payload image over SSH",
-            image=data.payload_image,
+            image=project.primary_image(data),
             remote_id=snap.probes.get("payload_image_id", "").strip(),
             remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
             log_dir=data.payload_dir,
         )
+        project.push_more_images(data, snap)  # issue 13: the other services' images
 
     project.install_files(data, snap)  # issue 13: the DDS profile
     taken_over = project.takeover(data, snap)  # issue 13: said in the output, done by payloadctl

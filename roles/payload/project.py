@@ -14,7 +14,7 @@ from pyinfra import host, logger
 
 from roles import imageref, operations
 from roles.hoststate import Snapshot, SnapshotQuery
-from roles.payload import services
+from roles.payload import push, services
 
 FOREIGN_PROBE = "payload_foreign"
 # One line per container: id, name, image, compose project, running, restart policy.
@@ -38,6 +38,34 @@ def declare_reads(data, query: SnapshotQuery) -> None:
         query.files |= {services.dds_profile_host_path(data), f"/etc/{data.payload_name}"}
     if data.payload_autostart:
         query.probes[FOREIGN_PROBE] = _INSPECT
+    if data.payload_delivery == "push":
+        for index, ref in enumerate(more_images(data)):
+            query.probes[f"payload_image_id_{index + 1}"] = image_id_probe(ref)
+
+
+def more_images(data) -> list[str]:
+    """Images beyond the first (whose push the single-image code does)."""
+    return services.images(data)[1:]
+
+
+def image_id_probe(ref: str) -> str:
+    return f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(ref)}"
+
+
+def push_more_images(data, snap: Snapshot) -> None:
+    """payload_delivery push for a project of several images: each one the
+    robot lacks is sent (layers the robot has are left out, as for the first)."""
+    if data.payload_delivery != "push":
+        return
+    layers = push.parse_layer_sets(snap.probes.get("docker_layers", ""))
+    for index, ref in enumerate(more_images(data)):
+        push.push_image(
+            name=f"Send the payload image {ref} over SSH",
+            image=ref,
+            remote_id=snap.probes.get(f"payload_image_id_{index + 1}", "").strip(),
+            remote_layers=layers,
+            log_dir=data.payload_dir,
+        )
 
 
 def foreign(probe_output: str, project: str, repositories: list[str], replaces: list[str]) -> list[dict]:

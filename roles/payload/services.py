@@ -408,8 +408,6 @@ def project_problems(data, doc: dict | None = None) -> list[tuple[str, str]]:
             if isinstance(path, str) and (not path.startswith("/") or _under(path, payload_dir)):
                 problems.append((f"{where}.env_file", f"{path} would be read from the release directory; "
                                  "use an absolute path outside it"))
-    if _get(data, "payload_delivery") == "push" and len(images(data)) > 1:
-        problems.append(("payload_delivery", "push sends one image; with several images use pull"))
     problems += _sensor_problems(data, services, bool(raw))
     problems += _preset_problems(data, allow_latest)
     if not problems and doc is not None:

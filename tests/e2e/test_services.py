@@ -146,6 +146,31 @@ def test_compose_config_refusal_on_the_robot_fails_before_anything_switches(lab,
     assert lab.ok("robot1", "ls /var/lib/robot-payload/releases") == releases
 
 
+def test_push_delivery_sends_every_image_of_the_project(lab, fleet):
+    import docker
+
+    engine = docker.from_env()
+    for repository in ("ros/payload", "ros/driver"):
+        engine.images.get(f"{repository}:1.1").tag(f"offline.invalid/{repository}", "1.1")
+    offline = (
+        "    payload_image: null\n"
+        "    payload_delivery: push\n"
+        "    payload_services:\n"
+        "      payload: {image: offline.invalid/ros/payload:1.1, stop_grace_period: 3s}\n"
+        "      driver: {image: offline.invalid/ros/driver:1.1, devices: [], stop_grace_period: 3s}\n"
+    )
+    lab.ok("robot1", "rm -f /var/lib/robot-payload/push.log")
+    run = lab.provision(*limits("robot1"), fleet=fleet(offline), label="(robot1 two images by push)")
+    assert run.returncode == 0, run.output[-3000:]
+    sent = lab.ok("robot1", "cat /var/lib/robot-payload/push.log").splitlines()
+    assert sorted(line.split()[1] for line in sent) == ["offline.invalid/ros/driver:1.1", "offline.invalid/ros/payload:1.1"]
+    running = services_of(lab, "robot1")
+    assert version(running["payload"]) == "1.1" and version(running["driver"]) == "driver-1.1"
+    again = lab.provision(*limits("robot1"), fleet=fleet(offline), label="(robot1 by push, again)")
+    assert again.returncode == 0 and again.changed_hosts == set()
+    assert lab.ok("robot1", "cat /var/lib/robot-payload/push.log").splitlines() == sent
+
+
 FOREIGN_COMPOSE = """\
 services:
   ros:
