@@ -212,11 +212,10 @@ def service(base: dict, user: dict, extra: dict, name: str) -> dict:
     env.update(extra["environment"])
     env.update(environment_mapping(user.get("environment")))
     result["environment"] = env
-    result["labels"] = {**(user.get("labels") or {}), **extra["labels"], **result.get("labels", {})}
-    if isinstance(user.get("labels"), list):
-        result["labels"] = {**environment_mapping(user["labels"]), **extra["labels"], **base.get("labels", {})}
+    # Compose's labels, like its environment, may be a list of "key=value".
+    result["labels"] = {**environment_mapping(user.get("labels")), **extra["labels"], **result.get("labels", {})}
     volumes = list(user.get("volumes") or []) + result.get("volumes", []) + extra["volumes"]
-    devices = list(user.get("devices") or []) + [d for d in result.get("devices", [])]
+    devices = list(user.get("devices") or []) + result.get("devices", [])
     for key, value in user.items():
         if key not in ("environment", "labels", "volumes", "devices"):
             result[key] = copy.deepcopy(value)
@@ -366,10 +365,9 @@ def project_problems(data, doc: dict | None = None) -> list[tuple[str, str]]:
     payload_dir = _get(data, "payload_dir") or "/var/lib/robot-payload"
     replaces = set(_get(data, "payload_replaces") or [])
     names: dict[str, str] = {}
-    for name, spec in services.items():
-        where = "payload_image" if not raw else f"payload_services.{name}"
-        if not raw:
-            continue  # the shorthand is checked by the payload_* settings themselves
+    # The shorthand's one service is checked by the payload_* settings themselves.
+    for name, spec in (services if raw else {}).items():
+        where = f"payload_services.{name}"
         if not re.fullmatch(SERVICE_NAME, name):
             problems.append((where, "service names are letters, digits, . _ - (starting with a letter or digit)"))
         image = spec.get("image")
