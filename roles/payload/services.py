@@ -400,6 +400,12 @@ def project_problems(data, doc: dict | None = None) -> list[tuple[str, str]]:
             elif source.startswith("."):
                 problems.append((f"{where}.volumes[{index}]", f"relative path {source} would resolve inside "
                                  "the release directory; use an absolute host path"))
+        environment = spec.get("environment")
+        if isinstance(environment, dict):
+            for key, value in environment.items():
+                if value is not None and not isinstance(value, str):
+                    problems.append((f"{where}.environment.{key}", f"expected a string, got {value!r} "
+                                     "(quote it: YAML reads yes/no/on/off and numbers as other types)"))
         env_files = spec.get("env_file")
         for index, entry in enumerate(env_files if isinstance(env_files, list) else [env_files]):
             path = entry.get("path") if isinstance(entry, dict) else entry
