@@ -185,7 +185,7 @@ def set_up_another_way(lab, host: str, how: str) -> None:
     """Our payload gone (as on a robot we never provisioned), theirs running."""
     lab.ok(host, "systemctl disable --now robot-payload.service && rm -f /etc/systemd/system/robot-payload.service"
                  " && systemctl daemon-reload && rm -rf /var/lib/robot-payload")
-    lab.ok(host, "docker rm -f ros_payload >/dev/null 2>&1; true")  # a rerun on a kept lab
+    lab.ok(host, "docker rm -f ros_payload ros_payload_copy >/dev/null 2>&1; true")  # a rerun on a kept lab
     registry = lab.state["registry"]
     if how == "docker run":
         lab.ok(host, f"docker run -d --restart always --name ros_payload {registry}/ros/payload:1.0")
@@ -196,8 +196,8 @@ def set_up_another_way(lab, host: str, how: str) -> None:
     assert running_payloads(lab, host) == ["ros_payload"]
 
 
-def foreign_state(lab, host: str) -> tuple[str, str]:
-    c = json.loads(lab.ok(host, "docker inspect ros_payload"))[0]
+def foreign_state(lab, host: str, name: str = "ros_payload") -> tuple[str, str]:
+    c = json.loads(lab.ok(host, f"docker inspect {name}"))[0]
     return c["State"]["Status"], c["HostConfig"]["RestartPolicy"]["Name"]
 
 
@@ -224,8 +224,15 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
         taken = lab.record(host)["taken_over"]
         assert [(c["name"], c["restart"], c["running"]) for c in taken] == [("ros_payload", "always", True)]
     assert lab.record("robot2")["taken_over"][0]["project"] == "rosapp"
-    rerun = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover rerun)")
-    assert rerun.returncode == 0 and rerun.changed_hosts == set()
+    # A rerun changes nothing on robot2; on robot3 a copy started by hand
+    # since then (the project already running there) is taken over too.
+    lab.ok("robot3", f"docker run -d --restart unless-stopped --name ros_payload_copy {lab.state['registry']}/ros/payload:1.0")
+    rerun = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover rerun, robot3 copy)")
+    assert rerun.returncode == 0 and rerun.changed_hosts == {"robot3"}, rerun.output[-3000:]
+    assert "[robot3] payload: taking over what runs the payload another way" in rerun.output
+    assert "ros_payload_copy" in rerun.output and "[robot2] payload: taking over" not in rerun.output
+    assert [c["name"] for c in lab.record("robot3")["taken_over"]] == ["ros_payload_copy"]
+    assert running_payloads(lab, "robot3") == [f"{PROJECT}-payload-1"]
 
     # Docker restarts: the old containers' restart policy no longer brings them back.
     for host in ("robot2", "robot3"):
@@ -243,3 +250,4 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
              "robot3's payload healthy after the reboot")
     assert running_payloads(lab, "robot3") == [f"{PROJECT}-payload-1"]
     assert foreign_state(lab, "robot3") == ("exited", "no")
+    assert foreign_state(lab, "robot3", "ros_payload_copy") == ("exited", "no")
