@@ -76,7 +76,8 @@ def foreign(probe_output: str, project: str, repositories: list[str], replaces: 
             cid, name, image, label, running, policy = json.loads(line).split("\t")
         except (ValueError, AttributeError):
             continue
-        label = "" if label == "<no value>" else label
+        # No such label: Docker's printf renders the missing value as "%!s(<nil>)".
+        label = "" if label.startswith("%!") or label == "<no value>" else label
         if label == project:
             continue
         running = running == "true"

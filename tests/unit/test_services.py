@@ -267,10 +267,10 @@ def probe_line(cid, name, image, project_label, running, policy):
 
 FOREIGN = "\n".join([
     probe_line("a" * 64, "/robot-payload-payload-1", f"{REG}/ros/payload@sha256:" + "1" * 64, "robot-payload", "true", "unless-stopped"),
-    probe_line("b" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "<no value>", "true", "always"),
+    probe_line("b" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "%!s(<nil>)", "true", "always"),
     probe_line("c" * 64, "/old_bridge", f"{REG}/other/bridge:1", "rosapp", "false", "always"),
-    probe_line("d" * 64, "/unrelated", f"{REG}/other/db:1", "<no value>", "true", "always"),
-    probe_line("e" * 64, "/dead", f"{REG}/ros/payload:0.9", "<no value>", "false", "no"),
+    probe_line("d" * 64, "/unrelated", f"{REG}/other/db:1", "%!s(<nil>)", "true", "always"),
+    probe_line("e" * 64, "/dead", f"{REG}/ros/payload:0.9", "%!s(<nil>)", "false", "no"),
 ])
 
 
