@@ -391,6 +391,11 @@ def project_problems(data, doc: dict | None = None) -> list[tuple[str, str]]:
                 problems.append((f"{where}.container_name", f"{container_name!r} is listed in payload_replaces: "
                                  "the takeover would stop this project's own container"))
             names.setdefault(container_name, name)
+        if "profiles" in spec:
+            problems.append((f"{where}.profiles", "no profile is activated on the robot, so the service would "
+                             "never start (and the health gate could not see it); remove profiles or the service"))
+        if spec.get("scale") in (0, "0"):
+            problems.append((f"{where}.scale", "0 never starts the service; remove the service instead (null)"))
         if spec.get("scale") not in (None, 1) and container_name:
             problems.append((f"{where}.scale", "a fixed container_name allows one container only"))
         for index, source in _bind_sources(spec):

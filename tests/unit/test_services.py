@@ -177,6 +177,8 @@ def host_with(**settings) -> dict:
      "robots.yaml: robot3.payload_services.drv.build: robots do not build images; push the image and set image"),
     ({"image": f"{REG}/a:1", "environment": {"DEBUG": True}},
      "robots.yaml: robot3.payload_services.drv.environment.DEBUG: expected a string, got True (quote it"),
+    ({"image": f"{REG}/a:1", "profiles": ["debug"]},
+     "robots.yaml: robot3.payload_services.drv.profiles: no profile is activated on the robot"),
     ({"command": ["x"]},
      "robots.yaml: robot3.payload_services.drv.image: required: the service's image, pinned by tag or digest"),
     ({"image": f"{REG}/a"},
