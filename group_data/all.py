@@ -34,8 +34,9 @@ docker_apt_release_channel = "stable"
 # Where the repository's signing key is fetched from; None means
 # "<docker_repo_url>/<distribution>/gpg".
 docker_apt_key_url = None
-# Expected OpenPGP fingerprint of that key (Docker's published one). A key
-# that does not match fails the host and nothing is installed.  None: no check.
+# Expected OpenPGP fingerprint of that key (Docker's published one).  The key
+# file must hold exactly this one key (apt trusts every key of the keyring);
+# otherwise the host fails and nothing is installed.  None: no check.
 docker_apt_key_fingerprint = "9DC858229FC7DD38854AE2D88D81803C0EBFCD88"
 # Optional sha256 of the key file itself.
 docker_apt_key_sha256 = None
@@ -136,6 +137,7 @@ payload_delivery = "pull"
 payload_autostart = True
 payload_restart_policy = "unless-stopped"
 payload_network_mode = "host"
+# Extra container environment; values reach the container verbatim.
 payload_environment = {}
 payload_command = None
 # Extra bind mounts, "host_path:container_path[:ro]".

@@ -34,8 +34,12 @@ def _load():
     if not _STATE.exists():
         refuse([f"no lab '{_PREFIX}' is running ({_STATE} missing); start it with: python3 -m tests.lab up"])
     state = json.loads(_STATE.read_text())
-    text = _FLEET.read_text()
-    for key, value in {
+    text = _FLEET.read_bytes()
+    try:
+        text = text.decode()
+    except UnicodeDecodeError:
+        pass  # parse() says where, in one line
+    for key, value in {} if isinstance(text, bytes) else {
         "@registry@": state["registry"],
         "@mirror@": state["mirror_url"],
         "@mirror_fingerprint@": _mirror_fingerprint(state),

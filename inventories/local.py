@@ -2,23 +2,24 @@
 
     pyinfra inventories/local.py deploy.py
 
-Its settings are its entry under `laptops` in robots.yaml, found by host
-name (or $ROBOT_FLEET_HOST).  sudo asks for the password if it needs one.
+Its settings are its entry under `laptops` in robots.yaml (or the file named
+by $ROBOT_FLEET), found by host name (or $ROBOT_FLEET_HOST).  sudo asks for the password if it needs one.
 """
 
 import os
 import socket
 from pathlib import Path
 
-from roles.fleet import load_or_exit, refuse
+from roles.fleet import display_path, load_or_exit, refuse
 
-_fleet = load_or_exit(Path(__file__).with_name("robots.yaml"))
+_path = Path(os.environ.get("ROBOT_FLEET") or Path(__file__).with_name("robots.yaml"))
+_fleet = load_or_exit(_path)
 _name = os.environ.get("ROBOT_FLEET_HOST") or socket.gethostname()
 _mine = [data for name, data in _fleet.hosts("laptops") if name == _name]
 if not _mine:
     _known = ", ".join(name for name, _ in _fleet.hosts("laptops")) or "none"
     refuse([
-        f"inventories/robots.yaml: no laptop named {_name!r} (laptops: {_known}); "
+        f"{display_path(_path)}: no laptop named {_name!r} (laptops: {_known}); "
         "add this machine or set ROBOT_FLEET_HOST"
     ])
 

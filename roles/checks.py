@@ -8,6 +8,7 @@ contacted and is unit-tested without hosts.
 
 from __future__ import annotations
 
+import datetime
 import re
 from collections.abc import Callable
 from typing import Any
@@ -16,34 +17,79 @@ Problem = tuple[str, str]
 Checker = Callable[[Any], list[Problem]]
 
 
+class NotAString:
+    """A mapping key YAML did not read as a string (``010`` is the number 8,
+    ``no`` is false): kept with the text as written so a check can say
+    "quote it" instead of silently renaming a host or a setting."""
+
+    __slots__ = ("value", "text")
+
+    def __init__(self, value: Any, text: str):
+        self.value, self.text = value, text
+
+    def __hash__(self):
+        return hash((NotAString, self.text))
+
+    def __eq__(self, other):
+        return isinstance(other, NotAString) and other.text == self.text
+
+    def __str__(self):
+        return self.text
+
+    __repr__ = __str__
+
+
+MAX_SHOWN = 80
+
+
+def shown(value: str) -> str:
+    """repr() of a string, cut to one short line (problems are one line each)."""
+    text = repr(value)
+    return text if len(text) <= MAX_SHOWN else text[: MAX_SHOWN - 5] + "...'"
+
+
 def describe(value: Any) -> str:
     if value is None:
         return "nothing (null)"
     if isinstance(value, bool):
         return f"a boolean ({str(value).lower()})"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
+    if isinstance(value, (int, float)):
         return str(value)
     if isinstance(value, str):
-        return repr(value)
+        return shown(value)
     if isinstance(value, list):
         return "a list"
     if isinstance(value, dict):
         return "a mapping"
+    if isinstance(value, NotAString):
+        read = describe(value.value)
+        return read if read == value.text else f"{value.text} (read by YAML as {read})"
+    if isinstance(value, (datetime.date, datetime.datetime)):
+        return f"a date ({value.isoformat()})"
     return type(value).__name__
 
 
+def _not_text(value: Any) -> bool:
+    """YAML 1.1 reads some unquoted text as another type: no -> false,
+    1.10 -> 1.1, 0755 -> 493, 12:30 -> 750, 2026-01-02 -> a date."""
+    return isinstance(value, (bool, int, float, datetime.date)) or isinstance(value, NotAString)
+
+
+def expected_string(value: Any, what: str = "a string") -> str:
+    message = f"expected {what}, got {describe(value)}"
+    return message + "; quote it" if _not_text(value) else message
+
+
 def string(pattern: str | None = None, what: str = "a string", choices=None) -> Checker:
-    regex = re.compile(pattern) if pattern else None
+    regex = re.compile(pattern, re.ASCII) if pattern else None
 
     def check(value):
         if not isinstance(value, str):
-            return [("", f"expected a string, got {describe(value)}")]
+            return [("", expected_string(value))]
         if choices is not None and value not in choices:
-            return [("", f"expected one of {', '.join(choices)}, got {value!r}")]
+            return [("", f"expected one of {', '.join(choices)}, got {shown(value)}")]
         if regex and not regex.fullmatch(value):
-            return [("", f"expected {what}, got {value!r}")]
+            return [("", f"expected {what}, got {shown(value)}")]
         return []
 
     return check
@@ -80,18 +126,32 @@ def list_of(inner: Checker, unique: bool = False) -> Checker:
         if not isinstance(value, list):
             return [("", f"expected a list, got {describe(value)}")]
         problems = []
+        valid = []
         for index, item in enumerate(value):
-            problems += [(f"[{index}]{sub}", msg) for sub, msg in inner(item)]
+            found = inner(item)
+            problems += [(f"[{index}]{sub}", msg) for sub, msg in found]
+            if not found:
+                valid.append((index, item))
         if unique:
             seen = set()
-            for index, item in enumerate(value):
+            for index, item in valid:
                 key = repr(item)
                 if key in seen:
-                    problems.append((f"[{index}]", f"duplicate entry {item!r}"))
+                    problems.append((f"[{index}]", f"duplicate entry {describe(item)}"))
                 seen.add(key)
         return problems
 
     return check
+
+
+def key_name(key: Any) -> str:
+    """A mapping key as shown in a field path: plain if it is a simple name."""
+    if isinstance(key, str) and _PLAIN_KEY.fullmatch(key):
+        return key
+    return str(key) if isinstance(key, NotAString) else shown(key) if isinstance(key, str) else describe(key)
+
+
+_PLAIN_KEY = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.:/@+-]*", re.ASCII)
 
 
 def mapping_of(key: Checker, value_check: Checker) -> Checker:
@@ -100,34 +160,67 @@ def mapping_of(key: Checker, value_check: Checker) -> Checker:
             return [("", f"expected a mapping, got {describe(value)}")]
         problems = []
         for k, v in value.items():
-            problems += [(f".{k}{sub}", msg) for sub, msg in key(k)]
-            problems += [(f".{k}{sub}", msg) for sub, msg in value_check(v)]
+            where = f".{key_name(k)}"
+            found = key(k)
+            problems += [(f"{where}{sub}", msg) for sub, msg in found]
+            if not found:
+                problems += [(f"{where}{sub}", msg) for sub, msg in value_check(v)]
         return problems
 
     return check
 
 
+MAX_JSON_VALUES = 10_000
+MAX_JSON_DEPTH = 20
+
+
 def any_json(value):
-    """A JSON-representable value (daemon.json options)."""
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return []
-    if isinstance(value, list):
-        return [p for item in value for p in any_json(item)]
-    if isinstance(value, dict):
-        problems = []
-        for k, v in value.items():
-            if not isinstance(k, str):
-                problems.append(("", f"keys must be strings, got {describe(k)}"))
-            problems += [(f".{k}{sub}", msg) for sub, msg in any_json(v)]
-        return problems
-    return [("", f"expected a JSON value, got {describe(value)}")]
+    """A JSON-representable value (daemon.json options), walked with a budget:
+    aliases can make a small YAML file stand for billions of values."""
+    problems: list[Problem] = []
+    budget = [MAX_JSON_VALUES]
+
+    def walk(item, where: str, depth: int) -> bool:
+        budget[0] -= 1
+        if budget[0] < 0:
+            problems.append(("", f"more than {MAX_JSON_VALUES} values (YAML aliases expand); daemon options are small"))
+            return False
+        if depth > MAX_JSON_DEPTH:
+            problems.append((where, f"nested more than {MAX_JSON_DEPTH} levels deep"))
+            return False
+        if item is None or isinstance(item, (bool, int, str)):
+            return True
+        if isinstance(item, float):
+            if item != item or item in (float("inf"), float("-inf")):
+                problems.append((where, f"expected a JSON number, got {item}"))
+            return True
+        if isinstance(item, list):
+            return all(walk(element, f"{where}[{index}]", depth + 1) for index, element in enumerate(item))
+        if isinstance(item, dict):
+            for k, v in item.items():
+                if not isinstance(k, str):
+                    problems.append((f"{where}.{key_name(k)}", f"keys must be strings, got {describe(k)}; quote it"))
+                    continue
+                if not walk(v, f"{where}.{key_name(k)}", depth + 1):
+                    return False
+            return True
+        problems.append((where, f"expected a JSON value, got {describe(item)}; quote it"))
+        return True
+
+    walk(value, "", 0)
+    return problems
 
 
-def scalar(value):
-    """An environment variable value: string, number or boolean."""
-    if isinstance(value, (str, int, float, bool)):
+def text(value):
+    """An environment variable value: a string (YAML 1.1 would silently
+    change NO, 1.10, 0755 or 12:30 on the way; quoted, nothing changes)."""
+    if isinstance(value, str):
+        if "\x00" in value:
+            return [("", "NUL characters cannot be in an environment value")]
         return []
-    return [("", f"expected a string or number, got {describe(value)}")]
+    if _not_text(value):
+        return [("", f"expected a string, got {describe(value)}; quote it (YAML reads NO, 1.10, 0755, 12:30 as non-strings)")]
+    return [("", f"expected a string, got {describe(value)}")]
 
 
 # Patterns shared by several settings.

@@ -19,11 +19,13 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-
-from roles import settings
+from roles import checks as c
+from roles import fleetyaml, settings
 
 GROUPS = ("robots", "laptops")
+# Top-level keys starting with x- are ignored (as in compose files): a place
+# for YAML anchors shared with merge keys, e.g. x-camera: &camera {...}.
+EXTENSION_PREFIX = "x-"
 HOST_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,62}")
 GROUP_DATA_DIR = Path(__file__).resolve().parent.parent / "group_data"
 
@@ -42,21 +44,6 @@ class Fleet:
         return self.groups.get(group, [])
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate keys (a silently lost robot is worse)."""
-
-    def construct_mapping(self, node, deep=False):
-        seen = {}
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)
-            if key in seen:
-                raise yaml.constructor.ConstructorError(
-                    None, None, f"duplicate key {key!r}", key_node.start_mark
-                )
-            seen[key] = True
-        return super().construct_mapping(node, deep=deep)
-
-
 def read_group_data(directory: Path = GROUP_DATA_DIR) -> dict[str, dict]:
     """The defaults pyinfra will load from group_data/, keyed by group."""
     defaults = {}
@@ -71,11 +58,6 @@ def read_group_data(directory: Path = GROUP_DATA_DIR) -> dict[str, dict]:
     return defaults
 
 
-def _setting(field: str) -> str:
-    """The setting a problem's field belongs to: sensors[1].serial -> sensors."""
-    return field.split(".")[0].split("[")[0]
-
-
 def display_path(path: Path) -> str:
     try:
         return os.path.relpath(path)
@@ -86,22 +68,31 @@ def display_path(path: Path) -> str:
 def load(path: Path, defaults: dict[str, dict] | None = None) -> Fleet:
     """Parse and check the fleet file; raise FleetError listing every problem."""
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except FileNotFoundError:
         raise FleetError([f"{display_path(path)}: fleet file not found"]) from None
-    return parse(text, display_path(path), defaults)
+    except OSError as error:
+        raise FleetError([f"{display_path(path)}: cannot read the fleet file ({error.strerror})"]) from None
+    return parse(data, display_path(path), defaults)
 
 
-def parse(text: str, shown: str, defaults: dict[str, dict] | None = None) -> Fleet:
+def parse(text: str | bytes, shown: str, defaults: dict[str, dict] | None = None) -> Fleet:
     """Check fleet YAML ``text``, named ``shown`` in problem lines."""
     try:
-        raw = yaml.load(text, Loader=_UniqueKeyLoader)
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None) or getattr(error, "context_mark", None)
-        where = f"line {mark.line + 1}: " if mark else ""
-        problem = getattr(error, "problem", None) or str(error)
-        raise FleetError([f"{shown}: {where}YAML error: {problem}"]) from None
+        raw = fleetyaml.load(text)
+    except fleetyaml.YamlProblem as problem:
+        raise FleetError([one_line(f"{shown}: {problem}")]) from None
     return check(raw, shown, read_group_data() if defaults is None else defaults)
+
+
+_CONTROL = {i: f"\\x{i:02x}" for i in [*range(0x20), 0x7F, *range(0x80, 0xA0)]}
+_CONTROL.update({0x2028: "\\u2028", 0x2029: "\\u2029"})
+
+
+def one_line(line: str) -> str:
+    """A problem line with any control character (a newline in a host name)
+    escaped: one problem is always one line."""
+    return line.translate(_CONTROL)
 
 
 def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
@@ -112,52 +103,76 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
             location = f"{where}.{sub}" if sub and not sub.startswith("[") else f"{where}{sub}"
             lines.append(f"{shown}: {location.strip('.')}: {message}")
 
+    def finish(fleet: Fleet | None = None) -> Fleet:
+        if fleet is not None and not lines and not any(fleet.groups.values()):
+            lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts")
+        if lines:
+            raise FleetError([one_line(line) for line in lines])
+        return fleet
+
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
-        raise FleetError([f"{shown}: expected a mapping with all/robots/laptops at the top"])
+        lines.append(f"{shown}: expected a mapping with all/robots/laptops at the top, got {c.describe(raw)}")
+        finish()
     for key in raw:
-        if key not in ("all",) + GROUPS:
+        if isinstance(key, str) and key.startswith(EXTENSION_PREFIX):
+            continue
+        if not isinstance(key, str) or key not in ("all",) + GROUPS:
             lines.append(
-                f"{shown}: {key}: unknown top-level key"
+                f"{shown}: {c.key_name(key)}: unknown top-level key"
                 + settings.did_you_mean(str(key), ("all",) + GROUPS)
-                + "; expected all, robots or laptops"
+                + "; expected all, robots or laptops (or x-... for YAML anchors)"
             )
 
     def section(name):
-        value = raw.get(name) or {}
+        value = raw.get(name)
+        if value is None:
+            return {}, {}
         if not isinstance(value, dict):
-            lines.append(f"{shown}: {name}: expected a mapping with vars and hosts")
+            lines.append(f"{shown}: {name}: expected a mapping with vars and hosts, got {c.describe(value)}")
             return {}, {}
         allowed = ("vars",) if name == "all" else ("vars", "hosts")
         for key in value:
             if key not in allowed:
                 lines.append(
-                    f"{shown}: {name}.{key}: unknown key" + settings.did_you_mean(str(key), allowed)
+                    f"{shown}: {name}.{c.key_name(key)}: unknown key" + settings.did_you_mean(str(key), allowed)
                 )
-        variables = value.get("vars") or {}
-        if not isinstance(variables, dict):
-            lines.append(f"{shown}: {name}.vars: expected a mapping of settings")
+        variables = value.get("vars")
+        if variables is None:
             variables = {}
-        hosts = value.get("hosts") or {}
-        if not isinstance(hosts, dict):
-            lines.append(f"{shown}: {name}.hosts: expected a mapping of host name to settings")
+        elif not isinstance(variables, dict):
+            lines.append(f"{shown}: {name}.vars: expected a mapping of settings, got {c.describe(variables)}")
+            variables = {}
+        hosts = value.get("hosts")
+        if hosts is None:
             hosts = {}
-        return variables, hosts
+        elif not isinstance(hosts, dict):
+            lines.append(f"{shown}: {name}.hosts: expected a mapping of host name to settings, got {c.describe(hosts)}")
+            hosts = {}
+        return settings.normalize(variables), hosts
+
+    def check_vars(where: str, variables: dict) -> set[str]:
+        problems = settings.check_layer(variables)
+        report(where, problems)
+        return {settings.setting_of(sub) for sub, _ in problems}
 
     all_vars, _ = section("all")
-    report("all.vars", settings.check_layer(all_vars))
+    all_refused = check_vars("all.vars", all_vars)
 
     fleet = Fleet()
     seen: dict[str, str] = {}
     for group in GROUPS:
         group_vars, hosts = section(group)
-        report(f"{group}.vars", settings.check_layer(group_vars))
+        group_refused = all_refused | check_vars(f"{group}.vars", group_vars)
+        base = {**defaults.get("all", {}), **defaults.get(group, {}), **all_vars, **group_vars}
         fleet.groups[group] = []
         for name, host_vars in hosts.items():
-            name = str(name)
+            if not isinstance(name, str):
+                lines.append(f"{shown}: {c.key_name(name)}: a host name must be a string, got {c.describe(name)}; quote it")
+                continue
             if not HOST_NAME.fullmatch(name):
-                lines.append(f"{shown}: {name}: invalid host name (letters, digits, . _ -)")
+                lines.append(f"{shown}: {c.key_name(name)}: invalid host name (letters, digits, . _ -)")
                 continue
             if name in seen:
                 lines.append(f"{shown}: {name}: declared in both {seen[name]} and {group}")
@@ -166,22 +181,26 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
             if host_vars is None:
                 host_vars = {}
             if not isinstance(host_vars, dict):
-                lines.append(f"{shown}: {name}: expected a mapping of settings")
+                lines.append(f"{shown}: {name}: expected a mapping of settings, got {c.describe(host_vars)}")
                 continue
+            host_vars = settings.normalize(host_vars)
             layer_problems = settings.check_layer(host_vars)
             report(name, layer_problems)
+            refused = group_refused | {settings.setting_of(sub) for sub, _ in layer_problems}
+            if "address" in refused:
+                refused.add("ssh_hostname")
             data = {**all_vars, **group_vars, **host_vars}
             settings._services().merge_into(data, [all_vars, group_vars, host_vars])  # per service
             if "address" in data:
                 data["ssh_hostname"] = data.pop("address")
-            merged = {**defaults.get("all", {}), **defaults.get(group, {}), **data}
-            flagged = {_setting(sub) for sub, _ in layer_problems}
-            report(name, [p for p in settings.check_host(merged) if _setting(p[0]) not in flagged])
+            merged = {**base, **host_vars}
+            settings._services().merge_into(merged, [all_vars, group_vars, host_vars])  # per service
+            if "address" in merged:
+                merged["ssh_hostname"] = merged.pop("address")
+            report(name, settings.check_host(merged, refused))
             fleet.groups[group].append((name, data))
 
-    if lines:
-        raise FleetError(lines)
-    return fleet
+    return finish(fleet)
 
 
 def refuse(lines: list[str]) -> None:

@@ -9,6 +9,11 @@ snapshot, yielding commands only for differences.
 
 The snapshot describes the host as it was when the deploy started; each
 operation owns distinct things, and dependent steps are chained with ``_if``.
+
+A snapshot answers only what was asked: reading a file, package, user, unit,
+command or probe that no role declared raises ``UndeclaredRead``.  Otherwise a
+role that forgot to declare a read would see "absent" and change the host on
+every run.
 """
 
 from __future__ import annotations
@@ -41,9 +46,46 @@ class SnapshotQuery:
         }
 
 
+class UndeclaredRead(LookupError):
+    """A role read a snapshot key it did not declare in ``declare_reads``."""
+
+    def __str__(self) -> str:
+        return self.args[0]
+
+
+class Readings(dict):
+    """One kind of snapshot reading (key -> value), limited to the keys the
+    query asked for.  A queried key the host lacks reads as absent (``get``
+    returns the default, ``in`` is false); an unqueried key raises."""
+
+    def __init__(self, kind: str, queried, values=()):
+        super().__init__(values)
+        self.kind = kind
+        self.queried = frozenset(queried)
+
+    def _check(self, key) -> None:
+        if key not in self.queried:
+            raise UndeclaredRead(
+                f"snapshot: {self.kind} {key!r} was not read from the host; "
+                f"add it to the role's declare_reads (query.{self.kind})"
+            )
+
+    def __getitem__(self, key):
+        self._check(key)
+        return super().__getitem__(key)
+
+    def get(self, key, default=None):
+        self._check(key)
+        return super().get(key, default)
+
+    def __contains__(self, key) -> bool:
+        self._check(key)
+        return super().__contains__(key)
+
+
 @dataclass(frozen=True)
 class FileState:
-    kind: str  # "file" or "dir"
+    kind: str  # "file", "dir" or "link" (a symlink, whatever it points at)
     sha256: str | None
     mode: str  # octal, e.g. "644"
     owner: str
@@ -71,11 +113,14 @@ class Snapshot:
         return self.units.get(unit, ("", ""))[1] == "active"
 
 
+READING_KINDS = ("packages", "files", "users", "units", "commands", "probes")
+
+
 def _q(value: str) -> str:
     return shlex.quote(value)
 
 
-def script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
+def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
     """The shell script behind the snapshot (POSIX sh, read-only)."""
     lines = [
         "export LC_ALL=C",
@@ -92,7 +137,8 @@ def script(files=(), packages=(), users=(), units=(), commands=(), probes=None) 
     for path in files:
         p = _q(path)
         lines.append(
-            f"if [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"if [ -L {p} ]; then echo \"file${{T}}\"{p}\"${{T}}link${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"elif [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
             f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
             f"else echo \"file${{T}}\"{p}\"${{T}}none\"; fi"
         )
@@ -116,8 +162,10 @@ def script(files=(), packages=(), users=(), units=(), commands=(), probes=None) 
     return "\n".join(lines)
 
 
-def parse(lines: list[str]) -> Snapshot:
-    snap = Snapshot()
+def parse(lines: list[str], query: dict) -> Snapshot:
+    """The snapshot script's output, answering only the keys of ``query``
+    (``SnapshotQuery.as_kwargs()``)."""
+    snap = Snapshot(**{kind: Readings(kind, query.get(kind) or ()) for kind in READING_KINDS})
     for line in lines:
         kind, _, rest = line.partition("\t")
         parts = rest.split("\t")
@@ -132,7 +180,7 @@ def parse(lines: list[str]) -> Snapshot:
                 snap.packages[name] = version
         elif kind == "file":
             path = parts[0]
-            if len(parts) >= 4 and parts[1] in ("file", "dir"):
+            if len(parts) >= 4 and parts[1] in ("file", "dir", "link"):
                 mode, owner, group = (parts[3].split() + ["", "", ""])[:3]
                 sha = parts[2] if parts[1] == "file" else None
                 snap.files[path] = FileState(parts[1], sha, mode, owner, group)
@@ -166,10 +214,14 @@ class HostSnapshot(FactBase):
     """Everything the roles need from a host, read in one command."""
 
     def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None):
-        return script(files, packages, users, units, commands, probes)
+        self.query = {
+            "files": files, "packages": packages, "users": users,
+            "units": units, "commands": commands, "probes": probes or {},
+        }
+        return snapshot_script(files, packages, users, units, commands, probes)
 
     def process(self, output):
-        return parse(list(output))
+        return parse(list(output), self.query)
 
     @staticmethod
     def default():

@@ -7,10 +7,20 @@ from dataclasses import dataclass
 
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 _DOMAIN = r"(?:[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*(?::[0-9]+)?)"
+# The distribution spec's grammar is ASCII: its \w means [A-Za-z0-9_], where
+# Python's \w would also take Unicode letters and digits (look-alikes).
+_TAG = r"[A-Za-z0-9_][A-Za-z0-9_.-]{0,127}"
 _REFERENCE = re.compile(
     rf"(?:(?P<domain>{_DOMAIN})/)?(?P<path>{_COMPONENT}(?:/{_COMPONENT})*)"
-    r"(?::(?P<tag>[\w][\w.-]{0,127}))?(?:@(?P<digest>sha256:[a-f0-9]{64}))?"
+    rf"(?::(?P<tag>{_TAG}))?(?:@(?P<digest>sha256:[a-f0-9]{{64}}))?",
+    re.ASCII,
 )
+NAME_MAX = 255  # the spec's limit on the repository name, registry included
+
+
+def _shown(text) -> str:
+    shown = repr(text)
+    return shown if len(shown) <= 80 else shown[:75] + "...'"
 
 
 @dataclass(frozen=True)
@@ -36,9 +46,9 @@ class ImageRef:
 
 
 def parse(text: str) -> ImageRef:
-    match = _REFERENCE.fullmatch(text)
+    match = _REFERENCE.fullmatch(text) if isinstance(text, str) else None
     if not match:
-        raise ValueError(f"{text!r} is not a valid image reference")
+        raise ValueError(f"{_shown(text)} is not a valid image reference")
     domain = match.group("domain")
     path = match.group("path")
     # "host:5000/x" is a registry; "name:tag" without a slash is a tag.
@@ -46,6 +56,8 @@ def parse(text: str) -> ImageRef:
         path = f"{domain}/{path}"
         domain = None
     repository = f"{domain}/{path}" if domain else path
+    if len(repository) > NAME_MAX:
+        raise ValueError(f"{_shown(text)} is not a valid image reference (name longer than {NAME_MAX} characters)")
     return ImageRef(repository, match.group("tag"), match.group("digest"))
 
 
@@ -58,10 +70,10 @@ def pinning_problem(text: str, allow_latest: bool) -> str | None:
     if ref.digest:
         return None
     if not ref.tag:
-        return f"{text!r} has no tag or digest; pin a version (e.g. {text}:1.4.2 or @sha256:...)"
+        return f"{_shown(text)} has no tag or digest; pin a version (e.g. {text}:1.4.2 or @sha256:...)"
     if ref.tag == "latest" and not allow_latest:
         return (
-            f"{text!r} uses the moving tag 'latest'; pin a version or digest "
+            f"{_shown(text)} uses the moving tag 'latest'; pin a version or digest "
             "(or set payload_allow_latest: true)"
         )
     return None

@@ -9,11 +9,15 @@ renamed, so a dropped link never leaves a half-written file.
 from __future__ import annotations
 
 import base64
+import difflib
 import hashlib
 import shlex
 
-from pyinfra import host
+from pyinfra import host, logger
 from pyinfra.api import StringCommand, operation
+from pyinfra.api.util import format_text
+from pyinfra.context import ctx_host
+from pyinfra.facts.files import FileContents
 
 from roles.hoststate import FileState
 
@@ -55,7 +59,7 @@ def write_file_command(path: str, content: bytes, mode: str, user: str, group: s
         f'chown {shlex.quote(user)}:{shlex.quote(group)} "$tmp"\n'
         f'chmod {_mode(mode)} "$tmp"\n'
         f"{check}"
-        'mv -f "$tmp" "$dest"\n'
+        'mv -fT "$tmp" "$dest"\n'
         "trap - EXIT\n"
     )
     encoded = base64.encodebytes(content).decode().splitlines()
@@ -89,10 +93,14 @@ def file(
     a shell command in which ``{}`` is the new file)."""
     if isinstance(content, str):
         content = content.encode()
-    if current is not None and current.kind != "file":
-        yield fail_command(f"{path} exists but is not a regular file; not replacing it")
+    if current is not None and current.kind == "dir":
+        yield refuse(f"{path} exists but is not a regular file; not replacing it")
         return
-    if current is None or current.sha256 != sha256(content):
+    # A symlink is replaced by the file (the rename replaces the link itself,
+    # its target is left alone): chmod/chown would act on the target.
+    if current is None or current.kind == "link" or current.sha256 != sha256(content):
+        if _planning_output_wanted() and host.state.config.DIFF:
+            show_diff(path, content, exists=current is not None and current.kind == "file")
         yield write_file_command(path, content, mode, user, group, validate)
         return
     if _attributes_match(current, mode, user, group):
@@ -104,18 +112,33 @@ def file(
     )
 
 
+def directory_command(path: str, mode: str, user: str, group: str) -> StringCommand:
+    """install -d and chmod follow a symlink: refuse one, also if it appeared
+    since the snapshot."""
+    p = shlex.quote(path)
+    return shell(
+        f"if [ -L {p} ]; then echo {shlex.quote(_link_refusal(path))} >&2; exit 1; fi; "
+        f"install -d -m {_mode(mode)} -o {shlex.quote(user)} -g {shlex.quote(group)} {p}"
+        f" && chmod {_mode(mode)} {p}"
+    )
+
+
+def _link_refusal(path: str) -> str:
+    return f"{path} is a symbolic link; not following it (make it a real directory)"
+
+
 @operation()
 def directory(path: str, current: FileState | None, mode: str = "0755", user: str = "root", group: str = "root"):
+    if current is not None and current.kind == "link":
+        yield refuse(_link_refusal(path))
+        return
     if current is not None and current.kind != "dir":
-        yield fail_command(f"{path} exists but is not a directory")
+        yield refuse(f"{path} exists but is not a directory")
         return
     if current is not None and _attributes_match(current, mode, user, group):
         host.noop(f"{path} is up to date")
         return
-    yield shell(
-        f"install -d -m {_mode(mode)} -o {shlex.quote(user)} -g {shlex.quote(group)} {shlex.quote(path)}"
-        f" && chmod {_mode(mode)} {shlex.quote(path)}"
-    )
+    yield directory_command(path, mode, user, group)
 
 
 @operation()
@@ -182,14 +205,54 @@ def service(unit: str, enabled_now: bool, active_now: bool, enabled: bool = True
     yield shell(" && ".join(commands))
 
 
+def _planning_output_wanted() -> bool:
+    """True once per operation: while planning (pyinfra's change detection),
+    or while executing when planning was skipped (-y)."""
+    state = host.state
+    return not (state.is_executing and state.should_check_for_changes())
+
+
+def unified_diff(path: str, old: str, new: str) -> list[str]:
+    return list(difflib.unified_diff(
+        old.splitlines(), new.splitlines(), f"{path} (on the host)", f"{path} (planned)", lineterm=""
+    ))
+
+
+def show_diff(path: str, content: bytes, exists: bool) -> None:
+    """Print what writing ``content`` to ``path`` changes (--diff).  The current
+    content is fetched only here: for a file the snapshot found different."""
+    old = ""
+    if exists:
+        lines = host.get_fact(FileContents, path=path) or []
+        old = "".join(line + "\n" for line in lines)
+    new = content.decode(errors="replace")
+    host.log(f"{'Will modify' if exists else 'Will create'} {format_text(path, bold=True)}", logger.info)
+    for line in unified_diff(path, old, new):
+        colour = {"+": "green", "-": "red"}.get(line[:1]) if not line.startswith(("+++", "---")) else None
+        logger.info("  %s", format_text(line, colour) if colour else line)
+
+
 def fail_command(message: str) -> StringCommand:
     return shell(f"echo {shlex.quote(message)} >&2; exit 1")
+
+
+def refuse(message: str) -> StringCommand:
+    """What an operation yields when this host cannot reach its declared
+    state: the command failing the host with ``message``.  While planning it
+    also prints the reason and counts the host as failed, so ``--dry`` shows
+    why and exits non-zero (a real run would fail the host at this step)."""
+    state = host.state
+    gated = bool((host.current_op_global_arguments or {}).get("_if"))
+    if not state.is_executing and not gated:
+        host.log_styled(message, log_func=logger.error, fg="red")
+        state.failed_hosts.add(ctx_host.get())
+    return fail_command(message)
 
 
 @operation()
 def fail(message: str):
     """Fail this host (only this host) with one clear line."""
-    yield fail_command(message)
+    yield refuse(message)
 
 
 @operation(is_idempotent=False)

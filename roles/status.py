@@ -9,19 +9,15 @@ Unreachable hosts are rows too, never an abort.
 
 from __future__ import annotations
 
-from gevent import monkey
+import argparse
+import fnmatch
+import json
+import os
+import re
+import shlex
+import sys
 
-monkey.patch_all()
-
-import argparse  # noqa: E402
-import fnmatch  # noqa: E402
-import json  # noqa: E402
-import os  # noqa: E402
-import re  # noqa: E402
-import shlex  # noqa: E402
-import sys  # noqa: E402
-
-import gevent  # noqa: E402
+import gevent
 
 COLUMNS = [
     ("host", "HOST"),
@@ -128,10 +124,10 @@ def collect(inventory_path: str, limits: list[str]) -> list[dict]:
             connect_all(state)
         except PyinfraError:
             pass  # every host unreachable: each still gets its row
-        return _query(hosts)
+        return _read_status(hosts)
 
 
-def _query(hosts) -> list[dict]:
+def _read_status(hosts) -> list[dict]:
     from pyinfra.api.command import StringCommand
 
     def one(host):
@@ -151,6 +147,11 @@ def _query(hosts) -> list[dict]:
 
 
 def main(argv=None) -> int:
+    # Hosts are queried in parallel greenlets over paramiko; patching is the
+    # command's business, not its importers' (the unit tests import this module).
+    from gevent import monkey
+
+    monkey.patch_all()
     parser = argparse.ArgumentParser(prog="python3 -m roles.status", description=__doc__.splitlines()[0])
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")

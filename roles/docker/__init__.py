@@ -27,9 +27,13 @@ def sources_path(data) -> str:
 
 
 def fingerprints_of(path: str) -> str:
-    """Shell pipeline printing the OpenPGP fingerprints in key file ``path``
-    (a shell word, already quoted) using the throwaway GNUPGHOME ``$h``."""
-    return f"GNUPGHOME=$h gpg --batch --show-keys --with-colons {path} 2>/dev/null | awk -F: '$1==\"fpr\"{{print $10}}'"
+    """Shell pipeline printing the fingerprints of the primary keys in key file
+    ``path`` (a shell word, already quoted), one a line, using the throwaway
+    GNUPGHOME ``$h``.  Subkeys are left out: they belong to their primary key."""
+    return (
+        f"GNUPGHOME=$h gpg --batch --show-keys --with-colons {path} 2>/dev/null"
+        " | awk -F: '$1==\"pub\"{p=1;next} p&&$1==\"fpr\"{print $10} {p=0}'"
+    )
 
 
 def key_fingerprints_probe(path: str) -> str:
@@ -50,40 +54,61 @@ def declare_reads(data, query: SnapshotQuery) -> None:
 
 
 def key_download_script(url: str, dest: str, fingerprint: str | None, sha256: str | None) -> str:
-    """Fetch the key to a temp file, verify it, and only then move it in place."""
+    """Fetch the key to a temp file, verify it, and only then move it in place.
+
+    With a fingerprint pin the file must hold exactly that one primary key:
+    apt trusts every key of a Signed-By keyring, so a second key beside
+    Docker's would sign packages too.  A keyring already on the host holding
+    more than one key is removed whatever the download gives (fail closed).
+    Values reach the messages through shell variables, never as code."""
     q = shlex.quote
     lines = [
         "set -e",
         f"dest={q(dest)}",
+        f"url={q(url)}",
         'tmp=$(mktemp "$(dirname "$dest")/.robotprov.XXXXXX")',
         "h=$(mktemp -d)",
         "trap 'rm -f \"$tmp\"; rm -rf \"$h\"' EXIT",
-        f"curl -fsSL --retry 3 --connect-timeout 20 {q(url)} -o \"$tmp\" || "
-        f"{{ echo {q(f'cannot download the Docker apt key from {url}')} >&2; exit 1; }}",
     ]
-    if sha256:
-        lines.append(
-            'got=$(sha256sum < "$tmp" | cut -d" " -f1); '
-            f'[ "$got" = {q(sha256)} ] || {{ echo "Docker apt key from {url}: sha256 $got does not match '
-            f'docker_apt_key_sha256 {sha256}; key not installed" >&2; exit 1; }}'
-        )
     if fingerprint:
-        lines.append("fprs=$(" + fingerprints_of('"$tmp"') + ")")
-        lines.append(
-            f'echo "$fprs" | grep -qx {q(fingerprint)} || {{ echo "Docker apt key from {url}: fingerprint '
-            f'$(echo $fprs) does not match docker_apt_key_fingerprint {fingerprint}; key not installed" >&2; exit 1; }}'
-        )
-    lines += ['chmod 644 "$tmp"', 'mv -f "$tmp" "$dest"']
+        lines += [
+            f"pin={q(fingerprint)}",
+            'if [ -f "$dest" ] && [ "$(' + fingerprints_of('"$dest"') + ' | wc -l)" -gt 1 ]; then',
+            '  rm -f "$dest"; echo "$dest held more than one key; removed" >&2',
+            "fi",
+        ]
+    lines.append(
+        'curl -fsSL --retry 3 --connect-timeout 20 "$url" -o "$tmp" || '
+        '{ echo "cannot download the Docker apt key from $url" >&2; exit 1; }'
+    )
+    if sha256:
+        lines += [
+            f"want={q(sha256)}",
+            'got=$(sha256sum < "$tmp" | cut -d" " -f1); '
+            '[ "$got" = "$want" ] || { echo "Docker apt key from $url: sha256 $got does not match '
+            'docker_apt_key_sha256 $want; key not installed" >&2; exit 1; }',
+        ]
+    if fingerprint:
+        lines += [
+            "fprs=$(" + fingerprints_of('"$tmp"') + ")",
+            'count=$(printf "%s\n" "$fprs" | grep -c . || true)',
+            'printf "%s\n" "$fprs" | grep -qx "$pin" || { echo "Docker apt key from $url: fingerprint '
+            '$(echo $fprs) does not match docker_apt_key_fingerprint $pin; key not installed" >&2; exit 1; }',
+            '[ "$count" -eq 1 ] || { echo "Docker apt key from $url: holds $count keys ($(echo $fprs)); '
+            'only docker_apt_key_fingerprint $pin may be in it; key not installed" >&2; exit 1; }',
+        ]
+    lines += ['chmod 644 "$tmp"', 'mv -fT "$tmp" "$dest"']
     return "\n".join(lines)
 
 
 def key_is_current(snap: Snapshot, path: str, fingerprint: str | None, sha256: str | None) -> bool:
+    """In place, 0644, and (when pinned) holding exactly the pinned key."""
     current = snap.files.get(path)
     if current is None or current.kind != "file" or current.mode != "644":
         return False
     if sha256 and current.sha256 != sha256:
         return False
-    if fingerprint and fingerprint not in snap.probes.get("docker_key_fingerprints", "").split():
+    if fingerprint and snap.probes.get("docker_key_fingerprints", "").split() != [fingerprint]:
         return False
     return True
 
@@ -131,7 +156,7 @@ def install_docker(snap: Snapshot):
             installed=snap.packages,
         )
 
-    operations.directory(name="/etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
+    operations.directory(name="Docker configuration directory /etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
     daemon = operations.file(
         name="Write /etc/docker/daemon.json",
         path=DAEMON_JSON,
@@ -173,9 +198,9 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
         name="Remove conflicting packages",
         packages=plan.obsolete_to_remove(data.docker_obsolete_packages, snap.packages),
     )
-    operations.directory(name=KEYRING_DIR, path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
+    operations.directory(name=f"apt keyring directory {KEYRING_DIR}", path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
     key = apt_key(
-        name="Docker apt key",
+        name="Download and verify Docker's apt key",
         url=plan.key_url(data.docker_apt_key_url, data.docker_repo_url, dist),
         path=data.docker_apt_key_path,
         fingerprint=fingerprint,
@@ -183,7 +208,7 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
         up_to_date=key_is_current(snap, data.docker_apt_key_path, fingerprint, data.docker_apt_key_sha256),
     )
     source = operations.file(
-        name="Docker apt source",
+        name="Write the Docker apt source",
         path=sources_path(data),
         content=plan.sources_text(
             plan.repo_uri(data.docker_repo_url, dist),

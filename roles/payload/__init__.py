@@ -9,6 +9,8 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 from __future__ import annotations
 
 import getpass
+import hashlib
+import hmac
 import json
 import os
 import shlex
@@ -76,8 +78,48 @@ def current_record(snap: Snapshot) -> dict:
         return {}
 
 
+DOCKER_CONFIG_DIR = "/root/.docker"
+DOCKER_HUB_NAMES = ("docker.io", "index.docker.io", "registry-1.docker.io")
+LOGIN_ITERATIONS = 100_000
+
+
+def registry_config_key(registry: str) -> str:
+    """The key `docker login` stores a registry's credentials under."""
+    return "https://index.docker.io/v1/" if registry in DOCKER_HUB_NAMES else registry
+
+
+def login_record_path(registry: str) -> str:
+    name = hashlib.sha256(registry_config_key(registry).encode()).hexdigest()[:16]
+    return f"{DOCKER_CONFIG_DIR}/robotprov-login-{name}"
+
+
+def credentials_record(registry: str, username: str, password: str, salt: str | None = None) -> str:
+    """What the robot keeps (0600) to know which credentials it is logged in
+    with: a salted PBKDF2 of (registry, username, password), never the password."""
+    salt = salt or os.urandom(16).hex()
+    secret = json.dumps([registry_config_key(registry), username, password]).encode()
+    digest = hashlib.pbkdf2_hmac("sha256", secret, bytes.fromhex(salt), LOGIN_ITERATIONS).hex()
+    return f"pbkdf2-sha256:{LOGIN_ITERATIONS}:{salt}:{digest}"
+
+
+def credentials_match(stored: str, registry: str, username: str, password: str) -> bool:
+    parts = stored.strip().split(":")
+    if len(parts) != 4 or parts[0] != "pbkdf2-sha256" or parts[1] != str(LOGIN_ITERATIONS):
+        return False
+    try:
+        wanted = credentials_record(registry, username, password, salt=parts[2])
+    except ValueError:  # not a hex salt
+        return False
+    return hmac.compare_digest(wanted, stored.strip())
+
+
 def registry_probe(registry: str) -> str:
-    return f"grep -qF {shlex.quote(json.dumps(registry))} /root/.docker/config.json && echo yes"
+    """The stored credentials record, if Docker still holds a login there."""
+    q = shlex.quote
+    return (
+        f"grep -qF {q(json.dumps(registry_config_key(registry)))} {DOCKER_CONFIG_DIR}/config.json"
+        f" && cat {q(login_record_path(registry))}"
+    )
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -132,14 +174,28 @@ def release(data, document: dict, needed: bool, restart: bool):
 
 
 @operations.operation()
-def registry_login(registry: str, username: str, password: str, logged_in: bool):
-    if logged_in:
+def registry_login(registry: str, username: str, password: str, stored: str):
+    """Log in unless the robot's record says it is logged in with exactly
+    these credentials (a changed password is applied).  The record and the
+    password go over stdin, so neither is on a command line."""
+    if credentials_match(stored, registry, username, password):
         host.noop(f"logged in to {registry}")
         return
-    yield operations.shell(
-        f"docker login {shlex.quote(registry)} --username {shlex.quote(username)} --password-stdin >/dev/null",
-        stdin=[password],
+    q = shlex.quote
+    script = (
+        "set -e\n"
+        "read -r record\n"
+        f"docker login {q(registry)} --username {q(username)} --password-stdin >/dev/null\n"
+        "umask 077\n"
+        f"path={q(login_record_path(registry))}\n"
+        'tmp=$(mktemp "$(dirname "$path")/.robotprov.XXXXXX")\n'
+        "trap 'rm -f \"$tmp\"' EXIT\n"
+        'printf "%s\\n" "$record" > "$tmp"\n'
+        'sync "$tmp"\n'
+        'mv -fT "$tmp" "$path"\n'
+        "trap - EXIT\n"
     )
+    yield operations.shell(script, stdin=[credentials_record(registry, username, password), password])
 
 
 @deploy("Payload")
@@ -151,9 +207,9 @@ def deploy_payload(snap: Snapshot):
 
     if not snap.commands.get("python3"):
         operations.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
-    operations.directory(name=data.payload_dir, path=data.payload_dir, current=snap.files.get(data.payload_dir))
+    operations.directory(name=f"Payload releases directory {data.payload_dir}", path=data.payload_dir, current=snap.files.get(data.payload_dir))
     operations.file(
-        name="payloadctl",
+        name="Install the release helper payloadctl",
         path=HELPER,
         content=helper_text(),
         current=snap.files.get(HELPER),
@@ -166,7 +222,7 @@ def deploy_payload(snap: Snapshot):
         snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
     )
     if data.payload_autostart:
-        unit_op = operations.file(name=f"{data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
+        unit_op = operations.file(name=f"Write the autostart unit {data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
         operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
         operations.service(
             name=f"Enable {data.payload_name}.service at boot",
@@ -176,7 +232,7 @@ def deploy_payload(snap: Snapshot):
             running=False,  # starting it is the release step's job (health-gated)
         )
     else:
-        removed = operations.absent(name="No payload autostart unit", paths=[unit], present=snap.files)
+        removed = operations.absent(name="Remove the payload autostart unit", paths=[unit], present=snap.files)
         operations.run(
             name="Disable the payload autostart unit",
             script=f"systemctl disable {shlex.quote(data.payload_name)}.service 2>/dev/null; systemctl daemon-reload",
@@ -191,7 +247,7 @@ def deploy_payload(snap: Snapshot):
             registry=imageref.parse(project.primary_image(data)).registry,
             username=username,
             password=password,
-            logged_in=snap.probes.get("registry_auth", "").strip() == "yes",
+            stored=snap.probes.get("registry_auth", ""),
         )
     if data.payload_delivery == "push":
         push.push_image(

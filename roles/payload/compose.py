@@ -46,7 +46,21 @@ def document(data, image: str, address: str, devices: list[str], x11: dict | Non
                 "reservations": {"devices": [{"driver": "nvidia", "count": "all", "capabilities": ["gpu"]}]}
             }
         }
-    return {"name": data.payload_name, "services": {SERVICE: service}}
+    return escape_interpolation({"name": data.payload_name, "services": {SERVICE: service}})
+
+
+def escape_interpolation(value):
+    """Every string value with `$` doubled: compose interpolates `$X` and
+    `${X:?}` from the environment of whoever runs it, so without this
+    `s3cr$et` would reach the container as `s3cr` and `${X:?}` would make
+    `compose up` fail.  What the fleet file says is what the container gets."""
+    if isinstance(value, str):
+        return value.replace("$", "$$")
+    if isinstance(value, dict):
+        return {key: escape_interpolation(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [escape_interpolation(item) for item in value]
+    return value
 
 
 def dump(doc: dict) -> str:
@@ -78,7 +92,8 @@ def project(data, address: str, gui: dict | None) -> dict:
         if name in extra["extra"] and name in declared:
             user = services.merge(extra["extra"][name], declared[name])
         base = document(data, user.get("image"), address, devices.get(name, []), gui)["services"][SERVICE]
-        built[name] = services.service(base, user, extra, name)
+        # document() escapes its own values; the user's and the preset's are escaped here, once.
+        built[name] = services.service(base, escape_interpolation(user), escape_interpolation(extra), name)
     doc = {"name": data.payload_name, "services": built}
     replaces = list(getattr(data, "payload_replaces", None) or [])
     if replaces:

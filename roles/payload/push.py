@@ -1,7 +1,9 @@
 """payload_delivery: push — for robots with no route to the registry.
 
 The image comes from the operator machine's Docker engine (Docker SDK for
-Python) over the existing SSH connection, only when the robot does not have
+Python) over the existing SSH connection, straight into `docker load` on
+the command's stdin (no file on the robot: nothing at a path another user
+could plant or swap), only when the robot does not have
 that exact image (same image id).  Only the layers the robot lacks are sent:
 the `docker save` archive is rewritten without the layer files whose chain
 (this layer and all below it) the robot already has.  `docker load` looks a
@@ -13,6 +15,7 @@ bytes sent.
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import shlex
@@ -20,7 +23,7 @@ import tarfile
 import tempfile
 
 from pyinfra import host
-from pyinfra.api import FileUploadCommand, FunctionCommand
+from pyinfra.api import FunctionCommand, StringCommand
 
 from roles import operations
 
@@ -77,14 +80,17 @@ def write_archive(image: str, path: str, have: list[list[str]], report: dict) ->
 
 
 def strip_layers(saved: str, path: str, have: list[list[str]]) -> dict:
-    """Copy the `docker save` archive `saved` to `path`, leaving out the layer
-    files of the bottom layers `have` already holds; returns the figures."""
+    """Copy the `docker save` archive `saved` to `path` (gzipped), leaving out
+    the layer files of the bottom layers `have` already holds; returns the
+    figures (``sent``: the gzipped size, before base64)."""
     with tarfile.open(saved) as source:
         manifest = json.load(source.extractfile("manifest.json"))
         config = json.load(source.extractfile(manifest[0]["Config"]))
         skip_count = layers_present(config["rootfs"]["diff_ids"], have)
         skip = set(manifest[0]["Layers"][:skip_count])
-        with tarfile.open(path, "w") as archive:
+        # gzip: `docker save` layers are plain tar and the archive travels as
+        # base64 (a third larger); `docker load` reads gzip as it is.
+        with tarfile.open(path, "w:gz", compresslevel=1) as archive:
             for member in source.getmembers():
                 if member.name not in skip:
                     archive.addfile(member, source.extractfile(member) if member.isfile() else None)
@@ -94,6 +100,37 @@ def strip_layers(saved: str, path: str, have: list[list[str]]) -> dict:
         "layers": len(config["rootfs"]["diff_ids"]),
         "skipped": skip_count,
     }
+
+
+class ArchiveStdin(list):
+    """The archive at ``path`` as base64 lines for a command's stdin, read
+    from disk while it is sent, so an image never sits whole in memory.  A
+    list because pyinfra's write_stdin iterates lists; read afresh each time
+    (pyinfra resends stdin when sudo asks for a password)."""
+
+    CHUNK = 57 * 1024  # a multiple of 57 bytes: whole 76-character base64 lines
+
+    def __init__(self, path: str):
+        super().__init__()
+        self.path = path
+
+    def __bool__(self) -> bool:
+        return True
+
+    def __iter__(self):
+        with open(self.path, "rb") as archive:
+            while chunk := archive.read(self.CHUNK):
+                yield base64.encodebytes(chunk).decode()
+
+
+def load_command(archive: str, log_line: str, log_dir: str) -> StringCommand:
+    """`docker load` reading the archive from stdin; logs the push when it worked."""
+    q = shlex.quote
+    return operations.shell(
+        "base64 -d | docker load -q >/dev/null; rc=$?; "
+        f'[ $rc -eq 0 ] && mkdir -p {q(log_dir)} && echo "{log_line}" >> {q(log_dir)}/push.log; exit $rc',
+        stdin=ArchiveStdin(archive),
+    )
 
 
 @operations.operation()
@@ -111,21 +148,20 @@ def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_d
         return
     fd, local_path = tempfile.mkstemp(prefix="robotprov-image-", suffix=".tar")
     os.close(fd)
-    remote_path = f"/tmp/robotprov-image-{local_id.split(':')[-1][:16]}.tar"
     report: dict = {}
+    line = (
+        f"$(date -u +%Y-%m-%dT%H:%M:%SZ) {image} {local_id} sent {{sent}} of "
+        f"{{full}} bytes, {{layers}} of {{total}} layers"
+    )
+
     try:
         yield FunctionCommand(write_archive, (image, local_path, remote_layers, report), {})
-        yield FileUploadCommand(local_path, remote_path, _sudo=False)
+        # pyinfra runs each command before asking for the next: report is filled.
+        filled = line.format(
+            sent=report.get("sent"), full=report.get("full"),
+            layers=report.get("layers", 0) - report.get("skipped", 0), total=report.get("layers"),
+        )
+        yield load_command(local_path, filled, log_dir)
     finally:
         if os.path.exists(local_path):
             os.unlink(local_path)
-    line = (
-        f"$(date -u +%Y-%m-%dT%H:%M:%SZ) {image} {local_id} sent {report.get('sent')} of "
-        f"{report.get('full')} bytes, {report.get('layers', 0) - report.get('skipped', 0)} of "
-        f"{report.get('layers')} layers"
-    )
-    q = shlex.quote
-    yield operations.shell(
-        f"docker load -q -i {q(remote_path)} >/dev/null; rc=$?; rm -f {q(remote_path)}; "
-        f'[ $rc -eq 0 ] && mkdir -p {q(log_dir)} && echo "{line}" >> {q(log_dir)}/push.log; exit $rc'
-    )

@@ -76,7 +76,7 @@ def sensor_rules(snap: Snapshot):
     for path, text in host.loop(sorted(files.items())):
         changes.append(
             operations.file(
-                name=f"udev rules {path}",
+                name=f"Write udev rules {path}",
                 path=path,
                 content=text,
                 current=snap.files.get(path),

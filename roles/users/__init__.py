@@ -31,7 +31,7 @@ def missing_memberships(users: list[str], groups_now: dict[str, list[str] | None
 def docker_group_members(users: list[str], groups_now: dict[str, list[str] | None]):
     absent, to_add = missing_memberships(users, groups_now)
     if absent:
-        yield operations.fail_command(
+        yield operations.refuse(
             f"docker_users: {', '.join(absent)} {'does' if len(absent) == 1 else 'do'} not exist on this host; "
             "create the account first (users are never created by this tool)"
         )

@@ -17,7 +17,7 @@ from roles import operations
 from roles.hoststate import Snapshot, SnapshotQuery
 
 HERE = Path(__file__).resolve().parent
-SCRIPT = "/usr/local/bin/robot-x11-cookie"
+COOKIE_SCRIPT = "/usr/local/bin/robot-x11-cookie"
 XSESSION_HOOK = "/etc/X11/Xsession.d/90robot-x11-cookie"
 AUTOSTART = "/etc/xdg/autostart/robot-x11-cookie.desktop"
 CONTAINER_DIR = "/tmp/.robot-x11"
@@ -51,7 +51,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     if not data.display:
         return
     query.packages.add("xauth")
-    query.files |= {SCRIPT, XSESSION_HOOK, AUTOSTART, data.x11_cookie_dir, cookie_dir(data)}
+    query.files |= {COOKIE_SCRIPT, XSESSION_HOOK, AUTOSTART, data.x11_cookie_dir, cookie_dir(data)}
     query.users.add(data.x11_user)
 
 
@@ -66,21 +66,27 @@ def x11_cookie(snap: Snapshot):
         )
         return
     operations.apt_install(name="Install xauth", packages=["xauth"], installed=snap.packages)
-    operations.file(name=SCRIPT, path=SCRIPT, content=cookie_script(data), current=snap.files.get(SCRIPT), mode="0755")
     operations.file(
-        name=XSESSION_HOOK,
+        name="Install the cookie script",
+        path=COOKIE_SCRIPT,
+        content=cookie_script(data),
+        current=snap.files.get(COOKIE_SCRIPT),
+        mode="0755",
+    )
+    operations.file(
+        name="Refresh the cookie at each X session start (Xsession.d hook)",
         path=XSESSION_HOOK,
         content=(HERE / "90robot-x11-cookie").read_text(),
         current=snap.files.get(XSESSION_HOOK),
     )
     operations.file(
-        name=AUTOSTART,
+        name="Refresh the cookie at each desktop login (XDG autostart)",
         path=AUTOSTART,
         content=(HERE / "robot-x11-cookie.desktop").read_text(),
         current=snap.files.get(AUTOSTART),
     )
     operations.directory(
-        name=data.x11_cookie_dir, path=data.x11_cookie_dir, current=snap.files.get(data.x11_cookie_dir)
+        name=f"Cookie directories root {data.x11_cookie_dir}", path=data.x11_cookie_dir, current=snap.files.get(data.x11_cookie_dir)
     )
     operations.directory(
         name=f"Cookie directory of {data.x11_user}",

@@ -4,9 +4,15 @@ from inside.  The tests build on each other (one lab per session)."""
 from __future__ import annotations
 
 import json
+import os
 import re
+import shlex
+import subprocess
+import sys
 
 import pytest
+
+from tests.e2e.conftest import PYINFRA, ROOT
 
 pytestmark = pytest.mark.e2e
 
@@ -94,6 +100,31 @@ def test_second_run_changes_nothing(lab, first_run):
     run = lab.provision(label="(second run)")
     assert run.returncode == 0, run.output[-4000:]
     assert {h: run.changes(h) for h in lab.hosts} == {h: [] for h in lab.hosts}
+
+
+def test_dry_diff_shows_a_drifted_daemon_json_and_changes_nothing(lab, first_run):
+    """`--dry --diff` (no -y: planning is what it shows) on a robot whose
+    daemon.json drifted prints the diff, and leaves the file and Docker alone."""
+    host = "robot3"
+    original = lab.ok(host, "cat /etc/docker/daemon.json")
+    drifted = original.replace('"max-size": "10m"', '"max-size": "1m"')
+    assert drifted != original
+    started = lab.ok(host, "systemctl show -p ActiveEnterTimestampMonotonic docker.service")
+    lab.ok(host, f"printf %s {shlex.quote(drifted)} > /etc/docker/daemon.json")
+    try:
+        env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, PYINFRA_PROGRESS="off")
+        proc = subprocess.run(
+            [sys.executable, "-c", PYINFRA, "--dry", "--diff", "--limit", host, "inventories/lab.py", "deploy.py"],
+            cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
+        )
+        output = proc.stdout + proc.stderr
+        assert proc.returncode == 0, output[-4000:]
+        assert "Will modify /etc/docker/daemon.json" in output
+        assert '-    "max-size": "1m"' in output and '+    "max-size": "10m"' in output, output[-4000:]
+        assert lab.ok(host, "cat /etc/docker/daemon.json") == drifted
+        assert lab.ok(host, "systemctl show -p ActiveEnterTimestampMonotonic docker.service") == started
+    finally:
+        lab.ok(host, f"printf %s {shlex.quote(original)} > /etc/docker/daemon.json")
 
 
 def test_changing_one_robots_tag_changes_that_robot_alone(lab, first_run, tmp_path):

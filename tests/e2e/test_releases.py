@@ -115,8 +115,14 @@ def test_push_delivery_to_a_robot_without_registry(lab, fleet_on):
     }
     fleet = fleet_on("1.0", extra)
     assert lab.sh("robot3", "docker pull offline.invalid/ros/payload:1.1")[0] != 0  # no route to that registry
+    # Another local user plants a file where the image used to be uploaded: nothing is written to a path.
+    image_id = engine.images.get("offline.invalid/ros/payload:1.1").id.split(":")[-1]
+    planted = f"/tmp/robotprov-image-{image_id[:16]}.tar"
+    lab.ok("robot3", f"echo planted > {planted} && chown ros {planted} && chmod 644 {planted}")
     run = lab.provision("--limit", "robot3", fleet=fleet, label="(robot3 by push)")
     assert run.returncode == 0, run.output[-3000:]
+    assert lab.ok("robot3", f"cat {planted}") == "planted\n"
+    assert lab.ok("robot3", "ls /tmp").split().count(planted.rsplit("/", 1)[1]) == 1
     assert lab.version("robot3") == "1.1"
     sent = lab.ok("robot3", "cat /var/lib/robot-payload/push.log").splitlines()
     assert len(sent) == 1

@@ -17,13 +17,13 @@ import tarfile
 import tempfile
 from typing import TYPE_CHECKING
 
+from .debian_archive import ArchiveError, debian_archive_url
 from .engine import LAB_DIR, LabError, get_or_none, timed_phase
 
 if TYPE_CHECKING:
     import docker
 
 SUITE = "trixie"
-MIRROR = "http://deb.debian.org/debian"
 VARIANT = "minbase"
 INCLUDE_PACKAGES = (
     "systemd", "systemd-sysv", "dbus", "udev", "openssh-server", "sudo",
@@ -122,8 +122,16 @@ def recipe_hash(recipe: object) -> str:
     return hashlib.sha256(blob).hexdigest()[:12]
 
 
+def debian_url() -> str:
+    """This machine's Debian archive (its apt sources; ROBOT_LAB_DEBIAN_URL overrides)."""
+    try:
+        return debian_archive_url()
+    except ArchiveError as error:
+        raise LabError(str(error)) from None
+
+
 def base_recipe() -> dict:
-    return {"suite": SUITE, "mirror": MIRROR, "variant": VARIANT,
+    return {"suite": SUITE, "mirror": debian_url(), "variant": VARIANT,
             "include": list(INCLUDE_PACKAGES)}
 
 
@@ -167,7 +175,7 @@ def _debootstrap_and_import(dc: docker.DockerClient, tag: str) -> None:
     with tempfile.TemporaryDirectory(dir=BUILD_DIR) as tmp:
         rootfs = f"{tmp}/rootfs"
         cmd = ["debootstrap", f"--variant={VARIANT}",
-               "--include=" + ",".join(INCLUDE_PACKAGES), SUITE, rootfs, MIRROR]
+               "--include=" + ",".join(INCLUDE_PACKAGES), SUITE, rootfs, debian_url()]
         with open(log_path, "wb") as log:
             try:
                 done = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)

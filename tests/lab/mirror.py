@@ -40,10 +40,11 @@ import tempfile
 import time
 from pathlib import Path
 
+from .debian_archive import ArchiveError, debian_archive_url
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUT_DIR = REPO_ROOT / ".lab" / "cache" / "docker-mirror"
 
-DEBIAN_MIRROR = "http://deb.debian.org/debian"
 DEBIAN_KEYRING = "/usr/share/keyrings/debian-archive-keyring.gpg"
 SUITE = "trixie"
 DEBIAN_RELEASE = "13"
@@ -394,6 +395,14 @@ def release_text(index_files: dict[str, bytes], date: str) -> str:
 
 # ---------------------------------------------------------------- apt (trixie)
 
+def debian_url() -> str:
+    """This machine's Debian archive (its apt sources; ROBOT_LAB_DEBIAN_URL overrides)."""
+    try:
+        return debian_archive_url()
+    except ArchiveError as error:
+        raise MirrorError(str(error)) from None
+
+
 class TrixieApt:
     """apt-get/apt-cache against trixie main, with private state: the machine's
     own apt configuration and package lists are left alone."""
@@ -403,7 +412,7 @@ class TrixieApt:
         (work / "lists" / "partial").mkdir(parents=True, exist_ok=True)
         (work / "archives" / "partial").mkdir(parents=True, exist_ok=True)
         self.sources = work / "sources.list"
-        self.sources.write_text(f"deb [signed-by={DEBIAN_KEYRING}] {DEBIAN_MIRROR} {SUITE} main\n")
+        self.sources.write_text(f"deb [signed-by={DEBIAN_KEYRING}] {debian_url()} {SUITE} main\n")
         self.status = work / "status"
         self.status.touch()
 

@@ -328,3 +328,11 @@ def test_status_shows_each_service_image_state_and_health():
     assert row["health"] == "driver:none, payload:healthy"
     line = status.table([row]).splitlines()[1]
     assert f"driver=reg/ros/driver@sha256:{'d' * 12}, payload=reg/ros/payload@sha256:{'e' * 12}" in line
+
+
+def test_a_service_s_values_reach_the_container_verbatim():
+    doc = rendered({"payload_services": {"a": {"image": f"{REG}/a:1", "command": ["sh", "-c", "echo $HOME"],
+                                               "environment": {"PS1": "$ "}}}, "payload_environment": {"X": "a$b"}})
+    service = doc["services"]["a"]
+    assert service["command"] == ["sh", "-c", "echo $$HOME"]
+    assert service["environment"]["PS1"] == "$$ " and service["environment"]["X"] == "a$$b"

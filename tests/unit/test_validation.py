@@ -68,7 +68,7 @@ def test_readme_documents_every_setting():
     "doc, expected",
     [
         (robot(sensors=[{"name": "cam", "subsystem": "tty", "serial": 42}]),
-         "robots.yaml: robot3.sensors[0].serial: expected a string, got 42"),
+         "robots.yaml: robot3.sensors[0].serial: expected a string, got 42; quote it"),
         (robot(sensors=[{"name": "cam", "subsystem": "tty"}]),
          "robots.yaml: robot3.sensors[0]: needs a match: serial, vendor_id/product_id or usb_port"),
         (robot(sensors=[{"name": "cam", "subsystem": "tty", "serail": "x", "serial": "x"}]),
@@ -111,7 +111,7 @@ def test_readme_documents_every_setting():
          "robots.yaml: robot3.udev_rules_file: expected a file in /etc/udev/rules.d/ ending in .rules, got '/etc/udev/robot.rules'"),
         (robot(docker_source="snap"), "robots.yaml: robot3.docker_source: expected one of docker, distro, got 'snap'"),
         (robot(payload_environment={"ROS DISTRO": "jazzy"}),
-         "robots.yaml: robot3.payload_environment.ROS DISTRO: expected an environment variable name, got 'ROS DISTRO'"),
+         "robots.yaml: robot3.payload_environment.'ROS DISTRO': expected an environment variable name, got 'ROS DISTRO'"),
         (robot(ros_master_uri="http://master:11311", ros_domain_id=3),
          "robots.yaml: robot3.ros_master_uri: set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"),
         ({"robots": {"hosts": {"robot3": {"address": "10.0.0.1"}}}},
@@ -119,11 +119,11 @@ def test_readme_documents_every_setting():
         ({"robots": {"vars": {"payload_imag": "x:1"}, "hosts": {}}},
          "robots.yaml: robots.vars.payload_imag: unknown setting (did you mean 'payload_image'?)"),
         ({"robot": {"hosts": {}}},
-         "robots.yaml: robot: unknown top-level key (did you mean 'robots'?); expected all, robots or laptops"),
-        ({"robots": {"hosts": {"a b": GOOD_HOST}}}, "robots.yaml: a b: invalid host name (letters, digits, . _ -)"),
+         "robots.yaml: robot: unknown top-level key (did you mean 'robots'?); expected all, robots or laptops (or x-... for YAML anchors)"),
+        ({"robots": {"hosts": {"a b": GOOD_HOST}}}, "robots.yaml: 'a b': invalid host name (letters, digits, . _ -)"),
         ({"robots": {"hosts": {"r1": GOOD_HOST}}, "laptops": {"hosts": {"r1": {**GOOD_HOST, "x11_user": "a"}}}},
          "robots.yaml: r1: declared in both robots and laptops"),
-        ({"robots": {"hosts": {"r1": ["not", "a", "mapping"]}}}, "robots.yaml: r1: expected a mapping of settings"),
+        ({"robots": {"hosts": {"r1": ["not", "a", "mapping"]}}}, "robots.yaml: r1: expected a mapping of settings, got a list"),
     ],
 )
 def test_bad_data_gets_one_clear_line(doc, expected):
@@ -141,7 +141,7 @@ def test_yaml_syntax_error_names_the_line(tmp_path):
     with pytest.raises(fleet.FleetError) as error:
         fleet.load(path)
     (line,) = error.value.lines
-    assert line.startswith(fleet.display_path(path) + ": line 4: YAML error: ")
+    assert line.startswith(fleet.display_path(path) + ": line 3: YAML error: a flow mapping opened here (column 9) is not closed: ")
 
 
 def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
@@ -168,7 +168,7 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
     )
     assert proc.returncode == 2
-    assert "inventories/robots.yaml: robot3.sensors[0].serial: expected a string, got 42" in proc.stderr
+    assert "inventories/robots.yaml: robot3.sensors[0].serial: expected a string, got 42; quote it" in proc.stderr
     assert "Traceback" not in proc.stderr + proc.stdout
     assert "Connecting" not in proc.stderr + proc.stdout
 

@@ -1,0 +1,168 @@
+"""Read fleet YAML into plain data: total, bounded, one line per problem.
+
+libyaml (CSafeLoader's parser) builds the node tree; this module turns nodes
+into Python values itself instead of using PyYAML's constructor, because it
+has to: refuse duplicate keys while still honouring merge keys (``<<``), keep
+keys YAML did not read as strings (``010`` is 8) so the checks can say
+"quote it", refuse recursive aliases and nesting deeper than MAX_DEPTH, and
+share aliased values instead of copying them (a billion-laughs document stays
+small here; the checks bound their own walks).
+"""
+
+from __future__ import annotations
+
+import yaml
+from yaml.constructor import SafeConstructor
+from yaml.nodes import MappingNode, ScalarNode, SequenceNode
+
+from roles.checks import NotAString
+
+MAX_DEPTH = 50
+_T = "tag:yaml.org,2002:"
+_STR, _MERGE, _VALUE = _T + "str", _T + "merge", _T + "value"
+_SEQ, _MAP = _T + "seq", _T + "map"
+_SCALARS = {
+    _T + "null": SafeConstructor.construct_yaml_null,
+    _T + "bool": SafeConstructor.construct_yaml_bool,
+    _T + "int": SafeConstructor.construct_yaml_int,
+    _T + "float": SafeConstructor.construct_yaml_float,
+    _T + "timestamp": SafeConstructor.construct_yaml_timestamp,
+}
+_constructor = SafeConstructor()
+
+
+class YamlProblem(Exception):
+    """Why a byte string is not a fleet document we can read, as one line."""
+
+    def __init__(self, line: int | None, message: str):
+        super().__init__(f"line {line}: YAML error: {message}" if line else f"YAML error: {message}")
+
+
+def load(data: bytes | str):
+    """The document's data (None for an empty document), or YamlProblem."""
+    text = _decode(data) if isinstance(data, bytes) else data
+    loader = yaml.CSafeLoader(text)
+    try:
+        node = loader.get_single_node()
+    except yaml.reader.ReaderError as error:
+        raise _reader_problem(error, text) from None
+    except yaml.MarkedYAMLError as error:
+        raise _marked_problem(error) from None
+    except yaml.YAMLError as error:
+        raise YamlProblem(None, str(error).replace("\n", " ")) from None
+    finally:
+        loader.dispose()
+    return None if node is None else _Builder().build(node, 0)
+
+
+def _decode(data: bytes) -> str:
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as error:
+        line = data.count(b"\n", 0, error.start) + 1
+        raise YamlProblem(line, f"not UTF-8 text (byte 0x{data[error.start]:02x}); save the file as UTF-8") from None
+
+
+def _reader_problem(error, text: str) -> YamlProblem:
+    position = min(max(int(getattr(error, "position", 0) or 0), 0), len(text))
+    character = getattr(error, "character", None)
+    shown = f"U+{character:04X}" if isinstance(character, int) else repr(character)
+    return YamlProblem(text.count("\n", 0, position) + 1, f"character {shown} is not allowed in YAML")
+
+
+def _marked_problem(error: yaml.MarkedYAMLError) -> YamlProblem:
+    """Unclosed quotes and flow collections are reported where they were
+    opened (the parser gives up far below); other errors where they are."""
+    context, problem = error.context or "", error.problem or "invalid YAML"
+    opened, found = error.context_mark, error.problem_mark
+    if opened is not None and found is not None and ("quoted" in context or "flow" in context):
+        return YamlProblem(
+            opened.line + 1,
+            f"{context.removeprefix('while scanning ').removeprefix('while parsing ')} opened here (column {opened.column + 1})"
+            f" is not closed: {problem} (line {found.line + 1}, column {found.column + 1})",
+        )
+    primary = found or opened
+    if context and opened is not None and found is not None:
+        problem += f" ({context} from line {opened.line + 1})"
+    return YamlProblem(primary.line + 1 if primary is not None else None, problem)
+
+
+class _Builder:
+    def __init__(self):
+        self.built: dict[int, object] = {}  # id(node) -> value: aliases share it
+        self.building: set[int] = set()
+
+    def build(self, node, depth: int):
+        key = id(node)
+        if key in self.built:
+            return self.built[key]
+        if key in self.building:
+            raise YamlProblem(node.start_mark.line + 1, "an alias refers to its own anchor (a recursive value)")
+        if depth > MAX_DEPTH:
+            raise YamlProblem(node.start_mark.line + 1, f"nested more than {MAX_DEPTH} levels deep")
+        if isinstance(node, ScalarNode):
+            value = self.scalar(node)
+        elif isinstance(node, SequenceNode):
+            self.require(node, _SEQ)
+            self.building.add(key)
+            value = [self.value(item, depth + 1) for item in node.value]
+            self.building.discard(key)
+        else:
+            self.require(node, _MAP)
+            self.building.add(key)
+            value = self.mapping(node, depth)
+            self.building.discard(key)
+        self.built[key] = value
+        return value
+
+    def value(self, node, depth: int):
+        # Plain strings are most of a fleet file: no bookkeeping for them.
+        if node.tag == _STR and type(node) is ScalarNode:
+            return node.value
+        return self.build(node, depth)
+
+    @staticmethod
+    def require(node, tag: str):
+        if node.tag != tag:
+            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {node.tag!r} is not supported here")
+
+    @staticmethod
+    def scalar(node: ScalarNode):
+        if node.tag in (_STR, _VALUE):
+            return node.value
+        convert = _SCALARS.get(node.tag)
+        if convert is None:
+            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {node.tag!r} is not supported here")
+        try:
+            return convert(_constructor, node)
+        except (ValueError, TypeError, OverflowError, yaml.YAMLError):
+            raise YamlProblem(node.start_mark.line + 1, f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}") from None
+
+    def mapping(self, node: MappingNode, depth: int) -> dict:
+        result: dict = {}
+        merges = []
+        for key_node, value_node in node.value:
+            if key_node.tag == _MERGE:
+                merges.append(value_node)
+                continue
+            key = key_node.value if key_node.tag == _STR and type(key_node) is ScalarNode else self.key(key_node)
+            if key in result:
+                raise YamlProblem(key_node.start_mark.line + 1, f"duplicate key {str(key)!r}")
+            result[key] = self.value(value_node, depth + 1)
+        # Own keys win over merged ones; among merged mappings the first wins.
+        for value_node in merges:
+            sources = value_node.value if isinstance(value_node, SequenceNode) else [value_node]
+            for source in sources:
+                if not isinstance(source, MappingNode):
+                    raise YamlProblem(value_node.start_mark.line + 1, "a merge key (<<) takes a mapping or a list of mappings")
+                for merged_key, merged_value in self.build(source, depth + 1).items():
+                    result.setdefault(merged_key, merged_value)
+        return result
+
+    def key(self, node):
+        if not isinstance(node, ScalarNode):
+            kind = "list" if isinstance(node, SequenceNode) else "mapping"
+            raise YamlProblem(node.start_mark.line + 1, f"a key must be a plain name, not a {kind}")
+        if node.tag in (_STR, _VALUE):
+            return node.value
+        return NotAString(self.scalar(node), node.value)

@@ -1,0 +1,71 @@
+"""Benchmark: reading and checking a large fleet file, as the inventory does
+before any connection.  Prints figures; asserts nothing (the target, 5,000
+hosts in under 1 s, lives here, not in a timed test).
+
+    python3 -m tests.bench.validation [--hosts 5000] [--runs 3]
+
+Wall time on a shared machine swings with other work; CPU time of this
+process is printed beside it and is the steadier figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+from roles import fleet
+
+SENSORS = (
+    '        - {name: front_camera, subsystem: video4linux, vendor_id: "046d", product_id: "0825", usb_port: "1-1.2"}\n'
+    '        - {name: lidar, subsystem: tty, serial: "0001A2B3"}\n'
+)
+
+
+def fleet_text(hosts: int, sensors: bool) -> str:
+    """A fleet like inventories/robots.yaml, with ``hosts`` robots."""
+    lines = [
+        "all:\n  vars:\n    ssh_user: ops\n    payload_image: registry.example.com/acme/ros-payload:1.4.2\n",
+        "robots:\n  vars:\n    docker_users: [ops]\n    payload_volumes: [/var/lib/robot-maps:/maps]\n  hosts:\n",
+    ]
+    for index in range(hosts):
+        lines.append(f"    robot{index}:\n      address: 10.{index // 65536}.{index // 256 % 256}.{index % 256}\n")
+        if sensors:
+            lines.append("      sensors:\n" + SENSORS)
+    return "".join(lines)
+
+
+def measure(path: Path, runs: int) -> tuple[float, float, int]:
+    best_wall = best_cpu = float("inf")
+    for _ in range(runs):
+        wall, cpu = time.perf_counter(), time.process_time()
+        loaded = fleet.load(path)
+        best_wall = min(best_wall, time.perf_counter() - wall)
+        best_cpu = min(best_cpu, time.process_time() - cpu)
+    return best_wall, best_cpu, len(loaded.hosts("robots"))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--hosts", type=int, default=5000)
+    parser.add_argument("--runs", type=int, default=3)
+    args = parser.parse_args()
+    fleet.read_group_data()  # warm imports once
+    with tempfile.TemporaryDirectory() as directory:
+        for label, sensors in (("address only", False), ("address + 2 sensors", True)):
+            path = Path(directory) / "robots.yaml"
+            path.write_text(fleet_text(args.hosts, sensors))
+            wall, cpu, count = measure(path, args.runs)
+            print(f"{count} hosts ({label}, {path.stat().st_size // 1024} KiB): "
+                  f"load + check {wall:.3f} s wall, {cpu:.3f} s CPU (best of {args.runs})")
+            if not sensors:
+                started = time.process_time()
+                yaml.load(path.read_text(), Loader=yaml.SafeLoader)
+                print(f"  for comparison, PyYAML's pure-Python SafeLoader alone: {time.process_time() - started:.3f} s CPU")
+
+
+if __name__ == "__main__":
+    main()

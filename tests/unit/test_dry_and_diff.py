@@ -1,0 +1,164 @@
+"""`--diff` shows what each managed file would become; `--dry` names the
+reason a host will fail while planning and counts it as failed."""
+
+import logging
+
+import pytest
+
+from roles import operations
+from roles.hoststate import FileState
+from tests.unit.fakefleet import find, fresh_host, plan
+from tests.unit.test_plan import ROBOT, _file, converged
+
+DAEMON_JSON = "/etc/docker/daemon.json"
+DRIFTED = '{\n  "live-restore": false\n}\n'
+
+
+@pytest.fixture
+def log(caplog):
+    caplog.set_level(logging.INFO, logger="pyinfra")
+    return caplog
+
+
+def drifted_robot():
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files[DAEMON_JSON] = _file(DRIFTED)
+    return snap
+
+
+def test_unified_diff_of_a_file():
+    assert operations.unified_diff("/f", "a\nb\n", "a\nc\n") == [
+        "--- /f (on the host)", "+++ /f (planned)", "@@ -1,2 +1,2 @@", " a", "-b", "+c",
+    ]
+
+
+def test_diff_shows_the_drifted_file_and_reads_only_that_file(log):
+    result = plan({"r1": ("robots", ROBOT, drifted_robot())}, run=False, diff=True,
+                  contents={"r1": {DAEMON_JSON: DRIFTED}})
+    # Planning sent one read: the content of the one file the snapshot found different.
+    assert result["r1"] == [f"( test -e {DAEMON_JSON} && cat {DAEMON_JSON} ) || echo __pyinfra_missing_{DAEMON_JSON}"]
+    lines = [r.getMessage().strip() for r in log.records]
+    assert f"[@fake/r1] Will modify {DAEMON_JSON}" in "\n".join(lines)
+    start = lines.index(f"--- {DAEMON_JSON} (on the host)")
+    assert lines[start:start + 5] == [
+        f"--- {DAEMON_JSON} (on the host)", f"+++ {DAEMON_JSON} (planned)", "@@ -1,3 +1,8 @@", "{",
+        '-  "live-restore": false',
+    ]
+    assert '+  "live-restore": true,' in lines and result.failed == set()
+
+
+def test_diff_of_a_new_file_reads_nothing(log):
+    result = plan({"r1": ("robots", ROBOT, fresh_host("debian-13"))}, run=False, diff=True)
+    assert not find(result["r1"], "cat ")
+    text = "\n".join(r.getMessage() for r in log.records)
+    assert f"Will create {DAEMON_JSON}" in text and '+  "live-restore": true,' in text
+
+
+def test_converged_host_with_diff_sends_nothing_and_prints_no_diff(log):
+    result = plan({"r1": ("robots", ROBOT, converged("robots", ROBOT, "debian-13"))}, diff=True)
+    assert result["r1"] == []
+    assert not [r for r in log.records if "Will modify" in r.getMessage()]
+
+
+def test_without_diff_no_content_is_fetched(log):
+    result = plan({"r1": ("robots", ROBOT, drifted_robot())}, run=False)
+    assert result["r1"] == [] and "Will modify" not in log.text
+
+
+def test_diff_is_printed_once_per_file_in_a_full_run(log):
+    plan({"r1": ("robots", ROBOT, drifted_robot())}, diff=True, contents={"r1": {DAEMON_JSON: DRIFTED}})
+    assert len([r for r in log.records if f"Will modify {DAEMON_JSON}" in r.getMessage()]) == 1
+
+
+@pytest.mark.parametrize("name, data, snap, reason", [
+    ("arch", ROBOT, fresh_host("ubuntu-24.04", "armhf"), "docker: architecture armhf is not supported"),
+    ("user", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"), "docker_users: ghost does not exist on this host"),
+    ("settings", {**ROBOT, "ssh_port": "x"}, fresh_host("debian-13"), "settings: ssh_port: expected a whole number"),
+    ("x11", {**ROBOT, "display": True, "x11_user": "alice"}, fresh_host("debian-13"), "x11_user: alice does not exist on this host"),
+    ("dir", ROBOT, "daemon.json is a directory", "/etc/docker/daemon.json exists but is not a regular file"),
+])
+def test_dry_run_names_the_failure_while_planning_and_counts_it(log, name, data, snap, reason):
+    if snap == "daemon.json is a directory":
+        snap = converged("robots", ROBOT, "debian-13")
+        snap.files[DAEMON_JSON] = FileState("dir", None, "755", "root", "root")
+    result = plan({"bad": ("robots", data, snap), "good": ("robots", ROBOT, fresh_host("debian-13"))}, run=False)
+    assert result.failed == {"bad"}
+    errors = [r.getMessage() for r in log.records if r.levelno >= logging.ERROR]
+    assert len([e for e in errors if e.startswith("[@fake/bad] ") and reason in e]) == 1, errors
+    assert result["bad"] == [] and result["good"] == []  # planning sends nothing else
+
+
+def test_a_planned_failure_still_fails_the_host_when_run():
+    result = plan({"bad": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf")), "good": ("robots", ROBOT, fresh_host("debian-13"))})
+    assert result.failed == {"bad"} and "architecture armhf is not supported" in result["bad"][0]
+    assert find(result["good"], "payloadctl apply")
+
+
+CLI = """
+import sys
+from pyinfra_cli.main import main
+from tests.unit.fakefleet import _Recorder, fresh_host
+sys.argv = ["pyinfra", *sys.argv[1:]]
+with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}, {}):
+    main()
+"""
+
+
+def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
+    """The real CLI (in-process, @fake hosts answered by the harness)."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.unit.fakefleet import ROOT
+
+    host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
+    inventory = tmp_path / "fake.py"
+    inventory.write_text(f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', {host!r})]\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
+    proc = subprocess.run([sys.executable, "-c", CLI, "--dry", str(inventory), "deploy.py"],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 1, output[-3000:]
+    planning = output.split("--> Preparing operation", 1)[1].split("--> Detected changes", 1)[0]
+    reasons = [line.strip() for line in planning.splitlines() if "ghost" in line]
+    assert reasons == [
+        "[@fake/bad]  docker_users: ghost does not exist on this host; "
+        "create the account first (users are never created by this tool)"
+    ]
+
+
+DIFF_CLI = """
+import sys
+from pyinfra_cli.main import main
+from tests.unit.fakefleet import _Recorder
+from tests.unit.test_dry_and_diff import DAEMON_JSON, DRIFTED, drifted_robot
+sys.argv = ["pyinfra", *sys.argv[1:]]
+with _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}) as recorder:
+    try:
+        main()
+    finally:
+        print("SENT", [str(c) for c in recorder.sent["r1"]])
+"""
+
+
+def test_pyinfra_dry_diff_prints_the_drifted_file(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from tests.unit.fakefleet import ROOT
+
+    inventory = tmp_path / "fake.py"
+    host = {**ROBOT, "fake_delay": 0, "fake_delay_jitter": 0}
+    inventory.write_text(f"robots = [('@fake/r1', {host!r})]\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
+    proc = subprocess.run([sys.executable, "-c", DIFF_CLI, "--dry", "--diff", str(inventory), "deploy.py"],
+                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 0, output[-3000:]
+    assert f"[@fake/r1] Will modify {DAEMON_JSON}" in output
+    assert '-  "live-restore": false' in output and '+  "live-restore": true,' in output
+    # The one thing sent besides the snapshot is the read of that file.
+    sent = [line for line in output.splitlines() if line.startswith("SENT ")]
+    assert sent == [f"SENT ['( test -e {DAEMON_JSON} && cat {DAEMON_JSON} ) || echo __pyinfra_missing_{DAEMON_JSON}']"]

@@ -1,0 +1,175 @@
+"""The curated corpus: one broken fleet file per class of mistake (issue 9,
+and the validator half of issue 8), each with the exact lines a user sees.
+Every line names the file and the host/field; nothing else is printed."""
+
+import pytest
+
+from roles import fleet
+
+BASE = "all:\n  vars:\n    payload_image: reg.example.com/p:1\n"
+
+
+def lines(text) -> list[str]:
+    try:
+        fleet.parse(text, "f.yaml")
+    except fleet.FleetError as error:
+        return error.lines
+    return []
+
+
+def host(*settings: str) -> str:
+    """A fleet with one robot r1 whose settings are the given YAML lines."""
+    return BASE + "robots:\n  hosts:\n    r1:\n" + "".join(f"      {line}\n" for line in settings)
+
+
+def bomb(under: str) -> str:
+    """Billion laughs: 9 levels of 9 aliases (387 million leaves) under a setting."""
+    levels = ["x-l0: &l0 [lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
+    levels += [f"x-l{i}: &l{i} [{', '.join([f'*l{i - 1}'] * 9)}]" for i in range(1, 10)]
+    return "\n".join(levels) + "\n" + host(f"{under}: {{a: *l9}}")
+
+
+CORPUS = [
+    # 1. wrong types where a scalar or string is assumed; keys must be strings
+    ("mapping as image", host("payload_image: {a: 1}"),
+     ["f.yaml: r1.payload_image: expected a string, got a mapping"]),
+    ("list as serial and symlink", host("sensors:", "  - {name: a, subsystem: tty, serial: [1]}",
+                                        "  - {name: b, subsystem: tty, serial: '2', symlink: [x]}"),
+     ["f.yaml: r1.sensors[0].serial: expected a string, got a list",
+      "f.yaml: r1.sensors[1].symlink: expected a string, got a list"]),
+    ("list as sensor name, twice", host("sensors:", "  - {name: [a], subsystem: tty, serial: '1'}",
+                                        "  - {name: [a], subsystem: tty, serial: '1'}"),
+     ["f.yaml: r1.sensors[0].name: expected a string, got a list",
+      "f.yaml: r1.sensors[1].name: expected a string, got a list"]),
+    ("refused sensor, duplicates among the others", host("sensors:", "  - {name: x, subsystem: tty, serial: [1]}",
+                                                          "  - {name: a, subsystem: tty, serial: '1'}",
+                                                          "  - {name: a, subsystem: tty, serial: '2'}"),
+     ["f.yaml: r1.sensors[0].serial: expected a string, got a list",
+      "f.yaml: r1.sensors[2].name: duplicate sensor name 'a' (also sensors[1])",
+      "f.yaml: r1.sensors[2].symlink: /dev/robot/a is already used by sensors[1]"]),
+    ("number as setting key", host("8080: 80"),
+     ["f.yaml: r1.8080: a setting name must be a string, got 8080; quote it"]),
+    ("number as sensor field", host("sensors:", "  - {name: a, subsystem: tty, serial: '1', 1: x}"),
+     ["f.yaml: r1.sensors[0].1: a sensor field name must be a string, got 1; quote it"]),
+    ("list as mapping key", host("? [a, b]", ": 1"),
+     ["f.yaml: line 7: YAML error: a key must be a plain name, not a list"]),
+    ("not UTF-8", (BASE + "robots:\n  hosts:\n    r1: {address: caf\xe9}\n").encode("latin-1"),
+     ["f.yaml: line 6: YAML error: not UTF-8 text (byte 0xe9); save the file as UTF-8"]),
+    ("control character", BASE + "robots:\n  hosts:\n    r1: {address: a\x07b}\n",
+     ["f.yaml: line 6: YAML error: character U+0007 is not allowed in YAML"]),
+    ("deep nesting", host("docker_daemon_options: {a: " + "[" * 5000 + "]" * 5000 + "}"),
+     ["f.yaml: line 7: YAML error: nested more than 50 levels deep"]),
+    ("recursive alias", host("docker_daemon_options: &a {a: *a}"),
+     ["f.yaml: line 7: YAML error: an alias refers to its own anchor (a recursive value)"]),
+    ("section of the wrong type", BASE + "robots: [r1, r2]\n",
+     ["f.yaml: robots: expected a mapping with vars and hosts, got a list"]),
+    ("unknown tag", host("payload_image: !env IMAGE"),
+     ["f.yaml: line 7: YAML error: the YAML tag '!env' is not supported here"]),
+    # 2. alias bomb under a free-form setting: bounded, one line
+    ("billion laughs", bomb("docker_daemon_options"),
+     ["f.yaml: r1.docker_daemon_options.a: unknown daemon.json option"]),
+    ("billion laughs in a known option", bomb("docker_daemon_options").replace("{a: *l9}", "{features: {a: *l9}}"),
+     ["f.yaml: r1.docker_daemon_options.features.a: more than 10000 values (YAML aliases expand); daemon options are small"]),
+    # 3. no hosts is an error, not a silent no-op
+    ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
+    ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
+    ("hosts left empty", BASE + "robots:\n  hosts:\n",
+     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
+    # 4. addresses
+    ("bad IPv4", host("address: 127.0.0.300"), ["f.yaml: r1.address: '127.0.0.300' is not a valid IPv4 address"]),
+    ("host:port", host("address: '10.0.0.5:2222'"),
+     ["f.yaml: r1.address: expected a host name or an IP address, got '10.0.0.5:2222'; put the port in ssh_port: 2222"]),
+    ("space in address", host("address: robot 1"),
+     ["f.yaml: r1.address: expected a host name or an IP address, got 'robot 1'"]),
+    ("good addresses", BASE + "robots:\n  hosts:\n    r1: {address: 'fe80::1'}\n    r2: {address: robot2.lan}\n"
+                               "    r3: {address: 10.0.0.3}\n    r4: {}\n", []),
+    # 5. YAML 1.1 surprises in names
+    ("octal-looking host name", BASE + "robots:\n  hosts:\n    010: {}\n",
+     ["f.yaml: 010: a host name must be a string, got 010 (read by YAML as 8); quote it"]),
+    ("boolean-looking host name", BASE + "robots:\n  hosts:\n    yes: {}\n    r2: {}\n",
+     ["f.yaml: yes: a host name must be a string, got yes (read by YAML as a boolean (true)); quote it"]),
+    ("quoted host name", BASE + "robots:\n  hosts:\n    '010': {}\n", []),
+    # 6. docker daemon options checked before connecting
+    ("daemon option typo", host("docker_daemon_options: {live-restor: true}"),
+     ["f.yaml: r1.docker_daemon_options.live-restor: unknown daemon.json option (did you mean 'live-restore'?)"]),
+    ("daemon option types", host("docker_daemon_options: {debug: 'yes', dns: [1], log-opts: {max-size: 10}}"),
+     ["f.yaml: r1.docker_daemon_options.debug: expected true or false, got 'yes'",
+      "f.yaml: r1.docker_daemon_options.dns[0]: expected a string, got 1; quote it",
+      "f.yaml: r1.docker_daemon_options.log-opts.max-size: expected a string, got 10; quote it"]),
+    # 7. positions: where a quote or flow collection was opened; one line per problem
+    ("unclosed quote", BASE + "robots:\n  hosts:\n    r1: {address: \"10.0.0.1}\n    r2: {}\n",
+     ["f.yaml: line 6: YAML error: a quoted scalar opened here (column 19) is not closed: "
+      "found unexpected end of stream (line 8, column 1)"]),
+    ("unclosed flow mapping", BASE + "robots:\n  hosts:\n    r1: {address: 10.0.0.1\n    r2: {}\n",
+     ["f.yaml: line 6: YAML error: a flow mapping opened here (column 9) is not closed: "
+      "did not find expected ',' or '}' (line 7, column 7)"]),
+    ("bad indentation", BASE + "robots:\n  hosts:\n    r1: {}\n   r2: {}\n",
+     ["f.yaml: line 7: YAML error: did not find expected key (while parsing a block mapping from line 5)"]),
+    ("newline in host name", BASE + "robots:\n  hosts:\n    \"r1\\nr2\": {}\n",
+     ["f.yaml: 'r1\\nr2': invalid host name (letters, digits, . _ -)"]),
+    ("newline in a key", host('"ssh_\\nport": 22'),
+     ["f.yaml: r1.'ssh_\\nport': unknown setting (did you mean 'ssh_port'?)"]),
+    ("duplicate host", BASE + "robots:\n  hosts:\n    r1: {}\n    r1: {}\n",
+     ["f.yaml: line 7: YAML error: duplicate key 'r1'"]),
+    # 8. merge keys are valid YAML
+    ("merge keys", "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
+                   + host("sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}",
+                          "  - {<<: *camera, name: back, usb_port: '1-1.3'}"), []),
+    ("merge keys, then a mistake", "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
+                                   + host("sensors:", "  - {<<: *camera, name: front}", "  - {<<: *camera, name: back}"),
+     ["f.yaml: r1.sensors[1]: matches the same devices as sensors[0]; add a serial or usb_port to tell them apart"]),
+    ("merge of a scalar", host("sensors:", "  - {<<: 1, name: a}"),
+     ["f.yaml: line 8: YAML error: a merge key (<<) takes a mapping or a list of mappings"]),
+    # 9. YAML 1.1 booleans where the documented values are yes/no
+    ("strict host key checking no", host("ssh_strict_host_key_checking: no", "payload_restart_policy: no"), []),
+    ("restart policy yes", host("payload_restart_policy: yes"),
+     ["f.yaml: r1.payload_restart_policy: expected a string, got a boolean (true); quote it"]),
+    # issue 8, item 2: URLs are http(s) URLs without shell characters
+    ("key URL injection", host("docker_apt_key_url: 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"),
+     ["f.yaml: r1.docker_apt_key_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & quotes), "
+      "got 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"]),
+    ("repo URL scheme", host("docker_repo_url: 'ftp://mirror.lan/linux'"),
+     ["f.yaml: r1.docker_repo_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & quotes), "
+      "got 'ftp://mirror.lan/linux'"]),
+    ("good URLs", host("docker_repo_url: 'http://10.0.0.2:8080/linux'",
+                       "docker_apt_key_url: 'https://mirror.lan/keys/docker.asc?v=2'",
+                       "docker_registry_mirrors: ['https://[fd00::1]:5000']"), []),
+    # issue 8, item 4: environment values are strings, quoted in YAML
+    ("environment YAML 1.1 traps", host("payload_environment: {A: NO, B: 1.10, C: 0755, D: 12:30, E: 'NO'}"),
+     [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it "
+      "(YAML reads NO, 1.10, 0755, 12:30 as non-strings)"
+      for key, got in (("A", "a boolean (false)"), ("B", "1.1"), ("C", "493"), ("D", "750"))]),
+    # issue 8, item 7: paths root creates are not in world-writable directories
+    ("payload_dir /tmp", host("payload_dir: /tmp"),
+     ["f.yaml: r1.payload_dir: '/tmp' is in the world-writable /tmp; use a directory only root can write (e.g. under /var/lib)"]),
+    ("cookie dir under /dev/shm", host("x11_cookie_dir: /dev/shm/x"),
+     ["f.yaml: r1.x11_cookie_dir: '/dev/shm/x' is in the world-writable /dev/shm; use a directory only root can write (e.g. under /var/lib)"]),
+    ("dotted way into /var/tmp", host("payload_dir: /var/./tmp//robot"),
+     ["f.yaml: r1.payload_dir: '/var/./tmp//robot' is in the world-writable /var/tmp; use a directory only root can write (e.g. under /var/lib)"]),
+    ("dot-dot", host("payload_dir: /var/lib/../../tmp"),
+     ["f.yaml: r1.payload_dir: paths must not contain '..', got '/var/lib/../../tmp'"]),
+    # issue 8, item 10: image tags are ASCII
+    ("Unicode digit in tag", host("payload_image: 'reg.example.com/p:v\uff11'"),
+     ["f.yaml: r1.payload_image: 'reg.example.com/p:v\uff11' is not a valid image reference"]),
+]
+
+
+@pytest.mark.parametrize("text, expected", [c[1:] for c in CORPUS], ids=[c[0] for c in CORPUS])
+def test_corpus(text, expected):
+    assert lines(text) == expected
+
+
+def test_accepted_yes_no_reads_as_the_documented_word():
+    loaded = fleet.parse(host("ssh_strict_host_key_checking: no", "payload_restart_policy: no"), "f.yaml")
+    (name, data), = loaded.hosts("robots")
+    assert data["ssh_strict_host_key_checking"] == "no" and data["payload_restart_policy"] == "no"
+
+
+def test_merge_keys_give_each_sensor_the_shared_fields_and_its_own():
+    text = "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825', usb_port: '9-9'}\n"
+    text += host("sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}", "  - {<<: *camera, name: back}")
+    (_, data), = fleet.parse(text, "f.yaml").hosts("robots")
+    assert data["sensors"] == [
+        {"name": "front", "usb_port": "1-1.2", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
+        {"name": "back", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "9-9"},
+    ]

@@ -1,0 +1,103 @@
+"""The operators' install (README, Install for operators) is the one way:
+an editable install from the checkout renders everything from any directory;
+a non-editable install (a wheel) refuses to load with one clear line."""
+
+import re
+import shutil
+import site
+import subprocess
+import sys
+import venv
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache")
+
+RENDER = """
+from roles import payload, udev, x11
+from roles.fleet import read_group_data
+defaults = read_group_data()
+class Data(dict):
+    __getattr__ = dict.__getitem__
+robot = Data({**defaults["all"], **defaults["robots"], "payload_image": "r.lan/p:1"})
+laptop = Data({**defaults["all"], **defaults["laptops"], "x11_user": "alice"})
+print(payload.unit_text(robot, ["/dev/robot/lidar"]).splitlines()[2])
+print(x11.cookie_script(laptop).count("nmerge"))
+print(sorted(udev.vendor_rules(robot)))
+print((x11.HERE / "robot-x11-cookie.desktop").is_file(), (x11.HERE / "90robot-x11-cookie").is_file())
+"""
+
+
+def run(*args, cwd):
+    return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def checkout(tmp_path_factory):
+    """A copy of the checkout, as an operator would clone it."""
+    copy = tmp_path_factory.mktemp("operator") / "robot-fleet"
+    shutil.copytree(ROOT, copy, ignore=NOT_COPIED)
+    return copy
+
+
+@pytest.fixture(scope="module")
+def venv_python(tmp_path_factory):
+    """An empty venv whose dependencies are the running interpreter's
+    site-packages (the unit layer is offline; the README's commands fetch
+    them from PyPI).  They are listed in a .pth, so their own .pth files (an
+    editable install of this checkout) are not processed."""
+    env = tmp_path_factory.mktemp("venv") / "venv"
+    venv.create(env, with_pip=False)  # this interpreter's pip installs into it (--python)
+    python = env / "bin" / "python"
+    purelib = run(str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])", cwd=env).stdout.strip()
+    Path(purelib, "deps-of-the-test-runner.pth").write_text("\n".join(site.getsitepackages()) + "\n")
+    return python
+
+
+def pip_install(python, *args, cwd):
+    result = run(sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps", "--no-build-isolation", *args, cwd=cwd)
+    assert result.returncode == 0, result.stderr[-2000:]
+
+
+def test_a_wheel_refuses_to_load_and_says_how_to_install(checkout, venv_python, tmp_path):
+    built = run(sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(tmp_path), str(checkout), cwd=tmp_path)
+    assert built.returncode == 0, built.stderr[-2000:]
+    pip_install(venv_python, *map(str, tmp_path.glob("*.whl")), cwd=tmp_path)
+    result = run(str(venv_python), "-c", "import roles.payload", cwd=tmp_path)
+    assert result.returncode == 1
+    last = result.stderr.strip().splitlines()[-1]
+    assert re.fullmatch(
+        r"ImportError: roles: \S+/site-packages/roles is not in a checkout of the robot fleet provisioner "
+        r"\(no deploy.py beside it\); it runs from its checkout: in the checkout, "
+        r"python3 -m venv .venv && .venv/bin/pip install -e .  \(README: Install for operators\)", last
+    ), last
+
+
+def test_editable_install_renders_from_any_directory(checkout, venv_python, tmp_path):
+    pip_install(venv_python, "-e", str(checkout), cwd=checkout)
+    result = run(str(venv_python), "-c", RENDER, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.splitlines() == [
+        "Description=Robot payload robot-payload (docker compose, current release)",
+        "1",
+        "['/etc/udev/rules.d/60-usb-serial-low-latency.rules']",
+        "True True",
+    ]
+    imported = run(str(venv_python), "-c", "import roles; print(roles.__file__)", cwd=tmp_path)
+    assert imported.stdout.strip() == str(checkout / "roles" / "__init__.py")
+
+
+def test_readme_installs_operators_before_the_lab_and_without_the_lab_setup():
+    text = (ROOT / "README.md").read_text()
+    titles = re.findall(r"^## (.+)$", text, re.M)
+    assert titles.index("Install for operators") < titles.index("Describing a fleet")
+    assert titles.index("Install for operators") < titles.index("The simulated fleet")
+    section = text.split("## Install for operators", 1)[1].split("\n## ", 1)[0]
+    commands = [line.strip() for line in section.splitlines() if line.startswith("    ")]
+    assert "python3 -m venv .venv" in commands
+    assert any(c.startswith(".venv/bin/pip install -e .") for c in commands)
+    assert not [c for c in commands if ".ci/setup" in c or c.startswith("sudo pip") or "pip install ." in c.replace("-e .", "")]
+    laptops = text.split("### Laptops", 1)[1].split("\n## ", 1)[0]
+    assert ".ci/setup" not in laptops
