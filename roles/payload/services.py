@@ -346,7 +346,7 @@ def _bind_sources(spec: dict) -> list[tuple[int, str]]:
     return sources
 
 
-def project_problems(data, doc: dict | None = None) -> list[tuple[str, str]]:
+def project_problems(data) -> list[tuple[str, str]]:
     """Everything wrong with a host's project that fits in one line each."""
     problems: list[tuple[str, str]] = []
     raw = _get(data, "payload_services") or {}
@@ -419,8 +419,6 @@ def project_problems(data, doc: dict | None = None) -> list[tuple[str, str]]:
                                  "use an absolute path outside it"))
     problems += _sensor_problems(data, services, bool(raw))
     problems += _preset_problems(data, allow_latest)
-    if not problems and doc is not None:
-        problems += schema_problems(doc)
     return problems
 
 
