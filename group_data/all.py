@@ -204,3 +204,27 @@ gpu_check_command = ["nvidia-smi", "-L"]
 # The loaded driver announces itself here.  Change it only to test the role
 # without a GPU (the lab does); real hosts keep /proc/driver/nvidia/version.
 gpu_driver_version_file = "/proc/driver/nvidia/version"
+
+# --- The payload as a compose project (roles/payload/services.py) -----------
+# Several services instead of the single payload_image: name -> a Compose
+# service (image, command, environment, volumes, ipc, cap_add, ulimits, ...),
+# checked against the Compose Specification's JSON Schema before connecting.
+# Group and host values merge per service and per key; null removes one.
+payload_services = {}
+# Containers (names) or compose projects set up another way that the payload
+# replaces.  Besides these, any container of the payload's image repositories
+# that is not the project's own is taken over: stopped, restart policy "no",
+# recorded in the release, and restored if that first release fails.
+payload_replaces = []
+# Services may not be privileged unless this is true.
+payload_allow_privileged = False
+# One line for the usual ROS keys: "ros1" (ROS_MASTER_URI, ROS_HOSTNAME,
+# optional roscore service) or "ros2" (ROS_DOMAIN_ID, ipc: host, optional
+# DDS profile).  None: only ros_domain_id / ros_master_uri as above.
+ros_preset = None
+# ROS 1: run roscore as a service of the project (image required, pinned).
+ros_roscore = False
+ros_roscore_image = None
+# ROS 2: a DDS profile from files/dds/ (Cyclone DDS or Fast DDS XML), mounted
+# read-only with CYCLONEDDS_URI or FASTRTPS_DEFAULT_PROFILES_FILE set.
+ros_dds_profile = None

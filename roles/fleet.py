@@ -201,9 +201,11 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
             if "address" in refused:
                 refused.add("ssh_hostname")
             data = {**all_vars, **group_vars, **host_vars}
+            settings._services().merge_into(data, [all_vars, group_vars, host_vars])  # per service
             if "address" in data:
                 data["ssh_hostname"] = data.pop("address")
             merged = {**base, **host_vars}
+            settings._services().merge_into(merged, [all_vars, group_vars, host_vars])  # per service
             if "address" in merged:
                 merged["ssh_hostname"] = merged.pop("address")
             report(name, settings.check_host(merged, refused))

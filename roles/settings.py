@@ -31,6 +31,7 @@ SENSOR_KEYS = (
     "mode",
     "symlink",
     "passthrough",
+    "services",  # roles/payload/services.py: the compose services that get the device
 )
 USB_PORT = r"[0-9]+-[0-9]+(?:\.[0-9]+)*(?::[0-9]+\.[0-9]+)?"
 # udev match values are quoted strings: keep them to characters that need no
@@ -159,6 +160,7 @@ _SENSOR_FIELDS = {
     "mode": c.string(MODE, "an octal mode like \"0660\""),
     "symlink": c.string(SYMLINK, "a path relative to /dev like robot/front_camera"),
     "passthrough": c.boolean,
+    "services": c.list_of(c.string(r"[a-zA-Z0-9][a-zA-Z0-9._-]*", "a service name"), unique=True),
 }
 
 
@@ -183,6 +185,12 @@ def _sensor(value):
     if not any(k in value for k in ("serial", "vendor_id", "usb_port")):
         problems.append(("", "needs a match: serial, vendor_id/product_id or usb_port"))
     return problems
+
+
+def _services():
+    from roles.payload import services  # late: roles.payload imports this module
+
+    return services
 
 
 # daemon.json keys and value kinds from Docker's dockerd reference ("Daemon
@@ -336,6 +344,22 @@ SCHEMA: dict[str, c.Checker] = {
     "payload_force": c.boolean,
     "payload_registry_username_env": c.string(c.ENV_NAME, "an environment variable name"),
     "payload_registry_password_env": c.string(c.ENV_NAME, "an environment variable name"),
+    # --- the payload as a compose project (roles/payload/services.py) ---
+    "payload_services": c.with_schema(
+        lambda value: _services().layer_problems(value),
+        {
+            "type": "object",
+            "description": "service name -> a Compose service (checked against the Compose Specification "
+            "before connecting); null removes a service set by a group",
+            "additionalProperties": {"type": ["object", "null"]},
+        },
+    ),
+    "payload_replaces": c.list_of(c.string(r"[a-zA-Z0-9][a-zA-Z0-9_.-]*", "a container or compose project name"), unique=True),
+    "payload_allow_privileged": c.boolean,
+    "ros_preset": c.optional(c.string(choices=("ros1", "ros2"))),
+    "ros_roscore": c.boolean,
+    "ros_roscore_image": c.optional(_image),
+    "ros_dds_profile": c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
 }
 
 
@@ -416,14 +440,13 @@ def check_host(data: dict, refused=frozenset()) -> list[c.Problem]:
     setting in ``refused`` already has a problem: no rule looks at it again."""
     usable = {k: v for k, v in data.items() if k not in refused} if refused else data
     problems = []
-    if "payload_image" not in refused:
+    if "payload_image" not in refused and "payload_services" not in refused:
         image = usable.get("payload_image")
-        if image is None:
-            problems.append(("payload_image", "required: the payload image, pinned by tag or digest"))
-        elif "payload_allow_latest" not in refused:
+        if image is not None and not usable.get("payload_services") and "payload_allow_latest" not in refused:
             why = imageref.pinning_problem(image, usable.get("payload_allow_latest", False))
             if why:
                 problems.append(("payload_image", why))
+        problems += _services().host_problems(usable)  # the compose project (roles/payload/services.py)
     if usable.get("display") is True and "x11_user" not in refused and not usable.get("x11_user"):
         problems.append(("x11_user", "required when display is true: the desktop user"))
     if usable.get("ros_master_uri") and usable.get("ros_domain_id"):

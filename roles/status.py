@@ -13,6 +13,7 @@ import argparse
 import fnmatch
 import json
 import os
+import re
 import shlex
 import sys
 
@@ -93,6 +94,21 @@ def row(name: str, report: dict | None, error: str | None = None) -> dict:
         "lock": report.get("update_lock"),
         "rolled_back_from": current.get("rolled_back_from"),
         **_gpu_cells(report),
+        **per_service(report.get("services") or {}),
+    }
+
+
+def per_service(services: dict) -> dict:
+    """A project of several services: each one's image, state and health
+    (the table's columns name the service; --json has them whole)."""
+    if len(services) < 2:
+        return {"services": services or None} if services else {}
+    ordered = sorted(services.items())
+    return {
+        "services": services,
+        "image": ", ".join(f"{name}={s.get('image')}" for name, s in ordered),
+        "state": ", ".join(f"{name}:{s.get('state')}" for name, s in ordered),
+        "health": ", ".join(f"{name}:{s.get('health') or 'none'}" for name, s in ordered),
     }
 
 
@@ -116,8 +132,7 @@ def table(rows: list[dict]) -> str:
     def short(key, value):
         # The table shows the first 12 digits of a digest; --json has it whole.
         if key == "image" and isinstance(value, str) and "@sha256:" in value:
-            repo, digest = value.split("@sha256:", 1)
-            return f"{repo}@sha256:{digest[:12]}"
+            return re.sub(r"@sha256:([0-9a-f]{12})[0-9a-f]{52}", r"@sha256:\1", value)
         return value
 
     cells = [[cell(short(key, r.get(key))) for key, _ in COLUMNS] for r in rows]

@@ -24,7 +24,7 @@ from pyinfra.api import deploy
 from roles import imageref, operations, x11
 from roles.hoststate import Snapshot, SnapshotQuery
 from roles.gpu import plan as gpu_plan
-from roles.payload import compose, push
+from roles.payload import compose, project, push
 from roles.udev import rules
 
 HERE = Path(__file__).resolve().parent
@@ -51,9 +51,8 @@ def unit_text(data, devices: list[str]) -> str:
 
 
 def desired_compose(data, address: str) -> dict:
-    devices = rules.devices(data.sensors)
     gui = x11.compose_settings(data) if data.display else None
-    return compose.document(data, data.payload_image, address, devices, gui)
+    return compose.project(data, address, gui)  # issue 13: every service (the shorthand's document unchanged)
 
 
 def spec(data, doc: dict) -> dict:
@@ -130,10 +129,11 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.units.add(f"{data.payload_name}.service")
     query.commands |= {"python3", "systemd-run"}
     query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
-    query.probes["registry_auth"] = registry_probe(imageref.parse(data.payload_image).registry)
+    query.probes["registry_auth"] = registry_probe(imageref.parse(project.primary_image(data)).registry)
+    project.declare_reads(data, query)  # issue 13
     if data.payload_delivery == "push":
         query.probes["payload_image_id"] = (
-            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(data.payload_image)}"
+            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(project.primary_image(data))}"
         )
         query.probes["docker_layers"] = push.LAYERS_PROBE
 
@@ -246,7 +246,7 @@ def deploy_payload(snap: Snapshot):
     if data.payload_delivery == "pull" and username and password:
         registry_login(
             name="Log in to the payload registry",
-            registry=imageref.parse(data.payload_image).registry,
+            registry=imageref.parse(project.primary_image(data)).registry,
             username=username,
             password=password,
             stored=snap.probes.get("registry_auth", ""),
@@ -254,12 +254,15 @@ def deploy_payload(snap: Snapshot):
     if data.payload_delivery == "push":
         push.push_image(
             name="Send the payload image over SSH",
-            image=data.payload_image,
+            image=project.primary_image(data),
             remote_id=snap.probes.get("payload_image_id", "").strip(),
             remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
             log_dir=data.payload_dir,
         )
+        project.push_more_images(data, snap)  # issue 13: the other services' images
 
+    project.install_files(data, snap)  # issue 13: the DDS profile
+    taken_over = project.takeover(data, snap)  # issue 13: said in the output, done by payloadctl
     record = current_record(snap)
     running = snap.unit_active(f"{data.payload_name}.service") or not data.payload_autostart
     needed = record.get("spec_hash") != compose.spec_hash(doc, data.payload_autostart) or not running
@@ -267,8 +270,8 @@ def deploy_payload(snap: Snapshot):
         name="Release the payload (pull, switch, health check, roll back on failure)",
         data=data,
         document=doc,
-        needed=needed or unit_changes,
-        restart=unit_changes,
+        needed=needed or unit_changes or bool(taken_over),
+        restart=unit_changes or bool(taken_over),
     )
 
 

@@ -76,3 +76,30 @@ def spec_hash(doc: dict, autostart: bool) -> str:
     """Identity of a release: what runs, not how the update is carried out."""
     canonical = json.dumps({"compose": doc, "autostart": autostart}, sort_keys=True)
     return hashlib.sha256(canonical.encode()).hexdigest()
+
+
+# --- the compose project: several services (roles/payload/services.py) ------------
+
+
+def project(data, address: str, gui: dict | None) -> dict:
+    """The whole project: every declared service (or the single-image
+    shorthand, whose document is exactly ``document``'s), each built on the
+    single service's defaults with the ROS preset and the user's keys on top."""
+    from roles.payload import services
+
+    declared = services.declared(data)
+    extra = services.preset(data, address)
+    devices = services.sensor_services(data, declared)
+    built = {}
+    for name, user in {**extra["extra"], **declared}.items():
+        if name in extra["extra"] and name in declared:
+            user = services.merge(extra["extra"][name], declared[name])
+        base = document(data, user.get("image"), address, devices.get(name, []), gui)["services"][SERVICE]
+        # document() escapes its own values; the user's and the preset's are escaped here, once.
+        built[name] = services.service(base, escape_interpolation(user), escape_interpolation(extra), name)
+    doc = {"name": data.payload_name, "services": built}
+    replaces = list(getattr(data, "payload_replaces", None) or [])
+    if replaces:
+        # Read by payloadctl's takeover; compose ignores x- keys.
+        doc["x-robot-fleet"] = {"replaces": replaces}
+    return doc

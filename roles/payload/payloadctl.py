@@ -353,6 +353,7 @@ def apply_locked(spec, releases, old, restart):
     rid = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ") + "-" + spec["spec_hash"][:8]
     os.makedirs(releases.path(rid), exist_ok=True)
     write_text(releases.path(rid, "compose.yaml"), compose_yaml(doc))
+    check_compose(spec["name"], releases.path(rid, "compose.yaml"))  # issue 13 hook
     record = {
         "id": rid,
         "created": now(),
@@ -372,7 +373,7 @@ def apply_locked(spec, releases, old, restart):
         releases.write_record(rid, record)
         gc(spec, releases)
         return finish(root, True, "payload: release {} staged (no autostart)".format(rid), rid)
-    ok, why = start_and_check(spec["name"], restart, spec["health_timeout"], spec["stable_seconds"])
+    ok, why = start_taking_over(spec, releases.path(rid, "record.json"), record, old, restart)  # issue 13 hook
     if ok:
         ok, why = gpu_check(spec["name"], spec.get("gpu_check"))
     if ok:
@@ -464,6 +465,7 @@ def cmd_status(args):
         "containers": containers,
         "update_lock": update_lock_holder(args.lock_file) if args.lock_file else None,
     }
+    status["services"] = service_states(args.name)  # issue 13 hook
     print(json.dumps(status, sort_keys=True))
     return 0
 
@@ -478,6 +480,128 @@ def cmd_wait_devices(args):
             print("payload: sensors missing after {} s: {}".format(args.timeout, " ".join(missing)), file=sys.stderr)
             return 1
         time.sleep(1)
+
+
+# --- the compose project: config check, takeover, per-service status ----------
+# (issue 13)  Called from three one-line hooks: check_compose in apply before
+# anything switches, start_taking_over in place of apply's first
+# start_and_check, service_states in status.
+
+COMPOSE_PROJECT = "com.docker.compose.project"
+
+
+def check_compose(name, path):
+    """`docker compose config -q` on the robot before the release switches;
+    a refused file leaves no release directory behind."""
+    proc = run(["docker", "compose", "-p", name, "-f", path, "config", "-q"], check=False)
+    if proc.returncode != 0:
+        shutil.rmtree(os.path.dirname(path), ignore_errors=True)
+        why = (proc.stderr or proc.stdout).strip().splitlines() or ["no output"]
+        raise Failure("docker compose config refused the release (nothing switched): {}".format(why[-1][-300:]))
+
+
+def inspect_all(ids):
+    if not ids:
+        return []
+    proc = run(["docker", "inspect"] + list(ids), check=False)
+    try:
+        return json.loads(proc.stdout or "[]")
+    except ValueError:
+        return []
+
+
+def image_repositories(container):
+    repos = {repository(container["Config"].get("Image") or "")}
+    info = inspect_all_images([container.get("Image")])
+    for image in info:
+        repos |= {repository(r) for r in (image.get("RepoTags") or []) + (image.get("RepoDigests") or [])}
+    repos.discard("")
+    return repos
+
+
+def inspect_all_images(ids):
+    ids = [i for i in ids if i]
+    if not ids:
+        return []
+    proc = run(["docker", "image", "inspect"] + ids, check=False)
+    try:
+        return json.loads(proc.stdout or "[]")
+    except ValueError:
+        return []
+
+
+def foreign_containers(spec):
+    """Containers that are not this project's but run one of its image
+    repositories (or are named in payload_replaces, by container name or
+    compose project), and are running or would come back by their policy."""
+    doc = spec["compose"]
+    repos = {repository(s["image"]) for s in doc["services"].values() if s.get("image")}
+    replaces = set((doc.get("x-robot-fleet") or {}).get("replaces") or [])
+    ids = run(["docker", "ps", "-aq", "--no-trunc"], check=False).stdout.split()
+    found = []
+    for c in inspect_all(ids):
+        labels = c["Config"].get("Labels") or {}
+        project = labels.get(COMPOSE_PROJECT)
+        if project == spec["name"]:
+            continue
+        name = c["Name"].lstrip("/")
+        policy = (c["HostConfig"].get("RestartPolicy") or {}).get("Name") or "no"
+        running = bool(c["State"].get("Running"))
+        if not running and policy == "no":
+            continue
+        if name in replaces or (project and project in replaces) or image_repositories(c) & repos:
+            found.append({"id": c["Id"], "name": name, "image": c["Config"].get("Image"),
+                          "project": project, "restart": policy, "running": running})
+    return found
+
+
+def take_over(found):
+    """Restart policy `no` first (so nothing brings it back), then stop."""
+    for c in found:
+        run(["docker", "update", "--restart", "no", c["id"]])
+        if c["running"]:
+            run(["docker", "stop", c["id"]])
+    return found
+
+
+def restore(taken):
+    back = []
+    for c in taken:
+        ok = run(["docker", "update", "--restart", c["restart"], c["id"]], check=False).returncode == 0
+        if c["running"]:
+            ok = run(["docker", "start", c["id"]], check=False).returncode == 0 and ok
+        back.append(c["name"] if ok else c["name"] + " (failed)")
+    return back
+
+
+def start_taking_over(spec, record_path, record, old, restart):
+    """start_and_check, after stopping what the payload replaces (recorded in
+    the release first); if this release fails and there is no release of
+    ours to go back to, what was taken over runs again as before."""
+    found = foreign_containers(spec)
+    if found:
+        record["taken_over"] = found
+        write_json(record_path, record)
+        take_over(found)
+    ok, why = start_and_check(spec["name"], restart, spec["health_timeout"], spec["stable_seconds"])
+    if not ok and found and not old:
+        # Nothing of ours to go back to: our project makes way (also at boot).
+        run(["systemctl", "stop", spec["name"] + ".service"], check=False)
+        Releases(spec["dir"]).point("current", None)
+        record["restored"] = {"time": now(), "containers": restore(found)}
+        why += "; restored what it had taken over: " + ", ".join(record["restored"]["containers"])
+    return ok, why
+
+
+def service_states(name):
+    """service -> image, state, health, restarts of the project's containers."""
+    states = {}
+    for c in inspect_all(project_containers(name)):
+        service = (c["Config"].get("Labels") or {}).get("com.docker.compose.service", c["Name"].lstrip("/"))
+        health = (c["State"].get("Health") or {}).get("Status")
+        states[service] = {"image": c["Config"].get("Image"), "state": c["State"].get("Status"),
+                           "health": health, "restarts": c.get("RestartCount", 0)}
+    return states
 
 
 def main(argv=None):

@@ -4,6 +4,9 @@ Tags:
     1.0, 1.1      healthy heartbeat loops that differ only in their version
     1.2-broken    keeps logging but never heartbeats, so its health check fails
 
+`ros/driver` (1.0, 1.1) is the same loop without a HEALTHCHECK (the
+Dockerfile's `driver` target), for payloads of several services.
+
 The build context is tests/lab/payload_image/ plus a generated rootfs/ holding
 Debian's static busybox (busybox-static, fetched with apt-get download) and one
 symlink per applet. No base image from any hub is involved.
@@ -38,6 +41,15 @@ TAGS: dict[str, dict[str, str]] = {
     "1.1": {"PAYLOAD_VERSION": "1.1"},
     "1.2-broken": {"PAYLOAD_VERSION": "1.2-broken", "PAYLOAD_BROKEN": "1"},
 }
+
+
+DRIVER_REPOSITORY = "ros/driver"
+DRIVER_TAGS: dict[str, dict[str, str]] = {
+    "1.0": {"PAYLOAD_VERSION": "driver-1.0"},
+    "1.1": {"PAYLOAD_VERSION": "driver-1.1"},
+}
+# repository -> (Dockerfile target, tags)
+REPOSITORIES = {REPOSITORY: ("payload", TAGS), DRIVER_REPOSITORY: ("driver", DRIVER_TAGS)}
 
 
 class PayloadImageError(RuntimeError):
@@ -100,9 +112,9 @@ def content_hash(busybox: Path, build_args: dict[str, str]) -> str:
 
 
 def _build(client: docker.DockerClient, context: Path, ref: str, build_args: dict[str, str],
-           content: str):
+           content: str, target: str = "payload"):
     try:
-        image, _ = client.images.build(path=str(context), tag=ref, buildargs=build_args,
+        image, _ = client.images.build(path=str(context), tag=ref, buildargs=build_args, target=target,
                                        labels={CONTENT_LABEL: content}, rm=True,
                                        forcerm=True)
     except docker.errors.BuildError as e:
@@ -121,10 +133,10 @@ def _push(client: docker.DockerClient, repository: str, tag: str) -> str | None:
 
 
 def build_payload_images(client: docker.DockerClient, registry: str | None = None) -> dict:
-    """Build ros/payload:{1.0,1.1,1.2-broken}; with `registry` ("127.0.0.1:5123")
-    also tag and push <registry>/ros/payload:<tag>.
+    """Build ros/payload:{1.0,1.1,1.2-broken} and ros/driver:{1.0,1.1}; with
+    `registry` ("127.0.0.1:5123") also tag and push <registry>/<repository>:<tag>.
 
-    Returns {tag: {"id": image id, "ref": full ref, "digest": repo digest or None}}.
+    Returns {"repository:tag": {"id": image id, "ref": full ref, "digest": repo digest or None}}.
     """
     start = time.monotonic()
     busybox = static_busybox()
@@ -132,9 +144,11 @@ def build_payload_images(client: docker.DockerClient, registry: str | None = Non
     with tempfile.TemporaryDirectory(prefix="payload-ctx-") as tmp:
         context = Path(tmp) / "ctx"
         assembled = False
-        for tag, build_args in TAGS.items():
-            ref = f"{REPOSITORY}:{tag}"
-            content = content_hash(busybox, build_args)
+        for repository, tag, target, build_args in (
+            (repo, tag, target, args) for repo, (target, tags) in REPOSITORIES.items() for tag, args in tags.items()
+        ):
+            ref = f"{repository}:{tag}"
+            content = content_hash(busybox, {**build_args, "target": target})
             image = get_or_none(client.images, ref)
             if image is not None and image.labels.get(CONTENT_LABEL) == content:
                 _log(f"{ref} up to date ({image.short_id})")
@@ -143,18 +157,19 @@ def build_payload_images(client: docker.DockerClient, registry: str | None = Non
                     assemble_context(busybox, context)
                     assembled = True
                 t = time.monotonic()
-                image = _build(client, context, ref, build_args, content)
+                image = _build(client, context, ref, build_args, content, target)
                 _log(f"{ref} built in {time.monotonic() - t:.1f}s ({image.short_id})")
-            result[tag] = {"id": image.id, "ref": ref, "digest": None}
+            result[ref] = {"id": image.id, "ref": ref, "digest": None}
 
     if registry:
         t = time.monotonic()
-        remote = f"{registry}/{REPOSITORY}"
-        for tag, info in result.items():
+        for local, info in result.items():
+            repository, tag = local.rsplit(":", 1)
+            remote = f"{registry}/{repository}"
             client.images.get(info["id"]).tag(remote, tag=tag)
             info["ref"] = f"{remote}:{tag}"
             info["digest"] = _push(client, remote, tag)
-        _log(f"pushed {len(result)} tags to {remote} in {time.monotonic() - t:.1f}s")
+        _log(f"pushed {len(result)} tags to {registry} in {time.monotonic() - t:.1f}s")
     _log(f"done in {time.monotonic() - start:.1f}s")
     return result
 

@@ -1,0 +1,129 @@
+"""The deploy's side of the compose project (issue 13): what it reads in the
+host snapshot, the DDS profile file, and saying what will be taken over.
+
+Called from roles/payload/__init__.py by one line each in declare_reads and
+deploy_payload; payloadctl does the takeover itself (so it can undo it).
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+
+from pyinfra import host, logger
+
+from roles import imageref, operations
+from roles.hoststate import Snapshot, SnapshotQuery
+from roles.payload import push, services
+
+FOREIGN_PROBE = "payload_foreign"
+# One line per container: id, name, image, compose project, running, restart policy.
+_INSPECT = (
+    "docker ps -aq --no-trunc 2>/dev/null | xargs -r docker inspect -f "
+    + shlex.quote(
+        '{{json (printf "%s\\t%s\\t%s\\t%s\\t%v\\t%s" .Id .Name .Config.Image '
+        '(index .Config.Labels "com.docker.compose.project") .State.Running .HostConfig.RestartPolicy.Name)}}'
+    )
+)
+
+
+def primary_image(data) -> str | None:
+    """The image whose registry the login is for (the first service's)."""
+    refs = services.images(data)
+    return refs[0] if refs else None
+
+
+def declare_reads(data, query: SnapshotQuery) -> None:
+    if data.ros_preset == "ros2" and data.ros_dds_profile:
+        query.files |= {services.dds_profile_host_path(data), f"/etc/{data.payload_name}"}
+    if data.payload_autostart:
+        query.probes[FOREIGN_PROBE] = _INSPECT
+    if data.payload_delivery == "push":
+        for index, ref in enumerate(more_images(data)):
+            query.probes[f"payload_image_id_{index + 1}"] = image_id_probe(ref)
+
+
+def more_images(data) -> list[str]:
+    """Images beyond the first (whose push the single-image code does)."""
+    return services.images(data)[1:]
+
+
+def image_id_probe(ref: str) -> str:
+    return f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(ref)}"
+
+
+def push_more_images(data, snap: Snapshot) -> None:
+    """payload_delivery push for a project of several images: each one the
+    robot lacks is sent (layers the robot has are left out, as for the first)."""
+    if data.payload_delivery != "push":
+        return
+    layers = push.parse_layer_sets(snap.probes.get("docker_layers", ""))
+    for index, ref in enumerate(more_images(data)):
+        push.push_image(
+            name=f"Send the payload image {ref} over SSH",
+            image=ref,
+            remote_id=snap.probes.get(f"payload_image_id_{index + 1}", "").strip(),
+            remote_layers=layers,
+            log_dir=data.payload_dir,
+        )
+
+
+def foreign(probe_output: str, project: str, repositories: list[str], replaces: list[str]) -> list[dict]:
+    """The containers the release will take over, from the probe (pure)."""
+    found = []
+    for line in probe_output.splitlines():
+        try:
+            cid, name, image, label, running, policy = json.loads(line).split("\t")
+        except (ValueError, AttributeError):
+            continue
+        # No such label: Docker's printf renders the missing value as "%!s(<nil>)".
+        label = "" if label.startswith("%!") or label == "<no value>" else label
+        if label == project:
+            continue
+        running = running == "true"
+        if not running and policy in ("", "no"):
+            continue
+        try:
+            repo = imageref.parse(image).repository
+        except ValueError:
+            repo = image
+        name = name.lstrip("/")
+        if repo in repositories or name in replaces or (label and label in replaces):
+            found.append({"id": cid[:12], "name": name, "image": image, "project": label or None,
+                          "running": running, "restart": policy or "no"})
+    return found
+
+
+def takeover_line(found: list[dict]) -> str:
+    parts = []
+    for c in found:
+        what = f"compose project {c['project']}, " if c["project"] else ""
+        state = "running" if c["running"] else "stopped"
+        parts.append(f"{c['name']} ({what}{c['image']}, {state}, restart {c['restart']})")
+    return "payload: taking over what runs the payload another way (stopped, restart policy no): " + "; ".join(parts)
+
+
+def takeover(data, snap: Snapshot) -> list[dict]:
+    """What the release will stop, said in the run output."""
+    if not data.payload_autostart:
+        return []
+    found = foreign(
+        snap.probes.get(FOREIGN_PROBE, ""),
+        data.payload_name,
+        services.repositories(data),
+        list(data.payload_replaces or []),
+    )
+    if found:
+        logger.warning(f"[{host.name}] {takeover_line(found)}")
+    return found
+
+
+def install_files(data, snap: Snapshot) -> None:
+    """The ROS 2 DDS profile, read-only for the containers."""
+    if data.ros_preset != "ros2" or not data.ros_dds_profile:
+        return
+    path = services.dds_profile_host_path(data)
+    operations.directory(name=f"/etc/{data.payload_name}", path=f"/etc/{data.payload_name}",
+                         current=snap.files.get(f"/etc/{data.payload_name}"))
+    operations.file(name=f"DDS profile {data.ros_dds_profile}", path=path,
+                    content=services.dds_profile_text(data), current=snap.files.get(path), mode="0644")

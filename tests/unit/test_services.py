@@ -1,0 +1,338 @@
+"""The payload as a compose project: merging group/host service data, the
+Compose Specification refusals (one line naming file, host, service, key),
+sensors to services, and the rendered compose for the ROS presets."""
+
+import json
+
+import pytest
+import yaml
+
+from roles import fleet
+from roles.payload import compose, services
+from tests.unit.test_plan import merged
+
+REG = "reg.example.com"
+TWO = {
+    "driver": {"image": f"{REG}/ros/driver:2.0", "devices": [], "environment": {"RATE": "10"}},
+    "slam": {"image": f"{REG}/ros/slam:1.0", "ipc": "host", "cap_add": ["SYS_NICE"],
+             "ulimits": {"rtprio": 99, "memlock": {"soft": -1, "hard": -1}}, "shm_size": "1g",
+             "tty": True, "stdin_open": True, "volumes": ["/etc/hosts:/etc/hosts:ro"]},
+}
+
+
+def problems(doc) -> list[str]:
+    try:
+        fleet.check(doc, "robots.yaml", fleet.read_group_data())
+    except fleet.FleetError as error:
+        return error.lines
+    return []
+
+
+def fleet_of(group_vars: dict, hosts: dict) -> dict:
+    return {"robots": {"vars": group_vars, "hosts": hosts}}
+
+
+def test_host_changes_one_service_tag_and_keeps_the_rest_from_the_group():
+    doc = fleet_of(
+        {"payload_services": TWO},
+        {
+            "robot1": {"address": "10.0.0.1"},
+            "robot2": {"address": "10.0.0.2", "payload_services": {
+                "driver": {"image": f"{REG}/ros/driver:2.1", "environment": {"DEBUG": "1"}},
+                "slam": None,
+                "bridge": {"image": f"{REG}/ros/bridge:0.3"},
+            }},
+        },
+    )
+    hosts = dict(fleet.check(doc, "robots.yaml", fleet.read_group_data()).hosts("robots"))
+    assert hosts["robot1"]["payload_services"] == TWO
+    robot2 = hosts["robot2"]["payload_services"]
+    assert robot2["driver"] == {"image": f"{REG}/ros/driver:2.1", "devices": [],
+                                "environment": {"RATE": "10", "DEBUG": "1"}}
+    assert set(robot2) == {"driver", "bridge"}  # null removed slam
+    assert TWO["driver"]["image"].endswith(":2.0")  # the group's data is not modified
+
+
+def test_merge_replaces_lists_and_removes_keys_with_null():
+    assert services.merge({"a": {"x": [1, 2], "y": 1}}, {"a": {"x": [3], "y": None}}) == {"a": {"x": [3]}}
+    assert services.merge_layers([{"payload_services": {"a": {"image": "i:1"}}}, {}, None]) == {"a": {"image": "i:1"}}
+
+
+def test_the_shorthand_document_is_unchanged_by_the_project_builder():
+    data = merged("robots", {"payload_image": f"{REG}/ros/payload:1.0", "payload_command": ["run"],
+                             "payload_volumes": ["/srv/maps:/maps:ro"], "payload_gpu": True,
+                             "sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
+    old = compose.document(data, data.payload_image, "10.0.0.1", ["/dev/robot/lidar"], None)
+    new = compose.project(data, "10.0.0.1", None)
+    assert new == old
+    assert compose.dump(new) == compose.dump(old)  # same keys in the same order: no release on upgrade
+
+
+def rendered(extra: dict, address="10.0.0.9", files_dir=None) -> dict:
+    data = merged("robots", {"payload_image": None, **extra})
+    return yaml.safe_load(compose.dump(compose.project(data, address, None)))
+
+
+def test_two_services_get_our_defaults_under_their_own_keys():
+    doc = rendered({"payload_services": TWO, "payload_environment": {"SITE": "lab"},
+                    "sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
+    driver, slam = doc["services"]["driver"], doc["services"]["slam"]
+    assert driver["image"] == f"{REG}/ros/driver:2.0"
+    assert driver["restart"] == "unless-stopped" and driver["network_mode"] == "host"
+    assert driver["environment"] == {"ROS_DOMAIN_ID": "0", "SITE": "lab", "RATE": "10"}
+    assert driver["labels"] == {"io.robot-fleet.payload": "robot-payload"}
+    assert driver["devices"] == ["/dev/robot/lidar:/dev/robot/lidar"]  # the service that asked for devices
+    assert "devices" not in slam
+    assert slam["ipc"] == "host" and slam["cap_add"] == ["SYS_NICE"] and slam["shm_size"] == "1g"
+    assert slam["ulimits"] == {"rtprio": 99, "memlock": {"soft": -1, "hard": -1}}
+    assert slam["volumes"] == ["/etc/hosts:/etc/hosts:ro"] and slam["tty"] is True
+    assert services.schema_problems(doc) == []
+
+
+def test_a_sensor_goes_to_the_services_it_names():
+    doc = rendered({"payload_services": TWO, "sensors": [
+        {"name": "cam", "subsystem": "video4linux", "serial": "C", "services": ["slam"]},
+        {"name": "imu", "subsystem": "tty", "serial": "I"},
+        {"name": "dbg", "subsystem": "tty", "serial": "D", "passthrough": False},
+    ]})
+    assert doc["services"]["slam"]["devices"] == ["/dev/robot/cam:/dev/robot/cam"]
+    assert doc["services"]["driver"]["devices"] == ["/dev/robot/imu:/dev/robot/imu"]
+
+
+def test_ros1_preset_with_roscore_service():
+    doc = rendered({"payload_services": TWO, "ros_preset": "ros1", "ros_roscore": True,
+                    "ros_roscore_image": f"{REG}/ros:noetic-ros-core"})
+    assert list(doc["services"]) == ["roscore", "driver", "slam"]
+    roscore = doc["services"]["roscore"]
+    assert roscore["image"] == f"{REG}/ros:noetic-ros-core" and roscore["command"] == ["roscore"]
+    assert "depends_on" not in roscore
+    for name in ("driver", "slam"):
+        env = doc["services"][name]["environment"]
+        assert env["ROS_MASTER_URI"] == "http://localhost:11311" and env["ROS_HOSTNAME"] == "10.0.0.9"
+        assert "ROS_DOMAIN_ID" not in env
+        assert doc["services"][name]["depends_on"] == ["roscore"]
+    assert services.schema_problems(doc) == []
+
+
+def test_ros1_preset_with_an_external_master_and_one_service():
+    doc = rendered({"payload_image": f"{REG}/ros/payload:1.0", "ros_preset": "ros1",
+                    "ros_master_uri": "http://master:11311", "ros_hostname": "robot7"})
+    assert list(doc["services"]) == ["payload"]
+    assert doc["services"]["payload"]["environment"] == {"ROS_MASTER_URI": "http://master:11311",
+                                                         "ROS_HOSTNAME": "robot7"}
+
+
+@pytest.mark.parametrize("profile, env", [
+    ('<CycloneDDS xmlns="https://cdds.io/config"><Domain/></CycloneDDS>',
+     {"CYCLONEDDS_URI": "file:///etc/ros/dds/p.xml", "RMW_IMPLEMENTATION": "rmw_cyclonedds_cpp"}),
+    ('<?xml version="1.0"?><profiles xmlns="http://www.eprosima.com"/>',
+     {"FASTRTPS_DEFAULT_PROFILES_FILE": "/etc/ros/dds/p.xml", "FASTDDS_DEFAULT_PROFILES_FILE": "/etc/ros/dds/p.xml",
+      "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"}),
+])
+def test_ros2_preset_with_a_dds_profile(tmp_path, monkeypatch, profile, env):
+    (tmp_path / "dds").mkdir()
+    (tmp_path / "dds" / "p.xml").write_text(profile)
+    monkeypatch.setattr(services, "FILES_DIR", tmp_path)
+    monkeypatch.setattr(services.dds_profile_text, "__defaults__", (tmp_path,))
+    monkeypatch.setattr(services.preset, "__defaults__", (tmp_path,))
+    doc = rendered({"payload_services": TWO, "ros_preset": "ros2", "ros_domain_id": 42, "ros_dds_profile": "p.xml"})
+    for name, service in doc["services"].items():
+        assert service["ipc"] == "host"
+        assert service["environment"]["ROS_DOMAIN_ID"] == "42"
+        assert {k: service["environment"][k] for k in env} == env
+        assert "/etc/robot-payload/p.xml:/etc/ros/dds/p.xml:ro" in service["volumes"]
+        assert len(service["labels"][services.PROFILE_LABEL]) == 16
+    assert doc["services"]["driver"]["environment"]["RATE"] == "10"
+    assert services.schema_problems(doc) == []
+
+
+def test_ros2_preset_keeps_a_service_s_own_ipc():
+    doc = rendered({"payload_services": {"a": {"image": f"{REG}/a:1", "ipc": "shareable"}}, "ros_preset": "ros2"})
+    assert doc["services"]["a"]["ipc"] == "shareable"
+
+
+def host_with(**settings) -> dict:
+    return {"robots": {"hosts": {"robot3": {"address": "10.0.0.3", **settings}}}}
+
+
+@pytest.mark.parametrize("service, line", [
+    ({"image": f"{REG}/a:1", "ipcc": "host"},
+     "robots.yaml: robot3.payload_services.drv.ipcc: not a key of the Compose Specification (did you mean 'ipc'?)"),
+    ({"image": f"{REG}/a:1", "restart": 5},
+     "robots.yaml: robot3.payload_services.drv.restart: Compose Specification: 5 is not of type 'string'"),
+    ({"image": f"{REG}/a:1", "ulimits": {"rtprio": {"soft": "x"}}},
+     "robots.yaml: robot3.payload_services.drv.ulimits.rtprio"),
+    ({"image": f"{REG}/a:1", "cap_add": "SYS_NICE"},
+     "robots.yaml: robot3.payload_services.drv.cap_add: Compose Specification: 'SYS_NICE' is not of type 'array'"),
+    ({"image": f"{REG}/a:1", "privileged": True},
+     "robots.yaml: robot3.payload_services.drv.privileged: privileged containers are refused unless "
+     "payload_allow_privileged is true (prefer devices / cap_add)"),
+    ({"image": f"{REG}/a:1", "volumes": ["/var/lib/robot-payload/current:/x"]},
+     "robots.yaml: robot3.payload_services.drv.volumes[0]: /var/lib/robot-payload/current is inside "
+     "/var/lib/robot-payload (the releases); mount a path outside it"),
+    ({"image": f"{REG}/a:1", "volumes": [{"type": "bind", "source": "./cfg", "target": "/cfg"}]},
+     "robots.yaml: robot3.payload_services.drv.volumes[0]: relative path ./cfg would resolve inside the "
+     "release directory; use an absolute host path"),
+    ({"image": f"{REG}/a:1", "build": "."},
+     "robots.yaml: robot3.payload_services.drv.build: robots do not build images; push the image and set image"),
+    ({"image": f"{REG}/a:1", "environment": {"DEBUG": True}},
+     "robots.yaml: robot3.payload_services.drv.environment.DEBUG: expected a string, got True (quote it"),
+    ({"image": f"{REG}/a:1", "profiles": ["debug"]},
+     "robots.yaml: robot3.payload_services.drv.profiles: no profile is activated on the robot"),
+    ({"command": ["x"]},
+     "robots.yaml: robot3.payload_services.drv.image: required: the service's image, pinned by tag or digest"),
+    ({"image": f"{REG}/a"},
+     f"robots.yaml: robot3.payload_services.drv.image: '{REG}/a' has no tag or digest"),
+])
+def test_a_bad_service_key_is_one_line_naming_file_host_service_and_key(service, line):
+    lines = problems(host_with(payload_services={"drv": service}))
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(line), lines
+
+
+def test_schema_problems_in_a_group_name_each_host():
+    lines = problems(fleet_of({"payload_services": {"drv": {"image": f"{REG}/a:1", "shm_sise": "1g"}}},
+                              {"robot1": {"address": "a"}, "robot2": {"address": "b", "payload_services": {
+                                  "drv": {"shm_sise": None}}}}))
+    assert lines == ["robots.yaml: robot1.payload_services.drv.shm_sise: not a key of the Compose "
+                     "Specification (did you mean 'shm_size'?)"]
+
+
+def test_refusals_that_need_the_whole_project():
+    two_names = {"a": {"image": f"{REG}/a:1", "container_name": "ros"},
+                 "b": {"image": f"{REG}/b:1", "container_name": "ros"}}
+    assert problems(host_with(payload_services=two_names)) == [
+        "robots.yaml: robot3.payload_services.b.container_name: 'ros' is also the container_name of service a"]
+    assert problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "container_name": "old"}},
+                              payload_replaces=["old"])) == [
+        "robots.yaml: robot3.payload_services.a.container_name: 'old' is listed in payload_replaces: "
+        "the takeover would stop this project's own container"]
+    assert problems(host_with(payload_image=f"{REG}/a:1", payload_services={"a": {"image": f"{REG}/a:1"}})) == [
+        "robots.yaml: robot3.payload_services: set either payload_image (one service called payload) or "
+        "payload_services, not both (set payload_image: null where payload_services is used)"]
+    assert problems(host_with(payload_services=TWO, payload_command=["x"])) == [
+        "robots.yaml: robot3.payload_command: applies to the single-image payload; with payload_services "
+        "give each service its own 'command' key"]
+    assert problems(host_with(payload_services=TWO, sensors=[
+        {"name": "cam", "subsystem": "tty", "serial": "C", "services": ["nav"]}])) == [
+        "robots.yaml: robot3.sensors[0].services: no service called 'nav' (services: driver, slam)"]
+    no_devices = {"a": {"image": f"{REG}/a:1"}, "b": {"image": f"{REG}/b:1"}}
+    assert problems(host_with(payload_services=no_devices, sensors=[
+        {"name": "cam", "subsystem": "tty", "serial": "C"}])) == [
+        "robots.yaml: robot3.sensors[0]: name the service(s) that use it (services: [...]); "
+        "no service asks for devices"]
+    assert problems(host_with(payload_services=TWO, payload_allow_privileged=True)) == []
+    assert problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "privileged": True}},
+                              payload_allow_privileged=True)) == []
+
+
+def test_preset_refusals():
+    image = {"payload_image": f"{REG}/a:1"}
+    assert problems(host_with(**image, ros_preset="ros1")) == [
+        "robots.yaml: robot3.ros_master_uri: required with ros_preset: ros1 unless ros_roscore is true"]
+    assert problems(host_with(**image, ros_preset="ros1", ros_roscore=True)) == [
+        "robots.yaml: robot3.ros_roscore_image: required with ros_roscore: an image with roscore, pinned"]
+    assert problems(host_with(**image, ros_preset="ros2", ros_dds_profile="nope.xml")) == [
+        "robots.yaml: robot3.ros_dds_profile: no file files/dds/nope.xml"]
+    assert problems(host_with(**image, ros_preset="ros3")) == [
+        "robots.yaml: robot3.ros_preset: expected one of ros1, ros2, got 'ros3'"]
+
+
+def test_layer_shape_is_checked_where_it_was_written():
+    assert problems(fleet_of({"payload_services": {"a b": {}}}, {"robot1": {"address": "a"}}))[0] == (
+        "robots.yaml: robots.vars.payload_services.a b: service names are letters, digits, . _ - "
+        "(starting with a letter or digit)")
+    assert problems(host_with(payload_services=["a"]))[0] == (
+        "robots.yaml: robot3.payload_services: expected a mapping of service name -> compose service")
+
+
+def test_the_schema_comes_from_the_maintained_package_with_its_licence():
+    from importlib import resources
+
+    vendor = resources.files("check_jsonschema.builtin_schemas.vendor")
+    assert services.compose_schema_path().read_bytes() == (vendor / "compose-spec.json").read_bytes()
+    assert "compose" in json.dumps(services.compose_schema()["$id"]).lower()
+    assert "Apache License" in (vendor / "licenses" / "LICENSE.compose-spec").read_text()
+    assert {"ipc", "cap_add", "ulimits", "shm_size", "tty", "stdin_open"} <= set(services.service_keys())
+
+
+# --- the deploy's side: what it reads and what it sends -------------------------
+
+from roles.payload import project  # noqa: E402
+from tests.unit.fakefleet import plan  # noqa: E402
+from tests.unit.test_plan import ROBOT, converged  # noqa: E402
+
+
+def probe_line(cid, name, image, project_label, running, policy):
+    return json.dumps("\t".join([cid, name, image, project_label, running, policy]))
+
+
+FOREIGN = "\n".join([
+    probe_line("a" * 64, "/robot-payload-payload-1", f"{REG}/ros/payload@sha256:" + "1" * 64, "robot-payload", "true", "unless-stopped"),
+    probe_line("b" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "%!s(<nil>)", "true", "always"),
+    probe_line("c" * 64, "/old_bridge", f"{REG}/other/bridge:1", "rosapp", "false", "always"),
+    probe_line("d" * 64, "/unrelated", f"{REG}/other/db:1", "%!s(<nil>)", "true", "always"),
+    probe_line("e" * 64, "/dead", f"{REG}/ros/payload:0.9", "%!s(<nil>)", "false", "no"),
+])
+
+
+def test_foreign_containers_are_found_by_repository_name_or_project():
+    found = project.foreign(FOREIGN, "robot-payload", [f"{REG}/ros/payload"], ["rosapp"])
+    assert [(c["name"], c["restart"], c["running"], c["project"]) for c in found] == [
+        ("ros_payload", "always", True, None), ("old_bridge", "always", False, "rosapp")]
+    assert project.takeover_line(found[:1]) == (
+        "payload: taking over what runs the payload another way (stopped, restart policy no): "
+        f"ros_payload ({REG}/ros/payload:1.0, running, restart always)")
+
+
+def test_a_converged_robot_with_a_foreign_payload_container_releases_and_says_so(caplog):
+    snap = converged("robots", ROBOT, "debian-13")
+    assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []
+    snap.probes[project.FOREIGN_PROBE] = FOREIGN
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" in commands[0]
+    assert "[@fake/r1] payload: taking over what runs the payload another way" in caplog.text
+
+
+def test_a_converged_two_service_robot_plans_nothing_and_a_new_tag_only_releases():
+    data = {**ROBOT, "payload_image": None, "payload_services": TWO}
+    snap = converged("robots", data, "debian-13")
+    assert plan({"r1": ("robots", data, snap)})["r1"] == []
+    newer = {**data, "payload_services": services.merge(TWO, {"slam": {"image": f"{REG}/ros/slam:1.1"}})}
+    commands = plan({"r1": ("robots", newer, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" not in commands[0]
+
+
+def test_the_readme_example_project_is_valid_and_uses_the_shipped_profile():
+    from tests.unit.test_validation import ROOT
+
+    readme = (ROOT / "README.md").read_text()
+    section = readme.split("### The payload as a compose project", 1)[1]
+    example = yaml.safe_load(section.split("```yaml\n", 1)[1].split("```", 1)[0])
+    example["robots"]["hosts"]["robot2"]["address"] = "10.0.0.2"
+    hosts = dict(fleet.check(example, "README.md", fleet.read_group_data()).hosts("robots"))
+    robot2 = hosts["robot2"]["payload_services"]
+    assert robot2["slam"]["image"].endswith(":1.5.0-rc1") and robot2["slam"]["shm_size"] == "1g"
+    assert services.dds_vendor((services.FILES_DIR / "dds" / "cyclonedds-localhost.xml").read_text()) == "cyclonedds"
+
+
+def test_status_shows_each_service_image_state_and_health():
+    from roles import status
+
+    digest = "reg/ros/driver@sha256:" + "d" * 64
+    report = {"current": {"id": "r2", "images": {}}, "containers": [], "services": {
+        "payload": {"image": "reg/ros/payload@sha256:" + "e" * 64, "state": "running", "health": "healthy"},
+        "driver": {"image": digest, "state": "restarting", "health": None}}}
+    row = status.row("robot1", report)
+    assert row["state"] == "driver:restarting, payload:running"
+    assert row["health"] == "driver:none, payload:healthy"
+    line = status.table([row]).splitlines()[1]
+    assert f"driver=reg/ros/driver@sha256:{'d' * 12}, payload=reg/ros/payload@sha256:{'e' * 12}" in line
+
+
+def test_a_service_s_values_reach_the_container_verbatim():
+    doc = rendered({"payload_services": {"a": {"image": f"{REG}/a:1", "command": ["sh", "-c", "echo $HOME"],
+                                               "environment": {"PS1": "$ "}}}, "payload_environment": {"X": "a$b"}})
+    service = doc["services"]["a"]
+    assert service["command"] == ["sh", "-c", "echo $$HOME"]
+    assert service["environment"]["PS1"] == "$$ " and service["environment"]["X"] == "a$$b"
