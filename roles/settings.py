@@ -179,6 +179,8 @@ SCHEMA: dict[str, c.Checker] = {
     "ros_hostname": c.optional(c.string(r"[A-Za-z0-9.-]+", "a host name")),
     "payload_health_timeout": c.integer(5, 3600),
     "payload_stable_seconds": c.integer(0, 600),
+    "payload_pull_timeout": c.integer(5, 86400),
+    "payload_apply_lock_timeout": c.integer(0, 86400),
     "payload_device_wait": c.integer(0, 600),
     "payload_keep_releases": c.integer(2, 50),
     "payload_lock_file": _abs_path,

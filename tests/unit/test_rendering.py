@@ -121,10 +121,8 @@ def test_unit_runs_current_release_and_never_removes_volumes():
     assert "Type=oneshot" in lines and "RemainAfterExit=yes" in lines
     assert "Requires=docker.service" in lines and "After=docker.service network-online.target" in lines
     assert "Wants=network-online.target" in lines and "WantedBy=multi-user.target" in lines
-    assert (
-        "ExecStart=/usr/bin/docker compose -p robot-payload -f /var/lib/robot-payload/current/compose.yaml "
-        "up -d --remove-orphans" in lines
-    )
+    # Boot goes through payloadctl, which undoes a release a power cut left unverified.
+    assert "ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start --dir /var/lib/robot-payload --name robot-payload" in lines
     assert "ExecStop=/usr/bin/docker compose -p robot-payload -f /var/lib/robot-payload/current/compose.yaml down" in lines
     assert "ExecStartPre=/usr/local/lib/robot-payload/payloadctl wait-devices --timeout 30 /dev/robot/lidar" in lines
     assert " -v" not in text
