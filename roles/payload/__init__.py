@@ -170,7 +170,7 @@ def staging_prelude(data, run_id: str, what: str, stdin_to: str | None = None) -
 
 def apply_script(data, restart: bool, run_id: str) -> str:
     spec_path = shlex.quote(run_path(data, run_id) + "/spec.json")
-    prelude = staging_prelude(data, run_id, "update's spec", "spec.json")
+    prelude = staging_prelude(data, run_id, "spec of this update", "spec.json")
     return on_robot(data, "apply", spec_path + (" --restart" if restart else ""), run_id, prelude, unit="update")
 
 
@@ -282,7 +282,7 @@ def rollback_script(data, run_id: str) -> str:
     )
     prelude = (
         f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
-        + staging_prelude(data, run_id, "rollback's result directory")
+        + staging_prelude(data, run_id, "result directory of this rollback")
     )
     return on_robot(data, "rollback", arguments, run_id, prelude)
 

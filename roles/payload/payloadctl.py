@@ -444,6 +444,7 @@ def finish(root, ok, message, release=None, run_id=None):
     result = {"ok": ok, "message": message, "release": release, "time": now(), "run_id": run_id}
     log(message)
     if run_id:
+        make_private_dir(run_dir(root, run_id))
         write_json(os.path.join(run_dir(root, run_id), "result.json"), result)
     write_json(os.path.join(root, RESULT), result)
     return 0 if ok else 1
@@ -488,6 +489,8 @@ def recover(releases):
 def cmd_apply(args):
     with open(args.spec) as handle:
         spec = json.load(handle)
+    if args.run_id:
+        spec["run_id"] = args.run_id
     root = spec["dir"]
     run_id = spec.get("run_id")
     releases = Releases(root)
@@ -778,6 +781,7 @@ def main(argv=None):
     p = sub.add_parser("apply")
     p.add_argument("spec")
     p.add_argument("--restart", action="store_true")
+    p.add_argument("--run-id")
     p.set_defaults(func=cmd_apply)
     for name, func in (("rollback", cmd_rollback), ("result", cmd_result), ("status", cmd_status), ("start", cmd_start)):
         p = sub.add_parser(name)
