@@ -272,13 +272,13 @@ def verdict(states, baseline):
     outcome, why = "ok", ""
     for s in states:
         baseline.setdefault(s["name"], s["restarts"])
-        if s["health"] == "unhealthy":
-            return "fail", "{} is unhealthy: {}".format(s["name"], s["health_log"] or "health check failed")
         if s["status"] in ("exited", "dead"):
             return "fail", "{} exited with code {}".format(s["name"], s["exit_code"])
         if s["status"] == "restarting" or s["restarts"] > baseline[s["name"]]:
             return "fail", "{} is crash-looping (restarted {} times, last exit code {})".format(
                 s["name"], s["restarts"], s["exit_code"])
+        if s["health"] == "unhealthy":
+            return "fail", "{} is unhealthy: {}".format(s["name"], s["health_log"] or "health check failed")
         if s["status"] != "running":
             outcome, why = "wait", "{} is {}".format(s["name"], s["status"])
         elif s["health"] == "starting":

@@ -124,8 +124,10 @@ def cut_power(lab, host: str, when: str):
     wait_for(lambda: healthy(lab, host), 90, f"the payload on {host} to be healthy after boot")
 
 
-def current_state_is(state: str) -> str:
-    return f"grep -q '\"state\": \"{state}\"' {DIR}/current/record.json 2>/dev/null"
+HEALTH_WAIT = (
+    f"grep -q '\"state\": \"switching\"' {DIR}/current/record.json 2>/dev/null"
+    " && docker ps -q --filter label=com.docker.compose.project=robot-payload --filter health=starting | grep -q ."
+)  # `current` switched, its container up, its verdict not given yet
 
 
 def test_a_failing_update_leaves_the_old_release_running_and_says_why(lab, first_run, tmp_path):
@@ -138,7 +140,7 @@ def test_a_failing_update_leaves_the_old_release_running_and_says_why(lab, first
         path = tmp_path / label.replace(" ", "-")
         path.mkdir()
         run = lab.provision("--limit", host, fleet=lab.fleet_with(path, **replacements), label=f"({host}: {label})")
-        assert run.returncode != 0 and run.failed_hosts == {host}, run.output[-3000:]
+        assert run.returncode != 0, run.output[-3000:]  # (one host failed: pyinfra prints no --json)
         assert lab.record(host)["id"] == old and lab.version(host) == "1.0" and healthy(lab, host)
         return run
 
@@ -229,7 +231,7 @@ def test_first_release_failing_and_a_full_disk(lab, first_run, tmp_path):
     broken = lab.fleet_with(tmp_path, **image("1.2-broken"))
     for attempt in ("first release, broken", "broken again"):
         run = lab.provision("--limit", host, fleet=broken, label=f"({host}: {attempt})")
-        assert run.returncode != 0 and run.failed_hosts == {host}, run.output[-3000:]
+        assert run.returncode != 0, run.output[-3000:]
         line = line_of(run, host, "payload: release")
         assert "unhealthy" in line and "no healthy release to roll back to (the next run tries again)" in line
         assert lab.record(host)["state"] == "failed"
@@ -294,7 +296,7 @@ def test_power_cuts_during_a_release_and_a_rollback(lab, first_run, tmp_path):
     to_11 = _fleet(lab, tmp_path, "to-1.1", **image("1.1"))
     deploy = Background(lab, "--limit", host, fleet=to_11)
     try:
-        cut_power(lab, host, current_state_is("switching"))
+        cut_power(lab, host, HEALTH_WAIT)
     finally:
         deploy.kill()
     assert lab.record(host)["id"] == old and lab.version(host) == "1.0"
@@ -307,7 +309,7 @@ def test_power_cuts_during_a_release_and_a_rollback(lab, first_run, tmp_path):
     # During a manual rollback: the boot undoes it (1.1 was the verified one).
     rollback = Background(lab, "--limit", host, script="rollback.py")
     try:
-        cut_power(lab, host, current_state_is("switching"))
+        cut_power(lab, host, HEALTH_WAIT)
     finally:
         rollback.kill()
     assert lab.record(host)["id"] == on_11 and lab.version(host) == "1.1"
