@@ -260,7 +260,10 @@ def deploy_payload(snap: Snapshot):
         current_record(snap),
         compose.spec_hash(doc, data.payload_autostart),
         data.payload_autostart,
-        containers_running(snap.probes.get("payload_containers", "")),
+        # Both: the containers really run (the oneshot unit stays "active"
+        # without them) and the unit did not fail (it starts them at boot).
+        containers_running(snap.probes.get("payload_containers", ""))
+        and snap.unit_active(f"{data.payload_name}.service"),
     )
     release(
         name="Release the payload (pull, switch, health check, roll back on failure)",

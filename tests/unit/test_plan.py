@@ -254,9 +254,13 @@ def test_converged_laptop_plans_nothing():
     ("active", "exited\tExited (1) 2 minutes ago\n"),
     ("active", "restarting\tRestarting (1) 1 second ago\n"),
     ("active", "running\tUp 2 minutes (unhealthy)\n"),
+    ("active", "unit failed"),                            # containers up by Docker's restart policy, unit failed
 ])
 def test_failed_half_done_or_dead_release_is_released_again(state, containers):
     snap = converged("robots", ROBOT, "debian-13")
+    if containers == "unit failed":
+        snap.units["robot-payload.service"] = ("enabled", "failed")
+        containers = "running\tUp 3 hours (healthy)\n"
     record = json.loads(snap.probes["payload_record"])
     snap.probes["payload_record"] = json.dumps({**record, "state": state})
     snap.probes["payload_containers"] = containers
