@@ -162,6 +162,10 @@ ros_hostname = None
 # images without a HEALTHCHECK, seconds it must run without restarting.
 payload_health_timeout = 120
 payload_stable_seconds = 10
+# Bounds of an update on the robot: seconds for `docker pull` (all tries), and
+# seconds to wait for another deploy or rollback of the same robot to finish.
+payload_pull_timeout = 300
+payload_apply_lock_timeout = 300
 # Seconds to wait at boot for the sensors' device links to appear.
 payload_device_wait = 30
 # Releases kept on the robot (their images are kept too, for offline rollback).

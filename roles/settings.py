@@ -338,6 +338,8 @@ SCHEMA: dict[str, c.Checker] = {
     "ros_hostname": c.optional(_address),
     "payload_health_timeout": c.integer(5, 3600),
     "payload_stable_seconds": c.integer(0, 600),
+    "payload_pull_timeout": c.integer(5, 86400),
+    "payload_apply_lock_timeout": c.integer(0, 86400),
     "payload_device_wait": c.integer(0, 600),
     "payload_keep_releases": c.integer(2, 50),
     "payload_lock_file": _private_path,

@@ -8,11 +8,13 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 
 from __future__ import annotations
 
+import datetime
 import getpass
 import hashlib
 import hmac
 import json
 import os
+import secrets
 import shlex
 import socket
 from pathlib import Path
@@ -64,6 +66,8 @@ def spec(data, doc: dict) -> dict:
         "autostart": data.payload_autostart,
         "delivery": data.payload_delivery,
         "health_timeout": data.payload_health_timeout,
+        "pull_timeout": data.payload_pull_timeout,
+        "apply_lock_timeout": data.payload_apply_lock_timeout,
         "stable_seconds": data.payload_stable_seconds,
         "keep_releases": data.payload_keep_releases,
         "lock_file": data.payload_lock_file,
@@ -75,9 +79,43 @@ def spec(data, doc: dict) -> dict:
 
 def current_record(snap: Snapshot) -> dict:
     try:
-        return json.loads(snap.probes.get("payload_record") or "{}")
+        record = json.loads(snap.probes.get("payload_record") or "{}")
     except ValueError:
         return {}
+    return record if isinstance(record, dict) else {}
+
+
+def containers_probe(name: str) -> str:
+    return (
+        f"docker ps -a --filter label=com.docker.compose.project={shlex.quote(name)}"
+        " --format '{{.State}}\t{{.Status}}'"
+    )
+
+
+def containers_running(probe_output: str) -> bool:
+    """From `docker ps`: the payload's containers exist, all run, none is
+    unhealthy (a oneshot unit stays "active" when they are gone)."""
+    lines = [line.split("\t", 1) for line in probe_output.splitlines() if line.strip()]
+    return bool(lines) and all(
+        state == "running" and "(unhealthy)" not in (rest[0] if rest else "") for state, *rest in lines
+    )
+
+
+RELEASED = ("active", "staged")
+
+
+def release_needed(record: dict, wanted_hash: str, autostart: bool, running: bool) -> bool:
+    """A release is converged only when it is what was asked, it passed its
+    health gate (a failed or interrupted one is tried again) and, where it
+    should run, its containers really run."""
+    if record.get("spec_hash") != wanted_hash or record.get("state") not in RELEASED:
+        return True
+    return autostart and not running
+
+
+def new_run_id() -> str:
+    """Names this run's spec, result and transient unit on the robot."""
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%S") + "-" + secrets.token_hex(4)
 
 
 DOCKER_CONFIG_DIR = "/root/.docker"
@@ -129,6 +167,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.units.add(f"{data.payload_name}.service")
     query.commands |= {"python3", "systemd-run"}
     query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
+    query.probes["payload_containers"] = containers_probe(data.payload_name)
     query.probes["registry_auth"] = registry_probe(imageref.parse(project.primary_image(data)).registry)
     project.declare_reads(data, query)  # issue 13
     if data.payload_delivery == "push":
@@ -138,31 +177,45 @@ def declare_reads(data, query: SnapshotQuery) -> None:
         query.probes["docker_layers"] = push.LAYERS_PROBE
 
 
-def on_robot(data, action: str, arguments: str, prelude: str = "", unit: str | None = None) -> str:
+def run_path(data, run_id: str) -> str:
+    """This run's own directory on the robot (spec and result): two deploys
+    at once never share a file."""
+    return f"{data.payload_dir}/runs/{run_id}"
+
+
+def on_robot(data, action: str, arguments: str, run_id: str, prelude: str = "", unit: str | None = None) -> str:
     """Run ``payloadctl <action> <arguments>`` as a transient systemd unit (so
-    it goes on if SSH drops), then print its recorded result and exit with it."""
+    it goes on if SSH drops), then print the result it recorded for this run
+    and exit with it; no result for this run fails the host."""
     q = shlex.quote
     helper = f"/usr/bin/python3 {HELPER}"
-    command = f"{helper} {action} {arguments} >/dev/null 2>&1 || true"
+    command = f"{helper} {action} {arguments} --run-id {q(run_id)} >/dev/null 2>&1 || true"
+    unit_name = f"{data.payload_name}-{unit or action}-{run_id}"
     return (
         f"{prelude}"
         "if command -v systemd-run >/dev/null 2>&1 && [ -d /run/systemd/system ]; then\n"
-        f'  systemd-run --quiet --wait --collect --unit="{data.payload_name}-{unit or action}-$(date +%s)" {command}\n'
+        f"  systemd-run --quiet --wait --collect --unit={q(unit_name)} {command}\n"
         "else\n"
         f"  {command}\n"
         "fi\n"
-        f"exec {helper} result --dir {q(data.payload_dir)}\n"
+        f"exec {helper} result --dir {q(data.payload_dir)} --name {q(data.payload_name)} --run-id {q(run_id)}\n"
     )
 
 
-def apply_script(data, restart: bool) -> str:
-    spec_path = f"{shlex.quote(data.payload_dir)}/staging/spec.json"
-    prelude = (
-        "set -e\n"
-        f"mkdir -p {shlex.quote(data.payload_dir)}/staging\n"
-        f"umask 077\ncat > {spec_path}\n"
-    )
-    return on_robot(data, "apply", spec_path + (" --restart" if restart else ""), prelude, unit="update")
+def staging_prelude(data, run_id: str, what: str, stdin_to: str | None = None) -> str:
+    q = shlex.quote
+    directory = run_path(data, run_id)
+    fail = f"{{ echo {q(f'payload: cannot write the {what} on this robot (disk full?)')} >&2; exit 1; }}"
+    lines = ["umask 077", f"mkdir -p {q(directory)} || {fail}"]
+    if stdin_to:
+        lines.append(f"cat > {q(directory + '/' + stdin_to)} || {fail}")
+    return "\n".join(lines) + "\n"
+
+
+def apply_script(data, restart: bool, run_id: str) -> str:
+    spec_path = shlex.quote(run_path(data, run_id) + "/spec.json")
+    prelude = staging_prelude(data, run_id, "spec of this update", "spec.json")
+    return on_robot(data, "apply", spec_path + (" --restart" if restart else ""), run_id, prelude, unit="update")
 
 
 @operations.operation()
@@ -171,8 +224,9 @@ def release(data, document: dict, needed: bool, restart: bool):
     if not needed:
         host.noop("payload release is current")
         return
-    payload = json.dumps(spec(data, document), sort_keys=True)
-    yield operations.shell(apply_script(data, restart), stdin=payload.splitlines())
+    run_id = new_run_id()
+    payload = json.dumps({**spec(data, document), "run_id": run_id}, sort_keys=True)
+    yield operations.shell(apply_script(data, restart, run_id), stdin=payload.splitlines())
 
 
 @operations.operation()
@@ -263,9 +317,15 @@ def deploy_payload(snap: Snapshot):
 
     project.install_files(data, snap)  # issue 13: the DDS profile
     taken_over = project.takeover(data, snap)  # issue 13: said in the output, done by payloadctl
-    record = current_record(snap)
-    running = snap.unit_active(f"{data.payload_name}.service") or not data.payload_autostart
-    needed = record.get("spec_hash") != compose.spec_hash(doc, data.payload_autostart) or not running
+    needed = release_needed(
+        current_record(snap),
+        compose.spec_hash(doc, data.payload_autostart),
+        data.payload_autostart,
+        # Both: the containers really run (the oneshot unit stays "active"
+        # without them) and the unit did not fail (it starts them at boot).
+        containers_running(snap.probes.get("payload_containers", ""))
+        and snap.unit_active(f"{data.payload_name}.service"),
+    )
     release(
         name="Release the payload (pull, switch, health check, roll back on failure)",
         data=data,
@@ -275,17 +335,22 @@ def deploy_payload(snap: Snapshot):
     )
 
 
-def rollback_script(data) -> str:
+def rollback_script(data, run_id: str) -> str:
     q = shlex.quote
+    by = f"{getpass.getuser()}@{socket.gethostname()} (pyinfra rollback)"
     arguments = (
         f"--dir {q(data.payload_dir)} --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}"
         f" --health-timeout {int(data.payload_health_timeout)} --stable-seconds {int(data.payload_stable_seconds)}"
+        f" --apply-lock-timeout {int(data.payload_apply_lock_timeout)} --by {q(by)}"
         + (" --force" if data.payload_force else "")
     )
-    prelude = f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
-    return on_robot(data, "rollback", arguments, prelude)
+    prelude = (
+        f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
+        + staging_prelude(data, run_id, "result directory of this rollback")
+    )
+    return on_robot(data, "rollback", arguments, run_id, prelude)
 
 
 @deploy("Rollback")
 def rollback_release(data):
-    operations.run(name="Switch the payload back to the previous release", script=rollback_script(data))
+    operations.run(name="Switch the payload back to the previous release", script=rollback_script(data, new_run_id()))

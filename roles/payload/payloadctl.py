@@ -15,15 +15,21 @@ Standard library only, Python >= 3.8 (Ubuntu 20.04).
 
 import argparse
 import datetime
+import errno
 import fcntl
 import json
 import os
 import shutil
+import socket
+import stat
 import subprocess
 import sys
 import time
 
 RESULT = "last-result.json"
+RUNS = "runs"
+GOOD = ("active", "staged")
+POLL = 0.5  # seconds between health looks: a crash is seen within about this
 
 
 class Failure(Exception):
@@ -34,9 +40,10 @@ def log(message):
     print(message, flush=True)
 
 
-def run(args, check=True, input_text=None):
+def run(args, check=True, input_text=None, timeout=None):
     proc = subprocess.run(
-        args, input=input_text, stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True
+        args, input=input_text, stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True,
+        timeout=timeout,
     )
     if check and proc.returncode != 0:
         raise Failure("{} failed: {}".format(" ".join(args[:3]), (proc.stderr or proc.stdout).strip()[-400:]))
@@ -45,6 +52,58 @@ def run(args, check=True, input_text=None):
 
 def now():
     return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def precise_now():
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
+# --- durable files ------------------------------------------------------------
+# A power cut must never leave an empty record, compose file or pointer: write
+# a temp file, fsync it, rename it, then fsync the directory (the rename is
+# only durable once the directory is).
+
+
+def fsync_dir(path):
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_bytes(path, data, mode=0o600):
+    tmp = path + ".tmp"
+    if os.path.lexists(tmp):
+        os.unlink(tmp)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), mode)
+    try:
+        os.fchmod(fd, mode)
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+        os.fsync(fd)
+    except BaseException:
+        os.close(fd)
+        os.unlink(tmp)
+        raise
+    os.close(fd)
+    os.replace(tmp, path)
+    fsync_dir(os.path.dirname(path) or ".")
+
+
+def write_json(path, data):
+    write_bytes(path, (json.dumps(data, indent=2, sort_keys=True) + "\n").encode())
+
+
+def write_text(path, text):
+    write_bytes(path, text.encode())
+
+
+def make_private_dir(path):
+    """A directory only root can read (it may hold payload secrets)."""
+    os.makedirs(path, mode=0o700, exist_ok=True)
+    os.chmod(path, 0o700)
 
 
 class Releases:
@@ -66,19 +125,26 @@ class Releases:
         if rid is None:
             if os.path.lexists(link):
                 os.unlink(link)
+                fsync_dir(self.root)
             return
         tmp = link + ".tmp"
         if os.path.lexists(tmp):
             os.unlink(tmp)
         os.symlink(os.path.join("releases", rid), tmp)
         os.replace(tmp, link)
+        fsync_dir(self.root)
 
     def record(self, rid):
+        if not rid:
+            return None
         try:
             with open(self.path(rid, "record.json")) as handle:
                 return json.load(handle)
         except (OSError, ValueError):
             return None
+
+    def state(self, rid):
+        return (self.record(rid) or {}).get("state")
 
     def write_record(self, rid, record):
         write_json(self.path(rid, "record.json"), record)
@@ -89,24 +155,13 @@ class Releases:
         found = [r for r in os.listdir(self.dir) if self.record(r) is not None]
         return sorted(found, key=lambda r: self.record(r).get("created", ""))
 
-
-def write_json(path, data):
-    tmp = path + ".tmp"
-    with open(tmp, "w") as handle:
-        json.dump(data, handle, indent=2, sort_keys=True)
-        handle.write("\n")
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
-
-
-def write_text(path, text):
-    tmp = path + ".tmp"
-    with open(tmp, "w") as handle:
-        handle.write(text)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+    def new_id(self, spec_hash):
+        base = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ") + "-" + spec_hash[:8]
+        rid, n = base, 1
+        while os.path.lexists(self.path(rid)):
+            n += 1
+            rid = "{}-{}".format(base, n)
+        return rid
 
 
 def compose_yaml(doc):
@@ -118,7 +173,7 @@ def compose_yaml(doc):
 
 
 def image_info(ref):
-    proc = run(["docker", "image", "inspect", ref], check=False)
+    proc = run(["docker", "image", "inspect", ref], check=False, timeout=60)
     if proc.returncode != 0:
         return None
     data = json.loads(proc.stdout)[0]
@@ -133,19 +188,34 @@ def repository(ref):
     return name
 
 
-def obtain(ref, delivery):
+def pull(ref, timeout):
+    """docker pull, three tries, all within `timeout` seconds; the error text."""
+    deadline = time.time() + timeout
+    last = ""
+    for attempt in range(3):
+        left = deadline - time.time()
+        if left <= 0:
+            break
+        try:
+            proc = run(["docker", "pull", "-q", ref], check=False, timeout=left)
+        except subprocess.TimeoutExpired:
+            raise Failure(
+                "docker pull {} did not finish within {} s (payload_pull_timeout); "
+                "the old release keeps running".format(ref, timeout)
+            )
+        if proc.returncode == 0:
+            return None
+        last = (proc.stderr or proc.stdout).strip()[-300:]
+        time.sleep(min(2 * (attempt + 1), max(0, deadline - time.time())))
+    return last or "gave up after {} s (payload_pull_timeout)".format(timeout)
+
+
+def obtain(ref, delivery, pull_timeout=300):
     """Make the image present, pulling while the old release keeps running."""
     if delivery == "pull":
-        last = ""
-        for attempt in range(3):
-            proc = run(["docker", "pull", "-q", ref], check=False)
-            if proc.returncode == 0:
-                break
-            last = (proc.stderr or proc.stdout).strip()[-300:]
-            time.sleep(2 * (attempt + 1))
-        else:
-            if image_info(ref) is None:
-                raise Failure("cannot pull {}: {}".format(ref, last))
+        error = pull(ref, pull_timeout)
+        if error is not None and image_info(ref) is None:
+            raise Failure("cannot pull {}: {}; the old release keeps running".format(ref, error))
     info = image_info(ref)
     if info is None:
         raise Failure("image {} is not on this robot (delivery: {})".format(ref, delivery))
@@ -164,12 +234,12 @@ def pinned(ref, info):
 
 
 def project_containers(name):
-    proc = run(["docker", "ps", "-aq", "--filter", "label=com.docker.compose.project=" + name], check=False)
+    proc = run(["docker", "ps", "-aq", "--filter", "label=com.docker.compose.project=" + name], check=False, timeout=60)
     return proc.stdout.split()
 
 
 def container_state(cid):
-    proc = run(["docker", "inspect", cid], check=False)
+    proc = run(["docker", "inspect", cid], check=False, timeout=60)
     if proc.returncode != 0:
         return None
     data = json.loads(proc.stdout)[0]
@@ -191,58 +261,78 @@ def container_state(cid):
     }
 
 
+def verdict(states, baseline):
+    """One look at the containers: ("ok" | "wait" | "fail" | "stable", why).
+
+    A container that has exited, is restarting or restarted since the first
+    look, or that Docker's HEALTHCHECK calls unhealthy, fails the release at
+    once: waiting out the health timeout would only keep a broken payload."""
+    if not states:
+        return "wait", "no container started"
+    outcome, why = "ok", ""
+    for s in states:
+        baseline.setdefault(s["name"], s["restarts"])
+        if s["status"] in ("exited", "dead"):
+            return "fail", "{} exited with code {}".format(s["name"], s["exit_code"])
+        if s["status"] == "restarting" or s["restarts"] > baseline[s["name"]]:
+            return "fail", "{} is crash-looping (restarted {} times, last exit code {})".format(
+                s["name"], s["restarts"], s["exit_code"])
+        if s["health"] == "unhealthy":
+            return "fail", "{} is unhealthy: {}".format(s["name"], s["health_log"] or "health check failed")
+        if s["status"] != "running":
+            outcome, why = "wait", "{} is {}".format(s["name"], s["status"])
+        elif s["health"] == "starting":
+            outcome, why = "wait", "{} health check still starting".format(s["name"])
+        elif s["health"] is None and outcome == "ok":
+            outcome = "stable"
+    return outcome, why
+
+
 def wait_healthy(name, timeout, stable_seconds):
     """(True, "") once every container is healthy (HEALTHCHECK) or has run
-    without restarting for stable_seconds; (False, why) otherwise."""
+    without restarting for stable_seconds; (False, why) at the first sign of
+    failure or when `timeout` runs out."""
     deadline = time.time() + timeout
-    first_restarts = {}
+    baseline = {}
     stable_since = None
     why = "no container started"
-    while time.time() < deadline:
+    while True:
         states = [s for s in (container_state(c) for c in project_containers(name)) if s]
-        if states:
-            all_ok, stable_needed = True, False
-            for s in states:
-                first_restarts.setdefault(s["name"], s["restarts"])
-                if s["health"] == "unhealthy":
-                    return False, "{} is unhealthy: {}".format(s["name"], s["health_log"] or "health check failed")
-                if s["status"] != "running":
-                    all_ok = False
-                    why = "{} is {} (exit code {})".format(s["name"], s["status"], s["exit_code"])
-                elif s["health"] == "starting":
-                    all_ok = False
-                    why = "{} health check still starting".format(s["name"])
-                elif s["health"] is None:
-                    stable_needed = True
-                    if s["restarts"] != first_restarts[s["name"]]:
-                        stable_since = None
-                        first_restarts[s["name"]] = s["restarts"]
-                        all_ok = False
-                        why = "{} restarted".format(s["name"])
-            if all_ok:
-                if not stable_needed:
-                    return True, ""
-                stable_since = stable_since or time.time()
-                if time.time() - stable_since >= stable_seconds:
-                    return True, ""
-                why = "waiting for {} s without restarts".format(stable_seconds)
-            else:
-                stable_since = None
-        time.sleep(1)
-    return False, "not healthy after {} s: {}".format(timeout, why)
+        outcome, reason = verdict(states, baseline)
+        if outcome == "fail":
+            return False, reason
+        if outcome == "ok":
+            return True, ""
+        if outcome == "stable":
+            stable_since = stable_since or time.time()
+            if time.time() - stable_since >= stable_seconds:
+                return True, ""
+            why = "waiting for {} s without restarts".format(stable_seconds)
+        else:
+            stable_since = None
+            why = reason
+        if time.time() >= deadline:
+            return False, "not healthy after {} s (payload_health_timeout): {}".format(timeout, why)
+        time.sleep(POLL)
+
+
+def containers_up(name):
+    """The payload really runs: containers exist, all running, none unhealthy."""
+    states = [s for s in (container_state(c) for c in project_containers(name)) if s]
+    return bool(states) and all(s["status"] == "running" and s["health"] != "unhealthy" for s in states)
 
 
 def unit_active(unit):
-    return run(["systemctl", "is-active", "--quiet", unit], check=False).returncode == 0
+    return run(["systemctl", "is-active", "--quiet", unit], check=False, timeout=60).returncode == 0
 
 
 def start_release(name, restart):
     """Run `current` through the payload's unit."""
     unit = name + ".service"
     if restart or not unit_active(unit):
-        run(["systemctl", "restart", unit])
+        run(["systemctl", "restart", unit], timeout=600)
     else:
-        run(["systemctl", "reload", unit])
+        run(["systemctl", "reload", unit], timeout=600)
 
 
 def start_and_check(name, restart, timeout, stable_seconds):
@@ -252,6 +342,145 @@ def start_and_check(name, restart, timeout, stable_seconds):
         return wait_healthy(name, timeout, stable_seconds)
     except Failure as error:
         return False, str(error)
+    except subprocess.TimeoutExpired as error:
+        return False, "{} did not finish within {} s".format(" ".join(error.cmd[:3]), error.timeout)
+
+
+# --- locks --------------------------------------------------------------------
+
+
+class Busy(Exception):
+    pass
+
+
+class Lock:
+    """The per-robot apply lock: one deploy or rollback at a time.  The
+    holder writes who it is and since when, so a waiter that gives up can
+    say which deploy it waited for."""
+
+    def __init__(self, root, timeout=300, owner=None):
+        self.path = os.path.join(root, ".apply.lock")
+        self.owner_path = os.path.join(root, ".apply.owner")
+        self.timeout = timeout
+        self.owner = owner or {}
+
+    def acquire(self, blocking=True):
+        self.handle = open(self.path, "a")
+        deadline = time.time() + self.timeout
+        while True:
+            try:
+                fcntl.flock(self.handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except OSError as error:
+                if error.errno not in (errno.EAGAIN, errno.EACCES):
+                    raise
+            if not blocking or time.time() >= deadline:
+                self.handle.close()
+                raise Busy(self.busy_message())
+            time.sleep(0.2)
+        try:
+            write_json(self.owner_path, dict(self.owner, since=now(), pid=os.getpid()))
+        except OSError:
+            pass  # the owner note is a courtesy to waiters; the lock holds without it
+        return self
+
+    def busy_message(self):
+        try:
+            with open(self.owner_path) as handle:
+                owner = json.load(handle)
+        except (OSError, ValueError):
+            owner = {}
+        return "another deploy is running on {} since {} (by {}); gave up after {} s (payload_apply_lock_timeout)".format(
+            socket.gethostname(), owner.get("since", "an unknown time"), owner.get("by", "unknown"), self.timeout)
+
+    def release(self):
+        fcntl.flock(self.handle, fcntl.LOCK_UN)
+        self.handle.close()
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()
+
+
+def update_lock_holder(path):
+    """The update lock's reason, or None when it is not held.  The lock may be
+    written by unprivileged robot software: never follow a link, read only a
+    regular file, and pass on at most one line of printable text."""
+    if not path or not os.path.lexists(path):
+        return None
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            return "the lock is a symbolic link (not read)"
+        return "unreadable lock"
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return "the lock is not a regular file (not read)"
+        raw = os.read(fd, 4096)
+    finally:
+        os.close(fd)
+    return clean_reason(raw.decode("utf-8", "replace"))
+
+
+def clean_reason(text, limit=120):
+    lines = text.strip().splitlines()
+    line = "".join(ch for ch in (lines[0] if lines else "") if ch.isprintable()).strip()
+    if len(line) > limit:
+        line = line[: limit - 3] + "..."
+    return line or "no reason given"
+
+
+# --- results --------------------------------------------------------------------
+
+
+def run_dir(root, run_id):
+    return os.path.join(root, RUNS, run_id)
+
+
+def finish(root, ok, message, release=None, run_id=None):
+    result = {"ok": ok, "message": message, "release": release, "time": now(), "run_id": run_id}
+    log(message)
+    if run_id:
+        make_private_dir(run_dir(root, run_id))
+        write_json(os.path.join(run_dir(root, run_id), "result.json"), result)
+    write_json(os.path.join(root, RESULT), result)
+    return 0 if ok else 1
+
+
+# --- recovery -----------------------------------------------------------------
+
+
+def recover(releases):
+    """Undo a switch that never finished (power cut or crash between the
+    switch and its verdict).  `current` in state "switching" carries where it
+    came from; if that release was good, go back to it.  Returns a line for
+    the log, or None when there was nothing to undo."""
+    rid = releases.pointer("current")
+    record = releases.record(rid)
+    if not record or record.get("state") != "switching":
+        return None
+    switch = record.get("switch") or {}
+    back = switch.get("from")
+    if not back or back == rid or releases.state(back) not in GOOD:
+        return None  # nothing verified to go back to: run it, the next deploy re-releases it
+    releases.point("current", back)
+    releases.point("previous", switch.get("previous_before"))
+    record.pop("switch", None)
+    why = "interrupted before it was verified healthy (power cut, reboot or crash)"
+    if switch.get("kind") == "rollback":
+        record["state"] = switch.get("prior_state") or "active"
+        record["rollback_interrupted"] = {"time": now(), "reason": why}
+    else:
+        record["state"] = "failed"
+        record["reason"] = why
+    releases.write_record(rid, record)
+    back_record = releases.record(back) or {}
+    back_record["rolled_back_from"] = {"id": rid, "reason": why, "time": now()}
+    releases.write_record(back, back_record)
+    return "payload: release {} was {}; back on {}".format(rid, why, back)
 
 
 # --- GPU check (roles/gpu) -----------------------------------------------------
@@ -274,66 +503,50 @@ def gpu_check(name, command):
 # --- commands -----------------------------------------------------------------
 
 
-class Lock:
-    def __init__(self, path):
-        self.path = path
-
-    def __enter__(self):
-        self.handle = open(self.path, "w")
-        fcntl.flock(self.handle, fcntl.LOCK_EX)
-        return self
-
-    def __exit__(self, *exc):
-        fcntl.flock(self.handle, fcntl.LOCK_UN)
-        self.handle.close()
-
-
-def update_lock_holder(path):
-    if not os.path.exists(path):
-        return None
-    try:
-        with open(path) as handle:
-            reason = handle.read().strip()[:200]
-    except OSError:
-        reason = ""
-    return reason or "no reason given"
-
-
-def finish(root, ok, message, release=None):
-    write_json(os.path.join(root, RESULT), {"ok": ok, "message": message, "release": release, "time": now()})
-    log(message)
-    return 0 if ok else 1
-
-
 def cmd_apply(args):
     with open(args.spec) as handle:
         spec = json.load(handle)
+    if args.run_id:
+        spec["run_id"] = args.run_id
     root = spec["dir"]
+    run_id = spec.get("run_id")
     releases = Releases(root)
-    os.makedirs(releases.dir, exist_ok=True)
-    with Lock(os.path.join(root, ".apply.lock")):
-        old = releases.pointer("current")
-        try:
-            return apply_locked(spec, releases, old, args.restart)
-        except Failure as error:
-            return finish(root, False, "payload: {}".format(error))
-        except Exception as error:  # record it: the deploy reads the result, not our stderr
-            return finish(root, False, "payload: internal error in payloadctl: {!r}".format(error))
+    make_private_dir(releases.dir)
+    lock = Lock(root, spec.get("apply_lock_timeout", 300),
+                {"by": spec.get("deployed_by", "unknown"), "action": "apply", "run_id": run_id})
+    try:
+        lock.acquire()
+    except Busy as busy:
+        return finish(root, False, "payload: {}".format(busy), run_id=run_id)
+    try:
+        recovered = recover(releases)
+        if recovered:
+            log(recovered)
+        return apply_locked(spec, releases, releases.pointer("current"), args.restart)
+    except Failure as error:
+        return finish(root, False, "payload: {}".format(error), run_id=run_id)
+    except OSError as error:
+        return finish(root, False, "payload: cannot write on this robot: {}".format(error), run_id=run_id)
+    except Exception as error:  # record it: the deploy reads the result, not our stderr
+        return finish(root, False, "payload: internal error in payloadctl: {!r}".format(error), run_id=run_id)
+    finally:
+        lock.release()
 
 
 def apply_locked(spec, releases, old, restart):
     root = spec["dir"]
-    # An apply that waited for another one (e.g. a rerun after a dropped SSH
-    # link) may find the work done: switching again would restart for nothing.
+    run_id = spec.get("run_id")
+    # An apply that waited for another one (two deploys at once, or a rerun
+    # after a dropped SSH link) may find the work done.
     running = releases.record(old) if old else None
     if (
         running
         and not restart
         and running.get("spec_hash") == spec["spec_hash"]
-        and running.get("state") in ("active", "staged")
-        and (not spec["autostart"] or unit_active(spec["name"] + ".service"))
+        and running.get("state") in GOOD
+        and (not spec["autostart"] or containers_up(spec["name"]))
     ):
-        return finish(root, True, "payload: release {} is already current".format(old), old)
+        return finish(root, True, "payload: release {} is already current".format(old), old, run_id)
     holder = update_lock_holder(spec["lock_file"])
     if holder and old and not spec.get("force"):
         return finish(
@@ -342,18 +555,18 @@ def apply_locked(spec, releases, old, restart):
             "payload: update refused, {} is held ({}); run again with --data payload_force=true to override".format(
                 spec["lock_file"], holder
             ),
+            run_id=run_id,
         )
     doc = spec["compose"]
     images = {}
     for service in doc["services"].values():
         ref = service["image"]
-        info = obtain(ref, spec["delivery"])
+        info = obtain(ref, spec["delivery"], spec.get("pull_timeout", 300))
         service["image"] = pinned(ref, info)
         images[ref] = {"id": info["id"], "pinned": service["image"]}
-    rid = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ") + "-" + spec["spec_hash"][:8]
-    os.makedirs(releases.path(rid), exist_ok=True)
-    write_text(releases.path(rid, "compose.yaml"), compose_yaml(doc))
-    check_compose(spec["name"], releases.path(rid, "compose.yaml"))  # issue 13 hook
+    rid = releases.new_id(spec["spec_hash"])
+    before_previous = releases.pointer("previous")
+    good_old = old if old and releases.state(old) in GOOD else None
     record = {
         "id": rid,
         "created": now(),
@@ -361,41 +574,57 @@ def apply_locked(spec, releases, old, restart):
         "images": images,
         "deployed_by": spec.get("deployed_by", "unknown"),
         "autostart": spec["autostart"],
+        "run_id": run_id,
         "state": "switching",
+        "switch": {"kind": "apply", "from": good_old, "previous_before": before_previous},
     }
-    releases.write_record(rid, record)
-    before_previous = releases.pointer("previous")
-    if old and old != rid:
-        releases.point("previous", old)
+    try:
+        make_private_dir(releases.path(rid))
+        write_text(releases.path(rid, "compose.yaml"), compose_yaml(doc))
+        releases.write_record(rid, record)
+    except OSError as error:  # e.g. disk full: nothing half-written stays behind
+        shutil.rmtree(releases.path(rid), ignore_errors=True)
+        raise Failure("cannot write release {}: {}; the old release keeps running".format(rid, error))
+    check_compose(spec["name"], releases.path(rid, "compose.yaml"))  # issue 13 hook
+    if good_old and good_old != rid:
+        releases.point("previous", good_old)
     releases.point("current", rid)
+    record["switched"] = precise_now()
     if not spec["autostart"]:
         record["state"] = "staged"
+        record.pop("switch")
         releases.write_record(rid, record)
         gc(spec, releases)
-        return finish(root, True, "payload: release {} staged (no autostart)".format(rid), rid)
-    ok, why = start_taking_over(spec, releases.path(rid, "record.json"), record, old, restart)  # issue 13 hook
+        return finish(root, True, "payload: release {} staged (no autostart)".format(rid), rid, run_id)
+    ok, why = start_taking_over(spec, releases.path(rid, "record.json"), record, good_old, restart)  # issue 13 hook
     if ok:
         ok, why = gpu_check(spec["name"], spec.get("gpu_check"))
+    record.pop("switch")
     if ok:
         record["state"] = "active"
         record["activated"] = now()
         releases.write_record(rid, record)
         gc(spec, releases)
-        return finish(root, True, "payload: release {} is healthy".format(rid), rid)
+        return finish(root, True, "payload: release {} is healthy".format(rid), rid, run_id)
     record["state"] = "failed"
     record["reason"] = why
+    record["failed"] = precise_now()
     releases.write_record(rid, record)
-    if not old:
-        return finish(root, False, "payload: release {} failed: {}; no previous release to roll back to".format(rid, why), rid)
-    releases.point("current", old)
+    if not good_old:
+        return finish(
+            root, False,
+            "payload: release {} failed: {}; no healthy release to roll back to (the next run tries again)".format(rid, why),
+            rid, run_id)
+    releases.point("current", good_old)
     releases.point("previous", before_previous)
-    back = releases.record(old) or {}
+    back = releases.record(good_old) or {}
     back["rolled_back_from"] = {"id": rid, "reason": why, "time": now()}
-    releases.write_record(old, back)
+    releases.write_record(good_old, back)
     back_ok, back_why = start_and_check(spec["name"], restart, spec["health_timeout"], spec["stable_seconds"])
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
     return finish(
-        root, False, "payload: release {} failed ({}); rolled back to {} {}".format(rid, why, old, state), old
+        root, False, "payload: release {} failed ({}); rolled back to {} {}".format(rid, why, good_old, state),
+        good_old, run_id,
     )
 
 
@@ -410,53 +639,138 @@ def gc(spec, releases):
         kept_images |= {i["id"] for i in record.get("images", {}).values()}
     for rid in releases.all():
         if rid in keep:
+            os.chmod(releases.path(rid), 0o700)  # releases written before 0700 was the rule
             continue
         record = releases.record(rid) or {}
         shutil.rmtree(releases.path(rid), ignore_errors=True)
         for image in record.get("images", {}).values():
             if image["id"] not in kept_images:
-                run(["docker", "image", "rm", image["pinned"]], check=False)
+                run(["docker", "image", "rm", image["pinned"]], check=False, timeout=120)
+    runs = os.path.join(releases.root, RUNS)
+    if os.path.isdir(runs):  # left by deploys whose operator vanished
+        for name in os.listdir(runs):
+            path = os.path.join(runs, name)
+            if time.time() - os.lstat(path).st_mtime > 86400:
+                shutil.rmtree(path, ignore_errors=True)
 
 
 def cmd_rollback(args):
     root = args.dir
     releases = Releases(root)
-    with Lock(os.path.join(root, ".apply.lock")):
-        current, previous = releases.pointer("current"), releases.pointer("previous")
-        if not previous:
-            return finish(root, False, "payload: no previous release to roll back to")
-        holder = update_lock_holder(args.lock_file) if args.lock_file else None
-        if holder and not args.force:
-            return finish(root, False, "payload: rollback refused, {} is held ({})".format(args.lock_file, holder))
-        releases.point("current", previous)
-        releases.point("previous", current)
-        record = releases.record(previous) or {}
-        record["rolled_back_to"] = now()
-        releases.write_record(previous, record)
-        if not record.get("autostart", True):
-            return finish(root, True, "payload: rolled back to {} (staged)".format(previous), previous)
-        ok, why = start_and_check(args.name, False, args.health_timeout, args.stable_seconds)
-        if ok:
-            return finish(root, True, "payload: rolled back from {} to {}".format(current, previous), previous)
-        return finish(root, False, "payload: rolled back to {} but it is not healthy: {}".format(previous, why), previous)
+    run_id = args.run_id
+    lock = Lock(root, args.apply_lock_timeout, {"by": args.by or "unknown", "action": "rollback", "run_id": run_id})
+    try:
+        lock.acquire()
+    except Busy as busy:
+        return finish(root, False, "payload: {}".format(busy), run_id=run_id)
+    try:
+        recovered = recover(releases)
+        if recovered:
+            log(recovered)
+        return rollback_locked(args, releases)
+    except Exception as error:
+        return finish(root, False, "payload: rollback: internal error in payloadctl: {!r}".format(error), run_id=run_id)
+    finally:
+        lock.release()
+
+
+def rollback_locked(args, releases):
+    """All or nothing: the previous release runs healthy, or `current` and
+    `previous` are put back and the release that ran before is started again."""
+    root, run_id = args.dir, args.run_id
+    current, previous = releases.pointer("current"), releases.pointer("previous")
+    target = releases.record(previous)
+    if not previous or target is None:
+        return finish(root, False, "payload: no previous release to roll back to", run_id=run_id)
+    holder = update_lock_holder(args.lock_file) if args.lock_file else None
+    if holder and not args.force:
+        return finish(root, False, "payload: rollback refused, {} is held ({})".format(args.lock_file, holder),
+                      run_id=run_id)
+    prior_state = target.get("state")
+    target["state"] = "switching"
+    target["switch"] = {"kind": "rollback", "from": current, "previous_before": previous, "prior_state": prior_state}
+    releases.write_record(previous, target)
+    releases.point("current", previous)
+    releases.point("previous", current)
+    target["switched"] = precise_now()
+    if not target.get("autostart", True):
+        target.pop("switch")
+        target["state"] = "staged"
+        target["rolled_back_to"] = now()
+        releases.write_record(previous, target)
+        return finish(root, True, "payload: rolled back to {} (staged)".format(previous), previous, run_id)
+    ok, why = start_and_check(args.name, False, args.health_timeout, args.stable_seconds)
+    target.pop("switch")
+    if ok:
+        target["state"] = "active"
+        target["rolled_back_to"] = now()
+        releases.write_record(previous, target)
+        return finish(root, True, "payload: rolled back from {} to {}".format(current, previous), previous, run_id)
+    releases.point("current", current)
+    releases.point("previous", previous)
+    target["state"] = prior_state
+    target["rollback_failed"] = {"time": now(), "reason": why}
+    releases.write_record(previous, target)
+    back_ok, back_why = start_and_check(args.name, False, args.health_timeout, args.stable_seconds)
+    state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
+    return finish(
+        root, False,
+        "payload: rollback to {} failed ({}); restored {} {}".format(previous, why, current, state),
+        current, run_id,
+    )
+
+
+def cmd_start(args):
+    """The unit's ExecStart (boot): never run an unverified release blindly.
+    When no apply holds the lock, a `current` left "switching" by a power cut
+    is undone first; then the current release is brought up."""
+    releases = Releases(args.dir)
+    lock = Lock(args.dir, 0, {"by": "boot", "action": "start"})
+    try:
+        lock.acquire(blocking=False)
+    except Busy:
+        pass  # an apply or rollback is running and started us: it decides
+    except OSError as error:
+        log("payload: cannot take the apply lock ({}); starting current as it is".format(error))
+    else:
+        try:
+            recovered = recover(releases)
+            if recovered:
+                log(recovered)
+        finally:
+            lock.release()
+    compose = os.path.join(args.dir, "current", "compose.yaml")
+    os.execvp("docker", ["docker", "compose", "-p", args.name, "-f", compose, "up", "-d", "--remove-orphans"])
 
 
 def cmd_result(args):
+    """Print this run's result and exit with it; a missing result is a failure."""
+    path = os.path.join(run_dir(args.dir, args.run_id), "result.json") if args.run_id else os.path.join(args.dir, RESULT)
     try:
-        with open(os.path.join(args.dir, RESULT)) as handle:
+        with open(path) as handle:
             result = json.load(handle)
     except (OSError, ValueError):
-        print("payload: no result recorded (did the update run?)", file=sys.stderr)
-        return 1
-    stream = sys.stdout if result["ok"] else sys.stderr
-    print(result["message"], file=stream)
-    return 0 if result["ok"] else 1
+        result = None
+    if not result or (args.run_id and result.get("run_id") != args.run_id):
+        print(
+            "payload: payloadctl recorded no result for this run ({}): disk full? see journalctl -u '{}-*-{}' on the robot".format(
+                args.run_id, args.name, args.run_id),
+            file=sys.stderr,
+        )
+        code = 1
+    else:
+        stream = sys.stdout if result["ok"] else sys.stderr
+        print(result["message"], file=stream)
+        code = 0 if result["ok"] else 1
+    if args.run_id:
+        shutil.rmtree(run_dir(args.dir, args.run_id), ignore_errors=True)
+    return code
 
 
 def cmd_status(args):
     releases = Releases(args.dir)
     current, previous = releases.pointer("current"), releases.pointer("previous")
-    version = run(["docker", "version", "-f", "{{.Server.Version}}"], check=False).stdout.strip()
+    version = run(["docker", "version", "-f", "{{.Server.Version}}"], check=False, timeout=60).stdout.strip()
     containers = [s for s in (container_state(c) for c in project_containers(args.name)) if s]
     status = {
         "docker_version": version or None,
@@ -610,8 +924,9 @@ def main(argv=None):
     p = sub.add_parser("apply")
     p.add_argument("spec")
     p.add_argument("--restart", action="store_true")
+    p.add_argument("--run-id")
     p.set_defaults(func=cmd_apply)
-    for name, func in (("rollback", cmd_rollback), ("result", cmd_result), ("status", cmd_status)):
+    for name, func in (("rollback", cmd_rollback), ("result", cmd_result), ("status", cmd_status), ("start", cmd_start)):
         p = sub.add_parser(name)
         p.add_argument("--dir", required=True)
         p.add_argument("--name", default="robot-payload")
@@ -619,6 +934,9 @@ def main(argv=None):
         p.add_argument("--force", action="store_true")
         p.add_argument("--health-timeout", type=int, default=120)
         p.add_argument("--stable-seconds", type=int, default=10)
+        p.add_argument("--apply-lock-timeout", type=int, default=300)
+        p.add_argument("--run-id")
+        p.add_argument("--by")
         p.set_defaults(func=func)
     p = sub.add_parser("wait-devices")
     p.add_argument("--timeout", type=int, default=30)

@@ -127,3 +127,341 @@ def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch
     assert payloadctl.gpu_check("robot-payload", ["nvidia-smi", "-L"]) == (True, "")
     assert payloadctl.gpu_check("robot-payload", None) == (True, "")
     assert calls.read_text().count("exec") == 1
+
+
+# --- payloadctl against a fake `docker` and `systemctl` ------------------------
+# payloadctl is stdlib-only and shells out to docker and systemctl; the tests
+# put small stand-ins first on PATH (tests/unit/fakebin) that answer from a
+# JSON state file, and run the real helper as a process.
+
+import os  # noqa: E402
+import socket  # noqa: E402
+import stat  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+FAKEBIN = Path(__file__).resolve().parent / "fakebin"
+HELPER = str(payload.HERE / "payloadctl.py")
+
+
+def spec_hash(ref):
+    return "h" + ref.replace("/", "-").replace(":", "-")
+
+
+class FakeRobot:
+    def __init__(self, tmp_path):
+        self.root = tmp_path / "payload"
+        self.root.mkdir()
+        self.state_path = tmp_path / "state.json"
+        self.releases = payloadctl.Releases(str(self.root))
+        self.save({"root": str(self.root), "images": {}, "containers": {}, "log": []})
+
+    def state(self):
+        return json.loads(self.state_path.read_text())
+
+    def save(self, state):
+        self.state_path.write_text(json.dumps(state))
+
+    def image(self, ref, behaviour="healthy", present=True, pull="ok"):
+        state = self.state()
+        state["images"][ref] = {"id": "sha256:" + ref.replace(":", "-").replace("/", "-"), "behaviour": behaviour,
+                                "present": present, "pull": pull}
+        self.save(state)
+
+    def release(self, rid, ref, state="active", created=None, **extra):
+        """A release already on the robot."""
+        payloadctl.make_private_dir(self.releases.path(rid))
+        doc = {"name": "robot-payload", "services": {"payload": {"image": ref}}}
+        payloadctl.write_text(self.releases.path(rid, "compose.yaml"), payloadctl.compose_yaml(doc))
+        image_id = self.state()["images"][ref]["id"]
+        self.releases.write_record(rid, {"id": rid, "created": created or rid, "spec_hash": spec_hash(ref),
+                                         "state": state, "autostart": True,
+                                         "images": {ref: {"id": image_id, "pinned": ref}}, **extra})
+
+    def running(self, ref):
+        state = self.state()
+        state["containers"] = {"payload-1": {"image": ref, "looks": 5}}
+        state["unit_active"] = True
+        self.save(state)
+
+    def spec(self, ref, run_id="run-1", **extra):
+        spec = {"name": "robot-payload", "dir": str(self.root), "spec_hash": spec_hash(ref), "autostart": True,
+                "delivery": "pull", "health_timeout": 600, "stable_seconds": 1, "keep_releases": 3,
+                "lock_file": str(self.root / "update.lock"), "force": False, "run_id": run_id,
+                "deployed_by": "ops@laptop (pyinfra)", "pull_timeout": 30, "apply_lock_timeout": 30,
+                "compose": {"name": "robot-payload", "services": {"payload": {"image": ref}}}, **extra}
+        path = self.root.parent / f"spec-{run_id}.json"
+        path.write_text(json.dumps(spec))
+        return str(path)
+
+    def payloadctl(self, *args, timeout=30):
+        env = dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(self.state_path))
+        return subprocess.run([sys.executable, HELPER, *args], env=env, capture_output=True, text=True,
+                              timeout=timeout)
+
+    def apply(self, ref, run_id="run-1", **extra):
+        self.payloadctl("apply", self.spec(ref, run_id, **extra))
+        return self.result(run_id)
+
+    def rollback(self, run_id="rb-1", *more):
+        self.payloadctl("rollback", "--dir", str(self.root), "--run-id", run_id, "--stable-seconds", "1",
+                        "--health-timeout", "600", *more)
+        return self.result(run_id)
+
+    def result(self, run_id):
+        return self.payloadctl("result", "--dir", str(self.root), "--run-id", run_id)
+
+    def pointers(self):
+        return self.releases.pointer("current"), self.releases.pointer("previous")
+
+
+@pytest.fixture
+def robot(tmp_path):
+    robot = FakeRobot(tmp_path)
+    robot.image("reg/ros/payload:1.0")
+    robot.release("r1", "reg/ros/payload:1.0")
+    robot.releases.point("current", "r1")
+    robot.running("reg/ros/payload:1.0")
+    return robot
+
+
+def mode(path):
+    return stat.S_IMODE(os.lstat(path).st_mode)
+
+
+def test_healthy_release_is_recorded_private_and_reported_for_this_run(robot):
+    robot.image("reg/ros/payload:1.1")
+    result = robot.apply("reg/ros/payload:1.1", run_id="run-7")
+    assert result.returncode == 0 and "is healthy" in result.stdout
+    current, previous = robot.pointers()
+    assert previous == "r1" and robot.releases.record(current)["state"] == "active"
+    assert robot.releases.record(current)["run_id"] == "run-7" and "switch" not in robot.releases.record(current)
+    assert mode(robot.releases.path(current)) == 0o700 and mode(robot.releases.dir) == 0o700
+    assert mode(robot.releases.path(current, "compose.yaml")) == 0o600
+    assert mode(robot.releases.path(current, "record.json")) == 0o600
+    last = robot.root / "last-result.json"
+    assert mode(last) == 0o600 and json.loads(last.read_text())["run_id"] == "run-7"
+    assert not (robot.root / "runs" / "run-7").exists()  # the run's own files are gone once reported
+
+
+@pytest.mark.parametrize("behaviour, reason", [
+    ("crash", "payload-1 is crash-looping"),
+    ("exit", "payload-1 exited with code 1"),
+    ("unhealthy", "payload-1 is unhealthy: heartbeat check unhealthy"),
+])
+def test_broken_release_fails_at_once_and_the_old_one_runs_again(robot, behaviour, reason):
+    robot.image("reg/ros/payload:bad", behaviour)
+    # health_timeout is 600 s: waiting it out would hit the 30 s process bound.
+    result = robot.apply("reg/ros/payload:bad")
+    assert result.returncode == 1
+    assert reason in result.stderr and "rolled back to r1 and it is running" in result.stderr
+    assert "not healthy after" not in result.stderr
+    assert robot.pointers() == ("r1", None)
+    assert robot.state()["started"][-1] == "reg/ros/payload:1.0"
+    failed = [r for r in robot.releases.all() if r != "r1"]
+    assert [robot.releases.record(r)["state"] for r in failed] == ["failed"]
+    assert robot.releases.record("r1")["rolled_back_from"]["reason"].startswith(reason)
+
+
+def test_first_release_that_fails_stays_failed_so_the_next_run_tries_again(tmp_path):
+    robot = FakeRobot(tmp_path)
+    robot.image("reg/ros/payload:bad", "unhealthy")
+    result = robot.apply("reg/ros/payload:bad")
+    assert result.returncode == 1 and "no healthy release to roll back to (the next run tries again)" in result.stderr
+    current, _ = robot.pointers()
+    record = robot.releases.record(current)
+    assert record["state"] == "failed"
+    assert payload.release_needed(record, record["spec_hash"], True, running=True)
+    again = robot.apply("reg/ros/payload:bad", run_id="run-2")  # not "already current"
+    assert again.returncode == 1 and "already current" not in again.stdout + again.stderr
+
+
+def test_same_spec_with_the_payload_down_is_released_again(robot):
+    state = robot.state()
+    state["containers"] = {}
+    robot.save(state)
+    result = robot.apply("reg/ros/payload:1.0")
+    assert result.returncode == 0 and "already current" not in result.stdout
+    assert robot.state()["started"] == ["reg/ros/payload:1.0"]
+
+
+def test_same_spec_running_is_already_current(robot):
+    result = robot.apply("reg/ros/payload:1.0")
+    assert result.returncode == 0 and "release r1 is already current" in result.stdout
+    assert "started" not in robot.state()
+
+
+def test_unreachable_registry_fails_within_the_pull_bound_and_keeps_the_old_release(robot):
+    robot.image("reg/ros/payload:1.1", present=False, pull="fail")
+    result = robot.apply("reg/ros/payload:1.1", pull_timeout=3)
+    assert result.returncode == 1
+    assert "cannot pull reg/ros/payload:1.1: Error response from daemon" in result.stderr
+    assert "old release keeps running" in result.stderr
+    assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]
+
+
+def test_stalled_pull_is_cut_off_and_names_its_bound(robot):
+    robot.image("reg/ros/payload:1.1", present=False, pull="hang")
+    result = robot.apply("reg/ros/payload:1.1", pull_timeout=2)
+    assert result.returncode == 1
+    assert "docker pull reg/ros/payload:1.1 did not finish within 2 s (payload_pull_timeout)" in result.stderr
+    assert robot.pointers() == ("r1", None)
+
+
+def hold_apply_lock(robot, by):
+    lock = payloadctl.Lock(str(robot.root), 0, {"by": by, "action": "apply"})
+    return lock.acquire()
+
+
+@pytest.mark.parametrize("action", ["apply", "rollback"])
+def test_a_second_deploy_waits_a_bounded_time_and_names_the_first(robot, action):
+    robot.image("reg/ros/payload:1.1")
+    robot.release("r0", "reg/ros/payload:1.1", created="r0")
+    robot.releases.point("previous", "r0")
+    lock = hold_apply_lock(robot, "alice@laptop (pyinfra)")
+    try:
+        if action == "apply":
+            result = robot.apply("reg/ros/payload:1.1", apply_lock_timeout=1)
+        else:
+            result = robot.rollback("rb-1", "--apply-lock-timeout", "1")
+    finally:
+        lock.release()
+    assert result.returncode == 1
+    line = result.stderr.strip()
+    assert line.startswith(f"payload: another deploy is running on {socket.gethostname()} since 20")
+    assert line.endswith("(by alice@laptop (pyinfra)); gave up after 1 s (payload_apply_lock_timeout)")
+    assert robot.pointers() == ("r1", "r0") and "started" not in robot.state()
+
+
+def test_rollback_switches_to_the_previous_release_when_it_is_healthy(robot):
+    robot.image("reg/ros/payload:0.9")
+    robot.release("r0", "reg/ros/payload:0.9", created="r0")
+    robot.releases.point("previous", "r0")
+    result = robot.rollback()
+    assert result.returncode == 0 and "rolled back from r1 to r0" in result.stdout
+    assert robot.pointers() == ("r0", "r1") and robot.releases.record("r0")["state"] == "active"
+
+
+def test_failed_rollback_is_undone_and_the_old_release_started_again(robot):
+    robot.image("reg/ros/payload:0.9", "crash")
+    robot.release("r0", "reg/ros/payload:0.9", created="r0")
+    robot.releases.point("previous", "r0")
+    result = robot.rollback()
+    assert result.returncode == 1
+    assert "rollback to r0 failed (payload-1 is crash-looping" in result.stderr
+    assert "restored r1 and it is running" in result.stderr
+    assert robot.pointers() == ("r1", "r0")
+    assert robot.state()["started"] == ["reg/ros/payload:0.9", "reg/ros/payload:1.0"]
+    record = robot.releases.record("r0")
+    assert record["state"] == "active" and "switch" not in record and "crash-looping" in record["rollback_failed"]["reason"]
+
+
+def switching(robot, rid, ref, kind, came_from, previous_before, **extra):
+    robot.release(rid, ref, state="switching", created=rid,
+                  switch={"kind": kind, "from": came_from, "previous_before": previous_before, **extra})
+
+
+def test_boot_undoes_a_release_a_power_cut_left_unverified(robot):
+    robot.image("reg/ros/payload:1.1")
+    switching(robot, "r2", "reg/ros/payload:1.1", "apply", "r1", "r0")
+    robot.releases.point("previous", "r1")
+    robot.releases.point("current", "r2")
+    proc = robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
+    assert proc.returncode == 0, proc.stderr
+    assert robot.pointers() == ("r1", "r0")
+    assert robot.releases.record("r2")["state"] == "failed" and "interrupted" in robot.releases.record("r2")["reason"]
+    assert robot.state()["compose_up"][-5:] == ["-f", str(robot.root / "current" / "compose.yaml"), "up", "-d",
+                                                "--remove-orphans"]
+
+
+def test_boot_undoes_an_interrupted_rollback(robot):
+    robot.image("reg/ros/payload:0.9")
+    switching(robot, "r0", "reg/ros/payload:0.9", "rollback", "r1", "r0", prior_state="active")
+    robot.releases.point("current", "r0")
+    robot.releases.point("previous", "r1")
+    robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
+    assert robot.pointers() == ("r1", "r0") and robot.releases.record("r0")["state"] == "active"
+
+
+def test_boot_runs_an_unverified_first_release_for_the_deploy_to_verify(tmp_path):
+    robot = FakeRobot(tmp_path)
+    robot.image("reg/ros/payload:1.0")
+    switching(robot, "r1", "reg/ros/payload:1.0", "apply", None, None)
+    robot.releases.point("current", "r1")
+    robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
+    assert robot.pointers() == ("r1", None) and robot.releases.record("r1")["state"] == "switching"
+    assert "compose_up" in robot.state()
+
+
+def test_start_leaves_the_switch_to_an_apply_that_holds_the_lock(robot):
+    robot.image("reg/ros/payload:1.1")
+    switching(robot, "r2", "reg/ros/payload:1.1", "apply", "r1", None)
+    robot.releases.point("current", "r2")
+    lock = hold_apply_lock(robot, "ops")
+    try:
+        robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
+    finally:
+        lock.release()
+    assert robot.pointers()[0] == "r2" and robot.releases.record("r2")["state"] == "switching"
+
+
+def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path):
+    robot = FakeRobot(tmp_path)
+    for n in range(1, 7):
+        robot.image(f"reg/p:{n}")
+        robot.release(f"r{n}", f"reg/p:{n}", created=f"2026-01-0{n}")
+    robot.release("r7", "reg/p:4", created="2026-01-07")  # shares r4's image
+    robot.releases.point("current", "r2")  # rolled back far: current and previous are old ones
+    robot.releases.point("previous", "r1")
+    env = dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(robot.state_path))
+    code = ("import importlib.util, sys; s = importlib.util.spec_from_file_location('p', sys.argv[1]); "
+            "m = importlib.util.module_from_spec(s); s.loader.exec_module(m); "
+            "m.gc({'keep_releases': 3}, m.Releases(sys.argv[2]))")
+    subprocess.run([sys.executable, "-c", code, HELPER, str(robot.root)], env=env, check=True)
+    assert sorted(robot.releases.all()) == ["r1", "r2", "r5", "r6", "r7"]
+    removed = [line for line in robot.state()["log"] if line.startswith("docker image rm")]
+    assert sorted(removed) == ["docker image rm reg/p:3"]  # reg/p:4 is still used by r7
+
+
+def test_result_of_a_run_that_recorded_nothing_fails_with_a_clear_line(tmp_path):
+    (tmp_path / "last-result.json").write_text(json.dumps({"ok": True, "message": "payload: release old is healthy",
+                                                           "run_id": "earlier"}))
+    proc = subprocess.run([sys.executable, HELPER, "result", "--dir", str(tmp_path), "--run-id", "this-run"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 1 and "healthy" not in proc.stdout
+    assert proc.stderr.startswith("payload: payloadctl recorded no result for this run (this-run): disk full?")
+
+
+def test_update_lock_is_never_followed_and_gives_one_printable_line(tmp_path):
+    secret = tmp_path / "shadow"
+    secret.write_text("root:$6$hash:19000:0:99999:7:::\n")
+    lock = tmp_path / "update.lock"
+    lock.symlink_to(secret)
+    assert payloadctl.update_lock_holder(str(lock)) == "the lock is a symbolic link (not read)"
+    lock.unlink()
+    os.mkfifo(lock)
+    assert payloadctl.update_lock_holder(str(lock)) == "the lock is not a regular file (not read)"
+    lock.unlink()
+    lock.write_text("moving\x1b[31m to dock " + "x" * 300 + "\nsecond line\n")
+    reason = payloadctl.update_lock_holder(str(lock))
+    assert reason.startswith("moving[31m to dock x") and len(reason) == 120 and "\n" not in reason
+    assert all(ch.isprintable() for ch in reason)
+
+
+def test_writes_are_fsynced_file_and_directory_before_they_count(tmp_path, monkeypatch):
+    synced = []
+    real_fsync = os.fsync
+
+    def fsync(fd):
+        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real_fsync(fd)
+
+    monkeypatch.setattr(payloadctl.os, "fsync", fsync)
+    releases = payloadctl.Releases(str(tmp_path))
+    (tmp_path / "releases" / "r1").mkdir(parents=True)
+    releases.write_record("r1", {"id": "r1"})
+    assert synced == [str(tmp_path / "releases" / "r1" / "record.json.tmp"), str(tmp_path / "releases" / "r1")]
+    synced.clear()
+    releases.point("current", "r1")
+    assert synced == [str(tmp_path)]

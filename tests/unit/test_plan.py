@@ -213,7 +213,10 @@ def converged(group: str, data: dict, os_name: str):
             "/var/lib/robot-x11/alice": FileState("dir", None, "700", "alice", "alice"),
         })
     doc = payload.desired_compose(d, d.get("ssh_hostname") or f"@fake/{'r1' if group == 'robots' else 'l1'}")
-    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, d["payload_autostart"])})
+    state = "active" if d["payload_autostart"] else "staged"
+    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, d["payload_autostart"]), "state": state})
+    if d["payload_autostart"]:
+        snap.probes["payload_containers"] = "running\tUp 3 hours (healthy)\n"
     return snap
 
 
@@ -242,6 +245,41 @@ def converged_sources(snap):
 def test_converged_laptop_plans_nothing():
     result = plan({"l1": ("laptops", LAPTOP, converged("laptops", LAPTOP, "ubuntu-24.04"))})
     assert result["l1"] == []
+
+
+@pytest.mark.parametrize("state, containers", [
+    ("failed", "running\tUp 3 hours (healthy)\n"),      # a first release that failed its health check
+    ("switching", "running\tUp 3 hours (healthy)\n"),   # a power cut before its verdict
+    ("active", ""),                                       # the payload is down, the oneshot unit still "active"
+    ("active", "exited\tExited (1) 2 minutes ago\n"),
+    ("active", "restarting\tRestarting (1) 1 second ago\n"),
+    ("active", "running\tUp 2 minutes (unhealthy)\n"),
+    ("active", "unit failed"),                            # containers up by Docker's restart policy, unit failed
+])
+def test_failed_half_done_or_dead_release_is_released_again(state, containers):
+    snap = converged("robots", ROBOT, "debian-13")
+    if containers == "unit failed":
+        snap.units["robot-payload.service"] = ("enabled", "failed")
+        containers = "running\tUp 3 hours (healthy)\n"
+    record = json.loads(snap.probes["payload_record"])
+    snap.probes["payload_record"] = json.dumps({**record, "state": state})
+    snap.probes["payload_containers"] = containers
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0]
+
+
+def test_each_release_has_its_own_run_id_spec_result_and_unit():
+    snap = converged("robots", ROBOT, "debian-13")
+    data = {**ROBOT, "payload_image": "reg.example.com/ros/payload:1.1"}
+    first = plan({"r1": ("robots", data, snap)})["r1"][0]
+    second = plan({"r1": ("robots", data, snap)})["r1"][0]
+    ids = [re.search(r"--run-id ([0-9T]+-[0-9a-f]{8})", c).group(1) for c in (first, second)]
+    assert ids[0] != ids[1]
+    for run_id, command in zip(ids, (first, second)):
+        assert f"/var/lib/robot-payload/runs/{run_id}/spec.json" in command
+        assert f"--unit=robot-payload-update-{run_id}" in command
+        assert f"result --dir /var/lib/robot-payload --name robot-payload --run-id {run_id}" in command
+        assert "|| true" in command and "staging/spec.json" not in command
 
 
 def test_changed_image_tag_only_releases_the_payload():

@@ -123,6 +123,8 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     # A Docker restart must not stop the payload: ordering and a weak dependency only.
     assert not [line for line in lines if line.startswith(("Requires=", "BindsTo=", "PartOf="))]
     assert "Wants=docker.service network-online.target" in lines
+    # Boot goes through payloadctl, which undoes a release a power cut left unverified.
+    assert any(line.startswith("ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start ") for line in lines)
     assert " -v" not in text
     assert "ExecStartPre" not in payload.unit_text(data, [])
 
