@@ -512,8 +512,17 @@ def cmd_apply(args):
     run_id = spec.get("run_id")
     releases = Releases(root)
     make_private_dir(releases.dir)
-    lock = Lock(root, spec.get("apply_lock_timeout", 300),
-                {"by": spec.get("deployed_by", "unknown"), "action": "apply", "run_id": run_id})
+    owner = {"by": spec.get("deployed_by", "unknown"), "action": "apply", "run_id": run_id}
+    return locked(releases, spec.get("apply_lock_timeout", 300), owner,
+                  lambda: apply_locked(spec, releases, releases.pointer("current"), args.restart))
+
+
+def locked(releases, lock_timeout, owner, work):
+    """Run ``work`` holding the robot's one apply/rollback lock, after undoing
+    a switch a power cut left unverified; every outcome is recorded as this
+    run's result (the deploy reads the result, not our stderr)."""
+    root, run_id = releases.root, owner["run_id"]
+    lock = Lock(root, lock_timeout, owner)
     try:
         lock.acquire()
     except Busy as busy:
@@ -522,13 +531,14 @@ def cmd_apply(args):
         recovered = recover(releases)
         if recovered:
             log(recovered)
-        return apply_locked(spec, releases, releases.pointer("current"), args.restart)
+        return work()
     except Failure as error:
         return finish(root, False, "payload: {}".format(error), run_id=run_id)
     except OSError as error:
         return finish(root, False, "payload: cannot write on this robot: {}".format(error), run_id=run_id)
-    except Exception as error:  # record it: the deploy reads the result, not our stderr
-        return finish(root, False, "payload: internal error in payloadctl: {!r}".format(error), run_id=run_id)
+    except Exception as error:
+        return finish(root, False, "payload: internal error in payloadctl ({}): {!r}".format(owner["action"], error),
+                      run_id=run_id)
     finally:
         lock.release()
 
@@ -655,23 +665,9 @@ def gc(spec, releases):
 
 
 def cmd_rollback(args):
-    root = args.dir
-    releases = Releases(root)
-    run_id = args.run_id
-    lock = Lock(root, args.apply_lock_timeout, {"by": args.by or "unknown", "action": "rollback", "run_id": run_id})
-    try:
-        lock.acquire()
-    except Busy as busy:
-        return finish(root, False, "payload: {}".format(busy), run_id=run_id)
-    try:
-        recovered = recover(releases)
-        if recovered:
-            log(recovered)
-        return rollback_locked(args, releases)
-    except Exception as error:
-        return finish(root, False, "payload: rollback: internal error in payloadctl: {!r}".format(error), run_id=run_id)
-    finally:
-        lock.release()
+    releases = Releases(args.dir)
+    owner = {"by": args.by or "unknown", "action": "rollback", "run_id": args.run_id}
+    return locked(releases, args.apply_lock_timeout, owner, lambda: rollback_locked(args, releases))
 
 
 def rollback_locked(args, releases):

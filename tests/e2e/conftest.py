@@ -60,6 +60,20 @@ def pytest_terminal_summary(terminalreporter):
             terminalreporter.write_line(line)
 
 
+def wait_for(predicate, seconds: float, what: str, interval: float = 0.5):
+    """Poll ``predicate`` until it is true; an AssertionError from it (a host
+    still booting, a container not there yet) counts as "not yet"."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            if predicate():
+                return
+        except AssertionError:
+            pass
+        time.sleep(interval)
+    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
+
+
 class Lab:
     def __init__(self, state: dict):
         self.state = state

@@ -18,7 +18,7 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT
+from tests.e2e.conftest import PYINFRA, ROOT, wait_for
 
 pytestmark = pytest.mark.e2e
 
@@ -26,14 +26,6 @@ ALL_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 REGISTRIES = '    docker_insecure_registries: ["@registry@"]\n'
 HEALTH_WINDOW = 60  # payload_health_timeout in inventories/lab.yaml
 
-
-def wait_for(predicate, seconds: float, what: str):
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.5)
-    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
 
 
 def healthy(lab, host: str) -> bool:

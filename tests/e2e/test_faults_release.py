@@ -17,11 +17,10 @@ import signal
 import subprocess
 import sys
 import tarfile
-import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT
+from tests.e2e.conftest import PYINFRA, ROOT, wait_for
 
 pytestmark = pytest.mark.e2e
 
@@ -29,17 +28,6 @@ DIR = "/var/lib/robot-payload"
 LAB_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 STALL_PORT = 5999  # a "registry" on the robot that accepts connections and never answers
 
-
-def wait_for(predicate, seconds: float, what: str):
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        try:
-            if predicate():
-                return
-        except AssertionError:
-            pass  # host still booting
-        time.sleep(0.5)
-    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
 
 
 def host_settings(host: str, *lines: str) -> dict[str, str]:

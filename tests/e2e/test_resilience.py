@@ -6,22 +6,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT
+from tests.e2e.conftest import PYINFRA, ROOT, wait_for
 
 pytestmark = pytest.mark.e2e
 
-
-def wait_for(predicate, seconds: float, what: str):
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.5)
-    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
 
 
 def test_dropped_link_during_an_update_leaves_the_robot_switched(lab, first_run, tmp_path):

@@ -12,6 +12,8 @@ import time
 
 import pytest
 
+from tests.e2e.conftest import wait_for
+
 pytestmark = pytest.mark.e2e
 
 ALL_TAG = '    payload_image: "@registry@/ros/payload:1.0"\n'
@@ -43,17 +45,6 @@ def running_payloads(lab, host: str) -> list[str]:
     lines = lab.ok(host, "docker ps --format '{{.Names}} {{.Image}}'").splitlines()
     return sorted(line.split()[0] for line in lines if "/ros/payload" in line)
 
-
-def wait_for(predicate, seconds: float, what: str):
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        try:
-            if predicate():
-                return
-        except AssertionError:
-            pass
-        time.sleep(1)
-    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
 
 
 def failed_alone(run, host: str) -> bool:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from roles import fleet, fleetyaml, schema
+from roles import fleetyaml, schema
 from tests.unit import test_fleet_corpus, test_fleet_fuzz
 
 jsonschema = pytest.importorskip("jsonschema")
