@@ -161,3 +161,8 @@ payload_force = False
 # credentials; never stored in the repository, never printed.
 payload_registry_username_env = "PAYLOAD_REGISTRY_USERNAME"
 payload_registry_password_env = "PAYLOAD_REGISTRY_PASSWORD"
+
+# --- Rollouts in waves (python3 -m roles.rollout) ------------------------------
+# This robot is a canary: it is updated in the first wave, before the others.
+# When no host sets it, the first --canary N robots of the inventory are.
+rollout_canary = False

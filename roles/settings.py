@@ -295,6 +295,10 @@ SCHEMA: dict[str, c.Checker] = {
     "payload_registry_password_env": c.string(c.ENV_NAME, "an environment variable name"),
 }
 
+# Rollouts in waves (roles/rollout.py): kept apart from the roles' settings.
+SCHEMA["rollout_canary"] = c.boolean
+
+
 # Keys the fleet file may use that are not settings of their own.
 ALIASES = {"address": "ssh_hostname"}
 

@@ -18,6 +18,8 @@ import sys
 
 import gevent
 
+from roles import waves
+
 COLUMNS = [
     ("host", "HOST"),
     ("reachable", "REACHABLE"),
@@ -29,6 +31,7 @@ COLUMNS = [
     ("previous", "PREVIOUS"),
     ("deployed", "LAST DEPLOY"),
     ("lock", "LOCK"),
+    ("rollout", "ROLLOUT"),
 ]
 
 
@@ -65,6 +68,7 @@ def row(name: str, report: dict | None, error: str | None = None) -> dict:
         "release_state": current.get("state"),
         "lock": report.get("update_lock"),
         "rolled_back_from": current.get("rolled_back_from"),
+        "image_refs": sorted(current.get("images") or {}),
     }
 
 
@@ -146,10 +150,15 @@ def main(argv=None) -> int:
         print(f"{args.inventory}: no such inventory file", file=sys.stderr)
         return 2
     rows = collect(args.inventory, args.limit)
+    rollout = waves.latest_state()
+    for r in rows:
+        r["rollout"] = waves.host_state(rollout, r["host"])
     if args.json:
         print(json.dumps(rows, indent=2, sort_keys=True))
     else:
         print(table(rows))
+        if rollout:
+            print(waves.summary(rollout))
     return 0 if all(r["reachable"] for r in rows) else 1
 
 

