@@ -16,7 +16,6 @@ import os
 import re
 from dataclasses import dataclass
 
-STATE_DIR = ".rollout"
 _COUNT = re.compile(r"(0|[1-9][0-9]{0,5})(%?)")
 
 
@@ -104,8 +103,13 @@ def fleet_key(inventory: str, selection: list[str], targets: dict[str, str]) -> 
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
+def state_dir(root: str = ".") -> str:
+    """Where rollout states live: $ROBOT_ROLLOUT_DIR, else .rollout/ here."""
+    return os.environ.get("ROBOT_ROLLOUT_DIR") or os.path.join(root, ".rollout")
+
+
 def state_path(key: str, root: str = ".") -> str:
-    return os.path.join(root, STATE_DIR, f"{key}.json")
+    return os.path.join(state_dir(root), f"{key}.json")
 
 
 def new_state(key: str, inventory: str, waves: list[list[str]], targets: dict[str, str], allowed: int) -> dict:
@@ -182,7 +186,7 @@ def load_state(path: str) -> dict | None:
 
 def latest_state(root: str = ".") -> dict | None:
     """The most recently written rollout state under ``root`` (for the status table)."""
-    directory = os.path.join(root, STATE_DIR)
+    directory = state_dir(root)
     try:
         files = [os.path.join(directory, f) for f in os.listdir(directory) if f.endswith(".json")]
     except FileNotFoundError:
