@@ -62,8 +62,10 @@ def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str)
         for line in proc.stderr:
             sys.stderr.write(line)
             for host in hosts:
-                if f"[{host}]" in line and ("rror" in line or "payload:" in line):
-                    errors[host] = line.split(f"[{host}]", 1)[1].strip()
+                if f"[{host}]" in line:
+                    message = line.split(f"[{host}]", 1)[1].strip()
+                    if is_error_line(message) and (host not in errors or "payload:" in message):
+                        errors[host] = message  # payloadctl's line says more than pyinfra's summary
         proc.wait()
         out.seek(0)
         try:
@@ -73,15 +75,26 @@ def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str)
     return results, errors
 
 
+CONNECT_ERRORS = ("Could not connect", "Authentication error", "Host key")
+
+
+def is_error_line(message: str) -> bool:
+    payload_failed = message.startswith("payload:") and ("failed" in message or "refused" in message)
+    return payload_failed or "Error" in message or any(e in message for e in CONNECT_ERRORS)
+
+
 def judge_wave(hosts, results, rows, errors, targets, unreachable_fails):
-    """(done, failed, skipped) for a wave from pyinfra's results and the
-    robots' release records (pure)."""
+    """(done, failed, skipped) for a wave from pyinfra's results (None when it
+    printed none: every host failed, "No hosts remaining!"), the error lines
+    it printed per host, and the robots' release records (pure)."""
     op_errors = {h for op in (results or {}).get("operations", []) for h in op["error"]}
-    not_connected = set(hosts) if results is None else set(results.get("failed_hosts", [])) - op_errors
+    not_connected = {h for h, line in errors.items() if any(e in line for e in CONNECT_ERRORS)}
+    if results is not None:
+        not_connected |= set(results.get("failed_hosts", [])) - op_errors
     done, failed, skipped = [], {}, {}
     for host in hosts:
         row = rows.get(host) or {"reachable": False}
-        if host not in op_errors and waves.is_done(row, targets[host]):
+        if host not in op_errors and host not in errors and waves.is_done(row, targets[host]):
             done.append(host)
         elif host in not_connected or not row.get("reachable"):
             reason = "unreachable: " + (errors.get(host) or row.get("error") or "cannot connect")
@@ -92,11 +105,11 @@ def judge_wave(hosts, results, rows, errors, targets, unreachable_fails):
 
 
 def fleet_report(rows: dict[str, dict], state: dict) -> str:
-    lines = [f"  {'HOST':12} {'WAVE':14} {'RELEASE':28} IMAGE"]
+    lines = [f"  {'HOST':12} {'WAVE':17} {'RELEASE':28} IMAGE"]
     for host in [h for w in state["waves"] for h in w]:
         row = rows.get(host) or {}
         image = ", ".join(row.get("image_refs") or []) or ("unreachable" if not row.get("reachable") else "-")
-        lines.append(f"  {host:12} {waves.host_state(state, host):14} {row.get('release') or '-':28} {image}")
+        lines.append(f"  {host:12} {waves.host_state(state, host):17} {row.get('release') or '-':28} {image}")
     return "\n".join(lines)
 
 

@@ -132,3 +132,16 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
     assert skipped == {"r3": "unreachable: cannot connect"}
     _, failed, skipped = judge_wave(["r3"], None, rows, {}, targets, True)
     assert failed == {"r3": "unreachable: cannot connect"} and skipped == {}
+
+
+def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
+    """pyinfra prints no JSON when no host remains ("No hosts remaining!")."""
+    from roles.rollout import judge_wave
+
+    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active"}
+    errors = {"r1": "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"}
+    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, errors, {"r1": "i:2"}, False)
+    assert (done, failed, skipped) == ([], errors, {})
+    errors = {"r2": "Could not connect (timed out)"}
+    assert judge_wave(["r2"], None, {"r2": {"reachable": True}}, errors, {"r2": "i:2"}, False)[2] == {
+        "r2": "unreachable: Could not connect (timed out)"}
