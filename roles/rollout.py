@@ -123,6 +123,7 @@ def parse_args(argv):
     parser.add_argument("--unreachable-fails", action="store_true", help="unreachable robots count as failures")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
     parser.add_argument("--data", action="append", default=[], help="key=value passed to pyinfra (repeatable)")
+    parser.add_argument("--parallel", type=int, help="pyinfra's --parallel for each wave (default: CPUs x 20)")
     parser.add_argument("-y", "--yes", action="store_true", help="do not ask before starting")
     parser.add_argument("--dry", action="store_true", help="show the waves and the changes, change nothing")
     args = parser.parse_args(argv)
@@ -150,6 +151,7 @@ def main(argv=None) -> int:
             print(f"rollout: {path}: no such file", file=sys.stderr)
             return 2
     extra = [arg for pair in args.data for arg in ("--data", pair)]
+    extra += ["--parallel", str(args.parallel)] if args.parallel else []
     overrides = dict(pair.split("=", 1) for pair in args.data if "=" in pair)
 
     hosts = selected_hosts(args.inventory, args.limit)
