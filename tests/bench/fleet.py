@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import statistics
 import subprocess
 import sys
@@ -97,10 +98,12 @@ class Bench:
 
     def events(self, host: str, since: float) -> list[tuple[float, str, str]]:
         """(time, action, image) of the payload's container events since ``since``."""
-        fmt = "{{.TimeNano}} {{.Action}} {{.Actor.Attributes.image}}"
+        # The lab payload's version label: the image attribute is a digest.
+        fmt = '{{.TimeNano}} {{.Action}} {{index .Actor.Attributes "org.opencontainers.image.version"}}'
+
         out = subprocess.run(self.ssh(host, (
             f"sudo docker events --since {since:.3f} --until $(date +%s.%N) --filter type=container "
-            f"--filter label=com.docker.compose.project=robot-payload --format '{fmt}'")),
+            f"--filter label=com.docker.compose.project=robot-payload --format {shlex.quote(fmt)}")),
             capture_output=True, text=True).stdout
         rows = []
         for line in out.splitlines():
@@ -198,6 +201,7 @@ class Bench:
         since = time.time()
         r["crash_deploy"], r["crash_exit"], _ = self.pyinfra("deploy.py", "--limit", self.robots[0], tag="1.2-broken")
         r["crash_to_old_running"] = self.back_again(self.events(self.robots[0], since))
+        r["crash_window"] = r["floor_health"] + 10
         self.ratios(r)
         return r
 
@@ -237,6 +241,7 @@ class Bench:
             "rollout / (waves x update one)": ratio(r["rollout"], r["rollout_waves"] * r["update_one"]),
             "max downtime (s)": round(max(downtimes), 2) if downtimes else None,
             "crash -> old running / health window": ratio(r["crash_to_old_running"], r["floor_health"]),
+            "crash deploy / (health window + 10 s)": ratio(r["crash_deploy"], r["crash_window"]),
         }
 
 
