@@ -60,6 +60,9 @@ class Bench:
     def fleet(self, tag: str) -> Path:
         text = (ROOT / "inventories" / "lab.yaml").read_text().replace(
             ALL_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
+        # lab.yaml declares robot1-3; the lab's inventory only has declared hosts.
+        extra = "".join(f"    robot{i}: {{}}\n" for i in range(4, self.n + 1))
+        text = text.replace("\nlaptops:", "\n" + extra + "\nlaptops:", 1) if extra else text
         path = self.workdir / f"lab-{tag}.yaml"
         path.write_text(text)
         return path
