@@ -232,3 +232,7 @@ ros_roscore_image = None
 # ROS 2: a DDS profile from files/dds/ (Cyclone DDS or Fast DDS XML), mounted
 # read-only with CYCLONEDDS_URI or FASTRTPS_DEFAULT_PROFILES_FILE set.
 ros_dds_profile = None
+# --- Rollouts in waves (python3 -m roles.rollout) ------------------------------
+# This robot is a canary: it is updated in the first wave, before the others.
+# When no host sets it, the first --canary N robots of the inventory are.
+rollout_canary = False

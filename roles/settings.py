@@ -386,6 +386,9 @@ SCHEMA.update({
     "gpu_check_command": c.optional(c.list_of(c.string())),
     "gpu_driver_version_file": _private_path,
 })
+# Rollouts in waves (roles/rollout.py): kept apart from the roles' settings.
+SCHEMA["rollout_canary"] = c.boolean
+
 
 # Keys the fleet file may use that are not settings of their own.
 ALIASES = {"address": "ssh_hostname"}

@@ -19,6 +19,8 @@ import sys
 
 import gevent
 
+from roles import waves
+
 COLUMNS = [
     ("host", "HOST"),
     ("reachable", "REACHABLE"),
@@ -32,6 +34,7 @@ COLUMNS = [
     ("lock", "LOCK"),
     ("gpu_driver", "GPU DRIVER"),
     ("gpu_runtime", "GPU RUNTIME"),
+    ("rollout", "ROLLOUT"),
 ]
 
 
@@ -95,6 +98,7 @@ def row(name: str, report: dict | None, error: str | None = None) -> dict:
         "rolled_back_from": current.get("rolled_back_from"),
         **_gpu_cells(report),
         **per_service(report.get("services") or {}),
+        "image_refs": sorted(current.get("images") or {}),
     }
 
 
@@ -198,10 +202,15 @@ def main(argv=None) -> int:
         print(f"{args.inventory}: no such inventory file", file=sys.stderr)
         return 2
     rows = collect(args.inventory, args.limit)
+    rollout = waves.latest_state()
+    for r in rows:
+        r["rollout"] = waves.host_state(rollout, r["host"])
     if args.json:
         print(json.dumps(rows, indent=2, sort_keys=True))
     else:
         print(table(rows))
+        if rollout:
+            print(waves.summary(rollout))
     return 0 if all(r["reachable"] for r in rows) else 1
 
 

@@ -55,8 +55,8 @@ def test_status_rows_and_table():
     assert rows[0]["image"] == "reg/p@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
     text = status.table(rows).splitlines()
-    assert text[0].split() == ["HOST", "REACHABLE", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME"]
-    assert text[1].split() == ["robot1", "yes", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-"]
+    assert text[0].split() == ["HOST", "REACHABLE", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
+    assert text[1].split() == ["robot1", "yes", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
     assert text[2].split()[:2] == ["robot2", "no"]
 
 
@@ -78,4 +78,4 @@ def test_status_shows_the_gpu_driver_version_and_the_runtime(tmp_path):
     broken = status.row("r2", status.parse_report('{}\ngpu\tNVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n'))
     assert broken["gpu_runtime"] is False
     text = status.table([cells])
-    assert text.splitlines()[1].split()[-2:] == ["550.54.14", "yes"]
+    assert text.splitlines()[1].split()[-3:] == ["550.54.14", "yes", "-"]  # then ROLLOUT

@@ -1,0 +1,227 @@
+"""Roll the fleet out in waves: canaries first, then batches, and stop when
+more robots fail than the budget allows.
+
+    python3 -m roles.rollout inventories/robots.py --canary 1 --batch 25% --max-failed 10% [-y]
+
+Each wave is the normal deploy (`pyinfra -y --json INVENTORY deploy.py
+--limit <the wave's robots>`); the next wave starts only when every robot of
+this one is healthy on its new release or counted against the budget.
+Robots not reached keep their release.  The state lives in
+.rollout/<key>.json on this machine: rerunning the same command resumes with
+the robots not yet on the new release.  See README "Rollouts in waves".
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import json
+import os
+import shlex
+import subprocess
+import sys
+import tempfile
+
+from roles import waves
+
+PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
+
+
+def selected_hosts(inventory_path: str, limits: list[str]) -> list[tuple[str, object]]:
+    """(name, host data) of the inventory's hosts matching --limit (a group
+    or a host name pattern, like pyinfra), in inventory order."""
+    from pyinfra.api import State
+    from pyinfra.context import ctx_state
+    from pyinfra_cli.inventory import make_inventory
+
+    with ctx_state.use(State()):
+        inventory = make_inventory(inventory_path, cwd=os.getcwd())
+    return [
+        (h.name, h.data)
+        for h in inventory
+        if not limits or any(fnmatch.fnmatch(h.name, p) or p in h.groups for p in limits)
+    ]
+
+
+def read_status(inventory: str, hosts: list[str]) -> dict[str, dict]:
+    """One status row per host (one SSH command each, in parallel)."""
+    from roles import status
+
+    return {row["host"]: row for row in status.collect(inventory, hosts)} if hosts else {}
+
+
+def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str) -> tuple[dict | None, dict[str, str]]:
+    """Run the normal deploy on ``hosts``; pyinfra's JSON results (None if it
+    printed none, e.g. every host unreachable) and each host's last error line."""
+    limits = [arg for host in hosts for arg in ("--limit", host)]
+    command = [sys.executable, "-c", PYINFRA, "-y", "--json", inventory, script, *limits, *extra]
+    errors: dict[str, str] = {}
+    env = dict(os.environ, PYINFRA_PROGRESS="off")
+    with tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True, env=env)
+        for line in proc.stderr:
+            sys.stderr.write(line)
+            for host in hosts:
+                if f"[{host}]" in line:
+                    message = line.split(f"[{host}]", 1)[1].strip()
+                    if is_error_line(message) and (host not in errors or "payload:" in message):
+                        errors[host] = message  # payloadctl's line says more than pyinfra's summary
+        proc.wait()
+        out.seek(0)
+        try:
+            results = json.loads(out.read())["results"]
+        except (ValueError, KeyError, TypeError):
+            results = None
+    return results, errors
+
+
+CONNECT_ERRORS = ("Could not connect", "Authentication error", "Host key")
+
+
+def is_error_line(message: str) -> bool:
+    payload_failed = message.startswith("payload:") and ("failed" in message or "refused" in message)
+    return payload_failed or "Error" in message or any(e in message for e in CONNECT_ERRORS)
+
+
+def judge_wave(hosts, results, rows, errors, targets, unreachable_fails):
+    """(done, failed, skipped) for a wave from pyinfra's results (None when it
+    printed none: every host failed, "No hosts remaining!"), the error lines
+    it printed per host, and the robots' release records (pure)."""
+    op_errors = {h for op in (results or {}).get("operations", []) for h in op["error"]}
+    not_connected = {h for h, line in errors.items() if any(e in line for e in CONNECT_ERRORS)}
+    if results is not None:
+        not_connected |= set(results.get("failed_hosts", [])) - op_errors
+    done, failed, skipped = [], {}, {}
+    for host in hosts:
+        row = rows.get(host) or {"reachable": False}
+        if host not in op_errors and host not in errors and waves.is_done(row, targets[host]):
+            done.append(host)
+        elif host in not_connected or not row.get("reachable"):
+            reason = "unreachable: " + (errors.get(host) or row.get("error") or "cannot connect")
+            (failed if unreachable_fails else skipped)[host] = reason
+        else:
+            failed[host] = errors.get(host) or waves.why_not_done(row, targets[host])
+    return done, failed, skipped
+
+
+def fleet_report(rows: dict[str, dict], state: dict) -> str:
+    lines = [f"  {'HOST':12} {'WAVE':17} {'RELEASE':28} IMAGE"]
+    for host in [h for w in state["waves"] for h in w]:
+        row = rows.get(host) or {}
+        image = ", ".join(row.get("image_refs") or []) or ("unreachable" if not row.get("reachable") else "-")
+        lines.append(f"  {host:12} {waves.host_state(state, host):17} {row.get('release') or '-':28} {image}")
+    return "\n".join(lines)
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(prog="python3 -m roles.rollout", description=__doc__.splitlines()[0])
+    parser.add_argument("inventory")
+    parser.add_argument("script", nargs="?", default="deploy.py", help="the deploy (default: deploy.py)")
+    parser.add_argument("--canary", default="1", help="robots in the first wave when none has rollout_canary (default 1)")
+    parser.add_argument("--batch", default="25%", help="robots per later wave, a number or a share (default 25%%)")
+    parser.add_argument("--max-failed", default="0", help="failures tolerated, a number or a share (default 0)")
+    parser.add_argument("--unreachable-fails", action="store_true", help="unreachable robots count as failures")
+    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
+    parser.add_argument("--data", action="append", default=[], help="key=value passed to pyinfra (repeatable)")
+    parser.add_argument("--parallel", type=int, help="pyinfra's --parallel for each wave (default: CPUs x 20)")
+    parser.add_argument("-y", "--yes", action="store_true", help="do not ask before starting")
+    parser.add_argument("--dry", action="store_true", help="show the waves and the changes, change nothing")
+    args = parser.parse_args(argv)
+    try:
+        args.canary = waves.parse_count(args.canary, "--canary")
+        args.batch = waves.parse_count(args.batch, "--batch")
+        args.max_failed = waves.parse_count(args.max_failed, "--max-failed")
+    except ValueError as error:
+        parser.exit(2, f"rollout: {error}\n")
+    return args
+
+
+def resume_command(argv: list[str]) -> str:
+    return "python3 -m roles.rollout " + " ".join(shlex.quote(a) for a in argv if a not in ("--dry",))
+
+
+def main(argv=None) -> int:
+    from gevent import monkey
+
+    monkey.patch_all()
+    argv = sys.argv[1:] if argv is None else argv
+    args = parse_args(argv)
+    for path in (args.inventory, args.script):
+        if not os.path.exists(path):
+            print(f"rollout: {path}: no such file", file=sys.stderr)
+            return 2
+    extra = [arg for pair in args.data for arg in ("--data", pair)]
+    extra += ["--parallel", str(args.parallel)] if args.parallel else []
+    overrides = dict(pair.split("=", 1) for pair in args.data if "=" in pair)
+
+    hosts = selected_hosts(args.inventory, args.limit)
+    if not hosts:
+        print(f"rollout: no host of {args.inventory} matches {args.limit}", file=sys.stderr)
+        return 2
+    names = [name for name, _ in hosts]
+    targets = {name: overrides.get("payload_image") or data.get("payload_image") for name, data in hosts}
+    flagged = [name for name, data in hosts if data.get("rollout_canary")]
+    plan = waves.build_waves(names, flagged, args.canary, args.batch)
+    key = waves.fleet_key(args.inventory, names, targets)
+    path = waves.state_path(key)
+    state = waves.load_state(path) or waves.new_state(
+        key, args.inventory, plan, targets, waves.allowed_failures(args.max_failed, len(names))
+    )
+    state["allowed_failures"] = waves.allowed_failures(args.max_failed, len(names))
+    state = waves.start_run(state)
+
+    rows = read_status(args.inventory, names)
+    already = [h for h in names if waves.is_done(rows.get(h, {}), targets[h])]
+    state["done"] = sorted(set(state["done"]) | set(already))
+    for index, wave in enumerate(state["waves"]):
+        todo = [h for h in wave if h not in state["done"]]
+        print(f"wave {index + 1}/{len(state['waves'])}: {', '.join(wave)}"
+              + (f" ({len(wave) - len(todo)} already on the new release)" if len(todo) < len(wave) else ""), file=sys.stderr)
+    print(f"failure budget: {state['allowed_failures']} robot(s); unreachable robots "
+          + ("count" if args.unreachable_fails else "are skipped"), file=sys.stderr)
+
+    if args.dry:
+        todo = waves.pending(state)
+        if todo:
+            limits = [a for h in todo for a in ("--limit", h)]
+            subprocess.run([sys.executable, "-c", PYINFRA, "--dry", args.inventory, args.script, *limits, *extra])
+        return 0
+    if not args.yes:
+        if not sys.stdin.isatty():
+            print("rollout: not a terminal; pass -y to start without asking", file=sys.stderr)
+            return 2
+        if input("Start the rollout? [y/N] ").strip().lower() not in ("y", "yes"):
+            return 0
+
+    for index, wave in enumerate(state["waves"]):
+        todo = [h for h in wave if h not in state["done"]]
+        if not todo:
+            state = waves.record_wave(state, index, [], {}, {})
+            continue
+        print(f"\n--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}", file=sys.stderr)
+        results, errors = deploy_wave(args.inventory, todo, extra, args.script)
+        wave_rows = read_status(args.inventory, todo)
+        done, failed, skipped = judge_wave(todo, results, wave_rows, errors, targets, args.unreachable_fails)
+        state = waves.record_wave(state, index, done, failed, skipped)
+        waves.save_state(path, state)
+        for host, why in {**failed, **skipped}.items():
+            print(f"rollout: [{host}] {'failed' if host in failed else 'skipped'}: {why}", file=sys.stderr)
+        if state["status"] == "stopped":
+            break
+    waves.save_state(path, state)
+
+    rows = read_status(args.inventory, names)
+    print("\n" + fleet_report(rows, state))
+    print(waves.summary(state))
+    if state["status"] == "complete":
+        return 0
+    reached = [h for h in state["done"] if h in {x for w in state["waves"] for x in w}]
+    print(f"resume:   {resume_command(argv)}")
+    if reached:
+        print(f"roll back the robots it reached: pyinfra {args.inventory} rollback.py "
+              + " ".join(f"--limit {h}" for h in reached))
+    return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

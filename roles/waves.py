@@ -1,0 +1,227 @@
+"""Rollout planning, computable without a host: waves, the failure budget,
+and the rollout state kept on the operator's machine between runs.
+
+A robot's *target* is the payload image its data declares; it is *done* when
+its current release runs that image and is healthy (or staged, on a host
+without autostart).  roles/rollout.py runs the deploy wave by wave with
+these functions deciding what happens next.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+from dataclasses import dataclass
+
+_COUNT = re.compile(r"(0|[1-9][0-9]{0,5})(%?)")
+
+
+@dataclass(frozen=True)
+class Count:
+    """A number of robots, absolute ("2") or a share of the fleet ("25%")."""
+
+    value: int
+    percent: bool
+
+    def of(self, total: int, round_up: bool) -> int:
+        if not self.percent:
+            return self.value
+        exact = total * self.value / 100
+        return math.ceil(exact) if round_up else math.floor(exact + 1e-9)
+
+    def __str__(self) -> str:
+        return f"{self.value}{'%' if self.percent else ''}"
+
+
+def parse_count(text: str, option: str) -> Count:
+    """'3' or '25%' -> Count; anything else raises ValueError naming the option."""
+    match = _COUNT.fullmatch(str(text).strip())
+    if not match or (match.group(2) and int(match.group(1)) > 100):
+        raise ValueError(f"{option}: expected a number of robots or a percentage like 25%, got {text!r}")
+    return Count(int(match.group(1)), bool(match.group(2)))
+
+
+def build_waves(hosts: list[str], flagged: list[str], canary: Count, batch: Count) -> list[list[str]]:
+    """Canaries first (hosts with rollout_canary, else the first ``canary``
+    hosts), then batches of ``batch`` hosts in inventory order.  Percentages
+    are of the whole selection, rounded up (at least one robot per wave)."""
+    total = len(hosts)
+    if flagged:
+        canaries = [h for h in hosts if h in set(flagged)]
+    else:
+        canaries = hosts[: canary.of(total, round_up=True)]
+    rest = [h for h in hosts if h not in set(canaries)]
+    size = max(1, batch.of(total, round_up=True)) if batch.value else max(1, len(rest))
+    waves = [canaries] if canaries else []
+    waves += [rest[i : i + size] for i in range(0, len(rest), size)]
+    return waves
+
+
+def allowed_failures(max_failed: Count, total: int) -> int:
+    """Failures the rollout tolerates; one more stops it (Ansible's
+    max_fail_percentage: a share is rounded down)."""
+    return max_failed.of(total, round_up=False)
+
+
+def is_done(status_row: dict, target: str) -> bool:
+    """Does a roles.status row show ``target`` current and healthy?"""
+    if not status_row.get("reachable"):
+        return False
+    images = status_row.get("image_refs") or []
+    if target not in images:
+        return False
+    state = status_row.get("release_state")
+    if state == "staged":
+        return True
+    if state != "active":
+        return False
+    health = (status_row.get("health") or "").split(", ")
+    states = (status_row.get("state") or "").split(", ")
+    return all(s == "running" for s in states) and all(h in ("healthy", "none") for h in health)
+
+
+def why_not_done(status_row: dict, target: str) -> str:
+    if not status_row.get("reachable"):
+        return status_row.get("error") or "unreachable"
+    if status_row.get("error"):
+        return status_row["error"]
+    back = status_row.get("rolled_back_from") or {}
+    if back.get("reason"):
+        return f"release failed ({back['reason']}); rolled back to {status_row.get('release')}"
+    if target not in (status_row.get("image_refs") or []):
+        return f"runs {', '.join(status_row.get('image_refs') or ['nothing'])}, not {target}"
+    return f"release {status_row.get('release')} is {status_row.get('release_state')}, containers {status_row.get('state')}/{status_row.get('health')}"
+
+
+def fleet_key(inventory: str, selection: list[str], targets: dict[str, str]) -> str:
+    """The rollout's identity: same inventory, same robots, same targets ->
+    same state file, so rerunning the same command resumes it."""
+    blob = json.dumps({"inventory": os.path.abspath(inventory), "hosts": selection, "targets": targets}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def state_dir(root: str = ".") -> str:
+    """Where rollout states live: $ROBOT_ROLLOUT_DIR, else .rollout/ here."""
+    return os.environ.get("ROBOT_ROLLOUT_DIR") or os.path.join(root, ".rollout")
+
+
+def state_path(key: str, root: str = ".") -> str:
+    return os.path.join(state_dir(root), f"{key}.json")
+
+
+def new_state(key: str, inventory: str, waves: list[list[str]], targets: dict[str, str], allowed: int) -> dict:
+    return {
+        "key": key,
+        "inventory": inventory,
+        "waves": waves,
+        "targets": targets,
+        "allowed_failures": allowed,
+        "wave": 0,
+        "status": "running",
+        "done": [],
+        "failed": {},
+        "skipped": {},
+        "attempts": 0,
+    }
+
+
+def pending(state: dict) -> list[str]:
+    done = set(state["done"])
+    return [h for wave in state["waves"] for h in wave if h not in done]
+
+
+def record_wave(state: dict, index: int, done: list[str], failed: dict[str, str], skipped: dict[str, str]) -> dict:
+    """The state after wave ``index``: a pure update, then the verdict in
+    state['status']: 'running' (go on), 'stopped' (budget spent), 'complete'."""
+    state = json.loads(json.dumps(state))
+    state["wave"] = index
+    state["done"] = sorted(set(state["done"]) | set(done))
+    for host in done:
+        state["failed"].pop(host, None)
+        state["skipped"].pop(host, None)
+    state["failed"].update(failed)
+    state["skipped"].update(skipped)
+    state["run_failures"] = state.get("run_failures", 0) + len(failed)
+    if state["run_failures"] > state["allowed_failures"]:
+        state["status"] = "stopped"
+    elif index + 1 >= len(state["waves"]):
+        state["status"] = "complete" if not pending(state) else "incomplete"
+    else:
+        state["status"] = "running"
+    return state
+
+
+def start_run(state: dict) -> dict:
+    """A rerun of the same command: the budget is per run, robots still not on
+    the target (failed, skipped or never reached) are tried again."""
+    state = json.loads(json.dumps(state))
+    state["attempts"] = state.get("attempts", 0) + 1
+    state["run_failures"] = 0
+    state["status"] = "running"
+    return state
+
+
+def save_state(path: str, state: dict) -> None:
+    """Write atomically: temp file, fsync, rename."""
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    tmp = f"{path}.{os.getpid()}.tmp"
+    with open(tmp, "w") as handle:
+        json.dump(state, handle, indent=2, sort_keys=True)
+        handle.write("\n")
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+
+
+def load_state(path: str) -> dict | None:
+    try:
+        with open(path) as handle:
+            return json.load(handle)
+    except FileNotFoundError:
+        return None
+
+
+def latest_state(root: str = ".") -> dict | None:
+    """The most recently written rollout state under ``root`` (for the status table)."""
+    directory = state_dir(root)
+    try:
+        files = [os.path.join(directory, f) for f in os.listdir(directory) if f.endswith(".json")]
+    except FileNotFoundError:
+        return None
+    if not files:
+        return None
+    try:
+        return load_state(max(files, key=os.path.getmtime))
+    except ValueError:
+        return None
+
+
+def host_state(state: dict | None, host: str) -> str | None:
+    """One cell for the status table: where ``host`` stands in the rollout."""
+    if not state:
+        return None
+    wave = next((i for i, w in enumerate(state["waves"]) if host in w), None)
+    if wave is None:
+        return None
+    where = f"wave {wave + 1}/{len(state['waves'])}"
+    if host in state["done"]:
+        return f"{where} done"
+    if host in state["failed"]:
+        return f"{where} failed"
+    if host in state["skipped"]:
+        return f"{where} skipped"
+    return f"{where} pending"
+
+
+def summary(state: dict) -> str:
+    """One line: which rollout, which wave, which robots pending."""
+    left = pending(state)
+    waves = len(state["waves"])
+    return (
+        f"rollout {state['key']}: {state['status']} after wave {min(state['wave'] + 1, waves)}/{waves}; "
+        f"{len(state['done'])} done, {len(state['failed'])} failed, {len(state['skipped'])} skipped; "
+        f"pending: {', '.join(left) or 'none'}"
+    )

@@ -1,0 +1,147 @@
+"""Rollout planning without a host: waves, failure budget, resume state."""
+
+import json
+import os
+
+import pytest
+
+from roles import waves
+
+ROBOTS = [f"robot{i}" for i in range(1, 11)]
+
+
+def count(text):
+    return waves.parse_count(text, "--batch")
+
+
+def test_counts_are_numbers_or_percentages_and_anything_else_is_one_line():
+    assert count("3") == waves.Count(3, False)
+    assert count("25%") == waves.Count(25, True)
+    for bad in ("", "-1", "25 %", "1.5", "150%", "x", "03"):
+        with pytest.raises(ValueError, match=r"^--batch: expected a number of robots or a percentage like 25%, got "):
+            count(bad)
+
+
+def test_canary_then_batches_in_inventory_order():
+    plan = waves.build_waves(ROBOTS, [], count("1"), count("25%"))
+    assert plan == [["robot1"], ["robot2", "robot3", "robot4"], ["robot5", "robot6", "robot7"],
+                    ["robot8", "robot9", "robot10"]]
+
+
+def test_flagged_canaries_replace_the_first_n():
+    plan = waves.build_waves(ROBOTS[:5], ["robot4", "robot2"], count("1"), count("2"))
+    assert plan == [["robot2", "robot4"], ["robot1", "robot3"], ["robot5"]]
+
+
+def test_no_canary_and_no_batch_is_one_wave_and_tiny_percentages_still_move():
+    assert waves.build_waves(ROBOTS[:3], [], count("0"), count("0")) == [ROBOTS[:3]]
+    assert waves.build_waves(ROBOTS[:3], [], count("0"), count("1%")) == [[h] for h in ROBOTS[:3]]
+
+
+def test_every_host_in_exactly_one_wave():
+    for canary in ("0", "1", "30%"):
+        for batch in ("1", "3", "33%", "100%"):
+            plan = waves.build_waves(ROBOTS, [], count(canary), count(batch))
+            assert sorted(h for w in plan for h in w) == sorted(ROBOTS) and all(plan)
+
+
+def test_budget_rounds_shares_down():
+    assert waves.allowed_failures(count("10%"), 3) == 0
+    assert waves.allowed_failures(count("10%"), 10) == 1
+    assert waves.allowed_failures(count("1"), 3) == 1
+
+
+def state_for(plan, allowed):
+    return waves.start_run(waves.new_state("k", "inv.py", plan, {h: "img:2" for w in plan for h in w}, allowed))
+
+
+def test_a_failure_within_budget_goes_on_and_the_next_one_stops():
+    state = state_for([["r1"], ["r2"], ["r3"]], 1)
+    state = waves.record_wave(state, 0, [], {"r1": "unhealthy"}, {})
+    assert state["status"] == "running"
+    state = waves.record_wave(state, 1, [], {"r2": "unhealthy"}, {})
+    assert state["status"] == "stopped"
+    assert waves.pending(state) == ["r1", "r2", "r3"]
+
+
+def test_zero_budget_stops_at_the_canary_and_skipped_hosts_do_not_count():
+    state = state_for([["r1"], ["r2", "r3"]], 0)
+    assert waves.record_wave(state, 0, [], {"r1": "x"}, {})["status"] == "stopped"
+    state = waves.record_wave(state, 0, [], {}, {"r1": "unreachable"})
+    assert state["status"] == "running"
+    state = waves.record_wave(state, 1, ["r2", "r3"], {}, {})
+    assert state["status"] == "incomplete" and waves.pending(state) == ["r1"]
+
+
+def test_a_rerun_resumes_with_a_fresh_budget_and_clears_what_got_done():
+    state = state_for([["r1"], ["r2"]], 0)
+    state = waves.record_wave(state, 0, [], {"r1": "x"}, {})
+    state = waves.start_run(state)
+    assert state["status"] == "running" and state["run_failures"] == 0 and state["attempts"] == 2
+    state = waves.record_wave(state, 0, ["r1"], {}, {})
+    state = waves.record_wave(state, 1, ["r2"], {}, {})
+    assert state["status"] == "complete" and state["failed"] == {} and waves.pending(state) == []
+
+
+def test_done_means_the_target_image_is_current_and_healthy():
+    row = {"reachable": True, "image_refs": ["reg/p:1.1"], "release_state": "active",
+           "state": "running", "health": "healthy"}
+    assert waves.is_done(row, "reg/p:1.1")
+    assert not waves.is_done(row, "reg/p:1.2")
+    assert not waves.is_done({**row, "health": "unhealthy"}, "reg/p:1.1")
+    assert not waves.is_done({**row, "state": "restarting"}, "reg/p:1.1")
+    assert not waves.is_done({**row, "release_state": "failed"}, "reg/p:1.1")
+    assert waves.is_done({**row, "release_state": "staged", "state": None, "health": None}, "reg/p:1.1")
+    assert not waves.is_done({"reachable": False}, "reg/p:1.1")
+    back = {**row, "image_refs": ["reg/p:1.0"], "release": "r1", "rolled_back_from": {"reason": "p is unhealthy"}}
+    assert waves.why_not_done(back, "reg/p:1.1") == "release failed (p is unhealthy); rolled back to r1"
+
+
+def test_the_same_command_finds_the_same_state_file_and_writes_it_atomically(tmp_path):
+    key = waves.fleet_key("inventories/robots.py", ["r1", "r2"], {"r1": "a", "r2": "a"})
+    assert key == waves.fleet_key("inventories/robots.py", ["r1", "r2"], {"r1": "a", "r2": "a"})
+    assert key != waves.fleet_key("inventories/robots.py", ["r1", "r2"], {"r1": "a", "r2": "b"})
+    path = waves.state_path(key, str(tmp_path))
+    state = state_for([["r1"], ["r2"]], 0)
+    waves.save_state(path, state)
+    assert waves.load_state(path) == state
+    assert os.listdir(tmp_path / ".rollout") == [f"{key}.json"]
+    assert waves.latest_state(str(tmp_path)) == state
+
+
+def test_status_cells_and_summary():
+    state = waves.record_wave(state_for([["r1"], ["r2"], ["r3"]], 0), 0, ["r1"], {}, {})
+    assert [waves.host_state(state, h) for h in ("r1", "r2", "r9")] == ["wave 1/3 done", "wave 2/3 pending", None]
+    assert waves.summary(state) == "rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped; pending: r2, r3"
+
+
+def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
+    from roles.rollout import judge_wave
+
+    good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running", "health": "healthy"}
+    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
+            "rolled_back_from": {"reason": "unhealthy"}}
+    results = {"operations": [{"error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
+    rows = {"r1": good, "r2": back, "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
+    targets = dict.fromkeys(rows, "i:2")
+    done, failed, skipped = judge_wave(list(rows), results, rows, {"r2": "payload: release x failed"}, targets, False)
+    assert done == ["r1"]
+    assert failed.pop("r2") == "payload: release x failed"
+    assert failed.pop("r4") == "release failed (unhealthy); rolled back to r1"
+    assert list(failed) == ["r5"]  # pyinfra failed it even though its payload looks fine
+    assert skipped == {"r3": "unreachable: cannot connect"}
+    _, failed, skipped = judge_wave(["r3"], None, rows, {}, targets, True)
+    assert failed == {"r3": "unreachable: cannot connect"} and skipped == {}
+
+
+def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
+    """pyinfra prints no JSON when no host remains ("No hosts remaining!")."""
+    from roles.rollout import judge_wave
+
+    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active"}
+    errors = {"r1": "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"}
+    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, errors, {"r1": "i:2"}, False)
+    assert (done, failed, skipped) == ([], errors, {})
+    errors = {"r2": "Could not connect (timed out)"}
+    assert judge_wave(["r2"], None, {"r2": {"reachable": True}}, errors, {"r2": "i:2"}, False)[2] == {
+        "r2": "unreachable: Could not connect (timed out)"}
