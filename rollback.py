@@ -6,6 +6,8 @@
 
 `current` and `previous` swap, the payload is brought up from the release
 already on the robot (no download: it works offline) and checked healthy.
+All or nothing: if the previous release is not healthy, the swap is undone
+and the release that ran before starts again (the host fails with why).
 Refused while the update lock is held, unless --data payload_force=true.
 """
 
