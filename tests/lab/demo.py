@@ -13,12 +13,25 @@ from . import hosts
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _beside_python(name: str) -> str:
+    """``name`` from this interpreter's environment (.venv/bin/pyinfra), shown
+    relative to the checkout: the venv's bin is usually not on PATH."""
+    path = Path(sys.executable).parent / name
+    if not path.exists():
+        return name
+    try:
+        return str(path.relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
 def demo(prefix: str = "lab") -> int:
     lab = hosts.up(prefix)
     env = dict(os.environ, ROBOT_LAB_PREFIX=prefix)
-    command = ["pyinfra", "-y", "inventories/lab.py", "deploy.py"]
+    pyinfra, python = _beside_python("pyinfra"), _beside_python("python")
+    command = [pyinfra, "-y", "inventories/lab.py", "deploy.py"]
     print(f"\n$ ROBOT_LAB_PREFIX={prefix} {' '.join(command)}\n", flush=True)
-    code = subprocess.run(command, cwd=ROOT, env=env).returncode
+    code = subprocess.run(command, cwd=ROOT, env=env).returncode  # a relative path runs from cwd
     robot = next(h for h in lab["hosts"] if h["group"] == "robots")
     key = os.path.relpath(lab["ssh_key"], ROOT)
     known = os.path.relpath(lab["known_hosts"], ROOT)
@@ -30,11 +43,11 @@ Look inside a robot:
   ssh -i {key} -o UserKnownHostsFile={known} -p {robot['port']} ops@127.0.0.1
   docker exec -it {robot['container']} bash        # then: systemctl status robot-payload; docker ps; ls -l /dev/robot
 Fleet status:
-  ROBOT_LAB_PREFIX={prefix} python3 -m roles.status inventories/lab.py
+  ROBOT_LAB_PREFIX={prefix} {python} -m roles.status inventories/lab.py
 Run again (changes nothing):
-  ROBOT_LAB_PREFIX={prefix} pyinfra -y inventories/lab.py deploy.py
+  ROBOT_LAB_PREFIX={prefix} {pyinfra} -y inventories/lab.py deploy.py
 Stop the lab:
-  python3 -m tests.lab down --prefix {prefix}
+  {python} -m tests.lab down --prefix {prefix}
 """
     )
     return code
