@@ -71,6 +71,27 @@ def apt_proxy_conf(services_host: str) -> str:
             f'Acquire::http::Proxy::{services_host} "DIRECT";\n')
 
 
+INOTIFY_INSTANCES = Path("/proc/sys/fs/inotify/max_user_instances")
+INOTIFY_WANTED = 1024
+
+
+def _raise_inotify_instances() -> None:
+    """Every host runs systemd (and later dockerd), each taking inotify
+    instances from one per-user pool shared by all containers: at the kernel
+    default of 128 a few labs side by side make a host exit at boot (status
+    255, no log).  Raise it where we may (root); otherwise say what to do."""
+    try:
+        current = int(INOTIFY_INSTANCES.read_text())
+        if current >= INOTIFY_WANTED:
+            return
+        INOTIFY_INSTANCES.write_text(f"{INOTIFY_WANTED}\n")
+        logging.getLogger(__name__).info("lab: raised fs.inotify.max_user_instances from %s to %s",
+                                         current, INOTIFY_WANTED)
+    except (OSError, ValueError):
+        print(f"lab: fs.inotify.max_user_instances is low; if hosts exit at boot, run "
+              f"`sysctl -w fs.inotify.max_user_instances={INOTIFY_WANTED}` as root", flush=True)
+
+
 def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
        sensors: dict[str, list[str]] | list[str] | None = None) -> dict:
     """Start (or reuse) a lab and write its state.json; returns the state.
@@ -80,6 +101,7 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     """
     check_prefix(prefix)
     sensors_by_host = _sensors_by_host(sensors, robots)
+    _raise_inotify_instances()
     dc = client()
     with timed_phase("build images (cached by recipe)"):
         host_image = hostimage.ensure_host_image(dc)
