@@ -22,6 +22,7 @@ from pyinfra.connectors.fake import FakeConnector
 from pyinfra.context import ctx_state
 
 from roles import hoststate
+from roles import fleet
 from roles.fleet import read_group_data
 from roles.hoststate import FileState, Snapshot
 
@@ -233,4 +234,13 @@ def everything_sent(commands: list[Sent]) -> str:
     return "\n".join(parts + list(written_files(commands).values()))
 
 
-__all__ = ["FileState", "Snapshot", "Sent", "fresh_host", "plan", "find", "written_files", "everything_sent", "OS_RELEASES"]
+def fleet_problems(doc, path: str = "robots.yaml") -> list[str]:
+    """The problem lines the fleet check prints for ``doc`` ([] if accepted)."""
+    try:
+        fleet.check(doc, path, read_group_data())
+    except fleet.FleetError as error:
+        return error.lines
+    return []
+
+
+__all__ = ["fleet_problems", "FileState", "Snapshot", "Sent", "fresh_host", "plan", "find", "written_files", "everything_sent", "OS_RELEASES"]

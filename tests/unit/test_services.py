@@ -8,8 +8,9 @@ import pytest
 import yaml
 
 from roles import fleet
-from roles.payload import compose, services
-from tests.unit.test_plan import merged
+from roles.payload import compose, project, services
+from tests.unit.fakefleet import fleet_problems, plan
+from tests.unit.test_plan import ROBOT, converged, merged
 
 REG = "reg.example.com"
 TWO = {
@@ -18,14 +19,6 @@ TWO = {
              "ulimits": {"rtprio": 99, "memlock": {"soft": -1, "hard": -1}}, "shm_size": "1g",
              "tty": True, "stdin_open": True, "volumes": ["/etc/hosts:/etc/hosts:ro"]},
 }
-
-
-def problems(doc) -> list[str]:
-    try:
-        fleet.check(doc, "robots.yaml", fleet.read_group_data())
-    except fleet.FleetError as error:
-        return error.lines
-    return []
 
 
 def fleet_of(group_vars: dict, hosts: dict) -> dict:
@@ -185,13 +178,13 @@ def host_with(**settings) -> dict:
      f"robots.yaml: robot3.payload_services.drv.image: '{REG}/a' has no tag or digest"),
 ])
 def test_a_bad_service_key_is_one_line_naming_file_host_service_and_key(service, line):
-    lines = problems(host_with(payload_services={"drv": service}))
+    lines = fleet_problems(host_with(payload_services={"drv": service}))
     assert len(lines) == 1, lines
     assert lines[0].startswith(line), lines
 
 
 def test_schema_problems_in_a_group_name_each_host():
-    lines = problems(fleet_of({"payload_services": {"drv": {"image": f"{REG}/a:1", "shm_sise": "1g"}}},
+    lines = fleet_problems(fleet_of({"payload_services": {"drv": {"image": f"{REG}/a:1", "shm_sise": "1g"}}},
                               {"robot1": {"address": "a"}, "robot2": {"address": "b", "payload_services": {
                                   "drv": {"shm_sise": None}}}}))
     assert lines == ["robots.yaml: robot1.payload_services.drv.shm_sise: not a key of the Compose "
@@ -201,48 +194,48 @@ def test_schema_problems_in_a_group_name_each_host():
 def test_refusals_that_need_the_whole_project():
     two_names = {"a": {"image": f"{REG}/a:1", "container_name": "ros"},
                  "b": {"image": f"{REG}/b:1", "container_name": "ros"}}
-    assert problems(host_with(payload_services=two_names)) == [
+    assert fleet_problems(host_with(payload_services=two_names)) == [
         "robots.yaml: robot3.payload_services.b.container_name: 'ros' is also the container_name of service a"]
-    assert problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "container_name": "old"}},
+    assert fleet_problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "container_name": "old"}},
                               payload_replaces=["old"])) == [
         "robots.yaml: robot3.payload_services.a.container_name: 'old' is listed in payload_replaces: "
         "the takeover would stop this project's own container"]
-    assert problems(host_with(payload_image=f"{REG}/a:1", payload_services={"a": {"image": f"{REG}/a:1"}})) == [
+    assert fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_services={"a": {"image": f"{REG}/a:1"}})) == [
         "robots.yaml: robot3.payload_services: set either payload_image (one service called payload) or "
         "payload_services, not both (set payload_image: null where payload_services is used)"]
-    assert problems(host_with(payload_services=TWO, payload_command=["x"])) == [
+    assert fleet_problems(host_with(payload_services=TWO, payload_command=["x"])) == [
         "robots.yaml: robot3.payload_command: applies to the single-image payload; with payload_services "
         "give each service its own 'command' key"]
-    assert problems(host_with(payload_services=TWO, sensors=[
+    assert fleet_problems(host_with(payload_services=TWO, sensors=[
         {"name": "cam", "subsystem": "tty", "serial": "C", "services": ["nav"]}])) == [
         "robots.yaml: robot3.sensors[0].services: no service called 'nav' (services: driver, slam)"]
     no_devices = {"a": {"image": f"{REG}/a:1"}, "b": {"image": f"{REG}/b:1"}}
-    assert problems(host_with(payload_services=no_devices, sensors=[
+    assert fleet_problems(host_with(payload_services=no_devices, sensors=[
         {"name": "cam", "subsystem": "tty", "serial": "C"}])) == [
         "robots.yaml: robot3.sensors[0]: name the service(s) that use it (services: [...]); "
         "no service asks for devices"]
-    assert problems(host_with(payload_services=TWO, payload_allow_privileged=True)) == []
-    assert problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "privileged": True}},
+    assert fleet_problems(host_with(payload_services=TWO, payload_allow_privileged=True)) == []
+    assert fleet_problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "privileged": True}},
                               payload_allow_privileged=True)) == []
 
 
 def test_preset_refusals():
     image = {"payload_image": f"{REG}/a:1"}
-    assert problems(host_with(**image, ros_preset="ros1")) == [
+    assert fleet_problems(host_with(**image, ros_preset="ros1")) == [
         "robots.yaml: robot3.ros_master_uri: required with ros_preset: ros1 unless ros_roscore is true"]
-    assert problems(host_with(**image, ros_preset="ros1", ros_roscore=True)) == [
+    assert fleet_problems(host_with(**image, ros_preset="ros1", ros_roscore=True)) == [
         "robots.yaml: robot3.ros_roscore_image: required with ros_roscore: an image with roscore, pinned"]
-    assert problems(host_with(**image, ros_preset="ros2", ros_dds_profile="nope.xml")) == [
+    assert fleet_problems(host_with(**image, ros_preset="ros2", ros_dds_profile="nope.xml")) == [
         "robots.yaml: robot3.ros_dds_profile: no file files/dds/nope.xml"]
-    assert problems(host_with(**image, ros_preset="ros3")) == [
+    assert fleet_problems(host_with(**image, ros_preset="ros3")) == [
         "robots.yaml: robot3.ros_preset: expected one of ros1, ros2, got 'ros3'"]
 
 
 def test_layer_shape_is_checked_where_it_was_written():
-    assert problems(fleet_of({"payload_services": {"a b": {}}}, {"robot1": {"address": "a"}}))[0] == (
+    assert fleet_problems(fleet_of({"payload_services": {"a b": {}}}, {"robot1": {"address": "a"}}))[0] == (
         "robots.yaml: robots.vars.payload_services.a b: service names are letters, digits, . _ - "
         "(starting with a letter or digit)")
-    assert problems(host_with(payload_services=["a"]))[0] == (
+    assert fleet_problems(host_with(payload_services=["a"]))[0] == (
         "robots.yaml: robot3.payload_services: expected a mapping of service name -> compose service")
 
 
@@ -258,9 +251,6 @@ def test_the_schema_comes_from_the_maintained_package_with_its_licence():
 
 # --- the deploy's side: what it reads and what it sends -------------------------
 
-from roles.payload import project  # noqa: E402
-from tests.unit.fakefleet import plan  # noqa: E402
-from tests.unit.test_plan import ROBOT, converged  # noqa: E402
 
 
 def probe_line(cid, name, image, project_label, running, policy):

@@ -8,18 +8,11 @@ import pytest
 import yaml
 
 from roles import fleet, settings
+from tests.unit.fakefleet import fleet_problems
 
 ROOT = Path(__file__).resolve().parents[2]
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 GOOD_HOST = {"address": "10.0.0.1", "payload_image": "reg.example.com/ros/payload:1.0"}
-
-
-def problems(doc) -> list[str]:
-    try:
-        fleet.check(doc, "robots.yaml", fleet.read_group_data())
-    except fleet.FleetError as error:
-        return error.lines
-    return []
 
 
 def robot(**extra):
@@ -39,7 +32,7 @@ def test_lab_fleet_file_is_valid():
     text = (ROOT / "inventories" / "lab.yaml").read_text()
     text = text.replace("@registry@", "lab-services:5000").replace("@mirror@", "http://lab-services:8080/linux")
     text = text.replace("@mirror_fingerprint@", "6041F729F901FD0081EF611E646BA420EC7C3788")
-    assert problems(yaml.safe_load(text)) == []
+    assert fleet_problems(yaml.safe_load(text)) == []
 
 
 def test_defaults_satisfy_the_schema_and_cover_every_setting():
@@ -127,12 +120,12 @@ def test_readme_documents_every_setting():
     ],
 )
 def test_bad_data_gets_one_clear_line(doc, expected):
-    assert expected in problems(doc)
+    assert expected in fleet_problems(doc)
 
 
 def test_every_problem_is_reported_at_once():
     doc = robot(ssh_port="22", docker_users=["Alice"], sensors=[{"name": "x", "subsystem": "tty", "serial": 1}])
-    assert len(problems(doc)) == 3
+    assert len(fleet_problems(doc)) == 3
 
 
 def test_yaml_syntax_error_names_the_line(tmp_path):

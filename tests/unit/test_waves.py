@@ -1,6 +1,5 @@
 """Rollout planning without a host: waves, failure budget, resume state."""
 
-import json
 import os
 
 import pytest
