@@ -120,6 +120,10 @@ def _q(value: str) -> str:
     return shlex.quote(value)
 
 
+# Seconds one probe may take (docker ps, gpg, nvidia-smi, dpkg --audit).
+PROBE_TIMEOUT = 60
+
+
 def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
     """The shell script behind the snapshot (POSIX sh, read-only)."""
     lines = [
@@ -157,7 +161,12 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
         cmd = _q(command)
         lines.append(f"echo \"cmd${{T}}\"{cmd}\"${{T}}$(command -v {cmd})\"")
     for name, snippet in (probes or {}).items():
-        lines.append(f"echo \"probe${{T}}\"{_q(name)}\"${{T}}$( ( {snippet} ) 2>/dev/null | base64 -w0)\"")
+        # Bounded: a wedged dockerd must not hang the host's only snapshot
+        # command; a probe cut off reads as empty (unknown), as a failed one does.
+        lines.append(
+            f"echo \"probe${{T}}\"{_q(name)}\"${{T}}$(timeout {PROBE_TIMEOUT} sh -c {_q(snippet)} 2>/dev/null"
+            " | base64 -w0)\""
+        )
     lines.append("true")
     return "\n".join(lines)
 

@@ -226,3 +226,14 @@ def test_key_fingerprint_pin_with_real_gpg(tmp_path):
     assert right.returncode == 0, right.stderr
     probe = subprocess.run(["sh", "-c", docker.key_fingerprints_probe(str(dest))], capture_output=True, text=True)
     assert probe.stdout.split() == [fingerprint]
+
+
+def test_a_stalled_probe_is_cut_off_and_the_snapshot_still_answers(monkeypatch):
+    """A wedged dockerd makes `docker ps` hang: one probe must not hang the
+    host's only snapshot command (and so every later deploy of that robot)."""
+    monkeypatch.setattr(hoststate, "PROBE_TIMEOUT", 1)
+    query = dict(probes={"stalls": "sleep 30; echo late", "answers": "echo ok"})
+    out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True,
+                         check=True, timeout=20)
+    snap = hoststate.parse(out.stdout.splitlines(), query)
+    assert snap.probes["stalls"] == "" and snap.probes["answers"] == "ok\n"
