@@ -5,7 +5,7 @@ import sys
 
 from pyinfra import config
 
-from roles.fleet import refuse
+from engine.inventory import refuse
 
 config.REQUIRE_PYINFRA_VERSION = ">=3.10,<4"
 

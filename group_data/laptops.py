@@ -1,6 +1,6 @@
-"""Defaults for the laptops group (override all.py)."""
+"""Defaults that differ for the laptops group, from the roles' declarations
+(a setting's `groups=`); the rest come from all.py."""
 
-# Laptops get the payload image and compose file for development, no autostart.
-payload_autostart = False
-# Laptops have a display for rviz; declare x11_user per laptop.
-display = True
+from engine.roster import group_data
+
+globals().update(group_data("laptops"))

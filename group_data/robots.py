@@ -1,6 +1,6 @@
-"""Defaults for the robots group (override all.py)."""
+"""Defaults that differ for the robots group, from the roles' declarations
+(a setting's `groups=`); the rest come from all.py."""
 
-# Robots run the payload at boot.
-payload_autostart = True
-# Static vendor rules from files/udev/ installed on every robot.
-udev_vendor_rules = ["60-usb-serial-low-latency.rules"]
+from engine.roster import group_data
+
+globals().update(group_data("robots"))

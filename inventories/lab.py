@@ -11,7 +11,7 @@ import json
 import os
 from pathlib import Path
 
-from roles.fleet import FleetError, parse, refuse
+from engine.inventory import parse_or_exit, refuse
 
 _ROOT = Path(__file__).resolve().parent.parent
 _PREFIX = os.environ.get("ROBOT_LAB_PREFIX", "lab")
@@ -46,10 +46,7 @@ def _load():
     }.items():
         text = text.replace(key, value)
     ports = {h["name"]: h["port"] for h in state["hosts"]}
-    try:
-        fleet = parse(text, os.path.relpath(_FLEET))
-    except FleetError as error:
-        refuse(error.lines)
+    fleet = parse_or_exit(text, os.path.relpath(_FLEET))
     groups = {}
     for group, hosts in fleet.groups.items():
         groups[group] = []

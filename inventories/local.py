@@ -10,7 +10,7 @@ import os
 import socket
 from pathlib import Path
 
-from roles.fleet import display_path, load_or_exit, refuse
+from engine.inventory import display_path, load_or_exit, refuse
 
 _path = Path(os.environ.get("ROBOT_FLEET") or Path(__file__).with_name("robots.yaml"))
 _fleet = load_or_exit(_path)

@@ -5,7 +5,7 @@ before pyinfra connects anywhere."""
 import os
 from pathlib import Path
 
-from roles.fleet import load_or_exit
+from engine.inventory import load_or_exit
 
 _fleet = load_or_exit(Path(os.environ.get("ROBOT_FLEET") or Path(__file__).with_suffix(".yaml")))
 

@@ -3,39 +3,42 @@ engine), daemon.json, and the service enabled and running."""
 
 from __future__ import annotations
 
-import shlex
-
 from pyinfra import host
 from pyinfra.api import deploy
-from pyinfra.operations.util import any_changed
 
-from roles import operations
-from roles.docker import daemon, plan
-from roles.gpu import plan as gpu_plan
-from roles.hoststate import Snapshot, SnapshotQuery
+from engine import values
+from engine.host import apt, aptrepo, operations
+from engine.host.snapshot import SnapshotQuery
+from engine.role import Play, Role, StatusPart
+from roles.docker import daemon, hooks, plan, settings
 
-KEYRING_DIR = "/etc/apt/keyrings"
 DAEMON_JSON = daemon.DAEMON_JSON
 PREREQUISITES = ["ca-certificates", "curl"]
+KEY_PROBE = "docker_key_fingerprints"
 
 
 def sources_path(data) -> str:
-    return f"/etc/apt/sources.list.d/{data.docker_apt_filename}.sources"
+    return f"{aptrepo.SOURCES_DIR}/{data.docker_apt_filename}.sources"
 
 
-def fingerprints_of(path: str) -> str:
-    """Shell pipeline printing the fingerprints of the primary keys in key file
-    ``path`` (a shell word, already quoted), one a line, using the throwaway
-    GNUPGHOME ``$h``.  Subkeys are left out: they belong to their primary key."""
-    return (
-        f"GNUPGHOME=$h gpg --batch --show-keys --with-colons {path} 2>/dev/null"
-        " | awk -F: '$1==\"pub\"{p=1;next} p&&$1==\"fpr\"{print $10} {p=0}'"
+def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
+    """Docker's repository for this host, as Docker documents it."""
+    dist = plan.distribution(os_release)
+    return aptrepo.Repository(
+        what="Docker",
+        key_url=plan.key_url(data.docker_apt_key_url, data.docker_repo_url, dist),
+        key_path=data.docker_apt_key_path,
+        fingerprint=values.normal_fingerprint(data.docker_apt_key_fingerprint),
+        fingerprint_setting="docker_apt_key_fingerprint",
+        sources_name=data.docker_apt_filename,
+        sources=plan.sources_text(
+            plan.repo_uri(data.docker_repo_url, dist), plan.suite(os_release),
+            data.docker_apt_release_channel, plan.architecture(arch), data.docker_apt_key_path,
+        ),
+        probe=KEY_PROBE,
+        sha256=data.docker_apt_key_sha256,
+        sha256_setting="docker_apt_key_sha256",
     )
-
-
-def key_fingerprints_probe(path: str) -> str:
-    p = shlex.quote(path)
-    return f'[ -f {p} ] && command -v gpg >/dev/null && h=$(mktemp -d) && {fingerprints_of(p)}; rm -rf "$h"'
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -43,90 +46,23 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
-    query.files |= {KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING}
+    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING}
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
-    query.probes["docker_key_fingerprints"] = key_fingerprints_probe(data.docker_apt_key_path)
-    query.probes["dpkg_audit"] = operations.DPKG_AUDIT_PROBE
-
-
-def key_download_script(url: str, dest: str, fingerprint: str | None, sha256: str | None) -> str:
-    """Fetch the key to a temp file, verify it, and only then move it in place.
-
-    With a fingerprint pin the file must hold exactly that one primary key:
-    apt trusts every key of a Signed-By keyring, so a second key beside
-    Docker's would sign packages too.  A keyring already on the host holding
-    more than one key is removed whatever the download gives (fail closed).
-    Values reach the messages through shell variables, never as code."""
-    q = shlex.quote
-    lines = [
-        "set -e",
-        f"dest={q(dest)}",
-        f"url={q(url)}",
-        'tmp=$(mktemp "$(dirname "$dest")/.robotprov.XXXXXX")',
-        "h=$(mktemp -d)",
-        "trap 'rm -f \"$tmp\"; rm -rf \"$h\"' EXIT",
-    ]
-    if fingerprint:
-        lines += [
-            f"pin={q(fingerprint)}",
-            'if [ -f "$dest" ] && [ "$(' + fingerprints_of('"$dest"') + ' | wc -l)" -gt 1 ]; then',
-            '  rm -f "$dest"; echo "$dest held more than one key; removed" >&2',
-            "fi",
-        ]
-    lines.append(
-        'curl -fsSL --retry 3 --connect-timeout 20 "$url" -o "$tmp" || '
-        '{ echo "cannot download the Docker apt key from $url" >&2; exit 1; }'
-    )
-    if sha256:
-        lines += [
-            f"want={q(sha256)}",
-            'got=$(sha256sum < "$tmp" | cut -d" " -f1); '
-            '[ "$got" = "$want" ] || { echo "Docker apt key from $url: sha256 $got does not match '
-            'docker_apt_key_sha256 $want; key not installed" >&2; exit 1; }',
-        ]
-    if fingerprint:
-        lines += [
-            "fprs=$(" + fingerprints_of('"$tmp"') + ")",
-            'count=$(printf "%s\n" "$fprs" | grep -c . || true)',
-            'printf "%s\n" "$fprs" | grep -qx "$pin" || { echo "Docker apt key from $url: fingerprint '
-            '$(echo $fprs) does not match docker_apt_key_fingerprint $pin; key not installed" >&2; exit 1; }',
-            '[ "$count" -eq 1 ] || { echo "Docker apt key from $url: holds $count keys ($(echo $fprs)); '
-            'only docker_apt_key_fingerprint $pin may be in it; key not installed" >&2; exit 1; }',
-        ]
-    lines += ['chmod 644 "$tmp"', 'mv -fT "$tmp" "$dest"']
-    return "\n".join(lines)
-
-
-def key_is_current(snap: Snapshot, path: str, fingerprint: str | None, sha256: str | None) -> bool:
-    """In place, 0644, and (when pinned) holding exactly the pinned key."""
-    current = snap.files.get(path)
-    if current is None or current.kind != "file" or current.mode != "644":
-        return False
-    if sha256 and current.sha256 != sha256:
-        return False
-    if fingerprint and snap.probes.get("docker_key_fingerprints", "").split() != [fingerprint]:
-        return False
-    return True
-
-
-@operations.operation()
-def apt_key(url: str, path: str, fingerprint: str | None, sha256: str | None, up_to_date: bool):
-    if up_to_date:
-        host.noop(f"{path} is in place")
-        return
-    yield operations.shell(key_download_script(url, path, fingerprint, sha256))
+    query.probes[KEY_PROBE] = aptrepo.fingerprints_probe(data.docker_apt_key_path)
+    query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
 
 
 @deploy("Docker")
-def install_docker(snap: Snapshot):
-    data = host.data
+def install_docker(play: Play):
+    data, snap = play.data, play.snapshot
     try:
-        dist = plan.distribution(snap.os_release)
-        codename = plan.suite(snap.os_release)
-        arch = plan.architecture(snap.arch)
-        if data.docker_source == "distro":
+        if data.docker_source == "docker":
+            repo = repository(data, snap.os_release, snap.arch)
+        else:
+            plan.suite(snap.os_release)
+            plan.architecture(snap.arch)
             packages = plan.distro_packages(snap.os_release, data.docker_distro_packages)
     except plan.PlanError as error:
         operations.fail(name="Check the host can run Docker", message=f"docker: {error}")
@@ -134,10 +70,10 @@ def install_docker(snap: Snapshot):
 
     # A power cut or a dropped link during an earlier install left dpkg
     # half-way: finish it first, or every apt-get below refuses to run.
-    operations.dpkg_repair(name="Finish an interrupted dpkg run", audit=snap.probes.get("dpkg_audit", ""))
+    apt.dpkg_repair(name="Finish an interrupted dpkg run", audit=snap.probes.get("dpkg_audit", ""))
     if data.docker_source == "docker":
-        _docker_repository(snap, data, dist, codename, arch)
-        operations.apt_install(
+        _docker_repository(play, repo)
+        apt.apt_install(
             name="Install Docker CE and the compose plugin",
             packages=data.docker_packages,
             installed=snap.packages,
@@ -151,7 +87,7 @@ def install_docker(snap: Snapshot):
                 "remove docker-ce first (apt-get purge docker-ce docker-ce-cli containerd.io)",
             )
             return
-        operations.apt_install(
+        apt.apt_install(
             name="Install the distribution's Docker engine and compose",
             packages=packages,
             installed=snap.packages,
@@ -169,7 +105,7 @@ def install_docker(snap: Snapshot):
     daemon.daemon_json(
         name=f"Write /etc/docker/daemon.json and {action} Docker (the previous file comes back if Docker does not start)",
         content=plan.daemon_json(
-            gpu_plan.daemon_options(data, data.docker_daemon_options),
+            play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
             data.docker_registry_mirrors,
             data.docker_insecure_registries,
         ),
@@ -180,12 +116,12 @@ def install_docker(snap: Snapshot):
     )
 
 
-def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str):
-    fingerprint = plan.normalise_fingerprint(data.docker_apt_key_fingerprint)
+def _docker_repository(play: Play, repo: aptrepo.Repository):
+    data, snap = play.data, play.snapshot
     prerequisites = list(PREREQUISITES)
-    if fingerprint and not snap.commands.get("gpg"):
+    if repo.fingerprint and not snap.commands.get("gpg"):
         prerequisites.append("gpg")
-    operations.apt_install(
+    apt.apt_install(
         name="Install apt prerequisites",
         packages=prerequisites,
         installed=snap.packages,
@@ -193,32 +129,25 @@ def _docker_repository(snap: Snapshot, data, dist: str, codename: str, arch: str
     )
     legacy = [p for p in data.docker_apt_legacy_files if p not in (data.docker_apt_key_path, sources_path(data))]
     legacy_removed = operations.absent(name="Remove legacy Docker apt files", paths=legacy, present=snap.files)
-    operations.apt_remove(
+    apt.apt_remove(
         name="Remove conflicting packages",
         packages=plan.obsolete_to_remove(data.docker_obsolete_packages, snap.packages),
     )
-    operations.directory(name=f"apt keyring directory {KEYRING_DIR}", path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
-    key = apt_key(
-        name="Download and verify Docker's apt key",
-        url=plan.key_url(data.docker_apt_key_url, data.docker_repo_url, dist),
-        path=data.docker_apt_key_path,
-        fingerprint=fingerprint,
-        sha256=data.docker_apt_key_sha256,
-        up_to_date=key_is_current(snap, data.docker_apt_key_path, fingerprint, data.docker_apt_key_sha256),
-    )
-    source = operations.file(
-        name="Write the Docker apt source",
-        path=sources_path(data),
-        content=plan.sources_text(
-            plan.repo_uri(data.docker_repo_url, dist),
-            codename,
-            data.docker_apt_release_channel,
-            arch,
-            data.docker_apt_key_path,
-        ),
-        current=snap.files.get(sources_path(data)),
-    )
-    operations.apt_update(
-        name="apt update for the Docker repository",
-        _if=any_changed(key, source, legacy_removed),
-    )
+    aptrepo.set_up(repo, snap, legacy_removed)
+
+
+STATUS = StatusPart(
+    command=lambda data: "docker version -f '{{.Server.Version}}'",
+    cells=lambda output: {"docker": output.strip() or None},
+    columns=(("docker", "DOCKER"),),
+    order=10,
+)
+
+ROLE = Role(
+    name="docker",
+    doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json.",
+    settings=settings.SETTINGS,
+    reads=declare_reads,
+    steps=install_docker,
+    status=STATUS,
+)

@@ -17,8 +17,8 @@ import shlex
 
 from pyinfra import host
 
-from roles import operations
-from roles.hoststate import FileState
+from engine.host import operations
+from engine.host.snapshot import FileState
 
 DAEMON_JSON = "/etc/docker/daemon.json"
 PREVIOUS = DAEMON_JSON + ".previous"

@@ -14,20 +14,23 @@ Elsewhere it sets up NVIDIA's repository as NVIDIA documents it (key from
 ``<repo>/gpgkey``, which must be exactly the pinned key; a deb822 source with
 Signed-By for ``<repo>/stable/deb/<arch>``) and installs
 ``nvidia-container-toolkit``.  The ``nvidia`` runtime entry of daemon.json is
-not written here: the docker role owns daemon.json and merges it
-(``plan.daemon_options``), instead of ``nvidia-ctk runtime configure``
-rewriting the file behind its back.
+not written here: the docker role owns daemon.json, and this role adds the
+runtime through the docker role's hook (``plan.daemon_options``), instead of
+``nvidia-ctk runtime configure`` rewriting the file behind its back.  The
+payload gets the GPUs and the ``nvidia-smi -L`` check through its hooks.
 """
 
 from __future__ import annotations
 
-from pyinfra import host
 from pyinfra.api import deploy
-from pyinfra.operations.util import any_changed
 
-from roles import operations
-from roles.gpu import aptkey, plan
-from roles.hoststate import Snapshot, SnapshotQuery
+from engine import values
+from engine.host import apt, aptrepo, operations
+from engine.host.snapshot import SnapshotQuery
+from engine.role import Play, Role, StatusPart
+import roles.docker.hooks as docker_hooks
+from roles.gpu import plan, settings
+import roles.payload.hooks as payload_hooks
 
 PREREQUISITES = ["ca-certificates", "curl", "gpg"]
 READINGS = "gpu_readings"
@@ -35,39 +38,32 @@ KEY_PROBE = "gpu_key_fingerprints"
 
 
 def sources_path(data) -> str:
-    return f"/etc/apt/sources.list.d/{data.gpu_apt_filename}.sources"
+    return f"{aptrepo.SOURCES_DIR}/{data.gpu_apt_filename}.sources"
 
 
-def declare_reads(data, query: SnapshotQuery) -> None:
-    if not plan.wanted(data):
-        return
-    query.packages |= set(PREREQUISITES) | {plan.TOOLKIT}
-    query.files |= {data.gpu_apt_key_path, sources_path(data)}
-    query.probes[READINGS] = plan.readings_probe(data.gpu_driver_version_file)
-    query.probes[KEY_PROBE] = aptkey.fingerprints_probe(data.gpu_apt_key_path)
-
-
-@operations.operation()
-def pinned_key(url: str, path: str, fingerprint: str, up_to_date: bool):
-    if up_to_date:
-        host.noop(f"{path} holds exactly the pinned key")
-        return
-    yield operations.shell(aptkey.download_script(url, path, fingerprint, "NVIDIA apt", "gpu_apt_key_fingerprint"))
-
-
-def key_is_current(snap: Snapshot, path: str, fingerprint: str) -> bool:
-    current = snap.files.get(path)
-    return (
-        current is not None
-        and current.kind == "file"
-        and current.mode == "644"
-        and aptkey.only_pinned(snap.probes.get(KEY_PROBE, ""), fingerprint)
+def repository(data, arch: str) -> aptrepo.Repository:
+    return aptrepo.Repository(
+        what="NVIDIA",
+        key_url=plan.key_url(data.gpu_apt_key_url, data.gpu_repo_url),
+        key_path=data.gpu_apt_key_path,
+        fingerprint=values.normal_fingerprint(data.gpu_apt_key_fingerprint),
+        fingerprint_setting="gpu_apt_key_fingerprint",
+        sources_name=data.gpu_apt_filename,
+        sources=plan.sources_text(plan.repo_uri(data.gpu_repo_url, data.gpu_apt_channel, arch), data.gpu_apt_key_path),
+        probe=KEY_PROBE,
     )
 
 
+def declare_reads(data, query: SnapshotQuery) -> None:
+    query.packages |= set(PREREQUISITES) | {plan.TOOLKIT}
+    query.files |= {aptrepo.KEYRING_DIR, data.gpu_apt_key_path, sources_path(data)}
+    query.probes[READINGS] = plan.readings_probe(data.gpu_driver_version_file)
+    query.probes[KEY_PROBE] = aptrepo.fingerprints_probe(data.gpu_apt_key_path)
+
+
 @deploy("GPU")
-def nvidia_toolkit(snap: Snapshot):
-    data = host.data
+def nvidia_toolkit(play: Play):
+    data, snap = play.data, play.snapshot
     readings = plan.parse_readings(snap.probes.get(READINGS, ""))
     problem = plan.driver_problem(readings, data.gpu_driver_version_file)
     if problem:
@@ -75,7 +71,7 @@ def nvidia_toolkit(snap: Snapshot):
         return
     versions = plan.package_versions(data.gpu_toolkit_version)
     if plan.platform(readings) == "jetson":
-        operations.apt_install(
+        apt.apt_install(
             name="Install JetPack's NVIDIA container toolkit (L4T sources, no desktop repository)",
             packages=[plan.TOOLKIT],
             installed=snap.packages,
@@ -88,36 +84,40 @@ def nvidia_toolkit(snap: Snapshot):
         operations.fail(name="Check the host can run the NVIDIA container toolkit", message=str(error))
         return
 
-    fingerprint = data.gpu_apt_key_fingerprint.replace(" ", "").upper()
-    operations.apt_install(
+    apt.apt_install(
         name="Install apt prerequisites for NVIDIA's repository",
         packages=PREREQUISITES,
         installed=snap.packages,
         update_first=True,
     )
-    key = pinned_key(
-        name="Download NVIDIA's apt key and check it is exactly the pinned key",
-        url=plan.key_url(data.gpu_apt_key_url, data.gpu_repo_url),
-        path=data.gpu_apt_key_path,
-        fingerprint=fingerprint,
-        up_to_date=key_is_current(snap, data.gpu_apt_key_path, fingerprint),
-    )
-    source = operations.file(
-        name="Write the NVIDIA container toolkit apt source",
-        path=sources_path(data),
-        content=plan.sources_text(
-            plan.repo_uri(data.gpu_repo_url, data.gpu_apt_channel, snap.arch), data.gpu_apt_key_path
-        ),
-        current=snap.files.get(sources_path(data)),
-    )
-    operations.run(
-        name="apt update for NVIDIA's repository",
-        script=operations.APT_UPDATE,
-        _if=any_changed(key, source),
-    )
-    operations.apt_install(
+    aptrepo.set_up(repository(data, snap.arch), snap)
+    apt.apt_install(
         name="Install the NVIDIA container toolkit",
         packages=[plan.TOOLKIT],
         installed=snap.packages,
         versions=versions,
     )
+
+
+STATUS = StatusPart(
+    command=plan.status_command,
+    cells=plan.status_cells,
+    columns=(("gpu_driver", "GPU DRIVER"), ("gpu_runtime", "GPU RUNTIME")),
+    order=30,
+)
+
+ROLE = Role(
+    name="gpu",
+    doc="The NVIDIA container toolkit on GPU hosts, its runtime in daemon.json, GPUs for the payload.",
+    settings=settings.SETTINGS,
+    # First in deploy.py: a host without a loaded driver fails before anything is installed.
+    runs_on=plan.wanted,
+    reads=declare_reads,
+    steps=nvidia_toolkit,
+    adds={
+        docker_hooks.DAEMON_OPTIONS: plan.daemon_options,
+        payload_hooks.SERVICES: plan.payload_services,
+        payload_hooks.CHECKS: plan.check_command,
+    },
+    status=STATUS,
+)

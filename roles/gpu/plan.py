@@ -7,22 +7,23 @@ key at ``<repo>/gpgkey``; see roles/gpu/__init__.py for the steps."""
 
 from __future__ import annotations
 
+import base64
+import re
 import shlex
+
+from engine.host import aptrepo
+from engine.host import platform as host_platform
+from engine.host.platform import PlanError
 
 TOOLKIT = "nvidia-container-toolkit"
 RUNTIME_NAME = "nvidia"
 RUNTIME_PATH = "nvidia-container-runtime"
 TEGRA_RELEASE = "/etc/nv_tegra_release"
-ARCHITECTURES = ("amd64", "arm64")
 SUPPORTED = {"ubuntu": ("jammy", "noble"), "debian": ("bookworm", "trixie")}
 DRIVER_MISSING = (
     "gpu: no NVIDIA driver is loaded ({detail}); install the NVIDIA driver first "
     "(this tool does not install kernel drivers), then run again"
 )
-
-
-class PlanError(Exception):
-    """The host cannot get what its data asks for; fails that host only."""
 
 
 def wanted(data) -> bool:
@@ -48,8 +49,6 @@ def readings_probe(driver_version_file: str) -> str:
 
 
 def parse_readings(text: str) -> dict[str, str]:
-    import base64
-
     values = {}
     for line in (text or "").splitlines():
         key, sep, value = line.partition("=")
@@ -66,8 +65,6 @@ def parse_readings(text: str) -> dict[str, str]:
 
 def driver_version(first_line: str) -> str | None:
     """'NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14  Thu ...' -> '550.54.14'."""
-    import re
-
     found = re.search(r"\s(\d+(?:\.\d+)+)(?:\s|$)", first_line)
     return found.group(1) if found else None
 
@@ -97,17 +94,15 @@ def driver_problem(readings: dict[str, str], driver_version_file: str) -> str | 
 
 
 def check_os(os_release: dict, arch: str) -> None:
-    ident = os_release.get("id", "")
-    like = os_release.get("id_like", "").split()
-    dist = "ubuntu" if ident == "ubuntu" or "ubuntu" in like else "debian" if ident == "debian" or "debian" in like else None
-    if dist is None:
-        raise PlanError(f"gpu: {os_release.get('pretty_name') or ident or 'this OS'} is not Ubuntu or Debian")
-    codename = (os_release.get("ubuntu_codename") if dist == "ubuntu" else None) or os_release.get("version_codename")
-    if codename not in SUPPORTED[dist]:
-        raise PlanError(f"gpu: {dist} {codename or '(unknown release)'} is not supported for the container toolkit "
-                        f"(supported: {', '.join(SUPPORTED['ubuntu'] + SUPPORTED['debian'])})")
-    if arch not in ARCHITECTURES:
-        raise PlanError(f"gpu: architecture {arch or 'unknown'} is not supported (supported: amd64, arm64)")
+    try:
+        dist = host_platform.distribution(os_release)
+        codename = (os_release.get("ubuntu_codename") if dist == "ubuntu" else None) or os_release.get("version_codename")
+        if codename not in SUPPORTED[dist]:
+            raise PlanError(f"{dist} {codename or '(unknown release)'} is not supported for the container toolkit "
+                            f"(supported: {', '.join(SUPPORTED['ubuntu'] + SUPPORTED['debian'])})")
+        host_platform.architecture(arch)
+    except PlanError as error:
+        raise PlanError(f"gpu: {error}") from None
 
 
 def repo_uri(repo_url: str, channel: str, arch: str) -> str:
@@ -123,27 +118,21 @@ def sources_text(uri: str, key_path: str) -> str:
     """deb822 form of NVIDIA's one-line source
     ``deb [signed-by=KEY] <repo>/stable/deb/$(ARCH) /`` (a flat repository:
     the suite is "/", no components), with the architecture resolved."""
-    return (
-        "# Managed by the robot fleet provisioner (roles/gpu).\n"
-        "Types: deb\n"
-        f"URIs: {uri}\n"
-        "Suites: /\n"
-        f"Signed-By: {key_path}\n"
-    )
+    return aptrepo.deb822("roles/gpu", uri, "/", key_path)
 
 
 def package_versions(version: str | None) -> dict[str, str]:
     return {TOOLKIT: version} if version else {}
 
 
-# --- daemon.json (owned by the docker role) -------------------------------------
+# --- what the gpu role adds to the docker and payload roles (roles/gpu/__init__.py)
 
 
 def daemon_options(data, options: dict) -> dict:
     """``options`` with the NVIDIA runtime merged in where the host is a GPU
-    host (and ``default-runtime`` when asked).  The docker role calls this
-    while building daemon.json, so the file keeps one owner and Docker
-    restarts only when the result changes.  Runtimes already declared in
+    host (and ``default-runtime`` when asked).  Added through the docker
+    role's hook, so daemon.json keeps one owner and Docker restarts only when
+    the result changes.  Runtimes already declared in
     ``docker_daemon_options`` are kept; an explicit ``nvidia`` entry wins."""
     if not wanted(data):
         return options
@@ -156,9 +145,6 @@ def daemon_options(data, options: dict) -> dict:
     return merged
 
 
-# --- the payload --------------------------------------------------------------
-
-
 def payload_environment(data) -> dict[str, str]:
     """What the NVIDIA runtime reads in a GPU payload: which GPUs, and which
     driver parts to inject (graphics too when the host has a display: rviz with GL)."""
@@ -169,6 +155,17 @@ def payload_environment(data) -> dict[str, str]:
             "NVIDIA_DRIVER_CAPABILITIES": capabilities}
 
 
+RESERVATION = {"resources": {"reservations": {"devices": [{"driver": "nvidia", "count": "all", "capabilities": ["gpu"]}]}}}
+
+
+def payload_services(data, services: dict) -> dict:
+    """Where the payload asks for GPUs: each service gets the NVIDIA
+    environment and a device reservation."""
+    if not data.get("payload_gpu"):
+        return {}
+    return {"*": {"environment": payload_environment(data), "deploy": RESERVATION}}
+
+
 def check_command(data) -> list[str] | None:
     """The command payloadctl runs in each payload container after it is
     healthy; None: no GPU check."""
@@ -176,3 +173,24 @@ def check_command(data) -> list[str] | None:
         return None
     command = data.get("gpu_check_command")
     return list(command) if command else None
+
+
+# --- status -------------------------------------------------------------------
+
+
+def status_command(data) -> str:
+    """One line: '<the driver version file's first line><TAB>yes|no' (yes:
+    Docker lists the nvidia runtime)."""
+    path = shlex.quote(data.get("gpu_driver_version_file") or "/proc/driver/nvidia/version")
+    return (
+        f"printf '%s\\t%s\\n' \"$(head -n 1 {path} 2>/dev/null)\" "
+        "\"$(docker info -f '{{json .Runtimes}}' 2>/dev/null | grep -q '\"nvidia\"' && echo yes || echo no)\""
+    )
+
+
+def status_cells(output: str) -> dict:
+    driver_line, _, runtime = (output.splitlines() or [""])[0].partition("\t")
+    driver = driver_version(driver_line)
+    runtime = runtime.strip() == "yes"
+    # A host with neither a driver nor the runtime is not a GPU host: "-", not "no".
+    return {"gpu_driver": driver, "gpu_runtime": runtime if (driver or runtime) else None}

@@ -7,9 +7,10 @@ import json
 
 import yaml
 
-from roles.gpu import plan as gpu_plan
+import roles.payload.presets as presets
+import roles.payload.services as services
 
-SERVICE = "payload"
+SERVICE = services.SHORTHAND
 
 
 def environment(data, address: str) -> dict[str, str]:
@@ -24,7 +25,23 @@ def environment(data, address: str) -> dict[str, str]:
     return env
 
 
-def document(data, image: str, address: str, devices: list[str], x11: dict | None) -> dict:
+def combined(additions: list[dict], name: str) -> dict:
+    """What the other roles give service ``name`` (hooks.SERVICES; "*" is
+    every service), in their order: environments merge, volumes and devices
+    add up."""
+    result: dict = {"environment": {}, "volumes": [], "devices": [], "deploy": None}
+    for added in additions:
+        for mine in (added.get("*") or {}, added.get(name) or {}):
+            result["environment"].update(mine.get("environment") or {})
+            result["volumes"] += mine.get("volumes") or []
+            result["devices"] += mine.get("devices") or []
+            result["deploy"] = mine.get("deploy") or result["deploy"]
+    return result
+
+
+def base_service(data, image: str, address: str, added: dict) -> dict:
+    """One service with our defaults: restart, network, ROS environment,
+    the payload label, and what the other roles add."""
     service: dict = {
         "image": image,
         "restart": data.payload_restart_policy,
@@ -34,22 +51,15 @@ def document(data, image: str, address: str, devices: list[str], x11: dict | Non
     }
     if data.payload_command:
         service["command"] = list(data.payload_command)
-    volumes = list(data.payload_volumes)
-    if x11:
-        service["environment"].update(x11["environment"])
-        volumes += x11["volumes"]
+    service["environment"].update(added["environment"])
+    volumes = list(data.payload_volumes) + added["volumes"]
     if volumes:
         service["volumes"] = volumes
-    if devices:
-        service["devices"] = [f"{path}:{path}" for path in devices]
-    if data.payload_gpu:
-        service["environment"].update(gpu_plan.payload_environment(data))
-        service["deploy"] = {
-            "resources": {
-                "reservations": {"devices": [{"driver": "nvidia", "count": "all", "capabilities": ["gpu"]}]}
-            }
-        }
-    return escape_interpolation({"name": data.payload_name, "services": {SERVICE: service}})
+    if added["devices"]:
+        service["devices"] = list(added["devices"])
+    if added["deploy"]:
+        service["deploy"] = added["deploy"]
+    return service
 
 
 def escape_interpolation(value):
@@ -78,24 +88,19 @@ def spec_hash(doc: dict, autostart: bool) -> str:
     return hashlib.sha256(canonical.encode()).hexdigest()
 
 
-# --- the compose project: several services (roles/payload/services.py) ------------
-
-
-def project(data, address: str, gui: dict | None) -> dict:
+def project(data, address: str, additions: list[dict] = ()) -> dict:
     """The whole project: every declared service (or the single-image
-    shorthand, whose document is exactly ``document``'s), each built on the
-    single service's defaults with the ROS preset and the user's keys on top."""
-    from roles.payload import services
-
+    shorthand as one service called payload), each built on our defaults
+    with the ROS preset and the user's keys on top.  ``additions``: what the
+    other roles give each service (``hooks.SERVICES``)."""
     declared = services.declared(data)
-    extra = services.preset(data, address)
-    devices = services.sensor_services(data, declared)
+    extra = presets.preset(data, address)
     built = {}
     for name, user in {**extra["extra"], **declared}.items():
         if name in extra["extra"] and name in declared:
             user = services.merge(extra["extra"][name], declared[name])
-        base = document(data, user.get("image"), address, devices.get(name, []), gui)["services"][SERVICE]
-        # document() escapes its own values; the user's and the preset's are escaped here, once.
+        base = escape_interpolation(base_service(data, user.get("image"), address, combined(list(additions), name)))
+        # The user's and the preset's values are escaped here, once.
         built[name] = services.service(base, escape_interpolation(user), escape_interpolation(extra), name)
     doc = {"name": data.payload_name, "services": built}
     replaces = list(getattr(data, "payload_replaces", None) or [])

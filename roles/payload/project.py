@@ -1,9 +1,7 @@
-"""The deploy's side of the compose project (issue 13): what it reads in the
-host snapshot, the DDS profile file, and saying what will be taken over.
-
-Called from roles/payload/__init__.py by one line each in declare_reads and
-deploy_payload; payloadctl does the takeover itself (so it can undo it).
-"""
+"""The deploy's side of the compose project: what it reads in the host
+snapshot, the DDS profile file, the other services' images for push, and
+saying what will be taken over (payloadctl does the takeover itself, so it
+can undo it)."""
 
 from __future__ import annotations
 
@@ -12,9 +10,12 @@ import shlex
 
 from pyinfra import host, logger
 
-from roles import imageref, operations
-from roles.hoststate import Snapshot, SnapshotQuery
-from roles.payload import push, services
+from engine.host import operations
+from engine.host.snapshot import Snapshot, SnapshotQuery
+import roles.payload.imageref as imageref
+import roles.payload.presets as presets
+import roles.payload.push as push
+import roles.payload.services as services
 
 FOREIGN_PROBE = "payload_foreign"
 # One line per container: id, name, image, compose project, running, restart policy.
@@ -35,7 +36,7 @@ def primary_image(data) -> str | None:
 
 def declare_reads(data, query: SnapshotQuery) -> None:
     if data.ros_preset == "ros2" and data.ros_dds_profile:
-        query.files |= {services.dds_profile_host_path(data), f"/etc/{data.payload_name}"}
+        query.files |= {presets.dds_profile_host_path(data), f"/etc/{data.payload_name}"}
     if data.payload_autostart:
         query.probes[FOREIGN_PROBE] = _INSPECT
     if data.payload_delivery == "push":
@@ -122,8 +123,8 @@ def install_files(data, snap: Snapshot) -> None:
     """The ROS 2 DDS profile, read-only for the containers."""
     if data.ros_preset != "ros2" or not data.ros_dds_profile:
         return
-    path = services.dds_profile_host_path(data)
+    path = presets.dds_profile_host_path(data)
     operations.directory(name=f"/etc/{data.payload_name}", path=f"/etc/{data.payload_name}",
                          current=snap.files.get(f"/etc/{data.payload_name}"))
     operations.file(name=f"DDS profile {data.ros_dds_profile}", path=path,
-                    content=services.dds_profile_text(data), current=snap.files.get(path), mode="0644")
+                    content=presets.dds_profile_text(data), current=snap.files.get(path), mode="0644")

@@ -25,7 +25,7 @@ import tempfile
 from pyinfra import host
 from pyinfra.api import FunctionCommand, StringCommand
 
-from roles import operations
+from engine.host import operations
 
 LAYERS_PROBE = (
     "docker image ls -q --no-trunc | sort -u | "

@@ -11,9 +11,11 @@ from pyinfra import host
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
-from roles import operations
-from roles.hoststate import Snapshot, SnapshotQuery
-from roles.udev import rules
+from engine.host import operations
+from engine.host.snapshot import SnapshotQuery
+from engine.role import Play, Role
+import roles.payload.hooks as payload_hooks
+from roles.udev import passthrough, rules, settings
 
 VENDOR_RULES_DIR = Path(__file__).resolve().parents[2] / "files" / "udev"
 RULES_DIR = "/etc/udev/rules.d"
@@ -80,8 +82,8 @@ def reload_rules(subsystems: set[str]):
 
 
 @deploy("Sensors (udev)")
-def sensor_rules(snap: Snapshot):
-    data = host.data
+def sensor_rules(play: Play):
+    data, snap = play.data, play.snapshot
     for name in data.udev_vendor_rules:
         if not (VENDOR_RULES_DIR / name).is_file():
             operations.fail(name="Check vendor rules", message=f"udev_vendor_rules: files/udev/{name} does not exist")
@@ -118,3 +120,15 @@ def sensor_rules(snap: Snapshot):
             subsystems=subsystems,
             _if=any_changed(*changes),
         )
+
+
+ROLE = Role(
+    name="udev",
+    doc="udev rules that give sensors stable names (two identical cameras become front/back); the payload gets the devices.",
+    settings=settings.SETTINGS,
+    runs_on=lambda data: bool(data.sensors or data.udev_vendor_rules),
+    reads=declare_reads,
+    steps=sensor_rules,
+    rules=lambda data, refused: settings.rules(data, refused) + passthrough.problems(data, refused),
+    adds={payload_hooks.SERVICES: passthrough.devices_for},
+)

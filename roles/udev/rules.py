@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from roles.settings import DEFAULT_SENSOR_GROUP
+from roles.udev.settings import DEFAULT_SENSOR_GROUP
 
 HEADER = (
     "# Managed by the robot fleet provisioner (roles/udev) from the fleet file's\n"

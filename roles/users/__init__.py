@@ -12,8 +12,10 @@ import shlex
 from pyinfra import host
 from pyinfra.api import deploy
 
-from roles import operations
-from roles.hoststate import Snapshot, SnapshotQuery
+from engine.host import operations
+from engine.host.snapshot import SnapshotQuery
+from engine.role import Play, Role
+from roles.users import settings
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -43,9 +45,18 @@ def docker_group_members(users: list[str], groups_now: dict[str, list[str] | Non
 
 
 @deploy("Users")
-def docker_users(snap: Snapshot):
+def docker_users(play: Play):
     docker_group_members(
         name="Add users to the docker group",
-        users=host.data.docker_users,
-        groups_now=snap.users,
+        users=play.data.docker_users,
+        groups_now=play.snapshot.users,
     )
+
+
+ROLE = Role(
+    name="users",
+    doc="The declared users join the docker group (never created).",
+    settings=settings.SETTINGS,
+    reads=declare_reads,
+    steps=docker_users,
+)

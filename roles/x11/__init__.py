@@ -10,11 +10,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import jinja2
-from pyinfra import host
 from pyinfra.api import deploy
 
-from roles import operations
-from roles.hoststate import Snapshot, SnapshotQuery
+from engine.host import apt, operations
+from engine.host.snapshot import SnapshotQuery
+from engine.role import Play, Role
+import roles.payload.hooks as payload_hooks
+from roles.x11 import settings
 
 HERE = Path(__file__).resolve().parent
 COOKIE_SCRIPT = "/usr/local/bin/robot-x11-cookie"
@@ -47,17 +49,20 @@ def compose_settings(data) -> dict:
     }
 
 
+def payload_services(data, services: dict) -> dict:
+    """The payload hook: where the host has a display, every service gets it."""
+    return {"*": compose_settings(data)} if data.get("display") else {}
+
+
 def declare_reads(data, query: SnapshotQuery) -> None:
-    if not data.display:
-        return
     query.packages.add("xauth")
     query.files |= {COOKIE_SCRIPT, XSESSION_HOOK, AUTOSTART, data.x11_cookie_dir, cookie_dir(data)}
     query.users.add(data.x11_user)
 
 
 @deploy("X11")
-def x11_cookie(snap: Snapshot):
-    data = host.data
+def x11_cookie(play: Play):
+    data, snap = play.data, play.snapshot
     groups = snap.users.get(data.x11_user)
     if groups is None:
         operations.fail(
@@ -65,7 +70,7 @@ def x11_cookie(snap: Snapshot):
             message=f"x11_user: {data.x11_user} does not exist on this host",
         )
         return
-    operations.apt_install(name="Install xauth", packages=["xauth"], installed=snap.packages)
+    apt.apt_install(name="Install xauth", packages=["xauth"], installed=snap.packages)
     operations.file(
         name="Install the cookie script",
         path=COOKIE_SCRIPT,
@@ -96,3 +101,15 @@ def x11_cookie(snap: Snapshot):
         user=data.x11_user,
         group=groups[0],
     )
+
+
+ROLE = Role(
+    name="x11",
+    doc="X11 access for GUI containers (rviz) with an xauth cookie refreshed at each login; never xhost +.",
+    settings=settings.SETTINGS,
+    runs_on=lambda data: bool(data.display),
+    reads=declare_reads,
+    steps=x11_cookie,
+    rules=settings.rules,
+    adds={payload_hooks.SERVICES: payload_services},
+)

@@ -8,7 +8,7 @@ For N robots (no laptop), on a lab of its own:
            + the payload's health window, by hand over SSH on fresh hosts
   fresh    the first deploy.py run (hosts reset to fresh first)
   no-op    converged reruns (median) and SSH commands per host
-  rollout  python3 -m roles.rollout of the whole fleet (canary 1, batch 50%)
+  rollout  python3 -m engine rollout of the whole fleet (canary 1, batch 50%)
   update   all N robots to another tag, then one robot; each robot's payload
            downtime (old container dies -> new one starts, from docker events)
   crash    one robot to the crash-looping tag: time until the old release
@@ -186,7 +186,7 @@ class Bench:
 
         log("rollout of the whole fleet to 1.1 (canary 1, batch 50%)")
         started = time.monotonic()
-        proc = subprocess.run([sys.executable, "-m", "roles.rollout", "inventories/lab.py", "-y",
+        proc = subprocess.run([sys.executable, "-m", "engine", "rollout", "inventories/lab.py", "-y",
                                "--canary", "1", "--batch", "50%"], cwd=ROOT, env=self.env("1.1"),
                               capture_output=True, text=True)
         r["rollout"] = time.monotonic() - started

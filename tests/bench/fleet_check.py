@@ -35,10 +35,11 @@ def main() -> None:
     parser.add_argument("--hosts", type=int, default=1000)
     args = parser.parse_args()
     started = time.perf_counter()
-    from roles import fleet as fleet_module
-    from roles.payload import services
+    from engine import roster
+    from engine.fleet import check as fleet_module
+    from roles.payload import problems as services
 
-    defaults = fleet_module.read_group_data()
+    registry = roster.registry()
     services.compose_schema()
     services._validator()
     print(f"import + schema load: {time.perf_counter() - started:.3f} s")
@@ -46,7 +47,7 @@ def main() -> None:
         doc = fleet(args.hosts, with_services)
         services._schema_problems.cache_clear()
         t = time.perf_counter()
-        fleet_module.check(doc, "bench.yaml", defaults)
+        fleet_module.check(doc, "bench.yaml", registry)
         seconds = time.perf_counter() - t
         print(f"{label}: {args.hosts} hosts checked in {seconds:.3f} s ({seconds / args.hosts * 1000:.2f} ms/host)")
 

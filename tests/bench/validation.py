@@ -17,7 +17,8 @@ from pathlib import Path
 
 import yaml
 
-from roles import fleet
+from engine import roster
+from engine.fleet import check as fleet
 
 SENSORS = (
     '        - {name: front_camera, subsystem: video4linux, vendor_id: "046d", product_id: "0825", usb_port: "1-1.2"}\n'
@@ -42,7 +43,7 @@ def measure(path: Path, runs: int) -> tuple[float, float, int]:
     best_wall = best_cpu = float("inf")
     for _ in range(runs):
         wall, cpu = time.perf_counter(), time.process_time()
-        loaded = fleet.load(path)
+        loaded = fleet.load(path, roster.registry())
         best_wall = min(best_wall, time.perf_counter() - wall)
         best_cpu = min(best_cpu, time.process_time() - cpu)
     return best_wall, best_cpu, len(loaded.hosts("robots"))
@@ -53,7 +54,7 @@ def main() -> None:
     parser.add_argument("--hosts", type=int, default=5000)
     parser.add_argument("--runs", type=int, default=3)
     args = parser.parse_args()
-    fleet.read_group_data()  # warm imports once
+    roster.registry()  # warm imports once
     with tempfile.TemporaryDirectory() as directory:
         for label, sensors in (("address only", False), ("address + 2 sensors", True)):
             path = Path(directory) / "robots.yaml"

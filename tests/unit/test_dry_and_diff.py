@@ -5,10 +5,11 @@ import logging
 
 import pytest
 
-from roles import operations
-from roles.hoststate import FileState
-from tests.unit.fakefleet import find, fresh_host, plan
-from tests.unit.test_plan import ROBOT, _file, converged
+from engine.host import operations
+from engine.host.snapshot import FileState
+from tests.unit.harness import find, fresh_host, plan
+from engine.host.fixtures import file_state as _file
+from tests.unit.harness import ROBOT, converged
 
 DAEMON_JSON = "/etc/docker/daemon.json"
 DRIFTED = '{\n  "live-restore": false\n}\n'
@@ -97,7 +98,7 @@ def test_a_planned_failure_still_fails_the_host_when_run():
 CLI = """
 import sys
 from pyinfra_cli.main import main
-from tests.unit.fakefleet import _Recorder, fresh_host
+from tests.unit.harness import _Recorder, fresh_host
 sys.argv = ["pyinfra", *sys.argv[1:]]
 with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}, {}):
     main()
@@ -110,7 +111,7 @@ def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
     import subprocess
     import sys
 
-    from tests.unit.fakefleet import ROOT
+    from tests.unit.harness import ROOT
 
     host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
     inventory = tmp_path / "fake.py"
@@ -131,7 +132,7 @@ def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
 DIFF_CLI = """
 import sys
 from pyinfra_cli.main import main
-from tests.unit.fakefleet import _Recorder
+from tests.unit.harness import _Recorder
 from tests.unit.test_dry_and_diff import DAEMON_JSON, DRIFTED, drifted_robot
 sys.argv = ["pyinfra", *sys.argv[1:]]
 with _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}) as recorder:
@@ -147,7 +148,7 @@ def test_pyinfra_dry_diff_prints_the_drifted_file(tmp_path):
     import subprocess
     import sys
 
-    from tests.unit.fakefleet import ROOT
+    from tests.unit.harness import ROOT
 
     inventory = tmp_path / "fake.py"
     host = {**ROBOT, "fake_delay": 0, "fake_delay_jitter": 0}

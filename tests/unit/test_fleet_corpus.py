@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from roles import fleet
+from tests.unit import harness as fleet
 
 BASE = "all:\n  vars:\n    payload_image: reg.example.com/p:1\n"
 
@@ -236,7 +236,7 @@ def test_without_libyaml_the_same_problems_are_found(monkeypatch):
     syntax error may differ, the problems and their places do not."""
     import yaml
 
-    from roles import fleetyaml
+    from engine.fleet import loader as fleetyaml
 
     # (5,000 levels of nesting only make PyYAML's recursive parser slow.)
     expected = {name: lines(text) for name, text, _ in CORPUS if name not in ("too large", "deep nesting")}

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from roles import fleet, settings
+from tests.unit import harness as fleet
 
 ROOT = Path(__file__).resolve().parents[2]
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
@@ -67,7 +67,7 @@ def random_value(rng: random.Random, depth: int = 0):
 def random_key(rng: random.Random):
     kind = rng.randrange(8)
     if kind < 4:
-        return rng.choice(list(settings.SCHEMA) + ["address", "name", "serial", "subsystem", "live-restore"])
+        return rng.choice(list(fleet.setting_checks()) + ["address", "name", "serial", "subsystem", "live-restore"])
     if kind < 7:
         return random_scalar(rng) if rng.random() < 0.5 else rng.choice(HOSTILE_TEXT)
     return rng.choice([1, 8, True, None, 1.5])
@@ -89,7 +89,7 @@ def mutate_data(rng: random.Random, doc: dict) -> None:
             doc["all"]["vars"], doc["robots"]["hosts"]["r0"], doc["robots"]["hosts"]["r1"]["sensors"][0],
             doc["laptops"]["hosts"]["l1"], doc["robots"],
         ])
-        key = rng.choice(list(settings.SCHEMA)) if rng.random() < 0.7 else random_key(rng)
+        key = rng.choice(list(fleet.setting_checks())) if rng.random() < 0.7 else random_key(rng)
         layer[key] = random_value(rng)
     if rng.random() < 0.2:
         doc["robots"]["hosts"][random_key(rng)] = random_value(rng)
@@ -201,8 +201,8 @@ WRONG_TYPES = [-1, 2**70, float("nan"), False, None, "", "x" * 500, [[[]]], {1: 
 def test_wrong_types_at_every_setting_in_every_layer():
     """The sweep behind the random documents: each setting, each layer, each
     kind of value: a file+field line or acceptance, nothing else."""
-    defaults = fleet.read_group_data()
-    for setting in settings.SCHEMA:
+    defaults = fleet.group_data()
+    for setting in fleet.setting_checks():
         for value in WRONG_TYPES:
             for layer in ("all.vars", "host"):
                 doc = good_fleet(9)
@@ -210,7 +210,7 @@ def test_wrong_types_at_every_setting_in_every_layer():
                 target[setting] = value
                 try:
                     with hang_guard(HANG_SECONDS):
-                        fleet.check(doc, SHOWN, defaults)
+                        fleet.check(doc, SHOWN)
                 except fleet.FleetError as error:
                     assert_problem_lines(error.lines, f"{setting}={value!r} in {layer}", b"")
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 from roles.payload import payloadctl
-from tests.unit.fakefleet import find, fresh_host, plan, written_files
-from tests.unit.test_plan import ROBOT
+from tests.unit.harness import find, fresh_host, plan, written_files
+from tests.unit.harness import ROBOT
 
 GOLDEN = Path(__file__).resolve().parent / "golden"
 REGENERATE = os.environ.get("ROBOT_REGENERATE_GOLDEN") == "1"

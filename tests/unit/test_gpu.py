@@ -8,10 +8,10 @@ import subprocess
 
 import pytest
 
-from roles.gpu import aptkey
+from engine.host import aptrepo
 from roles.gpu import plan as gpu_plan
-from roles.hoststate import FileState
-from tests.unit.fakefleet import find, fresh_host, plan, written_files
+from engine.host.snapshot import FileState
+from tests.unit.harness import find, fresh_host, plan, written_files
 
 IMAGE = "reg.example.com/ros/payload:1.0"
 NVIDIA_FPR = "C95B321B61E88C1809C4F759DDCAE044F796ECB0"
@@ -64,7 +64,7 @@ def test_gpu_host_gets_nvidias_repository_key_pin_and_toolkit(os_name, arch):
     assert result.failed == set()
     key = find(commands, "nvidia.github.io/libnvidia-container/gpgkey")
     assert len(key) == 1
-    assert f"[ \"$fprs\" = {NVIDIA_FPR} ]" in key[0] and f"dest={KEY}" in key[0]
+    assert f"pin={NVIDIA_FPR}" in key[0] and f"dest={KEY}" in key[0]
     assert written_files(commands)[SOURCES].splitlines()[1:] == [
         "Types: deb",
         f"URIs: https://nvidia.github.io/libnvidia-container/stable/deb/{arch}",
@@ -73,7 +73,10 @@ def test_gpu_host_gets_nvidias_repository_key_pin_and_toolkit(os_name, arch):
     ]
     install = find(commands, r"--allow-downgrades install nvidia-container-toolkit\b")
     assert len(install) == 1
-    update = find(commands, r"^sh -c 'apt-get -q .* update'$")
+    # apt update waits for the apt lock like every other apt call (it ran
+    # outside the lock helper before, with $(apt_lock_left) undefined).
+    update = find(commands, r"apt_locked apt-get -q .* update\n'$")
+    assert update and all("apt_lock_timeout=300\n" in c and "apt_lock_left()" in c for c in update)
     docker_install = find(commands, "install docker-ce ")[0]
     # Key and source first, then apt update, then the toolkit, all before Docker.
     assert commands.index(key[0]) < commands.index(update[0]) < commands.index(install[0]) < commands.index(docker_install)
@@ -148,14 +151,14 @@ def test_keyring_with_an_extra_primary_key_is_replaced():
     snap.probes["gpu_key_fingerprints"] = NVIDIA_FPR + "\n" + "A" * 40 + "\n"
     commands = plan({"r1": ("robots", GPU_ROBOT, snap)})["r1"]
     assert len(find(commands, "libnvidia-container/gpgkey")) == 1
-    assert find(commands, r"update'$")
+    assert find(commands, r"update\n'$")
 
 
 def test_default_runtime_version_pin_and_mirror():
     data = {**GPU_ROBOT, "gpu_default_runtime": True, "gpu_toolkit_version": "1.17.8-1",
             "gpu_repo_url": "http://mirror.lan/nvidia", "gpu_apt_key_url": "http://mirror.lan/nvidia.asc"}
     commands = plan({"r1": ("robots", data, gpu_host("debian-12", "arm64"))})["r1"]
-    assert find(commands, "curl .* http://mirror.lan/nvidia.asc")
+    assert find(commands, "url=http://mirror.lan/nvidia.asc\n(.|\n)*curl ")
     assert "URIs: http://mirror.lan/nvidia/stable/deb/arm64" in written_files(commands)[SOURCES]
     assert find(commands, "install nvidia-container-toolkit=1.17.8-1 ")
     assert json.loads(written_files(commands)["/etc/docker/daemon.json"])["default-runtime"] == "nvidia"
@@ -213,29 +216,29 @@ def test_key_download_accepts_exactly_the_pinned_primary_key(tmp_path, case):
     key.write_bytes(subprocess.run(["gpg", "--batch", "--homedir", str(home), "--armor", "--export", *exported],
                                    check=True, capture_output=True).stdout)
     dest = tmp_path / "keyrings" / "nvidia.asc"
-    script = aptkey.download_script(f"file://{key}", str(dest), pinned, "NVIDIA apt", "gpu_apt_key_fingerprint")
+    script = aptrepo.key_script(aptrepo.Repository("NVIDIA", f"file://{key}", str(dest), pinned, "gpu_apt_key_fingerprint",
+                                                   "nvidia-container-toolkit", "", "gpu_key_fingerprints"))
     proc = subprocess.run(["sh", "-c", script], capture_output=True, text=True)
     if case == "pinned":
         assert proc.returncode == 0, proc.stderr
         assert dest.read_bytes() == key.read_bytes()
-        probe = subprocess.run(["sh", "-c", aptkey.fingerprints_probe(str(dest))], capture_output=True, text=True)
-        assert aptkey.only_pinned(probe.stdout, pinned)
+        probe = subprocess.run(["sh", "-c", aptrepo.fingerprints_probe(str(dest))], capture_output=True, text=True)
+        assert aptrepo.only_pinned(probe.stdout, pinned)
     else:
         assert proc.returncode == 1
-        assert "are not exactly the pinned gpu_apt_key_fingerprint" in proc.stderr
+        assert "gpu_apt_key_fingerprint" in proc.stderr and "key not installed" in proc.stderr
         assert not dest.exists() and list(dest.parent.iterdir()) == []  # nothing left behind
 
 
 def test_gpu_payload_gets_environment_reservation_and_check_command():
-    from roles import payload
-    from tests.unit.test_plan import merged
+    from tests.unit.harness import desired_compose, merged, release_spec
 
     data = merged("laptops", {"payload_image": IMAGE, "x11_user": "alice", "payload_gpu": True})
-    service = payload.desired_compose(data, "h")["services"]["payload"]
+    service = desired_compose(data, "h")["services"]["payload"]
     assert service["environment"]["NVIDIA_VISIBLE_DEVICES"] == "all"
     assert service["environment"]["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
     assert service["deploy"]["resources"]["reservations"]["devices"][0]["capabilities"] == ["gpu"]
-    assert payload.spec(data, {})["gpu_check"] == ["nvidia-smi", "-L"]
+    assert release_spec(data, {})["gpu_check"] == ["nvidia-smi", "-L"]
     plain = merged("robots", {"payload_image": IMAGE})
-    assert payload.spec(plain, {})["gpu_check"] is None
-    assert "NVIDIA_VISIBLE_DEVICES" not in payload.desired_compose(plain, "h")["services"]["payload"]["environment"]
+    assert release_spec(plain, {})["gpu_check"] is None
+    assert "NVIDIA_VISIBLE_DEVICES" not in desired_compose(plain, "h")["services"]["payload"]["environment"]

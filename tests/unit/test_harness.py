@@ -1,15 +1,16 @@
 """What the unit layer can see: the snapshot answers only declared reads, the
 harness records stdin, and importing the status module patches nothing."""
 
+import dataclasses
 import subprocess
 import sys
 
 import pytest
 
-from roles import hoststate
-from roles.hoststate import FileState, Readings, UndeclaredRead
-from tests.unit.fakefleet import everything_sent, find, fresh_host, plan, written_files
-from tests.unit.test_plan import LAPTOP, ROBOT, converged
+from engine.host import snapshot as hoststate
+from engine.host.snapshot import FileState, Readings, UndeclaredRead
+from tests.unit.harness import everything_sent, find, fresh_host, plan, written_files
+from tests.unit.harness import LAPTOP, ROBOT, converged
 
 
 def test_snapshot_refuses_a_read_nobody_declared():
@@ -42,13 +43,13 @@ def test_harness_answers_only_declared_reads(monkeypatch):
     if it had none and Docker would restart every run) fails the plan."""
     from roles import docker
 
-    declare = docker.declare_reads
+    declare = docker.ROLE.reads
 
     def forgetful(data, query):
         declare(data, query)
         query.files.discard(docker.DAEMON_JSON)
 
-    monkeypatch.setattr(docker, "declare_reads", forgetful)
+    monkeypatch.setattr(docker, "ROLE", dataclasses.replace(docker.ROLE, reads=forgetful))
     with pytest.raises(UndeclaredRead, match="daemon.json' was not read from the host"):
         plan({"r1": ("robots", ROBOT, converged("robots", ROBOT, "debian-13"))})
 
@@ -87,7 +88,7 @@ def test_registry_token_travels_only_as_stdin_of_the_login(monkeypatch):
 
 
 def test_importing_the_status_module_patches_nothing():
-    code = "import roles.status, gevent.monkey as m; print(m.is_module_patched('socket'), m.is_module_patched('ssl'))"
+    code = "import engine.commands.status, gevent.monkey as m; print(m.is_module_patched('socket'), m.is_module_patched('ssl'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
 
@@ -108,14 +109,14 @@ def test_a_role_that_stops_declaring_a_read_fails_the_plan(monkeypatch, role, ki
     import importlib
 
     module = importlib.import_module(f"roles.{role}")
-    declare = module.declare_reads
+    declare = module.ROLE.reads
 
     def forgetful(data, query):
         declare(data, query)
         readings = getattr(query, kind)
         readings.pop(key) if isinstance(readings, dict) else readings.discard(key)
 
-    monkeypatch.setattr(module, "declare_reads", forgetful)
+    monkeypatch.setattr(module, "ROLE", dataclasses.replace(module.ROLE, reads=forgetful))
     with pytest.raises(UndeclaredRead, match=f"{kind} '{key}' was not read"):
         plan({"r1": ("robots", ROBOT, converged("robots", ROBOT, "debian-13"))})
 

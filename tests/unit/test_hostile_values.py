@@ -17,7 +17,9 @@ from types import SimpleNamespace
 import pytest
 import yaml
 
-from roles import fleet, fleetyaml, settings
+from engine.fleet import loader as fleetyaml
+from roles.udev.settings import SENSOR_KEYS
+from tests.unit import harness as fleet
 from roles.docker import plan
 from roles.gpu import plan as gpu_plan
 from roles.payload import compose
@@ -35,7 +37,7 @@ HOSTILE = [
 ]
 # YAML 1.1 traps, written unquoted in the fleet file.
 YAML_TRAPS = ["NO", "off", "yes", "1.10", "0755", "12:30", "0x1F", "2026-01-02", "~"]
-DEFAULTS = fleet.read_group_data()
+DEFAULTS = fleet.group_data()
 
 # Where a free-text value is accepted, and how it travels to the host.
 CARRIED_AS_DATA = {
@@ -72,7 +74,7 @@ def places(name: str, value):
         yield place, text
         yield f"{place}, list item", [text]
     if name == "sensors":
-        for field in settings.SENSOR_KEYS:
+        for field in SENSOR_KEYS:
             sensor = {"name": "a", "subsystem": "tty", "serial": "1", field: value}
             if field in ("vendor_id", "product_id"):  # the pair rule is not what is tested here
                 sensor = {"vendor_id": "046d", "product_id": "0825", **sensor}
@@ -87,7 +89,7 @@ def places(name: str, value):
 def outcome(setting: str, value) -> list[str]:
     host = {"payload_image": "reg.example.com/p:1", setting: value}
     try:
-        fleet.check({"robots": {"hosts": {"r1": host}}}, "f.yaml", DEFAULTS)
+        fleet.check({"robots": {"hosts": {"r1": host}}}, "f.yaml")
     except fleet.FleetError as error:
         return error.lines
     return []
@@ -100,8 +102,8 @@ def host_data(**settings_) -> SimpleNamespace:
 def reaches_host_unchanged(setting: str, place: str, value, hostile: str) -> bool:
     carrier = CARRIED_AS_DATA[(setting, place)]
     if carrier == "compose":
-        data = host_data(**{setting: value})
-        text = compose.dump(compose.document(data, "reg.example.com/p:1", "10.0.0.1", [], None))
+        data = host_data(**{"payload_image": "reg.example.com/p:1", setting: value})
+        text = compose.dump(compose.project(data, "10.0.0.1"))
         service = yaml.safe_load(text)["services"][compose.SERVICE]
         got = service["environment"]["X"] if setting == "payload_environment" else service["command"][0]
         return got.replace("$$", "$") == hostile  # compose reads $$ as $
@@ -117,7 +119,7 @@ def reaches_host_unchanged(setting: str, place: str, value, hostile: str) -> boo
     )
 
 
-@pytest.mark.parametrize("setting", list(settings.SCHEMA))
+@pytest.mark.parametrize("setting", list(fleet.setting_checks()))
 def test_every_hostile_value_is_refused_in_one_line_or_reaches_the_host_as_data(setting):
     accepted = []
     for hostile in HOSTILE:
@@ -154,14 +156,14 @@ def test_yaml_1_1_traps_in_text_settings_say_quote_it(trap):
     """Unquoted, these are not the text written; every text setting refuses
     them with 'quote it' (or, for yes/no settings, reads the documented word)."""
     text_settings = [
-        name for name, check in settings.SCHEMA.items()
+        name for name, check in fleet.setting_checks().items()
         if check.schema.get("type") == "string" or "string" in json.dumps(check.schema)[:40]
     ]
     for name in text_settings:
         image = "" if name == "payload_image" else "      payload_image: reg.example.com/p:1\n"
         doc = fleetyaml.load(f"robots:\n  hosts:\n    r1:\n{image}      {name}: {trap}\n")
         try:
-            fleet.check(doc, "f.yaml", DEFAULTS)
+            fleet.check(doc, "f.yaml")
         except fleet.FleetError as error:
             (line,) = [line for line in error.lines if line.startswith(f"f.yaml: r1.{name}")]
             if trap == "~":
@@ -171,4 +173,4 @@ def test_yaml_1_1_traps_in_text_settings_say_quote_it(trap):
             continue
         # Accepted: only where YAML's reading is the documented value.
         value = doc["robots"]["hosts"]["r1"][name]
-        assert trap == "~" or name in settings.YES_NO, (name, trap, value)
+        assert trap == "~" or name in fleet.registry().words, (name, trap, value)

@@ -7,8 +7,9 @@ import subprocess
 
 import pytest
 
-from roles import docker
-from roles.hoststate import FileState, HostSnapshot, Snapshot
+from engine.host import aptrepo
+from engine.host.snapshot import FileState, HostSnapshot, Snapshot
+from tests.unit.harness import desired_compose, docker_repo
 
 
 def _gpg(home, *args, **kwargs):
@@ -41,7 +42,7 @@ def _sh(script: str) -> subprocess.CompletedProcess:
 
 
 def _probe(dest) -> list[str]:
-    return _sh(docker.key_fingerprints_probe(str(dest))).stdout.split()
+    return _sh(aptrepo.fingerprints_probe(str(dest))).stdout.split()
 
 
 def _snap(path, probe_output: str) -> Snapshot:
@@ -65,7 +66,7 @@ def test_a_key_file_holding_a_second_key_is_refused(tmp_path, keys):
     served.write_bytes(key + intruder)
     dest = tmp_path / "keyrings" / "docker.asc"
     dest.parent.mkdir()
-    proc = _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None))
+    proc = _sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None)))
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1, proc.stderr  # one line
     assert f"holds 2 keys ({fpr} {other}); only docker_apt_key_fingerprint {fpr} may be in it; key not installed" in proc.stderr
@@ -78,12 +79,12 @@ def test_a_poisoned_keyring_on_the_host_is_not_current_and_is_replaced(tmp_path,
     dest.parent.mkdir()
     dest.write_bytes(key + intruder)
     dest.chmod(0o644)
-    probe = _sh(docker.key_fingerprints_probe(str(dest))).stdout
-    assert not docker.key_is_current(_snap(dest, probe), str(dest), fpr, None)
-    assert docker.key_is_current(_snap(dest, fpr + "\n"), str(dest), fpr, None)
+    probe = _sh(aptrepo.fingerprints_probe(str(dest))).stdout
+    assert not aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, probe))
+    assert aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, fpr + "\n"))
     served = tmp_path / "gpg"
     served.write_bytes(key)
-    proc = _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None))
+    proc = _sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None)))
     assert proc.returncode == 0, proc.stderr
     assert _probe(dest) == [fpr]
     assert dest.read_bytes() == key
@@ -97,7 +98,7 @@ def test_a_poisoned_keyring_is_removed_even_when_the_mirror_still_serves_two_key
     dest.write_bytes(intruder + key)
     served = tmp_path / "gpg"
     served.write_bytes(intruder + key)
-    proc = _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None))
+    proc = _sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None)))
     assert proc.returncode == 1 and "key not installed" in proc.stderr
     assert list(dest.parent.iterdir()) == []
 
@@ -109,7 +110,7 @@ def test_a_single_good_key_is_kept_when_the_download_is_refused(tmp_path, keys):
     dest.write_bytes(key)
     served = tmp_path / "gpg"
     served.write_bytes(key + intruder)
-    assert _sh(docker.key_download_script(f"file://{served}", str(dest), fpr, None)).returncode == 1
+    assert _sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None))).returncode == 1
     assert dest.read_bytes() == key
 
 
@@ -124,7 +125,7 @@ def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload)
     assert subprocess.run(["curl", "-fsS", url], capture_output=True).returncode == 0  # the mismatch path is reached
     dest = tmp_path / "docker.asc"
     for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64)):
-        proc = _sh(docker.key_download_script(url, str(dest), fingerprint, sha256))
+        proc = _sh(aptrepo.key_script(docker_repo(url, str(dest), fingerprint, sha256)))
         assert proc.returncode == 1, proc.stderr
         assert "key not installed" in proc.stderr and url in proc.stderr, proc.stderr
         assert not pwned.exists(), f"the URL ran as a command: {proc.stderr}"
@@ -136,9 +137,8 @@ def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload)
 def test_every_string_written_to_compose_has_its_dollars_escaped():
     import yaml
 
-    from roles import payload
     from roles.payload import compose
-    from tests.unit.test_plan import merged
+    from tests.unit.harness import merged
 
     data = merged("robots", {
         "payload_image": "reg.lan/ros/payload:1.0",
@@ -146,7 +146,7 @@ def test_every_string_written_to_compose_has_its_dollars_escaped():
         "payload_command": ["sh", "-c", "echo $HOME"],
         "payload_volumes": ["/srv/$data:/data"],
     })
-    doc = yaml.safe_load(compose.dump(payload.desired_compose(data, "10.0.0.1")))
+    doc = yaml.safe_load(compose.dump(desired_compose(data, "10.0.0.1")))
     service = doc["services"]["payload"]
     assert service["environment"]["PASSWORD"] == "s3cr$$et"
     assert service["environment"]["REQUIRED"] == "$${X:?}"
@@ -177,7 +177,7 @@ def test_writing_a_file_replaces_a_symlink_and_leaves_its_target_alone(tmp_path,
     import os
     import pwd
 
-    from roles import operations
+    from engine.host import operations
 
     target = tmp_path / "elsewhere"
     if target_kind == "file":
@@ -200,9 +200,9 @@ def test_writing_a_file_replaces_a_symlink_and_leaves_its_target_alone(tmp_path,
 
 
 def test_a_symlinked_daemon_json_is_replaced_by_a_file_and_docker_restarts():
-    from roles.hoststate import FileState
-    from tests.unit.fakefleet import find, plan
-    from tests.unit.test_plan import ROBOT, converged
+    from engine.host.snapshot import FileState
+    from tests.unit.harness import find, plan
+    from tests.unit.harness import ROBOT, converged
 
     snap = converged("robots", ROBOT, "debian-13")
     snap.files["/etc/docker/daemon.json"] = FileState("link", None, "777", "root", "root")
@@ -215,9 +215,9 @@ def test_a_symlinked_daemon_json_is_replaced_by_a_file_and_docker_restarts():
 
 
 def test_a_symlinked_directory_is_refused_with_one_line(tmp_path):
-    from roles.hoststate import FileState
-    from tests.unit.fakefleet import find, plan
-    from tests.unit.test_plan import ROBOT, converged
+    from engine.host.snapshot import FileState
+    from tests.unit.harness import find, plan
+    from tests.unit.harness import ROBOT, converged
 
     snap = converged("robots", ROBOT, "debian-13")
     snap.files["/etc/docker"] = FileState("link", None, "777", "root", "root")
@@ -230,7 +230,7 @@ def test_a_symlinked_directory_is_refused_with_one_line(tmp_path):
 
 def test_the_directory_command_itself_refuses_a_symlink(tmp_path):
     """The snapshot is a moment ago: the command checks again before install -d/chmod."""
-    from roles import operations
+    from engine.host import operations
 
     real = tmp_path / "real"
     real.mkdir(mode=0o1777)
@@ -249,8 +249,8 @@ SECRET = "pa55-w0rd-never-shown"
 
 
 def _login_plan(monkeypatch, probe: str | None, image: str = "reg.example.com/ros/payload:1.0", password=SECRET):
-    from tests.unit.fakefleet import plan
-    from tests.unit.test_plan import ROBOT, converged
+    from tests.unit.harness import plan
+    from tests.unit.harness import ROBOT, converged
 
     monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", "puller")
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", password)
@@ -264,12 +264,12 @@ def _login_plan(monkeypatch, probe: str | None, image: str = "reg.example.com/ro
 
 
 def test_docker_hub_logins_are_looked_up_under_the_key_docker_stores_them_at():
-    from roles import payload
+    from roles.payload import login
 
     for registry in ("docker.io", "index.docker.io", "registry-1.docker.io"):
-        assert payload.registry_config_key(registry) == "https://index.docker.io/v1/"
-        assert '"https://index.docker.io/v1/"' in payload.registry_probe(registry)
-    assert payload.registry_config_key("reg.lan:5000") == "reg.lan:5000"
+        assert login.registry_config_key(registry) == "https://index.docker.io/v1/"
+        assert '"https://index.docker.io/v1/"' in login.registry_probe(registry)
+    assert login.registry_config_key("reg.lan:5000") == "reg.lan:5000"
 
 
 def test_login_runs_when_never_logged_in_and_the_secret_is_not_in_the_command(monkeypatch):
@@ -280,14 +280,14 @@ def test_login_runs_when_never_logged_in_and_the_secret_is_not_in_the_command(mo
 
 
 def test_same_credentials_plan_no_login_and_a_changed_password_logs_in_again(monkeypatch):
-    from roles import payload
+    from roles.payload import login
 
-    record = payload.credentials_record("reg.example.com", "puller", SECRET, salt="00" * 16)
+    record = login.credentials_record("reg.example.com", "puller", SECRET, salt="00" * 16)
     assert SECRET not in record and "puller" not in record
     assert _login_plan(monkeypatch, probe=record + "\n") == []
     assert len(_login_plan(monkeypatch, probe=record + "\n", password=SECRET + "-rotated")) == 1
     # a record for another registry does not count
-    other = payload.credentials_record("other.example.com", "puller", SECRET, salt="00" * 16)
+    other = login.credentials_record("other.example.com", "puller", SECRET, salt="00" * 16)
     assert len(_login_plan(monkeypatch, probe=other + "\n")) == 1
 
 

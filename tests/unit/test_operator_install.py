@@ -16,9 +16,10 @@ ROOT = Path(__file__).resolve().parents[2]
 NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache")
 
 RENDER = """
-from roles import payload, udev, x11
-from roles.fleet import read_group_data
-defaults = read_group_data()
+from engine import roster
+from roles import udev, x11
+from roles.payload import robot as payload
+defaults = {group: roster.group_data(group) for group in ("all", "robots", "laptops")}
 class Data(dict):
     __getattr__ = dict.__getitem__
 robot = Data({**defaults["all"], **defaults["robots"], "payload_image": "r.lan/p:1"})
@@ -69,7 +70,7 @@ def test_a_wheel_refuses_to_load_and_says_how_to_install(checkout, venv_python, 
     assert result.returncode == 1
     last = result.stderr.strip().splitlines()[-1]
     assert re.fullmatch(
-        r"ImportError: roles: \S+/site-packages/roles is not in a checkout of the robot fleet provisioner "
+        r"ImportError: engine: \S+/site-packages/engine is not in a checkout of the robot fleet provisioner "
         r"\(no deploy.py beside it\); it runs from its checkout: in the checkout, "
         r"python3 -m venv .venv && .venv/bin/pip install -e .  \(README: Install for operators\)", last
     ), last

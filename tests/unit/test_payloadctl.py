@@ -7,7 +7,7 @@ import sys
 
 import yaml
 
-from roles import payload
+from roles.payload import release, robot as payload
 
 spec = importlib.util.spec_from_file_location("payloadctl", payload.HERE / "payloadctl.py")
 payloadctl = importlib.util.module_from_spec(spec)
@@ -272,7 +272,7 @@ def test_first_release_that_fails_stays_failed_so_the_next_run_tries_again(tmp_p
     current, _ = robot.pointers()
     record = robot.releases.record(current)
     assert record["state"] == "failed"
-    assert payload.release_needed(record, record["spec_hash"], True, running=True)
+    assert release.release_needed(record, record["spec_hash"], True, running=True)
     again = robot.apply("reg/ros/payload:bad", run_id="run-2")  # not "already current"
     assert again.returncode == 1 and "already current" not in again.stdout + again.stderr
 

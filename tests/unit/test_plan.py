@@ -7,35 +7,15 @@ import re
 
 import pytest
 
-from roles import payload, x11
+from engine.host.fixtures import file_state
+from engine.host.snapshot import FileState
 from roles.docker import plan as docker_plan
-from roles.fleet import read_group_data
-from roles.hoststate import FileState
-from roles.payload import compose
+from roles.payload import compose, robot
 from roles.udev import rules
-from tests.unit.fakefleet import everything_sent, find, fresh_host, plan
+from tests.unit.harness import IMAGE, LAPTOP, ROBOT, Data, converged, everything_sent, find, fresh_host, merged, plan
 
-IMAGE = "reg.example.com/ros/payload:1.0"
-ROBOT = {
-    "payload_image": IMAGE,
-    "docker_users": ["ops"],
-    "sensors": [
-        {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "1-1.2"},
-        {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3"},
-    ],
-}
-LAPTOP = {"payload_image": IMAGE, "docker_users": ["alice"], "x11_user": "alice"}
 DOCKER_FPR = "9DC858229FC7DD38854AE2D88D81803C0EBFCD88"
 MATRIX = [(os_name, arch) for os_name in ("ubuntu-20.04", "ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13") for arch in ("amd64", "arm64")]
-
-
-class Data(dict):
-    __getattr__ = dict.__getitem__
-
-
-def merged(group: str, data: dict) -> Data:
-    defaults = read_group_data()
-    return Data({**defaults["all"], **defaults[group], **data})
 
 
 def sources_of(commands):
@@ -173,58 +153,6 @@ def test_laptop_gets_x11_and_a_staged_payload_without_autostart():
 # --- a converged host plans nothing ------------------------------------------
 
 
-def _file(content: str, mode="644", owner="root", group="root") -> FileState:
-    return FileState("file", hashlib.sha256(content.encode()).hexdigest(), mode, owner, group)
-
-
-def converged(group: str, data: dict, os_name: str):
-    """The snapshot of a host on which a previous run succeeded."""
-    d = merged(group, data)
-    snap = fresh_host(os_name, users=tuple(set(d["docker_users"]) | ({d["x11_user"]} if d.get("x11_user") else set())))
-    dist = docker_plan.distribution(snap.os_release)
-    snap.users = {u: [u, "docker"] for u in snap.users}
-    snap.packages.update({p: "1" for p in d["docker_packages"]})
-    snap.files.update({
-        "/etc/apt/keyrings": FileState("dir", None, "755", "root", "root"),
-        "/etc/apt/keyrings/docker.asc": FileState("file", "f" * 64, "644", "root", "root"),
-        "/etc/apt/sources.list.d/docker.sources": _file(docker_plan.sources_text(
-            docker_plan.repo_uri(d["docker_repo_url"], dist), docker_plan.suite(snap.os_release),
-            "stable", snap.arch, "/etc/apt/keyrings/docker.asc")),
-        "/etc/docker": FileState("dir", None, "755", "root", "root"),
-        "/etc/docker/daemon.json": _file(docker_plan.daemon_json(d["docker_daemon_options"], [], [])),
-        d["payload_dir"]: FileState("dir", None, "755", "root", "root"),
-        payload.HELPER: _file(payload.helper_text(), "755"),
-    })
-    snap.probes["docker_key_fingerprints"] = DOCKER_FPR + "\n"
-    snap.units["docker.service"] = ("enabled", "active")
-    if group == "robots":
-        for name in d["udev_vendor_rules"]:
-            snap.files[f"/etc/udev/rules.d/{name}"] = _file((rules_dir() / name).read_text())
-        snap.files[d["udev_rules_file"]] = _file(rules.render(d["sensors"]))
-        snap.files[payload.unit_path(d)] = _file(payload.unit_text(d, rules.devices(d["sensors"])))
-        snap.units["robot-payload.service"] = ("enabled", "active")
-    else:
-        snap.packages["xauth"] = "1"
-        snap.files.update({
-            x11.COOKIE_SCRIPT: _file(x11.cookie_script(d), "755"),
-            x11.XSESSION_HOOK: _file((x11.HERE / "90robot-x11-cookie").read_text()),
-            x11.AUTOSTART: _file((x11.HERE / "robot-x11-cookie.desktop").read_text()),
-            "/var/lib/robot-x11": FileState("dir", None, "755", "root", "root"),
-            "/var/lib/robot-x11/alice": FileState("dir", None, "700", "alice", "alice"),
-        })
-    doc = payload.desired_compose(d, d.get("ssh_hostname") or f"@fake/{'r1' if group == 'robots' else 'l1'}")
-    state = "active" if d["payload_autostart"] else "staged"
-    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, d["payload_autostart"]), "state": state})
-    if d["payload_autostart"]:
-        snap.probes["payload_containers"] = "running\tUp 3 hours (healthy)\n"
-    return snap
-
-
-def rules_dir():
-    from roles.udev import VENDOR_RULES_DIR
-    return VENDOR_RULES_DIR
-
-
 @pytest.mark.parametrize("os_name, arch", MATRIX)
 def test_converged_robot_plans_nothing(os_name, arch):
     snap = converged("robots", ROBOT, os_name)
@@ -237,7 +165,7 @@ def test_converged_robot_plans_nothing(os_name, arch):
 
 def converged_sources(snap):
     dist = docker_plan.distribution(snap.os_release)
-    return _file(docker_plan.sources_text(
+    return file_state(docker_plan.sources_text(
         docker_plan.repo_uri("https://download.docker.com/linux", dist), docker_plan.suite(snap.os_release),
         "stable", snap.arch, "/etc/apt/keyrings/docker.asc"))
 
@@ -342,7 +270,7 @@ def test_apt_waits_for_its_locks_with_the_configured_bound():
 
 def test_changed_unit_reloads_systemd_and_restarts_the_payload():
     snap = converged("robots", ROBOT, "debian-13")
-    snap.files[payload.unit_path(merged("robots", ROBOT))] = _file("old unit")
+    snap.files[robot.unit_path(merged("robots", ROBOT))] = file_state("old unit")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     assert find(commands, "systemctl daemon-reload")
     assert "--restart" in find(commands, "payloadctl apply")[0]
@@ -350,7 +278,7 @@ def test_changed_unit_reloads_systemd_and_restarts_the_payload():
 
 def test_changed_sensor_rules_reload_udev_for_their_subsystems_only():
     snap = converged("robots", ROBOT, "debian-13")
-    snap.files["/etc/udev/rules.d/70-robot-sensors.rules"] = _file("# old\n")
+    snap.files["/etc/udev/rules.d/70-robot-sensors.rules"] = file_state("# old\n")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     reload = find(commands, "udevadm control --reload-rules")
     assert len(reload) == 1
@@ -372,8 +300,8 @@ def test_registry_credentials_come_from_the_environment_and_go_over_stdin(monkey
 
 def test_snapshot_encoding_roundtrip():
     snap = converged("robots", ROBOT, "debian-13")
-    from roles.hoststate import parse
-    from tests.unit.fakefleet import query_of, snapshot_lines
+    from engine.host.snapshot import parse
+    from tests.unit.harness import query_of, snapshot_lines
     again = parse(snapshot_lines(snap, query_of(snap)), query_of(snap))
     assert again.files == snap.files and again.probes == snap.probes and again.packages == snap.packages
     assert again.users == snap.users and again.units == snap.units and again.os_release == snap.os_release

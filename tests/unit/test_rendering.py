@@ -6,11 +6,13 @@ import subprocess
 
 import yaml
 
-from roles import hoststate, payload, x11
+from engine.host import aptrepo
+from engine.host import snapshot as hoststate
+from roles import x11
 from roles.docker import plan as docker_plan
-from roles.payload import compose
+from roles.payload import compose, robot
 from roles.udev import rules
-from tests.unit.test_plan import merged
+from tests.unit.harness import desired_compose, docker_repo, merged
 
 SENSORS = [
     {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046D", "product_id": "0825", "usb_port": "1-1.2"},
@@ -74,7 +76,7 @@ def test_compose_for_a_robot():
         "payload_image": "reg.lan/ros/payload:1.0", "sensors": SENSORS, "ros_domain_id": 7,
         "payload_environment": {"DEBUG": True, "RATE": 10}, "payload_volumes": ["/var/lib/maps:/maps"],
     })
-    doc = yaml.safe_load(compose.dump(payload.desired_compose(data, "10.0.0.1")))
+    doc = yaml.safe_load(compose.dump(desired_compose(data, "10.0.0.1")))
     service = doc["services"]["payload"]
     assert doc["name"] == "robot-payload"
     assert service["image"] == "reg.lan/ros/payload:1.0"
@@ -94,7 +96,7 @@ def test_compose_ros1_x11_and_gpu():
         "payload_image": "reg.lan/ros/payload:1.0", "x11_user": "alice", "ros_domain_id": 0,
         "ros_master_uri": "http://master:11311", "payload_gpu": True,
     })
-    service = payload.desired_compose(data, "10.0.0.5")["services"]["payload"]
+    service = desired_compose(data, "10.0.0.5")["services"]["payload"]
     env = service["environment"]
     assert env["ROS_MASTER_URI"] == "http://master:11311" and env["ROS_HOSTNAME"] == "10.0.0.5"
     assert "ROS_DOMAIN_ID" not in env
@@ -107,9 +109,9 @@ def test_compose_ros1_x11_and_gpu():
 
 def test_spec_hash_changes_with_what_runs_only():
     data = merged("robots", {"payload_image": "r.lan/p:1.0"})
-    one = payload.desired_compose(data, "h")
-    two = payload.desired_compose(merged("robots", {"payload_image": "r.lan/p:1.1"}), "h")
-    assert compose.spec_hash(one, True) == compose.spec_hash(payload.desired_compose(data, "h"), True)
+    one = desired_compose(data, "h")
+    two = desired_compose(merged("robots", {"payload_image": "r.lan/p:1.1"}), "h")
+    assert compose.spec_hash(one, True) == compose.spec_hash(desired_compose(data, "h"), True)
     assert compose.spec_hash(one, True) != compose.spec_hash(two, True)
     assert compose.spec_hash(one, True) != compose.spec_hash(one, False)
 
@@ -118,7 +120,7 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     """Its full text is in tests/unit/golden/ and checked by systemd-analyze
     (test_generated_files.py); here only what a golden copy cannot say."""
     data = merged("robots", {"payload_image": "r.lan/p:1.0"})
-    text = payload.unit_text(data, ["/dev/robot/lidar"])
+    text = robot.unit_text(data, ["/dev/robot/lidar"])
     lines = text.splitlines()
     # A Docker restart must not stop the payload: ordering and a weak dependency only.
     assert not [line for line in lines if line.startswith(("Requires=", "BindsTo=", "PartOf="))]
@@ -126,7 +128,7 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     # Boot goes through payloadctl, which undoes a release a power cut left unverified.
     assert any(line.startswith("ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start ") for line in lines)
     assert " -v" not in text
-    assert "ExecStartPre" not in payload.unit_text(data, [])
+    assert "ExecStartPre" not in robot.unit_text(data, [])
 
 
 def test_x11_cookie_script_uses_the_family_wild_method():
@@ -166,17 +168,16 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
 
 def test_key_download_verifies_before_moving_into_place(tmp_path):
     """Run the real download script against a local file:// key with a wrong pin."""
-    from roles import docker
     key = tmp_path / "key.asc"
     key.write_text("not really a key\n")
     dest = tmp_path / "keyrings" / "docker.asc"
     dest.parent.mkdir()
-    script = docker.key_download_script(f"file://{key}", str(dest), None, "0" * 64)
+    script = aptrepo.key_script(docker_repo(f"file://{key}", str(dest), None, "0" * 64))
     proc = subprocess.run(["sh", "-c", script], capture_output=True, text=True)
     assert proc.returncode == 1 and "does not match docker_apt_key_sha256" in proc.stderr
     assert list(dest.parent.iterdir()) == []  # nothing half-written left behind
     good = subprocess.run(["sha256sum", str(key)], capture_output=True, text=True).stdout.split()[0]
-    proc = subprocess.run(["sh", "-c", docker.key_download_script(f"file://{key}", str(dest), None, good)], capture_output=True, text=True)
+    proc = subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{key}", str(dest), None, good))], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert dest.read_text() == "not really a key\n" and oct(dest.stat().st_mode)[-3:] == "644"
 
@@ -187,7 +188,7 @@ def test_file_write_is_atomic_and_validated_before_it_lands(tmp_path):
     import os
     import pwd
 
-    from roles import operations
+    from engine.host import operations
 
     user, group = pwd.getpwuid(os.getuid()).pw_name, grp.getgrgid(os.getgid()).gr_name
     dest = tmp_path / "etc" / "x.conf"
@@ -207,7 +208,6 @@ def test_file_write_is_atomic_and_validated_before_it_lands(tmp_path):
 
 def test_key_fingerprint_pin_with_real_gpg(tmp_path):
     """The download script and the snapshot probe read fingerprints the same way."""
-    from roles import docker
     home = tmp_path / "gnupg"
     home.mkdir(mode=0o700)
     gpg = ["gpg", "--batch", "--homedir", str(home)]
@@ -219,12 +219,12 @@ def test_key_fingerprint_pin_with_real_gpg(tmp_path):
     dest = tmp_path / "keyrings" / "docker.asc"
     dest.parent.mkdir()
     url = f"file://{tmp_path}/key.asc"
-    wrong = subprocess.run(["sh", "-c", docker.key_download_script(url, str(dest), "DEAD" * 10, None)], capture_output=True, text=True)
+    wrong = subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(url, str(dest), "DEAD" * 10, None))], capture_output=True, text=True)
     assert wrong.returncode == 1 and f"fingerprint {fingerprint} does not match" in wrong.stderr
     assert list(dest.parent.iterdir()) == []
-    right = subprocess.run(["sh", "-c", docker.key_download_script(url, str(dest), fingerprint, None)], capture_output=True, text=True)
+    right = subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(url, str(dest), fingerprint, None))], capture_output=True, text=True)
     assert right.returncode == 0, right.stderr
-    probe = subprocess.run(["sh", "-c", docker.key_fingerprints_probe(str(dest))], capture_output=True, text=True)
+    probe = subprocess.run(["sh", "-c", aptrepo.fingerprints_probe(str(dest))], capture_output=True, text=True)
     assert probe.stdout.split() == [fingerprint]
 
 

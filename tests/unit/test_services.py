@@ -7,10 +7,11 @@ import json
 import pytest
 import yaml
 
-from roles import fleet
-from roles.payload import compose, project, services
-from tests.unit.fakefleet import fleet_problems, plan
-from tests.unit.test_plan import ROBOT, converged, merged
+from engine import roster
+from engine.commands import status
+from roles.payload import compose, presets, problems, project, services
+from tests.unit import harness as fleet
+from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan
 
 REG = "reg.example.com"
 TWO = {
@@ -37,7 +38,7 @@ def test_host_changes_one_service_tag_and_keeps_the_rest_from_the_group():
             }},
         },
     )
-    hosts = dict(fleet.check(doc, "robots.yaml", fleet.read_group_data()).hosts("robots"))
+    hosts = dict(fleet.check(doc, "robots.yaml").hosts("robots"))
     assert hosts["robot1"]["payload_services"] == TWO
     robot2 = hosts["robot2"]["payload_services"]
     assert robot2["driver"] == {"image": f"{REG}/ros/driver:2.1", "devices": [],
@@ -55,15 +56,28 @@ def test_the_shorthand_document_is_unchanged_by_the_project_builder():
     data = merged("robots", {"payload_image": f"{REG}/ros/payload:1.0", "payload_command": ["run"],
                              "payload_volumes": ["/srv/maps:/maps:ro"], "payload_gpu": True,
                              "sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
-    old = compose.document(data, data.payload_image, "10.0.0.1", ["/dev/robot/lidar"], None)
-    new = compose.project(data, "10.0.0.1", None)
+    # What the single-service builder made before there were several services.
+    old = {"name": "robot-payload", "services": {"payload": {
+        "image": f"{REG}/ros/payload:1.0",
+        "restart": "unless-stopped",
+        "network_mode": "host",
+        "environment": {"ROS_DOMAIN_ID": "0", "NVIDIA_VISIBLE_DEVICES": "all",
+                        "NVIDIA_DRIVER_CAPABILITIES": "compute,utility"},
+        "labels": {"io.robot-fleet.payload": "robot-payload"},
+        "command": ["run"],
+        "volumes": ["/srv/maps:/maps:ro"],
+        "devices": ["/dev/robot/lidar:/dev/robot/lidar"],
+        "deploy": {"resources": {"reservations": {"devices": [{"driver": "nvidia", "count": "all",
+                                                               "capabilities": ["gpu"]}]}}},
+    }}}
+    new = desired_compose(data, "10.0.0.1")
     assert new == old
     assert compose.dump(new) == compose.dump(old)  # same keys in the same order: no release on upgrade
 
 
 def rendered(extra: dict, address="10.0.0.9", files_dir=None) -> dict:
     data = merged("robots", {"payload_image": None, **extra})
-    return yaml.safe_load(compose.dump(compose.project(data, address, None)))
+    return yaml.safe_load(compose.dump(desired_compose(data, address)))
 
 
 def test_two_services_get_our_defaults_under_their_own_keys():
@@ -79,7 +93,7 @@ def test_two_services_get_our_defaults_under_their_own_keys():
     assert slam["ipc"] == "host" and slam["cap_add"] == ["SYS_NICE"] and slam["shm_size"] == "1g"
     assert slam["ulimits"] == {"rtprio": 99, "memlock": {"soft": -1, "hard": -1}}
     assert slam["volumes"] == ["/etc/hosts:/etc/hosts:ro"] and slam["tty"] is True
-    assert services.schema_problems(doc) == []
+    assert problems.schema_problems(doc) == []
 
 
 def test_a_sensor_goes_to_the_services_it_names():
@@ -104,7 +118,7 @@ def test_ros1_preset_with_roscore_service():
         assert env["ROS_MASTER_URI"] == "http://localhost:11311" and env["ROS_HOSTNAME"] == "10.0.0.9"
         assert "ROS_DOMAIN_ID" not in env
         assert doc["services"][name]["depends_on"] == ["roscore"]
-    assert services.schema_problems(doc) == []
+    assert problems.schema_problems(doc) == []
 
 
 def test_ros1_preset_with_an_external_master_and_one_service():
@@ -125,18 +139,18 @@ def test_ros1_preset_with_an_external_master_and_one_service():
 def test_ros2_preset_with_a_dds_profile(tmp_path, monkeypatch, profile, env):
     (tmp_path / "dds").mkdir()
     (tmp_path / "dds" / "p.xml").write_text(profile)
-    monkeypatch.setattr(services, "FILES_DIR", tmp_path)
-    monkeypatch.setattr(services.dds_profile_text, "__defaults__", (tmp_path,))
-    monkeypatch.setattr(services.preset, "__defaults__", (tmp_path,))
+    monkeypatch.setattr(presets, "FILES_DIR", tmp_path)
+    monkeypatch.setattr(presets.dds_profile_text, "__defaults__", (tmp_path,))
+    monkeypatch.setattr(presets.preset, "__defaults__", (tmp_path,))
     doc = rendered({"payload_services": TWO, "ros_preset": "ros2", "ros_domain_id": 42, "ros_dds_profile": "p.xml"})
     for name, service in doc["services"].items():
         assert service["ipc"] == "host"
         assert service["environment"]["ROS_DOMAIN_ID"] == "42"
         assert {k: service["environment"][k] for k in env} == env
         assert "/etc/robot-payload/p.xml:/etc/ros/dds/p.xml:ro" in service["volumes"]
-        assert len(service["labels"][services.PROFILE_LABEL]) == 16
+        assert len(service["labels"][presets.PROFILE_LABEL]) == 16
     assert doc["services"]["driver"]["environment"]["RATE"] == "10"
-    assert services.schema_problems(doc) == []
+    assert problems.schema_problems(doc) == []
 
 
 def test_ros2_preset_keeps_a_service_s_own_ipc():
@@ -243,10 +257,10 @@ def test_the_schema_comes_from_the_maintained_package_with_its_licence():
     from importlib import resources
 
     vendor = resources.files("check_jsonschema.builtin_schemas.vendor")
-    assert services.compose_schema_path().read_bytes() == (vendor / "compose-spec.json").read_bytes()
-    assert "compose" in json.dumps(services.compose_schema()["$id"]).lower()
+    assert problems.compose_schema_path().read_bytes() == (vendor / "compose-spec.json").read_bytes()
+    assert "compose" in json.dumps(problems.compose_schema()["$id"]).lower()
     assert "Apache License" in (vendor / "licenses" / "LICENSE.compose-spec").read_text()
-    assert {"ipc", "cap_add", "ulimits", "shm_size", "tty", "stdin_open"} <= set(services.service_keys())
+    assert {"ipc", "cap_add", "ulimits", "shm_size", "tty", "stdin_open"} <= set(problems.service_keys())
 
 
 # --- the deploy's side: what it reads and what it sends -------------------------
@@ -300,23 +314,22 @@ def test_the_readme_example_project_is_valid_and_uses_the_shipped_profile():
     section = readme.split("### The payload as a compose project", 1)[1]
     example = yaml.safe_load(section.split("```yaml\n", 1)[1].split("```", 1)[0])
     example["robots"]["hosts"]["robot2"]["address"] = "10.0.0.2"
-    hosts = dict(fleet.check(example, "README.md", fleet.read_group_data()).hosts("robots"))
+    hosts = dict(fleet.check(example, "README.md").hosts("robots"))
     robot2 = hosts["robot2"]["payload_services"]
     assert robot2["slam"]["image"].endswith(":1.5.0-rc1") and robot2["slam"]["shm_size"] == "1g"
-    assert services.dds_vendor((services.FILES_DIR / "dds" / "cyclonedds-localhost.xml").read_text()) == "cyclonedds"
+    assert presets.dds_vendor((presets.FILES_DIR / "dds" / "cyclonedds-localhost.xml").read_text()) == "cyclonedds"
 
 
 def test_status_shows_each_service_image_state_and_health():
-    from roles import status
-
     digest = "reg/ros/driver@sha256:" + "d" * 64
     report = {"current": {"id": "r2", "images": {}}, "containers": [], "services": {
         "payload": {"image": "reg/ros/payload@sha256:" + "e" * 64, "state": "running", "health": "healthy"},
         "driver": {"image": digest, "state": "restarting", "health": None}}}
-    row = status.row("robot1", report)
+    roles = roster.roles()
+    row = status.row("robot1", roles, {"payload": json.dumps(report)})
     assert row["state"] == "driver:restarting, payload:running"
     assert row["health"] == "driver:none, payload:healthy"
-    line = status.table([row]).splitlines()[1]
+    line = status.table([row], status.columns(roles)).splitlines()[1]
     assert f"driver=reg/ros/driver@sha256:{'d' * 12}, payload=reg/ros/payload@sha256:{'e' * 12}" in line
 
 

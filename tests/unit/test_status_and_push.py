@@ -4,7 +4,9 @@ import io
 import json
 import tarfile
 
-from roles import status
+from engine import roster
+from engine.commands import status
+from tests.unit.harness import merged
 from roles.payload import push
 
 A, B, C = ("sha256:" + c * 64 for c in "abc")
@@ -42,19 +44,23 @@ def test_archive_leaves_out_layers_the_robot_has(tmp_path):
     assert report["layers"] == 2 and report["skipped"] == 1 and report["sent"] < report["full"]
 
 
+def roles():
+    return roster.roles()
+
+
 def test_status_rows_and_table():
     report = {
-        "docker_version": "26.1.5",
         "current": {"id": "r2", "state": "active", "activated": "2026-11-21T10:00:00Z",
                     "images": {"reg/p:1.1": {"id": "sha256:1", "pinned": "reg/p@sha256:" + "d" * 64}}},
         "previous": {"id": "r1"},
         "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
         "update_lock": None,
     }
-    rows = [status.row("robot1", report), status.row("robot2", None, "cannot connect")]
+    rows = [status.row("robot1", roles(), {"docker": "26.1.5", "payload": json.dumps(report)}),
+            status.row("robot2", roles(), None, "cannot connect")]
     assert rows[0]["image"] == "reg/p@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
-    text = status.table(rows).splitlines()
+    text = status.table(rows, status.columns(roles())).splitlines()
     assert text[0].split() == ["HOST", "REACHABLE", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
     assert text[1].split() == ["robot1", "yes", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
     assert text[2].split()[:2] == ["robot2", "no"]
@@ -68,14 +74,15 @@ def test_status_shows_the_gpu_driver_version_and_the_runtime(tmp_path):
     driver = tmp_path / "version"
     driver.write_text("NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14  Thu Feb 22 01:44:30 UTC 2024\n")
     data = {"gpu_driver_version_file": str(driver)}
-    line = subprocess.run(["sh", "-c", status.gpu_status_command(data)], capture_output=True, text=True).stdout
-    assert line.startswith("gpu\t") and line.rstrip().endswith(("\tyes", "\tno"))
-    report = status.parse_report('{"docker_version": "26.1.5"}\n' + line.replace("\tno\n", "\tyes\n"))
-    cells = status.row("gpu1", report)
+    command = status.status_command(roles(), merged("robots", data))
+    out = subprocess.run(["sh", "-c", command], capture_output=True, text=True).stdout
+    line = status.sections(out)["gpu"] + "\n"
+    assert line.rstrip().endswith(("\tyes", "\tno"))
+    cells = status.row("gpu1", roles(), {"docker": "26.1.5", "gpu": line.replace("\tno\n", "\tyes\n")})
     assert (cells["gpu_driver"], cells["gpu_runtime"]) == ("550.54.14", True)
-    plain = status.row("r1", status.parse_report('{"docker_version": "26.1.5"}\ngpu\t\tno\n'))
+    plain = status.row("r1", roles(), {"docker": "26.1.5", "gpu": "\tno\n"})
     assert (plain["gpu_driver"], plain["gpu_runtime"]) == (None, None)
-    broken = status.row("r2", status.parse_report('{}\ngpu\tNVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n'))
+    broken = status.row("r2", roles(), {"gpu": "NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n"})
     assert broken["gpu_runtime"] is False
-    text = status.table([cells])
+    text = status.table([cells], status.columns(roles()))
     assert text.splitlines()[1].split()[-3:] == ["550.54.14", "yes", "-"]  # then ROLLOUT

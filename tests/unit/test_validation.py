@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from roles import fleet, settings
-from tests.unit.fakefleet import fleet_problems
+from tests.unit import harness as fleet
+from tests.unit.harness import fleet_problems
 
 ROOT = Path(__file__).resolve().parents[2]
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
@@ -36,15 +36,15 @@ def test_lab_fleet_file_is_valid():
 
 
 def test_defaults_satisfy_the_schema_and_cover_every_setting():
-    defaults = fleet.read_group_data()
+    defaults = fleet.group_data()
     merged = {**defaults["all"], **defaults["robots"], **defaults["laptops"]}
-    assert settings.check_layer(merged) == []
-    missing = set(settings.SCHEMA) - set(merged) - {"ssh_hostname", "ssh_user", "ssh_key"}
+    assert fleet.registry().check_layer(merged) == []
+    missing = set(fleet.setting_checks()) - set(merged) - {"ssh_hostname", "ssh_user", "ssh_key"}
     assert missing == set(), f"settings without a default in group_data/: {missing}"
 
 
 def test_a_setting_has_one_default_only():
-    defaults = fleet.read_group_data()
+    defaults = fleet.group_data()
     for group in ("robots", "laptops"):
         for key in defaults[group]:
             assert key in defaults["all"], f"{key} is only defaulted in group_data/{group}.py"
@@ -53,7 +53,7 @@ def test_a_setting_has_one_default_only():
 
 def test_readme_documents_every_setting():
     readme = (ROOT / "README.md").read_text()
-    undocumented = [k for k in settings.SCHEMA if f"`{k}`" not in readme]
+    undocumented = [k for k in fleet.setting_checks() if f"`{k}`" not in readme]
     assert undocumented == []
 
 

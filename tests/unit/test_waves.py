@@ -4,7 +4,8 @@ import os
 
 import pytest
 
-from roles import waves
+from engine.commands import waves
+from roles.payload import report
 
 ROBOTS = [f"robot{i}" for i in range(1, 11)]
 
@@ -82,18 +83,32 @@ def test_a_rerun_resumes_with_a_fresh_budget_and_clears_what_got_done():
     assert state["status"] == "complete" and state["failed"] == {} and waves.pending(state) == []
 
 
+def is_done(row: dict, target: str) -> bool:
+    return report.missing(row, [target]) is None
+
+
 def test_done_means_the_target_image_is_current_and_healthy():
     row = {"reachable": True, "image_refs": ["reg/p:1.1"], "release_state": "active",
            "state": "running", "health": "healthy"}
-    assert waves.is_done(row, "reg/p:1.1")
-    assert not waves.is_done(row, "reg/p:1.2")
-    assert not waves.is_done({**row, "health": "unhealthy"}, "reg/p:1.1")
-    assert not waves.is_done({**row, "state": "restarting"}, "reg/p:1.1")
-    assert not waves.is_done({**row, "release_state": "failed"}, "reg/p:1.1")
-    assert waves.is_done({**row, "release_state": "staged", "state": None, "health": None}, "reg/p:1.1")
-    assert not waves.is_done({"reachable": False}, "reg/p:1.1")
+    assert is_done(row, "reg/p:1.1")
+    assert not is_done(row, "reg/p:1.2")
+    assert not is_done({**row, "health": "unhealthy"}, "reg/p:1.1")
+    assert not is_done({**row, "state": "restarting"}, "reg/p:1.1")
+    assert not is_done({**row, "release_state": "failed"}, "reg/p:1.1")
+    assert is_done({**row, "release_state": "staged", "state": None, "health": None}, "reg/p:1.1")
+    assert not is_done({"reachable": False}, "reg/p:1.1")
     back = {**row, "image_refs": ["reg/p:1.0"], "release": "r1", "rolled_back_from": {"reason": "p is unhealthy"}}
-    assert waves.why_not_done(back, "reg/p:1.1") == "release failed (p is unhealthy); rolled back to r1"
+    assert report.missing(back, ["reg/p:1.1"]) == "release failed (p is unhealthy); rolled back to r1"
+
+
+def test_done_for_a_project_of_several_services_means_every_image():
+    """The rollout's target is the whole compose project: a robot running
+    driver and slam is done once both run healthy (it used to be failed)."""
+    row = {"reachable": True, "image_refs": ["reg/driver:2", "reg/slam:1"], "release_state": "active",
+           "state": "driver:running, slam:running", "health": "driver:healthy, slam:none"}
+    assert report.missing(row, ["reg/driver:2", "reg/slam:1"]) is None
+    assert report.missing(row, ["reg/driver:3", "reg/slam:1"]) == "runs reg/driver:2, reg/slam:1, not reg/driver:3"
+    assert report.missing({**row, "state": "driver:running, slam:restarting"}, ["reg/driver:2", "reg/slam:1"])
 
 
 def test_the_same_command_finds_the_same_state_file_and_writes_it_atomically(tmp_path):
@@ -115,14 +130,14 @@ def test_status_cells_and_summary():
 
 
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
-    from roles.rollout import judge_wave
+    from engine.commands.rollout import judge_wave
 
     good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running", "health": "healthy"}
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
             "rolled_back_from": {"reason": "unhealthy"}}
     results = {"operations": [{"error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
     rows = {"r1": good, "r2": back, "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
-    targets = dict.fromkeys(rows, "i:2")
+    targets = dict.fromkeys(rows, {"payload": ["i:2"]})
     done, failed, skipped = judge_wave(list(rows), results, rows, {"r2": "payload: release x failed"}, targets, False)
     assert done == ["r1"]
     assert failed.pop("r2") == "payload: release x failed"
@@ -135,12 +150,12 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
 
 def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
     """pyinfra prints no JSON when no host remains ("No hosts remaining!")."""
-    from roles.rollout import judge_wave
+    from engine.commands.rollout import judge_wave
 
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active"}
     errors = {"r1": "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"}
-    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, errors, {"r1": "i:2"}, False)
+    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, errors, {"r1": {"payload": ["i:2"]}}, False)
     assert (done, failed, skipped) == ([], errors, {})
     errors = {"r2": "Could not connect (timed out)"}
-    assert judge_wave(["r2"], None, {"r2": {"reachable": True}}, errors, {"r2": "i:2"}, False)[2] == {
+    assert judge_wave(["r2"], None, {"r2": {"reachable": True}}, errors, {"r2": {"payload": ["i:2"]}}, False)[2] == {
         "r2": "unreachable: Could not connect (timed out)"}

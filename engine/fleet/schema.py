@@ -1,35 +1,36 @@
-"""The fleet file's JSON Schema, built from the checkers in roles/settings.py,
-so an editor flags mistakes as the operator types (the checks before a run
-stay the authority: cross-setting rules are not expressible here).
-
-    python3 -m roles.schema > inventories/fleet.schema.json
-"""
+"""The fleet file's JSON Schema, built from the settings' checkers, so an
+editor flags mistakes as the operator types (the checks before a run stay
+the authority: rules across settings are not expressible here)."""
 
 from __future__ import annotations
 
 import json
 
-from roles import fleet, settings
+from engine.fleet.check import EXTENSION_PREFIX, HOST_NAME
+from engine.fleet.registry import Registry
 
 
-def setting_schemas(defaults: dict) -> dict:
+def setting_schemas(registry: Registry) -> dict:
+    defaults = registry.defaults()
     properties = {}
-    for name, check in settings.SCHEMA.items():
-        schema = dict(check.schema)
-        if name in settings.YES_NO:
-            schema = {"anyOf": [schema, {"enum": list(settings.YES_NO[name])}]}
+    for name, setting in registry.settings.items():
+        schema = dict(setting.check.schema)
+        if name in registry.words:
+            schema = {"anyOf": [schema, {"enum": list(registry.words[name])}]}
+        kind = schema.get("description")
+        schema["description"] = setting.doc + (f" Expected: {kind}." if kind else "")
         if name in defaults:
             schema["default"] = defaults[name]
         properties[name] = schema
-    properties["address"] = {**settings.SCHEMA["ssh_hostname"].schema, "description": "the SSH address (ssh_hostname)"}
+    for alias, name in registry.aliases.items():
+        properties[alias] = {**registry.settings[name].check.schema, "description": f"the SSH address ({name})"}
     return properties
 
 
-def fleet_schema() -> dict:
-    defaults = fleet.read_group_data().get("all", {})
+def fleet_schema(registry: Registry) -> dict:
     variables = {
         "type": ["object", "null"],
-        "properties": setting_schemas(defaults),
+        "properties": setting_schemas(registry),
         "additionalProperties": False,
     }
     group = {
@@ -38,7 +39,7 @@ def fleet_schema() -> dict:
             "vars": {"$ref": "#/definitions/settings"},
             "hosts": {
                 "type": ["object", "null"],
-                "propertyNames": {"pattern": f"^(?:{fleet.HOST_NAME.pattern})$"},
+                "propertyNames": {"pattern": f"^(?:{HOST_NAME.pattern})$"},
                 "additionalProperties": {"$ref": "#/definitions/settings"},
             },
         },
@@ -57,15 +58,11 @@ def fleet_schema() -> dict:
             "robots": {"$ref": "#/definitions/group"},
             "laptops": {"$ref": "#/definitions/group"},
         },
-        "patternProperties": {f"^{fleet.EXTENSION_PREFIX}": {}},
+        "patternProperties": {f"^{EXTENSION_PREFIX}": {}},
         "additionalProperties": False,
         "definitions": {"settings": variables, "group": group},
     }
 
 
-def render() -> str:
-    return json.dumps(fleet_schema(), indent=1, sort_keys=False) + "\n"
-
-
-if __name__ == "__main__":
-    print(render(), end="")
+def render(registry: Registry) -> str:
+    return json.dumps(fleet_schema(registry), indent=1, sort_keys=False) + "\n"

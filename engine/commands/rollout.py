@@ -1,11 +1,13 @@
 """Roll the fleet out in waves: canaries first, then batches, and stop when
 more robots fail than the budget allows.
 
-    python3 -m roles.rollout inventories/robots.py --canary 1 --batch 25% --max-failed 10% [-y]
+    python3 -m engine rollout inventories/robots.py --canary 1 --batch 25% --max-failed 10% [-y]
 
 Each wave is the normal deploy (`pyinfra -y --json INVENTORY deploy.py
 --limit <the wave's robots>`); the next wave starts only when every robot of
-this one is healthy on its new release or counted against the budget.
+this one has reached its target (each role with a rollout part says what:
+the payload, every image of the robot's compose project running healthy)
+or is counted against the budget.
 Robots not reached keep their release.  The state lives in
 .rollout/<key>.json on this machine: rerunning the same command resumes with
 the robots not yet on the new release.  See README "Rollouts in waves".
@@ -22,7 +24,8 @@ import subprocess
 import sys
 import tempfile
 
-from roles import waves
+from engine import roster
+from engine.commands import status, waves
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
@@ -45,9 +48,33 @@ def selected_hosts(inventory_path: str, limits: list[str]) -> list[tuple[str, ob
 
 def read_status(inventory: str, hosts: list[str]) -> dict[str, dict]:
     """One status row per host (one SSH command each, in parallel)."""
-    from roles import status
-
     return {row["host"]: row for row in status.collect(inventory, hosts)} if hosts else {}
+
+
+class _WithOverrides(dict):
+    """A host's data with the rollout's --data overrides on top (what the
+    deploy will see), read as pyinfra's host data is."""
+
+    def __init__(self, data, overrides: dict):
+        super().__init__({**data.dict(), **overrides} if hasattr(data, "dict") else {**data, **overrides})
+
+    __getattr__ = dict.get
+
+
+def targets_of(roles, data, overrides: dict) -> dict:
+    """What the rollout waits for on a host: each role's target."""
+    view = _WithOverrides(data, overrides)
+    return {role.name: role.rollout.target(view) for role in roles if role.rollout}
+
+
+def missing(roles, row: dict, target: dict) -> str | None:
+    """None when the host's status row shows every role's target reached."""
+    for role in roles:
+        if role.rollout and role.name in target:
+            why = role.rollout.missing(row, target[role.name])
+            if why:
+                return why
+    return None
 
 
 def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str) -> tuple[dict | None, dict[str, str]]:
@@ -83,10 +110,11 @@ def is_error_line(message: str) -> bool:
     return payload_failed or "Error" in message or any(e in message for e in CONNECT_ERRORS)
 
 
-def judge_wave(hosts, results, rows, errors, targets, unreachable_fails):
+def judge_wave(hosts, results, rows, errors, targets, unreachable_fails, roles=None):
     """(done, failed, skipped) for a wave from pyinfra's results (None when it
     printed none: every host failed, "No hosts remaining!"), the error lines
     it printed per host, and the robots' release records (pure)."""
+    roles = roster.roles() if roles is None else roles
     op_errors = {h for op in (results or {}).get("operations", []) for h in op["error"]}
     not_connected = {h for h, line in errors.items() if any(e in line for e in CONNECT_ERRORS)}
     if results is not None:
@@ -94,13 +122,14 @@ def judge_wave(hosts, results, rows, errors, targets, unreachable_fails):
     done, failed, skipped = [], {}, {}
     for host in hosts:
         row = rows.get(host) or {"reachable": False}
-        if host not in op_errors and host not in errors and waves.is_done(row, targets[host]):
+        why = missing(roles, row, targets[host])
+        if host not in op_errors and host not in errors and why is None:
             done.append(host)
         elif host in not_connected or not row.get("reachable"):
             reason = "unreachable: " + (errors.get(host) or row.get("error") or "cannot connect")
             (failed if unreachable_fails else skipped)[host] = reason
         else:
-            failed[host] = errors.get(host) or waves.why_not_done(row, targets[host])
+            failed[host] = errors.get(host) or why
     return done, failed, skipped
 
 
@@ -114,7 +143,7 @@ def fleet_report(rows: dict[str, dict], state: dict) -> str:
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog="python3 -m roles.rollout", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python3 -m engine rollout", description=__doc__.splitlines()[0])
     parser.add_argument("inventory")
     parser.add_argument("script", nargs="?", default="deploy.py", help="the deploy (default: deploy.py)")
     parser.add_argument("--canary", default="1", help="robots in the first wave when none has rollout_canary (default 1)")
@@ -137,7 +166,7 @@ def parse_args(argv):
 
 
 def resume_command(argv: list[str]) -> str:
-    return "python3 -m roles.rollout " + " ".join(shlex.quote(a) for a in argv if a not in ("--dry",))
+    return "python3 -m engine rollout " + " ".join(shlex.quote(a) for a in argv if a not in ("--dry",))
 
 
 def main(argv=None) -> int:
@@ -158,8 +187,9 @@ def main(argv=None) -> int:
     if not hosts:
         print(f"rollout: no host of {args.inventory} matches {args.limit}", file=sys.stderr)
         return 2
+    roles = roster.roles()
     names = [name for name, _ in hosts]
-    targets = {name: overrides.get("payload_image") or data.get("payload_image") for name, data in hosts}
+    targets = {name: targets_of(roles, data, overrides) for name, data in hosts}
     flagged = [name for name, data in hosts if data.get("rollout_canary")]
     plan = waves.build_waves(names, flagged, args.canary, args.batch)
     key = waves.fleet_key(args.inventory, names, targets)
@@ -171,7 +201,7 @@ def main(argv=None) -> int:
     state = waves.start_run(state)
 
     rows = read_status(args.inventory, names)
-    already = [h for h in names if waves.is_done(rows.get(h, {}), targets[h])]
+    already = [h for h in names if missing(roles, rows.get(h, {}), targets[h]) is None]
     state["done"] = sorted(set(state["done"]) | set(already))
     for index, wave in enumerate(state["waves"]):
         todo = [h for h in wave if h not in state["done"]]
@@ -201,7 +231,7 @@ def main(argv=None) -> int:
         print(f"\n--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}", file=sys.stderr)
         results, errors = deploy_wave(args.inventory, todo, extra, args.script)
         wave_rows = read_status(args.inventory, todo)
-        done, failed, skipped = judge_wave(todo, results, wave_rows, errors, targets, args.unreachable_fails)
+        done, failed, skipped = judge_wave(todo, results, wave_rows, errors, targets, args.unreachable_fails, roles)
         state = waves.record_wave(state, index, done, failed, skipped)
         waves.save_state(path, state)
         for host, why in {**failed, **skipped}.items():

@@ -1,11 +1,18 @@
-"""Run deploy.py through pyinfra against @fake hosts and return what each
-host would be sent: every command with its stdin (file contents and secrets
-travel over stdin).
+"""The unit layer's one harness, built from the roles deploy.py lists.
 
-A test describes a host's state as a ``Snapshot`` of plain dicts; the harness
-answers the snapshot command with only the keys the roles declared (the
-production parser then refuses any other read), so a role that stops
-declaring a read fails here as it would misbehave on a real host."""
+- ``plan``: run deploy.py through pyinfra against @fake hosts and return what
+  each host would be sent: every command with its stdin (file contents and
+  secrets travel over stdin).  A test describes a host's state as a
+  ``Snapshot`` of plain dicts; the harness answers the snapshot command with
+  only the keys the roles declared (the production parser then refuses any
+  other read), so a role that stops declaring a read fails here as it would
+  misbehave on a real host.
+- ``merged`` and ``converged``: a host's data with every default, and the
+  snapshot of a host on which a previous run succeeded, from each running
+  role's ``fixtures.converged`` (roles/<name>/fixtures.py): adding a role
+  needs no edit here or in another role's tests.
+- ``parse``, ``check``, ``load``, ``fleet_problems``: the fleet file checked
+  against deploy.py's roles."""
 
 from __future__ import annotations
 
@@ -14,6 +21,8 @@ import re
 import shlex
 from pathlib import Path
 
+import importlib
+
 from pyinfra.api import Config, Inventory, State
 from pyinfra.api.exceptions import PyinfraError
 from pyinfra.api.connect import connect_all, disconnect_all
@@ -21,12 +30,27 @@ from pyinfra.api.operations import run_ops
 from pyinfra.connectors.fake import FakeConnector
 from pyinfra.context import ctx_state
 
-from roles import hoststate
-from roles import fleet
-from roles.fleet import read_group_data
-from roles.hoststate import FileState, Snapshot
+from engine import roster
+from engine.host import aptrepo
+from engine.fleet import check as fleet_check
+from engine.host import snapshot as hoststate
+from engine.host.snapshot import FileState, Snapshot
+from engine.role import Play, added
+from roles.payload import compose, hooks, release, services
 
 ROOT = Path(__file__).resolve().parents[2]
+
+# Sample hosts most tests start from.
+IMAGE = "reg.example.com/ros/payload:1.0"
+ROBOT = {
+    "payload_image": IMAGE,
+    "docker_users": ["ops"],
+    "sensors": [
+        {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "1-1.2"},
+        {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3"},
+    ],
+}
+LAPTOP = {"payload_image": IMAGE, "docker_users": ["alice"], "x11_user": "alice"}
 SNAPSHOT_MARK = "export LC_ALL=C"
 
 OS_RELEASES = {
@@ -182,7 +206,7 @@ def plan(
     from pyinfra_cli.exceptions import UnexpectedExternalError
     from pyinfra_cli.util import load_deploy_file
 
-    defaults = read_group_data()
+    defaults = group_data()
     groups: dict[str, tuple[list, dict]] = {"robots": ([], defaults["robots"]), "laptops": ([], defaults["laptops"])}
     for name, (group, data, snap) in hosts.items():
         # Our deliberate failures (operations.fail) exit 1 on a real shell.
@@ -234,13 +258,96 @@ def everything_sent(commands: list[Sent]) -> str:
     return "\n".join(parts + list(written_files(commands).values()))
 
 
+# --- the fleet file ------------------------------------------------------------
+
+FleetError = fleet_check.FleetError
+display_path = fleet_check.display_path
+
+
+def registry():
+    return roster.registry()
+
+
+def setting_checks() -> dict:
+    """Every setting's checker, by name."""
+    return {name: setting.check for name, setting in registry().settings.items()}
+
+
+def group_data() -> dict[str, dict]:
+    """What pyinfra reads from group_data/, by group."""
+    return {group: roster.group_data(group) for group in ("all", "robots", "laptops")}
+
+
+def parse(text, shown: str = "f.yaml"):
+    return fleet_check.parse(text, shown, registry())
+
+
+def check(doc, shown: str = "f.yaml"):
+    return fleet_check.check(doc, shown, registry())
+
+
+def load(path):
+    return fleet_check.load(path, registry())
+
+
 def fleet_problems(doc, path: str = "robots.yaml") -> list[str]:
     """The problem lines the fleet check prints for ``doc`` ([] if accepted)."""
     try:
-        fleet.check(doc, path, read_group_data())
-    except fleet.FleetError as error:
+        check(doc, path)
+    except FleetError as error:
         return error.lines
     return []
 
 
-__all__ = ["fleet_problems", "FileState", "Snapshot", "Sent", "fresh_host", "plan", "find", "written_files", "everything_sent", "OS_RELEASES"]
+# --- hosts: data and snapshots ------------------------------------------------
+
+
+class Data(dict):
+    """A host's data, read as pyinfra's host.data is."""
+
+    __getattr__ = dict.__getitem__
+
+
+def merged(group: str, data: dict) -> Data:
+    """``data`` over every default of ``group``, as a host in it sees it."""
+    defaults = group_data()
+    return Data({**defaults["all"], **defaults[group], **data})
+
+
+def running_roles(data) -> tuple:
+    return tuple(role for role in roster.roles() if role.runs_on(data))
+
+
+def converged(group: str, data: dict, os_name: str, arch: str = "amd64", name: str | None = None) -> Snapshot:
+    """The snapshot of host ``name`` (default r1 or l1 by group) on which a
+    previous run succeeded: each role that runs there fills in what it
+    leaves behind (roles/<name>/fixtures.py)."""
+    d = merged(group, data)
+    snap = fresh_host(os_name, arch, users=())
+    play = Play(d, snap, running_roles(d))
+    host = "@fake/" + (name or ("r1" if group == "robots" else "l1"))
+    for role in play.roles:
+        importlib.import_module(f"roles.{role.name}.fixtures").converged(play, host)
+    return snap
+
+
+def desired_compose(data, address: str) -> dict:
+    """The compose document the deploy computes for a host with ``data``
+    (what the roles running there add included)."""
+    return compose.project(data, address, added(running_roles(data), hooks.SERVICES, data, services.declared(data)))
+
+
+def release_spec(data, doc: dict) -> dict:
+    """The spec the deploy hands payloadctl for ``doc``."""
+    return release.spec(data, doc, added(running_roles(data), hooks.CHECKS, data))
+
+
+def docker_repo(url: str, key_path: str, fingerprint: str | None, sha256: str | None = None) -> aptrepo.Repository:
+    """Docker's repository as the docker role declares it, for the key script's own tests."""
+    return aptrepo.Repository("Docker", url, key_path, fingerprint, "docker_apt_key_fingerprint", "docker", "",
+                              "docker_key_fingerprints", sha256, "docker_apt_key_sha256")
+
+
+__all__ = ["fleet_problems", "FileState", "Snapshot", "Sent", "fresh_host", "plan", "find", "written_files",
+           "everything_sent", "OS_RELEASES", "merged", "converged", "parse", "check", "load", "group_data", "Data", "IMAGE", "ROBOT",
+           "LAPTOP", "desired_compose", "release_spec", "docker_repo"]

@@ -1,10 +1,10 @@
 """Rollout planning, computable without a host: waves, the failure budget,
 and the rollout state kept on the operator's machine between runs.
 
-A robot's *target* is the payload image its data declares; it is *done* when
-its current release runs that image and is healthy (or staged, on a host
-without autostart).  roles/rollout.py runs the deploy wave by wave with
-these functions deciding what happens next.
+A robot's *target* is what the roles' rollout parts ask of it (the payload:
+every image of its compose project); it is *done* when its status row shows
+that.  engine/commands/rollout.py runs the deploy wave by wave with these
+functions deciding what happens next.
 """
 
 from __future__ import annotations
@@ -64,36 +64,6 @@ def allowed_failures(max_failed: Count, total: int) -> int:
     """Failures the rollout tolerates; one more stops it (Ansible's
     max_fail_percentage: a share is rounded down)."""
     return max_failed.of(total, round_up=False)
-
-
-def is_done(status_row: dict, target: str) -> bool:
-    """Does a roles.status row show ``target`` current and healthy?"""
-    if not status_row.get("reachable"):
-        return False
-    images = status_row.get("image_refs") or []
-    if target not in images:
-        return False
-    state = status_row.get("release_state")
-    if state == "staged":
-        return True
-    if state != "active":
-        return False
-    health = (status_row.get("health") or "").split(", ")
-    states = (status_row.get("state") or "").split(", ")
-    return all(s == "running" for s in states) and all(h in ("healthy", "none") for h in health)
-
-
-def why_not_done(status_row: dict, target: str) -> str:
-    if not status_row.get("reachable"):
-        return status_row.get("error") or "unreachable"
-    if status_row.get("error"):
-        return status_row["error"]
-    back = status_row.get("rolled_back_from") or {}
-    if back.get("reason"):
-        return f"release failed ({back['reason']}); rolled back to {status_row.get('release')}"
-    if target not in (status_row.get("image_refs") or []):
-        return f"runs {', '.join(status_row.get('image_refs') or ['nothing'])}, not {target}"
-    return f"release {status_row.get('release')} is {status_row.get('release_state')}, containers {status_row.get('state')}/{status_row.get('health')}"
 
 
 def fleet_key(inventory: str, selection: list[str], targets: dict[str, str]) -> str:

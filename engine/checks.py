@@ -9,6 +9,7 @@ contacted and is unit-tested without hosts.
 from __future__ import annotations
 
 import datetime
+import difflib
 import re
 from collections.abc import Callable
 from typing import Any
@@ -83,7 +84,7 @@ def expected_string(value: Any, what: str = "a string") -> str:
 
 
 def with_schema(check: Checker, schema: dict) -> Checker:
-    """Attach the JSON Schema of what ``check`` accepts (roles/schema.py
+    """Attach the JSON Schema of what ``check`` accepts (engine/fleet/schema.py
     builds the fleet file's schema for editors from these)."""
     check.schema = schema
     return check
@@ -283,3 +284,19 @@ IDENTIFIER = r"[a-z0-9][a-z0-9_-]{0,62}"
 ABS_PATH = r"/[A-Za-z0-9._/@+-]*"
 ENV_NAME = r"[A-Za-z_][A-Za-z0-9_]*"
 HEX4 = r"[0-9a-fA-F]{4}"
+
+
+def did_you_mean(key: str, known) -> str:
+    close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+_CONTROL = {i: f"\\x{i:02x}" for i in [*range(0x20), 0x7F, *range(0x80, 0xA0)]}
+_CONTROL.update({0x2028: "\\u2028", 0x2029: "\\u2029"})
+
+
+def one_line(line: str) -> str:
+    """A line with any control character (a newline in a host name, an
+    escape sequence in text a host sent) escaped: one problem is one line,
+    and nothing printed can move the operator's cursor."""
+    return line.translate(_CONTROL)

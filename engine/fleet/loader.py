@@ -15,7 +15,7 @@ import yaml
 from yaml.constructor import SafeConstructor
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from roles.checks import Misread
+from engine.checks import Misread
 
 # libyaml's parser where PyYAML was built with it (its wheels are), else the
 # pure-Python one: same nodes, several times slower.

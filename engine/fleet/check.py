@@ -6,31 +6,29 @@ Layout of the YAML file (Ansible-inventory-like)::
     robots:   {vars: {...}, hosts: {robot1: {address: ..., ...}}}
     laptops:  {vars: {...}, hosts: {...}}
 
-A host's data is group_data defaults < all.vars < group vars < host.
+A host's data is the settings' defaults < all.vars < group vars < host.
 Everything is checked before pyinfra connects anywhere; each problem is one
 line ``FILE: HOST.FIELD: message``.
 """
 
 from __future__ import annotations
 
-import functools
 import os
 import re
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from roles import checks as c
-from roles import fleetyaml, settings
+from engine import checks as c
+from engine.fleet import loader
+from engine.fleet.registry import Registry, setting_of
+from engine.role import GROUPS
 
-GROUPS = ("robots", "laptops")
 # Top-level keys starting with x- are ignored (as in compose files): a place
 # for YAML anchors shared with merge keys, e.g. x-camera: &camera {...}.
 EXTENSION_PREFIX = "x-"
 # 5,000 robots with sensors are about 1 MiB: anything far larger is a mistake.
 MAX_BYTES = 32 * 2**20
 HOST_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,62}")
-GROUP_DATA_DIR = Path(__file__).resolve().parent.parent / "group_data"
 
 
 class FleetError(Exception):
@@ -47,20 +45,6 @@ class Fleet:
         return self.groups.get(group, [])
 
 
-def read_group_data(directory: Path = GROUP_DATA_DIR) -> dict[str, dict]:
-    """The defaults pyinfra will load from group_data/, keyed by group."""
-    defaults = {}
-    for path in sorted(directory.glob("*.py")):
-        namespace: dict = {}
-        exec(compile(path.read_text(), str(path), "exec"), namespace)
-        defaults[path.stem] = {
-            k: v
-            for k, v in namespace.items()
-            if not k.startswith("_") and not callable(v) and type(v).__name__ != "module"
-        }
-    return defaults
-
-
 def display_path(path: Path) -> str:
     try:
         return os.path.relpath(path)
@@ -68,7 +52,7 @@ def display_path(path: Path) -> str:
         return str(path)
 
 
-def load(path: Path, defaults: dict[str, dict] | None = None) -> Fleet:
+def load(path: Path, registry: Registry) -> Fleet:
     """Parse and check the fleet file; raise FleetError listing every problem."""
     try:
         with path.open("rb") as file:
@@ -77,36 +61,21 @@ def load(path: Path, defaults: dict[str, dict] | None = None) -> Fleet:
         raise FleetError([f"{display_path(path)}: fleet file not found"]) from None
     except OSError as error:
         raise FleetError([f"{display_path(path)}: cannot read the fleet file ({error.strerror})"]) from None
-    return parse(data, display_path(path), defaults)
+    return parse(data, display_path(path), registry)
 
 
-def parse(text: str | bytes, shown: str, defaults: dict[str, dict] | None = None) -> Fleet:
+def parse(text: str | bytes, shown: str, registry: Registry) -> Fleet:
     """Check fleet YAML ``text``, named ``shown`` in problem lines."""
     if len(text) > MAX_BYTES:
         raise FleetError([f"{shown}: larger than {MAX_BYTES // 2**20} MiB; a fleet file is text people edit"])
     try:
-        raw = fleetyaml.load(text)
-    except fleetyaml.YamlProblem as problem:
-        raise FleetError([one_line(f"{shown}: {problem}")]) from None
-    return check(raw, shown, _group_data() if defaults is None else defaults)
+        raw = loader.load(text)
+    except loader.YamlProblem as problem:
+        raise FleetError([c.one_line(f"{shown}: {problem}")]) from None
+    return check(raw, shown, registry)
 
 
-@functools.lru_cache(maxsize=1)
-def _group_data() -> dict[str, dict]:
-    return read_group_data()  # read-only below: check() copies what it merges
-
-
-_CONTROL = {i: f"\\x{i:02x}" for i in [*range(0x20), 0x7F, *range(0x80, 0xA0)]}
-_CONTROL.update({0x2028: "\\u2028", 0x2029: "\\u2029"})
-
-
-def one_line(line: str) -> str:
-    """A problem line with any control character (a newline in a host name)
-    escaped: one problem is always one line."""
-    return line.translate(_CONTROL)
-
-
-def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
+def check(raw, shown: str, registry: Registry) -> Fleet:
     lines: list[str] = []
 
     def report(where: str, problems):
@@ -118,7 +87,7 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
         if fleet is not None and not lines and not any(fleet.groups.values()):
             lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts")
         if lines:
-            raise FleetError([one_line(line) for line in lines])
+            raise FleetError([c.one_line(line) for line in lines])
         return fleet
 
     if raw is None:
@@ -132,7 +101,7 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
         if not isinstance(key, str) or key not in ("all",) + GROUPS:
             lines.append(
                 f"{shown}: {c.key_name(key)}: unknown top-level key"
-                + settings.did_you_mean(str(key), ("all",) + GROUPS)
+                + c.did_you_mean(str(key), ("all",) + GROUPS)
                 + "; expected all, robots or laptops (or x-... for YAML anchors)"
             )
 
@@ -147,7 +116,7 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
         for key in value:
             if key not in allowed:
                 lines.append(
-                    f"{shown}: {name}.{c.key_name(key)}: unknown key" + settings.did_you_mean(str(key), allowed)
+                    f"{shown}: {name}.{c.key_name(key)}: unknown key" + c.did_you_mean(str(key), allowed)
                 )
         variables = value.get("vars")
         if variables is None:
@@ -161,12 +130,12 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
         elif not isinstance(hosts, dict):
             lines.append(f"{shown}: {name}.hosts: expected a mapping of host name to settings, got {c.describe(hosts)}")
             hosts = {}
-        return settings.normalize(variables), hosts
+        return registry.normalize(variables), hosts
 
     def check_vars(where: str, variables: dict) -> set[str]:
-        problems = settings.check_layer(variables)
+        problems = registry.check_layer(variables)
         report(where, problems)
-        return {settings.setting_of(sub) for sub, _ in problems}
+        return {setting_of(sub) for sub, _ in problems}
 
     all_vars, _ = section("all")
     all_refused = check_vars("all.vars", all_vars)
@@ -176,7 +145,7 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
     for group in GROUPS:
         group_vars, hosts = section(group)
         group_refused = all_refused | check_vars(f"{group}.vars", group_vars)
-        base = {**defaults.get("all", {}), **defaults.get(group, {}), **all_vars, **group_vars}
+        defaults = registry.defaults(group)
         fleet.groups[group] = []
         for name, host_vars in hosts.items():
             if not isinstance(name, str):
@@ -194,38 +163,20 @@ def check(raw, shown: str, defaults: dict[str, dict]) -> Fleet:
             if not isinstance(host_vars, dict):
                 lines.append(f"{shown}: {name}: expected a mapping of settings, got {c.describe(host_vars)}")
                 continue
-            host_vars = settings.normalize(host_vars)
-            layer_problems = settings.check_layer(host_vars)
+            host_vars = registry.normalize(host_vars)
+            layer_problems = registry.check_layer(host_vars)
             report(name, layer_problems)
-            refused = group_refused | {settings.setting_of(sub) for sub, _ in layer_problems}
+            refused = group_refused | {setting_of(sub) for sub, _ in layer_problems}
             if "address" in refused:
                 refused.add("ssh_hostname")
-            data = {**all_vars, **group_vars, **host_vars}
-            settings._services().merge_into(data, [all_vars, group_vars, host_vars])  # per service
-            if "address" in data:
-                data["ssh_hostname"] = data.pop("address")
-            merged = {**base, **host_vars}
-            settings._services().merge_into(merged, [all_vars, group_vars, host_vars])  # per service
-            if "address" in merged:
-                merged["ssh_hostname"] = merged.pop("address")
-            report(name, settings.check_host(merged, refused))
+            data = registry.merge([all_vars, group_vars, host_vars])
+            for alias, setting in registry.aliases.items():
+                if alias in data:
+                    data[setting] = data.pop(alias)
+            merged = {**defaults, **data}
+            report(name, registry.check_host(merged, refused))
             fleet.groups[group].append((name, data))
 
     return finish(fleet)
 
 
-def refuse(lines: list[str]) -> None:
-    """Stop the pyinfra run before any connection: the lines, exit status 2.
-    (os._exit: pyinfra would turn an exception here into a traceback.)"""
-    for line in lines:
-        print(line, file=sys.stderr)
-    sys.stderr.flush()
-    os._exit(2)
-
-
-def load_or_exit(path: Path) -> Fleet:
-    """For inventory files: print the problems and stop before any connection."""
-    try:
-        return load(path)
-    except FleetError as error:
-        refuse(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])

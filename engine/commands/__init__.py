@@ -1,0 +1,1 @@
+"""The operator commands (python3 -m engine ...): status, rollout, generate."""

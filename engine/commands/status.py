@@ -1,0 +1,163 @@
+"""Fleet status: what each host runs and whether it is healthy.
+
+    python3 -m engine status inventories/robots.py [--limit robot2] [--json]
+
+One row per host, one SSH command per host: each role with a status part
+(deploy.py's roles) adds its columns, e.g. Docker's version, the current
+release, its image, container state and health, the GPU driver.
+Unreachable hosts are rows too, never an abort.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import json
+import os
+import re
+import sys
+
+import gevent
+
+from engine import roster
+from engine.checks import one_line
+from engine.commands import waves
+
+MARK = "@@@robot-fleet-status "
+FIRST = [("host", "HOST"), ("reachable", "REACHABLE")]
+LAST = [("rollout", "ROLLOUT")]
+
+
+def reporting(roles) -> list:
+    """The roles with a status part, in the table's order."""
+    return sorted((r for r in roles if r.status), key=lambda r: r.status.order)
+
+
+def columns(roles) -> list[tuple[str, str]]:
+    return FIRST + [column for role in reporting(roles) for column in role.status.columns] + LAST
+
+
+def status_command(roles, data) -> str:
+    """The host's one status command: each role's part after a marker line."""
+    return "; ".join(
+        f"echo '{MARK}{role.name}'; ( {role.status.command(data)} ) 2>/dev/null" for role in reporting(roles)
+    ) + "; true"
+
+
+def sections(stdout: str) -> dict[str, str]:
+    """The status command's output, by role name (pure)."""
+    found: dict[str, list[str]] = {}
+    current = None
+    for line in stdout.splitlines():
+        if line.startswith(MARK):
+            current = line[len(MARK):].strip()
+            found[current] = []
+        elif current is not None:
+            found[current].append(line)
+    return {name: "\n".join(lines) for name, lines in found.items()}
+
+
+def row(name: str, roles, parts: dict[str, str] | None, error: str | None = None) -> dict:
+    """A table row from the roles' sections of the output (pure); None:
+    the host did not answer."""
+    if parts is None:
+        return {"host": name, "reachable": False, "error": error}
+    cells = {"host": name, "reachable": True}
+    for role in reporting(roles):
+        try:
+            cells.update(role.status.cells(parts.get(role.name, "")))
+        except ValueError:
+            cells["error"] = f"unreadable {role.name} status"
+    return cells
+
+
+def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
+    def cell(value):
+        if value is True:
+            return "yes"
+        if value is False:
+            return "no"
+        return "-" if value in (None, "") else one_line(str(value))
+
+    def short(key, value):
+        # The table shows the first 12 digits of a digest; --json has it whole.
+        if key == "image" and isinstance(value, str) and "@sha256:" in value:
+            return re.sub(r"@sha256:([0-9a-f]{12})[0-9a-f]{52}", r"@sha256:\1", value)
+        return value
+
+    cells = [[cell(short(key, r.get(key))) for key, _ in shown] for r in rows]
+    widths = [max([len(title)] + [len(c[i]) for c in cells]) for i, (_, title) in enumerate(shown)]
+    lines = ["  ".join(title.ljust(w) for (_, title), w in zip(shown, widths)).rstrip()]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in cells]
+    return "\n".join(lines)
+
+
+def collect(inventory_path: str, limits: list[str], roles=None) -> list[dict]:
+    from pyinfra.api import Config, State
+    from pyinfra.api.connect import connect_all
+    from pyinfra.api.exceptions import PyinfraError
+    from pyinfra.context import ctx_state
+    from pyinfra_cli.inventory import make_inventory
+
+    roles = roster.roles() if roles is None else roles
+    with ctx_state.use(State()):
+        inventory = make_inventory(inventory_path, cwd=os.getcwd())
+    hosts = [h for h in inventory if not limits or any(
+        fnmatch.fnmatch(h.name, pattern) or pattern in h.groups for pattern in limits
+    )]
+    state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
+    state.limit_hosts = hosts
+    with ctx_state.use(state):
+        try:
+            connect_all(state)
+        except PyinfraError:
+            pass  # every host unreachable: each still gets its row
+        return _read_status(hosts, roles)
+
+
+def _read_status(hosts, roles) -> list[dict]:
+    from pyinfra.api.command import StringCommand
+
+    def one(host):
+        if not host.connected:
+            return row(host.name, roles, None, "cannot connect")
+        ok, output = host.run_shell_command(StringCommand(status_command(roles, host.data)), _sudo=True)
+        if not ok:
+            return {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]}
+        return row(host.name, roles, sections(output.stdout))
+
+    jobs = [gevent.spawn(one, host) for host in hosts]
+    gevent.joinall(jobs)
+    return [job.value for job in jobs]
+
+
+def main(argv=None) -> int:
+    # Hosts are queried in parallel greenlets over paramiko; patching is the
+    # command's business, not its importers' (the unit tests import this module).
+    from gevent import monkey
+
+    monkey.patch_all()
+    parser = argparse.ArgumentParser(prog="python3 -m engine status", description=__doc__.splitlines()[0])
+    parser.add_argument("inventory")
+    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")
+    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    args = parser.parse_args(argv)
+    if not os.path.exists(args.inventory):
+        print(f"{args.inventory}: no such inventory file", file=sys.stderr)
+        return 2
+    roles = roster.roles()
+    rows = collect(args.inventory, args.limit, roles)
+    rollout = waves.latest_state()
+    for r in rows:
+        r["rollout"] = waves.host_state(rollout, r["host"])
+    if args.json:
+        print(json.dumps(rows, indent=2, sort_keys=True))
+    else:
+        print(table(rows, columns(roles)))
+        if rollout:
+            print(waves.summary(rollout))
+    return 0 if all(r["reachable"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

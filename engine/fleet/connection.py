@@ -1,0 +1,29 @@
+"""The engine's own settings: how to reach a host (pyinfra's SSH connector
+data), how long apt waits for its lock, rollout canaries."""
+
+from __future__ import annotations
+
+from engine import checks as c
+from engine import values as v
+from engine.role import UNSET, Setting
+
+# Keys the fleet file may use that are not settings of their own.
+ALIASES = {"address": "ssh_hostname"}
+
+SETTINGS = (
+    Setting("ssh_hostname", UNSET, v.address, "The address SSH connects to (write it as address:); default: the host's name."),
+    Setting("ssh_user", UNSET, v.user_name, "The SSH user (sudo runs every step); default: yours."),
+    Setting("ssh_port", 22, c.integer(1, 65535), "The port sshd listens on."),
+    Setting("ssh_key", UNSET, v.local_path, "Private key file on this machine; default: your agent and ~/.ssh keys."),
+    Setting("ssh_known_hosts_file", "inventories/known_hosts", v.local_path,
+            "known_hosts file for strict host key checking (relative to the checkout)."),
+    Setting("ssh_strict_host_key_checking", "yes", c.string(choices=("yes", "accept-new", "no")),
+            "yes refuses unknown or changed host keys; accept-new trusts on first use; no disables checking."),
+    Setting("ssh_connect_retries", 3, c.integer(0, 100), "Reconnect attempts for robots on flaky links."),
+    Setting("ssh_connect_retry_min_delay", 1, c.integer(0, 600), "Seconds before a reconnect, at least."),
+    Setting("ssh_connect_retry_max_delay", 5, c.integer(0, 600), "Seconds before a reconnect, at most."),
+    Setting("apt_lock_timeout", 300, c.integer(0, 86400),
+            "Seconds apt waits in all for the apt/dpkg locks another process holds, then the host fails naming it."),
+    Setting("rollout_canary", False, c.boolean,
+            "This robot is updated in a rollout's first wave (else the first --canary N robots are)."),
+)

@@ -1,0 +1,110 @@
+"""Every setting the fleet file may hold, from the declarations of the
+engine and of the roles, and the checks built on them: one layer of data (a
+host, a group's vars), a host's merged data, the data pyinfra ends up with.
+
+Checks are pure, so they run before any host is contacted."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from engine import checks as c
+from engine.role import UNSET, Role, Setting
+
+
+class Registry:
+    def __init__(self, settings: Iterable[Setting], roles: Iterable[Role] = (), aliases: dict[str, str] | None = None):
+        self.roles = tuple(roles)
+        self.aliases = dict(aliases or {})
+        self.settings: dict[str, Setting] = {}
+        for setting in [*settings, *(s for role in self.roles for s in role.settings)]:
+            if setting.name in self.settings:
+                raise ValueError(f"setting {setting.name} is declared twice")
+            self.settings[setting.name] = setting
+        self.mergers = [(name, s.merge) for name, s in self.settings.items() if s.merge is not None]
+        # A YAML 1.1 unquoted yes/no is a boolean: where a setting's documented
+        # words include yes/no, the boolean means that word.
+        self.words = {}
+        for name, setting in self.settings.items():
+            choices = getattr(setting.check, "schema", {}).get("enum") or ()
+            words = {flag: word for flag, word in ((True, "yes"), (False, "no")) if word in choices}
+            if words:
+                self.words[name] = words
+
+    def defaults(self, group: str | None = None) -> dict:
+        """The defaults of every setting for hosts of ``group`` (None: all)."""
+        result = {}
+        for name, setting in self.settings.items():
+            value = setting.default_in(group)
+            if value is not UNSET:
+                result[name] = value
+        return result
+
+    def group_defaults(self, group: str) -> dict:
+        """Only what differs in ``group`` from the defaults of all hosts."""
+        return {s.name: s.default_in(group) for s in self.settings.values() if group in s.groups}
+
+    def normalize(self, layer: dict) -> dict:
+        """``layer`` with unquoted yes/no read back as the documented words."""
+        if not any(key in layer for key in self.words):
+            return layer
+        fixed = dict(layer)
+        for key, words in self.words.items():
+            value = fixed.get(key)
+            if isinstance(value, bool) and value in words:
+                fixed[key] = words[value]
+        return fixed
+
+    def merge(self, layers: list[dict]) -> dict:
+        """all.vars < group vars < host: the last layer that sets a setting
+        wins, except where the setting says how its layers combine."""
+        merged: dict = {}
+        for layer in layers:
+            merged.update(layer)
+        for name, merge in self.mergers:
+            values = [layer[name] for layer in layers if name in layer]
+            if len(values) > 1:
+                merged[name] = merge(values)
+        return merged
+
+    def check_layer(self, data: dict) -> list[c.Problem]:
+        """Problems in one layer of data (a host, a group's vars): keys and types."""
+        problems = []
+        for key, value in data.items():
+            if not isinstance(key, str):
+                problems.append((c.key_name(key), f"a setting name must be a string, got {c.describe(key)}; quote it"))
+                continue
+            name = self.aliases.get(key, key)
+            setting = self.settings.get(name)
+            if setting is None:
+                known = list(self.settings) + list(self.aliases)
+                problems.append((c.key_name(key), "unknown setting" + c.did_you_mean(key, known)))
+                continue
+            problems += [(f"{key}{sub}", msg) for sub, msg in setting.check(value)]
+        return problems
+
+    def check_host(self, data: dict, refused=frozenset()) -> list[c.Problem]:
+        """Rules across settings, on a host's merged data (defaults and every
+        layer).  A setting in ``refused`` already has a problem: no rule
+        looks at it again."""
+        refused = frozenset(refused)
+        return [problem for role in self.roles for problem in role.rules(data, refused)]
+
+    def data_problems(self, data) -> list[str]:
+        """Problems in a host's final data (pyinfra host.data, including
+        --data overrides, which never went through the fleet file), as
+        'field: message'."""
+        missing = object()
+        values = {}
+        for key in self.settings:
+            value = data.get(key, missing)
+            if value is not missing:
+                values[key] = value
+        layer = self.check_layer(values)
+        problems = layer + self.check_host(values, {setting_of(field) for field, _ in layer})
+        return [f"{field}: {message}" for field, message in problems]
+
+
+def setting_of(field: str) -> str:
+    """The setting a problem's field belongs to: sensors[1].serial -> sensors."""
+    return field.split(".")[0].split("[")[0]

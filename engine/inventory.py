@@ -1,0 +1,42 @@
+"""What the inventory files (inventories/*.py) call: the fleet file, checked
+against every setting of deploy.py's roles before pyinfra connects anywhere."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+from engine import roster
+from engine.fleet.check import Fleet, FleetError, display_path, load, parse
+
+__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "refuse"]
+
+
+def refuse(lines: list[str]) -> None:
+    """Stop the pyinfra run before any connection: the lines, exit status 2.
+    (os._exit: pyinfra would turn an exception here into a traceback.)"""
+    for line in lines:
+        print(line, file=sys.stderr)
+    sys.stderr.flush()
+    os._exit(2)
+
+
+def _refuse_fleet(error: FleetError) -> None:
+    refuse(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
+
+
+def load_or_exit(path: Path) -> Fleet:
+    """The fleet file at ``path``, or its problems printed and exit 2."""
+    try:
+        return load(path, roster.registry())
+    except FleetError as error:
+        _refuse_fleet(error)
+
+
+def parse_or_exit(text: str | bytes, shown: str) -> Fleet:
+    """Fleet YAML ``text`` (named ``shown`` in problem lines), or exit 2."""
+    try:
+        return parse(text, shown, roster.registry())
+    except FleetError as error:
+        _refuse_fleet(error)

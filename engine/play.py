@@ -1,0 +1,33 @@
+"""A host's run of the roles: check its data, read its state in one
+command, then each role's steps in deploy.py's order."""
+
+from __future__ import annotations
+
+from pyinfra import host
+
+from engine import roster
+from engine.host import operations
+from engine.host.snapshot import HostSnapshot, SnapshotQuery
+from engine.role import Play, cards
+
+
+def provision(listed) -> None:
+    """Run the roles ``listed`` (deploy.py's ROLES) on the current host.
+
+    pyinfra runs deploy.py once per host; the engine's roster runs it only to
+    read ROLES, and then this does nothing."""
+    if roster.reading():
+        return
+    roles = cards(listed)
+    # The fleet file was checked before connecting; --data overrides were not.
+    problems = roster.registry_of(roles).data_problems(host.data)
+    if problems:
+        operations.fail(name="Check the host's settings", message="settings: " + "; ".join(problems))
+        return
+    running = tuple(role for role in roles if role.runs_on(host.data))
+    query = SnapshotQuery()
+    for role in running:
+        role.reads(host.data, query)
+    play = Play(host.data, host.get_fact(HostSnapshot, **query.as_kwargs()), running)
+    for role in running:
+        role.steps(play)

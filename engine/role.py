@@ -1,0 +1,160 @@
+"""What a role declares, and what its steps are given.
+
+A role is one folder under roles/ whose ``__init__.py`` defines
+``ROLE = Role(...)``; deploy.py lists the roles in the order they run.  The
+engine builds everything else from these declarations: the fleet file's
+checks, the editors' JSON schema, the defaults pyinfra reads (group_data/),
+the settings table (docs/settings.md), the host's one snapshot command, the
+status table and the rollout's target.  ARCHITECTURE.md has a worked example.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from engine.checks import Checker, Problem
+from engine.host.snapshot import Snapshot, SnapshotQuery
+
+GROUPS = ("robots", "laptops")
+
+
+class _Unset:
+    def __repr__(self) -> str:
+        return "UNSET"
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+# The default of a setting whose default is pyinfra's own (ssh_user: the
+# operator's user): not written into group_data.
+UNSET = _Unset()
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One setting of the fleet file: its default, its check, one line of doc.
+
+    ``groups`` gives another default where a host is in that group (robots,
+    laptops); ``merge`` says how the layers (all.vars < group vars < host)
+    combine when each sets it: None means the last one that sets it wins."""
+
+    name: str
+    default: Any
+    check: Checker
+    doc: str
+    groups: Mapping[str, Any] = field(default_factory=dict)
+    merge: Callable[[list[Any]], Any] | None = None
+
+    def default_in(self, group: str | None) -> Any:
+        return copy.deepcopy(self.groups.get(group, self.default) if group else self.default)
+
+
+@dataclass(frozen=True, eq=False)
+class Hook:
+    """A place where a role lets other roles add to what it builds, e.g. the
+    docker role's daemon.json (the GPU role adds its runtime there).  The
+    role that owns the hook says what an addition is called with and returns."""
+
+    name: str
+    doc: str
+
+
+@dataclass(frozen=True)
+class StatusPart:
+    """A role's columns in ``python3 -m engine status``: a read-only shell
+    command run in the host's one status command, and its output as cells."""
+
+    command: Callable[[Any], str]
+    cells: Callable[[str], dict]
+    columns: tuple[tuple[str, str], ...] = ()
+    order: int = 50  # where its columns stand in the table, lower first
+
+
+@dataclass(frozen=True)
+class RolloutPart:
+    """What a rollout waits for on each host: ``target(data)`` (JSON data
+    naming what the host should run) and ``missing(row, target)``: None once
+    the host's status row shows it, else why not (one line)."""
+
+    target: Callable[[Any], Any]
+    missing: Callable[[dict, Any], str | None]
+
+
+def _always(data) -> bool:
+    return True
+
+
+def _nothing(*args) -> None:
+    return None
+
+
+def _no_problems(data: dict, refused: frozenset) -> list[Problem]:
+    return []
+
+
+@dataclass(frozen=True)
+class Role:
+    """A role's card.  Only ``name`` and ``doc`` are required.
+
+    - ``runs_on(data)``: whether it has anything to do on a host;
+    - ``reads(data, query)``: what its steps need to know about the host;
+    - ``steps(play)``: its operations, comparing with ``play.snapshot``;
+    - ``rules(data, refused)``: checks across settings on a host's merged
+      data (defaults included); ``refused`` names settings that already have
+      a problem, which a rule does not look at again;
+    - ``adds``: hook -> what this role adds there (see ``Play.added``)."""
+
+    name: str
+    doc: str
+    settings: tuple[Setting, ...] = ()
+    runs_on: Callable[[Any], bool] = _always
+    reads: Callable[[Any, SnapshotQuery], None] = _nothing
+    steps: Callable[[Play], None] = _nothing
+    rules: Callable[[dict, frozenset], list[Problem]] = _no_problems
+    adds: Mapping[Hook, Callable] = field(default_factory=dict)
+    status: StatusPart | None = None
+    rollout: RolloutPart | None = None
+
+
+def cards(listed) -> tuple[Role, ...]:
+    """The Role of each entry of deploy.py's ROLES (a role's package, or its ROLE)."""
+    return tuple(getattr(entry, "ROLE", entry) for entry in listed)
+
+
+def adders(roles, hook: Hook) -> list[Callable]:
+    """What ``roles`` add to ``hook``, in their order."""
+    return [add for role in roles for where, add in role.adds.items() if where is hook]
+
+
+def added(roles, hook: Hook, data, *args) -> list:
+    """What ``roles`` add to ``hook`` for a host with ``data``."""
+    return [add(data, *args) for add in adders(roles, hook)]
+
+
+def folded(roles, hook: Hook, data, value):
+    """``value`` passed through each role's addition in turn (each returns the new value)."""
+    for add in adders(roles, hook):
+        value = add(data, value)
+    return value
+
+
+@dataclass
+class Play:
+    """What a role's steps are given: the host's data, its snapshot (read
+    once, before any step), and the roles running on this host."""
+
+    data: Any
+    snapshot: Snapshot
+    roles: tuple[Role, ...] = ()
+
+    def added(self, hook: Hook, *args) -> list:
+        """What the other roles on this host add to ``hook``."""
+        return added(self.roles, hook, self.data, *args)
+
+    def folded(self, hook: Hook, value):
+        """``value`` as the other roles on this host amend it through ``hook``."""
+        return folded(self.roles, hook, self.data, value)

@@ -1,0 +1,24 @@
+"""Test fixtures: what a successful run of the docker role leaves on a host."""
+
+from engine.host.fixtures import file_state
+from engine.host.snapshot import FileState
+from roles import docker
+import roles.docker.hooks as hooks
+import roles.docker.plan as plan
+
+
+def converged(play, host: str) -> None:
+    data, snap = play.data, play.snapshot
+    snap.packages.update({p: "1" for p in data.docker_packages})
+    repo = docker.repository(data, snap.os_release, snap.arch)
+    snap.files.update({
+        "/etc/apt/keyrings": FileState("dir", None, "755", "root", "root"),
+        repo.key_path: FileState("file", "f" * 64, "644", "root", "root"),
+        repo.sources_path: file_state(repo.sources),
+        "/etc/docker": FileState("dir", None, "755", "root", "root"),
+        docker.DAEMON_JSON: file_state(plan.daemon_json(
+            play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
+            data.docker_registry_mirrors, data.docker_insecure_registries)),
+    })
+    snap.probes[docker.KEY_PROBE] = (repo.fingerprint or "") + "\n"
+    snap.units["docker.service"] = ("enabled", "active")

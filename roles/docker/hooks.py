@@ -1,0 +1,9 @@
+"""Where other roles add to what the docker role builds."""
+
+from engine.role import Hook
+
+DAEMON_OPTIONS = Hook(
+    "docker daemon.json",
+    "add(data, options) -> options: daemon.json's options with what the role needs merged in "
+    "(the gpu role's nvidia runtime); the docker role writes the file and restarts Docker only when it changes.",
+)

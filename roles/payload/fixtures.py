@@ -1,0 +1,34 @@
+"""Test fixtures: what a successful release leaves on a host."""
+
+import json
+
+from engine.host.fixtures import file_state
+from engine.host.snapshot import FileState
+import roles.payload.compose as compose
+import roles.payload.hooks as hooks
+import roles.payload.robot as robot
+import roles.payload.services as services
+import roles.payload.steps as steps
+
+
+def desired(play, host: str) -> dict:
+    """The compose document the deploy computes for ``play``'s host."""
+    data = play.data
+    additions = play.added(hooks.SERVICES, services.declared(data))
+    return compose.project(data, data.get("ssh_hostname") or host, additions)
+
+
+def converged(play, host: str) -> None:
+    data, snap = play.data, play.snapshot
+    additions = play.added(hooks.SERVICES, services.declared(data))
+    snap.files.update({
+        data.payload_dir: FileState("dir", None, "755", "root", "root"),
+        robot.HELPER: file_state(robot.helper_text(), "755"),
+    })
+    if data.payload_autostart:
+        snap.files[robot.unit_path(data)] = file_state(robot.unit_text(data, steps.unit_devices(additions)))
+        snap.units[f"{data.payload_name}.service"] = ("enabled", "active")
+        snap.probes["payload_containers"] = "running\tUp 3 hours (healthy)\n"
+    doc = compose.project(data, data.get("ssh_hostname") or host, additions)
+    state = "active" if data.payload_autostart else "staged"
+    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, data.payload_autostart), "state": state})

@@ -1,0 +1,99 @@
+"""The payload's part of the operator commands: its status columns (from
+payloadctl status on the robot) and what a rollout waits for (every image of
+the robot's compose project running healthy)."""
+
+from __future__ import annotations
+
+import json
+import shlex
+
+from engine.role import RolloutPart, StatusPart
+import roles.payload.services as services
+from roles.payload.robot import HELPER
+
+
+def status_command(data) -> str:
+    q = shlex.quote
+    return (
+        f"[ -x {HELPER} ] && /usr/bin/python3 {HELPER} status --dir {q(data.payload_dir)}"
+        f" --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}"
+    )
+
+
+def cells(output: str) -> dict:
+    """Status cells from payloadctl's JSON report (pure); {} before the
+    first deploy."""
+    report = next((json.loads(line) for line in output.splitlines() if line.strip().startswith("{")), {})
+    current = report.get("current") or {}
+    previous = report.get("previous") or {}
+    containers = report.get("containers") or []
+    images = [i.get("pinned") for i in (current.get("images") or {}).values()]
+    return {
+        "release": current.get("id"),
+        "image": images[0] if len(images) == 1 else (", ".join(images) or None),
+        "state": ", ".join(c["status"] for c in containers) or None,
+        "health": ", ".join(c.get("health") or "none" for c in containers) or None,
+        "restarts": sum(c.get("restarts", 0) for c in containers),
+        "previous": previous.get("id"),
+        "deployed": current.get("rolled_back_to") or current.get("activated") or current.get("created"),
+        "release_state": current.get("state"),
+        "lock": report.get("update_lock"),
+        "rolled_back_from": current.get("rolled_back_from"),
+        **per_service(report.get("services") or {}),
+        "image_refs": sorted(current.get("images") or {}),
+    }
+
+
+def per_service(states: dict) -> dict:
+    """A project of several services: each one's image, state and health
+    (the table's columns name the service; --json has them whole)."""
+    if len(states) < 2:
+        return {"services": states or None} if states else {}
+    ordered = sorted(states.items())
+    return {
+        "services": states,
+        "image": ", ".join(f"{name}={s.get('image')}" for name, s in ordered),
+        "state": ", ".join(f"{name}:{s.get('state')}" for name, s in ordered),
+        "health": ", ".join(f"{name}:{s.get('health') or 'none'}" for name, s in ordered),
+    }
+
+
+def target(data) -> list[str]:
+    """What a rollout waits for: every image of the host's compose project."""
+    return sorted(services.images(data))
+
+
+def missing(row: dict, wanted: list[str]) -> str | None:
+    """None when ``row`` shows every image of ``wanted`` in the current
+    release, healthy (or staged, on a host without autostart); else why not."""
+    if not row.get("reachable"):
+        return row.get("error") or "unreachable"
+    if row.get("error"):
+        return row["error"]
+    images = row.get("image_refs") or []
+    absent = [ref for ref in wanted if ref not in images]
+    back = row.get("rolled_back_from") or {}
+    if absent and back.get("reason"):
+        return f"release failed ({back['reason']}); rolled back to {row.get('release')}"
+    if absent:
+        return f"runs {', '.join(images or ['nothing'])}, not {', '.join(absent)}"
+    state = row.get("release_state")
+    if state == "staged":
+        return None
+    health = (row.get("health") or "").split(", ")
+    states = (row.get("state") or "").split(", ")
+    healthy = all(s.rsplit(":", 1)[-1] == "running" for s in states) and all(
+        h.rsplit(":", 1)[-1] in ("healthy", "none") for h in health)
+    if state == "active" and healthy:
+        return None
+    return f"release {row.get('release')} is {state}, containers {row.get('state')}/{row.get('health')}"
+
+
+STATUS = StatusPart(
+    command=status_command,
+    cells=cells,
+    columns=(("release", "RELEASE"), ("image", "IMAGE"), ("state", "STATE"), ("health", "HEALTH"),
+             ("previous", "PREVIOUS"), ("deployed", "LAST DEPLOY"), ("lock", "LOCK")),
+    order=20,
+)
+ROLLOUT = RolloutPart(target=target, missing=missing)

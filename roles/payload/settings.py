@@ -1,0 +1,124 @@
+"""The payload role's settings: the image or compose services, ROS
+networking, the release's bounds and the registry credentials' names."""
+
+from __future__ import annotations
+
+import re
+
+from engine import checks as c
+from engine import values as v
+from engine.role import Setting
+import roles.payload.imageref as imageref
+import roles.payload.problems as problems
+import roles.payload.services as services
+
+
+def image(value):
+    problems = c.string()(value)
+    if problems:
+        return problems
+    try:
+        imageref.parse(value)
+    except ValueError as error:
+        return [("", str(error))]
+    return []
+
+
+def volume(value):
+    problems = c.string()(value)
+    if problems:
+        return problems
+    parts = value.split(":")
+    if len(parts) not in (2, 3) or not all(p.startswith("/") for p in parts[:2]):
+        return [("", f"expected 'host_path:container_path[:ro]' with absolute paths, got {c.shown(value)}")]
+    if len(parts) == 3 and parts[2] not in ("ro", "rw"):
+        return [("", f"mount option must be ro or rw, got {c.shown(parts[2])}")]
+    if any(".." in p.split("/") for p in parts[:2]):
+        return [("", f"paths must not contain '..', got {c.shown(value)}")]
+    if not all(re.fullmatch(c.ABS_PATH, p, re.ASCII) for p in parts[:2]):
+        return [("", f"paths may hold letters, digits and . _ / @ + - only, got {c.shown(value)}")]
+    return []
+
+
+c.with_schema(image, {"type": "string", "description": "an image reference, pinned by tag or digest"})
+c.with_schema(volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"})
+payload_services = c.with_schema(
+    services.layer_problems,
+    {
+        "type": "object",
+        "description": "service name -> a Compose service (checked against the Compose Specification "
+        "before connecting); null removes a service set by a group",
+        "additionalProperties": {"type": ["object", "null"]},
+    },
+)
+_env_name = c.string(c.ENV_NAME, "an environment variable name")
+
+SETTINGS = (
+    Setting("payload_image", None, c.optional(image), "The ROS payload image, pinned by tag or digest."),
+    Setting("payload_allow_latest", False, c.boolean, "Allow the moving tag 'latest'."),
+    Setting("payload_name", "robot-payload", c.string(c.IDENTIFIER, "a name of lowercase letters, digits, - and _"),
+            "Compose project, systemd unit (<name>.service) and directory name."),
+    Setting("payload_dir", "/var/lib/robot-payload", v.private_path, "Where the releases live on the host."),
+    Setting("payload_delivery", "pull", c.string(choices=("pull", "push")),
+            "pull: the robot pulls from the registry; push: sent from this machine's Docker engine over SSH."),
+    Setting("payload_autostart", True, c.boolean, "Start the payload at boot (robots) or only stage it (laptops).",
+            groups={"robots": True, "laptops": False}),
+    Setting("payload_restart_policy", "unless-stopped", c.string(choices=("no", "always", "on-failure", "unless-stopped")),
+            "The containers' restart policy."),
+    Setting("payload_network_mode", "host", c.string(choices=("host", "bridge", "none")), "The containers' network."),
+    Setting("payload_environment", {}, c.mapping_of(_env_name, c.text),
+            "Extra container environment; values reach the container verbatim."),
+    Setting("payload_command", None, c.optional(c.list_of(c.string())), "The container's command; null: the image's."),
+    Setting("payload_volumes", [], c.list_of(volume), "Extra bind mounts, host_path:container_path[:ro]."),
+    Setting("payload_gpu", False, c.boolean, "Give the payload the host's NVIDIA GPUs (the gpu role runs)."),
+    Setting("ros_domain_id", 0, c.integer(0, 232), "ROS 2 ROS_DOMAIN_ID."),
+    Setting("ros_master_uri", None, c.optional(c.string(r"https?://[A-Za-z0-9.-]+(?::[0-9]+)?/?", "a URL like http://master:11311")),
+            "ROS 1 ROS_MASTER_URI (instead of ros_domain_id)."),
+    Setting("ros_hostname", None, c.optional(v.address), "ROS 1 ROS_HOSTNAME; null: the host's address."),
+    Setting("payload_health_timeout", 120, c.integer(5, 3600), "Seconds for a new release to become healthy."),
+    Setting("payload_stable_seconds", 10, c.integer(0, 600),
+            "For images without a HEALTHCHECK: seconds it must run without restarting."),
+    Setting("payload_pull_timeout", 300, c.integer(5, 86400), "Seconds for docker pull, all tries."),
+    Setting("payload_apply_lock_timeout", 300, c.integer(0, 86400),
+            "Seconds to wait for another deploy, rollback or boot recovery of the same robot."),
+    Setting("payload_device_wait", 30, c.integer(0, 600), "Seconds to wait at boot for the sensors' device links."),
+    Setting("payload_keep_releases", 3, c.integer(2, 50), "Releases kept on the robot (their images too, for offline rollback)."),
+    Setting("payload_lock_file", "/run/robot-payload/update.lock", v.private_path,
+            "While this file exists on the robot, updates are refused unless forced."),
+    Setting("payload_force", False, c.boolean, "Update although the update lock is held."),
+    Setting("payload_registry_username_env", "PAYLOAD_REGISTRY_USERNAME", _env_name,
+            "Environment variable (on this machine) holding the registry user; never stored, never printed."),
+    Setting("payload_registry_password_env", "PAYLOAD_REGISTRY_PASSWORD", _env_name,
+            "Environment variable (on this machine) holding the registry password or token."),
+    Setting("payload_services", {}, payload_services,
+            "Several services instead of payload_image: name -> a Compose service; layers merge per service and key.",
+            merge=services.merge_values),
+    Setting("payload_replaces", [], c.list_of(c.string(r"[a-zA-Z0-9][a-zA-Z0-9_.-]*", "a container or compose project name"), unique=True),
+            "Containers or compose projects set up another way that the payload replaces."),
+    Setting("payload_allow_privileged", False, c.boolean, "Allow privileged services."),
+    Setting("ros_preset", None, c.optional(c.string(choices=("ros1", "ros2"))),
+            "ros1 or ros2: the usual ROS environment, ipc and DDS profile in one line."),
+    Setting("ros_roscore", False, c.boolean, "ROS 1: run roscore as a service of the project."),
+    Setting("ros_roscore_image", None, c.optional(image), "ROS 1: the roscore image, pinned."),
+    Setting("ros_dds_profile", None, c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
+            "ROS 2: a DDS profile from files/dds/ (Cyclone DDS or Fast DDS XML), mounted read-only."),
+)
+
+DEFAULTS = {setting.name: setting.default for setting in SETTINGS}
+
+
+def rules(data: dict, refused: frozenset) -> list[c.Problem]:
+    """The project as a whole: the image pinned, the services checked
+    against the Compose Specification, ROS 1 or ROS 2 but not both."""
+    usable = {k: v for k, v in data.items() if k not in refused}
+    found = []
+    if "payload_image" not in refused and "payload_services" not in refused:
+        single = usable.get("payload_image")
+        if single is not None and not usable.get("payload_services") and "payload_allow_latest" not in refused:
+            why = imageref.pinning_problem(single, usable.get("payload_allow_latest", False))
+            if why:
+                found.append(("payload_image", why))
+        found += problems.host_problems(usable, DEFAULTS)
+    if usable.get("ros_master_uri") and usable.get("ros_domain_id"):
+        found.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
+    return found

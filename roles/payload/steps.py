@@ -1,0 +1,134 @@
+"""The payload role's steps: the helper and the unit in place, the image
+where the robot can use it, and a release when what runs is not what the
+fleet file says."""
+
+from __future__ import annotations
+
+import os
+import shlex
+
+from pyinfra import host
+from pyinfra.api import deploy
+
+from engine.host import apt, operations
+from engine.host.snapshot import SnapshotQuery
+from engine.role import Play
+import roles.payload.compose as compose
+import roles.payload.hooks as hooks
+import roles.payload.imageref as imageref
+import roles.payload.login as login
+import roles.payload.project as project
+import roles.payload.push as push
+import roles.payload.release as release
+import roles.payload.robot as robot
+import roles.payload.services as services
+
+
+def declare_reads(data, query: SnapshotQuery) -> None:
+    query.files |= {robot.HELPER, robot.unit_path(data), data.payload_dir}
+    query.units.add(f"{data.payload_name}.service")
+    query.commands |= {"python3", "systemd-run"}
+    query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
+    query.probes["payload_containers"] = release.containers_probe(data.payload_name)
+    query.probes["registry_auth"] = login.registry_probe(imageref.parse(project.primary_image(data)).registry)
+    project.declare_reads(data, query)
+    if data.payload_delivery == "push":
+        query.probes["payload_image_id"] = (
+            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(project.primary_image(data))}"
+        )
+        query.probes["docker_layers"] = push.LAYERS_PROBE
+
+
+def unit_devices(additions: list[dict]) -> list[str]:
+    """Device paths the unit waits for at boot: those the other roles give
+    the services (the sensors), not those a service declares itself."""
+    found = []
+    for added in additions:
+        for service in added.values():
+            for device in service.get("devices") or []:
+                path = device.split(":", 1)[0]
+                if path not in found:
+                    found.append(path)
+    return found
+
+
+@deploy("Payload")
+def deploy_payload(play: Play):
+    data, snap = play.data, play.snapshot
+    address = data.get("ssh_hostname") or host.name
+    additions = play.added(hooks.SERVICES, services.declared(data))
+    doc = compose.project(data, address, additions)
+
+    if not snap.commands.get("python3"):
+        apt.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
+    operations.directory(name=f"Payload releases directory {data.payload_dir}", path=data.payload_dir, current=snap.files.get(data.payload_dir))
+    operations.file(
+        name="Install the release helper payloadctl",
+        path=robot.HELPER,
+        content=robot.helper_text(),
+        current=snap.files.get(robot.HELPER),
+        mode="0755",
+    )
+
+    unit = robot.unit_path(data)
+    unit_content = robot.unit_text(data, unit_devices(additions))
+    unit_changes = data.payload_autostart and not operations.file_matches(
+        snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
+    )
+    if data.payload_autostart:
+        unit_op = operations.file(name=f"Write the autostart unit {data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
+        operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
+        operations.service(
+            name=f"Enable {data.payload_name}.service at boot",
+            unit=f"{data.payload_name}.service",
+            enabled_now=snap.unit_enabled(f"{data.payload_name}.service"),
+            active_now=snap.unit_active(f"{data.payload_name}.service"),
+            running=False,  # starting it is the release step's job (health-gated)
+        )
+    else:
+        removed = operations.absent(name="Remove the payload autostart unit", paths=[unit], present=snap.files)
+        operations.run(
+            name="Disable the payload autostart unit",
+            script=f"systemctl disable {shlex.quote(data.payload_name)}.service 2>/dev/null; systemctl daemon-reload",
+            _if=removed.did_change,
+        )
+
+    username = os.environ.get(data.payload_registry_username_env)
+    password = os.environ.get(data.payload_registry_password_env)
+    if data.payload_delivery == "pull" and username and password:
+        login.registry_login(
+            name="Log in to the payload registry",
+            registry=imageref.parse(project.primary_image(data)).registry,
+            username=username,
+            password=password,
+            stored=snap.probes.get("registry_auth", ""),
+        )
+    if data.payload_delivery == "push":
+        push.push_image(
+            name="Send the payload image over SSH",
+            image=project.primary_image(data),
+            remote_id=snap.probes.get("payload_image_id", "").strip(),
+            remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
+            log_dir=data.payload_dir,
+        )
+        project.push_more_images(data, snap)
+
+    project.install_files(data, snap)
+    taken_over = project.takeover(data, snap)  # said in the output, done by payloadctl
+    needed = release.release_needed(
+        release.current_record(snap),
+        compose.spec_hash(doc, data.payload_autostart),
+        data.payload_autostart,
+        # Both: the containers really run (the oneshot unit stays "active"
+        # without them) and the unit did not fail (it starts them at boot).
+        release.containers_running(snap.probes.get("payload_containers", ""))
+        and snap.unit_active(f"{data.payload_name}.service"),
+    )
+    release.release(
+        name="Release the payload (pull, switch, health check, roll back on failure)",
+        data=data,
+        document=doc,
+        checks=play.added(hooks.CHECKS),
+        needed=needed or unit_changes or bool(taken_over),
+        restart=unit_changes or bool(taken_over),
+    )

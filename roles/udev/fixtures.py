@@ -1,0 +1,13 @@
+"""Test fixtures: what a successful run of the udev role leaves on a host."""
+
+from engine.host.fixtures import file_state
+from roles import udev
+import roles.udev.rules as rules
+
+
+def converged(play, host: str) -> None:
+    data, snap = play.data, play.snapshot
+    for path, text in udev.vendor_rules(data).items():
+        snap.files[path] = file_state(text)
+    if data.sensors:
+        snap.files[data.udev_rules_file] = file_state(rules.render(data.sensors))
