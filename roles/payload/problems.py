@@ -12,7 +12,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import roles.payload.compose as compose
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
 from roles.payload.presets import DDS_DIR, dds_profile_text, dds_vendor
 from roles.payload.services import SERVICE_NAME, SHORTHAND_SETTINGS, value_of, declared, layer_problems
 

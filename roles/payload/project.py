@@ -12,7 +12,8 @@ from pyinfra import host, logger
 
 from engine.host import operations
 from engine.host.snapshot import Snapshot, SnapshotQuery
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
+import roles.payload.payloadctl.takeover as takeover_rule
 import roles.payload.presets as presets
 import roles.payload.push as push
 import roles.payload.services as services
@@ -70,7 +71,8 @@ def push_more_images(data, snap: Snapshot) -> None:
 
 
 def foreign(probe_output: str, project: str, repositories: list[str], replaces: list[str]) -> list[dict]:
-    """The containers the release will take over, from the probe (pure)."""
+    """The containers the release will take over, from the probe (pure; the
+    rule is payloadctl's own, takeover.reason)."""
     found = []
     for line in probe_output.splitlines():
         try:
@@ -79,19 +81,11 @@ def foreign(probe_output: str, project: str, repositories: list[str], replaces: 
             continue
         # No such label: Docker's printf renders the missing value as "%!s(<nil>)".
         label = "" if label.startswith("%!") or label == "<no value>" else label
-        if label == project:
-            continue
-        running = running == "true"
-        if not running and policy in ("", "no"):
-            continue
-        try:
-            repo = imageref.parse(image).repository
-        except ValueError:
-            repo = image
-        name = name.lstrip("/")
-        if repo in repositories or name in replaces or (label and label in replaces):
-            found.append({"id": cid[:12], "name": name, "image": image, "project": label or None,
-                          "running": running, "restart": policy or "no"})
+        container = {"id": cid[:12], "name": name.lstrip("/"), "image": image, "project": label or None,
+                     "running": running == "true", "restart": policy or "no",
+                     "repositories": [imageref.repository(image)]}
+        if takeover_rule.reason(container, project, repositories, replaces):
+            found.append(container)
     return found
 
 

@@ -8,7 +8,7 @@ import re
 from engine import checks as c
 from engine import values as v
 from engine.role import Setting
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
 import roles.payload.problems as problems
 import roles.payload.services as services
 

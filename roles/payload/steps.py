@@ -15,7 +15,7 @@ from engine.host.snapshot import SnapshotQuery
 from engine.role import Play
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
 import roles.payload.login as login
 import roles.payload.project as project
 import roles.payload.push as push
@@ -65,7 +65,7 @@ def deploy_payload(play: Play):
     operations.file(
         name="Install the release helper payloadctl",
         path=robot.HELPER,
-        content=robot.helper_text(),
+        content=robot.helper_bytes(),
         current=snap.files.get(robot.HELPER),
         mode="0755",
     )

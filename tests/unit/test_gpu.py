@@ -52,7 +52,8 @@ def converged(snap, data):
     import hashlib
 
     for path, text in files.items():
-        snap.files[path] = FileState("file", hashlib.sha256(text.encode()).hexdigest(), "644", "root", "root")
+        content = text.encode() if isinstance(text, str) else text
+        snap.files[path] = FileState("file", hashlib.sha256(content).hexdigest(), "644", "root", "root")
     snap.files[KEY] = FileState("file", "0" * 64, "644", "root", "root")
     return snap, first
 
@@ -238,7 +239,7 @@ def test_gpu_payload_gets_environment_reservation_and_check_command():
     assert service["environment"]["NVIDIA_VISIBLE_DEVICES"] == "all"
     assert service["environment"]["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
     assert service["deploy"]["resources"]["reservations"]["devices"][0]["capabilities"] == ["gpu"]
-    assert release_spec(data, {})["gpu_check"] == ["nvidia-smi", "-L"]
+    assert release_spec(data, {}).checks == [{"command": ["nvidia-smi", "-L"], "failure": "cannot see a GPU"}]
     plain = merged("robots", {"payload_image": IMAGE})
-    assert release_spec(plain, {})["gpu_check"] is None
+    assert release_spec(plain, {}).checks == []
     assert "NVIDIA_VISIBLE_DEVICES" not in desired_compose(plain, "h")["services"]["payload"]["environment"]

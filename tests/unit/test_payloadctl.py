@@ -1,33 +1,42 @@
-"""Pure parts of the on-robot release helper (the rest runs end to end)."""
+"""The on-robot release helper payloadctl: its pure parts in process, the
+rest as the zip application the robots get, run against stand-ins for docker
+and systemctl (the real thing runs end to end)."""
 
-import importlib.util
 import json
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 from roles.payload import release, robot as payload
+from roles.payload.payloadctl import durable, health, imageref, images, releases as store
+from roles.payload.payloadctl import lock as apply_lock
 
-spec = importlib.util.spec_from_file_location("payloadctl", payload.HERE / "payloadctl.py")
-payloadctl = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(payloadctl)
+
+@pytest.fixture(scope="module")
+def helper(tmp_path_factory):
+    """payloadctl exactly as it is installed on a robot."""
+    path = tmp_path_factory.mktemp("helper") / "payloadctl"
+    path.write_bytes(payload.helper_bytes())
+    path.chmod(0o755)
+    return str(path)
 
 
 def test_repository_of_references():
-    assert payloadctl.repository("reg.lan:5000/ros/payload:1.0") == "reg.lan:5000/ros/payload"
-    assert payloadctl.repository("reg.lan:5000/ros/payload@sha256:" + "a" * 64) == "reg.lan:5000/ros/payload"
-    assert payloadctl.repository("ros/payload") == "ros/payload"
+    assert imageref.repository("reg.lan:5000/ros/payload:1.0") == "reg.lan:5000/ros/payload"
+    assert imageref.repository("reg.lan:5000/ros/payload@sha256:" + "a" * 64) == "reg.lan:5000/ros/payload"
+    assert imageref.repository("ros/payload") == "ros/payload"
 
 
 def test_pinned_prefers_the_digest_of_the_same_repository():
     info = {"id": "sha256:1", "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
-    assert payloadctl.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
-    assert payloadctl.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
+    assert images.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
+    assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
 
 
 def test_release_pointers_are_swapped_atomically(tmp_path):
-    releases = payloadctl.Releases(str(tmp_path))
+    releases = store.Releases(str(tmp_path))
     for rid, created in (("r1", "2026-01-01T00:00:00Z"), ("r2", "2026-01-02T00:00:00Z")):
         (tmp_path / "releases" / rid).mkdir(parents=True)
         releases.write_record(rid, {"id": rid, "created": created})
@@ -44,32 +53,32 @@ def test_release_pointers_are_swapped_atomically(tmp_path):
 
 def test_release_compose_is_yaml():
     doc = {"name": "p", "services": {"payload": {"image": "a/b@sha256:" + "c" * 64, "environment": {"A": "1"}}}}
-    assert yaml.safe_load(payloadctl.compose_yaml(doc)) == doc
+    assert yaml.safe_load(store.compose_yaml(doc)) == doc
 
 
 def test_update_lock_holder(tmp_path):
     lock = tmp_path / "update.lock"
-    assert payloadctl.update_lock_holder(str(lock)) is None
+    assert apply_lock.update_lock_holder(str(lock)) is None
     lock.write_text("robot is moving\n")
-    assert payloadctl.update_lock_holder(str(lock)) == "robot is moving"
+    assert apply_lock.update_lock_holder(str(lock)) == "robot is moving"
     lock.write_text("")
-    assert payloadctl.update_lock_holder(str(lock)) == "no reason given"
+    assert apply_lock.update_lock_holder(str(lock)) == "no reason given"
 
 
-def test_wait_devices_names_the_missing_sensor(tmp_path):
+def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
     present = tmp_path / "cam"
     present.write_text("")
     proc = subprocess.run(
-        [sys.executable, str(payload.HERE / "payloadctl.py"), "wait-devices", "--timeout", "1", str(present), str(tmp_path / "lidar")],
+        [helper, "wait-devices", "--timeout", "1", str(present), str(tmp_path / "lidar")],
         capture_output=True, text=True,
     )
     assert proc.returncode == 1 and proc.stderr.strip().endswith(str(tmp_path / "lidar"))
 
 
-def test_result_reports_the_last_apply(tmp_path):
+def test_result_reports_the_last_apply(tmp_path, helper):
     (tmp_path / "last-result.json").write_text(json.dumps({"ok": False, "message": "payload: release x failed"}))
     proc = subprocess.run(
-        [sys.executable, str(payload.HERE / "payloadctl.py"), "result", "--dir", str(tmp_path)], capture_output=True, text=True
+        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"], capture_output=True, text=True
     )
     assert proc.returncode == 1 and proc.stderr.strip() == "payload: release x failed"
 
@@ -77,21 +86,44 @@ def test_result_reports_the_last_apply(tmp_path):
 def test_helper_runs_on_python_3_8_syntax():
     import ast
 
-    source = (payload.HERE / "payloadctl.py").read_text()
-    ast.parse(source, feature_version=(3, 8))  # Ubuntu 20.04 robots run Python 3.8
-    assert "from __future__" not in source
+    for path in sorted(payload.PACKAGE.glob("*.py")):
+        source = path.read_text()
+        ast.parse(source, feature_version=(3, 8))  # Ubuntu 20.04 robots run Python 3.8
+        assert "from __future__" not in source, path
 
 
-def test_apply_finds_the_release_already_current(tmp_path):
+def test_the_helper_uses_the_standard_library_and_its_own_modules_only():
+    """It runs on robots without anything installed beside python3."""
+    import ast
+
+    allowed = set(sys.stdlib_module_names)
+    for path in sorted(payload.PACKAGE.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 0:
+                assert node.module.split(".")[0] in allowed, (path.name, node.module)
+            elif isinstance(node, ast.Import):
+                assert all(a.name.split(".")[0] in allowed for a in node.names), (path.name, ast.dump(node))
+
+
+def test_the_helper_is_the_same_bytes_on_every_build():
+    payload.helper_bytes.cache_clear()
+    first = payload.helper_bytes()
+    payload.helper_bytes.cache_clear()
+    assert payload.helper_bytes() == first and first.startswith(b"#!/usr/bin/env python3\n")
+
+
+def test_apply_finds_the_release_already_current(tmp_path, helper):
     """A second apply of the same spec (say, after a dropped link) changes nothing."""
-    releases = payloadctl.Releases(str(tmp_path))
+    releases = store.Releases(str(tmp_path))
     (tmp_path / "releases" / "r1").mkdir(parents=True)
     releases.write_record("r1", {"id": "r1", "created": "x", "spec_hash": "abc", "state": "staged"})
     releases.point("current", "r1")
     spec = {"dir": str(tmp_path), "spec_hash": "abc", "autostart": False, "name": "robot-payload",
-            "lock_file": str(tmp_path / "lock"), "compose": {"services": {}}, "delivery": "pull"}
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
-    proc = subprocess.run([sys.executable, str(payload.HERE / "payloadctl.py"), "apply", str(tmp_path / "spec.json")],
+            "lock_file": str(tmp_path / "lock"), "compose": {"services": {}}, "delivery": "pull",
+            "health_timeout": 60, "stable_seconds": 1, "pull_timeout": 30, "apply_lock_timeout": 30,
+            "keep_releases": 3, "checks": []}
+    (tmp_path / "request.json").write_text(json.dumps({"spec": spec, "run": {}}))
+    proc = subprocess.run([sys.executable, helper, "apply", str(tmp_path / "request.json")],
                           capture_output=True, text=True)
     assert proc.returncode == 0 and "release r1 is already current" in proc.stdout
     assert sorted(p.name for p in (tmp_path / "releases").iterdir()) == ["r1"]
@@ -115,17 +147,20 @@ def _stub_docker(tmp_path, monkeypatch, exec_exit: int):
     return tmp_path / "calls"
 
 
+GPU_CHECK = {"command": ["nvidia-smi", "-L"], "failure": "cannot see a GPU"}  # what the gpu role adds
+
+
 def test_gpu_check_fails_a_container_that_cannot_see_a_gpu(tmp_path, monkeypatch):
     calls = _stub_docker(tmp_path, monkeypatch, exec_exit=9)
-    ok, why = payloadctl.gpu_check("robot-payload", ["nvidia-smi", "-L"])
+    ok, why = health.run_checks("robot-payload", [GPU_CHECK])
     assert not ok and why.startswith("c0ffee cannot see a GPU (nvidia-smi -L failed: NVIDIA-SMI has failed")
     assert "exec c0ffee nvidia-smi -L" in calls.read_text()
 
 
 def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch):
     calls = _stub_docker(tmp_path, monkeypatch, exec_exit=0)
-    assert payloadctl.gpu_check("robot-payload", ["nvidia-smi", "-L"]) == (True, "")
-    assert payloadctl.gpu_check("robot-payload", None) == (True, "")
+    assert health.run_checks("robot-payload", [GPU_CHECK]) == (True, "")
+    assert health.run_checks("robot-payload", []) == (True, "")
     assert calls.read_text().count("exec") == 1
 
 
@@ -139,10 +174,9 @@ import socket  # noqa: E402
 import stat  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import pytest  # noqa: E402
-
 FAKEBIN = Path(__file__).resolve().parent / "fakebin"
-HELPER = str(payload.HERE / "payloadctl.py")
+SPEC = {"name": "robot-payload", "autostart": True, "delivery": "pull", "health_timeout": 600, "stable_seconds": 1,
+        "keep_releases": 3, "pull_timeout": 30, "apply_lock_timeout": 30, "checks": []}
 
 
 def spec_hash(ref):
@@ -150,11 +184,12 @@ def spec_hash(ref):
 
 
 class FakeRobot:
-    def __init__(self, tmp_path):
+    def __init__(self, tmp_path, helper):
         self.root = tmp_path / "payload"
         self.root.mkdir()
+        self.helper = helper
         self.state_path = tmp_path / "state.json"
-        self.releases = payloadctl.Releases(str(self.root))
+        self.releases = store.Releases(str(self.root))
         self.save({"root": str(self.root), "images": {}, "containers": {}, "log": []})
 
     def state(self):
@@ -169,11 +204,16 @@ class FakeRobot:
                                 "present": present, "pull": pull}
         self.save(state)
 
-    def release(self, rid, ref, state="active", created=None, **extra):
-        """A release already on the robot."""
-        payloadctl.make_private_dir(self.releases.path(rid))
+    def spec_fields(self, ref, **extra):
+        return {**SPEC, "dir": str(self.root), "spec_hash": spec_hash(ref), "lock_file": str(self.root / "update.lock"),
+                "compose": {"name": "robot-payload", "services": {"payload": {"image": ref}}}, **extra}
+
+    def release(self, rid, ref, state="active", created=None, spec=None, **extra):
+        """A release already on the robot (``spec``: what differs in its spec)."""
+        durable.make_private_dir(self.releases.path(rid))
         doc = {"name": "robot-payload", "services": {"payload": {"image": ref}}}
-        payloadctl.write_text(self.releases.path(rid, "compose.yaml"), payloadctl.compose_yaml(doc))
+        durable.write_text(self.releases.path(rid, "compose.yaml"), store.compose_yaml(doc))
+        durable.write_json(self.releases.path(rid, "spec.json"), self.spec_fields(ref, **(spec or {})))
         image_id = self.state()["images"][ref]["id"]
         self.releases.write_record(rid, {"id": rid, "created": created or rid, "spec_hash": spec_hash(ref),
                                          "state": state, "autostart": True,
@@ -186,39 +226,34 @@ class FakeRobot:
         self.save(state)
 
     def spec(self, ref, run_id="run-1", **extra):
-        spec = {"name": "robot-payload", "dir": str(self.root), "spec_hash": spec_hash(ref), "autostart": True,
-                "delivery": "pull", "health_timeout": 600, "stable_seconds": 1, "keep_releases": 3,
-                "lock_file": str(self.root / "update.lock"), "force": False, "run_id": run_id,
-                "deployed_by": "ops@laptop (pyinfra)", "pull_timeout": 30, "apply_lock_timeout": 30,
-                "compose": {"name": "robot-payload", "services": {"payload": {"image": ref}}}, **extra}
+        request = {"spec": self.spec_fields(ref, **extra), "run": {"by": "ops@laptop (pyinfra)", "force": False}}
         path = self.root.parent / f"spec-{run_id}.json"
-        path.write_text(json.dumps(spec))
+        path.write_text(json.dumps(request))
         return str(path)
 
     def payloadctl(self, *args, timeout=30):
         env = dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(self.state_path))
-        return subprocess.run([sys.executable, HELPER, *args], env=env, capture_output=True, text=True,
+        return subprocess.run([sys.executable, self.helper, *args], env=env, capture_output=True, text=True,
                               timeout=timeout)
 
     def apply(self, ref, run_id="run-1", **extra):
-        self.payloadctl("apply", self.spec(ref, run_id, **extra))
+        self.payloadctl("apply", self.spec(ref, run_id, **extra), "--run-id", run_id)
         return self.result(run_id)
 
     def rollback(self, run_id="rb-1", *more):
-        self.payloadctl("rollback", "--dir", str(self.root), "--run-id", run_id, "--stable-seconds", "1",
-                        "--health-timeout", "600", *more)
+        self.payloadctl("rollback", "--dir", str(self.root), "--run-id", run_id, *more)
         return self.result(run_id)
 
     def result(self, run_id):
-        return self.payloadctl("result", "--dir", str(self.root), "--run-id", run_id)
+        return self.payloadctl("result", "--dir", str(self.root), "--name", "robot-payload", "--run-id", run_id)
 
     def pointers(self):
         return self.releases.pointer("current"), self.releases.pointer("previous")
 
 
 @pytest.fixture
-def robot(tmp_path):
-    robot = FakeRobot(tmp_path)
+def robot(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     robot.image("reg/ros/payload:1.0")
     robot.release("r1", "reg/ros/payload:1.0")
     robot.releases.point("current", "r1")
@@ -264,8 +299,8 @@ def test_broken_release_fails_at_once_and_the_old_one_runs_again(robot, behaviou
     assert robot.releases.record("r1")["rolled_back_from"]["reason"].startswith(reason)
 
 
-def test_first_release_that_fails_stays_failed_so_the_next_run_tries_again(tmp_path):
-    robot = FakeRobot(tmp_path)
+def test_first_release_that_fails_stays_failed_so_the_next_run_tries_again(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     robot.image("reg/ros/payload:bad", "unhealthy")
     result = robot.apply("reg/ros/payload:bad")
     assert result.returncode == 1 and "no healthy release to roll back to (the next run tries again)" in result.stderr
@@ -310,8 +345,7 @@ def test_stalled_pull_is_cut_off_and_names_its_bound(robot):
 
 
 def hold_apply_lock(robot, by):
-    lock = payloadctl.Lock(str(robot.root), 0, {"by": by, "action": "apply"})
-    return lock.acquire()
+    return apply_lock.Lock(str(robot.root), 0, {"by": by, "action": "apply"}).acquire()
 
 
 @pytest.mark.parametrize("action", ["apply", "rollback"])
@@ -319,14 +353,15 @@ def test_a_second_deploy_waits_a_bounded_time_and_names_the_first(robot, action)
     robot.image("reg/ros/payload:1.1")
     robot.release("r0", "reg/ros/payload:1.1", created="r0")
     robot.releases.point("previous", "r0")
-    lock = hold_apply_lock(robot, "alice@laptop (pyinfra)")
+    robot.release("r1", "reg/ros/payload:1.0", spec={"apply_lock_timeout": 1})  # a rollback waits as the release says
+    held = hold_apply_lock(robot, "alice@laptop (pyinfra)")
     try:
         if action == "apply":
             result = robot.apply("reg/ros/payload:1.1", apply_lock_timeout=1)
         else:
-            result = robot.rollback("rb-1", "--apply-lock-timeout", "1")
+            result = robot.rollback("rb-1")
     finally:
-        lock.release()
+        held.release()
     assert result.returncode == 1
     line = result.stderr.strip()
     assert line.startswith(f"payload: another deploy is running on {socket.gethostname()} since 20")
@@ -384,8 +419,8 @@ def test_boot_undoes_an_interrupted_rollback(robot):
     assert robot.pointers() == ("r1", "r0") and robot.releases.record("r0")["state"] == "active"
 
 
-def test_boot_runs_an_unverified_first_release_for_the_deploy_to_verify(tmp_path):
-    robot = FakeRobot(tmp_path)
+def test_boot_runs_an_unverified_first_release_for_the_deploy_to_verify(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     robot.image("reg/ros/payload:1.0")
     switching(robot, "r1", "reg/ros/payload:1.0", "apply", None, None)
     robot.releases.point("current", "r1")
@@ -398,16 +433,16 @@ def test_start_leaves_the_switch_to_an_apply_that_holds_the_lock(robot):
     robot.image("reg/ros/payload:1.1")
     switching(robot, "r2", "reg/ros/payload:1.1", "apply", "r1", None)
     robot.releases.point("current", "r2")
-    lock = hold_apply_lock(robot, "ops")
+    held = hold_apply_lock(robot, "ops")
     try:
         robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     finally:
-        lock.release()
+        held.release()
     assert robot.pointers()[0] == "r2" and robot.releases.record("r2")["state"] == "switching"
 
 
-def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path):
-    robot = FakeRobot(tmp_path)
+def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     for n in range(1, 7):
         robot.image(f"reg/p:{n}")
         robot.release(f"r{n}", f"reg/p:{n}", created=f"2026-01-0{n}")
@@ -415,19 +450,19 @@ def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path
     robot.releases.point("current", "r2")  # rolled back far: current and previous are old ones
     robot.releases.point("previous", "r1")
     env = dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(robot.state_path))
-    code = ("import importlib.util, sys; s = importlib.util.spec_from_file_location('p', sys.argv[1]); "
-            "m = importlib.util.module_from_spec(s); s.loader.exec_module(m); "
-            "m.gc({'keep_releases': 3}, m.Releases(sys.argv[2]))")
-    subprocess.run([sys.executable, "-c", code, HELPER, str(robot.root)], env=env, check=True)
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from payloadctl import releases; "
+            "releases.gc(3, releases.Releases(sys.argv[2]))")
+    subprocess.run([sys.executable, "-c", code, helper, str(robot.root)], env=env, check=True)
     assert sorted(robot.releases.all()) == ["r1", "r2", "r5", "r6", "r7"]
     removed = [line for line in robot.state()["log"] if line.startswith("docker image rm")]
     assert sorted(removed) == ["docker image rm reg/p:3"]  # reg/p:4 is still used by r7
 
 
-def test_result_of_a_run_that_recorded_nothing_fails_with_a_clear_line(tmp_path):
+def test_result_of_a_run_that_recorded_nothing_fails_with_a_clear_line(tmp_path, helper):
     (tmp_path / "last-result.json").write_text(json.dumps({"ok": True, "message": "payload: release old is healthy",
                                                            "run_id": "earlier"}))
-    proc = subprocess.run([sys.executable, HELPER, "result", "--dir", str(tmp_path), "--run-id", "this-run"],
+    proc = subprocess.run([sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload",
+                           "--run-id", "this-run"],
                           capture_output=True, text=True)
     assert proc.returncode == 1 and "healthy" not in proc.stdout
     assert proc.stderr.startswith("payload: payloadctl recorded no result for this run (this-run): disk full?")
@@ -438,13 +473,13 @@ def test_update_lock_is_never_followed_and_gives_one_printable_line(tmp_path):
     secret.write_text("root:$6$hash:19000:0:99999:7:::\n")
     lock = tmp_path / "update.lock"
     lock.symlink_to(secret)
-    assert payloadctl.update_lock_holder(str(lock)) == "the lock is a symbolic link (not read)"
+    assert apply_lock.update_lock_holder(str(lock)) == "the lock is a symbolic link (not read)"
     lock.unlink()
     os.mkfifo(lock)
-    assert payloadctl.update_lock_holder(str(lock)) == "the lock is not a regular file (not read)"
+    assert apply_lock.update_lock_holder(str(lock)) == "the lock is not a regular file (not read)"
     lock.unlink()
     lock.write_text("moving\x1b[31m to dock " + "x" * 300 + "\nsecond line\n")
-    reason = payloadctl.update_lock_holder(str(lock))
+    reason = apply_lock.update_lock_holder(str(lock))
     assert reason.startswith("moving[31m to dock x") and len(reason) == 120 and "\n" not in reason
     assert all(ch.isprintable() for ch in reason)
 
@@ -457,8 +492,8 @@ def test_writes_are_fsynced_file_and_directory_before_they_count(tmp_path, monke
         synced.append(os.readlink(f"/proc/self/fd/{fd}"))
         real_fsync(fd)
 
-    monkeypatch.setattr(payloadctl.os, "fsync", fsync)
-    releases = payloadctl.Releases(str(tmp_path))
+    monkeypatch.setattr(durable.os, "fsync", fsync)
+    releases = store.Releases(str(tmp_path))
     (tmp_path / "releases" / "r1").mkdir(parents=True)
     releases.write_record("r1", {"id": "r1"})
     assert synced == [str(tmp_path / "releases" / "r1" / "record.json.tmp"), str(tmp_path / "releases" / "r1")]
