@@ -11,12 +11,13 @@ import secrets
 import shlex
 import socket
 
-from pyinfra import host
+from pyinfra import host, logger
 from pyinfra.api import deploy
 
 from engine.host import operations
 from engine.host.snapshot import Snapshot
 import roles.payload.compose as compose
+from roles.payload.payloadctl import lock
 from roles.payload.payloadctl.spec import SETTLED, Spec
 from roles.payload.robot import HELPER
 
@@ -81,6 +82,24 @@ def release_needed(record: dict, wanted_hash: str, autostart: bool, running: boo
     if record.get("spec_hash") != wanted_hash or record.get("state") not in SETTLED:
         return True
     return autostart and not running
+
+
+def lock_probe(payload_dir: str) -> str:
+    """The apply lock holder's note, when the lock is held (read-only)."""
+    d = shlex.quote(f"{payload_dir}/{lock.DIR}")
+    return f"[ -f {d}/apply.lock ] && ! flock -n {d}/apply.lock true 2>/dev/null && cat {d}/owner.json"
+
+
+def say_who_holds_the_lock(probe_output: str) -> None:
+    """A boot recovery or another deploy holds the robot's apply lock: this
+    run's release will wait for it (up to payload_apply_lock_timeout); say so now."""
+    if not probe_output.strip():
+        return
+    try:
+        holder = json.loads(probe_output)
+    except ValueError:
+        holder = {}
+    logger.warning(f"[{host.name}] {lock.describe(holder if isinstance(holder, dict) else {}, host.name)}; waiting")
 
 
 def new_run_id() -> str:

@@ -30,6 +30,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.commands |= {"python3", "systemd-run"}
     query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
     query.probes["payload_containers"] = release.containers_probe(data.payload_name)
+    query.probes["payload_lock"] = release.lock_probe(data.payload_dir)
     query.probes["registry_auth"] = login.registry_probe(imageref.parse(project.primary_image(data)).registry)
     project.declare_reads(data, query)
     if data.payload_delivery == "push":
@@ -114,6 +115,7 @@ def deploy_payload(play: Play):
         project.push_more_images(data, snap)
 
     project.install_files(data, snap)
+    release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))
     taken_over = project.takeover(data, snap)  # said in the output, done by payloadctl
     needed = release.release_needed(
         release.current_record(snap),

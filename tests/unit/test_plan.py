@@ -315,3 +315,12 @@ def test_bad_override_data_fails_that_host_before_anything_runs():
     assert "docker_apt_key_fingerprint: expected a string, got 0" in result["r1"][0]
     assert "ssh_port: expected a whole number" in result["r1"][0]
     assert find(result["r2"], "payloadctl apply")
+
+
+def test_a_deploy_that_finds_the_boot_recovery_holding_the_lock_says_it_waits(caplog):
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.probes["payload_lock"] = json.dumps({"action": "start", "by": "boot", "since": "2026-11-23T10:00:00Z", "pid": 7})
+    data = {**ROBOT, "payload_image": "reg.example.com/ros/payload:1.1"}
+    commands = plan({"r1": ("robots", data, snap)})["r1"]
+    assert "[@fake/r1] @fake/r1 is recovering from an interrupted release since 2026-11-23T10:00:00Z; waiting" in caplog.text
+    assert len(commands) == 1 and "payloadctl apply" in commands[0]  # the release waits on the robot, bounded

@@ -50,7 +50,7 @@ def check_compose(name, path):
         raise Failure("docker compose config refused the release (nothing switched): {}".format(why[-1][-300:]))
 
 
-def apply(spec, run_, releases):
+def apply(spec, run_, releases, lock=None):
     root, run_id = spec.dir, run_.run_id
     old = releases.pointer("current")
     if already_current(spec, run_, releases, old):
@@ -93,7 +93,7 @@ def apply(spec, run_, releases):
         releases.write_record(rid, record)
         gc(spec.keep_releases, releases)
         return finish(root, True, "payload: release {} staged (no autostart)".format(rid), rid, run_id)
-    ok, why = takeover.start_taking_over(spec, releases, rid, record, good_old, run_.restart)
+    ok, why = takeover.start_taking_over(spec, releases, rid, record, good_old, run_.restart, lock)
     if ok:
         ok, why = health.run_checks(spec.name, spec.checks)
     record.pop("switch")
@@ -101,12 +101,13 @@ def apply(spec, run_, releases):
         record["state"] = states.ACTIVE
         record["activated"] = now()
         releases.write_record(rid, record)
+        health.set_restart_policies(spec.name, health.restart_policies(doc))  # verified: Docker may bring it back
         gc(spec.keep_releases, releases)
         return finish(root, True, "payload: release {} is healthy".format(rid), rid, run_id)
-    return roll_back(spec, run_, releases, rid, record, why, good_old, before_previous)
+    return roll_back(spec, run_, releases, lock, rid, record, why, good_old, before_previous)
 
 
-def roll_back(spec, run_, releases, rid, record, why, good_old, before_previous):
+def roll_back(spec, run_, releases, lock, rid, record, why, good_old, before_previous):
     """The release failed: record why, and go back to the release before it
     (if there was a verified one)."""
     root, run_id = spec.dir, run_.run_id
@@ -124,7 +125,7 @@ def roll_back(spec, run_, releases, rid, record, why, good_old, before_previous)
     back = releases.record(good_old) or {}
     back["rolled_back_from"] = {"id": rid, "reason": why, "time": now()}
     releases.write_record(good_old, back)
-    back_ok, back_why = health.start_and_check(releases.spec(good_old) or spec, run_.restart)
+    back_ok, back_why = health.start_and_check(releases.spec(good_old) or spec, run_.restart, lock)
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
     return finish(
         root, False, "payload: release {} failed ({}); rolled back to {} {}".format(rid, why, good_old, state),

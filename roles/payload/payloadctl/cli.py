@@ -7,7 +7,7 @@ import time
 
 from . import durable, recovery, results, status
 from .apply import apply
-from .lock import Busy, Lock
+from .lock import Busy, Lock, describe
 from .releases import Releases
 from .rollback import rollback
 from .spec import Run, load_request
@@ -21,14 +21,14 @@ def locked(releases, lock_timeout, owner, work):
     root, run_id = releases.root, owner["run_id"]
     lock = Lock(root, lock_timeout, owner)
     try:
-        lock.acquire()
+        lock.acquire(on_wait=lambda holder: log("payload: {}; waiting".format(describe(holder))))
     except Busy as busy:
         return results.finish(root, False, "payload: {}".format(busy), run_id=run_id)
     try:
         recovered = recovery.recover(releases)
         if recovered:
             log(recovered)
-        return work()
+        return work(lock)
     except Failure as error:
         return results.finish(root, False, "payload: {}".format(error), run_id=run_id)
     except OSError as error:
@@ -46,7 +46,7 @@ def cmd_apply(args):
     releases = Releases(spec.dir)
     durable.make_private_dir(releases.dir)
     owner = {"by": run_.by, "action": "apply", "run_id": run_.run_id}
-    return locked(releases, spec.apply_lock_timeout, owner, lambda: apply(spec, run_, releases))
+    return locked(releases, spec.apply_lock_timeout, owner, lambda lock: apply(spec, run_, releases, lock))
 
 
 def cmd_rollback(args):
@@ -55,7 +55,7 @@ def cmd_rollback(args):
     spec = releases.spec(releases.pointer("current")) or releases.spec(releases.pointer("previous"))
     lock_timeout = spec.apply_lock_timeout if spec else 0  # releases of an older payloadctl: do not wait
     owner = {"by": run_.by, "action": "rollback", "run_id": run_.run_id}
-    return locked(releases, lock_timeout, owner, lambda: rollback(run_, releases))
+    return locked(releases, lock_timeout, owner, lambda lock: rollback(run_, releases, lock))
 
 
 def cmd_result(args):
@@ -67,7 +67,7 @@ def cmd_status(args):
 
 
 def cmd_start(args):
-    return recovery.start(Releases(args.dir), args.name)
+    return recovery.start(Releases(args.dir), args.name, reload=args.reload)
 
 
 def cmd_wait_devices(args):
@@ -109,6 +109,7 @@ def parser():
     p = sub.add_parser("start", help="the unit's start at boot: undo an unverified switch, run current")
     p.add_argument("--dir", required=True)
     p.add_argument("--name", required=True)
+    p.add_argument("--reload", action="store_true", help="the unit's reload: run current, decide nothing")
     p.set_defaults(func=cmd_start)
     p = sub.add_parser("wait-devices", help="wait for the sensors' device links")
     p.add_argument("--timeout", type=int, default=30)

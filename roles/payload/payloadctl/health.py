@@ -2,6 +2,7 @@
 and the checks other roles add (the GPU check)."""
 
 import json
+import re
 import subprocess
 import time
 
@@ -117,13 +118,70 @@ def unit_active(unit):
     return run(["systemctl", "is-active", "--quiet", unit], check=False, timeout=60).returncode == 0
 
 
-def start_release(name, restart):
-    """Run `current` through the payload's unit."""
+UNIT_BUSY = ("activating", "deactivating", "reloading")
+UNIT_SETTLE = 120  # seconds to wait for a start in progress (the boot's) to finish
+
+
+def wait_unit_settled(unit):
+    """A start in progress (the boot's compose up) is never cut short by a
+    restart: that leaves a half-recreated container behind."""
+    deadline = time.time() + UNIT_SETTLE
+    while time.time() < deadline:
+        state = run(["systemctl", "show", "-p", "ActiveState", "--value", unit], check=False, timeout=60).stdout.strip()
+        if state not in UNIT_BUSY:
+            return
+        time.sleep(POLL)
+
+
+def start_release(name, restart, lock=None):
+    """Run `current` through the payload's unit.  ``lock`` (the apply lock
+    this run holds) notes that the unit's start is ours, so the start runs
+    without waiting for the lock (recovery.start)."""
     unit = name + ".service"
-    if restart or not unit_active(unit):
-        run(["systemctl", "restart", unit], timeout=600)
-    else:
-        run(["systemctl", "reload", unit], timeout=600)
+    wait_unit_settled(unit)
+    if lock is not None:
+        lock.note(starts_unit=True)
+    try:
+        if restart or not unit_active(unit):
+            run(["systemctl", "restart", unit], timeout=600)
+        else:
+            run(["systemctl", "reload", unit], timeout=600)
+    finally:
+        if lock is not None:
+            lock.note(starts_unit=False)
+
+
+# --- the project's containers, before and after compose up -------------------
+
+LEFTOVER = re.compile(r"^[0-9a-f]{12}_")  # compose renames a container it recreates to <id>_<name> first
+
+
+def clear_leftovers(name):
+    """Remove what an interrupted `compose up` left: containers renamed
+    <id>_<name> during a recreate, and stopped ones that would hold the
+    project's names (compose creates them afresh).  Returns their names."""
+    removed = []
+    for c in inspect_containers(project_containers(name)):
+        cname = c["Name"].lstrip("/")
+        if LEFTOVER.match(cname) or not c["State"].get("Running"):
+            if run(["docker", "rm", "-f", c["Id"]], check=False, timeout=120).returncode == 0:
+                removed.append(cname)
+    return removed
+
+
+def restart_policies(compose_doc):
+    """service -> the restart policy its compose file asks for."""
+    return {name: str(s.get("restart") or "no") for name, s in compose_doc["services"].items()}
+
+
+def set_restart_policies(name, policies):
+    """Give each container of the project its service's policy (``policies``:
+    service -> policy, or one policy for all), without recreating it."""
+    for c in inspect_containers(project_containers(name)):
+        service = (c["Config"].get("Labels") or {}).get("com.docker.compose.service")
+        wanted = policies.get(service, "no") if isinstance(policies, dict) else policies
+        if ((c["HostConfig"].get("RestartPolicy") or {}).get("Name") or "no") != wanted:
+            run(["docker", "update", "--restart", wanted, c["Id"]], check=False, timeout=60)
 
 
 def run_checks(name, checks):
@@ -140,10 +198,10 @@ def run_checks(name, checks):
     return True, ""
 
 
-def start_and_check(spec, restart):
+def start_and_check(spec, restart, lock=None):
     """Bring `current` up and wait for it: (healthy?, why not)."""
     try:
-        start_release(spec.name, restart)
+        start_release(spec.name, restart, lock)
         return wait_healthy(spec.name, spec.health_timeout, spec.stable_seconds)
     except Failure as error:
         return False, str(error)

@@ -5,6 +5,7 @@ nothing."""
 from . import health
 from . import spec as states
 from .lock import update_lock_holder
+from .recovery import compose_doc
 from .results import finish
 from .system import now, precise_now
 
@@ -16,7 +17,7 @@ def target_spec(releases, target, current):
     return releases.spec(target) or releases.spec(current)
 
 
-def rollback(run_, releases):
+def rollback(run_, releases, lock=None):
     """All or nothing: the previous release runs healthy, or `current` and
     `previous` are put back and the release that ran before is started again."""
     root, run_id = releases.root, run_.run_id
@@ -45,19 +46,20 @@ def rollback(run_, releases):
         target["rolled_back_to"] = now()
         releases.write_record(previous, target)
         return finish(root, True, "payload: rolled back to {} (staged)".format(previous), previous, run_id)
-    ok, why = health.start_and_check(spec, False)
+    ok, why = health.start_and_check(spec, False, lock)
     target.pop("switch")
     if ok:
         target["state"] = states.ACTIVE
         target["rolled_back_to"] = now()
         releases.write_record(previous, target)
+        health.set_restart_policies(spec.name, health.restart_policies(compose_doc(releases.path(previous, "compose.yaml"))))
         return finish(root, True, "payload: rolled back from {} to {}".format(current, previous), previous, run_id)
     releases.point("current", current)
     releases.point("previous", previous)
     target["state"] = prior_state
     target["rollback_failed"] = {"time": now(), "reason": why}
     releases.write_record(previous, target)
-    back_ok, back_why = health.start_and_check(releases.spec(current) or spec, False)
+    back_ok, back_why = health.start_and_check(releases.spec(current) or spec, False, lock)
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
     return finish(
         root, False,

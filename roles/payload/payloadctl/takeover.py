@@ -98,7 +98,7 @@ def restore(taken):
     return back
 
 
-def start_taking_over(spec, releases, rid, record, old, restart):
+def start_taking_over(spec, releases, rid, record, old, restart, lock=None):
     """health.start_and_check, after stopping what the payload replaces
     (recorded in the release first); if this release fails and there is no
     release of ours to go back to, what was taken over runs again as before."""
@@ -107,7 +107,7 @@ def start_taking_over(spec, releases, rid, record, old, restart):
         record["taken_over"] = found
         durable.write_json(releases.path(rid, "record.json"), record)
         take_over(found)
-    ok, why = health.start_and_check(spec, restart)
+    ok, why = health.start_and_check(spec, restart, lock)
     if not ok and found and not old:
         # Nothing of ours to go back to: our project makes way (also at boot).
         run(["systemctl", "stop", spec.name + ".service"], check=False)
