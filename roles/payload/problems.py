@@ -127,7 +127,7 @@ def project_problems(data) -> list[tuple[str, str]]:
         return [("payload_image", "required: the payload image, pinned by tag or digest")]
     allow_latest = bool(value_of(data, "payload_allow_latest"))
     payload_dir = value_of(data, "payload_dir") or "/var/lib/robot-payload"
-    replaces = set(value_of(data, "payload_replaces") or [])
+    replaces = {entry.partition(":")[2] for entry in value_of(data, "payload_replaces") or [] if entry.startswith("container:")}
     names: dict[str, str] = {}
     # The shorthand's one service is checked by the payload_* settings themselves.
     for name, spec in (services if raw else {}).items():

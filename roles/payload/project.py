@@ -10,6 +10,7 @@ import shlex
 
 from pyinfra import host, logger
 
+from engine.checks import one_line
 from engine.host import operations
 from engine.host.snapshot import Snapshot, SnapshotQuery
 import roles.payload.payloadctl.imageref as imageref
@@ -70,7 +71,14 @@ def push_more_images(data, snap: Snapshot) -> None:
         )
 
 
-def foreign(probe_output: str, project: str, repositories: list[str], replaces: list[str]) -> list[dict]:
+def takeover_of(data) -> dict:
+    """What payloadctl may take over (the spec's "takeover"): the primary
+    image's repository, and what payload_replaces names."""
+    return {"primary": imageref.repository(primary_image(data) or ""),
+            **takeover_rule.parse_replaces(data.payload_replaces)}
+
+
+def foreign(probe_output: str, project: str, takeover: dict) -> list[dict]:
     """The containers the release will take over, from the probe (pure; the
     rule is payloadctl's own, takeover.reason)."""
     found = []
@@ -84,8 +92,9 @@ def foreign(probe_output: str, project: str, repositories: list[str], replaces: 
         container = {"id": cid[:12], "name": name.lstrip("/"), "image": image, "project": label or None,
                      "running": running == "true", "restart": policy or "no",
                      "repositories": [imageref.repository(image)]}
-        if takeover_rule.reason(container, project, repositories, replaces):
-            found.append(container)
+        why = takeover_rule.reason(container, project, takeover)
+        if why:
+            found.append(dict(container, why=why))
     return found
 
 
@@ -94,7 +103,7 @@ def takeover_line(found: list[dict]) -> str:
     for c in found:
         what = f"compose project {c['project']}, " if c["project"] else ""
         state = "running" if c["running"] else "stopped"
-        parts.append(f"{c['name']} ({what}{c['image']}, {state}, restart {c['restart']})")
+        parts.append(f"{c['name']} ({what}{c['image']}, {state}, restart {c['restart']}: {c['why']})")
     return "payload: taking over what runs the payload another way (stopped, restart policy no): " + "; ".join(parts)
 
 
@@ -102,14 +111,10 @@ def takeover(data, snap: Snapshot) -> list[dict]:
     """What the release will stop, said in the run output."""
     if not data.payload_autostart:
         return []
-    found = foreign(
-        snap.probes.get(FOREIGN_PROBE, ""),
-        data.payload_name,
-        services.repositories(data),
-        list(data.payload_replaces or []),
-    )
+    found = foreign(snap.probes.get(FOREIGN_PROBE, ""), data.payload_name, takeover_of(data))
     if found:
-        logger.warning(f"[{host.name}] {takeover_line(found)}")
+        # Names and images come from the robot: one line, nothing that moves the cursor.
+        logger.warning(f"[{host.name}] {one_line(takeover_line(found))}")
     return found
 
 

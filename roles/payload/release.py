@@ -17,6 +17,7 @@ from pyinfra.api import deploy
 from engine.host import operations
 from engine.host.snapshot import Snapshot
 import roles.payload.compose as compose
+import roles.payload.project as project
 from roles.payload.payloadctl import lock
 from roles.payload.payloadctl.spec import SETTLED, Spec
 from roles.payload.robot import HELPER
@@ -38,6 +39,7 @@ def spec(data, doc: dict, checks: list = ()) -> Spec:
         keep_releases=data.payload_keep_releases,
         lock_file=data.payload_lock_file,
         checks=[check for check in checks if check],  # run in each container once healthy
+        takeover=project.takeover_of(data),
     )
 
 

@@ -121,7 +121,7 @@ def test_apply_finds_the_release_already_current(tmp_path, helper):
     spec = {"dir": str(tmp_path), "spec_hash": "abc", "autostart": False, "name": "robot-payload",
             "lock_file": str(tmp_path / "lock"), "compose": {"services": {}}, "delivery": "pull",
             "health_timeout": 60, "stable_seconds": 1, "pull_timeout": 30, "apply_lock_timeout": 30,
-            "keep_releases": 3, "checks": []}
+            "keep_releases": 3, "checks": [], "takeover": {}}
     (tmp_path / "request.json").write_text(json.dumps({"spec": spec, "run": {}}))
     proc = subprocess.run([sys.executable, helper, "apply", str(tmp_path / "request.json")],
                           capture_output=True, text=True)
@@ -178,7 +178,8 @@ from pathlib import Path  # noqa: E402
 
 FAKEBIN = Path(__file__).resolve().parent / "fakebin"
 SPEC = {"name": "robot-payload", "autostart": True, "delivery": "pull", "health_timeout": 600, "stable_seconds": 1,
-        "keep_releases": 3, "pull_timeout": 30, "apply_lock_timeout": 30, "checks": []}
+        "keep_releases": 3, "pull_timeout": 30, "apply_lock_timeout": 30, "checks": [],
+        "takeover": {"primary": "reg/ros/payload", "container": [], "project": []}}
 
 
 def spec_hash(ref):
@@ -652,3 +653,30 @@ def test_the_boot_gives_a_verified_release_its_restart_policy_back(robot):
     durable.write_text(robot.releases.path("r1", "compose.yaml"), store.compose_yaml(compose))
     assert robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload").returncode == 0
     assert robot.state()["containers"]["robot-payload-payload-1"]["policy"] == "always"
+
+
+# --- takeover touches only the payload (issue 17, item 3) ---------------------------
+
+
+def test_takeover_stops_an_earlier_copy_of_the_payload_and_no_other_projects_container(robot):
+    """A service of ours uses a common image (a broker): another compose
+    project's broker of that image stays as it is; the payload started by
+    hand is taken over, and the record says why."""
+    robot.image("reg/ros/payload:1.1")
+    robot.image("reg/lib/mosquitto:2")
+    state = robot.state()
+    state["containers"].update({
+        "homeauto-broker-1": {"image": "reg/lib/mosquitto:2", "name": "homeauto-broker-1", "project": "homeauto",
+                              "service": "broker", "policy": "always"},
+        "ros_payload": {"image": "reg/ros/payload:1.1", "name": "ros_payload", "project": None, "policy": "always"},
+    })
+    robot.save(state)
+    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.1"},
+                                                     "broker": {"image": "reg/lib/mosquitto:2"}}}
+    result = robot.apply("reg/ros/payload:1.1", compose=compose)
+    assert result.returncode == 0, result.stderr
+    containers = robot.state()["containers"]
+    assert containers["homeauto-broker-1"].get("running", True) and containers["homeauto-broker-1"]["policy"] == "always"
+    assert not containers["ros_payload"]["running"] and containers["ros_payload"]["policy"] == "no"
+    taken = robot.releases.record(robot.pointers()[0])["taken_over"]
+    assert [(c["name"], c["why"]) for c in taken] == [("ros_payload", "it runs the payload's image")]

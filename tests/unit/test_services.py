@@ -211,7 +211,7 @@ def test_refusals_that_need_the_whole_project():
     assert fleet_problems(host_with(payload_services=two_names)) == [
         "robots.yaml: robot3.payload_services.b.container_name: 'ros' is also the container_name of service a"]
     assert fleet_problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "container_name": "old"}},
-                              payload_replaces=["old"])) == [
+                              payload_replaces=["container:old"])) == [
         "robots.yaml: robot3.payload_services.a.container_name: 'old' is listed in payload_replaces: "
         "the takeover would stop this project's own container"]
     assert fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_services={"a": {"image": f"{REG}/a:1"}})) == [
@@ -281,12 +281,41 @@ FOREIGN = "\n".join([
 
 
 def test_foreign_containers_are_found_by_repository_name_or_project():
-    found = project.foreign(FOREIGN, "robot-payload", [f"{REG}/ros/payload"], ["rosapp"])
+    takeover = {"primary": f"{REG}/ros/payload", "container": [], "project": ["rosapp"]}
+    found = project.foreign(FOREIGN, "robot-payload", takeover)
     assert [(c["name"], c["restart"], c["running"], c["project"]) for c in found] == [
         ("ros_payload", "always", True, None), ("old_bridge", "always", False, "rosapp")]
-    assert project.takeover_line(found[:1]) == (
+    assert project.takeover_line(found) == (
         "payload: taking over what runs the payload another way (stopped, restart policy no): "
-        f"ros_payload ({REG}/ros/payload:1.0, running, restart always)")
+        f"ros_payload ({REG}/ros/payload:1.0, running, restart always: it runs the payload's image); "
+        f"old_bridge (compose project rosapp, {REG}/other/bridge:1, stopped, restart always: "
+        "payload_replaces names its compose project)")
+
+
+def test_another_projects_container_of_a_common_image_is_left_alone():
+    """A service of ours using a common image (a broker) must not stop the
+    broker of another compose project on the robot (issue 17, item 3)."""
+    broker = f"{REG}/lib/mosquitto:2"
+    probe = "\n".join([
+        probe_line("f" * 64, "/homeauto-broker-1", broker, "homeauto", "true", "always"),
+        probe_line("a" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "%!s(<nil>)", "true", "always"),
+    ])
+    data = merged("robots", {"payload_image": None, "payload_services": {
+        "payload": {"image": f"{REG}/ros/payload:1.1"}, "broker": {"image": broker}}})
+    found = project.foreign(probe, "robot-payload", project.takeover_of(data))
+    assert [c["name"] for c in found] == ["ros_payload"]
+    named = merged("robots", {**data, "payload_replaces": ["container:homeauto-broker-1"]})
+    assert [c["name"] for c in project.foreign(probe, "robot-payload", project.takeover_of(named))] == [
+        "homeauto-broker-1", "ros_payload"]
+
+
+@pytest.mark.parametrize("entry, line", [
+    ("old", "robots.yaml: robot3.payload_replaces[0]: 'old' could be a container or a compose project: "
+            "write container:old or project:old"),
+    ("image:old", "robots.yaml: robot3.payload_replaces[0]: expected container:NAME or project:NAME, got 'image:old'"),
+])
+def test_payload_replaces_tells_containers_from_compose_projects(entry, line):
+    assert fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_replaces=[entry])) == [line]
 
 
 def test_a_converged_robot_with_a_foreign_payload_container_releases_and_says_so(caplog):

@@ -41,7 +41,12 @@ def locked(releases, lock_timeout, owner, work):
 
 
 def cmd_apply(args):
-    spec, run_ = load_request(args.request)
+    try:
+        spec, run_ = load_request(args.request)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(args.request))))  # <dir>/runs/<id>/
+        return results.finish(root, False, "payload: this payloadctl cannot read the deploy's request ({}); "
+                              "deploy again".format(error), run_id=args.run_id)
     run_ = run_._replace(run_id=args.run_id or run_.run_id, restart=args.restart or run_.restart)
     releases = Releases(spec.dir)
     durable.make_private_dir(releases.dir)

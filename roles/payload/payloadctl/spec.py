@@ -30,6 +30,7 @@ FIELDS = (
     "keep_releases",
     "lock_file",  # the update lock: updates refused while it exists
     "checks",  # [{"command": [...], "failure": "cannot see a GPU"}] run in each container once healthy
+    "takeover",  # {"primary": repository, "container": [names], "project": [compose projects]} (takeover.py)
 )
 
 

@@ -3,6 +3,13 @@ older tool) are taken over by the first release: restart policy `no`, then
 stopped, recorded in the release, and started again if that release fails
 with nothing of ours to go back to.
 
+Only what looks like an earlier copy of the payload is taken over by itself:
+a container running the payload's primary image (its first service's), in
+no compose project or in the one the old setup used.  A container that runs
+a common image one of the services also uses (a broker, a database) belongs
+to someone else; it is taken over only when payload_replaces names it
+(``container:NAME``) or its compose project (``project:NAME``).
+
 ``reason`` is the rule, written once: the deploy side uses it to say what
 will be taken over, the robot side to decide."""
 
@@ -15,27 +22,38 @@ from .system import now, run
 COMPOSE_PROJECT = "com.docker.compose.project"
 
 
-def reason(container, project, repositories, replaces):
+KINDS = ("container", "project")
+
+
+def parse_replaces(entries):
+    """payload_replaces (``container:NAME``, ``project:NAME``) as
+    {"container": [...], "project": [...]}."""
+    found = {kind: [] for kind in KINDS}
+    for entry in entries or ():
+        kind, _, name = entry.partition(":")
+        found[kind].append(name)
+    return found
+
+
+def reason(container, project, takeover):
     """Why the payload takes ``container`` over, or None.
 
     ``container``: name, project (its compose project or None), running,
-    restart (its restart policy), repositories (of its image).  A container
-    of the payload's own project, or one that is stopped for good, never is."""
+    restart (its restart policy), repositories (of its image).
+    ``takeover``: {"primary": the primary image's repository, "container":
+    names, "project": compose projects} (the spec's).  A container of the
+    payload's own project, or one that is stopped for good, never is."""
     if container["project"] == project:
         return None
     if not container["running"] and container["restart"] in ("", "no"):
         return None
-    if container["name"] in replaces:
-        return "listed in payload_replaces"
-    if container["project"] and container["project"] in replaces:
-        return "its compose project is listed in payload_replaces"
-    if set(container["repositories"]) & set(repositories):
-        return "runs the payload's image"
+    if container["name"] in takeover.get("container", ()):
+        return "payload_replaces names it"
+    if container["project"] and container["project"] in takeover.get("project", ()):
+        return "payload_replaces names its compose project"
+    if takeover.get("primary") and takeover["primary"] in container["repositories"]:
+        return "it runs the payload's image"
     return None
-
-
-def payload_repositories(compose_doc):
-    return {imageref.repository(s["image"]) for s in compose_doc["services"].values() if s.get("image")}
 
 
 def described(data):
@@ -63,9 +81,6 @@ def image_repositories(data):
 
 
 def foreign_containers(spec):
-    doc = spec.compose
-    replaces = set((doc.get("x-robot-fleet") or {}).get("replaces") or [])
-    repositories = payload_repositories(doc)
     ids = run(["docker", "ps", "-aq", "--no-trunc"], check=False).stdout.split()
     found = []
     for data in health.inspect_containers(ids):
@@ -73,7 +88,7 @@ def foreign_containers(spec):
         if container["project"] == spec.name:
             continue
         container["repositories"] = sorted(set(container["repositories"]) | image_repositories(data))
-        why = reason(container, spec.name, repositories, replaces)
+        why = reason(container, spec.name, spec.takeover)
         if why:
             found.append(dict(container, why=why))
     return found
