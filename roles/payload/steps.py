@@ -9,10 +9,12 @@ import shlex
 
 from pyinfra import host
 from pyinfra.api import deploy
+from pyinfra.operations.util import any_changed
 
 from engine.host import apt, operations
 from engine.host.snapshot import SnapshotQuery
 from engine.role import Play
+import roles.docker.hooks as docker_hooks
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
 import roles.payload.payloadctl.imageref as imageref
@@ -126,11 +128,26 @@ def deploy_payload(play: Play):
         release.containers_running(snap.probes.get("payload_containers", ""))
         and snap.unit_active(f"{data.payload_name}.service"),
     )
+    needed = needed or unit_changes or bool(taken_over)
     release.release(
         name="Release the payload (pull, switch, health check, roll back on failure)",
         data=data,
         document=doc,
         checks=play.added(hooks.CHECKS),
-        needed=needed or unit_changes or bool(taken_over),
+        needed=needed,
         restart=unit_changes or bool(taken_over),
     )
+    restarts = play.announced(docker_hooks.RESTARTED)
+    if restarts and not needed:
+        # A daemon.json Docker accepts can still lose the payload (a new
+        # data-root, userns-remap): the same release, checked and made again
+        # if its containers are gone, under the health gate.
+        release.release(
+            name="Check the payload after Docker restarted (released again if it does not run)",
+            data=data,
+            document=doc,
+            checks=play.added(hooks.CHECKS),
+            needed=True,
+            restart=False,
+            _if=any_changed(*restarts),
+        )

@@ -680,3 +680,17 @@ def test_takeover_stops_an_earlier_copy_of_the_payload_and_no_other_projects_con
     assert not containers["ros_payload"]["running"] and containers["ros_payload"]["policy"] == "no"
     taken = robot.releases.record(robot.pointers()[0])["taken_over"]
     assert [(c["name"], c["why"]) for c in taken] == [("ros_payload", "it runs the payload's image")]
+
+
+def test_text_the_robot_controls_reaches_the_operator_as_one_printable_line(robot):
+    """A healthcheck's output is the image's to write: an escape sequence or
+    a newline in it is shown, never obeyed by the operator's terminal."""
+    state = robot.state()
+    state["images"]["reg/ros/payload:evil"] = {"id": "sha256:evil", "behaviour": "unhealthy", "present": True,
+                                               "health_log": "ok\x1b[2J\x1b[31mfake: release is healthy\nsecond line"}
+    robot.save(state)
+    result = robot.apply("reg/ros/payload:evil")
+    assert result.returncode == 1
+    line = result.stderr
+    assert line.count("\n") == 1 and "\x1b" not in line
+    assert "ok\\x1b[2J\\x1b[31mfake: release is healthy\\x0asecond line" in line

@@ -368,3 +368,31 @@ def test_a_service_s_values_reach_the_container_verbatim():
     service = doc["services"]["a"]
     assert service["command"] == ["sh", "-c", "echo $$HOME"]
     assert service["environment"]["PS1"] == "$$ " and service["environment"]["X"] == "a$$b"
+
+
+@pytest.mark.parametrize("service, field, what", [
+    ({"cap_add": ["SYS_NICE", "ALL"]}, "cap_add[1]", "cap_add ALL"),
+    ({"cap_add": ["sys_admin"]}, "cap_add[0]", "cap_add sys_admin"),
+    ({"pid": "host"}, "pid", "pid: host"),
+    ({"userns_mode": "host"}, "userns_mode", "userns_mode: host"),
+    ({"security_opt": ["seccomp=unconfined"]}, "security_opt[0]", "security_opt seccomp=unconfined"),
+    ({"volumes": ["/var/run/docker.sock:/var/run/docker.sock"]}, "volumes[0]", "mounting /var/run/docker.sock"),
+    ({"volumes": [{"type": "bind", "source": "/run/docker.sock", "target": "/d.sock"}]}, "volumes[0]", "mounting /run/docker.sock"),
+    ({"volumes": ["/:/host:ro"]}, "volumes[0]", "mounting /"),
+])
+def test_keys_that_hand_a_container_the_robot_are_refused_like_privileged(service, field, what):
+    """The gate is a guard against mistakes, not a boundary (the fleet file is
+    trusted): the same opt-in as privileged (issue 17, item 11)."""
+    lines = fleet_problems(host_with(payload_services={"drv": {"image": f"{REG}/a:1", **service}}))
+    assert lines == [f"robots.yaml: robot3.payload_services.drv.{field}: {what} gives the container root on the "
+                     "robot: refused unless payload_allow_privileged is true"]
+    assert fleet_problems(host_with(payload_services={"drv": {"image": f"{REG}/a:1", **service}},
+                                    payload_allow_privileged=True)) == []
+
+
+def test_the_single_image_payload_cannot_mount_the_docker_socket_either():
+    lines = fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_volumes=["/var/run/docker.sock:/d.sock"]))
+    assert lines == ["robots.yaml: robot3.payload_volumes[0]: mounting /var/run/docker.sock gives the container root "
+                     "on the robot: refused unless payload_allow_privileged is true"]
+    assert fleet_problems(host_with(payload_services={"drv": {"image": f"{REG}/a:1", "cap_add": ["SYS_NICE"],
+                                                               "volumes": ["/var/lib/maps:/maps"]}})) == []

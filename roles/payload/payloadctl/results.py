@@ -11,6 +11,14 @@ from .releases import RUNS
 from .system import log, now
 
 RESULT = "last-result.json"
+# Control characters (an escape sequence in a healthcheck's output, a label,
+# docker's stderr) are shown, not obeyed, on the operator's terminal.
+_SHOWN = {i: "\\x{:02x}".format(i) for i in list(range(0x20)) + [0x7F] + list(range(0x80, 0xA0))}
+_SHOWN.update({0x2028: "\\u2028", 0x2029: "\\u2029"})
+
+
+def one_line(text):
+    return text.translate(_SHOWN)
 
 
 def run_dir(root, run_id):
@@ -18,6 +26,7 @@ def run_dir(root, run_id):
 
 
 def finish(root, ok, message, release=None, run_id=None):
+    message = one_line(message)
     result = {"ok": ok, "message": message, "release": release, "time": now(), "run_id": run_id}
     log(message)
     if run_id:
@@ -40,7 +49,7 @@ def report(root, name, run_id):
         code = 1
     else:
         stream = sys.stdout if result["ok"] else sys.stderr
-        print(result["message"], file=stream)
+        print(one_line(str(result["message"])), file=stream)
         code = 0 if result["ok"] else 1
     if run_id:
         shutil.rmtree(run_dir(root, run_id), ignore_errors=True)
