@@ -41,8 +41,8 @@ def _sh(script: str) -> subprocess.CompletedProcess:
     return subprocess.run(["sh", "-c", script], capture_output=True, text=True, timeout=60)
 
 
-def _probe(dest) -> list[str]:
-    return _sh(aptrepo.fingerprints_probe(str(dest))).stdout.split()
+def _probe(dest, pin) -> aptrepo.InstalledKey:
+    return aptrepo.installed_key(_sh(aptrepo.key_probe(str(dest), pin)).stdout)
 
 
 def _snap(path, probe_output: str) -> Snapshot:
@@ -57,7 +57,8 @@ def test_the_probe_lists_primary_keys_only(tmp_path, keys):
     (fpr, key), _ = keys
     dest = tmp_path / "docker.asc"
     dest.write_bytes(key)
-    assert _probe(dest) == [fpr]  # the subkey's fingerprint is not a key of its own
+    # the subkey's fingerprint is not a key of its own
+    assert _probe(dest, fpr) == aptrepo.InstalledKey((fpr,), canonical=True)
 
 
 def test_a_key_file_holding_a_second_key_is_refused(tmp_path, keys):
@@ -79,15 +80,16 @@ def test_a_poisoned_keyring_on_the_host_is_not_current_and_is_replaced(tmp_path,
     dest.parent.mkdir()
     dest.write_bytes(key + intruder)
     dest.chmod(0o644)
-    probe = _sh(aptrepo.fingerprints_probe(str(dest))).stdout
+    probe = _sh(aptrepo.key_probe(str(dest), fpr)).stdout
+    assert aptrepo.installed_key(probe) == aptrepo.InstalledKey((fpr, other), canonical=False)
     assert not aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, probe))
-    assert aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, fpr + "\n"))
+    assert aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, f"{fpr}\n{aptrepo.CANONICAL}\n"))
     served = tmp_path / "gpg"
     served.write_bytes(key)
     proc = _sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None)))
     assert proc.returncode == 0, proc.stderr
-    assert _probe(dest) == [fpr]
-    assert dest.read_bytes() == key
+    assert _probe(dest, fpr) == aptrepo.InstalledKey((fpr,), canonical=True)
+    assert dest.read_bytes() == key  # the fixture's key is gpg's own armored export
 
 
 def test_a_poisoned_keyring_is_removed_even_when_the_mirror_still_serves_two_keys(tmp_path, keys):
