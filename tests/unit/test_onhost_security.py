@@ -116,20 +116,36 @@ def test_a_single_good_key_is_kept_when_the_download_is_refused(tmp_path, keys):
     assert dest.read_bytes() == key
 
 
+def _nvidia_repo(url: str, key_path: str, fingerprint: str) -> aptrepo.Repository:
+    """NVIDIA's repository as the gpu role declares it (no sha256 setting)."""
+    from roles import gpu
+    from tests.unit.harness import merged
+
+    data = merged("robots", {"gpu": "nvidia", "gpu_apt_key_url": url, "gpu_apt_key_path": key_path,
+                             "gpu_apt_key_fingerprint": fingerprint})
+    return gpu.repository(data, "amd64")
+
+
 @pytest.mark.parametrize("payload", ["$(touch${IFS}%s)", "`touch${IFS}%s`", "\"$(touch${IFS}%s)\""])
 def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload):
-    """Both mismatch messages (fingerprint, sha256) print the URL; neither runs it."""
+    """Every message that prints the URL (download failed, fingerprint,
+    sha256), Docker's and NVIDIA's: none runs it."""
     (fpr, key), _ = keys
     served = tmp_path / "gpg"
     served.write_bytes(key)
     pwned = tmp_path / "pwned"
     url = f"file://{served}?x=" + payload % pwned
+    missing = f"file://{tmp_path}/missing?x=" + payload % pwned
     assert subprocess.run(["curl", "-fsS", url], capture_output=True).returncode == 0  # the mismatch path is reached
     dest = tmp_path / "docker.asc"
-    for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64)):
-        proc = _sh(aptrepo.key_script(docker_repo(url, str(dest), fingerprint, sha256)))
+    repos = [docker_repo(url, str(dest), fingerprint, sha256)
+             for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64))]
+    repos += [_nvidia_repo(url, str(dest), "DEAD" * 10), _nvidia_repo(missing, str(dest), fpr),
+              docker_repo(missing, str(dest), fpr)]
+    for repo in repos:
+        proc = _sh(aptrepo.key_script(repo))
         assert proc.returncode == 1, proc.stderr
-        assert "key not installed" in proc.stderr and url in proc.stderr, proc.stderr
+        assert repo.key_url in proc.stderr and ("key not installed" in proc.stderr or "cannot download" in proc.stderr)
         assert not pwned.exists(), f"the URL ran as a command: {proc.stderr}"
     assert not dest.exists()
 
@@ -309,7 +325,7 @@ def test_the_pushed_archive_goes_over_stdin_intact_through_pyinfras_writer(tmp_p
 
     archive = tmp_path / "image.tar"
     archive.write_bytes(os.urandom(3 * push.ArchiveStdin.CHUNK + 12345))
-    command = push.load_command(str(archive), "line", "/var/lib/robot-payload")
+    command = push.load_command(str(archive), "/var/lib/robot-payload", "reg.lan/ros/payload:1.0", "sha256:a", {})
     raw = command.get_raw_value()
     assert "base64 -d | docker load" in raw
     assert "/tmp" not in raw and "robotprov-image" not in raw and "-i " not in raw
