@@ -2,13 +2,14 @@
 installed key file, not only by gpg's.
 
 gpg and apt 2.6 (Debian 12; apt-key's awk+base64 dearmoring before gpgv)
-parse an armored file differently: each variant below hides a second key
-block that ``gpg --show-keys`` does not list while apt reads and trusts it.
-Each test builds a tiny local apt repository (file://) whose InRelease is
-signed by that hidden key, runs the real ``apt-get update`` against the key
-file as ``Signed-By`` with a private apt configuration (the machine's own
-apt state is not touched), and asks ``apt-cache policy`` whether apt now
-offers the fake docker-ce.
+parse an armored file differently: each variant in ``tests.armor`` hides a
+second key block that ``gpg --show-keys`` does not list.  Each test builds a
+tiny local apt repository (file://) whose InRelease is signed by that hidden
+key, runs the real ``apt-get update`` against the key file as ``Signed-By``
+with a private apt configuration (the machine's own apt state is not
+touched), and asks ``apt-cache policy`` whether apt now offers the fake
+docker-ce.  tests/e2e/test_key_pin_sqv.py does the same with Debian 13's
+apt and sqv on a lab host.
 """
 
 from __future__ import annotations
@@ -20,119 +21,47 @@ import pytest
 
 from engine.host import aptrepo
 from engine.host.snapshot import FileState, Snapshot
+from tests import armor
 from tests.unit.harness import docker_repo
 
 pytestmark = pytest.mark.skipif(shutil.which("apt-get") is None, reason="needs apt (Debian)")
-
-FAKE_VERSION = "99:6.6.6-fake"
-BEGIN, END = "-----BEGIN PGP PUBLIC KEY BLOCK-----", "-----END PGP PUBLIC KEY BLOCK-----"
-
-
-def _gpg(home, *args, **kwargs):
-    return subprocess.run(["gpg", "--batch", "--homedir", str(home), *args], capture_output=True, check=True, **kwargs)
+ALL = sorted(armor.VARIANTS)
 
 
 @pytest.fixture(scope="module")
 def signers(tmp_path_factory):
-    """One keyring holding the pinned key (with a signing subkey, like
-    Docker's) and an intruder's, secret keys included, to sign repositories."""
     home = tmp_path_factory.mktemp("signers")
     home.chmod(0o700)
-    fprs = {}
-    for name in ("pinned", "intruder"):
-        _gpg(home, "--passphrase", "", "--quick-gen-key", f"{name}@example", "ed25519", "sign", "never")
-        listing = _gpg(home, "--with-colons", "--list-keys", f"{name}@example", text=True).stdout
-        fprs[name] = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
-    _gpg(home, "--passphrase", "", "--quick-add-key", fprs["pinned"], "ed25519", "sign", "never")
-    armored = {name: _gpg(home, "--armor", "--export", fpr, text=True).stdout for name, fpr in fprs.items()}
-    return home, fprs, armored
-
-
-def _repository(home, signer: str, where) -> str:
-    """A flat apt repository offering a fake docker-ce, InRelease signed by ``signer``."""
-    where.mkdir()
-    packages = (f"Package: docker-ce\nVersion: {FAKE_VERSION}\nArchitecture: all\n"
-                "Maintainer: nobody <nobody@example.invalid>\nFilename: ./docker-ce.deb\nSize: 1\n"
-                f"SHA256: {'0' * 64}\nDescription: fake\n\n")
-    (where / "Packages").write_text(packages)
-    digest = subprocess.run(["sha256sum"], input=packages.encode(), capture_output=True, check=True).stdout.split()[0]
-    release = (f"Origin: fake\nLabel: fake\nSuite: fake\nCodename: fake\n"
-               f"Date: Thu, 01 Jan 2026 00:00:00 UTC\nSHA256:\n {digest.decode()} {len(packages)} Packages\n")
-    (where / "Release").write_text(release)
-    _gpg(home, "--local-user", signer + "!", "--clearsign", "-o", str(where / "InRelease"), str(where / "Release"))
-    return str(where)
+    return (home, *armor.signers(home))
 
 
 @pytest.fixture(scope="module")
 def repos(signers, tmp_path_factory):
     home, fprs, _ = signers
     base = tmp_path_factory.mktemp("repos")
-    return {name: _repository(home, fpr, base / name) for name, fpr in fprs.items()}
+    for name, fpr in fprs.items():
+        armor.repository(home, fpr, base / name)
+    return {name: str(base / name) for name in fprs}
 
 
 def apt_offers_the_repository(key_file, repo: str, tmp_path) -> bool:
     """Whether apt, with ``key_file`` as Signed-By, accepts ``repo``'s
     InRelease (then apt-cache policy offers its fake docker-ce)."""
-    d = tmp_path / f"apt-{len(list(tmp_path.glob('apt-*')))}"
-    for sub in ("lists/partial", "cache/archives/partial", "sources", "parts", "preferences"):
-        (d / sub).mkdir(parents=True)
-    (d / "status").write_text("")
-    (d / "sources" / "fake.sources").write_text(f"Types: deb\nURIs: file:{repo}\nSuites: ./\nSigned-By: {key_file}\n")
-    # APT_CONFIG is read first, so the machine's apt.conf.d is never read.
-    (d / "apt.conf").write_text(f'Dir::Etc::Parts "{d}/parts";\nDir::Etc::Main "/dev/null";\n')
-    options = ["-oDir::Etc::SourceList=/dev/null", f"-oDir::Etc::SourceParts={d}/sources",
-               f"-oDir::State::Lists={d}/lists", f"-oDir::Cache={d}/cache", f"-oDir::State::status={d}/status",
-               "-oDir::Etc::Preferences=/dev/null", f"-oDir::Etc::PreferencesParts={d}/preferences",
-               "-oDir::Etc::Trusted=/dev/null", f"-oDir::Etc::TrustedParts={d}/parts",
-               "-oDebug::NoLocking=1", "-oAPT::Sandbox::User=root"]
-    env = {"APT_CONFIG": str(d / "apt.conf"), "PATH": "/usr/sbin:/usr/bin:/sbin:/bin", "LC_ALL": "C"}
-    update = subprocess.run(["apt-get", *options, "update"], capture_output=True, text=True, env=env, timeout=120)
-    policy = subprocess.run(["apt-cache", *options, "policy", "docker-ce"], capture_output=True, text=True, env=env, timeout=60)
-    offered = FAKE_VERSION.split(":", 1)[1] in policy.stdout
-    assert offered == (update.returncode == 0), update.stdout + update.stderr
-    return offered
-
-
-def _body(armored: str) -> list[str]:
-    """The base64 lines of an armored key (between the blank line and the CRC)."""
-    lines = armored.splitlines()
-    start = lines.index("") + 1
-    return lines[start:next(i for i in range(start, len(lines)) if lines[i].startswith("="))]
-
-
-def _crc(armored: str) -> str:
-    return next(line for line in armored.splitlines() if line.startswith("="))
-
-
-def _block(begin: str, lines: list[str], end: str) -> str:
-    return "\n".join([begin, "", *lines, end]) + "\n"
-
-
-# Each: the pinned key as gpg exports it, plus the intruder's key hidden so
-# that `gpg --show-keys` lists only the pinned key and apt 2.6 reads both.
-HIDDEN = {
-    "unknown armor label": lambda p, i: p + _block("-----BEGIN HIDDEN-----", _body(i), "-----END HIDDEN-----"),
-    "text after the BEGIN line": lambda p, i: p + _block(BEGIN + " x", _body(i) + [_crc(i)], END),
-    "inside the block after its CRC line": lambda p, i: "\n".join(p.splitlines()[:-1] + _body(i) + [END]) + "\n",
-    "PGP SIGNATURE label": lambda p, i: p + _block("-----BEGIN PGP SIGNATURE-----", _body(i) + [_crc(i)],
-                                                   "-----END PGP SIGNATURE-----"),
-    "PGP MESSAGE label": lambda p, i: p + _block("-----BEGIN PGP MESSAGE-----", _body(i) + [_crc(i)],
-                                                 "-----END PGP MESSAGE-----"),
-    "signed-message header, no END": lambda p, i: p + "\n".join(
-        ["-----BEGIN PGP SIGNED MESSAGE-----", "Hash: SHA256", "", *_body(i)]) + "\n",
-}
+    work = tmp_path / f"apt-{len(list(tmp_path.glob('apt-*')))}"
+    proc = subprocess.run(["sh", "-c", armor.apt_check_script(str(key_file), repo, str(work))],
+                          capture_output=True, text=True, timeout=180)
+    return armor.parse_check(proc.stdout)
 
 
 def _variant(signers, name: str) -> bytes:
-    _, _, armored = signers
-    return HIDDEN[name](armored["pinned"], armored["intruder"]).encode()
+    return armor.variant(name, signers[2])
 
 
 def _listed_by_gpg(path, tmp_path) -> list[str]:
     """The primary keys ``gpg --show-keys`` lists in ``path`` (what the pin checked before)."""
     home = tmp_path / "gnupg-show"
     home.mkdir(mode=0o700)
-    listing = _gpg(home, "--show-keys", "--with-colons", str(path), text=True).stdout.splitlines()
+    listing = armor.gpg(home, "--show-keys", "--with-colons", str(path), text=True).stdout.splitlines()
     return [listing[n + 1].split(":")[9] for n, line in enumerate(listing) if line.startswith("pub:")]
 
 
@@ -145,18 +74,19 @@ def test_the_repository_check_itself_can_tell(signers, repos, tmp_path):
     assert not apt_offers_the_repository(key, repos["intruder"], tmp_path)
 
 
-@pytest.mark.parametrize("variant", sorted(HIDDEN))
+@pytest.mark.parametrize("variant", ALL)
 def test_gpg_lists_only_the_pinned_key_while_apt_trusts_the_hidden_one(signers, repos, tmp_path, variant):
-    """The blind spot itself (gpg 2.2 and apt 2.6 as on Debian 12): if this
-    stops holding, the variant no longer tests anything."""
+    """The blind spot itself (gpg 2.2 and apt 2.6 as on Debian 12; the
+    indented BEGIN line is sqv's, apt 2.6 skips it): if this stops holding,
+    the variant no longer tests what it says."""
     _, fprs, _ = signers
     planted = tmp_path / "docker.asc"
     planted.write_bytes(_variant(signers, variant))
     assert _listed_by_gpg(planted, tmp_path) == [fprs["pinned"]]
-    assert apt_offers_the_repository(planted, repos["intruder"], tmp_path)
+    assert apt_offers_the_repository(planted, repos["intruder"], tmp_path) == (variant in armor.APT26_TRUSTS_HIDDEN)
 
 
-@pytest.mark.parametrize("variant", sorted(HIDDEN))
+@pytest.mark.parametrize("variant", ALL)
 def test_a_download_with_a_hidden_key_installs_only_the_pinned_key_as_apt_reads_it(signers, repos, tmp_path, variant):
     _, fprs, _ = signers
     served = tmp_path / "gpg"
@@ -176,7 +106,7 @@ def _key_probe(path, fingerprint):
     return subprocess.run(["sh", "-c", aptrepo.key_probe(str(path), fingerprint)], capture_output=True, text=True).stdout
 
 
-@pytest.mark.parametrize("variant", sorted(HIDDEN))
+@pytest.mark.parametrize("variant", ALL)
 def test_a_planted_key_file_with_a_hidden_key_is_not_current_and_is_replaced(signers, repos, tmp_path, variant):
     _, fprs, armored = signers
     dest = tmp_path / "keyrings" / "docker.asc"
@@ -196,7 +126,7 @@ def test_a_planted_key_file_with_a_hidden_key_is_not_current_and_is_replaced(sig
     assert apt_offers_the_repository(dest, repos["pinned"], tmp_path)
 
 
-@pytest.mark.parametrize("variant", sorted(HIDDEN))
+@pytest.mark.parametrize("variant", ALL)
 def test_a_planted_key_file_is_removed_when_the_download_fails(signers, repos, tmp_path, variant):
     """Fail closed: apt must not go on trusting the hidden key while the key URL is down."""
     _, fprs, _ = signers
@@ -287,7 +217,7 @@ def test_a_download_gpg_cannot_read_is_refused_in_one_line(signers, repos, tmp_p
     """A wrong CRC on the second block: gpg reads nothing at all, apt 2.6 (and sqv) trust both keys."""
     _, fprs, armored = signers
     served = tmp_path / "gpg"
-    served.write_text(armored["pinned"] + _block(BEGIN, _body(armored["intruder"]) + ["=AAAA"], END))
+    served.write_bytes(armor.bad_crc(armored))
     assert apt_offers_the_repository(served, repos["intruder"], tmp_path)
     dest = tmp_path / "keyrings" / "docker.asc"
     proc = _run(docker_repo(f"file://{served}", str(dest), fprs["pinned"]))
