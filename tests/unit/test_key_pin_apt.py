@@ -226,3 +226,23 @@ def test_a_download_gpg_cannot_read_is_refused_in_one_line(signers, repos, tmp_p
         f"Docker apt key from file://{served}: fingerprint (none: no key gpg can read) does not match "
         f"docker_apt_key_fingerprint {fprs['pinned']}; key not installed"]
     assert list(dest.parent.iterdir()) == []
+
+
+def test_the_probe_reads_the_same_through_the_hosts_one_snapshot_command(signers, tmp_path):
+    """Quoted into the snapshot script (timeout, sh -c, base64) as deploy.py
+    reads it: a converged key file is current, a planted one is not."""
+    from engine.host.snapshot import HostSnapshot
+
+    _, fprs, armored = signers
+    good, planted = tmp_path / "good.asc", tmp_path / "planted.asc"
+    served = tmp_path / "gpg"
+    served.write_text(armored["pinned"])
+    assert _run(docker_repo(f"file://{served}", str(good), fprs["pinned"])).returncode == 0
+    planted.write_bytes(_variant(signers, "PGP MESSAGE label"))
+    planted.chmod(0o644)
+    for path, current in ((good, True), (planted, False)):
+        repo = docker_repo("", str(path), fprs["pinned"])
+        fact = HostSnapshot()
+        script = fact.command(files=[str(path)], probes={repo.probe: aptrepo.key_probe(str(path), fprs["pinned"])})
+        out = subprocess.run(["sh", "-c", script], capture_output=True, text=True, check=True, timeout=120)
+        assert aptrepo.key_is_current(repo, fact.process(out.stdout.splitlines())) is current, path.name
