@@ -2,16 +2,24 @@
 
     pyinfra inventories/robots.py deploy.py
 
-ROLES is the one list of roles, in the order they run on each host (the gpu
-role first: a host without a loaded driver fails before anything is
-installed).  Each host's state is read with one command; the roles then
-change only what differs.  Robots get everything; laptops get Docker, users,
-X11 and the payload staged (no autostart unless payload_autostart is set).
+ROLES is the one list of roles, in the order they run on each host: each
+names its folder under roles/, one a line, so adding a role is its folder
+and one line here (the gpu role first: a host without a loaded driver fails
+before anything is installed).  Each host's state is read with one command;
+the roles then change only what differs.  Robots get everything; laptops get
+Docker, users, X11 and the payload staged (no autostart unless
+payload_autostart is set).
 """
 
 from engine.play import provision
-from roles import docker, gpu, payload, udev, users, x11
 
-ROLES = (gpu, docker, users, udev, x11, payload)
+ROLES = (
+    "gpu",
+    "docker",
+    "users",
+    "udev",
+    "x11",
+    "payload",
+)
 
 provision(ROLES)

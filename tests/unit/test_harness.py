@@ -159,3 +159,16 @@ def test_robots_and_laptops_in_one_run_order_their_operations_without_a_cycle():
                    "l1": ("laptops", laptop, fresh_host("debian-13", users=("alice",)))})
     assert result.failed == set()
     assert find(result["r1"], "udevadm") and find(result["l1"], "xauth") and find(result["l1"], "payloadctl apply")
+
+
+def test_deploy_py_names_its_roles_and_a_misspelt_name_is_one_line(tmp_path):
+    from engine import roster
+
+    deploy = tmp_path / "deploy.py"
+    deploy.write_text('from engine.play import provision\nROLES = ("users", "docker")\nprovision(ROLES)\n')
+    assert [role.name for role in roster.roles(deploy)] == ["users", "docker"]
+    deploy = tmp_path / "misspelt.py"
+    deploy.write_text('from engine.play import provision\nROLES = ("docker", "usres")\nprovision(ROLES)\n')
+    with pytest.raises(LookupError) as error:
+        roster.roles(deploy)
+    assert str(error.value) == "deploy.py: ROLES names 'usres', but there is no roles/usres/"
