@@ -26,10 +26,12 @@ from tests.unit import harness as fleet
 ROOT = Path(__file__).resolve().parents[2]
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 SHOWN = "f.yaml"
-# A problem line: the file, then a YAML position, "no hosts", or a host/section and field.
+# A problem line: the file, then a YAML position, "no hosts", the document's
+# shape, or a host/section and field.
 _QUOTED = r"'(?:[^'\\]|\\.)*'" + "|" + r'"(?:[^"\\]|\\.)*"'
 FIELD = rf"(?:[^\s'\"]|{_QUOTED})+"
-PROBLEM = re.compile(rf"{re.escape(SHOWN)}: (line \d+: YAML error: \S.*|no hosts: \S.*|{FIELD}: \S.*)")
+SHAPE = r"expected a mapping with all/robots/laptops at the top, got \S.*"
+PROBLEM = re.compile(rf"{re.escape(SHOWN)}: (line \d+: YAML error: \S.*|no hosts: \S.*|{SHAPE}|{FIELD}: \S.*)")
 DOCUMENTS = 400
 HANG_SECONDS = 5  # a guard against hangs, not a timing target (tests/bench/validation.py measures)
 
