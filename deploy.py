@@ -16,6 +16,7 @@ from engine.play import provision
 ROLES = (
     "gpu",
     "docker",
+    "time",
     "users",
     "udev",
     "x11",
