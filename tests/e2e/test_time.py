@@ -13,10 +13,10 @@ systemd-timesyncd being replaced (the lab image has none; the unit tests
 plan it).
 
 Module cost, on top of the shared lab and first run: three provisionings
-of the four hosts (with the time settings 7 s, the counted rerun 2 s,
-robot1's stratum changed 2 s, measured on 2 shared CPUs with a warm apt
+of the four hosts (with the time settings 7-23 s, the counted rerun 2-3 s,
+robot1's stratum changed 2-3 s, measured on 2 shared CPUs with a warm apt
 cache), waiting for chrony to select its source (seconds: iburst) and the
-purge; about 35 s in all (the whole session with a fresh lab: 96 s).  At
+purge; 35-60 s in all (the whole session with a fresh lab: 96-100 s).  At
 the end chrony is purged from the hosts, as the shared first run left them
 (the _chrony user stays).
 """
