@@ -12,8 +12,9 @@ payload_autostart is set).
 """
 
 from engine.play import provision
+from roles import named
 
-ROLES = (
+ROLES = named(
     "gpu",
     "docker",
     "time",

@@ -11,7 +11,6 @@ status table and the rollout's target.  ARCHITECTURE.md has a worked example.
 from __future__ import annotations
 
 import copy
-import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -122,20 +121,8 @@ class Role:
 
 
 def cards(listed) -> tuple[Role, ...]:
-    """The Role of each entry of deploy.py's ROLES: a role's name (its
-    folder under roles/), its package, or its ROLE."""
-    return tuple(_card(entry) for entry in listed)
-
-
-def _card(entry) -> Role:
-    if isinstance(entry, str):
-        try:
-            entry = importlib.import_module(f"roles.{entry}")
-        except ModuleNotFoundError as error:
-            if error.name not in (f"roles.{entry}", "roles"):
-                raise  # a module the role imports is missing: its own error says which
-            raise LookupError(f"deploy.py: ROLES names {entry!r}, but there is no roles/{entry}/") from None
-    return getattr(entry, "ROLE", entry)
+    """The Role of each entry of deploy.py's ROLES (a role's package, or its ROLE)."""
+    return tuple(getattr(entry, "ROLE", entry) for entry in listed)
 
 
 def adders(roles, hook: Hook) -> list[Callable]:

@@ -37,6 +37,7 @@ def canonical(path: str) -> str:
                 changed = True
     return normal
 _DOTTED_NUMBERS = re.compile(r"[0-9.]+")
+_SCOPE = re.compile(r"[A-Za-z0-9_.-]{1,15}", re.ASCII)
 _HOST_PORT = re.compile(r"([^:\s\[\]]+|\[[^\]]*\]):([0-9]+)")
 _DNS_NAME = re.compile(r"(?=.{1,253}\.?$)[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?(?:\.[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?)*\.?", re.ASCII)
 
@@ -52,10 +53,15 @@ def address(value):
     if not isinstance(value, str):
         return [("", c.expected_string(value, "a host name or an IP address"))]
     try:
-        ipaddress.ip_address(value)
-        return []
+        parsed = ipaddress.ip_address(value)
     except ValueError:
         pass
+    else:
+        # Python takes anything after % as an IPv6 scope, newlines included.
+        scope = getattr(parsed, "scope_id", None)
+        if scope is not None and not _SCOPE.fullmatch(scope):
+            return [("", f"expected an IPv6 scope of letters, digits and . _ - after %, got {c.shown(value)}")]
+        return []
     if value.startswith("[") and value.endswith("]"):
         return [("", f"expected an IPv6 address without brackets, got {c.shown(value)}")]
     host_port = _HOST_PORT.fullmatch(value)

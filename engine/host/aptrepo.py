@@ -134,8 +134,12 @@ def key_script(repo: Repository) -> str:
     ]
     download = '"$h/download"' if repo.fingerprint else '"$tmp"'
     if repo.fingerprint:
-        # Fail closed: a key file that is not exactly what this script
-        # installs goes now, so it is not trusted while the download fails.
+        # Fail closed: a key file that may hold more than gpg sees (several
+        # keys, or not gpg's own export of its one key: a block apt reads and
+        # gpg skips) goes now, so it is not trusted while the download fails.
+        # gpg's clean export of one other key stays until a download replaces
+        # it: a mistyped pin must not take the robot's working key away.
+        export = "--armor --export" if armored(repo.key_path) else "--export"
         lines += [
             f"pin={q(repo.fingerprint)}",
             _canonical_function(repo.key_path),
@@ -143,8 +147,12 @@ def key_script(repo: Repository) -> str:
             '  old=$(canonical "$dest" "$h/installed" "$h/installed.key")',
             '  if [ "$(printf "%s\\n" "$old" | grep -c .)" -gt 1 ]; then',
             '    rm -f "$dest"; echo "$dest held more than one key ($(echo $old)); removed" >&2',
-            '  elif [ "$old" != "$pin" ] || ! cmp -s "$h/installed.key" "$dest"; then',
-            '    rm -f "$dest"; echo "$dest is not exactly the pinned key as gpg exports it ($setting $pin); removed" >&2',
+            "  else",
+            '    [ -z "$old" ] || [ "$old" = "$pin" ] || '
+            f'GNUPGHOME="$h/installed" gpg --batch --no-autostart {export} "$old" > "$h/installed.key" 2>/dev/null || true',
+            '    if [ -z "$old" ] || ! cmp -s "$h/installed.key" "$dest"; then',
+            '      rm -f "$dest"; echo "$dest is not exactly the pinned key as gpg exports it ($setting $pin); removed" >&2',
+            "    fi",
             "  fi",
             "fi",
         ]

@@ -176,7 +176,7 @@ def test_two_deploys_at_once_are_serialized(lab, first_run, tmp_path):
     holder = Background(lab, "--limit", host,
                         fleet=lab.fleet_with(tmp_path / "stalled", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1")))
     try:
-        wait_for(lambda: lab.sh(host, f"test -s {DIR}/.apply.owner && pgrep -f 'docker [p]ull'")[0] == 0, 120,
+        wait_for(lambda: lab.sh(host, f"test -s {DIR}/lock/owner.json && pgrep -f 'docker [p]ull'")[0] == 0, 120,
                  "the first deploy to hold the robot")
         bounded = lab.fleet_with(tmp_path / "bounded", **host_settings(host, "payload_apply_lock_timeout: 3"))
         run = lab.provision("--limit", host, fleet=bounded, label=f"({host}: while another deploy runs)")

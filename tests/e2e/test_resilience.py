@@ -21,7 +21,7 @@ def test_dropped_link_during_an_update_leaves_the_robot_switched(lab, first_run,
                                        f'payload_image: "@registry@/ros/payload:{target}"'})
     # Hold the helper's own lock so the update waits on the robot, then cut
     # the operator off while it waits (as a dropped link would).
-    lab.ok("robot1", "systemd-run --unit=hold-apply-lock flock /var/lib/robot-payload/.apply.lock sleep 8")
+    lab.ok("robot1", "systemd-run --unit=hold-apply-lock flock /var/lib/robot-payload/lock/apply.lock sleep 8")
     env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(fleet), PYINFRA_PROGRESS="off")
     operator = subprocess.Popen(
         [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit", "robot1"],

@@ -165,10 +165,12 @@ def test_deploy_py_names_its_roles_and_a_misspelt_name_is_one_line(tmp_path):
     from engine import roster
 
     deploy = tmp_path / "deploy.py"
-    deploy.write_text('from engine.play import provision\nROLES = ("users", "docker")\nprovision(ROLES)\n')
+    deploy.write_text('from engine.play import provision\nfrom roles import named\n'
+                      'ROLES = named("users", "docker")\nprovision(ROLES)\n')
     assert [role.name for role in roster.roles(deploy)] == ["users", "docker"]
     deploy = tmp_path / "misspelt.py"
-    deploy.write_text('from engine.play import provision\nROLES = ("docker", "usres")\nprovision(ROLES)\n')
+    deploy.write_text('from engine.play import provision\nfrom roles import named\n'
+                      'ROLES = named("docker", "usres")\nprovision(ROLES)\n')
     with pytest.raises(LookupError) as error:
         roster.roles(deploy)
     assert str(error.value) == "deploy.py: ROLES names 'usres', but there is no roles/usres/"

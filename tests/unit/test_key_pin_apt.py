@@ -246,3 +246,21 @@ def test_the_probe_reads_the_same_through_the_hosts_one_snapshot_command(signers
         script = fact.command(files=[str(path)], probes={repo.probe: aptrepo.key_probe(str(path), fprs["pinned"])})
         out = subprocess.run(["sh", "-c", script], capture_output=True, text=True, check=True, timeout=120)
         assert aptrepo.key_is_current(repo, fact.process(out.stdout.splitlines())) is current, path.name
+
+
+def test_a_mistyped_pin_leaves_the_robots_working_key_in_place(signers, tmp_path):
+    """gpg's clean export of one key holds nothing hidden: a wrong pin
+    refuses the download, and the key apt already uses stays (removing it
+    would stop every apt update on the robot until the pin is fixed)."""
+    _, fprs, armored = signers
+    served = tmp_path / "gpg"
+    served.write_text(armored["pinned"])
+    dest = tmp_path / "keyrings" / "docker.asc"
+    dest.parent.mkdir()
+    run = lambda pin: subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), pin))],
+                                     capture_output=True, text=True, timeout=60)
+    assert run(fprs["pinned"]).returncode == 0
+    good = dest.read_bytes()
+    wrong = run("DEAD" * 10)
+    assert wrong.returncode == 1 and f"does not match docker_apt_key_fingerprint {'DEAD' * 10}" in wrong.stderr
+    assert "removed" not in wrong.stderr and dest.read_bytes() == good

@@ -200,3 +200,12 @@ def test_world_writable_directories_are_refused_under_their_other_names(path):
     lines = fleet_problems(robot(payload_lock_file=path))
     assert len(lines) == 1 and "is in the world-writable" in lines[0], lines
     assert fleet_problems(robot(payload_lock_file="/var/run/robot-payload/update.lock")) == []
+
+
+def test_an_ipv6_scope_is_a_name_not_anything_after_the_percent_sign():
+    """Python's ipaddress takes anything after % as the scope, a newline too:
+    an address that carries a second line into a config file is refused."""
+    lines = fleet_problems(robot(address="fe80::1%a\nallow all"))
+    assert len(lines) == 1 and "robot3.address: expected an IPv6 scope of letters, digits and . _ - after %" in lines[0]
+    assert "\n" not in lines[0]
+    assert fleet_problems(robot(address="fe80::1%eth0")) == []
