@@ -130,7 +130,7 @@ def check(raw, shown: str, registry: Registry) -> Fleet:
         elif not isinstance(hosts, dict):
             lines.append(f"{shown}: {name}.hosts: expected a mapping of host name to settings, got {c.describe(hosts)}")
             hosts = {}
-        return registry.normalize(variables), hosts
+        return variables, hosts
 
     def check_vars(where: str, variables: dict) -> set[str]:
         problems = registry.check_layer(variables)
@@ -163,7 +163,6 @@ def check(raw, shown: str, registry: Registry) -> Fleet:
             if not isinstance(host_vars, dict):
                 lines.append(f"{shown}: {name}: expected a mapping of settings, got {c.describe(host_vars)}")
                 continue
-            host_vars = registry.normalize(host_vars)
             layer_problems = registry.check_layer(host_vars)
             report(name, layer_problems)
             refused = group_refused | {setting_of(sub) for sub, _ in layer_problems}

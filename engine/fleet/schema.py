@@ -15,8 +15,6 @@ def setting_schemas(registry: Registry) -> dict:
     properties = {}
     for name, setting in registry.settings.items():
         schema = dict(setting.check.schema)
-        if name in registry.words:
-            schema = {"anyOf": [schema, {"enum": list(registry.words[name])}]}
         kind = schema.get("description")
         schema["description"] = setting.doc + (f" Expected: {kind}." if kind else "")
         if name in defaults:
