@@ -275,7 +275,7 @@ def text(value):
     return [("", f"expected a string, got {describe(value)}")]
 
 
-text.schema = {"type": "string", "description": "a string: quote values YAML would read as something else"}
+text.schema = {"type": "string", "pattern": "^[^\\x00]*$", "description": "a string: quote values YAML would read as something else"}
 
 
 # Patterns shared by several settings.

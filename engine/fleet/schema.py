@@ -1,6 +1,8 @@
-"""The fleet file's JSON Schema, built from the settings' checkers, so an
-editor flags mistakes as the operator types (the checks before a run stay
-the authority: rules across settings are not expressible here)."""
+"""The fleet file's JSON Schema, built from the settings' checkers (each
+checker carries the schema of what it accepts, from the same patterns), so
+an editor flags mistakes as the operator types and agrees with the run
+(tests/unit/test_schema_agreement.py).  What the schema cannot say is
+BEYOND_SCHEMA; the run checks it, and README names it."""
 
 from __future__ import annotations
 
@@ -8,6 +10,18 @@ import json
 
 from engine.fleet.check import EXTENSION_PREFIX, HOST_NAME
 from engine.fleet.registry import Registry
+
+
+# The rules only the run checks, each with what README says of it.
+BEYOND_SCHEMA = {
+    "rules across settings": "each role's rules on a host's merged settings: x11_user when display is true, "
+    "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1",
+    "a host in two groups": "a host declared under both robots and laptops, or in groups of both kinds",
+    "a fleet with no hosts": "a file that declares no host at all",
+    "respelled numbers": "a number written so that YAML changes it (0022, 1.10, 0x1F) where a number is "
+    "expected: the schema sees only the number",
+    "expanded size": "docker_daemon_options of more than 10000 values once YAML aliases are expanded",
+}
 
 
 def setting_schemas(registry: Registry) -> dict:
