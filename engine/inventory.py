@@ -10,7 +10,7 @@ from pathlib import Path
 from engine import roster
 from engine.fleet.check import Fleet, FleetError, display_path, load, parse
 
-__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "refuse"]
+__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse"]
 
 
 def refuse(lines: list[str]) -> None:
@@ -26,10 +26,16 @@ def _refuse_fleet(error: FleetError) -> None:
     refuse(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
 
 
+def _noted(fleet: Fleet) -> Fleet:
+    for note in fleet.notes:
+        print(note, file=sys.stderr)
+    return fleet
+
+
 def load_or_exit(path: Path) -> Fleet:
     """The fleet file at ``path``, or its problems printed and exit 2."""
     try:
-        return load(path, roster.registry())
+        return _noted(load(path, roster.registry()))
     except FleetError as error:
         _refuse_fleet(error)
 
@@ -37,6 +43,13 @@ def load_or_exit(path: Path) -> Fleet:
 def parse_or_exit(text: str | bytes, shown: str) -> Fleet:
     """Fleet YAML ``text`` (named ``shown`` in problem lines), or exit 2."""
     try:
-        return parse(text, shown, roster.registry())
+        return _noted(parse(text, shown, roster.registry()))
     except FleetError as error:
         _refuse_fleet(error)
+
+
+def pyinfra_groups(fleet: Fleet) -> dict[str, list]:
+    """The groups an inventory file hands pyinfra: robots and laptops with
+    each host's data, and the fleet file's other groups (Ansible's) as host
+    names, so --limit takes them too."""
+    return {**fleet.subgroups, **fleet.groups}

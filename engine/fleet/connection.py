@@ -7,8 +7,15 @@ from engine import checks as c
 from engine import values as v
 from engine.role import UNSET, Setting
 
-# Keys the fleet file may use that are not settings of their own.
-ALIASES = {"address": "ssh_hostname"}
+# Keys the fleet file may use that are not settings of their own: address,
+# and the connection variables of an Ansible inventory.
+ALIASES = {
+    "address": "ssh_hostname",
+    "ansible_host": "ssh_hostname",
+    "ansible_user": "ssh_user",
+    "ansible_port": "ssh_port",
+    "ansible_ssh_private_key_file": "ssh_key",
+}
 
 SETTINGS = (
     Setting("ssh_hostname", UNSET, v.address, "The address SSH connects to (write it as address:); default: the host's name."),

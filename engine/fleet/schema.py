@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 
-from engine.fleet.check import EXTENSION_PREFIX, HOST_NAME
+from engine.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
 from engine.fleet.registry import Registry
 
 
@@ -17,6 +17,7 @@ BEYOND_SCHEMA = {
     "rules across settings": "each role's rules on a host's merged settings: x11_user when display is true, "
     "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1",
     "a host in two groups": "a host declared under both robots and laptops, or in groups of both kinds",
+    "a host of no kind": "a host in neither a robots nor a laptops group (at any depth)",
     "a fleet with no hosts": "a file that declares no host at all",
     "respelled numbers": "a number written so that YAML changes it (0022, 1.10, 0x1F) where a number is "
     "expected: the schema sees only the number",
@@ -43,35 +44,35 @@ def fleet_schema(registry: Registry) -> dict:
     variables = {
         "type": ["object", "null"],
         "properties": setting_schemas(registry),
+        # Ansible's own variables (ansible_become, ...) are ignored by the run.
+        "patternProperties": {f"^{ANSIBLE_PREFIX}": {}},
         "additionalProperties": False,
     }
+    name = {"pattern": f"^(?:{HOST_NAME.pattern})$"}
     group = {
         "type": ["object", "null"],
         "properties": {
             "vars": {"$ref": "#/definitions/settings"},
             "hosts": {
                 "type": ["object", "null"],
-                "propertyNames": {"pattern": f"^(?:{HOST_NAME.pattern})$"},
+                "propertyNames": name,
                 "additionalProperties": {"$ref": "#/definitions/settings"},
+            },
+            "children": {
+                "type": ["object", "null"],
+                "propertyNames": name,
+                "additionalProperties": {"$ref": "#/definitions/group"},
             },
         },
         "additionalProperties": False,
     }
     return {
         "$schema": "http://json-schema.org/draft-07/schema#",
-        "title": "Robot fleet file (inventories/robots.yaml)",
+        "title": "Robot fleet file (inventories/robots.yaml): an Ansible-style YAML inventory",
         "type": ["object", "null"],
-        "properties": {
-            "all": {
-                "type": ["object", "null"],
-                "properties": {"vars": {"$ref": "#/definitions/settings"}},
-                "additionalProperties": False,
-            },
-            "robots": {"$ref": "#/definitions/group"},
-            "laptops": {"$ref": "#/definitions/group"},
-        },
+        "propertyNames": {"anyOf": [name, {"pattern": f"^{EXTENSION_PREFIX}"}]},
         "patternProperties": {f"^{EXTENSION_PREFIX}": {}},
-        "additionalProperties": False,
+        "additionalProperties": {"$ref": "#/definitions/group"},
         "definitions": {"settings": variables, "group": group},
     }
 

@@ -67,7 +67,7 @@ CORPUS = [
     ("recursive alias", host("docker_daemon_options: &a {a: *a}"),
      ["f.yaml: line 7: YAML error: an alias refers to its own anchor (a recursive value)"]),
     ("section of the wrong type", BASE + "robots: [r1, r2]\n",
-     ["f.yaml: robots: expected a mapping with vars and hosts, got a list"]),
+     ["f.yaml: robots: expected a group (a mapping with vars, hosts, children), got a list"]),
     ("tab indentation", BASE + "robots:\n\thosts: {}\n",
      ["f.yaml: line 5: YAML error: found '\\t', which cannot start any token; indent with spaces, not tabs"]),
     ("two documents", BASE + "---\nrobots: {}\n",

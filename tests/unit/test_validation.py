@@ -111,8 +111,9 @@ def test_readme_documents_every_setting():
          "robots.yaml: robot3.payload_image: required: the payload image, pinned by tag or digest"),
         ({"robots": {"vars": {"payload_imag": "x:1"}, "hosts": {}}},
          "robots.yaml: robots.vars.payload_imag: unknown setting (did you mean 'payload_image'?)"),
-        ({"robot": {"hosts": {}}},
-         "robots.yaml: robot: unknown top-level key (did you mean 'robots'?); expected all, robots or laptops (or x-... for YAML anchors)"),
+        # Top-level keys are groups, as in Ansible: a misspelt robots holds hosts of no kind.
+        ({"robot": {"hosts": {"robot3": GOOD_HOST}}},
+         "robots.yaml: robot3: in neither a robots nor a laptops group (groups: robot) (did you mean 'robots'?)"),
         ({"robots": {"hosts": {"a b": GOOD_HOST}}}, "robots.yaml: 'a b': invalid host name (letters, digits, . _ -)"),
         ({"robots": {"hosts": {"r1": GOOD_HOST}}, "laptops": {"hosts": {"r1": {**GOOD_HOST, "x11_user": "a"}}}},
          "robots.yaml: r1: declared in both robots and laptops"),
