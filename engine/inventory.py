@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from engine import roster
+from engine import connect, roster
 from engine.fleet.check import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse"]
@@ -48,8 +48,12 @@ def parse_or_exit(text: str | bytes, shown: str) -> Fleet:
         _refuse_fleet(error)
 
 
-def pyinfra_groups(fleet: Fleet) -> dict[str, list]:
+def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     """The groups an inventory file hands pyinfra: robots and laptops with
     each host's data, and the fleet file's other groups (Ansible's) as host
-    names, so --limit takes them too."""
-    return {**fleet.subgroups, **fleet.groups}
+    names, so --limit takes them too.  Every host connects through
+    engine/connect.py (``@fleet/<name>``); ``inventory`` is the inventory
+    file (its __file__), named in the command that enrolls a host key."""
+    connect.names([], inventory)
+    groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}
+    return {**groups, **{name: connect.names(hosts) for name, hosts in fleet.groups.items()}}

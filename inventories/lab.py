@@ -11,6 +11,7 @@ import json
 import os
 from pathlib import Path
 
+from engine.connect import names
 from engine.inventory import parse_or_exit, refuse
 
 _ROOT = Path(__file__).resolve().parent.parent
@@ -68,5 +69,5 @@ def _load():
 
 
 _groups = _load()
-robots = _groups["robots"]
-laptops = _groups["laptops"]
+robots = names(_groups["robots"], __file__)
+laptops = names(_groups["laptops"])

@@ -10,4 +10,4 @@ from engine.inventory import load_or_exit, pyinfra_groups
 _fleet = load_or_exit(Path(os.environ.get("ROBOT_FLEET") or Path(__file__).with_suffix(".yaml")))
 
 # robots, laptops and the file's other groups (e.g. Ansible's children)
-globals().update(pyinfra_groups(_fleet))
+globals().update(pyinfra_groups(_fleet, __file__))
