@@ -111,10 +111,12 @@ class FleetConnector(ssh.SSHConnector):
     def make_names_data(name):
         yield name, {}, []
 
+    def timeout(self) -> int:
+        return self.data["ssh_connect_timeout"] or self.state.config.CONNECT_TIMEOUT
+
     def make_paramiko_kwargs(self):
         kwargs = super().make_paramiko_kwargs()
-        timeout = self.data["ssh_connect_timeout"] or self.state.config.CONNECT_TIMEOUT
-        kwargs.update(timeout=timeout, banner_timeout=timeout, auth_timeout=timeout)
+        kwargs.update(timeout=self.timeout(), banner_timeout=self.timeout(), auth_timeout=self.timeout())
         return kwargs
 
     def connect(self) -> None:
@@ -154,8 +156,6 @@ class FleetConnector(ssh.SSHConnector):
     def explain(self, error: Exception) -> tuple[str, bool]:
         """(one line saying why, whether trying again may help)."""
         address, port = self.where()
-        at = f"{address}:{port}"
-        timeout = self.make_paramiko_kwargs()["timeout"]
         known_hosts = self.data["ssh_known_hosts_file"] or "~/.ssh/known_hosts"
         if isinstance(error, UnknownHostKey):
             return (f"unknown host key: {error.entry} is not in {known_hosts} (ssh_strict_host_key_checking: yes); "
@@ -166,30 +166,7 @@ class FleetConnector(ssh.SSHConnector):
                     f"was reinstalled, delete its line and enroll it again: {enroll_command(self.host.name)})"), False
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
             return self.auth_reason(error), False
-        if isinstance(error, NoValidConnectionsError):
-            codes = {e.errno for e in error.errors.values()}
-            if codes <= {errno.ECONNREFUSED}:
-                return f"connection refused by {at} (no SSH server listens on port {port})", True
-            return f"cannot connect to {at} ({error.strerror or error})", True
-        if isinstance(error, socket.gaierror):
-            return f"cannot resolve {address} ({error.strerror})", False
-        if isinstance(error, (socket.timeout, TimeoutError)):
-            return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True
-        if isinstance(error, SSHException):
-            text = str(error)
-            if "Error reading SSH protocol banner" in text or "Indecipherable protocol version" in text:
-                return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
-                        f"{timeout} s (wrong port?)"), False
-            if "No existing session" in text or "Unable to connect" in text:
-                return f"the SSH session to {at} closed during the handshake", True
-            return f"SSH error from {at}: {text}", False
-        if isinstance(error, EOFError):
-            return f"{at} closed the connection during the SSH handshake", True
-        if isinstance(error, OSError):
-            if error.errno in (errno.EHOSTUNREACH, errno.ENETUNREACH):
-                return f"no route to {at} ({error.strerror})", True
-            return f"cannot connect to {at} ({error.strerror or error})", True
-        return f"cannot connect to {at} ({type(error).__name__}: {error})", False
+        return network_reason(error, address, port, self.timeout())
 
     def auth_reason(self, error: Exception) -> str:
         kwargs = getattr(self, "kwargs", {})
@@ -223,3 +200,35 @@ class FleetConnector(ssh.SSHConnector):
             if found:
                 tried.append("key " + ", ".join(found))
         return tried
+
+
+def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[str, bool]:
+    """Why reaching ``address:port`` failed, in words, and whether trying
+    again may help (a host key or login failure is told by the connector)."""
+    at = f"{address}:{port}"
+    if isinstance(error, ConnectionRefusedError):
+        return f"connection refused by {at} (no SSH server listens on port {port})", True
+    if isinstance(error, NoValidConnectionsError):
+        codes = {e.errno for e in error.errors.values()}
+        if codes <= {errno.ECONNREFUSED}:
+            return f"connection refused by {at} (no SSH server listens on port {port})", True
+        return f"cannot connect to {at} ({error.strerror or error})", True
+    if isinstance(error, socket.gaierror):
+        return f"cannot resolve {address} ({error.strerror})", False
+    if isinstance(error, (socket.timeout, TimeoutError)):
+        return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True
+    if isinstance(error, SSHException):
+        text = str(error)
+        if "Error reading SSH protocol banner" in text or "Indecipherable protocol version" in text:
+            return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
+                    f"{timeout} s (wrong port?)"), False
+        if "No existing session" in text or "Unable to connect" in text:
+            return f"the SSH session to {at} closed during the handshake", True
+        return f"SSH error from {at}: {text}", False
+    if isinstance(error, EOFError):
+        return f"{at} closed the connection during the SSH handshake", True
+    if isinstance(error, OSError):
+        if error.errno in (errno.EHOSTUNREACH, errno.ENETUNREACH):
+            return f"no route to {at} ({error.strerror})", True
+        return f"cannot connect to {at} ({error.strerror or error})", True
+    return f"cannot connect to {at} ({type(error).__name__}: {error})", False

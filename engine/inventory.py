@@ -7,7 +7,10 @@ import os
 import sys
 from pathlib import Path
 
+import click
+
 from engine import connect, roster
+from engine.commands import hosts as selection
 from engine.fleet.check import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse"]
@@ -55,5 +58,20 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     engine/connect.py (``@fleet/<name>``); ``inventory`` is the inventory
     file (its __file__), named in the command that enrolls a host key."""
     connect.names([], inventory)
+    _refuse_unmatched_limits(fleet, inventory)
     groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}
     return {**groups, **{name: connect.names(hosts) for name, hosts in fleet.groups.items()}}
+
+
+def _refuse_unmatched_limits(fleet: Fleet, inventory: str) -> None:
+    """pyinfra's CLI only warns about a --limit or --exclude that matches no
+    host, and exits 0 having done nothing: refuse it before connecting."""
+    context = click.get_current_context(silent=True)
+    if context is None:
+        return
+    names = [name for hosts in fleet.groups.values() for name, _ in hosts]
+    groups = {Path(inventory).stem, *(g for g, hosts in fleet.groups.items() if hosts), *fleet.subgroups}
+    for option in ("limit", "exclude"):
+        problem = selection.refusal(list(context.params.get(option) or ()), display_path(Path(inventory)), names, groups)
+        if problem:
+            refuse([problem if option == "limit" else problem.replace("--limit", "--exclude", 1)])

@@ -11,8 +11,7 @@ import json
 import os
 from pathlib import Path
 
-from engine.connect import names
-from engine.inventory import parse_or_exit, refuse
+from engine.inventory import parse_or_exit, pyinfra_groups, refuse
 
 _ROOT = Path(__file__).resolve().parent.parent
 _PREFIX = os.environ.get("ROBOT_LAB_PREFIX", "lab")
@@ -65,9 +64,9 @@ def _load():
                 ssh_look_for_keys=False,
             )
             groups[group].append((name, data))
-    return groups
+    fleet.groups = groups
+    fleet.subgroups = {group: [h for h in hosts if h in ports] for group, hosts in fleet.subgroups.items()}
+    return fleet
 
 
-_groups = _load()
-robots = names(_groups["robots"], __file__)
-laptops = names(_groups["laptops"])
+globals().update(pyinfra_groups(_load(), __file__))
