@@ -33,7 +33,7 @@ from time import sleep
 from paramiko import AuthenticationException, BadHostKeyException, MissingHostKeyPolicy, SSHException
 from paramiko.agent import Agent
 from paramiko.ssh_exception import BadAuthenticationType, NoValidConnectionsError
-from pyinfra.api.exceptions import ConnectError
+from pyinfra.api.exceptions import ConnectError, PyinfraError
 from pyinfra.connectors import ssh
 from pyinfra.connectors.ssh_util import _patch_paramiko_sk_key_support
 from pyinfra.connectors.sshuserclient import client as sshuserclient
@@ -60,6 +60,12 @@ def names(hosts: list[tuple[str, dict]], inventory: str | None = None) -> list[t
     if inventory:
         INVENTORY = os.path.relpath(inventory) if os.path.isabs(inventory) else inventory
     return [(f"@{CONNECTOR}/{name}", data) for name, data in hosts]
+
+
+# How each reason a host cannot be reached begins (what rollout looks for in
+# pyinfra's output to tell an unreachable robot from a failed one).
+REASONS = ("unknown host key", "host key CHANGED", "authentication failed", "connection refused", "connection closed",
+           "cannot connect", "cannot resolve", "timed out", "not an SSH server", "the SSH session", "no route to")
 
 
 def enroll_command(host: str) -> str:
@@ -164,6 +170,8 @@ class FleetConnector(ssh.SSHConnector):
             return (f"host key CHANGED: {known_hosts} has {hostkeys.fingerprint(error.expected_key)} for "
                     f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused (if the robot "
                     f"was reinstalled, delete its line and enroll it again: {enroll_command(self.host.name)})"), False
+        if isinstance(error, PyinfraError):  # e.g. the ssh_key file is missing or unreadable
+            return f"cannot connect: {error}", False
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
             return self.auth_reason(error), False
         return network_reason(error, address, port, self.timeout())
@@ -226,7 +234,7 @@ def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[
             return f"the SSH session to {at} closed during the handshake", True
         return f"SSH error from {at}: {text}", False
     if isinstance(error, EOFError):
-        return f"{at} closed the connection during the SSH handshake", True
+        return f"connection closed by {at} during the SSH handshake", True
     if isinstance(error, OSError):
         if error.errno in (errno.EHOSTUNREACH, errno.ENETUNREACH):
             return f"no route to {at} ({error.strerror})", True
