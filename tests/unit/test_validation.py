@@ -51,9 +51,10 @@ def test_a_setting_has_one_default_only():
     assert not set(defaults["robots"]) & {"docker_users", "payload_image"}
 
 
-def test_readme_documents_every_setting():
-    readme = (ROOT / "README.md").read_text()
-    undocumented = [k for k in fleet.setting_checks() if f"`{k}`" not in readme]
+def test_every_setting_is_documented_by_hand():
+    """Beyond the generated docs/settings.md: README or the role docs it links."""
+    written = "".join((ROOT / name).read_text() for name in ("README.md", "docs/roles.md", "docs/gpu.md", "docs/releases.md"))
+    undocumented = [k for k in fleet.setting_checks() if f"`{k}`" not in written]
     assert undocumented == []
 
 
