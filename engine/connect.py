@@ -227,6 +227,9 @@ def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[
         return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True
     if isinstance(error, SSHException):
         text = str(error)
+        if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):
+            return (f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
+                    "e.g. MaxStartups, or a firewall)"), True
         if "Error reading SSH protocol banner" in text or "Indecipherable protocol version" in text:
             return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
                     f"{timeout} s (wrong port?)"), False

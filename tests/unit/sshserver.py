@@ -38,7 +38,8 @@ class _Server(paramiko.ServerInterface):
 class Listener:
     """Accepts TCP connections on 127.0.0.1; ``ssh`` decides what it says."""
 
-    def __init__(self, host_key=None, client_key=None):
+    def __init__(self, host_key=None, client_key=None, hang_up=False):
+        self.hang_up = hang_up  # close each connection at once (an sshd over MaxStartups)
         self.socket = socket.create_server(("127.0.0.1", 0))
         self.port = self.socket.getsockname()[1]
         self.host_key, self.client_key = host_key, client_key
@@ -53,6 +54,9 @@ class Listener:
             except OSError:
                 return
             self.connections += 1
+            if self.hang_up:
+                conn.close()
+                continue
             self.open.append(conn)
             if self.host_key is not None:
                 threading.Thread(target=self._ssh, args=(conn,), daemon=True).start()

@@ -155,6 +155,19 @@ def test_wrong_hosts_fail_in_one_line_each_within_the_timeout(tmp_path, monkeypa
     assert elapsed < 6, elapsed  # 2 s for the silent one, the refused one twice at once
 
 
+def test_a_connection_closed_before_the_greeting_is_tried_again(tmp_path, monkeypatch, client_key):
+    """sshd drops unauthenticated connections over MaxStartups: a retry helps there."""
+    dropping = sshserver.Listener(hang_up=True)
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": dropping.port}}, ssh_connect_retries=2)
+        line = connect(path, monkeypatch)["robot1"]
+    finally:
+        dropping.close()
+    assert line == (f"connection closed by 127.0.0.1:{dropping.port} before the SSH greeting (an sshd turning "
+                    "connections away, e.g. MaxStartups, or a firewall)")
+    assert dropping.connections == 3
+
+
 def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key):
     silent = sshserver.Listener()
     server = sshserver.ssh_server(client_key)
