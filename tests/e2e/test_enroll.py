@@ -18,7 +18,7 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, phase
+from tests.e2e.conftest import PREFIX, PYINFRA, ROOT, Lab, phase
 
 pytestmark = pytest.mark.e2e
 
@@ -27,6 +27,20 @@ def fingerprint(line: str) -> str:
     """SHA256:... of a known_hosts line's key, computed here (not by the engine)."""
     blob = base64.b64decode(line.split()[2])
     return "SHA256:" + base64.b64encode(hashlib.sha256(blob).digest()).decode().rstrip("=")
+
+
+@pytest.fixture(scope="module")
+def lab():
+    """One robot is enough here (the session's lab has four hosts)."""
+    from tests.lab import hosts
+
+    started = time.monotonic()
+    hosts.down(PREFIX)
+    state = hosts.up(PREFIX, robots=1, laptops=0)
+    phase("lab up (one robot)", started)
+    yield Lab(state)
+    if not os.environ.get("ROBOT_LAB_KEEP"):
+        hosts.down(PREFIX)
 
 
 @pytest.fixture
