@@ -29,5 +29,10 @@ def provision(listed) -> None:
     for role in running:
         role.reads(host.data, query)
     play = Play(host.data, host.get_fact(HostSnapshot, **query.as_kwargs()), running)
-    for role in running:
-        role.steps(play)
+    # pyinfra's CLI tells operations apart by the line numbers of their call
+    # stack, not the file names: the roles' steps are all called from the line
+    # below, so each role gets its own place in deploy.py's list (host.loop),
+    # the same on every host, whichever roles run there.
+    for role in host.loop(roles):
+        if role in running:
+            role.steps(play)

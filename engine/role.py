@@ -150,6 +150,7 @@ class Play:
     data: Any
     snapshot: Snapshot
     roles: tuple[Role, ...] = ()
+    events: dict = field(default_factory=dict)
 
     def added(self, hook: Hook, *args) -> list:
         """What the other roles on this host add to ``hook``."""
@@ -158,3 +159,12 @@ class Play:
     def folded(self, hook: Hook, value):
         """``value`` as the other roles on this host amend it through ``hook``."""
         return folded(self.roles, hook, self.data, value)
+
+    def announce(self, event: Hook, operation) -> None:
+        """Tell the roles after this one that ``operation`` may cause
+        ``event`` (e.g. Docker restarted): they gate their reaction on it
+        with ``_if=any_changed(*play.announced(event))``."""
+        self.events.setdefault(event, []).append(operation)
+
+    def announced(self, event: Hook) -> list:
+        return list(self.events.get(event, ()))

@@ -14,9 +14,27 @@ from engine import checks as c
 # spaces, backslashes, parentheses, < >).
 URL = r"https?://(?:[A-Za-z0-9._~-]+|\[[0-9A-Fa-f:.]+\])(?::[0-9]{1,5})?(?:/[A-Za-z0-9._~%/+,=@:-]*)?(?:\?[A-Za-z0-9._~%/+,=@:-]*)?"
 URL_WHAT = "an http(s) URL without spaces or shell characters ($ ` ; | & quotes)"
-# Directories anyone may write to: a path at or below one can be planted or
-# swapped by a local user before root creates, chmods or reads it.
-WORLD_WRITABLE = ("/tmp", "/var/tmp", "/dev/shm", "/run/lock", "/var/lock", "/dev/mqueue")
+# Directories anyone may write to (or, /run/user, a user owns): a path at or
+# below one can be planted or swapped by a local user before root creates,
+# chmods or reads it.
+WORLD_WRITABLE = ("/tmp", "/var/tmp", "/dev/shm", "/run/lock", "/dev/mqueue", "/run/user")
+# Other names of those directories on Debian and Ubuntu (symlinks there):
+# /var/run -> /run, /var/lock -> /run/lock, /run/shm -> /dev/shm.
+ALIASES = (("/var/run", "/run"), ("/var/lock", "/run/lock"), ("/run/shm", "/dev/shm"))
+
+
+def canonical(path: str) -> str:
+    """``path`` normalized, with the known aliases of system directories
+    resolved (as the host would resolve them)."""
+    normal = "/" + posixpath.normpath(path).lstrip("/")
+    changed = True
+    while changed:
+        changed = False
+        for alias, target in ALIASES:
+            if normal == alias or normal.startswith(alias + "/"):
+                normal = target + normal[len(alias):]
+                changed = True
+    return normal
 _DOTTED_NUMBERS = re.compile(r"[0-9.]+")
 _HOST_PORT = re.compile(r"([^:\s\[\]]+|\[[^\]]*\]):([0-9]+)")
 _LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
@@ -100,7 +118,7 @@ def private_path(value):
     problems = abs_path(value)
     if problems:
         return problems
-    normal = "/" + posixpath.normpath(value).lstrip("/")
+    normal = canonical(value)
     for shared in WORLD_WRITABLE:
         if normal == shared or normal.startswith(shared + "/"):
             return [("", f"{c.shown(value)} is in the world-writable {shared}; use a directory only root can write (e.g. under /var/lib)")]
@@ -119,6 +137,18 @@ def normal_fingerprint(value: str | None) -> str | None:
     return value.replace(" ", "").upper() if value else None
 
 
+def _spellings() -> list[str]:
+    """Every way to write a world-writable directory, aliases included (for
+    the editors' schema, which cannot resolve them)."""
+    found = set(WORLD_WRITABLE)
+    while True:
+        more = {alias + path[len(target):] for path in found for alias, target in ALIASES
+                if path == target or path.startswith(target + "/")}
+        if more <= found:
+            return sorted(found)
+        found |= more
+
+
 _SEP = r"/(?:\.?/)*"  # what normpath reads as one slash: //, /./
 _path_schema = {"type": "string", "pattern": c.json_pattern(c.ABS_PATH), "not": {"pattern": "(?:^|/)\\.\\.(?:/|$)"},
                 "description": "an absolute path without '..'"}
@@ -129,7 +159,7 @@ c.with_schema(local_path, {"type": "string", "pattern": c.json_pattern(LOCAL_PAT
 c.with_schema(private_path, {
     **_path_schema,
     "not": {"anyOf": [_path_schema["not"], {"pattern": "^" + _SEP + "(?:" + "|".join(
-        w.lstrip("/").replace("/", _SEP) for w in WORLD_WRITABLE) + ")(?:/|$)"}]},
+        w.lstrip("/").replace("/", _SEP) for w in _spellings()) + ")(?:/|$)"}]},
     "description": "an absolute path outside world-writable directories (/tmp, /var/tmp, /dev/shm, ...)",
 })
 c.with_schema(fingerprint, {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$", "description": "a 40-digit hex OpenPGP fingerprint"})

@@ -3,7 +3,15 @@
     pyinfra inventories/local.py deploy.py
 
 Its settings are its entry under `laptops` in robots.yaml (or the file named
-by $ROBOT_FLEET), found by host name (or $ROBOT_FLEET_HOST).  sudo asks for the password if it needs one.
+by $ROBOT_FLEET), found by host name (or $ROBOT_FLEET_HOST).
+
+sudo and its password: when sudo needs one, pyinfra asks for it once and then
+passes it to every sudo command in that command's own argument list
+(pyinfra/connectors/util.py), where every local user can read it for a
+moment (ps, /proc/<pid>/cmdline; measured by tests/bench/sudo_password.py).
+On a laptop other people log in to, give the deploying user passwordless
+sudo for the run and take it back after, or mount /proc with hidepid=2 (see
+docs/security.md, --use-sudo-password); on a single-user laptop the exposure is to yourself.
 """
 
 import os

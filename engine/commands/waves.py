@@ -9,11 +9,15 @@ functions deciding what happens next.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import math
 import os
 import re
+import tempfile
+import time
 from dataclasses import dataclass
 
 _COUNT = re.compile(r"(0|[1-9][0-9]{0,5})(%?)")
@@ -135,15 +139,46 @@ def start_run(state: dict) -> dict:
 
 
 def save_state(path: str, state: dict) -> None:
-    """Write atomically: temp file, fsync, rename."""
+    """Write atomically: a temp file of an unpredictable name created
+    exclusively (nothing planted there is followed), fsync, rename."""
+    directory = os.path.dirname(path) or "."
+    os.makedirs(directory, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "w") as handle:
+            json.dump(state, handle, indent=2, sort_keys=True)
+            handle.write("\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+class RolloutBusy(Exception):
+    pass
+
+
+@contextlib.contextmanager
+def held(path: str):
+    """The rollout state's lock, held for a whole run: a second rollout of
+    the same fleet refuses (it would lose the first one's updates)."""
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    tmp = f"{path}.{os.getpid()}.tmp"
-    with open(tmp, "w") as handle:
-        json.dump(state, handle, indent=2, sort_keys=True)
-        handle.write("\n")
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+    fd = os.open(path + ".lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            note = os.pread(fd, 200, 0).decode(errors="replace").strip()
+            raise RolloutBusy(f"another rollout of this fleet is running ({note or 'unknown process'}); "
+                              "wait for it, or stop it") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"pid {os.getpid()} since {time.strftime('%Y-%m-%dT%H:%M:%S')}".encode(), 0)
+        yield
+    finally:
+        os.close(fd)
 
 
 def load_state(path: str) -> dict | None:

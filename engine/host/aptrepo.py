@@ -3,10 +3,20 @@ NVIDIA's): the key, checked against its fingerprint before it is installed,
 a deb822 source that trusts only that key (Signed-By), and apt update when
 either changed, waiting for the apt lock like every other apt call.
 
-The key file must hold exactly one primary key, the pinned one: apt trusts
-every key of a Signed-By keyring, so a second key beside the pinned one
-would sign packages too.  A keyring on the host that holds more than one key
-is removed whatever the download gives (fail closed)."""
+apt trusts every key of a Signed-By keyring, and gpg, apt 2.6 (gpgv, after
+its own awk+base64 dearmoring) and apt 3's sqv each parse an armored file
+their own way: a file gpg lists as only the pinned key can carry a block the
+other two read and trust (behind an armor line gpg skips, after a CRC line,
+...).  So the downloaded bytes are never installed.  They are imported into
+a throwaway keyring, which must hold exactly one primary key, the pinned
+one, and the file installed is gpg's own export of that key: armored when
+the key path ends in .asc (apt picks the format by extension), binary
+otherwise.  The snapshot probe checks the installed file is byte for byte
+that export; anything else is replaced, and a key file that is not exactly
+that is removed whatever the download gives (fail closed).
+
+Without a pinned fingerprint (``docker_apt_key_fingerprint: null``) the file
+is installed as downloaded, checked only by its sha256 if one is set."""
 
 from __future__ import annotations
 
@@ -57,22 +67,58 @@ def deb822(owner: str, uris: str, suites: str, signed_by: str, components: str |
     return "\n".join(lines) + "\n"
 
 
-def primary_fingerprints(path: str) -> str:
-    """Shell pipeline printing the primary-key fingerprints in key file
-    ``path`` (a shell word, already quoted), one a line, using the throwaway
-    GNUPGHOME ``$h``."""
-    return f"GNUPGHOME=$h gpg --batch --show-keys --with-colons {path} 2>/dev/null | {_PRIMARIES_AWK}"
+def armored(key_path: str) -> bool:
+    """apt reads a Signed-By file as armored by its extension (.asc); any
+    other name is installed binary, which apt 2.6 and sqv both read as is."""
+    return key_path.endswith(".asc")
 
 
-def fingerprints_probe(path: str) -> str:
-    p = shlex.quote(path)
-    return f'[ -f {p} ] && command -v gpg >/dev/null && h=$(mktemp -d) && {primary_fingerprints(p)}; rm -rf "$h"'
+CANONICAL = "canonical"  # the probe's word for "the file is gpg's export of the pinned key alone"
+
+
+def _canonical_function(key_path: str) -> str:
+    """Shell function ``canonical FILE KEYRING OUT``: import FILE into the
+    new throwaway keyring KEYRING, write gpg's own export of the pinned key
+    (``$pin``) to OUT, and print the primary fingerprints the keyring got.
+    What gpg did not import (a block behind an armor line gpg skips) is
+    not in OUT, whatever apt or sqv would have made of it."""
+    export = "--armor --export" if armored(key_path) else "--export"
+    gpg = 'GNUPGHOME="$2" gpg --batch --no-autostart'
+    return (
+        "canonical() {\n"
+        '  mkdir -m 700 "$2" || return 0\n'
+        f'  {gpg} --quiet --import "$1" >/dev/null 2>&1 || true\n'
+        f'  {gpg} {export} "$pin" > "$3" 2>/dev/null || true\n'
+        f"  {gpg} --with-colons --list-keys 2>/dev/null | {_PRIMARIES_AWK}\n"
+        "}"
+    )
+
+
+def key_probe(key_path: str, fingerprint: str | None) -> str:
+    """Snapshot probe: the primary fingerprints in the installed key file
+    (as gpg imports it), then ``canonical`` when the file is byte for byte
+    gpg's export of the pinned key alone (the form ``key_script``
+    installs).  Read-only: gpg works in a throwaway keyring."""
+    if not fingerprint:
+        return "true"
+    p = shlex.quote(key_path)
+    return (
+        f"[ -f {p} ] && command -v gpg >/dev/null && h=$(mktemp -d) && {{\n"
+        f"pin={shlex.quote(fingerprint)}\n{_canonical_function(key_path)}\n"
+        f'canonical {p} "$h/k" "$h/export"\n'
+        f'[ -s "$h/export" ] && cmp -s "$h/export" {p} && echo {CANONICAL}\n'
+        '}; rm -rf "$h"'
+    )
 
 
 def key_script(repo: Repository) -> str:
-    """Fetch the key to a temp file beside its place, check it, and only
-    then move it in place.  Values reach the messages through shell
-    variables, never as code."""
+    """Fetch the key, check it, and only then move it in place (a temp file
+    beside it, chmod 644, mv).  With a pinned fingerprint the downloaded
+    bytes are never installed: they are imported into a throwaway keyring,
+    which must then hold exactly one primary key, the pinned one, and what
+    is installed is gpg's own export of that key (armored for a .asc path,
+    binary otherwise).  Values reach the messages through shell variables,
+    never as code."""
     q = shlex.quote
     lines = [
         "set -e",
@@ -86,61 +132,86 @@ def key_script(repo: Repository) -> str:
         "h=$(mktemp -d)",
         "trap 'rm -f \"$tmp\"; rm -rf \"$h\"' EXIT",
     ]
+    download = '"$h/download"' if repo.fingerprint else '"$tmp"'
     if repo.fingerprint:
+        # Fail closed: a key file that is not exactly what this script
+        # installs goes now, so it is not trusted while the download fails.
         lines += [
             f"pin={q(repo.fingerprint)}",
-            'if [ -f "$dest" ] && [ "$(' + primary_fingerprints('"$dest"') + ' | wc -l)" -gt 1 ]; then',
-            '  rm -f "$dest"; echo "$dest held more than one key; removed" >&2',
+            _canonical_function(repo.key_path),
+            'if [ -f "$dest" ]; then',
+            '  old=$(canonical "$dest" "$h/installed" "$h/installed.key")',
+            '  if [ "$(printf "%s\\n" "$old" | grep -c .)" -gt 1 ]; then',
+            '    rm -f "$dest"; echo "$dest held more than one key ($(echo $old)); removed" >&2',
+            '  elif [ "$old" != "$pin" ] || ! cmp -s "$h/installed.key" "$dest"; then',
+            '    rm -f "$dest"; echo "$dest is not exactly the pinned key as gpg exports it ($setting $pin); removed" >&2',
+            "  fi",
             "fi",
         ]
     lines.append(
-        'curl -fsSL --retry 3 --connect-timeout 20 "$url" -o "$tmp" || '
+        f'curl -fsSL --retry 3 --connect-timeout 20 "$url" -o {download} || '
         '{ echo "cannot download the $what from $url" >&2; exit 1; }'
     )
     if repo.sha256:
         lines += [
             f"want={q(repo.sha256)}",
-            'got=$(sha256sum < "$tmp" | cut -d" " -f1); '
+            f'got=$(sha256sum < {download} | cut -d" " -f1); '
             '[ "$got" = "$want" ] || { echo "$what from $url: sha256 $got does not match '
             '$sha_setting $want; key not installed" >&2; exit 1; }',
         ]
     if repo.fingerprint:
         lines += [
-            "fprs=$(" + primary_fingerprints('"$tmp"') + ")",
+            'fprs=$(canonical "$h/download" "$h/new" "$tmp")',
             'count=$(printf "%s\\n" "$fprs" | grep -c . || true)',
+            'listed=$(echo $fprs)',
             'printf "%s\\n" "$fprs" | grep -qx "$pin" || { echo "$what from $url: fingerprint '
-            '$(echo $fprs) does not match $setting $pin; key not installed" >&2; exit 1; }',
-            '[ "$count" -eq 1 ] || { echo "$what from $url: holds $count keys ($(echo $fprs)); '
+            '${listed:-(none: no key gpg can read)} does not match $setting $pin; key not installed" >&2; exit 1; }',
+            '[ "$count" -eq 1 ] || { echo "$what from $url: holds $count keys ($listed); '
             'only $setting $pin may be in it; key not installed" >&2; exit 1; }',
+            '[ -s "$tmp" ] || { echo "$what from $url: gpg exported nothing for $setting $pin; '
+            'key not installed" >&2; exit 1; }',
         ]
     lines += ['chmod 644 "$tmp"', 'mv -fT "$tmp" "$dest"']
     return "\n".join(lines)
 
 
-def only_pinned(probe_output: str, fingerprint: str) -> bool:
-    return probe_output.split() == [fingerprint]
+@dataclass(frozen=True)
+class InstalledKey:
+    """What ``key_probe`` found in the installed key file."""
+
+    fingerprints: tuple[str, ...]  # primary keys, as gpg imports the file
+    canonical: bool  # byte for byte gpg's export of the pinned key alone
+
+
+def installed_key(probe_output: str) -> InstalledKey:
+    words = probe_output.split()
+    return InstalledKey(tuple(w for w in words if w != CANONICAL), CANONICAL in words)
 
 
 def key_is_current(repo: Repository, snap: Snapshot) -> bool:
-    """In place, 0644, and (when pinned) holding exactly the pinned key."""
+    """In place, 0644, and (when pinned) exactly what ``key_script``
+    installs: gpg's export of the pinned key alone.  A file gpg lists as the
+    pinned key but that differs from that form (a block apt reads and gpg
+    skips) is not current and is replaced.  Unpinned, the sha256 if set."""
     current = snap.files.get(repo.key_path)
     if current is None or current.kind != "file" or current.mode != "644":
         return False
-    if repo.sha256 and current.sha256 != repo.sha256:
-        return False
-    return not repo.fingerprint or only_pinned(snap.probes.get(repo.probe, ""), repo.fingerprint)
+    if repo.fingerprint:
+        key = installed_key(snap.probes.get(repo.probe, ""))
+        return key.canonical and key.fingerprints == (repo.fingerprint,)
+    return not repo.sha256 or current.sha256 == repo.sha256
 
 
 def declare_reads(repo: Repository, query: SnapshotQuery) -> None:
     query.files |= {KEYRING_DIR, repo.key_path, repo.sources_path}
     if repo.fingerprint:
-        query.probes[repo.probe] = fingerprints_probe(repo.key_path)
+        query.probes[repo.probe] = key_probe(repo.key_path, repo.fingerprint)
 
 
 @operations.operation()
 def pinned_key(repo: Repository, up_to_date: bool):
     if up_to_date:
-        host.noop(f"{repo.key_path} holds exactly the pinned key" if repo.fingerprint else f"{repo.key_path} is in place")
+        host.noop(f"{repo.key_path} is exactly the pinned key as gpg exports it" if repo.fingerprint else f"{repo.key_path} is in place")
         return
     yield operations.shell(key_script(repo))
 

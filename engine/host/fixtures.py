@@ -4,6 +4,6 @@ from engine.host.operations import sha256
 from engine.host.snapshot import FileState
 
 
-def file_state(text: str, mode: str = "644", user: str = "root", group: str = "root") -> FileState:
-    """A regular file holding ``text``."""
-    return FileState("file", sha256(text.encode()), mode, user, group)
+def file_state(content: str | bytes, mode: str = "644", user: str = "root", group: str = "root") -> FileState:
+    """A regular file holding ``content``."""
+    return FileState("file", sha256(content.encode() if isinstance(content, str) else content), mode, user, group)

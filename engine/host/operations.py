@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import difflib
 import hashlib
+import re
 import shlex
 
 from pyinfra import host, logger
@@ -20,6 +21,7 @@ from pyinfra.api.util import format_text, print_host_combined_output
 from pyinfra.context import ctx_host
 from pyinfra.facts.files import FileContents
 
+from engine.checks import one_line
 from engine.host.snapshot import FileState
 
 def sha256(content: bytes) -> str:
@@ -200,22 +202,34 @@ def unified_diff(path: str, old: str, new: str) -> list[str]:
     ))
 
 
+# scheme://user:password@host: the password is never shown.
+_URL_PASSWORD = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*://[^/\s:@\"']*):[^@\s\"'/]*@")
+
+
+def mask_credentials(text: str) -> str:
+    """``text`` with the passwords of URLs (a proxy's, a registry mirror's) masked."""
+    return _URL_PASSWORD.sub(r"\1:****@", text)
+
+
 def show_diff(path: str, content: bytes, exists: bool) -> None:
-    """Print what writing ``content`` to ``path`` changes (--diff).  The current
-    content is fetched only here: for a file the snapshot found different."""
+    """Print what writing ``content`` to ``path`` changes (--diff), with URL
+    passwords masked and control characters escaped on both sides.  The
+    current content is fetched only here: for a file the snapshot found
+    different."""
     old = ""
     if exists:
         lines = host.get_fact(FileContents, path=path) or []
         old = "".join(line + "\n" for line in lines)
     new = content.decode(errors="replace")
     host.log(f"{'Will modify' if exists else 'Will create'} {format_text(path, bold=True)}", logger.info)
-    for line in unified_diff(path, old, new):
+    for line in unified_diff(path, mask_credentials(old), mask_credentials(new)):
+        line = one_line(line)
         colour = {"+": "green", "-": "red"}.get(line[:1]) if not line.startswith(("+++", "---")) else None
         logger.info("  %s", format_text(line, colour) if colour else line)
 
 
 def fail_command(message: str) -> StringCommand:
-    return shell(f"echo {shlex.quote(message)} >&2; exit 1")
+    return shell(f"echo {shlex.quote(one_line(message))} >&2; exit 1")
 
 
 def refuse(message: str) -> StringCommand:
@@ -226,7 +240,7 @@ def refuse(message: str) -> StringCommand:
     state = host.state
     gated = bool((host.current_op_global_arguments or {}).get("_if"))
     if not state.is_executing and not gated:
-        host.log_styled(message, log_func=logger.error, fg="red")
+        host.log_styled(one_line(message), log_func=logger.error, fg="red")
         state.failed_hosts.add(ctx_host.get())
     return fail_command(message)
 

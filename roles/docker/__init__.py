@@ -50,7 +50,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
-    query.probes[KEY_PROBE] = aptrepo.fingerprints_probe(data.docker_apt_key_path)
+    query.probes[KEY_PROBE] = aptrepo.key_probe(data.docker_apt_key_path, values.normal_fingerprint(data.docker_apt_key_fingerprint))
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
 
 
@@ -102,18 +102,22 @@ def install_docker(play: Play):
         enabled=data.docker_service_enabled,
     )
     action = "reload" if data.docker_restart_handler_state == "reloaded" else "restart"
-    daemon.daemon_json(
+    content = plan.daemon_json(
+        play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
+        data.docker_registry_mirrors,
+        data.docker_insecure_registries,
+    )
+    pending = snap.files.get(daemon.PENDING) is not None
+    written = daemon.daemon_json(
         name=f"Write /etc/docker/daemon.json and {action} Docker (the previous file comes back if Docker does not start)",
-        content=plan.daemon_json(
-            play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
-            data.docker_registry_mirrors,
-            data.docker_insecure_registries,
-        ),
+        content=content,
         current=snap.files.get(DAEMON_JSON),
         action=action,
         timeout=data.docker_restart_timeout,
-        pending=snap.files.get(daemon.PENDING) is not None,
+        pending=pending,
     )
+    if daemon.restarts_docker(content, snap.files.get(DAEMON_JSON), pending):
+        play.announce(hooks.RESTARTED, written)
 
 
 def _docker_repository(play: Play, repo: aptrepo.Repository):

@@ -102,6 +102,15 @@ def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous:
     )
 
 
+def restarts_docker(content: str, current: FileState | None, pending: bool) -> bool:
+    """Whether ``daemon_json`` will restart (or reload) Docker: the content
+    differs, or an earlier run wrote it without applying it."""
+    if current is not None and current.kind == "dir":
+        return False
+    same = current is not None and current.kind == "file" and current.sha256 == operations.sha256(content.encode())
+    return pending or not same
+
+
 @operations.operation()
 def daemon_json(content: str, current: FileState | None, action: str, timeout: int, pending: bool):
     """Make daemon.json hold ``content`` and apply it (``action``: restart or

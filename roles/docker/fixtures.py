@@ -1,5 +1,6 @@
 """Test fixtures: what a successful run of the docker role leaves on a host."""
 
+from engine.host import aptrepo
 from engine.host.fixtures import file_state
 from engine.host.snapshot import FileState
 from roles import docker
@@ -20,5 +21,5 @@ def converged(play, host: str) -> None:
             play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
             data.docker_registry_mirrors, data.docker_insecure_registries)),
     })
-    snap.probes[docker.KEY_PROBE] = (repo.fingerprint or "") + "\n"
+    snap.probes[docker.KEY_PROBE] = f"{repo.fingerprint}\n{aptrepo.CANONICAL}\n" if repo.fingerprint else ""
     snap.units["docker.service"] = ("enabled", "active")

@@ -3,6 +3,7 @@
 
 import base64
 
+from engine.host import aptrepo
 from engine.host.fixtures import file_state
 from engine.host.snapshot import FileState
 from roles import gpu
@@ -25,4 +26,4 @@ def converged(play, host: str) -> None:
         repo.key_path: FileState("file", "0" * 64, "644", "root", "root"),
         repo.sources_path: file_state(repo.sources),
     })
-    snap.probes[gpu.KEY_PROBE] = repo.fingerprint + "\n"
+    snap.probes[gpu.KEY_PROBE] = f"{repo.fingerprint}\n{aptrepo.CANONICAL}\n"

@@ -166,13 +166,13 @@ def payload_services(data, services: dict) -> dict:
     return {"*": {"environment": payload_environment(data), "deploy": RESERVATION}}
 
 
-def check_command(data) -> list[str] | None:
-    """The command payloadctl runs in each payload container after it is
-    healthy; None: no GPU check."""
+def check_command(data) -> dict | None:
+    """The check payloadctl runs in each payload container once it is
+    healthy (the payload's CHECKS hook); None: no GPU check."""
     if not data.get("payload_gpu"):
         return None
     command = data.get("gpu_check_command")
-    return list(command) if command else None
+    return {"command": list(command), "failure": "cannot see a GPU"} if command else None
 
 
 # --- status -------------------------------------------------------------------

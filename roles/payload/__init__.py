@@ -10,7 +10,8 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
   compose document; problems.py: what is refused before connecting;
 - steps.py: the deploy's steps; release.py: the release on the robot;
   login.py, push.py, project.py: registry login, push delivery, takeover;
-- robot.py, payloadctl.py, payload.service.j2: what runs on the robot;
+- robot.py, payloadctl/ (the robot-side program), payload.service.j2: what runs
+  on the robot;
 - report.py: its columns in status, what a rollout waits for.
 """
 

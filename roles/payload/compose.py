@@ -102,9 +102,4 @@ def project(data, address: str, additions: list[dict] = ()) -> dict:
         base = escape_interpolation(base_service(data, user.get("image"), address, combined(list(additions), name)))
         # The user's and the preset's values are escaped here, once.
         built[name] = services.service(base, escape_interpolation(user), escape_interpolation(extra), name)
-    doc = {"name": data.payload_name, "services": built}
-    replaces = list(getattr(data, "payload_replaces", None) or [])
-    if replaces:
-        # Read by payloadctl's takeover; compose ignores x- keys.
-        doc["x-robot-fleet"] = {"replaces": replaces}
-    return doc
+    return {"name": data.payload_name, "services": built}

@@ -23,7 +23,7 @@ def converged(play, host: str) -> None:
     additions = play.added(hooks.SERVICES, services.declared(data))
     snap.files.update({
         data.payload_dir: FileState("dir", None, "755", "root", "root"),
-        robot.HELPER: file_state(robot.helper_text(), "755"),
+        robot.HELPER: file_state(robot.helper_bytes(), "755"),
     })
     if data.payload_autostart:
         snap.files[robot.unit_path(data)] = file_state(robot.unit_text(data, steps.unit_devices(additions)))

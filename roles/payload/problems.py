@@ -12,7 +12,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import roles.payload.compose as compose
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
 from roles.payload.presets import DDS_DIR, dds_profile_text, dds_vendor
 from roles.payload.services import SERVICE_NAME, SHORTHAND_SETTINGS, value_of, declared, layer_problems
 
@@ -91,6 +91,31 @@ def _schema_problems(canonical: str) -> tuple:
     return tuple(problems)
 
 
+DOCKER_SOCKETS = ("/var/run/docker.sock", "/run/docker.sock", "/var/run/docker", "/run/docker", "/run/containerd")
+ROOT_CAPABILITIES = ("ALL", "SYS_ADMIN", "CAP_SYS_ADMIN", "SYS_MODULE", "CAP_SYS_MODULE")
+
+
+def root_equivalents(spec: dict) -> list[tuple[str, str]]:
+    """(subfield, what) for each key that, like privileged, hands a container
+    the host: capabilities that are root, the host's pid or user namespace,
+    no seccomp/AppArmor, the Docker socket.  A guard against mistakes, not a
+    boundary: whoever edits the fleet file is root on every robot anyway."""
+    found = []
+    for index, cap in enumerate(spec.get("cap_add") or [] if isinstance(spec.get("cap_add"), list) else []):
+        if isinstance(cap, str) and cap.upper() in ROOT_CAPABILITIES:
+            found.append((f".cap_add[{index}]", f"cap_add {cap}"))
+    for key in ("pid", "userns_mode"):
+        if spec.get(key) == "host":
+            found.append((f".{key}", f"{key}: host"))
+    for index, opt in enumerate(spec.get("security_opt") or [] if isinstance(spec.get("security_opt"), list) else []):
+        if isinstance(opt, str) and opt.replace("=", ":") in ("seccomp:unconfined", "apparmor:unconfined", "label:disable"):
+            found.append((f".security_opt[{index}]", f"security_opt {opt}"))
+    for index, source in _bind_sources(spec):
+        if any(_under(source.rstrip("/") or "/", socket) for socket in DOCKER_SOCKETS) or source.rstrip("/") == "":
+            found.append((f".volumes[{index}]", f"mounting {source}"))
+    return found
+
+
 def _under(path: str, directory: str) -> bool:
     directory = directory.rstrip("/")
     return path == directory or path.startswith(directory + "/")
@@ -127,7 +152,7 @@ def project_problems(data) -> list[tuple[str, str]]:
         return [("payload_image", "required: the payload image, pinned by tag or digest")]
     allow_latest = bool(value_of(data, "payload_allow_latest"))
     payload_dir = value_of(data, "payload_dir") or "/var/lib/robot-payload"
-    replaces = set(value_of(data, "payload_replaces") or [])
+    replaces = {entry.partition(":")[2] for entry in value_of(data, "payload_replaces") or [] if entry.startswith("container:")}
     names: dict[str, str] = {}
     # The shorthand's one service is checked by the payload_* settings themselves.
     for name, spec in (services if raw else {}).items():
@@ -146,6 +171,9 @@ def project_problems(data) -> list[tuple[str, str]]:
         if spec.get("privileged") and not value_of(data, "payload_allow_privileged"):
             problems.append((f"{where}.privileged", "privileged containers are refused unless "
                              "payload_allow_privileged is true (prefer devices / cap_add)"))
+        if not value_of(data, "payload_allow_privileged"):
+            problems += [(f"{where}{key}", f"{what} gives the container root on the robot: refused unless "
+                          "payload_allow_privileged is true") for key, what in root_equivalents(spec)]
         container_name = spec.get("container_name")
         if isinstance(container_name, str):
             if container_name in names:
@@ -181,6 +209,10 @@ def project_problems(data) -> list[tuple[str, str]]:
             if isinstance(path, str) and (not path.startswith("/") or _under(path, payload_dir)):
                 problems.append((f"{where}.env_file", f"{path} would be read from the release directory; "
                                  "use an absolute path outside it"))
+    if not raw and not value_of(data, "payload_allow_privileged"):
+        volumes = {"volumes": list(value_of(data, "payload_volumes") or [])}
+        problems += [(f"payload_volumes{key.removeprefix('.volumes')}", f"{what} gives the container root on the "
+                      "robot: refused unless payload_allow_privileged is true") for key, what in root_equivalents(volumes)]
     problems += _preset_problems(data, allow_latest)
     return problems
 

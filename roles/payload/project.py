@@ -10,9 +10,11 @@ import shlex
 
 from pyinfra import host, logger
 
+from engine.checks import one_line
 from engine.host import operations
 from engine.host.snapshot import Snapshot, SnapshotQuery
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
+import roles.payload.payloadctl.takeover as takeover_rule
 import roles.payload.presets as presets
 import roles.payload.push as push
 import roles.payload.services as services
@@ -69,8 +71,16 @@ def push_more_images(data, snap: Snapshot) -> None:
         )
 
 
-def foreign(probe_output: str, project: str, repositories: list[str], replaces: list[str]) -> list[dict]:
-    """The containers the release will take over, from the probe (pure)."""
+def takeover_of(data) -> dict:
+    """What payloadctl may take over (the spec's "takeover"): the primary
+    image's repository, and what payload_replaces names."""
+    return {"primary": imageref.repository(primary_image(data) or ""),
+            **takeover_rule.parse_replaces(data.payload_replaces)}
+
+
+def foreign(probe_output: str, project: str, takeover: dict) -> list[dict]:
+    """The containers the release will take over, from the probe (pure; the
+    rule is payloadctl's own, takeover.reason)."""
     found = []
     for line in probe_output.splitlines():
         try:
@@ -79,19 +89,12 @@ def foreign(probe_output: str, project: str, repositories: list[str], replaces: 
             continue
         # No such label: Docker's printf renders the missing value as "%!s(<nil>)".
         label = "" if label.startswith("%!") or label == "<no value>" else label
-        if label == project:
-            continue
-        running = running == "true"
-        if not running and policy in ("", "no"):
-            continue
-        try:
-            repo = imageref.parse(image).repository
-        except ValueError:
-            repo = image
-        name = name.lstrip("/")
-        if repo in repositories or name in replaces or (label and label in replaces):
-            found.append({"id": cid[:12], "name": name, "image": image, "project": label or None,
-                          "running": running, "restart": policy or "no"})
+        container = {"id": cid[:12], "name": name.lstrip("/"), "image": image, "project": label or None,
+                     "running": running == "true", "restart": policy or "no",
+                     "repositories": [imageref.repository(image)]}
+        why = takeover_rule.reason(container, project, takeover)
+        if why:
+            found.append(dict(container, why=why))
     return found
 
 
@@ -100,7 +103,7 @@ def takeover_line(found: list[dict]) -> str:
     for c in found:
         what = f"compose project {c['project']}, " if c["project"] else ""
         state = "running" if c["running"] else "stopped"
-        parts.append(f"{c['name']} ({what}{c['image']}, {state}, restart {c['restart']})")
+        parts.append(f"{c['name']} ({what}{c['image']}, {state}, restart {c['restart']}: {c['why']})")
     return "payload: taking over what runs the payload another way (stopped, restart policy no): " + "; ".join(parts)
 
 
@@ -108,14 +111,10 @@ def takeover(data, snap: Snapshot) -> list[dict]:
     """What the release will stop, said in the run output."""
     if not data.payload_autostart:
         return []
-    found = foreign(
-        snap.probes.get(FOREIGN_PROBE, ""),
-        data.payload_name,
-        services.repositories(data),
-        list(data.payload_replaces or []),
-    )
+    found = foreign(snap.probes.get(FOREIGN_PROBE, ""), data.payload_name, takeover_of(data))
     if found:
-        logger.warning(f"[{host.name}] {takeover_line(found)}")
+        # Names and images come from the robot: one line, nothing that moves the cursor.
+        logger.warning(f"[{host.name}] {one_line(takeover_line(found))}")
     return found
 
 

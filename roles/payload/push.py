@@ -123,12 +123,19 @@ class ArchiveStdin(list):
                 yield base64.encodebytes(chunk).decode()
 
 
-def load_command(archive: str, log_line: str, log_dir: str) -> StringCommand:
-    """`docker load` reading the archive from stdin; logs the push when it worked."""
+def load_command(archive: str, log_dir: str, image: str, image_id: str, figures: dict) -> StringCommand:
+    """`docker load` reading the archive from stdin; logs the push when it
+    worked.  Every value reaches the shell as a variable (data), never as
+    code: an image name holding `$(...)` is logged as written."""
     q = shlex.quote
+    sent = (f"sent {figures.get('sent')} of {figures.get('full')} bytes, "
+            f"{figures.get('layers', 0) - figures.get('skipped', 0)} of {figures.get('layers')} layers")
     return operations.shell(
+        f"log_dir={q(log_dir)}; image={q(image)}; image_id={q(image_id)}; sent={q(sent)}\n"
         "base64 -d | docker load -q >/dev/null; rc=$?; "
-        f'[ $rc -eq 0 ] && mkdir -p {q(log_dir)} && echo "{log_line}" >> {q(log_dir)}/push.log; exit $rc',
+        '[ $rc -eq 0 ] && mkdir -p "$log_dir" && '
+        'printf "%s %s %s %s\\n" "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$image" "$image_id" "$sent" >> "$log_dir/push.log"; '
+        "exit $rc",
         stdin=ArchiveStdin(archive),
     )
 
@@ -149,19 +156,10 @@ def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_d
     fd, local_path = tempfile.mkstemp(prefix="robotprov-image-", suffix=".tar")
     os.close(fd)
     report: dict = {}
-    line = (
-        f"$(date -u +%Y-%m-%dT%H:%M:%SZ) {image} {local_id} sent {{sent}} of "
-        f"{{full}} bytes, {{layers}} of {{total}} layers"
-    )
-
     try:
         yield FunctionCommand(write_archive, (image, local_path, remote_layers, report), {})
         # pyinfra runs each command before asking for the next: report is filled.
-        filled = line.format(
-            sent=report.get("sent"), full=report.get("full"),
-            layers=report.get("layers", 0) - report.get("skipped", 0), total=report.get("layers"),
-        )
-        yield load_command(local_path, filled, log_dir)
+        yield load_command(local_path, log_dir, image, local_id, report)
     finally:
         if os.path.exists(local_path):
             os.unlink(local_path)

@@ -11,32 +11,46 @@ import secrets
 import shlex
 import socket
 
-from pyinfra import host
+from pyinfra import host, logger
 from pyinfra.api import deploy
 
 from engine.host import operations
 from engine.host.snapshot import Snapshot
 import roles.payload.compose as compose
+import roles.payload.project as project
+from roles.payload.payloadctl import lock
+from roles.payload.payloadctl.spec import SETTLED, Spec
 from roles.payload.robot import HELPER
 
-def spec(data, doc: dict, checks: list = ()) -> dict:
-    return {
-        "name": data.payload_name,
-        "dir": data.payload_dir,
-        "compose": doc,
-        "spec_hash": compose.spec_hash(doc, data.payload_autostart),
-        "autostart": data.payload_autostart,
-        "delivery": data.payload_delivery,
-        "health_timeout": data.payload_health_timeout,
-        "pull_timeout": data.payload_pull_timeout,
-        "apply_lock_timeout": data.payload_apply_lock_timeout,
-        "stable_seconds": data.payload_stable_seconds,
-        "keep_releases": data.payload_keep_releases,
-        "lock_file": data.payload_lock_file,
-        "force": data.payload_force,
-        "deployed_by": f"{getpass.getuser()}@{socket.gethostname()} (pyinfra)",
-        "gpu_check": next((c for c in checks if c), None),  # payloadctl: run in each container once healthy
-    }
+
+def spec(data, doc: dict, checks: list = ()) -> Spec:
+    """What the release is, as payloadctl keeps it with the release."""
+    return Spec(
+        name=data.payload_name,
+        dir=data.payload_dir,
+        compose=doc,
+        spec_hash=compose.spec_hash(doc, data.payload_autostart),
+        autostart=data.payload_autostart,
+        delivery=data.payload_delivery,
+        health_timeout=data.payload_health_timeout,
+        stable_seconds=data.payload_stable_seconds,
+        pull_timeout=data.payload_pull_timeout,
+        apply_lock_timeout=data.payload_apply_lock_timeout,
+        keep_releases=data.payload_keep_releases,
+        lock_file=data.payload_lock_file,
+        checks=[check for check in checks if check],  # run in each container once healthy
+        takeover=project.takeover_of(data),
+    )
+
+
+def operator() -> str:
+    return f"{getpass.getuser()}@{socket.gethostname()}"
+
+
+def request(data, doc: dict, checks: list) -> str:
+    """What `payloadctl apply` reads: the spec and who asks."""
+    run = {"by": f"{operator()} (pyinfra)", "force": bool(data.payload_force)}
+    return json.dumps({"spec": spec(data, doc, checks).to_dict(), "run": run}, sort_keys=True)
 
 
 def current_record(snap: Snapshot) -> dict:
@@ -63,16 +77,31 @@ def containers_running(probe_output: str) -> bool:
     )
 
 
-RELEASED = ("active", "staged")
-
-
 def release_needed(record: dict, wanted_hash: str, autostart: bool, running: bool) -> bool:
     """A release is converged only when it is what was asked, it passed its
     health gate (a failed or interrupted one is tried again) and, where it
     should run, its containers really run."""
-    if record.get("spec_hash") != wanted_hash or record.get("state") not in RELEASED:
+    if record.get("spec_hash") != wanted_hash or record.get("state") not in SETTLED:
         return True
     return autostart and not running
+
+
+def lock_probe(payload_dir: str) -> str:
+    """The apply lock holder's note, when the lock is held (read-only)."""
+    d = shlex.quote(f"{payload_dir}/{lock.DIR}")
+    return f"[ -f {d}/apply.lock ] && ! flock -n {d}/apply.lock true 2>/dev/null && cat {d}/owner.json"
+
+
+def say_who_holds_the_lock(probe_output: str) -> None:
+    """A boot recovery or another deploy holds the robot's apply lock: this
+    run's release will wait for it (up to payload_apply_lock_timeout); say so now."""
+    if not probe_output.strip():
+        return
+    try:
+        holder = json.loads(probe_output)
+    except ValueError:
+        holder = {}
+    logger.warning(f"[{host.name}] {lock.describe(holder if isinstance(holder, dict) else {}, host.name)}; waiting")
 
 
 def new_run_id() -> str:
@@ -128,19 +157,15 @@ def release(data, document: dict, checks: list, needed: bool, restart: bool):
         host.noop("payload release is current")
         return
     run_id = new_run_id()
-    payload = json.dumps({**spec(data, document, checks), "run_id": run_id}, sort_keys=True)
-    yield operations.shell(apply_script(data, restart, run_id), stdin=payload.splitlines())
+    yield operations.shell(apply_script(data, restart, run_id), stdin=request(data, document, checks).splitlines())
 
 
 def rollback_script(data, run_id: str) -> str:
+    """The previous release comes back with its own spec (payloadctl reads
+    it from the release); only who asks and the override are this run's."""
     q = shlex.quote
-    by = f"{getpass.getuser()}@{socket.gethostname()} (pyinfra rollback)"
-    arguments = (
-        f"--dir {q(data.payload_dir)} --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}"
-        f" --health-timeout {int(data.payload_health_timeout)} --stable-seconds {int(data.payload_stable_seconds)}"
-        f" --apply-lock-timeout {int(data.payload_apply_lock_timeout)} --by {q(by)}"
-        + (" --force" if data.payload_force else "")
-    )
+    arguments = f"--dir {q(data.payload_dir)} --by {q(operator() + ' (pyinfra rollback)')}"
+    arguments += " --force" if data.payload_force else ""
     prelude = (
         f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
         + staging_prelude(data, run_id, "result directory of this rollback")

@@ -15,7 +15,7 @@ import copy
 import json
 import re
 
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
 
 SHORTHAND = "payload"
 SERVICE_NAME = r"[a-zA-Z0-9][a-zA-Z0-9._-]*"

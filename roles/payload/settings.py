@@ -8,7 +8,7 @@ import re
 from engine import checks as c
 from engine import values as v
 from engine.role import Setting
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
 import roles.payload.problems as problems
 import roles.payload.services as services
 
@@ -40,6 +40,25 @@ def volume(value):
     return []
 
 
+_NAME = r"[a-zA-Z0-9][a-zA-Z0-9_.-]*"
+
+
+def replaced(value):
+    """container:NAME or project:NAME: a container name and a compose project
+    name look alike, and taking over the wrong one stops someone else's."""
+    problems = c.string()(value)
+    if problems:
+        return problems
+    kind, sep, name = value.partition(":")
+    if not sep and re.fullmatch(_NAME, value):
+        return [("", f"{c.shown(value)} could be a container or a compose project: write container:{value} or project:{value}")]
+    if kind not in ("container", "project") or not re.fullmatch(_NAME, name):
+        return [("", f"expected container:NAME or project:NAME, got {c.shown(value)}")]
+    return []
+
+
+c.with_schema(replaced, {"type": "string", "pattern": f"^(?:container|project):{_NAME}$",
+                         "description": "container:NAME or project:NAME"})
 c.with_schema(image, {"type": "string", "description": "an image reference, pinned by tag or digest"})
 c.with_schema(volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"})
 payload_services = c.with_schema(
@@ -93,8 +112,8 @@ SETTINGS = (
     Setting("payload_services", {}, payload_services,
             "Several services instead of payload_image: name -> a Compose service; layers merge per service and key.",
             merge=services.merge_values),
-    Setting("payload_replaces", [], c.list_of(c.string(r"[a-zA-Z0-9][a-zA-Z0-9_.-]*", "a container or compose project name"), unique=True),
-            "Containers or compose projects set up another way that the payload replaces."),
+    Setting("payload_replaces", [], c.list_of(replaced, unique=True),
+            "What was set up another way and the payload replaces: container:NAME or project:NAME (a compose project)."),
     Setting("payload_allow_privileged", False, c.boolean, "Allow privileged services."),
     Setting("ros_preset", None, c.optional(c.string(choices=("ros1", "ros2"))),
             "ros1 or ros2: the usual ROS environment, ipc and DDS profile in one line."),

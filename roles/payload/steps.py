@@ -9,13 +9,15 @@ import shlex
 
 from pyinfra import host
 from pyinfra.api import deploy
+from pyinfra.operations.util import any_changed
 
 from engine.host import apt, operations
 from engine.host.snapshot import SnapshotQuery
 from engine.role import Play
+import roles.docker.hooks as docker_hooks
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
-import roles.payload.imageref as imageref
+import roles.payload.payloadctl.imageref as imageref
 import roles.payload.login as login
 import roles.payload.project as project
 import roles.payload.push as push
@@ -30,6 +32,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.commands |= {"python3", "systemd-run"}
     query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
     query.probes["payload_containers"] = release.containers_probe(data.payload_name)
+    query.probes["payload_lock"] = release.lock_probe(data.payload_dir)
     query.probes["registry_auth"] = login.registry_probe(imageref.parse(project.primary_image(data)).registry)
     project.declare_reads(data, query)
     if data.payload_delivery == "push":
@@ -65,7 +68,7 @@ def deploy_payload(play: Play):
     operations.file(
         name="Install the release helper payloadctl",
         path=robot.HELPER,
-        content=robot.helper_text(),
+        content=robot.helper_bytes(),
         current=snap.files.get(robot.HELPER),
         mode="0755",
     )
@@ -114,6 +117,7 @@ def deploy_payload(play: Play):
         project.push_more_images(data, snap)
 
     project.install_files(data, snap)
+    release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))
     taken_over = project.takeover(data, snap)  # said in the output, done by payloadctl
     needed = release.release_needed(
         release.current_record(snap),
@@ -124,11 +128,26 @@ def deploy_payload(play: Play):
         release.containers_running(snap.probes.get("payload_containers", ""))
         and snap.unit_active(f"{data.payload_name}.service"),
     )
+    needed = needed or unit_changes or bool(taken_over)
     release.release(
         name="Release the payload (pull, switch, health check, roll back on failure)",
         data=data,
         document=doc,
         checks=play.added(hooks.CHECKS),
-        needed=needed or unit_changes or bool(taken_over),
+        needed=needed,
         restart=unit_changes or bool(taken_over),
     )
+    restarts = play.announced(docker_hooks.RESTARTED)
+    if restarts and not needed:
+        # A daemon.json Docker accepts can still lose the payload (a new
+        # data-root, userns-remap): the same release, checked and made again
+        # if its containers are gone, under the health gate.
+        release.release(
+            name="Check the payload after Docker restarted (released again if it does not run)",
+            data=data,
+            document=doc,
+            checks=play.added(hooks.CHECKS),
+            needed=True,
+            restart=False,
+            _if=any_changed(*restarts),
+        )

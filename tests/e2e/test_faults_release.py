@@ -192,24 +192,24 @@ def test_two_deploys_at_once_are_serialized(lab, first_run, tmp_path):
     converges(lab, host)  # back to the lab fleet's 1.0
 
 
-def build_image_with_a_new_layer(lab) -> str:
-    """ros/payload:1.1 plus 1 MB the robot has never seen (every lab tag
-    shares its layers, so only a new layer makes a pull write to disk)."""
+def build_image_with_a_new_layer(lab, size: int = 1 << 20, tag: str = "1.1-big") -> str:
+    """ros/payload:1.1 plus ``size`` bytes the robot has never seen (every lab
+    tag shares its layers, so only a new layer makes a pull write to disk)."""
     import docker
 
     engine = docker.from_env()
     context = io.BytesIO()
     with tarfile.open(fileobj=context, mode="w") as tar:
-        for name, data in (("Dockerfile", b"FROM ros/payload:1.1\nCOPY blob /blob\n"), ("blob", os.urandom(1 << 20))):
+        for name, data in (("Dockerfile", b"FROM ros/payload:1.1\nCOPY blob /blob\n"), ("blob", os.urandom(size))):
             info = tarfile.TarInfo(name)
             info.size = len(data)
             tar.addfile(info, io.BytesIO(data))
     context.seek(0)
     local = f"{lab.state['registry_local']}/ros/payload"
-    engine.images.build(fileobj=context, custom_context=True, tag=f"{local}:1.1-big", rm=True)
-    for line in engine.images.push(local, tag="1.1-big", stream=True, decode=True):
+    engine.images.build(fileobj=context, custom_context=True, tag=f"{local}:{tag}", rm=True)
+    for line in engine.images.push(local, tag=tag, stream=True, decode=True):
         assert "error" not in line, line
-    return "1.1-big"
+    return tag
 
 
 def test_first_release_failing_and_a_full_disk(lab, first_run, tmp_path):

@@ -209,7 +209,7 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     run = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover robot2, robot3)")
     assert run.returncode == 0, run.output[-4000:]
     assert ("[robot3] payload: taking over what runs the payload another way (stopped, restart policy no): "
-            f"ros_payload ({lab.state['registry']}/ros/payload:1.0, running, restart always)") in run.output
+            f"ros_payload ({lab.state['registry']}/ros/payload:1.0, running, restart always: it runs the payload's image)") in run.output
     assert "ros_payload (compose project rosapp, " in run.output
     for host in ("robot2", "robot3"):
         assert f"[{host}] payload: taking over what runs the payload another way" in run.output

@@ -21,12 +21,16 @@ import re
 import shlex
 from pathlib import Path
 
+import contextlib
 import importlib
+
+import pyinfra
 
 from pyinfra.api import Config, Inventory, State
 from pyinfra.api.exceptions import PyinfraError
 from pyinfra.api.connect import connect_all, disconnect_all
 from pyinfra.api.operations import run_ops
+from pyinfra.api.state import StateStage
 from pyinfra.connectors.fake import FakeConnector
 from pyinfra.context import ctx_state
 
@@ -190,6 +194,20 @@ def _output(lines: list[str]):
     return CommandOutput([OutputLine("stdout", line) for line in lines])
 
 
+@contextlib.contextmanager
+def _as_the_cli():
+    """Operations identified as the pyinfra CLI identifies them: by the line
+    numbers of their call stack (the API counts per host instead), so that
+    roles whose operations share line numbers, run on different hosts, make
+    the same "Cycle detected in operation ordering DAG" they make for real."""
+    before = pyinfra.is_cli
+    pyinfra.is_cli = True
+    try:
+        yield
+    finally:
+        pyinfra.is_cli = before
+
+
 def plan(
     hosts: dict[str, tuple[str, dict, Snapshot]],
     run: bool = True,
@@ -217,13 +235,17 @@ def plan(
     inventory = Inventory((names, defaults["all"]), **groups)
     state = State(inventory=inventory, config=Config(DIFF=diff))
     state.cwd = str(ROOT)
-    with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()}, contents or {}) as recorder:
+    with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()}, contents or {}) as recorder, \
+            _as_the_cli():
+        state.set_stage(StateStage.Connect)
         connect_all(state)
+        state.set_stage(StateStage.Prepare)
         try:
             load_deploy_file(state, str(ROOT / deploy_file))
         except UnexpectedExternalError as error:
             raise error.exception from None  # the deploy's own error (say, UndeclaredRead)
         if run:
+            state.set_stage(StateStage.Execute)
             try:
                 run_ops(state)
             except PyinfraError as error:
@@ -241,21 +263,28 @@ def find(commands: list[str], pattern: str) -> list[str]:
     return [c for c in commands if re.search(pattern, c)]
 
 
-def written_files(commands: list[Sent]) -> dict[str, str]:
+def written_files(commands: list[Sent]) -> dict[str, str | bytes]:
     """Files the plan writes (operations.write_file_command): path -> the
-    content decoded from the command's stdin."""
+    content decoded from the command's stdin (bytes where it is not text:
+    the payloadctl zip application)."""
     written = {}
     for command in commands:
         match = re.search(r"dest=(\S+)\n", command)
         if match and "base64 -d" in command:
-            written[shlex.split(match.group(1))[0]] = base64.b64decode(command.stdin).decode()
+            content = base64.b64decode(command.stdin)
+            try:
+                content = content.decode()
+            except UnicodeDecodeError:
+                pass
+            written[shlex.split(match.group(1))[0]] = content
     return written
 
 
 def everything_sent(commands: list[Sent]) -> str:
     """All a host receives: command lines, stdin, and decoded file contents."""
     parts = [f"{c}\n{c.stdin}" for c in commands]
-    return "\n".join(parts + list(written_files(commands).values()))
+    files = [content if isinstance(content, str) else content.decode("latin-1") for content in written_files(commands).values()]
+    return "\n".join(parts + files)
 
 
 # --- the fleet file ------------------------------------------------------------

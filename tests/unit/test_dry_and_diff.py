@@ -163,3 +163,22 @@ def test_pyinfra_dry_diff_prints_the_drifted_file(tmp_path):
     # The one thing sent besides the snapshot is the read of that file.
     sent = [line for line in output.splitlines() if line.startswith("SENT ")]
     assert sent == [f"SENT ['( test -e {DAEMON_JSON} && cat {DAEMON_JSON} ) || echo __pyinfra_missing_{DAEMON_JSON}']"]
+
+
+def test_diff_masks_the_passwords_in_daemon_json_on_both_sides(log):
+    """daemon.json's proxies carry credentials: --diff shows where they go,
+    never what they are (issue 17, item 7)."""
+    old = '{\n  "proxies": {"http-proxy": "http://robot:oldS3cret@proxy.lan:3128"}\n}\n'
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files[DAEMON_JSON] = _file(old)
+    data = {**ROBOT, "docker_daemon_options": {"proxies": {"http-proxy": "http://robot:n3wS3cret@proxy.lan:3128",
+                                                           "no-proxy": "localhost"}}}
+    plan({"r1": ("robots", data, snap)}, run=False, diff=True, contents={"r1": {DAEMON_JSON: old}})
+    text = "\n".join(r.getMessage() for r in log.records)
+    assert "http://robot:****@proxy.lan:3128" in text and "Will modify" in text
+    assert "S3cret" not in text
+
+
+def test_masking_leaves_urls_without_a_password_alone():
+    assert operations.mask_credentials('"https://mirror.lan/x" "http://u:p@h:1/" "ssh://git@host"') == (
+        '"https://mirror.lan/x" "http://u:****@h:1/" "ssh://git@host"')

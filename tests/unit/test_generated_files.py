@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from roles.payload import payloadctl
+from roles.payload.payloadctl.releases import compose_yaml
 from tests.unit.harness import find, fresh_host, plan, written_files
 from tests.unit.harness import ROBOT
 
@@ -34,7 +34,7 @@ def sent_to_a_fresh_robot():
     files = written_files(commands)
     release = find(commands, "payloadctl apply")
     assert len(release) == 1
-    files["compose.yaml"] = payloadctl.compose_yaml(json.loads(release[0].stdin)["compose"])
+    files["compose.yaml"] = compose_yaml(json.loads(release[0].stdin)["spec"]["compose"])
     return files
 
 

@@ -52,7 +52,8 @@ def converged(snap, data):
     import hashlib
 
     for path, text in files.items():
-        snap.files[path] = FileState("file", hashlib.sha256(text.encode()).hexdigest(), "644", "root", "root")
+        content = text.encode() if isinstance(text, str) else text
+        snap.files[path] = FileState("file", hashlib.sha256(content).hexdigest(), "644", "root", "root")
     snap.files[KEY] = FileState("file", "0" * 64, "644", "root", "root")
     return snap, first
 
@@ -138,17 +139,22 @@ def test_jetson_uses_jetpacks_toolkit_and_adds_no_desktop_repository():
 def test_converged_gpu_host_sends_nothing():
     snap, _ = converged(gpu_host(), GPU_ROBOT)
     snap.packages.update({"nvidia-container-toolkit": "1.17.8-1", "gpg": "2"})
-    snap.probes["gpu_key_fingerprints"] = NVIDIA_FPR + "\n"
+    snap.probes["gpu_key_fingerprints"] = f"{NVIDIA_FPR}\n{aptrepo.CANONICAL}\n"
     commands = plan({"r1": ("robots", GPU_ROBOT, snap)})["r1"]
     assert not find(commands, "nvidia"), commands
     assert not find(commands, "daemon.json")
     assert not find(commands, "systemctl restart docker")
 
 
-def test_keyring_with_an_extra_primary_key_is_replaced():
+@pytest.mark.parametrize("probe", [
+    f"{NVIDIA_FPR}\n{'A' * 40}\n{aptrepo.CANONICAL}\n",  # an extra primary key
+    f"{NVIDIA_FPR}\n",  # only the pinned key as gpg reads it, but not gpg's export of it: a hidden block
+    f"{aptrepo.CANONICAL}\n",  # nothing gpg can read
+])
+def test_keyring_other_than_the_pinned_key_as_gpg_exports_it_is_replaced(probe):
     snap, _ = converged(gpu_host(), GPU_ROBOT)
     snap.packages.update({"nvidia-container-toolkit": "1.17.8-1", "gpg": "2"})
-    snap.probes["gpu_key_fingerprints"] = NVIDIA_FPR + "\n" + "A" * 40 + "\n"
+    snap.probes["gpu_key_fingerprints"] = probe
     commands = plan({"r1": ("robots", GPU_ROBOT, snap)})["r1"]
     assert len(find(commands, "libnvidia-container/gpgkey")) == 1
     assert find(commands, r"update\n'$")
@@ -168,7 +174,7 @@ def test_runtime_change_restarts_docker_once_and_only_then():
     snap, first = converged(gpu_host(), GPU_ROBOT)
     assert len(find(first, "systemctl restart docker.service")) == 1
     snap.packages.update({"nvidia-container-toolkit": "1", "gpg": "2"})
-    snap.probes["gpu_key_fingerprints"] = NVIDIA_FPR
+    snap.probes["gpu_key_fingerprints"] = f"{NVIDIA_FPR}\n{aptrepo.CANONICAL}\n"
     again = plan({"r1": ("robots", {**GPU_ROBOT, "gpu_default_runtime": True}, snap)})["r1"]
     assert len(find(again, "systemctl restart docker.service")) == 1
 
@@ -222,8 +228,8 @@ def test_key_download_accepts_exactly_the_pinned_primary_key(tmp_path, case):
     if case == "pinned":
         assert proc.returncode == 0, proc.stderr
         assert dest.read_bytes() == key.read_bytes()
-        probe = subprocess.run(["sh", "-c", aptrepo.fingerprints_probe(str(dest))], capture_output=True, text=True)
-        assert aptrepo.only_pinned(probe.stdout, pinned)
+        probe = subprocess.run(["sh", "-c", aptrepo.key_probe(str(dest), pinned)], capture_output=True, text=True)
+        assert aptrepo.installed_key(probe.stdout) == aptrepo.InstalledKey((pinned,), canonical=True)
     else:
         assert proc.returncode == 1
         assert "gpu_apt_key_fingerprint" in proc.stderr and "key not installed" in proc.stderr
@@ -238,7 +244,7 @@ def test_gpu_payload_gets_environment_reservation_and_check_command():
     assert service["environment"]["NVIDIA_VISIBLE_DEVICES"] == "all"
     assert service["environment"]["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
     assert service["deploy"]["resources"]["reservations"]["devices"][0]["capabilities"] == ["gpu"]
-    assert release_spec(data, {})["gpu_check"] == ["nvidia-smi", "-L"]
+    assert release_spec(data, {}).checks == [{"command": ["nvidia-smi", "-L"], "failure": "cannot see a GPU"}]
     plain = merged("robots", {"payload_image": IMAGE})
-    assert release_spec(plain, {})["gpu_check"] is None
+    assert release_spec(plain, {}).checks == []
     assert "NVIDIA_VISIBLE_DEVICES" not in desired_compose(plain, "h")["services"]["payload"]["environment"]

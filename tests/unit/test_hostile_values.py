@@ -111,7 +111,7 @@ def reaches_host_unchanged(setting: str, place: str, value, hostile: str) -> boo
         return got.replace("$$", "$") == hostile  # compose reads $$ as $
     if carrier == "argv":
         data = {**DEFAULTS["all"], **DEFAULTS["robots"], "payload_gpu": True, setting: value}
-        return gpu_plan.check_command(data) == [hostile]
+        return gpu_plan.check_command(data)["command"] == [hostile]
     if carrier == "daemon.json":
         return json.loads(plan.daemon_json(value, [], [])) == value
     sensor = value[0]

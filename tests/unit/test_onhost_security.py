@@ -41,8 +41,8 @@ def _sh(script: str) -> subprocess.CompletedProcess:
     return subprocess.run(["sh", "-c", script], capture_output=True, text=True, timeout=60)
 
 
-def _probe(dest) -> list[str]:
-    return _sh(aptrepo.fingerprints_probe(str(dest))).stdout.split()
+def _probe(dest, pin) -> aptrepo.InstalledKey:
+    return aptrepo.installed_key(_sh(aptrepo.key_probe(str(dest), pin)).stdout)
 
 
 def _snap(path, probe_output: str) -> Snapshot:
@@ -57,7 +57,8 @@ def test_the_probe_lists_primary_keys_only(tmp_path, keys):
     (fpr, key), _ = keys
     dest = tmp_path / "docker.asc"
     dest.write_bytes(key)
-    assert _probe(dest) == [fpr]  # the subkey's fingerprint is not a key of its own
+    # the subkey's fingerprint is not a key of its own
+    assert _probe(dest, fpr) == aptrepo.InstalledKey((fpr,), canonical=True)
 
 
 def test_a_key_file_holding_a_second_key_is_refused(tmp_path, keys):
@@ -79,15 +80,16 @@ def test_a_poisoned_keyring_on_the_host_is_not_current_and_is_replaced(tmp_path,
     dest.parent.mkdir()
     dest.write_bytes(key + intruder)
     dest.chmod(0o644)
-    probe = _sh(aptrepo.fingerprints_probe(str(dest))).stdout
+    probe = _sh(aptrepo.key_probe(str(dest), fpr)).stdout
+    assert aptrepo.installed_key(probe) == aptrepo.InstalledKey((fpr, other), canonical=False)
     assert not aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, probe))
-    assert aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, fpr + "\n"))
+    assert aptrepo.key_is_current(docker_repo("", str(dest), fpr, None), _snap(dest, f"{fpr}\n{aptrepo.CANONICAL}\n"))
     served = tmp_path / "gpg"
     served.write_bytes(key)
     proc = _sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None)))
     assert proc.returncode == 0, proc.stderr
-    assert _probe(dest) == [fpr]
-    assert dest.read_bytes() == key
+    assert _probe(dest, fpr) == aptrepo.InstalledKey((fpr,), canonical=True)
+    assert dest.read_bytes() == key  # the fixture's key is gpg's own armored export
 
 
 def test_a_poisoned_keyring_is_removed_even_when_the_mirror_still_serves_two_keys(tmp_path, keys):
@@ -114,20 +116,36 @@ def test_a_single_good_key_is_kept_when_the_download_is_refused(tmp_path, keys):
     assert dest.read_bytes() == key
 
 
+def _nvidia_repo(url: str, key_path: str, fingerprint: str) -> aptrepo.Repository:
+    """NVIDIA's repository as the gpu role declares it (no sha256 setting)."""
+    from roles import gpu
+    from tests.unit.harness import merged
+
+    data = merged("robots", {"gpu": "nvidia", "gpu_apt_key_url": url, "gpu_apt_key_path": key_path,
+                             "gpu_apt_key_fingerprint": fingerprint})
+    return gpu.repository(data, "amd64")
+
+
 @pytest.mark.parametrize("payload", ["$(touch${IFS}%s)", "`touch${IFS}%s`", "\"$(touch${IFS}%s)\""])
 def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload):
-    """Both mismatch messages (fingerprint, sha256) print the URL; neither runs it."""
+    """Every message that prints the URL (download failed, fingerprint,
+    sha256), Docker's and NVIDIA's: none runs it."""
     (fpr, key), _ = keys
     served = tmp_path / "gpg"
     served.write_bytes(key)
     pwned = tmp_path / "pwned"
     url = f"file://{served}?x=" + payload % pwned
+    missing = f"file://{tmp_path}/missing?x=" + payload % pwned
     assert subprocess.run(["curl", "-fsS", url], capture_output=True).returncode == 0  # the mismatch path is reached
     dest = tmp_path / "docker.asc"
-    for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64)):
-        proc = _sh(aptrepo.key_script(docker_repo(url, str(dest), fingerprint, sha256)))
+    repos = [docker_repo(url, str(dest), fingerprint, sha256)
+             for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64))]
+    repos += [_nvidia_repo(url, str(dest), "DEAD" * 10), _nvidia_repo(missing, str(dest), fpr),
+              docker_repo(missing, str(dest), fpr)]
+    for repo in repos:
+        proc = _sh(aptrepo.key_script(repo))
         assert proc.returncode == 1, proc.stderr
-        assert "key not installed" in proc.stderr and url in proc.stderr, proc.stderr
+        assert repo.key_url in proc.stderr and ("key not installed" in proc.stderr or "cannot download" in proc.stderr)
         assert not pwned.exists(), f"the URL ran as a command: {proc.stderr}"
     assert not dest.exists()
 
@@ -307,7 +325,7 @@ def test_the_pushed_archive_goes_over_stdin_intact_through_pyinfras_writer(tmp_p
 
     archive = tmp_path / "image.tar"
     archive.write_bytes(os.urandom(3 * push.ArchiveStdin.CHUNK + 12345))
-    command = push.load_command(str(archive), "line", "/var/lib/robot-payload")
+    command = push.load_command(str(archive), "/var/lib/robot-payload", "reg.lan/ros/payload:1.0", "sha256:a", {})
     raw = command.get_raw_value()
     assert "base64 -d | docker load" in raw
     assert "/tmp" not in raw and "robotprov-image" not in raw and "-i " not in raw

@@ -1,33 +1,42 @@
-"""Pure parts of the on-robot release helper (the rest runs end to end)."""
+"""The on-robot release helper payloadctl: its pure parts in process, the
+rest as the zip application the robots get, run against stand-ins for docker
+and systemctl (the real thing runs end to end)."""
 
-import importlib.util
 import json
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 from roles.payload import release, robot as payload
+from roles.payload.payloadctl import durable, health, imageref, images, releases as store
+from roles.payload.payloadctl import lock as apply_lock
 
-spec = importlib.util.spec_from_file_location("payloadctl", payload.HERE / "payloadctl.py")
-payloadctl = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(payloadctl)
+
+@pytest.fixture(scope="module")
+def helper(tmp_path_factory):
+    """payloadctl exactly as it is installed on a robot."""
+    path = tmp_path_factory.mktemp("helper") / "payloadctl"
+    path.write_bytes(payload.helper_bytes())
+    path.chmod(0o755)
+    return str(path)
 
 
 def test_repository_of_references():
-    assert payloadctl.repository("reg.lan:5000/ros/payload:1.0") == "reg.lan:5000/ros/payload"
-    assert payloadctl.repository("reg.lan:5000/ros/payload@sha256:" + "a" * 64) == "reg.lan:5000/ros/payload"
-    assert payloadctl.repository("ros/payload") == "ros/payload"
+    assert imageref.repository("reg.lan:5000/ros/payload:1.0") == "reg.lan:5000/ros/payload"
+    assert imageref.repository("reg.lan:5000/ros/payload@sha256:" + "a" * 64) == "reg.lan:5000/ros/payload"
+    assert imageref.repository("ros/payload") == "ros/payload"
 
 
 def test_pinned_prefers_the_digest_of_the_same_repository():
     info = {"id": "sha256:1", "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
-    assert payloadctl.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
-    assert payloadctl.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
+    assert images.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
+    assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
 
 
 def test_release_pointers_are_swapped_atomically(tmp_path):
-    releases = payloadctl.Releases(str(tmp_path))
+    releases = store.Releases(str(tmp_path))
     for rid, created in (("r1", "2026-01-01T00:00:00Z"), ("r2", "2026-01-02T00:00:00Z")):
         (tmp_path / "releases" / rid).mkdir(parents=True)
         releases.write_record(rid, {"id": rid, "created": created})
@@ -44,32 +53,32 @@ def test_release_pointers_are_swapped_atomically(tmp_path):
 
 def test_release_compose_is_yaml():
     doc = {"name": "p", "services": {"payload": {"image": "a/b@sha256:" + "c" * 64, "environment": {"A": "1"}}}}
-    assert yaml.safe_load(payloadctl.compose_yaml(doc)) == doc
+    assert yaml.safe_load(store.compose_yaml(doc)) == doc
 
 
 def test_update_lock_holder(tmp_path):
     lock = tmp_path / "update.lock"
-    assert payloadctl.update_lock_holder(str(lock)) is None
+    assert apply_lock.update_lock_holder(str(lock)) is None
     lock.write_text("robot is moving\n")
-    assert payloadctl.update_lock_holder(str(lock)) == "robot is moving"
+    assert apply_lock.update_lock_holder(str(lock)) == "robot is moving"
     lock.write_text("")
-    assert payloadctl.update_lock_holder(str(lock)) == "no reason given"
+    assert apply_lock.update_lock_holder(str(lock)) == "no reason given"
 
 
-def test_wait_devices_names_the_missing_sensor(tmp_path):
+def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
     present = tmp_path / "cam"
     present.write_text("")
     proc = subprocess.run(
-        [sys.executable, str(payload.HERE / "payloadctl.py"), "wait-devices", "--timeout", "1", str(present), str(tmp_path / "lidar")],
+        [helper, "wait-devices", "--timeout", "1", str(present), str(tmp_path / "lidar")],
         capture_output=True, text=True,
     )
     assert proc.returncode == 1 and proc.stderr.strip().endswith(str(tmp_path / "lidar"))
 
 
-def test_result_reports_the_last_apply(tmp_path):
+def test_result_reports_the_last_apply(tmp_path, helper):
     (tmp_path / "last-result.json").write_text(json.dumps({"ok": False, "message": "payload: release x failed"}))
     proc = subprocess.run(
-        [sys.executable, str(payload.HERE / "payloadctl.py"), "result", "--dir", str(tmp_path)], capture_output=True, text=True
+        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"], capture_output=True, text=True
     )
     assert proc.returncode == 1 and proc.stderr.strip() == "payload: release x failed"
 
@@ -77,21 +86,44 @@ def test_result_reports_the_last_apply(tmp_path):
 def test_helper_runs_on_python_3_8_syntax():
     import ast
 
-    source = (payload.HERE / "payloadctl.py").read_text()
-    ast.parse(source, feature_version=(3, 8))  # Ubuntu 20.04 robots run Python 3.8
-    assert "from __future__" not in source
+    for path in sorted(payload.PACKAGE.glob("*.py")):
+        source = path.read_text()
+        ast.parse(source, feature_version=(3, 8))  # Ubuntu 20.04 robots run Python 3.8
+        assert "from __future__" not in source, path
 
 
-def test_apply_finds_the_release_already_current(tmp_path):
+def test_the_helper_uses_the_standard_library_and_its_own_modules_only():
+    """It runs on robots without anything installed beside python3."""
+    import ast
+
+    allowed = set(sys.stdlib_module_names)
+    for path in sorted(payload.PACKAGE.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 0:
+                assert node.module.split(".")[0] in allowed, (path.name, node.module)
+            elif isinstance(node, ast.Import):
+                assert all(a.name.split(".")[0] in allowed for a in node.names), (path.name, ast.dump(node))
+
+
+def test_the_helper_is_the_same_bytes_on_every_build():
+    payload.helper_bytes.cache_clear()
+    first = payload.helper_bytes()
+    payload.helper_bytes.cache_clear()
+    assert payload.helper_bytes() == first and first.startswith(b"#!/usr/bin/env python3\n")
+
+
+def test_apply_finds_the_release_already_current(tmp_path, helper):
     """A second apply of the same spec (say, after a dropped link) changes nothing."""
-    releases = payloadctl.Releases(str(tmp_path))
+    releases = store.Releases(str(tmp_path))
     (tmp_path / "releases" / "r1").mkdir(parents=True)
     releases.write_record("r1", {"id": "r1", "created": "x", "spec_hash": "abc", "state": "staged"})
     releases.point("current", "r1")
     spec = {"dir": str(tmp_path), "spec_hash": "abc", "autostart": False, "name": "robot-payload",
-            "lock_file": str(tmp_path / "lock"), "compose": {"services": {}}, "delivery": "pull"}
-    (tmp_path / "spec.json").write_text(json.dumps(spec))
-    proc = subprocess.run([sys.executable, str(payload.HERE / "payloadctl.py"), "apply", str(tmp_path / "spec.json")],
+            "lock_file": str(tmp_path / "lock"), "compose": {"services": {}}, "delivery": "pull",
+            "health_timeout": 60, "stable_seconds": 1, "pull_timeout": 30, "apply_lock_timeout": 30,
+            "keep_releases": 3, "checks": [], "takeover": {}}
+    (tmp_path / "request.json").write_text(json.dumps({"spec": spec, "run": {}}))
+    proc = subprocess.run([sys.executable, helper, "apply", str(tmp_path / "request.json")],
                           capture_output=True, text=True)
     assert proc.returncode == 0 and "release r1 is already current" in proc.stdout
     assert sorted(p.name for p in (tmp_path / "releases").iterdir()) == ["r1"]
@@ -115,17 +147,20 @@ def _stub_docker(tmp_path, monkeypatch, exec_exit: int):
     return tmp_path / "calls"
 
 
+GPU_CHECK = {"command": ["nvidia-smi", "-L"], "failure": "cannot see a GPU"}  # what the gpu role adds
+
+
 def test_gpu_check_fails_a_container_that_cannot_see_a_gpu(tmp_path, monkeypatch):
     calls = _stub_docker(tmp_path, monkeypatch, exec_exit=9)
-    ok, why = payloadctl.gpu_check("robot-payload", ["nvidia-smi", "-L"])
+    ok, why = health.run_checks("robot-payload", [GPU_CHECK])
     assert not ok and why.startswith("c0ffee cannot see a GPU (nvidia-smi -L failed: NVIDIA-SMI has failed")
     assert "exec c0ffee nvidia-smi -L" in calls.read_text()
 
 
 def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch):
     calls = _stub_docker(tmp_path, monkeypatch, exec_exit=0)
-    assert payloadctl.gpu_check("robot-payload", ["nvidia-smi", "-L"]) == (True, "")
-    assert payloadctl.gpu_check("robot-payload", None) == (True, "")
+    assert health.run_checks("robot-payload", [GPU_CHECK]) == (True, "")
+    assert health.run_checks("robot-payload", []) == (True, "")
     assert calls.read_text().count("exec") == 1
 
 
@@ -135,14 +170,16 @@ def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch
 # JSON state file, and run the real helper as a process.
 
 import os  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
 import socket  # noqa: E402
 import stat  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import pytest  # noqa: E402
-
 FAKEBIN = Path(__file__).resolve().parent / "fakebin"
-HELPER = str(payload.HERE / "payloadctl.py")
+SPEC = {"name": "robot-payload", "autostart": True, "delivery": "pull", "health_timeout": 600, "stable_seconds": 1,
+        "keep_releases": 3, "pull_timeout": 30, "apply_lock_timeout": 30, "checks": [],
+        "takeover": {"primary": "reg/ros/payload", "container": [], "project": []}}
 
 
 def spec_hash(ref):
@@ -150,11 +187,12 @@ def spec_hash(ref):
 
 
 class FakeRobot:
-    def __init__(self, tmp_path):
+    def __init__(self, tmp_path, helper):
         self.root = tmp_path / "payload"
         self.root.mkdir()
+        self.helper = helper
         self.state_path = tmp_path / "state.json"
-        self.releases = payloadctl.Releases(str(self.root))
+        self.releases = store.Releases(str(self.root))
         self.save({"root": str(self.root), "images": {}, "containers": {}, "log": []})
 
     def state(self):
@@ -169,11 +207,16 @@ class FakeRobot:
                                 "present": present, "pull": pull}
         self.save(state)
 
-    def release(self, rid, ref, state="active", created=None, **extra):
-        """A release already on the robot."""
-        payloadctl.make_private_dir(self.releases.path(rid))
+    def spec_fields(self, ref, **extra):
+        return {**SPEC, "dir": str(self.root), "spec_hash": spec_hash(ref), "lock_file": str(self.root / "update.lock"),
+                "compose": {"name": "robot-payload", "services": {"payload": {"image": ref}}}, **extra}
+
+    def release(self, rid, ref, state="active", created=None, spec=None, **extra):
+        """A release already on the robot (``spec``: what differs in its spec)."""
+        durable.make_private_dir(self.releases.path(rid))
         doc = {"name": "robot-payload", "services": {"payload": {"image": ref}}}
-        payloadctl.write_text(self.releases.path(rid, "compose.yaml"), payloadctl.compose_yaml(doc))
+        durable.write_text(self.releases.path(rid, "compose.yaml"), store.compose_yaml(doc))
+        durable.write_json(self.releases.path(rid, "spec.json"), self.spec_fields(ref, **(spec or {})))
         image_id = self.state()["images"][ref]["id"]
         self.releases.write_record(rid, {"id": rid, "created": created or rid, "spec_hash": spec_hash(ref),
                                          "state": state, "autostart": True,
@@ -181,44 +224,43 @@ class FakeRobot:
 
     def running(self, ref):
         state = self.state()
-        state["containers"] = {"payload-1": {"image": ref, "looks": 5}}
+        state["containers"] = {"robot-payload-payload-1": {"image": ref, "looks": 5, "name": "robot-payload-payload-1",
+                                                           "service": "payload", "policy": "unless-stopped"}}
         state["unit_active"] = True
         self.save(state)
 
     def spec(self, ref, run_id="run-1", **extra):
-        spec = {"name": "robot-payload", "dir": str(self.root), "spec_hash": spec_hash(ref), "autostart": True,
-                "delivery": "pull", "health_timeout": 600, "stable_seconds": 1, "keep_releases": 3,
-                "lock_file": str(self.root / "update.lock"), "force": False, "run_id": run_id,
-                "deployed_by": "ops@laptop (pyinfra)", "pull_timeout": 30, "apply_lock_timeout": 30,
-                "compose": {"name": "robot-payload", "services": {"payload": {"image": ref}}}, **extra}
+        request = {"spec": self.spec_fields(ref, **extra), "run": {"by": "ops@laptop (pyinfra)", "force": False}}
         path = self.root.parent / f"spec-{run_id}.json"
-        path.write_text(json.dumps(spec))
+        path.write_text(json.dumps(request))
         return str(path)
 
     def payloadctl(self, *args, timeout=30):
-        env = dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(self.state_path))
-        return subprocess.run([sys.executable, HELPER, *args], env=env, capture_output=True, text=True,
+        return subprocess.run([sys.executable, self.helper, *args], env=self.env(), capture_output=True, text=True,
                               timeout=timeout)
 
+    def env(self, **more):
+        return dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(self.state_path),
+                    FAKE_HELPER=self.helper, **more)
+
     def apply(self, ref, run_id="run-1", **extra):
-        self.payloadctl("apply", self.spec(ref, run_id, **extra))
+        self.payloadctl("apply", self.spec(ref, run_id, **extra), "--run-id", run_id)
         return self.result(run_id)
 
     def rollback(self, run_id="rb-1", *more):
-        self.payloadctl("rollback", "--dir", str(self.root), "--run-id", run_id, "--stable-seconds", "1",
-                        "--health-timeout", "600", *more)
+        self.payloadctl("rollback", "--dir", str(self.root), "--run-id", run_id, *more)
         return self.result(run_id)
 
     def result(self, run_id):
-        return self.payloadctl("result", "--dir", str(self.root), "--run-id", run_id)
+        return self.payloadctl("result", "--dir", str(self.root), "--name", "robot-payload", "--run-id", run_id)
 
     def pointers(self):
         return self.releases.pointer("current"), self.releases.pointer("previous")
 
 
 @pytest.fixture
-def robot(tmp_path):
-    robot = FakeRobot(tmp_path)
+def robot(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     robot.image("reg/ros/payload:1.0")
     robot.release("r1", "reg/ros/payload:1.0")
     robot.releases.point("current", "r1")
@@ -246,9 +288,9 @@ def test_healthy_release_is_recorded_private_and_reported_for_this_run(robot):
 
 
 @pytest.mark.parametrize("behaviour, reason", [
-    ("crash", "payload-1 is crash-looping"),
-    ("exit", "payload-1 exited with code 1"),
-    ("unhealthy", "payload-1 is unhealthy: heartbeat check unhealthy"),
+    ("crash", "robot-payload-payload-1 is crash-looping"),  # containers are named as compose names them
+    ("exit", "robot-payload-payload-1 exited with code 1"),
+    ("unhealthy", "robot-payload-payload-1 is unhealthy: heartbeat check unhealthy"),
 ])
 def test_broken_release_fails_at_once_and_the_old_one_runs_again(robot, behaviour, reason):
     robot.image("reg/ros/payload:bad", behaviour)
@@ -264,8 +306,8 @@ def test_broken_release_fails_at_once_and_the_old_one_runs_again(robot, behaviou
     assert robot.releases.record("r1")["rolled_back_from"]["reason"].startswith(reason)
 
 
-def test_first_release_that_fails_stays_failed_so_the_next_run_tries_again(tmp_path):
-    robot = FakeRobot(tmp_path)
+def test_first_release_that_fails_stays_failed_so_the_next_run_tries_again(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     robot.image("reg/ros/payload:bad", "unhealthy")
     result = robot.apply("reg/ros/payload:bad")
     assert result.returncode == 1 and "no healthy release to roll back to (the next run tries again)" in result.stderr
@@ -310,8 +352,7 @@ def test_stalled_pull_is_cut_off_and_names_its_bound(robot):
 
 
 def hold_apply_lock(robot, by):
-    lock = payloadctl.Lock(str(robot.root), 0, {"by": by, "action": "apply"})
-    return lock.acquire()
+    return apply_lock.Lock(str(robot.root), 0, {"by": by, "action": "apply"}).acquire()
 
 
 @pytest.mark.parametrize("action", ["apply", "rollback"])
@@ -319,14 +360,15 @@ def test_a_second_deploy_waits_a_bounded_time_and_names_the_first(robot, action)
     robot.image("reg/ros/payload:1.1")
     robot.release("r0", "reg/ros/payload:1.1", created="r0")
     robot.releases.point("previous", "r0")
-    lock = hold_apply_lock(robot, "alice@laptop (pyinfra)")
+    robot.release("r1", "reg/ros/payload:1.0", spec={"apply_lock_timeout": 1})  # a rollback waits as the release says
+    held = hold_apply_lock(robot, "alice@laptop (pyinfra)")
     try:
         if action == "apply":
             result = robot.apply("reg/ros/payload:1.1", apply_lock_timeout=1)
         else:
-            result = robot.rollback("rb-1", "--apply-lock-timeout", "1")
+            result = robot.rollback("rb-1")
     finally:
-        lock.release()
+        held.release()
     assert result.returncode == 1
     line = result.stderr.strip()
     assert line.startswith(f"payload: another deploy is running on {socket.gethostname()} since 20")
@@ -349,7 +391,7 @@ def test_failed_rollback_is_undone_and_the_old_release_started_again(robot):
     robot.releases.point("previous", "r0")
     result = robot.rollback()
     assert result.returncode == 1
-    assert "rollback to r0 failed (payload-1 is crash-looping" in result.stderr
+    assert "rollback to r0 failed (robot-payload-payload-1 is crash-looping" in result.stderr
     assert "restored r1 and it is running" in result.stderr
     assert robot.pointers() == ("r1", "r0")
     assert robot.state()["started"] == ["reg/ros/payload:0.9", "reg/ros/payload:1.0"]
@@ -384,8 +426,8 @@ def test_boot_undoes_an_interrupted_rollback(robot):
     assert robot.pointers() == ("r1", "r0") and robot.releases.record("r0")["state"] == "active"
 
 
-def test_boot_runs_an_unverified_first_release_for_the_deploy_to_verify(tmp_path):
-    robot = FakeRobot(tmp_path)
+def test_boot_runs_an_unverified_first_release_for_the_deploy_to_verify(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     robot.image("reg/ros/payload:1.0")
     switching(robot, "r1", "reg/ros/payload:1.0", "apply", None, None)
     robot.releases.point("current", "r1")
@@ -398,16 +440,16 @@ def test_start_leaves_the_switch_to_an_apply_that_holds_the_lock(robot):
     robot.image("reg/ros/payload:1.1")
     switching(robot, "r2", "reg/ros/payload:1.1", "apply", "r1", None)
     robot.releases.point("current", "r2")
-    lock = hold_apply_lock(robot, "ops")
+    held = hold_apply_lock(robot, "ops")
     try:
         robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     finally:
-        lock.release()
+        held.release()
     assert robot.pointers()[0] == "r2" and robot.releases.record("r2")["state"] == "switching"
 
 
-def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path):
-    robot = FakeRobot(tmp_path)
+def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path, helper):
+    robot = FakeRobot(tmp_path, helper)
     for n in range(1, 7):
         robot.image(f"reg/p:{n}")
         robot.release(f"r{n}", f"reg/p:{n}", created=f"2026-01-0{n}")
@@ -415,19 +457,19 @@ def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path
     robot.releases.point("current", "r2")  # rolled back far: current and previous are old ones
     robot.releases.point("previous", "r1")
     env = dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(robot.state_path))
-    code = ("import importlib.util, sys; s = importlib.util.spec_from_file_location('p', sys.argv[1]); "
-            "m = importlib.util.module_from_spec(s); s.loader.exec_module(m); "
-            "m.gc({'keep_releases': 3}, m.Releases(sys.argv[2]))")
-    subprocess.run([sys.executable, "-c", code, HELPER, str(robot.root)], env=env, check=True)
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from payloadctl import releases; "
+            "releases.gc(3, releases.Releases(sys.argv[2]))")
+    subprocess.run([sys.executable, "-c", code, helper, str(robot.root)], env=env, check=True)
     assert sorted(robot.releases.all()) == ["r1", "r2", "r5", "r6", "r7"]
     removed = [line for line in robot.state()["log"] if line.startswith("docker image rm")]
     assert sorted(removed) == ["docker image rm reg/p:3"]  # reg/p:4 is still used by r7
 
 
-def test_result_of_a_run_that_recorded_nothing_fails_with_a_clear_line(tmp_path):
+def test_result_of_a_run_that_recorded_nothing_fails_with_a_clear_line(tmp_path, helper):
     (tmp_path / "last-result.json").write_text(json.dumps({"ok": True, "message": "payload: release old is healthy",
                                                            "run_id": "earlier"}))
-    proc = subprocess.run([sys.executable, HELPER, "result", "--dir", str(tmp_path), "--run-id", "this-run"],
+    proc = subprocess.run([sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload",
+                           "--run-id", "this-run"],
                           capture_output=True, text=True)
     assert proc.returncode == 1 and "healthy" not in proc.stdout
     assert proc.stderr.startswith("payload: payloadctl recorded no result for this run (this-run): disk full?")
@@ -438,13 +480,13 @@ def test_update_lock_is_never_followed_and_gives_one_printable_line(tmp_path):
     secret.write_text("root:$6$hash:19000:0:99999:7:::\n")
     lock = tmp_path / "update.lock"
     lock.symlink_to(secret)
-    assert payloadctl.update_lock_holder(str(lock)) == "the lock is a symbolic link (not read)"
+    assert apply_lock.update_lock_holder(str(lock)) == "the lock is a symbolic link (not read)"
     lock.unlink()
     os.mkfifo(lock)
-    assert payloadctl.update_lock_holder(str(lock)) == "the lock is not a regular file (not read)"
+    assert apply_lock.update_lock_holder(str(lock)) == "the lock is not a regular file (not read)"
     lock.unlink()
     lock.write_text("moving\x1b[31m to dock " + "x" * 300 + "\nsecond line\n")
-    reason = payloadctl.update_lock_holder(str(lock))
+    reason = apply_lock.update_lock_holder(str(lock))
     assert reason.startswith("moving[31m to dock x") and len(reason) == 120 and "\n" not in reason
     assert all(ch.isprintable() for ch in reason)
 
@@ -457,11 +499,198 @@ def test_writes_are_fsynced_file_and_directory_before_they_count(tmp_path, monke
         synced.append(os.readlink(f"/proc/self/fd/{fd}"))
         real_fsync(fd)
 
-    monkeypatch.setattr(payloadctl.os, "fsync", fsync)
-    releases = payloadctl.Releases(str(tmp_path))
+    monkeypatch.setattr(durable.os, "fsync", fsync)
+    releases = store.Releases(str(tmp_path))
     (tmp_path / "releases" / "r1").mkdir(parents=True)
     releases.write_record("r1", {"id": "r1"})
     assert synced == [str(tmp_path / "releases" / "r1" / "record.json.tmp"), str(tmp_path / "releases" / "r1")]
     synced.clear()
     releases.point("current", "r1")
     assert synced == [str(tmp_path)]
+
+
+# --- the apply lock is root's alone (issue 17, item 2) ---------------------------
+
+NOBODY = 65534
+
+
+def as_nobody(code: str) -> subprocess.CompletedProcess:
+    def drop():
+        os.setgid(NOBODY)
+        os.setuid(NOBODY)
+
+    return subprocess.run(["/usr/bin/python3", "-c", code], capture_output=True, text=True, preexec_fn=drop, timeout=30)
+
+
+def test_no_other_user_can_open_the_apply_lock(robot):
+    """flock works on a read-only descriptor: a lock file another user can
+    open is one they can hold, blocking every deploy and the boot recovery."""
+    assert robot.apply("reg/ros/payload:1.0", run_id="run-0").returncode == 0
+    held = apply_lock.Lock(str(robot.root))
+    assert mode(held.dir) == 0o700 and mode(held.path) == 0o600
+    # A payload directory any user may enter, as /var/lib/robot-payload is.
+    root = tempfile.mkdtemp(prefix="robotprov-lock-", dir="/tmp")
+    try:
+        os.chmod(root, 0o755)
+        lock = apply_lock.Lock(root).acquire(blocking=False)
+        lock.release()
+        probe = as_nobody(f"import fcntl; fcntl.flock(open({lock.path!r}), fcntl.LOCK_EX); print('held')")
+        assert probe.returncode != 0 and "PermissionError" in probe.stderr, probe.stdout + probe.stderr
+    finally:
+        shutil.rmtree(root)
+
+
+def test_a_lock_held_by_a_process_that_is_not_ours_is_named_as_such(robot):
+    held = apply_lock.Lock(str(robot.root))
+    held.acquire(blocking=False)
+    held.release()  # made the directory and file; the finished deploy's note is gone
+    assert not os.path.exists(held.owner_path)
+    # An earlier deploy's note left behind must not be taken for the holder either.
+    durable.write_json(held.owner_path, {"by": "old@laptop (pyinfra)", "since": "2026-01-01T00:00:00Z", "pid": 1})
+    holder = subprocess.Popen([sys.executable, "-c", f"import fcntl, time; f = open({held.path!r}); "
+                               "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(30)"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        robot.image("reg/ros/payload:1.1")
+        result = robot.apply("reg/ros/payload:1.1", apply_lock_timeout=1)
+    finally:
+        holder.kill()
+        holder.wait()
+    line = result.stderr.strip()
+    assert result.returncode == 1
+    assert f"is held by process {holder.pid} ({sys.executable} -c import fcntl" in line, line
+    assert line.endswith("which is not a deploy of this tool; gave up after 1 s (payload_apply_lock_timeout)")
+    assert "old@laptop" not in line
+
+
+# --- boot recovery and deploys never at once (issue 21) -----------------------------
+
+
+def interrupted_update(robot):
+    """A power cut during the health wait of an update from 1.0 (r1) to 1.1 (r2)."""
+    robot.image("reg/ros/payload:1.1")
+    switching(robot, "r2", "reg/ros/payload:1.1", "apply", "r1", None)
+    robot.releases.point("previous", "r1")
+    robot.releases.point("current", "r2")
+
+
+def test_a_deploy_waits_for_the_boot_recovery_and_says_so(robot):
+    """The boot holds the lock until its compose up is done: a deploy that
+    arrives meanwhile waits (it used to restart the unit mid-recreate)."""
+    interrupted_update(robot)
+    boot = subprocess.Popen([sys.executable, robot.helper, "start", "--dir", str(robot.root), "--name", "robot-payload"],
+                            env=robot.env(FAKE_COMPOSE_SLEEP="3"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        wait_until(lambda: "compose_up" in robot.state(), "the boot's compose up to begin")
+        deploy = robot.payloadctl("apply", robot.spec("reg/ros/payload:1.1", "run-9"), "--run-id", "run-9")
+        result = robot.result("run-9")
+    finally:
+        boot.wait(timeout=30)
+    assert f"payload: {socket.gethostname()} is recovering from an interrupted release since 20" in deploy.stdout
+    assert deploy.stdout.rstrip().splitlines()[0].endswith("; waiting")
+    assert result.returncode == 0 and "is healthy" in result.stdout
+    log = robot.state()["log"]
+    boot_up = max(i for i, line in enumerate(log) if "current/compose.yaml up -d --remove-orphans" in line and "--no-start" not in line
+                  and i < log.index("docker pull -q reg/ros/payload:1.1"))
+    assert boot_up < log.index("docker pull -q reg/ros/payload:1.1")  # the deploy began once the boot was done
+    assert robot.releases.record("r2")["state"] == "failed"  # the boot decided: back on r1
+    assert robot.releases.record(robot.pointers()[0])["state"] == "active"  # and the deploy finished the update
+
+
+def wait_until(predicate, what, seconds=10):
+    import time
+
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        if predicate():
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_what_an_interrupted_compose_up_left_is_removed_before_the_next(robot):
+    """A recreate cut short leaves the old container renamed <id>_<name> and
+    the new one not started; the next compose up failed on the name."""
+    state = robot.state()
+    state["containers"] = {
+        "0123456789ab_robot-payload-payload-1": {"image": "reg/ros/payload:1.0", "project": "robot-payload",
+                                                 "name": "0123456789ab_robot-payload-payload-1", "running": False,
+                                                 "status": "exited"},
+        "robot-payload-payload-1": {"image": "reg/ros/payload:1.0", "name": "robot-payload-payload-1",
+                                    "running": False, "status": "created"},
+    }
+    robot.save(state)
+    boot = robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
+    assert boot.returncode == 0, boot.stdout + boot.stderr
+    assert "removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, robot-payload-payload-1" in boot.stdout
+    assert list(robot.state()["containers"]) == ["robot-payload-payload-1"]
+    assert robot.state()["containers"]["robot-payload-payload-1"]["running"] is True
+
+
+def test_an_unverified_release_has_no_restart_policy_until_it_is_verified(robot):
+    """After a power cut Docker brings back what has a restart policy: the
+    new release's containers must not come back before the boot recovery
+    decides which release runs."""
+    robot.image("reg/ros/payload:1.1")
+    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.1", "restart": "unless-stopped"}}}
+    result = robot.apply("reg/ros/payload:1.1", compose=compose)
+    assert result.returncode == 0
+    log = robot.state()["log"]
+    up = [i for i, line in enumerate(log) if "compose" in line and " up " in line + " "]
+    no_policy = log.index("docker update --restart no robot-payload-payload-1")
+    verified = log.index("docker update --restart unless-stopped robot-payload-payload-1")
+    assert "--no-start" in log[up[0]] and up[0] < no_policy < up[1] < verified  # never started with a policy
+    assert robot.state()["containers"]["robot-payload-payload-1"]["policy"] == "unless-stopped"
+
+
+def test_the_boot_gives_a_verified_release_its_restart_policy_back(robot):
+    """A power cut between the verdict and the policy: the boot restores it."""
+    state = robot.state()
+    state["containers"]["robot-payload-payload-1"]["policy"] = "no"
+    robot.save(state)
+    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.0", "restart": "always"}}}
+    durable.write_text(robot.releases.path("r1", "compose.yaml"), store.compose_yaml(compose))
+    assert robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload").returncode == 0
+    assert robot.state()["containers"]["robot-payload-payload-1"]["policy"] == "always"
+
+
+# --- takeover touches only the payload (issue 17, item 3) ---------------------------
+
+
+def test_takeover_stops_an_earlier_copy_of_the_payload_and_no_other_projects_container(robot):
+    """A service of ours uses a common image (a broker): another compose
+    project's broker of that image stays as it is; the payload started by
+    hand is taken over, and the record says why."""
+    robot.image("reg/ros/payload:1.1")
+    robot.image("reg/lib/mosquitto:2")
+    state = robot.state()
+    state["containers"].update({
+        "homeauto-broker-1": {"image": "reg/lib/mosquitto:2", "name": "homeauto-broker-1", "project": "homeauto",
+                              "service": "broker", "policy": "always"},
+        "ros_payload": {"image": "reg/ros/payload:1.1", "name": "ros_payload", "project": None, "policy": "always"},
+    })
+    robot.save(state)
+    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.1"},
+                                                     "broker": {"image": "reg/lib/mosquitto:2"}}}
+    result = robot.apply("reg/ros/payload:1.1", compose=compose)
+    assert result.returncode == 0, result.stderr
+    containers = robot.state()["containers"]
+    assert containers["homeauto-broker-1"].get("running", True) and containers["homeauto-broker-1"]["policy"] == "always"
+    assert not containers["ros_payload"]["running"] and containers["ros_payload"]["policy"] == "no"
+    taken = robot.releases.record(robot.pointers()[0])["taken_over"]
+    assert [(c["name"], c["why"]) for c in taken] == [("ros_payload", "it runs the payload's image")]
+
+
+def test_text_the_robot_controls_reaches_the_operator_as_one_printable_line(robot):
+    """A healthcheck's output is the image's to write: an escape sequence or
+    a newline in it is shown, never obeyed by the operator's terminal."""
+    state = robot.state()
+    state["images"]["reg/ros/payload:evil"] = {"id": "sha256:evil", "behaviour": "unhealthy", "present": True,
+                                               "health_log": "ok\x1b[2J\x1b[31mfake: release is healthy\nsecond line"}
+    robot.save(state)
+    result = robot.apply("reg/ros/payload:evil")
+    assert result.returncode == 1
+    line = result.stderr
+    assert line.count("\n") == 1 and "\x1b" not in line
+    assert "ok\\x1b[2J\\x1b[31mfake: release is healthy\\x0asecond line" in line

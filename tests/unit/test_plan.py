@@ -229,7 +229,7 @@ def test_changed_daemon_json_is_validated_kept_and_restored_if_docker_does_not_s
     snap = converged("robots", ROBOT, "debian-13")
     data = {**ROBOT, "docker_registry_mirrors": ["https://mirror.lan"], "docker_restart_timeout": 20}
     commands = plan({"r1": ("robots", data, snap)})["r1"]
-    assert len(commands) == 1
+    assert len(commands) == 2 and "payloadctl apply" in commands[1]  # the payload checked after the restart
     script = commands[0]
     # Validated first, the old file kept, then the restart with a bound.
     assert script.index("dockerd --validate --config-file") < script.index('cp -Pp "$dest" "$prev.tmp"')
@@ -245,7 +245,7 @@ def test_daemon_json_written_but_not_applied_restarts_docker_on_the_next_run():
     snap = converged("robots", ROBOT, "debian-13")
     snap.files["/etc/docker/daemon.json.pending"] = FileState("file", "e3" * 32, "644", "root", "root")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
-    assert len(commands) == 1
+    assert len(commands) == 2 and "payloadctl apply" in commands[1]  # the payload checked after the restart
     assert "systemctl restart docker.service" in commands[0] and 'rm -f "$pending"' in commands[0]
     assert "base64 -d" not in commands[0]
 
@@ -315,3 +315,25 @@ def test_bad_override_data_fails_that_host_before_anything_runs():
     assert "docker_apt_key_fingerprint: expected a string, got 0" in result["r1"][0]
     assert "ssh_port: expected a whole number" in result["r1"][0]
     assert find(result["r2"], "payloadctl apply")
+
+
+def test_a_deploy_that_finds_the_boot_recovery_holding_the_lock_says_it_waits(caplog):
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.probes["payload_lock"] = json.dumps({"action": "start", "by": "boot", "since": "2026-11-23T10:00:00Z", "pid": 7})
+    data = {**ROBOT, "payload_image": "reg.example.com/ros/payload:1.1"}
+    commands = plan({"r1": ("robots", data, snap)})["r1"]
+    assert "[@fake/r1] @fake/r1 is recovering from an interrupted release since 2026-11-23T10:00:00Z; waiting" in caplog.text
+    assert len(commands) == 1 and "payloadctl apply" in commands[0]  # the release waits on the robot, bounded
+
+
+def test_the_payload_is_checked_after_a_docker_restart_this_run_caused():
+    """A daemon.json Docker accepts (a new data-root) can lose the running
+    payload: the release is checked, and made again, in that same run
+    (issue 17, item 10)."""
+    snap = converged("robots", ROBOT, "debian-13")
+    data = {**ROBOT, "docker_daemon_options": {"live-restore": True, "data-root": "/srv/docker"}}
+    commands = plan({"r1": ("robots", data, snap)})["r1"]
+    assert len(commands) == 2
+    assert "daemon.json" in commands[0] and "systemctl restart docker.service" in commands[0]
+    assert "payloadctl apply" in commands[1] and "--restart" not in commands[1]
+    assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []  # no restart, no check

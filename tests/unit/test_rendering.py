@@ -224,8 +224,8 @@ def test_key_fingerprint_pin_with_real_gpg(tmp_path):
     assert list(dest.parent.iterdir()) == []
     right = subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(url, str(dest), fingerprint, None))], capture_output=True, text=True)
     assert right.returncode == 0, right.stderr
-    probe = subprocess.run(["sh", "-c", aptrepo.fingerprints_probe(str(dest))], capture_output=True, text=True)
-    assert probe.stdout.split() == [fingerprint]
+    probe = subprocess.run(["sh", "-c", aptrepo.key_probe(str(dest), fingerprint)], capture_output=True, text=True)
+    assert aptrepo.installed_key(probe.stdout) == aptrepo.InstalledKey((fingerprint,), canonical=True)
 
 
 def test_a_stalled_probe_is_cut_off_and_the_snapshot_still_answers(monkeypatch):

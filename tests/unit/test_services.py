@@ -211,7 +211,7 @@ def test_refusals_that_need_the_whole_project():
     assert fleet_problems(host_with(payload_services=two_names)) == [
         "robots.yaml: robot3.payload_services.b.container_name: 'ros' is also the container_name of service a"]
     assert fleet_problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "container_name": "old"}},
-                              payload_replaces=["old"])) == [
+                              payload_replaces=["container:old"])) == [
         "robots.yaml: robot3.payload_services.a.container_name: 'old' is listed in payload_replaces: "
         "the takeover would stop this project's own container"]
     assert fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_services={"a": {"image": f"{REG}/a:1"}})) == [
@@ -281,12 +281,41 @@ FOREIGN = "\n".join([
 
 
 def test_foreign_containers_are_found_by_repository_name_or_project():
-    found = project.foreign(FOREIGN, "robot-payload", [f"{REG}/ros/payload"], ["rosapp"])
+    takeover = {"primary": f"{REG}/ros/payload", "container": [], "project": ["rosapp"]}
+    found = project.foreign(FOREIGN, "robot-payload", takeover)
     assert [(c["name"], c["restart"], c["running"], c["project"]) for c in found] == [
         ("ros_payload", "always", True, None), ("old_bridge", "always", False, "rosapp")]
-    assert project.takeover_line(found[:1]) == (
+    assert project.takeover_line(found) == (
         "payload: taking over what runs the payload another way (stopped, restart policy no): "
-        f"ros_payload ({REG}/ros/payload:1.0, running, restart always)")
+        f"ros_payload ({REG}/ros/payload:1.0, running, restart always: it runs the payload's image); "
+        f"old_bridge (compose project rosapp, {REG}/other/bridge:1, stopped, restart always: "
+        "payload_replaces names its compose project)")
+
+
+def test_another_projects_container_of_a_common_image_is_left_alone():
+    """A service of ours using a common image (a broker) must not stop the
+    broker of another compose project on the robot (issue 17, item 3)."""
+    broker = f"{REG}/lib/mosquitto:2"
+    probe = "\n".join([
+        probe_line("f" * 64, "/homeauto-broker-1", broker, "homeauto", "true", "always"),
+        probe_line("a" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "%!s(<nil>)", "true", "always"),
+    ])
+    data = merged("robots", {"payload_image": None, "payload_services": {
+        "payload": {"image": f"{REG}/ros/payload:1.1"}, "broker": {"image": broker}}})
+    found = project.foreign(probe, "robot-payload", project.takeover_of(data))
+    assert [c["name"] for c in found] == ["ros_payload"]
+    named = merged("robots", {**data, "payload_replaces": ["container:homeauto-broker-1"]})
+    assert [c["name"] for c in project.foreign(probe, "robot-payload", project.takeover_of(named))] == [
+        "homeauto-broker-1", "ros_payload"]
+
+
+@pytest.mark.parametrize("entry, line", [
+    ("old", "robots.yaml: robot3.payload_replaces[0]: 'old' could be a container or a compose project: "
+            "write container:old or project:old"),
+    ("image:old", "robots.yaml: robot3.payload_replaces[0]: expected container:NAME or project:NAME, got 'image:old'"),
+])
+def test_payload_replaces_tells_containers_from_compose_projects(entry, line):
+    assert fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_replaces=[entry])) == [line]
 
 
 def test_a_converged_robot_with_a_foreign_payload_container_releases_and_says_so(caplog):
@@ -339,3 +368,31 @@ def test_a_service_s_values_reach_the_container_verbatim():
     service = doc["services"]["a"]
     assert service["command"] == ["sh", "-c", "echo $$HOME"]
     assert service["environment"]["PS1"] == "$$ " and service["environment"]["X"] == "a$$b"
+
+
+@pytest.mark.parametrize("service, field, what", [
+    ({"cap_add": ["SYS_NICE", "ALL"]}, "cap_add[1]", "cap_add ALL"),
+    ({"cap_add": ["sys_admin"]}, "cap_add[0]", "cap_add sys_admin"),
+    ({"pid": "host"}, "pid", "pid: host"),
+    ({"userns_mode": "host"}, "userns_mode", "userns_mode: host"),
+    ({"security_opt": ["seccomp=unconfined"]}, "security_opt[0]", "security_opt seccomp=unconfined"),
+    ({"volumes": ["/var/run/docker.sock:/var/run/docker.sock"]}, "volumes[0]", "mounting /var/run/docker.sock"),
+    ({"volumes": [{"type": "bind", "source": "/run/docker.sock", "target": "/d.sock"}]}, "volumes[0]", "mounting /run/docker.sock"),
+    ({"volumes": ["/:/host:ro"]}, "volumes[0]", "mounting /"),
+])
+def test_keys_that_hand_a_container_the_robot_are_refused_like_privileged(service, field, what):
+    """The gate is a guard against mistakes, not a boundary (the fleet file is
+    trusted): the same opt-in as privileged (issue 17, item 11)."""
+    lines = fleet_problems(host_with(payload_services={"drv": {"image": f"{REG}/a:1", **service}}))
+    assert lines == [f"robots.yaml: robot3.payload_services.drv.{field}: {what} gives the container root on the "
+                     "robot: refused unless payload_allow_privileged is true"]
+    assert fleet_problems(host_with(payload_services={"drv": {"image": f"{REG}/a:1", **service}},
+                                    payload_allow_privileged=True)) == []
+
+
+def test_the_single_image_payload_cannot_mount_the_docker_socket_either():
+    lines = fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_volumes=["/var/run/docker.sock:/d.sock"]))
+    assert lines == ["robots.yaml: robot3.payload_volumes[0]: mounting /var/run/docker.sock gives the container root "
+                     "on the robot: refused unless payload_allow_privileged is true"]
+    assert fleet_problems(host_with(payload_services={"drv": {"image": f"{REG}/a:1", "cap_add": ["SYS_NICE"],
+                                                               "volumes": ["/var/lib/maps:/maps"]}})) == []

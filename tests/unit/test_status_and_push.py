@@ -1,8 +1,12 @@
 """Pure parts of the status table and of layer-aware push delivery."""
 
 import io
+import re
+import subprocess
 import json
 import tarfile
+
+import pytest
 
 from engine import roster
 from engine.commands import status
@@ -86,3 +90,29 @@ def test_status_shows_the_gpu_driver_version_and_the_runtime(tmp_path):
     assert broken["gpu_runtime"] is False
     text = status.table([cells], status.columns(roles()))
     assert text.splitlines()[1].split()[-3:] == ["550.54.14", "yes", "-"]  # then ROLLOUT
+
+
+@pytest.mark.parametrize("payload", ["$(touch %s)", "`touch %s`", '"; touch %s; echo "', "'; touch %s; echo '"])
+def test_a_hostile_image_name_in_the_push_log_is_never_run(tmp_path, payload):
+    """Issue 17 item 5: the image name (and the rest of the log line) reaches
+    the robot's shell as data.  The real command runs in a real sh; only
+    `docker load` is a stand-in that reads the archive off stdin."""
+    pwned = tmp_path / "pwned"
+    image = "reg.lan/ros/payload:1.0" + payload % pwned
+    archive = tmp_path / "image.tar.gz"
+    archive.write_bytes(b"not really an image")
+    bindir = tmp_path / "bin"
+    bindir.mkdir()
+    (bindir / "docker").write_text('#!/bin/sh\n[ "$1 $2" = "load -q" ] && exec cat >/dev/null\nexit 2\n')
+    (bindir / "docker").chmod(0o755)
+    log_dir = tmp_path / "payload dir"
+    command = push.load_command(str(archive), log_dir=str(log_dir), image=image, image_id="sha256:" + "a" * 64,
+                                figures={"sent": 10, "full": 20, "layers": 1, "skipped": 0})
+    proc = subprocess.run(["sh", "-c", command.get_raw_value()], input="".join(command.connector_arguments["_stdin"]),
+                          capture_output=True, text=True, env={"PATH": f"{bindir}:/usr/bin:/bin"}, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert not pwned.exists(), "the image name ran as a command"
+    (line,) = (log_dir / "push.log").read_text().splitlines()
+    stamp, logged = line.split(" ", 1)
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", stamp)
+    assert logged == f"{image} sha256:{'a' * 64} sent 10 of 20 bytes, 1 of 1 layers"

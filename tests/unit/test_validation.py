@@ -186,3 +186,12 @@ def test_local_inventory_is_this_laptop_from_the_fleet_file():
     assert "[@local]" in proc.stderr + proc.stdout and '"x11_user": "alice"' in proc.stderr + proc.stdout
     proc = _pyinfra("inventories/local.py", "debug-inventory", env={"ROBOT_FLEET_HOST": "nobody"})
     assert proc.returncode == 2 and "no laptop named 'nobody' (laptops: alice-laptop)" in proc.stderr
+
+
+@pytest.mark.parametrize("path", ["/var/run/lock/robot.lock", "/var/lock/x", "/run/shm/x", "/var/run/shm/x",
+                                  "/run/user/1000/payload", "/var/run/user/1000/x"])
+def test_world_writable_directories_are_refused_under_their_other_names(path):
+    """/var/run is /run on Debian and Ubuntu: /var/run/lock is the 1777 /run/lock."""
+    lines = fleet_problems(robot(payload_lock_file=path))
+    assert len(lines) == 1 and "is in the world-writable" in lines[0], lines
+    assert fleet_problems(robot(payload_lock_file="/var/run/robot-payload/update.lock")) == []

@@ -159,3 +159,27 @@ def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
     errors = {"r2": "Could not connect (timed out)"}
     assert judge_wave(["r2"], None, {"r2": {"reachable": True}}, errors, {"r2": {"payload": ["i:2"]}}, False)[2] == {
         "r2": "unreachable: Could not connect (timed out)"}
+
+
+def test_the_state_file_is_written_without_following_anything_planted(tmp_path):
+    """The temp file beside the state had a predictable name: a symlink
+    planted there made the rollout write through it (issue 17, item 9)."""
+    path = str(tmp_path / ".rollout" / "k.json")
+    os.makedirs(tmp_path / ".rollout")
+    victim = tmp_path / "victim"
+    victim.write_text("precious\n")
+    os.symlink(victim, f"{path}.{os.getpid()}.tmp")
+    waves.save_state(path, {"key": "k"})
+    assert victim.read_text() == "precious\n"
+    assert waves.load_state(path) == {"key": "k"}
+
+
+def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_path):
+    path = str(tmp_path / ".rollout" / "k.json")
+    with waves.held(path):
+        with pytest.raises(waves.RolloutBusy) as busy:
+            with waves.held(path):
+                pass
+        assert str(busy.value).startswith(f"another rollout of this fleet is running (pid {os.getpid()} since 20")
+    with waves.held(path):  # free again once the first is done
+        pass

@@ -1,9 +1,9 @@
-"""Docker image references: parsing and the pinning policy (pure)."""
-
-from __future__ import annotations
+"""Docker image references: the distribution spec's grammar and the
+pinning policy (pure; the deploy side checks the fleet file with it, the
+robot side pins and compares references with it)."""
 
 import re
-from dataclasses import dataclass
+from typing import NamedTuple, Optional
 
 _COMPONENT = r"[a-z0-9]+(?:(?:[._]|__|-+)[a-z0-9]+)*"
 _DOMAIN = r"(?:[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]*[A-Za-z0-9])?)*(?::[0-9]+)?)"
@@ -23,11 +23,10 @@ def _shown(text) -> str:
     return shown if len(shown) <= 80 else shown[:75] + "...'"
 
 
-@dataclass(frozen=True)
-class ImageRef:
+class ImageRef(NamedTuple):
     repository: str  # including the registry, if any
-    tag: str | None
-    digest: str | None
+    tag: Optional[str]
+    digest: Optional[str]
 
     @property
     def registry(self) -> str:
@@ -61,7 +60,16 @@ def parse(text: str) -> ImageRef:
     return ImageRef(repository, match.group("tag"), match.group("digest"))
 
 
-def pinning_problem(text: str, allow_latest: bool) -> str | None:
+def repository(text: str) -> str:
+    """The repository of a reference (registry included), or the text itself
+    where it is not a valid reference (an image id)."""
+    try:
+        return parse(text).repository
+    except ValueError:
+        return text
+
+
+def pinning_problem(text: str, allow_latest: bool) -> Optional[str]:
     """Why ``text`` is not an acceptable payload image, or None."""
     try:
         ref = parse(text)

@@ -1,0 +1,21 @@
+"""payloadctl: releases of this robot's payload, run on the robot itself.
+
+A release is a directory releases/<id>/ holding compose.yaml (images pinned
+by digest where the registry gave one), spec.json (what the deploy asked
+for) and record.json (its state).  `current` and `previous` are symlinks;
+the systemd unit runs `current`.  `apply` runs on the robot (started by the
+deploy as a transient systemd unit), so a dropped SSH link cannot leave the
+robot half-switched:
+
+  download first -> switch -> wait healthy -> keep, or switch back.
+
+Modules by concern: durable (files that survive a power cut), spec (what a
+release is, its states), releases (the store), imageref and images (image
+references, pulls), health (is it running well), lock (one deploy at a
+time, the update lock), recovery (boot), takeover (containers set up another
+way), apply and rollback, results, status, cli.  The deploy side imports
+imageref, spec and takeover, so each rule is written once.
+
+Standard library only, Python >= 3.8 (Ubuntu 20.04).  Shipped to the robot
+as one zip application (roles/payload/robot.py builds it).
+"""

@@ -1,0 +1,60 @@
+"""The release's images on this robot: pulled (bounded, while the old
+release keeps running) or already pushed, then pinned by digest."""
+
+import json
+import subprocess
+import time
+
+from . import imageref
+from .system import Failure, run
+
+
+def image_info(ref):
+    proc = run(["docker", "image", "inspect", ref], check=False, timeout=60)
+    if proc.returncode != 0:
+        return None
+    data = json.loads(proc.stdout)[0]
+    return {"id": data["Id"], "repo_digests": data.get("RepoDigests") or []}
+
+
+def pull(ref, timeout):
+    """docker pull, three tries, all within `timeout` seconds; the error text."""
+    deadline = time.time() + timeout
+    last = ""
+    for attempt in range(3):
+        left = deadline - time.time()
+        if left <= 0:
+            break
+        try:
+            proc = run(["docker", "pull", "-q", ref], check=False, timeout=left)
+        except subprocess.TimeoutExpired:
+            raise Failure(
+                "docker pull {} did not finish within {} s (payload_pull_timeout); "
+                "the old release keeps running".format(ref, timeout)
+            )
+        if proc.returncode == 0:
+            return None
+        last = (proc.stderr or proc.stdout).strip()[-300:]
+        time.sleep(min(2 * (attempt + 1), max(0, deadline - time.time())))
+    return last or "gave up after {} s (payload_pull_timeout)".format(timeout)
+
+
+def obtain(ref, delivery, pull_timeout):
+    """Make the image present, pulling while the old release keeps running."""
+    if delivery == "pull":
+        error = pull(ref, pull_timeout)
+        if error is not None and image_info(ref) is None:
+            raise Failure("cannot pull {}: {}; the old release keeps running".format(ref, error))
+    info = image_info(ref)
+    if info is None:
+        raise Failure("image {} is not on this robot (delivery: {})".format(ref, delivery))
+    return info
+
+
+def pinned(ref, info):
+    """``ref`` by the digest its registry gave, where it gave one."""
+    repo = imageref.repository(ref)
+    for digest_ref in info["repo_digests"]:
+        if imageref.repository(digest_ref) == repo:
+            return digest_ref
+    return ref

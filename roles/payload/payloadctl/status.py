@@ -1,0 +1,37 @@
+"""What runs on this robot, for the fleet status table (one JSON line)."""
+
+import json
+
+from . import health
+from .lock import update_lock_holder
+from .releases import Releases
+from .system import run
+
+
+def service_states(name):
+    """service -> image, state, health, restarts of the project's containers."""
+    found = {}
+    for c in health.inspect_containers(health.project_containers(name)):
+        service = (c["Config"].get("Labels") or {}).get("com.docker.compose.service", c["Name"].lstrip("/"))
+        found[service] = {"image": c["Config"].get("Image"), "state": c["State"].get("Status"),
+                          "health": (c["State"].get("Health") or {}).get("Status"), "restarts": c.get("RestartCount", 0)}
+    return found
+
+
+def report(root, name, lock_file):
+    releases = Releases(root)
+    current, previous = releases.pointer("current"), releases.pointer("previous")
+    version = run(["docker", "version", "-f", "{{.Server.Version}}"], check=False, timeout=60).stdout.strip()
+    return {
+        "docker_version": version or None,
+        "current": releases.record(current) if current else None,
+        "previous": releases.record(previous) if previous else None,
+        "containers": health.states(name),
+        "update_lock": update_lock_holder(lock_file) if lock_file else None,
+        "services": service_states(name),
+    }
+
+
+def show(root, name, lock_file):
+    print(json.dumps(report(root, name, lock_file), sort_keys=True))
+    return 0
