@@ -1,5 +1,6 @@
 """The operator commands:
 
+    python3 -m engine enroll INVENTORY [--limit ...] [--fingerprints FILE] [--yes]   # robots' host keys, first
     python3 -m engine status INVENTORY [--limit ...] [--json]
     python3 -m engine rollout INVENTORY [deploy.py] [--canary 1 --batch 25% --max-failed 10%] [-y]
     python3 -m engine generate      # inventories/fleet.schema.json and docs/settings.md from the roles
@@ -9,9 +10,9 @@ from __future__ import annotations
 
 import sys
 
-from engine.commands import generate, rollout, status
+from engine.commands import enroll, generate, rollout, status
 
-COMMANDS = {"status": status.main, "rollout": rollout.main, "generate": generate.main}
+COMMANDS = {"enroll": enroll.main, "status": status.main, "rollout": rollout.main, "generate": generate.main}
 
 
 def main(argv: list[str]) -> int:

@@ -19,9 +19,9 @@ Checker = Callable[[Any], list[Problem]]
 
 
 class Misread:
-    """A scalar YAML 1.1 read as something other than what was written: a
-    key (``010`` is the number 8, ``no`` is false) or a number written in a
-    way YAML changes (``0755`` is 493, ``12:30`` is 750, ``1.10`` is 1.1).
+    """A scalar YAML read as something other than what was written: a key
+    (``010`` is the number 10, ``true`` a boolean) or a number written in a
+    way YAML changes (``0755`` is 755, ``1.10`` is 1.1, ``0x1F`` is 31).
     Kept with its text so a check can say "quote it" instead of silently
     renaming a host or changing a value."""
 
@@ -73,8 +73,8 @@ def describe(value: Any) -> str:
 
 
 def _not_text(value: Any) -> bool:
-    """YAML 1.1 reads some unquoted text as another type: no -> false,
-    1.10 -> 1.1, 0755 -> 493, 12:30 -> 750, 2026-01-02 -> a date."""
+    """YAML reads some unquoted text as another type: true -> a boolean,
+    1.10 -> 1.1, 0755 -> 755, 0x1F -> 31."""
     return isinstance(value, (bool, int, float, datetime.date)) or isinstance(value, Misread)
 
 
@@ -262,20 +262,20 @@ def size_problem(value, limit: int = MAX_JSON_VALUES) -> list[Problem]:
 
 
 def text(value):
-    """An environment variable value: a string (YAML 1.1 would silently
-    change NO, 1.10, 0755 or 12:30 on the way; quoted, nothing changes)."""
+    """An environment variable value: a string (YAML would silently change
+    true, 1.10 or 0755 on the way; quoted, nothing changes)."""
     if isinstance(value, str):
         if "\x00" in value:
             return [("", "NUL characters cannot be in an environment value")]
         return []
     if isinstance(value, bool):
-        return [("", f"expected a string, got {describe(value)}; quote it (YAML reads an unquoted no/yes/on/off as a boolean)")]
+        return [("", f"expected a string, got {describe(value)}; quote it (YAML reads an unquoted true/false as a boolean)")]
     if _not_text(value):
         return [("", expected_string(value))]
     return [("", f"expected a string, got {describe(value)}")]
 
 
-text.schema = {"type": "string", "description": "a string: quote values YAML would read as something else"}
+text.schema = {"type": "string", "pattern": "^[^\\x00]*$", "description": "a string: quote values YAML would read as something else"}
 
 
 # Patterns shared by several settings.

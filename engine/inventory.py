@@ -7,10 +7,13 @@ import os
 import sys
 from pathlib import Path
 
-from engine import roster
+import click
+
+from engine import connect, roster
+from engine.commands import hosts as selection
 from engine.fleet.check import Fleet, FleetError, display_path, load, parse
 
-__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "refuse"]
+__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse"]
 
 
 def refuse(lines: list[str]) -> None:
@@ -26,10 +29,16 @@ def _refuse_fleet(error: FleetError) -> None:
     refuse(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
 
 
+def _noted(fleet: Fleet) -> Fleet:
+    for note in fleet.notes:
+        print(note, file=sys.stderr)
+    return fleet
+
+
 def load_or_exit(path: Path) -> Fleet:
     """The fleet file at ``path``, or its problems printed and exit 2."""
     try:
-        return load(path, roster.registry())
+        return _noted(load(path, roster.registry()))
     except FleetError as error:
         _refuse_fleet(error)
 
@@ -37,6 +46,32 @@ def load_or_exit(path: Path) -> Fleet:
 def parse_or_exit(text: str | bytes, shown: str) -> Fleet:
     """Fleet YAML ``text`` (named ``shown`` in problem lines), or exit 2."""
     try:
-        return parse(text, shown, roster.registry())
+        return _noted(parse(text, shown, roster.registry()))
     except FleetError as error:
         _refuse_fleet(error)
+
+
+def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
+    """The groups an inventory file hands pyinfra: robots and laptops with
+    each host's data, and the fleet file's other groups (Ansible's) as host
+    names, so --limit takes them too.  Every host connects through
+    engine/connect.py (``@fleet/<name>``); ``inventory`` is the inventory
+    file (its __file__), named in the command that enrolls a host key."""
+    connect.names([], inventory)
+    _refuse_unmatched_limits(fleet, inventory)
+    groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}
+    return {**groups, **{name: connect.names(hosts) for name, hosts in fleet.groups.items()}}
+
+
+def _refuse_unmatched_limits(fleet: Fleet, inventory: str) -> None:
+    """pyinfra's CLI only warns about a --limit or --exclude that matches no
+    host, and exits 0 having done nothing: refuse it before connecting."""
+    context = click.get_current_context(silent=True)
+    if context is None:
+        return
+    names = [name for hosts in fleet.groups.values() for name, _ in hosts]
+    groups = {Path(inventory).stem, *(g for g, hosts in fleet.groups.items() if hosts), *fleet.subgroups}
+    for option in ("limit", "exclude"):
+        problem = selection.refusal(list(context.params.get(option) or ()), display_path(Path(inventory)), names, groups)
+        if problem:
+            refuse([problem if option == "limit" else problem.replace("--limit", "--exclude", 1)])

@@ -4,7 +4,6 @@ a host, paths on this machine, OpenPGP fingerprints.  Each is a checker
 
 from __future__ import annotations
 
-import ipaddress
 import posixpath
 import re
 
@@ -37,9 +36,33 @@ def canonical(path: str) -> str:
                 changed = True
     return normal
 _DOTTED_NUMBERS = re.compile(r"[0-9.]+")
-_SCOPE = re.compile(r"[A-Za-z0-9_.-]{1,15}", re.ASCII)
 _HOST_PORT = re.compile(r"([^:\s\[\]]+|\[[^\]]*\]):([0-9]+)")
-_DNS_NAME = re.compile(r"(?=.{1,253}\.?$)[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?(?:\.[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?)*\.?", re.ASCII)
+_LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
+# A DNS name whose last label is not all digits (1.2.3.300 is a bad IPv4 address, not a name).
+DNS_NAME = rf"(?=.{{1,253}}$|.{{1,253}}\.$)(?:{_LABEL}\.)*(?![0-9]+\.?$){_LABEL}\.?"
+_OCTET = r"(?:25[0-5]|2[0-4][0-9]|1[0-9]{2}|[1-9]?[0-9])"
+IPV4 = rf"(?:{_OCTET}\.){{3}}{_OCTET}"
+_H = r"[0-9A-Fa-f]{1,4}"
+# RFC 4291 text forms: eight groups, one :: standing for one or more zero
+# groups, an IPv4 address as the last 32 bits; a zone (%eth0) may follow.
+_V6_LAST = rf"(?:{_H}:{_H}|{IPV4})"  # the last 32 bits: two groups or an IPv4 address
+
+
+def _after_gap(groups: int) -> str:
+    """At most ``groups`` groups after '::' (an IPv4 address counts two)."""
+    options = [rf"(?:{_H}:){{0,{groups - 1}}}{_H}"] + ([rf"(?:{_H}:){{0,{groups - 2}}}{_V6_LAST}"] if groups >= 2 else [])
+    return "(?:" + "|".join(options) + ")?"
+
+
+IPV6_NO_ZONE = (
+    rf"(?:(?:{_H}:){{6}}{_V6_LAST}"
+    rf"|::{_after_gap(7)}"
+    + "".join(rf"|(?:{_H}:){{{before}}}{_H}::{_after_gap(6 - before)}" for before in range(6))
+    + rf"|(?:{_H}:){{6}}{_H}::)"
+)
+IPV6 = IPV6_NO_ZONE + r"(?:%[0-9A-Za-z._~-]+)?"
+ADDRESS = rf"{IPV4}|{IPV6}|{DNS_NAME}"
+_ADDRESS = re.compile(ADDRESS, re.ASCII)
 
 url = c.string(URL, URL_WHAT)
 user_name = c.string(c.USER_NAME, "a user name")
@@ -49,18 +72,11 @@ file_name = c.string(r"[A-Za-z0-9][A-Za-z0-9_.-]*", "a file name")
 
 
 def address(value):
-    """A host name, an IPv4 or an IPv6 address (what SSH connects to)."""
+    """A host name, an IPv4 or an IPv6 address (what SSH connects to): the
+    verdict is ADDRESS, the schema's pattern; the rest says why not."""
     if not isinstance(value, str):
         return [("", c.expected_string(value, "a host name or an IP address"))]
-    try:
-        parsed = ipaddress.ip_address(value)
-    except ValueError:
-        pass
-    else:
-        # Python takes anything after % as an IPv6 scope, newlines included.
-        scope = getattr(parsed, "scope_id", None)
-        if scope is not None and not _SCOPE.fullmatch(scope):
-            return [("", f"expected an IPv6 scope of letters, digits and . _ - after %, got {c.shown(value)}")]
+    if _ADDRESS.fullmatch(value):
         return []
     if value.startswith("[") and value.endswith("]"):
         return [("", f"expected an IPv6 address without brackets, got {c.shown(value)}")]
@@ -69,17 +85,23 @@ def address(value):
         return [("", f"expected a host name or an IP address, got {c.shown(value)}; put the port in ssh_port: {host_port.group(2)}")]
     if _DOTTED_NUMBERS.fullmatch(value):
         return [("", f"{c.shown(value)} is not a valid IPv4 address")]
-    if not _DNS_NAME.fullmatch(value) or value.rstrip(".").rsplit(".", 1)[-1].isdigit():
-        return [("", f"expected a host name or an IP address, got {c.shown(value)}")]
-    return []
+    return [("", f"expected a host name or an IP address, got {c.shown(value)}")]
+
+
+# Characters that do not print as themselves: C0 and C1 controls, spaces
+# other than the space, zero-width and direction-changing marks, line and
+# paragraph separators, the byte-order mark.
+_UNPRINTED = "\\x00-\\x1f\\x7f-\\xa0\\u1680\\u180e\\u2000-\\u200f\\u2028-\\u202f\\u205f-\\u206f\\u3000\\ufeff"
+LOCAL_PATH = f"[^{_UNPRINTED}]+"
+_LOCAL_PATH = re.compile(LOCAL_PATH)
 
 
 def local_path(value):
     """A file on the operator's machine (never sent to a host): any path
-    that prints as itself (no control or direction-changing characters)."""
+    that prints as itself (no control, invisible or direction-changing characters)."""
     if not isinstance(value, str):
         return [("", c.expected_string(value, "a path on this machine"))]
-    if not value or not value.isprintable():
+    if not _LOCAL_PATH.fullmatch(value):
         return [("", f"expected a path on this machine of printable characters, got {c.shown(value)}")]
     return []
 
@@ -127,13 +149,17 @@ def _spellings() -> list[str]:
         found |= more
 
 
-_path_schema = {"type": "string", "pattern": c.json_pattern(c.ABS_PATH), "description": "an absolute path without '..'"}
-c.with_schema(address, {"type": "string", "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)"})
+_SEP = r"/(?:\.?/)*"  # what normpath reads as one slash: //, /./
+_path_schema = {"type": "string", "pattern": c.json_pattern(c.ABS_PATH), "not": {"pattern": "(?:^|/)\\.\\.(?:/|$)"},
+                "description": "an absolute path without '..'"}
+c.with_schema(address, {"type": "string", "pattern": c.json_pattern(ADDRESS),
+                        "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)"})
 c.with_schema(abs_path, _path_schema)
-c.with_schema(local_path, {"type": "string", "description": "a path on this machine"})
+c.with_schema(local_path, {"type": "string", "pattern": c.json_pattern(LOCAL_PATH), "description": "a path on this machine"})
 c.with_schema(private_path, {
     **_path_schema,
-    "not": {"pattern": "^/+(?:" + "|".join(w.lstrip("/") for w in _spellings()) + ")(?:/|$)"},
+    "not": {"anyOf": [_path_schema["not"], {"pattern": "^" + _SEP + "(?:" + "|".join(
+        w.lstrip("/").replace("/", _SEP) for w in _spellings()) + ")(?:/|$)"}]},
     "description": "an absolute path outside world-writable directories (/tmp, /var/tmp, /dev/shm, ...)",
 })
 c.with_schema(fingerprint, {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$", "description": "a 40-digit hex OpenPGP fingerprint"})

@@ -4,14 +4,15 @@ Hosts and settings come from lab.yaml (or $ROBOT_LAB_FLEET); the running lab
 (.lab/<prefix>/state.json, prefix from $ROBOT_LAB_PREFIX, default "lab")
 supplies the SSH ports, the lab key and known_hosts, the registry and the
 Docker CE mirror.  Host keys are checked strictly against the lab's
-known_hosts, like a real fleet.
+known_hosts, like a real fleet ($ROBOT_LAB_KNOWN_HOSTS names another file:
+first contact starts from an empty one, tests/e2e/test_enroll.py).
 """
 
 import json
 import os
 from pathlib import Path
 
-from engine.inventory import parse_or_exit, refuse
+from engine.inventory import parse_or_exit, pyinfra_groups, refuse
 
 _ROOT = Path(__file__).resolve().parent.parent
 _PREFIX = os.environ.get("ROBOT_LAB_PREFIX", "lab")
@@ -58,15 +59,15 @@ def _load():
                 ssh_port=ports[name],
                 ssh_user=state.get("ssh_user", "ops"),
                 ssh_key=state["ssh_key"],
-                ssh_known_hosts_file=state["known_hosts"],
+                ssh_known_hosts_file=os.environ.get("ROBOT_LAB_KNOWN_HOSTS") or state["known_hosts"],
                 ssh_strict_host_key_checking="yes",
                 ssh_allow_agent=False,
                 ssh_look_for_keys=False,
             )
             groups[group].append((name, data))
-    return groups
+    fleet.groups = groups
+    fleet.subgroups = {group: [h for h in hosts if h in ports] for group, hosts in fleet.subgroups.items()}
+    return fleet
 
 
-_groups = _load()
-robots = _groups["robots"]
-laptops = _groups["laptops"]
+globals().update(pyinfra_groups(_load(), __file__))

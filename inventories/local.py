@@ -11,7 +11,7 @@ passes it to every sudo command in that command's own argument list
 moment (ps, /proc/<pid>/cmdline; measured by tests/bench/sudo_password.py).
 On a laptop other people log in to, give the deploying user passwordless
 sudo for the run and take it back after, or mount /proc with hidepid=2 (see
-README, Security notes); on a single-user laptop the exposure is to yourself.
+docs/security.md, --use-sudo-password); on a single-user laptop the exposure is to yourself.
 """
 
 import os

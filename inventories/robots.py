@@ -5,9 +5,9 @@ before pyinfra connects anywhere."""
 import os
 from pathlib import Path
 
-from engine.inventory import load_or_exit
+from engine.inventory import load_or_exit, pyinfra_groups
 
 _fleet = load_or_exit(Path(os.environ.get("ROBOT_FLEET") or Path(__file__).with_suffix(".yaml")))
 
-robots = _fleet.hosts("robots")
-laptops = _fleet.hosts("laptops")
+# robots, laptops and the file's other groups (e.g. Ansible's children)
+globals().update(pyinfra_groups(_fleet, __file__))

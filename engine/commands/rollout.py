@@ -16,7 +16,6 @@ the robots not yet on the new release.  See README "Rollouts in waves".
 from __future__ import annotations
 
 import argparse
-import fnmatch
 import json
 import os
 import shlex
@@ -24,26 +23,22 @@ import subprocess
 import sys
 import tempfile
 
-from engine import roster
+from engine import connect, roster
+from engine.commands import hosts as selection
 from engine.commands import status, waves
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
 
 def selected_hosts(inventory_path: str, limits: list[str]) -> list[tuple[str, object]]:
-    """(name, host data) of the inventory's hosts matching --limit (a group
-    or a host name pattern, like pyinfra), in inventory order."""
-    from pyinfra.api import State
-    from pyinfra.context import ctx_state
-    from pyinfra_cli.inventory import make_inventory
-
-    with ctx_state.use(State()):
-        inventory = make_inventory(inventory_path, cwd=os.getcwd())
-    return [
-        (h.name, h.data)
-        for h in inventory
-        if not limits or any(fnmatch.fnmatch(h.name, p) or p in h.groups for p in limits)
-    ]
+    """(name, host data) of the hosts a rollout targets, in inventory order:
+    the robots, or what --limit names (a group or a host name pattern, like
+    pyinfra; laptops only when asked for).  Raises selection.Refused."""
+    inventory = selection.inventory(inventory_path)
+    hosts = selection.select(inventory, inventory_path, limits)
+    if not limits:
+        hosts = [h for h in hosts if "robots" in h.groups]
+    return [(h.name, h.data) for h in hosts]
 
 
 def read_status(inventory: str, hosts: list[str]) -> dict[str, dict]:
@@ -102,12 +97,14 @@ def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str)
     return results, errors
 
 
-CONNECT_ERRORS = ("Could not connect", "Authentication error", "Host key")
+# The connector's reasons, and pyinfra's own (hosts of an inventory that does
+# not go through engine/connect.py).
+CONNECT_ERRORS = connect.REASONS + ("Could not connect", "Authentication error", "SSH host key error", "SSH error")
 
 
 def is_error_line(message: str) -> bool:
     payload_failed = message.startswith("payload:") and ("failed" in message or "refused" in message)
-    return payload_failed or "Error" in message or any(e in message for e in CONNECT_ERRORS)
+    return payload_failed or "Error" in message or message.startswith(CONNECT_ERRORS)
 
 
 def judge_wave(hosts, results, rows, errors, targets, unreachable_fails, roles=None):
@@ -116,7 +113,7 @@ def judge_wave(hosts, results, rows, errors, targets, unreachable_fails, roles=N
     it printed per host, and the robots' release records (pure)."""
     roles = roster.roles() if roles is None else roles
     op_errors = {h for op in (results or {}).get("operations", []) for h in op["error"]}
-    not_connected = {h for h, line in errors.items() if any(e in line for e in CONNECT_ERRORS)}
+    not_connected = {h for h, line in errors.items() if line.startswith(CONNECT_ERRORS)}
     if results is not None:
         not_connected |= set(results.get("failed_hosts", [])) - op_errors
     done, failed, skipped = [], {}, {}
@@ -183,10 +180,14 @@ def main(argv=None) -> int:
     extra += ["--parallel", str(args.parallel)] if args.parallel else []
     overrides = dict(pair.split("=", 1) for pair in args.data if "=" in pair)
 
-    hosts = selected_hosts(args.inventory, args.limit)
+    try:
+        hosts = selected_hosts(args.inventory, args.limit)
+    except selection.Refused as error:
+        return selection.refused(error)
     if not hosts:
-        print(f"rollout: no host of {args.inventory} matches {args.limit}", file=sys.stderr)
-        return 2
+        print(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)",
+              file=sys.stderr)
+        return selection.REFUSED
     roles = roster.roles()
     names = [name for name, _ in hosts]
     targets = {name: targets_of(roles, data, overrides) for name, data in hosts}
@@ -201,6 +202,9 @@ def main(argv=None) -> int:
     state = waves.start_run(state)
 
     rows = read_status(args.inventory, names)
+    unreachable = {h: rows[h].get("error") for h in names if not rows.get(h, {}).get("reachable")}
+    for host, why in unreachable.items():
+        print(f"rollout: [{host}] unreachable: {why}", file=sys.stderr)
     already = [h for h in names if missing(roles, rows.get(h, {}), targets[h]) is None]
     state["done"] = sorted(set(state["done"]) | set(already))
     for index, wave in enumerate(state["waves"]):
@@ -211,11 +215,17 @@ def main(argv=None) -> int:
           + ("count" if args.unreachable_fails else "are skipped"), file=sys.stderr)
 
     if args.dry:
-        todo = waves.pending(state)
+        todo = [h for h in waves.pending(state) if h not in unreachable]
+        code = selection.OK
         if todo:
             limits = [a for h in todo for a in ("--limit", h)]
-            subprocess.run([sys.executable, "-c", PYINFRA, "--dry", args.inventory, args.script, *limits, *extra])
-        return 0
+            dry = subprocess.run([sys.executable, "-c", PYINFRA, "--dry", args.inventory, args.script, *limits, *extra])
+            code = selection.FAILED if dry.returncode else code
+        if unreachable and code == selection.OK:
+            print(f"rollout: dry run incomplete: {len(unreachable)} robot(s) unreachable, not planned: "
+                  f"{', '.join(unreachable)}", file=sys.stderr)
+            code = selection.UNREACHABLE
+        return code
     if not args.yes:
         if not sys.stdin.isatty():
             print("rollout: not a terminal; pass -y to start without asking", file=sys.stderr)
@@ -230,27 +240,38 @@ def main(argv=None) -> int:
             continue
         print(f"\n--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}", file=sys.stderr)
         results, errors = deploy_wave(args.inventory, todo, extra, args.script)
-        wave_rows = read_status(args.inventory, todo)
+        # A robot the deploy could not reach is not tried again in this wave.
+        lost = {h for h, line in errors.items() if line.startswith(CONNECT_ERRORS)}
+        lost |= set((results or {}).get("failed_hosts", [])) - {h for op in (results or {}).get("operations", [])
+                                                               for h in op["error"]}
+        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost])
+        wave_rows.update({h: {"host": h, "reachable": False, "error": errors.get(h)} for h in lost})
+        rows.update(wave_rows)
         done, failed, skipped = judge_wave(todo, results, wave_rows, errors, targets, args.unreachable_fails, roles)
         state = waves.record_wave(state, index, done, failed, skipped)
         waves.save_state(path, state)
-        for host, why in {**failed, **skipped}.items():
-            print(f"rollout: [{host}] {'failed' if host in failed else 'skipped'}: {why}", file=sys.stderr)
+        for host in todo:
+            outcome = "done" if host in done else "failed" if host in failed else "skipped"
+            why = {**failed, **skipped}.get(host)
+            print(f"rollout: wave {index + 1}/{len(state['waves'])} [{host}] {outcome}" + (f": {why}" if why else ""),
+                  file=sys.stderr)
+            if why:
+                print(f"rollout: [{host}] {outcome}: {why}", file=sys.stderr)
         if state["status"] == "stopped":
             break
     waves.save_state(path, state)
 
-    rows = read_status(args.inventory, names)
     print("\n" + fleet_report(rows, state))
     print(waves.summary(state))
     if state["status"] == "complete":
-        return 0
+        return selection.OK
     reached = [h for h in state["done"] if h in {x for w in state["waves"] for x in w}]
     print(f"resume:   {resume_command(argv)}")
     if reached:
         print(f"roll back the robots it reached: pyinfra {args.inventory} rollback.py "
               + " ".join(f"--limit {h}" for h in reached))
-    return 1
+    only_skipped = state["status"] != "stopped" and not state["failed"] and state["skipped"]
+    return selection.UNREACHABLE if only_skipped else selection.FAILED
 
 
 if __name__ == "__main__":

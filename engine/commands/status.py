@@ -5,15 +5,18 @@
 One row per host, one SSH command per host: each role with a status part
 (deploy.py's roles) adds its columns, e.g. Docker's version, the current
 release, its image, container state and health, the GPU driver.
-Unreachable hosts are rows too, never an abort.
+Unreachable hosts are rows too, never an abort, with the reason in words
+(the REACHABLE column, and "error" in --json).  Hosts are asked in parallel;
+a line on stderr tells as each answers, the table follows in inventory order.
+Exit status: 0 every host answered, 1 a host answered with an error,
+2 refused (no such inventory, a --limit matching nothing), 3 a host was
+unreachable.
 """
 
 from __future__ import annotations
 
 import argparse
-import fnmatch
 import json
-import os
 import re
 import sys
 
@@ -21,6 +24,7 @@ import gevent
 
 from engine import roster
 from engine.checks import one_line
+from engine.commands import hosts as selection
 from engine.commands import waves
 
 MARK = "@@@robot-fleet-status "
@@ -92,43 +96,58 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def collect(inventory_path: str, limits: list[str], roles=None) -> list[dict]:
+def collect(inventory_path: str, limits: list[str], roles=None, answered=None) -> list[dict]:
+    """One row per host of ``inventory_path`` matching ``limits``, in
+    inventory order; ``answered(row, count, total)`` is called as each host
+    answers (or fails to).  Raises selection.Refused."""
     from pyinfra.api import Config, State
-    from pyinfra.api.connect import connect_all
-    from pyinfra.api.exceptions import PyinfraError
     from pyinfra.context import ctx_state
-    from pyinfra_cli.inventory import make_inventory
 
     roles = roster.roles() if roles is None else roles
-    with ctx_state.use(State()):
-        inventory = make_inventory(inventory_path, cwd=os.getcwd())
-    hosts = [h for h in inventory if not limits or any(
-        fnmatch.fnmatch(h.name, pattern) or pattern in h.groups for pattern in limits
-    )]
+    inventory = selection.inventory(inventory_path)
+    hosts = selection.select(inventory, inventory_path, limits)
     state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
     state.limit_hosts = hosts
     with ctx_state.use(state):
-        try:
-            connect_all(state)
-        except PyinfraError:
-            pass  # every host unreachable: each still gets its row
-        return _read_status(hosts, roles)
+        jobs = {gevent.spawn(_one, host, roles): host for host in hosts}
+        for count, job in enumerate(gevent.iwait(list(jobs)), 1):
+            if answered is not None:
+                answered(_value(job, jobs[job], roles), count, len(jobs))
+        return [_value(job, host, roles) for job, host in jobs.items()]
 
 
-def _read_status(hosts, roles) -> list[dict]:
+def _value(job, host, roles) -> dict:
+    if job.successful():
+        return job.value
+    return row(host.name, roles, None, f"status failed: {one_line(str(job.exception))[:200]}")
+
+
+def _one(host, roles) -> dict:
     from pyinfra.api.command import StringCommand
+    from pyinfra.api.exceptions import ConnectError
 
-    def one(host):
-        if not host.connected:
-            return row(host.name, roles, None, "cannot connect")
-        ok, output = host.run_shell_command(StringCommand(status_command(roles, host.data)), _sudo=True)
-        if not ok:
-            return {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]}
-        return row(host.name, roles, sections(output.stdout))
+    try:
+        host.connect(raise_exceptions=True, show_errors=False)
+    except ConnectError as error:
+        return row(host.name, roles, None, error.args[0])
+    ok, output = host.run_shell_command(StringCommand(status_command(roles, host.data)), _sudo=True)
+    if not ok:
+        return {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]}
+    return row(host.name, roles, sections(output.stdout))
 
-    jobs = [gevent.spawn(one, host) for host in hosts]
-    gevent.joinall(jobs)
-    return [job.value for job in jobs]
+
+def progress(found: dict, count: int, total: int) -> None:
+    """One line on stderr as a host answers: the operator sees the run move."""
+    state = "answered" if found["reachable"] else f"unreachable: {found.get('error')}"
+    print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
+
+
+def exit_code(rows: list[dict]) -> int:
+    if any(not r["reachable"] for r in rows):
+        return selection.UNREACHABLE
+    if any(r.get("error") for r in rows):
+        return selection.FAILED
+    return selection.OK
 
 
 def main(argv=None) -> int:
@@ -142,11 +161,11 @@ def main(argv=None) -> int:
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
     args = parser.parse_args(argv)
-    if not os.path.exists(args.inventory):
-        print(f"{args.inventory}: no such inventory file", file=sys.stderr)
-        return 2
     roles = roster.roles()
-    rows = collect(args.inventory, args.limit, roles)
+    try:
+        rows = collect(args.inventory, args.limit, roles, answered=progress)
+    except selection.Refused as error:
+        return selection.refused(error)
     rollout = waves.latest_state()
     for r in rows:
         r["rollout"] = waves.host_state(rollout, r["host"])
@@ -156,7 +175,7 @@ def main(argv=None) -> int:
         print(table(rows, columns(roles)))
         if rollout:
             print(waves.summary(rollout))
-    return 0 if all(r["reachable"] for r in rows) else 1
+    return exit_code(rows)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,13 @@
 """The fleet file: load it, check every host's data, hand pyinfra its groups.
 
-Layout of the YAML file (Ansible-inventory-like)::
-
-    all:      {vars: {...}}                 # every host
-    robots:   {vars: {...}, hosts: {robot1: {address: ..., ...}}}
-    laptops:  {vars: {...}, hosts: {...}}
-
-A host's data is the settings' defaults < all.vars < group vars < host.
+The file has the shape of an Ansible YAML inventory (engine/fleet/tree.py):
+``all``, groups with ``vars``, ``hosts`` and ``children`` at any depth; the
+``robots`` and ``laptops`` groups say which hosts are which.  A host's data
+is the settings' defaults < all.vars < the groups above it < the host.
+ansible_host, ansible_user, ansible_port and ansible_ssh_private_key_file
+are read as address, ssh_user, ssh_port and ssh_key; Ansible's other
+variables (ansible_become, ...) configure Ansible itself and are ignored
+with a note, so an Ansible inventory works as it is.
 Everything is checked before pyinfra connects anywhere; each problem is one
 line ``FILE: HOST.FIELD: message``.
 """
@@ -14,21 +15,19 @@ line ``FILE: HOST.FIELD: message``.
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from engine import checks as c
-from engine.fleet import loader
+from engine.fleet import loader, tree
 from engine.fleet.registry import Registry, setting_of
+from engine.fleet.tree import EXTENSION_PREFIX, HOST_NAME
 from engine.role import GROUPS
 
-# Top-level keys starting with x- are ignored (as in compose files): a place
-# for YAML anchors shared with merge keys, e.g. x-camera: &camera {...}.
-EXTENSION_PREFIX = "x-"
+__all__ = ["EXTENSION_PREFIX", "HOST_NAME", "Fleet", "FleetError", "check", "display_path", "load", "parse"]
 # 5,000 robots with sensors are about 1 MiB: anything far larger is a mistake.
 MAX_BYTES = 32 * 2**20
-HOST_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,62}")
+ANSIBLE_PREFIX = "ansible_"
 
 
 class FleetError(Exception):
@@ -39,7 +38,10 @@ class FleetError(Exception):
 
 @dataclass
 class Fleet:
-    groups: dict[str, list[tuple[str, dict]]] = field(default_factory=dict)
+    groups: dict[str, list[tuple[str, dict]]] = field(default_factory=dict)  # robots, laptops
+    # Every other group of the file (Ansible's), as host names, for --limit.
+    subgroups: dict[str, list[str]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
     def hosts(self, group: str) -> list[tuple[str, dict]]:
         return self.groups.get(group, [])
@@ -77,6 +79,7 @@ def parse(text: str | bytes, shown: str, registry: Registry) -> Fleet:
 
 def check(raw, shown: str, registry: Registry) -> Fleet:
     lines: list[str] = []
+    ignored: set[str] = set()
 
     def report(where: str, problems):
         for sub, message in problems:
@@ -95,88 +98,62 @@ def check(raw, shown: str, registry: Registry) -> Fleet:
     if not isinstance(raw, dict):
         lines.append(f"{shown}: expected a mapping with all/robots/laptops at the top, got {c.describe(raw)}")
         finish()
-    for key in raw:
-        if isinstance(key, str) and key.startswith(EXTENSION_PREFIX):
-            continue
-        if not isinstance(key, str) or key not in ("all",) + GROUPS:
-            lines.append(
-                f"{shown}: {c.key_name(key)}: unknown top-level key"
-                + c.did_you_mean(str(key), ("all",) + GROUPS)
-                + "; expected all, robots or laptops (or x-... for YAML anchors)"
-            )
+    groups = tree.read(raw, lines, shown)
 
-    def section(name):
-        value = raw.get(name)
-        if value is None:
-            return {}, {}
-        if not isinstance(value, dict):
-            lines.append(f"{shown}: {name}: expected a mapping with vars and hosts, got {c.describe(value)}")
-            return {}, {}
-        allowed = ("vars",) if name == "all" else ("vars", "hosts")
-        for key in value:
-            if key not in allowed:
-                lines.append(
-                    f"{shown}: {name}.{c.key_name(key)}: unknown key" + c.did_you_mean(str(key), allowed)
-                )
-        variables = value.get("vars")
-        if variables is None:
-            variables = {}
-        elif not isinstance(variables, dict):
-            lines.append(f"{shown}: {name}.vars: expected a mapping of settings, got {c.describe(variables)}")
-            variables = {}
-        hosts = value.get("hosts")
-        if hosts is None:
-            hosts = {}
-        elif not isinstance(hosts, dict):
-            lines.append(f"{shown}: {name}.hosts: expected a mapping of host name to settings, got {c.describe(hosts)}")
-            hosts = {}
-        return registry.normalize(variables), hosts
-
-    def check_vars(where: str, variables: dict) -> set[str]:
-        problems = registry.check_layer(variables)
+    def checked(where: str, layer: dict) -> tuple[dict, set[str]]:
+        """A layer's settings under their own names (aliases and Ansible's
+        names resolved), and the settings it has problems with."""
+        own = {}
+        for key in layer:
+            if isinstance(key, str) and key.startswith(ANSIBLE_PREFIX) and key not in registry.aliases:
+                ignored.add(key)
+            else:
+                own[key] = layer[key]
+        problems = registry.check_layer(own)
         report(where, problems)
-        return {setting_of(sub) for sub, _ in problems}
+        refused = {registry.aliases.get(setting_of(sub), setting_of(sub)) for sub, _ in problems}
+        named: dict = {}
+        for key, value in own.items():
+            name = registry.aliases.get(key, key) if isinstance(key, str) else key
+            if name in named:
+                report(where, [(c.key_name(key), f"sets {name} a second time in the same place; keep one")])
+                refused.add(name)
+            named[name] = value
+        return named, refused
 
-    all_vars, _ = section("all")
-    all_refused = check_vars("all.vars", all_vars)
-
-    fleet = Fleet()
-    seen: dict[str, str] = {}
-    for group in GROUPS:
-        group_vars, hosts = section(group)
-        group_refused = all_refused | check_vars(f"{group}.vars", group_vars)
-        defaults = registry.defaults(group)
-        fleet.groups[group] = []
-        for name, host_vars in hosts.items():
-            if not isinstance(name, str):
-                lines.append(f"{shown}: {c.key_name(name)}: a host name must be a string, got {c.describe(name)}; quote it")
-                continue
-            if not HOST_NAME.fullmatch(name):
-                lines.append(f"{shown}: {c.key_name(name)}: invalid host name (letters, digits, . _ -)")
-                continue
-            if name in seen:
-                lines.append(f"{shown}: {name}: declared in both {seen[name]} and {group}")
-                continue
-            seen[name] = group
-            if host_vars is None:
-                host_vars = {}
-            if not isinstance(host_vars, dict):
-                lines.append(f"{shown}: {name}: expected a mapping of settings, got {c.describe(host_vars)}")
-                continue
-            host_vars = registry.normalize(host_vars)
-            layer_problems = registry.check_layer(host_vars)
-            report(name, layer_problems)
-            refused = group_refused | {setting_of(sub) for sub, _ in layer_problems}
-            if "address" in refused:
-                refused.add("ssh_hostname")
-            data = registry.merge([all_vars, group_vars, host_vars])
-            for alias, setting in registry.aliases.items():
-                if alias in data:
-                    data[setting] = data.pop(alias)
-            merged = {**defaults, **data}
-            report(name, registry.check_host(merged, refused))
-            fleet.groups[group].append((name, data))
-
+    group_layers: dict[str, list[tuple[dict, set[str]]]] = {
+        name: [checked(f"{name}.vars", layer) for layer in group.layers] for name, group in groups.groups.items()
+    }
+    fleet = Fleet(groups={group: [] for group in GROUPS})
+    defaults = {group: registry.defaults(group) for group in GROUPS}
+    for name, listed in groups.hosts.items():
+        above = groups.above(name)
+        kinds = [group for group in GROUPS if group in above]
+        if len(kinds) > 1:
+            lines.append(f"{shown}: {name}: declared in both {' and '.join(kinds)}")
+            continue
+        if not kinds:
+            where = sorted(above - {tree.ALL}) or [tree.ALL]
+            lines.append(f"{shown}: {name}: in neither a robots nor a laptops group (groups: {', '.join(where)})"
+                         + c.did_you_mean(where[-1], GROUPS))
+            continue
+        layers, refused = [], set()
+        for group in groups.ordered(above):
+            for layer, bad in group_layers[group]:
+                layers.append(layer)
+                refused |= bad
+        for _, host_vars in listed:
+            layer, bad = checked(name, host_vars)
+            layers.append(layer)
+            refused |= bad
+        if "ssh_hostname" in refused:
+            refused.add("address")
+        data = registry.merge(layers)
+        merged = {**defaults[kinds[0]], **data}
+        report(name, registry.check_host(merged, refused))
+        fleet.groups[kinds[0]].append((name, data))
+        for group in above - {tree.ALL, *GROUPS}:
+            fleet.subgroups.setdefault(group, []).append(name)
+    if ignored:
+        fleet.notes.append(f"{shown}: note: {', '.join(sorted(ignored))}: Ansible's own, ignored here")
     return finish(fleet)
-
-

@@ -7,8 +7,15 @@ from engine import checks as c
 from engine import values as v
 from engine.role import UNSET, Setting
 
-# Keys the fleet file may use that are not settings of their own.
-ALIASES = {"address": "ssh_hostname"}
+# Keys the fleet file may use that are not settings of their own: address,
+# and the connection variables of an Ansible inventory.
+ALIASES = {
+    "address": "ssh_hostname",
+    "ansible_host": "ssh_hostname",
+    "ansible_user": "ssh_user",
+    "ansible_port": "ssh_port",
+    "ansible_ssh_private_key_file": "ssh_key",
+}
 
 SETTINGS = (
     Setting("ssh_hostname", UNSET, v.address, "The address SSH connects to (write it as address:); default: the host's name."),
@@ -19,9 +26,13 @@ SETTINGS = (
             "known_hosts file for strict host key checking (relative to the checkout)."),
     Setting("ssh_strict_host_key_checking", "yes", c.string(choices=("yes", "accept-new", "no")),
             "yes refuses unknown or changed host keys; accept-new trusts on first use; no disables checking."),
-    Setting("ssh_connect_retries", 3, c.integer(0, 100), "Reconnect attempts for robots on flaky links."),
+    Setting("ssh_connect_timeout", 10, c.integer(1, 600),
+            "Seconds to reach a host: TCP connect, SSH greeting and login each give up after this."),
+    Setting("ssh_connect_retries", 1, c.integer(0, 100),
+            "Reconnects after a refused, timed-out or reset connection (a flaky link); never after a "
+            "host key, login or non-SSH answer."),
     Setting("ssh_connect_retry_min_delay", 1, c.integer(0, 600), "Seconds before a reconnect, at least."),
-    Setting("ssh_connect_retry_max_delay", 5, c.integer(0, 600), "Seconds before a reconnect, at most."),
+    Setting("ssh_connect_retry_max_delay", 2, c.integer(0, 600), "Seconds before a reconnect, at most."),
     Setting("apt_lock_timeout", 300, c.integer(0, 86400),
             "Seconds apt waits in all for the apt/dpkg locks another process holds, then the host fails naming it."),
     Setting("rollout_canary", False, c.boolean,

@@ -1,5 +1,11 @@
 """Read fleet YAML into plain data: total, bounded, one line per problem.
 
+The fleet file is YAML 1.2 (core schema), as editors' YAML extensions and
+check-jsonschema read it: only true/false are booleans (on, off, yes, no are
+text), 0755 is the decimal 755, 12:30 and 2026-01-02 are text, 0x1F and
+0o17 are numbers.  PyYAML only speaks YAML 1.1, so the resolver (which tag a
+plain scalar gets) and the scalar constructors here are our own.
+
 libyaml (CSafeLoader's parser) builds the node tree; this module turns nodes
 into Python values itself instead of using PyYAML's constructor, because it
 has to: refuse duplicate keys while still honouring merge keys (``<<``), keep
@@ -11,8 +17,11 @@ small here; the checks bound their own walks).
 
 from __future__ import annotations
 
+import functools
+import math
+import re
+
 import yaml
-from yaml.constructor import SafeConstructor
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from engine.checks import Misread
@@ -24,14 +33,73 @@ MAX_DEPTH = 50
 _T = "tag:yaml.org,2002:"
 _STR, _MERGE, _VALUE = _T + "str", _T + "merge", _T + "value"
 _SEQ, _MAP = _T + "seq", _T + "map"
+_NULL, _BOOL, _INT, _FLOAT = _T + "null", _T + "bool", _T + "int", _T + "float"
+
+# The YAML 1.2 core schema's plain scalars (https://yaml.org/spec/1.2.2/#1032-tag-resolution).
+CORE_SCHEMA = (
+    (_NULL, re.compile(r"(?:~|null|Null|NULL|)\Z")),
+    (_BOOL, re.compile(r"(?:true|True|TRUE|false|False|FALSE)\Z")),
+    (_INT, re.compile(r"(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)\Z")),
+    (_FLOAT, re.compile(r"(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+                        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z")),
+    (_MERGE, re.compile(r"<<\Z")),  # merge keys: YAML 1.1's, which editors also honour
+)
+
+
+@functools.lru_cache(maxsize=None)
+def _resolving(parser):
+    """``parser`` (a PyYAML loader class) resolving plain scalars by the core schema."""
+
+    class Yaml12(parser):
+        yaml_implicit_resolvers: dict = {}
+
+        def resolve(self, kind, value, implicit):
+            if kind is ScalarNode and implicit[0]:
+                for tag, pattern in CORE_SCHEMA:
+                    if pattern.match(value):
+                        return tag
+            return super().resolve(kind, value, implicit)
+
+    return Yaml12
+
+
+class Dumper(yaml.SafeDumper):
+    """Writes fleet YAML that reads back the same under the core schema:
+    text that YAML 1.1 or 1.2 would read as something else is quoted."""
+
+    def resolve(self, kind, value, implicit):
+        if kind is ScalarNode and implicit[0]:
+            for tag, pattern in CORE_SCHEMA:
+                if pattern.match(value):
+                    return tag  # a str the emitter then quotes
+        return super().resolve(kind, value, implicit)
+
+
+def dump(data) -> str:
+    return yaml.dump(data, Dumper=Dumper, allow_unicode=True, sort_keys=False, width=1000)
+
+
+def _integer(text: str) -> int:
+    if text.startswith(("0o", "0x")):
+        return int(text[2:], 8 if text[1] == "o" else 16)
+    return int(text, 10)
+
+
+def _float(text: str) -> float:
+    if text.lstrip("+-").lower() == ".inf":
+        return -math.inf if text.startswith("-") else math.inf
+    if text.lower() == ".nan":
+        return math.nan
+    return float(text)
+
+
+_PATTERNS = dict(CORE_SCHEMA)
 _SCALARS = {
-    _T + "null": SafeConstructor.construct_yaml_null,
-    _T + "bool": SafeConstructor.construct_yaml_bool,
-    _T + "int": SafeConstructor.construct_yaml_int,
-    _T + "float": SafeConstructor.construct_yaml_float,
-    _T + "timestamp": SafeConstructor.construct_yaml_timestamp,
+    _NULL: lambda text: None,
+    _BOOL: lambda text: text.lower() == "true",
+    _INT: _integer,
+    _FLOAT: _float,
 }
-_constructor = SafeConstructor()
 
 
 def _short(tag: str) -> str:
@@ -50,7 +118,7 @@ def load(data: bytes | str):
     text = _decode(data) if isinstance(data, bytes) else data
     loader = None
     try:
-        loader = _LOADER(text)
+        loader = _resolving(_LOADER)(text)
         node = loader.get_single_node()
     except yaml.reader.ReaderError as error:
         raise _reader_problem(error, text) from None
@@ -95,6 +163,14 @@ def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
             f"{context.removeprefix('while scanning ').removeprefix('while parsing ')} opened here (column {opened.column + 1})"
             f" is not closed: {problem} (line {found.line + 1}, column {found.column + 1})",
         )
+    quote = _runaway_quote(text, found) if found is not None else None
+    if quote is not None:
+        start, end = quote
+        return YamlProblem(
+            start.line + 1,
+            f"a quoted value opened here (column {start.column + 1}) runs on to line {end.line + 1}, where "
+            f"{problem} (column {found.column + 1}); is its closing quote missing?",
+        )
     primary = found or opened
     if found is not None and "cannot start any token" in problem:
         lines = text.splitlines()
@@ -109,9 +185,33 @@ def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
     return YamlProblem(primary.line + 1 if primary is not None else None, problem)
 
 
+def _runaway_quote(text: str, found):
+    """(start, end) marks of a quoted value spanning several lines that ends
+    on the line of the error ``found``: a quote left open on its first line
+    is closed by the next quote character, lines below, and the parser only
+    gives up there."""
+    loader = _resolving(_LOADER)(text)
+    last = None
+    try:
+        while True:
+            token = loader.get_token()
+            if token is None or token.start_mark.line > found.line:
+                break
+            if (isinstance(token, yaml.ScalarToken) and token.style in ('"', "'")
+                    and token.end_mark.line > token.start_mark.line):
+                last = token
+    except yaml.YAMLError:
+        pass
+    finally:
+        loader.dispose()
+    if last is not None and last.end_mark.line == found.line:
+        return last.start_mark, last.end_mark
+    return None
+
+
 def _changed(number, text: str) -> bool:
-    """YAML 1.1 reads 0755 as 493, 12:30 as 750, 1.10 as 1.1, 0x1F as 31:
-    a number whose plain spelling is not what was written."""
+    """0755 is 755, 1.10 is 1.1, 0x1F is 31: a number whose plain spelling is
+    not what was written (where text was meant, the text is lost)."""
     return text != (str(number) if isinstance(number, int) else repr(number))
 
 
@@ -162,8 +262,10 @@ class _Builder:
         if convert is None:
             raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {_short(node.tag)!r} is not supported here")
         try:
-            value = convert(_constructor, node)
-        except (ValueError, TypeError, OverflowError, yaml.YAMLError):
+            if not _PATTERNS[node.tag].match(node.value):  # an explicit tag: !!bool yes
+                raise ValueError(node.value)
+            value = convert(node.value)
+        except (ValueError, TypeError, OverflowError):
             raise YamlProblem(node.start_mark.line + 1, f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}") from None
         if isinstance(value, (int, float)) and not isinstance(value, bool) and _changed(value, node.value):
             return Misread(value, node.value)

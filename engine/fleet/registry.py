@@ -22,14 +22,6 @@ class Registry:
                 raise ValueError(f"setting {setting.name} is declared twice")
             self.settings[setting.name] = setting
         self.mergers = [(name, s.merge) for name, s in self.settings.items() if s.merge is not None]
-        # A YAML 1.1 unquoted yes/no is a boolean: where a setting's documented
-        # words include yes/no, the boolean means that word.
-        self.words = {}
-        for name, setting in self.settings.items():
-            choices = getattr(setting.check, "schema", {}).get("enum") or ()
-            words = {flag: word for flag, word in ((True, "yes"), (False, "no")) if word in choices}
-            if words:
-                self.words[name] = words
 
     def defaults(self, group: str | None = None) -> dict:
         """The defaults of every setting for hosts of ``group`` (None: all)."""
@@ -43,17 +35,6 @@ class Registry:
     def group_defaults(self, group: str) -> dict:
         """Only what differs in ``group`` from the defaults of all hosts."""
         return {s.name: s.default_in(group) for s in self.settings.values() if group in s.groups}
-
-    def normalize(self, layer: dict) -> dict:
-        """``layer`` with unquoted yes/no read back as the documented words."""
-        if not any(key in layer for key in self.words):
-            return layer
-        fixed = dict(layer)
-        for key, words in self.words.items():
-            value = fixed.get(key)
-            if isinstance(value, bool) and value in words:
-                fixed[key] = words[value]
-        return fixed
 
     def merge(self, layers: list[dict]) -> dict:
         """all.vars < group vars < host: the last layer that sets a setting

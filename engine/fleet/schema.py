@@ -1,13 +1,28 @@
-"""The fleet file's JSON Schema, built from the settings' checkers, so an
-editor flags mistakes as the operator types (the checks before a run stay
-the authority: rules across settings are not expressible here)."""
+"""The fleet file's JSON Schema, built from the settings' checkers (each
+checker carries the schema of what it accepts, from the same patterns), so
+an editor flags mistakes as the operator types and agrees with the run
+(tests/unit/test_schema_agreement.py).  What the schema cannot say is
+BEYOND_SCHEMA; the run checks it, and README names it."""
 
 from __future__ import annotations
 
 import json
 
-from engine.fleet.check import EXTENSION_PREFIX, HOST_NAME
+from engine.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
 from engine.fleet.registry import Registry
+
+
+# The rules only the run checks, each with what README says of it.
+BEYOND_SCHEMA = {
+    "rules across settings": "each role's rules on a host's merged settings: x11_user when display is true, "
+    "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1",
+    "a host in two groups": "a host declared under both robots and laptops, or in groups of both kinds",
+    "a host of no kind": "a host in neither a robots nor a laptops group (at any depth)",
+    "a fleet with no hosts": "a file that declares no host at all",
+    "respelled numbers": "a number written so that YAML changes it (0022, 1.10, 0x1F) where a number is "
+    "expected: the schema sees only the number",
+    "expanded size": "docker_daemon_options of more than 10000 values once YAML aliases are expanded",
+}
 
 
 def setting_schemas(registry: Registry) -> dict:
@@ -15,8 +30,6 @@ def setting_schemas(registry: Registry) -> dict:
     properties = {}
     for name, setting in registry.settings.items():
         schema = dict(setting.check.schema)
-        if name in registry.words:
-            schema = {"anyOf": [schema, {"enum": list(registry.words[name])}]}
         kind = schema.get("description")
         schema["description"] = setting.doc + (f" Expected: {kind}." if kind else "")
         if name in defaults:
@@ -31,35 +44,35 @@ def fleet_schema(registry: Registry) -> dict:
     variables = {
         "type": ["object", "null"],
         "properties": setting_schemas(registry),
+        # Ansible's own variables (ansible_become, ...) are ignored by the run.
+        "patternProperties": {f"^{ANSIBLE_PREFIX}": {}},
         "additionalProperties": False,
     }
+    name = {"pattern": f"^(?:{HOST_NAME.pattern})$"}
     group = {
         "type": ["object", "null"],
         "properties": {
             "vars": {"$ref": "#/definitions/settings"},
             "hosts": {
                 "type": ["object", "null"],
-                "propertyNames": {"pattern": f"^(?:{HOST_NAME.pattern})$"},
+                "propertyNames": name,
                 "additionalProperties": {"$ref": "#/definitions/settings"},
+            },
+            "children": {
+                "type": ["object", "null"],
+                "propertyNames": name,
+                "additionalProperties": {"$ref": "#/definitions/group"},
             },
         },
         "additionalProperties": False,
     }
     return {
         "$schema": "http://json-schema.org/draft-07/schema#",
-        "title": "Robot fleet file (inventories/robots.yaml)",
+        "title": "Robot fleet file (inventories/robots.yaml): an Ansible-style YAML inventory",
         "type": ["object", "null"],
-        "properties": {
-            "all": {
-                "type": ["object", "null"],
-                "properties": {"vars": {"$ref": "#/definitions/settings"}},
-                "additionalProperties": False,
-            },
-            "robots": {"$ref": "#/definitions/group"},
-            "laptops": {"$ref": "#/definitions/group"},
-        },
+        "propertyNames": {"anyOf": [name, {"pattern": f"^{EXTENSION_PREFIX}"}]},
         "patternProperties": {f"^{EXTENSION_PREFIX}": {}},
-        "additionalProperties": False,
+        "additionalProperties": {"$ref": "#/definitions/group"},
         "definitions": {"settings": variables, "group": group},
     }
 

@@ -202,7 +202,7 @@ def project_problems(data) -> list[tuple[str, str]]:
             for key, value in environment.items():
                 if value is not None and not isinstance(value, str):
                     problems.append((f"{where}.environment.{key}", f"expected a string, got {value!r} "
-                                     "(quote it: YAML reads yes/no/on/off and numbers as other types)"))
+                                     "(quote it: YAML reads true/false, null and numbers as other types)"))
         env_files = spec.get("env_file")
         for index, entry in enumerate(env_files if isinstance(env_files, list) else [env_files]):
             path = entry.get("path") if isinstance(entry, dict) else entry

@@ -59,7 +59,8 @@ def replaced(value):
 
 c.with_schema(replaced, {"type": "string", "pattern": f"^(?:container|project):{_NAME}$",
                          "description": "container:NAME or project:NAME"})
-c.with_schema(image, {"type": "string", "description": "an image reference, pinned by tag or digest"})
+c.with_schema(image, {"type": "string", "pattern": imageref.JSON_PATTERN,
+                     "description": "an image reference, pinned by tag or digest"})
 c.with_schema(volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"})
 payload_services = c.with_schema(
     services.layer_problems,

@@ -2,20 +2,23 @@
 
 from __future__ import annotations
 
-import ipaddress
 import re
 
 from engine import checks as c
 from engine import values as v
 from engine.role import Setting
 
-_NETWORK = re.compile(r"[0-9A-Fa-f:.]+(?:/[0-9]{1,3})?", re.ASCII)
+# chrony's server and allow lines take no IPv6 zone (%eth0).
+SERVER = rf"{v.IPV4}|{v.IPV6_NO_ZONE}|{v.DNS_NAME}"
+NETWORK = rf"{v.IPV4}(?:/(?:3[0-2]|[12]?[0-9]))?|{v.IPV6_NO_ZONE}(?:/(?:12[0-8]|1[01][0-9]|[1-9]?[0-9]))?"
+_SERVER = re.compile(SERVER, re.ASCII)
+_NETWORK = re.compile(NETWORK, re.ASCII)
 
 
 def server(value):
     """A host name or an IP address chrony can poll (one word of chrony.conf)."""
     problems = v.address(value)
-    if not problems and "%" in value:
+    if not problems and not _SERVER.fullmatch(value):
         return [("", f"expected a host name or an IP address without a zone (%interface), got {c.shown(value)}")]
     return problems
 
@@ -24,17 +27,14 @@ def network(value):
     """A network (CIDR) or a single address that may ask a serving host for time."""
     if not isinstance(value, str):
         return [("", c.expected_string(value, "a network like 10.20.0.0/24 or an address"))]
-    try:
-        if not _NETWORK.fullmatch(value):
-            raise ValueError
-        ipaddress.ip_network(value, strict=False)
-    except ValueError:
+    if not _NETWORK.fullmatch(value):
         return [("", f"expected a network like 10.20.0.0/24 or an address, got {c.shown(value)}")]
     return []
 
 
-c.with_schema(server, {"type": "string", "description": "a host name or an IP address (no %zone)"})
-c.with_schema(network, {"type": "string", "pattern": c.json_pattern(_NETWORK.pattern),
+c.with_schema(server, {"type": "string", "pattern": c.json_pattern(SERVER),
+                       "description": "a host name or an IP address (no %zone)"})
+c.with_schema(network, {"type": "string", "pattern": c.json_pattern(NETWORK),
                         "description": "a network like 10.20.0.0/24, or an address"})
 
 SETTINGS = (

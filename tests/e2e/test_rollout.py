@@ -71,7 +71,7 @@ def test_a_good_image_goes_through_every_wave_and_a_rerun_finishes_a_skipped_rob
     lab.ok("robot3", "systemctl stop ssh.socket ssh.service 2>/dev/null; systemctl stop ssh")
     try:
         code, output = rollout("1.1", "--canary", "1", "--batch", "1")
-        assert code == 1, output[-3000:]
+        assert code == 3, output[-3000:]  # incomplete only because robot3 was unreachable
         assert waves_run(output) == ["robot1", "robot2", "robot3"]
         assert "rollout: [robot3] skipped: unreachable" in output
         assert [lab.version(h) for h in ("robot1", "robot2", "robot3")] == ["1.1", "1.1", "1.0"]

@@ -67,7 +67,7 @@ CORPUS = [
     ("recursive alias", host("docker_daemon_options: &a {a: *a}"),
      ["f.yaml: line 7: YAML error: an alias refers to its own anchor (a recursive value)"]),
     ("section of the wrong type", BASE + "robots: [r1, r2]\n",
-     ["f.yaml: robots: expected a mapping with vars and hosts, got a list"]),
+     ["f.yaml: robots: expected a group (a mapping with vars, hosts, children), got a list"]),
     ("tab indentation", BASE + "robots:\n\thosts: {}\n",
      ["f.yaml: line 5: YAML error: found '\\t', which cannot start any token; indent with spaces, not tabs"]),
     ("two documents", BASE + "---\nrobots: {}\n",
@@ -102,11 +102,12 @@ CORPUS = [
      ["f.yaml: r1.address: expected a host name or an IP address, got 'robot 1'"]),
     ("good addresses", BASE + "robots:\n  hosts:\n    r1: {address: 'fe80::1'}\n    r2: {address: robot2.lan}\n"
                                "    r3: {address: 10.0.0.3}\n    r4: {}\n", []),
-    # 5. YAML 1.1 surprises in names
+    # 5. YAML surprises in names (the fleet file is YAML 1.2: yes/no/on/off are text)
     ("octal-looking host name", BASE + "robots:\n  hosts:\n    010: {}\n",
-     ["f.yaml: 010: a host name must be a string, got 010 (read by YAML as 8); quote it"]),
-    ("boolean-looking host name", BASE + "robots:\n  hosts:\n    yes: {}\n    r2: {}\n",
-     ["f.yaml: yes: a host name must be a string, got yes (read by YAML as a boolean (true)); quote it"]),
+     ["f.yaml: 010: a host name must be a string, got 010 (read by YAML as 10); quote it"]),
+    ("boolean-looking host name", BASE + "robots:\n  hosts:\n    true: {}\n    r2: {}\n",
+     ["f.yaml: true: a host name must be a string, got true (read by YAML as a boolean (true)); quote it"]),
+    ("yes and on are host names", BASE + "robots:\n  hosts:\n    yes: {}\n    on: {}\n", []),
     ("quoted host name", BASE + "robots:\n  hosts:\n    '010': {}\n", []),
     # 6. docker daemon options checked before connecting
     ("daemon option typo", host("docker_daemon_options: {live-restor: true}"),
@@ -119,6 +120,12 @@ CORPUS = [
     ("unclosed quote", BASE + "robots:\n  hosts:\n    r1: {address: \"10.0.0.1}\n    r2: {}\n",
      ["f.yaml: line 6: YAML error: a quoted scalar opened here (column 19) is not closed: "
       "found unexpected end of stream (line 8, column 1)"]),
+    ("quote closed by the next value's quote", BASE + "robots:\n  hosts:\n    r1:\n      payload_image: \"reg.example.com/p:1\n"
+     "      ssh_port: 22\n    r2:\n      ssh_port: 23\n    r3:\n      payload_image: \"reg.example.com/p:2\"\n",
+     ["f.yaml: line 7: YAML error: a quoted value opened here (column 22) runs on to line 12, where "
+      "did not find expected key (column 23); is its closing quote missing?"]),
+    ("a value quoted over several lines", host('payload_image: "reg.example.com/',
+                                               '  p:1"', "ssh_port: 22"), ["f.yaml: r1.payload_image: 'reg.example.com/ p:1' is not a valid image reference"]),
     ("unclosed flow mapping", BASE + "robots:\n  hosts:\n    r1: {address: 10.0.0.1\n    r2: {}\n",
      ["f.yaml: line 6: YAML error: a flow mapping opened here (column 9) is not closed: "
       "did not find expected ',' or '}' (line 7, column 7)"]),
@@ -139,9 +146,11 @@ CORPUS = [
      ["f.yaml: r1.sensors[1]: matches the same devices as sensors[0]; add a serial or usb_port to tell them apart"]),
     ("merge of a scalar", host("sensors:", "  - {<<: 1, name: a}"),
      ["f.yaml: line 8: YAML error: a merge key (<<) takes a mapping or a list of mappings"]),
-    # 9. YAML 1.1 booleans where the documented values are yes/no
+    # 9. yes/no are text in YAML 1.2: the documented words as written
     ("strict host key checking no", host("ssh_strict_host_key_checking: no", "payload_restart_policy: no"), []),
     ("restart policy yes", host("payload_restart_policy: yes"),
+     ["f.yaml: r1.payload_restart_policy: expected one of no, always, on-failure, unless-stopped, got 'yes'"]),
+    ("restart policy true", host("payload_restart_policy: true"),
      ["f.yaml: r1.payload_restart_policy: expected a string, got a boolean (true); quote it"]),
     # issue 8, item 2: URLs are http(s) URLs without shell characters
     ("key URL injection", host("docker_apt_key_url: 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"),
@@ -154,15 +163,14 @@ CORPUS = [
                        "docker_apt_key_url: 'https://mirror.lan/keys/docker.asc?v=2'",
                        "docker_registry_mirrors: ['https://[fd00::1]:5000']"), []),
     # issue 8, item 4: environment values are strings, quoted in YAML
-    ("environment YAML 1.1 traps", host("payload_environment: {A: NO, B: 1.10, C: 0755, D: 12:30, E: 'NO'}"),
-     ["f.yaml: r1.payload_environment.A: expected a string, got a boolean (false); quote it "
-      "(YAML reads an unquoted no/yes/on/off as a boolean)"]
-     + [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it"
-        for key, got in (("B", "1.10 (read by YAML as 1.1)"), ("C", "0755 (read by YAML as 493)"),
-                         ("D", "12:30 (read by YAML as 750)"))]),
-    ("YAML 1.1 numbers in number settings", host("ssh_port: 0022", "payload_health_timeout: 1:30"),
-     ["f.yaml: r1.ssh_port: expected a whole number, got 0022 (read by YAML as 18)",
-      "f.yaml: r1.payload_health_timeout: expected a whole number, got 1:30 (read by YAML as 90)"]),
+    ("environment YAML traps", host("payload_environment: {A: NO, B: 1.10, C: 0755, D: 12:30, E: 'NO', F: true}"),
+     [f"f.yaml: r1.payload_environment.{key}: expected a string, got {got}; quote it"
+      for key, got in (("B", "1.10 (read by YAML as 1.1)"), ("C", "0755 (read by YAML as 755)"))]
+     + ["f.yaml: r1.payload_environment.F: expected a string, got a boolean (true); quote it "
+        "(YAML reads an unquoted true/false as a boolean)"]),
+    ("respelled numbers in number settings", host("ssh_port: 0022", "payload_health_timeout: 1:30"),
+     ["f.yaml: r1.ssh_port: expected a whole number, got 0022 (read by YAML as 22)",
+      "f.yaml: r1.payload_health_timeout: expected a whole number, got '1:30'"]),
     # issue 8, item 7: paths root creates are not in world-writable directories
     ("payload_dir /tmp", host("payload_dir: /tmp"),
      ["f.yaml: r1.payload_dir: '/tmp' is in the world-writable /tmp; use a directory only root can write (e.g. under /var/lib)"]),
@@ -200,9 +208,9 @@ def test_merge_keys_give_each_sensor_the_shared_fields_and_its_own():
 
 
 def readme_mistakes():
-    """The broken fleet file and the lines shown in README's "Describing a fleet"."""
-    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
-    section = text[text.index("## Describing a fleet"):text.index("### Laptops")]
+    """The broken fleet file and the lines shown in docs/fleet-file.md (linked
+    from README's "Describing a fleet")."""
+    section = (Path(__file__).resolve().parents[2] / "docs" / "fleet-file.md").read_text()
     blocks = section.split("```")
     (fleet_block,) = [b for b in blocks if b.startswith("yaml\n") and "docker_usres" in b]
     (output_block,) = [b for b in blocks if "problem(s) in the fleet file" in b]

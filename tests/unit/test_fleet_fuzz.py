@@ -21,6 +21,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from engine.fleet import loader as fleetyaml
 from tests.unit import harness as fleet
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -146,7 +147,7 @@ def documents(port: int, count: int, seed: int):
         doc = good_fleet(port)
         if rng.random() < 0.8:
             mutate_data(rng, doc)
-        text = yaml.safe_dump(doc, allow_unicode=True, sort_keys=False, width=1000)
+        text = fleetyaml.dump(doc)
         data = mutate_text(rng, text) if rng.random() < 0.5 else text.encode()
         if rng.random() < 0.03:
             data = bytes(rng.randrange(256) for _ in range(rng.randrange(64)))
@@ -281,7 +282,7 @@ def test_cli_refuses_generated_fleets_before_any_connection(tmp_path):
         control.parent.mkdir()
         one_host = good_fleet(control_listener.port)
         del one_host["laptops"], one_host["robots"]["hosts"]["r1"], one_host["robots"]["hosts"]["r2"]
-        control.write_text(yaml.safe_dump(one_host))
+        control.write_text(fleetyaml.dump(one_host))
 
         *results, control_result = run_cli(paths + [control])
         for (label, data, lines), result in zip(refused, results):

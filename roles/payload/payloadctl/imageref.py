@@ -16,6 +16,14 @@ _REFERENCE = re.compile(
     re.ASCII,
 )
 NAME_MAX = 255  # the spec's limit on the repository name, registry included
+_DIGEST = r"sha256:[a-f0-9]{64}"
+# The same grammar for JSON Schema (editors): no group names, and the name's
+# limit as a lookahead (what precedes an optional tag and digest is at most
+# NAME_MAX characters).
+JSON_PATTERN = (
+    rf"^(?=.{{1,{NAME_MAX}}}(?::{_TAG})?(?:@{_DIGEST})?$)"
+    rf"(?:{_DOMAIN}/)?{_COMPONENT}(?:/{_COMPONENT})*(?::{_TAG})?(?:@{_DIGEST})?$"
+)
 
 
 def _shown(text) -> str:

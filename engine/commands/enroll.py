@@ -1,0 +1,168 @@
+"""First contact: enroll robots' SSH host keys into the fleet's known_hosts.
+
+    python3 -m engine enroll inventories/robots.py [--limit robot1] [--fingerprints FILE] [--yes]
+
+For each host of the inventory (or of --limit) this fetches the host key the
+host offers (no login) and shows its fingerprint as ssh shows it
+(SHA256:...).  A new key is written to the host's ssh_known_hosts_file once
+you accept it: asked for each host, or checked against a fingerprints file
+(one ``HOST SHA256:...`` per line, HOST the inventory name, the address or
+``[address]:port``: what a vendor or an image build recorded), or accepted
+as shown with --yes.  A key already there is left alone; a key that differs
+from the one there is refused with both fingerprints, and that host's line is
+never replaced: if the robot was reinstalled, delete its line and enroll again.
+Hosts reached through a jump host (ssh_config ProxyJump) are contacted
+directly here, which may not work: enroll them from their fingerprints with
+ssh-keyscan on the jump host.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import socket
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import paramiko
+
+from engine import connect, hostkeys
+from engine.checks import one_line
+from engine.commands import hosts as selection
+
+
+@dataclass
+class Target:
+    name: str
+    address: str
+    port: int
+    known_hosts: str
+    timeout: int
+
+    @property
+    def entry(self) -> str:
+        return hostkeys.entry(self.address, self.port)
+
+
+def target(host) -> Target:
+    data = host.data
+    return Target(host.name, data.get("ssh_hostname") or host.name, int(data.get("ssh_port") or 22),
+                  os.path.expanduser(data.get("ssh_known_hosts_file") or "~/.ssh/known_hosts"),
+                  int(data.get("ssh_connect_timeout") or 10))
+
+
+def fetch(host: Target):
+    """The host key ``host`` offers, or the reason it could not be had (str)."""
+    transport = None
+    try:
+        sock = socket.create_connection((host.address, host.port), timeout=host.timeout)
+        transport = paramiko.Transport(sock)
+        transport.set_log_channel(connect.PARAMIKO_LOG)
+        transport.banner_timeout = host.timeout
+        transport.start_client(timeout=host.timeout)
+        return transport.get_remote_server_key()
+    except Exception as error:  # every way it fails is one line
+        return connect.network_reason(error, host.address, host.port, host.timeout)[0]
+    finally:
+        if transport is not None:
+            transport.close()
+
+
+def read_fingerprints(path: str) -> dict[str, set[str]]:
+    """HOST -> fingerprints, from lines ``HOST [type] SHA256:...`` (# comments)."""
+    found: dict[str, set[str]] = {}
+    with open(path, encoding="utf-8") as handle:
+        for number, line in enumerate(handle, 1):
+            words = line.split("#", 1)[0].split()
+            if not words:
+                continue
+            prints = [w for w in words[1:] if w.startswith("SHA256:")]
+            if not prints:
+                raise ValueError(f"{path}: line {number}: expected 'HOST SHA256:...', got {line.strip()!r}")
+            found.setdefault(words[0], set()).update(p.rstrip("=") for p in prints)
+    return found
+
+
+def ask(question: str) -> bool:
+    print(question, end="", file=sys.stderr, flush=True)
+    try:
+        return input().strip().lower() in ("y", "yes")
+    except EOFError:
+        return False
+
+
+def decide(host: Target, key, expected: dict[str, set[str]] | None, source: str, yes: bool) -> tuple[str, str]:
+    """(outcome, line): outcome is known, enroll, refused or declined."""
+    shown = f"{host.name} ({host.entry}) {key.get_name()} {hostkeys.fingerprint(key)}"
+    there = hostkeys.known(host.known_hosts, host.entry)
+    if there.get(key.get_name()) == key:
+        return "known", f"{shown}: already in {host.known_hosts}"
+    if there:
+        old = ", ".join(f"{kind} {hostkeys.fingerprint(k)}" for kind, k in there.items())
+        return "refused", (f"{host.name}: host key CHANGED for {host.entry}: {host.known_hosts} has {old}, the host "
+                           f"offers {key.get_name()} {hostkeys.fingerprint(key)}; refused, its line is left as it is "
+                           f"(if the robot was reinstalled, delete that line and enroll it again)")
+    recorded = None
+    if expected is not None:
+        recorded = next((expected[n] for n in (host.name, host.address, host.entry) if n in expected), None)
+    if recorded is not None:
+        if hostkeys.fingerprint(key) in recorded:
+            return "enroll", f"{shown}: matches {source}; enrolled"
+        return "refused", (f"{host.name}: fingerprint mismatch for {host.entry}: {source} has "
+                           f"{', '.join(sorted(recorded))}, the host offers {hostkeys.fingerprint(key)}; refused")
+    if yes:
+        return "enroll", f"{shown}: new; enrolled (--yes)"
+    if not sys.stdin.isatty():
+        return "declined", (f"{shown}: new; not enrolled: no terminal to ask (check the fingerprint, then pass "
+                            "--yes, or give --fingerprints FILE)")
+    if ask(f"{shown}: new. Is this the robot's key? [y/N] "):
+        return "enroll", f"{shown}: enrolled"
+    return "declined", f"{shown}: not enrolled"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python3 -m engine enroll", description=__doc__.splitlines()[0])
+    parser.add_argument("inventory")
+    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
+    parser.add_argument("--fingerprints", metavar="FILE", help="the hosts' recorded fingerprints: HOST SHA256:... per line")
+    parser.add_argument("-y", "--yes", action="store_true", help="enroll new keys as shown, without asking")
+    args = parser.parse_args(argv)
+    try:
+        expected = read_fingerprints(args.fingerprints) if args.fingerprints else None
+        inventory = selection.inventory(args.inventory)
+        chosen = [target(h) for h in selection.select(inventory, args.inventory, args.limit) if not h.name.startswith("@")]
+    except (OSError, ValueError) as error:
+        return selection.refused(selection.Refused(one_line(str(error))))
+    except selection.Refused as error:
+        return selection.refused(error)
+    if not chosen:
+        return selection.refused(selection.Refused(f"{args.inventory}: no SSH host to enroll (@local hosts have no host key)"))
+    print(f"fetching the host keys of {len(chosen)} host(s) (at most {max(h.timeout for h in chosen)} s)...", file=sys.stderr)
+    with ThreadPoolExecutor(max_workers=min(32, len(chosen))) as pool:
+        keys = list(pool.map(fetch, chosen))
+    outcomes: dict[str, list[str]] = {}
+    accepted: dict[str, list] = {}
+    for host, key in zip(chosen, keys):
+        if isinstance(key, str):
+            outcome, line = "unreachable", f"{host.name}: unreachable: {key}"
+        else:
+            outcome, line = decide(host, key, expected, args.fingerprints, args.yes)
+        print(one_line(line), file=sys.stderr)
+        outcomes.setdefault(outcome, []).append(host.name)
+        if outcome == "enroll":
+            accepted.setdefault(host.known_hosts, []).append((host.entry, key))
+    for path, entries in accepted.items():
+        added = hostkeys.add_all(path, entries)
+        print(f"{path}: {added} key(s) added", file=sys.stderr)
+    summary = ", ".join(f"{len(names)} {outcome}" for outcome, names in outcomes.items())
+    print(f"enroll: {summary}", file=sys.stderr)
+    if outcomes.get("refused") or outcomes.get("declined"):
+        return selection.FAILED
+    if outcomes.get("unreachable"):
+        return selection.UNREACHABLE
+    return selection.OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

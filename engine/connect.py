@@ -1,0 +1,245 @@
+"""pyinfra's SSH connector with what first contact with a fleet needs.
+
+Every host of an inventory built by engine/inventory.py is ``@fleet/<name>``,
+this connector (registered in pyproject.toml's pyinfra.connectors entry
+points), so the pyinfra CLI, status and rollout connect the same way:
+
+- one line per host that cannot be reached, with the reason in words
+  (refused, timed out, not an SSH server, authentication failed for user U
+  with key K, unknown or changed host key with the file and the command that
+  fixes it), and no paramiko traceback;
+- bounded: ``ssh_connect_timeout`` covers the TCP connect, the SSH banner
+  and authentication; only a refused, timed-out or reset connection is tried
+  again (``ssh_connect_retries``), never a host key, authentication or
+  non-SSH answer, which would fail the same way;
+- accept-new writes a host's key to known_hosts once (pyinfra's policy
+  appends it at each connection of the run).
+
+Jump hosts and ssh_config (ProxyJump, IdentityFile, ...) keep pyinfra's
+behaviour: only the target's connection is handled here.
+"""
+
+from __future__ import annotations
+
+import errno
+import getpass
+import logging
+import os
+import shlex
+import socket
+from random import uniform
+from time import sleep
+
+from paramiko import AuthenticationException, BadHostKeyException, MissingHostKeyPolicy, SSHException
+from paramiko.agent import Agent
+from paramiko.ssh_exception import BadAuthenticationType, NoValidConnectionsError
+from pyinfra.api.exceptions import ConnectError, PyinfraError
+from pyinfra.connectors import ssh
+from pyinfra.connectors.ssh_util import _patch_paramiko_sk_key_support
+from pyinfra.connectors.sshuserclient import client as sshuserclient
+
+from engine import hostkeys
+
+CONNECTOR = "fleet"
+PARAMIKO_LOG = "engine.connect.paramiko"
+# paramiko logs every failed handshake with a traceback from its transport
+# thread; the reason is told once, in words, by the host's line instead.
+logging.getLogger(PARAMIKO_LOG).addHandler(logging.NullHandler())
+logging.getLogger(PARAMIKO_LOG).propagate = False
+DEFAULT_KEYS = ("id_rsa", "id_ecdsa", "id_ed25519", "id_dsa")  # what paramiko looks for in ~/.ssh
+
+
+# The inventory file this process loaded (set by engine/inventory.py), for
+# the command that fixes a host key.
+INVENTORY = "INVENTORY"
+
+
+def names(hosts: list[tuple[str, dict]], inventory: str | None = None) -> list[tuple[str, dict]]:
+    """Inventory entries for this connector: (``@fleet/name``, data)."""
+    global INVENTORY
+    if inventory:
+        INVENTORY = os.path.relpath(inventory) if os.path.isabs(inventory) else inventory
+    return [(f"@{CONNECTOR}/{name}", data) for name, data in hosts]
+
+
+# How each reason a host cannot be reached begins (what rollout looks for in
+# pyinfra's output to tell an unreachable robot from a failed one).
+REASONS = ("unknown host key", "host key CHANGED", "authentication failed", "connection refused", "connection closed",
+           "cannot connect", "cannot resolve", "timed out", "not an SSH server", "the SSH session", "no route to")
+
+
+def enroll_command(host: str) -> str:
+    return f"python3 -m engine enroll {shlex.quote(INVENTORY)} --limit {shlex.quote(host)}"
+
+
+class UnknownHostKey(SSHException):
+    def __init__(self, entry: str, key):
+        super().__init__(f"no host key for {entry}")
+        self.entry, self.key = entry, key
+
+
+class StrictPolicy(MissingHostKeyPolicy):
+    def missing_host_key(self, client, hostname, key):
+        raise UnknownHostKey(hostname, key)
+
+
+class AcceptNewPolicy(MissingHostKeyPolicy):
+    """Trust on first use, written once: to known_hosts (unless a line for
+    this host and key is already there) and to the run's loaded keys."""
+
+    def missing_host_key(self, client, hostname, key):
+        client._host_keys.add(hostname, key.get_name(), key)
+        if client._host_keys_filename:
+            with sshuserclient.HOST_KEYS_LOCK:
+                hostkeys.append(client._host_keys_filename, hostname, key)
+
+
+class Client(sshuserclient.SSHClient):
+    def parse_config(self, hostname, initial_cfg=None, ssh_config_file=None, strict_host_key_checking=None):
+        parsed = list(super().parse_config(hostname, initial_cfg, ssh_config_file, strict_host_key_checking))
+        policy = {"yes": StrictPolicy, "accept-new": AcceptNewPolicy}.get(strict_host_key_checking)
+        if policy is not None:
+            parsed[3] = policy()
+        return tuple(parsed)
+
+
+class Data(ssh.ConnectorData):
+    ssh_connect_timeout: int
+
+
+class FleetConnector(ssh.SSHConnector):
+    """pyinfra's SSH connector; what differs is in the module's doc."""
+
+    data_cls = Data
+    data_meta = {**ssh.connector_data_meta, "ssh_connect_timeout": ssh.DataMeta("Seconds to connect, in all", 10)}
+
+    @staticmethod
+    def make_names_data(name):
+        yield name, {}, []
+
+    def timeout(self) -> int:
+        return self.data["ssh_connect_timeout"] or self.state.config.CONNECT_TIMEOUT
+
+    def make_paramiko_kwargs(self):
+        kwargs = super().make_paramiko_kwargs()
+        kwargs.update(timeout=self.timeout(), banner_timeout=self.timeout(), auth_timeout=self.timeout())
+        return kwargs
+
+    def connect(self) -> None:
+        _patch_paramiko_sk_key_support()
+        retries = self.data["ssh_connect_retries"]
+        while True:
+            try:
+                return self._connect()
+            except Exception as error:  # every way a connection fails becomes one line
+                reason, transient = self.explain(error)
+            if self.client is not None:
+                self.client.close()
+            if not transient or retries <= 0:
+                raise ConnectError(reason)
+            retries -= 1
+            sleep(uniform(self.data["ssh_connect_retry_min_delay"], self.data["ssh_connect_retry_max_delay"]))
+
+    def _connect(self) -> None:
+        kwargs = self.make_paramiko_kwargs()
+        self.kwargs = kwargs
+        hostname = kwargs.pop("hostname")
+        self.client = Client()
+        self.client.set_log_channel(PARAMIKO_LOG)
+        try:
+            self.client.connect(hostname, **kwargs)
+        except SSHException as error:
+            if not self._retry_paramiko_agent_keys(hostname, kwargs, error):
+                raise
+
+    # -- reasons, in words ---------------------------------------------------
+
+    def where(self) -> tuple[str, int]:
+        config = getattr(self.client, "_ssh_config", None) or {}
+        address = self.data["ssh_hostname"] or self.host.name
+        return address, int(config.get("port") or self.data["ssh_port"] or 22)
+
+    def explain(self, error: Exception) -> tuple[str, bool]:
+        """(one line saying why, whether trying again may help)."""
+        address, port = self.where()
+        known_hosts = self.data["ssh_known_hosts_file"] or "~/.ssh/known_hosts"
+        if isinstance(error, UnknownHostKey):
+            return (f"unknown host key: {error.entry} is not in {known_hosts} (ssh_strict_host_key_checking: yes); "
+                    f"check and enroll it: {enroll_command(self.host.name)}"), False
+        if isinstance(error, BadHostKeyException):
+            return (f"host key CHANGED: {known_hosts} has {hostkeys.fingerprint(error.expected_key)} for "
+                    f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused (if the robot "
+                    f"was reinstalled, delete its line and enroll it again: {enroll_command(self.host.name)})"), False
+        if isinstance(error, PyinfraError):  # e.g. the ssh_key file is missing or unreadable
+            return f"cannot connect: {error}", False
+        if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
+            return self.auth_reason(error), False
+        return network_reason(error, address, port, self.timeout())
+
+    def auth_reason(self, error: Exception) -> str:
+        kwargs = getattr(self, "kwargs", {})
+        config = getattr(self.client, "_ssh_config", None) or {}
+        user = config.get("username") or self.data["ssh_user"] or getpass.getuser()
+        tried = self.keys_offered(config)
+        accepts = ""
+        if isinstance(error, BadAuthenticationType) and error.allowed_types:
+            accepts = f" (the server accepts: {', '.join(error.allowed_types)})"
+        if not tried and "password" not in kwargs:
+            return (f"authentication failed for user {user}: no key to offer (ssh_key is not set, no SSH agent key, "
+                    f"no key in ~/.ssh); set ssh_key to the fleet's private key")
+        return f"authentication failed for user {user} with {' and '.join(tried) or 'a password'}{accepts}"
+
+    def keys_offered(self, config: dict) -> list[str]:
+        if self.data["ssh_key"]:
+            return [f"key {self.data['ssh_key']}"]
+        tried = []
+        identity = config.get("key_filename")
+        if identity:
+            tried.append("key " + (identity if isinstance(identity, str) else ", ".join(identity)))
+        if self.data["ssh_allow_agent"]:
+            try:
+                count = len(Agent().get_keys())
+            except Exception:  # no agent, or one that does not answer
+                count = 0
+            if count:
+                tried.append(f"the SSH agent's {count} key(s)")
+        if self.data["ssh_look_for_keys"]:
+            found = [f"~/.ssh/{name}" for name in DEFAULT_KEYS if os.path.exists(os.path.expanduser(f"~/.ssh/{name}"))]
+            if found:
+                tried.append("key " + ", ".join(found))
+        return tried
+
+
+def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[str, bool]:
+    """Why reaching ``address:port`` failed, in words, and whether trying
+    again may help (a host key or login failure is told by the connector)."""
+    at = f"{address}:{port}"
+    if isinstance(error, ConnectionRefusedError):
+        return f"connection refused by {at} (no SSH server listens on port {port})", True
+    if isinstance(error, NoValidConnectionsError):
+        codes = {e.errno for e in error.errors.values()}
+        if codes <= {errno.ECONNREFUSED}:
+            return f"connection refused by {at} (no SSH server listens on port {port})", True
+        return f"cannot connect to {at} ({error.strerror or error})", True
+    if isinstance(error, socket.gaierror):
+        return f"cannot resolve {address} ({error.strerror})", False
+    if isinstance(error, (socket.timeout, TimeoutError)):
+        return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True
+    if isinstance(error, SSHException):
+        text = str(error)
+        if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):
+            return (f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
+                    "e.g. MaxStartups, or a firewall)"), True
+        if "Error reading SSH protocol banner" in text or "Indecipherable protocol version" in text:
+            return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
+                    f"{timeout} s (wrong port?)"), False
+        if "No existing session" in text or "Unable to connect" in text:
+            return f"the SSH session to {at} closed during the handshake", True
+        return f"SSH error from {at}: {text}", False
+    if isinstance(error, EOFError):
+        return f"connection closed by {at} during the SSH handshake", True
+    if isinstance(error, OSError):
+        if error.errno in (errno.EHOSTUNREACH, errno.ENETUNREACH):
+            return f"no route to {at} ({error.strerror})", True
+        return f"cannot connect to {at} ({error.strerror or error})", True
+    return f"cannot connect to {at} ({type(error).__name__}: {error})", False

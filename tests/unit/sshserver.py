@@ -1,0 +1,91 @@
+"""Real servers on 127.0.0.1 for first-contact tests (no mocks): an SSH
+server (paramiko's server side) with its own host key, a TCP listener that
+never speaks, and a closed port.  Each counts the connections it accepted,
+so a test sees whether the client tried again."""
+
+from __future__ import annotations
+
+import socket
+import threading
+
+import paramiko
+
+
+class _Server(paramiko.ServerInterface):
+    def __init__(self, accepted_key):
+        self.accepted_key = accepted_key
+
+    def get_allowed_auths(self, username):
+        return "publickey"
+
+    def check_auth_publickey(self, username, key):
+        if self.accepted_key is not None and key == self.accepted_key:
+            return paramiko.AUTH_SUCCESSFUL
+        return paramiko.AUTH_FAILED
+
+    def check_channel_request(self, kind, chanid):
+        return paramiko.OPEN_SUCCEEDED if kind == "session" else paramiko.OPEN_FAILED_ADMINISTRATIVELY_PROHIBITED
+
+    def check_channel_exec_request(self, channel, command):
+        def answer():
+            channel.send_exit_status(0)
+            channel.close()
+
+        threading.Thread(target=answer, daemon=True).start()
+        return True
+
+
+class Listener:
+    """Accepts TCP connections on 127.0.0.1; ``ssh`` decides what it says."""
+
+    def __init__(self, host_key=None, client_key=None, hang_up=False):
+        self.hang_up = hang_up  # close each connection at once (an sshd over MaxStartups)
+        self.socket = socket.create_server(("127.0.0.1", 0))
+        self.port = self.socket.getsockname()[1]
+        self.host_key, self.client_key = host_key, client_key
+        self.connections = 0
+        self.open: list = []
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.socket.accept()
+            except OSError:
+                return
+            self.connections += 1
+            if self.hang_up:
+                conn.close()
+                continue
+            self.open.append(conn)
+            if self.host_key is not None:
+                threading.Thread(target=self._ssh, args=(conn,), daemon=True).start()
+
+    def _ssh(self, conn):
+        transport = paramiko.Transport(conn)
+        self.open.append(transport)
+        transport.add_server_key(self.host_key)
+        try:
+            transport.start_server(server=_Server(self.client_key))
+        except (paramiko.SSHException, EOFError, OSError):
+            return
+
+    def close(self):
+        self.socket.close()
+        for item in self.open:
+            try:
+                item.close()
+            except OSError:
+                pass
+
+
+def ssh_server(client_key=None) -> Listener:
+    return Listener(host_key=paramiko.ECDSAKey.generate(), client_key=client_key)
+
+
+def closed_port() -> int:
+    """A port nothing listens on (bound, then released)."""
+    probe = socket.create_server(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    return port

@@ -1,0 +1,144 @@
+"""python3 -m engine enroll (issue 18, item 1): host keys fetched from real
+SSH servers on 127.0.0.1, shown as fingerprints, written once; a changed key
+or a fingerprint that differs from the recorded one is refused and the file
+is left as it was."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import paramiko
+import pytest
+
+from engine import hostkeys
+from engine.commands import enroll
+from tests.unit import sshserver
+from tests.unit.test_first_contact import ROOT, connect, fleet
+
+
+@pytest.fixture
+def servers(tmp_path):
+    client = paramiko.ECDSAKey.generate()
+    client.write_private_key_file(str(tmp_path / "id_fleet"))
+    started = [sshserver.ssh_server(client), sshserver.ssh_server(client)]
+    yield started
+    for server in started:
+        server.close()
+
+
+def run(path, monkeypatch, capsys, *args) -> tuple[int, list[str]]:
+    monkeypatch.setenv("ROBOT_FLEET", str(path))
+    monkeypatch.chdir(ROOT)
+    code = enroll.main(["inventories/robots.py", *args])
+    return code, capsys.readouterr().err.splitlines()
+
+
+def two_robots(tmp_path, servers):
+    return fleet(tmp_path, {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port} for i, s in enumerate(servers)})
+
+
+def line(server, name) -> str:
+    return f"{name} ([127.0.0.1]:{server.port}) ecdsa-sha2-nistp256 {hostkeys.fingerprint(server.host_key)}"
+
+
+def test_from_an_empty_known_hosts_to_a_strict_connection(tmp_path, monkeypatch, capsys, servers):
+    path = two_robots(tmp_path, servers)
+    known_hosts = tmp_path / "known_hosts"
+    known_hosts.write_text("")
+    code, lines = run(path, monkeypatch, capsys, "--yes")
+    assert code == 0, lines
+    assert lines[1:] == [f"{line(servers[0], 'robot1')}: new; enrolled (--yes)",
+                         f"{line(servers[1], 'robot2')}: new; enrolled (--yes)",
+                         f"{known_hosts}: 2 key(s) added", "enroll: 2 enroll"]
+    assert connect(path, monkeypatch) == {"robot1": None, "robot2": None}  # strict checking passes
+    written = known_hosts.read_text()
+    code, lines = run(path, monkeypatch, capsys, "--yes")
+    assert code == 0 and lines[-1] == "enroll: 2 known" and known_hosts.read_text() == written
+
+
+def test_a_changed_key_is_refused_with_both_fingerprints_and_the_file_left_alone(tmp_path, monkeypatch, capsys, servers):
+    path = two_robots(tmp_path, servers)
+    old = paramiko.ECDSAKey.generate()
+    known_hosts = tmp_path / "known_hosts"
+    hostkeys.append(str(known_hosts), f"[127.0.0.1]:{servers[0].port}", old)
+    before = known_hosts.read_text()
+    code, lines = run(path, monkeypatch, capsys, "--yes", "--limit", "robot1")
+    assert code == 1
+    assert lines[1] == (f"robot1: host key CHANGED for [127.0.0.1]:{servers[0].port}: {known_hosts} has "
+                        f"ecdsa-sha2-nistp256 {hostkeys.fingerprint(old)}, the host offers ecdsa-sha2-nistp256 "
+                        f"{hostkeys.fingerprint(servers[0].host_key)}; refused, its line is left as it is "
+                        "(if the robot was reinstalled, delete that line and enroll it again)")
+    assert known_hosts.read_text() == before
+
+
+def test_fingerprints_from_a_file_enroll_or_refuse(tmp_path, monkeypatch, capsys, servers):
+    path = two_robots(tmp_path, servers)
+    recorded = tmp_path / "fingerprints.txt"
+    wrong = hostkeys.fingerprint(paramiko.ECDSAKey.generate())
+    recorded.write_text(f"# from the image build\nrobot1 {hostkeys.fingerprint(servers[0].host_key)}\n"
+                        f"127.0.0.1 ecdsa-sha2-nistp256 {wrong}\n")
+    code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(recorded))
+    assert code == 1
+    assert lines[1] == f"{line(servers[0], 'robot1')}: matches {recorded}; enrolled"
+    assert lines[2] == (f"robot2: fingerprint mismatch for [127.0.0.1]:{servers[1].port}: {recorded} has {wrong}, "
+                        f"the host offers {hostkeys.fingerprint(servers[1].host_key)}; refused")
+    assert hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[0].port}")
+    assert not hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
+
+
+def test_without_a_terminal_nothing_is_enrolled_unasked(tmp_path, monkeypatch, capsys, servers):
+    path = two_robots(tmp_path, servers)
+    monkeypatch.setattr(sys, "stdin", open("/dev/null"))
+    code, lines = run(path, monkeypatch, capsys, "--limit", "robot2")
+    assert code == 1
+    assert lines[1] == (f"{line(servers[1], 'robot2')}: new; not enrolled: no terminal to ask (check the "
+                        "fingerprint, then pass --yes, or give --fingerprints FILE)")
+    assert not (tmp_path / "known_hosts").exists()
+
+
+def test_asking_shows_the_fingerprint_and_takes_the_answer(tmp_path, servers):
+    """A person at a terminal (a pty): y enrolls robot1, n declines robot2."""
+    import os
+    import pty
+    import select
+    import time
+
+    path = two_robots(tmp_path, servers)
+    env = {"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)}
+    main, terminal = pty.openpty()
+    proc = subprocess.Popen([sys.executable, "-m", "engine", "enroll", "inventories/robots.py"], cwd=ROOT, env=env,
+                            stdin=terminal, stdout=terminal, stderr=terminal)
+    os.close(terminal)
+    seen, answers, deadline = b"", [b"y\n", b"n\n"], time.monotonic() + 60
+    while proc.poll() is None and time.monotonic() < deadline:
+        if select.select([main], [], [], 0.2)[0]:
+            try:
+                seen += os.read(main, 4096)
+            except OSError:
+                break
+            if seen.rstrip().endswith(b"[y/N]") and answers:
+                os.write(main, answers.pop(0))
+    proc.wait(timeout=10)
+    text = seen.decode()
+    assert f"{line(servers[0], 'robot1')}: new. Is this the robot's key? [y/N] " in text, text
+    assert proc.returncode == 1  # robot2 declined
+    assert hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[0].port}")
+    assert not hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
+
+
+def test_unreachable_and_unmatched(tmp_path, monkeypatch, capsys):
+    closed = sshserver.closed_port()
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": closed}})
+    code, lines = run(path, monkeypatch, capsys, "--yes")
+    assert code == 3
+    assert lines[1] == f"robot1: unreachable: connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})"
+    code, lines = run(path, monkeypatch, capsys, "--limit", "bot-z")
+    assert code == 2
+    assert lines == ["--limit bot-z: no host or group of inventories/robots.py matches (hosts: robot1; "
+                     "groups: robots); nothing was done"]
+
+
+def test_the_command_is_listed():
+    result = subprocess.run([sys.executable, "-m", "engine"], cwd=ROOT, capture_output=True, text=True)
+    assert "python3 -m engine enroll INVENTORY" in result.stderr

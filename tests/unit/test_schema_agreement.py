@@ -1,0 +1,146 @@
+"""One source for the schema (issue 18, item 4): the editors' JSON Schema and
+the run's checks are built from the same declarations, and give the same
+verdict on the validation corpus and the hostile-value corpus wherever JSON
+Schema can express the rule; README names the rules it cannot
+(engine/fleet/schema.py BEYOND_SCHEMA)."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from engine import roster
+from engine.checks import Misread
+from engine.fleet import check as fleet_check
+from engine.fleet import loader as fleetyaml
+from engine.fleet import schema as fleet_schema
+from engine.fleet.registry import Registry
+from tests.unit import test_fleet_corpus, test_hostile_values
+
+jsonschema = pytest.importorskip("jsonschema")
+
+ROOT = Path(__file__).resolve().parents[2]
+SCHEMA = fleet_schema.fleet_schema(roster.registry())
+VALIDATOR = jsonschema.Draft7Validator(SCHEMA)
+MORE_VALUES = ["on", "off", "yes", "", " ", "fe80::1%eth0", "::ffff:10.0.0.1", "1::", "10.0.0.01", "robot-1.lan",
+               "robot_1", "1.2.3", "x" * 64, "/var/lib/./tmp", "//tmp/x", "/var//tmp", "reg.example.com/p:1 2"]
+TRAPS = [fleetyaml.load(f"v: {trap}")["v"] for trap in test_hostile_values.YAML_TRAPS]
+
+
+def schema_refuses(document) -> bool:
+    return any(True for _ in VALIDATOR.iter_errors(document))
+
+
+def json_only(value) -> bool:
+    try:
+        json.dumps(value, allow_nan=False)
+    except (TypeError, ValueError):
+        return False
+    return not any(isinstance(item, Misread) for item in walk(value))
+
+
+def walk(value):
+    yield value
+    if isinstance(value, dict):
+        for key, item in value.items():
+            yield key
+            yield from walk(item)
+    elif isinstance(value, list):
+        for item in value:
+            yield from walk(item)
+
+
+@pytest.mark.parametrize("setting", sorted(roster.registry().settings))
+def test_each_setting_gets_the_same_verdict_from_the_schema_and_the_run(setting):
+    check = roster.registry().settings[setting].check
+    disagree = []
+    for value in [*test_hostile_values.HOSTILE, *MORE_VALUES, *TRAPS, 0, -1, 22, 70000, 1.5, True, None]:
+        for place, placed in test_hostile_values.places(setting, value):
+            if not json_only(placed):
+                continue
+            document = {"robots": {"hosts": {"r1": {setting: placed}}}}
+            if bool(check(placed)) != schema_refuses(document):
+                disagree.append((place, placed, check(placed)))
+    assert disagree == []
+
+
+class _NoRulesAcross(Registry):
+    """The registry without the rules across settings (BEYOND_SCHEMA)."""
+
+    def check_host(self, data, refused=frozenset()):
+        return []
+
+
+def expressible_lines(raw) -> list[str]:
+    full = roster.registry()
+    registry = _NoRulesAcross([], full.roles, full.aliases)
+    registry.settings = full.settings
+    try:
+        fleet_check.check(raw, "f.yaml", registry)
+    except fleet_check.FleetError as error:
+        return [line for line in error.lines if "declared in both" not in line and "no hosts:" not in line]
+    return []
+
+
+def corpus_documents():
+    for name, text, _ in test_fleet_corpus.CORPUS:
+        if "billion" in name or name == "too large":
+            continue  # jsonschema would walk every expanded alias
+        try:
+            raw = fleetyaml.load(text)
+        except fleetyaml.YamlProblem:
+            continue  # the editor shows YAML errors itself
+        if json_only(raw):
+            yield name, raw
+
+
+@pytest.mark.parametrize("name, raw", list(corpus_documents()), ids=[name for name, _ in corpus_documents()])
+def test_the_validation_corpus_gets_the_same_verdict(name, raw):
+    lines = expressible_lines(raw)
+    assert bool(lines) == schema_refuses(raw), (lines, [e.message for e in VALIDATOR.iter_errors(raw)])
+
+
+def test_the_yaml_version_is_the_editors(tmp_path):
+    """Unquoted on/yes are text to the editor and to the run: ROS_LOCALHOST_ONLY: on
+    is accepted by both, display: on refused by both."""
+    base = "robots:\n  hosts:\n    r1:\n      payload_image: reg.example.com/p:1\n"
+    for text, refused in ((base + "      payload_environment: {ROS_LOCALHOST_ONLY: on}\n", False),
+                          (base + "      display: on\n", True)):
+        raw = fleetyaml.load(text)
+        assert bool(expressible_lines(raw)) is refused and schema_refuses(raw) is refused, text
+
+
+def test_readme_names_the_rules_the_schema_cannot_express():
+    readme = (ROOT / "README.md").read_text()
+    for rule in fleet_schema.BEYOND_SCHEMA:
+        assert rule in readme, rule
+
+
+def test_the_address_pattern_is_what_ipaddress_reads():
+    """The schema's address pattern is the run's verdict: IPv4/IPv6 forms
+    exactly as Python's ipaddress reads them (random and compressed forms)."""
+    import ipaddress
+    import random
+    import re
+
+    from engine import values
+
+    pattern = re.compile(f"(?:{values.IPV4}|{values.IPV6})", re.ASCII)
+    rng = random.Random(7)
+    for _ in range(20000):
+        if rng.random() < 0.4:
+            bits = rng.getrandbits(128) & ~((1 << rng.randrange(128)) - 1)
+            text = rng.choice([str(ipaddress.IPv6Address(bits)), ipaddress.IPv6Address(bits).exploded])
+            if rng.random() < 0.3 and text.count(":") >= 2:
+                text = text.rsplit(":", 2)[0] + ":" + ".".join(str(rng.randrange(300)) for _ in range(4))
+        else:
+            text = "".join(rng.choice("0129:::..af%e") for _ in range(rng.randrange(1, 24)))
+        try:
+            ipaddress.ip_address(text)
+            valid = True
+        except ValueError:
+            valid = False
+        zone = text.partition("%")[2]
+        if zone and not re.fullmatch(r"[0-9A-Za-z._~-]+", zone):
+            valid = False  # a zone (%eth0) is an interface name: RFC 6874's unreserved characters
+        assert bool(pattern.fullmatch(text)) == valid, text
