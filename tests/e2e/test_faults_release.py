@@ -181,7 +181,9 @@ def test_two_deploys_at_once_are_serialized(lab, first_run, tmp_path):
         bounded = lab.fleet_with(tmp_path / "bounded", **host_settings(host, "payload_apply_lock_timeout: 3"))
         run = lab.provision("--limit", host, fleet=bounded, label=f"({host}: while another deploy runs)")
         assert run.returncode != 0
-        line = line_of(run, host, "another deploy is running")
+        # Said when the run starts (from the snapshot), then the refusal once the wait ran out.
+        assert line_of(run, host, "another deploy is running").endswith("; waiting")
+        line = line_of(run, host, "gave up after")
         assert f"another deploy is running on {host} since 20" in line and "(by " in line
         assert "gave up after 3 s (payload_apply_lock_timeout)" in line
     finally:
