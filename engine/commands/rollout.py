@@ -195,6 +195,18 @@ def main(argv=None) -> int:
     plan = waves.build_waves(names, flagged, args.canary, args.batch)
     key = waves.fleet_key(args.inventory, names, targets)
     path = waves.state_path(key)
+    if args.dry:
+        return roll(args, argv, roles, names, targets, plan, key, path, extra)
+    try:
+        with waves.held(path):  # one rollout of a fleet at a time: the state is read and written by it alone
+            return roll(args, argv, roles, names, targets, plan, key, path, extra)
+    except waves.RolloutBusy as busy:
+        print(f"rollout: {busy}", file=sys.stderr)
+        return selection.REFUSED
+
+
+def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
+    """The rollout itself, from its state (resumed or new) to the report."""
     state = waves.load_state(path) or waves.new_state(
         key, args.inventory, plan, targets, waves.allowed_failures(args.max_failed, len(names))
     )

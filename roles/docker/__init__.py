@@ -3,7 +3,6 @@ engine), daemon.json, and the service enabled and running."""
 
 from __future__ import annotations
 
-from pyinfra import host
 from pyinfra.api import deploy
 
 from engine import values

@@ -204,7 +204,6 @@ WRONG_TYPES = [-1, 2**70, float("nan"), False, None, "", "x" * 500, [[[]]], {1: 
 def test_wrong_types_at_every_setting_in_every_layer():
     """The sweep behind the random documents: each setting, each layer, each
     kind of value: a file+field line or acceptance, nothing else."""
-    defaults = fleet.group_data()
     for setting in fleet.setting_checks():
         for value in WRONG_TYPES:
             for layer in ("all.vars", "host"):

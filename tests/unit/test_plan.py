@@ -1,7 +1,6 @@
 """The commands deploy.py plans for Ubuntu and Debian hosts (pyinfra @fake
 connector with a canned host snapshot), including converged hosts."""
 
-import hashlib
 import json
 import re
 
@@ -10,9 +9,8 @@ import pytest
 from engine.host.fixtures import file_state
 from engine.host.snapshot import FileState
 from roles.docker import plan as docker_plan
-from roles.payload import compose, robot
-from roles.udev import rules
-from tests.unit.harness import IMAGE, LAPTOP, ROBOT, Data, converged, everything_sent, find, fresh_host, merged, plan
+from roles.payload import robot
+from tests.unit.harness import LAPTOP, ROBOT, converged, everything_sent, find, fresh_host, merged, plan
 
 DOCKER_FPR = "9DC858229FC7DD38854AE2D88D81803C0EBFCD88"
 MATRIX = [(os_name, arch) for os_name in ("ubuntu-20.04", "ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13") for arch in ("amd64", "arm64")]
