@@ -11,6 +11,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -31,10 +32,11 @@ def rollout(lab, first_run, tmp_path_factory):
         return lab.fleet_with(tmp_path_factory.mktemp("fleet"), **FAST,
                               **{ALL_TAG: f'payload_image: "@registry@/ros/payload:{tag}"'})
 
-    def run(tag: str, *args: str):
+    def run(tag, *args: str):
+        """A rollout to ``tag`` of the lab fleet, or of the fleet file ``tag`` names (a Path)."""
         import time
 
-        env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(fleet(tag)),
+        env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(tag if isinstance(tag, Path) else fleet(tag)),
                    ROBOT_ROLLOUT_DIR=str(states), PYINFRA_PROGRESS="off")
         started = time.monotonic()
         proc = subprocess.run(
@@ -109,3 +111,28 @@ def test_a_budget_of_one_lets_one_failure_through_and_stops_at_the_second(lab, r
         assert f"rollout: [{host}] failed: " in output
         assert lab.version(host) == "1.1" and lab.payload(host)["State"]["Health"]["Status"] == "healthy"
     assert (lab.payload("robot3")["Id"], releases(lab, "robot3")) == before
+
+
+def test_a_rollout_of_robots_with_several_services_completes(lab, rollout, tmp_path_factory):
+    """The rollout's target is every image of a robot's compose project (issue
+    16): robots that use payload_services were counted as failed (the target
+    was payload_image alone), so such a rollout stopped at its canary."""
+    from tests.e2e.test_services import two_services
+
+    def fleet(driver: str) -> Path:
+        return lab.fleet_with(tmp_path_factory.mktemp("services"), **FAST,
+                              **{f"    {ALL_TAG}\n": two_services(payload="1.1", driver=driver)})
+
+    setup = lab.provision("--limit", "robots", fleet=fleet("1.0"), label="(robots with two services)")
+    assert setup.returncode == 0, setup.output[-3000:]
+    try:
+        code, output = rollout(fleet("1.1"), "--canary", "1", "--batch", "2")
+        assert code == 0, output[-3000:]
+        assert waves_run(output) == ["robot1", "robot2, robot3"]
+        for host, row in rollout.status().items():
+            assert row["image_refs"] == sorted([f"{lab.state['registry']}/ros/driver:1.1",
+                                                f"{lab.state['registry']}/ros/payload:1.1"]), (host, row)
+            assert row["state"] == "driver:running, payload:running"
+    finally:
+        back = lab.provision("--limit", "robots", fleet=rollout.fleet("1.1"), label="(robots back to one service)")
+        assert back.returncode == 0, back.output[-3000:]
