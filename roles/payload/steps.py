@@ -129,25 +129,13 @@ def deploy_payload(play: Play):
         and snap.unit_active(f"{data.payload_name}.service"),
     )
     needed = needed or unit_changes or bool(taken_over)
-    release.release(
-        name="Release the payload (pull, switch, health check, roll back on failure)",
-        data=data,
-        document=doc,
-        checks=play.added(hooks.CHECKS),
-        needed=needed,
-        restart=unit_changes or bool(taken_over),
-    )
+    the_release = {"data": data, "document": doc, "checks": play.added(hooks.CHECKS)}
+    release.release(name="Release the payload (pull, switch, health check, roll back on failure)",
+                    needed=needed, restart=unit_changes or bool(taken_over), **the_release)
     restarts = play.announced(docker_hooks.RESTARTED)
     if restarts and not needed:
         # A daemon.json Docker accepts can still lose the payload (a new
         # data-root, userns-remap): the same release, checked and made again
         # if its containers are gone, under the health gate.
-        release.release(
-            name="Check the payload after Docker restarted (released again if it does not run)",
-            data=data,
-            document=doc,
-            checks=play.added(hooks.CHECKS),
-            needed=True,
-            restart=False,
-            _if=any_changed(*restarts),
-        )
+        release.release(name="Check the payload after Docker restarted (released again if it does not run)",
+                        needed=True, restart=False, _if=any_changed(*restarts), **the_release)
