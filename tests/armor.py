@@ -24,15 +24,29 @@ def gpg(home, *args, **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run(["gpg", "--batch", "--homedir", str(home), *args], capture_output=True, check=True, **kwargs)
 
 
+def new_key(home: Path, uid: str, with_subkey: bool = False) -> str:
+    """A fresh ed25519 signing key for ``uid`` in ``home`` (mode 0700), with a
+    signing subkey too when asked (Docker's key has one); its fingerprint.
+    gpg starts an agent for the secret key: ``stop_agents`` ends it."""
+    home.mkdir(mode=0o700, exist_ok=True)
+    gpg(home, "--passphrase", "", "--pinentry-mode", "loopback", "--quick-gen-key", uid, "ed25519", "sign", "never")
+    listing = gpg(home, "--with-colons", "--list-keys", uid, text=True).stdout
+    fingerprint = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
+    if with_subkey:
+        gpg(home, "--passphrase", "", "--pinentry-mode", "loopback", "--quick-add-key", fingerprint, "ed25519", "sign", "never")
+    return fingerprint
+
+
+def stop_agents(under: Path) -> None:
+    """Stop the gpg agents of every keyring under ``under`` (tests' temporary keyrings)."""
+    for keyring in under.rglob("pubring.kbx"):
+        subprocess.run(["gpgconf", "--homedir", str(keyring.parent), "--kill", "gpg-agent"], capture_output=True)
+
+
 def signers(home: Path) -> tuple[dict[str, str], dict[str, str]]:
     """Fingerprints and armored public keys of "pinned" and "intruder",
     their secret keys in ``home`` (an empty directory, mode 0700)."""
-    fprs = {}
-    for name in ("pinned", "intruder"):
-        gpg(home, "--passphrase", "", "--quick-gen-key", f"{name}@example", "ed25519", "sign", "never")
-        listing = gpg(home, "--with-colons", "--list-keys", f"{name}@example", text=True).stdout
-        fprs[name] = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
-    gpg(home, "--passphrase", "", "--quick-add-key", fprs["pinned"], "ed25519", "sign", "never")
+    fprs = {name: new_key(home, f"{name}@example", with_subkey=name == "pinned") for name in ("pinned", "intruder")}
     return fprs, {name: gpg(home, "--armor", "--export", fpr, text=True).stdout for name, fpr in fprs.items()}
 
 

@@ -23,3 +23,12 @@ hostimage = _lab_module("hostimage")
 hosts = _lab_module("hosts")
 services = _lab_module("services")
 state = _lab_module("state")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _no_gpg_agent_left_running(tmp_path_factory):
+    """The key tests make real keyrings; gpg starts an agent for each."""
+    yield
+    from tests import armor
+
+    armor.stop_agents(tmp_path_factory.getbasetemp())

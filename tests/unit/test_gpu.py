@@ -11,6 +11,7 @@ import pytest
 from engine.host import aptrepo
 from roles.gpu import plan as gpu_plan
 from engine.host.snapshot import FileState
+from tests import armor
 from tests.unit.harness import find, fresh_host, plan, written_files
 
 IMAGE = "reg.example.com/ros/payload:1.0"
@@ -202,21 +203,12 @@ def test_driver_version_from_the_nvrm_line():
     assert gpu_plan.driver_version("") is None
 
 
-def _gpg_key(home, uid):
-    subprocess.run(["gpg", "--batch", "--homedir", str(home), "--passphrase", "", "--pinentry-mode", "loopback",
-                    "--quick-gen-key", uid, "ed25519", "sign", "never"], check=True, capture_output=True)
-    out = subprocess.run(["gpg", "--batch", "--homedir", str(home), "--with-colons", "--list-keys", uid],
-                         check=True, capture_output=True, text=True).stdout
-    return [line.split(":")[9] for line in out.splitlines() if line.startswith("fpr:")][0]
-
-
 @pytest.mark.parametrize("case", ["pinned", "other", "pinned+other"])
 def test_key_download_accepts_exactly_the_pinned_primary_key(tmp_path, case):
     """The real script against real keys, served from file:// by curl."""
     home = tmp_path / "gnupg"
-    home.mkdir(mode=0o700)
-    pinned = _gpg_key(home, "Pinned <pinned@example.invalid>")
-    other = _gpg_key(home, "Other <other@example.invalid>")
+    pinned = armor.new_key(home, "Pinned <pinned@example.invalid>")
+    other = armor.new_key(home, "Other <other@example.invalid>")
     exported = {"pinned": [pinned], "other": [other], "pinned+other": [pinned, other]}[case]
     key = tmp_path / "gpgkey"
     key.write_bytes(subprocess.run(["gpg", "--batch", "--homedir", str(home), "--armor", "--export", *exported],

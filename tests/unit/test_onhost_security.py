@@ -9,23 +9,15 @@ import pytest
 
 from engine.host import aptrepo
 from engine.host.snapshot import FileState, HostSnapshot, Snapshot
+from tests import armor
 from tests.unit.harness import desired_compose, docker_repo
-
-
-def _gpg(home, *args, **kwargs):
-    return subprocess.run(["gpg", "--batch", "--homedir", str(home), *args], capture_output=True, check=True, **kwargs)
 
 
 def _new_key(tmp_path, name: str, with_subkey: bool = False) -> tuple[str, bytes]:
     """A fresh key (fingerprint, armored public key) in its own keyring."""
     home = tmp_path / f"gnupg-{name}"
-    home.mkdir(mode=0o700)
-    _gpg(home, "--passphrase", "", "--quick-gen-key", f"{name}@example", "ed25519", "sign", "never")
-    listing = _gpg(home, "--with-colons", "--list-keys", text=True).stdout
-    fingerprint = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
-    if with_subkey:  # Docker's key has a signing subkey too
-        _gpg(home, "--passphrase", "", "--quick-add-key", fingerprint, "ed25519", "sign", "never")
-    return fingerprint, _gpg(home, "--armor", "--export").stdout
+    fingerprint = armor.new_key(home, f"{name}@example", with_subkey)
+    return fingerprint, armor.gpg(home, "--armor", "--export").stdout
 
 
 @pytest.fixture(scope="module")

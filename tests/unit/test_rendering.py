@@ -12,6 +12,7 @@ from roles import x11
 from roles.docker import plan as docker_plan
 from roles.payload import compose, robot
 from roles.udev import rules
+from tests import armor
 from tests.unit.harness import desired_compose, docker_repo, merged
 
 SENSORS = [
@@ -209,13 +210,8 @@ def test_file_write_is_atomic_and_validated_before_it_lands(tmp_path):
 def test_key_fingerprint_pin_with_real_gpg(tmp_path):
     """The download script and the snapshot probe read fingerprints the same way."""
     home = tmp_path / "gnupg"
-    home.mkdir(mode=0o700)
-    gpg = ["gpg", "--batch", "--homedir", str(home)]
-    subprocess.run(gpg + ["--passphrase", "", "--quick-gen-key", "lab@example", "ed25519", "sign", "never"],
-                   capture_output=True, check=True)
-    (tmp_path / "key.asc").write_bytes(subprocess.run(gpg + ["--armor", "--export"], capture_output=True, check=True).stdout)
-    listing = subprocess.run(gpg + ["--with-colons", "--list-keys"], capture_output=True, text=True).stdout
-    fingerprint = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
+    fingerprint = armor.new_key(home, "lab@example")
+    (tmp_path / "key.asc").write_bytes(armor.gpg(home, "--armor", "--export").stdout)
     dest = tmp_path / "keyrings" / "docker.asc"
     dest.parent.mkdir()
     url = f"file://{tmp_path}/key.asc"
