@@ -9,7 +9,8 @@ operation of every host, both recomputing what cannot change:
   of source for every frame, and ``getframeinfo`` twice more per frame,
   though only each frame's file name and line number are used.
   ``getframeinfo(frame, context=0)`` gives the same file name and line
-  number without reading any source.
+  number without reading any source; both follow from the frame's code and
+  the instruction it is at, so each place is looked up once.
 - ``all_global_arguments`` evaluates ``typing.get_type_hints`` of a
   TypedDict on each call; the answer is fixed once pyinfra is imported.
 
@@ -48,20 +49,33 @@ def operation_order_from_stack(state) -> list:
         frames.append(frame)
         frame = frame.f_back
     frames.reverse()
-    infos = [getframeinfo(frame, context=0) for frame in frames]
+    places = [_place(frame) for frame in frames]
     i = 0
     if state.current_deploy_filename:
-        for i, info in enumerate(infos):
-            if info.filename == state.current_deploy_filename:
+        for i, (filename, _) in enumerate(places):
+            if filename == state.current_deploy_filename:
                 break
     line_numbers = []
     if pyinfra.is_cli:
         line_numbers.append(state.current_op_file_number)
-    for info in infos[i:]:
-        if info.filename.startswith(pyinfra_util.PYINFRA_INSTALL_DIR) or info.filename == __file__:
+    for filename, lineno in places[i:]:
+        if filename.startswith(pyinfra_util.PYINFRA_INSTALL_DIR) or filename == __file__:
             continue
-        line_numbers.append(info.lineno)
+        line_numbers.append(lineno)
     return line_numbers
+
+
+_PLACES: dict = {}
+
+
+def _place(frame) -> tuple[str, int]:
+    """(file name, line number) as ``getframeinfo`` gives them."""
+    key = (frame.f_code, frame.f_lasti)
+    place = _PLACES.get(key)
+    if place is None:
+        info = getframeinfo(frame, context=0)
+        place = _PLACES[key] = (info.filename, info.lineno)
+    return place
 
 
 @functools.lru_cache(maxsize=1)
