@@ -5,7 +5,7 @@ N = 1 .. 200 robots, time, memory and open files of the operator's process.
 
 What is measured is the operator's process, so most hosts are light: one
 container (``<prefix>light-hosts``, the lab's host image, host network) runs
-one sshd listening on a port per light host (127.0.0.1:40001..), and every
+one sshd listening on a port per light host (127.0.0.1:30001..), and every
 command it is sent answers with what a converged lab robot answered.  That
 is a STAND-IN for the whole host (no dpkg, systemd or Docker behind it):
 the snapshot and status outputs are captured from the running lab's robot4
@@ -39,7 +39,9 @@ from tests.bench.roundtrips import COUNTING_PYINFRA
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
-PORT_BASE = 40000
+# Below Linux's ephemeral range (32768-60999): an outgoing connection's own
+# port must not take a light host's.
+PORT_BASE = 30000
 ANCHORS = ("robot4", "robot5", "robot6")
 REPLAY = """#!/bin/sh
 case "$SSH_ORIGINAL_COMMAND" in
@@ -166,6 +168,9 @@ class Scale:
             if key.returncode == 0 and key.stdout and self._listening(PORT_BASE + count):
                 break
             time.sleep(0.2)
+        deaf = [port for port in ports if not self._listening(port)]
+        if deaf:
+            raise RuntimeError(f"light hosts: nothing listens on 127.0.0.1 port(s) {deaf[:10]}")
         self._known_hosts(count, key.stdout)
 
     @staticmethod
