@@ -5,10 +5,12 @@ from __future__ import annotations
 
 from pyinfra import host
 
-from engine import roster
+from engine import roster, speedups
 from engine.host import operations
 from engine.host.snapshot import HostSnapshot, SnapshotQuery
 from engine.role import Play, cards
+
+speedups.install()
 
 
 def provision(listed) -> None:

@@ -17,7 +17,9 @@ small here; the checks bound their own walks).
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import gc
 import math
 import re
 
@@ -46,6 +48,16 @@ CORE_SCHEMA = (
 )
 
 
+@functools.lru_cache(maxsize=4096)
+def _plain_tag(value: str) -> str:
+    """The tag of a plain scalar: a fleet file repeats a few hundred values
+    (names, true, subsystems) thousands of times."""
+    for tag, pattern in CORE_SCHEMA:
+        if pattern.match(value):
+            return tag
+    return _STR
+
+
 @functools.lru_cache(maxsize=None)
 def _resolving(parser):
     """``parser`` (a PyYAML loader class) resolving plain scalars by the core schema."""
@@ -55,9 +67,7 @@ def _resolving(parser):
 
         def resolve(self, kind, value, implicit):
             if kind is ScalarNode and implicit[0]:
-                for tag, pattern in CORE_SCHEMA:
-                    if pattern.match(value):
-                        return tag
+                return _plain_tag(value)
             return super().resolve(kind, value, implicit)
 
     return Yaml12
@@ -116,6 +126,26 @@ class YamlProblem(Exception):
 def load(data: bytes | str):
     """The document's data (None for an empty document), or YamlProblem."""
     text = _decode(data) if isinstance(data, bytes) else data
+    with _no_collection():
+        return _load(text)
+
+
+@contextlib.contextmanager
+def _no_collection():
+    """Python's cyclic garbage collector paused: a large fleet file makes
+    hundreds of thousands of nodes and values (none in a cycle), and the
+    collector's passes over them cost more than reading them (5,000 robots
+    with sensors: 0.75 s instead of 0.25 s)."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+
+
+def _load(text: str):
     loader = None
     try:
         loader = _resolving(_LOADER)(text)

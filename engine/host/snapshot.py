@@ -19,6 +19,7 @@ every run.
 from __future__ import annotations
 
 import base64
+import re
 import shlex
 from dataclasses import dataclass, field
 
@@ -124,21 +125,36 @@ def _q(value: str) -> str:
 PROBE_TIMEOUT = 60
 
 
+# Paths that stat and sha256sum print as they are given (no escaping), read
+# with one call of each; any other path gets its own tests and commands.
+_PLAIN_PATH = re.compile(r"/[A-Za-z0-9._@+:/-]*\Z")
+_STAT_KINDS = {"symbolic link": "link", "directory": "dir", "regular file": "file", "regular empty file": "file"}
+_SHA_LINE = re.compile(r"([0-9a-f]{64})  (/.*)\Z")
+
+
 def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
-    """The shell script behind the snapshot (POSIX sh, read-only)."""
+    """The shell script behind the snapshot (POSIX sh, read-only).
+
+    Its slow parts (probes, units, packages: each asks a daemon or a
+    database) run at once, each into its own file of a temporary directory,
+    printed in order when all are done; where no temporary directory can be
+    made they run one after another.  Files are read with one stat and one
+    sha256sum for all of them."""
     lines = [
         "export LC_ALL=C",
         "T=$(printf '\\t')",
         'echo "os${T}$(base64 -w0 < /etc/os-release 2>/dev/null)"',
         'echo "arch${T}$(dpkg --print-architecture 2>/dev/null)"',
     ]
-    if packages:
-        names = " ".join(_q(p) for p in packages)
-        lines.append(
-            "dpkg-query -W -f='pkg\\t${Package}\\t${Status}\\t${Version}\\n' "
-            f"{names} 2>/dev/null"
-        )
+    plain = [path for path in files if _PLAIN_PATH.match(path)]
+    if plain:
+        names = " ".join(_q(p) for p in plain)
+        lines.append(f"stat -c \"stat${{T}}%n${{T}}%F${{T}}%a %U %G\" -- {names} 2>/dev/null")
+        lines.append(f"set --; for p in {names}; do [ -f \"$p\" ] && [ ! -L \"$p\" ] && set -- \"$@\" \"$p\"; done")
+        lines.append('[ $# -gt 0 ] && sha256sum -- "$@" 2>/dev/null')
     for path in files:
+        if path in plain:
+            continue
         p = _q(path)
         lines.append(
             f"if [ -L {p} ]; then echo \"file${{T}}\"{p}\"${{T}}link${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
@@ -152,21 +168,38 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
             f"if id -u {u} >/dev/null 2>&1; then echo \"user${{T}}\"{u}\"${{T}}$(id -nG {u})\"; "
             f"else echo \"user${{T}}\"{u}\"${{T}}-\"; fi"
         )
-    for unit in units:
-        u = _q(unit)
-        lines.append(
-            f"echo \"unit${{T}}\"{u}\"${{T}}$(systemctl is-enabled {u} 2>/dev/null)${{T}}$(systemctl is-active {u} 2>/dev/null)\""
-        )
     for command in commands:
         cmd = _q(command)
         lines.append(f"echo \"cmd${{T}}\"{cmd}\"${{T}}$(command -v {cmd})\"")
+    slow = []
+    if packages:
+        names = " ".join(_q(p) for p in packages)
+        slow.append(
+            "dpkg-query -W -f='pkg\\t${Package}\\t${Status}\\t${Version}\\n' "
+            f"{names} 2>/dev/null"
+        )
+    for unit in units:
+        u = _q(unit)
+        slow.append(
+            f"echo \"unit${{T}}\"{u}\"${{T}}$(systemctl is-enabled {u} 2>/dev/null)${{T}}$(systemctl is-active {u} 2>/dev/null)\""
+        )
     for name, snippet in (probes or {}).items():
         # Bounded: a wedged dockerd must not hang the host's only snapshot
         # command; a probe cut off reads as empty (unknown), as a failed one does.
-        lines.append(
+        slow.append(
             f"echo \"probe${{T}}\"{_q(name)}\"${{T}}$(timeout {PROBE_TIMEOUT} sh -c {_q(snippet)} 2>/dev/null"
             " | base64 -w0)\""
         )
+    if len(slow) > 1:
+        lines.append("if d=$(mktemp -d 2>/dev/null); then")
+        lines.append("trap 'rm -rf \"$d\"' EXIT")
+        lines += [f'{{ {line}\n}} > "$d/{index:04d}" &' for index, line in enumerate(slow)]
+        lines.append('wait; cat "$d"/*')
+        lines.append("else")
+        lines += slow
+        lines.append("fi")
+    else:
+        lines += slow
     lines.append("true")
     return "\n".join(lines)
 
@@ -175,6 +208,7 @@ def parse(lines: list[str], query: dict) -> Snapshot:
     """The snapshot script's output, answering only the keys of ``query``
     (``SnapshotQuery.as_kwargs()``)."""
     snap = Snapshot(**{kind: Readings(kind, query.get(kind) or ()) for kind in READING_KINDS})
+    stats, shas = {}, {}
     for line in lines:
         kind, _, rest = line.partition("\t")
         parts = rest.split("\t")
@@ -187,6 +221,8 @@ def parse(lines: list[str], query: dict) -> Snapshot:
             name, status, version = parts[0], parts[1], parts[2]
             if status.endswith(" installed"):
                 snap.packages[name] = version
+        elif kind == "stat" and len(parts) >= 3:
+            stats[parts[0]] = (_STAT_KINDS.get(parts[1]), parts[2])
         elif kind == "file":
             path = parts[0]
             if len(parts) >= 4 and parts[1] in ("file", "dir", "link"):
@@ -203,6 +239,19 @@ def parse(lines: list[str], query: dict) -> Snapshot:
             snap.commands[parts[0]] = parts[1] or None if len(parts) > 1 else None
         elif kind == "probe":
             snap.probes[parts[0]] = base64.b64decode(parts[1]).decode() if len(parts) > 1 and parts[1] else ""
+        else:
+            match = _SHA_LINE.match(line)
+            if match:
+                shas[match.group(2)] = match.group(1)
+    for path in query.get("files") or ():
+        if path in snap.files or not _PLAIN_PATH.match(path):
+            continue
+        kind, attributes = stats.get(path, (None, ""))
+        if kind is None:  # missing, or neither a file, a directory nor a link
+            snap.files[path] = None
+            continue
+        mode, owner, group = (attributes.split() + ["", "", ""])[:3]
+        snap.files[path] = FileState(kind, shas.get(path, "") if kind == "file" else None, mode, owner, group)
     return snap
 
 

@@ -9,6 +9,7 @@ from engine import checks as c
 from engine import values as v
 from engine.role import Setting
 import roles.payload.payloadctl.imageref as imageref
+import roles.payload.presets as presets
 import roles.payload.problems as problems
 import roles.payload.services as services
 
@@ -130,7 +131,43 @@ DEFAULTS = {setting.name: setting.default for setting in SETTINGS}
 def rules(data: dict, refused: frozenset) -> list[c.Problem]:
     """The project as a whole: the image pinned, the services checked
     against the Compose Specification, ROS 1 or ROS 2 but not both."""
-    usable = {k: v for k, v in data.items() if k not in refused}
+    # Only the payload's own settings (and the DDS profile's file) count, and
+    # the hosts of a group mostly share them: each distinct set is built and
+    # checked once (5,000 robots build one compose project, not 5,000).
+    own = {k: data[k] for k in DEFAULTS if k in data and k not in refused}
+    try:
+        key = (_frozen(own), frozenset(DEFAULTS.keys() & refused), presets.dds_profile_text(own))
+    except TypeError:  # a value of a type the key cannot tell apart: no memo
+        return _rules(own, refused)
+    return list(_memo(key, own, refused))
+
+
+def _frozen(value):
+    """``value`` as a hashable key that tells every value apart, types and
+    order included (True from 1, [1] from (1,), Misread("010") from 10)."""
+    if value is None or type(value) in (str, int, float, bool):
+        return type(value), value
+    if isinstance(value, dict):
+        return dict, tuple((_frozen(k), _frozen(v)) for k, v in value.items())
+    if isinstance(value, (list, tuple)):
+        return type(value), tuple(_frozen(v) for v in value)
+    if isinstance(value, c.Misread):
+        return c.Misread, _frozen(value.value), value.text
+    raise TypeError(type(value).__name__)
+
+
+_MEMO: dict = {}
+
+
+def _memo(key, own: dict, refused: frozenset) -> tuple:
+    if key not in _MEMO:
+        if len(_MEMO) >= 256:
+            _MEMO.clear()
+        _MEMO[key] = tuple(_rules(own, refused))
+    return _MEMO[key]
+
+
+def _rules(usable: dict, refused: frozenset) -> list[c.Problem]:
     found = []
     if "payload_image" not in refused and "payload_services" not in refused:
         single = usable.get("payload_image")

@@ -2,15 +2,22 @@
 same run on the same simulated hosts.  Prints figures and returns them;
 asserts nothing (timings stay out of the test suite).
 
-For N robots (no laptop), on a lab of its own:
-  floors   N parallel `ssh true`; `pyinfra exec -- true`; Docker's documented
-           apt install of the five packages + one `docker pull` of the payload
-           + the payload's health window, by hand over SSH on fresh hosts
-  fresh    the first deploy.py run (hosts reset to fresh first)
-  no-op    converged reruns (median) and SSH commands per host
+For N robots (no laptop), on a lab of its own; every figure is the median
+of ``runs`` samples (3 by default) with its spread, each sample taken after
+waiting for the 1-minute load average to fall below 1.5 and marked with the
+load it started at (tests/bench/hygiene.py); a floor and the figure it
+bounds alternate on the same hosts in the same cache state:
+  fresh    Docker's documented apt install of the five packages + one
+           `docker pull` of the payload + the payload's health window, by
+           hand over SSH, and the first deploy.py run, alternating on hosts
+           reset before each (after one untimed floor run warms the apt
+           cache and the registry for both)
+  no-op    `pyinfra exec -- true` and a converged rerun, alternating (SSH
+           commands per host counted), and N parallel `ssh true`
+  update   all N robots to the other tag, then one robot there and back;
+           each robot's payload downtime (old container dies -> new one
+           starts, from docker events)
   rollout  python3 -m engine rollout of the whole fleet (canary 1, batch 50%)
-  update   all N robots to another tag, then one robot; each robot's payload
-           downtime (old container dies -> new one starts, from docker events)
   crash    one robot to the crash-looping tag: time until the old release
            runs again
 """
@@ -20,13 +27,13 @@ from __future__ import annotations
 import json
 import os
 import shlex
-import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from tests.bench import hygiene
 from tests.bench.roundtrips import COUNTING_PYINFRA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -155,56 +162,133 @@ class Bench:
         return float(out[1]) - float(out[0])
 
     # --- the run ----------------------------------------------------------------
-    def run(self, noop_runs: int = 3) -> dict:
-        r: dict = {"robots": self.n}
-        load = os.getloadavg()
-        r["load_at_start"] = [round(x, 1) for x in load]
+    def timed(self, name: str, run) -> float:
+        """Time ``run()`` as one sample of figure ``name``, after waiting for
+        an idle machine (tests/bench/hygiene.py); the load goes with it."""
+        load = hygiene.wait_for_idle(label=f"N={self.n} {name}")
+        started = time.monotonic()
+        run()
+        return self.figures.setdefault(name, hygiene.Figure()).add(time.monotonic() - started, load)
+
+    def deploy(self, *args: str, tag: str = "1.0", count: bool = False) -> tuple[int, dict]:
+        _, code, counts = self.pyinfra("deploy.py", *args, tag=tag, count=count)
+        return code, counts
+
+    def fresh_pairs(self, r: dict, runs: int) -> None:
+        """The floor (Docker's apt install + one pull, by hand) and the fresh
+        provision, alternating on reset hosts, after one untimed floor run
+        so both meet the same (warm) apt cache and registry."""
+        log("warm-up: one untimed apt floor on fresh hosts (apt cache, registry)")
+        self.parallel_ssh(self.apt_floor_script())
+        r["fresh_exit"], r["fresh_commands_per_host"] = [], []
+        for index in range(runs):
+            order = ("floor", "fresh") if index % 2 == 0 else ("fresh", "floor")
+            for kind in order:
+                self.up(fresh=True)
+                if kind == "floor":
+                    log(f"apt floor {index + 1}/{runs}")
+                    self.timed("floor_apt_pull", lambda: self.parallel_ssh(self.apt_floor_script()))
+                    load = hygiene.wait_for_idle(label=f"N={self.n} floor_health")
+                    self.figures.setdefault("floor_health", hygiene.Figure()).add(self.health_window(), load)
+                else:
+                    log(f"fresh provision {index + 1}/{runs}")
+                    result = {}
+                    self.timed("fresh", lambda: result.update(zip(("code", "counts"), self.deploy(count=True))))
+                    r["fresh_exit"].append(result["code"])
+                    r["fresh_commands_per_host"].append(
+                        max(c.get("commands", 0) for c in result["counts"].values()) if result["counts"] else None)
+        if order[-1] == "floor":  # leave the hosts provisioned
+            self.up(fresh=True)
+            self.deploy()
+
+    def noop_pairs(self, r: dict, runs: int) -> None:
+        """`pyinfra exec -- true` and the no-op rerun, alternating on the same
+        converged hosts, with N parallel `ssh true` beside them."""
+        per_host = []
+        for index in range(runs):
+            order = ("exec", "noop") if index % 2 == 0 else ("noop", "exec")
+            for kind in order:
+                if kind == "exec":
+                    self.timed("floor_exec_true", lambda: self.pyinfra("exec", "--", "true"))
+                else:
+                    found = {}
+                    self.timed("noop", lambda: found.update(counts=self.deploy(count=True)[1]))
+                    per_host.append(max(c.get("commands", 0) for c in found["counts"].values()))
+            self.timed("floor_ssh_true", lambda: self.parallel_ssh("true"))
+        r["noop_commands_per_host"] = max(per_host)
+
+    def update_cycles(self, r: dict, runs: int) -> None:
+        """Each cycle: every robot to the other tag (all N change), then
+        robot1 back and forth alone (one changes each time)."""
+        tags = ("1.1", "1.0")
+        r["downtime"], r["update_exits"] = {}, []
+        for index in range(runs):
+            new, old = tags[index % 2], tags[(index + 1) % 2]
+            log(f"update all robots to {new} ({index + 1}/{runs})")
+            since = time.time()
+            self.timed("update_all", lambda: r["update_exits"].append(self.deploy(tag=new)[0]))
+            for host in self.robots:
+                value = self.downtime(self.events(host, since))
+                if value is not None:
+                    r["downtime"][host] = max(r["downtime"].get(host, 0.0), value)
+            for tag in (old, new):
+                log(f"update one robot to {tag}")
+                self.timed("update_one", lambda: r["update_exits"].append(
+                    self.deploy("--limit", self.robots[0], tag=tag)[0]))
+
+    def rollouts(self, r: dict, runs: int) -> None:
+        r["rollout_exit"], r["rollout_waves"] = [], None
+        for _ in range(runs):
+            tag = "1.0" if self.tag == "1.1" else "1.1"  # every robot changes
+            log(f"rollout of the whole fleet to {tag} (canary 1, batch 50%)")
+            proc = {}
+            self.timed("rollout", lambda: proc.update(p=subprocess.run(
+                [sys.executable, "-m", "engine", "rollout", "inventories/lab.py", "-y", "--canary", "1",
+                 "--batch", "50%"], cwd=ROOT, env=self.env(tag), capture_output=True, text=True)))
+            self.tag = tag
+            r["rollout_exit"].append(proc["p"].returncode)
+            r["rollout_waves"] = sum(1 for line in proc["p"].stderr.splitlines() if line.startswith("--> wave "))
+
+    def crashes(self, r: dict, runs: int) -> None:
+        r["crash_exit"] = []
+        back = hygiene.Figure()
+        for index in range(runs):
+            log(f"crash-looping release on one robot ({index + 1}/{runs})")
+            since = time.time()
+            load = hygiene.wait_for_idle(label=f"N={self.n} crash_deploy")
+            started = time.monotonic()
+            r["crash_exit"].append(self.deploy("--limit", self.robots[0], tag="1.2-broken")[0])
+            self.figures.setdefault("crash_deploy", hygiene.Figure()).add(time.monotonic() - started, load)
+            value = self.back_again(self.events(self.robots[0], since))
+            if value is not None:
+                back.add(value, load)
+        if back.samples:
+            self.figures["crash_to_old_running"] = back
+
+    def run(self, runs: int = 3, fresh: bool = True, updates: bool = True) -> dict:
+        self.figures: dict[str, hygiene.Figure] = {}
+        r: dict = {"robots": self.n, "runs": runs}
+        r["load_at_start"] = [round(x, 2) for x in os.getloadavg()]
         log(f"N={self.n}: lab up (fresh hosts)")
         self.up(fresh=True)
         self.pyinfra("exec", "--", "true")  # warm caches, first host-key checks
-        r["floor_ssh_true"] = min(self.parallel_ssh("true") for _ in range(3))
-        r["floor_exec_true"] = min(self.pyinfra("exec", "--", "true")[0] for _ in range(3))
-        log("apt floor (Docker's documented install + pull) on fresh hosts")
-        r["floor_apt_pull"] = self.parallel_ssh(self.apt_floor_script())
-        r["floor_health"] = self.health_window()
-        r["floor_fresh"] = r["floor_apt_pull"] + r["floor_health"]
-
-        log("fresh provision (hosts reset)")
-        self.up(fresh=True)
-        r["fresh"], code, counts = self.pyinfra("deploy.py", count=True)
-        r["fresh_exit"] = code
-        r["fresh_commands_per_host"] = max(c.get("commands", 0) for c in counts.values()) if counts else None
-
-        noops, per_host = [], []
-        for _ in range(noop_runs):
-            seconds, _, counts = self.pyinfra("deploy.py", count=True)
-            noops.append(seconds)
-            per_host.append(max(c.get("commands", 0) for c in counts.values()))
-        r["noop_runs"] = noops
-        r["noop"] = statistics.median(noops)
-        r["noop_commands_per_host"] = max(per_host)
-
-        log("rollout of the whole fleet to 1.1 (canary 1, batch 50%)")
-        started = time.monotonic()
-        proc = subprocess.run([sys.executable, "-m", "engine", "rollout", "inventories/lab.py", "-y",
-                               "--canary", "1", "--batch", "50%"], cwd=ROOT, env=self.env("1.1"),
-                              capture_output=True, text=True)
-        r["rollout"] = time.monotonic() - started
-        r["rollout_exit"] = proc.returncode
-        r["rollout_waves"] = sum(1 for line in proc.stderr.splitlines() if line.startswith("--> wave "))
-
-        log("update all robots to 1.0")
-        since = time.time()
-        r["update_all"], r["update_all_exit"], _ = self.pyinfra("deploy.py", tag="1.0")
-        r["downtime"] = {h: self.downtime(self.events(h, since)) for h in self.robots}
-        log("update one robot to 1.1")
-        r["update_one"], r["update_one_exit"], _ = self.pyinfra("deploy.py", "--limit", self.robots[0], tag="1.1")
-
-        log("crash-looping release on one robot")
-        since = time.time()
-        r["crash_deploy"], r["crash_exit"], _ = self.pyinfra("deploy.py", "--limit", self.robots[0], tag="1.2-broken")
-        r["crash_to_old_running"] = self.back_again(self.events(self.robots[0], since))
-        r["crash_window"] = r["floor_health"] + 10
+        if fresh:
+            self.fresh_pairs(r, runs)
+        else:
+            log("first deploy (untimed)")
+            self.deploy()
+        self.noop_pairs(r, runs)
+        if updates:
+            self.update_cycles(r, runs)
+            self.tag = ("1.1", "1.0")[(runs - 1) % 2]
+            self.rollouts(r, runs)
+            self.crashes(r, runs)
+        r["figures"] = {name: figure.as_dict() for name, figure in self.figures.items()}
+        if "floor_apt_pull" in self.figures and "floor_health" in self.figures:
+            r["figures"]["floor_fresh"] = {
+                **hygiene.Figure([a + b for a, b in zip(self.figures["floor_apt_pull"].samples, self.figures["floor_health"].samples)],
+                                 [max(a, b) for a, b in zip(self.figures["floor_apt_pull"].loads, self.figures["floor_health"].loads)]).as_dict()}
+        r["load_at_end"] = [round(x, 2) for x in os.getloadavg()]
         self.ratios(r)
         return r
 
@@ -231,28 +315,44 @@ class Bench:
 
     @staticmethod
     def ratios(r: dict) -> None:
+        figures = r["figures"]
+
+        def median(name):
+            return (figures.get(name) or {}).get("median")
+
         def ratio(a, b):
+            a, b = median(a), median(b)
             return round(a / b, 2) if a is not None and b else None
 
-        downtimes = [d for d in r["downtime"].values() if d is not None]
+        downtimes = [d for d in r.get("downtime", {}).values() if d is not None]
+        waves = r.get("rollout_waves")
+        one = median("update_one")
         r["ratios"] = {
-            "noop / pyinfra exec true": ratio(r["noop"], r["floor_exec_true"]),
-            "noop / ssh true": ratio(r["noop"], r["floor_ssh_true"]),
-            "fresh / (apt+pull+health)": ratio(r["fresh"], r["floor_fresh"]),
-            "update all / update one": ratio(r["update_all"], r["update_one"]),
-            "rollout / update all": ratio(r["rollout"], r["update_all"]),
-            "rollout / (waves x update one)": ratio(r["rollout"], r["rollout_waves"] * r["update_one"]),
+            "noop / pyinfra exec true": ratio("noop", "floor_exec_true"),
+            "noop / ssh true": ratio("noop", "floor_ssh_true"),
+            "fresh / (apt+pull+health)": ratio("fresh", "floor_fresh"),
+            "update all / update one": ratio("update_all", "update_one"),
+            "rollout / update all": ratio("rollout", "update_all"),
+            "rollout / (waves x update one)": round(median("rollout") / (waves * one), 2)
+            if median("rollout") and waves and one else None,
             "max downtime (s)": round(max(downtimes), 2) if downtimes else None,
-            "crash -> old running / health window": ratio(r["crash_to_old_running"], r["floor_health"]),
-            "crash deploy / (health window + 10 s)": ratio(r["crash_deploy"], r["crash_window"]),
+            "crash -> old running / health window": ratio("crash_to_old_running", "floor_health"),
         }
+        # Which ratio had every sample of both its figures taken idle.
+        pairs = {"noop / pyinfra exec true": ("noop", "floor_exec_true"), "noop / ssh true": ("noop", "floor_ssh_true"),
+                 "fresh / (apt+pull+health)": ("fresh", "floor_fresh"), "update all / update one": ("update_all", "update_one"),
+                 "rollout / update all": ("rollout", "update_all"), "max downtime (s)": ("update_all", "update_all"),
+                 "crash -> old running / health window": ("crash_to_old_running", "floor_health")}
+        r["ratios_idle"] = {key: all((figures.get(name) or {}).get("idle", False) for name in names)
+                            for key, names in pairs.items()}
 
 
-def measure(robots: int, prefix: str, keep: bool = False) -> dict:
+def measure(robots: int, prefix: str, keep: bool = False, runs: int = 3, fresh: bool = True,
+            updates: bool = True) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         bench = Bench(prefix, robots, Path(tmp))
         try:
-            return bench.run()
+            return bench.run(runs=runs, fresh=fresh, updates=updates)
         finally:
             if not keep:
                 bench.down()

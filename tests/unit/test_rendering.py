@@ -2,6 +2,7 @@
 and the snapshot script run for real by sh on this machine."""
 
 import json
+import re
 import subprocess
 
 import yaml
@@ -165,6 +166,52 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
     assert "root" in snap.users["root"] and snap.users["surely-not-a-user"] is None
     assert snap.commands["sh"] and snap.commands["surely-not-a-command"] is None
     assert snap.probes["two lines"] == "a\nb c\n" and snap.probes["fails"] == ""
+
+
+def _all_kinds_of_paths(tmp_path) -> list[str]:
+    import os
+
+    (tmp_path / "f").write_text("hello\n")
+    (tmp_path / "empty").write_text("")
+    (tmp_path / "d").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "f")
+    os.mkfifo(tmp_path / "fifo")
+    return [str(tmp_path / name) for name in ("f", "empty", "d", "link", "fifo", "missing")]
+
+
+def test_snapshot_reads_files_in_one_stat_as_it_would_one_by_one(tmp_path, monkeypatch):
+    paths = _all_kinds_of_paths(tmp_path)
+    query = dict(files=paths, probes={"p": "echo p"}, units=["surely-not-a.service"])
+
+    def files():
+        out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True)
+        snap = hoststate.parse(out.stdout.splitlines(), query)
+        return {path: snap.files[path] for path in paths}, out.stdout
+
+    batched, text = files()
+    assert "\nstat\t" in "\n" + text and "\nfile\t" not in "\n" + text
+    monkeypatch.setattr(hoststate, "_PLAIN_PATH", re.compile(r"(?!)"))  # every path on its own
+    one_by_one, text = files()
+    assert "\nfile\t" in "\n" + text
+    assert batched == one_by_one
+    kinds = {path.rsplit("/", 1)[1]: state and (state.kind, state.sha256) for path, state in batched.items()}
+    assert kinds == {"f": ("file", "5891b5b522d5df086d0ff0b110fbd9d21bb4fc7163af34d08286a2e846f6be03"),
+                     "empty": ("file", "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"),
+                     "d": ("dir", None), "link": ("link", None), "fifo": None, "missing": None}
+
+
+def test_snapshot_runs_its_slow_reads_one_after_another_without_a_temporary_directory(tmp_path):
+    import os
+
+    fake = tmp_path / "bin"
+    fake.mkdir()
+    (fake / "mktemp").write_text("#!/bin/sh\nexit 1\n")
+    (fake / "mktemp").chmod(0o755)
+    query = dict(probes={"a": "echo a", "b": "echo b"}, packages=["dpkg"])
+    env = dict(os.environ, PATH=f"{fake}:{os.environ['PATH']}")
+    out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True, env=env)
+    snap = hoststate.parse(out.stdout.splitlines(), query)
+    assert snap.probes["a"] == "a\n" and snap.probes["b"] == "b\n" and "dpkg" in snap.packages
 
 
 def test_key_download_verifies_before_moving_into_place(tmp_path):

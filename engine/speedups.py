@@ -1,0 +1,93 @@
+"""Two of pyinfra's per-operation steps, same answers, less work.
+
+Profiling a converged rerun of ten robots (tests/bench/PROFILE.md) found a
+third of the operator's CPU in two pyinfra functions called for every
+operation of every host, both recomputing what cannot change:
+
+- ``get_operation_order_from_stack`` (the CLI orders operations by the line
+  numbers of their call stack) takes ``inspect.stack()``, which reads a line
+  of source for every frame, and ``getframeinfo`` twice more per frame,
+  though only each frame's file name and line number are used.
+  ``getframeinfo(frame, context=0)`` gives the same file name and line
+  number without reading any source; both follow from the frame's code and
+  the instruction it is at, so each place is looked up once.
+- ``all_global_arguments`` evaluates ``typing.get_type_hints`` of a
+  TypedDict on each call; the answer is fixed once pyinfra is imported.
+
+``install()`` puts both in place of pyinfra's; tests/unit/test_speedups.py
+checks they answer as pyinfra's own do.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import sys
+from inspect import getframeinfo
+
+import pyinfra
+from pyinfra.api import arguments
+from pyinfra.api import util as pyinfra_util
+
+# The module (pyinfra.api exports the decorator under the same name).
+operation = importlib.import_module("pyinfra.api.operation")
+
+_ORIGINAL = {
+    "order": pyinfra_util.get_operation_order_from_stack,
+    "arguments": arguments.all_global_arguments,
+}
+
+
+def operation_order_from_stack(state) -> list:
+    """pyinfra.api.util.get_operation_order_from_stack, without reading source."""
+    # Outermost frame first, as pyinfra's reversed(stack()); its own frame is
+    # the innermost there, and so is this function's here (both skipped as
+    # pyinfra's install directory, or not, alike: see the test).
+    frames = []
+    frame = sys._getframe(0)
+    while frame is not None:
+        frames.append(frame)
+        frame = frame.f_back
+    frames.reverse()
+    places = [_place(frame) for frame in frames]
+    i = 0
+    if state.current_deploy_filename:
+        for i, (filename, _) in enumerate(places):
+            if filename == state.current_deploy_filename:
+                break
+    line_numbers = []
+    if pyinfra.is_cli:
+        line_numbers.append(state.current_op_file_number)
+    for filename, lineno in places[i:]:
+        if filename.startswith(pyinfra_util.PYINFRA_INSTALL_DIR) or filename == __file__:
+            continue
+        line_numbers.append(lineno)
+    return line_numbers
+
+
+_PLACES: dict = {}
+
+
+def _place(frame) -> tuple[str, int]:
+    """(file name, line number) as ``getframeinfo`` gives them."""
+    key = (frame.f_code, frame.f_lasti)
+    place = _PLACES.get(key)
+    if place is None:
+        info = getframeinfo(frame, context=0)
+        place = _PLACES[key] = (info.filename, info.lineno)
+    return place
+
+
+@functools.lru_cache(maxsize=1)
+def _global_arguments() -> tuple:
+    return tuple(_ORIGINAL["arguments"]())
+
+
+def all_global_arguments() -> list:
+    """pyinfra.api.arguments.all_global_arguments, evaluated once."""
+    return list(_global_arguments())
+
+
+def install() -> None:
+    operation.get_operation_order_from_stack = operation_order_from_stack
+    arguments.all_global_arguments = all_global_arguments
