@@ -125,7 +125,10 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     with timed_phase("payload images in the lab registry"):
         from . import payload_images
 
-        payload_images.build_payload_images(dc, f"127.0.0.1:{registry_port}")
+        try:
+            payload_images.build_payload_images(dc, f"127.0.0.1:{registry_port}")
+        except payload_images.PayloadImageError as error:
+            raise LabError(str(error)) from None
     _remove_hosts_not_in(dc, prefix, {name for name, _, _ in wanted})
     services_host = services.container_name(prefix)
     with timed_phase(f"start hosts ({len(wanted)})"):
