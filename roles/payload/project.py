@@ -14,6 +14,7 @@ from engine.checks import one_line
 from engine.host import operations
 from engine.host.snapshot import Snapshot, SnapshotQuery
 import roles.payload.payloadctl.imageref as imageref
+import roles.payload.payloadctl.platforms as platforms
 import roles.payload.payloadctl.takeover as takeover_rule
 import roles.payload.presets as presets
 import roles.payload.push as push
@@ -44,6 +45,15 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     if data.payload_delivery == "push":
         for index, ref in enumerate(more_images(data)):
             query.probes[f"payload_image_id_{index + 1}"] = image_id_probe(ref)
+
+
+def platform_refusal(robot: str, arch: str, pins: dict[str, str]) -> str | None:
+    """The line refusing a service pinned to a platform this robot (its
+    architecture from the snapshot) cannot run, or None."""
+    for service, pinned in sorted(pins.items()):
+        if arch and not platforms.matches(arch, platforms.parse(pinned)):
+            return "payload: " + platforms.pinned_refusal(robot, arch, service, pinned)
+    return None
 
 
 def more_images(data) -> list[str]:

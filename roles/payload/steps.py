@@ -58,6 +58,10 @@ def unit_devices(additions: list[dict]) -> list[str]:
 @deploy("Payload")
 def deploy_payload(play: Play):
     data, snap = play.data, play.snapshot
+    refused = project.platform_refusal(host.name, snap.arch, services.platforms(data))
+    if refused:
+        operations.fail(name="Check the payload's platform against the robot's", message=refused)
+        return
     address = data.get("ssh_hostname") or host.name
     additions = play.added(hooks.SERVICES, services.declared(data))
     doc = compose.project(data, address, additions)
