@@ -65,7 +65,14 @@ def image_id_probe(ref: str) -> str:
     return f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(ref)}"
 
 
-def push_more_images(data, snap: Snapshot) -> None:
+def push_target(data, snap: Snapshot, credentials) -> dict:
+    """Who a push is for: the robot, its architecture (from the snapshot),
+    and how to read the image's registry for its own variant."""
+    return {"robot": host.name, "arch": snap.arch, "insecure": list(data.docker_insecure_registries or []),
+            "credentials": credentials}
+
+
+def push_more_images(data, snap: Snapshot, credentials=None) -> None:
     """payload_delivery push for a project of several images: each one the
     robot lacks is sent (layers the robot has are left out, as for the first)."""
     if data.payload_delivery != "push":
@@ -78,6 +85,7 @@ def push_more_images(data, snap: Snapshot) -> None:
             remote_id=snap.probes.get(f"payload_image_id_{index + 1}", "").strip(),
             remote_layers=layers,
             log_dir=data.payload_dir,
+            **push_target(data, snap, credentials),
         )
 
 
