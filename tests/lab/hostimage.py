@@ -128,8 +128,21 @@ EMULATED_HOST_FILES = {
 }
 
 
+# The per-user systemd manager (user@UID.service, which logind starts for
+# every SSH login) hangs under qemu-user starting its socket units (their
+# `systemctl --user` calls never return): each login waited for its 90 s
+# start timeout and pam_systemd's D-Bus timeout, over two minutes.  Nothing
+# on a robot needs it.
+EMULATED_SCRIPT = """systemctl mask user@.service
+"""
+
+
 def host_files(arch: str = "amd64") -> dict[str, str]:
     return {**HOST_FILES, **(EMULATED_HOST_FILES if arch != "amd64" else {})}
+
+
+def customise_script(arch: str = "amd64") -> str:
+    return CUSTOMISE_SCRIPT + (EMULATED_SCRIPT if arch != "amd64" else "")
 
 
 _USERADDS = "\n".join(
@@ -196,7 +209,7 @@ def base_recipe(arch: str = NATIVE_ARCH) -> dict:
 
 def host_recipe(arch: str = NATIVE_ARCH) -> dict:
     return {"base": base_recipe(arch), "files": host_files(arch),
-            "script": CUSTOMISE_SCRIPT, "dockerfile": _HOST_DOCKERFILE}
+            "script": customise_script(arch), "dockerfile": _HOST_DOCKERFILE}
 
 
 def base_tag(arch: str = NATIVE_ARCH) -> str:
@@ -226,7 +239,7 @@ def ensure_host_image(dc: docker.DockerClient, arch: str = NATIVE_ARCH) -> str:
             _debootstrap_and_import(dc, base, arch)
     with timed_phase(f"build host image {tag} ({arch})"):
         files = {f"rootfs/{path}": text for path, text in host_files(arch).items()}
-        files["customise.sh"] = CUSTOMISE_SCRIPT
+        files["customise.sh"] = customise_script(arch)
         build_image(dc, tag, _HOST_DOCKERFILE.format(base=base), files)
     return tag
 

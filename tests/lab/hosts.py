@@ -111,6 +111,10 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     sensors_by_host = _sensors_by_host(sensors, [name for name, group, _ in wanted if group == "robots"])
     _raise_inotify_instances()
     dc = client()
+    if any(arch != hostimage.NATIVE_ARCH for _, _, arch in wanted):
+        from .emulation import ensure_arm64_emulation
+
+        ensure_arm64_emulation()  # registered on every up: a reboot forgets it
     with timed_phase("build images (cached by recipe)"):
         host_image = hostimage.ensure_host_image(dc)
         host_images = {arch: hostimage.ensure_host_image(dc, arch)

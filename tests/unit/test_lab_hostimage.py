@@ -36,6 +36,8 @@ def test_the_arm64_recipe_adds_its_architecture_and_leaves_amd64s_alone(hostimag
     emulated = hostimage.host_recipe("arm64")["files"]
     assert emulated["etc/docker/daemon.json"] == '{"iptables": false}\n'
     assert "ImportCredential=" in emulated["etc/systemd/system/service.d/10-robot-lab-qemu-user.conf"]
+    assert "systemctl mask user@.service" in hostimage.host_recipe("arm64")["script"]
+    assert hostimage.host_recipe()["script"] == hostimage.CUSTOMISE_SCRIPT
 
 
 def test_an_unknown_architecture_is_one_error(hostimage, engine):
