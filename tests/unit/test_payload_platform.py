@@ -77,7 +77,7 @@ def test_a_service_pinned_to_another_platform_fails_that_robot_before_the_payloa
                    "nuc1": ("robots", arm64, fresh_host("debian-13", "amd64"))})
     assert result.failed == {"pi1"}
     refusal = [c for c in result["pi1"] if "refused" in c]
-    assert len(refusal) == 1 and ("payload: robot @fake/pi1 is linux/arm64 but service payload pins platform "
+    assert len(refusal) == 1 and ("payload: @fake/pi1 is linux/arm64 but service payload pins platform "
                                   "linux/amd64: refused before anything switched") in refusal[0]
     assert not find(result["pi1"], "payloadctl") and not find(result["pi1"], "robot-payload.service")
     assert find(result["nuc1"], "payloadctl apply")

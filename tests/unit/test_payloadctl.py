@@ -711,7 +711,7 @@ def test_an_image_for_another_platform_is_refused_before_anything_switches(robot
     result = robot.apply("reg/ros/payload:1.1")
     assert result.returncode == 1
     line = [l for l in result.stderr.splitlines() if "refused" in l]
-    assert line == ["payload: robot pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only: "
+    assert line == ["payload: pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only: "
                     "refused before anything switched"]
     assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # no release was even written
     assert not any(entry.startswith("docker compose") for entry in robot.state()["log"])

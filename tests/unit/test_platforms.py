@@ -71,14 +71,14 @@ def test_arm64_prefers_v8_or_no_variant():
 
 def test_the_refusal_is_one_line_naming_robot_architecture_and_image():
     line = platforms.refusal("pi1", "aarch64", "reg/ros/payload:1.0", ["linux/amd64"])
-    assert line == ("robot pi1 is linux/arm64 but image reg/ros/payload:1.0 is linux/amd64 only: "
+    assert line == ("pi1 is linux/arm64 but image reg/ros/payload:1.0 is linux/amd64 only: "
                     "refused before anything switched")
     several = platforms.refusal("pi1", "arm64", "reg/x:1", ["linux/amd64", "linux/riscv64"], "in its registry")
-    assert several == ("robot pi1 is linux/arm64 but image reg/x:1 is linux/amd64, linux/riscv64 "
+    assert several == ("pi1 is linux/arm64 but image reg/x:1 is linux/amd64, linux/riscv64 "
                        "(in its registry): refused before anything switched")
     assert "\n" not in line and "\n" not in several
     assert platforms.pinned_refusal("robot1", "amd64", "camera", "linux/arm64") == (
-        "robot robot1 is linux/amd64 but service camera pins platform linux/arm64: refused before anything switched")
+        "robot1 is linux/amd64 but service camera pins platform linux/arm64: refused before anything switched")
 
 
 def test_exec_format_error_is_recognised_in_any_runc_wording():

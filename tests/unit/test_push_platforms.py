@@ -148,17 +148,17 @@ def test_an_image_without_the_robots_platform_is_refused_with_one_line(push, reg
     address, store, _ = registry
     single = f"{address}/ros/payload:1.0-amd64"
     assert push.choose_source(single, "", "pi1", "arm64", [], None, None) == (
-        "fail", f"payload: robot pi1 is linux/arm64 but image {single} is linux/amd64 only (in its registry): "
+        "fail", f"payload: pi1 is linux/arm64 but image {single} is linux/amd64 only (in its registry): "
                 "refused before anything switched")
     kind, line = push.choose_source(f"{address}/ros/payload:1.0", "", "rv1", "riscv64", [], None, None)
-    assert kind == "fail" and line == (f"payload: robot rv1 is linux/riscv64 but image {address}/ros/payload:1.0 is "
+    assert kind == "fail" and line == (f"payload: rv1 is linux/riscv64 but image {address}/ros/payload:1.0 is "
                                        "linux/amd64, linux/arm64 (in its registry): refused before anything switched")
 
 
 def test_a_local_image_of_another_platform_and_no_registry_is_refused_with_one_line(push):
     kind, line = push.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, AMD64_LOCAL)
     assert kind == "fail" and "\n" not in line
-    assert line.startswith("payload: robot pi1 is linux/arm64 but image 127.0.0.1:1/ros/payload:1.1 is linux/amd64 "
+    assert line.startswith("payload: pi1 is linux/arm64 but image 127.0.0.1:1/ros/payload:1.1 is linux/amd64 "
                            "only (in the local Docker engine; its registry: 127.0.0.1:1: GET ")
     assert line.endswith("): refused before anything switched")
     kind, line = push.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, None)

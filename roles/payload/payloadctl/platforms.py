@@ -73,13 +73,13 @@ def refusal(robot, robot_arch, image, platforms, where=""):
     """The one line that refuses an image the robot cannot run."""
     shown = ", ".join(platforms) or "of no platform"
     only = " only" if len(platforms) == 1 else ""
-    return "robot {} is {} but image {} is {}{}{}: refused before anything switched".format(
+    return "{} is {} but image {} is {}{}{}: refused before anything switched".format(
         robot, text(robot_platform(robot_arch)), image, shown, only, " ({})".format(where) if where else "")
 
 
 def pinned_refusal(robot, robot_arch, service, platform):
     """The one line that refuses a service pinned to another platform."""
-    return "robot {} is {} but service {} pins platform {}: refused before anything switched".format(
+    return "{} is {} but service {} pins platform {}: refused before anything switched".format(
         robot, text(robot_platform(robot_arch)), service, platform)
 
 
