@@ -2,10 +2,11 @@
 
 Hosts and settings come from lab.yaml (or $ROBOT_LAB_FLEET); the running lab
 (.lab/<prefix>/state.json, prefix from $ROBOT_LAB_PREFIX, default "lab")
-supplies the SSH ports, the lab key and known_hosts, the registry and the
-Docker CE mirror.  Host keys are checked strictly against the lab's
-known_hosts, like a real fleet ($ROBOT_LAB_KNOWN_HOSTS names another file:
-first contact starts from an empty one, tests/e2e/test_enroll.py).
+supplies the SSH ports, the lab key and known_hosts, the registry (@registry@
+as the hosts reach it, @registry_local@ as this machine does) and the Docker
+CE mirror.  Host keys are checked strictly against the lab's known_hosts,
+like a real fleet ($ROBOT_LAB_KNOWN_HOSTS names another file: first contact
+starts from an empty one, tests/e2e/test_enroll.py).
 """
 
 import json
@@ -41,6 +42,7 @@ def _load():
     except UnicodeDecodeError:
         pass  # parse() says where, in one line
     for key, value in {} if isinstance(text, bytes) else {
+        "@registry_local@": state["registry_local"],  # the registry as this machine reaches it (push)
         "@registry@": state["registry"],
         "@mirror@": state["mirror_url"],
         "@mirror_fingerprint@": _mirror_fingerprint(state),

@@ -2,8 +2,9 @@
 
     python3 -m engine status inventories/robots.py [--limit robot2] [--json]
 
-One row per host, one SSH command per host: each role with a status part
-(deploy.py's roles) adds its columns, e.g. Docker's version, the current
+One row per host, one SSH command per host: the engine's own part (the
+host's architecture, as the snapshot reads it) and each role with a status
+part (deploy.py's roles) add their columns, e.g. Docker's version, the current
 release, its image, container state and health, the GPU driver.
 Unreachable hosts are rows too, never an abort, with the reason in words
 (the REACHABLE column, and "error" in --json).  Hosts are asked in parallel;
@@ -28,7 +29,10 @@ from engine.commands import hosts as selection
 from engine.commands import waves
 
 MARK = "@@@robot-fleet-status "
-FIRST = [("host", "HOST"), ("reachable", "REACHABLE")]
+# The engine's own section (no role is called so: a role's name is an identifier).
+HOST_SECTION = "engine:host"
+HOST_COMMAND = "dpkg --print-architecture"
+FIRST = [("host", "HOST"), ("reachable", "REACHABLE"), ("arch", "ARCH")]
 LAST = [("rollout", "ROLLOUT")]
 
 
@@ -42,10 +46,10 @@ def columns(roles) -> list[tuple[str, str]]:
 
 
 def status_command(roles, data) -> str:
-    """The host's one status command: each role's part after a marker line."""
-    return "; ".join(
-        f"echo '{MARK}{role.name}'; ( {role.status.command(data)} ) 2>/dev/null" for role in reporting(roles)
-    ) + "; true"
+    """The host's one status command: the engine's part, then each role's,
+    each after a marker line."""
+    parts = [(HOST_SECTION, HOST_COMMAND)] + [(role.name, role.status.command(data)) for role in reporting(roles)]
+    return "; ".join(f"echo '{MARK}{name}'; ( {command} ) 2>/dev/null" for name, command in parts) + "; true"
 
 
 def sections(stdout: str) -> dict[str, str]:
@@ -66,7 +70,7 @@ def row(name: str, roles, parts: dict[str, str] | None, error: str | None = None
     the host did not answer."""
     if parts is None:
         return {"host": name, "reachable": False, "error": error}
-    cells = {"host": name, "reachable": True}
+    cells = {"host": name, "reachable": True, "arch": parts.get(HOST_SECTION, "").strip() or None}
     for role in reporting(roles):
         try:
             cells.update(role.status.cells(parts.get(role.name, "")))

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import roles.payload.compose as compose
 import roles.payload.payloadctl.imageref as imageref
+import roles.payload.payloadctl.platforms as platforms
 from roles.payload.presets import DDS_DIR, dds_profile_text, dds_vendor
 from roles.payload.services import SERVICE_NAME, SHORTHAND_SETTINGS, value_of, declared, layer_problems
 
@@ -183,6 +184,11 @@ def project_problems(data) -> list[tuple[str, str]]:
                 problems.append((f"{where}.container_name", f"{container_name!r} is listed in payload_replaces: "
                                  "the takeover would stop this project's own container"))
             names.setdefault(container_name, name)
+        if "platform" in spec:
+            try:
+                platforms.parse(spec["platform"])
+            except ValueError as error:
+                problems.append((f"{where}.platform", str(error)))
         if "profiles" in spec:
             problems.append((f"{where}.profiles", "no profile is activated on the robot, so the service would "
                              "never start (and the health gate could not see it); remove profiles or the service"))

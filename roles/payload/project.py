@@ -14,6 +14,7 @@ from engine.checks import one_line
 from engine.host import operations
 from engine.host.snapshot import Snapshot, SnapshotQuery
 import roles.payload.payloadctl.imageref as imageref
+import roles.payload.payloadctl.platforms as platforms
 import roles.payload.payloadctl.takeover as takeover_rule
 import roles.payload.presets as presets
 import roles.payload.push as push
@@ -46,6 +47,15 @@ def declare_reads(data, query: SnapshotQuery) -> None:
             query.probes[f"payload_image_id_{index + 1}"] = image_id_probe(ref)
 
 
+def platform_refusal(robot: str, arch: str, pins: dict[str, str]) -> str | None:
+    """The line refusing a service pinned to a platform this robot (its
+    architecture from the snapshot) cannot run, or None."""
+    for service, pinned in sorted(pins.items()):
+        if arch and not platforms.matches(arch, platforms.parse(pinned)):
+            return "payload: " + platforms.pinned_refusal(robot, arch, service, pinned)
+    return None
+
+
 def more_images(data) -> list[str]:
     """Images beyond the first (whose push the single-image code does)."""
     return services.images(data)[1:]
@@ -55,7 +65,14 @@ def image_id_probe(ref: str) -> str:
     return f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(ref)}"
 
 
-def push_more_images(data, snap: Snapshot) -> None:
+def push_target(data, snap: Snapshot, credentials) -> dict:
+    """Who a push is for: the robot, its architecture (from the snapshot),
+    and how to read the image's registry for its own variant."""
+    return {"robot": host.name, "arch": snap.arch, "insecure": list(data.docker_insecure_registries or []),
+            "credentials": credentials}
+
+
+def push_more_images(data, snap: Snapshot, credentials=None) -> None:
     """payload_delivery push for a project of several images: each one the
     robot lacks is sent (layers the robot has are left out, as for the first)."""
     if data.payload_delivery != "push":
@@ -68,6 +85,7 @@ def push_more_images(data, snap: Snapshot) -> None:
             remote_id=snap.probes.get(f"payload_image_id_{index + 1}", "").strip(),
             remote_layers=layers,
             log_dir=data.payload_dir,
+            **push_target(data, snap, credentials),
         )
 
 

@@ -11,11 +11,22 @@ layer up by chain id before it reads the file, so it never opens the ones
 left out (checked with Docker 26: 2.1 MB -> 20 KB for a new tag of the same
 layers).  Each push is logged on the robot in <payload_dir>/push.log with the
 bytes sent.
+
+The robot's own platform: the local engine's image is sent when it is built
+for the robot's architecture (from the host snapshot).  Otherwise (a
+multi-platform image: a Docker engine with the classic store holds one
+variant a tag, the operator's own) the robot's variant is read from the
+image's registry (roles/payload/registry.py): the index's entry for its
+platform, its config, and only the layer blobs the robot lacks, sent as a
+`docker load` archive (the blobs stay gzipped: `docker load` inflates them).
+An image with no variant for the robot is refused with one line before
+anything is sent.
 """
 
 from __future__ import annotations
 
 import base64
+import io
 import json
 import os
 import shlex
@@ -26,6 +37,7 @@ from pyinfra import host
 from pyinfra.api import FunctionCommand, StringCommand
 
 from engine.host import operations
+from roles.payload.payloadctl import imageref, platforms
 
 LAYERS_PROBE = (
     "docker image ls -q --no-trunc | sort -u | "
@@ -59,13 +71,85 @@ def layers_present(diff_ids: list[str], have: list[list[str]]) -> int:
     return best
 
 
-def local_image_id(image: str) -> str | None:
+def local_image(image: str) -> dict | None:
+    """{"id", "platform"} of ``image`` in the local Docker engine, or None."""
     import docker
 
     try:
-        return docker.from_env().images.get(image).id
+        attrs = docker.from_env().images.get(image).attrs
     except docker.errors.ImageNotFound:
         return None
+    platform = {"os": attrs.get("Os") or "linux", "architecture": attrs.get("Architecture") or ""}
+    if attrs.get("Variant"):
+        platform["variant"] = attrs["Variant"]
+    return {"id": attrs["Id"], "platform": platform}
+
+
+def registry_variant(image: str, arch: str, insecure: list[str], credentials) -> dict:
+    """The robot's variant of ``image`` in its registry: {"id" (the config
+    digest: the image id `docker load` gives), "config" (bytes), "layers"
+    ([(digest, size)]), "diff_ids", "platform"}; or {"refused": [the
+    platforms the registry has]}.  RegistryError when it cannot be read."""
+    from roles.payload.registry import Registry
+
+    ref = imageref.parse(image)
+    registry = Registry(ref.registry, insecure, credentials)
+    media_type, body, _ = registry.manifest(ref.repository, ref.digest or ref.tag)
+    manifest = json.loads(body)
+    if media_type in platforms.INDEX_TYPES or "manifests" in manifest:
+        entries = platforms.index_entries(manifest)
+        chosen = platforms.choose(entries, arch)
+        if chosen is None:
+            return {"refused": [platforms.text(e["platform"]) for e in entries]}
+        _, body, _ = registry.manifest(ref.repository, chosen["digest"])
+        manifest = json.loads(body)
+    config = io.BytesIO()
+    registry.blob(ref.repository, manifest["config"]["digest"], config)
+    parsed = json.loads(config.getvalue())
+    platform = {"os": parsed.get("os") or "linux", "architecture": parsed.get("architecture") or ""}
+    if parsed.get("variant"):
+        platform["variant"] = parsed["variant"]
+    if not platforms.matches(arch, platform):
+        return {"refused": [platforms.text(platform)]}
+    return {"id": manifest["config"]["digest"], "config": config.getvalue(),
+            "layers": [(layer["digest"], layer["size"]) for layer in manifest["layers"]],
+            "diff_ids": parsed["rootfs"]["diff_ids"], "platform": platforms.text(platform)}
+
+
+def write_registry_archive(image: str, variant: dict, path: str, have: list[list[str]], report: dict,
+                           insecure: list[str], credentials) -> None:
+    """A `docker load` archive of the registry ``variant`` into ``path``,
+    holding only the layer blobs whose chain the robot lacks."""
+    from roles.payload.registry import Registry
+
+    ref = imageref.parse(image)
+    registry = Registry(ref.registry, insecure, credentials)
+    skip = layers_present(variant["diff_ids"], have)
+    config_name = variant["id"].split(":", 1)[1] + ".json"
+    names = [f"{digest.split(':', 1)[1]}/layer.tar.gz" for digest, _ in variant["layers"]]
+    with tarfile.open(path, "w") as archive:
+        _add(archive, config_name, variant["config"])
+        for (digest, size), name in list(zip(variant["layers"], names))[skip:]:
+            with tempfile.TemporaryFile() as blob:
+                registry.blob(ref.repository, digest, blob)
+                blob.seek(0)
+                info = tarfile.TarInfo(name)
+                info.size = size
+                archive.addfile(info, blob)
+        _add(archive, "manifest.json", json.dumps([{"Config": config_name, "RepoTags": [image], "Layers": names}]).encode())
+    report.update({
+        "full": len(variant["config"]) + sum(size for _, size in variant["layers"]),
+        "sent": os.path.getsize(path),
+        "layers": len(variant["layers"]),
+        "skipped": skip,
+        "platform": variant["platform"],
+    })
+
+
+def _add(archive: tarfile.TarFile, name: str, data: bytes) -> None:
+    info = tarfile.TarInfo(name)
+    info.size = len(data)
+    archive.addfile(info, io.BytesIO(data))
 
 
 def write_archive(image: str, path: str, have: list[list[str]], report: dict) -> None:
@@ -129,7 +213,8 @@ def load_command(archive: str, log_dir: str, image: str, image_id: str, figures:
     code: an image name holding `$(...)` is logged as written."""
     q = shlex.quote
     sent = (f"sent {figures.get('sent')} of {figures.get('full')} bytes, "
-            f"{figures.get('layers', 0) - figures.get('skipped', 0)} of {figures.get('layers')} layers")
+            f"{figures.get('layers', 0) - figures.get('skipped', 0)} of {figures.get('layers')} layers"
+            + (f", {figures['platform']} from the registry" if figures.get("platform") else ""))
     return operations.shell(
         f"log_dir={q(log_dir)}; image={q(image)}; image_id={q(image_id)}; sent={q(sent)}\n"
         "base64 -d | docker load -q >/dev/null; rc=$?; "
@@ -140,26 +225,59 @@ def load_command(archive: str, log_dir: str, image: str, image_id: str, figures:
     )
 
 
-@operations.operation()
-def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_dir: str):
+def choose_source(image: str, remote_id: str, robot: str, arch: str, insecure: list[str], credentials,
+                  local: dict | None) -> tuple:
+    """What to send the robot: ("send", writer, its arguments after the
+    path, image id), ("noop", why) or ("fail", the line).  The local
+    engine's image when it is built for the robot's architecture, else the
+    robot's variant from the registry."""
+    if local is not None and (not arch or platforms.matches(arch, local["platform"])):
+        if remote_id == local["id"]:
+            return ("noop", f"{image} is already on the host")
+        return ("send", write_archive, (), local["id"])
+    from roles.payload.registry import RegistryError
+
     try:
-        local_id = local_image_id(image)
+        variant = registry_variant(image, arch, insecure, credentials)
+    except (RegistryError, ValueError, KeyError) as error:
+        if local is None:
+            return ("fail", f"payload_delivery push: {image} is neither in the local Docker engine "
+                            f"nor readable from its registry ({error})")
+        where = f"in the local Docker engine; its registry: {error}"
+        return ("fail", "payload: " + platforms.refusal(robot, arch, image, [platforms.text(local["platform"])], where))
+    if "refused" in variant:
+        return ("fail", "payload: " + platforms.refusal(robot, arch, image, variant["refused"], "in its registry"))
+    if remote_id == variant["id"]:
+        return ("noop", f"{image} ({variant['platform']}) is already on the host")
+    return ("send", write_registry_archive, (variant,), variant["id"])
+
+
+@operations.operation()
+def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_dir: str, robot: str = "",
+               arch: str = "", insecure: list[str] = (), credentials=None):
+    try:
+        local = local_image(image)
     except Exception as error:  # no engine on the operator machine
         yield operations.fail_command(f"payload_delivery push: cannot reach the local Docker engine: {error}")
         return
-    if local_id is None:
-        yield operations.fail_command(f"payload_delivery push: {image} is not in the local Docker engine; pull or build it first")
+    decision = choose_source(image, remote_id, robot, arch, list(insecure), credentials, local)
+    if decision[0] == "noop":
+        host.noop(decision[1])
         return
-    if remote_id == local_id:
-        host.noop(f"{image} is already on the host")
+    if decision[0] == "fail":
+        yield operations.fail_command(decision[1])
         return
+    _, writer, extra, image_id = decision
     fd, local_path = tempfile.mkstemp(prefix="robotprov-image-", suffix=".tar")
     os.close(fd)
     report: dict = {}
     try:
-        yield FunctionCommand(write_archive, (image, local_path, remote_layers, report), {})
+        if writer is write_archive:
+            yield FunctionCommand(write_archive, (image, local_path, remote_layers, report), {})
+        else:
+            yield FunctionCommand(writer, (image, *extra, local_path, remote_layers, report, list(insecure), credentials), {})
         # pyinfra runs each command before asking for the next: report is filled.
-        yield load_command(local_path, log_dir, image, local_id, report)
+        yield load_command(local_path, log_dir, image, image_id, report)
     finally:
         if os.path.exists(local_path):
             os.unlink(local_path)

@@ -49,7 +49,7 @@ def operator() -> str:
 
 def request(data, doc: dict, checks: list) -> str:
     """What `payloadctl apply` reads: the spec and who asks."""
-    run = {"by": f"{operator()} (pyinfra)", "force": bool(data.payload_force)}
+    run = {"by": f"{operator()} (pyinfra)", "force": bool(data.payload_force), "host": host.name}
     return json.dumps({"spec": spec(data, doc, checks).to_dict(), "run": run}, sort_keys=True)
 
 

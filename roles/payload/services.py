@@ -20,7 +20,7 @@ import roles.payload.payloadctl.imageref as imageref
 SHORTHAND = "payload"
 SERVICE_NAME = r"[a-zA-Z0-9][a-zA-Z0-9._-]*"
 # The settings that only describe the shorthand's one service.
-SHORTHAND_SETTINGS = {"payload_command": None, "payload_volumes": [], "payload_gpu": False}
+SHORTHAND_SETTINGS = {"payload_command": None, "payload_volumes": [], "payload_gpu": False, "payload_platform": None}
 
 
 # --- merging ----------------------------------------------------------------
@@ -68,7 +68,10 @@ def declared(data) -> dict[str, dict]:
     if services:
         return {name: dict(spec or {}) for name, spec in services.items()}
     image = value_of(data, "payload_image")
-    return {SHORTHAND: {"image": image}} if image else {}
+    if not image:
+        return {}
+    platform = value_of(data, "payload_platform")
+    return {SHORTHAND: {"image": image, **({"platform": platform} if platform else {})}}
 
 
 def environment_mapping(value) -> dict:
@@ -124,6 +127,11 @@ def service(base: dict, user: dict, extra: dict, name: str) -> dict:
     else:
         result.pop("devices", None)
     return result
+
+
+def platforms(data) -> dict[str, str]:
+    """service -> the platform it pins (Compose's ``platform`` key)."""
+    return {name: spec["platform"] for name, spec in declared(data).items() if isinstance(spec.get("platform"), str)}
 
 
 def images(data) -> list[str]:

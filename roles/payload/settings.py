@@ -9,6 +9,7 @@ from engine import checks as c
 from engine import values as v
 from engine.role import Setting
 import roles.payload.payloadctl.imageref as imageref
+import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets
 import roles.payload.problems as problems
 import roles.payload.services as services
@@ -58,6 +59,19 @@ def replaced(value):
     return []
 
 
+def platform(value):
+    found = c.string()(value)
+    if found:
+        return found
+    try:
+        platforms.parse(value)
+    except ValueError as error:
+        return [("", str(error))]
+    return []
+
+
+c.with_schema(platform, {"type": "string", "pattern": "^[a-z0-9]+/[a-z0-9_]+(?:/[a-z0-9]+)?$",
+                         "description": "os/architecture[/variant], e.g. linux/arm64"})
 c.with_schema(replaced, {"type": "string", "pattern": f"^(?:container|project):{_NAME}$",
                          "description": "container:NAME or project:NAME"})
 c.with_schema(image, {"type": "string", "pattern": imageref.JSON_PATTERN,
@@ -92,6 +106,8 @@ SETTINGS = (
     Setting("payload_command", None, c.optional(c.list_of(c.string())), "The container's command; null: the image's."),
     Setting("payload_volumes", [], c.list_of(volume), "Extra bind mounts, host_path:container_path[:ro]."),
     Setting("payload_gpu", False, c.boolean, "Give the payload the host's NVIDIA GPUs (the gpu role runs)."),
+    Setting("payload_platform", None, c.optional(platform),
+            "The image's platform (linux/arm64) where a vendor ships one tag per architecture; null: the robot's own."),
     Setting("ros_domain_id", 0, c.integer(0, 232), "ROS 2 ROS_DOMAIN_ID."),
     Setting("ros_master_uri", None, c.optional(c.string(r"https?://[A-Za-z0-9.-]+(?::[0-9]+)?/?", "a URL like http://master:11311")),
             "ROS 1 ROS_MASTER_URI (instead of ros_domain_id)."),

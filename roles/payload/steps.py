@@ -58,6 +58,10 @@ def unit_devices(additions: list[dict]) -> list[str]:
 @deploy("Payload")
 def deploy_payload(play: Play):
     data, snap = play.data, play.snapshot
+    refused = project.platform_refusal(host.name, snap.arch, services.platforms(data))
+    if refused:
+        operations.fail(name="Check the payload's platform against the robot's", message=refused)
+        return
     address = data.get("ssh_hostname") or host.name
     additions = play.added(hooks.SERVICES, services.declared(data))
     doc = compose.project(data, address, additions)
@@ -107,14 +111,16 @@ def deploy_payload(play: Play):
             stored=snap.probes.get("registry_auth", ""),
         )
     if data.payload_delivery == "push":
+        credentials = (username, password) if username and password else None
         push.push_image(
             name="Send the payload image over SSH",
             image=project.primary_image(data),
             remote_id=snap.probes.get("payload_image_id", "").strip(),
             remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
             log_dir=data.payload_dir,
+            **project.push_target(data, snap, credentials),
         )
-        project.push_more_images(data, snap)
+        project.push_more_images(data, snap, credentials)
 
     project.install_files(data, snap)
     release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))

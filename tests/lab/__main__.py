@@ -1,4 +1,4 @@
-"""python3 -m tests.lab up|down|reset|status [--prefix lab] [--robots 3] [--laptops 1]
+"""python3 -m tests.lab up|down|reset|status [--prefix lab] [--robots 3] [--laptops 1] [--arm64-robots 0]
 
 `engine` only makes sure a Docker engine answers (starting dockerd if it may).
 """
@@ -11,6 +11,7 @@ import sys
 import docker.errors
 
 from . import hosts
+from .emulation import ensure_arm64_emulation
 from .engine import LabError, client
 
 
@@ -22,9 +23,10 @@ def _parser() -> argparse.ArgumentParser:
                        ("down", "remove the lab's containers, network and volumes"),
                        ("status", "one line per container"),
                        ("engine", "make sure a Docker engine answers (start dockerd if needed)"),
+                       ("emulation", "register qemu-user for arm64 with binfmt_misc (F flag), for the arm64 hosts"),
                        ("demo", "up, then provision the lab with pyinfra and say how to look inside")):
         command = commands.add_parser(name, help=text)
-        if name == "engine":
+        if name in ("engine", "emulation"):
             continue
         command.add_argument("--prefix", default="lab", help="lab name (default: lab)")
         if name in ("up", "reset"):
@@ -33,6 +35,8 @@ def _parser() -> argparse.ArgumentParser:
                                  help=f"number of robots (default: {same or 3})")
             command.add_argument("--laptops", type=int, metavar="N",
                                  help=f"number of laptops (default: {same or 1})")
+            command.add_argument("--arm64-robots", type=int, metavar="N",
+                                 help=f"emulated arm64 robots pi1..N (default: {same or 0})")
             command.add_argument("--sensor", action="append", metavar="NAME",
                                  help="fake sensor on every robot (repeatable; default: "
                                       "the sensors inventories/lab.yaml declares)")
@@ -44,15 +48,18 @@ def main(argv: list[str]) -> int:
     try:
         if args.command == "up":
             hosts.up(args.prefix, 3 if args.robots is None else args.robots,
-                     1 if args.laptops is None else args.laptops, args.sensor)
+                     1 if args.laptops is None else args.laptops, args.sensor,
+                     arm64_robots=args.arm64_robots or 0)
         elif args.command == "reset":
-            hosts.reset(args.prefix, args.robots, args.laptops, args.sensor)
+            hosts.reset(args.prefix, args.robots, args.laptops, args.sensor, args.arm64_robots)
         elif args.command == "demo":
             from .demo import demo
 
             return demo(args.prefix)
         elif args.command == "engine":
             print(f"lab: Docker engine {client().version()['Version']} answers")
+        elif args.command == "emulation":
+            print(f"lab: arm64 programs run here: {ensure_arm64_emulation()}")
         elif args.command == "down":
             hosts.down(args.prefix)
         else:

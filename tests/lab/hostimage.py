@@ -2,9 +2,15 @@
 
 Built in two cached layers, each tagged by a hash of its full recipe so a
 machine builds it once and rebuilds only when the recipe changes:
-  robot-lab-base:<sha12>  debootstrap rootfs (suite, mirror, package list)
+  robot-lab-base:<sha12>  debootstrap rootfs (suite, mirror, package list, architecture)
   robot-lab-host:<sha12>  + lab customisation (users, units, no host keys)
 Docker itself is deliberately NOT preinstalled: the provisioner installs it.
+
+The arm64 image (the emulated robot) is the same recipe for another
+architecture: `debootstrap --arch=arm64 --foreign` unpacks the packages here,
+its second stage runs the arm64 maintainer scripts in a chroot under
+qemu-user (binfmt_misc, tests/lab/emulation.py), and the host layer's build
+runs its arm64 shell the same way.  No emulator is copied into the image.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import json
 import subprocess
 import tarfile
 import tempfile
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .debian_archive import ArchiveError, debian_archive_url
@@ -29,6 +36,8 @@ INCLUDE_PACKAGES = (
     "systemd", "systemd-sysv", "dbus", "udev", "openssh-server", "sudo",
     "python3", "ca-certificates", "curl", "gnupg", "iproute2", "procps", "less",
 )
+ARCHES = ("amd64", "arm64")
+NATIVE_ARCH = "amd64"
 BASE_REPO = "robot-lab-base"
 HOST_REPO = "robot-lab-host"
 BUILD_DIR = LAB_DIR / "cache" / "build"
@@ -84,6 +93,58 @@ HOST_FILES = {
     "etc/systemd/system/sshd-keygen.service.d/robot-lab.conf": _SSHD_KEYGEN_DROPIN,
 }
 
+# Only in the emulated (arm64) image: what qemu-user cannot do, turned off.
+# qemu-user refuses clone() with CLONE_NEWNS (a fork into a new mount
+# namespace), which systemd needs for a unit's credentials and filesystem
+# sandboxing: journald, logind, tmpfiles, sysusers and chrony would exit
+# 243/CREDENTIALS or 226/NAMESPACE.  Every service runs unsandboxed instead.
+_QEMU_USER_SERVICES_DROPIN = """[Service]
+ImportCredential=
+LoadCredential=
+PrivateTmp=no
+PrivateDevices=no
+ProtectSystem=no
+ProtectHome=no
+ProtectKernelTunables=no
+ProtectKernelModules=no
+ProtectKernelLogs=no
+ProtectControlGroups=no
+ProtectProc=default
+ProcSubset=all
+PrivateMounts=no
+ReadWritePaths=
+ReadOnlyPaths=
+InaccessiblePaths=
+"""
+
+# qemu-user has no netfilter sockets (iptables: "Failed to initialize nft:
+# Protocol not supported"), so dockerd starts only without iptables; the
+# fleet file says the same for the emulated robots (inventories/lab.yaml).
+_QEMU_USER_DAEMON_JSON = '{"iptables": false}\n'
+
+EMULATED_HOST_FILES = {
+    "etc/systemd/system/service.d/10-robot-lab-qemu-user.conf": _QEMU_USER_SERVICES_DROPIN,
+    "etc/docker/daemon.json": _QEMU_USER_DAEMON_JSON,
+}
+
+
+# The per-user systemd manager (user@UID.service, which logind starts for
+# every SSH login) hangs under qemu-user starting its socket units (their
+# `systemctl --user` calls never return): each login waited for its 90 s
+# start timeout and pam_systemd's D-Bus timeout, over two minutes.  Nothing
+# on a robot needs it.
+EMULATED_SCRIPT = """systemctl mask user@.service
+"""
+
+
+def host_files(arch: str = "amd64") -> dict[str, str]:
+    return {**HOST_FILES, **(EMULATED_HOST_FILES if arch != "amd64" else {})}
+
+
+def customise_script(arch: str = "amd64") -> str:
+    return CUSTOMISE_SCRIPT + (EMULATED_SCRIPT if arch != "amd64" else "")
+
+
 _USERADDS = "\n".join(
     f"useradd --create-home --shell /bin/bash --uid {uid} {name}\n"
     f"usermod --password '*' {name}"  # no password, but not "locked" for sshd
@@ -130,68 +191,160 @@ def debian_url() -> str:
         raise LabError(str(error)) from None
 
 
-def base_recipe() -> dict:
-    return {"suite": SUITE, "mirror": debian_url(), "variant": VARIANT,
-            "include": list(INCLUDE_PACKAGES)}
+def check_arch(arch: str) -> str:
+    if arch not in ARCHES:
+        raise LabError(f"no lab host image for architecture {arch!r} (have: {', '.join(ARCHES)})")
+    return arch
 
 
-def host_recipe() -> dict:
-    return {"base": base_recipe(), "files": HOST_FILES,
-            "script": CUSTOMISE_SCRIPT, "dockerfile": _HOST_DOCKERFILE}
+def base_recipe(arch: str = NATIVE_ARCH) -> dict:
+    recipe = {"suite": SUITE, "mirror": debian_url(), "variant": VARIANT,
+              "include": list(INCLUDE_PACKAGES)}
+    if check_arch(arch) != NATIVE_ARCH:
+        # Only foreign images name their architecture: the amd64 recipe, and
+        # so every machine's cached amd64 image, stays what it was.
+        recipe["arch"] = arch
+    return recipe
 
 
-def base_tag() -> str:
-    return f"{BASE_REPO}:{recipe_hash(base_recipe())}"
+def host_recipe(arch: str = NATIVE_ARCH) -> dict:
+    return {"base": base_recipe(arch), "files": host_files(arch),
+            "script": customise_script(arch), "dockerfile": _HOST_DOCKERFILE}
 
 
-def host_tag() -> str:
-    return f"{HOST_REPO}:{recipe_hash(host_recipe())}"
+def base_tag(arch: str = NATIVE_ARCH) -> str:
+    return f"{BASE_REPO}:{recipe_hash(base_recipe(arch))}"
+
+
+def host_tag(arch: str = NATIVE_ARCH) -> str:
+    return f"{HOST_REPO}:{recipe_hash(host_recipe(arch))}"
 
 
 def image_exists(dc: docker.DockerClient, tag: str) -> bool:
     return get_or_none(dc.images, tag) is not None
 
 
-def ensure_host_image(dc: docker.DockerClient) -> str:
-    """Tag of the host image, building whatever layer is missing."""
-    tag = host_tag()
+def ensure_host_image(dc: docker.DockerClient, arch: str = NATIVE_ARCH) -> str:
+    """Tag of the host image for ``arch``, building whatever layer is missing."""
+    tag = host_tag(arch)
     if image_exists(dc, tag):
         return tag
-    base = base_tag()
+    base = base_tag(arch)
+    if arch != NATIVE_ARCH:
+        from .emulation import ensure_arm64_emulation
+
+        ensure_arm64_emulation()
     if not image_exists(dc, base):
-        with timed_phase(f"build base image {base} (debootstrap {SUITE})"):
-            _debootstrap_and_import(dc, base)
-    with timed_phase(f"build host image {tag}"):
-        files = {f"rootfs/{path}": text for path, text in HOST_FILES.items()}
-        files["customise.sh"] = CUSTOMISE_SCRIPT
+        with timed_phase(f"build base image {base} (debootstrap {SUITE} {arch})"):
+            _debootstrap_and_import(dc, base, arch)
+    with timed_phase(f"build host image {tag} ({arch})"):
+        files = {f"rootfs/{path}": text for path, text in host_files(arch).items()}
+        files["customise.sh"] = customise_script(arch)
         build_image(dc, tag, _HOST_DOCKERFILE.format(base=base), files)
     return tag
 
 
-def _debootstrap_and_import(dc: docker.DockerClient, tag: str) -> None:
+def debootstrap_commands(rootfs: str, arch: str = NATIVE_ARCH) -> list[list[str]]:
+    """The commands that make the rootfs: one native run, or a foreign first
+    stage here and the second stage in a chroot under emulation."""
+    first = ["debootstrap", f"--variant={VARIANT}", "--include=" + ",".join(INCLUDE_PACKAGES)]
+    if arch == NATIVE_ARCH:
+        return [first + [SUITE, rootfs, debian_url()]]
+    return [first + [f"--arch={arch}", "--foreign", SUITE, rootfs, debian_url()],
+            ["chroot", rootfs, "/debootstrap/debootstrap", "--second-stage"]]
+
+
+def trimmed_packages_list(text: str, wanted: set[str]) -> str:
+    """A Packages list with only the paragraphs of ``wanted`` packages."""
+    kept = []
+    for paragraph in text.split("\n\n"):
+        first = paragraph.lstrip("\n").split("\n", 1)[0]
+        if first.startswith("Package:") and first[len("Package:"):].strip() in wanted:
+            kept.append(paragraph.strip("\n"))
+    return "\n\n".join(kept) + "\n"
+
+
+def trim_package_lists(rootfs: str) -> None:
+    """Between the stages: debootstrap's second stage looks packages up in
+    the suite's whole Packages list (56 MB for trixie arm64) with grep and
+    perl, once per step; under emulation that had not finished after 17 minutes.
+    It only looks up what the first stage fetched (debootstrap/debpaths), so
+    the list is cut to those here, natively (the hosts get fresh lists from
+    `apt-get update` anyway)."""
+    root = Path(rootfs)
+    debpaths = (root / "debootstrap" / "debpaths").read_text()
+    wanted = {line.split()[0].split(":")[0] for line in debpaths.splitlines() if line.strip()}
+    for packages in (root / "var" / "lib" / "apt" / "lists").glob("*_Packages"):
+        packages.write_text(trimmed_packages_list(packages.read_text(), wanted))
+
+
+def _debootstrap_and_import(dc: docker.DockerClient, tag: str, arch: str = NATIVE_ARCH) -> None:
     BUILD_DIR.mkdir(parents=True, exist_ok=True)
-    log_path = BUILD_DIR / "debootstrap.log"
+    log_path = BUILD_DIR / ("debootstrap.log" if arch == NATIVE_ARCH else f"debootstrap-{arch}.log")
     repo, _, version = tag.partition(":")
     with tempfile.TemporaryDirectory(dir=BUILD_DIR) as tmp:
         rootfs = f"{tmp}/rootfs"
-        cmd = ["debootstrap", f"--variant={VARIANT}",
-               "--include=" + ",".join(INCLUDE_PACKAGES), SUITE, rootfs, debian_url()]
         with open(log_path, "wb") as log:
+            for step, cmd in enumerate(debootstrap_commands(rootfs, arch)):
+                if step == 1:
+                    trim_package_lists(rootfs)
+                try:
+                    done = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
+                except FileNotFoundError:
+                    raise LabError("cannot build the host image: debootstrap is not "
+                                   "installed (apt-get install debootstrap)") from None
+                if done.returncode != 0:
+                    raise LabError(f"{' '.join(cmd[:2])} ({arch}) failed (exit {done.returncode}); see {log_path}")
+        if arch == NATIVE_ARCH:
+            tar = subprocess.Popen(["tar", "-C", rootfs, "--numeric-owner", "-c", "."],
+                                   stdout=subprocess.PIPE)
             try:
-                done = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
-            except FileNotFoundError:
-                raise LabError("cannot build the host image: debootstrap is not "
-                               "installed (apt-get install debootstrap)") from None
-        if done.returncode != 0:
-            raise LabError(f"debootstrap failed (exit {done.returncode}); see {log_path}")
-        tar = subprocess.Popen(["tar", "-C", rootfs, "--numeric-owner", "-c", "."],
-                               stdout=subprocess.PIPE)
-        try:
-            dc.api.import_image_from_stream(tar.stdout, repository=repo, tag=version)
-        finally:
-            tar.stdout.close()
-            if tar.wait() != 0:
-                raise LabError(f"tar of the debootstrap rootfs failed (exit {tar.returncode})")
+                dc.api.import_image_from_stream(tar.stdout, repository=repo, tag=version)
+            finally:
+                tar.stdout.close()
+                if tar.wait() != 0:
+                    raise LabError(f"tar of the debootstrap rootfs failed (exit {tar.returncode})")
+        else:
+            load_rootfs(dc, rootfs, tag, arch, tmp)
+
+
+def rootfs_image_archive(layer: Path, tag: str, arch: str, out: Path) -> None:
+    """A `docker load` archive of one layer (an uncompressed rootfs tar)
+    whose config says linux/``arch``."""
+    digest = hashlib.sha256()
+    with open(layer, "rb") as f:
+        while chunk := f.read(1 << 20):
+            digest.update(chunk)
+    diff_id = f"sha256:{digest.hexdigest()}"
+    config = json.dumps({
+        "architecture": arch, "os": "linux", **({"variant": "v8"} if arch == "arm64" else {}),
+        "config": {"Env": ["PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"]},
+        "rootfs": {"type": "layers", "diff_ids": [diff_id]},
+        "history": [{"created_by": f"debootstrap {SUITE} ({arch}, robot lab)"}],
+    }, sort_keys=True).encode()
+    config_name = hashlib.sha256(config).hexdigest() + ".json"
+    manifest = json.dumps([{"Config": config_name, "RepoTags": [tag], "Layers": ["rootfs/layer.tar"]}]).encode()
+    with tarfile.open(out, "w") as archive:
+        archive.add(layer, "rootfs/layer.tar")
+        for name, data in ((config_name, config), ("manifest.json", manifest)):
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            archive.addfile(info, io.BytesIO(data))
+
+
+def load_rootfs(dc: docker.DockerClient, rootfs: str, tag: str, arch: str, tmp: str) -> None:
+    """The rootfs as an image that says what it is: `docker import` of
+    Docker 20.10 labels every import with the engine's own architecture
+    (its --platform sets only the OS), so a foreign rootfs is loaded instead."""
+    layer, archive = Path(tmp, "layer.tar"), Path(tmp, "image.tar")
+    done = subprocess.run(["tar", "-C", rootfs, "--numeric-owner", "-cf", str(layer), "."],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        raise LabError(f"tar of the debootstrap rootfs failed (exit {done.returncode}): {done.stderr.strip()[-200:]}")
+    rootfs_image_archive(layer, tag, arch, archive)
+    layer.unlink()
+    with open(archive, "rb") as f:
+        dc.images.load(f)
 
 
 def build_image(dc: docker.DockerClient, tag: str, dockerfile: str,

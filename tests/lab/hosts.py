@@ -1,9 +1,10 @@
-"""Simulated robots and laptops: `<prefix>-robot1..N`, `<prefix>-laptop1..M`.
+"""Simulated robots and laptops: `<prefix>-robot1..N`, `<prefix>-laptop1..M`,
+and emulated arm64 robots `<prefix>-pi1..K` (group robots).
 
-Each is a systemd container from the host image on `<prefix>-net`, its sshd
-published on a fixed free 127.0.0.1 port, its nested Docker state on its own
-named volumes. `up` is idempotent; `down` removes everything of one prefix
-except the shared apt cache volume and the images.
+Each is a systemd container from the host image of its architecture on
+`<prefix>-net`, its sshd published on a fixed free 127.0.0.1 port, its nested
+Docker state on its own named volumes. `up` is idempotent; `down` removes
+everything of one prefix except the shared apt cache volume and the images.
 """
 
 from __future__ import annotations
@@ -27,8 +28,12 @@ if TYPE_CHECKING:
     import docker
 
 GROUP_PREFIXES = {"robots": "robot", "laptops": "laptop"}
+# Emulated arm64 robots (a Raspberry Pi or a Jetson beside the amd64 NUCs).
+ARM64_ROBOT_PREFIX = "pi"
 SSH_PORT_START = 22001
 SSH_READY_TIMEOUT_S = 120
+# Under qemu-user a host boots and makes its host keys several times slower.
+EMULATED_SLOWDOWN = 5
 INVENTORY = REPO_ROOT / "inventories" / "lab.yaml"
 APT_PROXY_CONF = "/etc/apt/apt.conf.d/01robot-lab-proxy"
 PREFIX_PATTERN = re.compile(r"^[a-z0-9][a-z0-9-]{0,30}$")
@@ -42,11 +47,12 @@ def check_prefix(prefix: str) -> str:
     return prefix
 
 
-def plan_hosts(robots: int, laptops: int) -> list[tuple[str, str]]:
-    """[(host name, group)] for a lab of that size."""
+def plan_hosts(robots: int, laptops: int, arm64_robots: int = 0) -> list[tuple[str, str, str]]:
+    """[(host name, group, architecture)] for a lab of that size."""
     counts = {"robots": robots, "laptops": laptops}
-    return [(f"{GROUP_PREFIXES[group]}{i}", group)
-            for group, count in counts.items() for i in range(1, count + 1)]
+    planned = [(f"{GROUP_PREFIXES[group]}{i}", group, hostimage.NATIVE_ARCH)
+               for group, count in counts.items() for i in range(1, count + 1)]
+    return planned + [(f"{ARM64_ROBOT_PREFIX}{i}", "robots", "arm64") for i in range(1, arm64_robots + 1)]
 
 
 def sensors_from_inventory(path: Path = INVENTORY) -> dict[str, list[str]]:
@@ -93,18 +99,27 @@ def _raise_inotify_instances() -> None:
 
 
 def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
-       sensors: dict[str, list[str]] | list[str] | None = None) -> dict:
+       sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int = 0) -> dict:
     """Start (or reuse) a lab and write its state.json; returns the state.
 
     `sensors`: names per robot, or one list for every robot; default: what
-    inventories/lab.yaml declares.
+    inventories/lab.yaml declares.  `arm64_robots`: emulated arm64 robots
+    pi1..N (qemu-user, tests/lab/emulation.py).
     """
     check_prefix(prefix)
-    sensors_by_host = _sensors_by_host(sensors, robots)
+    wanted = plan_hosts(robots, laptops, arm64_robots)
+    sensors_by_host = _sensors_by_host(sensors, [name for name, group, _ in wanted if group == "robots"])
     _raise_inotify_instances()
     dc = client()
+    if any(arch != hostimage.NATIVE_ARCH for _, _, arch in wanted):
+        from .emulation import ensure_arm64_emulation
+
+        ensure_arm64_emulation()  # registered on every up: a reboot forgets it
     with timed_phase("build images (cached by recipe)"):
         host_image = hostimage.ensure_host_image(dc)
+        host_images = {arch: hostimage.ensure_host_image(dc, arch)
+                       for arch in sorted({arch for _, _, arch in wanted} - {hostimage.NATIVE_ARCH})}
+        host_images[hostimage.NATIVE_ARCH] = host_image
         services_image = services.ensure_services_image(dc, host_image)
         mirror_dir = services.mirror_dir()
     network = _ensure_network(dc, prefix)
@@ -114,31 +129,33 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     with timed_phase("payload images in the lab registry"):
         from . import payload_images
 
-        payload_images.build_payload_images(dc, f"127.0.0.1:{registry_port}")
-    wanted = plan_hosts(robots, laptops)
-    _remove_hosts_not_in(dc, prefix, {name for name, _ in wanted})
+        try:
+            payload_images.build_payload_images(dc, f"127.0.0.1:{registry_port}")
+        except payload_images.PayloadImageError as error:
+            raise LabError(str(error)) from None
+    _remove_hosts_not_in(dc, prefix, {name for name, _, _ in wanted})
     services_host = services.container_name(prefix)
     with timed_phase(f"start hosts ({len(wanted)})"):
         started = [
-            _ensure_host(dc, prefix, name, group, host_image, key_path,
+            _ensure_host(dc, prefix, name, group, host_images[arch], key_path,
                          apt_proxy_conf(services_host), sensors_by_host.get(name, []))
-            for name, group in wanted
+            for name, group, arch in wanted
         ]
     known_hosts = state.lab_dir(prefix) / "known_hosts"
     with timed_phase("wait for ssh"):
         lines = []
-        for container, port in started:
-            lines += [known_hosts_line(port, k) for k in _wait_for_host_keys(container)]
+        for (_, _, arch), (container, port) in zip(wanted, started):
+            lines += [known_hosts_line(port, k) for k in _wait_for_host_keys(container, ready_timeout(arch))]
         known_hosts.write_text("\n".join(lines) + "\n")
-        for container, port in started:
-            _wait_for_ssh_login(container.name, port, key_path, known_hosts)
+        for (_, _, arch), (container, port) in zip(wanted, started):
+            _wait_for_ssh_login(container.name, port, key_path, known_hosts, ready_timeout(arch))
     lab = {
         "prefix": prefix,
         "ssh_key": str(key_path),
         "known_hosts": str(known_hosts),
         "ssh_user": hostimage.OPS_USER,
-        "hosts": [{"name": name, "group": group, "container": c.name, "port": port}
-                  for (name, group), (c, port) in zip(wanted, started)],
+        "hosts": [{"name": name, "group": group, "arch": arch, "container": c.name, "port": port}
+                  for (name, group, arch), (c, port) in zip(wanted, started)],
         "services_host": services_host,
         "apt_proxy": f"http://{services_host}:{services.APT_CACHE_PORT}",
         "registry": f"{services_host}:{services.REGISTRY_PORT}",
@@ -167,14 +184,15 @@ def down(prefix: str = "lab") -> None:
 
 
 def reset(prefix: str = "lab", robots: int | None = None, laptops: int | None = None,
-          sensors: dict[str, list[str]] | list[str] | None = None) -> dict:
+          sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int | None = None) -> dict:
     """Down then up with fresh hosts; sizes default to the previous lab's."""
     previous = _previous_sizes(prefix)
     down(prefix)
     return up(prefix,
               robots if robots is not None else previous.get("robots", 3),
               laptops if laptops is not None else previous.get("laptops", 1),
-              sensors)
+              sensors,
+              arm64_robots if arm64_robots is not None else previous.get("arm64_robots", 0))
 
 
 def status(prefix: str = "lab") -> list[str]:
@@ -204,16 +222,24 @@ def _previous_sizes(prefix: str) -> dict[str, int]:
         hosts = state.load(prefix)["hosts"]
     except LabError:
         return {}
-    return {group: sum(h["group"] == group for h in hosts) for group in GROUP_PREFIXES}
+    native = [h for h in hosts if h.get("arch", hostimage.NATIVE_ARCH) == hostimage.NATIVE_ARCH]
+    sizes = {group: sum(h["group"] == group for h in native) for group in GROUP_PREFIXES}
+    sizes["arm64_robots"] = len(hosts) - len(native)
+    return sizes
 
 
-def _sensors_by_host(sensors, robots: int) -> dict[str, list[str]]:
+def ready_timeout(arch: str) -> int:
+    """Seconds a host of ``arch`` may take to boot and answer ssh."""
+    return SSH_READY_TIMEOUT_S * (1 if arch == hostimage.NATIVE_ARCH else EMULATED_SLOWDOWN)
+
+
+def _sensors_by_host(sensors, robots: list[str]) -> dict[str, list[str]]:
     if sensors is None:
         by_host = sensors_from_inventory()
     elif isinstance(sensors, dict):
         by_host = sensors
     else:
-        by_host = {name: list(sensors) for name, _ in plan_hosts(robots, 0)}
+        by_host = {name: list(sensors) for name in robots}
     for names in by_host.values():
         for name in names:
             if not SENSOR_PATTERN.match(name):
@@ -300,10 +326,10 @@ def _read_file(container, path: str) -> str | None:
     return out.decode() if code == 0 else None
 
 
-def _wait_for_host_keys(container) -> list[str]:
+def _wait_for_host_keys(container, timeout: int = SSH_READY_TIMEOUT_S) -> list[str]:
     """The host's public keys once its sshd runs."""
     probe = "systemctl is-active --quiet ssh.service && cat /etc/ssh/ssh_host_*_key.pub"
-    deadline = time.monotonic() + SSH_READY_TIMEOUT_S
+    deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         container.reload()
         if container.status != "running":
@@ -313,7 +339,7 @@ def _wait_for_host_keys(container) -> list[str]:
         if code == 0 and keys:
             return keys
         time.sleep(0.5)
-    raise LabError(f"{container.name}: sshd not running after {SSH_READY_TIMEOUT_S}s "
+    raise LabError(f"{container.name}: sshd not running after {timeout}s "
                    f"(docker exec {container.name} systemctl status ssh)")
 
 
@@ -339,8 +365,9 @@ def _ssh_login_error(port: int, key_path: Path, known_hosts: Path) -> str | None
         ssh.close()
 
 
-def _wait_for_ssh_login(name: str, port: int, key_path: Path, known_hosts: Path) -> None:
-    deadline = time.monotonic() + SSH_READY_TIMEOUT_S
+def _wait_for_ssh_login(name: str, port: int, key_path: Path, known_hosts: Path,
+                        timeout: int = SSH_READY_TIMEOUT_S) -> None:
+    deadline = time.monotonic() + timeout
     while True:
         error = _ssh_login_error(port, key_path, known_hosts)
         if error is None:

@@ -4,7 +4,9 @@ Docker's repository is not reachable from the lab, so this builds a stand-in:
 Debian 13 (trixie) packages repackaged under Docker's names, so that hosts
 install a real engine and a real compose v2 through exactly the code path used
 against Docker's repository (keyring at linux/debian/gpg, deb822 source with
-Signed-By, suite trixie, component stable).
+Signed-By, suite trixie, component stable), for amd64 and arm64 (Debian's
+own builds of each architecture, pool/stable/<arch>/, one Packages list per
+architecture, as Docker lays its repository out).
 
 Mapping (Docker name <- Debian trixie package):
     docker-ce              <- docker.io       (engine only: the CLI is split out in trixie)
@@ -49,7 +51,7 @@ DEBIAN_KEYRING = "/usr/share/keyrings/debian-archive-keyring.gpg"
 SUITE = "trixie"
 DEBIAN_RELEASE = "13"
 COMPONENT = "stable"
-ARCH = "amd64"
+ARCHES = ("amd64", "arm64")
 
 KEY_UID = "Robot Lab Docker Mirror (lab only, not Docker) <docker-mirror@robot-lab.invalid>"
 LAB_MAINTAINER = "Robot Lab Docker Mirror <docker-mirror@robot-lab.invalid>"
@@ -373,14 +375,14 @@ def release_date(t: float) -> str:
             f"{tm.tm_hour:02d}:{tm.tm_min:02d}:{tm.tm_sec:02d} UTC")
 
 
-def release_text(index_files: dict[str, bytes], date: str) -> str:
+def release_text(index_files: dict[str, bytes], date: str, arches: tuple[str, ...] = ARCHES) -> str:
     """Release for dists/<suite>; index_files maps paths relative to it to content."""
     lines = [
         "Origin: Docker",
         "Label: Docker",
         f"Suite: {SUITE}",
         f"Codename: {SUITE}",
-        f"Architectures: {ARCH}",
+        f"Architectures: {' '.join(arches)}",
         f"Components: {COMPONENT}",
         f"Description: Robot lab stand-in for Docker CE packages for Debian {SUITE}",
         f"Date: {date}",
@@ -404,11 +406,13 @@ def debian_url() -> str:
 
 
 class TrixieApt:
-    """apt-get/apt-cache against trixie main, with private state: the machine's
-    own apt configuration and package lists are left alone."""
+    """apt-get/apt-cache against trixie main as a system of one architecture
+    sees it, with private state: the machine's own apt configuration and
+    package lists are left alone."""
 
-    def __init__(self, work: Path):
+    def __init__(self, work: Path, arch: str = "amd64"):
         self.work = work
+        self.arch = arch
         (work / "lists" / "partial").mkdir(parents=True, exist_ok=True)
         (work / "archives" / "partial").mkdir(parents=True, exist_ok=True)
         self.sources = work / "sources.list"
@@ -427,8 +431,8 @@ class TrixieApt:
             "Dir::State::status": self.status,
             "Dir::Cache": self.work,
             "Dir::Cache::Archives": self.work / "archives",
-            "APT::Architecture": ARCH,
-            "APT::Architectures": ARCH,
+            "APT::Architecture": self.arch,
+            "APT::Architectures": self.arch,
             "APT::Sandbox::User": "root",  # _apt cannot write into the cache dir
             "Acquire::Languages": "none",
         }
@@ -443,29 +447,35 @@ class TrixieApt:
 
 
 def resolve_sources(apt: TrixieApt) -> dict[str, str]:
+    """name -> version of every source package, for ``apt``'s architecture."""
     apt.apt_get("update")
     names = [s for rule in RULES for s in rule.sources]
     found = apt.show(names)
     missing = [n for n in names if n not in found]
     if missing:
-        raise MirrorError(f"not in Debian {SUITE} main: {', '.join(missing)}")
+        raise MirrorError(f"not in Debian {SUITE} main for {apt.arch}: {', '.join(missing)}")
     return {n: found[n]["Version"] for n in names}
 
 
-def deb_filename(name: str, version: str) -> str:
-    return f"{name}_{version.split(':', 1)[-1]}_{ARCH}.deb"
+def deb_filename(name: str, version: str, arch: str) -> str:
+    return f"{name}_{version.split(':', 1)[-1]}_{arch}.deb"
 
 
 def fetch_sources(apt: TrixieApt, versions: dict[str, str], dest: Path) -> None:
+    """The debs of ``versions`` for ``apt``'s architecture into ``dest``
+    (shared by every architecture: the file names say which)."""
     dest.mkdir(parents=True, exist_ok=True)
-    wanted = {deb_filename(n, v): (n, v) for n, v in versions.items()}
+    wanted = {deb_filename(n, v, apt.arch): (n, v) for n, v in versions.items()}
     todo = [f"{n}={v}" for fn, (n, v) in wanted.items() if not (dest / fn).exists()]
     if todo:
         with tempfile.TemporaryDirectory(dir=dest) as tmp:
             apt.apt_get("download", *todo, cwd=Path(tmp))
             for f in Path(tmp).glob("*.deb"):
                 name, ver = f.name.split("_")[:2]
-                f.rename(dest / deb_filename(name, ver.replace("%3a", ":")))
+                f.rename(dest / deb_filename(name, ver.replace("%3a", ":"), apt.arch))
+
+
+def prune_sources(dest: Path, wanted: set[str]) -> None:
     for f in dest.glob("*.deb"):
         if f.name not in wanted:
             f.unlink()
@@ -474,7 +484,7 @@ def fetch_sources(apt: TrixieApt, versions: dict[str, str], dest: Path) -> None:
 # ---------------------------------------------------------------- repackaging
 
 def repack(rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path,
-           work: Path) -> tuple[Path, dict[str, str]]:
+           work: Path, arch: str) -> tuple[Path, dict[str, str]]:
     tree = work / rule.name
     shutil.rmtree(tree, ignore_errors=True)
     work.mkdir(parents=True, exist_ok=True)
@@ -520,11 +530,15 @@ def repack(rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path
     control = rewrite_control(rule, controls, version)
     (meta / "control").write_text(format_paragraph(control))
 
-    deb = out_dir / deb_filename(rule.name, version)
+    deb = out_dir / deb_filename(rule.name, version, arch)
     # zstd: xz recompression of these ~100 MB Go binaries takes minutes on 2 cores.
     run(["dpkg-deb", "--root-owner-group", "-Zzstd", "-b", str(tree), str(deb)])
     shutil.rmtree(tree)
     return deb, control
+
+
+def pool_rel(arch: str) -> str:
+    return f"pool/{COMPONENT}/{arch}"
 
 
 def check_installable(apt: TrixieApt, debs: list[Path]) -> None:
@@ -579,8 +593,9 @@ def rules_digest() -> str:
     return h.hexdigest()
 
 
-def recipe_digest(sources: dict[str, str]) -> str:
-    payload = json.dumps([rules_digest(), sorted(sources.items())])
+def recipe_digest(sources: dict[str, dict[str, str]]) -> str:
+    """``sources``: arch -> name -> version."""
+    payload = json.dumps([rules_digest(), {arch: sorted(v.items()) for arch, v in sorted(sources.items())}])
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
@@ -609,29 +624,35 @@ def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict
             return _result(out_dir, manifest)
 
         start = time.monotonic()
-        apt = TrixieApt(out_dir / "apt")
+        apts = {arch: TrixieApt(out_dir / ("apt" if arch == "amd64" else f"apt-{arch}"), arch) for arch in ARCHES}
         with phase("resolve trixie sources"):
-            sources = resolve_sources(apt)
+            sources = {arch: resolve_sources(apt) for arch, apt in apts.items()}
         if fresh and manifest.get("recipe") == recipe_digest(sources):
             print(f"[mirror] up to date: {out_dir}", flush=True)
             return _result(out_dir, manifest)
 
+        src_dir = out_dir / "debian-src"
         with phase("download"):
-            fetch_sources(apt, sources, out_dir / "debian-src")
+            for arch, apt in apts.items():
+                fetch_sources(apt, sources[arch], src_dir)
+            prune_sources(src_dir, {deb_filename(n, v, arch) for arch, versions in sources.items()
+                                    for n, v in versions.items()})
 
         staging = out_dir / "staging"
         shutil.rmtree(staging, ignore_errors=True)
         dist = staging / "repo" / "linux" / "debian"
-        pool_rel = f"pool/{COMPONENT}/{ARCH}"
-        (dist / pool_rel).mkdir(parents=True)
-        built: list[tuple[Path, dict[str, str]]] = []
+        built: dict[str, list[tuple[Path, dict[str, str]]]] = {}
         with phase("repack"):
-            for rule in RULES:
-                debs = [out_dir / "debian-src" / deb_filename(s, sources[s]) for s in rule.sources]
-                built.append(repack(rule, debs, sources, dist / pool_rel, staging / "work"))
+            for arch in ARCHES:
+                (dist / pool_rel(arch)).mkdir(parents=True)
+                built[arch] = [
+                    repack(rule, [src_dir / deb_filename(s, sources[arch][s], arch) for s in rule.sources],
+                           sources[arch], dist / pool_rel(arch), staging / "work", arch)
+                    for rule in RULES]
             shutil.rmtree(staging / "work")
         with phase("check installable"):
-            check_installable(apt, [deb for deb, _ in built])
+            for arch, apt in apts.items():
+                check_installable(apt, [deb for deb, _ in built[arch]])
 
         key = LabKey(out_dir / "gnupg")
         try:
@@ -639,11 +660,13 @@ def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict
                 fingerprint = key.ensure()
                 public_key = key.export_armored()
                 (dist / "gpg").write_bytes(public_key)
-                packages = "\n".join(
-                    packages_entry(ctl, f"{pool_rel}/{deb.name}", deb.read_bytes())
-                    for deb, ctl in built).encode()
-                index_rel = f"{COMPONENT}/binary-{ARCH}/Packages"
-                indexes = {index_rel: packages, index_rel + ".gz": gzip.compress(packages, mtime=0)}
+                indexes = {}
+                for arch in ARCHES:
+                    packages = "\n".join(
+                        packages_entry(ctl, f"{pool_rel(arch)}/{deb.name}", deb.read_bytes())
+                        for deb, ctl in built[arch]).encode()
+                    index_rel = f"{COMPONENT}/binary-{arch}/Packages"
+                    indexes.update({index_rel: packages, index_rel + ".gz": gzip.compress(packages, mtime=0)})
                 suite_dir = dist / "dists" / SUITE
                 for rel, data in indexes.items():
                     (suite_dir / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -659,7 +682,8 @@ def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict
             "rules": rules_digest(),
             "fingerprint": fingerprint,
             "key_sha256": hashlib.sha256(public_key).hexdigest(),
-            "packages": {ctl["Package"]: ctl["Version"] for _, ctl in built},
+            "packages": {ctl["Package"]: ctl["Version"] for _, ctl in built["amd64"]},
+            "architectures": {arch: {ctl["Package"]: ctl["Version"] for _, ctl in built[arch]} for arch in ARCHES},
             "sources": sources,
             "files": {str(p.relative_to(root)): p.stat().st_size
                       for p in sorted(root.rglob("*")) if p.is_file()},

@@ -4,6 +4,11 @@ Tags:
     1.0, 1.1      healthy heartbeat loops that differ only in their version
     1.2-broken    keeps logging but never heartbeats, so its health check fails
 
+In the lab registry every tag is a multi-platform image (an OCI index of
+amd64 and arm64; tests/lab/payload_platforms.py), with single-platform
+1.0-amd64, 1.0-arm64 and the unrunnable 1.3-exec-format beside them.  The
+local engine holds the amd64 images.
+
 `ros/driver` (1.0, 1.1) is the same loop without a HEALTHCHECK (the
 Dockerfile's `driver` target), for payloads of several services.
 
@@ -18,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -81,19 +87,48 @@ def static_busybox(cache_dir: Path = CACHE_DIR) -> Path:
     return binary
 
 
+def trixie_busyboxes(cache_dir: Path = CACHE_DIR) -> dict[str, Path]:
+    """Debian 13's static busybox for amd64 and arm64, one version: the
+    arm64 one for the arm64 images, the amd64 one to list the applets
+    (running it here needs no emulation)."""
+    from .mirror import TrixieApt
+
+    found = {arch: cache_dir / "trixie" / f"busybox-{arch}" for arch in ("amd64", "arm64")}
+    if all(path.exists() for path in found.values()):
+        return found
+    (cache_dir / "trixie").mkdir(parents=True, exist_ok=True)
+    source = None
+    for arch, path in found.items():
+        apt = TrixieApt((cache_dir / "trixie" / f"apt-{arch}").resolve(), arch)
+        apt.apt_get("update")
+        version = apt.show(["busybox-static"])["busybox-static"]["Version"]
+        # A binNMU (+bN) is a rebuild of the same source: the same applets.
+        if source not in (None, re.sub(r"\+b\d+$", "", version)):
+            raise PayloadImageError(f"Debian trixie's busybox-static is {source} for amd64 but {version} for {arch}")
+        source = re.sub(r"\+b\d+$", "", version)
+        with tempfile.TemporaryDirectory(dir=cache_dir) as tmp:
+            apt.apt_get("download", f"busybox-static={version}", cwd=Path(tmp))
+            deb = next(Path(tmp).glob("busybox-static_*.deb"))
+            subprocess.run(["dpkg-deb", "-x", str(deb), f"{tmp}/x"], check=True)
+            binary = next(p for p in (Path(tmp, "x/usr/bin/busybox"), Path(tmp, "x/bin/busybox")) if p.exists())
+            shutil.copy2(binary, path.with_suffix(".part"))
+        path.with_suffix(".part").rename(path)
+    return found
+
+
 def applets(busybox: Path) -> list[str]:
     out = subprocess.run([str(busybox), "--list"], capture_output=True, text=True, check=True)
     return sorted(a for a in out.stdout.split() if a != "busybox")
 
 
-def assemble_context(busybox: Path, dest: Path) -> None:
+def assemble_context(busybox: Path, dest: Path, applet_names: list[str] | None = None) -> None:
     """Committed context files + rootfs/{bin/busybox, bin/<applet> -> busybox, tmp}."""
     shutil.copytree(CONTEXT_DIR, dest, dirs_exist_ok=True)
     bin_dir = dest / "rootfs" / "bin"
     bin_dir.mkdir(parents=True)
     shutil.copy2(busybox, bin_dir / "busybox")
     (bin_dir / "busybox").chmod(0o755)
-    for name in applets(busybox):
+    for name in applets(busybox) if applet_names is None else applet_names:
         (bin_dir / name).symlink_to("busybox")
     tmp = dest / "rootfs" / "tmp"
     tmp.mkdir()
@@ -170,8 +205,34 @@ def build_payload_images(client: docker.DockerClient, registry: str | None = Non
             info["ref"] = f"{remote}:{tag}"
             info["digest"] = _push(client, remote, tag)
         _log(f"pushed {len(result)} tags to {registry} in {time.monotonic() - t:.1f}s")
+        t = time.monotonic()
+        publish_platforms(registry, result)
+        _log(f"made {len(result)} tags multi-platform (amd64, arm64) in {time.monotonic() - t:.1f}s")
     _log(f"done in {time.monotonic() - start:.1f}s")
     return result
+
+
+def publish_platforms(registry: str, result: dict) -> None:
+    """Each pushed tag becomes an index of amd64 and arm64 (its ``digest``
+    the index's; ``platforms``: each variant's manifest digest)."""
+    from roles.payload.registry import RegistryError
+
+    from . import payload_platforms
+    from .mirror import MirrorError
+
+    try:
+        busyboxes = trixie_busyboxes()
+        with tempfile.TemporaryDirectory(prefix="payload-platforms-") as tmp:
+            layers = payload_platforms.rootfs_layers(assemble_context, busyboxes, applets(busyboxes["amd64"]),
+                                                     Path(tmp))
+        for local, info in result.items():
+            repository, tag = local.rsplit(":", 1)
+            exec_format = layers["exec-format"] if repository == REPOSITORY else None
+            published = payload_platforms.publish(registry, repository, tag, layers["arm64"], exec_format)
+            info["platforms"] = published
+            info["digest"] = published["index"]
+    except (RegistryError, MirrorError, RuntimeError, ValueError) as error:
+        raise PayloadImageError(f"making the payload images multi-platform failed: {error}") from None
 
 
 def main(argv: list[str]) -> int:

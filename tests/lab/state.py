@@ -1,7 +1,7 @@
 """What a running lab looks like: `.lab/<prefix>/state.json`, plus test helpers.
 
 Keys (read by inventories/lab.py): prefix, ssh_key, known_hosts, ssh_user,
-hosts [{name, group, container, port}], services_host, apt_proxy, registry,
+hosts [{name, group, arch, container, port}], services_host, apt_proxy, registry,
 registry_local, mirror_url, mirror_dir.
 """
 
@@ -17,7 +17,7 @@ STATE_KEYS = (
     "prefix", "ssh_key", "known_hosts", "ssh_user", "hosts", "services_host",
     "apt_proxy", "registry", "registry_local", "mirror_url", "mirror_dir",
 )
-HOST_KEYS = ("name", "group", "container", "port")
+HOST_KEYS = ("name", "group", "arch", "container", "port")
 
 
 def lab_prefix() -> str:

@@ -23,6 +23,7 @@ hostimage = _lab_module("hostimage")
 hosts = _lab_module("hosts")
 services = _lab_module("services")
 state = _lab_module("state")
+emulation = _lab_module("emulation")
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -8,7 +8,6 @@ robots and tries an unreachable robot once per wave.  Real sockets on
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 import time

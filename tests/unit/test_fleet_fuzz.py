@@ -19,7 +19,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-import yaml
 
 from engine.fleet import loader as fleetyaml
 from tests.unit import harness as fleet

@@ -26,3 +26,58 @@ def test_image_has_no_docker_and_one_package_list(hostimage):
     assert not {"docker.io", "docker-ce", "containerd"} & set(hostimage.INCLUDE_PACKAGES)
     assert {"systemd", "dbus", "openssh-server", "sudo"} <= set(hostimage.INCLUDE_PACKAGES)
     assert "rm -f /etc/ssh/ssh_host_*" in hostimage.CUSTOMISE_SCRIPT
+
+
+def test_the_arm64_recipe_adds_its_architecture_and_leaves_amd64s_alone(hostimage):
+    assert "arch" not in hostimage.base_recipe()  # every machine's cached amd64 image stays valid
+    assert hostimage.base_recipe("arm64")["arch"] == "arm64"
+    assert hostimage.base_tag("arm64") != hostimage.base_tag() and hostimage.host_tag("arm64") != hostimage.host_tag()
+    assert hostimage.host_recipe()["files"] == hostimage.HOST_FILES
+    emulated = hostimage.host_recipe("arm64")["files"]
+    assert emulated["etc/docker/daemon.json"] == '{"iptables": false}\n'
+    assert "ImportCredential=" in emulated["etc/systemd/system/service.d/10-robot-lab-qemu-user.conf"]
+    assert "systemctl mask user@.service" in hostimage.host_recipe("arm64")["script"]
+    assert hostimage.host_recipe()["script"] == hostimage.CUSTOMISE_SCRIPT
+
+
+def test_an_unknown_architecture_is_one_error(hostimage, engine):
+    import pytest
+
+    with pytest.raises(engine.LabError, match="no lab host image for architecture 'riscv64'"):
+        hostimage.base_recipe("riscv64")
+
+
+def test_a_foreign_rootfs_is_two_stages_the_second_under_emulation(hostimage):
+    native = hostimage.debootstrap_commands("/r")
+    assert len(native) == 1 and "--foreign" not in native[0]
+    first, second = hostimage.debootstrap_commands("/r", "arm64")
+    assert "--arch=arm64" in first and "--foreign" in first
+    assert second == ["chroot", "/r", "/debootstrap/debootstrap", "--second-stage"]
+
+
+def test_the_package_list_keeps_only_what_the_first_stage_fetched(hostimage):
+    text = ("Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\n"
+            "Package: vim\nVersion: 9\n\n"
+            "Package: apt\nVersion: 3.0\nDepends: libc6\n\n")
+    trimmed = hostimage.trimmed_packages_list(text, {"libc6", "apt"})
+    assert trimmed == ("Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\n"
+                       "Package: apt\nVersion: 3.0\nDepends: libc6\n")
+    assert hostimage.trimmed_packages_list(text, {"libc"}) == "\n"
+
+
+def test_a_foreign_base_image_says_its_architecture(hostimage, tmp_path):
+    import json
+    import tarfile
+
+    layer = tmp_path / "layer.tar"
+    with tarfile.open(layer, "w") as tar:
+        tar.add(__file__, "etc/hostname")
+    hostimage.rootfs_image_archive(layer, "robot-lab-base:x", "arm64", tmp_path / "image.tar")
+    with tarfile.open(tmp_path / "image.tar") as archive:
+        manifest = json.load(archive.extractfile("manifest.json"))[0]
+        config = json.load(archive.extractfile(manifest["Config"]))
+        assert manifest["RepoTags"] == ["robot-lab-base:x"] and manifest["Layers"] == ["rootfs/layer.tar"]
+        assert archive.extractfile("rootfs/layer.tar").read() == layer.read_bytes()
+    assert (config["architecture"], config["os"], config["variant"]) == ("arm64", "linux", "v8")
+    import hashlib
+    assert config["rootfs"]["diff_ids"] == ["sha256:" + hashlib.sha256(layer.read_bytes()).hexdigest()]

@@ -19,9 +19,16 @@ def test_known_hosts_line_is_what_paramiko_looks_up(hosts, tmp_path):
     assert "ssh-ed25519" in keys.lookup("[127.0.0.1]:22001")
 
 
-def test_plan_hosts_names_and_groups(hosts):
-    assert hosts.plan_hosts(2, 1) == [("robot1", "robots"), ("robot2", "robots"), ("laptop1", "laptops")]
+def test_plan_hosts_names_groups_and_architectures(hosts):
+    assert hosts.plan_hosts(2, 1) == [("robot1", "robots", "amd64"), ("robot2", "robots", "amd64"),
+                                      ("laptop1", "laptops", "amd64")]
+    assert hosts.plan_hosts(1, 0, arm64_robots=2) == [("robot1", "robots", "amd64"), ("pi1", "robots", "arm64"),
+                                                      ("pi2", "robots", "arm64")]
     assert hosts.plan_hosts(0, 0) == []
+
+
+def test_emulated_hosts_get_longer_to_boot(hosts):
+    assert hosts.ready_timeout("arm64") == hosts.ready_timeout("amd64") * hosts.EMULATED_SLOWDOWN
 
 
 def test_sensors_from_inventory(hosts, tmp_path):
@@ -33,9 +40,9 @@ def test_sensors_from_inventory(hosts, tmp_path):
 
 
 def test_one_sensor_list_applies_to_every_robot_and_names_are_checked(hosts, engine):
-    assert hosts._sensors_by_host(["lidar"], 2) == {"robot1": ["lidar"], "robot2": ["lidar"]}
+    assert hosts._sensors_by_host(["lidar"], ["robot1", "pi1"]) == {"robot1": ["lidar"], "pi1": ["lidar"]}
     with pytest.raises(engine.LabError):
-        hosts._sensors_by_host(["../etc/passwd"], 1)
+        hosts._sensors_by_host(["../etc/passwd"], ["robot1"])
 
 
 def test_apt_proxy_goes_direct_to_the_services_host(hosts):

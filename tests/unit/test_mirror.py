@@ -233,7 +233,7 @@ def test_release_lists_every_index_under_every_hash():
     fields = parse_paragraphs(text)[0]
     assert fields["Suite"] == fields["Codename"] == "trixie"
     assert fields["Components"] == "stable"
-    assert fields["Architectures"] == "amd64"
+    assert fields["Architectures"] == "amd64 arm64"
     assert fields["Date"] == "Sat, 01 Feb 2025 10:00:00 UTC"
     for field, algo in (("MD5Sum", "md5"), ("SHA1", "sha1"), ("SHA256", "sha256"),
                         ("SHA512", "sha512")):

@@ -201,10 +201,15 @@ class FakeRobot:
     def save(self, state):
         self.state_path.write_text(json.dumps(state))
 
-    def image(self, ref, behaviour="healthy", present=True, pull="ok"):
+    def image(self, ref, behaviour="healthy", present=True, pull="ok", platform="linux/amd64"):
         state = self.state()
         state["images"][ref] = {"id": "sha256:" + ref.replace(":", "-").replace("/", "-"), "behaviour": behaviour,
-                                "present": present, "pull": pull}
+                                "present": present, "pull": pull, "platform": platform}
+        self.save(state)
+
+    def architecture(self, arch):
+        state = self.state()
+        state["arch"] = arch
         self.save(state)
 
     def spec_fields(self, ref, **extra):
@@ -230,7 +235,8 @@ class FakeRobot:
         self.save(state)
 
     def spec(self, ref, run_id="run-1", **extra):
-        request = {"spec": self.spec_fields(ref, **extra), "run": {"by": "ops@laptop (pyinfra)", "force": False}}
+        request = {"spec": self.spec_fields(ref, **extra),
+                   "run": {"by": "ops@laptop (pyinfra)", "force": False, "host": "pi1"}}
         path = self.root.parent / f"spec-{run_id}.json"
         path.write_text(json.dumps(request))
         return str(path)
@@ -694,3 +700,48 @@ def test_text_the_robot_controls_reaches_the_operator_as_one_printable_line(robo
     line = result.stderr
     assert line.count("\n") == 1 and "\x1b" not in line
     assert "ok\\x1b[2J\\x1b[31mfake: release is healthy\\x0asecond line" in line
+
+
+# --- platforms: the robot's own, refused before the switch, exec format error ---
+
+
+def test_an_image_for_another_platform_is_refused_before_anything_switches(robot):
+    robot.architecture("arm64")
+    robot.image("reg/ros/payload:1.1", platform="linux/amd64")
+    result = robot.apply("reg/ros/payload:1.1")
+    assert result.returncode == 1
+    line = [l for l in result.stderr.splitlines() if "refused" in l]
+    assert line == ["payload: pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only: "
+                    "refused before anything switched"]
+    assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # no release was even written
+    assert not any(entry.startswith("docker compose") for entry in robot.state()["log"])
+
+
+def test_the_robots_own_platform_is_kept_with_the_release(robot):
+    robot.architecture("arm64")
+    robot.image("reg/ros/payload:1.1", platform="linux/arm64")
+    result = robot.apply("reg/ros/payload:1.1")
+    assert result.returncode == 0, result.stderr
+    current, _ = robot.pointers()
+    assert robot.releases.record(current)["images"]["reg/ros/payload:1.1"]["platform"] == "linux/arm64"
+    assert "docker pull -q reg/ros/payload:1.1" in robot.state()["log"]  # Docker picks the variant
+
+
+def test_a_service_that_pins_its_platform_is_pulled_for_that_platform(robot):
+    robot.architecture("arm64")
+    robot.image("reg/ros/camera:2.0-arm64", platform="linux/arm64")
+    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/camera:2.0-arm64",
+                                                                 "platform": "linux/arm64"}}}
+    result = robot.apply("reg/ros/camera:2.0-arm64", compose=compose)
+    assert result.returncode == 0, result.stderr
+    assert "docker pull -q --platform linux/arm64 reg/ros/camera:2.0-arm64" in robot.state()["log"]
+
+
+def test_a_payload_that_dies_with_exec_format_error_is_named_and_rolled_back(robot):
+    robot.image("reg/ros/payload:mislabeled", "execformat")
+    result = robot.apply("reg/ros/payload:mislabeled")
+    assert result.returncode == 1
+    assert ("robot-payload-payload-1 cannot run: exec format error: its program is not built for this robot's "
+            "architecture (image reg/ros/payload:mislabeled)") in result.stderr
+    assert "rolled back to r1 and it is running" in result.stderr
+    assert robot.pointers() == ("r1", None)

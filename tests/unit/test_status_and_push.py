@@ -60,13 +60,14 @@ def test_status_rows_and_table():
         "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
         "update_lock": None,
     }
-    rows = [status.row("robot1", roles(), {"docker": "26.1.5", "payload": json.dumps(report)}),
+    rows = [status.row("robot1", roles(), {status.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
             status.row("robot2", roles(), None, "cannot connect")]
     assert rows[0]["image"] == "reg/p@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
     text = status.table(rows, status.columns(roles())).splitlines()
-    assert text[0].split() == ["HOST", "REACHABLE", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
-    assert text[1].split() == ["robot1", "yes", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
+    assert rows[0]["arch"] == "arm64"
+    assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
+    assert text[1].split() == ["robot1", "yes", "arm64", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
     assert text[2].split()[:2] == ["robot2", "no"]
 
 
@@ -116,3 +117,13 @@ def test_a_hostile_image_name_in_the_push_log_is_never_run(tmp_path, payload):
     stamp, logged = line.split(" ", 1)
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", stamp)
     assert logged == f"{image} sha256:{'a' * 64} sent 10 of 20 bytes, 1 of 1 layers"
+
+
+def test_status_reads_the_architecture_as_the_snapshot_does():
+    """The engine's own part of the status command, run in a real sh on
+    this machine (the e2e tests read an arm64 robot's)."""
+    command = status.status_command(roles(), merged("robots", {}))
+    out = subprocess.run(["sh", "-c", command], capture_output=True, text=True).stdout
+    mine = subprocess.run(["dpkg", "--print-architecture"], capture_output=True, text=True).stdout.strip()
+    assert mine and status.row("here", roles(), status.sections(out))["arch"] == mine
+    assert status.row("old", roles(), {})["arch"] is None  # a host that did not answer the part: "-"

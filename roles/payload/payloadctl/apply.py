@@ -6,7 +6,7 @@ is undone at boot (recovery.py) or by the next deploy."""
 import os
 import shutil
 
-from . import health, images, takeover
+from . import health, images, platforms, takeover
 from . import spec as states
 from .lock import update_lock_holder
 from .releases import gc
@@ -27,16 +27,19 @@ def already_current(spec, run_, releases, old):
     )
 
 
-def obtain_images(spec):
-    """Every service's image present and pinned: (compose with pinned
-    images, {ref: {id, pinned}})."""
+def obtain_images(spec, robot):
+    """Every service's image present, built for this robot's platform, and
+    pinned: (compose with pinned images, {ref: {id, pinned, platform}}).
+    An image for another platform is refused here, before the switch."""
     doc = {**spec.compose, "services": {k: dict(v) for k, v in spec.compose["services"].items()}}
     found = {}
+    arch = images.robot_arch()
     for service in doc["services"].values():
         ref = service["image"]
-        info = images.obtain(ref, spec.delivery, spec.pull_timeout)
+        info = images.obtain(ref, spec.delivery, spec.pull_timeout, service.get("platform"))
+        images.check_platform(ref, info, robot, arch)
         service["image"] = images.pinned(ref, info)
-        found[ref] = {"id": info["id"], "pinned": service["image"]}
+        found[ref] = {"id": info["id"], "pinned": service["image"], "platform": platforms.text(info["platform"])}
     return doc, found
 
 
@@ -63,7 +66,7 @@ def apply(spec, run_, releases, lock=None):
                 spec.lock_file, holder),
             run_id=run_id,
         )
-    doc, pinned = obtain_images(spec)
+    doc, pinned = obtain_images(spec, run_.host)
     rid = releases.new_id(spec.spec_hash)
     before_previous = releases.pointer("previous")
     good_old = old if old and releases.state(old) in states.SETTLED else None

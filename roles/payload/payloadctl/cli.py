@@ -2,6 +2,7 @@
 
 import argparse
 import os
+import socket
 import sys
 import time
 
@@ -56,7 +57,7 @@ def cmd_apply(args):
 
 def cmd_rollback(args):
     releases = Releases(args.dir)
-    run_ = Run(args.run_id, args.by or "unknown", args.force, False)
+    run_ = Run(args.run_id, args.by or "unknown", args.force, False, socket.gethostname())
     spec = releases.spec(releases.pointer("current")) or releases.spec(releases.pointer("previous"))
     lock_timeout = spec.apply_lock_timeout if spec else 0  # releases of an older payloadctl: do not wait
     owner = {"by": run_.by, "action": "rollback", "run_id": run_.run_id}

@@ -6,6 +6,7 @@ import re
 import subprocess
 import time
 
+from . import platforms
 from .system import Failure, run
 
 POLL = 0.5  # seconds between health looks: a crash is seen within about this
@@ -36,6 +37,7 @@ def container_state(cid):
         "restarts": data.get("RestartCount", 0),
         "started": state.get("StartedAt"),
         "exit_code": state.get("ExitCode"),
+        "error": state.get("Error") or "",
     }
 
 
@@ -81,6 +83,24 @@ def verdict(found, baseline):
     return outcome, why
 
 
+def exec_format_failure(found, output_of):
+    """The failure of a container whose program the kernel could not
+    execute at all (ENOEXEC: built for another architecture), named as
+    such; None when no container says so.  ``output_of(name)``: its log."""
+    for s in found:
+        if s["status"] in ("running",) and not s["restarts"]:
+            continue
+        if platforms.exec_format_error(s.get("error")) or platforms.exec_format_error(output_of(s["name"])):
+            return ("{} cannot run: exec format error: its program is not built for this robot's architecture "
+                    "(image {})".format(s["name"], s["image"]))
+    return None
+
+
+def container_output(name):
+    proc = run(["docker", "logs", "--tail", "20", name], check=False, timeout=60)
+    return (proc.stdout or "") + (proc.stderr or "")
+
+
 def wait_healthy(name, timeout, stable_seconds):
     """(True, "") once every container is healthy (HEALTHCHECK) or has run
     without restarting for stable_seconds; (False, why) at the first sign of
@@ -90,9 +110,10 @@ def wait_healthy(name, timeout, stable_seconds):
     stable_since = None
     why = "no container started"
     while True:
-        outcome, reason = verdict(states(name), baseline)
+        found = states(name)
+        outcome, reason = verdict(found, baseline)
         if outcome == "fail":
-            return False, reason
+            return False, exec_format_failure(found, container_output) or reason
         if outcome == "ok":
             return True, ""
         if outcome == "stable":

@@ -1,11 +1,12 @@
 """The release's images on this robot: pulled (bounded, while the old
-release keeps running) or already pushed, then pinned by digest."""
+release keeps running) or already pushed, checked against this robot's
+platform, then pinned by digest."""
 
 import json
 import subprocess
 import time
 
-from . import imageref
+from . import imageref, platforms
 from .system import Failure, run
 
 
@@ -14,10 +15,30 @@ def image_info(ref):
     if proc.returncode != 0:
         return None
     data = json.loads(proc.stdout)[0]
-    return {"id": data["Id"], "repo_digests": data.get("RepoDigests") or []}
+    platform = {"os": data.get("Os") or "linux", "architecture": data.get("Architecture") or ""}
+    if data.get("Variant"):
+        platform["variant"] = data["Variant"]
+    return {"id": data["Id"], "repo_digests": data.get("RepoDigests") or [], "platform": platform}
 
 
-def pull(ref, timeout):
+def robot_arch():
+    """This robot's architecture as its Docker engine runs images (an armhf
+    userland on an arm64 kernel runs arm images), else as dpkg says."""
+    proc = run(["docker", "version", "-f", "{{.Server.Arch}}"], check=False, timeout=60)
+    arch = proc.stdout.strip() if proc.returncode == 0 else ""
+    if not arch:
+        proc = run(["dpkg", "--print-architecture"], check=False, timeout=60)
+        arch = proc.stdout.strip() if proc.returncode == 0 else ""
+    return platforms.go_arch(arch)
+
+
+def check_platform(ref, info, robot, arch):
+    """Refuse, before anything switches, an image this robot cannot run."""
+    if arch and not platforms.matches(arch, info["platform"]):
+        raise Failure(platforms.refusal(robot, arch, ref, [platforms.text(info["platform"])]))
+
+
+def pull(ref, timeout, platform=None):
     """docker pull, three tries, all within `timeout` seconds; the error text."""
     deadline = time.time() + timeout
     last = ""
@@ -26,7 +47,8 @@ def pull(ref, timeout):
         if left <= 0:
             break
         try:
-            proc = run(["docker", "pull", "-q", ref], check=False, timeout=left)
+            proc = run(["docker", "pull", "-q"] + (["--platform", platform] if platform else []) + [ref],
+                       check=False, timeout=left)
         except subprocess.TimeoutExpired:
             raise Failure(
                 "docker pull {} did not finish within {} s (payload_pull_timeout); "
@@ -39,10 +61,12 @@ def pull(ref, timeout):
     return last or "gave up after {} s (payload_pull_timeout)".format(timeout)
 
 
-def obtain(ref, delivery, pull_timeout):
-    """Make the image present, pulling while the old release keeps running."""
+def obtain(ref, delivery, pull_timeout, platform=None):
+    """Make the image present, pulling while the old release keeps running
+    (Docker picks the robot's variant of a multi-platform image, or
+    ``platform`` where the service pins one)."""
     if delivery == "pull":
-        error = pull(ref, pull_timeout)
+        error = pull(ref, pull_timeout, platform)
         if error is not None and image_info(ref) is None:
             raise Failure("cannot pull {}: {}; the old release keeps running".format(ref, error))
     info = image_info(ref)

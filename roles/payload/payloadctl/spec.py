@@ -8,6 +8,7 @@ here."""
 
 import collections
 import json
+import socket
 
 # A release's states (record.json "state"):
 SWITCHING = "switching"  # current points at it, not yet verified (a power cut here is undone at boot)
@@ -50,15 +51,17 @@ class Spec(collections.namedtuple("Spec", FIELDS)):
         return dict(self._asdict())
 
 
-class Run(collections.namedtuple("Run", ("run_id", "by", "force", "restart"))):
+class Run(collections.namedtuple("Run", ("run_id", "by", "force", "restart", "host"))):
     """This run: its id (names its result), who asks, whether the update
-    lock is overridden, whether the unit must restart (it changed)."""
+    lock is overridden, whether the unit must restart (it changed), and the
+    robot's name in the fleet (what the operator's lines call it)."""
 
     __slots__ = ()
 
     @classmethod
     def from_dict(cls, data):
-        return cls(data.get("run_id"), data.get("by") or "unknown", bool(data.get("force")), bool(data.get("restart")))
+        return cls(data.get("run_id"), data.get("by") or "unknown", bool(data.get("force")), bool(data.get("restart")),
+                   data.get("host") or socket.gethostname())
 
 
 def load_request(path):
