@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 from tests.bench import hygiene
+from tests.bench.pool import sample
 from tests.bench.roundtrips import COUNTING_PYINFRA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -248,15 +249,6 @@ def _children_cpu() -> float:
 
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     return usage.ru_utime + usage.ru_stime
-
-
-def sample(pid: int) -> tuple[int, int]:
-    try:
-        fds = len(os.listdir(f"/proc/{pid}/fd"))
-        rss = next(int(line.split()[1]) for line in open(f"/proc/{pid}/status") if line.startswith("VmRSS:"))
-        return fds, rss
-    except (OSError, StopIteration):
-        return 0, 0
 
 
 def names_for(n: int) -> list[str]:
