@@ -132,7 +132,8 @@ def main(argv=None) -> int:
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
         "commit": commit,
         "cpus": os.cpu_count(),
-        "load limit before each sample (1 min)": hygiene.LIMIT,
+        "load limit before each figure's first sample (1 min)": hygiene.LIMIT,
+        "before its later samples": f"fewer than {hygiene.QUIET} cores busy over {hygiene.QUIET_WINDOW:.0f} s",
     }
     text = markdown(results, conditions)
     print(text)

@@ -165,10 +165,11 @@ class Bench:
     def timed(self, name: str, run) -> float:
         """Time ``run()`` as one sample of figure ``name``, after waiting for
         an idle machine (tests/bench/hygiene.py); the load goes with it."""
-        load = hygiene.wait_for_idle(label=f"N={self.n} {name}")
+        figure = self.figures.setdefault(name, hygiene.Figure())
+        load, idle = hygiene.wait(f"N={self.n} {name}", first=not figure.samples)
         started = time.monotonic()
         run()
-        return self.figures.setdefault(name, hygiene.Figure()).add(time.monotonic() - started, load)
+        return figure.add(time.monotonic() - started, load, idle)
 
     def deploy(self, *args: str, tag: str = "1.0", count: bool = False) -> tuple[int, dict]:
         _, code, counts = self.pyinfra("deploy.py", *args, tag=tag, count=count)
@@ -188,8 +189,9 @@ class Bench:
                 if kind == "floor":
                     log(f"apt floor {index + 1}/{runs}")
                     self.timed("floor_apt_pull", lambda: self.parallel_ssh(self.apt_floor_script()))
-                    load = hygiene.wait_for_idle(label=f"N={self.n} floor_health")
-                    self.figures.setdefault("floor_health", hygiene.Figure()).add(self.health_window(), load)
+                    health = self.figures.setdefault("floor_health", hygiene.Figure())
+                    load, idle = hygiene.wait(f"N={self.n} floor_health", first=not health.samples)
+                    health.add(self.health_window(), load, idle)
                 else:
                     log(f"fresh provision {index + 1}/{runs}")
                     result = {}
@@ -255,13 +257,14 @@ class Bench:
         for index in range(runs):
             log(f"crash-looping release on one robot ({index + 1}/{runs})")
             since = time.time()
-            load = hygiene.wait_for_idle(label=f"N={self.n} crash_deploy")
+            figure = self.figures.setdefault("crash_deploy", hygiene.Figure())
+            load, idle = hygiene.wait(f"N={self.n} crash_deploy", first=not figure.samples)
             started = time.monotonic()
             r["crash_exit"].append(self.deploy("--limit", self.robots[0], tag="1.2-broken")[0])
-            self.figures.setdefault("crash_deploy", hygiene.Figure()).add(time.monotonic() - started, load)
+            figure.add(time.monotonic() - started, load, idle)
             value = self.back_again(self.events(self.robots[0], since))
             if value is not None:
-                back.add(value, load)
+                back.add(value, load, idle)
         if back.samples:
             self.figures["crash_to_old_running"] = back
 
@@ -287,7 +290,8 @@ class Bench:
         if "floor_apt_pull" in self.figures and "floor_health" in self.figures:
             r["figures"]["floor_fresh"] = {
                 **hygiene.Figure([a + b for a, b in zip(self.figures["floor_apt_pull"].samples, self.figures["floor_health"].samples)],
-                                 [max(a, b) for a, b in zip(self.figures["floor_apt_pull"].loads, self.figures["floor_health"].loads)]).as_dict()}
+                                 [max(a, b) for a, b in zip(self.figures["floor_apt_pull"].loads, self.figures["floor_health"].loads)],
+                                 [a and b for a, b in zip(self.figures["floor_apt_pull"].idles, self.figures["floor_health"].idles)]).as_dict()}
         r["load_at_end"] = [round(x, 2) for x in os.getloadavg()]
         self.ratios(r)
         return r

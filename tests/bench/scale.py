@@ -329,16 +329,16 @@ def main(argv=None) -> int:
                 scale.run("noop", spec, [])  # first contact of this size: warm
                 for kind in ("noop", "status"):
                     runs = []
-                    for _ in range(args.runs):
-                        load = hygiene.wait_for_idle(label=f"{kind} N={n}")
+                    for index in range(args.runs):
+                        load, idle = hygiene.wait(f"{kind} N={n}", first=index == 0)
                         loads.append(load)
-                        runs.append({**scale.run(kind, spec, []), "load": load})
+                        runs.append({**scale.run(kind, spec, []), "load": load, "idle": idle})
                     row = {"hosts": n, "real": len(names) - light, "light": light,
                            "seconds": summarize([r["seconds"] for r in runs]),
                            "peak_rss_mb": summarize([r["peak_rss_mb"] for r in runs]),
                            "peak_fds": summarize([r["peak_fds"] for r in runs]),
                            "cpu_seconds": summarize([r["cpu_seconds"] for r in runs]),
-                           "loads": [r["load"] for r in runs], "runs": runs,
+                           "loads": [r["load"] for r in runs], "idle": all(r["idle"] for r in runs), "runs": runs,
                            "light_hosts_memory_mb": scale.light_memory_mb()}
                     curve[kind].append(row)
                     log(f"N={n} {kind}: {row['seconds']} s, {row['peak_rss_mb']['median']} MB, "
@@ -348,10 +348,11 @@ def main(argv=None) -> int:
                 if n == max(args.hosts):
                     for parallel in args.parallel:
                         runs = []
-                        for _ in range(args.runs):
-                            load = hygiene.wait_for_idle(label=f"noop N={n} --parallel {parallel}")
+                        for index in range(args.runs):
+                            load, idle = hygiene.wait(f"noop N={n} --parallel {parallel}", first=index == 0)
                             loads.append(load)
-                            runs.append({**scale.run("noop", spec, ["--parallel", str(parallel)]), "load": load})
+                            runs.append({**scale.run("noop", spec, ["--parallel", str(parallel)]), "load": load,
+                                         "idle": idle})
                         extra_rows.append({"hosts": n, "parallel": parallel,
                                            "seconds": summarize([r["seconds"] for r in runs]),
                                            "peak_rss_mb": summarize([r["peak_rss_mb"] for r in runs]),

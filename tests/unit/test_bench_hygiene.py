@@ -49,3 +49,27 @@ def test_results_taken_under_load_are_marked_and_not_written(monkeypatch, tmp_pa
     assert not (tmp_path / "RESULTS.md").exists()
     assert bench.main(["--robots", "10", "--updates-at", "--fresh-at", "--write-loaded"]) == 0
     assert "[load 3.0]" in (tmp_path / "RESULTS.md").read_text()
+
+
+def test_a_figure_s_later_samples_wait_for_a_quiet_machine_not_for_the_load_average(monkeypatch):
+    """The load average still counts the figure's own first sample; what is
+    running now decides the later ones, and a busy machine marks them."""
+    monkeypatch.setattr(hygiene.time, "sleep", lambda seconds: None)
+    monkeypatch.setattr(hygiene, "load", lambda: 2.7)
+    busy = iter([1.6, 0.2])
+    monkeypatch.setattr(hygiene, "busy_cores", lambda: next(busy))
+    assert hygiene.wait("x", first=False, patience=60) == (2.7, True)
+    assert hygiene.wait("x", first=True, patience=0) == (2.7, False)  # the first sample needs the load below 1.5
+    monkeypatch.setattr(hygiene, "busy_cores", lambda: 1.9)
+    assert hygiene.wait_for_quiet("x", patience=0) == (2.7, False)
+    figure = hygiene.Figure()
+    figure.add(1.0, 1.0)
+    figure.add(1.2, 2.7, True)
+    figure.add(1.1, 2.4, True)
+    assert figure.idle and hygiene.shown(figure.as_dict()) == "1.10 (1.00–1.20)"
+    figure.add(5.0, 2.1, False)
+    assert not figure.idle
+
+
+def test_busy_cores_reads_the_machine():
+    assert 0.0 <= hygiene.busy_cores(0.2) <= (__import__("os").cpu_count() or 1)
