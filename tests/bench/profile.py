@@ -212,11 +212,11 @@ def fresh_timeline(prefix: str, workdir: Path) -> str:
     bench.up(fresh=True)
     bench.parallel_ssh(bench.apt_floor_script())  # warm the apt cache and the registry
     bench.up(fresh=True)
-    load = hygiene.load()
+    load = hygiene.wait_for_idle("fresh timeline: floor")
     floor = bench.parallel_ssh(bench.apt_floor_script())
     health = bench.health_window()
     bench.up(fresh=True)
-    load_fresh = hygiene.load()
+    load_fresh = hygiene.wait_for_idle("fresh timeline: provision")
     lab = Lab.__new__(Lab)
     lab.bench, lab.workdir = bench, workdir
     run = lab.run("deploy.py")
