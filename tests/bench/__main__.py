@@ -68,8 +68,9 @@ def markdown(results: list[dict], conditions: dict) -> str:
     ns = [r["robots"] for r in results]
     lines = ["# Fleet benchmark results", "",
              "Written by `python3 -m tests.bench`; seconds unless said otherwise.  Each figure: median of "
-             f"{results[0]['runs']} samples (min–max); a figure with a sample that started at a 1-minute load "
-             "average of 1.5 or more carries `[load X]`, the highest such load.", "",
+             f"{results[0]['runs']} samples (min–max); a figure with a sample that did not start idle (its first "
+             "at a 1-minute load average of 1.5 or more, a later one with 0.5 cores or more busy) carries "
+             "`[load X]`, the highest load before its samples.", "",
              "## Conditions", ""]
     lines += [f"- {k}: {v}" for k, v in conditions.items()]
     if not all_idle(results):
