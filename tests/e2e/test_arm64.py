@@ -44,7 +44,7 @@ Module cost, measured on 2 shared CPUs with the images built and a warm apt
 cache (another lab's tests running beside it): pi1 boots in 12-14 s (the
 amd64 runc is fetched once into .lab/cache, 4 s), the first run (pi1 from
 nothing, robot1 converged) 124-129 s, the pull run 30-31 s, the counted
-rerun 7 s, the refusal 12-13 s: 210-220 s in all, the session's lab and
+rerun 7 s, the refusal 11-13 s: 210-220 s in all, the session's lab and
 first run excluded.  Building the arm64 host image, when its recipe changed,
 adds about 4.5 min (cached by recipe, like the amd64 one).
 """
