@@ -37,8 +37,9 @@ What the emulation cannot do:
     hook is installed, not run by a login (tests/e2e/test_x11.py runs it on
     the amd64 laptop).
   - `exec format error` named by the health gate: the lab's image for it
-    says amd64, so pi1 refuses it before the switch; it is proved on the
-    amd64 robots (tests/e2e/test_faults_release.py) and unit-tested.
+    says amd64, so pi1 refuses it before the switch; the health gate naming
+    it is unit-tested only (tests/unit/test_payloadctl.py,
+    test_platforms.py): no end-to-end module runs the 1.3-exec-format tag.
 
 Module cost, measured on 2 shared CPUs with the images built and a warm apt
 cache (another lab's tests running beside it): pi1 boots in 12-14 s (the
