@@ -141,6 +141,11 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
                          apt_proxy_conf(services_host), sensors_by_host.get(name, []))
             for name, group, arch in wanted
         ]
+        for (_, _, arch), (container, _) in zip(wanted, started):
+            if arch != hostimage.NATIVE_ARCH:
+                from . import native_runc
+
+                native_runc.install(container)  # lab only: qemu-user's runc cannot start containers
     known_hosts = state.lab_dir(prefix) / "known_hosts"
     with timed_phase("wait for ssh"):
         lines = []
