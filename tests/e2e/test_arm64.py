@@ -36,10 +36,9 @@ What the emulation cannot do:
     checked with (arm64) `udevadm verify`, not triggered; X11: the cookie
     hook is installed, not run by a login (tests/e2e/test_x11.py runs it on
     the amd64 laptop).
-  - `exec format error` named by the health gate: the lab's image for it
-    says amd64, so pi1 refuses it before the switch; the health gate naming
-    it is unit-tested only (tests/unit/test_payloadctl.py,
-    test_platforms.py): no end-to-end module runs the 1.3-exec-format tag.
+  - `exec format error`: the lab's image for it says amd64, so pi1 refuses
+    it before the switch; it is run on robot1 instead, whose kernel refuses
+    its program (an ELF for no machine) as a robot's would.
 
 Module cost, measured on 2 shared CPUs with the images built and a warm apt
 cache (another lab's tests running beside it): pi1 boots in 12-14 s (the
@@ -262,3 +261,22 @@ def test_an_amd64_only_image_is_refused_on_pi1_before_any_switch(arm, provisione
     assert arm.ok(PI, f"readlink {PAYLOAD_DIR}/current") == current
     assert arm.ok(PI, f"ls {PAYLOAD_DIR}/releases") == releases
     assert arm.payload(PI)["Id"] == container and arm.payload(PI)["State"]["Health"]["Status"] == "healthy"
+
+
+def test_a_payload_built_for_another_machine_is_named_by_the_health_gate_and_rolled_back(arm, provisioned, tmp_path):
+    """On robot1 (amd64): 1.3-exec-format says linux/amd64, so it passes the
+    platform check, but its program is an ELF for no machine this kernel runs
+    (binfmt_misc would run an arm64 one under emulation here, and a robot's
+    kernel would refuse it the same way): exec format error, named, and the
+    old release back."""
+    ref = f"{arm.state['registry']}/ros/payload:1.3-exec-format"
+    current = arm.ok(NUC, f"readlink {PAYLOAD_DIR}/current")
+    fleet = arm.fleet_with(tmp_path, **{"    robot1:\n": f"    robot1:\n      payload_image: \"{ref}\"\n"})
+    run = arm.provision("--limit", NUC, fleet=fleet, label="(robot1: a payload built for another machine)")
+    assert run.returncode != 0
+    assert "cannot run: exec format error: its program is not built for this robot's architecture" in run.output, \
+        run.output[-4000:]
+    assert arm.ok(NUC, f"readlink {PAYLOAD_DIR}/current") == current
+    container = arm.payload(NUC)
+    assert container["State"]["Health"]["Status"] == "healthy"
+    assert container["Config"]["Labels"]["org.opencontainers.image.version"] == "1.0"
