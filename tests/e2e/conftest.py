@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,10 +19,44 @@ PREFIX = os.environ.get("ROBOT_LAB_E2E_PREFIX", "e2e")
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
 
+ARM64_MODULE = "test_arm64.py"
+
+
 def pytest_collection_modifyitems(items):
     for item in items:
         if "/e2e/" in str(item.fspath):
             item.add_marker(pytest.mark.e2e)
+    # The emulated arm64 robot is the slowest host to build: its module runs
+    # last, and its image is built (when its recipe changed) in the
+    # background while the other modules run (see `lab`).
+    items.sort(key=lambda item: item.fspath.basename == ARM64_MODULE)
+
+
+class Background:
+    """A lab step run in a thread beside the tests; ``wait`` re-raises its error."""
+
+    def __init__(self, name: str, target) -> None:
+        self.name, self.error = name, None
+        self.started = time.monotonic()
+
+        def run() -> None:
+            try:
+                target()
+            except BaseException as error:  # re-raised in the test that needs it
+                self.error = error
+
+        self.thread = threading.Thread(target=run, name=name, daemon=True)
+        self.thread.start()
+
+    def wait(self) -> None:
+        waited = time.monotonic()
+        self.thread.join()
+        phase(f"{self.name} (in the background; waited {time.monotonic() - waited:.1f} s for it)", self.started)
+        if self.error is not None:
+            raise self.error
+
+
+BACKGROUND: dict[str, Background] = {}
 
 
 @dataclass
@@ -135,13 +170,18 @@ class Lab:
 
 
 @pytest.fixture(scope="session")
-def lab():
+def lab(request):
     from tests.lab import hosts
 
     started = time.monotonic()
     hosts.down(PREFIX)  # fresh hosts every session, whatever an earlier run left
     state = hosts.up(PREFIX, robots=3, laptops=1)
     phase("lab up (images, services, hosts)", started)
+    if any(item.fspath.basename == ARM64_MODULE for item in request.session.items):
+        from tests.lab import hostimage
+
+        BACKGROUND["arm64 host image"] = Background(
+            "arm64 host image", lambda: hostimage.ensure_host_image(hosts.client(), "arm64"))
     yield Lab(state)
     if not os.environ.get("ROBOT_LAB_KEEP"):
         hosts.down(PREFIX)

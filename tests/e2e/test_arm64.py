@@ -8,7 +8,9 @@ the hosts.
 pi1 joins the session's lab for this module only (`hosts.up(...,
 arm64_robots=1)` reuses its services, mirror and registry; the module's end
 removes pi1 and its volumes, so the other modules see the lab as before).
-It runs after the session's first run, so robot1 arrives converged and
+It runs last (tests/e2e/conftest.py), while its host image, when its
+recipe changed, was built in the background during the other modules; it
+runs after the session's first run, so robot1 arrives converged and
 changes nothing; pi1 is provisioned from nothing.  The first run sends pi1
 its payload by push (inventories/lab.yaml with pi1's delivery set to push),
 so the bytes sent are the whole arm64 variant, measured against both
@@ -62,7 +64,7 @@ import pytest
 import yaml
 
 from tests.bench.roundtrips import COUNTING_PYINFRA
-from tests.e2e.conftest import ROOT, Lab, phase
+from tests.e2e.conftest import BACKGROUND, ROOT, Lab, phase
 
 pytestmark = pytest.mark.e2e
 
@@ -96,6 +98,8 @@ def arm(lab, first_run):
     """The session's lab with pi1 beside its hosts, for this module."""
     from tests.lab import hosts
 
+    if "arm64 host image" in BACKGROUND:
+        BACKGROUND.pop("arm64 host image").wait()
     sizes = native_sizes(lab)
     started = time.monotonic()
     state = hosts.up(lab.prefix, **sizes, arm64_robots=1)
