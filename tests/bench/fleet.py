@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import shlex
 import subprocess
 import sys
@@ -243,13 +244,17 @@ class Bench:
         for _ in range(runs):
             tag = "1.0" if self.tag == "1.1" else "1.1"  # every robot changes
             log(f"rollout of the whole fleet to {tag} (canary 1, batch 50%)")
+            # A rollout to a target it completed before resumes, finding nothing
+            # to do: each sample starts without the earlier ones' state.
+            shutil.rmtree(self.workdir / "rollout", ignore_errors=True)
             proc = {}
             self.timed("rollout", lambda: proc.update(p=subprocess.run(
                 [sys.executable, "-m", "engine", "rollout", "inventories/lab.py", "-y", "--canary", "1",
                  "--batch", "50%"], cwd=ROOT, env=self.env(tag), capture_output=True, text=True)))
             self.tag = tag
             r["rollout_exit"].append(proc["p"].returncode)
-            r["rollout_waves"] = sum(1 for line in proc["p"].stderr.splitlines() if line.startswith("--> wave "))
+            waves = sum(1 for line in proc["p"].stderr.splitlines() if line.startswith("--> wave "))
+            r["rollout_waves"] = max(r["rollout_waves"] or 0, waves)
 
     def crashes(self, r: dict, runs: int) -> None:
         r["crash_exit"] = []
