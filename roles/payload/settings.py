@@ -15,15 +15,23 @@ import roles.payload.problems as problems
 import roles.payload.services as services
 
 
-def image(value):
-    problems = c.string()(value)
-    if problems:
-        return problems
-    try:
-        imageref.parse(value)
-    except ValueError as error:
-        return [("", str(error))]
-    return []
+def parsed_by(parse):
+    """A check: a string that ``parse`` accepts (its ValueError is the problem)."""
+
+    def check(value):
+        found = c.string()(value)
+        if found:
+            return found
+        try:
+            parse(value)
+        except ValueError as error:
+            return [("", str(error))]
+        return []
+
+    return check
+
+
+image = parsed_by(imageref.parse)
 
 
 def volume(value):
@@ -59,15 +67,7 @@ def replaced(value):
     return []
 
 
-def platform(value):
-    found = c.string()(value)
-    if found:
-        return found
-    try:
-        platforms.parse(value)
-    except ValueError as error:
-        return [("", str(error))]
-    return []
+platform = parsed_by(platforms.parse)
 
 
 c.with_schema(platform, {"type": "string", "pattern": "^[a-z0-9]+/[a-z0-9_]+(?:/[a-z0-9]+)?$",
