@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import socket
 import threading
+from contextlib import contextmanager
 
 import paramiko
 
@@ -81,6 +82,17 @@ class Listener:
 
 def ssh_server(client_key=None) -> Listener:
     return Listener(host_key=paramiko.ECDSAKey.generate(), client_key=client_key)
+
+
+@contextmanager
+def wrong_hosts():
+    """(a listener that accepts TCP but never speaks SSH, a port nothing
+    listens on): the two wrong hosts an operator meets first."""
+    silent = Listener()
+    try:
+        yield silent, closed_port()
+    finally:
+        silent.close()
 
 
 def closed_port() -> int:

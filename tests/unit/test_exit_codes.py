@@ -44,16 +44,12 @@ def test_a_limit_that_matches_nothing_is_refused_by_every_command(tmp_path):
 
 
 def test_status_tells_as_hosts_answer_and_each_reason(tmp_path):
-    silent = sshserver.Listener()
-    closed = sshserver.closed_port()
-    try:
+    with sshserver.wrong_hosts() as (silent, closed):
         path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": silent.port},
                                 "robot2": {"address": "127.0.0.1", "ssh_port": closed}}, ssh_connect_retries=0)
         started = time.monotonic()
         result = run(path, tmp_path, "-m", "engine", "status", "inventories/robots.py", "--json")
         elapsed = time.monotonic() - started
-    finally:
-        silent.close()
     assert result.returncode == 3, result.stderr
     refused = f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})"
     silent_reason = (f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "

@@ -136,16 +136,12 @@ def test_no_key_at_all_says_so(tmp_path, monkeypatch, client_key):
 
 
 def test_wrong_hosts_fail_in_one_line_each_within_the_timeout(tmp_path, monkeypatch, client_key):
-    silent = sshserver.Listener()
-    closed = sshserver.closed_port()
-    try:
+    with sshserver.wrong_hosts() as (silent, closed):
         path = fleet(tmp_path, {"silent": {"address": "127.0.0.1", "ssh_port": silent.port},
                                 "closed": {"address": "127.0.0.1", "ssh_port": closed}}, ssh_connect_retries=1)
         started = time.monotonic()
         lines = connect(path, monkeypatch)
         elapsed = time.monotonic() - started
-    finally:
-        silent.close()
     assert lines == {
         "silent": f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
                   "within 2 s (wrong port?)",

@@ -11,10 +11,8 @@ from __future__ import annotations
 import random
 import re
 import signal
-import socket
 import subprocess
 import sys
-import threading
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -22,6 +20,7 @@ import pytest
 
 from engine.fleet import loader as fleetyaml
 from tests.unit import harness as fleet
+from tests.unit import sshserver
 
 ROOT = Path(__file__).resolve().parents[2]
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
@@ -216,29 +215,6 @@ def test_wrong_types_at_every_setting_in_every_layer():
                     assert_problem_lines(error.lines, f"{setting}={value!r} in {layer}", b"")
 
 
-class Listener:
-    """A TCP listener on 127.0.0.1 that records every connection: where the
-    hosts of a generated fleet point, so a contact cannot go unnoticed."""
-
-    def __init__(self):
-        self.socket = socket.create_server(("127.0.0.1", 0))
-        self.port = self.socket.getsockname()[1]
-        self.connections = 0
-        threading.Thread(target=self.serve, daemon=True).start()
-
-    def serve(self):
-        while True:
-            try:
-                conn, _ = self.socket.accept()
-            except OSError:
-                return
-            self.connections += 1
-            conn.close()
-
-    def close(self):
-        self.socket.close()
-
-
 def run_cli(paths: list[Path]) -> list[subprocess.CompletedProcess]:
     """The real `pyinfra -y inventories/robots.py deploy.py`, the fleet file
     chosen by $ROBOT_FLEET, several at once.  (Each costs seconds of pyinfra
@@ -259,7 +235,7 @@ def run_cli(paths: list[Path]) -> list[subprocess.CompletedProcess]:
 
 
 def test_cli_refuses_generated_fleets_before_any_connection(tmp_path):
-    listener, control_listener = Listener(), Listener()
+    listener, control_listener = sshserver.Listener(hang_up=True), sshserver.Listener(hang_up=True)
     try:
         yaml_level, check_level = [], []
         for label, data in documents(listener.port, 200, seed=3):
