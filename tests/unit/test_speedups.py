@@ -47,6 +47,20 @@ def test_global_arguments_are_pyinfras():
 def test_install_replaces_pyinfras(monkeypatch):
     monkeypatch.setattr(operation, "get_operation_order_from_stack", pyinfra_order)
     monkeypatch.setattr(arguments, "all_global_arguments", speedups._ORIGINAL["arguments"])
-    speedups.install()
+    for name in ("order", "arguments"):  # as a pyinfra of its own would answer: pretend this one is theirs
+        monkeypatch.setitem(speedups.COPIED_FROM, name, speedups.digest(speedups._ORIGINAL[name]))
+    assert speedups.install() == ["order", "arguments"]
     assert operation.get_operation_order_from_stack is speedups.operation_order_from_stack
     assert arguments.all_global_arguments is speedups.all_global_arguments
+
+
+def test_a_pyinfra_whose_functions_changed_keeps_its_own(monkeypatch):
+    """An operator may install a later pyinfra 3.x: a function it changed is
+    not replaced by a copy of the old one."""
+    monkeypatch.setattr(operation, "get_operation_order_from_stack", pyinfra_order)
+    monkeypatch.setattr(arguments, "all_global_arguments", speedups._ORIGINAL["arguments"])
+    monkeypatch.setitem(speedups.COPIED_FROM, "order", "0" * 16)
+    assert speedups.install() == ["arguments"]
+    assert operation.get_operation_order_from_stack is pyinfra_order
+    assert arguments.all_global_arguments is speedups.all_global_arguments
+
