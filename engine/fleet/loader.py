@@ -187,6 +187,9 @@ def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
     opened (the parser gives up far below); other errors where they are."""
     context, problem = error.context or "", error.problem or "invalid YAML"
     opened, found = error.context_mark, error.problem_mark
+    if "maximum nesting depth" in problem:  # libyaml 0.2.6+ stops deep nesting itself
+        return YamlProblem((found or opened).line + 1 if (found or opened) else None,
+                           f"nested more than {MAX_DEPTH} levels deep")
     if opened is not None and found is not None and ("quoted" in context or "flow" in context):
         return YamlProblem(
             opened.line + 1,
