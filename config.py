@@ -1,11 +1,16 @@
-"""pyinfra configuration, read before the inventory."""
+"""pyinfra configuration, read before the inventory (from the directory
+pyinfra runs in: inventories/ refuse any other, see robotfleet.inventory)."""
 
 import os
 import sys
 
-from pyinfra import config
+# The checkout's roles/ first, before anything installed under that name
+# (pyinfra appends the deploy directory to sys.path, after site-packages).
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from engine.inventory import refuse
+from pyinfra import config  # noqa: E402
+
+from robotfleet.inventory import refuse  # noqa: E402
 
 config.REQUIRE_PYINFRA_VERSION = ">=3.10,<4"
 

@@ -1,8 +1,8 @@
 """Defaults for every host, assembled from the settings the engine and the
-roles declare (engine/fleet/connection.py, roles/*/settings.py; listed in
+roles declare (robotfleet/fleet/connection.py, roles/*/settings.py; listed in
 docs/settings.md).  Override any of them in the fleet file."""
 
-from engine.roster import group_data
+from robotfleet.roster import group_data
 
 # Run every operation through sudo (host data, so that it also applies
 # inside conditional blocks; see pyinfra's notes on global arguments).

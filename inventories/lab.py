@@ -13,7 +13,7 @@ import json
 import os
 from pathlib import Path
 
-from engine.inventory import parse_or_exit, pyinfra_groups, refuse
+from robotfleet.inventory import parse_or_exit, pyinfra_groups, refuse
 
 _ROOT = Path(__file__).resolve().parent.parent
 _PREFIX = os.environ.get("ROBOT_LAB_PREFIX", "lab")

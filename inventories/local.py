@@ -18,7 +18,9 @@ import os
 import socket
 from pathlib import Path
 
-from engine.inventory import display_path, load_or_exit, refuse
+from robotfleet.inventory import display_path, load_or_exit, refuse, require_checkout
+
+require_checkout()
 
 _path = Path(os.environ.get("ROBOT_FLEET") or Path(__file__).with_name("robots.yaml"))
 _fleet = load_or_exit(_path)

@@ -5,7 +5,7 @@ before pyinfra connects anywhere."""
 import os
 from pathlib import Path
 
-from engine.inventory import load_or_exit, pyinfra_groups
+from robotfleet.inventory import load_or_exit, pyinfra_groups
 
 _fleet = load_or_exit(Path(os.environ.get("ROBOT_FLEET") or Path(__file__).with_suffix(".yaml")))
 

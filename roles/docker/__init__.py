@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from pyinfra.api import deploy
 
-from engine import values
-from engine.host import apt, aptrepo, operations
-from engine.host.snapshot import SnapshotQuery
-from engine.role import Play, Role, StatusPart
+from robotfleet import values
+from robotfleet.host import apt, aptrepo, operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play, Role, StatusPart
 from roles.docker import daemon, hooks, plan, settings
 
 DAEMON_JSON = daemon.DAEMON_JSON

@@ -17,8 +17,8 @@ import shlex
 
 from pyinfra import host
 
-from engine.host import operations
-from engine.host.snapshot import FileState
+from robotfleet.host import operations
+from robotfleet.host.snapshot import FileState
 
 DAEMON_JSON = "/etc/docker/daemon.json"
 PREVIOUS = DAEMON_JSON + ".previous"

@@ -1,8 +1,8 @@
 """Test fixtures: what a successful run of the docker role leaves on a host."""
 
-from engine.host import aptrepo
-from engine.host.fixtures import file_state
-from engine.host.snapshot import FileState
+from robotfleet.host import aptrepo
+from robotfleet.host.fixtures import file_state
+from robotfleet.host.snapshot import FileState
 from roles import docker
 import roles.docker.hooks as hooks
 import roles.docker.plan as plan

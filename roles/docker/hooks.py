@@ -1,6 +1,6 @@
 """Where other roles add to what the docker role builds."""
 
-from engine.role import Hook
+from robotfleet.role import Hook
 
 DAEMON_OPTIONS = Hook(
     "docker daemon.json",

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import json
 
-from engine.host import aptrepo, platform
-from engine.host.platform import PlanError, architecture  # noqa: F401 (the role's plan names them)
+from robotfleet.host import aptrepo, platform
+from robotfleet.host.platform import PlanError, architecture  # noqa: F401 (the role's plan names them)
 
 SUPPORTED = {
     "ubuntu": {"focal": "20.04", "jammy": "22.04", "noble": "24.04"},

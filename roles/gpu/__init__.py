@@ -24,10 +24,10 @@ from __future__ import annotations
 
 from pyinfra.api import deploy
 
-from engine import values
-from engine.host import apt, aptrepo, operations
-from engine.host.snapshot import SnapshotQuery
-from engine.role import Play, Role, StatusPart
+from robotfleet import values
+from robotfleet.host import apt, aptrepo, operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play, Role, StatusPart
 import roles.docker.hooks as docker_hooks
 from roles.gpu import plan, settings
 import roles.payload.hooks as payload_hooks

@@ -3,9 +3,9 @@
 
 import base64
 
-from engine.host import aptrepo
-from engine.host.fixtures import file_state
-from engine.host.snapshot import FileState
+from robotfleet.host import aptrepo
+from robotfleet.host.fixtures import file_state
+from robotfleet.host.snapshot import FileState
 from roles import gpu
 import roles.gpu.plan as plan
 

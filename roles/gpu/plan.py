@@ -11,9 +11,9 @@ import base64
 import re
 import shlex
 
-from engine.host import aptrepo
-from engine.host import platform as host_platform
-from engine.host.platform import PlanError
+from robotfleet.host import aptrepo
+from robotfleet.host import platform as host_platform
+from robotfleet.host.platform import PlanError
 
 TOOLKIT = "nvidia-container-toolkit"
 RUNTIME_NAME = "nvidia"

@@ -15,7 +15,7 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 - report.py: its columns in status, what a rollout waits for.
 """
 
-from engine.role import Role
+from robotfleet.role import Role
 from roles.payload import report, settings, steps
 from roles.payload.release import rollback_release
 

@@ -2,8 +2,8 @@
 
 import json
 
-from engine.host.fixtures import file_state
-from engine.host.snapshot import FileState
+from robotfleet.host.fixtures import file_state
+from robotfleet.host.snapshot import FileState
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
 import roles.payload.robot as robot

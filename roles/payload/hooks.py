@@ -1,6 +1,6 @@
 """Where other roles add to what the payload role builds."""
 
-from engine.role import Hook
+from robotfleet.role import Hook
 
 SERVICES = Hook(
     "payload compose services",

@@ -11,7 +11,7 @@ import shlex
 
 from pyinfra import host
 
-from engine.host import operations
+from robotfleet.host import operations
 
 DOCKER_CONFIG_DIR = "/root/.docker"
 DOCKER_HUB_NAMES = ("docker.io", "index.docker.io", "registry-1.docker.io")

@@ -7,7 +7,7 @@ import hashlib
 import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
-from engine import CHECKOUT
+from robotfleet import CHECKOUT
 from roles.payload.services import value_of
 
 FILES_DIR = CHECKOUT / "files"

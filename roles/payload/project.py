@@ -10,9 +10,9 @@ import shlex
 
 from pyinfra import host, logger
 
-from engine.checks import one_line
-from engine.host import operations
-from engine.host.snapshot import Snapshot, SnapshotQuery
+from robotfleet.checks import one_line
+from robotfleet.host import operations
+from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.payloadctl.takeover as takeover_rule

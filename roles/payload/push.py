@@ -36,7 +36,7 @@ import tempfile
 from pyinfra import host
 from pyinfra.api import FunctionCommand, StringCommand
 
-from engine.host import operations
+from robotfleet.host import operations
 from roles.payload.payloadctl import imageref, platforms
 
 LAYERS_PROBE = (

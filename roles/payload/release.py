@@ -14,8 +14,8 @@ import socket
 from pyinfra import host, logger
 from pyinfra.api import deploy
 
-from engine.host import operations
-from engine.host.snapshot import Snapshot
+from robotfleet.host import operations
+from robotfleet.host.snapshot import Snapshot
 import roles.payload.compose as compose
 import roles.payload.project as project
 from roles.payload.payloadctl import lock

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import shlex
 
-from engine.role import RolloutPart, StatusPart
+from robotfleet.role import RolloutPart, StatusPart
 import roles.payload.services as services
 from roles.payload.robot import HELPER
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import re
 
-from engine import checks as c
-from engine import values as v
-from engine.role import Setting
+from robotfleet import checks as c
+from robotfleet import values as v
+from robotfleet.role import Setting
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets

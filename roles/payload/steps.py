@@ -11,9 +11,9 @@ from pyinfra import host
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
-from engine.host import apt, operations
-from engine.host.snapshot import SnapshotQuery
-from engine.role import Play
+from robotfleet.host import apt, operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play
 import roles.docker.hooks as docker_hooks
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks

@@ -14,9 +14,9 @@ from __future__ import annotations
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
-from engine.host import apt, operations
-from engine.host.snapshot import SnapshotQuery
-from engine.role import Play, Role
+from robotfleet.host import apt, operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play, Role
 import roles.time.plan as plan
 import roles.time.settings as settings
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import re
 
-from engine import checks as c
-from engine import values as v
-from engine.role import Setting
+from robotfleet import checks as c
+from robotfleet import values as v
+from robotfleet.role import Setting
 
 # chrony's server and allow lines take no IPv6 zone (%eth0).
 SERVER = rf"{v.IPV4}|{v.IPV6_NO_ZONE}|{v.DNS_NAME}"

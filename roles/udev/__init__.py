@@ -11,9 +11,9 @@ from pyinfra import host
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
-from engine.host import operations
-from engine.host.snapshot import SnapshotQuery
-from engine.role import Play, Role
+from robotfleet.host import operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play, Role
 import roles.payload.hooks as payload_hooks
 from roles.udev import passthrough, rules, settings
 

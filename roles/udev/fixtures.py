@@ -1,6 +1,6 @@
 """Test fixtures: what a successful run of the udev role leaves on a host."""
 
-from engine.host.fixtures import file_state
+from robotfleet.host.fixtures import file_state
 from roles import udev
 import roles.udev.rules as rules
 

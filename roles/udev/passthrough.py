@@ -3,7 +3,7 @@ gets which device (added through the payload role's hook)."""
 
 from __future__ import annotations
 
-from engine import checks as c
+from robotfleet import checks as c
 import roles.payload.services as payload_services
 import roles.udev.rules as rules
 

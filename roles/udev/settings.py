@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from engine import checks as c
-from engine import values as v
-from engine.role import Setting
+from robotfleet import checks as c
+from robotfleet import values as v
+from robotfleet.role import Setting
 
 SUBSYSTEMS = ("tty", "video4linux", "hidraw", "input", "usb", "sound")
 DEFAULT_SENSOR_GROUP = {

@@ -12,9 +12,9 @@ import shlex
 from pyinfra import host
 from pyinfra.api import deploy
 
-from engine.host import operations
-from engine.host.snapshot import SnapshotQuery
-from engine.role import Play, Role
+from robotfleet.host import operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play, Role
 from roles.users import settings
 
 

@@ -1,8 +1,8 @@
 """The users role's settings."""
 
-from engine import checks as c
-from engine import values as v
-from engine.role import Setting
+from robotfleet import checks as c
+from robotfleet import values as v
+from robotfleet.role import Setting
 
 SETTINGS = (
     Setting("docker_users", [], c.list_of(v.user_name, unique=True),

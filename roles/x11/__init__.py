@@ -12,9 +12,9 @@ from pathlib import Path
 import jinja2
 from pyinfra.api import deploy
 
-from engine.host import apt, operations
-from engine.host.snapshot import SnapshotQuery
-from engine.role import Play, Role
+from robotfleet.host import apt, operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play, Role
 import roles.payload.hooks as payload_hooks
 from roles.x11 import settings
 

@@ -1,7 +1,7 @@
 """Test fixtures: what a successful run of the x11 role leaves on a host."""
 
-from engine.host.fixtures import file_state
-from engine.host.snapshot import FileState
+from robotfleet.host.fixtures import file_state
+from robotfleet.host.snapshot import FileState
 from roles import x11
 
 

@@ -17,7 +17,7 @@ bounds alternate on the same hosts in the same cache state:
   update   all N robots to the other tag, then one robot there and back;
            each robot's payload downtime (old container dies -> new one
            starts, from docker events)
-  rollout  python3 -m engine rollout of the whole fleet (canary 1, batch 50%)
+  rollout  robotfleet rollout of the whole fleet (canary 1, batch 50%)
   crash    one robot to the crash-looping tag: time until the old release
            runs again
 """
@@ -249,7 +249,7 @@ class Bench:
             shutil.rmtree(self.workdir / "rollout", ignore_errors=True)
             proc = {}
             self.timed("rollout", lambda: proc.update(p=subprocess.run(
-                [sys.executable, "-m", "engine", "rollout", "inventories/lab.py", "-y", "--canary", "1",
+                [sys.executable, "-m", "robotfleet", "rollout", "inventories/lab.py", "-y", "--canary", "1",
                  "--batch", "50%"], cwd=ROOT, env=self.env(tag), capture_output=True, text=True)))
             self.tag = tag
             r["rollout_exit"].append(proc["p"].returncode)

@@ -35,8 +35,8 @@ def main() -> None:
     parser.add_argument("--hosts", type=int, default=1000)
     args = parser.parse_args()
     started = time.perf_counter()
-    from engine import roster
-    from engine.fleet import check as fleet_module
+    from robotfleet import roster
+    from robotfleet.fleet import check as fleet_module
     from roles.payload import problems as services
 
     registry = roster.registry()

@@ -1,4 +1,4 @@
-"""The operator side's scaling curve: a no-op rerun and `engine status` at
+"""The operator side's scaling curve: a no-op rerun and `robotfleet status` at
 N = 1 .. 200 robots, time, memory and open files of the operator's process.
 
     python3 -m tests.bench.scale [--prefix perf] [--hosts 1 10 50 100 200] [--runs 3] [--write]
@@ -64,7 +64,7 @@ def run_shell_command(self, command, *args, **kwargs):
 SSHConnector.run_shell_command = run_shell_command
 atexit.register(lambda: json.dump(seen, open(REPORT, "w")))
 if sys.argv[1] == "status":
-    from engine.__main__ import main
+    from robotfleet.__main__ import main
     sys.exit(main(sys.argv[1:]))
 from pyinfra_cli.main import main
 sys.argv[0] = "pyinfra"
@@ -90,7 +90,7 @@ class Scale:
     def fleet(self, names: list[str]) -> Path:
         """lab.yaml's settings (placeholders filled as inventories/lab.py
         fills them) for robots ``names``, none with sensors."""
-        from engine.fleet import loader
+        from robotfleet.fleet import loader
 
         text = (ROOT / "inventories" / "lab.yaml").read_text()
         fingerprint = json.loads((Path(self.lab["mirror_dir"]) / "manifest.json").read_text())["fingerprint"] \
@@ -206,7 +206,7 @@ class Scale:
         if kind == "noop":
             argv = [sys.executable, "-c", COUNTING_PYINFRA, str(report), "-y", *extra, inventory, "deploy.py"]
         else:
-            argv = [sys.executable, "-m", "engine", "status", inventory, *extra]
+            argv = [sys.executable, "-m", "robotfleet", "status", inventory, *extra]
         started, cpu = time.monotonic(), _children_cpu()
         # Output to files: a pipe nobody reads while the process runs fills up
         # (pyinfra's output for 200 hosts is larger than a pipe's buffer).

@@ -9,7 +9,7 @@ import json
 import os
 from pathlib import Path
 
-from engine.inventory import parse_or_exit, pyinfra_groups
+from robotfleet.inventory import parse_or_exit, pyinfra_groups
 
 
 def _load():

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import yaml
 
-from engine import roster
-from engine.fleet import check as fleet
+from robotfleet import roster
+from robotfleet.fleet import check as fleet
 from tests.bench import hygiene
 
 SENSORS = (

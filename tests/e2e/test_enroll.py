@@ -1,5 +1,5 @@
 """End to end, first contact (issue 18): from an empty known_hosts to a first
-deploy through `python3 -m engine enroll`, on a simulated robot over SSH;
+deploy through `robotfleet enroll`, on a simulated robot over SSH;
 then the robot's host key changes (its sshd gets new keys) and the change is
 refused, by enroll and by the deploy, with the file left as it was.
 
@@ -71,7 +71,7 @@ def test_from_an_empty_known_hosts_to_a_first_deploy_then_a_changed_key_is_refus
     robot_lines = [line.strip() for line in refused.stderr.splitlines() if line.strip().startswith("[robot1]")]
     assert robot_lines == [f"[robot1] unknown host key: {entry} is not in {first_contact.known_hosts} "
                            "(ssh_strict_host_key_checking: yes); check and enroll it: "
-                           "python3 -m engine enroll inventories/lab.py --limit robot1"], refused.stderr
+                           "robotfleet enroll inventories/lab.py --limit robot1"], refused.stderr
     assert "Traceback" not in refused.stderr
 
     # 2. Enroll from the fingerprints the lab recorded when it made the host (as a vendor would).
@@ -79,7 +79,7 @@ def test_from_an_empty_known_hosts_to_a_first_deploy_then_a_changed_key_is_refus
     assert recorded
     fingerprints = tmp_path / "fingerprints.txt"
     fingerprints.write_text("".join(f"robot1 {fingerprint(line)}\n" for line in recorded))
-    enrolled = first_contact("enroll robot1", "-m", "engine", "enroll", "inventories/lab.py", "--limit", "robot1",
+    enrolled = first_contact("enroll robot1", "-m", "robotfleet", "enroll", "inventories/lab.py", "--limit", "robot1",
                              "--fingerprints", str(fingerprints), timeout=120)
     assert enrolled.returncode == 0, enrolled.stderr
     assert f"matches {fingerprints}; enrolled" in enrolled.stderr
@@ -89,7 +89,7 @@ def test_from_an_empty_known_hosts_to_a_first_deploy_then_a_changed_key_is_refus
     # 3. The first deploy, then status, with strict checking.
     first = first_contact("first deploy of robot1", *deploy, "--json")
     assert first.returncode == 0, first.stderr[-6000:]
-    status = first_contact("status robot1", "-m", "engine", "status", "inventories/lab.py", "--limit", "robot1",
+    status = first_contact("status robot1", "-m", "robotfleet", "status", "inventories/lab.py", "--limit", "robot1",
                            "--json", timeout=120)
     assert status.returncode == 0, status.stderr
     (row,) = json.loads(status.stdout)
@@ -99,7 +99,7 @@ def test_from_an_empty_known_hosts_to_a_first_deploy_then_a_changed_key_is_refus
     before = first_contact.known_hosts.read_text()
     lab.ok("robot1", "rm -f /etc/ssh/ssh_host_*; ssh-keygen -A >/dev/null; systemctl restart ssh")
     new_key = lab.ok("robot1", f"cat /etc/ssh/ssh_host_{lines[0].split()[1].removeprefix('ssh-').split('-')[0]}_key.pub")
-    again = first_contact("enroll robot1 after its key changed", "-m", "engine", "enroll", "inventories/lab.py",
+    again = first_contact("enroll robot1 after its key changed", "-m", "robotfleet", "enroll", "inventories/lab.py",
                           "--limit", "robot1", "--yes", timeout=120)
     assert again.returncode == 1, again.stderr
     old_print, new_print = fingerprint(lines[0]), fingerprint(f"x {new_key}")

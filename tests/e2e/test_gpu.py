@@ -77,7 +77,7 @@ def test_gpu_hosts_repository_key_pin_runtime_and_refusals(lab, gpu_fleet):
     assert not installed(lab, "robot1")["toolkit"]
 
     # robot2: the served key is not the pinned one -> nothing of NVIDIA's left.
-    # (one message for Docker's and NVIDIA's pinned keys since they share engine/host/aptrepo.py)
+    # (one message for Docker's and NVIDIA's pinned keys since they share robotfleet/host/aptrepo.py)
     assert f"gpu_apt_key_fingerprint {WRONG_FPR}; key not installed" in run.output
     after2 = installed(lab, "robot2")
     assert not (after2["key"] or after2["source"] or after2["toolkit"])

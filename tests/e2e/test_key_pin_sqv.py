@@ -13,7 +13,7 @@ import tarfile
 
 import pytest
 
-from engine.host import aptrepo
+from robotfleet.host import aptrepo
 from tests import armor
 from tests.unit.harness import docker_repo
 

@@ -20,7 +20,7 @@ ALL_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 
 def status(lab) -> dict[str, dict]:
     proc = subprocess.run(
-        [sys.executable, "-m", "engine", "status", "inventories/lab.py", "--json"],
+        [sys.executable, "-m", "robotfleet", "status", "inventories/lab.py", "--json"],
         cwd=ROOT, env=dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix), capture_output=True, text=True, timeout=120,
     )
     assert proc.returncode == 0, proc.stderr

@@ -40,7 +40,7 @@ def rollout(lab, first_run, tmp_path_factory):
                    ROBOT_ROLLOUT_DIR=str(states), PYINFRA_PROGRESS="off")
         started = time.monotonic()
         proc = subprocess.run(
-            [sys.executable, "-m", "engine", "rollout", "inventories/lab.py", "--limit", "robots", "-y", *args],
+            [sys.executable, "-m", "robotfleet", "rollout", "inventories/lab.py", "--limit", "robots", "-y", *args],
             cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
         )
         phase(f"rollout to {tag} {' '.join(args)} (exit {proc.returncode})", started)
@@ -48,7 +48,7 @@ def rollout(lab, first_run, tmp_path_factory):
 
     def status():
         proc = subprocess.run(
-            [sys.executable, "-m", "engine", "status", "inventories/lab.py", "--limit", "robots", "--json"],
+            [sys.executable, "-m", "robotfleet", "status", "inventories/lab.py", "--limit", "robots", "--json"],
             cwd=ROOT, env=dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_ROLLOUT_DIR=str(states)),
             capture_output=True, text=True, timeout=120,
         )
@@ -94,7 +94,7 @@ def test_a_bad_image_stops_after_the_canary_and_leaves_the_others_untouched(lab,
     assert code == 1
     assert waves_run(output) == ["robot1"]
     assert "rollout: [robot1] failed: " in output and "unhealthy" in output
-    assert "resume:   python3 -m engine rollout inventories/lab.py --limit robots -y --canary 1" in output
+    assert "resume:   robotfleet rollout inventories/lab.py --limit robots -y --canary 1" in output
     assert lab.version("robot1") == "1.1" and lab.record("robot1")["rolled_back_from"]
     for host in ("robot2", "robot3"):
         assert (lab.payload(host)["Id"], releases(lab, host)) == before[host]

@@ -34,12 +34,12 @@ from pyinfra.api.state import StateStage
 from pyinfra.connectors.fake import FakeConnector
 from pyinfra.context import ctx_state
 
-from engine import roster
-from engine.host import aptrepo
-from engine.fleet import check as fleet_check
-from engine.host import snapshot as hoststate
-from engine.host.snapshot import FileState, Snapshot
-from engine.role import Play, added
+from robotfleet import roster
+from robotfleet.host import aptrepo
+from robotfleet.fleet import check as fleet_check
+from robotfleet.host import snapshot as hoststate
+from robotfleet.host.snapshot import FileState, Snapshot
+from robotfleet.role import Play, added
 from roles.payload import compose, hooks, release, services
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -5,10 +5,10 @@ import logging
 
 import pytest
 
-from engine.host import operations
-from engine.host.snapshot import FileState
+from robotfleet.host import operations
+from robotfleet.host.snapshot import FileState
 from tests.unit.harness import find, fresh_host, plan
-from engine.host.fixtures import file_state as _file
+from robotfleet.host.fixtures import file_state as _file
 from tests.unit.harness import ROBOT, converged
 
 DAEMON_JSON = "/etc/docker/daemon.json"

@@ -1,4 +1,4 @@
-"""python3 -m engine enroll (issue 18, item 1): host keys fetched from real
+"""robotfleet enroll (issue 18, item 1): host keys fetched from real
 SSH servers on 127.0.0.1, shown as fingerprints, written once; a changed key
 or a fingerprint that differs from the recorded one is refused and the file
 is left as it was."""
@@ -11,8 +11,8 @@ import sys
 import paramiko
 import pytest
 
-from engine import hostkeys
-from engine.commands import enroll
+from robotfleet import hostkeys
+from robotfleet.commands import enroll
 from tests.unit import sshserver
 from tests.unit.test_first_contact import ROOT, connect, fleet
 
@@ -107,7 +107,7 @@ def test_asking_shows_the_fingerprint_and_takes_the_answer(tmp_path, servers):
     path = two_robots(tmp_path, servers)
     env = {"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)}
     main, terminal = pty.openpty()
-    proc = subprocess.Popen([sys.executable, "-m", "engine", "enroll", "inventories/robots.py"], cwd=ROOT, env=env,
+    proc = subprocess.Popen([sys.executable, "-m", "robotfleet", "enroll", "inventories/robots.py"], cwd=ROOT, env=env,
                             stdin=terminal, stdout=terminal, stderr=terminal)
     os.close(terminal)
     seen, answers, deadline = b"", [b"y\n", b"n\n"], time.monotonic() + 60
@@ -140,5 +140,5 @@ def test_unreachable_and_unmatched(tmp_path, monkeypatch, capsys):
 
 
 def test_the_command_is_listed():
-    result = subprocess.run([sys.executable, "-m", "engine"], cwd=ROOT, capture_output=True, text=True)
-    assert "python3 -m engine enroll INVENTORY" in result.stderr
+    result = subprocess.run([sys.executable, "-m", "robotfleet"], cwd=ROOT, capture_output=True, text=True)
+    assert "robotfleet enroll INVENTORY" in result.stderr

@@ -19,8 +19,8 @@ from pyinfra.api.exceptions import ConnectError
 from pyinfra.context import ctx_state
 from pyinfra_cli.inventory import make_inventory
 
-from engine import hostkeys
-from engine.fleet import loader
+from robotfleet import hostkeys
+from robotfleet.fleet import loader
 from tests.unit import sshserver
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -74,7 +74,7 @@ def test_unknown_host_key_names_the_file_and_the_command_and_is_not_retried(tmp_
         server.close()
     assert line == (f"unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
                     "(ssh_strict_host_key_checking: yes); check and enroll it: "
-                    "python3 -m engine enroll inventories/robots.py --limit robot1")
+                    "robotfleet enroll inventories/robots.py --limit robot1")
     assert server.connections == 1
 
 
@@ -186,7 +186,7 @@ def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key)
     assert sorted(host_lines) == sorted([
         f"[robot1] unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
         "(ssh_strict_host_key_checking: yes); check and enroll it: "
-        "python3 -m engine enroll inventories/robots.py --limit robot1",
+        "robotfleet enroll inventories/robots.py --limit robot1",
         f"[silent] not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
         "within 2 s (wrong port?)",
     ]), result.stderr

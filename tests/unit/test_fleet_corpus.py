@@ -244,7 +244,7 @@ def test_without_libyaml_the_same_problems_are_found(monkeypatch):
     syntax error may differ, the problems and their places do not."""
     import yaml
 
-    from engine.fleet import loader as fleetyaml
+    from robotfleet.fleet import loader as fleetyaml
 
     # (5,000 levels of nesting only make PyYAML's recursive parser slow.)
     expected = {name: lines(text) for name, text, _ in CORPUS if name not in ("too large", "deep nesting")}

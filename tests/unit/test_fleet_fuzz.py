@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from engine.fleet import loader as fleetyaml
+from robotfleet.fleet import loader as fleetyaml
 from tests.unit import harness as fleet
 from tests.unit import sshserver
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from engine.commands import generate
-from engine.fleet import loader as fleetyaml
+from robotfleet.commands import generate
+from robotfleet.fleet import loader as fleetyaml
 from tests.unit import test_fleet_corpus, test_fleet_fuzz
 
 jsonschema = pytest.importorskip("jsonschema")
@@ -24,7 +24,7 @@ def validator():
 
 
 def test_shipped_schema_is_generated_from_the_checks():
-    assert SHIPPED.read_text() == generate.generated()[SHIPPED], "run: python3 -m engine generate"
+    assert SHIPPED.read_text() == generate.generated()[SHIPPED], "run: robotfleet generate"
 
 
 def test_example_fleet_wires_the_schema_for_editors():

@@ -8,9 +8,9 @@ import subprocess
 
 import pytest
 
-from engine.host import aptrepo
+from robotfleet.host import aptrepo
 from roles.gpu import plan as gpu_plan
-from engine.host.snapshot import FileState
+from robotfleet.host.snapshot import FileState
 from tests import armor
 from tests.unit.harness import find, fresh_host, plan, written_files
 

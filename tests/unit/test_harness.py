@@ -7,8 +7,8 @@ import sys
 
 import pytest
 
-from engine.host import snapshot as hoststate
-from engine.host.snapshot import FileState, Readings, UndeclaredRead
+from robotfleet.host import snapshot as hoststate
+from robotfleet.host.snapshot import FileState, Readings, UndeclaredRead
 from tests.unit.harness import everything_sent, find, fresh_host, plan, written_files
 from tests.unit.harness import LAPTOP, ROBOT, converged
 
@@ -88,7 +88,7 @@ def test_registry_token_travels_only_as_stdin_of_the_login(monkeypatch):
 
 
 def test_importing_the_status_module_patches_nothing():
-    code = "import engine.commands.status, gevent.monkey as m; print(m.is_module_patched('socket'), m.is_module_patched('ssl'))"
+    code = "import robotfleet.commands.status, gevent.monkey as m; print(m.is_module_patched('socket'), m.is_module_patched('ssl'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
 
@@ -162,14 +162,14 @@ def test_robots_and_laptops_in_one_run_order_their_operations_without_a_cycle():
 
 
 def test_deploy_py_names_its_roles_and_a_misspelt_name_is_one_line(tmp_path):
-    from engine import roster
+    from robotfleet import roster
 
     deploy = tmp_path / "deploy.py"
-    deploy.write_text('from engine.play import provision\nfrom roles import named\n'
+    deploy.write_text('from robotfleet.play import provision\nfrom roles import named\n'
                       'ROLES = named("users", "docker")\nprovision(ROLES)\n')
     assert [role.name for role in roster.roles(deploy)] == ["users", "docker"]
     deploy = tmp_path / "misspelt.py"
-    deploy.write_text('from engine.play import provision\nfrom roles import named\n'
+    deploy.write_text('from robotfleet.play import provision\nfrom roles import named\n'
                       'ROLES = named("docker", "usres")\nprovision(ROLES)\n')
     with pytest.raises(LookupError) as error:
         roster.roles(deploy)

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import pytest
 import yaml
 
-from engine.fleet import loader as fleetyaml
+from robotfleet.fleet import loader as fleetyaml
 from roles.udev.settings import SENSOR_KEYS
 from tests.unit import harness as fleet
 from roles.docker import plan

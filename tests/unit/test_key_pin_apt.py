@@ -19,8 +19,8 @@ import subprocess
 
 import pytest
 
-from engine.host import aptrepo
-from engine.host.snapshot import FileState, Snapshot
+from robotfleet.host import aptrepo
+from robotfleet.host.snapshot import FileState, Snapshot
 from tests import armor
 from tests.unit.harness import docker_repo
 
@@ -231,7 +231,7 @@ def test_a_download_gpg_cannot_read_is_refused_in_one_line(signers, repos, tmp_p
 def test_the_probe_reads_the_same_through_the_hosts_one_snapshot_command(signers, tmp_path):
     """Quoted into the snapshot script (timeout, sh -c, base64) as deploy.py
     reads it: a converged key file is current, a planted one is not."""
-    from engine.host.snapshot import HostSnapshot
+    from robotfleet.host.snapshot import HostSnapshot
 
     _, fprs, armored = signers
     good, planted = tmp_path / "good.asc", tmp_path / "planted.asc"

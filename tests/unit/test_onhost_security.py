@@ -7,8 +7,8 @@ import subprocess
 
 import pytest
 
-from engine.host import aptrepo
-from engine.host.snapshot import FileState, HostSnapshot, Snapshot
+from robotfleet.host import aptrepo
+from robotfleet.host.snapshot import FileState, HostSnapshot, Snapshot
 from tests import armor
 from tests.unit.harness import desired_compose, docker_repo
 
@@ -187,7 +187,7 @@ def test_writing_a_file_replaces_a_symlink_and_leaves_its_target_alone(tmp_path,
     import os
     import pwd
 
-    from engine.host import operations
+    from robotfleet.host import operations
 
     target = tmp_path / "elsewhere"
     if target_kind == "file":
@@ -210,7 +210,7 @@ def test_writing_a_file_replaces_a_symlink_and_leaves_its_target_alone(tmp_path,
 
 
 def test_a_symlinked_daemon_json_is_replaced_by_a_file_and_docker_restarts():
-    from engine.host.snapshot import FileState
+    from robotfleet.host.snapshot import FileState
     from tests.unit.harness import find, plan
     from tests.unit.harness import ROBOT, converged
 
@@ -225,7 +225,7 @@ def test_a_symlinked_daemon_json_is_replaced_by_a_file_and_docker_restarts():
 
 
 def test_a_symlinked_directory_is_refused_with_one_line(tmp_path):
-    from engine.host.snapshot import FileState
+    from robotfleet.host.snapshot import FileState
     from tests.unit.harness import find, plan
     from tests.unit.harness import ROBOT, converged
 
@@ -240,7 +240,7 @@ def test_a_symlinked_directory_is_refused_with_one_line(tmp_path):
 
 def test_the_directory_command_itself_refuses_a_symlink(tmp_path):
     """The snapshot is a moment ago: the command checks again before install -d/chmod."""
-    from engine.host import operations
+    from robotfleet.host import operations
 
     real = tmp_path / "real"
     real.mkdir(mode=0o1777)

@@ -8,6 +8,7 @@ import site
 import subprocess
 import sys
 import venv
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -16,7 +17,7 @@ ROOT = Path(__file__).resolve().parents[2]
 NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache")
 
 RENDER = """
-from engine import roster
+from robotfleet import roster  # puts its checkout first on sys.path: roles/ is the checkout's
 from roles import udev, x11
 from roles.payload import robot as payload
 defaults = {group: roster.group_data(group) for group in ("all", "robots", "laptops")}
@@ -62,18 +63,23 @@ def pip_install(python, *args, cwd):
     assert result.returncode == 0, result.stderr[-2000:]
 
 
-def test_a_wheel_refuses_to_load_and_says_how_to_install(checkout, venv_python, tmp_path):
+def test_a_wheel_installs_only_robotfleet_and_refuses_in_one_line(checkout, venv_python, tmp_path):
     built = run(sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(tmp_path), str(checkout), cwd=tmp_path)
     assert built.returncode == 0, built.stderr[-2000:]
-    pip_install(venv_python, *map(str, tmp_path.glob("*.whl")), cwd=tmp_path)
-    result = run(str(venv_python), "-c", "import roles.payload", cwd=tmp_path)
-    assert result.returncode == 1
-    last = result.stderr.strip().splitlines()[-1]
-    assert re.fullmatch(
-        r"ImportError: engine: \S+/site-packages/engine is not in a checkout of the robot fleet provisioner "
-        r"\(no deploy.py beside it\); it runs from its checkout: in the checkout, "
-        r"python3 -m venv .venv && .venv/bin/pip install -e .  \(README: Install for operators\)", last
-    ), last
+    wheel = next(tmp_path.glob("*.whl"))
+    with zipfile.ZipFile(wheel) as archive:
+        top = {name.split("/")[0] for name in archive.namelist() if not name.split("/")[0].endswith(".dist-info")}
+    assert top == {"robotfleet"}, top  # no `engine`, no `roles` in site-packages
+    pip_install(venv_python, str(wheel), cwd=tmp_path)
+    script = venv_python.parent / "robotfleet"
+    for argv in ([str(script), "--help"], [str(script), "status", "x.py"], [str(venv_python), "-c", "import robotfleet"]):
+        result = run(*argv, cwd=tmp_path)
+        assert result.returncode == 2, (argv, result.stderr)
+        assert result.stderr.strip().splitlines() == [
+            f"robotfleet: {result.stderr.split()[1]} is not in a checkout of the robot fleet provisioner "
+            "(no deploy.py beside it); it runs from its checkout: in the checkout, "
+            "python3 -m venv .venv && .venv/bin/pip install -e .  (README: Install for operators)"], argv
+        assert "/site-packages/robotfleet" in result.stderr
 
 
 def test_editable_install_renders_from_any_directory(checkout, venv_python, tmp_path):
@@ -86,8 +92,12 @@ def test_editable_install_renders_from_any_directory(checkout, venv_python, tmp_
         "['/etc/udev/rules.d/60-usb-serial-low-latency.rules']",
         "True True",
     ]
-    imported = run(str(venv_python), "-c", "import roles; print(roles.__file__)", cwd=tmp_path)
+    # roles/ is not installed: only the checkout's, found through robotfleet
+    alone = run(str(venv_python), "-c", "import roles", cwd=tmp_path)
+    assert "No module named 'roles'" in alone.stderr
+    imported = run(str(venv_python), "-c", "import robotfleet, roles; print(roles.__file__)", cwd=tmp_path)
     assert imported.stdout.strip() == str(checkout / "roles" / "__init__.py")
+    assert run(str(venv_python.parent / "robotfleet"), "--version", cwd=tmp_path).stdout.startswith("robotfleet ")
 
 
 def test_readme_installs_operators_before_the_lab_and_without_the_lab_setup():

@@ -60,8 +60,8 @@ def test_robots_of_one_architecture_pin_a_vendors_per_architecture_tag_per_servi
     """A fleet file has the groups robots and laptops: robots of another
     architecture share their pins through an anchor, merged per service
     over the group's services like any host's payload_services."""
-    from engine import roster
-    from engine.fleet.check import parse
+    from robotfleet import roster
+    from robotfleet.fleet.check import parse
 
     hosts = dict(parse(FLEET, "robots.yaml", roster.registry()).hosts("robots"))
     assert hosts["nuc1"]["payload_services"]["camera"]["platform"] == "linux/amd64"

@@ -6,8 +6,8 @@ import re
 
 import pytest
 
-from engine.host.fixtures import file_state
-from engine.host.snapshot import FileState
+from robotfleet.host.fixtures import file_state
+from robotfleet.host.snapshot import FileState
 from roles.docker import plan as docker_plan
 from roles.payload import robot
 from tests.unit.harness import LAPTOP, ROBOT, converged, everything_sent, find, fresh_host, merged, plan
@@ -298,7 +298,7 @@ def test_registry_credentials_come_from_the_environment_and_go_over_stdin(monkey
 
 def test_snapshot_encoding_roundtrip():
     snap = converged("robots", ROBOT, "debian-13")
-    from engine.host.snapshot import parse
+    from robotfleet.host.snapshot import parse
     from tests.unit.harness import query_of, snapshot_lines
     again = parse(snapshot_lines(snap, query_of(snap)), query_of(snap))
     assert again.files == snap.files and again.probes == snap.probes and again.packages == snap.packages

@@ -14,7 +14,7 @@ import sys
 from functools import lru_cache
 from pathlib import Path
 
-from engine.commands import hosts
+from robotfleet.commands import hosts
 
 ROOT = Path(__file__).resolve().parents[2]
 README = (ROOT / "README.md").read_text()
@@ -30,7 +30,7 @@ def commands(text: str) -> list[list[str]]:
     found = []
     for line in text.splitlines():
         line = line.strip().split("  #", 1)[0].strip()
-        if line.startswith(("python3 -m engine ", "pyinfra ", ".venv/bin/pyinfra ")):
+        if line.startswith(("robotfleet ", "pyinfra ", ".venv/bin/pyinfra ")):
             found.append(shlex.split(line.replace("[", "").replace("]", "")))
     return found
 
@@ -66,10 +66,10 @@ def test_every_command_on_the_path_is_what_the_cli_takes():
     checked = 0
     for title in PATH:
         for argv in commands(section(title)):
-            if argv[0] == "python3":
-                command = argv[3]
-                text = help_of("-m", "engine", command)
-                options = [a.split("=")[0] for a in argv[4:] if a.startswith("-")]
+            if argv[0] == "robotfleet":
+                command = argv[1]
+                text = help_of("-m", "robotfleet", command)
+                options = [a.split("=")[0] for a in argv[2:] if a.startswith("-")]
             else:
                 text = help_of("-c", "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()")
                 options = [a for a in argv[1:] if a.startswith("-")]
@@ -94,7 +94,7 @@ def test_the_example_fleet_names_commands_that_work():
     text = (ROOT / "inventories" / "robots.yaml").read_text()
     comments = "\n".join(line for line in text.splitlines() if line.lstrip().startswith("#"))
     assert "@local" not in comments
-    named = re.findall(r"`?((?:pyinfra|python3 -m engine) [^`\n]+)`?", comments)
+    named = re.findall(r"`?((?:pyinfra|robotfleet) [^`\n]+)`?", comments)
     assert named
     for command in named:
         for word in command.split():

@@ -7,8 +7,8 @@ import subprocess
 
 import yaml
 
-from engine.host import aptrepo
-from engine.host import snapshot as hoststate
+from robotfleet.host import aptrepo
+from robotfleet.host import snapshot as hoststate
 from roles import x11
 from roles.docker import plan as docker_plan
 from roles.payload import compose, robot
@@ -236,7 +236,7 @@ def test_file_write_is_atomic_and_validated_before_it_lands(tmp_path):
     import os
     import pwd
 
-    from engine.host import operations
+    from robotfleet.host import operations
 
     user, group = pwd.getpwuid(os.getuid()).pw_name, grp.getgrgid(os.getgid()).gr_name
     dest = tmp_path / "etc" / "x.conf"

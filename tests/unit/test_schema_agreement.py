@@ -2,19 +2,19 @@
 the run's checks are built from the same declarations, and give the same
 verdict on the validation corpus and the hostile-value corpus wherever JSON
 Schema can express the rule; README names the rules it cannot
-(engine/fleet/schema.py BEYOND_SCHEMA)."""
+(robotfleet/fleet/schema.py BEYOND_SCHEMA)."""
 
 import json
 from pathlib import Path
 
 import pytest
 
-from engine import roster
-from engine.checks import Misread
-from engine.fleet import check as fleet_check
-from engine.fleet import loader as fleetyaml
-from engine.fleet import schema as fleet_schema
-from engine.fleet.registry import Registry
+from robotfleet import roster
+from robotfleet.checks import Misread
+from robotfleet.fleet import check as fleet_check
+from robotfleet.fleet import loader as fleetyaml
+from robotfleet.fleet import schema as fleet_schema
+from robotfleet.fleet.registry import Registry
 from tests.unit import test_fleet_corpus, test_hostile_values
 
 jsonschema = pytest.importorskip("jsonschema")
@@ -123,7 +123,7 @@ def test_the_address_pattern_is_what_ipaddress_reads():
     import random
     import re
 
-    from engine import values
+    from robotfleet import values
 
     pattern = re.compile(f"(?:{values.IPV4}|{values.IPV6})", re.ASCII)
     rng = random.Random(7)

@@ -7,8 +7,8 @@ import json
 import pytest
 import yaml
 
-from engine import roster
-from engine.commands import status
+from robotfleet import roster
+from robotfleet.commands import status
 from roles.payload import compose, presets, problems, project, services
 from tests.unit import harness as fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan

@@ -1,4 +1,4 @@
-"""engine/speedups.py answers as pyinfra's own functions do."""
+"""robotfleet/speedups.py answers as pyinfra's own functions do."""
 
 from __future__ import annotations
 
@@ -8,15 +8,15 @@ import pyinfra
 import pytest
 from pyinfra.api import arguments
 
-from engine import speedups
-from engine.speedups import operation
+from robotfleet import speedups
+from robotfleet.speedups import operation
 
 pyinfra_order = speedups._ORIGINAL["order"]
 
 
 def _nested(depth: int, call):
     # Several frames of this file between the caller and pyinfra, as deploy.py,
-    # engine/play.py and a role's steps are.
+    # robotfleet/play.py and a role's steps are.
     if depth:
         return _nested(depth - 1, call)
     return call()

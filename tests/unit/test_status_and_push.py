@@ -8,8 +8,8 @@ import tarfile
 
 import pytest
 
-from engine import roster
-from engine.commands import status
+from robotfleet import roster
+from robotfleet.commands import status
 from tests.unit.harness import merged
 from roles.payload import push
 

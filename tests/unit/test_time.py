@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from engine.host.fixtures import file_state
+from robotfleet.host.fixtures import file_state
 import roles.time as time_role
 import roles.time.plan as plan
 from tests.unit.harness import LAPTOP, ROBOT, converged, find, fleet_problems, fresh_host, merged, plan as run_plan

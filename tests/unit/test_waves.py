@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from engine.commands import waves
+from robotfleet.commands import waves
 from roles.payload import report
 
 ROBOTS = [f"robot{i}" for i in range(1, 11)]
@@ -132,7 +132,7 @@ def test_status_cells_and_summary():
 
 
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
-    from engine.commands.rollout import judge_wave
+    from robotfleet.commands.rollout import judge_wave
 
     good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running", "health": "healthy"}
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
@@ -152,7 +152,7 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
 
 def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
     """pyinfra prints no JSON when no host remains ("No hosts remaining!")."""
-    from engine.commands.rollout import judge_wave
+    from robotfleet.commands.rollout import judge_wave
 
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active"}
     errors = {"r1": "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"}
@@ -190,8 +190,8 @@ def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_pat
 def test_the_rollout_command_refuses_while_another_rollout_of_the_fleet_holds_its_state(tmp_path, monkeypatch):
     """Two rollouts of one fleet lost each other's updates: the second one now
     stops at once, before it contacts any robot (issue 17, item 9)."""
-    from engine import roster
-    from engine.commands import rollout
+    from robotfleet import roster
+    from robotfleet.commands import rollout
 
     monkeypatch.setenv("ROBOT_ROLLOUT_DIR", str(tmp_path))
     inventory = "inventories/robots.py"
@@ -200,7 +200,7 @@ def test_the_rollout_command_refuses_while_another_rollout_of_the_fleet_holds_it
     targets = {name: rollout.targets_of(roster.roles(), data, {}) for name, data in hosts}
     path = waves.state_path(waves.fleet_key(inventory, names, targets))
     with waves.held(path):  # the command runs apart: it patches gevent into its process
-        second = subprocess.run([sys.executable, "-m", "engine", "rollout", inventory, "-y"], capture_output=True,
+        second = subprocess.run([sys.executable, "-m", "robotfleet", "rollout", inventory, "-y"], capture_output=True,
                                 text=True, timeout=120, env=dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path)))
     assert second.returncode == 2, second.stderr
     assert f"rollout: another rollout of this fleet is running (pid {os.getpid()} since 20" in second.stderr

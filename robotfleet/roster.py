@@ -3,7 +3,7 @@
 deploy.py is the one list of roles.  Everything else that needs them (the
 fleet check in inventories/, group_data/, the schema for editors, status and
 rollout) reads that list here: deploy.py is run the way pyinfra runs it, but
-with no host, so ``engine.play.provision`` only hands back the list.
+with no host, so ``robotfleet.play.provision`` only hands back the list.
 """
 
 from __future__ import annotations
@@ -13,10 +13,10 @@ import functools
 import runpy
 from pathlib import Path
 
-from engine import CHECKOUT
-from engine.fleet import connection
-from engine.fleet.registry import Registry
-from engine.role import Role, cards
+from robotfleet import CHECKOUT
+from robotfleet.fleet import connection
+from robotfleet.fleet.registry import Registry
+from robotfleet.role import Role, cards
 
 DEPLOY = CHECKOUT / "deploy.py"
 _reading = contextvars.ContextVar("reading deploy.py for its roles", default=False)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from engine import checks as c
-from engine.role import UNSET, Role, Setting
+from robotfleet import checks as c
+from robotfleet.role import UNSET, Role, Setting
 
 
 class Registry:

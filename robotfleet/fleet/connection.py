@@ -3,9 +3,9 @@ data), how long apt waits for its lock, rollout canaries."""
 
 from __future__ import annotations
 
-from engine import checks as c
-from engine import values as v
-from engine.role import UNSET, Setting
+from robotfleet import checks as c
+from robotfleet import values as v
+from robotfleet.role import UNSET, Setting
 
 # Keys the fleet file may use that are not settings of their own: address,
 # and the connection variables of an Ansible inventory.

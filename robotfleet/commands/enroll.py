@@ -1,6 +1,6 @@
 """First contact: enroll robots' SSH host keys into the fleet's known_hosts.
 
-    python3 -m engine enroll inventories/robots.py [--limit robot1] [--fingerprints FILE] [--yes]
+    robotfleet enroll inventories/robots.py [--limit robot1] [--fingerprints FILE] [--yes]
 
 For each host of the inventory (or of --limit) this fetches the host key the
 host offers (no login) and shows its fingerprint as ssh shows it
@@ -18,7 +18,6 @@ ssh-keyscan on the jump host.
 
 from __future__ import annotations
 
-import argparse
 import os
 import socket
 import sys
@@ -27,9 +26,10 @@ from dataclasses import dataclass
 
 import paramiko
 
-from engine import connect, hostkeys
-from engine.checks import one_line
-from engine.commands import hosts as selection
+from robotfleet import commands
+from robotfleet import connect, hostkeys
+from robotfleet.checks import one_line
+from robotfleet.commands import hosts as selection
 
 
 @dataclass
@@ -122,7 +122,7 @@ def decide(host: Target, key, expected: dict[str, set[str]] | None, source: str,
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m engine enroll", description=__doc__.splitlines()[0])
+    parser = commands.parser("enroll", __doc__)
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
     parser.add_argument("--fingerprints", metavar="FILE", help="the hosts' recorded fingerprints: HOST SHA256:... per line")

@@ -1,6 +1,6 @@
 """Fleet status: what each host runs and whether it is healthy.
 
-    python3 -m engine status inventories/robots.py [--limit robot2] [--json]
+    robotfleet status inventories/robots.py [--limit robot2] [--json]
 
 One row per host, one SSH command per host: the engine's own part (the
 host's architecture, as the snapshot reads it) and each role with a status
@@ -16,17 +16,17 @@ unreachable.
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import sys
 
 import gevent
 
-from engine import roster
-from engine.checks import one_line
-from engine.commands import hosts as selection
-from engine.commands import waves
+from robotfleet import commands
+from robotfleet import roster
+from robotfleet.checks import one_line
+from robotfleet.commands import hosts as selection
+from robotfleet.commands import waves
 
 MARK = "@@@robot-fleet-status "
 # The engine's own section (no role is called so: a role's name is an identifier).
@@ -160,7 +160,7 @@ def main(argv=None) -> int:
     from gevent import monkey
 
     monkey.patch_all()
-    parser = argparse.ArgumentParser(prog="python3 -m engine status", description=__doc__.splitlines()[0])
+    parser = commands.parser("status", __doc__)
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")
     parser.add_argument("--json", action="store_true", help="machine-readable output")

@@ -1,6 +1,6 @@
 """The fleet file: load it, check every host's data, hand pyinfra its groups.
 
-The file has the shape of an Ansible YAML inventory (engine/fleet/tree.py):
+The file has the shape of an Ansible YAML inventory (robotfleet/fleet/tree.py):
 ``all``, groups with ``vars``, ``hosts`` and ``children`` at any depth; the
 ``robots`` and ``laptops`` groups say which hosts are which.  A host's data
 is the settings' defaults < all.vars < the groups above it < the host.
@@ -18,11 +18,11 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from engine import checks as c
-from engine.fleet import loader, tree
-from engine.fleet.registry import Registry, setting_of
-from engine.fleet.tree import EXTENSION_PREFIX, HOST_NAME
-from engine.role import GROUPS
+from robotfleet import checks as c
+from robotfleet.fleet import loader, tree
+from robotfleet.fleet.registry import Registry, setting_of
+from robotfleet.fleet.tree import EXTENSION_PREFIX, HOST_NAME
+from robotfleet.role import GROUPS
 
 __all__ = ["EXTENSION_PREFIX", "HOST_NAME", "Fleet", "FleetError", "check", "display_path", "load", "parse"]
 # 5,000 robots with sensors are about 1 MiB: anything far larger is a mistake.

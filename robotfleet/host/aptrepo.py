@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from pyinfra import host
 from pyinfra.operations.util import any_changed
 
-from engine.host import apt, operations
-from engine.host.snapshot import Snapshot, SnapshotQuery
+from robotfleet.host import apt, operations
+from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 
 KEYRING_DIR = "/etc/apt/keyrings"
 SOURCES_DIR = "/etc/apt/sources.list.d"

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 from pyinfra import host
 
-from engine import roster, speedups
-from engine.host import operations
-from engine.host.snapshot import HostSnapshot, SnapshotQuery
-from engine.role import Play, cards
+from robotfleet import roster, speedups
+from robotfleet.host import operations
+from robotfleet.host.snapshot import HostSnapshot, SnapshotQuery
+from robotfleet.role import Play, cards
 
 speedups.install()
 

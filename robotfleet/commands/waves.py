@@ -3,7 +3,7 @@ and the rollout state kept on the operator's machine between runs.
 
 A robot's *target* is what the roles' rollout parts ask of it (the payload:
 every image of its compose project); it is *done* when its status row shows
-that.  engine/commands/rollout.py runs the deploy wave by wave with these
+that.  robotfleet/commands/rollout.py runs the deploy wave by wave with these
 functions deciding what happens next.
 """
 

@@ -9,11 +9,12 @@ from pathlib import Path
 
 import click
 
-from engine import connect, roster
-from engine.commands import hosts as selection
-from engine.fleet.check import Fleet, FleetError, display_path, load, parse
+from robotfleet import CHECKOUT, connect, roster
+from robotfleet.commands import hosts as selection
+from robotfleet.fleet.check import Fleet, FleetError, display_path, load, parse
 
-__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse"]
+__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",
+           "require_checkout"]
 
 
 def refuse(lines: list[str]) -> None:
@@ -23,6 +24,22 @@ def refuse(lines: list[str]) -> None:
         print(line, file=sys.stderr)
     sys.stderr.flush()
     os._exit(2)
+
+
+def require_checkout() -> None:
+    """Under pyinfra's CLI, refuse to go on unless it runs in the checkout:
+    pyinfra reads config.py and group_data/ from the directory it runs in,
+    so from anywhere else it would silently drop the fleet's settings (strict
+    host-key checking among them: a robot's key would be accepted on first
+    use and written to ~/.ssh/known_hosts)."""
+    if click.get_current_context(silent=True) is None:
+        return  # robotfleet's own commands: they read the settings themselves
+    if Path.cwd().resolve() != CHECKOUT:
+        refuse([
+            f"pyinfra runs in {Path.cwd()}, not in the checkout {CHECKOUT}: its config.py and group_data/ "
+            f"(strict host-key checking, sudo, every default) would not apply; run it there: "
+            f"cd {CHECKOUT}, or pyinfra --chdir {CHECKOUT} ..."
+        ])
 
 
 def _refuse_fleet(error: FleetError) -> None:
@@ -55,8 +72,9 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     """The groups an inventory file hands pyinfra: robots and laptops with
     each host's data, and the fleet file's other groups (Ansible's) as host
     names, so --limit takes them too.  Every host connects through
-    engine/connect.py (``@fleet/<name>``); ``inventory`` is the inventory
+    robotfleet/connect.py (``@fleet/<name>``); ``inventory`` is the inventory
     file (its __file__), named in the command that enrolls a host key."""
+    require_checkout()
     connect.names([], inventory)
     _refuse_unmatched_limits(fleet, inventory)
     groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}

@@ -8,7 +8,7 @@ import shlex
 from pyinfra import host
 from pyinfra.api import operation
 
-from engine.host.operations import shell
+from robotfleet.host.operations import shell
 
 # How long apt and dpkg wait in all for a lock another process holds
 # (unattended-upgrades at boot) when the host data does not say (apt_lock_timeout).

@@ -15,8 +15,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from engine.checks import Checker, Problem
-from engine.host.snapshot import Snapshot, SnapshotQuery
+from robotfleet.checks import Checker, Problem
+from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 
 GROUPS = ("robots", "laptops")
 
@@ -65,7 +65,7 @@ class Hook:
 
 @dataclass(frozen=True)
 class StatusPart:
-    """A role's columns in ``python3 -m engine status``: a read-only shell
+    """A role's columns in ``robotfleet status``: a read-only shell
     command run in the host's one status command, and its output as cells."""
 
     command: Callable[[Any], str]

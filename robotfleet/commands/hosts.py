@@ -38,7 +38,7 @@ def refusal(limits: list[str], inventory: str, names: list[str], groups: set[str
 
 
 def inventory(path: str):
-    """The pyinfra inventory of ``path`` (its hosts connect through engine/connect.py)."""
+    """The pyinfra inventory of ``path`` (its hosts connect through robotfleet/connect.py)."""
     from pyinfra.api import State
     from pyinfra.context import ctx_state
     from pyinfra_cli.inventory import make_inventory

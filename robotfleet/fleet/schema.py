@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import json
 
-from engine.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
-from engine.fleet.registry import Registry
+from robotfleet.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
+from robotfleet.fleet.registry import Registry
 
 
 # The rules only the run checks, each with what README says of it.

@@ -21,8 +21,8 @@ from pyinfra.api.util import format_text, print_host_combined_output
 from pyinfra.context import ctx_host
 from pyinfra.facts.files import FileContents
 
-from engine.checks import one_line
-from engine.host.snapshot import FileState
+from robotfleet.checks import one_line
+from robotfleet.host.snapshot import FileState
 
 def sha256(content: bytes) -> str:
     return hashlib.sha256(content).hexdigest()

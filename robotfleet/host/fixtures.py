@@ -1,7 +1,7 @@
 """Test fixtures shared by the roles' fixtures.py: host state as the snapshot reads it."""
 
-from engine.host.operations import sha256
-from engine.host.snapshot import FileState
+from robotfleet.host.operations import sha256
+from robotfleet.host.snapshot import FileState
 
 
 def file_state(content: str | bytes, mode: str = "644", user: str = "root", group: str = "root") -> FileState:

@@ -84,7 +84,7 @@ def expected_string(value: Any, what: str = "a string") -> str:
 
 
 def with_schema(check: Checker, schema: dict) -> Checker:
-    """Attach the JSON Schema of what ``check`` accepts (engine/fleet/schema.py
+    """Attach the JSON Schema of what ``check`` accepts (robotfleet/fleet/schema.py
     builds the fleet file's schema for editors from these)."""
     check.schema = schema
     return check

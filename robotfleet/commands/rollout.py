@@ -1,7 +1,7 @@
 """Roll the fleet out in waves: canaries first, then batches, and stop when
 more robots fail than the budget allows.
 
-    python3 -m engine rollout inventories/robots.py --canary 1 --batch 25% --max-failed 10% [-y]
+    robotfleet rollout inventories/robots.py --canary 1 --batch 25% --max-failed 10% [-y]
 
 Each wave is the normal deploy (`pyinfra -y --json INVENTORY deploy.py
 --limit <the wave's robots>`); the next wave starts only when every robot of
@@ -15,7 +15,6 @@ the robots not yet on the new release.  See README "Rollouts in waves".
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shlex
@@ -23,9 +22,10 @@ import subprocess
 import sys
 import tempfile
 
-from engine import connect, roster
-from engine.commands import hosts as selection
-from engine.commands import status, waves
+from robotfleet import commands
+from robotfleet import connect, roster
+from robotfleet.commands import hosts as selection
+from robotfleet.commands import status, waves
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
@@ -98,7 +98,7 @@ def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str)
 
 
 # The connector's reasons, and pyinfra's own (hosts of an inventory that does
-# not go through engine/connect.py).
+# not go through robotfleet/connect.py).
 CONNECT_ERRORS = connect.REASONS + ("Could not connect", "Authentication error", "SSH host key error", "SSH error")
 
 
@@ -140,7 +140,7 @@ def fleet_report(rows: dict[str, dict], state: dict) -> str:
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog="python3 -m engine rollout", description=__doc__.splitlines()[0])
+    parser = commands.parser("rollout", __doc__)
     parser.add_argument("inventory")
     parser.add_argument("script", nargs="?", default="deploy.py", help="the deploy (default: deploy.py)")
     parser.add_argument("--canary", default="1", help="robots in the first wave when none has rollout_canary (default 1)")
@@ -163,7 +163,7 @@ def parse_args(argv):
 
 
 def resume_command(argv: list[str]) -> str:
-    return "python3 -m engine rollout " + " ".join(shlex.quote(a) for a in argv if a not in ("--dry",))
+    return "robotfleet rollout " + " ".join(shlex.quote(a) for a in argv if a not in ("--dry",))
 
 
 def main(argv=None) -> int:

@@ -1,6 +1,6 @@
 """pyinfra's SSH connector with what first contact with a fleet needs.
 
-Every host of an inventory built by engine/inventory.py is ``@fleet/<name>``,
+Every host of an inventory built by robotfleet/inventory.py is ``@fleet/<name>``,
 this connector (registered in pyproject.toml's pyinfra.connectors entry
 points), so the pyinfra CLI, status and rollout connect the same way:
 
@@ -38,10 +38,10 @@ from pyinfra.connectors import ssh
 from pyinfra.connectors.ssh_util import _patch_paramiko_sk_key_support
 from pyinfra.connectors.sshuserclient import client as sshuserclient
 
-from engine import hostkeys
+from robotfleet import hostkeys
 
 CONNECTOR = "fleet"
-PARAMIKO_LOG = "engine.connect.paramiko"
+PARAMIKO_LOG = "robotfleet.connect.paramiko"
 # paramiko logs every failed handshake with a traceback from its transport
 # thread; the reason is told once, in words, by the host's line instead.
 logging.getLogger(PARAMIKO_LOG).addHandler(logging.NullHandler())
@@ -49,7 +49,7 @@ logging.getLogger(PARAMIKO_LOG).propagate = False
 DEFAULT_KEYS = ("id_rsa", "id_ecdsa", "id_ed25519", "id_dsa")  # what paramiko looks for in ~/.ssh
 
 
-# The inventory file this process loaded (set by engine/inventory.py), for
+# The inventory file this process loaded (set by robotfleet/inventory.py), for
 # the command that fixes a host key.
 INVENTORY = "INVENTORY"
 
@@ -69,7 +69,7 @@ REASONS = ("unknown host key", "host key CHANGED", "authentication failed", "con
 
 
 def enroll_command(host: str) -> str:
-    return f"python3 -m engine enroll {shlex.quote(INVENTORY)} --limit {shlex.quote(host)}"
+    return f"robotfleet enroll {shlex.quote(INVENTORY)} --limit {shlex.quote(host)}"
 
 
 class UnknownHostKey(SSHException):

@@ -1,1 +1,0 @@
-"""The operator commands (python3 -m engine ...): status, rollout, generate."""

@@ -1,0 +1,15 @@
+"""The operator commands (``robotfleet COMMAND``), one module each."""
+
+import argparse
+
+
+def parser(name: str, doc: str) -> argparse.ArgumentParser:
+    """A command's parser: ``robotfleet NAME``, its module's docstring as
+    its help (the usage lines and the paragraphs after them, whole)."""
+    return argparse.ArgumentParser(prog=f"robotfleet {name}", description=doc,
+                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def summary(doc: str) -> str:
+    """A docstring's first sentence-paragraph, on one line."""
+    return " ".join(doc.strip().split("\n\n", 1)[0].split())
