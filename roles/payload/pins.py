@@ -9,8 +9,8 @@ from __future__ import annotations
 import os
 
 from robotfleet.role import PinPart
-from roles.payload import services
-from roles.payload.payloadctl import imageref
+import roles.payload.services as services
+import roles.payload.payloadctl.imageref as imageref
 
 SETTING = "payload_image_pins"
 
