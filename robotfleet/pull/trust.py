@@ -251,7 +251,8 @@ class Client:
             except Refused:
                 raise
             except Exception as error:  # noqa: BLE001 - classified below, never let through
-                raise _classified(error) from None
+                refused = _classified(error)
+                raise Refused(refused.reason, f"releases at {self.source}: {refused.line}") from None
             try:
                 found = records.parse(raw)
             except records.RecordError as error:
