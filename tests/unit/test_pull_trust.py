@@ -53,6 +53,14 @@ def test_a_published_release_is_verified_and_its_code_downloaded(fleet, trust, t
     assert again.download([record.code], tmp_path / "dl") == got
 
 
+def test_what_an_interrupted_refresh_left_is_swept(fleet):
+    (fleet.state / "tuf-leftover").mkdir()
+    (fleet.state / ".tuf-link-0000").symlink_to("tuf-leftover")
+    fleet.refresh()
+    current = (fleet.state / "tuf").resolve().name
+    assert {p.name for p in fleet.state.iterdir()} == {"trust.json", "tuf", current}
+
+
 def test_a_new_release_is_accepted_after_the_first(fleet):
     fleet.refresh()
     fleet.release(2)
