@@ -242,6 +242,17 @@ def test_root_key_rotation_is_followed_and_the_old_root_key_alone_cannot_make_a_
     assert line.startswith("root.json")
 
 
+def test_the_operator_side_refuses_to_sign_with_an_online_key_the_root_does_not_name(fleet, tmp_path):
+    repository = pullkit.module("repository")
+    stranger = pullkit.module("keys").KeyDir(tmp_path / "stranger")
+    stranger.generate("online")
+    for attempt in (lambda: fleet.repository.renew(stranger.signer("online"), fleet.expiry, NOW),
+                    lambda: fleet.repository.resign(stranger.signer("online"), fleet.expiry, NOW)):
+        with pytest.raises(repository.RepositoryError, match="is not the one the repository's root names"):
+            attempt()
+    assert fleet.refresh().version == 1
+
+
 def test_an_unsigned_prepared_root_is_not_installed(fleet):
     repository = pullkit.module("repository")
     unsigned = fleet.repository.prepare_root(fleet.expiry, NOW)
