@@ -115,7 +115,8 @@ def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, dep
     "No hosts remaining!"), the robots' status rows and the roles' results
     of this ``deployment`` that the rows carry."""
     roles = roster.roles() if roles is None else roles
-    op_errors = {h: [op.get("name") or "an operation" for op in (results or {}).get("operations", []) if h in op["error"]] for h in hosts}
+    operations = (results or {}).get("operations", [])
+    op_errors = {h: [op.get("name") or "an operation" for op in operations if h in op["error"]] for h in hosts}
     lost = not_connected(results)
     done, failed, skipped = [], {}, {}
     for host in hosts:
