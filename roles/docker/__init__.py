@@ -151,6 +151,7 @@ ROLE = Role(
     name="docker",
     doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json.",
     settings=settings.SETTINGS,
+    rules=settings.rules,
     reads=declare_reads,
     steps=install_docker,
     status=STATUS,

@@ -180,6 +180,24 @@ CORPUS = [
      ["f.yaml: r1.payload_dir: '/var/./tmp//robot' is in the world-writable /var/tmp; use a directory only root can write (e.g. under /var/lib)"]),
     ("dot-dot", host("payload_dir: /var/lib/../../tmp"),
      ["f.yaml: r1.payload_dir: paths must not contain '..', got '/var/lib/../../tmp'"]),
+    # issue 27, item 12: the Docker API on TCP only with TLS client verification, or opted in by name
+    *[(f"unauthenticated TCP API {listener}", host(f"docker_daemon_options: {{hosts: ['unix:///run/docker.sock', '{listener}']}}"),
+       [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS client "
+        "verification (missing: tlsverify, tlscacert, tlscert, tlskey): anyone who reaches it is root on this host; "
+        "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"])
+      for listener in ("tcp://0.0.0.0:2375", "0.0.0.0:2375", "tcp://", "tcp://127.0.0.1:2375")],
+    ("TCP API with tls but no client verification",
+     host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2376'], tls: true, tlsverify: false, tlscert: /etc/docker/c.pem, "
+          "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"),
+     ["f.yaml: r1.docker_daemon_options.hosts[0]: 'tcp://0.0.0.0:2376' opens the Docker API on TCP without TLS client "
+      "verification (missing: tlsverify): anyone who reaches it is root on this host; "
+      "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"]),
+    ("TCP API with client verification", host(
+        "docker_daemon_options: {hosts: ['fd://', 'tcp://0.0.0.0:2376'], tlsverify: true, tlscert: /etc/docker/c.pem, "
+        "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"), []),
+    ("unauthenticated TCP API opted in by name", host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2375']}",
+                                                      "docker_allow_unauthenticated_tcp: true"), []),
+    ("unix sockets only", host("docker_daemon_options: {hosts: ['unix:///run/docker.sock', 'fd://']}"), []),
     # issue 8, item 10: image tags are ASCII
     ("Unicode digit in tag", host("payload_image: 'reg.example.com/p:v\uff11'"),
      ["f.yaml: r1.payload_image: 'reg.example.com/p:v\uff11' is not a valid image reference"]),
