@@ -180,6 +180,33 @@ CORPUS = [
      ["f.yaml: r1.payload_dir: '/var/./tmp//robot' is in the world-writable /var/tmp; use a directory only root can write (e.g. under /var/lib)"]),
     ("dot-dot", host("payload_dir: /var/lib/../../tmp"),
      ["f.yaml: r1.payload_dir: paths must not contain '..', got '/var/lib/../../tmp'"]),
+    # issue 27, item 10: paths root creates, writes or trusts are in a place only root writes
+    *[(f"payload_dir under {place}", host(f"payload_dir: {place}/robot"),
+       [f"f.yaml: r1.payload_dir: '{place}/robot' is in {shown}, {why}; use a directory only root can write (e.g. under /var/lib)"])
+      for place, shown, why in (
+          ("/var/crash", "/var/crash", "world-writable on Ubuntu (crash reports)"),
+          ("/var/spool", "/var/spool", "holds directories others write (mail, cron, print queues)"),
+          ("/var/spool/mail", "/var/spool", "holds directories others write (mail, cron, print queues)"),
+          ("/var/mail", "/var/mail", "writable by group mail"),
+          ("/var/local", "/var/local", "writable by group staff"),
+          ("/var/metrics", "/var/metrics", "world-writable on Ubuntu"),
+          ("/home/ops", "/home", "users own their home directories"),
+          ("/media/ops", "/media", "users' removable media (mounted for them)"),
+          ("/usr/local", "/usr/local", "writable by group staff on older Debian"),
+          ("/var/lib/php/sessions", "/var/lib/php/sessions", "world-writable (1733)"),
+      )],
+    *[(f"payload_dir {place}", host(f"payload_dir: {place}"),
+       [f"f.yaml: r1.payload_dir: '{place}' is not in a place only root writes on Debian and Ubuntu (/etc, /opt, /srv, "
+        "/mnt, /root, /usr, /var/lib, /var/opt, /var/cache, /var/log, /run, /proc/driver); use a directory there "
+        "(e.g. under /var/lib)"])
+      for place in ("/data/robot", "/var/robot", "/", "/boot/p", "/proc/1/root/var/lib/p", "/dev/robot")],
+    ("lock file in /var/lock", host("payload_lock_file: /var/lock/robot"),
+     ["f.yaml: r1.payload_lock_file: '/var/lock/robot' is in the world-writable /run/lock; use a directory only root can write (e.g. under /var/lib)"]),
+    *[(f"private path under {place}", host(f"payload_dir: {place}/robot-payload", f"payload_lock_file: {place}/robot.lock",
+                                           f"x11_cookie_dir: {place}/x11"), [])
+      for place in ("/etc", "/opt", "/srv", "/mnt/ssd", "/root", "/usr/share", "/var/lib", "/var/opt", "/var/cache",
+                    "/var/log", "/run", "/var/run", "/var//lib/.")],
+    ("driver file under /proc/driver", host("gpu_driver_version_file: /proc/driver/nvidia/version"), []),
     # issue 27, item 12: the Docker API on TCP only with TLS client verification, or opted in by name
     *[(f"unauthenticated TCP API {listener}", host(f"docker_daemon_options: {{hosts: ['unix:///run/docker.sock', '{listener}']}}"),
        [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS client "
