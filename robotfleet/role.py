@@ -96,6 +96,10 @@ def _no_problems(data: dict, refused: frozenset) -> list[Problem]:
     return []
 
 
+def _no_secrets(data) -> list[str]:
+    return []
+
+
 @dataclass(frozen=True)
 class Role:
     """A role's card.  Only ``name`` and ``doc`` are required.
@@ -106,7 +110,10 @@ class Role:
     - ``rules(data, refused)``: checks across settings on a host's merged
       data (defaults included); ``refused`` names settings that already have
       a problem, which a rule does not look at again;
-    - ``adds``: hook -> what this role adds there (see ``Play.added``)."""
+    - ``adds``: hook -> what this role adds there (see ``Play.added``);
+    - ``secrets(data)``: secret values the role holds for a host beyond its
+      data (e.g. passwords read from the environment), masked in output
+      like the URL passwords of the data (robotfleet/secrets.py)."""
 
     name: str
     doc: str
@@ -118,6 +125,7 @@ class Role:
     adds: Mapping[Hook, Callable] = field(default_factory=dict)
     status: StatusPart | None = None
     rollout: RolloutPart | None = None
+    secrets: Callable[[Any], list[str]] = _no_secrets
 
 
 def cards(listed) -> tuple[Role, ...]:
