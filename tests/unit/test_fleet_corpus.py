@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from robotfleet import CHECKOUT as ROOT
+
 from tests.unit import harness as fleet
 
 BASE = "all:\n  vars:\n    payload_image: reg.example.com/p:1\n"
@@ -180,6 +182,29 @@ CORPUS = [
      ["f.yaml: r1.payload_dir: '/var/./tmp//robot' is in the world-writable /var/tmp; use a directory only root can write (e.g. under /var/lib)"]),
     ("dot-dot", host("payload_dir: /var/lib/../../tmp"),
      ["f.yaml: r1.payload_dir: paths must not contain '..', got '/var/lib/../../tmp'"]),
+    # issue 27, item 1: credentials per registry, from where they are kept, never the values
+    ("registry auths from the environment and files", host(
+        "payload_registry_auths: {reg2.example.com:5000: {username_env: REG2_USER, password_file: ~/.config/robotfleet/reg2},",
+        "  docker.io: {username_file: /etc/robotfleet/hub-user, password_env: HUB_TOKEN,",
+        "              token_realms: ['https://auth.docker.io/token']}}"), []),
+    ("a password in the fleet file", host("payload_registry_auths: {reg.example.com: {username: robot, password: s3cret}}"),
+     ["f.yaml: r1.payload_registry_auths.reg.example.com.username: unknown field (did you mean 'username_env'?)",
+      "f.yaml: r1.payload_registry_auths.reg.example.com.password: unknown field (did you mean 'password_env'?)",
+      "f.yaml: r1.payload_registry_auths.reg.example.com: give one of username_env (an environment variable) or "
+      "username_file (a file outside the checkout), not the value itself",
+      "f.yaml: r1.payload_registry_auths.reg.example.com: give one of password_env (an environment variable) or "
+      "password_file (a file outside the checkout), not the value itself"]),
+    ("a relative credential file and a plain-HTTP realm", host(
+        "payload_registry_auths: {reg.example.com: {username_env: U, password_file: secrets/reg, token_realms: ['http://auth.lan/t']}}"),
+     ["f.yaml: r1.payload_registry_auths.reg.example.com.password_file: expected an absolute path (or ~/...) on this "
+      "machine, got 'secrets/reg'",
+      "f.yaml: r1.payload_registry_auths.reg.example.com.token_realms[0]: expected an https URL, got 'http://auth.lan/t'"]),
+    ("a credential file inside the checkout", host(
+        f"payload_registry_auths: {{reg.example.com: {{username_env: U, password_file: {ROOT}/inventories/reg.pw}}}}"),
+     [f"f.yaml: r1.payload_registry_auths.reg.example.com.password_file: '{ROOT}/inventories/reg.pw' is inside the "
+      f"checkout {ROOT}; keep credentials outside the repository (e.g. ~/.config/robotfleet/)"]),
+    ("a registry that is a URL", host("payload_registry_auths: {'https://reg.example.com': {username_env: U, password_env: P}}"),
+     ["f.yaml: r1.payload_registry_auths.https://reg.example.com: expected a registry host[:port], got 'https://reg.example.com'"]),
     # issue 27, item 10: paths root creates, writes or trusts are in a place only root writes
     *[(f"payload_dir under {place}", host(f"payload_dir: {place}/robot"),
        [f"f.yaml: r1.payload_dir: '{place}/robot' is in {shown}, {why}; use a directory only root can write (e.g. under /var/lib)"])
