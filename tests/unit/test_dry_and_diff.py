@@ -227,3 +227,14 @@ def test_masking_by_shape_reads_the_password_as_url_parsers_do():
 
     assert secrets.mask('"http://u:p@ss@h:1/" "http://u:it\'s@h" "http://u:q\\"x@h"') == (
         '"http://u:****@h:1/" "http://u:****@h" "http://u:****@h"')
+
+
+def test_diff_masks_the_registry_passwords_too(log, monkeypatch):
+    """The secrets a role holds beyond the data (Role.secrets: the registry
+    passwords read from the environment) are masked wherever they appear."""
+    monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", "robot")
+    monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", "reg-pw-7x!")
+    data = {**ROBOT, "docker_daemon_options": {"labels": ["pull-token=reg-pw-7x!"]}}
+    plan({"r1": ("robots", data, drifted_robot())}, run=False, diff=True, contents={"r1": {DAEMON_JSON: DRIFTED}})
+    text = "\n".join(r.getMessage() for r in log.records)
+    assert '"pull-token=****"' in text and "reg-pw-7x" not in text
