@@ -17,8 +17,10 @@ ssh's reason; there is no fall-back to trust on first use.
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
+import tempfile
 from dataclasses import dataclass
 
 # The certificate algorithms for each plain key type paramiko may be offered.
@@ -100,13 +102,24 @@ def _about(found) -> str:
 
 def verify(address: str, port: int, user: str | None, key_type: str, known_hosts: str, revoked: str | None,
            timeout: int) -> Verdict:
-    """Check the host's certificate with OpenSSH's ssh."""
-    argv = command(address, port, user, key_type, known_hosts, revoked, timeout)
-    try:
-        proc = subprocess.run(argv, stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=timeout * 3 + 5,
-                              errors="replace")
-    except FileNotFoundError:
-        return Verdict(None, "its host certificate cannot be checked: OpenSSH's ssh is not installed on this machine")
-    except subprocess.TimeoutExpired:
-        return Verdict(None, f"the certificate check with ssh took more than {timeout * 3 + 5} s")
-    return judge(proc.stderr, address, known_hosts)
+    """Check the host's certificate with OpenSSH's ssh.  The files reach
+    ssh through links of plain names: ssh_config expands % tokens in file
+    names and splits UserKnownHostsFile at spaces."""
+    with tempfile.TemporaryDirectory(prefix="robotfleet-hostcert-") as links:
+        names = {os.path.join(links, "known_hosts"): known_hosts}
+        if revoked:
+            names[os.path.join(links, "revoked.krl")] = revoked
+        for link, target in names.items():
+            os.symlink(os.path.abspath(target), link)
+        argv = command(address, port, user, key_type, *names, *([] if revoked else [None]), timeout)
+        try:
+            proc = subprocess.run(argv, stdin=subprocess.DEVNULL, capture_output=True, text=True,
+                                  timeout=timeout * 3 + 5, errors="replace")
+        except FileNotFoundError:
+            return Verdict(None, "its host certificate cannot be checked: OpenSSH's ssh is not installed here")
+        except subprocess.TimeoutExpired:
+            return Verdict(None, f"the certificate check with ssh took more than {timeout * 3 + 5} s")
+    said = proc.stderr
+    for link, target in names.items():
+        said = said.replace(link, target)
+    return judge(said, address, known_hosts)
