@@ -32,10 +32,9 @@ import logging
 import os
 import shlex
 import socket
+from dataclasses import dataclass
 from random import uniform
 from time import sleep
-
-from dataclasses import dataclass
 
 from paramiko import AuthenticationException, BadHostKeyException, HostKeys, MissingHostKeyPolicy, SSHException
 from paramiko import SSHClient as ParamikoClient
