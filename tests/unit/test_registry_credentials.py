@@ -144,6 +144,27 @@ def test_push_of_a_multi_service_payload_sends_the_primary_password_to_no_other_
     assert "HTTP 401" in refused and PASSWORD not in refused
 
 
+def test_a_pull_release_resolves_each_image_with_its_own_registrys_credentials(servers, monkeypatch):
+    """robotfleet publish pins every image's digest (roles/payload/pins.py): the
+    primary registry's password goes to the primary registry only."""
+    from robotfleet.pull.publishing import HostData
+    from roles.payload import pins
+
+    primary = servers(answer=basic_only)
+    hostile = servers(answer=lambda h: send(h, 401, b"{}", {"WWW-Authenticate": 'Basic realm="give me yours"'}))
+    monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", USER)
+    monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", PASSWORD)
+    data = HostData(payload_registry_username_env="PAYLOAD_REGISTRY_USERNAME",
+                    payload_registry_password_env="PAYLOAD_REGISTRY_PASSWORD", docker_insecure_registries=[],
+                    payload_services={"main": {"image": f"{primary.address}/ros/payload:1.0"},
+                                      "tools": {"image": f"{hostile.address}/ros/tools:1.0"}})
+    first = f"{primary.address}/ros/payload:1.0"
+    assert pins.resolve(data, [first])[first].startswith("sha256:") and BASIC in primary.authorizations
+    with pytest.raises(ValueError, match="HTTP 401"):
+        pins.resolve(data, [f"{hostile.address}/ros/tools:1.0"])
+    assert hostile.seen and set(hostile.authorizations) == {None}
+
+
 def test_a_registry_client_drops_credentials_given_for_another_registry(servers):
     hostile = servers(answer=basic_only)
     client = registry.Registry(hostile.address, credentials=own("reg.example.com"))
