@@ -142,8 +142,9 @@ def entries(data) -> dict[str, dict]:
 
 
 def _read(entry: dict, what: str, registry: str) -> str | None:
-    if entry.get(f"{what}_env"):
-        return os.environ.get(entry[f"{what}_env"]) or None
+    if not entry.get(f"{what}_file"):
+        name = entry.get(f"{what}_env")
+        return (os.environ.get(name) or None) if name else None
     path = os.path.expanduser(entry[f"{what}_file"])
     try:
         with open(path, encoding="utf-8") as handle:
