@@ -126,6 +126,10 @@ def _no_problems(data: dict, refused: frozenset) -> list[Problem]:
     return []
 
 
+def _no_secrets(data) -> list[str]:
+    return []
+
+
 @dataclass(frozen=True)
 class Role:
     """A role's card.  Only ``name`` and ``doc`` are required.
@@ -138,7 +142,10 @@ class Role:
       a problem, which a rule does not look at again;
     - ``adds``: hook -> what this role adds there (see ``Play.added``);
     - ``status``, ``rollout``, ``pins``: its parts in ``robotfleet status``,
-      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart)."""
+      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart);
+    - ``secrets(data)``: secret values the role holds for a host beyond its
+      data (e.g. passwords read from the environment), masked in output
+      like the URL passwords of the data (robotfleet/secrets.py)."""
 
     name: str
     doc: str
@@ -151,6 +158,7 @@ class Role:
     status: StatusPart | None = None
     rollout: RolloutPart | None = None
     pins: PinPart | None = None
+    secrets: Callable[[Any], list[str]] = _no_secrets
 
 
 def cards(listed) -> tuple[Role, ...]:

@@ -13,6 +13,7 @@ from pyinfra import host, logger
 from robotfleet.checks import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+from roles.payload.credentials import registry_key
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.payloadctl.takeover as takeover_rule
@@ -72,13 +73,16 @@ def push_target(data, snap: Snapshot, credentials) -> dict:
             "credentials": credentials}
 
 
-def push_more_images(data, snap: Snapshot, credentials=None) -> None:
+def push_more_images(data, snap: Snapshot, auths: dict | None = None) -> None:
     """payload_delivery push for a project of several images: each one the
-    robot lacks is sent (layers the robot has are left out, as for the first)."""
+    robot lacks is sent (layers the robot has are left out, as for the
+    first), read from its registry with that registry's own credentials
+    (``auths``: registry -> Credentials or None)."""
     if data.payload_delivery != "push":
         return
     layers = push.parse_layer_sets(snap.probes.get("docker_layers", ""))
     for index, ref in enumerate(more_images(data)):
+        credentials = (auths or {}).get(registry_key(imageref.parse(ref).registry))
         push.push_image(
             name=f"Send the payload image {ref} over SSH",
             image=ref,

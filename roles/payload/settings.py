@@ -8,6 +8,7 @@ import re
 from robotfleet import checks as c
 from robotfleet import values as v
 from robotfleet.role import Setting
+import roles.payload.credentials as credentials
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets
@@ -141,6 +142,9 @@ SETTINGS = (
             "Environment variable (on this machine) holding the registry user; never stored, never printed."),
     Setting("payload_registry_password_env", "PAYLOAD_REGISTRY_PASSWORD", _env_name,
             "Environment variable (on this machine) holding the registry password or token."),
+    Setting("payload_registry_auths", {}, credentials.auths,
+            "Credentials per registry (as Docker's auths): registry -> username_env/username_file, "
+            "password_env/password_file (files outside the checkout), token_realms; each goes to its registry only."),
     Setting("payload_services", {}, payload_services,
             "Several services instead of payload_image: name -> a Compose service; layers merge per service and key.",
             merge=services.merge_values),
@@ -206,6 +210,8 @@ def _rules(usable: dict, refused: frozenset) -> list[c.Problem]:
             if why:
                 found.append(("payload_image", why))
         found += problems.host_problems(usable, DEFAULTS)
+    if "payload_registry_auths" not in refused:
+        found += credentials.files_in_checkout(usable.get("payload_registry_auths"))
     if usable.get("ros_master_uri") and usable.get("ros_domain_id"):
         found.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
     return found
