@@ -5,7 +5,7 @@ places, and then it is shown to reach the host as data: the compose file
 (YAML), daemon.json (JSON) or a quoted udev match value, unchanged.
 
 On-host quoting of the accepted values (e.g. compose's $ escaping) is tested
-with the roles (tests/unit/test_onhost_security.py on the security branch);
+with the roles (tests/unit/test_onhost_plans.py, tests/integration/test_onhost_security.py);
 here the validator's half: nothing else gets through.
 """
 

@@ -1,16 +1,15 @@
-"""The on-robot release helper payloadctl: its pure parts in process, the
-rest as the zip application the robots get, run against stand-ins for docker
-and systemctl (the real thing runs end to end)."""
+"""The on-robot release helper payloadctl as the zip application the robots
+get, run as a process against stand-ins for docker and systemctl (the real
+thing runs end to end); its pure parts are in tests/unit/test_payloadctl_parts.py."""
 
 import json
 import subprocess
 import sys
 
 import pytest
-import yaml
 
 from roles.payload import release, robot as payload
-from roles.payload.payloadctl import durable, health, imageref, images, releases as store
+from roles.payload.payloadctl import durable, health, releases as store
 from roles.payload.payloadctl import lock as apply_lock
 
 
@@ -21,48 +20,6 @@ def helper(tmp_path_factory):
     path.write_bytes(payload.helper_bytes())
     path.chmod(0o755)
     return str(path)
-
-
-def test_repository_of_references():
-    assert imageref.repository("reg.lan:5000/ros/payload:1.0") == "reg.lan:5000/ros/payload"
-    assert imageref.repository("reg.lan:5000/ros/payload@sha256:" + "a" * 64) == "reg.lan:5000/ros/payload"
-    assert imageref.repository("ros/payload") == "ros/payload"
-
-
-def test_pinned_prefers_the_digest_of_the_same_repository():
-    info = {"id": "sha256:1", "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
-    assert images.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
-    assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
-
-
-def test_release_pointers_are_swapped_atomically(tmp_path):
-    releases = store.Releases(str(tmp_path))
-    for rid, created in (("r1", "2026-01-01T00:00:00Z"), ("r2", "2026-01-02T00:00:00Z")):
-        (tmp_path / "releases" / rid).mkdir(parents=True)
-        releases.write_record(rid, {"id": rid, "created": created})
-    assert releases.pointer("current") is None
-    releases.point("current", "r1")
-    releases.point("current", "r2")
-    releases.point("previous", "r1")
-    assert (releases.pointer("current"), releases.pointer("previous")) == ("r2", "r1")
-    assert (tmp_path / "current").resolve() == (tmp_path / "releases" / "r2").resolve()
-    assert releases.all() == ["r1", "r2"]
-    releases.point("previous", None)
-    assert releases.pointer("previous") is None
-
-
-def test_release_compose_is_yaml():
-    doc = {"name": "p", "services": {"payload": {"image": "a/b@sha256:" + "c" * 64, "environment": {"A": "1"}}}}
-    assert yaml.safe_load(store.compose_yaml(doc)) == doc
-
-
-def test_update_lock_holder(tmp_path):
-    lock = tmp_path / "update.lock"
-    assert apply_lock.update_lock_holder(str(lock)) is None
-    lock.write_text("robot is moving\n")
-    assert apply_lock.update_lock_holder(str(lock)) == "robot is moving"
-    lock.write_text("")
-    assert apply_lock.update_lock_holder(str(lock)) == "no reason given"
 
 
 def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
@@ -81,35 +38,6 @@ def test_result_reports_the_last_apply(tmp_path, helper):
         [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"], capture_output=True, text=True
     )
     assert proc.returncode == 1 and proc.stderr.strip() == "payload: release x failed"
-
-
-def test_helper_runs_on_python_3_8_syntax():
-    import ast
-
-    for path in sorted(payload.PACKAGE.glob("*.py")):
-        source = path.read_text()
-        ast.parse(source, feature_version=(3, 8))  # Ubuntu 20.04 robots run Python 3.8
-        assert "from __future__" not in source, path
-
-
-def test_the_helper_uses_the_standard_library_and_its_own_modules_only():
-    """It runs on robots without anything installed beside python3."""
-    import ast
-
-    allowed = set(sys.stdlib_module_names)
-    for path in sorted(payload.PACKAGE.glob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ImportFrom) and node.level == 0:
-                assert node.module.split(".")[0] in allowed, (path.name, node.module)
-            elif isinstance(node, ast.Import):
-                assert all(a.name.split(".")[0] in allowed for a in node.names), (path.name, ast.dump(node))
-
-
-def test_the_helper_is_the_same_bytes_on_every_build():
-    payload.helper_bytes.cache_clear()
-    first = payload.helper_bytes()
-    payload.helper_bytes.cache_clear()
-    assert payload.helper_bytes() == first and first.startswith(b"#!/usr/bin/env python3\n")
 
 
 def test_apply_finds_the_release_already_current(tmp_path, helper):
@@ -166,7 +94,7 @@ def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch
 
 # --- payloadctl against a fake `docker` and `systemctl` ------------------------
 # payloadctl is stdlib-only and shells out to docker and systemctl; the tests
-# put small stand-ins first on PATH (tests/unit/fakebin) that answer from a
+# put small stand-ins first on PATH (tests/integration/fakebin) that answer from a
 # JSON state file, and run the real helper as a process.
 
 import os  # noqa: E402
@@ -479,40 +407,6 @@ def test_result_of_a_run_that_recorded_nothing_fails_with_a_clear_line(tmp_path,
                           capture_output=True, text=True)
     assert proc.returncode == 1 and "healthy" not in proc.stdout
     assert proc.stderr.startswith("payload: payloadctl recorded no result for this run (this-run): disk full?")
-
-
-def test_update_lock_is_never_followed_and_gives_one_printable_line(tmp_path):
-    secret = tmp_path / "shadow"
-    secret.write_text("root:$6$hash:19000:0:99999:7:::\n")
-    lock = tmp_path / "update.lock"
-    lock.symlink_to(secret)
-    assert apply_lock.update_lock_holder(str(lock)) == "the lock is a symbolic link (not read)"
-    lock.unlink()
-    os.mkfifo(lock)
-    assert apply_lock.update_lock_holder(str(lock)) == "the lock is not a regular file (not read)"
-    lock.unlink()
-    lock.write_text("moving\x1b[31m to dock " + "x" * 300 + "\nsecond line\n")
-    reason = apply_lock.update_lock_holder(str(lock))
-    assert reason.startswith("moving[31m to dock x") and len(reason) == 120 and "\n" not in reason
-    assert all(ch.isprintable() for ch in reason)
-
-
-def test_writes_are_fsynced_file_and_directory_before_they_count(tmp_path, monkeypatch):
-    synced = []
-    real_fsync = os.fsync
-
-    def fsync(fd):
-        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
-        real_fsync(fd)
-
-    monkeypatch.setattr(durable.os, "fsync", fsync)
-    releases = store.Releases(str(tmp_path))
-    (tmp_path / "releases" / "r1").mkdir(parents=True)
-    releases.write_record("r1", {"id": "r1"})
-    assert synced == [str(tmp_path / "releases" / "r1" / "record.json.tmp"), str(tmp_path / "releases" / "r1")]
-    synced.clear()
-    releases.point("current", "r1")
-    assert synced == [str(tmp_path)]
 
 
 # --- the apply lock is root's alone (issue 17, item 2) ---------------------------
