@@ -24,7 +24,7 @@ import tempfile
 
 from robotfleet import commands
 from robotfleet import connect, roster
-from robotfleet.commands import hosts as selection
+from robotfleet import selection
 from robotfleet.commands import status, waves
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"

@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 import shlex
 
-from robotfleet.commands import hosts
+from robotfleet import selection
 from tests.fixtures import ROOT
 
 README = (ROOT / "README.md").read_text()
@@ -54,7 +54,7 @@ def test_the_operator_path_comes_first_and_reaches_a_deploy_within_250_lines():
 
 def test_the_exit_codes_table_is_the_commands_codes():
     table = section("Exit codes")
-    for code in hosts.CODES:
+    for code in selection.CODES:
         assert f"\n| {code} |" in table, code
 
 
