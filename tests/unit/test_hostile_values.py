@@ -113,7 +113,7 @@ def reaches_host_unchanged(setting: str, place: str, value, hostile: str) -> boo
         data = {**DEFAULTS["all"], **DEFAULTS["robots"], "payload_gpu": True, setting: value}
         return gpu_plan.check_command(data)["command"] == [hostile]
     if carrier == "daemon.json":
-        return json.loads(plan.daemon_json(value, [], [])) == value
+        return json.loads(plan.daemon_json(value, {})) == value
     sensor = value[0]
     line = rules.rule(sensor)
     return f'ATTRS{{serial}}=="{hostile}"' in rules._split_items(line) or (

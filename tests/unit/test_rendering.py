@@ -56,14 +56,15 @@ def test_shipped_vendor_rules_pass_the_lint():
 
 def test_daemon_json_sorted_with_robot_defaults_and_registries():
     data = merged("robots", {})
-    text = docker_plan.daemon_json(data["docker_daemon_options"], ["https://m.lan"], ["lab:5000"])
+    text = docker_plan.daemon_json(data["docker_daemon_options"],
+                                   {"registry-mirrors": ["https://m.lan"], "insecure-registries": ["lab:5000"]})
     assert text.endswith("}\n")
     parsed = json.loads(text)
     assert parsed["live-restore"] is True
     assert parsed["log-opts"] == {"max-file": "3", "max-size": "10m"}
     assert parsed["registry-mirrors"] == ["https://m.lan"] and parsed["insecure-registries"] == ["lab:5000"]
     assert list(parsed) == sorted(parsed)
-    assert docker_plan.daemon_json({"insecure-registries": ["a"]}, [], ["a", "b"]) == (
+    assert docker_plan.daemon_json({"insecure-registries": ["a"]}, {"insecure-registries": ["a", "b"]}) == (
         '{\n  "insecure-registries": [\n    "a",\n    "b"\n  ]\n}\n'
     )
 
