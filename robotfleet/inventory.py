@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from robotfleet import CHECKOUT, connect, roster
-from robotfleet.commands import hosts as selection
+from robotfleet import selection
 from robotfleet.fleet.check import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",

@@ -51,7 +51,9 @@ class Setting:
     merge: Callable[[list[Any]], Any] | None = None
 
     def default_in(self, group: str | None) -> Any:
-        return copy.deepcopy(self.groups.get(group, self.default) if group else self.default)
+        value = self.groups.get(group, self.default) if group else self.default
+        # A copy only of what a caller could change in place (the fleet check asks for every default of every check).
+        return value if isinstance(value, (str, int, float, type(None))) else copy.deepcopy(value)
 
 
 @dataclass(frozen=True, eq=False)

@@ -14,43 +14,40 @@ operation of every host, both recomputing what cannot change:
 - ``all_global_arguments`` evaluates ``typing.get_type_hints`` of a
   TypedDict on each call; the answer is fixed once pyinfra is imported.
 
-``install()`` puts both in place of pyinfra's, each only where pyinfra's
-function is still the one it was written from (its source's digest, in
-COPIED_FROM): a pyinfra release that changes either keeps its own, slower
-but right.  tests/unit/test_speedups.py checks they answer as pyinfra's own
-do.
+``install()`` puts each in place of pyinfra's where pyinfra looks it up
+when it calls it (SITES), only where the function bound there is still the
+one it was written from (its source's digest, pinned in
+robotfleet/pyinfra_private.py): a pyinfra release that changes either keeps
+its own, slower but right, and one line says so.  tests/unit/test_speedups.py
+checks they answer as pyinfra's own do, and are active with the pyinfra this
+project installs.
 """
 
 from __future__ import annotations
 
 import functools
-import hashlib
 import importlib
-import inspect
 import sys
 from inspect import getframeinfo
 
 import pyinfra
-from pyinfra.api import arguments
+from pyinfra import logger
 from pyinfra.api import util as pyinfra_util
 
-# The module (pyinfra.api exports the decorator under the same name).
-operation = importlib.import_module("pyinfra.api.operation")
+from robotfleet import pyinfra_private
 
-_ORIGINAL = {
-    "order": pyinfra_util.get_operation_order_from_stack,
-    "arguments": arguments.all_global_arguments,
+# Where pyinfra looks each function up when it calls it: the object checked
+# is the object replaced.
+SITES = {
+    "order": ("pyinfra.api.operation", "get_operation_order_from_stack"),
+    "arguments": ("pyinfra.api.arguments", "all_global_arguments"),
 }
-# The digest of each pyinfra function's source these were written from (pyinfra 3.10).
-COPIED_FROM = {"order": "f4807f61585570e0", "arguments": "f7afbc472d78c5d2"}
+_ORIGINAL = {key: getattr(importlib.import_module(module), name) for key, (module, name) in SITES.items()}
+# The digest of the source each was written from.
+COPIED_FROM = {key: pyinfra_private.pinned(f"{module}:{name}") for key, (module, name) in SITES.items()}
 
 
-def digest(function) -> str:
-    try:
-        source = inspect.getsource(function)
-    except (OSError, TypeError):
-        return ""
-    return hashlib.sha256(source.encode()).hexdigest()[:16]
+digest = pyinfra_private.digest
 
 
 def operation_order_from_stack(state) -> list:
@@ -104,12 +101,17 @@ def all_global_arguments() -> list:
 
 
 def install() -> list[str]:
-    """Replace what is still as it was copied; returns what was replaced."""
+    """Replace what is still as it was copied; returns what is in place."""
+    ours = {"order": operation_order_from_stack, "arguments": all_global_arguments}
     replaced = []
-    if digest(_ORIGINAL["order"]) == COPIED_FROM["order"]:
-        operation.get_operation_order_from_stack = operation_order_from_stack
-        replaced.append("order")
-    if digest(_ORIGINAL["arguments"]) == COPIED_FROM["arguments"]:
-        arguments.all_global_arguments = all_global_arguments
-        replaced.append("arguments")
+    for key, (module_name, name) in SITES.items():
+        module = importlib.import_module(module_name)
+        current = getattr(module, name)
+        if current is not ours[key]:
+            if digest(current) != COPIED_FROM[key]:
+                logger.warning(f"robotfleet: pyinfra {pyinfra.__version__} has another {module_name}.{name} than "
+                               "robotfleet/speedups.py was written from; pyinfra's own runs (slower, same answers)")
+                continue
+            setattr(module, name, ours[key])
+        replaced.append(key)
     return replaced

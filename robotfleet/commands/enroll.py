@@ -33,7 +33,7 @@ import paramiko
 from robotfleet import commands
 from robotfleet import connect, hostkeys
 from robotfleet.checks import one_line
-from robotfleet.commands import hosts as selection
+from robotfleet import selection
 
 
 @dataclass

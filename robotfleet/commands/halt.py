@@ -14,7 +14,8 @@ from __future__ import annotations
 import sys
 
 from robotfleet import commands
-from robotfleet.commands import hosts, pulling
+from robotfleet import selection
+from robotfleet.commands import pulling
 from robotfleet.pull import publishing
 
 
@@ -38,7 +39,7 @@ def halt(args) -> int:
         raise pulling.Failed(str(error)) from None
     where = pulling.pushed(chosen, f"halt: release {halted.version} ({args.reason})")
     print(f"halt: release {halted.version} halts commit {halted.commit[:12]} ({args.reason}); {where}")
-    return hosts.OK
+    return selection.OK
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,7 +24,8 @@ import sys
 from pathlib import Path
 
 from robotfleet import commands
-from robotfleet.commands import hosts, pulling
+from robotfleet import selection
+from robotfleet.commands import pulling
 from robotfleet.pull import keys as keyfiles
 from robotfleet.pull.keys import ONLINE, ROOT
 from robotfleet.pull.repository import sign_root
@@ -69,7 +70,7 @@ def init(args) -> int:
         print(f"keys: {keys.file(name)} ({_says(public)})")
     print("keys: the first publish signs the repository's root with the root key; then move "
           f"{keys.file(ROOT)} to offline storage (docs/pull.md)")
-    return hosts.OK
+    return selection.OK
 
 
 def show(args) -> int:
@@ -88,7 +89,7 @@ def show(args) -> int:
     if record:
         print(f"release {record.version} ({record.release}){' HALTED' if record.halt else ''}, "
               f"timestamp expires {repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}")
-    return hosts.OK
+    return selection.OK
 
 
 def _next_key(keys, name: str):
@@ -113,7 +114,7 @@ def prepare(args) -> int:
     signers = "the current root key" + (" and the new root key" if root_key else "")
     print(f"keys: root version {version} written to {args.out}, unsigned; sign it with {signers} "
           f"(robotfleet keys sign {args.out} --key ...), then robotfleet keys install {args.out}")
-    return hosts.OK
+    return selection.OK
 
 
 def sign(args) -> int:
@@ -126,7 +127,7 @@ def sign(args) -> int:
     temp.write_bytes(data)
     temp.replace(args.file)
     print(f"keys: {args.file} signed by {', '.join(_says(s.public_key) for s in signers)}")
-    return hosts.OK
+    return selection.OK
 
 
 def _install(args, data: bytes, keys, promote: list[tuple[str, str]]) -> int:
@@ -138,7 +139,7 @@ def _install(args, data: bytes, keys, promote: list[tuple[str, str]]) -> int:
     for name, replaced in promote:
         keys.promote(name, replaced)
     print(f"keys: root version {version} installed; targets, snapshot and timestamp re-signed; {where}")
-    return hosts.OK
+    return selection.OK
 
 
 def install(args) -> int:
@@ -173,7 +174,7 @@ def rotate(args) -> int:
 def generate(args) -> int:
     public = keyfiles.generate(args.file)
     print(f"keys: {args.file} ({_says(public)}); its public file {args.file.with_suffix('.pub')}")
-    return hosts.OK
+    return selection.OK
 
 
 ACTIONS = {"init": init, "show": show, "rotate": rotate, "prepare": prepare, "sign": sign, "install": install,

@@ -29,7 +29,8 @@ import tempfile
 from pathlib import Path
 
 from robotfleet import commands, roster
-from robotfleet.commands import hosts, pulling
+from robotfleet import selection
+from robotfleet.commands import pulling
 from robotfleet.pull import publishing, waves
 from robotfleet.pull.keys import ONLINE, ROOT
 
@@ -85,7 +86,7 @@ def renew(args) -> int:
     where = pulling.pushed(chosen, f"renew: {', '.join(signed)}")
     print(f"publish: re-signed {', '.join(signed)}; timestamp valid until "
           f"{repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}; {where}")
-    return hosts.OK
+    return selection.OK
 
 
 def release(args) -> int:
@@ -109,7 +110,7 @@ def release(args) -> int:
     wheels = ", ".join(f"{p} ({len(f)})" for p, f in sorted(record.wheels.items())) or "none"
     print(f"publish: release {record.version} ({record.release}): commit {record.commit[:12]}, "
           f"{len(record.robots)} robot(s), {images} image(s) by digest, wheels {wheels}; {where}")
-    return hosts.OK
+    return selection.OK
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ import sys
 from pathlib import Path
 
 import robotfleet
-from robotfleet.commands import hosts
+from robotfleet import selection
 from robotfleet.pull import channel as channels
 from robotfleet.pull.keys import KeyDir, KeyProblem
 from robotfleet.pull.repository import Expiry, Repository, RepositoryError, parse_duration
@@ -56,7 +56,7 @@ def now() -> datetime.datetime:
 class Failed(Exception):
     """One line; the command exits with ``code``."""
 
-    def __init__(self, line: str, code: int = hosts.REFUSED):
+    def __init__(self, line: str, code: int = selection.REFUSED):
         super().__init__(line)
         self.code = code
 
@@ -70,10 +70,10 @@ def run(name: str, body) -> int:
         return error.code
     except ValueError as error:  # a bad option value (durations, counts)
         print(f"{name}: {error}", file=sys.stderr)
-        return hosts.REFUSED
+        return selection.REFUSED
     except (KeyProblem, RepositoryError, channels.ChannelError) as error:
         print(f"{name}: {error}", file=sys.stderr)
-        return hosts.FAILED
+        return selection.FAILED
 
 
 def opened(args) -> tuple[object, Repository]:

@@ -24,8 +24,7 @@ import sys
 import tempfile
 
 from robotfleet import commands
-from robotfleet import roster
-from robotfleet.commands import hosts as selection
+from robotfleet import roster, selection
 from robotfleet.commands import status, waves
 from robotfleet.role import DEPLOYMENT_ENV
 

@@ -25,7 +25,7 @@ import gevent
 from robotfleet import commands
 from robotfleet import roster
 from robotfleet.checks import one_line
-from robotfleet.commands import hosts as selection
+from robotfleet import selection
 from robotfleet.commands import waves
 
 MARK = "@@@robot-fleet-status "

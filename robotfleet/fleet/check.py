@@ -125,7 +125,7 @@ def check(raw, shown: str, registry: Registry) -> Fleet:
         name: [checked(f"{name}.vars", layer) for layer in group.layers] for name, group in groups.groups.items()
     }
     fleet = Fleet(groups={group: [] for group in GROUPS})
-    defaults = {group: registry.defaults(group) for group in GROUPS}
+    defaults: dict[str, dict] = {}  # per kind of host, made when a host of that kind is checked
     for name, listed in groups.hosts.items():
         above = groups.above(name)
         kinds = [group for group in GROUPS if group in above]
@@ -149,6 +149,8 @@ def check(raw, shown: str, registry: Registry) -> Fleet:
         if "ssh_hostname" in refused:
             refused.add("address")
         data = registry.merge(layers)
+        if kinds[0] not in defaults:
+            defaults[kinds[0]] = registry.defaults(kinds[0])
         merged = {**defaults[kinds[0]], **data}
         report(name, registry.check_host(merged, refused))
         fleet.groups[kinds[0]].append((name, data))

@@ -40,6 +40,13 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
     )
 
 
+def daemon_json(play: Play) -> str:
+    """/etc/docker/daemon.json as this host gets it: docker_daemon_options,
+    what the other roles add (hooks.DAEMON_OPTIONS), each DaemonSetting."""
+    return plan.daemon_json(play.folded(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options),
+                            settings.daemon_keys(play.data))
+
+
 def declare_reads(data, query: SnapshotQuery) -> None:
     packages = set(data.docker_packages) | set(data.docker_obsolete_packages) | set(PREREQUISITES)
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
@@ -101,11 +108,7 @@ def install_docker(play: Play):
         enabled=data.docker_service_enabled,
     )
     action = "reload" if data.docker_restart_handler_state == "reloaded" else "restart"
-    content = plan.daemon_json(
-        play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
-        data.docker_registry_mirrors,
-        data.docker_insecure_registries,
-    )
+    content = daemon_json(play)
     pending = snap.files.get(daemon.PENDING) is not None
     written = daemon.daemon_json(
         name=f"Write /etc/docker/daemon.json and {action} Docker (the previous file comes back if Docker does not start)",

@@ -2,9 +2,25 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from robotfleet import checks as c
 from robotfleet import values as v
 from robotfleet.role import Setting
+
+
+@dataclass(frozen=True)
+class DaemonSetting(Setting):
+    """A setting written into daemon.json under ``key``, over
+    docker_daemon_options: a list is merged into that option's list, any
+    other value (but null) replaces it.  Declaring one is all it takes."""
+
+    key: str = ""
+
+
+def daemon_keys(data) -> dict:
+    """daemon.json key -> the host's value, for each DaemonSetting."""
+    return {s.key: data.get(s.name) for s in SETTINGS if isinstance(s, DaemonSetting)}
 
 # daemon.json keys and value kinds from Docker's dockerd reference ("Daemon
 # configuration file", Linux).  b: boolean, s: string, i: whole number,
@@ -112,10 +128,11 @@ SETTINGS = (
     Setting("docker_daemon_options",
             {"live-restore": True, "log-driver": "json-file", "log-opts": {"max-size": "10m", "max-file": "3"}},
             daemon_options, "/etc/docker/daemon.json (rotated logs; live-restore keeps containers across restarts)."),
-    Setting("docker_registry_mirrors", [], c.list_of(v.url), "Merged into daemon.json's registry-mirrors."),
-    Setting("docker_insecure_registries", [],
-            c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
-            "Merged into daemon.json's insecure-registries."),
+    DaemonSetting("docker_registry_mirrors", [], c.list_of(v.url), "Merged into daemon.json's registry-mirrors.",
+                  key="registry-mirrors"),
+    DaemonSetting("docker_insecure_registries", [],
+                  c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
+                  "Merged into daemon.json's insecure-registries.", key="insecure-registries"),
     Setting("docker_allow_unauthenticated_tcp", False, c.boolean,
             "Allow daemon.json hosts to open a TCP listener without TLS client verification (anyone who reaches it is root)."),
     Setting("docker_restart_handler_state", "restarted", c.string(choices=("restarted", "reloaded")),

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from robotfleet.role import PinPart
 import roles.payload.credentials as credentials
+import roles.docker.hooks as docker_hooks
 import roles.payload.services as services
 import roles.payload.payloadctl.imageref as imageref
 
@@ -32,7 +33,7 @@ def resolve(data, wanted: list[str]) -> dict[str, str]:
             own = credentials.lookup(data, ref.registry)  # this registry's, never another's
         except credentials.CredentialError as error:
             raise ValueError(f"image {text}: {error}") from None
-        registry = Registry(ref.registry, list(data.docker_insecure_registries or []), own)
+        registry = Registry(ref.registry, docker_hooks.insecure_registries(data), own)
         try:
             _, _, digest = registry.manifest(ref.repository, ref.tag or "latest")
         except RegistryError as error:

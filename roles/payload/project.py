@@ -13,6 +13,7 @@ from pyinfra import host, logger
 from robotfleet.checks import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+import roles.docker.hooks as docker_hooks
 from roles.payload.credentials import registry_key
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
@@ -69,7 +70,7 @@ def image_id_probe(ref: str) -> str:
 def push_target(data, snap: Snapshot, credentials) -> dict:
     """Who a push is for: the robot, its architecture (from the snapshot),
     and how to read the image's registry for its own variant."""
-    return {"robot": host.name, "arch": snap.arch, "insecure": list(data.docker_insecure_registries or []),
+    return {"robot": host.name, "arch": snap.arch, "insecure": docker_hooks.insecure_registries(data),
             "credentials": credentials}
 
 

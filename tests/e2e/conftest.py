@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.fixtures import PYINFRA, ROOT  # noqa: F401 (the e2e modules import them from here)
+
 PREFIX = os.environ.get("ROBOT_LAB_E2E_PREFIX", "e2e")
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
 
 ARM64_MODULE = "test_arm64.py"

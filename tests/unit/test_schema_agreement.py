@@ -5,7 +5,6 @@ Schema can express the rule; README names the rules it cannot
 (robotfleet/fleet/schema.py BEYOND_SCHEMA)."""
 
 import json
-from pathlib import Path
 
 import pytest
 
@@ -16,12 +15,15 @@ from robotfleet.fleet import loader as fleetyaml
 from robotfleet.fleet import schema as fleet_schema
 from robotfleet.fleet.registry import Registry
 from tests.unit import test_fleet_corpus, test_hostile_values
+from tests.fixtures import ROOT
 
 jsonschema = pytest.importorskip("jsonschema")
 
-ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = fleet_schema.fleet_schema(roster.registry())
 VALIDATOR = jsonschema.Draft7Validator(SCHEMA)
+# What the schema says of one host's (or one group's vars') settings: the
+# definition every place a setting sits refers to (test_a_setting_is_checked_alike_in_every_place).
+SETTINGS = jsonschema.Draft7Validator({**SCHEMA["definitions"]["settings"], "definitions": SCHEMA["definitions"]})
 MORE_VALUES = ["on", "off", "yes", "", " ", "fe80::1%eth0", "::ffff:10.0.0.1", "1::", "10.0.0.01", "robot-1.lan",
                "robot_1", "1.2.3", "x" * 64, "/var/lib/./tmp", "//tmp/x", "/var//tmp", "reg.example.com/p:1 2"]
 TRAPS = [fleetyaml.load(f"v: {trap}")["v"] for trap in test_hostile_values.YAML_TRAPS]
@@ -50,6 +52,18 @@ def walk(value):
             yield from walk(item)
 
 
+def test_a_setting_is_checked_alike_in_every_place():
+    """A group's vars, its hosts, its children's: each is the settings definition."""
+    settings, group = {"$ref": "#/definitions/settings"}, SCHEMA["definitions"]["group"]
+    assert group["properties"]["vars"] == settings
+    assert group["properties"]["hosts"]["additionalProperties"] == settings
+    assert group["properties"]["children"]["additionalProperties"] == {"$ref": "#/definitions/group"}
+    assert SCHEMA["additionalProperties"] == {"$ref": "#/definitions/group"}
+    for document in ({"robots": {"hosts": {"r1": {"ssh_port": "22"}}}}, {"all": {"vars": {"ssh_port": "22"}}},
+                     {"robots": {"children": {"east": {"hosts": {"r1": {"ssh_port": "22"}}}}}}):
+        assert schema_refuses(document) and not SETTINGS.is_valid({"ssh_port": "22"}), document
+
+
 @pytest.mark.parametrize("setting", sorted(roster.registry().settings))
 def test_each_setting_gets_the_same_verdict_from_the_schema_and_the_run(setting):
     check = roster.registry().settings[setting].check
@@ -58,8 +72,7 @@ def test_each_setting_gets_the_same_verdict_from_the_schema_and_the_run(setting)
         for place, placed in test_hostile_values.places(setting, value):
             if not json_only(placed):
                 continue
-            document = {"robots": {"hosts": {"r1": {setting: placed}}}}
-            if bool(check(placed)) != schema_refuses(document):
+            if bool(check(placed)) == SETTINGS.is_valid({setting: placed}):
                 disagree.append((place, placed, check(placed)))
     assert disagree == []
 

@@ -10,6 +10,7 @@ import yaml
 from robotfleet import roster
 from robotfleet.commands import status
 from roles.payload import compose, presets, problems, project, services
+from tests.fixtures import robot_fleet as host_with
 from tests.unit import harness as fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan
 
@@ -156,10 +157,6 @@ def test_ros2_preset_with_a_dds_profile(tmp_path, monkeypatch, profile, env):
 def test_ros2_preset_keeps_a_service_s_own_ipc():
     doc = rendered({"payload_services": {"a": {"image": f"{REG}/a:1", "ipc": "shareable"}}, "ros_preset": "ros2"})
     assert doc["services"]["a"]["ipc"] == "shareable"
-
-
-def host_with(**settings) -> dict:
-    return {"robots": {"hosts": {"robot3": {"address": "10.0.0.3", **settings}}}}
 
 
 @pytest.mark.parametrize("service, line", [

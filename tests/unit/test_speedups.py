@@ -1,16 +1,22 @@
-"""robotfleet/speedups.py answers as pyinfra's own functions do."""
+"""robotfleet/speedups.py answers as pyinfra's own functions do, is active
+with the pyinfra this project installs, and steps aside, with one line, on
+a pyinfra whose functions changed."""
 
 from __future__ import annotations
 
+import importlib
+import logging
 import types
 
 import pyinfra
 import pytest
 from pyinfra.api import arguments
+from pyinfra.api import util as pyinfra_util
 
+import robotfleet.play  # noqa: F401 (installs the speedups, as a deploy does)
 from robotfleet import speedups
-from robotfleet.speedups import operation
 
+operation = importlib.import_module("pyinfra.api.operation")  # pyinfra.api.operation is the decorator
 pyinfra_order = speedups._ORIGINAL["order"]
 
 
@@ -44,23 +50,41 @@ def test_global_arguments_are_pyinfras():
     assert speedups.all_global_arguments() == speedups._ORIGINAL["arguments"]()
 
 
-def test_install_replaces_pyinfras(monkeypatch):
+def test_the_speedups_are_active_with_the_pyinfra_this_project_installs():
+    """No digest forced: the functions pyinfra calls are the copies."""
+    assert operation.get_operation_order_from_stack is speedups.operation_order_from_stack
+    assert arguments.all_global_arguments is speedups.all_global_arguments
+    assert speedups.install() == ["order", "arguments"]  # a second install finds them in place
+
+
+@pytest.fixture
+def pyinfras_own(monkeypatch):
+    """pyinfra's functions back where pyinfra calls them, as before any install."""
     monkeypatch.setattr(operation, "get_operation_order_from_stack", pyinfra_order)
     monkeypatch.setattr(arguments, "all_global_arguments", speedups._ORIGINAL["arguments"])
-    for name in ("order", "arguments"):  # as a pyinfra of its own would answer: pretend this one is theirs
-        monkeypatch.setitem(speedups.COPIED_FROM, name, speedups.digest(speedups._ORIGINAL[name]))
+
+
+def test_install_replaces_what_pyinfra_calls(pyinfras_own, caplog):
     assert speedups.install() == ["order", "arguments"]
     assert operation.get_operation_order_from_stack is speedups.operation_order_from_stack
     assert arguments.all_global_arguments is speedups.all_global_arguments
+    assert [r for r in caplog.records if "speedups" in r.getMessage()] == []
 
 
-def test_a_pyinfra_whose_functions_changed_keeps_its_own(monkeypatch):
-    """An operator may install a later pyinfra 3.x: a function it changed is
-    not replaced by a copy of the old one."""
-    monkeypatch.setattr(operation, "get_operation_order_from_stack", pyinfra_order)
-    monkeypatch.setattr(arguments, "all_global_arguments", speedups._ORIGINAL["arguments"])
-    monkeypatch.setitem(speedups.COPIED_FROM, "order", "0" * 16)
+def test_a_pyinfra_whose_function_changed_keeps_its_own_with_one_line(pyinfras_own, monkeypatch, caplog):
+    """An operator may install a later pyinfra 3.x.  Simulated: the operation
+    module calls a changed function, while pyinfra.api.util still has the
+    old one; the function checked is the one pyinfra calls, so it stays."""
+    def get_operation_order_from_stack(state):  # a later pyinfra's
+        return [state.current_op_file_number]
+
+    monkeypatch.setattr(operation, "get_operation_order_from_stack", get_operation_order_from_stack)
+    assert pyinfra_util.get_operation_order_from_stack is pyinfra_order  # the one the copy was written from
+    caplog.set_level(logging.WARNING, logger="pyinfra")
     assert speedups.install() == ["arguments"]
-    assert operation.get_operation_order_from_stack is pyinfra_order
+    assert operation.get_operation_order_from_stack is get_operation_order_from_stack
     assert arguments.all_global_arguments is speedups.all_global_arguments
-
+    lines = [r.getMessage() for r in caplog.records if "speedups" in r.getMessage()]
+    assert lines == [f"robotfleet: pyinfra {pyinfra.__version__} has another "
+                     "pyinfra.api.operation.get_operation_order_from_stack than robotfleet/speedups.py was written "
+                     "from; pyinfra's own runs (slower, same answers)"]

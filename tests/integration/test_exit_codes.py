@@ -14,8 +14,9 @@ import time
 
 import pytest
 
-from tests.unit import sshserver
-from tests.unit.test_first_contact import PYINFRA, ROOT, client_key, fleet  # noqa: F401 (fixture)
+from tests.fixtures import PYINFRA, ROOT
+from tests.integration import sshserver
+from tests.integration.test_first_contact import fleet
 
 
 @pytest.fixture(autouse=True)

@@ -2,18 +2,20 @@
 when it is built for the robot, else the robot's variant of the image's
 multi-platform index read from its registry, only the layers the robot
 lacks; an image with no variant for the robot is refused with one line.
-A small registry answers here (the lab registry is the e2e tests')."""
+A small registry answers here (the lab registry is the e2e tests'; the
+local image chosen without a registry: tests/unit/test_status_and_push.py)."""
 
 import gzip
 import hashlib
 import http.server
-import importlib
 import io
 import json
 import tarfile
 import threading
 
 import pytest
+
+from tests.unit.test_status_and_push import AMD64_LOCAL
 
 DOCKER_V2 = "application/vnd.docker.distribution.manifest.v2+json"
 OCI_INDEX = "application/vnd.oci.image.index.v1+json"
@@ -95,21 +97,6 @@ def registry():
     threading.Thread(target=server.serve_forever, daemon=True).start()
     yield f"127.0.0.1:{server.server_address[1]}", store, fetched
     server.shutdown()
-
-
-@pytest.fixture
-def push():
-    # Imported when a test runs: the registry client imports ssl (tests/unit/conftest.py).
-    return importlib.import_module("roles.payload.push")
-
-
-AMD64_LOCAL = {"id": "sha256:" + "1" * 64, "platform": {"os": "linux", "architecture": "amd64"}}
-
-
-def test_the_local_image_goes_when_it_is_built_for_the_robot(push):
-    assert push.choose_source("r/p:1", "", "robot1", "amd64", [], None, AMD64_LOCAL)[:2] == ("send", push.write_archive)
-    assert push.choose_source("r/p:1", AMD64_LOCAL["id"], "robot1", "amd64", [], None, AMD64_LOCAL) == (
-        "noop", "r/p:1 is already on the host")
 
 
 def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(push, registry):

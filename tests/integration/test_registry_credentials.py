@@ -22,7 +22,7 @@ import threading
 import pytest
 
 from tests.unit.harness import ROBOT, converged, find, plan
-from tests.unit.test_push_platforms import Store
+from tests.integration.test_push_platforms import Store
 
 USER, PASSWORD = "robot", "s3cret-primary"
 BASIC = "Basic " + base64.b64encode(f"{USER}:{PASSWORD}".encode()).decode()

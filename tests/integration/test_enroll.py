@@ -13,15 +13,14 @@ import pytest
 
 from robotfleet import hostkeys
 from robotfleet.commands import enroll
-from tests.unit import sshserver
-from tests.unit.test_first_contact import ROOT, connect, fleet
+from tests.fixtures import ROOT
+from tests.integration import sshserver
+from tests.integration.test_first_contact import connect, fleet
 
 
 @pytest.fixture
-def servers(tmp_path):
-    client = paramiko.ECDSAKey.generate()
-    client.write_private_key_file(str(tmp_path / "id_fleet"))
-    started = [sshserver.ssh_server(client), sshserver.ssh_server(client)]
+def servers(client_key):
+    started = [sshserver.ssh_server(client_key), sshserver.ssh_server(client_key)]
     yield started
     for server in started:
         server.close()

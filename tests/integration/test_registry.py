@@ -1,7 +1,8 @@
 """The registry client push delivery reads multi-platform images with
-(roles/payload/registry.py): which registries get plain HTTP, repository
-paths, and the token handshake registries such as Docker Hub ask for (no
-registry with token auth runs in the lab: a small server here plays it)."""
+(roles/payload/registry.py) talking to a registry: the token handshake
+registries such as Docker Hub ask for (no registry with token auth runs in
+the lab: a small server here plays it), and a registry that is not there.
+Its pure rules are in tests/unit/test_registry_rules.py."""
 
 import hashlib
 import http.server
@@ -16,33 +17,9 @@ import pytest
 @pytest.fixture(autouse=True)
 def _registry():
     # Imported when a test runs: urllib imports ssl, which pyinfra's gevent
-    # must patch first where both share a process (tests/unit/conftest.py).
+    # must patch first where both share a process (tests/conftest.py).
     global registry
     registry = importlib.import_module("roles.payload.registry")
-
-
-def test_plain_http_only_for_this_machine_or_a_registry_the_fleet_lists_insecure():
-    assert registry.base_url("127.0.0.1:25000") == "http://127.0.0.1:25000"
-    assert registry.base_url("localhost:5000") == "http://localhost:5000"
-    assert registry.base_url("[::1]:5000") == "http://[::1]:5000"
-    assert registry.base_url("lab-services:5000", ["lab-services:5000"]) == "http://lab-services:5000"
-    assert registry.base_url("lab-services:5000") == "https://lab-services:5000"
-    assert registry.base_url("registry.example.com") == "https://registry.example.com"
-    assert registry.base_url("docker.io") == "https://registry-1.docker.io"
-
-
-def test_repository_paths_on_their_registry():
-    assert registry.path_of("reg.lan:5000/ros/payload") == "ros/payload"
-    assert registry.path_of("ros/payload") == "ros/payload"
-    assert registry.path_of("ubuntu") == "library/ubuntu"
-    assert registry.path_of("docker.io/ubuntu") == "library/ubuntu"
-
-
-def test_a_bearer_challenge_is_read():
-    assert registry.challenge('Bearer realm="https://auth.docker.io/token",service="registry.docker.io",'
-                              'scope="repository:library/ubuntu:pull"') == (
-        "bearer", {"realm": "https://auth.docker.io/token", "service": "registry.docker.io",
-                   "scope": "repository:library/ubuntu:pull"})
 
 
 MANIFEST = json.dumps({"schemaVersion": 2, "mediaType": "application/vnd.oci.image.index.v1+json",

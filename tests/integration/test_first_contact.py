@@ -1,7 +1,7 @@
 """First contact (issue 18, items 1 and 3): each host that cannot be reached
 gives one line with the reason in words, within the connect timeout, and is
 tried again only when trying again can help.  Real servers on 127.0.0.1
-(tests/unit/sshserver.py): an SSH server, a listener that never speaks, a
+(tests/integration/sshserver.py): an SSH server, a listener that never speaks, a
 closed port; connections go through the inventory and pyinfra's API, as
 the CLI, status and rollout make them."""
 
@@ -13,7 +13,6 @@ import time
 from pathlib import Path
 
 import paramiko
-import pytest
 from pyinfra.api import Config, State
 from pyinfra.api.exceptions import ConnectError
 from pyinfra.context import ctx_state
@@ -21,18 +20,8 @@ from pyinfra_cli.inventory import make_inventory
 
 from robotfleet import hostkeys
 from robotfleet.fleet import loader
-from tests.unit import sshserver
-
-ROOT = Path(__file__).resolve().parents[2]
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
-
-
-@pytest.fixture
-def client_key(tmp_path):
-    key = paramiko.ECDSAKey.generate()
-    key.write_private_key_file(str(tmp_path / "id_fleet"))
-    return key
-
+from tests.fixtures import PYINFRA, ROOT
+from tests.integration import sshserver
 
 def fleet(tmp_path, hosts: dict, **common) -> Path:
     path = tmp_path / "fleet.yaml"

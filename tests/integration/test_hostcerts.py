@@ -13,8 +13,8 @@ import paramiko
 import pytest
 
 from robotfleet import hostcerts, hostkeys
-from tests.unit import sshserver
-from tests.unit.test_first_contact import client_key, connect, fleet  # noqa: F401 (client_key: a fixture)
+from tests.integration import sshserver
+from tests.integration.test_first_contact import connect, fleet
 
 
 def line(names: str, key, marker: str = "") -> str:

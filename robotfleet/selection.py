@@ -1,7 +1,7 @@
-"""What the operator commands share: the exit codes, and an inventory's
-hosts selected by --limit, where a pattern that matches nothing is refused
-(pyinfra warns "No host matches found" and exits 0 having done nothing).
-The exit codes are README's table ("Exit codes").
+"""What the operator commands and the inventory files share: the exit
+codes, and an inventory's hosts selected by --limit, where a pattern that
+matches nothing is refused (pyinfra warns "No host matches found" and exits
+0 having done nothing).  The exit codes are README's table ("Exit codes").
 """
 
 from __future__ import annotations

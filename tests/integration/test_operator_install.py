@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.fixtures import ROOT
+
 NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache")
 
 RENDER = """
