@@ -9,8 +9,11 @@ import json
 
 import pytest
 import yaml
+from pyinfra_cli.util import parse_cli_arg
 
-from roles.payload import compose, digests, pins as publish_pins
+from robotfleet import roster
+from robotfleet.commands import rollout
+from roles.payload import compose, digests, pins as publish_pins, report
 from tests.fixtures import robot_fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, find, fleet_problems, merged, plan
 
@@ -139,3 +142,21 @@ def test_a_converged_host_with_the_same_pins_plans_nothing_and_a_new_digest_rele
     spec = json.loads(commands[0].stdin)["spec"]
     assert spec["compose"]["services"]["payload"]["image"] == f"{PAYLOAD}@{B}" and spec["delivery"] == "pull"
 
+
+def test_the_agent_s_json_text_reaches_the_setting_as_pyinfra_reads_it():
+    """pyinfra's --data turns JSON text into a mapping (parse_cli_arg);
+    the rollout command reads its --data the same way, so what a wave
+    waits for is the image as it runs (payloadctl records it by that ref)."""
+    text = json.dumps({PAYLOAD: A})
+    data = merged("robots", {**ROBOT, "payload_image": PAYLOAD, "payload_image_pins": parse_cli_arg(text)})
+    assert roster.registry().data_problems(data) == []
+    assert images_of(rendered(data)) == {"payload": f"{PAYLOAD}@{A}"}
+    overrides = rollout.read_overrides([f"payload_image_pins={text}", "payload_force=true", "x"])
+    assert overrides == {"payload_image_pins": {PAYLOAD: A}, "payload_force": True}
+    target = rollout.targets_of(roster.roles(), dict(merged("robots", {**ROBOT, "payload_image": PAYLOAD})),
+                                overrides)
+    assert target["payload"] == [f"{PAYLOAD}@{A}"]
+    row = {"reachable": True, "image_refs": [f"{PAYLOAD}@{A}"], "release_state": "active",
+           "state": "running", "health": "healthy"}
+    assert report.missing(row, target["payload"]) is None
+    assert report.missing({**row, "image_refs": [PAYLOAD]}, target["payload"]).startswith(f"runs {PAYLOAD}, not ")
