@@ -57,6 +57,15 @@ class _WithOverrides(dict):
     __getattr__ = dict.get
 
 
+def read_overrides(pairs: list[str]) -> dict:
+    """--data key=value pairs as pyinfra reads them (true/false, integers and
+    JSON text become values: a mapping such as payload_image_pins arrives as
+    a mapping), so the targets are what the deploy will see."""
+    from pyinfra_cli.util import parse_cli_arg
+
+    return {key: parse_cli_arg(value) for key, _, value in (pair.partition("=") for pair in pairs if "=" in pair)}
+
+
 def targets_of(roles, data, overrides: dict) -> dict:
     """What the rollout waits for on a host: each role's target."""
     view = _WithOverrides(data, overrides)
@@ -184,7 +193,7 @@ def main(argv=None) -> int:
             return 2
     extra = [arg for pair in args.data for arg in ("--data", pair)]
     extra += ["--parallel", str(args.parallel)] if args.parallel else []
-    overrides = dict(pair.split("=", 1) for pair in args.data if "=" in pair)
+    overrides = read_overrides(args.data)
 
     try:
         hosts = selected_hosts(args.inventory, args.limit)

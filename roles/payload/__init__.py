@@ -14,7 +14,8 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 - robot.py, payloadctl/ (the robot-side program), payload.service.j2: what runs
   on the robot;
 - report.py: its columns in status, what a rollout waits for; pins.py: the
-  image digests a pull release binds (robotfleet publish).
+  image digests a pull release binds (robotfleet publish); digests.py: those
+  digests applied when the robot runs the release (payload_image_pins).
 """
 
 from robotfleet.role import Role

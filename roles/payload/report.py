@@ -9,7 +9,7 @@ import shlex
 
 from robotfleet.checks import one_line
 from robotfleet.role import RolloutPart, StatusPart
-import roles.payload.services as services
+import roles.payload.digests as digests
 from roles.payload.robot import HELPER
 
 
@@ -78,8 +78,9 @@ def per_service(states: dict) -> dict:
 
 
 def target(data) -> list[str]:
-    """What a rollout waits for: every image of the host's compose project."""
-    return sorted(services.images(data))
+    """What a rollout waits for: every image of the host's compose project,
+    as it runs (by a release's digest where it is given pins)."""
+    return sorted(digests.images(data))
 
 
 def missing(row: dict, wanted: list[str]) -> str | None:
