@@ -1,6 +1,7 @@
 """What a push deploy sends a pull robot so that its agent can run: the
 deploy tree of this checkout (as the operator runs it: the working tree's
-tracked files) and the wheels of the agent's venv for the robot's platform.
+tracked files), the wheels of the current release for the robot's platform
+(the venv its releases run in) and the release repository's root.json.
 
 Both are identified by content: the tree by robotfleet/pull/tree.py's hash
 (a release names its code the same way), the wheel set by
@@ -20,7 +21,11 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from robotfleet.pull import layout, tree
+from tuf.api.metadata import Metadata, Root
+
+from robotfleet.pull import channel, layout, tree
+from robotfleet.pull import keys as keyfiles
+from robotfleet.pull.repository import Repository, RepositoryError
 
 _SKIPPED_PARTS = ("__pycache__",)
 _SKIPPED_SUFFIXES = (".pyc", ".pyo")
@@ -98,31 +103,77 @@ def code_archive(checkout: Path) -> tuple[str, str]:
     return tree.tree_sha256(entries), path
 
 
-def wheels(wheelhouse: Path, platform: str) -> list[Path]:
-    """The wheels of ``platform`` (cp313-x86_64) in ``wheelhouse``."""
-    found = sorted((wheelhouse / platform).glob("*.whl"))
-    if not found:
-        raise InstallError(f"{wheelhouse / platform}: no wheels for the robot's platform {platform}; "
-                           f"build them with robotfleet wheelhouse (docs/pull.md)")
+def releases_clone(checkout: Path) -> Path:
+    """Where robotfleet publish keeps its copy of the release repository."""
+    return Path(os.environ.get(channel.CLONE_ENV) or checkout / ".robotfleet" / "releases")
+
+
+def trust_root(checkout: Path, setting: str | None) -> bytes:
+    """The root.json a push deploy gives a robot: the file the setting names,
+    else the published repository's; it must be a TUF root signed by its own
+    root keys, one of which is the operator's root.pub where the key
+    directory has it.  InstallError (one line) otherwise."""
+    path = checkout / setting if setting else releases_clone(checkout) / "metadata" / "root.json"
+    try:
+        data = path.read_bytes()
+    except OSError:
+        raise InstallError(f"pull_trust_root: {path} cannot be read; publish a first release "
+                           "(robotfleet keys init; robotfleet publish), docs/pull.md") from None
+    try:
+        md = Metadata[Root].from_bytes(data)
+        md.signed.verify_delegate(Root.type, md.signed_bytes, md.signatures)
+    except Exception as error:  # noqa: BLE001 - every way a root can be bad is one refusal
+        raise InstallError(f"pull_trust_root: {path} is not a TUF root signed by its own keys "
+                           f"({str(error).splitlines()[0] if str(error) else type(error).__name__})") from None
+    known = _operator_root_keys()
+    if known and not known & set(md.signed.roles[Root.type].keyids):
+        raise InstallError(f"pull_trust_root: {path} is signed by none of the root keys in "
+                           f"{keyfiles.default_dir()} (root.pub): not this operator's repository")
+    return data
+
+
+def _operator_root_keys() -> set[str]:
+    found = set()
+    for name in (keyfiles.ROOT, "root.next"):
+        try:
+            found.add(keyfiles.KeyDir().public(name).keyid)
+        except (keyfiles.KeyProblem, OSError):
+            continue
     return found
 
 
 @functools.lru_cache(maxsize=16)
-def wheel_set(wheelhouse: Path, platform: str) -> tuple[str, tuple[Path, ...]]:
-    """(the venv id, the wheel files) for ``platform``."""
-    files = tuple(wheels(wheelhouse, platform))
-    return layout.venv_id((f.name, hashlib.sha256(f.read_bytes()).hexdigest()) for f in files), files
+def wheel_set(clone: Path, platform: str) -> tuple[str, tuple[tuple[str, Path], ...]]:
+    """(the venv id, ((wheel name, its file), ...)) of ``platform`` in the
+    latest release of the repository in ``clone``: a push deploy gives a
+    robot the venv its releases run in."""
+    repository = Repository(clone)
+    try:
+        record = repository.record() if repository.exists() else None
+        if record is None:
+            raise InstallError(f"{clone}: no release published yet; the agent runs in the venv of the "
+                               "current release (robotfleet publish first)")
+        paths = record.wheels_for(platform)
+        if not paths:
+            raise InstallError(f"release {record.version} carries no wheels for {platform} (pull_platform); "
+                               f"publish again (robotfleet publish --platform {platform})")
+        targets = repository.targets().signed.targets
+        files = tuple((path.rsplit("/", 1)[-1], repository.blob(path)) for path in paths)
+    except RepositoryError as error:
+        raise InstallError(str(error)) from None
+    venv = layout.venv_id((name, targets[path].hashes["sha256"]) for (name, _), path in zip(files, paths))
+    return venv, files
 
 
 @functools.lru_cache(maxsize=16)
-def wheels_archive(files: tuple[Path, ...]) -> str:
-    """A tar of ``files`` (flat) on this machine."""
+def wheels_archive(files: tuple[tuple[str, Path], ...]) -> str:
+    """A tar of the wheels (flat, under their names) on this machine."""
     fd, path = tempfile.mkstemp(prefix="robotfleet-wheels-", suffix=".tar")
     with os.fdopen(fd, "wb") as raw, tarfile.open(fileobj=raw, mode="w") as archive:
-        for wheel in files:
-            info = tarfile.TarInfo(wheel.name)
-            info.size, info.mode, info.mtime = wheel.stat().st_size, 0o644, 0
-            with open(wheel, "rb") as content:
+        for name, stored in files:
+            info = tarfile.TarInfo(name)
+            info.size, info.mode, info.mtime = stored.stat().st_size, 0o644, 0
+            with open(stored, "rb") as content:
                 archive.addfile(info, content)
     return path
 

@@ -46,14 +46,6 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.probes[PYTHON_PROBE] = plan.PYTHON_PROBE
 
 
-def _trust_root(data) -> bytes | None:
-    path = CHECKOUT / data.pull_trust_root
-    try:
-        return path.read_bytes()
-    except OSError:
-        return None
-
-
 def robot_name(data) -> str:
     """The robot's name in the fleet (its report's, its git user's): the
     host's, or the agent's when it runs the deploy as @local."""
@@ -64,11 +56,10 @@ def robot_name(data) -> str:
 def pull_agent(play: Play):
     data, snap = play.data, play.snapshot
     name = robot_name(data)
-    root = _trust_root(data)
-    if root is None:
-        operations.fail(name="Read the release repository's root.json",
-                        message=f"pull_trust_root: {CHECKOUT / data.pull_trust_root} cannot be read; "
-                                "make the release keys first (robotfleet keys, docs/pull.md)")
+    try:
+        root = install.trust_root(CHECKOUT, data.pull_trust_root)
+    except install.InstallError as error:
+        operations.fail(name="Read the release repository's root.json", message=str(error))
         return
     apt.apt_install(name="Install git and python3-venv for the pull agent", packages=list(plan.PACKAGES),
                     installed=snap.packages)
@@ -102,13 +93,15 @@ def pull_agent(play: Play):
 
 def _install_venv_and_code(data, snap) -> None:
     platform = plan.platform(snap.probes.get(PYTHON_PROBE, ""), snap.os_release, snap.arch)
-    if platform is None:
-        operations.fail(name="Know the robot's python and architecture",
-                        message=f"pull: no wheels for this robot's python and architecture ({snap.arch or 'unknown'})")
+    if platform != data.pull_platform:
+        operations.fail(name="Check pull_platform against the robot",
+                        message=f"pull_platform: {data.pull_platform}, but this robot runs "
+                                f"{platform or 'a python or machine without wheels'}; its releases carry the "
+                                f"wheels of pull_platform" + (f" (set pull_platform: {platform})" if platform else ""))
         return
     installed = install.read_probe(snap.probes.get(INSTALLED_PROBE, ""))
     try:
-        venv, files = install.wheel_set(CHECKOUT / data.pull_wheelhouse, platform)
+        venv, files = install.wheel_set(install.releases_clone(CHECKOUT), platform)
         code, archive = install.code_archive(CHECKOUT)
     except install.InstallError as error:
         operations.fail(name="Find what the pull agent runs", message=f"pull: {error}")

@@ -1,5 +1,5 @@
-"""The pull role's settings: which hosts converge themselves, where they
-fetch releases, how often, and when they may apply them."""
+"""The pull role's settings: where a pull host (the engine's ``pull``
+setting) fetches releases, how often, and when it may apply them."""
 
 from __future__ import annotations
 
@@ -51,8 +51,6 @@ def window(value):
 c.with_schema(window, _WINDOW_CHECK.schema)
 
 SETTINGS = (
-    Setting("pull", False, c.boolean,
-            "This host converges itself from signed releases (pull mode, docs/pull.md): the role installs its agent."),
     Setting("pull_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
             "The fleet remote the agent fetches releases from and pushes its reports to (required with pull)."),
     Setting("pull_remote_host_keys", [], c.list_of(c.string(HOST_KEY, HOST_KEY_WHAT), unique=True),
@@ -71,10 +69,9 @@ SETTINGS = (
             "status marks a pull robot's report stale when it is older than this many intervals (plus the jitter)."),
     Setting("pull_fetch_timeout", 300, c.integer(5, 86400),
             "Seconds one fetch from the fleet remote may take."),
-    Setting("pull_wheelhouse", "pull/wheelhouse", v.local_path,
-            "The agent's wheels on this machine, one directory a platform (cp313-x86_64/), relative to the checkout."),
-    Setting("pull_trust_root", "pull/root.json", v.local_path,
-            "The release repository's root.json (on this machine, relative to the checkout): the robot's first trust."),
+    Setting("pull_trust_root", None, c.optional(v.local_path),
+            "The release repository's root.json on this machine, the robot's first trust (relative to the checkout); "
+            "null: the one robotfleet publish keeps (.robotfleet/releases/metadata/root.json)."),
 )
 
 

@@ -14,22 +14,49 @@ from robotfleet.pull import install, layout
 import roles.pull as pull_role
 import roles.pull.plan as plan
 from tests.unit.harness import ROBOT, converged, find, fleet_problems, fresh_host, merged, plan as run_plan
+from tests.unit import pullkit
 from tests.unit.harness import written_files
+from tests.unit.pullkit import NOW
 
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
-ROOT_JSON = b'{"signed": {"_type": "root"}, "signatures": []}\n'
+WHEEL = "gevent-25.5-cp313-cp313-manylinux_2_28_x86_64.whl"
+ARM_WHEEL = "gevent-25.5-cp311-cp311-manylinux_2_28_aarch64.whl"
+
+
+def publish_with_wheels(fleet, version: int, wheels: dict[str, dict[str, bytes]]):
+    """Release ``version`` carrying ``wheels`` (platform -> file name -> content)."""
+    record, waves = pullkit.module("record"), pullkit.module("waves")
+    files, listed = {}, {}
+    for platform, named in wheels.items():
+        listed[platform] = []
+        for name, content in named.items():
+            local = fleet.base / f"{platform}-{name}"
+            local.write_bytes(content)
+            files[f"wheels/{name}"] = local
+            listed[platform].append(f"wheels/{name}")
+    built = record.build(version, NOW, NOW + fleet.expiry.targets, "a" * 40, "b" * 64, "inventories/robots.yaml",
+                         "c" * 64, ["r1"], {}, listed, waves.Plan())
+    code = fleet.base / f"code-{version}.tar.gz"
+    code.write_bytes(b"code")
+    fleet.repository.publish(built, {built.code: code, **files}, fleet.keys.signer("online"), fleet.expiry, NOW)
+    install.wheel_set.cache_clear()
 
 
 @pytest.fixture
-def pulled(tmp_path):
-    """Robot data in pull mode, with a trust root and a wheelhouse on this machine."""
-    (tmp_path / "root.json").write_bytes(ROOT_JSON)
-    for platform in ("cp313-x86_64", "cp311-aarch64"):
-        (tmp_path / "wheels" / platform).mkdir(parents=True)
-        (tmp_path / "wheels" / platform / f"pyinfra-3.10-py3-none-any.whl").write_bytes(platform.encode())
-    install.wheel_set.cache_clear()
+def released(tmp_path, monkeypatch):
+    """The operator's keys and release repository (as robotfleet publish leaves them), release 1 with wheels."""
+    fleet = pullkit.Fleet(tmp_path)
+    publish_with_wheels(fleet, 1, {"cp313-x86_64": {WHEEL: b"cp313-x86_64"},
+                                   "cp311-aarch64": {ARM_WHEEL: b"cp311-aarch64"}})
+    monkeypatch.setenv("ROBOTFLEET_RELEASES_CLONE", str(fleet.repository.path))
+    monkeypatch.setenv("ROBOTFLEET_KEYS", str(tmp_path / "keys"))
+    return fleet
+
+
+@pytest.fixture
+def pulled(released):
+    """Robot data in pull mode."""
     return {**ROBOT, "pull": True, "pull_remote": "ssh://gitolite3@git.lan/fleet", "pull_remote_host_keys": [KEY],
-            "pull_trust_root": str(tmp_path / "root.json"), "pull_wheelhouse": str(tmp_path / "wheels"),
             "pull_interval": 60, "pull_jitter": 5}
 
 
@@ -97,14 +124,14 @@ def test_agent_configuration_and_units(pulled):
     assert plan.known_hosts(data) == f"{plan.KNOWN_HOSTS_ALIAS} {KEY}\n"
 
 
-def test_a_fresh_robot_gets_the_agent(pulled):
+def test_a_fresh_robot_gets_the_agent(pulled, released):
     result = run_plan({"r1": ("robots", pulled, fresh_host("debian-13"))})
     commands = result["r1"]
     assert result.failed == set()
     assert find(commands, r"install python3-venv git openssh-client")
     files = written_files(commands)
     assert json.loads(files[layout.CONFIG])["robot"] == "@fake/r1"
-    assert files[layout.TRUST_ROOT] == ROOT_JSON.decode()
+    assert files[layout.TRUST_ROOT] == (released.repository.metadata / "root.json").read_text()
     assert files[f"{layout.UNIT_DIR}/{layout.TIMER}"] == plan.timer_unit(merged("robots", pulled))
     for path in (layout.CONFIG, layout.TRUST_ROOT):
         assert "chmod 600" in find(commands, f"dest={path}\n")[0]
@@ -114,8 +141,8 @@ def test_a_fresh_robot_gets_the_agent(pulled):
     venv = find(commands, "python3 -m venv")
     assert len(venv) == 1
     sent = tarfile.open(fileobj=io.BytesIO(base64.b64decode(venv[0].stdin)))
-    assert sent.getnames() == ["pyinfra-3.10-py3-none-any.whl"]
-    assert sent.extractfile("pyinfra-3.10-py3-none-any.whl").read() == b"cp313-x86_64"
+    assert sent.getnames() == [WHEEL]
+    assert sent.extractfile(WHEEL).read() == b"cp313-x86_64"
     code = find(commands, r"tar -xz -C")
     assert len(code) == 1
     tree = tarfile.open(fileobj=io.BytesIO(base64.b64decode(code[0].stdin)))
@@ -127,16 +154,23 @@ def test_a_fresh_robot_gets_the_agent(pulled):
 def test_an_arm64_robot_gets_its_own_wheels(pulled):
     snap = fresh_host("debian-12", arch="arm64")
     snap.probes[pull_role.PYTHON_PROBE] = "311\n"
-    commands = run_plan({"r1": ("robots", pulled, snap)})["r1"]
+    commands = run_plan({"r1": ("robots", {**pulled, "pull_platform": "cp311-aarch64"}, snap)})["r1"]
     sent = tarfile.open(fileobj=io.BytesIO(base64.b64decode(find(commands, "python3 -m venv")[0].stdin)))
     assert sent.extractfile(sent.getnames()[0]).read() == b"cp311-aarch64"
 
 
-def test_a_platform_without_wheels_is_refused_in_one_line(pulled):
-    snap = fresh_host("ubuntu-22.04")
-    result = run_plan({"r1": ("robots", pulled, snap)})
+def test_a_robot_that_is_not_its_pull_platform_is_refused_in_one_line(pulled):
+    result = run_plan({"r1": ("robots", pulled, fresh_host("ubuntu-22.04"))})
     assert result.failed == {"r1"}
-    assert find(result["r1"], "no wheels for the robot.*platform cp310-x86_64")
+    assert find(result["r1"], "pull_platform: cp313-x86_64, but this robot runs cp310-x86_64; .*"
+                              "set pull_platform: cp310-x86_64")
+
+
+def test_a_platform_the_release_carries_no_wheels_for_is_refused_in_one_line(pulled):
+    snap = fresh_host("ubuntu-22.04")
+    result = run_plan({"r1": ("robots", {**pulled, "pull_platform": "cp310-x86_64"}, snap)})
+    assert result.failed == {"r1"}
+    assert find(result["r1"], "release 1 carries no wheels for cp310-x86_64")
 
 
 def test_converged_robot_plans_nothing(pulled):
@@ -146,10 +180,9 @@ def test_converged_robot_plans_nothing(pulled):
     assert result["r1"] == []
 
 
-def test_new_wheels_make_a_new_venv_and_nothing_else(pulled, tmp_path):
+def test_the_wheels_of_a_new_release_make_a_new_venv_and_nothing_else(pulled, released):
     snap = converged("robots", pulled, "debian-13")
-    (tmp_path / "wheels" / "cp313-x86_64" / "jinja2-3.1-py3-none-any.whl").write_bytes(b"j")
-    install.wheel_set.cache_clear()
+    publish_with_wheels(released, 2, {"cp313-x86_64": {WHEEL: b"cp313-x86_64", "jinja2-3.1-py3-none-any.whl": b"j"}})
     commands = run_plan({"r1": ("robots", pulled, snap)})["r1"]
     assert len(commands) == 1 and "python3 -m venv" in commands[0]
 
@@ -175,6 +208,17 @@ def test_a_missing_trust_root_fails_the_host_naming_the_file(pulled, tmp_path):
                               fresh_host("debian-13"))})
     assert result.failed == {"r1"}
     assert find(result["r1"], "pull_trust_root: .*nope.json cannot be read")
+
+
+def test_a_trust_root_that_is_not_the_operator_s_is_refused(pulled, tmp_path):
+    other = pullkit.Fleet(tmp_path / "other")
+    theirs = str(other.repository.metadata / "root.json")
+    result = run_plan({"r1": ("robots", {**pulled, "pull_trust_root": theirs}, fresh_host("debian-13"))})
+    assert result.failed == {"r1"}
+    assert find(result["r1"], "signed by none of the root keys in .*keys")
+    pullkit.edit_json(other.repository.metadata / "root.json", lambda d: d["signed"].update(version=5))
+    with pytest.raises(install.InstallError, match="is not a TUF root signed by its own keys"):
+        install.trust_root(tmp_path, theirs)
 
 
 def test_platform_names():
