@@ -11,6 +11,7 @@ status table and the rollout's target.  ARCHITECTURE.md has a worked example.
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -78,10 +79,25 @@ class StatusPart:
 class RolloutPart:
     """What a rollout waits for on each host: ``target(data)`` (JSON data
     naming what the host should run) and ``missing(row, target)``: None once
-    the host's status row shows it, else why not (one line)."""
+    the host's status row shows it, else why not (one line).
+    ``result(row, deployment)``: the role's own structured result of the
+    deploy named ``deployment`` (see ``deployment()``) as the host's status
+    row carries it, ``(ok, why)``; None when the row holds none for it."""
 
     target: Callable[[Any], Any]
     missing: Callable[[dict, Any], str | None]
+    result: Callable[[dict, str], tuple[bool, str] | None] | None = None
+
+
+# A deploy started by robotfleet (a rollout's wave) is named in this
+# environment variable; a role that records results on the host records the
+# name with them, so the results of *this* deploy are told from older ones.
+DEPLOYMENT_ENV = "ROBOTFLEET_DEPLOYMENT"
+
+
+def deployment() -> str | None:
+    """The name of the deploy this run is (None: not named)."""
+    return os.environ.get(DEPLOYMENT_ENV) or None
 
 
 @dataclass(frozen=True)

@@ -88,6 +88,18 @@ payload_services = c.with_schema(
 )
 _env_name = c.string(c.ENV_NAME, "an environment variable name")
 
+
+def lock_token(value):
+    """A token `payloadctl hold` made (64 hex digits); a wrong one is
+    refused without being shown."""
+    if isinstance(value, str) and re.fullmatch(r"[0-9a-f]{32,128}", value):
+        return []
+    return [("", "expected the token payloadctl hold wrote (hex digits); the value is not shown")]
+
+
+c.with_schema(lock_token, {"type": "string", "pattern": "^[0-9a-f]{32,128}$",
+                           "description": "a token payloadctl hold wrote (set by the pull agent, never by hand)"})
+
 SETTINGS = (
     Setting("payload_image", None, c.optional(image), "The ROS payload image, pinned by tag or digest."),
     Setting("payload_allow_latest", False, c.boolean, "Allow the moving tag 'latest'."),
@@ -123,6 +135,8 @@ SETTINGS = (
     Setting("payload_lock_file", "/run/robot-payload/update.lock", v.private_path,
             "While this file exists on the robot, updates are refused unless forced."),
     Setting("payload_force", False, c.boolean, "Update although the update lock is held."),
+    Setting("payload_lock_token", None, c.optional(lock_token),
+            "The apply lock's token of the run this deploy is part of (payloadctl hold); never printed."),
     Setting("payload_registry_username_env", "PAYLOAD_REGISTRY_USERNAME", _env_name,
             "Environment variable (on this machine) holding the registry user; never stored, never printed."),
     Setting("payload_registry_password_env", "PAYLOAD_REGISTRY_PASSWORD", _env_name,

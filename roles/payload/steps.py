@@ -124,7 +124,7 @@ def deploy_payload(play: Play):
 
     project.install_files(data, snap)
     release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))
-    taken_over = project.takeover(data, snap)  # said in the output, done by payloadctl
+    taken_over = project.takeover(data, snap, release.current_record(snap))  # said in the output, done by payloadctl
     needed = release.release_needed(
         release.current_record(snap),
         compose.spec_hash(doc, data.payload_autostart),

@@ -10,8 +10,24 @@ import pytest
 import yaml
 
 from roles.payload import release, robot as payload
-from roles.payload.payloadctl import durable, health, imageref, images, releases as store
+from roles.payload.payloadctl import durable, health, imageref, images, lifecycle, releases as releases_module
 from roles.payload.payloadctl import lock as apply_lock
+
+
+class store:
+    """The release store as these tests set it up: records and pointers
+    written straight to disk (a state payloadctl then finds), read back raw."""
+
+    compose_yaml = staticmethod(releases_module.compose_yaml)
+
+    class Releases(releases_module.Releases):
+        def write_record(self, rid, record):
+            durable.write_json(self.path(rid, "record.json"), record)
+
+        def point(self, name, rid):
+            lifecycle.Life(self)._point(name, rid)
+
+        record = releases_module.Releases.raw_record
 
 
 @pytest.fixture(scope="module")
@@ -33,22 +49,6 @@ def test_pinned_prefers_the_digest_of_the_same_repository():
     info = {"id": "sha256:1", "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
     assert images.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
     assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
-
-
-def test_release_pointers_are_swapped_atomically(tmp_path):
-    releases = store.Releases(str(tmp_path))
-    for rid, created in (("r1", "2026-01-01T00:00:00Z"), ("r2", "2026-01-02T00:00:00Z")):
-        (tmp_path / "releases" / rid).mkdir(parents=True)
-        releases.write_record(rid, {"id": rid, "created": created})
-    assert releases.pointer("current") is None
-    releases.point("current", "r1")
-    releases.point("current", "r2")
-    releases.point("previous", "r1")
-    assert (releases.pointer("current"), releases.pointer("previous")) == ("r2", "r1")
-    assert (tmp_path / "current").resolve() == (tmp_path / "releases" / "r2").resolve()
-    assert releases.all() == ["r1", "r2"]
-    releases.point("previous", None)
-    assert releases.pointer("previous") is None
 
 
 def test_release_compose_is_yaml():
@@ -506,12 +506,12 @@ def test_writes_are_fsynced_file_and_directory_before_they_count(tmp_path, monke
         real_fsync(fd)
 
     monkeypatch.setattr(durable.os, "fsync", fsync)
-    releases = store.Releases(str(tmp_path))
+    life = lifecycle.Life(releases_module.Releases(str(tmp_path)))
     (tmp_path / "releases" / "r1").mkdir(parents=True)
-    releases.write_record("r1", {"id": "r1"})
+    life._write(lifecycle.Record(id="r1"))
     assert synced == [str(tmp_path / "releases" / "r1" / "record.json.tmp"), str(tmp_path / "releases" / "r1")]
     synced.clear()
-    releases.point("current", "r1")
+    life._point("current", "r1")
     assert synced == [str(tmp_path)]
 
 
@@ -593,8 +593,8 @@ def test_a_deploy_waits_for_the_boot_recovery_and_says_so(robot):
         result = robot.result("run-9")
     finally:
         boot.wait(timeout=30)
-    assert f"payload: {socket.gethostname()} is recovering from an interrupted release since 20" in deploy.stdout
-    assert deploy.stdout.rstrip().splitlines()[0].endswith("; waiting")
+    assert f"payload: {socket.gethostname()} is recovering from an interrupted release since 20" in deploy.stderr
+    assert deploy.stderr.rstrip().splitlines()[0].endswith("; waiting")
     assert result.returncode == 0 and "is healthy" in result.stdout
     log = robot.state()["log"]
     boot_up = max(i for i, line in enumerate(log) if "current/compose.yaml up -d --remove-orphans" in line and "--no-start" not in line
@@ -629,7 +629,7 @@ def test_what_an_interrupted_compose_up_left_is_removed_before_the_next(robot):
     robot.save(state)
     boot = robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     assert boot.returncode == 0, boot.stdout + boot.stderr
-    assert "removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, robot-payload-payload-1" in boot.stdout
+    assert "removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, robot-payload-payload-1" in boot.stderr
     assert list(robot.state()["containers"]) == ["robot-payload-payload-1"]
     assert robot.state()["containers"]["robot-payload-payload-1"]["running"] is True
 
