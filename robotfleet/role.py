@@ -114,6 +114,20 @@ class PinPart:
     setting: str
 
 
+@dataclass(frozen=True)
+class HoldPart:
+    """How the pull agent holds a role's own lock on the robot for a whole
+    converge run (robotfleet/pull/converge.py): ``command(data,
+    token_file)``, the argv that holds it while the command after it runs,
+    writing a token to ``token_file`` first ([] when the role has nothing
+    on the robot to hold yet); ``setting``, the role's setting through
+    which the deploy hands the token to what takes the lock, so the run's
+    own steps join it instead of waiting for it."""
+
+    command: Callable[[Any, str], list[str]]
+    setting: str
+
+
 def _always(data) -> bool:
     return True
 
@@ -138,7 +152,8 @@ class Role:
       a problem, which a rule does not look at again;
     - ``adds``: hook -> what this role adds there (see ``Play.added``);
     - ``status``, ``rollout``, ``pins``: its parts in ``robotfleet status``,
-      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart)."""
+      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart);
+    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart)."""
 
     name: str
     doc: str
@@ -151,6 +166,7 @@ class Role:
     status: StatusPart | None = None
     rollout: RolloutPart | None = None
     pins: PinPart | None = None
+    hold: HoldPart | None = None
 
 
 def cards(listed) -> tuple[Role, ...]:

@@ -29,6 +29,9 @@ TIMER = "robot-pull.timer"
 UNIT_DIR = "/etc/systemd/system"
 BRANCH = "robotfleet/releases"
 FORMAT = 1
+# The host data key the agent's converge run sets ({"robot", "version",
+# "release"}): the run is the agent's, on the robot itself.
+AGENT_RUN = "pull_agent_run"
 
 _ROBOT = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,252}\Z")
 

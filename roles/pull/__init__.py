@@ -29,7 +29,7 @@ import roles.pull.settings as settings
 INSTALLED_PROBE = "pull_installed"
 PYTHON_PROBE = "pull_python"
 # Set in a host's data by the agent when it runs the deploy itself.
-AGENT_RUN = "pull_agent_run"
+AGENT_RUN = layout.AGENT_RUN
 FILES = (layout.CONFIG, layout.TRUST_ROOT, layout.KNOWN_HOSTS, layout.KEY, f"{layout.KEY}.pub",
          f"{layout.UNIT_DIR}/{layout.SERVICE}", f"{layout.UNIT_DIR}/{layout.TIMER}")
 
@@ -56,11 +56,13 @@ def robot_name(data) -> str:
 def pull_agent(play: Play):
     data, snap = play.data, play.snapshot
     name = robot_name(data)
-    try:
-        root = install.trust_root(CHECKOUT, data.pull_trust_root)
-    except install.InstallError as error:
-        operations.fail(name="Read the release repository's root.json", message=str(error))
-        return
+    agent_run = bool(data.get(AGENT_RUN))
+    if not agent_run:  # the agent's own run: the robot already trusts, and follows root changes itself
+        try:
+            root = install.trust_root(CHECKOUT, data.pull_trust_root)
+        except install.InstallError as error:
+            operations.fail(name="Read the release repository's root.json", message=str(error))
+            return
     apt.apt_install(name="Install git and python3-venv for the pull agent", packages=list(plan.PACKAGES),
                     installed=snap.packages)
     for path in (layout.ETC, layout.STATE):
@@ -69,14 +71,15 @@ def pull_agent(play: Play):
     operations.file(name="Write the pull agent's configuration", path=layout.CONFIG,
                     content=plan.config(data, name).to_json(), current=snap.files.get(layout.CONFIG),
                     mode="0600")
-    operations.file(name="Write the release repository's root.json (the agent's first trust)",
-                    path=layout.TRUST_ROOT, content=root, current=snap.files.get(layout.TRUST_ROOT), mode="0600")
+    if not agent_run:
+        operations.file(name="Write the release repository's root.json (the agent's first trust)",
+                        path=layout.TRUST_ROOT, content=root, current=snap.files.get(layout.TRUST_ROOT), mode="0600")
     operations.file(name="Write the fleet remote's host keys", path=layout.KNOWN_HOSTS,
                     content=plan.known_hosts(data), current=snap.files.get(layout.KNOWN_HOSTS))
     if snap.files.get(layout.KEY) is None or snap.files.get(f"{layout.KEY}.pub") is None:
         operations.run(name="Make the robot's own key for the fleet remote (it never leaves the robot)",
                        script=plan.keygen_script(name))
-    if not data.get(AGENT_RUN):
+    if not agent_run:
         _install_venv_and_code(data, snap)
     units = [
         operations.file(name=f"Write {layout.SERVICE}", path=f"{layout.UNIT_DIR}/{layout.SERVICE}",
