@@ -97,6 +97,7 @@ class Operator:
             self.repo.mkdir(parents=True, exist_ok=True)
             self._git("init", "-q", "-b", "main")
             self._git("remote", "add", "origin", gitserver.local_url(self.git))
+            (self.repo / ".lab").symlink_to(REPO_ROOT / ".lab")  # inventories/lab.py reads the running lab there
         if not (self.keys / "online.key").exists():
             self.robotfleet("keys", "init", "--keys", str(self.keys))
 
@@ -125,6 +126,17 @@ class Operator:
             raise LabError(f"robotfleet {' '.join(args[:2])} exited {done.returncode}: "
                            f"{(done.stderr or done.stdout).strip()[-800:]}")
         return done
+
+    def rollout(self, fleet: str, message: str, *options: str) -> subprocess.CompletedProcess:
+        """robotfleet rollout over the lab's pull robots (publish, then follow their reports)."""
+        self.commit(fleet, message)
+        env = self.env(ROBOT_LAB_FLEET=str(self.repo / FLEET))
+        return self.robotfleet("rollout", "inventories/lab.py", "--fleet", FLEET, "--keys", str(self.keys), "-y",
+                               *options, check=False, env=env)
+
+    def status(self, *options: str) -> subprocess.CompletedProcess:
+        env = self.env(ROBOT_LAB_FLEET=str(self.repo / FLEET))
+        return self.robotfleet("status", "inventories/lab.py", *options, check=False, env=env)
 
     def publish(self, fleet: str, message: str, *options: str) -> subprocess.CompletedProcess:
         self.commit(fleet, message)
