@@ -152,7 +152,7 @@ class Wake:
         deployment = f"pull-{robot}-{record.version}-{secrets.token_hex(3)}"
         work = self.state_dir / "runs" / deployment
         release_file = work.with_suffix(".release.json")
-        work.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        work.mkdir(parents=True, exist_ok=True, mode=0o700)
         release_file.write_bytes(record.to_bytes())
         said = run_converge(venv / "bin" / "python", code, ["run", "--robot", robot, "--fleet",
                             str(code / record.fleet["path"]), "--record", str(release_file), "--deployment",

@@ -110,6 +110,66 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     return Config(**values)
 
 
+# ssh looks the git server up under this name (HostKeyAlias), so its keys
+# are pinned to the fleet remote whatever address or port reaches it.
+HOST_KEY_ALIAS = "robotfleet-remote"
+
+
+def config_of(data, robot: str, **extra) -> Config:
+    """The agent's configuration for a host with ``data`` (the pull role's settings)."""
+    return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
+                  windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
+                  fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after, extra=extra)
+
+
+def known_hosts_of(data) -> str:
+    """The git server's keys (pull_remote_host_keys), under HOST_KEY_ALIAS."""
+    return "".join(f"{HOST_KEY_ALIAS} {key}\n" for key in data.pull_remote_host_keys)
+
+
+HEADER = "# Managed by the robot fleet provisioner (roles/pull); local edits are overwritten.\n"
+FIRST_BOOT_SERVICE = "robot-pull-first-boot.service"
+
+
+def service_unit() -> str:
+    return HEADER + f"""[Unit]
+Description=Robot fleet pull agent: fetch, verify and apply a signed release (docs/pull.md)
+Wants=network-online.target
+After=network-online.target {FIRST_BOOT_SERVICE}
+ConditionPathExists={CONFIG}
+
+[Service]
+Type=oneshot
+WorkingDirectory={CURRENT_CODE}
+Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1
+ExecStart={VENV}/bin/python -m robotfleet.pull.agent --config {CONFIG}
+# A release may install Docker and pull images: hours, not the default 90 s.
+TimeoutStartSec=4h
+Nice=10
+IOSchedulingClass=best-effort
+IOSchedulingPriority=7
+"""
+
+
+def timer_unit(data) -> str:
+    # Persistent= acts only on OnCalendar= timers; a robot that was off
+    # catches up through OnBootSec=, the first check after each boot.
+    return HEADER + f"""[Unit]
+Description=Robot fleet pull agent: check for a new release every {data.pull_interval} s
+
+[Timer]
+OnBootSec={data.pull_boot_delay}
+OnActiveSec={data.pull_boot_delay}
+OnUnitInactiveSec={data.pull_interval}
+RandomizedDelaySec={data.pull_jitter}
+Persistent=true
+AccuracySec=1s
+
+[Install]
+WantedBy=timers.target
+"""
+
+
 def venv_id(wheels) -> str:
     """The identity of a venv made from ``wheels`` [(file name, sha256)]:
     the same set, in any order, is the same venv."""

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from robotfleet.pull import layout
 
-HOST_KEY_ALIAS = "robotfleet-remote"
+HOST_KEY_ALIAS = layout.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
 _TRANSFERRED = re.compile(r"Transferred: sent (\d+), received (\d+) bytes")
 _ACCEPTED = re.compile(r"Authenticated to .* using \"publickey\"|Server accepts key: (\S+)")
@@ -76,15 +76,18 @@ def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> st
     return " ".join(shlex.quote(p) for p in parts)
 
 
-_SAYS_WHY = ("FATAL:", "fatal:", "ERROR:", "error:", "Permission denied", "Host key verification failed",
-             "Could not resolve", "Connection refused", "Connection timed out", "No route to host", "remote:")
+# What ssh and the server say of the cause, before git's own summary line.
+_CAUSES = ("Permission denied", "Host key verification failed", "REMOTE HOST IDENTIFICATION HAS CHANGED",
+           "Could not resolve", "Connection refused", "Connection timed out", "No route to host", "DENIED")
+_SAYS = ("FATAL:", "fatal:", "ERROR:", "error:", "remote:")
 
 
 def git_error(stderr: str, code: int) -> str:
     """The line of git's (or ssh's, or the server's) complaint that says why."""
     lines = [line.strip() for line in stderr.splitlines() if line.strip() and not line.startswith("hint:")]
-    telling = [line for line in lines if line.startswith(_SAYS_WHY) or any(w in line for w in _SAYS_WHY[5:])]
-    return (telling or lines or [f"git exited {code}"])[0][:300]
+    causes = [line for line in lines if any(cause in line for cause in _CAUSES)]
+    said = [line for line in lines if line.startswith(_SAYS)]
+    return (causes or said or lines or [f"git exited {code}"])[0][:300]
 
 
 def read_ssh_log(text: str) -> tuple[int, int, str | None]:

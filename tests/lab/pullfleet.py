@@ -144,6 +144,27 @@ class Operator:
         return self.robotfleet("publish", FLEET, "--checkout", str(self.repo), "--keys", str(self.keys),
                                *wheels, *options)
 
+    def reports(self) -> dict[str, dict]:
+        """Every robot's last report on the lab's git server (as the operator reads them)."""
+        from robotfleet.pull import reports
+
+        cache = self.base / "reports-cache"
+        if not (cache / "HEAD").exists():
+            subprocess.run(["git", "init", "-q", "--bare", str(cache)], check=True)
+        done = subprocess.run(["git", "-C", str(cache), "fetch", "-q", "--prune", gitserver.local_url(self.git),
+                               "+refs/reports/*:refs/reports/*"], capture_output=True, text=True, env=self.env())
+        if done.returncode:
+            raise LabError(f"git fetch of the reports: {done.stderr.strip()[-300:]}")
+        return reports.read_all(cache)
+
+    def admin_options(self) -> list[str]:
+        """robotfleet bundle / pull-enroll's options for the lab's gitolite (the lab key is its admin)."""
+        return ["--admin", f"ssh://{self.git['user']}@127.0.0.1:{self.git['port']}", "--admin-key",
+                self.lab["ssh_key"], "--admin-known-hosts", self.git["known_hosts"]]
+
+    def remote(self) -> list[str]:
+        return ["--remote", gitserver.local_url(self.git)]
+
     def register_robots(self, robots: list[str]) -> None:
         """Each robot's own key (made on it by the pull role) with gitolite."""
         for robot in robots:
@@ -151,3 +172,84 @@ class Operator:
             if code != 0:
                 raise LabError(f"{robot}: no key for the fleet remote ({out.strip()})")
             gitserver.register_robot(self.prefix, robot, out)
+
+
+class Attacks:
+    """What a compromised git server or mirror could serve the robots: each
+    writes the releases branch as the admin (force push), as such a server
+    could; ``restore`` puts the good branch back."""
+
+    def __init__(self, operator: Operator):
+        self.op = operator
+        self.work = operator.base / "attack"
+        self.url = gitserver.local_url(operator.git)
+
+    def _git(self, *args: str) -> str:
+        done = subprocess.run(["git", "-C", str(self.work), *args], capture_output=True, text=True, env=self.op.env())
+        if done.returncode:
+            raise LabError(f"git {' '.join(args[:2])}: {done.stderr.strip()[-300:]}")
+        return done.stdout
+
+    def checkout(self) -> str:
+        """The releases branch as the remote has it now, in a scratch clone; its commit."""
+        if not (self.work / ".git").exists():
+            self.work.mkdir(parents=True)
+            self._git("init", "-q")
+        self._git("fetch", "-q", self.url, "+refs/heads/robotfleet/releases:refs/remotes/fleet/releases")
+        self._git("checkout", "-q", "--force", "--detach", "refs/remotes/fleet/releases")
+        self._git("clean", "-q", "-dfx")
+        return self._git("rev-parse", "HEAD").strip()
+
+    def push(self, message: str) -> None:
+        self._git("add", "-A", ".")
+        self._git("-c", "user.name=attacker", "-c", "user.email=a@localhost", "commit", "-q", "--allow-empty",
+                  "-m", message)
+        self._git("push", "-q", "--force", self.url, "HEAD:refs/heads/robotfleet/releases")
+
+    def restore(self, commit: str) -> None:
+        self._git("push", "-q", "--force", self.url, f"{commit}:refs/heads/robotfleet/releases")
+
+    def tamper(self) -> None:
+        """The current release record, changed after it was signed (another image digest)."""
+        from robotfleet.pull.repository import Repository
+
+        self.checkout()
+        record = Repository(self.work).blob("release.json")
+        data = json.loads(record.read_text())
+        for pins in data["images"].values():
+            for ref in pins:
+                pins[ref] = "sha256:" + "6" * 64
+        record.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+        self.push("tampered record")
+
+    def replay(self, old_commit: str) -> None:
+        """An older release, as it was signed then."""
+        self.restore(old_commit)
+
+    def expire(self) -> None:
+        """A timestamp signed with the real key, valid only until yesterday."""
+        import datetime
+
+        from robotfleet.pull.keys import KeyDir
+        from robotfleet.pull.repository import Expiry, Repository
+
+        self.checkout()
+        past = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0) - datetime.timedelta(days=2)
+        Repository(self.work).renew(KeyDir(self.op.keys).signer("online"),
+                                    Expiry(timestamp=datetime.timedelta(days=1)), past)
+        self.push("expired timestamp")
+
+    def other_key(self) -> None:
+        """A repository signed by keys the robots do not trust."""
+        other = self.op.base / "other-keys"
+        if not (other / "online.key").exists():
+            self.op.robotfleet("keys", "init", "--keys", str(other))
+        made = self.op.base / "other-repo"
+        shutil.rmtree(made, ignore_errors=True)
+        self.op.robotfleet("publish", FLEET, "--checkout", str(self.op.repo), "--keys", str(other),
+                           "--to-dir", str(made), "--no-wheels")
+        self.checkout()
+        for part in ("metadata", "targets"):
+            shutil.rmtree(self.work / part)
+            shutil.copytree(made / part, self.work / part)
+        self.push("signed by another key")
