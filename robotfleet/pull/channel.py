@@ -81,15 +81,16 @@ class GitChannel:
             listed = _git(self.clone, "ls-remote", "--heads", "fleet", BRANCH)  # fails if unreachable
             if listed.stdout.strip():
                 raise ChannelError(f"git fetch {self.url} {BRANCH}: {fetched.stderr.strip().splitlines()[-1]}")
-            self.base = None
-            _git(self.clone, "checkout", "--quiet", "--force", "--orphan", BRANCH)
-            _git(self.clone, "rm", "-r", "-q", "--cached", "--ignore-unmatch", ".")
+            self.base = None  # a new orphan branch (a failed earlier attempt's local one is dropped)
+            _git(self.clone, "symbolic-ref", "HEAD", f"refs/heads/{BRANCH}")
+            _git(self.clone, "update-ref", "-d", f"refs/heads/{BRANCH}")
+            _git(self.clone, "read-tree", "--empty")
         _git(self.clone, "clean", "-q", "-d", "-x", "--force")
         return self.clone
 
     def push(self, message: str) -> str:
         """Commit the repository as it is now and push it fast-forward; the commit id."""
-        _git(self.clone, "add", "--all", "metadata", "targets")
+        _git(self.clone, "add", "--all", ".")
         _git(self.clone, *IDENTITY, "commit", "--quiet", "--allow-empty", "-m", message)
         head = _git(self.clone, "rev-parse", "HEAD").stdout.strip()
         pushed = _git(self.clone, "push", "--quiet", "fleet", f"HEAD:refs/heads/{BRANCH}", check=False)

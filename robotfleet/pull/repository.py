@@ -223,6 +223,7 @@ class Repository:
         """Sign and write ``targets`` at its next version (``first``: as is,
         version 1, with snapshot and timestamp version 1), then a snapshot and
         a timestamp naming it."""
+        self._check_online(online_signer)
         targets.signed.version += 0 if first else 1
         targets.signed.expires = _expiry(now, expiry.targets)
         targets.sign(online_signer)
@@ -251,6 +252,14 @@ class Repository:
         timestamp.sign(online_signer)
         _write(self.metadata / "timestamp.json", timestamp.to_bytes(_SERIALIZER))
 
+    def _check_online(self, signer) -> None:
+        """Refuse to sign with a key the root does not name (robots would refuse it as unknown)."""
+        named = self.root().signed.roles[Timestamp.type].keyids
+        if signer.public_key.keyid not in named:
+            raise RepositoryError(f"the online key here ({signer.public_key.keyid[:16]}) is not the one the "
+                                  f"repository's root names ({', '.join(k[:16] for k in named)}): "
+                                  "was it rotated on another machine?")
+
     def renew(self, online_signer, expiry: Expiry, now: datetime.datetime) -> list[str]:
         """Re-sign what expires before the next timestamp would: always the
         timestamp, the snapshot (and targets) when due.  The names re-signed.
@@ -264,6 +273,7 @@ class Repository:
         if snapshot.signed.expires <= due:
             self._publish_snapshot(snapshot, online_signer, expiry, now)
             return [Snapshot.type, Timestamp.type]
+        self._check_online(online_signer)
         self._publish_timestamp(self.timestamp().signed.version, self.timestamp().signed.snapshot_meta,
                                 online_signer, expiry, now)
         return [Timestamp.type]

@@ -140,6 +140,17 @@ def _swap_in(state_dir: Path, fresh: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
+def _sweep(state_dir: Path) -> None:
+    """Remove what an interrupted refresh left (work copies, a link not yet
+    renamed); the agent's lock on its state directory keeps refreshes apart."""
+    current = os.path.realpath(state_dir / "tuf")
+    for entry in state_dir.iterdir():
+        if entry.name.startswith(".tuf-link-"):
+            entry.unlink(missing_ok=True)
+        elif entry.name.startswith("tuf-") and str(entry.resolve()) != current:
+            shutil.rmtree(entry, ignore_errors=True)
+
+
 def trusted_root(state_dir) -> bytes:
     """The root.json the robot trusts now (for its report and the bundle)."""
     return Path(state_dir, "tuf", "root.json").read_bytes()
@@ -231,6 +242,7 @@ class Client:
         metadata and trust.json are kept."""
         if not (self.state_dir / "tuf" / "root.json").exists():
             raise Refused(MALFORMED, f"{self.state_dir}: no trusted root (initialize the robot's trust first)")
+        _sweep(self.state_dir)
         state = read_state(self.state_dir)
         now = self.clock()
         self.reference_time = max(now, state.time)

@@ -67,6 +67,7 @@ def build_wheelhouse(requirements: list[str], key: str, cache_dir, python: str =
     directory = Path(cache_dir, key)
     directory.mkdir(parents=True, exist_ok=True)
     log = directory / "pip-download.log"
+    log.unlink(missing_ok=True)  # pip appends: only this run's lines say what this set resolved to
     command = pip_command(requirements, key, directory, python, index_url) + ["--log", str(log)]
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=PIP_TIMEOUT, check=False)

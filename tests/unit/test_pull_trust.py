@@ -53,6 +53,14 @@ def test_a_published_release_is_verified_and_its_code_downloaded(fleet, trust, t
     assert again.download([record.code], tmp_path / "dl") == got
 
 
+def test_what_an_interrupted_refresh_left_is_swept(fleet):
+    (fleet.state / "tuf-leftover").mkdir()
+    (fleet.state / ".tuf-link-0000").symlink_to("tuf-leftover")
+    fleet.refresh()
+    current = (fleet.state / "tuf").resolve().name
+    assert {p.name for p in fleet.state.iterdir()} == {"trust.json", "tuf", current}
+
+
 def test_a_new_release_is_accepted_after_the_first(fleet):
     fleet.refresh()
     fleet.release(2)
@@ -232,6 +240,17 @@ def test_root_key_rotation_is_followed_and_the_old_root_key_alone_cannot_make_a_
     (repository.metadata / "3.root.json").write_bytes(old_only)
     line = refused(fleet, trust, trust.UNKNOWN_KEY)
     assert line.startswith("root.json")
+
+
+def test_the_operator_side_refuses_to_sign_with_an_online_key_the_root_does_not_name(fleet, tmp_path):
+    repository = pullkit.module("repository")
+    stranger = pullkit.module("keys").KeyDir(tmp_path / "stranger")
+    stranger.generate("online")
+    for attempt in (lambda: fleet.repository.renew(stranger.signer("online"), fleet.expiry, NOW),
+                    lambda: fleet.repository.resign(stranger.signer("online"), fleet.expiry, NOW)):
+        with pytest.raises(repository.RepositoryError, match="is not the one the repository's root names"):
+            attempt()
+    assert fleet.refresh().version == 1
 
 
 def test_an_unsigned_prepared_root_is_not_installed(fleet):
