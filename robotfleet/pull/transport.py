@@ -15,7 +15,8 @@ enrollment key if it still has one; once the server accepts the robot's own
 key, the enrollment key is deleted (it was single-use).  The git server's
 host keys are pinned (StrictHostKeyChecking, under one alias, so a new
 address or port does not matter).  Bytes are ssh's own count of what went
-over the connection ("Transferred: sent N, received M bytes").
+over the connection ("Transferred: sent N, received M bytes"; its debug
+level also names the key the server accepted).
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> st
              "-o", "StrictHostKeyChecking=yes", "-o", f"UserKnownHostsFile={known_hosts}",
              "-o", f"HostKeyAlias={HOST_KEY_ALIAS}", "-o", f"ConnectTimeout={min(timeout, 30)}",
              "-o", "ServerAliveInterval=15", "-o", "ServerAliveCountMax=4",
-             "-o", "LogLevel=VERBOSE", "-E", log]
+             "-o", "LogLevel=DEBUG1", "-E", log]
     for key in keys:
         parts += ["-i", key]
     return " ".join(shlex.quote(p) for p in parts)
