@@ -117,7 +117,8 @@ def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, dep
     "No hosts remaining!"), the robots' status rows and the roles' results
     of this ``deployment`` that the rows carry."""
     roles = roster.roles() if roles is None else roles
-    op_errors = {h: [op.get("name") or "an operation" for op in (results or {}).get("operations", []) if h in op["error"]] for h in hosts}
+    operations = (results or {}).get("operations", [])
+    op_errors = {h: [op.get("name") or "an operation" for op in operations if h in op["error"]] for h in hosts}
     lost = not_connected(results)
     done, failed, skipped = [], {}, {}
     for host in hosts:
@@ -269,7 +270,13 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         print(f"\n--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}", file=sys.stderr)
         deployment = f"rollout-{state['key'][:12]}-wave{index + 1}-{secrets.token_hex(4)}"
         results = deploy_wave(args.inventory, todo, extra, args.script, deployment)
-        wave_rows = read_status(args.inventory, todo)  # the robots' own results of this deployment
+        # A robot the deploy could not reach is not tried again in this wave
+        # (no JSON from pyinfra: nor is one that did not answer the status before).
+        lost = not_connected(results) | ({h for h in todo if not rows.get(h, {}).get("reachable")}
+                                         if results is None else set())
+        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost])  # with their own results
+        wave_rows.update({h: {"host": h, "reachable": False,
+                              "error": rows.get(h, {}).get("error") or "the deploy could not connect"} for h in lost})
         rows.update(wave_rows)
         done, failed, skipped = judge_wave(todo, results, wave_rows, targets, args.unreachable_fails, roles, deployment)
         state = waves.record_wave(state, index, done, failed, skipped)

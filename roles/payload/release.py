@@ -114,7 +114,7 @@ def payloadctl_command(script: str, stdin: list[str] | None = None) -> FunctionC
             if level == "error":
                 logger.error(f"{host.print_prefix}{format_text(text, 'red')}")
             else:
-                logger.warning(f"{host.print_prefix}{text}")
+                logger.warning(f"[{host.name}] {text}")
         return bool(status) and result["ok"]
 
     return FunctionCommand(run, (), {})

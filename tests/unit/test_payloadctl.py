@@ -745,3 +745,151 @@ def test_a_payload_that_dies_with_exec_format_error_is_named_and_rolled_back(rob
             "architecture (image reg/ros/payload:mislabeled)") in result.stderr
     assert "rolled back to r1 and it is running" in result.stderr
     assert robot.pointers() == ("r1", None)
+
+
+# --- one structured result per run (issue 30, item 2) --------------------------------
+
+RESULT_KEYS = {"payloadctl", "ok", "outcome", "action", "release", "previous", "target", "reason", "message",
+               "taken_over", "run_id", "deployment", "host", "time"}
+
+
+def one_json_line(text):
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert len(lines) == 1, text
+    return json.loads(lines[0])
+
+
+@pytest.mark.parametrize("case, outcome, ok, release, reason", [
+    ("healthy", "applied", True, "new", None),
+    ("same", "already-current", True, "r1", None),
+    ("laptop", "staged", True, "new", None),
+    ("broken", "rolled-back", False, "r1", "robot-payload-payload-1 is unhealthy: heartbeat check unhealthy"),
+    ("no pull", "failed", False, "r1", "cannot pull reg/ros/payload:1.1: Error response from daemon"),
+    ("update lock", "refused", False, "r1", "update refused, "),
+    ("other platform", "refused", False, "r1", "pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only"),
+])
+def test_each_apply_gives_one_structured_result(robot, case, outcome, ok, release, reason):
+    extra = {}
+    if case == "broken":
+        robot.image("reg/ros/payload:1.1", "unhealthy")
+    elif case == "no pull":
+        robot.image("reg/ros/payload:1.1", present=False, pull="fail")
+        extra = {"pull_timeout": 3}
+    elif case == "update lock":
+        robot.image("reg/ros/payload:1.1")
+        (robot.root / "update.lock").write_text("robot is moving\n")
+    elif case == "other platform":
+        robot.architecture("arm64")
+        robot.image("reg/ros/payload:1.1", platform="linux/amd64")
+    else:
+        robot.image("reg/ros/payload:1.1")
+    if case == "laptop":
+        extra = {"autostart": False}
+    ref = "reg/ros/payload:1.0" if case == "same" else "reg/ros/payload:1.1"
+    request = json.loads(open(robot.spec(ref, "run-5", **extra)).read())
+    request["run"]["deployment"] = "rollout-abc-wave1-\x1b[2Jx"
+    path = robot.root.parent / "request.json"
+    path.write_text(json.dumps(request))
+    applied = robot.payloadctl("apply", str(path), "--run-id", "run-5")
+    printed = one_json_line(applied.stdout)  # stdout: the result, one JSON line; stderr: for people
+    reported = robot.result("run-5")
+    result = one_json_line(reported.stdout)
+    assert result == printed == json.loads((robot.root / "last-result.json").read_text())
+    assert set(result) == RESULT_KEYS and result["payloadctl"] == 1 and result["action"] == "apply"
+    assert (result["outcome"], result["ok"]) == (outcome, ok) and applied.returncode == reported.returncode == (0 if ok else 1)
+    current, previous = robot.pointers()
+    assert (result["release"], result["previous"]) == (current, previous)
+    assert result["release"] == (current if release == "new" else release) and (release != "new" or current != "r1")
+    assert (result["reason"] is None) if ok else result["reason"].startswith(reason)
+    assert result["run_id"] == "run-5" and result["host"] == "pi1" and result["deployment"] == "rollout-abc-wave1-[2Jx"
+    assert reported.stderr.strip() == result["message"] and result["message"].startswith("payload: ")
+
+
+def test_a_rollback_gives_its_structured_result(robot):
+    robot.image("reg/ros/payload:0.9", "crash")
+    robot.release("r0", "reg/ros/payload:0.9", created="r0")
+    robot.releases.point("previous", "r0")
+    result = one_json_line(robot.rollback().stdout)
+    assert (result["action"], result["outcome"], result["ok"], result["target"]) == ("rollback", "rolled-back", False, "r0")
+    assert (result["release"], result["previous"]) == ("r1", "r0") and "crash-looping" in result["reason"]
+    robot.releases.point("previous", None)
+    result = one_json_line(robot.rollback("rb-2").stdout)
+    assert (result["outcome"], result["reason"]) == ("refused", "no previous release to roll back to")
+
+
+def test_status_carries_the_last_result(robot):
+    robot.image("reg/ros/payload:1.1")
+    robot.apply("reg/ros/payload:1.1", run_id="run-8")
+    proc = robot.payloadctl("status", "--dir", str(robot.root), "--name", "robot-payload")
+    from roles.payload import report
+
+    cells = report.cells(proc.stdout)
+    assert cells["result"]["outcome"] == "applied" and cells["result"]["run_id"] == "run-8"
+    assert report.result(cells, "another-deployment") is None and report.result(cells, None) is None
+
+
+def test_the_deploy_reads_the_result_and_says_it_from_the_result():
+    result = {"payloadctl": 1, "ok": False, "outcome": "rolled-back", "message": "payload: release r2 failed (\x1b[31mx)",
+              "taken_over": [{"name": "ros_payload", "project": None, "image": "reg/ros/payload:1.0",
+                              "why": "it runs the payload's image"}]}
+    lines = ["payload: a line for people", "[robot2] Error", json.dumps(result)]
+    found = release.read_result(lines)
+    assert found == result
+    assert release.said(found) == [
+        ("warning", "payload: stopped ros_payload (reg/ros/payload:1.0): it runs the payload's image"),
+        ("error", "payload: release r2 failed (\\x1b[31mx)")]
+    assert release.read_result(["payload: release r1 is healthy", '{"ok": true}', "{not json"]) is None
+    assert release.said({**result, "ok": True, "taken_over": []}) == []
+
+
+# --- takeover as promised (issue 27, item 2) ------------------------------------------
+
+HOMEAUTO = {"image": "reg/ros/payload:1.0", "name": "homeauto-bridge-1", "project": "homeauto", "service": "bridge",
+            "policy": "always"}
+
+
+def homeauto_untouched(robot):
+    c = robot.state()["containers"]["homeauto-bridge-1"]
+    return c.get("running", True) and c["policy"] == "always"
+
+
+def test_another_compose_project_of_the_payload_image_is_never_taken_over(tmp_path, helper):
+    """homeauto runs the payload's own image repository in its compose
+    project: the first release, an update and a rollback leave it alone
+    (it used to be stopped and its restart policy set to no)."""
+    robot = FakeRobot(tmp_path, helper)
+    for tag in ("1.0", "1.1"):
+        robot.image(f"reg/ros/payload:{tag}")
+    state = robot.state()
+    state["containers"] = {"homeauto-bridge-1": dict(HOMEAUTO),
+                           "ros_payload": {"image": "reg/ros/payload:1.0", "name": "ros_payload", "project": None,
+                                           "policy": "always"}}
+    robot.save(state)
+    first = robot.payloadctl("apply", robot.spec("reg/ros/payload:1.0", "first"), "--run-id", "first")
+    result = one_json_line(first.stdout)
+    assert first.returncode == 0 and homeauto_untouched(robot)
+    assert [c["name"] for c in result["taken_over"]] == ["ros_payload"]  # the copy in no project is ours to stop
+    assert "payload: stopping ros_payload (reg/ros/payload:1.0, restart always): it runs the payload's image" in first.stderr
+    assert "homeauto" not in first.stderr
+    assert robot.apply("reg/ros/payload:1.1", run_id="update").returncode == 0 and homeauto_untouched(robot)
+    assert json.loads(robot.rollback("rb").stdout)["outcome"] == "applied" and homeauto_untouched(robot)
+    assert not any(line.startswith("docker stop homeauto") or "homeauto-bridge-1" in line and "update" in line
+                   for line in robot.state()["log"])
+
+
+def test_the_compose_project_the_payload_used_before_is_taken_over(robot):
+    """A container of the payload's image in the compose project the current
+    release ran under (payload_name changed since) is an earlier copy."""
+    robot.image("reg/ros/payload:1.1")
+    durable.write_json(robot.releases.path("r1", "record.json"), {**robot.releases.record("r1"), "project": "ros-old"})
+    state = robot.state()
+    state["containers"].update({
+        "ros-old-payload-1": {"image": "reg/ros/payload:1.0", "name": "ros-old-payload-1", "project": "ros-old",
+                              "policy": "always"},
+        "homeauto-bridge-1": dict(HOMEAUTO)})
+    robot.save(state)
+    result = json.loads(robot.apply("reg/ros/payload:1.1").stdout)
+    assert [(c["name"], c["why"]) for c in result["taken_over"]] == [
+        ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload "
+                              "used before")]
+    assert homeauto_untouched(robot)

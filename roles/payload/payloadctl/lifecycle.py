@@ -235,6 +235,8 @@ class Life:
             why = INTERRUPTED
             if record.state == SWITCHING:
                 record = self._write(_verdict(record, INTERRUPTED, failed=False))
+            elif record.switch.kind == "rollback" and record.rollback_failed:
+                why = "failed ({})".format(record.rollback_failed.get("reason"))
             elif record.state == FAILED:
                 why = "failed ({})".format(record.reason)
             back = self._back(record)
@@ -276,11 +278,14 @@ class Life:
         return back
 
     def _told(self, back, record):
+        """The release gone back to records where from and why (once)."""
         target = self.record(back)
-        told = target.rolled_back_from or {}
-        if told.get("id") != record.id:
-            why = record.reason if record.state == FAILED else (record.rollback_failed or record.rollback_interrupted or {}).get("reason")
-            self._write(target._replace(rolled_back_from={"id": record.id, "reason": why or INTERRUPTED, "time": now()}))
+        if (target.rolled_back_from or {}).get("id") == record.id:
+            return
+        why = record.reason
+        if record.switch.kind == "rollback":
+            why = (record.rollback_failed or record.rollback_interrupted or {}).get("reason")
+        self._write(target._replace(rolled_back_from={"id": record.id, "reason": why or INTERRUPTED, "time": now()}))
 
 
 def _verdict(record, why, failed, ran=True):
