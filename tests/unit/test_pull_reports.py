@@ -121,3 +121,22 @@ def test_a_pull_rollout_s_waves_and_what_it_counts():
     assert pullrollout.outcome(applied, 7) == "done" and pullrollout.outcome(applied, 8) is None
     assert pullrollout.outcome(reports.parse(reports.to_bytes(made("rolled-back")), "robot1"), 7) == "failed"
     assert pullrollout.outcome(None, 7) is None
+
+
+def test_status_reads_pull_robots_from_their_reports_and_never_connects(tmp_path):
+    from robotfleet.commands import status
+
+    bare = tmp_path / "fleet.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
+    fresh = made(when=datetime.datetime.now(UTC).replace(microsecond=0))
+    transport.Remote(f"file://{bare}", tmp_path / "r1", str(tmp_path / "etc"), timeout=30).push_report(
+        "robot1", reports.to_bytes(fresh))
+    inventory = tmp_path / "inv.py"
+    # Addresses nothing listens on: a connection attempt would be an error row, not a report's.
+    inventory.write_text('robots = [("robot1", {"pull": True, "ssh_hostname": "192.0.2.1", "pull_interval": 60}),\n'
+                         '          ("robot2", {"pull": True, "ssh_hostname": "192.0.2.2"})]\n')
+    rows = {r["host"]: r for r in status.collect(str(inventory), [], remote=f"file://{bare}")}
+    assert rows["robot1"]["reachable"] == "pull" and rows["robot1"]["pull"] == "applied 7"
+    assert rows["robot1"]["health"] == "healthy" and "error" not in rows["robot1"]
+    assert rows["robot2"]["reachable"] is False and "no report in refs/reports/robot2" in rows["robot2"]["error"]
+    assert status.exit_code(list(rows.values())) == 3
