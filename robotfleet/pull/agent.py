@@ -218,15 +218,17 @@ class Wake:
         heartbeat = self.config.stale_after * (self.config.interval + self.config.jitter) / 2
         age = time.time() - last.get("at", 0)
         if last.get("substance") == substance and 0 <= age < heartbeat:
-            return "report unchanged"
-        try:
-            self.remote.push_report(self.config.robot, reports.to_bytes(report))
-        except TransportError as error:
-            return f"report not sent ({error})"
-        self.state["reported"] = {"substance": substance, "at": time.time()}
-        if self.remote.retire_enrollment_key():
-            return "report sent; the enrollment key is retired (the remote knows this robot's own key)"
-        return "report sent"
+            said = "report unchanged"
+        else:
+            try:
+                self.remote.push_report(self.config.robot, reports.to_bytes(report))
+                self.state["reported"] = {"substance": substance, "at": time.time()}
+                said = "report sent"
+            except TransportError as error:
+                said = f"report not sent ({error})"
+        if self.remote.retire_enrollment_key():  # the server took this robot's own key in this wake
+            said += "; the enrollment key is retired (the remote knows this robot's own key)"
+        return said
 
 
 def classify(said: dict, version: int, wave: int | None) -> Outcome:

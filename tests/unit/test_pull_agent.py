@@ -220,3 +220,17 @@ def test_the_agent_configuration_is_checked_field_by_field(tmp_path):
     config = tmp_path / "agent.json"
     config.write_text("{")
     assert agent.main(["--config", str(config)]) == 1
+
+
+def test_the_enrollment_key_goes_once_the_remote_took_the_robot_s_own_key_even_with_nothing_to_report(world):
+    world.release(1)
+    world.wake()
+    world.wake()
+    (world.etc / "enroll_ed25519").write_text("k")
+    awake = agent.Wake(world.config, clock=lambda: NOW)
+    report, _ = awake.run()
+    awake.state = agent.load_state(world.state)
+    awake.remote.accepted_key = str(world.etc / "id_ed25519")  # what ssh's log said (file:// has no ssh)
+    said = awake.send(report)
+    assert said.startswith("report unchanged; the enrollment key is retired")
+    assert not (world.etc / "enroll_ed25519").exists()
