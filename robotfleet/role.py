@@ -116,6 +116,20 @@ class PinPart:
     setting: str
 
 
+@dataclass(frozen=True)
+class HoldPart:
+    """How the pull agent holds a role's own lock on the robot for a whole
+    converge run (robotfleet/commands/converge.py): ``command(data,
+    token_file)``, the argv that holds it while the command after it runs,
+    writing a token to ``token_file`` first ([] when the role has nothing
+    on the robot to hold yet); ``setting``, the role's setting through
+    which the deploy hands the token to what takes the lock, so the run's
+    own steps join it instead of waiting for it."""
+
+    command: Callable[[Any, str], list[str]]
+    setting: str
+
+
 def _always(data) -> bool:
     return True
 
@@ -147,7 +161,8 @@ class Role:
       ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart);
     - ``secrets(data)``: secret values the role holds for a host beyond its
       data (e.g. passwords read from the environment), masked in output
-      like the URL passwords of the data (robotfleet/secrets.py)."""
+      like the URL passwords of the data (robotfleet/secrets.py);
+    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart)."""
 
     name: str
     doc: str
@@ -161,6 +176,7 @@ class Role:
     rollout: RolloutPart | None = None
     pins: PinPart | None = None
     secrets: Callable[[Any], list[str]] = _no_secrets
+    hold: HoldPart | None = None
 
 
 def cards(listed) -> tuple[Role, ...]:

@@ -8,7 +8,9 @@ Each wave is the normal deploy (`pyinfra -y --json INVENTORY deploy.py
 this one has reached its target (each role with a rollout part says what:
 the payload, every image of the robot's compose project running healthy)
 or is counted against the budget.
-Robots not reached keep their release.  The state lives in
+Robots not reached keep their release.  Robots with `pull: true` are not
+deployed over SSH: the rollout publishes a signed release with these waves
+and follows the robots' reports (robotfleet/commands/pullrollout.py).  The state lives in
 .rollout/<key>.json on this machine: rerunning the same command resumes with
 the robots not yet on the new release.  See README "Rollouts in waves".
 """
@@ -167,6 +169,9 @@ def parse_args(argv):
     parser.add_argument("--parallel", type=int, help="pyinfra's --parallel for each wave (default: CPUs x 20)")
     parser.add_argument("-y", "--yes", action="store_true", help="do not ask before starting")
     parser.add_argument("--dry", action="store_true", help="show the waves and the changes, change nothing")
+    from robotfleet.commands import pullrollout
+
+    pullrollout.add_options(parser)
     args = parser.parse_args(argv)
     try:
         args.canary = waves.parse_count(args.canary, "--canary")
@@ -203,6 +208,11 @@ def main(argv=None) -> int:
         print(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)",
               file=sys.stderr)
         return selection.REFUSED
+    pulled = [name for name, data in hosts if data.get("pull")]
+    if pulled:  # robots that converge themselves: publish and follow their reports (docs/pull.md)
+        from robotfleet.commands import pullrollout
+
+        return pullrollout.main(args, hosts, pulled)
     roles = roster.roles()
     names = [name for name, _ in hosts]
     targets = {name: targets_of(roles, data, overrides) for name, data in hosts}

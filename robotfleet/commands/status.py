@@ -2,7 +2,9 @@
 
     robotfleet status inventories/robots.py [--limit robot2] [--json]
 
-One row per host, one SSH command per host: the engine's own part (the
+One row per host, one SSH command per host (a pull robot's row comes from
+its last report on the fleet remote instead, --remote, default the
+checkout's origin; docs/pull.md): the engine's own part (the
 host's architecture, as the snapshot reads it) and each role with a status
 part (deploy.py's roles) add their columns, e.g. Docker's version, the current
 release, its image, container state and health, the GPU driver.
@@ -100,24 +102,40 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def collect(inventory_path: str, limits: list[str], roles=None, answered=None) -> list[dict]:
+def collect(inventory_path: str, limits: list[str], roles=None, answered=None, remote: str | None = None) -> list[dict]:
     """One row per host of ``inventory_path`` matching ``limits``, in
     inventory order; ``answered(row, count, total)`` is called as each host
-    answers (or fails to).  Raises selection.Refused."""
+    answers (or fails to).  Hosts with ``pull: true`` are read from their
+    reports on the fleet remote (``remote``, else the checkout's origin), not
+    over SSH.  Raises selection.Refused."""
     from pyinfra.api import Config, State
     from pyinfra.context import ctx_state
 
     roles = roster.roles() if roles is None else roles
     inventory = selection.inventory(inventory_path)
     hosts = selection.select(inventory, inventory_path, limits)
+    pulled = [h for h in hosts if h.data.get("pull")]
+    found = _pull_rows(pulled, remote)
     state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
-    state.limit_hosts = hosts
+    state.limit_hosts = [h for h in hosts if h not in pulled]
     with ctx_state.use(state):
-        jobs = {gevent.spawn(_one, host, roles): host for host in hosts}
+        jobs = {gevent.spawn(_one, host, roles): host for host in hosts if host not in pulled}
         for count, job in enumerate(gevent.iwait(list(jobs)), 1):
             if answered is not None:
                 answered(_value(job, jobs[job], roles), count, len(jobs))
-        return [_value(job, host, roles) for job, host in jobs.items()]
+        job_of = {id(host): job for job, host in jobs.items()}
+        return [found[host.name] if host in pulled else _value(job_of[id(host)], host, roles) for host in hosts]
+
+
+def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
+    if not hosts:
+        return {}
+    from robotfleet.commands import pullstatus
+
+    try:
+        return pullstatus.rows([(h.name, h.data) for h in hosts], pullstatus.remote_of(remote))
+    except pullstatus.ReportsUnavailable as error:
+        return {h.name: {"host": h.name, "reachable": False, "pull": "no report", "error": str(error)} for h in hosts}
 
 
 def _value(job, host, roles) -> dict:
@@ -164,10 +182,12 @@ def main(argv=None) -> int:
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")
     parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument("--remote", metavar="NAME|URL",
+                        help="the fleet remote pull robots report to (default: the checkout's origin)")
     args = parser.parse_args(argv)
     roles = roster.roles()
     try:
-        rows = collect(args.inventory, args.limit, roles, answered=progress)
+        rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote)
     except selection.Refused as error:
         return selection.refused(error)
     rollout = waves.latest_state()
@@ -176,7 +196,12 @@ def main(argv=None) -> int:
     if args.json:
         print(json.dumps(rows, indent=2, sort_keys=True))
     else:
-        print(table(rows, columns(roles)))
+        shown = columns(roles)
+        if any("pull" in r for r in rows):
+            from robotfleet.commands.pullstatus import COLUMNS
+
+            shown = shown[:-1] + COLUMNS + shown[-1:]
+        print(table(rows, shown))
         if rollout:
             print(waves.summary(rollout))
     return exit_code(rows)

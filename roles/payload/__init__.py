@@ -19,7 +19,7 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 """
 
 from robotfleet.role import Role
-from roles.payload import credentials, pins, report, settings, steps
+from roles.payload import credentials, hold, pins, report, settings, steps
 from roles.payload.release import rollback_release
 
 ROLE = Role(
@@ -33,6 +33,7 @@ ROLE = Role(
     status=report.STATUS,
     rollout=report.ROLLOUT,
     pins=pins.PINS,
+    hold=hold.HOLD,
 )
 
 __all__ = ["ROLE", "rollback_release"]
