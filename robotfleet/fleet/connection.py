@@ -9,12 +9,22 @@ from robotfleet.role import UNSET, Setting
 
 # Keys the fleet file may use that are not settings of their own: address,
 # and the connection variables of an Ansible inventory.
+# Ansible's older names: where a host has an older and a newer name for the
+# same thing (in any of its layers), the older one wins, as Ansible's ssh
+# connection plugin has it (robotfleet/fleet/check.py resolve_older_names).
+OLDER_NAMES = {
+    "ansible_ssh_host": "ssh_hostname",
+    "ansible_ssh_user": "ssh_user",
+    "ansible_ssh_port": "ssh_port",
+    "ansible_ssh_private_key_file": "ssh_key",
+}
 ALIASES = {
     "address": "ssh_hostname",
     "ansible_host": "ssh_hostname",
     "ansible_user": "ssh_user",
     "ansible_port": "ssh_port",
-    "ansible_ssh_private_key_file": "ssh_key",
+    "ansible_private_key_file": "ssh_key",
+    **OLDER_NAMES,
 }
 
 SETTINGS = (
