@@ -105,6 +105,9 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
                     report(layer, where, [(key, f"expected a whole number, got {c.describe(value)}")])
             elif isinstance(key, str) and key.startswith(ANSIBLE_PREFIX) and key not in registry.aliases:
                 ignored.add(key)
+            elif isinstance(value, loader.Vaulted):
+                report(layer, where, [(c.key_name(key), "an ansible-vault value (!vault), which robotfleet does not "
+                                                        "decrypt: write the value, or keep it in a secret store")])
             else:
                 own[key] = value
         problems = registry.check_layer(own)

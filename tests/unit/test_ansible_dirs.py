@@ -314,3 +314,16 @@ def test_the_editors_schema_takes_host_patterns_and_ansibles_names():
     assert list(validator.iter_errors(loader.load(YAML_HOSTS))) == []
     bad = loader.load("robots:\n  hosts:\n    'robot[1:': {}\n    'robot 7': {}\n")
     assert len(list(validator.iter_errors(bad))) == 2
+
+
+def test_vault_values_are_ignored_in_ansibles_variables_and_refused_in_settings(tmp_path):
+    vault = "!vault |\n  $ANSIBLE_VAULT;1.1;AES256\n  6162\n"
+    files = {"hosts": "[robots]\nrobot1\n" + BASE, "group_vars/all.yml": f"ansible_become_password: {vault}"}
+    assert problems(tmp_path, files) == []
+    files["group_vars/robots.yml"] = f"x11_user: {vault}"
+    files["host_vars/robot1.yml"] = 'docker_users: [ops, !vault "6162"]\n'
+
+    assert problems(tmp_path, files) == [
+        "group_vars/robots.yml: robots.x11_user: an ansible-vault value (!vault), which robotfleet "
+        "does not decrypt: write the value, or keep it in a secret store",
+        "host_vars/robot1.yml: robot1.docker_users[1]: expected a string, got an ansible-vault value (!vault)"]
