@@ -14,7 +14,11 @@ from robotfleet.commands import hosts as selection
 from robotfleet.fleet.check import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",
-           "require_checkout"]
+           "require_checkout", "SOURCES"]
+
+# Where the fleet this process loaded came from (its file or directory):
+# what a rollout's lock is per (robotfleet/commands/waves.py lock_path).
+SOURCES: list[str] = []
 
 
 def refuse(lines: list[str]) -> None:
@@ -54,14 +58,17 @@ def _noted(fleet: Fleet) -> Fleet:
 
 def load_or_exit(path: Path) -> Fleet:
     """The fleet file at ``path``, or its problems printed and exit 2."""
+    SOURCES.append(os.path.abspath(path))
     try:
         return _noted(load(path, roster.registry()))
     except FleetError as error:
         _refuse_fleet(error)
 
 
-def parse_or_exit(text: str | bytes, shown: str) -> Fleet:
-    """Fleet YAML ``text`` (named ``shown`` in problem lines), or exit 2."""
+def parse_or_exit(text: str | bytes, shown: str, source: str | None = None) -> Fleet:
+    """Fleet YAML ``text`` (named ``shown`` in problem lines; from ``source``,
+    default ``shown``), or exit 2."""
+    SOURCES.append(os.path.abspath(source or shown))
     try:
         return _noted(parse(text, shown, roster.registry()))
     except FleetError as error:

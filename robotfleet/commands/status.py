@@ -9,9 +9,9 @@ release, its image, container state and health, the GPU driver.
 Unreachable hosts are rows too, never an abort, with the reason in words
 (the REACHABLE column, and "error" in --json).  Hosts are asked in parallel;
 a line on stderr tells as each answers, the table follows in inventory order.
-Exit status: 0 every host answered, 1 a host answered with an error,
-2 refused (no such inventory, a --limit matching nothing), 3 a host was
-unreachable.
+Exit status: 0 every host answered, 1 a host failed (answered with an
+error, or its host key or login was refused), 2 refused (no such inventory,
+a --limit matching nothing), 3 a host was unreachable (and none failed).
 """
 
 from __future__ import annotations
@@ -22,8 +22,7 @@ import sys
 
 import gevent
 
-from robotfleet import commands
-from robotfleet import roster
+from robotfleet import commands, connect, roster
 from robotfleet.checks import one_line
 from robotfleet.commands import hosts as selection
 from robotfleet.commands import waves
@@ -147,10 +146,13 @@ def progress(found: dict, count: int, total: int) -> None:
 
 
 def exit_code(rows: list[dict]) -> int:
+    """README's exit codes: 1 if a host failed (answered with an error, or
+    refused: a host key not trusted, a login refused), else 3 if a host was
+    unreachable, else 0."""
+    if any(r.get("error") and (r["reachable"] or not connect.unreachable(r["error"])) for r in rows):
+        return selection.FAILED
     if any(not r["reachable"] for r in rows):
         return selection.UNREACHABLE
-    if any(r.get("error") for r in rows):
-        return selection.FAILED
     return selection.OK
 
 

@@ -128,7 +128,8 @@ def test_the_same_command_finds_the_same_state_file_and_writes_it_atomically(tmp
 def test_status_cells_and_summary():
     state = waves.record_wave(state_for([["r1"], ["r2"], ["r3"]], 0), 0, ["r1"], {}, {})
     assert [waves.host_state(state, h) for h in ("r1", "r2", "r9")] == ["wave 1/3 done", "wave 2/3 pending", None]
-    assert waves.summary(state) == "rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped; pending: r2, r3"
+    assert waves.summary(state) == ("rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped, 2 pending "
+                                    "of 3 robot(s); pending: r2, r3")
 
 
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
@@ -177,7 +178,7 @@ def test_the_state_file_is_written_without_following_anything_planted(tmp_path):
 
 
 def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_path):
-    path = str(tmp_path / ".rollout" / "k.json")
+    path = waves.lock_path("inventories/robots.py", ["/fleet.yaml"], str(tmp_path))
     with waves.held(path):
         with pytest.raises(waves.RolloutBusy) as busy:
             with waves.held(path):
@@ -185,22 +186,41 @@ def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_pat
         assert str(busy.value).startswith(f"another rollout of this fleet is running (pid {os.getpid()} since 20")
     with waves.held(path):  # free again once the first is done
         pass
+    assert path != waves.lock_path("inventories/robots.py", ["/other.yaml"], str(tmp_path))
 
 
-def test_the_rollout_command_refuses_while_another_rollout_of_the_fleet_holds_its_state(tmp_path, monkeypatch):
-    """Two rollouts of one fleet lost each other's updates: the second one now
-    stops at once, before it contacts any robot (issue 17, item 9)."""
-    from robotfleet import roster
-    from robotfleet.commands import rollout
+@pytest.mark.parametrize("flags", [["--limit", "robot2"], ["--data", "payload_image=reg.example.com/p:2"],
+                                   ["--canary", "2", "--max-failed", "1"]])
+def test_one_rollout_lock_per_fleet_whatever_the_flags(tmp_path, flags):
+    """Two rollouts of one fleet lost each other's updates (issue 17, item 9);
+    a second one with another --limit or --data ran beside the first (its
+    lock was its command line's, issue 27, item 8): it now stops at once,
+    before it contacts any robot.  The first one runs for real, waiting on
+    robots that never answer."""
+    import glob
+    import time
 
-    monkeypatch.setenv("ROBOT_ROLLOUT_DIR", str(tmp_path))
-    inventory = "inventories/robots.py"
-    hosts = rollout.selected_hosts(inventory, [])
-    names = [name for name, _ in hosts]
-    targets = {name: rollout.targets_of(roster.roles(), data, {}) for name, data in hosts}
-    path = waves.state_path(waves.fleet_key(inventory, names, targets))
-    with waves.held(path):  # the command runs apart: it patches gevent into its process
-        second = subprocess.run([sys.executable, "-m", "robotfleet", "rollout", inventory, "-y"], capture_output=True,
-                                text=True, timeout=120, env=dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path)))
+    from robotfleet.fleet import loader
+    from tests.unit import sshserver
+
+    silent = [sshserver.Unanswered() for _ in range(2)]
+    fleet = tmp_path / "fleet.yaml"
+    fleet.write_text(loader.dump({"all": {"vars": {"payload_image": "reg.example.com/p:1", "ssh_connect_timeout": 20}},
+                                  "robots": {"hosts": {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port}
+                                                       for i, s in enumerate(silent)}}}))
+    env = dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path / "states"), ROBOT_FLEET=str(fleet))
+    command = [sys.executable, "-m", "robotfleet", "rollout", "inventories/robots.py", "-y"]
+    first = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while not glob.glob(str(tmp_path / "states" / "*.lock")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        second = subprocess.run(command + flags, capture_output=True, text=True, timeout=120, env=env)
+    finally:
+        first.kill()
+        first.wait()
+        for server in silent:
+            server.close()
     assert second.returncode == 2, second.stderr
-    assert f"rollout: another rollout of this fleet is running (pid {os.getpid()} since 20" in second.stderr
+    assert second.stderr.splitlines()[-1].startswith(
+        f"rollout: another rollout of this fleet is running (pid {first.pid} since 20")
