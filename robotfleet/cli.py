@@ -4,6 +4,9 @@
     robotfleet status INVENTORY [--limit ...] [--json]
     robotfleet rollout INVENTORY [deploy.py] [--canary 1 --batch 25% --max-failed 10%] [-y]
     robotfleet generate [--check]
+    robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME | --to-dir DIR]
+    robotfleet halt [--reason TEXT]
+    robotfleet keys init|show|rotate|prepare|sign|install|generate
 
 `robotfleet COMMAND --help` explains each.  Deploys are plain pyinfra, run
 in the checkout: pyinfra inventories/robots.py deploy.py
@@ -24,6 +27,9 @@ COMMANDS = {
     "status": "status",
     "rollout": "rollout",
     "generate": "generate",
+    "publish": "publish",
+    "halt": "halt",
+    "keys": "keys",
 }
 
 

@@ -84,6 +84,20 @@ class RolloutPart:
     missing: Callable[[dict, Any], str | None]
 
 
+@dataclass(frozen=True)
+class PinPart:
+    """What a pull release must bind for a role on a host (``robotfleet
+    publish``): ``refs(data)``, the references the host runs (e.g. image
+    names); ``resolve(data, refs)``, each one's digest now (ref -> digest;
+    ValueError with one line when one cannot be read); ``setting``, the
+    role's setting through which the deploy is given the pins (ref ->
+    digest) so the host runs exactly what the signed release names."""
+
+    refs: Callable[[Any], list[str]]
+    resolve: Callable[[Any, list[str]], dict[str, str]]
+    setting: str
+
+
 def _always(data) -> bool:
     return True
 
@@ -106,7 +120,9 @@ class Role:
     - ``rules(data, refused)``: checks across settings on a host's merged
       data (defaults included); ``refused`` names settings that already have
       a problem, which a rule does not look at again;
-    - ``adds``: hook -> what this role adds there (see ``Play.added``)."""
+    - ``adds``: hook -> what this role adds there (see ``Play.added``);
+    - ``status``, ``rollout``, ``pins``: its parts in ``robotfleet status``,
+      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart)."""
 
     name: str
     doc: str
@@ -118,6 +134,7 @@ class Role:
     adds: Mapping[Hook, Callable] = field(default_factory=dict)
     status: StatusPart | None = None
     rollout: RolloutPart | None = None
+    pins: PinPart | None = None
 
 
 def cards(listed) -> tuple[Role, ...]:

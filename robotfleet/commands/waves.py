@@ -13,39 +13,12 @@ import contextlib
 import fcntl
 import hashlib
 import json
-import math
 import os
-import re
 import tempfile
 import time
-from dataclasses import dataclass
 
-_COUNT = re.compile(r"(0|[1-9][0-9]{0,5})(%?)")
-
-
-@dataclass(frozen=True)
-class Count:
-    """A number of robots, absolute ("2") or a share of the fleet ("25%")."""
-
-    value: int
-    percent: bool
-
-    def of(self, total: int, round_up: bool) -> int:
-        if not self.percent:
-            return self.value
-        exact = total * self.value / 100
-        return math.ceil(exact) if round_up else math.floor(exact + 1e-9)
-
-    def __str__(self) -> str:
-        return f"{self.value}{'%' if self.percent else ''}"
-
-
-def parse_count(text: str, option: str) -> Count:
-    """'3' or '25%' -> Count; anything else raises ValueError naming the option."""
-    match = _COUNT.fullmatch(str(text).strip())
-    if not match or (match.group(2) and int(match.group(1)) > 100):
-        raise ValueError(f"{option}: expected a number of robots or a percentage like 25%, got {text!r}")
-    return Count(int(match.group(1)), bool(match.group(2)))
+# A count and the failure budget are the same rule in push and pull rollouts.
+from robotfleet.pull.waves import Count, allowed_failures, parse_count  # noqa: F401 - rollout.py reads them here
 
 
 def build_waves(hosts: list[str], flagged: list[str], canary: Count, batch: Count) -> list[list[str]]:
@@ -62,12 +35,6 @@ def build_waves(hosts: list[str], flagged: list[str], canary: Count, batch: Coun
     waves = [canaries] if canaries else []
     waves += [rest[i : i + size] for i in range(0, len(rest), size)]
     return waves
-
-
-def allowed_failures(max_failed: Count, total: int) -> int:
-    """Failures the rollout tolerates; one more stops it (Ansible's
-    max_fail_percentage: a share is rounded down)."""
-    return max_failed.of(total, round_up=False)
 
 
 def fleet_key(inventory: str, selection: list[str], targets: dict[str, str]) -> str:

@@ -1,5 +1,5 @@
 """The engine's own settings: how to reach a host (pyinfra's SSH connector
-data), how long apt waits for its lock, rollout canaries."""
+data), how long apt waits for its lock, rollout canaries, pull mode."""
 
 from __future__ import annotations
 
@@ -47,4 +47,9 @@ SETTINGS = (
             "Seconds apt waits in all for the apt/dpkg locks another process holds, then the host fails naming it."),
     Setting("rollout_canary", False, c.boolean,
             "This robot is updated in a rollout's first wave (else the first --canary N robots are)."),
+    Setting("pull", False, c.boolean,
+            "This host converges itself from the signed releases robotfleet publish writes (docs/pull.md)."),
+    Setting("pull_platform", "cp313-x86_64",
+            c.string(r"cp3[0-9]{1,2}-(x86_64|aarch64|armv7l)", "a platform like cp313-x86_64 (Python, machine)"),
+            "A pull host's Python and machine (cp313-x86_64, cp311-aarch64): the wheels its releases carry."),
 )

@@ -12,11 +12,12 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
   login.py, push.py, project.py: registry login, push delivery, takeover;
 - robot.py, payloadctl/ (the robot-side program), payload.service.j2: what runs
   on the robot;
-- report.py: its columns in status, what a rollout waits for.
+- report.py: its columns in status, what a rollout waits for; pins.py: the
+  image digests a pull release binds (robotfleet publish).
 """
 
 from robotfleet.role import Role
-from roles.payload import report, settings, steps
+from roles.payload import pins, report, settings, steps
 from roles.payload.release import rollback_release
 
 ROLE = Role(
@@ -28,6 +29,7 @@ ROLE = Role(
     rules=settings.rules,
     status=report.STATUS,
     rollout=report.ROLLOUT,
+    pins=pins.PINS,
 )
 
 __all__ = ["ROLE", "rollback_release"]
