@@ -37,10 +37,11 @@ SETTINGS = (
     Setting("ssh_strict_host_key_checking", "yes", c.string(choices=("yes", "accept-new", "no")),
             "yes refuses unknown or changed host keys; accept-new trusts on first use; no disables checking."),
     Setting("ssh_connect_timeout", 10, c.integer(1, 600),
-            "Seconds to reach a host: TCP connect, SSH greeting and login each give up after this."),
+            "Seconds to reach a host, retries included: TCP connect, SSH greeting and login each give up "
+            "after this, and a retry gets what is left of it."),
     Setting("ssh_connect_retries", 1, c.integer(0, 100),
-            "Reconnects after a refused, timed-out or reset connection (a flaky link); never after a "
-            "host key, login or non-SSH answer."),
+            "Reconnects after a refused, reset or dropped connection (a flaky link) while "
+            "ssh_connect_timeout leaves at least a second; never after a host key, login or non-SSH answer."),
     Setting("ssh_connect_retry_min_delay", 1, c.integer(0, 600), "Seconds before a reconnect, at least."),
     Setting("ssh_connect_retry_max_delay", 2, c.integer(0, 600), "Seconds before a reconnect, at most."),
     Setting("apt_lock_timeout", 300, c.integer(0, 86400),
