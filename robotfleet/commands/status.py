@@ -1,6 +1,6 @@
 """Fleet status: what each host runs and whether it is healthy.
 
-    robotfleet status inventories/robots.py [--limit robot2] [--json]
+    robotfleet status inventories/robots.py [--limit robot2] [--json | --format openmetrics] [--metrics FILE]
 
 One row per host, one SSH command per host: the engine's own part (the
 host's architecture, as the snapshot reads it) and each role with a status
@@ -9,6 +9,11 @@ release, its image, container state and health, the GPU driver.
 Unreachable hosts are rows too, never an abort, with the reason in words
 (the REACHABLE column, and "error" in --json).  Hosts are asked in parallel;
 a line on stderr tells as each answers, the table follows in inventory order.
+--metrics FILE also writes the fleet's state as OpenMetrics text to FILE
+(replaced atomically; for node_exporter's textfile collector), and
+--format openmetrics prints it instead of the table (for a Pushgateway):
+per host up, drift (not in its declared state), and each role's gauges
+(the payload's release, health, last change).
 Exit status: 0 every host answered, 1 a host failed (answered with an
 error, or its host key or login was refused), 2 refused (no such inventory,
 a --limit matching nothing), 3 a host was unreachable (and none failed).
@@ -17,6 +22,7 @@ a --limit matching nothing), 3 a host was unreachable (and none failed).
 from __future__ import annotations
 
 import json
+import os
 import re
 import sys
 
@@ -25,7 +31,8 @@ import gevent
 from robotfleet import commands, connect, roster
 from robotfleet.checks import one_line
 from robotfleet.commands import hosts as selection
-from robotfleet.commands import waves
+from robotfleet.commands import metrics, waves
+from robotfleet.role import GROUPS
 
 MARK = "@@@robot-fleet-status "
 # The engine's own section (no role is called so: a role's name is an identifier).
@@ -132,11 +139,36 @@ def _one(host, roles) -> dict:
     try:
         host.connect(raise_exceptions=True, show_errors=False)
     except ConnectError as error:
-        return row(host.name, roles, None, error.args[0])
+        return _about(host, row(host.name, roles, None, error.args[0]))
     ok, output = host.run_shell_command(StringCommand(status_command(roles, host.data)), _sudo=True)
     if not ok:
-        return {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]}
-    return row(host.name, roles, sections(output.stdout))
+        return _about(host, {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]})
+    found = row(host.name, roles, sections(output.stdout))
+    found["drift"] = drift(roles, found, host.data)
+    return _about(host, found)
+
+
+def _about(host, found: dict) -> dict:
+    found["kind"] = next((group for group in GROUPS if group in host.groups), None)
+    return found
+
+
+class _View(dict):
+    """A host's data as the roles' rollout parts read it (attributes)."""
+
+    __getattr__ = dict.get
+
+
+def drift(roles, found: dict, data) -> str | None:
+    """Why the host is not in its declared state, where status can tell
+    (each role's rollout part, as a rollout judges it), else None."""
+    view = _View(data.dict() if hasattr(data, "dict") else data)
+    for role in roles:
+        if role.rollout:
+            why = role.rollout.missing(found, role.rollout.target(view))
+            if why:
+                return why
+    return None
 
 
 def progress(found: dict, count: int, total: int) -> None:
@@ -162,11 +194,25 @@ def main(argv=None) -> int:
     from gevent import monkey
 
     monkey.patch_all()
+    import time
+
     parser = commands.parser("status", __doc__)
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")
-    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument("--json", action="store_true", help="machine-readable output (--format json)")
+    parser.add_argument("--format", choices=("table", "json", "openmetrics"), default=None,
+                        help="what to print: the table (default), JSON, or OpenMetrics text")
+    parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
     args = parser.parse_args(argv)
+    if args.json and args.format not in (None, "json"):
+        parser.error("--json and --format openmetrics/table: choose one")
+    shown = "json" if args.json else args.format or "table"
+    if args.metrics:
+        directory = os.path.dirname(os.path.abspath(args.metrics))
+        if not os.path.isdir(directory) or not os.access(directory, os.W_OK):
+            print(one_line(f"status: --metrics {args.metrics}: cannot write in {directory} (no such directory, or "
+                           "not writable); no host was contacted"), file=sys.stderr)
+            return selection.REFUSED
     roles = roster.roles()
     try:
         rows = collect(args.inventory, args.limit, roles, answered=progress)
@@ -175,12 +221,22 @@ def main(argv=None) -> int:
     rollout = waves.latest_state()
     for r in rows:
         r["rollout"] = waves.host_state(rollout, r["host"])
-    if args.json:
+    if args.metrics or shown == "openmetrics":
+        text = metrics.render(rows + metrics.reported(args.inventory, [r["host"] for r in rows]), roles, time.time())
+        if args.metrics:
+            try:
+                metrics.write(args.metrics, text)
+            except OSError as error:
+                print(one_line(f"status: cannot write {args.metrics}: {error.strerror}"), file=sys.stderr)
+                return selection.FAILED
+    if shown == "json":
         print(json.dumps(rows, indent=2, sort_keys=True))
+    elif shown == "openmetrics":
+        sys.stdout.write(text)
     else:
         print(table(rows, columns(roles)))
         if rollout:
-            print(waves.summary(rollout))
+            print(one_line(waves.summary(rollout)))
     return exit_code(rows)
 
 
