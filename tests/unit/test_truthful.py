@@ -147,3 +147,18 @@ def test_a_rollout_over_a_robot_whose_host_key_changed_fails(tmp_path, client_ke
         changed.close()
     assert result.returncode == 1, result.stderr[-3000:]
     assert "rollout: [robot1] failed: host key CHANGED: " in result.stderr, result.stderr[-3000:]
+
+
+def test_the_laptops_sudo_lines_say_what_happened_and_the_ways_on():
+    """The pure part of robotfleet/localsudo.py (the real sudo: tests/e2e/test_laptop_sudo.py)."""
+    from robotfleet import localsudo
+
+    assert localsudo.problem("@local", "dev", "ok", "", terminal=False) is None
+    assert localsudo.problem("@local", "dev", "password", "sudo: a password is required", terminal=True) is None
+    line = localsudo.problem("@local", "dev", "password", "sudo: a password is required", terminal=False)
+    assert line.startswith("[@local] sudo needs a password for dev, and there is no terminal to ask for it: ")
+    assert "--use-sudo-password" in line and "echo 'dev ALL=(ALL:ALL) NOPASSWD: ALL' | sudo tee" in line
+    assert localsudo.problem("@local", "dev", "missing", "sudo is not installed", terminal=True).startswith(
+        "[@local] sudo is not installed")
+    assert localsudo.problem("@local", "dev", "refused", "sudo: account validation failure", terminal=True) == (
+        "[@local] sudo refuses dev: sudo: account validation failure")
