@@ -25,11 +25,10 @@ import re
 import shlex
 import warnings
 
-from robotfleet.fleet.tree import ALL, HOST_NAME, PORT_KEY, Group, Layer, Tree, host_names
+from robotfleet.fleet.tree import ALL, HOST_NAME, UNGROUPED, Group, Layer, Tree, host_names
 
 SECTION = re.compile(r"^\[([^:\]\s]+)(?::(\w+))?\]\s*(?:#.*)?$")
 GROUP_NAME = re.compile(r"^([^:\]\s]+)\s*(?:#.*)?$")
-UNGROUPED = "ungrouped"
 COMMENTS = ("#", ";")
 
 
@@ -154,9 +153,7 @@ class Reader:
             self.problem(number, f"{where}: {message}")
 
         for host, port in host_names(pattern, problem):
-            if port is not None:
-                self.tree.listed(host, group, Layer({PORT_KEY: port}, self.shown, line=number))
-            self.tree.listed(host, group, Layer(dict(values), self.shown, dict(keys), number))
+            self.tree.listed(host, group, Layer(dict(values), self.shown, dict(keys), number), port)
 
     def vars_line(self, group: str, layer: Layer, line: str, number: int) -> None:
         if "=" not in line:

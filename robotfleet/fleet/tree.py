@@ -41,6 +41,7 @@ from robotfleet import checks as c
 from robotfleet.fleet.hostpattern import PatternProblem, expand
 
 EXTENSION_PREFIX = "x-"
+UNGROUPED = "ungrouped"  # Ansible's group of hosts listed in no other group
 HOST_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,62}")
 GROUP_KEYS = ("vars", "hosts", "children")
 ALL = "all"
@@ -94,14 +95,21 @@ class Tree:
                 + [layer for g in groups for layer in self.groups[g].files]
                 + [layer for _, layer in self.hosts[host]] + self.host_files.get(host, []))
 
-    def listed(self, host: str, group: str, layer: Layer) -> None:
+    def listed(self, host: str, group: str, layer: Layer, port: int | None = None) -> None:
+        """``host`` listed in ``group`` with ``layer``; a host pattern's port
+        counts where the host is first listed only, as in Ansible."""
         self.groups.setdefault(group, Group(group))
+        if port is not None and host not in self.hosts:
+            self.hosts[host] = [(group, Layer({PORT_KEY: port}, layer.file, line=layer.line))]
         self.hosts.setdefault(host, []).append((group, layer))
 
     def above(self, host: str) -> set[str]:
-        """Every group ``host`` is in: where it is listed and their ancestors."""
+        """Every group ``host`` is in: where it is listed and their ancestors
+        (ungrouped only if no other group lists it, as Ansible has it)."""
         found: set[str] = set()
         todo = [group for group, _ in self.hosts[host]]
+        if set(todo) - {ALL, UNGROUPED}:
+            todo = [group for group in todo if group != UNGROUPED]
         while todo:
             name = todo.pop()
             if name not in found:
@@ -186,9 +194,7 @@ def read(raw: dict, lines: list[str], shown: str, tree: Tree | None = None) -> T
                     problem(c.key_name(pattern), f"expected a mapping of settings, got {c.describe(host_vars)}")
                     continue
                 for host, port in named:
-                    if port is not None:
-                        tree.listed(host, name, Layer({PORT_KEY: port}, shown))
-                    tree.listed(host, name, Layer(host_vars, shown))
+                    tree.listed(host, name, Layer(host_vars, shown), port)
         elif hosts is not None:
             problem(f"{name}.hosts", f"expected a mapping of host name to settings, got {c.describe(hosts)}")
         children = node.get("children")

@@ -28,6 +28,7 @@ OLDER = {"ansible_ssh_host": "ssh_hostname", "ansible_ssh_user": "ssh_user", "an
 
 INI_HOSTS = f"""\
 # the warehouse fleet, as the Ansible team keeps it
+robot7 ros_domain_id=70
 [robots:children]
 warehouse_a
 warehouse_b
@@ -157,7 +158,9 @@ def test_ranges_ports_and_older_names(tmp_path):
     found = ours(write(tmp_path, {"hosts": INI_HOSTS}))
     assert sorted(found) == ["alice-laptop", "robot-a", "robot-b", "robot-c", "robot01", "robot02", "robot03",
                              "robot10", "robot12", "robot14", "robot7"]
-    assert (found["robot7"]["ssh_hostname"], found["robot7"]["ssh_port"]) == ("10.20.1.7", 2222)
+    assert found["robot7"]["ssh_hostname"] == "10.20.1.7"
+    assert "ssh_port" not in found["robot7"]  # robot7:2222 is not its first listing: Ansible ignores the port
+    assert found["robot7"]["ros_domain_id"] == 70  # the ungrouped line's settings still count
     yaml = ours(write(tmp_path / "y", {"hosts.yml": YAML_HOSTS}) / "hosts.yml")
     assert yaml["robot1"]["ssh_port"] == 2201 and yaml["robot9"]["ssh_port"] == 2222
     assert yaml["alice-laptop"]["ssh_hostname"] == "10.0.0.50"
@@ -166,7 +169,7 @@ def test_ranges_ports_and_older_names(tmp_path):
 def test_an_older_name_overriding_a_newer_one_is_a_note(tmp_path, capfd):
     fleet = load(write(tmp_path, {"hosts": INI_HOSTS})/ "hosts")
     assert fleet.notes == [
-        f"{display(tmp_path / 'hosts')}:8: note: robot7: ansible_ssh_host ('10.20.1.7') wins over ssh_hostname "
+        f"{display(tmp_path / 'hosts')}:2: note: robot7: ansible_ssh_host ('10.20.1.7') wins over ssh_hostname "
         "('10.20.1.70'), as in Ansible",
         f"{display(tmp_path / 'hosts')}: note: ansible_become: Ansible's own, ignored here",
     ]
