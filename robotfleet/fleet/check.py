@@ -166,7 +166,8 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         notes.append(f"{shown}: note: {', '.join(sorted(ignored))}: Ansible's own, ignored here")
     fleet.notes = notes
     if not lines and not any(fleet.groups.values()):
-        lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts")
+        lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] "
+                     "in an INI inventory)")
     if lines:
         raise FleetError([c.one_line(line) for line in lines])
     return fleet

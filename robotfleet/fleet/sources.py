@@ -75,13 +75,16 @@ class Reading:
             base = path.parent
         self.vars_files(base)
 
-    def inventory_files(self, directory: Path):
+    def inventory_files(self, directory: Path, top: bool = True):
         for entry in sorted(os.listdir(directory)):
             path = directory / entry
+            if entry in VARS_DIRS and not top and path.is_dir():
+                self.notes.append(f"{display_path(path)}: note: not read: Ansible reads group_vars/ and host_vars/ "
+                                  "at the top of an inventory directory only")
             if entry.startswith(".") or entry in VARS_DIRS or entry.endswith(IGNORED_SUFFIXES):
                 continue
             if path.is_dir():
-                yield from self.inventory_files(path)
+                yield from self.inventory_files(path, top=False)
             else:
                 yield path
 

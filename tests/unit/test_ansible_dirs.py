@@ -270,10 +270,14 @@ def test_an_inventory_directory_skips_what_ansible_skips(tmp_path):
     root = write(tmp_path / "inv", {"10-hosts": "[robots]\nrobot1\n", "20-more.yaml": "laptops: {hosts: {lap1: {x11_user: a}}}\n",
                                     "README.md": "# not an inventory [robots]\n", "ansible.cfg": "[defaults]\n",
                                     ".hidden": "[robots]\nrobot9\n", "old.bak": "[robots]\nrobot8\n",
+                                    "more/group_vars/all.yml": "ros_domain_id: 5\n",
                                     "group_vars/all.yml": f"payload_image: {IMAGE}\n"})
     fleet = load(root)
     assert [name for name, _ in fleet.hosts("robots")] == ["robot1"]
     assert [name for name, _ in fleet.hosts("laptops")] == ["lap1"]
+    assert "ros_domain_id" not in dict(fleet.hosts("robots"))["robot1"]
+    assert fleet.notes == [f"{display(root)}/more/group_vars: note: not read: Ansible reads group_vars/ and "
+                           "host_vars/ at the top of an inventory directory only"]
 
 
 @pytest.mark.parametrize("pattern, names, port", [
