@@ -242,10 +242,15 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
             code = selection.FAILED if relayed([sys.executable, "-c", PYINFRA, "--dry", args.inventory, args.script,
                                                 *limits, *extra]) else code
         for host, why in unreachable.items():
-            say(f"rollout: [{host}] unreachable: {why}")
-        if unreachable and code == selection.OK:
-            say(f"rollout: dry run incomplete: {len(unreachable)} robot(s) unreachable, not planned: "
-                f"{', '.join(unreachable)}")
+            say(f"rollout: [{host}] {'unreachable' if connect.unreachable(why or '') else 'failed'}: {why}")
+        network = [h for h, why in unreachable.items() if connect.unreachable(why or "")]
+        refused = [h for h in unreachable if h not in network]
+        if refused:  # a host key or login refused: the robot failed
+            say(f"rollout: dry run incomplete: {len(refused)} robot(s) refused (host key or login), not planned: "
+                f"{', '.join(refused)}")
+            code = selection.FAILED
+        if network and code == selection.OK:
+            say(f"rollout: dry run incomplete: {len(network)} robot(s) unreachable, not planned: {', '.join(network)}")
             code = selection.UNREACHABLE
         return code
     if not args.yes:

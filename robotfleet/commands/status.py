@@ -173,7 +173,9 @@ def drift(roles, found: dict, data) -> str | None:
 
 def progress(found: dict, count: int, total: int) -> None:
     """One line on stderr as a host answers: the operator sees the run move."""
-    state = "answered" if found["reachable"] else f"unreachable: {found.get('error')}"
+    error = found.get("error") or ""
+    state = ("answered" if found["reachable"] else f"unreachable: {error}" if connect.unreachable(error)
+             else f"failed: {error}")  # a host key or login refused: the host was reached
     print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
 
 

@@ -115,6 +115,8 @@ def test_status_exit_codes_are_readmes(tmp_path, client_key):
         assert code == 3 and errors["robot1"].startswith("connection refused")
         code, errors = case("robot1", robot1=changed.port)
         assert code == 1 and errors["robot1"].startswith("host key CHANGED")
+        assert status(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": changed.port}})[2].stderr.startswith(
+            "[robot1] failed: host key CHANGED: ")  # reached, and refused: not "unreachable"
         code, errors = case("robot1", robot1=unknown.port)
         assert code == 1 and errors["robot1"].startswith("unknown host key")
         code, errors = case("robot1", robot1=refusing.port)
@@ -143,8 +145,12 @@ def test_a_rollout_over_a_robot_whose_host_key_changed_fails(tmp_path, client_ke
         trusted(tmp_path, changed, paramiko.ECDSAKey.generate())
         path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": changed.port}}, ssh_connect_retries=0)
         result = run(path, tmp_path, "-m", "robotfleet", "rollout", "inventories/robots.py", "-y")
+        dry = run(path, tmp_path, "-m", "robotfleet", "rollout", "inventories/robots.py", "--dry")
     finally:
         changed.close()
+    assert dry.returncode == 1, dry.stderr[-3000:]
+    assert dry.stderr.splitlines()[-1] == ("rollout: dry run incomplete: 1 robot(s) refused (host key or login), "
+                                           "not planned: robot1")
     assert result.returncode == 1, result.stderr[-3000:]
     assert "rollout: [robot1] failed: host key CHANGED: " in result.stderr, result.stderr[-3000:]
 
