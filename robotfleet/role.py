@@ -11,6 +11,7 @@ status table and the rollout's target.  ARCHITECTURE.md has a worked example.
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -91,10 +92,25 @@ class StatusPart:
 class RolloutPart:
     """What a rollout waits for on each host: ``target(data)`` (JSON data
     naming what the host should run) and ``missing(row, target)``: None once
-    the host's status row shows it, else why not (one line)."""
+    the host's status row shows it, else why not (one line).
+    ``result(row, deployment)``: the role's own structured result of the
+    deploy named ``deployment`` (see ``deployment()``) as the host's status
+    row carries it, ``(ok, why)``; None when the row holds none for it."""
 
     target: Callable[[Any], Any]
     missing: Callable[[dict, Any], str | None]
+    result: Callable[[dict, str], tuple[bool, str] | None] | None = None
+
+
+# A deploy started by robotfleet (a rollout's wave) is named in this
+# environment variable; a role that records results on the host records the
+# name with them, so the results of *this* deploy are told from older ones.
+DEPLOYMENT_ENV = "ROBOTFLEET_DEPLOYMENT"
+
+
+def deployment() -> str | None:
+    """The name of the deploy this run is (None: not named)."""
+    return os.environ.get(DEPLOYMENT_ENV) or None
 
 
 @dataclass(frozen=True)
@@ -123,6 +139,10 @@ def _no_problems(data: dict, refused: frozenset) -> list[Problem]:
     return []
 
 
+def _no_secrets(data) -> list[str]:
+    return []
+
+
 @dataclass(frozen=True)
 class Role:
     """A role's card.  Only ``name`` and ``doc`` are required.
@@ -135,7 +155,10 @@ class Role:
       a problem, which a rule does not look at again;
     - ``adds``: hook -> what this role adds there (see ``Play.added``);
     - ``status``, ``rollout``, ``pins``: its parts in ``robotfleet status``,
-      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart)."""
+      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart);
+    - ``secrets(data)``: secret values the role holds for a host beyond its
+      data (e.g. passwords read from the environment), masked in output
+      like the URL passwords of the data (robotfleet/secrets.py)."""
 
     name: str
     doc: str
@@ -148,6 +171,7 @@ class Role:
     status: StatusPart | None = None
     rollout: RolloutPart | None = None
     pins: PinPart | None = None
+    secrets: Callable[[Any], list[str]] = _no_secrets
 
 
 def cards(listed) -> tuple[Role, ...]:

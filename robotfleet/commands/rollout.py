@@ -17,17 +17,19 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import shlex
 import subprocess
 import sys
 import tempfile
 
 from robotfleet import commands
-from robotfleet.checks import one_line
 from robotfleet import connect, inventory as fleet_inventory, roster
+from robotfleet.checks import one_line
 from robotfleet.commands import hosts as selection
 from robotfleet.commands import status, waves
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
+from robotfleet.role import DEPLOYMENT_ENV
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
@@ -74,62 +76,70 @@ def missing(roles, row: dict, target: dict) -> str | None:
     return None
 
 
-def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str) -> tuple[dict | None, dict[str, str]]:
-    """Run the normal deploy on ``hosts``; pyinfra's JSON results (None if it
-    printed none, e.g. every host unreachable) and each host's last error line."""
+def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str, deployment: str) -> dict | None:
+    """Run the normal deploy on ``hosts``, named ``deployment`` (the roles
+    record it with their results on each host); pyinfra's JSON results (None
+    if it printed none, e.g. every host failed).  What it prints is for the
+    operator only: no result is read from it (a host can print anything)."""
     limits = [arg for host in hosts for arg in ("--limit", host)]
     command = [sys.executable, "-c", PYINFRA, "-y", "--json", inventory, script, *limits, *extra]
-    errors: dict[str, str] = {}
-    env = dict(os.environ, PYINFRA_PROGRESS="off")
+    env = dict(os.environ, PYINFRA_PROGRESS="off", **{DEPLOYMENT_ENV: deployment})
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True, env=env)
         for line in proc.stderr:
-            relay(line)
-            for host in hosts:
-                if f"[{host}]" in line:
-                    message = line.split(f"[{host}]", 1)[1].strip()
-                    if is_error_line(message) and (host not in errors or "payload:" in message):
-                        errors[host] = message  # payloadctl's line says more than pyinfra's summary
+            relay(line)  # what robots sent is in it: escaped on its way to the terminal
         proc.wait()
         out.seek(0)
         try:
-            results = json.loads(out.read())["results"]
+            return json.loads(out.read())["results"]
         except (ValueError, KeyError, TypeError):
-            results = None
-    return results, errors
+            return None
 
 
-# The connector's reasons, and pyinfra's own (hosts of an inventory that does
-# not go through robotfleet/connect.py).
-CONNECT_ERRORS = connect.REASONS + ("Could not connect", "Authentication error", "SSH host key error", "SSH error")
+def not_connected(results: dict | None) -> set[str]:
+    """The hosts pyinfra failed without an operation failing: it could not
+    connect to them (from its JSON results)."""
+    if results is None:
+        return set()
+    return set(results.get("failed_hosts", [])) - {h for op in results.get("operations", []) for h in op["error"]}
 
 
-def is_error_line(message: str) -> bool:
-    payload_failed = message.startswith("payload:") and ("failed" in message or "refused" in message)
-    return payload_failed or "Error" in message or message.startswith(CONNECT_ERRORS)
+def reported(roles, row: dict, deployment: str | None) -> tuple[bool, str] | None:
+    """The roles' own structured results of ``deployment`` on the host (its
+    status row): (ok, why) of the first that failed, else of the first."""
+    if not deployment:
+        return None
+    found = [r for r in (role.rollout.result(row, deployment) for role in roles
+                         if role.rollout and role.rollout.result) if r is not None]
+    return next((r for r in found if not r[0]), found[0] if found else None)
 
 
-def judge_wave(hosts, results, rows, errors, targets, unreachable_fails, roles=None):
-    """(done, failed, skipped) for a wave from pyinfra's results (None when it
-    printed none: every host failed, "No hosts remaining!"), the error lines
-    it printed per host, and the robots' release records (pure)."""
+def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, deployment=None):
+    """(done, failed, skipped) for a wave, from structured data only (pure):
+    pyinfra's JSON results (None when it printed none: every host failed,
+    "No hosts remaining!"), the robots' status rows and the roles' results
+    of this ``deployment`` that the rows carry."""
     roles = roster.roles() if roles is None else roles
-    op_errors = {h for op in (results or {}).get("operations", []) for h in op["error"]}
-    not_connected = {h for h, line in errors.items() if line.startswith(CONNECT_ERRORS)}
-    if results is not None:
-        not_connected |= set(results.get("failed_hosts", [])) - op_errors
+    operations = (results or {}).get("operations", [])
+    op_errors = {h: [op.get("name") or "an operation" for op in operations if h in op["error"]] for h in hosts}
+    lost = not_connected(results)
     done, failed, skipped = [], {}, {}
     for host in hosts:
         row = rows.get(host) or {"reachable": False}
         why = missing(roles, row, targets[host])
-        if host not in op_errors and host not in errors and why is None:
-            done.append(host)
-        elif (host in not_connected or not row.get("reachable")) and connect.unreachable(
-                errors.get(host) or row.get("error") or ""):  # a host key or login refused is a failure
-            reason = "unreachable: " + (errors.get(host) or row.get("error") or "cannot connect")
+        own = reported(roles, row, deployment)
+        deploy_failed = results is None or bool(op_errors[host]) or host in results.get("failed_hosts", [])
+        if own is None and (host in lost or not row.get("reachable")) and connect.unreachable(
+                row.get("error") or ""):  # a host key or login refused is a failure, below
+            reason = "unreachable: " + (row.get("error") or "cannot connect")
             (failed if unreachable_fails else skipped)[host] = reason
+        elif own is not None and not own[0]:
+            failed[host] = own[1]
+        elif deploy_failed or why is not None:
+            steps = ", ".join(op_errors[host])
+            failed[host] = why or (f"the deploy failed at: {steps}" if steps else "the deploy failed")
         else:
-            failed[host] = errors.get(host) or why
+            done.append(host)
     return done, failed, skipped
 
 
@@ -267,15 +277,17 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
             continue
         say("")
         say(f"--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}")
-        results, errors = deploy_wave(args.inventory, todo, extra, args.script)
-        # A robot the deploy could not reach is not tried again in this wave.
-        lost = {h for h, line in errors.items() if line.startswith(CONNECT_ERRORS)}
-        lost |= set((results or {}).get("failed_hosts", [])) - {h for op in (results or {}).get("operations", [])
-                                                               for h in op["error"]}
-        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost])
-        wave_rows.update({h: {"host": h, "reachable": False, "error": errors.get(h)} for h in lost})
+        deployment = f"rollout-{state['key'][:12]}-wave{index + 1}-{secrets.token_hex(4)}"
+        results = deploy_wave(args.inventory, todo, extra, args.script, deployment)
+        # A robot the deploy could not reach is not tried again in this wave
+        # (no JSON from pyinfra: nor is one that did not answer the status before).
+        lost = not_connected(results) | ({h for h in todo if not rows.get(h, {}).get("reachable")}
+                                         if results is None else set())
+        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost])  # with their own results
+        wave_rows.update({h: {"host": h, "reachable": False,
+                              "error": rows.get(h, {}).get("error") or "the deploy could not connect"} for h in lost})
         rows.update(wave_rows)
-        done, failed, skipped = judge_wave(todo, results, wave_rows, errors, targets, args.unreachable_fails, roles)
+        done, failed, skipped = judge_wave(todo, results, wave_rows, targets, args.unreachable_fails, roles, deployment)
         state = waves.record_wave(state, index, done, failed, skipped)
         waves.save_state(path, state)
         for host in todo:

@@ -36,6 +36,8 @@ SETTINGS = (
             "known_hosts file for strict host key checking (relative to the checkout)."),
     Setting("ssh_strict_host_key_checking", "yes", c.string(choices=("yes", "accept-new", "no")),
             "yes refuses unknown or changed host keys; accept-new trusts on first use; no disables checking."),
+    Setting("ssh_revoked_host_keys", None, c.optional(v.local_path),
+            "A KRL (ssh-keygen -k) on this machine: host keys and certificates it revokes are refused; null: none."),
     Setting("ssh_connect_timeout", 10, c.integer(1, 600),
             "Seconds to reach a host, retries included: TCP connect, SSH greeting and login each give up "
             "after this, and a retry gets what is left of it."),

@@ -16,7 +16,9 @@ from robotfleet.fleet.registry import Registry
 # The rules only the run checks, each with what README says of it.
 BEYOND_SCHEMA = {
     "rules across settings": "each role's rules on a host's merged settings: x11_user when display is true, "
-    "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1",
+    "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1, "
+    "a TCP listener in docker_daemon_options without TLS client verification, a registry credential file "
+    "inside the checkout",
     "a host in two groups": "a host declared under both robots and laptops, or in groups of both kinds",
     "a host of no kind": "a host in neither a robots nor a laptops group (at any depth)",
     "a fleet with no hosts": "a file that declares no host at all",

@@ -45,7 +45,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
-    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING}
+    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING, daemon.PREVIOUS}
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
@@ -114,6 +114,7 @@ def install_docker(play: Play):
         action=action,
         timeout=data.docker_restart_timeout,
         pending=pending,
+        previous=snap.files.get(daemon.PREVIOUS),
     )
     if daemon.restarts_docker(content, snap.files.get(DAEMON_JSON), pending):
         play.announce(hooks.RESTARTED, written)
@@ -150,6 +151,7 @@ ROLE = Role(
     name="docker",
     doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json.",
     settings=settings.SETTINGS,
+    rules=settings.rules,
     reads=declare_reads,
     steps=install_docker,
     status=STATUS,

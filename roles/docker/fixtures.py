@@ -19,7 +19,7 @@ def converged(play, host: str) -> None:
         "/etc/docker": FileState("dir", None, "755", "root", "root"),
         docker.DAEMON_JSON: file_state(plan.daemon_json(
             play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
-            data.docker_registry_mirrors, data.docker_insecure_registries)),
+            data.docker_registry_mirrors, data.docker_insecure_registries), mode=docker.daemon.MODE),
     })
     snap.probes[docker.KEY_PROBE] = f"{repo.fingerprint}\n{aptrepo.CANONICAL}\n" if repo.fingerprint else ""
     snap.units["docker.service"] = ("enabled", "active")

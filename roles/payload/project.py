@@ -13,6 +13,7 @@ from pyinfra import host, logger
 from robotfleet.checks import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+from roles.payload.credentials import registry_key
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.payloadctl.takeover as takeover_rule
@@ -72,13 +73,16 @@ def push_target(data, snap: Snapshot, credentials) -> dict:
             "credentials": credentials}
 
 
-def push_more_images(data, snap: Snapshot, credentials=None) -> None:
+def push_more_images(data, snap: Snapshot, auths: dict | None = None) -> None:
     """payload_delivery push for a project of several images: each one the
-    robot lacks is sent (layers the robot has are left out, as for the first)."""
+    robot lacks is sent (layers the robot has are left out, as for the
+    first), read from its registry with that registry's own credentials
+    (``auths``: registry -> Credentials or None)."""
     if data.payload_delivery != "push":
         return
     layers = push.parse_layer_sets(snap.probes.get("docker_layers", ""))
     for index, ref in enumerate(more_images(data)):
+        credentials = (auths or {}).get(registry_key(imageref.parse(ref).registry))
         push.push_image(
             name=f"Send the payload image {ref} over SSH",
             image=ref,
@@ -96,9 +100,10 @@ def takeover_of(data) -> dict:
             **takeover_rule.parse_replaces(data.payload_replaces)}
 
 
-def foreign(probe_output: str, project: str, takeover: dict) -> list[dict]:
+def foreign(probe_output: str, project: str, takeover: dict, recorded=()) -> list[dict]:
     """The containers the release will take over, from the probe (pure; the
-    rule is payloadctl's own, takeover.reason)."""
+    rule is payloadctl's own, takeover.reason; ``recorded``: the compose
+    projects the robot's current release says its payload used)."""
     found = []
     for line in probe_output.splitlines():
         try:
@@ -110,7 +115,7 @@ def foreign(probe_output: str, project: str, takeover: dict) -> list[dict]:
         container = {"id": cid[:12], "name": name.lstrip("/"), "image": image, "project": label or None,
                      "running": running == "true", "restart": policy or "no",
                      "repositories": [imageref.repository(image)]}
-        why = takeover_rule.reason(container, project, takeover)
+        why = takeover_rule.reason(container, project, takeover, recorded)
         if why:
             found.append(dict(container, why=why))
     return found
@@ -125,11 +130,13 @@ def takeover_line(found: list[dict]) -> str:
     return "payload: taking over what runs the payload another way (stopped, restart policy no): " + "; ".join(parts)
 
 
-def takeover(data, snap: Snapshot) -> list[dict]:
-    """What the release will stop, said in the run output."""
+def takeover(data, snap: Snapshot, current_record: dict | None = None) -> list[dict]:
+    """What the release will stop, said in the run output (``current_record``:
+    the robot's current release record, from the snapshot)."""
     if not data.payload_autostart:
         return []
-    found = foreign(snap.probes.get(FOREIGN_PROBE, ""), data.payload_name, takeover_of(data))
+    recorded = takeover_rule.recorded_projects(current_record, data.payload_name)
+    found = foreign(snap.probes.get(FOREIGN_PROBE, ""), data.payload_name, takeover_of(data), recorded)
     if found:
         # Names and images come from the robot: one line, nothing that moves the cursor.
         logger.warning(f"[{host.name}] {one_line(takeover_line(found))}")

@@ -9,6 +9,7 @@ import shlex
 
 import datetime
 
+from robotfleet.checks import one_line
 from robotfleet.role import Metric, RolloutPart, StatusPart
 import roles.payload.services as services
 from roles.payload.robot import HELPER
@@ -43,7 +44,25 @@ def cells(output: str) -> dict:
         "rolled_back_from": current.get("rolled_back_from"),
         **per_service(report.get("services") or {}),
         "image_refs": sorted(current.get("images") or {}),
+        "result": last_result(report.get("result")),
     }
+
+
+def last_result(result) -> dict | None:
+    """payloadctl's structured result of the robot's last apply or rollback
+    (format 1), as status --json shows it and a rollout reads it."""
+    if not isinstance(result, dict) or result.get("payloadctl") != 1 or not isinstance(result.get("ok"), bool):
+        return None
+    return result
+
+
+def result(row: dict, deployment: str) -> tuple[bool, str] | None:
+    """The payload's result of the deploy named ``deployment`` on this host
+    (None: its last result is another deploy's, or it has none)."""
+    found = row.get("result") or {}
+    if not deployment or found.get("deployment") != deployment:
+        return None
+    return found["ok"], one_line(str(found.get("message") or found.get("reason") or found.get("outcome")))
 
 
 def per_service(states: dict) -> dict:
@@ -125,4 +144,4 @@ STATUS = StatusPart(
     order=20,
     metrics=metrics,
 )
-ROLLOUT = RolloutPart(target=target, missing=missing)
+ROLLOUT = RolloutPart(target=target, missing=missing, result=result)

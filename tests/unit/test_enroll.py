@@ -68,7 +68,8 @@ def test_a_changed_key_is_refused_with_both_fingerprints_and_the_file_left_alone
     assert lines[1] == (f"robot1: host key CHANGED for [127.0.0.1]:{servers[0].port}: {known_hosts} has "
                         f"ecdsa-sha2-nistp256 {hostkeys.fingerprint(old)}, the host offers ecdsa-sha2-nistp256 "
                         f"{hostkeys.fingerprint(servers[0].host_key)}; refused, its line is left as it is "
-                        "(if the robot was reinstalled, delete that line and enroll it again)")
+                        "(if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
+                        "inventories/robots.py --replace robot1 --fingerprints FILE)")
     assert known_hosts.read_text() == before
 
 
@@ -85,6 +86,69 @@ def test_fingerprints_from_a_file_enroll_or_refuse(tmp_path, monkeypatch, capsys
                         f"the host offers {hostkeys.fingerprint(servers[1].host_key)}; refused")
     assert hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[0].port}")
     assert not hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
+
+
+def test_a_host_missing_from_the_fingerprints_file_is_refused_even_with_yes(tmp_path, monkeypatch, capsys, servers):
+    """Issue 27, item 9: --fingerprints FILE --yes enrolls only what FILE vouches for."""
+    path = two_robots(tmp_path, servers)
+    recorded = tmp_path / "fingerprints.txt"
+    recorded.write_text(f"robot1 {hostkeys.fingerprint(servers[0].host_key)}\n")
+    code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(recorded), "--yes")
+    assert code == 1
+    assert lines[1:] == [f"{line(servers[0], 'robot1')}: matches {recorded}; enrolled",
+                         f"{line(servers[1], 'robot2')}: not in {recorded}; refused (a host missing from the "
+                         "fingerprints file is enrolled only with --allow-unlisted)",
+                         f"{tmp_path / 'known_hosts'}: 1 key(s) added", "enroll: 1 enroll, 1 refused"]
+    assert not hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
+    # Asked for by name: the unlisted host is taken as shown (--yes).
+    code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(recorded), "--yes", "--allow-unlisted")
+    assert code == 0 and lines[2] == f"{line(servers[1], 'robot2')}: new; enrolled (--yes)"
+    assert hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
+
+
+def test_replace_takes_a_reflashed_robots_new_key_only_when_it_matches_the_file(tmp_path, monkeypatch, capsys, servers):
+    """Issue 28, item 9: the way back for a reflashed robot, without editing
+    known_hosts by hand; what was replaced is said with both fingerprints."""
+    path = two_robots(tmp_path, servers)
+    known_hosts = tmp_path / "known_hosts"
+    entry1, entry2 = f"[127.0.0.1]:{servers[0].port}", f"[127.0.0.1]:{servers[1].port}"
+    old = paramiko.ECDSAKey.generate()
+    hashed = paramiko.HostKeys.hash_host(entry1)
+    known_hosts.write_text(f"# the fleet\n{hashed} {old.get_name()} {old.get_base64()}\n"
+                           f"{entry2},{entry1} {old.get_name()} {old.get_base64()}\n"
+                           f"@cert-authority *.fleet {old.get_name()} {old.get_base64()}\n")
+    before = known_hosts.read_text()
+    new_print, old_print = hostkeys.fingerprint(servers[0].host_key), hostkeys.fingerprint(old)
+    recorded = tmp_path / "fingerprints.txt"
+
+    recorded.write_text(f"robot1 {hostkeys.fingerprint(paramiko.ECDSAKey.generate())}\n")
+    code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
+    assert code == 1 and known_hosts.read_text() == before
+    assert lines[1].startswith(f"robot1: host key CHANGED for {entry1}: {known_hosts} has ecdsa-sha2-nistp256 {old_print}")
+    assert lines[1].endswith(f": not replaced, its line is left as it is")
+
+    recorded.write_text(f"robot1 {new_print}\n")
+    code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
+    assert code == 0, lines
+    assert lines[1:] == [f"robot1 ({entry1}): host key replaced: was ecdsa-sha2-nistp256 {old_print}, now "
+                         f"ecdsa-sha2-nistp256 {new_print} (matches {recorded})", "enroll: 1 replace"]
+    text = known_hosts.read_text().splitlines()
+    assert text[0] == "# the fleet" and hashed not in "\n".join(text)
+    assert text[1] == f"{entry2} {old.get_name()} {old.get_base64()}"  # robot2's name on the shared line stays
+    assert text[2].startswith("@cert-authority *.fleet ")
+    assert hostkeys.known(str(known_hosts), entry1) == {servers[0].host_key.get_name(): servers[0].host_key}
+    assert connect(path, monkeypatch)["robot1"] is None  # strict checking passes again
+
+
+def test_replace_needs_a_fingerprints_file_and_a_host_of_the_inventory(tmp_path, monkeypatch, capsys, servers):
+    path = two_robots(tmp_path, servers)
+    code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--yes")
+    assert code == 2 and lines == ["--replace needs --fingerprints FILE: a changed key is replaced only when it "
+                                   "matches the fingerprint recorded for the host; nothing was done"]
+    recorded = tmp_path / "fingerprints.txt"
+    recorded.write_text("")
+    code, lines = run(path, monkeypatch, capsys, "--replace", "robot9", "--fingerprints", str(recorded))
+    assert code == 2 and lines == ["--replace robot9: no such host in inventories/robots.py; nothing was done"]
 
 
 def test_without_a_terminal_nothing_is_enrolled_unasked(tmp_path, monkeypatch, capsys, servers):

@@ -54,7 +54,8 @@ def converged(snap, data):
 
     for path, text in files.items():
         content = text.encode() if isinstance(text, str) else text
-        snap.files[path] = FileState("file", hashlib.sha256(content).hexdigest(), "644", "root", "root")
+        mode = "600" if path == "/etc/docker/daemon.json" else "644"  # daemon.json is root's alone
+        snap.files[path] = FileState("file", hashlib.sha256(content).hexdigest(), mode, "root", "root")
     snap.files[KEY] = FileState("file", "0" * 64, "644", "root", "root")
     return snap, first
 

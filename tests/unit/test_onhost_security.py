@@ -360,3 +360,29 @@ def test_the_archive_sent_is_gzip_compressed_and_smaller_than_the_layers(tmp_pat
     with tarfile.open(fileobj=io.BytesIO(gzip.decompress(out.read_bytes()))) as sent:
         assert sent.extractfile("l1/layer.tar").read() == layer
     assert report["sent"] * 4 / 3 < report["full"]
+
+
+# --- daemon.json may hold proxy credentials: root's alone (issue 27, item 7) ---
+
+def test_daemon_json_and_its_previous_copy_are_written_0600_whatever_the_old_mode(tmp_path):
+    """The write script runs for real (sh, this machine's dockerd): an old
+    0644 daemon.json holding a proxy password is kept as .previous 0600 (not
+    copied with its mode), and the new file is 0600 too."""
+    import base64
+    import os
+    import stat
+
+    from roles.docker import daemon
+
+    dest, previous, pending = tmp_path / "daemon.json", tmp_path / "daemon.json.previous", tmp_path / "daemon.json.pending"
+    old = '{"proxies": {"http-proxy": "http://u:s3cret@proxy:3128"}}\n'
+    dest.write_text(old)
+    os.chmod(dest, 0o644)
+    new = base64.encodebytes(b'{"live-restore": true}\n').decode()
+    proc = subprocess.run(["sh", "-c", daemon.write_script(str(dest), str(previous), str(pending))],
+                          input=new, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert dest.read_text() == '{"live-restore": true}\n' and previous.read_text() == old
+    for path in (dest, previous):
+        info = path.stat()
+        assert (stat.S_IMODE(info.st_mode), info.st_uid, info.st_gid) == (0o600, 0, 0), path

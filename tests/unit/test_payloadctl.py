@@ -10,8 +10,24 @@ import pytest
 import yaml
 
 from roles.payload import release, robot as payload
-from roles.payload.payloadctl import durable, health, imageref, images, releases as store
+from roles.payload.payloadctl import durable, health, imageref, images, lifecycle, releases as releases_module
 from roles.payload.payloadctl import lock as apply_lock
+
+
+class store:
+    """The release store as these tests set it up: records and pointers
+    written straight to disk (a state payloadctl then finds), read back raw."""
+
+    compose_yaml = staticmethod(releases_module.compose_yaml)
+
+    class Releases(releases_module.Releases):
+        def write_record(self, rid, record):
+            durable.write_json(self.path(rid, "record.json"), record)
+
+        def point(self, name, rid):
+            lifecycle.Life(self)._point(name, rid)
+
+        record = releases_module.Releases.raw_record
 
 
 @pytest.fixture(scope="module")
@@ -33,22 +49,6 @@ def test_pinned_prefers_the_digest_of_the_same_repository():
     info = {"id": "sha256:1", "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
     assert images.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
     assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
-
-
-def test_release_pointers_are_swapped_atomically(tmp_path):
-    releases = store.Releases(str(tmp_path))
-    for rid, created in (("r1", "2026-01-01T00:00:00Z"), ("r2", "2026-01-02T00:00:00Z")):
-        (tmp_path / "releases" / rid).mkdir(parents=True)
-        releases.write_record(rid, {"id": rid, "created": created})
-    assert releases.pointer("current") is None
-    releases.point("current", "r1")
-    releases.point("current", "r2")
-    releases.point("previous", "r1")
-    assert (releases.pointer("current"), releases.pointer("previous")) == ("r2", "r1")
-    assert (tmp_path / "current").resolve() == (tmp_path / "releases" / "r2").resolve()
-    assert releases.all() == ["r1", "r2"]
-    releases.point("previous", None)
-    assert releases.pointer("previous") is None
 
 
 def test_release_compose_is_yaml():
@@ -506,12 +506,12 @@ def test_writes_are_fsynced_file_and_directory_before_they_count(tmp_path, monke
         real_fsync(fd)
 
     monkeypatch.setattr(durable.os, "fsync", fsync)
-    releases = store.Releases(str(tmp_path))
+    life = lifecycle.Life(releases_module.Releases(str(tmp_path)))
     (tmp_path / "releases" / "r1").mkdir(parents=True)
-    releases.write_record("r1", {"id": "r1"})
+    life._write(lifecycle.Record(id="r1"))
     assert synced == [str(tmp_path / "releases" / "r1" / "record.json.tmp"), str(tmp_path / "releases" / "r1")]
     synced.clear()
-    releases.point("current", "r1")
+    life._point("current", "r1")
     assert synced == [str(tmp_path)]
 
 
@@ -593,8 +593,8 @@ def test_a_deploy_waits_for_the_boot_recovery_and_says_so(robot):
         result = robot.result("run-9")
     finally:
         boot.wait(timeout=30)
-    assert f"payload: {socket.gethostname()} is recovering from an interrupted release since 20" in deploy.stdout
-    assert deploy.stdout.rstrip().splitlines()[0].endswith("; waiting")
+    assert f"payload: {socket.gethostname()} is recovering from an interrupted release since 20" in deploy.stderr
+    assert deploy.stderr.rstrip().splitlines()[0].endswith("; waiting")
     assert result.returncode == 0 and "is healthy" in result.stdout
     log = robot.state()["log"]
     boot_up = max(i for i, line in enumerate(log) if "current/compose.yaml up -d --remove-orphans" in line and "--no-start" not in line
@@ -629,7 +629,7 @@ def test_what_an_interrupted_compose_up_left_is_removed_before_the_next(robot):
     robot.save(state)
     boot = robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     assert boot.returncode == 0, boot.stdout + boot.stderr
-    assert "removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, robot-payload-payload-1" in boot.stdout
+    assert "removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, robot-payload-payload-1" in boot.stderr
     assert list(robot.state()["containers"]) == ["robot-payload-payload-1"]
     assert robot.state()["containers"]["robot-payload-payload-1"]["running"] is True
 
@@ -745,3 +745,151 @@ def test_a_payload_that_dies_with_exec_format_error_is_named_and_rolled_back(rob
             "architecture (image reg/ros/payload:mislabeled)") in result.stderr
     assert "rolled back to r1 and it is running" in result.stderr
     assert robot.pointers() == ("r1", None)
+
+
+# --- one structured result per run (issue 30, item 2) --------------------------------
+
+RESULT_KEYS = {"payloadctl", "ok", "outcome", "action", "release", "previous", "target", "reason", "message",
+               "taken_over", "run_id", "deployment", "host", "time"}
+
+
+def one_json_line(text):
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert len(lines) == 1, text
+    return json.loads(lines[0])
+
+
+@pytest.mark.parametrize("case, outcome, ok, release, reason", [
+    ("healthy", "applied", True, "new", None),
+    ("same", "already-current", True, "r1", None),
+    ("laptop", "staged", True, "new", None),
+    ("broken", "rolled-back", False, "r1", "robot-payload-payload-1 is unhealthy: heartbeat check unhealthy"),
+    ("no pull", "failed", False, "r1", "cannot pull reg/ros/payload:1.1: Error response from daemon"),
+    ("update lock", "refused", False, "r1", "update refused, "),
+    ("other platform", "refused", False, "r1", "pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only"),
+])
+def test_each_apply_gives_one_structured_result(robot, case, outcome, ok, release, reason):
+    extra = {}
+    if case == "broken":
+        robot.image("reg/ros/payload:1.1", "unhealthy")
+    elif case == "no pull":
+        robot.image("reg/ros/payload:1.1", present=False, pull="fail")
+        extra = {"pull_timeout": 3}
+    elif case == "update lock":
+        robot.image("reg/ros/payload:1.1")
+        (robot.root / "update.lock").write_text("robot is moving\n")
+    elif case == "other platform":
+        robot.architecture("arm64")
+        robot.image("reg/ros/payload:1.1", platform="linux/amd64")
+    else:
+        robot.image("reg/ros/payload:1.1")
+    if case == "laptop":
+        extra = {"autostart": False}
+    ref = "reg/ros/payload:1.0" if case == "same" else "reg/ros/payload:1.1"
+    request = json.loads(open(robot.spec(ref, "run-5", **extra)).read())
+    request["run"]["deployment"] = "rollout-abc-wave1-\x1b[2Jx"
+    path = robot.root.parent / "request.json"
+    path.write_text(json.dumps(request))
+    applied = robot.payloadctl("apply", str(path), "--run-id", "run-5")
+    printed = one_json_line(applied.stdout)  # stdout: the result, one JSON line; stderr: for people
+    reported = robot.result("run-5")
+    result = one_json_line(reported.stdout)
+    assert result == printed == json.loads((robot.root / "last-result.json").read_text())
+    assert set(result) == RESULT_KEYS and result["payloadctl"] == 1 and result["action"] == "apply"
+    assert (result["outcome"], result["ok"]) == (outcome, ok) and applied.returncode == reported.returncode == (0 if ok else 1)
+    current, previous = robot.pointers()
+    assert (result["release"], result["previous"]) == (current, previous)
+    assert result["release"] == (current if release == "new" else release) and (release != "new" or current != "r1")
+    assert (result["reason"] is None) if ok else result["reason"].startswith(reason)
+    assert result["run_id"] == "run-5" and result["host"] == "pi1" and result["deployment"] == "rollout-abc-wave1-[2Jx"
+    assert reported.stderr.strip() == result["message"] and result["message"].startswith("payload: ")
+
+
+def test_a_rollback_gives_its_structured_result(robot):
+    robot.image("reg/ros/payload:0.9", "crash")
+    robot.release("r0", "reg/ros/payload:0.9", created="r0")
+    robot.releases.point("previous", "r0")
+    result = one_json_line(robot.rollback().stdout)
+    assert (result["action"], result["outcome"], result["ok"], result["target"]) == ("rollback", "rolled-back", False, "r0")
+    assert (result["release"], result["previous"]) == ("r1", "r0") and "crash-looping" in result["reason"]
+    robot.releases.point("previous", None)
+    result = one_json_line(robot.rollback("rb-2").stdout)
+    assert (result["outcome"], result["reason"]) == ("refused", "no previous release to roll back to")
+
+
+def test_status_carries_the_last_result(robot):
+    robot.image("reg/ros/payload:1.1")
+    robot.apply("reg/ros/payload:1.1", run_id="run-8")
+    proc = robot.payloadctl("status", "--dir", str(robot.root), "--name", "robot-payload")
+    from roles.payload import report
+
+    cells = report.cells(proc.stdout)
+    assert cells["result"]["outcome"] == "applied" and cells["result"]["run_id"] == "run-8"
+    assert report.result(cells, "another-deployment") is None and report.result(cells, None) is None
+
+
+def test_the_deploy_reads_the_result_and_says_it_from_the_result():
+    result = {"payloadctl": 1, "ok": False, "outcome": "rolled-back", "message": "payload: release r2 failed (\x1b[31mx)",
+              "taken_over": [{"name": "ros_payload", "project": None, "image": "reg/ros/payload:1.0",
+                              "why": "it runs the payload's image"}]}
+    lines = ["payload: a line for people", "[robot2] Error", json.dumps(result)]
+    found = release.read_result(lines)
+    assert found == result
+    assert release.said(found) == [
+        ("warning", "payload: stopped ros_payload (reg/ros/payload:1.0): it runs the payload's image"),
+        ("error", "payload: release r2 failed (\\x1b[31mx)")]
+    assert release.read_result(["payload: release r1 is healthy", '{"ok": true}', "{not json"]) is None
+    assert release.said({**result, "ok": True, "taken_over": []}) == []
+
+
+# --- takeover as promised (issue 27, item 2) ------------------------------------------
+
+HOMEAUTO = {"image": "reg/ros/payload:1.0", "name": "homeauto-bridge-1", "project": "homeauto", "service": "bridge",
+            "policy": "always"}
+
+
+def homeauto_untouched(robot):
+    c = robot.state()["containers"]["homeauto-bridge-1"]
+    return c.get("running", True) and c["policy"] == "always"
+
+
+def test_another_compose_project_of_the_payload_image_is_never_taken_over(tmp_path, helper):
+    """homeauto runs the payload's own image repository in its compose
+    project: the first release, an update and a rollback leave it alone
+    (it used to be stopped and its restart policy set to no)."""
+    robot = FakeRobot(tmp_path, helper)
+    for tag in ("1.0", "1.1"):
+        robot.image(f"reg/ros/payload:{tag}")
+    state = robot.state()
+    state["containers"] = {"homeauto-bridge-1": dict(HOMEAUTO),
+                           "ros_payload": {"image": "reg/ros/payload:1.0", "name": "ros_payload", "project": None,
+                                           "policy": "always"}}
+    robot.save(state)
+    first = robot.payloadctl("apply", robot.spec("reg/ros/payload:1.0", "first"), "--run-id", "first")
+    result = one_json_line(first.stdout)
+    assert first.returncode == 0 and homeauto_untouched(robot)
+    assert [c["name"] for c in result["taken_over"]] == ["ros_payload"]  # the copy in no project is ours to stop
+    assert "payload: stopping ros_payload (reg/ros/payload:1.0, restart always): it runs the payload's image" in first.stderr
+    assert "homeauto" not in first.stderr
+    assert robot.apply("reg/ros/payload:1.1", run_id="update").returncode == 0 and homeauto_untouched(robot)
+    assert json.loads(robot.rollback("rb").stdout)["outcome"] == "applied" and homeauto_untouched(robot)
+    assert not any(line.startswith("docker stop homeauto") or "homeauto-bridge-1" in line and "update" in line
+                   for line in robot.state()["log"])
+
+
+def test_the_compose_project_the_payload_used_before_is_taken_over(robot):
+    """A container of the payload's image in the compose project the current
+    release ran under (payload_name changed since) is an earlier copy."""
+    robot.image("reg/ros/payload:1.1")
+    durable.write_json(robot.releases.path("r1", "record.json"), {**robot.releases.record("r1"), "project": "ros-old"})
+    state = robot.state()
+    state["containers"].update({
+        "ros-old-payload-1": {"image": "reg/ros/payload:1.0", "name": "ros-old-payload-1", "project": "ros-old",
+                              "policy": "always"},
+        "homeauto-bridge-1": dict(HOMEAUTO)})
+    robot.save(state)
+    result = json.loads(robot.apply("reg/ros/payload:1.1").stdout)
+    assert [(c["name"], c["why"]) for c in result["taken_over"]] == [
+        ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload "
+                              "used before")]
+    assert homeauto_untouched(robot)

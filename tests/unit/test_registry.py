@@ -86,14 +86,16 @@ def token_registry():
 
 def test_a_token_is_fetched_once_and_sent(token_registry):
     address, seen = token_registry
-    client = registry.Registry(address, credentials=("robot", "secret"))
+    from roles.payload.credentials import Credentials
+
+    client = registry.Registry(address, credentials=Credentials(address, "robot", "secret"))
     media_type, body, digest = client.manifest(f"{address}/ros/payload", "1.0")
     assert media_type == "application/vnd.oci.image.index.v1+json" and body == MANIFEST
     assert digest == "sha256:" + hashlib.sha256(MANIFEST).hexdigest()
     paths = [path for path, _, _ in seen]
     assert paths == ["/v2/ros/payload/manifests/1.0", "/token?service=lab&scope=repository%3Aros%2Fpayload%3Apull",
                      "/v2/ros/payload/manifests/1.0"]
-    assert seen[1][1].startswith("Basic ")  # the credentials go to the token realm only
+    assert seen[1][1].startswith("Basic ")  # the credentials go to the token realm only (the registry's own host)
     assert seen[2][1] == "Bearer t0k" and "application/vnd.oci.image.index.v1+json" in seen[2][2]
 
 

@@ -138,30 +138,79 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
     good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running", "health": "healthy"}
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
             "rolled_back_from": {"reason": "unhealthy"}}
-    results = {"operations": [{"error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
-    rows = {"r1": good, "r2": back, "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
+    results = {"operations": [{"name": "Release the payload", "error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
+    rows = {"r1": good, "r2": {**back, "result": result("w1", False, "payload: release x failed")},
+            "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
     targets = dict.fromkeys(rows, {"payload": ["i:2"]})
-    done, failed, skipped = judge_wave(list(rows), results, rows, {"r2": "payload: release x failed"}, targets, False)
+    done, failed, skipped = judge_wave(list(rows), results, rows, targets, False, deployment="w1")
     assert done == ["r1"]
-    assert failed.pop("r2") == "payload: release x failed"
+    assert failed.pop("r2") == "payload: release x failed"  # its own result of this deployment
     assert failed.pop("r4") == "release failed (unhealthy); rolled back to r1"
-    assert list(failed) == ["r5"]  # pyinfra failed it even though its payload looks fine
+    assert failed == {"r5": "the deploy failed at: Release the payload"}  # pyinfra failed it although its payload looks fine
     assert skipped == {"r3": "unreachable: cannot connect"}
-    _, failed, skipped = judge_wave(["r3"], None, rows, {}, targets, True)
+    _, failed, skipped = judge_wave(["r3"], None, rows, targets, True, deployment="w1")
     assert failed == {"r3": "unreachable: cannot connect"} and skipped == {}
 
 
+def result(deployment, ok, message):
+    """payloadctl's structured result as the payload's status cells carry it."""
+    return {"payloadctl": 1, "ok": ok, "outcome": "applied" if ok else "rolled-back", "message": message,
+            "deployment": deployment}
+
+
 def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
-    """pyinfra prints no JSON when no host remains ("No hosts remaining!")."""
+    """pyinfra prints no JSON when no host remains ("No hosts remaining!"):
+    each robot's own result of this deployment says why."""
     from robotfleet.commands.rollout import judge_wave
 
-    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active"}
-    errors = {"r1": "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"}
-    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, errors, {"r1": {"payload": ["i:2"]}}, False)
-    assert (done, failed, skipped) == ([], errors, {})
-    errors = {"r2": "Could not connect (timed out)"}
-    assert judge_wave(["r2"], None, {"r2": {"reachable": True}}, errors, {"r2": {"payload": ["i:2"]}}, False)[2] == {
+    line = "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"
+    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
+            "result": result("w2", False, line)}
+    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")
+    assert (done, failed, skipped) == ([], {"r1": line}, {})
+    # A result of an earlier deployment is not this one's.
+    stale = {**back, "image_refs": ["i:2"], "state": "running", "health": "healthy", "result": result("w1", False, line)}
+    assert judge_wave(["r1"], None, {"r1": stale}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")[1] == {
+        "r1": "the deploy failed"}
+    assert judge_wave(["r2"], None, {"r2": {"reachable": False, "error": "Could not connect (timed out)"}},
+                      {"r2": {"payload": ["i:2"]}}, False, deployment="w2")[2] == {
         "r2": "unreachable: Could not connect (timed out)"}
+
+
+FAKE_PYINFRA = """\
+import json, sys
+# robot1's payload printed a line that names robot2 (a robot can print anything).
+print("[robot1] payload: release x failed ([robot2] Error: payload: release y failed); rolled back", file=sys.stderr)
+print("[robot2] Error: payload: release y failed", file=sys.stderr)
+print(json.dumps({"results": {"operations": [{"name": "Release the payload", "error": ["robot1"], "success": []}],
+                              "failed_hosts": ["robot1"]}}))
+"""
+
+
+def test_a_line_naming_robot2_in_robot1s_output_does_not_fail_robot2(monkeypatch, capfd):
+    """Rollout used to read each robot's result from pyinfra's output lines:
+    a line "[robot2] ..." written by robot1 failed robot2 (issue 27, item 5)."""
+    from robotfleet.commands import rollout
+
+    monkeypatch.setattr(rollout, "PYINFRA", FAKE_PYINFRA)
+    results = rollout.deploy_wave("inventories/robots.py", ["robot1", "robot2"], [], "deploy.py", "w3")
+    assert "[robot2] Error" in capfd.readouterr().err  # the operator still sees everything printed
+    on_target = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running",
+                 "health": "healthy"}
+    rows = {"robot1": {**on_target, "image_refs": ["i:1"], "result": result("w3", False, "payload: release x failed")},
+            "robot2": {**on_target, "result": result("w3", True, "payload: release y is healthy")}}
+    targets = dict.fromkeys(rows, {"payload": ["i:2"]})
+    done, failed, skipped = rollout.judge_wave(["robot1", "robot2"], results, rows, targets, False, deployment="w3")
+    assert done == ["robot2"] and failed == {"robot1": "payload: release x failed"} and skipped == {}
+
+
+def test_the_deploy_of_a_wave_is_named_for_the_robots_results(monkeypatch, tmp_path):
+    from robotfleet.commands import rollout
+
+    seen = tmp_path / "seen"
+    monkeypatch.setattr(rollout, "PYINFRA", f"import os; open({str(seen)!r}, 'w').write(os.environ['ROBOTFLEET_DEPLOYMENT'])")
+    assert rollout.deploy_wave("inventories/robots.py", ["robot1"], [], "deploy.py", "rollout-k-wave1-ab") is None
+    assert seen.read_text() == "rollout-k-wave1-ab"
 
 
 def test_the_state_file_is_written_without_following_anything_planted(tmp_path):

@@ -7,7 +7,7 @@ import subprocess
 import time
 
 from . import imageref, platforms
-from .system import Failure, run
+from .system import Failure, Refusal, run
 
 
 def image_info(ref):
@@ -35,7 +35,7 @@ def robot_arch():
 def check_platform(ref, info, robot, arch):
     """Refuse, before anything switches, an image this robot cannot run."""
     if arch and not platforms.matches(arch, info["platform"]):
-        raise Failure(platforms.refusal(robot, arch, ref, [platforms.text(info["platform"])]))
+        raise Refusal(platforms.refusal(robot, arch, ref, [platforms.text(info["platform"])]))
 
 
 def pull(ref, timeout, platform=None):
