@@ -67,14 +67,27 @@ class Hook:
 
 
 @dataclass(frozen=True)
+class Metric:
+    """One sample of ``robotfleet status --metrics`` (OpenMetrics): a gauge
+    named ``robotfleet_<name>``; the host's labels are added to ``labels``."""
+
+    name: str
+    help: str
+    value: float
+    labels: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass(frozen=True)
 class StatusPart:
     """A role's columns in ``robotfleet status``: a read-only shell
-    command run in the host's one status command, and its output as cells."""
+    command run in the host's one status command, and its output as cells;
+    ``metrics(row)``, the gauges its cells make (robotfleet/commands/metrics.py)."""
 
     command: Callable[[Any], str]
     cells: Callable[[str], dict]
     columns: tuple[tuple[str, str], ...] = ()
     order: int = 50  # where its columns stand in the table, lower first
+    metrics: Callable[[dict], list[Metric]] | None = None
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 
 from robotfleet.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
+from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry
 
 
@@ -38,7 +39,13 @@ def setting_schemas(registry: Registry) -> dict:
             schema["default"] = defaults[name]
         properties[name] = schema
     for alias, name in registry.aliases.items():
-        properties[alias] = {**registry.settings[name].check.schema, "description": f"the SSH address ({name})"}
+        if alias in OLDER_NAMES:
+            doc = f"Ansible's older name for {name}: where both are set, it wins, as in Ansible."
+        elif alias.startswith(ANSIBLE_PREFIX):
+            doc = f"Ansible's name for {name}."
+        else:
+            doc = f"{name}: {registry.settings[name].doc}"
+        properties[alias] = {**registry.settings[name].check.schema, "description": doc}
     return properties
 
 
@@ -51,13 +58,16 @@ def fleet_schema(registry: Registry) -> dict:
         "additionalProperties": False,
     }
     name = {"pattern": f"^(?:{HOST_NAME.pattern})$"}
+    # Ansible's host patterns: robot[01:03], robot[a:c], robot[1:9:2], robot7:2222
+    ranged = r"\[(?:[0-9]*:[0-9]+|[A-Za-z]:[A-Za-z])(?::[0-9]+)?\]"
+    host = {"anyOf": [name, {"pattern": f"^(?:[A-Za-z0-9]|{ranged})(?:[A-Za-z0-9._-]|{ranged})*(?::[0-9]+)?$"}]}
     group = {
         "type": ["object", "null"],
         "properties": {
             "vars": {"$ref": "#/definitions/settings"},
             "hosts": {
                 "type": ["object", "null"],
-                "propertyNames": name,
+                "propertyNames": host,
                 "additionalProperties": {"$ref": "#/definitions/settings"},
             },
             "children": {
