@@ -192,6 +192,24 @@ def lab(request):
         hosts.down(PREFIX)
 
 
+def one_robot_lab(name: str):
+    """A lab of one robot beside the session's, prefix ``<PREFIX>-<name>``:
+    for a module that changes the robot's SSH side (its host keys, its
+    sshd's certificate) or needs a robot nobody provisioned.  The session's
+    lab is never taken down or changed by it, whatever order modules run in.
+    A generator for a module-scoped fixture."""
+    from tests.lab import hosts
+
+    prefix = f"{PREFIX}-{name}"
+    started = time.monotonic()
+    hosts.down(prefix)
+    state = hosts.up(prefix, robots=1, laptops=0)
+    phase(f"lab {prefix} up (one robot)", started)
+    yield Lab(state)
+    if not os.environ.get("ROBOT_LAB_KEEP"):
+        hosts.down(prefix)
+
+
 @pytest.fixture(scope="session")
 def first_run(lab):
     """The fresh provisioning of the whole lab, shared by every e2e module."""
