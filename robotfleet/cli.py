@@ -7,6 +7,8 @@
     robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME | --to-dir DIR]
     robotfleet halt [--reason TEXT]
     robotfleet keys init|show|rotate|prepare|sign|install|generate
+    robotfleet bundle ROBOT --out DIR [--admin URL --admin-key FILE]
+    robotfleet pull-enroll INVENTORY [--limit ...] [--admin URL --admin-key FILE] [--ssh]
 
 `robotfleet COMMAND --help` explains each.  Deploys are plain pyinfra, run
 in the checkout: pyinfra inventories/robots.py deploy.py
@@ -30,6 +32,8 @@ COMMANDS = {
     "publish": "publish",
     "halt": "halt",
     "keys": "keys",
+    "bundle": "bundle",
+    "pull-enroll": "pullenroll",
 }
 
 

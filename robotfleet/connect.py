@@ -8,10 +8,14 @@ points), so the pyinfra CLI, status and rollout connect the same way:
   (refused, timed out, not an SSH server, authentication failed for user U
   with key K, unknown or changed host key with the file and the command that
   fixes it), and no paramiko traceback;
-- bounded: ``ssh_connect_timeout`` covers the TCP connect, the SSH banner
-  and authentication; only a refused, timed-out or reset connection is tried
-  again (``ssh_connect_retries``), never a host key, authentication or
-  non-SSH answer, which would fail the same way;
+- bounded: ``ssh_connect_timeout`` bounds reaching a host, retries
+  included: each of the TCP connect, the SSH greeting and authentication
+  gives up after it, and a refused, reset or dropped connection is tried
+  again (``ssh_connect_retries``) only while the time left allows, so that
+  a host is given up within that time (plus the retry delay) whatever
+  fails; a host key, authentication or non-SSH answer, which would fail the
+  same way, is never tried again; the delay before a retry lets other hosts
+  run (time.sleep, patched by gevent, looked up when it is called);
 - accept-new writes a host's key to known_hosts once (pyinfra's policy
   appends it at each connection of the run);
 - the fleet's known_hosts is read by robotfleet/hostkeys.py (paramiko gives
@@ -32,9 +36,9 @@ import logging
 import os
 import shlex
 import socket
+import time
 from dataclasses import dataclass
 from random import uniform
-from time import sleep
 
 from paramiko import AuthenticationException, BadHostKeyException, HostKeys, MissingHostKeyPolicy, SSHException
 from paramiko import SSHClient as ParamikoClient
@@ -74,6 +78,17 @@ def names(hosts: list[tuple[str, dict]], inventory: str | None = None) -> list[t
 REASONS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
            "authentication failed", "connection refused", "connection closed",
            "cannot connect", "cannot resolve", "timed out", "not an SSH server", "the SSH session", "no route to")
+# Of those, the ones where the host answered and it or we refused: a host key
+# not trusted, a login refused.  The host failed (exit status 1); the others
+# are the network's (unreachable, exit status 3).
+REFUSALS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
+            "authentication failed")
+
+
+def unreachable(reason: str) -> bool:
+    """Whether a connection failure's reason is the network's (the host may
+    come back by itself), not a refusal someone has to act on."""
+    return not reason.startswith(REFUSALS)
 
 
 def enroll_command(host: str) -> str:
@@ -203,25 +218,37 @@ class FleetConnector(ssh.SSHConnector):
     def timeout(self) -> int:
         return self.data["ssh_connect_timeout"] or self.state.config.CONNECT_TIMEOUT
 
+    def attempt_timeout(self) -> float:
+        """This attempt's limit for each of connect, greeting and login: the
+        timeout, or on a retry what is left of it."""
+        return getattr(self, "_attempt_timeout", None) or self.timeout()
+
     def make_paramiko_kwargs(self):
         kwargs = super().make_paramiko_kwargs()
-        kwargs.update(timeout=self.timeout(), banner_timeout=self.timeout(), auth_timeout=self.timeout())
+        limit = self.attempt_timeout()
+        kwargs.update(timeout=limit, banner_timeout=limit, auth_timeout=limit)
         return kwargs
 
     def connect(self) -> None:
         _patch_paramiko_sk_key_support()
         retries = self.data["ssh_connect_retries"]
+        started = time.monotonic()
+        self._attempt_timeout = None
         while True:
+            self._attempt_started = time.monotonic()
             try:
                 return self._connect()
             except Exception as error:  # every way a connection fails becomes one line
                 reason, transient = self.explain(error)
             if self.client is not None:
                 self.client.close()
-            if not transient or retries <= 0:
+            delay = uniform(self.data["ssh_connect_retry_min_delay"], self.data["ssh_connect_retry_max_delay"])
+            left = self.timeout() - (time.monotonic() - started) - delay
+            if not transient or retries <= 0 or left < 1:
                 raise ConnectError(reason)
             retries -= 1
-            sleep(uniform(self.data["ssh_connect_retry_min_delay"], self.data["ssh_connect_retry_max_delay"]))
+            self._attempt_timeout = left
+            time.sleep(delay)
 
     def _connect(self) -> None:
         kwargs = self.make_paramiko_kwargs()
@@ -270,7 +297,8 @@ class FleetConnector(ssh.SSHConnector):
             return f"cannot connect: {error}", False
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
             return self.auth_reason(error), False
-        return network_reason(error, address, port, self.timeout())
+        elapsed = time.monotonic() - getattr(self, "_attempt_started", time.monotonic())
+        return network_reason(error, address, port, self.attempt_timeout(), elapsed)
 
     def auth_reason(self, error: Exception) -> str:
         kwargs = getattr(self, "kwargs", {})
@@ -306,10 +334,14 @@ class FleetConnector(ssh.SSHConnector):
         return tried
 
 
-def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[str, bool]:
+def network_reason(error: Exception, address: str, port: int, timeout: float,
+                   elapsed: float | None = None) -> tuple[str, bool]:
     """Why reaching ``address:port`` failed, in words, and whether trying
-    again may help (a host key or login failure is told by the connector)."""
+    again may help (a host key or login failure is told by the connector).
+    ``timeout``: the attempt's limit; ``elapsed``: how long it took."""
     at = f"{address}:{port}"
+    timeout = f"{timeout:.0f}" if timeout >= 1 else f"{timeout:.1f}"
+    elapsed = float(timeout) if elapsed is None else elapsed
     if isinstance(error, ConnectionRefusedError):
         return f"connection refused by {at} (no SSH server listens on port {port})", True
     if isinstance(error, NoValidConnectionsError):
@@ -326,7 +358,12 @@ def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[
         if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):
             return (f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
                     "e.g. MaxStartups, or a firewall)"), True
-        if "Error reading SSH protocol banner" in text or "Indecipherable protocol version" in text:
+        if "Indecipherable protocol version" in text or (
+                "Error reading SSH protocol banner" in text and elapsed < float(timeout) - 0.5):
+            # paramiko waits 2 s for each line after a first one that is not SSH's
+            return (f"not an SSH server: {at} answered, but not with an SSH greeting (another service on that "
+                    "port? wrong port?)"), False
+        if "Error reading SSH protocol banner" in text:
             return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
                     f"{timeout} s (wrong port?)"), False
         if "No existing session" in text or "Unable to connect" in text:

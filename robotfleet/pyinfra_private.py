@@ -99,6 +99,10 @@ USED = (
     Private(("pyinfra_cli.main:main",),
             "pyinfra_cli.main:main", "cbbeb6d255bf3a6c", "robotfleet/commands/rollout.py",
             "each wave runs pyinfra's CLI with this interpreter (python -c), whatever pyinfra is first on PATH"),
+    Private(("pyinfra_cli.util:parse_cli_arg",),
+            "pyinfra_cli.util:parse_cli_arg", "fb0d4e83f8ca57c3", "robotfleet/commands/rollout.py",
+            "a rollout reads its --data values as the CLI it passes them to does (true, 3, JSON text), so "
+            "what each wave waits for is what the deploy sees"),
     Private(("pyinfra_cli.cli:cli",),
             "pyinfra_cli.cli:cli.callback", "2b99e4aeb78cadcf", "robotfleet/inventory.py",
             "an inventory file reads the CLI's --limit and --exclude (click's params 'limit', 'exclude') to "

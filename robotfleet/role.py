@@ -67,14 +67,27 @@ class Hook:
 
 
 @dataclass(frozen=True)
+class Metric:
+    """One sample of ``robotfleet status --metrics`` (OpenMetrics): a gauge
+    named ``robotfleet_<name>``; the host's labels are added to ``labels``."""
+
+    name: str
+    help: str
+    value: float
+    labels: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass(frozen=True)
 class StatusPart:
     """A role's columns in ``robotfleet status``: a read-only shell
-    command run in the host's one status command, and its output as cells."""
+    command run in the host's one status command, and its output as cells;
+    ``metrics(row)``, the gauges its cells make (robotfleet/commands/metrics.py)."""
 
     command: Callable[[Any], str]
     cells: Callable[[str], dict]
     columns: tuple[tuple[str, str], ...] = ()
     order: int = 50  # where its columns stand in the table, lower first
+    metrics: Callable[[dict], list[Metric]] | None = None
 
 
 @dataclass(frozen=True)
@@ -116,6 +129,20 @@ class PinPart:
     setting: str
 
 
+@dataclass(frozen=True)
+class HoldPart:
+    """How the pull agent holds a role's own lock on the robot for a whole
+    converge run (robotfleet/commands/converge.py): ``command(data,
+    token_file)``, the argv that holds it while the command after it runs,
+    writing a token to ``token_file`` first ([] when the role has nothing
+    on the robot to hold yet); ``setting``, the role's setting through
+    which the deploy hands the token to what takes the lock, so the run's
+    own steps join it instead of waiting for it."""
+
+    command: Callable[[Any, str], list[str]]
+    setting: str
+
+
 def _always(data) -> bool:
     return True
 
@@ -147,7 +174,8 @@ class Role:
       ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart);
     - ``secrets(data)``: secret values the role holds for a host beyond its
       data (e.g. passwords read from the environment), masked in output
-      like the URL passwords of the data (robotfleet/secrets.py)."""
+      like the URL passwords of the data (robotfleet/secrets.py);
+    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart)."""
 
     name: str
     doc: str
@@ -161,6 +189,7 @@ class Role:
     rollout: RolloutPart | None = None
     pins: PinPart | None = None
     secrets: Callable[[Any], list[str]] = _no_secrets
+    hold: HoldPart | None = None
 
 
 def cards(listed) -> tuple[Role, ...]:

@@ -14,11 +14,12 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 - robot.py, payloadctl/ (the robot-side program), payload.service.j2: what runs
   on the robot;
 - report.py: its columns in status, what a rollout waits for; pins.py: the
-  image digests a pull release binds (robotfleet publish).
+  image digests a pull release binds (robotfleet publish); digests.py: those
+  digests applied when the robot runs the release (payload_image_pins).
 """
 
 from robotfleet.role import Role
-from roles.payload import credentials, pins, report, settings, steps
+from roles.payload import credentials, hold, pins, report, settings, steps
 from roles.payload.release import rollback_release
 
 ROLE = Role(
@@ -32,6 +33,7 @@ ROLE = Role(
     status=report.STATUS,
     rollout=report.ROLLOUT,
     pins=pins.PINS,
+    hold=hold.HOLD,
 )
 
 __all__ = ["ROLE", "rollback_release"]

@@ -9,10 +9,11 @@ from __future__ import annotations
 from robotfleet.role import PinPart
 import roles.payload.credentials as credentials
 import roles.docker.hooks as docker_hooks
+import roles.payload.digests as digests
 import roles.payload.services as services
 import roles.payload.payloadctl.imageref as imageref
 
-SETTING = "payload_image_pins"
+SETTING = digests.SETTING
 
 
 def refs(data) -> list[str]:

@@ -18,7 +18,7 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PREFIX, PYINFRA, ROOT, Lab, phase
+from tests.e2e.conftest import PYINFRA, ROOT, one_robot_lab, phase
 
 pytestmark = pytest.mark.e2e
 
@@ -31,16 +31,8 @@ def fingerprint(line: str) -> str:
 
 @pytest.fixture(scope="module")
 def lab():
-    """One robot is enough here (the session's lab has four hosts)."""
-    from tests.lab import hosts
-
-    started = time.monotonic()
-    hosts.down(PREFIX)
-    state = hosts.up(PREFIX, robots=1, laptops=0)
-    phase("lab up (one robot)", started)
-    yield Lab(state)
-    if not os.environ.get("ROBOT_LAB_KEEP"):
-        hosts.down(PREFIX)
+    """One robot nobody enrolled, whose host key the test changes (a lab of its own)."""
+    yield from one_robot_lab("enroll")
 
 
 @pytest.fixture

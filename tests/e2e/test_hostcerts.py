@@ -18,23 +18,15 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PREFIX, PYINFRA, ROOT, Lab, phase
+from tests.e2e.conftest import PYINFRA, ROOT, one_robot_lab, phase
 
 pytestmark = pytest.mark.e2e
 
 
 @pytest.fixture(scope="module")
 def lab():
-    """One robot: no provisioning is needed, only its sshd."""
-    from tests.lab import hosts
-
-    started = time.monotonic()
-    hosts.down(PREFIX)
-    state = hosts.up(PREFIX, robots=1, laptops=0)
-    phase("lab up (one robot)", started)
-    yield Lab(state)
-    if not os.environ.get("ROBOT_LAB_KEEP"):
-        hosts.down(PREFIX)
+    """One robot whose sshd presents the certificates: no provisioning, only its sshd (a lab of its own)."""
+    yield from one_robot_lab("hostcerts")
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,9 @@
 """Real servers on 127.0.0.1 for first-contact tests (no mocks): an SSH
 server (paramiko's server side) with its own host key, a TCP listener that
-never speaks, and a closed port.  Each counts the connections it accepted,
-so a test sees whether the client tried again."""
+never speaks (or greets as another service would), a port whose
+connections are never answered (a powered-off robot), and a closed port.
+Each counts the connections it accepted, so a test sees whether the client
+tried again."""
 
 from __future__ import annotations
 
@@ -13,8 +15,9 @@ import paramiko
 
 
 class _Server(paramiko.ServerInterface):
-    def __init__(self, accepted_key):
+    def __init__(self, accepted_key, answer=None):
         self.accepted_key = accepted_key
+        self.answer = answer  # command -> (stdout bytes, exit status); default: nothing, 0
 
     def get_allowed_auths(self, username):
         return "publickey"
@@ -29,7 +32,10 @@ class _Server(paramiko.ServerInterface):
 
     def check_channel_exec_request(self, channel, command):
         def answer():
-            channel.send_exit_status(0)
+            out, code = self.answer(command.decode(errors="replace")) if self.answer else (b"", 0)
+            if out:
+                channel.sendall(out)
+            channel.send_exit_status(code)
             channel.close()
 
         threading.Thread(target=answer, daemon=True).start()
@@ -39,11 +45,13 @@ class _Server(paramiko.ServerInterface):
 class Listener:
     """Accepts TCP connections on 127.0.0.1; ``ssh`` decides what it says."""
 
-    def __init__(self, host_key=None, client_key=None, hang_up=False):
+    def __init__(self, host_key=None, client_key=None, hang_up=False, greeting: bytes = b"", answer=None):
         self.hang_up = hang_up  # close each connection at once (an sshd over MaxStartups)
+        self.greeting = greeting  # sent on each connection, then silence (another service on the port)
         self.socket = socket.create_server(("127.0.0.1", 0))
         self.port = self.socket.getsockname()[1]
         self.host_key, self.client_key = host_key, client_key
+        self.answer = answer
         self.connections = 0
         self.open: list = []
         threading.Thread(target=self._serve, daemon=True).start()
@@ -59,6 +67,8 @@ class Listener:
                 conn.close()
                 continue
             self.open.append(conn)
+            if self.greeting:
+                conn.sendall(self.greeting)
             if self.host_key is not None:
                 threading.Thread(target=self._ssh, args=(conn,), daemon=True).start()
 
@@ -67,7 +77,7 @@ class Listener:
         self.open.append(transport)
         transport.add_server_key(self.host_key)
         try:
-            transport.start_server(server=_Server(self.client_key))
+            transport.start_server(server=_Server(self.client_key, self.answer))
         except (paramiko.SSHException, EOFError, OSError):
             return
 
@@ -80,8 +90,10 @@ class Listener:
                 pass
 
 
-def ssh_server(client_key=None) -> Listener:
-    return Listener(host_key=paramiko.ECDSAKey.generate(), client_key=client_key)
+def ssh_server(client_key=None, answer=None) -> Listener:
+    """An SSH server accepting ``client_key``; each command it is sent gets
+    ``answer(command)`` -> (stdout, exit status), by default nothing and 0."""
+    return Listener(host_key=paramiko.ECDSAKey.generate(), client_key=client_key, answer=answer)
 
 
 @contextmanager
@@ -93,6 +105,24 @@ def wrong_hosts():
         yield silent, closed_port()
     finally:
         silent.close()
+
+
+class Unanswered:
+    """A port on 127.0.0.1 whose connections are never answered: a listener
+    with a backlog of one that never accepts, its queue filled, so that the
+    kernel drops every further SYN and a client's connect times out, as with
+    a powered-off robot or a firewall that drops."""
+
+    def __init__(self):
+        self.socket = socket.socket()
+        self.socket.bind(("127.0.0.1", 0))
+        self.socket.listen(0)
+        self.port = self.socket.getsockname()[1]
+        self.filler = socket.create_connection(("127.0.0.1", self.port), timeout=2)
+
+    def close(self):
+        self.filler.close()
+        self.socket.close()
 
 
 def closed_port() -> int:

@@ -81,9 +81,9 @@ def test_a_rollout_targets_robots_and_tries_a_dead_one_once_per_wave(tmp_path):
     finally:
         silent.close()
     assert result.returncode == 3, result.stderr
-    waves = [line for line in result.stderr.splitlines() if line.startswith(("wave ", "--> wave", "rollout: wave"))]
-    assert waves[0] == "wave 1/1: robot1" and "laptop1" not in result.stdout + result.stderr
-    assert "rollout: wave 1/1 [robot1] skipped: unreachable: " in result.stderr
+    waves = [line for line in result.stderr.splitlines() if line.startswith(("wave ", "--> wave"))]
+    assert waves[0] == "wave 1/1: robot1 (unreachable now: robot1)" and "laptop1" not in result.stdout + result.stderr
+    assert "rollout: [robot1] skipped: unreachable: " in result.stderr
     # once before the waves (the status of every robot at once), once in its wave
     assert silent.connections == 2
 

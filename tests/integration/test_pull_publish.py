@@ -27,6 +27,7 @@ all:
 robots:
   vars:
     pull: true
+    pull_remote: https://git.example.com/fleet.git
   hosts:
     robot1: {{address: 127.0.0.1}}
     robot2: {{address: 127.0.0.1, payload_image: "{registry}/ros/payload:1.2"}}

@@ -1,31 +1,15 @@
 """The rollout command as a process (tests/unit/test_waves.py plans the
-waves): it refuses while another rollout of the fleet holds its state."""
+waves): one rollout per fleet whatever the flags; each robot's result from
+structured data, never from output lines."""
 
 import os
 import subprocess
 import sys
 
+import pytest
+
 from robotfleet.commands import waves
 from tests.unit.test_waves import result
-
-
-def test_the_rollout_command_refuses_while_another_rollout_of_the_fleet_holds_its_state(tmp_path, monkeypatch):
-    """Two rollouts of one fleet lost each other's updates: the second one now
-    stops at once, before it contacts any robot (issue 17, item 9)."""
-    from robotfleet import roster
-    from robotfleet.commands import rollout
-
-    monkeypatch.setenv("ROBOT_ROLLOUT_DIR", str(tmp_path))
-    inventory = "inventories/robots.py"
-    hosts = rollout.selected_hosts(inventory, [])
-    names = [name for name, _ in hosts]
-    targets = {name: rollout.targets_of(roster.roles(), data, {}) for name, data in hosts}
-    path = waves.state_path(waves.fleet_key(inventory, names, targets))
-    with waves.held(path):  # the command runs apart: it patches gevent into its process
-        second = subprocess.run([sys.executable, "-m", "robotfleet", "rollout", inventory, "-y"], capture_output=True,
-                                text=True, timeout=120, env=dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path)))
-    assert second.returncode == 2, second.stderr
-    assert f"rollout: another rollout of this fleet is running (pid {os.getpid()} since 20" in second.stderr
 
 
 FAKE_PYINFRA = """\
@@ -62,3 +46,40 @@ def test_the_deploy_of_a_wave_is_named_for_the_robots_results(monkeypatch, tmp_p
     monkeypatch.setattr(rollout, "PYINFRA", f"import os; open({str(seen)!r}, 'w').write(os.environ['ROBOTFLEET_DEPLOYMENT'])")
     assert rollout.deploy_wave("inventories/robots.py", ["robot1"], [], "deploy.py", "rollout-k-wave1-ab") is None
     assert seen.read_text() == "rollout-k-wave1-ab"
+
+
+@pytest.mark.parametrize("flags", [["--limit", "robot2"], ["--data", "payload_image=reg.example.com/p:2"],
+                                   ["--canary", "2", "--max-failed", "1"]])
+def test_one_rollout_lock_per_fleet_whatever_the_flags(tmp_path, flags):
+    """Two rollouts of one fleet lost each other's updates (issue 17, item 9);
+    a second one with another --limit or --data ran beside the first (its
+    lock was its command line's, issue 27, item 8): it now stops at once,
+    before it contacts any robot.  The first one runs for real, waiting on
+    robots that never answer."""
+    import glob
+    import time
+
+    from robotfleet.fleet import loader
+    from tests.integration import sshserver
+
+    silent = [sshserver.Unanswered() for _ in range(2)]
+    fleet = tmp_path / "fleet.yaml"
+    fleet.write_text(loader.dump({"all": {"vars": {"payload_image": "reg.example.com/p:1", "ssh_connect_timeout": 20}},
+                                  "robots": {"hosts": {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port}
+                                                       for i, s in enumerate(silent)}}}))
+    env = dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path / "states"), ROBOT_FLEET=str(fleet))
+    command = [sys.executable, "-m", "robotfleet", "rollout", "inventories/robots.py", "-y"]
+    first = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 30
+        while not glob.glob(str(tmp_path / "states" / "*.lock")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        second = subprocess.run(command + flags, capture_output=True, text=True, timeout=120, env=env)
+    finally:
+        first.kill()
+        first.wait()
+        for server in silent:
+            server.close()
+    assert second.returncode == 2, second.stderr
+    assert second.stderr.splitlines()[-1].startswith(
+        f"rollout: another rollout of this fleet is running (pid {first.pid} since 20")

@@ -90,10 +90,10 @@ CORPUS = [
     ("billion laughs in a known option", bomb("docker_daemon_options").replace("{a: *l9}", "{features: {a: *l9}}"),
      ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
     # 3. no hosts is an error, not a silent no-op
-    ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
-    ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
+    ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
+    ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
     ("hosts left empty", BASE + "robots:\n  hosts:\n",
-     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
+     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
     # 4. addresses
     ("bad IPv4", host("address: 127.0.0.300"), ["f.yaml: r1.address: '127.0.0.300' is not a valid IPv4 address"]),
     ("host:port", host("address: '10.0.0.5:2222'"),

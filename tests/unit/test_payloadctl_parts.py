@@ -25,6 +25,15 @@ def test_pinned_prefers_the_digest_of_the_same_repository():
     assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
 
 
+def test_pinned_keeps_the_digest_the_reference_names():
+    """A pull release names each image by its signed digest: the release
+    records that one, not another digest the same image was pulled under."""
+    signed, other = "sha256:" + "c" * 64, "sha256:" + "a" * 64
+    info = {"id": "sha256:1", "repo_digests": ["reg.lan:5000/ros/payload@" + other,
+                                                "reg.lan:5000/ros/payload@" + signed]}
+    assert images.pinned("reg.lan:5000/ros/payload:1.1@" + signed, info) == "reg.lan:5000/ros/payload@" + signed
+
+
 def test_release_compose_is_yaml():
     doc = {"name": "p", "services": {"payload": {"image": "a/b@sha256:" + "c" * 64, "environment": {"A": "1"}}}}
     assert yaml.safe_load(store.compose_yaml(doc)) == doc

@@ -127,7 +127,8 @@ def test_the_same_command_finds_the_same_state_file_and_writes_it_atomically(tmp
 def test_status_cells_and_summary():
     state = waves.record_wave(state_for([["r1"], ["r2"], ["r3"]], 0), 0, ["r1"], {}, {})
     assert [waves.host_state(state, h) for h in ("r1", "r2", "r9")] == ["wave 1/3 done", "wave 2/3 pending", None]
-    assert waves.summary(state) == "rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped; pending: r2, r3"
+    assert waves.summary(state) == ("rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped, 2 pending "
+                                    "of 3 robot(s); pending: r2, r3")
 
 
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
@@ -189,7 +190,7 @@ def test_the_state_file_is_written_without_following_anything_planted(tmp_path):
 
 
 def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_path):
-    path = str(tmp_path / ".rollout" / "k.json")
+    path = waves.lock_path("inventories/robots.py", ["/fleet.yaml"], str(tmp_path))
     with waves.held(path):
         with pytest.raises(waves.RolloutBusy) as busy:
             with waves.held(path):
@@ -197,5 +198,4 @@ def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_pat
         assert str(busy.value).startswith(f"another rollout of this fleet is running (pid {os.getpid()} since 20")
     with waves.held(path):  # free again once the first is done
         pass
-
-
+    assert path != waves.lock_path("inventories/robots.py", ["/other.yaml"], str(tmp_path))

@@ -76,8 +76,13 @@ def obtain(ref, delivery, pull_timeout, platform=None):
 
 
 def pinned(ref, info):
-    """``ref`` by the digest its registry gave, where it gave one."""
+    """``ref`` by the digest its registry gave, where it gave one; a
+    reference that names its own digest (a signed pull release) keeps that
+    one, whatever other digests the same image was also pulled under."""
     repo = imageref.repository(ref)
+    own = imageref.parse(ref).digest
+    if own:
+        return "{}@{}".format(repo, own)
     for digest_ref in info["repo_digests"]:
         if imageref.repository(digest_ref) == repo:
             return digest_ref
