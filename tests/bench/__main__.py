@@ -134,8 +134,20 @@ def verdict(results: list[dict], key: str, n: int, limit: float) -> str:
     return met if found.get("ratios_idle", {}).get(key, False) else f"{met}, loaded"
 
 
+EPILOG = """\
+The update window of each of 10 robots updated at once (issue 29), on an
+idle machine, written to RESULTS.md:
+    python3 -m tests.bench --robots 10 --updates-at 10 --fresh-at --runs 3
+only printed (a check that it runs; a small lab):
+    python3 -m tests.bench --robots 2 --updates-at 2 --fresh-at --runs 1 --no-write
+Each robot's window is the row "update window per robot, all N at once"
+(median and spread over the runs), all of them together the row "update
+window, all N at once"; one robot alone: python3 -m tests.bench.releases."""
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m tests.bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench", description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     parser.add_argument("--robots", type=int, nargs="+", default=[3, 10])
     parser.add_argument("--runs", type=int, default=3, help=f"samples per figure (at least {hygiene.MIN_SAMPLES})")
     parser.add_argument("--fresh-at", type=int, nargs="*", default=[3], help="N at which to time fresh provisions")
