@@ -58,7 +58,9 @@ def deploy(prefix: str, host: str, fleet_file: Path) -> tuple[int, float]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.releases", description=__doc__.split("\n\n")[0],
+                                     epilog="The window of each of 10 robots updated at once: python3 -m tests.bench "
+                                            "--robots 10 --updates-at 10 --fresh-at (see its --help).")
     parser.add_argument("--prefix", default="bench")
     parser.add_argument("--host", default="robot1")
     parser.add_argument("--robots", type=int, default=1, help="robots in the lab (the others idle)")
