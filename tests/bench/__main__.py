@@ -138,8 +138,8 @@ EPILOG = """\
 The update window of each of 10 robots updated at once (issue 29), on an
 idle machine, written to RESULTS.md:
     python3 -m tests.bench --robots 10 --updates-at 10 --fresh-at --runs 3
-only printed (a check that it runs; a small lab):
-    python3 -m tests.bench --robots 2 --updates-at 2 --fresh-at --runs 1 --no-write
+only printed (a check that it runs: a small lab, no wait for an idle machine):
+    ROBOT_BENCH_PATIENCE=0 python3 -m tests.bench --robots 2 --updates-at 2 --fresh-at --runs 1 --no-write
 Each robot's window is the row "update window per robot, all N at once"
 (median and spread over the runs), all of them together the row "update
 window, all N at once"; one robot alone: python3 -m tests.bench.releases."""
