@@ -33,7 +33,10 @@ TARGETS = [
     ("noop / pyinfra exec true", 3, 1.5, "no-op rerun at N=3 <= 1.5x `pyinfra exec -- true`"),
     ("fresh / (apt+pull+health)", 3, 1.15, "fresh provision at N=3 <= 1.15x (apt floor + pull + health window)"),
     ("update all / update one", 10, 1.1, "update of all 10 <= 1.1x one robot"),
-    ("max downtime (s)", 10, 1.0, "payload downtime <= 1 s per robot"),
+    ("max update window (s)", 10, 0.5, "update window <= 0.5 s on every robot (old FinishedAt -> new StartedAt)"),
+    ("exits at once: exit -> old running (s)", 10, 1.0, "a release that exits at once: exit -> old running <= 1 s"),
+    ("never healthy: unhealthy -> old running (s)", 10, 0.5,
+     "what the tool adds after Docker's `unhealthy` <= 0.5 s"),
 ]
 
 ROWS = [
@@ -47,8 +50,14 @@ ROWS = [
     ("update all N", "update_all"),
     ("update one", "update_one"),
     ("rollout of the whole fleet (canary 1, batch 50%)", "rollout"),
-    ("crash-looping release: deploy until failed", "crash_deploy"),
-    ("crash-looping start -> old release started", "crash_to_old_running"),
+    ("update window, all N at once: every robot's (old FinishedAt -> new StartedAt)", "window_all"),
+    ("update window, one robot", "window_one"),
+    ("broken release, exits at once: deploy until failed", "broken_exit_deploy"),
+    ("exits at once: its exit (Docker's verdict) -> old release running", "broken_exit_verdict"),
+    ("exits at once: its first start -> old release running", "broken_exit_first"),
+    ("broken release, runs but never healthy: deploy until failed", "broken_unhealthy_deploy"),
+    ("never healthy: Docker's `unhealthy` -> old release running", "broken_unhealthy_verdict"),
+    ("never healthy: its first start -> old release running", "broken_unhealthy_first"),
 ]
 
 
@@ -84,10 +93,14 @@ def markdown(results: list[dict], conditions: dict) -> str:
     lines.append("| fresh: SSH commands per host | " + " | ".join(
         fmt(max(r["fresh_commands_per_host"])) if r.get("fresh_commands_per_host") else "-" for r in results) + " |")
     lines.append("| rollout: waves | " + " | ".join(fmt(r.get("rollout_waves")) for r in results) + " |")
-    lines.append("| payload downtime per robot (max over the runs) | " + " | ".join(
-        ", ".join(fmt(v) for v in r.get("downtime", {}).values()) or "-" for r in results) + " |")
+    lines.append("| update window per robot, all N at once: median (min–max) over the runs | " + " | ".join(
+        per_robot(r.get("window", {})) for r in results) + " |")
     lines.append("| load average at start / end (1 min) | " + " | ".join(
         f"{r['load_at_start'][0]:.2f} / {r['load_at_end'][0]:.2f}" for r in results) + " |")
+    settings = [(kind, text) for r in results for kind, text in (r.get("broken_settings") or {}).items()]
+    if settings:
+        lines += ["", "Broken releases (robot1), with the health-check settings they ran with:", ""]
+        lines += [f"- {kind}: {text}" for kind, text in settings]
     lines += ["", "## Ratios to the floors (medians)", "",
               "| ratio | " + " | ".join(f"N={n}" for n in ns) + " | target |", "|---|" + "---|" * (len(ns) + 1)]
     for key in results[0]["ratios"]:
@@ -101,6 +114,18 @@ def markdown(results: list[dict], conditions: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def per_robot(windows: dict) -> str:
+    """robot: median (min–max) of its update windows, for each robot."""
+    if not windows:
+        return "-"
+    parts = []
+    for host, values in windows.items():
+        figure = hygiene.Figure(list(values), [0.0] * len(values)).as_dict()
+        shown = f"{figure['median']:.2f}" + (f" ({figure['min']:.2f}–{figure['max']:.2f})" if len(values) > 1 else "")
+        parts.append(f"{host} {shown}")
+    return ", ".join(parts)
+
+
 def verdict(results: list[dict], key: str, n: int, limit: float) -> str:
     found = next((r for r in results if r["robots"] == n), None)
     if found is None or found["ratios"].get(key) is None:
@@ -109,8 +134,20 @@ def verdict(results: list[dict], key: str, n: int, limit: float) -> str:
     return met if found.get("ratios_idle", {}).get(key, False) else f"{met}, loaded"
 
 
+EPILOG = """\
+The update window of each of 10 robots updated at once (issue 29), on an
+idle machine, written to RESULTS.md:
+    python3 -m tests.bench --robots 10 --updates-at 10 --fresh-at --runs 3
+only printed (a check that it runs: a small lab, no wait for an idle machine):
+    ROBOT_BENCH_PATIENCE=0 python3 -m tests.bench --robots 2 --updates-at 2 --fresh-at --runs 1 --no-write
+Each robot's window is the row "update window per robot, all N at once"
+(median and spread over the runs), all of them together the row "update
+window, all N at once"; one robot alone: python3 -m tests.bench.releases."""
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m tests.bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench", description=__doc__.splitlines()[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     parser.add_argument("--robots", type=int, nargs="+", default=[3, 10])
     parser.add_argument("--runs", type=int, default=3, help=f"samples per figure (at least {hygiene.MIN_SAMPLES})")
     parser.add_argument("--fresh-at", type=int, nargs="*", default=[3], help="N at which to time fresh provisions")

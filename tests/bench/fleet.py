@@ -15,11 +15,14 @@ bounds alternate on the same hosts in the same cache state:
   no-op    `pyinfra exec -- true` and a converged rerun, alternating (SSH
            commands per host counted), and N parallel `ssh true`
   update   all N robots to the other tag, then one robot there and back;
-           each robot's payload downtime (old container dies -> new one
-           starts, from docker events)
+           each robot's update window: its old container's last moment
+           running (FinishedAt) -> the new one's first (StartedAt), Docker's
+           own clocks (tests/bench/window.py)
   rollout  robotfleet rollout of the whole fleet (canary 1, batch 50%)
-  crash    one robot to the crash-looping tag: time until the old release
-           runs again
+  broken   one robot to a release that exits at once, and to one that
+           runs but never turns healthy (tag 1.2-broken): Docker's verdict
+           and the broken release's first start -> the old release running,
+           with the image's health-check settings beside each
 """
 
 from __future__ import annotations
@@ -32,9 +35,10 @@ import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from tests.bench import hygiene
+from tests.bench import hygiene, window
 from tests.bench.roundtrips import COUNTING_PYINFRA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -65,18 +69,24 @@ class Bench:
 
         hosts.down(self.prefix)
 
-    def fleet(self, tag: str) -> Path:
+    def fleet_text(self, tag: str, command: str | None = None) -> str:
+        """lab.yaml on ``tag``, for N robots; ``command``: robot1's payload_command."""
         text = (ROOT / "inventories" / "lab.yaml").read_text().replace(
             ALL_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
         # lab.yaml declares robot1-3; the lab's inventory only has declared hosts.
         extra = "".join(f"    robot{i}: {{}}\n" for i in range(4, self.n + 1))
         text = text.replace("\nlaptops:", "\n" + extra + "\nlaptops:", 1) if extra else text
-        path = self.workdir / f"lab-{tag}.yaml"
-        path.write_text(text)
+        if command:
+            text = text.replace("    robot1:\n      sensors:", f"    robot1:\n      payload_command: {command}\n      sensors:", 1)
+        return text
+
+    def fleet(self, tag: str, command: str | None = None) -> Path:
+        path = self.workdir / f"lab-{tag}{'-command' if command else ''}.yaml"
+        path.write_text(self.fleet_text(tag, command))
         return path
 
-    def env(self, tag: str = "1.0") -> dict:
-        return dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, ROBOT_LAB_FLEET=str(self.fleet(tag)),
+    def env(self, tag: str = "1.0", command: str | None = None) -> dict:
+        return dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, ROBOT_LAB_FLEET=str(self.fleet(tag, command)),
                     PYINFRA_PROGRESS="off", ROBOT_ROLLOUT_DIR=str(self.workdir / "rollout"))
 
     def ssh(self, host: str, command: str) -> list[str]:
@@ -95,11 +105,12 @@ class Bench:
             raise RuntimeError(f"ssh {command[:60]}...: {errors[0][-500:]}")
         return seconds
 
-    def pyinfra(self, *args: str, tag: str = "1.0", count: bool = False) -> tuple[float, int, dict]:
+    def pyinfra(self, *args: str, tag: str = "1.0", count: bool = False, command: str | None = None
+                ) -> tuple[float, int, dict]:
         report = self.workdir / "counts.json"
         prog = [sys.executable, "-c", COUNTING_PYINFRA, str(report)] if count else [sys.executable, "-c", PYINFRA]
         started = time.monotonic()
-        proc = subprocess.run([*prog, "-y", "inventories/lab.py", *args], cwd=ROOT, env=self.env(tag),
+        proc = subprocess.run([*prog, "-y", "inventories/lab.py", *args], cwd=ROOT, env=self.env(tag, command),
                               capture_output=True, text=True)
         seconds = time.monotonic() - started
         if proc.returncode != 0:
@@ -107,21 +118,24 @@ class Bench:
         counts = json.loads(report.read_text()) if count and report.exists() else {}
         return seconds, proc.returncode, counts
 
-    def events(self, host: str, since: float) -> list[tuple[float, str, str]]:
-        """(time, action, image) of the payload's container events since ``since``."""
-        # The lab payload's version label: the image attribute is a digest.
-        fmt = '{{.TimeNano}} {{.Action}} {{index .Actor.Attributes "org.opencontainers.image.version"}}'
+    def sh(self, host: str):
+        """A function running a shell command on ``host`` over SSH, returning its output."""
+        def run(command: str) -> str:
+            return subprocess.run(self.ssh(host, command), capture_output=True, text=True).stdout
+        return run
 
-        out = subprocess.run(self.ssh(host, (
-            f"sudo docker events --since {since:.3f} --until $(date +%s.%N) --filter type=container "
-            f"--filter label=com.docker.compose.project=robot-payload --format {shlex.quote(fmt)}")),
-            capture_output=True, text=True).stdout
-        rows = []
-        for line in out.splitlines():
-            parts = line.split()
-            if len(parts) >= 3:
-                rows.append((int(parts[0]) / 1e9, parts[1], parts[2]))
-        return rows
+    def watching(self, hosts: list[str], action) -> dict[str, window.Watch]:
+        """What the payload did on each of ``hosts`` while ``action()`` ran
+        (Docker's clocks on each robot, begun and ended in parallel)."""
+        watches = {host: window.Watch(self.sh(host)) for host in hosts}
+        with ThreadPoolExecutor(len(hosts)) as pool:
+            list(pool.map(window.Watch.begin, watches.values()))
+        try:
+            action()
+        finally:
+            with ThreadPoolExecutor(len(hosts)) as pool:
+                list(pool.map(window.Watch.end, watches.values()))
+        return watches
 
     # --- floors ---------------------------------------------------------------
     def apt_floor_script(self) -> str:
@@ -172,8 +186,8 @@ class Bench:
         run()
         return figure.add(time.monotonic() - started, load, idle)
 
-    def deploy(self, *args: str, tag: str = "1.0", count: bool = False) -> tuple[int, dict]:
-        _, code, counts = self.pyinfra("deploy.py", *args, tag=tag, count=count)
+    def deploy(self, *args: str, tag: str = "1.0", count: bool = False, command: str | None = None) -> tuple[int, dict]:
+        _, code, counts = self.pyinfra("deploy.py", *args, tag=tag, count=count, command=command)
         return code, counts
 
     def fresh_pairs(self, r: dict, runs: int) -> None:
@@ -222,22 +236,34 @@ class Bench:
 
     def update_cycles(self, r: dict, runs: int) -> None:
         """Each cycle: every robot to the other tag (all N change), then
-        robot1 back and forth alone (one changes each time)."""
+        robot1 back and forth alone (one changes each time); every update's
+        window on every robot that changed."""
         tags = ("1.1", "1.0")
-        r["downtime"], r["update_exits"] = {}, []
+        r["window"], r["update_exits"] = {}, []
         for index in range(runs):
             new, old = tags[index % 2], tags[(index + 1) % 2]
             log(f"update all robots to {new} ({index + 1}/{runs})")
-            since = time.time()
-            self.timed("update_all", lambda: r["update_exits"].append(self.deploy(tag=new)[0]))
-            for host in self.robots:
-                value = self.downtime(self.events(host, since))
-                if value is not None:
-                    r["downtime"][host] = max(r["downtime"].get(host, 0.0), value)
+            watches = self.watching(self.robots, lambda: self.timed(
+                "update_all", lambda: r["update_exits"].append(self.deploy(tag=new)[0])))
+            self.windows("window_all", watches, "update_all", r["window"])
             for tag in (old, new):
                 log(f"update one robot to {tag}")
-                self.timed("update_one", lambda: r["update_exits"].append(
-                    self.deploy("--limit", self.robots[0], tag=tag)[0]))
+                watches = self.watching(self.robots[:1], lambda: self.timed("update_one", lambda: r["update_exits"].append(
+                    self.deploy("--limit", self.robots[0], tag=tag)[0])))
+                self.windows("window_one", watches, "update_one")
+
+    def windows(self, name: str, watches: dict, taken_with: str, per_robot: dict | None = None) -> None:
+        """Each robot's update window as a sample of figure ``name``, with the
+        load of the update's own sample (``taken_with``)."""
+        update = self.figures[taken_with]
+        for host, watch in watches.items():
+            value = watch.window()
+            if value is None:
+                log(f"{host}: no update window found (was its payload replaced?)")
+                continue
+            self.figures.setdefault(name, hygiene.Figure()).add(value, update.loads[-1], update.idles[-1])
+            if per_robot is not None:
+                per_robot.setdefault(host, []).append(round(value, 3))
 
     def rollouts(self, r: dict, runs: int) -> None:
         r["rollout_exit"], r["rollout_waves"] = [], None
@@ -256,22 +282,28 @@ class Bench:
             waves = sum(1 for line in proc["p"].stderr.splitlines() if line.startswith("--> wave "))
             r["rollout_waves"] = max(r["rollout_waves"] or 0, waves)
 
-    def crashes(self, r: dict, runs: int) -> None:
-        r["crash_exit"] = []
-        back = hygiene.Figure()
-        for index in range(runs):
-            log(f"crash-looping release on one robot ({index + 1}/{runs})")
-            since = time.time()
-            figure = self.figures.setdefault("crash_deploy", hygiene.Figure())
-            load, idle = hygiene.wait(f"N={self.n} crash_deploy", first=not figure.samples)
-            started = time.monotonic()
-            r["crash_exit"].append(self.deploy("--limit", self.robots[0], tag="1.2-broken")[0])
-            figure.add(time.monotonic() - started, load, idle)
-            value = self.back_again(self.events(self.robots[0], since))
-            if value is not None:
-                back.add(value, load, idle)
-        if back.samples:
-            self.figures["crash_to_old_running"] = back
+    def broken(self, r: dict, runs: int) -> None:
+        """robot1 to each kind of broken release (window.BROKEN): the deploy
+        until it failed, and from Docker's verdict and from the broken
+        release's first start to the old release running again."""
+        r["broken_exit"], r["broken_settings"] = [], {}
+        host = self.robots[0]
+        for kind, (tag, command) in window.BROKEN.items():
+            key = "exit" if command else "unhealthy"
+            for index in range(runs):
+                log(f"broken release on one robot, {kind} ({index + 1}/{runs})")
+                found = {}
+                watches = self.watching([host], lambda: self.timed(f"broken_{key}_deploy", lambda: found.update(
+                    code=self.deploy("--limit", host, tag=tag, command=command)[0])))
+                r["broken_exit"].append(found["code"])
+                figure = self.figures[f"broken_{key}_deploy"]
+                seen = watches[host].broken() or {}
+                for part, name in (("verdict_to_old_running", "verdict"), ("first_start_to_old_running", "first")):
+                    if part in seen:
+                        self.figures.setdefault(f"broken_{key}_{name}", hygiene.Figure()).add(
+                            seen[part], figure.loads[-1], figure.idles[-1])
+                r["broken_settings"][kind] = f"verdict: {seen.get('verdict', 'none seen')}; " + window.health_settings(
+                    self.sh(host), tag, self.fleet_text(tag, command))
 
     def run(self, runs: int = 3, fresh: bool = True, updates: bool = True) -> dict:
         self.figures: dict[str, hygiene.Figure] = {}
@@ -290,7 +322,7 @@ class Bench:
             self.update_cycles(r, runs)
             self.tag = ("1.1", "1.0")[(runs - 1) % 2]
             self.rollouts(r, runs)
-            self.crashes(r, runs)
+            self.broken(r, runs)
         r["figures"] = {name: figure.as_dict() for name, figure in self.figures.items()}
         if "floor_apt_pull" in self.figures and "floor_health" in self.figures:
             r["figures"]["floor_fresh"] = {
@@ -300,27 +332,6 @@ class Bench:
         r["load_at_end"] = [round(x, 2) for x in os.getloadavg()]
         self.ratios(r)
         return r
-
-    @staticmethod
-    def downtime(events) -> float | None:
-        """Old container died -> new container started (seconds)."""
-        died = [t for t, action, _ in events if action == "die"]
-        started = [t for t, action, _ in events if action == "start"]
-        if not died or not started:
-            return None
-        first_die = min(died)
-        after = [t for t in started if t >= first_die]
-        return (min(after) - first_die) if after else None
-
-    @staticmethod
-    def back_again(events) -> float | None:
-        """The broken container starts -> the old release's container starts again."""
-        starts = [(t, image) for t, action, image in events if action == "start"]
-        broken = [t for t, image in starts if "1.2-broken" in image]
-        if not broken:
-            return None
-        back = [t for t, image in starts if t > broken[0] and "1.2-broken" not in image]
-        return (back[0] - broken[0]) if back else None
 
     @staticmethod
     def ratios(r: dict) -> None:
@@ -333,7 +344,7 @@ class Bench:
             a, b = median(a), median(b)
             return round(a / b, 2) if a is not None and b else None
 
-        downtimes = [d for d in r.get("downtime", {}).values() if d is not None]
+        windows = [w for values in r.get("window", {}).values() for w in values]
         waves = r.get("rollout_waves")
         one = median("update_one")
         r["ratios"] = {
@@ -344,16 +355,21 @@ class Bench:
             "rollout / update all": ratio("rollout", "update_all"),
             "rollout / (waves x update one)": round(median("rollout") / (waves * one), 2)
             if median("rollout") and waves and one else None,
-            "max downtime (s)": round(max(downtimes), 2) if downtimes else None,
-            "crash -> old running / health window": ratio("crash_to_old_running", "floor_health"),
+            "max update window (s)": round(max(windows), 2) if windows else None,
+            "exits at once: exit -> old running (s)": median("broken_exit_verdict"),
+            "never healthy: unhealthy -> old running (s)": median("broken_unhealthy_verdict"),
         }
         # Which ratio had every sample of both its figures taken idle.
         pairs = {"noop / pyinfra exec true": ("noop", "floor_exec_true"), "noop / ssh true": ("noop", "floor_ssh_true"),
                  "fresh / (apt+pull+health)": ("fresh", "floor_fresh"), "update all / update one": ("update_all", "update_one"),
-                 "rollout / update all": ("rollout", "update_all"), "max downtime (s)": ("update_all", "update_all"),
-                 "crash -> old running / health window": ("crash_to_old_running", "floor_health")}
+                 "rollout / update all": ("rollout", "update_all"), "max update window (s)": ("window_all", "window_all"),
+                 "exits at once: exit -> old running (s)": ("broken_exit_verdict", "broken_exit_verdict"),
+                 "never healthy: unhealthy -> old running (s)": ("broken_unhealthy_verdict", "broken_unhealthy_verdict")}
         r["ratios_idle"] = {key: all((figures.get(name) or {}).get("idle", False) for name in names)
                             for key, names in pairs.items()}
+        for key in ("exits at once: exit -> old running (s)", "never healthy: unhealthy -> old running (s)"):
+            if r["ratios"][key] is not None:
+                r["ratios"][key] = round(r["ratios"][key], 2)
 
 
 def measure(robots: int, prefix: str, keep: bool = False, runs: int = 3, fresh: bool = True,

@@ -1,24 +1,29 @@
-"""Benchmark: how long a robot is without a working payload.  Prints figures;
-asserts nothing.
+"""Benchmark: how long one robot is without a working payload.  Prints
+figures; asserts nothing.
 
-    python3 -m tests.bench.releases [--prefix bench] [--host robot1] [--keep]
+    python3 -m tests.bench.releases [--prefix bench] [--robots 1] [--host robot1] [--rounds 3] [--keep]
 
-- crash loop -> old release running: from the first start of a crash-looping
-  release's container to the start of the old release's container again
-  (target <= 10 s with the default settings);
-- downtime of a normal update: from the old container's stop to the new
-  one's start (target <= 2 s per robot).
+On one robot of its own lab, the others idle (a robot with its CPU to
+itself, as a real one has), each figure the median of --rounds samples
+with its spread:
 
-Both are read from `docker events` on the robot (nanosecond timestamps), so
-the operator's SSH and pyinfra overhead is not counted.  The lab fleet's
-health settings apply (inventories/lab.yaml); the failure is detected from the
-container's exit/restart, which does not depend on payload_health_timeout.
+- update window: the old container's last moment running (FinishedAt) ->
+  the new one's first (StartedAt), updating 1.0 <-> 1.1 (target <= 0.5 s);
+- a release that exits at once (payload_command `exit 3`): Docker's
+  verdict (the container's exit) -> the old release running, and its first
+  start -> the old release running;
+- a release that runs but never turns healthy (tag 1.2-broken): Docker's
+  `unhealthy` verdict -> the old release running (target <= 0.5 s: what the
+  tool adds), and its first start -> the old release running (mostly the
+  image's health check: interval x retries, printed beside it).
+
+Every time is Docker's own, read on the robot (tests/bench/window.py), so
+the operator's SSH and pyinfra overhead is not counted.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import subprocess
 import sys
@@ -26,17 +31,19 @@ import tempfile
 import time
 from pathlib import Path
 
+from tests.bench import hygiene, window
+
 ROOT = Path(__file__).resolve().parents[2]
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 LAB_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 
 
-def fleet(tmp: Path, name: str, host: str, tag: str, crash: bool = False) -> Path:
+def fleet(tmp: Path, name: str, host: str, tag: str, command: str | None = None) -> Path:
     text = (ROOT / "inventories" / "lab.yaml").read_text()
     text = text.replace(LAB_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
-    if crash:
+    if command:
         anchor = f"    {host}:\n      sensors:"
-        text = text.replace(anchor, f"    {host}:\n      payload_command: [/bin/sh, -c, 'exit 3']\n      sensors:", 1)
+        text = text.replace(anchor, f"    {host}:\n      payload_command: {command}\n      sensors:", 1)
     path = tmp / f"{name}.yaml"
     path.write_text(text)
     return path
@@ -50,82 +57,59 @@ def deploy(prefix: str, host: str, fleet_file: Path) -> tuple[int, float]:
     return proc.returncode, time.monotonic() - started
 
 
-def robot_now(prefix: str, host: str) -> str:
-    from tests.lab.state import exec_in
-
-    return exec_in(prefix, host, "date +%s.%N")[1].strip()
-
-
-def events(prefix: str, host: str, since: str) -> list[dict]:
-    from tests.lab.state import exec_in
-
-    until = robot_now(prefix, host)
-    code, out = exec_in(prefix, host, (
-        f"docker events --since {since} --until {until} --filter type=container"
-        " --filter label=com.docker.compose.project=robot-payload --format '{{json .}}'"))
-    found = []
-    for line in out.splitlines():
-        try:
-            event = json.loads(line)
-        except ValueError:
-            continue
-        found.append({"action": event.get("Action") or event.get("status"), "time": event["timeNano"] / 1e9,
-                      "image": event.get("Actor", {}).get("Attributes", {}).get("image", ""),
-                      "id": event.get("id", "")[:12]})
-    return found
-
-
-def crash_loop_recovery(evs: list[dict]) -> float | None:
-    """First start of a container that later died -> the last start (the old
-    release again)."""
-    starts = [e for e in evs if e["action"] == "start"]
-    died = {e["id"] for e in evs if e["action"] == "die"}
-    crashing = [e for e in starts if e["id"] in died]
-    if not crashing or not starts:
-        return None
-    return starts[-1]["time"] - crashing[0]["time"]
-
-
-def update_downtime(evs: list[dict]) -> float | None:
-    """The old container's stop (die) -> the new one's start."""
-    dies = [e for e in evs if e["action"] == "die"]
-    starts = [e for e in evs if e["action"] == "start"]
-    if not dies or not starts:
-        return None
-    last_die = dies[0]
-    after = [s for s in starts if s["time"] >= last_die["time"]]
-    return (after[0]["time"] - last_die["time"]) if after else None
-
-
 def main() -> int:
-    parser = argparse.ArgumentParser()
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.releases", description=__doc__.split("\n\n")[0],
+                                     epilog="The window of each of 10 robots updated at once: python3 -m tests.bench "
+                                            "--robots 10 --updates-at 10 --fresh-at (see its --help).")
     parser.add_argument("--prefix", default="bench")
     parser.add_argument("--host", default="robot1")
-    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--robots", type=int, default=1, help="robots in the lab (the others idle)")
+    parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--keep", action="store_true", help="leave the lab up")
     args = parser.parse_args()
     from tests.lab import hosts
+    from tests.lab.state import exec_in
 
-    hosts.up(args.prefix)
+    hosts.up(args.prefix, robots=args.robots, laptops=0)
     tmp = Path(tempfile.mkdtemp(prefix="bench-releases-"))
     host = args.host
+
+    def sh(command: str) -> str:
+        return exec_in(args.prefix, host, command)[1]
+
+    figures: dict[str, hygiene.Figure] = {}
+
+    def sample(name: str, value: float | None, load: float, idle: bool) -> None:
+        if value is not None:
+            figures.setdefault(name, hygiene.Figure()).add(value, load, idle)
+
     try:
         code, seconds = deploy(args.prefix, host, fleet(tmp, "base", host, "1.0"))
-        print(f"setup deploy of {host} to 1.0: exit {code}, {seconds:.1f} s")
-        tags = ["1.1", "1.0"] * args.rounds
-        print(f"\n{'measure':40} {'seconds':>8}   (target)")
-        for tag in tags:
-            since = robot_now(args.prefix, host)
-            code, seconds = deploy(args.prefix, host, fleet(tmp, f"to-{tag}", host, tag))
-            down = update_downtime(events(args.prefix, host, since))
-            print(f"{'update to ' + tag + ' downtime':40} {down if down is None else round(down, 2)!s:>8}   (<= 2)"
-                  f"   deploy exit {code}, {seconds:.1f} s wall")
-        for round_ in range(args.rounds):
-            since = robot_now(args.prefix, host)
-            code, seconds = deploy(args.prefix, host, fleet(tmp, "crash", host, "1.0", crash=True))
-            back = crash_loop_recovery(events(args.prefix, host, since))
-            print(f"{'crash loop -> old release running':40} {back if back is None else round(back, 2)!s:>8}   (<= 10)"
-                  f"   deploy exit {code} (a failure is expected), {seconds:.1f} s wall")
+        print(f"setup deploy of {host} to 1.0: exit {code}, {seconds:.1f} s", flush=True)
+        for index, tag in enumerate(["1.1", "1.0"] * args.rounds):
+            load, idle = hygiene.wait(f"update to {tag}", first=index == 0)
+            with window.Watch(sh) as watch:
+                code, seconds = deploy(args.prefix, host, fleet(tmp, f"to-{tag}", host, tag))
+            sample("update window", watch.window(), load, idle)
+            print(f"update to {tag}: window {watch.window()}, deploy exit {code}, {seconds:.1f} s wall", flush=True)
+        settings = {}
+        for kind, (tag, command) in window.BROKEN.items():
+            for index in range(args.rounds):
+                load, idle = hygiene.wait(f"broken release ({kind})", first=index == 0)
+                with window.Watch(sh) as watch:
+                    code, seconds = deploy(args.prefix, host, fleet(tmp, f"broken-{index}", host, tag, command))
+                found = watch.broken() or {}
+                print(f"broken release ({kind}): {found}, deploy exit {code} (a failure is expected), "
+                      f"{seconds:.1f} s wall", flush=True)
+                sample(f"{kind}: verdict -> old release running", found.get("verdict_to_old_running"), load, idle)
+                sample(f"{kind}: first start -> old release running", found.get("first_start_to_old_running"), load, idle)
+                settings[kind] = f"verdict: {found.get('verdict', '?')}; " + window.health_settings(
+                    sh, tag, (ROOT / "inventories" / "lab.yaml").read_text())
+        print(f"\n{'figure (one robot, seconds)':58} {'median (min-max)':>24}")
+        for name, figure in figures.items():
+            print(f"{name:58} {hygiene.shown(figure.as_dict()):>24}")
+        for kind, text in settings.items():
+            print(f"{kind}: {text}")
     finally:
         if not args.keep:
             hosts.down(args.prefix)

@@ -24,7 +24,8 @@ import time
 import pytest
 
 from tests.e2e.conftest import wait_for
-from tests.e2e.test_faults_release import DIR, HEALTH_WAIT, Background, build_image_with_a_new_layer, image
+from tests.e2e.test_faults_release import (DIR, HEALTH_WAIT, NEW_CONTAINERS, Background, build_image_with_a_new_layer,
+                                           image)
 
 pytestmark = pytest.mark.e2e
 
@@ -95,6 +96,7 @@ def test_a_rerun_right_after_boot_finishes_an_update_cut_at_any_moment(lab, firs
     record = f"{DIR}/current/record.json"
     moments = [
         # (moment, the cut's condition on the robot, the update's target, its version label)
+        ("as compose replaces the containers", NEW_CONTAINERS.format(version="1.1"), "1.1", "1.1"),
         ("during the pull", "pgrep -f 'docker [p]ull' >/dev/null", "big", "1.1"),
         ("right after the switch", f"grep -q '\"state\": \"switching\"' {record} 2>/dev/null", "1.0", "1.0"),
         ("during the health wait", HEALTH_WAIT, "1.1", "1.1"),

@@ -112,6 +112,16 @@ def cut_power(lab, host: str, when: str):
     wait_for(lambda: healthy(lab, host), 90, f"the payload on {host} to be healthy after boot")
 
 
+NEW_CONTAINERS = (
+    "docker ps -aq --filter label=com.docker.compose.project=robot-payload"
+    " --filter label=org.opencontainers.image.version={version} | grep -q ."
+)  # the one compose up that switches has created the new release's containers (the old ones may still run)
+STARTED_SINCE_BOOT = (
+    "docker events --since $(( $(date +%s) - 3600 )) --until $(date +%s.%N) --filter event=start"
+    " --filter label=com.docker.compose.project=robot-payload --filter label=org.opencontainers.image.version={version}"
+    " --format '{{{{.ID}}}}'"
+)  # Docker keeps its events in memory: only this boot's
+
 HEALTH_WAIT = (
     f"grep -q '\"state\": \"switching\"' {DIR}/current/record.json 2>/dev/null"
     " && docker ps -q --filter label=com.docker.compose.project=robot-payload --filter health=starting | grep -q ."
@@ -281,9 +291,22 @@ def test_power_cuts_during_a_release_and_a_rollback(lab, first_run, tmp_path):
         deploy.kill()
     assert lab.record(host)["id"] == old and lab.version(host) == "1.0"
 
+    # As the one compose up that switches creates the new release's
+    # containers, stops the old ones and starts the new: they have no
+    # restart policy, so Docker starts none of them at boot, and the boot
+    # goes back to the last verified release.
+    to_11 = _fleet(lab, tmp_path, "to-1.1", **image("1.1"))
+    deploy = Background(lab, "--limit", host, fleet=to_11)
+    try:
+        cut_power(lab, host, NEW_CONTAINERS.format(version="1.1"))
+    finally:
+        deploy.kill()
+    assert lab.record(host)["id"] == old and lab.version(host) == "1.0"
+    assert "interrupted before it was verified healthy" in lab.record(host)["rolled_back_from"]["reason"]
+    assert lab.ok(host, STARTED_SINCE_BOOT.format(version="1.1")).strip() == ""
+
     # During the health wait (right after the switch): the boot must not run
     # the unverified release; it goes back to the last verified one.
-    to_11 = _fleet(lab, tmp_path, "to-1.1", **image("1.1"))
     deploy = Background(lab, "--limit", host, fleet=to_11)
     try:
         cut_power(lab, host, HEALTH_WAIT)

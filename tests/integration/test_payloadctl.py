@@ -382,9 +382,13 @@ def test_boot_runs_an_unverified_first_release_for_the_deploy_to_verify(tmp_path
     robot.image("reg/ros/payload:1.0")
     switching(robot, "r1", "reg/ros/payload:1.0", "apply", None, None)
     robot.releases.point("current", "r1")
+    durable.write_text(robot.releases.path("r1", "compose.yaml"), store.compose_yaml(releases_module.release_compose(
+        {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.0", "restart": "always"}}})))
     robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     assert robot.pointers() == ("r1", None) and robot.releases.record("r1")["state"] == "switching"
     assert "compose_up" in robot.state()
+    assert robot.state()["started_policies"] == [["reg/ros/payload:1.0", "no"]]  # unverified: no policy, one compose up
+    assert "docker update --restart always robot-payload-payload-1" not in robot.state()["log"]
 
 
 def test_start_leaves_the_switch_to_an_apply_that_holds_the_lock(robot):
@@ -548,26 +552,53 @@ def test_what_an_interrupted_compose_up_left_is_removed_before_the_next(robot):
 def test_an_unverified_release_has_no_restart_policy_until_it_is_verified(robot):
     """After a power cut Docker brings back what has a restart policy: the
     new release's containers must not come back before the boot recovery
-    decides which release runs."""
+    decides which release runs.  Its file grants none (the policy waits in
+    x-restart-when-verified), so one compose up creates and starts it
+    without one, and the policy is given once it is verified."""
     robot.image("reg/ros/payload:1.1")
     compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.1", "restart": "unless-stopped"}}}
     result = robot.apply("reg/ros/payload:1.1", compose=compose)
     assert result.returncode == 0
     log = robot.state()["log"]
     up = [i for i, line in enumerate(log) if "compose" in line and " up " in line + " "]
-    no_policy = log.index("docker update --restart no robot-payload-payload-1")
+    assert len(up) == 1 and "--no-start" not in log[up[0]]  # created, old one stopped, new one started: one call
+    assert robot.state()["started_policies"] == [["reg/ros/payload:1.1", "no"]]  # never started with a policy
     verified = log.index("docker update --restart unless-stopped robot-payload-payload-1")
-    assert "--no-start" in log[up[0]] and up[0] < no_policy < up[1] < verified  # never started with a policy
+    assert up[0] < verified
     assert robot.state()["containers"]["robot-payload-payload-1"]["policy"] == "unless-stopped"
+    written = json.loads(Path(robot.releases.path(robot.pointers()[0], "compose.yaml")).read_text().split("\n", 1)[1])
+    assert written["services"]["payload"]["restart"] == "no"
+    assert written["x-restart-when-verified"] == {"payload": "unless-stopped"}
 
 
-def test_the_boot_gives_a_verified_release_its_restart_policy_back(robot):
+def test_an_unverified_release_an_older_payloadctl_wrote_is_created_then_stripped_of_its_policy(tmp_path, helper):
+    """A file that names its policies itself (written before the policies
+    moved to x-restart-when-verified): at boot, a first release left
+    unverified is created, given policy `no`, then started."""
+    robot = FakeRobot(tmp_path, helper)
+    robot.image("reg/ros/payload:1.0")
+    switching(robot, "r1", "reg/ros/payload:1.0", "apply", None, None)
+    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.0", "restart": "always"}}}
+    durable.write_text(robot.releases.path("r1", "compose.yaml"), store.compose_yaml(compose))
+    robot.releases.point("current", "r1")
+    assert robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload").returncode == 0
+    log = robot.state()["log"]
+    up = [i for i, line in enumerate(log) if "compose" in line and " up " in line + " "]
+    no_policy = log.index("docker update --restart no robot-payload-payload-1")
+    assert len(up) == 2 and "--no-start" in log[up[0]] and up[0] < no_policy < up[1]
+    assert robot.state()["started_policies"] == [["reg/ros/payload:1.0", "no"]]
+    assert robot.releases.record("r1")["state"] == "switching"  # still for the next deploy to verify
+
+
+@pytest.mark.parametrize("written", [releases_module.release_compose, lambda doc: doc],
+                         ids=["this payloadctl's file", "an older payloadctl's"])
+def test_the_boot_gives_a_verified_release_its_restart_policy_back(robot, written):
     """A power cut between the verdict and the policy: the boot restores it."""
     state = robot.state()
     state["containers"]["robot-payload-payload-1"]["policy"] = "no"
     robot.save(state)
     compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.0", "restart": "always"}}}
-    durable.write_text(robot.releases.path("r1", "compose.yaml"), store.compose_yaml(compose))
+    durable.write_text(robot.releases.path("r1", "compose.yaml"), store.compose_yaml(written(compose)))
     assert robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload").returncode == 0
     assert robot.state()["containers"]["robot-payload-payload-1"]["policy"] == "always"
 

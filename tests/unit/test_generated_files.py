@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from roles.payload.payloadctl.releases import compose_yaml
+from roles.payload.payloadctl.releases import compose_yaml, release_compose
 from tests.unit.harness import find, fresh_host, plan, written_files
 from tests.unit.harness import ROBOT
 
@@ -33,7 +33,7 @@ def sent_to_a_fresh_robot():
     files = written_files(commands)
     release = find(commands, "payloadctl apply")
     assert len(release) == 1
-    files["compose.yaml"] = compose_yaml(json.loads(release[0].stdin)["spec"]["compose"])
+    files["compose.yaml"] = compose_yaml(release_compose(json.loads(release[0].stdin)["spec"]["compose"]))  # as payloadctl writes it
     return files
 
 

@@ -39,6 +39,27 @@ def test_release_compose_is_yaml():
     assert yaml.safe_load(store.compose_yaml(doc)) == doc
 
 
+def test_a_release_file_grants_no_restart_policy_and_keeps_the_ones_asked_for():
+    """Compose creates an unverified release's containers without a policy
+    (a power cut must not bring them back before the boot decides); the
+    policies wait in x-restart-when-verified for the verdict."""
+    doc = {"name": "p", "services": {
+        "payload": {"image": "a", "restart": "unless-stopped"},
+        "driver": {"image": "b", "deploy": {"restart_policy": {"condition": "on-failure", "max_attempts": 3},
+                                            "resources": {"limits": {"cpus": "1"}}}},
+        "tool": {"image": "c"},
+        "sidecar": {"image": "d", "restart": "always", "deploy": {"restart_policy": {"condition": "none"}}},
+    }}
+    asked = {"payload": "unless-stopped", "driver": "on-failure:3", "tool": "no", "sidecar": "no"}
+    assert store.restart_policies(doc) == asked and not store.grants_no_policy(doc)
+    written = yaml.safe_load(store.compose_yaml(store.release_compose(doc)))
+    assert store.grants_no_policy(written)
+    assert {name: s["restart"] for name, s in written["services"].items()} == dict.fromkeys(asked, "no")
+    assert written["services"]["driver"]["deploy"] == {"resources": {"limits": {"cpus": "1"}}}
+    assert store.restart_policies(written) == asked
+    assert doc["services"]["payload"]["restart"] == "unless-stopped"  # the spec's document is left as it is
+
+
 def test_update_lock_holder(tmp_path):
     lock = tmp_path / "update.lock"
     assert apply_lock.update_lock_holder(str(lock)) is None

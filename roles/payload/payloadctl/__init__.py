@@ -13,7 +13,9 @@ Modules by concern: durable (files that survive a power cut), spec (what a
 release is, who asks), lifecycle (a release's record, states and every
 transition: the only writer of records and pointers), releases (the store,
 read only), imageref and images (image references, pulls), health (is it
-running well), lock (one deploy at a time, its token, the update lock),
+running well), events (Docker's events that wake the health wait), start
+(bring `current` up: here while the unit runs, else through the unit),
+lock (one deploy at a time, its token, the update lock),
 hold (the lock held for a command), recovery (boot), takeover (containers
 set up another way), apply and rollback, results (one structured result a
 run), status, cli.  The deploy side imports imageref, spec, lifecycle,

@@ -4,10 +4,10 @@ Runs holding the robot's apply lock (cli.locked); every change of a record
 or a pointer is a transition of lifecycle.Life, so a power cut at any point
 is undone at boot (recovery.py) or by the next deploy."""
 
-from . import health, images, platforms, results, takeover
+from . import health, images, platforms, results, start, takeover
 from .lifecycle import SETTLED, Record
 from .lock import update_lock_holder
-from .releases import compose_yaml, gc
+from .releases import compose_yaml, gc, release_compose, restart_policies
 from .system import Failure, Refusal, now, run
 
 
@@ -69,7 +69,7 @@ def apply(spec, run_, life, lock=None):
     record = Record(created=now(), spec_hash=spec.spec_hash, project=spec.name, images=pinned,
                     deployed_by=run_.by, autostart=spec.autostart, run_id=run_.run_id)
     try:
-        life.prepare(rid, spec.to_dict(), compose_yaml(doc), record)
+        life.prepare(rid, spec.to_dict(), compose_yaml(release_compose(doc)), record)
     except OSError as error:  # e.g. disk full: nothing half-written stays behind
         raise Failure("cannot write release {}: {}; the old release keeps running".format(rid, error))
     refused = check_compose(spec.name, life.releases.path(rid, "compose.yaml"))
@@ -86,14 +86,14 @@ def apply(spec, run_, life, lock=None):
         ok, why = health.run_checks(spec.name, spec.checks)
     if ok:
         life.keep(rid)
-        health.set_restart_policies(spec.name, health.restart_policies(doc))  # verified: Docker may bring it back
+        health.set_restart_policies(spec.name, restart_policies(doc))  # verified: Docker may bring it back
         gc(spec.keep_releases, life.releases)
         return finish(results.APPLIED, "payload: release {} is healthy".format(rid), rid, taken=taken)
     back = life.fail(rid, why, restored)
     if not back:
         return finish(results.FAILED, "payload: release {} failed: {}; no healthy release to roll back to "
                       "(the next run tries again)".format(rid, why), rid, why, taken)
-    back_ok, back_why = health.start_and_check(life.releases.spec(back) or spec, run_.restart, lock)
+    back_ok, back_why = start.start_and_check(life.releases, life.releases.spec(back) or spec, run_.restart, lock)
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
     return finish(results.ROLLED_BACK, "payload: release {} failed ({}); rolled back to {} {}".format(
         rid, why, back, state), rid, why, taken)

@@ -3,13 +3,13 @@ and the checks other roles add (the GPU check)."""
 
 import json
 import re
-import subprocess
 import time
 
 from . import platforms
-from .system import Failure, run
+from .events import Events
+from .system import run
 
-POLL = 0.5  # seconds between health looks: a crash is seen within about this
+LOOK = 2.0  # seconds between looks while Docker's events wake the wait (a safety net only)
 
 
 def project_containers(name):
@@ -17,11 +17,8 @@ def project_containers(name):
     return proc.stdout.split()
 
 
-def container_state(cid):
-    proc = run(["docker", "inspect", cid], check=False, timeout=60)
-    if proc.returncode != 0:
-        return None
-    data = json.loads(proc.stdout)[0]
+def described(data):
+    """One `docker inspect` record as the health gate reads it."""
     state = data["State"]
     health = state.get("Health") or {}
     log_tail = ""
@@ -41,8 +38,14 @@ def container_state(cid):
     }
 
 
+def container_state(cid):
+    found = inspect_containers([cid])
+    return described(found[0]) if found else None
+
+
 def states(name):
-    return [s for s in (container_state(c) for c in project_containers(name)) if s]
+    """Every container of the project, read with one `docker inspect`."""
+    return [described(c) for c in inspect_containers(project_containers(name))]
 
 
 def inspect_containers(ids):
@@ -101,32 +104,38 @@ def container_output(name):
     return (proc.stdout or "") + (proc.stderr or "")
 
 
-def wait_healthy(name, timeout, stable_seconds):
+def wait_healthy(name, timeout, stable_seconds, since=None):
     """(True, "") once every container is healthy (HEALTHCHECK) or has run
     without restarting for stable_seconds; (False, why) at the first sign of
-    failure or when `timeout` runs out."""
+    failure or when `timeout` runs out.  Between looks it waits for Docker's
+    next event about the project (events.py; ``since``: replayed from then,
+    the moment before the release was brought up), so Docker's own verdict
+    (an exit, `unhealthy`) is acted on as soon as Docker gives it."""
     deadline = time.time() + timeout
     baseline = {}
     stable_since = None
     why = "no container started"
-    while True:
-        found = states(name)
-        outcome, reason = verdict(found, baseline)
-        if outcome == "fail":
-            return False, exec_format_failure(found, container_output) or reason
-        if outcome == "ok":
-            return True, ""
-        if outcome == "stable":
-            stable_since = stable_since or time.time()
-            if time.time() - stable_since >= stable_seconds:
+    with Events(name, since) as events:
+        while True:
+            found = states(name)
+            outcome, reason = verdict(found, baseline)
+            if outcome == "fail":
+                return False, exec_format_failure(found, container_output) or reason
+            if outcome == "ok":
                 return True, ""
-            why = "waiting for {} s without restarts".format(stable_seconds)
-        else:
-            stable_since = None
-            why = reason
-        if time.time() >= deadline:
-            return False, "not healthy after {} s (payload_health_timeout): {}".format(timeout, why)
-        time.sleep(POLL)
+            pause = LOOK
+            if outcome == "stable":
+                stable_since = stable_since or time.time()
+                if time.time() - stable_since >= stable_seconds:
+                    return True, ""
+                why = "waiting for {} s without restarts".format(stable_seconds)
+                pause = min(pause, stable_since + stable_seconds - time.time())
+            else:
+                stable_since = None
+                why = reason
+            if time.time() >= deadline:
+                return False, "not healthy after {} s (payload_health_timeout): {}".format(timeout, why)
+            events.wait(min(pause, deadline - time.time()))
 
 
 def containers_up(name):
@@ -135,64 +144,26 @@ def containers_up(name):
     return bool(found) and all(s["status"] == "running" and s["health"] != "unhealthy" for s in found)
 
 
-def unit_active(unit):
-    return run(["systemctl", "is-active", "--quiet", unit], check=False, timeout=60).returncode == 0
-
-
-UNIT_BUSY = ("activating", "deactivating", "reloading")
-UNIT_SETTLE = 120  # seconds to wait for a start in progress (the boot's) to finish
-
-
-def wait_unit_settled(unit):
-    """A start in progress (the boot's compose up) is never cut short by a
-    restart: that leaves a half-recreated container behind."""
-    deadline = time.time() + UNIT_SETTLE
-    while time.time() < deadline:
-        state = run(["systemctl", "show", "-p", "ActiveState", "--value", unit], check=False, timeout=60).stdout.strip()
-        if state not in UNIT_BUSY:
-            return
-        time.sleep(POLL)
-
-
-def start_release(name, restart, lock=None):
-    """Run `current` through the payload's unit.  ``lock`` (the apply lock
-    this run holds) notes that the unit's start is ours, so the start runs
-    without waiting for the lock (recovery.start)."""
-    unit = name + ".service"
-    wait_unit_settled(unit)
-    if lock is not None:
-        lock.note(starts_unit=True)
-    try:
-        if restart or not unit_active(unit):
-            run(["systemctl", "restart", unit], timeout=600)
-        else:
-            run(["systemctl", "reload", unit], timeout=600)
-    finally:
-        if lock is not None:
-            lock.note(starts_unit=False)
-
-
 # --- the project's containers, before and after compose up -------------------
 
 LEFTOVER = re.compile(r"^[0-9a-f]{12}_")  # compose renames a container it recreates to <id>_<name> first
+RUNNING = ("running", "restarting", "paused")  # `docker ps` states of a container Docker counts as running
 
 
 def clear_leftovers(name):
     """Remove what an interrupted `compose up` left: containers renamed
     <id>_<name> during a recreate, and stopped ones that would hold the
-    project's names (compose creates them afresh).  Returns their names."""
+    project's names (compose creates them afresh).  Returns their names.
+    One `docker ps` reads them (this runs before every compose up)."""
     removed = []
-    for c in inspect_containers(project_containers(name)):
-        cname = c["Name"].lstrip("/")
-        if LEFTOVER.match(cname) or not c["State"].get("Running"):
-            if run(["docker", "rm", "-f", c["Id"]], check=False, timeout=120).returncode == 0:
+    listed = run(["docker", "ps", "-a", "--no-trunc", "--filter", "label=com.docker.compose.project=" + name,
+                  "--format", "{{.ID}} {{.Names}} {{.State}}"], check=False, timeout=60)
+    for line in listed.stdout.splitlines():
+        cid, cname, state = (line.split() + ["", "", ""])[:3]
+        if cid and (LEFTOVER.match(cname) or state not in RUNNING):
+            if run(["docker", "rm", "-f", cid], check=False, timeout=120).returncode == 0:
                 removed.append(cname)
     return removed
-
-
-def restart_policies(compose_doc):
-    """service -> the restart policy its compose file asks for."""
-    return {name: str(s.get("restart") or "no") for name, s in compose_doc["services"].items()}
 
 
 def set_restart_policies(name, policies):
@@ -217,14 +188,3 @@ def run_checks(name, checks):
                 said = (proc.stderr or proc.stdout).strip()[-200:] or "exit {}".format(proc.returncode)
                 return False, "{} {} ({} failed: {})".format(who, check["failure"], " ".join(command), said)
     return True, ""
-
-
-def start_and_check(spec, restart, lock=None):
-    """Bring `current` up and wait for it: (healthy?, why not)."""
-    try:
-        start_release(spec.name, restart, lock)
-        return wait_healthy(spec.name, spec.health_timeout, spec.stable_seconds)
-    except Failure as error:
-        return False, str(error)
-    except subprocess.TimeoutExpired as error:
-        return False, "{} did not finish within {} s".format(" ".join(error.cmd[:3]), error.timeout)

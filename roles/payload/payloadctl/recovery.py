@@ -7,7 +7,7 @@ that `compose up` short (which left a half-recreated container and made the
 deploy's own start fail on its name).  The containers of a release not yet
 verified get restart policy `no`, so after a power cut Docker does not bring
 them back before the recovery has decided; a verified release's containers
-get their compose file's policy."""
+get the policies their compose file keeps for them (x-restart-when-verified)."""
 
 import json
 import os
@@ -15,6 +15,7 @@ import os
 from . import health
 from .lifecycle import SWITCHING, Life
 from .lock import Busy, Lock, describe
+from .releases import grants_no_policy, restart_policies
 from .system import Failure, log, run
 
 
@@ -25,21 +26,29 @@ def recover(releases):
     return Life(releases).recover()
 
 
-def up(releases, name):
+def up(releases, name, timeout=None):
     """`compose up` of `current`, after clearing what an interrupted one
-    left; an unverified release without restart policies until verified."""
+    left; an unverified release without restart policies until verified.
+
+    One `compose up` creates the new containers (policy `no`: the release's
+    file grants none, releases.release_compose), then stops the old ones
+    and starts the new: the payload is down only between that stop and that
+    start.  A file an older payloadctl wrote names its policies itself: an
+    unverified release of it is created first, its policies taken away,
+    then started."""
     path = os.path.join(releases.root, "current", "compose.yaml")
     cleared = health.clear_leftovers(name)
     if cleared:
         log("payload: removed what an interrupted compose up left: {}".format(", ".join(cleared)))
     compose = ["docker", "compose", "-p", name, "-f", path, "up", "-d", "--remove-orphans"]
+    doc = compose_doc(path)
     unverified = Life(releases).state(releases.pointer("current")) == SWITCHING
-    if unverified:
-        run(compose + ["--no-start"])
+    if unverified and not grants_no_policy(doc):
+        run(compose + ["--no-start"], timeout=timeout)
         health.set_restart_policies(name, "no")
-    run(compose)
+    run(compose, timeout=timeout)
     if not unverified:
-        health.set_restart_policies(name, health.restart_policies(compose_doc(path)))
+        health.set_restart_policies(name, restart_policies(doc))
     return 0
 
 

@@ -16,9 +16,60 @@ from .system import run
 RUNS = "runs"
 
 
+RESTART_WHEN_VERIFIED = "x-restart-when-verified"  # service -> its restart policy, given once verified
+DEPLOY_CONDITIONS = {"none": "no", "any": "always"}  # compose's deploy.restart_policy conditions as Docker's policies
+
+
 def compose_yaml(doc):
     """compose.yaml without PyYAML on the robot: JSON is valid YAML."""
     return "# Release compose file written by payloadctl; JSON is YAML.\n" + json.dumps(doc, indent=2) + "\n"
+
+
+def release_compose(doc):
+    """The compose document a release is written with: every service with
+    restart policy `no`, the policies they ask for kept under
+    x-restart-when-verified (compose ignores x- keys).  So the one `compose
+    up` that switches to an unverified release creates its containers
+    without a policy (Docker cannot bring them back after a power cut before
+    the boot's recovery decides), and the policies, given with `docker
+    update` once the release is verified, never enter the containers'
+    config hash: a later `compose up` of the same file recreates nothing."""
+    services = {}
+    for name, service in doc["services"].items():
+        service = dict(service, restart="no")
+        if isinstance(service.get("deploy"), dict) and "restart_policy" in service["deploy"]:
+            service["deploy"] = {k: v for k, v in service["deploy"].items() if k != "restart_policy"}
+        services[name] = service
+    return dict(doc, services=services, **{RESTART_WHEN_VERIFIED: restart_policies(doc)})
+
+
+def restart_policies(doc):
+    """service -> the restart policy it runs with once verified: from
+    x-restart-when-verified, else (a file of an older payloadctl, or a spec's
+    document) what its service asks compose for."""
+    kept = doc.get(RESTART_WHEN_VERIFIED)
+    if isinstance(kept, dict):
+        return {name: str(policy) for name, policy in kept.items()}
+    return {name: service_policy(service) for name, service in doc["services"].items()}
+
+
+def service_policy(service):
+    """The policy compose creates ``service``'s containers with (its
+    deploy.restart_policy wins over restart, as in compose)."""
+    deploy = service.get("deploy") if isinstance(service.get("deploy"), dict) else {}
+    policy = deploy.get("restart_policy")
+    if isinstance(policy, dict):
+        condition = str(policy.get("condition") or "no")  # compose 2.x: no condition, no policy
+        name = DEPLOY_CONDITIONS.get(condition, condition)
+        attempts = policy.get("max_attempts")
+        return "{}:{}".format(name, attempts) if name == "on-failure" and attempts else name
+    return str(service.get("restart") or "no")
+
+
+def grants_no_policy(doc):
+    """Compose creates every container of ``doc`` with restart policy `no`
+    (true of every file this payloadctl writes)."""
+    return all(service_policy(service) == "no" for service in doc["services"].values())
 
 
 class Releases:

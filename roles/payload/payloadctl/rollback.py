@@ -2,9 +2,10 @@
 comes back with its own spec (no download: it works offline), all or
 nothing (lifecycle.Life.roll_back, keep, stage, fail)."""
 
-from . import health, results
+from . import health, results, start
 from .lock import update_lock_holder
 from .recovery import compose_doc
+from .releases import restart_policies
 
 
 def target_spec(releases, target, current):
@@ -39,13 +40,13 @@ def rollback(run_, life, lock=None):
     if target.autostart is False:
         life.stage(previous)
         return finish(results.STAGED, "payload: rolled back to {} (staged)".format(previous), previous)
-    ok, why = health.start_and_check(spec, False, lock)
+    ok, why = start.start_and_check(life.releases, spec, False, lock)
     if ok:
         life.keep(previous)
-        health.set_restart_policies(spec.name, health.restart_policies(compose_doc(life.releases.path(previous, "compose.yaml"))))
+        health.set_restart_policies(spec.name, restart_policies(compose_doc(life.releases.path(previous, "compose.yaml"))))
         return finish(results.APPLIED, "payload: rolled back from {} to {}".format(current, previous), previous)
     life.fail(previous, why)
-    back_ok, back_why = health.start_and_check(life.releases.spec(current) or spec, False, lock)
+    back_ok, back_why = start.start_and_check(life.releases, life.releases.spec(current) or spec, False, lock)
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
     return finish(results.ROLLED_BACK, "payload: rollback to {} failed ({}); restored {} {}".format(
         previous, why, current, state), previous, why)

@@ -17,7 +17,7 @@ will be taken over, the robot side to decide."""
 
 import json
 
-from . import health, imageref
+from . import health, imageref, start
 from .system import log, now, run
 
 COMPOSE_PROJECT = "com.docker.compose.project"
@@ -144,7 +144,7 @@ def recorded_of(life, rid, project):
 
 
 def start_taking_over(spec, life, rid, before, came_from, restart, lock=None):
-    """health.start_and_check, after stopping what the payload replaces
+    """start.start_and_check, after stopping what the payload replaces
     (recorded in the release first): (healthy?, why not, what it took over,
     what it gave back).  ``before``: the release current before this one;
     ``came_from``: the verified one a failure goes back to.  If this release
@@ -155,7 +155,7 @@ def start_taking_over(spec, life, rid, before, came_from, restart, lock=None):
     if found:
         life.adopt(rid, found)
         take_over(found)
-    ok, why = health.start_and_check(spec, restart, lock)
+    ok, why = start.start_and_check(life.releases, spec, restart, lock)
     restored = None
     if not ok and found and not came_from:
         # Nothing of ours to go back to: our project makes way (also at boot).
