@@ -9,7 +9,7 @@ import yaml
 
 from robotfleet import roster
 from robotfleet.commands import status
-from roles.payload import compose, presets, problems, project, services
+from roles.payload import compose, containers, presets, problems, project, services
 from tests.unit import harness as fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan
 
@@ -321,7 +321,7 @@ def test_payload_replaces_tells_containers_from_compose_projects(entry, line):
 def test_a_converged_robot_with_a_foreign_payload_container_releases_and_says_so(caplog):
     snap = converged("robots", ROBOT, "debian-13")
     assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []
-    snap.probes[project.FOREIGN_PROBE] = FOREIGN
+    snap.probes[containers.PROBE] += "".join(f"f\t{line}\n" for line in FOREIGN.splitlines())
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" in commands[0]
     assert "[@fake/r1] payload: taking over what runs the payload another way" in caplog.text

@@ -17,7 +17,6 @@ from robotfleet.host import apt
 from robotfleet.host import snapshot as hoststate
 from robotfleet.host import snapshot_sh
 
-
 NATIVE = subprocess.run(["dpkg", "--print-architecture"], capture_output=True, text=True).stdout.strip()
 
 
@@ -222,3 +221,115 @@ def test_units_are_asked_at_once_and_one_by_one_where_systemd_says_nothing_for_a
     calls = log.read_text().splitlines()
     assert calls[:2] == ["is-enabled " + " ".join(units), "is-active " + " ".join(units)]
     assert len(calls) == (2 + 2 * len(units) if old else 2)
+
+
+ENGINE = """
+import http.server, json, socketserver, sys
+
+routes = json.load(open(sys.argv[1]))
+
+class Handler(http.server.BaseHTTPRequestHandler):
+    def do_GET(self):
+        status, body = routes.get(self.path, (404, '{"message":"No such container"}'))
+        data = body.encode()
+        self.send_response(status)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(data)))
+        self.end_headers()
+        self.wfile.write(data)
+
+    def log_message(self, *args):
+        pass
+
+class Server(socketserver.UnixStreamServer):
+    def get_request(self):
+        request, _ = super().get_request()
+        return request, ("local", 0)
+
+Server(sys.argv[2], Handler).serve_forever()
+"""
+
+
+def engine(tmp_path, routes: dict[str, tuple[int, str]]):
+    """An HTTP server on a unix socket answering GETs from ``routes`` (path ->
+    status, body), as dockerd does; in its own process (the test process may
+    have gevent's sockets)."""
+    import json
+    import sys
+    import time
+
+    (tmp_path / "routes.json").write_text(json.dumps(routes))
+    path = tmp_path / "docker.sock"
+    server = subprocess.Popen([sys.executable, "-c", ENGINE, str(tmp_path / "routes.json"), str(path)])
+    deadline = time.monotonic() + 10
+    while not path.exists() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return server, str(path)
+
+
+def inspect(cid, name, image, labels, running, policy):
+    import json
+
+    return json.dumps({"Id": cid, "Name": name, "Config": {"Image": image, "Labels": labels},
+                       "State": {"Running": running}, "HostConfig": {"RestartPolicy": {"Name": policy}}})
+
+
+def test_the_containers_are_read_from_the_engines_api_as_the_cli_printed_them(tmp_path, monkeypatch, capsys):
+    import json
+
+    from roles.payload import containers, docker_read
+
+    listing = [
+        {"Id": "a" * 64, "State": "running", "Status": "Up 3 hours (healthy)", "Labels": {containers.LABEL: "robot-payload"}},
+        {"Id": "b" * 64, "State": "exited", "Status": "Exited (0) 2 days ago", "Labels": {}},
+        {"Id": "c" * 64, "State": "running", "Status": "Up 1 second", "Labels": None},
+        {"Id": "d" * 64, "State": "created", "Status": "Created", "Labels": {"other": "x"}},  # gone before inspect
+    ]
+    routes = {
+        "/containers/json?all=1": (200, json.dumps(listing)),
+        f"/containers/{'a' * 64}/json": (200, inspect("a" * 64, "/robot-payload-payload-1", "reg/ros/payload:1",
+                                                      {containers.LABEL: "robot-payload"}, True, "unless-stopped")),
+        f"/containers/{'b' * 64}/json": (200, inspect("b" * 64, "/old<&>é", "reg/ros/payload:0.9", {}, False, "always")),
+        f"/containers/{'c' * 64}/json": (200, inspect("c" * 64, "/plain", "debian", None, True, "")),
+    }
+    server, path = engine(tmp_path, routes)
+    monkeypatch.setattr(docker_read, "SOCKET", path)
+    for name in ("DOCKER_HOST", "DOCKER_CONTEXT", "DOCKER_CONFIG"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    try:
+        assert docker_read.main(["-c", "robot-payload", "foreign"]) == 0
+    finally:
+        server.kill()
+        server.wait()
+    out = capsys.readouterr().out
+    # What `docker ps --format` and `docker inspect -f '{{json (printf ...)}}'` print (Go's JSON escapes
+    # <, > and &; a missing label is "" in the CLI's typed map, docker 26 and 28).
+    assert out == (
+        "c\trunning\tUp 3 hours (healthy)\n"
+        f'f\t"{"a" * 64}\\t/robot-payload-payload-1\\treg/ros/payload:1\\trobot-payload\\ttrue\\tunless-stopped"\n'
+        f'f\t"{"b" * 64}\\t/old\\u003c\\u0026\\u003eé\\treg/ros/payload:0.9\\t\\tfalse\\talways"\n'
+        f'f\t"{"c" * 64}\\t/plain\\tdebian\\t\\ttrue\\t"\n')
+    assert containers.part(out, "c") == "running\tUp 3 hours (healthy)\n"
+    assert [json.loads(line).split("\t")[1] for line in containers.part(out, "f").splitlines()] == [
+        "/robot-payload-payload-1", "/old<&>é", "/plain"]
+
+
+def test_the_containers_probe_leaves_another_engine_to_the_docker_cli(tmp_path):
+    """DOCKER_HOST (or a context) names an engine the CLI would ask: the
+    probe asks the CLI (here a stand-in that says who it is)."""
+    from roles.payload import containers
+
+    (tmp_path / "docker").write_text("#!/bin/sh\necho \"cli $*\" | head -c 60; echo\n")
+    (tmp_path / "docker").chmod(0o755)
+    env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}", DOCKER_HOST="tcp://elsewhere:2375")
+    out = subprocess.run(["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True,
+                         text=True, env=env).stdout
+    assert out.startswith("cli ps -a --filter label=com.docker.compose")
+    env.pop("DOCKER_HOST")
+    (tmp_path / ".docker").mkdir()
+    (tmp_path / ".docker" / "config.json").write_text('{"currentContext": "remote"}')
+    env["HOME"] = str(tmp_path)
+    out = subprocess.run(["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True,
+                         text=True, env=env).stdout
+    assert out.startswith("cli ps -a")
