@@ -139,7 +139,7 @@ def parse(lines: list[str], query: dict) -> Snapshot:
     """The snapshot script's output, answering only the keys of ``query``
     (``SnapshotQuery.as_kwargs()``)."""
     snap = Snapshot(**{kind: Readings(kind, query.get(kind) or ()) for kind in READING_KINDS})
-    stats, shas, os_lines, sizes, blob = {}, {}, [], [], b""
+    stats, shas, os_lines, sizes, blob, ones = {}, {}, [], [], b"", {}
     for line in lines:
         kind, _, rest = line.partition("\t")
         parts = rest.split("\t")
@@ -169,6 +169,9 @@ def parse(lines: list[str], query: dict) -> Snapshot:
             snap.commands[parts[0]] = parts[1] or None if len(parts) > 1 else None
         elif kind == "probe":
             snap.probes[parts[0]] = base64.b64decode(parts[1]).decode() if len(parts) > 1 and parts[1] else ""
+        elif kind == "pone" and len(parts) == 2 and parts[0].isdigit():  # one probe's output, by its index
+            sizes.append((parts[0], None))
+            ones[parts[0]] = base64.b64decode(parts[1]).decode() if parts[1] else ""
         elif kind == "psize" and len(parts) == 2 and parts[1].isdigit():
             sizes.append((parts[0].rsplit("/p", 1)[-1], int(parts[1])))
         elif kind == "pblob":
@@ -181,8 +184,8 @@ def parse(lines: list[str], query: dict) -> Snapshot:
     names = list(query.get("probes") or {})
     for index, size in sizes:  # the blob: the probes' outputs one after another, in the order of sizes
         if index.isdigit() and int(index) < len(names):
-            snap.probes[names[int(index)]] = blob[:size].decode()
-        blob = blob[size:]
+            snap.probes[names[int(index)]] = ones[index] if size is None else blob[:size].decode()
+        blob = blob[size or 0:]
     for name in names:  # cut off by the timeout: unknown, as a failed probe
         snap.probes.setdefault(name, "")
     for path in query.get("files") or ():

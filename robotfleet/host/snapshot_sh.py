@@ -66,8 +66,10 @@ def _files(files) -> list[str]:
     plain = [path for path in files if PLAIN_PATH.match(path)]
     if plain:
         names = " ".join(_q(p) for p in plain)
-        lines.append(f"stat -c \"stat${{T}}%n${{T}}%F${{T}}%a %U %G\" -- {names} 2>/dev/null")
-        lines.append(f"set --; for p in {names}; do [ -f \"$p\" ] && [ ! -L \"$p\" ] && set -- \"$@\" \"$p\"; done")
+        lines.append(f"set -- {names}")
+        lines.append('stat -c "stat$T%n$T%F$T%a %U %G" -- "$@" 2>/dev/null')
+        # Keep the regular files (not links) of the list: each turn takes one off the front.
+        lines.append('for p; do shift; [ -f "$p" ] && [ ! -L "$p" ] && set -- "$@" "$p"; done')
         lines.append('[ $# -gt 0 ] && sha256sum -- "$@" 2>/dev/null')
     for path in files:
         if path in plain:
@@ -111,24 +113,33 @@ def _packages(packages) -> list[str]:
 def _units(units) -> list[str]:
     if not units:
         return []
-    names = " ".join(_q(u) for u in units)
-    one_by_one = "; ".join(
-        f"echo \"unit${{T}}\"{_q(u)}\"${{T}}$(systemctl is-enabled {_q(u)} 2>/dev/null)${{T}}"
-        f"$(systemctl is-active {_q(u)} 2>/dev/null)\"" for u in units)
     return [
-        f"e=$(systemctl is-enabled {names} 2>/dev/null)$NL; a=$(systemctl is-active {names} 2>/dev/null)$NL; o=; n=",
-        f"for u in {names}; do",
+        f"set -- {' '.join(_q(u) for u in units)}",
+        'e=$(systemctl is-enabled "$@" 2>/dev/null)$NL; a=$(systemctl is-active "$@" 2>/dev/null)$NL; o=; n=',
+        "for u; do",
         '  [ -n "$e" ] && [ -n "$a" ] || { n=1; break; }',
         '  o="${o}unit$T$u$T${e%%$NL*}$T${a%%$NL*}$NL"; e=${e#*$NL}; a=${a#*$NL}',
         "done",
         # systemd answers one line a unit; an older one says nothing for a
         # unit it does not know: then each unit is asked alone.
-        f'if [ -z "$n$e$a" ]; then printf %s "$o"; else {one_by_one}; fi',
+        'if [ -z "$n$e$a" ]; then printf %s "$o"; else for u; do',
+        '  echo "unit$T$u$T$(systemctl is-enabled "$u" 2>/dev/null)$T$(systemctl is-active "$u" 2>/dev/null)"',
+        "done; fi",
     ]
 
 
-def _probe_job(index: int, snippet: str) -> str:
-    return (f'  {index}) ( set --; ( {snippet}\n) >"$D/p{index}" 2>/dev/null; : >"$D/p{index}.ok" ) & ;;')
+def _probes_program(probes: dict) -> str:
+    """``sh -c "$I" sh DIR INDEX...``: the probes INDEX... at once, each
+    into DIR/pINDEX (DIR/pINDEX.ok once it is done); with DIR empty, the
+    one probe INDEX to stdout.  Each probe runs in a subshell with no
+    arguments, as ``sh -c SNIPPET`` ran it."""
+    arms = "".join(f"{index})\n{snippet}\n;;\n" for index, snippet in enumerate(probes.values()))
+    return (
+        f'D=$1; shift\nrun() {{ i=$1; shift\ncase $i in\n{arms}esac; }}\n'
+        'if [ -n "$D" ]; then\n'
+        '  for i; do ( ( run $i ) >"$D/p$i" 2>/dev/null; : >"$D/p$i.ok" ) & done; wait\n'
+        'else ( run "$1" ) 2>/dev/null; fi'
+    )
 
 
 def _memo_key(memo: dict) -> list[str]:
@@ -164,16 +175,15 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
             path = _q(f"{MEMO_DIR}/{memo_name(name, snippet, memo[name])}")
             lines.append(
                 f'if [ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]; '
-                f"then printf 'probe\\t%s\\t%s\\n' {_q(name)} \"$v\"; else R=\"$R {index}\"; fi")
+                f"then printf 'pone\\t{index}\\t%s\\n' \"$v\"; else R=\"$R {index}\"; fi")
         else:
             lines.append(f'R="$R {index}"')
     if probes:
-        jobs = "\n".join(_probe_job(index, snippet) for index, snippet in enumerate(probes.values()))
-        inner = f'D=$1; shift\nfor i; do case $i in\n{jobs}\nesac; done\nwait'
         lines += [
+            f"I={_q(_probes_program(probes))}",
             'P=; if [ -n "$R" ] && d=$(mktemp -d 2>/dev/null); then',
             "  trap 'rm -rf \"$d\"' EXIT",
-            f'  timeout {PROBE_TIMEOUT} sh -c {_q(inner)} sh "$d" $R &',
+            f'  timeout {PROBE_TIMEOUT} sh -c "$I" sh "$d" $R &',
             "  P=$!",
             "fi",
         ]
@@ -202,11 +212,8 @@ def _probe_results(probes: dict, memo: dict) -> list[str]:
     lines += [
         '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; echo "pblob$T$(cat -- "$@" | base64 -w0)"; fi',
         'elif [ -n "$R" ]; then',
-        "  for i in $R; do case $i in",
+        # No temporary directory: one after another, each under its own timeout.
+        f"  for i in $R; do printf 'pone\\t%s\\t' $i; timeout {PROBE_TIMEOUT} sh -c \"$I\" sh '' $i | base64 -w0; echo; done",
+        "fi",
     ]
-    for index, (name, snippet) in enumerate(probes.items()):
-        lines.append(
-            f"  {index}) echo \"probe${{T}}\"{_q(name)}\"${{T}}$(timeout {PROBE_TIMEOUT} sh -c {_q(snippet)} 2>/dev/null"
-            " | base64 -w0)\" ;;")
-    lines += ["  esac; done", "fi"]
     return lines
