@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from robotfleet import CHECKOUT, connect, roster
+from robotfleet import CHECKOUT, connect, roster, speedups
 from robotfleet.commands import hosts as selection
 from robotfleet.fleet.check import Fleet, FleetError, display_path, load, parse
 
@@ -77,6 +77,7 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     require_checkout()
     connect.names([], inventory)
     _refuse_unmatched_limits(fleet, inventory)
+    speedups.install()  # before pyinfra makes a host of each name
     groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}
     return {**groups, **{name: connect.names(hosts) for name, hosts in fleet.groups.items()}}
 

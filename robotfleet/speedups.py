@@ -14,7 +14,18 @@ operation of every host, both recomputing what cannot change:
 - ``all_global_arguments`` evaluates ``typing.get_type_hints`` of a
   TypedDict on each call; the answer is fixed once pyinfra is imported.
 
-``install()`` puts both in place of pyinfra's, each only where pyinfra's
+Two more are per host, found at a thousand hosts (tests/bench/SCALE.md):
+
+- ``get_all_connectors`` (pyinfra.api.connectors) reads every installed
+  package's entry points on each call, and the inventory calls it for each
+  host named ``@connector/...`` (every host of ours): the entry points are
+  read once.
+- ``Inventory.get_groups_data`` merges the host's groups' data on every
+  lookup of host data that the host itself does not set (pyinfra looks up
+  each of its ~40 operation arguments so, for every operation of every
+  host): each list of groups is merged once.
+
+``install()`` puts them in place of pyinfra's, each only where pyinfra's
 function is still the one it was written from (its source's digest, in
 COPIED_FROM): a pyinfra release that changes either keeps its own, slower
 but right.  tests/unit/test_speedups.py checks they answer as pyinfra's own
@@ -32,7 +43,9 @@ from inspect import getframeinfo
 
 import pyinfra
 from pyinfra.api import arguments
+from pyinfra.api import connectors as pyinfra_connectors
 from pyinfra.api import util as pyinfra_util
+from pyinfra.api.inventory import Inventory
 
 # The module (pyinfra.api exports the decorator under the same name).
 operation = importlib.import_module("pyinfra.api.operation")
@@ -40,9 +53,13 @@ operation = importlib.import_module("pyinfra.api.operation")
 _ORIGINAL = {
     "order": pyinfra_util.get_operation_order_from_stack,
     "arguments": arguments.all_global_arguments,
+    "connectors": pyinfra_connectors.get_all_connectors,
+    "groups_data": Inventory.get_groups_data,
 }
+_ENTRY_POINTS = pyinfra_connectors.entry_points
 # The digest of each pyinfra function's source these were written from (pyinfra 3.10).
-COPIED_FROM = {"order": "f4807f61585570e0", "arguments": "f7afbc472d78c5d2"}
+COPIED_FROM = {"order": "f4807f61585570e0", "arguments": "f7afbc472d78c5d2",
+               "connectors": "7d05cb4b81d92078", "groups_data": "6d7b0baffe2d4773"}
 
 
 def digest(function) -> str:
@@ -103,6 +120,22 @@ def all_global_arguments() -> list:
     return list(_global_arguments())
 
 
+@functools.lru_cache(maxsize=None)
+def entry_points(group: str):
+    """The installed packages' entry points of ``group``, read once."""
+    return _ENTRY_POINTS(group=group)
+
+
+def groups_data(inventory, groups) -> dict:
+    """Inventory.get_groups_data, merged once for each list of groups (the
+    inventory's group data is set when it is made, before any lookup)."""
+    memo = inventory.__dict__.setdefault("_merged_groups_data", {})
+    key = tuple(groups)
+    if key not in memo:
+        memo[key] = _ORIGINAL["groups_data"](inventory, groups)
+    return memo[key]
+
+
 def install() -> list[str]:
     """Replace what is still as it was copied; returns what was replaced."""
     replaced = []
@@ -112,4 +145,10 @@ def install() -> list[str]:
     if digest(_ORIGINAL["arguments"]) == COPIED_FROM["arguments"]:
         arguments.all_global_arguments = all_global_arguments
         replaced.append("arguments")
+    if digest(_ORIGINAL["connectors"]) == COPIED_FROM["connectors"]:
+        pyinfra_connectors.entry_points = entry_points
+        replaced.append("connectors")
+    if digest(_ORIGINAL["groups_data"]) == COPIED_FROM["groups_data"]:
+        Inventory.get_groups_data = groups_data
+        replaced.append("groups_data")
     return replaced

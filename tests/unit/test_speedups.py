@@ -7,6 +7,8 @@ import types
 import pyinfra
 import pytest
 from pyinfra.api import arguments
+from pyinfra.api import connectors as pyinfra_connectors
+from pyinfra.api.inventory import Inventory
 
 from robotfleet import speedups
 from robotfleet.speedups import operation
@@ -44,23 +46,51 @@ def test_global_arguments_are_pyinfras():
     assert speedups.all_global_arguments() == speedups._ORIGINAL["arguments"]()
 
 
-def test_install_replaces_pyinfras(monkeypatch):
+def _pyinfras_own(monkeypatch):
     monkeypatch.setattr(operation, "get_operation_order_from_stack", pyinfra_order)
     monkeypatch.setattr(arguments, "all_global_arguments", speedups._ORIGINAL["arguments"])
-    for name in ("order", "arguments"):  # as a pyinfra of its own would answer: pretend this one is theirs
+    monkeypatch.setattr(pyinfra_connectors, "entry_points", speedups._ENTRY_POINTS)
+    monkeypatch.setattr(Inventory, "get_groups_data", speedups._ORIGINAL["groups_data"])
+
+
+def test_install_replaces_pyinfras(monkeypatch):
+    _pyinfras_own(monkeypatch)
+    for name in speedups.COPIED_FROM:  # as a pyinfra of its own would answer: pretend this one is theirs
         monkeypatch.setitem(speedups.COPIED_FROM, name, speedups.digest(speedups._ORIGINAL[name]))
-    assert speedups.install() == ["order", "arguments"]
+    assert speedups.install() == ["order", "arguments", "connectors", "groups_data"]
     assert operation.get_operation_order_from_stack is speedups.operation_order_from_stack
     assert arguments.all_global_arguments is speedups.all_global_arguments
+    assert pyinfra_connectors.entry_points is speedups.entry_points
+    assert Inventory.get_groups_data is speedups.groups_data
 
 
 def test_a_pyinfra_whose_functions_changed_keeps_its_own(monkeypatch):
     """An operator may install a later pyinfra 3.x: a function it changed is
     not replaced by a copy of the old one."""
-    monkeypatch.setattr(operation, "get_operation_order_from_stack", pyinfra_order)
-    monkeypatch.setattr(arguments, "all_global_arguments", speedups._ORIGINAL["arguments"])
+    _pyinfras_own(monkeypatch)
     monkeypatch.setitem(speedups.COPIED_FROM, "order", "0" * 16)
-    assert speedups.install() == ["arguments"]
+    monkeypatch.setitem(speedups.COPIED_FROM, "groups_data", "0" * 16)
+    assert speedups.install() == ["arguments", "connectors"]
+    assert Inventory.get_groups_data is speedups._ORIGINAL["groups_data"]
     assert operation.get_operation_order_from_stack is pyinfra_order
     assert arguments.all_global_arguments is speedups.all_global_arguments
 
+
+
+def test_connectors_are_pyinfras(monkeypatch):
+    theirs = speedups._ORIGINAL["connectors"]()
+    monkeypatch.setattr(pyinfra_connectors, "entry_points", speedups.entry_points)
+    assert pyinfra_connectors.get_all_connectors() == theirs
+    assert pyinfra_connectors.get_all_connectors() == theirs  # from the entry points read once
+    assert {"ssh", "local", "fleet"} <= set(theirs)
+
+
+def test_groups_data_is_pyinfras_for_each_inventory():
+    def inventory(value):
+        return Inventory((["h1", "h2"], {}), robots=(["h1"], {"a": value, "b": 2}), site=(["h1"], {"a": 3}))
+
+    first, second = inventory(1), inventory(10)
+    for groups in (["robots"], ["robots", "site"], ["site", "robots"], [], ["nowhere"]):
+        theirs = speedups._ORIGINAL["groups_data"](first, groups)
+        assert speedups.groups_data(first, groups) == speedups.groups_data(first, groups) == theirs
+    assert speedups.groups_data(second, ["robots"]) == {"a": 10, "b": 2}  # each inventory its own
