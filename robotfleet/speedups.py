@@ -24,6 +24,12 @@ Two more are per host, found at a thousand hosts (tests/bench/SCALE.md):
   lookup of host data that the host itself does not set (pyinfra looks up
   each of its ~40 operation arguments so, for every operation of every
   host): each list of groups is merged once.
+- ``pop_global_arguments`` looks each of those ~40 arguments up in the
+  host's data one by one, most of them absent from every layer: the
+  layers are read once for all the arguments.
+- ``HostData.__getattr__`` (every ``host.data.<setting>``) walks the layers
+  through a generator and an exception per layer without the key: plain
+  dicts are asked with ``in``.
 
 ``install()`` puts them in place of pyinfra's, each only where pyinfra's
 function is still the one it was written from (its source's digest, in
@@ -34,6 +40,7 @@ do.
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import importlib
@@ -45,7 +52,10 @@ import pyinfra
 from pyinfra.api import arguments
 from pyinfra.api import connectors as pyinfra_connectors
 from pyinfra.api import util as pyinfra_util
+from pyinfra.api.exceptions import ArgumentTypeError
+from pyinfra.api.host import HostData
 from pyinfra.api.inventory import Inventory
+from pyinfra.context import ctx_config
 
 # The module (pyinfra.api exports the decorator under the same name).
 operation = importlib.import_module("pyinfra.api.operation")
@@ -55,11 +65,16 @@ _ORIGINAL = {
     "arguments": arguments.all_global_arguments,
     "connectors": pyinfra_connectors.get_all_connectors,
     "groups_data": Inventory.get_groups_data,
+    "pop_arguments": arguments.pop_global_arguments,
+    "host_data": HostData.__getattr__,
 }
+# Where pyinfra imported pop_global_arguments by name.
+_POP_USERS = [importlib.import_module(f"pyinfra.api.{name}") for name in ("operation", "deploy", "facts")]
 _ENTRY_POINTS = pyinfra_connectors.entry_points
 # The digest of each pyinfra function's source these were written from (pyinfra 3.10).
 COPIED_FROM = {"order": "f4807f61585570e0", "arguments": "f7afbc472d78c5d2",
-               "connectors": "7d05cb4b81d92078", "groups_data": "6d7b0baffe2d4773"}
+               "connectors": "7d05cb4b81d92078", "groups_data": "6d7b0baffe2d4773",
+               "pop_arguments": "a12a311539ff5068", "host_data": "87152f64f2a65e53"}
 
 
 def digest(function) -> str:
@@ -136,6 +151,70 @@ def groups_data(inventory, groups) -> dict:
     return memo[key]
 
 
+def _host_arguments(host, keys) -> dict:
+    """key -> what ``getattr(host.data, key)`` finds, for the ``keys`` some
+    layer of the host's data holds: the first layer holding it, as
+    HostData.__getattr__ looks (uncopied)."""
+    found: dict = {}
+    for data in host.data.datas:
+        if callable(data):
+            data = data()
+        for key in keys.intersection(data):
+            found.setdefault(key, data[key])
+    return found
+
+
+@functools.lru_cache(maxsize=1)
+def _argument_keys() -> frozenset:
+    return frozenset(key for key, _ in _global_arguments())
+
+
+def pop_global_arguments(state, host, kwargs):
+    """pyinfra.api.arguments.pop_global_arguments, with the host's data
+    read once for all the arguments."""
+    config = state.config
+    if ctx_config.isset():
+        config = ctx_config.get()
+        assert config is not None
+    meta_kwargs = host.current_deploy_kwargs or {}
+    host_values = _host_arguments(host, _argument_keys())
+    result: dict = {}
+    found_keys: list = []
+    for key, type_ in _global_arguments():
+        argument_meta = arguments.all_argument_meta[key]
+        handler = argument_meta.handler
+        default = argument_meta.default(config)
+        if key in host_values:
+            default = copy.copy(host_values[key])
+        if key in kwargs:
+            found_keys.append(key)
+            value = kwargs.pop(key)
+        else:
+            value = meta_kwargs.get(key, default)
+        if handler:
+            value = handler(config, value)
+        if value != default:
+            pyinfra_util.raise_if_bad_type(value, type_, ArgumentTypeError, f"Invalid argument `{key}`:")
+        result[key] = value
+    return result, found_keys
+
+
+def host_data_getattr(self, key: str):
+    """HostData.__getattr__: the first layer holding ``key``, copied."""
+    for data in self.datas:
+        if callable(data):
+            data = data()
+        if type(data) is dict:
+            if key in data:
+                return copy.copy(data[key])
+            continue
+        try:
+            return copy.copy(data[key])
+        except KeyError:
+            pass
+    raise AttributeError(f"Host `{self.host}` has no data `{key}`")
+
+
 def install() -> list[str]:
     """Replace what is still as it was copied; returns what was replaced."""
     replaced = []
@@ -151,4 +230,11 @@ def install() -> list[str]:
     if digest(_ORIGINAL["groups_data"]) == COPIED_FROM["groups_data"]:
         Inventory.get_groups_data = groups_data
         replaced.append("groups_data")
+    if all(digest(_ORIGINAL[name]) == COPIED_FROM[name] for name in ("pop_arguments", "host_data")):
+        for module in _POP_USERS:
+            module.pop_global_arguments = pop_global_arguments
+        replaced.append("pop_arguments")
+    if digest(_ORIGINAL["host_data"]) == COPIED_FROM["host_data"]:
+        HostData.__getattr__ = host_data_getattr
+        replaced.append("host_data")
     return replaced
