@@ -2,12 +2,17 @@
 asserts nothing.
 
     python3 -m tests.bench.releases [--prefix bench] [--host robot1] [--keep]
+        [--rounds 2] [--stops lab,sigint-only,no-trap] [--no-crash]
 
 - crash loop -> old release running: from the first start of a crash-looping
   release's container to the start of the old release's container again
   (target <= 10 s with the default settings);
 - downtime of a normal update: from the old container's stop to the new
-  one's start (target <= 2 s per robot).
+  one's start (target <= 2 s per robot);
+- the old payload's stop inside an update, apart from the rest: from
+  Docker's first signal to the old container (its `kill` event) to its
+  exit (`die`), for payloads that stop differently, each with Docker's
+  defaults and with the settings made for it (``STOPS``).
 
 Both are read from `docker events` on the robot (nanosecond timestamps), so
 the operator's SSH and pyinfra overhead is not counted.  The lab fleet's
@@ -20,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -31,12 +37,33 @@ PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra
 LAB_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 
 
-def fleet(tmp: Path, name: str, host: str, tag: str, crash: bool = False) -> Path:
+# How the payload stops: (what it is, the host's settings without and with
+# the settings for it).  The lab payload (payload.sh) traps TERM and INT; a
+# ROS launch stops on SIGINT only (a shell trapping INT stands in for it:
+# as PID 1 it ignores SIGTERM, so Docker kills it after the grace period);
+# a shell with no trap at all ignores both as PID 1, an init passes them on.
+LOOP = "while :; do touch /tmp/heartbeat; sleep 1 & wait $!; done"
+STOPS = {
+    "lab": ("the lab payload (payload.sh traps TERM and INT)", {}, {"ros_preset": "ros2"}),
+    "sigint-only": ("stops on SIGINT only, as roslaunch / ros2 launch",
+                    {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"]},
+                    {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"], "ros_preset": "ros2"}),
+    "no-trap": ("a shell entrypoint with no trap",
+                {"payload_command": ["/bin/sh", "-c", LOOP]},
+                {"payload_command": ["/bin/sh", "-c", LOOP], "payload_init": True}),
+}
+
+
+def fleet(tmp: Path, name: str, host: str, tag: str, crash: bool = False, settings: dict | None = None) -> Path:
     text = (ROOT / "inventories" / "lab.yaml").read_text()
     text = text.replace(LAB_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
+    settings = dict(settings or {})
     if crash:
+        settings["payload_command"] = ["/bin/sh", "-c", "exit 3"]
+    if settings:
         anchor = f"    {host}:\n      sensors:"
-        text = text.replace(anchor, f"    {host}:\n      payload_command: [/bin/sh, -c, 'exit 3']\n      sensors:", 1)
+        lines = "".join(f"      {key}: {json.dumps(value)}\n" for key, value in settings.items())
+        text = text.replace(anchor, f"    {host}:\n{lines}      sensors:", 1)
     path = tmp / f"{name}.yaml"
     path.write_text(text)
     return path
@@ -86,6 +113,15 @@ def crash_loop_recovery(evs: list[dict]) -> float | None:
     return starts[-1]["time"] - crashing[0]["time"]
 
 
+def old_stop(evs: list[dict]) -> float | None:
+    """Docker's first signal to the old container (kill) -> its exit (die)."""
+    dies = [e for e in evs if e["action"] == "die"]
+    if not dies:
+        return None
+    kills = [e for e in evs if e["action"] == "kill" and e["id"] == dies[0]["id"] and e["time"] <= dies[0]["time"]]
+    return dies[0]["time"] - kills[0]["time"] if kills else None
+
+
 def update_downtime(evs: list[dict]) -> float | None:
     """The old container's stop (die) -> the new one's start."""
     dies = [e for e in evs if e["action"] == "die"]
@@ -97,18 +133,51 @@ def update_downtime(evs: list[dict]) -> float | None:
     return (after[0]["time"] - last_die["time"]) if after else None
 
 
+def stop_figures(prefix: str, host: str, tmp: Path, kinds: list[str], rounds: int) -> None:
+    """Each kind of payload, with Docker's defaults and with its settings:
+    updates there and back, the old payload's stop apart from the rest."""
+    print(f"\n{'payload':50} {'settings':18} {'update':>7} {'stop':>6} {'down':>6} {'rest':>6}   (seconds, medians)")
+    for kind in kinds:
+        what, plain, tuned = STOPS[kind]
+        for label, settings in (("Docker's defaults", plain), ("with the settings", tuned)):
+            # The stop signal and grace are the old container's: set up with them first.
+            deploy(prefix, host, fleet(tmp, f"{kind}-setup", host, "1.0", settings=settings))
+            rows = []
+            for tag in ["1.1", "1.0"] * rounds:
+                since = robot_now(prefix, host)
+                code, seconds = deploy(prefix, host, fleet(tmp, f"{kind}-{tag}", host, tag, settings=settings))
+                evs = events(prefix, host, since)
+                rows.append((seconds, old_stop(evs), update_downtime(evs), code))
+            cells = [statistics.median(v) if v else None for v in
+                     ([r[0] for r in rows], [r[1] for r in rows if r[1] is not None],
+                      [r[2] for r in rows if r[2] is not None],
+                      [r[0] - r[1] for r in rows if r[1] is not None])]
+            exits = sorted({r[3] for r in rows})
+            print(f"{what[:50]:50} {label:18} " + " ".join(
+                f"{'-' if v is None else round(v, 2)!s:>6}" for v in cells) + f"   deploy exits {exits}")
+            print(f"{'':50} {'':18} settings: {json.dumps(settings) if settings else '(none)'}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--prefix", default="bench")
     parser.add_argument("--host", default="robot1")
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--stops", default="lab,sigint-only,no-trap",
+                        help=f"kinds of payload whose stop to time, of: {', '.join(STOPS)} (empty: none)")
+    parser.add_argument("--no-crash", action="store_true", help="leave out the crash-looping release")
     parser.add_argument("--keep", action="store_true", help="leave the lab up")
     args = parser.parse_args()
     from tests.lab import hosts
 
-    hosts.up(args.prefix)
-    tmp = Path(tempfile.mkdtemp(prefix="bench-releases-"))
     host = args.host
+    number = "".join(ch for ch in host if ch.isdigit())
+    hosts.up(args.prefix, robots=int(number or 1), laptops=0)  # up to the robot measured
+    tmp = Path(tempfile.mkdtemp(prefix="bench-releases-"))
+    kinds = [k for k in args.stops.split(",") if k]
+    unknown = [k for k in kinds if k not in STOPS]
+    if unknown:
+        parser.error(f"--stops: no such kind {', '.join(unknown)} (kinds: {', '.join(STOPS)})")
     try:
         code, seconds = deploy(args.prefix, host, fleet(tmp, "base", host, "1.0"))
         print(f"setup deploy of {host} to 1.0: exit {code}, {seconds:.1f} s")
@@ -117,15 +186,19 @@ def main() -> int:
         for tag in tags:
             since = robot_now(args.prefix, host)
             code, seconds = deploy(args.prefix, host, fleet(tmp, f"to-{tag}", host, tag))
-            down = update_downtime(events(args.prefix, host, since))
+            evs = events(args.prefix, host, since)
+            down, stop = update_downtime(evs), old_stop(evs)
             print(f"{'update to ' + tag + ' downtime':40} {down if down is None else round(down, 2)!s:>8}   (<= 2)"
-                  f"   deploy exit {code}, {seconds:.1f} s wall")
-        for round_ in range(args.rounds):
+                  f"   deploy exit {code}, {seconds:.1f} s wall, of which the old payload's stop "
+                  f"{'-' if stop is None else round(stop, 2)} s")
+        for round_ in range(0 if args.no_crash else args.rounds):
             since = robot_now(args.prefix, host)
             code, seconds = deploy(args.prefix, host, fleet(tmp, "crash", host, "1.0", crash=True))
             back = crash_loop_recovery(events(args.prefix, host, since))
             print(f"{'crash loop -> old release running':40} {back if back is None else round(back, 2)!s:>8}   (<= 10)"
                   f"   deploy exit {code} (a failure is expected), {seconds:.1f} s wall")
+        stop_figures(args.prefix, host, tmp, kinds, args.rounds)
+        deploy(args.prefix, host, fleet(tmp, "base", host, "1.0"))  # the lab as it was
     finally:
         if not args.keep:
             hosts.down(args.prefix)

@@ -121,8 +121,8 @@ class Scale:
 
     # --- what a converged robot answers ------------------------------------------
     def capture(self) -> None:
-        """The snapshot and status outputs of robot4, converged (a deploy first)."""
-        spec = self.spec(["robot4"])
+        """The snapshot and status outputs of the first anchor, converged (a deploy first)."""
+        spec = self.spec([ANCHORS[0]])
         self._known_hosts(light=0)
         inventory = "tests/bench/scale_inventory.py"
         subprocess.run([sys.executable, "-c", COUNTING_PYINFRA, str(self.workdir / "c.json"), "-y", inventory,
@@ -253,7 +253,7 @@ def _children_cpu() -> float:
 
 def names_for(n: int) -> list[str]:
     if n == 1:
-        return ["robot4"]
+        return [ANCHORS[0]]
     anchors = list(ANCHORS[: min(len(ANCHORS), n)])
     return anchors + [f"light{i:03d}" for i in range(1, n - len(anchors) + 1)]
 
@@ -303,19 +303,23 @@ def summarize(values: list[float]) -> dict:
 
 
 def main(argv=None) -> int:
+    global ANCHORS
     parser = argparse.ArgumentParser(prog="python3 -m tests.bench.scale", description=__doc__.splitlines()[0])
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "perf"))
     parser.add_argument("--hosts", type=int, nargs="+", default=[1, 10, 50, 100, 200])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--parallel", type=int, nargs="*", default=[],
                         help="also run the no-op at the largest N with pyinfra --parallel P")
+    parser.add_argument("--anchors", nargs="+", default=list(ANCHORS), metavar="ROBOT",
+                        help="the real lab robots in every run (default: robot4 robot5 robot6)")
     parser.add_argument("--write", action="store_true", help="write SCALE.json and scale.png beside this file")
     args = parser.parse_args(argv)
+    ANCHORS = tuple(args.anchors)
     import datetime
 
     with tempfile.TemporaryDirectory() as tmp:
         scale = Scale(args.prefix, Path(tmp))
-        log("capturing robot4's converged answers")
+        log(f"capturing {ANCHORS[0]}'s converged answers")
         scale.capture()
         curve: dict[str, list] = {"noop": [], "status": []}
         extra_rows = []
