@@ -22,6 +22,7 @@ ROLES = named(
     "udev",
     "x11",
     "payload",
+    "pull",
 )
 
 provision(ROLES)

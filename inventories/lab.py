@@ -49,7 +49,7 @@ def _load():
     }.items():
         text = text.replace(key, value)
     ports = {h["name"]: h["port"] for h in state["hosts"]}
-    fleet = parse_or_exit(text, os.path.relpath(_FLEET))
+    fleet = parse_or_exit(text, os.path.relpath(_FLEET), source=f"{_FLEET}@{_STATE}")
     groups = {}
     for group, hosts in fleet.groups.items():
         groups[group] = []

@@ -5,13 +5,18 @@
 Its settings are its entry under `laptops` in robots.yaml (or the file named
 by $ROBOT_FLEET), found by host name (or $ROBOT_FLEET_HOST).
 
-sudo and its password: when sudo needs one, pyinfra asks for it once and then
-passes it to every sudo command in that command's own argument list
-(pyinfra/connectors/util.py), where every local user can read it for a
-moment (ps, /proc/<pid>/cmdline; measured by tests/bench/sudo_password.py).
-On a laptop other people log in to, give the deploying user passwordless
-sudo for the run and take it back after, or mount /proc with hidepid=2 (see
-docs/security.md, --use-sudo-password); on a single-user laptop the exposure is to yourself.
+sudo and its password (robotfleet/localsudo.py): before anything runs, sudo
+is asked whether it needs a password.  In a terminal it then asks for it
+once, itself, and the steps use its cached credentials; with no terminal the
+run stops with one line saying how on (--use-sudo-password, or a sudoers
+line).  With --use-sudo-password (or if sudo's cached credentials expire in
+a long run) pyinfra asks and passes the password to every sudo command in
+that command's own argument list (pyinfra/connectors/util.py), where every
+local user can read it for a moment (ps, /proc/<pid>/cmdline; measured by
+tests/bench/sudo_password.py).  On a laptop other people log in to, give the
+deploying user passwordless sudo for the run and take it back after, or
+mount /proc with hidepid=2 (see docs/security.md); on a single-user laptop
+the exposure is to yourself.
 """
 
 import os
@@ -19,6 +24,7 @@ import socket
 from pathlib import Path
 
 from robotfleet.inventory import display_path, load_or_exit, refuse, require_checkout
+from robotfleet.localsudo import require as require_sudo
 
 require_checkout()
 
@@ -33,4 +39,5 @@ if not _mine:
         "add this machine or set ROBOT_FLEET_HOST"
     ])
 
+require_sudo("@local")
 laptops = [("@local", {k: v for k, v in _mine[0].items() if not k.startswith("ssh_")})]

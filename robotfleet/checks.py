@@ -69,7 +69,7 @@ def describe(value: Any) -> str:
         return read if read == value.text else f"{value.text} (read by YAML as {read})"
     if isinstance(value, (datetime.date, datetime.datetime)):
         return f"a date ({value.isoformat()})"
-    return type(value).__name__
+    return getattr(value, "described", None) or type(value).__name__
 
 
 def _not_text(value: Any) -> bool:

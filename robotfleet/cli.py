@@ -4,6 +4,11 @@
     robotfleet status INVENTORY [--limit ...] [--json]
     robotfleet rollout INVENTORY [deploy.py] [--canary 1 --batch 25% --max-failed 10%] [-y]
     robotfleet generate [--check]
+    robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME | --to-dir DIR]
+    robotfleet halt [--reason TEXT]
+    robotfleet keys init|show|rotate|prepare|sign|install|generate
+    robotfleet bundle ROBOT --out DIR [--admin URL --admin-key FILE]
+    robotfleet pull-enroll INVENTORY [--limit ...] [--admin URL --admin-key FILE] [--ssh]
 
 `robotfleet COMMAND --help` explains each.  Deploys are plain pyinfra, run
 in the checkout: pyinfra inventories/robots.py deploy.py
@@ -24,6 +29,11 @@ COMMANDS = {
     "status": "status",
     "rollout": "rollout",
     "generate": "generate",
+    "publish": "publish",
+    "halt": "halt",
+    "keys": "keys",
+    "bundle": "bundle",
+    "pull-enroll": "pullenroll",
 }
 
 

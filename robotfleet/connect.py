@@ -8,12 +8,21 @@ points), so the pyinfra CLI, status and rollout connect the same way:
   (refused, timed out, not an SSH server, authentication failed for user U
   with key K, unknown or changed host key with the file and the command that
   fixes it), and no paramiko traceback;
-- bounded: ``ssh_connect_timeout`` covers the TCP connect, the SSH banner
-  and authentication; only a refused, timed-out or reset connection is tried
-  again (``ssh_connect_retries``), never a host key, authentication or
-  non-SSH answer, which would fail the same way;
+- bounded: ``ssh_connect_timeout`` bounds reaching a host, retries
+  included: each of the TCP connect, the SSH greeting and authentication
+  gives up after it, and a refused, reset or dropped connection is tried
+  again (``ssh_connect_retries``) only while the time left allows, so that
+  a host is given up within that time (plus the retry delay) whatever
+  fails; a host key, authentication or non-SSH answer, which would fail the
+  same way, is never tried again; the delay before a retry lets other hosts
+  run (time.sleep, patched by gevent, looked up when it is called);
 - accept-new writes a host's key to known_hosts once (pyinfra's policy
-  appends it at each connection of the run).
+  appends it at each connection of the run);
+- the fleet's known_hosts is read by robotfleet/hostkeys.py (paramiko gives
+  up on a file at its first ``@cert-authority`` line): plain keys as
+  paramiko would, ``@revoked`` keys refused, and a host known only through an
+  ``@cert-authority`` line has its certificate checked by OpenSSH
+  (robotfleet/hostcerts.py), never trusted on first use.
 
 Jump hosts and ssh_config (ProxyJump, IdentityFile, ...) keep pyinfra's
 behaviour: only the target's connection is handled here.
@@ -27,10 +36,12 @@ import logging
 import os
 import shlex
 import socket
+import time
+from dataclasses import dataclass
 from random import uniform
-from time import sleep
 
-from paramiko import AuthenticationException, BadHostKeyException, MissingHostKeyPolicy, SSHException
+from paramiko import AuthenticationException, BadHostKeyException, HostKeys, MissingHostKeyPolicy, SSHException
+from paramiko import SSHClient as ParamikoClient
 from paramiko.agent import Agent
 from paramiko.ssh_exception import BadAuthenticationType, NoValidConnectionsError
 from pyinfra.api.exceptions import ConnectError, PyinfraError
@@ -38,7 +49,7 @@ from pyinfra.connectors import ssh
 from pyinfra.connectors.ssh_util import _patch_paramiko_sk_key_support
 from pyinfra.connectors.sshuserclient import client as sshuserclient
 
-from robotfleet import hostkeys
+from robotfleet import hostcerts, hostkeys
 
 CONNECTOR = "fleet"
 PARAMIKO_LOG = "robotfleet.connect.paramiko"
@@ -64,8 +75,20 @@ def names(hosts: list[tuple[str, dict]], inventory: str | None = None) -> list[t
 
 # How each reason a host cannot be reached begins (what rollout looks for in
 # pyinfra's output to tell an unreachable robot from a failed one).
-REASONS = ("unknown host key", "host key CHANGED", "authentication failed", "connection refused", "connection closed",
+REASONS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
+           "authentication failed", "connection refused", "connection closed",
            "cannot connect", "cannot resolve", "timed out", "not an SSH server", "the SSH session", "no route to")
+# Of those, the ones where the host answered and it or we refused: a host key
+# not trusted, a login refused.  The host failed (exit status 1); the others
+# are the network's (unreachable, exit status 3).
+REFUSALS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
+            "authentication failed")
+
+
+def unreachable(reason: str) -> bool:
+    """Whether a connection failure's reason is the network's (the host may
+    come back by itself), not a refusal someone has to act on."""
+    return not reason.startswith(REFUSALS)
 
 
 def enroll_command(host: str) -> str:
@@ -78,40 +101,115 @@ class UnknownHostKey(SSHException):
         self.entry, self.key = entry, key
 
 
-class StrictPolicy(MissingHostKeyPolicy):
+class RefusedHostKey(SSHException):
+    """A host key or certificate refused; ``reason`` says why in words."""
+
+    def __init__(self, entry: str, reason: str):
+        super().__init__(reason)
+        self.entry, self.reason = entry, reason
+
+
+@dataclass(frozen=True)
+class HostKeyCheck:
+    """How a host's key is checked (ssh_strict_host_key_checking yes or
+    accept-new): the fleet's known_hosts, its KRL, and for the certificate
+    check with OpenSSH the login name and the timeout."""
+
+    known_hosts: str
+    revoked: str | None
+    user: str | None
+    timeout: int
+    accept_new: bool = False
+
+
+def address_of(entry: str) -> tuple[str, int]:
+    """(address, port) of a known_hosts entry (``[address]:port`` or ``address``)."""
+    if entry.startswith("[") and "]:" in entry:
+        address, _, port = entry[1:].rpartition("]:")
+        return address, int(port)
+    return entry, 22
+
+
+class FleetPolicy(MissingHostKeyPolicy):
+    """A host paramiko found no plain key for: a revoked key is refused; a
+    certificate an ``@cert-authority`` line covers is checked by OpenSSH;
+    else the host is unknown (refused, or trusted on first use with accept-new)."""
+
+    def __init__(self, check: HostKeyCheck):
+        self.check = check
+
     def missing_host_key(self, client, hostname, key):
-        raise UnknownHostKey(hostname, key)
+        known = hostkeys.cached(self.check.known_hosts)
+        if known.revoked_key(key):
+            raise RefusedHostKey(hostname, f"host key REVOKED: {key.get_name()} {hostkeys.fingerprint(key)} is marked "
+                                           f"@revoked in {self.check.known_hosts}; refused")
+        address, port = address_of(hostname)
+        if known.authorities_for(hostname) or known.authorities_for(address):
+            self.certified(hostname, address, port, key)
+            client._host_keys.add(hostname, key.get_name(), key)  # for this run only, never written
+            return
+        self.unknown(client, hostname, key)
 
+    def certified(self, hostname: str, address: str, port: int, key) -> None:
+        if self.check.revoked and not os.path.isfile(self.check.revoked):
+            raise RefusedHostKey(hostname, f"host certificate refused: the KRL {self.check.revoked} "
+                                           "(ssh_revoked_host_keys) is missing")
+        verdict = hostcerts.verify(address, port, self.check.user, key.get_name(), self.check.known_hosts,
+                                   self.check.revoked, self.check.timeout)
+        offered = hostkeys.fingerprint(key)
+        if verdict.fingerprint is None:
+            raise RefusedHostKey(hostname, f"host certificate refused: {verdict.reason}")
+        if verdict.fingerprint != offered:
+            raise RefusedHostKey(hostname, f"host certificate refused: it certifies {verdict.fingerprint}, but this "
+                                           f"connection was offered {key.get_name()} {offered}")
 
-class AcceptNewPolicy(MissingHostKeyPolicy):
-    """Trust on first use, written once: to known_hosts (unless a line for
-    this host and key is already there) and to the run's loaded keys."""
-
-    def missing_host_key(self, client, hostname, key):
+    def unknown(self, client, hostname, key):
+        if not self.check.accept_new:
+            raise UnknownHostKey(hostname, key)
+        # Trust on first use, written once: to known_hosts (unless a line for
+        # this host and key is already there) and to the run's loaded keys.
         client._host_keys.add(hostname, key.get_name(), key)
-        if client._host_keys_filename:
-            with sshuserclient.HOST_KEYS_LOCK:
-                hostkeys.append(client._host_keys_filename, hostname, key)
+        with sshuserclient.HOST_KEYS_LOCK:
+            hostkeys.append(self.check.known_hosts, hostname, key)
 
 
-class Client(sshuserclient.SSHClient):
+class _FleetKnownHosts(ParamikoClient):
+    """Runs between pyinfra's SSHClient.connect and paramiko's (its place in
+    Client's MRO): under the fleet's policy, paramiko matches the plain keys
+    robotfleet/hostkeys.py read (revoked ones left out) and asks the policy
+    about any other key."""
+
+    def connect(self, hostname, **kwargs):
+        if isinstance(self._policy, FleetPolicy):
+            self._host_keys = hostkeys.cached(self._policy.check.known_hosts).usable()
+            self._host_keys_filename = self._policy.check.known_hosts
+        return super().connect(hostname, **kwargs)
+
+
+class Client(sshuserclient.SSHClient, _FleetKnownHosts):
+    def __init__(self, check: HostKeyCheck | None = None):
+        super().__init__()
+        self.check = check
+
     def parse_config(self, hostname, initial_cfg=None, ssh_config_file=None, strict_host_key_checking=None):
         parsed = list(super().parse_config(hostname, initial_cfg, ssh_config_file, strict_host_key_checking))
-        policy = {"yes": StrictPolicy, "accept-new": AcceptNewPolicy}.get(strict_host_key_checking)
-        if policy is not None:
-            parsed[3] = policy()
+        if self.check is not None:
+            parsed[3] = FleetPolicy(self.check)
+            parsed[4] = ()  # the fleet's known_hosts is read by the policy, not by paramiko
         return tuple(parsed)
 
 
 class Data(ssh.ConnectorData):
     ssh_connect_timeout: int
+    ssh_revoked_host_keys: str | None
 
 
 class FleetConnector(ssh.SSHConnector):
     """pyinfra's SSH connector; what differs is in the module's doc."""
 
     data_cls = Data
-    data_meta = {**ssh.connector_data_meta, "ssh_connect_timeout": ssh.DataMeta("Seconds to connect, in all", 10)}
+    data_meta = {**ssh.connector_data_meta, "ssh_connect_timeout": ssh.DataMeta("Seconds to connect, in all", 10),
+                 "ssh_revoked_host_keys": ssh.DataMeta("A KRL file of revoked host keys and certificates", None)}
 
     @staticmethod
     def make_names_data(name):
@@ -120,37 +218,60 @@ class FleetConnector(ssh.SSHConnector):
     def timeout(self) -> int:
         return self.data["ssh_connect_timeout"] or self.state.config.CONNECT_TIMEOUT
 
+    def attempt_timeout(self) -> float:
+        """This attempt's limit for each of connect, greeting and login: the
+        timeout, or on a retry what is left of it."""
+        return getattr(self, "_attempt_timeout", None) or self.timeout()
+
     def make_paramiko_kwargs(self):
         kwargs = super().make_paramiko_kwargs()
-        kwargs.update(timeout=self.timeout(), banner_timeout=self.timeout(), auth_timeout=self.timeout())
+        limit = self.attempt_timeout()
+        kwargs.update(timeout=limit, banner_timeout=limit, auth_timeout=limit)
         return kwargs
 
     def connect(self) -> None:
         _patch_paramiko_sk_key_support()
         retries = self.data["ssh_connect_retries"]
+        started = time.monotonic()
+        self._attempt_timeout = None
         while True:
+            self._attempt_started = time.monotonic()
             try:
                 return self._connect()
             except Exception as error:  # every way a connection fails becomes one line
                 reason, transient = self.explain(error)
             if self.client is not None:
                 self.client.close()
-            if not transient or retries <= 0:
+            delay = uniform(self.data["ssh_connect_retry_min_delay"], self.data["ssh_connect_retry_max_delay"])
+            left = self.timeout() - (time.monotonic() - started) - delay
+            if not transient or retries <= 0 or left < 1:
                 raise ConnectError(reason)
             retries -= 1
-            sleep(uniform(self.data["ssh_connect_retry_min_delay"], self.data["ssh_connect_retry_max_delay"]))
+            self._attempt_timeout = left
+            time.sleep(delay)
 
     def _connect(self) -> None:
         kwargs = self.make_paramiko_kwargs()
         self.kwargs = kwargs
         hostname = kwargs.pop("hostname")
-        self.client = Client()
+        self.client = Client(self.host_key_check(kwargs))
         self.client.set_log_channel(PARAMIKO_LOG)
         try:
             self.client.connect(hostname, **kwargs)
         except SSHException as error:
             if not self._retry_paramiko_agent_keys(hostname, kwargs, error):
                 raise
+
+    def host_key_check(self, kwargs: dict) -> HostKeyCheck | None:
+        """The fleet's host key checking (yes, accept-new), taking the
+        known_hosts file from pyinfra's arguments; None: pyinfra's own (no)."""
+        strict = kwargs.get("_pyinfra_ssh_strict_host_key_checking")
+        if strict not in ("yes", "accept-new"):
+            return None
+        known = os.path.expanduser(kwargs.pop("_pyinfra_ssh_known_hosts_file", None) or "~/.ssh/known_hosts")
+        revoked = self.data["ssh_revoked_host_keys"]
+        return HostKeyCheck(known, os.path.expanduser(revoked) if revoked else None,
+                            kwargs.get("username") or self.data["ssh_user"], self.timeout(), strict == "accept-new")
 
     # -- reasons, in words ---------------------------------------------------
 
@@ -166,6 +287,8 @@ class FleetConnector(ssh.SSHConnector):
         if isinstance(error, UnknownHostKey):
             return (f"unknown host key: {error.entry} is not in {known_hosts} (ssh_strict_host_key_checking: yes); "
                     f"check and enroll it: {enroll_command(self.host.name)}"), False
+        if isinstance(error, RefusedHostKey):
+            return error.reason, False
         if isinstance(error, BadHostKeyException):
             return (f"host key CHANGED: {known_hosts} has {hostkeys.fingerprint(error.expected_key)} for "
                     f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused (if the robot "
@@ -174,7 +297,8 @@ class FleetConnector(ssh.SSHConnector):
             return f"cannot connect: {error}", False
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
             return self.auth_reason(error), False
-        return network_reason(error, address, port, self.timeout())
+        elapsed = time.monotonic() - getattr(self, "_attempt_started", time.monotonic())
+        return network_reason(error, address, port, self.attempt_timeout(), elapsed)
 
     def auth_reason(self, error: Exception) -> str:
         kwargs = getattr(self, "kwargs", {})
@@ -210,10 +334,14 @@ class FleetConnector(ssh.SSHConnector):
         return tried
 
 
-def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[str, bool]:
+def network_reason(error: Exception, address: str, port: int, timeout: float,
+                   elapsed: float | None = None) -> tuple[str, bool]:
     """Why reaching ``address:port`` failed, in words, and whether trying
-    again may help (a host key or login failure is told by the connector)."""
+    again may help (a host key or login failure is told by the connector).
+    ``timeout``: the attempt's limit; ``elapsed``: how long it took."""
     at = f"{address}:{port}"
+    timeout = f"{timeout:.0f}" if timeout >= 1 else f"{timeout:.1f}"
+    elapsed = float(timeout) if elapsed is None else elapsed
     if isinstance(error, ConnectionRefusedError):
         return f"connection refused by {at} (no SSH server listens on port {port})", True
     if isinstance(error, NoValidConnectionsError):
@@ -230,7 +358,12 @@ def network_reason(error: Exception, address: str, port: int, timeout) -> tuple[
         if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):
             return (f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
                     "e.g. MaxStartups, or a firewall)"), True
-        if "Error reading SSH protocol banner" in text or "Indecipherable protocol version" in text:
+        if "Indecipherable protocol version" in text or (
+                "Error reading SSH protocol banner" in text and elapsed < float(timeout) - 0.5):
+            # paramiko waits 2 s for each line after a first one that is not SSH's
+            return (f"not an SSH server: {at} answered, but not with an SSH greeting (another service on that "
+                    "port? wrong port?)"), False
+        if "Error reading SSH protocol banner" in text:
             return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
                     f"{timeout} s (wrong port?)"), False
         if "No existing session" in text or "Unable to connect" in text:

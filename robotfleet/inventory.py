@@ -10,11 +10,15 @@ from pathlib import Path
 import click
 
 from robotfleet import CHECKOUT, connect, limits, roster, speedups
-from robotfleet.commands import hosts as selection
+from robotfleet import selection
 from robotfleet.fleet.check import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",
-           "require_checkout"]
+           "require_checkout", "SOURCES"]
+
+# Where the fleet this process loaded came from (its file or directory):
+# what a rollout's lock is per (robotfleet/commands/waves.py lock_path).
+SOURCES: list[str] = []
 
 
 def refuse(lines: list[str]) -> None:
@@ -54,14 +58,17 @@ def _noted(fleet: Fleet) -> Fleet:
 
 def load_or_exit(path: Path) -> Fleet:
     """The fleet file at ``path``, or its problems printed and exit 2."""
+    SOURCES.append(os.path.abspath(path))
     try:
         return _noted(load(path, roster.registry()))
     except FleetError as error:
         _refuse_fleet(error)
 
 
-def parse_or_exit(text: str | bytes, shown: str) -> Fleet:
-    """Fleet YAML ``text`` (named ``shown`` in problem lines), or exit 2."""
+def parse_or_exit(text: str | bytes, shown: str, source: str | None = None) -> Fleet:
+    """Fleet YAML ``text`` (named ``shown`` in problem lines; from ``source``,
+    default ``shown``), or exit 2."""
+    SOURCES.append(os.path.abspath(source or shown))
     try:
         return _noted(parse(text, shown, roster.registry()))
     except FleetError as error:
@@ -70,30 +77,54 @@ def parse_or_exit(text: str | bytes, shown: str) -> Fleet:
 
 def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     """The groups an inventory file hands pyinfra: robots and laptops with
-    each host's data, and the fleet file's other groups (Ansible's) as host
-    names, so --limit takes them too.  Every host connects through
-    robotfleet/connect.py (``@fleet/<name>``); ``inventory`` is the inventory
-    file (its __file__), named in the command that enrolls a host key."""
+    each host's data, the fleet file's other groups (Ansible's) as host
+    names, so --limit takes them too, and each --limit or --exclude that
+    pyinfra cannot read itself (a comma list, ``&group``, ``!host``) as a
+    group of the hosts it selects (robotfleet/commands/hosts.py).  Every host
+    connects through robotfleet/connect.py (``@fleet/<name>``); ``inventory``
+    is the inventory file (its __file__), named in the command that enrolls
+    a host key."""
     require_checkout()
     connect.names([], inventory)
-    _refuse_unmatched_limits(fleet, inventory)
     speedups.install()  # before pyinfra makes a host of each name
     short = limits.raise_open_files(sum(len(hosts) for hosts in fleet.groups.values()))
     if short:
         print(f"robotfleet: {short}", file=sys.stderr)
     groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}
+    groups.update(_limit_groups(fleet, inventory))
     return {**groups, **{name: connect.names(hosts) for name, hosts in fleet.groups.items()}}
 
 
-def _refuse_unmatched_limits(fleet: Fleet, inventory: str) -> None:
+def _limit_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     """pyinfra's CLI only warns about a --limit or --exclude that matches no
-    host, and exits 0 having done nothing: refuse it before connecting."""
+    host, and exits 0 having done nothing: refuse it before connecting.
+    The --limit and --exclude values pyinfra cannot read, as groups."""
     context = click.get_current_context(silent=True)
     if context is None:
-        return
-    names = [name for hosts in fleet.groups.values() for name, _ in hosts]
-    groups = {Path(inventory).stem, *(g for g, hosts in fleet.groups.items() if hosts), *fleet.subgroups}
+        return {}
+    hosts, groups = _membership(fleet, Path(inventory).stem)
+    made = {}
     for option in ("limit", "exclude"):
-        problem = selection.refusal(list(context.params.get(option) or ()), display_path(Path(inventory)), names, groups)
+        values = list(context.params.get(option) or ())
+        problem = selection.refusal(values, display_path(Path(inventory)), hosts, groups)
         if problem:
             refuse([problem if option == "limit" else problem.replace("--limit", "--exclude", 1)])
+        for value in values:
+            if selection.needs_group(value):
+                chosen = selection.resolve([value], hosts, groups)[0]
+                made[value] = connect.names([(host, {}) for host in chosen])
+    return made
+
+
+def _membership(fleet: Fleet, stem: str) -> tuple[list[tuple[str, set[str]]], set[str]]:
+    """(each host with its groups, every group) as pyinfra will see them: the
+    kinds, the fleet's other groups and the inventory file's name (a group
+    of every host unless the file has a group of that name; pyinfra has no
+    group all)."""
+    defined = {*(g for g, hosts in fleet.groups.items() if hosts), *fleet.subgroups}
+    everyone = {stem} if stem not in defined else set()
+    hosts = []
+    for kind, listed in fleet.groups.items():
+        for name, _ in listed:
+            hosts.append((name, {kind, *everyone, *(g for g, members in fleet.subgroups.items() if name in members)}))
+    return hosts, defined | everyone

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pyinfra import host
 
-from robotfleet import roster, speedups
+from robotfleet import roster, secrets, speedups
 from robotfleet.host import operations
 from robotfleet.host.snapshot import HostSnapshot, SnapshotQuery
 from robotfleet.role import Play, cards
@@ -27,6 +27,7 @@ def provision(listed) -> None:
         operations.fail(name="Check the host's settings", message="settings: " + "; ".join(problems))
         return
     running = tuple(role for role in roles if role.runs_on(host.data))
+    secrets.hold(host.name, secrets.held_in(host.data.dict()).union(*(role.secrets(host.data) for role in running)))
     query = SnapshotQuery()
     for role in running:
         role.reads(host.data, query)

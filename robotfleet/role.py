@@ -11,6 +11,7 @@ status table and the rollout's target.  ARCHITECTURE.md has a worked example.
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -50,7 +51,9 @@ class Setting:
     merge: Callable[[list[Any]], Any] | None = None
 
     def default_in(self, group: str | None) -> Any:
-        return copy.deepcopy(self.groups.get(group, self.default) if group else self.default)
+        value = self.groups.get(group, self.default) if group else self.default
+        # A copy only of what a caller could change in place (the fleet check asks for every default of every check).
+        return value if isinstance(value, (str, int, float, type(None))) else copy.deepcopy(value)
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,24 +67,80 @@ class Hook:
 
 
 @dataclass(frozen=True)
+class Metric:
+    """One sample of ``robotfleet status --metrics`` (OpenMetrics): a gauge
+    named ``robotfleet_<name>``; the host's labels are added to ``labels``."""
+
+    name: str
+    help: str
+    value: float
+    labels: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass(frozen=True)
 class StatusPart:
     """A role's columns in ``robotfleet status``: a read-only shell
-    command run in the host's one status command, and its output as cells."""
+    command run in the host's one status command, and its output as cells;
+    ``metrics(row)``, the gauges its cells make (robotfleet/commands/metrics.py)."""
 
     command: Callable[[Any], str]
     cells: Callable[[str], dict]
     columns: tuple[tuple[str, str], ...] = ()
     order: int = 50  # where its columns stand in the table, lower first
+    metrics: Callable[[dict], list[Metric]] | None = None
 
 
 @dataclass(frozen=True)
 class RolloutPart:
     """What a rollout waits for on each host: ``target(data)`` (JSON data
     naming what the host should run) and ``missing(row, target)``: None once
-    the host's status row shows it, else why not (one line)."""
+    the host's status row shows it, else why not (one line).
+    ``result(row, deployment)``: the role's own structured result of the
+    deploy named ``deployment`` (see ``deployment()``) as the host's status
+    row carries it, ``(ok, why)``; None when the row holds none for it."""
 
     target: Callable[[Any], Any]
     missing: Callable[[dict, Any], str | None]
+    result: Callable[[dict, str], tuple[bool, str] | None] | None = None
+
+
+# A deploy started by robotfleet (a rollout's wave) is named in this
+# environment variable; a role that records results on the host records the
+# name with them, so the results of *this* deploy are told from older ones.
+DEPLOYMENT_ENV = "ROBOTFLEET_DEPLOYMENT"
+
+
+def deployment() -> str | None:
+    """The name of the deploy this run is (None: not named)."""
+    return os.environ.get(DEPLOYMENT_ENV) or None
+
+
+@dataclass(frozen=True)
+class PinPart:
+    """What a pull release must bind for a role on a host (``robotfleet
+    publish``): ``refs(data)``, the references the host runs (e.g. image
+    names); ``resolve(data, refs)``, each one's digest now (ref -> digest;
+    ValueError with one line when one cannot be read); ``setting``, the
+    role's setting through which the deploy is given the pins (ref ->
+    digest) so the host runs exactly what the signed release names."""
+
+    refs: Callable[[Any], list[str]]
+    resolve: Callable[[Any, list[str]], dict[str, str]]
+    setting: str
+
+
+@dataclass(frozen=True)
+class HoldPart:
+    """How the pull agent holds a role's own lock on the robot for a whole
+    converge run (robotfleet/commands/converge.py): ``command(data,
+    token_file)``, the argv that holds it while the command after it runs,
+    writing a token to ``token_file`` first ([] when the role has nothing
+    on the robot to hold yet); ``setting``, the role's setting through
+    which the deploy hands the token to what takes the lock, so the run's
+    own steps join it instead of waiting for it."""
+
+    command: Callable[[Any, str], list[str]]
+    setting: str
 
 
 def _always(data) -> bool:
@@ -96,6 +155,10 @@ def _no_problems(data: dict, refused: frozenset) -> list[Problem]:
     return []
 
 
+def _no_secrets(data) -> list[str]:
+    return []
+
+
 @dataclass(frozen=True)
 class Role:
     """A role's card.  Only ``name`` and ``doc`` are required.
@@ -106,7 +169,13 @@ class Role:
     - ``rules(data, refused)``: checks across settings on a host's merged
       data (defaults included); ``refused`` names settings that already have
       a problem, which a rule does not look at again;
-    - ``adds``: hook -> what this role adds there (see ``Play.added``)."""
+    - ``adds``: hook -> what this role adds there (see ``Play.added``);
+    - ``status``, ``rollout``, ``pins``: its parts in ``robotfleet status``,
+      ``rollout`` and ``publish`` (see StatusPart, RolloutPart, PinPart);
+    - ``secrets(data)``: secret values the role holds for a host beyond its
+      data (e.g. passwords read from the environment), masked in output
+      like the URL passwords of the data (robotfleet/secrets.py);
+    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart)."""
 
     name: str
     doc: str
@@ -118,6 +187,9 @@ class Role:
     adds: Mapping[Hook, Callable] = field(default_factory=dict)
     status: StatusPart | None = None
     rollout: RolloutPart | None = None
+    pins: PinPart | None = None
+    secrets: Callable[[Any], list[str]] = _no_secrets
+    hold: HoldPart | None = None
 
 
 def cards(listed) -> tuple[Role, ...]:

@@ -1,4 +1,4 @@
-"""Two of pyinfra's per-operation steps, same answers, less work.
+"""Some of pyinfra's per-operation and per-host steps, same answers, less work.
 
 Profiling a converged rerun of ten robots (tests/bench/PROFILE.md) found a
 third of the operator's CPU in two pyinfra functions called for every
@@ -14,75 +14,79 @@ operation of every host, both recomputing what cannot change:
 - ``all_global_arguments`` evaluates ``typing.get_type_hints`` of a
   TypedDict on each call; the answer is fixed once pyinfra is imported.
 
-Two more are per host, found at a thousand hosts (tests/bench/SCALE.md):
+More are per host, found at a thousand hosts (tests/bench/SCALE.md):
 
-- ``get_all_connectors`` (pyinfra.api.connectors) reads every installed
-  package's entry points on each call, and the inventory calls it for each
-  host named ``@connector/...`` (every host of ours): the entry points are
-  read once.
+- ``get_all_connectors`` reads every installed package's entry points on
+  each call, and the inventory calls it for each host named
+  ``@connector/...`` (every host of ours): the entry points are read once.
 - ``Inventory.get_groups_data`` merges the host's groups' data on every
-  lookup of host data that the host itself does not set (pyinfra looks up
-  each of its ~40 operation arguments so, for every operation of every
-  host): each list of groups is merged once.
-- ``pop_global_arguments`` looks each of those ~40 arguments up in the
-  host's data one by one, most of them absent from every layer: the
-  layers are read once for all the arguments.
+  lookup of host data that the host itself does not set: each list of
+  groups is merged once.
+- ``pop_global_arguments`` looks each of its ~40 operation arguments up in
+  the host's data one by one, for every operation of every host, most of
+  them absent from every layer: the layers are read once for all of them.
 - ``HostData.__getattr__`` (every ``host.data.<setting>``) walks the layers
   through a generator and an exception per layer without the key: plain
   dicts are asked with ``in``.
 
-``install()`` puts them in place of pyinfra's, each only where pyinfra's
-function is still the one it was written from (its source's digest, in
-COPIED_FROM): a pyinfra release that changes either keeps its own, slower
-but right.  tests/unit/test_speedups.py checks they answer as pyinfra's own
-do.
+``install()`` puts each in place of pyinfra's where pyinfra looks it up
+when it calls it (SPEEDUPS' sites), only where what it was written from is
+still the same source (its digest, pinned in robotfleet/pyinfra_private.py):
+a pyinfra release that changes one keeps its own, slower but right, and one
+line says so.  tests/unit/test_speedups.py checks they answer as pyinfra's
+own do, and are active with the pyinfra this project installs.
 """
 
 from __future__ import annotations
 
 import copy
 import functools
-import hashlib
 import importlib
-import inspect
 import sys
+from dataclasses import dataclass
 from inspect import getframeinfo
 
 import pyinfra
-from pyinfra.api import arguments
-from pyinfra.api import connectors as pyinfra_connectors
+from pyinfra import logger
 from pyinfra.api import util as pyinfra_util
 from pyinfra.api.exceptions import ArgumentTypeError
-from pyinfra.api.host import HostData
-from pyinfra.api.inventory import Inventory
-from pyinfra.context import ctx_config
 
-# The module (pyinfra.api exports the decorator under the same name).
-operation = importlib.import_module("pyinfra.api.operation")
+from robotfleet import pyinfra_private
 
-_ORIGINAL = {
-    "order": pyinfra_util.get_operation_order_from_stack,
-    "arguments": arguments.all_global_arguments,
-    "connectors": pyinfra_connectors.get_all_connectors,
-    "groups_data": Inventory.get_groups_data,
-    "pop_arguments": arguments.pop_global_arguments,
-    "host_data": HostData.__getattr__,
+
+@dataclass(frozen=True)
+class Speedup:
+    sites: tuple[str, ...]  # "module:attribute[.attribute]": where pyinfra looks it up when it calls it
+    written_from: tuple[str, ...]  # the pyinfra sources it repeats or relies on (pinned in pyinfra_private)
+
+
+SPEEDUPS = {
+    "order": Speedup(("pyinfra.api.operation:get_operation_order_from_stack",),
+                     ("pyinfra.api.operation:get_operation_order_from_stack",)),
+    "arguments": Speedup(("pyinfra.api.arguments:all_global_arguments",),
+                         ("pyinfra.api.arguments:all_global_arguments",)),
+    # importlib's entry_points, as get_all_connectors calls it: the caller is what it was written for.
+    "connectors": Speedup(("pyinfra.api.connectors:entry_points",), ("pyinfra.api.connectors:get_all_connectors",)),
+    "groups_data": Speedup(("pyinfra.api.inventory:Inventory.get_groups_data",),
+                           ("pyinfra.api.inventory:Inventory.get_groups_data",)),
+    # Imported by name where it is called; its lookups are HostData.__getattr__'s.
+    "pop_arguments": Speedup(tuple(f"pyinfra.api.{module}:pop_global_arguments"
+                                   for module in ("operation", "deploy", "facts")),
+                             ("pyinfra.api.arguments:pop_global_arguments", "pyinfra.api.host:HostData.__getattr__")),
+    "host_data": Speedup(("pyinfra.api.host:HostData.__getattr__",), ("pyinfra.api.host:HostData.__getattr__",)),
 }
-# Where pyinfra imported pop_global_arguments by name.
-_POP_USERS = [importlib.import_module(f"pyinfra.api.{name}") for name in ("operation", "deploy", "facts")]
-_ENTRY_POINTS = pyinfra_connectors.entry_points
-# The digest of each pyinfra function's source these were written from (pyinfra 3.10).
-COPIED_FROM = {"order": "f4807f61585570e0", "arguments": "f7afbc472d78c5d2",
-               "connectors": "7d05cb4b81d92078", "groups_data": "6d7b0baffe2d4773",
-               "pop_arguments": "a12a311539ff5068", "host_data": "87152f64f2a65e53"}
+# pyinfra's own object at each site and each source, as imported (before any install).
+_ORIGINAL = {path: pyinfra_private.resolve(path)
+             for speedup in SPEEDUPS.values() for path in speedup.sites + speedup.written_from}
+COPIED_FROM = {path: pyinfra_private.pinned(path) for speedup in SPEEDUPS.values() for path in speedup.written_from}
+
+digest = pyinfra_private.digest
+arguments = importlib.import_module("pyinfra.api.arguments")
 
 
-def digest(function) -> str:
-    try:
-        source = inspect.getsource(function)
-    except (OSError, TypeError):
-        return ""
-    return hashlib.sha256(source.encode()).hexdigest()[:16]
+def original(key: str):
+    """pyinfra's own function that speedup ``key`` replaces."""
+    return _ORIGINAL[SPEEDUPS[key].sites[0]]
 
 
 def operation_order_from_stack(state) -> list:
@@ -127,7 +131,7 @@ def _place(frame) -> tuple[str, int]:
 
 @functools.lru_cache(maxsize=1)
 def _global_arguments() -> tuple:
-    return tuple(_ORIGINAL["arguments"]())
+    return tuple(original("arguments")())
 
 
 def all_global_arguments() -> list:
@@ -138,7 +142,7 @@ def all_global_arguments() -> list:
 @functools.lru_cache(maxsize=None)
 def entry_points(group: str):
     """The installed packages' entry points of ``group``, read once."""
-    return _ENTRY_POINTS(group=group)
+    return original("connectors")(group=group)
 
 
 def groups_data(inventory, groups) -> dict:
@@ -147,20 +151,27 @@ def groups_data(inventory, groups) -> dict:
     memo = inventory.__dict__.setdefault("_merged_groups_data", {})
     key = tuple(groups)
     if key not in memo:
-        memo[key] = _ORIGINAL["groups_data"](inventory, groups)
+        memo[key] = original("groups_data")(inventory, groups)
     return memo[key]
 
 
-def _host_arguments(host, keys) -> dict:
-    """key -> what ``getattr(host.data, key)`` finds, for the ``keys`` some
-    layer of the host's data holds: the first layer holding it, as
-    HostData.__getattr__ looks (uncopied)."""
+def _host_arguments(host, keys: frozenset) -> dict:
+    """key -> what ``getattr(host.data, key)`` finds (uncopied), for the
+    ``keys`` some layer of the host's data holds: the first layer holding
+    it, as HostData.__getattr__ looks."""
     found: dict = {}
     for data in host.data.datas:
         if callable(data):
             data = data()
-        for key in keys.intersection(data):
-            found.setdefault(key, data[key])
+        if type(data) is dict:
+            for key in keys.intersection(data):
+                found.setdefault(key, data[key])
+            continue
+        for key in keys.difference(found):  # a mapping of its own: asked as pyinfra asks it
+            try:
+                found[key] = data[key]
+            except KeyError:
+                pass
     return found
 
 
@@ -173,8 +184,8 @@ def pop_global_arguments(state, host, kwargs):
     """pyinfra.api.arguments.pop_global_arguments, with the host's data
     read once for all the arguments."""
     config = state.config
-    if ctx_config.isset():
-        config = ctx_config.get()
+    if arguments.ctx_config.isset():
+        config = arguments.ctx_config.get()
         assert config is not None
     meta_kwargs = host.current_deploy_kwargs or {}
     host_values = _host_arguments(host, _argument_keys())
@@ -194,7 +205,7 @@ def pop_global_arguments(state, host, kwargs):
         if handler:
             value = handler(config, value)
         if value != default:
-            pyinfra_util.raise_if_bad_type(value, type_, ArgumentTypeError, f"Invalid argument `{key}`:")
+            arguments.raise_if_bad_type(value, type_, ArgumentTypeError, f"Invalid argument `{key}`:")
         result[key] = value
     return result, found_keys
 
@@ -215,26 +226,51 @@ def host_data_getattr(self, key: str):
     raise AttributeError(f"Host `{self.host}` has no data `{key}`")
 
 
+OURS = {"order": operation_order_from_stack, "arguments": all_global_arguments, "connectors": entry_points,
+        "groups_data": groups_data, "pop_arguments": pop_global_arguments, "host_data": host_data_getattr}
+
+
+def _owner(site: str):
+    """(the object holding the site's attribute, the attribute's name)."""
+    holder, _, name = site.rpartition(".") if "." in site.partition(":")[2] else site.rpartition(":")
+    return pyinfra_private.resolve(holder), name
+
+
+def _changed(key: str) -> str | None:
+    """The first source speedup ``key`` was written from that pyinfra has
+    changed: at a site, what is bound there now (unless it is ours); else
+    pyinfra's own as imported (a site another speedup may have replaced)."""
+    speedup = SPEEDUPS[key]
+    for path in speedup.written_from:
+        if path in speedup.sites:
+            owner, name = _owner(path)
+            current = getattr(owner, name)
+            if current is OURS[key]:
+                continue
+        else:
+            current = _ORIGINAL[path]
+        if digest(current) != COPIED_FROM[path]:
+            return path
+    for site in speedup.sites:
+        owner, name = _owner(site)
+        current = getattr(owner, name)
+        if site not in speedup.written_from and current is not OURS[key] and current is not _ORIGINAL[site]:
+            return site  # another function bound where pyinfra calls it
+    return None
+
+
 def install() -> list[str]:
-    """Replace what is still as it was copied; returns what was replaced."""
+    """Replace what is still as it was copied; returns what is in place."""
     replaced = []
-    if digest(_ORIGINAL["order"]) == COPIED_FROM["order"]:
-        operation.get_operation_order_from_stack = operation_order_from_stack
-        replaced.append("order")
-    if digest(_ORIGINAL["arguments"]) == COPIED_FROM["arguments"]:
-        arguments.all_global_arguments = all_global_arguments
-        replaced.append("arguments")
-    if digest(_ORIGINAL["connectors"]) == COPIED_FROM["connectors"]:
-        pyinfra_connectors.entry_points = entry_points
-        replaced.append("connectors")
-    if digest(_ORIGINAL["groups_data"]) == COPIED_FROM["groups_data"]:
-        Inventory.get_groups_data = groups_data
-        replaced.append("groups_data")
-    if all(digest(_ORIGINAL[name]) == COPIED_FROM[name] for name in ("pop_arguments", "host_data")):
-        for module in _POP_USERS:
-            module.pop_global_arguments = pop_global_arguments
-        replaced.append("pop_arguments")
-    if digest(_ORIGINAL["host_data"]) == COPIED_FROM["host_data"]:
-        HostData.__getattr__ = host_data_getattr
-        replaced.append("host_data")
+    for key, speedup in SPEEDUPS.items():
+        changed = _changed(key)
+        if changed:
+            module, _, name = changed.partition(":")
+            logger.warning(f"robotfleet: pyinfra {pyinfra.__version__} has another {module}.{name} than "
+                           "robotfleet/speedups.py was written from; pyinfra's own runs (slower, same answers)")
+            continue
+        for site in speedup.sites:
+            owner, name = _owner(site)
+            setattr(owner, name, OURS[key])
+        replaced.append(key)
     return replaced

@@ -21,6 +21,29 @@ WORLD_WRITABLE = ("/tmp", "/var/tmp", "/dev/shm", "/run/lock", "/dev/mqueue", "/
 # Other names of those directories on Debian and Ubuntu (symlinks there):
 # /var/run -> /run, /var/lock -> /run/lock, /run/shm -> /dev/shm.
 ALIASES = (("/var/run", "/run"), ("/var/lock", "/run/lock"), ("/run/shm", "/dev/shm"))
+# Where a path root creates, chmods, writes or trusts may be: places only root
+# writes on stock Debian and Ubuntu.  An allowlist, because the places others
+# may write keep turning up (/var/crash is world-writable on Ubuntu, /var/mail
+# is group mail's, /var/local group staff's, /var/spool holds both kinds,
+# /home and /media belong to users): anything not listed is refused.
+# /proc/driver holds kernel drivers' files (gpu_driver_version_file).
+ROOT_ONLY = ("/etc", "/opt", "/srv", "/mnt", "/root", "/usr", "/var/lib", "/var/opt", "/var/cache", "/var/log",
+             "/run", "/proc/driver")
+# Inside those, directories others may write: /usr/local is 2775 root:staff on
+# older Debian; PHP's session directory is 1733.
+SHARED_INSIDE = ("/usr/local", "/var/lib/php/sessions")
+# Why a few places outside ROOT_ONLY are refused, said in the refusal.
+NOT_ROOT_ONLY = {
+    "/var/crash": "world-writable on Ubuntu (crash reports)",
+    "/var/spool": "holds directories others write (mail, cron, print queues)",
+    "/var/mail": "writable by group mail",
+    "/var/local": "writable by group staff",
+    "/var/metrics": "world-writable on Ubuntu",
+    "/home": "users own their home directories",
+    "/media": "users' removable media (mounted for them)",
+    "/usr/local": "writable by group staff on older Debian",
+    "/var/lib/php/sessions": "world-writable (1733)",
+}
 
 
 def canonical(path: str) -> str:
@@ -113,15 +136,27 @@ def abs_path(value):
     return problems
 
 
+def _under(path: str, places) -> str | None:
+    return next((place for place in places if path == place or path.startswith(place + "/")), None)
+
+
 def private_path(value):
-    """A path root creates, chmods or writes: not in a world-writable directory."""
+    """A path root creates, chmods, writes or trusts: in a place only root
+    writes (ROOT_ONLY), not in a directory others may write."""
     problems = abs_path(value)
     if problems:
         return problems
     normal = canonical(value)
-    for shared in WORLD_WRITABLE:
-        if normal == shared or normal.startswith(shared + "/"):
-            return [("", f"{c.shown(value)} is in the world-writable {shared}; use a directory only root can write (e.g. under /var/lib)")]
+    shared = _under(normal, WORLD_WRITABLE)
+    if shared:
+        return [("", f"{c.shown(value)} is in the world-writable {shared}; use a directory only root can write (e.g. under /var/lib)")]
+    shared = _under(normal, SHARED_INSIDE) or (None if _under(normal, ROOT_ONLY) else _under(normal, NOT_ROOT_ONLY))
+    if shared:
+        return [("", f"{c.shown(value)} is in {shared}, {NOT_ROOT_ONLY[shared]}; use a directory only root can write "
+                     "(e.g. under /var/lib)")]
+    if not _under(normal, ROOT_ONLY):
+        return [("", f"{c.shown(value)} is not in a place only root writes on Debian and Ubuntu "
+                     f"({', '.join(ROOT_ONLY)}); use a directory there (e.g. under /var/lib)")]
     return []
 
 
@@ -137,10 +172,10 @@ def normal_fingerprint(value: str | None) -> str | None:
     return value.replace(" ", "").upper() if value else None
 
 
-def _spellings() -> list[str]:
-    """Every way to write a world-writable directory, aliases included (for
-    the editors' schema, which cannot resolve them)."""
-    found = set(WORLD_WRITABLE)
+def _spellings(places) -> list[str]:
+    """Every way to write ``places``, aliases included (for the editors'
+    schema, which cannot resolve them)."""
+    found = set(places)
     while True:
         more = {alias + path[len(target):] for path in found for alias, target in ALIASES
                 if path == target or path.startswith(target + "/")}
@@ -156,10 +191,17 @@ c.with_schema(address, {"type": "string", "pattern": c.json_pattern(ADDRESS),
                         "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)"})
 c.with_schema(abs_path, _path_schema)
 c.with_schema(local_path, {"type": "string", "pattern": c.json_pattern(LOCAL_PATH), "description": "a path on this machine"})
+
+
+def _places_pattern(places) -> str:
+    return "^" + _SEP + "(?:" + "|".join(w.lstrip("/").replace("/", _SEP) for w in _spellings(places)) + ")(?:/|$)"
+
+
 c.with_schema(private_path, {
     **_path_schema,
-    "not": {"anyOf": [_path_schema["not"], {"pattern": "^" + _SEP + "(?:" + "|".join(
-        w.lstrip("/").replace("/", _SEP) for w in _spellings()) + ")(?:/|$)"}]},
-    "description": "an absolute path outside world-writable directories (/tmp, /var/tmp, /dev/shm, ...)",
+    "not": {"anyOf": [_path_schema["not"], {"pattern": _places_pattern(WORLD_WRITABLE + SHARED_INSIDE)},
+                      {"not": {"pattern": _places_pattern(ROOT_ONLY)}}]},
+    "description": "an absolute path in a place only root writes (" + ", ".join(ROOT_ONLY)
+    + "), outside world-writable directories (/tmp, /run/lock, ...)",
 })
 c.with_schema(fingerprint, {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$", "description": "a 40-digit hex OpenPGP fingerprint"})

@@ -1,6 +1,7 @@
 """First contact: enroll robots' SSH host keys into the fleet's known_hosts.
 
-    robotfleet enroll inventories/robots.py [--limit robot1] [--fingerprints FILE] [--yes]
+    robotfleet enroll inventories/robots.py [--limit robot1] [--fingerprints FILE [--allow-unlisted]] [--yes]
+    robotfleet enroll inventories/robots.py --replace robot1 --fingerprints FILE
 
 For each host of the inventory (or of --limit) this fetches the host key the
 host offers (no login) and shows its fingerprint as ssh shows it
@@ -8,12 +9,15 @@ host offers (no login) and shows its fingerprint as ssh shows it
 you accept it: asked for each host, or checked against a fingerprints file
 (one ``HOST SHA256:...`` per line, HOST the inventory name, the address or
 ``[address]:port``: what a vendor or an image build recorded), or accepted
-as shown with --yes.  A key already there is left alone; a key that differs
-from the one there is refused with both fingerprints, and that host's line is
-never replaced: if the robot was reinstalled, delete its line and enroll again.
-Hosts reached through a jump host (ssh_config ProxyJump) are contacted
-directly here, which may not work: enroll them from their fingerprints with
-ssh-keyscan on the jump host.
+as shown with --yes.  With a fingerprints file, a host missing from it is
+refused, --yes or not, unless --allow-unlisted (then it is asked for, or
+taken with --yes).  A key already there is left alone; a key that differs
+from the one there is refused with both fingerprints and its line left as it
+is, unless the host is named by --replace (a reflashed robot) and its new key
+matches the fingerprints file: then its old line is replaced, and both
+fingerprints are shown.  Hosts reached through a jump host (ssh_config
+ProxyJump) are contacted directly here, which may not work: enroll them from
+their fingerprints with ssh-keyscan on the jump host.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import paramiko
 from robotfleet import commands
 from robotfleet import connect, hostkeys
 from robotfleet.checks import one_line
-from robotfleet.commands import hosts as selection
+from robotfleet import selection
 
 
 @dataclass
@@ -92,26 +96,62 @@ def ask(question: str) -> bool:
         return False
 
 
-def decide(host: Target, key, expected: dict[str, set[str]] | None, source: str, yes: bool) -> tuple[str, str]:
-    """(outcome, line): outcome is known, enroll, refused or declined."""
+@dataclass
+class Choices:
+    """What the operator asked for: the recorded fingerprints (and the
+    file's name), --yes, --allow-unlisted, the hosts named by --replace."""
+
+    expected: dict[str, set[str]] | None = None
+    source: str | None = None
+    yes: bool = False
+    allow_unlisted: bool = False
+    replace: frozenset = frozenset()
+    inventory: str = "INVENTORY"
+
+
+def recorded_for(host: Target, expected: dict[str, set[str]] | None) -> set[str] | None:
+    if expected is None:
+        return None
+    return next((expected[n] for n in (host.name, host.address, host.entry) if n in expected), None)
+
+
+def changed(host: Target, key, there: dict, choices: Choices) -> tuple[str, str]:
+    """A host whose key differs from the one in known_hosts: replaced only
+    when --replace names it and the new key matches the recorded fingerprint."""
+    old = ", ".join(f"{kind} {hostkeys.fingerprint(k)}" for kind, k in there.items())
+    new = f"{key.get_name()} {hostkeys.fingerprint(key)}"
+    head = f"{host.name}: host key CHANGED for {host.entry}: {host.known_hosts} has {old}, the host offers {new}"
+    if host.name not in choices.replace:
+        return "refused", (f"{head}; refused, its line is left as it is (if the robot was reinstalled, record its "
+                           f"new fingerprint and replace it: robotfleet enroll {choices.inventory} --replace {host.name} "
+                           "--fingerprints FILE)")
+    recorded = recorded_for(host, choices.expected)
+    if recorded is None:
+        return "refused", f"{head}; not in {choices.source}: not replaced, its line is left as it is"
+    if hostkeys.fingerprint(key) not in recorded:
+        return "refused", (f"{head}; {choices.source} has {', '.join(sorted(recorded))}: not replaced, its line is "
+                           "left as it is")
+    return "replace", f"{host.name} ({host.entry}): host key replaced: was {old}, now {new} (matches {choices.source})"
+
+
+def decide(host: Target, key, choices: Choices) -> tuple[str, str]:
+    """(outcome, line): outcome is known, enroll, replace, refused or declined."""
     shown = f"{host.name} ({host.entry}) {key.get_name()} {hostkeys.fingerprint(key)}"
     there = hostkeys.known(host.known_hosts, host.entry)
     if there.get(key.get_name()) == key:
         return "known", f"{shown}: already in {host.known_hosts}"
     if there:
-        old = ", ".join(f"{kind} {hostkeys.fingerprint(k)}" for kind, k in there.items())
-        return "refused", (f"{host.name}: host key CHANGED for {host.entry}: {host.known_hosts} has {old}, the host "
-                           f"offers {key.get_name()} {hostkeys.fingerprint(key)}; refused, its line is left as it is "
-                           f"(if the robot was reinstalled, delete that line and enroll it again)")
-    recorded = None
-    if expected is not None:
-        recorded = next((expected[n] for n in (host.name, host.address, host.entry) if n in expected), None)
+        return changed(host, key, there, choices)
+    recorded = recorded_for(host, choices.expected)
     if recorded is not None:
         if hostkeys.fingerprint(key) in recorded:
-            return "enroll", f"{shown}: matches {source}; enrolled"
-        return "refused", (f"{host.name}: fingerprint mismatch for {host.entry}: {source} has "
+            return "enroll", f"{shown}: matches {choices.source}; enrolled"
+        return "refused", (f"{host.name}: fingerprint mismatch for {host.entry}: {choices.source} has "
                            f"{', '.join(sorted(recorded))}, the host offers {hostkeys.fingerprint(key)}; refused")
-    if yes:
+    if choices.expected is not None and not choices.allow_unlisted:
+        return "refused", (f"{shown}: not in {choices.source}; refused (a host missing from the fingerprints file "
+                           "is enrolled only with --allow-unlisted)")
+    if choices.yes:
         return "enroll", f"{shown}: new; enrolled (--yes)"
     if not sys.stdin.isatty():
         return "declined", (f"{shown}: new; not enrolled: no terminal to ask (check the fingerprint, then pass "
@@ -126,16 +166,29 @@ def main(argv=None) -> int:
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
     parser.add_argument("--fingerprints", metavar="FILE", help="the hosts' recorded fingerprints: HOST SHA256:... per line")
+    parser.add_argument("--allow-unlisted", action="store_true",
+                        help="with --fingerprints: hosts missing from FILE are asked for (or taken with --yes) instead of refused")
+    parser.add_argument("--replace", metavar="HOST", action="append", default=[],
+                        help="replace HOST's changed key when the new one matches --fingerprints FILE (repeatable)")
     parser.add_argument("-y", "--yes", action="store_true", help="enroll new keys as shown, without asking")
     args = parser.parse_args(argv)
     try:
+        if args.replace and not args.fingerprints:
+            raise selection.Refused("--replace needs --fingerprints FILE: a changed key is replaced only when it "
+                                    "matches the fingerprint recorded for the host; nothing was done")
         expected = read_fingerprints(args.fingerprints) if args.fingerprints else None
         inventory = selection.inventory(args.inventory)
-        chosen = [target(h) for h in selection.select(inventory, args.inventory, args.limit) if not h.name.startswith("@")]
+        names = [h.name for h in inventory]
+        unknown = [name for name in args.replace if name not in names]
+        if unknown:
+            raise selection.Refused(f"--replace {' '.join(unknown)}: no such host in {args.inventory}; nothing was done")
+        limits = args.limit or args.replace  # --replace alone: only those hosts
+        chosen = [target(h) for h in selection.select(inventory, args.inventory, limits) if not h.name.startswith("@")]
     except (OSError, ValueError) as error:
         return selection.refused(selection.Refused(one_line(str(error))))
     except selection.Refused as error:
         return selection.refused(error)
+    choices = Choices(expected, args.fingerprints, args.yes, args.allow_unlisted, frozenset(args.replace), args.inventory)
     if not chosen:
         return selection.refused(selection.Refused(f"{args.inventory}: no SSH host to enroll (@local hosts have no host key)"))
     print(f"fetching the host keys of {len(chosen)} host(s) (at most {max(h.timeout for h in chosen)} s)...", file=sys.stderr)
@@ -147,11 +200,13 @@ def main(argv=None) -> int:
         if isinstance(key, str):
             outcome, line = "unreachable", f"{host.name}: unreachable: {key}"
         else:
-            outcome, line = decide(host, key, expected, args.fingerprints, args.yes)
+            outcome, line = decide(host, key, choices)
         print(one_line(line), file=sys.stderr)
         outcomes.setdefault(outcome, []).append(host.name)
         if outcome == "enroll":
             accepted.setdefault(host.known_hosts, []).append((host.entry, key))
+        if outcome == "replace":
+            hostkeys.replace(host.known_hosts, host.entry, key)
     for path, entries in accepted.items():
         added = hostkeys.add_all(path, entries)
         print(f"{path}: {added} key(s) added", file=sys.stderr)

@@ -8,24 +8,29 @@ Each wave is the normal deploy (`pyinfra -y --json INVENTORY deploy.py
 this one has reached its target (each role with a rollout part says what:
 the payload, every image of the robot's compose project running healthy)
 or is counted against the budget.
-Robots not reached keep their release.  The state lives in
+Robots not reached keep their release.  Robots with `pull: true` are not
+deployed over SSH: the rollout publishes a signed release with these waves
+and follows the robots' reports (robotfleet/commands/pullrollout.py).  The state lives in
 .rollout/<key>.json on this machine: rerunning the same command resumes with
-the robots not yet on the new release.  See README "Rollouts in waves".
+the robots not yet on the new release.  See docs/releases.md, "Rollouts in waves".
 """
 
 from __future__ import annotations
 
 import json
 import os
+import secrets
 import shlex
 import subprocess
 import sys
 import tempfile
 
 from robotfleet import commands
-from robotfleet import connect, roster
-from robotfleet.commands import hosts as selection
+from robotfleet import connect, inventory as fleet_inventory, roster, selection
+from robotfleet.checks import one_line
 from robotfleet.commands import status, waves
+from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
+from robotfleet.role import DEPLOYMENT_ENV
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
@@ -56,6 +61,15 @@ class _WithOverrides(dict):
     __getattr__ = dict.get
 
 
+def read_overrides(pairs: list[str]) -> dict:
+    """--data key=value pairs as pyinfra reads them (true/false, integers and
+    JSON text become values: a mapping such as payload_image_pins arrives as
+    a mapping), so the targets are what the deploy will see."""
+    from pyinfra_cli.util import parse_cli_arg
+
+    return {key: parse_cli_arg(value) for key, _, value in (pair.partition("=") for pair in pairs if "=" in pair)}
+
+
 def targets_of(roles, data, overrides: dict) -> dict:
     """What the rollout waits for on a host: each role's target."""
     view = _WithOverrides(data, overrides)
@@ -72,71 +86,71 @@ def missing(roles, row: dict, target: dict) -> str | None:
     return None
 
 
-def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str) -> tuple[dict | None, dict[str, str]]:
-    """Run the normal deploy on ``hosts``; pyinfra's JSON results (None if it
-    printed none, e.g. every host unreachable) and each host's last error line."""
+def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str, deployment: str) -> dict | None:
+    """Run the normal deploy on ``hosts``, named ``deployment`` (the roles
+    record it with their results on each host); pyinfra's JSON results (None
+    if it printed none, e.g. every host failed).  What it prints is for the
+    operator only: no result is read from it (a host can print anything)."""
     limits = [arg for host in hosts for arg in ("--limit", host)]
     command = [sys.executable, "-c", PYINFRA, "-y", "--json", inventory, script, *limits, *extra]
-    errors: dict[str, str] = {}
-    env = dict(os.environ, PYINFRA_PROGRESS="off")
+    env = dict(os.environ, PYINFRA_PROGRESS="off", **{DEPLOYMENT_ENV: deployment})
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True, env=env)
         for line in proc.stderr:
-            sys.stderr.write(line)
-            for host in hosts:
-                if f"[{host}]" in line:
-                    message = line.split(f"[{host}]", 1)[1].strip()
-                    if is_error_line(message) and (host not in errors or "payload:" in message):
-                        errors[host] = message  # payloadctl's line says more than pyinfra's summary
+            relay(line)  # what robots sent is in it: escaped on its way to the terminal
         proc.wait()
         out.seek(0)
         try:
-            results = json.loads(out.read())["results"]
+            return json.loads(out.read())["results"]
         except (ValueError, KeyError, TypeError):
-            results = None
-    return results, errors
+            return None
 
 
-# The connector's reasons, and pyinfra's own (hosts of an inventory that does
-# not go through robotfleet/connect.py).
-CONNECT_ERRORS = connect.REASONS + ("Could not connect", "Authentication error", "SSH host key error", "SSH error")
+def not_connected(results: dict | None) -> set[str]:
+    """The hosts pyinfra failed without an operation failing: it could not
+    connect to them (from its JSON results)."""
+    if results is None:
+        return set()
+    return set(results.get("failed_hosts", [])) - {h for op in results.get("operations", []) for h in op["error"]}
 
 
-def is_error_line(message: str) -> bool:
-    payload_failed = message.startswith("payload:") and ("failed" in message or "refused" in message)
-    return payload_failed or "Error" in message or message.startswith(CONNECT_ERRORS)
+def reported(roles, row: dict, deployment: str | None) -> tuple[bool, str] | None:
+    """The roles' own structured results of ``deployment`` on the host (its
+    status row): (ok, why) of the first that failed, else of the first."""
+    if not deployment:
+        return None
+    found = [r for r in (role.rollout.result(row, deployment) for role in roles
+                         if role.rollout and role.rollout.result) if r is not None]
+    return next((r for r in found if not r[0]), found[0] if found else None)
 
 
-def judge_wave(hosts, results, rows, errors, targets, unreachable_fails, roles=None):
-    """(done, failed, skipped) for a wave from pyinfra's results (None when it
-    printed none: every host failed, "No hosts remaining!"), the error lines
-    it printed per host, and the robots' release records (pure)."""
+def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, deployment=None):
+    """(done, failed, skipped) for a wave, from structured data only (pure):
+    pyinfra's JSON results (None when it printed none: every host failed,
+    "No hosts remaining!"), the robots' status rows and the roles' results
+    of this ``deployment`` that the rows carry."""
     roles = roster.roles() if roles is None else roles
-    op_errors = {h for op in (results or {}).get("operations", []) for h in op["error"]}
-    not_connected = {h for h, line in errors.items() if line.startswith(CONNECT_ERRORS)}
-    if results is not None:
-        not_connected |= set(results.get("failed_hosts", [])) - op_errors
+    operations = (results or {}).get("operations", [])
+    op_errors = {h: [op.get("name") or "an operation" for op in operations if h in op["error"]] for h in hosts}
+    lost = not_connected(results)
     done, failed, skipped = [], {}, {}
     for host in hosts:
         row = rows.get(host) or {"reachable": False}
         why = missing(roles, row, targets[host])
-        if host not in op_errors and host not in errors and why is None:
-            done.append(host)
-        elif host in not_connected or not row.get("reachable"):
-            reason = "unreachable: " + (errors.get(host) or row.get("error") or "cannot connect")
+        own = reported(roles, row, deployment)
+        deploy_failed = results is None or bool(op_errors[host]) or host in results.get("failed_hosts", [])
+        if own is None and (host in lost or not row.get("reachable")) and connect.unreachable(
+                row.get("error") or ""):  # a host key or login refused is a failure, below
+            reason = "unreachable: " + (row.get("error") or "cannot connect")
             (failed if unreachable_fails else skipped)[host] = reason
+        elif own is not None and not own[0]:
+            failed[host] = own[1]
+        elif deploy_failed or why is not None:
+            steps = ", ".join(op_errors[host])
+            failed[host] = why or (f"the deploy failed at: {steps}" if steps else "the deploy failed")
         else:
-            failed[host] = errors.get(host) or why
+            done.append(host)
     return done, failed, skipped
-
-
-def fleet_report(rows: dict[str, dict], state: dict) -> str:
-    lines = [f"  {'HOST':12} {'WAVE':17} {'RELEASE':28} IMAGE"]
-    for host in [h for w in state["waves"] for h in w]:
-        row = rows.get(host) or {}
-        image = ", ".join(row.get("image_refs") or []) or ("unreachable" if not row.get("reachable") else "-")
-        lines.append(f"  {host:12} {waves.host_state(state, host):17} {row.get('release') or '-':28} {image}")
-    return "\n".join(lines)
 
 
 def parse_args(argv):
@@ -147,11 +161,15 @@ def parse_args(argv):
     parser.add_argument("--batch", default="25%", help="robots per later wave, a number or a share (default 25%%)")
     parser.add_argument("--max-failed", default="0", help="failures tolerated, a number or a share (default 0)")
     parser.add_argument("--unreachable-fails", action="store_true", help="unreachable robots count as failures")
-    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
+    parser.add_argument("--limit", action="append", default=[],
+                        help="groups or host globs, comma-separated (&group: also in it, !host: not it); repeatable")
     parser.add_argument("--data", action="append", default=[], help="key=value passed to pyinfra (repeatable)")
     parser.add_argument("--parallel", type=int, help="pyinfra's --parallel for each wave (default: CPUs x 20)")
     parser.add_argument("-y", "--yes", action="store_true", help="do not ask before starting")
     parser.add_argument("--dry", action="store_true", help="show the waves and the changes, change nothing")
+    from robotfleet.commands import pullrollout
+
+    pullrollout.add_options(parser)
     args = parser.parse_args(argv)
     try:
         args.canary = waves.parse_count(args.canary, "--canary")
@@ -160,6 +178,20 @@ def parse_args(argv):
     except ValueError as error:
         parser.exit(2, f"rollout: {error}\n")
     return args
+
+
+def relayed(command: list[str]) -> int:
+    """Run ``command`` with its output escaped on the way (what robots sent
+    is in it): stderr as it comes, stdout after; its exit status."""
+    with tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True)
+        for line in proc.stderr:
+            relay(line)
+        proc.wait()
+        out.seek(0)
+        for line in out:
+            print(one_line(line.rstrip("\r\n")))
+    return proc.returncode
 
 
 def resume_command(argv: list[str]) -> str:
@@ -174,20 +206,24 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     for path in (args.inventory, args.script):
         if not os.path.exists(path):
-            print(f"rollout: {path}: no such file", file=sys.stderr)
+            say(f"rollout: {path}: no such file")
             return 2
     extra = [arg for pair in args.data for arg in ("--data", pair)]
     extra += ["--parallel", str(args.parallel)] if args.parallel else []
-    overrides = dict(pair.split("=", 1) for pair in args.data if "=" in pair)
+    overrides = read_overrides(args.data)
 
     try:
         hosts = selected_hosts(args.inventory, args.limit)
     except selection.Refused as error:
         return selection.refused(error)
     if not hosts:
-        print(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)",
-              file=sys.stderr)
+        say(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)")
         return selection.REFUSED
+    pulled = [name for name, data in hosts if data.get("pull")]
+    if pulled:  # robots that converge themselves: publish and follow their reports (docs/pull.md)
+        from robotfleet.commands import pullrollout
+
+        return pullrollout.main(args, hosts, pulled)
     roles = roster.roles()
     names = [name for name, _ in hosts]
     targets = {name: targets_of(roles, data, overrides) for name, data in hosts}
@@ -198,10 +234,11 @@ def main(argv=None) -> int:
     if args.dry:
         return roll(args, argv, roles, names, targets, plan, key, path, extra)
     try:
-        with waves.held(path):  # one rollout of a fleet at a time: the state is read and written by it alone
+        # One rollout of a fleet at a time, whatever its flags (--limit, --data).
+        with waves.held(waves.lock_path(args.inventory, fleet_inventory.SOURCES)):
             return roll(args, argv, roles, names, targets, plan, key, path, extra)
     except waves.RolloutBusy as busy:
-        print(f"rollout: {busy}", file=sys.stderr)
+        say(f"rollout: {busy}")
         return selection.REFUSED
 
 
@@ -215,32 +252,38 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
 
     rows = read_status(args.inventory, names)
     unreachable = {h: rows[h].get("error") for h in names if not rows.get(h, {}).get("reachable")}
-    for host, why in unreachable.items():
-        print(f"rollout: [{host}] unreachable: {why}", file=sys.stderr)
     already = [h for h in names if missing(roles, rows.get(h, {}), targets[h]) is None]
     state["done"] = sorted(set(state["done"]) | set(already))
     for index, wave in enumerate(state["waves"]):
         todo = [h for h in wave if h not in state["done"]]
-        print(f"wave {index + 1}/{len(state['waves'])}: {', '.join(wave)}"
-              + (f" ({len(wave) - len(todo)} already on the new release)" if len(todo) < len(wave) else ""), file=sys.stderr)
-    print(f"failure budget: {state['allowed_failures']} robot(s); unreachable robots "
-          + ("count" if args.unreachable_fails else "are skipped"), file=sys.stderr)
+        notes = ([f"{len(wave) - len(todo)} already on the new release"] if len(todo) < len(wave) else []) + (
+            [f"unreachable now: {', '.join(h for h in todo if h in unreachable)}"] if set(todo) & set(unreachable) else [])
+        say(f"wave {index + 1}/{len(state['waves'])}: {', '.join(wave)}" + (f" ({'; '.join(notes)})" if notes else ""))
+    say(f"failure budget: {state['allowed_failures']} robot(s); unreachable robots "
+        + ("count" if args.unreachable_fails else "are skipped"))
 
     if args.dry:
         todo = [h for h in waves.pending(state) if h not in unreachable]
         code = selection.OK
         if todo:
             limits = [a for h in todo for a in ("--limit", h)]
-            dry = subprocess.run([sys.executable, "-c", PYINFRA, "--dry", args.inventory, args.script, *limits, *extra])
-            code = selection.FAILED if dry.returncode else code
-        if unreachable and code == selection.OK:
-            print(f"rollout: dry run incomplete: {len(unreachable)} robot(s) unreachable, not planned: "
-                  f"{', '.join(unreachable)}", file=sys.stderr)
+            code = selection.FAILED if relayed([sys.executable, "-c", PYINFRA, "--dry", args.inventory, args.script,
+                                                *limits, *extra]) else code
+        for host, why in unreachable.items():
+            say(f"rollout: [{host}] {'unreachable' if connect.unreachable(why or '') else 'failed'}: {why}")
+        network = [h for h, why in unreachable.items() if connect.unreachable(why or "")]
+        refused = [h for h in unreachable if h not in network]
+        if refused:  # a host key or login refused: the robot failed
+            say(f"rollout: dry run incomplete: {len(refused)} robot(s) refused (host key or login), not planned: "
+                f"{', '.join(refused)}")
+            code = selection.FAILED
+        if network and code == selection.OK:
+            say(f"rollout: dry run incomplete: {len(network)} robot(s) unreachable, not planned: {', '.join(network)}")
             code = selection.UNREACHABLE
         return code
     if not args.yes:
         if not sys.stdin.isatty():
-            print("rollout: not a terminal; pass -y to start without asking", file=sys.stderr)
+            say("rollout: not a terminal; pass -y to start without asking")
             return 2
         if input("Start the rollout? [y/N] ").strip().lower() not in ("y", "yes"):
             return 0
@@ -250,38 +293,36 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         if not todo:
             state = waves.record_wave(state, index, [], {}, {})
             continue
-        print(f"\n--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}", file=sys.stderr)
-        results, errors = deploy_wave(args.inventory, todo, extra, args.script)
-        # A robot the deploy could not reach is not tried again in this wave.
-        lost = {h for h, line in errors.items() if line.startswith(CONNECT_ERRORS)}
-        lost |= set((results or {}).get("failed_hosts", [])) - {h for op in (results or {}).get("operations", [])
-                                                               for h in op["error"]}
-        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost])
-        wave_rows.update({h: {"host": h, "reachable": False, "error": errors.get(h)} for h in lost})
+        say("")
+        say(f"--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}")
+        deployment = f"rollout-{state['key'][:12]}-wave{index + 1}-{secrets.token_hex(4)}"
+        results = deploy_wave(args.inventory, todo, extra, args.script, deployment)
+        # A robot the deploy could not reach is not tried again in this wave
+        # (no JSON from pyinfra: nor is one that did not answer the status before).
+        lost = not_connected(results) | ({h for h in todo if not rows.get(h, {}).get("reachable")}
+                                         if results is None else set())
+        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost])  # with their own results
+        wave_rows.update({h: {"host": h, "reachable": False,
+                              "error": rows.get(h, {}).get("error") or "the deploy could not connect"} for h in lost})
         rows.update(wave_rows)
-        done, failed, skipped = judge_wave(todo, results, wave_rows, errors, targets, args.unreachable_fails, roles)
+        done, failed, skipped = judge_wave(todo, results, wave_rows, targets, args.unreachable_fails, roles, deployment)
         state = waves.record_wave(state, index, done, failed, skipped)
         waves.save_state(path, state)
         for host in todo:
-            outcome = "done" if host in done else "failed" if host in failed else "skipped"
-            why = {**failed, **skipped}.get(host)
-            print(f"rollout: wave {index + 1}/{len(state['waves'])} [{host}] {outcome}" + (f": {why}" if why else ""),
-                  file=sys.stderr)
-            if why:
-                print(f"rollout: [{host}] {outcome}: {why}", file=sys.stderr)
+            say(robot_line(state, host))
         if state["status"] == "stopped":
             break
     waves.save_state(path, state)
 
-    print("\n" + fleet_report(rows, state))
-    print(waves.summary(state))
+    print("\n" + table(rows, state))
+    print(summary(state))
     if state["status"] == "complete":
         return selection.OK
     reached = [h for h in state["done"] if h in {x for w in state["waves"] for x in w}]
-    print(f"resume:   {resume_command(argv)}")
+    print(one_line(f"resume:   {resume_command(argv)}"))
     if reached:
-        print(f"roll back the robots it reached: pyinfra {args.inventory} rollback.py "
-              + " ".join(f"--limit {h}" for h in reached))
+        print(one_line(f"roll back the robots it reached: pyinfra {args.inventory} rollback.py "
+                       + " ".join(f"--limit {h}" for h in reached)))
     only_skipped = state["status"] != "stopped" and not state["failed"] and state["skipped"]
     return selection.UNREACHABLE if only_skipped else selection.FAILED
 

@@ -1,32 +1,40 @@
 """Fleet status: what each host runs and whether it is healthy.
 
-    robotfleet status inventories/robots.py [--limit robot2] [--json]
+    robotfleet status inventories/robots.py [--limit robot2] [--json | --format openmetrics] [--metrics FILE]
 
-One row per host, one SSH command per host: the engine's own part (the
+One row per host, one SSH command per host (a pull robot's row comes from
+its last report on the fleet remote instead, --remote, default the
+checkout's origin; docs/pull.md): the engine's own part (the
 host's architecture, as the snapshot reads it) and each role with a status
 part (deploy.py's roles) add their columns, e.g. Docker's version, the current
 release, its image, container state and health, the GPU driver.
 Unreachable hosts are rows too, never an abort, with the reason in words
 (the REACHABLE column, and "error" in --json).  Hosts are asked in parallel;
 a line on stderr tells as each answers, the table follows in inventory order.
-Exit status: 0 every host answered, 1 a host answered with an error,
-2 refused (no such inventory, a --limit matching nothing), 3 a host was
-unreachable.
+--metrics FILE also writes the fleet's state as OpenMetrics text to FILE
+(replaced atomically; for node_exporter's textfile collector), and
+--format openmetrics prints it instead of the table (for a Pushgateway):
+per host up, drift (not in its declared state), and each role's gauges
+(the payload's release, health, last change).
+Exit status: 0 every host answered, 1 a host failed (answered with an
+error, or its host key or login was refused), 2 refused (no such inventory,
+a --limit matching nothing), 3 a host was unreachable (and none failed).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import sys
 
 import gevent
 
-from robotfleet import commands
-from robotfleet import roster
+from robotfleet import commands, connect, roster
 from robotfleet.checks import one_line
-from robotfleet.commands import hosts as selection
-from robotfleet.commands import waves
+from robotfleet import selection
+from robotfleet.commands import metrics, waves
+from robotfleet.role import GROUPS
 
 MARK = "@@@robot-fleet-status "
 # The engine's own section (no role is called so: a role's name is an identifier).
@@ -100,24 +108,40 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def collect(inventory_path: str, limits: list[str], roles=None, answered=None) -> list[dict]:
+def collect(inventory_path: str, limits: list[str], roles=None, answered=None, remote: str | None = None) -> list[dict]:
     """One row per host of ``inventory_path`` matching ``limits``, in
     inventory order; ``answered(row, count, total)`` is called as each host
-    answers (or fails to).  Raises selection.Refused."""
+    answers (or fails to).  Hosts with ``pull: true`` are read from their
+    reports on the fleet remote (``remote``, else the checkout's origin), not
+    over SSH.  Raises selection.Refused."""
     from pyinfra.api import Config, State
     from pyinfra.context import ctx_state
 
     roles = roster.roles() if roles is None else roles
     inventory = selection.inventory(inventory_path)
     hosts = selection.select(inventory, inventory_path, limits)
+    pulled = [h for h in hosts if h.data.get("pull")]
+    found = _pull_rows(pulled, remote)
     state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
-    state.limit_hosts = hosts
+    state.limit_hosts = [h for h in hosts if h not in pulled]
     with ctx_state.use(state):
-        jobs = {gevent.spawn(_one, host, roles): host for host in hosts}
+        jobs = {gevent.spawn(_one, host, roles): host for host in hosts if host not in pulled}
         for count, job in enumerate(gevent.iwait(list(jobs)), 1):
             if answered is not None:
                 answered(_value(job, jobs[job], roles), count, len(jobs))
-        return [_value(job, host, roles) for job, host in jobs.items()]
+        job_of = {id(host): job for job, host in jobs.items()}
+        return [found[host.name] if host in pulled else _value(job_of[id(host)], host, roles) for host in hosts]
+
+
+def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
+    if not hosts:
+        return {}
+    from robotfleet.commands import pullstatus
+
+    try:
+        return pullstatus.rows([(h.name, h.data) for h in hosts], pullstatus.remote_of(remote))
+    except pullstatus.ReportsUnavailable as error:
+        return {h.name: {"host": h.name, "reachable": False, "pull": "no report", "error": str(error)} for h in hosts}
 
 
 def _value(job, host, roles) -> dict:
@@ -133,24 +157,54 @@ def _one(host, roles) -> dict:
     try:
         host.connect(raise_exceptions=True, show_errors=False)
     except ConnectError as error:
-        return row(host.name, roles, None, error.args[0])
+        return _about(host, row(host.name, roles, None, error.args[0]))
     ok, output = host.run_shell_command(StringCommand(status_command(roles, host.data)), _sudo=True)
     if not ok:
-        return {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]}
-    return row(host.name, roles, sections(output.stdout))
+        return _about(host, {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]})
+    found = row(host.name, roles, sections(output.stdout))
+    found["drift"] = drift(roles, found, host.data)
+    return _about(host, found)
+
+
+def _about(host, found: dict) -> dict:
+    found["kind"] = next((group for group in GROUPS if group in host.groups), None)
+    return found
+
+
+class _View(dict):
+    """A host's data as the roles' rollout parts read it (attributes)."""
+
+    __getattr__ = dict.get
+
+
+def drift(roles, found: dict, data) -> str | None:
+    """Why the host is not in its declared state, where status can tell
+    (each role's rollout part, as a rollout judges it), else None."""
+    view = _View(data.dict() if hasattr(data, "dict") else data)
+    for role in roles:
+        if role.rollout:
+            why = role.rollout.missing(found, role.rollout.target(view))
+            if why:
+                return why
+    return None
 
 
 def progress(found: dict, count: int, total: int) -> None:
     """One line on stderr as a host answers: the operator sees the run move."""
-    state = "answered" if found["reachable"] else f"unreachable: {found.get('error')}"
+    error = found.get("error") or ""
+    state = ("answered" if found["reachable"] else f"unreachable: {error}" if connect.unreachable(error)
+             else f"failed: {error}")  # a host key or login refused: the host was reached
     print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
 
 
 def exit_code(rows: list[dict]) -> int:
+    """README's exit codes: 1 if a host failed (answered with an error, or
+    refused: a host key not trusted, a login refused), else 3 if a host was
+    unreachable, else 0."""
+    if any(r.get("error") and (r["reachable"] or not connect.unreachable(r["error"])) for r in rows):
+        return selection.FAILED
     if any(not r["reachable"] for r in rows):
         return selection.UNREACHABLE
-    if any(r.get("error") for r in rows):
-        return selection.FAILED
     return selection.OK
 
 
@@ -160,25 +214,57 @@ def main(argv=None) -> int:
     from gevent import monkey
 
     monkey.patch_all()
+    import time
+
     parser = commands.parser("status", __doc__)
     parser.add_argument("inventory")
-    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group")
-    parser.add_argument("--json", action="store_true", help="machine-readable output")
+    parser.add_argument("--limit", action="append", default=[],
+                        help="groups or host globs, comma-separated (&group: also in it, !host: not it)")
+    parser.add_argument("--json", action="store_true", help="machine-readable output (--format json)")
+    parser.add_argument("--format", choices=("table", "json", "openmetrics"), default=None,
+                        help="what to print: the table (default), JSON, or OpenMetrics text")
+    parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
+    parser.add_argument("--remote", metavar="NAME|URL",
+                        help="the fleet remote pull robots report to (default: the checkout's origin)")
     args = parser.parse_args(argv)
+    if args.json and args.format not in (None, "json"):
+        parser.error("--json and --format openmetrics/table: choose one")
+    shown = "json" if args.json else args.format or "table"
+    if args.metrics:
+        directory = os.path.dirname(os.path.abspath(args.metrics))
+        if not os.path.isdir(directory) or not os.access(directory, os.W_OK):
+            print(one_line(f"status: --metrics {args.metrics}: cannot write in {directory} (no such directory, or "
+                           "not writable); no host was contacted"), file=sys.stderr)
+            return selection.REFUSED
     roles = roster.roles()
     try:
-        rows = collect(args.inventory, args.limit, roles, answered=progress)
+        rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote)
     except selection.Refused as error:
         return selection.refused(error)
     rollout = waves.latest_state()
     for r in rows:
         r["rollout"] = waves.host_state(rollout, r["host"])
-    if args.json:
+    if args.metrics or shown == "openmetrics":
+        text = metrics.render(rows + metrics.reported(args.inventory, [r["host"] for r in rows]), roles, time.time())
+        if args.metrics:
+            try:
+                metrics.write(args.metrics, text)
+            except OSError as error:
+                print(one_line(f"status: cannot write {args.metrics}: {error.strerror}"), file=sys.stderr)
+                return selection.FAILED
+    if shown == "json":
         print(json.dumps(rows, indent=2, sort_keys=True))
+    elif shown == "openmetrics":
+        sys.stdout.write(text)
     else:
-        print(table(rows, columns(roles)))
+        cols = columns(roles)
+        if any("pull" in r for r in rows):
+            from robotfleet.commands.pullstatus import COLUMNS
+
+            cols = cols[:-1] + COLUMNS + cols[-1:]
+        print(table(rows, cols))
         if rollout:
-            print(waves.summary(rollout))
+            print(one_line(waves.summary(rollout)))
     return exit_code(rows)
 
 

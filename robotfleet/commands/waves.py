@@ -13,39 +13,12 @@ import contextlib
 import fcntl
 import hashlib
 import json
-import math
 import os
-import re
 import tempfile
 import time
-from dataclasses import dataclass
 
-_COUNT = re.compile(r"(0|[1-9][0-9]{0,5})(%?)")
-
-
-@dataclass(frozen=True)
-class Count:
-    """A number of robots, absolute ("2") or a share of the fleet ("25%")."""
-
-    value: int
-    percent: bool
-
-    def of(self, total: int, round_up: bool) -> int:
-        if not self.percent:
-            return self.value
-        exact = total * self.value / 100
-        return math.ceil(exact) if round_up else math.floor(exact + 1e-9)
-
-    def __str__(self) -> str:
-        return f"{self.value}{'%' if self.percent else ''}"
-
-
-def parse_count(text: str, option: str) -> Count:
-    """'3' or '25%' -> Count; anything else raises ValueError naming the option."""
-    match = _COUNT.fullmatch(str(text).strip())
-    if not match or (match.group(2) and int(match.group(1)) > 100):
-        raise ValueError(f"{option}: expected a number of robots or a percentage like 25%, got {text!r}")
-    return Count(int(match.group(1)), bool(match.group(2)))
+# A count and the failure budget are the same rule in push and pull rollouts.
+from robotfleet.pull.waves import Count, allowed_failures, parse_count  # noqa: F401 - rollout.py reads them here
 
 
 def build_waves(hosts: list[str], flagged: list[str], canary: Count, batch: Count) -> list[list[str]]:
@@ -62,12 +35,6 @@ def build_waves(hosts: list[str], flagged: list[str], canary: Count, batch: Coun
     waves = [canaries] if canaries else []
     waves += [rest[i : i + size] for i in range(0, len(rest), size)]
     return waves
-
-
-def allowed_failures(max_failed: Count, total: int) -> int:
-    """Failures the rollout tolerates; one more stops it (Ansible's
-    max_fail_percentage: a share is rounded down)."""
-    return max_failed.of(total, round_up=False)
 
 
 def fleet_key(inventory: str, selection: list[str], targets: dict[str, str]) -> str:
@@ -116,6 +83,10 @@ def record_wave(state: dict, index: int, done: list[str], failed: dict[str, str]
     for host in done:
         state["failed"].pop(host, None)
         state["skipped"].pop(host, None)
+    for host in failed:  # a robot has one outcome, its latest: the summary's counts add up
+        state["skipped"].pop(host, None)
+    for host in skipped:
+        state["failed"].pop(host, None)
     state["failed"].update(failed)
     state["skipped"].update(skipped)
     state["run_failures"] = state.get("run_failures", 0) + len(failed)
@@ -161,12 +132,21 @@ class RolloutBusy(Exception):
     pass
 
 
+def lock_path(inventory: str, sources: list[str], root: str = ".") -> str:
+    """The fleet's rollout lock: one per inventory file and the fleet it read
+    (the fleet file or directory), whatever the rollout's flags (--limit,
+    --data, the waves), so that two rollouts never update one fleet at once."""
+    blob = json.dumps({"inventory": os.path.abspath(inventory), "fleet": sorted(sources)})
+    return os.path.join(state_dir(root), f"fleet-{hashlib.sha256(blob.encode()).hexdigest()[:16]}.lock")
+
+
 @contextlib.contextmanager
 def held(path: str):
-    """The rollout state's lock, held for a whole run: a second rollout of
-    the same fleet refuses (it would lose the first one's updates)."""
+    """The fleet's rollout lock ``path`` (lock_path), held for a whole run: a
+    second rollout of the same fleet refuses (it would update the same
+    robots, and lose the first one's state)."""
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    fd = os.open(path + ".lock", os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o600)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -204,6 +184,25 @@ def latest_state(root: str = ".") -> dict | None:
         return None
 
 
+OUTCOMES = ("done", "failed", "skipped", "pending")
+
+
+def outcome(state: dict, host: str) -> str:
+    """Where ``host`` stands: done, failed, skipped (unreachable) or pending
+    (not reached yet, or a rerun has not come to it): one of these each."""
+    if host in state["done"]:
+        return "done"
+    if host in state["failed"]:
+        return "failed"
+    if host in state["skipped"]:
+        return "skipped"
+    return "pending"
+
+
+def reason(state: dict, host: str) -> str | None:
+    return state["failed"].get(host) or state["skipped"].get(host) if outcome(state, host) != "done" else None
+
+
 def host_state(state: dict | None, host: str) -> str | None:
     """One cell for the status table: where ``host`` stands in the rollout."""
     if not state:
@@ -211,22 +210,20 @@ def host_state(state: dict | None, host: str) -> str | None:
     wave = next((i for i, w in enumerate(state["waves"]) if host in w), None)
     if wave is None:
         return None
-    where = f"wave {wave + 1}/{len(state['waves'])}"
-    if host in state["done"]:
-        return f"{where} done"
-    if host in state["failed"]:
-        return f"{where} failed"
-    if host in state["skipped"]:
-        return f"{where} skipped"
-    return f"{where} pending"
+    return f"wave {wave + 1}/{len(state['waves'])} {outcome(state, host)}"
 
 
 def summary(state: dict) -> str:
-    """One line: which rollout, which wave, which robots pending."""
-    left = pending(state)
+    """One line: which rollout, which wave, how many robots stand where (the
+    counts add up to the robots of the rollout), which are pending."""
+    robots = [h for wave in state["waves"] for h in wave]
+    counts = {name: 0 for name in OUTCOMES}
+    for host in robots:
+        counts[outcome(state, host)] += 1
+    left = [h for h in robots if outcome(state, h) == "pending"]
     waves = len(state["waves"])
     return (
         f"rollout {state['key']}: {state['status']} after wave {min(state['wave'] + 1, waves)}/{waves}; "
-        f"{len(state['done'])} done, {len(state['failed'])} failed, {len(state['skipped'])} skipped; "
-        f"pending: {', '.join(left) or 'none'}"
+        + ", ".join(f"{counts[name]} {name}" for name in OUTCOMES) + f" of {len(robots)} robot(s)"
+        + f"; pending: {', '.join(left) or 'none'}"
     )

@@ -1,33 +1,35 @@
 """The fleet file: load it, check every host's data, hand pyinfra its groups.
 
-The file has the shape of an Ansible YAML inventory (robotfleet/fleet/tree.py):
-``all``, groups with ``vars``, ``hosts`` and ``children`` at any depth; the
+The fleet is an Ansible inventory: a YAML or INI file, or a directory of
+them, with group_vars/ and host_vars/ beside it (robotfleet/fleet/sources.py;
+its groups: robotfleet/fleet/tree.py, INI: robotfleet/fleet/ini.py).  The
 ``robots`` and ``laptops`` groups say which hosts are which.  A host's data
-is the settings' defaults < all.vars < the groups above it < the host.
-ansible_host, ansible_user, ansible_port and ansible_ssh_private_key_file
-are read as address, ssh_user, ssh_port and ssh_key; Ansible's other
+is the settings' defaults < its layers in Ansible's order (tree.Tree.layers).
+Ansible's connection variables are read as ours (ansible_host as address,
+ansible_user as ssh_user, ...; where an older ansible_ssh_* name and the
+newer one are both set, the older wins, as in Ansible); Ansible's other
 variables (ansible_become, ...) configure Ansible itself and are ignored
 with a note, so an Ansible inventory works as it is.
 Everything is checked before pyinfra connects anywhere; each problem is one
-line ``FILE: HOST.FIELD: message``.
+line ``FILE[:LINE]: HOST.FIELD: message``.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet import checks as c
-from robotfleet.fleet import loader, tree
+from robotfleet.fleet import loader, sources, tree
+from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry, setting_of
-from robotfleet.fleet.tree import EXTENSION_PREFIX, HOST_NAME
+from robotfleet.fleet.sources import MAX_BYTES, display_path
+from robotfleet.fleet.tree import EXTENSION_PREFIX, HOST_NAME, PRIORITY_KEY
 from robotfleet.role import GROUPS
 
 __all__ = ["EXTENSION_PREFIX", "HOST_NAME", "Fleet", "FleetError", "check", "display_path", "load", "parse"]
-# 5,000 robots with sensors are about 1 MiB: anything far larger is a mistake.
-MAX_BYTES = 32 * 2**20
 ANSIBLE_PREFIX = "ansible_"
+INI_BOOLEAN = "; INI reads it as text, as Ansible does: write True or False"
 
 
 class FleetError(Exception):
@@ -47,23 +49,12 @@ class Fleet:
         return self.groups.get(group, [])
 
 
-def display_path(path: Path) -> str:
-    try:
-        return os.path.relpath(path)
-    except ValueError:
-        return str(path)
-
-
 def load(path: Path, registry: Registry) -> Fleet:
-    """Parse and check the fleet file; raise FleetError listing every problem."""
-    try:
-        with path.open("rb") as file:
-            data = file.read(MAX_BYTES + 1)
-    except FileNotFoundError:
-        raise FleetError([f"{display_path(path)}: fleet file not found"]) from None
-    except OSError as error:
-        raise FleetError([f"{display_path(path)}: cannot read the fleet file ({error.strerror})"]) from None
-    return parse(data, display_path(path), registry)
+    """Read and check the fleet at ``path`` (an inventory file or directory,
+    and the group_vars/ and host_vars/ beside it); FleetError lists every problem."""
+    reading = sources.Reading()
+    reading.inventory(path)
+    return check_tree(reading.tree, display_path(path), registry, reading.lines, reading.notes)
 
 
 def parse(text: str | bytes, shown: str, registry: Registry) -> Fleet:
@@ -78,82 +69,126 @@ def parse(text: str | bytes, shown: str, registry: Registry) -> Fleet:
 
 
 def check(raw, shown: str, registry: Registry) -> Fleet:
+    """Check a loaded YAML inventory ``raw``."""
     lines: list[str] = []
-    ignored: set[str] = set()
-
-    def report(where: str, problems):
-        for sub, message in problems:
-            location = f"{where}.{sub}" if sub and not sub.startswith("[") else f"{where}{sub}"
-            lines.append(f"{shown}: {location.strip('.')}: {message}")
-
-    def finish(fleet: Fleet | None = None) -> Fleet:
-        if fleet is not None and not lines and not any(fleet.groups.values()):
-            lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts")
-        if lines:
-            raise FleetError([c.one_line(line) for line in lines])
-        return fleet
-
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
-        lines.append(f"{shown}: expected a mapping with all/robots/laptops at the top, got {c.describe(raw)}")
-        finish()
-    groups = tree.read(raw, lines, shown)
+        raise FleetError([c.one_line(f"{shown}: expected a mapping with all/robots/laptops at the top, "
+                                     f"got {c.describe(raw)}")])
+    return check_tree(tree.read(raw, lines, shown), shown, registry, lines, [])
 
-    def checked(where: str, layer: dict) -> tuple[dict, set[str]]:
+
+def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[str], notes: list[str]) -> Fleet:
+    """Check every host of ``groups``; ``lines`` are the problems found
+    reading it, ``notes`` what reading it has to say."""
+    ignored: set[str] = set()
+
+    def report(layer: tree.Layer | None, where: str, problems):
+        for sub, message in problems:
+            location = f"{where}.{sub}" if sub and not sub.startswith("[") else f"{where}{sub}"
+            key = setting_of(sub) if sub else None
+            if layer is not None and layer.lines and isinstance(layer.values.get(key), str) \
+                    and message.startswith("expected true or false"):
+                message += INI_BOOLEAN
+            at = layer.at(key) if layer is not None else shown
+            lines.append(f"{at}: {location.strip('.')}: {message}")
+
+    def checked(where: str, layer: tree.Layer) -> tuple[dict, set[str]]:
         """A layer's settings under their own names (aliases and Ansible's
-        names resolved), and the settings it has problems with."""
+        names resolved; the older ansible_ssh_* names kept apart until the
+        host's layers are merged), and the settings it has problems with."""
         own = {}
-        for key in layer:
-            if isinstance(key, str) and key.startswith(ANSIBLE_PREFIX) and key not in registry.aliases:
+        for key, value in layer.values.items():
+            if key == PRIORITY_KEY:
+                if isinstance(value, bool) or not isinstance(value, int):
+                    report(layer, where, [(key, f"expected a whole number, got {c.describe(value)}")])
+            elif isinstance(key, str) and key.startswith(ANSIBLE_PREFIX) and key not in registry.aliases:
                 ignored.add(key)
+            elif isinstance(value, loader.Vaulted):
+                report(layer, where, [(c.key_name(key), "an ansible-vault value (!vault), which robotfleet does not "
+                                                        "decrypt: write the value, or keep it in a secret store")])
             else:
-                own[key] = layer[key]
+                own[key] = value
         problems = registry.check_layer(own)
-        report(where, problems)
+        report(layer, where, problems)
         refused = {registry.aliases.get(setting_of(sub), setting_of(sub)) for sub, _ in problems}
         named: dict = {}
         for key, value in own.items():
-            name = registry.aliases.get(key, key) if isinstance(key, str) else key
+            name = key if key in OLDER_NAMES else registry.aliases.get(key, key) if isinstance(key, str) else key
             if name in named:
-                report(where, [(c.key_name(key), f"sets {name} a second time in the same place; keep one")])
+                report(layer, where, [(c.key_name(key), f"sets {name} a second time in the same place; keep one")])
                 refused.add(name)
             named[name] = value
         return named, refused
 
-    group_layers: dict[str, list[tuple[dict, set[str]]]] = {
-        name: [checked(f"{name}.vars", layer) for layer in group.layers] for name, group in groups.groups.items()
-    }
+    for name in groups.circles():
+        lines.append(f"{shown}: {name}: the group is its own ancestor (its children: groups form a circle)")
+    # Every group's layers are checked once, whether or not a host is in it.
+    verdicts: dict[int, tuple[dict, set[str]]] = {}
+    for name, group in groups.groups.items():
+        for layer in group.layers:
+            verdicts[id(layer)] = checked(f"{name}.vars", layer)
+    for name, group in groups.groups.items():
+        for layer in group.files:
+            verdicts[id(layer)] = checked(name, layer)
     fleet = Fleet(groups={group: [] for group in GROUPS})
-    defaults = {group: registry.defaults(group) for group in GROUPS}
+    defaults: dict[str, dict] = {}  # per kind of host, made when a host of that kind is checked
     for name, listed in groups.hosts.items():
+        home = listed[0][1]
         above = groups.above(name)
         kinds = [group for group in GROUPS if group in above]
         if len(kinds) > 1:
-            lines.append(f"{shown}: {name}: declared in both {' and '.join(kinds)}")
+            lines.append(f"{home.at(None)}: {name}: declared in both {' and '.join(kinds)}")
             continue
         if not kinds:
             where = sorted(above - {tree.ALL}) or [tree.ALL]
-            lines.append(f"{shown}: {name}: in neither a robots nor a laptops group (groups: {', '.join(where)})"
-                         + c.did_you_mean(where[-1], GROUPS))
+            lines.append(f"{home.at(None)}: {name}: in neither a robots nor a laptops group "
+                         f"(groups: {', '.join(where)})" + c.did_you_mean(where[-1], GROUPS))
             continue
         layers, refused = [], set()
-        for group in groups.ordered(above):
-            for layer, bad in group_layers[group]:
-                layers.append(layer)
-                refused |= bad
-        for _, host_vars in listed:
-            layer, bad = checked(name, host_vars)
-            layers.append(layer)
+        for layer in groups.layers(name):
+            if id(layer) not in verdicts:  # the host's own
+                verdicts[id(layer)] = checked(name, layer)
+            values, bad = verdicts[id(layer)]
+            layers.append(values)
             refused |= bad
+        data = registry.merge(layers)
+        resolve_older_names(data, layers, refused, name, home, notes)
         if "ssh_hostname" in refused:
             refused.add("address")
-        data = registry.merge(layers)
+        if kinds[0] not in defaults:
+            defaults[kinds[0]] = registry.defaults(kinds[0])
         merged = {**defaults[kinds[0]], **data}
-        report(name, registry.check_host(merged, refused))
+        report(home, name, registry.check_host(merged, refused))
         fleet.groups[kinds[0]].append((name, data))
         for group in above - {tree.ALL, *GROUPS}:
             fleet.subgroups.setdefault(group, []).append(name)
     if ignored:
-        fleet.notes.append(f"{shown}: note: {', '.join(sorted(ignored))}: Ansible's own, ignored here")
-    return finish(fleet)
+        notes.append(f"{shown}: note: {', '.join(sorted(ignored))}: Ansible's own, ignored here")
+    fleet.notes = notes
+    if not lines and not any(fleet.groups.values()):
+        lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] "
+                     "in an INI inventory)")
+    if lines:
+        raise FleetError([c.one_line(line) for line in lines])
+    return fleet
+
+
+def resolve_older_names(data: dict, layers: list[dict], refused: set[str], host: str, home: tree.Layer,
+                        notes: list[str]) -> None:
+    """Ansible's older connection names (ansible_ssh_host, ...) win over the
+    newer ones wherever each is set, as in Ansible; a note says so where the
+    newer name was set in a later layer and differs."""
+    for older, setting in OLDER_NAMES.items():
+        if older not in data:
+            continue
+        value = data.pop(older)
+        if older in refused:
+            refused.add(setting)
+        last_older = max(i for i, layer in enumerate(layers) if older in layer)
+        later = [layer[setting] for layer in layers[last_older:] if setting in layer]
+        if later and later[-1] != value:
+            notes.append(f"{home.at(None)}: note: {host}: {older} ({c.describe(value)}) wins over "
+                         f"{setting} ({c.describe(later[-1])}), as in Ansible")
+        data[setting] = value

@@ -116,6 +116,24 @@ def _short(tag: str) -> str:
     return "!!" + tag[len(_T):] if tag.startswith(_T) else tag
 
 
+class Vaulted:
+    """An ansible-vault value (``!vault |``): kept, never decrypted, so that
+    Ansible's own variables holding one (ansible_become_password) are
+    ignored like the others, and a setting holding one is refused."""
+
+    __slots__ = ("text",)
+    described = "an ansible-vault value (!vault)"
+
+    def __init__(self, text: str):
+        self.text = text
+
+
+def _unsupported(tag: str) -> str:
+    if tag == "!unsafe":
+        return "Ansible's !unsafe tag: drop it (values are not templated here)"
+    return f"the YAML tag {_short(tag)!r} is not supported here"
+
+
 class YamlProblem(Exception):
     """Why a byte string is not a fleet document we can read, as one line."""
 
@@ -285,15 +303,17 @@ class _Builder:
     @staticmethod
     def require(node, tag: str):
         if node.tag != tag:
-            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {_short(node.tag)!r} is not supported here")
+            raise YamlProblem(node.start_mark.line + 1, _unsupported(node.tag))
 
     @staticmethod
     def scalar(node: ScalarNode):
         if node.tag in (_STR, _VALUE):
             return node.value
+        if node.tag == "!vault":
+            return Vaulted(node.value)
         convert = _SCALARS.get(node.tag)
         if convert is None:
-            raise YamlProblem(node.start_mark.line + 1, f"the YAML tag {_short(node.tag)!r} is not supported here")
+            raise YamlProblem(node.start_mark.line + 1, _unsupported(node.tag))
         try:
             if not _PATTERNS[node.tag].match(node.value):  # an explicit tag: !!bool yes
                 raise ValueError(node.value)

@@ -2,20 +2,23 @@
 checker carries the schema of what it accepts, from the same patterns), so
 an editor flags mistakes as the operator types and agrees with the run
 (tests/unit/test_schema_agreement.py).  What the schema cannot say is
-BEYOND_SCHEMA; the run checks it, and README names it."""
+BEYOND_SCHEMA; the run checks it, and docs/fleet-file.md names it."""
 
 from __future__ import annotations
 
 import json
 
 from robotfleet.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
+from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry
 
 
-# The rules only the run checks, each with what README says of it.
+# The rules only the run checks, each with what docs/fleet-file.md says of it.
 BEYOND_SCHEMA = {
     "rules across settings": "each role's rules on a host's merged settings: x11_user when display is true, "
-    "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1",
+    "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1, "
+    "a TCP listener in docker_daemon_options without TLS client verification, a registry credential file "
+    "inside the checkout",
     "a host in two groups": "a host declared under both robots and laptops, or in groups of both kinds",
     "a host of no kind": "a host in neither a robots nor a laptops group (at any depth)",
     "a fleet with no hosts": "a file that declares no host at all",
@@ -36,7 +39,13 @@ def setting_schemas(registry: Registry) -> dict:
             schema["default"] = defaults[name]
         properties[name] = schema
     for alias, name in registry.aliases.items():
-        properties[alias] = {**registry.settings[name].check.schema, "description": f"the SSH address ({name})"}
+        if alias in OLDER_NAMES:
+            doc = f"Ansible's older name for {name}: where both are set, it wins, as in Ansible."
+        elif alias.startswith(ANSIBLE_PREFIX):
+            doc = f"Ansible's name for {name}."
+        else:
+            doc = f"{name}: {registry.settings[name].doc}"
+        properties[alias] = {**registry.settings[name].check.schema, "description": doc}
     return properties
 
 
@@ -49,13 +58,16 @@ def fleet_schema(registry: Registry) -> dict:
         "additionalProperties": False,
     }
     name = {"pattern": f"^(?:{HOST_NAME.pattern})$"}
+    # Ansible's host patterns: robot[01:03], robot[a:c], robot[1:9:2], robot7:2222
+    ranged = r"\[(?:[0-9]*:[0-9]+|[A-Za-z]:[A-Za-z])(?::[0-9]+)?\]"
+    host = {"anyOf": [name, {"pattern": f"^(?:[A-Za-z0-9]|{ranged})(?:[A-Za-z0-9._-]|{ranged})*(?::[0-9]+)?$"}]}
     group = {
         "type": ["object", "null"],
         "properties": {
             "vars": {"$ref": "#/definitions/settings"},
             "hosts": {
                 "type": ["object", "null"],
-                "propertyNames": name,
+                "propertyNames": host,
                 "additionalProperties": {"$ref": "#/definitions/settings"},
             },
             "children": {

@@ -18,9 +18,18 @@ several groups.  A host's settings merge as Ansible merges them: ``all``,
 then the groups above it, shallower before deeper and by name at the same
 depth, then the host's own (in the order the file lists them).
 
+Host names are Ansible's host patterns (robotfleet/fleet/hostpattern.py):
+``robot[01:03]`` is three hosts, ``robot1:2222`` sets its port.
+
 Which hosts are robots and which are laptops stays explicit: a host is a
 robot if a group named ``robots`` is above it (at any depth), a laptop if
 ``laptops`` is; both is refused, neither too.
+
+Each layer of settings keeps where it was written (``Layer``): the file,
+and for an INI inventory the line of each key, so that every problem names
+them.  Groups and hosts also take layers from ``group_vars/`` and
+``host_vars/`` files (robotfleet/fleet/sources.py), which Ansible ranks
+above the inventory's own: see ``Tree.layers``.
 """
 
 from __future__ import annotations
@@ -29,17 +38,40 @@ import re
 from dataclasses import dataclass, field
 
 from robotfleet import checks as c
+from robotfleet.fleet.hostpattern import PatternProblem, expand
 
 EXTENSION_PREFIX = "x-"
+UNGROUPED = "ungrouped"  # Ansible's group of hosts listed in no other group
 HOST_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,62}")
 GROUP_KEYS = ("vars", "hosts", "children")
 ALL = "all"
 
 
+PORT_KEY = "ansible_port"  # where a host pattern's :port goes, as in Ansible
+PRIORITY_KEY = "ansible_group_priority"  # orders sibling groups of one depth, as in Ansible
+
+
+@dataclass
+class Layer:
+    """Settings as written in one place: ``file`` (as shown), the line of
+    each key where the format has lines (INI), and the line of the place."""
+
+    values: dict
+    file: str
+    lines: dict = field(default_factory=dict)
+    line: int | None = None
+
+    def at(self, key) -> str:
+        """``file`` or ``file:line`` for ``key`` (or for the place)."""
+        line = self.lines.get(key, self.line) if isinstance(key, str) else self.line
+        return f"{self.file}:{line}" if line else self.file
+
+
 @dataclass
 class Group:
     name: str
-    layers: list[dict] = field(default_factory=list)  # its vars, one per definition
+    layers: list[Layer] = field(default_factory=list)  # its vars in the inventory, one per definition
+    files: list[Layer] = field(default_factory=list)  # group_vars/<name>..., in Ansible's order
     parents: set[str] = field(default_factory=set)
 
 
@@ -47,13 +79,37 @@ class Group:
 class Tree:
     groups: dict[str, Group] = field(default_factory=dict)
     # host -> (group, its vars there) for each place it is listed, in file order
-    hosts: dict[str, list[tuple[str, dict]]] = field(default_factory=dict)
+    hosts: dict[str, list[tuple[str, Layer]]] = field(default_factory=dict)
+    host_files: dict[str, list[Layer]] = field(default_factory=dict)  # host_vars/<name>...
     _depths: dict[str, int] = field(default_factory=dict)
 
+    def __post_init__(self):
+        self.groups.setdefault(ALL, Group(ALL))
+
+    def layers(self, host: str) -> list[Layer]:
+        """``host``'s layers, lowest first, in Ansible's order: the inventory's
+        group vars (all, then the groups by depth and name), group_vars/ files
+        in the same order, the inventory's host vars, host_vars/ files."""
+        groups = self.ordered(self.above(host))
+        return ([layer for g in groups for layer in self.groups[g].layers]
+                + [layer for g in groups for layer in self.groups[g].files]
+                + [layer for _, layer in self.hosts[host]] + self.host_files.get(host, []))
+
+    def listed(self, host: str, group: str, layer: Layer, port: int | None = None) -> None:
+        """``host`` listed in ``group`` with ``layer``; a host pattern's port
+        counts where the host is first listed only, as in Ansible."""
+        self.groups.setdefault(group, Group(group))
+        if port is not None and host not in self.hosts:
+            self.hosts[host] = [(group, Layer({PORT_KEY: port}, layer.file, line=layer.line))]
+        self.hosts.setdefault(host, []).append((group, layer))
+
     def above(self, host: str) -> set[str]:
-        """Every group ``host`` is in: where it is listed and their ancestors."""
+        """Every group ``host`` is in: where it is listed and their ancestors
+        (ungrouped only if no other group lists it, as Ansible has it)."""
         found: set[str] = set()
         todo = [group for group, _ in self.hosts[host]]
+        if set(todo) - {ALL, UNGROUPED}:
+            todo = [group for group in todo if group != UNGROUPED]
         while todo:
             name = todo.pop()
             if name not in found:
@@ -68,15 +124,42 @@ class Tree:
             self._depths[name] = 1 + max((self.depth(p, seen | {name}) for p in parents), default=-1)
         return self._depths[name]
 
+    def priority(self, name: str) -> int:
+        """The group's ansible_group_priority (Ansible reads it from the
+        inventory only, not from group_vars/; default 1)."""
+        found = 1
+        for layer in self.groups[name].layers:
+            value = layer.values.get(PRIORITY_KEY)
+            if isinstance(value, int) and not isinstance(value, bool):
+                found = value
+        return found
+
     def ordered(self, names: set[str]) -> list[str]:
-        """Ansible's order of group vars: all first, then by depth, then by name."""
-        return sorted(names, key=lambda name: (name != ALL, self.depth(name), name))
+        """Ansible's order of group vars: all first, then by depth, by
+        ansible_group_priority, by name."""
+        return sorted(names, key=lambda name: (name != ALL, self.depth(name), self.priority(name), name))
+
+    def circles(self) -> list[str]:
+        """Groups that are their own ancestors (children: definitions that
+        loop, possibly across files)."""
+        looped = []
+        for name in self.groups:
+            seen, todo = set(), list(self.groups[name].parents)
+            while todo:
+                parent = todo.pop()
+                if parent == name:
+                    looped.append(name)
+                    break
+                if parent not in seen:
+                    seen.add(parent)
+                    todo.extend(self.groups[parent].parents)
+        return looped
 
 
-def read(raw: dict, lines: list[str], shown: str) -> Tree:
-    """The tree of ``raw`` (the loaded file); problems appended to ``lines``."""
-    tree = Tree()
-    tree.groups[ALL] = Group(ALL)
+def read(raw: dict, lines: list[str], shown: str, tree: Tree | None = None) -> Tree:
+    """The tree of ``raw`` (a loaded YAML inventory), added to ``tree`` if
+    given; problems appended to ``lines``."""
+    tree = Tree() if tree is None else tree
 
     def problem(where: str, message: str):
         lines.append(f"{shown}: {where}: {message}" if where else f"{shown}: {message}")
@@ -96,20 +179,22 @@ def read(raw: dict, lines: list[str], shown: str) -> Tree:
                         + "; a group has vars, hosts and children")
         variables = node.get("vars")
         if isinstance(variables, dict):
-            group.layers.append(variables)
+            group.layers.append(Layer(variables, shown))
         elif variables is not None:
             problem(f"{name}.vars", f"expected a mapping of settings, got {c.describe(variables)}")
         hosts = node.get("hosts")
         if isinstance(hosts, dict):
-            for host, host_vars in hosts.items():
-                if host_name_problem(host, problem):
+            for pattern, host_vars in hosts.items():
+                named = host_names(pattern, problem)
+                if not named:
                     continue
                 if host_vars is None:
                     host_vars = {}
                 if not isinstance(host_vars, dict):
-                    problem(host, f"expected a mapping of settings, got {c.describe(host_vars)}")
+                    problem(c.key_name(pattern), f"expected a mapping of settings, got {c.describe(host_vars)}")
                     continue
-                tree.hosts.setdefault(host, []).append((name, host_vars))
+                for host, port in named:
+                    tree.listed(host, name, Layer(host_vars, shown), port)
         elif hosts is not None:
             problem(f"{name}.hosts", f"expected a mapping of host name to settings, got {c.describe(hosts)}")
         children = node.get("children")
@@ -133,14 +218,22 @@ def read(raw: dict, lines: list[str], shown: str) -> Tree:
     return tree
 
 
-def host_name_problem(name, problem) -> bool:
-    if not isinstance(name, str):
-        problem(c.key_name(name), f"a host name must be a string, got {c.describe(name)}; quote it")
-        return True
-    if not HOST_NAME.fullmatch(name):
-        problem(c.key_name(name), "invalid host name (letters, digits, . _ -)")
-        return True
-    return False
+def host_names(pattern, problem) -> list[tuple[str, int | None]]:
+    """(name, port) of each host a host pattern makes; [] after a problem."""
+    if not isinstance(pattern, str):
+        problem(c.key_name(pattern), f"a host name must be a string, got {c.describe(pattern)}; quote it")
+        return []
+    try:
+        names, port = expand(pattern)
+    except PatternProblem as error:
+        problem(c.key_name(pattern), str(error))
+        return []
+    bad = [name for name in names if not HOST_NAME.fullmatch(name)]
+    if bad:
+        problem(c.key_name(pattern), "invalid host name (letters, digits, . _ -)" if bad == [pattern]
+                else f"invalid host name {bad[0]!r} (letters, digits, . _ -)")
+        return []
+    return [(name, port) for name in names]
 
 
 def group_name_problem(name, where: str, problem) -> bool:

@@ -11,7 +11,6 @@ from __future__ import annotations
 import base64
 import difflib
 import hashlib
-import re
 import shlex
 
 from pyinfra import host, logger
@@ -21,6 +20,7 @@ from pyinfra.api.util import format_text, print_host_combined_output
 from pyinfra.context import ctx_host
 from pyinfra.facts.files import FileContents
 
+from robotfleet import secrets
 from robotfleet.checks import one_line
 from robotfleet.host.snapshot import FileState
 
@@ -202,28 +202,25 @@ def unified_diff(path: str, old: str, new: str) -> list[str]:
     ))
 
 
-# scheme://user:password@host: the password is never shown.
-_URL_PASSWORD = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*://[^/\s:@\"']*):[^@\s\"'/]*@")
-
-
 def mask_credentials(text: str) -> str:
-    """``text`` with the passwords of URLs (a proxy's, a registry mirror's) masked."""
-    return _URL_PASSWORD.sub(r"\1:****@", text)
+    """``text`` with this host's secrets and every URL password masked (robotfleet/secrets.py)."""
+    return secrets.mask(text, secrets.of(host.name) if ctx_host.isset() else ())
 
 
 def show_diff(path: str, content: bytes, exists: bool) -> None:
-    """Print what writing ``content`` to ``path`` changes (--diff), with URL
-    passwords masked and control characters escaped on both sides.  The
-    current content is fetched only here: for a file the snapshot found
-    different."""
+    """Print what writing ``content`` to ``path`` changes (--diff), with the
+    host's secrets masked by value (and URL passwords by shape) and control
+    characters escaped on both sides: a changed password shows as a changed
+    line, never its value.  The current content is fetched only here: for a
+    file the snapshot found different."""
     old = ""
     if exists:
         lines = host.get_fact(FileContents, path=path) or []
         old = "".join(line + "\n" for line in lines)
     new = content.decode(errors="replace")
     host.log(f"{'Will modify' if exists else 'Will create'} {format_text(path, bold=True)}", logger.info)
-    for line in unified_diff(path, mask_credentials(old), mask_credentials(new)):
-        line = one_line(line)
+    for line in unified_diff(path, old, new):
+        line = one_line(mask_credentials(line))
         colour = {"+": "green", "-": "red"}.get(line[:1]) if not line.startswith(("+++", "---")) else None
         logger.info("  %s", format_text(line, colour) if colour else line)
 

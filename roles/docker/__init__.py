@@ -40,12 +40,19 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
     )
 
 
+def daemon_json(play: Play) -> str:
+    """/etc/docker/daemon.json as this host gets it: docker_daemon_options,
+    what the other roles add (hooks.DAEMON_OPTIONS), each DaemonSetting."""
+    return plan.daemon_json(play.folded(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options),
+                            settings.daemon_keys(play.data))
+
+
 def declare_reads(data, query: SnapshotQuery) -> None:
     packages = set(data.docker_packages) | set(data.docker_obsolete_packages) | set(PREREQUISITES)
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
-    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING}
+    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING, daemon.PREVIOUS}
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
@@ -101,11 +108,7 @@ def install_docker(play: Play):
         enabled=data.docker_service_enabled,
     )
     action = "reload" if data.docker_restart_handler_state == "reloaded" else "restart"
-    content = plan.daemon_json(
-        play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
-        data.docker_registry_mirrors,
-        data.docker_insecure_registries,
-    )
+    content = daemon_json(play)
     pending = snap.files.get(daemon.PENDING) is not None
     written = daemon.daemon_json(
         name=f"Write /etc/docker/daemon.json and {action} Docker (the previous file comes back if Docker does not start)",
@@ -114,6 +117,7 @@ def install_docker(play: Play):
         action=action,
         timeout=data.docker_restart_timeout,
         pending=pending,
+        previous=snap.files.get(daemon.PREVIOUS),
     )
     if daemon.restarts_docker(content, snap.files.get(DAEMON_JSON), pending):
         play.announce(hooks.RESTARTED, written)
@@ -150,6 +154,7 @@ ROLE = Role(
     name="docker",
     doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json.",
     settings=settings.SETTINGS,
+    rules=settings.rules,
     reads=declare_reads,
     steps=install_docker,
     status=STATUS,

@@ -27,6 +27,9 @@ PREVIOUS = DAEMON_JSON + ".previous"
 # the next run restarts Docker (with the same way back) although the file
 # already matches.
 PENDING = DAEMON_JSON + ".pending"
+# daemon.json may hold credentials (a proxy URL's password): root's alone,
+# and so is the copy kept to go back to.
+MODE = "600"
 NO_VALIDATE_WARNING = (
     "warning: docker: this dockerd has no --validate (Docker < 23); the new daemon.json is checked "
     "by restarting Docker with it, and the previous file comes back if Docker does not start"
@@ -46,7 +49,7 @@ def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS, pending: str
         'mkdir -p "$dir" || exit 1\n'
         'tmp=$(mktemp "$dir/.robotprov.XXXXXX") || exit 1\n'
         "trap 'rm -f \"$tmp\" \"$prev.tmp\"' EXIT\n"
-        'base64 -d > "$tmp" && chown root:root "$tmp" && chmod 644 "$tmp" || exit 1\n'
+        'base64 -d > "$tmp" && chown root:root "$tmp" && chmod 600 "$tmp" || exit 1\n'
         "if dockerd --help 2>&1 | grep -q -- '--validate'; then\n"
         '  out=$(dockerd --validate --config-file "$tmp" 2>&1) || '
         '{ echo "docker: dockerd rejects the new daemon.json: $(echo "$out" | tail -n 1); nothing changed" >&2; exit 1; }\n'
@@ -56,8 +59,12 @@ def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS, pending: str
         # A file still pending was never seen working: keep the one before it.
         'if [ -f "$pending" ]; then\n'
         "  :\n"
+        'elif [ -L "$dest" ]; then\n'
+        '  rm -f "$prev.tmp" && cp -P "$dest" "$prev.tmp" && mv -fT "$prev.tmp" "$prev" || exit 1\n'
         'elif [ -f "$dest" ]; then\n'
-        '  cp -Pp "$dest" "$prev.tmp" && sync "$prev.tmp" && mv -fT "$prev.tmp" "$prev" || exit 1\n'
+        # A new file made 0600 from the start (not cp -p of a looser file).
+        '  rm -f "$prev.tmp" && (umask 077 && cat "$dest" > "$prev.tmp") && chown root:root "$prev.tmp" '
+        '&& chmod 600 "$prev.tmp" && sync "$prev.tmp" && mv -fT "$prev.tmp" "$prev" || exit 1\n'
         "else\n"
         '  rm -f "$prev"\n'
         "fi\n"
@@ -111,12 +118,19 @@ def restarts_docker(content: str, current: FileState | None, pending: bool) -> b
     return pending or not same
 
 
+def loose(state: FileState | None) -> bool:
+    """A regular file others than root may read (an earlier version wrote 0644)."""
+    return state is not None and state.kind == "file" and (
+        state.mode != MODE or (state.owner, state.group) != ("root", "root"))
+
+
 @operations.operation()
-def daemon_json(content: str, current: FileState | None, action: str, timeout: int, pending: bool):
+def daemon_json(content: str, current: FileState | None, action: str, timeout: int, pending: bool,
+                previous: FileState | None = None):
     """Make daemon.json hold ``content`` and apply it (``action``: restart or
-    reload) with a way back; the file's owner and mode alone are fixed
-    without touching Docker.  ``pending``: an earlier run wrote the file but
-    may not have restarted Docker."""
+    reload) with a way back; the owner and mode of the file and of its
+    previous copy alone are fixed without touching Docker.  ``pending``: an
+    earlier run wrote the file but may not have restarted Docker."""
     data = content.encode()
     if current is not None and current.kind == "dir":
         yield operations.refuse(f"{DAEMON_JSON} exists but is not a regular file; not replacing it")
@@ -127,10 +141,11 @@ def daemon_json(content: str, current: FileState | None, action: str, timeout: i
         yield operations.shell_with_warnings(restart_script(action, timeout))
         return
     if same:
-        if operations.file_matches(current, data, "0644", "root", "root"):
+        fix = [path for path, state in ((DAEMON_JSON, current), (PREVIOUS, previous)) if loose(state)]
+        if not fix:
             host.noop(f"{DAEMON_JSON} is up to date")
             return
-        yield operations.shell(f"chown root:root {DAEMON_JSON} && chmod 644 {DAEMON_JSON}")
+        yield operations.shell(" && ".join(f"chown root:root {path} && chmod 600 {path}" for path in fix))
         return
     if operations.planning_output_wanted() and host.state.config.DIFF:
         operations.show_diff(DAEMON_JSON, data, exists=current is not None and current.kind == "file")

@@ -4,8 +4,6 @@ from robotfleet.host import aptrepo
 from robotfleet.host.fixtures import file_state
 from robotfleet.host.snapshot import FileState
 from roles import docker
-import roles.docker.hooks as hooks
-import roles.docker.plan as plan
 
 
 def converged(play, host: str) -> None:
@@ -17,9 +15,7 @@ def converged(play, host: str) -> None:
         repo.key_path: FileState("file", "f" * 64, "644", "root", "root"),
         repo.sources_path: file_state(repo.sources),
         "/etc/docker": FileState("dir", None, "755", "root", "root"),
-        docker.DAEMON_JSON: file_state(plan.daemon_json(
-            play.folded(hooks.DAEMON_OPTIONS, data.docker_daemon_options),
-            data.docker_registry_mirrors, data.docker_insecure_registries)),
+        docker.DAEMON_JSON: file_state(docker.daemon_json(play), mode=docker.daemon.MODE),
     })
     snap.probes[docker.KEY_PROBE] = f"{repo.fingerprint}\n{aptrepo.CANONICAL}\n" if repo.fingerprint else ""
     snap.units["docker.service"] = ("enabled", "active")

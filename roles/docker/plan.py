@@ -78,10 +78,16 @@ def distro_packages(os_release: dict, override: list[str] | None) -> list[str]:
     return packages
 
 
-def daemon_json(options: dict, mirrors: list[str], insecure: list[str]) -> str:
+def daemon_json(options: dict, keys: dict) -> str:
+    """daemon.json: ``options``, then each of ``keys`` (daemon.json key ->
+    value): a list merged into the option's list, any other value but None
+    in its place."""
     merged = dict(options)
-    for key, extra in (("registry-mirrors", mirrors), ("insecure-registries", insecure)):
-        if extra:
-            current = list(merged.get(key, []))
-            merged[key] = current + [item for item in extra if item not in current]
+    for key, value in keys.items():
+        if isinstance(value, list):
+            if value:
+                current = list(merged.get(key, []))
+                merged[key] = current + [item for item in value if item not in current]
+        elif value is not None:
+            merged[key] = value
     return json.dumps(merged, indent=2, sort_keys=True) + "\n"

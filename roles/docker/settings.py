@@ -2,9 +2,25 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from robotfleet import checks as c
 from robotfleet import values as v
 from robotfleet.role import Setting
+
+
+@dataclass(frozen=True)
+class DaemonSetting(Setting):
+    """A setting written into daemon.json under ``key``, over
+    docker_daemon_options: a list is merged into that option's list, any
+    other value (but null) replaces it.  Declaring one is all it takes."""
+
+    key: str = ""
+
+
+def daemon_keys(data) -> dict:
+    """daemon.json key -> the host's value, for each DaemonSetting."""
+    return {s.key: data.get(s.name) for s in SETTINGS if isinstance(s, DaemonSetting)}
 
 # daemon.json keys and value kinds from Docker's dockerd reference ("Daemon
 # configuration file", Linux).  b: boolean, s: string, i: whole number,
@@ -112,13 +128,47 @@ SETTINGS = (
     Setting("docker_daemon_options",
             {"live-restore": True, "log-driver": "json-file", "log-opts": {"max-size": "10m", "max-file": "3"}},
             daemon_options, "/etc/docker/daemon.json (rotated logs; live-restore keeps containers across restarts)."),
-    Setting("docker_registry_mirrors", [], c.list_of(v.url), "Merged into daemon.json's registry-mirrors."),
-    Setting("docker_insecure_registries", [],
-            c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
-            "Merged into daemon.json's insecure-registries."),
+    DaemonSetting("docker_registry_mirrors", [], c.list_of(v.url), "Merged into daemon.json's registry-mirrors.",
+                  key="registry-mirrors"),
+    DaemonSetting("docker_insecure_registries", [],
+                  c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
+                  "Merged into daemon.json's insecure-registries.", key="insecure-registries"),
+    Setting("docker_allow_unauthenticated_tcp", False, c.boolean,
+            "Allow daemon.json hosts to open a TCP listener without TLS client verification (anyone who reaches it is root)."),
     Setting("docker_restart_handler_state", "restarted", c.string(choices=("restarted", "reloaded")),
             "What a daemon.json change does to the engine."),
     Setting("docker_restart_timeout", 60, c.integer(5, 3600),
             "Seconds Docker has to be active again after a daemon.json change, or the previous file comes back."),
     Setting("docker_service_enabled", True, c.boolean, "Start Docker at boot."),
 )
+
+
+# What dockerd needs to accept only clients holding a certificate its CA signed.
+TLS_VERIFY = ("tlsverify", "tlscacert", "tlscert", "tlskey")
+
+
+def tcp_listener(value) -> bool:
+    """A daemon.json ``hosts`` entry dockerd opens on the network: anything
+    but a unix socket or systemd's fd:// (dockerd reads "0.0.0.0:2375" and
+    "tcp://" alone as TCP too)."""
+    return isinstance(value, str) and not value.startswith(("unix://", "fd://"))
+
+
+def rules(data: dict, refused: frozenset) -> list[c.Problem]:
+    """The Docker API on TCP without client certificates is root on the host
+    for anyone who reaches the port (localhost: any local user): refused
+    unless TLS verification is set or the operator opts in by name."""
+    options = data.get("docker_daemon_options")
+    if {"docker_daemon_options", "docker_allow_unauthenticated_tcp"} & refused or not isinstance(options, dict):
+        return []
+    listeners = [(i, h) for i, h in enumerate(options.get("hosts") or []) if tcp_listener(h)]
+    if not listeners or data.get("docker_allow_unauthenticated_tcp") is True:
+        return []
+    missing = [key for key in TLS_VERIFY if options.get(key) in (None, False, "")]
+    if not missing:
+        return []
+    index, listener = listeners[0]
+    return [(f"docker_daemon_options.hosts[{index}]",
+             f"{c.shown(listener)} opens the Docker API on TCP without TLS client verification (missing: "
+             f"{', '.join(missing)}): anyone who reaches it is root on this host; set tlsverify: true, "
+             "tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true")]

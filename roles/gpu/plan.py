@@ -14,6 +14,8 @@ import shlex
 from robotfleet.host import aptrepo
 from robotfleet.host import platform as host_platform
 from robotfleet.host.platform import PlanError
+import roles.payload.hooks as payload_hooks
+import roles.x11.hooks as x11_hooks
 
 TOOLKIT = "nvidia-container-toolkit"
 RUNTIME_NAME = "nvidia"
@@ -28,7 +30,7 @@ DRIVER_MISSING = (
 
 def wanted(data) -> bool:
     """The gpu role runs where the payload asks for GPUs or the host is a GPU host."""
-    return data.get("gpu") == "nvidia" or bool(data.get("payload_gpu"))
+    return data.get("gpu") == "nvidia" or payload_hooks.wants_gpus(data)
 
 
 # --- what the host snapshot tells -------------------------------------------
@@ -150,7 +152,7 @@ def payload_environment(data) -> dict[str, str]:
     driver parts to inject (graphics too when the host has a display: rviz with GL)."""
     capabilities = data.get("gpu_driver_capabilities")
     if not capabilities:
-        capabilities = "compute,utility,graphics" if data.get("display") else "compute,utility"
+        capabilities = "compute,utility,graphics" if x11_hooks.has_display(data) else "compute,utility"
     return {"NVIDIA_VISIBLE_DEVICES": str(data.get("gpu_visible_devices") or "all"),
             "NVIDIA_DRIVER_CAPABILITIES": capabilities}
 
@@ -161,7 +163,7 @@ RESERVATION = {"resources": {"reservations": {"devices": [{"driver": "nvidia", "
 def payload_services(data, services: dict) -> dict:
     """Where the payload asks for GPUs: each service gets the NVIDIA
     environment and a device reservation."""
-    if not data.get("payload_gpu"):
+    if not payload_hooks.wants_gpus(data):
         return {}
     return {"*": {"environment": payload_environment(data), "deploy": RESERVATION}}
 
@@ -169,7 +171,7 @@ def payload_services(data, services: dict) -> dict:
 def check_command(data) -> dict | None:
     """The check payloadctl runs in each payload container once it is
     healthy (the payload's CHECKS hook); None: no GPU check."""
-    if not data.get("payload_gpu"):
+    if not payload_hooks.wants_gpus(data):
         return None
     command = data.get("gpu_check_command")
     return {"command": list(command), "failure": "cannot see a GPU"} if command else None

@@ -9,14 +9,17 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 - settings.py: the settings; services.py, presets.py, compose.py: the
   compose document; problems.py: what is refused before connecting;
 - steps.py: the deploy's steps; release.py: the release on the robot;
-  login.py, push.py, project.py: registry login, push delivery, takeover;
+  credentials.py, login.py, push.py, registry.py, project.py: each
+  registry's own credentials, registry login, push delivery, takeover;
 - robot.py, payloadctl/ (the robot-side program), payload.service.j2: what runs
   on the robot;
-- report.py: its columns in status, what a rollout waits for.
+- report.py: its columns in status, what a rollout waits for; pins.py: the
+  image digests a pull release binds (robotfleet publish); digests.py: those
+  digests applied when the robot runs the release (payload_image_pins).
 """
 
 from robotfleet.role import Role
-from roles.payload import report, settings, steps
+from roles.payload import credentials, hold, pins, report, settings, steps
 from roles.payload.release import rollback_release
 
 ROLE = Role(
@@ -26,8 +29,11 @@ ROLE = Role(
     reads=steps.declare_reads,
     steps=steps.deploy_payload,
     rules=settings.rules,
+    secrets=credentials.secrets,
     status=report.STATUS,
     rollout=report.ROLLOUT,
+    pins=pins.PINS,
+    hold=hold.HOLD,
 )
 
 __all__ = ["ROLE", "rollback_release"]

@@ -7,6 +7,7 @@ import json
 
 import yaml
 
+import roles.payload.digests as digests
 import roles.payload.presets as presets
 import roles.payload.services as services
 
@@ -96,8 +97,10 @@ def project(data, address: str, additions: list[dict] = ()) -> dict:
     """The whole project: every declared service (or the single-image
     shorthand as one service called payload), each built on our defaults
     with the ROS preset and the user's keys on top.  ``additions``: what the
-    other roles give each service (``hooks.SERVICES``)."""
+    other roles give each service (``hooks.SERVICES``).  Where the host is
+    given a release's pins, each image runs by its pinned digest."""
     declared = services.declared(data)
+    pins = digests.given(data)
     extra = presets.preset(data, address)
     built = {}
     for name, user in {**extra["extra"], **declared}.items():
@@ -106,4 +109,6 @@ def project(data, address: str, additions: list[dict] = ()) -> dict:
         base = escape_interpolation(base_service(data, user.get("image"), address, combined(list(additions), name)))
         # The user's and the preset's values are escaped here, once.
         built[name] = services.service(base, escape_interpolation(user), escape_interpolation(extra), name)
+        if pins:
+            built[name]["image"] = digests.pinned(built[name].get("image"), pins)
     return {"name": data.payload_name, "services": built}

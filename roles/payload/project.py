@@ -13,14 +13,15 @@ from pyinfra import host, logger
 from robotfleet.checks import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+import roles.docker.hooks as docker_hooks
 import roles.payload.containers as containers
+from roles.payload.credentials import registry_key
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.payloadctl.takeover as takeover_rule
 import roles.payload.presets as presets
 import roles.payload.push as push
 import roles.payload.services as services
-
 
 
 def primary_image(data) -> str | None:
@@ -60,17 +61,20 @@ def image_id_probe(ref: str) -> str:
 def push_target(data, snap: Snapshot, credentials) -> dict:
     """Who a push is for: the robot, its architecture (from the snapshot),
     and how to read the image's registry for its own variant."""
-    return {"robot": host.name, "arch": snap.arch, "insecure": list(data.docker_insecure_registries or []),
+    return {"robot": host.name, "arch": snap.arch, "insecure": docker_hooks.insecure_registries(data),
             "credentials": credentials}
 
 
-def push_more_images(data, snap: Snapshot, credentials=None) -> None:
+def push_more_images(data, snap: Snapshot, auths: dict | None = None) -> None:
     """payload_delivery push for a project of several images: each one the
-    robot lacks is sent (layers the robot has are left out, as for the first)."""
+    robot lacks is sent (layers the robot has are left out, as for the
+    first), read from its registry with that registry's own credentials
+    (``auths``: registry -> Credentials or None)."""
     if data.payload_delivery != "push":
         return
     layers = push.parse_layer_sets(snap.probes.get("docker_layers", ""))
     for index, ref in enumerate(more_images(data)):
+        credentials = (auths or {}).get(registry_key(imageref.parse(ref).registry))
         push.push_image(
             name=f"Send the payload image {ref} over SSH",
             image=ref,
@@ -88,9 +92,10 @@ def takeover_of(data) -> dict:
             **takeover_rule.parse_replaces(data.payload_replaces)}
 
 
-def foreign(probe_output: str, project: str, takeover: dict) -> list[dict]:
+def foreign(probe_output: str, project: str, takeover: dict, recorded=()) -> list[dict]:
     """The containers the release will take over, from the probe (pure; the
-    rule is payloadctl's own, takeover.reason)."""
+    rule is payloadctl's own, takeover.reason; ``recorded``: the compose
+    projects the robot's current release says its payload used)."""
     found = []
     for line in probe_output.splitlines():
         try:
@@ -102,7 +107,7 @@ def foreign(probe_output: str, project: str, takeover: dict) -> list[dict]:
         container = {"id": cid[:12], "name": name.lstrip("/"), "image": image, "project": label or None,
                      "running": running == "true", "restart": policy or "no",
                      "repositories": [imageref.repository(image)]}
-        why = takeover_rule.reason(container, project, takeover)
+        why = takeover_rule.reason(container, project, takeover, recorded)
         if why:
             found.append(dict(container, why=why))
     return found
@@ -117,11 +122,14 @@ def takeover_line(found: list[dict]) -> str:
     return "payload: taking over what runs the payload another way (stopped, restart policy no): " + "; ".join(parts)
 
 
-def takeover(data, snap: Snapshot) -> list[dict]:
-    """What the release will stop, said in the run output."""
+def takeover(data, snap: Snapshot, current_record: dict | None = None) -> list[dict]:
+    """What the release will stop, said in the run output (``current_record``:
+    the robot's current release record, from the snapshot)."""
     if not data.payload_autostart:
         return []
-    found = foreign(containers.part(snap.probes.get(containers.PROBE, ""), "f"), data.payload_name, takeover_of(data))
+    recorded = takeover_rule.recorded_projects(current_record, data.payload_name)
+    found = foreign(containers.part(snap.probes.get(containers.PROBE, ""), "f"), data.payload_name, takeover_of(data),
+                    recorded)
     if found:
         # Names and images come from the robot: one line, nothing that moves the cursor.
         logger.warning(f"[{host.name}] {one_line(takeover_line(found))}")

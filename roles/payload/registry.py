@@ -5,8 +5,12 @@ image store cannot hold (it keeps one variant a tag).
 
 Plain HTTP only for a registry on this machine (localhost, 127.0.0.0/8,
 ::1) or one the fleet lists in docker_insecure_registries; HTTPS otherwise.
-Anonymous, or with a bearer token (anonymous or from the registry
-credentials' environment variables), as Docker does.
+Anonymous, or with a bearer token (anonymous or from the registry's own
+credentials, roles/payload/credentials.py), as Docker does.  The
+credentials go to this registry only: to a token realm only over HTTPS on
+the registry's own host (or its own plain-HTTP host where the registry is
+plain HTTP), or to a realm its entry lists; and no Authorization header
+follows a redirect to another host (blobs are often served elsewhere).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import urllib.error
 import urllib.parse
 import urllib.request
 
+from roles.payload.credentials import Credentials, registry_key
 from roles.payload.payloadctl import platforms
 
 ACCEPT = ", ".join(platforms.INDEX_TYPES + platforms.MANIFEST_TYPES)
@@ -62,19 +67,58 @@ def challenge(header: str) -> tuple[str, dict]:
     return scheme.lower(), dict(re.findall(r'(\w+)="([^"]*)"', rest))
 
 
+def endpoint(url: str) -> tuple[str, int | None]:
+    """(host, port) of ``url``, the port filled in from its scheme."""
+    parts = urllib.parse.urlsplit(url)
+    return (parts.hostname or "").lower(), parts.port or {"http": 80, "https": 443}.get(parts.scheme)
+
+
+class SameHostRedirects(urllib.request.HTTPRedirectHandler):
+    """Follow redirects, but send the Authorization header only to the host
+    that was asked (a registry's blob store on another host gets none)."""
+
+    def redirect_request(self, req, fp, code, msg, headers, newurl):
+        new = super().redirect_request(req, fp, code, msg, headers, newurl)
+        if new is not None and endpoint(newurl) != endpoint(req.full_url):
+            for name in [h for h in new.headers if h.lower() == "authorization"]:
+                del new.headers[name]
+        return new
+
+
 class Registry:
-    def __init__(self, registry: str, insecure: list[str] = (), credentials: tuple[str, str] | None = None):
+    def __init__(self, registry: str, insecure: list[str] = (), credentials: Credentials | None = None):
         self.name = registry
         self.base = base_url(registry, insecure)
-        self.credentials = credentials
+        # A credential is for the registry it was configured for, never another.
+        mine = credentials is not None and credentials.registry == registry_key(registry)
+        self.credentials = credentials if mine else None
         self.authorization: str | None = None
         handlers = [urllib.request.ProxyHandler({})] if loopback(registry) else []
-        self.opener = urllib.request.build_opener(*handlers)
+        self.opener = urllib.request.build_opener(*handlers, SameHostRedirects())
 
     def _basic(self) -> str | None:
         if not self.credentials:
             return None
-        return "Basic " + base64.b64encode(":".join(self.credentials).encode()).decode()
+        secret = f"{self.credentials.username}:{self.credentials.password}"
+        return "Basic " + base64.b64encode(secret.encode()).decode()
+
+    def realm_refusal(self, realm: str) -> str | None:
+        """Why this registry's credentials may not go to the token ``realm``, or None."""
+        parts = urllib.parse.urlsplit(realm)
+        own_host = endpoint(realm) == endpoint(self.base)
+        if parts.scheme == "http":
+            if own_host and self.base.startswith("http://"):
+                return None  # the registry itself is plain HTTP (this machine's, or listed insecure)
+            return "plain HTTP"
+        if parts.scheme != "https":
+            return "not an https URL"
+        if own_host:
+            return None
+        listed = {(u.scheme, u.netloc.lower(), u.path) for u in map(urllib.parse.urlsplit, self.credentials.realms)}
+        if (parts.scheme, parts.netloc.lower(), parts.path) in listed:
+            return None
+        return (f"on another host ({parts.netloc}) and not listed in "
+                f"payload_registry_auths.{self.credentials.registry}.token_realms")
 
     def _authorize(self, header: str) -> bool:
         scheme, params = challenge(header)
@@ -83,6 +127,10 @@ class Registry:
             return True
         if scheme != "bearer" or "realm" not in params:
             return False
+        why = self.realm_refusal(params["realm"]) if self.credentials else None
+        if why:
+            raise RegistryError(f"{self.name}: its token realm {params['realm']} is {why}; the credentials for "
+                                f"{self.credentials.registry} are not sent there")
         query = urllib.parse.urlencode({k: v for k, v in params.items() if k in ("service", "scope")})
         request = urllib.request.Request(f"{params['realm']}?{query}")
         if self.credentials:

@@ -1,6 +1,8 @@
 """A release on the robot: the spec the deploy hands payloadctl, whether a
 release is needed, and the commands that run payloadctl on the robot (as a
-transient systemd unit, so a dropped SSH link cannot leave it half-switched)."""
+transient systemd unit, so a dropped SSH link cannot leave it half-switched)
+and read its structured result (payloadctl/results.py): what the operator
+sees of a run is said from the result, never parsed from printed lines."""
 
 from __future__ import annotations
 
@@ -12,14 +14,19 @@ import shlex
 import socket
 
 from pyinfra import host, logger
-from pyinfra.api import deploy
+from pyinfra.api import FunctionCommand, deploy
+from pyinfra.api.arguments import CONNECTOR_ARGUMENT_KEYS
+from pyinfra.api.util import format_text, print_host_combined_output
 
+from robotfleet.checks import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot
+from robotfleet.role import deployment
 import roles.payload.compose as compose
 import roles.payload.project as project
-from roles.payload.payloadctl import lock
-from roles.payload.payloadctl.spec import SETTLED, Spec
+from roles.payload.payloadctl import lock, results
+from roles.payload.payloadctl.lifecycle import SETTLED
+from roles.payload.payloadctl.spec import Spec
 from roles.payload.robot import HELPER
 
 
@@ -48,9 +55,69 @@ def operator() -> str:
 
 
 def request(data, doc: dict, checks: list) -> str:
-    """What `payloadctl apply` reads: the spec and who asks."""
-    run = {"by": f"{operator()} (pyinfra)", "force": bool(data.payload_force), "host": host.name}
+    """What `payloadctl apply` reads: the spec, who asks, the deployment
+    that asks (named in the result) and the apply lock's token of the run
+    this deploy is part of (payload_lock_token: sent on stdin, never shown)."""
+    run = {"by": f"{operator()} (pyinfra)", "force": bool(data.payload_force), "host": host.name,
+           "deployment": deployment()}
+    if data.payload_lock_token:
+        run["lock_token"] = data.payload_lock_token
     return json.dumps({"spec": spec(data, doc, checks).to_dict(), "run": run}, sort_keys=True)
+
+
+def read_result(lines) -> dict | None:
+    """payloadctl's structured result among a command's output lines (the
+    last JSON line of its format), or None (pure)."""
+    for line in reversed(list(lines)):
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        try:
+            found = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(found, dict) and found.get("payloadctl") == results.FORMAT and isinstance(found.get("ok"), bool):
+            return found
+    return None
+
+
+def said(result: dict) -> list[tuple[str, str]]:
+    """What the operator is told of a result (pure): (level, one line)
+    each container it stopped and why, then its line if it is not ok."""
+    lines = []
+    for c in result.get("taken_over") or ():
+        if isinstance(c, dict):
+            where = f"compose project {c.get('project')}, " if c.get("project") else ""
+            lines.append(("warning", f"payload: stopped {c.get('name')} ({where}{c.get('image')}): {c.get('why')}"))
+    if not result["ok"]:
+        lines.append(("error", str(result.get("message") or result.get("reason") or "payload: failed")))
+    return [(level, one_line(text)) for level, text in lines]
+
+
+def payloadctl_command(script: str, stdin: list[str] | None = None) -> FunctionCommand:
+    """``script`` (which ends in `payloadctl result`) run on the robot; its
+    structured result decides the run and what is said.  Without one (the
+    script failed before payloadctl), its own output is shown."""
+    command = operations.shell(script, stdin)
+    arguments = {key: value for key, value in (host.current_op_global_arguments or {}).items()
+                 if key in CONNECTOR_ARGUMENT_KEYS}
+    arguments.update(command.connector_arguments)
+
+    def run(state, host):
+        status, output = host.run_shell_command(command, print_output=state.print_output, **arguments)
+        result = read_result(output.stdout_lines)
+        if result is None:
+            if status is False and not state.print_output:
+                print_host_combined_output(host, output)
+            return status
+        for level, text in said(result):
+            if level == "error":
+                logger.error(f"{host.print_prefix}{format_text(text, 'red')}")
+            else:
+                logger.warning(f"[{host.name}] {text}")
+        return bool(status) and result["ok"]
+
+    return FunctionCommand(run, (), {})
 
 
 def current_record(snap: Snapshot) -> dict:
@@ -151,22 +218,33 @@ def release(data, document: dict, checks: list, needed: bool, restart: bool):
         host.noop("payload release is current")
         return
     run_id = new_run_id()
-    yield operations.shell(apply_script(data, restart, run_id), stdin=request(data, document, checks).splitlines())
+    yield payloadctl_command(apply_script(data, restart, run_id), stdin=request(data, document, checks).splitlines())
 
 
 def rollback_script(data, run_id: str) -> str:
     """The previous release comes back with its own spec (payloadctl reads
-    it from the release); only who asks and the override are this run's."""
+    it from the release); only who asks, the override and the lock token
+    (on stdin, into the run's own 0600 file) are this run's."""
     q = shlex.quote
     arguments = f"--dir {q(data.payload_dir)} --by {q(operator() + ' (pyinfra rollback)')}"
     arguments += " --force" if data.payload_force else ""
+    token_file = "lock-token" if data.payload_lock_token else None
+    if token_file:
+        arguments += f" --lock-token-file {q(run_path(data, run_id) + '/' + token_file)}"
     prelude = (
         f"[ -x {HELPER} ] || {{ echo 'payload: no releases on this host (never deployed)' >&2; exit 1; }}\n"
-        + staging_prelude(data, run_id, "result directory of this rollback")
+        + staging_prelude(data, run_id, "result directory of this rollback", token_file)
     )
     return on_robot(data, "rollback", arguments, run_id, prelude)
 
 
+@operations.operation(is_idempotent=False)
+def switch_back(data):
+    """Run `payloadctl rollback` on the robot and read its result."""
+    stdin = [data.payload_lock_token] if data.payload_lock_token else None
+    yield payloadctl_command(rollback_script(data, new_run_id()), stdin=stdin)
+
+
 @deploy("Rollback")
 def rollback_release(data):
-    operations.run(name="Switch the payload back to the previous release", script=rollback_script(data, new_run_id()))
+    switch_back(name="Switch the payload back to the previous release", data=data)

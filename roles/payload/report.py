@@ -7,8 +7,11 @@ from __future__ import annotations
 import json
 import shlex
 
-from robotfleet.role import RolloutPart, StatusPart
-import roles.payload.services as services
+import datetime
+
+from robotfleet.checks import one_line
+from robotfleet.role import Metric, RolloutPart, StatusPart
+import roles.payload.digests as digests
 from roles.payload.robot import HELPER
 
 
@@ -41,7 +44,25 @@ def cells(output: str) -> dict:
         "rolled_back_from": current.get("rolled_back_from"),
         **per_service(report.get("services") or {}),
         "image_refs": sorted(current.get("images") or {}),
+        "result": last_result(report.get("result")),
     }
+
+
+def last_result(result) -> dict | None:
+    """payloadctl's structured result of the robot's last apply or rollback
+    (format 1), as status --json shows it and a rollout reads it."""
+    if not isinstance(result, dict) or result.get("payloadctl") != 1 or not isinstance(result.get("ok"), bool):
+        return None
+    return result
+
+
+def result(row: dict, deployment: str) -> tuple[bool, str] | None:
+    """The payload's result of the deploy named ``deployment`` on this host
+    (None: its last result is another deploy's, or it has none)."""
+    found = row.get("result") or {}
+    if not deployment or found.get("deployment") != deployment:
+        return None
+    return found["ok"], one_line(str(found.get("message") or found.get("reason") or found.get("outcome")))
 
 
 def per_service(states: dict) -> dict:
@@ -59,8 +80,9 @@ def per_service(states: dict) -> dict:
 
 
 def target(data) -> list[str]:
-    """What a rollout waits for: every image of the host's compose project."""
-    return sorted(services.images(data))
+    """What a rollout waits for: every image of the host's compose project,
+    as it runs (by a release's digest where it is given pins)."""
+    return sorted(digests.images(data))
 
 
 def missing(row: dict, wanted: list[str]) -> str | None:
@@ -80,13 +102,39 @@ def missing(row: dict, wanted: list[str]) -> str | None:
     state = row.get("release_state")
     if state == "staged":
         return None
-    health = (row.get("health") or "").split(", ")
-    states = (row.get("state") or "").split(", ")
-    healthy = all(s.rsplit(":", 1)[-1] == "running" for s in states) and all(
-        h.rsplit(":", 1)[-1] in ("healthy", "none") for h in health)
-    if state == "active" and healthy:
+    if state == "active" and healthy(row):
         return None
     return f"release {row.get('release')} is {state}, containers {row.get('state')}/{row.get('health')}"
+
+
+def healthy(row: dict) -> bool:
+    """Every container of the release running, healthy (or without a health check)."""
+    health = (row.get("health") or "").split(", ")
+    states = (row.get("state") or "").split(", ")
+    return all(s.rsplit(":", 1)[-1] == "running" for s in states) and all(
+        h.rsplit(":", 1)[-1] in ("healthy", "none") for h in health)
+
+
+def metrics(row: dict) -> list[Metric]:
+    """The payload's gauges for robotfleet status --metrics."""
+    found = []
+    if row.get("release"):
+        found.append(Metric("payload_release_info", "The payload release the host runs, its state and the previous one.",
+                            1, (("release", row["release"]), ("state", row.get("release_state") or ""),
+                                ("previous", row.get("previous") or ""))))
+    if row.get("state"):
+        found.append(Metric("payload_healthy", "1 every payload container runs healthy (or has no health check), "
+                                               "0 not.", 1 if healthy(row) else 0))
+        found.append(Metric("payload_restarts", "Restarts of the payload's containers.", row.get("restarts") or 0))
+    deployed = row.get("deployed")
+    try:
+        when = datetime.datetime.fromisoformat(str(deployed).replace("Z", "+00:00")) if deployed else None
+    except ValueError:
+        when = None
+    if when is not None:
+        found.append(Metric("payload_last_change_timestamp_seconds", "When the payload's current release was "
+                            "activated or rolled back to (Unix time).", when.timestamp()))
+    return found
 
 
 STATUS = StatusPart(
@@ -95,5 +143,6 @@ STATUS = StatusPart(
     columns=(("release", "RELEASE"), ("image", "IMAGE"), ("state", "STATE"), ("health", "HEALTH"),
              ("previous", "PREVIOUS"), ("deployed", "LAST DEPLOY"), ("lock", "LOCK")),
     order=20,
+    metrics=metrics,
 )
-ROLLOUT = RolloutPart(target=target, missing=missing)
+ROLLOUT = RolloutPart(target=target, missing=missing, result=result)

@@ -8,6 +8,8 @@ import re
 from robotfleet import checks as c
 from robotfleet import values as v
 from robotfleet.role import Setting
+import roles.payload.credentials as credentials
+import roles.payload.digests as digests
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets
@@ -88,6 +90,33 @@ payload_services = c.with_schema(
 )
 _env_name = c.string(c.ENV_NAME, "an environment variable name")
 
+
+def lock_token(value):
+    """A token `payloadctl hold` made (64 hex digits); a wrong one is
+    refused without being shown."""
+    if isinstance(value, str) and re.fullmatch(r"[0-9a-f]{32,128}", value):
+        return []
+    return [("", "expected the token payloadctl hold wrote (hex digits); the value is not shown")]
+
+
+c.with_schema(lock_token, {"type": "string", "pattern": "^[0-9a-f]{32,128}$",
+                           "description": "a token payloadctl hold wrote (set by the pull agent, never by hand)"})
+
+digest = c.string(digests.DIGEST, "a digest: sha256: and 64 lowercase hex digits")
+_pins = c.mapping_of(image, digest)
+
+
+def image_pins(value):
+    """A mapping image -> digest (pyinfra's --data turns JSON text into one;
+    text that is not valid JSON arrives as a string)."""
+    if isinstance(value, str):
+        return [("", f"expected a mapping image -> digest, got {c.shown(value)}; on --data give JSON text: "
+                     "payload_image_pins='{\"reg/ros/payload:1.1\": \"sha256:...\"}'")]
+    return _pins(value)
+
+
+c.with_schema(image_pins, _pins.schema)
+
 SETTINGS = (
     Setting("payload_image", None, c.optional(image), "The ROS payload image, pinned by tag or digest."),
     Setting("payload_allow_latest", False, c.boolean, "Allow the moving tag 'latest'."),
@@ -127,10 +156,17 @@ SETTINGS = (
     Setting("payload_lock_file", "/run/robot-payload/update.lock", v.private_path,
             "While this file exists on the robot, updates are refused unless forced."),
     Setting("payload_force", False, c.boolean, "Update although the update lock is held."),
+    Setting("payload_lock_token", None, c.optional(lock_token),
+            "The apply lock's token of the run this deploy is part of (payloadctl hold); never printed."),
+    Setting(digests.SETTING, {}, image_pins,
+            "Image -> the digest it runs by; normally set by the pull agent from a signed release, not by hand."),
     Setting("payload_registry_username_env", "PAYLOAD_REGISTRY_USERNAME", _env_name,
             "Environment variable (on this machine) holding the registry user; never stored, never printed."),
     Setting("payload_registry_password_env", "PAYLOAD_REGISTRY_PASSWORD", _env_name,
             "Environment variable (on this machine) holding the registry password or token."),
+    Setting("payload_registry_auths", {}, credentials.auths,
+            "Credentials per registry (as Docker's auths): registry -> username_env/username_file, "
+            "password_env/password_file (files outside the checkout), token_realms; each goes to its registry only."),
     Setting("payload_services", {}, payload_services,
             "Several services instead of payload_image: name -> a Compose service; layers merge per service and key.",
             merge=services.merge_values),
@@ -196,6 +232,10 @@ def _rules(usable: dict, refused: frozenset) -> list[c.Problem]:
             if why:
                 found.append(("payload_image", why))
         found += problems.host_problems(usable, DEFAULTS)
+    if not refused & {"payload_image", "payload_services", "payload_delivery", digests.SETTING}:
+        found += digests.problems(usable)
+    if "payload_registry_auths" not in refused:
+        found += credentials.files_in_checkout(usable.get("payload_registry_auths"))
     if usable.get("ros_master_uri") and usable.get("ros_domain_id"):
         found.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
     return found

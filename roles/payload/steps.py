@@ -4,7 +4,6 @@ fleet file says."""
 
 from __future__ import annotations
 
-import os
 import shlex
 
 from pyinfra import host
@@ -17,6 +16,7 @@ from robotfleet.role import Play
 import roles.docker.hooks as docker_hooks
 import roles.payload.compose as compose
 import roles.payload.containers as containers
+import roles.payload.credentials as credentials
 import roles.payload.hooks as hooks
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.login as login
@@ -35,12 +35,32 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.probes[containers.PROBE] = containers.probe(data.payload_name, foreign=data.payload_autostart)
     query.probes["payload_lock"] = release.lock_probe(data.payload_dir)
     query.probes["registry_auth"] = login.registry_probe(imageref.parse(project.primary_image(data)).registry)
+    if data.payload_delivery == "pull":
+        for registry in other_registries_with_credentials(data):
+            query.probes[login_probe(registry)] = login.registry_probe(registry)
     project.declare_reads(data, query)
     if data.payload_delivery == "push":
         query.probes["payload_image_id"] = (
             f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(project.primary_image(data))}"
         )
         query.probes["docker_layers"] = push.LAYERS_PROBE
+
+
+def other_registries_with_credentials(data) -> list[str]:
+    """The registries besides the primary's that the payload's images come
+    from and payload_registry_auths gives credentials for."""
+    configured = credentials.entries(data)
+    return [r for r in credentials.registries(data)[1:] if r in configured]
+
+
+def login_probe(registry: str) -> str:
+    return f"registry_auth {registry}"
+
+
+def read_credentials(data) -> dict:
+    """registry -> its own Credentials (or None) for every registry the
+    payload's images come from; CredentialError if a configured one is unreadable."""
+    return {registry: credentials.lookup(data, registry) for registry in credentials.registries(data)}
 
 
 def unit_devices(additions: list[dict]) -> list[str]:
@@ -62,6 +82,11 @@ def deploy_payload(play: Play):
     refused = project.platform_refusal(host.name, snap.arch, services.platforms(data))
     if refused:
         operations.fail(name="Check the payload's platform against the robot's", message=refused)
+        return
+    try:
+        auths = read_credentials(data)
+    except credentials.CredentialError as error:
+        operations.fail(name="Read the registry credentials", message=f"payload: {error}")
         return
     address = data.get("ssh_hostname") or host.name
     additions = play.added(hooks.SERVICES, services.declared(data))
@@ -101,31 +126,34 @@ def deploy_payload(play: Play):
             _if=removed.did_change,
         )
 
-    username = os.environ.get(data.payload_registry_username_env)
-    password = os.environ.get(data.payload_registry_password_env)
-    if data.payload_delivery == "pull" and username and password:
-        login.registry_login(
-            name="Log in to the payload registry",
-            registry=imageref.parse(project.primary_image(data)).registry,
-            username=username,
-            password=password,
-            stored=snap.probes.get("registry_auth", ""),
-        )
+    primary = imageref.parse(project.primary_image(data)).registry
+    if data.payload_delivery == "pull":
+        # Each registry's own credentials, to that registry only.
+        for registry, own in auths.items():
+            if own is None:
+                continue
+            first = registry == credentials.registry_key(primary)
+            login.registry_login(
+                name="Log in to the payload registry" if first else f"Log in to the registry {registry}",
+                registry=primary if first else registry,
+                username=own.username,
+                password=own.password,
+                stored=snap.probes.get("registry_auth" if first else login_probe(registry), ""),
+            )
     if data.payload_delivery == "push":
-        credentials = (username, password) if username and password else None
         push.push_image(
             name="Send the payload image over SSH",
             image=project.primary_image(data),
             remote_id=snap.probes.get("payload_image_id", "").strip(),
             remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
             log_dir=data.payload_dir,
-            **project.push_target(data, snap, credentials),
+            **project.push_target(data, snap, auths.get(credentials.registry_key(primary))),
         )
-        project.push_more_images(data, snap, credentials)
+        project.push_more_images(data, snap, auths)
 
     project.install_files(data, snap)
     release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))
-    taken_over = project.takeover(data, snap)  # said in the output, done by payloadctl
+    taken_over = project.takeover(data, snap, release.current_record(snap))  # said in the output, done by payloadctl
     needed = release.release_needed(
         release.current_record(snap),
         compose.spec_hash(doc, data.payload_autostart),

@@ -4,7 +4,7 @@ gets which device (added through the payload role's hook)."""
 from __future__ import annotations
 
 from robotfleet import checks as c
-import roles.payload.services as payload_services
+import roles.payload.hooks as payload_hooks
 import roles.udev.rules as rules
 
 
@@ -32,12 +32,9 @@ def devices_for(data, services: dict[str, dict]) -> dict:
 def problems(data: dict, refused: frozenset) -> list[c.Problem]:
     """Sensors that name a service the payload does not have, or that no
     service of a several-service payload would get."""
-    if {"sensors", "payload_services", "payload_image"} & refused:
+    if "sensors" in refused:
         return []
-    raw = data.get("payload_services") or {}
-    if raw and data.get("payload_image"):
-        return []  # the payload role says which of the two to drop
-    services = payload_services.declared(data)
+    services = payload_hooks.declared_services(data, refused)
     if not services:
         return []
     found = []
@@ -50,7 +47,7 @@ def problems(data: dict, refused: frozenset) -> list[c.Problem]:
             if name not in services:
                 found.append((f"sensors[{index}].services", f"no service called {name!r} "
                               f"(services: {', '.join(services)})"))
-        if not named and raw and len(services) > 1 and not asking:
+        if not named and len(services) > 1 and not asking:
             found.append((f"sensors[{index}]", "name the service(s) that use it (services: [...]); "
                           "no service asks for devices"))
     return found

@@ -14,12 +14,13 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.fixtures import PYINFRA, ROOT  # noqa: F401 (the e2e modules import them from here)
+
 PREFIX = os.environ.get("ROBOT_LAB_E2E_PREFIX", "e2e")
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
 
 ARM64_MODULE = "test_arm64.py"
+PULL_MODULE = "test_pull.py"
 
 
 def pytest_collection_modifyitems(items):
@@ -29,7 +30,9 @@ def pytest_collection_modifyitems(items):
     # The emulated arm64 robot is the slowest host to build: its module runs
     # last, and its image is built (when its recipe changed) in the
     # background while the other modules run (see `lab`).
-    items.sort(key=lambda item: item.fspath.basename == ARM64_MODULE)
+    # The pull module turns the robots' sshd off while it runs (it turns it
+    # back on at its end): it runs after the others, before arm64's.
+    items.sort(key=lambda item: (item.fspath.basename == ARM64_MODULE, item.fspath.basename == PULL_MODULE))
 
 
 class Background:
@@ -175,7 +178,9 @@ def lab(request):
 
     started = time.monotonic()
     hosts.down(PREFIX)  # fresh hosts every session, whatever an earlier run left
-    state = hosts.up(PREFIX, robots=3, laptops=1)
+    # The git server pull mode needs, only when its module runs (tests/e2e/test_pull.py).
+    git_server = any(item.fspath.basename == PULL_MODULE for item in request.session.items)
+    state = hosts.up(PREFIX, robots=3, laptops=1, git_server=git_server)
     phase("lab up (images, services, hosts)", started)
     if any(item.fspath.basename == ARM64_MODULE for item in request.session.items):
         from tests.lab import hostimage
@@ -185,6 +190,24 @@ def lab(request):
     yield Lab(state)
     if not os.environ.get("ROBOT_LAB_KEEP"):
         hosts.down(PREFIX)
+
+
+def one_robot_lab(name: str):
+    """A lab of one robot beside the session's, prefix ``<PREFIX>-<name>``:
+    for a module that changes the robot's SSH side (its host keys, its
+    sshd's certificate) or needs a robot nobody provisioned.  The session's
+    lab is never taken down or changed by it, whatever order modules run in.
+    A generator for a module-scoped fixture."""
+    from tests.lab import hosts
+
+    prefix = f"{PREFIX}-{name}"
+    started = time.monotonic()
+    hosts.down(prefix)
+    state = hosts.up(prefix, robots=1, laptops=0)
+    phase(f"lab {prefix} up (one robot)", started)
+    yield Lab(state)
+    if not os.environ.get("ROBOT_LAB_KEEP"):
+        hosts.down(prefix)
 
 
 @pytest.fixture(scope="session")

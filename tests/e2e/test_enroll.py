@@ -18,7 +18,7 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PREFIX, PYINFRA, ROOT, Lab, phase
+from tests.e2e.conftest import PYINFRA, ROOT, one_robot_lab, phase
 
 pytestmark = pytest.mark.e2e
 
@@ -31,16 +31,8 @@ def fingerprint(line: str) -> str:
 
 @pytest.fixture(scope="module")
 def lab():
-    """One robot is enough here (the session's lab has four hosts)."""
-    from tests.lab import hosts
-
-    started = time.monotonic()
-    hosts.down(PREFIX)
-    state = hosts.up(PREFIX, robots=1, laptops=0)
-    phase("lab up (one robot)", started)
-    yield Lab(state)
-    if not os.environ.get("ROBOT_LAB_KEEP"):
-        hosts.down(PREFIX)
+    """One robot nobody enrolled, whose host key the test changes (a lab of its own)."""
+    yield from one_robot_lab("enroll")
 
 
 @pytest.fixture
@@ -94,6 +86,8 @@ def test_from_an_empty_known_hosts_to_a_first_deploy_then_a_changed_key_is_refus
     assert status.returncode == 0, status.stderr
     (row,) = json.loads(status.stdout)
     assert row["reachable"] and row["health"] == "healthy", row
+    # daemon.json may hold proxy credentials: root's alone (issue 27, item 7).
+    assert lab.ok("robot1", "stat -c %a:%U:%G /etc/docker/daemon.json").strip() == "600:root:root"
 
     # 4. The robot gets a new host key: enroll and the deploy refuse it, the file stays as it was.
     before = first_contact.known_hosts.read_text()
@@ -111,3 +105,17 @@ def test_from_an_empty_known_hosts_to_a_first_deploy_then_a_changed_key_is_refus
     assert f"[robot1] host key CHANGED: {first_contact.known_hosts} has {old_print} for {entry}, " \
            f"the host offers {new_print}; refused" in changed.stderr
     assert first_contact.known_hosts.read_text() == before
+
+    # 5. The robot was reflashed: with its new fingerprint recorded, --replace
+    #    takes the new key and says what it replaced (issue 28, item 9).
+    kind = lines[0].split()[1]
+    fingerprints.write_text(f"robot1 {new_print}\n")
+    replaced = first_contact("enroll --replace robot1", "-m", "robotfleet", "enroll", "inventories/lab.py", "--replace",
+                             "robot1", "--fingerprints", str(fingerprints), timeout=120)
+    assert replaced.returncode == 0, replaced.stderr
+    assert (f"robot1 ({entry}): host key replaced: was {kind} {old_print}, now {kind} {new_print} "
+            f"(matches {fingerprints})") in replaced.stderr
+    assert first_contact.known_hosts.read_text().splitlines() == [f"{entry} {new_key.split()[0]} {new_key.split()[1]}"]
+    again = first_contact("status after the replace", "-m", "robotfleet", "status", "inventories/lab.py", "--limit",
+                          "robot1", "--json", timeout=120)
+    assert again.returncode == 0, again.stderr

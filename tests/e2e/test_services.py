@@ -205,7 +205,9 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     assert foreign_state(lab, "robot3") == ("running", "always")
     assert running_payloads(lab, "robot3") == ["ros_payload"]
 
-    good = fleet('    payload_image: "@registry@/ros/payload:1.1"\n')
+    # robot2's old setup was a compose project: taken over only because payload_replaces names it (issue 27.2).
+    good = fleet('    payload_image: "@registry@/ros/payload:1.1"\n', **{
+        "    robot2:\n      sensors:": '    robot2:\n      payload_replaces: ["project:rosapp"]\n      sensors:'})
     run = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover robot2, robot3)")
     assert run.returncode == 0, run.output[-4000:]
     assert ("[robot3] payload: taking over what runs the payload another way (stopped, restart policy no): "
@@ -218,6 +220,9 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
         taken = lab.record(host)["taken_over"]
         assert [(c["name"], c["restart"], c["running"]) for c in taken] == [("ros_payload", "always", True)]
     assert lab.record("robot2")["taken_over"][0]["project"] == "rosapp"
+    assert lab.record("robot2")["taken_over"][0]["why"] == "payload_replaces names its compose project"
+    assert ("[robot3] payload: stopped ros_payload (" + lab.state["registry"] + "/ros/payload:1.0): "
+            "it runs the payload's image") in run.output  # what payloadctl stopped, from its result
     # A rerun changes nothing on robot2; on robot3 a copy started by hand
     # since then (the project already running there) is taken over too.
     lab.ok("robot3", f"docker run -d --restart unless-stopped --name ros_payload_copy {lab.state['registry']}/ros/payload:1.0")
@@ -245,3 +250,49 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     assert running_payloads(lab, "robot3") == [f"{PROJECT}-payload-1"]
     assert foreign_state(lab, "robot3") == ("exited", "no")
     assert foreign_state(lab, "robot3", "ros_payload_copy") == ("exited", "no")
+
+
+HOMEAUTO_COMPOSE = """\
+services:
+  bridge:
+    image: {registry}/ros/payload:1.0
+    restart: always
+    network_mode: host
+"""
+
+
+def homeauto(lab, host: str) -> tuple[str, str]:
+    """State and restart policy of the other project's container."""
+    ids = lab.ok(host, "docker ps -aq --filter label=com.docker.compose.project=homeauto").split()
+    assert len(ids) == 1, ids
+    c = json.loads(lab.ok(host, f"docker inspect {ids[0]}"))[0]
+    return c["State"]["Status"], c["HostConfig"]["RestartPolicy"]["Name"]
+
+
+def test_another_compose_project_of_the_payload_image_is_never_taken_over(lab, fleet):
+    """Compose project homeauto runs the payload's own image repository on
+    robot1: the first release, an update and a rollback never stop it nor
+    touch its restart policy (issue 27, item 2: an update used to)."""
+    host = "robot1"
+    lab.ok(host, "systemctl disable --now robot-payload.service && rm -f /etc/systemd/system/robot-payload.service"
+                 " && systemctl daemon-reload && rm -rf /var/lib/robot-payload")
+    lab.ok(host, "docker ps -aq --filter label=com.docker.compose.project=robot-payload | xargs -r docker rm -f")
+    lab.ok(host, "mkdir -p /opt/homeauto && cat > /opt/homeauto/compose.yaml <<'EOF'\n"
+                 + HOMEAUTO_COMPOSE.format(registry=lab.state["registry"]) + "EOF\n"
+                 "docker compose -p homeauto -f /opt/homeauto/compose.yaml up -d")
+    try:
+        assert homeauto(lab, host) == ("running", "always")
+        for label, tag in (("first release", "1.0"), ("update", "1.1")):
+            run = lab.provision(*limits(host), fleet=fleet(f'    payload_image: "@registry@/ros/payload:{tag}"\n'),
+                                label=f"({host} {label} beside homeauto)")
+            assert run.returncode == 0, run.output[-4000:]
+            assert "taking over" not in run.output and "homeauto" not in run.output, run.output[-3000:]
+            assert homeauto(lab, host) == ("running", "always"), label
+            assert lab.version(host) == tag and lab.record(host)["state"] == "active"
+        back = lab.provision(*limits(host), script="rollback.py", label=f"({host} rollback beside homeauto)")
+        assert back.returncode == 0, back.output[-4000:]
+        assert lab.version(host) == "1.0" and homeauto(lab, host) == ("running", "always")
+    finally:
+        lab.ok(host, "docker compose -p homeauto -f /opt/homeauto/compose.yaml down && rm -rf /opt/homeauto")
+    run = lab.provision(*limits(host), label=f"({host} back on the lab fleet)")
+    assert run.returncode == 0, run.output[-3000:]

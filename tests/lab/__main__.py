@@ -1,4 +1,4 @@
-"""python3 -m tests.lab up|down|reset|status [--prefix lab] [--robots 3] [--laptops 1] [--arm64-robots 0]
+"""python3 -m tests.lab up|down|reset|status [--prefix lab] [--robots 3] [--laptops 1] [--arm64-robots 0] [--git-server]
 
 `engine` only makes sure a Docker engine answers (starting dockerd if it may).
 """
@@ -37,6 +37,9 @@ def _parser() -> argparse.ArgumentParser:
                                  help=f"number of laptops (default: {same or 1})")
             command.add_argument("--arm64-robots", type=int, metavar="N",
                                  help=f"emulated arm64 robots pi1..N (default: {same or 0})")
+            command.add_argument("--git-server", action="store_true", default=None,
+                                 help="also the git server pull mode uses (gitolite3; "
+                                      + ("default: the previous lab's)" if name == "reset" else "kept once started)"))
             command.add_argument("--sensor", action="append", metavar="NAME",
                                  help="fake sensor on every robot (repeatable; default: "
                                       "the sensors inventories/lab.yaml declares)")
@@ -49,9 +52,9 @@ def main(argv: list[str]) -> int:
         if args.command == "up":
             hosts.up(args.prefix, 3 if args.robots is None else args.robots,
                      1 if args.laptops is None else args.laptops, args.sensor,
-                     arm64_robots=args.arm64_robots or 0)
+                     arm64_robots=args.arm64_robots or 0, git_server=bool(args.git_server))
         elif args.command == "reset":
-            hosts.reset(args.prefix, args.robots, args.laptops, args.sensor, args.arm64_robots)
+            hosts.reset(args.prefix, args.robots, args.laptops, args.sensor, args.arm64_robots, args.git_server)
         elif args.command == "demo":
             from .demo import demo
 

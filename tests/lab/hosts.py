@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import paramiko
 import yaml
 
-from . import hostimage, services, state
+from . import gitserver, hostimage, services, state
 from .engine import (REPO_ROOT, LabError, client, get_or_none, pick_free_port,
                      published_ports, put_files, timed_phase)
 
@@ -99,12 +99,15 @@ def _raise_inotify_instances() -> None:
 
 
 def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
-       sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int = 0) -> dict:
+       sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int = 0,
+       git_server: bool = False) -> dict:
     """Start (or reuse) a lab and write its state.json; returns the state.
 
     `sensors`: names per robot, or one list for every robot; default: what
     inventories/lab.yaml declares.  `arm64_robots`: emulated arm64 robots
-    pi1..N (qemu-user, tests/lab/emulation.py).
+    pi1..N (qemu-user, tests/lab/emulation.py).  `git_server`: also the
+    git server pull mode uses (tests/lab/gitserver.py); a lab that has one
+    keeps it.
     """
     check_prefix(prefix)
     wanted = plan_hosts(robots, laptops, arm64_robots)
@@ -168,9 +171,24 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
         "mirror_url": f"http://{services_host}:{services.STATIC_PORT}/linux",
         "mirror_dir": str(mirror_dir),
     }
+    if git_server or _has_git_server(dc, prefix):
+        lab["git"] = gitserver.ensure(dc, prefix, key_path)
     path = state.save(lab)
     print(f"lab: '{prefix}' is up: {len(started)} hosts; state in {path}")
     return lab
+
+
+def add_git_server(prefix: str) -> dict:
+    """Start the git server beside a running lab (idempotent); returns the
+    lab's state, which now names it under "git"."""
+    lab = state.load(prefix)
+    lab["git"] = gitserver.ensure(client(), prefix, Path(lab["ssh_key"]))
+    state.save(lab)
+    return lab
+
+
+def _has_git_server(dc, prefix: str) -> bool:
+    return get_or_none(dc.containers, gitserver.container_name(prefix)) is not None
 
 
 def down(prefix: str = "lab") -> None:
@@ -184,20 +202,23 @@ def down(prefix: str = "lab") -> None:
     for volume in dc.volumes.list(filters=label):
         volume.remove(force=True)
     state.forget(prefix)
-    (state.lab_dir(prefix) / "known_hosts").unlink(missing_ok=True)
+    for name in ("known_hosts", "git_known_hosts"):
+        (state.lab_dir(prefix) / name).unlink(missing_ok=True)
     print(f"lab: '{prefix}' is down")
 
 
 def reset(prefix: str = "lab", robots: int | None = None, laptops: int | None = None,
-          sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int | None = None) -> dict:
-    """Down then up with fresh hosts; sizes default to the previous lab's."""
+          sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int | None = None,
+          git_server: bool | None = None) -> dict:
+    """Down then up with fresh hosts; sizes (and the git server) default to the previous lab's."""
     previous = _previous_sizes(prefix)
     down(prefix)
     return up(prefix,
               robots if robots is not None else previous.get("robots", 3),
               laptops if laptops is not None else previous.get("laptops", 1),
               sensors,
-              arm64_robots if arm64_robots is not None else previous.get("arm64_robots", 0))
+              arm64_robots if arm64_robots is not None else previous.get("arm64_robots", 0),
+              git_server if git_server is not None else bool(previous.get("git_server")))
 
 
 def status(prefix: str = "lab") -> list[str]:
@@ -215,6 +236,9 @@ def status(prefix: str = "lab") -> list[str]:
             port = c.labels.get("robot-lab.registry-port")
             lines.append(f"{c.name:<24} {c.status:<9} registry 127.0.0.1:{port}")
             continue
+        if c.labels.get("robot-lab.role") == "git":
+            lines.append(f"{c.name:<24} {c.status:<9} git (gitolite3) ssh 127.0.0.1:{c.labels['robot-lab.ssh-port']}")
+            continue
         port = int(c.labels["robot-lab.ssh-port"])
         reachable = c.status == "running" and _ssh_login_error(port, key_path, known_hosts) is None
         lines.append(f"{c.name:<24} {c.status:<9} ssh 127.0.0.1:{port:<6} "
@@ -224,12 +248,14 @@ def status(prefix: str = "lab") -> list[str]:
 
 def _previous_sizes(prefix: str) -> dict[str, int]:
     try:
-        hosts = state.load(prefix)["hosts"]
+        previous = state.load(prefix)
     except LabError:
         return {}
+    hosts = previous["hosts"]
     native = [h for h in hosts if h.get("arch", hostimage.NATIVE_ARCH) == hostimage.NATIVE_ARCH]
     sizes = {group: sum(h["group"] == group for h in native) for group in GROUP_PREFIXES}
     sizes["arm64_robots"] = len(hosts) - len(native)
+    sizes["git_server"] = int("git" in previous)
     return sizes
 
 

@@ -2,7 +2,8 @@
 
 Keys (read by inventories/lab.py): prefix, ssh_key, known_hosts, ssh_user,
 hosts [{name, group, arch, container, port}], services_host, apt_proxy, registry,
-registry_local, mirror_url, mirror_dir.
+registry_local, mirror_url, mirror_dir; and "git" when the lab has its git
+server {container, host, port, user, repo, known_hosts, host_keys}.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ STATE_KEYS = (
     "prefix", "ssh_key", "known_hosts", "ssh_user", "hosts", "services_host",
     "apt_proxy", "registry", "registry_local", "mirror_url", "mirror_dir",
 )
+# Only in a lab started with its git server (tests/lab/gitserver.py).
+OPTIONAL_KEYS = ("git",)
 HOST_KEYS = ("name", "group", "arch", "container", "port")
 
 
@@ -34,7 +37,7 @@ def state_path(prefix: str, root: Path = LAB_DIR) -> Path:
 
 def save(state: dict, root: Path = LAB_DIR) -> Path:
     missing = [k for k in STATE_KEYS if k not in state]
-    extra = [k for k in state if k not in STATE_KEYS]
+    extra = [k for k in state if k not in STATE_KEYS + OPTIONAL_KEYS]
     if missing or extra:
         raise ValueError(f"lab state keys: missing {missing}, unexpected {extra}")
     path = state_path(state["prefix"], root)

@@ -1,35 +1,25 @@
-"""Fixtures for the lab's unit tests.
+"""The unit layer is pure: a test here that starts a process or opens a
+socket fails and names where it belongs (tests/integration/)."""
 
-The lab modules import docker (and so ssl); importing them at collection
-time, before pyinfra's gevent patches ssl in other test modules, makes gevent
-warn.  So each fixture imports its module when a test runs.
-"""
-
-import importlib
+import os
+import socket
+import subprocess
 
 import pytest
 
 
-def _lab_module(name: str):
-    @pytest.fixture(name=name)
-    def fixture():
-        return importlib.import_module(f"tests.lab.{name}")
+def _refused(what: str):
+    def refused(*args, **kwargs):
+        raise AssertionError(f"a unit test {what}: it belongs in tests/integration/")
 
-    return fixture
-
-
-engine = _lab_module("engine")
-hostimage = _lab_module("hostimage")
-hosts = _lab_module("hosts")
-services = _lab_module("services")
-state = _lab_module("state")
-emulation = _lab_module("emulation")
+    return refused
 
 
-@pytest.fixture(autouse=True, scope="session")
-def _no_gpg_agent_left_running(tmp_path_factory):
-    """The key tests make real keyrings; gpg starts an agent for each."""
-    yield
-    from tests import armor
-
-    armor.stop_agents(tmp_path_factory.getbasetemp())
+@pytest.fixture(autouse=True)
+def _no_process_or_socket(monkeypatch):
+    monkeypatch.setattr(subprocess.Popen, "_execute_child", _refused("starts a process"))
+    for name in ("system", "fork", "forkpty", "posix_spawn", "posix_spawnp"):
+        if hasattr(os, name):
+            monkeypatch.setattr(os, name, _refused("starts a process"))
+    for name in ("bind", "connect", "connect_ex"):
+        monkeypatch.setattr(socket.socket, name, _refused("opens a socket"))

@@ -19,7 +19,6 @@ from __future__ import annotations
 import base64
 import re
 import shlex
-from pathlib import Path
 
 import contextlib
 import importlib
@@ -41,11 +40,10 @@ from robotfleet.host import snapshot as hoststate
 from robotfleet.host.snapshot import FileState, Snapshot
 from robotfleet.role import Play, added
 from roles.payload import compose, hooks, release, services
+from tests.fixtures import IMAGE, ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 
 # Sample hosts most tests start from.
-IMAGE = "reg.example.com/ros/payload:1.0"
 ROBOT = {
     "payload_image": IMAGE,
     "docker_users": ["ops"],

@@ -3,11 +3,10 @@ groups at any depth, settings merged from every group above a host, Ansible's
 connection variables read as ours, Ansible's other variables ignored with a
 note; robots and laptops (at any depth) say which host is which."""
 
-from pathlib import Path
 
 from tests.unit.harness import fleet_problems, parse
+from tests.fixtures import ROOT
 
-ROOT = Path(__file__).resolve().parents[2]
 IMAGE = "reg.example.com/p:1"
 
 ANSIBLE = f"""

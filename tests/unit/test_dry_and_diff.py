@@ -1,5 +1,6 @@
 """`--diff` shows what each managed file would become; `--dry` names the
-reason a host will fail while planning and counts it as failed."""
+reason a host will fail while planning and counts it as failed.  pyinfra's
+own CLI does the same in tests/integration/test_dry_and_diff.py."""
 
 import logging
 
@@ -95,76 +96,6 @@ def test_a_planned_failure_still_fails_the_host_when_run():
     assert find(result["good"], "payloadctl apply")
 
 
-CLI = """
-import sys
-from pyinfra_cli.main import main
-from tests.unit.harness import _Recorder, fresh_host
-sys.argv = ["pyinfra", *sys.argv[1:]]
-with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}, {}):
-    main()
-"""
-
-
-def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
-    """The real CLI (in-process, @fake hosts answered by the harness)."""
-    import os
-    import subprocess
-    import sys
-
-    from tests.unit.harness import ROOT
-
-    host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
-    inventory = tmp_path / "fake.py"
-    inventory.write_text(f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', {host!r})]\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
-    proc = subprocess.run([sys.executable, "-c", CLI, "--dry", str(inventory), "deploy.py"],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-    output = proc.stdout + proc.stderr
-    assert proc.returncode == 1, output[-3000:]
-    planning = output.split("--> Preparing operation", 1)[1].split("--> Detected changes", 1)[0]
-    reasons = [line.strip() for line in planning.splitlines() if "ghost" in line]
-    assert reasons == [
-        "[@fake/bad]  docker_users: ghost does not exist on this host; "
-        "create the account first (users are never created by this tool)"
-    ]
-
-
-DIFF_CLI = """
-import sys
-from pyinfra_cli.main import main
-from tests.unit.harness import _Recorder
-from tests.unit.test_dry_and_diff import DAEMON_JSON, DRIFTED, drifted_robot
-sys.argv = ["pyinfra", *sys.argv[1:]]
-with _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}) as recorder:
-    try:
-        main()
-    finally:
-        print("SENT", [str(c) for c in recorder.sent["r1"]])
-"""
-
-
-def test_pyinfra_dry_diff_prints_the_drifted_file(tmp_path):
-    import os
-    import subprocess
-    import sys
-
-    from tests.unit.harness import ROOT
-
-    inventory = tmp_path / "fake.py"
-    host = {**ROBOT, "fake_delay": 0, "fake_delay_jitter": 0}
-    inventory.write_text(f"robots = [('@fake/r1', {host!r})]\n")
-    env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
-    proc = subprocess.run([sys.executable, "-c", DIFF_CLI, "--dry", "--diff", str(inventory), "deploy.py"],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
-    output = proc.stdout + proc.stderr
-    assert proc.returncode == 0, output[-3000:]
-    assert f"[@fake/r1] Will modify {DAEMON_JSON}" in output
-    assert '-  "live-restore": false' in output and '+  "live-restore": true,' in output
-    # The one thing sent besides the snapshot is the read of that file.
-    sent = [line for line in output.splitlines() if line.startswith("SENT ")]
-    assert sent == [f"SENT ['( test -e {DAEMON_JSON} && cat {DAEMON_JSON} ) || echo __pyinfra_missing_{DAEMON_JSON}']"]
-
-
 def test_diff_masks_the_passwords_in_daemon_json_on_both_sides(log):
     """daemon.json's proxies carry credentials: --diff shows where they go,
     never what they are (issue 17, item 7)."""
@@ -182,3 +113,59 @@ def test_diff_masks_the_passwords_in_daemon_json_on_both_sides(log):
 def test_masking_leaves_urls_without_a_password_alone():
     assert operations.mask_credentials('"https://mirror.lan/x" "http://u:p@h:1/" "ssh://git@host"') == (
         '"https://mirror.lan/x" "http://u:****@h:1/" "ssh://git@host"')
+
+
+# Passwords of every shape (issue 27, item 6): a quote, raw @ (URL parsers
+# take the last @), a double quote and a backslash (JSON-escaped in
+# daemon.json), non-ASCII (\u-escaped), a raw slash, percent-encoding, a space.
+HOSTILE_PASSWORDS = ["it's", "p@ss@word", 'say"hi', "back\\slash", "pässwörd", "sl/ash", "per%40cent", "sp ace"]
+
+
+@pytest.mark.parametrize("password", HOSTILE_PASSWORDS)
+def test_diff_masks_every_password_the_fleet_holds_by_value(log, password):
+    import json
+
+    from robotfleet import secrets
+
+    old_password = "0ld'p@ss"  # only on the host: masked by the URL's shape
+    old = json.dumps({"proxies": {"http-proxy": f"http://robot:{old_password}@proxy.lan:3128"}}, indent=2) + "\n"
+    snap = converged("robots", ROBOT, "debian-13")
+    snap.files[DAEMON_JSON] = _file(old)
+    data = {**ROBOT, "docker_daemon_options": {"proxies": {"http-proxy": f"http://robot:{password}@proxy.lan:3128",
+                                                           "https-proxy": f"http://robot:{password}@proxy.lan:3129"}}}
+    plan({"r1": ("robots", data, snap)}, run=False, diff=True, contents={"r1": {DAEMON_JSON: old}})
+    text = "\n".join(r.getMessage() for r in log.records)
+    assert "Will modify" in text and "proxy.lan:3129" in text
+    for secret in (password, old_password):
+        for form in secrets.forms(secret) | {secret.split("@")[-1], secret.split("/")[-1]}:
+            assert form not in text, (form, text)
+    changed = [line for line in text.splitlines() if "http-proxy" in line and line.strip()[:1] in "+-"]
+    assert len(changed) == 2 and all("http://robot:****@proxy.lan:3128" in line for line in changed), changed
+
+
+def test_the_secrets_of_a_host_are_every_url_password_and_password_value_in_its_data():
+    from robotfleet import secrets
+
+    data = {"ssh_password": "s5h-pw", "docker_daemon_options": {"proxies": {"http-proxy": "http://u:a@b@p:1"},
+                                                                "registry-mirrors": ["https://m.lan", "https://x:y'z@m2"]},
+            "payload_environment": {"DB": "postgres://app:db%2Fpw@db/app"}, "ssh_port": 22, "payload_dir": "/var/lib/p"}
+    assert secrets.held_in(data) >= {"s5h-pw", "a@b", "y'z", "db%2Fpw"}
+    assert secrets.mask("db/pw and db%2Fpw and a@b", secrets.held_in(data)) == "**** and **** and ****"
+
+
+def test_masking_by_shape_reads_the_password_as_url_parsers_do():
+    from robotfleet import secrets
+
+    assert secrets.mask('"http://u:p@ss@h:1/" "http://u:it\'s@h" "http://u:q\\"x@h"') == (
+        '"http://u:****@h:1/" "http://u:****@h" "http://u:****@h"')
+
+
+def test_diff_masks_the_registry_passwords_too(log, monkeypatch):
+    """The secrets a role holds beyond the data (Role.secrets: the registry
+    passwords read from the environment) are masked wherever they appear."""
+    monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", "robot")
+    monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", "reg-pw-7x!")
+    data = {**ROBOT, "docker_daemon_options": {"labels": ["pull-token=reg-pw-7x!"]}}
+    plan({"r1": ("robots", data, drifted_robot())}, run=False, diff=True, contents={"r1": {DAEMON_JSON: DRIFTED}})
+    text = "\n".join(r.getMessage() for r in log.records)
+    assert '"pull-token=****"' in text and "reg-pw-7x" not in text

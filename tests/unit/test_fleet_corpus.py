@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from robotfleet import CHECKOUT as ROOT
+
 from tests.unit import harness as fleet
 
 BASE = "all:\n  vars:\n    payload_image: reg.example.com/p:1\n"
@@ -88,10 +90,10 @@ CORPUS = [
     ("billion laughs in a known option", bomb("docker_daemon_options").replace("{a: *l9}", "{features: {a: *l9}}"),
      ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
     # 3. no hosts is an error, not a silent no-op
-    ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
-    ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
+    ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
+    ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
     ("hosts left empty", BASE + "robots:\n  hosts:\n",
-     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts"]),
+     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
     # 4. addresses
     ("bad IPv4", host("address: 127.0.0.300"), ["f.yaml: r1.address: '127.0.0.300' is not a valid IPv4 address"]),
     ("host:port", host("address: '10.0.0.5:2222'"),
@@ -180,6 +182,74 @@ CORPUS = [
      ["f.yaml: r1.payload_dir: '/var/./tmp//robot' is in the world-writable /var/tmp; use a directory only root can write (e.g. under /var/lib)"]),
     ("dot-dot", host("payload_dir: /var/lib/../../tmp"),
      ["f.yaml: r1.payload_dir: paths must not contain '..', got '/var/lib/../../tmp'"]),
+    # issue 27, item 1: credentials per registry, from where they are kept, never the values
+    ("registry auths from the environment and files", host(
+        "payload_registry_auths: {reg2.example.com:5000: {username_env: REG2_USER, password_file: ~/.config/robotfleet/reg2},",
+        "  docker.io: {username_file: /etc/robotfleet/hub-user, password_env: HUB_TOKEN,",
+        "              token_realms: ['https://auth.docker.io/token']}}"), []),
+    ("a password in the fleet file", host("payload_registry_auths: {reg.example.com: {username: robot, password: s3cret}}"),
+     ["f.yaml: r1.payload_registry_auths.reg.example.com.username: unknown field (did you mean 'username_env'?)",
+      "f.yaml: r1.payload_registry_auths.reg.example.com.password: unknown field (did you mean 'password_env'?)",
+      "f.yaml: r1.payload_registry_auths.reg.example.com: give one of username_env (an environment variable) or "
+      "username_file (a file outside the checkout), not the value itself",
+      "f.yaml: r1.payload_registry_auths.reg.example.com: give one of password_env (an environment variable) or "
+      "password_file (a file outside the checkout), not the value itself"]),
+    ("a relative credential file and a plain-HTTP realm", host(
+        "payload_registry_auths: {reg.example.com: {username_env: U, password_file: secrets/reg, token_realms: ['http://auth.lan/t']}}"),
+     ["f.yaml: r1.payload_registry_auths.reg.example.com.password_file: expected an absolute path (or ~/...) on this "
+      "machine, got 'secrets/reg'",
+      "f.yaml: r1.payload_registry_auths.reg.example.com.token_realms[0]: expected an https URL, got 'http://auth.lan/t'"]),
+    ("a credential file inside the checkout", host(
+        f"payload_registry_auths: {{reg.example.com: {{username_env: U, password_file: {ROOT}/inventories/reg.pw}}}}"),
+     [f"f.yaml: r1.payload_registry_auths.reg.example.com.password_file: '{ROOT}/inventories/reg.pw' is inside the "
+      f"checkout {ROOT}; keep credentials outside the repository (e.g. ~/.config/robotfleet/)"]),
+    ("a registry that is a URL", host("payload_registry_auths: {'https://reg.example.com': {username_env: U, password_env: P}}"),
+     ["f.yaml: r1.payload_registry_auths.https://reg.example.com: expected a registry host[:port], got 'https://reg.example.com'"]),
+    # issue 27, item 10: paths root creates, writes or trusts are in a place only root writes
+    *[(f"payload_dir under {place}", host(f"payload_dir: {place}/robot"),
+       [f"f.yaml: r1.payload_dir: '{place}/robot' is in {shown}, {why}; use a directory only root can write (e.g. under /var/lib)"])
+      for place, shown, why in (
+          ("/var/crash", "/var/crash", "world-writable on Ubuntu (crash reports)"),
+          ("/var/spool", "/var/spool", "holds directories others write (mail, cron, print queues)"),
+          ("/var/spool/mail", "/var/spool", "holds directories others write (mail, cron, print queues)"),
+          ("/var/mail", "/var/mail", "writable by group mail"),
+          ("/var/local", "/var/local", "writable by group staff"),
+          ("/var/metrics", "/var/metrics", "world-writable on Ubuntu"),
+          ("/home/ops", "/home", "users own their home directories"),
+          ("/media/ops", "/media", "users' removable media (mounted for them)"),
+          ("/usr/local", "/usr/local", "writable by group staff on older Debian"),
+          ("/var/lib/php/sessions", "/var/lib/php/sessions", "world-writable (1733)"),
+      )],
+    *[(f"payload_dir {place}", host(f"payload_dir: {place}"),
+       [f"f.yaml: r1.payload_dir: '{place}' is not in a place only root writes on Debian and Ubuntu (/etc, /opt, /srv, "
+        "/mnt, /root, /usr, /var/lib, /var/opt, /var/cache, /var/log, /run, /proc/driver); use a directory there "
+        "(e.g. under /var/lib)"])
+      for place in ("/data/robot", "/var/robot", "/", "/boot/p", "/proc/1/root/var/lib/p", "/dev/robot")],
+    ("lock file in /var/lock", host("payload_lock_file: /var/lock/robot"),
+     ["f.yaml: r1.payload_lock_file: '/var/lock/robot' is in the world-writable /run/lock; use a directory only root can write (e.g. under /var/lib)"]),
+    *[(f"private path under {place}", host(f"payload_dir: {place}/robot-payload", f"payload_lock_file: {place}/robot.lock",
+                                           f"x11_cookie_dir: {place}/x11"), [])
+      for place in ("/etc", "/opt", "/srv", "/mnt/ssd", "/root", "/usr/share", "/var/lib", "/var/opt", "/var/cache",
+                    "/var/log", "/run", "/var/run", "/var//lib/.")],
+    ("driver file under /proc/driver", host("gpu_driver_version_file: /proc/driver/nvidia/version"), []),
+    # issue 27, item 12: the Docker API on TCP only with TLS client verification, or opted in by name
+    *[(f"unauthenticated TCP API {listener}", host(f"docker_daemon_options: {{hosts: ['unix:///run/docker.sock', '{listener}']}}"),
+       [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS client "
+        "verification (missing: tlsverify, tlscacert, tlscert, tlskey): anyone who reaches it is root on this host; "
+        "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"])
+      for listener in ("tcp://0.0.0.0:2375", "0.0.0.0:2375", "tcp://", "tcp://127.0.0.1:2375")],
+    ("TCP API with tls but no client verification",
+     host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2376'], tls: true, tlsverify: false, tlscert: /etc/docker/c.pem, "
+          "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"),
+     ["f.yaml: r1.docker_daemon_options.hosts[0]: 'tcp://0.0.0.0:2376' opens the Docker API on TCP without TLS client "
+      "verification (missing: tlsverify): anyone who reaches it is root on this host; "
+      "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"]),
+    ("TCP API with client verification", host(
+        "docker_daemon_options: {hosts: ['fd://', 'tcp://0.0.0.0:2376'], tlsverify: true, tlscert: /etc/docker/c.pem, "
+        "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"), []),
+    ("unauthenticated TCP API opted in by name", host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2375']}",
+                                                      "docker_allow_unauthenticated_tcp: true"), []),
+    ("unix sockets only", host("docker_daemon_options: {hosts: ['unix:///run/docker.sock', 'fd://']}"), []),
     # issue 8, item 10: image tags are ASCII
     ("Unicode digit in tag", host("payload_image: 'reg.example.com/p:v\uff11'"),
      ["f.yaml: r1.payload_image: 'reg.example.com/p:v\uff11' is not a valid image reference"]),

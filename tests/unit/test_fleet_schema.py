@@ -2,17 +2,16 @@
 and never flags a fleet the checks accept."""
 
 import json
-from pathlib import Path
 
 import pytest
 
 from robotfleet.commands import generate
 from robotfleet.fleet import loader as fleetyaml
 from tests.unit import test_fleet_corpus, test_fleet_fuzz
+from tests.fixtures import ROOT
 
 jsonschema = pytest.importorskip("jsonschema")
 
-ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ROOT / "inventories" / "fleet.schema.json"
 
 

@@ -1,20 +1,19 @@
 """The gpu role: planned commands for GPU hosts (Ubuntu 22.04/24.04, Debian
 12/13, amd64/arm64, Jetson), the driver refusal, the daemon.json merge and
-the payload's GPU settings."""
+the payload's GPU settings.  The key download runs for real in
+tests/integration/test_gpu.py."""
 
 import base64
 import json
-import subprocess
 
 import pytest
 
 from robotfleet.host import aptrepo
 from roles.gpu import plan as gpu_plan
 from robotfleet.host.snapshot import FileState
-from tests import armor
+from tests.fixtures import IMAGE
 from tests.unit.harness import find, fresh_host, plan, written_files
 
-IMAGE = "reg.example.com/ros/payload:1.0"
 NVIDIA_FPR = "C95B321B61E88C1809C4F759DDCAE044F796ECB0"
 GPU_ROBOT = {"payload_image": IMAGE, "gpu": "nvidia"}
 NVRM = "NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14  Thu Feb 22 01:44:30 UTC 2024"
@@ -54,7 +53,8 @@ def converged(snap, data):
 
     for path, text in files.items():
         content = text.encode() if isinstance(text, str) else text
-        snap.files[path] = FileState("file", hashlib.sha256(content).hexdigest(), "644", "root", "root")
+        mode = "600" if path == "/etc/docker/daemon.json" else "644"  # daemon.json is root's alone
+        snap.files[path] = FileState("file", hashlib.sha256(content).hexdigest(), mode, "root", "root")
     snap.files[KEY] = FileState("file", "0" * 64, "644", "root", "root")
     return snap, first
 
@@ -201,31 +201,6 @@ def test_driver_version_from_the_nvrm_line():
     assert gpu_plan.driver_version(NVRM) == "550.54.14"
     assert gpu_plan.driver_version("NVRM version: NVIDIA UNIX Open Kernel Module for x86_64  570.86.15  Release Build") == "570.86.15"
     assert gpu_plan.driver_version("") is None
-
-
-@pytest.mark.parametrize("case", ["pinned", "other", "pinned+other"])
-def test_key_download_accepts_exactly_the_pinned_primary_key(tmp_path, case):
-    """The real script against real keys, served from file:// by curl."""
-    home = tmp_path / "gnupg"
-    pinned = armor.new_key(home, "Pinned <pinned@example.invalid>")
-    other = armor.new_key(home, "Other <other@example.invalid>")
-    exported = {"pinned": [pinned], "other": [other], "pinned+other": [pinned, other]}[case]
-    key = tmp_path / "gpgkey"
-    key.write_bytes(subprocess.run(["gpg", "--batch", "--homedir", str(home), "--armor", "--export", *exported],
-                                   check=True, capture_output=True).stdout)
-    dest = tmp_path / "keyrings" / "nvidia.asc"
-    script = aptrepo.key_script(aptrepo.Repository("NVIDIA", f"file://{key}", str(dest), pinned, "gpu_apt_key_fingerprint",
-                                                   "nvidia-container-toolkit", "", "gpu_key_fingerprints"))
-    proc = subprocess.run(["sh", "-c", script], capture_output=True, text=True)
-    if case == "pinned":
-        assert proc.returncode == 0, proc.stderr
-        assert dest.read_bytes() == key.read_bytes()
-        probe = subprocess.run(["sh", "-c", aptrepo.key_probe(str(dest), pinned)], capture_output=True, text=True)
-        assert aptrepo.installed_key(probe.stdout) == aptrepo.InstalledKey((pinned,), canonical=True)
-    else:
-        assert proc.returncode == 1
-        assert "gpu_apt_key_fingerprint" in proc.stderr and "key not installed" in proc.stderr
-        assert not dest.exists() and list(dest.parent.iterdir()) == []  # nothing left behind
 
 
 def test_gpu_payload_gets_environment_reservation_and_check_command():

@@ -5,7 +5,7 @@ places, and then it is shown to reach the host as data: the compose file
 (YAML), daemon.json (JSON) or a quoted udev match value, unchanged.
 
 On-host quoting of the accepted values (e.g. compose's $ escaping) is tested
-with the roles (tests/unit/test_onhost_security.py on the security branch);
+with the roles (tests/unit/test_onhost_plans.py, tests/integration/test_onhost_security.py);
 here the validator's half: nothing else gets through.
 """
 
@@ -61,7 +61,7 @@ BENIGN_INSIDE = {
     "in a URL": {"..", "../../etc", "/var/lib/../../tmp", "/tmp", "/var/tmp/x", "-rf", "--help", "~root"},
 }
 # Files on the operator's machine, opened there by pyinfra; never sent to a host.
-OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file"}
+OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file", "ssh_revoked_host_keys", "pull_wheelhouse", "pull_trust_root"}
 
 
 def places(name: str, value):
@@ -113,7 +113,7 @@ def reaches_host_unchanged(setting: str, place: str, value, hostile: str) -> boo
         data = {**DEFAULTS["all"], **DEFAULTS["robots"], "payload_gpu": True, setting: value}
         return gpu_plan.check_command(data)["command"] == [hostile]
     if carrier == "daemon.json":
-        return json.loads(plan.daemon_json(value, [], [])) == value
+        return json.loads(plan.daemon_json(value, {})) == value
     sensor = value[0]
     line = rules.rule(sensor)
     return f'ATTRS{{serial}}=="{hostile}"' in rules._split_items(line) or (

@@ -64,3 +64,17 @@ def test_engine_is_not_started_when_we_may_not(engine, monkeypatch):
     assert engine._why_we_cannot_start_dockerd() == "not root"
     monkeypatch.setenv("DOCKER_HOST", "tcp://127.0.0.1:1")
     assert "does not answer" in engine._why_we_cannot_start_dockerd()
+
+
+def test_no_e2e_module_but_the_session_fixture_takes_the_session_lab_up_or_down():
+    """A module that took the session's lab (prefix PREFIX) down for a lab of
+    its own left every module after it without hosts (the CI run of stop 31):
+    such a module uses one_robot_lab, a prefix of its own."""
+    import re
+    from pathlib import Path
+
+    e2e = Path(__file__).resolve().parents[1] / "e2e"
+    offenders = [path.name for path in sorted(e2e.glob("test_*.py"))
+                 if re.search(r"hosts\.(up|down|reset)\(\s*PREFIX\b", path.read_text())]
+    assert offenders == []
+    assert re.search(r"hosts\.down\(PREFIX\)", (e2e / "conftest.py").read_text())

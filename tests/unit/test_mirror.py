@@ -199,9 +199,27 @@ def test_plugins_recommend_the_docker_cli():
     assert ctl["Provides"] == ctl["Conflicts"] == ctl["Replaces"] == "docker-compose"
 
 
-def test_rules_digest_is_stable_and_covers_rules():
-    assert rules_digest() == rules_digest()
-    assert len(rules_digest()) == 64
+def test_rules_digest_is_stable_and_covers_rules(monkeypatch):
+    """The mirror is rebuilt when its digest changes: it must change with
+    any field of any rule and with the suite, and stay put for equal rules."""
+    from tests.lab import mirror
+
+    digest = rules_digest()
+    monkeypatch.setattr(mirror, "RULES", tuple(dataclasses.replace(rule) for rule in RULES))
+    assert rules_digest() == digest  # equal rules, new objects: the same mirror
+    changed = set()
+    for index, rule in enumerate(RULES):
+        for field in dataclasses.fields(rule):
+            value = getattr(rule, field.name)
+            other = (not value) if isinstance(value, bool) else (value + ("x",) if isinstance(value, tuple) else f"{value}x")
+            edited = list(RULES)
+            edited[index] = dataclasses.replace(rule, **{field.name: other})
+            monkeypatch.setattr(mirror, "RULES", tuple(edited))
+            changed.add(rules_digest())
+    assert digest not in changed and len(changed) == sum(len(dataclasses.fields(rule)) for rule in RULES)
+    monkeypatch.setattr(mirror, "RULES", RULES)
+    monkeypatch.setattr(mirror, "SUITE", "forky")
+    assert rules_digest() != digest
 
 
 # ------------------------------------------------------------ deb822 / indexes

@@ -7,13 +7,10 @@ changes there."""
 import json
 
 from roles.payload import services
+from tests.fixtures import robot_fleet as host_with
 from tests.unit.harness import ROBOT, find, fleet_problems, fresh_host, plan
 
 REG = "reg.example.com"
-
-
-def host_with(**settings) -> dict:
-    return {"robots": {"hosts": {"robot3": {"address": "10.0.0.3", **settings}}}}
 
 
 def test_the_shorthand_carries_its_platform_to_its_one_service():

@@ -220,7 +220,23 @@ def test_drifted_file_mode_is_fixed_without_rewriting():
     snap.files["/etc/docker/daemon.json"] = FileState("file", state.sha256, "666", "root", "root")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     # Owner and mode only: Docker is not restarted.
-    assert commands == ["sh -c 'chown root:root /etc/docker/daemon.json && chmod 644 /etc/docker/daemon.json'"]
+    assert commands == ["sh -c 'chown root:root /etc/docker/daemon.json && chmod 600 /etc/docker/daemon.json'"]
+
+
+def test_daemon_json_and_its_previous_copy_written_0644_by_an_older_version_become_0600():
+    """daemon.json may hold proxy credentials (issue 27, item 7): a host an
+    older version left with 0644 files gets both chmod-ed, Docker untouched."""
+    snap = converged("robots", ROBOT, "debian-13")
+    state = snap.files["/etc/docker/daemon.json"]
+    assert state.mode == "600"
+    snap.files["/etc/docker/daemon.json"] = FileState("file", state.sha256, "644", "root", "root")
+    snap.files["/etc/docker/daemon.json.previous"] = FileState("file", "ab" * 32, "644", "root", "root")
+    commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
+    assert commands == ["sh -c 'chown root:root /etc/docker/daemon.json && chmod 600 /etc/docker/daemon.json && "
+                        "chown root:root /etc/docker/daemon.json.previous && chmod 600 /etc/docker/daemon.json.previous'"]
+    snap.files["/etc/docker/daemon.json"] = state
+    snap.files["/etc/docker/daemon.json.previous"] = FileState("file", "ab" * 32, "600", "root", "root")
+    assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []
 
 
 def test_changed_daemon_json_is_validated_kept_and_restored_if_docker_does_not_start():
@@ -230,7 +246,8 @@ def test_changed_daemon_json_is_validated_kept_and_restored_if_docker_does_not_s
     assert len(commands) == 2 and "payloadctl apply" in commands[1]  # the payload checked after the restart
     script = commands[0]
     # Validated first, the old file kept, then the restart with a bound.
-    assert script.index("dockerd --validate --config-file") < script.index('cp -Pp "$dest" "$prev.tmp"')
+    assert script.index("dockerd --validate --config-file") < script.index('(umask 077 && cat "$dest" > "$prev.tmp")')
+    assert "cp -Pp" not in script and 'chmod 600 "$tmp"' in script
     assert script.index('mv -fT "$tmp" "$dest"') < script.index("systemctl restart docker.service")
     assert "prev=/etc/docker/daemon.json.previous" in script and "timeout=20" in script
     assert 'if [ -f "$prev" ]; then mv -fT "$prev" "$dest"; else rm -f "$dest"; fi' in script

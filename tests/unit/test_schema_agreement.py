@@ -1,11 +1,10 @@
 """One source for the schema (issue 18, item 4): the editors' JSON Schema and
 the run's checks are built from the same declarations, and give the same
 verdict on the validation corpus and the hostile-value corpus wherever JSON
-Schema can express the rule; README names the rules it cannot
+Schema can express the rule; docs/fleet-file.md names the rules it cannot
 (robotfleet/fleet/schema.py BEYOND_SCHEMA)."""
 
 import json
-from pathlib import Path
 
 import pytest
 
@@ -16,12 +15,15 @@ from robotfleet.fleet import loader as fleetyaml
 from robotfleet.fleet import schema as fleet_schema
 from robotfleet.fleet.registry import Registry
 from tests.unit import test_fleet_corpus, test_hostile_values
+from tests.fixtures import ROOT
 
 jsonschema = pytest.importorskip("jsonschema")
 
-ROOT = Path(__file__).resolve().parents[2]
 SCHEMA = fleet_schema.fleet_schema(roster.registry())
 VALIDATOR = jsonschema.Draft7Validator(SCHEMA)
+# What the schema says of one host's (or one group's vars') settings: the
+# definition every place a setting sits refers to (test_a_setting_is_checked_alike_in_every_place).
+SETTINGS = jsonschema.Draft7Validator({**SCHEMA["definitions"]["settings"], "definitions": SCHEMA["definitions"]})
 MORE_VALUES = ["on", "off", "yes", "", " ", "fe80::1%eth0", "::ffff:10.0.0.1", "1::", "10.0.0.01", "robot-1.lan",
                "robot_1", "1.2.3", "x" * 64, "/var/lib/./tmp", "//tmp/x", "/var//tmp", "reg.example.com/p:1 2"]
 TRAPS = [fleetyaml.load(f"v: {trap}")["v"] for trap in test_hostile_values.YAML_TRAPS]
@@ -50,6 +52,18 @@ def walk(value):
             yield from walk(item)
 
 
+def test_a_setting_is_checked_alike_in_every_place():
+    """A group's vars, its hosts, its children's: each is the settings definition."""
+    settings, group = {"$ref": "#/definitions/settings"}, SCHEMA["definitions"]["group"]
+    assert group["properties"]["vars"] == settings
+    assert group["properties"]["hosts"]["additionalProperties"] == settings
+    assert group["properties"]["children"]["additionalProperties"] == {"$ref": "#/definitions/group"}
+    assert SCHEMA["additionalProperties"] == {"$ref": "#/definitions/group"}
+    for document in ({"robots": {"hosts": {"r1": {"ssh_port": "22"}}}}, {"all": {"vars": {"ssh_port": "22"}}},
+                     {"robots": {"children": {"east": {"hosts": {"r1": {"ssh_port": "22"}}}}}}):
+        assert schema_refuses(document) and not SETTINGS.is_valid({"ssh_port": "22"}), document
+
+
 @pytest.mark.parametrize("setting", sorted(roster.registry().settings))
 def test_each_setting_gets_the_same_verdict_from_the_schema_and_the_run(setting):
     check = roster.registry().settings[setting].check
@@ -58,8 +72,7 @@ def test_each_setting_gets_the_same_verdict_from_the_schema_and_the_run(setting)
         for place, placed in test_hostile_values.places(setting, value):
             if not json_only(placed):
                 continue
-            document = {"robots": {"hosts": {"r1": {setting: placed}}}}
-            if bool(check(placed)) != schema_refuses(document):
+            if bool(check(placed)) == SETTINGS.is_valid({setting: placed}):
                 disagree.append((place, placed, check(placed)))
     assert disagree == []
 
@@ -110,10 +123,13 @@ def test_the_yaml_version_is_the_editors(tmp_path):
         assert bool(expressible_lines(raw)) is refused and schema_refuses(raw) is refused, text
 
 
-def test_readme_names_the_rules_the_schema_cannot_express():
-    readme = (ROOT / "README.md").read_text()
+def test_the_fleet_file_doc_names_the_rules_the_schema_cannot_express():
+    """docs/fleet-file.md (README, "Describing a fleet", links it) lists them."""
+    page = (ROOT / "docs" / "fleet-file.md").read_text()
+    assert "](docs/fleet-file.md)" in (ROOT / "README.md").read_text()
+    listed = page.split("these only the run checks:", 1)[1].split("\n## ", 1)[0]
     for rule in fleet_schema.BEYOND_SCHEMA:
-        assert rule in readme, rule
+        assert rule in listed, rule
 
 
 def test_the_address_pattern_is_what_ipaddress_reads():

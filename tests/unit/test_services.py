@@ -10,6 +10,7 @@ import yaml
 from robotfleet import roster
 from robotfleet.commands import status
 from roles.payload import compose, containers, presets, problems, project, services
+from tests.fixtures import robot_fleet as host_with
 from tests.unit import harness as fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan
 
@@ -156,10 +157,6 @@ def test_ros2_preset_with_a_dds_profile(tmp_path, monkeypatch, profile, env):
 def test_ros2_preset_keeps_a_service_s_own_ipc():
     doc = rendered({"payload_services": {"a": {"image": f"{REG}/a:1", "ipc": "shareable"}}, "ros_preset": "ros2"})
     assert doc["services"]["a"]["ipc"] == "shareable"
-
-
-def host_with(**settings) -> dict:
-    return {"robots": {"hosts": {"robot3": {"address": "10.0.0.3", **settings}}}}
 
 
 @pytest.mark.parametrize("service, line", [
@@ -396,3 +393,26 @@ def test_the_single_image_payload_cannot_mount_the_docker_socket_either():
                      "on the robot: refused unless payload_allow_privileged is true"]
     assert fleet_problems(host_with(payload_services={"drv": {"image": f"{REG}/a:1", "cap_add": ["SYS_NICE"],
                                                                "volumes": ["/var/lib/maps:/maps"]}})) == []
+
+
+def test_another_compose_project_running_the_payload_image_is_left_alone():
+    """The deploy says the same as payloadctl does (issue 27, item 2): a
+    container of the primary image in another compose project (homeauto) is
+    not taken over; in no project, or in the project the robot's current
+    release recorded, it is."""
+    probe = "\n".join([
+        probe_line("f" * 64, "/homeauto-bridge-1", f"{REG}/ros/payload:1.0", "homeauto", "true", "always"),
+        probe_line("a" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "%!s(<nil>)", "true", "always"),
+        probe_line("b" * 64, "/ros-old-payload-1", f"{REG}/ros/payload:0.9", "ros-old", "true", "always"),
+    ])
+    takeover = {"primary": f"{REG}/ros/payload", "container": [], "project": []}
+    assert [c["name"] for c in project.foreign(probe, "robot-payload", takeover)] == ["ros_payload"]
+    recorded = project.takeover_rule.recorded_projects({"project": "ros-old", "taken_over": [{"project": "rosapp"}]},
+                                                       "robot-payload")
+    assert recorded == ["ros-old", "rosapp"]
+    found = project.foreign(probe, "robot-payload", takeover, recorded)
+    assert [(c["name"], c["why"]) for c in found] == [
+        ("ros_payload", "it runs the payload's image"),
+        ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload used before")]
+    named = project.foreign(probe, "robot-payload", {**takeover, "project": ["homeauto"]})
+    assert [c["name"] for c in named] == ["homeauto-bridge-1", "ros_payload"]

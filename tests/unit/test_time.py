@@ -4,7 +4,6 @@ renders, and the commands it plans (pyinfra @fake with a canned snapshot)."""
 from __future__ import annotations
 
 import base64
-from pathlib import Path
 
 import pytest
 import yaml
@@ -12,11 +11,10 @@ import yaml
 from robotfleet.host.fixtures import file_state
 import roles.time as time_role
 import roles.time.plan as plan
+from tests.fixtures import ROOT, good_robot as robot
 from tests.unit.harness import LAPTOP, ROBOT, converged, find, fleet_problems, fresh_host, merged, plan as run_plan
 from tests.unit.harness import written_files
 
-ROOT = Path(__file__).resolve().parents[2]
-GOOD_HOST = {"address": "10.0.0.3", "payload_image": "reg.example.com/ros/payload:1.0"}
 SERVER = {**ROBOT, "time_serve": True, "time_allow": ["10.20.0.0/24"], "time_servers": ["ntp1.lan", "10.20.0.1"]}
 CLIENT = {**ROBOT, "time_servers": ["10.20.0.11"]}
 RELEASES = ["ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13"]
@@ -25,10 +23,6 @@ FULL_BOUNDING_SET = "000001ffffffffff"
 CONTAINER_BOUNDING_SET = "00000000a82435fb"
 RESTART = r"^sh -c 'systemctl restart chrony\.service'$"
 RELOAD = r"^sh -c 'systemctl daemon-reload'$"
-
-
-def robot(**extra):
-    return {"robots": {"hosts": {"robot3": {**GOOD_HOST, **extra}}}}
 
 
 @pytest.mark.parametrize("doc, expected", [

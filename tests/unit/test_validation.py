@@ -1,22 +1,12 @@
-"""Every kind of bad fleet data gets one clear line naming file, host and field."""
-
-import subprocess
-import sys
-from pathlib import Path
+"""Every kind of bad fleet data gets one clear line naming file, host and
+field (pyinfra's own CLI refuses it in tests/integration/test_validation.py)."""
 
 import pytest
 import yaml
 
+from tests.fixtures import GOOD_HOST, ROOT, good_robot as robot
 from tests.unit import harness as fleet
 from tests.unit.harness import fleet_problems
-
-ROOT = Path(__file__).resolve().parents[2]
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
-GOOD_HOST = {"address": "10.0.0.1", "payload_image": "reg.example.com/ros/payload:1.0"}
-
-
-def robot(**extra):
-    return {"robots": {"hosts": {"robot3": {**GOOD_HOST, **extra}}}}
 
 
 def test_example_fleet_is_valid():
@@ -54,10 +44,20 @@ def test_a_setting_has_one_default_only():
 def test_every_setting_is_documented_by_hand():
     """Beyond the generated docs/settings.md: README, the docs it links, or a
     role's own roles/<name>/README.md (everything about a role is in its folder)."""
-    written = "".join((ROOT / name).read_text() for name in ("README.md", "docs/roles.md", "docs/gpu.md", "docs/releases.md", "docs/architectures.md"))
+    written = "".join((ROOT / name).read_text() for name in ("README.md", "docs/roles.md", "docs/gpu.md", "docs/releases.md", "docs/architectures.md", "docs/pull.md"))
     written += "".join(path.read_text() for path in (ROOT / "roles").glob("*/README.md"))
     undocumented = [k for k in fleet.setting_checks() if f"`{k}`" not in written]
     assert undocumented == []
+
+
+def test_defaults_are_written_once_in_the_declarations():
+    """The hand-written docs link docs/settings.md (generated) instead of
+    copying defaults: no table of theirs has a default column."""
+    hand = [ROOT / "README.md", *(ROOT / "roles").glob("*/README.md"),
+            *(path for path in (ROOT / "docs").glob("*.md") if path.name != "settings.md")]
+    copied = [f"{path.relative_to(ROOT)}: {line}" for path in hand for line in path.read_text().splitlines()
+              if line.startswith("|") and "default" in (cell.strip().lower() for cell in line.strip("|").split("|"))]
+    assert copied == []
 
 
 @pytest.mark.parametrize(
@@ -147,47 +147,6 @@ def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
     with pytest.raises(fleet.FleetError) as error:
         fleet.load(path)
     assert "duplicate key 'r1'" in error.value.lines[0]
-
-
-def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
-    """The real pyinfra CLI: non-zero exit, our lines, no traceback, no connection."""
-    (tmp_path / "inventories").mkdir()
-    (tmp_path / "inventories" / "robots.py").write_text((ROOT / "inventories" / "robots.py").read_text())
-    (tmp_path / "inventories" / "robots.yaml").write_text(
-        "robots:\n  hosts:\n    robot3:\n      address: 192.0.2.1\n"
-        "      payload_image: reg.example.com/p:1\n      sensors:\n"
-        "        - {name: cam, subsystem: tty, serial: 42}\n"
-    )
-    (tmp_path / "deploy.py").write_text("raise SystemExit('deploy must not run')\n")
-    proc = subprocess.run(
-        [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=60,
-        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
-    )
-    assert proc.returncode == 2
-    assert "inventories/robots.yaml: robot3.sensors[0].serial: expected a string, got 42; quote it" in proc.stderr
-    assert "Traceback" not in proc.stderr + proc.stdout
-    assert "Connecting" not in proc.stderr + proc.stdout
-
-
-def _pyinfra(*args, env=None):
-    return subprocess.run(
-        [sys.executable, "-c", PYINFRA, *args], cwd=ROOT, capture_output=True, text=True, timeout=60,
-        env={"PATH": "/usr/bin:/bin", **(env or {})},
-    )
-
-
-def test_mistyped_inventory_path_is_refused():
-    proc = _pyinfra("-y", "inventories/robot.py", "deploy.py")
-    assert proc.returncode == 2 and "inventories/robot.py: no such file" in proc.stderr
-
-
-def test_local_inventory_is_this_laptop_from_the_fleet_file():
-    proc = _pyinfra("inventories/local.py", "debug-inventory", env={"ROBOT_FLEET_HOST": "alice-laptop"})
-    assert proc.returncode == 0, proc.stderr
-    assert "[@local]" in proc.stderr + proc.stdout and '"x11_user": "alice"' in proc.stderr + proc.stdout
-    proc = _pyinfra("inventories/local.py", "debug-inventory", env={"ROBOT_FLEET_HOST": "nobody"})
-    assert proc.returncode == 2 and "no laptop named 'nobody' (laptops: alice-laptop)" in proc.stderr
 
 
 @pytest.mark.parametrize("path", ["/var/run/lock/robot.lock", "/var/lock/x", "/run/shm/x", "/var/run/shm/x",

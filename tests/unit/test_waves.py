@@ -1,8 +1,7 @@
-"""Rollout planning without a host: waves, failure budget, resume state."""
+"""Rollout planning without a host: waves, failure budget, resume state
+(the rollout command itself: tests/integration/test_waves.py)."""
 
 import os
-import subprocess
-import sys
 
 import pytest
 
@@ -128,7 +127,8 @@ def test_the_same_command_finds_the_same_state_file_and_writes_it_atomically(tmp
 def test_status_cells_and_summary():
     state = waves.record_wave(state_for([["r1"], ["r2"], ["r3"]], 0), 0, ["r1"], {}, {})
     assert [waves.host_state(state, h) for h in ("r1", "r2", "r9")] == ["wave 1/3 done", "wave 2/3 pending", None]
-    assert waves.summary(state) == "rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped; pending: r2, r3"
+    assert waves.summary(state) == ("rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped, 2 pending "
+                                    "of 3 robot(s); pending: r2, r3")
 
 
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
@@ -137,29 +137,42 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
     good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running", "health": "healthy"}
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
             "rolled_back_from": {"reason": "unhealthy"}}
-    results = {"operations": [{"error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
-    rows = {"r1": good, "r2": back, "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
+    results = {"operations": [{"name": "Release the payload", "error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
+    rows = {"r1": good, "r2": {**back, "result": result("w1", False, "payload: release x failed")},
+            "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
     targets = dict.fromkeys(rows, {"payload": ["i:2"]})
-    done, failed, skipped = judge_wave(list(rows), results, rows, {"r2": "payload: release x failed"}, targets, False)
+    done, failed, skipped = judge_wave(list(rows), results, rows, targets, False, deployment="w1")
     assert done == ["r1"]
-    assert failed.pop("r2") == "payload: release x failed"
+    assert failed.pop("r2") == "payload: release x failed"  # its own result of this deployment
     assert failed.pop("r4") == "release failed (unhealthy); rolled back to r1"
-    assert list(failed) == ["r5"]  # pyinfra failed it even though its payload looks fine
+    assert failed == {"r5": "the deploy failed at: Release the payload"}  # pyinfra failed it although its payload looks fine
     assert skipped == {"r3": "unreachable: cannot connect"}
-    _, failed, skipped = judge_wave(["r3"], None, rows, {}, targets, True)
+    _, failed, skipped = judge_wave(["r3"], None, rows, targets, True, deployment="w1")
     assert failed == {"r3": "unreachable: cannot connect"} and skipped == {}
 
 
+def result(deployment, ok, message):
+    """payloadctl's structured result as the payload's status cells carry it."""
+    return {"payloadctl": 1, "ok": ok, "outcome": "applied" if ok else "rolled-back", "message": message,
+            "deployment": deployment}
+
+
 def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
-    """pyinfra prints no JSON when no host remains ("No hosts remaining!")."""
+    """pyinfra prints no JSON when no host remains ("No hosts remaining!"):
+    each robot's own result of this deployment says why."""
     from robotfleet.commands.rollout import judge_wave
 
-    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active"}
-    errors = {"r1": "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"}
-    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, errors, {"r1": {"payload": ["i:2"]}}, False)
-    assert (done, failed, skipped) == ([], errors, {})
-    errors = {"r2": "Could not connect (timed out)"}
-    assert judge_wave(["r2"], None, {"r2": {"reachable": True}}, errors, {"r2": {"payload": ["i:2"]}}, False)[2] == {
+    line = "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"
+    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
+            "result": result("w2", False, line)}
+    done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")
+    assert (done, failed, skipped) == ([], {"r1": line}, {})
+    # A result of an earlier deployment is not this one's.
+    stale = {**back, "image_refs": ["i:2"], "state": "running", "health": "healthy", "result": result("w1", False, line)}
+    assert judge_wave(["r1"], None, {"r1": stale}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")[1] == {
+        "r1": "the deploy failed"}
+    assert judge_wave(["r2"], None, {"r2": {"reachable": False, "error": "Could not connect (timed out)"}},
+                      {"r2": {"payload": ["i:2"]}}, False, deployment="w2")[2] == {
         "r2": "unreachable: Could not connect (timed out)"}
 
 
@@ -177,7 +190,7 @@ def test_the_state_file_is_written_without_following_anything_planted(tmp_path):
 
 
 def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_path):
-    path = str(tmp_path / ".rollout" / "k.json")
+    path = waves.lock_path("inventories/robots.py", ["/fleet.yaml"], str(tmp_path))
     with waves.held(path):
         with pytest.raises(waves.RolloutBusy) as busy:
             with waves.held(path):
@@ -185,22 +198,4 @@ def test_a_second_rollout_of_the_same_fleet_refuses_while_the_first_runs(tmp_pat
         assert str(busy.value).startswith(f"another rollout of this fleet is running (pid {os.getpid()} since 20")
     with waves.held(path):  # free again once the first is done
         pass
-
-
-def test_the_rollout_command_refuses_while_another_rollout_of_the_fleet_holds_its_state(tmp_path, monkeypatch):
-    """Two rollouts of one fleet lost each other's updates: the second one now
-    stops at once, before it contacts any robot (issue 17, item 9)."""
-    from robotfleet import roster
-    from robotfleet.commands import rollout
-
-    monkeypatch.setenv("ROBOT_ROLLOUT_DIR", str(tmp_path))
-    inventory = "inventories/robots.py"
-    hosts = rollout.selected_hosts(inventory, [])
-    names = [name for name, _ in hosts]
-    targets = {name: rollout.targets_of(roster.roles(), data, {}) for name, data in hosts}
-    path = waves.state_path(waves.fleet_key(inventory, names, targets))
-    with waves.held(path):  # the command runs apart: it patches gevent into its process
-        second = subprocess.run([sys.executable, "-m", "robotfleet", "rollout", inventory, "-y"], capture_output=True,
-                                text=True, timeout=120, env=dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path)))
-    assert second.returncode == 2, second.stderr
-    assert f"rollout: another rollout of this fleet is running (pid {os.getpid()} since 20" in second.stderr
+    assert path != waves.lock_path("inventories/robots.py", ["/other.yaml"], str(tmp_path))

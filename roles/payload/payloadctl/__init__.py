@@ -10,11 +10,14 @@ robot half-switched:
   download first -> switch -> wait healthy -> keep, or switch back.
 
 Modules by concern: durable (files that survive a power cut), spec (what a
-release is, its states), releases (the store), imageref and images (image
-references, pulls), health (is it running well), lock (one deploy at a
-time, the update lock), recovery (boot), takeover (containers set up another
-way), apply and rollback, results, status, cli.  The deploy side imports
-imageref, spec and takeover, so each rule is written once.
+release is, who asks), lifecycle (a release's record, states and every
+transition: the only writer of records and pointers), releases (the store,
+read only), imageref and images (image references, pulls), health (is it
+running well), lock (one deploy at a time, its token, the update lock),
+hold (the lock held for a command), recovery (boot), takeover (containers
+set up another way), apply and rollback, results (one structured result a
+run), status, cli.  The deploy side imports imageref, spec, lifecycle,
+results and takeover, so each rule is written once.
 
 Standard library only, Python >= 3.8 (Ubuntu 20.04).  Shipped to the robot
 as one zip application (roles/payload/robot.py builds it).

@@ -6,39 +6,55 @@ import socket
 import sys
 import time
 
-from . import durable, recovery, results, status
+from . import durable, hold, recovery, results, status
 from .apply import apply
+from .lifecycle import Life, Refused
 from .lock import Busy, Lock, describe
 from .releases import Releases
 from .rollback import rollback
 from .spec import Run, load_request
-from .system import Failure, log
+from .system import Failure, Refusal, log
 
 
-def locked(releases, lock_timeout, owner, work):
-    """Run ``work`` holding the robot's one apply/rollback lock, after undoing
-    a switch a power cut left unverified; every outcome is recorded as this
-    run's result (the deploy reads the result, not our stderr)."""
-    root, run_id = releases.root, owner["run_id"]
+def locked(releases, lock_timeout, owner, work, run_):
+    """Run ``work(life, lock)`` holding the robot's one apply/rollback lock
+    (or as part of the run whose lock token ``run_`` carries), after
+    undoing a switch a power cut left unverified; every outcome is recorded
+    as this run's structured result (the deploy reads it, not our stderr)."""
+    root, action = releases.root, owner["action"]
+
+    def failed(outcome, why):
+        return results.finish(root, action, outcome, "payload: {}".format(why), run_, reason=str(why))
+
     lock = Lock(root, lock_timeout, owner)
     try:
-        lock.acquire(on_wait=lambda holder: log("payload: {}; waiting".format(describe(holder))))
+        lock.acquire(on_wait=lambda holder: log("payload: {}; waiting".format(describe(holder))), token=run_.lock_token)
     except Busy as busy:
-        return results.finish(root, False, "payload: {}".format(busy), run_id=run_id)
+        return failed(results.REFUSED, busy)
     try:
-        recovered = recovery.recover(releases)
+        life = Life(releases)
+        recovered = life.recover()
         if recovered:
             log(recovered)
-        return work(lock)
+        return work(life, lock)
+    except (Refusal, Refused) as error:
+        return failed(results.REFUSED, error)
     except Failure as error:
-        return results.finish(root, False, "payload: {}".format(error), run_id=run_id)
+        return failed(results.FAILED, error)
     except OSError as error:
-        return results.finish(root, False, "payload: cannot write on this robot: {}".format(error), run_id=run_id)
+        return failed(results.FAILED, "cannot write on this robot: {}".format(error))
     except Exception as error:
-        return results.finish(root, False, "payload: internal error in payloadctl ({}): {!r}".format(
-            owner["action"], error), run_id=run_id)
+        return failed(results.FAILED, "internal error in payloadctl ({}): {!r}".format(action, error))
     finally:
         lock.release()
+
+
+def read_token(path):
+    """A lock token from a file only root can have written (payloadctl hold)."""
+    if not path:
+        return None
+    with open(path) as handle:
+        return handle.read().strip() or None
 
 
 def cmd_apply(args):
@@ -46,22 +62,28 @@ def cmd_apply(args):
         spec, run_ = load_request(args.request)
     except (OSError, ValueError, KeyError, TypeError) as error:
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(args.request))))  # <dir>/runs/<id>/
-        return results.finish(root, False, "payload: this payloadctl cannot read the deploy's request ({}); "
-                              "deploy again".format(error), run_id=args.run_id)
+        why = "this payloadctl cannot read the deploy's request ({}); deploy again".format(error)
+        return results.finish(root, "apply", results.REFUSED, "payload: " + why, Run(args.run_id, "unknown", False, False,
+                              socket.gethostname()), reason=why)
     run_ = run_._replace(run_id=args.run_id or run_.run_id, restart=args.restart or run_.restart)
     releases = Releases(spec.dir)
     durable.make_private_dir(releases.dir)
     owner = {"by": run_.by, "action": "apply", "run_id": run_.run_id}
-    return locked(releases, spec.apply_lock_timeout, owner, lambda lock: apply(spec, run_, releases, lock))
+    return locked(releases, spec.apply_lock_timeout, owner, lambda life, lock: apply(spec, run_, life, lock), run_)
 
 
 def cmd_rollback(args):
     releases = Releases(args.dir)
-    run_ = Run(args.run_id, args.by or "unknown", args.force, False, socket.gethostname())
+    run_ = Run(args.run_id, args.by or "unknown", args.force, False, socket.gethostname(),
+               lock_token=read_token(args.lock_token_file))
     spec = releases.spec(releases.pointer("current")) or releases.spec(releases.pointer("previous"))
     lock_timeout = spec.apply_lock_timeout if spec else 0  # releases of an older payloadctl: do not wait
     owner = {"by": run_.by, "action": "rollback", "run_id": run_.run_id}
-    return locked(releases, lock_timeout, owner, lambda lock: rollback(run_, releases, lock))
+    return locked(releases, lock_timeout, owner, lambda life, lock: rollback(run_, life, lock), run_)
+
+
+def cmd_hold(args):
+    return hold.hold(args.dir, args.token_file, args.command, args.timeout, args.by)
 
 
 def cmd_result(args):
@@ -101,7 +123,16 @@ def parser():
     p.add_argument("--run-id")
     p.add_argument("--by")
     p.add_argument("--force", action="store_true", help="although the update lock is held")
+    p.add_argument("--lock-token-file", help="the apply lock's token of the run this rollback is part of")
     p.set_defaults(func=cmd_rollback)
+    p = sub.add_parser("hold", help="hold the apply lock while COMMAND runs; requests with its token join it")
+    p.add_argument("--dir", required=True)
+    p.add_argument("--token-file", required=True, help="where the token is written (0600) for COMMAND")
+    p.add_argument("--timeout", type=int, help="seconds to wait for another holder (default: the release's "
+                   "payload_apply_lock_timeout, else 300)")
+    p.add_argument("--by", default="payloadctl hold", help="who holds it, as waiters are told")
+    p.add_argument("command", nargs="+", help="the command to run (after --)")
+    p.set_defaults(func=cmd_hold)
     p = sub.add_parser("result", help="print a run's result and exit with it")
     p.add_argument("--dir", required=True)
     p.add_argument("--name", required=True)

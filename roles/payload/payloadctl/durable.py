@@ -5,6 +5,15 @@ then fsync the directory (the rename is only durable once the directory is)."""
 import json
 import os
 
+# Tests set this to a function called before each durable step with (step,
+# path); raising there is a power cut at that step.  Never set on a robot.
+before_step = None
+
+
+def _step(step, path):
+    if before_step is not None:
+        before_step(step, path)
+
 
 def fsync_dir(path):
     fd = os.open(path, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
@@ -15,6 +24,7 @@ def fsync_dir(path):
 
 
 def write_bytes(path, data, mode=0o600):
+    _step("write", path)
     tmp = path + ".tmp"
     if os.path.lexists(tmp):
         os.unlink(tmp)
@@ -30,7 +40,27 @@ def write_bytes(path, data, mode=0o600):
         os.unlink(tmp)
         raise
     os.close(fd)
+    _step("rename", path)
     os.replace(tmp, path)
+    fsync_dir(os.path.dirname(path) or ".")
+
+
+def symlink(target, link):
+    """``link`` pointing at ``target``, switched atomically (a temp link
+    renamed over it), durable once its directory is fsynced."""
+    _step("link", link)
+    tmp = link + ".tmp"
+    if os.path.lexists(tmp):
+        os.unlink(tmp)
+    os.symlink(target, tmp)
+    _step("rename", link)
+    os.replace(tmp, link)
+    fsync_dir(os.path.dirname(link) or ".")
+
+
+def unlink(path):
+    _step("unlink", path)
+    os.unlink(path)
     fsync_dir(os.path.dirname(path) or ".")
 
 

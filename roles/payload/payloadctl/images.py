@@ -7,7 +7,7 @@ import subprocess
 import time
 
 from . import imageref, platforms
-from .system import Failure, run
+from .system import Failure, Refusal, run
 
 
 def image_info(ref):
@@ -35,7 +35,7 @@ def robot_arch():
 def check_platform(ref, info, robot, arch):
     """Refuse, before anything switches, an image this robot cannot run."""
     if arch and not platforms.matches(arch, info["platform"]):
-        raise Failure(platforms.refusal(robot, arch, ref, [platforms.text(info["platform"])]))
+        raise Refusal(platforms.refusal(robot, arch, ref, [platforms.text(info["platform"])]))
 
 
 def pull(ref, timeout, platform=None):
@@ -76,8 +76,13 @@ def obtain(ref, delivery, pull_timeout, platform=None):
 
 
 def pinned(ref, info):
-    """``ref`` by the digest its registry gave, where it gave one."""
+    """``ref`` by the digest its registry gave, where it gave one; a
+    reference that names its own digest (a signed pull release) keeps that
+    one, whatever other digests the same image was also pulled under."""
     repo = imageref.repository(ref)
+    own = imageref.parse(ref).digest
+    if own:
+        return "{}@{}".format(repo, own)
     for digest_ref in info["repo_digests"]:
         if imageref.repository(digest_ref) == repo:
             return digest_ref

@@ -7,13 +7,23 @@ descriptor, so a lock any user could open is a lock any user could hold.
 The note is removed when the lock is released, and a waiter checks that the
 process holding the lock (/proc/locks) is the one the note names: a note
 can never name a deploy that has finished, and a holder that is not one of
-ours is said to be one."""
+ours is said to be one.
+
+A holder may record a token in its note (its SHA-256 only: the note is
+shown to waiters): a request carrying the same token joins that holder's
+run instead of waiting for it (the pull agent holds the lock for a whole
+converge run, and the payload's apply inside it must not wait for itself).
+A joined run takes the lock over if its holder goes away before it is done.
+Anyone else waits or is refused as for any holder."""
 
 import errno
 import fcntl
+import hashlib
+import hmac
 import os
 import socket
 import stat
+import threading
 import time
 
 from . import durable
@@ -24,6 +34,10 @@ DIR = "lock"
 
 class Busy(Exception):
     pass
+
+
+def token_digest(token):
+    return hashlib.sha256(token.encode()).hexdigest()
 
 
 def _private_dir(path):
@@ -71,6 +85,9 @@ class Lock:
         self.timeout = timeout
         self.owner = owner or {}
         self.fd = None
+        self.joined = False  # part of the run of the holder whose token we carry
+        self._guard = threading.Lock()
+        self._done = threading.Event()
 
     def _open(self):
         _private_dir(self.dir)
@@ -82,9 +99,10 @@ class Lock:
         os.fchmod(fd, 0o600)
         return fd
 
-    def acquire(self, blocking=True, on_wait=None):
+    def acquire(self, blocking=True, on_wait=None, token=None):
         """Take the lock, waiting up to ``timeout`` seconds when ``blocking``;
-        ``on_wait(holder)`` is called once if it has to wait."""
+        ``on_wait(holder)`` is called once if it has to wait.  With the
+        ``token`` its holder recorded, join the holder's run at once."""
         fd = self._open()
         deadline = time.time() + self.timeout
         waited = False
@@ -96,6 +114,10 @@ class Lock:
                 if error.errno not in (errno.EAGAIN, errno.EACCES):
                     os.close(fd)
                     raise
+            if token and self._holder_has(fd, token):
+                self.fd, self.joined = fd, True
+                threading.Thread(target=self._take_over_when_free, daemon=True).start()
+                return self
             if not blocking or time.time() >= deadline:
                 message = self.busy_message(fd)
                 os.close(fd)
@@ -108,12 +130,37 @@ class Lock:
         self.note()
         return self
 
+    def _holder_has(self, fd, token):
+        holder = self.holder(fd) or {}
+        digest = holder.get("token_sha256")
+        return bool(not holder.get("foreign") and isinstance(digest, str)
+                    and hmac.compare_digest(digest, token_digest(token)))
+
+    def _take_over_when_free(self):
+        """A joined run whose holder went away (the agent stopped) holds the
+        lock itself to its end: no other deploy starts in the middle of it."""
+        while not self._done.wait(0.05):
+            with self._guard:
+                if self._done.is_set():
+                    return
+                try:
+                    fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    continue
+                self.joined = False
+                self.note()
+                return
+
     def note(self, **more):
-        """Write (or amend) the holder's note for waiters."""
+        """Write (or amend) the holder's note for waiters; a joined run
+        amends its holder's note."""
         self.owner.update(more)
         self.owner.setdefault("since", now())
+        note = dict(self.owner, pid=os.getpid())
+        if self.joined:
+            note = dict(durable.read_json(self.owner_path) or {}, **more)
         try:
-            durable.write_json(self.owner_path, dict(self.owner, pid=os.getpid()))
+            durable.write_json(self.owner_path, note)
         except OSError:
             pass  # the note is a courtesy to waiters; the lock holds without it
 
@@ -145,13 +192,16 @@ class Lock:
     def release(self):
         if self.fd is None:
             return
-        try:
-            os.unlink(self.owner_path)  # a finished deploy is never named as the holder
-        except OSError:
-            pass
-        fcntl.flock(self.fd, fcntl.LOCK_UN)
-        os.close(self.fd)
-        self.fd = None
+        with self._guard:
+            self._done.set()
+            if not self.joined:  # a joined run leaves the lock and its note to its holder
+                try:
+                    os.unlink(self.owner_path)  # a finished deploy is never named as the holder
+                except OSError:
+                    pass
+                fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = None
 
     def __enter__(self):
         return self.acquire()

@@ -13,51 +13,27 @@ import json
 import os
 
 from . import health
-from . import spec as states
+from .lifecycle import SWITCHING, Life
 from .lock import Busy, Lock, describe
-from .system import Failure, log, now, run
+from .system import Failure, log, run
 
 
 def recover(releases):
     """Undo a switch that never finished (power cut or crash between the
-    switch and its verdict).  `current` in state "switching" carries where it
-    came from; if that release was good, go back to it.  Returns a line for
-    the log, or None when there was nothing to undo."""
-    rid = releases.pointer("current")
-    record = releases.record(rid)
-    if not record or record.get("state") != states.SWITCHING:
-        return None
-    switch = record.get("switch") or {}
-    back = switch.get("from")
-    if not back or back == rid or releases.state(back) not in states.SETTLED:
-        return None  # nothing verified to go back to: run it, the next deploy re-releases it
-    releases.point("current", back)
-    releases.point("previous", switch.get("previous_before"))
-    record.pop("switch", None)
-    why = "interrupted before it was verified healthy (power cut, reboot or crash)"
-    if switch.get("kind") == "rollback":
-        record["state"] = switch.get("prior_state") or states.ACTIVE
-        record["rollback_interrupted"] = {"time": now(), "reason": why}
-    else:
-        record["state"] = states.FAILED
-        record["reason"] = why
-    releases.write_record(rid, record)
-    back_record = releases.record(back) or {}
-    back_record["rolled_back_from"] = {"id": rid, "reason": why, "time": now()}
-    releases.write_record(back, back_record)
-    return "payload: release {} was {}; back on {}".format(rid, why, back)
+    switch and its verdict), finish one whose way back was cut short: a line
+    for the log when `current` went back, else None (lifecycle.Life.recover)."""
+    return Life(releases).recover()
 
 
 def up(releases, name):
     """`compose up` of `current`, after clearing what an interrupted one
     left; an unverified release without restart policies until verified."""
-    current = releases.pointer("current")
     path = os.path.join(releases.root, "current", "compose.yaml")
     cleared = health.clear_leftovers(name)
     if cleared:
         log("payload: removed what an interrupted compose up left: {}".format(", ".join(cleared)))
     compose = ["docker", "compose", "-p", name, "-f", path, "up", "-d", "--remove-orphans"]
-    unverified = releases.state(current) == states.SWITCHING
+    unverified = Life(releases).state(releases.pointer("current")) == SWITCHING
     if unverified:
         run(compose + ["--no-start"])
         health.set_restart_policies(name, "no")

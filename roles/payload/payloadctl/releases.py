@@ -1,5 +1,7 @@
-"""The releases on this robot: releases/<id>/ with compose.yaml, spec.json
-and record.json; the `current` and `previous` pointers; what is kept."""
+"""The releases on this robot as they are stored: releases/<id>/ with
+compose.yaml, spec.json and record.json; the `current` and `previous`
+pointers; what is kept.  Read only: records and pointers are written by
+lifecycle.py alone."""
 
 import datetime
 import json
@@ -33,28 +35,9 @@ class Releases:
             return None
         return os.path.basename(os.readlink(link))
 
-    def point(self, name, rid):
-        link = os.path.join(self.root, name)
-        if rid is None:
-            if os.path.lexists(link):
-                os.unlink(link)
-                durable.fsync_dir(self.root)
-            return
-        tmp = link + ".tmp"
-        if os.path.lexists(tmp):
-            os.unlink(tmp)
-        os.symlink(os.path.join("releases", rid), tmp)
-        os.replace(tmp, link)
-        durable.fsync_dir(self.root)
-
-    def record(self, rid):
+    def raw_record(self, rid):
+        """record.json as stored (None: missing or unreadable); lifecycle.Record reads it."""
         return durable.read_json(self.path(rid, "record.json")) if rid else None
-
-    def state(self, rid):
-        return (self.record(rid) or {}).get("state")
-
-    def write_record(self, rid, record):
-        durable.write_json(self.path(rid, "record.json"), record)
 
     def spec(self, rid):
         """The spec release ``rid`` was made with (None: made by an older payloadctl)."""
@@ -64,22 +47,14 @@ class Releases:
         except ValueError:
             return None
 
-    def write(self, rid, spec, compose_doc, record):
-        """A new release's directory, written whole or not at all."""
-        try:
-            durable.make_private_dir(self.path(rid))
-            durable.write_text(self.path(rid, "compose.yaml"), compose_yaml(compose_doc))
-            durable.write_json(self.path(rid, "spec.json"), spec.to_dict())
-            self.write_record(rid, record)
-        except OSError:
-            shutil.rmtree(self.path(rid), ignore_errors=True)
-            raise
+    def ids(self):
+        """Every release directory's name, sorted."""
+        return sorted(os.listdir(self.dir)) if os.path.isdir(self.dir) else []
 
     def all(self):
-        if not os.path.isdir(self.dir):
-            return []
-        found = [r for r in os.listdir(self.dir) if self.record(r) is not None]
-        return sorted(found, key=lambda r: self.record(r).get("created", ""))
+        """The releases with a record, oldest first."""
+        created = {r: (self.raw_record(r) or {}).get("created") for r in self.ids()}
+        return sorted((r for r in created if created[r] is not None), key=lambda r: (str(created[r]), r))
 
     def new_id(self, spec_hash):
         base = datetime.datetime.now(datetime.timezone.utc).strftime("%Y%m%dT%H%M%SZ") + "-" + spec_hash[:8]
@@ -97,15 +72,16 @@ def gc(keep_releases, releases):
     keep.discard(None)
     kept_images = set()
     for rid in keep:
-        record = releases.record(rid) or {}
-        kept_images |= {i["id"] for i in record.get("images", {}).values()}
-    for rid in releases.all():
+        record = releases.raw_record(rid) or {}
+        kept_images |= {i["id"] for i in (record.get("images") or {}).values()}
+    for rid in releases.ids():
         if rid in keep:
             os.chmod(releases.path(rid), 0o700)  # releases written before 0700 was the rule
             continue
-        record = releases.record(rid) or {}
+        # Also a directory a power cut left without its record (never switched to).
+        record = releases.raw_record(rid) or {}
         shutil.rmtree(releases.path(rid), ignore_errors=True)
-        for image in record.get("images", {}).values():
+        for image in (record.get("images") or {}).values():
             if image["id"] not in kept_images:
                 run(["docker", "image", "rm", image["pinned"]], check=False, timeout=120)
     runs = os.path.join(releases.root, RUNS)

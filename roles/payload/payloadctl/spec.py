@@ -1,5 +1,5 @@
-"""What a release is (the spec the deploy sends, kept with each release),
-who asks for this run, and the states a release goes through.
+"""What a release is (the spec the deploy sends, kept with each release)
+and who asks for this run (a release's states: lifecycle.py).
 
 The deploy writes the spec from the host's settings; payloadctl keeps it as
 releases/<id>/spec.json, so a rollback or a boot recovery brings a release
@@ -9,13 +9,6 @@ here."""
 import collections
 import json
 import socket
-
-# A release's states (record.json "state"):
-SWITCHING = "switching"  # current points at it, not yet verified (a power cut here is undone at boot)
-ACTIVE = "active"  # verified healthy and running
-STAGED = "staged"  # in place without autostart (laptops): nothing to verify
-FAILED = "failed"  # failed its health gate or was interrupted before it
-SETTLED = (ACTIVE, STAGED)  # passed its gate: what a deploy or a rollback may go back to
 
 FIELDS = (
     "name",  # compose project and unit (<name>.service)
@@ -51,17 +44,35 @@ class Spec(collections.namedtuple("Spec", FIELDS)):
         return dict(self._asdict())
 
 
-class Run(collections.namedtuple("Run", ("run_id", "by", "force", "restart", "host"))):
+RUN_FIELDS = ("run_id", "by", "force", "restart", "host", "deployment", "lock_token")
+
+
+class Run(collections.namedtuple("Run", RUN_FIELDS, defaults=(None, None))):
     """This run: its id (names its result), who asks, whether the update
-    lock is overridden, whether the unit must restart (it changed), and the
-    robot's name in the fleet (what the operator's lines call it)."""
+    lock is overridden, whether the unit must restart (it changed), the
+    robot's name in the fleet (what the operator's lines call it), the
+    deployment that asked (a rollout's wave, a pull agent's run: named in
+    the result) and the apply lock's token of the run it is part of (lock.py;
+    never shown)."""
 
     __slots__ = ()
 
     @classmethod
     def from_dict(cls, data):
         return cls(data.get("run_id"), data.get("by") or "unknown", bool(data.get("force")), bool(data.get("restart")),
-                   data.get("host") or socket.gethostname())
+                   data.get("host") or socket.gethostname(), _deployment(data.get("deployment")),
+                   data.get("lock_token") if isinstance(data.get("lock_token"), str) else None)
+
+    def __repr__(self):
+        return "Run({})".format(", ".join("{}={!r}".format(k, "<hidden>" if k == "lock_token" and v else v)
+                                          for k, v in self._asdict().items()))
+
+
+def _deployment(value):
+    """A deployment's name as the result may carry it: printable, short."""
+    if not isinstance(value, str):
+        return None
+    return "".join(ch for ch in value if ch.isprintable())[:120] or None
 
 
 def load_request(path):

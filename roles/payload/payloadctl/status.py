@@ -2,7 +2,7 @@
 
 import json
 
-from . import health
+from . import health, results
 from .lock import update_lock_holder
 from .releases import Releases
 from .system import run
@@ -24,11 +24,12 @@ def report(root, name, lock_file):
     version = run(["docker", "version", "-f", "{{.Server.Version}}"], check=False, timeout=60).stdout.strip()
     return {
         "docker_version": version or None,
-        "current": releases.record(current) if current else None,
-        "previous": releases.record(previous) if previous else None,
+        "current": releases.raw_record(current) if current else None,
+        "previous": releases.raw_record(previous) if previous else None,
         "containers": health.states(name),
         "update_lock": update_lock_holder(lock_file) if lock_file else None,
         "services": service_states(name),
+        "result": results.last(root),  # the last apply's or rollback's structured result
     }
 
 

@@ -2,14 +2,21 @@
 
 import datetime
 import subprocess
+import sys
 
 
 class Failure(Exception):
     """A step failed; the message is the line the operator sees."""
 
 
+class Refusal(Failure):
+    """The request was refused before anything was tried (an image for
+    another platform, a compose file Docker refuses)."""
+
+
 def log(message):
-    print(message, flush=True)
+    """A line for people (the journal, a terminal); stdout carries the result."""
+    print(message, file=sys.stderr, flush=True)
 
 
 def run(args, check=True, input_text=None, timeout=None):

@@ -3,21 +3,22 @@ older tool) are taken over by the first release: restart policy `no`, then
 stopped, recorded in the release, and started again if that release fails
 with nothing of ours to go back to.
 
-Only what looks like an earlier copy of the payload is taken over by itself:
-a container running the payload's primary image (its first service's), in
-no compose project or in the one the old setup used.  A container that runs
-a common image one of the services also uses (a broker, a database) belongs
-to someone else; it is taken over only when payload_replaces names it
-(``container:NAME``) or its compose project (``project:NAME``).
+Only an earlier copy of the payload is taken over by itself: a container
+running the payload's primary image (its first service's) in no compose
+project, or in a compose project this robot's payload is recorded to have
+used (the current release's project, or one its release took over from).
+Another compose project's container is left alone even when it runs the
+same image (a home automation project on the robot is not ours to stop);
+it is taken over only when payload_replaces names it (``container:NAME``)
+or its compose project (``project:NAME``).
 
 ``reason`` is the rule, written once: the deploy side uses it to say what
 will be taken over, the robot side to decide."""
 
 import json
 
-from . import durable, health, imageref
-from .releases import Releases
-from .system import now, run
+from . import health, imageref
+from .system import log, now, run
 
 COMPOSE_PROJECT = "com.docker.compose.project"
 
@@ -35,13 +36,23 @@ def parse_replaces(entries):
     return found
 
 
-def reason(container, project, takeover):
+def recorded_projects(record, project):
+    """The compose projects ``record`` (the current release's, a dict) says
+    this robot's payload used, other than ``project``: its own, and those of
+    what it took over."""
+    record = record or {}
+    found = {record.get("project")} | {c.get("project") for c in record.get("taken_over") or () if isinstance(c, dict)}
+    return sorted(p for p in found if isinstance(p, str) and p and p != project)
+
+
+def reason(container, project, takeover, recorded=()):
     """Why the payload takes ``container`` over, or None.
 
     ``container``: name, project (its compose project or None), running,
     restart (its restart policy), repositories (of its image).
     ``takeover``: {"primary": the primary image's repository, "container":
-    names, "project": compose projects} (the spec's).  A container of the
+    names, "project": compose projects} (the spec's); ``recorded``: compose
+    projects this robot's payload used before.  A container of the
     payload's own project, or one that is stopped for good, never is."""
     if container["project"] == project:
         return None
@@ -51,9 +62,14 @@ def reason(container, project, takeover):
         return "payload_replaces names it"
     if container["project"] and container["project"] in takeover.get("project", ()):
         return "payload_replaces names its compose project"
-    if takeover.get("primary") and takeover["primary"] in container["repositories"]:
+    if not (takeover.get("primary") and takeover["primary"] in container["repositories"]):
+        return None
+    if not container["project"]:
         return "it runs the payload's image"
-    return None
+    if container["project"] in recorded:
+        return "it runs the payload's image in compose project {}, which this robot's payload used before".format(
+            container["project"])
+    return None  # another compose project's, even of the same image
 
 
 def described(data):
@@ -80,7 +96,7 @@ def image_repositories(data):
     return repos
 
 
-def foreign_containers(spec):
+def foreign_containers(spec, recorded=()):
     ids = run(["docker", "ps", "-aq", "--no-trunc"], check=False).stdout.split()
     found = []
     for data in health.inspect_containers(ids):
@@ -88,15 +104,18 @@ def foreign_containers(spec):
         if container["project"] == spec.name:
             continue
         container["repositories"] = sorted(set(container["repositories"]) | image_repositories(data))
-        why = reason(container, spec.name, spec.takeover)
+        why = reason(container, spec.name, spec.takeover, recorded)
         if why:
             found.append(dict(container, why=why))
     return found
 
 
 def take_over(found):
-    """Restart policy `no` first (so nothing brings it back), then stop."""
+    """Restart policy `no` first (so nothing brings it back), then stop;
+    each one said with why."""
     for c in found:
+        where = "compose project {}, ".format(c["project"]) if c["project"] else ""
+        log("payload: stopping {} ({}{}, restart {}): {}".format(c["name"], where, c["image"], c["restart"], c["why"]))
         run(["docker", "update", "--restart", "no", c["id"]])
         if c["running"]:
             run(["docker", "stop", c["id"]])
@@ -113,20 +132,35 @@ def restore(taken):
     return back
 
 
-def start_taking_over(spec, releases, rid, record, old, restart, lock=None):
+def recorded_of(life, rid, project):
+    """recorded_projects of release ``rid`` (one an older payloadctl made
+    names its project in its spec only)."""
+    record = life.record(rid) if rid else None
+    if record is None:
+        return []
+    recorded = set(recorded_projects(record.to_dict(), project))
+    old_spec = life.releases.spec(rid) if not record.project else None
+    return sorted(recorded | ({old_spec.name} - {project} if old_spec else set()))
+
+
+def start_taking_over(spec, life, rid, before, came_from, restart, lock=None):
     """health.start_and_check, after stopping what the payload replaces
-    (recorded in the release first); if this release fails and there is no
-    release of ours to go back to, what was taken over runs again as before."""
-    found = foreign_containers(spec)
+    (recorded in the release first): (healthy?, why not, what it took over,
+    what it gave back).  ``before``: the release current before this one;
+    ``came_from``: the verified one a failure goes back to.  If this release
+    fails with nothing of ours to go back to, what it took over runs again
+    as before (None: nothing given back)."""
+    recorded = recorded_of(life, before, spec.name)
+    found = foreign_containers(spec, recorded)
     if found:
-        record["taken_over"] = found
-        durable.write_json(releases.path(rid, "record.json"), record)
+        life.adopt(rid, found)
         take_over(found)
     ok, why = health.start_and_check(spec, restart, lock)
-    if not ok and found and not old:
+    restored = None
+    if not ok and found and not came_from:
         # Nothing of ours to go back to: our project makes way (also at boot).
         run(["systemctl", "stop", spec.name + ".service"], check=False)
-        Releases(spec.dir).point("current", None)
-        record["restored"] = {"time": now(), "containers": restore(found)}
-        why += "; restored what it had taken over: " + ", ".join(record["restored"]["containers"])
-    return ok, why
+        life.abandon(rid)
+        restored = {"time": now(), "containers": restore(found)}
+        why += "; restored what it had taken over: " + ", ".join(restored["containers"])
+    return ok, why, found, restored

@@ -1,0 +1,107 @@
+"""Make a first-boot bundle for a pull robot: put it on its image, and it converges itself at first boot.
+
+    robotfleet bundle ROBOT --out DIR [--fleet FILE] [--admin ssh://gitolite3@git.example.com --admin-key FILE]
+
+DIR/rootfs.tar (unpack it onto the image's root) holds the agent's
+configuration for ROBOT from the fleet file (default $ROBOT_FLEET, else
+inventories/robots.yaml), the release repository's root.json, the current
+release's code archive and wheels (from robotfleet publish's copy of the
+repository), robot-pull's units and a first-boot unit, and a single-use
+enrollment key; DIR/README says how.  With --admin (a gitolite you
+administer) the enrollment key is registered there as ROBOT's, allowed what
+the robot's own key will be; the hash of its public half is kept in
+.robotfleet/enrollments.json.  After the robot's first report,
+`robotfleet pull-enroll` swaps it for the robot's own key.  See docs/pull.md.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import robotfleet
+from robotfleet import commands, roster
+from robotfleet import selection
+from robotfleet.pull import bundle, gitolite, install
+from robotfleet.commands.converge import ConvergeError, host_data
+from robotfleet.pull.repository import Repository, RepositoryError
+
+ENROLLMENTS = robotfleet.CHECKOUT / ".robotfleet" / "enrollments.json"
+
+
+def add_admin(parser) -> None:
+    parser.add_argument("--admin", metavar="URL", help="the gitolite server, as its admin (ssh://gitolite3@host[:port])")
+    parser.add_argument("--admin-key", metavar="FILE", help="the admin's private key")
+    parser.add_argument("--admin-known-hosts", metavar="FILE", default=os.path.expanduser("~/.ssh/known_hosts"),
+                        help="the gitolite server's host key (default ~/.ssh/known_hosts)")
+
+
+def admin_of(args) -> gitolite.Admin | None:
+    if not args.admin:
+        return None
+    if not args.admin_key:
+        raise selection.Refused("--admin needs --admin-key")
+    return gitolite.Admin(args.admin.rstrip("/"), args.admin_key, args.admin_known_hosts)
+
+
+def repository_name(remote: str) -> str:
+    """The gitolite repository a pull_remote names: ssh://u@h/fleet -> fleet."""
+    path = remote.split("://", 1)[-1].split("/", 1)[-1] if "://" in remote else remote.split(":", 1)[-1]
+    return path.strip("/").removesuffix(".git")
+
+
+def make(args) -> int:
+    fleet = args.fleet or os.environ.get("ROBOT_FLEET") or "inventories/robots.yaml"
+    try:
+        data = host_data(args.robot, fleet, roster.registry())
+    except ConvergeError as error:
+        raise selection.Refused(str(error)) from None
+    if not data.get("pull"):
+        raise selection.Refused(f"{fleet}: {args.robot} is not a pull robot (pull: true)")
+    clone = install.releases_clone(robotfleet.CHECKOUT)
+    repository = Repository(clone)
+    try:
+        record = repository.record() if repository.exists() else None
+        if record is None:
+            raise selection.Refused(f"{clone}: no release published yet (robotfleet publish)")
+        if args.robot not in record.robots:
+            raise selection.Refused(f"release {record.version} is not for {args.robot}: publish a release whose fleet "
+                                "file has it (pull: true), then make its bundle")
+        code = repository.blob(record.code)
+        wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(data.pull_platform)]
+        root = install.trust_root(robotfleet.CHECKOUT, data.pull_trust_root)
+    except (RepositoryError, install.InstallError) as error:
+        raise selection.Refused(str(error)) from None
+    admin = admin_of(args)
+    try:
+        public = bundle.make(Path(args.out), args.robot, data, record, code, wheels, root)
+    except bundle.BundleError as error:
+        raise selection.Refused(str(error)) from None
+    bundle.remember(ENROLLMENTS, args.robot, public, record.version)
+    print(f"bundle: {args.out}/rootfs.tar for {args.robot}: release {record.version}, {len(wheels)} wheels "
+          f"({data.pull_platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {ENROLLMENTS}")
+    if admin is not None:
+        try:
+            gitolite.register(admin, repository_name(data.pull_remote), args.robot, public, enrollment=True)
+        except gitolite.GitoliteError as error:
+            print(f"bundle: {error}; the enrollment key is not registered yet", file=sys.stderr)
+            return selection.FAILED
+        print(f"bundle: the enrollment key is registered with {args.admin} as {args.robot}'s")
+    else:
+        print(f"bundle: register the enrollment key with your git server as {args.robot}'s: {public}")
+    return selection.OK
+
+
+def main(argv=None) -> int:
+    parser = commands.parser("bundle", __doc__)
+    parser.add_argument("robot")
+    parser.add_argument("--out", required=True, metavar="DIR", help="a new directory for the bundle")
+    parser.add_argument("--fleet", metavar="FILE", help="the fleet file (default $ROBOT_FLEET, else inventories/robots.yaml)")
+    add_admin(parser)
+    args = parser.parse_args(argv)
+    try:
+        return make(args)
+    except selection.Refused as error:
+        print(f"bundle: {error}", file=sys.stderr)
+        return selection.REFUSED

@@ -1,0 +1,171 @@
+"""One converge run of a pull robot, in the release's own code: run by the
+agent (robotfleet/pull/agent.py) as a separate process from the verified
+deploy tree, so the release's code runs its own deploy and reads its own
+status.
+
+    python -m robotfleet.commands.converge run --robot R --fleet F --record release.json --deployment D --work DIR
+    python -m robotfleet.commands.converge status --robot R --fleet F
+
+``run`` holds each role's lock for the whole run (``Role.hold``: the
+payload's apply lock, with a token its own apply joins), runs the same
+deploy the operator runs, ``pyinfra -y --json inventories/pull.py
+deploy.py`` on @local, with the release's image pins, then reads the
+roles' status on the robot.  Both print one JSON line: {"exit", "row",
+"results", "missing", "errors", "log"} (``status``: "row" and "missing").
+The agent depends only on that line and these arguments, which every
+release keeps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from robotfleet import CHECKOUT, roster
+from robotfleet.commands import status as fleet_status
+from robotfleet.fleet.check import FleetError, load
+from robotfleet.pull import layout
+from robotfleet.pull import record as records
+from robotfleet.pull.publishing import HostData, pin_settings
+from robotfleet.role import DEPLOYMENT_ENV
+
+PYINFRA_TIMEOUT = 4 * 3600
+STATUS_TIMEOUT = 120
+
+
+class ConvergeError(Exception):
+    """The run could not start (one line)."""
+
+
+def host_data(robot: str, fleet_path: str | None, registry) -> HostData:
+    """The robot's data as pyinfra sees it: every default, its group's, the
+    fleet file's (a robot's defaults when no release told the fleet file yet)."""
+    if fleet_path is None:
+        return HostData({**roster.group_data("all"), **roster.group_data("robots")})
+    try:
+        fleet = load(Path(fleet_path), registry)
+    except FleetError as error:
+        raise ConvergeError("; ".join(error.lines[:3])) from None
+    for group in ("robots", "laptops"):
+        for name, data in fleet.hosts(group):
+            if name == robot:
+                return HostData({**roster.group_data("all"), **roster.group_data(group), **data})
+    raise ConvergeError(f"{fleet_path}: no host named {robot!r}")
+
+
+def status_row(robot: str, roles, data) -> dict:
+    """The roles' status of this robot, read here as `robotfleet status` reads it over SSH."""
+    command = fleet_status.status_command(roles, data)
+    try:
+        done = subprocess.run(["sh", "-c", command], capture_output=True, text=True, timeout=STATUS_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        return {**fleet_status.row(robot, roles, {}), "error": f"status took more than {STATUS_TIMEOUT} s"}
+    return fleet_status.row(robot, roles, fleet_status.sections(done.stdout))
+
+
+def missing(roles, data, row: dict) -> list[dict]:
+    """What the robot does not run as the roles want it, healthy (one line each)."""
+    found = []
+    for role in roles:
+        if role.rollout is not None and role.runs_on(data):
+            why = role.rollout.missing(row, role.rollout.target(data))
+            if why:
+                found.append({"role": role.name, "why": why})
+    return found
+
+
+def results(roles, data, row: dict, deployment: str) -> list[dict]:
+    """Each role's own structured result of this run, when it recorded one;
+    ``outcome`` is the role's word for it where its result names one."""
+    found = []
+    for role in roles:
+        if role.rollout is None or role.rollout.result is None or not role.runs_on(data):
+            continue
+        said = role.rollout.result(row, deployment)
+        if said is None:
+            continue
+        outcome = next((cell.get("outcome") for cell in row.values()
+                        if isinstance(cell, dict) and cell.get("deployment") == deployment), None)
+        found.append({"role": role.name, "ok": said[0], "why": said[1], "outcome": outcome})
+    return found
+
+
+def errors_of(stderr: str, limit: int = 3) -> list[str]:
+    """pyinfra's lines that say why the run failed."""
+    lines = [line.strip() for line in stderr.splitlines() if line.strip()]
+    picked = [line for line in lines if "rror" in line or "failed" in line.lower()]
+    return (picked or lines)[-limit:]
+
+
+def run(args) -> dict:
+    roles = roster.roles()
+    data = host_data(args.robot, args.fleet, roster.registry())
+    record = records.parse(Path(args.record).read_bytes())
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True, mode=0o700)
+    prefix, tokens = [], {}
+    for role in roles:
+        if role.hold is not None and role.runs_on(data):
+            token_file = str(work / f"{role.name}.token")
+            held = role.hold.command(data, token_file)
+            if held:
+                prefix += held
+                tokens[role.hold.setting] = token_file
+    run_data = {**pin_settings(roles, record, args.robot),
+                layout.AGENT_RUN: {"robot": args.robot, "version": record.version, "release": record.release}}
+    data_file = work / "run.json"
+    data_file.write_text(json.dumps({"data": run_data, "tokens": tokens}))
+    env = dict(os.environ, ROBOT_FLEET=str(Path(args.fleet).resolve()), ROBOT_FLEET_HOST=args.robot,
+               ROBOT_PULL_DATA=str(data_file), PYINFRA_PROGRESS="off", PYTHONPATH=str(CHECKOUT),
+               **{DEPLOYMENT_ENV: args.deployment})
+    command = prefix + [sys.executable, "-m", "pyinfra", "-y", "--json", "inventories/pull.py", "deploy.py"]
+    log = work / "pyinfra.log"
+    try:
+        done = subprocess.run(command, cwd=CHECKOUT, env=env, capture_output=True, text=True,
+                              timeout=PYINFRA_TIMEOUT)
+        code, stdout, stderr = done.returncode, done.stdout, done.stderr
+    except subprocess.TimeoutExpired as error:
+        code, stdout, stderr = 124, error.stdout or "", (error.stderr or "") + "\npyinfra: timed out"
+    log.write_text(stderr + "\n" + stdout)
+    row = status_row(args.robot, roles, data)
+    return {"exit": code, "row": row, "results": results(roles, data, row, args.deployment),
+            "missing": missing(roles, data, row), "errors": errors_of(stderr) if code else [], "log": str(log)}
+
+
+def status(args) -> dict:
+    roles = roster.roles()
+    data = host_data(args.robot, args.fleet, roster.registry())
+    row = status_row(args.robot, roles, data)
+    return {"row": row, "missing": missing(roles, data, row)}
+
+
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(prog="python -m robotfleet.commands.converge")
+    sub = top.add_subparsers(dest="action", required=True)
+    for name in ("run", "status"):
+        each = sub.add_parser(name)
+        each.add_argument("--robot", required=True)
+        each.add_argument("--fleet", required=name == "run")
+        if name == "run":
+            each.add_argument("--record", required=True)
+            each.add_argument("--deployment", required=True)
+            each.add_argument("--work", required=True)
+    return top
+
+
+def main(argv=None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        found = run(args) if args.action == "run" else status(args)
+    except (ConvergeError, records.RecordError, OSError) as error:
+        found = {"error": str(error)}
+    print(json.dumps(found, sort_keys=True, default=str))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

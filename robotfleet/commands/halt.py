@@ -1,0 +1,47 @@
+"""Halt the current pull release: robots that have not started it do not start.
+
+    robotfleet halt [--reason TEXT] [--remote NAME|URL | --to-dir DIR] [--keys DIR]
+
+A halt is signed like a release: the next version of the release record,
+with the same code and images and `halt: true`.  Robots already on the
+release keep it (roll them back with a new release, or rollback.py); the
+waves that have not opened never will.  Publishing a new release ends the
+halt.  See docs/pull.md.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from robotfleet import commands
+from robotfleet import selection
+from robotfleet.commands import pulling
+from robotfleet.pull import publishing
+
+
+def parse_args(argv: list[str]):
+    parser = commands.parser("halt", __doc__)
+    parser.add_argument("--reason", default="halted by the operator", help="one line robots report with the halt")
+    pulling.add_channel(parser)
+    pulling.add_expiry(parser)
+    return parser.parse_args(argv)
+
+
+def halt(args) -> int:
+    if "\n" in args.reason or len(args.reason) > 500:
+        raise pulling.Failed("--reason: one line of at most 500 characters")
+    keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
+    keys.signer("online")
+    chosen, repository = pulling.opened(args)
+    try:
+        halted = publishing.halt(repository, keys, args.reason, expiry, pulling.now())
+    except publishing.PublishError as error:
+        raise pulling.Failed(str(error)) from None
+    where = pulling.pushed(chosen, f"halt: release {halted.version} ({args.reason})")
+    print(f"halt: release {halted.version} halts commit {halted.commit[:12]} ({args.reason}); {where}")
+    return selection.OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    return pulling.run("halt", lambda: halt(args))

@@ -1,0 +1,118 @@
+"""Publish a signed release for the pull robots: the deploy code at a commit, the fleet file and every image digest.
+
+    robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME|URL | --to-dir DIR] [--keys DIR]
+                       [--canary 1] [--waves 50%,100%] [--pause 600] [--max-failed 0]
+    robotfleet publish --renew [--remote NAME|URL | --to-dir DIR] [--keys DIR]
+
+FLEET_FILE (default inventories/robots.yaml) is read as the commit has it;
+its hosts with `pull: true` are the release's robots.  Every image of
+their payload is resolved to its digest in its registry now, the deploy
+tree at the commit (default HEAD; a tree with uncommitted changes is
+refused unless --allow-dirty) is archived, the wheels of the robots'
+platforms (`pull_platform`) are fetched with pip (cached), and one release
+record binding all of them is signed with the online key (TUF targets,
+snapshot, timestamp) and pushed to the fleet remote's robotfleet/releases
+branch (or written to --to-dir).  The first publish also makes the
+repository's root, signed with the root key.
+
+--renew re-signs the short-lived timestamp (and whatever else is due)
+without a new release: run it daily, or robots refuse the repository as
+expired once the timestamp's validity (--timestamp-expiry, 7 days) ends.
+See docs/pull.md.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+from robotfleet import commands, roster
+from robotfleet import selection
+from robotfleet.commands import pulling
+from robotfleet.pull import publishing, waves
+from robotfleet.pull.keys import ONLINE, ROOT
+
+
+def default_wheel_cache() -> Path:
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base, "robotfleet", "wheels")
+
+
+def parse_args(argv: list[str]):
+    parser = commands.parser("publish", __doc__)
+    parser.add_argument("fleet", nargs="?", default=publishing.DEFAULT_FLEET, metavar="FLEET_FILE",
+                        help=f"the fleet file, a path in the commit (default {publishing.DEFAULT_FLEET})")
+    parser.add_argument("--commit", default="HEAD", metavar="REV", help="the deploy code's commit (default HEAD)")
+    parser.add_argument("--allow-dirty", action="store_true",
+                        help="publish HEAD even if the working tree has uncommitted changes (they are not published)")
+    parser.add_argument("--renew", action="store_true", help="only re-sign what is due (timestamp); no new release")
+    parser.add_argument("--canary", default="1", help="robots of the first wave: a number or a share (default 1)")
+    parser.add_argument("--waves", default="100%",
+                        help="cumulative shares of the robots after the canaries, comma-separated (default 100%%)")
+    parser.add_argument("--pause", type=int, default=600, help="seconds between waves (default 600)")
+    parser.add_argument("--max-failed", default="0",
+                        help="failures of earlier waves tolerated before a wave starts (number or share; default 0)")
+    wheel = parser.add_mutually_exclusive_group()
+    wheel.add_argument("--wheel-cache", type=Path, default=None, metavar="DIR",
+                       help="where pip's downloads are kept (default ~/.cache/robotfleet/wheels)")
+    wheel.add_argument("--no-wheels", action="store_true",
+                       help="carry no wheels (robots then install their venv from an index themselves)")
+    parser.add_argument("--platform", action="append", default=[], metavar="cpXY-MACHINE",
+                        help="also carry wheels for this platform (beyond the pull hosts' pull_platform)")
+    parser.add_argument("--index-url", help="the Python package index pip downloads wheels from (default PyPI)")
+    pulling.add_channel(parser)
+    pulling.add_expiry(parser)
+    return parser.parse_args(argv)
+
+
+def options_of(args) -> publishing.Options:
+    plan = waves.parse_plan({"canary": args.canary, "waves": [w.strip() for w in args.waves.split(",")],
+                             "pause": args.pause, "max_failed": args.max_failed}, where="options")
+    return publishing.Options(
+        revision=args.commit, fleet=args.fleet, plan=plan, expiry=pulling.expiry_of(args),
+        wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),
+        index_url=args.index_url, allow_dirty=args.allow_dirty, platforms=tuple(args.platform))
+
+
+def renew(args) -> int:
+    keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
+    online = keys.signer(ONLINE)
+    chosen, repository = pulling.opened(args)
+    if not repository.exists():
+        raise pulling.Failed(f"{chosen.url}: no release repository yet; publish a release first")
+    signed = repository.renew(online, expiry, pulling.now())
+    where = pulling.pushed(chosen, f"renew: {', '.join(signed)}")
+    print(f"publish: re-signed {', '.join(signed)}; timestamp valid until "
+          f"{repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}; {where}")
+    return selection.OK
+
+
+def release(args) -> int:
+    options = options_of(args)
+    keys = pulling.keys_of(args)
+    keys.signer(ONLINE)  # fail before the slow parts
+    chosen, repository = pulling.opened(args)
+    if not repository.exists():
+        keys.signer(ROOT)
+    version = publishing.next_version(repository)
+    now = pulling.now()
+    with tempfile.TemporaryDirectory(prefix="robotfleet-publish-") as work:
+        try:
+            record, files = publishing.build(args.checkout, options, roster.roles(), roster.registry(), version,
+                                             now, Path(work))
+            publishing.publish(repository, record, files, keys, options, now)
+        except publishing.PublishError as error:
+            raise pulling.Failed(str(error)) from None
+    where = pulling.pushed(chosen, f"release {record.version}: {record.commit[:12]}")
+    images = len({ref for pins in record.images.values() for ref in pins})
+    wheels = ", ".join(f"{p} ({len(f)})" for p, f in sorted(record.wheels.items())) or "none"
+    print(f"publish: release {record.version} ({record.release}): commit {record.commit[:12]}, "
+          f"{len(record.robots)} robot(s), {images} image(s) by digest, wheels {wheels}; {where}")
+    return selection.OK
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    return pulling.run("publish", lambda: renew(args) if args.renew else release(args))

@@ -1,0 +1,92 @@
+"""The pull robots' rows of ``robotfleet status``: from the reports they push
+to the fleet remote (refs/reports/<robot>), fetched in one go; no SSH.
+
+A row holds what the robot's own status read (the same columns as a push
+robot's), and two more: PULL (the outcome of its last check and the
+release) and REPORTED (when; "STALE" once older than pull_stale_after
+intervals with their jitter).  A robot with no report or a stale one counts
+as unreachable; a refused, failed or rolled-back release as failed.
+"""
+
+from __future__ import annotations
+
+import datetime
+from pathlib import Path
+
+import robotfleet
+from robotfleet.checks import one_line
+from robotfleet.pull import channel, reports
+
+COLUMNS = [("pull", "PULL"), ("reported", "REPORTED")]
+FAILED = ("refused", "failed", "rolled-back")
+
+
+class ReportsUnavailable(Exception):
+    """The fleet remote's reports cannot be read (one line)."""
+
+
+def remote_of(given: str | None, checkout: Path = robotfleet.CHECKOUT) -> str:
+    """The fleet remote to read reports from: --remote, else the checkout's origin."""
+    try:
+        return channel.remote_url(checkout, given or "origin")
+    except channel.ChannelError as error:
+        raise ReportsUnavailable(f"no fleet remote to read the pull robots' reports from ({error}); "
+                                 "give --remote URL") from None
+
+
+def fetch(url: str, cache: Path | None = None) -> dict[str, dict]:
+    """Every robot's report from ``url`` (one fetch into a local cache)."""
+    cache = cache or robotfleet.CHECKOUT / ".robotfleet" / "reports"
+    try:
+        reports.fetch_all(url, cache)
+        return reports.read_all(cache)
+    except reports.ReportError as error:
+        raise ReportsUnavailable(f"reports from {url}: {error}") from None
+
+
+def pull_cell(report: dict) -> str:
+    seen = (report.get("seen") or {}).get("version")
+    applied = (report.get("applied") or {}).get("version")
+    text = report["result"]
+    if report["result"] in ("applied", "up-to-date") and applied:
+        text += f" {applied}"
+    elif seen:
+        text += f" {seen}"
+    if report.get("refusal"):
+        text += f" ({report['refusal']})"
+    return text
+
+
+def row(name: str, report: dict | None, data, now: datetime.datetime, url: str) -> dict:
+    """A status row for pull robot ``name`` (pure)."""
+    if report is None:
+        return {"host": name, "reachable": False, "pull": "no report", "reported": None,
+                "error": f"no report in refs/reports/{name} of {url} (the agent has not reported yet, "
+                         "or cannot reach the remote)"}
+    if "error" in report:
+        return {"host": name, "reachable": False, "pull": "unreadable", "reported": None, "error": report["error"]}
+    cells = {k: v for k, v in (report.get("status") or {}).items() if k not in ("host", "reachable", "error")}
+    interval = data.get("pull_interval") or report.get("interval") or 900
+    jitter = data.get("pull_jitter") if data.get("pull_jitter") is not None else report.get("jitter") or 0
+    stale_after = data.get("pull_stale_after") or report.get("stale_after") or 3
+    is_stale = reports.stale(report, now, interval, jitter, stale_after)
+    cells.update(host=name, reachable="pull", pull=pull_cell(report), report=report,
+                 reported=report["time"] + (" STALE" if is_stale else ""))
+    if is_stale:
+        cells["reachable"] = False
+        cells["error"] = (f"stale report: last at {report['time']}, more than {stale_after} intervals "
+                          f"({stale_after * (interval + jitter)} s) ago")
+    elif report["result"] in FAILED:
+        cells["error"] = one_line(f"{report['result']}: {report.get('reason') or 'no reason given'}")
+    return cells
+
+
+def now() -> datetime.datetime:
+    return datetime.datetime.now(datetime.timezone.utc)
+
+
+def rows(hosts, url: str, found: dict[str, dict] | None = None) -> dict[str, dict]:
+    """name -> row for the pull hosts [(name, data)]."""
+    found = fetch(url) if found is None else found
+    moment = now()
+    return {name: row(name, found.get(name), data, moment, url) for name, data in hosts}

@@ -1,0 +1,208 @@
+"""A first-boot bundle: what to copy onto a robot's image (or SD card) so
+that the robot, booting it for the first time, converges itself to the
+current release and reports, with no inbound connection at any point.
+
+    <out>/rootfs.tar                    unpacked onto the image's root (owned by root, modes kept)
+        etc/robot-pull/agent.json       the robot's name, the fleet remote, the interval... (0600)
+        etc/robot-pull/root.json        the release repository's root: its first trust (0600)
+        etc/robot-pull/known_hosts      the git server's host keys
+        etc/robot-pull/enroll_ed25519   a single-use enrollment key (0600): the git server accepts
+                                        it as this robot until its own key is registered
+        var/lib/robot-pull/first-boot/  the current release's code archive and wheels
+        etc/systemd/system/...          robot-pull.service and .timer, robot-pull-first-boot.service,
+                                        enabled (their wants links)
+        usr/local/sbin/robot-pull-first-boot
+    <out>/README                        how to put it on an image
+
+At first boot robot-pull-first-boot.service makes the robot's SSH host
+keys (ssh-keygen -A) and its own key for the remote, the venv from the
+wheels, unpacks the code, and starts the agent; the agent's first report
+carries the host keys and the robot's key, from which ``robotfleet
+pull-enroll`` writes the fleet's known_hosts and swaps the enrollment key
+for the robot's own on the git server.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+from robotfleet.pull import layout
+
+FIRST_BOOT = f"{layout.STATE}/first-boot"
+SCRIPT = "/usr/local/sbin/robot-pull-first-boot"
+
+FIRST_BOOT_UNIT = f"""{layout.HEADER}[Unit]
+Description=Robot fleet pull agent: first boot (host keys, venv, first check)
+Wants=network-online.target
+After=network-online.target
+ConditionPathExists={FIRST_BOOT}
+
+[Service]
+Type=oneshot
+ExecStart={SCRIPT}
+TimeoutStartSec=1h
+
+[Install]
+WantedBy=multi-user.target
+"""
+
+FIRST_BOOT_SCRIPT = f"""#!/bin/sh
+# robot-pull first boot (robotfleet/pull/bundle.py): this robot's own keys,
+# the agent's venv and code from the bundle, then the agent's first check.
+set -eu
+umask 077
+fb={FIRST_BOOT}
+state={layout.STATE}
+say() {{ echo "robot-pull first boot: $*"; }}
+ssh-keygen -A
+say "host keys: $(cat /etc/ssh/ssh_host_ed25519_key.pub | cut -d' ' -f1-2)"
+if ! python3 -c 'import ensurepip, venv' 2>/dev/null || ! command -v git >/dev/null || ! command -v ssh >/dev/null; then
+    say "installing python3-venv, git and openssh-client"
+    apt-get update -q
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-venv git openssh-client
+fi
+if [ ! -f {layout.KEY} ]; then
+    tmp=$(mktemp -d {layout.ETC}/.key.XXXXXX)
+    ssh-keygen -q -t ed25519 -N '' -C "robot-pull@$(sed -n 's/.*"robot": "\\([^"]*\\)".*/\\1/p' {layout.CONFIG})" -f "$tmp/key"
+    mv -T "$tmp/key.pub" {layout.KEY}.pub && mv -T "$tmp/key" {layout.KEY} && rmdir "$tmp"
+fi
+mkdir -p "$state/venvs" "$state/code"
+id=$(cat "$fb/venv-id")
+if [ ! -x "$state/venvs/$id/bin/python" ]; then
+    rm -rf "$state/venvs/.new-$id"
+    python3 -m venv "$state/venvs/.new-$id"
+    "$state/venvs/.new-$id/bin/python" -m pip install -q --no-index --no-deps --disable-pip-version-check "$fb"/wheels/*.whl
+    mv -T "$state/venvs/.new-$id" "$state/venvs/$id"
+fi
+ln -sfn "venvs/$id" "$state/.venv.new" && mv -T "$state/.venv.new" "$state/venv"
+tree=$(cat "$fb/tree-id")
+if [ ! -d "$state/code/$tree" ]; then
+    rm -rf "$state/code/.new-$tree" && mkdir "$state/code/.new-$tree"
+    tar -xzf "$fb/code.tar.gz" -C "$state/code/.new-$tree" --no-same-owner
+    chmod 0755 "$state/code/.new-$tree"
+    mv -T "$state/code/.new-$tree" "$state/code/$tree"
+fi
+ln -sfn "$tree" "$state/code/.current.new" && mv -T "$state/code/.current.new" "$state/code/current"
+rm -rf "$fb"
+say "venv $id and deploy tree $tree in place; the agent's first check starts"
+systemctl start --no-block {layout.SERVICE}
+"""
+
+README = """A first-boot bundle for robot {robot} (robotfleet bundle; docs/pull.md).
+
+Put it on the robot's image, as root, with the image mounted at /mnt/image:
+
+    tar -xpf rootfs.tar -C /mnt/image
+
+(or unpack it in your image build: a Debian/Ubuntu image with systemd,
+openssh-server and python3; python3-venv and git are installed at first boot
+if the image lacks them, which needs its apt sources).  Nothing else: the
+units are enabled by their links.  At first boot the robot makes its own SSH
+host keys, its venv and its key for the fleet remote, converges to the
+current release and reports.  Then, on the operator's side:
+
+    robotfleet pull-enroll INVENTORY --limit {robot} --admin ...
+
+writes its host keys (from its report) to the fleet's known_hosts and
+registers its own key with the git server in place of the enrollment key.
+
+etc/robot-pull/enroll_ed25519 in rootfs.tar is a secret: the git server accepts it
+as {robot} until then.  Keep this directory, and images made from it, private.
+"""
+
+
+class BundleError(Exception):
+    """The bundle cannot be made (one line)."""
+
+
+def _write(path: Path, data: bytes | str, mode: int = 0o644) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data.encode() if isinstance(data, str) else data)
+    os.chmod(path, mode)
+
+
+def _link(path: Path, target: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.is_symlink():
+        path.unlink()
+    os.symlink(target, path)
+
+
+def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str, Path]], root: bytes) -> str:
+    """Write the bundle for ``robot`` (host ``data``) into ``out`` (which must
+    not exist); the enrollment key's public half."""
+    if out.exists():
+        raise BundleError(f"{out}: already exists; give a new directory")
+    if not wheels:
+        raise BundleError(f"release {record.version} carries no wheels for {data.pull_platform}: the robot could "
+                          "not make its venv (publish with wheels)")
+    out.mkdir(parents=True, mode=0o700)
+    rootfs = out / "rootfs"
+    etc, first = rootfs / layout.ETC.lstrip("/"), rootfs / FIRST_BOOT.lstrip("/")
+    (rootfs / layout.STATE.lstrip("/")).mkdir(parents=True, mode=0o700)
+    etc.mkdir(parents=True, mode=0o700)
+    config = layout.config_of(data, robot, trusted_time=record.published)
+    _write(etc / "agent.json", config.to_json(), 0o600)
+    _write(etc / "root.json", root, 0o600)
+    _write(etc / "known_hosts", layout.known_hosts_of(data))
+    done = subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", f"robot-pull-enroll@{robot}",
+                           "-f", str(etc / "enroll_ed25519")], capture_output=True, text=True)
+    if done.returncode:
+        raise BundleError(f"ssh-keygen: {done.stderr.strip()}")
+    (first / "wheels").mkdir(parents=True)
+    shutil.copyfile(code, first / "code.tar.gz")
+    for name, path in wheels:
+        shutil.copyfile(path, first / "wheels" / name)
+    _write(first / "tree-id", record.tree_sha256 + "\n")
+    venv = layout.venv_id((name, hashlib.sha256(path.read_bytes()).hexdigest()) for name, path in wheels)
+    _write(first / "venv-id", venv + "\n")
+    units = rootfs / layout.UNIT_DIR.lstrip("/")
+    _write(units / layout.SERVICE, layout.service_unit())
+    _write(units / layout.TIMER, layout.timer_unit(data))
+    _write(units / layout.FIRST_BOOT_SERVICE, FIRST_BOOT_UNIT)
+    _link(units / "timers.target.wants" / layout.TIMER, f"../{layout.TIMER}")
+    _link(units / "multi-user.target.wants" / layout.FIRST_BOOT_SERVICE, f"../{layout.FIRST_BOOT_SERVICE}")
+    _write(rootfs / SCRIPT.lstrip("/"), FIRST_BOOT_SCRIPT, 0o755)
+    public = (etc / "enroll_ed25519.pub").read_text().strip()
+    _archive(rootfs, out / "rootfs.tar")
+    shutil.rmtree(rootfs)
+    _write(out / "README", README.format(robot=robot))
+    return public
+
+
+def _archive(rootfs: Path, tar_path: Path) -> None:
+    """rootfs as a tar owned by root (whoever made it), modes kept."""
+    import tarfile
+
+    def as_root(info: tarfile.TarInfo) -> tarfile.TarInfo:
+        info.uid = info.gid = 0
+        info.uname = info.gname = "root"
+        return info
+
+    with tarfile.open(tar_path, "w") as tar:
+        for path in sorted(rootfs.rglob("*")):
+            tar.add(path, arcname=str(path.relative_to(rootfs)), recursive=False, filter=as_root)
+    os.chmod(tar_path, 0o600)
+
+
+def key_sha256(public_key: str) -> str:
+    """What the operator keeps of an enrollment key: the hash of its public half."""
+    return hashlib.sha256(" ".join(public_key.split()[:2]).encode()).hexdigest()
+
+
+def remember(path: Path, robot: str, public_key: str, release: int) -> None:
+    """Note the enrollment key (its hash) among the operator's enrollments (a JSON file)."""
+    try:
+        known = json.loads(path.read_text())
+    except (OSError, ValueError):
+        known = {}
+    known[robot] = {"enroll_key_sha256": key_sha256(public_key), "release": release}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temp = path.with_name(f".{path.name}.new")
+    temp.write_text(json.dumps(known, indent=1, sort_keys=True) + "\n")
+    os.replace(temp, path)

@@ -1,0 +1,151 @@
+"""The fleet remote on gitolite (Debian's gitolite3): who may read and write what.
+
+The remote the robots use is one repository holding the releases branch
+(``robotfleet/releases``) and the robots' reports (``refs/reports/<robot>``).
+gitolite decides reads per repository, writes per ref: every robot may read
+the repository, and may write only its own report ref, one rule per robot
+with its name escaped.  (gitolite's ``USER`` in a refex would be one rule for
+all, but gitolite 3.6 replaces it only between slashes, ``refs/reports/USER/``,
+and unescaped: robot ``r.1`` could then write the report of ``rx1``.)  Keep
+the deploy repository (its history, other branches) out of this one: a
+robot can read all of it.
+
+A robot's gitolite user is its name: ``keydir/<robot>.pub`` is its own key,
+``keydir/<robot>@enroll.pub`` the single-use enrollment key of a first-boot
+bundle (gitolite reads ``name@anything.pub`` as user ``name``); the operator
+removes the second once the robot's own key is registered.
+
+The operator changes the server by pushing its admin repository
+(``gitolite-admin``), so ``register`` works against any gitolite the operator
+administers, over SSH with strict host keys.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+RELEASES_BRANCH = "robotfleet/releases"
+REPORTS = "refs/reports"
+ENROLL_SUFFIX = "@enroll"
+ROBOTS_GROUP = "@robots"
+# gitolite user names (and so robot names in pull mode): what gitolite's own
+# USERNAME_PATT accepts, without '@' (ours marks a second key of a user).
+ROBOT_NAME = re.compile(r"[A-Za-z0-9][-0-9a-zA-Z._+]*\Z")
+KEY_LINE = re.compile(r"(ssh-ed25519|ssh-rsa|ecdsa-sha2-nistp(256|384|521)) [A-Za-z0-9+/=]+( .*)?\Z")
+GIT_TIMEOUT = 60
+
+
+class GitoliteError(Exception):
+    """One line: what failed on the gitolite server, and why."""
+
+
+def check_robot(name: str) -> str:
+    if not isinstance(name, str) or not ROBOT_NAME.match(name):
+        raise GitoliteError(f"{name!r} cannot be a gitolite user (letters, digits, '-', '.', '_', '+')")
+    return name
+
+
+def check_key(text: str, what: str) -> str:
+    """One OpenSSH public key line, without its comment."""
+    lines = [line.strip() for line in text.strip().splitlines() if line.strip()]
+    if len(lines) != 1 or not KEY_LINE.match(lines[0]):
+        raise GitoliteError(f"{what}: not one OpenSSH public key line")
+    return " ".join(lines[0].split()[:2])
+
+
+def conf(repo: str, robots, admins=("admin",)) -> str:
+    """gitolite.conf: the admin repository, and the fleet repository every
+    robot reads and writes only its own report ref of."""
+    admin = " ".join(admins)
+    lines = [
+        "# Written by robotfleet (robotfleet/pull/gitolite.py); edits here are replaced.",
+        "repo gitolite-admin",
+        f"    RW+ = {admin}",
+        "",
+    ]
+    robots = sorted({check_robot(r) for r in robots})
+    if robots:
+        lines += [f"{ROBOTS_GROUP} = {' '.join(robots)}", ""]
+    lines += [f"repo {repo}", f"    RW+ = {admin}"]
+    if robots:
+        lines.append(f"    R = {ROBOTS_GROUP}")
+        lines += [f"    RW+ {REPORTS}/{re.escape(robot)}$ = {robot}" for robot in robots]
+    return "\n".join(lines) + "\n"
+
+
+def key_file(robot: str, enrollment: bool = False) -> str:
+    return f"keydir/{check_robot(robot)}{ENROLL_SUFFIX if enrollment else ''}.pub"
+
+
+def robots_in(keydir: Path) -> set[str]:
+    """Robot users with a key in ``keydir`` (the admin's own keys excluded by the caller)."""
+    return {p.name[:-4].split("@", 1)[0] for p in keydir.glob("*.pub")}
+
+
+@dataclass(frozen=True)
+class Admin:
+    """How the operator reaches the gitolite server as its admin."""
+
+    url: str  # ssh://gitolite3@host:port (no path)
+    key: str  # the admin's private key
+    known_hosts: str  # the server's host key, checked strictly
+    admins: tuple[str, ...] = ("admin",)
+
+    def env(self) -> dict:
+        ssh = (f"ssh -i {shlex.quote(self.key)} -o IdentitiesOnly=yes -o BatchMode=yes "
+               f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.known_hosts)} "
+               f"-o ConnectTimeout=10")
+        return dict(os.environ, GIT_SSH_COMMAND=ssh, GIT_TERMINAL_PROMPT="0")
+
+
+def _git(admin: Admin, *args: str, cwd: str | None = None) -> str:
+    try:
+        done = subprocess.run(["git", *args], cwd=cwd, env=admin.env(), capture_output=True,
+                              text=True, timeout=GIT_TIMEOUT)
+    except subprocess.TimeoutExpired:
+        raise GitoliteError(f"git {args[0]} to {admin.url}: no answer within {GIT_TIMEOUT} s") from None
+    if done.returncode != 0:
+        lines = [line for line in done.stderr.splitlines() if line.strip()]
+        raise GitoliteError(f"git {args[0]} to {admin.url}: {lines[-1] if lines else f'exit {done.returncode}'}")
+    return done.stdout
+
+
+def update(admin: Admin, repo: str, add: dict[str, str] | None = None,
+           remove: list[str] | None = None, message: str = "robotfleet: robots' keys") -> bool:
+    """Change the robots' keys on the server: ``add`` maps key files
+    (``key_file(...)``) to public keys, ``remove`` names key files; the
+    configuration is rewritten for the robots that then have a key.  False
+    when nothing changed."""
+    with tempfile.TemporaryDirectory(prefix="robotfleet-gitolite-") as tmp:
+        work = os.path.join(tmp, "admin")
+        _git(admin, "clone", "-q", f"{admin.url}/gitolite-admin", work)
+        keydir = Path(work, "keydir")
+        keydir.mkdir(exist_ok=True)
+        for path, key in (add or {}).items():
+            Path(work, path).write_text(check_key(key, path) + "\n")
+        for path in remove or ():
+            Path(work, path).unlink(missing_ok=True)
+        robots = robots_in(keydir) - set(admin.admins)
+        Path(work, "conf", "gitolite.conf").write_text(conf(repo, robots, admin.admins))
+        _git(admin, "add", "-A", ".", cwd=work)
+        if not _git(admin, "status", "--porcelain", cwd=work).strip():
+            return False
+        _git(admin, "-c", "user.name=robotfleet", "-c", "user.email=robotfleet@localhost",
+             "commit", "-q", "-m", message, cwd=work)
+        _git(admin, "push", "-q", "origin", "HEAD:master", cwd=work)
+    return True
+
+
+def register(admin: Admin, repo: str, robot: str, public_key: str, enrollment: bool = False) -> bool:
+    """Give ``robot`` read access to ``repo`` and write access to its own
+    report ref, with ``public_key``; registering its own key retires its
+    enrollment key."""
+    add = {key_file(robot, enrollment): public_key}
+    remove = [] if enrollment else [key_file(robot, enrollment=True)]
+    return update(admin, repo, add, remove, f"robotfleet: {'enrollment ' if enrollment else ''}key of {robot}")

@@ -1,0 +1,179 @@
+"""Where the pull agent lives on a robot, and its configuration file.
+
+Written by the pull role (roles/pull) on a push deploy, or by a first-boot
+bundle; read by the agent (robotfleet/pull/agent.py).  Everything is root's:
+/etc/robot-pull and /var/lib/robot-pull are 0700.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+from dataclasses import asdict, dataclass, field
+
+ETC = "/etc/robot-pull"
+STATE = "/var/lib/robot-pull"
+CONFIG = f"{ETC}/agent.json"
+TRUST_ROOT = f"{ETC}/root.json"  # the first trust; the agent keeps its own copy from then on
+KNOWN_HOSTS = f"{ETC}/known_hosts"  # the git server's host keys
+KEY = f"{ETC}/id_ed25519"  # the robot's own key for the fleet remote, made on the robot
+ENROLL_KEY = f"{ETC}/enroll_ed25519"  # a first-boot bundle's single-use key
+VENV = f"{STATE}/venv"  # -> venvs/<id>: the python the agent and pyinfra run in
+VENVS = f"{STATE}/venvs"
+WHEELS = f"{STATE}/wheels"  # <id>/*.whl: the wheels the venv <id> was made from
+CODE = f"{STATE}/code"  # <tree sha256>/: deploy trees; current -> the one the agent runs
+CURRENT_CODE = f"{CODE}/current"
+SERVICE = "robot-pull.service"
+TIMER = "robot-pull.timer"
+UNIT_DIR = "/etc/systemd/system"
+BRANCH = "robotfleet/releases"
+FORMAT = 1
+# The host data key the agent's converge run sets ({"robot", "version",
+# "release"}): the run is the agent's, on the robot itself.
+AGENT_RUN = "pull_agent_run"
+
+_ROBOT = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,252}\Z")
+
+
+class ConfigError(ValueError):
+    """The agent's configuration cannot be used (one line)."""
+
+
+@dataclass(frozen=True)
+class Config:
+    robot: str
+    remote: str
+    interval: int = 900
+    jitter: int = 300
+    windows: tuple[str, ...] = ()
+    min_free_mb: int = 512
+    fetch_timeout: int = 300
+    stale_after: int = 3
+    branch: str = BRANCH
+    state_dir: str = STATE
+    etc_dir: str = ETC
+    docker_dir: str = "/var/lib/docker"
+    extra: dict = field(default_factory=dict)
+
+    def to_json(self) -> str:
+        data = {"format": FORMAT, **asdict(self)}
+        data["windows"] = list(self.windows)
+        if not data["extra"]:
+            del data["extra"]
+        return json.dumps(data, indent=2, sort_keys=True) + "\n"
+
+    def path(self, name: str) -> str:
+        """A file of the agent's state directory."""
+        return f"{self.state_dir}/{name}"
+
+    def etc(self, name: str) -> str:
+        return f"{self.etc_dir}/{name}"
+
+
+_INTS = {"interval": (1, 7 * 86400), "jitter": (0, 86400), "min_free_mb": (0, 1 << 20),
+         "fetch_timeout": (1, 86400), "stale_after": (1, 1000)}
+
+
+def read_config(text: str, where: str = CONFIG) -> Config:
+    """The agent's configuration from its JSON; ConfigError naming the field."""
+    try:
+        raw = json.loads(text)
+    except ValueError as error:
+        raise ConfigError(f"{where}: not JSON ({error})") from None
+    if not isinstance(raw, dict) or raw.get("format") != FORMAT:
+        raise ConfigError(f"{where}: expected an object with \"format\": {FORMAT}")
+    known = {f for f in Config.__dataclass_fields__} | {"format"}
+    unknown = sorted(set(raw) - known)
+    if unknown:
+        raise ConfigError(f"{where}: unknown field {unknown[0]!r}")
+    for name in ("robot", "remote"):
+        if not isinstance(raw.get(name), str) or not raw[name]:
+            raise ConfigError(f"{where}: {name}: required, a string")
+    if not _ROBOT.match(raw["robot"]):
+        raise ConfigError(f"{where}: robot: {raw['robot']!r} is not a robot name")
+    for name, (low, high) in _INTS.items():
+        value = raw.get(name, Config.__dataclass_fields__[name].default)
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise ConfigError(f"{where}: {name}: expected a whole number from {low} to {high}, got {value!r}")
+    windows = raw.get("windows", [])
+    if not isinstance(windows, list) or not all(isinstance(w, str) for w in windows):
+        raise ConfigError(f"{where}: windows: expected a list of maintenance windows")
+    for name in ("branch", "state_dir", "etc_dir", "docker_dir"):
+        if name in raw and (not isinstance(raw[name], str) or not raw[name]):
+            raise ConfigError(f"{where}: {name}: expected a string")
+    for name in ("state_dir", "etc_dir", "docker_dir"):
+        if name in raw and not raw[name].startswith("/"):
+            raise ConfigError(f"{where}: {name}: expected an absolute path")
+    values = {k: v for k, v in raw.items() if k != "format"}
+    values["windows"] = tuple(windows)
+    return Config(**values)
+
+
+# ssh looks the git server up under this name (HostKeyAlias), so its keys
+# are pinned to the fleet remote whatever address or port reaches it.
+HOST_KEY_ALIAS = "robotfleet-remote"
+
+
+def config_of(data, robot: str, **extra) -> Config:
+    """The agent's configuration for a host with ``data`` (the pull role's settings)."""
+    return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
+                  windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
+                  fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after, extra=extra)
+
+
+def known_hosts_of(data) -> str:
+    """The git server's keys (pull_remote_host_keys), under HOST_KEY_ALIAS."""
+    return "".join(f"{HOST_KEY_ALIAS} {key}\n" for key in data.pull_remote_host_keys)
+
+
+HEADER = "# Managed by the robot fleet provisioner (roles/pull); local edits are overwritten.\n"
+FIRST_BOOT_SERVICE = "robot-pull-first-boot.service"
+
+
+def service_unit() -> str:
+    return HEADER + f"""[Unit]
+Description=Robot fleet pull agent: fetch, verify and apply a signed release (docs/pull.md)
+Wants=network-online.target
+After=network-online.target {FIRST_BOOT_SERVICE}
+ConditionPathExists={CONFIG}
+
+[Service]
+Type=oneshot
+WorkingDirectory={CURRENT_CODE}
+Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1
+ExecStart={VENV}/bin/python -m robotfleet.pull.agent --config {CONFIG}
+# A release may install Docker and pull images: hours, not the default 90 s.
+TimeoutStartSec=4h
+Nice=10
+IOSchedulingClass=best-effort
+IOSchedulingPriority=7
+"""
+
+
+def timer_unit(data) -> str:
+    # Persistent= acts only on OnCalendar= timers; a robot that was off
+    # catches up through OnBootSec=, the first check after each boot.
+    return HEADER + f"""[Unit]
+Description=Robot fleet pull agent: check for a new release every {data.pull_interval} s
+
+[Timer]
+OnBootSec={data.pull_boot_delay}
+OnActiveSec={data.pull_boot_delay}
+OnUnitInactiveSec={data.pull_interval}
+RandomizedDelaySec={data.pull_jitter}
+Persistent=true
+AccuracySec=1s
+
+[Install]
+WantedBy=timers.target
+"""
+
+
+def venv_id(wheels) -> str:
+    """The identity of a venv made from ``wheels`` [(file name, sha256)]:
+    the same set, in any order, is the same venv."""
+    digest = hashlib.sha256()
+    for name, sha in sorted(wheels):
+        digest.update(f"{name} {sha}\n".encode())
+    return digest.hexdigest()[:16]

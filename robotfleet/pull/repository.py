@@ -1,0 +1,349 @@
+"""The operator's TUF repository, in a directory (a checkout of the fleet
+remote's robotfleet/releases branch, or one served over static HTTPS):
+
+    metadata/root.json  metadata/N.root.json      the root, each version kept
+    metadata/timestamp.json                       short-lived, re-signed by every publish
+    metadata/N.snapshot.json  metadata/N.targets.json   (consistent snapshots)
+    targets/release.json's blob: targets/<sha256>.release.json
+    targets/code/<sha256>.<commit>.tar.gz, targets/wheels/<sha256>.<file>.whl
+
+Two keys (robotfleet/pull/keys.py): the root key signs only roots; the
+online key signs targets, snapshot and timestamp.  Each publish writes the
+target blobs first and timestamp.json last (one rename), so an HTTPS reader
+never sees a timestamp naming files not yet there.  The last KEEP versions
+of snapshot and targets and the blobs they name are kept; older ones go
+(a git branch keeps them in its history anyway).
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from tuf.api.metadata import MetaFile, Metadata, Root, Snapshot, TargetFile, Targets, Timestamp
+from tuf.api.serialization.json import JSONSerializer
+
+from robotfleet.pull import record as records
+
+ONLINE_ROLES = (Targets.type, Snapshot.type, Timestamp.type)
+KEEP = 3
+_SERIALIZER = JSONSerializer(compact=False)
+_DURATION = re.compile(r"([1-9][0-9]{0,4})([mhdw])")
+_UNITS = {"m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
+
+
+class RepositoryError(Exception):
+    """The repository cannot do what was asked; the message is one line."""
+
+
+def parse_duration(text, option: str) -> datetime.timedelta:
+    """'12h', '7d', '4w', '90m' -> timedelta; ValueError naming ``option``."""
+    match = _DURATION.fullmatch(str(text).strip())
+    if not match:
+        raise ValueError(f"{option}: expected a duration like 90m, 12h, 7d or 4w, got {text!r}")
+    return datetime.timedelta(seconds=int(match.group(1)) * _UNITS[match.group(2)])
+
+
+@dataclass(frozen=True)
+class Expiry:
+    """How long each role's metadata stays valid after it is signed.  The
+    timestamp is short (a withheld release shows within days); robots stop
+    accepting anything once it passes, so `robotfleet publish --renew` runs
+    more often than that (a daily timer)."""
+
+    timestamp: datetime.timedelta = datetime.timedelta(days=7)
+    snapshot: datetime.timedelta = datetime.timedelta(days=30)
+    targets: datetime.timedelta = datetime.timedelta(days=30)
+    root: datetime.timedelta = datetime.timedelta(days=365)
+
+
+def _expiry(now: datetime.datetime, period: datetime.timedelta) -> datetime.datetime:
+    return (now + period).astimezone(datetime.timezone.utc).replace(microsecond=0)
+
+
+def blob_name(path: str, sha256: str) -> str:
+    """Where target ``path`` is stored under targets/ (python-tuf's consistent-snapshot name)."""
+    directory, _, name = path.rpartition("/")
+    return f"{directory}/{sha256}.{name}" if directory else f"{sha256}.{name}"
+
+
+def _write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+        os.chmod(temp, 0o644)
+        os.replace(temp, path)
+    except BaseException:
+        if os.path.exists(temp):
+            os.unlink(temp)
+        raise
+
+
+def sign_root(data: bytes, signers) -> bytes:
+    """A root's bytes with one more signature from each of ``signers`` (the
+    offline step: robotfleet keys sign)."""
+    md = Metadata[Root].from_bytes(data)
+    if not isinstance(md.signed, Root):
+        raise RepositoryError(f"not a root but {md.signed.type} metadata")
+    for signer in signers:
+        md.sign(signer, append=True)
+    return md.to_bytes(_SERIALIZER)
+
+
+class Repository:
+    """The TUF repository in ``path`` (see the module's docstring)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.metadata = self.path / "metadata"
+        self.targets_dir = self.path / "targets"
+
+    def exists(self) -> bool:
+        return (self.metadata / "root.json").is_file()
+
+    # reading -------------------------------------------------------------
+
+    def root(self) -> Metadata[Root]:
+        return self._load("root.json", Root)
+
+    def timestamp(self) -> Metadata[Timestamp]:
+        return self._load("timestamp.json", Timestamp)
+
+    def snapshot(self) -> Metadata[Snapshot]:
+        return self._load(f"{self.timestamp().signed.snapshot_meta.version}.snapshot.json", Snapshot)
+
+    def targets(self) -> Metadata[Targets]:
+        return self._load(f"{self.snapshot().signed.meta['targets.json'].version}.targets.json", Targets)
+
+    def _load(self, name: str, kind) -> Metadata:
+        path = self.metadata / name
+        try:
+            md = Metadata.from_file(str(path))
+        except FileNotFoundError:
+            raise RepositoryError(f"{path}: missing (not a robotfleet release repository?)") from None
+        except Exception as error:  # noqa: BLE001 - any unreadable metadata is one line
+            raise RepositoryError(f"{path}: unreadable TUF metadata ({str(error).splitlines()[0]})") from None
+        if md.signed.type != kind.type:
+            raise RepositoryError(f"{path}: {md.signed.type} metadata where {kind.type} was expected")
+        return md
+
+    def blob(self, path: str) -> Path:
+        """The stored file of target ``path`` (checked against its signed length and hash)."""
+        info = self.targets().signed.targets.get(path)
+        if info is None:
+            raise RepositoryError(f"{path}: not a target of the current release")
+        stored = self.targets_dir / blob_name(path, info.hashes["sha256"])
+        try:
+            with open(stored, "rb") as handle:
+                info.verify_length_and_hashes(handle)
+        except FileNotFoundError:
+            raise RepositoryError(f"{stored}: missing from the repository") from None
+        except Exception as error:  # noqa: BLE001
+            raise RepositoryError(f"{stored}: differs from what was signed ({error})") from None
+        return stored
+
+    def record(self) -> records.Record | None:
+        """The current release record (None before the first release)."""
+        if records.NAME not in self.targets().signed.targets:
+            return None
+        try:
+            return records.parse(self.blob(records.NAME).read_bytes())
+        except records.RecordError as error:
+            raise RepositoryError(str(error)) from None
+
+    # writing -------------------------------------------------------------
+
+    def create(self, root_signer, online_signer, expiry: Expiry, now: datetime.datetime) -> None:
+        """A new repository: root v1 (root key for root, the online key for
+        the other roles), signed by the root key; empty targets, snapshot
+        and timestamp signed by the online key.  Refuses an existing one."""
+        if self.exists():
+            raise RepositoryError(f"{self.metadata / 'root.json'}: a repository is already there")
+        root = Metadata(Root(expires=_expiry(now, expiry.root), consistent_snapshot=True))
+        root.signed.add_key(root_signer.public_key, Root.type)
+        for role in ONLINE_ROLES:
+            root.signed.add_key(online_signer.public_key, role)
+        root.sign(root_signer)
+        self._write_root(root.to_bytes(_SERIALIZER), 1)
+        targets = Metadata(Targets(version=1, expires=_expiry(now, expiry.targets)))
+        self._publish_targets(targets, online_signer, expiry, now, first=True)
+
+    def _write_root(self, data: bytes, version: int) -> None:
+        _write(self.metadata / f"{version}.root.json", data)
+        _write(self.metadata / "root.json", data)
+
+    def _store(self, path: str, local: Path) -> TargetFile:
+        info = TargetFile.from_file(path, str(local), ["sha256"])
+        stored = self.targets_dir / blob_name(path, info.hashes["sha256"])
+        if not stored.exists():
+            stored.parent.mkdir(parents=True, exist_ok=True)
+            fd, temp = tempfile.mkstemp(dir=stored.parent, prefix=f".{stored.name}.")
+            os.close(fd)
+            try:
+                shutil.copyfile(local, temp)
+                os.chmod(temp, 0o644)
+                os.replace(temp, stored)
+            except BaseException:
+                if os.path.exists(temp):
+                    os.unlink(temp)
+                raise
+        return info
+
+    def publish(self, record: records.Record, files: dict[str, Path], online_signer, expiry: Expiry,
+                now: datetime.datetime) -> None:
+        """Make ``record`` the current release: release.json and ``files``
+        (target path -> local file: exactly the record's code and wheels)
+        become the targets; targets, snapshot and timestamp get their next
+        versions and new expiries, signed by ``online_signer``."""
+        wanted, given = set(record.targets()), set(files)
+        if wanted != given:
+            missing = sorted(wanted - given) or sorted(given - wanted)
+            raise RepositoryError(f"{missing[0]}: the record's targets and the files given differ")
+        current = self.record() if self.exists() else None
+        if current is not None and record.version <= current.version:
+            raise RepositoryError(f"release {record.version}: not above the current release {current.version}")
+        with tempfile.TemporaryDirectory() as scratch:
+            release = Path(scratch, records.NAME)
+            release.write_bytes(record.to_bytes())
+            chosen = {records.NAME: self._store(records.NAME, release)}
+            chosen.update({path: self._store(path, Path(local)) for path, local in sorted(files.items())})
+        targets = self.targets()
+        targets.signed.targets = chosen
+        self._publish_targets(targets, online_signer, expiry, now)
+
+    def _publish_targets(self, targets: Metadata[Targets], online_signer, expiry: Expiry, now: datetime.datetime,
+                         first: bool = False) -> None:
+        """Sign and write ``targets`` at its next version (``first``: as is,
+        version 1, with snapshot and timestamp version 1), then a snapshot and
+        a timestamp naming it."""
+        self._check_online(online_signer)
+        targets.signed.version += 0 if first else 1
+        targets.signed.expires = _expiry(now, expiry.targets)
+        targets.sign(online_signer)
+        data = targets.to_bytes(_SERIALIZER)
+        _write(self.metadata / f"{targets.signed.version}.targets.json", data)
+        snapshot = Metadata(Snapshot(version=1 if first else self.snapshot().signed.version))
+        snapshot.signed.meta["targets.json"] = MetaFile.from_data(targets.signed.version, data, ["sha256"])
+        self._publish_snapshot(snapshot, online_signer, expiry, now, first)
+        self._prune()
+
+    def _publish_snapshot(self, snapshot: Metadata[Snapshot], online_signer, expiry: Expiry,
+                          now: datetime.datetime, first: bool = False) -> None:
+        snapshot.signed.version += 0 if first else 1
+        snapshot.signed.expires = _expiry(now, expiry.snapshot)
+        snapshot.sign(online_signer)
+        data = snapshot.to_bytes(_SERIALIZER)
+        _write(self.metadata / f"{snapshot.signed.version}.snapshot.json", data)
+        version = 0 if first else self.timestamp().signed.version
+        self._publish_timestamp(version, MetaFile.from_data(snapshot.signed.version, data, ["sha256"]),
+                                online_signer, expiry, now)
+
+    def _publish_timestamp(self, previous: int, snapshot_meta: MetaFile, online_signer, expiry: Expiry,
+                           now: datetime.datetime) -> None:
+        timestamp = Metadata(Timestamp(version=previous + 1, expires=_expiry(now, expiry.timestamp),
+                                       snapshot_meta=snapshot_meta))
+        timestamp.sign(online_signer)
+        _write(self.metadata / "timestamp.json", timestamp.to_bytes(_SERIALIZER))
+
+    def _check_online(self, signer) -> None:
+        """Refuse to sign with a key the root does not name (robots would refuse it as unknown)."""
+        named = self.root().signed.roles[Timestamp.type].keyids
+        if signer.public_key.keyid not in named:
+            raise RepositoryError(f"the online key here ({signer.public_key.keyid[:16]}) is not the one the "
+                                  f"repository's root names ({', '.join(k[:16] for k in named)}): "
+                                  "was it rotated on another machine?")
+
+    def renew(self, online_signer, expiry: Expiry, now: datetime.datetime) -> list[str]:
+        """Re-sign what expires before the next timestamp would: always the
+        timestamp, the snapshot (and targets) when due.  The names re-signed.
+        A due targets role is re-signed as is: its release.json keeps its own
+        expiry, so a release near its record's expiry needs a new publish."""
+        due = _expiry(now, expiry.timestamp)
+        targets, snapshot = self.targets(), self.snapshot()
+        if targets.signed.expires <= due:
+            self._publish_targets(targets, online_signer, expiry, now)
+            return list(ONLINE_ROLES)
+        if snapshot.signed.expires <= due:
+            self._publish_snapshot(snapshot, online_signer, expiry, now)
+            return [Snapshot.type, Timestamp.type]
+        self._check_online(online_signer)
+        self._publish_timestamp(self.timestamp().signed.version, self.timestamp().signed.snapshot_meta,
+                                online_signer, expiry, now)
+        return [Timestamp.type]
+
+    def resign(self, online_signer, expiry: Expiry, now: datetime.datetime) -> None:
+        """Targets, snapshot and timestamp re-signed at their next versions
+        (after a root change names another online key)."""
+        self._publish_targets(self.targets(), online_signer, expiry, now)
+
+    # the root --------------------------------------------------------------
+
+    def prepare_root(self, expiry: Expiry, now: datetime.datetime, online_key=None, root_key=None) -> bytes:
+        """The next root, unsigned: the same keys but ``online_key`` (a new
+        online key for targets, snapshot, timestamp) and ``root_key`` (a new
+        root key) where given, a new expiry.  It must be signed by the
+        current root key (and by ``root_key`` if given) before install_root."""
+        root = self.root()
+        root.signatures.clear()
+        root.signed.version += 1
+        root.signed.expires = _expiry(now, expiry.root)
+        changes = [(role, online_key) for role in ONLINE_ROLES if online_key is not None]
+        if root_key is not None:
+            changes.append((Root.type, root_key))
+        for role, key in changes:
+            for keyid in list(root.signed.roles[role].keyids):
+                root.signed.revoke_key(keyid, role)
+            root.signed.add_key(key, role)
+        return root.to_bytes(_SERIALIZER)
+
+    def install_root(self, data: bytes, online_signer, expiry: Expiry, now: datetime.datetime) -> int:
+        """Make the signed root ``data`` current: it must be the next version,
+        signed by the current root's threshold and by its own; then targets,
+        snapshot and timestamp are re-signed with ``online_signer`` (the key
+        the new root names).  Its version."""
+        current = self.root()
+        try:
+            new = Metadata[Root].from_bytes(data)
+        except Exception as error:  # noqa: BLE001
+            raise RepositoryError(f"not TUF root metadata ({str(error).splitlines()[0]})") from None
+        if not isinstance(new.signed, Root):
+            raise RepositoryError(f"{new.signed.type} metadata, not a root")
+        if new.signed.version != current.signed.version + 1:
+            raise RepositoryError(f"root version {new.signed.version}: the next root is version "
+                                  f"{current.signed.version + 1}")
+        for signer_root, who in ((current.signed, "the current root key"), (new.signed, "its own root key")):
+            result = signer_root.get_verification_result(Root.type, new.signed_bytes, new.signatures)
+            if not result.verified:
+                raise RepositoryError(f"root version {new.signed.version} is not signed by {who} "
+                                      f"({len(result.signed)} of {result.threshold} signatures); robotfleet keys sign")
+        for role in ONLINE_ROLES:
+            if online_signer.public_key.keyid not in new.signed.roles[role].keyids:
+                raise RepositoryError(f"root version {new.signed.version} does not name the online key "
+                                      f"{online_signer.public_key.keyid[:16]} for {role}")
+        self._write_root(data, new.signed.version)
+        self.resign(online_signer, expiry, now)
+        return new.signed.version
+
+    def _prune(self) -> None:
+        """Keep the newest KEEP snapshot and targets versions and the target blobs they name."""
+        kept_targets: set[Path] = set()
+        for role in (Snapshot.type, Targets.type):
+            versions = sorted(int(p.name.split(".")[0]) for p in self.metadata.glob(f"*.{role}.json")
+                              if p.name.split(".")[0].isdigit())
+            for version in versions[:-KEEP]:
+                (self.metadata / f"{version}.{role}.json").unlink()
+            if role == Targets.type:
+                for version in versions[-KEEP:]:
+                    md = Metadata.from_file(str(self.metadata / f"{version}.{role}.json"))
+                    kept_targets |= {self.targets_dir / blob_name(p, i.hashes["sha256"])
+                                     for p, i in md.signed.targets.items()}
+        for stored in self.targets_dir.rglob("*") if self.targets_dir.exists() else ():
+            if stored.is_file() and stored not in kept_targets:
+                stored.unlink()

@@ -1,0 +1,360 @@
+"""The robot's side of a release's trust: a verified refresh of the TUF
+repository the operator published (python-tuf's ngclient), from a local
+directory (the fetched copy of the releases branch) or an HTTP(S) base URL.
+
+A robot's trust state lives in one directory (the agent's, root-only):
+
+    <state>/tuf          -> tuf-<random>/   the trusted metadata (ngclient's cache:
+                                            root.json, root_history/, timestamp, snapshot, targets)
+    <state>/trust.json   {"format": 1, "time": "...Z", "version": N, "release": "..."}
+
+``time`` is the last trusted time: the newest of the clock at a successful
+check and the ``published`` time of the newest record accepted.  Expiry is
+checked against max(system clock, last trusted time), so a robot that boots
+in 1970 (no RTC) still verifies, and a clock behind what it already trusted
+is never believed.  ``version`` is the highest record version accepted: a
+record below it (or below the version the agent applied) is a rollback.
+
+A refresh works on a copy of the trusted metadata and swaps it in (one
+rename of the ``tuf`` link) only when everything verified: a refusal leaves
+the trusted state as it was.  Every refusal is a Refused with one line and
+a reason from REASONS.  Nothing here needs the operator's keys.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import secrets
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from urllib import parse
+
+from tuf.api import exceptions
+from tuf.api.metadata import Metadata, Root
+from tuf.ngclient import FetcherInterface, Updater, UpdaterConfig
+
+from robotfleet.pull import record as records
+from robotfleet.pull import tufprivate
+
+# Why a refresh or a download was refused (machine-readable, in reports).
+UNSIGNED = "unsigned"  # metadata with no signature
+UNKNOWN_KEY = "unknown-key"  # signed, but not by a key the trusted root names for that role
+TAMPERED = "tampered"  # a signature by a trusted key that does not verify; a hash or length that differs
+ROLLBACK = "rollback"  # a version below one already trusted or applied
+EXPIRED = "expired"  # expired metadata or record (a freeze: the newest release withheld)
+MALFORMED = "malformed"  # not TUF metadata or not a release record
+UNAVAILABLE = "unavailable"  # could not be fetched (no file, no answer): nothing was judged
+REASONS = (UNSIGNED, UNKNOWN_KEY, TAMPERED, ROLLBACK, EXPIRED, MALFORMED, UNAVAILABLE)
+STATE_FORMAT = 1
+EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
+
+
+class Refused(Exception):
+    """A release (or its metadata, or a target) the robot does not accept.
+    ``reason``: one of REASONS; ``str()``: one line for the journal and the report."""
+
+    def __init__(self, reason: str, line: str):
+        super().__init__(line)
+        self.reason = reason
+        self.line = line
+
+
+@dataclass(frozen=True)
+class State:
+    """What the robot last trusted (trust.json)."""
+
+    time: datetime.datetime = EPOCH
+    version: int = 0
+    release: str | None = None
+
+
+def _now() -> datetime.datetime:
+    return datetime.datetime.now(datetime.timezone.utc)
+
+
+def read_state(state_dir) -> State:
+    """The trust state kept in ``state_dir`` (defaults if it has none yet)."""
+    try:
+        raw = json.loads(Path(state_dir, "trust.json").read_text())
+        return State(records.parse_time(raw["time"], "trust.json time"), int(raw["version"]), raw.get("release"))
+    except FileNotFoundError:
+        return State()
+    except (ValueError, KeyError, TypeError) as error:
+        raise Refused(MALFORMED, f"{Path(state_dir, 'trust.json')}: unreadable trust state ({error})") from None
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temp, path)
+    except BaseException:
+        if os.path.exists(temp):
+            os.unlink(temp)
+        raise
+
+
+def write_state(state_dir, state: State) -> None:
+    _write_atomic(Path(state_dir, "trust.json"), (json.dumps(
+        {"format": STATE_FORMAT, "time": records.utc(state.time), "version": state.version,
+         "release": state.release}, sort_keys=True) + "\n").encode())
+
+
+def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = None) -> None:
+    """Make ``state_dir`` trust ``root`` (the fleet's root.json, e.g. from a
+    first-boot bundle), with ``trusted_time`` as the last trusted time (the
+    bundle's release's published time).  Refused(MALFORMED) if ``root`` is
+    not a root signed by its own keys.  Replaces any earlier trust."""
+    try:
+        md = Metadata[Root].from_bytes(root)
+        if not isinstance(md.signed, Root):
+            raise ValueError("not a root")
+        md.signed.verify_delegate(Root.type, md.signed_bytes, md.signatures)
+    except Exception as error:  # noqa: BLE001 - every way a root can be bad is one refusal
+        raise Refused(MALFORMED, f"trust root: not a self-signed TUF root ({_first_line(error)})") from None
+    state_dir = Path(state_dir)
+    state_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
+    fresh = Path(tempfile.mkdtemp(dir=state_dir, prefix="tuf-"))
+    (fresh / "root_history").mkdir()
+    (fresh / "root_history" / f"{md.signed.version}.root.json").write_bytes(root)
+    os.symlink(f"root_history/{md.signed.version}.root.json", fresh / "root.json")
+    _swap_in(state_dir, fresh)
+    write_state(state_dir, State(trusted_time or EPOCH, 0, None))
+
+
+def _swap_in(state_dir: Path, fresh: Path) -> None:
+    """Point <state>/tuf at ``fresh`` in one rename; remove what it pointed at."""
+    link = state_dir / "tuf"
+    old = os.path.realpath(link) if os.path.islink(link) else None
+    temp_link = state_dir / f".tuf-link-{secrets.token_hex(4)}"
+    os.symlink(fresh.name, temp_link)
+    os.replace(temp_link, link)
+    if old and Path(old) != fresh.resolve():
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _sweep(state_dir: Path) -> None:
+    """Remove what an interrupted refresh left (work copies, a link not yet
+    renamed); the agent's lock on its state directory keeps refreshes apart."""
+    current = os.path.realpath(state_dir / "tuf")
+    for entry in state_dir.iterdir():
+        if entry.name.startswith(".tuf-link-"):
+            entry.unlink(missing_ok=True)
+        elif entry.name.startswith("tuf-") and str(entry.resolve()) != current:
+            shutil.rmtree(entry, ignore_errors=True)
+
+
+def trusted_root(state_dir) -> bytes:
+    """The root.json the robot trusts now (for its report and the bundle)."""
+    return Path(state_dir, "tuf", "root.json").read_bytes()
+
+
+class DirectoryFetcher(FetcherInterface):
+    """Reads ``file://`` URLs under one directory (the fetched releases
+    branch); anything missing or outside it answers like an HTTP 404."""
+
+    def __init__(self, base):
+        self.base = Path(base).resolve()
+
+    def _fetch(self, url: str):
+        parts = parse.urlsplit(url)
+        path = Path(parse.unquote(parts.path)).resolve()
+        if parts.scheme != "file" or (self.base not in path.parents) or not path.is_file():
+            raise exceptions.DownloadHTTPError(f"{url}: no such file", 404)
+        with open(path, "rb") as handle:
+            data = handle.read()
+        return iter([data])
+
+
+class _Recording(FetcherInterface):
+    """The fetcher in use, keeping the last metadata file it read (to say
+    whether a signature failed for want of one, an unknown key or a change)."""
+
+    def __init__(self, inner: FetcherInterface):
+        self.inner = inner
+        self.last: bytes | None = None
+
+    def _fetch(self, url: str):
+        data = b"".join(self.inner.fetch(url))
+        if "/metadata/" in url:
+            self.last = data
+        return iter([data])
+
+
+def _first_line(error: BaseException) -> str:
+    text = str(error).strip() or type(error).__name__
+    return text.splitlines()[0][:300]
+
+
+def _unsigned_reason(data: bytes | None, metadata_dir: Path) -> tuple[str, str]:
+    """For metadata whose signatures do not meet its threshold: unsigned,
+    unknown key or tampered, and the role's name."""
+    try:
+        md = Metadata.from_bytes(data or b"")
+        role = md.signed.type
+        trusted = Metadata[Root].from_file(str(metadata_dir / "root.json")).signed
+        keyids = set(trusted.roles[role].keyids)
+    except Exception:  # noqa: BLE001 - unreadable here means the refusal stays "tampered"
+        return TAMPERED, "metadata"
+    if not md.signatures:
+        return UNSIGNED, role
+    if not keyids & set(md.signatures):
+        return UNKNOWN_KEY, role
+    return TAMPERED, role
+
+
+class Client:
+    """A robot's verified view of the fleet's releases.
+
+    ``source``: a directory holding the repository (``metadata/``,
+    ``targets/``: the fetched releases branch) or an http(s):// base URL of
+    the same two directories.  ``clock``: the system clock (tests pass
+    another).  One Client does one refresh (python-tuf's rule)."""
+
+    def __init__(self, state_dir, source: str, clock=_now):
+        self.state_dir = Path(state_dir)
+        self.source = str(source)
+        self.clock = clock
+        self.updater: Updater | None = None
+        self.record: records.Record | None = None
+        self.reference_time: datetime.datetime | None = None
+
+    def _bases(self) -> tuple[str, str, FetcherInterface | None]:
+        if self.source.startswith(("https://", "http://")):
+            base = self.source.rstrip("/") + "/"
+            return base + "metadata/", base + "targets/", None
+        base = Path(self.source).resolve()
+        url = "file://" + parse.quote(str(base))
+        return url + "/metadata/", url + "/targets/", DirectoryFetcher(base)
+
+    def refresh(self, applied: int = 0) -> records.Record:
+        """Verify the repository and return its release record; refuse
+        (Refused) anything unsigned, signed by an unknown key, tampered,
+        below version max(``applied``, the highest accepted), expired, or
+        malformed, leaving the trusted state untouched.  On success the new
+        metadata and trust.json are kept."""
+        if not (self.state_dir / "tuf" / "root.json").exists():
+            raise Refused(MALFORMED, f"{self.state_dir}: no trusted root (initialize the robot's trust first)")
+        _sweep(self.state_dir)
+        state = read_state(self.state_dir)
+        now = self.clock()
+        self.reference_time = max(now, state.time)
+        work = Path(tempfile.mkdtemp(dir=self.state_dir, prefix="tuf-"))
+        try:
+            shutil.copytree(self.state_dir / "tuf", work, symlinks=True, dirs_exist_ok=True)
+            metadata_url, targets_url, fetcher = self._bases()
+            recording = _Recording(fetcher or _https_fetcher())
+            try:
+                updater = Updater(str(work), metadata_url, None, targets_url, recording,
+                                  UpdaterConfig(app_user_agent="robotfleet"), bootstrap=None)
+                tufprivate.set_reference_time(updater, self.reference_time)
+                updater.refresh()
+                raw = self._release_bytes(updater, work)
+            except exceptions.UnsignedMetadataError as error:
+                reason, role = _unsigned_reason(recording.last, work)
+                raise Refused(reason, f"{role}.json: {_WORDS[reason]} ({_first_line(error)})") from None
+            except Refused:
+                raise
+            except Exception as error:  # noqa: BLE001 - classified below, never let through
+                refused = _classified(error)
+                raise Refused(refused.reason, f"releases at {self.source}: {refused.line}") from None
+            try:
+                found = records.parse(raw)
+            except records.RecordError as error:
+                raise Refused(MALFORMED, str(error)) from None
+            floor = max(applied, state.version)
+            if found.version < floor:
+                raise Refused(ROLLBACK, f"release {found.version} ({found.release}) is older than release {floor} "
+                                        "already accepted: refused as a rollback")
+            if found.expires_at <= self.reference_time:
+                raise Refused(EXPIRED, f"release {found.version} ({found.release}) expired at {found.expires} "
+                                       f"(trusted time {records.utc(self.reference_time)}): refused as a freeze")
+        except BaseException:
+            shutil.rmtree(work, ignore_errors=True)
+            raise
+        _swap_in(self.state_dir, work)
+        write_state(self.state_dir, State(max(state.time, now, found.published_at),
+                                          max(state.version, found.version), found.release))
+        self.updater, self.record = updater, found
+        return found
+
+    @staticmethod
+    def _release_bytes(updater: Updater, work: Path) -> bytes:
+        info = updater.get_targetinfo(records.NAME)
+        if info is None:
+            raise Refused(MALFORMED, f"the signed targets name no {records.NAME}: not a fleet release repository")
+        target = work / ".release.json"
+        updater.download_target(info, str(target))
+        data = target.read_bytes()
+        target.unlink()
+        return data
+
+    def download(self, paths, directory) -> dict[str, Path]:
+        """Each TUF target in ``paths`` (e.g. the record's code archive and
+        wheels) into ``directory``/<path>, verified (length and sha256 the
+        signed targets give), kept if already there and verified; written as
+        a temp file, then renamed.  Refused (TAMPERED, UNAVAILABLE, ...) if one
+        cannot be had.  Call after refresh()."""
+        if self.updater is None:
+            raise RuntimeError("download() before a successful refresh()")
+        directory = Path(directory)
+        found: dict[str, Path] = {}
+        for path in paths:
+            if path.startswith("/") or ".." in path.split("/") or not path:
+                raise Refused(MALFORMED, f"{path!r}: not a target path")
+            try:
+                info = self.updater.get_targetinfo(path)
+                if info is None:
+                    raise Refused(MALFORMED, f"{path}: not in the signed targets")
+                destination = directory / path
+                destination.parent.mkdir(parents=True, exist_ok=True)
+                if not self.updater.find_cached_target(info, str(destination)):
+                    partial = destination.with_name(f".{destination.name}.{secrets.token_hex(4)}.part")
+                    try:
+                        self.updater.download_target(info, str(partial))
+                        os.replace(partial, destination)
+                    finally:
+                        partial.unlink(missing_ok=True)
+            except Refused:
+                raise
+            except Exception as error:  # noqa: BLE001 - classified, never let through
+                refused = _classified(error)
+                raise Refused(refused.reason, f"{path}: {refused.line}") from None
+            found[path] = destination
+        return found
+
+
+def _https_fetcher() -> FetcherInterface:
+    from tuf.ngclient import Urllib3Fetcher
+
+    return Urllib3Fetcher(app_user_agent="robotfleet")
+
+
+_WORDS = {UNSIGNED: "not signed", UNKNOWN_KEY: "signed by a key the robot does not trust",
+          TAMPERED: "changed after it was signed"}
+
+
+def _classified(error: BaseException) -> Refused:
+    """python-tuf's exception -> Refused with one of REASONS."""
+    line = _first_line(error)
+    if isinstance(error, exceptions.LengthOrHashMismatchError):
+        return Refused(TAMPERED, f"does not match what was signed ({line})")
+    if isinstance(error, exceptions.DownloadLengthMismatchError):
+        return Refused(TAMPERED, f"longer than what was signed ({line})")
+    if isinstance(error, exceptions.BadVersionNumberError):
+        return Refused(ROLLBACK, f"older than what the robot trusts: refused as a rollback ({line})")
+    if isinstance(error, exceptions.ExpiredMetadataError):
+        return Refused(EXPIRED, f"expired: refused as a freeze ({line})")
+    if isinstance(error, exceptions.DownloadError):
+        cause = error.__cause__ or error.__context__
+        return Refused(UNAVAILABLE, f"could not be fetched ({line}{': ' + _first_line(cause) if cause else ''})")
+    if isinstance(error, OSError):
+        return Refused(UNAVAILABLE, f"could not be read or written ({line})")
+    return Refused(MALFORMED, f"not valid TUF metadata ({line})")

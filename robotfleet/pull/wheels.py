@@ -1,0 +1,105 @@
+"""The wheelhouse robots install their venv from (the agent's, pyinfra's):
+binary wheels only, fetched on the operator's side for each robot platform
+with ``pip download --only-binary=:all:``, so a robot never needs an index.
+
+A platform is ``cp<major><minor>-<machine>``, e.g. cp313-x86_64 or
+cp311-aarch64 (the robot's python and ``uname -m``).  Wheels are cached in
+``<cache>/<platform>/``; an unchanged set of requirements downloads nothing
+new (pip finds the files there), and the same wheel file is the same TUF
+target blob in every release.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+_PLATFORM = re.compile(r"cp3([0-9]{1,2})-(x86_64|aarch64|armv7l)")
+# glibc wheel tags pip accepts for a machine, newest first (Debian 12: glibc 2.36, Ubuntu 22.04: 2.35).
+_MANYLINUX = ("manylinux_2_34_{m}", "manylinux_2_28_{m}", "manylinux_2_17_{m}", "manylinux2014_{m}",
+              "manylinux_2_5_{m}", "manylinux1_{m}")
+PIP_TIMEOUT = 1800
+
+
+class WheelError(Exception):
+    """The wheelhouse cannot be built; the message is one line."""
+
+
+def platform_key(version: tuple[int, int] | None = None, machine: str | None = None) -> str:
+    """This interpreter's platform (or the one given): 'cp313-x86_64'."""
+    major, minor = version or sys.version_info[:2]
+    machine = machine or os.uname().machine
+    return f"cp{major}{minor}-{ {'amd64': 'x86_64', 'arm64': 'aarch64'}.get(machine, machine)}"
+
+
+def parse_platform(key: str) -> tuple[str, str]:
+    """'cp313-x86_64' -> ('3.13', 'x86_64'); ValueError with one line otherwise."""
+    match = _PLATFORM.fullmatch(str(key))
+    if not match:
+        raise ValueError(f"platform {key!r}: expected cp<python version>-<machine>, e.g. cp313-x86_64 or "
+                         "cp311-aarch64 (machines: x86_64, aarch64, armv7l)")
+    return f"3.{match.group(1)}", match.group(2)
+
+
+def pip_command(requirements: list[str], key: str, directory: Path, python: str = sys.executable,
+                index_url: str | None = None) -> list[str]:
+    """The ``pip download`` that fills ``directory`` with ``key``'s wheels."""
+    version, machine = parse_platform(key)
+    command = [python, "-m", "pip", "download", "--disable-pip-version-check", "--no-input", "--quiet",
+               "--only-binary=:all:", "--implementation", "cp", "--python-version", version,
+               "--dest", str(directory)]
+    for tag in _MANYLINUX:
+        command += ["--platform", tag.format(m=machine)]
+    command += ["--platform", "any"]
+    if index_url:
+        command += ["--index-url", index_url]
+    return command + list(requirements)
+
+
+def build_wheelhouse(requirements: list[str], key: str, cache_dir, python: str = sys.executable,
+                     index_url: str | None = None) -> list[Path]:
+    """The wheels (sorted paths) that install ``requirements`` on platform
+    ``key``, downloaded into ``cache_dir``/``key``.  WheelError (pip's last
+    line) when a requirement has no wheel for that platform."""
+    directory = Path(cache_dir, key)
+    directory.mkdir(parents=True, exist_ok=True)
+    log = directory / "pip-download.log"
+    log.unlink(missing_ok=True)  # pip appends: only this run's lines say what this set resolved to
+    command = pip_command(requirements, key, directory, python, index_url) + ["--log", str(log)]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=PIP_TIMEOUT, check=False)
+    except (OSError, subprocess.TimeoutExpired) as error:
+        raise WheelError(f"wheels for {key}: pip download: {error}") from None
+    if done.returncode:
+        said = [line for line in done.stderr.splitlines() if line.strip() and not line.startswith("WARNING")]
+        raise WheelError(f"wheels for {key}: {said[-1].strip() if said else 'pip download failed'} "
+                         f"(pip's log: {log})")
+    names = _resolved(log, directory) or sorted(p.name for p in directory.glob("*.whl"))
+    return [directory / name for name in sorted(names)]
+
+
+def _resolved(log: Path, directory: Path) -> list[str]:
+    """The wheel files this download resolved to (pip's log names each one
+    it saved or found already there), so a cache holding older versions
+    does not put them in the release."""
+    try:
+        text = log.read_text(errors="replace")
+    except OSError:
+        return []
+    names = set(re.findall(r"(?:Saved|File was already downloaded) \S*?([^/\s]+\.whl)", text))
+    return sorted(n for n in names if (directory / n).exists())
+
+
+def requirements_of(pyproject: bytes) -> list[str]:
+    """The ``[project] dependencies`` of a pyproject.toml's bytes."""
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        raise WheelError("reading pyproject.toml needs Python 3.11 or later (tomllib)") from None
+    try:
+        return list(tomllib.loads(pyproject.decode())["project"]["dependencies"])
+    except (ValueError, KeyError, UnicodeDecodeError) as error:
+        raise WheelError(f"pyproject.toml: no [project] dependencies ({error})") from None

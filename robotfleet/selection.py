@@ -1,0 +1,139 @@
+"""What the operator commands and the inventory files share: the exit codes, and an inventory's
+hosts selected by --limit, where a pattern that matches nothing is refused
+(pyinfra warns "No host matches found" and exits 0 having done nothing).
+The exit codes are README's table ("Exit codes").
+
+A --limit is a comma list of terms (``--limit robot1,robot2``; the option
+may also be repeated); a term is what pyinfra's own --limit takes, a group's
+name or a glob on host names (``robot*``), or, as in Ansible's patterns,
+``&TERM`` (only hosts also in TERM) or ``!TERM`` (not those).  pyinfra's
+deploys get the same through robotfleet/inventory.py, which names each such
+--limit as a group of its hosts.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import os
+import sys
+
+OK = 0  # every host did what was asked
+FAILED = 1  # a host failed: a step, a changed host key, a rollout's budget
+REFUSED = 2  # nothing was contacted: bad fleet data, bad arguments, a --limit matching nothing
+UNREACHABLE = 3  # a host could not be reached (and none failed otherwise)
+CODES = {OK: "done", FAILED: "a host failed", REFUSED: "refused before contacting any host",
+         UNREACHABLE: "a host was unreachable"}
+
+
+class Refused(Exception):
+    """One line; the command exits REFUSED."""
+
+
+def terms(limit: str) -> list[str]:
+    """The terms of one --limit value: ``a,b,!c`` -> [a, b, !c]."""
+    return [term.strip() for term in limit.split(",") if term.strip()]
+
+
+def needs_group(limit: str) -> bool:
+    """Whether pyinfra's own --limit cannot take ``limit`` as it is (a list,
+    an intersection or an exclusion): robotfleet/inventory.py then names it
+    as a group."""
+    found = terms(limit)
+    return len(found) != 1 or found[0].startswith(("!", "&"))
+
+
+def _matches(term: str, hosts: list[tuple[str, set[str]]], groups: set[str]) -> list[str]:
+    """pyinfra's matching of one term: a group's name, else a glob on host names."""
+    if term in groups:
+        return [name for name, of in hosts if term in of]
+    return [name for name, _ in hosts if fnmatch.fnmatch(name, term)]
+
+
+def _problem(term: str) -> str | None:
+    if term.startswith("~"):
+        return f"{term}: regular expressions (~) are not supported; use a glob (robot*) or a group's name"
+    if term[:1] in ("!", "&") and not term[1:].strip():
+        return f"{term!r}: {term[0]} needs a group or host pattern after it"
+    if ":" in term and "[" not in term:
+        return f"{term}: separate patterns with commas (robots,laptops), not ':'"
+    return None
+
+
+def resolve(limits: list[str], hosts: list[tuple[str, set[str]]], groups: set[str]) -> tuple[list[str], list[str]]:
+    """(the host names ``limits`` select, in inventory order; the terms that
+    match nothing or cannot be read).  ``hosts``: (name, its groups)."""
+    bad: list[str] = []
+    selected: set[str] = set()
+    for limit in limits:
+        found = terms(limit) or [limit]
+        chosen: set[str] = set()
+        plain = [t for t in found if not t.startswith(("!", "&"))] or ["*"]
+        for term in plain:
+            matched = _matches(term, hosts, groups)
+            if not matched:
+                bad.append(term)
+            chosen |= set(matched)
+        for term in (t for t in found if t.startswith("&")):
+            matched = _matches(term[1:].strip(), hosts, groups)
+            if not matched:
+                bad.append(term)
+            chosen &= set(matched)
+        for term in (t for t in found if t.startswith("!")):
+            matched = _matches(term[1:].strip(), hosts, groups)
+            if not matched:
+                bad.append(term)
+            chosen -= set(matched)
+        selected |= chosen
+    return [name for name, _ in hosts if name in selected], bad
+
+
+def refusal(limits: list[str], inventory: str, hosts: list[tuple[str, set[str]]], groups: set[str]) -> str | None:
+    """One line if a --limit cannot be read, or a term or a whole --limit
+    selects no host; None when every one selects some."""
+    for limit in limits:
+        for term in terms(limit):
+            problem = _problem(term)
+            if problem:
+                return f"--limit {problem}; nothing was done"
+    selected, bad = resolve(limits, hosts, groups)
+    names = [name for name, _ in hosts]
+    known = ", ".join(names[:8]) + (", ..." if len(names) > 8 else "")
+    where = f"(hosts: {known or 'none'}; groups: {', '.join(sorted(groups)) or 'none'}); nothing was done"
+    if bad:
+        shown = " ".join(term.lstrip("!&").strip() for term in bad)
+        return f"--limit {shown}: no host or group of {inventory} matches {where}"
+    if limits and not selected:
+        return f"--limit {','.join(limits)}: selects no host of {inventory} {where}"
+    return None
+
+
+def inventory(path: str):
+    """The pyinfra inventory of ``path`` (its hosts connect through robotfleet/connect.py)."""
+    from pyinfra.api import State
+    from pyinfra.context import ctx_state
+    from pyinfra_cli.inventory import make_inventory
+
+    if not os.path.exists(path):
+        raise Refused(f"{path}: no such inventory file")
+    with ctx_state.use(State()):
+        return make_inventory(path, cwd=os.getcwd())
+
+
+def select(inventory_, path: str, limits: list[str]) -> list:
+    """The hosts of ``inventory_`` matching ``limits`` (all without), in
+    inventory order; Refused if a pattern matches nothing."""
+    hosts = list(inventory_)
+    groups = {name for name in inventory_.groups if not name.startswith("@")}
+    listed = [(h.name, set(h.groups)) for h in hosts]
+    problem = refusal(limits, path, listed, groups)
+    if problem:
+        raise Refused(problem)
+    if not limits:
+        return hosts
+    chosen = set(resolve(limits, listed, groups)[0])
+    return [h for h in hosts if h.name in chosen]
+
+
+def refused(error: Refused) -> int:
+    print(error, file=sys.stderr)
+    return REFUSED

@@ -1,0 +1,46 @@
+"""The payload's part in a pull release (robotfleet publish): every image
+of a host's compose project, resolved to the digest its registry gives now
+(roles/payload/registry.py, with the fleet's insecure registries and each
+registry's own credentials, roles/payload/credentials.py, as push delivery
+reads it).  A reference already pinned by digest keeps its digest."""
+
+from __future__ import annotations
+
+from robotfleet.role import PinPart
+import roles.payload.credentials as credentials
+import roles.docker.hooks as docker_hooks
+import roles.payload.digests as digests
+import roles.payload.services as services
+import roles.payload.payloadctl.imageref as imageref
+
+SETTING = digests.SETTING
+
+
+def refs(data) -> list[str]:
+    return services.images(data)
+
+
+def resolve(data, wanted: list[str]) -> dict[str, str]:
+    """ref -> "sha256:..." (the manifest or index the tag names now); ValueError with one line."""
+    from roles.payload.registry import Registry, RegistryError
+
+    found = {}
+    for text in wanted:
+        ref = imageref.parse(text)
+        if ref.digest:
+            found[text] = ref.digest
+            continue
+        try:
+            own = credentials.lookup(data, ref.registry)  # this registry's, never another's
+        except credentials.CredentialError as error:
+            raise ValueError(f"image {text}: {error}") from None
+        registry = Registry(ref.registry, docker_hooks.insecure_registries(data), own)
+        try:
+            _, _, digest = registry.manifest(ref.repository, ref.tag or "latest")
+        except RegistryError as error:
+            raise ValueError(f"image {text}: {error}") from None
+        found[text] = digest
+    return found
+
+
+PINS = PinPart(refs=refs, resolve=resolve, setting=SETTING)

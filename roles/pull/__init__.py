@@ -1,0 +1,138 @@
+"""roles/pull: the agent that lets a robot converge itself (pull mode).
+
+Where ``pull`` is true, a push deploy installs the agent: git and
+python3-venv, a venv made from the operator's wheels for the robot's
+python and architecture, the deploy tree the agent runs, its configuration
+and the release repository's root.json (root's only), the robot's own SSH
+key for the fleet remote (made on the robot; it never leaves it), and
+robot-pull.service run by robot-pull.timer.  When the agent itself runs the
+deploy (a release, robotfleet/pull/agent.py), the venv and the tree are
+the release's, which the agent put in place: the role leaves them alone.
+docs/pull.md says how it all fits; roles/pull/README.md what the role does.
+"""
+
+from __future__ import annotations
+
+from pyinfra import host
+from pyinfra.api import deploy, operation
+from pyinfra.operations.util import any_changed
+
+from robotfleet import CHECKOUT
+from robotfleet.host import apt, operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.host.stream import FileStdin
+from robotfleet.pull import install, layout
+from robotfleet.role import Play, Role
+import roles.pull.plan as plan
+import roles.pull.settings as settings
+
+INSTALLED_PROBE = "pull_installed"
+PYTHON_PROBE = "pull_python"
+# Set in a host's data by the agent when it runs the deploy itself.
+AGENT_RUN = layout.AGENT_RUN
+FILES = (layout.CONFIG, layout.TRUST_ROOT, layout.KNOWN_HOSTS, layout.KEY, f"{layout.KEY}.pub",
+         f"{layout.UNIT_DIR}/{layout.SERVICE}", f"{layout.UNIT_DIR}/{layout.TIMER}")
+
+
+def runs_on(data) -> bool:
+    return data.pull is True
+
+
+def declare_reads(data, query: SnapshotQuery) -> None:
+    query.packages |= set(plan.PACKAGES)
+    query.files |= {layout.ETC, layout.STATE, *FILES}
+    query.units.add(layout.TIMER)
+    query.probes[INSTALLED_PROBE] = install.PROBE
+    query.probes[PYTHON_PROBE] = plan.PYTHON_PROBE
+
+
+def robot_name(data) -> str:
+    """The robot's name in the fleet (its report's, its git user's): the
+    host's, or the agent's when it runs the deploy as @local."""
+    return (data.get(AGENT_RUN) or {}).get("robot") or host.name
+
+
+@deploy("Pull agent")
+def pull_agent(play: Play):
+    data, snap = play.data, play.snapshot
+    name = robot_name(data)
+    agent_run = bool(data.get(AGENT_RUN))
+    if not agent_run:  # the agent's own run: the robot already trusts, and follows root changes itself
+        try:
+            root = install.trust_root(CHECKOUT, data.pull_trust_root)
+        except install.InstallError as error:
+            operations.fail(name="Read the release repository's root.json", message=str(error))
+            return
+    apt.apt_install(name="Install git and python3-venv for the pull agent", packages=list(plan.PACKAGES),
+                    installed=snap.packages)
+    for path in (layout.ETC, layout.STATE):
+        operations.directory(name=f"Pull agent directory {path}", path=path, current=snap.files.get(path),
+                             mode="0700")
+    operations.file(name="Write the pull agent's configuration", path=layout.CONFIG,
+                    content=plan.config(data, name).to_json(), current=snap.files.get(layout.CONFIG),
+                    mode="0600")
+    if not agent_run:
+        operations.file(name="Write the release repository's root.json (the agent's first trust)",
+                        path=layout.TRUST_ROOT, content=root, current=snap.files.get(layout.TRUST_ROOT), mode="0600")
+    operations.file(name="Write the fleet remote's host keys", path=layout.KNOWN_HOSTS,
+                    content=plan.known_hosts(data), current=snap.files.get(layout.KNOWN_HOSTS))
+    if snap.files.get(layout.KEY) is None or snap.files.get(f"{layout.KEY}.pub") is None:
+        operations.run(name="Make the robot's own key for the fleet remote (it never leaves the robot)",
+                       script=plan.keygen_script(name))
+    if not agent_run:
+        _install_venv_and_code(data, snap)
+    units = [
+        operations.file(name=f"Write {layout.SERVICE}", path=f"{layout.UNIT_DIR}/{layout.SERVICE}",
+                        content=plan.service_unit(), current=snap.files.get(f"{layout.UNIT_DIR}/{layout.SERVICE}")),
+        operations.file(name=f"Write {layout.TIMER}", path=f"{layout.UNIT_DIR}/{layout.TIMER}",
+                        content=plan.timer_unit(data), current=snap.files.get(f"{layout.UNIT_DIR}/{layout.TIMER}")),
+    ]
+    operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=any_changed(*units))
+    operations.run(name=f"Restart {layout.TIMER} with its new schedule", script=f"systemctl restart {layout.TIMER}",
+                   _if=any_changed(*units[1:]))
+    operations.service(name=f"{layout.TIMER} enabled and running", unit=layout.TIMER,
+                       enabled_now=snap.unit_enabled(layout.TIMER), active_now=snap.unit_active(layout.TIMER))
+
+
+def _install_venv_and_code(data, snap) -> None:
+    platform = plan.platform(snap.probes.get(PYTHON_PROBE, ""), snap.os_release, snap.arch)
+    if platform != data.pull_platform:
+        operations.fail(name="Check pull_platform against the robot",
+                        message=f"pull_platform: {data.pull_platform}, but this robot runs "
+                                f"{platform or 'a python or machine without wheels'}; its releases carry the "
+                                f"wheels of pull_platform" + (f" (set pull_platform: {platform})" if platform else ""))
+        return
+    installed = install.read_probe(snap.probes.get(INSTALLED_PROBE, ""))
+    try:
+        venv, files = install.wheel_set(install.releases_clone(CHECKOUT), platform)
+        code, archive = install.code_archive(CHECKOUT)
+    except install.InstallError as error:
+        operations.fail(name="Find what the pull agent runs", message=f"pull: {error}")
+        return
+    send(name=f"Make the pull agent's venv from {len(files)} wheels ({platform})",
+         wanted=venv, present=installed["venv"], script=install.venv_script(venv),
+         archive=install.wheels_archive(files))
+    send(name=f"Install the deploy tree the pull agent runs ({code[:12]})",
+         wanted=code, present=installed["code"], script=install.code_script(code), archive=archive)
+
+
+@operation()
+def send(wanted: str, present: str, script: str, archive: str):
+    """Run ``script`` with the local file ``archive`` on its stdin unless the
+    robot already has ``wanted``."""
+    if wanted == present:
+        host.noop(f"{wanted} is in place")
+        return
+    yield operations.shell(script, stdin=FileStdin(archive))
+
+
+ROLE = Role(
+    name="pull",
+    doc="Pull mode: the agent that fetches, verifies and applies signed releases on the robot itself.",
+    settings=settings.SETTINGS,
+    runs_on=runs_on,
+    reads=declare_reads,
+    steps=pull_agent,
+    rules=settings.rules,
+)
+

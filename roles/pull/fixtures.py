@@ -1,0 +1,30 @@
+"""Test fixtures: what a successful run of the pull role leaves on a host."""
+
+from robotfleet import CHECKOUT
+from robotfleet.host.fixtures import file_state
+from robotfleet.host.snapshot import FileState
+from robotfleet.pull import install, layout
+import roles.pull as role
+import roles.pull.plan as plan
+
+
+def converged(play, host: str) -> None:
+    data, snap = play.data, play.snapshot
+    name = host  # what the steps see as host.name
+    for package in plan.PACKAGES:
+        snap.packages[package] = "1"
+    for path in (layout.ETC, layout.STATE):
+        snap.files[path] = FileState("dir", None, "700", "root", "root")
+    snap.files[layout.CONFIG] = file_state(plan.config(data, name).to_json(), "600")
+    snap.files[layout.TRUST_ROOT] = file_state(install.trust_root(CHECKOUT, data.pull_trust_root), "600")
+    snap.files[layout.KNOWN_HOSTS] = file_state(plan.known_hosts(data))
+    snap.files[layout.KEY] = file_state("private", "600")
+    snap.files[f"{layout.KEY}.pub"] = file_state("ssh-ed25519 AAAA robot-pull@" + name, "600")
+    snap.files[f"{layout.UNIT_DIR}/{layout.SERVICE}"] = file_state(plan.service_unit())
+    snap.files[f"{layout.UNIT_DIR}/{layout.TIMER}"] = file_state(plan.timer_unit(data))
+    snap.units[layout.TIMER] = ("enabled", "active")
+    platform = data.pull_platform
+    snap.probes[role.PYTHON_PROBE] = platform.split("-")[0][2:] + "\n"
+    venv, _ = install.wheel_set(install.releases_clone(CHECKOUT), platform)
+    code, _ = install.code_archive(CHECKOUT)
+    snap.probes[role.INSTALLED_PROBE] = f"venv=venvs/{venv}\ncode={code}\n"

@@ -1,0 +1,49 @@
+"""Pure decisions of the pull role: the agent's configuration, its systemd
+units and the python a robot has, computed from the host's data."""
+
+from __future__ import annotations
+
+import shlex
+
+from robotfleet.pull import layout
+
+PACKAGES = ("python3-venv", "git", "openssh-client")
+# The python a release of Debian or Ubuntu ships (python3), for a host that
+# has none yet: its wheels are chosen before python3 is installed.
+DISTRIBUTION_PYTHON = {
+    ("debian", "11"): "39", ("debian", "12"): "311", ("debian", "13"): "313",
+    ("ubuntu", "20.04"): "38", ("ubuntu", "22.04"): "310", ("ubuntu", "24.04"): "312",
+}
+# dpkg's architecture -> what Python calls the machine (platform.machine()).
+MACHINES = {"amd64": "x86_64", "arm64": "aarch64", "armhf": "armv7l", "i386": "i686"}
+PYTHON_PROBE = "python3 -c 'import sys; print(\"%d%d\" % sys.version_info[:2])'"
+
+
+config = layout.config_of
+known_hosts = layout.known_hosts_of
+KNOWN_HOSTS_ALIAS = layout.HOST_KEY_ALIAS
+
+
+def platform(probed_python: str, os_release: dict, arch: str) -> str | None:
+    """The robot's wheel platform, e.g. cp313-x86_64; None when unknown."""
+    version = probed_python.strip()
+    if not version.isdigit():
+        version = DISTRIBUTION_PYTHON.get((os_release.get("id", ""), os_release.get("version_id", "")), "")
+    machine = MACHINES.get(arch)
+    return f"cp{version}-{machine}" if version and machine else None
+
+
+def keygen_script(robot: str) -> str:
+    """Make the robot's key pair beside its place, then rename it into place."""
+    key = layout.KEY
+    return f"""set -e
+umask 077
+tmp=$(mktemp -d {layout.ETC}/.key.XXXXXX); trap 'rm -rf "$tmp"' EXIT
+ssh-keygen -q -t ed25519 -N '' -C 'robot-pull@'{shlex.quote(robot)} -f "$tmp/key"
+mv -T "$tmp/key.pub" {key}.pub
+mv -T "$tmp/key" {key}
+"""
+
+
+service_unit = layout.service_unit
+timer_unit = layout.timer_unit

@@ -1,0 +1,90 @@
+"""The pull role's settings: where a pull host (the engine's ``pull``
+setting) fetches releases, how often, and when it may apply them."""
+
+from __future__ import annotations
+
+from robotfleet import checks as c
+from robotfleet import values as v
+from robotfleet.pull import waves
+from robotfleet.role import Setting
+
+# The fleet remote as git takes it (never through a shell, but still no
+# character a shell or git's option parser gives a meaning to):
+# ssh://user@host[:port]/path, user@host:path, https://host[:port]/path.
+_HOST = rf"(?:{v.DNS_NAME}|{v.IPV4}|\[[0-9A-Fa-f:.]+\])"
+_PATH = r"[A-Za-z0-9._~/+-]*[A-Za-z0-9._~+-]"
+REMOTE = (rf"ssh://[a-z_][a-z0-9_.-]*@{_HOST}(?::[0-9]{{1,5}})?/{_PATH}"
+          rf"|[a-z_][a-z0-9_.-]*@{_HOST}:{_PATH}"
+          rf"|https://{_HOST}(?::[0-9]{{1,5}})?/{_PATH}")
+REMOTE_WHAT = "a git URL: ssh://user@host[:port]/path, user@host:path or https://host/path"
+HOST_KEY = r"(?:ssh-ed25519|ssh-rsa|ecdsa-sha2-nistp(?:256|384|521)) [A-Za-z0-9+/]+={0,3}"
+HOST_KEY_WHAT = "a public host key like 'ssh-ed25519 AAAA...' (ssh-keyscan's line without the host)"
+
+
+def _any_case(word: str) -> str:
+    return "".join(f"[{ch.upper()}{ch}]" if ch.isalpha() else ch for ch in word)
+
+
+_DAY = "(?:" + "|".join(_any_case(short) + f"(?:{_any_case(rest)})?" for short, rest in (
+    ("mon", "day"), ("tue", "sday"), ("wed", "nesday"), ("thu", "rsday"), ("fri", "day"), ("sat", "urday"),
+    ("sun", "day"))) + ")"
+_TIME = "(?:[01]?[0-9]|2[0-3]):[0-5][0-9]"
+# What robotfleet/pull/waves.py reads, in ASCII and single spaces (a JSON
+# Schema pattern too); a window that starts when it ends is the run's alone.
+WINDOW = (rf"(?:{_any_case('daily')}|\*|{_DAY}(?:-{_DAY})?(?:,{_DAY}(?:-{_DAY})?)*) +{_TIME}-{_TIME}"
+          rf"(?: +(?:{_any_case('utc')}|{_any_case('local')}))?")
+_WINDOW_CHECK = c.string(WINDOW, "a maintenance window like 'Mon-Fri 01:00-05:00' or 'daily 22:00-02:00 UTC'")
+
+
+def window(value):
+    """A maintenance window: DAYS HH:MM-HH:MM [UTC] (robotfleet/pull/waves.py)."""
+    problems = _WINDOW_CHECK(value)
+    if problems:
+        return problems
+    try:
+        waves.parse_window(value)
+    except ValueError as error:
+        return [("", str(error))]
+    return []
+
+
+c.with_schema(window, _WINDOW_CHECK.schema)
+
+SETTINGS = (
+    Setting("pull_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
+            "The fleet remote the agent fetches releases from and pushes its reports to (required with pull)."),
+    Setting("pull_remote_host_keys", [], c.list_of(c.string(HOST_KEY, HOST_KEY_WHAT), unique=True),
+            "The git server's SSH host keys, checked strictly by the agent (required for an ssh remote)."),
+    Setting("pull_interval", 900, c.integer(10, 7 * 86400),
+            "Seconds between two checks for a new release (the timer's OnUnitInactiveSec)."),
+    Setting("pull_jitter", 300, c.integer(0, 86400),
+            "Up to this many seconds added at random to each wait, so robots do not wake at once (RandomizedDelaySec)."),
+    Setting("pull_boot_delay", 60, c.integer(0, 86400),
+            "Seconds after boot (or after the agent is installed) before the first check (OnBootSec)."),
+    Setting("pull_windows", [], c.list_of(window, unique=True),
+            "Maintenance windows a release may start in (Mon-Fri 01:00-05:00, daily 22:00-02:00 UTC); none: any time."),
+    Setting("pull_min_free_mb", 512, c.integer(0, 1 << 20),
+            "Free MB the agent needs on its state directory's and Docker's file systems before it downloads."),
+    Setting("pull_stale_after", 3, c.integer(1, 1000),
+            "status marks a pull robot's report stale when it is older than this many intervals (plus the jitter)."),
+    Setting("pull_fetch_timeout", 300, c.integer(5, 86400),
+            "Seconds one fetch from the fleet remote may take."),
+    Setting("pull_trust_root", None, c.optional(v.local_path),
+            "The release repository's root.json on this machine, the robot's first trust (relative to the checkout); "
+            "null: the one robotfleet publish keeps (.robotfleet/releases/metadata/root.json)."),
+)
+
+
+def rules(data: dict, refused: frozenset) -> list[c.Problem]:
+    if data.get("pull") is not True or "pull" in refused:
+        return []
+    problems = []
+    remote = data.get("pull_remote")
+    if remote is None and "pull_remote" not in refused:
+        problems.append(("pull_remote", "required when pull is true: the git URL of the fleet remote "
+                                        "(e.g. ssh://gitolite3@git.example.com/fleet)"))
+    elif (isinstance(remote, str) and not remote.startswith("https://") and not data.get("pull_remote_host_keys")
+          and "pull_remote_host_keys" not in refused):
+        problems.append(("pull_remote_host_keys", "required for an ssh remote: the git server's host keys "
+                                                  "(ssh-keyscan HOST, checked against the server's own)"))
+    return problems

@@ -1,0 +1,204 @@
+"""Benchmark: pull mode on the lab.  Prints figures; asserts nothing; not
+part of the test command (it builds its own lab of N robots).
+
+    /work/bin/labslot python3 -m tests.bench.pull [--prefix pb] [--robots 10] [--intervals 30,60]
+                                                  [--jitters 0,15] [--idle-samples 5] [--keep]
+
+- publish -> 50% / 100% of the robots healthy on the new release, the
+  robots woken only by their timers (pull_interval, pull_jitter), for each
+  interval x jitter (each setting reaches the robots as a release first);
+- an idle check on one robot: wall seconds, CPU seconds (the agent and
+  everything it ran, from its journal line), bytes sent and received over
+  SSH (ssh's own count), with and without a report push;
+- bytes per update: what a robot's applying wake moved (its journal line);
+- a 10,000-robot fleet's load on the git server per hour, computed from the
+  measured per-check cost and written down with its formula: checks per
+  hour, bytes per hour, report pushes per hour (each push also receives the
+  ref advertisement of every robot's report ref, ~64 bytes a robot).
+
+The lab: `--robots` robots and the git server, provisioned by push, then the
+pull agent installed (as tests/e2e/test_pull.py does).  Figures wait for an
+idle machine (tests/bench/hygiene.py) and say when they could not.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import statistics
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from tests.bench import hygiene
+
+ROOT = Path(__file__).resolve().parents[2]
+LINE = re.compile(r"robot-pull: (?P<result>[a-z-]+)(?: \(release (?P<version>\d+)\))?.*; (?P<seconds>[\d.]+) s, "
+                  r"(?P<cpu>[\d.]+) s CPU, sent (?P<sent>\d+) B, received (?P<received>\d+) B; (?P<report>.*)$")
+FLEET_SIZE = 10_000
+REF_ADVERTISEMENT = 64  # bytes per report ref a push receives (pkt-line: 4 + 40-hex oid + space + refs/reports/<name> + LF)
+
+
+def journal(lab, robot: str) -> list[dict]:
+    code, out = lab.sh(robot, "journalctl -u robot-pull.service -o cat --no-pager | grep '^robot-pull: '")
+    return [m.groupdict() for m in map(LINE.match, out.splitlines()) if m]
+
+
+class Lab:
+    def __init__(self, prefix: str):
+        from tests.lab import state
+
+        self.prefix = prefix
+        self.state = state.load(prefix)
+        self.robots = [h["name"] for h in self.state["hosts"] if h["group"] == "robots"]
+
+    def sh(self, host: str, command: str) -> tuple[int, str]:
+        from tests.lab.state import exec_in
+
+        return exec_in(self.prefix, host, command)
+
+    def trigger(self, robots) -> None:
+        threads = [threading.Thread(target=self.sh, args=(r, "systemctl start robot-pull.service")) for r in robots]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+
+
+def setup(prefix: str, robots: int, base: Path):
+    """The lab (N robots, no laptop, the git server), provisioned by push, the agent installed."""
+    import os
+    import subprocess
+    import sys
+
+    from tests.lab import hosts, pullfleet
+
+    hosts.up(prefix, robots=robots, laptops=0, git_server=True)
+    env = dict(os.environ, ROBOT_LAB_PREFIX=prefix, PYINFRA_PROGRESS="off")
+    started = time.monotonic()
+    done = subprocess.run([sys.executable, "-m", "pyinfra", "-y", "inventories/lab.py", "deploy.py"], cwd=ROOT,
+                          env=env, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"bench: the fresh provisioning failed: {done.stderr[-2000:]}")
+    print(f"bench: {robots} robots provisioned by push in {time.monotonic() - started:.0f} s", flush=True)
+    op = pullfleet.Operator(prefix, base)
+    op.setup()
+    op.publish(pullfleet.fleet_text(op.lab), "release 1", "--pause", "0")
+    fleet = str(op.repo / pullfleet.FLEET)
+    done = subprocess.run([sys.executable, "-m", "pyinfra", "-y", "inventories/lab.py", "deploy.py"], cwd=ROOT,
+                          env={**op.env(ROBOT_LAB_FLEET=fleet), "PYINFRA_PROGRESS": "off"},
+                          capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"bench: installing the agent failed: {done.stderr[-2000:]}")
+    op.robotfleet("pull-enroll", "inventories/lab.py", "--ssh", *op.admin_options(), *op.remote(),
+                  env=op.env(ROBOT_LAB_FLEET=fleet))
+    lab = Lab(prefix)
+    lab.trigger(lab.robots)
+    return op, lab
+
+
+def idle_check(lab, op, samples: int) -> dict:
+    """Median cost of a check that finds nothing new, on the first robot."""
+    robot = lab.robots[0]
+    lab.trigger([robot])
+    lab.trigger([robot])  # settled: the report says nothing new
+    found = {"without a report push": [], "with a report push": []}
+    for index in range(samples * 2):
+        if index % 2:  # a heartbeat: the report is pushed although nothing changed
+            lab.sh(robot, "python3 -c \"import json; p='/var/lib/robot-pull/agent-state.json'; "
+                          "s=json.load(open(p)); s.pop('reported', None); json.dump(s, open(p, 'w'))\"")
+        hygiene.wait(f"idle check {index}", first=index == 0, patience=120)
+        lab.trigger([robot])
+        line = journal(lab, robot)[-1]
+        kind = "with a report push" if line["report"].startswith("report sent") else "without a report push"
+        found[kind].append({k: float(line[k]) for k in ("seconds", "cpu", "sent", "received")})
+    return {kind: {k: statistics.median(s[k] for s in samples_) for k in ("seconds", "cpu", "sent", "received")}
+            for kind, samples_ in found.items() if samples_}
+
+
+def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
+    """Publish, then the time until 50% and 100% of the robots report the release applied and healthy."""
+    from tests.lab import pullfleet
+
+    settings = {"pull_interval": interval, "pull_jitter": jitter, "pull_boot_delay": 5}
+    op.publish(pullfleet.fleet_text(op.lab, payload_tag="1.0" if tag == "1.1" else "1.1", **settings),
+               f"timers {interval}/{jitter}", "--pause", "0", "--no-wheels")
+    lab.trigger(lab.robots)  # the new timers in place (and that release applied)
+    hygiene.wait(f"rollout {interval}/{jitter}", first=True, patience=300)
+    published = time.monotonic()
+    done = op.publish(pullfleet.fleet_text(op.lab, payload_tag=tag, **settings), f"bench {tag}", "--pause", "0",
+                      "--no-wheels", "--canary", "100%")
+    version = int(re.search(r"release (\d+)", done.stdout).group(1))
+    reached: dict[str, float] = {}
+    deadline = published + 10 * (interval + jitter) + 300
+    while len(reached) < len(lab.robots) and time.monotonic() < deadline:
+        for robot, report in op.reports().items():
+            if robot in lab.robots and robot not in reached and (report.get("applied") or {}).get("version", 0) >= \
+                    version and (report.get("status") or {}).get("health") == "healthy":
+                reached[robot] = time.monotonic() - published
+        time.sleep(1)
+    times = sorted(reached.values())
+    half = times[(len(lab.robots) + 1) // 2 - 1] if len(times) >= (len(lab.robots) + 1) // 2 else None
+    updates = [line for robot in lab.robots for line in journal(lab, robot)
+               if line["result"] == "applied" and line["version"] == str(version)]
+    return {"interval": interval, "jitter": jitter, "robots": len(lab.robots), "reached": len(times),
+            "to_50%": half, "to_100%": times[-1] if len(times) == len(lab.robots) else None,
+            "bytes_per_update": statistics.median(int(u["sent"]) + int(u["received"]) for u in updates) if updates else None,
+            "load": hygiene.load()}
+
+
+def fleet_per_hour(idle: dict, interval: int, jitter: int, stale_after: int = 3) -> dict:
+    """What FLEET_SIZE robots ask of the git server per hour at this interval and jitter."""
+    plain = idle.get("without a report push") or {}
+    pushed = idle.get("with a report push") or plain
+    checks = FLEET_SIZE * 3600 / (interval + jitter / 2 + plain.get("seconds", 0))
+    heartbeat = stale_after * (interval + jitter) / 2
+    pushes = min(checks, FLEET_SIZE * 3600 / heartbeat)
+    push_extra = (pushed.get("sent", 0) + pushed.get("received", 0)) - (plain.get("sent", 0) + plain.get("received", 0))
+    advertisement = REF_ADVERTISEMENT * FLEET_SIZE
+    per_hour = checks * (plain.get("sent", 0) + plain.get("received", 0)) + pushes * (push_extra + advertisement)
+    return {"robots": FLEET_SIZE, "interval": interval, "jitter": jitter, "checks_per_hour": round(checks),
+            "report_pushes_per_hour": round(pushes), "ssh_sessions_per_hour": round(checks + pushes),
+            "bytes_per_hour": round(per_hour), "formula": (
+                "checks = N*3600/(interval + jitter/2 + check time); pushes = N*3600/(stale_after*(interval+jitter)/2); "
+                "bytes = checks*(idle check bytes) + pushes*(push bytes - idle bytes + 64*N advertised report refs)")}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.pull", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--prefix", default="pb")
+    parser.add_argument("--robots", type=int, default=10)
+    parser.add_argument("--intervals", default="30,60")
+    parser.add_argument("--jitters", default="0,15")
+    parser.add_argument("--idle-samples", type=int, default=5)
+    parser.add_argument("--keep", action="store_true", help="leave the lab up")
+    args = parser.parse_args(argv)
+    from tests.lab import hosts
+
+    figures = {"robots": args.robots}
+    try:
+        with tempfile.TemporaryDirectory(prefix="bench-pull-") as base:
+            op, lab = setup(args.prefix, args.robots, Path(base))
+            figures["idle_check"] = idle_check(lab, op, args.idle_samples)
+            print(f"bench: idle check: {json.dumps(figures['idle_check'])}", flush=True)
+            figures["rollouts"] = []
+            tag = "1.1"
+            for interval in [int(i) for i in args.intervals.split(",")]:
+                for jitter in [int(j) for j in args.jitters.split(",")]:
+                    found = rollout_times(lab, op, interval, jitter, tag)
+                    figures["rollouts"].append(found)
+                    print(f"bench: publish -> healthy: {json.dumps(found)}", flush=True)
+                    tag = "1.0" if tag == "1.1" else "1.1"
+            figures["fleet_per_hour"] = [fleet_per_hour(figures["idle_check"], i, j)
+                                         for i, j in ((300, 60), (900, 300), (3600, 600))]
+    finally:
+        if not args.keep:
+            hosts.down(args.prefix)
+    print(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

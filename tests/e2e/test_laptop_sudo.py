@@ -1,0 +1,113 @@
+"""End to end: a laptop deploying itself (inventories/local.py) as a user
+whose sudo needs a password (issue 28, item 8).  It printed pyinfra's
+2,700-character traceback from a password prompt it could not show; now one
+line names the host, that sudo needs a password and the two ways on, and
+each way on works: --use-sudo-password with the password on stdin, the
+sudoers line the message prints, and in a terminal sudo's own prompt, once.
+
+A plain container of the lab's Debian 13 host image (sudo, python3) gets
+this checkout, `.ci/setup --python` as root, and a user `dev`; the deploys
+run as dev with --dry (the snapshot and every sudo command run, nothing
+changes)."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from tests.e2e.conftest import PREFIX, phase
+from tests.e2e.test_stock_machine import CA_BUNDLE, PASSED_ENV, checkout_tar
+
+pytestmark = pytest.mark.e2e
+
+FLEET = """\
+all:
+  vars: {payload_image: "reg.example.com/ros/payload:1.0"}
+laptops:
+  hosts:
+    devbox: {x11_user: dev, docker_users: [dev]}
+"""
+DEPLOY = "env ROBOT_FLEET=/tmp/fleet.yaml PYINFRA_PROGRESS=off .venv/bin/pyinfra --dry inventories/local.py deploy.py"
+LINE = ("[@local] sudo needs a password for dev, and there is no terminal to ask for it: run pyinfra with "
+        "--use-sudo-password (it asks once, from stdin without a terminal, and hands the password to sudo through "
+        "SUDO_ASKPASS), or let dev use sudo without one: echo 'dev ALL=(ALL:ALL) NOPASSWD: ALL' | sudo tee "
+        "/etc/sudoers.d/robotfleet (then sudo visudo -cf /etc/sudoers.d/robotfleet; remove it after the deploy)")
+
+
+@pytest.fixture(scope="module")
+def laptop():
+    import os
+
+    from tests.lab import engine, hostimage
+
+    dc = engine.client()
+    image = hostimage.ensure_host_image(dc)
+    volumes, environment = {}, {"DEBIAN_FRONTEND": "noninteractive"}
+    if os.path.exists(CA_BUNDLE):
+        volumes[CA_BUNDLE] = {"bind": "/etc/host-ca.crt", "mode": "ro"}
+        environment["PIP_CERT"] = "/etc/host-ca.crt"
+    environment.update({k: os.environ[k] for k in PASSED_ENV if k in os.environ})
+    started = time.monotonic()
+    container = dc.containers.create(image, ["sleep", "1800"], name=f"{PREFIX}-laptop-sudo", hostname="devbox",
+                                     volumes=volumes, environment=environment)
+    try:
+        container.start()
+        container.put_archive("/", checkout_tar())
+
+        def sh(script: str, user: str | None = None) -> tuple[int, str]:
+            command = script if user is None else f"su {user} -c {quote('cd /w && ' + script)}"
+            code, out = container.exec_run(["sh", "-c", command])
+            return code, out.decode(errors="replace")
+
+        code, out = sh("cd /w && .ci/setup --python 2>&1")
+        assert code == 0, out[-4000:]
+        code, out = sh("useradd -m dev && echo 'dev:s3cret-pw' | chpasswd && chmod -R a+rX /w && "
+                       f"printf '%s' {quote(FLEET)} > /tmp/fleet.yaml && chmod a+r /tmp/fleet.yaml")
+        assert code == 0, out
+        phase("laptop container: .ci/setup --python", started)
+        yield sh
+    finally:
+        container.remove(force=True)
+
+
+def quote(text: str) -> str:
+    import shlex
+
+    return shlex.quote(text)
+
+
+def test_no_sudo_rights_and_no_terminal_is_one_line(laptop):
+    code, out = laptop(f"{DEPLOY} < /dev/null 2>&1", user="dev")
+    assert code == 1, out
+    assert out.splitlines() == ["--> Loading config...", "--> Loading inventory...", LINE]
+
+
+def test_each_way_on_works(laptop):
+    code, out = laptop("echo 'dev ALL=(ALL:ALL) ALL' > /etc/sudoers.d/dev && chmod 440 /etc/sudoers.d/dev")
+    assert code == 0, out
+    try:
+        code, out = laptop(f"{DEPLOY} < /dev/null 2>&1", user="dev")  # sudo with a password, no terminal
+        assert (code, out.splitlines()[-1]) == (1, LINE), out
+
+        # 1. --use-sudo-password, the password on stdin
+        code, out = laptop(f"echo s3cret-pw | {DEPLOY} --use-sudo-password 2>&1", user="dev")
+        assert code == 0 and "Detected changes" in out, out[-3000:]
+
+        # 2. in a terminal: sudo asks once, itself; pyinfra never asks (the password stays off argv)
+        code, out = laptop(f"(sleep 5; echo s3cret-pw) | script -qec {quote(DEPLOY)} /dev/null 2>&1", user="dev")
+        assert code == 0 and "Detected changes" in out, out[-3000:]
+        assert out.count("[sudo] password for dev") == 1 and "sudo password:" not in out, out[:2000]
+        code, out = laptop(f"sudo -k; (sleep 5; echo wrong) | script -qec {quote(DEPLOY)} /dev/null 2>&1", user="dev")
+        assert code == 1 and out.splitlines()[-1].startswith(
+            "[@local] sudo refused dev (a wrong password, or dev may not use sudo)"), out[-2000:]
+
+        # 3. the sudoers line the message prints, as it is
+        line = LINE.split("echo '", 1)[1].split("'", 1)[0]
+        code, out = laptop(f"echo {quote(line)} > /etc/sudoers.d/robotfleet && chmod 440 /etc/sudoers.d/robotfleet "
+                           "&& visudo -cf /etc/sudoers.d/robotfleet")
+        assert code == 0, out
+        code, out = laptop(f"sudo -k; {DEPLOY} < /dev/null 2>&1", user="dev")
+        assert code == 0 and "Detected changes" in out, out[-3000:]
+    finally:
+        laptop("rm -f /etc/sudoers.d/dev /etc/sudoers.d/robotfleet")

@@ -1,0 +1,242 @@
+"""End to end: pull mode on the simulated fleet (robot1..3 and a robot
+booted from a first-boot image), with the lab's git server as the fleet
+remote and no SSH from the operator's side once the robots are enrolled.
+
+One lab for the module (the session's, provisioned by push), in order:
+release 1 published and the agent installed by a push deploy; robot4
+started from a bundle; the robots' sshd turned off.  Then: a robot's key
+cannot write another robot's report; release 2 rolled out (publish and
+follow reports) reaches every robot, robot3 powered off meanwhile and
+catching up at boot; a tampered, a replayed, an expired and a foreign-key
+repository are each refused on every robot, which keeps its release; a
+crash-looping release is rolled back on the canary and halts the rest;
+robot4 reports healthy, is enrolled from its report (host keys, its own key
+replacing the enrollment key) and answers SSH with strict host keys.
+The agents are started directly (systemctl start) where waiting for the
+timer would only cost time; robot3's catch-up is the timer's own.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from tests.e2e.conftest import phase, wait_for
+
+pytestmark = pytest.mark.e2e
+
+ROBOTS = ["robot1", "robot2", "robot3"]
+FIRST_BOOT = "robot4"
+ALL = ROBOTS + [FIRST_BOOT]
+# Short health windows keep the module fast.
+FAST = {"payload_health_timeout": 20, "payload_stable_seconds": 2}
+
+
+class Pull:
+    def __init__(self, lab, base: Path):
+        from tests.lab import pullfleet
+
+        self.lab, self.pullfleet = lab, pullfleet
+        self.op = pullfleet.Operator(lab.prefix, base)
+        self.attacks = pullfleet.Attacks(self.op)
+
+    def fleet(self, tag: str, robots=ALL, **more) -> str:
+        return self.pullfleet.fleet_text(self.op.lab, payload_tag=tag, robots=robots, **FAST, **more)
+
+    def trigger(self, robots) -> None:
+        """A check starting now on each robot, at once (systemctl start waits
+        for the oneshot; a check the timer started earlier is waited for
+        first: a start would only join it)."""
+        command = ("while [ \"$(systemctl show -p ActiveState --value robot-pull.service)\" = activating ]; "
+                   "do sleep 0.5; done; systemctl start robot-pull.service")
+        threads = [threading.Thread(target=self.lab.sh, args=(r, command)) for r in robots]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+
+    def reports(self) -> dict:
+        return self.op.reports()
+
+    def keep_triggering(self, robots, stop: threading.Event, every: float = 3) -> threading.Thread:
+        def loop():
+            while not stop.is_set():
+                self.trigger(robots)
+                stop.wait(every)
+
+        thread = threading.Thread(target=loop, daemon=True)
+        thread.start()
+        return thread
+
+
+def ssh_error(lab, host: str) -> str | None:
+    """Why the operator's side cannot log in to ``host`` over SSH (strict host keys), None if it can."""
+    from tests.lab import state
+    from tests.lab.hosts import _ssh_login_error
+
+    port = next(h["port"] for h in state.load(lab.prefix)["hosts"] if h["name"] == host)
+    return _ssh_login_error(port, Path(lab.state["ssh_key"]), Path(lab.state["known_hosts"]))
+
+
+@pytest.fixture(scope="module")
+def pull(lab, first_run, tmp_path_factory):
+    from tests.lab import firstboot
+
+    started = time.monotonic()
+    world = Pull(lab, tmp_path_factory.mktemp("pull"))
+    op = world.op
+    op.setup()
+    op.publish(world.fleet("1.0"), "release 1", "--pause", "0")
+    world.release1 = world.attacks.checkout()
+    phase("pull: keys, release 1 published with wheels", started)
+    run = lab.provision("--limit", "robots", fleet=op.repo / world.pullfleet.FLEET, label="(pull agent installed)",
+                        env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")})
+    assert run.returncode == 0, run.output[-4000:]
+    env = op.env(ROBOT_LAB_FLEET=str(op.repo / world.pullfleet.FLEET))
+    enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", "robots", "--ssh",
+                             *op.admin_options(), *op.remote(), env=env, check=False)
+    assert enrolled.returncode == 0, enrolled.stdout + enrolled.stderr
+    for robot in ROBOTS:
+        assert f"{robot}: its own key is now registered" in enrolled.stdout, enrolled.stdout + enrolled.stderr
+    op.robotfleet("bundle", FIRST_BOOT, "--out", str(op.base / "bundle"), "--fleet", world.pullfleet.FLEET,
+                  *op.admin_options())
+    firstboot.start(lab.prefix, FIRST_BOOT, op.base / "bundle" / "rootfs.tar")
+    for robot in ROBOTS:  # from here on the operator's side cannot reach them over SSH
+        lab.ok(robot, "systemctl mask --now ssh.service ssh.socket")
+        assert ssh_error(lab, robot), robot
+    world.trigger(ROBOTS)
+    phase("pull: agents installed by push, robots enrolled, sshd off", started)
+    yield world
+    for robot in ROBOTS:
+        lab.sh(robot, "systemctl disable --now robot-pull.timer; systemctl unmask ssh.service ssh.socket; "
+                      "systemctl start ssh.service")
+    from tests.lab import state
+    from tests.lab.engine import client
+
+    client().containers.get(f"{lab.prefix}-{FIRST_BOOT}").remove(force=True)
+    saved = state.load(lab.prefix)
+    gone = [h["port"] for h in saved["hosts"] if h["name"] == FIRST_BOOT]
+    saved["hosts"] = [h for h in saved["hosts"] if h["name"] != FIRST_BOOT]
+    state.save(saved)
+    known = Path(saved["known_hosts"])  # its keys, from its report: the port may serve another host later
+    known.write_text("".join(line for line in known.read_text().splitlines(keepends=True)
+                             if not any(line.startswith(f"[127.0.0.1]:{port} ") for port in gone)))
+
+
+def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
+    reports = pull.reports()  # each robot wrote its own
+    for robot in ROBOTS:  # release 1 applied (a later check of its timer says up-to-date)
+        assert reports[robot]["result"] in ("applied", "up-to-date"), reports[robot]
+        assert reports[robot]["applied"]["version"] == 1, reports[robot]
+    from tests.lab import gitserver
+
+    # a commit the remote does not have yet (an up-to-date push would not be judged)
+    push = ("cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m forged) && "
+            "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 "
+            "-o IdentitiesOnly=yes -o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
+            f"git push --force {gitserver.robot_url(pull.op.git)} \"$c:{{ref}}\" 2>&1")
+    for ref in ("refs/reports/robot2", "refs/heads/robotfleet/releases"):
+        code, output = lab.sh("robot1", push.format(ref=ref))
+        assert code != 0 and "DENIED" in output, (ref, output)
+    # (its own report ref it writes at every report: the reports read above)
+
+
+def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_up_at_boot(pull, lab):
+    started = time.monotonic()
+    from tests.lab.engine import client
+
+    client().containers.get(f"{lab.prefix}-robot3").stop(timeout=20)
+    stop = threading.Event()
+    pull.keep_triggering(["robot1", "robot2"], stop)
+    result = {}
+    follower = threading.Thread(target=lambda: result.update(done=pull.op.rollout(
+        pull.fleet("1.1"), "release 2: payload 1.1", "--canary", "1", "--batch", "100%", "--pause", "0",
+        "--poll", "2", "--timeout", "420", "--publish-option=--no-wheels")))
+    follower.start()
+    wait_for(lambda: all((pull.reports().get(r) or {}).get("applied", {}).get("version", 0) >= 2
+                         for r in ("robot1", "robot2")), 180, "robot1 and robot2 on release 2")
+    stop.set()
+    client().containers.get(f"{lab.prefix}-robot3").start()  # its timer's OnBootSec makes it catch up
+    follower.join(timeout=500)
+    done = result["done"]
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "rollout: [robot3] done" in done.stderr
+    for robot in ROBOTS:
+        assert lab.version(robot) == "1.1", robot
+        assert ssh_error(lab, robot), f"{robot}: its sshd answers"
+    status = pull.op.status("--limit", "robots", *pull.op.remote())
+    for robot in ROBOTS:
+        line = next(line for line in status.stdout.splitlines() if line.startswith(robot + " "))
+        assert " pull " in line and " healthy " in line, status.stdout
+        assert "applied 2 " in line or "up-to-date 2 " in line, status.stdout
+    phase("pull: release 2 on every robot, robot3 after its boot", started)
+
+
+@pytest.mark.parametrize("attack, refusal", [("tamper", "tampered"), ("replay", "rollback"), ("expire", "expired"),
+                                             ("other_key", "unknown-key")])
+def test_a_bad_repository_is_refused_everywhere_and_changes_nothing(pull, lab, attack, refusal):
+    good = pull.attacks.checkout()
+    before = {r: lab.record(r) for r in ROBOTS}
+    if attack == "replay":
+        pull.attacks.replay(pull.release1)
+    else:
+        getattr(pull.attacks, attack)()
+    try:
+        pull.trigger(ROBOTS)
+        reports = pull.reports()
+        for robot in ROBOTS:
+            assert (reports[robot]["result"], reports[robot]["refusal"]) == ("refused", refusal), reports[robot]
+            assert lab.version(robot) == "1.1"
+            assert lab.record(robot) == before[robot]
+    finally:
+        pull.attacks.restore(good)
+
+
+def test_a_crash_looping_release_is_rolled_back_on_the_canary_and_halts_the_rest(pull, lab):
+    from robotfleet.pull import waves
+
+    started = time.monotonic()
+    stop = threading.Event()
+    pull.keep_triggering(ROBOTS, stop)
+    done = pull.op.rollout(pull.fleet("1.2-broken", robots=ROBOTS), "release: payload 1.2-broken", "--canary", "1",
+                           "--batch", "100%", "--pause", "300", "--max-failed", "0", "--poll", "2", "--timeout", "300",
+                           "--publish-option=--no-wheels")
+    pull.trigger(ROBOTS)
+    stop.set()
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "halted" in done.stderr
+    reports = pull.reports()
+    broken = max(r["attempted"]["version"] for r in reports.values() if r.get("attempted"))
+    canary = waves.rank(ROBOTS, broken)[0]
+    assert reports[canary]["attempted"]["result"] == "rolled-back", reports[canary]
+    for robot in ROBOTS:
+        assert lab.version(robot) == "1.1", robot
+        assert lab.payload(robot)["State"]["Health"]["Status"] == "healthy"
+        if robot != canary:
+            assert reports[robot]["result"] == "halted", reports[robot]
+            assert (reports[robot]["applied"] or {}).get("version") != broken
+    phase("pull: crash-looping release rolled back on the canary, the rest halted", started)
+
+
+def test_a_robot_from_a_first_boot_image_converges_reports_healthy_and_is_enrolled_from_its_report(pull, lab):
+    started = time.monotonic()
+    wait_for(lambda: (pull.reports().get(FIRST_BOOT) or {}).get("applied"), 420, f"{FIRST_BOOT}'s first release")
+    op = pull.op
+    op.commit(pull.fleet("1.1"), "the fleet with robot4 again")  # the crash-looping release was for robot1..3
+    env = op.env(ROBOT_LAB_FLEET=str(op.repo / pull.pullfleet.FLEET))
+    assert ssh_error(lab, FIRST_BOOT)  # not in known_hosts yet: no trust on first use
+    enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", FIRST_BOOT, *op.admin_options(),
+                             *op.remote(), env=env)
+    assert "from its report; enrolled" in enrolled.stdout and "its own key is now registered" in enrolled.stdout
+    assert ssh_error(lab, FIRST_BOOT) is None  # strict host keys: the key from its report
+    pull.trigger([FIRST_BOOT])
+    assert lab.sh(FIRST_BOOT, "test -e /etc/robot-pull/enroll_ed25519")[0] != 0  # retired once its own key worked
+    report = pull.reports()[FIRST_BOOT]
+    assert report["result"] in ("applied", "up-to-date", "halted"), report
+    status = op.status("--limit", FIRST_BOOT, *op.remote())
+    line = next(line for line in status.stdout.splitlines() if line.startswith(FIRST_BOOT + " "))
+    assert " pull " in line and " healthy " in line, status.stdout
+    phase("pull: first-boot robot enrolled from its report", started)

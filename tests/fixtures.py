@@ -1,0 +1,66 @@
+"""Helpers more than one test module needs, written once for every layer
+(unit, integration, end to end).  Nothing here starts a process at import;
+the helpers that run one (``sh``, ``run_command``) are for the integration
+and end-to-end layers."""
+
+from __future__ import annotations
+
+import grp
+import io
+import os
+import pwd
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+# pyinfra's command line as `python -c PYINFRA ...`: the CLI of the pyinfra
+# this interpreter imports, whatever is first on PATH.
+PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
+IMAGE = "reg.example.com/ros/payload:1.0"
+GOOD_HOST = {"address": "10.0.0.3", "payload_image": IMAGE}  # a robot that needs no other setting
+
+
+def robot_fleet(**settings) -> dict:
+    """A fleet document of one robot, robot3 at 10.0.0.3, with ``settings``."""
+    return {"robots": {"hosts": {"robot3": {"address": GOOD_HOST["address"], **settings}}}}
+
+
+def good_robot(**settings) -> dict:
+    """The fleet of one robot that needs no other setting, with ``settings``."""
+    return robot_fleet(**{**GOOD_HOST, **settings})
+
+
+def me() -> tuple[str, str]:
+    """This process's user and group names (what a written file may be owned by here)."""
+    return pwd.getpwuid(os.getuid()).pw_name, grp.getgrgid(os.getgid()).gr_name
+
+
+def sh(script: str, **kwargs) -> subprocess.CompletedProcess:
+    """A generated shell script run by this machine's sh, as a robot's would."""
+    options = {"capture_output": True, "text": True, "timeout": 60, **kwargs}
+    return subprocess.run(["sh", "-c", script], **options)
+
+
+class _Kept(io.BytesIO):
+    def close(self) -> None:  # pyinfra's writer closes what it wrote to; keep the bytes
+        pass
+
+
+def stdin_bytes(stdin) -> bytes:
+    """What pyinfra's own writer sends as a command's stdin."""
+    from pyinfra.connectors.util import write_stdin
+
+    buffer = _Kept()
+    write_stdin(stdin, buffer)
+    return buffer.getvalue()
+
+
+def run_command(command, **kwargs) -> subprocess.CompletedProcess:
+    """A pyinfra command (``StringCommand``) run by sh here, with the stdin
+    pyinfra would send it; stdout and stderr as text."""
+    arguments = getattr(command, "connector_arguments", None) or {}
+    stdin = arguments.get("_stdin")
+    proc = subprocess.run(["sh", "-c", command.get_raw_value()], input=stdin_bytes(stdin) if stdin else b"",
+                          capture_output=True, **{"timeout": 60, **kwargs})
+    return subprocess.CompletedProcess(proc.args, proc.returncode, proc.stdout.decode(errors="replace"),
+                                       proc.stderr.decode(errors="replace"))

@@ -1,0 +1,33 @@
+"""The integration layer: tests that start processes on this machine (sh,
+gpg, apt, systemd-analyze, pyinfra's and robotfleet's CLI, payloadctl as the
+robots run it, virtual environments) or talk over sockets on 127.0.0.1 (SSH
+servers, a registry).  No Docker engine, no simulated fleet: that is the
+end-to-end layer's."""
+
+import pytest
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if "/integration/" in str(item.fspath):
+            item.add_marker(pytest.mark.integration)
+
+
+@pytest.fixture
+def client_key(tmp_path):
+    """The operator's SSH key, at tmp_path/id_fleet, for the SSH servers here
+    (tests/integration/sshserver.py)."""
+    import paramiko
+
+    key = paramiko.ECDSAKey.generate()
+    key.write_private_key_file(str(tmp_path / "id_fleet"))
+    return key
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _no_gpg_agent_left_running(tmp_path_factory):
+    """The key tests make real keyrings; gpg starts an agent for each."""
+    yield
+    from tests import armor
+
+    armor.stop_agents(tmp_path_factory.getbasetemp())

@@ -1,0 +1,16 @@
+"""The import contracts of pyproject.toml ([tool.importlinter]): lint-imports,
+as a developer runs it, finds every contract kept (the rules it cannot
+check: tests/unit/test_architecture.py)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.fixtures import ROOT
+
+
+def test_the_import_contracts_hold():
+    lint_imports = Path(sys.executable).parent / "lint-imports"
+    proc = subprocess.run([str(lint_imports), "--no-cache"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert ", 0 broken." in proc.stdout, proc.stdout

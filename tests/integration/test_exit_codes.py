@@ -1,0 +1,105 @@
+"""Commands that tell the truth (issue 18, items 2 and 5): a --limit that
+matches nothing, a dry rollout whose robots are unreachable, any command
+that did nothing it was asked to do exits non-zero with one line; status
+tells as each host answers and carries each host's reason; a rollout targets
+robots and tries an unreachable robot once per wave.  Real sockets on
+127.0.0.1 (a listener that never speaks, a closed port)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import pytest
+
+from tests.fixtures import PYINFRA, ROOT
+from tests.integration import sshserver
+from tests.integration.test_first_contact import fleet
+
+
+@pytest.fixture(autouse=True)
+def key(client_key):
+    return client_key
+
+
+def run(path, tmp_path, *argv, timeout=120) -> subprocess.CompletedProcess:
+    (tmp_path / "known_hosts").touch()  # as inventories/known_hosts ships: empty
+    env = {"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path),
+           "ROBOT_ROLLOUT_DIR": str(tmp_path / "rollouts")}
+    return subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def test_a_limit_that_matches_nothing_is_refused_by_every_command(tmp_path):
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
+    line = ("--limit bot-z: no host or group of inventories/robots.py matches (hosts: robot1; groups: robots); "
+            "nothing was done")
+    for argv in (["-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py", "--limit", "bot-z"],
+                 ["-m", "robotfleet", "status", "inventories/robots.py", "--limit", "bot-z"],
+                 ["-m", "robotfleet", "rollout", "inventories/robots.py", "--limit", "bot-z", "--dry"],
+                 ["-m", "robotfleet", "enroll", "inventories/robots.py", "--limit", "bot-z"]):
+        result = run(path, tmp_path, *argv)
+        ours = [x for x in result.stderr.splitlines() if not x.startswith("--> ")]
+        assert (result.returncode, ours) == (2, [line]), (argv, result.stderr)
+
+
+def test_status_tells_as_hosts_answer_and_each_reason(tmp_path):
+    with sshserver.wrong_hosts() as (silent, closed):
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": silent.port},
+                                "robot2": {"address": "127.0.0.1", "ssh_port": closed}}, ssh_connect_retries=0)
+        started = time.monotonic()
+        result = run(path, tmp_path, "-m", "robotfleet", "status", "inventories/robots.py", "--json")
+        elapsed = time.monotonic() - started
+    assert result.returncode == 3, result.stderr
+    refused = f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})"
+    silent_reason = (f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
+                     "within 2 s (wrong port?)")
+    assert result.stderr.splitlines() == [f"[robot2] unreachable: {refused} (1/2)",
+                                          f"[robot1] unreachable: {silent_reason} (2/2)"]
+    rows = {row["host"]: row for row in json.loads(result.stdout)}
+    assert (rows["robot1"]["error"], rows["robot2"]["error"]) == (silent_reason, refused)
+    assert elapsed < 20, elapsed
+
+
+def test_a_dry_rollout_over_unreachable_robots_is_not_a_success(tmp_path):
+    closed = sshserver.closed_port()
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": closed}}, ssh_connect_retries=0)
+    result = run(path, tmp_path, "-m", "robotfleet", "rollout", "inventories/robots.py", "--dry")
+    assert result.returncode == 3, result.stderr
+    assert "rollout: dry run incomplete: 1 robot(s) unreachable, not planned: robot1" in result.stderr.splitlines()
+
+
+def test_a_rollout_targets_robots_and_tries_a_dead_one_once_per_wave(tmp_path):
+    silent = sshserver.Listener()
+    try:
+        path = tmp_path / "fleet.yaml"
+        fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": silent.port}}, ssh_connect_retries=0)
+        text = path.read_text() + "laptops:\n  hosts:\n    laptop1: {address: 127.0.0.1, ssh_port: 9, x11_user: alice}\n"
+        path.write_text(text)
+        result = run(path, tmp_path, "-m", "robotfleet", "rollout", "inventories/robots.py", "-y")
+    finally:
+        silent.close()
+    assert result.returncode == 3, result.stderr
+    waves = [line for line in result.stderr.splitlines() if line.startswith(("wave ", "--> wave"))]
+    assert waves[0] == "wave 1/1: robot1 (unreachable now: robot1)" and "laptop1" not in result.stdout + result.stderr
+    assert "rollout: [robot1] skipped: unreachable: " in result.stderr
+    # once before the waves (the status of every robot at once), once in its wave
+    assert silent.connections == 2
+
+
+@pytest.mark.parametrize("inventory", ["robots.py", "local.py"])
+def test_pyinfra_from_outside_the_checkout_is_refused_before_any_connection(tmp_path, inventory):
+    """Run elsewhere, pyinfra would drop config.py and group_data/ (strict
+    host-key checking among them) without a word (issue 27, item 3)."""
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": 1}})
+    env = {"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path),
+           "ROBOT_FLEET_HOST": "robot1"}
+    result = subprocess.run([sys.executable, "-c", PYINFRA, "-y", str(ROOT / "inventories" / inventory),
+                             str(ROOT / "deploy.py")], cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                            env=env)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert result.stderr.strip().splitlines()[-1] == (
+        f"pyinfra runs in {tmp_path}, not in the checkout {ROOT}: its config.py and group_data/ (strict host-key "
+        f"checking, sudo, every default) would not apply; run it there: cd {ROOT}, or pyinfra --chdir {ROOT} ...")
+    assert not (tmp_path / ".ssh").exists()  # no key accepted on first use

@@ -1,0 +1,181 @@
+"""First contact (issue 18, items 1 and 3): each host that cannot be reached
+gives one line with the reason in words, within the connect timeout, and is
+tried again only when trying again can help.  Real servers on 127.0.0.1
+(tests/integration/sshserver.py): an SSH server, a listener that never speaks, a
+closed port; connections go through the inventory and pyinfra's API, as
+the CLI, status and rollout make them."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import paramiko
+from pyinfra.api import Config, State
+from pyinfra.api.exceptions import ConnectError
+from pyinfra.context import ctx_state
+from pyinfra_cli.inventory import make_inventory
+
+from robotfleet import hostkeys
+from robotfleet.fleet import loader
+from tests.fixtures import PYINFRA, ROOT
+from tests.integration import sshserver
+
+def fleet(tmp_path, hosts: dict, **common) -> Path:
+    path = tmp_path / "fleet.yaml"
+    settings = {"payload_image": "reg.example.com/p:1", "ssh_user": "ops", "ssh_key": str(tmp_path / "id_fleet"),
+                "ssh_known_hosts_file": str(tmp_path / "known_hosts"), "ssh_connect_timeout": 2,
+                "ssh_connect_retry_min_delay": 0, "ssh_connect_retry_max_delay": 0, **common}
+    settings = {key: value for key, value in settings.items() if value is not None}
+    path.write_text(loader.dump({"all": {"vars": settings}, "robots": {"hosts": hosts}}))
+    return path
+
+
+def connect(path: Path, monkeypatch, times: int = 1) -> dict[str, str | None]:
+    """Each host's connection error (None: connected), connecting ``times``."""
+    monkeypatch.setenv("ROBOT_FLEET", str(path))
+    monkeypatch.chdir(ROOT)
+    with ctx_state.use(State()):
+        inventory = make_inventory("inventories/robots.py", cwd=str(ROOT))
+    state = State(inventory=inventory, config=Config())
+    outcome = {}
+    with ctx_state.use(state):
+        for host in inventory:
+            for _ in range(times):
+                try:
+                    host.connect(raise_exceptions=True, show_errors=False)
+                    outcome[host.name] = None
+                    host.disconnect()
+                except ConnectError as error:
+                    outcome[host.name] = error.args[0]
+    return outcome
+
+
+def test_unknown_host_key_names_the_file_and_the_command_and_is_not_retried(tmp_path, monkeypatch, client_key):
+    server = sshserver.ssh_server(client_key)
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}}, ssh_connect_retries=3)
+        (tmp_path / "known_hosts").write_text("")
+        line = connect(path, monkeypatch)["robot1"]
+    finally:
+        server.close()
+    assert line == (f"unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
+                    "(ssh_strict_host_key_checking: yes); check and enroll it: "
+                    "robotfleet enroll inventories/robots.py --limit robot1")
+    assert server.connections == 1
+
+
+def test_changed_host_key_is_refused_with_both_fingerprints(tmp_path, monkeypatch, client_key):
+    server = sshserver.ssh_server(client_key)
+    old = paramiko.ECDSAKey.generate()
+    entry = f"[127.0.0.1]:{server.port}"
+    try:
+        hostkeys.append(str(tmp_path / "known_hosts"), entry, old)
+        before = (tmp_path / "known_hosts").read_text()
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}}, ssh_connect_retries=3)
+        line = connect(path, monkeypatch)["robot1"]
+    finally:
+        server.close()
+    assert line.startswith(f"host key CHANGED: {tmp_path}/known_hosts has {hostkeys.fingerprint(old)} for {entry}, "
+                           f"the host offers {hostkeys.fingerprint(server.host_key)}; refused")
+    assert (tmp_path / "known_hosts").read_text() == before
+    assert server.connections == 1
+
+
+def test_accept_new_writes_a_key_once(tmp_path, monkeypatch, client_key):
+    """A rollout connects to a host several times in one process."""
+    server = sshserver.ssh_server(client_key)
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+                     ssh_strict_host_key_checking="accept-new")
+        assert connect(path, monkeypatch, times=3) == {"robot1": None}
+        assert connect(path, monkeypatch, times=1) == {"robot1": None}
+    finally:
+        server.close()
+    lines = (tmp_path / "known_hosts").read_text().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"[127.0.0.1]:{server.port} ecdsa-sha2-nistp256 ")
+
+
+def test_authentication_failure_names_the_user_and_the_key(tmp_path, monkeypatch, client_key):
+    server = sshserver.ssh_server(paramiko.ECDSAKey.generate())  # accepts another key
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+                     ssh_strict_host_key_checking="accept-new", ssh_connect_retries=3)
+        line = connect(path, monkeypatch)["robot1"]
+    finally:
+        server.close()
+    assert line == f"authentication failed for user ops with key {tmp_path}/id_fleet"
+    assert server.connections == 1
+
+
+def test_no_key_at_all_says_so(tmp_path, monkeypatch, client_key):
+    server = sshserver.ssh_server(client_key)
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.ssh keys
+    monkeypatch.delenv("SSH_AUTH_SOCK", raising=False)
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+                     ssh_strict_host_key_checking="accept-new", ssh_key=None)
+        line = connect(path, monkeypatch)["robot1"]
+    finally:
+        server.close()
+    assert line == ("authentication failed for user ops: no key to offer (ssh_key is not set, no SSH agent key, "
+                    "no key in ~/.ssh); set ssh_key to the fleet's private key")
+
+
+def test_wrong_hosts_fail_in_one_line_each_within_the_timeout(tmp_path, monkeypatch, client_key):
+    with sshserver.wrong_hosts() as (silent, closed):
+        path = fleet(tmp_path, {"silent": {"address": "127.0.0.1", "ssh_port": silent.port},
+                                "closed": {"address": "127.0.0.1", "ssh_port": closed}}, ssh_connect_retries=1)
+        started = time.monotonic()
+        lines = connect(path, monkeypatch)
+        elapsed = time.monotonic() - started
+    assert lines == {
+        "silent": f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
+                  "within 2 s (wrong port?)",
+        "closed": f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})",
+    }
+    assert silent.connections == 1  # not an SSH server: not tried again
+    assert elapsed < 6, elapsed  # 2 s for the silent one, the refused one twice at once
+
+
+def test_a_connection_closed_before_the_greeting_is_tried_again(tmp_path, monkeypatch, client_key):
+    """sshd drops unauthenticated connections over MaxStartups: a retry helps there."""
+    dropping = sshserver.Listener(hang_up=True)
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": dropping.port}}, ssh_connect_retries=2)
+        line = connect(path, monkeypatch)["robot1"]
+    finally:
+        dropping.close()
+    assert line == (f"connection closed by 127.0.0.1:{dropping.port} before the SSH greeting (an sshd turning "
+                    "connections away, e.g. MaxStartups, or a firewall)")
+    assert dropping.connections == 3
+
+
+def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key):
+    silent = sshserver.Listener()
+    server = sshserver.ssh_server(client_key)
+    try:
+        path = fleet(tmp_path, {"silent": {"address": "127.0.0.1", "ssh_port": silent.port},
+                                "robot1": {"address": "127.0.0.1", "ssh_port": server.port}})
+        (tmp_path / "known_hosts").write_text("")
+        result = subprocess.run(
+            [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"], cwd=ROOT,
+            capture_output=True, text=True, timeout=120,
+            env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path)},
+        )
+    finally:
+        silent.close()
+        server.close()
+    output = result.stdout + result.stderr
+    assert "Traceback" not in output and "paramiko" not in output, output
+    assert result.returncode != 0
+    host_lines = [line.strip() for line in result.stderr.splitlines() if line.strip().startswith("[")]
+    assert sorted(host_lines) == sorted([
+        f"[robot1] unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
+        "(ssh_strict_host_key_checking: yes); check and enroll it: "
+        "robotfleet enroll inventories/robots.py --limit robot1",
+        f"[silent] not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
+        "within 2 s (wrong port?)",
+    ]), result.stderr

@@ -1,0 +1,112 @@
+"""--limit as operators write it (issue 28, item 6): a comma list, pyinfra's
+patterns (a group, a glob on host names) and Ansible's &group and !host, in
+pyinfra's deploys and in every robotfleet command; and an Ansible inventory
+directory named by ROBOT_FLEET, with its group_vars/ and host_vars/, reaching
+the connection (item 2).  Real processes and closed ports on 127.0.0.1: a
+host the command selected is one that was dialled."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pytest
+
+from robotfleet import selection
+from tests.integration import sshserver
+from tests.integration.test_exit_codes import run
+from tests.integration.test_first_contact import PYINFRA, fleet
+
+
+
+@pytest.fixture(autouse=True)
+def key(client_key):
+    return client_key
+
+
+HOSTS = [("robot1", {"robots", "site_a"}), ("robot2", {"robots", "site_a"}), ("robot3", {"robots", "site_b"}),
+         ("lap1", {"laptops"})]
+GROUPS = {"robots", "laptops", "site_a", "site_b"}
+
+
+@pytest.mark.parametrize("limits, chosen", [
+    (["robot1,robot3"], ["robot1", "robot3"]),
+    (["robot1", "robot3"], ["robot1", "robot3"]),
+    (["robot*"], ["robot1", "robot2", "robot3"]),
+    (["site_a,lap1"], ["robot1", "robot2", "lap1"]),
+    (["robots,!robot2"], ["robot1", "robot3"]),
+    (["!robot2"], ["robot1", "robot3", "lap1"]),
+    (["robots,&site_a"], ["robot1", "robot2"]),
+    (["robots,&site_a,!robot1"], ["robot2"]),
+    ([" robot1 , robot2 ,"], ["robot1", "robot2"]),
+])
+def test_limits_select_as_pyinfra_and_ansible_do(limits, chosen):
+    assert selection.resolve(limits, HOSTS, GROUPS)[0] == chosen
+    assert selection.refusal(limits, "inv.py", HOSTS, GROUPS) is None
+
+
+@pytest.mark.parametrize("limits, line", [
+    (["robot1,bot-z"], "--limit bot-z: no host or group of inv.py matches (hosts: robot1, robot2, robot3, lap1; "
+                       "groups: laptops, robots, site_a, site_b); nothing was done"),
+    (["robots,!nobody"], "--limit nobody: no host or group of inv.py matches"),
+    (["laptops,&site_a"], "--limit laptops,&site_a: selects no host of inv.py"),
+    (["~robot[12]"], "--limit ~robot[12]: regular expressions (~) are not supported; use a glob (robot*) or a "
+                     "group's name; nothing was done"),
+    (["robots:!robot2"], "--limit robots:!robot2: separate patterns with commas (robots,laptops), not ':'; "
+                         "nothing was done"),
+])
+def test_a_limit_that_cannot_select_is_refused_in_one_line(limits, line):
+    assert selection.refusal(limits, "inv.py", HOSTS, GROUPS).startswith(line)
+
+
+def dialled(output: str) -> list[str]:
+    return sorted(set(re.findall(r"\[(robot\d)\] (?:unreachable: )?connection refused", output)))
+
+
+@pytest.fixture
+def three_dead(tmp_path):
+    closed = sshserver.closed_port()
+    return fleet(tmp_path, {f"robot{i}": {"address": "127.0.0.1", "ssh_port": closed} for i in (1, 2, 3)},
+                 ssh_connect_retries=0)
+
+
+@pytest.mark.parametrize("options, chosen", [
+    (["--limit", "robot1,robot3"], ["robot1", "robot3"]),
+    (["--limit", "robots,!robot2"], ["robot1", "robot3"]),
+    (["--exclude", "robot1,robot2"], ["robot3"]),
+    (["--limit", "robot*", "--exclude", "robot3"], ["robot1", "robot2"]),
+])
+def test_pyinfra_deploys_take_the_same_limits(tmp_path, three_dead, options, chosen):
+    result = run(three_dead, tmp_path, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py", *options)
+    assert result.returncode == 1, result.stderr[-2000:]
+    assert dialled(result.stderr) == chosen, result.stderr[-2000:]
+
+
+@pytest.mark.parametrize("command", ["status", "rollout"])
+def test_robotfleet_commands_take_the_same_limits(tmp_path, three_dead, command):
+    extra = ["--json"] if command == "status" else ["--dry"]
+    result = run(three_dead, tmp_path, "-m", "robotfleet", command, "inventories/robots.py",
+                 "--limit", "robots,!robot2", *extra)
+    assert result.returncode == 3, result.stderr[-2000:]
+    assert dialled(result.stderr) == ["robot1", "robot3"], result.stderr
+    if command == "status":
+        assert [row["host"] for row in json.loads(result.stdout)] == ["robot1", "robot3"]
+
+
+def test_an_inventory_directory_reaches_the_connection(tmp_path):
+    """ROBOT_FLEET names the directory; the port each robot is dialled on
+    comes from its group_vars/ and host_vars/."""
+    first, second = sshserver.closed_port(), sshserver.closed_port()
+    inventory = tmp_path / "inventory"
+    (inventory / "group_vars").mkdir(parents=True)
+    (inventory / "host_vars").mkdir()
+    (inventory / "hosts").write_text("[robots]\nrobot[1:2] ansible_host=127.0.0.1\n")
+    (inventory / "group_vars" / "all.yml").write_text(
+        f"payload_image: reg.example.com/p:1\nansible_user: ops\nansible_port: {first}\nssh_connect_retries: 0\n"
+        f"ssh_known_hosts_file: {tmp_path}/known_hosts\nssh_connect_timeout: 2\n")
+    (inventory / "host_vars" / "robot2.yml").write_text(f"ansible_ssh_port: {second}\n")
+    result = run(inventory, tmp_path, "-m", "robotfleet", "status", "inventories/robots.py", "--json")
+    assert result.returncode == 3, result.stderr
+    errors = {row["host"]: row["error"] for row in json.loads(result.stdout)}
+    assert errors == {"robot1": f"connection refused by 127.0.0.1:{first} (no SSH server listens on port {first})",
+                      "robot2": f"connection refused by 127.0.0.1:{second} (no SSH server listens on port {second})"}

@@ -1,0 +1,236 @@
+"""The pull agent's wake (robotfleet/pull/agent.py) against a real TUF
+repository and a real git remote (file://), with a release whose code is a
+small tree: its robotfleet.commands.converge answers as the contract says
+(one JSON line), the way a release's own code does, without provisioning
+this machine.  What a converge run does on a robot is the end-to-end test's."""
+
+from __future__ import annotations
+
+import datetime
+import gzip
+import hashlib
+import io
+import json
+import os
+import subprocess
+import sys
+import tarfile
+from pathlib import Path
+
+import pytest
+
+from robotfleet.pull import agent, layout, reports, tree
+from tests.unit import pullkit
+from tests.unit.pullkit import NOW
+
+STUB = '''import json, os, sys
+args = sys.argv[1:]
+row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"), "health": "healthy"}
+if args[0] == "status":
+    print(json.dumps({"row": row, "missing": []}))
+    raise SystemExit(0)
+deployment = args[args.index("--deployment") + 1]
+with open(os.path.join(args[args.index("--work") + 1], "pyinfra.log"), "w") as log:
+    log.write("ran " + deployment)
+mode = os.environ.get("STUB", "applied")
+if mode == "applied":
+    print(json.dumps({"exit": 0, "row": row, "results": [{"role": "payload", "ok": True, "why": "healthy",
+                      "outcome": "applied"}], "missing": [], "errors": []}))
+else:
+    print(json.dumps({"exit": 1, "row": row, "results": [{"role": "payload", "ok": False,
+                      "why": "release x failed (unhealthy); rolled back to y", "outcome": mode}],
+                      "missing": [], "errors": ["[@local] Error"]}))
+'''
+
+
+def code_archive(base: Path, version: int) -> tuple[Path, str, str]:
+    """A release's code: (archive, tree hash, fleet file hash)."""
+    files = {"robotfleet/__init__.py": "", "robotfleet/commands/__init__.py": "", "robotfleet/commands/converge.py": STUB,
+             "inventories/robots.yaml": f"# release {version}\n"}
+    root = base / f"tree-{version}"
+    for name, text in files.items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text)
+    archive = base / f"code-{version}.tar.gz"
+    with gzip.open(archive, "wb") as raw, tarfile.open(fileobj=raw, mode="w") as tar:
+        for name in sorted(files):
+            tar.add(root / name, arcname=name)
+    fleet_sha = hashlib.sha256(files["inventories/robots.yaml"].encode()).hexdigest()
+    return archive, tree.tree_sha256(tree.entries_of_directory(root)), fleet_sha
+
+
+class World:
+    def __init__(self, base: Path):
+        self.base = base
+        self.fleet = pullkit.Fleet(base)
+        self.bare = base / "fleet.git"
+        subprocess.run(["git", "init", "-q", "--bare", str(self.bare)], check=True)
+        self.etc, self.state = base / "etc", base / "state"
+        self.etc.mkdir()
+        (self.etc / "root.json").write_bytes((self.fleet.repository.metadata / "root.json").read_bytes())
+        (self.etc / "id_ed25519.pub").write_text(pullkit_key())
+        venv = self.state / "venvs" / "stub" / "bin"
+        venv.mkdir(parents=True)
+        os.symlink(sys.executable, venv / "python")
+        os.symlink("venvs/stub", self.state / "venv")
+        self.config = layout.Config(robot="robot1", remote=f"file://{self.bare}", interval=60, jitter=5,
+                                    state_dir=str(self.state), etc_dir=str(self.etc), docker_dir=str(base / "none"),
+                                    min_free_mb=0)
+
+    def release(self, version: int, robots=("robot1", "robot2"), archive=None):
+        record, waves = pullkit.module("record"), pullkit.module("waves")
+        built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
+        built = record.build(version, NOW, NOW + datetime.timedelta(days=30), hashlib.sha1(bytes([version])).hexdigest(),
+                             tree_sha, "inventories/robots.yaml", fleet_sha, list(robots), {}, {},
+                             waves.parse_plan({"canary": "1", "waves": ["100%"], "pause": 0, "max_failed": "0"}))
+        self.fleet.repository.publish(built, {built.code: archive or built_archive}, self.fleet.keys.signer("online"),
+                                      self.fleet.expiry, NOW)
+        self.push()
+        return built
+
+    def push(self):
+        repo = self.fleet.repository.path
+        if not (repo / ".git").exists():
+            subprocess.run(["git", "-C", str(repo), "init", "-q"], check=True)
+        env = dict(os.environ, GIT_AUTHOR_NAME="op", GIT_AUTHOR_EMAIL="op@x", GIT_COMMITTER_NAME="op",
+                   GIT_COMMITTER_EMAIL="op@x")
+        for args in (["add", "-A", "metadata", "targets"], ["commit", "-q", "--allow-empty", "-m", "publish"],
+                     ["push", "-q", "--force", str(self.bare), "HEAD:refs/heads/robotfleet/releases"]):
+            subprocess.run(["git", "-C", str(repo), *args], check=True, env=env, capture_output=True)
+
+    def wake(self, stub="applied", monkeypatch=None):
+        os.environ["STUB"] = stub
+        try:
+            awake = agent.Wake(self.config, clock=lambda: NOW)
+            report, outcome = awake.run()
+            sent = awake.send(report)
+            agent.save_state(self.state, awake.state)
+        finally:
+            del os.environ["STUB"]
+        return report, outcome, sent
+
+    def pushed_report(self) -> dict:
+        data = subprocess.run(["git", "-C", str(self.bare), "show", "refs/reports/robot1:report.json"], check=True,
+                              capture_output=True).stdout
+        return reports.parse(data, "robot1")
+
+
+def pullkit_key() -> str:
+    return "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0 robot-pull@robot1\n"
+
+
+@pytest.fixture
+def world(tmp_path):
+    return World(tmp_path)
+
+
+def test_a_new_release_is_verified_applied_recorded_and_reported(world):
+    record = world.release(1)
+    report, outcome, sent = world.wake()
+    assert (outcome.result, outcome.reason) == ("applied", "release 1 applied")
+    assert sent == "report sent"
+    state = agent.load_state(world.state)
+    assert state["applied"]["version"] == 1 and state["fleet"]["path"] == "inventories/robots.yaml"
+    assert os.path.realpath(world.state / "code" / "current") == str(world.state / "code" / record.tree_sha256)
+    assert (world.state / "last-run.log").read_text().startswith("ran pull-robot1-1-")
+    pushed = world.pushed_report()
+    assert pushed["result"] == "applied" and pushed["applied"]["version"] == 1 and pushed["key"]
+    assert pushed["status"]["release"] == "r-applied"
+    # the next wakes find nothing new and read the status with the applied code; the second says nothing new
+    report, outcome, sent = world.wake()
+    assert outcome.result == "up-to-date" and sent == "report sent"
+    assert world.pushed_report()["status"]["release"] == "r-applied"
+    report, outcome, sent = world.wake()
+    assert outcome.result == "up-to-date" and sent == "report unchanged"
+
+
+def test_a_rolled_back_release_is_reported_not_recorded_and_not_tried_again(world):
+    world.release(1)
+    world.wake()
+    world.release(2)
+    report, outcome, _ = world.wake("rolled-back")
+    assert outcome.result == "rolled-back" and "rolled back to y" in outcome.reason
+    state = agent.load_state(world.state)
+    assert state["applied"]["version"] == 1 and state["attempted"]["result"] == "rolled-back"
+    assert world.pushed_report()["attempted"] == {"version": 2, "result": "rolled-back", "tries": 1}
+    _, again, _ = world.wake("applied")  # not tried a second time
+    assert again.result == "rolled-back" and "waiting for a newer release" in again.reason
+
+
+def test_a_tampered_code_archive_is_refused_before_anything_runs(world, tmp_path):
+    world.release(1)
+    world.wake()
+    other, _, _ = code_archive(tmp_path / "other", 9) if (tmp_path / "other").mkdir() is None else (None, None, None)
+    world.release(2, archive=other)  # signed, but not the tree the record binds
+    report, outcome, _ = world.wake()
+    assert (outcome.result, outcome.refusal) == ("refused", "tampered")
+    assert "the code archive's tree hashes to" in outcome.reason
+    assert agent.load_state(world.state)["applied"]["version"] == 1
+
+
+def test_a_refused_repository_changes_nothing_and_says_why(world):
+    world.release(1)
+    world.wake()
+    before = sorted(p.name for p in world.state.iterdir())
+    pullkit.edit_json(world.fleet.repository.metadata / "timestamp.json",
+                      lambda d: d["signed"].update(version=d["signed"]["version"] + 1))
+    world.push()
+    report, outcome, sent = world.wake()
+    assert (outcome.result, outcome.refusal) == ("refused", "tampered") and sent == "report sent"
+    assert world.pushed_report()["refusal"] == "tampered"
+    assert agent.load_state(world.state)["applied"]["version"] == 1
+    assert sorted(p.name for p in world.state.iterdir()) == before
+
+
+def test_a_release_not_for_this_robot_and_a_full_disk(world):
+    world.release(1, robots=("robot2",))
+    _, outcome, _ = world.wake()
+    assert (outcome.result, outcome.reason) == ("up-to-date", "release 1 is not for robot1")
+    world.config = layout.Config(**{**world.config.__dict__, "min_free_mb": 1 << 20})
+    _, outcome, _ = world.wake()
+    assert outcome.result == "failed" and "MB free on" in outcome.reason and "pull_min_free_mb" in outcome.reason
+
+
+def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
+    world.config = layout.Config(**{**world.config.__dict__, "remote": f"file://{world.base}/nowhere.git"})
+    report, outcome, sent = world.wake()
+    assert outcome.result == "failed" and outcome.reason.startswith("fetch: ")
+    assert sent.startswith("report not sent")
+
+
+def test_the_journal_line_says_the_outcome_and_its_cost():
+    report = {"result": "refused", "seen": {"version": 3}, "reason": "timestamp.json: expired",
+              "check": {"cpu": 0.42, "sent": 1200, "received": 3400}}
+    assert agent.journal_line(report, "report sent", 1.25) == (
+        "robot-pull: refused (release 3): timestamp.json: expired; 1.2 s, 0.42 s CPU, sent 1200 B, "
+        "received 3400 B; report sent")
+
+
+def test_the_agent_configuration_is_checked_field_by_field(tmp_path):
+    good = layout.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
+    assert layout.read_config(good).robot == "robot1"
+    for change, line in ((lambda d: d.pop("robot"), "robot: required"), (lambda d: d.update(interval=0), "interval"),
+                         (lambda d: d.update(extra_field=1), "unknown field 'extra_field'"),
+                         (lambda d: d.update(state_dir="var/lib"), "state_dir: expected an absolute path"),
+                         (lambda d: d.update(robot="a b"), "is not a robot name")):
+        data = json.loads(good)
+        change(data)
+        with pytest.raises(layout.ConfigError, match=line):
+            layout.read_config(json.dumps(data))
+    config = tmp_path / "agent.json"
+    config.write_text("{")
+    assert agent.main(["--config", str(config)]) == 1
+
+
+def test_the_enrollment_key_goes_once_the_remote_took_the_robot_s_own_key_even_with_nothing_to_report(world):
+    world.release(1)
+    world.wake()
+    world.wake()
+    (world.etc / "enroll_ed25519").write_text("k")
+    awake = agent.Wake(world.config, clock=lambda: NOW)
+    report, _ = awake.run()
+    awake.state = agent.load_state(world.state)
+    awake.remote.accepted_key = str(world.etc / "id_ed25519")  # what ssh's log said (file:// has no ssh)
+    said = awake.send(report)
+    assert said.startswith("report unchanged; the enrollment key is retired")
+    assert not (world.etc / "enroll_ed25519").exists()

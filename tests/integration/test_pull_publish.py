@@ -1,0 +1,281 @@
+"""robotfleet publish, halt and keys end to end: a deploy repository and a
+bare git remote on disk, real keys, an OCI registry answering the manifest
+requests, the commands run as an operator runs them, and a robot's side
+(a shallow clone of robotfleet/releases, trust.Client) checking each
+result.  Wheels come from PyPI (a small requirement)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import robotfleet
+from tests.unit import pullkit
+
+DEPLOY = ("deploy.py", "config.py", "rollback.py", "pyproject.toml", "robotfleet", "roles", "inventories",
+          "group_data", "files")
+FLEET = """\
+all:
+  vars:
+    payload_image: {registry}/ros/payload:1.1
+robots:
+  vars:
+    pull: true
+    pull_remote: https://git.example.com/fleet.git
+  hosts:
+    robot1: {{address: 127.0.0.1}}
+    robot2: {{address: 127.0.0.1, payload_image: "{registry}/ros/payload:1.2"}}
+    robot3: {{address: 127.0.0.1, pull: false}}
+"""
+
+
+def git(where, *args) -> str:
+    return subprocess.run(["git", "-C", str(where), "-c", "user.name=op", "-c", "user.email=op@x", *args],
+                          check=True, capture_output=True, text=True).stdout.strip()
+
+
+def robotfleet_cmd(*args, env=None, check=True) -> subprocess.CompletedProcess:
+    done = subprocess.run([sys.executable, "-m", "robotfleet", *map(str, args)], capture_output=True, text=True,
+                          env={**os.environ, **(env or {})}, timeout=600)
+    if check and done.returncode:
+        raise AssertionError(f"robotfleet {args[0]} exited {done.returncode}: {done.stderr}")
+    return done
+
+
+@pytest.fixture(scope="module")
+def registry():
+    server = pullkit.Registry()
+    yield server
+    server.close()
+
+
+@pytest.fixture
+def site(tmp_path, registry):
+    """A deploy repository pushed to a bare remote, keys, and a robot's directory."""
+    checkout = tmp_path / "deploy"
+    checkout.mkdir()
+    for name in DEPLOY:
+        source = robotfleet.CHECKOUT / name
+        if source.is_dir():
+            shutil.copytree(source, checkout / name, ignore=shutil.ignore_patterns("__pycache__"))
+        else:
+            shutil.copy(source, checkout / name)
+    (checkout / "inventories" / "robots.yaml").write_text(FLEET.format(registry=registry.address))
+    git(tmp_path, "init", "-q", "-b", "main", str(checkout))
+    git(checkout, "add", "-A")
+    git(checkout, "commit", "-qm", "fleet")
+    remote = tmp_path / "remote.git"
+    git(tmp_path, "init", "-q", "--bare", str(remote))
+    git(checkout, "remote", "add", "origin", str(remote))
+    git(checkout, "push", "-q", "origin", "main")
+    registry.tag("ros/payload", "1.1", "one")
+    registry.tag("ros/payload", "1.2", "two")
+    keys = tmp_path / "keys"
+    robotfleet_cmd("keys", "init", "--keys", keys)
+    return {"checkout": checkout, "remote": remote, "keys": keys, "robot": tmp_path / "robot", "base": tmp_path}
+
+
+def publish(site, *more, check=True):
+    return robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--no-wheels", *more,
+                          check=check)
+
+
+def robot_fetch(site) -> Path:
+    """The robot's copy of the releases branch (fetched shallow, as the agent does)."""
+    copy = site["robot"] / "releases"
+    if not copy.exists():
+        git(site["base"], "clone", "-q", "--depth", "1", "--branch", "robotfleet/releases",
+            f"file://{site['remote']}", str(copy))
+    else:
+        git(copy, "fetch", "-q", "--depth", "1", "origin", "robotfleet/releases")
+        git(copy, "reset", "-q", "--hard", "FETCH_HEAD")
+    return copy
+
+
+def robot_refresh(site):
+    trust = pullkit.module("trust")
+    copy = robot_fetch(site)
+    state = site["robot"] / "state"
+    if not state.exists():
+        trust.initialize(state, (copy / "metadata" / "root.json").read_bytes())
+    client = trust.Client(state, str(copy))
+    return client, client.refresh()
+
+
+def test_publish_binds_commit_tree_fleet_and_digests_and_a_robot_verifies_it(site, registry):
+    done = publish(site)
+    assert "publish: release 1 (" in done.stdout and "2 robot(s), 2 image(s) by digest" in done.stdout
+    assert "pushed robotfleet/releases to" in done.stdout
+    client, record = robot_refresh(site)
+    assert record.version == 1
+    assert record.commit == git(site["checkout"], "rev-parse", "HEAD")
+    assert record.robots == ("robot1", "robot2")  # robot3 is not pull
+    one = registry.manifests[("ros/payload", "1.1")][1]
+    assert record.images["robot1"] == {f"{registry.address}/ros/payload:1.1": "sha256:" + pullkit.hashlib.sha256(one).hexdigest()}
+    assert record.images["robot2"] == {f"{registry.address}/ros/payload:1.2": registry.tag("ros/payload", "1.2", "two")}
+    got = client.download([record.code], site["robot"] / "targets")
+    tree = pullkit.module("tree")
+    tree.unpack(got[record.code], site["robot"] / "code")
+    assert tree.tree_sha256(tree.entries_of_directory(site["robot"] / "code")) == record.tree_sha256
+    fleet = (site["robot"] / "code" / record.fleet["path"]).read_bytes()
+    assert pullkit.hashlib.sha256(fleet).hexdigest() == record.fleet["sha256"]
+    assert not (site["robot"] / "code" / "tests").exists()
+    # the branch holds only the repository, and the deploy branch is untouched
+    assert sorted(os.listdir(robot_fetch(site))) == [".git", "metadata", "targets"]
+    assert git(site["remote"], "rev-parse", "main") == record.commit
+
+
+def test_halt_then_a_new_release(site):
+    publish(site, "--canary", "10%", "--waves", "50%,100%", "--pause", "60")
+    _, first = robot_refresh(site)
+    assert first.rollout.to_dict() == {"canary": "10%", "waves": ["50%", "100%"], "pause": 60, "max_failed": "0"}
+    done = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], "--reason", "canary crash-loops")
+    assert done.stdout.startswith("halt: release 2 halts commit")
+    _, halted = robot_refresh(site)
+    assert (halted.version, halted.halt, halted.halt_reason, halted.commit) == (2, True, "canary crash-loops", first.commit)
+    again = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
+    assert again.returncode == 2 and again.stderr == "halt: release 2 is already halted (canary crash-loops)\n"
+    publish(site)
+    _, third = robot_refresh(site)
+    assert (third.version, third.halt) == (3, False)
+
+
+def test_a_dirty_tree_is_refused_unless_allowed(site):
+    (site["checkout"] / "deploy.py").write_text("# changed\n")
+    done = publish(site, check=False)
+    assert done.returncode == 2
+    assert done.stderr.startswith("publish: deploy.py: changed and not committed (1 file(s))")
+    assert git(site["remote"], "branch", "--list", "robotfleet/releases") == ""
+    assert publish(site, "--allow-dirty").returncode == 0
+
+
+def test_an_image_the_registry_lacks_is_refused_and_nothing_is_pushed(site, registry):
+    publish(site)
+    before = git(site["remote"], "rev-parse", "robotfleet/releases")
+    fleet = site["checkout"] / "inventories" / "robots.yaml"
+    fleet.write_text(fleet.read_text().replace("payload:1.2", "payload:9.9"))
+    git(site["checkout"], "commit", "-qam", "9.9")
+    done = publish(site, check=False)
+    assert done.returncode == 2
+    assert done.stderr.startswith(f"publish: robot2: payload: image {registry.address}/ros/payload:9.9: ")
+    assert "HTTP 404" in done.stderr and len(done.stderr.splitlines()) == 1
+    assert git(site["remote"], "rev-parse", "robotfleet/releases") == before
+
+
+def test_bad_fleet_data_in_the_commit_is_refused_with_its_lines(site):
+    fleet = site["checkout"] / "inventories" / "robots.yaml"
+    fleet.write_text(fleet.read_text().replace("pull: true", "pull: yes please"))
+    git(site["checkout"], "commit", "-qam", "bad")
+    done = publish(site, check=False)
+    assert done.returncode == 2
+    assert "robots.vars.pull: expected true or false" in done.stderr
+    assert "nothing was published" in done.stderr
+
+
+def test_publish_without_keys_says_where_it_looked(site, tmp_path):
+    done = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", tmp_path / "none", "--no-wheels",
+                          check=False)
+    assert done.returncode == 1
+    assert done.stderr == f"publish: {tmp_path / 'none' / 'online.key'}: no online key here " \
+                          "(robotfleet keys init; --keys DIR or $ROBOTFLEET_KEYS)\n"
+
+
+def test_to_dir_is_served_over_http(site):
+    out = site["base"] / "www"
+    publish(site, "--to-dir", out)
+    trust = pullkit.module("trust")
+    trust.initialize(site["robot"] / "state", (out / "metadata" / "root.json").read_bytes())
+    with pullkit.static_http(out) as url:
+        record = trust.Client(site["robot"] / "state", url).refresh()
+    assert record.version == 1
+
+
+def test_renew_re_signs_the_timestamp_only(site):
+    publish(site)
+    _, first = robot_refresh(site)
+    done = robotfleet_cmd("publish", "--renew", "--checkout", site["checkout"], "--keys", site["keys"])
+    assert done.stdout.startswith("publish: re-signed timestamp; timestamp valid until")
+    _, again = robot_refresh(site)
+    assert again == first
+    copy = robot_fetch(site)
+    assert json.loads((copy / "metadata" / "timestamp.json").read_text())["signed"]["version"] == 3
+
+
+def test_keys_never_printed_and_private_files_are_0600(site):
+    for name in ("root", "online"):
+        key = site["keys"] / f"{name}.key"
+        assert oct(key.stat().st_mode & 0o777) == "0o600"
+        shown = robotfleet_cmd("keys", "show", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
+        assert key.read_text().splitlines()[1] not in shown.stdout + shown.stderr
+
+
+def test_online_rotation_with_the_root_key_at_hand(site):
+    publish(site)
+    robot_refresh(site)
+    done = robotfleet_cmd("keys", "rotate", "online", "--checkout", site["checkout"], "--keys", site["keys"])
+    assert "root version 2 installed" in done.stdout
+    assert (site["keys"] / "online.old.key").exists()
+    publish(site, "--allow-dirty")
+    _, record = robot_refresh(site)
+    assert record.version == 2
+
+
+def test_offline_root_key_prepare_sign_install(site):
+    publish(site)
+    robot_refresh(site)
+    offline = site["base"] / "usb"
+    offline.mkdir(mode=0o700)
+    for suffix in (".key", ".pub"):
+        shutil.move(site["keys"] / f"root{suffix}", offline / f"root{suffix}")
+    refused = robotfleet_cmd("keys", "rotate", "online", "--checkout", site["checkout"], "--keys", site["keys"],
+                             check=False)
+    assert refused.returncode == 1 and "no root key here" in refused.stderr
+    # a new root key made offline; the change prepared online, signed offline, installed online
+    robotfleet_cmd("keys", "generate", offline / "root2.key")
+    common = ("--checkout", site["checkout"], "--keys", site["keys"])
+    robotfleet_cmd("keys", "prepare", "root", "--out", site["base"] / "next.json", "--root-public",
+                   offline / "root2.pub", *common)
+    unsigned = robotfleet_cmd("keys", "install", site["base"] / "next.json", *common, check=False)
+    assert unsigned.returncode == 1 and "not signed by the current root key" in unsigned.stderr
+    robotfleet_cmd("keys", "sign", site["base"] / "next.json", "--key", offline / "root.key", "--key",
+                   offline / "root2.key")
+    done = robotfleet_cmd("keys", "install", site["base"] / "next.json", *common)
+    assert "root version 2 installed" in done.stdout
+    publish(site)
+    _, record = robot_refresh(site)
+    assert record.version == 2
+    assert (site["robot"] / "state" / "tuf" / "root_history" / "2.root.json").exists()
+
+
+def test_two_publishers_racing_one_is_refused(site):
+    channel = pullkit.module("channel")
+    first = channel.GitChannel(site["checkout"], "origin", clone=site["base"] / "a")
+    second = channel.GitChannel(site["checkout"], "origin", clone=site["base"] / "b")
+    for chosen in (first, second):
+        (chosen.open() / "metadata").mkdir(exist_ok=True)
+    (first.clone / "metadata" / "x").write_text("1")
+    (second.clone / "metadata" / "x").write_text("2")
+    first.push("first")
+    with pytest.raises(channel.ChannelError, match="moved while publishing"):
+        second.push("second")
+    assert git(site["remote"], "show", "robotfleet/releases:metadata/x") == "1"
+
+
+def test_wheels_for_a_robot_platform_are_carried_and_verified(site):
+    pyproject = site["checkout"] / "pyproject.toml"
+    pyproject.write_text('[project]\nname = "x"\nversion = "1"\ndependencies = ["six==1.16.0"]\n')
+    fleet = site["checkout"] / "inventories" / "robots.yaml"
+    fleet.write_text(fleet.read_text().replace("pull: true", "pull: true\n    pull_platform: cp311-aarch64"))
+    git(site["checkout"], "commit", "-qam", "tiny requirements")
+    cache = site["base"] / "wheels"
+    robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache)
+    client, record = robot_refresh(site)
+    assert record.wheels == {"cp311-aarch64": ["wheels/six-1.16.0-py2.py3-none-any.whl"]}
+    got = client.download(record.wheels_for("cp311-aarch64"), site["robot"] / "targets")
+    assert got["wheels/six-1.16.0-py2.py3-none-any.whl"].read_bytes()[:2] == b"PK"

@@ -1,0 +1,142 @@
+"""Pull robots' reports (robotfleet/pull/reports.py): the format, the
+operator's reading of them as untrusted input, staleness, status rows
+(robotfleet/commands/pullstatus.py) and the rollout's reading of them."""
+
+from __future__ import annotations
+
+import datetime
+import json
+import subprocess
+from types import SimpleNamespace
+
+import pytest
+
+from robotfleet.commands import pullrollout, pullstatus
+from robotfleet.pull import reports, transport, waves
+
+UTC = datetime.timezone.utc
+NOW = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)
+KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
+CONFIG = SimpleNamespace(interval=60, jitter=5, stale_after=3)
+
+
+def made(result="applied", robot="robot1", when=NOW, **more) -> dict:
+    return reports.build(robot, when, result, seen={"version": 7, "release": "r7", "commit": "a" * 40},
+                         applied={"version": 7, "release": "r7", "commit": "a" * 40, "time": "2026-11-25T09:59:00Z"},
+                         attempted={"version": 7, "result": result, "tries": 1}, host_keys=[KEY], key=KEY,
+                         config=CONFIG, status={"release": "20261125T0959Z-1", "health": "healthy"}, **more)
+
+
+def test_a_report_reads_back_as_written():
+    report = made(reason="release 7 applied", check={"sent": 10, "received": 20, "seconds": 0.5, "cpu": 0.3})
+    found = reports.parse(reports.to_bytes(report), "robot1")
+    assert found["result"] == "applied" and found["seen"]["version"] == 7
+    assert found["status"] == {"release": "20261125T0959Z-1", "health": "healthy"}
+    assert found["check"] == {"sent": 10, "received": 20, "seconds": 0.5, "cpu": 0.3}
+    assert found["host_keys"] == [KEY] and found["interval"] == 60
+
+
+@pytest.mark.parametrize("change, line", [
+    (lambda r: r.update(robot="robot2"), "report of robot1: names another robot (robot2)"),
+    (lambda r: r.update(result="pwned"), "report of robot1: unknown result pwned"),
+    (lambda r: r.update(format=2), "report of robot1: not a format 1 report"),
+    (lambda r: r.update(time="yesterday"), "report of robot1: time is not a UTC time"),
+    (lambda r: r.update(host_keys=["ssh-ed25519 AAAA; rm -rf /"]), "report of robot1: host_keys: expected public key lines"),
+    (lambda r: r.update(key="not a key"), "report of robot1: key: expected a public key line"),
+    (lambda r: r["seen"].update(version=-1), "seen.version: expected a whole number"),
+])
+def test_a_report_a_robot_wrote_wrong_is_one_line(change, line):
+    report = made()
+    change(report)
+    with pytest.raises(reports.ReportError, match=line.replace("(", r"\(").replace(")", r"\)")):
+        reports.parse(reports.to_bytes(report), "robot1")
+
+
+def test_text_from_a_robot_is_shown_not_obeyed():
+    report = made(result="failed", reason="bad\x1b[2Jthing\nnext line")
+    report["status"] = {"health": "ok\x07", "nested": {"x\x1b": ["\u202e"]}}
+    found = reports.parse(reports.to_bytes(report), "robot1")
+    assert found["reason"] == "bad\\x1b[2Jthing\\x0anext line"
+    assert "\x1b" not in json.dumps(found) and "\x07" not in json.dumps(found)
+    with pytest.raises(reports.ReportError, match="not JSON"):
+        reports.parse(b"\xff{", "robot1")
+    with pytest.raises(reports.ReportError, match="larger than"):
+        reports.parse(b" " * (reports.MAX_BYTES + 1), "robot1")
+
+
+def test_stale_after_so_many_intervals_with_their_jitter():
+    report = made()
+    assert not reports.stale(report, NOW + datetime.timedelta(seconds=195), 60, 5, 3)
+    assert reports.stale(report, NOW + datetime.timedelta(seconds=196), 60, 5, 3)
+
+
+def test_a_failure_counts_for_the_version_it_was_for():
+    assert reports.failed_for(made("rolled-back"), 7) and not reports.failed_for(made("rolled-back"), 8)
+    assert not reports.failed_for(made("applied"), 7)
+
+
+def test_the_substance_leaves_out_when_and_what_it_cost():
+    one, two = made(check={"cpu": 1}), made(when=NOW + datetime.timedelta(minutes=1), check={"cpu": 2})
+    assert reports.substance(one) == reports.substance(two)
+    assert reports.substance(one) != reports.substance(made("waiting"))
+
+
+def test_status_rows_from_reports():
+    data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3}
+    row = pullstatus.row("robot1", reports.parse(reports.to_bytes(made()), "robot1"), data, NOW, "url")
+    assert (row["reachable"], row["pull"], row["health"], row["reported"]) == ("pull", "applied 7", "healthy",
+                                                                                "2026-11-25T10:00:00Z")
+    assert "error" not in row
+    late = pullstatus.row("robot1", reports.parse(reports.to_bytes(made()), "robot1"), data,
+                          NOW + datetime.timedelta(hours=1), "url")
+    assert late["reachable"] is False and late["reported"].endswith(" STALE") and "stale report" in late["error"]
+    refused = made("refused", refusal="tampered", reason="timestamp.json: changed after it was signed")
+    row = pullstatus.row("robot1", reports.parse(reports.to_bytes(refused), "robot1"), data, NOW, "url")
+    assert row["pull"] == "refused 7 (tampered)" and row["error"].startswith("refused: timestamp.json")
+    missing = pullstatus.row("robot2", None, data, NOW, "ssh://git/fleet")
+    assert missing["reachable"] is False and "no report in refs/reports/robot2 of ssh://git/fleet" in missing["error"]
+
+
+def test_the_operator_reads_every_report_with_one_fetch(tmp_path):
+    bare = tmp_path / "fleet.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
+    for name, body in (("robot1", reports.to_bytes(made())), ("robot2", b"garbage")):
+        transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(name, body)
+    cache = tmp_path / "cache"
+    reports.fetch_all(f"file://{bare}", cache)
+    found = reports.read_all(cache)
+    assert found["robot1"]["result"] == "applied"
+    assert found["robot2"] == {"robot": "robot2", "error": "report of robot2: not JSON"}
+
+
+def test_a_pull_rollout_s_waves_and_what_it_counts():
+    args = SimpleNamespace(canary=waves.parse_count("1", "c"), batch=waves.parse_count("25%", "b"), pause=60,
+                           max_failed=waves.parse_count("0", "m"))
+    assert [str(w) for w in pullrollout.plan_of(args).waves] == ["25%", "50%", "75%", "100%"]
+    args.batch = waves.parse_count("30%", "b")
+    assert [str(w) for w in pullrollout.plan_of(args).waves] == ["30%", "60%", "90%", "100%"]
+    args.batch = waves.parse_count("2", "b")
+    assert [str(w) for w in pullrollout.plan_of(args).waves] == ["100%"]
+    applied = reports.parse(reports.to_bytes(made()), "robot1")
+    assert pullrollout.outcome(applied, 7) == "done" and pullrollout.outcome(applied, 8) is None
+    assert pullrollout.outcome(reports.parse(reports.to_bytes(made("rolled-back")), "robot1"), 7) == "failed"
+    assert pullrollout.outcome(None, 7) is None
+
+
+def test_status_reads_pull_robots_from_their_reports_and_never_connects(tmp_path):
+    from robotfleet.commands import status
+
+    bare = tmp_path / "fleet.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
+    fresh = made(when=datetime.datetime.now(UTC).replace(microsecond=0))
+    transport.Remote(f"file://{bare}", tmp_path / "r1", str(tmp_path / "etc"), timeout=30).push_report(
+        "robot1", reports.to_bytes(fresh))
+    inventory = tmp_path / "inv.py"
+    # Addresses nothing listens on: a connection attempt would be an error row, not a report's.
+    inventory.write_text('robots = [("robot1", {"pull": True, "ssh_hostname": "192.0.2.1", "pull_interval": 60}),\n'
+                         '          ("robot2", {"pull": True, "ssh_hostname": "192.0.2.2"})]\n')
+    rows = {r["host"]: r for r in status.collect(str(inventory), [], remote=f"file://{bare}")}
+    assert rows["robot1"]["reachable"] == "pull" and rows["robot1"]["pull"] == "applied 7"
+    assert rows["robot1"]["health"] == "healthy" and "error" not in rows["robot1"]
+    assert rows["robot2"]["reachable"] is False and "no report in refs/reports/robot2" in rows["robot2"]["error"]
+    assert status.exit_code(list(rows.values())) == 3

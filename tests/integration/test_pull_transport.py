@@ -1,0 +1,113 @@
+"""The robot's side of the fleet remote (robotfleet/pull/transport.py) on
+real git repositories (file:// remotes: ssh is not needed to test git's
+part), and what it reads from ssh's log."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from robotfleet.pull import transport
+
+LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
+debug1: Server accepts key: /etc/robot-pull/id_ed25519 ED25519 SHA256:abc explicit
+Transferred: sent 3140, received 3364 bytes, in 0.1 seconds
+Bytes per second: sent 31400.0, received 33640.0
+"""
+
+
+def git(where: Path, *args: str) -> str:
+    return subprocess.run(["git", "-C", str(where), *args], check=True, capture_output=True, text=True,
+                          env={"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
+                               "GIT_COMMITTER_EMAIL": "t@t", "HOME": str(where), "PATH": "/usr/bin:/bin"}).stdout
+
+
+@pytest.fixture
+def remote(tmp_path):
+    """A bare fleet remote with a releases branch of one file."""
+    bare = tmp_path / "fleet.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
+    work = tmp_path / "work"
+    work.mkdir()
+    git(work, "init", "-q")
+    (work / "metadata").mkdir()
+    (work / "metadata" / "timestamp.json").write_text("v1")
+    git(work, "add", "-A")
+    git(work, "commit", "-q", "-m", "one")
+    git(work, "push", "-q", str(bare), "HEAD:refs/heads/robotfleet/releases")
+    return bare, work
+
+
+def test_ssh_pins_the_server_and_offers_only_the_robot_s_keys():
+    command = transport.ssh_command(["/etc/robot-pull/id_ed25519", "/etc/robot-pull/enroll_ed25519"],
+                                    "/etc/robot-pull/known_hosts", "/tmp/log", 300)
+    for part in ("-F /dev/null", "IdentitiesOnly=yes", "BatchMode=yes", "StrictHostKeyChecking=yes",
+                 "UserKnownHostsFile=/etc/robot-pull/known_hosts", "HostKeyAlias=robotfleet-remote",
+                 "ConnectTimeout=30", "-E /tmp/log", "-i /etc/robot-pull/id_ed25519 -i /etc/robot-pull/enroll_ed25519"):
+        assert part in command
+
+
+def test_the_bytes_and_the_accepted_key_come_from_ssh_s_log():
+    assert transport.read_ssh_log(LOG) == (3140, 3364, "/etc/robot-pull/id_ed25519")
+    assert transport.read_ssh_log("") == (0, 0, None)
+
+
+def test_the_telling_line_of_a_git_failure():
+    said = ("gitolite3@git.lan: Permission denied (publickey).\r\nfatal: Could not read from remote repository.\n\n"
+            "Please make sure you have the correct access rights\nand the repository exists.\n")
+    assert transport.git_error(said, 128) == "gitolite3@git.lan: Permission denied (publickey)."
+    assert transport.git_error("FATAL: W refs/reports/robot2 fleet robot1 DENIED by fallthru\n", 1).startswith("FATAL: W")
+    assert transport.git_error("", 7) == "git exited 7"
+
+
+def test_fetch_checks_out_the_releases_branch_and_follows_it(remote, tmp_path):
+    bare, work = remote
+    robot = transport.Remote(f"file://{bare}", tmp_path / "state" / "releases", str(tmp_path / "etc"), timeout=30)
+    first = robot.fetch_releases()
+    assert (robot.repo / "metadata" / "timestamp.json").read_text() == "v1"
+    (robot.repo / "left-over").write_text("x")  # nothing but the commit is read later
+    (work / "metadata" / "timestamp.json").write_text("v2")
+    git(work, "commit", "-q", "-am", "two")
+    git(work, "push", "-q", str(bare), "HEAD:refs/heads/robotfleet/releases")
+    second = robot.fetch_releases()
+    assert second != first and (robot.repo / "metadata" / "timestamp.json").read_text() == "v2"
+    assert not (robot.repo / "left-over").exists()
+    assert git(robot.repo, "rev-parse", "--is-shallow-repository").strip() == "true"
+
+
+def test_a_missing_branch_is_one_line(tmp_path):
+    bare = tmp_path / "empty.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
+    robot = transport.Remote(f"file://{bare}", tmp_path / "repo", str(tmp_path / "etc"), timeout=30)
+    with pytest.raises(transport.TransportError, match=r"^fetch: fatal: couldn't find remote ref"):
+        robot.fetch_releases()
+
+
+def test_reports_are_pushed_as_one_file_commits_and_read_back_by_name(remote, tmp_path):
+    bare, _ = remote
+    robots = {name: transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30)
+              for name in ("robot1", "robot10", "robot2")}
+    for name, robot in robots.items():
+        robot.push_report(name, f'{{"robot": "{name}"}}\n'.encode())
+    robots["robot1"].push_report("robot1", b'{"robot": "robot1", "again": true}\n')  # forced over the last
+    assert git(bare, "ls-tree", "--name-only", "refs/reports/robot1").split() == ["report.json"]
+    reader = transport.Remote(f"file://{bare}", tmp_path / "reader", str(tmp_path / "etc"), timeout=30)
+    found = reader.fetch_reports(["robot1", "robot3"])
+    assert found == {"robot1": b'{"robot": "robot1", "again": true}\n'}  # robot10 matched by prefix, left out
+    assert reader.fetch_reports([]) == {}
+
+
+def test_the_enrollment_key_is_retired_once_the_robot_s_own_key_was_accepted(tmp_path):
+    etc = tmp_path / "etc"
+    etc.mkdir()
+    for name in ("id_ed25519", "enroll_ed25519", "enroll_ed25519.pub"):
+        (etc / name).write_text("k")
+    robot = transport.Remote("file:///nowhere", tmp_path / "repo", str(etc))
+    robot.accepted_key = str(etc / "enroll_ed25519")
+    assert robot.retire_enrollment_key() is False and (etc / "enroll_ed25519").exists()
+    robot.accepted_key = str(etc / "id_ed25519")
+    assert robot.retire_enrollment_key() is True
+    assert not (etc / "enroll_ed25519").exists() and not (etc / "enroll_ed25519.pub").exists()
+    assert robot.keys() == [str(etc / "id_ed25519")]

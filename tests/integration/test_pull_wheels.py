@@ -1,0 +1,38 @@
+"""The wheelhouse robots install from (robotfleet/pull/wheels.py): the
+robot's platform key, and binary wheels for another machine fetched from
+PyPI with pip (a small requirement)."""
+
+import pytest
+
+from robotfleet.pull import wheels
+
+
+def test_platform_keys():
+    assert wheels.platform_key((3, 13), "x86_64") == "cp313-x86_64"
+    assert wheels.platform_key((3, 11), "arm64") == "cp311-aarch64"
+    assert wheels.parse_platform("cp311-aarch64") == ("3.11", "aarch64")
+    with pytest.raises(ValueError, match="platform 'py3-any': expected cp<python version>-<machine>"):
+        wheels.parse_platform("py3-any")
+
+
+def test_requirements_come_from_the_commits_pyproject():
+    assert wheels.requirements_of(b'[project]\nname = "x"\ndependencies = ["a>=1", "b"]\n') == ["a>=1", "b"]
+    with pytest.raises(wheels.WheelError, match="pyproject.toml: no \\[project\\] dependencies"):
+        wheels.requirements_of(b"[tool.x]\n")
+
+
+def test_binary_wheels_for_another_machine_and_python(tmp_path):
+    found = wheels.build_wheelhouse(["MarkupSafe==2.1.5"], "cp311-aarch64", tmp_path)
+    assert [p.name for p in found] == ["MarkupSafe-2.1.5-cp311-cp311-manylinux_2_17_aarch64.manylinux2014_aarch64.whl"]
+    # a second build finds them in the cache and names only what this set resolved to
+    (tmp_path / "cp311-aarch64" / "stale-0.1-py3-none-any.whl").write_bytes(b"PK")
+    assert wheels.build_wheelhouse(["MarkupSafe==2.1.5"], "cp311-aarch64", tmp_path) == found
+    other = wheels.build_wheelhouse(["MarkupSafe==2.1.4"], "cp311-aarch64", tmp_path)
+    assert [p.name for p in other] == [found[0].name.replace("2.1.5", "2.1.4")]
+
+
+def test_a_requirement_without_a_wheel_is_one_line(tmp_path):
+    with pytest.raises(wheels.WheelError) as caught:
+        wheels.build_wheelhouse(["robotfleet-no-such-package-xyz==1"], "cp313-x86_64", tmp_path)
+    assert str(caught.value).startswith("wheels for cp313-x86_64: ")
+    assert "\n" not in str(caught.value)

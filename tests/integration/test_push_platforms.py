@@ -1,0 +1,153 @@
+"""Push delivery sends the robot its own platform: the local engine's image
+when it is built for the robot, else the robot's variant of the image's
+multi-platform index read from its registry, only the layers the robot
+lacks; an image with no variant for the robot is refused with one line.
+A small registry answers here (the lab registry is the e2e tests'; the
+local image chosen without a registry: tests/unit/test_status_and_push.py)."""
+
+import gzip
+import hashlib
+import http.server
+import io
+import json
+import tarfile
+import threading
+
+import pytest
+
+from tests.unit.test_status_and_push import AMD64_LOCAL
+
+DOCKER_V2 = "application/vnd.docker.distribution.manifest.v2+json"
+OCI_INDEX = "application/vnd.oci.image.index.v1+json"
+
+
+def digest(data: bytes) -> str:
+    return "sha256:" + hashlib.sha256(data).hexdigest()
+
+
+def layer(name: str) -> tuple[bytes, str]:
+    """(gzipped blob, diff id) of a layer holding one file."""
+    plain = io.BytesIO()
+    with tarfile.open(fileobj=plain, mode="w") as tar:
+        info = tarfile.TarInfo(name)
+        info.size = len(name)
+        tar.addfile(info, io.BytesIO(name.encode()))
+    return gzip.compress(plain.getvalue(), mtime=0), digest(plain.getvalue())
+
+
+class Store:
+    """An image of two layers (a shared base, an arch-specific top) for amd64
+    and arm64 under one tag."""
+
+    def __init__(self, arches=("amd64", "arm64")):
+        self.blobs, self.manifests = {}, {}
+        base, base_id = layer("base")
+        self.blobs[digest(base)] = base
+        entries = []
+        self.ids = {}
+        for arch in arches:
+            top, top_id = layer(f"bin-{arch}")
+            self.blobs[digest(top)] = top
+            config = json.dumps({"architecture": arch, "os": "linux",
+                                 "rootfs": {"type": "layers", "diff_ids": [base_id, top_id]}}).encode()
+            self.blobs[digest(config)] = config
+            self.ids[arch] = digest(config)
+            self.diff_ids = {arch: [base_id, top_id], **getattr(self, "diff_ids", {})}
+            manifest = json.dumps({"schemaVersion": 2, "mediaType": DOCKER_V2,
+                                   "config": {"mediaType": "x", "digest": digest(config), "size": len(config)},
+                                   "layers": [{"mediaType": "y", "digest": digest(b), "size": len(b)} for b in (base, top)]}).encode()
+            self.manifests[digest(manifest)] = (DOCKER_V2, manifest)
+            self.manifests[f"1.0-{arch}"] = (DOCKER_V2, manifest)
+            entries.append({"mediaType": DOCKER_V2, "digest": digest(manifest), "size": len(manifest),
+                            "platform": {"os": "linux", "architecture": arch}})
+        self.manifests["1.0"] = (OCI_INDEX, json.dumps({"schemaVersion": 2, "mediaType": OCI_INDEX,
+                                                         "manifests": entries}).encode())
+        self.top = {arch: len(self.blobs[json.loads(self.manifests[f"1.0-{arch}"][1])["layers"][1]["digest"]])
+                    for arch in arches}
+
+
+@pytest.fixture
+def registry():
+    store = Store()
+    fetched = []
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+        def do_GET(self):
+            _, _, repo_rest = self.path.partition("/v2/ros/payload/")
+            kind, _, ref = repo_rest.partition("/")
+            if kind == "manifests" and ref in store.manifests:
+                media_type, body = store.manifests[ref]
+            elif kind == "blobs" and ref in store.blobs:
+                media_type, body = "application/octet-stream", store.blobs[ref]
+                fetched.append(ref)
+            else:
+                self.send_response(404)
+                self.end_headers()
+                return
+            self.send_response(200)
+            self.send_header("Content-Type", media_type)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield f"127.0.0.1:{server.server_address[1]}", store, fetched
+    server.shutdown()
+
+
+def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(push, registry):
+    address, store, _ = registry
+    decision = push.choose_source(f"{address}/ros/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL)
+    kind, writer, (variant,), image_id = decision
+    assert (kind, writer) == ("send", push.write_registry_archive)
+    assert image_id == store.ids["arm64"] == variant["id"] and variant["platform"] == "linux/arm64"
+    again = push.choose_source(f"{address}/ros/payload:1.0", store.ids["arm64"], "pi1", "arm64", [], None, None)
+    assert again == ("noop", f"{address}/ros/payload:1.0 (linux/arm64) is already on the host")
+
+
+def test_only_the_layers_the_robot_lacks_are_read_and_sent(push, registry, tmp_path):
+    address, store, fetched = registry
+    image = f"{address}/ros/payload:1.0"
+    variant = push.registry_variant(image, "arm64", [], None)
+    fetched.clear()
+    report = {}
+    # The robot has the amd64 image: the base layer is shared, the arm64 top is not.
+    push.write_registry_archive(image, variant, str(tmp_path / "a.tar"), [store.diff_ids["amd64"]], report, [], None)
+    with tarfile.open(tmp_path / "a.tar") as archive:
+        names = archive.getnames()
+        manifest = json.load(archive.extractfile("manifest.json"))[0]
+        config = archive.extractfile(manifest["Config"]).read()
+    assert digest(config) == store.ids["arm64"]  # docker load's image id is the registry's config digest
+    assert manifest["RepoTags"] == [image] and len(manifest["Layers"]) == 2
+    assert names == [manifest["Config"], manifest["Layers"][1], "manifest.json"]  # the base layer left out
+    assert fetched == [json.loads(store.manifests["1.0-arm64"][1])["layers"][1]["digest"]]  # and not even downloaded
+    assert report["layers"] == 2 and report["skipped"] == 1 and report["platform"] == "linux/arm64"
+    blobs = [store.blobs[entry["digest"]] for entry in json.loads(store.manifests["1.0-arm64"][1])["layers"]]
+    assert report["full"] == len(config) + sum(len(b) for b in blobs)
+    assert report["sent"] == (tmp_path / "a.tar").stat().st_size
+
+
+def test_an_image_without_the_robots_platform_is_refused_with_one_line(push, registry):
+    address, store, _ = registry
+    single = f"{address}/ros/payload:1.0-amd64"
+    assert push.choose_source(single, "", "pi1", "arm64", [], None, None) == (
+        "fail", f"payload: pi1 is linux/arm64 but image {single} is linux/amd64 only (in its registry): "
+                "refused before anything switched")
+    kind, line = push.choose_source(f"{address}/ros/payload:1.0", "", "rv1", "riscv64", [], None, None)
+    assert kind == "fail" and line == (f"payload: rv1 is linux/riscv64 but image {address}/ros/payload:1.0 is "
+                                       "linux/amd64, linux/arm64 (in its registry): refused before anything switched")
+
+
+def test_a_local_image_of_another_platform_and_no_registry_is_refused_with_one_line(push):
+    kind, line = push.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, AMD64_LOCAL)
+    assert kind == "fail" and "\n" not in line
+    assert line.startswith("payload: pi1 is linux/arm64 but image 127.0.0.1:1/ros/payload:1.1 is linux/amd64 "
+                           "only (in the local Docker engine; its registry: 127.0.0.1:1: GET ")
+    assert line.endswith("): refused before anything switched")
+    kind, line = push.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, None)
+    assert kind == "fail" and line.startswith("payload_delivery push: 127.0.0.1:1/ros/payload:1.1 is neither in "
+                                              "the local Docker engine nor readable from its registry (")

@@ -1,0 +1,165 @@
+"""The lab's git server for pull mode: `<prefix>-git`, gitolite3 from Debian.
+
+Started only when asked (`up --git-server`, or a test that needs it): the
+default lab does not wait for it.  It runs sshd (systemd as PID 1, like the
+hosts) on `<prefix>-net`, where the robots reach it as `<prefix>-git:22`,
+and on a fixed 127.0.0.1 port for this machine.  The lab key is gitolite's
+admin (user `admin`): the operator changes keys and rules by pushing
+gitolite-admin (robotfleet/pull/gitolite.py), as with a real server.
+
+Its host keys are in `.lab/<prefix>/git_known_hosts`, under both names.
+"""
+
+from __future__ import annotations
+
+import time
+import uuid
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from robotfleet.pull import gitolite
+
+from . import hostimage, state
+from .engine import LabError, get_or_none, pick_free_port, published_ports, put_files, timed_phase
+
+if TYPE_CHECKING:
+    import docker
+
+GIT_REPO_IMAGE = "robot-lab-git"
+PACKAGES = ("gitolite3", "git")
+USER = "gitolite3"
+HOME = "/var/lib/gitolite3"
+FLEET_REPO = "fleet"
+PORT_START = 24001
+READY_TIMEOUT_S = 90
+# The file's name is the admin's gitolite user name.
+ADMIN_KEY_IN_CONTAINER = "/etc/robot-lab/admin.pub"
+
+INSTALL_SCRIPT = f"""set -eu
+printf '#!/bin/sh\\nexit 101\\n' > /usr/sbin/policy-rc.d
+chmod 0755 /usr/sbin/policy-rc.d
+apt-get update
+# gitolite3 asks debconf for an admin key: none at build time (each lab has its own).
+DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends {' '.join(PACKAGES)}
+rm /usr/sbin/policy-rc.d
+# What the package's postinst does when given a key: its user, owning its home.
+adduser --quiet --system --home {HOME} --shell /bin/bash --gecos 'git repository hosting' --group {USER}
+install -d -o {USER} -g {USER} -m 0750 {HOME}
+apt-get clean
+rm -rf /var/lib/apt/lists/*
+"""
+
+_DOCKERFILE = """FROM {host}
+COPY install.sh /tmp/install.sh
+RUN sh /tmp/install.sh && rm /tmp/install.sh
+"""
+
+# Run as the gitolite user once the admin key is in place: idempotent (a
+# second run replaces the admin key and keeps every repository).
+SETUP = f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}"
+
+
+def container_name(prefix: str) -> str:
+    return f"{prefix}-git"
+
+
+def recipe() -> dict:
+    return {"host": hostimage.host_recipe(), "packages": list(PACKAGES),
+            "script": INSTALL_SCRIPT, "dockerfile": _DOCKERFILE}
+
+
+def image_tag() -> str:
+    return f"{GIT_REPO_IMAGE}:{hostimage.recipe_hash(recipe())}"
+
+
+def ensure_image(dc: docker.DockerClient) -> str:
+    """The git server's image, built once per recipe (on the host image)."""
+    tag = image_tag()
+    if hostimage.image_exists(dc, tag):
+        return tag
+    host = hostimage.ensure_host_image(dc)
+    with timed_phase(f"build git server image {tag}"):
+        hostimage.build_image(dc, tag, _DOCKERFILE.format(host=host), {"install.sh": INSTALL_SCRIPT})
+    return tag
+
+
+def known_hosts_lines(names: list[str], public_keys: list[str]) -> list[str]:
+    """known_hosts lines naming the server by each of ``names``."""
+    return [f"{','.join(names)} {' '.join(key.split()[:2])}" for key in public_keys]
+
+
+def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
+    """Start (or reuse) the git server of a running lab; returns what
+    state.json keeps under "git"."""
+    image = ensure_image(dc)
+    name = container_name(prefix)
+    container = get_or_none(dc.containers, name)
+    if container is not None and container.labels.get("robot-lab.image") != image:
+        container.remove(force=True)
+        container = None
+    if container is None:
+        port = pick_free_port(PORT_START, published_ports(dc))
+        container = hostimage.create_systemd_container(
+            dc, image, name, hostname="git", network=f"{prefix}-net",
+            labels={"robot-lab.prefix": prefix, "robot-lab.role": "git", "robot-lab.image": image,
+                    "robot-lab.ssh-port": str(port)},
+            ports={22: port}, volumes={})
+        put_files(container, {"/etc/machine-id": uuid.uuid4().hex + "\n"})
+    if container.status != "running":
+        container.start()
+    port = int(container.labels["robot-lab.ssh-port"])
+    with timed_phase("git server (gitolite3)"):
+        keys = _wait_for_sshd(container)
+        put_files(container, {ADMIN_KEY_IN_CONTAINER: key_path.with_suffix(".pub").read_text()})
+        code, out = container.exec_run(["su", "-s", "/bin/sh", USER, "-c", SETUP])
+        if code != 0:
+            raise LabError(f"{name}: gitolite setup failed: {out.decode(errors='replace').strip()[-300:]}")
+        known_hosts = state.lab_dir(prefix) / "git_known_hosts"
+        known_hosts.write_text("\n".join(known_hosts_lines([f"[127.0.0.1]:{port}", name], keys)) + "\n")
+        git = {"container": name, "host": name, "port": port, "user": USER, "repo": FLEET_REPO,
+               "known_hosts": str(known_hosts), "host_keys": keys}
+        gitolite.update(admin(git, key_path), FLEET_REPO, message="robotfleet: the lab's fleet repository")
+    return git
+
+
+def admin(git: dict, key_path: Path | str) -> gitolite.Admin:
+    """The lab key as gitolite's admin, from this machine."""
+    return gitolite.Admin(f"ssh://{git['user']}@127.0.0.1:{git['port']}", str(key_path), git["known_hosts"])
+
+
+def robot_url(git: dict) -> str:
+    """The fleet repository as the robots reach it on the lab network."""
+    return f"ssh://{git['user']}@{git['host']}/{git['repo']}"
+
+
+def local_url(git: dict) -> str:
+    """The fleet repository as this machine reaches it."""
+    return f"ssh://{git['user']}@127.0.0.1:{git['port']}/{git['repo']}"
+
+
+def _wait_for_sshd(container) -> list[str]:
+    probe = "systemctl is-active --quiet ssh.service && cat /etc/ssh/ssh_host_*_key.pub"
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while time.monotonic() < deadline:
+        container.reload()
+        if container.status != "running":
+            raise LabError(f"{container.name} is {container.status}; see `docker logs {container.name}`")
+        code, out = container.exec_run(["sh", "-c", probe])
+        keys = [line for line in out.decode().splitlines() if line.strip()]
+        if code == 0 and keys:
+            return keys
+        time.sleep(0.5)
+    raise LabError(f"{container.name}: sshd not running after {READY_TIMEOUT_S}s")
+
+
+def register_robot(prefix: str, robot: str, public_key: str, enrollment: bool = False) -> bool:
+    """Let ``robot`` (its gitolite user) read the fleet repository and write
+    only refs/reports/<robot>, with ``public_key``."""
+    lab = state.load(prefix)
+    git = lab.get("git")
+    if not git:
+        raise LabError(f"lab '{prefix}' has no git server: python3 -m tests.lab up --git-server")
+    try:
+        return gitolite.register(admin(git, lab["ssh_key"]), git["repo"], robot, public_key, enrollment)
+    except gitolite.GitoliteError as error:
+        raise LabError(str(error)) from None
