@@ -244,7 +244,7 @@ def test_preset_refusals():
 
 def test_layer_shape_is_checked_where_it_was_written():
     assert fleet_problems(fleet_of({"payload_services": {"a b": {}}}, {"robot1": {"address": "a"}}))[0] == (
-        "robots.yaml: robots.vars.payload_services.a b: service names are letters, digits, . _ - "
+        "robots.yaml: robots.vars.payload_services.'a b': service names are letters, digits, . _ - "
         "(starting with a letter or digit)")
     assert fleet_problems(host_with(payload_services=["a"]))[0] == (
         "robots.yaml: robot3.payload_services: expected a mapping of service name -> compose service")
