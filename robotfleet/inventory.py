@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from robotfleet import CHECKOUT, connect, roster
+from robotfleet import CHECKOUT, connect, limits, roster, speedups
 from robotfleet import selection
 from robotfleet.fleet.check import Fleet, FleetError, display_path, load, parse
 
@@ -86,6 +86,10 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     a host key."""
     require_checkout()
     connect.names([], inventory)
+    speedups.install()  # before pyinfra makes a host of each name
+    short = limits.raise_open_files(sum(len(hosts) for hosts in fleet.groups.values()))
+    if short:
+        print(f"robotfleet: {short}", file=sys.stderr)
     groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}
     groups.update(_limit_groups(fleet, inventory))
     return {**groups, **{name: connect.names(hosts) for name, hosts in fleet.groups.items()}}

@@ -115,6 +115,25 @@ USED = (
     Private(("pyinfra.api.arguments:all_global_arguments",),
             "pyinfra.api.arguments:all_global_arguments", "f7afbc472d78c5d2", "robotfleet/speedups.py",
             "replaced by the same answer computed once"),
+    Private(("pyinfra.api.connectors:get_all_connectors", "pyinfra.api.connectors:entry_points"),
+            "pyinfra.api.connectors:get_all_connectors", "7d05cb4b81d92078", "robotfleet/speedups.py",
+            "the entry_points it calls (importlib's, once per host named @connector/...) replaced by one that "
+            "reads them once"),
+    Private(("pyinfra.api.inventory:Inventory.get_groups_data",),
+            "pyinfra.api.inventory:Inventory.get_groups_data", "6d7b0baffe2d4773", "robotfleet/speedups.py",
+            "replaced by the same merge done once per list of groups"),
+    Private(("pyinfra.api.arguments:pop_global_arguments", "pyinfra.api.arguments:all_argument_meta",
+             "pyinfra.api.arguments:ctx_config", "pyinfra.api.arguments:raise_if_bad_type",
+             "pyinfra.api.operation:pop_global_arguments", "pyinfra.api.deploy:pop_global_arguments",
+             "pyinfra.api.facts:pop_global_arguments"),
+            "pyinfra.api.arguments:pop_global_arguments", "a12a311539ff5068", "robotfleet/speedups.py",
+            "replaced where it is imported by name and called (operation, deploy, facts) by a copy that reads "
+            "the host's data layers (HostData.datas) once for all the arguments, with the same argument "
+            "metadata, config and type check"),
+    Private(("pyinfra.api.host:HostData.__getattr__",),
+            "pyinfra.api.host:HostData.__getattr__", "87152f64f2a65e53", "robotfleet/speedups.py",
+            "replaced by the same lookup through the host's data layers (HostData.datas) asking plain dicts "
+            "with 'in'; the copy of pop_global_arguments looks up as it does"),
 )
 
 

@@ -1,4 +1,4 @@
-"""Two of pyinfra's per-operation steps, same answers, less work.
+"""Some of pyinfra's per-operation and per-host steps, same answers, less work.
 
 Profiling a converged rerun of ten robots (tests/bench/PROFILE.md) found a
 third of the operator's CPU in two pyinfra functions called for every
@@ -14,40 +14,79 @@ operation of every host, both recomputing what cannot change:
 - ``all_global_arguments`` evaluates ``typing.get_type_hints`` of a
   TypedDict on each call; the answer is fixed once pyinfra is imported.
 
+More are per host, found at a thousand hosts (tests/bench/SCALE.md):
+
+- ``get_all_connectors`` reads every installed package's entry points on
+  each call, and the inventory calls it for each host named
+  ``@connector/...`` (every host of ours): the entry points are read once.
+- ``Inventory.get_groups_data`` merges the host's groups' data on every
+  lookup of host data that the host itself does not set: each list of
+  groups is merged once.
+- ``pop_global_arguments`` looks each of its ~40 operation arguments up in
+  the host's data one by one, for every operation of every host, most of
+  them absent from every layer: the layers are read once for all of them.
+- ``HostData.__getattr__`` (every ``host.data.<setting>``) walks the layers
+  through a generator and an exception per layer without the key: plain
+  dicts are asked with ``in``.
+
 ``install()`` puts each in place of pyinfra's where pyinfra looks it up
-when it calls it (SITES), only where the function bound there is still the
-one it was written from (its source's digest, pinned in
-robotfleet/pyinfra_private.py): a pyinfra release that changes either keeps
-its own, slower but right, and one line says so.  tests/unit/test_speedups.py
-checks they answer as pyinfra's own do, and are active with the pyinfra this
-project installs.
+when it calls it (SPEEDUPS' sites), only where what it was written from is
+still the same source (its digest, pinned in robotfleet/pyinfra_private.py):
+a pyinfra release that changes one keeps its own, slower but right, and one
+line says so.  tests/unit/test_speedups.py checks they answer as pyinfra's
+own do, and are active with the pyinfra this project installs.
 """
 
 from __future__ import annotations
 
+import copy
 import functools
 import importlib
 import sys
+from dataclasses import dataclass
 from inspect import getframeinfo
 
 import pyinfra
 from pyinfra import logger
 from pyinfra.api import util as pyinfra_util
+from pyinfra.api.exceptions import ArgumentTypeError
 
 from robotfleet import pyinfra_private
 
-# Where pyinfra looks each function up when it calls it: the object checked
-# is the object replaced.
-SITES = {
-    "order": ("pyinfra.api.operation", "get_operation_order_from_stack"),
-    "arguments": ("pyinfra.api.arguments", "all_global_arguments"),
-}
-_ORIGINAL = {key: getattr(importlib.import_module(module), name) for key, (module, name) in SITES.items()}
-# The digest of the source each was written from.
-COPIED_FROM = {key: pyinfra_private.pinned(f"{module}:{name}") for key, (module, name) in SITES.items()}
 
+@dataclass(frozen=True)
+class Speedup:
+    sites: tuple[str, ...]  # "module:attribute[.attribute]": where pyinfra looks it up when it calls it
+    written_from: tuple[str, ...]  # the pyinfra sources it repeats or relies on (pinned in pyinfra_private)
+
+
+SPEEDUPS = {
+    "order": Speedup(("pyinfra.api.operation:get_operation_order_from_stack",),
+                     ("pyinfra.api.operation:get_operation_order_from_stack",)),
+    "arguments": Speedup(("pyinfra.api.arguments:all_global_arguments",),
+                         ("pyinfra.api.arguments:all_global_arguments",)),
+    # importlib's entry_points, as get_all_connectors calls it: the caller is what it was written for.
+    "connectors": Speedup(("pyinfra.api.connectors:entry_points",), ("pyinfra.api.connectors:get_all_connectors",)),
+    "groups_data": Speedup(("pyinfra.api.inventory:Inventory.get_groups_data",),
+                           ("pyinfra.api.inventory:Inventory.get_groups_data",)),
+    # Imported by name where it is called; its lookups are HostData.__getattr__'s.
+    "pop_arguments": Speedup(tuple(f"pyinfra.api.{module}:pop_global_arguments"
+                                   for module in ("operation", "deploy", "facts")),
+                             ("pyinfra.api.arguments:pop_global_arguments", "pyinfra.api.host:HostData.__getattr__")),
+    "host_data": Speedup(("pyinfra.api.host:HostData.__getattr__",), ("pyinfra.api.host:HostData.__getattr__",)),
+}
+# pyinfra's own object at each site and each source, as imported (before any install).
+_ORIGINAL = {path: pyinfra_private.resolve(path)
+             for speedup in SPEEDUPS.values() for path in speedup.sites + speedup.written_from}
+COPIED_FROM = {path: pyinfra_private.pinned(path) for speedup in SPEEDUPS.values() for path in speedup.written_from}
 
 digest = pyinfra_private.digest
+arguments = importlib.import_module("pyinfra.api.arguments")
+
+
+def original(key: str):
+    """pyinfra's own function that speedup ``key`` replaces."""
+    return _ORIGINAL[SPEEDUPS[key].sites[0]]
 
 
 def operation_order_from_stack(state) -> list:
@@ -92,7 +131,7 @@ def _place(frame) -> tuple[str, int]:
 
 @functools.lru_cache(maxsize=1)
 def _global_arguments() -> tuple:
-    return tuple(_ORIGINAL["arguments"]())
+    return tuple(original("arguments")())
 
 
 def all_global_arguments() -> list:
@@ -100,18 +139,138 @@ def all_global_arguments() -> list:
     return list(_global_arguments())
 
 
+@functools.lru_cache(maxsize=None)
+def entry_points(group: str):
+    """The installed packages' entry points of ``group``, read once."""
+    return original("connectors")(group=group)
+
+
+def groups_data(inventory, groups) -> dict:
+    """Inventory.get_groups_data, merged once for each list of groups (the
+    inventory's group data is set when it is made, before any lookup)."""
+    memo = inventory.__dict__.setdefault("_merged_groups_data", {})
+    key = tuple(groups)
+    if key not in memo:
+        memo[key] = original("groups_data")(inventory, groups)
+    return memo[key]
+
+
+def _host_arguments(host, keys: frozenset) -> dict:
+    """key -> what ``getattr(host.data, key)`` finds (uncopied), for the
+    ``keys`` some layer of the host's data holds: the first layer holding
+    it, as HostData.__getattr__ looks."""
+    found: dict = {}
+    for data in host.data.datas:
+        if callable(data):
+            data = data()
+        if type(data) is dict:
+            for key in keys.intersection(data):
+                found.setdefault(key, data[key])
+            continue
+        for key in keys.difference(found):  # a mapping of its own: asked as pyinfra asks it
+            try:
+                found[key] = data[key]
+            except KeyError:
+                pass
+    return found
+
+
+@functools.lru_cache(maxsize=1)
+def _argument_keys() -> frozenset:
+    return frozenset(key for key, _ in _global_arguments())
+
+
+def pop_global_arguments(state, host, kwargs):
+    """pyinfra.api.arguments.pop_global_arguments, with the host's data
+    read once for all the arguments."""
+    config = state.config
+    if arguments.ctx_config.isset():
+        config = arguments.ctx_config.get()
+        assert config is not None
+    meta_kwargs = host.current_deploy_kwargs or {}
+    host_values = _host_arguments(host, _argument_keys())
+    result: dict = {}
+    found_keys: list = []
+    for key, type_ in _global_arguments():
+        argument_meta = arguments.all_argument_meta[key]
+        handler = argument_meta.handler
+        default = argument_meta.default(config)
+        if key in host_values:
+            default = copy.copy(host_values[key])
+        if key in kwargs:
+            found_keys.append(key)
+            value = kwargs.pop(key)
+        else:
+            value = meta_kwargs.get(key, default)
+        if handler:
+            value = handler(config, value)
+        if value != default:
+            arguments.raise_if_bad_type(value, type_, ArgumentTypeError, f"Invalid argument `{key}`:")
+        result[key] = value
+    return result, found_keys
+
+
+def host_data_getattr(self, key: str):
+    """HostData.__getattr__: the first layer holding ``key``, copied."""
+    for data in self.datas:
+        if callable(data):
+            data = data()
+        if type(data) is dict:
+            if key in data:
+                return copy.copy(data[key])
+            continue
+        try:
+            return copy.copy(data[key])
+        except KeyError:
+            pass
+    raise AttributeError(f"Host `{self.host}` has no data `{key}`")
+
+
+OURS = {"order": operation_order_from_stack, "arguments": all_global_arguments, "connectors": entry_points,
+        "groups_data": groups_data, "pop_arguments": pop_global_arguments, "host_data": host_data_getattr}
+
+
+def _owner(site: str):
+    """(the object holding the site's attribute, the attribute's name)."""
+    holder, _, name = site.rpartition(".") if "." in site.partition(":")[2] else site.rpartition(":")
+    return pyinfra_private.resolve(holder), name
+
+
+def _changed(key: str) -> str | None:
+    """The first source speedup ``key`` was written from that pyinfra has
+    changed: at a site, what is bound there now (unless it is ours); else
+    pyinfra's own as imported (a site another speedup may have replaced)."""
+    speedup = SPEEDUPS[key]
+    for path in speedup.written_from:
+        if path in speedup.sites:
+            owner, name = _owner(path)
+            current = getattr(owner, name)
+            if current is OURS[key]:
+                continue
+        else:
+            current = _ORIGINAL[path]
+        if digest(current) != COPIED_FROM[path]:
+            return path
+    for site in speedup.sites:
+        owner, name = _owner(site)
+        current = getattr(owner, name)
+        if site not in speedup.written_from and current is not OURS[key] and current is not _ORIGINAL[site]:
+            return site  # another function bound where pyinfra calls it
+    return None
+
+
 def install() -> list[str]:
     """Replace what is still as it was copied; returns what is in place."""
-    ours = {"order": operation_order_from_stack, "arguments": all_global_arguments}
     replaced = []
-    for key, (module_name, name) in SITES.items():
-        module = importlib.import_module(module_name)
-        current = getattr(module, name)
-        if current is not ours[key]:
-            if digest(current) != COPIED_FROM[key]:
-                logger.warning(f"robotfleet: pyinfra {pyinfra.__version__} has another {module_name}.{name} than "
-                               "robotfleet/speedups.py was written from; pyinfra's own runs (slower, same answers)")
-                continue
-            setattr(module, name, ours[key])
+    for key, speedup in SPEEDUPS.items():
+        changed = _changed(key)
+        if changed:
+            module, _, name = changed.partition(":")
+            logger.warning(f"robotfleet: pyinfra {pyinfra.__version__} has another {module}.{name} than "
+                           "robotfleet/speedups.py was written from; pyinfra's own runs (slower, same answers)")
+            continue
+        for site in speedup.sites:
+            owner, name = _owner(site)
+            setattr(owner, name, OURS[key])
         replaced.append(key)
     return replaced

@@ -116,13 +116,52 @@ def dpkg_interrupted(audit: str) -> bool:
     return bool(audit.strip())
 
 
-# Read in the host snapshot: dpkg's journal of an unfinished run (what apt
-# calls "dpkg was interrupted") and packages left half-installed, unpacked
-# or half-configured.  Empty on a healthy host.
-DPKG_AUDIT_PROBE = (
-    "ls /var/lib/dpkg/updates 2>/dev/null | grep -q . && echo 'dpkg journal not empty'; "
-    "dpkg --audit 2>/dev/null | head -n 5"
-)
+# Packages dpkg --audit has nothing to say about: "ok" (not reinstreq) and
+# installed, not installed or config-files only; installed ones of the
+# native architecture (or all) with their list and md5sums files (named
+# pkg:arch for Multi-Arch: same in dpkg's multiarch database).  Exit 0
+# only when every package is so (see dpkg's src/main/enquiry.c, audit()).
+# Its first input is the names in dpkg's info directory (`ls -f`), the
+# second the status file.
+_AUDIT_CLEAN_AWK = r"""FNR == NR {info[$0] = 1; next}
+FNR == 1 {f = ""; getline f < (d "/info/format")}
+function check() {
+  if (p != "") {
+    split(s, w, " ")
+    if (w[2] != "ok" || (w[3] != "installed" && w[3] != "not-installed" && w[3] != "config-files")) bad = 1
+    else if (w[3] == "installed") {
+      if (r != "all" && r != a) bad = 1
+      n = m == "same" && f == "1" ? p ":" r : p
+      if (!((n ".list") in info) || !((n ".md5sums") in info)) bad = 1
+    }
+  }
+  p = s = r = m = ""
+}
+/^Package: / {p = substr($0, 10)}
+/^Status: / {s = substr($0, 9)}
+/^Architecture: / {r = substr($0, 15)}
+/^Multi-Arch: / {m = substr($0, 13)}
+/^$/ {check()}
+END {check(); exit bad || NR == FNR}"""
+
+
+def dpkg_audit_probe(admindir: str = "/var/lib/dpkg") -> str:
+    """Read in the host snapshot: dpkg's journal of an unfinished run (what
+    apt calls "dpkg was interrupted") and packages left half-installed,
+    unpacked or half-configured (dpkg --audit's first lines).  Empty on a
+    healthy host.  dpkg --audit itself only runs where the journal or the
+    status file (read with awk) shows something it would report."""
+    d = shlex.quote(admindir)
+    return (
+        f'j=; for f in {d}/updates/*; do [ -e "$f" ] && j=1; done; '
+        "[ -n \"$j\" ] && echo 'dpkg journal not empty'; "
+        f'if [ -n "$j" ] || ! ls -f {d}/info | awk -v d={d} -v a="$(dpkg --print-architecture 2>/dev/null)" '
+        f"{shlex.quote(_AUDIT_CLEAN_AWK)} - {d}/status 2>/dev/null; then "
+        f"dpkg --admindir={d} --audit 2>/dev/null | head -n 5; fi"
+    )
+
+
+DPKG_AUDIT_PROBE = dpkg_audit_probe()
 
 
 @operation()

@@ -14,6 +14,12 @@ A snapshot answers only what was asked: reading a file, package, user, unit,
 command or probe that no role declared raises ``UndeclaredRead``.  Otherwise a
 role that forgot to declare a read would see "absent" and change the host on
 every run.
+
+The script itself (``snapshot_sh.py``) starts as few programs on the host as
+it can: the same command runs at every deploy and every pull-mode check.  A
+probe whose answer depends only on some files and programs (gpg's verdict on
+a key file, what udevadm can do) is declared with them in ``memo`` and kept
+on the host while they are unchanged.
 """
 
 from __future__ import annotations
@@ -25,6 +31,9 @@ from dataclasses import dataclass, field
 
 from pyinfra.api import FactBase
 
+from robotfleet.host import snapshot_sh
+from robotfleet.host.snapshot_sh import snapshot_script
+
 
 @dataclass
 class SnapshotQuery:
@@ -35,6 +44,10 @@ class SnapshotQuery:
     commands: set[str] = field(default_factory=set)
     # name -> shell snippet; its stdout is returned verbatim.
     probes: dict[str, str] = field(default_factory=dict)
+    # probe name -> the files (absolute paths) and programs (names on PATH)
+    # its answer depends on alone: the host answers it from its memo while
+    # none of them changed (robotfleet/host/snapshot_sh.py).
+    memo: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def as_kwargs(self) -> dict:
         return {
@@ -44,6 +57,7 @@ class SnapshotQuery:
             "units": sorted(self.units),
             "commands": sorted(self.commands),
             "probes": dict(sorted(self.probes.items())),
+            "memo": {name: tuple(self.memo[name]) for name in sorted(self.memo) if name in self.probes},
         }
 
 
@@ -117,104 +131,20 @@ class Snapshot:
 READING_KINDS = ("packages", "files", "users", "units", "commands", "probes")
 
 
-def _q(value: str) -> str:
-    return shlex.quote(value)
-
-
-# Seconds one probe may take (docker ps, gpg, nvidia-smi, dpkg --audit).
-PROBE_TIMEOUT = 60
-
-
-# Paths that stat and sha256sum print as they are given (no escaping), read
-# with one call of each; any other path gets its own tests and commands.
-_PLAIN_PATH = re.compile(r"/[A-Za-z0-9._@+:/-]*\Z")
 _STAT_KINDS = {"symbolic link": "link", "directory": "dir", "regular file": "file", "regular empty file": "file"}
 _SHA_LINE = re.compile(r"([0-9a-f]{64})  (/.*)\Z")
-
-
-def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
-    """The shell script behind the snapshot (POSIX sh, read-only).
-
-    Its slow parts (probes, units, packages: each asks a daemon or a
-    database) run at once, each into its own file of a temporary directory,
-    printed in order when all are done; where no temporary directory can be
-    made they run one after another.  Files are read with one stat and one
-    sha256sum for all of them."""
-    lines = [
-        "export LC_ALL=C",
-        "T=$(printf '\\t')",
-        'echo "os${T}$(base64 -w0 < /etc/os-release 2>/dev/null)"',
-        'echo "arch${T}$(dpkg --print-architecture 2>/dev/null)"',
-    ]
-    plain = [path for path in files if _PLAIN_PATH.match(path)]
-    if plain:
-        names = " ".join(_q(p) for p in plain)
-        lines.append(f"stat -c \"stat${{T}}%n${{T}}%F${{T}}%a %U %G\" -- {names} 2>/dev/null")
-        lines.append(f"set --; for p in {names}; do [ -f \"$p\" ] && [ ! -L \"$p\" ] && set -- \"$@\" \"$p\"; done")
-        lines.append('[ $# -gt 0 ] && sha256sum -- "$@" 2>/dev/null')
-    for path in files:
-        if path in plain:
-            continue
-        p = _q(path)
-        lines.append(
-            f"if [ -L {p} ]; then echo \"file${{T}}\"{p}\"${{T}}link${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
-            f"elif [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
-            f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
-            f"else echo \"file${{T}}\"{p}\"${{T}}none\"; fi"
-        )
-    for user in users:
-        u = _q(user)
-        lines.append(
-            f"if id -u {u} >/dev/null 2>&1; then echo \"user${{T}}\"{u}\"${{T}}$(id -nG {u})\"; "
-            f"else echo \"user${{T}}\"{u}\"${{T}}-\"; fi"
-        )
-    for command in commands:
-        cmd = _q(command)
-        lines.append(f"echo \"cmd${{T}}\"{cmd}\"${{T}}$(command -v {cmd})\"")
-    slow = []
-    if packages:
-        names = " ".join(_q(p) for p in packages)
-        slow.append(
-            "dpkg-query -W -f='pkg\\t${Package}\\t${Status}\\t${Version}\\n' "
-            f"{names} 2>/dev/null"
-        )
-    for unit in units:
-        u = _q(unit)
-        slow.append(
-            f"echo \"unit${{T}}\"{u}\"${{T}}$(systemctl is-enabled {u} 2>/dev/null)${{T}}$(systemctl is-active {u} 2>/dev/null)\""
-        )
-    for name, snippet in (probes or {}).items():
-        # Bounded: a wedged dockerd must not hang the host's only snapshot
-        # command; a probe cut off reads as empty (unknown), as a failed one does.
-        slow.append(
-            f"echo \"probe${{T}}\"{_q(name)}\"${{T}}$(timeout {PROBE_TIMEOUT} sh -c {_q(snippet)} 2>/dev/null"
-            " | base64 -w0)\""
-        )
-    if len(slow) > 1:
-        lines.append("if d=$(mktemp -d 2>/dev/null); then")
-        lines.append("trap 'rm -rf \"$d\"' EXIT")
-        lines += [f'{{ {line}\n}} > "$d/{index:04d}" &' for index, line in enumerate(slow)]
-        lines.append('wait; cat "$d"/*')
-        lines.append("else")
-        lines += slow
-        lines.append("fi")
-    else:
-        lines += slow
-    lines.append("true")
-    return "\n".join(lines)
 
 
 def parse(lines: list[str], query: dict) -> Snapshot:
     """The snapshot script's output, answering only the keys of ``query``
     (``SnapshotQuery.as_kwargs()``)."""
     snap = Snapshot(**{kind: Readings(kind, query.get(kind) or ()) for kind in READING_KINDS})
-    stats, shas = {}, {}
+    stats, shas, os_lines, sizes, blob, ones = {}, {}, [], [], b"", {}
     for line in lines:
         kind, _, rest = line.partition("\t")
         parts = rest.split("\t")
-        if kind == "os":
-            text = base64.b64decode(parts[0]).decode() if parts[0] else ""
-            snap.os_release = parse_os_release(text)
+        if kind == "osl":
+            os_lines.append(rest)
         elif kind == "arch":
             snap.arch = parts[0].strip()
         elif kind == "pkg" and len(parts) >= 3:
@@ -239,12 +169,27 @@ def parse(lines: list[str], query: dict) -> Snapshot:
             snap.commands[parts[0]] = parts[1] or None if len(parts) > 1 else None
         elif kind == "probe":
             snap.probes[parts[0]] = base64.b64decode(parts[1]).decode() if len(parts) > 1 and parts[1] else ""
+        elif kind == "pone" and len(parts) == 2 and parts[0].isdigit():  # one probe's output, by its index
+            sizes.append((parts[0], None))
+            ones[parts[0]] = base64.b64decode(parts[1]).decode() if parts[1] else ""
+        elif kind == "psize" and len(parts) == 2 and parts[1].isdigit():
+            sizes.append((parts[0].rsplit("/p", 1)[-1], int(parts[1])))
+        elif kind == "pblob":
+            blob = base64.b64decode(rest)
         else:
             match = _SHA_LINE.match(line)
             if match:
                 shas[match.group(2)] = match.group(1)
+    snap.os_release = parse_os_release("\n".join(os_lines))
+    names = list(query.get("probes") or {})
+    for index, size in sizes:  # the blob: the probes' outputs one after another, in the order of sizes
+        if index.isdigit() and int(index) < len(names):
+            snap.probes[names[int(index)]] = ones[index] if size is None else blob[:size].decode()
+        blob = blob[size or 0:]
+    for name in names:  # cut off by the timeout: unknown, as a failed probe
+        snap.probes.setdefault(name, "")
     for path in query.get("files") or ():
-        if path in snap.files or not _PLAIN_PATH.match(path):
+        if path in snap.files or not snapshot_sh.PLAIN_PATH.match(path):
             continue
         kind, attributes = stats.get(path, (None, ""))
         if kind is None:  # missing, or neither a file, a directory nor a link
@@ -271,12 +216,12 @@ def parse_os_release(text: str) -> dict[str, str]:
 class HostSnapshot(FactBase):
     """Everything the roles need from a host, read in one command."""
 
-    def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None):
+    def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None):
         self.query = {
             "files": files, "packages": packages, "users": users,
             "units": units, "commands": commands, "probes": probes or {},
         }
-        return snapshot_script(files, packages, users, units, commands, probes)
+        return snapshot_script(files, packages, users, units, commands, probes, memo)
 
     def process(self, output):
         return parse(list(output), self.query)

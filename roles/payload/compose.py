@@ -41,8 +41,8 @@ def combined(additions: list[dict], name: str) -> dict:
 
 
 def base_service(data, image: str, address: str, added: dict) -> dict:
-    """One service with our defaults: restart, network, ROS environment,
-    the payload label, and what the other roles add."""
+    """One service with our defaults: restart, network, how it stops,
+    ROS environment, the payload label, and what the other roles add."""
     service: dict = {
         "image": image,
         "restart": data.payload_restart_policy,
@@ -50,6 +50,10 @@ def base_service(data, image: str, address: str, added: dict) -> dict:
         "environment": environment(data, address),
         "labels": {"io.robot-fleet.payload": data.payload_name},
     }
+    if data.payload_stop_grace_period is not None:
+        service["stop_grace_period"] = f"{data.payload_stop_grace_period}s"
+    if data.payload_init:
+        service["init"] = True
     if data.payload_command:
         service["command"] = list(data.payload_command)
     service["environment"].update(added["environment"])

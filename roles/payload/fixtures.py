@@ -28,7 +28,7 @@ def converged(play, host: str) -> None:
     if data.payload_autostart:
         snap.files[robot.unit_path(data)] = file_state(robot.unit_text(data, steps.unit_devices(additions)))
         snap.units[f"{data.payload_name}.service"] = ("enabled", "active")
-        snap.probes["payload_containers"] = "running\tUp 3 hours (healthy)\n"
+        snap.probes["payload_containers"] = "c\trunning\tUp 3 hours (healthy)\n"
     doc = compose.project(data, data.get("ssh_hostname") or host, additions)
     state = "active" if data.payload_autostart else "staged"
     snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, data.payload_autostart), "state": state})

@@ -1,5 +1,6 @@
 """What ``ros_preset`` adds to the payload's services: the ROS 1 / ROS 2
-environment, ``ipc``, a DDS profile from files/dds/, a roscore service."""
+environment, ``ipc``, the stop signal, a DDS profile from files/dds/, a
+roscore service."""
 
 from __future__ import annotations
 
@@ -49,6 +50,10 @@ def preset(data, address: str, files_dir: Path = FILES_DIR) -> dict:
     gets unless it sets them, volumes, labels, and extra services."""
     kind = value_of(data, "ros_preset")
     result: dict = {"environment": {}, "drop": [], "keys": {}, "volumes": [], "labels": {}, "extra": {}}
+    if kind in ("ros1", "ros2"):
+        # roslaunch and ros2 launch shut their nodes down cleanly on SIGINT
+        # (Ctrl-C); on Docker's SIGTERM they are killed when the grace ends.
+        result["keys"]["stop_signal"] = "SIGINT"
     if kind == "ros1":
         roscore = bool(value_of(data, "ros_roscore"))
         host_network = value_of(data, "payload_network_mode") == "host"

@@ -11,6 +11,7 @@ import re
 from functools import lru_cache
 from pathlib import Path
 
+from robotfleet.checks import key_name
 import roles.payload.compose as compose
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
@@ -157,7 +158,7 @@ def project_problems(data) -> list[tuple[str, str]]:
     names: dict[str, str] = {}
     # The shorthand's one service is checked by the payload_* settings themselves.
     for name, spec in (services if raw else {}).items():
-        where = f"payload_services.{name}"
+        where = f"payload_services.{key_name(name)}"
         if not re.fullmatch(SERVICE_NAME, name):
             problems.append((where, "service names are letters, digits, . _ - (starting with a letter or digit)"))
         image = spec.get("image")

@@ -14,6 +14,7 @@ from robotfleet.checks import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 import roles.docker.hooks as docker_hooks
+import roles.payload.containers as containers
 from roles.payload.credentials import registry_key
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
@@ -21,16 +22,6 @@ import roles.payload.payloadctl.takeover as takeover_rule
 import roles.payload.presets as presets
 import roles.payload.push as push
 import roles.payload.services as services
-
-FOREIGN_PROBE = "payload_foreign"
-# One line per container: id, name, image, compose project, running, restart policy.
-_INSPECT = (
-    "docker ps -aq --no-trunc 2>/dev/null | xargs -r docker inspect -f "
-    + shlex.quote(
-        '{{json (printf "%s\\t%s\\t%s\\t%s\\t%v\\t%s" .Id .Name .Config.Image '
-        '(index .Config.Labels "com.docker.compose.project") .State.Running .HostConfig.RestartPolicy.Name)}}'
-    )
-)
 
 
 def primary_image(data) -> str | None:
@@ -42,8 +33,8 @@ def primary_image(data) -> str | None:
 def declare_reads(data, query: SnapshotQuery) -> None:
     if data.ros_preset == "ros2" and data.ros_dds_profile:
         query.files |= {presets.dds_profile_host_path(data), f"/etc/{data.payload_name}"}
-    if data.payload_autostart:
-        query.probes[FOREIGN_PROBE] = _INSPECT
+    # Every container's identity (for the takeover, where the payload runs
+    # at boot) comes in the containers probe the payload role declares.
     if data.payload_delivery == "push":
         for index, ref in enumerate(more_images(data)):
             query.probes[f"payload_image_id_{index + 1}"] = image_id_probe(ref)
@@ -137,7 +128,8 @@ def takeover(data, snap: Snapshot, current_record: dict | None = None) -> list[d
     if not data.payload_autostart:
         return []
     recorded = takeover_rule.recorded_projects(current_record, data.payload_name)
-    found = foreign(snap.probes.get(FOREIGN_PROBE, ""), data.payload_name, takeover_of(data), recorded)
+    found = foreign(containers.part(snap.probes.get(containers.PROBE, ""), "f"), data.payload_name, takeover_of(data),
+                    recorded)
     if found:
         # Names and images come from the robot: one line, nothing that moves the cursor.
         logger.warning(f"[{host.name}] {one_line(takeover_line(found))}")

@@ -128,15 +128,9 @@ def current_record(snap: Snapshot) -> dict:
     return record if isinstance(record, dict) else {}
 
 
-def containers_probe(name: str) -> str:
-    return (
-        f"docker ps -a --filter label=com.docker.compose.project={shlex.quote(name)}"
-        " --format '{{.State}}\t{{.Status}}'"
-    )
-
-
 def containers_running(probe_output: str) -> bool:
-    """From `docker ps`: the payload's containers exist, all run, none is
+    """From `docker ps` (the containers probe's own lines, containers.part):
+    the payload's containers exist, all run, none is
     unhealthy (a oneshot unit stays "active" when they are gone)."""
     lines = [line.split("\t", 1) for line in probe_output.splitlines() if line.strip()]
     return bool(lines) and all(

@@ -15,6 +15,7 @@ from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play
 import roles.docker.hooks as docker_hooks
 import roles.payload.compose as compose
+import roles.payload.containers as containers
 import roles.payload.credentials as credentials
 import roles.payload.hooks as hooks
 import roles.payload.payloadctl.imageref as imageref
@@ -31,7 +32,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.units.add(f"{data.payload_name}.service")
     query.commands |= {"python3", "systemd-run"}
     query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
-    query.probes["payload_containers"] = release.containers_probe(data.payload_name)
+    query.probes[containers.PROBE] = containers.probe(data.payload_name, foreign=data.payload_autostart)
     query.probes["payload_lock"] = release.lock_probe(data.payload_dir)
     query.probes["registry_auth"] = login.registry_probe(imageref.parse(project.primary_image(data)).registry)
     if data.payload_delivery == "pull":
@@ -159,7 +160,7 @@ def deploy_payload(play: Play):
         data.payload_autostart,
         # Both: the containers really run (the oneshot unit stays "active"
         # without them) and the unit did not fail (it starts them at boot).
-        release.containers_running(snap.probes.get("payload_containers", ""))
+        release.containers_running(containers.part(snap.probes.get(containers.PROBE, ""), "c"))
         and snap.unit_active(f"{data.payload_name}.service"),
     )
     needed = needed or unit_changes or bool(taken_over)

@@ -20,8 +20,8 @@ from roles.udev import passthrough, rules, settings
 VENDOR_RULES_DIR = Path(__file__).resolve().parents[2] / "files" / "udev"
 RULES_DIR = "/etc/udev/rules.d"
 VERIFY_PROBE = (
-    "if udevadm verify --help >/dev/null 2>&1; then "
-    "if udevadm verify --help | grep -q -- --no-style; then echo 'verify-nostyle'; else echo verify; fi; fi"
+    "if h=$(udevadm verify --help 2>/dev/null); then "
+    "case $h in *--no-style*) echo 'verify-nostyle' ;; *) echo verify ;; esac; fi"
 )
 
 
@@ -36,6 +36,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files.add(data.udev_rules_file)
     query.files |= {f"{RULES_DIR}/{name}" for name in data.udev_vendor_rules}
     query.probes["udevadm_verify"] = VERIFY_PROBE
+    query.memo["udevadm_verify"] = ("udevadm",)  # what this udevadm can do
 
 
 def verify_command(probe: str) -> str | None:

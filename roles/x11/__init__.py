@@ -7,6 +7,8 @@ mounts the directory read-only with XAUTHORITY set.  Never `xhost +`.
 
 from __future__ import annotations
 
+import functools
+
 from pathlib import Path
 
 import jinja2
@@ -29,9 +31,13 @@ def cookie_dir(data) -> str:
     return f"{data.x11_cookie_dir}/{data.x11_user}"
 
 
+@functools.lru_cache(maxsize=1)
+def _cookie_template() -> jinja2.Template:
+    return jinja2.Template((HERE / "robot-x11-cookie.sh.j2").read_text(), keep_trailing_newline=True)
+
+
 def cookie_script(data) -> str:
-    template = jinja2.Template((HERE / "robot-x11-cookie.sh.j2").read_text(), keep_trailing_newline=True)
-    return template.render(cookie_dir=data.x11_cookie_dir)
+    return _cookie_template().render(cookie_dir=data.x11_cookie_dir)
 
 
 def compose_settings(data) -> dict:

@@ -1,5 +1,5 @@
 """The operator side's scaling curve: a no-op rerun and `robotfleet status` at
-N = 1 .. 200 robots, time, memory and open files of the operator's process.
+N = 1 .. 1,000 robots, time, CPU, memory and open files of the operator's process.
 
     python3 -m tests.bench.scale [--prefix perf] [--hosts 1 10 50 100 200] [--runs 3] [--write]
 
@@ -18,7 +18,7 @@ sampled every 20 ms for the process's peak resident memory and open file
 descriptors; the no-op's SSH commands per host are counted (it must stay
 one).  Load average before each run goes beside it (tests/bench/hygiene).
 --write puts SCALE.json and scale.png (matplotlib, the bench extra) beside
-this file.  Asserts nothing.
+this file.  Asserts nothing.  How to run it, up to 1,000 hosts: --help.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -36,12 +35,14 @@ from pathlib import Path
 from tests.bench import hygiene
 from tests.bench.pool import sample
 from tests.bench.roundtrips import COUNTING_PYINFRA
+from tests.bench.scale_fit import fit, plot, summarize
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
 # Below Linux's ephemeral range (32768-60999): an outgoing connection's own
 # port must not take a light host's.
 PORT_BASE = 30000
+MAX_HOSTS = 1000
 ANCHORS = ("robot4", "robot5", "robot6")
 REPLAY = """#!/bin/sh
 case "$SSH_ORIGINAL_COMMAND" in
@@ -77,10 +78,10 @@ def log(message: str) -> None:
 
 
 class Scale:
-    def __init__(self, prefix: str, workdir: Path):
+    def __init__(self, prefix: str, workdir: Path, cpus: str = "1", memory: str = "2g"):
         from tests.lab import state as lab_state
 
-        self.prefix, self.workdir = prefix, workdir
+        self.prefix, self.workdir, self.cpus, self.memory = prefix, workdir, cpus, memory
         self.lab = lab_state.load(prefix)
         self.container = f"{prefix}light-hosts"
         self.light_dir = ROOT / ".lab" / f"{prefix}light"
@@ -121,8 +122,8 @@ class Scale:
 
     # --- what a converged robot answers ------------------------------------------
     def capture(self) -> None:
-        """The snapshot and status outputs of robot4, converged (a deploy first)."""
-        spec = self.spec(["robot4"])
+        """The snapshot and status outputs of the first anchor, converged (a deploy first)."""
+        spec = self.spec([ANCHORS[0]])
         self._known_hosts(light=0)
         inventory = "tests/bench/scale_inventory.py"
         subprocess.run([sys.executable, "-c", COUNTING_PYINFRA, str(self.workdir / "c.json"), "-y", inventory,
@@ -159,7 +160,7 @@ class Scale:
         script = ("mkdir -p /run/sshd && ssh-keygen -q -t ed25519 -N '' -f /etc/ssh/ssh_host_ed25519_key <<< y >/dev/null 2>&1;"
                   " for f in /light/sshd_config.*; do /usr/sbin/sshd -f $f || exit 1; done; exec sleep infinity")
         subprocess.run(["docker", "run", "-d", "--name", self.container, "--network", "host",
-                        "--memory", "2g", "--cpus", "1", "-v", f"{self.light_dir}:/light:ro",
+                        "--memory", self.memory, "--cpus", self.cpus, "-v", f"{self.light_dir}:/light:ro",
                         "--entrypoint", "bash", image, "-c", script],
                        capture_output=True, text=True, check=True)
         for _ in range(100):
@@ -253,69 +254,53 @@ def _children_cpu() -> float:
 
 def names_for(n: int) -> list[str]:
     if n == 1:
-        return ["robot4"]
+        return [ANCHORS[0]]
     anchors = list(ANCHORS[: min(len(ANCHORS), n)])
     return anchors + [f"light{i:03d}" for i in range(1, n - len(anchors) + 1)]
 
 
-def fit(points: list[tuple[int, float]]) -> dict:
-    """Least squares y = a + b N, and the largest relative residual."""
-    xs, ys = [p[0] for p in points], [p[1] for p in points]
-    mx, my = statistics.fmean(xs), statistics.fmean(ys)
-    sxx = sum((x - mx) ** 2 for x in xs)
-    b = sum((x - mx) * (y - my) for x, y in points) / sxx if sxx else 0.0
-    a = my - b * mx
-    worst = max(abs(y - (a + b * x)) / y for x, y in points if y) if points else 0.0
-    return {"a": round(a, 4), "b_per_host": round(b, 5), "worst_relative_residual": round(worst, 3)}
+HOW = """\
+Before it: the lab up with the anchors (robot4..6 by default), e.g.
+  python3 -m tests.lab up --prefix perf --robots 6 --laptops 0
+The first anchor is converged by the benchmark itself (a deploy), then its
+answers are replayed by the light hosts: STAND-INS, one container of sshds.
 
-
-def plot(result: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for kind, style in (("noop", "o-"), ("status", "s--")):
-        rows = result["curve"][kind]
-        ns = [r["hosts"] for r in rows]
-        left.errorbar(ns, [r["seconds"]["median"] for r in rows],
-                      yerr=[[r["seconds"]["median"] - r["seconds"]["min"] for r in rows],
-                            [r["seconds"]["max"] - r["seconds"]["median"] for r in rows]], fmt=style, capsize=3,
-                      label=f"{kind} (fit {result['fits'][kind]['seconds']['a']:.2f} s + "
-                            f"{result['fits'][kind]['seconds']['b_per_host'] * 1000:.1f} ms/host)")
-        right.plot(ns, [r["peak_rss_mb"]["median"] for r in rows], style,
-                   label=f"{kind} (fit {result['fits'][kind]['peak_rss_mb']['a']:.0f} MB + "
-                         f"{result['fits'][kind]['peak_rss_mb']['b_per_host']:.2f} MB/host)")
-    left.set(xlabel="robots (N)", ylabel="wall time (s)", title="Operator: time against N")
-    right.set(xlabel="robots (N)", ylabel="peak resident memory (MB)", title="Operator: memory against N")
-    for axis in (left, right):
-        axis.grid(True, alpha=0.3)
-        axis.legend(fontsize=8)
-    fig.suptitle(f"No-op rerun and status, one operator process ({result['conditions']['date']}, "
-                 f"load {result['conditions']['load_range']})", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-
-
-def summarize(values: list[float]) -> dict:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
+Up to 1,000 hosts (light001..light997 beside the three anchors, ports
+127.0.0.1:30001 on): the operator process raises its open-file limit to
+about 3 per host itself; the hard limit (ulimit -Hn) must allow 3,100, and
+the stand-ins' sshds want more than the default one CPU and 2 GB:
+  python3 -m tests.bench.scale --hosts 1 10 100 250 500 1000 --runs 3 \\
+      --light-cpus 2 --light-memory 6g --write
+Idle machine only for figures (tests/bench/hygiene waits for a low load);
+a quick check that it runs: --hosts 20 --runs 1.  Take the lab down after:
+  python3 -m tests.lab down --prefix perf
+"""
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.scale", description=__doc__.splitlines()[0])
+    global ANCHORS
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.scale", description=__doc__.splitlines()[0],
+                                     epilog=HOW, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "perf"))
-    parser.add_argument("--hosts", type=int, nargs="+", default=[1, 10, 50, 100, 200])
+    parser.add_argument("--hosts", type=int, nargs="+", default=[1, 10, 50, 100, 200],
+                        help="the sizes N of the curve (1 to 1000)")
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--parallel", type=int, nargs="*", default=[],
                         help="also run the no-op at the largest N with pyinfra --parallel P")
+    parser.add_argument("--anchors", nargs="+", default=list(ANCHORS), metavar="ROBOT",
+                        help="the real lab robots in every run (default: robot4 robot5 robot6)")
+    parser.add_argument("--light-cpus", default="1", help="CPUs of the light hosts' container (docker --cpus)")
+    parser.add_argument("--light-memory", default="2g", help="its memory (docker --memory)")
     parser.add_argument("--write", action="store_true", help="write SCALE.json and scale.png beside this file")
     args = parser.parse_args(argv)
+    ANCHORS = tuple(args.anchors)
+    if not all(1 <= n <= MAX_HOSTS for n in args.hosts):
+        parser.error(f"--hosts: each N from 1 to {MAX_HOSTS} (the light hosts' ports end below Linux's ephemeral range)")
     import datetime
 
     with tempfile.TemporaryDirectory() as tmp:
-        scale = Scale(args.prefix, Path(tmp))
-        log("capturing robot4's converged answers")
+        scale = Scale(args.prefix, Path(tmp), args.light_cpus, args.light_memory)
+        log(f"capturing {ANCHORS[0]}'s converged answers")
         scale.capture()
         curve: dict[str, list] = {"noop": [], "status": []}
         extra_rows = []
@@ -341,7 +326,8 @@ def main(argv=None) -> int:
                            "loads": [r["load"] for r in runs], "idle": all(r["idle"] for r in runs), "runs": runs,
                            "light_hosts_memory_mb": scale.light_memory_mb()}
                     curve[kind].append(row)
-                    log(f"N={n} {kind}: {row['seconds']} s, {row['peak_rss_mb']['median']} MB, "
+                    log(f"N={n} {kind}: {row['seconds']} s, CPU {row['cpu_seconds']['median']} s "
+                        f"({row['cpu_seconds']['median'] / n * 1000:.1f} ms/robot), {row['peak_rss_mb']['median']} MB, "
                         f"{row['peak_fds']['median']} fds, loads {row['loads']}; last run: "
                         + ", ".join(f"{k} {v}" for k, v in runs[-1].items() if k in ("exit", "commands_per_host",
                                                                                      "hosts_answered", "changed", "rows")))
@@ -361,7 +347,7 @@ def main(argv=None) -> int:
         finally:
             scale.stop()
     fits = {kind: {key: fit([(r["hosts"], r[key]["median"]) for r in rows])
-                   for key in ("seconds", "peak_rss_mb", "peak_fds")} for kind, rows in curve.items()}
+                   for key in ("seconds", "cpu_seconds", "peak_rss_mb", "peak_fds")} for kind, rows in curve.items()}
     result = {
         "conditions": {
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),

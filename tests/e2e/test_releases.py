@@ -130,3 +130,45 @@ def test_push_delivery_to_a_robot_without_registry(lab, fleet_on):
     assert again.changed_hosts == set()
     assert lab.ok("robot3", "cat /var/lib/robot-payload/push.log").splitlines() == sent
     assert status(lab)["robot3"]["image"] == "offline.invalid/ros/payload:1.1"
+
+
+ROBOT1 = "    robot1:\n      sensors:"
+LOOP = "while :; do touch /tmp/heartbeat; sleep 1 & wait $!; done"
+
+
+def old_payload_stop(lab, host: str, since: str) -> float:
+    """Docker's first signal to the old payload container (kill) -> its exit (die), read on the robot."""
+    out = lab.ok(host, f"docker events --since {since} --until $(date +%s.%N) --filter type=container "
+                       "--filter event=kill --filter event=die --format '{{json .}}'")
+    events = [json.loads(line) for line in out.splitlines() if line.strip()]
+    die = next(e for e in events if e["Action"] == "die")
+    kill = next(e for e in events if e["Action"] == "kill" and e["id"] == die["id"])
+    return (die["timeNano"] - kill["timeNano"]) / 1e9
+
+
+@pytest.mark.parametrize("what, lines, inspect", [
+    # A ROS launch shuts down on SIGINT only; as PID 1 it would sit out Docker's SIGTERM for 10 s.
+    ("a SIGINT-only payload under ros_preset", f"      ros_preset: ros2\n      payload_command: [/bin/sh, -c, \"trap 'exit 0' INT; {LOOP}\"]\n",
+     lambda c: c["Config"]["StopSignal"] == "SIGINT"),
+    # A shell entrypoint without a trap ignores every signal as PID 1; under an init it does not.
+    ("a shell with no trap under payload_init", f"      payload_init: true\n      payload_stop_grace_period: 5\n"
+                                                f"      payload_command: [/bin/sh, -c, \"{LOOP}\"]\n",
+     lambda c: c["HostConfig"]["Init"] is True),
+])
+def test_an_update_stops_the_old_payload_by_its_own_signal(lab, fleet_on, what, lines, inspect):
+    """issue 29 item 5: the old release's stop inside an update is under a
+    second, not Docker's 10 s default and a kill."""
+    try:
+        setup = lab.provision("--limit", "robot1", fleet=fleet_on("1.0", {ROBOT1: f"    robot1:\n{lines}      sensors:"}),
+                              label=f"(robot1: {what})")
+        assert setup.returncode == 0, setup.output[-3000:]
+        assert inspect(lab.payload("robot1")), lab.payload("robot1")["Config"]
+        since = lab.ok("robot1", "date +%s.%N").strip()
+        run = lab.provision("--limit", "robot1", fleet=fleet_on("1.1", {ROBOT1: f"    robot1:\n{lines}      sensors:"}),
+                            label=f"(robot1 to 1.1: {what})")
+        assert run.returncode == 0, run.output[-3000:]
+        assert lab.version("robot1") == "1.1" and inspect(lab.payload("robot1"))
+        stop = old_payload_stop(lab, "robot1", since)
+        assert stop < 2, f"{what}: the old payload took {stop:.2f} s to stop"
+    finally:
+        lab.provision("--limit", "robot1", fleet=fleet_on("1.0"), label="(robot1 back to the lab's settings)")

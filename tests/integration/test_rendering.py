@@ -8,6 +8,7 @@ import re
 
 from robotfleet.host import aptrepo
 from robotfleet.host import snapshot as hoststate
+from robotfleet.host import snapshot_sh
 from roles import x11
 from tests import armor
 from tests.fixtures import me, run_command, sh
@@ -60,7 +61,7 @@ def test_snapshot_reads_files_in_one_stat_as_it_would_one_by_one(tmp_path, monke
 
     batched, text = files()
     assert "\nstat\t" in "\n" + text and "\nfile\t" not in "\n" + text
-    monkeypatch.setattr(hoststate, "_PLAIN_PATH", re.compile(r"(?!)"))  # every path on its own
+    monkeypatch.setattr(snapshot_sh, "PLAIN_PATH", re.compile(r"(?!)"))  # every path on its own
     one_by_one, text = files()
     assert "\nfile\t" in "\n" + text
     assert batched == one_by_one
@@ -135,7 +136,7 @@ def test_key_fingerprint_pin_with_real_gpg(tmp_path):
 def test_a_stalled_probe_is_cut_off_and_the_snapshot_still_answers(monkeypatch):
     """A wedged dockerd makes `docker ps` hang: one probe must not hang the
     host's only snapshot command (and so every later deploy of that robot)."""
-    monkeypatch.setattr(hoststate, "PROBE_TIMEOUT", 1)
+    monkeypatch.setattr(snapshot_sh, "PROBE_TIMEOUT", 1)
     query = dict(probes={"stalls": "sleep 30; echo late", "answers": "echo ok"})
     out = sh(hoststate.snapshot_script(**query), check=True, timeout=20)
     snap = hoststate.parse(out.stdout.splitlines(), query)

@@ -78,8 +78,7 @@ def snapshot_lines(snap: Snapshot, query: dict) -> list[str]:
     def asked(kind):
         return [key for key in getattr(snap, kind) if key in set(query.get(kind) or ())]
 
-    os_text = "".join(f'{k.upper()}="{v}"\n' for k, v in snap.os_release.items())
-    lines = [f"os\t{base64.b64encode(os_text.encode()).decode()}", f"arch\t{snap.arch}"]
+    lines = [f'osl\t{k.upper()}="{v}"' for k, v in snap.os_release.items()] + [f"arch\t{snap.arch}"]
     for name in asked("packages"):
         lines.append(f"pkg\t{name}\tinstall ok installed\t{snap.packages[name]}")
     for path in query.get("files") or ():
@@ -157,10 +156,10 @@ class _Recorder:
         recorder = self
         self._command, self._run = hoststate.HostSnapshot.command, FakeConnector.run_shell_command
 
-        def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None):
+        def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None):
             from pyinfra import host
 
-            script = recorder._command(self, files, packages, users, units, commands, probes)
+            script = recorder._command(self, files, packages, users, units, commands, probes, memo)
             recorder.queries[host.name.removeprefix("@fake/")] = self.query
             return script
 

@@ -189,7 +189,7 @@ def test_failed_half_done_or_dead_release_is_released_again(state, containers):
         containers = "running\tUp 3 hours (healthy)\n"
     record = json.loads(snap.probes["payload_record"])
     snap.probes["payload_record"] = json.dumps({**record, "state": state})
-    snap.probes["payload_containers"] = containers
+    snap.probes["payload_containers"] = "".join(f"c\t{line}\n" for line in containers.splitlines())
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     assert len(commands) == 1 and "payloadctl apply" in commands[0]
 

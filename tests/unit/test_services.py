@@ -9,7 +9,7 @@ import yaml
 
 from robotfleet import roster
 from robotfleet.commands import status
-from roles.payload import compose, presets, problems, project, services
+from roles.payload import compose, containers, presets, problems, project, services
 from tests.fixtures import robot_fleet as host_with
 from tests.unit import harness as fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan
@@ -244,7 +244,7 @@ def test_preset_refusals():
 
 def test_layer_shape_is_checked_where_it_was_written():
     assert fleet_problems(fleet_of({"payload_services": {"a b": {}}}, {"robot1": {"address": "a"}}))[0] == (
-        "robots.yaml: robots.vars.payload_services.a b: service names are letters, digits, . _ - "
+        "robots.yaml: robots.vars.payload_services.'a b': service names are letters, digits, . _ - "
         "(starting with a letter or digit)")
     assert fleet_problems(host_with(payload_services=["a"]))[0] == (
         "robots.yaml: robot3.payload_services: expected a mapping of service name -> compose service")
@@ -318,7 +318,7 @@ def test_payload_replaces_tells_containers_from_compose_projects(entry, line):
 def test_a_converged_robot_with_a_foreign_payload_container_releases_and_says_so(caplog):
     snap = converged("robots", ROBOT, "debian-13")
     assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []
-    snap.probes[project.FOREIGN_PROBE] = FOREIGN
+    snap.probes[containers.PROBE] += "".join(f"f\t{line}\n" for line in FOREIGN.splitlines())
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     assert len(commands) == 1 and "payloadctl apply" in commands[0] and "--restart" in commands[0]
     assert "[@fake/r1] payload: taking over what runs the payload another way" in caplog.text

@@ -1,0 +1,219 @@
+"""The shell script behind the snapshot (POSIX sh), built from what the
+roles declared; ``snapshot.parse`` reads its output.
+
+It runs on every host at every deploy, and in pull mode many times a day,
+so it starts as few programs as it can, each asked once for everything:
+
+- the declared probes start at once, in the background, under ONE
+  ``timeout``, each into its own file of a temporary directory, while the
+  rest is read; their outputs come back in one base64 blob (``stat`` gives
+  the sizes that cut it apart);
+- one ``stat`` and one ``sha256sum`` for all plain files, one
+  ``systemctl is-enabled`` and one ``systemctl is-active`` for all units
+  (one by one where systemd's answer does not come one line a unit), one
+  ``id`` a user, the package database read with ``awk`` (``dpkg-query``
+  while dpkg's journal holds an unfinished run);
+- a probe declared with its inputs (``SnapshotQuery.memo``: the files and
+  programs its answer depends on alone) is answered from the robot's memo
+  (``MEMO_DIR``, root's own, in /run) while none of them nor the package
+  database changed (device, inode, size, modification and change times),
+  and run again otherwise.  Writing that memo (a temporary file, then a
+  rename) is the only thing the script changes on a host.
+
+Where no temporary directory can be made, the probes run one after
+another, each under its own timeout."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+import shlex
+
+# Seconds the probes together may take (docker, gpg, nvidia-smi, dpkg --audit
+# run at once): a wedged dockerd must not hang the host's only snapshot
+# command; a probe cut off reads as empty (unknown), as a failed one does.
+PROBE_TIMEOUT = 60
+
+MEMO_DIR = "/run/robotfleet-memo"
+MEMO_OWNER = 0  # root: the snapshot runs as root (sudo); as anyone else it keeps no memo
+# What every memo also depends on: any package installed, upgraded or removed.
+MEMO_ALWAYS = ("/var/lib/dpkg/status",)
+
+# Paths that stat and sha256sum print as they are given (no escaping), read
+# with one call of each; any other path gets its own tests and commands.
+PLAIN_PATH = re.compile(r"/[A-Za-z0-9._@+:/-]*\Z")
+
+T = "\t"
+
+
+def _q(value: str) -> str:
+    return shlex.quote(value)
+
+
+def memo_name(name: str, snippet: str, inputs) -> str:
+    """The memo file of one probe: the same probe with the same inputs only."""
+    text = "\0".join([name, snippet, *inputs])
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def _os_release() -> list[str]:
+    return ["l=; while IFS= read -r l || [ -n \"$l\" ]; do printf 'osl\\t%s\\n' \"$l\"; l=; done 2>/dev/null < /etc/os-release",
+            "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo"]
+
+
+def _files(files) -> list[str]:
+    lines = []
+    plain = [path for path in files if PLAIN_PATH.match(path)]
+    if plain:
+        names = " ".join(_q(p) for p in plain)
+        lines.append(f"set -- {names}")
+        lines.append('stat -c "stat$T%n$T%F$T%a %U %G" -- "$@" 2>/dev/null')
+        # Keep the regular files (not links) of the list: each turn takes one off the front.
+        lines.append('for p; do shift; [ -f "$p" ] && [ ! -L "$p" ] && set -- "$@" "$p"; done')
+        lines.append('[ $# -gt 0 ] && sha256sum -- "$@" 2>/dev/null')
+    for path in files:
+        if path in plain:
+            continue
+        p = _q(path)
+        lines.append(
+            f"if [ -L {p} ]; then echo \"file${{T}}\"{p}\"${{T}}link${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"elif [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"else echo \"file${{T}}\"{p}\"${{T}}none\"; fi"
+        )
+    return lines
+
+
+def _users(users) -> list[str]:
+    # `id -nG` fails for a user that does not exist (and for a group with no
+    # name, printing what it has): only then is `id -u` asked which it was.
+    return [
+        f"printf 'user\\t%s\\t' {_q(u)}; id -nG {_q(u)} 2>/dev/null || "
+        f"{{ id -u {_q(u)} >/dev/null 2>&1 && echo || echo -; }}"
+        for u in users
+    ]
+
+
+def _packages(packages) -> list[str]:
+    if not packages:
+        return []
+    names = " ".join(_q(p) for p in packages)
+    query = f"dpkg-query -W -f='pkg\\t${{Package}}\\t${{Status}}\\t${{Version}}\\n' {names} 2>/dev/null"
+    # dpkg-query's lines for these names, from dpkg's status file; while
+    # dpkg's journal (updates/) holds an unfinished run, dpkg-query itself
+    # (it reads the journal too).
+    wanted = _q(" " + " ".join(packages) + " ")
+    emit = 'if (index(w, " " p " ")) print "pkg\\t" p "\\t" s "\\t" v; p = s = v = ""'
+    awk = (f"awk -v w={wanted} '/^Package: /{{p = substr($0, 10)}} /^Status: /{{s = substr($0, 9)}} "
+           f"/^Version: /{{v = substr($0, 10)}} /^$/{{{emit}}} END{{{emit}}}' /var/lib/dpkg/status 2>/dev/null")
+    return ["j=; for f in /var/lib/dpkg/updates/*; do [ -e \"$f\" ] && j=1; done",
+            f"if [ -n \"$j\" ]; then {query}; else {awk}; fi"]
+
+
+def _units(units) -> list[str]:
+    if not units:
+        return []
+    return [
+        f"set -- {' '.join(_q(u) for u in units)}",
+        'e=$(systemctl is-enabled "$@" 2>/dev/null)$NL; a=$(systemctl is-active "$@" 2>/dev/null)$NL; o=; n=',
+        "for u; do",
+        '  [ -n "$e" ] && [ -n "$a" ] || { n=1; break; }',
+        '  o="${o}unit$T$u$T${e%%$NL*}$T${a%%$NL*}$NL"; e=${e#*$NL}; a=${a#*$NL}',
+        "done",
+        # systemd answers one line a unit; an older one says nothing for a
+        # unit it does not know: then each unit is asked alone.
+        'if [ -z "$n$e$a" ]; then printf %s "$o"; else for u; do',
+        '  echo "unit$T$u$T$(systemctl is-enabled "$u" 2>/dev/null)$T$(systemctl is-active "$u" 2>/dev/null)"',
+        "done; fi",
+    ]
+
+
+def _probes_program(probes: dict) -> str:
+    """``sh -c "$I" sh DIR INDEX...``: the probes INDEX... at once, each
+    into DIR/pINDEX (DIR/pINDEX.ok once it is done); with DIR empty, the
+    one probe INDEX to stdout.  Each probe runs in a subshell with no
+    arguments, as ``sh -c SNIPPET`` ran it."""
+    arms = "".join(f"{index})\n{snippet}\n;;\n" for index, snippet in enumerate(probes.values()))
+    return (
+        f'D=$1; shift\nrun() {{ i=$1; shift\ncase $i in\n{arms}esac; }}\n'
+        'if [ -n "$D" ]; then\n'
+        '  for i; do ( ( run $i ) >"$D/p$i" 2>/dev/null; : >"$D/p$i.ok" ) & done; wait\n'
+        'else ( run "$1" ) 2>/dev/null; fi'
+    )
+
+
+def _memo_key(memo: dict) -> list[str]:
+    # Read at each call (not bound at import), so the tests can point them elsewhere.
+    """$K: the memo inputs' identities (empty: no memo on this host)."""
+    paths, programs = list(MEMO_ALWAYS), []
+    for inputs in memo.values():
+        for item in inputs:
+            target = paths if item.startswith("/") else programs
+            if item not in target:
+                target.append(item)
+    words = " ".join([_q(MEMO_DIR), *(_q(p) for p in paths)])
+    found = f"$(command -v {' '.join(_q(p) for p in programs)})" if programs else ""
+    return [
+        "K=",
+        f"if [ ! -L {_q(MEMO_DIR)} ] && {{ [ -d {_q(MEMO_DIR)} ] || mkdir -m 700 {_q(MEMO_DIR)} 2>/dev/null; }}; then",
+        f"  K=$(stat -L --printf '%n %a %u %d %i %s %y %z|' -- {words} {found} 2>/dev/null)",
+        # Only root's own directory, closed to others; itself not part of the key.
+        f'  case $K in {_q(f"{MEMO_DIR} 700 {MEMO_OWNER} ")}*) K=${{K#*|}} ;; *) K= ;; esac',
+        "fi",
+    ]
+
+
+def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None) -> str:
+    """The script (read-only but for the probes' memo, see the module)."""
+    probes = dict(probes or {})
+    memo = {name: tuple(inputs) for name, inputs in (memo or {}).items() if name in probes}
+    lines = ["export LC_ALL=C", f"T='{T}'", "NL='\n'", "R="]
+    if memo:
+        lines += _memo_key(memo)
+    for index, (name, snippet) in enumerate(probes.items()):
+        if name in memo:
+            path = _q(f"{MEMO_DIR}/{memo_name(name, snippet, memo[name])}")
+            lines.append(
+                f'if [ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]; '
+                f"then printf 'pone\\t{index}\\t%s\\n' \"$v\"; else R=\"$R {index}\"; fi")
+        else:
+            lines.append(f'R="$R {index}"')
+    if probes:
+        lines += [
+            f"I={_q(_probes_program(probes))}",
+            'P=; if [ -n "$R" ] && d=$(mktemp -d 2>/dev/null); then',
+            "  trap 'rm -rf \"$d\"' EXIT",
+            f'  timeout {PROBE_TIMEOUT} sh -c "$I" sh "$d" $R &',
+            "  P=$!",
+            "fi",
+        ]
+    lines += _os_release() + _files(files) + _users(users)
+    lines += [f"printf 'cmd\\t%s\\t' {_q(c)}; command -v {_q(c)} || echo" for c in commands]
+    lines += _packages(packages) + _units(units)
+    if probes:
+        lines += _probe_results(probes, memo)
+    lines.append("true")
+    return "\n".join(lines)
+
+
+def _probe_results(probes: dict, memo: dict) -> list[str]:
+    names = list(probes)
+    lines = [
+        'if [ -n "$P" ]; then',
+        '  wait "$P"; set --',
+        '  for i in $R; do [ -e "$d/p$i.ok" ] && set -- "$@" "$d/p$i"; done',
+    ]
+    for name, inputs in memo.items():
+        index = names.index(name)
+        path = _q(f"{MEMO_DIR}/{memo_name(name, probes[name], inputs)}")
+        lines.append(
+            f'  if [ -n "$K" ] && [ -e "$d/p{index}.ok" ]; then v=$(base64 -w0 < "$d/p{index}") && '
+            f'printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}; fi')
+    lines += [
+        '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; echo "pblob$T$(cat -- "$@" | base64 -w0)"; fi',
+        'elif [ -n "$R" ]; then',
+        # No temporary directory: one after another, each under its own timeout.
+        f"  for i in $R; do printf 'pone\\t%s\\t' $i; timeout {PROBE_TIMEOUT} sh -c \"$I\" sh '' $i | base64 -w0; echo; done",
+        "fi",
+    ]
+    return lines

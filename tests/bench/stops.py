@@ -1,0 +1,159 @@
+"""Benchmark: the old payload's stop inside an update, apart from the rest,
+for payloads that stop differently, each with Docker's defaults and with the
+settings made for it (issue 29 item 5).  Prints figures; asserts nothing.
+
+    python3 -m tests.bench.stops [--prefix bench] [--host robot1] [--rounds 2]
+        [--stops lab,sigint-only,no-trap] [--keep]
+
+- stop: Docker's first signal to the old container (its `kill` event) ->
+  its exit (`die`);
+- down: the old container's exit -> the new one's start;
+- update: the deploy's wall time; rest: update minus stop.
+
+Read from `docker events` on the robot (nanosecond timestamps), so the
+operator's SSH and pyinfra overhead is not in stop and down.  The update
+window and the broken releases are tests/bench/releases.py's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+from tests.bench.releases import LAB_TAG, ROOT, deploy
+
+# How the payload stops: (what it is, the host's settings without and with
+# the settings for it).  The lab payload (payload.sh) traps TERM and INT; a
+# ROS launch stops on SIGINT only (a shell trapping INT stands in for it:
+# as PID 1 it ignores SIGTERM, so Docker kills it after the grace period);
+# a shell with no trap at all ignores both as PID 1, an init passes them on.
+LOOP = "while :; do touch /tmp/heartbeat; sleep 1 & wait $!; done"
+STOPS = {
+    "lab": ("the lab payload (payload.sh traps TERM and INT)", {}, {"ros_preset": "ros2"}),
+    "sigint-only": ("stops on SIGINT only, as roslaunch / ros2 launch",
+                    {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"]},
+                    {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"], "ros_preset": "ros2"}),
+    "no-trap": ("a shell entrypoint with no trap",
+                {"payload_command": ["/bin/sh", "-c", LOOP]},
+                {"payload_command": ["/bin/sh", "-c", LOOP], "payload_init": True}),
+}
+
+
+def fleet(tmp: Path, name: str, host: str, tag: str, settings: dict | None = None) -> Path:
+    text = (ROOT / "inventories" / "lab.yaml").read_text()
+    text = text.replace(LAB_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
+    settings = dict(settings or {})
+    if settings:
+        anchor = f"    {host}:\n      sensors:"
+        lines = "".join(f"      {key}: {json.dumps(value)}\n" for key, value in settings.items())
+        text = text.replace(anchor, f"    {host}:\n{lines}      sensors:", 1)
+    path = tmp / f"{name}.yaml"
+    path.write_text(text)
+    return path
+
+
+def robot_now(prefix: str, host: str) -> str:
+    from tests.lab.state import exec_in
+
+    return exec_in(prefix, host, "date +%s.%N")[1].strip()
+
+
+def events(prefix: str, host: str, since: str) -> list[dict]:
+    from tests.lab.state import exec_in
+
+    until = robot_now(prefix, host)
+    code, out = exec_in(prefix, host, (
+        f"docker events --since {since} --until {until} --filter type=container"
+        " --filter label=com.docker.compose.project=robot-payload --format '{{json .}}'"))
+    found = []
+    for line in out.splitlines():
+        try:
+            event = json.loads(line)
+        except ValueError:
+            continue
+        found.append({"action": event.get("Action") or event.get("status"), "time": event["timeNano"] / 1e9,
+                      "image": event.get("Actor", {}).get("Attributes", {}).get("image", ""),
+                      "id": event.get("id", "")[:12]})
+    return found
+
+
+def old_stop(evs: list[dict]) -> float | None:
+    """Docker's first signal to the old container (kill) -> its exit (die)."""
+    dies = [e for e in evs if e["action"] == "die"]
+    if not dies:
+        return None
+    kills = [e for e in evs if e["action"] == "kill" and e["id"] == dies[0]["id"] and e["time"] <= dies[0]["time"]]
+    return dies[0]["time"] - kills[0]["time"] if kills else None
+
+
+def update_downtime(evs: list[dict]) -> float | None:
+    """The old container's stop (die) -> the new one's start."""
+    dies = [e for e in evs if e["action"] == "die"]
+    starts = [e for e in evs if e["action"] == "start"]
+    if not dies or not starts:
+        return None
+    last_die = dies[0]
+    after = [s for s in starts if s["time"] >= last_die["time"]]
+    return (after[0]["time"] - last_die["time"]) if after else None
+
+
+def stop_figures(prefix: str, host: str, tmp: Path, kinds: list[str], rounds: int) -> None:
+    """Each kind of payload, with Docker's defaults and with its settings:
+    updates there and back, the old payload's stop apart from the rest."""
+    print(f"\n{'payload':50} {'settings':18} {'update':>7} {'stop':>6} {'down':>6} {'rest':>6}   (seconds, medians)")
+    for kind in kinds:
+        what, plain, tuned = STOPS[kind]
+        for label, settings in (("Docker's defaults", plain), ("with the settings", tuned)):
+            # The stop signal and grace are the old container's: set up with them first.
+            deploy(prefix, host, fleet(tmp, f"{kind}-setup", host, "1.0", settings=settings))
+            rows = []
+            for tag in ["1.1", "1.0"] * rounds:
+                since = robot_now(prefix, host)
+                code, seconds = deploy(prefix, host, fleet(tmp, f"{kind}-{tag}", host, tag, settings=settings))
+                evs = events(prefix, host, since)
+                rows.append((seconds, old_stop(evs), update_downtime(evs), code))
+            cells = [statistics.median(v) if v else None for v in
+                     ([r[0] for r in rows], [r[1] for r in rows if r[1] is not None],
+                      [r[2] for r in rows if r[2] is not None],
+                      [r[0] - r[1] for r in rows if r[1] is not None])]
+            exits = sorted({r[3] for r in rows})
+            print(f"{what[:50]:50} {label:18} " + " ".join(
+                f"{'-' if v is None else round(v, 2)!s:>6}" for v in cells) + f"   deploy exits {exits}")
+            print(f"{'':50} {'':18} settings: {json.dumps(settings) if settings else '(none)'}")
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.stops", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--prefix", default="bench")
+    parser.add_argument("--host", default="robot1")
+    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--stops", default="lab,sigint-only,no-trap",
+                        help=f"kinds of payload whose stop to time, of: {', '.join(STOPS)}")
+    parser.add_argument("--keep", action="store_true", help="leave the lab up")
+    args = parser.parse_args()
+    kinds = [k for k in args.stops.split(",") if k]
+    unknown = [k for k in kinds if k not in STOPS]
+    if unknown:
+        parser.error(f"--stops: no such kind {', '.join(unknown)} (kinds: {', '.join(STOPS)})")
+    from tests.lab import hosts
+
+    host = args.host
+    number = "".join(ch for ch in host if ch.isdigit())
+    hosts.up(args.prefix, robots=int(number or 1), laptops=0)  # up to the robot measured
+    tmp = Path(tempfile.mkdtemp(prefix="bench-stops-"))
+    try:
+        stop_figures(args.prefix, host, tmp, kinds, args.rounds)
+        deploy(args.prefix, host, fleet(tmp, "base", host, "1.0"))  # the lab as it was
+    finally:
+        if not args.keep:
+            hosts.down(args.prefix)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,335 @@
+"""The snapshot's cheaper reads give the answers of the commands they
+replace, checked against those commands on this machine: dpkg --audit on
+dpkg databases in every state it reports, the payload's containers from
+the engine's API against what the docker CLI printed, and the memo that
+keeps a probe's answer while its inputs are unchanged."""
+
+from __future__ import annotations
+
+import os
+import shlex
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from robotfleet.host import apt
+from robotfleet.host import snapshot as hoststate
+from robotfleet.host import snapshot_sh
+
+NATIVE = subprocess.run(["dpkg", "--print-architecture"], capture_output=True, text=True).stdout.strip()
+
+
+def stanza(name, status="install ok installed", arch=None, multiarch=None, extra=()):
+    lines = [f"Package: {name}", f"Status: {status}", "Priority: optional", "Maintainer: Lab <lab@example.org>", *extra]
+    lines += [f"Architecture: {arch or NATIVE}"] if arch != "" else []
+    lines += [f"Multi-Arch: {multiarch}"] if multiarch else []
+    lines += ["Version: 1.0", "Description: a package", " with a long description"]
+    return "\n".join(lines) + "\n"
+
+
+def admindir(tmp_path, stanzas, info=None, journal=False, multiarch_db=True) -> Path:
+    d = tmp_path / "dpkg"
+    (d / "info").mkdir(parents=True)
+    (d / "updates").mkdir()
+    if multiarch_db:
+        (d / "info" / "format").write_text("1\n")
+    (d / "status").write_text("\n".join(stanzas))
+    for name in info if info is not None else []:
+        (d / "info" / name).write_text("/.\n")
+    if journal:
+        (d / "updates" / "0000").write_text(stanzas[0])
+    return d
+
+
+def audit_before(d: Path) -> str:
+    """The probe as it was: the journal, then dpkg --audit's first lines."""
+    script = (f"ls {d}/updates 2>/dev/null | grep -q . && echo 'dpkg journal not empty'; "
+              f"dpkg --admindir={d} --audit 2>/dev/null | head -n 5")
+    return subprocess.run(["sh", "-c", script], capture_output=True, text=True).stdout
+
+
+def audit_now(d: Path) -> str:
+    return subprocess.run(["sh", "-c", apt.dpkg_audit_probe(str(d))], capture_output=True, text=True).stdout
+
+
+def both_files(*names):
+    return [f"{n}.{kind}" for n in names for kind in ("list", "md5sums")]
+
+
+CASES = {
+    "healthy": ([stanza("a"), stanza("b", arch="all"), stanza("c", "deinstall ok config-files"),
+                 stanza("lib", multiarch="same")], both_files("a", "b", f"lib:{NATIVE}")),
+    "unpacked": ([stanza("a"), stanza("b", "install ok unpacked")], both_files("a", "b")),
+    "half-configured": ([stanza("a", "install ok half-configured")], both_files("a")),
+    "half-installed": ([stanza("a", "install ok half-installed")], both_files("a")),
+    "reinstreq": ([stanza("a", "install reinstreq installed")], both_files("a")),
+    "triggers pending": ([stanza("a", "install ok triggers-pending", extra=["Triggers-Pending: /usr/share/x"])],
+                         both_files("a")),
+    "triggers awaited": ([stanza("a", "install ok triggers-awaited", extra=["Triggers-Awaited: b"]),
+                          stanza("b", "install ok triggers-pending", extra=["Triggers-Pending: /usr/share/x"])],
+                         both_files("a", "b")),
+    "no list file": ([stanza("a"), stanza("b")], both_files("a") + ["b.md5sums"]),
+    "no md5sums file": ([stanza("a")], ["a.list"]),
+    "multiarch file named without its arch": ([stanza("lib", multiarch="same")], both_files("lib")),
+    "unknown foreign architecture": ([stanza("a", arch="s390x")], both_files("a")),
+    "no architecture": ([stanza("a", arch="")], both_files("a")),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_dpkg_audit_probe_says_what_dpkg_audit_says(tmp_path, case):
+    stanzas, info = CASES[case]
+    d = admindir(tmp_path, stanzas, info)
+    before = audit_before(d)
+    assert (before == "") == (case == "healthy")  # the case is what it says
+    assert audit_now(d) == before
+
+
+def test_dpkg_audit_probe_with_a_journal_or_an_old_database(tmp_path):
+    stanzas, info = CASES["healthy"]
+    d = admindir(tmp_path, stanzas, info, journal=True)
+    assert audit_now(d) == audit_before(d) != ""
+    old = admindir(tmp_path / "old", [stanza("lib", multiarch="same")], both_files("lib"), multiarch_db=False)
+    assert audit_now(old) == audit_before(old) == ""
+
+
+def test_dpkg_audit_probe_on_this_machine():
+    assert audit_now(Path("/var/lib/dpkg")) == audit_before(Path("/var/lib/dpkg"))
+
+
+def test_packages_are_read_as_dpkg_query_reads_them(tmp_path):
+    """The status file read with awk gives dpkg-query's lines; with a journal
+    dpkg-query answers (it reads the journal too)."""
+    names = ["dpkg", "coreutils", "surely-not-a-package", "libc6"]
+    script = hoststate.snapshot_script(packages=names)
+    awk = subprocess.run(["sh", "-c", script], capture_output=True, text=True, check=True).stdout
+    query = subprocess.run(["dpkg-query", "-W", "-f=pkg\\t${Package}\\t${Status}\\t${Version}\\n", *names],
+                           capture_output=True, text=True).stdout
+    assert sorted(line for line in awk.splitlines() if line.startswith("pkg\t")) == sorted(query.splitlines())
+    assert "dpkg-query -W" in script and "/var/lib/dpkg/updates/*" in script
+
+
+@pytest.fixture
+def memo_here(tmp_path, monkeypatch):
+    """The memo in a directory of this test, kept for this user."""
+    monkeypatch.setattr(snapshot_sh, "MEMO_DIR", str(tmp_path / "memo"))
+    monkeypatch.setattr(snapshot_sh, "MEMO_OWNER", os.getuid())
+    return tmp_path / "memo"
+
+
+def snapshot_with_memo(tmp_path, inputs=None, path=None):
+    """Run a snapshot whose one probe counts its runs; its answer."""
+    key = tmp_path / "key"
+    if not key.exists():
+        key.write_text("one\n")
+    counter = tmp_path / "runs"
+    probe = f"echo run >> {shlex.quote(str(counter))}; cat {shlex.quote(str(key))}"
+    query = dict(probes={"key": probe, "plain": "echo plain"}, memo={"key": inputs or (str(key), "sh")})
+    env = dict(os.environ, PATH=path or os.environ["PATH"])
+    out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True,
+                         env=env)
+    snap = hoststate.parse(out.stdout.splitlines(), query)
+    runs = len(counter.read_text().splitlines()) if counter.exists() else 0
+    return snap.probes["key"], snap.probes["plain"], runs
+
+
+def test_a_memo_probe_is_answered_from_the_memo_while_its_inputs_are_unchanged(tmp_path, memo_here):
+    assert snapshot_with_memo(tmp_path) == ("one\n", "plain\n", 1)
+    assert snapshot_with_memo(tmp_path) == ("one\n", "plain\n", 1)  # not run again
+    assert oct(memo_here.stat().st_mode)[-3:] == "700" and not [p for p in memo_here.iterdir() if ".$" in p.name]
+    (tmp_path / "key").write_text("two\n")  # an input changed
+    assert snapshot_with_memo(tmp_path) == ("two\n", "plain\n", 2)
+    assert snapshot_with_memo(tmp_path) == ("two\n", "plain\n", 2)
+
+
+def test_a_memo_probe_runs_again_when_its_program_changes(tmp_path, memo_here):
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    tool = bin_dir / "tool"
+    tool.write_text("#!/bin/sh\necho v1\n")
+    tool.chmod(0o755)
+    path = f"{bin_dir}:{os.environ['PATH']}"
+    inputs = (str(tmp_path / "key"), "tool")
+    assert snapshot_with_memo(tmp_path, inputs, path)[2] == 1
+    assert snapshot_with_memo(tmp_path, inputs, path)[2] == 1
+    tool.unlink()
+    tool.write_text("#!/bin/sh\necho v2\n")  # upgraded: another file
+    tool.chmod(0o755)
+    assert snapshot_with_memo(tmp_path, inputs, path)[2] == 2
+
+
+@pytest.mark.parametrize("spoil", ["open to others", "someone else's", "a link", "a stale entry"])
+def test_no_memo_is_trusted_but_the_owners_own_up_to_date_one(tmp_path, memo_here, monkeypatch, spoil):
+    assert snapshot_with_memo(tmp_path)[2] == 1
+    if spoil == "open to others":
+        memo_here.chmod(0o777)
+    elif spoil == "someone else's":
+        monkeypatch.setattr(snapshot_sh, "MEMO_OWNER", os.getuid() + 1)
+    elif spoil == "a link":
+        real = tmp_path / "elsewhere"
+        memo_here.rename(real)
+        memo_here.symlink_to(real)
+    else:
+        for entry in memo_here.iterdir():
+            key, value = entry.read_text().splitlines()
+            entry.write_text(f"{key}x\n{value}\n")
+    assert snapshot_with_memo(tmp_path) == ("one\n", "plain\n", 2)
+    assert snapshot_with_memo(tmp_path)[2] == (2 if spoil == "a stale entry" else 3)
+
+
+def test_a_probe_cut_off_by_the_timeout_is_not_kept(tmp_path, memo_here, monkeypatch):
+    monkeypatch.setattr(snapshot_sh, "PROBE_TIMEOUT", 1)
+    query = dict(probes={"slow": "sleep 5; echo late"}, memo={"slow": ("/etc/hostname",)})
+    for _ in range(2):
+        out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True,
+                             check=True, timeout=20)
+        assert hoststate.parse(out.stdout.splitlines(), query).probes["slow"] == ""
+    assert list(memo_here.iterdir()) == []
+
+
+FAKE_SYSTEMCTL = """#!/bin/sh
+# is-enabled / is-active UNIT...: one line a unit, as systemd 257 does; with
+# OLD set, nothing for a unit it does not know (an error on stderr), as
+# older systemd did.
+verb=$1; shift
+for u; do
+  case $verb:$u in
+    is-enabled:docker.service) echo enabled ;;
+    is-enabled:alias.service) echo alias ;;
+    is-enabled:*) if [ -n "$OLD" ]; then echo "Failed to get unit file state for $u" >&2; else echo not-found; fi ;;
+    is-active:docker.service|is-active:alias.service) echo active ;;
+    is-active:*) echo inactive ;;
+  esac
+done
+echo "$verb $*" >> "$LOG"
+"""
+
+
+@pytest.mark.parametrize("old", [False, True])
+def test_units_are_asked_at_once_and_one_by_one_where_systemd_says_nothing_for_a_unit(tmp_path, old):
+    (tmp_path / "systemctl").write_text(FAKE_SYSTEMCTL)
+    (tmp_path / "systemctl").chmod(0o755)
+    log = tmp_path / "log"
+    env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}", LOG=str(log), OLD="1" if old else "")
+    units = ["alias.service", "docker.service", "gone.service"]
+    out = subprocess.run(["sh", "-c", hoststate.snapshot_script(units=units)], capture_output=True, text=True,
+                         check=True, env=env)
+    snap = hoststate.parse(out.stdout.splitlines(), {"units": units})
+    assert dict(snap.units) == {"alias.service": ("alias", "active"), "docker.service": ("enabled", "active"),
+                                "gone.service": ("" if old else "not-found", "inactive")}
+    calls = log.read_text().splitlines()
+    assert calls[:2] == ["is-enabled " + " ".join(units), "is-active " + " ".join(units)]
+    assert len(calls) == (2 + 2 * len(units) if old else 2)
+
+
+ENGINE = """
+import http.server, json, socketserver, sys
+
+routes = json.load(open(sys.argv[1]))
+
+class Handler(http.server.BaseHTTPRequestHandler):
+    def do_GET(self):
+        status, body = routes.get(self.path, (404, '{"message":"No such container"}'))
+        data = body.encode()
+        self.send_response(status)
+        self.send_header("Content-Type", "application/json")
+        self.send_header("Content-Length", str(len(data)))
+        self.end_headers()
+        self.wfile.write(data)
+
+    def log_message(self, *args):
+        pass
+
+class Server(socketserver.UnixStreamServer):
+    def get_request(self):
+        request, _ = super().get_request()
+        return request, ("local", 0)
+
+Server(sys.argv[2], Handler).serve_forever()
+"""
+
+
+def engine(tmp_path, routes: dict[str, tuple[int, str]]):
+    """An HTTP server on a unix socket answering GETs from ``routes`` (path ->
+    status, body), as dockerd does; in its own process (the test process may
+    have gevent's sockets)."""
+    import json
+    import sys
+    import time
+
+    (tmp_path / "routes.json").write_text(json.dumps(routes))
+    path = tmp_path / "docker.sock"
+    server = subprocess.Popen([sys.executable, "-c", ENGINE, str(tmp_path / "routes.json"), str(path)])
+    deadline = time.monotonic() + 10
+    while not path.exists() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return server, str(path)
+
+
+def inspect(cid, name, image, labels, running, policy):
+    import json
+
+    return json.dumps({"Id": cid, "Name": name, "Config": {"Image": image, "Labels": labels},
+                       "State": {"Running": running}, "HostConfig": {"RestartPolicy": {"Name": policy}}})
+
+
+def test_the_containers_are_read_from_the_engines_api_as_the_cli_printed_them(tmp_path, monkeypatch, capsys):
+    import json
+
+    from roles.payload import containers, docker_read
+
+    listing = [
+        {"Id": "a" * 64, "State": "running", "Status": "Up 3 hours (healthy)", "Labels": {containers.LABEL: "robot-payload"}},
+        {"Id": "b" * 64, "State": "exited", "Status": "Exited (0) 2 days ago", "Labels": {}},
+        {"Id": "c" * 64, "State": "running", "Status": "Up 1 second", "Labels": None},
+        {"Id": "d" * 64, "State": "created", "Status": "Created", "Labels": {"other": "x"}},  # gone before inspect
+    ]
+    routes = {
+        "/containers/json?all=1": (200, json.dumps(listing)),
+        f"/containers/{'a' * 64}/json": (200, inspect("a" * 64, "/robot-payload-payload-1", "reg/ros/payload:1",
+                                                      {containers.LABEL: "robot-payload"}, True, "unless-stopped")),
+        f"/containers/{'b' * 64}/json": (200, inspect("b" * 64, "/old<&>é", "reg/ros/payload:0.9", {}, False, "always")),
+        f"/containers/{'c' * 64}/json": (200, inspect("c" * 64, "/plain", "debian", None, True, "")),
+    }
+    server, path = engine(tmp_path, routes)
+    monkeypatch.setattr(docker_read, "SOCKET", path)
+    for name in ("DOCKER_HOST", "DOCKER_CONTEXT", "DOCKER_CONFIG"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))
+    try:
+        assert docker_read.main(["-c", "robot-payload", "foreign"]) == 0
+    finally:
+        server.kill()
+        server.wait()
+    out = capsys.readouterr().out
+    # What `docker ps --format` and `docker inspect -f '{{json (printf ...)}}'` print (Go's JSON escapes
+    # <, > and &; a missing label is "" in the CLI's typed map, docker 26 and 28).
+    assert out == (
+        "c\trunning\tUp 3 hours (healthy)\n"
+        f'f\t"{"a" * 64}\\t/robot-payload-payload-1\\treg/ros/payload:1\\trobot-payload\\ttrue\\tunless-stopped"\n'
+        f'f\t"{"b" * 64}\\t/old\\u003c\\u0026\\u003eé\\treg/ros/payload:0.9\\t\\tfalse\\talways"\n'
+        f'f\t"{"c" * 64}\\t/plain\\tdebian\\t\\ttrue\\t"\n')
+    assert containers.part(out, "c") == "running\tUp 3 hours (healthy)\n"
+    assert [json.loads(line).split("\t")[1] for line in containers.part(out, "f").splitlines()] == [
+        "/robot-payload-payload-1", "/old<&>é", "/plain"]
+
+
+def test_the_containers_probe_leaves_another_engine_to_the_docker_cli(tmp_path):
+    """DOCKER_HOST (or a context) names an engine the CLI would ask: the
+    probe asks the CLI (here a stand-in that says who it is)."""
+    from roles.payload import containers
+
+    (tmp_path / "docker").write_text("#!/bin/sh\necho \"cli $*\" | head -c 60; echo\n")
+    (tmp_path / "docker").chmod(0o755)
+    env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}", DOCKER_HOST="tcp://elsewhere:2375")
+    out = subprocess.run(["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True,
+                         text=True, env=env).stdout
+    assert out.startswith("cli ps -a --filter label=com.docker.compose")
+    env.pop("DOCKER_HOST")
+    (tmp_path / ".docker").mkdir()
+    (tmp_path / ".docker" / "config.json").write_text('{"currentContext": "remote"}')
+    env["HOME"] = str(tmp_path)
+    out = subprocess.run(["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True,
+                         text=True, env=env).stdout
+    assert out.startswith("cli ps -a")
