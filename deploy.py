@@ -11,7 +11,7 @@ Docker, users, X11 and the payload staged (no autostart unless
 payload_autostart is set).
 """
 
-from robotfleet.play import provision
+from robotfleet.provision import provision
 from roles import named
 
 ROLES = named(

@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from robotfleet.checks import Checker, Problem
+from robotfleet.checkers import Checker, Problem
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 
 GROUPS = ("robots", "laptops")

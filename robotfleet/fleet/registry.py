@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 from robotfleet.role import UNSET, Role, Setting
 
 

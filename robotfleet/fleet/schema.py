@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 
-from robotfleet.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
+from robotfleet.fleet.validate import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
 from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry
 

@@ -21,7 +21,7 @@ from pyinfra.context import ctx_host
 from pyinfra.facts.files import FileContents
 
 from robotfleet import secrets
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.host.snapshot import FileState
 
 def sha256(content: bytes) -> str:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pyinfra.api import deploy
 
-from robotfleet import values
+from robotfleet import value_kinds
 from robotfleet.host import apt, aptrepo, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role, StatusPart
@@ -27,7 +27,7 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
         what="Docker",
         key_url=plan.key_url(data.docker_apt_key_url, data.docker_repo_url, dist),
         key_path=data.docker_apt_key_path,
-        fingerprint=values.normal_fingerprint(data.docker_apt_key_fingerprint),
+        fingerprint=value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint),
         fingerprint_setting="docker_apt_key_fingerprint",
         sources_name=data.docker_apt_filename,
         sources=plan.sources_text(
@@ -56,7 +56,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
-    query.probes[KEY_PROBE] = aptrepo.key_probe(data.docker_apt_key_path, values.normal_fingerprint(data.docker_apt_key_fingerprint))
+    query.probes[KEY_PROBE] = aptrepo.key_probe(data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint))
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
 
 

@@ -10,7 +10,7 @@ import shlex
 
 from pyinfra import host, logger
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 import roles.docker.hooks as docker_hooks

@@ -18,7 +18,7 @@ from pyinfra.api import FunctionCommand, deploy
 from pyinfra.api.arguments import CONNECTOR_ARGUMENT_KEYS
 from pyinfra.api.util import format_text, print_host_combined_output
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot
 from robotfleet.role import deployment

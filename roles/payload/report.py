@@ -9,7 +9,7 @@ import shlex
 
 import datetime
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.role import Metric, RolloutPart, StatusPart
 import roles.payload.digests as digests
 from roles.payload.robot import HELPER

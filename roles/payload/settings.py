@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import re
 
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 from robotfleet.role import Setting
 import roles.payload.credentials as credentials
 import roles.payload.digests as digests

@@ -1,7 +1,7 @@
 """The users role's settings."""
 
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 from robotfleet.role import Setting
 
 SETTINGS = (

@@ -132,7 +132,7 @@ def imported_by(path: str, module: str, known: set[str]) -> set[str]:
 def test_imports_are_resolved_to_the_checkouts_modules():
     imports = imported_by(str(ROOT / "roles" / "udev" / "passthrough.py"), "roles.udev.passthrough",
                           set(product_modules()))
-    assert imports == {"robotfleet", "robotfleet.checks", "roles.payload.hooks", "roles.udev.rules"}
+    assert imports == {"robotfleet", "robotfleet.checkers", "roles.payload.hooks", "roles.udev.rules"}
 
 
 def test_no_import_circle():

@@ -9,8 +9,8 @@ import json
 import pytest
 
 from robotfleet import roster
-from robotfleet.checks import Misread
-from robotfleet.fleet import check as fleet_check
+from robotfleet.checkers import Misread
+from robotfleet.fleet import validate as fleet_check
 from robotfleet.fleet import loader as fleetyaml
 from robotfleet.fleet import schema as fleet_schema
 from robotfleet.fleet.registry import Registry
@@ -139,9 +139,9 @@ def test_the_address_pattern_is_what_ipaddress_reads():
     import random
     import re
 
-    from robotfleet import values
+    from robotfleet import value_kinds
 
-    pattern = re.compile(f"(?:{values.IPV4}|{values.IPV6})", re.ASCII)
+    pattern = re.compile(f"(?:{value_kinds.IPV4}|{value_kinds.IPV6})", re.ASCII)
     rng = random.Random(7)
     for _ in range(20000):
         if rng.random() < 0.4:

@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 from robotfleet.fleet import loader, sources, tree
 from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry, setting_of
