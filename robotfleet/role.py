@@ -207,8 +207,8 @@ def added(roles, hook: Hook, data, *args) -> list:
     return [add(data, *args) for add in adders(roles, hook)]
 
 
-def folded(roles, hook: Hook, data, value):
-    """``value`` passed through each role's addition in turn (each returns the new value)."""
+def with_additions(roles, hook: Hook, data, value):
+    """``value`` with every addition of ``roles`` at ``hook``: passed through each in turn (each returns the new value)."""
     for add in adders(roles, hook):
         value = add(data, value)
     return value
@@ -228,9 +228,9 @@ class Play:
         """What the other roles on this host add to ``hook``."""
         return added(self.roles, hook, self.data, *args)
 
-    def folded(self, hook: Hook, value):
-        """``value`` as the other roles on this host amend it through ``hook``."""
-        return folded(self.roles, hook, self.data, value)
+    def with_additions(self, hook: Hook, value):
+        """``value`` with every addition the roles on this host make at ``hook``."""
+        return with_additions(self.roles, hook, self.data, value)
 
     def announce(self, event: Hook, operation) -> None:
         """Tell the roles after this one that ``operation`` may cause

@@ -43,7 +43,7 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
 def daemon_json(play: Play) -> str:
     """/etc/docker/daemon.json as this host gets it: docker_daemon_options,
     what the other roles add (hooks.DAEMON_OPTIONS), each DaemonSetting."""
-    return plan.daemon_json(play.folded(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options),
+    return plan.daemon_json(play.with_additions(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options),
                             settings.daemon_keys(play.data))
 
 
