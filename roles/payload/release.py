@@ -23,11 +23,11 @@ from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot
 from robotfleet.role import deployment
 import roles.payload.compose as compose
-import roles.payload.project as project
+import roles.payload.takeover_plan as takeover_plan
 from roles.payload.payloadctl import lock, results
 from roles.payload.payloadctl.lifecycle import SETTLED
 from roles.payload.payloadctl.spec import Spec
-from roles.payload.robot import HELPER
+from roles.payload.installed_files import HELPER
 
 
 def spec(data, doc: dict, checks: list = ()) -> Spec:
@@ -46,7 +46,7 @@ def spec(data, doc: dict, checks: list = ()) -> Spec:
         keep_releases=data.payload_keep_releases,
         lock_file=data.payload_lock_file,
         checks=[check for check in checks if check],  # run in each container once healthy
-        takeover=project.takeover_of(data),
+        takeover=takeover_plan.takeover_of(data),
     )
 
 

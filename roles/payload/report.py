@@ -12,7 +12,7 @@ import datetime
 from robotfleet.checkers import one_line
 from robotfleet.role import Metric, RolloutPart, StatusPart
 import roles.payload.digests as digests
-from roles.payload.robot import HELPER
+from roles.payload.installed_files import HELPER
 
 
 def status_command(data) -> str:

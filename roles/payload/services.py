@@ -142,6 +142,12 @@ def images(data) -> list[str]:
     return [r for r in dict.fromkeys(refs) if isinstance(r, str)]
 
 
+def primary_image(data) -> str | None:
+    """The image whose registry the login is for (the first service's)."""
+    refs = images(data)
+    return refs[0] if refs else None
+
+
 def repositories(data) -> list[str]:
     result = []
     for ref in images(data):
