@@ -1,5 +1,6 @@
 """roles/docker: Docker CE from Docker's apt repository (or the distribution's
-engine), daemon.json, and the service enabled and running."""
+engine), daemon.json, the service enabled and running, and docker_users in
+the docker group (users.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from robotfleet import value_kinds
 from robotfleet.host import apt, aptrepo, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role, StatusPart
-from roles.docker import daemon, hooks, plan, settings
+from roles.docker import daemon, hooks, plan, settings, users
 
 DAEMON_JSON = daemon.DAEMON_JSON
 PREREQUISITES = ["ca-certificates", "curl"]
@@ -58,6 +59,12 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.commands.add("gpg")
     query.probes[KEY_PROBE] = aptrepo.key_probe(data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint))
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
+    users.declare_reads(data, query)
+
+
+def steps(play: Play):
+    install_docker(play)
+    users.docker_users(play)
 
 
 @deploy("Docker")
@@ -152,10 +159,11 @@ STATUS = StatusPart(
 
 ROLE = Role(
     name="docker",
-    doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json.",
+    doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json, "
+        "the declared users in the docker group (never created).",
     settings=settings.SETTINGS,
     rules=settings.rules,
     reads=declare_reads,
-    steps=install_docker,
+    steps=steps,
     status=STATUS,
 )

@@ -140,6 +140,8 @@ SETTINGS = (
     Setting("docker_restart_timeout", 60, c.integer(5, 3600),
             "Seconds Docker has to be active again after a daemon.json change, or the previous file comes back."),
     Setting("docker_service_enabled", True, c.boolean, "Start Docker at boot."),
+    Setting("docker_users", [], c.list_of(v.user_name, unique=True),
+            "Existing users added to the docker group (root-equivalent); users are never created."),
 )
 
 
