@@ -56,6 +56,17 @@ class Setting:
         return value if isinstance(value, (str, int, float, type(None))) else copy.deepcopy(value)
 
 
+@dataclass(frozen=True)
+class Renamed:
+    """A setting's older name, still read, with a note asking to rename it:
+    ``old`` is now ``new``.  ``values``: the old name's values (strings),
+    each with the new name's value for it; empty: the same values."""
+
+    old: str
+    new: str
+    values: Mapping[str, Any] = field(default_factory=dict)
+
+
 @dataclass(frozen=True, eq=False)
 class Hook:
     """A place where a role lets other roles add to what it builds, e.g. the
@@ -175,7 +186,8 @@ class Role:
     - ``secrets(data)``: secret values the role holds for a host beyond its
       data (e.g. passwords read from the environment), masked in output
       like the URL passwords of the data (robotfleet/secrets.py);
-    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart)."""
+    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart);
+    - ``renamed``: older names of its settings, still read (Renamed)."""
 
     name: str
     doc: str
@@ -190,6 +202,7 @@ class Role:
     pins: PinPart | None = None
     secrets: Callable[[Any], list[str]] = _no_secrets
     hold: HoldPart | None = None
+    renamed: tuple[Renamed, ...] = ()
 
 
 def cards(listed) -> tuple[Role, ...]:

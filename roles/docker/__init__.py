@@ -114,7 +114,7 @@ def install_docker(play: Play):
         active_now=snap.unit_active("docker.service"),
         enabled=data.docker_service_enabled,
     )
-    action = "reload" if data.docker_restart_handler_state == "reloaded" else "restart"
+    action = data.docker_daemon_config_change
     content = daemon_json(play)
     pending = snap.files.get(daemon.PENDING) is not None
     written = daemon.daemon_json(
@@ -163,6 +163,7 @@ ROLE = Role(
         "the declared users in the docker group (never created).",
     settings=settings.SETTINGS,
     rules=settings.rules,
+    renamed=settings.RENAMED,
     reads=declare_reads,
     steps=steps,
     status=STATUS,

@@ -31,6 +31,7 @@ ROLE = Role(
     reads=steps.declare_reads,
     steps=steps.deploy_payload,
     rules=settings.rules,
+    renamed=settings.RENAMED,
     secrets=credentials.secrets,
     status=report.STATUS,
     rollout=report.ROLLOUT,

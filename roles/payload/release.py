@@ -44,7 +44,7 @@ def spec(data, doc: dict, checks: list = ()) -> Spec:
         pull_timeout=data.payload_pull_timeout,
         apply_lock_timeout=data.payload_apply_lock_timeout,
         keep_releases=data.payload_keep_releases,
-        lock_file=data.payload_lock_file,
+        lock_file=data.payload_update_lock_path,
         checks=[check for check in checks if check],  # run in each container once healthy
         takeover=takeover_plan.takeover_of(data),
     )

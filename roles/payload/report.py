@@ -19,7 +19,7 @@ def status_command(data) -> str:
     q = shlex.quote
     return (
         f"[ -x {HELPER} ] && /usr/bin/python3 {HELPER} status --dir {q(data.payload_dir)}"
-        f" --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}"
+        f" --name {q(data.payload_name)} --lock-file {q(data.payload_update_lock_path)}"
     )
 
 

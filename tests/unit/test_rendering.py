@@ -118,7 +118,7 @@ def test_spec_hash_changes_with_what_runs_only():
     one = spec()
     how = {"payload_health_timeout": 300, "payload_stable_seconds": 0, "payload_pull_timeout": 60,
            "payload_apply_lock_timeout": 10, "payload_keep_releases": 5, "payload_delivery": "push",
-           "payload_lock_file": "/run/elsewhere/update.lock"}
+           "payload_update_lock_path": "/run/elsewhere/update.lock"}
     for name, value in how.items():
         other = spec(**{name: value})
         assert other.to_dict() != one.to_dict(), name  # the setting does reach the spec ...

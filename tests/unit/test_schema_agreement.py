@@ -115,10 +115,10 @@ def test_the_validation_corpus_gets_the_same_verdict(name, raw):
 
 def test_the_yaml_version_is_the_editors(tmp_path):
     """Unquoted on/yes are text to the editor and to the run: ROS_LOCALHOST_ONLY: on
-    is accepted by both, display: on refused by both."""
+    is accepted by both, x11_enabled: on refused by both."""
     base = "robots:\n  hosts:\n    r1:\n      payload_image: reg.example.com/p:1\n"
     for text, refused in ((base + "      payload_environment: {ROS_LOCALHOST_ONLY: on}\n", False),
-                          (base + "      display: on\n", True)):
+                          (base + "      x11_enabled: on\n", True)):
         raw = fleetyaml.load(text)
         assert bool(expressible_lines(raw)) is refused and schema_refuses(raw) is refused, text
 
