@@ -11,7 +11,7 @@ import click
 
 from robotfleet import CHECKOUT, connect, limits, roster, speedups
 from robotfleet import selection
-from robotfleet.fleet.check import Fleet, FleetError, display_path, load, parse
+from robotfleet.fleet.validate import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",
            "require_checkout", "SOURCES"]

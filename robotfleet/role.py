@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from robotfleet.checks import Checker, Problem
+from robotfleet.checkers import Checker, Problem
 from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 
 GROUPS = ("robots", "laptops")
@@ -54,6 +54,17 @@ class Setting:
         value = self.groups.get(group, self.default) if group else self.default
         # A copy only of what a caller could change in place (the fleet check asks for every default of every check).
         return value if isinstance(value, (str, int, float, type(None))) else copy.deepcopy(value)
+
+
+@dataclass(frozen=True)
+class Renamed:
+    """A setting's older name, still read, with a note asking to rename it:
+    ``old`` is now ``new``.  ``values``: the old name's values (strings),
+    each with the new name's value for it; empty: the same values."""
+
+    old: str
+    new: str
+    values: Mapping[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -175,7 +186,8 @@ class Role:
     - ``secrets(data)``: secret values the role holds for a host beyond its
       data (e.g. passwords read from the environment), masked in output
       like the URL passwords of the data (robotfleet/secrets.py);
-    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart)."""
+    - ``hold``: its lock, held by the pull agent for a converge run (HoldPart);
+    - ``renamed``: older names of its settings, still read (Renamed)."""
 
     name: str
     doc: str
@@ -190,6 +202,7 @@ class Role:
     pins: PinPart | None = None
     secrets: Callable[[Any], list[str]] = _no_secrets
     hold: HoldPart | None = None
+    renamed: tuple[Renamed, ...] = ()
 
 
 def cards(listed) -> tuple[Role, ...]:
@@ -207,8 +220,8 @@ def added(roles, hook: Hook, data, *args) -> list:
     return [add(data, *args) for add in adders(roles, hook)]
 
 
-def folded(roles, hook: Hook, data, value):
-    """``value`` passed through each role's addition in turn (each returns the new value)."""
+def with_additions(roles, hook: Hook, data, value):
+    """``value`` with every addition of ``roles`` at ``hook``: passed through each in turn (each returns the new value)."""
     for add in adders(roles, hook):
         value = add(data, value)
     return value
@@ -228,9 +241,9 @@ class Play:
         """What the other roles on this host add to ``hook``."""
         return added(self.roles, hook, self.data, *args)
 
-    def folded(self, hook: Hook, value):
-        """``value`` as the other roles on this host amend it through ``hook``."""
-        return folded(self.roles, hook, self.data, value)
+    def with_additions(self, hook: Hook, value):
+        """``value`` with every addition the roles on this host make at ``hook``."""
+        return with_additions(self.roles, hook, self.data, value)
 
     def announce(self, event: Hook, operation) -> None:
         """Tell the roles after this one that ``operation`` may cause

@@ -3,7 +3,7 @@
 deploy.py is the one list of roles.  Everything else that needs them (the
 fleet check in inventories/, group_data/, the schema for editors, status and
 rollout) reads that list here: deploy.py is run the way pyinfra runs it, but
-with no host, so ``robotfleet.play.provision`` only hands back the list.
+with no host, so ``robotfleet.provision.provision`` only hands back the list.
 """
 
 from __future__ import annotations

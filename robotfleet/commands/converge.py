@@ -27,7 +27,7 @@ from pathlib import Path
 
 from robotfleet import CHECKOUT, roster
 from robotfleet.commands import status as fleet_status
-from robotfleet.fleet.check import FleetError, load
+from robotfleet.fleet.validate import FleetError, load
 from robotfleet.pull import layout
 from robotfleet.pull import record as records
 from robotfleet.pull.publishing import HostData, pin_settings

@@ -32,7 +32,7 @@ import paramiko
 
 from robotfleet import commands
 from robotfleet import connect, hostkeys
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet import selection
 
 

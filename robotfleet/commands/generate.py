@@ -49,6 +49,14 @@ def settings_doc(registry: Registry) -> str:
             groups = "".join(f"; {group}: {shown_default(value)}" for group, value in setting.groups.items())
             lines.append(f"| `{setting.name}` | {default}{groups} | {setting.doc} |")
         lines.append("")
+    if registry.renamed:
+        lines += ["## Renamed settings", "",
+                  "Each old name is still read, with a note asking to rename it; setting both names in one place is refused.",
+                  "", "| old name | now | values |", "|---|---|---|"]
+        for old, rename in registry.renamed.items():
+            values = ", ".join(f"`{before}` is now `{after}`" for before, after in rename.values.items()) or "the same"
+            lines.append(f"| `{old}` | `{rename.new}` | {values} |")
+        lines.append("")
     return "\n".join(lines)
 
 

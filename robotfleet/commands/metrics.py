@@ -31,7 +31,7 @@ import re
 import tempfile
 from collections.abc import Callable
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.role import Metric
 
 PREFIX = "robotfleet_"

@@ -24,7 +24,7 @@ import sys
 import paramiko
 
 from robotfleet import commands, hostkeys
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet import selection
 from robotfleet.commands import pullstatus
 from robotfleet.commands.bundle import add_admin, admin_of, repository_name

@@ -14,7 +14,7 @@ import datetime
 from pathlib import Path
 
 import robotfleet
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.pull import channel, reports
 
 COLUMNS = [("pull", "PULL"), ("reported", "REPORTED")]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.commands import waves
 
 

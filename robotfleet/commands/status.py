@@ -31,7 +31,7 @@ import sys
 import gevent
 
 from robotfleet import commands, connect, roster
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet import selection
 from robotfleet.commands import metrics, waves
 from robotfleet.role import GROUPS

@@ -3,15 +3,15 @@ data), how long apt waits for its lock, rollout canaries, pull mode."""
 
 from __future__ import annotations
 
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 from robotfleet.role import UNSET, Setting
 
 # Keys the fleet file may use that are not settings of their own: address,
 # and the connection variables of an Ansible inventory.
 # Ansible's older names: where a host has an older and a newer name for the
 # same thing (in any of its layers), the older one wins, as Ansible's ssh
-# connection plugin has it (robotfleet/fleet/check.py resolve_older_names).
+# connection plugin has it (robotfleet/fleet/validate.py resolve_older_names).
 OLDER_NAMES = {
     "ansible_ssh_host": "ssh_hostname",
     "ansible_ssh_user": "ssh_user",

@@ -26,7 +26,7 @@ import re
 import yaml
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-from robotfleet.checks import Misread
+from robotfleet.checkers import Misread
 
 # libyaml's parser where PyYAML was built with it (its wheels are), else the
 # pure-Python one: same nodes, several times slower.

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from robotfleet import checks as c
-from robotfleet.role import UNSET, Role, Setting
+from robotfleet import checkers as c
+from robotfleet.role import UNSET, Renamed, Role, Setting
 
 
 class Registry:
@@ -22,6 +22,26 @@ class Registry:
                 raise ValueError(f"setting {setting.name} is declared twice")
             self.settings[setting.name] = setting
         self.mergers = [(name, s.merge) for name, s in self.settings.items() if s.merge is not None]
+        # A setting's older name -> its rename (each role's ``renamed``).
+        self.renamed: dict[str, Renamed] = {}
+        for rename in (r for role in self.roles for r in role.renamed):
+            if rename.new not in self.settings or rename.old in self.settings or rename.old in self.renamed:
+                raise ValueError(f"rename {rename.old} -> {rename.new}: the old name must be free and the new one declared")
+            self.renamed[rename.old] = rename
+
+    def name_of(self, key: str) -> str:
+        """The setting ``key`` sets: itself, or what its alias or old name stands for."""
+        rename = self.renamed.get(key)
+        return rename.new if rename is not None else self.aliases.get(key, key)
+
+    def old_check(self, rename: Renamed) -> c.Checker:
+        """What the old name accepts: its own values, or the new one's."""
+        return c.string(choices=tuple(rename.values)) if rename.values else self.settings[rename.new].check
+
+    @staticmethod
+    def renamed_value(rename: Renamed, value):
+        """An old name's value as the new name's."""
+        return rename.values.get(value, value) if rename.values and isinstance(value, str) else value
 
     def defaults(self, group: str | None = None) -> dict:
         """The defaults of every setting for hosts of ``group`` (None: all)."""
@@ -55,8 +75,11 @@ class Registry:
             if not isinstance(key, str):
                 problems.append((c.key_name(key), f"a setting name must be a string, got {c.describe(key)}; quote it"))
                 continue
-            name = self.aliases.get(key, key)
-            setting = self.settings.get(name)
+            rename = self.renamed.get(key)
+            setting = self.settings.get(self.aliases.get(key, key))
+            if rename is not None:
+                problems += [(f"{key}{sub}", msg) for sub, msg in self.old_check(rename)(value)]
+                continue
             if setting is None:
                 known = list(self.settings) + list(self.aliases)
                 problems.append((c.key_name(key), "unknown setting" + c.did_you_mean(key, known)))

@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import json
 
-from robotfleet.fleet.check import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
+from robotfleet.fleet.validate import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
 from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry
 
 
 # The rules only the run checks, each with what docs/fleet-file.md says of it.
 BEYOND_SCHEMA = {
-    "rules across settings": "each role's rules on a host's merged settings: x11_user when display is true, "
+    "rules across settings": "each role's rules on a host's merged settings: x11_user when x11_enabled is true, "
     "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1, "
     "a TCP listener in docker_daemon_options without TLS client verification, a registry credential file "
     "inside the checkout",
@@ -46,7 +46,16 @@ def setting_schemas(registry: Registry) -> dict:
         else:
             doc = f"{name}: {registry.settings[name].doc}"
         properties[alias] = {**registry.settings[name].check.schema, "description": doc}
+    for old, rename in registry.renamed.items():
+        properties[old] = {**registry.old_check(rename).schema, "deprecated": True,
+                           "description": f"Deprecated: {renamed_line(rename)}. {registry.settings[rename.new].doc}"}
     return properties
+
+
+def renamed_line(rename) -> str:
+    """``display is now x11_enabled`` (with the values the new name takes for the old ones)."""
+    values = ", ".join(f"{old} is now {new}" for old, new in rename.values.items())
+    return f"{rename.old} is now {rename.new}" + (f" ({values})" if values else "") + "; the old name still works"
 
 
 def fleet_schema(registry: Registry) -> dict:

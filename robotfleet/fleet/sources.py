@@ -26,7 +26,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 from robotfleet.fleet import ini, loader, tree
 
 MAX_BYTES = 32 * 2**20  # 5,000 robots with sensors are about 1 MiB: anything far larger is a mistake

@@ -37,7 +37,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 from robotfleet.fleet.hostpattern import PatternProblem, expand
 
 EXTENSION_PREFIX = "x-"

@@ -19,9 +19,10 @@ from pyinfra.api.arguments import CONNECTOR_ARGUMENT_KEYS
 from pyinfra.api.util import format_text, print_host_combined_output
 from pyinfra.context import ctx_host
 from pyinfra.facts.files import FileContents
+from pyinfra.operations import server
 
 from robotfleet import secrets
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.host.snapshot import FileState
 
 def sha256(content: bytes) -> str:
@@ -248,7 +249,8 @@ def fail(message: str):
     yield refuse(message)
 
 
-@operation(is_idempotent=False)
-def run(script: str):
-    """A command gated by the caller (``_if``); always runs when reached."""
-    yield shell(script)
+def run(script: str, **arguments):
+    """A command gated by the caller (``_if``); always runs when reached.
+    pyinfra's own server.shell: it reads no fact, so it costs no round trip
+    of its own, and a converged rerun (gate closed) sends nothing."""
+    return server.shell(commands=[script], **arguments)

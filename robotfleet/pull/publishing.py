@@ -15,7 +15,7 @@ import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet.fleet.check import Fleet, FleetError, parse
+from robotfleet.fleet.validate import Fleet, FleetError, parse
 from robotfleet.pull import record as records
 from robotfleet.pull import tree, waves, wheels
 from robotfleet.pull.repository import Expiry, Repository, RepositoryError

@@ -29,7 +29,7 @@ import re
 import subprocess
 from pathlib import Path
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.pull.record import parse_time, utc
 
 FORMAT = 1

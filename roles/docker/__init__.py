@@ -1,15 +1,16 @@
 """roles/docker: Docker CE from Docker's apt repository (or the distribution's
-engine), daemon.json, and the service enabled and running."""
+engine), daemon.json, the service enabled and running, and docker_users in
+the docker group (users.py)."""
 
 from __future__ import annotations
 
 from pyinfra.api import deploy
 
-from robotfleet import values
+from robotfleet import value_kinds
 from robotfleet.host import apt, aptrepo, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role, StatusPart
-from roles.docker import daemon, hooks, plan, settings
+from roles.docker import daemon, hooks, plan, settings, users
 
 DAEMON_JSON = daemon.DAEMON_JSON
 PREREQUISITES = ["ca-certificates", "curl"]
@@ -27,7 +28,7 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
         what="Docker",
         key_url=plan.key_url(data.docker_apt_key_url, data.docker_repo_url, dist),
         key_path=data.docker_apt_key_path,
-        fingerprint=values.normal_fingerprint(data.docker_apt_key_fingerprint),
+        fingerprint=value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint),
         fingerprint_setting="docker_apt_key_fingerprint",
         sources_name=data.docker_apt_filename,
         sources=plan.sources_text(
@@ -43,7 +44,7 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
 def daemon_json(play: Play) -> str:
     """/etc/docker/daemon.json as this host gets it: docker_daemon_options,
     what the other roles add (hooks.DAEMON_OPTIONS), each DaemonSetting."""
-    return plan.daemon_json(play.folded(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options),
+    return plan.daemon_json(play.with_additions(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options),
                             settings.daemon_keys(play.data))
 
 
@@ -56,8 +57,14 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
-    aptrepo.declare_key_probe(query, KEY_PROBE, data.docker_apt_key_path, values.normal_fingerprint(data.docker_apt_key_fingerprint))
+    aptrepo.declare_key_probe(query, KEY_PROBE, data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint))
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
+    users.declare_reads(data, query)
+
+
+def steps(play: Play):
+    install_docker(play)
+    users.docker_users(play)
 
 
 @deploy("Docker")
@@ -107,7 +114,7 @@ def install_docker(play: Play):
         active_now=snap.unit_active("docker.service"),
         enabled=data.docker_service_enabled,
     )
-    action = "reload" if data.docker_restart_handler_state == "reloaded" else "restart"
+    action = data.docker_daemon_config_change
     content = daemon_json(play)
     pending = snap.files.get(daemon.PENDING) is not None
     written = daemon.daemon_json(
@@ -152,10 +159,12 @@ STATUS = StatusPart(
 
 ROLE = Role(
     name="docker",
-    doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json.",
+    doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json, "
+        "the declared users in the docker group (never created).",
     settings=settings.SETTINGS,
     rules=settings.rules,
+    renamed=settings.RENAMED,
     reads=declare_reads,
-    steps=install_docker,
+    steps=steps,
     status=STATUS,
 )

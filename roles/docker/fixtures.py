@@ -19,3 +19,5 @@ def converged(play, host: str) -> None:
     })
     snap.probes[docker.KEY_PROBE] = f"{repo.fingerprint}\n{aptrepo.CANONICAL}\n" if repo.fingerprint else ""
     snap.units["docker.service"] = ("enabled", "active")
+    for user in data.docker_users:
+        snap.users[user] = [user, "docker"]

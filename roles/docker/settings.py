@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from robotfleet import checks as c
-from robotfleet import values as v
-from robotfleet.role import Setting
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
+from robotfleet.role import Renamed, Setting
 
 
 @dataclass(frozen=True)
@@ -135,12 +135,16 @@ SETTINGS = (
                   "Merged into daemon.json's insecure-registries.", key="insecure-registries"),
     Setting("docker_allow_unauthenticated_tcp", False, c.boolean,
             "Allow daemon.json hosts to open a TCP listener without TLS client verification (anyone who reaches it is root)."),
-    Setting("docker_restart_handler_state", "restarted", c.string(choices=("restarted", "reloaded")),
+    Setting("docker_daemon_config_change", "restart", c.string(choices=("restart", "reload")),
             "What a daemon.json change does to the engine."),
     Setting("docker_restart_timeout", 60, c.integer(5, 3600),
             "Seconds Docker has to be active again after a daemon.json change, or the previous file comes back."),
     Setting("docker_service_enabled", True, c.boolean, "Start Docker at boot."),
+    Setting("docker_users", [], c.list_of(v.user_name, unique=True),
+            "Existing users added to the docker group (root-equivalent); users are never created."),
 )
+RENAMED = (Renamed("docker_restart_handler_state", "docker_daemon_config_change",
+                   values={"restarted": "restart", "reloaded": "reload"}),)
 
 
 # What dockerd needs to accept only clients holding a certificate its CA signed.

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from pyinfra.api import deploy
 
-from robotfleet import values
+from robotfleet import value_kinds
 from robotfleet.host import apt, aptrepo, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role, StatusPart
@@ -46,7 +46,7 @@ def repository(data, arch: str) -> aptrepo.Repository:
         what="NVIDIA",
         key_url=plan.key_url(data.gpu_apt_key_url, data.gpu_repo_url),
         key_path=data.gpu_apt_key_path,
-        fingerprint=values.normal_fingerprint(data.gpu_apt_key_fingerprint),
+        fingerprint=value_kinds.normal_fingerprint(data.gpu_apt_key_fingerprint),
         fingerprint_setting="gpu_apt_key_fingerprint",
         sources_name=data.gpu_apt_filename,
         sources=plan.sources_text(plan.repo_uri(data.gpu_repo_url, data.gpu_apt_channel, arch), data.gpu_apt_key_path),
@@ -58,7 +58,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.packages |= set(PREREQUISITES) | {plan.TOOLKIT}
     query.files |= {aptrepo.KEYRING_DIR, data.gpu_apt_key_path, sources_path(data)}
     query.probes[READINGS] = plan.readings_probe(data.gpu_driver_version_file)
-    aptrepo.declare_key_probe(query, KEY_PROBE, data.gpu_apt_key_path, values.normal_fingerprint(data.gpu_apt_key_fingerprint))
+    aptrepo.declare_key_probe(query, KEY_PROBE, data.gpu_apt_key_path, value_kinds.normal_fingerprint(data.gpu_apt_key_fingerprint))
 
 
 @deploy("GPU")

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 from robotfleet.role import Setting
 
 SETTINGS = (
@@ -28,7 +28,7 @@ SETTINGS = (
     Setting("gpu_driver_capabilities", None, c.optional(c.string(
         r"all|(?:compute|compat32|graphics|utility|video|display)(?:,(?:compute|compat32|graphics|utility|video|display))*",
         "all or a comma-separated list of compute, compat32, graphics, utility, video, display")),
-        "NVIDIA_DRIVER_CAPABILITIES; null: compute,utility (plus graphics where display is on)."),
+        "NVIDIA_DRIVER_CAPABILITIES; null: compute,utility (plus graphics where x11_enabled is on)."),
     Setting("gpu_check_command", ["nvidia-smi", "-L"], c.optional(c.list_of(c.string())),
             "Run in each payload container once healthy; a failure fails the release (rolled back). null: no check."),
     Setting("gpu_driver_version_file", "/proc/driver/nvidia/version", v.private_path,

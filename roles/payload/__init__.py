@@ -9,10 +9,12 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 - settings.py: the settings; services.py, presets.py, compose.py: the
   compose document; problems.py: what is refused before connecting;
 - steps.py: the deploy's steps; release.py: the release on the robot;
-  credentials.py, login.py, push.py, registry.py, project.py: each
-  registry's own credentials, registry login, push delivery, takeover;
-- robot.py, payloadctl/ (the robot-side program), payload.service.j2: what runs
-  on the robot;
+  credentials.py, login.py, push.py, pushed_images.py, registry.py: each
+  registry's own credentials, registry login, push delivery (the images
+  beyond the first: pushed_images.py); takeover_plan.py: what the release
+  will take over, said before it is done; dds_profile.py: the DDS profile file;
+- installed_files.py (payloadctl as one zip application, the systemd unit),
+  payloadctl/ (the robot-side program), payload.service.j2: what runs on the robot;
 - report.py: its columns in status, what a rollout waits for; pins.py: the
   image digests a pull release binds (robotfleet publish); digests.py: those
   digests applied when the robot runs the release (payload_image_pins).
@@ -29,6 +31,7 @@ ROLE = Role(
     reads=steps.declare_reads,
     steps=steps.deploy_payload,
     rules=settings.rules,
+    renamed=settings.RENAMED,
     secrets=credentials.secrets,
     status=report.STATUS,
     rollout=report.ROLLOUT,

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet import CHECKOUT
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.services as services
 

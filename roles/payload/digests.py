@@ -11,7 +11,7 @@ signed release exists to prevent)."""
 
 from __future__ import annotations
 
-from robotfleet.checks import key_name
+from robotfleet.checkers import key_name
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.services as services
 

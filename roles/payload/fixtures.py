@@ -6,7 +6,7 @@ from robotfleet.host.fixtures import file_state
 from robotfleet.host.snapshot import FileState
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
-import roles.payload.robot as robot
+import roles.payload.installed_files as installed_files
 import roles.payload.services as services
 import roles.payload.steps as steps
 
@@ -23,10 +23,10 @@ def converged(play, host: str) -> None:
     additions = play.added(hooks.SERVICES, services.declared(data))
     snap.files.update({
         data.payload_dir: FileState("dir", None, "755", "root", "root"),
-        robot.HELPER: file_state(robot.helper_bytes(), "755"),
+        installed_files.HELPER: file_state(installed_files.helper_bytes(), "755"),
     })
     if data.payload_autostart:
-        snap.files[robot.unit_path(data)] = file_state(robot.unit_text(data, steps.unit_devices(additions)))
+        snap.files[installed_files.unit_path(data)] = file_state(installed_files.unit_text(data, steps.unit_devices(additions)))
         snap.units[f"{data.payload_name}.service"] = ("enabled", "active")
         snap.probes["payload_containers"] = "c\trunning\tUp 3 hours (healthy)\n"
     doc = compose.project(data, data.get("ssh_hostname") or host, additions)

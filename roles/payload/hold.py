@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 
 from robotfleet.role import HoldPart
-from roles.payload.robot import HELPER
+from roles.payload.installed_files import HELPER
 
 
 def hold_command(data, token_file: str) -> list[str]:

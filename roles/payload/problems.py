@@ -11,7 +11,7 @@ import re
 from functools import lru_cache
 from pathlib import Path
 
-from robotfleet.checks import key_name
+from robotfleet.checkers import key_name
 import roles.payload.compose as compose
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms

@@ -18,16 +18,16 @@ from pyinfra.api import FunctionCommand, deploy
 from pyinfra.api.arguments import CONNECTOR_ARGUMENT_KEYS
 from pyinfra.api.util import format_text, print_host_combined_output
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot
 from robotfleet.role import deployment
 import roles.payload.compose as compose
-import roles.payload.project as project
+import roles.payload.takeover_plan as takeover_plan
 from roles.payload.payloadctl import lock, results
 from roles.payload.payloadctl.lifecycle import SETTLED
 from roles.payload.payloadctl.spec import Spec
-from roles.payload.robot import HELPER
+from roles.payload.installed_files import HELPER
 
 
 def spec(data, doc: dict, checks: list = ()) -> Spec:
@@ -44,9 +44,9 @@ def spec(data, doc: dict, checks: list = ()) -> Spec:
         pull_timeout=data.payload_pull_timeout,
         apply_lock_timeout=data.payload_apply_lock_timeout,
         keep_releases=data.payload_keep_releases,
-        lock_file=data.payload_lock_file,
+        lock_file=data.payload_update_lock_path,
         checks=[check for check in checks if check],  # run in each container once healthy
-        takeover=project.takeover_of(data),
+        takeover=takeover_plan.takeover_of(data),
     )
 
 

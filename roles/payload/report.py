@@ -9,17 +9,17 @@ import shlex
 
 import datetime
 
-from robotfleet.checks import one_line
+from robotfleet.checkers import one_line
 from robotfleet.role import Metric, RolloutPart, StatusPart
 import roles.payload.digests as digests
-from roles.payload.robot import HELPER
+from roles.payload.installed_files import HELPER
 
 
 def status_command(data) -> str:
     q = shlex.quote
     return (
         f"[ -x {HELPER} ] && /usr/bin/python3 {HELPER} status --dir {q(data.payload_dir)}"
-        f" --name {q(data.payload_name)} --lock-file {q(data.payload_lock_file)}"
+        f" --name {q(data.payload_name)} --lock-file {q(data.payload_update_lock_path)}"
     )
 
 

@@ -15,7 +15,7 @@ import copy
 import json
 import re
 
-from robotfleet.checks import key_name
+from robotfleet.checkers import key_name
 import roles.payload.payloadctl.imageref as imageref
 
 SHORTHAND = "payload"
@@ -141,6 +141,12 @@ def images(data) -> list[str]:
     if value_of(data, "ros_preset") == "ros1" and value_of(data, "ros_roscore"):
         refs.append(value_of(data, "ros_roscore_image"))
     return [r for r in dict.fromkeys(refs) if isinstance(r, str)]
+
+
+def primary_image(data) -> str | None:
+    """The image whose registry the login is for (the first service's)."""
+    refs = images(data)
+    return refs[0] if refs else None
 
 
 def repositories(data) -> list[str]:

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import re
 
-from robotfleet import checks as c
-from robotfleet import values as v
-from robotfleet.role import Setting
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
+from robotfleet.role import Renamed, Setting
 import roles.payload.credentials as credentials
 import roles.payload.digests as digests
 import roles.payload.payloadctl.imageref as imageref
@@ -153,8 +153,8 @@ SETTINGS = (
             "Seconds to wait for another deploy, rollback or boot recovery of the same robot."),
     Setting("payload_device_wait", 30, c.integer(0, 600), "Seconds to wait at boot for the sensors' device links."),
     Setting("payload_keep_releases", 3, c.integer(2, 50), "Releases kept on the robot (their images too, for offline rollback)."),
-    Setting("payload_lock_file", "/run/robot-payload/update.lock", v.private_path,
-            "While this file exists on the robot, updates are refused unless forced."),
+    Setting("payload_update_lock_path", "/run/robot-payload/update.lock", v.private_path,
+            "The update lock: while this file exists on the robot, updates are refused unless forced."),
     Setting("payload_force", False, c.boolean, "Update although the update lock is held."),
     Setting("payload_lock_token", None, c.optional(lock_token),
             "The apply lock's token of the run this deploy is part of (payloadctl hold); never printed."),
@@ -180,6 +180,7 @@ SETTINGS = (
     Setting("ros_dds_profile", None, c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
             "ROS 2: a DDS profile from files/dds/ (Cyclone DDS or Fast DDS XML), mounted read-only."),
 )
+RENAMED = (Renamed("payload_lock_file", "payload_update_lock_path"),)
 
 DEFAULTS = {setting.name: setting.default for setting in SETTINGS}
 

@@ -17,31 +17,35 @@ import roles.docker.hooks as docker_hooks
 import roles.payload.compose as compose
 import roles.payload.containers as containers
 import roles.payload.credentials as credentials
+import roles.payload.dds_profile as dds_profile
 import roles.payload.hooks as hooks
+import roles.payload.installed_files as installed_files
 import roles.payload.payloadctl.imageref as imageref
+import roles.payload.payloadctl.platforms as platforms
 import roles.payload.login as login
-import roles.payload.project as project
 import roles.payload.push as push
+import roles.payload.pushed_images as pushed_images
 import roles.payload.release as release
-import roles.payload.robot as robot
 import roles.payload.services as services
+import roles.payload.takeover_plan as takeover_plan
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
-    query.files |= {robot.HELPER, robot.unit_path(data), data.payload_dir}
+    query.files |= {installed_files.HELPER, installed_files.unit_path(data), data.payload_dir}
     query.units.add(f"{data.payload_name}.service")
     query.commands |= {"python3", "systemd-run"}
     query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
     query.probes[containers.PROBE] = containers.probe(data.payload_name, foreign=data.payload_autostart)
     query.probes["payload_lock"] = release.lock_probe(data.payload_dir)
-    query.probes["registry_auth"] = login.registry_probe(imageref.parse(project.primary_image(data)).registry)
+    query.probes["registry_auth"] = login.registry_probe(imageref.parse(services.primary_image(data)).registry)
     if data.payload_delivery == "pull":
         for registry in other_registries_with_credentials(data):
             query.probes[login_probe(registry)] = login.registry_probe(registry)
-    project.declare_reads(data, query)
+    dds_profile.declare_reads(data, query)
+    pushed_images.declare_reads(data, query)
     if data.payload_delivery == "push":
         query.probes["payload_image_id"] = (
-            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(project.primary_image(data))}"
+            f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(services.primary_image(data))}"
         )
         query.probes["docker_layers"] = push.LAYERS_PROBE
 
@@ -63,6 +67,15 @@ def read_credentials(data) -> dict:
     return {registry: credentials.lookup(data, registry) for registry in credentials.registries(data)}
 
 
+def platform_refusal(robot: str, arch: str, pins: dict[str, str]) -> str | None:
+    """The line refusing a service pinned to a platform this robot (its
+    architecture from the snapshot) cannot run, or None."""
+    for service, pinned in sorted(pins.items()):
+        if arch and not platforms.matches(arch, platforms.parse(pinned)):
+            return "payload: " + platforms.pinned_refusal(robot, arch, service, pinned)
+    return None
+
+
 def unit_devices(additions: list[dict]) -> list[str]:
     """Device paths the unit waits for at boot: those the other roles give
     the services (the sensors), not those a service declares itself."""
@@ -79,7 +92,7 @@ def unit_devices(additions: list[dict]) -> list[str]:
 @deploy("Payload")
 def deploy_payload(play: Play):
     data, snap = play.data, play.snapshot
-    refused = project.platform_refusal(host.name, snap.arch, services.platforms(data))
+    refused = platform_refusal(host.name, snap.arch, services.platforms(data))
     if refused:
         operations.fail(name="Check the payload's platform against the robot's", message=refused)
         return
@@ -97,14 +110,14 @@ def deploy_payload(play: Play):
     operations.directory(name=f"Payload releases directory {data.payload_dir}", path=data.payload_dir, current=snap.files.get(data.payload_dir))
     operations.file(
         name="Install the release helper payloadctl",
-        path=robot.HELPER,
-        content=robot.helper_bytes(),
-        current=snap.files.get(robot.HELPER),
+        path=installed_files.HELPER,
+        content=installed_files.helper_bytes(),
+        current=snap.files.get(installed_files.HELPER),
         mode="0755",
     )
 
-    unit = robot.unit_path(data)
-    unit_content = robot.unit_text(data, unit_devices(additions))
+    unit = installed_files.unit_path(data)
+    unit_content = installed_files.unit_text(data, unit_devices(additions))
     unit_changes = data.payload_autostart and not operations.file_matches(
         snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
     )
@@ -126,7 +139,7 @@ def deploy_payload(play: Play):
             _if=removed.did_change,
         )
 
-    primary = imageref.parse(project.primary_image(data)).registry
+    primary = imageref.parse(services.primary_image(data)).registry
     if data.payload_delivery == "pull":
         # Each registry's own credentials, to that registry only.
         for registry, own in auths.items():
@@ -143,17 +156,17 @@ def deploy_payload(play: Play):
     if data.payload_delivery == "push":
         push.push_image(
             name="Send the payload image over SSH",
-            image=project.primary_image(data),
+            image=services.primary_image(data),
             remote_id=snap.probes.get("payload_image_id", "").strip(),
             remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
             log_dir=data.payload_dir,
-            **project.push_target(data, snap, auths.get(credentials.registry_key(primary))),
+            **pushed_images.push_target(data, snap, auths.get(credentials.registry_key(primary))),
         )
-        project.push_more_images(data, snap, auths)
+        pushed_images.push_more_images(data, snap, auths)
 
-    project.install_files(data, snap)
+    dds_profile.install_files(data, snap)
     release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))
-    taken_over = project.takeover(data, snap, release.current_record(snap))  # said in the output, done by payloadctl
+    taken_over = takeover_plan.takeover(data, snap, release.current_record(snap))  # said in the output, done by payloadctl
     needed = release.release_needed(
         release.current_record(snap),
         compose.spec_hash(doc, data.payload_autostart),

@@ -3,8 +3,8 @@ setting) fetches releases, how often, and when it may apply them."""
 
 from __future__ import annotations
 
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 from robotfleet.pull import waves
 from robotfleet.role import Setting
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import re
 
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 from robotfleet.role import Setting
 
 # chrony's server and allow lines take no IPv6 zone (%eth0).

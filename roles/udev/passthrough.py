@@ -3,7 +3,7 @@ gets which device (added through the payload role's hook)."""
 
 from __future__ import annotations
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 import roles.payload.hooks as payload_hooks
 import roles.udev.rules as rules
 

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from robotfleet import checks as c
-from robotfleet import values as v
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
 from robotfleet.role import Setting
 
 SUBSYSTEMS = ("tty", "video4linux", "hidraw", "input", "usb", "sound")

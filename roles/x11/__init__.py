@@ -57,7 +57,7 @@ def compose_settings(data) -> dict:
 
 def payload_services(data, services: dict) -> dict:
     """The payload hook: where the host has a display, every service gets it."""
-    return {"*": compose_settings(data)} if data.get("display") else {}
+    return {"*": compose_settings(data)} if data.get("x11_enabled") else {}
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -113,9 +113,10 @@ ROLE = Role(
     name="x11",
     doc="X11 access for GUI containers (rviz) with an xauth cookie refreshed at each login; never xhost +.",
     settings=settings.SETTINGS,
-    runs_on=lambda data: bool(data.display),
+    runs_on=lambda data: bool(data.x11_enabled),
     reads=declare_reads,
     steps=x11_cookie,
     rules=settings.rules,
+    renamed=settings.RENAMED,
     adds={payload_hooks.SERVICES: payload_services},
 )

@@ -5,4 +5,4 @@ its settings themselves)."""
 def has_display(data) -> bool:
     """The host has a display for GUI containers: a GPU payload there gets
     the graphics part of the driver too (the gpu role)."""
-    return bool(data.get("display"))
+    return bool(data.get("x11_enabled"))

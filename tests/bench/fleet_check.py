@@ -36,7 +36,7 @@ def main() -> None:
     args = parser.parse_args()
     started = time.perf_counter()
     from robotfleet import roster
-    from robotfleet.fleet import check as fleet_module
+    from robotfleet.fleet import validate as fleet_module
     from roles.payload import problems as services
 
     registry = roster.registry()

@@ -22,7 +22,7 @@ from pathlib import Path
 import yaml
 
 from robotfleet import roster
-from robotfleet.fleet import check as fleet
+from robotfleet.fleet import validate as fleet
 from tests.bench import hygiene
 
 SENSORS = (

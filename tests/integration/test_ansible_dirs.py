@@ -194,7 +194,7 @@ BASE = f"[all:vars]\npayload_image={IMAGE}\n"
 
 
 @pytest.mark.parametrize("text, line", [
-    ("[robots]\nrobot1 display=true\n", "hosts:2: robot1.display: expected true or false, got 'true'; INI reads "
+    ("[robots]\nrobot1 x11_enabled=true\n", "hosts:2: robot1.x11_enabled: expected true or false, got 'true'; INI reads "
                                         "it as text, as Ansible does: write True or False"),
     ("[robots]\nrobot1 docker_usres=['ops']\n", "hosts:2: robot1.docker_usres: unknown setting "
                                                 "(did you mean 'docker_users'?)"),

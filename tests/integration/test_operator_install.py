@@ -20,7 +20,7 @@ NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.e
 RENDER = """
 from robotfleet import roster  # puts its checkout first on sys.path: roles/ is the checkout's
 from roles import udev, x11
-from roles.payload import robot as payload
+from roles.payload import installed_files as payload
 defaults = {group: roster.group_data(group) for group in ("all", "robots", "laptops")}
 class Data(dict):
     __getattr__ = dict.__getitem__

@@ -35,7 +35,7 @@ from pyinfra.context import ctx_state
 
 from robotfleet import roster
 from robotfleet.host import aptrepo
-from robotfleet.fleet import check as fleet_check
+from robotfleet.fleet import validate as fleet_check
 from robotfleet.host import snapshot as hoststate
 from robotfleet.host.snapshot import FileState, Snapshot
 from robotfleet.role import Play, added

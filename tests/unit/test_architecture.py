@@ -50,10 +50,10 @@ def test_a_role_reads_only_its_own_settings():
 
 
 def test_the_reads_found_are_the_ones_written():
-    code = ('a = data.payload_gpu\nb = host.data.display\nc = data.get("sensors", [])\n'
+    code = ('a = data.payload_gpu\nb = host.data.x11_enabled\nc = data.get("sensors", [])\n'
             'd = value_of(data, "x11_user")\ne = data["gpu"]\nf = plan.payload_gpu\ng = {"display": 1}\n')
-    reads = sorted(setting_reads(ast.parse(code), {"payload_gpu", "display", "sensors", "x11_user", "gpu"}))
-    assert reads == [(1, "payload_gpu"), (2, "display"), (3, "sensors"), (4, "x11_user"), (5, "gpu")]
+    reads = sorted(setting_reads(ast.parse(code), {"payload_gpu", "x11_enabled", "sensors", "x11_user", "gpu"}))
+    assert reads == [(1, "payload_gpu"), (2, "x11_enabled"), (3, "sensors"), (4, "x11_user"), (5, "gpu")]
 
 
 def circles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -132,7 +132,7 @@ def imported_by(path: str, module: str, known: set[str]) -> set[str]:
 def test_imports_are_resolved_to_the_checkouts_modules():
     imports = imported_by(str(ROOT / "roles" / "udev" / "passthrough.py"), "roles.udev.passthrough",
                           set(product_modules()))
-    assert imports == {"robotfleet", "robotfleet.checks", "roles.payload.hooks", "roles.udev.rules"}
+    assert imports == {"robotfleet", "robotfleet.checkers", "roles.payload.hooks", "roles.udev.rules"}
 
 
 def test_no_import_circle():

@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 from roles.docker import settings
 from roles.docker.settings import DaemonSetting
 from tests.unit.harness import ROBOT, converged, find, fresh_host, plan, written_files

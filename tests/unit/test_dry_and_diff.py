@@ -76,7 +76,7 @@ def test_diff_is_printed_once_per_file_in_a_full_run(log):
     ("arch", ROBOT, fresh_host("ubuntu-24.04", "armhf"), "docker: architecture armhf is not supported"),
     ("user", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"), "docker_users: ghost does not exist on this host"),
     ("settings", {**ROBOT, "ssh_port": "x"}, fresh_host("debian-13"), "settings: ssh_port: expected a whole number"),
-    ("x11", {**ROBOT, "display": True, "x11_user": "alice"}, fresh_host("debian-13"), "x11_user: alice does not exist on this host"),
+    ("x11", {**ROBOT, "x11_enabled": True, "x11_user": "alice"}, fresh_host("debian-13"), "x11_user: alice does not exist on this host"),
     ("dir", ROBOT, "daemon.json is a directory", "/etc/docker/daemon.json exists but is not a regular file"),
 ])
 def test_dry_run_names_the_failure_while_planning_and_counts_it(log, name, data, snap, reason):

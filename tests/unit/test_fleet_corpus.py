@@ -225,9 +225,9 @@ CORPUS = [
         "/mnt, /root, /usr, /var/lib, /var/opt, /var/cache, /var/log, /run, /proc/driver); use a directory there "
         "(e.g. under /var/lib)"])
       for place in ("/data/robot", "/var/robot", "/", "/boot/p", "/proc/1/root/var/lib/p", "/dev/robot")],
-    ("lock file in /var/lock", host("payload_lock_file: /var/lock/robot"),
-     ["f.yaml: r1.payload_lock_file: '/var/lock/robot' is in the world-writable /run/lock; use a directory only root can write (e.g. under /var/lib)"]),
-    *[(f"private path under {place}", host(f"payload_dir: {place}/robot-payload", f"payload_lock_file: {place}/robot.lock",
+    ("lock file in /var/lock", host("payload_update_lock_path: /var/lock/robot"),
+     ["f.yaml: r1.payload_update_lock_path: '/var/lock/robot' is in the world-writable /run/lock; use a directory only root can write (e.g. under /var/lib)"]),
+    *[(f"private path under {place}", host(f"payload_dir: {place}/robot-payload", f"payload_update_lock_path: {place}/robot.lock",
                                            f"x11_cookie_dir: {place}/x11"), [])
       for place in ("/etc", "/opt", "/srv", "/mnt/ssd", "/root", "/usr/share", "/var/lib", "/var/opt", "/var/cache",
                     "/var/log", "/run", "/var/run", "/var//lib/.")],

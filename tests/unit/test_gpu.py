@@ -190,9 +190,9 @@ def test_daemon_options_merge_keeps_other_runtimes_and_explicit_entry():
 
 
 def test_payload_environment_adds_graphics_with_a_display():
-    assert gpu_plan.payload_environment({"display": False}) == {
+    assert gpu_plan.payload_environment({"x11_enabled": False}) == {
         "NVIDIA_VISIBLE_DEVICES": "all", "NVIDIA_DRIVER_CAPABILITIES": "compute,utility"}
-    assert gpu_plan.payload_environment({"display": True})["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
+    assert gpu_plan.payload_environment({"x11_enabled": True})["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
     assert gpu_plan.payload_environment({"gpu_visible_devices": "0", "gpu_driver_capabilities": "all"}) == {
         "NVIDIA_VISIBLE_DEVICES": "0", "NVIDIA_DRIVER_CAPABILITIES": "all"}
 

@@ -158,11 +158,11 @@ def test_deploy_py_names_its_roles_and_a_misspelt_name_is_one_line(tmp_path):
     from robotfleet import roster
 
     deploy = tmp_path / "deploy.py"
-    deploy.write_text('from robotfleet.play import provision\nfrom roles import named\n'
-                      'ROLES = named("users", "docker")\nprovision(ROLES)\n')
-    assert [role.name for role in roster.roles(deploy)] == ["users", "docker"]
+    deploy.write_text('from robotfleet.provision import provision\nfrom roles import named\n'
+                      'ROLES = named("time", "docker")\nprovision(ROLES)\n')
+    assert [role.name for role in roster.roles(deploy)] == ["time", "docker"]
     deploy = tmp_path / "misspelt.py"
-    deploy.write_text('from robotfleet.play import provision\nfrom roles import named\n'
+    deploy.write_text('from robotfleet.provision import provision\nfrom roles import named\n'
                       'ROLES = named("docker", "usres")\nprovision(ROLES)\n')
     with pytest.raises(LookupError) as error:
         roster.roles(deploy)

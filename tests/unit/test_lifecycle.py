@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from roles.payload import robot as payload
+from roles.payload import installed_files as payload
 from roles.payload.payloadctl import durable, lifecycle
 from roles.payload.payloadctl.lifecycle import ACTIVE, FAILED, PREPARED, SETTLED, STAGED, STATES, SWITCHING, Life
 from roles.payload.payloadctl.releases import Releases

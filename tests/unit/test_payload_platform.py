@@ -58,7 +58,7 @@ def test_robots_of_one_architecture_pin_a_vendors_per_architecture_tag_per_servi
     architecture share their pins through an anchor, merged per service
     over the group's services like any host's payload_services."""
     from robotfleet import roster
-    from robotfleet.fleet.check import parse
+    from robotfleet.fleet.validate import parse
 
     hosts = dict(parse(FLEET, "robots.yaml", roster.registry()).hosts("robots"))
     assert hosts["nuc1"]["payload_services"]["camera"]["platform"] == "linux/amd64"

@@ -8,7 +8,7 @@ import sys
 
 import yaml
 
-from roles.payload import robot as payload
+from roles.payload import installed_files as payload
 from roles.payload.payloadctl import durable, imageref, images, lifecycle, releases as store
 from roles.payload.payloadctl import lock as apply_lock
 

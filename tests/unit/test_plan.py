@@ -9,7 +9,7 @@ import pytest
 from robotfleet.host.fixtures import file_state
 from robotfleet.host.snapshot import FileState
 from roles.docker import plan as docker_plan
-from roles.payload import robot
+from roles.payload import installed_files
 from tests.unit.harness import LAPTOP, ROBOT, converged, everything_sent, find, fresh_host, merged, plan
 
 DOCKER_FPR = "9DC858229FC7DD38854AE2D88D81803C0EBFCD88"
@@ -285,7 +285,7 @@ def test_apt_waits_for_its_locks_with_the_configured_bound():
 
 def test_changed_unit_reloads_systemd_and_restarts_the_payload():
     snap = converged("robots", ROBOT, "debian-13")
-    snap.files[robot.unit_path(merged("robots", ROBOT))] = file_state("old unit")
+    snap.files[installed_files.unit_path(merged("robots", ROBOT))] = file_state("old unit")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     assert find(commands, "systemctl daemon-reload")
     assert "--restart" in find(commands, "payloadctl apply")[0]

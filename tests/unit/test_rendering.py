@@ -7,7 +7,7 @@ import yaml
 
 from roles import x11
 from roles.docker import plan as docker_plan
-from roles.payload import compose, robot
+from roles.payload import compose, installed_files
 from roles.udev import rules
 from tests.unit.harness import desired_compose, merged, release_spec
 
@@ -118,7 +118,7 @@ def test_spec_hash_changes_with_what_runs_only():
     one = spec()
     how = {"payload_health_timeout": 300, "payload_stable_seconds": 0, "payload_pull_timeout": 60,
            "payload_apply_lock_timeout": 10, "payload_keep_releases": 5, "payload_delivery": "push",
-           "payload_lock_file": "/run/elsewhere/update.lock"}
+           "payload_update_lock_path": "/run/elsewhere/update.lock"}
     for name, value in how.items():
         other = spec(**{name: value})
         assert other.to_dict() != one.to_dict(), name  # the setting does reach the spec ...
@@ -136,7 +136,7 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     """Its full text is in tests/unit/golden/ and checked by systemd-analyze
     (test_generated_files.py); here only what a golden copy cannot say."""
     data = merged("robots", {"payload_image": "r.lan/p:1.0"})
-    text = robot.unit_text(data, ["/dev/robot/lidar"])
+    text = installed_files.unit_text(data, ["/dev/robot/lidar"])
     lines = text.splitlines()
     # A Docker restart must not stop the payload: ordering and a weak dependency only.
     assert not [line for line in lines if line.startswith(("Requires=", "BindsTo=", "PartOf="))]
@@ -144,7 +144,7 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     # Boot goes through payloadctl, which undoes a release a power cut left unverified.
     assert any(line.startswith("ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start ") for line in lines)
     assert " -v" not in text
-    assert "ExecStartPre" not in robot.unit_text(data, [])
+    assert "ExecStartPre" not in installed_files.unit_text(data, [])
 
 
 def test_x11_cookie_script_uses_the_family_wild_method():

@@ -9,8 +9,8 @@ import json
 import pytest
 
 from robotfleet import roster
-from robotfleet.checks import Misread
-from robotfleet.fleet import check as fleet_check
+from robotfleet.checkers import Misread
+from robotfleet.fleet import validate as fleet_check
 from robotfleet.fleet import loader as fleetyaml
 from robotfleet.fleet import schema as fleet_schema
 from robotfleet.fleet.registry import Registry
@@ -115,10 +115,10 @@ def test_the_validation_corpus_gets_the_same_verdict(name, raw):
 
 def test_the_yaml_version_is_the_editors(tmp_path):
     """Unquoted on/yes are text to the editor and to the run: ROS_LOCALHOST_ONLY: on
-    is accepted by both, display: on refused by both."""
+    is accepted by both, x11_enabled: on refused by both."""
     base = "robots:\n  hosts:\n    r1:\n      payload_image: reg.example.com/p:1\n"
     for text, refused in ((base + "      payload_environment: {ROS_LOCALHOST_ONLY: on}\n", False),
-                          (base + "      display: on\n", True)):
+                          (base + "      x11_enabled: on\n", True)):
         raw = fleetyaml.load(text)
         assert bool(expressible_lines(raw)) is refused and schema_refuses(raw) is refused, text
 
@@ -139,9 +139,9 @@ def test_the_address_pattern_is_what_ipaddress_reads():
     import random
     import re
 
-    from robotfleet import values
+    from robotfleet import value_kinds
 
-    pattern = re.compile(f"(?:{values.IPV4}|{values.IPV6})", re.ASCII)
+    pattern = re.compile(f"(?:{value_kinds.IPV4}|{value_kinds.IPV6})", re.ASCII)
     rng = random.Random(7)
     for _ in range(20000):
         if rng.random() < 0.4:

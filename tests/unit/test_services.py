@@ -9,7 +9,7 @@ import yaml
 
 from robotfleet import roster
 from robotfleet.commands import status
-from roles.payload import compose, containers, presets, problems, project, services
+from roles.payload import compose, containers, presets, problems, services, takeover_plan
 from tests.fixtures import robot_fleet as host_with
 from tests.unit import harness as fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan
@@ -279,10 +279,10 @@ FOREIGN = "\n".join([
 
 def test_foreign_containers_are_found_by_repository_name_or_project():
     takeover = {"primary": f"{REG}/ros/payload", "container": [], "project": ["rosapp"]}
-    found = project.foreign(FOREIGN, "robot-payload", takeover)
+    found = takeover_plan.foreign(FOREIGN, "robot-payload", takeover)
     assert [(c["name"], c["restart"], c["running"], c["project"]) for c in found] == [
         ("ros_payload", "always", True, None), ("old_bridge", "always", False, "rosapp")]
-    assert project.takeover_line(found) == (
+    assert takeover_plan.takeover_line(found) == (
         "payload: taking over what runs the payload another way (stopped, restart policy no): "
         f"ros_payload ({REG}/ros/payload:1.0, running, restart always: it runs the payload's image); "
         f"old_bridge (compose project rosapp, {REG}/other/bridge:1, stopped, restart always: "
@@ -299,10 +299,10 @@ def test_another_projects_container_of_a_common_image_is_left_alone():
     ])
     data = merged("robots", {"payload_image": None, "payload_services": {
         "payload": {"image": f"{REG}/ros/payload:1.1"}, "broker": {"image": broker}}})
-    found = project.foreign(probe, "robot-payload", project.takeover_of(data))
+    found = takeover_plan.foreign(probe, "robot-payload", takeover_plan.takeover_of(data))
     assert [c["name"] for c in found] == ["ros_payload"]
     named = merged("robots", {**data, "payload_replaces": ["container:homeauto-broker-1"]})
-    assert [c["name"] for c in project.foreign(probe, "robot-payload", project.takeover_of(named))] == [
+    assert [c["name"] for c in takeover_plan.foreign(probe, "robot-payload", takeover_plan.takeover_of(named))] == [
         "homeauto-broker-1", "ros_payload"]
 
 
@@ -406,13 +406,13 @@ def test_another_compose_project_running_the_payload_image_is_left_alone():
         probe_line("b" * 64, "/ros-old-payload-1", f"{REG}/ros/payload:0.9", "ros-old", "true", "always"),
     ])
     takeover = {"primary": f"{REG}/ros/payload", "container": [], "project": []}
-    assert [c["name"] for c in project.foreign(probe, "robot-payload", takeover)] == ["ros_payload"]
-    recorded = project.takeover_rule.recorded_projects({"project": "ros-old", "taken_over": [{"project": "rosapp"}]},
+    assert [c["name"] for c in takeover_plan.foreign(probe, "robot-payload", takeover)] == ["ros_payload"]
+    recorded = takeover_plan.takeover_rule.recorded_projects({"project": "ros-old", "taken_over": [{"project": "rosapp"}]},
                                                        "robot-payload")
     assert recorded == ["ros-old", "rosapp"]
-    found = project.foreign(probe, "robot-payload", takeover, recorded)
+    found = takeover_plan.foreign(probe, "robot-payload", takeover, recorded)
     assert [(c["name"], c["why"]) for c in found] == [
         ("ros_payload", "it runs the payload's image"),
         ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload used before")]
-    named = project.foreign(probe, "robot-payload", {**takeover, "project": ["homeauto"]})
+    named = takeover_plan.foreign(probe, "robot-payload", {**takeover, "project": ["homeauto"]})
     assert [c["name"] for c in named] == ["homeauto-bridge-1", "ros_payload"]

@@ -16,7 +16,7 @@ from pyinfra.api import util as pyinfra_util
 from pyinfra.api.host import HostData
 from pyinfra.api.inventory import Inventory
 
-import robotfleet.play  # noqa: F401 (installs the speedups, as a deploy does)
+import robotfleet.provision  # noqa: F401 (installs the speedups, as a deploy does)
 from robotfleet import speedups
 
 operation = importlib.import_module("pyinfra.api.operation")  # pyinfra.api.operation is the decorator
@@ -25,7 +25,7 @@ pyinfra_order = speedups.original("order")
 
 def _nested(depth: int, call):
     # Several frames of this file between the caller and pyinfra, as deploy.py,
-    # robotfleet/play.py and a role's steps are.
+    # robotfleet/provision.py and a role's steps are.
     if depth:
         return _nested(depth - 1, call)
     return call()

@@ -98,8 +98,8 @@ def test_defaults_are_written_once_in_the_declarations():
          "robots.yaml: robot3.docker_usres: unknown setting (did you mean 'docker_users'?)"),
         (robot(ssh_port=70000), "robots.yaml: robot3.ssh_port: expected at most 65535, got 70000"),
         (robot(ssh_port="22"), "robots.yaml: robot3.ssh_port: expected a whole number, got '22'"),
-        (robot(display="yes"), "robots.yaml: robot3.display: expected true or false, got 'yes'"),
-        (robot(display=True), "robots.yaml: robot3.x11_user: required when display is true: the desktop user"),
+        (robot(x11_enabled="yes"), "robots.yaml: robot3.x11_enabled: expected true or false, got 'yes'"),
+        (robot(x11_enabled=True), "robots.yaml: robot3.x11_user: required when x11_enabled is true: the desktop user"),
         (robot(payload_volumes=["maps:/maps"]),
          "robots.yaml: robot3.payload_volumes[0]: expected 'host_path:container_path[:ro]' with absolute paths, got 'maps:/maps'"),
         (robot(payload_dir="/var/lib/../etc"), "robots.yaml: robot3.payload_dir: paths must not contain '..', got '/var/lib/../etc'"),
@@ -153,9 +153,9 @@ def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
                                   "/run/user/1000/payload", "/var/run/user/1000/x"])
 def test_world_writable_directories_are_refused_under_their_other_names(path):
     """/var/run is /run on Debian and Ubuntu: /var/run/lock is the 1777 /run/lock."""
-    lines = fleet_problems(robot(payload_lock_file=path))
+    lines = fleet_problems(robot(payload_update_lock_path=path))
     assert len(lines) == 1 and "is in the world-writable" in lines[0], lines
-    assert fleet_problems(robot(payload_lock_file="/var/run/robot-payload/update.lock")) == []
+    assert fleet_problems(robot(payload_update_lock_path="/var/run/robot-payload/update.lock")) == []
 
 
 def test_an_ipv6_scope_is_a_name_not_anything_after_the_percent_sign():

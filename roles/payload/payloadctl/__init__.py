@@ -22,5 +22,5 @@ run), status, cli.  The deploy side imports imageref, spec, lifecycle,
 results and takeover, so each rule is written once.
 
 Standard library only, Python >= 3.8 (Ubuntu 20.04).  Shipped to the robot
-as one zip application (roles/payload/robot.py builds it).
+as one zip application (roles/payload/installed_files.py builds it).
 """

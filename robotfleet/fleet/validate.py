@@ -19,7 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 from robotfleet.fleet import loader, sources, tree
 from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry, setting_of
@@ -95,9 +95,10 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
             lines.append(f"{at}: {location.strip('.')}: {message}")
 
     def checked(where: str, layer: tree.Layer) -> tuple[dict, set[str]]:
-        """A layer's settings under their own names (aliases and Ansible's
-        names resolved; the older ansible_ssh_* names kept apart until the
-        host's layers are merged), and the settings it has problems with."""
+        """A layer's settings under their own names (aliases, Ansible's names
+        and the settings' old names resolved, each old name with a note; the
+        older ansible_ssh_* names kept apart until the host's layers are
+        merged), and the settings it has problems with."""
         own = {}
         for key, value in layer.values.items():
             if key == PRIORITY_KEY:
@@ -112,10 +113,18 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
                 own[key] = value
         problems = registry.check_layer(own)
         report(layer, where, problems)
-        refused = {registry.aliases.get(setting_of(sub), setting_of(sub)) for sub, _ in problems}
+        refused = {registry.name_of(setting_of(sub)) for sub, _ in problems}
         named: dict = {}
         for key, value in own.items():
-            name = key if key in OLDER_NAMES else registry.aliases.get(key, key) if isinstance(key, str) else key
+            name = key if key in OLDER_NAMES else registry.name_of(key) if isinstance(key, str) else key
+            rename = registry.renamed.get(key) if isinstance(key, str) else None
+            if rename is not None and rename.new in own:
+                report(layer, where, [(key, f"{key} is the old name of {rename.new}, set here too; keep {rename.new}")])
+                refused.add(name)
+                continue
+            if rename is not None:
+                notes.append(f"{layer.at(key)}: note: {where}: {key} is now {name}; the old name still works (rename it)")
+                value = registry.renamed_value(rename, value)
             if name in named:
                 report(layer, where, [(c.key_name(key), f"sets {name} a second time in the same place; keep one")])
                 refused.add(name)

@@ -1,4 +1,4 @@
-"""roles/users: the declared users join the docker group.
+"""The docker role's users step: docker_users join the docker group.
 
 Membership is appended (other groups untouched) and users are never created:
 a declared user missing on the host fails that host.  The docker group is
@@ -14,8 +14,7 @@ from pyinfra.api import deploy
 
 from robotfleet.host import operations
 from robotfleet.host.snapshot import SnapshotQuery
-from robotfleet.role import Play, Role
-from roles.users import settings
+from robotfleet.role import Play
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -52,11 +51,3 @@ def docker_users(play: Play):
         groups_now=play.snapshot.users,
     )
 
-
-ROLE = Role(
-    name="users",
-    doc="The declared users join the docker group (never created).",
-    settings=settings.SETTINGS,
-    reads=declare_reads,
-    steps=docker_users,
-)

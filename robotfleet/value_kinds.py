@@ -1,13 +1,13 @@
 """Kinds of values several roles' settings share: addresses, URLs, paths on
 a host, paths on this machine, OpenPGP fingerprints.  Each is a checker
-(robotfleet/checks.py) carrying its JSON Schema."""
+(robotfleet/checkers.py) carrying its JSON Schema."""
 
 from __future__ import annotations
 
 import posixpath
 import re
 
-from robotfleet import checks as c
+from robotfleet import checkers as c
 
 # URLs reach root shells and apt sources on every robot: http(s) only, and no
 # character a shell or an apt line gives a meaning to (no $ ` ; | & quotes,
