@@ -28,11 +28,12 @@ def pytest_collection_modifyitems(items):
         if "/e2e/" in str(item.fspath):
             item.add_marker(pytest.mark.e2e)
     # The emulated arm64 robot is the slowest host to build: its module runs
-    # last, and its image is built (when its recipe changed) in the
-    # background while the other modules run (see `lab`).
+    # after the others, and its image is built (when its recipe changed) in
+    # the background while they run (see `lab`).  Its run expects robot1 as
+    # the session's first run left it.
     # The pull module turns the robots' sshd off while it runs (it turns it
-    # back on at its end): it runs after the others, before arm64's.
-    items.sort(key=lambda item: (item.fspath.basename == ARM64_MODULE, item.fspath.basename == PULL_MODULE))
+    # back on at its end) and leaves them on its own releases: it runs last.
+    items.sort(key=lambda item: (item.fspath.basename == PULL_MODULE, item.fspath.basename == ARM64_MODULE))
 
 
 class Background:

@@ -86,9 +86,10 @@ STATUS = ("-m", "robotfleet", "status", "inventories/lab.py", "--json")
 
 def refusal(proc: subprocess.CompletedProcess) -> str:
     (row,) = json.loads(proc.stdout)
-    assert row["reachable"] is False and proc.returncode == 3, proc.stderr
+    # A host key not trusted is a failure, not an unreachable host (README, "Exit codes").
+    assert row["reachable"] is False and proc.returncode == 1, proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.startswith("[robot1]")]
-    assert len(lines) == 1 and lines[0] == f"[robot1] unreachable: {row['error']} (1/1)", proc.stderr
+    assert len(lines) == 1 and lines[0] == f"[robot1] failed: {row['error']} (1/1)", proc.stderr
     return row["error"]
 
 

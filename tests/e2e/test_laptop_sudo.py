@@ -49,7 +49,10 @@ def laptop():
         environment["PIP_CERT"] = "/etc/host-ca.crt"
     environment.update({k: os.environ[k] for k in PASSED_ENV if k in os.environ})
     started = time.monotonic()
-    container = dc.containers.create(image, ["sleep", "1800"], name=f"{PREFIX}-laptop-sudo", hostname="devbox",
+    name = f"{PREFIX}-laptop-sudo"
+    for stale in dc.containers.list(all=True, filters={"name": f"^{name}$"}):  # an interrupted run's
+        stale.remove(force=True)
+    container = dc.containers.create(image, ["sleep", "1800"], name=name, hostname="devbox",
                                      volumes=volumes, environment=environment)
     try:
         container.start()
