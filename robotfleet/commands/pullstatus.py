@@ -4,7 +4,7 @@ to the fleet remote (refs/reports/<robot>), fetched in one go; no SSH.
 A row holds what the robot's own status read (the same columns as a push
 robot's), and two more: PULL (the outcome of its last check and the
 release) and REPORTED (when; "STALE" once older than pull_stale_after
-intervals with their jitter).  A robot with no report or a stale one counts
+heartbeats, each with an interval and its jitter).  A robot with no report or a stale one counts
 as unreachable; a refused, failed or rolled-back release as failed.
 """
 
@@ -68,14 +68,16 @@ def row(name: str, report: dict | None, data, now: datetime.datetime, url: str) 
     cells = {k: v for k, v in (report.get("status") or {}).items() if k not in ("host", "reachable", "error")}
     interval = data.get("pull_interval") or report.get("interval") or 900
     jitter = data.get("pull_jitter") if data.get("pull_jitter") is not None else report.get("jitter") or 0
-    stale_after = data.get("pull_stale_after") or report.get("stale_after") or 3
-    is_stale = reports.stale(report, now, interval, jitter, stale_after)
+    stale_after = data.get("pull_stale_after") or report.get("stale_after") or 2
+    heartbeat = data.get("pull_heartbeat") or report.get("heartbeat") or 0
+    limit = reports.stale_limit(interval, jitter, stale_after, heartbeat)
+    is_stale = reports.stale(report, now, interval, jitter, stale_after, heartbeat)
     cells.update(host=name, reachable="pull", pull=pull_cell(report), report=report,
                  reported=report["time"] + (" STALE" if is_stale else ""))
     if is_stale:
         cells["reachable"] = False
-        cells["error"] = (f"stale report: last at {report['time']}, more than {stale_after} intervals "
-                          f"({stale_after * (interval + jitter)} s) ago")
+        cells["error"] = (f"stale report: last at {report['time']}, more than {stale_after} heartbeats "
+                          f"({limit} s) ago")
     elif report["result"] in FAILED:
         cells["error"] = one_line(f"{report['result']}: {report.get('reason') or 'no reason given'}")
     return cells

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
+import stat
 from dataclasses import asdict, dataclass, field
 
 ETC = "/etc/robot-pull"
@@ -49,7 +51,8 @@ class Config:
     windows: tuple[str, ...] = ()
     min_free_mb: int = 512
     fetch_timeout: int = 300
-    stale_after: int = 3
+    stale_after: int = 2
+    heartbeat: int = 3600
     branch: str = BRANCH
     state_dir: str = STATE
     etc_dir: str = ETC
@@ -72,7 +75,7 @@ class Config:
 
 
 _INTS = {"interval": (1, 7 * 86400), "jitter": (0, 86400), "min_free_mb": (0, 1 << 20),
-         "fetch_timeout": (1, 86400), "stale_after": (1, 1000)}
+         "fetch_timeout": (1, 86400), "stale_after": (1, 1000), "heartbeat": (1, 7 * 86400)}
 
 
 def read_config(text: str, where: str = CONFIG) -> Config:
@@ -119,7 +122,8 @@ def config_of(data, robot: str, **extra) -> Config:
     """The agent's configuration for a host with ``data`` (the pull role's settings)."""
     return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
                   windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
-                  fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after, extra=extra)
+                  fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
+                  heartbeat=data.pull_heartbeat, extra=extra)
 
 
 def known_hosts_of(data) -> str:
@@ -168,6 +172,27 @@ AccuracySec=1s
 [Install]
 WantedBy=timers.target
 """
+
+
+def watched(paths) -> dict[str, str]:
+    """path -> what lstat (and readlink, for a link) says of it now, "-"
+    when it is not there: compared at each check, it says whether what the
+    roles' status reads may have changed (no process, no import)."""
+    found = {}
+    for path in sorted(set(paths)):
+        try:
+            info = os.lstat(path)
+        except OSError:
+            found[path] = "-"
+            continue
+        said = f"{info.st_ino}:{info.st_mtime_ns}:{info.st_size}"
+        if stat.S_ISLNK(info.st_mode):
+            try:
+                said += ":" + os.readlink(path)
+            except OSError:
+                pass
+        found[path] = said
+    return found
 
 
 def venv_id(wheels) -> str:

@@ -65,8 +65,11 @@ SETTINGS = (
             "Maintenance windows a release may start in (Mon-Fri 01:00-05:00, daily 22:00-02:00 UTC); none: any time."),
     Setting("pull_min_free_mb", 512, c.integer(0, 1 << 20),
             "Free MB the agent needs on its state directory's and Docker's file systems before it downloads."),
-    Setting("pull_stale_after", 3, c.integer(1, 1000),
-            "status marks a pull robot's report stale when it is older than this many intervals (plus the jitter)."),
+    Setting("pull_heartbeat", 3600, c.integer(10, 7 * 86400),
+            "Seconds after which a robot with nothing new reads its roles' status again and pushes its report anyway."),
+    Setting("pull_stale_after", 2, c.integer(1, 1000),
+            "status marks a pull robot's report stale when it is older than this many heartbeats (each plus an "
+            "interval and its jitter)."),
     Setting("pull_fetch_timeout", 300, c.integer(5, 86400),
             "Seconds one fetch from the fleet remote may take."),
     Setting("pull_trust_root", None, c.optional(v.local_path),

@@ -24,10 +24,16 @@ from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
 STUB = '''import json, os, sys
+from robotfleet.pull import layout
 args = sys.argv[1:]
-row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"), "health": "healthy"}
+if os.environ.get("STUB_LOG"):
+    with open(os.environ["STUB_LOG"], "a") as runs:
+        runs.write(args[0] + "\\n")
+watch = getattr(layout, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
+row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"),
+       "health": os.environ.get("STUB_HEALTH", "healthy")}
 if args[0] == "status":
-    print(json.dumps({"row": row, "missing": []}))
+    print(json.dumps({"row": row, "missing": [], "watch": watch}))
     raise SystemExit(0)
 deployment = args[args.index("--deployment") + 1]
 with open(os.path.join(args[args.index("--work") + 1], "pyinfra.log"), "w") as log:
@@ -35,7 +41,7 @@ with open(os.path.join(args[args.index("--work") + 1], "pyinfra.log"), "w") as l
 mode = os.environ.get("STUB", "applied")
 if mode == "applied":
     print(json.dumps({"exit": 0, "row": row, "results": [{"role": "payload", "ok": True, "why": "healthy",
-                      "outcome": "applied"}], "missing": [], "errors": []}))
+                      "outcome": "applied"}], "missing": [], "errors": [], "watch": watch}))
 else:
     print(json.dumps({"exit": 1, "row": row, "results": [{"role": "payload", "ok": False,
                       "why": "release x failed (unhealthy); rolled back to y", "outcome": mode}],
@@ -46,6 +52,7 @@ else:
 def code_archive(base: Path, version: int) -> tuple[Path, str, str]:
     """A release's code: (archive, tree hash, fleet file hash)."""
     files = {"robotfleet/__init__.py": "", "robotfleet/commands/__init__.py": "", "robotfleet/commands/converge.py": STUB,
+             "robotfleet/pull/__init__.py": "", "robotfleet/pull/layout.py": Path(layout.__file__).read_text(),
              "inventories/robots.yaml": f"# release {version}\n"}
     root = base / f"tree-{version}"
     for name, text in files.items():
