@@ -12,7 +12,7 @@ Robots not reached keep their release.  Robots with `pull: true` are not
 deployed over SSH: the rollout publishes a signed release with these waves
 and follows the robots' reports (robotfleet/commands/pullrollout.py).  The state lives in
 .rollout/<key>.json on this machine: rerunning the same command resumes with
-the robots not yet on the new release.  See README "Rollouts in waves".
+the robots not yet on the new release.  See docs/releases.md, "Rollouts in waves".
 """
 
 from __future__ import annotations

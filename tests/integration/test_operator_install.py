@@ -102,14 +102,19 @@ def test_editable_install_renders_from_any_directory(checkout, venv_python, tmp_
 
 
 def test_readme_installs_operators_before_the_lab_and_without_the_lab_setup():
+    """README's "Install for operators" (and docs/install.md, docs/laptops.md)
+    install with pip into .venv, never with the lab's .ci/setup; the lab is
+    a page of docs/, after the operator's path."""
     text = (ROOT / "README.md").read_text()
     titles = re.findall(r"^## (.+)$", text, re.M)
     assert titles.index("Install for operators") < titles.index("Describing a fleet")
-    assert titles.index("Install for operators") < titles.index("The simulated fleet")
+    assert "The simulated fleet" not in titles and "](docs/lab.md)" in text.split("\n## More\n", 1)[1]
     section = text.split("## Install for operators", 1)[1].split("\n## ", 1)[0]
-    commands = [line.strip() for line in section.splitlines() if line.startswith("    ")]
-    assert "python3 -m venv .venv" in commands
-    assert any(c.startswith(".venv/bin/pip install -e .") for c in commands)
-    assert not [c for c in commands if ".ci/setup" in c or c.startswith("sudo pip") or "pip install ." in c.replace("-e .", "")]
-    laptops = text.split("### Laptops", 1)[1].split("\n## ", 1)[0]
-    assert ".ci/setup" not in laptops
+    pages = [section, *((ROOT / "docs" / name).read_text() for name in ("install.md", "laptops.md"))]
+    for page in pages:
+        commands = [line.strip() for line in page.splitlines() if line.startswith("    ")]
+        assert not [c for c in commands if ".ci/setup" in c or c.startswith("sudo pip") or "pip install ." in c.replace("-e .", "")]
+    for page in pages[:2]:
+        commands = [line.strip() for line in page.splitlines() if line.startswith("    ")]
+        assert "python3 -m venv .venv" in commands
+        assert any(c.startswith(".venv/bin/pip install -e .") for c in commands)

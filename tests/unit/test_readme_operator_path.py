@@ -1,39 +1,32 @@
-"""README starts with the operator (issue 18, item 7): the two commands at
-the top, then the operator's path (install, describe a fleet, enroll host
-keys, first deploy, status, update, rollback) reaching the first deploy
-within about 250 lines; every command on that path is checked against the
-CLI it names (its subcommand, its options, the files it names) in
-tests/integration/test_readme_operator_path.py.  The e2e test
+"""README starts with the operator (issue 18, item 7; issue 28, item 12): the
+two commands at the top, then the operator's path in order (install,
+describe a fleet, enroll host keys, first deploy, status, updates and
+rollouts, push or pull, exit codes) reaching the first deploy command before
+line 150, then a list of the docs/ pages that hold the rest, in under 300
+lines.  Every command README and docs/ show is checked and run where it
+can be (tests/unit/test_doc_commands.py, tests/integration/test_doc_commands.py);
 tests/e2e/test_enroll.py runs the path itself on a simulated robot."""
 
 from __future__ import annotations
 
 import re
-import shlex
 
 from robotfleet import selection
+from tests import doccommands
 from tests.fixtures import ROOT
 
 README = (ROOT / "README.md").read_text()
+LINES = README.splitlines()
 PATH = ["Install for operators", "Describing a fleet", "Enrolling the robots' host keys", "First deploy", "Status",
-        "Updates and rollbacks", "Exit codes"]
+        "Updates and rollbacks", "Push or pull", "Exit codes"]
 
 
 def section(title: str) -> str:
     return README.split(f"\n## {title}\n", 1)[1].split("\n## ", 1)[0]
 
 
-def commands(text: str) -> list[list[str]]:
-    found = []
-    for line in text.splitlines():
-        line = line.strip().split("  #", 1)[0].strip()
-        if line.startswith(("robotfleet ", "pyinfra ", ".venv/bin/pyinfra ")):
-            found.append(shlex.split(line.replace("[", "").replace("]", "")))
-    return found
-
-
 def test_the_two_commands_stay_at_the_top():
-    assert README.splitlines()[2:6] == [
+    assert LINES[2:6] == [
         "```sh",
         ".ci/setup && .venv/bin/python -m tests.lab demo    # provision a simulated fleet: 3 robots and a laptop",
         ".ci/setup && .venv/bin/python -m pytest            # the tests: unit, then end to end on simulated hosts",
@@ -41,15 +34,40 @@ def test_the_two_commands_stay_at_the_top():
     ]
 
 
-def test_the_operator_path_comes_first_and_reaches_a_deploy_within_250_lines():
+def test_the_operator_path_comes_first_and_reaches_a_deploy_before_line_150():
     titles = re.findall(r"^## (.+)$", README, re.M)
-    assert titles[1:1 + len(PATH)] == PATH, titles
-    first_deploy = README.splitlines().index("## First deploy")
-    assert first_deploy < 250, first_deploy
-    assert len(README.splitlines()) < 400
-    for moved in ("docs/faults.md", "docs/benchmarks.md", "docs/lab.md", "docs/gpu.md", "docs/security.md",
-                  "docs/settings.md", "docs/releases.md", "docs/fleet-file.md"):
-        assert f"]({moved})" in README and (ROOT / moved).exists(), moved
+    assert titles == ["What it does", *PATH, "More"], titles
+    first_deploy = next(c.line for c in doccommands.commands(ROOT / "README.md", inline=False)
+                        if c.program == "pyinfra" and "deploy.py" in c.args)
+    assert LINES.index("## First deploy") < first_deploy < 150, first_deploy
+    assert len(LINES) < 300, len(LINES)
+
+
+def test_the_path_shows_each_step_s_commands():
+    shown: dict[str, list[str]] = {}
+    for command in doccommands.commands(ROOT / "README.md", inline=False):
+        title = next((line[3:] for line in reversed(LINES[:command.line]) if line.startswith("## ")), None)
+        shown.setdefault(title, []).append(command.text)
+    assert "robotfleet --version" in shown["Install for operators"]
+    assert any(c.startswith("robotfleet enroll inventories/robots.py") for c in shown["Enrolling the robots' host keys"])
+    assert "pyinfra inventories/robots.py deploy.py" in shown["First deploy"]
+    assert any(c.startswith("robotfleet status inventories/robots.py") for c in shown["Status"])
+    assert any("--metrics" in c for c in shown["Status"])
+    assert any(c.startswith("robotfleet rollout inventories/robots.py") for c in shown["Updates and rollbacks"])
+    assert "pyinfra inventories/robots.py rollback.py --limit robot2" in shown["Updates and rollbacks"]
+    assert "](docs/pull.md)" in section("Push or pull")
+
+
+def test_the_rest_is_in_docs_and_more_links_every_page():
+    more = section("More")
+    pages = sorted(path.relative_to(ROOT).as_posix() for path in (ROOT / "docs").glob("*.md"))
+    for page in pages:
+        assert f"]({page})" in more, f"README's More does not link {page}"
+    for link in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", README):
+        assert (ROOT / link).exists(), link
+    for moved in ("docs/fleet-file.md", "docs/settings.md", "docs/host-certificates.md", "docs/status.md",
+                  "docs/laptops.md", "docs/releases.md", "docs/pull.md", "docs/install.md"):
+        assert re.search(rf"^(?!- ).*\]\({re.escape(moved)}[)#]", README, re.M), f"the path itself links {moved}"
 
 
 def test_the_exit_codes_table_is_the_commands_codes():

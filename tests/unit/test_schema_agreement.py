@@ -1,7 +1,7 @@
 """One source for the schema (issue 18, item 4): the editors' JSON Schema and
 the run's checks are built from the same declarations, and give the same
 verdict on the validation corpus and the hostile-value corpus wherever JSON
-Schema can express the rule; README names the rules it cannot
+Schema can express the rule; docs/fleet-file.md names the rules it cannot
 (robotfleet/fleet/schema.py BEYOND_SCHEMA)."""
 
 import json
@@ -123,10 +123,13 @@ def test_the_yaml_version_is_the_editors(tmp_path):
         assert bool(expressible_lines(raw)) is refused and schema_refuses(raw) is refused, text
 
 
-def test_readme_names_the_rules_the_schema_cannot_express():
-    readme = (ROOT / "README.md").read_text()
+def test_the_fleet_file_doc_names_the_rules_the_schema_cannot_express():
+    """docs/fleet-file.md (README, "Describing a fleet", links it) lists them."""
+    page = (ROOT / "docs" / "fleet-file.md").read_text()
+    assert "](docs/fleet-file.md)" in (ROOT / "README.md").read_text()
+    listed = page.split("these only the run checks:", 1)[1].split("\n## ", 1)[0]
     for rule in fleet_schema.BEYOND_SCHEMA:
-        assert rule in readme, rule
+        assert rule in listed, rule
 
 
 def test_the_address_pattern_is_what_ipaddress_reads():

@@ -1,0 +1,292 @@
+"""The commands the documentation shows, found as a reader finds them.
+
+Every line of a code block (fenced, or indented four spaces after a blank
+line) of README.md, docs/*.md and roles/*/README.md that starts with
+``robotfleet``, ``pyinfra``, ``python3 -m`` or ``.venv/bin/...`` (after
+``VAR=value`` assignments, and in each part of an ``&&`` chain) is a
+command; so is an inline code span of prose that starts with ``robotfleet``,
+``pyinfra`` or ``python3 -m``.  A ``\\`` at the end of a line continues the
+command; ``#`` starts a comment.  A synopsis (``[--json | --format
+openmetrics]``) is read with its optional parts in, the first of each set of
+alternatives.
+
+A block whose commands are not run by the doc test says why, in an HTML
+comment right before it (blank lines between are allowed):
+
+    <!-- illustrative: it provisions the machine it runs on -->
+    <!-- illustrative (robotfleet publish, robotfleet halt): they write to the fleet remote -->
+
+the second form covering only the commands starting with those words.
+tests/unit/test_doc_commands.py checks what needs no process;
+tests/integration/test_doc_commands.py checks each command against the
+``--help`` of the program it names and runs the ones ``how_to_run`` knows
+how to run without robots.  Pure: nothing here starts a process.
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PROGRAMS = ("robotfleet", "pyinfra", "python3 -m ", "python -m ", ".venv/bin/")
+INLINE_PROGRAMS = ("robotfleet", "pyinfra", "python3 -m ")
+MARKER = re.compile(r"^<!--\s*illustrative(?:\s*\(([^)]*)\))?\s*:\s*(.*?)\s*-->\s*$")
+ASSIGNMENT = re.compile(r"^[A-Z_][A-Z0-9_]*=")
+
+
+def documents() -> list[Path]:
+    """The operator's documentation: README.md, docs/*.md, each role's README.md."""
+    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "roles").glob("*/README.md"))]
+
+
+@dataclass
+class Block:
+    doc: str
+    line: int  # 1-based line of its first line
+    lines: list[tuple[int, str]]  # (line number, text without the block's indentation)
+    marker: str | None = None  # the reason given in an illustrative marker
+    covers: tuple[str, ...] = ()  # the marker's command prefixes (none: every command)
+
+
+@dataclass
+class Command:
+    doc: str
+    line: int
+    text: str  # as shown, comment and continuation lines joined
+    argv: list[str]  # the program's words, synopsis read (see module doc)
+    env: dict[str, str] = field(default_factory=dict)
+    inline: bool = False
+    marker: str | None = None  # why it is not run, if it is not
+
+    @property
+    def where(self) -> str:
+        return f"{self.doc}:{self.line}: {self.text}"
+
+    @property
+    def program(self) -> str:
+        """robotfleet, pyinfra, python -m MODULE, or the program's own name."""
+        first = self.argv[0]
+        if first in ("python", "python3") and len(self.argv) > 2 and self.argv[1] == "-m":
+            return "robotfleet" if self.argv[2] == "robotfleet" else f"python -m {self.argv[2]}"
+        return first
+
+    @property
+    def args(self) -> list[str]:
+        """The words after the program."""
+        if self.argv[0] in ("python", "python3") and len(self.argv) > 2 and self.argv[1] == "-m":
+            return self.argv[3:]
+        return self.argv[1:]
+
+    @property
+    def subcommand(self) -> str | None:
+        """robotfleet's command (``keys init``: keys), or None."""
+        if self.program != "robotfleet" or not self.args or self.args[0].startswith("-"):
+            return None
+        return self.args[0]
+
+
+def blocks(doc: Path) -> list[Block]:
+    """The code blocks of a Markdown file, each with the marker before it."""
+    name = str(doc.relative_to(ROOT))
+    lines = doc.read_text().splitlines()
+    found: list[Block] = []
+    pending: tuple[str, tuple[str, ...]] | None = None
+    pending_line = 0
+    i = 0
+    blank_before = True
+    while i < len(lines):
+        text = lines[i]
+        stripped = text.strip()
+        marker = MARKER.match(stripped)
+        if marker:
+            covers = tuple(c.strip() for c in (marker.group(1) or "").split(",") if c.strip())
+            pending = (marker.group(2), covers)
+            pending_line = i + 1
+            i += 1
+            blank_before = True
+            continue
+        fence = re.match(r"^(\s*)(```+)", text)
+        if fence:
+            indent, ticks = len(fence.group(1)), fence.group(2)
+            body, start = [], i + 1
+            i += 1
+            while i < len(lines) and not lines[i].strip().startswith(ticks):
+                body.append((i + 1, lines[i][indent:] if lines[i][:indent].strip() == "" else lines[i].lstrip()))
+                i += 1
+            found.append(Block(name, start + 1, body, *(pending or (None, ()))))
+            pending = None
+            i += 1
+            blank_before = False
+            continue
+        if blank_before and text.startswith("    ") and stripped:
+            body, start = [], i
+            while i < len(lines) and (lines[i].startswith("    ") or not lines[i].strip()):
+                body.append((i + 1, lines[i][4:]))
+                i += 1
+            while body and not body[-1][1].strip():
+                body.pop()
+            found.append(Block(name, start + 1, body, *(pending or (None, ()))))
+            pending = None
+            blank_before = False
+            continue
+        if stripped:
+            if pending is not None:
+                found.append(Block(name, pending_line, [], *pending))  # a marker before no block: reported
+                pending = None
+            blank_before = False
+        else:
+            blank_before = True
+        i += 1
+    if pending is not None:
+        found.append(Block(name, pending_line, [], *pending))
+    return found
+
+
+def synopsis(text: str) -> str:
+    """A synopsis read as one command: ``[a]`` is a, ``[a | b]`` is a."""
+    group = re.compile(r"(?<!\S)\[([^\[\]]*)\](?!\S)")
+    while True:
+        replaced = group.sub(lambda m: m.group(1).split(" | ")[0].strip(), text)
+        if replaced == text:
+            return text
+        text = replaced
+
+
+def parse(doc: str, line: int, text: str, inline: bool = False, marker: str | None = None) -> list[Command]:
+    """The commands on one (joined) line of a block, or one inline span."""
+    found = []
+    for part in text.split("&&"):
+        try:
+            words = shlex.split(synopsis(part.strip()), comments=True)
+        except ValueError:
+            continue  # an unbalanced quote: not a command line
+        env = {}
+        while words and ASSIGNMENT.match(words[0]):
+            key, value = words.pop(0).split("=", 1)
+            env[key] = value
+        if not words:
+            continue
+        head = " ".join(words)
+        programs = INLINE_PROGRAMS if inline else PROGRAMS
+        if not any(head == p.strip() or head.startswith(p if p.endswith((" ", "/")) else p + " ") for p in programs):
+            continue
+        if words[0].startswith(".venv/bin/"):
+            words[0] = words[0].removeprefix(".venv/bin/")
+        shown = " ".join(part.strip().split("#", 1)[0].split()) if not inline else text
+        found.append(Command(doc, line, shown, words, env, inline, marker))
+    return found
+
+
+def block_commands(block: Block) -> list[Command]:
+    found = []
+    joined: list[tuple[int, str]] = []
+    for number, text in block.lines:
+        if joined and joined[-1][1].endswith("\\"):
+            joined[-1] = (joined[-1][0], joined[-1][1][:-1] + " " + text.strip())
+        else:
+            joined.append((number, text.strip()))
+    for number, text in joined:
+        for command in parse(block.doc, number, text):
+            if block.marker is not None and (not block.covers or any(
+                    command.text.startswith(c) or " ".join(command.argv).startswith(c) for c in block.covers)):
+                command.marker = block.marker
+            found.append(command)
+    return found
+
+
+def inline_commands(doc: Path) -> list[Command]:
+    """Commands in inline code spans of the prose (outside code blocks)."""
+    name = str(doc.relative_to(ROOT))
+    inside = {number for block in blocks(doc) for number, _ in block.lines}
+    text = doc.read_text().splitlines()
+    found = []
+    paragraph: list[tuple[int, str]] = []
+
+    def flush():
+        if not paragraph:
+            return
+        joined = " ".join(t for _, t in paragraph)
+        offsets, at = [], 0
+        for number, t in paragraph:
+            offsets.append((at, number))
+            at += len(t) + 1
+        for match in re.finditer(r"(?<!`)`([^`]+)`(?!`)", joined):
+            number = max(n for start, n in offsets if start <= match.start())
+            found.extend(parse(name, number, match.group(1).strip(), inline=True))
+        paragraph.clear()
+
+    fenced = False
+    for number, line in enumerate(text, 1):
+        if line.strip().startswith("```"):
+            fenced = not fenced
+            flush()
+            continue
+        if fenced or number in inside or not line.strip():
+            flush()
+            continue
+        paragraph.append((number, line.strip()))
+    flush()
+    return found
+
+
+def commands(doc: Path, inline: bool = True) -> list[Command]:
+    found = [c for block in blocks(doc) for c in block_commands(block)]
+    return found + (inline_commands(doc) if inline else [])
+
+
+def all_commands(inline: bool = True) -> list[Command]:
+    return [c for doc in documents() for c in commands(doc, inline)]
+
+
+def checkout_paths(command: Command) -> list[str]:
+    """The words of a command that name a file or directory of the checkout."""
+    paths = []
+    for word in command.args:
+        if word.startswith(("-", "/", "~", "$")) or "://" in word or "=" in word or word in ("...", "."):
+            continue
+        if word in ("deploy.py", "rollback.py", "config.py") or (
+                "/" in word and re.match(r"^(inventories|roles|docs|files|tests|group_data|robotfleet)/", word)):
+            paths.append(word.rstrip("/"))
+    return paths
+
+
+def options(command: Command) -> list[str]:
+    """The options a command passes (``--x=y``: ``--x``), without ``--`` and ``-``."""
+    return [word.split("=", 1)[0] for word in command.args if word.startswith("-") and word not in ("-", "--")]
+
+
+# How the doc test runs a command without robots (tests/integration/test_doc_commands.py):
+#   help        --help / --version: exit 0, text on stdout
+#   generate    robotfleet generate [--check] in a copy of the checkout: exit 0, nothing changed
+#   keys-init   robotfleet keys init into a new key directory: exit 0, both keys 0600
+#   unreachable against a fleet of the same host names on 127.0.0.1 ports nothing listens on:
+#               the exit code README's "Exit codes" gives an unreachable robot, one line each
+UNREACHABLE_CODE = {"pyinfra": 1, "robotfleet": 3}
+CONTACTING = ("status", "enroll", "rollout")
+
+
+def how_to_run(command: Command) -> tuple[str, int] | None:
+    """(how, the exit code the docs give) for a command the doc test runs, else None."""
+    if command.inline:
+        return None
+    args = command.args
+    if command.program == "robotfleet":
+        if args in (["--version"], ["--help"]) or args[-1:] == ["--help"]:
+            return "help", 0
+        if args in (["generate"], ["generate", "--check"]):
+            return "generate", 0
+        if args == ["keys", "init"]:
+            return "keys-init", 0
+        if command.subcommand in CONTACTING and len(args) > 1 and args[1].startswith("inventories/"):
+            if command.subcommand == "rollout" and not {"-y", "--yes", "--dry"} & set(args):
+                return "unreachable", 2  # it would ask, and there is no terminal to ask in
+            return "unreachable", UNREACHABLE_CODE["robotfleet"]
+    if command.program == "pyinfra" and len(args) > 1 and args[1] in ("deploy.py", "rollback.py") or (
+            command.program == "pyinfra" and args[:1] == ["-y"] and args[2:3] in (["deploy.py"], ["rollback.py"])):
+        inventory = args[0] if args[0] != "-y" else args[1]
+        if inventory == "inventories/robots.py":
+            return "unreachable", UNREACHABLE_CODE["pyinfra"]
+    return None
