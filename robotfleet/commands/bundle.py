@@ -71,11 +71,12 @@ def make(args) -> int:
         code = repository.blob(record.code)
         wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(data.pull_platform)]
         root = install.trust_root(robotfleet.CHECKOUT, data.pull_trust_root)
+        ca = install.remote_ca(robotfleet.CHECKOUT, data.pull_remote_ca)
     except (RepositoryError, install.InstallError) as error:
         raise selection.Refused(str(error)) from None
     admin = admin_of(args)
     try:
-        public = bundle.make(Path(args.out), args.robot, data, record, code, wheels, root)
+        public = bundle.make(Path(args.out), args.robot, data, record, code, wheels, root, ca)
     except bundle.BundleError as error:
         raise selection.Refused(str(error)) from None
     bundle.remember(ENROLLMENTS, args.robot, public, record.version)

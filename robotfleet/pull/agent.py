@@ -89,7 +89,8 @@ class Wake:
         self.config = config
         self.state_dir = Path(config.state_dir)
         self.clock = clock
-        self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout)
+        self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout,
+                             config.report_remote)
         self.state = load_state(self.state_dir)
         self.record = None
         self.status: dict = {}
@@ -323,7 +324,8 @@ def journal_line(report: dict, sent: str, seconds: float) -> str:
     if report.get("reason"):
         head += f": {report['reason']}"
     return (f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
-            f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B; {sent}")
+            f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
+            f"requests; {sent}")
 
 
 def main(argv=None) -> int:
@@ -352,7 +354,8 @@ def main(argv=None) -> int:
         save_state(state, wake.state)
         usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
         report["check"]["cpu"] = round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
-        report["check"].update({"sent": wake.remote.cost.sent, "received": wake.remote.cost.received})
+        report["check"].update({"sent": wake.remote.cost.sent, "received": wake.remote.cost.received,
+                                "requests": wake.remote.cost.requests})
         print(journal_line(report, sent, time.monotonic() - started), flush=True)
     return 0
 

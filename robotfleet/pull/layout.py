@@ -19,6 +19,7 @@ STATE = "/var/lib/robot-pull"
 CONFIG = f"{ETC}/agent.json"
 TRUST_ROOT = f"{ETC}/root.json"  # the first trust; the agent keeps its own copy from then on
 KNOWN_HOSTS = f"{ETC}/known_hosts"  # the git server's host keys
+REMOTE_CA = f"{ETC}/remote-ca.pem"  # the CA an https fleet remote's certificate is checked against (if any)
 KEY = f"{ETC}/id_ed25519"  # the robot's own key for the fleet remote, made on the robot
 ENROLL_KEY = f"{ETC}/enroll_ed25519"  # a first-boot bundle's single-use key
 VENV = f"{STATE}/venv"  # -> venvs/<id>: the python the agent and pyinfra run in
@@ -53,6 +54,7 @@ class Config:
     fetch_timeout: int = 300
     stale_after: int = 2
     heartbeat: int = 3600
+    report_remote: str | None = None  # where reports are pushed; None: remote
     branch: str = BRANCH
     state_dir: str = STATE
     etc_dir: str = ETC
@@ -105,6 +107,8 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     for name in ("branch", "state_dir", "etc_dir", "docker_dir"):
         if name in raw and (not isinstance(raw[name], str) or not raw[name]):
             raise ConfigError(f"{where}: {name}: expected a string")
+    if raw.get("report_remote") is not None and (not isinstance(raw["report_remote"], str) or not raw["report_remote"]):
+        raise ConfigError(f"{where}: report_remote: expected a git URL or null")
     for name in ("state_dir", "etc_dir", "docker_dir"):
         if name in raw and not raw[name].startswith("/"):
             raise ConfigError(f"{where}: {name}: expected an absolute path")
@@ -123,7 +127,7 @@ def config_of(data, robot: str, **extra) -> Config:
     return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
                   windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
                   fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
-                  heartbeat=data.pull_heartbeat, extra=extra)
+                  heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote, extra=extra)
 
 
 def known_hosts_of(data) -> str:

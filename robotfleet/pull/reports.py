@@ -13,7 +13,7 @@ fleet remote (a commit holding ``report.json``).
      "host_keys": ["ssh-ed25519 AAAA..."], "key": "ssh-ed25519 AAAA... (its key for the remote)",
      "interval": 900, "jitter": 300, "stale_after": 2, "heartbeat": 3600,
      "status_time": "...Z" (when the roles' status was read; null: never),
-     "check": {"sent": 1234, "received": 5678, "seconds": 0.4, "cpu": 0.3}}
+     "check": {"sent": 1234, "received": 5678, "requests": 2, "seconds": 0.4, "cpu": 0.3}}
 
 Robots write these, so the operator's side reads them as untrusted input:
 every field is checked, text is one line of printable characters, and a
@@ -171,7 +171,7 @@ def parse(data: bytes, ref_robot: str) -> dict:
         "stale_after": _int(raw.get("stale_after"), "stale_after"),
         "heartbeat": _int(raw.get("heartbeat"), "heartbeat"),
         "status_time": _text(raw.get("status_time"), "status_time", limit=40),
-        "check": {k: check[k] for k in ("sent", "received", "seconds", "cpu")
+        "check": {k: check[k] for k in ("sent", "received", "requests", "seconds", "cpu")
                   if isinstance(check.get(k), (int, float)) and not isinstance(check.get(k), bool)},
     }
 

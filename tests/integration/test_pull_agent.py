@@ -205,12 +205,32 @@ def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
     assert sent.startswith("report not sent")
 
 
+def test_a_release_fetched_over_https_is_verified_applied_and_reported_elsewhere(world, tmp_path):
+    """The releases from a static HTTPS mirror (its CA in remote-ca.pem),
+    the report pushed to the report remote: the same wake."""
+    from tests.integration import httpsgit
+
+    ca, cert, key = httpsgit.make_ca(tmp_path / "tls")
+    world.release(1)
+    subprocess.run(["git", "-C", str(world.bare), "update-server-info"], check=True)
+    server = httpsgit.Server(world.base, cert, key, smart=False)
+    try:
+        (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
+        world.config = layout.Config(**{**world.config.__dict__, "remote": server.url("fleet.git"),
+                                        "report_remote": f"file://{world.bare}"})
+        _, outcome, sent = world.wake()
+        assert (outcome.result, sent) == ("applied", "report sent") and server.requests > 0
+        assert world.pushed_report()["applied"]["version"] == 1
+    finally:
+        server.close()
+
+
 def test_the_journal_line_says_the_outcome_and_its_cost():
     report = {"result": "refused", "seen": {"version": 3}, "reason": "timestamp.json: expired",
-              "check": {"cpu": 0.42, "sent": 1200, "received": 3400}}
+              "check": {"cpu": 0.42, "sent": 1200, "received": 3400, "requests": 2}}
     assert agent.journal_line(report, "report sent", 1.25) == (
         "robot-pull: refused (release 3): timestamp.json: expired; 1.2 s, 0.42 s CPU, sent 1200 B, "
-        "received 3400 B; report sent")
+        "received 3400 B in 2 requests; report sent")
 
 
 def test_the_agent_configuration_is_checked_field_by_field(tmp_path):

@@ -16,7 +16,8 @@ from tests.unit.pullkit import NOW
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
 DATA = SimpleNamespace(pull_remote="ssh://gitolite3@git.lan/fleet", pull_interval=60, pull_jitter=5,
                        pull_windows=[], pull_min_free_mb=256, pull_fetch_timeout=120, pull_stale_after=3,
-                       pull_boot_delay=30, pull_remote_host_keys=[KEY], pull_platform="cp313-x86_64")
+                       pull_boot_delay=30, pull_remote_host_keys=[KEY], pull_platform="cp313-x86_64",
+                       pull_heartbeat=3600, pull_report_remote=None, pull_remote_ca=None)
 RECORD = SimpleNamespace(version=4, published="2026-11-25T10:00:00Z", tree_sha256="ab" * 32)
 
 
