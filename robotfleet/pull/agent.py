@@ -334,7 +334,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     started = time.monotonic()
     try:
-        config = layout.read_config(Path(args.config).read_text(), args.config)
+        config = layout.named(layout.read_config(Path(args.config).read_text(), args.config))
     except (OSError, layout.ConfigError) as error:
         print(f"robot-pull: cannot start: {error}", flush=True)
         return 1

@@ -55,6 +55,8 @@ class Config:
     stale_after: int = 2
     heartbeat: int = 3600
     report_remote: str | None = None  # where reports are pushed; None: remote
+    name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/naming.py)
+    name_prefix: str = ""
     branch: str = BRANCH
     state_dir: str = STATE
     etc_dir: str = ETC
@@ -64,8 +66,9 @@ class Config:
     def to_json(self) -> str:
         data = {"format": FORMAT, **asdict(self)}
         data["windows"] = list(self.windows)
-        if not data["extra"]:
-            del data["extra"]
+        for name, default in (("extra", {}), ("report_remote", None), ("name_rule", None), ("name_prefix", "")):
+            if data[name] == default:
+                del data[name]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
 
     def path(self, name: str) -> str:
@@ -92,10 +95,21 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     unknown = sorted(set(raw) - known)
     if unknown:
         raise ConfigError(f"{where}: unknown field {unknown[0]!r}")
-    for name in ("robot", "remote"):
-        if not isinstance(raw.get(name), str) or not raw[name]:
-            raise ConfigError(f"{where}: {name}: required, a string")
-    if not _ROBOT.match(raw["robot"]):
+    if not isinstance(raw.get("remote"), str) or not raw["remote"]:
+        raise ConfigError(f"{where}: remote: required, a string")
+    if raw.get("name_rule") is not None:
+        from robotfleet.pull import naming
+
+        if raw.get("robot"):
+            raise ConfigError(f"{where}: robot and name_rule: give one (a name, or the rule that derives it)")
+        try:
+            naming.check_rule(raw["name_rule"], raw.get("name_prefix", ""))
+        except (naming.NamingError, TypeError) as error:
+            raise ConfigError(f"{where}: {error}") from None
+        raw = {**raw, "robot": ""}
+    elif not isinstance(raw.get("robot"), str) or not raw["robot"]:
+        raise ConfigError(f"{where}: robot: required, a string (or name_rule)")
+    elif not _ROBOT.match(raw["robot"]):
         raise ConfigError(f"{where}: robot: {raw['robot']!r} is not a robot name")
     for name, (low, high) in _INTS.items():
         value = raw.get(name, Config.__dataclass_fields__[name].default)
@@ -120,6 +134,22 @@ def read_config(text: str, where: str = CONFIG) -> Config:
 # ssh looks the git server up under this name (HostKeyAlias), so its keys
 # are pinned to the fleet remote whatever address or port reaches it.
 HOST_KEY_ALIAS = "robotfleet-remote"
+
+
+def named(config: Config, read=None) -> Config:
+    """``config`` with its robot's name: given, or derived by its rule from
+    this robot's identity (``read(rule)``: the source's text)."""
+    if config.name_rule is None:
+        return config
+    from dataclasses import replace
+
+    from robotfleet.pull import naming
+
+    try:
+        raw = (read or naming.read)(config.name_rule)
+        return replace(config, robot=naming.derive(config.name_rule, config.name_prefix, raw))
+    except naming.NamingError as error:
+        raise ConfigError(f"robot name: {error}") from None
 
 
 def config_of(data, robot: str, **extra) -> Config:

@@ -90,3 +90,15 @@ def test_the_gitolite_repository_a_remote_names():
 
     assert repository_name("ssh://gitolite3@git.lan:2222/fleet") == "fleet"
     assert repository_name("git@git.lan:robots/fleet.git") == "robots/fleet"
+
+
+def test_a_bundle_for_an_image_shared_by_many_robots_carries_the_name_rule(tmp_path):
+    code = tmp_path / "code.tar.gz"
+    code.write_bytes(b"code")
+    bundle.make(tmp_path / "out", "robot9", DATA, RECORD, code, [("w.whl", code)], b"{}", None, ("machine-id", "arm-"))
+    with tarfile.open(tmp_path / "out" / "rootfs.tar") as tar:
+        text = tar.extractfile("etc/robot-pull/agent.json").read().decode()
+    config = layout.read_config(text)
+    assert (config.robot, config.name_rule, config.name_prefix, config.interval) == ("", "machine-id", "arm-", 60)
+    assert layout.named(config, read=lambda rule: "0123456789abcdef0123456789abcdef\n").robot == "arm-0123456789ab"
+    assert "arm-<machine-id> (with the settings of robot9)" in (tmp_path / "out" / "README").read_text()
