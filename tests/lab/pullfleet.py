@@ -242,16 +242,19 @@ class Attacks:
     def other_key(self) -> None:
         """The current release re-signed by a key the robots do not trust
         (a stolen copy re-signed; no publish needed to make one)."""
-        import datetime
+        from tuf.api.metadata import Metadata
 
         from robotfleet.pull.keys import KeyDir
-        from robotfleet.pull.repository import Expiry, Repository
 
         other = KeyDir(self.op.base / "other-keys")
         if not other.has("online"):
             other.path.mkdir(mode=0o700, exist_ok=True)
             other.generate("online")
         self.checkout()
-        now = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0)
-        Repository(self.work).renew(other.signer("online"), Expiry(), now)
+        path = self.work / "metadata" / "timestamp.json"
+        timestamp = Metadata.from_file(str(path))
+        timestamp.signed.version += 1
+        timestamp.signatures.clear()
+        timestamp.sign(other.signer("online"))
+        timestamp.to_file(str(path))
         self.push("signed by another key")
