@@ -92,13 +92,17 @@ class Metric:
 class StatusPart:
     """A role's columns in ``robotfleet status``: a read-only shell
     command run in the host's one status command, and its output as cells;
-    ``metrics(row)``, the gauges its cells make (robotfleet/commands/metrics.py)."""
+    ``metrics(row)``, the gauges its cells make (robotfleet/commands/metrics.py);
+    ``watch(data)``, paths on the host whose change (lstat, a link's target)
+    says its status may have changed: a pull robot's agent reads the status
+    again only then, after a release, or at its heartbeat."""
 
     command: Callable[[Any], str]
     cells: Callable[[str], dict]
     columns: tuple[tuple[str, str], ...] = ()
     order: int = 50  # where its columns stand in the table, lower first
     metrics: Callable[[dict], list[Metric]] | None = None
+    watch: Callable[[Any], list[str]] | None = None
 
 
 @dataclass(frozen=True)

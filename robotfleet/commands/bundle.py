@@ -1,6 +1,7 @@
 """Make a first-boot bundle for a pull robot: put it on its image, and it converges itself at first boot.
 
     robotfleet bundle ROBOT --out DIR [--fleet FILE] [--admin ssh://gitolite3@git.example.com --admin-key FILE]
+                     [--name-from machine-id|dmi-serial [--name-prefix robot-]]
 
 DIR/rootfs.tar (unpack it onto the image's root) holds the agent's
 configuration for ROBOT from the fleet file (default $ROBOT_FLEET, else
@@ -11,7 +12,12 @@ enrollment key; DIR/README says how.  With --admin (a gitolite you
 administer) the enrollment key is registered there as ROBOT's, allowed what
 the robot's own key will be; the hash of its public half is kept in
 .robotfleet/enrollments.json.  After the robot's first report,
-`robotfleet pull-enroll` swaps it for the robot's own key.  See docs/pull.md.
+`robotfleet pull-enroll` swaps it for the robot's own key.  With
+--name-from, the bundle is for an image shared by many robots: ROBOT is
+the fleet entry whose settings they start with, each robot names itself
+--name-prefix and its machine-id (or board serial: robotfleet/pull/naming.py),
+and the one enrollment key may report as any name the rule can make but a
+registered robot's.  See docs/pull.md.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from pathlib import Path
 import robotfleet
 from robotfleet import commands, roster
 from robotfleet import selection
-from robotfleet.pull import bundle, gitolite, install
+from robotfleet.pull import bundle, gitolite, install, naming
 from robotfleet.commands.converge import ConvergeError, host_data
 from robotfleet.pull.repository import Repository, RepositoryError
 
@@ -71,25 +77,35 @@ def make(args) -> int:
         code = repository.blob(record.code)
         wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(data.pull_platform)]
         root = install.trust_root(robotfleet.CHECKOUT, data.pull_trust_root)
+        ca = install.remote_ca(robotfleet.CHECKOUT, data.pull_remote_ca)
     except (RepositoryError, install.InstallError) as error:
         raise selection.Refused(str(error)) from None
     admin = admin_of(args)
+    rule = None
+    if args.name_from:
+        try:
+            user = gitolite.shared_user(args.name_from, args.name_prefix)
+        except naming.NamingError as error:
+            raise selection.Refused(f"--name-from/--name-prefix: {error}") from None
+        rule = (args.name_from, args.name_prefix)
     try:
-        public = bundle.make(Path(args.out), args.robot, data, record, code, wheels, root)
+        public = bundle.make(Path(args.out), args.robot, data, record, code, wheels, root, ca, rule)
     except bundle.BundleError as error:
         raise selection.Refused(str(error)) from None
-    bundle.remember(ENROLLMENTS, args.robot, public, record.version)
-    print(f"bundle: {args.out}/rootfs.tar for {args.robot}: release {record.version}, {len(wheels)} wheels "
+    owner = user if rule else args.robot
+    bundle.remember(ENROLLMENTS, owner, public, record.version)
+    print(f"bundle: {args.out}/rootfs.tar for {f'robots named {args.name_prefix}<{args.name_from}> like ' if rule else ''}"
+          f"{args.robot}: release {record.version}, {len(wheels)} wheels "
           f"({data.pull_platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {ENROLLMENTS}")
     if admin is not None:
         try:
-            gitolite.register(admin, repository_name(data.pull_remote), args.robot, public, enrollment=True)
+            gitolite.register(admin, repository_name(data.pull_remote), owner, public, enrollment=not rule)
         except gitolite.GitoliteError as error:
             print(f"bundle: {error}; the enrollment key is not registered yet", file=sys.stderr)
             return selection.FAILED
-        print(f"bundle: the enrollment key is registered with {args.admin} as {args.robot}'s")
+        print(f"bundle: the enrollment key is registered with {args.admin} as {owner}'s")
     else:
-        print(f"bundle: register the enrollment key with your git server as {args.robot}'s: {public}")
+        print(f"bundle: register the enrollment key with your git server as {owner}'s: {public}")
     return selection.OK
 
 
@@ -99,6 +115,9 @@ def main(argv=None) -> int:
     parser.add_argument("--out", required=True, metavar="DIR", help="a new directory for the bundle")
     parser.add_argument("--fleet", metavar="FILE", help="the fleet file (default $ROBOT_FLEET, else inventories/robots.yaml)")
     add_admin(parser)
+    parser.add_argument("--name-from", choices=sorted(naming.RULES),
+                        help="an image shared by many robots: each names itself from its machine-id or board serial")
+    parser.add_argument("--name-prefix", default="robot-", help="what the derived names start with (default robot-)")
     args = parser.parse_args(argv)
     try:
         return make(args)

@@ -11,7 +11,9 @@ payload's apply lock, with a token its own apply joins), runs the same
 deploy the operator runs, ``pyinfra -y --json inventories/pull.py
 deploy.py`` on @local, with the release's image pins, then reads the
 roles' status on the robot.  Both print one JSON line: {"exit", "row",
-"results", "missing", "errors", "log"} (``status``: "row" and "missing").
+"results", "missing", "errors", "log", "watch"} (``status``: "row",
+"missing" and "watch": the roles' watched paths as they were just before
+the status was read, robotfleet/pull/layout.py ``watched``).
 The agent depends only on that line and these arguments, which every
 release keeps.
 """
@@ -55,6 +57,13 @@ def host_data(robot: str, fleet_path: str | None, registry) -> HostData:
             if name == robot:
                 return HostData({**roster.group_data("all"), **roster.group_data(group), **data})
     raise ConvergeError(f"{fleet_path}: no host named {robot!r}")
+
+
+def watch(roles, data) -> dict[str, str]:
+    """What the roles' watched paths look like now (taken before their
+    status is read: a change during the read shows at the next check)."""
+    return layout.watched(path for role in roles if role.status and role.status.watch and role.runs_on(data)
+                          for path in role.status.watch(data))
 
 
 def status_row(robot: str, roles, data) -> dict:
@@ -131,16 +140,18 @@ def run(args) -> dict:
     except subprocess.TimeoutExpired as error:
         code, stdout, stderr = 124, error.stdout or "", (error.stderr or "") + "\npyinfra: timed out"
     log.write_text(stderr + "\n" + stdout)
+    watched = watch(roles, data)
     row = status_row(args.robot, roles, data)
-    return {"exit": code, "row": row, "results": results(roles, data, row, args.deployment),
+    return {"exit": code, "row": row, "watch": watched, "results": results(roles, data, row, args.deployment),
             "missing": missing(roles, data, row), "errors": errors_of(stderr) if code else [], "log": str(log)}
 
 
 def status(args) -> dict:
     roles = roster.roles()
     data = host_data(args.robot, args.fleet, roster.registry())
+    watched = watch(roles, data)
     row = status_row(args.robot, roles, data)
-    return {"row": row, "missing": missing(roles, data, row)}
+    return {"row": row, "missing": missing(roles, data, row), "watch": watched}
 
 
 def parser() -> argparse.ArgumentParser:

@@ -13,10 +13,18 @@ Per host (labels ``host``, ``kind``: robots or laptops, ``via``):
 - each role's own, from its status part's ``metrics(row)`` (the payload's
   release, health and last change).
 
+A pull robot's row (``via="report"``) comes from its last report
+(robotfleet/commands/pullstatus.py): ``up`` is 1 while the report is fresh,
+its roles' gauges are its report's cells (none once stale: a stale report
+does not vouch for the robot now), and it adds ``pull_report_stale``,
+``pull_report_timestamp_seconds``, ``pull_seen_version``,
+``pull_applied_version``, ``pull_result_info`` (labels ``result``,
+``refusal``) and ``pull_failed``.
+
 And ``robotfleet_status_timestamp_seconds``: when status ran (for alerts on
 a stale file).
 
-Robots that report by themselves (pull mode) join through ``REPORTERS``:
+Other sources of rows (robots reporting elsewhere) join through ``REPORTERS``:
 each is called with the inventory path and the host names status reached,
 and returns rows shaped like status's own (``host``, ``reachable``, the
 roles' cells, ``drift``), with ``via`` saying where the row came from
@@ -41,7 +49,8 @@ _NAME = re.compile(r"[a-zA-Z_][a-zA-Z0-9_]*")
 
 
 def engine_metrics(row: dict) -> list[Metric]:
-    found = [Metric("up", "1 the host answered its status command, 0 it could not be reached.",
+    found = [Metric("up", "1 the host answered its status command (a pull robot: its report is fresh), 0 it could "
+                          "not be reached (its report is stale or missing).",
                     1 if row.get("reachable") else 0)]
     if row.get("reachable") and "drift" in row:
         found.append(Metric("drift", "1 the host is not in its declared state (where status can tell), 0 it is.",
@@ -55,6 +64,10 @@ def samples(rows: list[dict], roles) -> list[tuple[Metric, dict]]:
     for row in rows:
         labels = {"host": row["host"], "kind": row.get("kind") or "", "via": row.get("via") or "ssh"}
         metrics = engine_metrics(row)
+        if "pull" in row:
+            from robotfleet.commands import pullstatus
+
+            metrics += pullstatus.metrics(row)
         if row.get("reachable"):
             for role in roles:
                 if role.status and role.status.metrics:

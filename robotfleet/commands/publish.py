@@ -62,6 +62,8 @@ def parse_args(argv: list[str]):
     parser.add_argument("--platform", action="append", default=[], metavar="cpXY-MACHINE",
                         help="also carry wheels for this platform (beyond the pull hosts' pull_platform)")
     parser.add_argument("--index-url", help="the Python package index pip downloads wheels from (default PyPI)")
+    parser.add_argument("--refresh-wheels", action="store_true",
+                        help="ask the index for newer wheels even when the cache holds every requirement")
     pulling.add_channel(parser)
     pulling.add_expiry(parser)
     return parser.parse_args(argv)
@@ -73,7 +75,7 @@ def options_of(args) -> publishing.Options:
     return publishing.Options(
         revision=args.commit, fleet=args.fleet, plan=plan, expiry=pulling.expiry_of(args),
         wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),
-        index_url=args.index_url, allow_dirty=args.allow_dirty, platforms=tuple(args.platform))
+        index_url=args.index_url, refresh_wheels=args.refresh_wheels, allow_dirty=args.allow_dirty, platforms=tuple(args.platform))
 
 
 def renew(args) -> int:

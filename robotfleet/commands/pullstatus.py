@@ -4,8 +4,10 @@ to the fleet remote (refs/reports/<robot>), fetched in one go; no SSH.
 A row holds what the robot's own status read (the same columns as a push
 robot's), and two more: PULL (the outcome of its last check and the
 release) and REPORTED (when; "STALE" once older than pull_stale_after
-intervals with their jitter).  A robot with no report or a stale one counts
-as unreachable; a refused, failed or rolled-back release as failed.
+heartbeats, each with an interval and its jitter).  A robot with no report or a stale one counts
+as unreachable; a refused, failed or rolled-back release as failed.  Rows
+say ``via: "report"``; ``metrics(row)`` are their gauges for
+``status --metrics`` beside the roles' (read from the report's cells).
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from pathlib import Path
 import robotfleet
 from robotfleet.checkers import one_line
 from robotfleet.pull import channel, reports
+from robotfleet.pull.record import parse_time
+from robotfleet.role import Metric
 
 COLUMNS = [("pull", "PULL"), ("reported", "REPORTED")]
 FAILED = ("refused", "failed", "rolled-back")
@@ -60,25 +64,51 @@ def pull_cell(report: dict) -> str:
 def row(name: str, report: dict | None, data, now: datetime.datetime, url: str) -> dict:
     """A status row for pull robot ``name`` (pure)."""
     if report is None:
-        return {"host": name, "reachable": False, "pull": "no report", "reported": None,
-                "error": f"no report in refs/reports/{name} of {url} (the agent has not reported yet, "
+        return {"host": name, "reachable": False, "via": "report", "pull": "no report", "reported": None,
+                "stale": True, "error": f"no report in refs/reports/{name} of {url} (the agent has not reported yet, "
                          "or cannot reach the remote)"}
     if "error" in report:
-        return {"host": name, "reachable": False, "pull": "unreadable", "reported": None, "error": report["error"]}
+        return {"host": name, "reachable": False, "via": "report", "pull": "unreadable", "reported": None,
+                "stale": True, "error": report["error"]}
     cells = {k: v for k, v in (report.get("status") or {}).items() if k not in ("host", "reachable", "error")}
     interval = data.get("pull_interval") or report.get("interval") or 900
     jitter = data.get("pull_jitter") if data.get("pull_jitter") is not None else report.get("jitter") or 0
-    stale_after = data.get("pull_stale_after") or report.get("stale_after") or 3
-    is_stale = reports.stale(report, now, interval, jitter, stale_after)
-    cells.update(host=name, reachable="pull", pull=pull_cell(report), report=report,
-                 reported=report["time"] + (" STALE" if is_stale else ""))
+    stale_after = data.get("pull_stale_after") or report.get("stale_after") or 2
+    heartbeat = data.get("pull_heartbeat") or report.get("heartbeat") or 0
+    limit = reports.stale_limit(interval, jitter, stale_after, heartbeat)
+    is_stale = reports.stale(report, now, interval, jitter, stale_after, heartbeat)
+    cells.update(host=name, reachable="pull", via="report", pull=pull_cell(report), report=report,
+                 reported=report["time"] + (" STALE" if is_stale else ""), stale=is_stale)
     if is_stale:
         cells["reachable"] = False
-        cells["error"] = (f"stale report: last at {report['time']}, more than {stale_after} intervals "
-                          f"({stale_after * (interval + jitter)} s) ago")
+        cells["error"] = (f"stale report: last at {report['time']}, more than {stale_after} heartbeats "
+                          f"({limit} s) ago")
     elif report["result"] in FAILED:
         cells["error"] = one_line(f"{report['result']}: {report.get('reason') or 'no reason given'}")
     return cells
+
+
+def metrics(row: dict) -> list[Metric]:
+    """A pull robot's own gauges, from its report (pure): whether the report
+    is stale (or missing), when it was made, the versions seen and applied,
+    and the outcome of the last check."""
+    found = [Metric("pull_report_stale", "1 the pull robot's report is stale, missing or unreadable, 0 it is fresh.",
+                    1 if row.get("stale", True) else 0)]
+    report = row.get("report")
+    if not report:
+        return found
+    found.append(Metric("pull_report_timestamp_seconds", "When the pull robot made its last report (Unix time).",
+                        parse_time(report["time"], "time").timestamp()))
+    for key in ("seen", "applied"):
+        version = (report.get(key) or {}).get("version")
+        if version is not None:
+            found.append(Metric(f"pull_{key}_version", f"The newest release version the pull robot has {key}.",
+                                version))
+    found.append(Metric("pull_result_info", "The outcome of the pull robot's last check, and why it refused.", 1,
+                        (("result", report["result"]), ("refusal", report.get("refusal") or ""))))
+    found.append(Metric("pull_failed", "1 the pull robot refused, failed or rolled back its release, 0 not.",
+                        1 if report["result"] in FAILED else 0))
+    return found
 
 
 def now() -> datetime.datetime:

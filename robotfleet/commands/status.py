@@ -122,6 +122,10 @@ def collect(inventory_path: str, limits: list[str], roles=None, answered=None, r
     hosts = selection.select(inventory, inventory_path, limits)
     pulled = [h for h in hosts if h.data.get("pull")]
     found = _pull_rows(pulled, remote)
+    for host in pulled:
+        if found[host.name]["reachable"]:
+            found[host.name]["drift"] = drift(roles, found[host.name], host.data)
+        _about(host, found[host.name])
     state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
     state.limit_hosts = [h for h in hosts if h not in pulled]
     with ctx_state.use(state):
@@ -141,7 +145,8 @@ def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
     try:
         return pullstatus.rows([(h.name, h.data) for h in hosts], pullstatus.remote_of(remote))
     except pullstatus.ReportsUnavailable as error:
-        return {h.name: {"host": h.name, "reachable": False, "pull": "no report", "error": str(error)} for h in hosts}
+        return {h.name: {"host": h.name, "reachable": False, "via": "report", "pull": "no report", "stale": True,
+                         "error": str(error)} for h in hosts}
 
 
 def _value(job, host, roles) -> dict:

@@ -5,7 +5,10 @@
 1. One wake at a time (a lock in the state directory); enough free disk first.
 2. Fetch the releases branch (robotfleet/pull/transport.py) and verify it
    with TUF (robotfleet/pull/trust.py): a refusal (unsigned, unknown key,
-   tampered, a rollback, expired) leaves everything as it was.
+   tampered, a rollback, expired) leaves everything as it was.  A fetch that
+   reads exactly what the last verification accepted, before anything it
+   verified expired, is that verification again (robotfleet/pull/trusted.py):
+   no TUF, not even its import, unless the release is to be applied.
 3. Decide (robotfleet/pull/decide.py): nothing new, wait for a wave or a
    maintenance window, a halt, or apply.
 4. To apply: download and verify the code archive and the wheels, unpack
@@ -14,7 +17,11 @@
    roles' locks, in the release's code and venv) and read its outcome.
    Only an applied release is recorded, and becomes the code the agent
    runs from the next wake on.
-5. Report (robotfleet/pull/reports.py) to refs/reports/<robot>, when it
+5. The roles' status: from the converge run when there was one; else read
+   again (a process: python, the roles, payloadctl, docker) only when a
+   path the roles watch changed, the code the agent runs changed, or the
+   heartbeat is due; else what the last read found.
+6. Report (robotfleet/pull/reports.py) to refs/reports/<robot>, when it
    says something new or its heartbeat is due; one line in the journal.
 """
 
@@ -35,10 +42,13 @@ import time
 from pathlib import Path
 
 import robotfleet
+from robotfleet.pull import converging, layout, reports, trusted, waves
 from robotfleet.pull import decide as deciding
-from robotfleet.pull import layout, prepare, reports, trust, waves, wheels
 from robotfleet.pull import record as records
 from robotfleet.pull.transport import Remote, TransportError
+
+# trust (python-tuf), prepare and wheels are imported where a check needs
+# them: a check that finds nothing new never does.
 
 STATE_FILE = "agent-state.json"
 
@@ -79,10 +89,12 @@ class Wake:
         self.config = config
         self.state_dir = Path(config.state_dir)
         self.clock = clock
-        self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout)
+        self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout,
+                             config.report_remote)
         self.state = load_state(self.state_dir)
         self.record = None
         self.status: dict = {}
+        self.status_time: str | None = None
         self.reference_time = clock()
 
     # -- the steps ---------------------------------------------------------
@@ -95,16 +107,32 @@ class Wake:
                     raise Outcome("failed", f"only {free} MB free on {path}'s file system "
                                             f"(pull_min_free_mb: {self.config.min_free_mb}); nothing was downloaded")
 
-    def verify(self):
+    def fetch(self) -> None:
         try:
             self.remote.fetch_releases(self.config.branch)
         except TransportError as error:
             raise Outcome("failed", f"fetch: {error}") from None
+
+    def source(self) -> str:
+        return str(self.remote.repo)
+
+    def recall(self) -> bool:
+        """The record, when the fetch found what the last verification accepted."""
+        found = trusted.recall(self.state_dir, self.source(), self.clock(), self.applied_version())
+        if found is None:
+            return False
+        self.record, self.reference_time = found
+        return True
+
+    def verify(self):
+        """The record, verified in full; the trust client (for downloads)."""
+        from robotfleet.pull import trust
+
         if not (self.state_dir / "tuf" / "root.json").exists():
             root = Path(self.config.etc("root.json")).read_bytes()
             first = self.config.extra.get("trusted_time")
             trust.initialize(self.state_dir, root, records.parse_time(first, "trusted_time") if first else None)
-        client = trust.Client(self.state_dir, str(self.remote.repo), clock=self.clock)
+        client = trust.Client(self.state_dir, self.source(), clock=self.clock)
         try:
             self.record = client.refresh(applied=self.applied_version())
         except trust.Refused as refused:
@@ -135,6 +163,8 @@ class Wake:
         return decision
 
     def apply(self, client, wave: int | None) -> Outcome:
+        from robotfleet.pull import prepare, trust, wheels
+
         record, robot = self.record, self.config.robot
         platform = wheels.platform_key()
         wanted = [record.code, *record.wheels_for(platform)]
@@ -154,12 +184,13 @@ class Wake:
         release_file = work.with_suffix(".release.json")
         work.mkdir(parents=True, exist_ok=True, mode=0o700)
         release_file.write_bytes(record.to_bytes())
-        said = run_converge(venv / "bin" / "python", code, ["run", "--robot", robot, "--fleet",
+        said = converging.run(venv / "bin" / "python", code, ["run", "--robot", robot, "--fleet",
                             str(code / record.fleet["path"]), "--record", str(release_file), "--deployment",
                             deployment, "--work", str(work)])
         release_file.unlink(missing_ok=True)
-        self.status = said.get("row") or {}
-        outcome = classify(said, record.version, wave)
+        if said.get("row"):
+            self.read_status(said, code)
+        outcome = Outcome(*converging.classify(said, record.version), wave=wave)
         if outcome.result == "applied":
             for link, target in ((self.state_dir / "code" / "current", code), (self.state_dir / "venv", venv)):
                 previous = Path(os.path.realpath(link)) if link.exists() else None
@@ -186,17 +217,44 @@ class Wake:
         outcome = None
         try:
             self.check_disk()
-            client = self.verify()
+            self.fetch()
+            client = None if self.recall() else self.verify()
             decision = self.decide()
             if decision.result == deciding.APPLY:
-                outcome = self.apply(client, decision.wave)
+                outcome = self.apply(client or self.verify(), decision.wave)
             else:
                 outcome = Outcome(decision.result, decision.reason, wave=decision.wave)
         except Outcome as ended:
             outcome = ended
-        if not self.status:
-            self.status = current_status(self.state_dir, self.config.robot)
+        if self.status_time is None:
+            self.roles_status()
         return self.report(outcome), outcome
+
+    # -- the roles' status ----------------------------------------------------
+
+    def read_status(self, said: dict, code: Path) -> None:
+        """Keep what a converge run (or status) just read, and what the
+        roles' watched paths looked like before it read."""
+        self.status, self.status_time = said.get("row") or {}, record_time(self.clock())
+        self.state["status"] = {"row": self.status, "at": time.time(), "time": self.status_time,
+                                "watch": said.get("watch") or {}, "code": os.path.realpath(code)}
+
+    def roles_status(self) -> None:
+        """The roles' status as the code the agent runs reads it: read again
+        only when something it reads may have changed, or at the heartbeat."""
+        code = self.state_dir / "code" / "current"
+        last = self.state.get("status") or {}
+        watch = last.get("watch") if isinstance(last.get("watch"), dict) else None
+        age = time.time() - float(last.get("at") or 0)
+        if (last.get("row") is not None and watch is not None and 0 <= age < self.config.heartbeat
+                and last.get("code") == os.path.realpath(code) and layout.watched(watch) == watch):
+            self.status, self.status_time = last["row"], last.get("time")
+            return
+        if not code.exists():
+            self.status, self.status_time = {}, None
+            return
+        fleet = (self.state.get("fleet") or {}).get("path")
+        self.read_status(converging.status(self.state_dir, self.config.robot, fleet), code)
 
     def report(self, outcome: Outcome) -> dict:
         record = self.record
@@ -208,16 +266,15 @@ class Wake:
             seen=reports.version_of(record) if record else self.state.get("seen"),
             applied=self.state.get("applied"), attempted=self.state.get("attempted"), wave=outcome.wave,
             status=self.status, host_keys=host_keys(), key=public_key(self.config.etc("id_ed25519.pub")),
-            config=self.config, check=cost, agent=agent_version())
+            config=self.config, check=cost, agent=agent_version(), status_time=self.status_time)
 
     def send(self, report: dict) -> str:
         """Push the report when it says something new or the heartbeat is
         due; what happened, for the journal line."""
         substance = hashlib.sha256(json.dumps(reports.substance(report), sort_keys=True).encode()).hexdigest()
         last = self.state.get("reported") or {}
-        heartbeat = self.config.stale_after * (self.config.interval + self.config.jitter) / 2
         age = time.time() - last.get("at", 0)
-        if last.get("substance") == substance and 0 <= age < heartbeat:
+        if last.get("substance") == substance and 0 <= age < self.config.heartbeat:
             said = "report unchanged"
         else:
             try:
@@ -229,51 +286,6 @@ class Wake:
         if self.remote.retire_enrollment_key():  # the server took this robot's own key in this wake
             said += "; the enrollment key is retired (the remote knows this robot's own key)"
         return said
-
-
-def classify(said: dict, version: int, wave: int | None) -> Outcome:
-    """The converge run's outcome: applied, rolled-back or failed."""
-    if said.get("error"):
-        return Outcome("failed", f"release {version}: {said['error']}", wave=wave)
-    results = said.get("results") or []
-    rolled = [r for r in results if r.get("outcome") == "rolled-back"]
-    if rolled:
-        return Outcome("rolled-back", f"release {version}: {rolled[0].get('why')}", wave=wave)
-    bad = [r for r in results if not r.get("ok")]
-    if said.get("exit") or bad:
-        why = bad[0]["why"] if bad else "; ".join(said.get("errors") or []) or f"pyinfra exited {said.get('exit')}"
-        return Outcome("failed", f"release {version}: {why}", wave=wave)
-    missing = said.get("missing") or []
-    if missing:
-        return Outcome("failed", f"release {version}: {missing[0]['role']}: {missing[0]['why']}", wave=wave)
-    return Outcome("applied", f"release {version} applied", wave=wave)
-
-
-def run_converge(python: Path, code: Path, arguments: list[str]) -> dict:
-    """Run the release's converge module in its own tree; its JSON line."""
-    import subprocess
-
-    env = dict(os.environ, PYTHONPATH=str(code), PYTHONDONTWRITEBYTECODE="1")
-    try:
-        done = subprocess.run([str(python), "-m", "robotfleet.commands.converge", *arguments], cwd=code, env=env,
-                              capture_output=True, text=True, timeout=5 * 3600)
-    except (OSError, subprocess.TimeoutExpired) as error:
-        return {"error": f"converge: {error}"}
-    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
-    if not lines:
-        tail = [line for line in done.stderr.splitlines() if line.strip()]
-        return {"error": f"converge said nothing ({tail[-1] if tail else f'exit {done.returncode}'})"}
-    return json.loads(lines[-1])
-
-
-def current_status(state: Path, robot: str) -> dict:
-    """The roles' status as the code the agent runs now reads it (no new release)."""
-    code = state / "code" / "current"
-    if not code.exists():
-        return {}
-    fleet = (load_state(state).get("fleet") or {}).get("path")
-    return run_converge(state / "venv" / "bin" / "python", code,
-                        ["status", "--robot", robot] + (["--fleet", str(code / fleet)] if fleet else [])).get("row") or {}
 
 
 def record_time(moment: datetime.datetime) -> str:
@@ -312,7 +324,8 @@ def journal_line(report: dict, sent: str, seconds: float) -> str:
     if report.get("reason"):
         head += f": {report['reason']}"
     return (f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
-            f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B; {sent}")
+            f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
+            f"requests; {sent}")
 
 
 def main(argv=None) -> int:
@@ -321,7 +334,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     started = time.monotonic()
     try:
-        config = layout.read_config(Path(args.config).read_text(), args.config)
+        config = layout.named(layout.read_config(Path(args.config).read_text(), args.config))
     except (OSError, layout.ConfigError) as error:
         print(f"robot-pull: cannot start: {error}", flush=True)
         return 1
@@ -341,7 +354,8 @@ def main(argv=None) -> int:
         save_state(state, wake.state)
         usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
         report["check"]["cpu"] = round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
-        report["check"].update({"sent": wake.remote.cost.sent, "received": wake.remote.cost.received})
+        report["check"].update({"sent": wake.remote.cost.sent, "received": wake.remote.cost.received,
+                                "requests": wake.remote.cost.requests})
         print(journal_line(report, sent, time.monotonic() - started), flush=True)
     return 0
 

@@ -6,6 +6,7 @@ current release and reports, with no inbound connection at any point.
         etc/robot-pull/agent.json       the robot's name, the fleet remote, the interval... (0600)
         etc/robot-pull/root.json        the release repository's root: its first trust (0600)
         etc/robot-pull/known_hosts      the git server's host keys
+        etc/robot-pull/remote-ca.pem    the CA of an https fleet remote (pull_remote_ca), if set
         etc/robot-pull/enroll_ed25519   a single-use enrollment key (0600): the git server accepts
                                         it as this robot until its own key is registered
         var/lib/robot-pull/first-boot/  the current release's code archive and wheels
@@ -24,6 +25,7 @@ for the robot's own on the git server.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -133,9 +135,12 @@ def _link(path: Path, target: str) -> None:
     os.symlink(target, path)
 
 
-def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str, Path]], root: bytes) -> str:
+def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str, Path]], root: bytes,
+         ca: bytes | None = None, rule: tuple[str, str] | None = None) -> str:
     """Write the bundle for ``robot`` (host ``data``) into ``out`` (which must
-    not exist); the enrollment key's public half."""
+    not exist), with the https remote's CA ``ca`` if any; ``rule`` (name rule,
+    prefix): for an image shared by robots that name themselves, ``robot``'s
+    settings.  The enrollment key's public half."""
     if out.exists():
         raise BundleError(f"{out}: already exists; give a new directory")
     if not wheels:
@@ -147,9 +152,13 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     (rootfs / layout.STATE.lstrip("/")).mkdir(parents=True, mode=0o700)
     etc.mkdir(parents=True, mode=0o700)
     config = layout.config_of(data, robot, trusted_time=record.published)
+    if rule is not None:
+        config = dataclasses.replace(config, robot="", name_rule=rule[0], name_prefix=rule[1])
     _write(etc / "agent.json", config.to_json(), 0o600)
     _write(etc / "root.json", root, 0o600)
     _write(etc / "known_hosts", layout.known_hosts_of(data))
+    if ca is not None:
+        _write(etc / "remote-ca.pem", ca)
     done = subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", f"robot-pull-enroll@{robot}",
                            "-f", str(etc / "enroll_ed25519")], capture_output=True, text=True)
     if done.returncode:
@@ -171,7 +180,7 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     public = (etc / "enroll_ed25519.pub").read_text().strip()
     _archive(rootfs, out / "rootfs.tar")
     shutil.rmtree(rootfs)
-    _write(out / "README", README.format(robot=robot))
+    _write(out / "README", README.format(robot=robot if rule is None else f"{rule[1]}<{rule[0]}> (with the settings of {robot})"))
     return public
 
 

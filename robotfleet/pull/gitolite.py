@@ -15,6 +15,13 @@ A robot's gitolite user is its name: ``keydir/<robot>.pub`` is its own key,
 bundle (gitolite reads ``name@anything.pub`` as user ``name``); the operator
 removes the second once the robot's own key is registered.
 
+A bundle for an image shared by many robots (``robotfleet bundle
+--name-from``) carries one enrollment key for all of them, gitolite user
+``enroll+<rule>+<prefix>``: it may read, and write the report ref of any
+name the rule can derive with that prefix (``refs/reports/robot-[0-9a-f]{12}$``)
+except those of robots already registered (a deny rule each, first), so a
+leaked image cannot speak for an enrolled robot.
+
 The operator changes the server by pushing its admin repository
 (``gitolite-admin``), so ``register`` works against any gitolite the operator
 administers, over SSH with strict host keys.
@@ -33,6 +40,7 @@ from pathlib import Path
 RELEASES_BRANCH = "robotfleet/releases"
 REPORTS = "refs/reports"
 ENROLL_SUFFIX = "@enroll"
+SHARED = "enroll+"  # a shared image's enrollment user: enroll+<rule>+<prefix>
 ROBOTS_GROUP = "@robots"
 # gitolite user names (and so robot names in pull mode): what gitolite's own
 # USERNAME_PATT accepts, without '@' (ours marks a second key of a user).
@@ -59,9 +67,25 @@ def check_key(text: str, what: str) -> str:
     return " ".join(lines[0].split()[:2])
 
 
+def shared_user(rule: str, prefix: str) -> str:
+    from robotfleet.pull import naming
+
+    naming.check_rule(rule, prefix)
+    return f"{SHARED}{rule}+{prefix}"
+
+
+def shared_refex(user: str) -> str:
+    """The robot names a shared enrollment user may report as (a regex)."""
+    from robotfleet.pull import naming
+
+    _, rule, prefix = user.split("+", 2)
+    return re.escape(prefix) + naming.PATTERNS[rule]
+
+
 def conf(repo: str, robots, admins=("admin",)) -> str:
     """gitolite.conf: the admin repository, and the fleet repository every
-    robot reads and writes only its own report ref of."""
+    robot reads and writes only its own report ref of (a shared image's
+    enrollment user: any report ref its rule can name but a registered robot's)."""
     admin = " ".join(admins)
     lines = [
         "# Written by robotfleet (robotfleet/pull/gitolite.py); edits here are replaced.",
@@ -69,13 +93,19 @@ def conf(repo: str, robots, admins=("admin",)) -> str:
         f"    RW+ = {admin}",
         "",
     ]
-    robots = sorted({check_robot(r) for r in robots})
-    if robots:
-        lines += [f"{ROBOTS_GROUP} = {' '.join(robots)}", ""]
+    users = sorted({check_robot(r) for r in robots})
+    shared = [u for u in users if u.startswith(SHARED)]
+    robots = [u for u in users if not u.startswith(SHARED)]
+    if users:
+        lines += [f"{ROBOTS_GROUP} = {' '.join(users)}", ""]
     lines += [f"repo {repo}", f"    RW+ = {admin}"]
-    if robots:
+    if users:
         lines.append(f"    R = {ROBOTS_GROUP}")
         lines += [f"    RW+ {REPORTS}/{re.escape(robot)}$ = {robot}" for robot in robots]
+    for user in shared:
+        refex = re.compile(shared_refex(user))
+        lines += [f"    - {REPORTS}/{re.escape(robot)}$ = {user}" for robot in robots if refex.fullmatch(robot)]
+        lines.append(f"    RW+ {REPORTS}/{shared_refex(user)}$ = {user}")
     return "\n".join(lines) + "\n"
 
 

@@ -108,6 +108,21 @@ def releases_clone(checkout: Path) -> Path:
     return Path(os.environ.get(channel.CLONE_ENV) or checkout / ".robotfleet" / "releases")
 
 
+def remote_ca(checkout: Path, setting: str | None) -> bytes | None:
+    """The PEM CA file pull_remote_ca names (None: no setting); InstallError
+    (one line) when it cannot be read or holds no certificate."""
+    if not setting:
+        return None
+    path = checkout / setting
+    try:
+        data = path.read_bytes()
+    except OSError:
+        raise InstallError(f"pull_remote_ca: {path} cannot be read") from None
+    if b"-----BEGIN CERTIFICATE-----" not in data:
+        raise InstallError(f"pull_remote_ca: {path} holds no PEM certificate (-----BEGIN CERTIFICATE-----)")
+    return data
+
+
 def trust_root(checkout: Path, setting: str | None) -> bytes:
     """The root.json a push deploy gives a robot: the file the setting names,
     else the published repository's; it must be a TUF root signed by its own

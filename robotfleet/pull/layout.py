@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
+import stat
 from dataclasses import asdict, dataclass, field
 
 ETC = "/etc/robot-pull"
@@ -17,6 +19,7 @@ STATE = "/var/lib/robot-pull"
 CONFIG = f"{ETC}/agent.json"
 TRUST_ROOT = f"{ETC}/root.json"  # the first trust; the agent keeps its own copy from then on
 KNOWN_HOSTS = f"{ETC}/known_hosts"  # the git server's host keys
+REMOTE_CA = f"{ETC}/remote-ca.pem"  # the CA an https fleet remote's certificate is checked against (if any)
 KEY = f"{ETC}/id_ed25519"  # the robot's own key for the fleet remote, made on the robot
 ENROLL_KEY = f"{ETC}/enroll_ed25519"  # a first-boot bundle's single-use key
 VENV = f"{STATE}/venv"  # -> venvs/<id>: the python the agent and pyinfra run in
@@ -49,7 +52,11 @@ class Config:
     windows: tuple[str, ...] = ()
     min_free_mb: int = 512
     fetch_timeout: int = 300
-    stale_after: int = 3
+    stale_after: int = 2
+    heartbeat: int = 3600
+    report_remote: str | None = None  # where reports are pushed; None: remote
+    name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/naming.py)
+    name_prefix: str = ""
     branch: str = BRANCH
     state_dir: str = STATE
     etc_dir: str = ETC
@@ -59,8 +66,9 @@ class Config:
     def to_json(self) -> str:
         data = {"format": FORMAT, **asdict(self)}
         data["windows"] = list(self.windows)
-        if not data["extra"]:
-            del data["extra"]
+        for name, default in (("extra", {}), ("report_remote", None), ("name_rule", None), ("name_prefix", "")):
+            if data[name] == default:
+                del data[name]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
 
     def path(self, name: str) -> str:
@@ -72,7 +80,7 @@ class Config:
 
 
 _INTS = {"interval": (1, 7 * 86400), "jitter": (0, 86400), "min_free_mb": (0, 1 << 20),
-         "fetch_timeout": (1, 86400), "stale_after": (1, 1000)}
+         "fetch_timeout": (1, 86400), "stale_after": (1, 1000), "heartbeat": (1, 7 * 86400)}
 
 
 def read_config(text: str, where: str = CONFIG) -> Config:
@@ -87,10 +95,21 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     unknown = sorted(set(raw) - known)
     if unknown:
         raise ConfigError(f"{where}: unknown field {unknown[0]!r}")
-    for name in ("robot", "remote"):
-        if not isinstance(raw.get(name), str) or not raw[name]:
-            raise ConfigError(f"{where}: {name}: required, a string")
-    if not _ROBOT.match(raw["robot"]):
+    if not isinstance(raw.get("remote"), str) or not raw["remote"]:
+        raise ConfigError(f"{where}: remote: required, a string")
+    if raw.get("name_rule") is not None:
+        from robotfleet.pull import naming
+
+        if raw.get("robot"):
+            raise ConfigError(f"{where}: robot and name_rule: give one (a name, or the rule that derives it)")
+        try:
+            naming.check_rule(raw["name_rule"], raw.get("name_prefix", ""))
+        except (naming.NamingError, TypeError) as error:
+            raise ConfigError(f"{where}: {error}") from None
+        raw = {**raw, "robot": ""}
+    elif not isinstance(raw.get("robot"), str) or not raw["robot"]:
+        raise ConfigError(f"{where}: robot: required, a string (or name_rule)")
+    elif not _ROBOT.match(raw["robot"]):
         raise ConfigError(f"{where}: robot: {raw['robot']!r} is not a robot name")
     for name, (low, high) in _INTS.items():
         value = raw.get(name, Config.__dataclass_fields__[name].default)
@@ -102,6 +121,8 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     for name in ("branch", "state_dir", "etc_dir", "docker_dir"):
         if name in raw and (not isinstance(raw[name], str) or not raw[name]):
             raise ConfigError(f"{where}: {name}: expected a string")
+    if raw.get("report_remote") is not None and (not isinstance(raw["report_remote"], str) or not raw["report_remote"]):
+        raise ConfigError(f"{where}: report_remote: expected a git URL or null")
     for name in ("state_dir", "etc_dir", "docker_dir"):
         if name in raw and not raw[name].startswith("/"):
             raise ConfigError(f"{where}: {name}: expected an absolute path")
@@ -115,11 +136,28 @@ def read_config(text: str, where: str = CONFIG) -> Config:
 HOST_KEY_ALIAS = "robotfleet-remote"
 
 
+def named(config: Config, read=None) -> Config:
+    """``config`` with its robot's name: given, or derived by its rule from
+    this robot's identity (``read(rule)``: the source's text)."""
+    if config.name_rule is None:
+        return config
+    from dataclasses import replace
+
+    from robotfleet.pull import naming
+
+    try:
+        raw = (read or naming.read)(config.name_rule)
+        return replace(config, robot=naming.derive(config.name_rule, config.name_prefix, raw))
+    except naming.NamingError as error:
+        raise ConfigError(f"robot name: {error}") from None
+
+
 def config_of(data, robot: str, **extra) -> Config:
     """The agent's configuration for a host with ``data`` (the pull role's settings)."""
     return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
                   windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
-                  fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after, extra=extra)
+                  fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
+                  heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote, extra=extra)
 
 
 def known_hosts_of(data) -> str:
@@ -168,6 +206,27 @@ AccuracySec=1s
 [Install]
 WantedBy=timers.target
 """
+
+
+def watched(paths) -> dict[str, str]:
+    """path -> what lstat (and readlink, for a link) says of it now, "-"
+    when it is not there: compared at each check, it says whether what the
+    roles' status reads may have changed (no process, no import)."""
+    found = {}
+    for path in sorted(set(paths)):
+        try:
+            info = os.lstat(path)
+        except OSError:
+            found[path] = "-"
+            continue
+        said = f"{info.st_ino}:{info.st_mtime_ns}:{info.st_size}"
+        if stat.S_ISLNK(info.st_mode):
+            try:
+                said += ":" + os.readlink(path)
+            except OSError:
+                pass
+        found[path] = said
+    return found
 
 
 def venv_id(wheels) -> str:

@@ -37,6 +37,7 @@ class Options:
     expiry: Expiry = Expiry()
     wheel_cache: Path | None = None  # None: no wheels (tests; robots then need an index)
     index_url: str | None = None
+    refresh_wheels: bool = False  # ask the index even when the cache holds every requirement
     allow_dirty: bool = False
     platforms: tuple[str, ...] = field(default_factory=tuple)  # beyond the pull hosts' own
 
@@ -47,10 +48,11 @@ class HostData(dict):
     __getattr__ = dict.get
 
 
-def pull_hosts(fleet: Fleet) -> list[tuple[str, HostData]]:
-    """The fleet's hosts with ``pull: true``, robots then laptops, in file order."""
-    return [(name, HostData(data)) for group in ("robots", "laptops") for name, data in fleet.hosts(group)
-            if data.get("pull")]
+def pull_hosts(fleet: Fleet, registry) -> list[tuple[str, HostData]]:
+    """The fleet's hosts with ``pull: true``, robots then laptops, in file
+    order, with every setting's default for their group under what the file says."""
+    return [(name, HostData({**registry.defaults(group), **data})) for group in ("robots", "laptops")
+            for name, data in fleet.hosts(group) if data.get("pull")]
 
 
 def resolve_pins(roles, hosts: list[tuple[str, HostData]]) -> dict[str, dict[str, str]]:
@@ -119,7 +121,7 @@ def build(checkout, options: Options, roles, registry, version: int, now: dateti
             raise PublishError(f"{changed[0]}: changed and not committed ({len(changed)} file(s)); robots get the "
                                "commit, not the working tree: commit first, or --allow-dirty")
     fleet, fleet_sha = read_fleet(checkout, commit, options.fleet, registry)
-    hosts = pull_hosts(fleet)
+    hosts = pull_hosts(fleet, registry)
     if not hosts:
         raise PublishError(f"{options.fleet}: no host has pull: true; nothing to publish for")
     images = resolve_pins(roles, hosts)
@@ -132,13 +134,12 @@ def build(checkout, options: Options, roles, registry, version: int, now: dateti
     files = {records.code_path(commit): archive}
     wheel_targets: dict[str, list[str]] = {}
     if options.wheel_cache is not None:
-        platforms = sorted({data.get("pull_platform") or wheels.platform_key() for _, data in hosts}
-                           | set(options.platforms))
+        platforms = sorted({data.pull_platform for _, data in hosts} | set(options.platforms))
         try:
             requirements = wheels.requirements_of(tree.blob(checkout, commit, "pyproject.toml"))
             for platform in platforms:
                 found = wheels.build_wheelhouse(requirements, platform, options.wheel_cache,
-                                                index_url=options.index_url)
+                                                index_url=options.index_url, refresh=options.refresh_wheels)
                 wheel_targets[platform] = [f"wheels/{p.name}" for p in found]
                 files.update({f"wheels/{p.name}": p for p in found})
         except (wheels.WheelError, tree.TreeError) as error:

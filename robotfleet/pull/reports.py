@@ -11,8 +11,9 @@ fleet remote (a commit holding ``report.json``).
      "attempted": {"version": 8, "result": "rolled-back", "tries": 1} | null,
      "wave": 0, "status": {... the roles' status cells, as robotfleet status --json has them ...},
      "host_keys": ["ssh-ed25519 AAAA..."], "key": "ssh-ed25519 AAAA... (its key for the remote)",
-     "interval": 900, "jitter": 300, "stale_after": 3,
-     "check": {"sent": 1234, "received": 5678, "seconds": 0.4, "cpu": 0.3}}
+     "interval": 900, "jitter": 300, "stale_after": 2, "heartbeat": 3600,
+     "status_time": "...Z" (when the roles' status was read; null: never),
+     "check": {"sent": 1234, "received": 5678, "requests": 2, "seconds": 0.4, "cpu": 0.3}}
 
 Robots write these, so the operator's side reads them as untrusted input:
 every field is checked, text is one line of printable characters, and a
@@ -51,7 +52,7 @@ def build(robot: str, now: datetime.datetime, result: str, *, reason: str | None
           refusal: str | None = None, seen: dict | None = None, applied: dict | None = None,
           attempted: dict | None = None, wave: int | None = None, status: dict | None = None,
           host_keys=(), key: str | None = None, config=None, check: dict | None = None,
-          agent: str | None = None) -> dict:
+          agent: str | None = None, status_time: str | None = None) -> dict:
     if result not in RESULTS:
         raise ValueError(f"unknown result {result!r}")
     return {
@@ -59,7 +60,8 @@ def build(robot: str, now: datetime.datetime, result: str, *, reason: str | None
         "result": result, "reason": one_line(reason) if reason else None, "refusal": refusal,
         "attempted": attempted, "wave": wave, "status": status or {}, "host_keys": list(host_keys), "key": key,
         "interval": getattr(config, "interval", None), "jitter": getattr(config, "jitter", None),
-        "stale_after": getattr(config, "stale_after", None), "check": check or {},
+        "stale_after": getattr(config, "stale_after", None), "heartbeat": getattr(config, "heartbeat", None),
+        "status_time": status_time, "check": check or {},
     }
 
 
@@ -68,9 +70,10 @@ def to_bytes(report: dict) -> bytes:
 
 
 def substance(report: dict) -> dict:
-    """What a report says, without when it was made or what the check cost:
-    a robot pushes again when this changes (or its heartbeat is due)."""
-    return {k: v for k, v in report.items() if k not in ("time", "check")}
+    """What a report says, without when it was made, when the status was
+    read or what the check cost: a robot pushes again when this changes (or
+    its heartbeat is due)."""
+    return {k: v for k, v in report.items() if k not in ("time", "check", "status_time")}
 
 
 # -- reading (the operator's side) --------------------------------------------
@@ -166,16 +169,25 @@ def parse(data: bytes, ref_robot: str) -> dict:
         "host_keys": keys, "key": key,
         "interval": _int(raw.get("interval"), "interval"), "jitter": _int(raw.get("jitter"), "jitter"),
         "stale_after": _int(raw.get("stale_after"), "stale_after"),
-        "check": {k: check[k] for k in ("sent", "received", "seconds", "cpu")
+        "heartbeat": _int(raw.get("heartbeat"), "heartbeat"),
+        "status_time": _text(raw.get("status_time"), "status_time", limit=40),
+        "check": {k: check[k] for k in ("sent", "received", "requests", "seconds", "cpu")
                   if isinstance(check.get(k), (int, float)) and not isinstance(check.get(k), bool)},
     }
 
 
-def stale(report: dict, now: datetime.datetime, interval: int, jitter: int, stale_after: int) -> bool:
-    """Older than ``stale_after`` intervals (each with its jitter): the robot
-    has missed checks, or cannot report."""
+def stale_limit(interval: int, jitter: int, stale_after: int, heartbeat: int) -> int:
+    """Seconds after which a report is stale: ``stale_after`` heartbeats,
+    each with an interval and its jitter (a robot with nothing new pushes at
+    its first check after its heartbeat, so pushes can be that far apart)."""
+    return stale_after * (heartbeat + interval + jitter)
+
+
+def stale(report: dict, now: datetime.datetime, interval: int, jitter: int, stale_after: int,
+          heartbeat: int = 0) -> bool:
+    """Older than the stale limit: the robot has missed checks, or cannot report."""
     age = (now - parse_time(report["time"], "time")).total_seconds()
-    return age > stale_after * (interval + jitter)
+    return age > stale_limit(interval, jitter, stale_after, heartbeat)
 
 
 def failed_for(report: dict, version: int) -> bool:

@@ -10,13 +10,25 @@ in time, with the bytes each exchange moved.
 - ``push_report``: this robot's report as a one-file commit, force-pushed
   to ``refs/reports/<robot>`` (the only ref the server lets it write).
 
-The robot's own key is offered first, then a first-boot bundle's
+Over SSH, the robot's own key is offered first, then a first-boot bundle's
 enrollment key if it still has one; once the server accepts the robot's own
 key, the enrollment key is deleted (it was single-use).  The git server's
 host keys are pinned (StrictHostKeyChecking, under one alias, so a new
 address or port does not matter).  Bytes are ssh's own count of what went
 over the connection ("Transferred: sent N, received M bytes"; its debug
-level also names the key the server accepted).
+level also names the key the server accepted); each ssh session is one
+request.
+
+Over HTTPS (``https://host/path``: git's smart HTTP, or a static directory
+served as a "dumb" remote, which cannot answer a shallow fetch, so the
+branch is fetched whole there), the server's certificate is checked against
+``remote-ca.pem`` in the agent's configuration directory when it is there
+(a private CA the bundle or the role installed), else the system's CAs.
+That is only the transport: the releases are trusted for their TUF
+signatures.  Bytes and requests are git's own trace of its HTTP exchanges
+(GIT_TRACE_CURL, read as it streams; credentials redacted).  Reports can be
+pushed to another remote (``report_url``, e.g. SSH with the robot's key,
+when the releases come from a static HTTPS mirror).
 """
 
 from __future__ import annotations
@@ -27,6 +39,7 @@ import shlex
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,6 +49,10 @@ from robotfleet.pull import layout
 HOST_KEY_ALIAS = layout.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
 _TRANSFERRED = re.compile(r"Transferred: sent (\d+), received (\d+) bytes")
+# git's trace of curl (http.c): "=> Send header, 0000000247 bytes (0xf7)"
+_CURL = re.compile(rb"^\S+ \S+:\d+ +(=>|<=) (?:Send|Recv) (header|data), (\d+) bytes")
+_TRACE = re.compile(rb"^\d\d:\d\d:\d\d\.\d+ \S+:\d+ ")
+_SHALLOW_REFUSED = "dumb http transport does not support shallow"
 _ACCEPTED = re.compile(r"Authenticated to .* using \"publickey\"|Server accepts key: (\S+)")
 IDENTITY = {"GIT_AUTHOR_NAME": "robot-pull", "GIT_AUTHOR_EMAIL": "robot-pull@localhost",
             "GIT_COMMITTER_NAME": "robot-pull", "GIT_COMMITTER_EMAIL": "robot-pull@localhost"}
@@ -52,17 +69,20 @@ class Cost:
     sent: int = 0
     received: int = 0
     seconds: float = 0.0
+    requests: int = 0
     exchanges: list = field(default_factory=list)
 
-    def add(self, what: str, sent: int, received: int, seconds: float) -> None:
+    def add(self, what: str, sent: int, received: int, seconds: float, requests: int = 1) -> None:
         self.sent += sent
         self.received += received
         self.seconds += seconds
-        self.exchanges.append({"what": what, "sent": sent, "received": received, "seconds": round(seconds, 3)})
+        self.requests += requests
+        self.exchanges.append({"what": what, "sent": sent, "received": received, "seconds": round(seconds, 3),
+                               "requests": requests})
 
     def as_dict(self) -> dict:
         return {"sent": self.sent, "received": self.received, "seconds": round(self.seconds, 3),
-                "exchanges": self.exchanges}
+                "requests": self.requests, "exchanges": self.exchanges}
 
 
 def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> str:
@@ -91,6 +111,40 @@ def git_error(stderr: str, code: int) -> str:
     return (causes or said or lines or [f"git exited {code}"])[0][:300]
 
 
+def is_https(url: str) -> bool:
+    return url.startswith("https://")
+
+
+class CurlTrace:
+    """git's stderr with GIT_TRACE_CURL=2, read as it streams (a fetch's
+    trace is several times its size): the HTTP bytes each way, the requests,
+    and git's own lines (its complaint, if any) apart."""
+
+    def __init__(self):
+        self.sent = self.received = self.requests = 0
+        self.said: list[bytes] = []
+
+    def line(self, line: bytes) -> None:
+        match = _CURL.match(line)
+        if match:
+            size = int(match.group(3))
+            if match.group(1) == b"=>":
+                self.sent += size
+                self.requests += match.group(2) == b"header"
+            else:
+                self.received += size
+        elif not _TRACE.match(line) and len(self.said) < 200:
+            self.said.append(line)
+
+    def read(self, stream) -> None:
+        for line in stream:
+            self.line(line)
+
+    @property
+    def stderr(self) -> bytes:
+        return b"".join(self.said)
+
+
 def read_ssh_log(text: str) -> tuple[int, int, str | None]:
     """(bytes sent, bytes received, the key the server accepted) from ssh's log."""
     sent = received = 0
@@ -104,8 +158,10 @@ def read_ssh_log(text: str) -> tuple[int, int, str | None]:
 class Remote:
     """The fleet remote as one robot reaches it."""
 
-    def __init__(self, url: str, repo: str | Path, etc: str = layout.ETC, timeout: int = 300):
+    def __init__(self, url: str, repo: str | Path, etc: str = layout.ETC, timeout: int = 300,
+                 report_url: str | None = None):
         self.url = url
+        self.report_url = report_url or url
         self.repo = Path(repo)
         self.etc = etc
         self.timeout = timeout
@@ -119,25 +175,43 @@ class Remote:
         return [key for key in (own, enroll) if os.path.exists(key)]
 
     def _git(self, what: str, *args: str, network: bool = False, stdin: bytes | None = None,
-             env: dict | None = None) -> bytes:
+             env: dict | None = None, url: str | None = None) -> bytes:
+        """git with ``args`` in the agent's repository; ``network``: it
+        talks to ``url`` (the fleet remote by default): bounded, and counted."""
+        url = url or self.url
         environment = dict(os.environ, GIT_TERMINAL_PROMPT="0", LC_ALL="C", **IDENTITY, **(env or {}))
-        log = None
-        if network:
+        log = trace = None
+        options: list[str] = []
+        if network and is_https(url):
+            trace = CurlTrace()
+            environment.update(GIT_TRACE_CURL="2", GIT_TRACE_REDACT="1")
+            environment.pop("GIT_SSL_NO_VERIFY", None)
+            options = ["-c", "http.sslVerify=true"]
+            ca = f"{self.etc}/remote-ca.pem"
+            if os.path.exists(ca):  # the environment's GIT_SSL_CAINFO would win over http.sslCAInfo
+                environment["GIT_SSL_CAINFO"] = ca
+        elif network:
             fd, log = tempfile.mkstemp(prefix="robot-pull-ssh-", suffix=".log")
             os.close(fd)
             environment["GIT_SSH_COMMAND"] = ssh_command(self.keys(), f"{self.etc}/known_hosts", log, self.timeout)
         started = time.monotonic()
         try:
-            process = subprocess.Popen(["git", "-C", str(self.repo), *args], stdin=subprocess.PIPE if stdin else None,
-                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=environment,
-                                       start_new_session=True)
+            process = subprocess.Popen(["git", *options, "-C", str(self.repo), *args],
+                                       stdin=subprocess.PIPE if stdin else None, stdout=subprocess.PIPE,
+                                       stderr=subprocess.PIPE, env=environment, start_new_session=True)
+            reader = None
+            if trace is not None:
+                reader = threading.Thread(target=trace.read, args=(process.stderr,), daemon=True)
+                reader.start()
             try:
-                out, err = process.communicate(stdin, timeout=self.timeout)
+                out, err = _communicate(process, stdin, self.timeout, reader)
             except subprocess.TimeoutExpired:
                 os.killpg(process.pid, signal.SIGKILL)
-                process.communicate()
-                raise TransportError(f"{what}: no answer from {self.url} within {self.timeout} s "
+                process.wait()
+                raise TransportError(f"{what}: no answer from {url} within {self.timeout} s "
                                      "(pull_fetch_timeout)") from None
+            if trace is not None:
+                err = trace.stderr
         except OSError as error:
             raise TransportError(f"{what}: cannot run git ({error})") from None
         finally:
@@ -148,6 +222,8 @@ class Remote:
                     os.unlink(log)
                 self.cost.add(what, sent, received, time.monotonic() - started)
                 self.accepted_key = accepted or self.accepted_key
+            elif trace is not None:
+                self.cost.add(what, trace.sent, trace.received, time.monotonic() - started, trace.requests)
         if process.returncode:
             raise TransportError(f"{what}: {git_error(err.decode(errors='replace'), process.returncode)}")
         return out
@@ -166,8 +242,15 @@ class Remote:
     def fetch_releases(self, branch: str = layout.BRANCH) -> str:
         """Fetch the releases branch and check it out; its commit id."""
         self._init()
-        self._git("fetch", "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", "--depth=1",
-                  self.url, f"+refs/heads/{branch}:{LOCAL_BRANCH}", network=True)
+        spec = f"+refs/heads/{branch}:{LOCAL_BRANCH}"
+        try:
+            self._git("fetch", "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", "--depth=1",
+                      self.url, spec, network=True)
+        except TransportError as error:
+            if _SHALLOW_REFUSED not in str(error):
+                raise
+            # A static ("dumb") HTTPS remote: the branch whole, then only what is new.
+            self._git("fetch", "fetch", "--quiet", "--no-tags", self.url, spec, network=True)
         commit = self._git("fetch", "rev-parse", LOCAL_BRANCH).decode().strip()
         # Whatever is in the directory is made the commit's again (nothing
         # left over is read as part of the repository).
@@ -193,7 +276,8 @@ class Remote:
         blob = self._git("report", "hash-object", "-w", "--stdin", stdin=report).decode().strip()
         tree = self._git("report", "mktree", stdin=f"100644 blob {blob}\treport.json\n".encode()).decode().strip()
         commit = self._git("report", "commit-tree", tree, "-m", f"report of {robot}").decode().strip()
-        self._git("report", "push", "--quiet", "--force", self.url, f"{commit}:refs/reports/{robot}", network=True)
+        self._git("report", "push", "--quiet", "--force", self.report_url, f"{commit}:refs/reports/{robot}",
+                  network=True, url=self.report_url)
         return commit
 
     def retire_enrollment_key(self) -> bool:
@@ -205,6 +289,24 @@ class Remote:
             if os.path.exists(path):
                 os.unlink(path)
         return True
+
+
+def _communicate(process, stdin: bytes | None, timeout: float, reader: threading.Thread | None):
+    """``process.communicate``, or, while ``reader`` drains its stderr, the
+    same for stdin and stdout alone; TimeoutExpired after ``timeout``."""
+    if reader is None:
+        return process.communicate(stdin, timeout=timeout)
+    deadline = time.monotonic() + timeout
+    if stdin:
+        process.stdin.write(stdin)
+        process.stdin.close()
+    chunks: list[bytes] = []
+    out = threading.Thread(target=lambda: chunks.extend(iter(lambda: process.stdout.read(65536), b"")), daemon=True)
+    out.start()
+    process.wait(timeout=max(0.0, deadline - time.monotonic()))
+    for thread in (out, reader):
+        thread.join(max(0.0, deadline - time.monotonic()))
+    return b"".join(chunks), b""
 
 
 def read_reports(git, prefix: str, wanted: set[str] | None = None) -> dict[str, bytes]:

@@ -18,18 +18,19 @@ record below it (or below the version the agent applied) is a rollback.
 A refresh works on a copy of the trusted metadata and swaps it in (one
 rename of the ``tuf`` link) only when everything verified: a refusal leaves
 the trusted state as it was.  Every refusal is a Refused with one line and
-a reason from REASONS.  Nothing here needs the operator's keys.
+a reason from REASONS.  Nothing here needs the operator's keys.  A
+successful refresh also leaves what a check of the same repository would
+read (robotfleet/pull/trusted.py), so the next one can skip TUF when
+nothing changed.
 """
 
 from __future__ import annotations
 
 import datetime
-import json
 import os
 import secrets
 import shutil
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 from urllib import parse
 
@@ -38,7 +39,8 @@ from tuf.api.metadata import Metadata, Root
 from tuf.ngclient import FetcherInterface, Updater, UpdaterConfig
 
 from robotfleet.pull import record as records
-from robotfleet.pull import tufprivate
+from robotfleet.pull import trusted, tufprivate
+from robotfleet.pull.trusted import EPOCH, STATE_FORMAT, State  # noqa: F401 (where they were)
 
 # Why a refresh or a download was refused (machine-readable, in reports).
 UNSIGNED = "unsigned"  # metadata with no signature
@@ -49,8 +51,6 @@ EXPIRED = "expired"  # expired metadata or record (a freeze: the newest release 
 MALFORMED = "malformed"  # not TUF metadata or not a release record
 UNAVAILABLE = "unavailable"  # could not be fetched (no file, no answer): nothing was judged
 REASONS = (UNSIGNED, UNKNOWN_KEY, TAMPERED, ROLLBACK, EXPIRED, MALFORMED, UNAVAILABLE)
-STATE_FORMAT = 1
-EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 
 
 class Refused(Exception):
@@ -63,15 +63,6 @@ class Refused(Exception):
         self.line = line
 
 
-@dataclass(frozen=True)
-class State:
-    """What the robot last trusted (trust.json)."""
-
-    time: datetime.datetime = EPOCH
-    version: int = 0
-    release: str | None = None
-
-
 def _now() -> datetime.datetime:
     return datetime.datetime.now(datetime.timezone.utc)
 
@@ -79,32 +70,13 @@ def _now() -> datetime.datetime:
 def read_state(state_dir) -> State:
     """The trust state kept in ``state_dir`` (defaults if it has none yet)."""
     try:
-        raw = json.loads(Path(state_dir, "trust.json").read_text())
-        return State(records.parse_time(raw["time"], "trust.json time"), int(raw["version"]), raw.get("release"))
-    except FileNotFoundError:
-        return State()
-    except (ValueError, KeyError, TypeError) as error:
-        raise Refused(MALFORMED, f"{Path(state_dir, 'trust.json')}: unreadable trust state ({error})") from None
+        return trusted.read_state(state_dir)
+    except trusted.Unreadable as error:
+        raise Refused(MALFORMED, str(error)) from None
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temp, path)
-    except BaseException:
-        if os.path.exists(temp):
-            os.unlink(temp)
-        raise
-
-
-def write_state(state_dir, state: State) -> None:
-    _write_atomic(Path(state_dir, "trust.json"), (json.dumps(
-        {"format": STATE_FORMAT, "time": records.utc(state.time), "version": state.version,
-         "release": state.release}, sort_keys=True) + "\n").encode())
+write_state = trusted.write_state
+_write_atomic = trusted.write_atomic
 
 
 def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = None) -> None:
@@ -126,6 +98,7 @@ def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = 
     (fresh / "root_history" / f"{md.signed.version}.root.json").write_bytes(root)
     os.symlink(f"root_history/{md.signed.version}.root.json", fresh / "root.json")
     _swap_in(state_dir, fresh)
+    trusted.forget(state_dir)
     write_state(state_dir, State(trusted_time or EPOCH, 0, None))
 
 
@@ -256,7 +229,7 @@ class Client:
                                   UpdaterConfig(app_user_agent="robotfleet"), bootstrap=None)
                 tufprivate.set_reference_time(updater, self.reference_time)
                 updater.refresh()
-                raw = self._release_bytes(updater, work)
+                raw, release_file = self._release_bytes(updater, work)
             except exceptions.UnsignedMetadataError as error:
                 reason, role = _unsigned_reason(recording.last, work)
                 raise Refused(reason, f"{role}.json: {_WORDS[reason]} ({_first_line(error)})") from None
@@ -283,10 +256,27 @@ class Client:
         write_state(self.state_dir, State(max(state.time, now, found.published_at),
                                           max(state.version, found.version), found.release))
         self.updater, self.record = updater, found
+        self._remember(raw, release_file, found)
         return found
 
+    def _remember(self, raw: bytes, release_file: str, found: records.Record) -> None:
+        """What this verification read, for the next check's cheap proof that
+        nothing changed (robotfleet/pull/trusted.py)."""
+        try:
+            tuf_dir = self.state_dir / "tuf"
+            roles = [Metadata.from_file(str(tuf_dir / f"{role}.json")) for role in
+                     (Root.type, "timestamp", "snapshot", "targets")]
+            expires = min([md.signed.expires for md in roles] + [found.expires_at])
+            reads = trusted.reads_of(roles[0].signed.version, release_file)
+        except Exception:  # noqa: BLE001 - without it the next check verifies in full
+            trusted.forget(self.state_dir)
+            return
+        trusted.remember(self.state_dir, self.source, reads, raw, expires)
+
     @staticmethod
-    def _release_bytes(updater: Updater, work: Path) -> bytes:
+    def _release_bytes(updater: Updater, work: Path) -> tuple[bytes, str]:
+        """The record's bytes, and its file's path in the repository (as a
+        consistent snapshot names it: targets/<sha256>.release.json)."""
         info = updater.get_targetinfo(records.NAME)
         if info is None:
             raise Refused(MALFORMED, f"the signed targets name no {records.NAME}: not a fleet release repository")
@@ -294,7 +284,7 @@ class Client:
         updater.download_target(info, str(target))
         data = target.read_bytes()
         target.unlink()
-        return data
+        return data, f"targets/{info.hashes['sha256']}.{records.NAME}"
 
     def download(self, paths, directory) -> dict[str, Path]:
         """Each TUF target in ``paths`` (e.g. the record's code archive and

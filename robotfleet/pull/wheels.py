@@ -5,8 +5,11 @@ with ``pip download --only-binary=:all:``, so a robot never needs an index.
 A platform is ``cp<major><minor>-<machine>``, e.g. cp313-x86_64 or
 cp311-aarch64 (the robot's python and ``uname -m``).  Wheels are cached in
 ``<cache>/<platform>/``; an unchanged set of requirements downloads nothing
-new (pip finds the files there), and the same wheel file is the same TUF
-target blob in every release.
+new, and the same wheel file is the same TUF target blob in every release.
+A cache that already holds every requirement is used without the index
+(``pip download --no-index --find-links``: no resolving against PyPI, which
+took 20-60 s); only when it lacks one does pip ask the index (``refresh``
+asks it always, for newer versions than the cache holds).
 """
 
 from __future__ import annotations
@@ -45,8 +48,9 @@ def parse_platform(key: str) -> tuple[str, str]:
 
 
 def pip_command(requirements: list[str], key: str, directory: Path, python: str = sys.executable,
-                index_url: str | None = None) -> list[str]:
-    """The ``pip download`` that fills ``directory`` with ``key``'s wheels."""
+                index_url: str | None = None, offline: bool = False) -> list[str]:
+    """The ``pip download`` that fills ``directory`` with ``key``'s wheels
+    (``offline``: from the wheels already in ``directory`` only)."""
     version, machine = parse_platform(key)
     command = [python, "-m", "pip", "download", "--disable-pip-version-check", "--no-input", "--quiet",
                "--only-binary=:all:", "--implementation", "cp", "--python-version", version,
@@ -54,21 +58,33 @@ def pip_command(requirements: list[str], key: str, directory: Path, python: str 
     for tag in _MANYLINUX:
         command += ["--platform", tag.format(m=machine)]
     command += ["--platform", "any"]
-    if index_url:
+    if offline:
+        command += ["--no-index", "--find-links", str(directory)]
+    elif index_url:
         command += ["--index-url", index_url]
     return command + list(requirements)
 
 
 def build_wheelhouse(requirements: list[str], key: str, cache_dir, python: str = sys.executable,
-                     index_url: str | None = None) -> list[Path]:
+                     index_url: str | None = None, refresh: bool = False) -> list[Path]:
     """The wheels (sorted paths) that install ``requirements`` on platform
-    ``key``, downloaded into ``cache_dir``/``key``.  WheelError (pip's last
-    line) when a requirement has no wheel for that platform."""
+    ``key``, from ``cache_dir``/``key`` when it holds them all, else
+    downloaded there from the index (always, with ``refresh``).  WheelError
+    (pip's last line) when a requirement has no wheel for that platform."""
     directory = Path(cache_dir, key)
     directory.mkdir(parents=True, exist_ok=True)
+    if not refresh and any(directory.glob("*.whl")):
+        try:
+            return _download(requirements, key, directory, python, None, offline=True)
+        except WheelError:
+            pass  # the cache lacks a requirement: the index has the last word
+    return _download(requirements, key, directory, python, index_url)
+
+
+def _download(requirements, key, directory: Path, python, index_url, offline: bool = False) -> list[Path]:
     log = directory / "pip-download.log"
     log.unlink(missing_ok=True)  # pip appends: only this run's lines say what this set resolved to
-    command = pip_command(requirements, key, directory, python, index_url) + ["--log", str(log)]
+    command = pip_command(requirements, key, directory, python, index_url, offline) + ["--log", str(log)]
     try:
         done = subprocess.run(command, capture_output=True, text=True, timeout=PIP_TIMEOUT, check=False)
     except (OSError, subprocess.TimeoutExpired) as error:

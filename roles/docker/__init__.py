@@ -155,6 +155,7 @@ STATUS = StatusPart(
     cells=lambda output: {"docker": output.strip() or None},
     columns=(("docker", "DOCKER"),),
     order=10,
+    watch=lambda data: ["/usr/bin/dockerd"],  # an upgrade replaces it
 )
 
 ROLE = Role(

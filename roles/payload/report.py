@@ -137,6 +137,13 @@ def metrics(row: dict) -> list[Metric]:
     return found
 
 
+def watch(data) -> list[str]:
+    """What changes when the payload's status may have: its directory (the
+    current and previous links and last-result.json are renamed into it)
+    and its unit's invocation (each start of it, at boot or by hand)."""
+    return [data.payload_dir, f"/run/systemd/units/invocation:{data.payload_name}.service"]
+
+
 STATUS = StatusPart(
     command=status_command,
     cells=cells,
@@ -144,5 +151,6 @@ STATUS = StatusPart(
              ("previous", "PREVIOUS"), ("deployed", "LAST DEPLOY"), ("lock", "LOCK")),
     order=20,
     metrics=metrics,
+    watch=watch,
 )
 ROLLOUT = RolloutPart(target=target, missing=missing, result=result)

@@ -30,7 +30,7 @@ INSTALLED_PROBE = "pull_installed"
 PYTHON_PROBE = "pull_python"
 # Set in a host's data by the agent when it runs the deploy itself.
 AGENT_RUN = layout.AGENT_RUN
-FILES = (layout.CONFIG, layout.TRUST_ROOT, layout.KNOWN_HOSTS, layout.KEY, f"{layout.KEY}.pub",
+FILES = (layout.CONFIG, layout.TRUST_ROOT, layout.KNOWN_HOSTS, layout.REMOTE_CA, layout.KEY, f"{layout.KEY}.pub",
          f"{layout.UNIT_DIR}/{layout.SERVICE}", f"{layout.UNIT_DIR}/{layout.TIMER}")
 
 
@@ -63,6 +63,11 @@ def pull_agent(play: Play):
         except install.InstallError as error:
             operations.fail(name="Read the release repository's root.json", message=str(error))
             return
+    try:
+        ca = install.remote_ca(CHECKOUT, data.pull_remote_ca)
+    except install.InstallError as error:
+        operations.fail(name="Read the fleet remote's CA", message=str(error))
+        return
     apt.apt_install(name="Install git and python3-venv for the pull agent", packages=list(plan.PACKAGES),
                     installed=snap.packages)
     for path in (layout.ETC, layout.STATE):
@@ -76,6 +81,12 @@ def pull_agent(play: Play):
                         path=layout.TRUST_ROOT, content=root, current=snap.files.get(layout.TRUST_ROOT), mode="0600")
     operations.file(name="Write the fleet remote's host keys", path=layout.KNOWN_HOSTS,
                     content=plan.known_hosts(data), current=snap.files.get(layout.KNOWN_HOSTS))
+    if ca is not None:
+        operations.file(name="Write the CA the https fleet remote's certificate is checked against",
+                        path=layout.REMOTE_CA, content=ca, current=snap.files.get(layout.REMOTE_CA))
+    elif snap.files.get(layout.REMOTE_CA) is not None:
+        operations.absent(name="Remove the fleet remote's CA (pull_remote_ca is not set)", paths=[layout.REMOTE_CA],
+                          present=snap.files)
     if snap.files.get(layout.KEY) is None or snap.files.get(f"{layout.KEY}.pub") is None:
         operations.run(name="Make the robot's own key for the fleet remote (it never leaves the robot)",
                        script=plan.keygen_script(name))

@@ -18,6 +18,9 @@ def converged(play, host: str) -> None:
     snap.files[layout.CONFIG] = file_state(plan.config(data, name).to_json(), "600")
     snap.files[layout.TRUST_ROOT] = file_state(install.trust_root(CHECKOUT, data.pull_trust_root), "600")
     snap.files[layout.KNOWN_HOSTS] = file_state(plan.known_hosts(data))
+    ca = install.remote_ca(CHECKOUT, data.pull_remote_ca)
+    if ca is not None:
+        snap.files[layout.REMOTE_CA] = file_state(ca)
     snap.files[layout.KEY] = file_state("private", "600")
     snap.files[f"{layout.KEY}.pub"] = file_state("ssh-ed25519 AAAA robot-pull@" + name, "600")
     snap.files[f"{layout.UNIT_DIR}/{layout.SERVICE}"] = file_state(plan.service_unit())

@@ -53,6 +53,12 @@ c.with_schema(window, _WINDOW_CHECK.schema)
 SETTINGS = (
     Setting("pull_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
             "The fleet remote the agent fetches releases from and pushes its reports to (required with pull)."),
+    Setting("pull_report_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
+            "Where the agent pushes its reports, when not to pull_remote (e.g. ssh to the git server while releases "
+            "come from an https mirror); null: pull_remote."),
+    Setting("pull_remote_ca", None, c.optional(v.local_path),
+            "PEM file of the CA an https pull_remote's certificate is checked against (relative to the checkout; "
+            "keep it in the deploy tree, e.g. files/); null: the robot's system CAs."),
     Setting("pull_remote_host_keys", [], c.list_of(c.string(HOST_KEY, HOST_KEY_WHAT), unique=True),
             "The git server's SSH host keys, checked strictly by the agent (required for an ssh remote)."),
     Setting("pull_interval", 900, c.integer(10, 7 * 86400),
@@ -65,8 +71,11 @@ SETTINGS = (
             "Maintenance windows a release may start in (Mon-Fri 01:00-05:00, daily 22:00-02:00 UTC); none: any time."),
     Setting("pull_min_free_mb", 512, c.integer(0, 1 << 20),
             "Free MB the agent needs on its state directory's and Docker's file systems before it downloads."),
-    Setting("pull_stale_after", 3, c.integer(1, 1000),
-            "status marks a pull robot's report stale when it is older than this many intervals (plus the jitter)."),
+    Setting("pull_heartbeat", 3600, c.integer(10, 7 * 86400),
+            "Seconds after which a robot with nothing new reads its roles' status again and pushes its report anyway."),
+    Setting("pull_stale_after", 2, c.integer(1, 1000),
+            "status marks a pull robot's report stale when it is older than this many heartbeats (each plus an "
+            "interval and its jitter)."),
     Setting("pull_fetch_timeout", 300, c.integer(5, 86400),
             "Seconds one fetch from the fleet remote may take."),
     Setting("pull_trust_root", None, c.optional(v.local_path),
@@ -83,8 +92,9 @@ def rules(data: dict, refused: frozenset) -> list[c.Problem]:
     if remote is None and "pull_remote" not in refused:
         problems.append(("pull_remote", "required when pull is true: the git URL of the fleet remote "
                                         "(e.g. ssh://gitolite3@git.example.com/fleet)"))
-    elif (isinstance(remote, str) and not remote.startswith("https://") and not data.get("pull_remote_host_keys")
-          and "pull_remote_host_keys" not in refused):
+    elif (any(isinstance(url, str) and not url.startswith("https://")
+              for url in (remote, data.get("pull_report_remote")))
+          and not data.get("pull_remote_host_keys") and "pull_remote_host_keys" not in refused):
         problems.append(("pull_remote_host_keys", "required for an ssh remote: the git server's host keys "
                                                   "(ssh-keyscan HOST, checked against the server's own)"))
     return problems

@@ -12,9 +12,12 @@ part of the test command (it builds its own lab of N robots).
   SSH (ssh's own count), with and without a report push;
 - bytes per update: what a robot's applying wake moved (its journal line);
 - a 10,000-robot fleet's load on the git server per hour, computed from the
-  measured per-check cost and written down with its formula: checks per
-  hour, bytes per hour, report pushes per hour (each push also receives the
-  ref advertisement of every robot's report ref, ~64 bytes a robot).
+  measured per-check cost (bytes and git requests of an idle check, and of
+  one that pushes its report) and printed with its formula: checks, report
+  pushes, git requests (ssh sessions; HTTP requests over HTTPS) and bytes per
+  hour; each push also receives the ref advertisement of every robot's
+  report ref (~64 bytes a robot), which the measurement on a small lab
+  holds for its own robots only, so it is scaled to the fleet.
 
 The lab: `--robots` robots and the git server, provisioned by push, then the
 pull agent installed (as tests/e2e/test_pull.py does).  Figures wait for an
@@ -36,8 +39,10 @@ from tests.bench import hygiene
 
 ROOT = Path(__file__).resolve().parents[2]
 LINE = re.compile(r"robot-pull: (?P<result>[a-z-]+)(?: \(release (?P<version>\d+)\))?.*; (?P<seconds>[\d.]+) s, "
-                  r"(?P<cpu>[\d.]+) s CPU, sent (?P<sent>\d+) B, received (?P<received>\d+) B; (?P<report>.*)$")
+                  r"(?P<cpu>[\d.]+) s CPU, sent (?P<sent>\d+) B, received (?P<received>\d+) B"
+                  r"(?: in (?P<requests>\d+) requests)?; (?P<report>.*)$")
 FLEET_SIZE = 10_000
+COST = ("seconds", "cpu", "sent", "received", "requests")
 REF_ADVERTISEMENT = 64  # bytes per report ref a push receives (pkt-line: 4 + 40-hex oid + space + refs/reports/<name> + LF)
 
 
@@ -100,7 +105,8 @@ def setup(prefix: str, robots: int, base: Path):
 
 
 def idle_check(lab, op, samples: int) -> dict:
-    """Median cost of a check that finds nothing new, on the first robot."""
+    """Median cost of a check that finds nothing new, on the first robot:
+    without a report push, and with one (its heartbeat made due)."""
     robot = lab.robots[0]
     lab.trigger([robot])
     lab.trigger([robot])  # settled: the report says nothing new
@@ -113,8 +119,8 @@ def idle_check(lab, op, samples: int) -> dict:
         lab.trigger([robot])
         line = journal(lab, robot)[-1]
         kind = "with a report push" if line["report"].startswith("report sent") else "without a report push"
-        found[kind].append({k: float(line[k]) for k in ("seconds", "cpu", "sent", "received")})
-    return {kind: {k: statistics.median(s[k] for s in samples_) for k in ("seconds", "cpu", "sent", "received")}
+        found[kind].append({k: float(line[k] or 0) for k in COST})
+    return {kind: {k: statistics.median(s[k] for s in samples_) for k in COST}
             for kind, samples_ in found.items() if samples_}
 
 
@@ -149,21 +155,47 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
             "load": hygiene.load()}
 
 
-def fleet_per_hour(idle: dict, interval: int, jitter: int, stale_after: int = 3) -> dict:
-    """What FLEET_SIZE robots ask of the git server per hour at this interval and jitter."""
+def fleet_per_hour(idle: dict, interval: int, jitter: int, heartbeat: int = 3600, robots_measured: int = 1,
+                   fleet: int = FLEET_SIZE) -> dict:
+    """What ``fleet`` robots ask of the git server per hour at this interval
+    and jitter, from one robot's measured check cost (pure).
+
+    Each robot checks every interval + jitter/2 (+ the check's own time) on
+    average; a check pushes its report only at its first check after the
+    heartbeat (nothing new: the steady state), so pushes per robot per hour
+    are 3600 / (heartbeat + interval + jitter/2), at most one per check.  A
+    push's extra bytes over an idle check hold the advertisement of the
+    measured lab's report refs: that part is scaled from ``robots_measured``
+    to ``fleet`` robots."""
     plain = idle.get("without a report push") or {}
     pushed = idle.get("with a report push") or plain
-    checks = FLEET_SIZE * 3600 / (interval + jitter / 2 + plain.get("seconds", 0))
-    heartbeat = stale_after * (interval + jitter) / 2
-    pushes = min(checks, FLEET_SIZE * 3600 / heartbeat)
-    push_extra = (pushed.get("sent", 0) + pushed.get("received", 0)) - (plain.get("sent", 0) + plain.get("received", 0))
-    advertisement = REF_ADVERTISEMENT * FLEET_SIZE
-    per_hour = checks * (plain.get("sent", 0) + plain.get("received", 0)) + pushes * (push_extra + advertisement)
-    return {"robots": FLEET_SIZE, "interval": interval, "jitter": jitter, "checks_per_hour": round(checks),
-            "report_pushes_per_hour": round(pushes), "ssh_sessions_per_hour": round(checks + pushes),
-            "bytes_per_hour": round(per_hour), "formula": (
-                "checks = N*3600/(interval + jitter/2 + check time); pushes = N*3600/(stale_after*(interval+jitter)/2); "
-                "bytes = checks*(idle check bytes) + pushes*(push bytes - idle bytes + 64*N advertised report refs)")}
+    period = interval + jitter / 2
+    checks = fleet * 3600 / (period + plain.get("seconds", 0))
+    pushes = min(checks, fleet * 3600 / (heartbeat + period))
+    idle_bytes = plain.get("sent", 0) + plain.get("received", 0)
+    push_extra = pushed.get("sent", 0) + pushed.get("received", 0) - idle_bytes
+    push_extra += REF_ADVERTISEMENT * (fleet - robots_measured)
+    requests = checks * plain.get("requests", 0) + pushes * (pushed.get("requests", 0) - plain.get("requests", 0))
+    per_hour = checks * idle_bytes + pushes * push_extra
+    return {"robots": fleet, "interval": interval, "jitter": jitter, "heartbeat": heartbeat,
+            "checks_per_hour": round(checks), "report_pushes_per_hour": round(pushes),
+            "git_requests_per_hour": round(requests), "git_requests_per_second": round(requests / 3600, 1),
+            "bytes_per_hour": round(per_hour), "megabits_per_second": round(per_hour * 8 / 3600 / 1e6, 2),
+            "formula": (
+                "checks = N*3600/(interval + jitter/2 + check s); pushes = min(checks, N*3600/(heartbeat + interval "
+                "+ jitter/2)); requests = checks*(idle check requests) + pushes*(push requests - idle requests); "
+                f"bytes = checks*(idle check bytes) + pushes*(push bytes - idle bytes + {REF_ADVERTISEMENT}*(N - "
+                "robots measured) advertised report refs)")}
+
+
+def print_fleet(rows: list[dict]) -> None:
+    for row in rows:
+        print(f"bench: {row['robots']} robots, interval {row['interval']} s, jitter {row['jitter']} s, heartbeat "
+              f"{row['heartbeat']} s: {row['checks_per_hour']} checks and {row['report_pushes_per_hour']} report "
+              f"pushes an hour, {row['git_requests_per_hour']} git requests ({row['git_requests_per_second']}/s), "
+              f"{row['bytes_per_hour'] / 1e9:.2f} GB ({row['megabits_per_second']} Mbit/s)", flush=True)
+    if rows:
+        print(f"bench: {rows[0]['formula']}", flush=True)
 
 
 def main(argv=None) -> int:
@@ -183,6 +215,9 @@ def main(argv=None) -> int:
             op, lab = setup(args.prefix, args.robots, Path(base))
             figures["idle_check"] = idle_check(lab, op, args.idle_samples)
             print(f"bench: idle check: {json.dumps(figures['idle_check'])}", flush=True)
+            figures["fleet_per_hour"] = [fleet_per_hour(figures["idle_check"], i, j, robots_measured=len(lab.robots))
+                                         for i, j in ((300, 60), (900, 300), (3600, 600))]
+            print_fleet(figures["fleet_per_hour"])
             figures["rollouts"] = []
             tag = "1.1"
             for interval in [int(i) for i in args.intervals.split(",")]:
@@ -191,8 +226,6 @@ def main(argv=None) -> int:
                     figures["rollouts"].append(found)
                     print(f"bench: publish -> healthy: {json.dumps(found)}", flush=True)
                     tag = "1.0" if tag == "1.1" else "1.1"
-            figures["fleet_per_hour"] = [fleet_per_hour(figures["idle_check"], i, j)
-                                         for i, j in ((300, 60), (900, 300), (3600, 600))]
     finally:
         if not args.keep:
             hosts.down(args.prefix)

@@ -12,8 +12,13 @@ repository are each refused on every robot, which keeps its release; a
 crash-looping release is rolled back on the canary and halts the rest;
 robot4 reports healthy, is enrolled from its report (host keys, its own key
 replacing the enrollment key) and answers SSH with strict host keys.
-The agents are started directly (systemctl start) where waiting for the
-timer would only cost time; robot3's catch-up is the timer's own.
+The robots' timers run at the shortest interval (10 s, no jitter), so
+releases reach them by their own checks; a check is started directly
+(systemctl start) only where a test needs its outcome now (the refusals).
+Releases are reused: release 1 (the only one with wheels), release 2 (the
+rollout), the crash-looping one and its halt are the module's publishes;
+the bad repositories are made from the current one.  robot4 boots from its
+bundle while the others get the agent by push.
 """
 
 from __future__ import annotations
@@ -31,8 +36,8 @@ pytestmark = pytest.mark.e2e
 ROBOTS = ["robot1", "robot2", "robot3"]
 FIRST_BOOT = "robot4"
 ALL = ROBOTS + [FIRST_BOOT]
-# Short health windows keep the module fast.
-FAST = {"payload_health_timeout": 20, "payload_stable_seconds": 2}
+# Short health windows and the shortest check interval keep the module fast.
+FAST = {"payload_health_timeout": 20, "payload_stable_seconds": 2, "pull_interval": 10, "pull_jitter": 0}
 
 
 class Pull:
@@ -61,16 +66,6 @@ class Pull:
     def reports(self) -> dict:
         return self.op.reports()
 
-    def keep_triggering(self, robots, stop: threading.Event, every: float = 3) -> threading.Thread:
-        def loop():
-            while not stop.is_set():
-                self.trigger(robots)
-                stop.wait(every)
-
-        thread = threading.Thread(target=loop, daemon=True)
-        thread.start()
-        return thread
-
 
 def ssh_error(lab, host: str) -> str | None:
     """Why the operator's side cannot log in to ``host`` over SSH (strict host keys), None if it can."""
@@ -92,18 +87,19 @@ def pull(lab, first_run, tmp_path_factory):
     op.publish(world.fleet("1.0"), "release 1", "--pause", "0")
     world.release1 = world.attacks.checkout()
     phase("pull: keys, release 1 published with wheels", started)
-    run = lab.provision("--limit", "robots", fleet=op.repo / world.pullfleet.FLEET, label="(pull agent installed)",
-                        env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")})
+    # robot4 boots from its image now, converging while the others get the agent by push.
+    op.robotfleet("bundle", FIRST_BOOT, "--out", str(op.base / "bundle"), "--fleet", world.pullfleet.FLEET,
+                  *op.admin_options())
+    firstboot.start(lab.prefix, FIRST_BOOT, op.base / "bundle" / "rootfs.tar")
+    run = lab.provision(*(f"--limit={robot}" for robot in ROBOTS), fleet=op.repo / world.pullfleet.FLEET,
+                        label="(pull agent installed)", env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")})
     assert run.returncode == 0, run.output[-4000:]
     env = op.env(ROBOT_LAB_FLEET=str(op.repo / world.pullfleet.FLEET))
-    enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", "robots", "--ssh",
+    enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", ",".join(ROBOTS), "--ssh",
                              *op.admin_options(), *op.remote(), env=env, check=False)
     assert enrolled.returncode == 0, enrolled.stdout + enrolled.stderr
     for robot in ROBOTS:
         assert f"{robot}: its own key is now registered" in enrolled.stdout, enrolled.stdout + enrolled.stderr
-    op.robotfleet("bundle", FIRST_BOOT, "--out", str(op.base / "bundle"), "--fleet", world.pullfleet.FLEET,
-                  *op.admin_options())
-    firstboot.start(lab.prefix, FIRST_BOOT, op.base / "bundle" / "rootfs.tar")
     for robot in ROBOTS:  # from here on the operator's side cannot reach them over SSH
         lab.ok(robot, "systemctl mask --now ssh.service ssh.socket")
         assert ssh_error(lab, robot), robot
@@ -149,17 +145,16 @@ def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_
     from tests.lab.engine import client
 
     client().containers.get(f"{lab.prefix}-robot3").stop(timeout=20)
-    stop = threading.Event()
-    pull.keep_triggering(["robot1", "robot2"], stop)
     result = {}
     follower = threading.Thread(target=lambda: result.update(done=pull.op.rollout(
         pull.fleet("1.1"), "release 2: payload 1.1", "--canary", "1", "--batch", "100%", "--pause", "0",
         "--poll", "2", "--timeout", "420", "--publish-option=--no-wheels")))
     follower.start()
-    wait_for(lambda: all((pull.reports().get(r) or {}).get("applied", {}).get("version", 0) >= 2
-                         for r in ("robot1", "robot2")), 180, "robot1 and robot2 on release 2")
-    stop.set()
-    client().containers.get(f"{lab.prefix}-robot3").start()  # its timer's OnBootSec makes it catch up
+    # Published while robot3 was off (a running robot's timer has seen it): robot3 boots and catches up
+    # by its own timer (OnBootSec), while the others apply it.
+    wait_for(lambda: any(((pull.reports().get(r) or {}).get("seen") or {}).get("version", 0) >= 2
+                         for r in ("robot1", "robot2")), 120, "release 2 seen by a running robot", interval=2)
+    client().containers.get(f"{lab.prefix}-robot3").start()
     follower.join(timeout=500)
     done = result["done"]
     assert done.returncode == 0, done.stdout + done.stderr
@@ -199,13 +194,10 @@ def test_a_crash_looping_release_is_rolled_back_on_the_canary_and_halts_the_rest
     from robotfleet.pull import waves
 
     started = time.monotonic()
-    stop = threading.Event()
-    pull.keep_triggering(ROBOTS, stop)
     done = pull.op.rollout(pull.fleet("1.2-broken", robots=ROBOTS), "release: payload 1.2-broken", "--canary", "1",
                            "--batch", "100%", "--pause", "300", "--max-failed", "0", "--poll", "2", "--timeout", "300",
                            "--publish-option=--no-wheels")
-    pull.trigger(ROBOTS)
-    stop.set()
+    pull.trigger(ROBOTS)  # a check after the halt on each
     assert done.returncode == 1, done.stdout + done.stderr
     assert "halted" in done.stderr
     reports = pull.reports()

@@ -130,3 +130,56 @@ def test_robots_that_report_by_themselves_join_through_the_reporters(monkeypatch
     up = {(s.labels["host"], s.labels["via"]): s.value for f in families if f.name == "robotfleet_up"
           for s in f.samples}
     assert up == {("robot1", "ssh"): 0, ("robot9", "pull"): 1}
+
+
+def test_pull_robots_are_in_the_metrics_from_their_reports_stale_marked(tmp_path):
+    """status --format openmetrics over pull robots: read from their reports
+    on the fleet remote (no SSH), labelled via="report"; a stale report is
+    up 0 and pull_report_stale 1 with no role gauges, a refusal is
+    pull_failed 1, a robot without a report is up 0 and stale."""
+    import datetime
+    import subprocess
+    import sys
+
+    from robotfleet.pull import reports, transport
+
+    bare = tmp_path / "fleet.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
+    now = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0)
+    cells = {"release": RELEASE, "release_state": "active", "state": "running", "health": "healthy"}
+    config = type("Config", (), {"interval": 60, "jitter": 5, "stale_after": 3, "heartbeat": 0})
+    made = {"robot1": reports.build("robot1", now, "up-to-date", seen={"version": 7, "release": "r7", "commit": "a" * 40},
+                                    applied={"version": 7, "release": "r7", "commit": "a" * 40, "time": "2026-11-25T09:59:00Z"},
+                                    status=cells, config=config),
+            "robot2": reports.build("robot2", now - datetime.timedelta(hours=2), "applied", status=cells, config=config,
+                                    applied={"version": 6, "release": "r6", "commit": "b" * 40, "time": "2026-11-24T09:59:00Z"}),
+            "robot3": reports.build("robot3", now, "refused", refusal="tampered", reason="targets.json: changed",
+                                    seen={"version": 8, "release": "r8", "commit": "c" * 40}, status=cells, config=config)}
+    for name, report in made.items():
+        transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(
+            name, reports.to_bytes(report))
+    inventory = tmp_path / "inv.py"
+    # Addresses nothing listens on: a connection attempt would be an error row, not a report's.
+    inventory.write_text("robots = [" + ", ".join(f'("robot{i}", {{"pull": True, "ssh_hostname": "192.0.2.{i}"}})'
+                                                  for i in range(1, 5)) + "]\n")
+    result = subprocess.run([sys.executable, "-m", "robotfleet", "status", str(inventory), "--remote", f"file://{bare}",
+                             "--format", "openmetrics"], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert result.returncode == 1, result.stderr  # robot3 refused its release
+    families = list(openmetrics.text_string_to_metric_families(result.stdout))
+    assert {f.name for f in text_format.text_string_to_metric_families(result.stdout)} == {f.name for f in families}
+    up = {(s.labels["host"], s.labels["via"], s.labels["kind"]): s.value for f in families if f.name == "robotfleet_up"
+          for s in f.samples}
+    assert up == {("robot1", "report", "robots"): 1, ("robot2", "report", "robots"): 0,
+                  ("robot3", "report", "robots"): 1, ("robot4", "report", "robots"): 0}
+    assert by_host(families, "robotfleet_pull_report_stale") == {"robot1": 0, "robot2": 1, "robot3": 0, "robot4": 1}
+    assert by_host(families, "robotfleet_pull_report_timestamp_seconds") == {
+        "robot1": now.timestamp(), "robot2": (now - datetime.timedelta(hours=2)).timestamp(), "robot3": now.timestamp()}
+    assert by_host(families, "robotfleet_pull_applied_version") == {"robot1": 7, "robot2": 6}
+    assert by_host(families, "robotfleet_pull_seen_version") == {"robot1": 7, "robot3": 8}
+    assert by_host(families, "robotfleet_pull_failed") == {"robot1": 0, "robot2": 0, "robot3": 1}
+    results = {s.labels["host"]: (s.labels["result"], s.labels["refusal"]) for f in families
+               if f.name == "robotfleet_pull_result_info" for s in f.samples}
+    assert results == {"robot1": ("up-to-date", ""), "robot2": ("applied", ""), "robot3": ("refused", "tampered")}
+    # The roles' gauges come from fresh reports only: a stale one does not vouch for the robot now.
+    assert by_host(families, "robotfleet_payload_healthy") == {"robot1": 1, "robot3": 1}
+    assert set(by_host(families, "robotfleet_drift")) == {"robot1", "robot3"}

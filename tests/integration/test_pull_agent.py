@@ -24,10 +24,16 @@ from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
 STUB = '''import json, os, sys
+from robotfleet.pull import layout
 args = sys.argv[1:]
-row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"), "health": "healthy"}
+if os.environ.get("STUB_LOG"):
+    with open(os.environ["STUB_LOG"], "a") as runs:
+        runs.write(args[0] + "\\n")
+watch = getattr(layout, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
+row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"),
+       "health": os.environ.get("STUB_HEALTH", "healthy")}
 if args[0] == "status":
-    print(json.dumps({"row": row, "missing": []}))
+    print(json.dumps({"row": row, "missing": [], "watch": watch}))
     raise SystemExit(0)
 deployment = args[args.index("--deployment") + 1]
 with open(os.path.join(args[args.index("--work") + 1], "pyinfra.log"), "w") as log:
@@ -35,7 +41,7 @@ with open(os.path.join(args[args.index("--work") + 1], "pyinfra.log"), "w") as l
 mode = os.environ.get("STUB", "applied")
 if mode == "applied":
     print(json.dumps({"exit": 0, "row": row, "results": [{"role": "payload", "ok": True, "why": "healthy",
-                      "outcome": "applied"}], "missing": [], "errors": []}))
+                      "outcome": "applied"}], "missing": [], "errors": [], "watch": watch}))
 else:
     print(json.dumps({"exit": 1, "row": row, "results": [{"role": "payload", "ok": False,
                       "why": "release x failed (unhealthy); rolled back to y", "outcome": mode}],
@@ -46,6 +52,7 @@ else:
 def code_archive(base: Path, version: int) -> tuple[Path, str, str]:
     """A release's code: (archive, tree hash, fleet file hash)."""
     files = {"robotfleet/__init__.py": "", "robotfleet/commands/__init__.py": "", "robotfleet/commands/converge.py": STUB,
+             "robotfleet/pull/__init__.py": "", "robotfleet/pull/layout.py": Path(layout.__file__).read_text(),
              "inventories/robots.yaml": f"# release {version}\n"}
     root = base / f"tree-{version}"
     for name, text in files.items():
@@ -198,12 +205,32 @@ def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
     assert sent.startswith("report not sent")
 
 
+def test_a_release_fetched_over_https_is_verified_applied_and_reported_elsewhere(world, tmp_path):
+    """The releases from a static HTTPS mirror (its CA in remote-ca.pem),
+    the report pushed to the report remote: the same wake."""
+    from tests.integration import httpsgit
+
+    ca, cert, key = httpsgit.make_ca(tmp_path / "tls")
+    world.release(1)
+    subprocess.run(["git", "-C", str(world.bare), "update-server-info"], check=True)
+    server = httpsgit.Server(world.base, cert, key, smart=False)
+    try:
+        (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
+        world.config = layout.Config(**{**world.config.__dict__, "remote": server.url("fleet.git"),
+                                        "report_remote": f"file://{world.bare}"})
+        _, outcome, sent = world.wake()
+        assert (outcome.result, sent) == ("applied", "report sent") and server.requests > 0
+        assert world.pushed_report()["applied"]["version"] == 1
+    finally:
+        server.close()
+
+
 def test_the_journal_line_says_the_outcome_and_its_cost():
     report = {"result": "refused", "seen": {"version": 3}, "reason": "timestamp.json: expired",
-              "check": {"cpu": 0.42, "sent": 1200, "received": 3400}}
+              "check": {"cpu": 0.42, "sent": 1200, "received": 3400, "requests": 2}}
     assert agent.journal_line(report, "report sent", 1.25) == (
         "robot-pull: refused (release 3): timestamp.json: expired; 1.2 s, 0.42 s CPU, sent 1200 B, "
-        "received 3400 B; report sent")
+        "received 3400 B in 2 requests; report sent")
 
 
 def test_the_agent_configuration_is_checked_field_by_field(tmp_path):

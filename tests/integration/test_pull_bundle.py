@@ -16,7 +16,8 @@ from tests.unit.pullkit import NOW
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
 DATA = SimpleNamespace(pull_remote="ssh://gitolite3@git.lan/fleet", pull_interval=60, pull_jitter=5,
                        pull_windows=[], pull_min_free_mb=256, pull_fetch_timeout=120, pull_stale_after=3,
-                       pull_boot_delay=30, pull_remote_host_keys=[KEY], pull_platform="cp313-x86_64")
+                       pull_boot_delay=30, pull_remote_host_keys=[KEY], pull_platform="cp313-x86_64",
+                       pull_heartbeat=3600, pull_report_remote=None, pull_remote_ca=None)
 RECORD = SimpleNamespace(version=4, published="2026-11-25T10:00:00Z", tree_sha256="ab" * 32)
 
 
@@ -89,3 +90,15 @@ def test_the_gitolite_repository_a_remote_names():
 
     assert repository_name("ssh://gitolite3@git.lan:2222/fleet") == "fleet"
     assert repository_name("git@git.lan:robots/fleet.git") == "robots/fleet"
+
+
+def test_a_bundle_for_an_image_shared_by_many_robots_carries_the_name_rule(tmp_path):
+    code = tmp_path / "code.tar.gz"
+    code.write_bytes(b"code")
+    bundle.make(tmp_path / "out", "robot9", DATA, RECORD, code, [("w.whl", code)], b"{}", None, ("machine-id", "arm-"))
+    with tarfile.open(tmp_path / "out" / "rootfs.tar") as tar:
+        text = tar.extractfile("etc/robot-pull/agent.json").read().decode()
+    config = layout.read_config(text)
+    assert (config.robot, config.name_rule, config.name_prefix, config.interval) == ("", "machine-id", "arm-", 60)
+    assert layout.named(config, read=lambda rule: "0123456789abcdef0123456789abcdef\n").robot == "arm-0123456789ab"
+    assert "arm-<machine-id> (with the settings of robot9)" in (tmp_path / "out" / "README").read_text()

@@ -88,3 +88,27 @@ def test_without_a_fleet_file_a_robot_s_defaults():
 
     data = converge.host_data("robot1", None, roster.registry())
     assert data.payload_dir == "/var/lib/robot-payload" and data.payload_autostart is True
+
+
+def test_what_the_roles_status_watches_and_how_a_change_shows(tmp_path):
+    """The agent reads the roles' status again only when one of these changed
+    (or at its heartbeat): the payload's directory and unit invocation, dockerd."""
+    from robotfleet import roster
+    from robotfleet.pull import layout
+
+    data = converge.host_data("robot1", None, roster.registry())
+    assert set(converge.watch(roster.roles(), data)) == {
+        "/var/lib/robot-payload", "/run/systemd/units/invocation:robot-payload.service", "/usr/bin/dockerd"}
+    directory, link = tmp_path / "payload", tmp_path / "current"
+    directory.mkdir()
+    link.symlink_to("releases/1")
+    paths = [str(directory), str(link), str(tmp_path / "absent")]
+    before = layout.watched(paths)
+    assert before[str(tmp_path / "absent")] == "-" and before[str(link)].endswith(":releases/1")
+    assert layout.watched(paths) == before
+    (directory / ".last-result.json.tmp").write_text("{}")
+    os.replace(directory / ".last-result.json.tmp", directory / "last-result.json")
+    link.unlink()
+    link.symlink_to("releases/2")
+    after = layout.watched(paths)
+    assert after[str(directory)] != before[str(directory)] and after[str(link)].endswith(":releases/2")

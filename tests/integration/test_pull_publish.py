@@ -279,3 +279,28 @@ def test_wheels_for_a_robot_platform_are_carried_and_verified(site):
     assert record.wheels == {"cp311-aarch64": ["wheels/six-1.16.0-py2.py3-none-any.whl"]}
     got = client.download(record.wheels_for("cp311-aarch64"), site["robot"] / "targets")
     assert got["wheels/six-1.16.0-py2.py3-none-any.whl"].read_bytes()[:2] == b"PK"
+
+
+def test_robots_without_pull_platform_get_the_setting_s_default_and_a_full_cache_skips_the_index(site, monkeypatch):
+    """Not the operator's own Python (3.11 here); and a second publish with
+    every wheel cached does not ask the index (which here cannot answer)."""
+    from robotfleet import roster
+    from robotfleet.pull import wheels
+
+    monkeypatch.setenv("PIP_CONFIG_FILE", os.devnull)  # only the index given here (no local mirror)
+    monkeypatch.delenv("PIP_FIND_LINKS", raising=False)
+    default = roster.registry().settings["pull_platform"].default
+    pyproject = site["checkout"] / "pyproject.toml"
+    pyproject.write_text('[project]\nname = "x"\nversion = "1"\ndependencies = ["six==1.16.0"]\n')
+    git(site["checkout"], "commit", "-qam", "tiny requirements")
+    cache = site["base"] / "wheels"
+    robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache)
+    _, record = robot_refresh(site)
+    assert record.wheels == {default: ["wheels/six-1.16.0-py2.py3-none-any.whl"]}
+    assert wheels.platform_key() == default or wheels.platform_key() not in record.wheels
+    done = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache,
+                          "--index-url", "http://127.0.0.1:9/simple", "--allow-dirty")
+    assert "publish: release 2" in done.stdout
+    refused = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache,
+                             "--index-url", "http://127.0.0.1:9/simple", "--refresh-wheels", check=False)
+    assert refused.returncode != 0 and "wheels for " in refused.stderr

@@ -17,7 +17,7 @@ from robotfleet.pull import reports, transport, waves
 UTC = datetime.timezone.utc
 NOW = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
-CONFIG = SimpleNamespace(interval=60, jitter=5, stale_after=3)
+CONFIG = SimpleNamespace(interval=60, jitter=5, stale_after=3, heartbeat=0)
 
 
 def made(result="applied", robot="robot1", when=NOW, **more) -> dict:
@@ -64,10 +64,12 @@ def test_text_from_a_robot_is_shown_not_obeyed():
         reports.parse(b" " * (reports.MAX_BYTES + 1), "robot1")
 
 
-def test_stale_after_so_many_intervals_with_their_jitter():
+def test_stale_after_so_many_heartbeats_each_with_an_interval_and_its_jitter():
     report = made()
     assert not reports.stale(report, NOW + datetime.timedelta(seconds=195), 60, 5, 3)
     assert reports.stale(report, NOW + datetime.timedelta(seconds=196), 60, 5, 3)
+    assert not reports.stale(report, NOW + datetime.timedelta(seconds=1330), 60, 5, 2, heartbeat=600)
+    assert reports.stale(report, NOW + datetime.timedelta(seconds=1331), 60, 5, 2, heartbeat=600)
 
 
 def test_a_failure_counts_for_the_version_it_was_for():

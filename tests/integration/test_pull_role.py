@@ -87,6 +87,9 @@ def robot(**extra):
      "robots.yaml: robot3.pull_windows[0]: maintenance window 'daily 01:00-01:00': starts and ends at the same "
      "time; for all day write 00:00-23:59"),
     (robot(pull="yes"), "robots.yaml: robot3.pull: expected true or false, got 'yes'"),
+    (robot(pull=True, pull_remote="https://git.lan/fleet", pull_report_remote="ssh://git@git.lan/fleet"),
+     "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
+     "(ssh-keyscan HOST, checked against the server's own)"),
 ])
 def test_bad_pull_settings_get_one_clear_line(doc, expected):
     assert fleet_problems(doc) == [expected]
@@ -96,6 +99,8 @@ def test_bad_pull_settings_get_one_clear_line(doc, expected):
     {"pull": True, "pull_remote": "ssh://gitolite3@git.lan:2222/fleet", "pull_remote_host_keys": [KEY]},
     {"pull": True, "pull_remote": "git@git.lan:robots/fleet.git", "pull_remote_host_keys": [KEY]},
     {"pull": True, "pull_remote": "https://git.lan/robots/fleet.git"},
+    {"pull": True, "pull_remote": "https://mirror.lan/fleet.git", "pull_report_remote": "ssh://gitolite3@git.lan/fleet",
+     "pull_remote_host_keys": [KEY], "pull_remote_ca": "files/fleet-ca.pem"},
     {"pull_windows": ["Mon-Fri 01:00-05:00", "Sat,Sun 00:00-23:59 UTC"]},
     {"pull_remote": "ssh://git@10.20.0.5/fleet"},  # set for the fleet; used where pull is true
 ])
@@ -219,6 +224,23 @@ def test_a_trust_root_that_is_not_the_operator_s_is_refused(pulled, tmp_path):
     pullkit.edit_json(other.repository.metadata / "root.json", lambda d: d["signed"].update(version=5))
     with pytest.raises(install.InstallError, match="is not a TUF root signed by its own keys"):
         install.trust_root(tmp_path, theirs)
+
+
+def test_an_https_remote_s_ca_is_installed_and_removed_when_unset(pulled, tmp_path):
+    from tests.integration import httpsgit
+
+    ca = httpsgit.make_ca(tmp_path / "tls")[0]
+    https = {**pulled, "pull_remote": "https://127.0.0.1:8443/fleet.git", "pull_remote_ca": str(ca)}
+    files = written_files(run_plan({"r1": ("robots", https, fresh_host("debian-13"))})["r1"])
+    assert files[layout.REMOTE_CA] == ca.read_text()
+    assert json.loads(files[layout.CONFIG])["remote"] == "https://127.0.0.1:8443/fleet.git"
+    snap = converged("robots", https, "debian-13")
+    assert not written_files(run_plan({"r1": ("robots", https, snap)})["r1"])  # converged: nothing
+    commands = run_plan({"r1": ("robots", pulled, snap)})["r1"]
+    assert find(commands, f"rm -f {layout.REMOTE_CA}")
+    result = run_plan({"r1": ("robots", {**https, "pull_remote_ca": str(tmp_path / "tls" / "ca.key")},
+                              fresh_host("debian-13"))})
+    assert result.failed == {"r1"} and find(result["r1"], "pull_remote_ca: .*ca.key holds no PEM certificate")
 
 
 def test_platform_names():

@@ -111,3 +111,65 @@ def test_the_enrollment_key_is_retired_once_the_robot_s_own_key_was_accepted(tmp
     assert robot.retire_enrollment_key() is True
     assert not (etc / "enroll_ed25519").exists() and not (etc / "enroll_ed25519.pub").exists()
     assert robot.keys() == [str(etc / "id_ed25519")]
+
+
+@pytest.fixture(scope="module")
+def tls(tmp_path_factory):
+    from tests.integration import httpsgit
+
+    return httpsgit.make_ca(tmp_path_factory.mktemp("tls"))
+
+
+@pytest.fixture(params=["smart", "static"])
+def https_remote(request, remote, tls, tmp_path):
+    """The remote fixture's repository over HTTPS: git http-backend, or its
+    files served as they are (a static "dumb" remote)."""
+    from tests.integration import httpsgit
+
+    bare, work = remote
+    git(bare, "update-server-info")
+    ca, cert, key = tls
+    server = httpsgit.Server(bare.parent, cert, key, smart=request.param == "smart")
+    etc = tmp_path / "etc"
+    etc.mkdir()
+    yield server, bare, work, etc, ca
+    server.close()
+
+
+def test_releases_are_fetched_over_https_with_the_fleet_s_ca_and_counted(https_remote, tmp_path):
+    server, bare, work, etc, ca = https_remote
+    robot = transport.Remote(server.url("fleet.git"), tmp_path / "releases", str(etc), timeout=30)
+    with pytest.raises(transport.TransportError, match=r"^fetch: .*certificate verif"):
+        robot.fetch_releases()  # the self-signed CA is not the system's: refused
+    (etc / "remote-ca.pem").write_bytes(ca.read_bytes())
+    robot = transport.Remote(server.url("fleet.git"), tmp_path / "releases", str(etc), timeout=30)
+    before = server.requests
+    first = robot.fetch_releases()
+    assert (robot.repo / "metadata" / "timestamp.json").read_text() == "v1"
+    assert robot.cost.requests == server.requests - before and robot.cost.requests >= 2
+    assert robot.cost.received > 300 and robot.cost.sent > 100
+    (work / "metadata" / "timestamp.json").write_text("v2")
+    git(work, "commit", "-q", "-am", "two")
+    git(work, "push", "-q", str(bare), "HEAD:refs/heads/robotfleet/releases")
+    git(bare, "update-server-info")
+    assert robot.fetch_releases() != first
+    assert (robot.repo / "metadata" / "timestamp.json").read_text() == "v2"
+    shallow = git(robot.repo, "rev-parse", "--is-shallow-repository").strip()
+    assert shallow == ("true" if server.smart else "false")  # a static remote cannot answer a shallow fetch
+
+
+def test_reports_go_to_the_report_remote_while_releases_come_over_https(https_remote, tmp_path):
+    server, bare, work, etc, ca = https_remote
+    (etc / "remote-ca.pem").write_bytes(ca.read_bytes())
+    reports = tmp_path / "reports.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(reports)], check=True)
+    robot = transport.Remote(server.url("fleet.git"), tmp_path / "releases", str(etc), timeout=30,
+                             report_url=f"file://{reports}")
+    robot.fetch_releases()
+    robot.push_report("robot1", b'{"robot": "robot1"}\n')
+    assert git(reports, "show", "refs/reports/robot1:report.json") == '{"robot": "robot1"}\n'
+    assert "refs/reports" not in git(bare, "for-each-ref")
+    git(reports, "push", "-q", str(bare), "refs/reports/robot1:refs/reports/robot2")  # as robot2 pushed it
+    git(bare, "update-server-info")
+    if server.smart:  # the earlier waves' reports are read from the releases' remote, over HTTPS too
+        assert robot.fetch_reports(["robot2"]) == {"robot2": b'{"robot": "robot1"}\n'}

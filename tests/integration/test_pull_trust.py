@@ -58,7 +58,7 @@ def test_what_an_interrupted_refresh_left_is_swept(fleet):
     (fleet.state / ".tuf-link-0000").symlink_to("tuf-leftover")
     fleet.refresh()
     current = (fleet.state / "tuf").resolve().name
-    assert {p.name for p in fleet.state.iterdir()} == {"trust.json", "tuf", current}
+    assert {p.name for p in fleet.state.iterdir()} == {"trust.json", "tuf", current, "verified.json", "verified.release.json"}
 
 
 def test_a_new_release_is_accepted_after_the_first(fleet):

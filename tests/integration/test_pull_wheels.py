@@ -2,6 +2,8 @@
 robot's platform key, and binary wheels for another machine fetched from
 PyPI with pip (a small requirement)."""
 
+import os
+
 import pytest
 
 from robotfleet.pull import wheels
@@ -36,3 +38,19 @@ def test_a_requirement_without_a_wheel_is_one_line(tmp_path):
         wheels.build_wheelhouse(["robotfleet-no-such-package-xyz==1"], "cp313-x86_64", tmp_path)
     assert str(caught.value).startswith("wheels for cp313-x86_64: ")
     assert "\n" not in str(caught.value)
+
+
+def test_a_cache_holding_every_requirement_is_used_without_the_index(tmp_path, monkeypatch):
+    """publish spent 20-60 s resolving against the index with every wheel cached."""
+    monkeypatch.setenv("PIP_CONFIG_FILE", os.devnull)  # only the index given here (no local mirror)
+    monkeypatch.delenv("PIP_FIND_LINKS", raising=False)
+    found = wheels.build_wheelhouse(["MarkupSafe==2.1.5", "six"], "cp311-aarch64", tmp_path)
+    nowhere = "http://127.0.0.1:9/simple"  # nothing listens: any question to the index fails
+    assert wheels.build_wheelhouse(["MarkupSafe==2.1.5", "six"], "cp311-aarch64", tmp_path,
+                                   index_url=nowhere) == found
+    # a requirement the cache lacks goes to the index (which here cannot answer) ...
+    with pytest.raises(wheels.WheelError, match="wheels for cp311-aarch64: "):
+        wheels.build_wheelhouse(["MarkupSafe==2.1.4"], "cp311-aarch64", tmp_path, index_url=nowhere)
+    # ... and so does everything when asked to refresh
+    with pytest.raises(wheels.WheelError):
+        wheels.build_wheelhouse(["six"], "cp311-aarch64", tmp_path, index_url=nowhere, refresh=True)

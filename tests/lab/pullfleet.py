@@ -240,16 +240,21 @@ class Attacks:
         self.push("expired timestamp")
 
     def other_key(self) -> None:
-        """A repository signed by keys the robots do not trust."""
-        other = self.op.base / "other-keys"
-        if not (other / "online.key").exists():
-            self.op.robotfleet("keys", "init", "--keys", str(other))
-        made = self.op.base / "other-repo"
-        shutil.rmtree(made, ignore_errors=True)
-        self.op.robotfleet("publish", FLEET, "--checkout", str(self.op.repo), "--keys", str(other),
-                           "--to-dir", str(made), "--no-wheels")
+        """The current release re-signed by a key the robots do not trust
+        (a stolen copy re-signed; no publish needed to make one)."""
+        from tuf.api.metadata import Metadata
+
+        from robotfleet.pull.keys import KeyDir
+
+        other = KeyDir(self.op.base / "other-keys")
+        if not other.has("online"):
+            other.path.mkdir(mode=0o700, exist_ok=True)
+            other.generate("online")
         self.checkout()
-        for part in ("metadata", "targets"):
-            shutil.rmtree(self.work / part)
-            shutil.copytree(made / part, self.work / part)
+        path = self.work / "metadata" / "timestamp.json"
+        timestamp = Metadata.from_file(str(path))
+        timestamp.signed.version += 1
+        timestamp.signatures.clear()
+        timestamp.sign(other.signer("online"))
+        timestamp.to_file(str(path))
         self.push("signed by another key")

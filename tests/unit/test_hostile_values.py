@@ -61,7 +61,7 @@ BENIGN_INSIDE = {
     "in a URL": {"..", "../../etc", "/var/lib/../../tmp", "/tmp", "/var/tmp/x", "-rf", "--help", "~root"},
 }
 # Files on the operator's machine, opened there by pyinfra; never sent to a host.
-OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file", "ssh_revoked_host_keys", "pull_wheelhouse", "pull_trust_root"}
+OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file", "ssh_revoked_host_keys", "pull_wheelhouse", "pull_trust_root", "pull_remote_ca"}
 
 
 def places(name: str, value):

@@ -1,0 +1,54 @@
+"""The release's converge run as the agent sees it (robotfleet/commands/converge.py
+is the other side): starting it in a release's own tree and venv, reading its
+one JSON line, and what that line says of the run."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+from pathlib import Path
+
+TIMEOUT = 5 * 3600
+
+
+def classify(said: dict, version: int) -> tuple[str, str]:
+    """The converge run's outcome, applied, rolled-back or failed, and why (one line)."""
+    if said.get("error"):
+        return "failed", f"release {version}: {said['error']}"
+    results = said.get("results") or []
+    rolled = [r for r in results if r.get("outcome") == "rolled-back"]
+    if rolled:
+        return "rolled-back", f"release {version}: {rolled[0].get('why')}"
+    bad = [r for r in results if not r.get("ok")]
+    if said.get("exit") or bad:
+        why = bad[0]["why"] if bad else "; ".join(said.get("errors") or []) or f"pyinfra exited {said.get('exit')}"
+        return "failed", f"release {version}: {why}"
+    missing = said.get("missing") or []
+    if missing:
+        return "failed", f"release {version}: {missing[0]['role']}: {missing[0]['why']}"
+    return "applied", f"release {version} applied"
+
+
+def run(python: Path, code: Path, arguments: list[str]) -> dict:
+    """Run the release's converge module in its own tree; its JSON line."""
+    env = dict(os.environ, PYTHONPATH=str(code), PYTHONDONTWRITEBYTECODE="1")
+    try:
+        done = subprocess.run([str(python), "-m", "robotfleet.commands.converge", *arguments], cwd=code, env=env,
+                              capture_output=True, text=True, timeout=TIMEOUT)
+    except (OSError, subprocess.TimeoutExpired) as error:
+        return {"error": f"converge: {error}"}
+    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
+    if not lines:
+        tail = [line for line in done.stderr.splitlines() if line.strip()]
+        return {"error": f"converge said nothing ({tail[-1] if tail else f'exit {done.returncode}'})"}
+    return json.loads(lines[-1])
+
+
+def status(state: Path, robot: str, fleet: str | None) -> dict:
+    """The roles' status as the code the agent runs now reads it (no new
+    release): converge status's answer ({"row", "missing", "watch"});
+    ``fleet``: the fleet file's path in that code (None: the defaults)."""
+    code = state / "code" / "current"
+    return run(state / "venv" / "bin" / "python", code,
+               ["status", "--robot", robot] + (["--fleet", str(code / fleet)] if fleet else []))

@@ -1,0 +1,94 @@
+"""What a pull check that finds nothing new costs (robotfleet/pull/agent.py):
+no TUF (not even its import: the same repository as the last verification
+is that verification again), no roles' status process (what the last read
+found, until a path the roles watch changes or the heartbeat is due), no
+report push (until the report says something new or the heartbeat is due).
+The agent against a real TUF repository and git remote (file://), with a
+release whose converge is tests/integration/test_pull_agent.py's stub,
+which logs each time it runs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+from robotfleet.pull import agent
+from tests.integration.test_pull_agent import World
+
+
+@pytest.fixture
+def world(tmp_path, monkeypatch):
+    made = World(tmp_path)
+    made.runs = tmp_path / "converge.log"
+    monkeypatch.setenv("STUB_LOG", str(made.runs))
+    made.release(1)
+    made.wake()  # applied
+    made.wake()  # up-to-date: said once
+    made.runs.write_text("")
+    return made
+
+
+def age_state(world, seconds: float) -> None:
+    """The last status read and report push, ``seconds`` earlier."""
+    state = agent.load_state(world.state)
+    state["status"]["at"] -= seconds
+    state["reported"]["at"] -= seconds
+    agent.save_state(world.state, state)
+
+
+def test_an_idle_check_runs_no_status_process_and_pushes_nothing(world):
+    report, outcome, sent = world.wake()
+    assert (outcome.result, sent) == ("up-to-date", "report unchanged")
+    assert world.runs.read_text() == ""
+    assert report["status"]["release"] == "r-applied" and report["status_time"]
+
+
+def test_an_idle_check_imports_no_tuf(world, tmp_path):
+    config = tmp_path / "agent.json"
+    config.write_text(world.config.to_json())
+    code = ("import sys; from robotfleet.pull import agent; agent.main(['--config', sys.argv[1]]); "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'tuf', 'securesystemslib', 'urllib3'}))")
+    done = subprocess.run([sys.executable, "-c", code, str(config)], capture_output=True, text=True, check=True)
+    line, modules = done.stdout.strip().splitlines()
+    assert line.startswith("robot-pull: up-to-date (release 1); ") and line.endswith("; report unchanged"), line
+    assert modules == "[]"
+    assert world.runs.read_text() == ""
+
+
+def test_a_watched_path_that_changed_reads_the_status_again(world, tmp_path, monkeypatch):
+    payload = tmp_path / "payload"
+    payload.mkdir()
+    monkeypatch.setenv("STUB_WATCH", str(payload))
+    age_state(world, 3600 * 2)  # the heartbeat: a read that learns what to watch
+    world.wake()
+    world.runs.write_text("")
+    monkeypatch.setenv("STUB_HEALTH", "unhealthy")
+    report, _, sent = world.wake()
+    assert world.runs.read_text() == "" and report["status"]["health"] == "healthy" and sent == "report unchanged"
+    (payload / "last-result.json").write_text("{}")  # what payloadctl renames into its directory
+    report, _, sent = world.wake()
+    assert world.runs.read_text() == "status\n"
+    assert report["status"]["health"] == "unhealthy" and sent == "report sent"
+
+
+def test_the_heartbeat_reads_the_status_and_pushes_the_report(world):
+    age_state(world, world.config.heartbeat - 60)
+    _, _, sent = world.wake()
+    assert world.runs.read_text() == "" and sent == "report unchanged"
+    age_state(world, 61)
+    before = time.time()
+    _, _, sent = world.wake()
+    assert world.runs.read_text() == "status\n" and sent == "report sent"
+    assert agent.load_state(world.state)["reported"]["at"] >= before
+
+
+def test_a_release_to_try_again_is_verified_in_full_before_it_is_applied(world):
+    world.release(2)
+    _, outcome, _ = world.wake("failed")
+    assert outcome.result == "failed"
+    _, outcome, _ = world.wake()  # the same repository: recalled, then verified in full to download
+    assert outcome.result == "applied"
+    assert agent.load_state(world.state)["applied"]["version"] == 2

@@ -1,0 +1,90 @@
+"""A check that finds the repository exactly as its last full verification
+did needs no TUF refresh (robotfleet/pull/trusted.py): the record comes
+back without python-tuf; any change to what a refresh reads, a new root,
+time past an expiry, or a version below the one applied sends the check
+to the full refresh, which judges it (and refuses what it refuses).  Real
+repositories and keys on disk, and over a static HTTP server."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from robotfleet.pull import trusted
+from tests.unit import pullkit
+from tests.unit.pullkit import DAY, NOW, edit_json
+
+
+@pytest.fixture
+def fleet(tmp_path):
+    made = pullkit.Fleet(tmp_path)
+    made.release(1)
+    made.trust()
+    made.refresh()
+    return made
+
+
+def recall(fleet, now=NOW, source=None, applied=0):
+    found = trusted.recall(fleet.state, str(source or fleet.repository.path), now, applied)
+    return found[0] if found else None
+
+
+def test_the_same_repository_gives_the_verified_record_back(fleet):
+    record = recall(fleet)
+    assert (record.version, record.robots) == (1, ("robot1", "robot2"))
+    # later, the clock moves the trusted time on, as a successful check does
+    assert trusted.recall(fleet.state, str(fleet.repository.path), NOW + DAY)[1] == NOW + DAY
+    assert trusted.read_state(fleet.state).time == NOW + DAY
+    # a clock behind the trusted time is not believed
+    assert trusted.recall(fleet.state, str(fleet.repository.path), NOW)[1] == NOW + DAY
+
+
+def test_recalling_imports_no_tuf(fleet):
+    code = ("import sys, datetime; from robotfleet.pull import trusted; "
+            f"found = trusted.recall({str(fleet.state)!r}, {str(fleet.repository.path)!r}, "
+            "datetime.datetime.now(datetime.timezone.utc)); "
+            "assert found and found[0].version == 1, found; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('tuf', 'securesystemslib', 'urllib3')))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("change", ["timestamp", "record", "next root", "new release"])
+def test_any_change_to_what_a_refresh_reads_means_a_full_refresh(fleet, change):
+    repo = fleet.repository
+    if change == "timestamp":
+        edit_json(repo.metadata / "timestamp.json", lambda d: d["signed"].update(version=d["signed"]["version"] + 1))
+    elif change == "record":
+        blob = repo.blob("release.json")
+        blob.write_bytes(blob.read_bytes().replace(b'"halt": false', b'"halt": true '))
+    elif change == "next root":
+        (repo.metadata / "2.root.json").write_text("{}")
+    else:
+        fleet.release(2)
+    assert recall(fleet) is None
+
+
+def test_an_expiry_a_rollback_floor_or_another_source_means_a_full_refresh(fleet, tmp_path):
+    expires = min(fleet.repository.timestamp().signed.expires, fleet.repository.record().expires_at)
+    assert recall(fleet, now=expires - DAY) is not None
+    assert recall(fleet, now=expires) is None
+    assert recall(fleet, applied=2) is None
+    assert recall(fleet, source=tmp_path / "elsewhere") is None
+
+
+def test_an_initialized_trust_forgets_what_it_verified(fleet):
+    fleet.trust()
+    assert recall(fleet) is None
+    assert not (fleet.state / trusted.VERIFIED).exists()
+
+
+def test_over_http_the_same_files_are_read(fleet):
+    with pullkit.static_http(fleet.repository.path) as url:
+        fleet.refresh(source=url)
+        assert recall(fleet, source=url).version == 1
+        fleet.release(2)
+        assert recall(fleet, source=url) is None
+        assert fleet.refresh(source=url).version == 2
+        assert recall(fleet, source=url).version == 2
