@@ -143,4 +143,5 @@ def test_the_paths_and_tests_the_docs_name_exist():
 
 def test_ci_runs_the_readmes_test_command():
     """README's second command is what CI runs (its marker says so)."""
-    assert ".ci/setup && .venv/bin/python -m pytest" in (ROOT / ".ci" / "run").read_text()
+    assert ".ci/setup && .venv/bin/python -m tests\n" in (ROOT / ".ci" / "run").read_text()
+    assert ".ci/setup && .venv/bin/python -m tests " in (ROOT / "README.md").read_text()

@@ -29,7 +29,7 @@ def test_the_two_commands_stay_at_the_top():
     assert LINES[2:6] == [
         "```sh",
         ".ci/setup && .venv/bin/python -m tests.lab demo    # provision a simulated fleet: 3 robots and a laptop",
-        ".ci/setup && .venv/bin/python -m pytest            # the tests: unit, then end to end on simulated hosts",
+        ".ci/setup && .venv/bin/python -m tests             # the tests: unit and integration beside end to end on simulated hosts",
         "```",
     ]
 
