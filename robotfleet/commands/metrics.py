@@ -34,11 +34,10 @@ roles' cells, ``drift``), with ``via`` saying where the row came from
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
 from collections.abc import Callable
 
+from robotfleet import atomicfile
 from robotfleet.checkers import one_line
 from robotfleet.role import Metric
 
@@ -118,21 +117,9 @@ def _number(value: float) -> str:
 
 
 def write(path: str, text: str) -> None:
-    """Replace ``path`` with ``text`` atomically: a temp file in the same
-    directory (a collector never reads half a file), fsync, mode 0644, rename."""
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, temp = tempfile.mkstemp(prefix=".robotfleet-", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.chmod(temp, 0o644)
-        os.replace(temp, path)
-    except BaseException:
-        if os.path.exists(temp):
-            os.unlink(temp)
-        raise
+    """Replace ``path`` with ``text`` atomically (a collector never reads
+    half a file), mode 0644."""
+    atomicfile.write(path, text, mode=0o644)
 
 
 def reported(inventory: str, reached: list[str]) -> list[dict]:

@@ -14,10 +14,10 @@ import fcntl
 import hashlib
 import json
 import os
-import tempfile
 import time
 
 # A count and the failure budget are the same rule in push and pull rollouts.
+from robotfleet import atomicfile
 from robotfleet.pull.waves import Count, allowed_failures, parse_count  # noqa: F401 - rollout.py reads them here
 
 
@@ -110,22 +110,8 @@ def start_run(state: dict) -> dict:
 
 
 def save_state(path: str, state: dict) -> None:
-    """Write atomically: a temp file of an unpredictable name created
-    exclusively (nothing planted there is followed), fsync, rename."""
-    directory = os.path.dirname(path) or "."
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=os.path.basename(path) + ".", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "w") as handle:
-            json.dump(state, handle, indent=2, sort_keys=True)
-            handle.write("\n")
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write atomically (robotfleet/atomicfile.py)."""
+    atomicfile.write(path, json.dumps(state, indent=2, sort_keys=True) + "\n", make_parents=True)
 
 
 class RolloutBusy(Exception):

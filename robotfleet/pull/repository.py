@@ -28,6 +28,7 @@ from pathlib import Path
 from tuf.api.metadata import MetaFile, Metadata, Root, Snapshot, TargetFile, Targets, Timestamp
 from tuf.api.serialization.json import JSONSerializer
 
+from robotfleet import atomicfile
 from robotfleet.pull import record as records
 
 ONLINE_ROLES = (Targets.type, Snapshot.type, Timestamp.type)
@@ -73,17 +74,7 @@ def blob_name(path: str, sha256: str) -> str:
 
 
 def _write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        os.chmod(temp, 0o644)
-        os.replace(temp, path)
-    except BaseException:
-        if os.path.exists(temp):
-            os.unlink(temp)
-        raise
+    atomicfile.write(path, data, mode=0o644, make_parents=True)
 
 
 def sign_root(data: bytes, signers) -> bytes:

@@ -27,11 +27,10 @@ from __future__ import annotations
 import datetime
 import hashlib
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from robotfleet import atomicfile
 from robotfleet.pull import record as records
 
 STATE_FORMAT = 1
@@ -65,17 +64,7 @@ def read_state(state_dir) -> State:
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    fd, temp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temp, path)
-    except BaseException:
-        if os.path.exists(temp):
-            os.unlink(temp)
-        raise
+    atomicfile.write(path, data)
 
 
 def write_state(state_dir, state: State) -> None:

@@ -1,0 +1,33 @@
+"""Files this machine writes whole or not at all: a temp file of an
+unpredictable name created exclusively beside the target (nothing planted
+there is followed), fsynced, given its mode, renamed over the target.  A
+power cut or a full disk leaves the old file or the new one, never half of
+one (rollout state, trust state, metrics for a collector, TUF metadata)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+
+def write(path: str | Path, data: bytes | str, mode: int | None = None, make_parents: bool = False) -> None:
+    """Replace ``path`` with ``data``.  ``mode`` None keeps the temp file's
+    0600; ``make_parents`` creates missing directories first."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    if make_parents:
+        directory.mkdir(parents=True, exist_ok=True)
+    fd, temp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data.encode() if isinstance(data, str) else data)
+            handle.flush()
+            os.fsync(handle.fileno())
+        if mode is not None:
+            os.chmod(temp, mode)
+        os.replace(temp, path)
+    except BaseException:
+        if os.path.exists(temp):
+            os.unlink(temp)
+        raise
