@@ -43,7 +43,7 @@ Look inside a robot:
   ssh -i {key} -o UserKnownHostsFile={known} -p {robot['port']} ops@127.0.0.1
   docker exec -it {robot['container']} bash        # then: systemctl status robot-payload; docker ps; ls -l /dev/robot
 Fleet status:
-  ROBOT_LAB_PREFIX={prefix} {python} -m engine status inventories/lab.py
+  ROBOT_LAB_PREFIX={prefix} {python} -m robotfleet status inventories/lab.py
 Run again (changes nothing):
   ROBOT_LAB_PREFIX={prefix} {pyinfra} -y inventories/lab.py deploy.py
 Stop the lab:

@@ -78,3 +78,14 @@ def test_no_e2e_module_but_the_session_fixture_takes_the_session_lab_up_or_down(
                  if re.search(r"hosts\.(up|down|reset)\(\s*PREFIX\b", path.read_text())]
     assert offenders == []
     assert re.search(r"hosts\.down\(PREFIX\)", (e2e / "conftest.py").read_text())
+
+
+def test_the_demo_s_hints_name_modules_that_exist():
+    """The demo printed `python -m engine status` long after engine/ became robotfleet/."""
+    import importlib.util
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "lab" / "demo.py").read_text()
+    modules = re.findall(r"\{python\} -m ([\w.]+)", text)
+    assert modules and [m for m in modules if importlib.util.find_spec(m) is None] == []
