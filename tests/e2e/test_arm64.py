@@ -5,7 +5,8 @@ platform's variant of one multi-platform tag; then pull, a rerun that changes
 nothing, and a refused single-platform amd64 image, all checked from inside
 the hosts.
 
-pi1 joins the session's lab for this module only (`hosts.up(...,
+Opt-in: the test command skips this module unless ROBOT_E2E_ARM64=1
+(tests/e2e/conftest.py says why).  pi1 joins the session's lab for this module only (`hosts.up(...,
 arm64_robots=1)` reuses its services, mirror and registry; the module's end
 removes pi1 and its volumes, so the other modules see the lab as before).
 It runs last (tests/e2e/conftest.py), while its host image, when its
