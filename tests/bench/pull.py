@@ -1,8 +1,11 @@
 """Benchmark: pull mode on the lab.  Prints figures; asserts nothing; not
 part of the test command (it builds its own lab of N robots).
 
-    /work/bin/labslot python3 -m tests.bench.pull [--prefix pb] [--robots 10] [--intervals 30,60]
-                                                  [--jitters 0,15] [--idle-samples 5] [--keep]
+    python3 -m tests.bench.pull [--prefix pb] [--robots 10] [--intervals 30,60] [--jitters 0,15]
+                                [--runs 3] [--idle-samples 5] [--no-write] [--write-loaded] [--keep]
+
+Writes the pull-mode section of tests/bench/RESULTS.md (and RESULTS-pull.json)
+when every figure started on an idle machine (tests/bench/sections.py).
 
 - publish -> 50% / 100% of the robots healthy on the new release, the
   robots woken only by their timers (pull_interval, pull_jitter), for each
@@ -27,15 +30,19 @@ idle machine (tests/bench/hygiene.py) and say when they could not.
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
+import os
 import re
 import statistics
+import subprocess
+import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
 
-from tests.bench import hygiene
+from tests.bench import hygiene, sections
 
 ROOT = Path(__file__).resolve().parents[2]
 LINE = re.compile(r"robot-pull: (?P<result>[a-z-]+)(?: \(release (?P<version>\d+)\))?.*; (?P<seconds>[\d.]+) s, "
@@ -74,10 +81,6 @@ class Lab:
 
 def setup(prefix: str, robots: int, base: Path):
     """The lab (N robots, no laptop, the git server), provisioned by push, the agent installed."""
-    import os
-    import subprocess
-    import sys
-
     from tests.lab import hosts, pullfleet
 
     hosts.up(prefix, robots=robots, laptops=0, git_server=True)
@@ -115,13 +118,20 @@ def idle_check(lab, op, samples: int) -> dict:
         if index % 2:  # a heartbeat: the report is pushed although nothing changed
             lab.sh(robot, "python3 -c \"import json; p='/var/lib/robot-pull/agent-state.json'; "
                           "s=json.load(open(p)); s.pop('reported', None); json.dump(s, open(p, 'w'))\"")
-        hygiene.wait(f"idle check {index}", first=index == 0, patience=120)
+        load, idle = hygiene.wait(f"idle check {index}", first=index == 0, patience=120)
         lab.trigger([robot])
         line = journal(lab, robot)[-1]
         kind = "with a report push" if line["report"].startswith("report sent") else "without a report push"
-        found[kind].append({k: float(line[k] or 0) for k in COST})
-    return {kind: {k: statistics.median(s[k] for s in samples_) for k in COST}
-            for kind, samples_ in found.items() if samples_}
+        found[kind].append({**{k: float(line[k] or 0) for k in COST}, "load": load, "idle": idle})
+    return {kind: summary(samples_) for kind, samples_ in found.items() if samples_}
+
+
+def summary(samples: list[dict]) -> dict:
+    """The median of each cost, the CPU seconds' spread, the samples and whether all started idle (pure)."""
+    return {**{k: statistics.median(s[k] for s in samples) for k in COST},
+            "cpu_min": min(s["cpu"] for s in samples), "cpu_max": max(s["cpu"] for s in samples),
+            "samples": len(samples), "idle": all(s["idle"] for s in samples),
+            "load": max(s["load"] for s in samples)}
 
 
 def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
@@ -132,7 +142,7 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
     op.publish(pullfleet.fleet_text(op.lab, payload_tag="1.0" if tag == "1.1" else "1.1", **settings),
                f"timers {interval}/{jitter}", "--pause", "0", "--no-wheels")
     lab.trigger(lab.robots)  # the new timers in place (and that release applied)
-    hygiene.wait(f"rollout {interval}/{jitter}", first=True, patience=300)
+    load, idle = hygiene.wait(f"rollout {interval}/{jitter}", first=True, patience=300)
     published = time.monotonic()
     done = op.publish(pullfleet.fleet_text(op.lab, payload_tag=tag, **settings), f"bench {tag}", "--pause", "0",
                       "--no-wheels", "--canary", "100%")
@@ -152,7 +162,25 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
     return {"interval": interval, "jitter": jitter, "robots": len(lab.robots), "reached": len(times),
             "to_50%": half, "to_100%": times[-1] if len(times) == len(lab.robots) else None,
             "bytes_per_update": statistics.median(int(u["sent"]) + int(u["received"]) for u in updates) if updates else None,
-            "load": hygiene.load()}
+            "load": load, "idle": idle}
+
+
+def rollout_figure(samples: list[dict]) -> dict:
+    """Samples of one interval x jitter: median and spread of the times to
+    50% and 100% (None when a sample did not get there), pure."""
+    def spread(key: str) -> dict | None:
+        values = [s[key] for s in samples]
+        if not values or None in values:
+            return None
+        return {"median": statistics.median(values), "min": min(values), "max": max(values)}
+
+    first = samples[0]
+    updates = [s["bytes_per_update"] for s in samples if s["bytes_per_update"] is not None]
+    return {"interval": first["interval"], "jitter": first["jitter"], "robots": first["robots"],
+            "samples": len(samples), "reached": min(s["reached"] for s in samples),
+            "to_50%": spread("to_50%"), "to_100%": spread("to_100%"),
+            "bytes_per_update": statistics.median(updates) if updates else None,
+            "idle": all(s["idle"] for s in samples), "load": max(s["load"] for s in samples), "runs": samples}
 
 
 def fleet_per_hour(idle: dict, interval: int, jitter: int, heartbeat: int = 3600, robots_measured: int = 1,
@@ -198,13 +226,69 @@ def print_fleet(rows: list[dict]) -> None:
         print(f"bench: {rows[0]['formula']}", flush=True)
 
 
+def spread_text(figure: dict | None) -> str:
+    if not figure:
+        return "-"
+    return f"{figure['median']:.1f} ({figure['min']:.1f}–{figure['max']:.1f})"
+
+
+def loaded(figure: dict) -> str:
+    return "" if figure.get("idle") else f" [load {figure['load']:.1f}]"
+
+
+def markdown(figures: dict, conditions: dict) -> str:
+    """The pull-mode section of RESULTS.md (pure)."""
+    n = figures["robots"]
+    lines = ["## Pull mode (issue 26)", "",
+             "Written by `python3 -m tests.bench.pull`: its own lab of N robots and the git server, the agent "
+             "installed by push and each robot enrolled; seconds unless said otherwise.  A figure whose sample did "
+             "not start idle carries `[load X]`.", ""]
+    lines += [f"- {k}: {v}" for k, v in conditions.items()]
+    lines += ["", f"Publish -> robots healthy on the new release, N={n}, each robot woken only by its timer "
+                  "(median (min–max) of the runs; `pull_boot_delay` 5 s):", "",
+              "| pull_interval / pull_jitter | 50% healthy | 100% healthy | bytes per update, one robot | runs |",
+              "|---|---|---|---|---|"]
+    for row in figures.get("rollouts", []):
+        update = f"{row['bytes_per_update']:,.0f}" if row.get("bytes_per_update") is not None else "-"
+        lines.append(f"| {row['interval']} s / {row['jitter']} s | {spread_text(row['to_50%'])} | "
+                     f"{spread_text(row['to_100%'])}{loaded(row)} | {update} | {row['samples']} |")
+    lines += ["", "An idle check on one robot (a wake that finds nothing new; median of its samples; CPU: the "
+                  "agent and every program it ran, from its journal line; bytes: its git transport's):", "",
+              "| check | wall | CPU (min–max) | bytes sent | bytes received | git requests | samples |",
+              "|---|---|---|---|---|---|---|"]
+    for kind, cost in figures.get("idle_check", {}).items():
+        lines.append(f"| {kind} | {cost['seconds']:.2f} | {cost['cpu']:.2f} ({cost['cpu_min']:.2f}–"
+                     f"{cost['cpu_max']:.2f}){loaded(cost)} | {cost['sent']:,.0f} | {cost['received']:,.0f} | "
+                     f"{cost['requests']:.0f} | {cost['samples']} |")
+    rows = figures.get("fleet_per_hour", [])
+    if rows:
+        lines += ["", f"What a {rows[0]['robots']:,}-robot fleet asks of its git server per hour, computed from "
+                      "the idle checks above (not measured at that size):", "",
+                  "| interval / jitter / heartbeat | checks | report pushes | git requests (per s) | bytes (Mbit/s) |",
+                  "|---|---|---|---|---|"]
+        for row in rows:
+            lines.append(f"| {row['interval']} s / {row['jitter']} s / {row['heartbeat']} s | "
+                         f"{row['checks_per_hour']:,} | {row['report_pushes_per_hour']:,} | "
+                         f"{row['git_requests_per_hour']:,} ({row['git_requests_per_second']}) | "
+                         f"{row['bytes_per_hour'] / 1e9:.2f} GB ({row['megabits_per_second']}) |")
+        lines += ["", f"Formula: {rows[0]['formula']}."]
+    return "\n".join(lines) + "\n"
+
+
+def all_idle(figures: dict) -> bool:
+    return all(f.get("idle") for f in [*figures.get("idle_check", {}).values(), *figures.get("rollouts", [])])
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python3 -m tests.bench.pull", description=__doc__.split("\n\n")[0])
     parser.add_argument("--prefix", default="pb")
     parser.add_argument("--robots", type=int, default=10)
     parser.add_argument("--intervals", default="30,60")
     parser.add_argument("--jitters", default="0,15")
+    parser.add_argument("--runs", type=int, default=3, help="rollouts per interval x jitter")
     parser.add_argument("--idle-samples", type=int, default=5)
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--write-loaded", action="store_true", help="write even figures taken under load (marked)")
     parser.add_argument("--keep", action="store_true", help="leave the lab up")
     args = parser.parse_args(argv)
     from tests.lab import hosts
@@ -222,14 +306,29 @@ def main(argv=None) -> int:
             tag = "1.1"
             for interval in [int(i) for i in args.intervals.split(",")]:
                 for jitter in [int(j) for j in args.jitters.split(",")]:
-                    found = rollout_times(lab, op, interval, jitter, tag)
-                    figures["rollouts"].append(found)
-                    print(f"bench: publish -> healthy: {json.dumps(found)}", flush=True)
-                    tag = "1.0" if tag == "1.1" else "1.1"
+                    samples = []
+                    for _ in range(args.runs):
+                        samples.append(rollout_times(lab, op, interval, jitter, tag))
+                        print(f"bench: publish -> healthy: {json.dumps(samples[-1])}", flush=True)
+                        tag = "1.0" if tag == "1.1" else "1.1"
+                    figures["rollouts"].append(rollout_figure(samples))
     finally:
         if not args.keep:
             hosts.down(args.prefix)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    conditions = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+                  "commit": commit.stdout.strip(), "cpus": os.cpu_count(), "robots": args.robots,
+                  "load limit before each figure (1 min)": hygiene.LIMIT}
+    text = markdown(figures, conditions)
     print(json.dumps(figures, indent=2))
+    print(text)
+    if args.no_write:
+        return 0
+    if not all_idle(figures) and not args.write_loaded:
+        print("[bench] not written: some samples did not start idle (see [load X]); rerun on an idle machine, "
+              "or pass --write-loaded", file=sys.stderr)
+        return 1
+    sections.write("pull", text, {"conditions": conditions, "figures": figures})
     return 0
 
 

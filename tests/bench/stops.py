@@ -3,7 +3,10 @@ for payloads that stop differently, each with Docker's defaults and with the
 settings made for it (issue 29 item 5).  Prints figures; asserts nothing.
 
     python3 -m tests.bench.stops [--prefix bench] [--host robot1] [--rounds 2]
-        [--stops lab,sigint-only,no-trap] [--keep]
+        [--stops lab,sigint-only,no-trap] [--no-write] [--write-loaded] [--keep]
+
+Writes the stops section of tests/bench/RESULTS.md (and RESULTS-stops.json)
+when every sample started on an idle machine (tests/bench/sections.py).
 
 - stop: Docker's first signal to the old container (its `kill` event) ->
   its exit (`die`);
@@ -18,12 +21,16 @@ window and the broken releases are tests/bench/releases.py's.
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
+import os
 import statistics
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from tests.bench import hygiene, sections
 from tests.bench.releases import LAB_TAG, ROOT, deploy
 
 # How the payload stops: (what it is, the host's settings without and with
@@ -101,17 +108,19 @@ def update_downtime(evs: list[dict]) -> float | None:
     return (after[0]["time"] - last_die["time"]) if after else None
 
 
-def stop_figures(prefix: str, host: str, tmp: Path, kinds: list[str], rounds: int) -> None:
+def stop_figures(prefix: str, host: str, tmp: Path, kinds: list[str], rounds: int) -> list[dict]:
     """Each kind of payload, with Docker's defaults and with its settings:
     updates there and back, the old payload's stop apart from the rest."""
     print(f"\n{'payload':50} {'settings':18} {'update':>7} {'stop':>6} {'down':>6} {'rest':>6}   (seconds, medians)")
+    found = []
     for kind in kinds:
         what, plain, tuned = STOPS[kind]
         for label, settings in (("Docker's defaults", plain), ("with the settings", tuned)):
             # The stop signal and grace are the old container's: set up with them first.
             deploy(prefix, host, fleet(tmp, f"{kind}-setup", host, "1.0", settings=settings))
-            rows = []
-            for tag in ["1.1", "1.0"] * rounds:
+            rows, loads = [], []
+            for index, tag in enumerate(["1.1", "1.0"] * rounds):
+                loads.append(hygiene.wait(f"stop {kind}, {label}, {index}", first=index == 0))
                 since = robot_now(prefix, host)
                 code, seconds = deploy(prefix, host, fleet(tmp, f"{kind}-{tag}", host, tag, settings=settings))
                 evs = events(prefix, host, since)
@@ -124,6 +133,36 @@ def stop_figures(prefix: str, host: str, tmp: Path, kinds: list[str], rounds: in
             print(f"{what[:50]:50} {label:18} " + " ".join(
                 f"{'-' if v is None else round(v, 2)!s:>6}" for v in cells) + f"   deploy exits {exits}")
             print(f"{'':50} {'':18} settings: {json.dumps(settings) if settings else '(none)'}")
+            stops = [r[1] for r in rows if r[1] is not None]
+            found.append({"kind": kind, "payload": what, "settings_label": label, "settings": settings,
+                          "update": cells[0], "stop": cells[1], "down": cells[2], "rest": cells[3],
+                          "stop_min": min(stops, default=None), "stop_max": max(stops, default=None),
+                          "samples": len(rows), "exits": exits, "idle": all(idle for _, idle in loads),
+                          "load": max(load for load, _ in loads)})
+    return found
+
+
+def markdown(rows: list[dict], conditions: dict) -> str:
+    """The stops section of RESULTS.md (pure)."""
+    def cell(value) -> str:
+        return "-" if value is None else f"{value:.2f}"
+
+    lines = ["## The old payload's stop inside an update (issue 29 item 5)", "",
+             "Written by `python3 -m tests.bench.stops`: one robot updated 1.0 <-> 1.1, times from `docker events` "
+             "on the robot (medians; stop: min–max).  stop: Docker's first signal to the old container -> its exit; "
+             "down: its exit -> the new one's start; rest: the deploy's wall time without the stop.", ""]
+    lines += [f"- {k}: {v}" for k, v in conditions.items()]
+    lines += ["", "| payload | settings | update | stop | down | rest | deploy exits | samples |",
+              "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        settings = ", ".join(f"`{k}: {json.dumps(v)}`" for k, v in row["settings"].items()
+                             if k != "payload_command") or "-"
+        stop = cell(row["stop"]) + (f" ({cell(row['stop_min'])}–{cell(row['stop_max'])})"
+                                    if row["stop_min"] is not None else "")
+        mark = "" if row["idle"] else f" [load {row['load']:.1f}]"
+        lines.append(f"| {row['payload']} | {row['settings_label']}: {settings} | {cell(row['update'])} | "
+                     f"{stop}{mark} | {cell(row['down'])} | {cell(row['rest'])} | {row['exits']} | {row['samples']} |")
+    return "\n".join(lines) + "\n"
 
 
 def main() -> int:
@@ -134,6 +173,8 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--stops", default="lab,sigint-only,no-trap",
                         help=f"kinds of payload whose stop to time, of: {', '.join(STOPS)}")
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--write-loaded", action="store_true", help="write even figures taken under load (marked)")
     parser.add_argument("--keep", action="store_true", help="leave the lab up")
     args = parser.parse_args()
     kinds = [k for k in args.stops.split(",") if k]
@@ -147,11 +188,24 @@ def main() -> int:
     hosts.up(args.prefix, robots=int(number or 1), laptops=0)  # up to the robot measured
     tmp = Path(tempfile.mkdtemp(prefix="bench-stops-"))
     try:
-        stop_figures(args.prefix, host, tmp, kinds, args.rounds)
+        rows = stop_figures(args.prefix, host, tmp, kinds, args.rounds)
         deploy(args.prefix, host, fleet(tmp, "base", host, "1.0"))  # the lab as it was
     finally:
         if not args.keep:
             hosts.down(args.prefix)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    conditions = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+                  "commit": commit.stdout.strip(), "cpus": os.cpu_count(), "robot": host,
+                  "updates per row": 2 * args.rounds}
+    text = markdown(rows, conditions)
+    print(text)
+    if args.no_write:
+        return 0
+    if not all(row["idle"] for row in rows) and not args.write_loaded:
+        print("[bench] not written: some samples did not start idle (see [load X]); rerun on an idle machine, "
+              "or pass --write-loaded", file=sys.stderr)
+        return 1
+    sections.write("stops", text, {"conditions": conditions, "rows": rows})
     return 0
 
 
