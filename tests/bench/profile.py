@@ -32,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tests.bench import hygiene
+from tests.bench import hygiene, sections
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
@@ -316,7 +316,7 @@ def main(argv=None) -> int:
             text += "\n" + fresh_timeline(args.fresh, Path(tmp))
     print(text)
     if args.write:
-        (HERE / "PROFILE.md").write_text(text)
+        (HERE / "PROFILE.md").write_text(sections.rewrite_main(text, HERE / "PROFILE.md"))  # robot_cpu's kept
     return 0
 
 

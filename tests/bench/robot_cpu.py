@@ -35,7 +35,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from tests.bench.profile import cgroup_cpu_ns
+from tests.bench import sections
+from tests.bench.profile import HERE, ROOT, cgroup_cpu_ns
 
 EVENTS = ("sched:sched_process_fork", "sched:sched_process_exec", "sched:sched_stat_runtime")
 _FORK = re.compile(r"sched_process_fork: comm=.* pid=(\d+) child_comm=.* child_pid=(\d+)")
@@ -173,6 +174,7 @@ def main(argv=None) -> int:
     parser.add_argument("--host", default="robot1")
     parser.add_argument("--runs", type=int, default=10)
     parser.add_argument("--snapshot", action="store_true", help="also the host's snapshot command")
+    parser.add_argument("--write", action="store_true", help="write its section of tests/bench/PROFILE.md")
     parser.add_argument("commands", nargs="*", help="commands to run on the robot (default: sudo true)")
     args = parser.parse_args(argv)
     if not shutil.which("perf") or os.geteuid() != 0:
@@ -191,7 +193,18 @@ def main(argv=None) -> int:
             commands["the snapshot"] = snapshot_command(args.prefix, args.host, Path(tmp))
         costs = {name: measure(ssh, container, command, args.runs, Path(tmp)) for name, command in commands.items()}
     print(table(costs))
-    print("\n1-minute load before each: " + ", ".join(f"{n} {c.load:.2f}" for n, c in costs.items()))
+    loads = "1-minute load before each: " + ", ".join(f"{n} {c.load:.2f}" for n, c in costs.items())
+    print("\n" + loads)
+    if args.write:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+        sections.write("robot_cpu", "\n".join([
+            "## The robot's CPU per command, program by program", "",
+            f"Written by `python3 -m tests.bench.robot_cpu --runs {args.runs}"
+            f"{' --snapshot' if args.snapshot else ''} --write` ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+            f"commit {commit.stdout.strip()}, {args.host} of a converged lab): every task descending from the "
+            "robot container's processes, from the kernel's scheduler tracepoints, per run, the robot's "
+            "background over the same time taken away; the container's cgroup count beside it.", "",
+            table(costs), "", loads + "."]), {"costs": {n: vars(c) for n, c in costs.items()}}, HERE / "PROFILE.md")
     return 0
 
 

@@ -1,7 +1,8 @@
-"""Sections of tests/bench/RESULTS.md written by the benchmarks other than
-`python3 -m tests.bench` (pull mode, the payload's stop), each between two
-markers, and kept when `tests.bench` rewrites its own part.  Their data goes
-beside, in RESULTS-<name>.json."""
+"""Sections of a results file written by another benchmark than the file's
+own: RESULTS.md's by tests.bench.pull and tests.bench.stops, PROFILE.md's by
+tests.bench.robot_cpu.  Each sits between two markers and is kept when the
+file's own benchmark (tests.bench, tests.bench.profile) rewrites its part.
+Their data goes beside, in <file>-<name>.json (RESULTS-pull.json)."""
 
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ def write(name: str, body: str, data: dict, path: Path = RESULTS) -> None:
     """Set section ``name`` of RESULTS.md and its data file."""
     text = path.read_text() if path.exists() else "# Fleet benchmark results\n"
     path.write_text(replace(text, name, body))
-    (path.parent / f"RESULTS-{name}.json").write_text(json.dumps(data, indent=2) + "\n")
+    (path.parent / f"{path.stem}-{name}.json").write_text(json.dumps(data, indent=2) + "\n")
 
 
 def rewrite_main(text: str, path: Path = RESULTS) -> str:
