@@ -5,7 +5,8 @@ remote and no SSH from the operator's side once the robots are enrolled.
 One lab for the module (the session's, provisioned by push), in order:
 release 1 published and the agent installed by a push deploy; robot4
 started from a bundle; the robots' sshd turned off.  Then: a robot's key
-cannot write another robot's report; release 2 rolled out (publish and
+cannot write another robot's report, nor a shared image's enrollment key an
+enrolled robot's (on the lab's real gitolite); release 2 rolled out (publish and
 follow reports) reaches every robot, robot3 powered off meanwhile and
 catching up at boot; a tampered, a replayed, an expired and a foreign-key
 repository are each refused on every robot, which keeps its release; a
@@ -23,6 +24,7 @@ bundle while the others get the agent by push.
 
 from __future__ import annotations
 
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -138,6 +140,43 @@ def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
         code, output = lab.sh("robot1", push.format(ref=ref))
         assert code != 0 and "DENIED" in output, (ref, output)
     # (its own report ref it writes at every report: the reports read above)
+
+
+def test_a_shared_image_s_key_reports_only_as_a_name_its_rule_makes_and_no_enrolled_robot(pull, lab):
+    """The enrollment key of an image many robots share (`bundle --name-from
+    machine-id --name-prefix robot-`), on the lab's real gitolite: it may
+    write refs/reports/robot-<12 hex> but neither a registered robot's report
+    (one whose name the rule could make, too) nor the releases."""
+    from robotfleet.pull import gitolite
+    from tests.lab import gitserver
+
+    git = pull.op.git
+    admin = gitolite.Admin(f"ssh://{git['user']}@127.0.0.1:{git['port']}", pull.op.lab["ssh_key"],
+                           git["known_hosts"])
+    shared, enrolled = gitolite.shared_user("machine-id", "robot-"), "robot-0aa0aa0aa0aa"
+    lab.ok("robot1", "rm -f /tmp/shared /tmp/shared.pub /tmp/other /tmp/other.pub && "
+                     "ssh-keygen -q -t ed25519 -N '' -f /tmp/shared && ssh-keygen -q -t ed25519 -N '' -f /tmp/other")
+    keys = {gitolite.key_file(shared): lab.sh("robot1", "cat /tmp/shared.pub")[1],
+            gitolite.key_file(enrolled): lab.sh("robot1", "cat /tmp/other.pub")[1]}
+    gitolite.update(admin, git["repo"], add=keys, message="e2e: a shared image's key, an enrolled robot-<hex>")
+    push = ("cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
+            "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m shared) && "
+            "GIT_SSH_COMMAND='ssh -F /dev/null -i /tmp/shared -o IdentitiesOnly=yes "
+            "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
+            f"git push --force {gitserver.robot_url(git)} \"$c:{{ref}}\" 2>&1")
+    try:
+        code, output = lab.sh("robot1", push.format(ref="refs/reports/robot-3f2a9c0d1e2b"))
+        assert code == 0, output
+        for ref in (f"refs/reports/{enrolled}", "refs/reports/robot2", "refs/reports/robot-3f2a9c0d1e2",
+                    "refs/heads/robotfleet/releases"):
+            code, output = lab.sh("robot1", push.format(ref=ref))
+            assert code != 0 and "DENIED" in output, (ref, output)
+    finally:
+        gitolite.update(admin, git["repo"], remove=list(keys), message="e2e: the shared image's keys removed")
+        lab.sh("robot1", "rm -f /tmp/shared /tmp/shared.pub /tmp/other /tmp/other.pub")
+    # the report it wrote is removed by the admin, as a lost robot's would be
+    subprocess.run(["git", "push", "-q", gitserver.local_url(git), ":refs/reports/robot-3f2a9c0d1e2b"],
+                   env=pull.op.env(), check=True, capture_output=True)
 
 
 def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_up_at_boot(pull, lab):
