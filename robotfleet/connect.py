@@ -18,6 +18,8 @@ points), so the pyinfra CLI, status and rollout connect the same way:
   run (time.sleep, patched by gevent, looked up when it is called);
 - accept-new writes a host's key to known_hosts once (pyinfra's policy
   appends it at each connection of the run);
+- an idle connection wakes its paramiko thread every few seconds, not ten
+  times a second (idle_wakeup below);
 - the fleet's known_hosts is read by robotfleet/hostkeys.py (paramiko gives
   up on a file at its first ``@cert-authority`` line): plain keys as
   paramiko would, ``@revoked`` keys refused, and a host known only through an
@@ -40,6 +42,7 @@ import time
 from dataclasses import dataclass
 from random import uniform
 
+from gevent import monkey
 from paramiko import AuthenticationException, BadHostKeyException, HostKeys, MissingHostKeyPolicy, SSHException
 from paramiko import SSHClient as ParamikoClient
 from paramiko.agent import Agent
@@ -58,6 +61,9 @@ PARAMIKO_LOG = "robotfleet.connect.paramiko"
 logging.getLogger(PARAMIKO_LOG).addHandler(logging.NullHandler())
 logging.getLogger(PARAMIKO_LOG).propagate = False
 DEFAULT_KEYS = ("id_rsa", "id_ecdsa", "id_ed25519", "id_dsa")  # what paramiko looks for in ~/.ssh
+# paramiko's transport thread reads with a 0.1 s timeout, then looks for a close, a keepalive or a rekey:
+# a thousand connections waiting in one operator woke 10,000 times a second (tests/bench/SCALE.md).
+IDLE_WAKEUP_SECONDS = 5.0
 
 
 # The inventory file this process loaded (set by robotfleet/inventory.py), for
@@ -193,6 +199,7 @@ class Client(sshuserclient.SSHClient, _FleetKnownHosts):
 
     def parse_config(self, hostname, initial_cfg=None, ssh_config_file=None, strict_host_key_checking=None):
         parsed = list(super().parse_config(hostname, initial_cfg, ssh_config_file, strict_host_key_checking))
+        self.keep_alive = parsed[5]  # ssh_config's ServerAliveInterval, 0 when unset
         if self.check is not None:
             parsed[3] = FleetPolicy(self.check)
             parsed[4] = ()  # the fleet's known_hosts is read by the policy, not by paramiko
@@ -261,6 +268,10 @@ class FleetConnector(ssh.SSHConnector):
         except SSHException as error:
             if not self._retry_paramiko_agent_keys(hostname, kwargs, error):
                 raise
+        transport = self.client.get_transport()
+        wakeup = idle_wakeup(getattr(self.client, "keep_alive", 0), monkey.is_module_patched("socket"))
+        if transport is not None and wakeup is not None:
+            transport.sock.settimeout(wakeup)
 
     def host_key_check(self, kwargs: dict) -> HostKeyCheck | None:
         """The fleet's host key checking (yes, accept-new), taking the
@@ -332,6 +343,15 @@ class FleetConnector(ssh.SSHConnector):
             if found:
                 tried.append("key " + ", ".join(found))
         return tried
+
+
+def idle_wakeup(keep_alive: int, gevent_sockets: bool) -> float | None:
+    """How often an idle connection's paramiko thread wakes (None: paramiko's 0.1 s).  Only where gevent
+    patched sockets (CLI, status, rollout), where a close wakes the reader at once: a real thread asleep
+    on a closed descriptor could read a newer socket given its number.  Keepalives keep their interval."""
+    if not gevent_sockets:
+        return None
+    return float(min(IDLE_WAKEUP_SECONDS, keep_alive)) if keep_alive else IDLE_WAKEUP_SECONDS
 
 
 def network_reason(error: Exception, address: str, port: int, timeout: float,

@@ -48,7 +48,12 @@ USED = (
             "pyinfra.connectors.sshuserclient.client:SSHClient.parse_config", "bdce1ea5a063130a",
             "robotfleet/connect.py",
             "its result's fourth item is the host-key policy: swapped for one that names the file and the enroll "
-            "command (strict), or writes a key once (accept-new)"),
+            "command (strict), or writes a key once (accept-new); its sixth, ssh_config's ServerAliveInterval, "
+            "bounds how long an idle connection sleeps"),
+    Private(("paramiko.transport:Transport._active_check_timeout",),
+            "paramiko.packet:Packetizer.read_all", "d6eccad5d1d31e06", "robotfleet/connect.py",
+            "the transport's socket timeout (0.1 s, set from _active_check_timeout) is how often its reading "
+            "thread wakes to look for a close, a keepalive or a rekey; a connected one is given a longer one"),
     Private(("pyinfra.connectors.sshuserclient.client:SSHClient.connect",),
             "pyinfra.connectors.sshuserclient.client:SSHClient.connect", "bd3ef101b4c6a71b", "robotfleet/connect.py",
             "it keeps the ssh_config it applied as client._ssh_config: the port and user a failure line names"),

@@ -15,9 +15,14 @@ import paramiko
 
 
 class _Server(paramiko.ServerInterface):
-    def __init__(self, accepted_key, answer=None):
+    def __init__(self, accepted_key, answer=None, global_requests=None):
         self.accepted_key = accepted_key
         self.answer = answer  # command -> (stdout bytes, exit status); default: nothing, 0
+        self.global_requests = global_requests if global_requests is not None else []
+
+    def check_global_request(self, kind, msg):
+        self.global_requests.append(kind)  # e.g. a client's keepalive@lag.net
+        return False
 
     def get_allowed_auths(self, username):
         return "publickey"
@@ -53,6 +58,7 @@ class Listener:
         self.host_key, self.client_key = host_key, client_key
         self.answer = answer
         self.connections = 0
+        self.global_requests: list[str] = []
         self.open: list = []
         threading.Thread(target=self._serve, daemon=True).start()
 
@@ -77,7 +83,7 @@ class Listener:
         self.open.append(transport)
         transport.add_server_key(self.host_key)
         try:
-            transport.start_server(server=_Server(self.client_key, self.answer))
+            transport.start_server(server=_Server(self.client_key, self.answer, self.global_requests))
         except (paramiko.SSHException, EOFError, OSError):
             return
 
