@@ -1,6 +1,7 @@
 """Fleet status: what each host runs and whether it is healthy.
 
     robotfleet status inventories/robots.py [--limit robot2] [--json | --format openmetrics] [--metrics FILE]
+                                            [--parallel N]
 
 One row per host, one SSH command per host (a pull robot's row comes from
 its last report on the fleet remote instead, --remote, default the
@@ -9,8 +10,12 @@ host's architecture, as the snapshot reads it) and each role with a status
 part (deploy.py's roles) add their columns, e.g. Docker's version, the current
 release, its image, container state and health, the GPU driver.
 Unreachable hosts are rows too, never an abort, with the reason in words
-(the REACHABLE column, and "error" in --json).  Hosts are asked in parallel;
-a line on stderr tells as each answers, the table follows in inventory order.
+(the REACHABLE column, and "error" in --json).  Hosts are asked in parallel,
+at most --parallel at once (default 200: a handshake costs the operator a
+few ms of its one core, so 200 in flight stay far inside the connect timeout,
+and powered-off robots, which hold their place for that timeout, leave room
+for the others); a line on stderr tells as each answers, the table follows in
+inventory order.
 --metrics FILE also writes the fleet's state as OpenMetrics text to FILE
 (replaced atomically; for node_exporter's textfile collector), and
 --format openmetrics prints it instead of the table (for a Pushgateway):
@@ -29,6 +34,7 @@ import re
 import sys
 
 import gevent
+from gevent.lock import Semaphore
 
 from robotfleet import commands, connect, roster
 from robotfleet.checkers import one_line
@@ -37,6 +43,7 @@ from robotfleet.commands import metrics, waves
 from robotfleet.role import GROUPS
 
 MARK = "@@@robot-fleet-status "
+PARALLEL = 200
 # The engine's own section (no role is called so: a role's name is an identifier).
 HOST_SECTION = "engine:host"
 HOST_COMMAND = "dpkg --print-architecture"
@@ -108,12 +115,13 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
     return "\n".join(lines)
 
 
-def collect(inventory_path: str, limits: list[str], roles=None, answered=None, remote: str | None = None) -> list[dict]:
+def collect(inventory_path: str, limits: list[str], roles=None, answered=None, remote: str | None = None,
+            parallel: int = PARALLEL) -> list[dict]:
     """One row per host of ``inventory_path`` matching ``limits``, in
     inventory order; ``answered(row, count, total)`` is called as each host
     answers (or fails to).  Hosts with ``pull: true`` are read from their
     reports on the fleet remote (``remote``, else the checkout's origin), not
-    over SSH.  Raises selection.Refused."""
+    over SSH; at most ``parallel`` at once.  Raises selection.Refused."""
     from pyinfra.api import Config, State
     from pyinfra.context import ctx_state
 
@@ -126,10 +134,16 @@ def collect(inventory_path: str, limits: list[str], roles=None, answered=None, r
         if found[host.name]["reachable"]:
             found[host.name]["drift"] = drift(roles, found[host.name], host.data)
         _about(host, found[host.name])
-    state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10), check_for_changes=False)
+    state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10, PARALLEL=parallel), check_for_changes=False)
     state.limit_hosts = [h for h in hosts if h not in pulled]
+    slots = Semaphore(parallel)
+
+    def one(host):
+        with slots:
+            return _one(host, roles)
+
     with ctx_state.use(state):
-        jobs = {gevent.spawn(_one, host, roles): host for host in hosts if host not in pulled}
+        jobs = {gevent.spawn(one, host): host for host in hosts if host not in pulled}
         for count, job in enumerate(gevent.iwait(list(jobs)), 1):
             if answered is not None:
                 answered(_value(job, jobs[job], roles), count, len(jobs))
@@ -231,7 +245,11 @@ def main(argv=None) -> int:
     parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
     parser.add_argument("--remote", metavar="NAME|URL",
                         help="the fleet remote pull robots report to (default: the checkout's origin)")
+    parser.add_argument("--parallel", type=int, default=PARALLEL, metavar="N",
+                        help=f"hosts asked at once (default {PARALLEL})")
     args = parser.parse_args(argv)
+    if args.parallel < 1:
+        parser.error(f"--parallel {args.parallel}: a number of hosts, 1 or more")
     if args.json and args.format not in (None, "json"):
         parser.error("--json and --format openmetrics/table: choose one")
     shown = "json" if args.json else args.format or "table"
@@ -243,7 +261,8 @@ def main(argv=None) -> int:
             return selection.REFUSED
     roles = roster.roles()
     try:
-        rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote)
+        rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote,
+                       parallel=args.parallel)
     except selection.Refused as error:
         return selection.refused(error)
     rollout = waves.latest_state()

@@ -9,6 +9,7 @@ timeout.  Real sockets on 127.0.0.1."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
@@ -98,3 +99,35 @@ def test_a_dropped_connection_times_out_once(tmp_path, monkeypatch):
     assert line == (f"timed out after 2 s connecting to 127.0.0.1:{server.port} (no answer: powered off, "
                     "wrong address or a firewall)")
     assert elapsed < 3, elapsed
+
+
+def test_status_asks_at_most_parallel_hosts_at_once(tmp_path, client_key):
+    """A thousand handshakes at once would all wait on the operator's one
+    core (and, in the scaling benchmark, on the stand-ins' sshds): status
+    asks --parallel hosts at a time, the next as soon as one answers."""
+    from robotfleet import hostkeys
+
+    lock, asking, most = threading.Lock(), [0], [0]
+
+    def answer(command):
+        with lock:
+            asking[0] += 1
+            most[0] = max(most[0], asking[0])
+        time.sleep(0.5)
+        with lock:
+            asking[0] -= 1
+        return b"", 0
+
+    servers = [sshserver.ssh_server(client_key, answer) for _ in range(5)]
+    try:
+        path = fleet(tmp_path, {f"robot{i}": {"address": "127.0.0.1", "ssh_port": s.port}
+                                for i, s in enumerate(servers)})
+        (tmp_path / "known_hosts").write_text("".join(
+            f"{hostkeys.entry('127.0.0.1', s.port)} {s.host_key.get_name()} {s.host_key.get_base64()}\n"
+            for s in servers))
+        result = run(path, tmp_path, "-m", "robotfleet", "status", "inventories/robots.py", "--parallel", "2")
+    finally:
+        for server in servers:
+            server.close()
+    assert result.stderr.count("(5/5)") == 1 and "unreachable" not in result.stderr, result.stderr[-2000:]
+    assert most[0] == 2, most[0]
