@@ -88,6 +88,7 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     connect.names([], inventory)
     speedups.install()  # before pyinfra makes a host of each name
     short = limits.raise_open_files(sum(len(hosts) for hosts in fleet.groups.values()))
+    limits.collect_less_often()
     if short:
         print(f"robotfleet: {short}", file=sys.stderr)
     groups = {name: connect.names([(host, {}) for host in hosts]) for name, hosts in fleet.subgroups.items()}

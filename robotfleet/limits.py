@@ -1,5 +1,5 @@
-"""The operator process's open-file limit, raised to what a run of N hosts
-needs.
+"""The operator process sized for a run of N hosts: its open-file limit,
+raised to what the run needs, and its garbage collector, run less often.
 
 pyinfra keeps one SSH connection open per host for the whole run, and
 sizes its pool to a third of the soft limit (``(RLIMIT_NOFILE - 10) / 3``),
@@ -9,10 +9,16 @@ hard limit is lower than the run needs, one line says so."""
 
 from __future__ import annotations
 
+import gc
 import resource
 
 PER_HOST = 3  # pyinfra's own reckoning (pyinfra.api.state.MAX_PARALLEL)
 SPARE = 64  # the process's own files: Python, logs, the fleet file, known_hosts
+# pyinfra plans every operation of every host before it runs one, and keeps
+# what it planned: Python's default (a young-generation collection every 700
+# new objects) walked that heap some 2,000 times in a no-op of 1,000 hosts,
+# ~8 % of its CPU (tests/bench/SCALE.md); every 50,000 costs a few MB.
+COLLECT_EVERY = 50_000
 
 
 def needed(hosts: int) -> int:
@@ -37,3 +43,10 @@ def raise_open_files(hosts: int) -> str | None:
                 f"(ulimit -Hn): raise the hard limit (limits.conf, systemd's LimitNOFILE) or run fewer hosts "
                 f"at once (--limit a group, robotfleet rollout)")
     return None
+
+
+def collect_less_often() -> None:
+    """Raise the collector's first threshold to COLLECT_EVERY (never lower it)."""
+    young, middle, old = gc.get_threshold()
+    if 0 < young < COLLECT_EVERY:
+        gc.set_threshold(COLLECT_EVERY, middle, old)

@@ -1,5 +1,6 @@
 """robotfleet/limits.py: the open-file limit raised to what a run needs,
-in a child process whose limits the test sets."""
+in a child process whose limits the test sets; the collector run less often
+by every process that loads an inventory."""
 
 import json
 import resource
@@ -46,3 +47,19 @@ def test_a_hard_limit_too_low_is_one_line_and_the_soft_limit_goes_to_it():
     assert found["line"] == ("1000 hosts need about 3064 open files and this process may have at most 1024 "
                              "(ulimit -Hn): raise the hard limit (limits.conf, systemd's LimitNOFILE) or run fewer "
                              "hosts at once (--limit a group, robotfleet rollout)")
+
+
+def test_an_inventory_run_collects_garbage_less_often(tmp_path):
+    from tests.fixtures import ROOT
+    from tests.integration.test_first_contact import fleet
+
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
+    script = ("import gc, json; from pyinfra.api import State; from pyinfra.context import ctx_state; "
+              "from pyinfra_cli.inventory import make_inventory\n"
+              "before = gc.get_threshold()\n"
+              "with ctx_state.use(State()): make_inventory('inventories/robots.py')\n"
+              "print(json.dumps([before, gc.get_threshold()]))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, check=True,
+                         env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)}).stdout
+    before, after = json.loads(out)
+    assert after == [max(before[0], limits.COLLECT_EVERY), *before[1:]] and after != before
