@@ -135,6 +135,10 @@ USED = (
             "replaced where it is imported by name and called (operation, deploy, facts) by a copy that reads "
             "the host's data layers (HostData.datas) once for all the arguments, with the same argument "
             "metadata, config and type check"),
+    Private(("pyinfra.api.operation:_wrap_operation", "pyinfra.api.operation:signature"),
+            "pyinfra.api.operation:_wrap_operation", "8195e098a9c6a0b3", "robotfleet/speedups.py",
+            "the inspect.signature it calls for every operation of every host (signature(func).bind) replaced "
+            "where it is imported by one that makes each function's Signature once"),
     Private(("pyinfra.api.host:HostData.__getattr__",),
             "pyinfra.api.host:HostData.__getattr__", "87152f64f2a65e53", "robotfleet/speedups.py",
             "replaced by the same lookup through the host's data layers (HostData.datas) asking plain dicts "

@@ -62,6 +62,23 @@ def test_connectors_are_pyinfras(monkeypatch):
     assert {"ssh", "local", "fleet"} <= set(theirs)
 
 
+def test_signatures_are_inspects_and_made_once():
+    import inspect
+
+    from pyinfra.operations import apt, files
+
+    for function in (files.put, apt.packages, _nested):
+        assert speedups.signature(function) == inspect.signature(function)
+        assert speedups.signature(function) is speedups.signature(function)
+    speedups.signature(files.directory).bind("/etc/x", present=True)
+    refusals = []
+    for made in (inspect.signature, speedups.signature):
+        with pytest.raises(TypeError) as refused:
+            made(files.directory).bind("/etc/x", nothing=1)
+        refusals.append(str(refused.value))
+    assert refusals[0] == refusals[1] and "nothing" in refusals[0]
+
+
 def test_groups_data_is_pyinfras_for_each_inventory():
     def inventory(value):
         return Inventory((["h1", "h2"], {}), robots=(["h1"], {"a": value, "b": 2}), site=(["h1"], {"a": 3}))
@@ -123,7 +140,7 @@ def test_host_data_lookups_are_pyinfras():
             lookup(host.data, "nowhere")
 
 
-ALL = ["order", "arguments", "connectors", "groups_data", "pop_arguments", "host_data"]
+ALL = ["order", "arguments", "connectors", "groups_data", "pop_arguments", "host_data", "signature"]
 
 
 def test_the_speedups_are_active_with_the_pyinfra_this_project_installs():
@@ -134,6 +151,7 @@ def test_the_speedups_are_active_with_the_pyinfra_this_project_installs():
     assert pyinfra_connectors.entry_points is speedups.entry_points
     assert Inventory.get_groups_data is speedups.groups_data
     assert HostData.__getattr__ is speedups.host_data_getattr
+    assert operation.signature is speedups.signature
     for module in ("operation", "deploy", "facts"):
         assert importlib.import_module(f"pyinfra.api.{module}").pop_global_arguments is speedups.pop_global_arguments
 
@@ -183,7 +201,7 @@ def test_a_changed_host_data_lookup_keeps_pyinfras_lookup_and_argument_reading(p
     HostData.__getattr__ does: a pyinfra that changed that keeps both."""
     monkeypatch.setitem(speedups.COPIED_FROM, "pyinfra.api.host:HostData.__getattr__", "0" * 16)
     caplog.set_level(logging.WARNING, logger="pyinfra")
-    assert speedups.install() == ["order", "arguments", "connectors", "groups_data"]
+    assert speedups.install() == ["order", "arguments", "connectors", "groups_data", "signature"]
     assert HostData.__getattr__ is speedups.original("host_data")
     assert operation.pop_global_arguments is speedups.original("pop_arguments")
     assert _lines(caplog) == [f"robotfleet: pyinfra {pyinfra.__version__} has another "
