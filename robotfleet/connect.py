@@ -196,10 +196,11 @@ class Client(sshuserclient.SSHClient, _FleetKnownHosts):
     def __init__(self, check: HostKeyCheck | None = None):
         super().__init__()
         self.check = check
+        self.keep_alive = 0  # ssh_config's ServerAliveInterval, once parse_config has read it
 
     def parse_config(self, hostname, initial_cfg=None, ssh_config_file=None, strict_host_key_checking=None):
         parsed = list(super().parse_config(hostname, initial_cfg, ssh_config_file, strict_host_key_checking))
-        self.keep_alive = parsed[5]  # ssh_config's ServerAliveInterval, 0 when unset
+        self.keep_alive = parsed[5]
         if self.check is not None:
             parsed[3] = FleetPolicy(self.check)
             parsed[4] = ()  # the fleet's known_hosts is read by the policy, not by paramiko
@@ -269,7 +270,7 @@ class FleetConnector(ssh.SSHConnector):
             if not self._retry_paramiko_agent_keys(hostname, kwargs, error):
                 raise
         transport = self.client.get_transport()
-        wakeup = idle_wakeup(getattr(self.client, "keep_alive", 0), monkey.is_module_patched("socket"))
+        wakeup = idle_wakeup(self.client.keep_alive, monkey.is_module_patched("socket"))
         if transport is not None and wakeup is not None:
             transport.sock.settimeout(wakeup)
 
