@@ -3,9 +3,9 @@ thread wakes every 0.1 s to look for a close, a keepalive or a rekey; the
 operator's connector lets a connected host sleep longer where gevent runs
 the sockets (robotfleet/connect.py, idle_wakeup), and keeps what the
 wake-ups were for: a keepalive (ssh_config's ServerAliveInterval) still goes
-out on time, and closing the connection ends its reader at once.  A real SSH server on
-127.0.0.1 (tests/integration/sshserver.py), the operator in its own process
-as the CLI runs it."""
+out on time, and closing the connection ends its reader at once.  A real SSH
+server on 127.0.0.1 (tests/integration/sshserver.py), the operator in its
+own process as the CLI runs it."""
 
 from __future__ import annotations
 
@@ -87,7 +87,8 @@ def test_an_idle_connection_sleeps_longer_and_keeps_its_keepalives(tmp_path, cli
     assert server.global_requests.count("keepalive@lag.net") >= keepalives
     if not keepalives:
         assert "keepalive@lag.net" not in server.global_requests
-    assert report["reading_before"] and report["reader_ended_after"] < 1.0, report  # a close wakes it: it does not sleep its 5 s out
+    # A close wakes the reader: it does not sleep its 5 s out.
+    assert report["reading_before"] and report["reader_ended_after"] < 1.0, report
 
 
 def test_with_real_threads_paramiko_keeps_its_own():
