@@ -46,9 +46,11 @@ def selected_hosts(inventory_path: str, limits: list[str]) -> list[tuple[str, ob
     return [(h.name, h.data) for h in hosts]
 
 
-def read_status(inventory: str, hosts: list[str]) -> dict[str, dict]:
-    """One status row per host (one SSH command each, in parallel)."""
-    return {row["host"]: row for row in status.collect(inventory, hosts)} if hosts else {}
+def read_status(inventory: str, hosts: list[str], parallel: int | None = None) -> dict[str, dict]:
+    """One status row per host (one SSH command each, at most ``parallel``
+    at once: the rollout's --parallel, else status's default)."""
+    rows = status.collect(inventory, hosts, parallel=parallel or status.PARALLEL) if hosts else []
+    return {row["host"]: row for row in rows}
 
 
 class _WithOverrides(dict):
@@ -164,7 +166,9 @@ def parse_args(argv):
     parser.add_argument("--limit", action="append", default=[],
                         help="groups or host globs, comma-separated (&group: also in it, !host: not it); repeatable")
     parser.add_argument("--data", action="append", default=[], help="key=value passed to pyinfra (repeatable)")
-    parser.add_argument("--parallel", type=int, help="pyinfra's --parallel for each wave (default: CPUs x 20)")
+    parser.add_argument("--parallel", type=status.hosts_at_once,
+                        help="pyinfra's --parallel for each wave (default: CPUs x 20), and the most hosts its status "
+                             "reads ask at once (default: status's)")
     parser.add_argument("-y", "--yes", action="store_true", help="do not ask before starting")
     parser.add_argument("--dry", action="store_true", help="show the waves and the changes, change nothing")
     from robotfleet.commands import pullrollout
@@ -250,7 +254,7 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
     state["allowed_failures"] = waves.allowed_failures(args.max_failed, len(names))
     state = waves.start_run(state)
 
-    rows = read_status(args.inventory, names)
+    rows = read_status(args.inventory, names, args.parallel)
     unreachable = {h: rows[h].get("error") for h in names if not rows.get(h, {}).get("reachable")}
     already = [h for h in names if missing(roles, rows.get(h, {}), targets[h]) is None]
     state["done"] = sorted(set(state["done"]) | set(already))
@@ -301,7 +305,7 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         # (no JSON from pyinfra: nor is one that did not answer the status before).
         lost = not_connected(results) | ({h for h in todo if not rows.get(h, {}).get("reachable")}
                                          if results is None else set())
-        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost])  # with their own results
+        wave_rows = read_status(args.inventory, [h for h in todo if h not in lost], args.parallel)
         wave_rows.update({h: {"host": h, "reachable": False,
                               "error": rows.get(h, {}).get("error") or "the deploy could not connect"} for h in lost})
         rows.update(wave_rows)

@@ -28,6 +28,7 @@ a --limit matching nothing), 3 a host was unreachable (and none failed).
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
@@ -113,6 +114,17 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
     lines = ["  ".join(title.ljust(w) for (_, title), w in zip(shown, widths)).rstrip()]
     lines += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in cells]
     return "\n".join(lines)
+
+
+def hosts_at_once(text: str) -> int:
+    """--parallel's value (argparse type): a whole number of hosts, 1 or more."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: a number of hosts, 1 or more")
+    return value
 
 
 def collect(inventory_path: str, limits: list[str], roles=None, answered=None, remote: str | None = None,
@@ -245,11 +257,9 @@ def main(argv=None) -> int:
     parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
     parser.add_argument("--remote", metavar="NAME|URL",
                         help="the fleet remote pull robots report to (default: the checkout's origin)")
-    parser.add_argument("--parallel", type=int, default=PARALLEL, metavar="N",
+    parser.add_argument("--parallel", type=hosts_at_once, default=PARALLEL, metavar="N",
                         help=f"hosts asked at once (default {PARALLEL})")
     args = parser.parse_args(argv)
-    if args.parallel < 1:
-        parser.error(f"--parallel {args.parallel}: a number of hosts, 1 or more")
     if args.json and args.format not in (None, "json"):
         parser.error("--json and --format openmetrics/table: choose one")
     shown = "json" if args.json else args.format or "table"

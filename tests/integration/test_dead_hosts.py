@@ -126,8 +126,13 @@ def test_status_asks_at_most_parallel_hosts_at_once(tmp_path, client_key):
             f"{hostkeys.entry('127.0.0.1', s.port)} {s.host_key.get_name()} {s.host_key.get_base64()}\n"
             for s in servers))
         result = run(path, tmp_path, "-m", "robotfleet", "status", "inventories/robots.py", "--parallel", "2")
+        assert result.stderr.count("(5/5)") == 1 and "unreachable" not in result.stderr, result.stderr[-2000:]
+        assert most[0] == 2, most[0]
+        # A rollout's status reads keep to its --parallel (a bastion's MaxStartups, say).
+        most[0] = 0
+        result = run(path, tmp_path, "-m", "robotfleet", "rollout", "inventories/robots.py", "--dry", "--parallel", "3")
+        assert "unreachable:" not in result.stderr, result.stderr[-2000:]
+        assert most[0] == 3, (most[0], result.stderr[-2000:])
     finally:
         for server in servers:
             server.close()
-    assert result.stderr.count("(5/5)") == 1 and "unreachable" not in result.stderr, result.stderr[-2000:]
-    assert most[0] == 2, most[0]

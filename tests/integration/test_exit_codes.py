@@ -103,3 +103,12 @@ def test_pyinfra_from_outside_the_checkout_is_refused_before_any_connection(tmp_
         f"pyinfra runs in {tmp_path}, not in the checkout {ROOT}: its config.py and group_data/ (strict host-key "
         f"checking, sudo, every default) would not apply; run it there: cd {ROOT}, or pyinfra --chdir {ROOT} ...")
     assert not (tmp_path / ".ssh").exists()  # no key accepted on first use
+
+
+@pytest.mark.parametrize("typed", ["0", "-3", "ten", ""])
+def test_parallel_is_a_number_of_hosts_one_or_more(tmp_path, typed):
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
+    for command in ("status", "rollout"):
+        result = run(path, tmp_path, "-m", "robotfleet", command, "inventories/robots.py", "--parallel", typed)
+        assert result.returncode == 2, result.stderr[-1000:]
+        assert f"--parallel: {typed!r}: a number of hosts, 1 or more" in result.stderr
