@@ -112,6 +112,8 @@ def release(args) -> int:
     wheels = ", ".join(f"{p} ({len(f)})" for p, f in sorted(record.wheels.items())) or "none"
     print(f"publish: release {record.version} ({record.release}): commit {record.commit[:12]}, "
           f"{len(record.robots)} robot(s), {images} image(s) by digest, wheels {wheels}; {where}")
+    for line in waves.describe(list(record.robots), record.version, options.plan, record.published_at):
+        print(f"publish: {line}")
     return selection.OK
 
 

@@ -142,6 +142,22 @@ def earlier_robots(robot: str, robots: list[str], version: int, plan: Plan) -> l
     return [name for members in waves(robots, version, plan)[: index or 0] for name in members]
 
 
+def describe(robots: list[str], version: int, plan: Plan, published: datetime.datetime,
+             shown: int = 5) -> list[str]:
+    """The signed plan in words, a line a wave: who opens when, under which
+    budget (``publish`` prints it).  At most ``shown`` names a wave."""
+    members = waves(robots, version, plan)
+    allowed = allowed_failures(plan.max_failed, len(set(robots)))
+    lines = [f"{len(members)} wave(s); wave k opens at publish + k x {plan.pause} s, and only while at most "
+             f"{allowed} robot(s) of the earlier waves failed (--max-failed {plan.max_failed}):"]
+    for index, names in enumerate(members):
+        canary = index == 0 and plan.canary.of(len(set(robots)), round_up=True) > 0
+        listed = ", ".join(names[:shown]) + (f" and {len(names) - shown} more" if len(names) > shown else "")
+        at = opens_at(index, published, plan).strftime("%Y-%m-%dT%H:%M:%SZ")
+        lines.append(f"  wave {index}{' (canary)' if canary else ''}: {len(names)} robot(s) from {at}: {listed}")
+    return lines
+
+
 @dataclass(frozen=True)
 class Gate:
     """Whether a robot may start now: ``open``, else ``why`` (one line) and,

@@ -114,6 +114,9 @@ def test_publish_binds_commit_tree_fleet_and_digests_and_a_robot_verifies_it(sit
     assert "pushed robotfleet/releases to" in done.stdout
     client, record = robot_refresh(site)
     assert record.version == 1
+    # the plan it signed, as the robots will read it
+    assert "publish: 2 wave(s); wave k opens at publish + k x 600 s" in done.stdout
+    assert f"publish:   wave 0 (canary): 1 robot(s) from {record.published}: " in done.stdout
     assert record.commit == git(site["checkout"], "rev-parse", "HEAD")
     assert record.robots == ("robot1", "robot2")  # robot3 is not pull
     one = registry.manifests[("ros/payload", "1.1")][1]

@@ -142,3 +142,16 @@ def test_a_bad_window_is_one_line(text, says):
     with pytest.raises(ValueError) as caught:
         waves.parse_window(text)
     assert str(caught.value).startswith(says), str(caught.value)
+
+
+def test_publish_prints_the_signed_plan_wave_by_wave():
+    made = waves.waves(ROBOTS, 7, plan())
+    lines = waves.describe(ROBOTS, 7, plan(), PUBLISHED, shown=3)
+    assert lines[0].startswith("3 wave(s); wave k opens at publish + k x 600 s")
+    assert "at most 0 robot(s) of the earlier waves failed (--max-failed 0)" in lines[0]
+    assert lines[1] == f"  wave 0 (canary): 1 robot(s) from 2026-11-25T10:00:00Z: {made[0][0]}"
+    assert lines[2] == f"  wave 1: 4 robot(s) from 2026-11-25T10:10:00Z: {', '.join(made[1][:3])} and 1 more"
+    assert lines[3].startswith("  wave 2: 5 robot(s) from 2026-11-25T10:20:00Z: ")
+    no_canary = waves.describe(ROBOTS[:2], 7, plan(canary="0", waves=["100%"], max_failed="50%"), PUBLISHED)
+    assert no_canary[1] == f"  wave 0: 2 robot(s) from 2026-11-25T10:00:00Z: {', '.join(waves.rank(ROBOTS[:2], 7))}"
+    assert "at most 1 robot(s)" in no_canary[0]
