@@ -1,5 +1,5 @@
 """This robot converging itself in pull mode: the inventory its agent's
-converge run uses (robotfleet/commands/converge.py), never run by hand.
+converge run uses (robotfleet/pull/robot/converge.py), never run by hand.
 
     ROBOT_FLEET=inventories/robots.yaml ROBOT_FLEET_HOST=robot1 ROBOT_PULL_DATA=run.json \\
         pyinfra -y inventories/pull.py deploy.py

@@ -17,7 +17,7 @@ __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit
            "require_checkout", "SOURCES"]
 
 # Where the fleet this process loaded came from (its file or directory):
-# what a rollout's lock is per (robotfleet/commands/waves.py lock_path).
+# what a rollout's lock is per (robotfleet/commands/rollout_plan.py lock_path).
 SOURCES: list[str] = []
 
 

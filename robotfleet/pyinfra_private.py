@@ -72,7 +72,7 @@ USED = (
     Private(("tuf.ngclient.updater:Updater.__init__",
              "tuf.ngclient._internal.trusted_metadata_set:TrustedMetadataSet.__init__"),
             "tuf.ngclient._internal.trusted_metadata_set:TrustedMetadataSet.__init__", "b6c0de0257e7cd4a",
-            "robotfleet/pull/tufprivate.py",
+            "robotfleet/pull/robot/tufprivate.py",
             "expiry is checked against updater._trusted_set.reference_time (the clock when it was made): set to "
             "max(clock, last trusted time) for robots without an RTC"),
     Private(("pyinfra.api.arguments:CONNECTOR_ARGUMENT_KEYS", "pyinfra.api.arguments:ConnectorArguments"),

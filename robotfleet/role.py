@@ -147,7 +147,7 @@ class PinPart:
 @dataclass(frozen=True)
 class HoldPart:
     """How the pull agent holds a role's own lock on the robot for a whole
-    converge run (robotfleet/commands/converge.py): ``command(data,
+    converge run (robotfleet/pull/robot/converge.py): ``command(data,
     token_file)``, the argv that holds it while the command after it runs,
     writing a token to ``token_file`` first ([] when the role has nothing
     on the robot to hold yet); ``setting``, the role's setting through

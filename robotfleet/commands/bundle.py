@@ -15,7 +15,7 @@ the robot's own key will be; the hash of its public half is kept in
 `robotfleet pull-enroll` swaps it for the robot's own key.  With
 --name-from, the bundle is for an image shared by many robots: ROBOT is
 the fleet entry whose settings they start with, each robot names itself
---name-prefix and its machine-id (or board serial: robotfleet/pull/naming.py),
+--name-prefix and its machine-id (or board serial: robotfleet/pull/protocol/naming.py),
 and the one enrollment key may report as any name the rule can make but a
 registered robot's.  See docs/pull.md.
 """
@@ -29,9 +29,10 @@ from pathlib import Path
 import robotfleet
 from robotfleet import commands, roster
 from robotfleet import selection
-from robotfleet.pull import bundle, gitolite, install, naming
-from robotfleet.commands.converge import ConvergeError, host_data
-from robotfleet.pull.repository import Repository, RepositoryError
+from robotfleet.pull.operator import bundle, gitolite, install
+from robotfleet.pull.protocol import naming
+from robotfleet.pull.protocol.robot_data import DataError, host_data
+from robotfleet.pull.operator.repository import Repository, RepositoryError
 
 ENROLLMENTS = robotfleet.CHECKOUT / ".robotfleet" / "enrollments.json"
 
@@ -61,7 +62,7 @@ def make(args) -> int:
     fleet = args.fleet or os.environ.get("ROBOT_FLEET") or "inventories/robots.yaml"
     try:
         data = host_data(args.robot, fleet, roster.registry())
-    except ConvergeError as error:
+    except DataError as error:
         raise selection.Refused(str(error)) from None
     if not data.get("pull"):
         raise selection.Refused(f"{fleet}: {args.robot} is not a pull robot (pull: true)")

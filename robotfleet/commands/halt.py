@@ -15,33 +15,33 @@ import sys
 
 from robotfleet import commands
 from robotfleet import selection
-from robotfleet.commands import pulling
-from robotfleet.pull import publishing
+from robotfleet.pull.operator import commandline
+from robotfleet.pull.operator import publishing
 
 
 def parse_args(argv: list[str]):
     parser = commands.parser("halt", __doc__)
     parser.add_argument("--reason", default="halted by the operator", help="one line robots report with the halt")
-    pulling.add_channel(parser)
-    pulling.add_expiry(parser)
+    commandline.add_channel(parser)
+    commandline.add_expiry(parser)
     return parser.parse_args(argv)
 
 
 def halt(args) -> int:
     if "\n" in args.reason or len(args.reason) > 500:
-        raise pulling.Failed("--reason: one line of at most 500 characters")
-    keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
+        raise commandline.Failed("--reason: one line of at most 500 characters")
+    keys, expiry = commandline.keys_of(args), commandline.expiry_of(args)
     keys.signer("online")
-    chosen, repository = pulling.opened(args)
+    chosen, repository = commandline.opened(args)
     try:
-        halted = publishing.halt(repository, keys, args.reason, expiry, pulling.now())
+        halted = publishing.halt(repository, keys, args.reason, expiry, commandline.now())
     except publishing.PublishError as error:
-        raise pulling.Failed(str(error)) from None
-    where = pulling.pushed(chosen, f"halt: release {halted.version} ({args.reason})")
+        raise commandline.Failed(str(error)) from None
+    where = commandline.pushed(chosen, f"halt: release {halted.version} ({args.reason})")
     print(f"halt: release {halted.version} halts commit {halted.commit[:12]} ({args.reason}); {where}")
     return selection.OK
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
-    return pulling.run("halt", lambda: halt(args))
+    return commandline.run("halt", lambda: halt(args))

@@ -25,10 +25,10 @@ from pathlib import Path
 
 from robotfleet import commands
 from robotfleet import selection
-from robotfleet.commands import pulling
-from robotfleet.pull import keys as keyfiles
-from robotfleet.pull.keys import ONLINE, ROOT
-from robotfleet.pull.repository import sign_root
+from robotfleet.pull.operator import commandline
+from robotfleet.pull.operator import keys as keyfiles
+from robotfleet.pull.operator.keys import ONLINE, ROOT
+from robotfleet.pull.operator.repository import sign_root
 
 NEXT_ONLINE, NEXT_ROOT = "online.next", "root.next"
 
@@ -54,8 +54,8 @@ def parse_args(argv: list[str]):
     generate = sub.add_parser("generate", help="a new key pair at FILE.key and FILE.pub")
     generate.add_argument("file", type=Path)
     for each in (show, rotate, prepare, install):
-        pulling.add_channel(each)
-        pulling.add_expiry(each)
+        commandline.add_channel(each)
+        commandline.add_expiry(each)
     return parser.parse_args(argv)
 
 
@@ -64,7 +64,7 @@ def _says(public) -> str:
 
 
 def init(args) -> int:
-    keys = pulling.keys_of(args)
+    keys = commandline.keys_of(args)
     made = [(name, keys.generate(name)) for name in (ROOT, ONLINE)]
     for name, public in made:
         print(f"keys: {keys.file(name)} ({_says(public)})")
@@ -74,10 +74,10 @@ def init(args) -> int:
 
 
 def show(args) -> int:
-    keys = pulling.keys_of(args)
-    chosen, repository = pulling.opened(args)
+    keys = commandline.keys_of(args)
+    chosen, repository = commandline.opened(args)
     if not repository.exists():
-        raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise commandline.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
     root = repository.root().signed
     print(f"root version {root.version}, expires {root.expires:%Y-%m-%dT%H:%M:%SZ}")
     for role, info in sorted(root.roles.items()):
@@ -97,18 +97,18 @@ def _next_key(keys, name: str):
 
 
 def prepare(args) -> int:
-    keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
-    chosen, repository = pulling.opened(args)
+    keys, expiry = commandline.keys_of(args), commandline.expiry_of(args)
+    chosen, repository = commandline.opened(args)
     if not repository.exists():
-        raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise commandline.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
     online = root_key = None
     if args.which == "online":
         online = _next_key(keys, NEXT_ONLINE)
     elif args.which == "root":
         if not args.root_public:
-            raise pulling.Failed("prepare root: --root-public NEW.pub (robotfleet keys generate NEW.key, offline)")
+            raise commandline.Failed("prepare root: --root-public NEW.pub (robotfleet keys generate NEW.key, offline)")
         root_key = keyfiles.public_of(args.root_public)
-    data = repository.prepare_root(expiry, pulling.now(), online_key=online, root_key=root_key)
+    data = repository.prepare_root(expiry, commandline.now(), online_key=online, root_key=root_key)
     args.out.write_bytes(data)
     version = repository.root().signed.version + 1
     signers = "the current root key" + (" and the new root key" if root_key else "")
@@ -122,7 +122,7 @@ def sign(args) -> int:
     try:
         data = sign_root(args.file.read_bytes(), signers)
     except OSError as error:
-        raise pulling.Failed(f"{args.file}: {error.strerror}") from None
+        raise commandline.Failed(f"{args.file}: {error.strerror}") from None
     temp = args.file.with_name(f".{args.file.name}.tmp")
     temp.write_bytes(data)
     temp.replace(args.file)
@@ -131,11 +131,11 @@ def sign(args) -> int:
 
 
 def _install(args, data: bytes, keys, promote: list[tuple[str, str]]) -> int:
-    expiry = pulling.expiry_of(args)
-    chosen, repository = pulling.opened(args)
+    expiry = commandline.expiry_of(args)
+    chosen, repository = commandline.opened(args)
     online_name = NEXT_ONLINE if (NEXT_ONLINE, ONLINE) in promote else ONLINE
-    version = repository.install_root(data, keys.signer(online_name), expiry, pulling.now())
-    where = pulling.pushed(chosen, f"root version {version}")
+    version = repository.install_root(data, keys.signer(online_name), expiry, commandline.now())
+    where = commandline.pushed(chosen, f"root version {version}")
     for name, replaced in promote:
         keys.promote(name, replaced)
     print(f"keys: root version {version} installed; targets, snapshot and timestamp re-signed; {where}")
@@ -143,11 +143,11 @@ def _install(args, data: bytes, keys, promote: list[tuple[str, str]]) -> int:
 
 
 def install(args) -> int:
-    keys = pulling.keys_of(args)
+    keys = commandline.keys_of(args)
     try:
         data = args.file.read_bytes()
     except OSError as error:
-        raise pulling.Failed(f"{args.file}: {error.strerror}") from None
+        raise commandline.Failed(f"{args.file}: {error.strerror}") from None
     from tuf.api.metadata import Metadata
 
     names = set(Metadata.from_bytes(data).signed.roles["timestamp"].keyids)
@@ -156,17 +156,17 @@ def install(args) -> int:
 
 
 def rotate(args) -> int:
-    keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
+    keys, expiry = commandline.keys_of(args), commandline.expiry_of(args)
     root_signer = keyfiles.signer_of(args.root_key) if args.root_key else keys.signer(ROOT)
-    chosen, repository = pulling.opened(args)
+    chosen, repository = commandline.opened(args)
     if not repository.exists():
-        raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise commandline.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
     if args.which == "online":
         new = _next_key(keys, NEXT_ONLINE)
-        data = sign_root(repository.prepare_root(expiry, pulling.now(), online_key=new), [root_signer])
+        data = sign_root(repository.prepare_root(expiry, commandline.now(), online_key=new), [root_signer])
         return _install(args, data, keys, [(NEXT_ONLINE, ONLINE)])
     new = _next_key(keys, NEXT_ROOT)
-    unsigned = repository.prepare_root(expiry, pulling.now(), root_key=new)
+    unsigned = repository.prepare_root(expiry, commandline.now(), root_key=new)
     data = sign_root(unsigned, [root_signer, keys.signer(NEXT_ROOT)])
     return _install(args, data, keys, [(NEXT_ROOT, ROOT)])
 
@@ -183,4 +183,4 @@ ACTIONS = {"init": init, "show": show, "rotate": rotate, "prepare": prepare, "si
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
-    return pulling.run("keys", lambda: ACTIONS[args.action](args))
+    return commandline.run("keys", lambda: ACTIONS[args.action](args))

@@ -30,9 +30,10 @@ from pathlib import Path
 
 from robotfleet import commands, roster
 from robotfleet import selection
-from robotfleet.commands import pulling
-from robotfleet.pull import publishing, waves
-from robotfleet.pull.keys import ONLINE, ROOT
+from robotfleet.pull.operator import commandline
+from robotfleet.pull.operator import publishing
+from robotfleet.pull.protocol import waves
+from robotfleet.pull.operator.keys import ONLINE, ROOT
 
 
 def default_wheel_cache() -> Path:
@@ -64,8 +65,8 @@ def parse_args(argv: list[str]):
     parser.add_argument("--index-url", help="the Python package index pip downloads wheels from (default PyPI)")
     parser.add_argument("--refresh-wheels", action="store_true",
                         help="ask the index for newer wheels even when the cache holds every requirement")
-    pulling.add_channel(parser)
-    pulling.add_expiry(parser)
+    commandline.add_channel(parser)
+    commandline.add_expiry(parser)
     return parser.parse_args(argv)
 
 
@@ -73,19 +74,19 @@ def options_of(args) -> publishing.Options:
     plan = waves.parse_plan({"canary": args.canary, "waves": [w.strip() for w in args.waves.split(",")],
                              "pause": args.pause, "max_failed": args.max_failed}, where="options")
     return publishing.Options(
-        revision=args.commit, fleet=args.fleet, plan=plan, expiry=pulling.expiry_of(args),
+        revision=args.commit, fleet=args.fleet, plan=plan, expiry=commandline.expiry_of(args),
         wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),
         index_url=args.index_url, refresh_wheels=args.refresh_wheels, allow_dirty=args.allow_dirty, platforms=tuple(args.platform))
 
 
 def renew(args) -> int:
-    keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
+    keys, expiry = commandline.keys_of(args), commandline.expiry_of(args)
     online = keys.signer(ONLINE)
-    chosen, repository = pulling.opened(args)
+    chosen, repository = commandline.opened(args)
     if not repository.exists():
-        raise pulling.Failed(f"{chosen.url}: no release repository yet; publish a release first")
-    signed = repository.renew(online, expiry, pulling.now())
-    where = pulling.pushed(chosen, f"renew: {', '.join(signed)}")
+        raise commandline.Failed(f"{chosen.url}: no release repository yet; publish a release first")
+    signed = repository.renew(online, expiry, commandline.now())
+    where = commandline.pushed(chosen, f"renew: {', '.join(signed)}")
     print(f"publish: re-signed {', '.join(signed)}; timestamp valid until "
           f"{repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}; {where}")
     return selection.OK
@@ -93,21 +94,21 @@ def renew(args) -> int:
 
 def release(args) -> int:
     options = options_of(args)
-    keys = pulling.keys_of(args)
+    keys = commandline.keys_of(args)
     keys.signer(ONLINE)  # fail before the slow parts
-    chosen, repository = pulling.opened(args)
+    chosen, repository = commandline.opened(args)
     if not repository.exists():
         keys.signer(ROOT)
     version = publishing.next_version(repository)
-    now = pulling.now()
+    now = commandline.now()
     with tempfile.TemporaryDirectory(prefix="robotfleet-publish-") as work:
         try:
             record, files = publishing.build(args.checkout, options, roster.roles(), roster.registry(), version,
                                              now, Path(work))
             publishing.publish(repository, record, files, keys, options, now)
         except publishing.PublishError as error:
-            raise pulling.Failed(str(error)) from None
-    where = pulling.pushed(chosen, f"release {record.version}: {record.commit[:12]}")
+            raise commandline.Failed(str(error)) from None
+    where = commandline.pushed(chosen, f"release {record.version}: {record.commit[:12]}")
     images = len({ref for pins in record.images.values() for ref in pins})
     wheels = ", ".join(f"{p} ({len(f)})" for p, f in sorted(record.wheels.items())) or "none"
     print(f"publish: release {record.version} ({record.release}): commit {record.commit[:12]}, "
@@ -119,4 +120,4 @@ def release(args) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
-    return pulling.run("publish", lambda: renew(args) if args.renew else release(args))
+    return commandline.run("publish", lambda: renew(args) if args.renew else release(args))

@@ -28,7 +28,8 @@ from robotfleet.checkers import one_line
 from robotfleet import selection
 from robotfleet.commands import pullstatus
 from robotfleet.commands.bundle import add_admin, admin_of, repository_name
-from robotfleet.pull import gitolite, layout
+from robotfleet.pull.operator import gitolite
+from robotfleet.pull.protocol import agent_files
 
 
 def key_of(line: str):
@@ -74,8 +75,8 @@ def keys_over_ssh(inventory, hosts) -> dict[str, str]:
             except ConnectError as error:
                 found[host.name] = f"error: {error.args[0]}"
                 continue
-            ok, output = host.run_shell_command(StringCommand(f"cat {layout.KEY}.pub"), _sudo=True)
-            found[host.name] = output.stdout.strip() if ok else f"error: no {layout.KEY}.pub (pull role not run?)"
+            ok, output = host.run_shell_command(StringCommand(f"cat {agent_files.KEY}.pub"), _sudo=True)
+            found[host.name] = output.stdout.strip() if ok else f"error: no {agent_files.KEY}.pub (pull role not run?)"
     return found
 
 

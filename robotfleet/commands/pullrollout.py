@@ -2,7 +2,7 @@
 release with the rollout's plan (robotfleet publish: canary, the --batch
 waves as cumulative shares, --pause between them, --max-failed), then
 follows the robots' reports on the fleet remote as they apply it, wave by
-wave on their own (robotfleet/pull/waves.py).  When more robots fail than
+wave on their own (robotfleet/pull/protocol/waves.py).  When more robots fail than
 the budget allows, it publishes a signed halt (robotfleet halt): the waves
 that have not started never do.
 
@@ -21,8 +21,9 @@ from pathlib import Path
 import robotfleet
 from robotfleet import selection
 from robotfleet.commands import pullstatus
-from robotfleet.pull import channel, reports, waves
-from robotfleet.pull.repository import Repository
+from robotfleet.pull.operator import channel
+from robotfleet.pull.protocol import reports, waves
+from robotfleet.pull.operator.repository import Repository
 
 
 def add_options(parser) -> None:

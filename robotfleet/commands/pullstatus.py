@@ -17,8 +17,9 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet.checkers import one_line
-from robotfleet.pull import channel, reports
-from robotfleet.pull.record import parse_time
+from robotfleet.pull.operator import channel
+from robotfleet.pull.protocol import report_store, reports
+from robotfleet.pull.protocol.record import parse_time
 from robotfleet.role import Metric
 
 COLUMNS = [("pull", "PULL"), ("reported", "REPORTED")]
@@ -42,8 +43,8 @@ def fetch(url: str, cache: Path | None = None) -> dict[str, dict]:
     """Every robot's report from ``url`` (one fetch into a local cache)."""
     cache = cache or robotfleet.CHECKOUT / ".robotfleet" / "reports"
     try:
-        reports.fetch_all(url, cache)
-        return reports.read_all(cache)
+        report_store.fetch_all(url, cache)
+        return report_store.read_all(cache)
     except reports.ReportError as error:
         raise ReportsUnavailable(f"reports from {url}: {error}") from None
 

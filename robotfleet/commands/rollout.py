@@ -28,7 +28,7 @@ import tempfile
 from robotfleet import commands
 from robotfleet import connect, inventory as fleet_inventory, roster, selection
 from robotfleet.checkers import one_line
-from robotfleet.commands import status, waves
+from robotfleet.commands import status, rollout_plan as waves
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
 from robotfleet.role import DEPLOYMENT_ENV
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 
 from robotfleet.checkers import one_line
-from robotfleet.commands import waves
+from robotfleet.commands import rollout_plan as waves
 
 
 def say(text: str) -> None:

@@ -40,59 +40,12 @@ from gevent.lock import Semaphore
 from robotfleet import commands, connect, roster
 from robotfleet.checkers import one_line
 from robotfleet import selection
-from robotfleet.commands import metrics, waves
+from robotfleet.commands import metrics, rollout_plan
 from robotfleet.role import GROUPS
+from robotfleet.status_parts import (FIRST, HOST_COMMAND, HOST_SECTION, LAST, MARK, columns,  # noqa: F401
+                                     reporting, row, sections, status_command)
 
-MARK = "@@@robot-fleet-status "
 PARALLEL = 200
-# The engine's own section (no role is called so: a role's name is an identifier).
-HOST_SECTION = "engine:host"
-HOST_COMMAND = "dpkg --print-architecture"
-FIRST = [("host", "HOST"), ("reachable", "REACHABLE"), ("arch", "ARCH")]
-LAST = [("rollout", "ROLLOUT")]
-
-
-def reporting(roles) -> list:
-    """The roles with a status part, in the table's order."""
-    return sorted((r for r in roles if r.status), key=lambda r: r.status.order)
-
-
-def columns(roles) -> list[tuple[str, str]]:
-    return FIRST + [column for role in reporting(roles) for column in role.status.columns] + LAST
-
-
-def status_command(roles, data) -> str:
-    """The host's one status command: the engine's part, then each role's,
-    each after a marker line."""
-    parts = [(HOST_SECTION, HOST_COMMAND)] + [(role.name, role.status.command(data)) for role in reporting(roles)]
-    return "; ".join(f"echo '{MARK}{name}'; ( {command} ) 2>/dev/null" for name, command in parts) + "; true"
-
-
-def sections(stdout: str) -> dict[str, str]:
-    """The status command's output, by role name (pure)."""
-    found: dict[str, list[str]] = {}
-    current = None
-    for line in stdout.splitlines():
-        if line.startswith(MARK):
-            current = line[len(MARK):].strip()
-            found[current] = []
-        elif current is not None:
-            found[current].append(line)
-    return {name: "\n".join(lines) for name, lines in found.items()}
-
-
-def row(name: str, roles, parts: dict[str, str] | None, error: str | None = None) -> dict:
-    """A table row from the roles' sections of the output (pure); None:
-    the host did not answer."""
-    if parts is None:
-        return {"host": name, "reachable": False, "error": error}
-    cells = {"host": name, "reachable": True, "arch": parts.get(HOST_SECTION, "").strip() or None}
-    for role in reporting(roles):
-        try:
-            cells.update(role.status.cells(parts.get(role.name, "")))
-        except ValueError:
-            cells["error"] = f"unreadable {role.name} status"
-    return cells
 
 
 def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
@@ -275,9 +228,9 @@ def main(argv=None) -> int:
                        parallel=args.parallel)
     except selection.Refused as error:
         return selection.refused(error)
-    rollout = waves.latest_state()
+    rollout = rollout_plan.latest_state()
     for r in rows:
-        r["rollout"] = waves.host_state(rollout, r["host"])
+        r["rollout"] = rollout_plan.host_state(rollout, r["host"])
     if args.metrics or shown == "openmetrics":
         text = metrics.render(rows + metrics.reported(args.inventory, [r["host"] for r in rows]), roles, time.time())
         if args.metrics:
@@ -298,7 +251,7 @@ def main(argv=None) -> int:
             cols = cols[:-1] + COLUMNS + cols[-1:]
         print(table(rows, cols))
         if rollout:
-            print(one_line(waves.summary(rollout)))
+            print(one_line(rollout_plan.summary(rollout)))
     return exit_code(rows)
 
 

@@ -1,15 +1,18 @@
-"""Pull mode: robots that converge themselves from signed releases.
+"""Pull mode: robots that converge themselves from signed releases (docs/pull.md).
 
-- ``record.py``: the release record (release.json), pure;
-- ``tree.py``: the deploy tree's content hash and code archive;
-- ``waves.py``: waves, failure budget and maintenance windows, pure;
-- ``trust.py``: the robot's verified refresh (TUF, python-tuf's ngclient);
-  ``tufprivate.py``: the python-tuf private names it needs, in one place;
-- ``keys.py``, ``repository.py``: the operator's keys and TUF repository;
-- ``channel.py``: where a repository is published (the fleet remote's
-  robotfleet/releases branch, or a directory served over HTTPS);
-- ``publishing.py``: a release built from the fleet file, the deploy code
-  and the roles' pins; ``wheels.py``: the wheelhouse robots install from.
+Three layers, held by import-linter (pyproject.toml):
 
-docs/pull.md says how to publish, halt and rotate keys.
+- ``protocol/``: what both sides read and write: the release record, the
+  reports and where they live, waves and windows, the deploy tree's hash,
+  the agent's files and configuration on a robot, a robot's data;
+- ``robot/``: what runs on the robot: the agent, its transport, the TUF
+  verification and what it trusts between checks, the decision, preparing
+  and running a release's converge;
+- ``operator/``: what runs on the operator's machine: keys, the TUF
+  repository, publishing, wheels, bundles, gitolite's rules, the pull
+  role's install of the agent, the commands' shared options.
+
+The robot's side and the operator's side never import each other.
+``agent.py`` here is an entry point only: its name is in every robot's
+robot-pull.service.
 """

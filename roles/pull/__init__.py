@@ -6,7 +6,7 @@ python and architecture, the deploy tree the agent runs, its configuration
 and the release repository's root.json (root's only), the robot's own SSH
 key for the fleet remote (made on the robot; it never leaves it), and
 robot-pull.service run by robot-pull.timer.  When the agent itself runs the
-deploy (a release, robotfleet/pull/agent.py), the venv and the tree are
+deploy (a release, robotfleet/pull/robot/agent.py), the venv and the tree are
 the release's, which the agent put in place: the role leaves them alone.
 docs/pull.md says how it all fits; roles/pull/README.md what the role does.
 """
@@ -21,7 +21,8 @@ from robotfleet import CHECKOUT
 from robotfleet.host import apt, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.host.stream import FileStdin
-from robotfleet.pull import install, layout
+from robotfleet.pull.operator import install
+from robotfleet.pull.protocol import agent_files
 from robotfleet.role import Play, Role
 import roles.pull.plan as plan
 import roles.pull.settings as settings
@@ -29,9 +30,9 @@ import roles.pull.settings as settings
 INSTALLED_PROBE = "pull_installed"
 PYTHON_PROBE = "pull_python"
 # Set in a host's data by the agent when it runs the deploy itself.
-AGENT_RUN = layout.AGENT_RUN
-FILES = (layout.CONFIG, layout.TRUST_ROOT, layout.KNOWN_HOSTS, layout.REMOTE_CA, layout.KEY, f"{layout.KEY}.pub",
-         f"{layout.UNIT_DIR}/{layout.SERVICE}", f"{layout.UNIT_DIR}/{layout.TIMER}")
+AGENT_RUN = agent_files.AGENT_RUN
+FILES = (agent_files.CONFIG, agent_files.TRUST_ROOT, agent_files.KNOWN_HOSTS, agent_files.REMOTE_CA, agent_files.KEY, f"{agent_files.KEY}.pub",
+         f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}", f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")
 
 
 def runs_on(data) -> bool:
@@ -40,8 +41,8 @@ def runs_on(data) -> bool:
 
 def declare_reads(data, query: SnapshotQuery) -> None:
     query.packages |= set(plan.PACKAGES)
-    query.files |= {layout.ETC, layout.STATE, *FILES}
-    query.units.add(layout.TIMER)
+    query.files |= {agent_files.ETC, agent_files.STATE, *FILES}
+    query.units.add(agent_files.TIMER)
     query.probes[INSTALLED_PROBE] = install.PROBE
     query.probes[PYTHON_PROBE] = plan.PYTHON_PROBE
 
@@ -70,39 +71,39 @@ def pull_agent(play: Play):
         return
     apt.apt_install(name="Install git and python3-venv for the pull agent", packages=list(plan.PACKAGES),
                     installed=snap.packages)
-    for path in (layout.ETC, layout.STATE):
+    for path in (agent_files.ETC, agent_files.STATE):
         operations.directory(name=f"Pull agent directory {path}", path=path, current=snap.files.get(path),
                              mode="0700")
-    operations.file(name="Write the pull agent's configuration", path=layout.CONFIG,
-                    content=plan.config(data, name).to_json(), current=snap.files.get(layout.CONFIG),
+    operations.file(name="Write the pull agent's configuration", path=agent_files.CONFIG,
+                    content=plan.config(data, name).to_json(), current=snap.files.get(agent_files.CONFIG),
                     mode="0600")
     if not agent_run:
         operations.file(name="Write the release repository's root.json (the agent's first trust)",
-                        path=layout.TRUST_ROOT, content=root, current=snap.files.get(layout.TRUST_ROOT), mode="0600")
-    operations.file(name="Write the fleet remote's host keys", path=layout.KNOWN_HOSTS,
-                    content=plan.known_hosts(data), current=snap.files.get(layout.KNOWN_HOSTS))
+                        path=agent_files.TRUST_ROOT, content=root, current=snap.files.get(agent_files.TRUST_ROOT), mode="0600")
+    operations.file(name="Write the fleet remote's host keys", path=agent_files.KNOWN_HOSTS,
+                    content=plan.known_hosts(data), current=snap.files.get(agent_files.KNOWN_HOSTS))
     if ca is not None:
         operations.file(name="Write the CA the https fleet remote's certificate is checked against",
-                        path=layout.REMOTE_CA, content=ca, current=snap.files.get(layout.REMOTE_CA))
-    elif snap.files.get(layout.REMOTE_CA) is not None:
-        operations.absent(name="Remove the fleet remote's CA (pull_remote_ca is not set)", paths=[layout.REMOTE_CA],
+                        path=agent_files.REMOTE_CA, content=ca, current=snap.files.get(agent_files.REMOTE_CA))
+    elif snap.files.get(agent_files.REMOTE_CA) is not None:
+        operations.absent(name="Remove the fleet remote's CA (pull_remote_ca is not set)", paths=[agent_files.REMOTE_CA],
                           present=snap.files)
-    if snap.files.get(layout.KEY) is None or snap.files.get(f"{layout.KEY}.pub") is None:
+    if snap.files.get(agent_files.KEY) is None or snap.files.get(f"{agent_files.KEY}.pub") is None:
         operations.run(name="Make the robot's own key for the fleet remote (it never leaves the robot)",
                        script=plan.keygen_script(name))
     if not agent_run:
         _install_venv_and_code(data, snap)
     units = [
-        operations.file(name=f"Write {layout.SERVICE}", path=f"{layout.UNIT_DIR}/{layout.SERVICE}",
-                        content=plan.service_unit(), current=snap.files.get(f"{layout.UNIT_DIR}/{layout.SERVICE}")),
-        operations.file(name=f"Write {layout.TIMER}", path=f"{layout.UNIT_DIR}/{layout.TIMER}",
-                        content=plan.timer_unit(data), current=snap.files.get(f"{layout.UNIT_DIR}/{layout.TIMER}")),
+        operations.file(name=f"Write {agent_files.SERVICE}", path=f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}",
+                        content=plan.service_unit(), current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}")),
+        operations.file(name=f"Write {agent_files.TIMER}", path=f"{agent_files.UNIT_DIR}/{agent_files.TIMER}",
+                        content=plan.timer_unit(data), current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")),
     ]
     operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=any_changed(*units))
-    operations.run(name=f"Restart {layout.TIMER} with its new schedule", script=f"systemctl restart {layout.TIMER}",
+    operations.run(name=f"Restart {agent_files.TIMER} with its new schedule", script=f"systemctl restart {agent_files.TIMER}",
                    _if=any_changed(*units[1:]))
-    operations.service(name=f"{layout.TIMER} enabled and running", unit=layout.TIMER,
-                       enabled_now=snap.unit_enabled(layout.TIMER), active_now=snap.unit_active(layout.TIMER))
+    operations.service(name=f"{agent_files.TIMER} enabled and running", unit=agent_files.TIMER,
+                       enabled_now=snap.unit_enabled(agent_files.TIMER), active_now=snap.unit_active(agent_files.TIMER))
 
 
 def _install_venv_and_code(data, snap) -> None:

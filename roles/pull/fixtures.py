@@ -3,7 +3,8 @@
 from robotfleet import CHECKOUT
 from robotfleet.host.fixtures import file_state
 from robotfleet.host.snapshot import FileState
-from robotfleet.pull import install, layout
+from robotfleet.pull.operator import install
+from robotfleet.pull.protocol import agent_files
 import roles.pull as role
 import roles.pull.plan as plan
 
@@ -13,19 +14,19 @@ def converged(play, host: str) -> None:
     name = host  # what the steps see as host.name
     for package in plan.PACKAGES:
         snap.packages[package] = "1"
-    for path in (layout.ETC, layout.STATE):
+    for path in (agent_files.ETC, agent_files.STATE):
         snap.files[path] = FileState("dir", None, "700", "root", "root")
-    snap.files[layout.CONFIG] = file_state(plan.config(data, name).to_json(), "600")
-    snap.files[layout.TRUST_ROOT] = file_state(install.trust_root(CHECKOUT, data.pull_trust_root), "600")
-    snap.files[layout.KNOWN_HOSTS] = file_state(plan.known_hosts(data))
+    snap.files[agent_files.CONFIG] = file_state(plan.config(data, name).to_json(), "600")
+    snap.files[agent_files.TRUST_ROOT] = file_state(install.trust_root(CHECKOUT, data.pull_trust_root), "600")
+    snap.files[agent_files.KNOWN_HOSTS] = file_state(plan.known_hosts(data))
     ca = install.remote_ca(CHECKOUT, data.pull_remote_ca)
     if ca is not None:
-        snap.files[layout.REMOTE_CA] = file_state(ca)
-    snap.files[layout.KEY] = file_state("private", "600")
-    snap.files[f"{layout.KEY}.pub"] = file_state("ssh-ed25519 AAAA robot-pull@" + name, "600")
-    snap.files[f"{layout.UNIT_DIR}/{layout.SERVICE}"] = file_state(plan.service_unit())
-    snap.files[f"{layout.UNIT_DIR}/{layout.TIMER}"] = file_state(plan.timer_unit(data))
-    snap.units[layout.TIMER] = ("enabled", "active")
+        snap.files[agent_files.REMOTE_CA] = file_state(ca)
+    snap.files[agent_files.KEY] = file_state("private", "600")
+    snap.files[f"{agent_files.KEY}.pub"] = file_state("ssh-ed25519 AAAA robot-pull@" + name, "600")
+    snap.files[f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}"] = file_state(plan.service_unit())
+    snap.files[f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"] = file_state(plan.timer_unit(data))
+    snap.units[agent_files.TIMER] = ("enabled", "active")
     platform = data.pull_platform
     snap.probes[role.PYTHON_PROBE] = platform.split("-")[0][2:] + "\n"
     venv, _ = install.wheel_set(install.releases_clone(CHECKOUT), platform)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shlex
 
-from robotfleet.pull import layout
+from robotfleet.pull.protocol import agent_files
 
 PACKAGES = ("python3-venv", "git", "openssh-client")
 # The python a release of Debian or Ubuntu ships (python3), for a host that
@@ -19,9 +19,9 @@ MACHINES = {"amd64": "x86_64", "arm64": "aarch64", "armhf": "armv7l", "i386": "i
 PYTHON_PROBE = "python3 -c 'import sys; print(\"%d%d\" % sys.version_info[:2])'"
 
 
-config = layout.config_of
-known_hosts = layout.known_hosts_of
-KNOWN_HOSTS_ALIAS = layout.HOST_KEY_ALIAS
+config = agent_files.config_of
+known_hosts = agent_files.known_hosts_of
+KNOWN_HOSTS_ALIAS = agent_files.HOST_KEY_ALIAS
 
 
 def platform(probed_python: str, os_release: dict, arch: str) -> str | None:
@@ -35,15 +35,15 @@ def platform(probed_python: str, os_release: dict, arch: str) -> str | None:
 
 def keygen_script(robot: str) -> str:
     """Make the robot's key pair beside its place, then rename it into place."""
-    key = layout.KEY
+    key = agent_files.KEY
     return f"""set -e
 umask 077
-tmp=$(mktemp -d {layout.ETC}/.key.XXXXXX); trap 'rm -rf "$tmp"' EXIT
+tmp=$(mktemp -d {agent_files.ETC}/.key.XXXXXX); trap 'rm -rf "$tmp"' EXIT
 ssh-keygen -q -t ed25519 -N '' -C 'robot-pull@'{shlex.quote(robot)} -f "$tmp/key"
 mv -T "$tmp/key.pub" {key}.pub
 mv -T "$tmp/key" {key}
 """
 
 
-service_unit = layout.service_unit
-timer_unit = layout.timer_unit
+service_unit = agent_files.service_unit
+timer_unit = agent_files.timer_unit

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
-from robotfleet.pull import waves
+from robotfleet.pull.protocol import waves
 from robotfleet.role import Setting
 
 # The fleet remote as git takes it (never through a shell, but still no
@@ -29,7 +29,7 @@ _DAY = "(?:" + "|".join(_any_case(short) + f"(?:{_any_case(rest)})?" for short, 
     ("mon", "day"), ("tue", "sday"), ("wed", "nesday"), ("thu", "rsday"), ("fri", "day"), ("sat", "urday"),
     ("sun", "day"))) + ")"
 _TIME = "(?:[01]?[0-9]|2[0-3]):[0-5][0-9]"
-# What robotfleet/pull/waves.py reads, in ASCII and single spaces (a JSON
+# What robotfleet/pull/protocol/waves.py reads, in ASCII and single spaces (a JSON
 # Schema pattern too); a window that starts when it ends is the run's alone.
 WINDOW = (rf"(?:{_any_case('daily')}|\*|{_DAY}(?:-{_DAY})?(?:,{_DAY}(?:-{_DAY})?)*) +{_TIME}-{_TIME}"
           rf"(?: +(?:{_any_case('utc')}|{_any_case('local')}))?")
@@ -37,7 +37,7 @@ _WINDOW_CHECK = c.string(WINDOW, "a maintenance window like 'Mon-Fri 01:00-05:00
 
 
 def window(value):
-    """A maintenance window: DAYS HH:MM-HH:MM [UTC] (robotfleet/pull/waves.py)."""
+    """A maintenance window: DAYS HH:MM-HH:MM [UTC] (robotfleet/pull/protocol/waves.py)."""
     problems = _WINDOW_CHECK(value)
     if problems:
         return problems

@@ -147,7 +147,7 @@ def test_a_shared_image_s_key_reports_only_as_a_name_its_rule_makes_and_no_enrol
     machine-id --name-prefix robot-`), on the lab's real gitolite: it may
     write refs/reports/robot-<12 hex> but neither a registered robot's report
     (one whose name the rule could make, too) nor the releases."""
-    from robotfleet.pull import gitolite
+    from robotfleet.pull.operator import gitolite
     from tests.lab import gitserver
 
     git = pull.op.git
@@ -230,7 +230,7 @@ def test_a_bad_repository_is_refused_everywhere_and_changes_nothing(pull, lab, a
 
 
 def test_a_crash_looping_release_is_rolled_back_on_the_canary_and_halts_the_rest(pull, lab):
-    from robotfleet.pull import waves
+    from robotfleet.pull.protocol import waves
 
     started = time.monotonic()
     done = pull.op.rollout(pull.fleet("1.2-broken", robots=ROBOTS), "release: payload 1.2-broken", "--canary", "1",

@@ -141,7 +141,8 @@ def test_pull_robots_are_in_the_metrics_from_their_reports_stale_marked(tmp_path
     import subprocess
     import sys
 
-    from robotfleet.pull import reports, transport
+    from robotfleet.pull.protocol import reports
+    from robotfleet.pull.robot import transport
 
     bare = tmp_path / "fleet.git"
     subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)

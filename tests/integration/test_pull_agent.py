@@ -1,4 +1,4 @@
-"""The pull agent's wake (robotfleet/pull/agent.py) against a real TUF
+"""The pull agent's wake (robotfleet/pull/robot/agent.py) against a real TUF
 repository and a real git remote (file://), with a release whose code is a
 small tree: its robotfleet.commands.converge answers as the contract says
 (one JSON line), the way a release's own code does, without provisioning
@@ -19,17 +19,18 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.pull import agent, layout, reports, tree
+from robotfleet.pull.robot import agent
+from robotfleet.pull.protocol import agent_files, reports, tree
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
 STUB = '''import json, os, sys
-from robotfleet.pull import layout
+from robotfleet.pull.protocol import agent_files
 args = sys.argv[1:]
 if os.environ.get("STUB_LOG"):
     with open(os.environ["STUB_LOG"], "a") as runs:
         runs.write(args[0] + "\\n")
-watch = getattr(layout, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
+watch = getattr(agent_files, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
 row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"),
        "health": os.environ.get("STUB_HEALTH", "healthy")}
 if args[0] == "status":
@@ -52,7 +53,7 @@ else:
 def code_archive(base: Path, version: int) -> tuple[Path, str, str]:
     """A release's code: (archive, tree hash, fleet file hash)."""
     files = {"robotfleet/__init__.py": "", "robotfleet/commands/__init__.py": "", "robotfleet/commands/converge.py": STUB,
-             "robotfleet/pull/__init__.py": "", "robotfleet/pull/layout.py": Path(layout.__file__).read_text(),
+             "robotfleet/pull/__init__.py": "", "robotfleet/pull/protocol/agent_files.py": Path(agent_files.__file__).read_text(),
              "inventories/robots.yaml": f"# release {version}\n"}
     root = base / f"tree-{version}"
     for name, text in files.items():
@@ -80,12 +81,12 @@ class World:
         venv.mkdir(parents=True)
         os.symlink(sys.executable, venv / "python")
         os.symlink("venvs/stub", self.state / "venv")
-        self.config = layout.Config(robot="robot1", remote=f"file://{self.bare}", interval=60, jitter=5,
+        self.config = agent_files.Config(robot="robot1", remote=f"file://{self.bare}", interval=60, jitter=5,
                                     state_dir=str(self.state), etc_dir=str(self.etc), docker_dir=str(base / "none"),
                                     min_free_mb=0)
 
     def release(self, version: int, robots=("robot1", "robot2"), archive=None):
-        record, waves = pullkit.module("record"), pullkit.module("waves")
+        record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
         built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
         built = record.build(version, NOW, NOW + datetime.timedelta(days=30), hashlib.sha1(bytes([version])).hexdigest(),
                              tree_sha, "inventories/robots.yaml", fleet_sha, list(robots), {}, {},
@@ -193,13 +194,13 @@ def test_a_release_not_for_this_robot_and_a_full_disk(world):
     world.release(1, robots=("robot2",))
     _, outcome, _ = world.wake()
     assert (outcome.result, outcome.reason) == ("up-to-date", "release 1 is not for robot1")
-    world.config = layout.Config(**{**world.config.__dict__, "min_free_mb": 1 << 20})
+    world.config = agent_files.Config(**{**world.config.__dict__, "min_free_mb": 1 << 20})
     _, outcome, _ = world.wake()
     assert outcome.result == "failed" and "MB free on" in outcome.reason and "pull_min_free_mb" in outcome.reason
 
 
 def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
-    world.config = layout.Config(**{**world.config.__dict__, "remote": f"file://{world.base}/nowhere.git"})
+    world.config = agent_files.Config(**{**world.config.__dict__, "remote": f"file://{world.base}/nowhere.git"})
     report, outcome, sent = world.wake()
     assert outcome.result == "failed" and outcome.reason.startswith("fetch: ")
     assert sent.startswith("report not sent")
@@ -216,7 +217,7 @@ def test_a_release_fetched_over_https_is_verified_applied_and_reported_elsewhere
     server = httpsgit.Server(world.base, cert, key, smart=False)
     try:
         (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
-        world.config = layout.Config(**{**world.config.__dict__, "remote": server.url("fleet.git"),
+        world.config = agent_files.Config(**{**world.config.__dict__, "remote": server.url("fleet.git"),
                                         "report_remote": f"file://{world.bare}"})
         _, outcome, sent = world.wake()
         assert (outcome.result, sent) == ("applied", "report sent") and server.requests > 0
@@ -234,16 +235,16 @@ def test_the_journal_line_says_the_outcome_and_its_cost():
 
 
 def test_the_agent_configuration_is_checked_field_by_field(tmp_path):
-    good = layout.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
-    assert layout.read_config(good).robot == "robot1"
+    good = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
+    assert agent_files.read_config(good).robot == "robot1"
     for change, line in ((lambda d: d.pop("robot"), "robot: required"), (lambda d: d.update(interval=0), "interval"),
                          (lambda d: d.update(extra_field=1), "unknown field 'extra_field'"),
                          (lambda d: d.update(state_dir="var/lib"), "state_dir: expected an absolute path"),
                          (lambda d: d.update(robot="a b"), "is not a robot name")):
         data = json.loads(good)
         change(data)
-        with pytest.raises(layout.ConfigError, match=line):
-            layout.read_config(json.dumps(data))
+        with pytest.raises(agent_files.ConfigError, match=line):
+            agent_files.read_config(json.dumps(data))
     config = tmp_path / "agent.json"
     config.write_text("{")
     assert agent.main(["--config", str(config)]) == 1

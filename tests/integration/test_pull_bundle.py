@@ -1,4 +1,4 @@
-"""First-boot bundles (robotfleet/pull/bundle.py): what goes on a robot's
+"""First-boot bundles (robotfleet/pull/operator/bundle.py): what goes on a robot's
 image, owned by root with its secrets 0600, and the first-boot script."""
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from robotfleet.pull import bundle, layout
+from robotfleet.pull.operator import bundle
+from robotfleet.pull.protocol import agent_files
 from tests.unit.pullkit import NOW
 
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
@@ -37,7 +38,7 @@ def test_the_bundle_holds_the_robot_s_agent_its_trust_and_a_first_boot(made):
     with tarfile.open(out / "rootfs.tar") as tar:
         members = {m.name: m for m in tar.getmembers()}
         read = lambda name: tar.extractfile(members[name]).read()  # noqa: E731
-        config = layout.read_config(read("etc/robot-pull/agent.json").decode())
+        config = agent_files.read_config(read("etc/robot-pull/agent.json").decode())
         assert (config.robot, config.remote, config.interval) == ("robot9", DATA.pull_remote, 60)
         assert config.extra == {"trusted_time": "2026-11-25T10:00:00Z"}  # no clock older than the release is believed
         assert read("etc/robot-pull/root.json") == b'{"root": 1}'
@@ -98,7 +99,7 @@ def test_a_bundle_for_an_image_shared_by_many_robots_carries_the_name_rule(tmp_p
     bundle.make(tmp_path / "out", "robot9", DATA, RECORD, code, [("w.whl", code)], b"{}", None, ("machine-id", "arm-"))
     with tarfile.open(tmp_path / "out" / "rootfs.tar") as tar:
         text = tar.extractfile("etc/robot-pull/agent.json").read().decode()
-    config = layout.read_config(text)
+    config = agent_files.read_config(text)
     assert (config.robot, config.name_rule, config.name_prefix, config.interval) == ("", "machine-id", "arm-", 60)
-    assert layout.named(config, read=lambda rule: "0123456789abcdef0123456789abcdef\n").robot == "arm-0123456789ab"
+    assert agent_files.named(config, read=lambda rule: "0123456789abcdef0123456789abcdef\n").robot == "arm-0123456789ab"
     assert "arm-<machine-id> (with the settings of robot9)" in (tmp_path / "out" / "README").read_text()

@@ -1,4 +1,4 @@
-"""A pull robot's converge run in the release's code (robotfleet/commands/converge.py)
+"""A pull robot's converge run in the release's code (robotfleet/pull/robot/converge.py)
 and the inventory it runs pyinfra with (inventories/pull.py)."""
 
 from __future__ import annotations
@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-from robotfleet.commands import converge
+from robotfleet.pull.robot import converge
+from robotfleet.pull.protocol import robot_data
 from robotfleet.role import RolloutPart
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -86,7 +87,7 @@ def test_pyinfra_s_lines_that_say_why():
 def test_without_a_fleet_file_a_robot_s_defaults():
     from robotfleet import roster
 
-    data = converge.host_data("robot1", None, roster.registry())
+    data = robot_data.host_data("robot1", None, roster.registry())
     assert data.payload_dir == "/var/lib/robot-payload" and data.payload_autostart is True
 
 
@@ -94,21 +95,21 @@ def test_what_the_roles_status_watches_and_how_a_change_shows(tmp_path):
     """The agent reads the roles' status again only when one of these changed
     (or at its heartbeat): the payload's directory and unit invocation, dockerd."""
     from robotfleet import roster
-    from robotfleet.pull import layout
+    from robotfleet.pull.protocol import agent_files
 
-    data = converge.host_data("robot1", None, roster.registry())
+    data = robot_data.host_data("robot1", None, roster.registry())
     assert set(converge.watch(roster.roles(), data)) == {
         "/var/lib/robot-payload", "/run/systemd/units/invocation:robot-payload.service", "/usr/bin/dockerd"}
     directory, link = tmp_path / "payload", tmp_path / "current"
     directory.mkdir()
     link.symlink_to("releases/1")
     paths = [str(directory), str(link), str(tmp_path / "absent")]
-    before = layout.watched(paths)
+    before = agent_files.watched(paths)
     assert before[str(tmp_path / "absent")] == "-" and before[str(link)].endswith(":releases/1")
-    assert layout.watched(paths) == before
+    assert agent_files.watched(paths) == before
     (directory / ".last-result.json.tmp").write_text("{}")
     os.replace(directory / ".last-result.json.tmp", directory / "last-result.json")
     link.unlink()
     link.symlink_to("releases/2")
-    after = layout.watched(paths)
+    after = agent_files.watched(paths)
     assert after[str(directory)] != before[str(directory)] and after[str(link)].endswith(":releases/2")

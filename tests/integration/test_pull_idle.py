@@ -1,4 +1,4 @@
-"""What a pull check that finds nothing new costs (robotfleet/pull/agent.py):
+"""What a pull check that finds nothing new costs (robotfleet/pull/robot/agent.py):
 no TUF (not even its import: the same repository as the last verification
 is that verification again), no roles' status process (what the last read
 found, until a path the roles watch changes or the heartbeat is due), no
@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from robotfleet.pull import agent
+from robotfleet.pull.robot import agent
 from tests.integration.test_pull_agent import World
 
 
@@ -49,7 +49,7 @@ def test_an_idle_check_runs_no_status_process_and_pushes_nothing(world):
 def test_an_idle_check_imports_no_tuf(world, tmp_path):
     config = tmp_path / "agent.json"
     config.write_text(world.config.to_json())
-    code = ("import sys; from robotfleet.pull import agent; agent.main(['--config', sys.argv[1]]); "
+    code = ("import sys; from robotfleet.pull.robot import agent; agent.main(['--config', sys.argv[1]]); "
             "print(sorted({m.split('.')[0] for m in sys.modules} & {'tuf', 'securesystemslib', 'urllib3'}))")
     done = subprocess.run([sys.executable, "-c", code, str(config)], capture_output=True, text=True, check=True)
     line, modules = done.stdout.strip().splitlines()

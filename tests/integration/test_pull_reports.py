@@ -1,4 +1,4 @@
-"""Pull robots' reports (robotfleet/pull/reports.py): the format, the
+"""Pull robots' reports (robotfleet/pull/protocol/reports.py): the format, the
 operator's reading of them as untrusted input, staleness, status rows
 (robotfleet/commands/pullstatus.py) and the rollout's reading of them."""
 
@@ -12,7 +12,8 @@ from types import SimpleNamespace
 import pytest
 
 from robotfleet.commands import pullrollout, pullstatus
-from robotfleet.pull import reports, transport, waves
+from robotfleet.pull.protocol import report_store, reports, waves
+from robotfleet.pull.robot import transport
 
 UTC = datetime.timezone.utc
 NOW = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)
@@ -105,8 +106,8 @@ def test_the_operator_reads_every_report_with_one_fetch(tmp_path):
     for name, body in (("robot1", reports.to_bytes(made())), ("robot2", b"garbage")):
         transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(name, body)
     cache = tmp_path / "cache"
-    reports.fetch_all(f"file://{bare}", cache)
-    found = reports.read_all(cache)
+    report_store.fetch_all(f"file://{bare}", cache)
+    found = report_store.read_all(cache)
     assert found["robot1"]["result"] == "applied"
     assert found["robot2"] == {"robot": "robot2", "error": "report of robot2: not JSON"}
 

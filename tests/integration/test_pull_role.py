@@ -10,7 +10,8 @@ import tarfile
 
 import pytest
 
-from robotfleet.pull import install, layout
+from robotfleet.pull.operator import install
+from robotfleet.pull.protocol import agent_files
 import roles.pull as pull_role
 import roles.pull.plan as plan
 from tests.unit.harness import ROBOT, converged, find, fleet_problems, fresh_host, merged, plan as run_plan
@@ -25,7 +26,7 @@ ARM_WHEEL = "gevent-25.5-cp311-cp311-manylinux_2_28_aarch64.whl"
 
 def publish_with_wheels(fleet, version: int, wheels: dict[str, dict[str, bytes]]):
     """Release ``version`` carrying ``wheels`` (platform -> file name -> content)."""
-    record, waves = pullkit.module("record"), pullkit.module("waves")
+    record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
     files, listed = {}, {}
     for platform, named in wheels.items():
         listed[platform] = []
@@ -116,7 +117,7 @@ def test_the_role_is_opt_in():
 
 def test_agent_configuration_and_units(pulled):
     data = merged("robots", {**pulled, "pull_windows": ["Mon-Fri 01:00-05:00"]})
-    config = layout.read_config(plan.config(data, "robot7").to_json())
+    config = agent_files.read_config(plan.config(data, "robot7").to_json())
     assert config.robot == "robot7" and config.remote == "ssh://gitolite3@git.lan/fleet"
     assert (config.interval, config.jitter, config.windows) == (60, 5, ("Mon-Fri 01:00-05:00",))
     timer = plan.timer_unit(data)
@@ -125,7 +126,7 @@ def test_agent_configuration_and_units(pulled):
         assert f"\n{line}\n" in timer
     service = plan.service_unit()
     assert "\nType=oneshot\n" in service and "\nUser=" not in service
-    assert f"\nExecStart={layout.VENV}/bin/python -m robotfleet.pull.agent --config {layout.CONFIG}\n" in service
+    assert f"\nExecStart={agent_files.VENV}/bin/python -m robotfleet.pull.agent --config {agent_files.CONFIG}\n" in service
     assert plan.known_hosts(data) == f"{plan.KNOWN_HOSTS_ALIAS} {KEY}\n"
 
 
@@ -135,13 +136,13 @@ def test_a_fresh_robot_gets_the_agent(pulled, released):
     assert result.failed == set()
     assert find(commands, r"install python3-venv git openssh-client")
     files = written_files(commands)
-    assert json.loads(files[layout.CONFIG])["robot"] == "@fake/r1"
-    assert files[layout.TRUST_ROOT] == (released.repository.metadata / "root.json").read_text()
-    assert files[f"{layout.UNIT_DIR}/{layout.TIMER}"] == plan.timer_unit(merged("robots", pulled))
-    for path in (layout.CONFIG, layout.TRUST_ROOT):
+    assert json.loads(files[agent_files.CONFIG])["robot"] == "@fake/r1"
+    assert files[agent_files.TRUST_ROOT] == (released.repository.metadata / "root.json").read_text()
+    assert files[f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"] == plan.timer_unit(merged("robots", pulled))
+    for path in (agent_files.CONFIG, agent_files.TRUST_ROOT):
         assert "chmod 600" in find(commands, f"dest={path}\n")[0]
     keygen = find(commands, "ssh-keygen -q -t ed25519")
-    assert len(keygen) == 1 and f"mv -T \"$tmp/key\" {layout.KEY}" in keygen[0]
+    assert len(keygen) == 1 and f"mv -T \"$tmp/key\" {agent_files.KEY}" in keygen[0]
     # The wheels of the robot's python (Debian 13: 3.13) and architecture, as one archive.
     venv = find(commands, "python3 -m venv")
     assert len(venv) == 1
@@ -204,7 +205,7 @@ def test_an_existing_key_is_kept_and_a_changed_interval_restarts_the_timer(pulle
     snap = converged("robots", pulled, "debian-13")
     commands = run_plan({"r1": ("robots", {**pulled, "pull_interval": 120}, snap)})["r1"]
     assert not find(commands, "ssh-keygen")
-    assert set(written_files(commands)) == {layout.CONFIG, f"{layout.UNIT_DIR}/{layout.TIMER}"}
+    assert set(written_files(commands)) == {agent_files.CONFIG, f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"}
     assert find(commands, "systemctl daemon-reload") and find(commands, "systemctl restart robot-pull.timer")
 
 
@@ -232,12 +233,12 @@ def test_an_https_remote_s_ca_is_installed_and_removed_when_unset(pulled, tmp_pa
     ca = httpsgit.make_ca(tmp_path / "tls")[0]
     https = {**pulled, "pull_remote": "https://127.0.0.1:8443/fleet.git", "pull_remote_ca": str(ca)}
     files = written_files(run_plan({"r1": ("robots", https, fresh_host("debian-13"))})["r1"])
-    assert files[layout.REMOTE_CA] == ca.read_text()
-    assert json.loads(files[layout.CONFIG])["remote"] == "https://127.0.0.1:8443/fleet.git"
+    assert files[agent_files.REMOTE_CA] == ca.read_text()
+    assert json.loads(files[agent_files.CONFIG])["remote"] == "https://127.0.0.1:8443/fleet.git"
     snap = converged("robots", https, "debian-13")
     assert not written_files(run_plan({"r1": ("robots", https, snap)})["r1"])  # converged: nothing
     commands = run_plan({"r1": ("robots", pulled, snap)})["r1"]
-    assert find(commands, f"rm -f {layout.REMOTE_CA}")
+    assert find(commands, f"rm -f {agent_files.REMOTE_CA}")
     result = run_plan({"r1": ("robots", {**https, "pull_remote_ca": str(tmp_path / "tls" / "ca.key")},
                               fresh_host("debian-13"))})
     assert result.failed == {"r1"} and find(result["r1"], "pull_remote_ca: .*ca.key holds no PEM certificate")

@@ -1,4 +1,4 @@
-"""The robot's side of the fleet remote (robotfleet/pull/transport.py) on
+"""The robot's side of the fleet remote (robotfleet/pull/robot/transport.py) on
 real git repositories (file:// remotes: ssh is not needed to test git's
 part), and what it reads from ssh's log."""
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.pull import transport
+from robotfleet.pull.robot import transport
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
 debug1: Server accepts key: /etc/robot-pull/id_ed25519 ED25519 SHA256:abc explicit

@@ -1,4 +1,4 @@
-"""The deploy tree of a release (robotfleet/pull/tree.py) on real git
+"""The deploy tree of a release (robotfleet/pull/protocol/tree.py) on real git
 repositories: the content hash is the same from git's objects and from the
 unpacked archive, the archive is the same bytes for the same commit, and
 unpacking refuses anything that would land outside its directory."""
@@ -11,7 +11,7 @@ import tarfile
 
 import pytest
 
-from robotfleet.pull import tree
+from robotfleet.pull.protocol import tree
 
 
 def git(where, *args):

@@ -17,7 +17,7 @@ from tests.unit.pullkit import DAY, NOW, edit_json, tree_state
 
 @pytest.fixture
 def trust():
-    return pullkit.module("trust")
+    return pullkit.module("robot.verify")
 
 
 @pytest.fixture
@@ -121,7 +121,7 @@ def test_a_repository_signed_by_another_key_is_refused(fleet, trust, tmp_path):
 def test_a_timestamp_signed_by_a_key_the_root_does_not_name_is_refused(fleet, trust, tmp_path):
     from tuf.api.metadata import Metadata
 
-    stranger = pullkit.module("keys").KeyDir(tmp_path / "stranger")
+    stranger = pullkit.module("operator.keys").KeyDir(tmp_path / "stranger")
     stranger.generate("online")
     path = fleet.repository.metadata / "timestamp.json"
     md = Metadata.from_file(str(path))
@@ -154,7 +154,7 @@ def test_an_expired_repository_is_refused_as_a_freeze(tmp_path, trust):
 
 
 def test_expired_targets_metadata_is_refused(fleet, trust):
-    expiry = pullkit.module("repository").Expiry(targets=2 * DAY, snapshot=40 * DAY, timestamp=30 * DAY)
+    expiry = pullkit.module("operator.repository").Expiry(targets=2 * DAY, snapshot=40 * DAY, timestamp=30 * DAY)
     fleet.release(2, expiry=expiry)
     line = refused(fleet, trust, trust.EXPIRED, clock=lambda: NOW + 3 * DAY)
     assert "expired: refused as a freeze (New targets is expired)" in line
@@ -198,7 +198,7 @@ def test_the_private_reference_time_exists_in_this_python_tuf(fleet, trust):
 
     updater = Updater(str(fleet.state / "tuf"), "file:///nonexistent/", bootstrap=None)
     moment = NOW + 365 * DAY
-    pullkit.module("tufprivate").set_reference_time(updater, moment)
+    pullkit.module("robot.tufprivate").set_reference_time(updater, moment)
     assert updater._trusted_set.reference_time == moment
 
 
@@ -207,7 +207,7 @@ def test_online_key_rotation_is_followed_by_a_robot_that_trusted_the_old_root(fl
     repository, keys = fleet.repository, fleet.keys
     new_online = keys.generate("online.next")
     unsigned = repository.prepare_root(fleet.expiry, NOW, online_key=new_online)
-    signed = pullkit.module("repository").sign_root(unsigned, [keys.signer("root")])
+    signed = pullkit.module("operator.repository").sign_root(unsigned, [keys.signer("root")])
     assert repository.install_root(signed, keys.signer("online.next"), fleet.expiry, NOW) == 2
     keys.promote("online.next", "online")
     fleet.release(2)
@@ -219,17 +219,17 @@ def test_online_key_rotation_is_followed_by_a_robot_that_trusted_the_old_root(fl
     path = repository.metadata / "timestamp.json"
     md = Metadata.from_file(str(path))
     md.signed.version += 1
-    md.sign(pullkit.module("keys").signer_of(keys.path / "online.old.key"))
+    md.sign(pullkit.module("operator.keys").signer_of(keys.path / "online.old.key"))
     md.to_file(str(path))
     refused(fleet, trust, trust.UNKNOWN_KEY)
 
 
 def test_root_key_rotation_is_followed_and_the_old_root_key_alone_cannot_make_a_root(fleet, trust, tmp_path):
     repository, keys = fleet.repository, fleet.keys
-    sign_root = pullkit.module("repository").sign_root
+    sign_root = pullkit.module("operator.repository").sign_root
     new_root = keys.generate("root.next")
     unsigned = repository.prepare_root(fleet.expiry, NOW, root_key=new_root)
-    with pytest.raises(pullkit.module("repository").RepositoryError, match="not signed by its own root key"):
+    with pytest.raises(pullkit.module("operator.repository").RepositoryError, match="not signed by its own root key"):
         repository.install_root(sign_root(unsigned, [keys.signer("root")]), keys.signer("online"), fleet.expiry, NOW)
     signed = sign_root(unsigned, [keys.signer("root"), keys.signer("root.next")])
     repository.install_root(signed, keys.signer("online"), fleet.expiry, NOW)
@@ -243,8 +243,8 @@ def test_root_key_rotation_is_followed_and_the_old_root_key_alone_cannot_make_a_
 
 
 def test_the_operator_side_refuses_to_sign_with_an_online_key_the_root_does_not_name(fleet, tmp_path):
-    repository = pullkit.module("repository")
-    stranger = pullkit.module("keys").KeyDir(tmp_path / "stranger")
+    repository = pullkit.module("operator.repository")
+    stranger = pullkit.module("operator.keys").KeyDir(tmp_path / "stranger")
     stranger.generate("online")
     for attempt in (lambda: fleet.repository.renew(stranger.signer("online"), fleet.expiry, NOW),
                     lambda: fleet.repository.resign(stranger.signer("online"), fleet.expiry, NOW)):
@@ -254,7 +254,7 @@ def test_the_operator_side_refuses_to_sign_with_an_online_key_the_root_does_not_
 
 
 def test_an_unsigned_prepared_root_is_not_installed(fleet):
-    repository = pullkit.module("repository")
+    repository = pullkit.module("operator.repository")
     unsigned = fleet.repository.prepare_root(fleet.expiry, NOW)
     with pytest.raises(repository.RepositoryError, match="not signed by the current root key"):
         fleet.repository.install_root(unsigned, fleet.keys.signer("online"), fleet.expiry, NOW)

@@ -1,5 +1,5 @@
 """A check that finds the repository exactly as its last full verification
-did needs no TUF refresh (robotfleet/pull/trusted.py): the record comes
+did needs no TUF refresh (robotfleet/pull/robot/trust_state.py): the record comes
 back without python-tuf; any change to what a refresh reads, a new root,
 time past an expiry, or a version below the one applied sends the check
 to the full refresh, which judges it (and refuses what it refuses).  Real
@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from robotfleet.pull import trusted
+from robotfleet.pull.robot import trust_state
 from tests.unit import pullkit
 from tests.unit.pullkit import DAY, NOW, edit_json
 
@@ -27,7 +27,7 @@ def fleet(tmp_path):
 
 
 def recall(fleet, now=NOW, source=None, applied=0):
-    found = trusted.recall(fleet.state, str(source or fleet.repository.path), now, applied)
+    found = trust_state.recall(fleet.state, str(source or fleet.repository.path), now, applied)
     return found[0] if found else None
 
 
@@ -35,15 +35,15 @@ def test_the_same_repository_gives_the_verified_record_back(fleet):
     record = recall(fleet)
     assert (record.version, record.robots) == (1, ("robot1", "robot2"))
     # later, the clock moves the trusted time on, as a successful check does
-    assert trusted.recall(fleet.state, str(fleet.repository.path), NOW + DAY)[1] == NOW + DAY
-    assert trusted.read_state(fleet.state).time == NOW + DAY
+    assert trust_state.recall(fleet.state, str(fleet.repository.path), NOW + DAY)[1] == NOW + DAY
+    assert trust_state.read_state(fleet.state).time == NOW + DAY
     # a clock behind the trusted time is not believed
-    assert trusted.recall(fleet.state, str(fleet.repository.path), NOW)[1] == NOW + DAY
+    assert trust_state.recall(fleet.state, str(fleet.repository.path), NOW)[1] == NOW + DAY
 
 
 def test_recalling_imports_no_tuf(fleet):
-    code = ("import sys, datetime; from robotfleet.pull import trusted; "
-            f"found = trusted.recall({str(fleet.state)!r}, {str(fleet.repository.path)!r}, "
+    code = ("import sys, datetime; from robotfleet.pull.robot import trust_state; "
+            f"found = trust_state.recall({str(fleet.state)!r}, {str(fleet.repository.path)!r}, "
             "datetime.datetime.now(datetime.timezone.utc)); "
             "assert found and found[0].version == 1, found; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('tuf', 'securesystemslib', 'urllib3')))")
@@ -77,7 +77,7 @@ def test_an_expiry_a_rollback_floor_or_another_source_means_a_full_refresh(fleet
 def test_an_initialized_trust_forgets_what_it_verified(fleet):
     fleet.trust()
     assert recall(fleet) is None
-    assert not (fleet.state / trusted.VERIFIED).exists()
+    assert not (fleet.state / trust_state.VERIFIED).exists()
 
 
 def test_over_http_the_same_files_are_read(fleet):

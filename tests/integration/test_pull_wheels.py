@@ -1,20 +1,21 @@
-"""The wheelhouse robots install from (robotfleet/pull/wheels.py): the
-robot's platform key, and binary wheels for another machine fetched from
+"""The wheelhouse robots install from (robotfleet/pull/operator/wheels.py): the
+robot's platform key (robotfleet/pull/protocol/platforms.py), and binary wheels for another machine fetched from
 PyPI with pip (a small requirement)."""
 
 import os
 
 import pytest
 
-from robotfleet.pull import wheels
+from robotfleet.pull.operator import wheels
+from robotfleet.pull.protocol import platforms
 
 
 def test_platform_keys():
-    assert wheels.platform_key((3, 13), "x86_64") == "cp313-x86_64"
-    assert wheels.platform_key((3, 11), "arm64") == "cp311-aarch64"
-    assert wheels.parse_platform("cp311-aarch64") == ("3.11", "aarch64")
+    assert platforms.platform_key((3, 13), "x86_64") == "cp313-x86_64"
+    assert platforms.platform_key((3, 11), "arm64") == "cp311-aarch64"
+    assert platforms.parse_platform("cp311-aarch64") == ("3.11", "aarch64")
     with pytest.raises(ValueError, match="platform 'py3-any': expected cp<python version>-<machine>"):
-        wheels.parse_platform("py3-any")
+        platforms.parse_platform("py3-any")
 
 
 def test_requirements_come_from_the_commits_pyproject():

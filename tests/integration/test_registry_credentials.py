@@ -147,7 +147,7 @@ def test_push_of_a_multi_service_payload_sends_the_primary_password_to_no_other_
 def test_a_pull_release_resolves_each_image_with_its_own_registrys_credentials(servers, monkeypatch):
     """robotfleet publish pins every image's digest (roles/payload/pins.py): the
     primary registry's password goes to the primary registry only."""
-    from robotfleet.pull.publishing import HostData
+    from robotfleet.pull.protocol.robot_data import HostData
     from roles.payload import pins
 
     primary = servers(answer=basic_only)

@@ -12,7 +12,7 @@ import re
 
 import pytest
 
-from robotfleet.commands import rolloutreport, waves
+from robotfleet.commands import rolloutreport, rollout_plan
 from tests.integration import sshserver
 from tests.integration.test_exit_codes import run
 from tests.integration.test_first_contact import fleet
@@ -92,16 +92,16 @@ def test_one_line_per_robot_counts_that_add_up_and_nothing_obeyed_in_rollout(tmp
 
 
 def state_for(plan):
-    return waves.start_run(waves.new_state("k", "inv.py", plan, {h: "img:2" for w in plan for h in w}, 1))
+    return rollout_plan.start_run(rollout_plan.new_state("k", "inv.py", plan, {h: "img:2" for w in plan for h in w}, 1))
 
 
 def test_each_robot_has_one_outcome_whatever_the_runs():
     state = state_for([["r1"], ["r2", "r3"]])
-    state = waves.record_wave(state, 0, [], {"r1": "unhealthy"}, {})
-    state = waves.start_run(state)
-    state = waves.record_wave(state, 0, [], {}, {"r1": "unreachable: timed out"})
-    state = waves.record_wave(state, 1, ["r2"], {"r3": "unhealthy"}, {})
-    assert [waves.outcome(state, h) for h in ("r1", "r2", "r3")] == ["skipped", "done", "failed"]
+    state = rollout_plan.record_wave(state, 0, [], {"r1": "unhealthy"}, {})
+    state = rollout_plan.start_run(state)
+    state = rollout_plan.record_wave(state, 0, [], {}, {"r1": "unreachable: timed out"})
+    state = rollout_plan.record_wave(state, 1, ["r2"], {"r3": "unhealthy"}, {})
+    assert [rollout_plan.outcome(state, h) for h in ("r1", "r2", "r3")] == ["skipped", "done", "failed"]
     assert [rolloutreport.robot_line(state, h) for h in ("r1", "r2", "r3")] == [
         "rollout: [r1] skipped: unreachable: timed out", "rollout: [r2] done", "rollout: [r3] failed: unhealthy"]
-    assert "; 1 done, 1 failed, 1 skipped, 0 pending of 3 robot(s);" in waves.summary(state)
+    assert "; 1 done, 1 failed, 1 skipped, 0 pending of 3 robot(s);" in rollout_plan.summary(state)

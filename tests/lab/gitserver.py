@@ -5,7 +5,7 @@ default lab does not wait for it.  It runs sshd (systemd as PID 1, like the
 hosts) on `<prefix>-net`, where the robots reach it as `<prefix>-git:22`,
 and on a fixed 127.0.0.1 port for this machine.  The lab key is gitolite's
 admin (user `admin`): the operator changes keys and rules by pushing
-gitolite-admin (robotfleet/pull/gitolite.py), as with a real server.
+gitolite-admin (robotfleet/pull/operator/gitolite.py), as with a real server.
 
 Its host keys are in `.lab/<prefix>/git_known_hosts`, under both names.
 """
@@ -17,7 +17,7 @@ import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from robotfleet.pull import gitolite
+from robotfleet.pull.operator import gitolite
 
 from . import hostimage, state
 from .engine import LabError, get_or_none, pick_free_port, published_ports, put_files, timed_phase

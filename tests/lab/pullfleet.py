@@ -146,7 +146,7 @@ class Operator:
 
     def reports(self) -> dict[str, dict]:
         """Every robot's last report on the lab's git server (as the operator reads them)."""
-        from robotfleet.pull import reports
+        from robotfleet.pull.protocol import report_store, reports
 
         cache = self.base / "reports-cache"
         if not (cache / "HEAD").exists():
@@ -155,7 +155,7 @@ class Operator:
                                "+refs/reports/*:refs/reports/*"], capture_output=True, text=True, env=self.env())
         if done.returncode:
             raise LabError(f"git fetch of the reports: {done.stderr.strip()[-300:]}")
-        return reports.read_all(cache)
+        return report_store.read_all(cache)
 
     def admin_options(self) -> list[str]:
         """robotfleet bundle / pull-enroll's options for the lab's gitolite (the lab key is its admin)."""
@@ -211,7 +211,7 @@ class Attacks:
 
     def tamper(self) -> None:
         """The current release record, changed after it was signed (another image digest)."""
-        from robotfleet.pull.repository import Repository
+        from robotfleet.pull.operator.repository import Repository
 
         self.checkout()
         record = Repository(self.work).blob("release.json")
@@ -230,8 +230,8 @@ class Attacks:
         """A timestamp signed with the real key, valid only until yesterday."""
         import datetime
 
-        from robotfleet.pull.keys import KeyDir
-        from robotfleet.pull.repository import Expiry, Repository
+        from robotfleet.pull.operator.keys import KeyDir
+        from robotfleet.pull.operator.repository import Expiry, Repository
 
         self.checkout()
         past = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0) - datetime.timedelta(days=2)
@@ -244,7 +244,7 @@ class Attacks:
         (a stolen copy re-signed; no publish needed to make one)."""
         from tuf.api.metadata import Metadata
 
-        from robotfleet.pull.keys import KeyDir
+        from robotfleet.pull.operator.keys import KeyDir
 
         other = KeyDir(self.op.base / "other-keys")
         if not other.has("online"):

@@ -32,18 +32,18 @@ class Fleet:
 
     def __init__(self, base: Path, now: datetime.datetime = NOW, name: str = "keys"):
         self.base = base
-        self.keys = module("keys").KeyDir(base / name)
+        self.keys = module("operator.keys").KeyDir(base / name)
         self.keys.generate("root")
         self.keys.generate("online")
-        self.repository = module("repository").Repository(base / "repo")
-        self.expiry = module("repository").Expiry()
+        self.repository = module("operator.repository").Repository(base / "repo")
+        self.expiry = module("operator.repository").Expiry()
         self.repository.create(self.keys.signer("root"), self.keys.signer("online"), self.expiry, now)
         self.state = base / "robot"
 
     def release(self, version: int, now: datetime.datetime = NOW, code: bytes | None = None,
                 expiry=None, robots=("robot1", "robot2"), record_expires: datetime.datetime | None = None):
         """Publish release ``version`` (its code archive: ``code``); the record."""
-        record, waves = module("record"), module("waves")
+        record, waves = module("protocol.record"), module("protocol.waves")
         expiry = expiry or self.expiry
         commit = hashlib.sha1(f"commit {version}".encode()).hexdigest()
         built = record.build(version, now, record_expires or now + expiry.targets, commit, "b" * 64, "inventories/robots.yaml",
@@ -55,10 +55,10 @@ class Fleet:
         return built
 
     def trust(self, trusted_time: datetime.datetime | None = None) -> None:
-        module("trust").initialize(self.state, (self.repository.metadata / "root.json").read_bytes(), trusted_time)
+        module("robot.verify").initialize(self.state, (self.repository.metadata / "root.json").read_bytes(), trusted_time)
 
     def client(self, clock=None, source=None):
-        trust = module("trust")
+        trust = module("robot.verify")
         return trust.Client(self.state, str(source or self.repository.path), clock=clock or (lambda: NOW))
 
     def refresh(self, clock=None, source=None, applied: int = 0):

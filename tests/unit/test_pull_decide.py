@@ -1,12 +1,12 @@
-"""What a pull robot does with a verified release (robotfleet/pull/decide.py, pure)."""
+"""What a pull robot does with a verified release (robotfleet/pull/robot/decide.py, pure)."""
 
 import datetime
 
 import pytest
 
-from robotfleet.pull import decide as deciding
-from robotfleet.pull import record as records
-from robotfleet.pull import waves
+from robotfleet.pull.robot import decide as deciding
+from robotfleet.pull.protocol import record as records
+from robotfleet.pull.protocol import waves
 
 UTC = datetime.timezone.utc
 PUBLISHED = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)  # a Wednesday

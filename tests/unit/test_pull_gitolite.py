@@ -1,10 +1,10 @@
-"""The fleet remote's rules on gitolite (robotfleet/pull/gitolite.py) and the lab's git server."""
+"""The fleet remote's rules on gitolite (robotfleet/pull/operator/gitolite.py) and the lab's git server."""
 
 import re
 
 import pytest
 
-from robotfleet.pull import gitolite
+from robotfleet.pull.operator import gitolite
 
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
 

@@ -1,12 +1,13 @@
 """How a robot from an image shared by many robots names itself
-(robotfleet/pull/naming.py), the agent's configuration that says so, and
+(robotfleet/pull/protocol/naming.py), the agent's configuration that says so, and
 what the git server lets the image's one enrollment key write."""
 
 import re
 
 import pytest
 
-from robotfleet.pull import gitolite, layout, naming
+from robotfleet.pull.operator import gitolite
+from robotfleet.pull.protocol import agent_files, naming
 
 MACHINE_ID = "3f2a9c0d1e2b4a5f8c7d6e5f4a3b2c1d\n"
 
@@ -45,19 +46,19 @@ def test_bad_rules_and_prefixes_are_one_line(rule, prefix, line):
 
 
 def test_the_agent_s_configuration_carries_a_name_or_the_rule_never_both():
-    config = layout.Config(robot="", remote="ssh://g@git/fleet", name_rule="machine-id", name_prefix="robot-")
-    read = layout.read_config(config.to_json())
+    config = agent_files.Config(robot="", remote="ssh://g@git/fleet", name_rule="machine-id", name_prefix="robot-")
+    read = agent_files.read_config(config.to_json())
     assert (read.robot, read.name_rule, read.name_prefix) == ("", "machine-id", "robot-")
-    assert layout.named(read, read=lambda rule: MACHINE_ID).robot == "robot-3f2a9c0d1e2b"
-    with pytest.raises(layout.ConfigError, match=r"^robot name: /etc/machine-id: expected 32"):
-        layout.named(read, read=lambda rule: "")
+    assert agent_files.named(read, read=lambda rule: MACHINE_ID).robot == "robot-3f2a9c0d1e2b"
+    with pytest.raises(agent_files.ConfigError, match=r"^robot name: /etc/machine-id: expected 32"):
+        agent_files.named(read, read=lambda rule: "")
     both = config.to_json().replace('"robot": ""', '"robot": "robot1"')
-    with pytest.raises(layout.ConfigError, match="robot and name_rule: give one"):
-        layout.read_config(both)
-    named = layout.Config(robot="robot1", remote="ssh://g@git/fleet")
-    assert "name_rule" not in named.to_json() and layout.named(named) == named  # unchanged for a named robot
-    with pytest.raises(layout.ConfigError, match=r"robot: required, a string \(or name_rule\)"):
-        layout.read_config(named.to_json().replace('"robot": "robot1"', '"robot": ""'))
+    with pytest.raises(agent_files.ConfigError, match="robot and name_rule: give one"):
+        agent_files.read_config(both)
+    named = agent_files.Config(robot="robot1", remote="ssh://g@git/fleet")
+    assert "name_rule" not in named.to_json() and agent_files.named(named) == named  # unchanged for a named robot
+    with pytest.raises(agent_files.ConfigError, match=r"robot: required, a string \(or name_rule\)"):
+        agent_files.read_config(named.to_json().replace('"robot": "robot1"', '"robot": ""'))
 
 
 def test_a_shared_enrollment_key_writes_only_reports_of_names_its_rule_makes_and_not_enrolled_ones():

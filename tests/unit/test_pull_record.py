@@ -1,4 +1,4 @@
-"""The release record (robotfleet/pull/record.py): written and read back
+"""The release record (robotfleet/pull/protocol/record.py): written and read back
 the same, and every bad field refused with one line naming it."""
 
 import datetime
@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from robotfleet.pull import record, waves
+from robotfleet.pull.protocol import record, waves
 
 NOW = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=datetime.timezone.utc)
 COMMIT = "0123456789abcdef0123456789abcdef01234567"

@@ -1,4 +1,4 @@
-"""Waves decided on the robot (robotfleet/pull/waves.py): ranking, wave
+"""Waves decided on the robot (robotfleet/pull/protocol/waves.py): ranking, wave
 sizes, opening times, the failure budget, halts and maintenance windows."""
 
 import datetime
@@ -6,7 +6,7 @@ import hashlib
 
 import pytest
 
-from robotfleet.pull import waves
+from robotfleet.pull.protocol import waves
 
 UTC = datetime.timezone.utc
 PUBLISHED = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)  # a Wednesday

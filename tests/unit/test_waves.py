@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from robotfleet.commands import waves
+from robotfleet.commands import rollout_plan as waves
 from roles.payload import report
 
 ROBOTS = [f"robot{i}" for i in range(1, 11)]

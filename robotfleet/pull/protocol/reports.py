@@ -7,7 +7,7 @@ fleet remote (a commit holding ``report.json``).
      "seen": {"version": 8, "release": "...", "commit": "..."},
      "applied": {"version": 7, "release": "...", "commit": "...", "time": "...Z"},
      "result": "applied" | "up-to-date" | "waiting" | "halted" | "refused" | "rolled-back" | "failed",
-     "reason": "one line, or null", "refusal": "tampered" (robotfleet/pull/trust.py REASONS) | null,
+     "reason": "one line, or null", "refusal": "tampered" (robotfleet/pull/robot/verify.py REASONS) | null,
      "attempted": {"version": 8, "result": "rolled-back", "tries": 1} | null,
      "wave": 0, "status": {... the roles' status cells, as robotfleet status --json has them ...},
      "host_keys": ["ssh-ed25519 AAAA..."], "key": "ssh-ed25519 AAAA... (its key for the remote)",
@@ -25,13 +25,10 @@ from __future__ import annotations
 
 import datetime
 import json
-import os
 import re
-import subprocess
-from pathlib import Path
 
 from robotfleet.checkers import one_line
-from robotfleet.pull.record import parse_time, utc
+from robotfleet.pull.protocol.record import parse_time, utc
 
 FORMAT = 1
 RESULTS = ("applied", "up-to-date", "waiting", "halted", "refused", "rolled-back", "failed")
@@ -194,47 +191,3 @@ def failed_for(report: dict, version: int) -> bool:
     """Whether ``report`` says its robot failed release ``version``."""
     attempted = report.get("attempted") or {}
     return attempted.get("version") == version and attempted.get("result") in FAILURES
-
-
-# -- the operator's copy -------------------------------------------------------
-
-
-def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
-    """Fetch every robot's report into the bare repository ``cache`` (one
-    fetch; refs of robots that no longer report are pruned)."""
-    if not (cache / "HEAD").exists():
-        cache.mkdir(parents=True, exist_ok=True)
-        _git(cache, "init", "--bare", "-q")
-    _git(cache, "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", "--prune", url,
-         "+refs/reports/*:refs/reports/*", timeout=timeout)
-
-
-def read_all(cache: Path) -> dict[str, dict]:
-    """robot -> its parsed report, or {"error": line} when it cannot be read."""
-    from robotfleet.pull.transport import read_reports
-
-    def git(what, *args, stdin=None):
-        return _git(cache, *args, stdin=stdin)
-
-    found = {}
-    for robot, data in read_reports(git, "refs/reports/").items():
-        try:
-            found[robot] = parse(data, robot)
-        except ReportError as error:
-            found[robot] = {"robot": robot, "error": str(error)}
-    return found
-
-
-def _git(where: Path, *args: str, stdin: bytes | None = None, timeout: int = 300) -> bytes:
-    try:
-        done = subprocess.run(["git", "-C", str(where), *args], input=stdin, capture_output=True, timeout=timeout,
-                              env=dict(os.environ, GIT_TERMINAL_PROMPT="0"))
-    except subprocess.TimeoutExpired:
-        raise ReportError(f"git {args[0]}: no answer within {timeout} s") from None
-    except OSError as error:
-        raise ReportError(f"git: {error}") from None
-    if done.returncode:
-        lines = [line for line in done.stderr.decode(errors="replace").splitlines() if line.strip()]
-        raise ReportError(f"git {' '.join(a for a in args[:3] if not a.startswith('-'))}: "
-                          f"{lines[-1].strip() if lines else f'exit {done.returncode}'}")
-    return done.stdout

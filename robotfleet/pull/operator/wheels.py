@@ -20,7 +20,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-_PLATFORM = re.compile(r"cp3([0-9]{1,2})-(x86_64|aarch64|armv7l)")
+from robotfleet.pull.protocol.platforms import parse_platform
+
 # glibc wheel tags pip accepts for a machine, newest first (Debian 12: glibc 2.36, Ubuntu 22.04: 2.35).
 _MANYLINUX = ("manylinux_2_34_{m}", "manylinux_2_28_{m}", "manylinux_2_17_{m}", "manylinux2014_{m}",
               "manylinux_2_5_{m}", "manylinux1_{m}")
@@ -29,22 +30,6 @@ PIP_TIMEOUT = 1800
 
 class WheelError(Exception):
     """The wheelhouse cannot be built; the message is one line."""
-
-
-def platform_key(version: tuple[int, int] | None = None, machine: str | None = None) -> str:
-    """This interpreter's platform (or the one given): 'cp313-x86_64'."""
-    major, minor = version or sys.version_info[:2]
-    machine = machine or os.uname().machine
-    return f"cp{major}{minor}-{ {'amd64': 'x86_64', 'arm64': 'aarch64'}.get(machine, machine)}"
-
-
-def parse_platform(key: str) -> tuple[str, str]:
-    """'cp313-x86_64' -> ('3.13', 'x86_64'); ValueError with one line otherwise."""
-    match = _PLATFORM.fullmatch(str(key))
-    if not match:
-        raise ValueError(f"platform {key!r}: expected cp<python version>-<machine>, e.g. cp313-x86_64 or "
-                         "cp311-aarch64 (machines: x86_64, aarch64, armv7l)")
-    return f"3.{match.group(1)}", match.group(2)
 
 
 def pip_command(requirements: list[str], key: str, directory: Path, python: str = sys.executable,

@@ -2,7 +2,7 @@
 wait (its wave, its maintenance window), stop (a halt, a failure budget
 spent, a release it already failed), or nothing (already applied).
 
-The agent (robotfleet/pull/agent.py) asks twice when its wave is not the
+The agent (robotfleet/pull/robot/agent.py) asks twice when its wave is not the
 first: once on time and windows alone, and, only when those are open, again
 with the failures the earlier waves reported (fetched just then, so an idle
 or waiting robot never reads other robots' reports).
@@ -13,7 +13,7 @@ from __future__ import annotations
 import datetime
 from dataclasses import dataclass
 
-from robotfleet.pull import waves
+from robotfleet.pull.protocol import waves
 
 # A release whose run failed for another reason than its health gate (the
 # network, a full disk) is tried again, this many times in all; one that

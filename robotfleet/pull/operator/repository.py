@@ -7,7 +7,7 @@ remote's robotfleet/releases branch, or one served over static HTTPS):
     targets/release.json's blob: targets/<sha256>.release.json
     targets/code/<sha256>.<commit>.tar.gz, targets/wheels/<sha256>.<file>.whl
 
-Two keys (robotfleet/pull/keys.py): the root key signs only roots; the
+Two keys (robotfleet/pull/operator/keys.py): the root key signs only roots; the
 online key signs targets, snapshot and timestamp.  Each publish writes the
 target blobs first and timestamp.json last (one rename), so an HTTPS reader
 never sees a timestamp naming files not yet there.  The last KEEP versions
@@ -29,7 +29,7 @@ from tuf.api.metadata import MetaFile, Metadata, Root, Snapshot, TargetFile, Tar
 from tuf.api.serialization.json import JSONSerializer
 
 from robotfleet import atomicfile
-from robotfleet.pull import record as records
+from robotfleet.pull.protocol import record as records
 
 ONLINE_ROLES = (Targets.type, Snapshot.type, Timestamp.type)
 KEEP = 3

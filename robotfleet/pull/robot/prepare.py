@@ -14,7 +14,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from robotfleet.pull import layout, tree
+from robotfleet.pull.protocol import agent_files, tree
 
 VENV_TIMEOUT = 900
 
@@ -54,7 +54,7 @@ def code_dir(state: Path, record, archive: Path) -> Path:
 def venv_for(state: Path, wheels: dict[str, Path], python: str = "/usr/bin/python3") -> Path:
     """The venv made from ``wheels`` (target path -> verified file), made
     beside the others if it is not there yet; its directory."""
-    venv = layout.venv_id((path.rsplit("/", 1)[-1], _sha256(file)) for path, file in wheels.items())
+    venv = agent_files.venv_id((path.rsplit("/", 1)[-1], _sha256(file)) for path, file in wheels.items())
     target = state / "venvs" / venv
     if (target / "bin" / "python").exists():
         return target

@@ -20,7 +20,7 @@ rename of the ``tuf`` link) only when everything verified: a refusal leaves
 the trusted state as it was.  Every refusal is a Refused with one line and
 a reason from REASONS.  Nothing here needs the operator's keys.  A
 successful refresh also leaves what a check of the same repository would
-read (robotfleet/pull/trusted.py), so the next one can skip TUF when
+read (robotfleet/pull/robot/trust_state.py), so the next one can skip TUF when
 nothing changed.
 """
 
@@ -38,9 +38,9 @@ from tuf.api import exceptions
 from tuf.api.metadata import Metadata, Root
 from tuf.ngclient import FetcherInterface, Updater, UpdaterConfig
 
-from robotfleet.pull import record as records
-from robotfleet.pull import trusted, tufprivate
-from robotfleet.pull.trusted import EPOCH, STATE_FORMAT, State  # noqa: F401 (where they were)
+from robotfleet.pull.protocol import record as records
+from robotfleet.pull.robot import trust_state, tufprivate
+from robotfleet.pull.robot.trust_state import EPOCH, STATE_FORMAT, State  # noqa: F401 (where they were)
 
 # Why a refresh or a download was refused (machine-readable, in reports).
 UNSIGNED = "unsigned"  # metadata with no signature
@@ -70,13 +70,13 @@ def _now() -> datetime.datetime:
 def read_state(state_dir) -> State:
     """The trust state kept in ``state_dir`` (defaults if it has none yet)."""
     try:
-        return trusted.read_state(state_dir)
-    except trusted.Unreadable as error:
+        return trust_state.read_state(state_dir)
+    except trust_state.Unreadable as error:
         raise Refused(MALFORMED, str(error)) from None
 
 
-write_state = trusted.write_state
-_write_atomic = trusted.write_atomic
+write_state = trust_state.write_state
+_write_atomic = trust_state.write_atomic
 
 
 def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = None) -> None:
@@ -98,7 +98,7 @@ def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = 
     (fresh / "root_history" / f"{md.signed.version}.root.json").write_bytes(root)
     os.symlink(f"root_history/{md.signed.version}.root.json", fresh / "root.json")
     _swap_in(state_dir, fresh)
-    trusted.forget(state_dir)
+    trust_state.forget(state_dir)
     write_state(state_dir, State(trusted_time or EPOCH, 0, None))
 
 
@@ -261,17 +261,17 @@ class Client:
 
     def _remember(self, raw: bytes, release_file: str, found: records.Record) -> None:
         """What this verification read, for the next check's cheap proof that
-        nothing changed (robotfleet/pull/trusted.py)."""
+        nothing changed (robotfleet/pull/robot/trust_state.py)."""
         try:
             tuf_dir = self.state_dir / "tuf"
             roles = [Metadata.from_file(str(tuf_dir / f"{role}.json")) for role in
                      (Root.type, "timestamp", "snapshot", "targets")]
             expires = min([md.signed.expires for md in roles] + [found.expires_at])
-            reads = trusted.reads_of(roles[0].signed.version, release_file)
+            reads = trust_state.reads_of(roles[0].signed.version, release_file)
         except Exception:  # noqa: BLE001 - without it the next check verifies in full
-            trusted.forget(self.state_dir)
+            trust_state.forget(self.state_dir)
             return
-        trusted.remember(self.state_dir, self.source, reads, raw, expires)
+        trust_state.remember(self.state_dir, self.source, reads, raw, expires)
 
     @staticmethod
     def _release_bytes(updater: Updater, work: Path) -> tuple[bytes, str]:

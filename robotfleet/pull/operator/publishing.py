@@ -16,9 +16,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet.fleet.validate import Fleet, FleetError, parse
-from robotfleet.pull import record as records
-from robotfleet.pull import tree, waves, wheels
-from robotfleet.pull.repository import Expiry, Repository, RepositoryError
+from robotfleet.pull.protocol import record as records
+from robotfleet.pull.protocol.robot_data import HostData
+from robotfleet.pull.protocol import tree, waves
+from robotfleet.pull.operator import wheels
+from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError
 
 DEFAULT_FLEET = "inventories/robots.yaml"
 
@@ -40,12 +42,6 @@ class Options:
     refresh_wheels: bool = False  # ask the index even when the cache holds every requirement
     allow_dirty: bool = False
     platforms: tuple[str, ...] = field(default_factory=tuple)  # beyond the pull hosts' own
-
-
-class HostData(dict):
-    """A host's merged fleet data, read as pyinfra's host data is (data.name)."""
-
-    __getattr__ = dict.get
 
 
 def pull_hosts(fleet: Fleet, registry) -> list[tuple[str, HostData]]:
@@ -79,12 +75,6 @@ def resolve_pins(roles, hosts: list[tuple[str, HostData]]) -> dict[str, dict[str
             pins.update({ref: resolved[(role.name, ref)] for ref in refs})
         result[name] = pins
     return result
-
-
-def pin_settings(roles, record: records.Record, robot: str) -> dict[str, dict[str, str]]:
-    """The --data a robot's deploy runs with so it runs exactly the
-    release's digests: each pinning role's setting -> the robot's pins."""
-    return {role.pins.setting: record.images_of(robot) for role in roles if role.pins is not None}
 
 
 def dirty(checkout, paths=tree.DEPLOY_PATHS) -> list[str]:
@@ -161,7 +151,7 @@ def publish(repository: Repository, record: records.Record, files: dict[str, Pat
             now: datetime.datetime) -> None:
     """Sign ``record`` and its files into ``repository`` (made first, with
     the root key, if it is new)."""
-    from robotfleet.pull.keys import ONLINE, ROOT
+    from robotfleet.pull.operator.keys import ONLINE, ROOT
 
     try:
         if not repository.exists():
@@ -174,7 +164,7 @@ def publish(repository: Repository, record: records.Record, files: dict[str, Pat
 def halt(repository: Repository, keys, reason: str, expiry: Expiry, now: datetime.datetime) -> records.Record:
     """A signed halt of the current release: its next version with halt
     true; robots that have not started it do not start."""
-    from robotfleet.pull.keys import ONLINE
+    from robotfleet.pull.operator.keys import ONLINE
 
     try:
         current = repository.record() if repository.exists() else None

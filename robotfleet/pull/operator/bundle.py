@@ -33,12 +33,12 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from robotfleet.pull import layout
+from robotfleet.pull.protocol import agent_files
 
-FIRST_BOOT = f"{layout.STATE}/first-boot"
+FIRST_BOOT = f"{agent_files.STATE}/first-boot"
 SCRIPT = "/usr/local/sbin/robot-pull-first-boot"
 
-FIRST_BOOT_UNIT = f"""{layout.HEADER}[Unit]
+FIRST_BOOT_UNIT = f"""{agent_files.HEADER}[Unit]
 Description=Robot fleet pull agent: first boot (host keys, venv, first check)
 Wants=network-online.target
 After=network-online.target
@@ -54,12 +54,12 @@ WantedBy=multi-user.target
 """
 
 FIRST_BOOT_SCRIPT = f"""#!/bin/sh
-# robot-pull first boot (robotfleet/pull/bundle.py): this robot's own keys,
+# robot-pull first boot (robotfleet/pull/operator/bundle.py): this robot's own keys,
 # the agent's venv and code from the bundle, then the agent's first check.
 set -eu
 umask 077
 fb={FIRST_BOOT}
-state={layout.STATE}
+state={agent_files.STATE}
 say() {{ echo "robot-pull first boot: $*"; }}
 ssh-keygen -A
 say "host keys: $(cat /etc/ssh/ssh_host_ed25519_key.pub | cut -d' ' -f1-2)"
@@ -68,10 +68,10 @@ if ! python3 -c 'import ensurepip, venv' 2>/dev/null || ! command -v git >/dev/n
     apt-get update -q
     DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-venv git openssh-client
 fi
-if [ ! -f {layout.KEY} ]; then
-    tmp=$(mktemp -d {layout.ETC}/.key.XXXXXX)
-    ssh-keygen -q -t ed25519 -N '' -C "robot-pull@$(sed -n 's/.*"robot": "\\([^"]*\\)".*/\\1/p' {layout.CONFIG})" -f "$tmp/key"
-    mv -T "$tmp/key.pub" {layout.KEY}.pub && mv -T "$tmp/key" {layout.KEY} && rmdir "$tmp"
+if [ ! -f {agent_files.KEY} ]; then
+    tmp=$(mktemp -d {agent_files.ETC}/.key.XXXXXX)
+    ssh-keygen -q -t ed25519 -N '' -C "robot-pull@$(sed -n 's/.*"robot": "\\([^"]*\\)".*/\\1/p' {agent_files.CONFIG})" -f "$tmp/key"
+    mv -T "$tmp/key.pub" {agent_files.KEY}.pub && mv -T "$tmp/key" {agent_files.KEY} && rmdir "$tmp"
 fi
 mkdir -p "$state/venvs" "$state/code"
 id=$(cat "$fb/venv-id")
@@ -92,7 +92,7 @@ fi
 ln -sfn "$tree" "$state/code/.current.new" && mv -T "$state/code/.current.new" "$state/code/current"
 rm -rf "$fb"
 say "venv $id and deploy tree $tree in place; the agent's first check starts"
-systemctl start --no-block {layout.SERVICE}
+systemctl start --no-block {agent_files.SERVICE}
 """
 
 README = """A first-boot bundle for robot {robot} (robotfleet bundle; docs/pull.md).
@@ -148,15 +148,15 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
                           "not make its venv (publish with wheels)")
     out.mkdir(parents=True, mode=0o700)
     rootfs = out / "rootfs"
-    etc, first = rootfs / layout.ETC.lstrip("/"), rootfs / FIRST_BOOT.lstrip("/")
-    (rootfs / layout.STATE.lstrip("/")).mkdir(parents=True, mode=0o700)
+    etc, first = rootfs / agent_files.ETC.lstrip("/"), rootfs / FIRST_BOOT.lstrip("/")
+    (rootfs / agent_files.STATE.lstrip("/")).mkdir(parents=True, mode=0o700)
     etc.mkdir(parents=True, mode=0o700)
-    config = layout.config_of(data, robot, trusted_time=record.published)
+    config = agent_files.config_of(data, robot, trusted_time=record.published)
     if rule is not None:
         config = dataclasses.replace(config, robot="", name_rule=rule[0], name_prefix=rule[1])
     _write(etc / "agent.json", config.to_json(), 0o600)
     _write(etc / "root.json", root, 0o600)
-    _write(etc / "known_hosts", layout.known_hosts_of(data))
+    _write(etc / "known_hosts", agent_files.known_hosts_of(data))
     if ca is not None:
         _write(etc / "remote-ca.pem", ca)
     done = subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", f"robot-pull-enroll@{robot}",
@@ -168,14 +168,14 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     for name, path in wheels:
         shutil.copyfile(path, first / "wheels" / name)
     _write(first / "tree-id", record.tree_sha256 + "\n")
-    venv = layout.venv_id((name, hashlib.sha256(path.read_bytes()).hexdigest()) for name, path in wheels)
+    venv = agent_files.venv_id((name, hashlib.sha256(path.read_bytes()).hexdigest()) for name, path in wheels)
     _write(first / "venv-id", venv + "\n")
-    units = rootfs / layout.UNIT_DIR.lstrip("/")
-    _write(units / layout.SERVICE, layout.service_unit())
-    _write(units / layout.TIMER, layout.timer_unit(data))
-    _write(units / layout.FIRST_BOOT_SERVICE, FIRST_BOOT_UNIT)
-    _link(units / "timers.target.wants" / layout.TIMER, f"../{layout.TIMER}")
-    _link(units / "multi-user.target.wants" / layout.FIRST_BOOT_SERVICE, f"../{layout.FIRST_BOOT_SERVICE}")
+    units = rootfs / agent_files.UNIT_DIR.lstrip("/")
+    _write(units / agent_files.SERVICE, agent_files.service_unit())
+    _write(units / agent_files.TIMER, agent_files.timer_unit(data))
+    _write(units / agent_files.FIRST_BOOT_SERVICE, FIRST_BOOT_UNIT)
+    _link(units / "timers.target.wants" / agent_files.TIMER, f"../{agent_files.TIMER}")
+    _link(units / "multi-user.target.wants" / agent_files.FIRST_BOOT_SERVICE, f"../{agent_files.FIRST_BOOT_SERVICE}")
     _write(rootfs / SCRIPT.lstrip("/"), FIRST_BOOT_SCRIPT, 0o755)
     public = (etc / "enroll_ed25519.pub").read_text().strip()
     _archive(rootfs, out / "rootfs.tar")

@@ -1,7 +1,7 @@
 """Where the pull agent lives on a robot, and its configuration file.
 
 Written by the pull role (roles/pull) on a push deploy, or by a first-boot
-bundle; read by the agent (robotfleet/pull/agent.py).  Everything is root's:
+bundle; read by the agent (robotfleet/pull/robot/agent.py).  Everything is root's:
 /etc/robot-pull and /var/lib/robot-pull are 0700.
 """
 
@@ -55,7 +55,7 @@ class Config:
     stale_after: int = 2
     heartbeat: int = 3600
     report_remote: str | None = None  # where reports are pushed; None: remote
-    name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/naming.py)
+    name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/protocol/naming.py)
     name_prefix: str = ""
     branch: str = BRANCH
     state_dir: str = STATE
@@ -98,7 +98,7 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     if not isinstance(raw.get("remote"), str) or not raw["remote"]:
         raise ConfigError(f"{where}: remote: required, a string")
     if raw.get("name_rule") is not None:
-        from robotfleet.pull import naming
+        from robotfleet.pull.protocol import naming
 
         if raw.get("robot"):
             raise ConfigError(f"{where}: robot and name_rule: give one (a name, or the rule that derives it)")
@@ -143,7 +143,7 @@ def named(config: Config, read=None) -> Config:
         return config
     from dataclasses import replace
 
-    from robotfleet.pull import naming
+    from robotfleet.pull.protocol import naming
 
     try:
         raw = (read or naming.read)(config.name_rule)

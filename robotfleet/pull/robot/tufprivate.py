@@ -21,5 +21,5 @@ def set_reference_time(updater, moment: datetime.datetime) -> None:
     trusted = updater._trusted_set
     if not isinstance(getattr(trusted, "reference_time", None), datetime.datetime):
         raise RuntimeError("python-tuf no longer keeps Updater._trusted_set.reference_time: "
-                           "robotfleet/pull/tufprivate.py needs updating for this tuf version")
+                           "robotfleet/pull/robot/tufprivate.py needs updating for this tuf version")
     trusted.reference_time = moment

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet import selection
-from robotfleet.pull import channel as channels
-from robotfleet.pull.keys import KeyDir, KeyProblem
-from robotfleet.pull.repository import Expiry, Repository, RepositoryError, parse_duration
+from robotfleet.pull.operator import channel as channels
+from robotfleet.pull.operator.keys import KeyDir, KeyProblem
+from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError, parse_duration
 
 
 def add_channel(parser: argparse.ArgumentParser) -> None:

@@ -3,7 +3,7 @@ binds, in one signed document.  Pure: building, writing and reading it.
 
     {"format": 1, "version": 7, "release": "2026-11-25T10:00:00Z-7",
      "published": "2026-11-25T10:00:00Z", "expires": "2026-12-25T10:00:00Z",
-     "commit": "<git sha>", "tree_sha256": "<robotfleet/pull/tree.py's hash>",
+     "commit": "<git sha>", "tree_sha256": "<robotfleet/pull/protocol/tree.py's hash>",
      "code": "code/<commit>.tar.gz",
      "fleet": {"path": "inventories/robots.yaml", "sha256": "..."},
      "robots": ["robot1", ...],
@@ -25,7 +25,7 @@ import json
 import re
 from dataclasses import dataclass, field
 
-from robotfleet.pull import waves
+from robotfleet.pull.protocol import waves
 
 FORMAT = 1
 NAME = "release.json"  # its TUF target path

@@ -18,7 +18,7 @@ import time
 
 # A count and the failure budget are the same rule in push and pull rollouts.
 from robotfleet import atomicfile
-from robotfleet.pull.waves import Count, allowed_failures, parse_count  # noqa: F401 - rollout.py reads them here
+from robotfleet.pull.protocol.waves import Count, allowed_failures, parse_count  # noqa: F401 - rollout.py reads them here
 
 
 def build_waves(hosts: list[str], flagged: list[str], canary: Count, batch: Count) -> list[list[str]]:

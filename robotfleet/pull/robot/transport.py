@@ -44,9 +44,10 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet.pull import layout
+from robotfleet.pull.protocol import agent_files
+from robotfleet.pull.protocol.report_store import read_reports
 
-HOST_KEY_ALIAS = layout.HOST_KEY_ALIAS
+HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
 _TRANSFERRED = re.compile(r"Transferred: sent (\d+), received (\d+) bytes")
 # git's trace of curl (http.c): "=> Send header, 0000000247 bytes (0xf7)"
@@ -158,7 +159,7 @@ def read_ssh_log(text: str) -> tuple[int, int, str | None]:
 class Remote:
     """The fleet remote as one robot reaches it."""
 
-    def __init__(self, url: str, repo: str | Path, etc: str = layout.ETC, timeout: int = 300,
+    def __init__(self, url: str, repo: str | Path, etc: str = agent_files.ETC, timeout: int = 300,
                  report_url: str | None = None):
         self.url = url
         self.report_url = report_url or url
@@ -239,7 +240,7 @@ class Remote:
 
     # -- the releases branch -----------------------------------------------
 
-    def fetch_releases(self, branch: str = layout.BRANCH) -> str:
+    def fetch_releases(self, branch: str = agent_files.BRANCH) -> str:
         """Fetch the releases branch and check it out; its commit id."""
         self._init()
         spec = f"+refs/heads/{branch}:{LOCAL_BRANCH}"
@@ -307,29 +308,3 @@ def _communicate(process, stdin: bytes | None, timeout: float, reader: threading
     for thread in (out, reader):
         thread.join(max(0.0, deadline - time.monotonic()))
     return b"".join(chunks), b""
-
-
-def read_reports(git, prefix: str, wanted: set[str] | None = None) -> dict[str, bytes]:
-    """name -> report.json of each commit under ``prefix`` (``git(what, *args, stdin=)``)."""
-    listed = git("reports", "for-each-ref", "--format=%(refname) %(objectname)", prefix).decode().split("\n")
-    refs = {}
-    for line in filter(None, listed):
-        name, _, commit = line.partition(" ")
-        robot = name[len(prefix):]
-        if wanted is None or robot in wanted:
-            refs[robot] = commit
-    if not refs:
-        return {}
-    batch = git("reports", "cat-file", "--batch",
-                stdin="".join(f"{commit}:report.json\n" for commit in refs.values()).encode())
-    found, at = {}, 0
-    for robot in refs:
-        end = batch.index(b"\n", at)
-        header = batch[at:end].split()
-        if len(header) == 3 and header[1] == b"blob":
-            size = int(header[2])
-            found[robot] = batch[end + 1:end + 1 + size]
-            at = end + 1 + size + 1
-        else:
-            at = end + 1  # "<name> missing"
-    return found

@@ -68,7 +68,7 @@ def check_key(text: str, what: str) -> str:
 
 
 def shared_user(rule: str, prefix: str) -> str:
-    from robotfleet.pull import naming
+    from robotfleet.pull.protocol import naming
 
     naming.check_rule(rule, prefix)
     return f"{SHARED}{rule}+{prefix}"
@@ -76,7 +76,7 @@ def shared_user(rule: str, prefix: str) -> str:
 
 def shared_refex(user: str) -> str:
     """The robot names a shared enrollment user may report as (a regex)."""
-    from robotfleet.pull import naming
+    from robotfleet.pull.protocol import naming
 
     _, rule, prefix = user.split("+", 2)
     return re.escape(prefix) + naming.PATTERNS[rule]
@@ -88,7 +88,7 @@ def conf(repo: str, robots, admins=("admin",)) -> str:
     enrollment user: any report ref its rule can name but a registered robot's)."""
     admin = " ".join(admins)
     lines = [
-        "# Written by robotfleet (robotfleet/pull/gitolite.py); edits here are replaced.",
+        "# Written by robotfleet (robotfleet/pull/operator/gitolite.py); edits here are replaced.",
         "repo gitolite-admin",
         f"    RW+ = {admin}",
         "",

@@ -8,7 +8,7 @@ here imports python-tuf (half of an idle check's CPU was importing it).
     <state>/verified.release.json   the record that verification accepted
 
 ``time`` is the last trusted time and ``version`` the highest record
-accepted (robotfleet/pull/trust.py says how they move).  After each full
+accepted (robotfleet/pull/robot/verify.py says how they move).  After each full
 verification (trust.Client.refresh) ``remember`` keeps a fingerprint of
 what a refresh of an unchanged repository reads (the next root version,
 absent; timestamp.json; the release record's target file: python-tuf uses
@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from robotfleet import atomicfile
-from robotfleet.pull import record as records
+from robotfleet.pull.protocol import record as records
 
 STATE_FORMAT = 1
 EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)

@@ -3,9 +3,9 @@ deploy tree of this checkout (as the operator runs it: the working tree's
 tracked files), the wheels of the current release for the robot's platform
 (the venv its releases run in) and the release repository's root.json.
 
-Both are identified by content: the tree by robotfleet/pull/tree.py's hash
+Both are identified by content: the tree by robotfleet/pull/protocol/tree.py's hash
 (a release names its code the same way), the wheel set by
-``layout.venv_id``.  The robot keeps them under those names, so a converged
+``agent_files.venv_id``.  The robot keeps them under those names, so a converged
 robot compares two names read in the deploy's one snapshot command.
 """
 
@@ -23,9 +23,10 @@ from pathlib import Path
 
 from tuf.api.metadata import Metadata, Root
 
-from robotfleet.pull import channel, layout, tree
-from robotfleet.pull import keys as keyfiles
-from robotfleet.pull.repository import Repository, RepositoryError
+from robotfleet.pull.operator import channel
+from robotfleet.pull.protocol import agent_files, tree
+from robotfleet.pull.operator import keys as keyfiles
+from robotfleet.pull.operator.repository import Repository, RepositoryError
 
 _SKIPPED_PARTS = ("__pycache__",)
 _SKIPPED_SUFFIXES = (".pyc", ".pyo")
@@ -176,7 +177,7 @@ def wheel_set(clone: Path, platform: str) -> tuple[str, tuple[tuple[str, Path], 
         files = tuple((path.rsplit("/", 1)[-1], repository.blob(path)) for path in paths)
     except RepositoryError as error:
         raise InstallError(str(error)) from None
-    venv = layout.venv_id((name, targets[path].hashes["sha256"]) for (name, _), path in zip(files, paths))
+    venv = agent_files.venv_id((name, targets[path].hashes["sha256"]) for (name, _), path in zip(files, paths))
     return venv, files
 
 
@@ -204,8 +205,8 @@ def read_probe(text: str) -> dict[str, str]:
 
 
 # Each link's target, when what it points at is usable.
-PROBE = (f"v=$(readlink {layout.VENV}); [ -x {layout.VENV}/bin/python ] || v=; echo venv=$v; "
-         f"c=$(readlink {layout.CURRENT_CODE}); [ -f {layout.CURRENT_CODE}/deploy.py ] || c=; echo code=$c")
+PROBE = (f"v=$(readlink {agent_files.VENV}); [ -x {agent_files.VENV}/bin/python ] || v=; echo venv=$v; "
+         f"c=$(readlink {agent_files.CURRENT_CODE}); [ -f {agent_files.CURRENT_CODE}/deploy.py ] || c=; echo code=$c")
 
 
 def venv_script(venv: str) -> str:
@@ -213,7 +214,7 @@ def venv_script(venv: str) -> str:
     them beside the current one, then switch; the previous one is kept."""
     return f"""set -e
 umask 077
-state={layout.STATE}; id={venv}
+state={agent_files.STATE}; id={venv}
 mkdir -p "$state/wheels" "$state/venvs"
 tmp=$(mktemp -d "$state/.install.XXXXXX"); trap 'rm -rf "$tmp"' EXIT
 base64 -d | tar -x -C "$tmp" --no-same-owner
@@ -235,7 +236,7 @@ def code_script(code: str) -> str:
     """Unpack the deploy tree (a tar.gz on stdin, base64) as ``code`` and make it current."""
     return f"""set -e
 umask 022
-dir={layout.CODE}; id={code}
+dir={agent_files.CODE}; id={code}
 mkdir -p "$dir"
 tmp=$(mktemp -d "$dir/.install.XXXXXX"); trap 'rm -rf "$tmp"' EXIT
 base64 -d | tar -xz -C "$tmp" --no-same-owner

@@ -1,4 +1,4 @@
-"""The release's converge run as the agent sees it (robotfleet/commands/converge.py
+"""The release's converge run as the agent sees it (robotfleet/pull/robot/converge.py
 is the other side): starting it in a release's own tree and venv, reading its
 one JSON line, and what that line says of the run."""
 

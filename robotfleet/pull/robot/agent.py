@@ -1,0 +1,366 @@
+"""The pull agent: one wake of robot-pull.service on a robot.
+
+    python -m robotfleet.pull.agent [--config /etc/robot-pull/agent.json]
+
+1. One wake at a time (a lock in the state directory); enough free disk first.
+2. Fetch the releases branch (robotfleet/pull/robot/transport.py) and verify it
+   with TUF (robotfleet/pull/robot/verify.py): a refusal (unsigned, unknown key,
+   tampered, a rollback, expired) leaves everything as it was.  A fetch that
+   reads exactly what the last verification accepted, before anything it
+   verified expired, is that verification again (robotfleet/pull/robot/trust_state.py):
+   no TUF, not even its import, unless the release is to be applied.
+3. Decide (robotfleet/pull/robot/decide.py): nothing new, wait for a wave or a
+   maintenance window, a halt, or apply.
+4. To apply: download and verify the code archive and the wheels, unpack
+   and check the tree, make the venv, all before any lock; then run the
+   release's own converge (robotfleet/pull/robot/converge.py: the deploy under the
+   roles' locks, in the release's code and venv) and read its outcome.
+   Only an applied release is recorded, and becomes the code the agent
+   runs from the next wake on.
+5. The roles' status: from the converge run when there was one; else read
+   again (a process: python, the roles, payloadctl, docker) only when a
+   path the roles watch changed, the code the agent runs changed, or the
+   heartbeat is due; else what the last read found.
+6. Report (robotfleet/pull/protocol/reports.py) to refs/reports/<robot>, when it
+   says something new or its heartbeat is due; one line in the journal.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import fcntl
+import glob
+import hashlib
+import json
+import os
+import resource
+import secrets
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import robotfleet
+from robotfleet.pull.robot import release_run, trust_state
+from robotfleet.pull.protocol import agent_files, reports, waves
+from robotfleet.pull.robot import decide as deciding
+from robotfleet.pull.protocol import record as records
+from robotfleet.pull.robot.transport import Remote, TransportError
+
+# trust (python-tuf), prepare and wheels are imported where a check needs
+# them: a check that finds nothing new never does.
+
+STATE_FILE = "agent-state.json"
+
+
+def now() -> datetime.datetime:
+    return datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0)
+
+
+class Outcome(Exception):
+    """How this wake ends: the report's result and its one line."""
+
+    def __init__(self, result: str, reason: str | None = None, refusal: str | None = None, wave: int | None = None):
+        super().__init__(reason or result)
+        self.result, self.reason, self.refusal, self.wave = result, reason, refusal, wave
+
+
+def load_state(state: Path) -> dict:
+    try:
+        found = json.loads((state / STATE_FILE).read_text())
+        return found if isinstance(found, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def save_state(state: Path, data: dict) -> None:
+    temp = state / f".{STATE_FILE}.{secrets.token_hex(4)}"
+    with open(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as handle:
+        handle.write(json.dumps(data, sort_keys=True, indent=1) + "\n")
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(temp, state / STATE_FILE)
+
+
+class Wake:
+    """One check of one robot (``config``: robotfleet/pull/protocol/agent_files.py)."""
+
+    def __init__(self, config: agent_files.Config, clock=now):
+        self.config = config
+        self.state_dir = Path(config.state_dir)
+        self.clock = clock
+        self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout,
+                             config.report_remote)
+        self.state = load_state(self.state_dir)
+        self.record = None
+        self.status: dict = {}
+        self.status_time: str | None = None
+        self.reference_time = clock()
+
+    # -- the steps ---------------------------------------------------------
+
+    def check_disk(self) -> None:
+        for path in (self.config.state_dir, self.config.docker_dir):
+            if os.path.isdir(path):
+                free = shutil.disk_usage(path).free // (1 << 20)
+                if free < self.config.min_free_mb:
+                    raise Outcome("failed", f"only {free} MB free on {path}'s file system "
+                                            f"(pull_min_free_mb: {self.config.min_free_mb}); nothing was downloaded")
+
+    def fetch(self) -> None:
+        try:
+            self.remote.fetch_releases(self.config.branch)
+        except TransportError as error:
+            raise Outcome("failed", f"fetch: {error}") from None
+
+    def source(self) -> str:
+        return str(self.remote.repo)
+
+    def recall(self) -> bool:
+        """The record, when the fetch found what the last verification accepted."""
+        found = trust_state.recall(self.state_dir, self.source(), self.clock(), self.applied_version())
+        if found is None:
+            return False
+        self.record, self.reference_time = found
+        return True
+
+    def verify(self):
+        """The record, verified in full; the trust client (for downloads)."""
+        from robotfleet.pull.robot import verify
+
+        if not (self.state_dir / "tuf" / "root.json").exists():
+            root = Path(self.config.etc("root.json")).read_bytes()
+            first = self.config.extra.get("trusted_time")
+            verify.initialize(self.state_dir, root, records.parse_time(first, "trusted_time") if first else None)
+        client = verify.Client(self.state_dir, self.source(), clock=self.clock)
+        try:
+            self.record = client.refresh(applied=self.applied_version())
+        except verify.Refused as refused:
+            raise Outcome("refused", refused.line, refused.reason) from None
+        self.reference_time = client.reference_time or self.clock()
+        return client
+
+    def applied_version(self) -> int:
+        return int((self.state.get("applied") or {}).get("version") or 0)
+
+    def decide(self) -> deciding.Decision:
+        windows = [waves.parse_window(w) for w in self.config.windows]
+        args = (self.record, self.config.robot, self.applied_version(), self.state.get("attempted"),
+                self.reference_time, windows)
+        decision = deciding.decide(*args)
+        if decision.earlier:
+            try:
+                found = self.remote.fetch_reports(list(decision.earlier))
+            except TransportError as error:
+                raise Outcome("waiting", f"the earlier waves' reports: {error}", wave=decision.wave) from None
+            failed = 0
+            for robot, data in found.items():
+                try:
+                    failed += reports.failed_for(reports.parse(data, robot), self.record.version)
+                except reports.ReportError:
+                    continue
+            decision = deciding.decide(*args, failed=failed)
+        return decision
+
+    def apply(self, client, wave: int | None) -> Outcome:
+        from robotfleet.pull.robot import prepare, verify
+        from robotfleet.pull.protocol import platforms
+
+        record, robot = self.record, self.config.robot
+        platform = platforms.platform_key()
+        wanted = [record.code, *record.wheels_for(platform)]
+        try:
+            files = client.download(wanted, self.state_dir / "targets")
+            code = prepare.code_dir(self.state_dir, record, files[record.code])
+            venv = (prepare.venv_for(self.state_dir, {p: files[p] for p in record.wheels_for(platform)})
+                    if record.wheels_for(platform) else Path(os.path.realpath(self.state_dir / "venv")))
+        except verify.Refused as refused:
+            raise Outcome("refused", refused.line, refused.reason, wave) from None
+        except prepare.Mismatch as error:
+            raise Outcome("refused", f"release {record.version}: {error}", verify.TAMPERED, wave) from None
+        except (prepare.PrepareError, OSError) as error:
+            return self.tried(Outcome("failed", f"release {record.version} could not be prepared: {error}", wave=wave))
+        deployment = f"pull-{robot}-{record.version}-{secrets.token_hex(3)}"
+        work = self.state_dir / "runs" / deployment
+        release_file = work.with_suffix(".release.json")
+        work.mkdir(parents=True, exist_ok=True, mode=0o700)
+        release_file.write_bytes(record.to_bytes())
+        said = release_run.run(venv / "bin" / "python", code, ["run", "--robot", robot, "--fleet",
+                            str(code / record.fleet["path"]), "--record", str(release_file), "--deployment",
+                            deployment, "--work", str(work)])
+        release_file.unlink(missing_ok=True)
+        if said.get("row"):
+            self.read_status(said, code)
+        outcome = Outcome(*release_run.classify(said, record.version), wave=wave)
+        if outcome.result == "applied":
+            for link, target in ((self.state_dir / "code" / "current", code), (self.state_dir / "venv", venv)):
+                previous = Path(os.path.realpath(link)) if link.exists() else None
+                prepare.switch(link, target)
+                prepare.prune(target.parent, {target, *([previous] if previous else [])})
+            self.state["applied"] = {**reports.version_of(record), "time": record_time(self.clock())}
+            self.state["fleet"] = record.fleet
+            prepare.prune_targets(self.state_dir / "targets", set(files.values()))
+        if (work / "pyinfra.log").exists():
+            os.replace(work / "pyinfra.log", self.state_dir / "last-run.log")
+        shutil.rmtree(work, ignore_errors=True)
+        return self.tried(outcome)
+
+    def tried(self, outcome: Outcome) -> Outcome:
+        previous = self.state.get("attempted") or {}
+        tries = previous.get("tries", 0) + 1 if previous.get("version") == self.record.version else 1
+        self.state["attempted"] = {"version": self.record.version, "result": outcome.result, "tries": tries,
+                                   "reason": outcome.reason}
+        return outcome
+
+    # -- the wake ------------------------------------------------------------
+
+    def run(self) -> tuple[dict, Outcome]:
+        outcome = None
+        try:
+            self.check_disk()
+            self.fetch()
+            client = None if self.recall() else self.verify()
+            decision = self.decide()
+            if decision.result == deciding.APPLY:
+                outcome = self.apply(client or self.verify(), decision.wave)
+            else:
+                outcome = Outcome(decision.result, decision.reason, wave=decision.wave)
+        except Outcome as ended:
+            outcome = ended
+        if self.status_time is None:
+            self.roles_status()
+        return self.report(outcome), outcome
+
+    # -- the roles' status ----------------------------------------------------
+
+    def read_status(self, said: dict, code: Path) -> None:
+        """Keep what a converge run (or status) just read, and what the
+        roles' watched paths looked like before it read."""
+        self.status, self.status_time = said.get("row") or {}, record_time(self.clock())
+        self.state["status"] = {"row": self.status, "at": time.time(), "time": self.status_time,
+                                "watch": said.get("watch") or {}, "code": os.path.realpath(code)}
+
+    def roles_status(self) -> None:
+        """The roles' status as the code the agent runs reads it: read again
+        only when something it reads may have changed, or at the heartbeat."""
+        code = self.state_dir / "code" / "current"
+        last = self.state.get("status") or {}
+        watch = last.get("watch") if isinstance(last.get("watch"), dict) else None
+        age = time.time() - float(last.get("at") or 0)
+        if (last.get("row") is not None and watch is not None and 0 <= age < self.config.heartbeat
+                and last.get("code") == os.path.realpath(code) and agent_files.watched(watch) == watch):
+            self.status, self.status_time = last["row"], last.get("time")
+            return
+        if not code.exists():
+            self.status, self.status_time = {}, None
+            return
+        fleet = (self.state.get("fleet") or {}).get("path")
+        self.read_status(release_run.status(self.state_dir, self.config.robot, fleet), code)
+
+    def report(self, outcome: Outcome) -> dict:
+        record = self.record
+        usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+        cost = self.remote.cost.as_dict()
+        cost["cpu"] = round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
+        return reports.build(
+            self.config.robot, self.clock(), outcome.result, reason=outcome.reason, refusal=outcome.refusal,
+            seen=reports.version_of(record) if record else self.state.get("seen"),
+            applied=self.state.get("applied"), attempted=self.state.get("attempted"), wave=outcome.wave,
+            status=self.status, host_keys=host_keys(), key=public_key(self.config.etc("id_ed25519.pub")),
+            config=self.config, check=cost, agent=agent_version(), status_time=self.status_time)
+
+    def send(self, report: dict) -> str:
+        """Push the report when it says something new or the heartbeat is
+        due; what happened, for the journal line."""
+        substance = hashlib.sha256(json.dumps(reports.substance(report), sort_keys=True).encode()).hexdigest()
+        last = self.state.get("reported") or {}
+        age = time.time() - last.get("at", 0)
+        if last.get("substance") == substance and 0 <= age < self.config.heartbeat:
+            said = "report unchanged"
+        else:
+            try:
+                self.remote.push_report(self.config.robot, reports.to_bytes(report))
+                self.state["reported"] = {"substance": substance, "at": time.time()}
+                said = "report sent"
+            except TransportError as error:
+                said = f"report not sent ({error})"
+        if self.remote.retire_enrollment_key():  # the server took this robot's own key in this wake
+            said += "; the enrollment key is retired (the remote knows this robot's own key)"
+        return said
+
+
+def record_time(moment: datetime.datetime) -> str:
+    return moment.astimezone(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def host_keys() -> list[str]:
+    keys = []
+    for path in sorted(glob.glob("/etc/ssh/ssh_host_*_key.pub")):
+        key = public_key(path)
+        if key:
+            keys.append(key)
+    return keys
+
+
+def public_key(path: str) -> str | None:
+    try:
+        return " ".join(Path(path).read_text().split()[:2]) or None
+    except OSError:
+        return None
+
+
+def agent_version() -> str:
+    code = os.path.realpath(robotfleet.CHECKOUT)
+    return f"{robotfleet.__version__} (tree {os.path.basename(code)[:12]})"
+
+
+def journal_line(report: dict, sent: str, seconds: float) -> str:
+    """The wake's one line: its outcome, and what it cost (the whole wake:
+    CPU of the agent and everything it ran, bytes over the network)."""
+    check = report.get("check") or {}
+    seen = report.get("seen") or {}
+    head = f"robot-pull: {report['result']}"
+    if seen:
+        head += f" (release {seen.get('version')})"
+    if report.get("reason"):
+        head += f": {report['reason']}"
+    return (f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
+            f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
+            f"requests; {sent}")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m robotfleet.pull.agent", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--config", default=agent_files.CONFIG)
+    args = parser.parse_args(argv)
+    started = time.monotonic()
+    try:
+        config = agent_files.named(agent_files.read_config(Path(args.config).read_text(), args.config))
+    except (OSError, agent_files.ConfigError) as error:
+        print(f"robot-pull: cannot start: {error}", flush=True)
+        return 1
+    state = Path(config.state_dir)
+    state.mkdir(parents=True, exist_ok=True, mode=0o700)
+    with open(state / "agent.lock", "a") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            print("robot-pull: another check is running; this one does nothing", flush=True)
+            return 0
+        wake = Wake(config)
+        report, _ = wake.run()
+        if wake.record is not None:
+            wake.state["seen"] = reports.version_of(wake.record)
+        sent = wake.send(report)
+        save_state(state, wake.state)
+        usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+        report["check"]["cpu"] = round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
+        report["check"].update({"sent": wake.remote.cost.sent, "received": wake.remote.cost.received,
+                                "requests": wake.remote.cost.requests})
+        print(journal_line(report, sent, time.monotonic() - started), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

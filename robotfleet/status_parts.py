@@ -1,0 +1,56 @@
+"""A host's status as its roles read it: one shell command made of the
+engine's part and each role's status part (deploy.py's roles), its output
+cut into the parts again, and a row of cells from them.  Pure; ``robotfleet
+status`` runs it over SSH, a pull robot's converge run on itself."""
+
+from __future__ import annotations
+
+MARK = "@@@robot-fleet-status "
+# The engine's own section (no role is called so: a role's name is an identifier).
+HOST_SECTION = "engine:host"
+HOST_COMMAND = "dpkg --print-architecture"
+FIRST = [("host", "HOST"), ("reachable", "REACHABLE"), ("arch", "ARCH")]
+LAST = [("rollout", "ROLLOUT")]
+
+
+def reporting(roles) -> list:
+    """The roles with a status part, in the table's order."""
+    return sorted((r for r in roles if r.status), key=lambda r: r.status.order)
+
+
+def columns(roles) -> list[tuple[str, str]]:
+    return FIRST + [column for role in reporting(roles) for column in role.status.columns] + LAST
+
+
+def status_command(roles, data) -> str:
+    """The host's one status command: the engine's part, then each role's,
+    each after a marker line."""
+    parts = [(HOST_SECTION, HOST_COMMAND)] + [(role.name, role.status.command(data)) for role in reporting(roles)]
+    return "; ".join(f"echo '{MARK}{name}'; ( {command} ) 2>/dev/null" for name, command in parts) + "; true"
+
+
+def sections(stdout: str) -> dict[str, str]:
+    """The status command's output, by role name (pure)."""
+    found: dict[str, list[str]] = {}
+    current = None
+    for line in stdout.splitlines():
+        if line.startswith(MARK):
+            current = line[len(MARK):].strip()
+            found[current] = []
+        elif current is not None:
+            found[current].append(line)
+    return {name: "\n".join(lines) for name, lines in found.items()}
+
+
+def row(name: str, roles, parts: dict[str, str] | None, error: str | None = None) -> dict:
+    """A table row from the roles' sections of the output (pure); None:
+    the host did not answer."""
+    if parts is None:
+        return {"host": name, "reachable": False, "error": error}
+    cells = {"host": name, "reachable": True, "arch": parts.get(HOST_SECTION, "").strip() or None}
+    for role in reporting(roles):
+        try:
+            cells.update(role.status.cells(parts.get(role.name, "")))
+        except ValueError:
+            cells["error"] = f"unreadable {role.name} status"
+    return cells
