@@ -3,8 +3,9 @@ checked with OpenSSH (issue 27, item 13).  paramiko gives up on a whole
 known_hosts file at its first `@cert-authority` line; robotfleet reads it
 itself: plain keys, `@revoked` keys refused, and a host an `@cert-authority`
 line covers is checked with OpenSSH's ssh, never trusted on first use.
-Connections go to real SSH servers on 127.0.0.1 (tests/unit/sshserver.py,
-which offers no certificate); a robot whose sshd presents a signed host key
+Connections go to real SSH servers on 127.0.0.1 (tests/integration/sshserver.py,
+which offers no certificate; tests/integration/certserver.py, which presents
+certificates ssh-keygen made); a robot whose sshd presents a signed host key
 is tests/e2e/test_hostcerts.py's."""
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import paramiko
 import pytest
 
 from robotfleet import hostcerts, hostkeys
-from tests.integration import sshserver
+from tests.integration import certserver, sshserver
 from tests.integration.test_first_contact import connect, fleet
 
 
@@ -129,3 +130,61 @@ ABOUT = " (certificate 'robot1', serial 3, valid from 2020-01-01T00:00:00 to 202
 ], ids=["accepted", "expired", "principal", "revoked", "another CA", "no certificate", "refused"])
 def test_what_ssh_said_becomes_the_key_or_one_reason(output, verdict):
     assert hostcerts.judge(output, "127.0.0.1", "kh") == verdict
+
+
+@pytest.fixture
+def ca(tmp_path):
+    (tmp_path / "ca").mkdir()
+    return certserver.HostCA(tmp_path / "ca")
+
+
+@pytest.fixture
+def certified(tmp_path, monkeypatch, client_key, ca):
+    """Connect robot1, a server presenting ``certificate`` (its plain key
+    ``offered`` to paramiko, by default the certified one), with the CA
+    ``trusted`` in the fleet's known_hosts: (its connection error, the server)."""
+    started = []
+
+    def run(certificate, trusted=ca, offered=None, greeting=b"", **settings):
+        server = certserver.CertifiedServer(certificate, client_key, offered, greeting)
+        started.append(server)
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}}, **settings)
+        known_hosts = tmp_path / "known_hosts"
+        known_hosts.write_text(trusted.line("[127.0.0.1]:*"))
+        (outcome,) = connect(path, monkeypatch).values()
+        assert known_hosts.read_text() == trusted.line("[127.0.0.1]:*")  # nothing ever written
+        return outcome, server
+
+    yield run
+    for server in started:
+        server.close()
+
+
+def test_a_robot_whose_certificate_a_trusted_ca_signed_is_connected(certified, ca):
+    assert certified(ca.host_key("robot1"))[0] is None
+
+
+def test_a_certificate_of_another_key_than_the_one_paramiko_sees_is_refused(certified, ca):
+    """A man in the middle relays ssh's check to the real robot and offers
+    paramiko its own key (of the same type)."""
+    own = certserver.private_key(ca.host_key("mitm"))
+    outcome, server = certified(ca.host_key("robot1"), offered=own)
+    assert outcome == (f"host certificate refused: it certifies {hostkeys.fingerprint(server.certified.key)}, "
+                       f"but this connection was offered {own.get_name()} {hostkeys.fingerprint(own)}")
+
+
+def test_expired_wrong_principal_revoked_and_another_cas_certificates_are_refused(certified, ca, tmp_path):
+    valid = "valid from 2020-01-01T00:00:00 to 2020-02-01T00:00:00"
+    assert certified(ca.host_key("old", validity="20200101:20200201"))[0] == (
+        f"host certificate refused: its host certificate is invalid: expired (certificate 'old', serial 3, {valid})")
+    outcome, _ = certified(ca.host_key("named", principals="robot1.fleet"))
+    assert outcome.startswith("host certificate refused: its host certificate is invalid: 127.0.0.1 is not one of "
+                              "its principals (certificate 'named', serial 3, valid from ")
+    revoked = ca.host_key("revoked")
+    certserver.keygen("-k", "-f", str(tmp_path / "fleet.krl"), str(revoked))
+    outcome, _ = certified(revoked, ssh_revoked_host_keys=str(tmp_path / "fleet.krl"))
+    assert outcome.startswith(f"host certificate refused: its host key is revoked by the KRL {tmp_path / 'fleet.krl'} "
+                              "(certificate 'revoked', serial 3, valid from ")
+    (tmp_path / "other").mkdir()
+    outcome, _ = certified(ca.host_key("robot1"), trusted=certserver.HostCA(tmp_path / "other"))
+    assert outcome.startswith("host certificate refused: its host certificate is signed by CA SHA256:")
