@@ -233,3 +233,20 @@ def test_a_report_larger_than_allowed_is_never_read_into_memory(fleet, tmp_path)
     assert peak < 4 * reports.MAX_BYTES, peak
     with pytest.raises(catfile.CatFileError, match=r"^git cat-file: no answer within 0\.05 s$"):
         catfile.blobs(cache, [huge] * 50, reports.MAX_BYTES, timeout=0.05)  # bounded in time too
+
+
+def test_the_lab_s_git_server_refuses_a_push_holding_a_malformed_object(fleet):
+    from tests.lab import gitserver
+
+    bare, work = fleet
+    blob = bytes.fromhex(craftedgit.blob(work, b"x"))
+    # git walks it (so it packs and pushes it), fsck does not: a ".git" entry, as in CVE-2014-9390's trees
+    raw = b"100644 .git\0%s100644 report.json\0%s" % (blob, blob)
+    tree = craftedgit.git(work, "hash-object", "-t", "tree", "--literally", "-w", "--stdin", stdin=raw)
+    craftedgit.push_report_entry(bare, work, "robot1", f"040000 tree {tree}\tcrafted")  # a server that checks nothing
+    for key, value in gitserver.GIT_CONFIG.items():
+        craftedgit.git(bare, "config", key, value)
+    with pytest.raises(subprocess.CalledProcessError) as refused:
+        craftedgit.push_report_entry(bare, work, "robot4", f"040000 tree {tree}\tcrafted")
+    assert b"hasDotgit" in refused.value.stderr, refused.value.stderr
+    assert "refs/reports/robot4" not in craftedgit.git(bare, "for-each-ref")
