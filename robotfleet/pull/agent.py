@@ -153,12 +153,8 @@ class Wake:
                 found = self.remote.fetch_reports(list(decision.earlier))
             except TransportError as error:
                 raise Outcome("waiting", f"the earlier waves' reports: {error}", wave=decision.wave) from None
-            failed = 0
-            for robot, data in found.items():
-                try:
-                    failed += reports.failed_for(reports.parse(data, robot), self.record.version)
-                except reports.ReportError:
-                    continue
+            failed = sum(reports.failed_for(report, self.record.version) for report in found.values()
+                         if "error" not in report)
             decision = deciding.decide(*args, failed=failed)
         return decision
 

@@ -31,12 +31,16 @@ import subprocess
 from pathlib import Path
 
 from robotfleet.checkers import one_line
+from robotfleet.pull import catfile
 from robotfleet.pull.record import parse_time, utc
 
 FORMAT = 1
 RESULTS = ("applied", "up-to-date", "waiting", "halted", "refused", "rolled-back", "failed")
 FAILURES = ("rolled-back", "failed")
 MAX_BYTES = 256 * 1024
+# Arrays and objects within each other: a report has a few; json.loads would recurse into each.
+MAX_DEPTH = 64
+_NESTING = re.compile(rb'[][{}"\\]')
 _KEY = re.compile(r"(ssh-ed25519|ssh-rsa|ecdsa-sha2-nistp(256|384|521)) [A-Za-z0-9+/]+={0,3}")
 
 
@@ -133,9 +137,11 @@ def parse(data: bytes, ref_robot: str) -> dict:
     """A report as pushed to refs/reports/<ref_robot>; ReportError if it cannot be used."""
     if len(data) > MAX_BYTES:
         raise ReportError(f"report of {ref_robot}: larger than {MAX_BYTES} bytes")
+    if too_deep(data, MAX_DEPTH):
+        raise ReportError(f"report of {ref_robot}: nested deeper than {MAX_DEPTH} levels")
     try:
         raw = json.loads(data)
-    except ValueError:
+    except (ValueError, RecursionError):
         raise ReportError(f"report of {ref_robot}: not JSON") from None
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise ReportError(f"report of {ref_robot}: not a format {FORMAT} report")
@@ -176,6 +182,33 @@ def parse(data: bytes, ref_robot: str) -> dict:
     }
 
 
+def too_deep(data: bytes, limit: int) -> bool:
+    """Whether JSON ``data`` has arrays and objects more than ``limit`` deep
+    (brackets in strings do not count); linear, and only counted when there
+    are more than ``limit`` opening brackets at all."""
+    if data.count(b"[") + data.count(b"{") <= limit:
+        return False
+    depth, in_string, escaped = 0, False, -1
+    for match in _NESTING.finditer(data):
+        at, char = match.start(), data[match.start()]
+        if at == escaped:
+            continue
+        if in_string:
+            if char == ord("\\"):
+                escaped = at + 1
+            elif char == ord('"'):
+                in_string = False
+        elif char == ord('"'):
+            in_string = True
+        elif char in b"[{":
+            depth += 1
+            if depth > limit:
+                return True
+        elif char in b"]}":
+            depth -= 1
+    return False
+
+
 def stale_limit(interval: int, jitter: int, stale_after: int, heartbeat: int) -> int:
     """Seconds after which a report is stale: ``stale_after`` heartbeats,
     each with an interval and its jitter (a robot with nothing new pushes at
@@ -210,19 +243,38 @@ def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
 
 
 def read_all(cache: Path) -> dict[str, dict]:
-    """robot -> its parsed report, or {"error": line} when it cannot be read."""
-    from robotfleet.pull.transport import read_reports
+    """robot -> its parsed report, or {"robot", "error": line} when it cannot be read."""
+    return read(cache, "refs/reports/")
 
-    def git(what, *args, stdin=None):
-        return _git(cache, *args, stdin=stdin)
 
-    found = {}
-    for robot, data in read_reports(git, "refs/reports/").items():
-        try:
-            found[robot] = parse(data, robot)
-        except ReportError as error:
-            found[robot] = {"robot": robot, "error": str(error)}
-    return found
+def read(repo: Path, prefix: str, wanted: set[str] | None = None, timeout: int = 300) -> dict[str, dict]:
+    """robot -> the report of each ref ``<prefix><robot>`` of the local
+    repository ``repo`` (a commit holding report.json), parsed, or {"robot",
+    "error": line} when it cannot be read; ``wanted``: these robots only.
+    Every reader of reports goes through here (status, pull-enroll, rollout,
+    a robot's wave decision): nothing a robot pushed is more than its own
+    row, and no report is read whole into memory before its size is known."""
+    listed = _git(repo, "for-each-ref", "--format=%(refname) %(objectname)", prefix, timeout=timeout)
+    refs = {}
+    for line in filter(None, listed.decode(errors="replace").split("\n")):
+        name, _, commit = line.partition(" ")
+        robot = name[len(prefix):]
+        if wanted is None or robot in wanted:
+            refs[robot] = commit
+    try:
+        found = catfile.blobs(repo, [f"{commit}:report.json" for commit in refs.values()], MAX_BYTES, timeout)
+    except catfile.CatFileError as error:
+        raise ReportError(str(error)) from None
+    return {robot: _parsed(robot, data) for robot, data in zip(refs, found)}
+
+
+def _parsed(robot: str, data: bytes | str) -> dict:
+    try:
+        if isinstance(data, str):
+            raise ReportError(f"report of {robot}: report.json: {data}")
+        return parse(data, robot)
+    except ReportError as error:
+        return {"robot": robot, "error": one_line(str(error))}
 
 
 def _git(where: Path, *args: str, stdin: bytes | None = None, timeout: int = 300) -> bytes:

@@ -6,7 +6,8 @@ in time, with the bytes each exchange moved.
   v2 asks the server for that one branch only, so an idle check moves a
   few kilobytes whatever the size of the fleet.
 - ``fetch_reports``: the reports of named robots (the waves before this
-  robot's), each asked for by its own prefix.
+  robot's), each asked for by its own prefix, read as the operator reads
+  them (``reports.read``: each robot's own row, never another's).
 - ``push_report``: this robot's report as a one-file commit, force-pushed
   to ``refs/reports/<robot>`` (the only ref the server lets it write).
 
@@ -44,7 +45,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet.pull import layout
+from robotfleet.pull import layout, reports
 
 HOST_KEY_ALIAS = layout.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
@@ -260,15 +261,19 @@ class Remote:
 
     # -- reports -----------------------------------------------------------
 
-    def fetch_reports(self, robots: list[str]) -> dict[str, bytes]:
-        """robot -> its report.json as the remote has it now (robots without one left out)."""
+    def fetch_reports(self, robots: list[str]) -> dict[str, dict]:
+        """robot -> its report as the remote has it now, parsed, or {"robot",
+        "error"} when it cannot be read (robots without a report ref left out)."""
         if not robots:
             return {}
         self._init()
         specs = [f"+refs/reports/{robot}*:refs/fleet-reports/{robot}*" for robot in sorted(set(robots))]
         self._git("reports", "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", self.url, *specs,
                   network=True)
-        return read_reports(self._git, "refs/fleet-reports/", set(robots))
+        try:
+            return reports.read(self.repo, "refs/fleet-reports/", set(robots), self.timeout)
+        except reports.ReportError as error:
+            raise TransportError(f"reports: {error}") from None
 
     def push_report(self, robot: str, report: bytes) -> str:
         """Force-push ``report`` as refs/reports/<robot>; the commit id."""
@@ -307,29 +312,3 @@ def _communicate(process, stdin: bytes | None, timeout: float, reader: threading
     for thread in (out, reader):
         thread.join(max(0.0, deadline - time.monotonic()))
     return b"".join(chunks), b""
-
-
-def read_reports(git, prefix: str, wanted: set[str] | None = None) -> dict[str, bytes]:
-    """name -> report.json of each commit under ``prefix`` (``git(what, *args, stdin=)``)."""
-    listed = git("reports", "for-each-ref", "--format=%(refname) %(objectname)", prefix).decode().split("\n")
-    refs = {}
-    for line in filter(None, listed):
-        name, _, commit = line.partition(" ")
-        robot = name[len(prefix):]
-        if wanted is None or robot in wanted:
-            refs[robot] = commit
-    if not refs:
-        return {}
-    batch = git("reports", "cat-file", "--batch",
-                stdin="".join(f"{commit}:report.json\n" for commit in refs.values()).encode())
-    found, at = {}, 0
-    for robot in refs:
-        end = batch.index(b"\n", at)
-        header = batch[at:end].split()
-        if len(header) == 3 and header[1] == b"blob":
-            size = int(header[2])
-            found[robot] = batch[end + 1:end + 1 + size]
-            at = end + 1 + size + 1
-        else:
-            at = end + 1  # "<name> missing"
-    return found

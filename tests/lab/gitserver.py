@@ -54,9 +54,13 @@ COPY install.sh /tmp/install.sh
 RUN sh /tmp/install.sh && rm /tmp/install.sh
 """
 
+# Its git's settings, for every repository it serves: a push holding an
+# object git's fsck finds malformed is refused whole (docs/pull.md).
+GIT_CONFIG = {"receive.fsckObjects": "true"}
 # Run as the gitolite user once the admin key is in place: idempotent (a
 # second run replaces the admin key and keeps every repository).
-SETUP = f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}"
+SETUP = " && ".join([*(f"git config --file {HOME}/.gitconfig {key} {value}" for key, value in GIT_CONFIG.items()),
+                     f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}"])
 
 
 def container_name(prefix: str) -> str:
