@@ -2,7 +2,8 @@
 that the robot, booting it for the first time, converges itself to the
 current release and reports, with no inbound connection at any point.
 
-    <out>/rootfs.tar                    unpacked onto the image's root (owned by root, modes kept)
+    <out>/rootfs.tar                    unpacked onto the image's root (owned by root, modes kept;
+                                        of the directories, only the bundle's own)
         etc/robot-pull/agent.json       the robot's name, the fleet remote, the interval... (0600)
         etc/robot-pull/root.json        the release repository's root: its first trust (0600)
         etc/robot-pull/known_hosts      the git server's host keys
@@ -184,18 +185,31 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     return public
 
 
+# The directories the bundle owns; the image's own (etc, usr, var, etc/systemd ...)
+# are left out, so that tar -xp neither changes their modes nor their owners.
+OWN_DIRECTORIES = (layout.ETC.lstrip("/"), layout.STATE.lstrip("/"))
+
+
 def _archive(rootfs: Path, tar_path: Path) -> None:
-    """rootfs as a tar owned by root (whoever made it), modes kept."""
+    """rootfs as a tar owned by root (whoever made it), modes kept but
+    never writable by group or others (whatever the operator's umask);
+    of the directories, only the bundle's own."""
     import tarfile
 
     def as_root(info: tarfile.TarInfo) -> tarfile.TarInfo:
         info.uid = info.gid = 0
         info.uname = info.gname = "root"
+        if not info.issym():
+            info.mode &= ~0o022
         return info
 
     with tarfile.open(tar_path, "w") as tar:
         for path in sorted(rootfs.rglob("*")):
-            tar.add(path, arcname=str(path.relative_to(rootfs)), recursive=False, filter=as_root)
+            name = str(path.relative_to(rootfs))
+            if path.is_dir() and not path.is_symlink() and not any(
+                    name == own or name.startswith(own + "/") for own in OWN_DIRECTORIES):
+                continue
+            tar.add(path, arcname=name, recursive=False, filter=as_root)
     os.chmod(tar_path, 0o600)
 
 

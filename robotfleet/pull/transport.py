@@ -254,8 +254,9 @@ class Remote:
             self._git("fetch", "fetch", "--quiet", "--no-tags", self.url, spec, network=True)
         commit = self._git("fetch", "rev-parse", LOCAL_BRANCH).decode().strip()
         # Whatever is in the directory is made the commit's again (nothing
-        # left over is read as part of the repository).
-        self._git("checkout", "checkout", "-q", "--force", "--detach", commit)
+        # left over is read as part of the repository); a link the branch
+        # holds is checked out as a file holding its target's name, never a link.
+        self._git("checkout", "-c", "core.symlinks=false", "checkout", "-q", "--force", "--detach", commit)
         self._git("checkout", "clean", "-q", "-d", "-x", "--force")
         return commit
 

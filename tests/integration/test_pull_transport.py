@@ -5,12 +5,13 @@ part), and what it reads from ssh's log."""
 from __future__ import annotations
 
 import datetime
+import os
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from robotfleet.pull import reports, transport
+from robotfleet.pull import channel, reports, transport, trusted
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
 debug1: Server accepts key: /etc/robot-pull/id_ed25519 ED25519 SHA256:abc explicit
@@ -180,3 +181,34 @@ def test_reports_go_to_the_report_remote_while_releases_come_over_https(https_re
     if server.smart:  # the earlier waves' reports are read from the releases' remote, over HTTPS too
         assert robot.fetch_reports(["robot2"]) == {
             "robot2": {"robot": "robot2", "error": "report of robot2: names another robot (robot1)"}}
+
+
+def test_links_on_the_releases_branch_are_checked_out_as_files(remote, tmp_path):
+    # A hostile git server (or whoever can push the branch) commits links:
+    # the next root to /dev/zero, the timestamp to a file of the robot's own,
+    # and targets/ to a directory elsewhere.
+    bare, work = remote
+    secret = tmp_path / "hostname"
+    secret.write_text("robot-secret\n")
+    (work / "metadata" / "timestamp.json").unlink()
+    (work / "metadata" / "timestamp.json").symlink_to(secret)
+    (work / "metadata" / "2.root.json").symlink_to("/dev/zero")
+    (work / "targets").symlink_to(tmp_path)
+    git(work, "add", "-A")
+    git(work, "commit", "-q", "-m", "links")
+    git(work, "push", "-q", str(bare), "HEAD:refs/heads/robotfleet/releases")
+    assert git(bare, "ls-tree", "robotfleet/releases", "targets").startswith("120000 blob")
+    robot = transport.Remote(f"file://{bare}", tmp_path / "state" / "releases", str(tmp_path / "etc"), timeout=30)
+    robot.fetch_releases()
+    links = [os.path.join(where, name) for where, dirs, files in os.walk(robot.repo) for name in dirs + files
+             if os.path.islink(os.path.join(where, name))]
+    assert links == []
+    # what the trusted-metadata reader reads there is the links' text, never what they point at
+    assert trusted._read(str(robot.repo), "metadata/timestamp.json") == str(secret).encode()
+    assert trusted._read(str(robot.repo), "metadata/2.root.json") == b"/dev/zero"
+    assert (robot.repo / "targets").is_file()
+    # nor does the operator's publishing clone of the branch hold them
+    clone = channel.GitChannel(tmp_path, str(bare), clone=tmp_path / "publishing").open()
+    assert not any(os.path.islink(os.path.join(where, name)) for where, dirs, files in os.walk(clone)
+                   for name in dirs + files)
+    assert (clone / "metadata" / "2.root.json").read_bytes() == b"/dev/zero"
