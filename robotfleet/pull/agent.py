@@ -42,6 +42,7 @@ import time
 from pathlib import Path
 
 import robotfleet
+from robotfleet import atomicfile
 from robotfleet.pull import converging, layout, reports, trusted, waves
 from robotfleet.pull import decide as deciding
 from robotfleet.pull import record as records
@@ -74,12 +75,7 @@ def load_state(state: Path) -> dict:
 
 
 def save_state(state: Path, data: dict) -> None:
-    temp = state / f".{STATE_FILE}.{secrets.token_hex(4)}"
-    with open(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as handle:
-        handle.write(json.dumps(data, sort_keys=True, indent=1) + "\n")
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(temp, state / STATE_FILE)
+    atomicfile.write(state / STATE_FILE, json.dumps(data, sort_keys=True, indent=1) + "\n")
 
 
 class Wake:

@@ -34,7 +34,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from robotfleet.pull import layout
+from robotfleet.pull import layout, robotkey
 
 FIRST_BOOT = f"{layout.STATE}/first-boot"
 SCRIPT = "/usr/local/sbin/robot-pull-first-boot"
@@ -54,6 +54,8 @@ TimeoutStartSec=1h
 WantedBy=multi-user.target
 """
 
+# The key's comment: the robot's name, read from its config at boot.
+KEY_COMMENT = f'''"robot-pull@$(sed -n 's/.*"robot": "\\([^"]*\\)".*/\\1/p' {layout.CONFIG})"'''
 FIRST_BOOT_SCRIPT = f"""#!/bin/sh
 # robot-pull first boot (robotfleet/pull/bundle.py): this robot's own keys,
 # the agent's venv and code from the bundle, then the agent's first check.
@@ -70,10 +72,7 @@ if ! python3 -c 'import ensurepip, venv' 2>/dev/null || ! command -v git >/dev/n
     DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-venv git openssh-client
 fi
 if [ ! -f {layout.KEY} ]; then
-    tmp=$(mktemp -d {layout.ETC}/.key.XXXXXX)
-    ssh-keygen -q -t ed25519 -N '' -C "robot-pull@$(sed -n 's/.*"robot": "\\([^"]*\\)".*/\\1/p' {layout.CONFIG})" -f "$tmp/key"
-    mv -T "$tmp/key.pub" {layout.KEY}.pub && mv -T "$tmp/key" {layout.KEY} && rmdir "$tmp"
-fi
+{robotkey.keygen_script(KEY_COMMENT)}fi
 mkdir -p "$state/venvs" "$state/code"
 id=$(cat "$fb/venv-id")
 if [ ! -x "$state/venvs/$id/bin/python" ]; then

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shlex
 
-from robotfleet.pull import layout
+from robotfleet.pull import layout, robotkey
 
 PACKAGES = ("python3-venv", "git", "openssh-client")
 # The python a release of Debian or Ubuntu ships (python3), for a host that
@@ -34,15 +34,8 @@ def platform(probed_python: str, os_release: dict, arch: str) -> str | None:
 
 
 def keygen_script(robot: str) -> str:
-    """Make the robot's key pair beside its place, then rename it into place."""
-    key = layout.KEY
-    return f"""set -e
-umask 077
-tmp=$(mktemp -d {layout.ETC}/.key.XXXXXX); trap 'rm -rf "$tmp"' EXIT
-ssh-keygen -q -t ed25519 -N '' -C 'robot-pull@'{shlex.quote(robot)} -f "$tmp/key"
-mv -T "$tmp/key.pub" {key}.pub
-mv -T "$tmp/key" {key}
-"""
+    """Make the robot's key pair on the robot (robotfleet/pull/robotkey.py), its comment naming it."""
+    return robotkey.keygen_script("'robot-pull@'" + shlex.quote(robot))
 
 
 service_unit = layout.service_unit
