@@ -11,10 +11,17 @@ import tempfile
 from pathlib import Path
 
 
-def write(path: str | Path, data: bytes | str, mode: int | None = None, make_parents: bool = False) -> None:
+def write(path: str | Path, data: bytes | str, mode: int | None = None, make_parents: bool = False,
+          keep_mode: bool = False) -> None:
     """Replace ``path`` with ``data``.  ``mode`` None keeps the temp file's
-    0600; ``make_parents`` creates missing directories first."""
+    0600; ``make_parents`` creates missing directories first; ``keep_mode``:
+    a file already there keeps its own mode (``mode`` is a new file's)."""
     path = Path(path)
+    if keep_mode:
+        try:
+            mode = os.stat(path).st_mode & 0o7777
+        except FileNotFoundError:
+            pass
     directory = path.parent if str(path.parent) else Path(".")
     if make_parents:
         directory.mkdir(parents=True, exist_ok=True)

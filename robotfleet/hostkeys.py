@@ -21,11 +21,12 @@ import fnmatch
 import hashlib
 import hmac
 import os
-import tempfile
 from dataclasses import dataclass, field
 
 from paramiko import HostKeys
 from paramiko.hostkeys import HostKeyEntry
+
+from robotfleet import atomicfile
 
 CERT_AUTHORITY, REVOKED = "@cert-authority", "@revoked"
 
@@ -200,20 +201,5 @@ def _text(path: str) -> str:
 
 
 def _write(path: str, text: str) -> None:
-    """Replace the file whole (temp file, fsync, rename), keeping its mode."""
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".known_hosts.", dir=directory)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        if os.path.exists(path):
-            os.chmod(tmp, os.stat(path).st_mode & 0o7777)
-        else:
-            os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    """Replace the file whole (robotfleet/atomicfile.py), keeping its mode; a new one is 0644."""
+    atomicfile.write(path, text, mode=0o644, make_parents=True, keep_mode=True)

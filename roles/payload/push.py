@@ -25,7 +25,6 @@ anything is sent.
 
 from __future__ import annotations
 
-import base64
 import io
 import json
 import os
@@ -37,6 +36,7 @@ from pyinfra import host
 from pyinfra.api import FunctionCommand, StringCommand
 
 from robotfleet.host import operations
+from robotfleet.host.stream import FileStdin
 from roles.payload.payloadctl import imageref, platforms
 
 LAYERS_PROBE = (
@@ -186,27 +186,6 @@ def strip_layers(saved: str, path: str, have: list[list[str]]) -> dict:
     }
 
 
-class ArchiveStdin(list):
-    """The archive at ``path`` as base64 lines for a command's stdin, read
-    from disk while it is sent, so an image never sits whole in memory.  A
-    list because pyinfra's write_stdin iterates lists; read afresh each time
-    (pyinfra resends stdin when sudo asks for a password)."""
-
-    CHUNK = 57 * 1024  # a multiple of 57 bytes: whole 76-character base64 lines
-
-    def __init__(self, path: str):
-        super().__init__()
-        self.path = path
-
-    def __bool__(self) -> bool:
-        return True
-
-    def __iter__(self):
-        with open(self.path, "rb") as archive:
-            while chunk := archive.read(self.CHUNK):
-                yield base64.encodebytes(chunk).decode()
-
-
 def load_command(archive: str, log_dir: str, image: str, image_id: str, figures: dict) -> StringCommand:
     """`docker load` reading the archive from stdin; logs the push when it
     worked.  Every value reaches the shell as a variable (data), never as
@@ -221,7 +200,7 @@ def load_command(archive: str, log_dir: str, image: str, image_id: str, figures:
         '[ $rc -eq 0 ] && mkdir -p "$log_dir" && '
         'printf "%s %s %s %s\\n" "$(date -u +%Y-%m-%dT%H:%M:%SZ)" "$image" "$image_id" "$sent" >> "$log_dir/push.log"; '
         "exit $rc",
-        stdin=ArchiveStdin(archive),
+        stdin=FileStdin(archive),
     )
 
 

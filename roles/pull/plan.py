@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shlex
 
-from robotfleet.pull.protocol import agent_files
+from robotfleet.pull.protocol import agent_files, robot_key
 
 PACKAGES = ("python3-venv", "git", "openssh-client")
 # The python a release of Debian or Ubuntu ships (python3), for a host that
@@ -34,15 +34,8 @@ def platform(probed_python: str, os_release: dict, arch: str) -> str | None:
 
 
 def keygen_script(robot: str) -> str:
-    """Make the robot's key pair beside its place, then rename it into place."""
-    key = agent_files.KEY
-    return f"""set -e
-umask 077
-tmp=$(mktemp -d {agent_files.ETC}/.key.XXXXXX); trap 'rm -rf "$tmp"' EXIT
-ssh-keygen -q -t ed25519 -N '' -C 'robot-pull@'{shlex.quote(robot)} -f "$tmp/key"
-mv -T "$tmp/key.pub" {key}.pub
-mv -T "$tmp/key" {key}
-"""
+    """Make the robot's key pair on the robot (robotfleet/pull/protocol/robot_key.py), its comment naming it."""
+    return robot_key.keygen_script("'robot-pull@'" + shlex.quote(robot))
 
 
 service_unit = agent_files.service_unit

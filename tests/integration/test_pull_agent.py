@@ -19,8 +19,9 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.pull.robot import agent
+from robotfleet.pull.robot import agent, transport
 from robotfleet.pull.protocol import agent_files, reports, tree
+from tests.integration import craftedgit
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
@@ -30,7 +31,7 @@ args = sys.argv[1:]
 if os.environ.get("STUB_LOG"):
     with open(os.environ["STUB_LOG"], "a") as runs:
         runs.write(args[0] + "\\n")
-watch = getattr(agent_files, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
+watch = getattr(layout, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
 row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"),
        "health": os.environ.get("STUB_HEALTH", "healthy")}
 if args[0] == "status":
@@ -85,12 +86,12 @@ class World:
                                     state_dir=str(self.state), etc_dir=str(self.etc), docker_dir=str(base / "none"),
                                     min_free_mb=0)
 
-    def release(self, version: int, robots=("robot1", "robot2"), archive=None):
-        record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
+    def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
+        record, waves = pullkit.module("record"), pullkit.module("waves")
         built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
         built = record.build(version, NOW, NOW + datetime.timedelta(days=30), hashlib.sha1(bytes([version])).hexdigest(),
                              tree_sha, "inventories/robots.yaml", fleet_sha, list(robots), {}, {},
-                             waves.parse_plan({"canary": "1", "waves": ["100%"], "pause": 0, "max_failed": "0"}))
+                             waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}))
         self.fleet.repository.publish(built, {built.code: archive or built_archive}, self.fleet.keys.signer("online"),
                                       self.fleet.expiry, NOW)
         self.push()
@@ -163,6 +164,29 @@ def test_a_rolled_back_release_is_reported_not_recorded_and_not_tried_again(worl
     assert world.pushed_report()["attempted"] == {"version": 2, "result": "rolled-back", "tries": 1}
     _, again, _ = world.wake("applied")  # not tried a second time
     assert again.result == "rolled-back" and "waiting for a newer release" in again.reason
+
+
+@pytest.mark.parametrize("crafted", ["a tree forging robot3's report", "JSON nested 200,000 deep"])
+def test_a_robot_s_crafted_report_neither_forges_another_s_nor_stops_a_later_wave(world, crafted):
+    """Release 3's canaries are robot3 and robot2, robot1 comes after them:
+    robot3 rolled it back, so robot1 halts (no failure allowed), whatever
+    robot2 pushed as its report."""
+    world.release(3, robots=("robot1", "robot2", "robot3"), canary="2")
+    rolled_back = reports.build("robot3", NOW, "rolled-back", attempted={"version": 3, "result": "rolled-back",
+                                                                         "tries": 1})
+    transport.Remote(f"file://{world.bare}", world.base / "robot3", str(world.base / "etc3"), timeout=30).push_report(
+        "robot3", reports.to_bytes(rolled_back))
+    work = craftedgit.workspace(world.base / "hostile")
+    if crafted.startswith("a tree"):
+        applied = reports.build("robot3", NOW, "applied", attempted={"version": 3, "result": "applied", "tries": 1})
+        entry = f"040000 tree {craftedgit.forging_tree(work, reports.to_bytes(applied))}\treport.json"
+    else:
+        entry = f"100644 blob {craftedgit.blob(work, b'[' * 200000)}\treport.json"
+    craftedgit.push_report_entry(world.bare, work, "robot2", entry)
+    _, outcome, sent = world.wake()
+    assert (outcome.result, outcome.wave) == ("halted", 1)
+    assert outcome.reason == "wave 1 stopped: 1 robot(s) of the earlier waves failed (budget 0)"
+    assert sent == "report sent" and not (world.state / "last-run.log").exists()
 
 
 def test_a_tampered_code_archive_is_refused_before_anything_runs(world, tmp_path):

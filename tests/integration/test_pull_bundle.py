@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
 import tarfile
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -103,3 +105,35 @@ def test_a_bundle_for_an_image_shared_by_many_robots_carries_the_name_rule(tmp_p
     assert (config.robot, config.name_rule, config.name_prefix, config.interval) == ("", "machine-id", "arm-", 60)
     assert agent_files.named(config, read=lambda rule: "0123456789abcdef0123456789abcdef\n").robot == "arm-0123456789ab"
     assert "arm-<machine-id> (with the settings of robot9)" in (tmp_path / "out" / "README").read_text()
+
+
+def test_under_a_loose_umask_the_image_s_directories_keep_their_modes(tmp_path):
+    # The operator's umask 002 (a shared group): the bundle is made in a
+    # process that has it, then unpacked as docs/pull.md says onto an image
+    # whose /etc, /usr and /var are 0755.
+    code = tmp_path / "code.tar.gz"
+    code.write_bytes(b"code")
+    made = ("import os, sys; from pathlib import Path; os.umask(0o002); "
+            "from robotfleet.pull.operator import bundle; from tests.integration.test_pull_bundle import DATA, RECORD; "
+            "code = Path(sys.argv[1]); "
+            "bundle.make(Path(sys.argv[2]), 'robot9', DATA, RECORD, code, [('w.whl', code)], b'{}')")
+    subprocess.run([sys.executable, "-c", made, str(code), str(tmp_path / "out")], check=True,
+                   cwd=Path(__file__).resolve().parents[2])
+    with tarfile.open(tmp_path / "out" / "rootfs.tar") as tar:
+        members = tar.getmembers()
+    directories = sorted(m.name for m in members if m.isdir())
+    assert directories == ["etc/robot-pull", "var/lib/robot-pull", "var/lib/robot-pull/first-boot",
+                           "var/lib/robot-pull/first-boot/wheels"]
+    assert [(m.name, oct(m.mode)) for m in members if not m.issym() and m.mode & 0o022] == []
+    image = tmp_path / "image"
+    for top in ("etc", "usr", "var"):
+        (image / top).mkdir(parents=True)
+        (image / top).chmod(0o755)
+    # root's usual umask makes the directories the image lacks (etc/systemd/system/timers.target.wants)
+    subprocess.run(["sh", "-c", 'umask 022 && tar -xpf "$0" -C "$1"', tmp_path / "out" / "rootfs.tar", image],
+                   check=True)
+    loose = [str(path.relative_to(image)) for path in image.rglob("*")
+             if not path.is_symlink() and path.stat().st_mode & 0o022]
+    assert loose == []
+    assert (image / "etc").stat().st_mode & 0o777 == 0o755
+    assert (image / "usr/local/sbin/robot-pull-first-boot").stat().st_mode & 0o777 == 0o755

@@ -12,8 +12,9 @@ from types import SimpleNamespace
 import pytest
 
 from robotfleet.commands import pullrollout, pullstatus
-from robotfleet.pull.protocol import report_store, reports, waves
+from robotfleet.pull.protocol import catfile, report_store, reports, waves
 from robotfleet.pull.robot import transport
+from tests.integration import craftedgit
 
 UTC = datetime.timezone.utc
 NOW = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)
@@ -63,6 +64,20 @@ def test_text_from_a_robot_is_shown_not_obeyed():
         reports.parse(b"\xff{", "robot1")
     with pytest.raises(reports.ReportError, match="larger than"):
         reports.parse(b" " * (reports.MAX_BYTES + 1), "robot1")
+
+
+def test_a_report_nested_too_deep_is_one_line_and_brackets_in_text_do_not_count():
+    for data in (b"[" * 200000, b"{" * 200000, b'{"a":' * 65 + b"1" + b"}" * 65, b"[" * 65 + b"]" * 65):
+        with pytest.raises(reports.ReportError, match=f"^report of robot1: nested deeper than {reports.MAX_DEPTH} "):
+            reports.parse(data, "robot1")
+    with pytest.raises(reports.ReportError, match="not a format 1 report"):
+        reports.parse(b"[" * 64 + b"]" * 64, "robot1")
+    with pytest.raises(reports.ReportError, match="not JSON"):
+        reports.parse(b'"' + b"[" * 100, "robot1")  # an open string: no depth, and not JSON either
+    report = made(reason="[{" * 200 + '\\"' + "[" * 200 + '"' + "{" * 200)
+    assert reports.parse(reports.to_bytes(report), "robot1")["reason"].startswith("[{[{")
+    assert not reports.too_deep(b'["\\"[[[[["]', 3)  # an escaped quote does not end the string
+    assert reports.too_deep(b'["\\\\"[[[]]]]', 3)  # an escaped backslash does not escape the quote after it
 
 
 def test_stale_after_so_many_heartbeats_each_with_an_interval_and_its_jitter():
@@ -143,3 +158,96 @@ def test_status_reads_pull_robots_from_their_reports_and_never_connects(tmp_path
     assert rows["robot1"]["health"] == "healthy" and "error" not in rows["robot1"]
     assert rows["robot2"]["reachable"] is False and "no report in refs/reports/robot2" in rows["robot2"]["error"]
     assert status.exit_code(list(rows.values())) == 3
+
+
+# -- a hostile robot's report: crafted git objects, read through the real reading path ------------------------
+
+
+@pytest.fixture
+def fleet(tmp_path):
+    """A bare fleet remote with honest reports (robot2 failed, robot3 applied), and a robot's own repository."""
+    bare = tmp_path / "fleet.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
+    for name, result in (("robot2", "failed"), ("robot3", "applied")):
+        transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(
+            name, reports.to_bytes(made(result, robot=name)))
+    return bare, craftedgit.workspace(tmp_path / "hostile")
+
+
+def test_a_report_that_is_a_tree_is_its_robot_s_line_and_speaks_for_no_other(fleet, tmp_path):
+    bare, work = fleet
+    tree = craftedgit.forging_tree(work, reports.to_bytes(made("applied", robot="robot2")))  # robot2 failed
+    craftedgit.push_report_entry(bare, work, "robot1", f"040000 tree {tree}\treport.json")
+    cache = tmp_path / "cache"
+    report_store.fetch_all(f"file://{bare}", cache)
+    found = report_store.read_all(cache)
+    assert found["robot1"] == {"robot": "robot1", "error": "report of robot1: report.json: a tree, not a blob"}
+    assert found["robot2"]["result"] == "failed" and found["robot3"]["result"] == "applied"
+    # a robot of a later wave reads the same way: robot2's failure counts
+    reader = transport.Remote(f"file://{bare}", tmp_path / "reader", str(tmp_path / "etc"), timeout=30)
+    earlier = reader.fetch_reports(["robot1", "robot2", "robot3"])
+    assert "error" in earlier["robot1"] and reports.failed_for(earlier["robot2"], 7)
+    assert earlier["robot3"]["result"] == "applied"
+
+
+def test_each_malformed_report_is_its_robot_s_line_in_status(fleet, tmp_path):
+    from robotfleet.commands import status
+
+    bare, work = fleet
+    deep = craftedgit.blob(work, b"[" * 200000)  # nested deeper than json.loads goes
+    craftedgit.push_report_entry(bare, work, "robot4", f"100644 blob {deep}\treport.json")
+    large = craftedgit.blob(work, b" " * (3 * 1024 * 1024))
+    craftedgit.push_report_entry(bare, work, "robot5", f"100644 blob {large}\treport.json")
+    craftedgit.push_report_entry(bare, work, "robot6", f"100644 blob {large}\tnot-a-report.json")  # no report.json
+    tree = craftedgit.git(work, "mktree", stdin=f"100644 blob {large}\tx\n".encode())
+    craftedgit.push_report_entry(bare, work, "robot7", f"040000 tree {tree}\treport.json")  # a well-formed tree
+    inventory = tmp_path / "inv.py"
+    inventory.write_text("robots = [" + ", ".join(f'("robot{n}", {{"pull": True, "ssh_hostname": "192.0.2.{n}"}})'
+                                                  for n in range(2, 8)) + "]\n")
+    rows = {r["host"]: r for r in status.collect(str(inventory), [], remote=f"file://{bare}")}
+    assert rows["robot2"]["pull"] == "failed 7" and rows["robot3"]["pull"] == "applied 7"
+    unreadable = {name: row["error"] for name, row in rows.items() if row["pull"] == "unreadable"}
+    assert unreadable == {
+        "robot4": f"report of robot4: nested deeper than {reports.MAX_DEPTH} levels",
+        "robot5": f"report of robot5: report.json: larger than {reports.MAX_BYTES} bytes ({3 * 1024 * 1024})",
+        "robot6": "report of robot6: report.json: missing",
+        "robot7": "report of robot7: report.json: a tree, not a blob"}
+
+
+def test_a_report_larger_than_allowed_is_never_read_into_memory(fleet, tmp_path):
+    import tracemalloc
+
+    bare, work = fleet
+    size = 8 * 1024 * 1024
+    huge = craftedgit.blob(work, b"x" * size)
+    craftedgit.push_report_entry(bare, work, "robot1", f"100644 blob {huge}\treport.json")
+    cache = tmp_path / "cache"
+    report_store.fetch_all(f"file://{bare}", cache)
+    tracemalloc.start()
+    try:
+        found = report_store.read_all(cache)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert found["robot1"]["error"] == f"report of robot1: report.json: larger than {reports.MAX_BYTES} bytes ({size})"
+    assert found["robot2"]["result"] == "failed"
+    assert peak < 4 * reports.MAX_BYTES, peak
+    with pytest.raises(catfile.CatFileError, match=r"^git cat-file: no answer within 0\.05 s$"):
+        catfile.blobs(cache, [huge] * 50, reports.MAX_BYTES, timeout=0.05)  # bounded in time too
+
+
+def test_the_lab_s_git_server_refuses_a_push_holding_a_malformed_object(fleet):
+    from tests.lab import gitserver
+
+    bare, work = fleet
+    blob = bytes.fromhex(craftedgit.blob(work, b"x"))
+    # git walks it (so it packs and pushes it), fsck does not: a ".git" entry, as in CVE-2014-9390's trees
+    raw = b"100644 .git\0%s100644 report.json\0%s" % (blob, blob)
+    tree = craftedgit.git(work, "hash-object", "-t", "tree", "--literally", "-w", "--stdin", stdin=raw)
+    craftedgit.push_report_entry(bare, work, "robot1", f"040000 tree {tree}\tcrafted")  # a server that checks nothing
+    for key, value in gitserver.GIT_CONFIG.items():
+        craftedgit.git(bare, "config", key, value)
+    with pytest.raises(subprocess.CalledProcessError) as refused:
+        craftedgit.push_report_entry(bare, work, "robot4", f"040000 tree {tree}\tcrafted")
+    assert b"hasDotgit" in refused.value.stderr, refused.value.stderr
+    assert "refs/reports/robot4" not in craftedgit.git(bare, "for-each-ref")

@@ -4,12 +4,16 @@ part), and what it reads from ssh's log."""
 
 from __future__ import annotations
 
+import datetime
+import os
 import subprocess
 from pathlib import Path
 
 import pytest
 
-from robotfleet.pull.robot import transport
+from robotfleet.pull.operator import channel
+from robotfleet.pull.protocol import reports
+from robotfleet.pull.robot import transport, trust_state
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
 debug1: Server accepts key: /etc/robot-pull/id_ed25519 ED25519 SHA256:abc explicit
@@ -38,6 +42,11 @@ def remote(tmp_path):
     git(work, "commit", "-q", "-m", "one")
     git(work, "push", "-q", str(bare), "HEAD:refs/heads/robotfleet/releases")
     return bare, work
+
+
+def report(robot: str, result: str = "applied") -> bytes:
+    return reports.to_bytes(reports.build(robot, datetime.datetime(2026, 11, 25, tzinfo=datetime.timezone.utc),
+                                          result))
 
 
 def test_ssh_pins_the_server_and_offers_only_the_robot_s_keys():
@@ -90,12 +99,12 @@ def test_reports_are_pushed_as_one_file_commits_and_read_back_by_name(remote, tm
     robots = {name: transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30)
               for name in ("robot1", "robot10", "robot2")}
     for name, robot in robots.items():
-        robot.push_report(name, f'{{"robot": "{name}"}}\n'.encode())
-    robots["robot1"].push_report("robot1", b'{"robot": "robot1", "again": true}\n')  # forced over the last
+        robot.push_report(name, report(name))
+    robots["robot1"].push_report("robot1", report("robot1", "waiting"))  # forced over the last
     assert git(bare, "ls-tree", "--name-only", "refs/reports/robot1").split() == ["report.json"]
     reader = transport.Remote(f"file://{bare}", tmp_path / "reader", str(tmp_path / "etc"), timeout=30)
     found = reader.fetch_reports(["robot1", "robot3"])
-    assert found == {"robot1": b'{"robot": "robot1", "again": true}\n'}  # robot10 matched by prefix, left out
+    assert list(found) == ["robot1"] and found["robot1"]["result"] == "waiting"  # robot10 matched by prefix, left out
     assert reader.fetch_reports([]) == {}
 
 
@@ -161,15 +170,47 @@ def test_releases_are_fetched_over_https_with_the_fleet_s_ca_and_counted(https_r
 def test_reports_go_to_the_report_remote_while_releases_come_over_https(https_remote, tmp_path):
     server, bare, work, etc, ca = https_remote
     (etc / "remote-ca.pem").write_bytes(ca.read_bytes())
-    reports = tmp_path / "reports.git"
-    subprocess.run(["git", "init", "-q", "--bare", str(reports)], check=True)
+    elsewhere = tmp_path / "reports.git"
+    subprocess.run(["git", "init", "-q", "--bare", str(elsewhere)], check=True)
     robot = transport.Remote(server.url("fleet.git"), tmp_path / "releases", str(etc), timeout=30,
-                             report_url=f"file://{reports}")
+                             report_url=f"file://{elsewhere}")
     robot.fetch_releases()
-    robot.push_report("robot1", b'{"robot": "robot1"}\n')
-    assert git(reports, "show", "refs/reports/robot1:report.json") == '{"robot": "robot1"}\n'
+    robot.push_report("robot1", report("robot1"))
+    assert git(elsewhere, "show", "refs/reports/robot1:report.json") == report("robot1").decode()
     assert "refs/reports" not in git(bare, "for-each-ref")
-    git(reports, "push", "-q", str(bare), "refs/reports/robot1:refs/reports/robot2")  # as robot2 pushed it
+    git(elsewhere, "push", "-q", str(bare), "refs/reports/robot1:refs/reports/robot2")  # as robot2 pushed it
     git(bare, "update-server-info")
     if server.smart:  # the earlier waves' reports are read from the releases' remote, over HTTPS too
-        assert robot.fetch_reports(["robot2"]) == {"robot2": b'{"robot": "robot1"}\n'}
+        assert robot.fetch_reports(["robot2"]) == {
+            "robot2": {"robot": "robot2", "error": "report of robot2: names another robot (robot1)"}}
+
+
+def test_links_on_the_releases_branch_are_checked_out_as_files(remote, tmp_path):
+    # A hostile git server (or whoever can push the branch) commits links:
+    # the next root to /dev/zero, the timestamp to a file of the robot's own,
+    # and targets/ to a directory elsewhere.
+    bare, work = remote
+    secret = tmp_path / "hostname"
+    secret.write_text("robot-secret\n")
+    (work / "metadata" / "timestamp.json").unlink()
+    (work / "metadata" / "timestamp.json").symlink_to(secret)
+    (work / "metadata" / "2.root.json").symlink_to("/dev/zero")
+    (work / "targets").symlink_to(tmp_path)
+    git(work, "add", "-A")
+    git(work, "commit", "-q", "-m", "links")
+    git(work, "push", "-q", str(bare), "HEAD:refs/heads/robotfleet/releases")
+    assert git(bare, "ls-tree", "robotfleet/releases", "targets").startswith("120000 blob")
+    robot = transport.Remote(f"file://{bare}", tmp_path / "state" / "releases", str(tmp_path / "etc"), timeout=30)
+    robot.fetch_releases()
+    links = [os.path.join(where, name) for where, dirs, files in os.walk(robot.repo) for name in dirs + files
+             if os.path.islink(os.path.join(where, name))]
+    assert links == []
+    # what the trusted-metadata reader reads there is the links' text, never what they point at
+    assert trust_state._read(str(robot.repo), "metadata/timestamp.json") == str(secret).encode()
+    assert trust_state._read(str(robot.repo), "metadata/2.root.json") == b"/dev/zero"
+    assert (robot.repo / "targets").is_file()
+    # nor does the operator's publishing clone of the branch hold them
+    clone = channel.GitChannel(tmp_path, str(bare), clone=tmp_path / "publishing").open()
+    assert not any(os.path.islink(os.path.join(where, name)) for where, dirs, files in os.walk(clone)
+                   for name in dirs + files)
+    assert (clone / "metadata" / "2.root.json").read_bytes() == b"/dev/zero"

@@ -132,6 +132,38 @@ def test_a_link_within_the_tree_is_kept(tmp_path):
     assert os.readlink(tmp_path / "out" / "roles" / "x") == "../deploy.py"
 
 
+def archive_of(path, *members: tarfile.TarInfo, data: bytes = b"x"):
+    with tarfile.open(path, "w:gz") as archive:
+        for member in members:
+            member.size = len(data) if member.isfile() else 0
+            archive.addfile(member, io.BytesIO(data) if member.isfile() else None)
+    return path
+
+
+def test_a_link_chain_cannot_carry_a_file_outside_the_tree(tmp_path):
+    # Each link alone points inside by its text; l/l is the tree itself, so
+    # l/l/up2 is two levels above it, and a file under it lands there.
+    path = archive_of(tmp_path / "chain.tar.gz", _link("l", "."), _link("l/l/up2", "../.."),
+                      tarfile.TarInfo("l/l/up2/escaped.py"))
+    destination = tmp_path / "a" / "b" / "out"
+    destination.parent.mkdir(parents=True)
+    with pytest.raises(tree.TreeError, match="chain.tar.gz: 'l/l/up2': a path through the link 'l'"):
+        tree.unpack(path, destination)
+    assert not (tmp_path / "a" / "escaped.py").exists()
+    assert list(destination.parent.iterdir()) == []
+
+
+@pytest.mark.parametrize("members", [
+    [("a", "."), ("b", "a/a/..")],     # b's text stays inside; through a it is the tree's parent
+    [("b", "l/.."), ("l", ".")],       # the same, with the link b goes through made after b
+])
+def test_a_link_resolving_outside_through_other_links_is_refused(tmp_path, members):
+    path = archive_of(tmp_path / "links.tar.gz", *(_link(name, target) for name, target in members))
+    with pytest.raises(tree.TreeError, match="'b': a link resolving outside the archive's directory"):
+        tree.unpack(path, tmp_path / "out")
+    assert [p.name for p in tmp_path.iterdir()] == ["links.tar.gz"]
+
+
 def test_unpacking_never_replaces_an_existing_directory(checkout, tmp_path):
     tree.write_archive(checkout, "HEAD", tmp_path / "a.tar.gz")
     (tmp_path / "out").mkdir()

@@ -73,7 +73,7 @@ def test_a_tampered_record_is_refused(fleet, trust):
     blob = fleet.repository.blob("release.json")
     blob.write_bytes(blob.read_bytes().replace(b'"halt": false', b'"halt": true '))
     line = refused(fleet, trust, trust.TAMPERED)
-    assert "release.json" in line or "match" in line
+    assert line.startswith(f"releases at {fleet.repository.path}: does not match what was signed ("), line
     assert record.version == 2
 
 
@@ -316,3 +316,23 @@ def test_a_directory_source_serves_nothing_outside_it(fleet, trust, tmp_path):
     outside.write_text("x")
     with pytest.raises(exceptions.DownloadHTTPError):
         list(fetcher._fetch(f"file://{fleet.repository.path}/metadata/../../secret"))
+
+
+def test_a_link_in_the_repository_is_not_followed(fleet, trust):
+    # even to a file inside it (a checkout never holds links; a mirror's copy might)
+    metadata = fleet.repository.metadata
+    (metadata / "timestamp.json").rename(metadata / "elsewhere.json")
+    (metadata / "timestamp.json").symlink_to("elsewhere.json")
+    line = refused(fleet, trust, trust.UNAVAILABLE)
+    assert "timestamp.json: a symbolic link, not read" in line
+
+
+@pytest.mark.parametrize("flooded", ["metadata/timestamp.json", "the record"])
+def test_an_endless_answer_of_a_mirror_is_read_only_to_its_cap(fleet, trust, flooded):
+    if flooded == "the record":
+        flooded = next(f"targets/{p.name}" for p in (fleet.repository.path / "targets").iterdir()
+                       if p.name.endswith(".release.json"))
+    with pullkit.Flood(fleet.repository.path, flooded) as mirror:
+        line = refused(fleet, trust, trust.TAMPERED, source=mirror.url)
+    assert "longer than what was signed" in line
+    assert mirror.sent < 24 << 20  # of 64 MiB: the signed length (or the role's cap) and the sockets' buffers

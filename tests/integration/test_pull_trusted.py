@@ -7,6 +7,8 @@ repositories and keys on disk, and over a static HTTP server."""
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
 
@@ -88,3 +90,58 @@ def test_over_http_the_same_files_are_read(fleet):
         assert recall(fleet, source=url) is None
         assert fleet.refresh(source=url).version == 2
         assert recall(fleet, source=url).version == 2
+
+
+# -- a hostile mirror or git server: links and endless files --------------------------------------------------------
+
+def reads(fleet) -> list[str]:
+    """What the last full verification read, as the next check reads it."""
+    return json.loads((fleet.state / trusted.VERIFIED).read_text())["reads"]
+
+
+def test_a_link_to_dev_zero_is_not_read(fleet):
+    # The repository as a mirror (or a checkout made with links) might hold it.
+    (fleet.repository.metadata / "2.root.json").symlink_to("/dev/zero")
+    # In a process of bounded memory: reading /dev/zero would end in MemoryError.
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30)); "
+            "from robotfleet.pull.robot import trust_state; print(trust_state.fingerprint(sys.argv[1], sys.argv[2:]))")
+    done = subprocess.run([sys.executable, "-c", code, str(fleet.repository.path), *reads(fleet)],
+                          capture_output=True, text=True, timeout=120)
+    assert (done.returncode, done.stdout.strip()) == (0, "None"), done.stderr[-2000:]
+    with pytest.raises(OSError, match="2.root.json: a symbolic link, not read"):
+        trusted._read(str(fleet.repository.path), "metadata/2.root.json")
+    assert recall(fleet) is None
+
+
+@pytest.mark.parametrize("plant", ["link to a file outside", "linked directory", "fifo", "too large"])
+def test_what_is_not_a_regular_file_within_its_cap_is_refused(fleet, tmp_path, plant):
+    secret = tmp_path / "hostname"
+    secret.write_text("robot-secret\n")
+    metadata = fleet.repository.metadata
+    if plant == "link to a file outside":
+        (metadata / "timestamp.json").unlink()
+        (metadata / "timestamp.json").symlink_to(secret)
+        says = "timestamp.json: a symbolic link, not read"
+    elif plant == "linked directory":
+        elsewhere = tmp_path / "elsewhere"
+        metadata.rename(elsewhere)
+        metadata.symlink_to(elsewhere)
+        says = "metadata: a symbolic link, not read"
+    elif plant == "fifo":
+        (metadata / "timestamp.json").unlink()
+        os.mkfifo(metadata / "timestamp.json")  # opening it to read would wait for a writer
+        says = "timestamp.json: not a regular file"
+    else:
+        (metadata / "timestamp.json").write_bytes(b" " * 16385)  # python-tuf's cap is 16384
+        says = "timestamp.json: larger than 16384 bytes"
+    with pytest.raises(OSError, match=says):
+        trusted._read(str(fleet.repository.path), "metadata/timestamp.json")
+    assert recall(fleet) is None
+
+
+def test_an_endless_answer_of_a_mirror_is_read_only_to_its_cap(fleet):
+    with pullkit.Flood(fleet.repository.path, "metadata/timestamp.json") as mirror:
+        assert trusted.fingerprint(mirror.url, reads(fleet)) is None
+        with pytest.raises(OSError, match="timestamp.json: larger than 16384 bytes"):
+            trusted._read(mirror.url, "metadata/timestamp.json")
+    assert mirror.sent < 24 << 20  # of 64 MiB: what the sockets' buffers took, no more

@@ -12,14 +12,13 @@ Its host keys are in `.lab/<prefix>/git_known_hosts`, under both names.
 
 from __future__ import annotations
 
-import time
 import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from robotfleet.pull.operator import gitolite
 
-from . import hostimage, state
+from . import apt_install, hostimage, sshd, state
 from .engine import LabError, get_or_none, pick_free_port, published_ports, put_files, timed_phase
 
 if TYPE_CHECKING:
@@ -35,14 +34,9 @@ READY_TIMEOUT_S = 90
 # The file's name is the admin's gitolite user name.
 ADMIN_KEY_IN_CONTAINER = "/etc/robot-lab/admin.pub"
 
-INSTALL_SCRIPT = f"""set -eu
-printf '#!/bin/sh\\nexit 101\\n' > /usr/sbin/policy-rc.d
-chmod 0755 /usr/sbin/policy-rc.d
-apt-get update
 # gitolite3 asks debconf for an admin key: none at build time (each lab has its own).
-DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends {' '.join(PACKAGES)}
-rm /usr/sbin/policy-rc.d
-# What the package's postinst does when given a key: its user, owning its home.
+INSTALL_SCRIPT = f"""set -eu
+{apt_install.script(PACKAGES)}# What the package's postinst does when given a key: its user, owning its home.
 adduser --quiet --system --home {HOME} --shell /bin/bash --gecos 'git repository hosting' --group {USER}
 install -d -o {USER} -g {USER} -m 0750 {HOME}
 apt-get clean
@@ -54,9 +48,13 @@ COPY install.sh /tmp/install.sh
 RUN sh /tmp/install.sh && rm /tmp/install.sh
 """
 
+# Its git's settings, for every repository it serves: a push holding an
+# object git's fsck finds malformed is refused whole (docs/pull.md).
+GIT_CONFIG = {"receive.fsckObjects": "true"}
 # Run as the gitolite user once the admin key is in place: idempotent (a
 # second run replaces the admin key and keeps every repository).
-SETUP = f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}"
+SETUP = " && ".join([*(f"git config --file {HOME}/.gitconfig {key} {value}" for key, value in GIT_CONFIG.items()),
+                     f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}"])
 
 
 def container_name(prefix: str) -> str:
@@ -109,7 +107,7 @@ def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
         container.start()
     port = int(container.labels["robot-lab.ssh-port"])
     with timed_phase("git server (gitolite3)"):
-        keys = _wait_for_sshd(container)
+        keys = sshd.wait_for_host_keys(container, READY_TIMEOUT_S)
         put_files(container, {ADMIN_KEY_IN_CONTAINER: key_path.with_suffix(".pub").read_text()})
         code, out = container.exec_run(["su", "-s", "/bin/sh", USER, "-c", SETUP])
         if code != 0:
@@ -135,21 +133,6 @@ def robot_url(git: dict) -> str:
 def local_url(git: dict) -> str:
     """The fleet repository as this machine reaches it."""
     return f"ssh://{git['user']}@127.0.0.1:{git['port']}/{git['repo']}"
-
-
-def _wait_for_sshd(container) -> list[str]:
-    probe = "systemctl is-active --quiet ssh.service && cat /etc/ssh/ssh_host_*_key.pub"
-    deadline = time.monotonic() + READY_TIMEOUT_S
-    while time.monotonic() < deadline:
-        container.reload()
-        if container.status != "running":
-            raise LabError(f"{container.name} is {container.status}; see `docker logs {container.name}`")
-        code, out = container.exec_run(["sh", "-c", probe])
-        keys = [line for line in out.decode().splitlines() if line.strip()]
-        if code == 0 and keys:
-            return keys
-        time.sleep(0.5)
-    raise LabError(f"{container.name}: sshd not running after {READY_TIMEOUT_S}s")
 
 
 def register_robot(prefix: str, robot: str, public_key: str, enrollment: bool = False) -> bool:

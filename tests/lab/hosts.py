@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 import paramiko
 import yaml
 
-from . import gitserver, hostimage, services, state
+from . import gitserver, hostimage, services, sshd, state
 from .engine import (REPO_ROOT, LabError, client, get_or_none, pick_free_port,
                      published_ports, put_files, timed_phase)
 
@@ -153,7 +153,7 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     with timed_phase("wait for ssh"):
         lines = []
         for (_, _, arch), (container, port) in zip(wanted, started):
-            lines += [known_hosts_line(port, k) for k in _wait_for_host_keys(container, ready_timeout(arch))]
+            lines += [known_hosts_line(port, k) for k in sshd.wait_for_host_keys(container, ready_timeout(arch))]
         known_hosts.write_text("\n".join(lines) + "\n")
         for (_, _, arch), (container, port) in zip(wanted, started):
             _wait_for_ssh_login(container.name, port, key_path, known_hosts, ready_timeout(arch))
@@ -355,23 +355,6 @@ def _create_host(dc, prefix, host, group, image):
 def _read_file(container, path: str) -> str | None:
     code, out = container.exec_run(["cat", path])
     return out.decode() if code == 0 else None
-
-
-def _wait_for_host_keys(container, timeout: int = SSH_READY_TIMEOUT_S) -> list[str]:
-    """The host's public keys once its sshd runs."""
-    probe = "systemctl is-active --quiet ssh.service && cat /etc/ssh/ssh_host_*_key.pub"
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        container.reload()
-        if container.status != "running":
-            raise LabError(f"{container.name} is {container.status}; see `docker logs {container.name}`")
-        code, out = container.exec_run(["sh", "-c", probe])
-        keys = [line for line in out.decode().splitlines() if line.strip()]
-        if code == 0 and keys:
-            return keys
-        time.sleep(0.5)
-    raise LabError(f"{container.name}: sshd not running after {timeout}s "
-                   f"(docker exec {container.name} systemctl status ssh)")
 
 
 def _ssh_login_error(port: int, key_path: Path, known_hosts: Path) -> str | None:

@@ -17,7 +17,7 @@ import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from . import hostimage
+from . import apt_install, hostimage
 from .engine import (LAB_DIR, LabError, get_or_none, pick_free_port, published_ports,
                      put_files, timed_phase)
 
@@ -81,13 +81,7 @@ SERVICES_FILES = {
 }
 
 INSTALL_SCRIPT = f"""set -eu
-# No daemons may start inside the build.
-printf '#!/bin/sh\\nexit 101\\n' > /usr/sbin/policy-rc.d
-chmod 0755 /usr/sbin/policy-rc.d
-apt-get update
-DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends {' '.join(PACKAGES)}
-rm /usr/sbin/policy-rc.d
-systemctl enable apt-cacher-ng.service docker-registry.service robot-lab-static.service
+{apt_install.script(PACKAGES)}systemctl enable apt-cacher-ng.service docker-registry.service robot-lab-static.service
 systemctl disable ssh.service
 apt-get clean
 rm -rf /var/lib/apt/lists/*

@@ -171,3 +171,43 @@ class Registry:
     def close(self):
         self.server.shutdown()
         self.server.server_close()
+
+
+class Flood:
+    """A hostile mirror: ``directory`` served over plain HTTP on 127.0.0.1,
+    but ``path`` answers ``size`` bytes with no length announced (it ends
+    when the connection does); ``sent``: how many of them the client took
+    before closing.  A context manager; ``url``: the base URL."""
+
+    def __init__(self, directory: Path, path: str, size: int = 64 << 20):
+        self.sent = 0
+        flood = self
+
+        class Handler(_Quiet):
+            def do_GET(self):
+                if self.path.lstrip("/") != path:
+                    return super().do_GET()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/octet-stream")
+                self.send_header("Connection", "close")
+                self.end_headers()
+                self.close_connection = True
+                chunk = b"\x20" * 65536
+                try:
+                    for _ in range(size // len(chunk)):
+                        self.wfile.write(chunk)
+                        flood.sent += len(chunk)
+                except OSError:  # the client stopped reading and closed
+                    pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Handler,
+                                                                                          directory=str(directory)))
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.server.shutdown()
+        self.server.server_close()

@@ -35,3 +35,15 @@ def test_a_failed_write_keeps_the_old_file_and_removes_the_temp_file(tmp_path, m
         atomicfile.write(target, "new")
     assert target.read_text() == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["metrics.prom"]
+
+
+def test_keep_mode_keeps_the_mode_of_the_file_there_and_gives_a_new_one_the_mode_asked(tmp_path):
+    there = tmp_path / "known_hosts"
+    there.write_text("old")
+    there.chmod(0o640)
+    atomicfile.write(there, "new", mode=0o644, keep_mode=True)
+    assert there.read_text() == "new" and (there.stat().st_mode & 0o777) == 0o640
+    new = tmp_path / "ssh" / "known_hosts"
+    atomicfile.write(new, "new", mode=0o644, make_parents=True, keep_mode=True)
+    assert (new.stat().st_mode & 0o777) == 0o644
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["known_hosts", "ssh"]

@@ -2,7 +2,8 @@
 that the robot, booting it for the first time, converges itself to the
 current release and reports, with no inbound connection at any point.
 
-    <out>/rootfs.tar                    unpacked onto the image's root (owned by root, modes kept)
+    <out>/rootfs.tar                    unpacked onto the image's root (owned by root, modes kept;
+                                        of the directories, only the bundle's own)
         etc/robot-pull/agent.json       the robot's name, the fleet remote, the interval... (0600)
         etc/robot-pull/root.json        the release repository's root: its first trust (0600)
         etc/robot-pull/known_hosts      the git server's host keys
@@ -33,7 +34,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files
+from robotfleet.pull.protocol import agent_files, robot_key
 
 FIRST_BOOT = f"{agent_files.STATE}/first-boot"
 SCRIPT = "/usr/local/sbin/robot-pull-first-boot"
@@ -53,6 +54,8 @@ TimeoutStartSec=1h
 WantedBy=multi-user.target
 """
 
+# The key's comment: the robot's name, read from its config at boot.
+KEY_COMMENT = f'''"robot-pull@$(sed -n 's/.*"robot": "\\([^"]*\\)".*/\\1/p' {agent_files.CONFIG})"'''
 FIRST_BOOT_SCRIPT = f"""#!/bin/sh
 # robot-pull first boot (robotfleet/pull/operator/bundle.py): this robot's own keys,
 # the agent's venv and code from the bundle, then the agent's first check.
@@ -69,10 +72,7 @@ if ! python3 -c 'import ensurepip, venv' 2>/dev/null || ! command -v git >/dev/n
     DEBIAN_FRONTEND=noninteractive apt-get install -y -q python3-venv git openssh-client
 fi
 if [ ! -f {agent_files.KEY} ]; then
-    tmp=$(mktemp -d {agent_files.ETC}/.key.XXXXXX)
-    ssh-keygen -q -t ed25519 -N '' -C "robot-pull@$(sed -n 's/.*"robot": "\\([^"]*\\)".*/\\1/p' {agent_files.CONFIG})" -f "$tmp/key"
-    mv -T "$tmp/key.pub" {agent_files.KEY}.pub && mv -T "$tmp/key" {agent_files.KEY} && rmdir "$tmp"
-fi
+{robot_key.keygen_script(KEY_COMMENT)}fi
 mkdir -p "$state/venvs" "$state/code"
 id=$(cat "$fb/venv-id")
 if [ ! -x "$state/venvs/$id/bin/python" ]; then
@@ -184,18 +184,31 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     return public
 
 
+# The directories the bundle owns; the image's own (etc, usr, var, etc/systemd ...)
+# are left out, so that tar -xp neither changes their modes nor their owners.
+OWN_DIRECTORIES = (agent_files.ETC.lstrip("/"), agent_files.STATE.lstrip("/"))
+
+
 def _archive(rootfs: Path, tar_path: Path) -> None:
-    """rootfs as a tar owned by root (whoever made it), modes kept."""
+    """rootfs as a tar owned by root (whoever made it), modes kept but
+    never writable by group or others (whatever the operator's umask);
+    of the directories, only the bundle's own."""
     import tarfile
 
     def as_root(info: tarfile.TarInfo) -> tarfile.TarInfo:
         info.uid = info.gid = 0
         info.uname = info.gname = "root"
+        if not info.issym():
+            info.mode &= ~0o022
         return info
 
     with tarfile.open(tar_path, "w") as tar:
         for path in sorted(rootfs.rglob("*")):
-            tar.add(path, arcname=str(path.relative_to(rootfs)), recursive=False, filter=as_root)
+            name = str(path.relative_to(rootfs))
+            if path.is_dir() and not path.is_symlink() and not any(
+                    name == own or name.startswith(own + "/") for own in OWN_DIRECTORIES):
+                continue
+            tar.add(path, arcname=name, recursive=False, filter=as_root)
     os.chmod(tar_path, 0o600)
 
 

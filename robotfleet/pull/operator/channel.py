@@ -72,6 +72,7 @@ class GitChannel:
             _git(self.clone, "init", "--quiet")
         _git(self.clone, "remote", "remove", "fleet", check=False)
         _git(self.clone, "remote", "add", "fleet", self.url)
+        _git(self.clone, "config", "core.symlinks", "false")  # a link on the branch is checked out as a file
         fetched = _git(self.clone, "fetch", "--quiet", "--no-tags", "fleet",
                        f"+refs/heads/{BRANCH}:refs/remotes/fleet/{BRANCH}", check=False)
         if fetched.returncode == 0:

@@ -1,8 +1,9 @@
 """Where reports live on the fleet remote and how both sides read them:
 ``refs/reports/<robot>`` (the robot's own ref, which only it may write), a
-commit holding ``report.json``.  All of a fetch's reports are read with one
-``git cat-file`` (the operator's status at 10,000 robots, a robot's look at
-the earlier waves)."""
+commit holding ``report.json``.  Every reader goes through ``read`` (status,
+pull-enroll, rollout, a robot's look at the earlier waves): one ``git
+cat-file`` for all of a fetch's reports, each checked by its size before it
+is read, and nothing a robot pushed more than its own row."""
 
 from __future__ import annotations
 
@@ -10,33 +11,9 @@ import os
 import subprocess
 from pathlib import Path
 
-from robotfleet.pull.protocol.reports import ReportError, parse
-
-
-def read_reports(git, prefix: str, wanted: set[str] | None = None) -> dict[str, bytes]:
-    """name -> report.json of each commit under ``prefix`` (``git(what, *args, stdin=)``)."""
-    listed = git("reports", "for-each-ref", "--format=%(refname) %(objectname)", prefix).decode().split("\n")
-    refs = {}
-    for line in filter(None, listed):
-        name, _, commit = line.partition(" ")
-        robot = name[len(prefix):]
-        if wanted is None or robot in wanted:
-            refs[robot] = commit
-    if not refs:
-        return {}
-    batch = git("reports", "cat-file", "--batch",
-                stdin="".join(f"{commit}:report.json\n" for commit in refs.values()).encode())
-    found, at = {}, 0
-    for robot in refs:
-        end = batch.index(b"\n", at)
-        header = batch[at:end].split()
-        if len(header) == 3 and header[1] == b"blob":
-            size = int(header[2])
-            found[robot] = batch[end + 1:end + 1 + size]
-            at = end + 1 + size + 1
-        else:
-            at = end + 1  # "<name> missing"
-    return found
+from robotfleet.checkers import one_line
+from robotfleet.pull.protocol import catfile
+from robotfleet.pull.protocol.reports import MAX_BYTES, ReportError, parse
 
 
 def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
@@ -50,17 +27,38 @@ def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
 
 
 def read_all(cache: Path) -> dict[str, dict]:
-    """robot -> its parsed report, or {"error": line} when it cannot be read."""
-    def git(what, *args, stdin=None):
-        return _git(cache, *args, stdin=stdin)
+    """robot -> its parsed report, or {"robot", "error": line} when it cannot be read."""
+    return read(cache, "refs/reports/")
 
-    found = {}
-    for robot, data in read_reports(git, "refs/reports/").items():
-        try:
-            found[robot] = parse(data, robot)
-        except ReportError as error:
-            found[robot] = {"robot": robot, "error": str(error)}
-    return found
+
+def read(repo: Path, prefix: str, wanted: set[str] | None = None, timeout: int = 300) -> dict[str, dict]:
+    """robot -> the report of each ref ``<prefix><robot>`` of the local
+    repository ``repo`` (a commit holding report.json), parsed, or {"robot",
+    "error": line} when it cannot be read; ``wanted``: these robots only.
+    Every reader of reports goes through here (status, pull-enroll, rollout,
+    a robot's wave decision): nothing a robot pushed is more than its own
+    row, and no report is read whole into memory before its size is known."""
+    listed = _git(repo, "for-each-ref", "--format=%(refname) %(objectname)", prefix, timeout=timeout)
+    refs = {}
+    for line in filter(None, listed.decode(errors="replace").split("\n")):
+        name, _, commit = line.partition(" ")
+        robot = name[len(prefix):]
+        if wanted is None or robot in wanted:
+            refs[robot] = commit
+    try:
+        found = catfile.blobs(repo, [f"{commit}:report.json" for commit in refs.values()], MAX_BYTES, timeout)
+    except catfile.CatFileError as error:
+        raise ReportError(str(error)) from None
+    return {robot: _parsed(robot, data) for robot, data in zip(refs, found)}
+
+
+def _parsed(robot: str, data: bytes | str) -> dict:
+    try:
+        if isinstance(data, str):
+            raise ReportError(f"report of {robot}: report.json: {data}")
+        return parse(data, robot)
+    except ReportError as error:
+        return {"robot": robot, "error": one_line(str(error))}
 
 
 def _git(where: Path, *args: str, stdin: bytes | None = None, timeout: int = 300) -> bytes:

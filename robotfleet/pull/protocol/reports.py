@@ -34,6 +34,9 @@ FORMAT = 1
 RESULTS = ("applied", "up-to-date", "waiting", "halted", "refused", "rolled-back", "failed")
 FAILURES = ("rolled-back", "failed")
 MAX_BYTES = 256 * 1024
+# Arrays and objects within each other: a report has a few; json.loads would recurse into each.
+MAX_DEPTH = 64
+_NESTING = re.compile(rb'[][{}"\\]')
 _KEY = re.compile(r"(ssh-ed25519|ssh-rsa|ecdsa-sha2-nistp(256|384|521)) [A-Za-z0-9+/]+={0,3}")
 
 
@@ -130,9 +133,11 @@ def parse(data: bytes, ref_robot: str) -> dict:
     """A report as pushed to refs/reports/<ref_robot>; ReportError if it cannot be used."""
     if len(data) > MAX_BYTES:
         raise ReportError(f"report of {ref_robot}: larger than {MAX_BYTES} bytes")
+    if too_deep(data, MAX_DEPTH):
+        raise ReportError(f"report of {ref_robot}: nested deeper than {MAX_DEPTH} levels")
     try:
         raw = json.loads(data)
-    except ValueError:
+    except (ValueError, RecursionError):
         raise ReportError(f"report of {ref_robot}: not JSON") from None
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise ReportError(f"report of {ref_robot}: not a format {FORMAT} report")
@@ -171,6 +176,33 @@ def parse(data: bytes, ref_robot: str) -> dict:
         "check": {k: check[k] for k in ("sent", "received", "requests", "seconds", "cpu")
                   if isinstance(check.get(k), (int, float)) and not isinstance(check.get(k), bool)},
     }
+
+
+def too_deep(data: bytes, limit: int) -> bool:
+    """Whether JSON ``data`` has arrays and objects more than ``limit`` deep
+    (brackets in strings do not count); linear, and only counted when there
+    are more than ``limit`` opening brackets at all."""
+    if data.count(b"[") + data.count(b"{") <= limit:
+        return False
+    depth, in_string, escaped = 0, False, -1
+    for match in _NESTING.finditer(data):
+        at, char = match.start(), data[match.start()]
+        if at == escaped:
+            continue
+        if in_string:
+            if char == ord("\\"):
+                escaped = at + 1
+            elif char == ord('"'):
+                in_string = False
+        elif char == ord('"'):
+            in_string = True
+        elif char in b"[{":
+            depth += 1
+            if depth > limit:
+                return True
+        elif char in b"]}":
+            depth -= 1
+    return False
 
 
 def stale_limit(interval: int, jitter: int, stale_after: int, heartbeat: int) -> int:

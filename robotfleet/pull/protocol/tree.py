@@ -170,10 +170,39 @@ def _member_problem(member: tarfile.TarInfo) -> str | None:
     return None
 
 
+def _through_link(top: Path, name: str) -> str | None:
+    """A member whose path passes through (or is) a link already unpacked:
+    a link's depth is counted from its name, so its name's directories must
+    be real ones (``l -> .`` then ``l/l/up -> ../..`` would leave the tree)."""
+    at = top
+    for part in (p for p in name.split("/") if p not in ("", ".")):
+        at = at / part
+        try:
+            if stat.S_ISLNK(os.lstat(at).st_mode):
+                return f"{name!r}: a path through the link {str(at.relative_to(top))!r}"
+        except FileNotFoundError:
+            return None
+    return None
+
+
+def _link_leaving(top: Path) -> str | None:
+    """Once everything is unpacked: a link that resolves outside ``top``
+    through other links (each link alone was checked by its text)."""
+    real = os.path.realpath(top)
+    for directory, dirs, files in os.walk(top):
+        for name in dirs + files:
+            path = os.path.join(directory, name)
+            if os.path.islink(path) and os.path.commonpath([real, os.path.realpath(path)]) != real:
+                shown = os.path.relpath(path, top)
+                return f"{shown!r}: a link resolving outside the archive's directory ({os.readlink(path)})"
+    return None
+
+
 def unpack(archive, destination) -> None:
     """Unpack a code archive into ``destination`` (which must not exist):
     into a temp directory beside it, then renamed.  Anything that is not a
-    plain file, directory or link inside the tree is refused (TreeError)."""
+    plain file, directory or link inside the tree is refused (TreeError), as
+    is a path through a link and a link that other links take outside."""
     destination = Path(destination)
     if destination.exists():
         raise TreeError(f"{destination}: already exists")
@@ -181,7 +210,7 @@ def unpack(archive, destination) -> None:
     try:
         with tarfile.open(archive, "r:gz") as tar:
             for member in tar:
-                problem = _member_problem(member)
+                problem = _member_problem(member) or _through_link(temp, member.name)
                 if problem:
                     raise TreeError(f"{Path(archive).name}: {problem}")
                 target = temp / member.name
@@ -196,6 +225,9 @@ def unpack(archive, destination) -> None:
                         while chunk := source.read(1 << 20):
                             sink.write(chunk)
                     os.chmod(target, 0o755 if member.mode & 0o111 else 0o644)
+        problem = _link_leaving(temp)
+        if problem:
+            raise TreeError(f"{Path(archive).name}: {problem}")
         os.replace(temp, destination)
     except (tarfile.TarError, OSError, EOFError) as error:
         _remove(temp)

@@ -42,6 +42,7 @@ import time
 from pathlib import Path
 
 import robotfleet
+from robotfleet import atomicfile
 from robotfleet.pull.robot import release_run, trust_state
 from robotfleet.pull.protocol import agent_files, reports, waves
 from robotfleet.pull.robot import decide as deciding
@@ -75,12 +76,7 @@ def load_state(state: Path) -> dict:
 
 
 def save_state(state: Path, data: dict) -> None:
-    temp = state / f".{STATE_FILE}.{secrets.token_hex(4)}"
-    with open(os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), "w") as handle:
-        handle.write(json.dumps(data, sort_keys=True, indent=1) + "\n")
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(temp, state / STATE_FILE)
+    atomicfile.write(state / STATE_FILE, json.dumps(data, sort_keys=True, indent=1) + "\n")
 
 
 class Wake:
@@ -154,12 +150,8 @@ class Wake:
                 found = self.remote.fetch_reports(list(decision.earlier))
             except TransportError as error:
                 raise Outcome("waiting", f"the earlier waves' reports: {error}", wave=decision.wave) from None
-            failed = 0
-            for robot, data in found.items():
-                try:
-                    failed += reports.failed_for(reports.parse(data, robot), self.record.version)
-                except reports.ReportError:
-                    continue
+            failed = sum(reports.failed_for(report, self.record.version) for report in found.values()
+                         if "error" not in report)
             decision = deciding.decide(*args, failed=failed)
         return decision
 

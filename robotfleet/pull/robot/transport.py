@@ -6,7 +6,8 @@ in time, with the bytes each exchange moved.
   v2 asks the server for that one branch only, so an idle check moves a
   few kilobytes whatever the size of the fleet.
 - ``fetch_reports``: the reports of named robots (the waves before this
-  robot's), each asked for by its own prefix.
+  robot's), each asked for by its own prefix, read as the operator reads
+  them (``report_store.read``: each robot's own row, never another's).
 - ``push_report``: this robot's report as a one-file commit, force-pushed
   to ``refs/reports/<robot>`` (the only ref the server lets it write).
 
@@ -44,8 +45,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files
-from robotfleet.pull.protocol.report_store import read_reports
+from robotfleet.pull.protocol import agent_files, report_store, reports
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
@@ -254,22 +254,27 @@ class Remote:
             self._git("fetch", "fetch", "--quiet", "--no-tags", self.url, spec, network=True)
         commit = self._git("fetch", "rev-parse", LOCAL_BRANCH).decode().strip()
         # Whatever is in the directory is made the commit's again (nothing
-        # left over is read as part of the repository).
-        self._git("checkout", "checkout", "-q", "--force", "--detach", commit)
+        # left over is read as part of the repository); a link the branch
+        # holds is checked out as a file holding its target's name, never a link.
+        self._git("checkout", "-c", "core.symlinks=false", "checkout", "-q", "--force", "--detach", commit)
         self._git("checkout", "clean", "-q", "-d", "-x", "--force")
         return commit
 
     # -- reports -----------------------------------------------------------
 
-    def fetch_reports(self, robots: list[str]) -> dict[str, bytes]:
-        """robot -> its report.json as the remote has it now (robots without one left out)."""
+    def fetch_reports(self, robots: list[str]) -> dict[str, dict]:
+        """robot -> its report as the remote has it now, parsed, or {"robot",
+        "error"} when it cannot be read (robots without a report ref left out)."""
         if not robots:
             return {}
         self._init()
         specs = [f"+refs/reports/{robot}*:refs/fleet-reports/{robot}*" for robot in sorted(set(robots))]
         self._git("reports", "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", self.url, *specs,
                   network=True)
-        return read_reports(self._git, "refs/fleet-reports/", set(robots))
+        try:
+            return report_store.read(self.repo, "refs/fleet-reports/", set(robots), self.timeout)
+        except reports.ReportError as error:
+            raise TransportError(f"reports: {error}") from None
 
     def push_report(self, robot: str, report: bytes) -> str:
         """Force-push ``report`` as refs/reports/<robot>; the commit id."""

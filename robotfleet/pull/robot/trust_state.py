@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from robotfleet import atomicfile
+from robotfleet.pull.robot import fetched
 from robotfleet.pull.protocol import record as records
 
 STATE_FORMAT = 1
@@ -75,22 +76,12 @@ def write_state(state_dir, state: State) -> None:
 
 def _read(source: str, path: str) -> bytes | None:
     """One file of the repository at ``source`` (a directory, or an
-    http(s):// base URL); None when it is not there (HTTP 404)."""
+    http(s):// base URL), at most the cap of its kind, never through a
+    link (robotfleet/pull/robot/fetched.py); None when it is not there (HTTP 404)."""
+    limit = fetched.metadata_max(path) if path.startswith("metadata/") else records.MAX_BYTES
     if source.startswith(("https://", "http://")):
-        import urllib.error
-        import urllib.request
-
-        try:
-            with urllib.request.urlopen(source.rstrip("/") + "/" + path, timeout=60) as answer:
-                return answer.read()
-        except urllib.error.HTTPError as error:
-            if error.code in (403, 404):
-                return None
-            raise OSError(f"HTTP {error.code}") from None
-    try:
-        return Path(source, path).read_bytes()
-    except FileNotFoundError:
-        return None
+        return fetched.read_url(source.rstrip("/") + "/" + path, limit)
+    return fetched.read(source, path, limit)
 
 
 def fingerprint(source, reads) -> str | None:

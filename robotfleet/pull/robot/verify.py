@@ -39,7 +39,7 @@ from tuf.api.metadata import Metadata, Root
 from tuf.ngclient import FetcherInterface, Updater, UpdaterConfig
 
 from robotfleet.pull.protocol import record as records
-from robotfleet.pull.robot import trust_state, tufprivate
+from robotfleet.pull.robot import fetched, trust_state, tufprivate
 from robotfleet.pull.robot.trust_state import EPOCH, STATE_FORMAT, State  # noqa: F401 (where they were)
 
 # Why a refresh or a download was refused (machine-readable, in reports).
@@ -131,34 +131,45 @@ def trusted_root(state_dir) -> bytes:
 
 class DirectoryFetcher(FetcherInterface):
     """Reads ``file://`` URLs under one directory (the fetched releases
-    branch); anything missing or outside it answers like an HTTP 404."""
+    branch), never through a link and only regular files
+    (robotfleet/pull/robot/fetched.py), in chunks (ngclient stops at the cap of
+    each file); anything missing or outside it answers like an HTTP 404."""
 
     def __init__(self, base):
         self.base = Path(base).resolve()
 
     def _fetch(self, url: str):
         parts = parse.urlsplit(url)
-        path = Path(parse.unquote(parts.path)).resolve()
-        if parts.scheme != "file" or (self.base not in path.parents) or not path.is_file():
+        path = Path(parse.unquote(parts.path))
+        if parts.scheme != "file" or self.base not in path.parents or ".." in path.parts:
             raise exceptions.DownloadHTTPError(f"{url}: no such file", 404)
-        with open(path, "rb") as handle:
-            data = handle.read()
-        return iter([data])
+        relative = path.relative_to(self.base).as_posix()
+        try:
+            fd = fetched.open_file(self.base, relative)
+        except FileNotFoundError:
+            raise exceptions.DownloadHTTPError(f"{url}: no such file", 404) from None
+        return fetched.chunks(fd, where=f"{self.base}/{relative}")
 
 
 class _Recording(FetcherInterface):
-    """The fetcher in use, keeping the last metadata file it read (to say
-    whether a signature failed for want of one, an unknown key or a change)."""
+    """The fetcher in use, keeping the last metadata file it read whole (to
+    say whether a signature failed for want of one, an unknown key or a
+    change); chunks pass as they come, so ngclient's caps hold."""
 
     def __init__(self, inner: FetcherInterface):
         self.inner = inner
         self.last: bytes | None = None
 
     def _fetch(self, url: str):
-        data = b"".join(self.inner.fetch(url))
-        if "/metadata/" in url:
-            self.last = data
-        return iter([data])
+        chunks = self.inner.fetch(url)
+        return self._kept(chunks) if "/metadata/" in url else chunks
+
+    def _kept(self, chunks):
+        kept = []
+        for chunk in chunks:
+            kept.append(chunk)
+            yield chunk
+        self.last = b"".join(kept)
 
 
 def _first_line(error: BaseException) -> str:
@@ -181,6 +192,13 @@ def _unsigned_reason(data: bytes | None, metadata_dir: Path) -> tuple[str, str]:
     if not keyids & set(md.signatures):
         return UNKNOWN_KEY, role
     return TAMPERED, role
+
+
+def _config() -> UpdaterConfig:
+    """ngclient's settings; a metadata file's cap is the one the cheap check reads by (fetched.py)."""
+    return UpdaterConfig(app_user_agent="robotfleet", root_max_length=fetched.ROOT_MAX,
+                         timestamp_max_length=fetched.TIMESTAMP_MAX, snapshot_max_length=fetched.SNAPSHOT_MAX,
+                         targets_max_length=fetched.TARGETS_MAX)
 
 
 class Client:
@@ -225,8 +243,8 @@ class Client:
             metadata_url, targets_url, fetcher = self._bases()
             recording = _Recording(fetcher or _https_fetcher())
             try:
-                updater = Updater(str(work), metadata_url, None, targets_url, recording,
-                                  UpdaterConfig(app_user_agent="robotfleet"), bootstrap=None)
+                updater = Updater(str(work), metadata_url, None, targets_url, recording, _config(),
+                                  bootstrap=None)
                 tufprivate.set_reference_time(updater, self.reference_time)
                 updater.refresh()
                 raw, release_file = self._release_bytes(updater, work)
