@@ -96,7 +96,7 @@ def test_over_http_the_same_files_are_read(fleet):
 
 def reads(fleet) -> list[str]:
     """What the last full verification read, as the next check reads it."""
-    return json.loads((fleet.state / trusted.VERIFIED).read_text())["reads"]
+    return json.loads((fleet.state / trust_state.VERIFIED).read_text())["reads"]
 
 
 def test_a_link_to_dev_zero_is_not_read(fleet):
@@ -109,7 +109,7 @@ def test_a_link_to_dev_zero_is_not_read(fleet):
                           capture_output=True, text=True, timeout=120)
     assert (done.returncode, done.stdout.strip()) == (0, "None"), done.stderr[-2000:]
     with pytest.raises(OSError, match="2.root.json: a symbolic link, not read"):
-        trusted._read(str(fleet.repository.path), "metadata/2.root.json")
+        trust_state._read(str(fleet.repository.path), "metadata/2.root.json")
     assert recall(fleet) is None
 
 
@@ -135,13 +135,13 @@ def test_what_is_not_a_regular_file_within_its_cap_is_refused(fleet, tmp_path, p
         (metadata / "timestamp.json").write_bytes(b" " * 16385)  # python-tuf's cap is 16384
         says = "timestamp.json: larger than 16384 bytes"
     with pytest.raises(OSError, match=says):
-        trusted._read(str(fleet.repository.path), "metadata/timestamp.json")
+        trust_state._read(str(fleet.repository.path), "metadata/timestamp.json")
     assert recall(fleet) is None
 
 
 def test_an_endless_answer_of_a_mirror_is_read_only_to_its_cap(fleet):
     with pullkit.Flood(fleet.repository.path, "metadata/timestamp.json") as mirror:
-        assert trusted.fingerprint(mirror.url, reads(fleet)) is None
+        assert trust_state.fingerprint(mirror.url, reads(fleet)) is None
         with pytest.raises(OSError, match="timestamp.json: larger than 16384 bytes"):
-            trusted._read(mirror.url, "metadata/timestamp.json")
+            trust_state._read(mirror.url, "metadata/timestamp.json")
     assert mirror.sent < 24 << 20  # of 64 MiB: what the sockets' buffers took, no more
