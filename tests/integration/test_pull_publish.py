@@ -99,7 +99,7 @@ def robot_fetch(site) -> Path:
 
 
 def robot_refresh(site):
-    trust = pullkit.module("trust")
+    trust = pullkit.module("robot.verify")
     copy = robot_fetch(site)
     state = site["robot"] / "state"
     if not state.exists():
@@ -123,7 +123,7 @@ def test_publish_binds_commit_tree_fleet_and_digests_and_a_robot_verifies_it(sit
     assert record.images["robot1"] == {f"{registry.address}/ros/payload:1.1": "sha256:" + pullkit.hashlib.sha256(one).hexdigest()}
     assert record.images["robot2"] == {f"{registry.address}/ros/payload:1.2": registry.tag("ros/payload", "1.2", "two")}
     got = client.download([record.code], site["robot"] / "targets")
-    tree = pullkit.module("tree")
+    tree = pullkit.module("protocol.tree")
     tree.unpack(got[record.code], site["robot"] / "code")
     assert tree.tree_sha256(tree.entries_of_directory(site["robot"] / "code")) == record.tree_sha256
     fleet = (site["robot"] / "code" / record.fleet["path"]).read_bytes()
@@ -192,7 +192,7 @@ def test_publish_without_keys_says_where_it_looked(site, tmp_path):
 def test_to_dir_is_served_over_http(site):
     out = site["base"] / "www"
     publish(site, "--to-dir", out)
-    trust = pullkit.module("trust")
+    trust = pullkit.module("robot.verify")
     trust.initialize(site["robot"] / "state", (out / "metadata" / "root.json").read_bytes())
     with pullkit.static_http(out) as url:
         record = trust.Client(site["robot"] / "state", url).refresh()
@@ -257,7 +257,7 @@ def test_offline_root_key_prepare_sign_install(site):
 
 
 def test_two_publishers_racing_one_is_refused(site):
-    channel = pullkit.module("channel")
+    channel = pullkit.module("operator.channel")
     first = channel.GitChannel(site["checkout"], "origin", clone=site["base"] / "a")
     second = channel.GitChannel(site["checkout"], "origin", clone=site["base"] / "b")
     for chosen in (first, second):
