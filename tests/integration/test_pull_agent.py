@@ -31,7 +31,7 @@ args = sys.argv[1:]
 if os.environ.get("STUB_LOG"):
     with open(os.environ["STUB_LOG"], "a") as runs:
         runs.write(args[0] + "\\n")
-watch = getattr(layout, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
+watch = getattr(agent_files, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
 row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"),
        "health": os.environ.get("STUB_HEALTH", "healthy")}
 if args[0] == "status":
