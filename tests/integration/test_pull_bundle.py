@@ -102,3 +102,15 @@ def test_a_bundle_for_an_image_shared_by_many_robots_carries_the_name_rule(tmp_p
     assert (config.robot, config.name_rule, config.name_prefix, config.interval) == ("", "machine-id", "arm-", 60)
     assert layout.named(config, read=lambda rule: "0123456789abcdef0123456789abcdef\n").robot == "arm-0123456789ab"
     assert "arm-<machine-id> (with the settings of robot9)" in (tmp_path / "out" / "README").read_text()
+
+
+def test_a_new_bundle_for_an_enrolled_robot_keeps_the_key_it_was_enrolled_with(tmp_path):
+    from robotfleet.pull import enrollment
+
+    path = tmp_path / "enrollments.json"
+    bundle.remember(path, "robot9", KEY, 4)
+    enrollment.record(path, "robot9", KEY)
+    bundle.remember(path, "robot9", KEY.replace("AAAAIGbig", "AAAAIGbiX"), 5)  # a new bundle: a new enrollment key
+    kept = enrollment.read_kept(path)
+    assert enrollment.enrolled_key(kept, "robot9") == bundle.key_sha256(KEY)  # a second key stays refused
+    assert kept["robot9"]["release"] == 5 and path.stat().st_mode & 0o077 == 0
