@@ -83,6 +83,7 @@ class Operator:
                f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.git['known_hosts'])}")
         return dict(os.environ, GIT_SSH_COMMAND=ssh, ROBOTFLEET_KEYS=str(self.keys), GIT_TERMINAL_PROMPT="0",
                     ROBOTFLEET_RELEASES_CLONE=str(self.base / "releases"), ROBOT_LAB_PREFIX=self.prefix,
+                    ROBOTFLEET_ENROLLMENTS=str(self.base / "enrollments.json"),
                     XDG_CACHE_HOME=str(REPO_ROOT / ".lab" / "cache" / "pull"), **more)
 
     def _git(self, *args: str) -> str:
