@@ -122,9 +122,8 @@ def changed(host: Target, key, there: dict, choices: Choices) -> tuple[str, str]
     new = f"{key.get_name()} {hostkeys.fingerprint(key)}"
     head = f"{host.name}: host key CHANGED for {host.entry}: {host.known_hosts} has {old}, the host offers {new}"
     if host.name not in choices.replace:
-        return "refused", (f"{head}; refused, its line is left as it is (if the robot was reinstalled, record its "
-                           f"new fingerprint and replace it: robotfleet enroll {choices.inventory} --replace {host.name} "
-                           "--fingerprints FILE)")
+        return "refused", (f"{head}; refused, its line is left as it is "
+                           f"({connect.replace_advice(choices.inventory, host.name)})")
     recorded = recorded_for(host, choices.expected)
     if recorded is None:
         return "refused", f"{head}; not in {choices.source}: not replaced, its line is left as it is"
