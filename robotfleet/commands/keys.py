@@ -75,7 +75,7 @@ def init(args) -> int:
 
 def show(args) -> int:
     keys = pulling.keys_of(args)
-    chosen, repository = pulling.opened(args)
+    chosen, repository = pulling.opened(args, writes=False)
     if not repository.exists():
         raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
     root = repository.root().signed
@@ -98,7 +98,7 @@ def _next_key(keys, name: str):
 
 def prepare(args) -> int:
     keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
-    chosen, repository = pulling.opened(args)
+    chosen, repository = pulling.opened(args, writes=False)
     if not repository.exists():
         raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
     online = root_key = None

@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     parser = commands.parser("pull-enroll", __doc__)
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
-    parser.add_argument("--remote", metavar="NAME|URL", help="the fleet remote (default: the checkout's origin)")
+    parser.add_argument("--remote", metavar="NAME|URL", help="the releases remote (default: the one the fleet names)")
     parser.add_argument("--ssh", action="store_true", help="read the key of robots without a report over SSH")
     add_admin(parser)
     args = parser.parse_args(argv)
@@ -93,7 +93,7 @@ def main(argv=None) -> int:
         chosen = [h for h in selection.select(inventory, args.inventory, args.limit) if h.data.get("pull")]
         if not chosen:
             raise selection.Refused(f"{args.inventory}: no pull robot (pull: true) to enroll")
-        url = pullstatus.remote_of(args.remote)
+        url = pullstatus.remote_of(args.remote, [(h.name, h.data) for h in chosen])
         found = pullstatus.fetch(url)
     except (selection.Refused, pullstatus.ReportsUnavailable) as error:
         return selection.refused(selection.Refused(str(error)))
