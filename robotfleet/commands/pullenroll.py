@@ -82,7 +82,7 @@ def keys_over_ssh(inventory, hosts) -> dict[str, str]:
 def main(argv=None) -> int:
     parser = commands.parser("pull-enroll", __doc__)
     parser.add_argument("inventory")
-    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
+    parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--remote", metavar="NAME|URL", help="the releases remote (default: the one the fleet names)")
     parser.add_argument("--ssh", action="store_true", help="read the key of robots without a report over SSH")
     add_admin(parser)

@@ -262,8 +262,7 @@ def main(argv=None) -> int:
 
     parser = commands.parser("status", __doc__)
     parser.add_argument("inventory")
-    parser.add_argument("--limit", action="append", default=[],
-                        help="groups or host globs, comma-separated (&group: also in it, !host: not it)")
+    parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--json", action="store_true", help="machine-readable output (--format json)")
     parser.add_argument("--format", choices=("table", "json", "openmetrics"), default=None,
                         help="what to print: the table (default), JSON, or OpenMetrics text")
