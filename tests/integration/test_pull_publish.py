@@ -373,3 +373,11 @@ def test_a_releases_remote_that_does_not_exist_is_one_sentence_naming_the_fix(si
     assert done.stderr == (f"publish: cannot read the releases remote {missing}: '{missing}' does not appear to be a "
                            "git repository; check its URL (--remote, git config robotfleet.remote or the robots' "
                            "pull_remote) and that you may read it.\n")
+
+
+def test_halting_before_any_release_is_refused_in_one_sentence(site):
+    done = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
+    assert done.returncode == 2
+    assert done.stderr.startswith("halt: ") and done.stderr.endswith(": no release to halt; there is nothing for "
+                                                                      "robots to stop.\n")
+    assert git(site["remote"], "branch", "--list", "robotfleet/releases") == ""
