@@ -77,7 +77,7 @@ def show(args) -> int:
     keys = pulling.keys_of(args)
     chosen, repository = pulling.opened(args, writes=False)
     if not repository.exists():
-        raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise pulling.Failed(f"{chosen.url}: no release repository yet; the first robotfleet publish makes it")
     root = repository.root().signed
     print(f"root version {root.version}, expires {root.expires:%Y-%m-%dT%H:%M:%SZ}")
     for role, info in sorted(root.roles.items()):
@@ -100,7 +100,7 @@ def prepare(args) -> int:
     keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
     chosen, repository = pulling.opened(args, writes=False)
     if not repository.exists():
-        raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise pulling.Failed(f"{chosen.url}: no release repository yet; the first robotfleet publish makes it")
     online = root_key = None
     if args.which == "online":
         online = _next_key(keys, NEXT_ONLINE)
@@ -160,7 +160,7 @@ def rotate(args) -> int:
     root_signer = keyfiles.signer_of(args.root_key) if args.root_key else keys.signer(ROOT)
     chosen, repository = pulling.opened(args)
     if not repository.exists():
-        raise pulling.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise pulling.Failed(f"{chosen.url}: no release repository yet; the first robotfleet publish makes it")
     if args.which == "online":
         new = _next_key(keys, NEXT_ONLINE)
         data = sign_root(repository.prepare_root(expiry, pulling.now(), online_key=new), [root_signer])
