@@ -41,7 +41,8 @@ def network_reason(error: Exception, address: str, port: int, timeout: float,
     if isinstance(error, socket.gaierror):
         return f"cannot resolve {address} ({error.strerror})", False
     if isinstance(error, (socket.timeout, TimeoutError)):
-        return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True
+        return (f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a "
+                "firewall)"), True
     if isinstance(error, SSHException):
         text = str(error)
         if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):

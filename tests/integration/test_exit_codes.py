@@ -135,7 +135,8 @@ def test_pull_enroll_and_bundle_refuse_a_robot_that_does_not_pull(tmp_path):
     result = run(path, tmp_path, "-m", "robotfleet", "pull-enroll", "inventories/robots.py")
     assert (result.returncode, result.stderr) == (2, "inventories/robots.py: no pull robot (pull: true) to enroll\n")
     result = run(path, tmp_path, "-m", "robotfleet", "bundle", "robot1", "--out", str(tmp_path / "b"))
-    assert result.returncode == 2 and result.stderr.startswith("bundle: ") and "robot1 is not a pull robot" in result.stderr
+    assert result.returncode == 2 and result.stderr.startswith("bundle: ")
+    assert "robot1 is not a pull robot" in result.stderr
     assert not (tmp_path / "b").exists()
 
 

@@ -341,7 +341,8 @@ def test_the_pull_robots_pull_remote_is_the_default(site, tmp_path):
     done = robotfleet_cmd("keys", "show", "--checkout", site["checkout"], "--keys", site["keys"],
                           env={"ROBOT_FLEET": str(fleet)}, check=False)
     assert done.returncode == 1, done.stderr
-    assert done.stderr.startswith(f"keys: cannot read the releases remote {url}: ") and len(done.stderr.splitlines()) == 1
+    assert done.stderr.startswith(f"keys: cannot read the releases remote {url}: ")
+    assert len(done.stderr.splitlines()) == 1
     assert done.stderr.endswith("; check its URL (--remote, git config robotfleet.remote or the robots' pull_remote) "
                                 "and that you may read it.\n")
 

@@ -22,7 +22,8 @@ def paramiko_s(code: int, text: str) -> NoValidConnectionsError:
 @pytest.mark.parametrize("code, text, said", [
     (errno.EHOSTUNREACH, "No route to host", "no route to 192.0.2.200:22 (No route to host)"),
     (errno.ENETUNREACH, "Network is unreachable", "no route to 192.0.2.200:22 (Network is unreachable)"),
-    (errno.ECONNREFUSED, "Connection refused", "connection refused by 192.0.2.200:22 (no SSH server listens on port 22)"),
+    (errno.ECONNREFUSED, "Connection refused",
+     "connection refused by 192.0.2.200:22 (no SSH server listens on port 22)"),
     (errno.ETIMEDOUT, "Connection timed out", "timed out after 10 s connecting to 192.0.2.200:22 (no answer: powered "
                                               "off, wrong address or a firewall)"),
 ])
