@@ -86,13 +86,20 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
         return selection.OK
     from robotfleet.commands import halt as halting
     from robotfleet.commands import publish as publishing
+    from robotfleet.commands import releasesremote
 
+    given = args.remote
+    try:  # one remote for the publish and a halt, as the fleet the release carries names it
+        args.remote = releasesremote.of(robotfleet.CHECKOUT, args.remote, fleet=publish_argv(args, plan)[0])
+    except releasesremote.Unnamed as error:
+        print(f"rollout: {error}", file=sys.stderr)
+        return selection.REFUSED
     if publishing.main(publish_argv(args, plan)) != 0:
         return selection.FAILED
     clone = Path(os.environ.get(channel.CLONE_ENV) or robotfleet.CHECKOUT / ".robotfleet" / "releases")
     record = Repository(clone).record()
     robots = list(record.robots)
-    url = pullstatus.remote_of(args.remote, hosts)
+    url = pullstatus.remote_of(given, hosts)
     allowed = waves.allowed_failures(plan.max_failed, len(robots))
     print(f"rollout: release {record.version} published for {len(robots)} robot(s); following their reports "
           f"on {url} (budget: {allowed} failure(s))", file=sys.stderr, flush=True)
