@@ -106,7 +106,8 @@ def prepare(args) -> int:
         online = _next_key(keys, NEXT_ONLINE)
     elif args.which == "root":
         if not args.root_public:
-            raise pulling.Failed("prepare root: --root-public NEW.pub (robotfleet keys generate NEW.key, offline)")
+            raise pulling.Failed("prepare root needs --root-public NEW.pub: make the new root key offline first "
+                                 "(robotfleet keys generate NEW.key) and give its .pub file")
         root_key = keyfiles.public_of(args.root_public)
     data = repository.prepare_root(expiry, pulling.now(), online_key=online, root_key=root_key)
     args.out.write_bytes(data)
