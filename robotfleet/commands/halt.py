@@ -29,7 +29,7 @@ def parse_args(argv: list[str]):
 
 def halt(args) -> int:
     if "\n" in args.reason or len(args.reason) > 500:
-        raise pulling.Failed("--reason: one line of at most 500 characters")
+        raise pulling.Failed("--reason: give one line of at most 500 characters; nothing was halted")
     keys, expiry = pulling.keys_of(args), pulling.expiry_of(args)
     keys.signer("online")
     chosen, repository = pulling.opened(args)

@@ -173,8 +173,8 @@ def judge(host, report: dict, asked: Asked) -> tuple[str, str]:
 def main(argv=None) -> int:
     parser = commands.parser("pull-enroll", __doc__)
     parser.add_argument("inventory")
-    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
-    parser.add_argument("--remote", metavar="NAME|URL", help="the fleet remote (default: the checkout's origin)")
+    parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
+    parser.add_argument("--remote", metavar="NAME|URL", help="the releases remote (default: the one the fleet names)")
     parser.add_argument("--ssh", action="store_true",
                         help="read the key of robots without a report (or a proven one) over SSH")
     parser.add_argument("--fingerprints", metavar="FILE",
@@ -195,7 +195,7 @@ def main(argv=None) -> int:
         if unknown:
             raise selection.Refused(f"--replace {' '.join(unknown)}: no such pull robot selected in {args.inventory}; "
                                     "nothing was done")
-        url = pullstatus.remote_of(args.remote)
+        url = pullstatus.remote_of(args.remote, [(h.name, h.data) for h in chosen])
         found = pullstatus.fetch(url)
     except (OSError, ValueError) as error:
         return selection.refused(selection.Refused(one_line(str(error))))

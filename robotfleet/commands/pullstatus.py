@@ -17,6 +17,7 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet.checkers import one_line
+from robotfleet.commands import releasesremote
 from robotfleet.pull import channel, reports
 from robotfleet.pull.record import parse_time
 from robotfleet.role import Metric
@@ -29,13 +30,13 @@ class ReportsUnavailable(Exception):
     """The fleet remote's reports cannot be read (one line)."""
 
 
-def remote_of(given: str | None, checkout: Path = robotfleet.CHECKOUT) -> str:
-    """The fleet remote to read reports from: --remote, else the checkout's origin."""
+def remote_of(given: str | None, hosts=(), checkout: Path = robotfleet.CHECKOUT) -> str:
+    """The remote to read the pull hosts' [(name, data)] reports from: --remote, else the fleet's releases
+    remote as releasesremote.py names it (their pull_report_remote where set)."""
     try:
-        return channel.remote_url(checkout, given or "origin")
-    except channel.ChannelError as error:
-        raise ReportsUnavailable(f"no fleet remote to read the pull robots' reports from ({error}); "
-                                 "give --remote URL") from None
+        return channel.remote_url(checkout, releasesremote.of(checkout, given, hosts=list(hosts), reports=True))
+    except (channel.ChannelError, releasesremote.Unnamed) as error:
+        raise ReportsUnavailable(f"no remote to read the pull robots' reports from: {error}") from None
 
 
 def fetch(url: str, cache: Path | None = None) -> dict[str, dict]:

@@ -97,7 +97,8 @@ class Operator:
         if not (self.repo / ".git").exists():
             self.repo.mkdir(parents=True, exist_ok=True)
             self._git("init", "-q", "-b", "main")
-            self._git("remote", "add", "origin", gitserver.local_url(self.git))
+            # the fleet's releases remote, named once (a deploy repository's own origin is refused by default)
+            self._git("config", "robotfleet.remote", gitserver.local_url(self.git))
             (self.repo / ".lab").symlink_to(REPO_ROOT / ".lab")  # inventories/lab.py reads the running lab there
         if not (self.keys / "online.key").exists():
             self.robotfleet("keys", "init", "--keys", str(self.keys))
