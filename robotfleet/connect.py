@@ -32,12 +32,10 @@ behaviour: only the target's connection is handled here.
 
 from __future__ import annotations
 
-import errno
 import getpass
 import logging
 import os
 import shlex
-import socket
 import time
 from dataclasses import dataclass
 from random import uniform
@@ -46,13 +44,14 @@ from gevent import monkey
 from paramiko import AuthenticationException, BadHostKeyException, HostKeys, MissingHostKeyPolicy, SSHException
 from paramiko import SSHClient as ParamikoClient
 from paramiko.agent import Agent
-from paramiko.ssh_exception import BadAuthenticationType, NoValidConnectionsError
+from paramiko.ssh_exception import BadAuthenticationType
 from pyinfra.api.exceptions import ConnectError, PyinfraError
 from pyinfra.connectors import ssh
 from pyinfra.connectors.ssh_util import _patch_paramiko_sk_key_support
 from pyinfra.connectors.sshuserclient import client as sshuserclient
 
 from robotfleet import hostcerts, hostkeys
+from robotfleet.reasons import network_reason, short_reason  # noqa: F401 (enroll and status read them here)
 
 CONNECTOR = "fleet"
 PARAMIKO_LOG = "robotfleet.connect.paramiko"
@@ -99,6 +98,13 @@ def unreachable(reason: str) -> bool:
 
 def enroll_command(host: str) -> str:
     return f"robotfleet enroll {shlex.quote(INVENTORY)} --limit {shlex.quote(host)}"
+
+
+def replace_advice(inventory: str, host: str) -> str:
+    """The one instruction for a changed host key, wherever it is met (a deploy, status, enroll): never trust
+    the new key on first use, replace it only when it matches a fingerprint recorded for the robot."""
+    return (f"if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
+            f"{shlex.quote(inventory)} --replace {shlex.quote(host)} --fingerprints FILE")
 
 
 class UnknownHostKey(SSHException):
@@ -303,8 +309,8 @@ class FleetConnector(ssh.SSHConnector):
             return error.reason, False
         if isinstance(error, BadHostKeyException):
             return (f"host key CHANGED: {known_hosts} has {hostkeys.fingerprint(error.expected_key)} for "
-                    f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused (if the robot "
-                    f"was reinstalled, delete its line and enroll it again: {enroll_command(self.host.name)})"), False
+                    f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused "
+                    f"({replace_advice(INVENTORY, self.host.name)})"), False
         if isinstance(error, PyinfraError):  # e.g. the ssh_key file is missing or unreadable
             return f"cannot connect: {error}", False
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
@@ -353,47 +359,3 @@ def idle_wakeup(keep_alive: int, gevent_sockets: bool) -> float | None:
     if not gevent_sockets:
         return None
     return float(min(IDLE_WAKEUP_SECONDS, keep_alive)) if keep_alive else IDLE_WAKEUP_SECONDS
-
-
-def network_reason(error: Exception, address: str, port: int, timeout: float,
-                   elapsed: float | None = None) -> tuple[str, bool]:
-    """Why reaching ``address:port`` failed, in words, and whether trying
-    again may help (a host key or login failure is told by the connector).
-    ``timeout``: the attempt's limit; ``elapsed``: how long it took."""
-    at = f"{address}:{port}"
-    timeout = f"{timeout:.0f}" if timeout >= 1 else f"{timeout:.1f}"
-    elapsed = float(timeout) if elapsed is None else elapsed
-    if isinstance(error, ConnectionRefusedError):
-        return f"connection refused by {at} (no SSH server listens on port {port})", True
-    if isinstance(error, NoValidConnectionsError):
-        codes = {e.errno for e in error.errors.values()}
-        if codes <= {errno.ECONNREFUSED}:
-            return f"connection refused by {at} (no SSH server listens on port {port})", True
-        return f"cannot connect to {at} ({error.strerror or error})", True
-    if isinstance(error, socket.gaierror):
-        return f"cannot resolve {address} ({error.strerror})", False
-    if isinstance(error, (socket.timeout, TimeoutError)):
-        return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True
-    if isinstance(error, SSHException):
-        text = str(error)
-        if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):
-            return (f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
-                    "e.g. MaxStartups, or a firewall)"), True
-        if "Indecipherable protocol version" in text or (
-                "Error reading SSH protocol banner" in text and elapsed < float(timeout) - 0.5):
-            # paramiko waits 2 s for each line after a first one that is not SSH's
-            return (f"not an SSH server: {at} answered, but not with an SSH greeting (another service on that "
-                    "port? wrong port?)"), False
-        if "Error reading SSH protocol banner" in text:
-            return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
-                    f"{timeout} s (wrong port?)"), False
-        if "No existing session" in text or "Unable to connect" in text:
-            return f"the SSH session to {at} closed during the handshake", True
-        return f"SSH error from {at}: {text}", False
-    if isinstance(error, EOFError):
-        return f"connection closed by {at} during the SSH handshake", True
-    if isinstance(error, OSError):
-        if error.errno in (errno.EHOSTUNREACH, errno.ENETUNREACH):
-            return f"no route to {at} ({error.strerror})", True
-        return f"cannot connect to {at} ({error.strerror or error})", True
-    return f"cannot connect to {at} ({type(error).__name__}: {error})", False

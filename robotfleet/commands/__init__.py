@@ -2,6 +2,9 @@
 
 import argparse
 
+# --limit's help, the same for every command that takes it (docs/fleet-file.md#--limit).
+LIMIT_HELP = "groups or host globs, comma-separated (&group: also in it, !host: not it); repeatable"
+
 
 def parser(name: str, doc: str) -> argparse.ArgumentParser:
     """A command's parser: ``robotfleet NAME``, its module's docstring as

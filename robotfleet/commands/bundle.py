@@ -11,7 +11,7 @@ repository), robot-pull's units and a first-boot unit, and a single-use
 enrollment key; DIR/README says how.  With --admin (a gitolite you
 administer) the enrollment key is registered there as ROBOT's, allowed what
 the robot's own key will be; the hash of its public half is kept in
-.robotfleet/enrollments.json.  After the robot's first report,
+.robotfleet/enrollments.json (or $ROBOTFLEET_ENROLLMENTS).  After the robot's first report,
 `robotfleet pull-enroll` swaps it for the robot's own key.  With
 --name-from, the bundle is for an image shared by many robots: ROBOT is
 the fleet entry whose settings they start with, each robot names itself
@@ -31,10 +31,9 @@ from robotfleet import commands, roster
 from robotfleet import selection
 from robotfleet.pull.operator import bundle, gitolite, install
 from robotfleet.pull.protocol import naming
+from robotfleet.pull.operator import enrollments
 from robotfleet.pull.protocol.robot_data import DataError, host_data
 from robotfleet.pull.operator.repository import Repository, RepositoryError
-
-ENROLLMENTS = robotfleet.CHECKOUT / ".robotfleet" / "enrollments.json"
 
 
 def add_admin(parser) -> None:
@@ -94,10 +93,11 @@ def make(args) -> int:
     except bundle.BundleError as error:
         raise selection.Refused(str(error)) from None
     owner = user if rule else args.robot
-    bundle.remember(ENROLLMENTS, owner, public, record.version)
+    kept = enrollments.kept_file(robotfleet.CHECKOUT)
+    bundle.remember(kept, owner, public, record.version)
     print(f"bundle: {args.out}/rootfs.tar for {f'robots named {args.name_prefix}<{args.name_from}> like ' if rule else ''}"
           f"{args.robot}: release {record.version}, {len(wheels)} wheels "
-          f"({data.pull_platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {ENROLLMENTS}")
+          f"({data.pull_platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}")
     if admin is not None:
         try:
             gitolite.register(admin, repository_name(data.pull_remote), owner, public, enrollment=not rule)

@@ -23,6 +23,7 @@ their fingerprints with ssh-keyscan on the jump host.
 from __future__ import annotations
 
 import os
+import re
 import socket
 import sys
 from concurrent.futures import ThreadPoolExecutor
@@ -34,6 +35,10 @@ from robotfleet import commands
 from robotfleet import connect, hostkeys
 from robotfleet.checkers import one_line
 from robotfleet import selection
+
+
+# The summary's word for each outcome (decide's outcomes are verbs).
+SAID = {"enroll": "enrolled", "replace": "replaced"}
 
 
 @dataclass
@@ -73,18 +78,33 @@ def fetch(host: Target):
             transport.close()
 
 
+# A SHA256 fingerprint as ssh-keygen -l shows it: 32 bytes in unpadded base64, 43 characters.
+FINGERPRINT = re.compile(r"SHA256:[A-Za-z0-9+/]{43}=?")
+
+
 def read_fingerprints(path: str) -> dict[str, set[str]]:
     """HOST -> fingerprints, from lines ``HOST [type] SHA256:...`` (# comments)."""
     found: dict[str, set[str]] = {}
-    with open(path, encoding="utf-8") as handle:
-        for number, line in enumerate(handle, 1):
-            words = line.split("#", 1)[0].split()
-            if not words:
-                continue
-            prints = [w for w in words[1:] if w.startswith("SHA256:")]
-            if not prints:
-                raise ValueError(f"{path}: line {number}: expected 'HOST SHA256:...', got {line.strip()!r}")
-            found.setdefault(words[0], set()).update(p.rstrip("=") for p in prints)
+    try:
+        with open(path, encoding="utf-8") as handle:
+            lines = handle.read().splitlines()
+    except (OSError, UnicodeDecodeError) as error:
+        why = error.strerror if isinstance(error, OSError) else "not UTF-8 text"
+        raise ValueError(f"--fingerprints {path}: {why}; give the file of the hosts' recorded fingerprints "
+                         "(HOST SHA256:... a line); nothing was done") from None
+    for number, line in enumerate(lines, 1):
+        words = line.split("#", 1)[0].split()
+        if not words:
+            continue
+        prints = [w for w in words[1:] if w.startswith("SHA256:")]
+        if not prints:
+            raise ValueError(f"{path}: line {number}: expected 'HOST SHA256:...', got {line.strip()!r}; nothing "
+                             "was done")
+        bad = next((p for p in prints if not FINGERPRINT.fullmatch(p)), None)
+        if bad:
+            raise ValueError(f"{path}: line {number}: {bad!r} is not a SHA256 fingerprint (SHA256: and 43 base64 "
+                             "characters, as ssh-keygen -lf shows it); nothing was done")
+        found.setdefault(words[0], set()).update(p.rstrip("=") for p in prints)
     return found
 
 
@@ -122,9 +142,8 @@ def changed(host: Target, key, there: dict, choices: Choices) -> tuple[str, str]
     new = f"{key.get_name()} {hostkeys.fingerprint(key)}"
     head = f"{host.name}: host key CHANGED for {host.entry}: {host.known_hosts} has {old}, the host offers {new}"
     if host.name not in choices.replace:
-        return "refused", (f"{head}; refused, its line is left as it is (if the robot was reinstalled, record its "
-                           f"new fingerprint and replace it: robotfleet enroll {choices.inventory} --replace {host.name} "
-                           "--fingerprints FILE)")
+        return "refused", (f"{head}; refused, its line is left as it is "
+                           f"({connect.replace_advice(choices.inventory, host.name)})")
     recorded = recorded_for(host, choices.expected)
     if recorded is None:
         return "refused", f"{head}; not in {choices.source}: not replaced, its line is left as it is"
@@ -164,7 +183,7 @@ def decide(host: Target, key, choices: Choices) -> tuple[str, str]:
 def main(argv=None) -> int:
     parser = commands.parser("enroll", __doc__)
     parser.add_argument("inventory")
-    parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
+    parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--fingerprints", metavar="FILE", help="the hosts' recorded fingerprints: HOST SHA256:... per line")
     parser.add_argument("--allow-unlisted", action="store_true",
                         help="with --fingerprints: hosts missing from FILE are asked for (or taken with --yes) instead of refused")
@@ -210,7 +229,7 @@ def main(argv=None) -> int:
     for path, entries in accepted.items():
         added = hostkeys.add_all(path, entries)
         print(f"{path}: {added} key(s) added", file=sys.stderr)
-    summary = ", ".join(f"{len(names)} {outcome}" for outcome, names in outcomes.items())
+    summary = ", ".join(f"{len(names)} {SAID.get(outcome, outcome)}" for outcome, names in outcomes.items())
     print(f"enroll: {summary}", file=sys.stderr)
     if outcomes.get("refused") or outcomes.get("declined"):
         return selection.FAILED

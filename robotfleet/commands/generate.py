@@ -1,4 +1,4 @@
-"""The files built from the roles' declarations, so they cannot drift:
+"""Write the files built from the roles' declarations, so they cannot drift: the fleet file's schema, docs/settings.md.
 
     robotfleet generate          # writes them
     robotfleet generate --check  # exit 1 naming each file that is stale

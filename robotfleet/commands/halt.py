@@ -29,7 +29,7 @@ def parse_args(argv: list[str]):
 
 def halt(args) -> int:
     if "\n" in args.reason or len(args.reason) > 500:
-        raise commandline.Failed("--reason: one line of at most 500 characters")
+        raise commandline.Failed("--reason: give one line of at most 500 characters; nothing was halted")
     keys, expiry = commandline.keys_of(args), commandline.expiry_of(args)
     keys.signer("online")
     chosen, repository = commandline.opened(args)

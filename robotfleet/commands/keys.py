@@ -75,9 +75,9 @@ def init(args) -> int:
 
 def show(args) -> int:
     keys = commandline.keys_of(args)
-    chosen, repository = commandline.opened(args)
+    chosen, repository = commandline.opened(args, writes=False)
     if not repository.exists():
-        raise commandline.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise commandline.Failed(f"{chosen.url}: no release repository yet; the first robotfleet publish makes it")
     root = repository.root().signed
     print(f"root version {root.version}, expires {root.expires:%Y-%m-%dT%H:%M:%SZ}")
     for role, info in sorted(root.roles.items()):
@@ -98,15 +98,16 @@ def _next_key(keys, name: str):
 
 def prepare(args) -> int:
     keys, expiry = commandline.keys_of(args), commandline.expiry_of(args)
-    chosen, repository = commandline.opened(args)
+    chosen, repository = commandline.opened(args, writes=False)
     if not repository.exists():
-        raise commandline.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise commandline.Failed(f"{chosen.url}: no release repository yet; the first robotfleet publish makes it")
     online = root_key = None
     if args.which == "online":
         online = _next_key(keys, NEXT_ONLINE)
     elif args.which == "root":
         if not args.root_public:
-            raise commandline.Failed("prepare root: --root-public NEW.pub (robotfleet keys generate NEW.key, offline)")
+            raise commandline.Failed("prepare root needs --root-public NEW.pub: make the new root key offline first "
+                                 "(robotfleet keys generate NEW.key) and give its .pub file")
         root_key = keyfiles.public_of(args.root_public)
     data = repository.prepare_root(expiry, commandline.now(), online_key=online, root_key=root_key)
     args.out.write_bytes(data)
@@ -160,7 +161,7 @@ def rotate(args) -> int:
     root_signer = keyfiles.signer_of(args.root_key) if args.root_key else keys.signer(ROOT)
     chosen, repository = commandline.opened(args)
     if not repository.exists():
-        raise commandline.Failed(f"{chosen.url}: no release repository yet (the first publish makes it)")
+        raise commandline.Failed(f"{chosen.url}: no release repository yet; the first robotfleet publish makes it")
     if args.which == "online":
         new = _next_key(keys, NEXT_ONLINE)
         data = sign_root(repository.prepare_root(expiry, commandline.now(), online_key=new), [root_signer])

@@ -24,6 +24,7 @@ See docs/pull.md.
 from __future__ import annotations
 
 import os
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -70,9 +71,26 @@ def parse_args(argv: list[str]):
     return parser.parse_args(argv)
 
 
+# The plan's fields as the options that give them, for its problems' lines.
+OPTIONS = {"canary": "--canary", "waves": "--waves", "pause": "--pause", "max_failed": "--max-failed"}
+
+
+def plan_of(args) -> waves.Plan:
+    """The rollout plan the options give; ValueError naming the option (``--waves 50%,40%: its share 2: ...``)."""
+    try:
+        return waves.parse_plan({"canary": args.canary, "waves": [w.strip() for w in args.waves.split(",")],
+                                 "pause": args.pause, "max_failed": args.max_failed}, where="options")
+    except ValueError as error:
+        found = re.match(r"options\.(\w+)(?:\[(\d+)\])?: ", str(error))
+        if not found:
+            raise
+        option = OPTIONS[found[1]]
+        shown = f"{option} {getattr(args, found[1])}" + (f": its share {int(found[2]) + 1}" if found[2] else "")
+        raise ValueError(f"{shown}: {str(error)[found.end():]}; nothing was published") from None
+
+
 def options_of(args) -> publishing.Options:
-    plan = waves.parse_plan({"canary": args.canary, "waves": [w.strip() for w in args.waves.split(",")],
-                             "pause": args.pause, "max_failed": args.max_failed}, where="options")
+    plan = plan_of(args)
     return publishing.Options(
         revision=args.commit, fleet=args.fleet, plan=plan, expiry=commandline.expiry_of(args),
         wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),

@@ -31,7 +31,8 @@ def add_options(parser) -> None:
     pull.add_argument("--fleet", default=None, metavar="FILE",
                       help="the fleet file the release carries, a path in the commit (default $ROBOT_FLEET, "
                            "else inventories/robots.yaml)")
-    pull.add_argument("--remote", metavar="NAME|URL", help="the fleet remote (default: the checkout's origin)")
+    pull.add_argument("--remote", metavar="NAME|URL",
+                      help="the releases remote (default: git config robotfleet.remote, else the robots' pull_remote)")
     pull.add_argument("--keys", metavar="DIR", help="the release keys (default: robotfleet keys' directory)")
     pull.add_argument("--pause", type=int, default=600, help="seconds between two waves opening (default 600)")
     pull.add_argument("--timeout", type=int, default=3600,
@@ -86,13 +87,20 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
         return selection.OK
     from robotfleet.commands import halt as halting
     from robotfleet.commands import publish as publishing
+    from robotfleet.pull.operator import releases_remote
 
+    given = args.remote
+    try:  # one remote for the publish and a halt, as the fleet the release carries names it
+        args.remote = releases_remote.of(robotfleet.CHECKOUT, args.remote, fleet=publish_argv(args, plan)[0])
+    except releases_remote.Unnamed as error:
+        print(f"rollout: {error}", file=sys.stderr)
+        return selection.REFUSED
     if publishing.main(publish_argv(args, plan)) != 0:
         return selection.FAILED
     clone = Path(os.environ.get(channel.CLONE_ENV) or robotfleet.CHECKOUT / ".robotfleet" / "releases")
     record = Repository(clone).record()
     robots = list(record.robots)
-    url = pullstatus.remote_of(args.remote)
+    url = pullstatus.remote_of(given, hosts)
     allowed = waves.allowed_failures(plan.max_failed, len(robots))
     print(f"rollout: release {record.version} published for {len(robots)} robot(s); following their reports "
           f"on {url} (budget: {allowed} failure(s))", file=sys.stderr, flush=True)

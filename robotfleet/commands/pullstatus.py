@@ -17,6 +17,7 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet.checkers import one_line
+from robotfleet.pull.operator import releases_remote
 from robotfleet.pull.operator import channel
 from robotfleet.pull.protocol import report_store, reports
 from robotfleet.pull.protocol.record import parse_time
@@ -30,13 +31,13 @@ class ReportsUnavailable(Exception):
     """The fleet remote's reports cannot be read (one line)."""
 
 
-def remote_of(given: str | None, checkout: Path = robotfleet.CHECKOUT) -> str:
-    """The fleet remote to read reports from: --remote, else the checkout's origin."""
+def remote_of(given: str | None, hosts=(), checkout: Path = robotfleet.CHECKOUT) -> str:
+    """The remote to read the pull hosts' [(name, data)] reports from: --remote, else the fleet's releases
+    remote as releases_remote.py names it (their pull_report_remote where set)."""
     try:
-        return channel.remote_url(checkout, given or "origin")
-    except channel.ChannelError as error:
-        raise ReportsUnavailable(f"no fleet remote to read the pull robots' reports from ({error}); "
-                                 "give --remote URL") from None
+        return channel.remote_url(checkout, releases_remote.of(checkout, given, hosts=list(hosts), reports=True))
+    except (channel.ChannelError, releases_remote.Unnamed) as error:
+        raise ReportsUnavailable(f"no remote to read the pull robots' reports from: {error}") from None
 
 
 def fetch(url: str, cache: Path | None = None) -> dict[str, dict]:

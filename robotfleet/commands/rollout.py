@@ -163,8 +163,7 @@ def parse_args(argv):
     parser.add_argument("--batch", default="25%", help="robots per later wave, a number or a share (default 25%%)")
     parser.add_argument("--max-failed", default="0", help="failures tolerated, a number or a share (default 0)")
     parser.add_argument("--unreachable-fails", action="store_true", help="unreachable robots count as failures")
-    parser.add_argument("--limit", action="append", default=[],
-                        help="groups or host globs, comma-separated (&group: also in it, !host: not it); repeatable")
+    parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--data", action="append", default=[], help="key=value passed to pyinfra (repeatable)")
     parser.add_argument("--parallel", type=status.hosts_at_once,
                         help="pyinfra's --parallel for each wave (default: CPUs x 20), and the most hosts its status "

@@ -4,8 +4,8 @@
                                             [--parallel N]
 
 One row per host, one SSH command per host (a pull robot's row comes from
-its last report on the fleet remote instead, --remote, default the
-checkout's origin; docs/pull.md): the engine's own part (the
+its last report on the fleet's releases remote instead, --remote, default
+the one the fleet names; docs/pull.md): the engine's own part (the
 host's architecture, as the snapshot reads it) and each role with a status
 part (deploy.py's roles) add their columns, e.g. Docker's version, the current
 release, its image, container state and health, the GPU driver.
@@ -62,11 +62,23 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
             return re.sub(r"@sha256:([0-9a-f]{12})[0-9a-f]{52}", r"@sha256:\1", value)
         return value
 
-    cells = [[cell(short(key, r.get(key))) for key, _ in shown] for r in rows]
+    cells = [[reachable(r) if key == "reachable" and r.get(key) is False else cell(short(key, r.get(key)))
+              for key, _ in shown] for r in rows]
     widths = [max([len(title)] + [len(c[i]) for c in cells]) for i, (_, title) in enumerate(shown)]
     lines = ["  ".join(title.ljust(w) for (_, title), w in zip(shown, widths)).rstrip()]
     lines += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in cells]
     return "\n".join(lines)
+
+
+def reachable(row: dict) -> str:
+    """An unreachable host's REACHABLE cell: ``no:`` and the reason in a word or two (``no: refused``,
+    ``no: timed out``, ``no: host key``); the whole line is in --json's "error" and on stderr."""
+    error = row.get("error") or ""
+    if row.get("via") == "report":  # a pull robot: its report is missing, unreadable or stale
+        word = "stale report" if error.startswith("stale report") else row.get("pull") or "no report"
+    else:
+        word = connect.short_reason(error) or "error"
+    return f"no: {word}"
 
 
 def hosts_at_once(text: str) -> int:
@@ -122,7 +134,8 @@ def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
     from robotfleet.commands import pullstatus
 
     try:
-        return pullstatus.rows([(h.name, h.data) for h in hosts], pullstatus.remote_of(remote))
+        pulled = [(h.name, h.data) for h in hosts]
+        return pullstatus.rows(pulled, pullstatus.remote_of(remote, pulled))
     except pullstatus.ReportsUnavailable as error:
         return {h.name: {"host": h.name, "reachable": False, "via": "report", "pull": "no report", "stale": True,
                          "error": str(error)} for h in hosts}
@@ -202,14 +215,14 @@ def main(argv=None) -> int:
 
     parser = commands.parser("status", __doc__)
     parser.add_argument("inventory")
-    parser.add_argument("--limit", action="append", default=[],
-                        help="groups or host globs, comma-separated (&group: also in it, !host: not it)")
+    parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--json", action="store_true", help="machine-readable output (--format json)")
     parser.add_argument("--format", choices=("table", "json", "openmetrics"), default=None,
                         help="what to print: the table (default), JSON, or OpenMetrics text")
     parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
     parser.add_argument("--remote", metavar="NAME|URL",
-                        help="the fleet remote pull robots report to (default: the checkout's origin)")
+                        help="the remote pull robots report to (default: git config robotfleet.remote, else "
+                             "their pull_report_remote or pull_remote)")
     parser.add_argument("--parallel", type=hosts_at_once, default=PARALLEL, metavar="N",
                         help=f"hosts asked at once (default {PARALLEL})")
     args = parser.parse_args(argv)

@@ -12,7 +12,8 @@ catching up at boot; a tampered, a replayed, an expired and a foreign-key
 repository are each refused on every robot, which keeps its release; a
 crash-looping release is rolled back on the canary and halts the rest;
 robot4 reports healthy, is enrolled from its report (host keys, its own key
-replacing the enrollment key) and answers SSH with strict host keys.
+replacing the enrollment key), proven by its bundle's enrollment key, and
+answers SSH with strict host keys.
 The robots' timers run at the shortest interval (10 s, no jitter), so
 releases reach them by their own checks; a check is started directly
 (systemctl start) only where a test needs its outcome now (the refusals).
@@ -262,6 +263,7 @@ def test_a_robot_from_a_first_boot_image_converges_reports_healthy_and_is_enroll
     assert ssh_error(lab, FIRST_BOOT)  # not in known_hosts yet: no trust on first use
     enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", FIRST_BOOT, *op.admin_options(),
                              *op.remote(), env=env)
+    assert f"{FIRST_BOOT}: its report is proven by its bundle's enrollment key" in enrolled.stdout, enrolled.stdout
     assert "from its report; enrolled" in enrolled.stdout and "its own key is now registered" in enrolled.stdout
     assert ssh_error(lab, FIRST_BOOT) is None  # strict host keys: the key from its report
     pull.trigger([FIRST_BOOT])

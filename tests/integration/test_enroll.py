@@ -49,7 +49,7 @@ def test_from_an_empty_known_hosts_to_a_strict_connection(tmp_path, monkeypatch,
     assert code == 0, lines
     assert lines[1:] == [f"{line(servers[0], 'robot1')}: new; enrolled (--yes)",
                          f"{line(servers[1], 'robot2')}: new; enrolled (--yes)",
-                         f"{known_hosts}: 2 key(s) added", "enroll: 2 enroll"]
+                         f"{known_hosts}: 2 key(s) added", "enroll: 2 enrolled"]
     assert connect(path, monkeypatch) == {"robot1": None, "robot2": None}  # strict checking passes
     written = known_hosts.read_text()
     code, lines = run(path, monkeypatch, capsys, "--yes")
@@ -97,7 +97,7 @@ def test_a_host_missing_from_the_fingerprints_file_is_refused_even_with_yes(tmp_
     assert lines[1:] == [f"{line(servers[0], 'robot1')}: matches {recorded}; enrolled",
                          f"{line(servers[1], 'robot2')}: not in {recorded}; refused (a host missing from the "
                          "fingerprints file is enrolled only with --allow-unlisted)",
-                         f"{tmp_path / 'known_hosts'}: 1 key(s) added", "enroll: 1 enroll, 1 refused"]
+                         f"{tmp_path / 'known_hosts'}: 1 key(s) added", "enroll: 1 enrolled, 1 refused"]
     assert not hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
     # Asked for by name: the unlisted host is taken as shown (--yes).
     code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(recorded), "--yes", "--allow-unlisted")
@@ -130,7 +130,7 @@ def test_replace_takes_a_reflashed_robots_new_key_only_when_it_matches_the_file(
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
     assert code == 0, lines
     assert lines[1:] == [f"robot1 ({entry1}): host key replaced: was ecdsa-sha2-nistp256 {old_print}, now "
-                         f"ecdsa-sha2-nistp256 {new_print} (matches {recorded})", "enroll: 1 replace"]
+                         f"ecdsa-sha2-nistp256 {new_print} (matches {recorded})", "enroll: 1 replaced"]
     text = known_hosts.read_text().splitlines()
     assert text[0] == "# the fleet" and hashed not in "\n".join(text)
     assert text[1] == f"{entry2} {old.get_name()} {old.get_base64()}"  # robot2's name on the shared line stays
@@ -205,3 +205,19 @@ def test_unreachable_and_unmatched(tmp_path, monkeypatch, capsys):
 def test_the_command_is_listed():
     result = subprocess.run([sys.executable, "-m", "robotfleet"], cwd=ROOT, capture_output=True, text=True)
     assert "robotfleet enroll INVENTORY" in result.stderr
+
+
+def test_a_fingerprints_file_that_is_missing_or_holds_a_bogus_fingerprint_is_one_line(tmp_path, monkeypatch, capsys,
+                                                                                     servers):
+    """Issue 39 item 9: no bare [Errno 2], and SHA256:abc is not a fingerprint (43 base64 characters)."""
+    path = two_robots(tmp_path, servers)
+    missing = tmp_path / "missing.txt"
+    code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(missing))
+    assert (code, lines) == (2, [f"--fingerprints {missing}: No such file or directory; give the file of the hosts' "
+                                 "recorded fingerprints (HOST SHA256:... a line); nothing was done"])
+    bogus = tmp_path / "fingerprints.txt"
+    bogus.write_text(f"robot1 {hostkeys.fingerprint(servers[0].host_key)}\nrobot2 SHA256:abc\n")
+    code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(bogus), "--yes")
+    assert (code, lines) == (2, [f"{bogus}: line 2: 'SHA256:abc' is not a SHA256 fingerprint (SHA256: and 43 base64 "
+                                 "characters, as ssh-keygen -lf shows it); nothing was done"])
+    assert not (tmp_path / "known_hosts").exists()  # nothing was enrolled

@@ -112,3 +112,46 @@ def test_parallel_is_a_number_of_hosts_one_or_more(tmp_path, typed):
         result = run(path, tmp_path, "-m", "robotfleet", command, "inventories/robots.py", "--parallel", typed)
         assert result.returncode == 2, result.stderr[-1000:]
         assert f"--parallel: {typed!r}: a number of hosts, 1 or more" in result.stderr
+
+
+# --- every command's exit codes, README's one table (issue 39 items 8 and 9) ---
+
+
+def test_a_mistyped_deploy_file_is_pyinfras_exit_1_before_any_host_is_contacted(tmp_path):
+    """pyinfra checks its deploy files before it loads the inventory (robotfleet's code): README's table says
+    so, as it is."""
+    silent = sshserver.Listener()
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": silent.port}}, ssh_connect_retries=0)
+        result = run(path, tmp_path, "-c", PYINFRA, "-y", "inventories/robots.py", "deplyo.py")
+        assert silent.connections == 0
+    finally:
+        silent.close()
+    assert (result.returncode, result.stderr.strip()) == (1, "--> pyinfra error: No deploy file: deplyo.py")
+
+
+def test_pull_enroll_and_bundle_refuse_a_robot_that_does_not_pull(tmp_path):
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
+    result = run(path, tmp_path, "-m", "robotfleet", "pull-enroll", "inventories/robots.py")
+    assert (result.returncode, result.stderr) == (2, "inventories/robots.py: no pull robot (pull: true) to enroll\n")
+    result = run(path, tmp_path, "-m", "robotfleet", "bundle", "robot1", "--out", str(tmp_path / "b"))
+    assert result.returncode == 2 and result.stderr.startswith("bundle: ")
+    assert "robot1 is not a pull robot" in result.stderr
+    assert not (tmp_path / "b").exists()
+
+
+def test_generate_check_is_0_when_current_and_2_for_bad_arguments(tmp_path):
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
+    assert run(path, tmp_path, "-m", "robotfleet", "generate", "--check").returncode == 0
+    assert run(path, tmp_path, "-m", "robotfleet", "generate", "--chek").returncode == 2
+
+
+def test_every_limit_has_one_help_and_every_summary_is_a_sentence(tmp_path):
+    from robotfleet import commands
+
+    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
+    for command in ("status", "rollout", "enroll", "pull-enroll"):
+        shown = " ".join(run(path, tmp_path, "-m", "robotfleet", command, "--help").stdout.split())
+        assert f"--limit LIMIT {commands.LIMIT_HELP}" in shown, (command, shown)
+    listed = run(path, tmp_path, "-m", "robotfleet", "--help").stdout.split("commands:\n", 1)[1].split("\n\n", 1)[0]
+    assert all(line.rstrip().endswith(".") for line in listed.splitlines()), listed

@@ -80,6 +80,9 @@ def test_changed_host_key_is_refused_with_both_fingerprints(tmp_path, monkeypatc
         server.close()
     assert line.startswith(f"host key CHANGED: {tmp_path}/known_hosts has {hostkeys.fingerprint(old)} for {entry}, "
                            f"the host offers {hostkeys.fingerprint(server.host_key)}; refused")
+    # the one instruction enroll gives too (issue 39 item 3): never trust the new key on first use
+    assert line.endswith("; refused (if the robot was reinstalled, record its new fingerprint and replace it: "
+                         "robotfleet enroll inventories/robots.py --replace robot1 --fingerprints FILE)")
     assert (tmp_path / "known_hosts").read_text() == before
     assert server.connections == 1
 

@@ -835,3 +835,33 @@ def test_the_compose_project_the_payload_used_before_is_taken_over(robot):
         ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload "
                               "used before")]
     assert homeauto_untouched(robot)
+
+
+# --- a robot without Compose v2 (issue 39 item 11) ---
+
+
+@pytest.mark.parametrize("old_v1", [False, True])
+def test_a_robot_without_compose_v2_is_told_so_in_one_line_not_dockers_usage(robot, tmp_path, old_v1):
+    state = robot.state()
+    state["compose"] = "v1" if old_v1 else "missing"
+    robot.save(state)
+    robot.image("reg/ros/payload:1.1")
+    env = robot.env()
+    if old_v1:  # only the old docker-compose v1 on PATH
+        v1 = tmp_path / "v1bin"
+        v1.mkdir()
+        (v1 / "docker-compose").write_text("#!/bin/sh\necho 'docker-compose version 1.29.2, build unknown'\n")
+        (v1 / "docker-compose").chmod(0o755)
+        env["PATH"] = f"{env['PATH']}:{v1}"
+    subprocess.run([sys.executable, robot.helper, "apply", robot.spec("reg/ros/payload:1.1"), "--run-id", "run-1"],
+                   env=env, capture_output=True, text=True, timeout=30)
+    result = robot.result("run-1")
+    assert result.returncode == 1
+    lines = [line for line in result.stderr.splitlines() if line.strip()]
+    older = " (only the old docker-compose v1 is installed, which payloadctl does not use)" if old_v1 else ""
+    assert lines == [f"payload: Docker Compose v2 is missing on this robot: `docker compose version` fails{older}; "
+                     "nothing switched. The docker role installs it (docker-compose-plugin in docker_packages, or "
+                     "the distribution's compose v2 with docker_source: distro): deploy with the docker role in "
+                     "ROLES, then again."], result.stderr
+    assert "Usage:" not in result.stderr and "docker compose config refused" not in result.stderr
+    assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # nothing switched, nothing kept

@@ -286,3 +286,23 @@ def test_the_enrollment_key_goes_once_the_remote_took_the_robot_s_own_key_even_w
     said = awake.send(report)
     assert said.startswith("report unchanged; the enrollment key is retired")
     assert not (world.etc / "enroll_ed25519").exists()
+
+
+def test_a_robot_holding_its_bundle_s_enrollment_key_proves_its_report_and_keeps_the_proof_once_it_is_retired(world):
+    from robotfleet.pull.protocol import enrollment
+    from robotfleet.pull.operator import enrollments
+
+    key = world.etc / "enroll_ed25519"
+    subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(key)], check=True)
+    kept = {"robot1": {"enroll_key_sha256": enrollment.key_sha256((world.etc / "enroll_ed25519.pub").read_text())}}
+    world.release(1)
+    world.wake()
+    first = world.pushed_report()
+    assert first["enrollment"]["key"] == " ".join((world.etc / "enroll_ed25519.pub").read_text().split()[:2])
+    assert enrollments.verify(first, kept, "enrollments.json") == "robot"  # as robotfleet pull-enroll checks it
+    for path in (key, world.etc / "enroll_ed25519.pub"):  # retired, as the agent does once its own key is taken
+        path.unlink()
+    assert world.wake()[0]["enrollment"] == first["enrollment"]  # the same names and keys: the same proof
+    (world.etc / "id_ed25519.pub").write_text(pullkit_key().replace("AAAAIGbig", "AAAAIGbiX"))  # another own key
+    assert world.wake()[2] == "report sent"
+    assert world.pushed_report()["enrollment"] is None  # nothing left to sign it with

@@ -137,3 +137,15 @@ def test_under_a_loose_umask_the_image_s_directories_keep_their_modes(tmp_path):
     assert loose == []
     assert (image / "etc").stat().st_mode & 0o777 == 0o755
     assert (image / "usr/local/sbin/robot-pull-first-boot").stat().st_mode & 0o777 == 0o755
+
+
+def test_a_new_bundle_for_an_enrolled_robot_keeps_the_key_it_was_enrolled_with(tmp_path):
+    from robotfleet.pull.operator import enrollments
+
+    path = tmp_path / "enrollments.json"
+    bundle.remember(path, "robot9", KEY, 4)
+    enrollments.record(path, "robot9", KEY)
+    bundle.remember(path, "robot9", KEY.replace("AAAAIGbig", "AAAAIGbiX"), 5)  # a new bundle: a new enrollment key
+    kept = enrollments.read_kept(path)
+    assert enrollments.enrolled_key(kept, "robot9") == bundle.key_sha256(KEY)  # a second key stays refused
+    assert kept["robot9"]["release"] == 5 and path.stat().st_mode & 0o077 == 0

@@ -70,15 +70,19 @@ def site(tmp_path, registry):
     git(tmp_path, "init", "-q", "-b", "main", str(checkout))
     git(checkout, "add", "-A")
     git(checkout, "commit", "-qm", "fleet")
-    remote = tmp_path / "remote.git"
-    git(tmp_path, "init", "-q", "--bare", str(remote))
-    git(checkout, "remote", "add", "origin", str(remote))
+    origin = tmp_path / "deploy.git"  # the deploy repository's own remote, kept apart from the releases
+    git(tmp_path, "init", "-q", "--bare", str(origin))
+    git(checkout, "remote", "add", "origin", str(origin))
     git(checkout, "push", "-q", "origin", "main")
+    remote = tmp_path / "remote.git"  # the fleet's releases remote, named once in the checkout's git config
+    git(tmp_path, "init", "-q", "--bare", str(remote))
+    git(checkout, "config", "robotfleet.remote", str(remote))
     registry.tag("ros/payload", "1.1", "one")
     registry.tag("ros/payload", "1.2", "two")
     keys = tmp_path / "keys"
     robotfleet_cmd("keys", "init", "--keys", keys)
-    return {"checkout": checkout, "remote": remote, "keys": keys, "robot": tmp_path / "robot", "base": tmp_path}
+    return {"checkout": checkout, "remote": remote, "origin": origin, "keys": keys, "robot": tmp_path / "robot",
+            "base": tmp_path}
 
 
 def publish(site, *more, check=True):
@@ -131,7 +135,8 @@ def test_publish_binds_commit_tree_fleet_and_digests_and_a_robot_verifies_it(sit
     assert not (site["robot"] / "code" / "tests").exists()
     # the branch holds only the repository, and the deploy branch is untouched
     assert sorted(os.listdir(robot_fetch(site))) == [".git", "metadata", "targets"]
-    assert git(site["remote"], "rev-parse", "main") == record.commit
+    assert git(site["origin"], "rev-parse", "main") == record.commit
+    assert git(site["origin"], "branch", "--list", "robotfleet/releases") == ""
 
 
 def test_halt_then_a_new_release(site):
@@ -143,7 +148,8 @@ def test_halt_then_a_new_release(site):
     _, halted = robot_refresh(site)
     assert (halted.version, halted.halt, halted.halt_reason, halted.commit) == (2, True, "canary crash-loops", first.commit)
     again = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
-    assert again.returncode == 2 and again.stderr == "halt: release 2 is already halted (canary crash-loops)\n"
+    assert again.returncode == 2 and again.stderr == ("halt: release 2 is already halted (canary crash-loops); nothing "
+                                                      "was changed (a new publish ends the halt).\n")
     publish(site)
     _, third = robot_refresh(site)
     assert (third.version, third.halt) == (3, False)
@@ -184,7 +190,7 @@ def test_bad_fleet_data_in_the_commit_is_refused_with_its_lines(site):
 def test_publish_without_keys_says_where_it_looked(site, tmp_path):
     done = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", tmp_path / "none", "--no-wheels",
                           check=False)
-    assert done.returncode == 1
+    assert done.returncode == 2  # refused before anything was read or written (README's exit codes)
     assert done.stderr == f"publish: {tmp_path / 'none' / 'online.key'}: no online key here " \
                           "(robotfleet keys init; --keys DIR or $ROBOTFLEET_KEYS)\n"
 
@@ -238,7 +244,7 @@ def test_offline_root_key_prepare_sign_install(site):
         shutil.move(site["keys"] / f"root{suffix}", offline / f"root{suffix}")
     refused = robotfleet_cmd("keys", "rotate", "online", "--checkout", site["checkout"], "--keys", site["keys"],
                              check=False)
-    assert refused.returncode == 1 and "no root key here" in refused.stderr
+    assert refused.returncode == 2 and "no root key here" in refused.stderr
     # a new root key made offline; the change prepared online, signed offline, installed online
     robotfleet_cmd("keys", "generate", offline / "root2.key")
     common = ("--checkout", site["checkout"], "--keys", site["keys"])
@@ -258,8 +264,8 @@ def test_offline_root_key_prepare_sign_install(site):
 
 def test_two_publishers_racing_one_is_refused(site):
     channel = pullkit.module("operator.channel")
-    first = channel.GitChannel(site["checkout"], "origin", clone=site["base"] / "a")
-    second = channel.GitChannel(site["checkout"], "origin", clone=site["base"] / "b")
+    first = channel.GitChannel(site["checkout"], str(site["remote"]), clone=site["base"] / "a")
+    second = channel.GitChannel(site["checkout"], str(site["remote"]), clone=site["base"] / "b")
     for chosen in (first, second):
         (chosen.open() / "metadata").mkdir(exist_ok=True)
     (first.clone / "metadata" / "x").write_text("1")
@@ -306,3 +312,75 @@ def test_robots_without_pull_platform_get_the_setting_s_default_and_a_full_cache
     refused = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache,
                              "--index-url", "http://127.0.0.1:9/simple", "--refresh-wheels", check=False)
     assert refused.returncode != 0 and "wheels for " in refused.stderr
+
+
+# --- the fleet's releases remote, named once (issue 39 item 2) ---
+
+
+def test_with_no_releases_remote_named_a_pull_command_says_how_to_name_it(site, tmp_path):
+    git(site["checkout"], "config", "--unset", "robotfleet.remote")
+    push_only = tmp_path / "push-only.yaml"  # no pull robot: nothing names a remote
+    push_only.write_text("robots:\n  hosts:\n    robot1: {address: 127.0.0.1, payload_image: 'reg/p:1'}\n")
+    for argv in (["halt"], ["keys", "show"]):
+        done = robotfleet_cmd(*argv, "--checkout", site["checkout"], "--keys", site["keys"],
+                              env={"ROBOT_FLEET": str(push_only)}, check=False)
+        assert done.returncode == 2, done.stderr
+        assert done.stderr == (f"{argv[0]}: no releases remote is named (no --remote, no robotfleet.remote in the "
+                               "checkout's git config, no pull robot with pull_remote in the fleet file); name it "
+                               "once: git config robotfleet.remote URL in the checkout (or pull_remote for the pull "
+                               "robots in the fleet file), or give --remote URL.\n")
+    assert git(site["origin"], "branch", "--list", "robotfleet/releases") == ""  # origin is never the default
+
+
+def test_the_pull_robots_pull_remote_is_the_default(site, tmp_path):
+    from tests.integration import sshserver
+
+    git(site["checkout"], "config", "--unset", "robotfleet.remote")
+    url = f"https://127.0.0.1:{sshserver.closed_port()}/fleet.git"
+    fleet = tmp_path / "fleet.yaml"
+    fleet.write_text(f"robots:\n  vars: {{pull: true, pull_remote: '{url}', payload_image: 'reg/p:1'}}\n"
+                     "  hosts:\n    robot1: {address: 127.0.0.1}\n")
+    done = robotfleet_cmd("keys", "show", "--checkout", site["checkout"], "--keys", site["keys"],
+                          env={"ROBOT_FLEET": str(fleet)}, check=False)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr.startswith(f"keys: cannot read the releases remote {url}: ")
+    assert len(done.stderr.splitlines()) == 1
+    assert done.stderr.endswith("; check its URL (--remote, git config robotfleet.remote or the robots' pull_remote) "
+                                "and that you may read it.\n")
+
+
+def test_publishing_to_the_deploy_repository_s_own_remote_is_refused_unless_named(site):
+    origin = str(site["origin"])
+    git(site["checkout"], "config", "robotfleet.remote", origin)
+    for named, given in ((origin, []), (origin, ["--remote", origin]), ("origin/", ["--remote", f"{origin}/"])):
+        done = publish(site, *given, check=False)
+        assert done.returncode == 2, done.stderr
+        shown = f"{origin}/" if named == "origin/" else origin
+        assert done.stderr == (f"publish: {shown} is the deploy repository's own remote (origin), and robots can read "
+                               "all of a remote they fetch from; keep the releases on another remote (name it once: "
+                               "git config robotfleet.remote URL in the checkout (or pull_remote for the pull robots "
+                               "in the fleet file), or give --remote URL), or give --remote origin to publish there "
+                               "anyway.\n")
+    halted = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
+    assert halted.returncode == 2 and "is the deploy repository's own remote (origin)" in halted.stderr
+    assert git(site["origin"], "branch", "--list", "robotfleet/releases") == ""
+    done = publish(site, "--remote", "origin")  # asked for by name
+    assert "pushed robotfleet/releases to" in done.stdout
+    assert git(site["origin"], "branch", "--list", "robotfleet/releases").strip() == "robotfleet/releases"
+
+
+def test_a_releases_remote_that_does_not_exist_is_one_sentence_naming_the_fix(site, tmp_path):
+    missing = tmp_path / "nonexistent.git"
+    done = publish(site, "--remote", missing, check=False)
+    assert done.returncode == 1
+    assert done.stderr == (f"publish: cannot read the releases remote {missing}: '{missing}' does not appear to be a "
+                           "git repository; check its URL (--remote, git config robotfleet.remote or the robots' "
+                           "pull_remote) and that you may read it.\n")
+
+
+def test_halting_before_any_release_is_refused_in_one_sentence(site):
+    done = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
+    assert done.returncode == 2
+    assert done.stderr.startswith("halt: ") and done.stderr.endswith(": no release to halt; there is nothing for "
+                                                                      "robots to stop.\n")
+    assert git(site["remote"], "branch", "--list", "robotfleet/releases") == ""

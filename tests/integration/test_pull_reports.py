@@ -45,6 +45,8 @@ def test_a_report_reads_back_as_written():
     (lambda r: r.update(time="yesterday"), "report of robot1: time is not a UTC time"),
     (lambda r: r.update(host_keys=["ssh-ed25519 AAAA; rm -rf /"]), "report of robot1: host_keys: expected public key lines"),
     (lambda r: r.update(key="not a key"), "report of robot1: key: expected a public key line"),
+    (lambda r: r.update(enrollment={"key": KEY, "signature": "-----BEGIN SSH SIGNATURE-----\n$(x)"}),
+     "report of robot1: enrollment: expected {key, signature}"),
     (lambda r: r["seen"].update(version=-1), "seen.version: expected a whole number"),
 ])
 def test_a_report_a_robot_wrote_wrong_is_one_line(change, line):

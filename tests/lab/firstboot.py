@@ -3,7 +3,8 @@ image with a `robotfleet bundle` unpacked onto its root before its first
 start, as an image build would.  The lab adds only what every lab host has
 (its apt proxy, the lab key for ops); the robot is in state.json (so
 inventories/lab.py lists it) but not in the lab's known_hosts: its host
-keys come from its first report (robotfleet pull-enroll)."""
+keys come from its first report (robotfleet pull-enroll), which its
+bundle's enrollment key signs."""
 
 from __future__ import annotations
 

@@ -83,6 +83,7 @@ class Operator:
                f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.git['known_hosts'])}")
         return dict(os.environ, GIT_SSH_COMMAND=ssh, ROBOTFLEET_KEYS=str(self.keys), GIT_TERMINAL_PROMPT="0",
                     ROBOTFLEET_RELEASES_CLONE=str(self.base / "releases"), ROBOT_LAB_PREFIX=self.prefix,
+                    ROBOTFLEET_ENROLLMENTS=str(self.base / "enrollments.json"),
                     XDG_CACHE_HOME=str(REPO_ROOT / ".lab" / "cache" / "pull"), **more)
 
     def _git(self, *args: str) -> str:
@@ -96,7 +97,8 @@ class Operator:
         if not (self.repo / ".git").exists():
             self.repo.mkdir(parents=True, exist_ok=True)
             self._git("init", "-q", "-b", "main")
-            self._git("remote", "add", "origin", gitserver.local_url(self.git))
+            # the fleet's releases remote, named once (a deploy repository's own origin is refused by default)
+            self._git("config", "robotfleet.remote", gitserver.local_url(self.git))
             (self.repo / ".lab").symlink_to(REPO_ROOT / ".lab")  # inventories/lab.py reads the running lab there
         if not (self.keys / "online.key").exists():
             self.robotfleet("keys", "init", "--keys", str(self.keys))

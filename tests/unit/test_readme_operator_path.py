@@ -71,9 +71,16 @@ def test_the_rest_is_in_docs_and_more_links_every_page():
 
 
 def test_the_exit_codes_table_is_the_commands_codes():
+    """One table for every command (issue 39 item 8): a column a code, a row a command."""
+    from robotfleet import cli
+
     table = section("Exit codes")
-    for code in selection.CODES:
-        assert f"\n| {code} |" in table, code
+    rows = [line for line in table.splitlines() if line.startswith("| ")]
+    assert rows[0] == "| command | " + " | ".join(str(code) for code in selection.CODES) + " |", rows[0]
+    named = set(re.findall(r"`(?:robotfleet )?([a-z-]+)`", "\n".join(row.split(" | ")[0] for row in rows[1:])))
+    assert set(cli.COMMANDS) <= named, set(cli.COMMANDS) - named
+    assert rows[1].startswith("| `pyinfra ...` |")
+    assert all(row.count(" | ") == len(selection.CODES) for row in rows), rows
 
 
 def test_the_example_fleet_names_commands_that_work():

@@ -64,7 +64,7 @@ def test_status_rows_and_table():
     assert rows[0]["arch"] == "arm64"
     assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
     assert text[1].split() == ["robot1", "yes", "arm64", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
-    assert text[2].split()[:2] == ["robot2", "no"]
+    assert text[2].split()[:4] == ["robot2", "no:", "cannot", "connect"]
 
 
 AMD64_LOCAL = {"id": "sha256:" + "1" * 64, "platform": {"os": "linux", "architecture": "amd64"}}

@@ -34,7 +34,9 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files, robot_key
+from robotfleet import atomicfile
+from robotfleet.pull.protocol import enrollment, agent_files, robot_key
+from robotfleet.pull.operator import enrollments
 
 FIRST_BOOT = f"{agent_files.STATE}/first-boot"
 SCRIPT = "/usr/local/sbin/robot-pull-first-boot"
@@ -212,19 +214,12 @@ def _archive(rootfs: Path, tar_path: Path) -> None:
     os.chmod(tar_path, 0o600)
 
 
-def key_sha256(public_key: str) -> str:
-    """What the operator keeps of an enrollment key: the hash of its public half."""
-    return hashlib.sha256(" ".join(public_key.split()[:2]).encode()).hexdigest()
+key_sha256 = enrollment.key_sha256  # what the operator keeps of an enrollment key: the hash of its public half
 
 
 def remember(path: Path, robot: str, public_key: str, release: int) -> None:
-    """Note the enrollment key (its hash) among the operator's enrollments (a JSON file)."""
-    try:
-        known = json.loads(path.read_text())
-    except (OSError, ValueError):
-        known = {}
-    known[robot] = {"enroll_key_sha256": key_sha256(public_key), "release": release}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temp = path.with_name(f".{path.name}.new")
-    temp.write_text(json.dumps(known, indent=1, sort_keys=True) + "\n")
-    os.replace(temp, path)
+    """Note the enrollment key (its hash) among the operator's enrollments (a JSON file); what else is
+    kept for ``robot`` (the own key it was enrolled with) stays."""
+    kept = enrollments.read_kept(path)
+    kept.setdefault(robot, {}).update(enroll_key_sha256=key_sha256(public_key), release=release)
+    atomicfile.write(path, json.dumps(kept, indent=1, sort_keys=True) + "\n", mode=0o600, make_parents=True)

@@ -1,7 +1,8 @@
 """Where the release repository is published.
 
-- The fleet remote (the deploy repository's git remote, ``origin`` unless
-  told): its branch ``robotfleet/releases``, an orphan branch holding only
+- The releases remote (the one the fleet names, robotfleet/commands/
+  releasesremote.py; never the deploy repository's origin by default): its
+  branch ``robotfleet/releases``, an orphan branch holding only
   the TUF repository (metadata/, targets/).  Publishing works in a private
   clone (``<checkout>/.robotfleet/releases``, or ROBOTFLEET_RELEASES_CLONE),
   reset to the remote's branch, then commits and pushes fast-forward: a
@@ -38,10 +39,18 @@ def _git(where: Path, *args: str, check: bool = True) -> subprocess.CompletedPro
     except (OSError, subprocess.TimeoutExpired) as error:
         raise ChannelError(f"git {args[0]}: {error}") from None
     if check and done.returncode:
-        said = [line for line in done.stderr.strip().splitlines() if line.strip()]
-        raise ChannelError(f"git {' '.join(a for a in args[:2] if not a.startswith('-c'))}: "
-                           f"{said[-1] if said else f'exit status {done.returncode}'}")
+        raise ChannelError(f"git {' '.join(a for a in args[:2] if not a.startswith('-c'))}: {why(done)}")
     return done
+
+
+def why(done: subprocess.CompletedProcess) -> str:
+    """What a failed git said, in its one line that says why: its first fatal: or error: line (git follows it
+    with advice such as "and the repository exists."), else its last line."""
+    said = [line.strip() for line in done.stderr.splitlines() if line.strip()]
+    cause = next((line for line in said if line.startswith(("fatal:", "error:"))), said[-1] if said else None)
+    if cause is None:
+        return f"exit status {done.returncode}"
+    return cause.split(":", 1)[1].strip() if cause.startswith(("fatal:", "error:")) else cause
 
 
 def remote_url(checkout, remote: str) -> str:
@@ -51,13 +60,13 @@ def remote_url(checkout, remote: str) -> str:
         return done.stdout.strip()
     if "/" in remote or ":" in remote:
         return remote
-    raise ChannelError(f"{remote}: no such remote in {checkout} (git remote -v; or give a URL)")
+    raise ChannelError(f"{remote}: no such remote in {checkout}; give one of its remotes (git remote -v) or a URL.")
 
 
 class GitChannel:
     """The fleet remote's releases branch, through a private clone."""
 
-    def __init__(self, checkout, remote: str = "origin", clone=None):
+    def __init__(self, checkout, remote: str, clone=None):
         self.checkout = Path(checkout)
         self.url = remote_url(self.checkout, remote)
         self.clone = Path(clone or os.environ.get(CLONE_ENV) or self.checkout / ".robotfleet" / "releases")
@@ -79,9 +88,13 @@ class GitChannel:
             self.base = _git(self.clone, "rev-parse", f"refs/remotes/fleet/{BRANCH}").stdout.strip()
             _git(self.clone, "checkout", "--quiet", "--force", "-B", BRANCH, self.base)
         else:
-            listed = _git(self.clone, "ls-remote", "--heads", "fleet", BRANCH)  # fails if unreachable
+            listed = _git(self.clone, "ls-remote", "--heads", "fleet", BRANCH, check=False)
+            if listed.returncode:
+                raise ChannelError(f"cannot read the releases remote {self.url}: {why(listed)}; check its URL "
+                                   "(--remote, git config robotfleet.remote or the robots' pull_remote) and that "
+                                   "you may read it.")
             if listed.stdout.strip():
-                raise ChannelError(f"git fetch {self.url} {BRANCH}: {fetched.stderr.strip().splitlines()[-1]}")
+                raise ChannelError(f"git fetch {self.url} {BRANCH}: {why(fetched)}")
             self.base = None  # a new orphan branch (a failed earlier attempt's local one is dropped)
             _git(self.clone, "symbolic-ref", "HEAD", f"refs/heads/{BRANCH}")
             _git(self.clone, "update-ref", "-d", f"refs/heads/{BRANCH}")
@@ -100,7 +113,8 @@ class GitChannel:
             if any("non-fast-forward" in line or "fetch first" in line or "rejected" in line for line in said):
                 raise ChannelError(f"{self.url} {BRANCH} moved while publishing (another publish?); "
                                    "nothing was changed there: rerun the command")
-            raise ChannelError(f"git push {self.url} {BRANCH}: {said[-1] if said else 'failed'}")
+            raise ChannelError(f"cannot push to the releases remote {self.url} ({BRANCH}): {why(pushed)}; check "
+                               "that you may write there.")
         return head
 
 
@@ -118,7 +132,3 @@ class DirChannel:
     def push(self, message: str) -> str:
         return ""
 
-
-def channel(checkout, remote: str | None = None, to_dir=None):
-    """The channel the operator asked for: ``to_dir``, else the git remote (default origin)."""
-    return DirChannel(to_dir) if to_dir else GitChannel(checkout, remote or "origin")

@@ -1,5 +1,5 @@
 """What publish, halt and keys share: where the release repository is
-(the fleet remote's robotfleet/releases branch, or --to-dir), where the
+(the releases remote's robotfleet/releases branch, releases_remote.py, or --to-dir), where the
 keys are, and how long each role's metadata stays valid."""
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet import selection
+from robotfleet.pull.operator import releases_remote
 from robotfleet.pull.operator import channel as channels
 from robotfleet.pull.operator.keys import KeyDir, KeyProblem
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError, parse_duration
@@ -19,7 +20,8 @@ from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryEr
 def add_channel(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--remote", metavar="NAME|URL",
-                       help="the fleet remote whose robotfleet/releases branch is written (default: origin)")
+                       help="the releases remote whose robotfleet/releases branch is written (default: git config "
+                            "robotfleet.remote, else the pull robots' pull_remote; never origin unless named)")
     where.add_argument("--to-dir", metavar="DIR", type=Path,
                        help="write the repository into DIR instead (serve it over static HTTPS)")
     parser.add_argument("--checkout", metavar="DIR", type=Path, default=robotfleet.CHECKOUT,
@@ -41,8 +43,14 @@ def expiry_of(args) -> Expiry:
                      for role in ("timestamp", "snapshot", "targets", "root")})
 
 
-def channel_of(args):
-    return channels.channel(args.checkout, args.remote, args.to_dir)
+def channel_of(args, writes: bool = True):
+    if args.to_dir:
+        return channels.DirChannel(args.to_dir)
+    try:
+        remote = releases_remote.of(args.checkout, args.remote, fleet=getattr(args, "fleet", None), writes=writes)
+    except releases_remote.Unnamed as error:
+        raise Failed(str(error)) from None
+    return channels.GitChannel(args.checkout, remote)
 
 
 def keys_of(args) -> KeyDir:
@@ -68,17 +76,17 @@ def run(name: str, body) -> int:
     except Failed as error:
         print(f"{name}: {error}", file=sys.stderr)
         return error.code
-    except ValueError as error:  # a bad option value (durations, counts)
+    except (ValueError, KeyProblem) as error:  # a bad option value (durations, counts); a key missing or unusable
         print(f"{name}: {error}", file=sys.stderr)
         return selection.REFUSED
-    except (KeyProblem, RepositoryError, channels.ChannelError) as error:
+    except (RepositoryError, channels.ChannelError) as error:  # the remote or its repository failed or refused
         print(f"{name}: {error}", file=sys.stderr)
         return selection.FAILED
 
 
-def opened(args) -> tuple[object, Repository]:
+def opened(args, writes: bool = True) -> tuple[object, Repository]:
     """The channel the arguments name, opened: (channel, its repository)."""
-    chosen = channel_of(args)
+    chosen = channel_of(args, writes)
     return chosen, Repository(chosen.open())
 
 

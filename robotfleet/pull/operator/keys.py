@@ -46,7 +46,8 @@ def public_of(path) -> SSlibKey:
         raw = json.loads(Path(path).read_text())
         return SSlibKey.from_dict(raw["keyid"], dict(raw["key"]))
     except FileNotFoundError:
-        raise KeyProblem(f"{path}: no such public key file") from None
+        raise KeyProblem(f"{path}: no such public key file; give the .pub file robotfleet keys generate wrote "
+                         "beside its key") from None
     except (ValueError, KeyError, TypeError) as error:
         raise KeyProblem(f"{path}: not a robotfleet public key file ({error})") from None
 
@@ -63,7 +64,8 @@ def signer_of(path) -> CryptoSigner:
             raise KeyProblem(f"{path}: readable by others (mode {stat.S_IMODE(info.st_mode):o}); chmod 600 it")
         private = load_pem_private_key(path.read_bytes(), None)
     except FileNotFoundError:
-        raise KeyProblem(f"{path}: no such key file") from None
+        raise KeyProblem(f"{path}: no such key file; give a .key file robotfleet keys init or keys generate "
+                         "made") from None
     except (ValueError, TypeError) as error:
         raise KeyProblem(f"{path}: not a PEM private key ({str(error).splitlines()[0]})") from None
     public = path.with_suffix(".pub")
@@ -75,7 +77,7 @@ def generate(path) -> SSlibKey:
     refuses to overwrite either.  Its public key."""
     path = Path(path)
     if path.suffix != ".key":
-        raise KeyProblem(f"{path}: a private key file's name ends in .key")
+        raise KeyProblem(f"{path}: a private key file's name ends in .key; name it NAME.key")
     public = path.with_suffix(".pub")
     for existing in (path, public):
         if existing.exists() or existing.is_symlink():

@@ -169,9 +169,10 @@ def halt(repository: Repository, keys, reason: str, expiry: Expiry, now: datetim
     try:
         current = repository.record() if repository.exists() else None
         if current is None:
-            raise PublishError(f"{repository.path}: no release to halt")
+            raise PublishError(f"{repository.path}: no release to halt; there is nothing for robots to stop.")
         if current.halt:
-            raise PublishError(f"release {current.version} is already halted ({current.halt_reason})")
+            raise PublishError(f"release {current.version} is already halted ({current.halt_reason}); nothing was "
+                               "changed (a new publish ends the halt).")
         halted = current.halted(current.version + 1, now, now + expiry.targets, reason)
         files = {path: repository.blob(path) for path in halted.targets()}
         repository.publish(halted, files, keys.signer(ONLINE), expiry, now)

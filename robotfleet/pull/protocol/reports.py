@@ -11,6 +11,8 @@ fleet remote (a commit holding ``report.json``).
      "attempted": {"version": 8, "result": "rolled-back", "tries": 1} | null,
      "wave": 0, "status": {... the roles' status cells, as robotfleet status --json has them ...},
      "host_keys": ["ssh-ed25519 AAAA..."], "key": "ssh-ed25519 AAAA... (its key for the remote)",
+     "enrollment": {"key": "ssh-ed25519 AAAA...", "signature": "-----BEGIN SSH SIGNATURE-----..."} | null
+     (robotfleet/pull/protocol/enrollment.py: its bundle's enrollment key signs its name and keys),
      "interval": 900, "jitter": 300, "stale_after": 2, "heartbeat": 3600,
      "status_time": "...Z" (when the roles' status was read; null: never),
      "check": {"sent": 1234, "received": 5678, "requests": 2, "seconds": 0.4, "cpu": 0.3}}
@@ -28,6 +30,7 @@ import json
 import re
 
 from robotfleet.checkers import one_line
+from robotfleet.pull.protocol.enrollment import SIGNATURE
 from robotfleet.pull.protocol.record import parse_time, utc
 
 FORMAT = 1
@@ -52,7 +55,7 @@ def build(robot: str, now: datetime.datetime, result: str, *, reason: str | None
           refusal: str | None = None, seen: dict | None = None, applied: dict | None = None,
           attempted: dict | None = None, wave: int | None = None, status: dict | None = None,
           host_keys=(), key: str | None = None, config=None, check: dict | None = None,
-          agent: str | None = None, status_time: str | None = None) -> dict:
+          agent: str | None = None, status_time: str | None = None, enrollment: dict | None = None) -> dict:
     if result not in RESULTS:
         raise ValueError(f"unknown result {result!r}")
     return {
@@ -61,7 +64,7 @@ def build(robot: str, now: datetime.datetime, result: str, *, reason: str | None
         "attempted": attempted, "wave": wave, "status": status or {}, "host_keys": list(host_keys), "key": key,
         "interval": getattr(config, "interval", None), "jitter": getattr(config, "jitter", None),
         "stale_after": getattr(config, "stale_after", None), "heartbeat": getattr(config, "heartbeat", None),
-        "status_time": status_time, "check": check or {},
+        "status_time": status_time, "check": check or {}, "enrollment": enrollment,
     }
 
 
@@ -155,6 +158,12 @@ def parse(data: bytes, ref_robot: str) -> dict:
     key = raw.get("key")
     if key is not None and not (isinstance(key, str) and _KEY.fullmatch(key)):
         raise ReportError(f"report of {ref_robot}: key: expected a public key line")
+    proof = raw.get("enrollment")
+    if proof is not None and not (isinstance(proof, dict) and isinstance(proof.get("key"), str)
+                                  and _KEY.fullmatch(proof["key"]) and isinstance(proof.get("signature"), str)
+                                  and SIGNATURE.fullmatch(proof["signature"])):
+        raise ReportError(f"report of {ref_robot}: enrollment: expected {{key, signature}} (a public key line, "
+                          "an SSH signature)")
     attempted = raw.get("attempted")
     if attempted is not None:
         if not isinstance(attempted, dict) or attempted.get("result") not in RESULTS:
@@ -168,7 +177,7 @@ def parse(data: bytes, ref_robot: str) -> dict:
         "result": raw["result"], "reason": _text(raw.get("reason"), "reason"),
         "refusal": _text(raw.get("refusal"), "refusal", limit=40), "attempted": attempted,
         "wave": _int(raw.get("wave"), "wave"), "status": _cells(raw.get("status")),
-        "host_keys": keys, "key": key,
+        "host_keys": keys, "key": key, "enrollment": proof and {"key": proof["key"], "signature": proof["signature"]},
         "interval": _int(raw.get("interval"), "interval"), "jitter": _int(raw.get("jitter"), "jitter"),
         "stale_after": _int(raw.get("stale_after"), "stale_after"),
         "heartbeat": _int(raw.get("heartbeat"), "heartbeat"),

@@ -23,6 +23,8 @@
    heartbeat is due; else what the last read found.
 6. Report (robotfleet/pull/protocol/reports.py) to refs/reports/<robot>, when it
    says something new or its heartbeat is due; one line in the journal.
+   While it holds a bundle's enrollment key, that key signs the robot's
+   name and keys in the report (robotfleet/pull/protocol/enrollment.py).
 """
 
 from __future__ import annotations
@@ -44,7 +46,8 @@ from pathlib import Path
 import robotfleet
 from robotfleet import atomicfile
 from robotfleet.pull.robot import release_run, trust_state
-from robotfleet.pull.protocol import agent_files, reports, waves
+from robotfleet.pull.protocol import agent_files, enrollment, reports, waves
+from robotfleet.pull.robot import enrollment_proof
 from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.robot.transport import Remote, TransportError
@@ -255,12 +258,18 @@ class Wake:
         usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
         cost = self.remote.cost.as_dict()
         cost["cpu"] = round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
+        hosts, key = host_keys(), public_key(self.config.etc("id_ed25519.pub"))
+        try:
+            proof = enrollment_proof.proof(self.config.etc("enroll_ed25519"), self.config.robot, key, hosts, self.state)
+        except enrollment.ProofError as error:
+            print(f"robot-pull: no enrollment proof in the report: {error}", flush=True)
+            proof = None
         return reports.build(
             self.config.robot, self.clock(), outcome.result, reason=outcome.reason, refusal=outcome.refusal,
             seen=reports.version_of(record) if record else self.state.get("seen"),
             applied=self.state.get("applied"), attempted=self.state.get("attempted"), wave=outcome.wave,
-            status=self.status, host_keys=host_keys(), key=public_key(self.config.etc("id_ed25519.pub")),
-            config=self.config, check=cost, agent=agent_version(), status_time=self.status_time)
+            status=self.status, host_keys=hosts, key=key, config=self.config, check=cost, agent=agent_version(),
+            status_time=self.status_time, enrollment=proof)
 
     def send(self, report: dict) -> str:
         """Push the report when it says something new or the heartbeat is

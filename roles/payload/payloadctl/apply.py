@@ -4,6 +4,8 @@ Runs holding the robot's apply lock (cli.locked); every change of a record
 or a pointer is a transition of lifecycle.Life, so a power cut at any point
 is undone at boot (recovery.py) or by the next deploy."""
 
+import shutil
+
 from . import health, images, platforms, results, start, takeover
 from .lifecycle import SETTLED, Record
 from .lock import update_lock_holder
@@ -46,8 +48,23 @@ def check_compose(name, path):
     proc = run(["docker", "compose", "-p", name, "-f", path, "config", "-q"], check=False)
     if proc.returncode == 0:
         return None
+    missing = compose_missing()
+    if missing:
+        return missing
     why = (proc.stderr or proc.stdout).strip().splitlines() or ["no output"]
     return "docker compose config refused the release (nothing switched): {}".format(why[-1][-300:])
+
+
+def compose_missing():
+    """One line when this robot has no Compose v2 (`docker compose version` fails: no plugin, or only the
+    old docker-compose v1), which Docker would answer with its usage text; None when it has it."""
+    if run(["docker", "compose", "version"], check=False).returncode == 0:
+        return None
+    v1 = " (only the old docker-compose v1 is installed, which payloadctl does not use)" if shutil.which(
+        "docker-compose") else ""
+    return ("Docker Compose v2 is missing on this robot: `docker compose version` fails{}; nothing switched. "
+            "The docker role installs it (docker-compose-plugin in docker_packages, or the distribution's compose "
+            "v2 with docker_source: distro): deploy with the docker role in ROLES, then again.".format(v1))
 
 
 def apply(spec, run_, life, lock=None):

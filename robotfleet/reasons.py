@@ -1,0 +1,68 @@
+"""Why a host could not be reached, in words: the one wording of each
+cause, for every command that connects (deploys and status through
+robotfleet/connect.py, enroll's own key fetch), and the word or two of it
+the status table shows."""
+
+from __future__ import annotations
+
+import errno
+import socket
+
+from paramiko import SSHException
+from paramiko.ssh_exception import NoValidConnectionsError
+
+# The few words of each reason the status table shows after "no:" (--json has the whole line).
+SHORT = (("unknown host key", "host key"), ("host key CHANGED", "host key"), ("host key REVOKED", "host key"),
+         ("host certificate refused", "host key"), ("authentication failed", "login refused"),
+         ("connection refused", "refused"), ("connection closed", "closed"), ("the SSH session", "closed"),
+         ("cannot resolve", "unknown name"), ("timed out", "timed out"), ("not an SSH server", "not SSH"),
+         ("no route to", "no route"), ("cannot connect", "cannot connect"))
+
+
+def short_reason(reason: str) -> str | None:
+    """A connection failure's reason in a word or two (``refused``, ``timed out``, ``host key``); None for a
+    line that is not one of this module's reasons."""
+    return next((word for start, word in SHORT if reason.startswith(start)), None)
+
+
+def network_reason(error: Exception, address: str, port: int, timeout: float,
+                   elapsed: float | None = None) -> tuple[str, bool]:
+    """Why reaching ``address:port`` failed, in words, and whether trying
+    again may help (a host key or login failure is told by the connector).
+    ``timeout``: the attempt's limit; ``elapsed``: how long it took."""
+    at = f"{address}:{port}"
+    timeout = f"{timeout:.0f}" if timeout >= 1 else f"{timeout:.1f}"
+    elapsed = float(timeout) if elapsed is None else elapsed
+    if isinstance(error, NoValidConnectionsError):  # paramiko's wrapper: worded as its sockets' own error
+        inner = [e for e in error.errors.values() if isinstance(e, OSError)]
+        error = next((e for e in inner if e.errno != errno.ECONNREFUSED), inner[0] if inner else error)
+    if isinstance(error, ConnectionRefusedError):
+        return f"connection refused by {at} (no SSH server listens on port {port})", True
+    if isinstance(error, socket.gaierror):
+        return f"cannot resolve {address} ({error.strerror})", False
+    if isinstance(error, (socket.timeout, TimeoutError)):
+        return (f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a "
+                "firewall)"), True
+    if isinstance(error, SSHException):
+        text = str(error)
+        if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):
+            return (f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
+                    "e.g. MaxStartups, or a firewall)"), True
+        if "Indecipherable protocol version" in text or (
+                "Error reading SSH protocol banner" in text and elapsed < float(timeout) - 0.5):
+            # paramiko waits 2 s for each line after a first one that is not SSH's
+            return (f"not an SSH server: {at} answered, but not with an SSH greeting (another service on that "
+                    "port? wrong port?)"), False
+        if "Error reading SSH protocol banner" in text:
+            return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
+                    f"{timeout} s (wrong port?)"), False
+        if "No existing session" in text or "Unable to connect" in text:
+            return f"the SSH session to {at} closed during the handshake", True
+        return f"SSH error from {at}: {text}", False
+    if isinstance(error, EOFError):
+        return f"connection closed by {at} during the SSH handshake", True
+    if isinstance(error, OSError):
+        if error.errno in (errno.EHOSTUNREACH, errno.ENETUNREACH):
+            return f"no route to {at} ({error.strerror})", True
+        return f"cannot connect to {at} ({error.strerror or error})", True
+    return f"cannot connect to {at} ({type(error).__name__}: {error})", False
