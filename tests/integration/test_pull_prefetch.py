@@ -24,7 +24,7 @@ import pytest
 
 from robotfleet.commands import pullrollout, pullstatus
 from robotfleet.pull.protocol import agent_files, platforms, reports
-from robotfleet.pull.robot import agent, prefetch
+from robotfleet.pull.robot import agent
 from tests.integration.test_pull_agent import World, code_archive
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
@@ -202,11 +202,3 @@ def test_status_and_a_rollout_read_prefetched_as_not_yet_applied_and_not_failed(
     assert {m.name: m.value for m in pullstatus.metrics(row)}["pull_failed"] == 0
     assert pullrollout.outcome(report, 1) is None and not reports.failed_for(report, 1)
 
-
-def test_an_image_reference_and_its_digest_make_what_docker_pulls():
-    digest = IMAGES[PAYLOAD]
-    assert prefetch.by_digest("reg.lan:5000/ros/payload:1.1", digest) == f"reg.lan:5000/ros/payload@{digest}"
-    assert prefetch.by_digest(f"payload@{digest}", digest) == f"payload@{digest}"
-    for ref, pin in (("-oProxy=x/payload:1", digest), ("payload:1", "sha256:abc")):
-        with pytest.raises(ValueError, match="not an image reference and a sha256 digest"):
-            prefetch.by_digest(ref, pin)
