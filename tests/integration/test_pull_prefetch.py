@@ -192,6 +192,19 @@ def test_too_little_disk_for_the_release_prefetches_nothing_and_says_why(robot):
     assert robot.placed() == before and robot.docker_log() == []
 
 
+def test_a_robot_without_docker_yet_prefetches_the_rest(robot, tmp_path, monkeypatch):
+    """A first-boot robot: the release's converge installs Docker, and pulls its images then."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    os.symlink(shutil.which("git"), bin_dir / "git")
+    monkeypatch.setenv("PATH", str(bin_dir))
+    record = robot.release(1, wheels=False)
+    _, outcome, _ = robot.wake()
+    assert outcome.result == "prefetched"
+    assert outcome.reason.startswith("release 1 prefetched (code, 0 wheel(s), no Docker yet: images at the apply); ")
+    assert (robot.state / "code" / record.tree_sha256).is_dir() and robot.docker_log() == []
+
+
 def test_status_and_a_rollout_read_prefetched_as_not_yet_applied_and_not_failed(robot):
     robot.release(1, wheels=False)
     robot.wake()

@@ -108,13 +108,13 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
     except (Incomplete, prepare.PrepareError, OSError) as error:
         return WAITING, f"release {version} not prefetched yet: {error}; {waiting.reason}", None
     wake.state["prefetched"] = done = {"version": version, "paths": paths, "wheels": len(wheels),
-                                       "images": len(images)}
+                                       "images": None if images is None else len(images)}
     return PREFETCHED, _said(done, waiting.reason), None
 
 
 def _said(done: dict, waiting: str | None) -> str:
-    return (f"release {done['version']} prefetched (code, {done.get('wheels', 0)} wheel(s), "
-            f"{done.get('images', 0)} image(s)); {waiting or 'waiting'}")
+    images = "no Docker yet: images at the apply" if done.get("images") is None else f"{done['images']} image(s)"
+    return f"release {done['version']} prefetched (code, {done.get('wheels', 0)} wheel(s), {images}); {waiting}"
 
 
 def _targets(record, client, state_dir: Path, min_free_mb: int) -> dict[str, Path]:
@@ -135,9 +135,13 @@ def _targets(record, client, state_dir: Path, min_free_mb: int) -> dict[str, Pat
     return client.download(wanted, directory)
 
 
-def pull_images(images: dict[str, str], docker_dir: str, min_free_mb: int, docker: str = DOCKER) -> list[str]:
-    """Each image by its digest, present afterwards; the references.
-    Incomplete at the first that cannot be had (the rest: the next check)."""
+def pull_images(images: dict[str, str], docker_dir: str, min_free_mb: int, docker: str = DOCKER) -> list[str] | None:
+    """Each image by its digest, present afterwards; the references (None:
+    no Docker on the robot yet, which the release's own converge installs:
+    its images are pulled then).  Incomplete at the first that cannot be
+    had (the rest: the next check)."""
+    if images and shutil.which(docker) is None:
+        return None
     wanted = []
     for ref, digest in sorted(images.items()):
         try:
