@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.commands import pullrollout, pullstatus
+from robotfleet.commands import pullrollout, pullstatus, status
 from robotfleet.pull.protocol import agent_files, platforms, reports
 from robotfleet.pull.robot import agent
 from tests.integration.test_pull_agent import World, code_archive
@@ -127,6 +127,9 @@ def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switc
     [venv] = [p for p in (robot.state / "venvs").iterdir() if p.name != "stub"]
     assert (venv / "bin" / "python").exists() and os.readlink(robot.state / "venv") == "venvs/stub"
     assert [line for line in robot.docker_log() if " pull " in line] == [f"docker pull -q {ref}" for ref in BY_DIGEST]
+    # only images asked for and pulled: no container touched, no converge run (nor its apply lock)
+    assert all(line.startswith(("docker image inspect ", "docker pull ")) for line in robot.docker_log())
+    assert not (robot.state / "last-run.log").exists()
     state = agent.load_state(robot.state)
     assert state.get("applied") is None and state.get("attempted") is None
     placed, calls = robot.placed(), len(robot.docker_log())
@@ -212,6 +215,7 @@ def test_status_and_a_rollout_read_prefetched_as_not_yet_applied_and_not_failed(
     data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3}
     row = pullstatus.row("robot1", report, data, NOW, "url")
     assert row["pull"] == "prefetched 1" and "error" not in row and row["reachable"] == "pull"
+    assert status.exit_code([row]) == 0
     assert {m.name: m.value for m in pullstatus.metrics(row)}["pull_failed"] == 0
     assert pullrollout.outcome(report, 1) is None and not reports.failed_for(report, 1)
 
