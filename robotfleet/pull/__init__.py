@@ -7,7 +7,7 @@ Three layers, held by import-linter (pyproject.toml):
   the agent's files and configuration on a robot, a robot's data;
 - ``robot/``: what runs on the robot: the agent, its transport, the TUF
   verification and what it trusts between checks, the decision, preparing
-  and running a release's converge;
+  (and prefetching, before the window) and running a release's converge;
 - ``operator/``: what runs on the operator's machine: keys, the TUF
   repository, publishing, wheels, bundles, gitolite's rules, the pull
   role's install of the agent, the commands' shared options.

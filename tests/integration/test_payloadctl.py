@@ -669,6 +669,20 @@ def test_the_robots_own_platform_is_kept_with_the_release(robot):
     assert "docker pull -q reg/ros/payload:1.1" in robot.state()["log"]  # Docker picks the variant
 
 
+def test_an_image_present_by_the_digest_it_names_is_not_pulled_again(robot):
+    """A pull robot's prefetch (robotfleet/pull/robot/prefetch.py) pulled it
+    before the window: the apply switches, the registry unreachable then."""
+    pinned = "reg/ros/payload:1.1@sha256:" + "c" * 64
+    for ref in (pinned, "reg/ros/payload@sha256:" + "c" * 64):  # as the release names it, as compose runs it
+        robot.image(ref, pull="fail")
+    robot.image("reg/ros/payload:1.2", pull="fail")
+    result = robot.apply(pinned)
+    assert result.returncode == 0, result.stderr
+    assert not [entry for entry in robot.state()["log"] if entry.startswith("docker pull")]
+    robot.apply("reg/ros/payload:1.2", run_id="run-2", pull_timeout=3)  # a tag may name another image now: asked for
+    assert "docker pull -q reg/ros/payload:1.2" in robot.state()["log"]
+
+
 def test_a_service_that_pins_its_platform_is_pulled_for_that_platform(robot):
     robot.architecture("arm64")
     robot.image("reg/ros/camera:2.0-arm64", platform="linux/arm64")

@@ -10,7 +10,8 @@
    verified expired, is that verification again (robotfleet/pull/robot/trust_state.py):
    no TUF, not even its import, unless the release is to be applied.
 3. Decide (robotfleet/pull/robot/decide.py): nothing new, wait for a wave or a
-   maintenance window, a halt, or apply.
+   maintenance window (meanwhile putting the release in place:
+   robotfleet/pull/robot/prefetch.py), a halt, or apply.
 4. To apply: download and verify the code archive and the wheels, unpack
    and check the tree, make the venv, all before any lock; then run the
    release's own converge (robotfleet/pull/robot/converge.py: the deploy under the
@@ -45,7 +46,7 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet import atomicfile
-from robotfleet.pull.robot import release_run, trust_state
+from robotfleet.pull.robot import prefetch, release_run, trust_state
 from robotfleet.pull.protocol import agent_files, enrollment, reports, waves
 from robotfleet.pull.robot import enrollment_proof
 from robotfleet.pull.robot import decide as deciding
@@ -219,6 +220,8 @@ class Wake:
             decision = self.decide()
             if decision.result == deciding.APPLY:
                 outcome = self.apply(client or self.verify(), decision.wave)
+            elif decision.result == "waiting":  # time to put it in place: robotfleet/pull/robot/prefetch.py
+                outcome = Outcome(*prefetch.ahead(self, client, decision), wave=decision.wave)
             else:
                 outcome = Outcome(decision.result, decision.reason, wave=decision.wave)
         except Outcome as ended:

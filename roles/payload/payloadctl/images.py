@@ -64,15 +64,26 @@ def pull(ref, timeout, platform=None):
 def obtain(ref, delivery, pull_timeout, platform=None):
     """Make the image present, pulling while the old release keeps running
     (Docker picks the robot's variant of a multi-platform image, or
-    ``platform`` where the service pins one)."""
-    if delivery == "pull":
+    ``platform`` where the service pins one).  An image already present by
+    the digest its reference names is that image: not pulled again (a pull
+    robot's prefetch brought it before the window; the window holds only
+    the switch, whether or not the registry answers then)."""
+    info = image_info(ref) if _digest_of(ref) and platform is None else None
+    if delivery == "pull" and info is None:
         error = pull(ref, pull_timeout, platform)
         if error is not None and image_info(ref) is None:
             raise Failure("cannot pull {}: {}; the old release keeps running".format(ref, error))
-    info = image_info(ref)
+    info = info or image_info(ref)
     if info is None:
         raise Failure("image {} is not on this robot (delivery: {})".format(ref, delivery))
     return info
+
+
+def _digest_of(ref):
+    try:
+        return imageref.parse(ref).digest
+    except ValueError:
+        return None
 
 
 def pinned(ref, info):

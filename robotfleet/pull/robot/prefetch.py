@@ -1,0 +1,172 @@
+"""Prefetch: a release this robot will apply once its wave or maintenance
+window opens is put in place now, so that the window holds only the switch.
+
+When a check decides "waiting" (robotfleet/pull/robot/decide.py), the agent
+asks ``ahead``: it downloads and verifies the code archive and the wheels
+for this robot's platform (TUF targets, kept in the agent's targets
+directory), unpacks and checks the tree (``code/<tree hash>``), makes the
+venv, and pulls each of the robot's images by the digest the record names
+(``docker pull repo@sha256:...``, as root: with the registry logins the
+payload role made on the robot), skipping an image already present by that
+digest.  The check then reports ``prefetched``; the apply, when the gate
+opens, finds every target cached (python-tuf's ``find_cached_target``), the
+tree and the venv made, and the images present.
+
+Nothing here takes the payload's apply lock or touches what runs: the
+switch (``code/current``, ``venv``, the payload) is the apply's alone.
+
+An interrupted prefetch (no network, a reboot) is taken up again at the
+next check where it stopped: targets already verified are kept whole, a
+venv or tree already made is kept, an image already pulled is skipped, and
+Docker keeps the layers of an interrupted pull.  That is a ``waiting``
+check saying what is missing, never a failed release (nothing was tried).
+Free disk is checked first (``pull_min_free_mb``, with the downloads the
+release still needs, and again before each image).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+DOCKER = "docker"  # found on PATH, as the payload role's own pulls find it
+PULL_TIMEOUT = 1800
+INSPECT_TIMEOUT = 60
+# The downloads, and as much again twice: the unpacked tree and the venv's installed wheels.
+UNPACKED_FACTOR = 3
+PREFETCHED = "prefetched"
+WAITING = "waiting"
+_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._/:-]{0,254}")
+_DIGEST = re.compile(r"sha256:[0-9a-f]{64}")
+MB = 1 << 20
+
+
+class Incomplete(Exception):
+    """What could not be had this time (one line): tried again at the next check."""
+
+
+def by_digest(ref: str, digest: str) -> str:
+    """``reg/ros/payload:1.1`` and its digest -> ``reg/ros/payload@sha256:...``
+    (what Docker pulls and finds by the digest alone); ValueError naming a
+    reference or digest that is neither."""
+    name = ref.split("@", 1)[0]
+    if name.rfind(":") > name.rfind("/"):
+        name = name[:name.rfind(":")]
+    if not _NAME.fullmatch(name) or not _DIGEST.fullmatch(digest or ""):
+        raise ValueError(f"image {ref!r} -> {digest!r}: not an image reference and a sha256 digest")
+    return f"{name}@{digest}"
+
+
+def room(free: int, needed: int, min_free_mb: int, where: str) -> str | None:
+    """Why ``needed`` bytes cannot be written where ``free`` bytes are free
+    and ``min_free_mb`` must stay free; None when they can (pure)."""
+    if free - needed >= min_free_mb * MB:
+        return None
+    return (f"it needs about {_mb(needed)} MB, {_mb(free)} MB are free on {where}'s file system "
+            f"(pull_min_free_mb: {min_free_mb})")
+
+
+def _mb(size: int) -> int:
+    return -(-size // MB)
+
+
+def free_on(path: str) -> int | None:
+    return shutil.disk_usage(path).free if os.path.isdir(path) else None
+
+
+def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
+    """(result, reason, refusal) of a check whose ``waiting`` decision leaves
+    time: ``prefetched`` once everything is in place, else ``waiting`` with
+    what is missing, or ``refused`` for a target or tree that is not what
+    the record binds (the apply would refuse it the same way).  ``wake``:
+    the agent's Wake (record, config, state, verify); ``client``: its TUF
+    client, when this check verified in full."""
+    from robotfleet.pull.robot import prepare, verify
+
+    record, config, state_dir = wake.record, wake.config, wake.state_dir
+    version = record.version
+    done = wake.state.get("prefetched") or {}
+    if done.get("version") == version and all(Path(p).exists() for p in done.get("paths", [])):
+        return PREFETCHED, _said(done, waiting.reason), None
+    try:
+        client = client or wake.verify()
+        found = _targets(record, client, state_dir, config.min_free_mb)
+        paths = [str(prepare.code_dir(state_dir, record, found[record.code]))]
+        wheels = {p: found[p] for p in found if p != record.code}
+        if wheels:
+            paths.append(str(prepare.venv_for(state_dir, wheels)))
+        images = pull_images(record.images_of(config.robot), config.docker_dir, config.min_free_mb)
+    except verify.Refused as refused:
+        if refused.reason != verify.UNAVAILABLE:
+            return "refused", refused.line, refused.reason
+        return WAITING, f"release {version} not prefetched yet: {refused.line}; {waiting.reason}", None
+    except prepare.Mismatch as error:
+        return "refused", f"release {version}: {error}", verify.TAMPERED
+    except (Incomplete, prepare.PrepareError, OSError) as error:
+        return WAITING, f"release {version} not prefetched yet: {error}; {waiting.reason}", None
+    wake.state["prefetched"] = done = {"version": version, "paths": paths, "wheels": len(wheels),
+                                       "images": None if images is None else len(images)}
+    return PREFETCHED, _said(done, waiting.reason), None
+
+
+def _said(done: dict, waiting: str | None) -> str:
+    images = "no Docker yet: images at the apply" if done.get("images") is None else f"{done['images']} image(s)"
+    return f"release {done['version']} prefetched (code, {done.get('wheels', 0)} wheel(s), {images}); {waiting}"
+
+
+def _targets(record, client, state_dir: Path, min_free_mb: int) -> dict[str, Path]:
+    """The code archive and this platform's wheels, verified, into the
+    agent's targets directory (kept if already there and verified)."""
+    from robotfleet.pull.protocol import platforms
+
+    wanted = [record.code, *record.wheels_for(platforms.platform_key())]
+    directory = state_dir / "targets"
+    missing = 0
+    for path in wanted:
+        info = client.updater.get_targetinfo(path) if client.updater else None
+        if info is not None and not (directory / path).is_file():
+            missing += info.length
+    why = room(free_on(str(state_dir)) or 0, missing * UNPACKED_FACTOR, min_free_mb, str(state_dir))
+    if why:
+        raise Incomplete(why)
+    return client.download(wanted, directory)
+
+
+def pull_images(images: dict[str, str], docker_dir: str, min_free_mb: int, docker: str = DOCKER) -> list[str] | None:
+    """Each image by its digest, present afterwards; the references (None:
+    no Docker on the robot yet, which the release's own converge installs:
+    its images are pulled then).  Incomplete at the first that cannot be
+    had (the rest: the next check)."""
+    if images and shutil.which(docker) is None:
+        return None
+    wanted = []
+    for ref, digest in sorted(images.items()):
+        try:
+            wanted.append(by_digest(ref, digest))
+        except ValueError as error:
+            raise Incomplete(str(error)) from None
+    for pinned in wanted:
+        if _docker(docker, ["image", "inspect", pinned], INSPECT_TIMEOUT).returncode == 0:
+            continue
+        free = free_on(docker_dir)
+        if free is not None and free < min_free_mb * MB:
+            raise Incomplete(f"{pinned}: only {free // MB} MB free on {docker_dir}'s file system "
+                             f"(pull_min_free_mb: {min_free_mb})")
+        done = _docker(docker, ["pull", "-q", pinned], PULL_TIMEOUT)
+        if done.returncode:
+            lines = [line.strip() for line in (done.stderr or done.stdout).splitlines() if line.strip()]
+            raise Incomplete(f"docker pull {pinned}: {lines[-1][:300] if lines else f'exit {done.returncode}'}")
+    return wanted
+
+
+def _docker(docker: str, args: list[str], timeout: int) -> subprocess.CompletedProcess:
+    try:
+        return subprocess.run([docker, *args], capture_output=True, text=True, timeout=timeout,
+                              stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        raise Incomplete(f"docker {args[0]} {args[-1]}: no answer within {timeout} s") from None
+    except OSError as error:
+        raise Incomplete(f"docker: {error}") from None

@@ -1,0 +1,140 @@
+"""Benchmark: a maintenance window opens -> the payload healthy on the new
+release, with the release prefetched before the window (issue 35 item 6)
+and with nothing prefetched.  Prints figures; asserts nothing; not part of
+the test command (it builds its own lab).
+
+    python3 -m tests.bench.prefetch [--prefix pf] [--robots 3] [--runs 3] [--keep]
+
+Each run, on every robot of the lab (pull agents installed as
+tests/bench/pull.py's setup does):
+
+1. a release whose fleet file gives the robots a maintenance window opening
+   a few minutes ahead (``daily HH:MM-HH:MM UTC``; applied while the last
+   run's window, or none, is open), so the next release waits for it;
+2. the robots' timers stopped (only the benchmark wakes them from here on)
+   and the new release's payload image removed from each robot, so its
+   pull really goes to the registry;
+3. a release of the other payload tag published; with prefetch, each robot
+   woken once now: it reports ``prefetched`` (code, wheels, images by
+   digest in place); without, no robot checks before the window: its first
+   check of the release is the one in the window, as before prefetch;
+4. at the window's first second every robot is woken; measured per robot:
+   its applying wake's own seconds (its journal line: fetch, verify,
+   download, converge, the payload's health gate) and, from the moment of
+   the wake, the time until its report says the release applied and the
+   payload healthy; then the timers started again.
+
+The two modes alternate run by run, on the same lab and images.  Figures
+wait for an idle machine before each window (tests/bench/hygiene.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import re
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from tests.bench import hygiene
+from tests.bench.pull import journal, setup
+
+LEAD = 240  # seconds from a run's start to its window: the settings release applied, the prefetch done
+
+
+def window_ahead(now: datetime.datetime, lead: int = LEAD, span_minutes: int = 30) -> tuple[datetime.datetime, str]:
+    """The first whole minute at least ``lead`` seconds after ``now``, and a
+    daily UTC window opening then (pure)."""
+    opens = (now + datetime.timedelta(seconds=lead + 59)).replace(second=0, microsecond=0)
+    ends = opens + datetime.timedelta(minutes=span_minutes)
+    return opens, f"daily {opens:%H:%M}-{ends:%H:%M} UTC"
+
+
+def window_run(lab, op, tag: str, prefetch: bool) -> dict:
+    """One run (the module's steps): its figures."""
+    from tests.lab import pullfleet
+
+    opens, window = window_ahead(datetime.datetime.now(datetime.timezone.utc))
+    other = "1.0" if tag == "1.1" else "1.1"
+    op.publish(pullfleet.fleet_text(op.lab, payload_tag=other, pull_windows=[window]), f"window {window}",
+               "--pause", "0", "--no-wheels", "--canary", "100%")
+    lab.trigger(lab.robots)  # applied inside the previous window (or none): the new window in agent.json
+    image = f"{op.lab['registry']}/ros/payload@{pullfleet.digest_of(op.lab, 'ros/payload', tag)}"
+    for robot in lab.robots:
+        lab.sh(robot, "systemctl stop robot-pull.timer")
+        lab.sh(robot, f"docker image rm -f {image} >/dev/null 2>&1; true")  # not running: the other tag runs
+    done = op.publish(pullfleet.fleet_text(op.lab, payload_tag=tag, pull_windows=[window]), f"bench {tag}",
+                      "--pause", "0", "--no-wheels", "--canary", "100%")
+    version = int(re.search(r"release (\d+)", done.stdout).group(1))
+    if prefetch:
+        lab.trigger(lab.robots)
+    said = {robot: (journal(lab, robot) or [{}])[-1].get("result") for robot in lab.robots}
+    load, idle = hygiene.wait(f"window {window}", first=True, patience=max(1, int(
+        (opens - datetime.datetime.now(datetime.timezone.utc)).total_seconds()) - 5))
+    late = (datetime.datetime.now(datetime.timezone.utc) - opens).total_seconds()
+    if late < 0:
+        time.sleep(-late)
+    woken = time.monotonic()
+    lab.trigger(lab.robots)
+    reached: dict[str, float] = {}
+    deadline = woken + 900
+    while len(reached) < len(lab.robots) and time.monotonic() < deadline:
+        for robot, report in op.reports().items():
+            if robot in lab.robots and robot not in reached and (report.get("applied") or {}).get("version", 0) >= \
+                    version and (report.get("status") or {}).get("health") == "healthy":
+                reached[robot] = time.monotonic() - woken
+        time.sleep(1)
+    wakes = [float(line["seconds"]) for robot in lab.robots for line in journal(lab, robot)
+             if line["result"] == "applied" and line["version"] == str(version)]
+    for robot in lab.robots:
+        lab.sh(robot, "systemctl start robot-pull.timer")
+    return {"prefetch": prefetch, "robots": len(lab.robots), "before_window": said, "late_s": max(0.0, late),
+            "reached": len(reached), "to_healthy": sorted(reached.values()), "applying_wake_s": sorted(wakes),
+            "window": window, "load": load, "idle": idle}
+
+
+def compare(runs: list[dict]) -> dict:
+    """Median of each mode's applying wakes and times to healthy (pure)."""
+    found = {}
+    for mode, prefetched in (("prefetched", True), ("nothing prefetched", False)):
+        mine = [r for r in runs if r["prefetch"] is prefetched]
+        wakes = [s for r in mine for s in r["applying_wake_s"]]
+        healthy = [s for r in mine for s in r["to_healthy"]]
+        found[mode] = {"runs": len(mine), "applying_wake_s": statistics.median(wakes) if wakes else None,
+                       "to_healthy_s": statistics.median(healthy) if healthy else None,
+                       "all_reached": all(r["reached"] == r["robots"] for r in mine),
+                       "idle": all(r["idle"] for r in mine)}
+    return found
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.prefetch", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--prefix", default="pf")
+    parser.add_argument("--robots", type=int, default=3)
+    parser.add_argument("--runs", type=int, default=3, help="runs of each mode (they alternate)")
+    parser.add_argument("--keep", action="store_true", help="leave the lab up")
+    args = parser.parse_args(argv)
+    from tests.lab import hosts
+
+    runs: list[dict] = []
+    try:
+        with tempfile.TemporaryDirectory(prefix="bench-prefetch-") as base:
+            op, lab = setup(args.prefix, args.robots, Path(base))
+            tag = "1.1"
+            for index in range(args.runs * 2):
+                figures = window_run(lab, op, tag, index % 2 == 0)
+                runs.append(figures)
+                print(f"bench: window opens -> healthy: {json.dumps(figures)}", flush=True)
+                tag = "1.0" if tag == "1.1" else "1.1"
+    finally:
+        if not args.keep:
+            hosts.down(args.prefix)
+    print(json.dumps({"runs": runs, "compare": compare(runs)}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
