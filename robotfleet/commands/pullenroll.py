@@ -29,7 +29,7 @@ from robotfleet import selection
 from robotfleet.commands import pullstatus
 from robotfleet.commands.bundle import add_admin, admin_of, repository_name
 from robotfleet.pull.operator import gitolite
-from robotfleet.pull.protocol import agent_files
+from robotfleet.pull.protocol import agent_files, report_shards
 
 
 def key_of(line: str):
@@ -95,7 +95,8 @@ def main(argv=None) -> int:
         if not chosen:
             raise selection.Refused(f"{args.inventory}: no pull robot (pull: true) to enroll")
         url = pullstatus.remote_of(args.remote)
-        found = pullstatus.fetch(url)
+        shards = pullstatus.shards_of([(h.name, h.data) for h in chosen])
+        found = pullstatus.fetch(url, shards=shards)
     except (selection.Refused, pullstatus.ReportsUnavailable) as error:
         return selection.refused(selection.Refused(str(error)))
     code = selection.OK
@@ -116,7 +117,8 @@ def main(argv=None) -> int:
                 code = max(code, selection.UNREACHABLE)
                 continue
         else:
-            print(f"{host.name}: no report in refs/reports/{host.name} of {url} (--ssh reads its key over SSH)",
+            print(f"{host.name}: no report in refs/reports/{host.name} of "
+                  f"{report_shards.report_url(url, host.name, shards)} (--ssh reads its key over SSH)",
                   file=sys.stderr)
             code = max(code, selection.UNREACHABLE)
             continue
@@ -127,7 +129,8 @@ def main(argv=None) -> int:
             print(f"{host.name}: its key for the fleet remote: {key}")
             continue
         try:
-            changed = gitolite.register(admin, repository_name(host.data.get("pull_remote")), host.name, key)
+            changed = gitolite.register(admin, repository_name(host.data.get("pull_remote")), host.name, key,
+                                        shards=shards)
         except gitolite.GitoliteError as error:
             print(f"{host.name}: {error}", file=sys.stderr)
             code = max(code, selection.FAILED)
