@@ -31,7 +31,7 @@ args = sys.argv[1:]
 if os.environ.get("STUB_LOG"):
     with open(os.environ["STUB_LOG"], "a") as runs:
         runs.write(args[0] + "\\n")
-watch = getattr(layout, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
+watch = getattr(agent_files, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
 row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"),
        "health": os.environ.get("STUB_HEALTH", "healthy")}
 if args[0] == "status":
@@ -87,7 +87,7 @@ class World:
                                     min_free_mb=0)
 
     def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
-        record, waves = pullkit.module("record"), pullkit.module("waves")
+        record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
         built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
         built = record.build(version, NOW, NOW + datetime.timedelta(days=30), hashlib.sha1(bytes([version])).hexdigest(),
                              tree_sha, "inventories/robots.yaml", fleet_sha, list(robots), {}, {},

@@ -190,3 +190,24 @@ def test_a_later_wave_robot_reads_the_earlier_waves_from_their_shards(tmp_path):
     touched = {SimpleNamespace(**e).what for e in reader.cost.exchanges}
     assert touched == {"reports"} and len(reader.cost.exchanges) == len(
         report_shards.spread([f"robot{i}" for i in range(1, 10)], SHARDS)) + 1  # each shard once, the fleet remote once
+
+
+def test_the_agent_reports_to_its_shard_and_halts_on_an_earlier_wave_s_failure_read_from_its_shard(tmp_path):
+    from dataclasses import replace
+
+    from tests.integration.test_pull_agent import NOW as RELEASED, World
+
+    world = World(tmp_path)
+    for shard in range(SHARDS):
+        bare(Path(report_shards.shard_url(str(world.bare), shard)))
+    world.config = replace(world.config, report_shards=SHARDS)
+    world.release(3, robots=("robot1", "robot2", "robot3"), canary="2")  # robot2 and robot3 first
+    rolled_back = reports.build("robot3", RELEASED, "rolled-back", attempted={"version": 3, "result": "rolled-back",
+                                                                              "tries": 1})
+    robot_remote(tmp_path, world.bare, "robot3").push_report("robot3", reports.to_bytes(rolled_back))
+    _, outcome, sent = world.wake()
+    assert (outcome.result, outcome.wave) == ("halted", 1)
+    assert outcome.reason == "wave 1 stopped: 1 robot(s) of the earlier waves failed (budget 0)"
+    assert sent == "report sent"
+    own = Path(report_shards.shard_url(str(world.bare), report_shards.shard_of("robot1", SHARDS)))
+    assert "refs/reports/robot1" in refs(own) and refs(world.bare) == []

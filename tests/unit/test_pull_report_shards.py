@@ -65,3 +65,19 @@ def test_the_suggested_count_keeps_about_a_hundred_refs_a_shard(robots, count):
 def test_a_count_that_cannot_be_used_is_one_line(count):
     with pytest.raises(report_shards.ShardError, match=r"pull_report_shards: expected a whole number from 0 to 4096"):
         report_shards.shard_of("robot1", count)
+
+
+def test_the_agent_configuration_carries_the_shard_count():
+    import json
+
+    from robotfleet.pull.protocol import agent_files
+
+    config = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet", report_shards=128)
+    assert agent_files.read_config(config.to_json()).report_shards == 128
+    single = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet")
+    assert "report_shards" not in json.loads(single.to_json())  # an agent from before shards reads it too
+    assert agent_files.read_config(single.to_json()).report_shards == 0
+    raw = {**json.loads(single.to_json()), "report_shards": 5000}
+    with pytest.raises(agent_files.ConfigError,
+                       match=r"agent.json: report_shards: expected a whole number from 0 to 4096, got 5000"):
+        agent_files.read_config(json.dumps(raw), "agent.json")
