@@ -11,7 +11,6 @@ import datetime
 import re
 import subprocess
 from pathlib import Path
-from types import SimpleNamespace
 
 import pytest
 
@@ -187,7 +186,7 @@ def test_a_later_wave_robot_reads_the_earlier_waves_from_their_shards(tmp_path):
     assert found["robot3"]["result"] == "failed" and reports.failed_for(found["robot3"], 3)
     assert found["robot2"]["result"] == "applied"
     assert found["robot9"]["result"] == "applied"  # not moved: read where it reported before
-    touched = {SimpleNamespace(**e).what for e in reader.cost.exchanges}
+    touched = {exchange["what"] for exchange in reader.cost.exchanges}
     assert touched == {"reports"} and len(reader.cost.exchanges) == len(
         report_shards.spread([f"robot{i}" for i in range(1, 10)], SHARDS)) + 1  # each shard once, the fleet remote once
 
