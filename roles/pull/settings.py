@@ -58,7 +58,7 @@ SETTINGS = (
             "come from an https mirror); null: pull_remote."),
     Setting("pull_report_shards", 0, c.integer(0, 4096),
             "Report repositories beside the fleet remote (<remote>-reports-<n>), each robot's fixed by a hash of its "
-            "name; about one per 100 robots keeps a report push small; 0: the reports in the fleet remote itself. "
+            "name; about one per 50 robots keeps a report push under 10 KB; 0: the reports in the fleet remote itself. "
             "The same on every robot."),
     Setting("pull_remote_ca", None, c.optional(v.local_path),
             "PEM file of the CA an https pull_remote's certificate is checked against (relative to the checkout; "

@@ -22,7 +22,9 @@ from tests.integration import craftedgit
 UTC = datetime.timezone.utc
 NOW = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)
 SHARDS = 4
-PUSH_BUDGET = 10 * 1024  # issue 38: a report push moves at most 10 KB whatever the fleet's size
+# issue 38: a report push moves at most 10 KB whatever the fleet's size; git's part of it
+# here, the SSH session's own ~4.5 KB each way (RESULTS.md, "Pull mode") left for the rest.
+PUSH_BUDGET = 10 * 1024 - 4608
 _RECEIVED = re.compile(r"packet: +push< (.*)$")
 
 
@@ -122,7 +124,7 @@ def test_a_push_receives_only_its_shard_s_refs_at_ten_thousand_robots(tmp_path, 
     biggest = max(len(members) for members in report_shards.spread(robots, shards).values())
     assert before > PUSH_BUDGET and after <= PUSH_BUDGET, (
         f"a report push at 10,000 report refs received {before} B from one repository, {after} B from its shard "
-        f"(of {shards}, the largest holding {biggest} refs); the budget is {PUSH_BUDGET} B")
+        f"(of {shards}, the largest holding {biggest} refs); git's budget is {PUSH_BUDGET} B")
     assert after < before / 50, (before, after)
 
 

@@ -27,7 +27,7 @@ import math
 
 SINGLE = 0  # the reports in the fleet remote itself
 MAX_SHARDS = 4096
-REFS_PER_SHARD = 100  # at ~64 bytes a ref, a push's advertisement of ~6.4 KB
+REFS_PER_SHARD = 50  # ~64-80 bytes a ref: an advertisement of ~4 KB, beside the ~4.5 KB of the SSH session itself
 
 
 class ShardError(ValueError):
@@ -79,8 +79,8 @@ def spread(robots, count: int) -> dict[int | None, list[str]]:
 
 def suggested(robots: int) -> int:
     """A shard count for a fleet of ``robots``: the power of two that keeps
-    each shard at most ~REFS_PER_SHARD refs (0, the single repository, up to
-    that many robots)."""
+    each shard at ~REFS_PER_SHARD refs or fewer on average (0, the single
+    repository, up to that many robots)."""
     if robots <= REFS_PER_SHARD:
         return SINGLE
     return min(MAX_SHARDS, 1 << math.ceil(math.log2(math.ceil(robots / REFS_PER_SHARD))))
