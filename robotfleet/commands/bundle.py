@@ -100,7 +100,8 @@ def make(args) -> int:
           f"({data.pull_platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}")
     if admin is not None:
         try:
-            gitolite.register(admin, repository_name(data.pull_remote), owner, public, enrollment=not rule)
+            gitolite.register(admin, repository_name(data.pull_remote), owner, public, enrollment=not rule,
+                              shards=data.pull_report_shards)
         except gitolite.GitoliteError as error:
             print(f"bundle: {error}; the enrollment key is not registered yet", file=sys.stderr)
             return selection.FAILED

@@ -38,7 +38,7 @@ from robotfleet.checkers import one_line
 from robotfleet import selection
 from robotfleet.commands import enroll, pullstatus
 from robotfleet.commands.bundle import add_admin, admin_of, repository_name
-from robotfleet.pull.protocol import enrollment, agent_files
+from robotfleet.pull.protocol import agent_files, enrollment, report_shards
 from robotfleet.pull.operator import enrollments
 from robotfleet.pull.operator import gitolite
 
@@ -198,7 +198,8 @@ def main(argv=None) -> int:
             raise selection.Refused(f"--replace {' '.join(unknown)}: no such pull robot selected in {args.inventory}; "
                                     "nothing was done")
         url = pullstatus.remote_of(args.remote, [(h.name, h.data) for h in chosen])
-        found = pullstatus.fetch(url)
+        shards = pullstatus.shards_of([(h.name, h.data) for h in chosen])
+        found = pullstatus.fetch(url, shards=shards)
     except (OSError, ValueError) as error:
         return selection.refused(selection.Refused(one_line(str(error))))
     except (selection.Refused, pullstatus.ReportsUnavailable) as error:
@@ -248,7 +249,8 @@ def main(argv=None) -> int:
                 code = max(code, selection.FAILED)
                 continue
         else:
-            print(f"{host.name}: no report in refs/reports/{host.name} of {url} (--ssh reads its key over SSH)",
+            print(f"{host.name}: no report in refs/reports/{host.name} of "
+                  f"{report_shards.report_url(url, host.name, shards)} (--ssh reads its key over SSH)",
                   file=sys.stderr)
             code = max(code, selection.UNREACHABLE)
             continue
@@ -261,7 +263,8 @@ def main(argv=None) -> int:
             print(f"{host.name}: its key for the fleet remote: {key}")
             continue
         try:
-            changed = gitolite.register(admin, repository_name(host.data.get("pull_remote")), host.name, key)
+            changed = gitolite.register(admin, repository_name(host.data.get("pull_remote")), host.name, key,
+                                        shards=shards)
         except gitolite.GitoliteError as error:
             print(f"{host.name}: {error}", file=sys.stderr)
             code = max(code, selection.FAILED)

@@ -80,6 +80,11 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
         print(f"rollout: {', '.join(pulled[:5])} converge themselves (pull) and {', '.join(pushed[:5])} do not; "
               "roll them out separately (--limit)", file=sys.stderr)
         return selection.REFUSED
+    try:
+        shards = pullstatus.shards_of(hosts)
+    except pullstatus.ReportsUnavailable as error:
+        print(f"rollout: {error}", file=sys.stderr)
+        return selection.REFUSED
     plan = plan_of(args)
     if args.dry:
         print(f"rollout: would publish a release for {len(pulled)} pull robot(s): canary {plan.canary}, waves "
@@ -108,7 +113,7 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
     deadline = time.monotonic() + args.timeout
     while True:
         try:
-            found = pullstatus.fetch(url)
+            found = pullstatus.fetch(url, shards=shards)
         except pullstatus.ReportsUnavailable as error:
             print(f"rollout: {error}", file=sys.stderr, flush=True)
             found = {}

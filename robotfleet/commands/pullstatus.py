@@ -1,5 +1,7 @@
 """The pull robots' rows of ``robotfleet status``: from the reports they push
-to the fleet remote (refs/reports/<robot>), fetched in one go; no SSH.
+to the fleet remote (refs/reports/<robot>), fetched in one go, or, with
+``pull_report_shards``, from each robot's report shard, the shards fetched
+concurrently (robotfleet/pull/protocol/report_shards.py); no SSH.
 
 A row holds what the robot's own status read (the same columns as a push
 robot's), and two more: PULL (the outcome of its last check and the
@@ -19,7 +21,7 @@ import robotfleet
 from robotfleet.checkers import one_line
 from robotfleet.pull.operator import releases_remote
 from robotfleet.pull.operator import channel
-from robotfleet.pull.protocol import report_store, reports
+from robotfleet.pull.protocol import report_shards, report_store, reports
 from robotfleet.pull.protocol.record import parse_time
 from robotfleet.role import Metric
 
@@ -40,14 +42,28 @@ def remote_of(given: str | None, hosts=(), checkout: Path = robotfleet.CHECKOUT)
         raise ReportsUnavailable(f"no remote to read the pull robots' reports from: {error}") from None
 
 
-def fetch(url: str, cache: Path | None = None) -> dict[str, dict]:
-    """Every robot's report from ``url`` (one fetch into a local cache)."""
+def shards_of(hosts) -> int:
+    """The fleet's report shard count: pull_report_shards, one value for all
+    the pull hosts [(name, data)] (a robot reads the others' shards with its own)."""
+    counts = {}
+    for name, data in hosts:
+        counts.setdefault(data.get("pull_report_shards") or 0, name)
+    if len(counts) > 1:
+        (one, first), (other, second) = sorted(counts.items())[:2]
+        raise ReportsUnavailable(f"pull_report_shards: {first} has {one}, {second} has {other}: "
+                                 "give every pull robot the same")
+    return next(iter(counts), report_shards.SINGLE)
+
+
+def fetch(url: str, cache: Path | None = None, shards: int = report_shards.SINGLE) -> dict[str, dict]:
+    """Every robot's report from ``url`` and its ``shards`` report shards
+    (fetched into a local cache, the shards concurrently)."""
     cache = cache or robotfleet.CHECKOUT / ".robotfleet" / "reports"
     try:
-        report_store.fetch_all(url, cache)
-        return report_store.read_all(cache)
+        return report_store.fetch_every(url, shards, cache)
     except reports.ReportError as error:
-        raise ReportsUnavailable(f"reports from {url}: {error}") from None
+        raise ReportsUnavailable(f"reports from {url}{f' and its {shards} shards' if shards else ''}: "
+                                 f"{error}") from None
 
 
 def pull_cell(report: dict) -> str:
@@ -119,6 +135,8 @@ def now() -> datetime.datetime:
 
 def rows(hosts, url: str, found: dict[str, dict] | None = None) -> dict[str, dict]:
     """name -> row for the pull hosts [(name, data)]."""
-    found = fetch(url) if found is None else found
+    shards = shards_of(hosts)
+    found = fetch(url, shards=shards) if found is None else found
     moment = now()
-    return {name: row(name, found.get(name), data, moment, url) for name, data in hosts}
+    return {name: row(name, found.get(name), data, moment, report_shards.report_url(url, name, shards))
+            for name, data in hosts}

@@ -56,6 +56,10 @@ SETTINGS = (
     Setting("pull_report_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
             "Where the agent pushes its reports, when not to pull_remote (e.g. ssh to the git server while releases "
             "come from an https mirror); null: pull_remote."),
+    Setting("pull_report_shards", 0, c.integer(0, 4096),
+            "Report repositories beside the fleet remote (<remote>-reports-<n>), each robot's fixed by a hash of its "
+            "name; about one per 50 robots keeps a report push under 10 KB; 0: the reports in the fleet remote itself. "
+            "The same on every robot."),
     Setting("pull_remote_ca", None, c.optional(v.local_path),
             "PEM file of the CA an https pull_remote's certificate is checked against (relative to the checkout; "
             "keep it in the deploy tree, e.g. files/); null: the robot's system CAs."),

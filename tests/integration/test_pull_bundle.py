@@ -21,6 +21,7 @@ DATA = SimpleNamespace(pull_remote="ssh://gitolite3@git.lan/fleet", pull_interva
                        pull_windows=[], pull_min_free_mb=256, pull_fetch_timeout=120, pull_stale_after=3,
                        pull_boot_delay=30, pull_remote_host_keys=[KEY], pull_platform="cp313-x86_64",
                        pull_heartbeat=3600, pull_report_remote=None, pull_remote_ca=None)
+DATA.pull_report_shards = 0
 RECORD = SimpleNamespace(version=4, published="2026-11-25T10:00:00Z", tree_sha256="ab" * 32)
 
 

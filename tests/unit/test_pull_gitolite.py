@@ -42,6 +42,58 @@ def test_names_gitolite_cannot_take_are_refused(name):
         gitolite.conf("fleet", [name])
 
 
+def blocks(text: str) -> dict[str, list[str]]:
+    """repo -> its rule lines, from gitolite.conf."""
+    found: dict[str, list[str]] = {}
+    for line in text.splitlines():
+        if line.startswith("repo "):
+            current = found.setdefault(line.split()[1], [])
+        elif line.startswith("    "):
+            current.append(line.strip())
+    return found
+
+
+def test_with_shards_each_robot_writes_its_own_ref_in_its_own_shard_only():
+    from robotfleet.pull.protocol import report_shards
+
+    robots = [f"robot{i}" for i in range(1, 21)]
+    rules = blocks(gitolite.conf("fleet", robots, shards=4))
+    assert sorted(rules) == ["fleet", "fleet-reports-0", "fleet-reports-1", "fleet-reports-2", "fleet-reports-3",
+                             "gitolite-admin"]
+    for robot in robots:
+        own = f"RW+ refs/reports/{robot}$ = {robot}"
+        where = sorted(repo for repo, lines in rules.items() if own in lines)
+        # its shard, and the fleet repository where it reported before it moved
+        assert where == ["fleet", f"fleet-reports-{report_shards.shard_of(robot, 4)}"], robot
+    spread = report_shards.spread(robots, 4)
+    for shard in range(4):
+        lines = rules[f"fleet-reports-{shard}"]
+        assert lines[:2] == ["RW+ = admin", "R = @robots"], shard  # every robot reads every shard
+        # and nothing else is written there but the shard's robots' own report refs
+        assert lines[2:] == [f"RW+ refs/reports/{robot}$ = {robot}" for robot in spread[shard]], shard
+
+
+def test_with_shards_a_shared_key_writes_its_names_in_every_shard_but_a_registered_robot_s():
+    from robotfleet.pull.protocol import report_shards
+
+    shared = gitolite.shared_user("machine-id", "robot-")
+    enrolled = "robot-0aa0aa0aa0aa"
+    rules = blocks(gitolite.conf("fleet", [shared, enrolled, "robot1"], shards=4))
+    own = report_shards.shard_repo("fleet", report_shards.shard_of(enrolled, 4))
+    deny = f"- refs/reports/{re.escape(enrolled)}$ = {shared}"
+    for repo in ("fleet", *(report_shards.shard_repo("fleet", s) for s in range(4))):
+        assert f"RW+ refs/reports/{gitolite.shared_refex(shared)}$ = {shared}" in rules[repo]
+        assert (deny in rules[repo]) == (repo in ("fleet", own)), repo
+        if deny in rules[repo]:  # the deny comes before the shared key's write
+            assert rules[repo].index(deny) < rules[repo].index(
+                f"RW+ refs/reports/{gitolite.shared_refex(shared)}$ = {shared}")
+
+
+def test_no_shards_is_the_one_repository_as_before():
+    assert gitolite.conf("fleet", ["robot1"], shards=0) == gitolite.conf("fleet", ["robot1"])
+    assert "reports-" not in gitolite.conf("fleet", ["robot1"])
+
+
 def test_key_files_of_own_and_enrollment_keys():
     assert gitolite.key_file("robot1") == "keydir/robot1.pub"
     assert gitolite.key_file("robot1", enrollment=True) == "keydir/robot1@enroll.pub"

@@ -22,6 +22,15 @@ name the rule can derive with that prefix (``refs/reports/robot-[0-9a-f]{12}$``)
 except those of robots already registered (a deny rule each, first), so a
 leaked image cannot speak for an enrolled robot.
 
+With the reports sharded (``pull_report_shards``: n report repositories
+``<repo>-reports-<i>``, robotfleet/pull/protocol/report_shards.py), each
+shard is a repository every robot may read, and a robot writes its report
+ref only in its own shard (the shared enrollment user: its names in every
+shard, a registered robot's denied in that robot's shard).  The fleet
+repository keeps each robot's rule for its own report ref meanwhile, so a
+robot that has not moved yet (its configuration from before the shard
+count) still reports there.
+
 The operator changes the server by pushing its admin repository
 (``gitolite-admin``), so ``register`` works against any gitolite the operator
 administers, over SSH with strict host keys.
@@ -36,6 +45,8 @@ import subprocess
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+
+from robotfleet.pull.protocol import report_shards
 
 RELEASES_BRANCH = "robotfleet/releases"
 REPORTS = "refs/reports"
@@ -82,10 +93,12 @@ def shared_refex(user: str) -> str:
     return re.escape(prefix) + naming.PATTERNS[rule]
 
 
-def conf(repo: str, robots, admins=("admin",)) -> str:
+def conf(repo: str, robots, admins=("admin",), shards: int = report_shards.SINGLE) -> str:
     """gitolite.conf: the admin repository, and the fleet repository every
     robot reads and writes only its own report ref of (a shared image's
-    enrollment user: any report ref its rule can name but a registered robot's)."""
+    enrollment user: any report ref its rule can name but a registered
+    robot's); with ``shards``, a block per report shard likewise, each
+    robot's rule in its own shard only."""
     admin = " ".join(admins)
     lines = [
         "# Written by robotfleet (robotfleet/pull/operator/gitolite.py); edits here are replaced.",
@@ -98,7 +111,17 @@ def conf(repo: str, robots, admins=("admin",)) -> str:
     robots = [u for u in users if not u.startswith(SHARED)]
     if users:
         lines += [f"{ROBOTS_GROUP} = {' '.join(users)}", ""]
-    lines += [f"repo {repo}", f"    RW+ = {admin}"]
+    lines += _block(repo, admin, users, robots, shared)
+    by_shard = report_shards.spread(robots, shards) if shards else {}
+    for shard in range(report_shards.check_count(shards)):
+        lines += [""] + _block(report_shards.shard_repo(repo, shard), admin, users, by_shard.get(shard, []), shared)
+    return "\n".join(lines) + "\n"
+
+
+def _block(repo: str, admin: str, users: list[str], robots: list[str], shared: list[str]) -> list[str]:
+    """One repository's rules: the admin's, every robot reads, ``robots``
+    write their own report refs, the shared users theirs but ``robots``'."""
+    lines = [f"repo {repo}", f"    RW+ = {admin}"]
     if users:
         lines.append(f"    R = {ROBOTS_GROUP}")
         lines += [f"    RW+ {REPORTS}/{re.escape(robot)}$ = {robot}" for robot in robots]
@@ -106,7 +129,7 @@ def conf(repo: str, robots, admins=("admin",)) -> str:
         refex = re.compile(shared_refex(user))
         lines += [f"    - {REPORTS}/{re.escape(robot)}$ = {user}" for robot in robots if refex.fullmatch(robot)]
         lines.append(f"    RW+ {REPORTS}/{shared_refex(user)}$ = {user}")
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def key_file(robot: str, enrollment: bool = False) -> str:
@@ -147,7 +170,8 @@ def _git(admin: Admin, *args: str, cwd: str | None = None) -> str:
 
 
 def update(admin: Admin, repo: str, add: dict[str, str] | None = None,
-           remove: list[str] | None = None, message: str = "robotfleet: robots' keys") -> bool:
+           remove: list[str] | None = None, message: str = "robotfleet: robots' keys",
+           shards: int = report_shards.SINGLE) -> bool:
     """Change the robots' keys on the server: ``add`` maps key files
     (``key_file(...)``) to public keys, ``remove`` names key files; the
     configuration is rewritten for the robots that then have a key.  False
@@ -162,7 +186,7 @@ def update(admin: Admin, repo: str, add: dict[str, str] | None = None,
         for path in remove or ():
             Path(work, path).unlink(missing_ok=True)
         robots = robots_in(keydir) - set(admin.admins)
-        Path(work, "conf", "gitolite.conf").write_text(conf(repo, robots, admin.admins))
+        Path(work, "conf", "gitolite.conf").write_text(conf(repo, robots, admin.admins, shards))
         _git(admin, "add", "-A", ".", cwd=work)
         if not _git(admin, "status", "--porcelain", cwd=work).strip():
             return False
@@ -172,10 +196,12 @@ def update(admin: Admin, repo: str, add: dict[str, str] | None = None,
     return True
 
 
-def register(admin: Admin, repo: str, robot: str, public_key: str, enrollment: bool = False) -> bool:
-    """Give ``robot`` read access to ``repo`` and write access to its own
-    report ref, with ``public_key``; registering its own key retires its
-    enrollment key."""
+def register(admin: Admin, repo: str, robot: str, public_key: str, enrollment: bool = False,
+             shards: int = report_shards.SINGLE) -> bool:
+    """Give ``robot`` read access to ``repo`` (and its ``shards`` report
+    shards) and write access to its own report ref, with ``public_key``;
+    registering its own key retires its enrollment key."""
     add = {key_file(robot, enrollment): public_key}
     remove = [] if enrollment else [key_file(robot, enrollment=True)]
-    return update(admin, repo, add, remove, f"robotfleet: {'enrollment ' if enrollment else ''}key of {robot}")
+    return update(admin, repo, add, remove, f"robotfleet: {'enrollment ' if enrollment else ''}key of {robot}",
+                  shards)

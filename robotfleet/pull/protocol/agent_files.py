@@ -55,6 +55,7 @@ class Config:
     stale_after: int = 2
     heartbeat: int = 3600
     report_remote: str | None = None  # where reports are pushed; None: remote
+    report_shards: int = 0  # the reports' shard count (robotfleet/pull/protocol/report_shards.py); 0: one repository
     name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/protocol/naming.py)
     name_prefix: str = ""
     branch: str = BRANCH
@@ -66,7 +67,8 @@ class Config:
     def to_json(self) -> str:
         data = {"format": FORMAT, **asdict(self)}
         data["windows"] = list(self.windows)
-        for name, default in (("extra", {}), ("report_remote", None), ("name_rule", None), ("name_prefix", "")):
+        for name, default in (("extra", {}), ("report_remote", None), ("report_shards", 0),
+                              ("name_rule", None), ("name_prefix", "")):
             if data[name] == default:
                 del data[name]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
@@ -80,7 +82,8 @@ class Config:
 
 
 _INTS = {"interval": (1, 7 * 86400), "jitter": (0, 86400), "min_free_mb": (0, 1 << 20),
-         "fetch_timeout": (1, 86400), "stale_after": (1, 1000), "heartbeat": (1, 7 * 86400)}
+         "fetch_timeout": (1, 86400), "stale_after": (1, 1000), "heartbeat": (1, 7 * 86400),
+         "report_shards": (0, 4096)}
 
 
 def read_config(text: str, where: str = CONFIG) -> Config:
@@ -157,7 +160,8 @@ def config_of(data, robot: str, **extra) -> Config:
     return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
                   windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
                   fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
-                  heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote, extra=extra)
+                  heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote,
+                  report_shards=data.pull_report_shards, extra=extra)
 
 
 def known_hosts_of(data) -> str:

@@ -3,16 +3,23 @@
 commit holding ``report.json``.  Every reader goes through ``read`` (status,
 pull-enroll, rollout, a robot's look at the earlier waves): one ``git
 cat-file`` for all of a fetch's reports, each checked by its size before it
-is read, and nothing a robot pushed more than its own row."""
+is read, and nothing a robot pushed more than its own row.
+
+With the reports sharded (``report_shards``), ``fetch_every`` fetches the
+fleet remote's own report refs (the single-repository layout, kept while
+robots move) and every shard concurrently, each into its own cache, and
+reads each with ``read``: a robot's report is taken only from its own shard
+or the fleet remote, the newer of the two when both have one."""
 
 from __future__ import annotations
 
 import os
 import subprocess
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from robotfleet.checkers import one_line
-from robotfleet.pull.protocol import catfile
+from robotfleet.pull.protocol import catfile, report_shards
 from robotfleet.pull.protocol.reports import MAX_BYTES, ReportError, parse
 
 
@@ -24,6 +31,42 @@ def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
         _git(cache, "init", "--bare", "-q")
     _git(cache, "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", "--prune", url,
          "+refs/reports/*:refs/reports/*", timeout=timeout)
+
+
+FETCHERS = 8  # shards fetched at once
+
+
+def fetch_every(url: str, count: int, cache: Path, timeout: int = 300) -> dict[str, dict]:
+    """Every robot's report from the fleet remote ``url`` and its ``count``
+    report shards (fetched concurrently into ``cache`` and ``cache``-shards/<i>),
+    read each from its robot's own shard (or the fleet remote's)."""
+    places = [(None, cache)] + [(shard, cache.parent / f"{cache.name}-shards" / str(shard)) for shard in range(count)]
+
+    def one(place) -> dict[str, dict]:
+        shard, where = place
+        fetch_all(report_shards.shard_url(url, shard), where, timeout)
+        found = read_all(where)
+        return {robot: report for robot, report in found.items()
+                if shard is None or report_shards.shard_of(robot, count) == shard}
+
+    with ThreadPoolExecutor(max_workers=min(FETCHERS, len(places))) as pool:
+        return merged(list(pool.map(one, places)))
+
+
+def merged(sources: list[dict[str, dict]]) -> dict[str, dict]:
+    """robot -> its report among ``sources`` (each robot -> report): a
+    readable one before an unreadable one, then the newest (a robot that
+    moved to its shard left its older report in the fleet remote)."""
+    found: dict[str, dict] = {}
+    for source in sources:
+        for robot, report in source.items():
+            if robot not in found or _rank(report) > _rank(found[robot]):
+                found[robot] = report
+    return found
+
+
+def _rank(report: dict) -> tuple:
+    return ("error" not in report, report.get("time") or "")
 
 
 def read_all(cache: Path) -> dict[str, dict]:

@@ -91,7 +91,7 @@ class Wake:
         self.state_dir = Path(config.state_dir)
         self.clock = clock
         self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout,
-                             config.report_remote)
+                             config.report_remote, config.report_shards)
         self.state = load_state(self.state_dir)
         self.record = None
         self.status: dict = {}

@@ -8,8 +8,13 @@ in time, with the bytes each exchange moved.
 - ``fetch_reports``: the reports of named robots (the waves before this
   robot's), each asked for by its own prefix, read as the operator reads
   them (``report_store.read``: each robot's own row, never another's).
+  With the reports sharded (``shards``, robotfleet/pull/protocol/report_shards.py),
+  each robot's own shard, the shards fetched a few at once; a robot not
+  found in its shard is looked for in the fleet remote (it has not moved yet).
 - ``push_report``: this robot's report as a one-file commit, force-pushed
-  to ``refs/reports/<robot>`` (the only ref the server lets it write).
+  to ``refs/reports/<robot>`` (the only ref the server lets it write) of
+  its shard; a push the shard refuses (the server's rules not rewritten for
+  this shard count yet) goes to the fleet remote's, where it was before.
 
 Over SSH, the robot's own key is offered first, then a first-boot bundle's
 enrollment key if it still has one; once the server accepts the robot's own
@@ -42,10 +47,11 @@ import subprocess
 import tempfile
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files, report_store, reports
+from robotfleet.pull.protocol import agent_files, report_shards, report_store, reports
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
@@ -54,6 +60,8 @@ _TRANSFERRED = re.compile(r"Transferred: sent (\d+), received (\d+) bytes")
 _CURL = re.compile(rb"^\S+ \S+:\d+ +(=>|<=) (?:Send|Recv) (header|data), (\d+) bytes")
 _TRACE = re.compile(rb"^\d\d:\d\d:\d\d\.\d+ \S+:\d+ ")
 _SHALLOW_REFUSED = "dumb http transport does not support shallow"
+# What a server says of a repository or ref the robot may not write (gitolite, git's own).
+_REFUSED = ("DENIED", "does not appear to be a git repository", "not found")
 _ACCEPTED = re.compile(r"Authenticated to .* using \"publickey\"|Server accepts key: (\S+)")
 IDENTITY = {"GIT_AUTHOR_NAME": "robot-pull", "GIT_AUTHOR_EMAIL": "robot-pull@localhost",
             "GIT_COMMITTER_NAME": "robot-pull", "GIT_COMMITTER_EMAIL": "robot-pull@localhost"}
@@ -72,14 +80,16 @@ class Cost:
     seconds: float = 0.0
     requests: int = 0
     exchanges: list = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
 
     def add(self, what: str, sent: int, received: int, seconds: float, requests: int = 1) -> None:
-        self.sent += sent
-        self.received += received
-        self.seconds += seconds
-        self.requests += requests
-        self.exchanges.append({"what": what, "sent": sent, "received": received, "seconds": round(seconds, 3),
-                               "requests": requests})
+        with self.lock:  # the shards' fetches run in threads
+            self.sent += sent
+            self.received += received
+            self.seconds += seconds
+            self.requests += requests
+            self.exchanges.append({"what": what, "sent": sent, "received": received, "seconds": round(seconds, 3),
+                                   "requests": requests})
 
     def as_dict(self) -> dict:
         return {"sent": self.sent, "received": self.received, "seconds": round(self.seconds, 3),
@@ -160,9 +170,10 @@ class Remote:
     """The fleet remote as one robot reaches it."""
 
     def __init__(self, url: str, repo: str | Path, etc: str = agent_files.ETC, timeout: int = 300,
-                 report_url: str | None = None):
+                 report_url: str | None = None, shards: int = report_shards.SINGLE):
         self.url = url
         self.report_url = report_url or url
+        self.shards = report_shards.check_count(shards)
         self.repo = Path(repo)
         self.etc = etc
         self.timeout = timeout
@@ -268,23 +279,48 @@ class Remote:
         if not robots:
             return {}
         self._init()
-        specs = [f"+refs/reports/{robot}*:refs/fleet-reports/{robot}*" for robot in sorted(set(robots))]
-        self._git("reports", "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", self.url, *specs,
-                  network=True)
+        by_shard = report_shards.spread(robots, self.shards)
+        with ThreadPoolExecutor(max_workers=min(report_store.FETCHERS, len(by_shard))) as pool:
+            parts = list(pool.map(lambda item: self._reports_of(*item), by_shard.items()))
+        found = report_store.merged(parts)
+        missing = sorted(set(robots) - set(found))
+        if self.shards and missing:  # not moved to its shard yet: where it reported before
+            found.update(self._reports_of(None, missing))
+        return found
+
+    def _reports_of(self, shard: int | None, robots: list[str]) -> dict[str, dict]:
+        """The reports of ``robots`` (all of shard ``shard``) from that shard
+        (None: the fleet remote), each read only under its own name."""
+        local = "refs/fleet-reports/" if shard is None else f"refs/fleet-shards/{shard}/"
+        specs = [f"+refs/reports/{robot}*:{local}{robot}*" for robot in robots]
+        # Shards are fetched at once into this repository: no FETCH_HEAD, no gc between them.
+        self._git("reports", "-c", "protocol.version=2", "-c", "gc.auto=0", "fetch", "--quiet", "--no-tags",
+                  "--no-write-fetch-head", report_shards.shard_url(self.url, shard), *specs, network=True)
         try:
-            return report_store.read(self.repo, "refs/fleet-reports/", set(robots), self.timeout)
+            return report_store.read(self.repo, local, set(robots), self.timeout)
         except reports.ReportError as error:
             raise TransportError(f"reports: {error}") from None
 
     def push_report(self, robot: str, report: bytes) -> str:
-        """Force-push ``report`` as refs/reports/<robot>; the commit id."""
+        """Force-push ``report`` as refs/reports/<robot> of the robot's shard; the commit id."""
         self._init()
         blob = self._git("report", "hash-object", "-w", "--stdin", stdin=report).decode().strip()
         tree = self._git("report", "mktree", stdin=f"100644 blob {blob}\treport.json\n".encode()).decode().strip()
         commit = self._git("report", "commit-tree", tree, "-m", f"report of {robot}").decode().strip()
-        self._git("report", "push", "--quiet", "--force", self.report_url, f"{commit}:refs/reports/{robot}",
-                  network=True, url=self.report_url)
+        url = report_shards.report_url(self.report_url, robot, self.shards)
+        try:
+            self._push(url, commit, robot)
+        except TransportError as error:
+            if url == self.report_url or not any(word in str(error) for word in _REFUSED):
+                raise
+            try:
+                self._push(self.report_url, commit, robot)
+            except TransportError as again:
+                raise TransportError(f"{error}; and to {self.report_url}: {again}") from None
         return commit
+
+    def _push(self, url: str, commit: str, robot: str) -> None:
+        self._git("report", "push", "--quiet", "--force", url, f"{commit}:refs/reports/{robot}", network=True, url=url)
 
     def retire_enrollment_key(self) -> bool:
         """Delete the enrollment key once the server took the robot's own key."""
