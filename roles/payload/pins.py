@@ -10,6 +10,7 @@ from robotfleet.role import PinPart
 import roles.payload.credentials as credentials
 import roles.docker.hooks as docker_hooks
 import roles.payload.digests as digests
+import roles.payload.media_archive as media_archive
 import roles.payload.services as services
 import roles.payload.payloadctl.imageref as imageref
 
@@ -43,4 +44,4 @@ def resolve(data, wanted: list[str]) -> dict[str, str]:
     return found
 
 
-PINS = PinPart(refs=refs, resolve=resolve, setting=SETTING)
+PINS = PinPart(refs=refs, resolve=resolve, setting=SETTING, archive=media_archive.archive)

@@ -57,6 +57,7 @@ class Config:
     report_remote: str | None = None  # where reports are pushed; None: remote
     name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/protocol/naming.py)
     name_prefix: str = ""
+    media_dir: str | None = None  # where releases on media are mounted (robotfleet/pull/robot/media.py)
     branch: str = BRANCH
     state_dir: str = STATE
     etc_dir: str = ETC
@@ -66,7 +67,8 @@ class Config:
     def to_json(self) -> str:
         data = {"format": FORMAT, **asdict(self)}
         data["windows"] = list(self.windows)
-        for name, default in (("extra", {}), ("report_remote", None), ("name_rule", None), ("name_prefix", "")):
+        for name, default in (("extra", {}), ("report_remote", None), ("name_rule", None), ("name_prefix", ""),
+                              ("media_dir", None)):
             if data[name] == default:
                 del data[name]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
@@ -126,6 +128,9 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     for name in ("state_dir", "etc_dir", "docker_dir"):
         if name in raw and not raw[name].startswith("/"):
             raise ConfigError(f"{where}: {name}: expected an absolute path")
+    media_dir = raw.get("media_dir")
+    if media_dir is not None and (not isinstance(media_dir, str) or not media_dir.startswith("/")):
+        raise ConfigError(f"{where}: media_dir: expected an absolute path or null")
     values = {k: v for k, v in raw.items() if k != "format"}
     values["windows"] = tuple(windows)
     return Config(**values)
@@ -157,7 +162,8 @@ def config_of(data, robot: str, **extra) -> Config:
     return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
                   windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
                   fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
-                  heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote, extra=extra)
+                  heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote,
+                  media_dir=data.pull_media_dir, extra=extra)
 
 
 def known_hosts_of(data) -> str:
