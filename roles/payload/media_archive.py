@@ -21,8 +21,6 @@ import json
 import tarfile
 import tempfile
 
-import roles.docker.hooks as docker_hooks
-import roles.payload.credentials as credentials
 from roles.payload.payloadctl import imageref, platforms
 
 OCI_LAYOUT = b'{"imageLayoutVersion": "1.0.0"}'
@@ -48,18 +46,15 @@ def _blob_name(digest: str) -> str:
     return f"blobs/sha256/{digest.split(':', 1)[1]}"
 
 
-def archive(data, text: str, digest: str, machine: str, path) -> str:
+def write(text: str, digest: str, machine: str, path, insecure: list[str], own) -> str:
     """Write the archive of image ``text`` at ``digest`` (the release's pin:
     a manifest, or an index whose variant for ``machine`` is carried) into
-    ``path``; its image id (the config's digest).  ValueError with one line."""
+    ``path``, read with the registry's ``own`` credentials; its image id
+    (the config's digest).  ValueError with one line."""
     from roles.payload.registry import Registry, RegistryError
 
     ref = imageref.parse(text)
-    try:
-        own = credentials.lookup(data, ref.registry)
-    except credentials.CredentialError as error:
-        raise ValueError(f"image {text}: {error}") from None
-    registry = Registry(ref.registry, docker_hooks.insecure_registries(data), own)
+    registry = Registry(ref.registry, insecure, own)
     arch = platforms.go_arch(machine)
     try:
         top_type, top, _ = registry.manifest(ref.repository, digest)  # checked against the pin

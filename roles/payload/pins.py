@@ -44,4 +44,14 @@ def resolve(data, wanted: list[str]) -> dict[str, str]:
     return found
 
 
-PINS = PinPart(refs=refs, resolve=resolve, setting=SETTING, archive=media_archive.archive)
+def archive(data, text: str, digest: str, machine: str, path) -> str:
+    """The image as a `docker load` archive for robots of ``machine``
+    (robotfleet export), read from its registry; its image id."""
+    try:
+        own = credentials.lookup(data, imageref.parse(text).registry)
+    except credentials.CredentialError as error:
+        raise ValueError(f"image {text}: {error}") from None
+    return media_archive.write(text, digest, machine, path, docker_hooks.insecure_registries(data), own)
+
+
+PINS = PinPart(refs=refs, resolve=resolve, setting=SETTING, archive=archive)
