@@ -835,3 +835,19 @@ def test_the_compose_project_the_payload_used_before_is_taken_over(robot):
         ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload "
                               "used before")]
     assert homeauto_untouched(robot)
+
+
+def test_an_image_a_release_on_media_left_by_its_checked_tag_runs_by_that_tag_without_a_pull(robot):
+    """The classic image store cannot find a loaded image by the release's
+    digest; the pull agent tagged the id it checked media-sha256-<digest>
+    (robotfleet/pull/robot/media.py): the release runs by that tag."""
+    digest = "sha256:" + "e" * 64
+    pinned, tag = f"reg/ros/payload:1.1@{digest}", f"reg/ros/payload:media-sha256-{'e' * 64}"
+    robot.image(pinned, present=False, pull="fail")
+    robot.image(tag)
+    result = robot.apply(pinned)
+    assert result.returncode == 0 and "is healthy" in result.stdout, result.stdout + result.stderr
+    current, _ = robot.pointers()
+    assert robot.releases.record(current)["images"][pinned]["pinned"] == tag
+    assert [c["image"] for c in robot.state()["containers"].values()] == [tag]
+    assert not [line for line in robot.state()["log"] if line.startswith("docker pull")]

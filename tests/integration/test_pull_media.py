@@ -76,8 +76,12 @@ elif args[0] == "load":
                 name = entry["annotations"]["io.containerd.image.name"]
                 repository = name.rsplit(":", 1)[0] if ":" in name.rsplit("/", 1)[-1] else name
                 store.update({{name: entry["digest"], repository + "@" + entry["digest"]: entry["digest"]}})
-    json.dump(store, open(path, "w"))
     print("Loaded image: " + saved["RepoTags"][0])
+elif args[0] == "tag":
+    if args[1] not in store and args[1] not in store.values():
+        sys.exit("Error response from daemon: No such image: " + args[1])
+    store[args[2]] = store.get(args[1], args[1])
+json.dump(store, open(path, "w"))
 '''
 
 
@@ -294,13 +298,37 @@ def test_an_image_archive_whose_bytes_differ_from_the_signed_target_is_refused(w
     assert not agent.load_state(world.state).get("applied")
 
 
-def test_on_the_classic_image_store_the_release_is_not_run_by_a_tag(world, docker, monkeypatch):
+def test_on_the_classic_image_store_the_checked_image_id_is_tagged_by_the_release_s_digest(world, docker, monkeypatch):
+    """The classic store keeps no registry digest for a loaded image: the id
+    it loaded is checked against the release's, then tagged by the digest
+    (the payload runs that tag: tests/integration/test_payloadctl.py)."""
     monkeypatch.setenv("FAKE_DOCKER_MODE", "classic")
     world.release(1)
     _, outcome, _ = world.wake()
-    assert outcome.result == "failed" and len(loads(docker)) == 1
-    assert "the classic image store" in outcome.reason and world.digest in outcome.reason, outcome.reason
-    assert not agent.load_state(world.state).get("applied")
+    assert outcome.result == "applied" and len(loads(docker)) == 1, outcome.reason
+    tag = f"{world.ref.rsplit(':', 1)[0]}:media-sha256-{world.digest[7:]}"
+    assert ["tag", world.image, tag] in docker()
+    assert json.loads(Path(os.environ["FAKE_DOCKER_STORE"]).read_text())[tag] == world.image
+    _, outcome, _ = world.wake()
+    assert outcome.result == "up-to-date" and len(loads(docker)) == 1
+
+
+def test_a_loaded_image_whose_id_is_not_the_release_s_is_refused_and_not_tagged(world, docker, monkeypatch):
+    monkeypatch.setenv("FAKE_DOCKER_MODE", "classic")
+    world.release(1)
+    index = media.parse((world.base / media.NAME).read_bytes())
+    index["images"][MACHINE][world.ref]["image"] = "sha256:" + "0" * 64  # signed, but not what the archive holds
+    (world.base / media.NAME).write_bytes(media.build(1, index["images"]))
+    repository = pullkit.module("operator.repository")
+    world.fleet.repository.extend({}, world.fleet.keys.signer("online"), world.fleet.expiry, NOW,
+                                  replacing=[media.NAME])
+    world.fleet.repository.extend({media.NAME: world.base / media.NAME}, world.fleet.keys.signer("online"),
+                                  world.fleet.expiry, NOW)
+    exporting.copy_out(world.fleet.repository, repository.Repository(world.usb))
+    _, outcome, _ = world.wake()
+    assert (outcome.result, outcome.refusal) == ("refused", "tampered"), outcome.reason
+    assert "the release binds sha256:" + "0" * 64 in outcome.reason
+    assert not [call for call in docker() if call[0] == "tag"]
 
 
 def test_without_a_medium_mounted_the_robot_fetches_from_its_remote(world, docker):

@@ -13,10 +13,12 @@ To apply, each image the release pins for this robot comes from the media:
 checked as they are read), the archive goes to ``docker load``, and the
 image must then be found by the release's reference ``repository@digest``
 with the id the release binds: the containerd image store keeps the
-registry digest of the archive's OCI index (its image id is that digest);
-the classic store keeps only the image id (the config's digest), and
-cannot find an image by a registry digest it never pulled, so there the
-release is not run (one line says why) rather than run by a tag.
+registry digest of the archive's OCI index (its image id is that digest).
+The classic store keeps only the image id (the config's digest) and cannot
+find an image by a registry digest it never pulled: there the loaded
+image's id is checked against the one the release binds, and that id is
+tagged ``repository:media-sha256-<the pin's hex>`` (protocol/media.py
+MEDIA_TAG), the name the payload runs it by (payloadctl/images.py).
 
 The report goes to the remote as always; when the remote is out of reach it
 is also written to the medium (``reports/<robot>.json``), and the agent
@@ -68,6 +70,10 @@ def tag_ref(ref: str) -> str | None:
     return f"{repository}:{tag}" if tag else None
 
 
+def media_tag(ref: str, digest: str) -> str:
+    return f"{split_ref(ref)[0]}:{media.MEDIA_TAG}{digest.split(':', 1)[1]}"
+
+
 def docker(*args: str, timeout: int = 120) -> subprocess.CompletedProcess:
     program = os.environ.get(DOCKER_ENV) or "docker"
     try:
@@ -111,9 +117,9 @@ def load_images(client, record, robot: str, machine: str, work: Path) -> int:
         entry = mine.get(ref)
         if entry is None or entry["digest"] != pin:
             raise verify.Refused(verify.MALFORMED, f"{media.NAME}: no archive of {ref}@{pin} for {machine}")
-        wanted = digest_ref(ref, pin)
-        if image_id(wanted) in (entry["image"], pin):
-            continue  # already here by its digest
+        wanted, tag = digest_ref(ref, pin), media_tag(ref, pin)
+        if image_id(wanted) in (entry["image"], pin) or image_id(tag) == entry["image"]:
+            continue  # already here, checked
         archive = client.download([entry["archive"]], work)[entry["archive"]]
         try:
             done = docker("load", "-q", "-i", str(archive), timeout=DOCKER_TIMEOUT)
@@ -123,10 +129,13 @@ def load_images(client, record, robot: str, machine: str, work: Path) -> int:
             said = (done.stderr or done.stdout).strip().splitlines() or [f"exit status {done.returncode}"]
             raise MediaFailure(f"docker load of {ref}: {said[-1][:300]}")
         found = image_id(wanted)
-        if found is None and image_id(tag_ref(ref) or entry["image"]) == entry["image"]:
-            raise MediaFailure(f"{ref}: loaded as image {entry['image']}, but this Docker engine (the classic image "
-                               f"store) cannot find it by the release's digest {pin}: use the containerd image "
-                               "store to run releases from media")
+        if found is None:  # the classic store: by the id it loaded, checked, then tagged by the digest
+            found = image_id(tag_ref(ref) or entry["image"])
+            if found == entry["image"]:
+                tagged = docker("tag", entry["image"], tag)
+                if tagged.returncode or image_id(tag) != entry["image"]:
+                    said = (tagged.stderr or tagged.stdout).strip().splitlines() or ["the tag does not name it"]
+                    raise MediaFailure(f"docker tag {entry['image']} {tag}: {said[-1][:300]}")
         if found not in (entry["image"], pin):
             raise verify.Refused(verify.TAMPERED, f"{ref}: docker load gave {wanted} the id {found or 'none'}, "
                                                   f"the release binds {entry['image']}")

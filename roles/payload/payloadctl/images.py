@@ -1,6 +1,13 @@
 """The release's images on this robot: pulled (bounded, while the old
 release keeps running) or already pushed, checked against this robot's
-platform, then pinned by digest."""
+platform, then pinned by digest.
+
+A release on removable media (docs/pull.md) arrives by ``docker load``:
+the pull agent checks each loaded image's id against the signed release,
+and where Docker cannot find it by the release's digest (the classic image
+store keeps no registry digest for a loaded image) it tags that id
+``repository:media-sha256-<the digest's hex>`` (MEDIA_TAG): such an image
+runs by that tag, named by the digest it was checked against."""
 
 import json
 import subprocess
@@ -8,6 +15,8 @@ import time
 
 from . import imageref, platforms
 from .system import Failure, Refusal, run
+
+MEDIA_TAG = "media-sha256-"  # robotfleet/pull/protocol/media.py writes the same
 
 
 def image_info(ref):
@@ -61,10 +70,32 @@ def pull(ref, timeout, platform=None):
     return last or "gave up after {} s (payload_pull_timeout)".format(timeout)
 
 
+def media_tag(ref):
+    """The tag the pull agent gives an image of a release on media, checked
+    against the digest ``ref`` names (None: ``ref`` names none)."""
+    parsed = imageref.parse(ref)
+    if not parsed.digest:
+        return None
+    return "{}:{}{}".format(parsed.repository, MEDIA_TAG, parsed.digest.split(":", 1)[1])
+
+
+def from_media(ref):
+    """The image of ``ref`` as a release on media left it, when Docker
+    cannot find it by its digest; else None."""
+    tag = media_tag(ref)
+    if tag is None or image_info(ref) is not None:
+        return None
+    info = image_info(tag)
+    return dict(info, media=tag) if info else None
+
+
 def obtain(ref, delivery, pull_timeout, platform=None):
     """Make the image present, pulling while the old release keeps running
     (Docker picks the robot's variant of a multi-platform image, or
     ``platform`` where the service pins one)."""
+    media = from_media(ref) if delivery == "pull" else None
+    if media is not None:
+        return media
     if delivery == "pull":
         error = pull(ref, pull_timeout, platform)
         if error is not None and image_info(ref) is None:
@@ -81,6 +112,8 @@ def pinned(ref, info):
     one, whatever other digests the same image was also pulled under."""
     repo = imageref.repository(ref)
     own = imageref.parse(ref).digest
+    if own and info.get("media"):
+        return info["media"]
     if own:
         return "{}@{}".format(repo, own)
     for digest_ref in info["repo_digests"]:
