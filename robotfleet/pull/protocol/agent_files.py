@@ -163,7 +163,7 @@ def config_of(data, robot: str, **extra) -> Config:
                   windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
                   fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
                   heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote,
-                  media_dir=data.pull_media_dir, extra=extra)
+                  media_dir=getattr(data, "pull_media_dir", None), extra=extra)
 
 
 def known_hosts_of(data) -> str:
