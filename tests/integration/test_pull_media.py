@@ -28,7 +28,7 @@ from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.protocol import agent_files, media, platforms, reports
 from robotfleet.pull.robot import agent
 from tests.integration.test_pull_agent import World, code_archive
-from tests.integration.test_pull_publish import git, registry, robotfleet_cmd, site  # noqa: F401 (fixtures)
+from tests.integration.test_pull_publish import git, registry, robot_fetch, robotfleet_cmd, site  # noqa: F401
 from tests.integration.test_pull_trust import refused
 from tests.integration.test_push_platforms import Store, registry as platform_registry  # noqa: F401
 from tests.unit import pullkit
@@ -139,11 +139,13 @@ def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_rob
             assert oci["digest"] == entry["digest"]  # the registry's own bytes: the containerd store keeps the pin
             assert hashlib.sha256(tar.extractfile(f"blobs/sha256/{entry['digest'][7:]}").read()).hexdigest() \
                 == entry["digest"][7:]
-    # the releases branch carries the re-signed metadata, not the archives
+    # the releases branch carries the re-signed metadata, not the archives,
+    # and a robot that took the media goes back to the network without a rollback
     listed = git(site["remote"], "ls-tree", "-r", "--name-only", "robotfleet/releases")
     assert "media.json" in listed and "images/" not in listed
     assert git(site["remote"], "show", "robotfleet/releases:metadata/timestamp.json") == \
         (medium / "metadata" / "timestamp.json").read_text().strip()
+    assert trust.Client(site["robot"], str(robot_fetch(site))).refresh().version == 1
 
 
 def test_export_of_nothing_published_is_one_line(site):

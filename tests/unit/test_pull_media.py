@@ -49,3 +49,22 @@ def test_the_agent_tags_a_checked_image_by_the_name_the_payload_runs():
         assert robot_media.media_tag(ref, PIN) == images.media_tag(f"{ref}@{PIN}")
     assert robot_media.digest_ref("reg.lan:5000/ros/payload:1.1", PIN) == f"reg.lan:5000/ros/payload@{PIN}"
     assert robot_media.tag_ref("reg.lan:5000/p") is None
+
+
+def test_the_agent_s_configuration_carries_the_media_directory_when_one_is_set():
+    from robotfleet.pull.protocol import agent_files
+
+    config = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet", media_dir="/mnt/fleet-media")
+    assert agent_files.read_config(config.to_json()).media_dir == "/mnt/fleet-media"
+    assert "media_dir" not in agent_files.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
+    relative = config.to_json().replace('"/mnt/fleet-media"', '"mnt/fleet-media"')
+    with pytest.raises(agent_files.ConfigError) as caught:
+        agent_files.read_config(relative, "agent.json")
+    assert str(caught.value) == "agent.json: media_dir: expected an absolute path or null"
+
+
+def test_a_medium_is_mounted_only_when_it_holds_a_repository(tmp_path):
+    assert robot_media.mounted(None) is None and robot_media.mounted(str(tmp_path)) is None
+    (tmp_path / "metadata").mkdir()
+    (tmp_path / "metadata" / "timestamp.json").write_text("{}")
+    assert robot_media.mounted(str(tmp_path)) == tmp_path
