@@ -186,7 +186,8 @@ def test_media_are_verified_like_the_network(tmp_path):
 def test_tampered_media_are_refused(tmp_path, trust):
     fleet = media_fleet(tmp_path)
     usb = exported(fleet, tmp_path / "usb")
-    pullkit.edit_json(usb / "metadata" / "timestamp.json", lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z"))
+    pullkit.edit_json(usb / "metadata" / "timestamp.json",
+                      lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z"))
     assert refused(fleet, trust, trust.TAMPERED, source=usb).startswith("timestamp.json: changed after it was signed")
 
 
@@ -261,7 +262,8 @@ def world(tmp_path, image_registry, monkeypatch):
 
     # test_pull_agent's converge stub still names the module agent_files was
     # called before the pull layers (layout): the same stub, with today's name.
-    monkeypatch.setattr(test_pull_agent, "STUB", test_pull_agent.STUB.replace("getattr(layout,", "getattr(agent_files,"))
+    monkeypatch.setattr(test_pull_agent, "STUB",
+                        test_pull_agent.STUB.replace("getattr(layout,", "getattr(agent_files,"))
     return MediaWorld(tmp_path, image_registry[0])
 
 
