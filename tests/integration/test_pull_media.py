@@ -146,6 +146,10 @@ def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_rob
     assert git(site["remote"], "show", "robotfleet/releases:metadata/timestamp.json") == \
         (medium / "metadata" / "timestamp.json").read_text().strip()
     assert trust.Client(site["robot"], str(robot_fetch(site))).refresh().version == 1
+    # exported again: the same release, its archives replaced, the media pruned to one set
+    robotfleet_cmd("export", medium, *common)
+    assert len(list((medium / "targets" / "images").iterdir())) == 2
+    assert trust.Client(site["robot"], str(medium)).refresh().version == 1
 
 
 def test_export_of_nothing_published_is_one_line(site):
@@ -210,6 +214,15 @@ def test_media_signed_by_another_fleet_s_keys_are_refused(tmp_path, trust):
     other = media_fleet(tmp_path / "other", name="keys")
     line = refused(fleet, trust, trust.UNKNOWN_KEY, source=exported(other, tmp_path / "usb"))
     assert "does not trust" in line
+
+
+def test_a_halt_after_an_export_halts_the_release_on_the_network_without_its_archives(tmp_path):
+    from robotfleet.pull.operator import publishing
+
+    fleet = media_fleet(tmp_path)
+    halted = publishing.halt(fleet.repository, fleet.keys, "canary crash-loops", fleet.expiry, NOW)
+    assert fleet.refresh().halt and halted.version == 2
+    assert media.NAME not in fleet.repository.targets().signed.targets
 
 
 # -- the agent's wake from a mounted medium ------------------------------------
