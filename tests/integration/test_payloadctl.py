@@ -851,3 +851,15 @@ def test_an_image_a_release_on_media_left_by_its_checked_tag_runs_by_that_tag_wi
     assert robot.releases.record(current)["images"][pinned]["pinned"] == tag
     assert [c["image"] for c in robot.state()["containers"].values()] == [tag]
     assert not [line for line in robot.state()["log"] if line.startswith("docker pull")]
+
+
+def test_an_image_already_here_by_the_digest_its_reference_names_is_not_pulled_again(robot):
+    """What a digest names never changes: a release on media loaded on the
+    containerd store (or an earlier pull) left it, and a robot with no
+    network runs it without waiting for a pull to fail."""
+    pinned = "reg/ros/payload:1.1@sha256:" + "f" * 64
+    for name in (pinned, "reg/ros/payload@sha256:" + "f" * 64):  # as Docker finds it, and as it runs
+        robot.image(name, pull="fail")
+    result = robot.apply(pinned)
+    assert result.returncode == 0 and "is healthy" in result.stdout, result.stdout + result.stderr
+    assert not [line for line in robot.state()["log"] if line.startswith("docker pull")]

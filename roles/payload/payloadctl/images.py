@@ -79,12 +79,18 @@ def media_tag(ref):
     return "{}:{}{}".format(parsed.repository, MEDIA_TAG, parsed.digest.split(":", 1)[1])
 
 
-def from_media(ref):
-    """The image of ``ref`` as a release on media left it, when Docker
-    cannot find it by its digest; else None."""
+def already_here(ref):
+    """The image ``ref`` names by its digest, when this robot has it: found
+    by that digest (as a pull, or the containerd store's load of a release
+    on media, left it), or by the tag the pull agent gave the id it checked
+    (a release on media, on the classic store); else None.  What a digest
+    names never changes, so it is not pulled again."""
     tag = media_tag(ref)
-    if tag is None or image_info(ref) is not None:
+    if tag is None:
         return None
+    info = image_info(ref)
+    if info is not None:
+        return info
     info = image_info(tag)
     return dict(info, media=tag) if info else None
 
@@ -92,10 +98,11 @@ def from_media(ref):
 def obtain(ref, delivery, pull_timeout, platform=None):
     """Make the image present, pulling while the old release keeps running
     (Docker picks the robot's variant of a multi-platform image, or
-    ``platform`` where the service pins one)."""
-    media = from_media(ref) if delivery == "pull" else None
-    if media is not None:
-        return media
+    ``platform`` where the service pins one; such a service is always
+    pulled: the digest of an index already here may be another variant)."""
+    here = already_here(ref) if delivery == "pull" and not platform else None
+    if here is not None:
+        return here
     if delivery == "pull":
         error = pull(ref, pull_timeout, platform)
         if error is not None and image_info(ref) is None:
