@@ -6,6 +6,7 @@
     robotfleet generate [--check]
     robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME | --to-dir DIR]
     robotfleet halt [--reason TEXT]
+    robotfleet export DIR [--remote NAME | --to-dir DIR]
     robotfleet keys init|show|rotate|prepare|sign|install|generate
     robotfleet bundle ROBOT --out DIR [--admin URL --admin-key FILE]
     robotfleet pull-enroll INVENTORY [--limit ...] [--admin URL --admin-key FILE] [--ssh]
@@ -31,6 +32,7 @@ COMMANDS = {
     "generate": "generate",
     "publish": "publish",
     "halt": "halt",
+    "export": "export",
     "keys": "keys",
     "bundle": "bundle",
     "pull-enroll": "pullenroll",

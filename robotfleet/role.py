@@ -137,11 +137,16 @@ class PinPart:
     names); ``resolve(data, refs)``, each one's digest now (ref -> digest;
     ValueError with one line when one cannot be read); ``setting``, the
     role's setting through which the deploy is given the pins (ref ->
-    digest) so the host runs exactly what the signed release names."""
+    digest) so the host runs exactly what the signed release names;
+    ``archive(data, ref, digest, machine, path)``, where the role can carry
+    its pins on removable media (``robotfleet export``): the pinned thing
+    written into the file ``path`` for robots of ``machine``, returning
+    what the robot checks once it has it (an image's id)."""
 
     refs: Callable[[Any], list[str]]
     resolve: Callable[[Any, list[str]], dict[str, str]]
     setting: str
+    archive: Callable[[Any, str, str, str, Any], str] | None = None
 
 
 @dataclass(frozen=True)

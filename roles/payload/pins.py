@@ -10,6 +10,7 @@ from robotfleet.role import PinPart
 import roles.payload.credentials as credentials
 import roles.docker.hooks as docker_hooks
 import roles.payload.digests as digests
+import roles.payload.media_archive as media_archive
 import roles.payload.services as services
 import roles.payload.payloadctl.imageref as imageref
 
@@ -43,4 +44,14 @@ def resolve(data, wanted: list[str]) -> dict[str, str]:
     return found
 
 
-PINS = PinPart(refs=refs, resolve=resolve, setting=SETTING)
+def archive(data, text: str, digest: str, machine: str, path) -> str:
+    """The image as a `docker load` archive for robots of ``machine``
+    (robotfleet export), read from its registry; its image id."""
+    try:
+        own = credentials.lookup(data, imageref.parse(text).registry)
+    except credentials.CredentialError as error:
+        raise ValueError(f"image {text}: {error}") from None
+    return media_archive.write(text, digest, machine, path, docker_hooks.insecure_registries(data), own)
+
+
+PINS = PinPart(refs=refs, resolve=resolve, setting=SETTING, archive=archive)

@@ -82,6 +82,9 @@ SETTINGS = (
             "interval and its jitter)."),
     Setting("pull_fetch_timeout", 300, c.integer(5, 86400),
             "Seconds one fetch from the fleet remote may take."),
+    Setting("pull_media_dir", None, c.optional(v.private_path),
+            "Where releases on removable media or a LAN share are mounted (robotfleet export; e.g. /mnt/fleet-media): "
+            "looked at each check, the release comes from there when it holds one; null: never."),
     Setting("pull_trust_root", None, c.optional(v.local_path),
             "The release repository's root.json on this machine, the robot's first trust (relative to the checkout); "
             "null: the one robotfleet publish keeps (.robotfleet/releases/metadata/root.json)."),

@@ -879,3 +879,31 @@ def test_a_robot_without_compose_v2_is_told_so_in_one_line_not_dockers_usage(rob
                      "ROLES, then again."], result.stderr
     assert "Usage:" not in result.stderr and "docker compose config refused" not in result.stderr
     assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # nothing switched, nothing kept
+
+
+def test_an_image_a_release_on_media_left_by_its_checked_tag_runs_by_that_tag_without_a_pull(robot):
+    """The classic image store cannot find a loaded image by the release's
+    digest; the pull agent tagged the id it checked media-sha256-<digest>
+    (robotfleet/pull/robot/media.py): the release runs by that tag."""
+    digest = "sha256:" + "e" * 64
+    pinned, tag = f"reg/ros/payload:1.1@{digest}", f"reg/ros/payload:media-sha256-{'e' * 64}"
+    robot.image(pinned, present=False, pull="fail")
+    robot.image(tag)
+    result = robot.apply(pinned)
+    assert result.returncode == 0 and "is healthy" in result.stdout, result.stdout + result.stderr
+    current, _ = robot.pointers()
+    assert robot.releases.record(current)["images"][pinned]["pinned"] == tag
+    assert [c["image"] for c in robot.state()["containers"].values()] == [tag]
+    assert not [line for line in robot.state()["log"] if line.startswith("docker pull")]
+
+
+def test_an_image_already_here_by_the_digest_its_reference_names_is_not_pulled_again(robot):
+    """What a digest names never changes: a release on media loaded on the
+    containerd store (or an earlier pull) left it, and a robot with no
+    network runs it without waiting for a pull to fail."""
+    pinned = "reg/ros/payload:1.1@sha256:" + "f" * 64
+    for name in (pinned, "reg/ros/payload@sha256:" + "f" * 64):  # as Docker finds it, and as it runs
+        robot.image(name, pull="fail")
+    result = robot.apply(pinned)
+    assert result.returncode == 0 and "is healthy" in result.stdout, result.stdout + result.stderr
+    assert not [line for line in robot.state()["log"] if line.startswith("docker pull")]

@@ -209,6 +209,26 @@ class Repository:
         targets.signed.targets = chosen
         self._publish_targets(targets, online_signer, expiry, now)
 
+    def extend(self, files: dict[str, Path], online_signer, expiry: Expiry, now: datetime.datetime,
+               elsewhere=None, replacing=()) -> None:
+        """The current release with more targets (``files``: target path ->
+        local file; a release on media adds its image index and archives):
+        the same record, targets, snapshot and timestamp at their next
+        versions.  Files whose path is in ``elsewhere`` (a dict: path ->
+        Repository) are signed but stored in that repository instead (image
+        archives live on the media, never on the releases branch); targets
+        in ``replacing`` (an earlier export's) are dropped first."""
+        elsewhere = elsewhere or {}
+        targets = self.targets()
+        for path in replacing:
+            targets.signed.targets.pop(path, None)
+        taken = sorted(set(files) & set(targets.signed.targets))
+        if taken:
+            raise RepositoryError(f"{taken[0]}: already a target of the current release")
+        for path, local in sorted(files.items()):
+            targets.signed.targets[path] = (elsewhere[path] if path in elsewhere else self)._store(path, Path(local))
+        self._publish_targets(targets, online_signer, expiry, now)
+
     def _publish_targets(self, targets: Metadata[Targets], online_signer, expiry: Expiry, now: datetime.datetime,
                          first: bool = False) -> None:
         """Sign and write ``targets`` at its next version (``first``: as is,

@@ -58,6 +58,7 @@ class Config:
     report_shards: int = 0  # the reports' shard count (robotfleet/pull/protocol/report_shards.py); 0: one repository
     name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/protocol/naming.py)
     name_prefix: str = ""
+    media_dir: str | None = None  # where releases on media are mounted (robotfleet/pull/robot/media.py)
     branch: str = BRANCH
     state_dir: str = STATE
     etc_dir: str = ETC
@@ -68,7 +69,7 @@ class Config:
         data = {"format": FORMAT, **asdict(self)}
         data["windows"] = list(self.windows)
         for name, default in (("extra", {}), ("report_remote", None), ("report_shards", 0),
-                              ("name_rule", None), ("name_prefix", "")):
+                              ("name_rule", None), ("name_prefix", ""), ("media_dir", None)):
             if data[name] == default:
                 del data[name]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
@@ -129,6 +130,9 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     for name in ("state_dir", "etc_dir", "docker_dir"):
         if name in raw and not raw[name].startswith("/"):
             raise ConfigError(f"{where}: {name}: expected an absolute path")
+    media_dir = raw.get("media_dir")
+    if media_dir is not None and (not isinstance(media_dir, str) or not media_dir.startswith("/")):
+        raise ConfigError(f"{where}: media_dir: expected an absolute path or null")
     values = {k: v for k, v in raw.items() if k != "format"}
     values["windows"] = tuple(windows)
     return Config(**values)
@@ -161,7 +165,8 @@ def config_of(data, robot: str, **extra) -> Config:
                   windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
                   fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
                   heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote,
-                  report_shards=data.pull_report_shards, extra=extra)
+                  report_shards=data.pull_report_shards, media_dir=getattr(data, "pull_media_dir", None),
+                  extra=extra)
 
 
 def known_hosts_of(data) -> str:

@@ -97,6 +97,7 @@ class Wake:
         self.status: dict = {}
         self.status_time: str | None = None
         self.reference_time = clock()
+        self.medium: Path | None = None  # a mounted release on media, this wake's source (robot/media.py)
 
     # -- the steps ---------------------------------------------------------
 
@@ -109,13 +110,19 @@ class Wake:
                                             f"(pull_min_free_mb: {self.config.min_free_mb}); nothing was downloaded")
 
     def fetch(self) -> None:
+        if self.config.media_dir:
+            from robotfleet.pull.robot import media
+
+            self.medium = media.mounted(self.config.media_dir)
+            if self.medium is not None:
+                return  # verified like the remote's, by the same refresh
         try:
             self.remote.fetch_releases(self.config.branch)
         except TransportError as error:
             raise Outcome("failed", f"fetch: {error}") from None
 
     def source(self) -> str:
-        return str(self.remote.repo)
+        return str(self.medium or self.remote.repo)
 
     def recall(self) -> bool:
         """The record, when the fetch found what the last verification accepted."""
@@ -153,7 +160,9 @@ class Wake:
             try:
                 found = self.remote.fetch_reports(list(decision.earlier))
             except TransportError as error:
-                raise Outcome("waiting", f"the earlier waves' reports: {error}", wave=decision.wave) from None
+                if self.medium is None:
+                    raise Outcome("waiting", f"the earlier waves' reports: {error}", wave=decision.wave) from None
+                found = {}  # out of reach from a medium: its wave's time alone decides
             failed = sum(reports.failed_for(report, self.record.version) for report in found.values()
                          if "error" not in report)
             decision = deciding.decide(*args, failed=failed)
@@ -171,6 +180,10 @@ class Wake:
             code = prepare.code_dir(self.state_dir, record, files[record.code])
             venv = (prepare.venv_for(self.state_dir, {p: files[p] for p in record.wheels_for(platform)})
                     if record.wheels_for(platform) else Path(os.path.realpath(self.state_dir / "venv")))
+            if self.medium is not None:  # its images too, checked (robot/media.py)
+                from robotfleet.pull.robot import media
+
+                media.load_images(client, record, robot, platform.split("-", 1)[1], self.state_dir / "media")
         except verify.Refused as refused:
             raise Outcome("refused", refused.line, refused.reason, wave) from None
         except prepare.Mismatch as error:
@@ -289,6 +302,10 @@ class Wake:
                 said = "report sent"
             except TransportError as error:
                 said = f"report not sent ({error})"
+                if self.medium is not None:
+                    from robotfleet.pull.robot import media
+
+                    said += "; " + media.write_report(self.medium, self.config.robot, reports.to_bytes(report))
         if self.remote.retire_enrollment_key():  # the server took this robot's own key in this wake
             said += "; the enrollment key is retired (the remote knows this robot's own key)"
         return said

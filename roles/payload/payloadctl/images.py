@@ -1,6 +1,13 @@
 """The release's images on this robot: pulled (bounded, while the old
 release keeps running) or already pushed, checked against this robot's
-platform, then pinned by digest."""
+platform, then pinned by digest.
+
+A release on removable media (docs/pull.md) arrives by ``docker load``:
+the pull agent checks each loaded image's id against the signed release,
+and where Docker cannot find it by the release's digest (the classic image
+store keeps no registry digest for a loaded image) it tags that id
+``repository:media-sha256-<the digest's hex>`` (MEDIA_TAG): such an image
+runs by that tag, named by the digest it was checked against."""
 
 import json
 import subprocess
@@ -8,6 +15,8 @@ import time
 
 from . import imageref, platforms
 from .system import Failure, Refusal, run
+
+MEDIA_TAG = "media-sha256-"  # robotfleet/pull/protocol/media.py writes the same
 
 
 def image_info(ref):
@@ -61,29 +70,50 @@ def pull(ref, timeout, platform=None):
     return last or "gave up after {} s (payload_pull_timeout)".format(timeout)
 
 
+def media_tag(ref):
+    """The tag the pull agent gives an image of a release on media, checked
+    against the digest ``ref`` names (None: ``ref`` names none)."""
+    parsed = imageref.parse(ref)
+    if not parsed.digest:
+        return None
+    return "{}:{}{}".format(parsed.repository, MEDIA_TAG, parsed.digest.split(":", 1)[1])
+
+
+def already_here(ref):
+    """The image ``ref`` names by its digest, when this robot has it: found
+    by that digest (as a pull, or the containerd store's load of a release
+    on media, left it), or by the tag the pull agent gave the id it checked
+    (a release on media, on the classic store); else None.  What a digest
+    names never changes, so it is not pulled again."""
+    tag = media_tag(ref)
+    if tag is None:
+        return None
+    info = image_info(ref)
+    if info is not None:
+        return info
+    info = image_info(tag)
+    return dict(info, media=tag) if info else None
+
+
 def obtain(ref, delivery, pull_timeout, platform=None):
     """Make the image present, pulling while the old release keeps running
     (Docker picks the robot's variant of a multi-platform image, or
-    ``platform`` where the service pins one).  An image already present by
-    the digest its reference names is that image: not pulled again (a pull
-    robot's prefetch brought it before the window; the window holds only
-    the switch, whether or not the registry answers then)."""
-    info = image_info(ref) if _digest_of(ref) and platform is None else None
-    if delivery == "pull" and info is None:
+    ``platform`` where the service pins one; such a service is always
+    pulled: the digest of an index already here may be another variant).
+    An image already here by the digest its reference names is that image
+    (a pull robot's prefetch, or a release on media, brought it): not
+    pulled again, so the window holds only the switch."""
+    here = already_here(ref) if delivery == "pull" and not platform else None
+    if here is not None:
+        return here
+    if delivery == "pull":
         error = pull(ref, pull_timeout, platform)
         if error is not None and image_info(ref) is None:
             raise Failure("cannot pull {}: {}; the old release keeps running".format(ref, error))
-    info = info or image_info(ref)
+    info = image_info(ref)
     if info is None:
         raise Failure("image {} is not on this robot (delivery: {})".format(ref, delivery))
     return info
-
-
-def _digest_of(ref):
-    try:
-        return imageref.parse(ref).digest
-    except ValueError:
-        return None
 
 
 def pinned(ref, info):
@@ -92,6 +122,8 @@ def pinned(ref, info):
     one, whatever other digests the same image was also pulled under."""
     repo = imageref.repository(ref)
     own = imageref.parse(ref).digest
+    if own and info.get("media"):
+        return info["media"]
     if own:
         return "{}@{}".format(repo, own)
     for digest_ref in info["repo_digests"]:
