@@ -10,7 +10,7 @@ import json
 from pyinfra import host, logger
 
 from robotfleet.checkers import one_line
-from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+from robotfleet.host.snapshot import Snapshot
 import roles.payload.containers as containers
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.takeover as takeover_rule

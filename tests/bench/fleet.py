@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import shlex
 import subprocess
 import sys
 import tempfile

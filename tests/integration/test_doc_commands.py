@@ -12,7 +12,6 @@ host.  A block the test cannot run says why in the doc
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import socket

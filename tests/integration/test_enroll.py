@@ -124,7 +124,7 @@ def test_replace_takes_a_reflashed_robots_new_key_only_when_it_matches_the_file(
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
     assert code == 1 and known_hosts.read_text() == before
     assert lines[1].startswith(f"robot1: host key CHANGED for {entry1}: {known_hosts} has ecdsa-sha2-nistp256 {old_print}")
-    assert lines[1].endswith(f": not replaced, its line is left as it is")
+    assert lines[1].endswith(": not replaced, its line is left as it is")
 
     recorded.write_text(f"robot1 {new_print}\n")
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))

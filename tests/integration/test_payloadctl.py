@@ -7,10 +7,9 @@ import subprocess
 import sys
 
 import pytest
-import yaml
 
 from roles.payload import installed_files as payload, release
-from roles.payload.payloadctl import durable, health, imageref, images, lifecycle, releases as releases_module
+from roles.payload.payloadctl import durable, health, lifecycle, releases as releases_module
 from roles.payload.payloadctl import lock as apply_lock
 
 

@@ -8,7 +8,6 @@ import sys
 
 import pytest
 
-from robotfleet.commands import rollout_plan as waves
 from tests.unit.test_waves import result
 
 

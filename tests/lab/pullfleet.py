@@ -146,7 +146,7 @@ class Operator:
 
     def reports(self) -> dict[str, dict]:
         """Every robot's last report on the lab's git server (as the operator reads them)."""
-        from robotfleet.pull.protocol import report_store, reports
+        from robotfleet.pull.protocol import report_store
 
         cache = self.base / "reports-cache"
         if not (cache / "HEAD").exists():

@@ -14,7 +14,6 @@ asks it always, for newer versions than the cache holds).
 
 from __future__ import annotations
 
-import os
 import re
 import subprocess
 import sys
