@@ -36,7 +36,8 @@ def signed(lab, tmp_path_factory):
     from tests.lab import hostcert
 
     base = tmp_path_factory.mktemp("hostcerts")
-    ca, other = hostcert.make_ca(base, "fleet-host-ca"), hostcert.make_ca(base, "another-ca")
+    ca = hostcert.make_ca(base, "fleet-host-ca")
+    hostcert.make_ca(base, "another-ca")  # its certificate is refused (signed.base / "another-ca")
     key = hostcert.host_key(lab.prefix, "robot1")
     port = lab.state["hosts"][0]["port"]
     serials = iter(range(1, 100))

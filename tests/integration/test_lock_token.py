@@ -18,7 +18,7 @@ import time
 
 from roles.payload.payloadctl import lock as apply_lock
 from tests.unit.harness import ROBOT, converged, plan
-from tests.integration.test_payloadctl import FakeRobot, helper, robot, switching, wait_until  # noqa: F401 (fixtures)
+from tests.integration.test_payloadctl import switching, wait_until
 
 # COMMAND for `payloadctl hold`: an apply (and a rollback) as part of the
 # holder's run, the token read from the file hold names in the environment.

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from roles.payload import installed_files as payload, release
+from roles.payload import release
 from roles.payload.payloadctl import durable, health, lifecycle, releases as releases_module
 from roles.payload.payloadctl import lock as apply_lock
 
@@ -27,15 +27,6 @@ class store:
             lifecycle.Life(self)._point(name, rid)
 
         record = releases_module.Releases.raw_record
-
-
-@pytest.fixture(scope="module")
-def helper(tmp_path_factory):
-    """payloadctl exactly as it is installed on a robot."""
-    path = tmp_path_factory.mktemp("helper") / "payloadctl"
-    path.write_bytes(payload.helper_bytes())
-    path.chmod(0o755)
-    return str(path)
 
 
 def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
@@ -206,16 +197,6 @@ class FakeRobot:
 
     def pointers(self):
         return self.releases.pointer("current"), self.releases.pointer("previous")
-
-
-@pytest.fixture
-def robot(tmp_path, helper):
-    robot = FakeRobot(tmp_path, helper)
-    robot.image("reg/ros/payload:1.0")
-    robot.release("r1", "reg/ros/payload:1.0")
-    robot.releases.point("current", "r1")
-    robot.running("reg/ros/payload:1.0")
-    return robot
 
 
 def mode(path):
