@@ -257,8 +257,11 @@ def test_a_mistyped_pin_leaves_the_robots_working_key_in_place(signers, tmp_path
     served.write_text(armored["pinned"])
     dest = tmp_path / "keyrings" / "docker.asc"
     dest.parent.mkdir()
-    run = lambda pin: subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), pin))],
-                                     capture_output=True, text=True, timeout=60)
+
+    def run(pin):
+        return subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), pin))],
+                              capture_output=True, text=True, timeout=60)
+
     assert run(fprs["pinned"]).returncode == 0
     good = dest.read_bytes()
     wrong = run("DEAD" * 10)

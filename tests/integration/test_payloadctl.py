@@ -632,7 +632,7 @@ def test_an_image_for_another_platform_is_refused_before_anything_switches(robot
     robot.image("reg/ros/payload:1.1", platform="linux/amd64")
     result = robot.apply("reg/ros/payload:1.1")
     assert result.returncode == 1
-    line = [l for l in result.stderr.splitlines() if "refused" in l]
+    line = [found for found in result.stderr.splitlines() if "refused" in found]
     assert line == ["payload: pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only: "
                     "refused before anything switched"]
     assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # no release was even written
