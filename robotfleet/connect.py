@@ -303,8 +303,9 @@ class FleetConnector(ssh.SSHConnector):
             return error.reason, False
         if isinstance(error, BadHostKeyException):
             return (f"host key CHANGED: {known_hosts} has {hostkeys.fingerprint(error.expected_key)} for "
-                    f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused (if the robot "
-                    f"was reinstalled, delete its line and enroll it again: {enroll_command(self.host.name)})"), False
+                    f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; "
+                    "refused (if the robot was reinstalled, "
+                    f"delete its line and enroll it again: {enroll_command(self.host.name)})"), False
         if isinstance(error, PyinfraError):  # e.g. the ssh_key file is missing or unreadable
             return f"cannot connect: {error}", False
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
@@ -373,7 +374,7 @@ def network_reason(error: Exception, address: str, port: int, timeout: float,
     if isinstance(error, socket.gaierror):
         return f"cannot resolve {address} ({error.strerror})", False
     if isinstance(error, (socket.timeout, TimeoutError)):
-        return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True
+        return f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)", True  # noqa: E501 - one line more and connect.py is over 400 until its split (issue 37)
     if isinstance(error, SSHException):
         text = str(error)
         if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):

@@ -49,7 +49,8 @@ def host_keys(name: str, data, lines: list[str]) -> list[str]:
         if there.get(key.get_name()) == key:
             said.append(f"{shown}: already in {path}")
         elif key.get_name() in there:
-            said.append(f"{name}: host key CHANGED for {entry}: {path} has {hostkeys.fingerprint(there[key.get_name()])}, "
+            said.append(f"{name}: host key CHANGED for {entry}: {path} has "
+                        f"{hostkeys.fingerprint(there[key.get_name()])}, "
                         f"the report says {hostkeys.fingerprint(key)}; refused, its line is left as it is")
         else:
             new.append((entry, key))
