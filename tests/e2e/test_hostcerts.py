@@ -102,7 +102,8 @@ def test_a_certified_host_connects_with_only_the_ca_line(signed, fleet):
     (row,) = json.loads(status.stdout)
     assert row["reachable"] is True and row["arch"] == "amd64"
     # The pyinfra CLI through the same connector, strict checking on.
-    run = fleet("pyinfra exec with a valid certificate", "-c", PYINFRA, "-y", "inventories/lab.py", "exec", "--", "true")
+    run = fleet("pyinfra exec with a valid certificate", "-c", PYINFRA, "-y", "inventories/lab.py", "exec", "--",
+                "true")
     assert run.returncode == 0, run.stderr[-3000:]
     assert fleet.known_hosts.read_text() == before  # nothing learnt on first use
 

@@ -43,7 +43,8 @@ def test_a_report_reads_back_as_written():
     (lambda r: r.update(result="pwned"), "report of robot1: unknown result pwned"),
     (lambda r: r.update(format=2), "report of robot1: not a format 1 report"),
     (lambda r: r.update(time="yesterday"), "report of robot1: time is not a UTC time"),
-    (lambda r: r.update(host_keys=["ssh-ed25519 AAAA; rm -rf /"]), "report of robot1: host_keys: expected public key lines"),
+    (lambda r: r.update(host_keys=["ssh-ed25519 AAAA; rm -rf /"]),
+     "report of robot1: host_keys: expected public key lines"),
     (lambda r: r.update(key="not a key"), "report of robot1: key: expected a public key line"),
     (lambda r: r["seen"].update(version=-1), "seen.version: expected a whole number"),
 ])

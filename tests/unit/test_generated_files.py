@@ -30,6 +30,7 @@ def test_sent_file_matches_its_golden_copy(sent_to_a_fresh_robot, golden, sent):
     path = GOLDEN / golden
     if REGENERATE:
         path.write_text(content)
-    assert content == path.read_text(), f"{sent} differs from tests/unit/golden/{golden} (ROBOT_REGENERATE_GOLDEN=1 to accept)"
+    assert content == path.read_text(), (
+        f"{sent} differs from tests/unit/golden/{golden} (ROBOT_REGENERATE_GOLDEN=1 to accept)")
 
 

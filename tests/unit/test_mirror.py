@@ -211,7 +211,8 @@ def test_rules_digest_is_stable_and_covers_rules(monkeypatch):
     for index, rule in enumerate(RULES):
         for field in dataclasses.fields(rule):
             value = getattr(rule, field.name)
-            other = (not value) if isinstance(value, bool) else (value + ("x",) if isinstance(value, tuple) else f"{value}x")
+            other = ((not value) if isinstance(value, bool)
+                     else (value + ("x",) if isinstance(value, tuple) else f"{value}x"))
             edited = list(RULES)
             edited[index] = dataclasses.replace(rule, **{field.name: other})
             monkeypatch.setattr(mirror, "RULES", tuple(edited))
