@@ -22,4 +22,3 @@ def test_ruff_finds_nothing():
     proc = subprocess.run([str(ruff), "check", "--no-cache", "."], cwd=ROOT, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert proc.stdout.strip() == "All checks passed!", proc.stdout
