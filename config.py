@@ -8,9 +8,9 @@ import sys
 # (pyinfra appends the deploy directory to sys.path, after site-packages).
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from pyinfra import config  # noqa: E402
+from pyinfra import config
 
-from robotfleet.inventory import refuse  # noqa: E402
+from robotfleet.inventory import refuse
 
 config.REQUIRE_PYINFRA_VERSION = ">=3.10,<4"
 

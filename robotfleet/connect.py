@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from random import uniform
 
 from gevent import monkey
-from paramiko import AuthenticationException, BadHostKeyException, HostKeys, MissingHostKeyPolicy, SSHException
+from paramiko import AuthenticationException, BadHostKeyException, MissingHostKeyPolicy, SSHException
 from paramiko import SSHClient as ParamikoClient
 from paramiko.agent import Agent
 from paramiko.ssh_exception import BadAuthenticationType

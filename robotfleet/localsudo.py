@@ -74,7 +74,8 @@ def problem(host: str, user: str, verdict: str, said: str, terminal: bool) -> st
     if verdict == "password":
         return needs_password_line(host, user)
     if verdict == "missing":
-        return f"[{host}] sudo is not installed, and every step runs through it: install it as root (apt-get install sudo)"
+        return (f"[{host}] sudo is not installed, and every step runs through it: "
+                "install it as root (apt-get install sudo)")
     return f"[{host}] sudo refuses {user}: {said}"
 
 

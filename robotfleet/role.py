@@ -230,7 +230,8 @@ def added(roles, hook: Hook, data, *args) -> list:
 
 
 def with_additions(roles, hook: Hook, data, value):
-    """``value`` with every addition of ``roles`` at ``hook``: passed through each in turn (each returns the new value)."""
+    """``value`` with every addition of ``roles`` at ``hook``: passed through
+    each in turn (each returns the new value)."""
     for add in adders(roles, hook):
         value = add(data, value)
     return value

@@ -73,7 +73,8 @@ _V6_LAST = rf"(?:{_H}:{_H}|{IPV4})"  # the last 32 bits: two groups or an IPv4 a
 
 def _after_gap(groups: int) -> str:
     """At most ``groups`` groups after '::' (an IPv4 address counts two)."""
-    options = [rf"(?:{_H}:){{0,{groups - 1}}}{_H}"] + ([rf"(?:{_H}:){{0,{groups - 2}}}{_V6_LAST}"] if groups >= 2 else [])
+    options = ([rf"(?:{_H}:){{0,{groups - 1}}}{_H}"]
+               + ([rf"(?:{_H}:){{0,{groups - 2}}}{_V6_LAST}"] if groups >= 2 else []))
     return "(?:" + "|".join(options) + ")?"
 
 
@@ -105,7 +106,8 @@ def address(value):
         return [("", f"expected an IPv6 address without brackets, got {c.shown(value)}")]
     host_port = _HOST_PORT.fullmatch(value)
     if host_port:
-        return [("", f"expected a host name or an IP address, got {c.shown(value)}; put the port in ssh_port: {host_port.group(2)}")]
+        return [("", f"expected a host name or an IP address, got {c.shown(value)}; put the port in ssh_port: "
+                     f"{host_port.group(2)}")]
     if _DOTTED_NUMBERS.fullmatch(value):
         return [("", f"{c.shown(value)} is not a valid IPv4 address")]
     return [("", f"expected a host name or an IP address, got {c.shown(value)}")]
@@ -149,7 +151,8 @@ def private_path(value):
     normal = canonical(value)
     shared = _under(normal, WORLD_WRITABLE)
     if shared:
-        return [("", f"{c.shown(value)} is in the world-writable {shared}; use a directory only root can write (e.g. under /var/lib)")]
+        return [("", f"{c.shown(value)} is in the world-writable {shared}; "
+                     "use a directory only root can write (e.g. under /var/lib)")]
     shared = _under(normal, SHARED_INSIDE) or (None if _under(normal, ROOT_ONLY) else _under(normal, NOT_ROOT_ONLY))
     if shared:
         return [("", f"{c.shown(value)} is in {shared}, {NOT_ROOT_ONLY[shared]}; use a directory only root can write "
@@ -190,7 +193,8 @@ _path_schema = {"type": "string", "pattern": c.json_pattern(c.ABS_PATH), "not": 
 c.with_schema(address, {"type": "string", "pattern": c.json_pattern(ADDRESS),
                         "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)"})
 c.with_schema(abs_path, _path_schema)
-c.with_schema(local_path, {"type": "string", "pattern": c.json_pattern(LOCAL_PATH), "description": "a path on this machine"})
+c.with_schema(local_path,
+              {"type": "string", "pattern": c.json_pattern(LOCAL_PATH), "description": "a path on this machine"})
 
 
 def _places_pattern(places) -> str:
@@ -204,4 +208,6 @@ c.with_schema(private_path, {
     "description": "an absolute path in a place only root writes (" + ", ".join(ROOT_ONLY)
     + "), outside world-writable directories (/tmp, /run/lock, ...)",
 })
-c.with_schema(fingerprint, {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$", "description": "a 40-digit hex OpenPGP fingerprint"})
+c.with_schema(fingerprint,
+              {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$",
+               "description": "a 40-digit hex OpenPGP fingerprint"})

@@ -8,7 +8,8 @@ hosts (their apt, Docker and systemd), and the unit and integration layers
 need no host, so they run at the same time, as two pytest processes: the
 end-to-end output streams here, the other layers' output follows when they
 are done.  The exit code is pytest's for the first layer that failed (0 when
-both passed; a layer whose tests the options leave out does not count).  Options are handed to both (e.g. -x, -k, -p no:cacheprovider).
+both passed; a layer whose tests the options leave out does not count).
+Options are handed to both (e.g. -x, -k, -p no:cacheprovider).
 
 One layer alone: .venv/bin/python -m pytest tests/unit (or tests/integration,
 tests/e2e); all three one after the other: .venv/bin/python -m pytest.

@@ -33,7 +33,8 @@ def new_key(home: Path, uid: str, with_subkey: bool = False) -> str:
     listing = gpg(home, "--with-colons", "--list-keys", uid, text=True).stdout
     fingerprint = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
     if with_subkey:
-        gpg(home, "--passphrase", "", "--pinentry-mode", "loopback", "--quick-add-key", fingerprint, "ed25519", "sign", "never")
+        gpg(home, "--passphrase", "", "--pinentry-mode", "loopback", "--quick-add-key", fingerprint, "ed25519", "sign",
+            "never")
     return fingerprint
 
 

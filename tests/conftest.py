@@ -27,3 +27,25 @@ state = _imported_when_used("state", "tests.lab.state")
 emulation = _imported_when_used("emulation", "tests.lab.emulation")
 registry = _imported_when_used("registry", "roles.payload.registry")
 push = _imported_when_used("push", "roles.payload.push")
+
+
+@pytest.fixture(scope="module")
+def sent_to_a_fresh_robot():
+    """The files a fresh robot is sent, by path (compose.yaml: as payloadctl
+    writes it); tests/unit/test_generated_files.py compares them with their
+    golden copies, tests/integration/test_generated_files.py has systemd
+    check the unit."""
+    import json
+
+    from roles.payload.payloadctl.releases import compose_yaml, release_compose
+    from tests.unit.harness import ROBOT, find, fresh_host, plan, written_files
+
+    commands = plan({"robot1": ("robots", {
+        **ROBOT, "ssh_hostname": "10.20.0.11",
+        "docker_registry_mirrors": ["https://mirror.lan"], "docker_insecure_registries": ["registry.lan:5000"],
+    }, fresh_host("debian-13"))})["robot1"]
+    files = written_files(commands)
+    release = find(commands, "payloadctl apply")
+    assert len(release) == 1
+    files["compose.yaml"] = compose_yaml(release_compose(json.loads(release[0].stdin)["spec"]["compose"]))
+    return files

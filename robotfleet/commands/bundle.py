@@ -95,7 +95,8 @@ def make(args) -> int:
     owner = user if rule else args.robot
     kept = enrollments.kept_file(robotfleet.CHECKOUT)
     bundle.remember(kept, owner, public, record.version)
-    print(f"bundle: {args.out}/rootfs.tar for {f'robots named {args.name_prefix}<{args.name_from}> like ' if rule else ''}"
+    like = f"robots named {args.name_prefix}<{args.name_from}> like " if rule else ""
+    print(f"bundle: {args.out}/rootfs.tar for {like}"
           f"{args.robot}: release {record.version}, {len(wheels)} wheels "
           f"({data.pull_platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}")
     if admin is not None:
@@ -115,7 +116,8 @@ def main(argv=None) -> int:
     parser = commands.parser("bundle", __doc__)
     parser.add_argument("robot")
     parser.add_argument("--out", required=True, metavar="DIR", help="a new directory for the bundle")
-    parser.add_argument("--fleet", metavar="FILE", help="the fleet file (default $ROBOT_FLEET, else inventories/robots.yaml)")
+    parser.add_argument("--fleet", metavar="FILE",
+                        help="the fleet file (default $ROBOT_FLEET, else inventories/robots.yaml)")
     add_admin(parser)
     parser.add_argument("--name-from", choices=sorted(naming.RULES),
                         help="an image shared by many robots: each names itself from its machine-id or board serial")

@@ -184,9 +184,11 @@ def main(argv=None) -> int:
     parser = commands.parser("enroll", __doc__)
     parser.add_argument("inventory")
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
-    parser.add_argument("--fingerprints", metavar="FILE", help="the hosts' recorded fingerprints: HOST SHA256:... per line")
+    parser.add_argument("--fingerprints", metavar="FILE",
+                        help="the hosts' recorded fingerprints: HOST SHA256:... per line")
     parser.add_argument("--allow-unlisted", action="store_true",
-                        help="with --fingerprints: hosts missing from FILE are asked for (or taken with --yes) instead of refused")
+                        help="with --fingerprints: hosts missing from FILE are asked for (or taken with --yes) "
+                             "instead of refused")
     parser.add_argument("--replace", metavar="HOST", action="append", default=[],
                         help="replace HOST's changed key when the new one matches --fingerprints FILE (repeatable)")
     parser.add_argument("-y", "--yes", action="store_true", help="enroll new keys as shown, without asking")
@@ -200,17 +202,21 @@ def main(argv=None) -> int:
         names = [h.name for h in inventory]
         unknown = [name for name in args.replace if name not in names]
         if unknown:
-            raise selection.Refused(f"--replace {' '.join(unknown)}: no such host in {args.inventory}; nothing was done")
+            raise selection.Refused(f"--replace {' '.join(unknown)}: no such host in {args.inventory}; "
+                                    "nothing was done")
         limits = args.limit or args.replace  # --replace alone: only those hosts
         chosen = [target(h) for h in selection.select(inventory, args.inventory, limits) if not h.name.startswith("@")]
     except (OSError, ValueError) as error:
         return selection.refused(selection.Refused(one_line(str(error))))
     except selection.Refused as error:
         return selection.refused(error)
-    choices = Choices(expected, args.fingerprints, args.yes, args.allow_unlisted, frozenset(args.replace), args.inventory)
+    choices = Choices(expected, args.fingerprints, args.yes, args.allow_unlisted, frozenset(args.replace),
+                      args.inventory)
     if not chosen:
-        return selection.refused(selection.Refused(f"{args.inventory}: no SSH host to enroll (@local hosts have no host key)"))
-    print(f"fetching the host keys of {len(chosen)} host(s) (at most {max(h.timeout for h in chosen)} s)...", file=sys.stderr)
+        return selection.refused(selection.Refused(
+            f"{args.inventory}: no SSH host to enroll (@local hosts have no host key)"))
+    print(f"fetching the host keys of {len(chosen)} host(s) (at most {max(h.timeout for h in chosen)} s)...",
+          file=sys.stderr)
     with ThreadPoolExecutor(max_workers=min(32, len(chosen))) as pool:
         keys = list(pool.map(fetch, chosen))
     outcomes: dict[str, list[str]] = {}

@@ -41,7 +41,8 @@ def settings_doc(registry: Registry) -> str:
         "",
     ]
     parts = [("The engine (connection, apt, rollouts)", "robotfleet/fleet/connection.py", connection.SETTINGS)]
-    parts += [(f"{role.name}: {role.doc}", f"roles/{role.name}/", role.settings) for role in registry.roles if role.settings]
+    parts += [(f"{role.name}: {role.doc}", f"roles/{role.name}/", role.settings)
+              for role in registry.roles if role.settings]
     for title, where, settings in parts:
         lines += [f"## {title}", "", f"Declared in `{where}`.", "", "| setting | default | what |", "|---|---|---|"]
         for setting in settings:
@@ -51,7 +52,8 @@ def settings_doc(registry: Registry) -> str:
         lines.append("")
     if registry.renamed:
         lines += ["## Renamed settings", "",
-                  "Each old name is still read, with a note asking to rename it; setting both names in one place is refused.",
+                  "Each old name is still read, with a note asking to rename it; "
+                  "setting both names in one place is refused.",
                   "", "| old name | now | values |", "|---|---|---|"]
         for old, rename in registry.renamed.items():
             values = ", ".join(f"`{before}` is now `{after}`" for before, after in rename.values.items()) or "the same"

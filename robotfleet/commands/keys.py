@@ -41,7 +41,8 @@ def parse_args(argv: list[str]):
     show = sub.add_parser("show", help="the repository's root and which keys are here")
     rotate = sub.add_parser("rotate", help="replace a key now (the root key must be at hand)")
     rotate.add_argument("which", choices=("online", "root"))
-    rotate.add_argument("--root-key", type=Path, metavar="FILE", help="the current root key (default: the key directory's)")
+    rotate.add_argument("--root-key", type=Path, metavar="FILE",
+                        help="the current root key (default: the key directory's)")
     prepare = sub.add_parser("prepare", help="write the next root, unsigned, for the offline root key to sign")
     prepare.add_argument("which", choices=("online", "root", "renew"))
     prepare.add_argument("--out", type=Path, required=True, metavar="FILE")

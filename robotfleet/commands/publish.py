@@ -94,7 +94,8 @@ def options_of(args) -> publishing.Options:
     return publishing.Options(
         revision=args.commit, fleet=args.fleet, plan=plan, expiry=commandline.expiry_of(args),
         wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),
-        index_url=args.index_url, refresh_wheels=args.refresh_wheels, allow_dirty=args.allow_dirty, platforms=tuple(args.platform))
+        index_url=args.index_url, refresh_wheels=args.refresh_wheels, allow_dirty=args.allow_dirty,
+        platforms=tuple(args.platform))
 
 
 def renew(args) -> int:

@@ -159,7 +159,8 @@ def parse_args(argv):
     parser = commands.parser("rollout", __doc__)
     parser.add_argument("inventory")
     parser.add_argument("script", nargs="?", default="deploy.py", help="the deploy (default: deploy.py)")
-    parser.add_argument("--canary", default="1", help="robots in the first wave when none has rollout_canary (default 1)")
+    parser.add_argument("--canary", default="1",
+                        help="robots in the first wave when none has rollout_canary (default 1)")
     parser.add_argument("--batch", default="25%", help="robots per later wave, a number or a share (default 25%%)")
     parser.add_argument("--max-failed", default="0", help="failures tolerated, a number or a share (default 0)")
     parser.add_argument("--unreachable-fails", action="store_true", help="unreachable robots count as failures")
@@ -260,7 +261,8 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
     for index, wave in enumerate(state["waves"]):
         todo = [h for h in wave if h not in state["done"]]
         notes = ([f"{len(wave) - len(todo)} already on the new release"] if len(todo) < len(wave) else []) + (
-            [f"unreachable now: {', '.join(h for h in todo if h in unreachable)}"] if set(todo) & set(unreachable) else [])
+            [f"unreachable now: {', '.join(h for h in todo if h in unreachable)}"]
+            if set(todo) & set(unreachable) else [])
         say(f"wave {index + 1}/{len(state['waves'])}: {', '.join(wave)}" + (f" ({'; '.join(notes)})" if notes else ""))
     say(f"failure budget: {state['allowed_failures']} robot(s); unreachable robots "
         + ("count" if args.unreachable_fails else "are skipped"))

@@ -28,7 +28,8 @@ ALIASES = {
 }
 
 SETTINGS = (
-    Setting("ssh_hostname", UNSET, v.address, "The address SSH connects to (write it as address:); default: the host's name."),
+    Setting("ssh_hostname", UNSET, v.address,
+            "The address SSH connects to (write it as address:); default: the host's name."),
     Setting("ssh_user", UNSET, v.user_name, "The SSH user (sudo runs every step); default: yours."),
     Setting("ssh_port", 22, c.integer(1, 65535), "The port sshd listens on."),
     Setting("ssh_key", UNSET, v.local_path, "Private key file on this machine; default: your agent and ~/.ssh keys."),

@@ -211,7 +211,8 @@ def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
     if opened is not None and found is not None and ("quoted" in context or "flow" in context):
         return YamlProblem(
             opened.line + 1,
-            f"{context.removeprefix('while scanning ').removeprefix('while parsing ')} opened here (column {opened.column + 1})"
+            f"{context.removeprefix('while scanning ').removeprefix('while parsing ')} "
+            f"opened here (column {opened.column + 1})"
             f" is not closed: {problem} (line {found.line + 1}, column {found.column + 1})",
         )
     quote = _runaway_quote(text, found) if found is not None else None
@@ -319,7 +320,8 @@ class _Builder:
                 raise ValueError(node.value)
             value = convert(node.value)
         except (ValueError, TypeError, OverflowError):
-            raise YamlProblem(node.start_mark.line + 1, f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}") from None
+            raise YamlProblem(node.start_mark.line + 1,
+                              f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}") from None
         if isinstance(value, (int, float)) and not isinstance(value, bool) and _changed(value, node.value):
             return Misread(value, node.value)
         return value
@@ -340,7 +342,8 @@ class _Builder:
             sources = value_node.value if isinstance(value_node, SequenceNode) else [value_node]
             for source in sources:
                 if not isinstance(source, MappingNode):
-                    raise YamlProblem(value_node.start_mark.line + 1, "a merge key (<<) takes a mapping or a list of mappings")
+                    raise YamlProblem(value_node.start_mark.line + 1,
+                                      "a merge key (<<) takes a mapping or a list of mappings")
                 for merged_key, merged_value in self.build(source, depth + 1).items():
                     result.setdefault(merged_key, merged_value)
         return result

@@ -236,7 +236,8 @@ class Reading:
             elif stem in known:
                 read = next(u for u in [stem, *(stem + x for x in VARS_SUFFIXES)] if u in used)
                 self.notes.append(f"{shown}: note: not read: {kind}/{read} is read for the {what} {stem} instead "
-                                  "(Ansible reads the first of NAME/, NAME, NAME.yml, NAME.yaml, NAME.json); merge them")
+                                  "(Ansible reads the first of NAME/, NAME, NAME.yml, NAME.yaml, NAME.json); "
+                                  "merge them")
             else:
                 self.notes.append(f"{shown}: note: no {what} {stem!r} in the inventory"
                                   + c.did_you_mean(stem, sorted(known)) + "; not read")

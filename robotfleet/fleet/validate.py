@@ -123,7 +123,8 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
                 refused.add(name)
                 continue
             if rename is not None:
-                notes.append(f"{layer.at(key)}: note: {where}: {key} is now {name}; the old name still works (rename it)")
+                notes.append(f"{layer.at(key)}: note: {where}: {key} is now {name}; "
+                             "the old name still works (rename it)")
                 value = registry.renamed_value(rename, value)
             if name in named:
                 report(layer, where, [(c.key_name(key), f"sets {name} a second time in the same place; keep one")])

@@ -32,17 +32,21 @@ apt_locked() {
   while :; do
     "$@" >"$log" 2>&1 && { rm -f "$log"; return 0; }
     rc=$?
-    if ! grep -qE 'Could not get lock|Unable to acquire the dpkg frontend lock|Unable to lock|lock was locked by' "$log"; then
+    if ! grep -qE 'Could not get lock|Unable to acquire the dpkg frontend lock|Unable to lock|lock was locked by' \
+        "$log"; then
       cat "$log" >&2; rm -f "$log"; return $rc
     fi
     [ "$(date +%s)" -lt "$apt_deadline" ] && { sleep 2; continue; }
-    lock=$(sed -n 's/.*Could not get lock \([^ ]*\)\. .*/\1/p; s/.*(\(\/var\/lib\/dpkg\/lock[^)]*\)).*/\1/p' "$log" | tail -n 1)
-    holder=$(sed -n 's/.*held by process \([0-9][0-9]*\) (\([^)]*\)).*/\1 \2/p; s/.*locked by \([^ ]*\) process with pid \([0-9][0-9]*\).*/\2 \1/p' "$log" | tail -n 1)
+    lock=$(sed -n -e 's/.*Could not get lock \([^ ]*\)\. .*/\1/p' \
+        -e 's/.*(\(\/var\/lib\/dpkg\/lock[^)]*\)).*/\1/p' "$log" | tail -n 1)
+    holder=$(sed -n -e 's/.*held by process \([0-9][0-9]*\) (\([^)]*\)).*/\1 \2/p' \
+        -e 's/.*locked by \([^ ]*\) process with pid \([0-9][0-9]*\).*/\2 \1/p' "$log" | tail -n 1)
     pid=${holder%% *}
     command=$(tr '\0' ' ' 2>/dev/null < "/proc/$pid/cmdline" | cut -c1-80)
     [ -n "$command" ] && holder="$pid $command"
     holder=${holder:+process ${holder%% *} (${holder#* })}
-    echo "apt: ${lock:-the apt/dpkg lock} is held by ${holder:-another process} for more than $apt_lock_timeout s (apt_lock_timeout); nothing was installed, rerun when it is done" >&2
+    echo "apt: ${lock:-the apt/dpkg lock} is held by ${holder:-another process} for more than $apt_lock_timeout s" \
+        "(apt_lock_timeout); nothing was installed, rerun when it is done" >&2
     rm -f "$log"; return @LOCK_TIMED_OUT@
   done
 }

@@ -33,7 +33,8 @@ KEYRING_DIR = "/etc/apt/keyrings"
 SOURCES_DIR = "/etc/apt/sources.list.d"
 # Primary keys only (pub, or sec if someone served a secret key): the fpr
 # record that follows each; subkeys' fingerprints are not primaries.
-_PRIMARIES_AWK = "awk -F: '$1==\"pub\"||$1==\"sec\"{p=1;next} $1==\"fpr\"&&p{print $10;p=0} $1==\"sub\"||$1==\"ssb\"{p=0}'"
+_PRIMARIES_AWK = ("awk -F: '$1==\"pub\"||$1==\"sec\"{p=1;next} $1==\"fpr\"&&p{print $10;p=0} "
+                  "$1==\"sub\"||$1==\"ssb\"{p=0}'")
 
 
 @dataclass(frozen=True)
@@ -149,9 +150,11 @@ def key_script(repo: Repository) -> str:
             '    rm -f "$dest"; echo "$dest held more than one key ($(echo $old)); removed" >&2',
             "  else",
             '    [ -z "$old" ] || [ "$old" = "$pin" ] || '
-            f'GNUPGHOME="$h/installed" gpg --batch --no-autostart {export} "$old" > "$h/installed.key" 2>/dev/null || true',
+            f'GNUPGHOME="$h/installed" gpg --batch --no-autostart {export} "$old" > "$h/installed.key" '
+            '2>/dev/null || true',
             '    if [ -z "$old" ] || ! cmp -s "$h/installed.key" "$dest"; then',
-            '      rm -f "$dest"; echo "$dest is not exactly the pinned key as gpg exports it ($setting $pin); removed" >&2',
+            '      rm -f "$dest"; echo "$dest is not exactly the pinned key as gpg exports it ($setting $pin); '
+            'removed" >&2',
             "    fi",
             "  fi",
             "fi",
@@ -228,7 +231,8 @@ def declare_reads(repo: Repository, query: SnapshotQuery) -> None:
 @operations.operation()
 def pinned_key(repo: Repository, up_to_date: bool):
     if up_to_date:
-        host.noop(f"{repo.key_path} is exactly the pinned key as gpg exports it" if repo.fingerprint else f"{repo.key_path} is in place")
+        host.noop(f"{repo.key_path} is exactly the pinned key as gpg exports it" if repo.fingerprint
+                  else f"{repo.key_path} is in place")
         return
     yield operations.shell(key_script(repo))
 
@@ -236,7 +240,8 @@ def pinned_key(repo: Repository, up_to_date: bool):
 def set_up(repo: Repository, snap: Snapshot, *also_changed) -> None:
     """The keyring directory, the key, the source, and apt update when any
     of them (or ``also_changed``, e.g. removed legacy files) changed."""
-    operations.directory(name=f"apt keyring directory {KEYRING_DIR}", path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR))
+    operations.directory(name=f"apt keyring directory {KEYRING_DIR}", path=KEYRING_DIR,
+                         current=snap.files.get(KEYRING_DIR))
     key = pinned_key(
         name=f"Download {repo.what}'s apt key and check it is exactly the pinned key",
         repo=repo,

@@ -36,5 +36,6 @@ def codename(os_release: dict) -> str:
 
 def architecture(dpkg_arch: str) -> str:
     if dpkg_arch not in ARCHITECTURES:
-        raise PlanError(f"architecture {dpkg_arch or 'unknown'} is not supported (supported: {', '.join(ARCHITECTURES)})")
+        raise PlanError(f"architecture {dpkg_arch or 'unknown'} is not supported (supported: "
+                        f"{', '.join(ARCHITECTURES)})")
     return dpkg_arch

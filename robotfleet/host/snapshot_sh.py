@@ -57,7 +57,8 @@ def memo_name(name: str, snippet: str, inputs) -> str:
 
 
 def _os_release() -> list[str]:
-    return ["l=; while IFS= read -r l || [ -n \"$l\" ]; do printf 'osl\\t%s\\n' \"$l\"; l=; done 2>/dev/null < /etc/os-release",
+    return ["l=; while IFS= read -r l || [ -n \"$l\" ]; do printf 'osl\\t%s\\n' \"$l\"; l=; "
+            "done 2>/dev/null < /etc/os-release",
             "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo"]
 
 
@@ -78,7 +79,8 @@ def _files(files) -> list[str]:
         lines.append(
             f"if [ -L {p} ]; then echo \"file${{T}}\"{p}\"${{T}}link${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
             f"elif [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
-            f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
+            f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}"
+            f"$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
             f"else echo \"file${{T}}\"{p}\"${{T}}none\"; fi"
         )
     return lines
@@ -213,7 +215,8 @@ def _probe_results(probes: dict, memo: dict) -> list[str]:
         '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; echo "pblob$T$(cat -- "$@" | base64 -w0)"; fi',
         'elif [ -n "$R" ]; then',
         # No temporary directory: one after another, each under its own timeout.
-        f"  for i in $R; do printf 'pone\\t%s\\t' $i; timeout {PROBE_TIMEOUT} sh -c \"$I\" sh '' $i | base64 -w0; echo; done",
+        f"  for i in $R; do printf 'pone\\t%s\\t' $i; timeout {PROBE_TIMEOUT} sh -c \"$I\" sh '' $i | base64 -w0; "
+        "echo; done",
         "fi",
     ]
     return lines

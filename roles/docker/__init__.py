@@ -53,11 +53,13 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
-    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON, daemon.PENDING, daemon.PREVIOUS}
+    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON,
+                    daemon.PENDING, daemon.PREVIOUS}
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
-    aptrepo.declare_key_probe(query, KEY_PROBE, data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint))
+    aptrepo.declare_key_probe(query, KEY_PROBE, data.docker_apt_key_path,
+                              value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint))
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
     users.declare_reads(data, query)
 
@@ -106,7 +108,8 @@ def install_docker(play: Play):
             installed=snap.packages,
         )
 
-    operations.directory(name="Docker configuration directory /etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker"))
+    operations.directory(name="Docker configuration directory /etc/docker", path="/etc/docker",
+                         current=snap.files.get("/etc/docker"))
     operations.service(
         name="Docker enabled and running",
         unit="docker.service",
@@ -118,7 +121,8 @@ def install_docker(play: Play):
     content = daemon_json(play)
     pending = snap.files.get(daemon.PENDING) is not None
     written = daemon.daemon_json(
-        name=f"Write /etc/docker/daemon.json and {action} Docker (the previous file comes back if Docker does not start)",
+        name=f"Write /etc/docker/daemon.json and {action} Docker "
+             "(the previous file comes back if Docker does not start)",
         content=content,
         current=snap.files.get(DAEMON_JSON),
         action=action,

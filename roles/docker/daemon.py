@@ -52,7 +52,8 @@ def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS, pending: str
         'base64 -d > "$tmp" && chown root:root "$tmp" && chmod 600 "$tmp" || exit 1\n'
         "if dockerd --help 2>&1 | grep -q -- '--validate'; then\n"
         '  out=$(dockerd --validate --config-file "$tmp" 2>&1) || '
-        '{ echo "docker: dockerd rejects the new daemon.json: $(echo "$out" | tail -n 1); nothing changed" >&2; exit 1; }\n'
+        '{ echo "docker: dockerd rejects the new daemon.json: $(echo "$out" | tail -n 1); nothing changed" >&2; '
+        'exit 1; }\n'
         "else\n"
         f"  echo {q(NO_VALIDATE_WARNING)} >&2\n"
         "fi\n"
@@ -86,7 +87,8 @@ def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous:
         f"timeout={int(timeout)}\n"
         "docker_up() {\n"
         "  systemctl reset-failed docker.service 2>/dev/null\n"
-        f'  timeout "$timeout" systemctl {action} docker.service >/dev/null 2>&1 && systemctl is-active --quiet docker.service\n'
+        f'  timeout "$timeout" systemctl {action} docker.service >/dev/null 2>&1 '
+        '&& systemctl is-active --quiet docker.service\n'
         "}\n"
         "dockerd_said() {\n"
         '  journalctl -u docker.service SYSLOG_IDENTIFIER=dockerd --since "@$1" -o cat --no-pager 2>/dev/null'
@@ -100,10 +102,12 @@ def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous:
         'rm -f "$pending"; sync "$(dirname "$dest")"\n'
         "since=$(date +%s)\n"
         "if docker_up; then\n"
-        '  echo "docker: Docker did not start with the new daemon.json ($reason); the previous daemon.json is restored and Docker runs again" >&2\n'
+        '  echo "docker: Docker did not start with the new daemon.json ($reason); '
+        'the previous daemon.json is restored and Docker runs again" >&2\n'
         "else\n"
         '  again=$(dockerd_said "$since")\n'
-        '  echo "docker: Docker did not start with the new daemon.json ($reason); the previous daemon.json is restored but Docker does not start with it either (${again:-not active after $timeout s at most})" >&2\n'
+        '  echo "docker: Docker did not start with the new daemon.json ($reason); the previous daemon.json is restored '
+        'but Docker does not start with it either (${again:-not active after $timeout s at most})" >&2\n'
         "fi\n"
         "exit 1\n"
     )

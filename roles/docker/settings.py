@@ -134,7 +134,8 @@ SETTINGS = (
                   c.list_of(c.string(r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?(?:/[0-9]+)?", "host[:port]")),
                   "Merged into daemon.json's insecure-registries.", key="insecure-registries"),
     Setting("docker_allow_unauthenticated_tcp", False, c.boolean,
-            "Allow daemon.json hosts to open a TCP listener without TLS client verification (anyone who reaches it is root)."),
+            "Allow daemon.json hosts to open a TCP listener without TLS client verification "
+            "(anyone who reaches it is root)."),
     Setting("docker_daemon_config_change", "restart", c.string(choices=("restart", "reload")),
             "What a daemon.json change does to the engine."),
     Setting("docker_restart_timeout", 60, c.integer(5, 3600),

@@ -18,7 +18,8 @@ def _b64(text: str) -> str:
 
 def converged(play, host: str) -> None:
     data, snap = play.data, play.snapshot
-    snap.probes.setdefault(gpu.READINGS, f"driver={_b64(DRIVER)}\nsmi_rc=0\nsmi={_b64('GPU 0: NVIDIA (UUID: GPU-1)')}\n")
+    snap.probes.setdefault(gpu.READINGS,
+                           f"driver={_b64(DRIVER)}\nsmi_rc=0\nsmi={_b64('GPU 0: NVIDIA (UUID: GPU-1)')}\n")
     snap.packages.update({plan.TOOLKIT: data.gpu_toolkit_version or "1", "gpg": "2"})
     repo = gpu.repository(data, snap.arch)
     snap.files.update({

@@ -45,7 +45,8 @@ def readings_probe(driver_version_file: str) -> str:
         f"[ -r {f} ] && echo \"driver=$(head -n 1 {f} | base64 -w0)\"; "
         f"[ -f {TEGRA_RELEASE} ] && echo \"tegra=$(head -n 1 {TEGRA_RELEASE} | base64 -w0)\"; "
         "if command -v nvidia-smi >/dev/null 2>&1; then "
-        "o=$(timeout 20 nvidia-smi -L 2>&1); echo \"smi_rc=$?\"; echo \"smi=$(printf %s \"$o\" | head -c 400 | base64 -w0)\"; "
+        "o=$(timeout 20 nvidia-smi -L 2>&1); echo \"smi_rc=$?\"; "
+        "echo \"smi=$(printf %s \"$o\" | head -c 400 | base64 -w0)\"; "
         "else echo smi_rc=absent; fi"
     )
 
@@ -98,7 +99,8 @@ def driver_problem(readings: dict[str, str], driver_version_file: str) -> str | 
 def check_os(os_release: dict, arch: str) -> None:
     try:
         dist = host_platform.distribution(os_release)
-        codename = (os_release.get("ubuntu_codename") if dist == "ubuntu" else None) or os_release.get("version_codename")
+        codename = ((os_release.get("ubuntu_codename") if dist == "ubuntu" else None)
+                    or os_release.get("version_codename"))
         if codename not in SUPPORTED[dist]:
             raise PlanError(f"{dist} {codename or '(unknown release)'} is not supported for the container toolkit "
                             f"(supported: {', '.join(SUPPORTED['ubuntu'] + SUPPORTED['debian'])})")
@@ -157,7 +159,8 @@ def payload_environment(data) -> dict[str, str]:
             "NVIDIA_DRIVER_CAPABILITIES": capabilities}
 
 
-RESERVATION = {"resources": {"reservations": {"devices": [{"driver": "nvidia", "count": "all", "capabilities": ["gpu"]}]}}}
+RESERVATION = {"resources": {"reservations": {"devices": [{"driver": "nvidia", "count": "all",
+                                                           "capabilities": ["gpu"]}]}}}
 
 
 def payload_services(data, services: dict) -> dict:

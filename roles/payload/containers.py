@@ -45,7 +45,8 @@ _IDENTITY = ('{{json (printf "%s\\t%s\\t%s\\t%s\\t%v\\t%s" .Id .Name .Config.Ima
 def cli(project: str, foreign: bool) -> str:
     """The same lines from the docker CLI."""
     q = shlex.quote
-    lines = [f"docker ps -a --filter label={LABEL}={q(project)} --format {q('c' + chr(9) + '{{.State}}' + chr(9) + '{{.Status}}')}"]
+    lines = [f"docker ps -a --filter label={LABEL}={q(project)} --format "
+             f"{q('c' + chr(9) + '{{.State}}' + chr(9) + '{{.Status}}')}"]
     if foreign:
         lines.append(f"docker ps -aq --no-trunc 2>/dev/null | xargs -r docker inspect -f {q('f' + chr(9) + _IDENTITY)}")
     return "; ".join(lines)

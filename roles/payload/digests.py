@@ -62,7 +62,8 @@ def problems(data) -> list[tuple[str, str]]:
     for ref in refs:
         own = _own_digest(ref)
         if own and ref in pins and pins[ref] != own:
-            found.append((f"{SETTING}.{key_name(ref)}", f"{pins[ref]} differs from the digest the image names itself ({own})"))
+            found.append((f"{SETTING}.{key_name(ref)}",
+                          f"{pins[ref]} differs from the digest the image names itself ({own})"))
     return found
 
 

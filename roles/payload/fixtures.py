@@ -26,9 +26,11 @@ def converged(play, host: str) -> None:
         installed_files.HELPER: file_state(installed_files.helper_bytes(), "755"),
     })
     if data.payload_autostart:
-        snap.files[installed_files.unit_path(data)] = file_state(installed_files.unit_text(data, steps.unit_devices(additions)))
+        snap.files[installed_files.unit_path(data)] = file_state(
+            installed_files.unit_text(data, steps.unit_devices(additions)))
         snap.units[f"{data.payload_name}.service"] = ("enabled", "active")
         snap.probes["payload_containers"] = "c\trunning\tUp 3 hours (healthy)\n"
     doc = compose.project(data, data.get("ssh_hostname") or host, additions)
     state = "active" if data.payload_autostart else "staged"
-    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, data.payload_autostart), "state": state})
+    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, data.payload_autostart),
+                                                "state": state})

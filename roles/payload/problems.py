@@ -110,7 +110,8 @@ def root_equivalents(spec: dict) -> list[tuple[str, str]]:
         if spec.get(key) == "host":
             found.append((f".{key}", f"{key}: host"))
     for index, opt in enumerate(spec.get("security_opt") or [] if isinstance(spec.get("security_opt"), list) else []):
-        if isinstance(opt, str) and opt.replace("=", ":") in ("seccomp:unconfined", "apparmor:unconfined", "label:disable"):
+        if isinstance(opt, str) and opt.replace("=", ":") in ("seccomp:unconfined", "apparmor:unconfined",
+                                                              "label:disable"):
             found.append((f".security_opt[{index}]", f"security_opt {opt}"))
     for index, source in _bind_sources(spec):
         if any(_under(source.rstrip("/") or "/", socket) for socket in DOCKER_SOCKETS) or source.rstrip("/") == "":
@@ -154,7 +155,8 @@ def project_problems(data) -> list[tuple[str, str]]:
         return [("payload_image", "required: the payload image, pinned by tag or digest")]
     allow_latest = bool(value_of(data, "payload_allow_latest"))
     payload_dir = value_of(data, "payload_dir") or "/var/lib/robot-payload"
-    replaces = {entry.partition(":")[2] for entry in value_of(data, "payload_replaces") or [] if entry.startswith("container:")}
+    replaces = {entry.partition(":")[2] for entry in value_of(data, "payload_replaces") or []
+                if entry.startswith("container:")}
     names: dict[str, str] = {}
     # The shorthand's one service is checked by the payload_* settings themselves.
     for name, spec in (services if raw else {}).items():
@@ -219,7 +221,8 @@ def project_problems(data) -> list[tuple[str, str]]:
     if not raw and not value_of(data, "payload_allow_privileged"):
         volumes = {"volumes": list(value_of(data, "payload_volumes") or [])}
         problems += [(f"payload_volumes{key.removeprefix('.volumes')}", f"{what} gives the container root on the "
-                      "robot: refused unless payload_allow_privileged is true") for key, what in root_equivalents(volumes)]
+                      "robot: refused unless payload_allow_privileged is true")
+                     for key, what in root_equivalents(volumes)]
     problems += _preset_problems(data, allow_latest)
     return problems
 

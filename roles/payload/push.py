@@ -136,7 +136,8 @@ def write_registry_archive(image: str, variant: dict, path: str, have: list[list
                 info = tarfile.TarInfo(name)
                 info.size = size
                 archive.addfile(info, blob)
-        _add(archive, "manifest.json", json.dumps([{"Config": config_name, "RepoTags": [image], "Layers": names}]).encode())
+        _add(archive, "manifest.json",
+             json.dumps([{"Config": config_name, "RepoTags": [image], "Layers": names}]).encode())
     report.update({
         "full": len(variant["config"]) + sum(size for _, size in variant["layers"]),
         "sent": os.path.getsize(path),
@@ -254,7 +255,8 @@ def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_d
         if writer is write_archive:
             yield FunctionCommand(write_archive, (image, local_path, remote_layers, report), {})
         else:
-            yield FunctionCommand(writer, (image, *extra, local_path, remote_layers, report, list(insecure), credentials), {})
+            yield FunctionCommand(writer, (image, *extra, local_path, remote_layers, report, list(insecure),
+                                           credentials), {})
         # pyinfra runs each command before asking for the next: report is filled.
         yield load_command(local_path, log_dir, image, image_id, report)
     finally:

@@ -119,7 +119,8 @@ def metrics(row: dict) -> list[Metric]:
     """The payload's gauges for robotfleet status --metrics."""
     found = []
     if row.get("release"):
-        found.append(Metric("payload_release_info", "The payload release the host runs, its state and the previous one.",
+        found.append(Metric("payload_release_info",
+                            "The payload release the host runs, its state and the previous one.",
                             1, (("release", row["release"]), ("state", row.get("release_state") or ""),
                                 ("previous", row.get("previous") or ""))))
     if row.get("state"):

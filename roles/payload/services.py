@@ -168,7 +168,9 @@ def layer_problems(value) -> list[tuple[str, str]]:
     problems = []
     for name, spec in value.items():
         if not isinstance(name, str) or not re.fullmatch(SERVICE_NAME, name):
-            problems.append((f".{key_name(name)}", "service names are letters, digits, . _ - (starting with a letter or digit)"))
+            problems.append((f".{key_name(name)}",
+                             "service names are letters, digits, . _ - (starting with a letter or digit)"))
         elif spec is not None and not isinstance(spec, dict):
-            problems.append((f".{key_name(name)}", "expected a mapping of compose keys (or null to remove the service)"))
+            problems.append((f".{key_name(name)}",
+                             "expected a mapping of compose keys (or null to remove the service)"))
     return problems

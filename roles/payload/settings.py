@@ -63,7 +63,8 @@ def replaced(value):
         return problems
     kind, sep, name = value.partition(":")
     if not sep and re.fullmatch(_NAME, value):
-        return [("", f"{c.shown(value)} could be a container or a compose project: write container:{value} or project:{value}")]
+        return [("", f"{c.shown(value)} could be a container or a compose project: "
+                     f"write container:{value} or project:{value}")]
     if kind not in ("container", "project") or not re.fullmatch(_NAME, name):
         return [("", f"expected container:NAME or project:NAME, got {c.shown(value)}")]
     return []
@@ -78,7 +79,8 @@ c.with_schema(replaced, {"type": "string", "pattern": f"^(?:container|project):{
                          "description": "container:NAME or project:NAME"})
 c.with_schema(image, {"type": "string", "pattern": imageref.JSON_PATTERN,
                      "description": "an image reference, pinned by tag or digest"})
-c.with_schema(volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"})
+c.with_schema(volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$",
+                      "description": "host_path:container_path[:ro]"})
 payload_services = c.with_schema(
     services.layer_problems,
     {
@@ -127,11 +129,13 @@ SETTINGS = (
             "pull: the robot pulls from the registry; push: sent from this machine's Docker engine over SSH."),
     Setting("payload_autostart", True, c.boolean, "Start the payload at boot (robots) or only stage it (laptops).",
             groups={"robots": True, "laptops": False}),
-    Setting("payload_restart_policy", "unless-stopped", c.string(choices=("no", "always", "on-failure", "unless-stopped")),
+    Setting("payload_restart_policy", "unless-stopped",
+            c.string(choices=("no", "always", "on-failure", "unless-stopped")),
             "The containers' restart policy."),
     Setting("payload_network_mode", "host", c.string(choices=("host", "bridge", "none")), "The containers' network."),
     Setting("payload_stop_grace_period", None, c.optional(c.integer(0, 3600)),
-            "Seconds a container has to stop on its signal before it is killed (compose stop_grace_period); null: Docker's 10."),
+            "Seconds a container has to stop on its signal before it is killed (compose stop_grace_period); "
+            "null: Docker's 10."),
     Setting("payload_init", False, c.boolean,
             "Run an init process as PID 1 (compose init): it passes signals on to an entrypoint that is a shell."),
     Setting("payload_environment", {}, c.mapping_of(_env_name, c.text),
@@ -152,7 +156,8 @@ SETTINGS = (
     Setting("payload_apply_lock_timeout", 300, c.integer(0, 86400),
             "Seconds to wait for another deploy, rollback or boot recovery of the same robot."),
     Setting("payload_device_wait", 30, c.integer(0, 600), "Seconds to wait at boot for the sensors' device links."),
-    Setting("payload_keep_releases", 3, c.integer(2, 50), "Releases kept on the robot (their images too, for offline rollback)."),
+    Setting("payload_keep_releases", 3, c.integer(2, 50),
+            "Releases kept on the robot (their images too, for offline rollback)."),
     Setting("payload_update_lock_path", "/run/robot-payload/update.lock", v.private_path,
             "The update lock: while this file exists on the robot, updates are refused unless forced."),
     Setting("payload_force", False, c.boolean, "Update although the update lock is held."),
@@ -171,13 +176,15 @@ SETTINGS = (
             "Several services instead of payload_image: name -> a Compose service; layers merge per service and key.",
             merge=services.merge_values),
     Setting("payload_replaces", [], c.list_of(replaced, unique=True),
-            "What was set up another way and the payload replaces: container:NAME or project:NAME (a compose project)."),
+            "What was set up another way and the payload replaces: container:NAME or project:NAME "
+            "(a compose project)."),
     Setting("payload_allow_privileged", False, c.boolean, "Allow privileged services."),
     Setting("ros_preset", None, c.optional(c.string(choices=("ros1", "ros2"))),
             "ros1 or ros2: the usual ROS environment, ipc and DDS profile in one line."),
     Setting("ros_roscore", False, c.boolean, "ROS 1: run roscore as a service of the project."),
     Setting("ros_roscore_image", None, c.optional(image), "ROS 1: the roscore image, pinned."),
-    Setting("ros_dds_profile", None, c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
+    Setting("ros_dds_profile", None,
+            c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
             "ROS 2: a DDS profile from files/dds/ (Cyclone DDS or Fast DDS XML), mounted read-only."),
 )
 RENAMED = (Renamed("payload_lock_file", "payload_update_lock_path"),)

@@ -107,7 +107,8 @@ def deploy_payload(play: Play):
 
     if not snap.commands.get("python3"):
         apt.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
-    operations.directory(name=f"Payload releases directory {data.payload_dir}", path=data.payload_dir, current=snap.files.get(data.payload_dir))
+    operations.directory(name=f"Payload releases directory {data.payload_dir}", path=data.payload_dir,
+                         current=snap.files.get(data.payload_dir))
     operations.file(
         name="Install the release helper payloadctl",
         path=installed_files.HELPER,
@@ -122,7 +123,8 @@ def deploy_payload(play: Play):
         snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
     )
     if data.payload_autostart:
-        unit_op = operations.file(name=f"Write the autostart unit {data.payload_name}.service", path=unit, content=unit_content, current=snap.files.get(unit))
+        unit_op = operations.file(name=f"Write the autostart unit {data.payload_name}.service", path=unit,
+                                  content=unit_content, current=snap.files.get(unit))
         operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
         operations.service(
             name=f"Enable {data.payload_name}.service at boot",
@@ -166,7 +168,8 @@ def deploy_payload(play: Play):
 
     dds_profile.install_files(data, snap)
     release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))
-    taken_over = takeover_plan.takeover(data, snap, release.current_record(snap))  # said in the output, done by payloadctl
+    # said in the output, done by payloadctl
+    taken_over = takeover_plan.takeover(data, snap, release.current_record(snap))
     needed = release.release_needed(
         release.current_record(snap),
         compose.spec_hash(doc, data.payload_autostart),

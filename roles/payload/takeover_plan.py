@@ -1,7 +1,8 @@
 """What the release will take over, said in the run output before it is
 done: the containers that run the payload another way (the containers
-probe the payload role declares, roles/payload/containers.py), judged by payloadctl's own rule (payloadctl/takeover.py), which does
-the takeover itself so it can undo it."""
+probe the payload role declares, roles/payload/containers.py), judged by
+payloadctl's own rule (payloadctl/takeover.py), which does the takeover
+itself so it can undo it."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import json
 from pyinfra import host, logger
 
 from robotfleet.checkers import one_line
-from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+from robotfleet.host.snapshot import Snapshot
 import roles.payload.containers as containers
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.takeover as takeover_rule

@@ -31,7 +31,8 @@ INSTALLED_PROBE = "pull_installed"
 PYTHON_PROBE = "pull_python"
 # Set in a host's data by the agent when it runs the deploy itself.
 AGENT_RUN = agent_files.AGENT_RUN
-FILES = (agent_files.CONFIG, agent_files.TRUST_ROOT, agent_files.KNOWN_HOSTS, agent_files.REMOTE_CA, agent_files.KEY, f"{agent_files.KEY}.pub",
+FILES = (agent_files.CONFIG, agent_files.TRUST_ROOT, agent_files.KNOWN_HOSTS, agent_files.REMOTE_CA, agent_files.KEY,
+         f"{agent_files.KEY}.pub",
          f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}", f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")
 
 
@@ -79,14 +80,16 @@ def pull_agent(play: Play):
                     mode="0600")
     if not agent_run:
         operations.file(name="Write the release repository's root.json (the agent's first trust)",
-                        path=agent_files.TRUST_ROOT, content=root, current=snap.files.get(agent_files.TRUST_ROOT), mode="0600")
+                        path=agent_files.TRUST_ROOT, content=root, current=snap.files.get(agent_files.TRUST_ROOT),
+                        mode="0600")
     operations.file(name="Write the fleet remote's host keys", path=agent_files.KNOWN_HOSTS,
                     content=plan.known_hosts(data), current=snap.files.get(agent_files.KNOWN_HOSTS))
     if ca is not None:
         operations.file(name="Write the CA the https fleet remote's certificate is checked against",
                         path=agent_files.REMOTE_CA, content=ca, current=snap.files.get(agent_files.REMOTE_CA))
     elif snap.files.get(agent_files.REMOTE_CA) is not None:
-        operations.absent(name="Remove the fleet remote's CA (pull_remote_ca is not set)", paths=[agent_files.REMOTE_CA],
+        operations.absent(name="Remove the fleet remote's CA (pull_remote_ca is not set)",
+                          paths=[agent_files.REMOTE_CA],
                           present=snap.files)
     if snap.files.get(agent_files.KEY) is None or snap.files.get(f"{agent_files.KEY}.pub") is None:
         operations.run(name="Make the robot's own key for the fleet remote (it never leaves the robot)",
@@ -95,12 +98,15 @@ def pull_agent(play: Play):
         _install_venv_and_code(data, snap)
     units = [
         operations.file(name=f"Write {agent_files.SERVICE}", path=f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}",
-                        content=plan.service_unit(), current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}")),
+                        content=plan.service_unit(),
+                        current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}")),
         operations.file(name=f"Write {agent_files.TIMER}", path=f"{agent_files.UNIT_DIR}/{agent_files.TIMER}",
-                        content=plan.timer_unit(data), current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")),
+                        content=plan.timer_unit(data),
+                        current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")),
     ]
     operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=any_changed(*units))
-    operations.run(name=f"Restart {agent_files.TIMER} with its new schedule", script=f"systemctl restart {agent_files.TIMER}",
+    operations.run(name=f"Restart {agent_files.TIMER} with its new schedule",
+                   script=f"systemctl restart {agent_files.TIMER}",
                    _if=any_changed(*units[1:]))
     operations.service(name=f"{agent_files.TIMER} enabled and running", unit=agent_files.TIMER,
                        enabled_now=snap.unit_enabled(agent_files.TIMER), active_now=snap.unit_active(agent_files.TIMER))

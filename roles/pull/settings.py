@@ -68,7 +68,8 @@ SETTINGS = (
     Setting("pull_interval", 900, c.integer(10, 7 * 86400),
             "Seconds between two checks for a new release (the timer's OnUnitInactiveSec)."),
     Setting("pull_jitter", 300, c.integer(0, 86400),
-            "Up to this many seconds added at random to each wait, so robots do not wake at once (RandomizedDelaySec)."),
+            "Up to this many seconds added at random to each wait, so robots do not wake at once "
+            "(RandomizedDelaySec)."),
     Setting("pull_boot_delay", 60, c.integer(0, 86400),
             "Seconds after boot (or after the agent is installed) before the first check (OnBootSec)."),
     Setting("pull_windows", [], c.list_of(window, unique=True),

@@ -125,7 +125,8 @@ def sensor_rules(play: Play):
 
 ROLE = Role(
     name="udev",
-    doc="udev rules that give sensors stable names (two identical cameras become front/back); the payload gets the devices.",
+    doc="udev rules that give sensors stable names (two identical cameras become front/back); "
+        "the payload gets the devices.",
     settings=settings.SETTINGS,
     runs_on=lambda data: bool(data.sensors or data.udev_vendor_rules),
     reads=declare_reads,

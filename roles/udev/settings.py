@@ -44,7 +44,8 @@ def sensor(value):
     problems = []
     for key in value:
         if not isinstance(key, str):
-            problems.append((f".{c.key_name(key)}", f"a sensor field name must be a string, got {c.describe(key)}; quote it"))
+            problems.append((f".{c.key_name(key)}",
+                             f"a sensor field name must be a string, got {c.describe(key)}; quote it"))
         elif key not in SENSOR_KEYS:
             problems.append((f".{c.key_name(key)}", "unknown sensor field" + c.did_you_mean(key, SENSOR_KEYS)))
     for key in ("name", "subsystem"):
@@ -84,7 +85,8 @@ SETTINGS = (
             "Sensors given stable names under /dev (see README, Describing a fleet: name, subsystem, a match)."),
     Setting("udev_rules_file", "/etc/udev/rules.d/70-robot-sensors.rules", udev_rules_path,
             "The generated rules file."),
-    Setting("udev_vendor_rules", [], c.list_of(c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules"), unique=True),
+    Setting("udev_vendor_rules", [],
+            c.list_of(c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules"), unique=True),
             "Static rules files from files/udev/ installed on the host.",
             groups={"robots": ["60-usb-serial-low-latency.rules"]}),
     Setting("udev_allow_world_writable", False, c.boolean, "Allow world-writable device modes (refused otherwise)."),
@@ -114,10 +116,12 @@ def rules(data: dict, refused: frozenset) -> list[c.Problem]:
         match = tuple(item.get(k) for k in ("subsystem", "serial", "vendor_id", "product_id", "usb_port"))
         if match in matches:
             problems.append(
-                (where, f"matches the same devices as sensors[{matches[match]}]; add a serial or usb_port to tell them apart")
+                (where, f"matches the same devices as sensors[{matches[match]}]; "
+                        "add a serial or usb_port to tell them apart")
             )
         matches.setdefault(match, index)
         mode = item.get("mode")
         if mode is not None and int(mode, 8) & 0o002 and not allow_world_writable:
-            problems.append((f"{where}.mode", f"{mode} is world-writable; use a group (or set udev_allow_world_writable)"))
+            problems.append((f"{where}.mode",
+                             f"{mode} is world-writable; use a group (or set udev_allow_world_writable)"))
     return problems

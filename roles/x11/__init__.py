@@ -97,7 +97,8 @@ def x11_cookie(play: Play):
         current=snap.files.get(AUTOSTART),
     )
     operations.directory(
-        name=f"Cookie directories root {data.x11_cookie_dir}", path=data.x11_cookie_dir, current=snap.files.get(data.x11_cookie_dir)
+        name=f"Cookie directories root {data.x11_cookie_dir}", path=data.x11_cookie_dir,
+        current=snap.files.get(data.x11_cookie_dir)
     )
     operations.directory(
         name=f"Cookie directory of {data.x11_user}",

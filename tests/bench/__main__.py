@@ -89,7 +89,8 @@ def markdown(results: list[dict], conditions: dict) -> str:
               "|---|" + "---|" * len(ns)]
     for title, key in ROWS:
         lines.append(f"| {title} | " + " | ".join(hygiene.shown(r["figures"].get(key)) for r in results) + " |")
-    lines.append("| no-op: SSH commands per host | " + " | ".join(fmt(r.get("noop_commands_per_host")) for r in results) + " |")
+    lines.append("| no-op: SSH commands per host | "
+                 + " | ".join(fmt(r.get("noop_commands_per_host")) for r in results) + " |")
     lines.append("| fresh: SSH commands per host | " + " | ".join(
         fmt(max(r["fresh_commands_per_host"])) if r.get("fresh_commands_per_host") else "-" for r in results) + " |")
     lines.append("| rollout: waves | " + " | ".join(fmt(r.get("rollout_waves")) for r in results) + " |")
@@ -109,7 +110,8 @@ def markdown(results: list[dict], conditions: dict) -> str:
             value = r["ratios"].get(key)
             mark = "" if value is None or r.get("ratios_idle", {}).get(key, True) else " [loaded]"
             cells.append(fmt(value) + mark)
-        targets = "; ".join(f"{text}: **{verdict(results, key, n, limit)}**" for k, n, limit, text in TARGETS if k == key)
+        targets = "; ".join(f"{text}: **{verdict(results, key, n, limit)}**"
+                            for k, n, limit, text in TARGETS if k == key)
         lines.append(f"| {key} | " + " | ".join(cells) + f" | {targets} |")
     return "\n".join(lines) + "\n"
 
@@ -151,14 +153,16 @@ def main(argv=None) -> int:
     parser.add_argument("--robots", type=int, nargs="+", default=[3, 10])
     parser.add_argument("--runs", type=int, default=3, help=f"samples per figure (at least {hygiene.MIN_SAMPLES})")
     parser.add_argument("--fresh-at", type=int, nargs="*", default=[3], help="N at which to time fresh provisions")
-    parser.add_argument("--updates-at", type=int, nargs="*", default=[10], help="N at which to time updates, rollouts, crashes")
+    parser.add_argument("--updates-at", type=int, nargs="*", default=[10],
+                        help="N at which to time updates, rollouts, crashes")
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "bench"))
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--write-loaded", action="store_true", help="write even figures taken under load (marked)")
     parser.add_argument("--keep", action="store_true", help="leave the last lab up")
     args = parser.parse_args(argv)
     if args.runs < hygiene.MIN_SAMPLES and not args.no_write:
-        parser.error(f"--runs {args.runs}: results need at least {hygiene.MIN_SAMPLES} samples a figure (or --no-write)")
+        parser.error(f"--runs {args.runs}: results need at least {hygiene.MIN_SAMPLES} samples a figure "
+                     "(or --no-write)")
     results = []
     for n in args.robots:
         result = measure(n, args.prefix, keep=args.keep, runs=args.runs, fresh=n in args.fresh_at,

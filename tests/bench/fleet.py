@@ -30,7 +30,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import shlex
 import subprocess
 import sys
 import tempfile
@@ -77,7 +76,8 @@ class Bench:
         extra = "".join(f"    robot{i}: {{}}\n" for i in range(4, self.n + 1))
         text = text.replace("\nlaptops:", "\n" + extra + "\nlaptops:", 1) if extra else text
         if command:
-            text = text.replace("    robot1:\n      sensors:", f"    robot1:\n      payload_command: {command}\n      sensors:", 1)
+            text = text.replace("    robot1:\n      sensors:",
+                                f"    robot1:\n      payload_command: {command}\n      sensors:", 1)
         return text
 
     def fleet(self, tag: str, command: str | None = None) -> Path:
@@ -152,8 +152,10 @@ class Bench:
             "sudo install -m 0755 -d /etc/apt/keyrings",
             f"sudo curl -fsSL {mirror}/gpg -o /etc/apt/keyrings/docker.asc",
             "sudo chmod a+r /etc/apt/keyrings/docker.asc",
-            "printf 'Types: deb\\nURIs: %s\\nSuites: %s\\nComponents: stable\\nSigned-By: /etc/apt/keyrings/docker.asc\\n' "
-            f"{mirror} \"$(. /etc/os-release && echo $VERSION_CODENAME)\" | sudo tee /etc/apt/sources.list.d/docker.sources >/dev/null",
+            "printf 'Types: deb\\nURIs: %s\\nSuites: %s\\nComponents: stable\\nSigned-By: "
+            "/etc/apt/keyrings/docker.asc\\n' "
+            f"{mirror} \"$(. /etc/os-release && echo $VERSION_CODENAME)\" | sudo tee "
+            "/etc/apt/sources.list.d/docker.sources >/dev/null",
             "sudo mkdir -p /etc/docker",
             # Not in Docker's recipe: the lab registry speaks plain HTTP.
             f"echo '{{\"insecure-registries\": [\"{registry}\"]}}' | sudo tee /etc/docker/daemon.json >/dev/null",
@@ -170,7 +172,8 @@ class Bench:
             f"sudo docker rm -f bench-health >/dev/null 2>&1; s=$(date +%s.%N); "
             f"sudo docker run -d --name bench-health {self.state['registry']}/ros/payload:1.0 >/dev/null; "
             "for i in $(seq 1 300); do "
-            "[ \"$(sudo docker inspect -f '{{.State.Health.Status}}' bench-health)\" = healthy ] && break; sleep 0.2; done; "
+            "[ \"$(sudo docker inspect -f '{{.State.Health.Status}}' bench-health)\" = healthy ] && break; sleep 0.2; "
+            "done; "
             "e=$(date +%s.%N); sudo docker rm -f bench-health >/dev/null; echo \"$s $e\""
         )
         out = subprocess.run(self.ssh(self.robots[0], script), capture_output=True, text=True).stdout.split()
@@ -248,7 +251,8 @@ class Bench:
             self.windows("window_all", watches, "update_all", r["window"])
             for tag in (old, new):
                 log(f"update one robot to {tag}")
-                watches = self.watching(self.robots[:1], lambda: self.timed("update_one", lambda: r["update_exits"].append(
+                watches = self.watching(self.robots[:1],
+                                        lambda: self.timed("update_one", lambda: r["update_exits"].append(
                     self.deploy("--limit", self.robots[0], tag=tag)[0])))
                 self.windows("window_one", watches, "update_one")
 
@@ -326,9 +330,15 @@ class Bench:
         r["figures"] = {name: figure.as_dict() for name, figure in self.figures.items()}
         if "floor_apt_pull" in self.figures and "floor_health" in self.figures:
             r["figures"]["floor_fresh"] = {
-                **hygiene.Figure([a + b for a, b in zip(self.figures["floor_apt_pull"].samples, self.figures["floor_health"].samples)],
-                                 [max(a, b) for a, b in zip(self.figures["floor_apt_pull"].loads, self.figures["floor_health"].loads)],
-                                 [a and b for a, b in zip(self.figures["floor_apt_pull"].idles, self.figures["floor_health"].idles)]).as_dict()}
+                **hygiene.Figure([a + b
+                                  for a, b in zip(self.figures["floor_apt_pull"].samples,
+                                                  self.figures["floor_health"].samples)],
+                                 [max(a, b)
+                                  for a, b in zip(self.figures["floor_apt_pull"].loads,
+                                                  self.figures["floor_health"].loads)],
+                                 [a and b
+                                  for a, b in zip(self.figures["floor_apt_pull"].idles,
+                                                  self.figures["floor_health"].idles)]).as_dict()}
         r["load_at_end"] = [round(x, 2) for x in os.getloadavg()]
         self.ratios(r)
         return r
@@ -361,10 +371,13 @@ class Bench:
         }
         # Which ratio had every sample of both its figures taken idle.
         pairs = {"noop / pyinfra exec true": ("noop", "floor_exec_true"), "noop / ssh true": ("noop", "floor_ssh_true"),
-                 "fresh / (apt+pull+health)": ("fresh", "floor_fresh"), "update all / update one": ("update_all", "update_one"),
-                 "rollout / update all": ("rollout", "update_all"), "max update window (s)": ("window_all", "window_all"),
+                 "fresh / (apt+pull+health)": ("fresh", "floor_fresh"),
+                 "update all / update one": ("update_all", "update_one"),
+                 "rollout / update all": ("rollout", "update_all"),
+                 "max update window (s)": ("window_all", "window_all"),
                  "exits at once: exit -> old running (s)": ("broken_exit_verdict", "broken_exit_verdict"),
-                 "never healthy: unhealthy -> old running (s)": ("broken_unhealthy_verdict", "broken_unhealthy_verdict")}
+                 "never healthy: unhealthy -> old running (s)": ("broken_unhealthy_verdict",
+                                                                 "broken_unhealthy_verdict")}
         r["ratios_idle"] = {key: all((figures.get(name) or {}).get("idle", False) for name in names)
                             for key, names in pairs.items()}
         for key in ("exits at once: exit -> old running (s)", "never healthy: unhealthy -> old running (s)"):

@@ -53,7 +53,8 @@ def sampler():
         stack = []
         while frame is not None:
             code = frame.f_code
-            stack.append(f"{code.co_name} ({code.co_filename.rsplit('/', 2)[-2:][-1]}:{code.co_firstlineno})|{code.co_filename}")
+            stack.append(f"{code.co_name} ({code.co_filename.rsplit('/', 2)[-2:][-1]}:{code.co_firstlineno})"
+                         f"|{code.co_filename}")
             frame = frame.f_back
         samples[";".join(reversed(stack))] += 1
         _sleep(0.005)
@@ -283,7 +284,8 @@ def summarize(runs: dict[str, list[dict]], robot: dict[str, list[float]], robots
     n = {kind: len(runs[kind]) for kind in runs}
     for name, _ in CATEGORIES:
         if cats["exec"][name] or cats["noop"][name]:
-            lines.append(f"| {name} | {cats['exec'][name] * 0.005 / n['exec']:.2f} s | {cats['noop'][name] * 0.005 / n['noop']:.2f} s |")
+            lines.append(f"| {name} | {cats['exec'][name] * 0.005 / n['exec']:.2f} s | "
+                         f"{cats['noop'][name] * 0.005 / n['noop']:.2f} s |")
     lines.append("")
     lines.append("(Samples are taken every 5 ms of wall time while Python runs; per run, averaged.)")
     return "\n".join(lines) + "\n"

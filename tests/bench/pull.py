@@ -50,7 +50,8 @@ LINE = re.compile(r"robot-pull: (?P<result>[a-z-]+)(?: \(release (?P<version>\d+
                   r"(?: in (?P<requests>\d+) requests)?; (?P<report>.*)$")
 FLEET_SIZE = 10_000
 COST = ("seconds", "cpu", "sent", "received", "requests")
-REF_ADVERTISEMENT = 64  # bytes per report ref a push receives (pkt-line: 4 + 40-hex oid + space + refs/reports/<name> + LF)
+# bytes per report ref a push receives (pkt-line: 4 + 40-hex oid + space + refs/reports/<name> + LF)
+REF_ADVERTISEMENT = 64
 
 
 def journal(lab, robot: str) -> list[dict]:
@@ -161,7 +162,8 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
                if line["result"] == "applied" and line["version"] == str(version)]
     return {"interval": interval, "jitter": jitter, "robots": len(lab.robots), "reached": len(times),
             "to_50%": half, "to_100%": times[-1] if len(times) == len(lab.robots) else None,
-            "bytes_per_update": statistics.median(int(u["sent"]) + int(u["received"]) for u in updates) if updates else None,
+            "bytes_per_update": (statistics.median(int(u["sent"]) + int(u["received"]) for u in updates)
+                                 if updates else None),
             "load": load, "idle": idle}
 
 

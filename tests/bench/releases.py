@@ -102,7 +102,8 @@ def main() -> int:
                 print(f"broken release ({kind}): {found}, deploy exit {code} (a failure is expected), "
                       f"{seconds:.1f} s wall", flush=True)
                 sample(f"{kind}: verdict -> old release running", found.get("verdict_to_old_running"), load, idle)
-                sample(f"{kind}: first start -> old release running", found.get("first_start_to_old_running"), load, idle)
+                sample(f"{kind}: first start -> old release running", found.get("first_start_to_old_running"), load,
+                       idle)
                 settings[kind] = f"verdict: {found.get('verdict', '?')}; " + window.health_settings(
                     sh, tag, (ROOT / "inventories" / "lab.yaml").read_text())
         print(f"\n{'figure (one robot, seconds)':58} {'median (min-max)':>24}")

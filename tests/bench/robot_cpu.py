@@ -58,7 +58,8 @@ def container_tasks(container: str) -> dict[int, str]:
     """Host thread id -> command name of every task in the container's cgroup."""
     cid = subprocess.run(["docker", "inspect", "-f", "{{.Id}}", container], capture_output=True, text=True,
                          check=True).stdout.strip()
-    for path in (f"/sys/fs/cgroup/cpuacct/docker/{cid}/tasks", f"/sys/fs/cgroup/system.slice/docker-{cid}.scope/cgroup.threads"):
+    for path in (f"/sys/fs/cgroup/cpuacct/docker/{cid}/tasks",
+                 f"/sys/fs/cgroup/system.slice/docker-{cid}.scope/cgroup.threads"):
         if os.path.exists(path):
             tids = [int(line) for line in Path(path).read_text().split()]
             break

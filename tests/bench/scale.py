@@ -151,13 +151,15 @@ class Scale:
             listen = "\n".join(f"Port {port}" for port in ports[index:index + 16])
             (self.light_dir / f"sshd_config.{index // 16:03d}").write_text(
                 f"{listen}\nListenAddress 127.0.0.1\nHostKey /etc/ssh/ssh_host_ed25519_key\n"
-                "AuthorizedKeysFile /light/authorized_keys\nPasswordAuthentication no\nKbdInteractiveAuthentication no\n"
+                "AuthorizedKeysFile /light/authorized_keys\nPasswordAuthentication no\n"
+                "KbdInteractiveAuthentication no\n"
                 "UsePAM no\nForceCommand /light/replay\nMaxStartups 1000:30:1000\nPerSourcePenalties no\n"
                 "LogLevel ERROR\nStrictModes no\n")
         (self.light_dir / "authorized_keys").write_text(Path(self.lab["ssh_key"] + ".pub").read_text())
         image = subprocess.run(["docker", "inspect", "-f", "{{.Config.Image}}", f"{self.prefix}-robot1"],
                                capture_output=True, text=True, check=True).stdout.strip()
-        script = ("mkdir -p /run/sshd && ssh-keygen -q -t ed25519 -N '' -f /etc/ssh/ssh_host_ed25519_key <<< y >/dev/null 2>&1;"
+        script = ("mkdir -p /run/sshd && ssh-keygen -q -t ed25519 -N '' -f /etc/ssh/ssh_host_ed25519_key <<< y "
+                  ">/dev/null 2>&1;"
                   " for f in /light/sshd_config.*; do /usr/sbin/sshd -f $f || exit 1; done; exec sleep infinity")
         subprocess.run(["docker", "run", "-d", "--name", self.container, "--network", "host",
                         "--memory", self.memory, "--cpus", self.cpus, "-v", f"{self.light_dir}:/light:ro",
@@ -222,7 +224,8 @@ class Scale:
             err_file.seek(0)
             out, err = out_file.read(), err_file.read()
         wall = time.monotonic() - started
-        row = {"seconds": round(wall, 3), "cpu_seconds": round(_children_cpu() - cpu, 3), "peak_rss_mb": round(peak_rss / 1024, 1), "peak_fds": peak_fds,
+        row = {"seconds": round(wall, 3), "cpu_seconds": round(_children_cpu() - cpu, 3),
+               "peak_rss_mb": round(peak_rss / 1024, 1), "peak_fds": peak_fds,
                "exit": proc.returncode}
         if kind == "noop":
             counts = json.loads(report.read_text()) if report.exists() else {}
@@ -295,7 +298,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     ANCHORS = tuple(args.anchors)
     if not all(1 <= n <= MAX_HOSTS for n in args.hosts):
-        parser.error(f"--hosts: each N from 1 to {MAX_HOSTS} (the light hosts' ports end below Linux's ephemeral range)")
+        parser.error(f"--hosts: each N from 1 to {MAX_HOSTS} "
+                     "(the light hosts' ports end below Linux's ephemeral range)")
     import datetime
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -330,7 +334,8 @@ def main(argv=None) -> int:
                         f"({row['cpu_seconds']['median'] / n * 1000:.1f} ms/robot), {row['peak_rss_mb']['median']} MB, "
                         f"{row['peak_fds']['median']} fds, loads {row['loads']}; last run: "
                         + ", ".join(f"{k} {v}" for k, v in runs[-1].items() if k in ("exit", "commands_per_host",
-                                                                                     "hosts_answered", "changed", "rows")))
+                                                                                     "hosts_answered", "changed",
+                                                                                     "rows")))
                 if n == max(args.hosts):
                     for parallel in args.parallel:
                         runs = []

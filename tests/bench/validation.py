@@ -76,7 +76,8 @@ def main() -> None:
             if not sensors:
                 started = time.process_time()
                 yaml.load(path.read_text(), Loader=yaml.SafeLoader)
-                print(f"  for comparison, PyYAML's pure-Python SafeLoader alone: {time.process_time() - started:.3f} s CPU")
+                print("  for comparison, PyYAML's pure-Python SafeLoader alone: "
+                      f"{time.process_time() - started:.3f} s CPU")
 
 
 if __name__ == "__main__":

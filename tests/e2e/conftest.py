@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.fixtures import PYINFRA, ROOT  # noqa: F401 (the e2e modules import them from here)
+from tests.fixtures import PYINFRA, ROOT  # the e2e modules import them from here too
 
 PREFIX = os.environ.get("ROBOT_LAB_E2E_PREFIX", "e2e")
 

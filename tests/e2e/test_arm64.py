@@ -202,7 +202,8 @@ def test_each_robot_runs_its_own_platforms_payload(arm, provisioned):
     assert {d["PathOnHost"] for d in container["HostConfig"]["Devices"]} == {"/dev/robot/imu"}
     assert container["HostConfig"]["NetworkMode"] == "host"
     service = yaml.safe_load(arm.ok(PI, f"cat {PAYLOAD_DIR}/current/compose.yaml"))["services"]["payload"]
-    assert service["environment"]["DISPLAY"] == ":0" and "/var/lib/robot-x11/ros:/tmp/.robot-x11:ro" in service["volumes"]
+    assert service["environment"]["DISPLAY"] == ":0"
+    assert "/var/lib/robot-x11/ros:/tmp/.robot-x11:ro" in service["volumes"]
 
 
 def test_push_sent_pi1_only_the_arm64_variant(arm, provisioned):

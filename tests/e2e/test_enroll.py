@@ -92,7 +92,8 @@ def test_from_an_empty_known_hosts_to_a_first_deploy_then_a_changed_key_is_refus
     # 4. The robot gets a new host key: enroll and the deploy refuse it, the file stays as it was.
     before = first_contact.known_hosts.read_text()
     lab.ok("robot1", "rm -f /etc/ssh/ssh_host_*; ssh-keygen -A >/dev/null; systemctl restart ssh")
-    new_key = lab.ok("robot1", f"cat /etc/ssh/ssh_host_{lines[0].split()[1].removeprefix('ssh-').split('-')[0]}_key.pub")
+    new_key = lab.ok("robot1",
+                     f"cat /etc/ssh/ssh_host_{lines[0].split()[1].removeprefix('ssh-').split('-')[0]}_key.pub")
     again = first_contact("enroll robot1 after its key changed", "-m", "robotfleet", "enroll", "inventories/lab.py",
                           "--limit", "robot1", "--yes", timeout=120)
     assert again.returncode == 1, again.stderr

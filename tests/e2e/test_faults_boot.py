@@ -45,7 +45,8 @@ def on(lab, version: str) -> bool:
 
 
 def payload_running(lab) -> bool:
-    code, out = lab.sh(HOST, "docker ps -q --filter label=com.docker.compose.project=robot-payload --filter status=running")
+    code, out = lab.sh(HOST, "docker ps -q --filter label=com.docker.compose.project=robot-payload "
+                             "--filter status=running")
     return code == 0 and bool(out.strip())
 
 
@@ -73,7 +74,8 @@ def cut_and_rerun(lab, deploy: Background, when: str, fleet, expect_waiting: boo
     powered_on = time.monotonic()
     wait_for(lambda: ssh_answers(lab), 120, f"sshd on {HOST} after boot", interval=0.1)
     if expect_waiting:
-        wait_for(lambda: lab.sh(HOST, "test -e /run/slow-compose-up")[0] == 0, 60, "the boot's compose up", interval=0.1)
+        wait_for(lambda: lab.sh(HOST, "test -e /run/slow-compose-up")[0] == 0, 60, "the boot's compose up",
+                 interval=0.1)
     rerun = Background(lab, "--limit", HOST, fleet=fleet)
     wait_for(lambda: payload_running(lab), 90, f"a payload running on {HOST} after boot", interval=0.2)
     seconds = time.monotonic() - powered_on
@@ -115,7 +117,8 @@ def test_a_rerun_right_after_boot_finishes_an_update_cut_at_any_moment(lab, firs
     # The deploy arrives while the boot's recovery is in its compose up.
     lab.ok(HOST, "mkdir -p /usr/local/lab-slow /etc/systemd/system/robot-payload.service.d"
                  f" && printf '%s' '{SLOW_DOCKER}' > /usr/local/lab-slow/docker && chmod 755 /usr/local/lab-slow/docker"
-                 f" && printf '[Service]\\nEnvironment=PATH=/usr/local/lab-slow:/usr/sbin:/usr/bin:/sbin:/bin\\n' > {SLOW_UNIT}"
+                 " && printf '[Service]\\nEnvironment=PATH=/usr/local/lab-slow:/usr/sbin:/usr/bin:/sbin:/bin\\n' > "
+                 f"{SLOW_UNIT}"
                  " && systemctl daemon-reload")
     try:
         deploy = Background(lab, "--limit", HOST, fleet=to["1.1"])

@@ -29,7 +29,8 @@ HEALTH_WINDOW = 60  # payload_health_timeout in inventories/lab.yaml
 
 
 def healthy(lab, host: str) -> bool:
-    code, out = lab.sh(host, "docker ps -q --filter label=com.docker.compose.project=robot-payload --filter health=healthy")
+    code, out = lab.sh(host, "docker ps -q --filter label=com.docker.compose.project=robot-payload "
+                             "--filter health=healthy")
     return code == 0 and len(out.split()) == 1
 
 
@@ -98,7 +99,8 @@ def test_failed_udev_trigger_is_a_warning_and_the_payload_still_deploys(lab, fle
     try:
         wait_for(lambda: lab.sh(host, "udevadm control --ping")[0] == 0, 20, "udevd in robot3")
         changed = fleet(**{
-            '{name: gps, subsystem: tty, serial: "GPS-42"}': '{name: gps, subsystem: tty, serial: "GPS-42", mode: "0640"}',
+            '{name: gps, subsystem: tty, serial: "GPS-42"}':
+                '{name: gps, subsystem: tty, serial: "GPS-42", mode: "0640"}',
             ALL_TAG: 'payload_image: "@registry@/ros/payload:1.1"',
         })
         run = lab.provision("--limit", host, fleet=changed, label="(robot3, new rules, udev trigger fails)")
@@ -124,7 +126,8 @@ HOLD_DPKG_LOCK = (
 
 
 LOCK_IS_FREE = (
-    "python3 -c 'import fcntl; fcntl.lockf(open(\"/var/lib/dpkg/lock-frontend\", \"w\"), fcntl.LOCK_EX | fcntl.LOCK_NB)'"
+    "python3 -c 'import fcntl; fcntl.lockf(open(\"/var/lib/dpkg/lock-frontend\", \"w\"), "
+    "fcntl.LOCK_EX | fcntl.LOCK_NB)'"
 )
 
 
@@ -186,7 +189,8 @@ def cut_when(lab, operator: subprocess.Popen, host: str, probe: str, what: str, 
 
 # dpkg marks a package half-installed (H), unpacked (U), half-configured (F)
 # while it works on it; apt hands it the .debs in a directory, not by name.
-DPKG_UNPACKS_DOCKER = "dpkg-query -W -f='${db:Status-Abbrev}\\n' containerd.io docker-ce 2>/dev/null | grep -q '^.[HUF]'"
+DPKG_UNPACKS_DOCKER = ("dpkg-query -W -f='${db:Status-Abbrev}\\n' containerd.io docker-ce 2>/dev/null "
+                       "| grep -q '^.[HUF]'")
 DAEMON_JSON_OR_RELEASE = (
     "test -e /etc/docker/daemon.json.pending || "
     "systemctl list-units --no-legend 'robot-payload-update-*' | grep -q update"

@@ -69,7 +69,8 @@ def start_stalled_registry(lab, host: str):
             f"s.bind(('127.0.0.1', {STALL_PORT})); s.listen(64); held = []; "
             "[held.append(s.accept()) for _ in iter(int, 1)]")
     lab.ok(host, f'systemd-run --unit=stalled-registry python3 -c "{code}"')
-    wait_for(lambda: lab.sh(host, f"python3 -c \"import socket; socket.create_connection(('127.0.0.1', {STALL_PORT}))\"")[0] == 0,
+    connect = f"python3 -c \"import socket; socket.create_connection(('127.0.0.1', {STALL_PORT}))\""
+    wait_for(lambda: lab.sh(host, connect)[0] == 0,
              10, "the stalled registry to listen")
 
 
@@ -285,7 +286,8 @@ def test_power_cuts_during_a_release_and_a_rollback(lab, first_run, tmp_path):
 
     # During the pull: nothing was switched, the old release boots.
     start_stalled_registry(lab, host)
-    deploy = Background(lab, "--limit", host, fleet=_fleet(lab, tmp_path, "stalled", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1")))
+    deploy = Background(lab, "--limit", host,
+                        fleet=_fleet(lab, tmp_path, "stalled", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1")))
     try:
         cut_power(lab, host, "pgrep -f 'docker [p]ull' >/dev/null")
     finally:

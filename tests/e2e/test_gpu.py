@@ -85,7 +85,8 @@ def test_gpu_hosts_repository_key_pin_runtime_and_refusals(lab, gpu_fleet):
 
     # robot3: exactly the pinned key, NVIDIA's source layout, the stand-in toolkit.
     fingerprint = nvidia_mirror.lab_settings(lab.state)["gpu_apt_key_fingerprint"]
-    keys = lab.ok("robot3", f"h=$(mktemp -d); GNUPGHOME=$h gpg --batch --show-keys --with-colons {KEY} 2>/dev/null; rm -rf $h")
+    keys = lab.ok("robot3",
+                  f"h=$(mktemp -d); GNUPGHOME=$h gpg --batch --show-keys --with-colons {KEY} 2>/dev/null; rm -rf $h")
     records = [line.split(":") for line in keys.splitlines()]
     assert [r[0] for r in records].count("pub") == 1
     assert [r[9] for r in records if r[0] == "fpr"][0] == fingerprint
@@ -100,7 +101,8 @@ def test_gpu_hosts_repository_key_pin_runtime_and_refusals(lab, gpu_fleet):
     assert daemon["live-restore"] is True and daemon["insecure-registries"]
     assert "nvidia" in json.loads(lab.ok("robot3", "docker info -f '{{json .Runtimes}}'"))
     image = lab.payload("robot3")["Config"]["Image"]
-    assert lab.ok("robot3", f"docker run --rm --runtime nvidia {image} echo through-the-runtime").strip().endswith("through-the-runtime")
+    said = lab.ok("robot3", f"docker run --rm --runtime nvidia {image} echo through-the-runtime")
+    assert said.strip().endswith("through-the-runtime")
 
     # A rerun: nothing changes and Docker is not restarted.
     pid = docker_pid(lab, "robot3")

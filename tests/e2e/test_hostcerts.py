@@ -36,7 +36,8 @@ def signed(lab, tmp_path_factory):
     from tests.lab import hostcert
 
     base = tmp_path_factory.mktemp("hostcerts")
-    ca, other = hostcert.make_ca(base, "fleet-host-ca"), hostcert.make_ca(base, "another-ca")
+    ca = hostcert.make_ca(base, "fleet-host-ca")
+    hostcert.make_ca(base, "another-ca")  # its certificate is refused (signed.base / "another-ca")
     key = hostcert.host_key(lab.prefix, "robot1")
     port = lab.state["hosts"][0]["port"]
     serials = iter(range(1, 100))
@@ -101,7 +102,8 @@ def test_a_certified_host_connects_with_only_the_ca_line(signed, fleet):
     (row,) = json.loads(status.stdout)
     assert row["reachable"] is True and row["arch"] == "amd64"
     # The pyinfra CLI through the same connector, strict checking on.
-    run = fleet("pyinfra exec with a valid certificate", "-c", PYINFRA, "-y", "inventories/lab.py", "exec", "--", "true")
+    run = fleet("pyinfra exec with a valid certificate", "-c", PYINFRA, "-y", "inventories/lab.py", "exec", "--",
+                "true")
     assert run.returncode == 0, run.stderr[-3000:]
     assert fleet.known_hosts.read_text() == before  # nothing learnt on first use
 

@@ -60,7 +60,8 @@ def test_sqv_itself_trusts_keys_gpg_does_not_list(lab, on_robot):
     for name in armor.SQV_TRUSTS_HIDDEN:
         lines = lab.ok(HOST, f"h=$(mktemp -d); GNUPGHOME=$h gpg --batch --show-keys --with-colons {files[name]} "
                              "2>/dev/null; rm -rf $h").splitlines()
-        assert [lines[n + 1].split(":")[9] for n, line in enumerate(lines) if line.startswith("pub:")] == [fprs["pinned"]]
+        assert [lines[n + 1].split(":")[9]
+                for n, line in enumerate(lines) if line.startswith("pub:")] == [fprs["pinned"]]
         assert _offered(lab, files[name], "intruder", f"raw{sorted(armor.VARIANTS).index(name)}"), name
 
 

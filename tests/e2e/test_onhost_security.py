@@ -73,7 +73,8 @@ def test_a_symlinked_daemon_json_is_replaced_once(lab, first_run):
     run = lab.provision("--limit", "robot2", label="(daemon.json symlinked)")
     assert run.returncode == 0, run.output[-3000:]
     assert [c for c in run.changes("robot2") if "daemon.json" in c] == [
-        "Docker | Write /etc/docker/daemon.json and restart Docker (the previous file comes back if Docker does not start)"
+        "Docker | Write /etc/docker/daemon.json and restart Docker "
+        "(the previous file comes back if Docker does not start)"
     ]
     assert lab.ok("robot2", "readlink -f /root/daemon.json.real") and \
         lab.ok("robot2", "cat /root/daemon.json.real")  # the link's target is left alone

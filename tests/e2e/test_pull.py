@@ -95,7 +95,8 @@ def pull(lab, first_run, tmp_path_factory):
                   *op.admin_options())
     firstboot.start(lab.prefix, FIRST_BOOT, op.base / "bundle" / "rootfs.tar")
     run = lab.provision(*(f"--limit={robot}" for robot in ROBOTS), fleet=op.repo / world.pullfleet.FLEET,
-                        label="(pull agent installed)", env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")})
+                        label="(pull agent installed)",
+                        env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")})
     assert run.returncode == 0, run.output[-4000:]
     env = op.env(ROBOT_LAB_FLEET=str(op.repo / world.pullfleet.FLEET))
     enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", ",".join(ROBOTS), "--ssh",
@@ -133,9 +134,11 @@ def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
     from tests.lab import gitserver
 
     # a commit the remote does not have yet (an up-to-date push would not be judged)
-    push = ("cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m forged) && "
+    push = ("cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
+            "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m forged) && "
             "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 "
-            "-o IdentitiesOnly=yes -o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
+            "-o IdentitiesOnly=yes -o UserKnownHostsFile=/etc/robot-pull/known_hosts -o "
+            "HostKeyAlias=robotfleet-remote' "
             f"git push --force {gitserver.robot_url(pull.op.git)} \"$c:{{ref}}\" 2>&1")
     for ref in ("refs/reports/robot2", "refs/heads/robotfleet/releases"):
         code, output = lab.sh("robot1", push.format(ref=ref))

@@ -148,7 +148,8 @@ def old_payload_stop(lab, host: str, since: str) -> float:
 
 @pytest.mark.parametrize("what, lines, inspect", [
     # A ROS launch shuts down on SIGINT only; as PID 1 it would sit out Docker's SIGTERM for 10 s.
-    ("a SIGINT-only payload under ros_preset", f"      ros_preset: ros2\n      payload_command: [/bin/sh, -c, \"trap 'exit 0' INT; {LOOP}\"]\n",
+    ("a SIGINT-only payload under ros_preset",
+     f"      ros_preset: ros2\n      payload_command: [/bin/sh, -c, \"trap 'exit 0' INT; {LOOP}\"]\n",
      lambda c: c["Config"]["StopSignal"] == "SIGINT"),
     # A shell entrypoint without a trap ignores every signal as PID 1; under an init it does not.
     ("a shell with no trap under payload_init", f"      payload_init: true\n      payload_stop_grace_period: 5\n"
@@ -159,7 +160,8 @@ def test_an_update_stops_the_old_payload_by_its_own_signal(lab, fleet_on, what, 
     """issue 29 item 5: the old release's stop inside an update is under a
     second, not Docker's 10 s default and a kill."""
     try:
-        setup = lab.provision("--limit", "robot1", fleet=fleet_on("1.0", {ROBOT1: f"    robot1:\n{lines}      sensors:"}),
+        setup = lab.provision("--limit", "robot1",
+                              fleet=fleet_on("1.0", {ROBOT1: f"    robot1:\n{lines}      sensors:"}),
                               label=f"(robot1: {what})")
         assert setup.returncode == 0, setup.output[-3000:]
         assert inspect(lab.payload("robot1")), lab.payload("robot1")["Config"]

@@ -28,12 +28,14 @@ def test_dropped_link_during_an_update_leaves_the_robot_switched(lab, first_run,
         cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
     )
     try:
-        wait_for(lambda: "robot-payload-update" in lab.ok("robot1", "systemctl list-units --no-legend 'robot-payload-update-*'"),
+        wait_for(lambda: "robot-payload-update" in lab.ok("robot1",
+                                                          "systemctl list-units --no-legend 'robot-payload-update-*'"),
                  60, "the update to start on robot1")
     finally:
         os.killpg(operator.pid, signal.SIGKILL)
         operator.wait()
-    wait_for(lambda: "robot-payload-update" not in lab.ok("robot1", "systemctl list-units --no-legend 'robot-payload-update-*'"),
+    wait_for(lambda: "robot-payload-update" not in lab.ok("robot1",
+                                                          "systemctl list-units --no-legend 'robot-payload-update-*'"),
              90, "the update on robot1 to finish without the operator")
     assert lab.version("robot1") == target
     assert lab.payload("robot1")["State"]["Health"]["Status"] == "healthy"

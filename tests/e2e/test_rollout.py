@@ -21,7 +21,8 @@ pytestmark = pytest.mark.e2e
 
 ALL_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 # Short health windows keep this module fast; the tags are all that differ.
-FAST = {"payload_health_timeout: 60": "payload_health_timeout: 20", "payload_stable_seconds: 5": "payload_stable_seconds: 2"}
+FAST = {"payload_health_timeout: 60": "payload_health_timeout: 20",
+        "payload_stable_seconds: 5": "payload_stable_seconds: 2"}
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +37,8 @@ def rollout(lab, first_run, tmp_path_factory):
         """A rollout to ``tag`` of the lab fleet, or of the fleet file ``tag`` names (a Path)."""
         import time
 
-        env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(tag if isinstance(tag, Path) else fleet(tag)),
+        env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix,
+                   ROBOT_LAB_FLEET=str(tag if isinstance(tag, Path) else fleet(tag)),
                    ROBOT_ROLLOUT_DIR=str(states), PYINFRA_PROGRESS="off")
         started = time.monotonic()
         proc = subprocess.run(

@@ -12,7 +12,8 @@ pytestmark = pytest.mark.e2e
 
 def test_apt_key_fingerprint_mismatch_fails_the_host_and_keeps_the_trusted_key(lab, first_run):
     before = lab.ok("robot1", "sha256sum /etc/apt/keyrings/docker.asc")
-    run = lab.provision("--limit", "robot1", "--data", "docker_apt_key_fingerprint=" + "DEAD" * 10, label="(wrong key pin)")
+    run = lab.provision("--limit", "robot1", "--data", "docker_apt_key_fingerprint=" + "DEAD" * 10,
+                        label="(wrong key pin)")
     assert run.returncode != 0  # the only host of the run failed: pyinfra says "No hosts remaining!"
     assert f"does not match docker_apt_key_fingerprint {'DEAD' * 10}; key not installed" in run.output
     assert lab.ok("robot1", "sha256sum /etc/apt/keyrings/docker.asc") == before

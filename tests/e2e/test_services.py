@@ -24,8 +24,10 @@ def two_services(payload: str = "1.1", driver: str = "1.0", driver_extra: str = 
     return (
         "    payload_image: null\n"
         "    payload_services:\n"
-        f'      payload: {{image: "@registry@/ros/payload:{payload}", ipc: host, cap_add: [NET_ADMIN], stop_grace_period: 3s}}\n'
-        f'      driver: {{image: "@registry@/ros/driver:{driver}", devices: [], tty: true, stop_grace_period: 3s{driver_extra}}}\n'
+        f'      payload: {{image: "@registry@/ros/payload:{payload}", ipc: host, cap_add: [NET_ADMIN], '
+        'stop_grace_period: 3s}\n'
+        f'      driver: {{image: "@registry@/ros/driver:{driver}", devices: [], tty: true, stop_grace_period: '
+        f'3s{driver_extra}}}\n'
     )
 
 
@@ -154,7 +156,8 @@ def test_push_delivery_sends_every_image_of_the_project(lab, fleet):
     run = lab.provision(*limits("robot1"), fleet=fleet(offline), label="(robot1 two images by push)")
     assert run.returncode == 0, run.output[-3000:]
     sent = lab.ok("robot1", "cat /var/lib/robot-payload/push.log").splitlines()
-    assert sorted(line.split()[1] for line in sent) == ["offline.invalid/ros/driver:1.1", "offline.invalid/ros/payload:1.1"]
+    assert sorted(line.split()[1] for line in sent) == ["offline.invalid/ros/driver:1.1",
+                                                        "offline.invalid/ros/payload:1.1"]
     running = services_of(lab, "robot1")
     assert version(running["payload"]) == "1.1" and version(running["driver"]) == "driver-1.1"
     again = lab.provision(*limits("robot1"), fleet=fleet(offline), label="(robot1 by push, again)")
@@ -211,7 +214,8 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     run = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover robot2, robot3)")
     assert run.returncode == 0, run.output[-4000:]
     assert ("[robot3] payload: taking over what runs the payload another way (stopped, restart policy no): "
-            f"ros_payload ({lab.state['registry']}/ros/payload:1.0, running, restart always: it runs the payload's image)") in run.output
+            f"ros_payload ({lab.state['registry']}/ros/payload:1.0, running, restart always: "
+            "it runs the payload's image)") in run.output
     assert "ros_payload (compose project rosapp, " in run.output
     for host in ("robot2", "robot3"):
         assert f"[{host}] payload: taking over what runs the payload another way" in run.output
@@ -225,7 +229,8 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
             "it runs the payload's image") in run.output  # what payloadctl stopped, from its result
     # A rerun changes nothing on robot2; on robot3 a copy started by hand
     # since then (the project already running there) is taken over too.
-    lab.ok("robot3", f"docker run -d --restart unless-stopped --name ros_payload_copy {lab.state['registry']}/ros/payload:1.0")
+    lab.ok("robot3",
+           f"docker run -d --restart unless-stopped --name ros_payload_copy {lab.state['registry']}/ros/payload:1.0")
     rerun = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover rerun, robot3 copy)")
     assert rerun.returncode == 0 and rerun.changed_hosts == {"robot3"}, rerun.output[-3000:]
     assert "[robot3] payload: taking over what runs the payload another way" in rerun.output
@@ -237,7 +242,8 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     for host in ("robot2", "robot3"):
         lab.ok(host, "systemctl restart docker")
     for host in ("robot2", "robot3"):
-        wait_for(lambda: running_payloads(lab, host) == [f"{PROJECT}-payload-1"], 60, f"{host}'s payload after a Docker restart")
+        wait_for(lambda: running_payloads(lab, host) == [f"{PROJECT}-payload-1"], 60,
+                 f"{host}'s payload after a Docker restart")
         time.sleep(3)
         assert running_payloads(lab, host) == [f"{PROJECT}-payload-1"]
 

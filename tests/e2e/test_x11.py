@@ -27,9 +27,11 @@ PROBE = f"docker compose -p x11probe -f {COMPOSE} -f /tmp/probe.yaml run --rm --
 @pytest.fixture(scope="module")
 def desktop(lab, first_run):
     laptop = lab.laptops[0]
-    lab.ok(laptop, "DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends xvfb xinit x11-utils x11-xserver-utils")
+    lab.ok(laptop, "DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends xvfb xinit x11-utils "
+                   "x11-xserver-utils")
     lab.ok(laptop, BUILD_PROBE)
-    lab.ok(laptop, "printf '#!/bin/sh\\nexec sleep infinity\\n' > /usr/local/bin/lab-session && chmod 755 /usr/local/bin/lab-session")
+    lab.ok(laptop, "printf '#!/bin/sh\\nexec sleep infinity\\n' > /usr/local/bin/lab-session && chmod 755 "
+                   "/usr/local/bin/lab-session")
     yield laptop
     lab.sh(laptop, "pkill -u alice -f xinit; pkill -u alice Xvfb; true")
 

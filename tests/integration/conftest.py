@@ -31,3 +31,27 @@ def _no_gpg_agent_left_running(tmp_path_factory):
     from tests import armor
 
     armor.stop_agents(tmp_path_factory.getbasetemp())
+
+
+@pytest.fixture(scope="module")
+def helper(tmp_path_factory):
+    """payloadctl exactly as it is installed on a robot."""
+    from roles.payload import installed_files as payload
+
+    path = tmp_path_factory.mktemp("helper") / "payloadctl"
+    path.write_bytes(payload.helper_bytes())
+    path.chmod(0o755)
+    return str(path)
+
+
+@pytest.fixture
+def robot(tmp_path, helper):
+    """A robot of payloadctl's tests (tests/integration/test_payloadctl.py) running reg/ros/payload:1.0."""
+    from tests.integration.test_payloadctl import FakeRobot
+
+    robot = FakeRobot(tmp_path, helper)
+    robot.image("reg/ros/payload:1.0")
+    robot.release("r1", "reg/ros/payload:1.0")
+    robot.releases.point("current", "r1")
+    robot.running("reg/ros/payload:1.0")
+    return robot

@@ -194,7 +194,8 @@ BASE = f"[all:vars]\npayload_image={IMAGE}\n"
 
 
 @pytest.mark.parametrize("text, line", [
-    ("[robots]\nrobot1 x11_enabled=true\n", "hosts:2: robot1.x11_enabled: expected true or false, got 'true'; INI reads "
+    ("[robots]\nrobot1 x11_enabled=true\n",
+     "hosts:2: robot1.x11_enabled: expected true or false, got 'true'; INI reads "
                                         "it as text, as Ansible does: write True or False"),
     ("[robots]\nrobot1 docker_usres=['ops']\n", "hosts:2: robot1.docker_usres: unknown setting "
                                                 "(did you mean 'docker_users'?)"),
@@ -267,7 +268,8 @@ def test_what_ansible_reads_and_we_cannot_is_refused_saying_what_to_do(tmp_path,
 
 
 def test_an_inventory_directory_skips_what_ansible_skips(tmp_path):
-    root = write(tmp_path / "inv", {"10-hosts": "[robots]\nrobot1\n", "20-more.yaml": "laptops: {hosts: {lap1: {x11_user: a}}}\n",
+    root = write(tmp_path / "inv",
+                 {"10-hosts": "[robots]\nrobot1\n", "20-more.yaml": "laptops: {hosts: {lap1: {x11_user: a}}}\n",
                                     "README.md": "# not an inventory [robots]\n", "ansible.cfg": "[defaults]\n",
                                     ".hidden": "[robots]\nrobot9\n", "old.bak": "[robots]\nrobot8\n",
                                     "more/group_vars/all.yml": "ros_domain_id: 5\n",

@@ -12,7 +12,6 @@ host.  A block the test cannot run says why in the doc
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import socket
@@ -93,7 +92,8 @@ class Sandbox:
         path.write_text(loader.dump({
             "all": {"vars": self.settings},
             "robots": {"hosts": {name: local for name in ROBOTS},
-                       "children": {group: {"hosts": {name: local for name in names}} for group, names in NESTED.items()}},
+                       "children": {group: {"hosts": {name: local for name in names}}
+                                    for group, names in NESTED.items()}},
             "laptops": {"hosts": {name: {**local, **data} for name, data in LAPTOPS.items()}},
         }))
         return path

@@ -24,7 +24,8 @@ with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}
 def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
     host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
     inventory = tmp_path / "fake.py"
-    inventory.write_text(f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', {host!r})]\n")
+    inventory.write_text(f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', "
+                         f"{host!r})]\n")
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
     proc = subprocess.run([sys.executable, "-c", CLI, "--dry", str(inventory), "deploy.py"],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)

@@ -34,7 +34,8 @@ def run(path, monkeypatch, capsys, *args) -> tuple[int, list[str]]:
 
 
 def two_robots(tmp_path, servers):
-    return fleet(tmp_path, {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port} for i, s in enumerate(servers)})
+    return fleet(tmp_path,
+                 {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port} for i, s in enumerate(servers)})
 
 
 def line(server, name) -> str:
@@ -56,7 +57,8 @@ def test_from_an_empty_known_hosts_to_a_strict_connection(tmp_path, monkeypatch,
     assert code == 0 and lines[-1] == "enroll: 2 known" and known_hosts.read_text() == written
 
 
-def test_a_changed_key_is_refused_with_both_fingerprints_and_the_file_left_alone(tmp_path, monkeypatch, capsys, servers):
+def test_a_changed_key_is_refused_with_both_fingerprints_and_the_file_left_alone(tmp_path, monkeypatch, capsys,
+                                                                                 servers):
     path = two_robots(tmp_path, servers)
     old = paramiko.ECDSAKey.generate()
     known_hosts = tmp_path / "known_hosts"
@@ -123,8 +125,9 @@ def test_replace_takes_a_reflashed_robots_new_key_only_when_it_matches_the_file(
     recorded.write_text(f"robot1 {hostkeys.fingerprint(paramiko.ECDSAKey.generate())}\n")
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
     assert code == 1 and known_hosts.read_text() == before
-    assert lines[1].startswith(f"robot1: host key CHANGED for {entry1}: {known_hosts} has ecdsa-sha2-nistp256 {old_print}")
-    assert lines[1].endswith(f": not replaced, its line is left as it is")
+    assert lines[1].startswith(f"robot1: host key CHANGED for {entry1}: "
+                               f"{known_hosts} has ecdsa-sha2-nistp256 {old_print}")
+    assert lines[1].endswith(": not replaced, its line is left as it is")
 
     recorded.write_text(f"robot1 {new_print}\n")
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
@@ -195,7 +198,8 @@ def test_unreachable_and_unmatched(tmp_path, monkeypatch, capsys):
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": closed}})
     code, lines = run(path, monkeypatch, capsys, "--yes")
     assert code == 3
-    assert lines[1] == f"robot1: unreachable: connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})"
+    assert lines[1] == (f"robot1: unreachable: connection refused by 127.0.0.1:{closed} "
+                        f"(no SSH server listens on port {closed})")
     code, lines = run(path, monkeypatch, capsys, "--limit", "bot-z")
     assert code == 2
     assert lines == ["--limit bot-z: no host or group of inventories/robots.py matches (hosts: robot1; "

@@ -75,7 +75,8 @@ def test_a_rollout_targets_robots_and_tries_a_dead_one_once_per_wave(tmp_path):
     try:
         path = tmp_path / "fleet.yaml"
         fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": silent.port}}, ssh_connect_retries=0)
-        text = path.read_text() + "laptops:\n  hosts:\n    laptop1: {address: 127.0.0.1, ssh_port: 9, x11_user: alice}\n"
+        text = (path.read_text()
+                + "laptops:\n  hosts:\n    laptop1: {address: 127.0.0.1, ssh_port: 9, x11_user: alice}\n")
         path.write_text(text)
         result = run(path, tmp_path, "-m", "robotfleet", "rollout", "inventories/robots.py", "-y")
     finally:

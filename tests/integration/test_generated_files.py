@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.unit.test_generated_files import UNIT, sent_to_a_fresh_robot  # noqa: F401 (fixture)
+from tests.unit.test_generated_files import UNIT
 
 
 def systemd_verify(unit_text: str, root: Path) -> subprocess.CompletedProcess:

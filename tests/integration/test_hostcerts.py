@@ -28,7 +28,7 @@ def line(names: str, key, marker: str = "") -> str:
 
 
 @pytest.fixture
-def server(client_key):  # noqa: F811
+def server(client_key):
     started = sshserver.ssh_server(client_key)
     yield started
     started.close()

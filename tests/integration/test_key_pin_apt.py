@@ -103,7 +103,8 @@ def test_a_download_with_a_hidden_key_installs_only_the_pinned_key_as_apt_reads_
 
 
 def _key_probe(path, fingerprint):
-    return subprocess.run(["sh", "-c", aptrepo.key_probe(str(path), fingerprint)], capture_output=True, text=True).stdout
+    return subprocess.run(["sh", "-c", aptrepo.key_probe(str(path), fingerprint)], capture_output=True,
+                          text=True).stdout
 
 
 @pytest.mark.parametrize("variant", ALL)
@@ -209,7 +210,8 @@ def test_a_planted_key_file_is_named_in_one_line_when_removed(signers, tmp_path)
     dest.write_bytes(_variant(signers, "inside the block after its CRC line"))
     proc = _run(docker_repo(f"file://{tmp_path}/nothing-here", str(dest), fprs["pinned"]))
     lines = proc.stderr.splitlines()  # curl's own error line comes between
-    assert lines[0] == f"{dest} is not exactly the pinned key as gpg exports it (docker_apt_key_fingerprint {fprs['pinned']}); removed"
+    assert lines[0] == (f"{dest} is not exactly the pinned key as gpg exports it "
+                        f"(docker_apt_key_fingerprint {fprs['pinned']}); removed")
     assert lines[-1] == f"cannot download the Docker apt key from file://{tmp_path}/nothing-here"
 
 
@@ -257,8 +259,11 @@ def test_a_mistyped_pin_leaves_the_robots_working_key_in_place(signers, tmp_path
     served.write_text(armored["pinned"])
     dest = tmp_path / "keyrings" / "docker.asc"
     dest.parent.mkdir()
-    run = lambda pin: subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), pin))],
-                                     capture_output=True, text=True, timeout=60)
+
+    def run(pin):
+        return subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), pin))],
+                              capture_output=True, text=True, timeout=60)
+
     assert run(fprs["pinned"]).returncode == 0
     good = dest.read_bytes()
     wrong = run("DEAD" * 10)

@@ -18,7 +18,7 @@ import time
 
 from roles.payload.payloadctl import lock as apply_lock
 from tests.unit.harness import ROBOT, converged, plan
-from tests.integration.test_payloadctl import FakeRobot, helper, robot, switching, wait_until  # noqa: F401 (fixtures)
+from tests.integration.test_payloadctl import switching, wait_until
 
 # COMMAND for `payloadctl hold`: an apply (and a rollback) as part of the
 # holder's run, the token read from the file hold names in the environment.
@@ -51,7 +51,8 @@ def result_of(robot, run_id):
 
 def test_hold_runs_its_command_with_a_private_token_and_lets_go(robot, tmp_path):
     probe = ("import os, stat, json; p = os.environ['PAYLOADCTL_LOCK_TOKEN_FILE']; "
-             "print(json.dumps([p, oct(stat.S_IMODE(os.stat(p).st_mode)), open(p).read().strip()])); raise SystemExit(7)")
+             "print(json.dumps([p, oct(stat.S_IMODE(os.stat(p).st_mode)), open(p).read().strip()])); "
+             "raise SystemExit(7)")
     proc = hold(robot, tmp_path, sys.executable, "-c", probe)
     path, mode, token = json.loads(proc.stdout)
     assert proc.returncode == 7  # the command's own exit status
@@ -70,7 +71,8 @@ def test_an_apply_and_a_rollback_carrying_the_token_join_the_holders_run(robot, 
     assert json.loads(proc.stdout.strip().splitlines()[-1]) == [0, 0]  # neither waited for the lock (1 s, then refused)
     assert time.monotonic() - started < 25
     applied, rolled_back = result_of(robot, "joined-1"), result_of(robot, "joined-2")
-    assert applied["outcome"] == "applied" and rolled_back["outcome"] == "applied" and rolled_back["action"] == "rollback"
+    assert applied["outcome"] == "applied"
+    assert rolled_back["outcome"] == "applied" and rolled_back["action"] == "rollback"
     assert robot.pointers()[0] == "r1"  # updated to 1.1, then rolled back to 1.0
     assert "waiting" not in proc.stderr and "lock_token" not in json.dumps([applied, rolled_back])
 

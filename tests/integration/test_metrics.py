@@ -149,13 +149,17 @@ def test_pull_robots_are_in_the_metrics_from_their_reports_stale_marked(tmp_path
     now = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0)
     cells = {"release": RELEASE, "release_state": "active", "state": "running", "health": "healthy"}
     config = type("Config", (), {"interval": 60, "jitter": 5, "stale_after": 3, "heartbeat": 0})
-    made = {"robot1": reports.build("robot1", now, "up-to-date", seen={"version": 7, "release": "r7", "commit": "a" * 40},
-                                    applied={"version": 7, "release": "r7", "commit": "a" * 40, "time": "2026-11-25T09:59:00Z"},
+    made = {"robot1": reports.build("robot1", now, "up-to-date",
+                                    seen={"version": 7, "release": "r7", "commit": "a" * 40},
+                                    applied={"version": 7, "release": "r7", "commit": "a" * 40,
+                                             "time": "2026-11-25T09:59:00Z"},
                                     status=cells, config=config),
             "robot2": reports.build("robot2", now - datetime.timedelta(hours=2), "applied", status=cells, config=config,
-                                    applied={"version": 6, "release": "r6", "commit": "b" * 40, "time": "2026-11-24T09:59:00Z"}),
+                                    applied={"version": 6, "release": "r6", "commit": "b" * 40,
+                                             "time": "2026-11-24T09:59:00Z"}),
             "robot3": reports.build("robot3", now, "refused", refusal="tampered", reason="targets.json: changed",
-                                    seen={"version": 8, "release": "r8", "commit": "c" * 40}, status=cells, config=config)}
+                                    seen={"version": 8, "release": "r8", "commit": "c" * 40}, status=cells,
+                                    config=config)}
     for name, report in made.items():
         transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(
             name, reports.to_bytes(report))

@@ -60,7 +60,8 @@ def test_a_key_file_holding_a_second_key_is_refused(tmp_path, keys):
     proc = sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None)))
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1, proc.stderr  # one line
-    assert f"holds 2 keys ({fpr} {other}); only docker_apt_key_fingerprint {fpr} may be in it; key not installed" in proc.stderr
+    assert (f"holds 2 keys ({fpr} {other}); only docker_apt_key_fingerprint {fpr} may be in it; "
+            "key not installed") in proc.stderr
     assert list(dest.parent.iterdir()) == []
 
 
@@ -233,7 +234,8 @@ def test_daemon_json_and_its_previous_copy_are_written_0600_whatever_the_old_mod
 
     from roles.docker import daemon
 
-    dest, previous, pending = tmp_path / "daemon.json", tmp_path / "daemon.json.previous", tmp_path / "daemon.json.pending"
+    dest = tmp_path / "daemon.json"
+    previous, pending = tmp_path / "daemon.json.previous", tmp_path / "daemon.json.pending"
     old = '{"proxies": {"http-proxy": "http://u:s3cret@proxy:3128"}}\n'
     dest.write_text(old)
     os.chmod(dest, 0o644)

@@ -7,10 +7,9 @@ import subprocess
 import sys
 
 import pytest
-import yaml
 
-from roles.payload import installed_files as payload, release
-from roles.payload.payloadctl import durable, health, imageref, images, lifecycle, releases as releases_module
+from roles.payload import release
+from roles.payload.payloadctl import durable, health, lifecycle, releases as releases_module
 from roles.payload.payloadctl import lock as apply_lock
 
 
@@ -30,15 +29,6 @@ class store:
         record = releases_module.Releases.raw_record
 
 
-@pytest.fixture(scope="module")
-def helper(tmp_path_factory):
-    """payloadctl exactly as it is installed on a robot."""
-    path = tmp_path_factory.mktemp("helper") / "payloadctl"
-    path.write_bytes(payload.helper_bytes())
-    path.chmod(0o755)
-    return str(path)
-
-
 def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
     present = tmp_path / "cam"
     present.write_text("")
@@ -52,7 +42,8 @@ def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
 def test_result_reports_the_last_apply(tmp_path, helper):
     (tmp_path / "last-result.json").write_text(json.dumps({"ok": False, "message": "payload: release x failed"}))
     proc = subprocess.run(
-        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"], capture_output=True, text=True
+        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"], capture_output=True,
+        text=True
     )
     assert proc.returncode == 1 and proc.stderr.strip() == "payload: release x failed"
 
@@ -84,7 +75,8 @@ def _stub_docker(tmp_path, monkeypatch, exec_exit: int):
         'case "$1" in\n'
         "  ps) echo c0ffee ;;\n"
         "  inspect) exit 1 ;;\n"
-        f"  exec) echo 'NVIDIA-SMI has failed because it could not communicate with the NVIDIA driver' >&2; exit {exec_exit} ;;\n"
+        "  exec) echo 'NVIDIA-SMI has failed because it could not communicate with the NVIDIA driver' >&2; "
+        f"exit {exec_exit} ;;\n"
         "esac\n"
     )
     stub.chmod(0o755)
@@ -207,16 +199,6 @@ class FakeRobot:
 
     def pointers(self):
         return self.releases.pointer("current"), self.releases.pointer("previous")
-
-
-@pytest.fixture
-def robot(tmp_path, helper):
-    robot = FakeRobot(tmp_path, helper)
-    robot.image("reg/ros/payload:1.0")
-    robot.release("r1", "reg/ros/payload:1.0")
-    robot.releases.point("current", "r1")
-    robot.running("reg/ros/payload:1.0")
-    return robot
 
 
 def mode(path):
@@ -347,7 +329,8 @@ def test_failed_rollback_is_undone_and_the_old_release_started_again(robot):
     assert robot.pointers() == ("r1", "r0")
     assert robot.state()["started"] == ["reg/ros/payload:0.9", "reg/ros/payload:1.0"]
     record = robot.releases.record("r0")
-    assert record["state"] == "active" and "switch" not in record and "crash-looping" in record["rollback_failed"]["reason"]
+    assert record["state"] == "active" and "switch" not in record
+    assert "crash-looping" in record["rollback_failed"]["reason"]
 
 
 def switching(robot, rid, ref, kind, came_from, previous_before, **extra):
@@ -500,8 +483,10 @@ def test_a_deploy_waits_for_the_boot_recovery_and_says_so(robot):
     """The boot holds the lock until its compose up is done: a deploy that
     arrives meanwhile waits (it used to restart the unit mid-recreate)."""
     interrupted_update(robot)
-    boot = subprocess.Popen([sys.executable, robot.helper, "start", "--dir", str(robot.root), "--name", "robot-payload"],
-                            env=robot.env(FAKE_COMPOSE_SLEEP="3"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    boot = subprocess.Popen([sys.executable, robot.helper, "start", "--dir", str(robot.root), "--name",
+                             "robot-payload"],
+                            env=robot.env(FAKE_COMPOSE_SLEEP="3"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
     try:
         wait_until(lambda: "compose_up" in robot.state(), "the boot's compose up to begin")
         deploy = robot.payloadctl("apply", robot.spec("reg/ros/payload:1.1", "run-9"), "--run-id", "run-9")
@@ -512,7 +497,8 @@ def test_a_deploy_waits_for_the_boot_recovery_and_says_so(robot):
     assert deploy.stderr.rstrip().splitlines()[0].endswith("; waiting")
     assert result.returncode == 0 and "is healthy" in result.stdout
     log = robot.state()["log"]
-    boot_up = max(i for i, line in enumerate(log) if "current/compose.yaml up -d --remove-orphans" in line and "--no-start" not in line
+    boot_up = max(i for i, line in enumerate(log)
+                  if "current/compose.yaml up -d --remove-orphans" in line and "--no-start" not in line
                   and i < log.index("docker pull -q reg/ros/payload:1.1"))
     assert boot_up < log.index("docker pull -q reg/ros/payload:1.1")  # the deploy began once the boot was done
     assert robot.releases.record("r2")["state"] == "failed"  # the boot decided: back on r1
@@ -544,7 +530,8 @@ def test_what_an_interrupted_compose_up_left_is_removed_before_the_next(robot):
     robot.save(state)
     boot = robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     assert boot.returncode == 0, boot.stdout + boot.stderr
-    assert "removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, robot-payload-payload-1" in boot.stderr
+    assert ("removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, "
+            "robot-payload-payload-1") in boot.stderr
     assert list(robot.state()["containers"]) == ["robot-payload-payload-1"]
     assert robot.state()["containers"]["robot-payload-payload-1"]["running"] is True
 
@@ -556,7 +543,8 @@ def test_an_unverified_release_has_no_restart_policy_until_it_is_verified(robot)
     x-restart-when-verified), so one compose up creates and starts it
     without one, and the policy is given once it is verified."""
     robot.image("reg/ros/payload:1.1")
-    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.1", "restart": "unless-stopped"}}}
+    compose = {"name": "robot-payload",
+               "services": {"payload": {"image": "reg/ros/payload:1.1", "restart": "unless-stopped"}}}
     result = robot.apply("reg/ros/payload:1.1", compose=compose)
     assert result.returncode == 0
     log = robot.state()["log"]
@@ -624,7 +612,8 @@ def test_takeover_stops_an_earlier_copy_of_the_payload_and_no_other_projects_con
     result = robot.apply("reg/ros/payload:1.1", compose=compose)
     assert result.returncode == 0, result.stderr
     containers = robot.state()["containers"]
-    assert containers["homeauto-broker-1"].get("running", True) and containers["homeauto-broker-1"]["policy"] == "always"
+    assert containers["homeauto-broker-1"].get("running",
+                                               True) and containers["homeauto-broker-1"]["policy"] == "always"
     assert not containers["ros_payload"]["running"] and containers["ros_payload"]["policy"] == "no"
     taken = robot.releases.record(robot.pointers()[0])["taken_over"]
     assert [(c["name"], c["why"]) for c in taken] == [("ros_payload", "it runs the payload's image")]
@@ -652,7 +641,7 @@ def test_an_image_for_another_platform_is_refused_before_anything_switches(robot
     robot.image("reg/ros/payload:1.1", platform="linux/amd64")
     result = robot.apply("reg/ros/payload:1.1")
     assert result.returncode == 1
-    line = [l for l in result.stderr.splitlines() if "refused" in l]
+    line = [found for found in result.stderr.splitlines() if "refused" in found]
     assert line == ["payload: pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only: "
                     "refused before anything switched"]
     assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # no release was even written
@@ -752,7 +741,8 @@ def test_each_apply_gives_one_structured_result(robot, case, outcome, ok, releas
     result = one_json_line(reported.stdout)
     assert result == printed == json.loads((robot.root / "last-result.json").read_text())
     assert set(result) == RESULT_KEYS and result["payloadctl"] == 1 and result["action"] == "apply"
-    assert (result["outcome"], result["ok"]) == (outcome, ok) and applied.returncode == reported.returncode == (0 if ok else 1)
+    assert (result["outcome"], result["ok"]) == (outcome, ok)
+    assert applied.returncode == reported.returncode == (0 if ok else 1)
     current, previous = robot.pointers()
     assert (result["release"], result["previous"]) == (current, previous)
     assert result["release"] == (current if release == "new" else release) and (release != "new" or current != "r1")
@@ -766,7 +756,8 @@ def test_a_rollback_gives_its_structured_result(robot):
     robot.release("r0", "reg/ros/payload:0.9", created="r0")
     robot.releases.point("previous", "r0")
     result = one_json_line(robot.rollback().stdout)
-    assert (result["action"], result["outcome"], result["ok"], result["target"]) == ("rollback", "rolled-back", False, "r0")
+    assert ((result["action"], result["outcome"], result["ok"], result["target"])
+            == ("rollback", "rolled-back", False, "r0"))
     assert (result["release"], result["previous"]) == ("r1", "r0") and "crash-looping" in result["reason"]
     robot.releases.point("previous", None)
     result = one_json_line(robot.rollback("rb-2").stdout)
@@ -785,7 +776,8 @@ def test_status_carries_the_last_result(robot):
 
 
 def test_the_deploy_reads_the_result_and_says_it_from_the_result():
-    result = {"payloadctl": 1, "ok": False, "outcome": "rolled-back", "message": "payload: release r2 failed (\x1b[31mx)",
+    result = {"payloadctl": 1, "ok": False, "outcome": "rolled-back",
+              "message": "payload: release r2 failed (\x1b[31mx)",
               "taken_over": [{"name": "ros_payload", "project": None, "image": "reg/ros/payload:1.0",
                               "why": "it runs the payload's image"}]}
     lines = ["payload: a line for people", "[robot2] Error", json.dumps(result)]
@@ -825,7 +817,8 @@ def test_another_compose_project_of_the_payload_image_is_never_taken_over(tmp_pa
     result = one_json_line(first.stdout)
     assert first.returncode == 0 and homeauto_untouched(robot)
     assert [c["name"] for c in result["taken_over"]] == ["ros_payload"]  # the copy in no project is ours to stop
-    assert "payload: stopping ros_payload (reg/ros/payload:1.0, restart always): it runs the payload's image" in first.stderr
+    assert ("payload: stopping ros_payload (reg/ros/payload:1.0, restart always): "
+            "it runs the payload's image") in first.stderr
     assert "homeauto" not in first.stderr
     assert robot.apply("reg/ros/payload:1.1", run_id="update").returncode == 0 and homeauto_untouched(robot)
     assert json.loads(robot.rollback("rb").stdout)["outcome"] == "applied" and homeauto_untouched(robot)

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from roles.payload.payloadctl import events, health
-from tests.integration.test_payloadctl import FAKEBIN, FakeRobot, helper, robot  # noqa: F401 (fixtures)
+from tests.integration.test_payloadctl import FAKEBIN
 
 
 @pytest.fixture
@@ -65,7 +65,8 @@ def unhealthy_release(fake_docker):
     third look (the first two say starting)."""
     state = json.loads(fake_docker.read_text())
     state["images"]["reg/ros/payload:bad"] = {"id": "sha256:bad", "behaviour": "unhealthy", "present": True}
-    state["containers"] = {"robot-payload-payload-1": {"image": "reg/ros/payload:bad", "name": "robot-payload-payload-1",
+    state["containers"] = {"robot-payload-payload-1": {"image": "reg/ros/payload:bad",
+                                                       "name": "robot-payload-payload-1",
                                                        "service": "payload", "policy": "no"}}
     fake_docker.write_text(json.dumps(state))
 
@@ -95,7 +96,7 @@ def test_the_health_wait_acts_on_dockers_events_not_on_a_timer(fake_docker, monk
     assert not ok and 2 * health.LOOK <= time.monotonic() - started < 2 * health.LOOK + 3
 
 
-def test_while_the_unit_runs_the_release_is_brought_up_here_else_through_the_unit(robot):  # noqa: F811
+def test_while_the_unit_runs_the_release_is_brought_up_here_else_through_the_unit(robot):
     robot.image("reg/ros/payload:1.1")
     assert robot.apply("reg/ros/payload:1.1", run_id="run-1").returncode == 0
     log = robot.state()["log"]

@@ -9,7 +9,6 @@ from __future__ import annotations
 import datetime
 import gzip
 import hashlib
-import io
 import json
 import os
 import subprocess
@@ -53,8 +52,10 @@ else:
 
 def code_archive(base: Path, version: int) -> tuple[Path, str, str]:
     """A release's code: (archive, tree hash, fleet file hash)."""
-    files = {"robotfleet/__init__.py": "", "robotfleet/commands/__init__.py": "", "robotfleet/commands/converge.py": STUB,
-             "robotfleet/pull/__init__.py": "", "robotfleet/pull/protocol/agent_files.py": Path(agent_files.__file__).read_text(),
+    files = {"robotfleet/__init__.py": "", "robotfleet/commands/__init__.py": "",
+             "robotfleet/commands/converge.py": STUB,
+             "robotfleet/pull/__init__.py": "",
+             "robotfleet/pull/protocol/agent_files.py": Path(agent_files.__file__).read_text(),
              "inventories/robots.yaml": f"# release {version}\n"}
     root = base / f"tree-{version}"
     for name, text in files.items():
@@ -89,7 +90,8 @@ class World:
     def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
         record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
         built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
-        built = record.build(version, NOW, NOW + datetime.timedelta(days=30), hashlib.sha1(bytes([version])).hexdigest(),
+        built = record.build(version, NOW, NOW + datetime.timedelta(days=30),
+                             hashlib.sha1(bytes([version])).hexdigest(),
                              tree_sha, "inventories/robots.yaml", fleet_sha, list(robots), {}, {},
                              waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}))
         self.fleet.repository.publish(built, {built.code: archive or built_archive}, self.fleet.keys.signer("online"),

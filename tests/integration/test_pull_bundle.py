@@ -14,7 +14,6 @@ import pytest
 
 from robotfleet.pull.operator import bundle
 from robotfleet.pull.protocol import agent_files
-from tests.unit.pullkit import NOW
 
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
 DATA = SimpleNamespace(pull_remote="ssh://gitolite3@git.lan/fleet", pull_interval=60, pull_jitter=5,

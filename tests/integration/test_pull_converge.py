@@ -79,7 +79,8 @@ def test_the_run_s_outcome_is_read_from_the_roles_parts():
 
 
 def test_pyinfra_s_lines_that_say_why():
-    stderr = "--> Starting operation: X\n    [@local] Success\n    [@local] Error: payload: refused\n--> pyinfra error: No hosts remaining!\n"
+    stderr = ("--> Starting operation: X\n    [@local] Success\n    [@local] Error: payload: refused\n"
+              "--> pyinfra error: No hosts remaining!\n")
     assert converge.errors_of(stderr) == ["[@local] Error: payload: refused", "--> pyinfra error: No hosts remaining!"]
     assert converge.errors_of("only this\n") == ["only this"]
 

@@ -184,7 +184,7 @@ def test_a_fingerprints_file_must_list_every_key_of_the_report(site, capsys):
     recorded = site.base / "fingerprints.txt"
     recorded.write_text(f"robot9 {hostkeys.fingerprint(site.host_key)}\n")  # the own key missing
     code, out, err = site.enroll(capsys, "--limit", "robot9", "--fingerprints", str(recorded))
-    assert code == 1 and f"robot9: own key ssh-ed25519 " in err and f"not in {recorded}; refused" in err
+    assert code == 1 and "robot9: own key ssh-ed25519 " in err and f"not in {recorded}; refused" in err
     assert not site.known_hosts.exists()
     recorded.write_text(f"# read on its console\nrobot9 {hostkeys.fingerprint(site.host_key)} "
                         f"{hostkeys.fingerprint(pullenroll.key_of(site.own))}\n")

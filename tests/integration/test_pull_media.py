@@ -86,7 +86,7 @@ json.dump(store, open(path, "w"))
 
 
 @pytest.fixture
-def image_registry(platform_registry):
+def image_registry(platform_registry):  # noqa: F811 (test_push_platforms' fixture, imported)
     """test_push_platforms' registry, its index also served by its digest (as registries do)."""
     address, store, fetched = platform_registry
     store.manifests["sha256:" + hashlib.sha256(store.manifests["1.0"][1]).hexdigest()] = store.manifests["1.0"]
@@ -111,7 +111,7 @@ def docker(tmp_path, monkeypatch):
 
 # -- the operator: robotfleet export --------------------------------------------
 
-def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_robot_verifies(site, image_registry):
+def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_robot_verifies(site, image_registry):  # noqa: F811 (test_pull_publish's fixture)
     address, store, _ = image_registry
     (site["checkout"] / "inventories" / "robots.yaml").write_text(FLEET.format(registry=address))
     git(site["checkout"], "commit", "-qam", "media fleet")
@@ -152,7 +152,7 @@ def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_rob
     assert trust.Client(site["robot"], str(medium)).refresh().version == 1
 
 
-def test_export_of_nothing_published_is_one_line(site):
+def test_export_of_nothing_published_is_one_line(site):  # noqa: F811 (test_pull_publish's fixture)
     done = robotfleet_cmd("export", site["base"] / "usb", "--checkout", site["checkout"], "--keys", site["keys"],
                           check=False)
     assert done.returncode != 0 and done.stderr.strip().count("\n") == 0, done.stderr

@@ -124,7 +124,8 @@ def test_publish_binds_commit_tree_fleet_and_digests_and_a_robot_verifies_it(sit
     assert record.commit == git(site["checkout"], "rev-parse", "HEAD")
     assert record.robots == ("robot1", "robot2")  # robot3 is not pull
     one = registry.manifests[("ros/payload", "1.1")][1]
-    assert record.images["robot1"] == {f"{registry.address}/ros/payload:1.1": "sha256:" + pullkit.hashlib.sha256(one).hexdigest()}
+    assert record.images["robot1"] == {
+        f"{registry.address}/ros/payload:1.1": "sha256:" + pullkit.hashlib.sha256(one).hexdigest()}
     assert record.images["robot2"] == {f"{registry.address}/ros/payload:1.2": registry.tag("ros/payload", "1.2", "two")}
     got = client.download([record.code], site["robot"] / "targets")
     tree = pullkit.module("protocol.tree")
@@ -143,10 +144,12 @@ def test_halt_then_a_new_release(site):
     publish(site, "--canary", "10%", "--waves", "50%,100%", "--pause", "60")
     _, first = robot_refresh(site)
     assert first.rollout.to_dict() == {"canary": "10%", "waves": ["50%", "100%"], "pause": 60, "max_failed": "0"}
-    done = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], "--reason", "canary crash-loops")
+    done = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], "--reason",
+                          "canary crash-loops")
     assert done.stdout.startswith("halt: release 2 halts commit")
     _, halted = robot_refresh(site)
-    assert (halted.version, halted.halt, halted.halt_reason, halted.commit) == (2, True, "canary crash-loops", first.commit)
+    assert ((halted.version, halted.halt, halted.halt_reason, halted.commit)
+            == (2, True, "canary crash-loops", first.commit))
     again = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
     assert again.returncode == 2 and again.stderr == ("halt: release 2 is already halted (canary crash-loops); nothing "
                                                       "was changed (a new publish ends the halt).\n")

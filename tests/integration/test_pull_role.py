@@ -126,7 +126,8 @@ def test_agent_configuration_and_units(pulled):
         assert f"\n{line}\n" in timer
     service = plan.service_unit()
     assert "\nType=oneshot\n" in service and "\nUser=" not in service
-    assert f"\nExecStart={agent_files.VENV}/bin/python -m robotfleet.pull.agent --config {agent_files.CONFIG}\n" in service
+    assert (f"\nExecStart={agent_files.VENV}/bin/python -m robotfleet.pull.agent "
+            f"--config {agent_files.CONFIG}\n") in service
     assert plan.known_hosts(data) == f"{plan.KNOWN_HOSTS_ALIAS} {KEY}\n"
 
 
@@ -152,7 +153,8 @@ def test_a_fresh_robot_gets_the_agent(pulled, released):
     code = find(commands, r"tar -xz -C")
     assert len(code) == 1
     tree = tarfile.open(fileobj=io.BytesIO(base64.b64decode(code[0].stdin)))
-    assert {"deploy.py", "robotfleet/role.py", "roles/payload/__init__.py", "inventories/robots.yaml"} <= set(tree.getnames())
+    assert {"deploy.py", "robotfleet/role.py", "roles/payload/__init__.py",
+            "inventories/robots.yaml"} <= set(tree.getnames())
     assert not [n for n in tree.getnames() if n.startswith(("tests/", "docs/")) or "__pycache__" in n]
     assert find(commands, "systemctl enable robot-pull.timer")
 

@@ -67,7 +67,8 @@ def test_the_telling_line_of_a_git_failure():
     said = ("gitolite3@git.lan: Permission denied (publickey).\r\nfatal: Could not read from remote repository.\n\n"
             "Please make sure you have the correct access rights\nand the repository exists.\n")
     assert transport.git_error(said, 128) == "gitolite3@git.lan: Permission denied (publickey)."
-    assert transport.git_error("FATAL: W refs/reports/robot2 fleet robot1 DENIED by fallthru\n", 1).startswith("FATAL: W")
+    denied = "FATAL: W refs/reports/robot2 fleet robot1 DENIED by fallthru\n"
+    assert transport.git_error(denied, 1).startswith("FATAL: W")
     assert transport.git_error("", 7) == "git exited 7"
 
 

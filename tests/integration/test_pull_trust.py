@@ -58,7 +58,8 @@ def test_what_an_interrupted_refresh_left_is_swept(fleet):
     (fleet.state / ".tuf-link-0000").symlink_to("tuf-leftover")
     fleet.refresh()
     current = (fleet.state / "tuf").resolve().name
-    assert {p.name for p in fleet.state.iterdir()} == {"trust.json", "tuf", current, "verified.json", "verified.release.json"}
+    assert {p.name for p in fleet.state.iterdir()} == {"trust.json", "tuf", current, "verified.json",
+                                                       "verified.release.json"}
 
 
 def test_a_new_release_is_accepted_after_the_first(fleet):
@@ -87,7 +88,8 @@ def test_tampered_targets_metadata_is_refused(fleet, trust):
 
 def test_a_changed_timestamp_with_the_old_signature_is_refused_as_tampered(fleet, trust):
     fleet.release(2)
-    edit_json(fleet.repository.metadata / "timestamp.json", lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z"))
+    edit_json(fleet.repository.metadata / "timestamp.json",
+              lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z"))
     line = refused(fleet, trust, trust.TAMPERED)
     assert line.startswith("timestamp.json: changed after it was signed")
 

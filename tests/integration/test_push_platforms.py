@@ -55,7 +55,8 @@ class Store:
             self.diff_ids = {arch: [base_id, top_id], **getattr(self, "diff_ids", {})}
             manifest = json.dumps({"schemaVersion": 2, "mediaType": DOCKER_V2,
                                    "config": {"mediaType": "x", "digest": digest(config), "size": len(config)},
-                                   "layers": [{"mediaType": "y", "digest": digest(b), "size": len(b)} for b in (base, top)]}).encode()
+                                   "layers": [{"mediaType": "y", "digest": digest(b), "size": len(b)}
+                                              for b in (base, top)]}).encode()
             self.manifests[digest(manifest)] = (DOCKER_V2, manifest)
             self.manifests[f"1.0-{arch}"] = (DOCKER_V2, manifest)
             entries.append({"mediaType": DOCKER_V2, "digest": digest(manifest), "size": len(manifest),

@@ -61,7 +61,8 @@ class Server:
                     return
                 kind, ref = self.path.split("/")[-2:] if self.path.startswith("/v2/") else ("", "")
                 found = (server.store.manifests.get(ref) if kind == "manifests"
-                         else ("application/octet-stream", server.store.blobs[ref]) if ref in server.store.blobs else None)
+                         else ("application/octet-stream",
+                               server.store.blobs[ref]) if ref in server.store.blobs else None)
                 if found is None:
                     return send(self, 404, b"{}")
                 send(self, 200, found[1], {"Content-Type": found[0]})
@@ -192,7 +193,8 @@ def test_the_same_plain_http_host_as_a_plain_http_registry_may_be_its_realm(serv
         f"http://{primary.address}/token")(h)
     client = registry.Registry(primary.address, credentials=own(primary.address))
     assert client.manifest(f"{primary.address}/ros/payload", "1.0")[0] == "application/vnd.oci.image.index.v1+json"
-    assert (next(a for p, a in primary.seen if p.startswith("/token")), primary.authorizations[-1]) == (BASIC, "Bearer t0k")
+    assert (next(a for p, a in primary.seen if p.startswith("/token")),
+            primary.authorizations[-1]) == (BASIC, "Bearer t0k")
 
 
 @pytest.fixture(scope="module")

@@ -280,7 +280,8 @@ def test_the_containers_are_read_from_the_engines_api_as_the_cli_printed_them(tm
     from roles.payload import containers, docker_read
 
     listing = [
-        {"Id": "a" * 64, "State": "running", "Status": "Up 3 hours (healthy)", "Labels": {containers.LABEL: "robot-payload"}},
+        {"Id": "a" * 64, "State": "running", "Status": "Up 3 hours (healthy)",
+         "Labels": {containers.LABEL: "robot-payload"}},
         {"Id": "b" * 64, "State": "exited", "Status": "Exited (0) 2 days ago", "Labels": {}},
         {"Id": "c" * 64, "State": "running", "Status": "Up 1 second", "Labels": None},
         {"Id": "d" * 64, "State": "created", "Status": "Created", "Labels": {"other": "x"}},  # gone before inspect
@@ -289,7 +290,8 @@ def test_the_containers_are_read_from_the_engines_api_as_the_cli_printed_them(tm
         "/containers/json?all=1": (200, json.dumps(listing)),
         f"/containers/{'a' * 64}/json": (200, inspect("a" * 64, "/robot-payload-payload-1", "reg/ros/payload:1",
                                                       {containers.LABEL: "robot-payload"}, True, "unless-stopped")),
-        f"/containers/{'b' * 64}/json": (200, inspect("b" * 64, "/old<&>é", "reg/ros/payload:0.9", {}, False, "always")),
+        f"/containers/{'b' * 64}/json": (200, inspect("b" * 64, "/old<&>é", "reg/ros/payload:0.9", {}, False,
+                                                      "always")),
         f"/containers/{'c' * 64}/json": (200, inspect("c" * 64, "/plain", "debian", None, True, "")),
     }
     server, path = engine(tmp_path, routes)

@@ -8,7 +8,6 @@ import sys
 
 import pytest
 
-from robotfleet.commands import rollout_plan as waves
 from tests.unit.test_waves import result
 
 
@@ -43,7 +42,8 @@ def test_the_deploy_of_a_wave_is_named_for_the_robots_results(monkeypatch, tmp_p
     from robotfleet.commands import rollout
 
     seen = tmp_path / "seen"
-    monkeypatch.setattr(rollout, "PYINFRA", f"import os; open({str(seen)!r}, 'w').write(os.environ['ROBOTFLEET_DEPLOYMENT'])")
+    monkeypatch.setattr(rollout, "PYINFRA",
+                        f"import os; open({str(seen)!r}, 'w').write(os.environ['ROBOTFLEET_DEPLOYMENT'])")
     assert rollout.deploy_wave("inventories/robots.py", ["robot1"], [], "deploy.py", "rollout-k-wave1-ab") is None
     assert seen.read_text() == "rollout-k-wave1-ab"
 

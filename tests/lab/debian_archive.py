@@ -66,7 +66,8 @@ def parse_deb822_style(text: str, origin: str = "x.sources") -> list[Source]:
         for kind in fields.get("types", "").split():
             for uri in fields.get("uris", "").split():
                 for suite in fields.get("suites", "").split():
-                    sources.append(Source(kind, uri, suite, tuple(fields.get("components", "").split()), f"{origin}:{start}"))
+                    sources.append(Source(kind, uri, suite, tuple(fields.get("components", "").split()),
+                                          f"{origin}:{start}"))
     return sources
 
 

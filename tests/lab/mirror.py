@@ -515,8 +515,8 @@ def repack(rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path
         target.unlink()
         md5 = meta / "md5sums"
         if md5.exists():
-            md5.write_text("".join(l for l in md5.read_text().splitlines(True)
-                                   if l.split(None, 1)[1].strip() != rel))
+            md5.write_text("".join(line for line in md5.read_text().splitlines(True)
+                                   if line.split(None, 1)[1].strip() != rel))
 
     for rel, target in rule.add_symlinks:
         link = tree / rel
@@ -560,7 +560,7 @@ class LabKey:
 
     def fingerprint(self) -> str | None:
         out = self.gpg("--with-colons", "--list-secret-keys")
-        fprs = [l.split(":")[9] for l in out.splitlines() if l.startswith("fpr:")]
+        fprs = [line.split(":")[9] for line in out.splitlines() if line.startswith("fpr:")]
         return fprs[0].upper() if fprs else None
 
     def ensure(self) -> str:

@@ -142,7 +142,8 @@ class Operator:
 
     def publish(self, fleet: str, message: str, *options: str) -> subprocess.CompletedProcess:
         self.commit(fleet, message)
-        wheels = [] if "--no-wheels" in options else ["--wheel-cache", str(REPO_ROOT / ".lab" / "cache" / "pull-wheels")]
+        wheels = [] if "--no-wheels" in options else ["--wheel-cache",
+                                                      str(REPO_ROOT / ".lab" / "cache" / "pull-wheels")]
         return self.robotfleet("publish", FLEET, "--checkout", str(self.repo), "--keys", str(self.keys),
                                *wheels, *options)
 

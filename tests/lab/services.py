@@ -54,7 +54,8 @@ WantedBy=multi-user.target
 # The shared cache volume may come from an older image whose apt-cacher-ng
 # user had another uid.
 _ACNG_DROPIN = """[Service]
-ExecStartPre=+/bin/sh -c '[ "$(stat -c %U /var/cache/apt-cacher-ng)" = apt-cacher-ng ] || chown -R apt-cacher-ng:apt-cacher-ng /var/cache/apt-cacher-ng'
+ExecStartPre=+/bin/sh -c '[ "$(stat -c %U /var/cache/apt-cacher-ng)" = apt-cacher-ng ] || \
+chown -R apt-cacher-ng:apt-cacher-ng /var/cache/apt-cacher-ng'
 """
 
 _REGISTRY_CONFIG = f"""version: 0.1

@@ -48,7 +48,8 @@ ROBOT = {
     "payload_image": IMAGE,
     "docker_users": ["ops"],
     "sensors": [
-        {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "1-1.2"},
+        {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825",
+         "usb_port": "1-1.2"},
         {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3"},
     ],
 }
@@ -56,12 +57,16 @@ LAPTOP = {"payload_image": IMAGE, "docker_users": ["alice"], "x11_user": "alice"
 SNAPSHOT_MARK = "export LC_ALL=C"
 
 OS_RELEASES = {
-    "ubuntu-20.04": {"id": "ubuntu", "id_like": "debian", "version_id": "20.04", "version_codename": "focal", "ubuntu_codename": "focal"},
-    "ubuntu-22.04": {"id": "ubuntu", "id_like": "debian", "version_id": "22.04", "version_codename": "jammy", "ubuntu_codename": "jammy"},
-    "ubuntu-24.04": {"id": "ubuntu", "id_like": "debian", "version_id": "24.04", "version_codename": "noble", "ubuntu_codename": "noble"},
+    "ubuntu-20.04": {"id": "ubuntu", "id_like": "debian", "version_id": "20.04", "version_codename": "focal",
+                     "ubuntu_codename": "focal"},
+    "ubuntu-22.04": {"id": "ubuntu", "id_like": "debian", "version_id": "22.04", "version_codename": "jammy",
+                     "ubuntu_codename": "jammy"},
+    "ubuntu-24.04": {"id": "ubuntu", "id_like": "debian", "version_id": "24.04", "version_codename": "noble",
+                     "ubuntu_codename": "noble"},
     "debian-12": {"id": "debian", "version_id": "12", "version_codename": "bookworm"},
     "debian-13": {"id": "debian", "version_id": "13", "version_codename": "trixie"},
-    "mint-22": {"id": "linuxmint", "id_like": "ubuntu debian", "version_id": "22", "version_codename": "wilma", "ubuntu_codename": "noble"},
+    "mint-22": {"id": "linuxmint", "id_like": "ubuntu debian", "version_id": "22", "version_codename": "wilma",
+                "ubuntu_codename": "noble"},
 }
 
 
@@ -232,7 +237,8 @@ def plan(
     inventory = Inventory((names, defaults["all"]), **groups)
     state = State(inventory=inventory, config=Config(DIFF=diff))
     state.cwd = str(ROOT)
-    with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()}, contents or {}) as recorder, \
+    with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()},
+                                         contents or {}) as recorder, \
             _as_the_cli():
         state.set_stage(StateStage.Connect)
         connect_all(state)
@@ -280,7 +286,8 @@ def written_files(commands: list[Sent]) -> dict[str, str | bytes]:
 def everything_sent(commands: list[Sent]) -> str:
     """All a host receives: command lines, stdin, and decoded file contents."""
     parts = [f"{c}\n{c.stdin}" for c in commands]
-    files = [content if isinstance(content, str) else content.decode("latin-1") for content in written_files(commands).values()]
+    files = [content if isinstance(content, str) else content.decode("latin-1")
+             for content in written_files(commands).values()]
     return "\n".join(parts + files)
 
 
@@ -375,5 +382,6 @@ def docker_repo(url: str, key_path: str, fingerprint: str | None, sha256: str | 
 
 
 __all__ = ["fleet_problems", "FileState", "Snapshot", "Sent", "fresh_host", "plan", "find", "written_files",
-           "everything_sent", "OS_RELEASES", "merged", "converged", "parse", "check", "load", "group_data", "Data", "IMAGE", "ROBOT",
+           "everything_sent", "OS_RELEASES", "merged", "converged", "parse", "check", "load", "group_data", "Data",
+           "IMAGE", "ROBOT",
            "LAPTOP", "desired_compose", "release_spec", "docker_repo"]

@@ -46,7 +46,8 @@ class Fleet:
         record, waves = module("protocol.record"), module("protocol.waves")
         expiry = expiry or self.expiry
         commit = hashlib.sha1(f"commit {version}".encode()).hexdigest()
-        built = record.build(version, now, record_expires or now + expiry.targets, commit, "b" * 64, "inventories/robots.yaml",
+        built = record.build(version, now, record_expires or now + expiry.targets, commit, "b" * 64,
+                             "inventories/robots.yaml",
                              "c" * 64, list(robots), {r: {"reg.lan/ros/payload:1": "sha256:" + "d" * 64}
                                                       for r in robots}, {}, waves.Plan())
         archive = self.base / f"code-{version}.tar.gz"
@@ -55,7 +56,8 @@ class Fleet:
         return built
 
     def trust(self, trusted_time: datetime.datetime | None = None) -> None:
-        module("robot.verify").initialize(self.state, (self.repository.metadata / "root.json").read_bytes(), trusted_time)
+        module("robot.verify").initialize(self.state, (self.repository.metadata / "root.json").read_bytes(),
+                                          trusted_time)
 
     def client(self, clock=None, source=None):
         trust = module("robot.verify")

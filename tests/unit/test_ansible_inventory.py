@@ -91,7 +91,8 @@ def test_mistakes_in_nested_groups_name_the_group_and_field():
 
 def test_the_same_setting_twice_under_two_names_is_refused():
     doc = {"robots": {"hosts": {"r1": {"payload_image": IMAGE, "address": "10.0.0.1", "ansible_host": "10.0.0.2"}}}}
-    assert fleet_problems(doc) == ["robots.yaml: r1.ansible_host: sets ssh_hostname a second time in the same place; keep one"]
+    assert fleet_problems(doc) == ["robots.yaml: r1.ansible_host: sets ssh_hostname a second time in the same place; "
+                                   "keep one"]
 
 
 def test_pyinfra_sees_the_ansible_groups(tmp_path, monkeypatch, capfd):

@@ -28,7 +28,8 @@ def setting_reads(tree: ast.AST, names: set[str]):
         elif isinstance(node, ast.Call) and node.args:
             function = node.func
             called = function.attr if isinstance(function, ast.Attribute) else getattr(function, "id", None)
-            key = node.args[0] if called == "get" else node.args[1] if called == "value_of" and len(node.args) > 1 else None
+            key = (node.args[0] if called == "get"
+                   else node.args[1] if called == "value_of" and len(node.args) > 1 else None)
             if isinstance(key, ast.Constant) and key.value in names:
                 yield node.lineno, key.value
         elif isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant) and node.slice.value in names:

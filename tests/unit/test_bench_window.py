@@ -21,7 +21,7 @@ CTR = f"""\
 2026-11-25 08:42:25.653312941 +0000 UTC moby /tasks/start {{"container_id":"{NEW}","pid":2163}}
 2026-11-25 08:42:25.550996863 +0000 UTC moby /tasks/exit {{"container_id":"{OLD}","id":"{OLD}","pid":2000,"exited_at":{{"seconds":1795596145,"nanos":450570825}}}}
 2026-11-25 08:42:25.603859327 +0000 UTC moby /tasks/delete {{"container_id":"{OLD}","pid":2000}}
-"""
+"""  # noqa: E501 - ctr events' lines verbatim, as ctr prints them
 
 
 def inspected(cid, started, finished="0001-01-01T00:00:00Z", running=True, service="payload", version="1.1"):
@@ -56,7 +56,8 @@ def test_a_broken_release_is_timed_from_dockers_verdict_and_from_its_first_start
     before = window.containers(inspected(OLD, "2026-11-25T08:40:00Z", version="1.0"))
     after = window.containers(inspected(NEW, "2026-11-25T08:42:33.5Z", version="1.0"))
     ctr = (f"2026-11-25 08:42:26.000000000 +0000 UTC moby /tasks/start {{\"container_id\":\"{BROKEN}\",\"pid\":5}}\n"
-           f"2026-11-25 08:42:33.100000000 +0000 UTC moby /tasks/exit {{\"container_id\":\"{BROKEN}\",\"id\":\"{BROKEN}\","
+           "2026-11-25 08:42:33.100000000 +0000 UTC moby /tasks/exit "
+           f"{{\"container_id\":\"{BROKEN}\",\"id\":\"{BROKEN}\","
            f"\"exited_at\":{{\"seconds\":1795596153,\"nanos\":100000000}}}}\n")
     health = window.health_events(f"1795596153000000000 {BROKEN} health_status: unhealthy\n"
                                   f"1795596150000000000 {BROKEN} health_status: starting\n")

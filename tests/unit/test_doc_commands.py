@@ -94,7 +94,8 @@ def test_each_command_names_a_program_and_files_that_exist(command):
     program = command.program
     if program == "robotfleet":
         if command.subcommand:
-            assert command.subcommand in cli.COMMANDS, f"{command.where}: robotfleet has no command {command.subcommand!r}"
+            assert command.subcommand in cli.COMMANDS, (
+                f"{command.where}: robotfleet has no command {command.subcommand!r}")
         if command.subcommand == "keys" and len(command.args) > 1:
             assert command.args[1] in keys_actions(), f"{command.where}: robotfleet keys has no {command.args[1]!r}"
     elif program.startswith("python -m ") and program not in FOREIGN_MODULES:

@@ -74,9 +74,11 @@ def test_diff_is_printed_once_per_file_in_a_full_run(log):
 
 @pytest.mark.parametrize("name, data, snap, reason", [
     ("arch", ROBOT, fresh_host("ubuntu-24.04", "armhf"), "docker: architecture armhf is not supported"),
-    ("user", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"), "docker_users: ghost does not exist on this host"),
+    ("user", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"),
+     "docker_users: ghost does not exist on this host"),
     ("settings", {**ROBOT, "ssh_port": "x"}, fresh_host("debian-13"), "settings: ssh_port: expected a whole number"),
-    ("x11", {**ROBOT, "x11_enabled": True, "x11_user": "alice"}, fresh_host("debian-13"), "x11_user: alice does not exist on this host"),
+    ("x11", {**ROBOT, "x11_enabled": True, "x11_user": "alice"}, fresh_host("debian-13"),
+     "x11_user: alice does not exist on this host"),
     ("dir", ROBOT, "daemon.json is a directory", "/etc/docker/daemon.json exists but is not a regular file"),
 ])
 def test_dry_run_names_the_failure_while_planning_and_counts_it(log, name, data, snap, reason):
@@ -91,7 +93,8 @@ def test_dry_run_names_the_failure_while_planning_and_counts_it(log, name, data,
 
 
 def test_a_planned_failure_still_fails_the_host_when_run():
-    result = plan({"bad": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf")), "good": ("robots", ROBOT, fresh_host("debian-13"))})
+    result = plan({"bad": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf")),
+                   "good": ("robots", ROBOT, fresh_host("debian-13"))})
     assert result.failed == {"bad"} and "architecture armhf is not supported" in result["bad"][0]
     assert find(result["good"], "payloadctl apply")
 

@@ -90,16 +90,23 @@ CORPUS = [
     ("billion laughs in a known option", bomb("docker_daemon_options").replace("{a: *l9}", "{features: {a: *l9}}"),
      ["f.yaml: r1.docker_daemon_options: more than 10000 values (YAML aliases expand); daemon options are small"]),
     # 3. no hosts is an error, not a silent no-op
-    ("empty file", "", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
-    ("only comments", "# the fleet\n", ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
+    ("empty file", "",
+     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts "
+      "([robots] or [laptops] in an INI inventory)"]),
+    ("only comments", "# the fleet\n",
+     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts "
+      "([robots] or [laptops] in an INI inventory)"]),
     ("hosts left empty", BASE + "robots:\n  hosts:\n",
-     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] in an INI inventory)"]),
+     ["f.yaml: no hosts: declare them under robots.hosts or laptops.hosts "
+      "([robots] or [laptops] in an INI inventory)"]),
     # 4. addresses
     ("bad IPv4", host("address: 127.0.0.300"), ["f.yaml: r1.address: '127.0.0.300' is not a valid IPv4 address"]),
     ("host:port", host("address: '10.0.0.5:2222'"),
-     ["f.yaml: r1.address: expected a host name or an IP address, got '10.0.0.5:2222'; put the port in ssh_port: 2222"]),
+     ["f.yaml: r1.address: expected a host name or an IP address, got '10.0.0.5:2222'; "
+      "put the port in ssh_port: 2222"]),
     ("[IPv6]:port", host("address: '[fd00::5]:2222'"),
-     ["f.yaml: r1.address: expected a host name or an IP address, got '[fd00::5]:2222'; put the port in ssh_port: 2222"]),
+     ["f.yaml: r1.address: expected a host name or an IP address, got '[fd00::5]:2222'; "
+      "put the port in ssh_port: 2222"]),
     ("space in address", host("address: robot 1"),
      ["f.yaml: r1.address: expected a host name or an IP address, got 'robot 1'"]),
     ("good addresses", BASE + "robots:\n  hosts:\n    r1: {address: 'fe80::1'}\n    r2: {address: robot2.lan}\n"
@@ -122,12 +129,14 @@ CORPUS = [
     ("unclosed quote", BASE + "robots:\n  hosts:\n    r1: {address: \"10.0.0.1}\n    r2: {}\n",
      ["f.yaml: line 6: YAML error: a quoted scalar opened here (column 19) is not closed: "
       "found unexpected end of stream (line 8, column 1)"]),
-    ("quote closed by the next value's quote", BASE + "robots:\n  hosts:\n    r1:\n      payload_image: \"reg.example.com/p:1\n"
+    ("quote closed by the next value's quote",
+     BASE + "robots:\n  hosts:\n    r1:\n      payload_image: \"reg.example.com/p:1\n"
      "      ssh_port: 22\n    r2:\n      ssh_port: 23\n    r3:\n      payload_image: \"reg.example.com/p:2\"\n",
      ["f.yaml: line 7: YAML error: a quoted value opened here (column 22) runs on to line 12, where "
       "did not find expected key (column 23); is its closing quote missing?"]),
     ("a value quoted over several lines", host('payload_image: "reg.example.com/',
-                                               '  p:1"', "ssh_port: 22"), ["f.yaml: r1.payload_image: 'reg.example.com/ p:1' is not a valid image reference"]),
+                                               '  p:1"', "ssh_port: 22"),
+     ["f.yaml: r1.payload_image: 'reg.example.com/ p:1' is not a valid image reference"]),
     ("unclosed flow mapping", BASE + "robots:\n  hosts:\n    r1: {address: 10.0.0.1\n    r2: {}\n",
      ["f.yaml: line 6: YAML error: a flow mapping opened here (column 9) is not closed: "
       "did not find expected ',' or '}' (line 7, column 7)"]),
@@ -144,7 +153,8 @@ CORPUS = [
                    + host("sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}",
                           "  - {<<: *camera, name: back, usb_port: '1-1.3'}"), []),
     ("merge keys, then a mistake", "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
-                                   + host("sensors:", "  - {<<: *camera, name: front}", "  - {<<: *camera, name: back}"),
+                                   + host("sensors:", "  - {<<: *camera, name: front}",
+                                          "  - {<<: *camera, name: back}"),
      ["f.yaml: r1.sensors[1]: matches the same devices as sensors[0]; add a serial or usb_port to tell them apart"]),
     ("merge of a scalar", host("sensors:", "  - {<<: 1, name: a}"),
      ["f.yaml: line 8: YAML error: a merge key (<<) takes a mapping or a list of mappings"]),
@@ -175,19 +185,24 @@ CORPUS = [
       "f.yaml: r1.payload_health_timeout: expected a whole number, got '1:30'"]),
     # issue 8, item 7: paths root creates are not in world-writable directories
     ("payload_dir /tmp", host("payload_dir: /tmp"),
-     ["f.yaml: r1.payload_dir: '/tmp' is in the world-writable /tmp; use a directory only root can write (e.g. under /var/lib)"]),
+     ["f.yaml: r1.payload_dir: '/tmp' is in the world-writable /tmp; "
+      "use a directory only root can write (e.g. under /var/lib)"]),
     ("cookie dir under /dev/shm", host("x11_cookie_dir: /dev/shm/x"),
-     ["f.yaml: r1.x11_cookie_dir: '/dev/shm/x' is in the world-writable /dev/shm; use a directory only root can write (e.g. under /var/lib)"]),
+     ["f.yaml: r1.x11_cookie_dir: '/dev/shm/x' is in the world-writable /dev/shm; "
+      "use a directory only root can write (e.g. under /var/lib)"]),
     ("dotted way into /var/tmp", host("payload_dir: /var/./tmp//robot"),
-     ["f.yaml: r1.payload_dir: '/var/./tmp//robot' is in the world-writable /var/tmp; use a directory only root can write (e.g. under /var/lib)"]),
+     ["f.yaml: r1.payload_dir: '/var/./tmp//robot' is in the world-writable /var/tmp; "
+      "use a directory only root can write (e.g. under /var/lib)"]),
     ("dot-dot", host("payload_dir: /var/lib/../../tmp"),
      ["f.yaml: r1.payload_dir: paths must not contain '..', got '/var/lib/../../tmp'"]),
     # issue 27, item 1: credentials per registry, from where they are kept, never the values
     ("registry auths from the environment and files", host(
-        "payload_registry_auths: {reg2.example.com:5000: {username_env: REG2_USER, password_file: ~/.config/robotfleet/reg2},",
+        "payload_registry_auths: {reg2.example.com:5000: {username_env: REG2_USER, password_file: "
+        "~/.config/robotfleet/reg2},",
         "  docker.io: {username_file: /etc/robotfleet/hub-user, password_env: HUB_TOKEN,",
         "              token_realms: ['https://auth.docker.io/token']}}"), []),
-    ("a password in the fleet file", host("payload_registry_auths: {reg.example.com: {username: robot, password: s3cret}}"),
+    ("a password in the fleet file",
+     host("payload_registry_auths: {reg.example.com: {username: robot, password: s3cret}}"),
      ["f.yaml: r1.payload_registry_auths.reg.example.com.username: unknown field (did you mean 'username_env'?)",
       "f.yaml: r1.payload_registry_auths.reg.example.com.password: unknown field (did you mean 'password_env'?)",
       "f.yaml: r1.payload_registry_auths.reg.example.com: give one of username_env (an environment variable) or "
@@ -203,11 +218,13 @@ CORPUS = [
         f"payload_registry_auths: {{reg.example.com: {{username_env: U, password_file: {ROOT}/inventories/reg.pw}}}}"),
      [f"f.yaml: r1.payload_registry_auths.reg.example.com.password_file: '{ROOT}/inventories/reg.pw' is inside the "
       f"checkout {ROOT}; keep credentials outside the repository (e.g. ~/.config/robotfleet/)"]),
-    ("a registry that is a URL", host("payload_registry_auths: {'https://reg.example.com': {username_env: U, password_env: P}}"),
+    ("a registry that is a URL",
+     host("payload_registry_auths: {'https://reg.example.com': {username_env: U, password_env: P}}"),
      ["f.yaml: r1.payload_registry_auths.https://reg.example.com: expected a registry host[:port], got 'https://reg.example.com'"]),
     # issue 27, item 10: paths root creates, writes or trusts are in a place only root writes
     *[(f"payload_dir under {place}", host(f"payload_dir: {place}/robot"),
-       [f"f.yaml: r1.payload_dir: '{place}/robot' is in {shown}, {why}; use a directory only root can write (e.g. under /var/lib)"])
+       [f"f.yaml: r1.payload_dir: '{place}/robot' is in {shown}, {why}; "
+        "use a directory only root can write (e.g. under /var/lib)"])
       for place, shown, why in (
           ("/var/crash", "/var/crash", "world-writable on Ubuntu (crash reports)"),
           ("/var/spool", "/var/spool", "holds directories others write (mail, cron, print queues)"),
@@ -226,20 +243,24 @@ CORPUS = [
         "(e.g. under /var/lib)"])
       for place in ("/data/robot", "/var/robot", "/", "/boot/p", "/proc/1/root/var/lib/p", "/dev/robot")],
     ("lock file in /var/lock", host("payload_update_lock_path: /var/lock/robot"),
-     ["f.yaml: r1.payload_update_lock_path: '/var/lock/robot' is in the world-writable /run/lock; use a directory only root can write (e.g. under /var/lib)"]),
-    *[(f"private path under {place}", host(f"payload_dir: {place}/robot-payload", f"payload_update_lock_path: {place}/robot.lock",
+     ["f.yaml: r1.payload_update_lock_path: '/var/lock/robot' is in the world-writable /run/lock; "
+      "use a directory only root can write (e.g. under /var/lib)"]),
+    *[(f"private path under {place}",
+       host(f"payload_dir: {place}/robot-payload", f"payload_update_lock_path: {place}/robot.lock",
                                            f"x11_cookie_dir: {place}/x11"), [])
       for place in ("/etc", "/opt", "/srv", "/mnt/ssd", "/root", "/usr/share", "/var/lib", "/var/opt", "/var/cache",
                     "/var/log", "/run", "/var/run", "/var//lib/.")],
     ("driver file under /proc/driver", host("gpu_driver_version_file: /proc/driver/nvidia/version"), []),
     # issue 27, item 12: the Docker API on TCP only with TLS client verification, or opted in by name
-    *[(f"unauthenticated TCP API {listener}", host(f"docker_daemon_options: {{hosts: ['unix:///run/docker.sock', '{listener}']}}"),
+    *[(f"unauthenticated TCP API {listener}",
+       host(f"docker_daemon_options: {{hosts: ['unix:///run/docker.sock', '{listener}']}}"),
        [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS client "
         "verification (missing: tlsverify, tlscacert, tlscert, tlskey): anyone who reaches it is root on this host; "
         "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"])
       for listener in ("tcp://0.0.0.0:2375", "0.0.0.0:2375", "tcp://", "tcp://127.0.0.1:2375")],
     ("TCP API with tls but no client verification",
-     host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2376'], tls: true, tlsverify: false, tlscert: /etc/docker/c.pem, "
+     host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2376'], tls: true, tlsverify: false, tlscert: "
+          "/etc/docker/c.pem, "
           "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"),
      ["f.yaml: r1.docker_daemon_options.hosts[0]: 'tcp://0.0.0.0:2376' opens the Docker API on TCP without TLS client "
       "verification (missing: tlsverify): anyone who reaches it is root on this host; "

@@ -122,7 +122,8 @@ def mutate_text(rng: random.Random, text: str) -> bytes:
             lines.append(f"    payload_environment: {{A: {'[' * deep}{']' * deep}}}")
         elif kind == 6:
             cut = rng.randrange(len(lines[index]) + 1)
-            lines[index] = lines[index][:cut] + rng.choice(["&a ", "*a", "<<: *a", "!!set ", "'", '"', "{", "\t"]) + lines[index][cut:]
+            lines[index] = lines[index][:cut] + rng.choice(["&a ", "*a", "<<: *a", "!!set ", "'", '"', "{",
+                                                            "\t"]) + lines[index][cut:]
         elif kind == 7:
             lines[index] = lines[index] + "  # " + rng.choice(HOSTILE_TEXT).replace("\n", "")
         else:
@@ -201,7 +202,8 @@ def test_wrong_types_at_every_setting_in_every_layer():
         for value in WRONG_TYPES:
             for layer in ("all.vars", "host"):
                 doc = good_fleet(9)
-                target = doc["robots"]["hosts"]["r0"] if layer == "host" else doc[layer.split(".")[0]].setdefault("vars", {})
+                target = (doc["robots"]["hosts"]["r0"] if layer == "host"
+                          else doc[layer.split(".")[0]].setdefault("vars", {}))
                 target[setting] = value
                 try:
                     with hang_guard(HANG_SECONDS):

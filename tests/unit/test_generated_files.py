@@ -9,32 +9,14 @@ intended change, regenerate and review the diff:
     ROBOT_REGENERATE_GOLDEN=1 python3 -m pytest tests/unit/test_generated_files.py
 """
 
-import json
 import os
 from pathlib import Path
 
 import pytest
 
-from roles.payload.payloadctl.releases import compose_yaml, release_compose
-from tests.unit.harness import find, fresh_host, plan, written_files
-from tests.unit.harness import ROBOT
-
 GOLDEN = Path(__file__).resolve().parent / "golden"
 REGENERATE = os.environ.get("ROBOT_REGENERATE_GOLDEN") == "1"
 UNIT = "/etc/systemd/system/robot-payload.service"
-
-
-@pytest.fixture(scope="module")
-def sent_to_a_fresh_robot():
-    commands = plan({"robot1": ("robots", {
-        **ROBOT, "ssh_hostname": "10.20.0.11",
-        "docker_registry_mirrors": ["https://mirror.lan"], "docker_insecure_registries": ["registry.lan:5000"],
-    }, fresh_host("debian-13"))})["robot1"]
-    files = written_files(commands)
-    release = find(commands, "payloadctl apply")
-    assert len(release) == 1
-    files["compose.yaml"] = compose_yaml(release_compose(json.loads(release[0].stdin)["spec"]["compose"]))  # as payloadctl writes it
-    return files
 
 
 @pytest.mark.parametrize("golden, sent", [
@@ -48,6 +30,7 @@ def test_sent_file_matches_its_golden_copy(sent_to_a_fresh_robot, golden, sent):
     path = GOLDEN / golden
     if REGENERATE:
         path.write_text(content)
-    assert content == path.read_text(), f"{sent} differs from tests/unit/golden/{golden} (ROBOT_REGENERATE_GOLDEN=1 to accept)"
+    assert content == path.read_text(), (
+        f"{sent} differs from tests/unit/golden/{golden} (ROBOT_REGENERATE_GOLDEN=1 to accept)")
 
 

@@ -81,7 +81,8 @@ def test_gpu_host_gets_nvidias_repository_key_pin_and_toolkit(os_name, arch):
     assert update and all("apt_lock_timeout=300\n" in c and "apt_lock_left()" in c for c in update)
     docker_install = find(commands, "install docker-ce ")[0]
     # Key and source first, then apt update, then the toolkit, all before Docker.
-    assert commands.index(key[0]) < commands.index(update[0]) < commands.index(install[0]) < commands.index(docker_install)
+    assert (commands.index(key[0]) < commands.index(update[0]) < commands.index(install[0])
+            < commands.index(docker_install))
     daemon = json.loads(written_files(commands)["/etc/docker/daemon.json"])
     assert daemon["runtimes"] == {"nvidia": {"args": [], "path": "nvidia-container-runtime"}}
     assert "default-runtime" not in daemon
@@ -192,14 +193,16 @@ def test_daemon_options_merge_keeps_other_runtimes_and_explicit_entry():
 def test_payload_environment_adds_graphics_with_a_display():
     assert gpu_plan.payload_environment({"x11_enabled": False}) == {
         "NVIDIA_VISIBLE_DEVICES": "all", "NVIDIA_DRIVER_CAPABILITIES": "compute,utility"}
-    assert gpu_plan.payload_environment({"x11_enabled": True})["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
+    environment = gpu_plan.payload_environment({"x11_enabled": True})
+    assert environment["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
     assert gpu_plan.payload_environment({"gpu_visible_devices": "0", "gpu_driver_capabilities": "all"}) == {
         "NVIDIA_VISIBLE_DEVICES": "0", "NVIDIA_DRIVER_CAPABILITIES": "all"}
 
 
 def test_driver_version_from_the_nvrm_line():
     assert gpu_plan.driver_version(NVRM) == "550.54.14"
-    assert gpu_plan.driver_version("NVRM version: NVIDIA UNIX Open Kernel Module for x86_64  570.86.15  Release Build") == "570.86.15"
+    assert gpu_plan.driver_version(
+        "NVRM version: NVIDIA UNIX Open Kernel Module for x86_64  570.86.15  Release Build") == "570.86.15"
     assert gpu_plan.driver_version("") is None
 
 

@@ -54,7 +54,8 @@ def test_harness_answers_only_declared_reads(monkeypatch):
 
 
 def test_harness_records_the_query_per_host():
-    result = plan({"r1": ("robots", ROBOT, fresh_host("debian-13")), "l1": ("laptops", LAPTOP, fresh_host("ubuntu-24.04", users=("alice",)))})
+    result = plan({"r1": ("robots", ROBOT, fresh_host("debian-13")),
+                   "l1": ("laptops", LAPTOP, fresh_host("ubuntu-24.04", users=("alice",)))})
     assert "/etc/docker/daemon.json" in result.queries["r1"]["files"]
     assert "xauth" in result.queries["l1"]["packages"] and "xauth" not in result.queries["r1"]["packages"]
 

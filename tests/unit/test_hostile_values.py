@@ -61,7 +61,8 @@ BENIGN_INSIDE = {
     "in a URL": {"..", "../../etc", "/var/lib/../../tmp", "/tmp", "/var/tmp/x", "-rf", "--help", "~root"},
 }
 # Files on the operator's machine, opened there by pyinfra; never sent to a host.
-OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file", "ssh_revoked_host_keys", "pull_wheelhouse", "pull_trust_root", "pull_remote_ca"}
+OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file", "ssh_revoked_host_keys", "pull_wheelhouse", "pull_trust_root",
+                 "pull_remote_ca"}
 
 
 def places(name: str, value):
@@ -139,7 +140,8 @@ def test_every_hostile_value_is_refused_in_one_line_or_reaches_the_host_as_data(
             continue
         if hostile in BENIGN_INSIDE.get(place.removesuffix(", list item"), ()):
             continue
-        if setting in ("payload_command", "gpu_check_command") or (setting == "payload_environment" and place == "mapping value"):
+        if setting in ("payload_command",
+                       "gpu_check_command") or (setting == "payload_environment" and place == "mapping value"):
             place = "list item" if setting != "payload_environment" else place  # any text: it is the container's
         assert (setting, place) in CARRIED_AS_DATA, f"{setting} ({place}) accepts {hostile!r}"
         value = dict(places(setting, hostile))[place]

@@ -211,7 +211,8 @@ def first_release(life, outcome):
     if outcome == "give back":
         life.adopt("r1", [{"name": "ros_payload", "why": "it runs the payload's image"}])
         life.abandon("r1")
-        life.fail("r1", "unhealthy; restored what it had taken over: ros_payload", restored={"containers": ["ros_payload"]})
+        life.fail("r1", "unhealthy; restored what it had taken over: ros_payload",
+                  restored={"containers": ["ros_payload"]})
     elif outcome == "keep":
         life.keep("r1")
     else:
@@ -412,7 +413,8 @@ def offences(source: str) -> list[tuple[int, str]]:
 
 def test_only_lifecycle_writes_records_and_pointers():
     """Every other module of payloadctl reads records and pointers only."""
-    found = {path.name: offences(path.read_text()) for path in sorted(PAYLOADCTL.glob("*.py")) if path.name not in WRITERS}
+    found = {path.name: offences(path.read_text())
+             for path in sorted(PAYLOADCTL.glob("*.py")) if path.name not in WRITERS}
     assert {name: lines for name, lines in found.items() if lines} == {}
 
 

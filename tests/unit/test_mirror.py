@@ -211,7 +211,8 @@ def test_rules_digest_is_stable_and_covers_rules(monkeypatch):
     for index, rule in enumerate(RULES):
         for field in dataclasses.fields(rule):
             value = getattr(rule, field.name)
-            other = (not value) if isinstance(value, bool) else (value + ("x",) if isinstance(value, tuple) else f"{value}x")
+            other = ((not value) if isinstance(value, bool)
+                     else (value + ("x",) if isinstance(value, tuple) else f"{value}x"))
             edited = list(RULES)
             edited[index] = dataclasses.replace(rule, **{field.name: other})
             monkeypatch.setattr(mirror, "RULES", tuple(edited))
@@ -256,10 +257,10 @@ def test_release_lists_every_index_under_every_hash():
     for field, algo in (("MD5Sum", "md5"), ("SHA1", "sha1"), ("SHA256", "sha256"),
                         ("SHA512", "sha512")):
         lines = fields[field].splitlines()[1:]
-        assert [l.split() for l in lines] == [
+        assert [line.split() for line in lines] == [
             [hashlib.new(algo, data).hexdigest(), str(len(data)), path]
             for path, data in sorted(indexes.items())]
-        assert all(l.startswith(" ") for l in lines)
+        assert all(line.startswith(" ") for line in lines)
 
 
 def test_release_date_is_rfc2822_in_utc():

@@ -107,7 +107,8 @@ def test_the_archive_sent_is_gzip_compressed_and_smaller_than_the_layers(tmp_pat
     with tarfile.open(saved, "w") as tar:
         for name, data in (("cfg.json", json.dumps({"rootfs": {"diff_ids": ["sha256:a"]}}).encode()),
                            ("l1/layer.tar", layer),
-                           ("manifest.json", json.dumps([{"Config": "cfg.json", "Layers": ["l1/layer.tar"]}]).encode())):
+                           ("manifest.json",
+                            json.dumps([{"Config": "cfg.json", "Layers": ["l1/layer.tar"]}]).encode())):
             info = tarfile.TarInfo(name)
             info.size = len(data)
             tar.addfile(info, io.BytesIO(data))

@@ -30,10 +30,12 @@ def test_a_platform_is_checked_in_either_place():
     assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1", "platform": 64}})) == [
         "robots.yaml: robot3.payload_services.cam.platform: expected os/architecture[/variant] like linux/arm64, "
         "got 64"]
-    assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1"}}, payload_platform="linux/arm64")) == [
+    assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1"}},
+                                    payload_platform="linux/arm64")) == [
         "robots.yaml: robot3.payload_platform: applies to the single-image payload; with payload_services "
         "give each service its own 'platform' key"]
-    assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1", "platform": "linux/arm/v7"}})) == []
+    assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1",
+                                                              "platform": "linux/arm/v7"}})) == []
 
 
 FLEET = f"""

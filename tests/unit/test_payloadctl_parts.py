@@ -20,7 +20,8 @@ def test_repository_of_references():
 
 
 def test_pinned_prefers_the_digest_of_the_same_repository():
-    info = {"id": "sha256:1", "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
+    info = {"id": "sha256:1",
+            "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
     assert images.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
     assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
 

@@ -13,7 +13,8 @@ from roles.payload import installed_files
 from tests.unit.harness import LAPTOP, ROBOT, converged, everything_sent, find, fresh_host, merged, plan
 
 DOCKER_FPR = "9DC858229FC7DD38854AE2D88D81803C0EBFCD88"
-MATRIX = [(os_name, arch) for os_name in ("ubuntu-20.04", "ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13") for arch in ("amd64", "arm64")]
+MATRIX = [(os_name, arch) for os_name in ("ubuntu-20.04", "ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13")
+          for arch in ("amd64", "arm64")]
 
 
 def sources_of(commands):
@@ -117,7 +118,8 @@ def test_unsupported_architecture_is_refused():
     assert result.failed == {"r1"} and "architecture armhf is not supported" in result["r1"][0]
 
 
-@pytest.mark.parametrize("os_name, packages", [("debian-13", "docker.io docker-compose"), ("ubuntu-24.04", "docker.io docker-compose-v2")])
+@pytest.mark.parametrize("os_name, packages",
+                         [("debian-13", "docker.io docker-compose"), ("ubuntu-24.04", "docker.io docker-compose-v2")])
 def test_distro_source_installs_the_distributions_engine(os_name, packages):
     commands = plan({"r1": ("robots", {**ROBOT, "docker_source": "distro"}, fresh_host(os_name))})["r1"]
     assert find(commands, f"install {packages}")
@@ -233,7 +235,8 @@ def test_daemon_json_and_its_previous_copy_written_0644_by_an_older_version_beco
     snap.files["/etc/docker/daemon.json.previous"] = FileState("file", "ab" * 32, "644", "root", "root")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
     assert commands == ["sh -c 'chown root:root /etc/docker/daemon.json && chmod 600 /etc/docker/daemon.json && "
-                        "chown root:root /etc/docker/daemon.json.previous && chmod 600 /etc/docker/daemon.json.previous'"]
+                        "chown root:root /etc/docker/daemon.json.previous && chmod 600 "
+                        "/etc/docker/daemon.json.previous'"]
     snap.files["/etc/docker/daemon.json"] = state
     snap.files["/etc/docker/daemon.json.previous"] = FileState("file", "ab" * 32, "600", "root", "root")
     assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []
@@ -323,7 +326,8 @@ def test_snapshot_encoding_roundtrip():
 
 
 def test_bad_override_data_fails_that_host_before_anything_runs():
-    result = plan({"r1": ("robots", {**ROBOT, "docker_apt_key_fingerprint": 0, "ssh_port": "x"}, fresh_host("debian-13")),
+    result = plan({"r1": ("robots", {**ROBOT, "docker_apt_key_fingerprint": 0, "ssh_port": "x"},
+                          fresh_host("debian-13")),
                    "r2": ("robots", ROBOT, fresh_host("debian-13"))})
     assert result.failed == {"r1"}
     assert len(result["r1"]) == 1 and "settings: " in result["r1"][0]
@@ -334,10 +338,12 @@ def test_bad_override_data_fails_that_host_before_anything_runs():
 
 def test_a_deploy_that_finds_the_boot_recovery_holding_the_lock_says_it_waits(caplog):
     snap = converged("robots", ROBOT, "debian-13")
-    snap.probes["payload_lock"] = json.dumps({"action": "start", "by": "boot", "since": "2026-11-23T10:00:00Z", "pid": 7})
+    snap.probes["payload_lock"] = json.dumps({"action": "start", "by": "boot", "since": "2026-11-23T10:00:00Z",
+                                              "pid": 7})
     data = {**ROBOT, "payload_image": "reg.example.com/ros/payload:1.1"}
     commands = plan({"r1": ("robots", data, snap)})["r1"]
-    assert "[@fake/r1] @fake/r1 is recovering from an interrupted release since 2026-11-23T10:00:00Z; waiting" in caplog.text
+    assert ("[@fake/r1] @fake/r1 is recovering from an interrupted release since 2026-11-23T10:00:00Z; "
+            "waiting") in caplog.text
     assert len(commands) == 1 and "payloadctl apply" in commands[0]  # the release waits on the robot, bounded
 
 

@@ -44,7 +44,8 @@ INDEX = {
          "platform": {"os": "linux", "architecture": "arm64", "variant": "v8"}},
         {"mediaType": "application/vnd.oci.image.manifest.v1+json", "digest": "sha256:att", "size": 4,
          "platform": {"os": "unknown", "architecture": "unknown"},
-         "annotations": {"vnd.docker.reference.type": "attestation-manifest", "vnd.docker.reference.digest": "sha256:b"}},
+         "annotations": {"vnd.docker.reference.type": "attestation-manifest",
+                         "vnd.docker.reference.digest": "sha256:b"}},
     ],
 }
 

@@ -14,7 +14,8 @@ COMMIT = "0123456789abcdef0123456789abcdef01234567"
 
 def built(**changes) -> record.Record:
     made = record.build(7, NOW, NOW + datetime.timedelta(days=30), COMMIT, "a" * 64, "inventories/robots.yaml",
-                        "b" * 64, ["robot1", "robot2"], {"robot1": {"reg.lan:5000/ros/payload:1.1": "sha256:" + "c" * 64}},
+                        "b" * 64, ["robot1", "robot2"],
+                        {"robot1": {"reg.lan:5000/ros/payload:1.1": "sha256:" + "c" * 64}},
                         {"cp313-x86_64": ["wheels/pyinfra-3.1-py3-none-any.whl"]},
                         waves.parse_plan({"canary": "1", "waves": ["50%", "100%"], "pause": 600, "max_failed": "0"}))
     data = made.to_dict()

@@ -99,7 +99,8 @@ def test_every_private_pyinfra_name_the_code_uses_is_listed():
 
 
 def test_the_scan_sees_a_private_import():
-    tree = ast.parse("from pyinfra.api.util import format_text, make_hash\nfrom pyinfra.api.command import StringCommand\n"
+    tree = ast.parse("from pyinfra.api.util import format_text, "
+                     "make_hash\nfrom pyinfra.api.command import StringCommand\n"
                      "from pyinfra_cli.util import load_deploy_file\nfrom pyinfra.connectors.ssh_util import _x\n"
                      "from pyinfra.facts.files import File\nclient._secret = 1\n")
     assert private_imports(tree) == {"pyinfra.api.util:format_text", "pyinfra.api.util:make_hash",

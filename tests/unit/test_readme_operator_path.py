@@ -29,7 +29,8 @@ def test_the_two_commands_stay_at_the_top():
     assert LINES[2:6] == [
         "```sh",
         ".ci/setup && .venv/bin/python -m tests.lab demo    # provision a simulated fleet: 3 robots and a laptop",
-        ".ci/setup && .venv/bin/python -m tests             # the tests: unit and integration beside end to end on simulated hosts",
+        ".ci/setup && .venv/bin/python -m tests             # the tests: "
+        "unit and integration beside end to end on simulated hosts",
         "```",
     ]
 
@@ -49,7 +50,8 @@ def test_the_path_shows_each_step_s_commands():
         title = next((line[3:] for line in reversed(LINES[:command.line]) if line.startswith("## ")), None)
         shown.setdefault(title, []).append(command.text)
     assert "robotfleet --version" in shown["Install for operators"]
-    assert any(c.startswith("robotfleet enroll inventories/robots.py") for c in shown["Enrolling the robots' host keys"])
+    assert any(c.startswith("robotfleet enroll inventories/robots.py")
+               for c in shown["Enrolling the robots' host keys"])
     assert "pyinfra inventories/robots.py deploy.py" in shown["First deploy"]
     assert any(c.startswith("robotfleet status inventories/robots.py") for c in shown["Status"])
     assert any("--metrics" in c for c in shown["Status"])

@@ -12,7 +12,8 @@ from roles.udev import rules
 from tests.unit.harness import desired_compose, merged, release_spec
 
 SENSORS = [
-    {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046D", "product_id": "0825", "usb_port": "1-1.2"},
+    {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046D", "product_id": "0825",
+     "usb_port": "1-1.2"},
     {"name": "back_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "1-1.3"},
     {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3", "group": "plugdev", "mode": "640"},
     {"name": "debug", "subsystem": "tty", "serial": "X", "passthrough": False, "symlink": "robot/dbg/uart"},
@@ -142,7 +143,8 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     assert not [line for line in lines if line.startswith(("Requires=", "BindsTo=", "PartOf="))]
     assert "Wants=docker.service network-online.target" in lines
     # Boot goes through payloadctl, which undoes a release a power cut left unverified.
-    assert any(line.startswith("ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start ") for line in lines)
+    assert any(line.startswith("ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start ")
+               for line in lines)
     assert " -v" not in text
     assert "ExecStartPre" not in installed_files.unit_text(data, [])
 

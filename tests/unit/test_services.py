@@ -269,7 +269,8 @@ def probe_line(cid, name, image, project_label, running, policy):
 
 
 FOREIGN = "\n".join([
-    probe_line("a" * 64, "/robot-payload-payload-1", f"{REG}/ros/payload@sha256:" + "1" * 64, "robot-payload", "true", "unless-stopped"),
+    probe_line("a" * 64, "/robot-payload-payload-1", f"{REG}/ros/payload@sha256:" + "1" * 64, "robot-payload", "true",
+               "unless-stopped"),
     probe_line("b" * 64, "/ros_payload", f"{REG}/ros/payload:1.0", "%!s(<nil>)", "true", "always"),
     probe_line("c" * 64, "/old_bridge", f"{REG}/other/bridge:1", "rosapp", "false", "always"),
     probe_line("d" * 64, "/unrelated", f"{REG}/other/db:1", "%!s(<nil>)", "true", "always"),
@@ -374,7 +375,8 @@ def test_a_service_s_values_reach_the_container_verbatim():
     ({"userns_mode": "host"}, "userns_mode", "userns_mode: host"),
     ({"security_opt": ["seccomp=unconfined"]}, "security_opt[0]", "security_opt seccomp=unconfined"),
     ({"volumes": ["/var/run/docker.sock:/var/run/docker.sock"]}, "volumes[0]", "mounting /var/run/docker.sock"),
-    ({"volumes": [{"type": "bind", "source": "/run/docker.sock", "target": "/d.sock"}]}, "volumes[0]", "mounting /run/docker.sock"),
+    ({"volumes": [{"type": "bind", "source": "/run/docker.sock", "target": "/d.sock"}]}, "volumes[0]",
+     "mounting /run/docker.sock"),
     ({"volumes": ["/:/host:ro"]}, "volumes[0]", "mounting /"),
 ])
 def test_keys_that_hand_a_container_the_robot_are_refused_like_privileged(service, field, what):
@@ -407,12 +409,14 @@ def test_another_compose_project_running_the_payload_image_is_left_alone():
     ])
     takeover = {"primary": f"{REG}/ros/payload", "container": [], "project": []}
     assert [c["name"] for c in takeover_plan.foreign(probe, "robot-payload", takeover)] == ["ros_payload"]
-    recorded = takeover_plan.takeover_rule.recorded_projects({"project": "ros-old", "taken_over": [{"project": "rosapp"}]},
+    recorded = takeover_plan.takeover_rule.recorded_projects({"project": "ros-old",
+                                                              "taken_over": [{"project": "rosapp"}]},
                                                        "robot-payload")
     assert recorded == ["ros-old", "rosapp"]
     found = takeover_plan.foreign(probe, "robot-payload", takeover, recorded)
     assert [(c["name"], c["why"]) for c in found] == [
         ("ros_payload", "it runs the payload's image"),
-        ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload used before")]
+        ("ros-old-payload-1",
+         "it runs the payload's image in compose project ros-old, which this robot's payload used before")]
     named = takeover_plan.foreign(probe, "robot-payload", {**takeover, "project": ["homeauto"]})
     assert [c["name"] for c in named] == ["homeauto-bridge-1", "ros_payload"]

@@ -35,7 +35,9 @@ def test_archive_leaves_out_layers_the_robot_has(tmp_path):
         add("cfg.json", json.dumps({"rootfs": {"diff_ids": [A, B]}}).encode())
         add("l1/layer.tar", b"x" * 50000)
         add("l2/layer.tar", b"y" * 70000)
-        add("manifest.json", json.dumps([{"Config": "cfg.json", "RepoTags": ["r/p:1"], "Layers": ["l1/layer.tar", "l2/layer.tar"]}]).encode())
+        add("manifest.json",
+            json.dumps([{"Config": "cfg.json", "RepoTags": ["r/p:1"],
+                         "Layers": ["l1/layer.tar", "l2/layer.tar"]}]).encode())
     out = tmp_path / "sent.tar"
     report = push.strip_layers(str(saved), str(out), [[A]])
     with tarfile.open(out) as sent:
@@ -56,14 +58,17 @@ def test_status_rows_and_table():
         "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
         "update_lock": None,
     }
-    rows = [status.row("robot1", roles(), {status.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
+    rows = [status.row("robot1", roles(),
+                       {status.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
             status.row("robot2", roles(), None, "cannot connect")]
     assert rows[0]["image"] == "reg/p@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
     text = status.table(rows, status.columns(roles())).splitlines()
     assert rows[0]["arch"] == "arm64"
-    assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS", "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
-    assert text[1].split() == ["robot1", "yes", "arm64", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running", "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
+    assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS",
+                               "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
+    assert text[1].split() == ["robot1", "yes", "arm64", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running",
+                               "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
     assert text[2].split()[:4] == ["robot2", "no:", "cannot", "connect"]
 
 

@@ -46,7 +46,8 @@ RELOAD = r"^systemctl daemon-reload$"
     (robot(time_serve=True, time_allow=["lan"]),
      "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, got 'lan'"),
     (robot(time_serve=True, time_allow=["10.20.0.0/24 allow all"]),
-     "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, got '10.20.0.0/24 allow all'"),
+     "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, "
+     "got '10.20.0.0/24 allow all'"),
     (robot(time_serve="yes"), "robots.yaml: robot3.time_serve: expected true or false, got 'yes'"),
     (robot(time_set_clock=0), "robots.yaml: robot3.time_set_clock: expected true or false, got 0"),
     (robot(time_local_stratum=16), "robots.yaml: robot3.time_local_stratum: expected at most 15, got 16"),
@@ -132,14 +133,16 @@ def test_fresh_host_gets_chrony_configured_checked_and_started(os_name):
 
 
 def test_the_write_command_checks_the_file_with_chronyd_before_replacing_it():
-    conf = find(run_plan({"r1": ("robots", CLIENT, fresh_host("debian-13"))})["r1"], r"dest=/etc/chrony/chrony.conf\n")[0]
+    conf = find(run_plan({"r1": ("robots", CLIENT, fresh_host("debian-13"))})["r1"],
+                r"dest=/etc/chrony/chrony.conf\n")[0]
     check = conf.index('chronyd -p -f "$tmp"')
     assert conf.index("chronyd -v") < check < conf.index('mv -fT "$tmp" "$dest"')
     assert '"${major:-0}" -ge 4' in conf  # chrony 3.5 would fork a daemon on -p
 
 
 @pytest.mark.parametrize("os_name", RELEASES)
-@pytest.mark.parametrize("data", [SERVER, CLIENT, {**CLIENT, "time_set_clock": False}], ids=["server", "client", "no-clock"])
+@pytest.mark.parametrize("data", [SERVER, CLIENT, {**CLIENT, "time_set_clock": False}],
+                         ids=["server", "client", "no-clock"])
 def test_converged_host_plans_nothing(os_name, data):
     snap = converged("robots", data, os_name)
     snap.probes[time_role.CAPABILITIES_PROBE] = FULL_BOUNDING_SET
@@ -247,7 +250,8 @@ def test_a_fleet_where_some_hosts_keep_time_plans_every_host():
         "robot2": ("robots", no_clock, fresh_host("debian-13")),
         "robot3": ("robots", ROBOT, fresh_host("debian-13")),
         "robot4": ("robots", CLIENT, fresh_host("ubuntu-24.04")),
-        "laptop1": ("laptops", {**LAPTOP, "time_servers": ["10.20.0.11"]}, fresh_host("ubuntu-22.04", users=("alice",))),
+        "laptop1": ("laptops", {**LAPTOP, "time_servers": ["10.20.0.11"]},
+                    fresh_host("ubuntu-22.04", users=("alice",))),
     })
     assert result.failed == set()
     for host in ("robot1", "robot2", "robot4", "laptop1"):

@@ -44,7 +44,9 @@ def test_a_setting_has_one_default_only():
 def test_every_setting_is_documented_by_hand():
     """Beyond the generated docs/settings.md: README, the docs it links, or a
     role's own roles/<name>/README.md (everything about a role is in its folder)."""
-    written = "".join((ROOT / name).read_text() for name in ("README.md", "docs/roles.md", "docs/gpu.md", "docs/releases.md", "docs/architectures.md", "docs/pull.md"))
+    written = "".join((ROOT / name).read_text() for name in ("README.md", "docs/roles.md", "docs/gpu.md",
+                                                             "docs/releases.md", "docs/architectures.md",
+                                                             "docs/pull.md"))
     written += "".join(path.read_text() for path in (ROOT / "roles").glob("*/README.md"))
     undocumented = [k for k in fleet.setting_checks() if f"`{k}`" not in written]
     assert undocumented == []
@@ -70,7 +72,8 @@ def test_defaults_are_written_once_in_the_declarations():
         (robot(sensors=[{"name": "cam", "subsystem": "tty", "serail": "x", "serial": "x"}]),
          "robots.yaml: robot3.sensors[0].serail: unknown sensor field (did you mean 'serial'?)"),
         (robot(sensors=[{"name": "cam", "subsystem": "camera", "serial": "x"}]),
-         "robots.yaml: robot3.sensors[0].subsystem: expected one of tty, video4linux, hidraw, input, usb, sound, got 'camera'"),
+         "robots.yaml: robot3.sensors[0].subsystem: expected one of tty, video4linux, hidraw, input, usb, sound, "
+         "got 'camera'"),
         (robot(sensors=[{"name": "cam", "subsystem": "tty", "vendor_id": "046d"}]),
          "robots.yaml: robot3.sensors[0].product_id: vendor_id and product_id go together"),
         (robot(sensors=[{"name": "cam", "subsystem": "tty", "usb_port": "usb2"}]),
@@ -79,15 +82,20 @@ def test_defaults_are_written_once_in_the_declarations():
          "robots.yaml: robot3.sensors[0].mode: 0666 is world-writable; use a group (or set udev_allow_world_writable)"),
         (robot(sensors=[{"name": "a", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
                         {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"}]),
-         "robots.yaml: robot3.sensors[1]: matches the same devices as sensors[0]; add a serial or usb_port to tell them apart"),
-        (robot(sensors=[{"name": "a", "subsystem": "tty", "serial": "1"}, {"name": "a", "subsystem": "tty", "serial": "2"}]),
+         "robots.yaml: robot3.sensors[1]: matches the same devices as sensors[0]; "
+         "add a serial or usb_port to tell them apart"),
+        (robot(sensors=[{"name": "a", "subsystem": "tty", "serial": "1"},
+                        {"name": "a", "subsystem": "tty", "serial": "2"}]),
          "robots.yaml: robot3.sensors[1].name: duplicate sensor name 'a' (also sensors[0])"),
         (robot(sensors=[{"name": "a", "subsystem": "tty", "serial": '1", RUN+="/bin/sh'}]),
-         "robots.yaml: robot3.sensors[0].serial: expected a serial of letters, digits and . _ : / + -, got '1\", RUN+=\"/bin/sh'"),
+         "robots.yaml: robot3.sensors[0].serial: expected a serial of letters, digits and . _ : / + -, got '1\", "
+         "RUN+=\"/bin/sh'"),
         (robot(payload_image="reg.example.com/ros/payload"),
-         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload' has no tag or digest; pin a version (e.g. reg.example.com/ros/payload:1.4.2 or @sha256:...)"),
+         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload' has no tag or digest; "
+         "pin a version (e.g. reg.example.com/ros/payload:1.4.2 or @sha256:...)"),
         (robot(payload_image="reg.example.com/ros/payload:latest"),
-         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload:latest' uses the moving tag 'latest'; pin a version or digest (or set payload_allow_latest: true)"),
+         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload:latest' uses the moving tag 'latest'; "
+         "pin a version or digest (or set payload_allow_latest: true)"),
         (robot(payload_image="Reg/Bad Image:1"),
          "robots.yaml: robot3.payload_image: 'Reg/Bad Image:1' is not a valid image reference"),
         (robot(docker_users=["Alice"]),
@@ -101,13 +109,17 @@ def test_defaults_are_written_once_in_the_declarations():
         (robot(x11_enabled="yes"), "robots.yaml: robot3.x11_enabled: expected true or false, got 'yes'"),
         (robot(x11_enabled=True), "robots.yaml: robot3.x11_user: required when x11_enabled is true: the desktop user"),
         (robot(payload_volumes=["maps:/maps"]),
-         "robots.yaml: robot3.payload_volumes[0]: expected 'host_path:container_path[:ro]' with absolute paths, got 'maps:/maps'"),
-        (robot(payload_dir="/var/lib/../etc"), "robots.yaml: robot3.payload_dir: paths must not contain '..', got '/var/lib/../etc'"),
+         "robots.yaml: robot3.payload_volumes[0]: expected 'host_path:container_path[:ro]' with absolute paths, "
+         "got 'maps:/maps'"),
+        (robot(payload_dir="/var/lib/../etc"),
+         "robots.yaml: robot3.payload_dir: paths must not contain '..', got '/var/lib/../etc'"),
         (robot(udev_rules_file="/etc/udev/robot.rules"),
-         "robots.yaml: robot3.udev_rules_file: expected a file in /etc/udev/rules.d/ ending in .rules, got '/etc/udev/robot.rules'"),
+         "robots.yaml: robot3.udev_rules_file: expected a file in /etc/udev/rules.d/ ending in .rules, "
+         "got '/etc/udev/robot.rules'"),
         (robot(docker_source="snap"), "robots.yaml: robot3.docker_source: expected one of docker, distro, got 'snap'"),
         (robot(payload_environment={"ROS DISTRO": "jazzy"}),
-         "robots.yaml: robot3.payload_environment.'ROS DISTRO': expected an environment variable name, got 'ROS DISTRO'"),
+         "robots.yaml: robot3.payload_environment.'ROS DISTRO': expected an environment variable name, "
+         "got 'ROS DISTRO'"),
         (robot(ros_master_uri="http://master:11311", ros_domain_id=3),
          "robots.yaml: robot3.ros_master_uri: set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"),
         ({"robots": {"hosts": {"robot3": {"address": "10.0.0.1"}}}},
@@ -120,7 +132,8 @@ def test_defaults_are_written_once_in_the_declarations():
         ({"robots": {"hosts": {"a b": GOOD_HOST}}}, "robots.yaml: 'a b': invalid host name (letters, digits, . _ -)"),
         ({"robots": {"hosts": {"r1": GOOD_HOST}}, "laptops": {"hosts": {"r1": {**GOOD_HOST, "x11_user": "a"}}}},
          "robots.yaml: r1: declared in both robots and laptops"),
-        ({"robots": {"hosts": {"r1": ["not", "a", "mapping"]}}}, "robots.yaml: r1: expected a mapping of settings, got a list"),
+        ({"robots": {"hosts": {"r1": ["not", "a", "mapping"]}}},
+         "robots.yaml: r1: expected a mapping of settings, got a list"),
     ],
 )
 def test_bad_data_gets_one_clear_line(doc, expected):
@@ -138,7 +151,8 @@ def test_yaml_syntax_error_names_the_line(tmp_path):
     with pytest.raises(fleet.FleetError) as error:
         fleet.load(path)
     (line,) = error.value.lines
-    assert line.startswith(fleet.display_path(path) + ": line 3: YAML error: a flow mapping opened here (column 9) is not closed: ")
+    assert line.startswith(fleet.display_path(path) + ": line 3: YAML error: a flow mapping opened here (column 9) "
+                                                      "is not closed: ")
 
 
 def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
@@ -162,6 +176,7 @@ def test_an_ipv6_scope_is_a_name_not_anything_after_the_percent_sign():
     """Python's ipaddress takes anything after % as the scope, a newline too:
     an address that carries a second line into a config file is refused."""
     lines = fleet_problems(robot(address="fe80::1%a\nallow all"))
-    assert len(lines) == 1 and "robot3.address: expected a host name or an IP address, got 'fe80::1%a\\nallow all'" in lines[0]
+    assert len(lines) == 1
+    assert "robot3.address: expected a host name or an IP address, got 'fe80::1%a\\nallow all'" in lines[0]
     assert "\n" not in lines[0]
     assert fleet_problems(robot(address="fe80::1%eth0")) == []

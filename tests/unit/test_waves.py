@@ -134,10 +134,12 @@ def test_status_cells_and_summary():
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
     from robotfleet.commands.rollout import judge_wave
 
-    good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running", "health": "healthy"}
+    good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running",
+            "health": "healthy"}
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
             "rolled_back_from": {"reason": "unhealthy"}}
-    results = {"operations": [{"name": "Release the payload", "error": ["r2", "r5"]}], "failed_hosts": ["r2", "r3", "r5"]}
+    results = {"operations": [{"name": "Release the payload", "error": ["r2", "r5"]}],
+               "failed_hosts": ["r2", "r3", "r5"]}
     rows = {"r1": good, "r2": {**back, "result": result("w1", False, "payload: release x failed")},
             "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
     targets = dict.fromkeys(rows, {"payload": ["i:2"]})
@@ -145,7 +147,8 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
     assert done == ["r1"]
     assert failed.pop("r2") == "payload: release x failed"  # its own result of this deployment
     assert failed.pop("r4") == "release failed (unhealthy); rolled back to r1"
-    assert failed == {"r5": "the deploy failed at: Release the payload"}  # pyinfra failed it although its payload looks fine
+    # pyinfra failed it although its payload looks fine
+    assert failed == {"r5": "the deploy failed at: Release the payload"}
     assert skipped == {"r3": "unreachable: cannot connect"}
     _, failed, skipped = judge_wave(["r3"], None, rows, targets, True, deployment="w1")
     assert failed == {"r3": "unreachable: cannot connect"} and skipped == {}
@@ -168,7 +171,8 @@ def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
     done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")
     assert (done, failed, skipped) == ([], {"r1": line}, {})
     # A result of an earlier deployment is not this one's.
-    stale = {**back, "image_refs": ["i:2"], "state": "running", "health": "healthy", "result": result("w1", False, line)}
+    stale = {**back, "image_refs": ["i:2"], "state": "running", "health": "healthy",
+             "result": result("w1", False, line)}
     assert judge_wave(["r1"], None, {"r1": stale}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")[1] == {
         "r1": "the deploy failed"}
     assert judge_wave(["r2"], None, {"r2": {"reachable": False, "error": "Could not connect (timed out)"}},

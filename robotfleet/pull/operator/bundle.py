@@ -80,7 +80,8 @@ id=$(cat "$fb/venv-id")
 if [ ! -x "$state/venvs/$id/bin/python" ]; then
     rm -rf "$state/venvs/.new-$id"
     python3 -m venv "$state/venvs/.new-$id"
-    "$state/venvs/.new-$id/bin/python" -m pip install -q --no-index --no-deps --disable-pip-version-check "$fb"/wheels/*.whl
+    "$state/venvs/.new-$id/bin/python" -m pip install -q --no-index --no-deps --disable-pip-version-check \\
+        "$fb"/wheels/*.whl
     mv -T "$state/venvs/.new-$id" "$state/venvs/$id"
 fi
 ln -sfn "venvs/$id" "$state/.venv.new" && mv -T "$state/.venv.new" "$state/venv"
@@ -182,7 +183,8 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     public = (etc / "enroll_ed25519.pub").read_text().strip()
     _archive(rootfs, out / "rootfs.tar")
     shutil.rmtree(rootfs)
-    _write(out / "README", README.format(robot=robot if rule is None else f"{rule[1]}<{rule[0]}> (with the settings of {robot})"))
+    _write(out / "README",
+           README.format(robot=robot if rule is None else f"{rule[1]}<{rule[0]}> (with the settings of {robot})"))
     return public
 
 

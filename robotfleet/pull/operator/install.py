@@ -138,7 +138,7 @@ def trust_root(checkout: Path, setting: str | None) -> bytes:
     try:
         md = Metadata[Root].from_bytes(data)
         md.signed.verify_delegate(Root.type, md.signed_bytes, md.signatures)
-    except Exception as error:  # noqa: BLE001 - every way a root can be bad is one refusal
+    except Exception as error:  # every way a root can be bad is one refusal
         raise InstallError(f"pull_trust_root: {path} is not a TUF root signed by its own keys "
                            f"({str(error).splitlines()[0] if str(error) else type(error).__name__})") from None
     known = _operator_root_keys()

@@ -119,7 +119,7 @@ class Repository:
             md = Metadata.from_file(str(path))
         except FileNotFoundError:
             raise RepositoryError(f"{path}: missing (not a robotfleet release repository?)") from None
-        except Exception as error:  # noqa: BLE001 - any unreadable metadata is one line
+        except Exception as error:  # any unreadable metadata is one line
             raise RepositoryError(f"{path}: unreadable TUF metadata ({str(error).splitlines()[0]})") from None
         if md.signed.type != kind.type:
             raise RepositoryError(f"{path}: {md.signed.type} metadata where {kind.type} was expected")
@@ -136,7 +136,7 @@ class Repository:
                 info.verify_length_and_hashes(handle)
         except FileNotFoundError:
             raise RepositoryError(f"{stored}: missing from the repository") from None
-        except Exception as error:  # noqa: BLE001
+        except Exception as error:
             raise RepositoryError(f"{stored}: differs from what was signed ({error})") from None
         return stored
 
@@ -322,7 +322,7 @@ class Repository:
         current = self.root()
         try:
             new = Metadata[Root].from_bytes(data)
-        except Exception as error:  # noqa: BLE001
+        except Exception as error:
             raise RepositoryError(f"not TUF root metadata ({str(error).splitlines()[0]})") from None
         if not isinstance(new.signed, Root):
             raise RepositoryError(f"{new.signed.type} metadata, not a root")

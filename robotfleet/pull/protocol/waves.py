@@ -94,7 +94,8 @@ def parse_plan(raw, where: str = "rollout") -> Plan:
         if not wave.percent:
             raise ValueError(f"{where}.waves[{i}]: expected a share of the robots like 50%, got {str(wave)!r}")
         if i and wave.value <= waves[i - 1].value:
-            raise ValueError(f"{where}.waves[{i}]: shares are cumulative and must rise, got {wave} after {waves[i - 1]}")
+            raise ValueError(f"{where}.waves[{i}]: shares are cumulative and must rise, "
+                             f"got {wave} after {waves[i - 1]}")
     if waves[-1].value != 100:
         raise ValueError(f"{where}.waves: the last wave must be 100% (every robot), got {waves[-1]}")
     pause = raw.get("pause", default.pause)

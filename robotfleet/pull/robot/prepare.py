@@ -47,7 +47,8 @@ def code_dir(state: Path, record, archive: Path) -> Path:
     except OSError:
         raise Mismatch(f"the release's tree has no {record.fleet['path']}") from None
     if digest != record.fleet["sha256"]:
-        raise Mismatch(f"{record.fleet['path']} hashes to {digest[:12]}, the record binds {record.fleet['sha256'][:12]}")
+        raise Mismatch(f"{record.fleet['path']} hashes to {digest[:12]}, "
+                       f"the record binds {record.fleet['sha256'][:12]}")
     return target
 
 

@@ -246,7 +246,8 @@ class Remote:
             self._git("init", "init", "-q")
             # gc runs in this process (a oneshot unit would kill a detached
             # one), and what older fetches left goes at once.
-            for key, value in (("gc.autoDetach", "false"), ("gc.pruneExpire", "now"), ("core.logAllRefUpdates", "false")):
+            for key, value in (("gc.autoDetach", "false"), ("gc.pruneExpire", "now"),
+                               ("core.logAllRefUpdates", "false")):
                 self._git("init", "config", key, value)
 
     # -- the releases branch -----------------------------------------------

@@ -89,7 +89,7 @@ def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = 
         if not isinstance(md.signed, Root):
             raise ValueError("not a root")
         md.signed.verify_delegate(Root.type, md.signed_bytes, md.signatures)
-    except Exception as error:  # noqa: BLE001 - every way a root can be bad is one refusal
+    except Exception as error:  # every way a root can be bad is one refusal
         raise Refused(MALFORMED, f"trust root: not a self-signed TUF root ({_first_line(error)})") from None
     state_dir = Path(state_dir)
     state_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
@@ -185,7 +185,7 @@ def _unsigned_reason(data: bytes | None, metadata_dir: Path) -> tuple[str, str]:
         role = md.signed.type
         trusted = Metadata[Root].from_file(str(metadata_dir / "root.json")).signed
         keyids = set(trusted.roles[role].keyids)
-    except Exception:  # noqa: BLE001 - unreadable here means the refusal stays "tampered"
+    except Exception:  # unreadable here means the refusal stays "tampered"
         return TAMPERED, "metadata"
     if not md.signatures:
         return UNSIGNED, role
@@ -253,7 +253,7 @@ class Client:
                 raise Refused(reason, f"{role}.json: {_WORDS[reason]} ({_first_line(error)})") from None
             except Refused:
                 raise
-            except Exception as error:  # noqa: BLE001 - classified below, never let through
+            except Exception as error:  # classified below, never let through
                 refused = _classified(error)
                 raise Refused(refused.reason, f"releases at {self.source}: {refused.line}") from None
             try:
@@ -286,7 +286,7 @@ class Client:
                      (Root.type, "timestamp", "snapshot", "targets")]
             expires = min([md.signed.expires for md in roles] + [found.expires_at])
             reads = trust_state.reads_of(roles[0].signed.version, release_file)
-        except Exception:  # noqa: BLE001 - without it the next check verifies in full
+        except Exception:  # without it the next check verifies in full
             trust_state.forget(self.state_dir)
             return
         trust_state.remember(self.state_dir, self.source, reads, raw, expires)
@@ -332,7 +332,7 @@ class Client:
                         partial.unlink(missing_ok=True)
             except Refused:
                 raise
-            except Exception as error:  # noqa: BLE001 - classified, never let through
+            except Exception as error:  # classified, never let through
                 refused = _classified(error)
                 raise Refused(refused.reason, f"{path}: {refused.line}") from None
             found[path] = destination

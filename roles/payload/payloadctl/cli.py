@@ -63,8 +63,8 @@ def cmd_apply(args):
     except (OSError, ValueError, KeyError, TypeError) as error:
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(args.request))))  # <dir>/runs/<id>/
         why = "this payloadctl cannot read the deploy's request ({}); deploy again".format(error)
-        return results.finish(root, "apply", results.REFUSED, "payload: " + why, Run(args.run_id, "unknown", False, False,
-                              socket.gethostname()), reason=why)
+        return results.finish(root, "apply", results.REFUSED, "payload: " + why,
+                              Run(args.run_id, "unknown", False, False, socket.gethostname()), reason=why)
     run_ = run_._replace(run_id=args.run_id or run_.run_id, restart=args.restart or run_.restart)
     releases = Releases(spec.dir)
     durable.make_private_dir(releases.dir)

@@ -136,7 +136,8 @@ class Life:
     def _expect(self, rid, *states):
         record = self.record(rid)
         if record is None or record.state not in states:
-            raise Refused("release {} is {}, not {}".format(rid, record.state if record else "missing", " or ".join(states)))
+            raise Refused("release {} is {}, not {}".format(rid, record.state if record else "missing",
+                                                            " or ".join(states)))
         return record
 
     # --- the transitions -----------------------------------------------------
@@ -194,7 +195,8 @@ class Life:
 
     def keep(self, rid):
         record = self._expect(rid, SWITCHING)
-        stamp = {"rolled_back_to": now()} if record.switch and record.switch.kind == "rollback" else {"activated": now()}
+        rolled_back = record.switch and record.switch.kind == "rollback"
+        stamp = {"rolled_back_to": now()} if rolled_back else {"activated": now()}
         return self._write(record._replace(state=ACTIVE, switch=None, **stamp))
 
     def stage(self, rid):

@@ -219,7 +219,8 @@ def describe(holder, host=None):
         return "the apply lock on {} is held by process {} ({}), which is not a deploy of this tool".format(
             host, holder["pid"], holder["command"])
     if holder.get("action") == "start":
-        return "{} is recovering from an interrupted release since {}".format(host, holder.get("since", "an unknown time"))
+        return "{} is recovering from an interrupted release since {}".format(
+            host, holder.get("since", "an unknown time"))
     return "another deploy is running on {} since {} (by {})".format(
         host, holder.get("since", "an unknown time"), holder.get("by", "unknown"))
 

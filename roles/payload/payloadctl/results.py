@@ -79,7 +79,8 @@ def upgraded(result):
     ok = bool(result.get("ok"))
     return {"payloadctl": FORMAT, "ok": ok, "outcome": APPLIED if ok else FAILED, "action": "apply",
             "release": result.get("release"), "previous": None, "target": None,
-            "reason": None if ok else one_line(str(result.get("message"))), "message": one_line(str(result.get("message"))),
+            "reason": None if ok else one_line(str(result.get("message"))),
+            "message": one_line(str(result.get("message"))),
             "taken_over": [], "run_id": result.get("run_id"), "deployment": None, "host": None,
             "time": result.get("time")}
 

@@ -43,7 +43,8 @@ def rollback(run_, life, lock=None):
     ok, why = start.start_and_check(life.releases, spec, False, lock)
     if ok:
         life.keep(previous)
-        health.set_restart_policies(spec.name, restart_policies(compose_doc(life.releases.path(previous, "compose.yaml"))))
+        health.set_restart_policies(spec.name,
+                                    restart_policies(compose_doc(life.releases.path(previous, "compose.yaml"))))
         return finish(results.APPLIED, "payload: rolled back from {} to {}".format(current, previous), previous)
     life.fail(previous, why)
     back_ok, back_why = start.start_and_check(life.releases, life.releases.spec(current) or spec, False, lock)
