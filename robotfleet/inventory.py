@@ -111,6 +111,9 @@ def _limit_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
         if problem:
             refuse([problem if option == "limit" else problem.replace("--limit", "--exclude", 1)])
         for value in values:
+            if selection.terms(value) == [selection.ALL]:  # pyinfra's inventories have no group all to find
+                refuse([f"--{option} all: pyinfra has no group all; a deploy without --{option} is every host "
+                        f"(all,!HOST leaves some out); nothing was done"])
             if selection.needs_group(value):
                 chosen = selection.resolve([value], hosts, groups)[0]
                 made[value] = connect.names([(host, {}) for host in chosen])
