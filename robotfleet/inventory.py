@@ -47,7 +47,7 @@ def require_checkout() -> None:
 
 
 def _refuse_fleet(error: FleetError) -> None:
-    refuse(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
+    refuse(error.lines + error.notes + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
 
 
 def _noted(fleet: Fleet) -> Fleet:

@@ -33,9 +33,13 @@ INI_BOOLEAN = "; INI reads it as text, as Ansible does: write True or False"
 
 
 class FleetError(Exception):
-    def __init__(self, lines: list[str]):
+    """The fleet's problems (``lines``), and what reading it had to note
+    (``notes``: a vars file not read often explains a problem)."""
+
+    def __init__(self, lines: list[str], notes: list[str] | None = None):
         super().__init__("\n".join(lines))
         self.lines = lines
+        self.notes = notes or []
 
 
 @dataclass
@@ -180,7 +184,7 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] "
                      "in an INI inventory)")
     if lines:
-        raise FleetError([c.one_line(line) for line in lines])
+        raise FleetError([c.one_line(line) for line in lines], notes)
     return fleet
 
 
