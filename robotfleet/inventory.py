@@ -4,6 +4,7 @@ against every setting of deploy.py's roles before pyinfra connects anywhere."""
 from __future__ import annotations
 
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from robotfleet import selection
 from robotfleet.fleet.validate import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",
-           "require_checkout", "SOURCES"]
+           "require_checkout", "require_python_inventory", "SOURCES"]
 
 # Where the fleet this process loaded came from (its file or directory):
 # what a rollout's lock is per (robotfleet/commands/waves.py lock_path).
@@ -44,6 +45,23 @@ def require_checkout() -> None:
             f"(strict host-key checking, sudo, every default) would not apply; run it there: "
             f"cd {CHECKOUT}, or pyinfra --chdir {CHECKOUT} ..."
         ])
+
+
+def require_python_inventory() -> None:
+    """Under pyinfra's CLI (config.py), refuse a fleet file or an Ansible
+    inventory given as pyinfra's inventory, which pyinfra would run as Python
+    (a SyntaxError) or fail to read (a directory): one line with the form
+    that works."""
+    context = click.get_current_context(silent=True)
+    given = context.params.get("inventory") if context is not None else None
+    if not isinstance(given, str) or given.endswith(".py") or not os.path.exists(given):
+        return
+    words = list(sys.argv[1:])  # the command as typed, less the inventory
+    if given in words:
+        words.remove(given)
+    rest = " ".join(shlex.quote(word) for word in words)
+    refuse([f"{given}: pyinfra takes a Python inventory; it reads a fleet file or an Ansible inventory through "
+            f"inventories/robots.py: {selection.pyinfra_command(given)} {rest}".rstrip()])
 
 
 def _refuse_fleet(error: FleetError) -> None:

@@ -16,10 +16,14 @@ deploys get the same through robotfleet/inventory.py, which names each such
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import os
 import re
+import shlex
 import sys
+
+from robotfleet import CHECKOUT
 
 OK = 0  # every host did what was asked
 FAILED = 1  # a host failed: a step, a changed host key, a rollout's budget
@@ -153,16 +157,53 @@ def refusal(limits: list[str], inventory: str, hosts: list[tuple[str, set[str]]]
     return None
 
 
+def pyinfra_inventory(path: str) -> tuple[str, dict[str, str]]:
+    """What pyinfra is given for the inventory argument ``path``: (the
+    inventory file, the environment it reads the fleet from).  A .py file is
+    a pyinfra inventory already (its fleet: $ROBOT_FLEET, else its own); a
+    fleet file (YAML, INI) or an inventory directory is read by the
+    checkout's inventories/robots.py with ROBOT_FLEET naming it.  Refused
+    when there is no such file or directory."""
+    if not os.path.exists(path):
+        raise Refused(f"{path}: no such inventory: give the fleet file (inventories/robots.yaml), an Ansible "
+                      "inventory file or directory, or a pyinfra inventory (inventories/robots.py)")
+    if os.path.isfile(path) and path.endswith(".py"):
+        return path, {}
+    return os.path.relpath(CHECKOUT / "inventories" / "robots.py"), {"ROBOT_FLEET": os.path.abspath(path)}
+
+
+def pyinfra_command(path: str) -> str:
+    """A pyinfra command line's start for the inventory argument ``path``:
+    ``pyinfra inventories/robots.py``, or for a fleet
+    ``ROBOT_FLEET=fleet.yaml pyinfra inventories/robots.py``."""
+    file, env = pyinfra_inventory(path)
+    return ("ROBOT_FLEET=" + shlex.quote(path) + " " if env else "") + f"pyinfra {shlex.quote(file)}"
+
+
+@contextlib.contextmanager
+def _environment(values: dict[str, str]):
+    saved = {key: os.environ.get(key) for key in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
 def inventory(path: str):
-    """The pyinfra inventory of ``path`` (its hosts connect through robotfleet/connect.py)."""
+    """The pyinfra inventory of the inventory argument ``path`` (any kind:
+    pyinfra_inventory); its hosts connect through robotfleet/connect.py."""
     from pyinfra.api import State
     from pyinfra.context import ctx_state
     from pyinfra_cli.inventory import make_inventory
 
-    if not os.path.exists(path):
-        raise Refused(f"{path}: no such inventory file")
-    with ctx_state.use(State()):
-        return make_inventory(path, cwd=os.getcwd())
+    file, env = pyinfra_inventory(path)
+    with ctx_state.use(State()), _environment(env):
+        return make_inventory(file, cwd=os.getcwd())
 
 
 def select(inventory_, path: str, limits: list[str]) -> list:

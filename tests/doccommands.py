@@ -264,8 +264,19 @@ def options(command: Command) -> list[str]:
 #   keys-init   robotfleet keys init into a new key directory: exit 0, both keys 0600
 #   unreachable against a fleet of the same host names on 127.0.0.1 ports nothing listens on:
 #               the exit code README's "Exit codes" gives an unreachable robot, one line each
+#               (inventories/robots.py with $ROBOT_FLEET, or the fleet named directly: a .yaml
+#               file, an Ansible inventory directory otherwise, made where the command names it)
 UNREACHABLE_CODE = {"pyinfra": 1, "robotfleet": 3}
 CONTACTING = ("status", "enroll", "rollout")
+
+
+def inventory_of(command: Command) -> str | None:
+    """The inventory a robotfleet command names (INVENTORY, or -i INVENTORY), if it names one."""
+    args = command.args
+    for option in ("-i", "--inventory"):
+        if option in args[1:-1]:
+            return args[args.index(option) + 1]
+    return args[1] if len(args) > 1 and not args[1].startswith("-") else None
 
 
 def how_to_run(command: Command) -> tuple[str, int] | None:
@@ -280,7 +291,8 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
             return "generate", 0
         if args == ["keys", "init"]:
             return "keys-init", 0
-        if command.subcommand in CONTACTING and len(args) > 1 and args[1].startswith("inventories/"):
+        inventory = inventory_of(command) or ""
+        if command.subcommand in CONTACTING and inventory.startswith(("inventories/", "../")):
             if command.subcommand == "rollout" and not {"-y", "--yes", "--dry"} & set(args):
                 return "unreachable", 2  # it would ask, and there is no terminal to ask in
             return "unreachable", UNREACHABLE_CODE["robotfleet"]

@@ -81,12 +81,13 @@ def keys_over_ssh(inventory, hosts) -> dict[str, str]:
 
 def main(argv=None) -> int:
     parser = commands.parser("pull-enroll", __doc__)
-    parser.add_argument("inventory")
+    commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help="host name pattern or group (repeatable)")
     parser.add_argument("--remote", metavar="NAME|URL", help="the fleet remote (default: the checkout's origin)")
     parser.add_argument("--ssh", action="store_true", help="read the key of robots without a report over SSH")
     add_admin(parser)
     args = parser.parse_args(argv)
+    args.inventory = commands.inventory_of(parser, args)
     try:
         admin = admin_of(args)
         inventory = selection.inventory(args.inventory)

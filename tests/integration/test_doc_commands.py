@@ -86,6 +86,7 @@ class Sandbox:
                          "ssh_port": self.port, "ssh_known_hosts_file": str(base / "known_hosts"),
                          "ssh_connect_timeout": 2, "ssh_connect_retries": 0}
         self.fleet = self.yaml_fleet(base / "fleet.yaml")
+        self.yaml_fleet(self.checkout / "inventories" / "robots.yaml")  # named directly: never the example's hosts
         self.runs = 0
 
     def yaml_fleet(self, path: Path) -> Path:
@@ -118,15 +119,24 @@ class Sandbox:
                "ROBOTFLEET_RELEASES_CLONE": str(self.base / "releases")}
         for key, value in command.env.items():
             if key == "ROBOT_FLEET":
-                named = self.checkout / value
-                if not named.exists():
-                    self.yaml_fleet(named) if named.suffix in (".yaml", ".yml") else self.ansible_directory(named)
+                self.made(self.checkout / value)
             env[key] = value
         return env
+
+    def made(self, path: Path) -> Path:
+        """The fleet at ``path``, made if it is not there: YAML for a .yaml
+        name, an Ansible inventory directory otherwise."""
+        if not path.exists():
+            self.yaml_fleet(path) if path.suffix in (".yaml", ".yml") else self.ansible_directory(path)
+        return path
 
     def argv(self, command: doccommands.Command) -> list[str]:
         """The command as written, with absolute paths and FILE placeholders
         under the sandbox, and the files its options read made."""
+        if command.program == "robotfleet" and command.subcommand in doccommands.CONTACTING:
+            inventory = doccommands.inventory_of(command)
+            if inventory and not inventory.endswith(".py"):
+                self.made(self.checkout / inventory)
         args = []
         for i, word in enumerate(command.args):
             if word.startswith("/") and not word.startswith("/dev/"):
