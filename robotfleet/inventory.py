@@ -98,7 +98,7 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     each host's data, the fleet file's other groups (Ansible's) as host
     names, so --limit takes them too, and each --limit or --exclude that
     pyinfra cannot read itself (a comma list, ``&group``, ``!host``) as a
-    group of the hosts it selects (robotfleet/commands/hosts.py).  Every host
+    group of the hosts it selects (robotfleet/selection.py).  Every host
     connects through robotfleet/connect.py (``@fleet/<name>``); ``inventory``
     is the inventory file (its __file__), named in the command that enrolls
     a host key."""
