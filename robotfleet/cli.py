@@ -9,6 +9,7 @@
     robotfleet keys init|show|rotate|prepare|sign|install|generate
     robotfleet bundle ROBOT --out DIR [--admin URL --admin-key FILE]
     robotfleet pull-enroll INVENTORY [--limit ...] [--admin URL --admin-key FILE] [--ssh]
+    robotfleet inventory INVENTORY --graph | --list | --host NAME
 
 INVENTORY (or -i INVENTORY) is the fleet as it is kept: the fleet file
 (inventories/robots.yaml), an Ansible inventory file (INI or YAML) or
@@ -38,6 +39,7 @@ COMMANDS = {
     "keys": "keys",
     "bundle": "bundle",
     "pull-enroll": "pullenroll",
+    "inventory": "inventoryview",
 }
 
 

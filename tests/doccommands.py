@@ -265,10 +265,10 @@ def options(command: Command) -> list[str]:
 #   help        --help / --version: exit 0, text on stdout
 #   generate    robotfleet generate [--check] in a copy of the checkout: exit 0, nothing changed
 #   keys-init   robotfleet keys init into a new key directory: exit 0, both keys 0600
-#   unreachable against a fleet of the same host names on 127.0.0.1 ports nothing listens on:
-#               the exit code README's "Exit codes" gives an unreachable robot, one line each
-#               (inventories/robots.py with $ROBOT_FLEET, or the fleet named directly: a .yaml
-#               file, an Ansible inventory directory otherwise, made where the command names it)
+#   inventory   robotfleet inventory of the fleet below: exit 0, what it shows on stdout
+#   unreachable against a fleet of the same host names on 127.0.0.1 ports nothing listens on (through
+#               $ROBOT_FLEET, or named directly: made where the command names it, a .yaml or an Ansible
+#               directory): the exit code README's "Exit codes" gives an unreachable robot, one line each
 UNREACHABLE_CODE = {"pyinfra": 1, "robotfleet": 3}
 CONTACTING = ("status", "enroll", "rollout")
 
@@ -295,6 +295,8 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
         if args == ["keys", "init"]:
             return "keys-init", 0
         inventory = inventory_of(command) or ""
+        if command.subcommand == "inventory" and inventory.startswith(("inventories/", "../")):
+            return "inventory", 0
         if command.subcommand in CONTACTING and inventory.startswith(("inventories/", "../")):
             if command.subcommand == "rollout" and not {"-y", "--yes", "--dry"} & set(args):
                 return "unreachable", 2  # it would ask, and there is no terminal to ask in
@@ -319,8 +321,7 @@ PATH = re.compile(r"(?<![\w/.-])((?:tests|roles|robotfleet|docs|inventories|file
 
 
 def shipped() -> list[Path]:
-    """The example fleet and inventories, group_data/, files/, the deploy's
-    own files, and every .py file of the engine and the roles."""
+    """The example fleet, inventories/, group_data/, files/, the deploy's files, the engine's and roles' .py."""
     found = [*(ROOT / "inventories").iterdir(), *(ROOT / "group_data").glob("*.py"), *(ROOT / "files").rglob("*"),
              ROOT / "deploy.py", ROOT / "rollback.py", ROOT / "config.py", *(ROOT / "robotfleet").rglob("*.py"),
              *(ROOT / "roles").rglob("*.py")]
