@@ -33,7 +33,7 @@ CODES = {OK: "done", FAILED: "a host failed", REFUSED: "refused before contactin
          UNREACHABLE: "a host was unreachable"}
 
 
-ALL = "all"  # Ansible's group of every host (pyinfra's inventories have it too)
+ALL = "all"  # Ansible's group of every host (pyinfra's inventories have none: robotfleet/inventory.py)
 # Ansible's PATTERN_WITH_SUBSCRIPT (ansible/inventory/manager.py), less its
 # [x-y], which Ansible has removed and pyinfra's globs read as characters.
 SUBSCRIPT = re.compile(r"(?P<base>.+)\[(?:(?P<index>-?[0-9]+)|(?P<start>[0-9]+):(?P<end>[0-9]*))\]")

@@ -89,6 +89,13 @@ def test_pull_enroll_reads_it(tmp_path, kinds):
     assert (result.returncode, result.stderr.strip()) == (2, line), result.stderr
 
 
+def test_bundle_reads_it(tmp_path, kinds):
+    result = run(tmp_path, "-m", "robotfleet", "bundle", "robot1", "--out", str(tmp_path / "out"),
+                 "-i", str(kinds["directory"]))
+    line = f"bundle: {kinds['directory']}: robot1 is not a pull robot (pull: true)"
+    assert (result.returncode, result.stderr.strip()) == (2, line), result.stderr
+
+
 def test_pyinfra_given_a_fleet_says_the_form_that_works(tmp_path, kinds):
     for path in (kinds["yaml"], kinds["directory"]):
         result = run(tmp_path, "-c", PYINFRA, "-y", str(path), "deploy.py", "--limit", "robot1")
