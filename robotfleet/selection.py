@@ -203,7 +203,14 @@ def inventory(path: str):
 
     file, env = pyinfra_inventory(path)
     with ctx_state.use(State()), _environment(env):
-        return make_inventory(file, cwd=os.getcwd())
+        try:
+            return make_inventory(file, cwd=os.getcwd())
+        except Exception as error:  # a .py that is no inventory (deploy.py): pyinfra's traceback otherwise
+            cause = getattr(error, "exception", error)
+            why = " ".join(f"{type(cause).__name__}: {cause}".split())
+            raise Refused(f"{path}: not an inventory pyinfra can load ({why}); give the "
+                          "fleet file (inventories/robots.yaml), an Ansible inventory file or directory, or "
+                          "inventories/robots.py") from None
 
 
 def select(inventory_, path: str, limits: list[str]) -> list:

@@ -130,3 +130,12 @@ def test_no_inventory_or_two_is_refused_in_one_line(tmp_path, argv, line):
     result = run(tmp_path, "-m", "robotfleet", *[word.format(tmp=tmp_path) for word in argv])
     assert result.returncode == 2, result.stderr
     assert result.stderr.splitlines()[-1] == line.format(tmp=tmp_path), result.stderr
+
+
+def test_a_python_file_that_is_no_inventory_is_one_line(tmp_path):
+    result = run(tmp_path, "-m", "robotfleet", "status", "deploy.py")
+    assert result.returncode == 2, result.stderr
+    assert len(result.stderr.splitlines()) == 1 and "Traceback" not in result.stderr, result.stderr
+    assert result.stderr.startswith("deploy.py: not an inventory pyinfra can load (")
+    assert result.stderr.rstrip().endswith("give the fleet file (inventories/robots.yaml), an Ansible inventory file "
+                                           "or directory, or inventories/robots.py")
