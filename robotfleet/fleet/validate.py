@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet import checkers as c
+from robotfleet import secrets
 from robotfleet.fleet import loader, provenance, sources, tree
 from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry, setting_of
@@ -190,7 +191,8 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] "
                      "in an INI inventory)")
     if lines:
-        raise FleetError([c.one_line(line) for line in lines], notes)
+        # a refused value is quoted in its line: never with the password a URL in it carries
+        raise FleetError([secrets.mask(c.one_line(line)) for line in lines], notes)
     return fleet
 
 
