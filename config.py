@@ -10,7 +10,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 from pyinfra import config
 
-from robotfleet.inventory import refuse
+from robotfleet.inventory import refuse, require_python_inventory
 
 config.REQUIRE_PYINFRA_VERSION = ">=3.10,<4"
 
@@ -19,3 +19,7 @@ config.REQUIRE_PYINFRA_VERSION = ">=3.10,<4"
 _missing = [a for a in sys.argv[1:] if a.endswith(".py") and not a.startswith("-") and not os.path.exists(a)]
 if _missing:
     refuse([f"{path}: no such file" for path in _missing])
+
+# pyinfra takes a Python inventory: a fleet file or an Ansible inventory
+# directory given to it gets one line naming the form that works.
+require_python_inventory()

@@ -10,9 +10,14 @@
     robotfleet keys init|show|rotate|prepare|sign|install|generate
     robotfleet bundle ROBOT --out DIR [--admin URL --admin-key FILE]
     robotfleet pull-enroll INVENTORY [--limit ...] [--admin URL --admin-key FILE] [--ssh]
+    robotfleet inventory INVENTORY --graph | --list | --host NAME
 
+INVENTORY (or -i INVENTORY) is the fleet as it is kept: the fleet file
+(inventories/robots.yaml), an Ansible inventory file (INI or YAML) or
+directory, or inventories/robots.py (which reads $ROBOT_FLEET).
 `robotfleet COMMAND --help` explains each.  Deploys are plain pyinfra, run
-in the checkout: pyinfra inventories/robots.py deploy.py
+in the checkout: pyinfra inventories/robots.py deploy.py (another fleet:
+ROBOT_FLEET=PATH pyinfra inventories/robots.py deploy.py)
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ COMMANDS = {
     "keys": "keys",
     "bundle": "bundle",
     "pull-enroll": "pullenroll",
+    "inventory": "inventoryview",
 }
 
 

@@ -4,6 +4,7 @@ against every setting of deploy.py's roles before pyinfra connects anywhere."""
 from __future__ import annotations
 
 import os
+import shlex
 import sys
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from robotfleet import selection
 from robotfleet.fleet.validate import Fleet, FleetError, display_path, load, parse
 
 __all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",
-           "require_checkout", "SOURCES"]
+           "require_checkout", "require_python_inventory", "SOURCES"]
 
 # Where the fleet this process loaded came from (its file or directory):
 # what a rollout's lock is per (robotfleet/commands/rollout_plan.py lock_path).
@@ -46,8 +47,25 @@ def require_checkout() -> None:
         ])
 
 
+def require_python_inventory() -> None:
+    """Under pyinfra's CLI (config.py), refuse a fleet file or an Ansible
+    inventory given as pyinfra's inventory, which pyinfra would run as Python
+    (a SyntaxError) or fail to read (a directory): one line with the form
+    that works."""
+    context = click.get_current_context(silent=True)
+    given = context.params.get("inventory") if context is not None else None
+    if not isinstance(given, str) or given.endswith(".py") or not os.path.exists(given):
+        return
+    words = list(sys.argv[1:])  # the command as typed, less the inventory
+    if given in words:
+        words.remove(given)
+    rest = " ".join(shlex.quote(word) for word in words)
+    refuse([f"{given}: pyinfra takes a Python inventory; it reads a fleet file or an Ansible inventory through "
+            f"inventories/robots.py: {selection.pyinfra_command(given)} {rest}".rstrip()])
+
+
 def _refuse_fleet(error: FleetError) -> None:
-    refuse(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
+    refuse(error.lines + error.notes + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
 
 
 def _noted(fleet: Fleet) -> Fleet:
@@ -80,7 +98,7 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     each host's data, the fleet file's other groups (Ansible's) as host
     names, so --limit takes them too, and each --limit or --exclude that
     pyinfra cannot read itself (a comma list, ``&group``, ``!host``) as a
-    group of the hosts it selects (robotfleet/commands/hosts.py).  Every host
+    group of the hosts it selects (robotfleet/selection.py).  Every host
     connects through robotfleet/connect.py (``@fleet/<name>``); ``inventory``
     is the inventory file (its __file__), named in the command that enrolls
     a host key."""
@@ -111,6 +129,9 @@ def _limit_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
         if problem:
             refuse([problem if option == "limit" else problem.replace("--limit", "--exclude", 1)])
         for value in values:
+            if selection.terms(value) == [selection.ALL]:  # pyinfra's inventories have no group all to find
+                refuse([f"--{option} all: pyinfra has no group all; a deploy without --{option} is every host "
+                        f"(all,!HOST leaves some out); nothing was done"])
             if selection.needs_group(value):
                 chosen = selection.resolve([value], hosts, groups)[0]
                 made[value] = connect.names([(host, {}) for host in chosen])

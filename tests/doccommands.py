@@ -17,6 +17,9 @@ comment right before it (blank lines between are allowed):
     <!-- illustrative (robotfleet publish, robotfleet halt): they write to the fleet remote -->
 
 the second form covering only the commands starting with those words.
+The same commands in what ships beside the docs (the example fleet, the
+inventories, files/, the engine's and the roles' docstrings) and the links
+there are found by ``shipped_commands`` and ``dangling_links``.
 tests/unit/test_doc_commands.py checks what needs no process;
 tests/integration/test_doc_commands.py checks each command against the
 ``--help`` of the program it names and runs the ones ``how_to_run`` knows
@@ -262,10 +265,21 @@ def options(command: Command) -> list[str]:
 #   help        --help / --version: exit 0, text on stdout
 #   generate    robotfleet generate [--check] in a copy of the checkout: exit 0, nothing changed
 #   keys-init   robotfleet keys init into a new key directory: exit 0, both keys 0600
-#   unreachable against a fleet of the same host names on 127.0.0.1 ports nothing listens on:
-#               the exit code README's "Exit codes" gives an unreachable robot, one line each
+#   inventory   robotfleet inventory of the fleet below: exit 0, what it shows on stdout
+#   unreachable against a fleet of the same host names on 127.0.0.1 ports nothing listens on (through
+#               $ROBOT_FLEET, or named directly: made where the command names it, a .yaml or an Ansible
+#               directory): the exit code README's "Exit codes" gives an unreachable robot, one line each
 UNREACHABLE_CODE = {"pyinfra": 1, "robotfleet": 3}
 CONTACTING = ("status", "enroll", "rollout")
+
+
+def inventory_of(command: Command) -> str | None:
+    """The inventory a robotfleet command names (INVENTORY, or -i INVENTORY), if it names one."""
+    args = command.args
+    for option in ("-i", "--inventory"):
+        if option in args[1:-1]:
+            return args[args.index(option) + 1]
+    return args[1] if len(args) > 1 and not args[1].startswith("-") else None
 
 
 def how_to_run(command: Command) -> tuple[str, int] | None:
@@ -280,7 +294,10 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
             return "generate", 0
         if args == ["keys", "init"]:
             return "keys-init", 0
-        if command.subcommand in CONTACTING and len(args) > 1 and args[1].startswith("inventories/"):
+        inventory = inventory_of(command) or ""
+        if command.subcommand == "inventory" and inventory.startswith(("inventories/", "../")):
+            return "inventory", 0
+        if command.subcommand in CONTACTING and inventory.startswith(("inventories/", "../")):
             if command.subcommand == "rollout" and not {"-y", "--yes", "--dry"} & set(args):
                 return "unreachable", 2  # it would ask, and there is no terminal to ask in
             return "unreachable", UNREACHABLE_CODE["robotfleet"]
@@ -290,3 +307,94 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
         if inventory == "inventories/robots.py":
             return "unreachable", UNREACHABLE_CODE["pyinfra"]
     return None
+
+
+# What ships beside the docs (issue 39, item 4): the example fleet, the
+# inventories, group_data/, files/ and the deploy's own files.  The commands
+# and links in their comments (and the .py files' docstrings) are checked
+# as the docs' are: a command line in a comment (indented past the comment's
+# text) or a `code span`; a link is a path of the checkout, a Markdown
+# file's #anchor, or a section named as README, "Title".
+SECTION = re.compile(r"\b(README|ARCHITECTURE|docs/[\w-]+)(?:\.md)?"
+                     r"(?:, \"([^\"]+)\"|, ([A-Z][^\",;:()]*\w)|'s \"([^\"]+)\"|\.md#([\w-]+))")
+PATH = re.compile(r"(?<![\w/.-])((?:tests|roles|robotfleet|docs|inventories|files|group_data)/[\w./-]*[\w/])")
+
+
+def shipped() -> list[Path]:
+    """The example fleet, inventories/, group_data/, files/, the deploy's files, the engine's and roles' .py."""
+    found = [*(ROOT / "inventories").iterdir(), *(ROOT / "group_data").glob("*.py"), *(ROOT / "files").rglob("*"),
+             ROOT / "deploy.py", ROOT / "rollback.py", ROOT / "config.py", *(ROOT / "robotfleet").rglob("*.py"),
+             *(ROOT / "roles").rglob("*.py")]
+    return sorted(p for p in found if p.is_file() and p.name != "known_hosts" and "__pycache__" not in p.parts)
+
+
+def comment_lines(path: Path) -> list[tuple[int, str, bool]]:
+    """(line, text, whether it is a code line) of each line of ``path``'s
+    comments: ``#`` comments, a .py file's docstrings, XML's <!-- -->, and
+    the whole of a JSON file (the editors' schema: its descriptions)."""
+    text = path.read_text()
+    lines = text.splitlines()
+    if path.suffix == ".json":
+        return [(n, line, False) for n, line in enumerate(lines, 1)]
+    found = []
+    if path.suffix == ".py":
+        import ast
+
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) \
+                    and ast.get_docstring(node):
+                first = node.body[0].lineno
+                for offset, line in enumerate(ast.get_docstring(node).splitlines()):
+                    found.append((first + offset, line, line.startswith("    ")))
+    inside = False
+    for number, line in enumerate(lines, 1):
+        stripped = line.strip()
+        if path.suffix == ".xml":
+            inside = inside or "<!--" in stripped
+            if inside:
+                found.append((number, stripped.replace("<!--", "").replace("-->", ""), False))
+            inside = inside and "-->" not in stripped
+        elif stripped.startswith("#") and not stripped.startswith("#!"):
+            body = stripped.lstrip("#")[1:]
+            found.append((number, body, body.startswith("  ")))
+    return sorted(found)
+
+
+def shipped_commands(path: Path) -> list[Command]:
+    name = str(path.relative_to(ROOT))
+    found: list[Command] = []
+    joined: list[tuple[int, str, bool]] = []
+    for number, text, code in comment_lines(path):
+        if joined and joined[-1][2] and joined[-1][1].endswith("\\") and joined[-1][0] == number - 1:
+            joined[-1] = (number, joined[-1][1][:-1] + " " + text.strip(), True)
+        else:
+            joined.append((number, text.strip(), code))
+    for number, text, code in joined:
+        if code:
+            found.extend(parse(name, number, text))
+        for span in re.findall(r"(?<!`)`([^`]+)`(?!`)", text):
+            found.extend(parse(name, number, span.strip(), inline=True))
+    return found
+
+
+def anchor(title: str) -> str:
+    """GitHub's anchor of a Markdown heading."""
+    return re.sub(r"[^\w\- ]", "", title.strip().lower()).replace(" ", "-")
+
+
+def dangling_links(path: Path) -> list[str]:
+    """The links of ``path``'s comments that lead nowhere: a path not in the
+    checkout, a section or an anchor its Markdown file does not have."""
+    name = str(path.relative_to(ROOT))
+    missing = []
+    for number, text, _ in comment_lines(path):
+        for found in PATH.findall(text):
+            if not re.search(r"[A-Z<*{]", found) and found != "robotfleet/releases" and not (ROOT / found).exists():
+                missing.append(f"{name}:{number}: {found} is not in the checkout")
+        for doc, *titles in SECTION.findall(text):
+            markdown = ROOT / f"{doc}.md"
+            headings = re.findall(r"^#+ (.+)$", markdown.read_text(), re.M) if markdown.is_file() else []
+            title = next(t for t in titles if t)
+            if title not in headings and title not in map(anchor, headings):
+                missing.append(f"{name}:{number}: {doc}.md has no section {title!r}")
+    return missing

@@ -116,8 +116,9 @@ def main(argv=None) -> int:
     parser = commands.parser("bundle", __doc__)
     parser.add_argument("robot")
     parser.add_argument("--out", required=True, metavar="DIR", help="a new directory for the bundle")
-    parser.add_argument("--fleet", metavar="FILE",
-                        help="the fleet file (default $ROBOT_FLEET, else inventories/robots.yaml)")
+    parser.add_argument("-i", "--fleet", metavar="INVENTORY",
+                        help="the fleet file or an Ansible inventory file or directory (default $ROBOT_FLEET, else "
+                             "inventories/robots.yaml)")
     add_admin(parser)
     parser.add_argument("--name-from", choices=sorted(naming.RULES),
                         help="an image shared by many robots: each names itself from its machine-id or board serial")

@@ -182,7 +182,7 @@ def decide(host: Target, key, choices: Choices) -> tuple[str, str]:
 
 def main(argv=None) -> int:
     parser = commands.parser("enroll", __doc__)
-    parser.add_argument("inventory")
+    commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--fingerprints", metavar="FILE",
                         help="the hosts' recorded fingerprints: HOST SHA256:... per line")
@@ -193,6 +193,7 @@ def main(argv=None) -> int:
                         help="replace HOST's changed key when the new one matches --fingerprints FILE (repeatable)")
     parser.add_argument("-y", "--yes", action="store_true", help="enroll new keys as shown, without asking")
     args = parser.parse_args(argv)
+    args.inventory = commands.inventory_of(parser, args)
     try:
         if args.replace and not args.fingerprints:
             raise selection.Refused("--replace needs --fingerprints FILE: a changed key is replaced only when it "

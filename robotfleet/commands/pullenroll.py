@@ -174,7 +174,7 @@ def judge(host, report: dict, asked: Asked) -> tuple[str, str]:
 
 def main(argv=None) -> int:
     parser = commands.parser("pull-enroll", __doc__)
-    parser.add_argument("inventory")
+    commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--remote", metavar="NAME|URL", help="the releases remote (default: the one the fleet names)")
     parser.add_argument("--ssh", action="store_true",
@@ -186,6 +186,7 @@ def main(argv=None) -> int:
                              "bundle or --fingerprints (repeatable)")
     add_admin(parser)
     args = parser.parse_args(argv)
+    args.inventory = commands.inventory_of(parser, args)
     try:
         admin = admin_of(args)
         expected = enroll.read_fingerprints(args.fingerprints) if args.fingerprints else None

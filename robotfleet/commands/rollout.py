@@ -88,14 +88,15 @@ def missing(roles, row: dict, target: dict) -> str | None:
     return None
 
 
-def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str, deployment: str) -> dict | None:
+def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str, deployment: str,
+                fleet_env: dict | None = None) -> dict | None:
     """Run the normal deploy on ``hosts``, named ``deployment`` (the roles
     record it with their results on each host); pyinfra's JSON results (None
     if it printed none, e.g. every host failed).  What it prints is for the
     operator only: no result is read from it (a host can print anything)."""
     limits = [arg for host in hosts for arg in ("--limit", host)]
     command = [sys.executable, "-c", PYINFRA, "-y", "--json", inventory, script, *limits, *extra]
-    env = dict(os.environ, PYINFRA_PROGRESS="off", **{DEPLOYMENT_ENV: deployment})
+    env = dict(os.environ, PYINFRA_PROGRESS="off", **(fleet_env or {}), **{DEPLOYMENT_ENV: deployment})
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True, env=env)
         for line in proc.stderr:
@@ -157,8 +158,8 @@ def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, dep
 
 def parse_args(argv):
     parser = commands.parser("rollout", __doc__)
-    parser.add_argument("inventory")
-    parser.add_argument("script", nargs="?", default="deploy.py", help="the deploy (default: deploy.py)")
+    commands.add_inventory(parser)
+    parser.add_argument("script", nargs="?", help="the deploy (default: deploy.py)")
     parser.add_argument("--canary", default="1",
                         help="robots in the first wave when none has rollout_canary (default 1)")
     parser.add_argument("--batch", default="25%", help="robots per later wave, a number or a share (default 25%%)")
@@ -175,6 +176,10 @@ def parse_args(argv):
 
     pullrollout.add_options(parser)
     args = parser.parse_args(argv)
+    if args.inventory_option and args.inventory and not args.script:  # rollout -i INVENTORY SCRIPT
+        args.inventory, args.script = None, args.inventory
+    args.inventory = commands.inventory_of(parser, args)
+    args.script = args.script or "deploy.py"
     try:
         args.canary = waves.parse_count(args.canary, "--canary")
         args.batch = waves.parse_count(args.batch, "--batch")
@@ -184,11 +189,12 @@ def parse_args(argv):
     return args
 
 
-def relayed(command: list[str]) -> int:
+def relayed(command: list[str], fleet_env: dict | None = None) -> int:
     """Run ``command`` with its output escaped on the way (what robots sent
     is in it): stderr as it comes, stdout after; its exit status."""
     with tempfile.TemporaryFile("w+") as out:
-        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True,
+                                env=dict(os.environ, **(fleet_env or {})))
         for line in proc.stderr:
             relay(line)
         proc.wait()
@@ -208,16 +214,17 @@ def main(argv=None) -> int:
     monkey.patch_all()
     argv = sys.argv[1:] if argv is None else argv
     args = parse_args(argv)
-    for path in (args.inventory, args.script):
-        if not os.path.exists(path):
-            say(f"rollout: {path}: no such file")
-            return 2
+    if not os.path.exists(args.script):
+        say(f"rollout: {args.script}: no such file")
+        return 2
     extra = [arg for pair in args.data for arg in ("--data", pair)]
     extra += ["--parallel", str(args.parallel)] if args.parallel else []
     overrides = read_overrides(args.data)
 
     try:
         hosts = selected_hosts(args.inventory, args.limit)
+        # what pyinfra is given: the waves' deploys, the lock and the state's key (one fleet, however it is named)
+        args.pyinfra, args.pyinfra_env = selection.pyinfra_inventory(args.inventory)
     except selection.Refused as error:
         return selection.refused(error)
     if not hosts:
@@ -227,19 +234,21 @@ def main(argv=None) -> int:
     if pulled:  # robots that converge themselves: publish and follow their reports (docs/pull.md)
         from robotfleet.commands import pullrollout
 
+        if args.pyinfra_env and not args.fleet:  # the fleet named as the inventory is the one the release carries
+            args.fleet = os.path.relpath(args.inventory)
         return pullrollout.main(args, hosts, pulled)
     roles = roster.roles()
     names = [name for name, _ in hosts]
     targets = {name: targets_of(roles, data, overrides) for name, data in hosts}
     flagged = [name for name, data in hosts if data.get("rollout_canary")]
     plan = waves.build_waves(names, flagged, args.canary, args.batch)
-    key = waves.fleet_key(args.inventory, names, targets)
+    key = waves.fleet_key(args.pyinfra, names, targets)
     path = waves.state_path(key)
     if args.dry:
         return roll(args, argv, roles, names, targets, plan, key, path, extra)
     try:
         # One rollout of a fleet at a time, whatever its flags (--limit, --data).
-        with waves.held(waves.lock_path(args.inventory, fleet_inventory.SOURCES)):
+        with waves.held(waves.lock_path(args.pyinfra, fleet_inventory.SOURCES)):
             return roll(args, argv, roles, names, targets, plan, key, path, extra)
     except waves.RolloutBusy as busy:
         say(f"rollout: {busy}")
@@ -272,8 +281,8 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         code = selection.OK
         if todo:
             limits = [a for h in todo for a in ("--limit", h)]
-            code = selection.FAILED if relayed([sys.executable, "-c", PYINFRA, "--dry", args.inventory, args.script,
-                                                *limits, *extra]) else code
+            code = selection.FAILED if relayed([sys.executable, "-c", PYINFRA, "--dry", args.pyinfra, args.script,
+                                                *limits, *extra], args.pyinfra_env) else code
         for host, why in unreachable.items():
             say(f"rollout: [{host}] {'unreachable' if connect.unreachable(why or '') else 'failed'}: {why}")
         network = [h for h, why in unreachable.items() if connect.unreachable(why or "")]
@@ -301,7 +310,7 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         say("")
         say(f"--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}")
         deployment = f"rollout-{state['key'][:12]}-wave{index + 1}-{secrets.token_hex(4)}"
-        results = deploy_wave(args.inventory, todo, extra, args.script, deployment)
+        results = deploy_wave(args.pyinfra, todo, extra, args.script, deployment, args.pyinfra_env)
         # A robot the deploy could not reach is not tried again in this wave
         # (no JSON from pyinfra: nor is one that did not answer the status before).
         lost = not_connected(results) | ({h for h in todo if not rows.get(h, {}).get("reachable")}
@@ -326,7 +335,7 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
     reached = [h for h in state["done"] if h in {x for w in state["waves"] for x in w}]
     print(one_line(f"resume:   {resume_command(argv)}"))
     if reached:
-        print(one_line(f"roll back the robots it reached: pyinfra {args.inventory} rollback.py "
+        print(one_line(f"roll back the robots it reached: {selection.pyinfra_command(args.inventory)} rollback.py "
                        + " ".join(f"--limit {h}" for h in reached)))
     only_skipped = state["status"] != "stopped" and not state["failed"] and state["skipped"]
     return selection.UNREACHABLE if only_skipped else selection.FAILED

@@ -214,7 +214,7 @@ def main(argv=None) -> int:
     import time
 
     parser = commands.parser("status", __doc__)
-    parser.add_argument("inventory")
+    commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--json", action="store_true", help="machine-readable output (--format json)")
     parser.add_argument("--format", choices=("table", "json", "openmetrics"), default=None,
@@ -226,6 +226,7 @@ def main(argv=None) -> int:
     parser.add_argument("--parallel", type=hosts_at_once, default=PARALLEL, metavar="N",
                         help=f"hosts asked at once (default {PARALLEL})")
     args = parser.parse_args(argv)
+    args.inventory = commands.inventory_of(parser, args)
     if args.json and args.format not in (None, "json"):
         parser.error("--json and --format openmetrics/table: choose one")
     shown = "json" if args.json else args.format or "table"

@@ -70,6 +70,11 @@ class Reading:
             for file in files:
                 self.file(file)
             base = path
+        elif path.suffix == ".py" and path.is_file():
+            self.problem(display_path(path), "a pyinfra inventory (Python), not a fleet file: $ROBOT_FLEET and "
+                                             "--fleet name the fleet (inventories/robots.yaml, or an Ansible "
+                                             "inventory file or directory)")
+            return
         else:
             self.file(path)
             base = path.parent

@@ -73,6 +73,7 @@ class Group:
     layers: list[Layer] = field(default_factory=list)  # its vars in the inventory, one per definition
     files: list[Layer] = field(default_factory=list)  # group_vars/<name>..., in Ansible's order
     parents: set[str] = field(default_factory=set)
+    members: dict[str, None] = field(default_factory=dict)  # the hosts listed in it, in the order listed
 
 
 @dataclass
@@ -90,15 +91,21 @@ class Tree:
         """``host``'s layers, lowest first, in Ansible's order: the inventory's
         group vars (all, then the groups by depth and name), group_vars/ files
         in the same order, the inventory's host vars, host_vars/ files."""
+        return [layer for _, _, layer in self.sourced(host)]
+
+    def sourced(self, host: str) -> list[tuple[str, str, Layer]]:
+        """``host``'s layers as ``layers`` orders them, each with whose it is:
+        ("group", its name) or ("host", ``host``)."""
         groups = self.ordered(self.above(host))
-        return ([layer for g in groups for layer in self.groups[g].layers]
-                + [layer for g in groups for layer in self.groups[g].files]
-                + [layer for _, layer in self.hosts[host]] + self.host_files.get(host, []))
+        return ([("group", g, layer) for g in groups for layer in self.groups[g].layers]
+                + [("group", g, layer) for g in groups for layer in self.groups[g].files]
+                + [("host", host, layer) for _, layer in self.hosts[host]]
+                + [("host", host, layer) for layer in self.host_files.get(host, [])])
 
     def listed(self, host: str, group: str, layer: Layer, port: int | None = None) -> None:
         """``host`` listed in ``group`` with ``layer``; a host pattern's port
         counts where the host is first listed only, as in Ansible."""
-        self.groups.setdefault(group, Group(group))
+        self.groups.setdefault(group, Group(group)).members[host] = None
         if port is not None and host not in self.hosts:
             self.hosts[host] = [(group, Layer({PORT_KEY: port}, layer.file, line=layer.line))]
         self.hosts.setdefault(host, []).append((group, layer))

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet import checkers as c
-from robotfleet.fleet import loader, sources, tree
+from robotfleet import secrets
+from robotfleet.fleet import loader, provenance, sources, tree
 from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry, setting_of
 from robotfleet.fleet.sources import MAX_BYTES, display_path
@@ -33,9 +34,13 @@ INI_BOOLEAN = "; INI reads it as text, as Ansible does: write True or False"
 
 
 class FleetError(Exception):
-    def __init__(self, lines: list[str]):
+    """The fleet's problems (``lines``), and what reading it had to note
+    (``notes``: a vars file not read often explains a problem)."""
+
+    def __init__(self, lines: list[str], notes: list[str] | None = None):
         super().__init__("\n".join(lines))
         self.lines = lines
+        self.notes = notes or []
 
 
 @dataclass
@@ -44,6 +49,7 @@ class Fleet:
     # Every other group of the file (Ansible's), as host names, for --limit.
     subgroups: dict[str, list[str]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    tree: tree.Tree | None = None  # the groups and layers it was read from (where each value comes from)
 
     def hosts(self, group: str) -> list[tuple[str, dict]]:
         return self.groups.get(group, [])
@@ -142,7 +148,9 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
     for name, group in groups.groups.items():
         for layer in group.files:
             verdicts[id(layer)] = checked(name, layer)
-    fleet = Fleet(groups={group: [] for group in GROUPS})
+    fleet = Fleet(groups={group: [] for group in GROUPS}, tree=groups)
+    combining = {name for name, _ in registry.mergers}  # settings whose layers combine: no sibling disagrees
+    disagreeing: dict[provenance.Disagreement, list[str]] = {}  # each disagreement -> the hosts it concerns
     defaults: dict[str, dict] = {}  # per kind of host, made when a host of that kind is checked
     for name, listed in groups.hosts.items():
         home = listed[0][1]
@@ -164,6 +172,8 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
             layers.append(values)
             refused |= bad
         data = registry.merge(layers)
+        for found in provenance.disagreements(groups, name, lambda layer: verdicts[id(layer)][0], combining):
+            disagreeing.setdefault(found, []).append(name)
         resolve_older_names(data, layers, refused, name, home, notes)
         if "ssh_hostname" in refused:
             refused.add("address")
@@ -174,6 +184,7 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         fleet.groups[kinds[0]].append((name, data))
         for group in above - {tree.ALL, *GROUPS}:
             fleet.subgroups.setdefault(group, []).append(name)
+    notes.extend(sibling_note(found, hosts) for found, hosts in disagreeing.items())
     if ignored:
         notes.append(f"{shown}: note: {', '.join(sorted(ignored))}: Ansible's own, ignored here")
     fleet.notes = notes
@@ -181,7 +192,8 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] "
                      "in an INI inventory)")
     if lines:
-        raise FleetError([c.one_line(line) for line in lines])
+        # a refused value is quoted in its line: never with the password a URL in it carries
+        raise FleetError([secrets.mask(c.one_line(line)) for line in lines], notes)
     return fleet
 
 
@@ -202,3 +214,11 @@ def resolve_older_names(data: dict, layers: list[dict], refused: set[str], host:
             notes.append(f"{home.at(None)}: note: {host}: {older} ({c.describe(value)}) wins over "
                          f"{setting} ({c.describe(later[-1])}), as in Ansible")
         data[setting] = value
+
+
+def sibling_note(found: provenance.Disagreement, hosts: list[str]) -> str:
+    """One note for a setting sibling groups disagree on, for every host concerned."""
+    shown = ", ".join(hosts[:3]) + (f" and {len(hosts) - 3} more" if len(hosts) > 3 else "")
+    return (f"{found.at}: note: {shown}: {found.setting} is group {found.winner}'s, not {', '.join(found.losers)}'s "
+            f"(sibling groups that set it differently; {found.why}, as in Ansible); set it on the host or give one "
+            "group a higher ansible_group_priority")

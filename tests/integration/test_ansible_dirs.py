@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from robotfleet.fleet import hostpattern, ini
+from tests.fixtures import ROOT
 from tests.unit.harness import FleetError, load
 
 IMAGE = "reg.example.com/acme/ros-payload:1.4.2"
@@ -252,6 +253,26 @@ def test_vars_files_that_are_not_read_are_notes(tmp_path):
         f"{shown}/host_vars/robot2.yml: note: no host 'robot2' in the inventory (did you mean 'robot1'?); not read",
     ]
     assert dict(fleet.hosts("robots"))["robot1"]["ros_domain_id"] == 5
+
+
+def test_a_vars_file_not_read_is_noted_with_the_errors_it_explains(tmp_path):
+    """group_vars/robot.yml (not read) holds the payload image the robots
+    then lack: its note comes with the error, not once every error is fixed
+    (issue 39, item 10)."""
+    root = write(tmp_path / "inv", {"hosts": "[robots]\nrobot1 ansible_host=127.0.0.1\n",
+                                    "group_vars/robot.yml": f"payload_image: {IMAGE}\n"})
+    result = subprocess.run([sys.executable, "-m", "robotfleet", "status", "inventories/robots.py"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60,
+                            env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(root), "HOME": str(tmp_path)})
+    lines = result.stderr.splitlines()
+    note = (f"{display(root)}/group_vars/robot.yml: note: no group 'robot' in the inventory (did you mean "
+            "'robots'?); not read")
+    assert result.returncode == 2, result.stderr
+    assert note in lines and lines[-1] == "1 problem(s) in the fleet file; no host was contacted.", result.stderr
+    assert any("robot1" in line and "payload_image" in line for line in lines), result.stderr
+    with pytest.raises(FleetError) as error:
+        load(root)
+    assert error.value.notes == [note]
 
 
 @pytest.mark.parametrize("name, text, line", [

@@ -55,7 +55,14 @@ def help_for(command: doccommands.Command) -> str:
     return help_of("-m", "robotfleet", command.subcommand)
 
 
-CHECKED = [c for c in COMMANDS if c.program in ("robotfleet", "pyinfra")]
+def synopsis_only(command: doccommands.Command) -> bool:
+    """robotfleet COMMAND --help, keys init|show|...: no one program's help to read."""
+    words = command.args[:2] if command.subcommand == "keys" else command.args[:1]
+    return any(word == "..." or word.isupper() or "|" in word for word in words)
+
+
+SHIPPED = [c for path in doccommands.shipped() for c in doccommands.shipped_commands(path)]
+CHECKED = [c for c in COMMANDS + SHIPPED if c.program in ("robotfleet", "pyinfra") and not synopsis_only(c)]
 
 
 @pytest.mark.parametrize("command", CHECKED, ids=[f"{c.doc}:{c.line}" for c in CHECKED])
@@ -85,6 +92,7 @@ class Sandbox:
                          "ssh_port": self.port, "ssh_known_hosts_file": str(base / "known_hosts"),
                          "ssh_connect_timeout": 2, "ssh_connect_retries": 0}
         self.fleet = self.yaml_fleet(base / "fleet.yaml")
+        self.yaml_fleet(self.checkout / "inventories" / "robots.yaml")  # named directly: never the example's hosts
         self.runs = 0
 
     def yaml_fleet(self, path: Path) -> Path:
@@ -118,15 +126,24 @@ class Sandbox:
                "ROBOTFLEET_RELEASES_CLONE": str(self.base / "releases")}
         for key, value in command.env.items():
             if key == "ROBOT_FLEET":
-                named = self.checkout / value
-                if not named.exists():
-                    self.yaml_fleet(named) if named.suffix in (".yaml", ".yml") else self.ansible_directory(named)
+                self.made(self.checkout / value)
             env[key] = value
         return env
+
+    def made(self, path: Path) -> Path:
+        """The fleet at ``path``, made if it is not there: YAML for a .yaml
+        name, an Ansible inventory directory otherwise."""
+        if not path.exists():
+            self.yaml_fleet(path) if path.suffix in (".yaml", ".yml") else self.ansible_directory(path)
+        return path
 
     def argv(self, command: doccommands.Command) -> list[str]:
         """The command as written, with absolute paths and FILE placeholders
         under the sandbox, and the files its options read made."""
+        if command.program == "robotfleet" and command.subcommand in (*doccommands.CONTACTING, "inventory"):
+            inventory = doccommands.inventory_of(command)
+            if inventory and not inventory.endswith(".py"):
+                self.made(self.checkout / inventory)
         args = []
         for i, word in enumerate(command.args):
             if word.startswith("/") and not word.startswith("/dev/"):
@@ -171,7 +188,7 @@ RUNNABLE = unique_runnable()
 
 def test_the_runnable_commands_cover_the_operators_path():
     kinds = {doccommands.how_to_run(c)[0] for c in RUNNABLE}
-    assert kinds == {"help", "generate", "keys-init", "unreachable"}, kinds
+    assert kinds == {"help", "generate", "keys-init", "unreachable", "inventory"}, kinds
     shown = {c.text for c in RUNNABLE}
     assert "robotfleet enroll inventories/robots.py" in shown and "pyinfra -y inventories/robots.py deploy.py" in shown
 
@@ -183,7 +200,7 @@ def test_each_command_that_needs_no_robot_runs_as_the_docs_say(command, sandbox)
     said = result.stdout + result.stderr
     assert "Traceback" not in said, f"{command.where}\n{said[-3000:]}"
     assert result.returncode == code, f"{command.where}: exit {result.returncode}, the docs say {code}\n{said[-3000:]}"
-    if how == "help":
+    if how in ("help", "inventory"):
         assert result.stdout.strip()
     elif how == "generate":
         for name in GENERATED:

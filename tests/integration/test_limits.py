@@ -59,6 +59,25 @@ def test_a_limit_that_cannot_select_is_refused_in_one_line(limits, line):
     assert selection.refusal(limits, "inv.py", HOSTS, GROUPS).startswith(line)
 
 
+ANSIBLE_PATTERNS = ["all", "all,!robot04", "robots[0:2]", "robots[-1]", "robots[3:]", "robots[0:0]", "robots[1]",
+                    "robot*[1:2]", "all,!robots[0:3]", "robots,&robots[1:3],!robot03"]
+
+
+@pytest.mark.parametrize("limit", ANSIBLE_PATTERNS)
+def test_all_and_subscripts_select_what_ansible_selects(tmp_path, limit):
+    """Ansible's own InventoryManager reads the same hosts and the same
+    pattern (its ':' where ours has ','; issue 39, item 5)."""
+    from ansible.inventory.manager import InventoryManager
+    from ansible.parsing.dataloader import DataLoader
+
+    (tmp_path / "hosts").write_text("[robots]\nrobot0[1:5]\n\n[laptops]\nlap1\n")
+    ansible = InventoryManager(loader=DataLoader(), sources=[str(tmp_path / "hosts")])
+    hosts = [(f"robot0{i}", {"robots"}) for i in range(1, 6)] + [("lap1", {"laptops"})]
+    theirs = [host.name for host in ansible.get_hosts(limit.replace(",", ":"))]
+    assert theirs, limit
+    assert selection.resolve([limit], hosts, {"robots", "laptops"})[0] == theirs
+
+
 def dialled(output: str) -> list[str]:
     return sorted(set(re.findall(r"\[(robot\d)\] (?:unreachable: )?connection refused", output)))
 
@@ -75,6 +94,8 @@ def three_dead(tmp_path):
     (["--limit", "robots,!robot2"], ["robot1", "robot3"]),
     (["--exclude", "robot1,robot2"], ["robot3"]),
     (["--limit", "robot*", "--exclude", "robot3"], ["robot1", "robot2"]),
+    (["--limit", "all,!robot2"], ["robot1", "robot3"]),
+    (["--limit", "robots[1:]"], ["robot2", "robot3"]),
 ])
 def test_pyinfra_deploys_take_the_same_limits(tmp_path, three_dead, options, chosen):
     result = run(three_dead, tmp_path, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py", *options)
@@ -82,11 +103,20 @@ def test_pyinfra_deploys_take_the_same_limits(tmp_path, three_dead, options, cho
     assert dialled(result.stderr) == chosen, result.stderr[-2000:]
 
 
+def test_a_bare_all_is_refused_by_pyinfra_deploys_in_one_line(tmp_path, three_dead):
+    """pyinfra's inventories have no group all: it would match nothing and exit 0."""
+    result = run(three_dead, tmp_path, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py", "--limit", "all")
+    ours = [x for x in result.stderr.splitlines() if not x.startswith("--> ")]
+    assert (result.returncode, ours) == (2, ["--limit all: pyinfra has no group all; a deploy without --limit is "
+                                             "every host (all,!HOST leaves some out); nothing was done"]), result.stderr
+
+
+@pytest.mark.parametrize("limit", ["robots,!robot2", "all,!robot2", "robots[0],robots[-1]"])
 @pytest.mark.parametrize("command", ["status", "rollout"])
-def test_robotfleet_commands_take_the_same_limits(tmp_path, three_dead, command):
+def test_robotfleet_commands_take_the_same_limits(tmp_path, three_dead, command, limit):
     extra = ["--json"] if command == "status" else ["--dry"]
     result = run(three_dead, tmp_path, "-m", "robotfleet", command, "inventories/robots.py",
-                 "--limit", "robots,!robot2", *extra)
+                 "--limit", limit, *extra)
     assert result.returncode == 3, result.stderr[-2000:]
     assert dialled(result.stderr) == ["robot1", "robot3"], result.stderr
     if command == "status":

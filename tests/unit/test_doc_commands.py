@@ -3,7 +3,8 @@ is one the test can check, and what needs no process is checked here: the
 program and its subcommand exist, the checkout files it names exist, and
 each command is either run by tests/integration/test_doc_commands.py or
 marked illustrative, with the reason, in the doc itself.  Paths and tests
-the prose names exist too."""
+the prose names exist too, and so do the commands and links in the
+comments of what ships (inventories/, group_data/, files/, the .py files)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from tests.doccommands import ROOT, Command
 
 BLOCK_COMMANDS = doccommands.all_commands(inline=False)
 ALL_COMMANDS = doccommands.all_commands()
+SHIPPED_COMMANDS = [c for path in doccommands.shipped() for c in doccommands.shipped_commands(path)]
 # Programs a command may name that are not the checkout's: the test layers, a new venv, pip.
 FOREIGN_MODULES = {"python -m pytest", "python -m venv", "pip"}
 
@@ -89,15 +91,21 @@ def keys_actions() -> set[str]:
     return set(re.findall(r'add_parser\("([\w-]+)"', (ROOT / "robotfleet" / "commands" / "keys.py").read_text()))
 
 
-@pytest.mark.parametrize("command", ALL_COMMANDS, ids=ids(ALL_COMMANDS))
+def placeholder(word: str) -> bool:
+    """COMMAND, ..., a|b|c: a synopsis's stand-ins (in the engine's docstrings)."""
+    return word == "..." or word.isupper()
+
+
+@pytest.mark.parametrize("command", ALL_COMMANDS + SHIPPED_COMMANDS, ids=ids(ALL_COMMANDS + SHIPPED_COMMANDS))
 def test_each_command_names_a_program_and_files_that_exist(command):
     program = command.program
     if program == "robotfleet":
-        if command.subcommand:
+        if command.subcommand and not placeholder(command.subcommand):
             assert command.subcommand in cli.COMMANDS, (
                 f"{command.where}: robotfleet has no command {command.subcommand!r}")
         if command.subcommand == "keys" and len(command.args) > 1:
-            assert command.args[1] in keys_actions(), f"{command.where}: robotfleet keys has no {command.args[1]!r}"
+            for action in command.args[1].split("|"):
+                assert action in keys_actions(), f"{command.where}: robotfleet keys has no {action!r}"
     elif program.startswith("python -m ") and program not in FOREIGN_MODULES:
         module = program.removeprefix("python -m ")
         source = ROOT / module.replace(".", "/")
@@ -109,6 +117,8 @@ def test_each_command_names_a_program_and_files_that_exist(command):
             assert f'"{words[0]}"' in text, f"{command.where}: python3 -m tests.lab has no command {words[0]!r}"
         for option in doccommands.options(command):
             assert f'"{option}"' in text, f"{command.where}: {module} takes no {option}"
+        if command.args[:1] == ["..."]:
+            assert module == "robotfleet", command.where
     else:
         assert program in ("pyinfra", *FOREIGN_MODULES), f"{command.where}: what is {program!r}?"
     for path in doccommands.checkout_paths(command):
@@ -146,3 +156,45 @@ def test_ci_runs_the_readmes_test_command():
     """README's second command is what CI runs (its marker says so)."""
     assert ".ci/setup && .venv/bin/python -m tests\n" in (ROOT / ".ci" / "run").read_text()
     assert ".ci/setup && .venv/bin/python -m tests " in (ROOT / "README.md").read_text()
+
+
+def test_the_commands_of_shipped_comments_are_found():
+    """Comments and docstrings of what ships (the example fleet, the
+    inventories, the deploy's files, the engine and the roles): command
+    lines, `code spans`, continued lines (issue 39, item 4)."""
+    fleet = [c.text for c in SHIPPED_COMMANDS if c.doc == "inventories/robots.yaml"]
+    assert fleet[0].startswith("robotfleet enroll inventories/robots.py"), fleet
+    assert {c.text for c in SHIPPED_COMMANDS if c.doc == "rollback.py"} >= {
+        "pyinfra inventories/robots.py rollback.py --limit robot2", "pyinfra inventories/robots.py rollback.py"}
+    pull = next(c for c in SHIPPED_COMMANDS if c.doc == "inventories/pull.py")
+    assert (pull.env["ROBOT_FLEET_HOST"], pull.args) == ("robot1", ["-y", "inventories/pull.py", "deploy.py"])
+    assert {c.doc for c in SHIPPED_COMMANDS} >= {"inventories/lab.yaml", "inventories/local.py", "deploy.py",
+                                                  "robotfleet/cli.py", "robotfleet/commands/status.py"}
+
+
+def test_the_links_of_shipped_comments_lead_somewhere():
+    """A path of the checkout, a Markdown file's #anchor, README, "Title":
+    each exists (robots.yaml once sent readers to a README section
+    "Laptops" that was gone)."""
+    missing = [line for path in doccommands.shipped() for line in doccommands.dangling_links(path)]
+    assert missing == [], "\n".join(missing)
+
+
+def test_a_dangling_link_or_command_in_a_comment_is_found(tmp_path, monkeypatch):
+    monkeypatch.setattr(doccommands, "ROOT", tmp_path)
+    (tmp_path / "README.md").write_text("# x\n\n## Describing a fleet\n")
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "laptops.md").write_text("# A laptop provisioning itself\n")
+    (tmp_path / "inventories").mkdir()
+    for name in ("robots.py", "local.py"):
+        (tmp_path / "inventories" / name).write_text("")
+    fleet = tmp_path / "robots.yaml"
+    fleet.write_text("# see README, Describing a fleet: fine; (see README, \"Laptops\"); docs/gone.md\n"
+                     "# docs/laptops.md#a-laptop-provisioning-itself, docs/laptops.md#nowhere\n"
+                     "#   python3 -m engine enroll inventories/robots.py\n"
+                     "# prose: robotfleet reads it, and `pyinfra inventories/local.py deploy.py`\n")
+    assert doccommands.dangling_links(fleet) == [
+        "robots.yaml:1: docs/gone.md is not in the checkout", "robots.yaml:1: README.md has no section 'Laptops'",
+        "robots.yaml:2: docs/laptops.md has no section 'nowhere'"]
+    assert [(c.line, c.program) for c in doccommands.shipped_commands(fleet)] == [
+        (3, "python -m engine"), (4, "pyinfra")]

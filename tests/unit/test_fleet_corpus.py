@@ -171,6 +171,10 @@ CORPUS = [
     ("repo URL scheme", host("docker_repo_url: 'ftp://mirror.lan/linux'"),
      ["f.yaml: r1.docker_repo_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & quotes), "
       "got 'ftp://mirror.lan/linux'"]),
+    # a refused value is shown, but never the password a URL in it carries
+    ("mirror URL with a password", host("docker_registry_mirrors: ['https://ci:hunter2@mirror.lan/$(x)']"),
+     ["f.yaml: r1.docker_registry_mirrors[0]: expected an http(s) URL without spaces or shell characters ($ ` ; | & "
+      "quotes), got 'https://ci:****@mirror.lan/$(x)'"]),
     ("good URLs", host("docker_repo_url: 'http://10.0.0.2:8080/linux'",
                        "docker_apt_key_url: 'https://mirror.lan/keys/docker.asc?v=2'",
                        "docker_registry_mirrors: ['https://[fd00::1]:5000']"), []),

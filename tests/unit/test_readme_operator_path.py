@@ -53,6 +53,11 @@ def test_the_path_shows_each_step_s_commands():
     assert any(c.startswith("robotfleet enroll inventories/robots.py")
                for c in shown["Enrolling the robots' host keys"])
     assert "pyinfra inventories/robots.py deploy.py" in shown["First deploy"]
+    # pyinfra's form for any fleet, next to the first deploy; -i for robotfleet's commands (issue 39, item 1)
+    assert any(c.startswith("ROBOT_FLEET=") and "pyinfra inventories/robots.py deploy.py" in c
+               for c in shown["First deploy"])
+    assert any(c.startswith("robotfleet enroll -i ") for c in shown["Enrolling the robots' host keys"])
+    assert "as Ansible's `-i`" in section("First deploy")
     assert any(c.startswith("robotfleet status inventories/robots.py") for c in shown["Status"])
     assert any("--metrics" in c for c in shown["Status"])
     assert any(c.startswith("robotfleet rollout inventories/robots.py") for c in shown["Updates and rollbacks"])

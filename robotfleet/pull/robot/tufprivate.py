@@ -1,7 +1,8 @@
 """The one place python-tuf's private names are used, each with why.
 
-Checked against the installed python-tuf by tests/unit/test_pull_trust.py
-(a tuf release that renames one fails that test, not a robot in the field).
+Checked against the installed python-tuf by tests/unit/test_pyinfra_private.py
+(robotfleet/pyinfra_private.py pins them: a tuf release that renames one
+fails that test, not a robot in the field).
 
 - ``Updater._trusted_set.reference_time``: ngclient checks every expiry
   against the time its TrustedMetadataSet was made (the system clock), with
