@@ -3,11 +3,12 @@
 The robot (the agent, while it holds a bundle's ``enroll_ed25519``) signs
 with ``ssh-keygen -Y sign`` (namespace ``robotfleet-enroll``) the text
 
-    robotfleet enrollment 1
-    robot robot9
-    key ssh-ed25519 AAAA...            its own key for the fleet remote
-    host-key ssh-ed25519 AAAA...       each of its SSH host keys, sorted
+    1  robotfleet enrollment 1          the format and its version
+    2  robot robot9
+    3  key ssh-ed25519 AAAA...          its own key for the fleet remote
+    4+ host-key ssh-ed25519 AAAA...     each of its SSH host keys, sorted
 
+(the numbers are not part of it)
 and its reports carry ``"enrollment": {"key": <the enrollment public key>,
 "signature": <the armored signature>}`` (the same proof while that text is
 the same, after the enrollment key is retired too).  The operator
