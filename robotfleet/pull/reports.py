@@ -6,7 +6,7 @@ fleet remote (a commit holding ``report.json``).
      "agent": "0.4.0 (tree 3f2a...)",
      "seen": {"version": 8, "release": "...", "commit": "..."},
      "applied": {"version": 7, "release": "...", "commit": "...", "time": "...Z"},
-     "result": "applied" | "up-to-date" | "waiting" | "halted" | "refused" | "rolled-back" | "failed",
+     "result": "applied" | "up-to-date" | "waiting" | "halted" | "stopped" | "refused" | "rolled-back" | "failed",
      "reason": "one line, or null", "refusal": "tampered" (robotfleet/pull/trust.py REASONS) | null,
      "attempted": {"version": 8, "result": "rolled-back", "tries": 1} | null,
      "wave": 0, "status": {... the roles' status cells, as robotfleet status --json has them ...},
@@ -34,7 +34,8 @@ from robotfleet.checkers import one_line
 from robotfleet.pull.record import parse_time, utc
 
 FORMAT = 1
-RESULTS = ("applied", "up-to-date", "waiting", "halted", "refused", "rolled-back", "failed")
+# halted: the release is a signed halt; stopped: its wave stopped by the failure budget.
+RESULTS = ("applied", "up-to-date", "waiting", "halted", "stopped", "refused", "rolled-back", "failed")
 FAILURES = ("rolled-back", "failed")
 MAX_BYTES = 256 * 1024
 _KEY = re.compile(r"(ssh-ed25519|ssh-rsa|ecdsa-sha2-nistp(256|384|521)) [A-Za-z0-9+/]+={0,3}")
