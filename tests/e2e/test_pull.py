@@ -313,25 +313,27 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
     canary = waves.rank(ALL, version)[0]
     off = next(robot for robot in ROBOTS if robot != canary)
     client().containers.get(f"{lab.prefix}-{off}").stop(timeout=20)
-    op.commit(user_fleet(pull, image), f"release {version}: ros/driver:1.1 by its tag")
-    # publish reads the digest from the registry by the robots' name for it
-    proxy = RegistryProxy(registry, op.lab["registry_local"])
     try:
-        done = op.robotfleet("publish", pull.pullfleet.FLEET, "--checkout", str(op.repo), "--keys", str(op.keys),
-                             "--no-wheels", "--pause", str(DEFAULTS_PAUSE), env=op.env(**proxy.env()))
+        op.commit(user_fleet(pull, image), f"release {version}: ros/driver:1.1 by its tag")
+        # publish reads the digest from the registry by the robots' name for it
+        proxy = RegistryProxy(registry, op.lab["registry_local"])
+        try:
+            done = op.robotfleet("publish", pull.pullfleet.FLEET, "--checkout", str(op.repo), "--keys", str(op.keys),
+                                 "--no-wheels", "--pause", str(DEFAULTS_PAUSE), env=op.env(**proxy.env()))
+        finally:
+            proxy.close()
+        assert f"publish: release {version} (" in done.stdout, done.stdout
+        assert f"GET http://{registry}/v2/ros/driver/manifests/1.1" in proxy.requests
+
+        def applied(robots) -> bool:
+            reports = pull.reports()
+            return all((reports.get(r) or {}).get("result") in ("applied", "up-to-date")
+                       and ((reports.get(r) or {}).get("applied") or {}).get("version") == version for r in robots)
+
+        on = [robot for robot in ALL if robot != off]
+        wait_for(lambda: applied(on), DEFAULTS_PAUSE + 420, f"release {version} on {', '.join(on)}", interval=3)
     finally:
-        proxy.close()
-    assert f"publish: release {version} (" in done.stdout, done.stdout
-    assert f"GET http://{registry}/v2/ros/driver/manifests/1.1" in proxy.requests
-
-    def applied(robots) -> bool:
-        reports = pull.reports()
-        return all((reports.get(r) or {}).get("result") in ("applied", "up-to-date")
-                   and ((reports.get(r) or {}).get("applied") or {}).get("version") == version for r in robots)
-
-    on = [robot for robot in ALL if robot != off]
-    wait_for(lambda: applied(on), DEFAULTS_PAUSE + 420, f"release {version} on {', '.join(on)}", interval=3)
-    client().containers.get(f"{lab.prefix}-{off}").start()  # it boots, and catches up by its own timer
+        client().containers.get(f"{lab.prefix}-{off}").start()  # it boots, and catches up by its own timer
     wait_for(lambda: applied([off]), 300, f"release {version} on {off} after its boot", interval=3)
     reports = pull.reports()
     first = reports[canary]["applied"]["time"]
