@@ -6,7 +6,7 @@ fleet remote (a commit holding ``report.json``).
      "agent": "0.4.0 (tree 3f2a...)",
      "seen": {"version": 8, "release": "...", "commit": "..."},
      "applied": {"version": 7, "release": "...", "commit": "...", "time": "...Z"},
-     "result": "applied" | "up-to-date" | "waiting" | "halted" | "refused" | "rolled-back" | "failed",
+     "result": "applied" | "up-to-date" | "waiting" | "halted" | "stopped" | "refused" | "rolled-back" | "failed",
      "reason": "one line, or null", "refusal": "tampered" (robotfleet/pull/trust.py REASONS) | null,
      "attempted": {"version": 8, "result": "rolled-back", "tries": 1} | null,
      "wave": 0, "status": {... the roles' status cells, as robotfleet status --json has them ...},
@@ -38,7 +38,8 @@ from robotfleet.pull.enrollment import SIGNATURE
 from robotfleet.pull.record import parse_time, utc
 
 FORMAT = 1
-RESULTS = ("applied", "up-to-date", "waiting", "halted", "refused", "rolled-back", "failed")
+# halted: the release is a signed halt; stopped: its wave stopped by the failure budget.
+RESULTS = ("applied", "up-to-date", "waiting", "halted", "stopped", "refused", "rolled-back", "failed")
 FAILURES = ("rolled-back", "failed")
 MAX_BYTES = 256 * 1024
 # Arrays and objects within each other: a report has a few; json.loads would recurse into each.
