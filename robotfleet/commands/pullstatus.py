@@ -76,6 +76,8 @@ def pull_cell(report: dict) -> str:
         text += f" {seen}"
     if report.get("refusal"):
         text += f" ({report['refusal']})"
+    elif report["result"] == "stopped":
+        text += " (failure budget)"
     return text
 
 

@@ -38,6 +38,37 @@ def pinned(ref, pins: dict[str, str]):
     return str(imageref.ImageRef(parsed.repository, parsed.tag, digest))
 
 
+def runs(running: str, wanted: str) -> bool:
+    """Whether a release that runs ``running`` (the reference its record is
+    keyed by, as the compose project named it) runs the image ``wanted``:
+    the same repository and, where ``wanted`` names a digest (a release's
+    pin), that digest, the tag being only its name for people; else the
+    same tag (a digest ``running`` adds is that tag as it was resolved)."""
+    if running == wanted:
+        return True
+    try:
+        have, want = imageref.parse(running), imageref.parse(wanted)
+    except ValueError:
+        return False
+    if have.repository != want.repository:
+        return False
+    if want.digest:
+        return have.digest == want.digest
+    return have.tag == want.tag
+
+
+def shown(ref: str, pinned: str | None) -> str:
+    """What a robot runs, for people: ``ref`` (the record's key, with its
+    tag) with the digest it runs by (``pinned``: payloadctl's reference by
+    digest, which Docker names without the tag), e.g. ``reg/p:2@sha256:...``."""
+    try:
+        named, by_digest = imageref.parse(ref), imageref.parse(pinned) if pinned else None
+    except ValueError:
+        return pinned or ref
+    digest = named.digest or (by_digest.digest if by_digest and by_digest.repository == named.repository else None)
+    return str(imageref.ImageRef(named.repository, named.tag, digest))
+
+
 def images(data) -> list[str]:
     """Every image the host's project runs, as it runs them (pins applied)."""
     pins = given(data)

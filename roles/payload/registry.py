@@ -24,7 +24,7 @@ import urllib.error
 import urllib.parse
 import urllib.request
 
-from roles.payload.credentials import Credentials, registry_key
+from roles.payload.credentials import DOCKER_HUB as DOCKER_HUB_NAMES, Credentials, registry_key
 from roles.payload.payloadctl import platforms
 
 ACCEPT = ", ".join(platforms.INDEX_TYPES + platforms.MANIFEST_TYPES)
@@ -54,9 +54,14 @@ def base_url(registry: str, insecure: list[str] = ()) -> str:
 
 
 def path_of(repository: str) -> str:
-    """The repository's path on its registry ("docker.io/ros" -> "library/ros")."""
+    """The repository's path on its registry.  As Docker names them, a
+    one-part name is an official image under ``library/`` on Docker Hub
+    only ("ros", "docker.io/ros" -> "library/ros"); another registry
+    serves it as it is ("registry.lan:5000/payload" -> "payload")."""
     first, _, rest = repository.partition("/")
     if rest and ("." in first or ":" in first or first == "localhost"):
+        if first not in DOCKER_HUB_NAMES:
+            return rest
         repository = rest
     return repository if "/" in repository else f"library/{repository}"
 

@@ -15,6 +15,10 @@ import roles.payload.digests as digests
 from roles.payload.installed_files import HELPER
 
 
+# HEALTH of a container whose image declares no health check (Docker reports none).
+NO_CHECK = "no check"
+
+
 def status_command(data) -> str:
     q = shlex.quote
     return (
@@ -30,19 +34,20 @@ def cells(output: str) -> dict:
     current = report.get("current") or {}
     previous = report.get("previous") or {}
     containers = report.get("containers") or []
-    images = [i.get("pinned") for i in (current.get("images") or {}).values()]
+    named = {i.get("pinned"): digests.shown(ref, i.get("pinned")) for ref, i in (current.get("images") or {}).items()}
+    images = list(named.values())
     return {
         "release": current.get("id"),
         "image": images[0] if len(images) == 1 else (", ".join(images) or None),
         "state": ", ".join(c["status"] for c in containers) or None,
-        "health": ", ".join(c.get("health") or "none" for c in containers) or None,
+        "health": ", ".join(c.get("health") or NO_CHECK for c in containers) or None,
         "restarts": sum(c.get("restarts", 0) for c in containers),
         "previous": previous.get("id"),
         "deployed": current.get("rolled_back_to") or current.get("activated") or current.get("created"),
         "release_state": current.get("state"),
         "lock": report.get("update_lock"),
         "rolled_back_from": current.get("rolled_back_from"),
-        **per_service(report.get("services") or {}),
+        **per_service(report.get("services") or {}, named),
         "image_refs": sorted(current.get("images") or {}),
         "result": last_result(report.get("result")),
     }
@@ -65,17 +70,20 @@ def result(row: dict, deployment: str) -> tuple[bool, str] | None:
     return found["ok"], one_line(str(found.get("message") or found.get("reason") or found.get("outcome")))
 
 
-def per_service(states: dict) -> dict:
-    """A project of several services: each one's image, state and health
-    (the table's columns name the service; --json has them whole)."""
+def per_service(states: dict, named: dict | None = None) -> dict:
+    """A project of several services: each one's image (with its tag, from
+    ``named``: the container's reference by digest -> the release's name for
+    it), state and health (the table's columns name the service; --json
+    has them whole)."""
     if len(states) < 2:
         return {"services": states or None} if states else {}
     ordered = sorted(states.items())
+    named = named or {}
     return {
         "services": states,
-        "image": ", ".join(f"{name}={s.get('image')}" for name, s in ordered),
+        "image": ", ".join(f"{name}={named.get(s.get('image'), s.get('image'))}" for name, s in ordered),
         "state": ", ".join(f"{name}:{s.get('state')}" for name, s in ordered),
-        "health": ", ".join(f"{name}:{s.get('health') or 'none'}" for name, s in ordered),
+        "health": ", ".join(f"{name}:{s.get('health') or NO_CHECK}" for name, s in ordered),
     }
 
 
@@ -93,7 +101,7 @@ def missing(row: dict, wanted: list[str]) -> str | None:
     if row.get("error"):
         return row["error"]
     images = row.get("image_refs") or []
-    absent = [ref for ref in wanted if ref not in images]
+    absent = [ref for ref in wanted if not any(digests.runs(running, ref) for running in images)]
     back = row.get("rolled_back_from") or {}
     if absent and back.get("reason"):
         return f"release failed ({back['reason']}); rolled back to {row.get('release')}"
@@ -112,7 +120,7 @@ def healthy(row: dict) -> bool:
     health = (row.get("health") or "").split(", ")
     states = (row.get("state") or "").split(", ")
     return all(s.rsplit(":", 1)[-1] == "running" for s in states) and all(
-        h.rsplit(":", 1)[-1] in ("healthy", "none") for h in health)
+        h.rsplit(":", 1)[-1] in ("healthy", NO_CHECK, "none") for h in health)  # "none": an older robot's report
 
 
 def metrics(row: dict) -> list[Metric]:

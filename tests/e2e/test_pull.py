@@ -13,7 +13,9 @@ repository are each refused on every robot, which keeps its release; a
 crash-looping release is rolled back on the canary and halts the rest;
 robot4 reports healthy, is enrolled from its report (host keys, its own key
 replacing the enrollment key), proven by its bundle's enrollment key, and
-answers SSH with strict host keys.
+answers SSH with strict host keys; last, the fleet a user writes (the
+payload by its tag, no health check) published with publish's defaults goes
+from its canary to every robot, one powered off meanwhile.
 The robots' timers run at the shortest interval (10 s, no jitter), so
 releases reach them by their own checks; a check is started directly
 (systemctl start) only where a test needs its outcome now (the refusals).
@@ -25,6 +27,7 @@ bundle while the others get the agent by push.
 
 from __future__ import annotations
 
+import json
 import subprocess
 import threading
 import time
@@ -277,3 +280,73 @@ def test_a_robot_from_a_first_boot_image_converges_reports_healthy_and_is_enroll
     line = next(line for line in status.stdout.splitlines() if line.startswith(FIRST_BOOT + " "))
     assert " pull " in line and " healthy " in line, status.stdout
     phase("pull: first-boot robot enrolled from its report", started)
+
+
+DEFAULTS_PAUSE = 150  # publish's default is 600 s; the canary applies within this one
+
+
+def user_fleet(pull, image: str) -> str:
+    """The fleet a user writes from docs/pull.md: the payload by its tag in
+    all.vars (no digest: publish resolves it), payload_stable_seconds 5 and
+    the pull settings in robots' vars; robot1..4."""
+    fleet = json.loads(pull.fleet("1.1").split("\n", 1)[1])
+    fleet["all"]["vars"].update(payload_image=image, payload_stable_seconds=5)
+    fleet["robots"]["vars"].pop("payload_stable_seconds")
+    return "# The lab's fleet as a user writes it (tests/e2e/test_pull.py).\n" + json.dumps(fleet, indent=1) + "\n"
+
+
+def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_robot(pull, lab):
+    """Issue 35: a payload named by its tag in all.vars and without a health
+    check (ros/driver), published with publish's defaults: a canary, then
+    the rest, a failure budget of 0 (only the pause shortened).  Every robot
+    applies it, one powered off while it was published and robot4, booted
+    from its first-boot image, included; status exits 0 and its IMAGE keeps
+    the tag.  The module's other releases name their image with its digest
+    in the fleet file, which hid a converge that judged the robot against
+    the fleet file's tag instead of the digest the release pinned."""
+    from robotfleet.pull.protocol import waves
+    from robotfleet.pull.operator.repository import Repository
+    from tests.lab.engine import client
+    from tests.lab.registryproxy import RegistryProxy
+
+    started, op = time.monotonic(), pull.op
+    # robot4 runs what its image brought first (its whole first deploy: minutes), then takes this release
+    wait_for(lambda: (pull.reports().get(FIRST_BOOT) or {}).get("applied"), 600, f"{FIRST_BOOT}'s first release")
+    registry = op.lab["registry"]
+    image = f"{registry}/ros/driver:1.1"
+    version = Repository(op.base / "releases").record().version + 1
+    canary = waves.rank(ALL, version)[0]
+    off = next(robot for robot in ROBOTS if robot != canary)
+    client().containers.get(f"{lab.prefix}-{off}").stop(timeout=20)
+    try:
+        op.commit(user_fleet(pull, image), f"release {version}: ros/driver:1.1 by its tag")
+        # publish reads the digest from the registry by the robots' name for it
+        proxy = RegistryProxy(registry, op.lab["registry_local"])
+        try:
+            done = op.robotfleet("publish", pull.pullfleet.FLEET, "--checkout", str(op.repo), "--keys", str(op.keys),
+                                 "--no-wheels", "--pause", str(DEFAULTS_PAUSE), env=op.env(**proxy.env()))
+        finally:
+            proxy.close()
+        assert f"publish: release {version} (" in done.stdout, done.stdout
+        assert f"GET http://{registry}/v2/ros/driver/manifests/1.1" in proxy.requests
+
+        def applied(robots) -> bool:
+            reports = pull.reports()
+            return all((reports.get(r) or {}).get("result") in ("applied", "up-to-date")
+                       and ((reports.get(r) or {}).get("applied") or {}).get("version") == version for r in robots)
+
+        on = [robot for robot in ALL if robot != off]
+        wait_for(lambda: applied(on), DEFAULTS_PAUSE + 420, f"release {version} on {', '.join(on)}", interval=3)
+    finally:
+        client().containers.get(f"{lab.prefix}-{off}").start()  # it boots, and catches up by its own timer
+    wait_for(lambda: applied([off]), 300, f"release {version} on {off} after its boot", interval=3)
+    reports = pull.reports()
+    first = reports[canary]["applied"]["time"]
+    assert all(first < reports[r]["applied"]["time"] for r in ALL if r != canary), reports  # canary, then the rest
+    status = op.status("--limit", ",".join(ALL), *op.remote())
+    assert status.returncode == 0, status.stdout + status.stderr
+    for robot in ALL:
+        line = next(line for line in status.stdout.splitlines() if line.startswith(robot + " "))
+        assert f" {image}@sha256:" in line and " no check " in line, status.stdout  # the tag kept
+        assert f"applied {version} " in line or f"up-to-date {version} " in line, status.stdout
+    phase(f"pull: release {version} by publish's defaults on every robot, {off} after its boot", started)

@@ -49,7 +49,8 @@ def test_update_to_a_good_tag(lab, fleet_on):
         current = lab.record(host)
         assert current["state"] == "active"
         assert rows[host]["release"] == current["id"] and rows[host]["health"] == "healthy"
-        assert rows[host]["image"] == current["images"][f"{lab.state['registry']}/ros/payload:1.1"]["pinned"]
+        pinned = current["images"][f"{lab.state['registry']}/ros/payload:1.1"]["pinned"]  # repository@digest
+        assert rows[host]["image"] == f"{lab.state['registry']}/ros/payload:1.1@{pinned.split('@')[1]}"  # the tag kept
         assert rows[host]["previous"] == lab.record(host, "previous")["id"]
     assert rows["laptop1"]["release_state"] == "staged"
 

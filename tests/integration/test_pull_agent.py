@@ -232,6 +232,34 @@ def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
     assert sent.startswith("report not sent")
 
 
+def test_a_robot_whose_key_the_remote_does_not_know_yet_waits_for_enrollment(world):
+    """Between the push deploy that installs the agent and robotfleet
+    pull-enroll, the git server refuses the robot's key (a real SSH server
+    here that knows none): the check says it waits for enrollment, not that
+    it failed.  A robot that has read releases before was enrolled: its key
+    refused then is a failure."""
+    from robotfleet.pull.robot import transport
+    from tests.integration import sshserver
+
+    (world.etc / "id_ed25519.pub").unlink()
+    subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(world.etc / "id_ed25519")], check=True)
+    server = sshserver.ssh_server()  # accepts no key: gitolite before pull-enroll
+    try:
+        key = server.host_key
+        (world.etc / "known_hosts").write_text(f"{transport.HOST_KEY_ALIAS} {key.get_name()} {key.get_base64()}\n")
+        world.config = agent_files.Config(**{**world.config.__dict__, "remote": f"ssh://git@127.0.0.1:{server.port}/fleet"})
+        report, outcome, sent = world.wake()
+        assert outcome.result == "waiting", outcome.reason
+        assert outcome.reason.startswith("waiting for enrollment: the fleet remote does not accept this robot's key "
+                                         "yet (robotfleet pull-enroll registers it; fetch: ")
+        assert "Permission denied (publickey" in outcome.reason and sent.startswith("report not sent")
+        agent.save_state(world.state, {**agent.load_state(world.state), "seen": {"version": 1}})
+        _, outcome, _ = world.wake()
+        assert outcome.result == "failed" and outcome.reason.startswith("fetch: ")
+    finally:
+        server.close()
+
+
 def test_a_release_fetched_over_https_is_verified_applied_and_reported_elsewhere(world, tmp_path):
     """The releases from a static HTTPS mirror (its CA in remote-ca.pem),
     the report pushed to the report remote: the same wake."""

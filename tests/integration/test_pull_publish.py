@@ -180,6 +180,19 @@ def test_an_image_the_registry_lacks_is_refused_and_nothing_is_pushed(site, regi
     assert git(site["remote"], "rev-parse", "robotfleet/releases") == before
 
 
+def test_a_one_part_repository_on_a_private_registry_is_published(site, registry):
+    """registry.lan:5000/payload:1 is the registry's repository "payload":
+    Docker adds library/ on Docker Hub only."""
+    digest = registry.tag("payload", "1", "one-part")
+    fleet = site["checkout"] / "inventories" / "robots.yaml"
+    fleet.write_text(fleet.read_text().replace("ros/payload:1.1", "payload:1"))
+    git(site["checkout"], "commit", "-qam", "a one-part repository")
+    publish(site)
+    _, record = robot_refresh(site)
+    assert record.images["robot1"] == {f"{registry.address}/payload:1": digest}
+    assert ("GET", "/v2/payload/manifests/1") in registry.requests
+
+
 def test_bad_fleet_data_in_the_commit_is_refused_with_its_lines(site):
     fleet = site["checkout"] / "inventories" / "robots.yaml"
     fleet.write_text(fleet.read_text().replace("pull: true", "pull: yes please"))

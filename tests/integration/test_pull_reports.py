@@ -114,6 +114,10 @@ def test_status_rows_from_reports():
     refused = made("refused", refusal="tampered", reason="timestamp.json: changed after it was signed")
     row = pullstatus.row("robot1", reports.parse(reports.to_bytes(refused), "robot1"), data, NOW, "url")
     assert row["pull"] == "refused 7 (tampered)" and row["error"].startswith("refused: timestamp.json")
+    stopped = made("stopped", reason="wave 1 stopped by the failure budget: 1 robot(s) of the earlier waves failed "
+                                     "(budget 0)")
+    row = pullstatus.row("robot1", reports.parse(reports.to_bytes(stopped), "robot1"), data, NOW, "url")
+    assert row["pull"] == "stopped 7 (failure budget)" and "error" not in row  # not an operator's halt, not a fault
     missing = pullstatus.row("robot2", None, data, NOW, "ssh://git/fleet")
     assert missing["reachable"] is False and "no report in refs/reports/robot2 of ssh://git/fleet" in missing["error"]
 

@@ -77,7 +77,9 @@ def registry():
             pass
 
         def do_GET(self):
-            _, _, repo_rest = self.path.partition("/v2/ros/payload/")
+            # The image under a two-part name and a one-part one (no library/: this is not Docker Hub).
+            prefix = next((p for p in ("/v2/ros/payload/", "/v2/payload/") if self.path.startswith(p)), "")
+            _, _, repo_rest = self.path.partition(prefix) if prefix else ("", "", "")
             kind, _, ref = repo_rest.partition("/")
             if kind == "manifests" and ref in store.manifests:
                 media_type, body = store.manifests[ref]
@@ -108,6 +110,16 @@ def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(p
     assert image_id == store.ids["arm64"] == variant["id"] and variant["platform"] == "linux/arm64"
     again = push.choose_source(f"{address}/ros/payload:1.0", store.ids["arm64"], "pi1", "arm64", [], None, None)
     assert again == ("noop", f"{address}/ros/payload:1.0 (linux/arm64) is already on the host")
+
+
+def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_name(push, registry):
+    """registry.lan:5000/payload:1 is /v2/payload/... on its registry (Docker
+    adds library/ on Docker Hub only)."""
+    address, store, _ = registry
+    kind, writer, (variant,), image_id = push.choose_source(f"{address}/payload:1.0", "", "pi1", "arm64", [], None,
+                                                            AMD64_LOCAL)
+    assert (kind, writer) == ("send", push.write_registry_archive)
+    assert image_id == store.ids["arm64"] == variant["id"]
 
 
 def test_only_the_layers_the_robot_lacks_are_read_and_sent(push, registry, tmp_path):

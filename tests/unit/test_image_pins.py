@@ -160,3 +160,39 @@ def test_the_agent_s_json_text_reaches_the_setting_as_pyinfra_reads_it():
            "state": "running", "health": "healthy"}
     assert report.missing(row, target["payload"]) is None
     assert report.missing({**row, "image_refs": [PAYLOAD]}, target["payload"]).startswith(f"runs {PAYLOAD}, not ")
+
+
+# --- what a robot runs, judged against what the release pinned ------------------------
+
+
+def test_a_reference_runs_the_wanted_image_by_its_digest_or_else_its_tag():
+    assert digests.runs(f"{PAYLOAD}@{A}", f"{PAYLOAD}@{A}")
+    assert digests.runs(f"{PAYLOAD}@{A}", f"{REG}/ros/payload@{A}")  # the digest decides; the tag is for people
+    assert not digests.runs(f"{PAYLOAD}@{A}", f"{PAYLOAD}@{B}")
+    assert not digests.runs(PAYLOAD, f"{PAYLOAD}@{A}")  # a tag alone may name anything now
+    assert digests.runs(f"{PAYLOAD}@{A}", PAYLOAD)  # the fleet file's tag, as a release resolved it
+    assert not digests.runs(f"{REG}/ros/payload:1.0@{A}", PAYLOAD)
+    assert not digests.runs(f"{REG}/ros/other:1.1@{A}", f"{REG}/ros/payload@{A}")
+    assert digests.shown(f"{PAYLOAD}@{A}", f"{REG}/ros/payload@{A}") == f"{PAYLOAD}@{A}"
+    assert digests.shown(PAYLOAD, f"{REG}/ros/payload@{B}") == f"{PAYLOAD}@{B}"
+    assert digests.shown("offline.invalid/ros/payload:1.1", "offline.invalid/ros/payload:1.1") == \
+        "offline.invalid/ros/payload:1.1"  # pushed: no registry digest
+
+
+def test_a_pull_robot_running_its_release_by_digest_is_not_reported_missing_its_tag():
+    """The user's fleet: payload_image: reg:5000/team/payload:2 in all.vars,
+    no health check.  The robot runs reg:5000/team/payload:2@sha256:...;
+    neither the converge run (the release's pins) nor status (the fleet
+    file's tag) may call that a miss; another digest is one."""
+    from robotfleet.pull.robot import converge
+    from robotfleet.pull.operator.publishing import HostData
+
+    image = "reg:5000/team/payload:2"
+    data = merged("robots", {**ROBOT, "payload_image": image})
+    row = {"reachable": True, "image_refs": [f"{image}@{A}"], "release_state": "active", "state": "running",
+           "health": report.NO_CHECK}
+    roles = roster.roles()
+    assert converge.missing(roles, HostData(data), row) == []  # status's drift reads the fleet file like this
+    assert converge.missing(roles, HostData({**data, digests.SETTING: {image: A}}), row) == []
+    other = converge.missing(roles, HostData({**data, digests.SETTING: {image: B}}), row)
+    assert other == [{"role": "payload", "why": f"runs {image}@{A}, not {image}@{B}"}]

@@ -49,7 +49,8 @@ def test_an_open_later_wave_reads_the_earlier_waves_then_goes_or_stops():
     assert asking.result == "waiting" and set(asking.earlier) == {in_wave(0)}
     assert deciding.decide(record(), robot, 6, None, late, failed=0).result == deciding.APPLY
     stopped = deciding.decide(record(), robot, 6, None, late, failed=1)
-    assert stopped.result == "halted" and "1 robot(s) of the earlier waves failed (budget 0)" in stopped.reason
+    assert stopped.result == "stopped"  # not "halted": that is the word of the operator's signed halt
+    assert stopped.reason == "wave 1 stopped by the failure budget: 1 robot(s) of the earlier waves failed (budget 0)"
 
 
 def test_a_halt_stops_every_robot_that_has_not_applied():

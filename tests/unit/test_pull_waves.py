@@ -58,7 +58,7 @@ def test_the_failure_budget_of_the_earlier_waves_stops_the_next():
     later = PUBLISHED + datetime.timedelta(hours=1)
     stopped = waves.gate(second, ROBOTS, 7, plan(), PUBLISHED, later, failed=1)
     assert not stopped.open and stopped.at is None
-    assert stopped.why == "wave 1 stopped: 1 robot(s) of the earlier waves failed (budget 0)"
+    assert stopped.why == "wave 1 stopped by the failure budget: 1 robot(s) of the earlier waves failed (budget 0)"
     assert waves.gate(second, ROBOTS, 7, plan(max_failed="10%"), PUBLISHED, later, failed=1).open  # 10% of 10
     assert not waves.gate(second, ROBOTS, 7, plan(max_failed="10%"), PUBLISHED, later, failed=2).open
 

@@ -18,6 +18,17 @@ def test_repository_paths_on_their_registry(registry):
     assert registry.path_of("ros/payload") == "ros/payload"
     assert registry.path_of("ubuntu") == "library/ubuntu"
     assert registry.path_of("docker.io/ubuntu") == "library/ubuntu"
+    assert registry.path_of("index.docker.io/ubuntu") == "library/ubuntu"
+    assert registry.path_of("docker.io/ros/payload") == "ros/payload"
+
+
+def test_a_one_part_name_is_under_library_on_docker_hub_only(registry):
+    """Docker adds library/ to a one-part name on Docker Hub; any other
+    registry serves the name as it is (registry.lan:5000/payload:1)."""
+    assert registry.path_of("registry.lan:5000/payload") == "payload"
+    assert registry.path_of("localhost:5000/payload") == "payload"
+    assert registry.path_of("127.0.0.1:5000/payload") == "payload"
+    assert registry.path_of("ghcr.io/payload") == "payload"
 
 
 def test_a_bearer_challenge_is_read(registry):

@@ -347,17 +347,21 @@ def test_the_documented_example_project_is_valid_and_uses_the_shipped_profile():
     assert presets.dds_vendor((presets.FILES_DIR / "dds" / "cyclonedds-localhost.xml").read_text()) == "cyclonedds"
 
 
-def test_status_shows_each_service_image_state_and_health():
-    digest = "reg/ros/driver@sha256:" + "d" * 64
-    report = {"current": {"id": "r2", "images": {}}, "containers": [], "services": {
-        "payload": {"image": "reg/ros/payload@sha256:" + "e" * 64, "state": "running", "health": "healthy"},
-        "driver": {"image": digest, "state": "restarting", "health": None}}}
+def test_status_shows_each_service_image_with_its_tag_state_and_health():
+    """Each service's image as the release names it (its tag) with the
+    digest it runs by; a container without a health check says so."""
+    digest, payload = "reg/ros/driver@sha256:" + "d" * 64, "reg/ros/payload@sha256:" + "e" * 64
+    report = {"current": {"id": "r2", "images": {"reg/ros/driver:2.0": {"pinned": digest},
+                                                 "reg/ros/payload:1.0@sha256:" + "e" * 64: {"pinned": payload}}},
+              "containers": [], "services": {
+                  "payload": {"image": payload, "state": "running", "health": "healthy"},
+                  "driver": {"image": digest, "state": "restarting", "health": None}}}
     roles = roster.roles()
     row = status.row("robot1", roles, {"payload": json.dumps(report)})
     assert row["state"] == "driver:restarting, payload:running"
-    assert row["health"] == "driver:none, payload:healthy"
+    assert row["health"] == "driver:no check, payload:healthy"
     line = status.table([row], status.columns(roles)).splitlines()[1]
-    assert f"driver=reg/ros/driver@sha256:{'d' * 12}, payload=reg/ros/payload@sha256:{'e' * 12}" in line
+    assert f"driver=reg/ros/driver:2.0@sha256:{'d' * 12}, payload=reg/ros/payload:1.0@sha256:{'e' * 12}" in line
 
 
 def test_a_service_s_values_reach_the_container_verbatim():

@@ -61,13 +61,13 @@ def test_status_rows_and_table():
     rows = [status.row("robot1", roles(),
                        {status.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
             status.row("robot2", roles(), None, "cannot connect")]
-    assert rows[0]["image"] == "reg/p@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"
+    assert rows[0]["image"] == "reg/p:1.1@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"  # the tag kept
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
     text = status.table(rows, status.columns(roles())).splitlines()
     assert rows[0]["arch"] == "arm64"
     assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS",
                                "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
-    assert text[1].split() == ["robot1", "yes", "arm64", "26.1.5", "r2", "reg/p@sha256:" + "d" * 12, "running",
+    assert text[1].split() == ["robot1", "yes", "arm64", "26.1.5", "r2", "reg/p:1.1@sha256:" + "d" * 12, "running",
                                "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
     assert text[2].split()[:4] == ["robot2", "no:", "cannot", "connect"]
 

@@ -6,7 +6,8 @@ fleet remote (a commit holding ``report.json``).
      "agent": "0.4.0 (tree 3f2a...)",
      "seen": {"version": 8, "release": "...", "commit": "..."},
      "applied": {"version": 7, "release": "...", "commit": "...", "time": "...Z"},
-     "result": "applied" | "up-to-date" | "waiting" | "prefetched" | "halted" | "refused" | "rolled-back" | "failed",
+     "result": "applied" | "up-to-date" | "waiting" | "prefetched" | "halted" | "stopped" | "refused"
+               | "rolled-back" | "failed",
      "reason": "one line, or null", "refusal": "tampered" (robotfleet/pull/robot/verify.py REASONS) | null,
      "attempted": {"version": 8, "result": "rolled-back", "tries": 1} | null,
      "wave": 0, "status": {... the roles' status cells, as robotfleet status --json has them ...},
@@ -34,8 +35,10 @@ from robotfleet.pull.protocol.enrollment import SIGNATURE
 from robotfleet.pull.protocol.record import parse_time, utc
 
 FORMAT = 1
-# prefetched: waiting, with everything the release needs already in place (robotfleet/pull/robot/prefetch.py)
-RESULTS = ("applied", "up-to-date", "waiting", "prefetched", "halted", "refused", "rolled-back", "failed")
+# prefetched: waiting, with everything the release needs already in place (robotfleet/pull/robot/prefetch.py);
+# halted: the release is a signed halt; stopped: its wave stopped by the failure budget.
+RESULTS = ("applied", "up-to-date", "waiting", "prefetched", "halted", "stopped", "refused", "rolled-back",
+           "failed")
 FAILURES = ("rolled-back", "failed")
 MAX_BYTES = 256 * 1024
 # Arrays and objects within each other: a report has a few; json.loads would recurse into each.

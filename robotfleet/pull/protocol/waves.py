@@ -181,8 +181,8 @@ def gate(robot: str, robots: list[str], version: int, plan: Plan, published: dat
         return Gate(False, index, f"release {version} is halted")
     allowed = allowed_failures(plan.max_failed, len(set(robots)))
     if index and failed > allowed:
-        return Gate(False, index, f"wave {index} stopped: {failed} robot(s) of the earlier waves failed "
-                                  f"(budget {allowed})")
+        return Gate(False, index, f"wave {index} stopped by the failure budget: {failed} robot(s) of the earlier "
+                                  f"waves failed (budget {allowed})")
     at = opens_at(index, published, plan)
     if now < at:
         return Gate(False, index, f"waiting for wave {index} (opens at {at.strftime('%Y-%m-%dT%H:%M:%SZ')})", at)

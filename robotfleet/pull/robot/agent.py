@@ -57,6 +57,10 @@ from robotfleet.pull.robot.transport import Remote, TransportError
 # them: a check that finds nothing new never does.
 
 STATE_FILE = "agent-state.json"
+# What ssh says when the git server knows none of the robot's keys: before
+# `robotfleet pull-enroll` registered its own, for a robot that never read
+# a release (one that did was enrolled: its key refused now is a failure).
+ENROLLMENT_PENDING = "Permission denied (publickey"
 
 
 def now() -> datetime.datetime:
@@ -119,6 +123,9 @@ class Wake:
         try:
             self.remote.fetch_releases(self.config.branch)
         except TransportError as error:
+            if not self.state.get("seen") and ENROLLMENT_PENDING in str(error):
+                raise Outcome("waiting", f"waiting for enrollment: the fleet remote does not accept this robot's "
+                                         f"key yet (robotfleet pull-enroll registers it; {error})") from None
             raise Outcome("failed", f"fetch: {error}") from None
 
     def source(self) -> str:

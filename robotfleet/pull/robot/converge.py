@@ -31,7 +31,7 @@ from robotfleet import CHECKOUT, roster
 from robotfleet import status_parts
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.protocol import record as records
-from robotfleet.pull.protocol.robot_data import DataError, host_data, pin_settings
+from robotfleet.pull.protocol.robot_data import DataError, HostData, host_data, pin_settings
 from robotfleet.role import DEPLOYMENT_ENV
 
 PYINFRA_TIMEOUT = 4 * 3600
@@ -107,7 +107,8 @@ def run(args) -> dict:
             if held:
                 prefix += held
                 tokens[role.hold.setting] = token_file
-    run_data = {**pin_settings(roles, record, args.robot),
+    pins = pin_settings(roles, record, args.robot)
+    run_data = {**pins,
                 agent_files.AGENT_RUN: {"robot": args.robot, "version": record.version, "release": record.release}}
     data_file = work / "run.json"
     data_file.write_text(json.dumps({"data": run_data, "tokens": tokens}))
@@ -125,8 +126,10 @@ def run(args) -> dict:
     log.write_text(stderr + "\n" + stdout)
     watched = watch(roles, data)
     row = status_row(args.robot, roles, data)
+    # What the robot must run is the release's images by the digests it pinned, as the deploy was given them.
+    pinned = HostData({**data, **pins})
     return {"exit": code, "row": row, "watch": watched, "results": results(roles, data, row, args.deployment),
-            "missing": missing(roles, data, row), "errors": errors_of(stderr) if code else [], "log": str(log)}
+            "missing": missing(roles, pinned, row), "errors": errors_of(stderr) if code else [], "log": str(log)}
 
 
 def status(args) -> dict:

@@ -1,6 +1,6 @@
 """What a pull robot does with a verified release record (pure): apply it,
-wait (its wave, its maintenance window), stop (a halt, a failure budget
-spent, a release it already failed), or nothing (already applied).
+wait (its wave, its maintenance window), stop (a halt, its wave stopped
+by the failure budget, a release it already failed), or nothing (already applied).
 
 The agent (robotfleet/pull/robot/agent.py) asks twice when its wave is not the
 first: once on time and windows alone, and, only when those are open, again
@@ -21,12 +21,13 @@ from robotfleet.pull.protocol import waves
 # payload each time).
 MAX_TRIES = 3
 APPLY = "apply"
+STOPPED = "stopped"  # its wave stopped by the failure budget (a halt is the operator's signed record)
 
 
 @dataclass(frozen=True)
 class Decision:
     """``result``: APPLY, or the report's result (up-to-date, waiting,
-    halted, rolled-back, failed); ``reason``: one line; ``wave``: the
+    halted, stopped, rolled-back, failed); ``reason``: one line; ``wave``: the
     robot's wave of this release; ``earlier``: robots whose reports decide
     (asked for when only they stand in the way)."""
 
@@ -57,8 +58,8 @@ def decide(record, robot: str, applied: int, attempted: dict | None, now: dateti
     gate = waves.gate(robot, list(record.robots), version, plan, record.published_at, now, failed or 0)
     if not gate.open and gate.at is not None:
         return Decision("waiting", gate.why, gate.wave)
-    if not gate.open:
-        return Decision("halted", gate.why, gate.wave)
+    if not gate.open:  # the earlier waves failed more than the budget: not a halt, which only a signed record is
+        return Decision(STOPPED, gate.why, gate.wave)
     if windows and not waves.in_window(list(windows), now, local):
         opens = waves.next_window(list(windows), now, local)
         when = f"; next at {opens.astimezone(datetime.timezone.utc):%Y-%m-%dT%H:%M:%SZ}" if opens else ""

@@ -193,6 +193,7 @@ class Remote:
         url = url or self.url
         environment = dict(os.environ, GIT_TERMINAL_PROMPT="0", LC_ALL="C", **IDENTITY, **(env or {}))
         log = trace = None
+        ssh_said = ""  # ssh's own complaint: with -E it goes to its log, not to git's stderr
         options: list[str] = []
         if network and is_https(url):
             trace = CurlTrace()
@@ -229,7 +230,9 @@ class Remote:
         finally:
             if log:
                 try:
-                    sent, received, accepted = read_ssh_log(Path(log).read_text(errors="replace"))
+                    text = Path(log).read_text(errors="replace")
+                    sent, received, accepted = read_ssh_log(text)
+                    ssh_said = "\n".join(line for line in text.splitlines() if any(c in line for c in _CAUSES))
                 finally:
                     os.unlink(log)
                 self.cost.add(what, sent, received, time.monotonic() - started)
@@ -237,7 +240,8 @@ class Remote:
             elif trace is not None:
                 self.cost.add(what, trace.sent, trace.received, time.monotonic() - started, trace.requests)
         if process.returncode:
-            raise TransportError(f"{what}: {git_error(err.decode(errors='replace'), process.returncode)}")
+            said = err.decode(errors="replace") + "\n" + ssh_said
+            raise TransportError(f"{what}: {git_error(said, process.returncode)}")
         return out
 
     def _init(self) -> None:
