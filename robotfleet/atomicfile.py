@@ -6,16 +6,23 @@ one (rollout state, trust state, metrics for a collector, TUF metadata)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
 
-def write(path: str | Path, data: bytes | str, mode: int | None = None, make_parents: bool = False,
-          keep_mode: bool = False) -> None:
-    """Replace ``path`` with ``data``.  ``mode`` None keeps the temp file's
-    0600; ``make_parents`` creates missing directories first; ``keep_mode``:
-    a file already there keeps its own mode (``mode`` is a new file's)."""
+@contextlib.contextmanager
+def replacing(path: str | Path, mode: int | None = None, make_parents: bool = False,
+              keep_mode: bool = False) -> Iterator[BinaryIO]:
+    """A binary file to write that replaces ``path`` when the block ends
+    (fsynced, given its mode, renamed over it), or leaves no trace when it
+    raises: for what is written as a stream (a copy, an archive).  ``mode``
+    None keeps the temp file's 0600; ``make_parents`` creates missing
+    directories first; ``keep_mode``: a file already there keeps its own
+    mode (``mode`` is a new file's)."""
     path = Path(path)
     if keep_mode:
         try:
@@ -28,7 +35,7 @@ def write(path: str | Path, data: bytes | str, mode: int | None = None, make_par
     fd, temp = tempfile.mkstemp(dir=directory, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as handle:
-            handle.write(data.encode() if isinstance(data, str) else data)
+            yield handle
             handle.flush()
             os.fsync(handle.fileno())
         if mode is not None:
@@ -38,3 +45,10 @@ def write(path: str | Path, data: bytes | str, mode: int | None = None, make_par
         if os.path.exists(temp):
             os.unlink(temp)
         raise
+
+
+def write(path: str | Path, data: bytes | str, mode: int | None = None, make_parents: bool = False,
+          keep_mode: bool = False) -> None:
+    """Replace ``path`` with ``data`` (``replacing``'s options)."""
+    with replacing(path, mode, make_parents, keep_mode) as handle:
+        handle.write(data.encode() if isinstance(data, str) else data)

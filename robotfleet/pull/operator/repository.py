@@ -18,7 +18,6 @@ of snapshot and targets and the blobs they name are kept; older ones go
 from __future__ import annotations
 
 import datetime
-import os
 import re
 import shutil
 import tempfile
@@ -174,17 +173,8 @@ class Repository:
         info = TargetFile.from_file(path, str(local), ["sha256"])
         stored = self.targets_dir / blob_name(path, info.hashes["sha256"])
         if not stored.exists():
-            stored.parent.mkdir(parents=True, exist_ok=True)
-            fd, temp = tempfile.mkstemp(dir=stored.parent, prefix=f".{stored.name}.")
-            os.close(fd)
-            try:
-                shutil.copyfile(local, temp)
-                os.chmod(temp, 0o644)
-                os.replace(temp, stored)
-            except BaseException:
-                if os.path.exists(temp):
-                    os.unlink(temp)
-                raise
+            with open(local, "rb") as source, atomicfile.replacing(stored, 0o644, make_parents=True) as copy:
+                shutil.copyfileobj(source, copy)
         return info
 
     def publish(self, record: records.Record, files: dict[str, Path], online_signer, expiry: Expiry,

@@ -21,6 +21,8 @@ from __future__ import annotations
 import json
 import re
 
+from robotfleet.pull.protocol.record import load_json
+
 FORMAT = 1
 NAME = "media.json"  # its TUF target path
 MAX_BYTES = 4 << 20
@@ -59,12 +61,7 @@ def _fail(where: str, expected: str, got) -> MediaError:
 
 def parse(data: bytes) -> dict:
     """``media.json``'s bytes -> {"version": int, "images": {machine: {ref: {digest, archive, image}}}}."""
-    if len(data) > MAX_BYTES:
-        raise MediaError(f"{NAME}: larger than {MAX_BYTES >> 20} MiB")
-    try:
-        raw = json.loads(data)
-    except (ValueError, UnicodeDecodeError) as error:
-        raise MediaError(f"{NAME}: not JSON ({str(error).splitlines()[0]})") from None
+    raw = load_json(data, NAME, MAX_BYTES, MediaError)
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
         raise _fail("format", f"{FORMAT} (a newer robotfleet wrote these media?)", raw.get("format")
                     if isinstance(raw, dict) else raw)

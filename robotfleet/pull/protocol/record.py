@@ -151,15 +151,21 @@ def _target_path(value, where: str, prefix: str, suffix: str) -> str:
     return value
 
 
+def load_json(data: bytes | str, name: str, max_bytes: int, error: type[Exception]):
+    """A signed JSON document's bytes, decoded: ``error`` with one line when
+    it is larger than ``max_bytes`` or not JSON (release.json, media.json)."""
+    if len(data) > max_bytes:
+        raise error(f"{name}: larger than {max_bytes >> 20} MiB")
+    try:
+        return json.loads(data)
+    except (ValueError, UnicodeDecodeError) as failure:
+        raise error(f"{name}: not JSON ({str(failure).splitlines()[0]})") from None
+
+
 def parse(data) -> Record:
     """``release.json``'s bytes (or its decoded mapping) -> Record; RecordError (one line) otherwise."""
     if isinstance(data, (bytes, str)):
-        if len(data) > MAX_BYTES:
-            raise RecordError(f"{NAME}: larger than {MAX_BYTES >> 20} MiB")
-        try:
-            data = json.loads(data)
-        except (ValueError, UnicodeDecodeError) as error:
-            raise RecordError(f"{NAME}: not JSON ({str(error).splitlines()[0]})") from None
+        data = load_json(data, NAME, MAX_BYTES, RecordError)
     if not isinstance(data, dict):
         raise _fail("the record", "a JSON object", type(data).__name__)
     if data.get("format") != FORMAT:

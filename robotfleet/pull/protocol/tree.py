@@ -26,6 +26,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from robotfleet import atomicfile
+
 # What a robot needs to run the deploy (not tests/ or docs/).
 DEPLOY_PATHS = ("deploy.py", "config.py", "rollback.py", "pyproject.toml", "robotfleet", "roles", "inventories",
                 "group_data", "files")
@@ -133,19 +135,9 @@ def write_archive(checkout, commit: str, out, paths=DEPLOY_PATHS) -> str:
     if not listed:
         raise TreeError(f"commit {commit[:12]} has none of {', '.join(paths)}: not a deploy repository")
     tar = git(checkout, "archive", "--format=tar", commit, "--", *listed)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, temp = tempfile.mkstemp(dir=out.parent, prefix=f".{out.name}.")
-    try:
-        with os.fdopen(fd, "wb") as raw, gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0,
-                                                       compresslevel=9) as packed:
-            packed.write(tar)
-        os.chmod(temp, 0o644)
-        os.replace(temp, out)
-    except BaseException:
-        if os.path.exists(temp):
-            os.unlink(temp)
-        raise
+    with atomicfile.replacing(out, 0o644, make_parents=True) as raw, \
+            gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0, compresslevel=9) as packed:
+        packed.write(tar)
     with open(out, "rb") as handle:
         return hashlib.sha256(handle.read()).hexdigest()
 
