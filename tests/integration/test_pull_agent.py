@@ -186,8 +186,8 @@ def test_a_robot_s_crafted_report_neither_forges_another_s_nor_stops_a_later_wav
         entry = f"100644 blob {craftedgit.blob(work, b'[' * 200000)}\treport.json"
     craftedgit.push_report_entry(world.bare, work, "robot2", entry)
     _, outcome, sent = world.wake()
-    assert (outcome.result, outcome.wave) == ("halted", 1)
-    assert outcome.reason == "wave 1 stopped: 1 robot(s) of the earlier waves failed (budget 0)"
+    assert (outcome.result, outcome.wave) == ("stopped", 1)
+    assert outcome.reason == "wave 1 stopped by the failure budget: 1 robot(s) of the earlier waves failed (budget 0)"
     assert sent == "report sent" and not (world.state / "last-run.log").exists()
 
 

@@ -207,8 +207,8 @@ def test_the_agent_reports_to_its_shard_and_halts_on_an_earlier_wave_s_failure_r
                                                                               "tries": 1})
     robot_remote(tmp_path, world.bare, "robot3").push_report("robot3", reports.to_bytes(rolled_back))
     _, outcome, sent = world.wake()
-    assert (outcome.result, outcome.wave) == ("halted", 1)
-    assert outcome.reason == "wave 1 stopped: 1 robot(s) of the earlier waves failed (budget 0)"
+    assert (outcome.result, outcome.wave) == ("stopped", 1)
+    assert outcome.reason == "wave 1 stopped by the failure budget: 1 robot(s) of the earlier waves failed (budget 0)"
     assert sent == "report sent"
     own = Path(report_shards.shard_url(str(world.bare), report_shards.shard_of("robot1", SHARDS)))
     assert "refs/reports/robot1" in refs(own) and refs(world.bare) == []
