@@ -49,6 +49,16 @@ def test_agent_json_and_the_fleet_file_take_one_default_and_one_range(field):
             assert getattr(agent_files.read_config(text), field) == value
 
 
+@pytest.mark.parametrize("field, value, range_", [("interval", 9, "10 to 604800"), ("heartbeat", 1, "10 to 604800"),
+                                                  ("fetch_timeout", 4, "5 to 86400")])
+def test_agent_json_refuses_what_the_fleet_file_refuses(field, value, range_):
+    """The three the agent once took below the fleet file's minimum (1 s)."""
+    assert DECLARED[NUMBERS[field]].check(value)
+    text = json.dumps({"format": agent_files.FORMAT, "robot": "robot1", "remote": "ssh://g@h/fleet", field: value})
+    with pytest.raises(agent_files.ConfigError, match=f"{field}: expected a whole number from {range_}, got {value}"):
+        agent_files.read_config(text)
+
+
 def test_the_agent_s_config_is_the_host_s_settings_with_their_declared_defaults():
     config = plan.config({"pull": True, "pull_remote": "ssh://g@h/fleet", "pull_interval": 60}, "robot1")
     assert (config.remote, config.interval, config.jitter, config.heartbeat, config.stale_after) == (
