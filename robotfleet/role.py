@@ -163,6 +163,47 @@ class HoldPart:
     setting: str
 
 
+@dataclass(frozen=True)
+class PullPart:
+    """Pull mode as the engine reads it of a host, given by the role that
+    declares pull mode's settings (roles/pull), so the engine (publish,
+    status, bundle, pull-enroll, the agent's files) reads none by name:
+    ``pulls(data)``, whether the host converges itself from signed
+    releases; ``config(data, robot, **extra)``, its agent's configuration
+    (robotfleet/pull/protocol/agent_files.py ``Config``: its remotes, its
+    schedule and staleness, its report shard count; ``extra`` its field
+    ``extra``); ``platform(data)``, the wheels its releases carry for it;
+    ``known_hosts(data)``, ``timer(data)``: its agent's known_hosts and
+    timer unit; ``trust_root(data)``, ``remote_ca(data)``: the files on this
+    machine its settings name (None: the defaults, no CA)."""
+
+    pulls: Callable[[Any], bool]
+    config: Callable[..., Any]
+    platform: Callable[[Any], str]
+    known_hosts: Callable[[Any], str]
+    timer: Callable[[Any], str]
+    trust_root: Callable[[Any], str | None]
+    remote_ca: Callable[[Any], str | None]
+
+
+def _pulls_not(data) -> bool:
+    return False
+
+
+def _no_pull_role(*args, **kwargs):
+    raise LookupError("no role of deploy.py declares pull mode (the pull role)")
+
+
+# Where no role declares pull mode: no host pulls.
+NO_PULL = PullPart(pulls=_pulls_not, config=_no_pull_role, platform=_no_pull_role, known_hosts=_no_pull_role,
+                   timer=_no_pull_role, trust_root=_no_pull_role, remote_ca=_no_pull_role)
+
+
+def pull_part(roles) -> PullPart:
+    """The pull part of ``roles`` (deploy.py's, robotfleet/roster.py ``roles()``)."""
+    return next((role.pull for role in roles if role.pull is not None), NO_PULL)
+
+
 def _always(data) -> bool:
     return True
 
@@ -196,6 +237,7 @@ class Role:
       data (e.g. passwords read from the environment), masked in output
       like the URL passwords of the data (robotfleet/secrets.py);
     - ``hold``: its lock, held by the pull agent for a converge run (HoldPart);
+    - ``pull``: pull mode's settings as the engine reads them (PullPart);
     - ``renamed``: older names of its settings, still read (Renamed)."""
 
     name: str
@@ -211,6 +253,7 @@ class Role:
     pins: PinPart | None = None
     secrets: Callable[[Any], list[str]] = _no_secrets
     hold: HoldPart | None = None
+    pull: PullPart | None = None
     renamed: tuple[Renamed, ...] = ()
 
 

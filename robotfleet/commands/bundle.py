@@ -31,7 +31,7 @@ from robotfleet import commands, roster
 from robotfleet import selection
 from robotfleet.pull.operator import bundle, gitolite, install
 from robotfleet.pull.protocol import naming
-from robotfleet.pull.operator import enrollments
+from robotfleet.pull.operator import enrollments, pull_settings
 from robotfleet.pull.protocol.robot_data import DataError, host_data
 from robotfleet.pull.operator.repository import Repository, RepositoryError
 
@@ -63,7 +63,8 @@ def make(args) -> int:
         data = host_data(args.robot, fleet, roster.registry())
     except DataError as error:
         raise selection.Refused(str(error)) from None
-    if not data.get("pull"):
+    pull = pull_settings.part()
+    if not pull.pulls(data):
         raise selection.Refused(f"{fleet}: {args.robot} is not a pull robot (pull: true)")
     clone = install.releases_clone(robotfleet.CHECKOUT)
     repository = Repository(clone)
@@ -75,9 +76,9 @@ def make(args) -> int:
             raise selection.Refused(f"release {record.version} is not for {args.robot}: publish a release whose fleet "
                                 "file has it (pull: true), then make its bundle")
         code = repository.blob(record.code)
-        wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(data.pull_platform)]
-        root = install.trust_root(robotfleet.CHECKOUT, data.pull_trust_root)
-        ca = install.remote_ca(robotfleet.CHECKOUT, data.pull_remote_ca)
+        wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(pull.platform(data))]
+        root = install.trust_root(robotfleet.CHECKOUT, pull.trust_root(data))
+        ca = install.remote_ca(robotfleet.CHECKOUT, pull.remote_ca(data))
     except (RepositoryError, install.InstallError) as error:
         raise selection.Refused(str(error)) from None
     admin = admin_of(args)
@@ -98,11 +99,12 @@ def make(args) -> int:
     like = f"robots named {args.name_prefix}<{args.name_from}> like " if rule else ""
     print(f"bundle: {args.out}/rootfs.tar for {like}"
           f"{args.robot}: release {record.version}, {len(wheels)} wheels "
-          f"({data.pull_platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}")
+          f"({pull.platform(data)}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}")
     if admin is not None:
         try:
-            gitolite.register(admin, repository_name(data.pull_remote), owner, public, enrollment=not rule,
-                              shards=data.pull_report_shards)
+            config = pull.config(data, args.robot)
+            gitolite.register(admin, repository_name(config.remote), owner, public, enrollment=not rule,
+                              shards=config.report_shards)
         except gitolite.GitoliteError as error:
             print(f"bundle: {error}; the enrollment key is not registered yet", file=sys.stderr)
             return selection.FAILED

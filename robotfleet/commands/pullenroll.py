@@ -39,7 +39,7 @@ from robotfleet import selection
 from robotfleet.commands import enroll, pullstatus
 from robotfleet.commands.bundle import add_admin, admin_of, repository_name
 from robotfleet.pull.protocol import agent_files, enrollment, report_shards
-from robotfleet.pull.operator import enrollments
+from robotfleet.pull.operator import enrollments, pull_settings
 from robotfleet.pull.operator import gitolite
 
 
@@ -191,7 +191,7 @@ def main(argv=None) -> int:
         admin = admin_of(args)
         expected = enroll.read_fingerprints(args.fingerprints) if args.fingerprints else None
         inventory = selection.inventory(args.inventory)
-        chosen = [h for h in selection.select(inventory, args.inventory, args.limit) if h.data.get("pull")]
+        chosen = [h for h in selection.select(inventory, args.inventory, args.limit) if pull_settings.pulls(h.data)]
         if not chosen:
             raise selection.Refused(f"{args.inventory}: no pull robot (pull: true) to enroll")
         unknown = [name for name in args.replace if name not in {h.name for h in chosen}]
@@ -263,9 +263,9 @@ def main(argv=None) -> int:
         if admin is None:
             print(f"{host.name}: its key for the fleet remote: {key}")
             continue
+        remote = pull_settings.part().config(host.data, host.name).remote
         try:
-            changed = gitolite.register(admin, repository_name(host.data.get("pull_remote")), host.name, key,
-                                        shards=shards)
+            changed = gitolite.register(admin, repository_name(remote), host.name, key, shards=shards)
         except gitolite.GitoliteError as error:
             print(f"{host.name}: {error}", file=sys.stderr)
             code = max(code, selection.FAILED)

@@ -20,7 +20,7 @@ from pathlib import Path
 import robotfleet
 from robotfleet.checkers import one_line
 from robotfleet.pull.operator import releases_remote
-from robotfleet.pull.operator import channel
+from robotfleet.pull.operator import channel, pull_settings
 from robotfleet.pull.protocol import report_shards, report_store, reports
 from robotfleet.pull.protocol.record import parse_time
 from robotfleet.role import Metric
@@ -45,9 +45,10 @@ def remote_of(given: str | None, hosts=(), checkout: Path = robotfleet.CHECKOUT)
 def shards_of(hosts) -> int:
     """The fleet's report shard count: pull_report_shards, one value for all
     the pull hosts [(name, data)] (a robot reads the others' shards with its own)."""
+    pull = pull_settings.part()
     counts = {}
     for name, data in hosts:
-        counts.setdefault(data.get("pull_report_shards") or 0, name)
+        counts.setdefault(pull.config(data, name).report_shards, name)
     if len(counts) > 1:
         (one, first), (other, second) = sorted(counts.items())[:2]
         raise ReportsUnavailable(f"pull_report_shards: {first} has {one}, {second} has {other}: "
@@ -91,10 +92,8 @@ def row(name: str, report: dict | None, data, now: datetime.datetime, url: str) 
         return {"host": name, "reachable": False, "via": "report", "pull": "unreadable", "reported": None,
                 "stale": True, "error": report["error"]}
     cells = {k: v for k, v in (report.get("status") or {}).items() if k not in ("host", "reachable", "error")}
-    interval = data.get("pull_interval") or report.get("interval") or 900
-    jitter = data.get("pull_jitter") if data.get("pull_jitter") is not None else report.get("jitter") or 0
-    stale_after = data.get("pull_stale_after") or report.get("stale_after") or 2
-    heartbeat = data.get("pull_heartbeat") or report.get("heartbeat") or 0
+    config = pull_settings.part().config(data, name)
+    interval, jitter, stale_after, heartbeat = config.interval, config.jitter, config.stale_after, config.heartbeat
     limit = reports.stale_limit(interval, jitter, stale_after, heartbeat)
     is_stale = reports.stale(report, now, interval, jitter, stale_after, heartbeat)
     cells.update(host=name, reachable="pull", via="report", pull=pull_cell(report), report=report,

@@ -30,7 +30,7 @@ from robotfleet import connect, inventory as fleet_inventory, roster, selection
 from robotfleet.checkers import one_line
 from robotfleet.commands import status, rollout_plan as waves
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
-from robotfleet.role import DEPLOYMENT_ENV
+from robotfleet.role import DEPLOYMENT_ENV, pull_part
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
@@ -230,7 +230,7 @@ def main(argv=None) -> int:
     if not hosts:
         say(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)")
         return selection.REFUSED
-    pulled = [name for name, data in hosts if data.get("pull")]
+    pulled = [name for name, data in hosts if pull_part(roster.roles()).pulls(data)]
     if pulled:  # robots that converge themselves: publish and follow their reports (docs/pull.md)
         from robotfleet.commands import pullrollout
 

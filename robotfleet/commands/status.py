@@ -41,7 +41,7 @@ from robotfleet import commands, connect, roster
 from robotfleet.checkers import one_line
 from robotfleet import selection
 from robotfleet.commands import metrics, rollout_plan
-from robotfleet.role import GROUPS
+from robotfleet.role import GROUPS, pull_part
 from robotfleet.status_parts import (FIRST, HOST_COMMAND, HOST_SECTION, LAST, MARK, columns,  # noqa: F401
                                      reporting, row, sections, status_command)
 
@@ -105,7 +105,7 @@ def collect(inventory_path: str, limits: list[str], roles=None, answered=None, r
     roles = roster.roles() if roles is None else roles
     inventory = selection.inventory(inventory_path)
     hosts = selection.select(inventory, inventory_path, limits)
-    pulled = [h for h in hosts if h.data.get("pull")]
+    pulled = [h for h in hosts if pull_part(roles).pulls(h.data)]
     found = _pull_rows(pulled, remote)
     for host in pulled:
         if found[host.name]["reachable"]:

@@ -1,5 +1,6 @@
 """The engine's own settings: how to reach a host (pyinfra's SSH connector
-data), how long apt waits for its lock, rollout canaries, pull mode."""
+data), how long apt waits for its lock, rollout canaries.  Pull mode's are the pull
+role's (roles/pull/settings.py)."""
 
 from __future__ import annotations
 
@@ -51,9 +52,4 @@ SETTINGS = (
             "Seconds apt waits in all for the apt/dpkg locks another process holds, then the host fails naming it."),
     Setting("rollout_canary", False, c.boolean,
             "This robot is updated in a rollout's first wave (else the first --canary N robots are)."),
-    Setting("pull", False, c.boolean,
-            "This host converges itself from the signed releases robotfleet publish writes (docs/pull.md)."),
-    Setting("pull_platform", "cp313-x86_64",
-            c.string(r"cp3[0-9]{1,2}-(x86_64|aarch64|armv7l)", "a platform like cp313-x86_64 (Python, machine)"),
-            "A pull host's Python and machine (cp313-x86_64, cp311-aarch64): the wheels its releases carry."),
 )

@@ -36,8 +36,7 @@ FILES = (agent_files.CONFIG, agent_files.TRUST_ROOT, agent_files.KNOWN_HOSTS, ag
          f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}", f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")
 
 
-def runs_on(data) -> bool:
-    return data.pull is True
+runs_on = plan.pulls
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -152,5 +151,6 @@ ROLE = Role(
     reads=declare_reads,
     steps=pull_agent,
     rules=settings.rules,
+    pull=plan.PART,
 )
 

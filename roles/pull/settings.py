@@ -1,11 +1,14 @@
-"""The pull role's settings: where a pull host (the engine's ``pull``
-setting) fetches releases, how often, and when it may apply them."""
+"""The pull role's settings, every one of pull mode's: whether a host pulls,
+where it fetches releases, how often, and when it may apply them.  The
+numbers the agent's configuration holds take their defaults and bounds from
+robotfleet/pull/protocol/agent_files.py (``Config``, ``LIMITS``), which the
+agent checks its agent.json with: one declaration for both."""
 
 from __future__ import annotations
 
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
-from robotfleet.pull.protocol import waves
+from robotfleet.pull.protocol import agent_files, waves
 from robotfleet.role import Setting
 
 # The fleet remote as git takes it (never through a shell, but still no
@@ -50,13 +53,24 @@ def window(value):
 
 c.with_schema(window, _WINDOW_CHECK.schema)
 
+
+def _number(field: str) -> tuple:
+    """The default and check of the agent's whole number ``field``, as agent.json has them."""
+    return agent_files.default(field), c.integer(*agent_files.LIMITS[field])
+
+
 SETTINGS = (
+    Setting("pull", False, c.boolean,
+            "This host converges itself from the signed releases robotfleet publish writes (docs/pull.md)."),
+    Setting("pull_platform", "cp313-x86_64",
+            c.string(r"cp3[0-9]{1,2}-(x86_64|aarch64|armv7l)", "a platform like cp313-x86_64 (Python, machine)"),
+            "A pull host's Python and machine (cp313-x86_64, cp311-aarch64): the wheels its releases carry."),
     Setting("pull_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
             "The fleet remote the agent fetches releases from and pushes its reports to (required with pull)."),
     Setting("pull_report_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
             "Where the agent pushes its reports, when not to pull_remote (e.g. ssh to the git server while releases "
             "come from an https mirror); null: pull_remote."),
-    Setting("pull_report_shards", 0, c.integer(0, 4096),
+    Setting("pull_report_shards", *_number("report_shards"),
             "Report repositories beside the fleet remote (<remote>-reports-<n>), each robot's fixed by a hash of its "
             "name; about one per 50 robots keeps a report push under 10 KB; 0: the reports in the fleet remote itself. "
             "The same on every robot."),
@@ -65,23 +79,23 @@ SETTINGS = (
             "keep it in the deploy tree, e.g. files/); null: the robot's system CAs."),
     Setting("pull_remote_host_keys", [], c.list_of(c.string(HOST_KEY, HOST_KEY_WHAT), unique=True),
             "The git server's SSH host keys, checked strictly by the agent (required for an ssh remote)."),
-    Setting("pull_interval", 900, c.integer(10, 7 * 86400),
+    Setting("pull_interval", *_number("interval"),
             "Seconds between two checks for a new release (the timer's OnUnitInactiveSec)."),
-    Setting("pull_jitter", 300, c.integer(0, 86400),
+    Setting("pull_jitter", *_number("jitter"),
             "Up to this many seconds added at random to each wait, so robots do not wake at once "
             "(RandomizedDelaySec)."),
     Setting("pull_boot_delay", 60, c.integer(0, 86400),
             "Seconds after boot (or after the agent is installed) before the first check (OnBootSec)."),
     Setting("pull_windows", [], c.list_of(window, unique=True),
             "Maintenance windows a release may start in (Mon-Fri 01:00-05:00, daily 22:00-02:00 UTC); none: any time."),
-    Setting("pull_min_free_mb", 512, c.integer(0, 1 << 20),
+    Setting("pull_min_free_mb", *_number("min_free_mb"),
             "Free MB the agent needs on its state directory's and Docker's file systems before it downloads."),
-    Setting("pull_heartbeat", 3600, c.integer(10, 7 * 86400),
+    Setting("pull_heartbeat", *_number("heartbeat"),
             "Seconds after which a robot with nothing new reads its roles' status again and pushes its report anyway."),
-    Setting("pull_stale_after", 2, c.integer(1, 1000),
+    Setting("pull_stale_after", *_number("stale_after"),
             "status marks a pull robot's report stale when it is older than this many heartbeats (each plus an "
             "interval and its jitter)."),
-    Setting("pull_fetch_timeout", 300, c.integer(5, 86400),
+    Setting("pull_fetch_timeout", *_number("fetch_timeout"),
             "Seconds one fetch from the fleet remote may take."),
     Setting("pull_media_dir", None, c.optional(v.private_path),
             "Where releases on removable media or a LAN share are mounted (robotfleet export; e.g. /mnt/fleet-media): "

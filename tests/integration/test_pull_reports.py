@@ -103,7 +103,7 @@ def test_the_substance_leaves_out_when_and_what_it_cost():
 
 
 def test_status_rows_from_reports():
-    data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3}
+    data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3, "pull_heartbeat": 600}
     row = pullstatus.row("robot1", reports.parse(reports.to_bytes(made()), "robot1"), data, NOW, "url")
     assert (row["reachable"], row["pull"], row["health"], row["reported"]) == ("pull", "applied 7", "healthy",
                                                                                 "2026-11-25T10:00:00Z")

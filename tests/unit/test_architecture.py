@@ -16,10 +16,14 @@ MAX_LINES = 400
 NOT_THE_PRODUCT = {"tests", "docs", "build", "dist"}
 
 
-def setting_reads(tree: ast.AST, names: set[str]):
+def setting_reads(tree: ast.AST, names: set[str], not_data: frozenset = frozenset()):
     """(line, setting) for each read of a setting in ``names``: data.NAME,
-    something.data.NAME, x.get("NAME"), value_of(x, "NAME"), x["NAME"]."""
+    something.data.NAME, x.get("NAME"), value_of(x, "NAME"), getattr(x, "NAME"), x["NAME"];
+    ``not_data``: names of variables that hold no host's data (x.get and
+    x[...] on them are not reads)."""
     for node in ast.walk(tree):
+        if isinstance(node, (ast.Call, ast.Subscript)) and _holder(node) in not_data:
+            continue
         if isinstance(node, ast.Attribute) and node.attr in names:
             holder = node.value
             if (isinstance(holder, ast.Name) and holder.id == "data") or (
@@ -29,7 +33,7 @@ def setting_reads(tree: ast.AST, names: set[str]):
             function = node.func
             called = function.attr if isinstance(function, ast.Attribute) else getattr(function, "id", None)
             key = (node.args[0] if called == "get"
-                   else node.args[1] if called == "value_of" and len(node.args) > 1 else None)
+                   else node.args[1] if called in ("value_of", "getattr") and len(node.args) > 1 else None)
             if isinstance(key, ast.Constant) and key.value in names:
                 yield node.lineno, key.value
         elif isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant) and node.slice.value in names:
@@ -50,11 +54,41 @@ def test_a_role_reads_only_its_own_settings():
     assert found == []
 
 
+def _holder(node) -> str | None:
+    """The variable name ``x`` of ``x.get(...)`` or ``x[...]``."""
+    target = node.func.value if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) else (
+        node.value if isinstance(node, ast.Subscript) else None)
+    return target.id if isinstance(target, ast.Name) else None
+
+
+# Variables of the engine that hold a status row, keyed by column (a role's
+# column may share its setting's name: the PULL column), not a host's data.
+ROWS = frozenset({"row"})
+
+
+def test_the_engine_reads_no_role_s_setting():
+    """robotfleet/ knows no role by name, nor any role's setting: what it
+    needs of one it reads through the role's card (e.g. the pull role's
+    ``pull`` part: robotfleet/role.py PullPart); it reads by name only its
+    own settings (robotfleet/fleet/connection.py)."""
+    from robotfleet.fleet import connection
+
+    own = {setting.name for setting in connection.SETTINGS}  # the allowlist: the engine's own settings
+    owner = {setting.name: role.name for role in roster.roles() for setting in role.settings if setting.name not in own}
+    found = []
+    for path in sorted((ROOT / "robotfleet").rglob("*.py")):
+        for line, name in setting_reads(ast.parse(path.read_text()), set(owner), ROWS):
+            found.append(f"{path.relative_to(ROOT)}:{line}: {name} is a setting of the {owner[name]} role")
+    assert found == []
+
+
 def test_the_reads_found_are_the_ones_written():
     code = ('a = data.payload_gpu\nb = host.data.x11_enabled\nc = data.get("sensors", [])\n'
             'd = value_of(data, "x11_user")\ne = data["gpu"]\nf = plan.payload_gpu\ng = {"display": 1}\n')
     reads = sorted(setting_reads(ast.parse(code), {"payload_gpu", "x11_enabled", "sensors", "x11_user", "gpu"}))
     assert reads == [(1, "payload_gpu"), (2, "x11_enabled"), (3, "sensors"), (4, "x11_user"), (5, "gpu")]
+    rows = 'h = row.get("gpu")\ni = row["gpu"]\nj = data.get("gpu")\nk = getattr(data, "gpu", None)\n'
+    assert list(setting_reads(ast.parse(rows), {"gpu"}, frozenset({"row"}))) == [(3, "gpu"), (4, "gpu")]
 
 
 def circles(graph: dict[str, set[str]]) -> list[list[str]]:

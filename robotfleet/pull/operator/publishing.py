@@ -21,6 +21,7 @@ from robotfleet.pull.protocol.robot_data import HostData
 from robotfleet.pull.protocol import tree, waves
 from robotfleet.pull.operator import wheels
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError
+from robotfleet.role import pull_part
 
 DEFAULT_FLEET = "inventories/robots.yaml"
 
@@ -47,8 +48,10 @@ class Options:
 def pull_hosts(fleet: Fleet, registry) -> list[tuple[str, HostData]]:
     """The fleet's hosts with ``pull: true``, robots then laptops, in file
     order, with every setting's default for their group under what the file says."""
-    return [(name, HostData({**registry.defaults(group), **data})) for group in ("robots", "laptops")
-            for name, data in fleet.hosts(group) if data.get("pull")]
+    pulls = pull_part(registry.roles).pulls
+    merged = [(name, HostData({**registry.defaults(group), **data})) for group in ("robots", "laptops")
+              for name, data in fleet.hosts(group)]
+    return [(name, data) for name, data in merged if pulls(data)]
 
 
 def resolve_pins(roles, hosts: list[tuple[str, HostData]]) -> dict[str, dict[str, str]]:
@@ -124,7 +127,7 @@ def build(checkout, options: Options, roles, registry, version: int, now: dateti
     files = {records.code_path(commit): archive}
     wheel_targets: dict[str, list[str]] = {}
     if options.wheel_cache is not None:
-        platforms = sorted({data.pull_platform for _, data in hosts} | set(options.platforms))
+        platforms = sorted({pull_part(roles).platform(data) for _, data in hosts} | set(options.platforms))
         try:
             requirements = wheels.requirements_of(tree.blob(checkout, commit, "pyproject.toml"))
             for platform in platforms:

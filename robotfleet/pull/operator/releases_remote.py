@@ -45,11 +45,15 @@ def configured(checkout) -> str | None:
 def named_by(hosts, reports: bool = False) -> list[str]:
     """The distinct remotes the pull hosts [(name, data)] name, in fleet order (pure): their ``pull_remote``,
     or for reports their ``pull_report_remote`` where set."""
+    from robotfleet.pull.operator import pull_settings
+
+    pull = pull_settings.part()
     found: list[str] = []
-    for _, data in hosts:
-        if not data.get("pull"):
+    for name, data in hosts:
+        if not pull.pulls(data):
             continue
-        url = (data.get("pull_report_remote") if reports else None) or data.get("pull_remote")
+        config = pull.config(data, name)
+        url = (config.report_remote if reports else None) or config.remote
         if url and url not in found:
             found.append(url)
     return found

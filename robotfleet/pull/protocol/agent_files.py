@@ -82,9 +82,17 @@ class Config:
         return f"{self.etc_dir}/{name}"
 
 
-_INTS = {"interval": (1, 7 * 86400), "jitter": (0, 86400), "min_free_mb": (0, 1 << 20),
-         "fetch_timeout": (1, 86400), "stale_after": (1, 1000), "heartbeat": (1, 7 * 86400),
-         "report_shards": (0, 4096)}
+# The bounds of the configuration's whole numbers, written once: the pull
+# role's settings (roles/pull/settings.py) check the fleet file with them,
+# the agent its agent.json; the defaults are Config's.
+LIMITS = {"interval": (10, 7 * 86400), "jitter": (0, 86400), "min_free_mb": (0, 1 << 20),
+          "fetch_timeout": (5, 86400), "stale_after": (1, 1000), "heartbeat": (10, 7 * 86400),
+          "report_shards": (0, 4096)}
+
+
+def default(name: str):
+    """Config's default for the field ``name``."""
+    return Config.__dataclass_fields__[name].default
 
 
 def read_config(text: str, where: str = CONFIG) -> Config:
@@ -115,8 +123,8 @@ def read_config(text: str, where: str = CONFIG) -> Config:
         raise ConfigError(f"{where}: robot: required, a string (or name_rule)")
     elif not _ROBOT.match(raw["robot"]):
         raise ConfigError(f"{where}: robot: {raw['robot']!r} is not a robot name")
-    for name, (low, high) in _INTS.items():
-        value = raw.get(name, Config.__dataclass_fields__[name].default)
+    for name, (low, high) in LIMITS.items():
+        value = raw.get(name, default(name))
         if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
             raise ConfigError(f"{where}: {name}: expected a whole number from {low} to {high}, got {value!r}")
     windows = raw.get("windows", [])
@@ -159,19 +167,9 @@ def named(config: Config, read=None) -> Config:
         raise ConfigError(f"robot name: {error}") from None
 
 
-def config_of(data, robot: str, **extra) -> Config:
-    """The agent's configuration for a host with ``data`` (the pull role's settings)."""
-    return Config(robot=robot, remote=data.pull_remote, interval=data.pull_interval, jitter=data.pull_jitter,
-                  windows=tuple(data.pull_windows), min_free_mb=data.pull_min_free_mb,
-                  fetch_timeout=data.pull_fetch_timeout, stale_after=data.pull_stale_after,
-                  heartbeat=data.pull_heartbeat, report_remote=data.pull_report_remote,
-                  report_shards=data.pull_report_shards, media_dir=getattr(data, "pull_media_dir", None),
-                  extra=extra)
-
-
-def known_hosts_of(data) -> str:
-    """The git server's keys (pull_remote_host_keys), under HOST_KEY_ALIAS."""
-    return "".join(f"{HOST_KEY_ALIAS} {key}\n" for key in data.pull_remote_host_keys)
+def known_hosts(keys) -> str:
+    """The git server's host ``keys``, under HOST_KEY_ALIAS."""
+    return "".join(f"{HOST_KEY_ALIAS} {key}\n" for key in keys)
 
 
 HEADER = "# Managed by the robot fleet provisioner (roles/pull); local edits are overwritten.\n"
@@ -198,17 +196,17 @@ IOSchedulingPriority=7
 """
 
 
-def timer_unit(data) -> str:
+def timer_unit(interval: int, jitter: int, boot_delay: int) -> str:
     # Persistent= acts only on OnCalendar= timers; a robot that was off
     # catches up through OnBootSec=, the first check after each boot.
     return HEADER + f"""[Unit]
-Description=Robot fleet pull agent: check for a new release every {data.pull_interval} s
+Description=Robot fleet pull agent: check for a new release every {interval} s
 
 [Timer]
-OnBootSec={data.pull_boot_delay}
-OnActiveSec={data.pull_boot_delay}
-OnUnitInactiveSec={data.pull_interval}
-RandomizedDelaySec={data.pull_jitter}
+OnBootSec={boot_delay}
+OnActiveSec={boot_delay}
+OnUnitInactiveSec={interval}
+RandomizedDelaySec={jitter}
 Persistent=true
 AccuracySec=1s
 
