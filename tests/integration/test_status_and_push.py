@@ -5,6 +5,7 @@ import re
 
 import pytest
 
+from robotfleet import status_parts
 from robotfleet.commands import status
 from roles.payload import push
 from tests.fixtures import run_command, sh
@@ -18,17 +19,18 @@ def test_status_shows_the_gpu_driver_version_and_the_runtime(tmp_path):
     driver = tmp_path / "version"
     driver.write_text("NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14  Thu Feb 22 01:44:30 UTC 2024\n")
     data = {"gpu_driver_version_file": str(driver)}
-    command = status.status_command(roles(), merged("robots", data))
+    command = status_parts.status_command(roles(), merged("robots", data))
     out = sh(command).stdout
-    line = status.sections(out)["gpu"] + "\n"
+    line = status_parts.sections(out)["gpu"] + "\n"
     assert line.rstrip().endswith(("\tyes", "\tno"))
-    cells = status.row("gpu1", roles(), {"docker": "26.1.5", "gpu": line.replace("\tno\n", "\tyes\n")})
+    cells = status_parts.row("gpu1", roles(), {"docker": "26.1.5", "gpu": line.replace("\tno\n", "\tyes\n")})
     assert (cells["gpu_driver"], cells["gpu_runtime"]) == ("550.54.14", True)
-    plain = status.row("r1", roles(), {"docker": "26.1.5", "gpu": "\tno\n"})
+    plain = status_parts.row("r1", roles(), {"docker": "26.1.5", "gpu": "\tno\n"})
     assert (plain["gpu_driver"], plain["gpu_runtime"]) == (None, None)
-    broken = status.row("r2", roles(), {"gpu": "NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n"})
+    broken = status_parts.row("r2", roles(),
+                              {"gpu": "NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n"})
     assert broken["gpu_runtime"] is False
-    text = status.table([cells], status.columns(roles()))
+    text = status.table([cells], status_parts.columns(roles()))
     assert text.splitlines()[1].split()[-3:] == ["550.54.14", "yes", "-"]  # then ROLLOUT
 
 
@@ -60,8 +62,8 @@ def test_a_hostile_image_name_in_the_push_log_is_never_run(tmp_path, payload):
 def test_status_reads_the_architecture_as_the_snapshot_does():
     """The engine's own part of the status command, run in a real sh on
     this machine (the e2e tests read an arm64 robot's)."""
-    command = status.status_command(roles(), merged("robots", {}))
+    command = status_parts.status_command(roles(), merged("robots", {}))
     out = sh(command).stdout
     mine = sh("dpkg --print-architecture").stdout.strip()
-    assert mine and status.row("here", roles(), status.sections(out))["arch"] == mine
-    assert status.row("old", roles(), {})["arch"] is None  # a host that did not answer the part: "-"
+    assert mine and status_parts.row("here", roles(), status_parts.sections(out))["arch"] == mine
+    assert status_parts.row("old", roles(), {})["arch"] is None  # a host that did not answer the part: "-"

@@ -24,7 +24,7 @@ print(json.dumps({"results": {"operations": [{"name": "Release the payload", "er
 def test_a_line_naming_robot2_in_robot1s_output_does_not_fail_robot2(monkeypatch, capfd):
     """Rollout used to read each robot's result from pyinfra's output lines:
     a line "[robot2] ..." written by robot1 failed robot2 (issue 27, item 5)."""
-    from robotfleet.commands import rollout
+    from robotfleet.commands import rollout, rollout_judge
 
     monkeypatch.setattr(rollout, "PYINFRA", FAKE_PYINFRA)
     results = rollout.deploy_wave("inventories/robots.py", ["robot1", "robot2"], [], "deploy.py", "w3")
@@ -34,7 +34,8 @@ def test_a_line_naming_robot2_in_robot1s_output_does_not_fail_robot2(monkeypatch
     rows = {"robot1": {**on_target, "image_refs": ["i:1"], "result": result("w3", False, "payload: release x failed")},
             "robot2": {**on_target, "result": result("w3", True, "payload: release y is healthy")}}
     targets = dict.fromkeys(rows, {"payload": ["i:2"]})
-    done, failed, skipped = rollout.judge_wave(["robot1", "robot2"], results, rows, targets, False, deployment="w3")
+    done, failed, skipped = rollout_judge.judge_wave(["robot1", "robot2"], results, rows, targets, False,
+                                                     deployment="w3")
     assert done == ["robot2"] and failed == {"robot1": "payload: release x failed"} and skipped == {}
 
 

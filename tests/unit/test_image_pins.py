@@ -12,7 +12,7 @@ import yaml
 from pyinfra_cli.util import parse_cli_arg
 
 from robotfleet import roster
-from robotfleet.commands import rollout
+from robotfleet.commands import rollout_judge
 from roles.payload import compose, digests, pins as publish_pins, report
 from tests.fixtures import robot_fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, find, fleet_problems, merged, plan
@@ -151,9 +151,9 @@ def test_the_agent_s_json_text_reaches_the_setting_as_pyinfra_reads_it():
     data = merged("robots", {**ROBOT, "payload_image": PAYLOAD, "payload_image_pins": parse_cli_arg(text)})
     assert roster.registry().data_problems(data) == []
     assert images_of(rendered(data)) == {"payload": f"{PAYLOAD}@{A}"}
-    overrides = rollout.read_overrides([f"payload_image_pins={text}", "payload_force=true", "x"])
+    overrides = rollout_judge.read_overrides([f"payload_image_pins={text}", "payload_force=true", "x"])
     assert overrides == {"payload_image_pins": {PAYLOAD: A}, "payload_force": True}
-    target = rollout.targets_of(roster.roles(), dict(merged("robots", {**ROBOT, "payload_image": PAYLOAD})),
+    target = rollout_judge.targets_of(roster.roles(), dict(merged("robots", {**ROBOT, "payload_image": PAYLOAD})),
                                 overrides)
     assert target["payload"] == [f"{PAYLOAD}@{A}"]
     row = {"reachable": True, "image_refs": [f"{PAYLOAD}@{A}"], "release_state": "active",

@@ -5,7 +5,7 @@ import io
 import json
 import tarfile
 
-from robotfleet import roster
+from robotfleet import roster, status_parts
 from robotfleet.commands import status
 from roles.payload import push
 
@@ -58,12 +58,12 @@ def test_status_rows_and_table():
         "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
         "update_lock": None,
     }
-    rows = [status.row("robot1", roles(),
-                       {status.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
-            status.row("robot2", roles(), None, "cannot connect")]
+    rows = [status_parts.row("robot1", roles(),
+                       {status_parts.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
+            status_parts.row("robot2", roles(), None, "cannot connect")]
     assert rows[0]["image"] == "reg/p:1.1@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"  # the tag kept
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
-    text = status.table(rows, status.columns(roles())).splitlines()
+    text = status.table(rows, status_parts.columns(roles())).splitlines()
     assert rows[0]["arch"] == "arm64"
     assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS",
                                "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
