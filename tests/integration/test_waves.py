@@ -60,12 +60,12 @@ def test_one_rollout_lock_per_fleet_whatever_the_flags(tmp_path, flags):
     import glob
     import time
 
-    from robotfleet.fleet import loader
+    from robotfleet.fleet import yaml12
     from tests.integration import sshserver
 
     silent = [sshserver.Unanswered() for _ in range(2)]
     fleet = tmp_path / "fleet.yaml"
-    fleet.write_text(loader.dump({"all": {"vars": {"payload_image": "reg.example.com/p:1", "ssh_connect_timeout": 20}},
+    fleet.write_text(yaml12.dump({"all": {"vars": {"payload_image": "reg.example.com/p:1", "ssh_connect_timeout": 20}},
                                   "robots": {"hosts": {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port}
                                                        for i, s in enumerate(silent)}}}))
     env = dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path / "states"), ROBOT_FLEET=str(fleet))
