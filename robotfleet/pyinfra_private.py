@@ -96,7 +96,7 @@ USED = (
              "pyinfra.api.state:State.print_output", "pyinfra.api.state:State.current_deploy_filename",
              "pyinfra.api.state:State.current_op_file_number"),
             "pyinfra.api.state:State", "8c6b6d12b1c7c768",
-            "robotfleet/host/operations.py, robotfleet/commands/status_collect.py, robotfleet/speedups.py",
+            "robotfleet/host/operations.py, robotfleet/commands/status_collect.py, robotfleet/pyinfra_patches.py",
             "planning or executing (operations compare with the snapshot while planning), whether to print "
             "output, failed_hosts and limit_hosts (a State's attributes set in __init__), and where the "
             "deploy file is (operation order)"),
@@ -117,33 +117,33 @@ USED = (
             "refuse a pattern that matches no host"),
     Private(("pyinfra.api.operation:get_operation_order_from_stack", "pyinfra.api.util:PYINFRA_INSTALL_DIR",
              "pyinfra:is_cli"),
-            "pyinfra.api.operation:get_operation_order_from_stack", "f4807f61585570e0", "robotfleet/speedups.py",
+            "pyinfra.api.operation:get_operation_order_from_stack", "f4807f61585570e0", "robotfleet/pyinfra_patches.py",
             "replaced by a copy that reads no source file (a third of a converged rerun's CPU); the copy uses "
             "the install directory and CLI flag as pyinfra's does"),
     Private(("pyinfra.api.arguments:all_global_arguments",),
-            "pyinfra.api.arguments:all_global_arguments", "f7afbc472d78c5d2", "robotfleet/speedups.py",
+            "pyinfra.api.arguments:all_global_arguments", "f7afbc472d78c5d2", "robotfleet/pyinfra_patches.py",
             "replaced by the same answer computed once"),
     Private(("pyinfra.api.connectors:get_all_connectors", "pyinfra.api.connectors:entry_points"),
-            "pyinfra.api.connectors:get_all_connectors", "7d05cb4b81d92078", "robotfleet/speedups.py",
+            "pyinfra.api.connectors:get_all_connectors", "7d05cb4b81d92078", "robotfleet/pyinfra_patches.py",
             "the entry_points it calls (importlib's, once per host named @connector/...) replaced by one that "
             "reads them once"),
     Private(("pyinfra.api.inventory:Inventory.get_groups_data",),
-            "pyinfra.api.inventory:Inventory.get_groups_data", "6d7b0baffe2d4773", "robotfleet/speedups.py",
+            "pyinfra.api.inventory:Inventory.get_groups_data", "6d7b0baffe2d4773", "robotfleet/pyinfra_patches.py",
             "replaced by the same merge done once per list of groups"),
     Private(("pyinfra.api.arguments:pop_global_arguments", "pyinfra.api.arguments:all_argument_meta",
              "pyinfra.api.arguments:ctx_config", "pyinfra.api.arguments:raise_if_bad_type",
              "pyinfra.api.operation:pop_global_arguments", "pyinfra.api.deploy:pop_global_arguments",
              "pyinfra.api.facts:pop_global_arguments"),
-            "pyinfra.api.arguments:pop_global_arguments", "a12a311539ff5068", "robotfleet/speedups.py",
+            "pyinfra.api.arguments:pop_global_arguments", "a12a311539ff5068", "robotfleet/pyinfra_patches.py",
             "replaced where it is imported by name and called (operation, deploy, facts) by a copy that reads "
             "the host's data layers (HostData.datas) once for all the arguments, with the same argument "
             "metadata, config and type check"),
     Private(("pyinfra.api.operation:_wrap_operation", "pyinfra.api.operation:signature"),
-            "pyinfra.api.operation:_wrap_operation", "8195e098a9c6a0b3", "robotfleet/speedups.py",
+            "pyinfra.api.operation:_wrap_operation", "8195e098a9c6a0b3", "robotfleet/pyinfra_patches.py",
             "the inspect.signature it calls for every operation of every host (signature(func).bind) replaced "
             "where it is imported by one that makes each function's Signature once"),
     Private(("pyinfra.api.host:HostData.__getattr__",),
-            "pyinfra.api.host:HostData.__getattr__", "87152f64f2a65e53", "robotfleet/speedups.py",
+            "pyinfra.api.host:HostData.__getattr__", "87152f64f2a65e53", "robotfleet/pyinfra_patches.py",
             "replaced by the same lookup through the host's data layers (HostData.datas) asking plain dicts "
             "with 'in'; the copy of pop_global_arguments looks up as it does"),
 )

@@ -26,7 +26,7 @@ import sys
 import tempfile
 
 from robotfleet import commands
-from robotfleet import inventory as fleet_inventory, reasons, roster, selection
+from robotfleet import inventory as fleet_inventory, reasons, deploy_roles, selection
 from robotfleet.checkers import one_line
 from robotfleet.commands import status, status_collect, rollout_plan as waves
 from robotfleet.commands.rollout_judge import judge_wave, missing, not_connected, read_overrides, targets_of
@@ -156,7 +156,7 @@ def main(argv=None) -> int:
         if args.pyinfra_env and not args.fleet:  # the fleet named as the inventory is the one the release carries
             args.fleet = os.path.relpath(args.inventory)
         return pullrollout.main(args, hosts, pulled)
-    roles = roster.roles()
+    roles = deploy_roles.roles()
     names = [name for name, _ in hosts]
     targets = {name: targets_of(roles, data, overrides) for name, data in hosts}
     flagged = [name for name, data in hosts if data.get("rollout_canary")]

@@ -7,7 +7,7 @@ commands/rollout.py's."""
 
 from __future__ import annotations
 
-from robotfleet import reasons, roster
+from robotfleet import reasons, deploy_roles
 
 
 class _WithOverrides(dict):
@@ -68,7 +68,7 @@ def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, dep
     pyinfra's JSON results (None when it printed none: every host failed,
     "No hosts remaining!"), the robots' status rows and the roles' results
     of this ``deployment`` that the rows carry."""
-    roles = roster.roles() if roles is None else roles
+    roles = deploy_roles.roles() if roles is None else roles
     operations = (results or {}).get("operations", [])
     op_errors = {h: [op.get("name") or "an operation" for op in operations if h in op["error"]] for h in hosts}
     lost = not_connected(results)

@@ -34,7 +34,7 @@ import os
 import re
 import sys
 
-from robotfleet import commands, reasons, roster
+from robotfleet import commands, reasons, deploy_roles
 from robotfleet.checkers import one_line
 from robotfleet import selection
 from robotfleet.commands import metrics, rollout_plan
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
             print(one_line(f"status: --metrics {args.metrics}: cannot write in {directory} (no such directory, or "
                            "not writable); no host was contacted"), file=sys.stderr)
             return selection.REFUSED
-    roles = roster.roles()
+    roles = deploy_roles.roles()
     try:
         rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote,
                        parallel=args.parallel)

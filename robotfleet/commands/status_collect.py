@@ -9,7 +9,7 @@ from __future__ import annotations
 import gevent
 from gevent.lock import Semaphore
 
-from robotfleet import roster, selection
+from robotfleet import deploy_roles, selection
 from robotfleet.checkers import one_line
 from robotfleet.role import GROUPS
 from robotfleet.status_parts import row, sections, status_command
@@ -29,7 +29,7 @@ def collect(inventory_path: str, limits: list[str], roles=None, answered=None, r
     from pyinfra.api import Config, State
     from pyinfra.context import ctx_state
 
-    roles = roster.roles() if roles is None else roles
+    roles = deploy_roles.roles() if roles is None else roles
     inventory = selection.inventory(inventory_path)
     hosts = selection.select(inventory, inventory_path, limits)
     pulled = [h for h in hosts if h.data.get("pull")]

@@ -7,7 +7,7 @@ import pytest
 
 from robotfleet import status_parts
 from robotfleet.commands import status
-from roles.payload import push
+from roles.payload import image_transfer
 from tests.fixtures import run_command, sh
 from tests.unit.harness import merged
 from tests.unit.test_status_and_push import roles
@@ -48,8 +48,9 @@ def test_a_hostile_image_name_in_the_push_log_is_never_run(tmp_path, payload):
     (bindir / "docker").write_text('#!/bin/sh\n[ "$1 $2" = "load -q" ] && exec cat >/dev/null\nexit 2\n')
     (bindir / "docker").chmod(0o755)
     log_dir = tmp_path / "payload dir"
-    command = push.load_command(str(archive), log_dir=str(log_dir), image=image, image_id="sha256:" + "a" * 64,
-                                figures={"sent": 10, "full": 20, "layers": 1, "skipped": 0})
+    command = image_transfer.load_command(str(archive), log_dir=str(log_dir), image=image,
+                                          image_id="sha256:" + "a" * 64,
+                                          figures={"sent": 10, "full": 20, "layers": 1, "skipped": 0})
     proc = run_command(command, env={"PATH": f"{bindir}:/usr/bin:/bin"})
     assert proc.returncode == 0, proc.stderr
     assert not pwned.exists(), "the image name ran as a command"
