@@ -2,7 +2,7 @@
 roles declare (robotfleet/fleet/connection.py, roles/*/settings.py; listed in
 docs/settings.md).  Override any of them in the fleet file."""
 
-from robotfleet.roster import group_data
+from robotfleet.deploy_roles import group_data
 
 # Run every operation through sudo (host data, so that it also applies
 # inside conditional blocks; see pyinfra's notes on global arguments).

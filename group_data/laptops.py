@@ -1,6 +1,6 @@
 """Defaults that differ for the laptops group, from the roles' declarations
 (a setting's `groups=`); the rest come from all.py."""
 
-from robotfleet.roster import group_data
+from robotfleet.deploy_roles import group_data
 
 globals().update(group_data("laptops"))

@@ -6,7 +6,7 @@ What runs the roles, and knows none of them by name:
 - ``robotfleet/host/``: the host snapshot (one SSH command) and the operations that
   compare against it, the apt helpers, the pinned apt repository;
 - ``robotfleet/fleet/``: the fleet file (reading, checking, the editors' schema);
-- ``robotfleet/roster.py`` and ``robotfleet/provision.py``: the roles deploy.py lists, run on a host;
+- ``robotfleet/deploy_roles.py`` and ``robotfleet/provision.py``: the roles deploy.py lists, run on a host;
 - ``robotfleet/commands/``: the operator commands (``robotfleet ...``).
 
 It runs from its checkout, the deploy repository: deploy.py, roles/,

@@ -16,15 +16,13 @@ points), so the pyinfra CLI, status and rollout connect the same way:
   fails; a host key, authentication or non-SSH answer, which would fail the
   same way, is never tried again; the delay before a retry lets other hosts
   run (time.sleep, patched by gevent, looked up when it is called);
-- accept-new writes a host's key to known_hosts once (pyinfra's policy
-  appends it at each connection of the run);
 - an idle connection wakes its paramiko thread every few seconds, not ten
   times a second (idle_wakeup below);
-- the fleet's known_hosts is read by robotfleet/hostkeys.py (paramiko gives
-  up on a file at its first ``@cert-authority`` line): plain keys as
-  paramiko would, ``@revoked`` keys refused, and a host known only through an
-  ``@cert-authority`` line has its certificate checked by OpenSSH
-  (robotfleet/hostcerts.py), never trusted on first use.
+- a host's key is checked by the fleet's policy (robotfleet/hostkey_policy.py:
+  the fleet's known_hosts with ``@cert-authority`` and ``@revoked`` lines,
+  accept-new writing a key once); the wording of each reason is
+  robotfleet/reasons.py's, but for the ones only this connector knows
+  (host keys, authentication).
 
 Jump hosts and ssh_config (ProxyJump, IdentityFile, ...) keep pyinfra's
 behaviour: only the target's connection is handled here.
@@ -37,12 +35,10 @@ import logging
 import os
 import shlex
 import time
-from dataclasses import dataclass
 from random import uniform
 
 from gevent import monkey
-from paramiko import AuthenticationException, BadHostKeyException, MissingHostKeyPolicy, SSHException
-from paramiko import SSHClient as ParamikoClient
+from paramiko import AuthenticationException, BadHostKeyException, SSHException
 from paramiko.agent import Agent
 from paramiko.ssh_exception import BadAuthenticationType
 from pyinfra.api.exceptions import ConnectError, PyinfraError
@@ -50,8 +46,9 @@ from pyinfra.connectors import ssh
 from pyinfra.connectors.ssh_util import _patch_paramiko_sk_key_support
 from pyinfra.connectors.sshuserclient import client as sshuserclient
 
-from robotfleet import hostcerts, hostkeys
-from robotfleet.reasons import network_reason, short_reason  # noqa: F401 (enroll and status read them here)
+from robotfleet import hostkeys
+from robotfleet.hostkey_policy import FleetKnownHosts, FleetPolicy, HostKeyCheck, RefusedHostKey, UnknownHostKey
+from robotfleet.reasons import network_reason, replace_advice
 
 CONNECTOR = "fleet"
 PARAMIKO_LOG = "robotfleet.connect.paramiko"
@@ -78,127 +75,11 @@ def names(hosts: list[tuple[str, dict]], inventory: str | None = None) -> list[t
     return [(f"@{CONNECTOR}/{name}", data) for name, data in hosts]
 
 
-# How each reason a host cannot be reached begins (what rollout looks for in
-# pyinfra's output to tell an unreachable robot from a failed one).
-REASONS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
-           "authentication failed", "connection refused", "connection closed",
-           "cannot connect", "cannot resolve", "timed out", "not an SSH server", "the SSH session", "no route to")
-# Of those, the ones where the host answered and it or we refused: a host key
-# not trusted, a login refused.  The host failed (exit status 1); the others
-# are the network's (unreachable, exit status 3).
-REFUSALS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
-            "authentication failed")
-
-
-def unreachable(reason: str) -> bool:
-    """Whether a connection failure's reason is the network's (the host may
-    come back by itself), not a refusal someone has to act on."""
-    return not reason.startswith(REFUSALS)
-
-
 def enroll_command(host: str) -> str:
     return f"robotfleet enroll {shlex.quote(INVENTORY)} --limit {shlex.quote(host)}"
 
 
-def replace_advice(inventory: str, host: str) -> str:
-    """The one instruction for a changed host key, wherever it is met (a deploy, status, enroll): never trust
-    the new key on first use, replace it only when it matches a fingerprint recorded for the robot."""
-    return (f"if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
-            f"{shlex.quote(inventory)} --replace {shlex.quote(host)} --fingerprints FILE")
-
-
-class UnknownHostKey(SSHException):
-    def __init__(self, entry: str, key):
-        super().__init__(f"no host key for {entry}")
-        self.entry, self.key = entry, key
-
-
-class RefusedHostKey(SSHException):
-    """A host key or certificate refused; ``reason`` says why in words."""
-
-    def __init__(self, entry: str, reason: str):
-        super().__init__(reason)
-        self.entry, self.reason = entry, reason
-
-
-@dataclass(frozen=True)
-class HostKeyCheck:
-    """How a host's key is checked (ssh_strict_host_key_checking yes or
-    accept-new): the fleet's known_hosts, its KRL, and for the certificate
-    check with OpenSSH the login name and the timeout."""
-
-    known_hosts: str
-    revoked: str | None
-    user: str | None
-    timeout: int
-    accept_new: bool = False
-
-
-def address_of(entry: str) -> tuple[str, int]:
-    """(address, port) of a known_hosts entry (``[address]:port`` or ``address``)."""
-    if entry.startswith("[") and "]:" in entry:
-        address, _, port = entry[1:].rpartition("]:")
-        return address, int(port)
-    return entry, 22
-
-
-class FleetPolicy(MissingHostKeyPolicy):
-    """A host paramiko found no plain key for: a revoked key is refused; a
-    certificate an ``@cert-authority`` line covers is checked by OpenSSH;
-    else the host is unknown (refused, or trusted on first use with accept-new)."""
-
-    def __init__(self, check: HostKeyCheck):
-        self.check = check
-
-    def missing_host_key(self, client, hostname, key):
-        known = hostkeys.cached(self.check.known_hosts)
-        if known.revoked_key(key):
-            raise RefusedHostKey(hostname, f"host key REVOKED: {key.get_name()} {hostkeys.fingerprint(key)} is marked "
-                                           f"@revoked in {self.check.known_hosts}; refused")
-        address, port = address_of(hostname)
-        if known.authorities_for(hostname) or known.authorities_for(address):
-            self.certified(hostname, address, port, key)
-            client._host_keys.add(hostname, key.get_name(), key)  # for this run only, never written
-            return
-        self.unknown(client, hostname, key)
-
-    def certified(self, hostname: str, address: str, port: int, key) -> None:
-        if self.check.revoked and not os.path.isfile(self.check.revoked):
-            raise RefusedHostKey(hostname, f"host certificate refused: the KRL {self.check.revoked} "
-                                           "(ssh_revoked_host_keys) is missing")
-        verdict = hostcerts.verify(address, port, self.check.user, key.get_name(), self.check.known_hosts,
-                                   self.check.revoked, self.check.timeout)
-        offered = hostkeys.fingerprint(key)
-        if verdict.fingerprint is None:
-            raise RefusedHostKey(hostname, f"host certificate refused: {verdict.reason}")
-        if verdict.fingerprint != offered:
-            raise RefusedHostKey(hostname, f"host certificate refused: it certifies {verdict.fingerprint}, but this "
-                                           f"connection was offered {key.get_name()} {offered}")
-
-    def unknown(self, client, hostname, key):
-        if not self.check.accept_new:
-            raise UnknownHostKey(hostname, key)
-        # Trust on first use, written once: to known_hosts (unless a line for
-        # this host and key is already there) and to the run's loaded keys.
-        client._host_keys.add(hostname, key.get_name(), key)
-        with sshuserclient.HOST_KEYS_LOCK:
-            hostkeys.append(self.check.known_hosts, hostname, key)
-
-
-class _FleetKnownHosts(ParamikoClient):
-    """Runs between pyinfra's SSHClient.connect and paramiko's (its place in
-    Client's MRO): under the fleet's policy, paramiko matches the plain keys
-    robotfleet/hostkeys.py read (revoked ones left out) and asks the policy
-    about any other key."""
-
-    def connect(self, hostname, **kwargs):
-        if isinstance(self._policy, FleetPolicy):
-            self._host_keys = hostkeys.cached(self._policy.check.known_hosts).usable()
-            self._host_keys_filename = self._policy.check.known_hosts
-        return super().connect(hostname, **kwargs)
-
-
-class Client(sshuserclient.SSHClient, _FleetKnownHosts):
+class Client(sshuserclient.SSHClient, FleetKnownHosts):
     def __init__(self, check: HostKeyCheck | None = None):
         super().__init__()
         self.check = check

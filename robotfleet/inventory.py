@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from robotfleet import CHECKOUT, connect, limits, roster, speedups
+from robotfleet import CHECKOUT, connect, limits, deploy_roles, pyinfra_patches
 from robotfleet import selection
 from robotfleet.fleet.validate import Fleet, FleetError, display_path, load, parse
 
@@ -78,7 +78,7 @@ def load_or_exit(path: Path) -> Fleet:
     """The fleet file at ``path``, or its problems printed and exit 2."""
     SOURCES.append(os.path.abspath(path))
     try:
-        return _noted(load(path, roster.registry()))
+        return _noted(load(path, deploy_roles.registry()))
     except FleetError as error:
         _refuse_fleet(error)
 
@@ -88,7 +88,7 @@ def parse_or_exit(text: str | bytes, shown: str, source: str | None = None) -> F
     default ``shown``), or exit 2."""
     SOURCES.append(os.path.abspath(source or shown))
     try:
-        return _noted(parse(text, shown, roster.registry()))
+        return _noted(parse(text, shown, deploy_roles.registry()))
     except FleetError as error:
         _refuse_fleet(error)
 
@@ -104,7 +104,7 @@ def pyinfra_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
     a host key."""
     require_checkout()
     connect.names([], inventory)
-    speedups.install()  # before pyinfra makes a host of each name
+    pyinfra_patches.install()  # before pyinfra makes a host of each name
     short = limits.raise_open_files(sum(len(hosts) for hosts in fleet.groups.values()))
     limits.collect_less_often()
     if short:

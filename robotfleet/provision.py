@@ -5,24 +5,24 @@ from __future__ import annotations
 
 from pyinfra import host
 
-from robotfleet import roster, secrets, speedups
+from robotfleet import deploy_roles, secrets, pyinfra_patches
 from robotfleet.host import operations
 from robotfleet.host.snapshot import HostSnapshot, SnapshotQuery
 from robotfleet.role import Play, cards
 
-speedups.install()
+pyinfra_patches.install()
 
 
 def provision(listed) -> None:
     """Run the roles ``listed`` (deploy.py's ROLES) on the current host.
 
-    pyinfra runs deploy.py once per host; the engine's roster runs it only to
+    pyinfra runs deploy.py once per host; robotfleet/deploy_roles.py runs it only to
     read ROLES, and then this does nothing."""
-    if roster.reading():
+    if deploy_roles.reading():
         return
     roles = cards(listed)
     # The fleet file was checked before connecting; --data overrides were not.
-    problems = roster.registry_of(roles).data_problems(host.data)
+    problems = deploy_roles.registry_of(roles).data_problems(host.data)
     if problems:
         operations.fail(name="Check the host's settings", message="settings: " + "; ".join(problems))
         return

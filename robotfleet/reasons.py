@@ -1,15 +1,42 @@
 """Why a host could not be reached, in words: the one wording of each
 cause, for every command that connects (deploys and status through
-robotfleet/connect.py, enroll's own key fetch), and the word or two of it
-the status table shows."""
+robotfleet/connect.py, enroll's own key fetch), how each begins (a refusal
+or the network's), the one advice for a changed host key, and the word or
+two of it the status table shows."""
 
 from __future__ import annotations
 
 import errno
+import shlex
 import socket
 
 from paramiko import SSHException
 from paramiko.ssh_exception import NoValidConnectionsError
+
+# How each reason a host cannot be reached begins (what rollout looks for in
+# pyinfra's output to tell an unreachable robot from a failed one).
+REASONS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
+           "authentication failed", "connection refused", "connection closed",
+           "cannot connect", "cannot resolve", "timed out", "not an SSH server", "the SSH session", "no route to")
+# Of those, the ones where the host answered and it or we refused: a host key
+# not trusted, a login refused.  The host failed (exit status 1); the others
+# are the network's (unreachable, exit status 3).
+REFUSALS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
+            "authentication failed")
+
+
+def unreachable(reason: str) -> bool:
+    """Whether a connection failure's reason is the network's (the host may
+    come back by itself), not a refusal someone has to act on."""
+    return not reason.startswith(REFUSALS)
+
+
+def replace_advice(inventory: str, host: str) -> str:
+    """The one instruction for a changed host key, wherever it is met (a deploy, status, enroll): never trust
+    the new key on first use, replace it only when it matches a fingerprint recorded for the robot."""
+    return (f"if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
+            f"{shlex.quote(inventory)} --replace {shlex.quote(host)} --fingerprints FILE")
+
 
 # The few words of each reason the status table shows after "no:" (--json has the whole line).
 SHORT = (("unknown host key", "host key"), ("host key CHANGED", "host key"), ("host key REVOKED", "host key"),

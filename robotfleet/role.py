@@ -200,7 +200,7 @@ NO_PULL = PullPart(pulls=_pulls_not, config=_no_pull_role, platform=_no_pull_rol
 
 
 def pull_part(roles) -> PullPart:
-    """The pull part of ``roles`` (deploy.py's, robotfleet/roster.py ``roles()``)."""
+    """The pull part of ``roles`` (deploy.py's, robotfleet/deploy_roles.py ``roles()``)."""
     return next((role.pull for role in roles if role.pull is not None), NO_PULL)
 
 

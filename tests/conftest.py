@@ -26,7 +26,7 @@ services = _imported_when_used("services", "tests.lab.services")
 state = _imported_when_used("state", "tests.lab.state")
 emulation = _imported_when_used("emulation", "tests.lab.emulation")
 registry = _imported_when_used("registry", "roles.payload.registry")
-push = _imported_when_used("push", "roles.payload.push")
+image_transfer = _imported_when_used("image_transfer", "roles.payload.image_transfer")
 
 
 @pytest.fixture(scope="module")

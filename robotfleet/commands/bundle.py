@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 import robotfleet
-from robotfleet import commands, roster
+from robotfleet import commands, deploy_roles
 from robotfleet import selection
 from robotfleet.pull.operator import bundle, gitolite, install
 from robotfleet.pull.protocol import naming
@@ -60,7 +60,7 @@ def repository_name(remote: str) -> str:
 def make(args) -> int:
     fleet = args.fleet or os.environ.get("ROBOT_FLEET") or "inventories/robots.yaml"
     try:
-        data = host_data(args.robot, fleet, roster.registry())
+        data = host_data(args.robot, fleet, deploy_roles.registry())
     except DataError as error:
         raise selection.Refused(str(error)) from None
     pull = pull_settings.part()

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import paramiko
 
 from robotfleet import commands
-from robotfleet import connect, hostkeys
+from robotfleet import connect, hostkeys, reasons
 from robotfleet.checkers import one_line
 from robotfleet import selection
 
@@ -72,7 +72,7 @@ def fetch(host: Target):
         transport.start_client(timeout=host.timeout)
         return transport.get_remote_server_key()
     except Exception as error:  # every way it fails is one line
-        return connect.network_reason(error, host.address, host.port, host.timeout)[0]
+        return reasons.network_reason(error, host.address, host.port, host.timeout)[0]
     finally:
         if transport is not None:
             transport.close()
@@ -143,7 +143,7 @@ def changed(host: Target, key, there: dict, choices: Choices) -> tuple[str, str]
     head = f"{host.name}: host key CHANGED for {host.entry}: {host.known_hosts} has {old}, the host offers {new}"
     if host.name not in choices.replace:
         return "refused", (f"{head}; refused, its line is left as it is "
-                           f"({connect.replace_advice(choices.inventory, host.name)})")
+                           f"({reasons.replace_advice(choices.inventory, host.name)})")
     recorded = recorded_for(host, choices.expected)
     if recorded is None:
         return "refused", f"{head}; not in {choices.source}: not replaced, its line is left as it is"

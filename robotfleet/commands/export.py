@@ -24,7 +24,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from robotfleet import commands, roster
+from robotfleet import commands, deploy_roles
 from robotfleet import selection
 from robotfleet.pull.operator import commandline
 from robotfleet.pull.operator import export as exporting
@@ -47,8 +47,8 @@ def export(args) -> int:
     args.medium.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="robotfleet-export-") as work:
         try:
-            done = exporting.export(repository, args.medium, args.checkout, roster.roles(), roster.registry(),
-                                    online, expiry, commandline.now(), Path(work))
+            done = exporting.export(repository, args.medium, args.checkout, deploy_roles.roles(),
+                                    deploy_roles.registry(), online, expiry, commandline.now(), Path(work))
         except exporting.ExportError as error:
             raise commandline.Failed(str(error)) from None
     where = commandline.pushed(chosen, f"export: release {done.version} with {done.images} image archive(s)")

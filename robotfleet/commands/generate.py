@@ -13,7 +13,7 @@ import json
 import sys
 
 from robotfleet import commands
-from robotfleet import CHECKOUT, roster
+from robotfleet import CHECKOUT, deploy_roles
 from robotfleet.fleet import connection, schema
 from robotfleet.fleet.registry import Registry
 from robotfleet.role import UNSET
@@ -63,7 +63,7 @@ def settings_doc(registry: Registry) -> str:
 
 
 def generated() -> dict:
-    registry = roster.registry()
+    registry = deploy_roles.registry()
     return {SCHEMA: schema.render(registry), SETTINGS_DOC: settings_doc(registry)}
 
 

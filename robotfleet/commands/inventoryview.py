@@ -23,7 +23,7 @@ import os
 import sys
 from pathlib import Path
 
-from robotfleet import commands, inventory, roster, secrets, selection
+from robotfleet import commands, inventory, deploy_roles, secrets, selection
 from robotfleet.checkers import did_you_mean, one_line
 from robotfleet.fleet import provenance, tree
 from robotfleet.fleet.connection import OLDER_NAMES
@@ -67,7 +67,7 @@ def held(registry, kind: str, data: dict) -> set[str]:
     """The secrets the host's data holds, and the registry passwords the roles find for it."""
     merged = HostData({**registry.defaults(kind), **data})
     found = secrets.held_in(data)
-    for role in roster.roles():
+    for role in deploy_roles.roles():
         if role.secrets:
             found.update(s for s in role.secrets(merged) if s)
     return found
@@ -163,7 +163,7 @@ def main(argv=None) -> int:
         path = fleet_of(args.inventory)
     except selection.Refused as error:
         return selection.refused(error)
-    registry = roster.registry()
+    registry = deploy_roles.registry()
     fleet = inventory.load_or_exit(path)  # its problems and notes printed, exit 2
     if args.host is not None:
         if kind_and_data(fleet, args.host) is None:

@@ -28,7 +28,7 @@ from robotfleet import selection
 from robotfleet.pull.operator import commandline
 from robotfleet.pull.operator import keys as keyfiles
 from robotfleet.pull.operator.keys import ONLINE, ROOT
-from robotfleet.pull.operator.repository import sign_root
+from robotfleet.pull.operator.root_ceremony import install_root, prepare_root, sign_root
 
 NEXT_ONLINE, NEXT_ROOT = "online.next", "root.next"
 
@@ -110,7 +110,7 @@ def prepare(args) -> int:
             raise commandline.Failed("prepare root needs --root-public NEW.pub: make the new root key offline first "
                                  "(robotfleet keys generate NEW.key) and give its .pub file")
         root_key = keyfiles.public_of(args.root_public)
-    data = repository.prepare_root(expiry, commandline.now(), online_key=online, root_key=root_key)
+    data = prepare_root(repository, expiry, commandline.now(), online_key=online, root_key=root_key)
     args.out.write_bytes(data)
     version = repository.root().signed.version + 1
     signers = "the current root key" + (" and the new root key" if root_key else "")
@@ -136,7 +136,7 @@ def _install(args, data: bytes, keys, promote: list[tuple[str, str]]) -> int:
     expiry = commandline.expiry_of(args)
     chosen, repository = commandline.opened(args)
     online_name = NEXT_ONLINE if (NEXT_ONLINE, ONLINE) in promote else ONLINE
-    version = repository.install_root(data, keys.signer(online_name), expiry, commandline.now())
+    version = install_root(repository, data, keys.signer(online_name), expiry, commandline.now())
     where = commandline.pushed(chosen, f"root version {version}")
     for name, replaced in promote:
         keys.promote(name, replaced)
@@ -165,10 +165,10 @@ def rotate(args) -> int:
         raise commandline.Failed(f"{chosen.url}: no release repository yet; the first robotfleet publish makes it")
     if args.which == "online":
         new = _next_key(keys, NEXT_ONLINE)
-        data = sign_root(repository.prepare_root(expiry, commandline.now(), online_key=new), [root_signer])
+        data = sign_root(prepare_root(repository, expiry, commandline.now(), online_key=new), [root_signer])
         return _install(args, data, keys, [(NEXT_ONLINE, ONLINE)])
     new = _next_key(keys, NEXT_ROOT)
-    unsigned = repository.prepare_root(expiry, commandline.now(), root_key=new)
+    unsigned = prepare_root(repository, expiry, commandline.now(), root_key=new)
     data = sign_root(unsigned, [root_signer, keys.signer(NEXT_ROOT)])
     return _install(args, data, keys, [(NEXT_ROOT, ROOT)])
 

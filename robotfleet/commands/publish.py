@@ -29,7 +29,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from robotfleet import commands, roster
+from robotfleet import commands, deploy_roles
 from robotfleet import selection
 from robotfleet.pull.operator import commandline
 from robotfleet.pull.operator import publishing
@@ -122,8 +122,8 @@ def release(args) -> int:
     now = commandline.now()
     with tempfile.TemporaryDirectory(prefix="robotfleet-publish-") as work:
         try:
-            record, files = publishing.build(args.checkout, options, roster.roles(), roster.registry(), version,
-                                             now, Path(work))
+            record, files = publishing.build(args.checkout, options, deploy_roles.roles(), deploy_roles.registry(),
+                                             version, now, Path(work))
             publishing.publish(repository, record, files, keys, options, now)
         except publishing.PublishError as error:
             raise commandline.Failed(str(error)) from None

@@ -26,9 +26,10 @@ import sys
 import tempfile
 
 from robotfleet import commands
-from robotfleet import connect, inventory as fleet_inventory, roster, selection
+from robotfleet import inventory as fleet_inventory, reasons, deploy_roles, selection
 from robotfleet.checkers import one_line
-from robotfleet.commands import status, rollout_plan as waves
+from robotfleet.commands import status, status_collect, rollout_plan as waves
+from robotfleet.commands.rollout_judge import judge_wave, missing, not_connected, read_overrides, targets_of
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
 from robotfleet.role import DEPLOYMENT_ENV, pull_part
 
@@ -49,43 +50,8 @@ def selected_hosts(inventory_path: str, limits: list[str]) -> list[tuple[str, ob
 def read_status(inventory: str, hosts: list[str], parallel: int | None = None) -> dict[str, dict]:
     """One status row per host (one SSH command each, at most ``parallel``
     at once: the rollout's --parallel, else status's default)."""
-    rows = status.collect(inventory, hosts, parallel=parallel or status.PARALLEL) if hosts else []
+    rows = status_collect.collect(inventory, hosts, parallel=parallel or status_collect.PARALLEL) if hosts else []
     return {row["host"]: row for row in rows}
-
-
-class _WithOverrides(dict):
-    """A host's data with the rollout's --data overrides on top (what the
-    deploy will see), read as pyinfra's host data is."""
-
-    def __init__(self, data, overrides: dict):
-        super().__init__({**data.dict(), **overrides} if hasattr(data, "dict") else {**data, **overrides})
-
-    __getattr__ = dict.get
-
-
-def read_overrides(pairs: list[str]) -> dict:
-    """--data key=value pairs as pyinfra reads them (true/false, integers and
-    JSON text become values: a mapping such as payload_image_pins arrives as
-    a mapping), so the targets are what the deploy will see."""
-    from pyinfra_cli.util import parse_cli_arg
-
-    return {key: parse_cli_arg(value) for key, _, value in (pair.partition("=") for pair in pairs if "=" in pair)}
-
-
-def targets_of(roles, data, overrides: dict) -> dict:
-    """What the rollout waits for on a host: each role's target."""
-    view = _WithOverrides(data, overrides)
-    return {role.name: role.rollout.target(view) for role in roles if role.rollout}
-
-
-def missing(roles, row: dict, target: dict) -> str | None:
-    """None when the host's status row shows every role's target reached."""
-    for role in roles:
-        if role.rollout and role.name in target:
-            why = role.rollout.missing(row, target[role.name])
-            if why:
-                return why
-    return None
 
 
 def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str, deployment: str,
@@ -107,53 +73,6 @@ def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str,
             return json.loads(out.read())["results"]
         except (ValueError, KeyError, TypeError):
             return None
-
-
-def not_connected(results: dict | None) -> set[str]:
-    """The hosts pyinfra failed without an operation failing: it could not
-    connect to them (from its JSON results)."""
-    if results is None:
-        return set()
-    return set(results.get("failed_hosts", [])) - {h for op in results.get("operations", []) for h in op["error"]}
-
-
-def reported(roles, row: dict, deployment: str | None) -> tuple[bool, str] | None:
-    """The roles' own structured results of ``deployment`` on the host (its
-    status row): (ok, why) of the first that failed, else of the first."""
-    if not deployment:
-        return None
-    found = [r for r in (role.rollout.result(row, deployment) for role in roles
-                         if role.rollout and role.rollout.result) if r is not None]
-    return next((r for r in found if not r[0]), found[0] if found else None)
-
-
-def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, deployment=None):
-    """(done, failed, skipped) for a wave, from structured data only (pure):
-    pyinfra's JSON results (None when it printed none: every host failed,
-    "No hosts remaining!"), the robots' status rows and the roles' results
-    of this ``deployment`` that the rows carry."""
-    roles = roster.roles() if roles is None else roles
-    operations = (results or {}).get("operations", [])
-    op_errors = {h: [op.get("name") or "an operation" for op in operations if h in op["error"]] for h in hosts}
-    lost = not_connected(results)
-    done, failed, skipped = [], {}, {}
-    for host in hosts:
-        row = rows.get(host) or {"reachable": False}
-        why = missing(roles, row, targets[host])
-        own = reported(roles, row, deployment)
-        deploy_failed = results is None or bool(op_errors[host]) or host in results.get("failed_hosts", [])
-        if own is None and (host in lost or not row.get("reachable")) and connect.unreachable(
-                row.get("error") or ""):  # a host key or login refused is a failure, below
-            reason = "unreachable: " + (row.get("error") or "cannot connect")
-            (failed if unreachable_fails else skipped)[host] = reason
-        elif own is not None and not own[0]:
-            failed[host] = own[1]
-        elif deploy_failed or why is not None:
-            steps = ", ".join(op_errors[host])
-            failed[host] = why or (f"the deploy failed at: {steps}" if steps else "the deploy failed")
-        else:
-            done.append(host)
-    return done, failed, skipped
 
 
 def parse_args(argv):
@@ -230,14 +149,14 @@ def main(argv=None) -> int:
     if not hosts:
         say(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)")
         return selection.REFUSED
-    pulled = [name for name, data in hosts if pull_part(roster.roles()).pulls(data)]
+    pulled = [name for name, data in hosts if pull_part(deploy_roles.roles()).pulls(data)]
     if pulled:  # robots that converge themselves: publish and follow their reports (docs/pull.md)
         from robotfleet.commands import pullrollout
 
         if args.pyinfra_env and not args.fleet:  # the fleet named as the inventory is the one the release carries
             args.fleet = os.path.relpath(args.inventory)
         return pullrollout.main(args, hosts, pulled)
-    roles = roster.roles()
+    roles = deploy_roles.roles()
     names = [name for name, _ in hosts]
     targets = {name: targets_of(roles, data, overrides) for name, data in hosts}
     flagged = [name for name, data in hosts if data.get("rollout_canary")]
@@ -284,8 +203,8 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
             code = selection.FAILED if relayed([sys.executable, "-c", PYINFRA, "--dry", args.pyinfra, args.script,
                                                 *limits, *extra], args.pyinfra_env) else code
         for host, why in unreachable.items():
-            say(f"rollout: [{host}] {'unreachable' if connect.unreachable(why or '') else 'failed'}: {why}")
-        network = [h for h, why in unreachable.items() if connect.unreachable(why or "")]
+            say(f"rollout: [{host}] {'unreachable' if reasons.unreachable(why or '') else 'failed'}: {why}")
+        network = [h for h, why in unreachable.items() if reasons.unreachable(why or "")]
         refused = [h for h in unreachable if h not in network]
         if refused:  # a host key or login refused: the robot failed
             say(f"rollout: dry run incomplete: {len(refused)} robot(s) refused (host key or login), not planned: "

@@ -34,18 +34,12 @@ import os
 import re
 import sys
 
-import gevent
-from gevent.lock import Semaphore
-
-from robotfleet import commands, connect, roster
+from robotfleet import commands, reasons, deploy_roles
 from robotfleet.checkers import one_line
 from robotfleet import selection
 from robotfleet.commands import metrics, rollout_plan
-from robotfleet.role import GROUPS, pull_part
-from robotfleet.status_parts import (FIRST, HOST_COMMAND, HOST_SECTION, LAST, MARK, columns,  # noqa: F401
-                                     reporting, row, sections, status_command)
-
-PARALLEL = 200
+from robotfleet.commands.status_collect import PARALLEL, collect
+from robotfleet.status_parts import columns
 
 
 def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
@@ -77,7 +71,7 @@ def reachable(row: dict) -> str:
     if row.get("via") == "report":  # a pull robot: its report is missing, unreadable or stale
         word = "stale report" if error.startswith("stale report") else row.get("pull") or "no report"
     else:
-        word = connect.short_reason(error) or "error"
+        word = reasons.short_reason(error) or "error"
     return f"no: {word}"
 
 
@@ -92,104 +86,10 @@ def hosts_at_once(text: str) -> int:
     return value
 
 
-def collect(inventory_path: str, limits: list[str], roles=None, answered=None, remote: str | None = None,
-            parallel: int = PARALLEL) -> list[dict]:
-    """One row per host of ``inventory_path`` matching ``limits``, in
-    inventory order; ``answered(row, count, total)`` is called as each host
-    answers (or fails to).  Hosts with ``pull: true`` are read from their
-    reports on the fleet remote (``remote``, else the checkout's origin), not
-    over SSH; at most ``parallel`` at once.  Raises selection.Refused."""
-    from pyinfra.api import Config, State
-    from pyinfra.context import ctx_state
-
-    roles = roster.roles() if roles is None else roles
-    inventory = selection.inventory(inventory_path)
-    hosts = selection.select(inventory, inventory_path, limits)
-    pulled = [h for h in hosts if pull_part(roles).pulls(h.data)]
-    found = _pull_rows(pulled, remote)
-    for host in pulled:
-        if found[host.name]["reachable"]:
-            found[host.name]["drift"] = drift(roles, found[host.name], host.data)
-        _about(host, found[host.name])
-    state = State(inventory=inventory, config=Config(CONNECT_TIMEOUT=10, PARALLEL=parallel), check_for_changes=False)
-    state.limit_hosts = [h for h in hosts if h not in pulled]
-    slots = Semaphore(parallel)
-
-    def one(host):
-        with slots:
-            return _one(host, roles)
-
-    with ctx_state.use(state):
-        jobs = {gevent.spawn(one, host): host for host in hosts if host not in pulled}
-        for count, job in enumerate(gevent.iwait(list(jobs)), 1):
-            if answered is not None:
-                answered(_value(job, jobs[job], roles), count, len(jobs))
-        job_of = {id(host): job for job, host in jobs.items()}
-        return [found[host.name] if host in pulled else _value(job_of[id(host)], host, roles) for host in hosts]
-
-
-def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
-    if not hosts:
-        return {}
-    from robotfleet.commands import pullstatus
-
-    try:
-        pulled = [(h.name, h.data) for h in hosts]
-        return pullstatus.rows(pulled, pullstatus.remote_of(remote, pulled))
-    except pullstatus.ReportsUnavailable as error:
-        return {h.name: {"host": h.name, "reachable": False, "via": "report", "pull": "no report", "stale": True,
-                         "error": str(error)} for h in hosts}
-
-
-def _value(job, host, roles) -> dict:
-    if job.successful():
-        return job.value
-    return row(host.name, roles, None, f"status failed: {one_line(str(job.exception))[:200]}")
-
-
-def _one(host, roles) -> dict:
-    from pyinfra.api.command import StringCommand
-    from pyinfra.api.exceptions import ConnectError
-
-    try:
-        host.connect(raise_exceptions=True, show_errors=False)
-    except ConnectError as error:
-        return _about(host, row(host.name, roles, None, error.args[0]))
-    ok, output = host.run_shell_command(StringCommand(status_command(roles, host.data)), _sudo=True)
-    if not ok:
-        return _about(host, {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]})
-    found = row(host.name, roles, sections(output.stdout))
-    found["drift"] = drift(roles, found, host.data)
-    return _about(host, found)
-
-
-def _about(host, found: dict) -> dict:
-    found["kind"] = next((group for group in GROUPS if group in host.groups), None)
-    return found
-
-
-class _View(dict):
-    """A host's data as the roles' rollout parts read it (attributes)."""
-
-    __getattr__ = dict.get
-
-
-def drift(roles, found: dict, data) -> str | None:
-    """Why the host is not in its declared state, where status can tell
-    (each role's rollout part, as a rollout judges it), else None."""
-    view = _View(data.dict() if hasattr(data, "dict") else data)
-    for role in roles:
-        if role.rollout:
-            why = role.rollout.missing(found, role.rollout.target(view))
-            if why:
-                return why
-    return None
-
-
 def progress(found: dict, count: int, total: int) -> None:
     """One line on stderr as a host answers: the operator sees the run move."""
     error = found.get("error") or ""
-    state = ("answered" if found["reachable"] else f"unreachable: {error}" if connect.unreachable(error)
+    state = ("answered" if found["reachable"] else f"unreachable: {error}" if reasons.unreachable(error)
              else f"failed: {error}")  # a host key or login refused: the host was reached
     print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
 
@@ -198,7 +98,7 @@ def exit_code(rows: list[dict]) -> int:
     """README's exit codes: 1 if a host failed (answered with an error, or
     refused: a host key not trusted, a login refused), else 3 if a host was
     unreachable, else 0."""
-    if any(r.get("error") and (r["reachable"] or not connect.unreachable(r["error"])) for r in rows):
+    if any(r.get("error") and (r["reachable"] or not reasons.unreachable(r["error"])) for r in rows):
         return selection.FAILED
     if any(not r["reachable"] for r in rows):
         return selection.UNREACHABLE
@@ -236,7 +136,7 @@ def main(argv=None) -> int:
             print(one_line(f"status: --metrics {args.metrics}: cannot write in {directory} (no such directory, or "
                            "not writable); no host was contacted"), file=sys.stderr)
             return selection.REFUSED
-    roles = roster.roles()
+    roles = deploy_roles.roles()
     try:
         rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote,
                        parallel=args.parallel)

@@ -1,10 +1,9 @@
 """Read fleet YAML into plain data: total, bounded, one line per problem.
 
 The fleet file is YAML 1.2 (core schema), as editors' YAML extensions and
-check-jsonschema read it: only true/false are booleans (on, off, yes, no are
-text), 0755 is the decimal 755, 12:30 and 2026-01-02 are text, 0x1F and
-0o17 are numbers.  PyYAML only speaks YAML 1.1, so the resolver (which tag a
-plain scalar gets) and the scalar constructors here are our own.
+check-jsonschema read it (only true/false are booleans, 0755 is the decimal
+755): PyYAML only speaks YAML 1.1, so the resolver (which tag a plain scalar
+gets) and the scalar constructors are our own, in robotfleet/fleet/yaml12.py.
 
 libyaml (CSafeLoader's parser) builds the node tree; this module turns nodes
 into Python values itself instead of using PyYAML's constructor, because it
@@ -18,102 +17,15 @@ small here; the checks bound their own walks).
 from __future__ import annotations
 
 import contextlib
-import functools
 import gc
-import math
-import re
 
 import yaml
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
 from robotfleet.checkers import Misread
+from robotfleet.fleet.yaml12 import LOADER, MAP, MERGE, PATTERNS, SCALARS, SEQ, STR, VALUE, resolving, short_tag
 
-# libyaml's parser where PyYAML was built with it (its wheels are), else the
-# pure-Python one: same nodes, several times slower.
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 MAX_DEPTH = 50
-_T = "tag:yaml.org,2002:"
-_STR, _MERGE, _VALUE = _T + "str", _T + "merge", _T + "value"
-_SEQ, _MAP = _T + "seq", _T + "map"
-_NULL, _BOOL, _INT, _FLOAT = _T + "null", _T + "bool", _T + "int", _T + "float"
-
-# The YAML 1.2 core schema's plain scalars (https://yaml.org/spec/1.2.2/#1032-tag-resolution).
-CORE_SCHEMA = (
-    (_NULL, re.compile(r"(?:~|null|Null|NULL|)\Z")),
-    (_BOOL, re.compile(r"(?:true|True|TRUE|false|False|FALSE)\Z")),
-    (_INT, re.compile(r"(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)\Z")),
-    (_FLOAT, re.compile(r"(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
-                        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z")),
-    (_MERGE, re.compile(r"<<\Z")),  # merge keys: YAML 1.1's, which editors also honour
-)
-
-
-@functools.lru_cache(maxsize=4096)
-def _plain_tag(value: str) -> str:
-    """The tag of a plain scalar: a fleet file repeats a few hundred values
-    (names, true, subsystems) thousands of times."""
-    for tag, pattern in CORE_SCHEMA:
-        if pattern.match(value):
-            return tag
-    return _STR
-
-
-@functools.lru_cache(maxsize=None)
-def _resolving(parser):
-    """``parser`` (a PyYAML loader class) resolving plain scalars by the core schema."""
-
-    class Yaml12(parser):
-        yaml_implicit_resolvers: dict = {}
-
-        def resolve(self, kind, value, implicit):
-            if kind is ScalarNode and implicit[0]:
-                return _plain_tag(value)
-            return super().resolve(kind, value, implicit)
-
-    return Yaml12
-
-
-class Dumper(yaml.SafeDumper):
-    """Writes fleet YAML that reads back the same under the core schema:
-    text that YAML 1.1 or 1.2 would read as something else is quoted."""
-
-    def resolve(self, kind, value, implicit):
-        if kind is ScalarNode and implicit[0]:
-            for tag, pattern in CORE_SCHEMA:
-                if pattern.match(value):
-                    return tag  # a str the emitter then quotes
-        return super().resolve(kind, value, implicit)
-
-
-def dump(data) -> str:
-    return yaml.dump(data, Dumper=Dumper, allow_unicode=True, sort_keys=False, width=1000)
-
-
-def _integer(text: str) -> int:
-    if text.startswith(("0o", "0x")):
-        return int(text[2:], 8 if text[1] == "o" else 16)
-    return int(text, 10)
-
-
-def _float(text: str) -> float:
-    if text.lstrip("+-").lower() == ".inf":
-        return -math.inf if text.startswith("-") else math.inf
-    if text.lower() == ".nan":
-        return math.nan
-    return float(text)
-
-
-_PATTERNS = dict(CORE_SCHEMA)
-_SCALARS = {
-    _NULL: lambda text: None,
-    _BOOL: lambda text: text.lower() == "true",
-    _INT: _integer,
-    _FLOAT: _float,
-}
-
-
-def _short(tag: str) -> str:
-    return "!!" + tag[len(_T):] if tag.startswith(_T) else tag
 
 
 class Vaulted:
@@ -131,7 +43,7 @@ class Vaulted:
 def _unsupported(tag: str) -> str:
     if tag == "!unsafe":
         return "Ansible's !unsafe tag: drop it (values are not templated here)"
-    return f"the YAML tag {_short(tag)!r} is not supported here"
+    return f"the YAML tag {short_tag(tag)!r} is not supported here"
 
 
 class YamlProblem(Exception):
@@ -166,7 +78,7 @@ def _no_collection():
 def _load(text: str):
     loader = None
     try:
-        loader = _resolving(_LOADER)(text)
+        loader = resolving(LOADER)(text)
         node = loader.get_single_node()
     except yaml.reader.ReaderError as error:
         raise _reader_problem(error, text) from None
@@ -192,7 +104,7 @@ def _decode(data: bytes) -> str:
 
 def _reader_problem(error, text: str) -> YamlProblem:
     # libyaml's position counts bytes, PyYAML's own reader characters.
-    encoded = text.encode("utf-8", "surrogatepass") if _LOADER is not yaml.SafeLoader else text
+    encoded = text.encode("utf-8", "surrogatepass") if LOADER is not yaml.SafeLoader else text
     position = min(max(int(getattr(error, "position", 0) or 0), 0), len(encoded))
     character = getattr(error, "character", None)
     shown = f"U+{character:04X}" if isinstance(character, int) else repr(character)
@@ -242,7 +154,7 @@ def _runaway_quote(text: str, found):
     on the line of the error ``found``: a quote left open on its first line
     is closed by the next quote character, lines below, and the parser only
     gives up there."""
-    loader = _resolving(_LOADER)(text)
+    loader = resolving(LOADER)(text)
     last = None
     try:
         while True:
@@ -283,12 +195,12 @@ class _Builder:
         if isinstance(node, ScalarNode):
             value = self.scalar(node)
         elif isinstance(node, SequenceNode):
-            self.require(node, _SEQ)
+            self.require(node, SEQ)
             self.building.add(key)
             value = [self.value(item, depth + 1) for item in node.value]
             self.building.discard(key)
         else:
-            self.require(node, _MAP)
+            self.require(node, MAP)
             self.building.add(key)
             value = self.mapping(node, depth)
             self.building.discard(key)
@@ -297,7 +209,7 @@ class _Builder:
 
     def value(self, node, depth: int):
         # Plain strings are most of a fleet file: no bookkeeping for them.
-        if node.tag == _STR and type(node) is ScalarNode:
+        if node.tag == STR and type(node) is ScalarNode:
             return node.value
         return self.build(node, depth)
 
@@ -308,15 +220,15 @@ class _Builder:
 
     @staticmethod
     def scalar(node: ScalarNode):
-        if node.tag in (_STR, _VALUE):
+        if node.tag in (STR, VALUE):
             return node.value
         if node.tag == "!vault":
             return Vaulted(node.value)
-        convert = _SCALARS.get(node.tag)
+        convert = SCALARS.get(node.tag)
         if convert is None:
             raise YamlProblem(node.start_mark.line + 1, _unsupported(node.tag))
         try:
-            if not _PATTERNS[node.tag].match(node.value):  # an explicit tag: !!bool yes
+            if not PATTERNS[node.tag].match(node.value):  # an explicit tag: !!bool yes
                 raise ValueError(node.value)
             value = convert(node.value)
         except (ValueError, TypeError, OverflowError):
@@ -330,10 +242,10 @@ class _Builder:
         result: dict = {}
         merges = []
         for key_node, value_node in node.value:
-            if key_node.tag == _MERGE:
+            if key_node.tag == MERGE:
                 merges.append(value_node)
                 continue
-            key = key_node.value if key_node.tag == _STR and type(key_node) is ScalarNode else self.key(key_node)
+            key = key_node.value if key_node.tag == STR and type(key_node) is ScalarNode else self.key(key_node)
             if key in result:
                 raise YamlProblem(key_node.start_mark.line + 1, f"duplicate key {str(key)!r}")
             result[key] = self.value(value_node, depth + 1)
@@ -352,7 +264,7 @@ class _Builder:
         if not isinstance(node, ScalarNode):
             kind = "list" if isinstance(node, SequenceNode) else "mapping"
             raise YamlProblem(node.start_mark.line + 1, f"a key must be a plain name, not a {kind}")
-        if node.tag in (_STR, _VALUE):
+        if node.tag in (STR, VALUE):
             return node.value
         value = self.scalar(node)
         return value if isinstance(value, Misread) else Misread(value, node.value)

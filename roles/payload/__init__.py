@@ -9,9 +9,10 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 - settings.py: the settings; services.py, presets.py, compose.py: the
   compose document; problems.py: what is refused before connecting;
 - steps.py: the deploy's steps; release.py: the release on the robot;
-  credentials.py, login.py, push.py, pushed_images.py, registry.py: each
-  registry's own credentials, registry login, push delivery (the images
-  beyond the first: pushed_images.py); takeover_plan.py: what the release
+  credentials.py, login.py, image_transfer.py, transferred_images.py,
+  registry.py: each registry's own credentials, registry login, an image
+  sent over SSH for payload_delivery push (image_transfer.py; the images
+  beyond the first: transferred_images.py); takeover_plan.py: what the release
   will take over, said before it is done; dds_profile.py: the DDS profile file;
 - installed_files.py (payloadctl as one zip application, the systemd unit),
   payloadctl/ (the robot-side program), payload.service.j2: what runs on the robot;

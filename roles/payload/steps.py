@@ -23,8 +23,8 @@ import roles.payload.installed_files as installed_files
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.login as login
-import roles.payload.push as push
-import roles.payload.pushed_images as pushed_images
+import roles.payload.image_transfer as image_transfer
+import roles.payload.transferred_images as transferred_images
 import roles.payload.release as release
 import roles.payload.services as services
 import roles.payload.takeover_plan as takeover_plan
@@ -42,12 +42,12 @@ def declare_reads(data, query: SnapshotQuery) -> None:
         for registry in other_registries_with_credentials(data):
             query.probes[login_probe(registry)] = login.registry_probe(registry)
     dds_profile.declare_reads(data, query)
-    pushed_images.declare_reads(data, query)
+    transferred_images.declare_reads(data, query)
     if data.payload_delivery == "push":
         query.probes["payload_image_id"] = (
             f"docker image inspect -f '{{{{.Id}}}}' {shlex.quote(services.primary_image(data))}"
         )
-        query.probes["docker_layers"] = push.LAYERS_PROBE
+        query.probes["docker_layers"] = image_transfer.LAYERS_PROBE
 
 
 def other_registries_with_credentials(data) -> list[str]:
@@ -156,15 +156,15 @@ def deploy_payload(play: Play):
                 stored=snap.probes.get("registry_auth" if first else login_probe(registry), ""),
             )
     if data.payload_delivery == "push":
-        push.push_image(
+        image_transfer.push_image(
             name="Send the payload image over SSH",
             image=services.primary_image(data),
             remote_id=snap.probes.get("payload_image_id", "").strip(),
-            remote_layers=push.parse_layer_sets(snap.probes.get("docker_layers", "")),
+            remote_layers=image_transfer.parse_layer_sets(snap.probes.get("docker_layers", "")),
             log_dir=data.payload_dir,
-            **pushed_images.push_target(data, snap, auths.get(credentials.registry_key(primary))),
+            **transferred_images.push_target(data, snap, auths.get(credentials.registry_key(primary))),
         )
-        pushed_images.push_more_images(data, snap, auths)
+        transferred_images.push_more_images(data, snap, auths)
 
     dds_profile.install_files(data, snap)
     release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))

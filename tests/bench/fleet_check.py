@@ -35,11 +35,11 @@ def main() -> None:
     parser.add_argument("--hosts", type=int, default=1000)
     args = parser.parse_args()
     started = time.perf_counter()
-    from robotfleet import roster
+    from robotfleet import deploy_roles
     from robotfleet.fleet import validate as fleet_module
     from roles.payload import problems as services
 
-    registry = roster.registry()
+    registry = deploy_roles.registry()
     services.compose_schema()
     services._validator()
     print(f"import + schema load: {time.perf_counter() - started:.3f} s")

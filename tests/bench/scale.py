@@ -91,7 +91,7 @@ class Scale:
     def fleet(self, names: list[str]) -> Path:
         """lab.yaml's settings (placeholders filled as inventories/lab.py
         fills them) for robots ``names``, none with sensors."""
-        from robotfleet.fleet import loader
+        from robotfleet.fleet import loader, yaml12
 
         text = (ROOT / "inventories" / "lab.yaml").read_text()
         fingerprint = json.loads((Path(self.lab["mirror_dir"]) / "manifest.json").read_text())["fingerprint"] \
@@ -103,7 +103,7 @@ class Scale:
         raw = loader.load(text)
         doc = {"all": raw["all"], "robots": {"vars": raw["robots"]["vars"], "hosts": {name: {} for name in names}}}
         path = self.workdir / f"fleet-{len(names)}.yaml"
-        path.write_text(loader.dump(doc))
+        path.write_text(yaml12.dump(doc))
         return path
 
     def spec(self, names: list[str]) -> Path:

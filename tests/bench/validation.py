@@ -21,7 +21,7 @@ from pathlib import Path
 
 import yaml
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from robotfleet.fleet import validate as fleet
 from tests.bench import hygiene
 
@@ -45,12 +45,12 @@ def fleet_text(hosts: int, sensors: bool) -> str:
 
 
 def measure(path: Path, runs: int) -> tuple[str, str, int, float]:
-    fleet.load(path, roster.registry())
+    fleet.load(path, deploy_roles.registry())
     load = hygiene.wait_for_idle(label=f"validation of {path.name}")
     walls, cpus = [], []
     for _ in range(runs):
         wall, cpu = time.perf_counter(), time.process_time()
-        loaded = fleet.load(path, roster.registry())
+        loaded = fleet.load(path, deploy_roles.registry())
         walls.append(time.perf_counter() - wall)
         cpus.append(time.process_time() - cpu)
 
@@ -65,7 +65,7 @@ def main() -> None:
     parser.add_argument("--hosts", type=int, default=5000)
     parser.add_argument("--runs", type=int, default=5)
     args = parser.parse_args()
-    roster.registry()  # warm imports once
+    deploy_roles.registry()  # warm imports once
     with tempfile.TemporaryDirectory() as directory:
         for label, sensors in (("address only", False), ("address + 2 sensors", True)):
             path = Path(directory) / "robots.yaml"

@@ -337,10 +337,10 @@ def test_ini_values_are_typed_as_ansible_types_them(text, value):
 def test_the_editors_schema_takes_host_patterns_and_ansibles_names():
     import jsonschema
 
-    from robotfleet import roster
+    from robotfleet import deploy_roles
     from robotfleet.fleet import loader, schema
 
-    validator = jsonschema.Draft7Validator(schema.fleet_schema(roster.registry()))
+    validator = jsonschema.Draft7Validator(schema.fleet_schema(deploy_roles.registry()))
     assert list(validator.iter_errors(loader.load(YAML_HOSTS))) == []
     bad = loader.load("robots:\n  hosts:\n    'robot[1:': {}\n    'robot 7': {}\n")
     assert len(list(validator.iter_errors(bad))) == 2

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.fleet import loader
+from robotfleet.fleet import yaml12
 from tests import doccommands
 from tests.fixtures import PYINFRA, ROOT
 
@@ -97,7 +97,7 @@ class Sandbox:
 
     def yaml_fleet(self, path: Path) -> Path:
         local = {"address": "127.0.0.1"}
-        path.write_text(loader.dump({
+        path.write_text(yaml12.dump({
             "all": {"vars": self.settings},
             "robots": {"hosts": {name: local for name in ROBOTS},
                        "children": {group: {"hosts": {name: local for name in names}}
@@ -114,8 +114,8 @@ class Sandbox:
             lines += ["", f"[{group}]", *names]
         lines += ["", "[laptops]", *LAPTOPS]
         (path / "hosts").write_text("\n".join(lines) + "\n")
-        (path / "group_vars" / "all.yml").write_text(loader.dump({"ansible_host": "127.0.0.1", **self.settings}))
-        (path / "group_vars" / "laptops.yml").write_text(loader.dump(next(iter(LAPTOPS.values()))))
+        (path / "group_vars" / "all.yml").write_text(yaml12.dump({"ansible_host": "127.0.0.1", **self.settings}))
+        (path / "group_vars" / "laptops.yml").write_text(yaml12.dump(next(iter(LAPTOPS.values()))))
         return path
 
     def env(self, command: doccommands.Command) -> dict[str, str]:

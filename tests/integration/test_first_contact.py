@@ -19,7 +19,7 @@ from pyinfra.context import ctx_state
 from pyinfra_cli.inventory import make_inventory
 
 from robotfleet import hostkeys
-from robotfleet.fleet import loader
+from robotfleet.fleet import yaml12
 from tests.fixtures import PYINFRA, ROOT
 from tests.integration import sshserver
 
@@ -29,7 +29,7 @@ def fleet(tmp_path, hosts: dict, **common) -> Path:
                 "ssh_known_hosts_file": str(tmp_path / "known_hosts"), "ssh_connect_timeout": 2,
                 "ssh_connect_retry_min_delay": 0, "ssh_connect_retry_max_delay": 0, **common}
     settings = {key: value for key, value in settings.items() if value is not None}
-    path.write_text(loader.dump({"all": {"vars": settings}, "robots": {"hosts": hosts}}))
+    path.write_text(yaml12.dump({"all": {"vars": settings}, "robots": {"hosts": hosts}}))
     return path
 
 

@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from robotfleet.fleet import loader as fleetyaml
+from robotfleet.fleet import yaml12
 from tests.fixtures import PYINFRA, ROOT
 from tests.integration import sshserver
 from tests.unit.test_fleet_fuzz import SHOWN, documents, good_fleet, outcome
@@ -56,7 +56,7 @@ def test_cli_refuses_generated_fleets_before_any_connection(tmp_path):
         control.parent.mkdir()
         one_host = good_fleet(control_listener.port)
         del one_host["laptops"], one_host["robots"]["hosts"]["r1"], one_host["robots"]["hosts"]["r2"]
-        control.write_text(fleetyaml.dump(one_host))
+        control.write_text(yaml12.dump(one_host))
 
         *results, control_result = run_cli(paths + [control])
         for (label, data, lines), result in zip(refused, results):

@@ -16,7 +16,7 @@ import pytest
 from prometheus_client import parser as text_format
 from prometheus_client.openmetrics import parser as openmetrics
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from robotfleet.commands import metrics
 from tests.integration import sshserver
 from tests.integration.test_exit_codes import run
@@ -110,7 +110,7 @@ def test_an_unwritable_metrics_file_is_refused_before_any_host_is_contacted(tmp_
 def test_robot_supplied_labels_are_escaped_and_round_trip():
     row = {"host": "robot1", "kind": "robots", "reachable": True, "drift": None,
            "release": 'r"1\\\x1b[2J\nx', "release_state": "active", "state": "running", "health": "healthy"}
-    text = metrics.render([row], roster.roles(), 0)
+    text = metrics.render([row], deploy_roles.roles(), 0)
     [info] = [s for f in openmetrics.text_string_to_metric_families(text) if f.name.endswith("release_info")
               for s in f.samples]
     assert info.labels["release"] == 'r"1\\\\x1b[2J\\x0ax'
@@ -126,7 +126,7 @@ def test_robots_that_report_by_themselves_join_through_the_reporters(monkeypatch
 
     monkeypatch.setattr(metrics, "REPORTERS", [pulled])
     rows = [{"host": "robot1", "kind": "robots", "reachable": False}] + metrics.reported("inv.py", ["robot1"])
-    families = list(openmetrics.text_string_to_metric_families(metrics.render(rows, roster.roles(), 0)))
+    families = list(openmetrics.text_string_to_metric_families(metrics.render(rows, deploy_roles.roles(), 0)))
     up = {(s.labels["host"], s.labels["via"]): s.value for f in families if f.name == "robotfleet_up"
           for s in f.samples}
     assert up == {("robot1", "ssh"): 0, ("robot9", "pull"): 1}

@@ -201,11 +201,12 @@ def test_the_pushed_archive_goes_over_stdin_intact_through_pyinfras_writer(tmp_p
     from pyinfra.connectors.util import write_stdin
 
     from robotfleet.host.stream import FileStdin
-    from roles.payload import push
+    from roles.payload import image_transfer
 
     archive = tmp_path / "image.tar"
     archive.write_bytes(os.urandom(3 * FileStdin.CHUNK + 12345))
-    command = push.load_command(str(archive), "/var/lib/robot-payload", "reg.lan/ros/payload:1.0", "sha256:a", {})
+    command = image_transfer.load_command(str(archive), "/var/lib/robot-payload", "reg.lan/ros/payload:1.0",
+                                          "sha256:a", {})
     raw = command.get_raw_value()
     assert "base64 -d | docker load" in raw
     assert "/tmp" not in raw and "robotprov-image" not in raw and "-i " not in raw

@@ -18,10 +18,10 @@ from tests.fixtures import ROOT
 NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache")
 
 RENDER = """
-from robotfleet import roster  # puts its checkout first on sys.path: roles/ is the checkout's
+from robotfleet import deploy_roles  # puts its checkout first on sys.path: roles/ is the checkout's
 from roles import udev, x11
 from roles.payload import installed_files as payload
-defaults = {group: roster.group_data(group) for group in ("all", "robots", "laptops")}
+defaults = {group: deploy_roles.group_data(group) for group in ("all", "robots", "laptops")}
 class Data(dict):
     __getattr__ = dict.__getitem__
 robot = Data({**defaults["all"], **defaults["robots"], "payload_image": "r.lan/p:1"})

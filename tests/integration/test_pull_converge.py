@@ -86,20 +86,20 @@ def test_pyinfra_s_lines_that_say_why():
 
 
 def test_without_a_fleet_file_a_robot_s_defaults():
-    from robotfleet import roster
+    from robotfleet import deploy_roles
 
-    data = robot_data.host_data("robot1", None, roster.registry())
+    data = robot_data.host_data("robot1", None, deploy_roles.registry())
     assert data.payload_dir == "/var/lib/robot-payload" and data.payload_autostart is True
 
 
 def test_what_the_roles_status_watches_and_how_a_change_shows(tmp_path):
     """The agent reads the roles' status again only when one of these changed
     (or at its heartbeat): the payload's directory and unit invocation, dockerd."""
-    from robotfleet import roster
+    from robotfleet import deploy_roles
     from robotfleet.pull.protocol import agent_files
 
-    data = robot_data.host_data("robot1", None, roster.registry())
-    assert set(converge.watch(roster.roles(), data)) == {
+    data = robot_data.host_data("robot1", None, deploy_roles.registry())
+    assert set(converge.watch(deploy_roles.roles(), data)) == {
         "/var/lib/robot-payload", "/run/systemd/units/invocation:robot-payload.service", "/usr/bin/dockerd"}
     directory, link = tmp_path / "payload", tmp_path / "current"
     directory.mkdir()

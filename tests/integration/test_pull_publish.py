@@ -310,11 +310,11 @@ def test_robots_without_pull_platform_get_the_setting_s_default_and_a_full_cache
     """Wheels for the setting's default platform only, not for the operator's
     own Python (3.11 here: it would be a second key); and a second publish
     with every wheel cached does not ask the index (which here cannot answer)."""
-    from robotfleet import roster
+    from robotfleet import deploy_roles
 
     monkeypatch.setenv("PIP_CONFIG_FILE", os.devnull)  # only the index given here (no local mirror)
     monkeypatch.delenv("PIP_FIND_LINKS", raising=False)
-    default = roster.registry().settings["pull_platform"].default
+    default = deploy_roles.registry().settings["pull_platform"].default
     pyproject = site["checkout"] / "pyproject.toml"
     pyproject.write_text('[project]\nname = "x"\nversion = "1"\ndependencies = ["six==1.16.0"]\n')
     git(site["checkout"], "commit", "-qam", "tiny requirements")

@@ -149,7 +149,7 @@ def test_a_pull_rollout_s_waves_and_what_it_counts():
 
 
 def test_status_reads_pull_robots_from_their_reports_and_never_connects(tmp_path):
-    from robotfleet.commands import status
+    from robotfleet.commands import status, status_collect
 
     bare = tmp_path / "fleet.git"
     subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
@@ -160,7 +160,7 @@ def test_status_reads_pull_robots_from_their_reports_and_never_connects(tmp_path
     # Addresses nothing listens on: a connection attempt would be an error row, not a report's.
     inventory.write_text('robots = [("robot1", {"pull": True, "ssh_hostname": "192.0.2.1", "pull_interval": 60}),\n'
                          '          ("robot2", {"pull": True, "ssh_hostname": "192.0.2.2"})]\n')
-    rows = {r["host"]: r for r in status.collect(str(inventory), [], remote=f"file://{bare}")}
+    rows = {r["host"]: r for r in status_collect.collect(str(inventory), [], remote=f"file://{bare}")}
     assert rows["robot1"]["reachable"] == "pull" and rows["robot1"]["pull"] == "applied 7"
     assert rows["robot1"]["health"] == "healthy" and "error" not in rows["robot1"]
     assert rows["robot2"]["reachable"] is False and "no report in refs/reports/robot2" in rows["robot2"]["error"]
@@ -198,7 +198,7 @@ def test_a_report_that_is_a_tree_is_its_robot_s_line_and_speaks_for_no_other(fle
 
 
 def test_each_malformed_report_is_its_robot_s_line_in_status(fleet, tmp_path):
-    from robotfleet.commands import status
+    from robotfleet.commands import status_collect
 
     bare, work = fleet
     deep = craftedgit.blob(work, b"[" * 200000)  # nested deeper than json.loads goes
@@ -211,7 +211,7 @@ def test_each_malformed_report_is_its_robot_s_line_in_status(fleet, tmp_path):
     inventory = tmp_path / "inv.py"
     inventory.write_text("robots = [" + ", ".join(f'("robot{n}", {{"pull": True, "ssh_hostname": "192.0.2.{n}"}})'
                                                   for n in range(2, 8)) + "]\n")
-    rows = {r["host"]: r for r in status.collect(str(inventory), [], remote=f"file://{bare}")}
+    rows = {r["host"]: r for r in status_collect.collect(str(inventory), [], remote=f"file://{bare}")}
     assert rows["robot2"]["pull"] == "failed 7" and rows["robot3"]["pull"] == "applied 7"
     unreadable = {name: row["error"] for name, row in rows.items() if row["pull"] == "unreadable"}
     assert unreadable == {

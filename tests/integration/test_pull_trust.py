@@ -14,6 +14,8 @@ import pytest
 from tests.unit import pullkit
 from tests.unit.pullkit import DAY, NOW, edit_json, tree_state
 
+ceremony = pullkit.module("operator.root_ceremony")
+
 
 @pytest.fixture
 def trust():
@@ -208,9 +210,9 @@ def test_online_key_rotation_is_followed_by_a_robot_that_trusted_the_old_root(fl
     assert fleet.refresh().version == 1
     repository, keys = fleet.repository, fleet.keys
     new_online = keys.generate("online.next")
-    unsigned = repository.prepare_root(fleet.expiry, NOW, online_key=new_online)
-    signed = pullkit.module("operator.repository").sign_root(unsigned, [keys.signer("root")])
-    assert repository.install_root(signed, keys.signer("online.next"), fleet.expiry, NOW) == 2
+    unsigned = ceremony.prepare_root(repository, fleet.expiry, NOW, online_key=new_online)
+    signed = ceremony.sign_root(unsigned, [keys.signer("root")])
+    assert ceremony.install_root(repository, signed, keys.signer("online.next"), fleet.expiry, NOW) == 2
     keys.promote("online.next", "online")
     fleet.release(2)
     assert fleet.refresh().version == 2
@@ -228,17 +230,18 @@ def test_online_key_rotation_is_followed_by_a_robot_that_trusted_the_old_root(fl
 
 def test_root_key_rotation_is_followed_and_the_old_root_key_alone_cannot_make_a_root(fleet, trust, tmp_path):
     repository, keys = fleet.repository, fleet.keys
-    sign_root = pullkit.module("operator.repository").sign_root
+    sign_root = ceremony.sign_root
     new_root = keys.generate("root.next")
-    unsigned = repository.prepare_root(fleet.expiry, NOW, root_key=new_root)
+    unsigned = ceremony.prepare_root(repository, fleet.expiry, NOW, root_key=new_root)
     with pytest.raises(pullkit.module("operator.repository").RepositoryError, match="not signed by its own root key"):
-        repository.install_root(sign_root(unsigned, [keys.signer("root")]), keys.signer("online"), fleet.expiry, NOW)
+        ceremony.install_root(repository, sign_root(unsigned, [keys.signer("root")]), keys.signer("online"),
+                              fleet.expiry, NOW)
     signed = sign_root(unsigned, [keys.signer("root"), keys.signer("root.next")])
-    repository.install_root(signed, keys.signer("online"), fleet.expiry, NOW)
+    ceremony.install_root(repository, signed, keys.signer("online"), fleet.expiry, NOW)
     fleet.release(2)
     assert fleet.refresh().version == 2
     # a root version 3 signed only by the replaced root key is refused by the robot
-    old_only = sign_root(repository.prepare_root(fleet.expiry, NOW), [keys.signer("root")])
+    old_only = sign_root(ceremony.prepare_root(repository, fleet.expiry, NOW), [keys.signer("root")])
     (repository.metadata / "3.root.json").write_bytes(old_only)
     line = refused(fleet, trust, trust.UNKNOWN_KEY)
     assert line.startswith("root.json")
@@ -257,9 +260,9 @@ def test_the_operator_side_refuses_to_sign_with_an_online_key_the_root_does_not_
 
 def test_an_unsigned_prepared_root_is_not_installed(fleet):
     repository = pullkit.module("operator.repository")
-    unsigned = fleet.repository.prepare_root(fleet.expiry, NOW)
+    unsigned = ceremony.prepare_root(fleet.repository, fleet.expiry, NOW)
     with pytest.raises(repository.RepositoryError, match="not signed by the current root key"):
-        fleet.repository.install_root(unsigned, fleet.keys.signer("online"), fleet.expiry, NOW)
+        ceremony.install_root(fleet.repository, unsigned, fleet.keys.signer("online"), fleet.expiry, NOW)
     assert fleet.repository.root().signed.version == 1
 
 
@@ -296,7 +299,7 @@ def test_a_robot_without_a_trusted_root_refuses(tmp_path, trust):
 
 
 def test_initialize_refuses_a_root_that_is_not_self_signed(fleet, trust, tmp_path):
-    data = fleet.repository.prepare_root(fleet.expiry, NOW)  # unsigned
+    data = ceremony.prepare_root(fleet.repository, fleet.expiry, NOW)  # unsigned
     with pytest.raises(trust.Refused, match="not a self-signed TUF root") as caught:
         trust.initialize(tmp_path / "robot2", data)
     assert caught.value.reason == trust.MALFORMED

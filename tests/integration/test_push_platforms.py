@@ -102,34 +102,36 @@ def registry():
     server.shutdown()
 
 
-def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(push, registry):
+def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(image_transfer, registry):
     address, store, _ = registry
-    decision = push.choose_source(f"{address}/ros/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL)
+    decision = image_transfer.choose_source(f"{address}/ros/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL)
     kind, writer, (variant,), image_id = decision
-    assert (kind, writer) == ("send", push.write_registry_archive)
+    assert (kind, writer) == ("send", image_transfer.write_registry_archive)
     assert image_id == store.ids["arm64"] == variant["id"] and variant["platform"] == "linux/arm64"
-    again = push.choose_source(f"{address}/ros/payload:1.0", store.ids["arm64"], "pi1", "arm64", [], None, None)
+    again = image_transfer.choose_source(f"{address}/ros/payload:1.0", store.ids["arm64"], "pi1", "arm64", [], None,
+                                         None)
     assert again == ("noop", f"{address}/ros/payload:1.0 (linux/arm64) is already on the host")
 
 
-def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_name(push, registry):
+def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_name(image_transfer, registry):
     """registry.lan:5000/payload:1 is /v2/payload/... on its registry (Docker
     adds library/ on Docker Hub only)."""
     address, store, _ = registry
-    kind, writer, (variant,), image_id = push.choose_source(f"{address}/payload:1.0", "", "pi1", "arm64", [], None,
-                                                            AMD64_LOCAL)
-    assert (kind, writer) == ("send", push.write_registry_archive)
+    kind, writer, (variant,), image_id = image_transfer.choose_source(f"{address}/payload:1.0", "", "pi1", "arm64",
+                                                                      [], None, AMD64_LOCAL)
+    assert (kind, writer) == ("send", image_transfer.write_registry_archive)
     assert image_id == store.ids["arm64"] == variant["id"]
 
 
-def test_only_the_layers_the_robot_lacks_are_read_and_sent(push, registry, tmp_path):
+def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, registry, tmp_path):
     address, store, fetched = registry
     image = f"{address}/ros/payload:1.0"
-    variant = push.registry_variant(image, "arm64", [], None)
+    variant = image_transfer.registry_variant(image, "arm64", [], None)
     fetched.clear()
     report = {}
     # The robot has the amd64 image: the base layer is shared, the arm64 top is not.
-    push.write_registry_archive(image, variant, str(tmp_path / "a.tar"), [store.diff_ids["amd64"]], report, [], None)
+    image_transfer.write_registry_archive(image, variant, str(tmp_path / "a.tar"), [store.diff_ids["amd64"]], report,
+                                          [], None)
     with tarfile.open(tmp_path / "a.tar") as archive:
         names = archive.getnames()
         manifest = json.load(archive.extractfile("manifest.json"))[0]
@@ -144,23 +146,23 @@ def test_only_the_layers_the_robot_lacks_are_read_and_sent(push, registry, tmp_p
     assert report["sent"] == (tmp_path / "a.tar").stat().st_size
 
 
-def test_an_image_without_the_robots_platform_is_refused_with_one_line(push, registry):
+def test_an_image_without_the_robots_platform_is_refused_with_one_line(image_transfer, registry):
     address, store, _ = registry
     single = f"{address}/ros/payload:1.0-amd64"
-    assert push.choose_source(single, "", "pi1", "arm64", [], None, None) == (
+    assert image_transfer.choose_source(single, "", "pi1", "arm64", [], None, None) == (
         "fail", f"payload: pi1 is linux/arm64 but image {single} is linux/amd64 only (in its registry): "
                 "refused before anything switched")
-    kind, line = push.choose_source(f"{address}/ros/payload:1.0", "", "rv1", "riscv64", [], None, None)
+    kind, line = image_transfer.choose_source(f"{address}/ros/payload:1.0", "", "rv1", "riscv64", [], None, None)
     assert kind == "fail" and line == (f"payload: rv1 is linux/riscv64 but image {address}/ros/payload:1.0 is "
                                        "linux/amd64, linux/arm64 (in its registry): refused before anything switched")
 
 
-def test_a_local_image_of_another_platform_and_no_registry_is_refused_with_one_line(push):
-    kind, line = push.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, AMD64_LOCAL)
+def test_a_local_image_of_another_platform_and_no_registry_is_refused_with_one_line(image_transfer):
+    kind, line = image_transfer.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, AMD64_LOCAL)
     assert kind == "fail" and "\n" not in line
     assert line.startswith("payload: pi1 is linux/arm64 but image 127.0.0.1:1/ros/payload:1.1 is linux/amd64 "
                            "only (in the local Docker engine; its registry: 127.0.0.1:1: GET ")
     assert line.endswith("): refused before anything switched")
-    kind, line = push.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, None)
+    kind, line = image_transfer.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, None)
     assert kind == "fail" and line.startswith("payload_delivery push: 127.0.0.1:1/ros/payload:1.1 is neither in "
                                               "the local Docker engine nor readable from its registry (")

@@ -24,7 +24,7 @@ print(json.dumps({"results": {"operations": [{"name": "Release the payload", "er
 def test_a_line_naming_robot2_in_robot1s_output_does_not_fail_robot2(monkeypatch, capfd):
     """Rollout used to read each robot's result from pyinfra's output lines:
     a line "[robot2] ..." written by robot1 failed robot2 (issue 27, item 5)."""
-    from robotfleet.commands import rollout
+    from robotfleet.commands import rollout, rollout_judge
 
     monkeypatch.setattr(rollout, "PYINFRA", FAKE_PYINFRA)
     results = rollout.deploy_wave("inventories/robots.py", ["robot1", "robot2"], [], "deploy.py", "w3")
@@ -34,7 +34,8 @@ def test_a_line_naming_robot2_in_robot1s_output_does_not_fail_robot2(monkeypatch
     rows = {"robot1": {**on_target, "image_refs": ["i:1"], "result": result("w3", False, "payload: release x failed")},
             "robot2": {**on_target, "result": result("w3", True, "payload: release y is healthy")}}
     targets = dict.fromkeys(rows, {"payload": ["i:2"]})
-    done, failed, skipped = rollout.judge_wave(["robot1", "robot2"], results, rows, targets, False, deployment="w3")
+    done, failed, skipped = rollout_judge.judge_wave(["robot1", "robot2"], results, rows, targets, False,
+                                                     deployment="w3")
     assert done == ["robot2"] and failed == {"robot1": "payload: release x failed"} and skipped == {}
 
 
@@ -59,12 +60,12 @@ def test_one_rollout_lock_per_fleet_whatever_the_flags(tmp_path, flags):
     import glob
     import time
 
-    from robotfleet.fleet import loader
+    from robotfleet.fleet import yaml12
     from tests.integration import sshserver
 
     silent = [sshserver.Unanswered() for _ in range(2)]
     fleet = tmp_path / "fleet.yaml"
-    fleet.write_text(loader.dump({"all": {"vars": {"payload_image": "reg.example.com/p:1", "ssh_connect_timeout": 20}},
+    fleet.write_text(yaml12.dump({"all": {"vars": {"payload_image": "reg.example.com/p:1", "ssh_connect_timeout": 20}},
                                   "robots": {"hosts": {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port}
                                                        for i, s in enumerate(silent)}}}))
     env = dict(os.environ, ROBOT_ROLLOUT_DIR=str(tmp_path / "states"), ROBOT_FLEET=str(fleet))

@@ -33,7 +33,7 @@ from pyinfra.api.state import StateStage
 from pyinfra.connectors.fake import FakeConnector
 from pyinfra.context import ctx_state
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from robotfleet.host import aptrepo
 from robotfleet.fleet import validate as fleet_check
 from robotfleet.host import snapshot as hoststate
@@ -298,7 +298,7 @@ display_path = fleet_check.display_path
 
 
 def registry():
-    return roster.registry()
+    return deploy_roles.registry()
 
 
 def setting_checks() -> dict:
@@ -308,7 +308,7 @@ def setting_checks() -> dict:
 
 def group_data() -> dict[str, dict]:
     """What pyinfra reads from group_data/, by group."""
-    return {group: roster.group_data(group) for group in ("all", "robots", "laptops")}
+    return {group: deploy_roles.group_data(group) for group in ("all", "robots", "laptops")}
 
 
 def parse(text, shown: str = "f.yaml"):
@@ -348,7 +348,7 @@ def merged(group: str, data: dict) -> Data:
 
 
 def running_roles(data) -> tuple:
-    return tuple(role for role in roster.roles() if role.runs_on(data))
+    return tuple(role for role in deploy_roles.roles() if role.runs_on(data))
 
 
 def converged(group: str, data: dict, os_name: str, arch: str = "amd64", name: str | None = None) -> Snapshot:

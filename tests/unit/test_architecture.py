@@ -9,7 +9,7 @@ from __future__ import annotations
 import ast
 import os
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from tests.fixtures import ROOT
 
 MAX_LINES = 400
@@ -44,7 +44,7 @@ def test_a_role_reads_only_its_own_settings():
     """Another role's setting is read through a function of that role's
     hooks.py (e.g. roles/payload/hooks.py wants_gpus), so the role that owns
     a setting decides what it means."""
-    owner = {setting.name: role.name for role in roster.roles() for setting in role.settings}
+    owner = {setting.name: role.name for role in deploy_roles.roles() for setting in role.settings}
     found = []
     for path in sorted((ROOT / "roles").rglob("*.py")):
         role = path.relative_to(ROOT / "roles").parts[0]
@@ -74,7 +74,8 @@ def test_the_engine_reads_no_role_s_setting():
     from robotfleet.fleet import connection
 
     own = {setting.name for setting in connection.SETTINGS}  # the allowlist: the engine's own settings
-    owner = {setting.name: role.name for role in roster.roles() for setting in role.settings if setting.name not in own}
+    owner = {setting.name: role.name for role in deploy_roles.roles() for setting in role.settings
+             if setting.name not in own}
     found = []
     for path in sorted((ROOT / "robotfleet").rglob("*.py")):
         for line, name in setting_reads(ast.parse(path.read_text()), set(owner), ROWS):

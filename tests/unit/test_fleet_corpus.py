@@ -343,7 +343,7 @@ def test_without_libyaml_the_same_problems_are_found(monkeypatch):
 
     # (5,000 levels of nesting only make PyYAML's recursive parser slow.)
     expected = {name: lines(text) for name, text, _ in CORPUS if name not in ("too large", "deep nesting")}
-    monkeypatch.setattr(fleetyaml, "_LOADER", yaml.SafeLoader)
+    monkeypatch.setattr(fleetyaml, "LOADER", yaml.SafeLoader)
     for name, text, _ in CORPUS:
         if name in expected:
             got = lines(text)

@@ -16,7 +16,7 @@ from contextlib import contextmanager
 
 import pytest
 
-from robotfleet.fleet import loader as fleetyaml
+from robotfleet.fleet import yaml12
 from tests.unit import harness as fleet
 
 SHOWN = "f.yaml"
@@ -141,7 +141,7 @@ def documents(port: int, count: int, seed: int):
         doc = good_fleet(port)
         if rng.random() < 0.8:
             mutate_data(rng, doc)
-        text = fleetyaml.dump(doc)
+        text = yaml12.dump(doc)
         data = mutate_text(rng, text) if rng.random() < 0.5 else text.encode()
         if rng.random() < 0.03:
             data = bytes(rng.randrange(256) for _ in range(rng.randrange(64)))

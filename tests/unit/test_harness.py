@@ -156,15 +156,15 @@ def test_robots_and_laptops_in_one_run_order_their_operations_without_a_cycle():
 
 
 def test_deploy_py_names_its_roles_and_a_misspelt_name_is_one_line(tmp_path):
-    from robotfleet import roster
+    from robotfleet import deploy_roles
 
     deploy = tmp_path / "deploy.py"
     deploy.write_text('from robotfleet.provision import provision\nfrom roles import named\n'
                       'ROLES = named("time", "docker")\nprovision(ROLES)\n')
-    assert [role.name for role in roster.roles(deploy)] == ["time", "docker"]
+    assert [role.name for role in deploy_roles.roles(deploy)] == ["time", "docker"]
     deploy = tmp_path / "misspelt.py"
     deploy.write_text('from robotfleet.provision import provision\nfrom roles import named\n'
                       'ROLES = named("docker", "usres")\nprovision(ROLES)\n')
     with pytest.raises(LookupError) as error:
-        roster.roles(deploy)
+        deploy_roles.roles(deploy)
     assert str(error.value) == "deploy.py: ROLES names 'usres', but there is no roles/usres/"

@@ -11,8 +11,8 @@ import pytest
 import yaml
 from pyinfra_cli.util import parse_cli_arg
 
-from robotfleet import roster
-from robotfleet.commands import rollout
+from robotfleet import deploy_roles
+from robotfleet.commands import rollout_judge
 from roles.payload import compose, digests, pins as publish_pins, report
 from tests.fixtures import robot_fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, find, fleet_problems, merged, plan
@@ -149,11 +149,11 @@ def test_the_agent_s_json_text_reaches_the_setting_as_pyinfra_reads_it():
     waits for is the image as it runs (payloadctl records it by that ref)."""
     text = json.dumps({PAYLOAD: A})
     data = merged("robots", {**ROBOT, "payload_image": PAYLOAD, "payload_image_pins": parse_cli_arg(text)})
-    assert roster.registry().data_problems(data) == []
+    assert deploy_roles.registry().data_problems(data) == []
     assert images_of(rendered(data)) == {"payload": f"{PAYLOAD}@{A}"}
-    overrides = rollout.read_overrides([f"payload_image_pins={text}", "payload_force=true", "x"])
+    overrides = rollout_judge.read_overrides([f"payload_image_pins={text}", "payload_force=true", "x"])
     assert overrides == {"payload_image_pins": {PAYLOAD: A}, "payload_force": True}
-    target = rollout.targets_of(roster.roles(), dict(merged("robots", {**ROBOT, "payload_image": PAYLOAD})),
+    target = rollout_judge.targets_of(deploy_roles.roles(), dict(merged("robots", {**ROBOT, "payload_image": PAYLOAD})),
                                 overrides)
     assert target["payload"] == [f"{PAYLOAD}@{A}"]
     row = {"reachable": True, "image_refs": [f"{PAYLOAD}@{A}"], "release_state": "active",
@@ -191,7 +191,7 @@ def test_a_pull_robot_running_its_release_by_digest_is_not_reported_missing_its_
     data = merged("robots", {**ROBOT, "payload_image": image})
     row = {"reachable": True, "image_refs": [f"{image}@{A}"], "release_state": "active", "state": "running",
            "health": report.NO_CHECK}
-    roles = roster.roles()
+    roles = deploy_roles.roles()
     assert converge.missing(roles, HostData(data), row) == []  # status's drift reads the fleet file like this
     assert converge.missing(roles, HostData({**data, digests.SETTING: {image: A}}), row) == []
     other = converge.missing(roles, HostData({**data, digests.SETTING: {image: B}}), row)

@@ -14,7 +14,7 @@ import tarfile
 import yaml
 
 from robotfleet.host.snapshot import FileState
-from roles.payload import compose, login, push
+from roles.payload import compose, login, image_transfer
 from tests.unit.harness import ROBOT, converged, desired_compose, find, merged, plan
 
 
@@ -113,7 +113,7 @@ def test_the_archive_sent_is_gzip_compressed_and_smaller_than_the_layers(tmp_pat
             info.size = len(data)
             tar.addfile(info, io.BytesIO(data))
     out = tmp_path / "sent"
-    report = push.strip_layers(str(saved), str(out), [])
+    report = image_transfer.strip_layers(str(saved), str(out), [])
     assert out.read_bytes()[:2] == b"\x1f\x8b"
     with tarfile.open(fileobj=io.BytesIO(gzip.decompress(out.read_bytes()))) as sent:
         assert sent.extractfile("l1/layer.tar").read() == layer

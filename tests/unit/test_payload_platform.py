@@ -59,10 +59,10 @@ def test_robots_of_one_architecture_pin_a_vendors_per_architecture_tag_per_servi
     """A fleet file has the groups robots and laptops: robots of another
     architecture share their pins through an anchor, merged per service
     over the group's services like any host's payload_services."""
-    from robotfleet import roster
+    from robotfleet import deploy_roles
     from robotfleet.fleet.validate import parse
 
-    hosts = dict(parse(FLEET, "robots.yaml", roster.registry()).hosts("robots"))
+    hosts = dict(parse(FLEET, "robots.yaml", deploy_roles.registry()).hosts("robots"))
     assert hosts["nuc1"]["payload_services"]["camera"]["platform"] == "linux/amd64"
     pi = hosts["pi1"]["payload_services"]
     assert pi["camera"] == {"image": f"{REG}/vendor/cam:2.0-arm64", "platform": "linux/arm64"}

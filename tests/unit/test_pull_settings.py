@@ -12,7 +12,7 @@ import json
 
 import pytest
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from robotfleet.commands import pullstatus
 from robotfleet.fleet import connection
 from robotfleet.pull.protocol import agent_files, reports
@@ -30,7 +30,7 @@ NUMBERS = {"interval": "pull_interval", "jitter": "pull_jitter", "min_free_mb": 
 def test_every_pull_setting_is_the_pull_role_s():
     assert {"pull", "pull_platform"} <= set(DECLARED)
     assert not [s.name for s in connection.SETTINGS if s.name == "pull" or s.name.startswith("pull_")]
-    assert pull_part(roster.roles()) is plan.PART
+    assert pull_part(deploy_roles.roles()) is plan.PART
 
 
 @pytest.mark.parametrize("field", sorted(NUMBERS))

@@ -10,12 +10,12 @@ import importlib
 import pytest
 
 import pyinfra.api
-from robotfleet import pyinfra_private, speedups
+from robotfleet import pyinfra_private, pyinfra_patches
 from tests.fixtures import ROOT
 
 LISTED = {name for entry in pyinfra_private.USED for name in entry.names}
-# pyinfra's own functions where robotfleet/speedups.py has put its copies.
-PYINFRAS_OWN = speedups._ORIGINAL
+# pyinfra's own functions where robotfleet/pyinfra_patches.py has put its copies.
+PYINFRAS_OWN = pyinfra_patches._ORIGINAL
 PUBLIC_MODULES = ("pyinfra", "pyinfra.api", "pyinfra.api.exceptions")
 PUBLIC_PACKAGES = ("pyinfra.operations", "pyinfra.facts")
 

@@ -10,7 +10,8 @@ import errno
 import pytest
 from paramiko.ssh_exception import NoValidConnectionsError
 
-from robotfleet import connect, reasons
+from robotfleet import reasons
+from robotfleet import status_parts
 from robotfleet.commands import status
 
 
@@ -29,16 +30,16 @@ def paramiko_s(code: int, text: str) -> NoValidConnectionsError:
 ])
 def test_the_same_cause_is_worded_the_same_through_paramiko_and_a_plain_socket(code, text, said):
     plain = OSError(code, text)  # what enroll's socket.create_connection raises
-    assert connect.network_reason(plain, "192.0.2.200", 22, 10) == connect.network_reason(
+    assert reasons.network_reason(plain, "192.0.2.200", 22, 10) == reasons.network_reason(
         paramiko_s(code, text), "192.0.2.200", 22, 10)
-    assert connect.network_reason(plain, "192.0.2.200", 22, 10)[0] == said
-    assert "Unable to connect" not in connect.network_reason(paramiko_s(code, text), "192.0.2.200", 22, 10)[0]
+    assert reasons.network_reason(plain, "192.0.2.200", 22, 10)[0] == said
+    assert "Unable to connect" not in reasons.network_reason(paramiko_s(code, text), "192.0.2.200", 22, 10)[0]
 
 
 def test_one_refused_address_of_several_does_not_hide_the_others_reason():
     both = NoValidConnectionsError({("::1", 22, 0, 0): OSError(errno.ECONNREFUSED, "Connection refused"),
                                     ("192.0.2.200", 22): OSError(errno.EHOSTUNREACH, "No route to host")})
-    assert connect.network_reason(both, "robot1", 22, 10)[0] == "no route to robot1:22 (No route to host)"
+    assert reasons.network_reason(both, "robot1", 22, 10)[0] == "no route to robot1:22 (No route to host)"
 
 
 @pytest.mark.parametrize("error, word", [
@@ -53,8 +54,8 @@ def test_one_refused_address_of_several_does_not_hide_the_others_reason():
     ("status failed: boom", "error"),
 ])
 def test_the_reachable_column_carries_the_reason_in_a_word_or_two(error, word):
-    row = status.row("robot2", (), None, error)
-    text = status.table([row], status.FIRST).splitlines()
+    row = status_parts.row("robot2", (), None, error)
+    text = status.table([row], status_parts.FIRST).splitlines()
     assert text[1].split("  ")[0:2] == ["robot2", f"no: {word}"], text
     assert status.reachable(row) == f"no: {word}"
 
@@ -67,5 +68,5 @@ def test_a_pull_robot_without_a_fresh_report_says_so_in_the_column():
 
 
 def test_every_reason_the_connector_words_has_its_short_word():
-    for start in connect.REASONS:
+    for start in reasons.REASONS:
         assert reasons.short_reason(start + " ..."), start

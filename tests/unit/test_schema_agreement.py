@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from robotfleet.checkers import Misread
 from robotfleet.fleet import validate as fleet_check
 from robotfleet.fleet import loader as fleetyaml
@@ -19,7 +19,7 @@ from tests.fixtures import ROOT
 
 jsonschema = pytest.importorskip("jsonschema")
 
-SCHEMA = fleet_schema.fleet_schema(roster.registry())
+SCHEMA = fleet_schema.fleet_schema(deploy_roles.registry())
 VALIDATOR = jsonschema.Draft7Validator(SCHEMA)
 # What the schema says of one host's (or one group's vars') settings: the
 # definition every place a setting sits refers to (test_a_setting_is_checked_alike_in_every_place).
@@ -64,9 +64,9 @@ def test_a_setting_is_checked_alike_in_every_place():
         assert schema_refuses(document) and not SETTINGS.is_valid({"ssh_port": "22"}), document
 
 
-@pytest.mark.parametrize("setting", sorted(roster.registry().settings))
+@pytest.mark.parametrize("setting", sorted(deploy_roles.registry().settings))
 def test_each_setting_gets_the_same_verdict_from_the_schema_and_the_run(setting):
-    check = roster.registry().settings[setting].check
+    check = deploy_roles.registry().settings[setting].check
     disagree = []
     for value in [*test_hostile_values.HOSTILE, *MORE_VALUES, *TRAPS, 0, -1, 22, 70000, 1.5, True, None]:
         for place, placed in test_hostile_values.places(setting, value):
@@ -85,7 +85,7 @@ class _NoRulesAcross(Registry):
 
 
 def expressible_lines(raw) -> list[str]:
-    full = roster.registry()
+    full = deploy_roles.registry()
     registry = _NoRulesAcross([], full.roles, full.aliases)
     registry.settings = full.settings
     try:

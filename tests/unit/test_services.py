@@ -7,7 +7,7 @@ import json
 import pytest
 import yaml
 
-from robotfleet import roster
+from robotfleet import deploy_roles, status_parts
 from robotfleet.commands import status
 from roles.payload import compose, containers, presets, problems, services, takeover_plan
 from tests.fixtures import robot_fleet as host_with
@@ -356,11 +356,11 @@ def test_status_shows_each_service_image_with_its_tag_state_and_health():
               "containers": [], "services": {
                   "payload": {"image": payload, "state": "running", "health": "healthy"},
                   "driver": {"image": digest, "state": "restarting", "health": None}}}
-    roles = roster.roles()
-    row = status.row("robot1", roles, {"payload": json.dumps(report)})
+    roles = deploy_roles.roles()
+    row = status_parts.row("robot1", roles, {"payload": json.dumps(report)})
     assert row["state"] == "driver:restarting, payload:running"
     assert row["health"] == "driver:no check, payload:healthy"
-    line = status.table([row], status.columns(roles)).splitlines()[1]
+    line = status.table([row], status_parts.columns(roles)).splitlines()[1]
     assert f"driver=reg/ros/driver:2.0@sha256:{'d' * 12}, payload=reg/ros/payload:1.0@sha256:{'e' * 12}" in line
 
 

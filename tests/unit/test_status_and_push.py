@@ -5,23 +5,23 @@ import io
 import json
 import tarfile
 
-from robotfleet import roster
+from robotfleet import deploy_roles, status_parts
 from robotfleet.commands import status
-from roles.payload import push
+from roles.payload import image_transfer
 
 A, B, C = ("sha256:" + c * 64 for c in "abc")
 
 
 def test_layers_present_is_the_longest_shared_prefix():
-    assert push.layers_present([A, B, C], []) == 0
-    assert push.layers_present([A, B, C], [[A, C], [A, B]]) == 2
-    assert push.layers_present([A, B], [[A, B, C]]) == 2
-    assert push.layers_present([A, B], [[B, A]]) == 0  # same layers on another base are another chain
+    assert image_transfer.layers_present([A, B, C], []) == 0
+    assert image_transfer.layers_present([A, B, C], [[A, C], [A, B]]) == 2
+    assert image_transfer.layers_present([A, B], [[A, B, C]]) == 2
+    assert image_transfer.layers_present([A, B], [[B, A]]) == 0  # same layers on another base are another chain
 
 
 def test_layer_probe_output_is_parsed_line_by_line():
     output = json.dumps([A, B]) + "\n" + "garbage\n" + json.dumps([C]) + "\n"
-    assert push.parse_layer_sets(output) == [[A, B], [C]]
+    assert image_transfer.parse_layer_sets(output) == [[A, B], [C]]
 
 
 def test_archive_leaves_out_layers_the_robot_has(tmp_path):
@@ -39,7 +39,7 @@ def test_archive_leaves_out_layers_the_robot_has(tmp_path):
             json.dumps([{"Config": "cfg.json", "RepoTags": ["r/p:1"],
                          "Layers": ["l1/layer.tar", "l2/layer.tar"]}]).encode())
     out = tmp_path / "sent.tar"
-    report = push.strip_layers(str(saved), str(out), [[A]])
+    report = image_transfer.strip_layers(str(saved), str(out), [[A]])
     with tarfile.open(out) as sent:
         assert sorted(sent.getnames()) == ["cfg.json", "l2/layer.tar", "manifest.json"]
         assert sent.extractfile("l2/layer.tar").read() == b"y" * 70000
@@ -47,7 +47,7 @@ def test_archive_leaves_out_layers_the_robot_has(tmp_path):
 
 
 def roles():
-    return roster.roles()
+    return deploy_roles.roles()
 
 
 def test_status_rows_and_table():
@@ -58,12 +58,12 @@ def test_status_rows_and_table():
         "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
         "update_lock": None,
     }
-    rows = [status.row("robot1", roles(),
-                       {status.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
-            status.row("robot2", roles(), None, "cannot connect")]
+    rows = [status_parts.row("robot1", roles(),
+                       {status_parts.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
+            status_parts.row("robot2", roles(), None, "cannot connect")]
     assert rows[0]["image"] == "reg/p:1.1@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"  # the tag kept
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
-    text = status.table(rows, status.columns(roles())).splitlines()
+    text = status.table(rows, status_parts.columns(roles())).splitlines()
     assert rows[0]["arch"] == "arm64"
     assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS",
                                "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
@@ -76,6 +76,7 @@ AMD64_LOCAL = {"id": "sha256:" + "1" * 64, "platform": {"os": "linux", "architec
 
 
 def test_the_local_image_goes_when_it_is_built_for_the_robot():
-    assert push.choose_source("r/p:1", "", "robot1", "amd64", [], None, AMD64_LOCAL)[:2] == ("send", push.write_archive)
-    assert push.choose_source("r/p:1", AMD64_LOCAL["id"], "robot1", "amd64", [], None, AMD64_LOCAL) == (
+    assert image_transfer.choose_source("r/p:1", "", "robot1", "amd64", [], None, AMD64_LOCAL)[:2] == (
+        "send", image_transfer.write_archive)
+    assert image_transfer.choose_source("r/p:1", AMD64_LOCAL["id"], "robot1", "amd64", [], None, AMD64_LOCAL) == (
         "noop", "r/p:1 is already on the host")

@@ -132,7 +132,7 @@ def test_status_cells_and_summary():
 
 
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
-    from robotfleet.commands.rollout import judge_wave
+    from robotfleet.commands.rollout_judge import judge_wave
 
     good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running",
             "health": "healthy"}
@@ -163,7 +163,7 @@ def result(deployment, ok, message):
 def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
     """pyinfra prints no JSON when no host remains ("No hosts remaining!"):
     each robot's own result of this deployment says why."""
-    from robotfleet.commands.rollout import judge_wave
+    from robotfleet.commands.rollout_judge import judge_wave
 
     line = "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"
     back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",

@@ -4,12 +4,12 @@ given by roles/pull), never by a setting's name."""
 
 from __future__ import annotations
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from robotfleet.role import PullPart, pull_part
 
 
 def part() -> PullPart:
-    return pull_part(roster.roles())
+    return pull_part(deploy_roles.roles())
 
 
 def pulls(data) -> bool:

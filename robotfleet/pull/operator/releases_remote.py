@@ -105,12 +105,12 @@ def refuse_deploy_remote(checkout, given: str | None, url: str) -> None:
 def fleet_hosts(checkout, fleet: str | None = None) -> tuple[list[tuple[str, dict]], str]:
     """The fleet file's hosts [(name, data)] as the checkout has it (``fleet``, else $ROBOT_FLEET, else
     inventories/robots.yaml), and why not when it cannot be read (its first problem)."""
-    from robotfleet import roster
+    from robotfleet import deploy_roles
     from robotfleet.fleet.validate import FleetError, load
 
     path = Path(checkout, fleet or os.environ.get("ROBOT_FLEET") or "inventories/robots.yaml")
     try:
-        read = load(path, roster.registry())
+        read = load(path, deploy_roles.registry())
     except FleetError as error:
         return [], error.lines[0] if error.lines else str(path)
     except OSError as error:

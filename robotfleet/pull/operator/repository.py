@@ -8,7 +8,8 @@ remote's robotfleet/releases branch, or one served over static HTTPS):
     targets/code/<sha256>.<commit>.tar.gz, targets/wheels/<sha256>.<file>.whl
 
 Two keys (robotfleet/pull/operator/keys.py): the root key signs only roots; the
-online key signs targets, snapshot and timestamp.  Each publish writes the
+online key signs targets, snapshot and timestamp (a root changed by hand:
+robotfleet/pull/operator/root_ceremony.py).  Each publish writes the
 target blobs first and timestamp.json last (one rename), so an HTTPS reader
 never sees a timestamp naming files not yet there.  The last KEEP versions
 of snapshot and targets and the blobs they name are kept; older ones go
@@ -32,7 +33,7 @@ from robotfleet.pull.protocol import record as records
 
 ONLINE_ROLES = (Targets.type, Snapshot.type, Timestamp.type)
 KEEP = 3
-_SERIALIZER = JSONSerializer(compact=False)
+SERIALIZER = JSONSerializer(compact=False)
 _DURATION = re.compile(r"([1-9][0-9]{0,4})([mhdw])")
 _UNITS = {"m": 60, "h": 3600, "d": 86400, "w": 7 * 86400}
 
@@ -62,7 +63,7 @@ class Expiry:
     root: datetime.timedelta = datetime.timedelta(days=365)
 
 
-def _expiry(now: datetime.datetime, period: datetime.timedelta) -> datetime.datetime:
+def expires(now: datetime.datetime, period: datetime.timedelta) -> datetime.datetime:
     return (now + period).astimezone(datetime.timezone.utc).replace(microsecond=0)
 
 
@@ -74,17 +75,6 @@ def blob_name(path: str, sha256: str) -> str:
 
 def _write(path: Path, data: bytes) -> None:
     atomicfile.write(path, data, mode=0o644, make_parents=True)
-
-
-def sign_root(data: bytes, signers) -> bytes:
-    """A root's bytes with one more signature from each of ``signers`` (the
-    offline step: robotfleet keys sign)."""
-    md = Metadata[Root].from_bytes(data)
-    if not isinstance(md.signed, Root):
-        raise RepositoryError(f"not a root but {md.signed.type} metadata")
-    for signer in signers:
-        md.sign(signer, append=True)
-    return md.to_bytes(_SERIALIZER)
 
 
 class Repository:
@@ -156,16 +146,16 @@ class Repository:
         and timestamp signed by the online key.  Refuses an existing one."""
         if self.exists():
             raise RepositoryError(f"{self.metadata / 'root.json'}: a repository is already there")
-        root = Metadata(Root(expires=_expiry(now, expiry.root), consistent_snapshot=True))
+        root = Metadata(Root(expires=expires(now, expiry.root), consistent_snapshot=True))
         root.signed.add_key(root_signer.public_key, Root.type)
         for role in ONLINE_ROLES:
             root.signed.add_key(online_signer.public_key, role)
         root.sign(root_signer)
-        self._write_root(root.to_bytes(_SERIALIZER), 1)
-        targets = Metadata(Targets(version=1, expires=_expiry(now, expiry.targets)))
+        self.write_root(root.to_bytes(SERIALIZER), 1)
+        targets = Metadata(Targets(version=1, expires=expires(now, expiry.targets)))
         self._publish_targets(targets, online_signer, expiry, now, first=True)
 
-    def _write_root(self, data: bytes, version: int) -> None:
+    def write_root(self, data: bytes, version: int) -> None:
         _write(self.metadata / f"{version}.root.json", data)
         _write(self.metadata / "root.json", data)
 
@@ -226,9 +216,9 @@ class Repository:
         a timestamp naming it."""
         self._check_online(online_signer)
         targets.signed.version += 0 if first else 1
-        targets.signed.expires = _expiry(now, expiry.targets)
+        targets.signed.expires = expires(now, expiry.targets)
         targets.sign(online_signer)
-        data = targets.to_bytes(_SERIALIZER)
+        data = targets.to_bytes(SERIALIZER)
         _write(self.metadata / f"{targets.signed.version}.targets.json", data)
         snapshot = Metadata(Snapshot(version=1 if first else self.snapshot().signed.version))
         snapshot.signed.meta["targets.json"] = MetaFile.from_data(targets.signed.version, data, ["sha256"])
@@ -238,9 +228,9 @@ class Repository:
     def _publish_snapshot(self, snapshot: Metadata[Snapshot], online_signer, expiry: Expiry,
                           now: datetime.datetime, first: bool = False) -> None:
         snapshot.signed.version += 0 if first else 1
-        snapshot.signed.expires = _expiry(now, expiry.snapshot)
+        snapshot.signed.expires = expires(now, expiry.snapshot)
         snapshot.sign(online_signer)
-        data = snapshot.to_bytes(_SERIALIZER)
+        data = snapshot.to_bytes(SERIALIZER)
         _write(self.metadata / f"{snapshot.signed.version}.snapshot.json", data)
         version = 0 if first else self.timestamp().signed.version
         self._publish_timestamp(version, MetaFile.from_data(snapshot.signed.version, data, ["sha256"]),
@@ -248,10 +238,10 @@ class Repository:
 
     def _publish_timestamp(self, previous: int, snapshot_meta: MetaFile, online_signer, expiry: Expiry,
                            now: datetime.datetime) -> None:
-        timestamp = Metadata(Timestamp(version=previous + 1, expires=_expiry(now, expiry.timestamp),
+        timestamp = Metadata(Timestamp(version=previous + 1, expires=expires(now, expiry.timestamp),
                                        snapshot_meta=snapshot_meta))
         timestamp.sign(online_signer)
-        _write(self.metadata / "timestamp.json", timestamp.to_bytes(_SERIALIZER))
+        _write(self.metadata / "timestamp.json", timestamp.to_bytes(SERIALIZER))
 
     def _check_online(self, signer) -> None:
         """Refuse to sign with a key the root does not name (robots would refuse it as unknown)."""
@@ -266,7 +256,7 @@ class Repository:
         timestamp, the snapshot (and targets) when due.  The names re-signed.
         A due targets role is re-signed as is: its release.json keeps its own
         expiry, so a release near its record's expiry needs a new publish."""
-        due = _expiry(now, expiry.timestamp)
+        due = expires(now, expiry.timestamp)
         targets, snapshot = self.targets(), self.snapshot()
         if targets.signed.expires <= due:
             self._publish_targets(targets, online_signer, expiry, now)
@@ -283,54 +273,6 @@ class Repository:
         """Targets, snapshot and timestamp re-signed at their next versions
         (after a root change names another online key)."""
         self._publish_targets(self.targets(), online_signer, expiry, now)
-
-    # the root --------------------------------------------------------------
-
-    def prepare_root(self, expiry: Expiry, now: datetime.datetime, online_key=None, root_key=None) -> bytes:
-        """The next root, unsigned: the same keys but ``online_key`` (a new
-        online key for targets, snapshot, timestamp) and ``root_key`` (a new
-        root key) where given, a new expiry.  It must be signed by the
-        current root key (and by ``root_key`` if given) before install_root."""
-        root = self.root()
-        root.signatures.clear()
-        root.signed.version += 1
-        root.signed.expires = _expiry(now, expiry.root)
-        changes = [(role, online_key) for role in ONLINE_ROLES if online_key is not None]
-        if root_key is not None:
-            changes.append((Root.type, root_key))
-        for role, key in changes:
-            for keyid in list(root.signed.roles[role].keyids):
-                root.signed.revoke_key(keyid, role)
-            root.signed.add_key(key, role)
-        return root.to_bytes(_SERIALIZER)
-
-    def install_root(self, data: bytes, online_signer, expiry: Expiry, now: datetime.datetime) -> int:
-        """Make the signed root ``data`` current: it must be the next version,
-        signed by the current root's threshold and by its own; then targets,
-        snapshot and timestamp are re-signed with ``online_signer`` (the key
-        the new root names).  Its version."""
-        current = self.root()
-        try:
-            new = Metadata[Root].from_bytes(data)
-        except Exception as error:
-            raise RepositoryError(f"not TUF root metadata ({str(error).splitlines()[0]})") from None
-        if not isinstance(new.signed, Root):
-            raise RepositoryError(f"{new.signed.type} metadata, not a root")
-        if new.signed.version != current.signed.version + 1:
-            raise RepositoryError(f"root version {new.signed.version}: the next root is version "
-                                  f"{current.signed.version + 1}")
-        for signer_root, who in ((current.signed, "the current root key"), (new.signed, "its own root key")):
-            result = signer_root.get_verification_result(Root.type, new.signed_bytes, new.signatures)
-            if not result.verified:
-                raise RepositoryError(f"root version {new.signed.version} is not signed by {who} "
-                                      f"({len(result.signed)} of {result.threshold} signatures); robotfleet keys sign")
-        for role in ONLINE_ROLES:
-            if online_signer.public_key.keyid not in new.signed.roles[role].keyids:
-                raise RepositoryError(f"root version {new.signed.version} does not name the online key "
-                                      f"{online_signer.public_key.keyid[:16]} for {role}")
-        self._write_root(data, new.signed.version)
-        self.resign(online_signer, expiry, now)
-        return new.signed.version
 
     def _prune(self) -> None:
         """Keep the newest KEEP snapshot and targets versions and the target blobs they name."""

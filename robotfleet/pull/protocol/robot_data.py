@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from robotfleet import roster
+from robotfleet import deploy_roles
 from robotfleet.fleet.validate import FleetError, load
 from robotfleet.pull.protocol import record as records
 
@@ -26,7 +26,7 @@ def host_data(robot: str, fleet_path: str | None, registry) -> HostData:
     """The robot's data as pyinfra sees it: every default, its group's, the
     fleet file's (a robot's defaults when no release told the fleet file yet)."""
     if fleet_path is None:
-        return HostData({**roster.group_data("all"), **roster.group_data("robots")})
+        return HostData({**deploy_roles.group_data("all"), **deploy_roles.group_data("robots")})
     try:
         fleet = load(Path(fleet_path), registry)
     except FleetError as error:
@@ -34,7 +34,7 @@ def host_data(robot: str, fleet_path: str | None, registry) -> HostData:
     for group in ("robots", "laptops"):
         for name, data in fleet.hosts(group):
             if name == robot:
-                return HostData({**roster.group_data("all"), **roster.group_data(group), **data})
+                return HostData({**deploy_roles.group_data("all"), **deploy_roles.group_data(group), **data})
     raise DataError(f"{fleet_path}: no host named {robot!r}")
 
 

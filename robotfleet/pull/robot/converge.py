@@ -27,7 +27,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from robotfleet import CHECKOUT, roster
+from robotfleet import CHECKOUT, deploy_roles
 from robotfleet import status_parts
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.protocol import record as records
@@ -94,8 +94,8 @@ def errors_of(stderr: str, limit: int = 3) -> list[str]:
 
 
 def run(args) -> dict:
-    roles = roster.roles()
-    data = host_data(args.robot, args.fleet, roster.registry())
+    roles = deploy_roles.roles()
+    data = host_data(args.robot, args.fleet, deploy_roles.registry())
     record = records.parse(Path(args.record).read_bytes())
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True, mode=0o700)
@@ -133,8 +133,8 @@ def run(args) -> dict:
 
 
 def status(args) -> dict:
-    roles = roster.roles()
-    data = host_data(args.robot, args.fleet, roster.registry())
+    roles = deploy_roles.roles()
+    data = host_data(args.robot, args.fleet, deploy_roles.registry())
     watched = watch(roles, data)
     row = status_row(args.robot, roles, data)
     return {"row": row, "missing": missing(roles, data, row), "watch": watched}

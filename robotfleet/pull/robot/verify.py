@@ -18,7 +18,7 @@ record below it (or below the version the agent applied) is a rollback.
 A refresh works on a copy of the trusted metadata and swaps it in (one
 rename of the ``tuf`` link) only when everything verified: a refusal leaves
 the trusted state as it was.  Every refusal is a Refused with one line and
-a reason from REASONS.  Nothing here needs the operator's keys.  A
+a reason from REASONS (robotfleet/pull/robot/refusals.py).  Nothing here needs the operator's keys.  A
 successful refresh also leaves what a check of the same repository would
 read (robotfleet/pull/robot/trust_state.py), so the next one can skip TUF when
 nothing changed.
@@ -40,27 +40,11 @@ from tuf.ngclient import FetcherInterface, Updater, UpdaterConfig
 
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.robot import fetched, trust_state, tufprivate
+from robotfleet.pull.robot.refusals import (EXPIRED, MALFORMED, ROLLBACK, WORDS, Refused, classified, first_line,
+                                            unsigned_reason)
+# A refusal's reasons, read here by the agent, media, prefetch and their tests (as verify.Refused is).
+from robotfleet.pull.robot.refusals import REASONS, TAMPERED, UNAVAILABLE, UNKNOWN_KEY, UNSIGNED  # noqa: F401
 from robotfleet.pull.robot.trust_state import EPOCH, STATE_FORMAT, State  # noqa: F401 (where they were)
-
-# Why a refresh or a download was refused (machine-readable, in reports).
-UNSIGNED = "unsigned"  # metadata with no signature
-UNKNOWN_KEY = "unknown-key"  # signed, but not by a key the trusted root names for that role
-TAMPERED = "tampered"  # a signature by a trusted key that does not verify; a hash or length that differs
-ROLLBACK = "rollback"  # a version below one already trusted or applied
-EXPIRED = "expired"  # expired metadata or record (a freeze: the newest release withheld)
-MALFORMED = "malformed"  # not TUF metadata or not a release record
-UNAVAILABLE = "unavailable"  # could not be fetched (no file, no answer): nothing was judged
-REASONS = (UNSIGNED, UNKNOWN_KEY, TAMPERED, ROLLBACK, EXPIRED, MALFORMED, UNAVAILABLE)
-
-
-class Refused(Exception):
-    """A release (or its metadata, or a target) the robot does not accept.
-    ``reason``: one of REASONS; ``str()``: one line for the journal and the report."""
-
-    def __init__(self, reason: str, line: str):
-        super().__init__(line)
-        self.reason = reason
-        self.line = line
 
 
 def _now() -> datetime.datetime:
@@ -90,7 +74,7 @@ def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = 
             raise ValueError("not a root")
         md.signed.verify_delegate(Root.type, md.signed_bytes, md.signatures)
     except Exception as error:  # every way a root can be bad is one refusal
-        raise Refused(MALFORMED, f"trust root: not a self-signed TUF root ({_first_line(error)})") from None
+        raise Refused(MALFORMED, f"trust root: not a self-signed TUF root ({first_line(error)})") from None
     state_dir = Path(state_dir)
     state_dir.mkdir(parents=True, exist_ok=True, mode=0o700)
     fresh = Path(tempfile.mkdtemp(dir=state_dir, prefix="tuf-"))
@@ -172,28 +156,6 @@ class _Recording(FetcherInterface):
         self.last = b"".join(kept)
 
 
-def _first_line(error: BaseException) -> str:
-    text = str(error).strip() or type(error).__name__
-    return text.splitlines()[0][:300]
-
-
-def _unsigned_reason(data: bytes | None, metadata_dir: Path) -> tuple[str, str]:
-    """For metadata whose signatures do not meet its threshold: unsigned,
-    unknown key or tampered, and the role's name."""
-    try:
-        md = Metadata.from_bytes(data or b"")
-        role = md.signed.type
-        trusted = Metadata[Root].from_file(str(metadata_dir / "root.json")).signed
-        keyids = set(trusted.roles[role].keyids)
-    except Exception:  # unreadable here means the refusal stays "tampered"
-        return TAMPERED, "metadata"
-    if not md.signatures:
-        return UNSIGNED, role
-    if not keyids & set(md.signatures):
-        return UNKNOWN_KEY, role
-    return TAMPERED, role
-
-
 def _config() -> UpdaterConfig:
     """ngclient's settings; a metadata file's cap is the one the cheap check reads by (fetched.py)."""
     return UpdaterConfig(app_user_agent="robotfleet", root_max_length=fetched.ROOT_MAX,
@@ -249,12 +211,12 @@ class Client:
                 updater.refresh()
                 raw, release_file = self._release_bytes(updater, work)
             except exceptions.UnsignedMetadataError as error:
-                reason, role = _unsigned_reason(recording.last, work)
-                raise Refused(reason, f"{role}.json: {_WORDS[reason]} ({_first_line(error)})") from None
+                reason, role = unsigned_reason(recording.last, work)
+                raise Refused(reason, f"{role}.json: {WORDS[reason]} ({first_line(error)})") from None
             except Refused:
                 raise
             except Exception as error:  # classified below, never let through
-                refused = _classified(error)
+                refused = classified(error)
                 raise Refused(refused.reason, f"releases at {self.source}: {refused.line}") from None
             try:
                 found = records.parse(raw)
@@ -333,7 +295,7 @@ class Client:
             except Refused:
                 raise
             except Exception as error:  # classified, never let through
-                refused = _classified(error)
+                refused = classified(error)
                 raise Refused(refused.reason, f"{path}: {refused.line}") from None
             found[path] = destination
         return found
@@ -343,26 +305,3 @@ def _https_fetcher() -> FetcherInterface:
     from tuf.ngclient import Urllib3Fetcher
 
     return Urllib3Fetcher(app_user_agent="robotfleet")
-
-
-_WORDS = {UNSIGNED: "not signed", UNKNOWN_KEY: "signed by a key the robot does not trust",
-          TAMPERED: "changed after it was signed"}
-
-
-def _classified(error: BaseException) -> Refused:
-    """python-tuf's exception -> Refused with one of REASONS."""
-    line = _first_line(error)
-    if isinstance(error, exceptions.LengthOrHashMismatchError):
-        return Refused(TAMPERED, f"does not match what was signed ({line})")
-    if isinstance(error, exceptions.DownloadLengthMismatchError):
-        return Refused(TAMPERED, f"longer than what was signed ({line})")
-    if isinstance(error, exceptions.BadVersionNumberError):
-        return Refused(ROLLBACK, f"older than what the robot trusts: refused as a rollback ({line})")
-    if isinstance(error, exceptions.ExpiredMetadataError):
-        return Refused(EXPIRED, f"expired: refused as a freeze ({line})")
-    if isinstance(error, exceptions.DownloadError):
-        cause = error.__cause__ or error.__context__
-        return Refused(UNAVAILABLE, f"could not be fetched ({line}{': ' + _first_line(cause) if cause else ''})")
-    if isinstance(error, OSError):
-        return Refused(UNAVAILABLE, f"could not be read or written ({line})")
-    return Refused(MALFORMED, f"not valid TUF metadata ({line})")

@@ -38,7 +38,7 @@ function's signature is fixed once it is defined, so each is made once.
 when it calls it (SPEEDUPS' sites), only where what it was written from is
 still the same source (its digest, pinned in robotfleet/pyinfra_private.py):
 a pyinfra release that changes one keeps its own, slower but right, and one
-line says so.  tests/unit/test_speedups.py checks they answer as pyinfra's
+line says so.  tests/unit/test_pyinfra_patches.py checks they answer as pyinfra's
 own do, and are active with the pyinfra this project installs.
 """
 
@@ -281,7 +281,7 @@ def install() -> list[str]:
         if changed:
             module, _, name = changed.partition(":")
             logger.warning(f"robotfleet: pyinfra {pyinfra.__version__} has another {module}.{name} than "
-                           "robotfleet/speedups.py was written from; pyinfra's own runs (slower, same answers)")
+                           "robotfleet/pyinfra_patches.py was written from; pyinfra's own runs (slower, same answers)")
             continue
         for site in speedup.sites:
             owner, name = _owner(site)

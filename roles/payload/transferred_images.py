@@ -12,7 +12,7 @@ from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 import roles.docker.hooks as docker_hooks
 from roles.payload.credentials import registry_key
 import roles.payload.payloadctl.imageref as imageref
-import roles.payload.push as push
+import roles.payload.image_transfer as image_transfer
 import roles.payload.services as services
 
 
@@ -45,10 +45,10 @@ def push_more_images(data, snap: Snapshot, auths: dict | None = None) -> None:
     (``auths``: registry -> Credentials or None)."""
     if data.payload_delivery != "push":
         return
-    layers = push.parse_layer_sets(snap.probes.get("docker_layers", ""))
+    layers = image_transfer.parse_layer_sets(snap.probes.get("docker_layers", ""))
     for index, ref in enumerate(more_images(data)):
         credentials = (auths or {}).get(registry_key(imageref.parse(ref).registry))
-        push.push_image(
+        image_transfer.push_image(
             name=f"Send the payload image {ref} over SSH",
             image=ref,
             remote_id=snap.probes.get(f"payload_image_id_{index + 1}", "").strip(),

@@ -1,4 +1,4 @@
-"""robotfleet/speedups.py answers as pyinfra's own functions do, is active
+"""robotfleet/pyinfra_patches.py answers as pyinfra's own functions do, is active
 with the pyinfra this project installs, and steps aside, with one line, on
 a pyinfra whose functions changed."""
 
@@ -16,11 +16,11 @@ from pyinfra.api import util as pyinfra_util
 from pyinfra.api.host import HostData
 from pyinfra.api.inventory import Inventory
 
-import robotfleet.provision  # noqa: F401 (installs the speedups, as a deploy does)
-from robotfleet import speedups
+import robotfleet.provision  # noqa: F401 (installs the patches, as a deploy does)
+from robotfleet import pyinfra_patches
 
 operation = importlib.import_module("pyinfra.api.operation")  # pyinfra.api.operation is the decorator
-pyinfra_order = speedups.original("order")
+pyinfra_order = pyinfra_patches.original("order")
 
 
 def _nested(depth: int, call):
@@ -39,24 +39,25 @@ def test_operation_order_is_pyinfras(monkeypatch, deploy_file, is_cli):
     # Both called from the same line, so the stacks are the same but for the
     # functions' own frames.
     for _ in range(2):  # the second time from the places looked up the first
-        theirs, ours = (_nested(4, lambda f=f: f(state)) for f in (pyinfra_order, speedups.operation_order_from_stack))
+        theirs, ours = (_nested(4, lambda f=f: f(state))
+                        for f in (pyinfra_order, pyinfra_patches.operation_order_from_stack))
         assert ours == theirs
     if deploy_file == __file__:
         assert len(theirs) >= 5 + is_cli  # the line numbers of the nested calls at least
 
 
 def test_global_arguments_are_pyinfras():
-    ours = speedups.all_global_arguments()
-    assert ours == speedups.original("arguments")()
+    ours = pyinfra_patches.all_global_arguments()
+    assert ours == pyinfra_patches.original("arguments")()
     assert "_sudo" in dict(ours)
     ours.clear()  # a caller's copy: the next call still has them all
-    assert speedups.all_global_arguments() == speedups.original("arguments")()
+    assert pyinfra_patches.all_global_arguments() == pyinfra_patches.original("arguments")()
 
 
 def test_connectors_are_pyinfras(monkeypatch):
-    monkeypatch.setattr(pyinfra_connectors, "entry_points", speedups.original("connectors"))
+    monkeypatch.setattr(pyinfra_connectors, "entry_points", pyinfra_patches.original("connectors"))
     theirs = pyinfra_connectors.get_all_connectors()
-    monkeypatch.setattr(pyinfra_connectors, "entry_points", speedups.entry_points)
+    monkeypatch.setattr(pyinfra_connectors, "entry_points", pyinfra_patches.entry_points)
     assert pyinfra_connectors.get_all_connectors() == theirs
     assert pyinfra_connectors.get_all_connectors() == theirs  # from the entry points read once
     assert {"ssh", "local", "fleet"} <= set(theirs)
@@ -68,11 +69,11 @@ def test_signatures_are_inspects_and_made_once():
     from pyinfra.operations import apt, files
 
     for function in (files.put, apt.packages, _nested):
-        assert speedups.signature(function) == inspect.signature(function)
-        assert speedups.signature(function) is speedups.signature(function)
-    speedups.signature(files.directory).bind("/etc/x", present=True)
+        assert pyinfra_patches.signature(function) == inspect.signature(function)
+        assert pyinfra_patches.signature(function) is pyinfra_patches.signature(function)
+    pyinfra_patches.signature(files.directory).bind("/etc/x", present=True)
     refusals = []
-    for made in (inspect.signature, speedups.signature):
+    for made in (inspect.signature, pyinfra_patches.signature):
         with pytest.raises(TypeError) as refused:
             made(files.directory).bind("/etc/x", nothing=1)
         refusals.append(str(refused.value))
@@ -85,9 +86,9 @@ def test_groups_data_is_pyinfras_for_each_inventory():
 
     first, second = inventory(1), inventory(10)
     for groups in (["robots"], ["robots", "site"], ["site", "robots"], [], ["nowhere"]):
-        theirs = speedups.original("groups_data")(first, groups)
-        assert speedups.groups_data(first, groups) == speedups.groups_data(first, groups) == theirs
-    assert speedups.groups_data(second, ["robots"]) == {"a": 10, "b": 2}  # each inventory its own
+        theirs = pyinfra_patches.original("groups_data")(first, groups)
+        assert pyinfra_patches.groups_data(first, groups) == pyinfra_patches.groups_data(first, groups) == theirs
+    assert pyinfra_patches.groups_data(second, ["robots"]) == {"a": 10, "b": 2}  # each inventory its own
 
 
 def test_global_arguments_from_layered_host_data_are_pyinfras():
@@ -105,21 +106,21 @@ def test_global_arguments_from_layered_host_data_are_pyinfras():
     state = State(inventory, Config())
     host = inventory.get_host("h1")
     host.data._use_sudo_password = False  # the override layer
-    pyinfras = speedups.original("pop_arguments")
+    pyinfras = pyinfra_patches.original("pop_arguments")
     cases = [{}, {"_sudo": False, "_env": {"B": "op"}, "keep": 1}, {"_timeout": 9, "_serial": True}]
     for deploy_kwargs in (None, {"_sudo_user": "from-deploy", "_retries": 2}):
         host.current_deploy_kwargs = deploy_kwargs
         for kwargs in cases:
             theirs_kwargs, ours_kwargs = dict(kwargs), dict(kwargs)
             theirs = pyinfras(state, host, theirs_kwargs)
-            ours = speedups.pop_global_arguments(state, host, ours_kwargs)
+            ours = pyinfra_patches.pop_global_arguments(state, host, ours_kwargs)
             assert ours == theirs and ours_kwargs == theirs_kwargs
     assert ours[0]["_sudo_user"] == "from-deploy" and ours[0]["_timeout"] == 9
-    for pop in (pyinfras, speedups.pop_global_arguments):
+    for pop in (pyinfras, pyinfra_patches.pop_global_arguments):
         with pytest.raises(ArgumentTypeError, match="Invalid argument `_timeout`"):
             pop(state, host, {"_timeout": "soon"})
     # No argument name is an attribute of HostData itself (getattr would find that first).
-    assert not {key for key, _ in speedups.all_global_arguments()} & set(dir(host.data))
+    assert not {key for key, _ in pyinfra_patches.all_global_arguments()} & set(dir(host.data))
 
 
 def test_host_data_lookups_are_pyinfras():
@@ -130,12 +131,12 @@ def test_host_data_lookups_are_pyinfras():
     host = inventory.get_host("h1")
     host.data.everywhere = "override"
     host.data.__dict__["datas"] += (OrderedDict(mapping_only=3),)  # a layer that is no plain dict
-    theirs = speedups.original("host_data")
+    theirs = pyinfra_patches.original("host_data")
     for key in ("everywhere", "group_only", "deep", "mapping_only"):
-        ours = speedups.host_data_getattr(host.data, key)
+        ours = pyinfra_patches.host_data_getattr(host.data, key)
         assert ours == theirs(host.data, key)
-    assert speedups.host_data_getattr(host.data, "deep") is not inventory.get_data()["deep"]  # a copy, as theirs
-    for lookup in (theirs, speedups.host_data_getattr):
+    assert pyinfra_patches.host_data_getattr(host.data, "deep") is not inventory.get_data()["deep"]  # a copy, as theirs
+    for lookup in (theirs, pyinfra_patches.host_data_getattr):
         with pytest.raises(AttributeError, match="Host `h1` has no data `nowhere`"):
             lookup(host.data, "nowhere")
 
@@ -145,36 +146,37 @@ ALL = ["order", "arguments", "connectors", "groups_data", "pop_arguments", "host
 
 def test_the_speedups_are_active_with_the_pyinfra_this_project_installs():
     """No digest forced: the functions pyinfra calls are the copies."""
-    assert operation.get_operation_order_from_stack is speedups.operation_order_from_stack
-    assert arguments.all_global_arguments is speedups.all_global_arguments
-    assert speedups.install() == ALL  # a second install finds them in place
-    assert pyinfra_connectors.entry_points is speedups.entry_points
-    assert Inventory.get_groups_data is speedups.groups_data
-    assert HostData.__getattr__ is speedups.host_data_getattr
-    assert operation.signature is speedups.signature
+    assert operation.get_operation_order_from_stack is pyinfra_patches.operation_order_from_stack
+    assert arguments.all_global_arguments is pyinfra_patches.all_global_arguments
+    assert pyinfra_patches.install() == ALL  # a second install finds them in place
+    assert pyinfra_connectors.entry_points is pyinfra_patches.entry_points
+    assert Inventory.get_groups_data is pyinfra_patches.groups_data
+    assert HostData.__getattr__ is pyinfra_patches.host_data_getattr
+    assert operation.signature is pyinfra_patches.signature
     for module in ("operation", "deploy", "facts"):
-        assert importlib.import_module(f"pyinfra.api.{module}").pop_global_arguments is speedups.pop_global_arguments
+        own = importlib.import_module(f"pyinfra.api.{module}").pop_global_arguments
+        assert own is pyinfra_patches.pop_global_arguments
 
 
 @pytest.fixture
 def pyinfras_own(monkeypatch):
     """pyinfra's functions back where pyinfra calls them, as before any install."""
-    for speedup in speedups.SPEEDUPS.values():
+    for speedup in pyinfra_patches.SPEEDUPS.values():
         for site in speedup.sites:
-            monkeypatch.setattr(*speedups._owner(site), speedups._ORIGINAL[site])
+            monkeypatch.setattr(*pyinfra_patches._owner(site), pyinfra_patches._ORIGINAL[site])
 
 
 def _lines(caplog) -> list[str]:
-    return [r.getMessage() for r in caplog.records if "speedups" in r.getMessage()]
+    return [r.getMessage() for r in caplog.records if "pyinfra_patches" in r.getMessage()]
 
 
 def test_install_replaces_what_pyinfra_calls(pyinfras_own, caplog):
-    assert HostData.__getattr__ is speedups.original("host_data")
-    assert speedups.install() == ALL
-    assert operation.get_operation_order_from_stack is speedups.operation_order_from_stack
-    assert arguments.all_global_arguments is speedups.all_global_arguments
-    assert Inventory.get_groups_data is speedups.groups_data
-    assert HostData.__getattr__ is speedups.host_data_getattr
+    assert HostData.__getattr__ is pyinfra_patches.original("host_data")
+    assert pyinfra_patches.install() == ALL
+    assert operation.get_operation_order_from_stack is pyinfra_patches.operation_order_from_stack
+    assert arguments.all_global_arguments is pyinfra_patches.all_global_arguments
+    assert Inventory.get_groups_data is pyinfra_patches.groups_data
+    assert HostData.__getattr__ is pyinfra_patches.host_data_getattr
     assert _lines(caplog) == []
 
 
@@ -188,41 +190,42 @@ def test_a_pyinfra_whose_function_changed_keeps_its_own_with_one_line(pyinfras_o
     monkeypatch.setattr(operation, "get_operation_order_from_stack", get_operation_order_from_stack)
     assert pyinfra_util.get_operation_order_from_stack is pyinfra_order  # the one the copy was written from
     caplog.set_level(logging.WARNING, logger="pyinfra")
-    assert speedups.install() == ALL[1:]
+    assert pyinfra_patches.install() == ALL[1:]
     assert operation.get_operation_order_from_stack is get_operation_order_from_stack
-    assert arguments.all_global_arguments is speedups.all_global_arguments
+    assert arguments.all_global_arguments is pyinfra_patches.all_global_arguments
     assert _lines(caplog) == [f"robotfleet: pyinfra {pyinfra.__version__} has another "
-                              "pyinfra.api.operation.get_operation_order_from_stack than robotfleet/speedups.py was "
-                              "written from; pyinfra's own runs (slower, same answers)"]
+                              "pyinfra.api.operation.get_operation_order_from_stack than "
+                              "robotfleet/pyinfra_patches.py was written from; pyinfra's own runs (slower, "
+                              "same answers)"]
 
 
 def test_a_changed_host_data_lookup_keeps_pyinfras_lookup_and_argument_reading(pyinfras_own, monkeypatch, caplog):
     """The copy of pop_global_arguments looks host data up as
     HostData.__getattr__ does: a pyinfra that changed that keeps both."""
-    monkeypatch.setitem(speedups.COPIED_FROM, "pyinfra.api.host:HostData.__getattr__", "0" * 16)
+    monkeypatch.setitem(pyinfra_patches.COPIED_FROM, "pyinfra.api.host:HostData.__getattr__", "0" * 16)
     caplog.set_level(logging.WARNING, logger="pyinfra")
-    assert speedups.install() == ["order", "arguments", "connectors", "groups_data", "signature"]
-    assert HostData.__getattr__ is speedups.original("host_data")
-    assert operation.pop_global_arguments is speedups.original("pop_arguments")
+    assert pyinfra_patches.install() == ["order", "arguments", "connectors", "groups_data", "signature"]
+    assert HostData.__getattr__ is pyinfra_patches.original("host_data")
+    assert operation.pop_global_arguments is pyinfra_patches.original("pop_arguments")
     assert _lines(caplog) == [f"robotfleet: pyinfra {pyinfra.__version__} has another "
-                              "pyinfra.api.host.HostData.__getattr__ than robotfleet/speedups.py was written from; "
-                              "pyinfra's own runs (slower, same answers)"] * 2
+                              "pyinfra.api.host.HostData.__getattr__ than robotfleet/pyinfra_patches.py was written "
+                              "from; pyinfra's own runs (slower, same answers)"] * 2
 
 
 def test_a_changed_caller_or_another_function_where_it_calls_keeps_pyinfras(pyinfras_own, monkeypatch, caplog):
     """get_all_connectors changed (the entry_points it calls is importlib's,
     unchanged), then unchanged but calling another entry_points."""
-    monkeypatch.setitem(speedups.COPIED_FROM, "pyinfra.api.connectors:get_all_connectors", "0" * 16)
+    monkeypatch.setitem(pyinfra_patches.COPIED_FROM, "pyinfra.api.connectors:get_all_connectors", "0" * 16)
     caplog.set_level(logging.WARNING, logger="pyinfra")
-    assert "connectors" not in speedups.install()
-    assert pyinfra_connectors.entry_points is speedups.original("connectors")
+    assert "connectors" not in pyinfra_patches.install()
+    assert pyinfra_connectors.entry_points is pyinfra_patches.original("connectors")
     assert "pyinfra.api.connectors.get_all_connectors" in _lines(caplog)[0]
-    monkeypatch.setitem(speedups.COPIED_FROM, "pyinfra.api.connectors:get_all_connectors",
-                        speedups.digest(pyinfra_connectors.get_all_connectors))
+    monkeypatch.setitem(pyinfra_patches.COPIED_FROM, "pyinfra.api.connectors:get_all_connectors",
+                        pyinfra_patches.digest(pyinfra_connectors.get_all_connectors))
 
     def entry_points(group):  # not importlib's
         return []
 
     monkeypatch.setattr(pyinfra_connectors, "entry_points", entry_points)
-    assert "connectors" not in speedups.install()
+    assert "connectors" not in pyinfra_patches.install()
     assert pyinfra_connectors.entry_points is entry_points

@@ -1,4 +1,5 @@
-"""payload_delivery: push — for robots with no route to the registry.
+"""An image sent over SSH into the robot's `docker load`: payload_delivery
+push, for robots with no route to the registry.
 
 The image comes from the operator machine's Docker engine (Docker SDK for
 Python) over the existing SSH connection, straight into `docker load` on
