@@ -120,6 +120,15 @@ def clear_remote(world) -> None:
                        env=world.op.env(), check=True, capture_output=True)
 
 
+def forget_images(world, images) -> None:
+    """The robot without these images (the lab's other modules ran some of
+    them on it): the tests need images it does not have yet."""
+    for repository, tag in images:
+        ref = by_digest(world.pinned(repository, tag))
+        world.lab.sh(ROBOT, f"id=$(docker image inspect -f '{{{{.Id}}}}' {ref}) && docker image rm -f $id")
+        assert world.lab.sh(ROBOT, f"docker image inspect {ref}")[0] != 0, f"{ROBOT} still has {ref}"
+
+
 @pytest.fixture(scope="module")
 def world(lab, tmp_path_factory):
     started = time.monotonic()
@@ -138,6 +147,7 @@ def world(lab, tmp_path_factory):
     world.check()
     report = world.report()
     assert report["result"] in ("applied", "up-to-date") and report["applied"]["version"] == 1, report
+    forget_images(world, [("ros/payload", "1.1"), ("ros/driver", "1.0"), ("ros/driver", "1.1")])
     phase("pull media: release 1 on the robot by push, its agent enrolled", started)
     yield world
     world.network(True)
