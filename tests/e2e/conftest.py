@@ -21,6 +21,9 @@ PREFIX = os.environ.get("ROBOT_LAB_E2E_PREFIX", "e2e")
 
 ARM64_MODULE = "test_arm64.py"
 PULL_MODULE = "test_pull.py"
+# Pull mode on a robot with no network, and prefetch (tests/e2e/test_pull_media.py).
+PULL_MEDIA_MODULE = "test_pull_media.py"
+PULL_MODULES = (PULL_MODULE, PULL_MEDIA_MODULE)
 # The emulated arm64 robot costs about 4 minutes of the end-to-end layer and
 # 12-15 minutes of one core to build its host image beside it: on CI's two
 # cores that took the test command over its 30 minutes, so it is opt-in.
@@ -44,8 +47,11 @@ def pytest_collection_modifyitems(items):
     # the background while they run (see `lab`).  Its run expects robot1 as
     # the session's first run left it.
     # The pull module turns the robots' sshd off while it runs (it turns it
-    # back on at its end) and leaves them on its own releases: it runs last.
-    items.sort(key=lambda item: (item.fspath.basename == PULL_MODULE, item.fspath.basename == ARM64_MODULE))
+    # back on at its end) and leaves them on its own releases: it runs last,
+    # then the media module (it takes robot3 into its own pull fleet and
+    # removes that fleet's agent and releases at its end).
+    items.sort(key=lambda item: (item.fspath.basename in PULL_MODULES, item.fspath.basename == PULL_MEDIA_MODULE,
+                                 item.fspath.basename == ARM64_MODULE))
 
 
 class Background:
@@ -191,8 +197,8 @@ def lab(request):
 
     started = time.monotonic()
     hosts.down(PREFIX)  # fresh hosts every session, whatever an earlier run left
-    # The git server pull mode needs, only when its module runs (tests/e2e/test_pull.py).
-    git_server = any(item.fspath.basename == PULL_MODULE for item in request.session.items)
+    # The git server pull mode needs, only when one of its modules runs (tests/e2e/test_pull*.py).
+    git_server = any(item.fspath.basename in PULL_MODULES for item in request.session.items)
     state = hosts.up(PREFIX, robots=3, laptops=1, git_server=git_server)
     phase("lab up (images, services, hosts)", started)
     if arm64_wanted() and any(item.fspath.basename == ARM64_MODULE for item in request.session.items):
