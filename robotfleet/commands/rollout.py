@@ -149,7 +149,8 @@ def main(argv=None) -> int:
     if not hosts:
         say(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)")
         return selection.REFUSED
-    pulled = [name for name, data in hosts if pull_part(deploy_roles.roles()).pulls(data)]
+    pulls = pull_part(deploy_roles.roles()).pulls
+    pulled = [name for name, data in hosts if pulls(data)]
     if pulled:  # robots that converge themselves: publish and follow their reports (docs/pull.md)
         from robotfleet.commands import pullrollout
 

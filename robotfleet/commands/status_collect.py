@@ -32,7 +32,8 @@ def collect(inventory_path: str, limits: list[str], roles=None, answered=None, r
     roles = deploy_roles.roles() if roles is None else roles
     inventory = selection.inventory(inventory_path)
     hosts = selection.select(inventory, inventory_path, limits)
-    pulled = [h for h in hosts if pull_part(roles).pulls(h.data)]
+    pulls = pull_part(roles).pulls
+    pulled = [h for h in hosts if pulls(h.data)]
     found = _pull_rows(pulled, remote)
     for host in pulled:
         if found[host.name]["reachable"]:

@@ -127,7 +127,8 @@ def build(checkout, options: Options, roles, registry, version: int, now: dateti
     files = {records.code_path(commit): archive}
     wheel_targets: dict[str, list[str]] = {}
     if options.wheel_cache is not None:
-        platforms = sorted({pull_part(roles).platform(data) for _, data in hosts} | set(options.platforms))
+        platform_of = pull_part(roles).platform
+        platforms = sorted({platform_of(data) for _, data in hosts} | set(options.platforms))
         try:
             requirements = wheels.requirements_of(tree.blob(checkout, commit, "pyproject.toml"))
             for platform in platforms:
