@@ -52,6 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, report_shards, report_store, reports
+from robotfleet.pull.robot import probe
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
@@ -257,9 +258,19 @@ class Remote:
     # -- the releases branch -----------------------------------------------
 
     def fetch_releases(self, branch: str = agent_files.BRANCH) -> str:
-        """Fetch the releases branch and check it out; its commit id."""
+        """Fetch the releases branch and check it out; its commit id.  When
+        the branch is still what the last completed fetch checked out, one
+        probe says so and nothing is fetched (robotfleet/pull/robot/probe.py)."""
         self._init()
+        memo = probe.read_memo(self.repo, self.url, branch)
+        answer = self._probe(memo, branch) if memo else None
+        if answer is not None and answer.commit == memo["commit"]:
+            if answer.validators != memo.get("validators", {}):
+                probe.write_memo(self.repo, self.url, branch, memo["commit"], memo["kind"], answer.validators)
+            return memo["commit"]
+        probe.forget(self.repo)  # from here until the checkout is complete, the work tree is no commit's
         spec = f"+refs/heads/{branch}:{LOCAL_BRANCH}"
+        kind = "https" if is_https(self.url) else "git"
         try:
             self._git("fetch", "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", "--depth=1",
                       self.url, spec, network=True)
@@ -268,13 +279,32 @@ class Remote:
                 raise
             # A static ("dumb") HTTPS remote: the branch whole, then only what is new.
             self._git("fetch", "fetch", "--quiet", "--no-tags", self.url, spec, network=True)
+            kind = "static"
         commit = self._git("fetch", "rev-parse", LOCAL_BRANCH).decode().strip()
         # Whatever is in the directory is made the commit's again (nothing
         # left over is read as part of the repository); a link the branch
         # holds is checked out as a file holding its target's name, never a link.
         self._git("checkout", "-c", "core.symlinks=false", "checkout", "-q", "--force", "--detach", commit)
         self._git("checkout", "clean", "-q", "-d", "-x", "--force")
+        validators = answer.validators if answer is not None and kind == "static" else {}
+        probe.write_memo(self.repo, self.url, branch, commit, kind, validators)
         return commit
+
+    def _probe(self, memo: dict, branch: str) -> probe.Answer | None:
+        """What the remote says the branch is now, in one exchange (None: it
+        could not say; the fetch then asks)."""
+        ref = f"refs/heads/{branch}"
+        if is_https(self.url):
+            started = time.monotonic()
+            ca = f"{self.etc}/remote-ca.pem"
+            answer = probe.https(self.url, branch, memo, ca if os.path.exists(ca) else None, self.timeout)
+            if answer is not None:
+                self.cost.add("probe", answer.sent, answer.received, time.monotonic() - started)
+            return answer
+        # --heads: protocol v2 then asks for refs/heads/ only, not every report ref
+        listing = self._git("probe", "-c", "protocol.version=2", "ls-remote", "--heads", self.url, branch,
+                            network=True)
+        return probe.Answer(probe.commit_of(listing, ref))
 
     # -- reports -----------------------------------------------------------
 

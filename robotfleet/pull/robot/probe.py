@@ -1,0 +1,222 @@
+"""Whether the releases branch is still the commit the last completed fetch
+checked out: an idle check asks only that, and fetches nothing.
+
+The last fetch that got as far as a complete checkout leaves a memo in the
+agent's repository (``.git/robot-pull-fetched.json``: the remote, the branch,
+the commit, how the remote answered, and a static remote's validators); a
+fetch removes it before it starts, so a memo always names what the work
+tree holds.  Then an idle check is one exchange:
+
+- over HTTPS, one request from this process (no git, no curl): to a static
+  copy a conditional GET of ``info/refs`` (If-None-Match / If-Modified-Since:
+  304, nothing changed), to git's smart HTTP one protocol-v2 ``ls-refs``
+  POST for the one branch (robotfleet/pull/robot/transport.py asks
+  ``git ls-remote`` the same over SSH);
+- an answer naming the memo's commit: the check goes on with that checkout;
+  anything else (another commit, an error, a redirect, a proxy in the
+  environment, credentials in the URL): the full fetch, as before.
+
+What a server's answer can do is what serving the old branch could: a
+server that keeps answering 304 freezes the robot on its last release, which
+TUF's timestamp expiry catches, as it does a replayed branch (the agent
+still recalls or verifies the same metadata at each check,
+robotfleet/pull/robot/trust_state.py).  The server's certificate is checked
+as git checks it (``remote-ca.pem``, else the system's CAs).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib import parse
+
+from robotfleet import atomicfile
+
+MEMO = "robot-pull-fetched.json"
+ANSWER_MAX = 1 << 16  # an ls-refs answer for one branch is one line
+INFO_REFS_MAX = 32 << 20  # a static copy's info/refs lists every ref (reports too: ~64 bytes each)
+_PROXIES = ("https_proxy", "HTTPS_PROXY", "all_proxy", "ALL_PROXY")
+_TCP_INFO_BYTES = struct.Struct("=QQ")  # tcpi_bytes_acked, tcpi_bytes_received (Linux >= 4.1)
+_TCP_INFO_AT = 120
+STABLE_AFTER = 60  # seconds between a Last-Modified and the Date it is trusted at
+
+
+@dataclass
+class Answer:
+    """What one probe found: the branch's commit (None: unknown, fetch), the
+    static copy's new validators, and its cost."""
+
+    commit: str | None
+    validators: dict = field(default_factory=dict)
+    sent: int = 0
+    received: int = 0
+
+
+def memo_path(repo) -> Path:
+    return Path(repo) / ".git" / MEMO
+
+
+def read_memo(repo, url: str, branch: str) -> dict | None:
+    """The memo of the last completed fetch of ``branch`` from ``url``, or None."""
+    try:
+        memo = json.loads(memo_path(repo).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(memo, dict) or memo.get("url") != url or memo.get("branch") != branch:
+        return None
+    commit = memo.get("commit")
+    if not isinstance(commit, str) or len(commit) not in (40, 64) or not _hex(commit):
+        return None
+    return memo
+
+
+def write_memo(repo, url: str, branch: str, commit: str, kind: str, validators: dict | None = None) -> None:
+    memo = {"url": url, "branch": branch, "commit": commit, "kind": kind, "validators": validators or {}}
+    atomicfile.write(memo_path(repo), json.dumps(memo, sort_keys=True) + "\n")
+
+
+def forget(repo) -> None:
+    memo_path(repo).unlink(missing_ok=True)
+
+
+def _hex(text: str) -> bool:
+    return all(c in "0123456789abcdef" for c in text)
+
+
+def commit_of(listing: bytes, ref: str) -> str | None:
+    """The object id ``listing`` ("<oid> <ref>" or "<oid>\\t<ref>" lines, as
+    ls-remote, ls-refs and info/refs give them) names for ``ref``."""
+    for line in listing.splitlines():
+        parts = line.split(maxsplit=2)
+        if len(parts) >= 2 and parts[1].decode(errors="replace") == ref:
+            oid = parts[0].decode(errors="replace")
+            return oid if len(oid) in (40, 64) and _hex(oid) else None
+    return None
+
+
+def pkt_lines(data: bytes) -> bytes | None:
+    """The payload of git's pkt-line stream ``data`` up to its flush, lines
+    joined; None when it is not one."""
+    out, at = [], 0
+    while at + 4 <= len(data):
+        try:
+            size = int(data[at:at + 4], 16)
+        except ValueError:
+            return None
+        if size == 0:
+            return b"".join(out)
+        if size < 4 or at + size > len(data):
+            return None
+        out.append(data[at + 4:at + size])
+        at += size
+    return None
+
+
+def pkt(line: str) -> bytes:
+    return f"{len(line) + 4:04x}{line}".encode()
+
+
+def ls_refs_request(ref: str) -> bytes:
+    """A protocol-v2 ``ls-refs`` for the one ref (git's smart HTTP, stateless)."""
+    return pkt("command=ls-refs\n") + b"0001" + pkt(f"ref-prefix {ref}\n") + b"0000"
+
+
+def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float) -> Answer | None:
+    """Ask the HTTPS remote ``url`` what ``branch`` is now, the way ``memo``
+    says it answered last; None when this remote cannot be probed here
+    (a proxy, credentials in the URL: git's own fetch knows how)."""
+    parts = parse.urlsplit(url)
+    if parts.scheme != "https" or parts.username or parts.password or any(os.environ.get(p) for p in _PROXIES):
+        return None
+    import http.client
+    import ssl
+
+    context = ssl.create_default_context(cafile=ca if ca and os.path.exists(ca) else None)
+    # TLS 1.3 only: its ClientHello is ~300 bytes shorter; a server without it
+    # fails the probe, and git's own fetch (which takes TLS 1.2) reads the branch.
+    context.minimum_version = ssl.TLSVersion.TLSv1_3
+    connection = http.client.HTTPSConnection(parts.hostname, parts.port or 443, timeout=timeout, context=context)
+    base = parts.path.rstrip("/")
+    ref = f"refs/heads/{branch}"
+    counter = None
+    try:
+        connection.connect()
+        counter = _counter(connection.sock)
+        if memo.get("kind") == "static":
+            headers = {"If-None-Match": memo.get("validators", {}).get("etag"),
+                       "If-Modified-Since": memo.get("validators", {}).get("last_modified")}
+            connection.request("GET", f"{base}/info/refs", headers={k: v for k, v in headers.items() if v})
+            found = _static(connection.getresponse(), memo, ref)
+        else:
+            body = ls_refs_request(ref)
+            connection.putrequest("POST", f"{base}/git-upload-pack", skip_accept_encoding=True)
+            for name, value in (("Content-Type", "application/x-git-upload-pack-request"),
+                                ("Git-Protocol", "version=2"), ("Content-Length", str(len(body)))):
+                connection.putheader(name, value)
+            connection.endheaders(body)
+            answer = connection.getresponse()
+            listing = pkt_lines(answer.read(ANSWER_MAX + 1)) if answer.status == 200 else None
+            found = Answer(commit_of(listing, ref) if listing is not None else None)
+        found.sent, found.received = _tcp_bytes(counter)
+        return found
+    except (OSError, http.client.HTTPException, ssl.SSLError):
+        return Answer(None, sent=_tcp_bytes(counter)[0], received=_tcp_bytes(counter)[1])
+    finally:
+        connection.close()
+        if counter is not None:
+            counter.close()
+
+
+def _static(answer, memo: dict, ref: str) -> Answer:
+    """A static copy's answer to the conditional GET of info/refs."""
+    if answer.status == 304:
+        answer.read(ANSWER_MAX)
+        return Answer(memo["commit"], memo.get("validators") or {})
+    if answer.status != 200:
+        return Answer(None)
+    body = answer.read(INFO_REFS_MAX + 1)
+    return Answer(commit_of(body, ref) if len(body) <= INFO_REFS_MAX else None, validators_of(answer))
+
+
+def validators_of(answer) -> dict:
+    """The validators of a static copy's answer that may stand for its
+    content.  A file's Last-Modified (and the ETag servers make of it, e.g.
+    nginx's mtime and size) has one-second steps: two publishes in one
+    second could share them.  So, as RFC 9110 8.8.2.2 says, they stand
+    only when Last-Modified is at least a minute before the answer's Date;
+    else none is kept (the next check asks unconditionally)."""
+    from email.utils import parsedate_to_datetime
+
+    etag, modified, date = (answer.getheader(name) for name in ("ETag", "Last-Modified", "Date"))
+    if modified:
+        try:
+            if (parsedate_to_datetime(date) - parsedate_to_datetime(modified)).total_seconds() < STABLE_AFTER:
+                return {}
+        except (TypeError, ValueError):
+            return {}
+    return {k: v for k, v in (("etag", etag), ("last_modified", modified)) if v}
+
+
+def _counter(sock):
+    """Another handle on the connection's socket, kept open until it is
+    counted (http.client closes its own when the server says so)."""
+    import socket
+
+    return socket.socket(fileno=os.dup(sock.fileno()))
+
+
+def _tcp_bytes(sock) -> tuple[int, int]:
+    """(bytes sent, bytes received) over the connection, TLS included: the
+    kernel's count for the socket; (0, 0) where it has none."""
+    import socket
+
+    if sock is None:
+        return 0, 0
+    try:
+        info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, _TCP_INFO_AT + _TCP_INFO_BYTES.size)
+        return _TCP_INFO_BYTES.unpack_from(info, _TCP_INFO_AT)
+    except (OSError, struct.error, AttributeError):
+        return 0, 0
