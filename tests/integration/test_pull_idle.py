@@ -92,3 +92,30 @@ def test_a_release_to_try_again_is_verified_in_full_before_it_is_applied(world):
     _, outcome, _ = world.wake()  # the same repository: recalled, then verified in full to download
     assert outcome.result == "applied"
     assert agent.load_state(world.state)["applied"]["version"] == 2
+
+
+def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, tmp_path):
+    """robot-pull.service names a bytecode directory: the first check
+    compiles the agent's modules there (one directory per tree, the other
+    trees' removed), the next ones read them; the tree gets none."""
+    import os
+
+    import robotfleet
+    from robotfleet.pull.protocol import agent_files
+
+    config = tmp_path / "agent.json"
+    config.write_text(world.config.to_json())
+    cache = tmp_path / "pycache"
+    other = cache / ("ab" * 32)
+    other.mkdir(parents=True)
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(cache))
+    run = [sys.executable, "-m", "robotfleet.pull.agent", "--config", str(config)]
+    done = subprocess.run(run, capture_output=True, text=True, env=env, check=True)
+    assert "robot-pull: up-to-date" in done.stdout
+    mine = cache / robotfleet.CHECKOUT.name
+    compiled = {p: p.stat().st_mtime_ns for p in mine.rglob("*.pyc")}
+    assert any(p.name.startswith("transport.") for p in compiled) and not other.exists()
+    assert not list((robotfleet.CHECKOUT / "robotfleet" / "pull" / "robot").glob("__pycache__/transport.*"))
+    subprocess.run(run, capture_output=True, text=True, env=env, check=True)
+    assert {p: p.stat().st_mtime_ns for p in mine.rglob("*.pyc")} == compiled  # read, not written again
+    assert "ROBOT_PULL_PYCACHE=/var/lib/robot-pull/pycache" in agent_files.service_unit()
