@@ -38,23 +38,22 @@ import hashlib
 import json
 import os
 import resource
-import secrets
-import shutil
 import sys
 import time
 from pathlib import Path
 
 import robotfleet
 from robotfleet import atomicfile
-from robotfleet.pull.robot import prefetch, release_run, trust_state
+from robotfleet.pull.robot import trust_state
 from robotfleet.pull.protocol import agent_files, enrollment, reports, waves
 from robotfleet.pull.robot import enrollment_proof
 from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.robot.transport import Remote, TransportError
 
-# trust (python-tuf), prepare and wheels are imported where a check needs
-# them: a check that finds nothing new never does.
+# trust (python-tuf), prepare, wheels, prefetch, release_run (and what they
+# import) are imported where a check needs them: a check that finds nothing
+# new never does (robotfleet/pull/agent.py: each check is a new process).
 
 STATE_FILE = "agent-state.json"
 # What ssh says when the git server knows none of the robot's keys: before
@@ -108,7 +107,8 @@ class Wake:
     def check_disk(self) -> None:
         for path in (self.config.state_dir, self.config.docker_dir):
             if os.path.isdir(path):
-                free = shutil.disk_usage(path).free // (1 << 20)
+                found = os.statvfs(path)  # shutil.disk_usage's free, without its import
+                free = found.f_bavail * found.f_frsize // (1 << 20)
                 if free < self.config.min_free_mb:
                     raise Outcome("failed", f"only {free} MB free on {path}'s file system "
                                             f"(pull_min_free_mb: {self.config.min_free_mb}); nothing was downloaded")
@@ -176,7 +176,10 @@ class Wake:
         return decision
 
     def apply(self, client, wave: int | None) -> Outcome:
-        from robotfleet.pull.robot import prepare, verify
+        import secrets
+        import shutil
+
+        from robotfleet.pull.robot import prepare, release_run, verify
         from robotfleet.pull.protocol import platforms
 
         record, robot = self.record, self.config.robot
@@ -241,6 +244,8 @@ class Wake:
             if decision.result == deciding.APPLY:
                 outcome = self.apply(client or self.verify(), decision.wave)
             elif decision.result == "waiting":  # time to put it in place: robotfleet/pull/robot/prefetch.py
+                from robotfleet.pull.robot import prefetch
+
                 outcome = Outcome(*prefetch.ahead(self, client, decision), wave=decision.wave)
             else:
                 outcome = Outcome(decision.result, decision.reason, wave=decision.wave)
@@ -273,6 +278,8 @@ class Wake:
         if not code.exists():
             self.status, self.status_time = {}, None
             return
+        from robotfleet.pull.robot import release_run
+
         fleet = (self.state.get("fleet") or {}).get("path")
         self.read_status(release_run.status(self.state_dir, self.config.robot, fleet), code)
 

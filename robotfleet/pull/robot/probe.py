@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import json
 import os
-import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib import parse
@@ -39,8 +38,6 @@ MEMO = "robot-pull-fetched.json"
 ANSWER_MAX = 1 << 16  # an ls-refs answer for one branch is one line
 INFO_REFS_MAX = 32 << 20  # a static copy's info/refs lists every ref (reports too: ~64 bytes each)
 _PROXIES = ("https_proxy", "HTTPS_PROXY", "all_proxy", "ALL_PROXY")
-_TCP_INFO_BYTES = struct.Struct("=QQ")  # tcpi_bytes_acked, tcpi_bytes_received (Linux >= 4.1)
-_TCP_INFO_AT = 120
 STABLE_AFTER = 60  # seconds between a Last-Modified and the Date it is trusted at
 
 
@@ -131,66 +128,56 @@ def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float) -> 
     parts = parse.urlsplit(url)
     if parts.scheme != "https" or parts.username or parts.password or any(os.environ.get(p) for p in _PROXIES):
         return None
-    import http.client
     import ssl
 
-    context = ssl.create_default_context(cafile=ca if ca and os.path.exists(ca) else None)
-    # TLS 1.3 only: its ClientHello is ~300 bytes shorter; a server without it
-    # fails the probe, and git's own fetch (which takes TLS 1.2) reads the branch.
-    context.minimum_version = ssl.TLSVersion.TLSv1_3
-    connection = http.client.HTTPSConnection(parts.hostname, parts.port or 443, timeout=timeout, context=context)
-    base = parts.path.rstrip("/")
-    ref = f"refs/heads/{branch}"
-    counter = None
+    from robotfleet.pull.robot import https_request
+
+    base, ref = parts.path.rstrip("/"), f"refs/heads/{branch}"
+    host = f"Host: {parts.netloc}\r\nUser-Agent: robot-pull\r\n"
+    if memo.get("kind") == "static":
+        validators = memo.get("validators") or {}
+        head = f"GET {base}/info/refs HTTP/1.1\r\n{host}" + "".join(
+            f"{name}: {validators[key]}\r\n" for name, key in (("If-None-Match", "etag"),
+                                                              ("If-Modified-Since", "last_modified"))
+            if isinstance(validators.get(key), str) and validators[key].isprintable())
+        body, limit = b"", INFO_REFS_MAX
+    else:
+        body, limit = ls_refs_request(ref), ANSWER_MAX
+        head = (f"POST {base}/git-upload-pack HTTP/1.1\r\n{host}Content-Type: application/x-git-upload-pack-request"
+                f"\r\nGit-Protocol: version=2\r\nContent-Length: {len(body)}\r\n")
     try:
-        connection.connect()
-        counter = _counter(connection.sock)
-        if memo.get("kind") == "static":
-            headers = {"If-None-Match": memo.get("validators", {}).get("etag"),
-                       "If-Modified-Since": memo.get("validators", {}).get("last_modified")}
-            connection.request("GET", f"{base}/info/refs", headers={k: v for k, v in headers.items() if v})
-            found = _static(connection.getresponse(), memo, ref)
-        else:
-            body = ls_refs_request(ref)
-            connection.putrequest("POST", f"{base}/git-upload-pack", skip_accept_encoding=True)
-            for name, value in (("Content-Type", "application/x-git-upload-pack-request"),
-                                ("Git-Protocol", "version=2"), ("Content-Length", str(len(body)))):
-                connection.putheader(name, value)
-            connection.endheaders(body)
-            answer = connection.getresponse()
-            listing = pkt_lines(answer.read(ANSWER_MAX + 1)) if answer.status == 200 else None
-            found = Answer(commit_of(listing, ref) if listing is not None else None)
-        found.sent, found.received = _tcp_bytes(counter)
-        return found
-    except (OSError, http.client.HTTPException, ssl.SSLError):
-        return Answer(None, sent=_tcp_bytes(counter)[0], received=_tcp_bytes(counter)[1])
-    finally:
-        connection.close()
-        if counter is not None:
-            counter.close()
+        answer = https_request.request(parts.hostname, parts.port or 443, head.encode(), body, ca, timeout, limit)
+    except (OSError, ssl.SSLError, ValueError):
+        return Answer(None)
+    if memo.get("kind") == "static":
+        found = _static(answer, memo, ref)
+    else:
+        listing = pkt_lines(answer.body) if answer.status == 200 else None
+        found = Answer(commit_of(listing, ref) if listing is not None else None)
+    found.sent, found.received = answer.sent, answer.received
+    return found
 
 
 def _static(answer, memo: dict, ref: str) -> Answer:
     """A static copy's answer to the conditional GET of info/refs."""
     if answer.status == 304:
-        answer.read(ANSWER_MAX)
         return Answer(memo["commit"], memo.get("validators") or {})
     if answer.status != 200:
         return Answer(None)
-    body = answer.read(INFO_REFS_MAX + 1)
-    return Answer(commit_of(body, ref) if len(body) <= INFO_REFS_MAX else None, validators_of(answer))
+    return Answer(commit_of(answer.body, ref), validators_of(answer.headers))
 
 
-def validators_of(answer) -> dict:
-    """The validators of a static copy's answer that may stand for its
-    content.  A file's Last-Modified (and the ETag servers make of it, e.g.
-    nginx's mtime and size) has one-second steps: two publishes in one
-    second could share them.  So, as RFC 9110 8.8.2.2 says, they stand
-    only when Last-Modified is at least a minute before the answer's Date;
-    else none is kept (the next check asks unconditionally)."""
+def validators_of(headers: dict) -> dict:
+    """The validators of a static copy's answer (``headers``: lower-case
+    names) that may stand for its content.  A file's Last-Modified (and the
+    ETag servers make of it, e.g. nginx's mtime and size) has one-second
+    steps: two publishes in one second could share them.  So, as RFC 9110
+    8.8.2.2 says, they stand only when Last-Modified is at least a minute
+    before the answer's Date; else none is kept (the next check asks
+    unconditionally)."""
     from email.utils import parsedate_to_datetime
 
-    etag, modified, date = (answer.getheader(name) for name in ("ETag", "Last-Modified", "Date"))
+    etag, modified, date = (headers.get(name) for name in ("etag", "last-modified", "date"))
     if modified:
         try:
             if (parsedate_to_datetime(date) - parsedate_to_datetime(modified)).total_seconds() < STABLE_AFTER:
@@ -200,23 +187,3 @@ def validators_of(answer) -> dict:
     return {k: v for k, v in (("etag", etag), ("last_modified", modified)) if v}
 
 
-def _counter(sock):
-    """Another handle on the connection's socket, kept open until it is
-    counted (http.client closes its own when the server says so)."""
-    import socket
-
-    return socket.socket(fileno=os.dup(sock.fileno()))
-
-
-def _tcp_bytes(sock) -> tuple[int, int]:
-    """(bytes sent, bytes received) over the connection, TLS included: the
-    kernel's count for the socket; (0, 0) where it has none."""
-    import socket
-
-    if sock is None:
-        return 0, 0
-    try:
-        info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, _TCP_INFO_AT + _TCP_INFO_BYTES.size)
-        return _TCP_INFO_BYTES.unpack_from(info, _TCP_INFO_AT)
-    except (OSError, struct.error, AttributeError):
-        return 0, 0

@@ -47,7 +47,6 @@ import subprocess
 import tempfile
 import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -313,6 +312,8 @@ class Remote:
         "error"} when it cannot be read (robots without a report ref left out)."""
         if not robots:
             return {}
+        from concurrent.futures import ThreadPoolExecutor  # not at import: an idle check reads no reports
+
         self._init()
         by_shard = report_shards.spread(robots, self.shards)
         with ThreadPoolExecutor(max_workers=min(report_store.FETCHERS, len(by_shard))) as pool:
