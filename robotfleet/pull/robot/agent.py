@@ -51,9 +51,8 @@ from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.robot.transport import Remote, TransportError
 
-# trust (python-tuf), prepare, wheels, prefetch, release_run (and what they
-# import) are imported where a check needs them: a check that finds nothing
-# new never does (robotfleet/pull/agent.py: each check is a new process).
+# trust (python-tuf), prepare, wheels, prefetch, release_run, shutil...: imported
+# where a check needs them; a check that finds nothing new (a new process) never does.
 
 STATE_FILE = "agent-state.json"
 # What ssh says when the git server knows none of the robot's keys: before
@@ -107,8 +106,8 @@ class Wake:
     def check_disk(self) -> None:
         for path in (self.config.state_dir, self.config.docker_dir):
             if os.path.isdir(path):
-                found = os.statvfs(path)  # shutil.disk_usage's free, without its import
-                free = found.f_bavail * found.f_frsize // (1 << 20)
+                fs = os.statvfs(path)  # what shutil.disk_usage says is free, without its import
+                free = fs.f_bavail * fs.f_frsize // (1 << 20)
                 if free < self.config.min_free_mb:
                     raise Outcome("failed", f"only {free} MB free on {path}'s file system "
                                             f"(pull_min_free_mb: {self.config.min_free_mb}); nothing was downloaded")

@@ -50,7 +50,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files, report_shards, report_store, reports
+from robotfleet.pull.protocol import agent_files, report_shards, reports
 from robotfleet.pull.robot import probe
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
@@ -314,6 +314,8 @@ class Remote:
             return {}
         from concurrent.futures import ThreadPoolExecutor  # not at import: an idle check reads no reports
 
+        from robotfleet.pull.protocol import report_store
+
         self._init()
         by_shard = report_shards.spread(robots, self.shards)
         with ThreadPoolExecutor(max_workers=min(report_store.FETCHERS, len(by_shard))) as pool:
@@ -332,6 +334,8 @@ class Remote:
         # Shards are fetched at once into this repository: no FETCH_HEAD, no gc between them.
         self._git("reports", "-c", "protocol.version=2", "-c", "gc.auto=0", "fetch", "--quiet", "--no-tags",
                   "--no-write-fetch-head", report_shards.shard_url(self.url, shard), *specs, network=True)
+        from robotfleet.pull.protocol import report_store
+
         try:
             return report_store.read(self.repo, local, set(robots), self.timeout)
         except reports.ReportError as error:
