@@ -3,8 +3,9 @@ in time, with the bytes each exchange moved.
 
 - ``fetch_releases``: the releases branch at depth 1 into the agent's own
   repository, checked out (the TUF client reads that directory); protocol
-  v2 asks the server for that one branch only, so an idle check moves a
-  few kilobytes whatever the size of the fleet.
+  v2 asks the server for that one branch only; first one probe
+  (robotfleet/pull/robot/probe.py): a branch still at the commit checked
+  out is not fetched at all.
 - ``fetch_reports``: the reports of named robots (the waves before this
   robot's), each asked for by its own prefix, read as the operator reads
   them (``report_store.read``: each robot's own row, never another's).
