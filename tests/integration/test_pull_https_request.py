@@ -1,0 +1,114 @@
+"""The idle probe's one HTTPS request (robotfleet/pull/robot/https_request.py)
+against a real TLS server on 127.0.0.1 that answers what each test scripts:
+a chunked answer read whole, and a hostile or broken peer (an answer too
+long, a head without end, no HTTP, a server without TLS 1.3, a certificate
+from another CA) refused with one exception, never read without bound."""
+
+from __future__ import annotations
+
+import socket
+import ssl
+import threading
+
+import pytest
+
+from robotfleet.pull.robot import https_request, probe
+from tests.integration import httpsgit
+
+HEAD = b"GET /fleet.git/info/refs HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+
+
+@pytest.fixture(scope="module")
+def tls(tmp_path_factory):
+    return httpsgit.make_ca(tmp_path_factory.mktemp("tls"))
+
+
+class Scripted:
+    """A TLS server answering each connection with ``answer`` (bytes, sent after the request's head)."""
+
+    def __init__(self, tls, answer: bytes, tls12_only: bool = False):
+        ca, cert, key = tls
+        self.context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+        self.context.load_cert_chain(cert, key)
+        if tls12_only:
+            self.context.maximum_version = ssl.TLSVersion.TLSv1_2
+        self.answer, self.requests = answer, []
+        self.socket = socket.create_server(("127.0.0.1", 0))
+        self.port = self.socket.getsockname()[1]
+        threading.Thread(target=self._serve, daemon=True).start()
+
+    def _serve(self):
+        while True:
+            try:
+                raw, _ = self.socket.accept()
+            except OSError:
+                return
+            try:
+                with self.context.wrap_socket(raw, server_side=True) as conn:
+                    data = b""
+                    while b"\r\n\r\n" not in data and (chunk := conn.recv(4096)):
+                        data += chunk
+                    self.requests.append(data)
+                    conn.sendall(self.answer)
+            except (OSError, ssl.SSLError):
+                pass
+
+    def close(self):
+        self.socket.close()
+
+
+def ask(server, ca, limit=1000):
+    return https_request.request("127.0.0.1", server.port, HEAD, b"", str(ca), 10, limit)
+
+
+def test_a_chunked_answer_is_read_whole_and_its_bytes_counted(tls):
+    server = Scripted(tls, b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\nETag: \"a\"\r\n\r\n"
+                           b"5\r\nhello\r\n6;x=y\r\n world\r\n0\r\n\r\n")
+    try:
+        answer = ask(server, tls[0])
+        assert (answer.status, answer.body, answer.headers["etag"]) == (200, b"hello world", '"a"')
+        assert answer.sent > len(HEAD) and answer.received > 100
+        assert server.requests[0].startswith(HEAD) and b"Connection: close\r\n" in server.requests[0]
+    finally:
+        server.close()
+
+
+@pytest.mark.parametrize("answer, said", [
+    (b"HTTP/1.1 200 OK\r\nContent-Length: 5000\r\n\r\n" + b"x" * 5000, "larger than 1000 bytes"),
+    (b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\n800\r\n" + b"x" * 2048 + b"\r\n0\r\n\r\n",
+     "larger than 1000 bytes"),
+    (b"HTTP/1.1 200 OK\r\n\r\n" + b"x" * 5000, "larger than 1000 bytes"),
+    (b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n", "not a chunk's size"),
+    (b"HTTP/1.1 200 OK\r\nX: " + b"y" * 20000, "did not end"),
+    (b"SSH-2.0-OpenSSH_9.2\r\n\r\n", "not an HTTP answer"),
+    (b"HTTP/1.1 200 OK\r\nContent-Length: 50\r\n\r\nshort", "ended early"),
+])
+def test_a_broken_or_hostile_answer_is_one_failure(tls, answer, said):
+    server = Scripted(tls, answer)
+    try:
+        with pytest.raises(https_request.Failed, match=said):
+            ask(server, tls[0])
+    finally:
+        server.close()
+
+
+def test_no_tls_1_3_or_another_ca_is_refused_and_the_probe_leaves_it_to_git(tls, tmp_path):
+    old = Scripted(tls, b"HTTP/1.1 304 Not Modified\r\n\r\n", tls12_only=True)
+    other = httpsgit.make_ca(tmp_path / "other")[0]
+    good = Scripted(tls, b"HTTP/1.1 304 Not Modified\r\n\r\n")
+    try:
+        with pytest.raises(ssl.SSLError):
+            ask(old, tls[0])
+        with pytest.raises(ssl.SSLCertVerificationError):
+            ask(good, other)
+        assert ask(good, tls[0]).status == 304
+        memo = {"kind": "static", "commit": "a" * 40, "validators": {"etag": '"a"'}}
+        url = f"https://127.0.0.1:{old.port}/fleet.git"
+        assert probe.https(url, "robotfleet/releases", memo, str(tls[0]), 10).commit is None  # a full fetch follows
+        url = f"https://127.0.0.1:{good.port}/fleet.git"
+        assert probe.https(url, "robotfleet/releases", memo, str(other), 10).commit is None
+        assert probe.https(url, "robotfleet/releases", memo, str(tls[0]), 10).commit == "a" * 40
+        assert b'If-None-Match: "a"\r\n' in good.requests[-1]
+    finally:
+        old.close()
+        good.close()
