@@ -231,7 +231,8 @@ def show(kind: str, found: dict) -> list[str]:
              f"{kind}:   per robot per month at 15 min: {month / 1e6:.2f} MB idle only, "
              f"{with_beats / 1e6:.2f} MB with the hour's heartbeat (a heartbeat check: {beat['cpu']:.3f} s CPU, "
              f"sent {beat['sent']} B, received {beat['received']} B, load {beat['load']:.2f})",
-             f"{kind}:   without the probe and the bytecode directory (a fetch and checkout, every module compiled): {median(old, 'cpu'):.3f} s CPU, "
+             f"{kind}:   without the probe and the bytecode directory (a fetch and checkout, every module "
+             f"compiled): {median(old, 'cpu'):.3f} s CPU, "
              f"sent {median(old, 'sent'):.0f} B, received {median(old, 'received'):.0f} B "
              f"({median(old, 'connections'):.0f} connection(s)), load {old[0]['load']:.2f}"]
     return lines
