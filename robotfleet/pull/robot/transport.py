@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, report_shards, reports
-from robotfleet.pull.robot import probe
+from robotfleet.pull.robot import probe, ssh_options
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
@@ -103,7 +103,7 @@ def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> st
              "-o", "StrictHostKeyChecking=yes", "-o", f"UserKnownHostsFile={known_hosts}",
              "-o", f"HostKeyAlias={HOST_KEY_ALIAS}", "-o", f"ConnectTimeout={min(timeout, 30)}",
              "-o", "ServerAliveInterval=15", "-o", "ServerAliveCountMax=4",
-             "-o", "LogLevel=DEBUG1", "-E", log]
+             "-o", "LogLevel=DEBUG1", "-E", log, *ssh_options.options(known_hosts)]
     for key in keys:
         parts += ["-i", key]
     return " ".join(shlex.quote(p) for p in parts)
