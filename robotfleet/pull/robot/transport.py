@@ -286,7 +286,8 @@ class Remote:
         # holds is checked out as a file holding its target's name, never a link.
         self._git("checkout", "-c", "core.symlinks=false", "checkout", "-q", "--force", "--detach", commit)
         self._git("checkout", "clean", "-q", "-d", "-x", "--force")
-        validators = answer.validators if answer is not None and kind == "static" else {}
+        # a static copy's validators stand for this commit only if its info/refs named it
+        validators = answer.validators if answer is not None and kind == "static" and answer.commit == commit else {}
         probe.write_memo(self.repo, self.url, branch, commit, kind, validators)
         return commit
 
