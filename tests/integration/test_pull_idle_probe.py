@@ -87,6 +87,20 @@ def test_a_new_release_is_seen_at_the_next_check_after_idle_ones(over_https):
     assert outcome.result == "applied" and report["applied"]["version"] == 2
 
 
+def test_a_halt_after_idle_checks_is_seen_at_the_next_check(over_https):
+    from robotfleet.pull.operator import publishing
+
+    world = over_https
+    world.wake()
+    idle(world)
+    publishing.halt(world.fleet.repository, world.fleet.keys, "canary crash-loops", world.fleet.expiry, NOW)
+    world.push()
+    serve_static(world)
+    os.utime(world.bare / "info" / "refs", (time.time() - 90, time.time() - 90))
+    _, outcome, _ = world.wake()
+    assert outcome.result == "halted", outcome.reason
+
+
 def test_a_static_copy_written_within_the_minute_is_not_trusted_to_answer_304(tmp_path, tls):
     """A Last-Modified within a minute of the answer's Date may name two
     versions of info/refs written in the same second: not kept as a validator."""
