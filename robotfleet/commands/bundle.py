@@ -17,7 +17,7 @@ the robot's own key will be; the hash of its public half is kept in
 the fleet entry whose settings they start with, each robot names itself
 --name-prefix and its machine-id (or board serial: robotfleet/pull/protocol/naming.py),
 and the one enrollment key may report as any name the rule can make but a
-registered robot's.  See docs/pull.md.
+registered robot's.  See docs/guides/pull.md.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ repository's root, signed with the root key.
 --renew re-signs the short-lived timestamp (and whatever else is due)
 without a new release: run it daily, or robots refuse the repository as
 expired once the timestamp's validity (--timestamp-expiry, 7 days) ends.
-See docs/pull.md.
+See docs/guides/pull.md.
 """
 
 from __future__ import annotations

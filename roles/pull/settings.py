@@ -61,7 +61,7 @@ def _number(field: str) -> tuple:
 
 SETTINGS = (
     Setting("pull", False, c.boolean,
-            "This host converges itself from the signed releases robotfleet publish writes (docs/pull.md)."),
+            "This host converges itself from the signed releases robotfleet publish writes (docs/guides/pull.md)."),
     Setting("pull_platform", "cp313-x86_64",
             c.string(r"cp3[0-9]{1,2}-(x86_64|aarch64|armv7l)", "a platform like cp313-x86_64 (Python, machine)"),
             "A pull host's Python and machine (cp313-x86_64, cp311-aarch64): the wheels its releases carry."),

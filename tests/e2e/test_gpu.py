@@ -9,7 +9,7 @@
 - robot1: no driver -> that host fails with one line before anything is
   installed.
 
-What the stand-ins do not prove is in docs/gpu.md ("What the lab proves")."""
+What the stand-ins do not prove is in roles/gpu/README.md ("What the lab proves")."""
 
 from __future__ import annotations
 

@@ -303,9 +303,9 @@ def test_merge_keys_give_each_sensor_the_shared_fields_and_its_own():
 
 
 def readme_mistakes():
-    """The broken fleet file and the lines shown in docs/fleet-file.md (linked
+    """The broken fleet file and the lines shown in docs/reference/fleet-file.md (linked
     from README's "Describing a fleet")."""
-    section = (Path(__file__).resolve().parents[2] / "docs" / "fleet-file.md").read_text()
+    section = (Path(__file__).resolve().parents[2] / "docs" / "reference" / "fleet-file.md").read_text()
     blocks = section.split("```")
     (fleet_block,) = [b for b in blocks if b.startswith("yaml\n") and "docker_usres" in b]
     (output_block,) = [b for b in blocks if "problem(s) in the fleet file" in b]

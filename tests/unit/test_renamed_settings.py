@@ -1,7 +1,7 @@
 """Settings renamed in issue 30 (item 7): each old name is still read as
 the new one, with one note per layer that uses it; the old and the new name
 in the same layer are refused in one line; the schema accepts the old names
-marked deprecated and docs/settings.md lists them."""
+marked deprecated and docs/reference/settings.md lists them."""
 
 import json
 
