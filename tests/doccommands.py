@@ -41,7 +41,7 @@ ASSIGNMENT = re.compile(r"^[A-Z_][A-Z0-9_]*=")
 
 
 def documents() -> list[Path]:
-    """The operator's documentation: README.md, docs/ (its guides, reference and explanations), each role's README.md."""
+    """The operator's documentation: README.md, docs/ (guides, reference, explanations), each role's README.md."""
     return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md")), *sorted((ROOT / "roles").glob("*/README.md"))]
 
 

@@ -1,4 +1,5 @@
-"""Write the files built from the roles' declarations, so they cannot drift: the fleet file's schema, docs/reference/settings.md.
+"""Write the files built from the roles' declarations, so they cannot drift: the fleet file's schema,
+docs/reference/settings.md.
 
     robotfleet generate          # writes them
     robotfleet generate --check  # exit 1 naming each file that is stale

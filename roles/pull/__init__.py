@@ -8,7 +8,8 @@ key for the fleet remote (made on the robot; it never leaves it), and
 robot-pull.service run by robot-pull.timer.  When the agent itself runs the
 deploy (a release, robotfleet/pull/robot/agent.py), the venv and the tree are
 the release's, which the agent put in place: the role leaves them alone.
-docs/guides/pull.md says how to use it, docs/explanations/pull.md how it all fits; roles/pull/README.md what the role does.
+docs/guides/pull.md says how to use it, docs/explanations/pull.md how it all fits; roles/pull/README.md
+what the role does.
 """
 
 from __future__ import annotations
