@@ -67,6 +67,14 @@ def test_every_page_of_docs_is_a_guide_a_reference_or_an_explanation_and_the_ind
     assert "](docs/README.md)" in (ROOT / "README.md").read_text()
 
 
+def test_the_commands_reference_names_every_command():
+    from robotfleet import cli
+
+    page = (DOCS / "reference" / "commands.md").read_text()
+    named = set(re.findall(r"^\| `robotfleet ([a-z-]+)` \|", page, re.M))
+    assert named == set(cli.COMMANDS), set(cli.COMMANDS) ^ named
+
+
 def test_every_role_describes_itself_in_its_folder_with_the_same_sections():
     index = (DOCS / "reference" / "roles.md").read_text()
     for role in roles():
