@@ -15,7 +15,7 @@ from tests.fixtures import ROOT
 
 DOCS = ROOT / "docs"
 KINDS = ("guides", "reference", "explanations")
-SCREEN = 60  # lines a page may run without a heading
+SCREEN = 50  # lines a page may run without a heading
 ROLE_SECTIONS = ["Settings", "What a run does"]  # every role's README.md begins with these, in this order
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 
