@@ -8,7 +8,7 @@ Each wave is the normal deploy (`pyinfra -y --json INVENTORY deploy.py
 this one has reached its target (each role with a rollout part says what:
 the payload, every image of the robot's compose project running healthy)
 or is counted against the budget.
-Robots not reached keep their release.  Robots with `pull: true` are not
+Robots not reached keep their release.  Robots with `pull_enabled: true` are not
 deployed over SSH: the rollout publishes a signed release with these waves
 and follows the robots' reports (robotfleet/commands/pullrollout.py).  The state lives in
 .rollout/<key>.json on this machine: rerunning the same command resumes with

@@ -1,6 +1,6 @@
 """roles/pull: the agent that lets a robot converge itself (pull mode).
 
-Where ``pull`` is true, a push deploy installs the agent: git and
+Where ``pull_enabled`` is true, a push deploy installs the agent: git and
 python3-venv, a venv made from the operator's wheels for the robot's
 python and architecture, the deploy tree the agent runs, its configuration
 and the release repository's root.json (root's only), the robot's own SSH
@@ -152,6 +152,7 @@ ROLE = Role(
     reads=declare_reads,
     steps=pull_agent,
     rules=settings.rules,
+    renamed=settings.RENAMED,
     pull=plan.PART,
 )
 

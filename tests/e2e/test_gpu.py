@@ -26,7 +26,7 @@ GPU_HOSTS = ("robot1", "robot2", "robot3")
 
 
 def gpu_block(settings: dict, **override) -> str:
-    values = {"gpu": "nvidia", **settings, **override}
+    values = {"gpu_vendor": "nvidia", **settings, **override}
     return "".join(f"      {key}: {json.dumps(value)}\n" for key, value in values.items())
 
 

@@ -210,7 +210,8 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
 
     # robot2's old setup was a compose project: taken over only because payload_replaces names it (issue 27.2).
     good = fleet('    payload_image: "@registry@/ros/payload:1.1"\n', **{
-        "    robot2:\n      sensors:": '    robot2:\n      payload_replaces: ["project:rosapp"]\n      sensors:'})
+        "    robot2:\n      udev_sensors:":
+            '    robot2:\n      payload_replaces: ["project:rosapp"]\n      udev_sensors:'})
     run = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover robot2, robot3)")
     assert run.returncode == 0, run.output[-4000:]
     assert ("[robot3] payload: taking over what runs the payload another way (stopped, restart policy no): "

@@ -41,7 +41,7 @@ all:
     payload_image: {registry}/ros/payload:1.0
 robots:
   vars:
-    pull: true
+    pull_enabled: true
     pull_remote: https://git.example.com/fleet.git
   hosts:
     robot1: {{address: 127.0.0.1}}

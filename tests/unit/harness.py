@@ -47,7 +47,7 @@ from tests.fixtures import IMAGE, ROOT
 ROBOT = {
     "payload_image": IMAGE,
     "docker_users": ["ops"],
-    "sensors": [
+    "udev_sensors": [
         {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825",
          "usb_port": "1-1.2"},
         {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3"},

@@ -37,24 +37,24 @@ CORPUS = [
     # 1. wrong types where a scalar or string is assumed; keys must be strings
     ("mapping as image", host("payload_image: {a: 1}"),
      ["f.yaml: r1.payload_image: expected a string, got a mapping"]),
-    ("list as serial and symlink", host("sensors:", "  - {name: a, subsystem: tty, serial: [1]}",
+    ("list as serial and symlink", host("udev_sensors:", "  - {name: a, subsystem: tty, serial: [1]}",
                                         "  - {name: b, subsystem: tty, serial: '2', symlink: [x]}"),
-     ["f.yaml: r1.sensors[0].serial: expected a string, got a list",
-      "f.yaml: r1.sensors[1].symlink: expected a string, got a list"]),
-    ("list as sensor name, twice", host("sensors:", "  - {name: [a], subsystem: tty, serial: '1'}",
+     ["f.yaml: r1.udev_sensors[0].serial: expected a string, got a list",
+      "f.yaml: r1.udev_sensors[1].symlink: expected a string, got a list"]),
+    ("list as sensor name, twice", host("udev_sensors:", "  - {name: [a], subsystem: tty, serial: '1'}",
                                         "  - {name: [a], subsystem: tty, serial: '1'}"),
-     ["f.yaml: r1.sensors[0].name: expected a string, got a list",
-      "f.yaml: r1.sensors[1].name: expected a string, got a list"]),
-    ("refused sensor, duplicates among the others", host("sensors:", "  - {name: x, subsystem: tty, serial: [1]}",
+     ["f.yaml: r1.udev_sensors[0].name: expected a string, got a list",
+      "f.yaml: r1.udev_sensors[1].name: expected a string, got a list"]),
+    ("refused sensor, duplicates among the others", host("udev_sensors:", "  - {name: x, subsystem: tty, serial: [1]}",
                                                           "  - {name: a, subsystem: tty, serial: '1'}",
                                                           "  - {name: a, subsystem: tty, serial: '2'}"),
-     ["f.yaml: r1.sensors[0].serial: expected a string, got a list",
-      "f.yaml: r1.sensors[2].name: duplicate sensor name 'a' (also sensors[1])",
-      "f.yaml: r1.sensors[2].symlink: /dev/robot/a is already used by sensors[1]"]),
+     ["f.yaml: r1.udev_sensors[0].serial: expected a string, got a list",
+      "f.yaml: r1.udev_sensors[2].name: duplicate sensor name 'a' (also udev_sensors[1])",
+      "f.yaml: r1.udev_sensors[2].symlink: /dev/robot/a is already used by udev_sensors[1]"]),
     ("number as setting key", host("8080: 80"),
      ["f.yaml: r1.8080: a setting name must be a string, got 8080; quote it"]),
-    ("number as sensor field", host("sensors:", "  - {name: a, subsystem: tty, serial: '1', 1: x}"),
-     ["f.yaml: r1.sensors[0].1: a sensor field name must be a string, got 1; quote it"]),
+    ("number as sensor field", host("udev_sensors:", "  - {name: a, subsystem: tty, serial: '1', 1: x}"),
+     ["f.yaml: r1.udev_sensors[0].1: a sensor field name must be a string, got 1; quote it"]),
     ("list as mapping key", host("? [a, b]", ": 1"),
      ["f.yaml: line 7: YAML error: a key must be a plain name, not a list"]),
     ("not UTF-8", (BASE + "robots:\n  hosts:\n    r1: {address: caf\xe9}\n").encode("latin-1"),
@@ -150,13 +150,14 @@ CORPUS = [
      ["f.yaml: line 7: YAML error: duplicate key 'r1'"]),
     # 8. merge keys are valid YAML
     ("merge keys", "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
-                   + host("sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}",
+                   + host("udev_sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}",
                           "  - {<<: *camera, name: back, usb_port: '1-1.3'}"), []),
     ("merge keys, then a mistake", "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
-                                   + host("sensors:", "  - {<<: *camera, name: front}",
+                                   + host("udev_sensors:", "  - {<<: *camera, name: front}",
                                           "  - {<<: *camera, name: back}"),
-     ["f.yaml: r1.sensors[1]: matches the same devices as sensors[0]; add a serial or usb_port to tell them apart"]),
-    ("merge of a scalar", host("sensors:", "  - {<<: 1, name: a}"),
+     ["f.yaml: r1.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
+      "add a serial or usb_port to tell them apart"]),
+    ("merge of a scalar", host("udev_sensors:", "  - {<<: 1, name: a}"),
      ["f.yaml: line 8: YAML error: a merge key (<<) takes a mapping or a list of mappings"]),
     # 9. yes/no are text in YAML 1.2: the documented words as written
     ("strict host key checking no", host("ssh_strict_host_key_checking: no", "payload_restart_policy: no"), []),
@@ -294,9 +295,9 @@ def test_accepted_yes_no_reads_as_the_documented_word():
 
 def test_merge_keys_give_each_sensor_the_shared_fields_and_its_own():
     text = "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825', usb_port: '9-9'}\n"
-    text += host("sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}", "  - {<<: *camera, name: back}")
+    text += host("udev_sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}", "  - {<<: *camera, name: back}")
     (_, data), = fleet.parse(text, "f.yaml").hosts("robots")
-    assert data["sensors"] == [
+    assert data["udev_sensors"] == [
         {"name": "front", "usb_port": "1-1.2", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
         {"name": "back", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "9-9"},
     ]

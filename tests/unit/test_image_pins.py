@@ -51,7 +51,7 @@ def test_every_service_and_the_roscore_of_the_preset_run_by_their_pins():
             "payload_image_pins": {f"{REG}/ros/driver:2.0": A, f"{REG}/ros/slam@{C}": C, ROSCORE: B}}
     assert images_of(rendered(data)) == {"roscore": f"{ROSCORE}@{B}", "driver": f"{REG}/ros/driver:2.0@{A}",
                                          "slam": f"{REG}/ros/slam@{C}"}
-    assert fleet_problems(robot_fleet(**{k: v for k, v in data.items() if k != "sensors"})) == []
+    assert fleet_problems(robot_fleet(**{k: v for k, v in data.items() if k != "udev_sensors"})) == []
 
 
 def test_pins_for_images_the_project_does_not_use_are_ignored():

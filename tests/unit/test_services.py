@@ -56,7 +56,7 @@ def test_merge_replaces_lists_and_removes_keys_with_null():
 def test_the_shorthand_document_is_unchanged_by_the_project_builder():
     data = merged("robots", {"payload_image": f"{REG}/ros/payload:1.0", "payload_command": ["run"],
                              "payload_volumes": ["/srv/maps:/maps:ro"], "payload_gpu": True,
-                             "sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
+                             "udev_sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
     # What the single-service builder made before there were several services.
     old = {"name": "robot-payload", "services": {"payload": {
         "image": f"{REG}/ros/payload:1.0",
@@ -83,7 +83,7 @@ def rendered(extra: dict, address="10.0.0.9", files_dir=None) -> dict:
 
 def test_two_services_get_our_defaults_under_their_own_keys():
     doc = rendered({"payload_services": TWO, "payload_environment": {"SITE": "lab"},
-                    "sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
+                    "udev_sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
     driver, slam = doc["services"]["driver"], doc["services"]["slam"]
     assert driver["image"] == f"{REG}/ros/driver:2.0"
     assert driver["restart"] == "unless-stopped" and driver["network_mode"] == "host"
@@ -98,7 +98,7 @@ def test_two_services_get_our_defaults_under_their_own_keys():
 
 
 def test_a_sensor_goes_to_the_services_it_names():
-    doc = rendered({"payload_services": TWO, "sensors": [
+    doc = rendered({"payload_services": TWO, "udev_sensors": [
         {"name": "cam", "subsystem": "video4linux", "serial": "C", "services": ["slam"]},
         {"name": "imu", "subsystem": "tty", "serial": "I"},
         {"name": "dbg", "subsystem": "tty", "serial": "D", "passthrough": False},
@@ -217,13 +217,13 @@ def test_refusals_that_need_the_whole_project():
     assert fleet_problems(host_with(payload_services=TWO, payload_command=["x"])) == [
         "robots.yaml: robot3.payload_command: applies to the single-image payload; with payload_services "
         "give each service its own 'command' key"]
-    assert fleet_problems(host_with(payload_services=TWO, sensors=[
+    assert fleet_problems(host_with(payload_services=TWO, udev_sensors=[
         {"name": "cam", "subsystem": "tty", "serial": "C", "services": ["nav"]}])) == [
-        "robots.yaml: robot3.sensors[0].services: no service called 'nav' (services: driver, slam)"]
+        "robots.yaml: robot3.udev_sensors[0].services: no service called 'nav' (services: driver, slam)"]
     no_devices = {"a": {"image": f"{REG}/a:1"}, "b": {"image": f"{REG}/b:1"}}
-    assert fleet_problems(host_with(payload_services=no_devices, sensors=[
+    assert fleet_problems(host_with(payload_services=no_devices, udev_sensors=[
         {"name": "cam", "subsystem": "tty", "serial": "C"}])) == [
-        "robots.yaml: robot3.sensors[0]: name the service(s) that use it (services: [...]); "
+        "robots.yaml: robot3.udev_sensors[0]: name the service(s) that use it (services: [...]); "
         "no service asks for devices"]
     assert fleet_problems(host_with(payload_services=TWO, payload_allow_privileged=True)) == []
     assert fleet_problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "privileged": True}},
