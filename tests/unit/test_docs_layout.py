@@ -8,6 +8,7 @@ the docs leads to a file and a heading that exist."""
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 from tests import doccommands
@@ -130,7 +131,7 @@ def test_every_link_of_the_docs_leads_to_a_file_and_a_heading():
 
 
 def test_a_broken_link_and_a_long_page_are_found(tmp_path, monkeypatch):
-    monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     page = tmp_path / "page.md"
     page.write_text("# Title\n\n[there](other.md#gone) [here](#title) [web](https://example.com) `[no](x.md)`\n"
                     "[gone](gone.md)\n```\n[in code](nowhere.md)\n# not a heading\n```\n"
