@@ -40,7 +40,7 @@ def test_a_known_hosts_with_marker_lines_is_read_whole(tmp_path):
     path.write_text("# fleet\n" + line("*.fleet,!bad.fleet", ca, "@cert-authority") + "not a key line\n"
                     + line("[10.0.0.1]:2222", robot1) + line("*", revoked, "@revoked")
                     + line(paramiko.HostKeys.hash_host("robot2.fleet"), robot2) + line("robot3.fleet", revoked))
-    with pytest.raises(Exception):  # paramiko (pyinfra's reader) gives up on the file
+    with pytest.raises(paramiko.hostkeys.InvalidHostKey):  # paramiko (pyinfra's reader) gives up on the file
         paramiko.HostKeys(str(path))
     known = hostkeys.read(str(path))
     assert known.plain.lookup("[10.0.0.1]:2222") == {robot1.get_name(): robot1}
