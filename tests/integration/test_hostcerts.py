@@ -67,8 +67,8 @@ def test_a_revoked_key_is_refused_though_a_plain_line_names_it(tmp_path, monkeyp
     (tmp_path / "known_hosts").write_text(line(f"[127.0.0.1]:{server.port}", server.host_key)
                                           + line("*", server.host_key, "@revoked"))
     assert connect(path, monkeypatch) == {"robot1": (
-        f"host key REVOKED: {server.host_key.get_name()} {hostkeys.fingerprint(server.host_key)} is marked @revoked "
-        f"in {tmp_path / 'known_hosts'}; refused")}
+        f"host key REVOKED: {server.host_key.get_name()} {hostkeys.fingerprint(server.host_key)} is marked "
+        f"@revoked in {tmp_path / 'known_hosts'}; refused")}
 
 
 @pytest.mark.parametrize("strictness", ["yes", "accept-new"])

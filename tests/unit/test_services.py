@@ -161,13 +161,15 @@ def test_ros2_preset_keeps_a_service_s_own_ipc():
 
 @pytest.mark.parametrize("service, line", [
     ({"image": f"{REG}/a:1", "ipcc": "host"},
-     "robots.yaml: robot3.payload_services.drv.ipcc: not a key of the Compose Specification (did you mean 'ipc'?)"),
+     "robots.yaml: robot3.payload_services.drv.ipcc: not a key of the Compose Specification (did you mean "
+     "'ipc'?)"),
     ({"image": f"{REG}/a:1", "restart": 5},
      "robots.yaml: robot3.payload_services.drv.restart: Compose Specification: 5 is not of type 'string'"),
     ({"image": f"{REG}/a:1", "ulimits": {"rtprio": {"soft": "x"}}},
      "robots.yaml: robot3.payload_services.drv.ulimits.rtprio"),
     ({"image": f"{REG}/a:1", "cap_add": "SYS_NICE"},
-     "robots.yaml: robot3.payload_services.drv.cap_add: Compose Specification: 'SYS_NICE' is not of type 'array'"),
+     "robots.yaml: robot3.payload_services.drv.cap_add: Compose Specification: 'SYS_NICE' is not of type "
+     "'array'"),
     ({"image": f"{REG}/a:1", "privileged": True},
      "robots.yaml: robot3.payload_services.drv.privileged: privileged containers are refused unless "
      "payload_allow_privileged is true (prefer devices / cap_add)"),
