@@ -111,8 +111,8 @@ def test_push_delivery_to_a_robot_without_registry(lab, fleet_on):
     engine.images.get("ros/payload:1.1").tag("offline.invalid/ros/payload", "1.1")
     extra = {
         "      sensors:\n        - {name: gps,":
-            "      payload_delivery: push\n      payload_image: "
-            "offline.invalid/ros/payload:1.1\n      sensors:\n        - {name: gps,",
+            "      payload_delivery: push\n      payload_image: offline.invalid/ros/payload:1.1\n"
+            "      sensors:\n        - {name: gps,",
     }
     fleet = fleet_on("1.0", extra)
     assert lab.sh("robot3", "docker pull offline.invalid/ros/payload:1.1")[0] != 0  # no route to that registry

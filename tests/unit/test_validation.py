@@ -79,8 +79,7 @@ def test_defaults_are_written_once_in_the_declarations():
         (robot(sensors=[{"name": "cam", "subsystem": "tty", "usb_port": "usb2"}]),
          "robots.yaml: robot3.sensors[0].usb_port: expected a USB port path like 1-2.1, got 'usb2'"),
         (robot(sensors=[{"name": "cam", "subsystem": "tty", "serial": "a", "mode": "0666"}]),
-         "robots.yaml: robot3.sensors[0].mode: 0666 is world-writable; use a group (or set "
-         "udev_allow_world_writable)"),
+         "robots.yaml: robot3.sensors[0].mode: 0666 is world-writable; use a group (or set udev_allow_world_writable)"),
         (robot(sensors=[{"name": "a", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
                         {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"}]),
          "robots.yaml: robot3.sensors[1]: matches the same devices as sensors[0]; "
