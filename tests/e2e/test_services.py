@@ -79,7 +79,7 @@ def test_two_service_payload_deploys(lab, fleet):
         assert running["payload"]["HostConfig"]["CapAdd"] in (["CAP_NET_ADMIN"], ["NET_ADMIN"])
         record = lab.record(host)
         assert record["state"] == "active"
-        for ref, image in record["images"].items():
+        for image in record["images"].values():
             assert "@sha256:" in image["pinned"]
         assert {ref.rsplit("/", 2)[-2] + "/" + ref.rsplit("/", 1)[-1] for ref in record["images"]} == {
             "ros/payload:1.1", "ros/driver:1.0"}

@@ -228,7 +228,7 @@ def plan(
 
     defaults = group_data()
     groups: dict[str, tuple[list, dict]] = {"robots": ([], defaults["robots"]), "laptops": ([], defaults["laptops"])}
-    for name, (group, data, snap) in hosts.items():
+    for name, (group, data, _) in hosts.items():
         # Our deliberate failures (operations.fail) exit 1 on a real shell.
         responses = {re.compile(r">&2; exit 1'$"): {"stdout": [], "success": False}}
         host_data = {**data, "fake_responses": responses, "fake_delay": 0, "fake_delay_jitter": 0}

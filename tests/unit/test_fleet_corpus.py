@@ -167,15 +167,15 @@ CORPUS = [
      ["f.yaml: r1.payload_restart_policy: expected a string, got a boolean (true); quote it"]),
     # issue 8, item 2: URLs are http(s) URLs without shell characters
     ("key URL injection", host("docker_apt_key_url: 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"),
-     ["f.yaml: r1.docker_apt_key_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & quotes), "
-      "got 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"]),
+     ["f.yaml: r1.docker_apt_key_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & "
+      "quotes), got 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"]),
     ("repo URL scheme", host("docker_repo_url: 'ftp://mirror.lan/linux'"),
-     ["f.yaml: r1.docker_repo_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & quotes), "
-      "got 'ftp://mirror.lan/linux'"]),
+     ["f.yaml: r1.docker_repo_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & "
+      "quotes), got 'ftp://mirror.lan/linux'"]),
     # a refused value is shown, but never the password a URL in it carries
     ("mirror URL with a password", host("docker_registry_mirrors: ['https://ci:hunter2@mirror.lan/$(x)']"),
-     ["f.yaml: r1.docker_registry_mirrors[0]: expected an http(s) URL without spaces or shell characters ($ ` ; | & "
-      "quotes), got 'https://ci:****@mirror.lan/$(x)'"]),
+     ["f.yaml: r1.docker_registry_mirrors[0]: expected an http(s) URL without spaces or shell characters ($ ` "
+      "; | & quotes), got 'https://ci:****@mirror.lan/$(x)'"]),
     ("good URLs", host("docker_repo_url: 'http://10.0.0.2:8080/linux'",
                        "docker_apt_key_url: 'https://mirror.lan/keys/docker.asc?v=2'",
                        "docker_registry_mirrors: ['https://[fd00::1]:5000']"), []),
@@ -216,13 +216,14 @@ CORPUS = [
       "password_file (a file outside the checkout), not the value itself"]),
     ("a relative credential file and a plain-HTTP realm", host(
         "payload_registry_auths: {reg.example.com: {username_env: U, password_file: secrets/reg, token_realms: ['http://auth.lan/t']}}"),
-     ["f.yaml: r1.payload_registry_auths.reg.example.com.password_file: expected an absolute path (or ~/...) on this "
-      "machine, got 'secrets/reg'",
+     ["f.yaml: r1.payload_registry_auths.reg.example.com.password_file: expected an absolute path (or ~/...) "
+      "on this machine, got 'secrets/reg'",
       "f.yaml: r1.payload_registry_auths.reg.example.com.token_realms[0]: expected an https URL, got 'http://auth.lan/t'"]),
     ("a credential file inside the checkout", host(
-        f"payload_registry_auths: {{reg.example.com: {{username_env: U, password_file: {ROOT}/inventories/reg.pw}}}}"),
-     [f"f.yaml: r1.payload_registry_auths.reg.example.com.password_file: '{ROOT}/inventories/reg.pw' is inside the "
-      f"checkout {ROOT}; keep credentials outside the repository (e.g. ~/.config/robotfleet/)"]),
+        "payload_registry_auths: {reg.example.com: {username_env: U, password_file: "
+        f"{ROOT}/inventories/reg.pw}}}}"),
+     [f"f.yaml: r1.payload_registry_auths.reg.example.com.password_file: '{ROOT}/inventories/reg.pw' is inside "
+      f"the checkout {ROOT}; keep credentials outside the repository (e.g. ~/.config/robotfleet/)"]),
     ("a registry that is a URL",
      host("payload_registry_auths: {'https://reg.example.com': {username_env: U, password_env: P}}"),
      ["f.yaml: r1.payload_registry_auths.https://reg.example.com: expected a registry host[:port], got 'https://reg.example.com'"]),
@@ -243,9 +244,9 @@ CORPUS = [
           ("/var/lib/php/sessions", "/var/lib/php/sessions", "world-writable (1733)"),
       )],
     *[(f"payload_dir {place}", host(f"payload_dir: {place}"),
-       [f"f.yaml: r1.payload_dir: '{place}' is not in a place only root writes on Debian and Ubuntu (/etc, /opt, /srv, "
-        "/mnt, /root, /usr, /var/lib, /var/opt, /var/cache, /var/log, /run, /proc/driver); use a directory there "
-        "(e.g. under /var/lib)"])
+       [f"f.yaml: r1.payload_dir: '{place}' is not in a place only root writes on Debian and Ubuntu (/etc, "
+        "/opt, /srv, /mnt, /root, /usr, /var/lib, /var/opt, /var/cache, /var/log, /run, /proc/driver); use a "
+        "directory there (e.g. under /var/lib)"])
       for place in ("/data/robot", "/var/robot", "/", "/boot/p", "/proc/1/root/var/lib/p", "/dev/robot")],
     ("lock file in /var/lock", host("payload_update_lock_path: /var/lock/robot"),
      ["f.yaml: r1.payload_update_lock_path: '/var/lock/robot' is in the world-writable /run/lock; "
@@ -259,20 +260,21 @@ CORPUS = [
     # issue 27, item 12: the Docker API on TCP only with TLS client verification, or opted in by name
     *[(f"unauthenticated TCP API {listener}",
        host(f"docker_daemon_options: {{hosts: ['unix:///run/docker.sock', '{listener}']}}"),
-       [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS client "
-        "verification (missing: tlsverify, tlscacert, tlscert, tlskey): anyone who reaches it is root on this host; "
-        "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"])
+       [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS "
+        "client verification (missing: tlsverify, tlscacert, tlscert, tlskey): anyone who reaches it is root "
+        "on this host; set tlsverify: true, tlscacert, tlscert and tlskey, or "
+        "docker_allow_unauthenticated_tcp: true"])
       for listener in ("tcp://0.0.0.0:2375", "0.0.0.0:2375", "tcp://", "tcp://127.0.0.1:2375")],
     ("TCP API with tls but no client verification",
      host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2376'], tls: true, tlsverify: false, tlscert: "
           "/etc/docker/c.pem, "
           "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"),
-     ["f.yaml: r1.docker_daemon_options.hosts[0]: 'tcp://0.0.0.0:2376' opens the Docker API on TCP without TLS client "
-      "verification (missing: tlsverify): anyone who reaches it is root on this host; "
+     ["f.yaml: r1.docker_daemon_options.hosts[0]: 'tcp://0.0.0.0:2376' opens the Docker API on TCP without TLS "
+      "client verification (missing: tlsverify): anyone who reaches it is root on this host; "
       "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"]),
     ("TCP API with client verification", host(
-        "docker_daemon_options: {hosts: ['fd://', 'tcp://0.0.0.0:2376'], tlsverify: true, tlscert: /etc/docker/c.pem, "
-        "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"), []),
+        "docker_daemon_options: {hosts: ['fd://', 'tcp://0.0.0.0:2376'], tlsverify: true, tlscert: "
+        "/etc/docker/c.pem, tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"), []),
     ("unauthenticated TCP API opted in by name", host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2375']}",
                                                       "docker_allow_unauthenticated_tcp: true"), []),
     ("unix sockets only", host("docker_daemon_options: {hosts: ['unix:///run/docker.sock', 'fd://']}"), []),

@@ -85,7 +85,8 @@ def test_what_publish_pins_is_what_the_deploy_looks_up():
      f"robot3.payload_image_pins: no digest for {PAYLOAD}: the pins must cover every image of the project "
      "(1 here), or that image would run whatever its tag names now"),
     ({"payload_image_pins": {PAYLOAD: "sha256:abc"}},
-     f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got 'sha256:abc'"),
+     f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
+     "'sha256:abc'"),
     ({"payload_image_pins": {PAYLOAD: A.upper()}},
      f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
      f"'{A.upper()}'"),
@@ -96,7 +97,8 @@ def test_what_publish_pins_is_what_the_deploy_looks_up():
      "text: payload_image_pins='{\"reg/ros/payload:1.1\": \"sha256:...\"}'"),
     ({"payload_image_pins": {PAYLOAD: A}, "payload_delivery": "push"},
      "robot3.payload_image_pins: pins need payload_delivery: pull: a pushed image arrives by docker load, which "
-     "keeps its image id but not the registry digest a release pins, so the robot could not run it by that digest"),
+     "keeps its image id but not the registry digest a release pins, so the robot could not run it by that "
+     "digest"),
 ])
 def test_a_bad_pin_is_one_line_naming_host_and_field(settings, line):
     assert fleet_problems(robot_fleet(payload_image=PAYLOAD, **settings)) == [f"robots.yaml: {line}"]

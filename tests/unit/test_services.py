@@ -144,7 +144,7 @@ def test_ros2_preset_with_a_dds_profile(tmp_path, monkeypatch, profile, env):
     monkeypatch.setattr(presets.dds_profile_text, "__defaults__", (tmp_path,))
     monkeypatch.setattr(presets.preset, "__defaults__", (tmp_path,))
     doc = rendered({"payload_services": TWO, "ros_preset": "ros2", "ros_domain_id": 42, "ros_dds_profile": "p.xml"})
-    for name, service in doc["services"].items():
+    for service in doc["services"].values():
         assert service["ipc"] == "host"
         assert service["environment"]["ROS_DOMAIN_ID"] == "42"
         assert {k: service["environment"][k] for k in env} == env
@@ -161,13 +161,15 @@ def test_ros2_preset_keeps_a_service_s_own_ipc():
 
 @pytest.mark.parametrize("service, line", [
     ({"image": f"{REG}/a:1", "ipcc": "host"},
-     "robots.yaml: robot3.payload_services.drv.ipcc: not a key of the Compose Specification (did you mean 'ipc'?)"),
+     "robots.yaml: robot3.payload_services.drv.ipcc: not a key of the Compose Specification (did you mean "
+     "'ipc'?)"),
     ({"image": f"{REG}/a:1", "restart": 5},
      "robots.yaml: robot3.payload_services.drv.restart: Compose Specification: 5 is not of type 'string'"),
     ({"image": f"{REG}/a:1", "ulimits": {"rtprio": {"soft": "x"}}},
      "robots.yaml: robot3.payload_services.drv.ulimits.rtprio"),
     ({"image": f"{REG}/a:1", "cap_add": "SYS_NICE"},
-     "robots.yaml: robot3.payload_services.drv.cap_add: Compose Specification: 'SYS_NICE' is not of type 'array'"),
+     "robots.yaml: robot3.payload_services.drv.cap_add: Compose Specification: 'SYS_NICE' is not of type "
+     "'array'"),
     ({"image": f"{REG}/a:1", "privileged": True},
      "robots.yaml: robot3.payload_services.drv.privileged: privileged containers are refused unless "
      "payload_allow_privileged is true (prefer devices / cap_add)"),
@@ -177,6 +179,10 @@ def test_ros2_preset_keeps_a_service_s_own_ipc():
     ({"image": f"{REG}/a:1", "volumes": [{"type": "bind", "source": "./cfg", "target": "/cfg"}]},
      "robots.yaml: robot3.payload_services.drv.volumes[0]: relative path ./cfg would resolve inside the "
      "release directory; use an absolute host path"),
+    ({"image": f"{REG}/a:1", "env_file": ["/etc/robot.env", {"path": "cfg.env"}]},
+     "robots.yaml: robot3.payload_services.drv.env_file[1]: cfg.env would be read from the release directory"),
+    ({"image": f"{REG}/a:1", "env_file": "cfg.env"},
+     "robots.yaml: robot3.payload_services.drv.env_file: cfg.env would be read from the release directory"),
     ({"image": f"{REG}/a:1", "build": "."},
      "robots.yaml: robot3.payload_services.drv.build: robots do not build images; push the image and set image"),
     ({"image": f"{REG}/a:1", "environment": {"DEBUG": True}},

@@ -62,7 +62,7 @@ def pull(ref, timeout, platform=None):
             raise Failure(
                 "docker pull {} did not finish within {} s (payload_pull_timeout); "
                 "the old release keeps running".format(ref, timeout)
-            )
+            ) from None
         if proc.returncode == 0:
             return None
         last = (proc.stderr or proc.stdout).strip()[-300:]
