@@ -27,8 +27,13 @@ def pages() -> list[Path]:
 
 def linked_docs() -> list[Path]:
     """What a reader opens: README, ARCHITECTURE, docs/, the roles' READMEs, the lab's."""
-    return [ROOT / "README.md", ROOT / "ARCHITECTURE.md", *pages(), *sorted((ROOT / "roles").glob("*/README.md")),
-            ROOT / "tests" / "lab" / "README.md"]
+    return [
+        ROOT / "README.md",
+        ROOT / "ARCHITECTURE.md",
+        *pages(),
+        *sorted((ROOT / "roles").glob("*/README.md")),
+        ROOT / "tests" / "lab" / "README.md",
+    ]
 
 
 def prose(path: Path) -> list[tuple[int, str]]:
@@ -83,8 +88,9 @@ def test_every_role_describes_itself_in_its_folder_with_the_same_sections():
         assert readme.is_file(), f"roles/{role}/README.md is missing"
         titles = [title for _, title in headings(readme)]
         assert titles[0].endswith(f"(roles/{role})"), f"roles/{role}/README.md: its title names roles/{role}"
-        assert titles[1:1 + len(ROLE_SECTIONS)] == ROLE_SECTIONS, (
-            f"roles/{role}/README.md: its sections begin {titles[1:3]}, not {ROLE_SECTIONS}")
+        assert titles[1 : 1 + len(ROLE_SECTIONS)] == ROLE_SECTIONS, (
+            f"roles/{role}/README.md: its sections begin {titles[1:3]}, not {ROLE_SECTIONS}"
+        )
         assert f"](../../roles/{role}/README.md)" in index, f"docs/reference/roles.md does not link roles/{role}"
 
 
@@ -133,12 +139,15 @@ def test_every_link_of_the_docs_leads_to_a_file_and_a_heading():
 def test_a_broken_link_and_a_long_page_are_found(tmp_path, monkeypatch):
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     page = tmp_path / "page.md"
-    page.write_text("# Title\n\n[there](other.md#gone) [here](#title) [web](https://example.com) `[no](x.md)`\n"
-                    "[gone](gone.md)\n```\n[in code](nowhere.md)\n# not a heading\n```\n"
-                    + "text\n" * SCREEN + "## Next\n")
+    page.write_text(
+        "# Title\n\n[there](other.md#gone) [here](#title) [web](https://example.com) `[no](x.md)`\n"
+        "[gone](gone.md)\n```\n[in code](nowhere.md)\n# not a heading\n```\n" + "text\n" * SCREEN + "## Next\n"
+    )
     (tmp_path / "other.md").write_text("# Other\n")
-    assert broken_links([page]) == ["page.md:3: other.md#gone: other.md has no heading #gone",
-                                    "page.md:4: gone.md: no such file"]
+    assert broken_links([page]) == [
+        "page.md:3: other.md#gone: other.md has no heading #gone",
+        "page.md:4: gone.md: no such file",
+    ]
     assert long_stretches([page]) == [f"page.md:1: {SCREEN + 8} lines without a heading"]
     (tmp_path / "other.md").write_text("text\n# Other\n")
     assert long_stretches([tmp_path / "other.md"]) == ["other.md:1: the first line is not a heading"]
