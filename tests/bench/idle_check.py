@@ -42,7 +42,7 @@ import time
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files
-from robotfleet.pull.robot import agent, probe, transport
+from robotfleet.pull.robot import agent_state, probe, transport
 
 MONTH = 30 * 24 * 4  # checks at a 15-minute interval
 HEARTBEATS = 30 * 24  # the hour's heartbeat
@@ -164,10 +164,10 @@ class Setup:
                 "line": out.strip().splitlines()[-1] if out.strip() else ""}
 
     def heartbeat_due(self):
-        state = agent.load_state(self.world.state)
+        state = agent_state.load_state(self.world.state)
         for key in ("status", "reported"):
             state[key]["at"] -= self.world.config.heartbeat + 1
-        agent.save_state(self.world.state, state)
+        agent_state.save_state(self.world.state, state)
 
     def close(self):
         for server in (self.https, self.ssh, self.proxy, self.ssh_proxy):

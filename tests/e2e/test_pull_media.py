@@ -1,5 +1,5 @@
 """End to end: a pull robot with no network converges from exported media
-and refuses tampered or replayed media (issue 35 item 7; docs/pull.md
+and refuses tampered or replayed media (issue 35 item 7; docs/guides/pull.md
 "Robots with no network: releases on media"), on the lab's real Docker
 engine.  Prefetch is integration-tested only (tests/integration/
 test_pull_prefetch.py): its end-to-end test, which judged the prefetch by

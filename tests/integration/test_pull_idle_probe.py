@@ -17,7 +17,7 @@ import time
 import pytest
 
 from robotfleet.pull.protocol import agent_files
-from robotfleet.pull.robot import agent, probe, transport
+from robotfleet.pull.robot import agent, agent_state, probe, transport
 from tests.integration import gitssh, httpsgit
 from tests.integration.test_pull_agent import World
 from tests.unit.pullkit import NOW
@@ -59,7 +59,7 @@ def idle(world):
     before = world.server.requests
     awake = agent.Wake(world.config, clock=lambda: NOW)
     report, outcome = awake.run()
-    agent.save_state(world.state, awake.state)
+    agent_state.save_state(world.state, awake.state)
     return outcome, awake.remote.cost, world.server.requests - before
 
 

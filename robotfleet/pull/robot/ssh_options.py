@@ -11,8 +11,9 @@ check's ~5 KB over SSH (tests/bench/idle_check.py).
   Go's x/crypto), whose packets need no MAC; the MAC list is the one
   sha2-256 MAC a non-AEAD cipher would need, were one ever chosen.
 - The key exchange is ssh's default, post-quantum sntrup761x25519
-  included: what it costs in bytes (~2.3 KB a session, docs/pull.md) buys
-  confidentiality against later decryption, a choice left to the fleet.
+  included: what it costs in bytes (~2.3 KB a session,
+  docs/explanations/pull.md) buys confidentiality against later
+  decryption, a choice left to the fleet.
 """
 
 from __future__ import annotations
