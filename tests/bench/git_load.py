@@ -23,15 +23,16 @@ fleet's, not ``fleet x s``'s).  Every rate printed is per second or hour of
 the wall clock, i.e. of that equivalent fleet.
 
 It runs ``--minutes`` of wall time or ``--max-requests`` checks, whichever
-ends first, at most ``--workers`` checks at once, and prints: checks and
-git sessions (requests) per second, the server's CPU (its container's
-cgroup, in cores and as a share of the machine's two: the target is at most
-half), its CPU per session, bytes per hour both ways (ssh's count), failed
-checks, and each check's lag behind its schedule and its duration in the
-first and the last third of the run.  A server that keeps up shows the
-same lag and duration in both; a queue shows them growing.  The generator
-runs on the same machine: its own CPU (its ssh and git included) is printed
-beside, and the 1-minute load before the run.
+ends first, at most ``--workers`` checks at once, and prints: the checks a
+second the schedule offered, and checks and git sessions (requests) a
+second over the run (its last checks' completion included), the server's
+CPU (its container's cgroup, in cores and as a share of the machine's two:
+the target is at most half), its CPU per session, bytes per hour both ways
+(ssh's count), failed checks, and each check's lag behind its schedule and
+its duration in the first and the last third of the run.  A server that
+keeps up shows the same lag and duration in both; a queue shows them
+growing.  The generator runs on the same machine: its own CPU (its ssh and
+git included) is printed beside, and the 1-minute load before the run.
 """
 
 from __future__ import annotations
@@ -135,9 +136,11 @@ def replay(server: Server, names: list[str], shards: int, args) -> dict:
             pool.submit(one, event, start)
     wall = time.monotonic() - start
     server_cpu, own_cpu = server.cpu_seconds() - cpu_before, _own_cpu() - own_before
+    span = max(1.0, events[-1][0] / args.speed) if events else 1.0
     return {"fleet": len(names), "speed": args.speed, "as a fleet of": len(names) * args.speed, "shards": shards,
             "interval": args.interval, "jitter": args.jitter, "heartbeat": args.heartbeat, "workers": args.workers,
-            "load before": load, **summary(done, wall, server_cpu, own_cpu, os.cpu_count() or 1),
+            "load before": load, "offered checks per second": round(len(events) / span, 2),
+            **summary(done, wall, server_cpu, own_cpu, os.cpu_count() or 1),
             "load after": round(hygiene.load(), 2)}
 
 
