@@ -298,13 +298,25 @@ class Remote:
         (None: the fleet remote), each read only under its own name."""
         local = "refs/fleet-reports/" if shard is None else f"refs/fleet-shards/{shard}/"
         specs = [f"+refs/reports/{robot}*:{local}{robot}*" for robot in robots]
-        # Shards are fetched at once into this repository: no FETCH_HEAD, no gc between them.
-        self._git("reports", "-c", "protocol.version=2", "-c", "gc.auto=0", "fetch", "--quiet", "--no-tags",
-                  "--no-write-fetch-head", report_shards.shard_url(self.url, shard), *specs, network=True)
         try:
+            # Shards are fetched at once into this repository: no FETCH_HEAD, no gc between them.
+            self._git("reports", "-c", "protocol.version=2", "-c", "gc.auto=0", "fetch", "--quiet", "--no-tags",
+                      "--no-write-fetch-head", report_shards.shard_url(self.url, shard), *specs, network=True)
             return report_store.read(self.repo, local, set(robots), self.timeout)
         except reports.ReportError as error:
             raise TransportError(f"reports: {error}") from None
+        finally:
+            self._forget(local)
+
+    def _forget(self, prefix: str) -> None:
+        """Delete the refs a read fetched under ``prefix`` (their objects stay
+        until gc, so the next read of the same reports downloads nothing): git
+        checks every fetch against every local ref (``rev-list --not --all``),
+        and at 10,000 robots the 7,500 refs a last wave's read kept made each
+        of its 256 shard fetches walk all of them (0.7 s of CPU each, not 0.16)."""
+        listed = self._git("reports", "for-each-ref", "--format=delete %(refname)", prefix)
+        if listed.strip():
+            self._git("reports", "update-ref", "--stdin", stdin=listed)
 
     def push_report(self, robot: str, report: bytes) -> str:
         """Force-push ``report`` as refs/reports/<robot> of the robot's shard; the commit id."""
