@@ -63,6 +63,9 @@ _SHALLOW_REFUSED = "dumb http transport does not support shallow"
 # What a server says of a repository or ref the robot may not write (gitolite, git's own).
 _REFUSED = ("DENIED", "does not appear to be a git repository", "not found")
 _ACCEPTED = re.compile(r"Authenticated to .* using \"publickey\"|Server accepts key: (\S+)")
+# A read of more robots than this asks for the repository's every report
+# rather than each robot's by its prefix (then reads only the robots asked for).
+PREFIXES_AT_MOST = 256
 IDENTITY = {"GIT_AUTHOR_NAME": "robot-pull", "GIT_AUTHOR_EMAIL": "robot-pull@localhost",
             "GIT_COMMITTER_NAME": "robot-pull", "GIT_COMMITTER_EMAIL": "robot-pull@localhost"}
 
@@ -298,6 +301,8 @@ class Remote:
         (None: the fleet remote), each read only under its own name."""
         local = "refs/fleet-reports/" if shard is None else f"refs/fleet-shards/{shard}/"
         specs = [f"+refs/reports/{robot}*:{local}{robot}*" for robot in robots]
+        if len(specs) > PREFIXES_AT_MOST:  # git matches each refspec against each ref: 7,500 of them took 31 s of CPU
+            specs = [f"+refs/reports/*:{local}*"]  # every report of the repository, the wanted ones read
         try:
             # Shards are fetched at once into this repository: no FETCH_HEAD, no gc between them.
             self._git("reports", "-c", "protocol.version=2", "-c", "gc.auto=0", "fetch", "--quiet", "--no-tags",
