@@ -193,7 +193,7 @@ def test_a_later_wave_robot_reads_the_earlier_waves_from_their_shards(tmp_path):
         report_shards.spread([f"robot{i}" for i in range(1, 10)], SHARDS)) + 1  # each shard once, the fleet remote once
     # nothing kept: every fetch checks its objects against every local ref, so
     # refs left by each read made a read of 7,500 reports walk them 256 times
-    assert craftedgit.git(reader.repo, "for-each-ref", "--format=%(refname)") == ""
+    assert craftedgit.git(reader.repo, "for-each-ref", "--format=%(refname)", "refs/fleet-shards/") == ""
     assert reader.fetch_reports([f"robot{i}" for i in range(1, 10)]) == found  # read again, from what it has
 
 

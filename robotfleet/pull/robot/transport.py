@@ -311,14 +311,17 @@ class Remote:
         except reports.ReportError as error:
             raise TransportError(f"reports: {error}") from None
         finally:
-            self._forget(local)
+            if shard is not None:
+                self._forget(local)
 
     def _forget(self, prefix: str) -> None:
-        """Delete the refs a read fetched under ``prefix`` (their objects stay
-        until gc, so the next read of the same reports downloads nothing): git
-        checks every fetch against every local ref (``rev-list --not --all``),
-        and at 10,000 robots the 7,500 refs a last wave's read kept made each
-        of its 256 shard fetches walk all of them (0.7 s of CPU each, not 0.16)."""
+        """Delete the refs a shard's read fetched under ``prefix`` (their
+        objects stay until gc, so the next read downloads nothing): git checks
+        every fetch against every local ref (``rev-list --not --all``), and at
+        10,000 robots the 7,500 refs a last wave's read kept made each of its
+        256 shard fetches walk all of them (0.7 s of CPU each, not 0.16).  The
+        fleet remote's are kept: one fetch, and rewriting 10,000 refs on each
+        read cost more than the walk."""
         listed = self._git("reports", "for-each-ref", "--format=delete %(refname)", prefix)
         if listed.strip():
             self._git("reports", "update-ref", "--stdin", stdin=listed)
