@@ -53,8 +53,9 @@ from tests.bench import gitolite_fleet, hygiene
 from tests.bench.gitolite_fleet import Server
 
 
-def schedule(robots: list[str], interval: int, jitter: int, heartbeat: int, minutes: float, limit: int,
-             seed: int = 38) -> list[tuple[float, str, bool]]:
+def schedule(
+    robots: list[str], interval: int, jitter: int, heartbeat: int, minutes: float, limit: int, seed: int = 38
+) -> list[tuple[float, str, bool]]:
     """(seconds from the start, robot, pushes its report) of each check a
     fleet in its steady state makes in ``minutes``, at most ``limit`` (pure):
     each robot's first check falls anywhere in one interval and jitter, the
@@ -82,18 +83,25 @@ def summary(done: list[dict], wall: float, server_cpu: float, own_cpu: float, cp
     first, last = done[:third], done[-third:]
     failed = [d["ok"] for d in done if d["ok"] is not True]
     sessions = sum(d["requests"] for d in done)
-    return {"seconds": round(wall, 1), "checks": len(done), "pushes": sum(d["push"] for d in done),
-            "failed": len(failed), "first failure": failed[:1],
-            "checks per second": round(len(done) / wall, 2), "sessions per second": round(sessions / wall, 2),
-            "server CPU cores": round(server_cpu / wall, 3),
-            "server CPU share of the machine": round(server_cpu / wall / cpus, 3),
-            "server CPU ms per session": round(1000 * server_cpu / max(1, sessions), 1),
-            "generator CPU cores": round(own_cpu / wall, 3),
-            "bytes per hour": round(sum(d["bytes"] for d in done) * 3600 / wall),
-            "lag p50/p95 first third": _percentiles(first, "lag"), "lag p50/p95 last third": _percentiles(last, "lag"),
-            "duration p50/p95 first third": _percentiles(first, "seconds"),
-            "duration p50/p95 last third": _percentiles(last, "seconds"),
-            "lag max": round(max((d["lag"] for d in done), default=0), 2)}
+    return {
+        "seconds": round(wall, 1),
+        "checks": len(done),
+        "pushes": sum(d["push"] for d in done),
+        "failed": len(failed),
+        "first failure": failed[:1],
+        "checks per second": round(len(done) / wall, 2),
+        "sessions per second": round(sessions / wall, 2),
+        "server CPU cores": round(server_cpu / wall, 3),
+        "server CPU share of the machine": round(server_cpu / wall / cpus, 3),
+        "server CPU ms per session": round(1000 * server_cpu / max(1, sessions), 1),
+        "generator CPU cores": round(own_cpu / wall, 3),
+        "bytes per hour": round(sum(d["bytes"] for d in done) * 3600 / wall),
+        "lag p50/p95 first third": _percentiles(first, "lag"),
+        "lag p50/p95 last third": _percentiles(last, "lag"),
+        "duration p50/p95 first third": _percentiles(first, "seconds"),
+        "duration p50/p95 last third": _percentiles(last, "seconds"),
+        "lag max": round(max((d["lag"] for d in done), default=0), 2),
+    }
 
 
 def _percentiles(rows: list[dict], key: str) -> list[float]:
@@ -103,8 +111,7 @@ def _percentiles(rows: list[dict], key: str) -> list[float]:
 
 def replay(server: Server, names: list[str], shards: int, args) -> dict:
     """``schedule`` played against the server at ``args.speed`` times real time."""
-    events = schedule(names, args.interval, args.jitter, args.heartbeat, args.minutes * args.speed,
-                      args.max_requests)
+    events = schedule(names, args.interval, args.jitter, args.heartbeat, args.minutes * args.speed, args.max_requests)
     local = threading.local()
     done: list[dict] = []
     lock = threading.Lock()
@@ -123,9 +130,17 @@ def replay(server: Server, names: list[str], shards: int, args) -> dict:
         except Exception as error:  # counted, not fatal: a refused request is a figure too
             ok = str(error)[:200]
         with lock:
-            done.append({"at": at / args.speed, "lag": began - at / args.speed, "push": push, "ok": ok,
-                         "seconds": time.monotonic() - start - began, "requests": remote.cost.requests,
-                         "bytes": remote.cost.sent + remote.cost.received})
+            done.append(
+                {
+                    "at": at / args.speed,
+                    "lag": began - at / args.speed,
+                    "push": push,
+                    "ok": ok,
+                    "seconds": time.monotonic() - start - began,
+                    "requests": remote.cost.requests,
+                    "bytes": remote.cost.sent + remote.cost.received,
+                }
+            )
 
     load = hygiene.wait("load generator", first=True)[0]
     cpu_before, own_before = server.cpu_seconds(), _own_cpu()
@@ -137,11 +152,20 @@ def replay(server: Server, names: list[str], shards: int, args) -> dict:
     wall = time.monotonic() - start
     server_cpu, own_cpu = server.cpu_seconds() - cpu_before, _own_cpu() - own_before
     span = max(1.0, events[-1][0] / args.speed) if events else 1.0
-    return {"fleet": len(names), "speed": args.speed, "as a fleet of": len(names) * args.speed, "shards": shards,
-            "interval": args.interval, "jitter": args.jitter, "heartbeat": args.heartbeat, "workers": args.workers,
-            "load before": load, "offered checks per second": round(len(events) / span, 2),
-            **summary(done, wall, server_cpu, own_cpu, os.cpu_count() or 1),
-            "load after": round(hygiene.load(), 2)}
+    return {
+        "fleet": len(names),
+        "speed": args.speed,
+        "as a fleet of": len(names) * args.speed,
+        "shards": shards,
+        "interval": args.interval,
+        "jitter": args.jitter,
+        "heartbeat": args.heartbeat,
+        "workers": args.workers,
+        "load before": load,
+        "offered checks per second": round(len(events) / span, 2),
+        **summary(done, wall, server_cpu, own_cpu, os.cpu_count() or 1),
+        "load after": round(hygiene.load(), 2),
+    }
 
 
 def _own_cpu() -> float:

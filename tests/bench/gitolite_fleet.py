@@ -34,8 +34,9 @@ def keypair() -> tuple[bytes, str]:
     from cryptography.hazmat.primitives.asymmetric import ed25519
 
     key = ed25519.Ed25519PrivateKey.generate()
-    private = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.OpenSSH,
-                                serialization.NoEncryption())
+    private = key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.OpenSSH, serialization.NoEncryption()
+    )
     public = key.public_key().public_bytes(serialization.Encoding.OpenSSH, serialization.PublicFormat.OpenSSH)
     return private, public.decode()
 
@@ -59,11 +60,15 @@ def fast_import(robots_here: list[str], releases: bool) -> bytes:
     for index, robot in enumerate(robots_here):
         data = report(robot)
         stream.append(b"blob\nmark :%d\ndata %d\n%s\n" % (2 * index + 1, len(data), data))
-        stream.append(b"commit refs/reports/%s\nmark :%d\ncommitter bench <bench@lab> %d +0000\ndata 6\nreport\n"
-                      b"M 100644 :%d report.json\n\n" % (robot.encode(), 2 * index + 2, moment, 2 * index + 1))
+        stream.append(
+            b"commit refs/reports/%s\nmark :%d\ncommitter bench <bench@lab> %d +0000\ndata 6\nreport\n"
+            b"M 100644 :%d report.json\n\n" % (robot.encode(), 2 * index + 2, moment, 2 * index + 1)
+        )
     if releases:
-        stream.append(b"blob\nmark :999999999\ndata 3\nv1\n\ncommit %s\ncommitter bench <bench@lab> %d +0000\n"
-                      b"data 8\nrelease\nM 100644 :999999999 metadata/timestamp.json\n\n" % (RELEASES.encode(), moment))
+        stream.append(
+            b"blob\nmark :999999999\ndata 3\nv1\n\ncommit %s\ncommitter bench <bench@lab> %d +0000\n"
+            b"data 8\nrelease\nM 100644 :999999999 metadata/timestamp.json\n\n" % (RELEASES.encode(), moment)
+        )
     return b"".join(stream)
 
 
@@ -84,8 +89,12 @@ class Server:
         os.environ["GIT_SSH_COMMAND"] = self.admin.env()["GIT_SSH_COMMAND"]  # the operator's reads
 
     def sh(self, script: str, stdin: bytes | None = None, user: str = "gitolite3") -> str:
-        done = subprocess.run(["docker", "exec", "-i", "-u", user, self.git["container"], "sh", "-c", script],
-                              input=stdin, capture_output=True, timeout=1800)
+        done = subprocess.run(
+            ["docker", "exec", "-i", "-u", user, self.git["container"], "sh", "-c", script],
+            input=stdin,
+            capture_output=True,
+            timeout=1800,
+        )
         if done.returncode:
             raise SystemExit(f"bench: on the git server: {script[:80]}: {done.stderr.decode()[-500:]}")
         return done.stdout.decode()
@@ -100,11 +109,13 @@ class Server:
             self.keys.setdefault(robot, keypair())
         add = {gitolite.key_file(robot): self.keys[robot][1] for robot in names}
         started = time.monotonic()
-        gitolite.update(self.admin, self.git["repo"], add, message=f"bench: {len(names)} robots, {shards} shards",
-                        shards=shards)
+        gitolite.update(
+            self.admin, self.git["repo"], add, message=f"bench: {len(names)} robots, {shards} shards", shards=shards
+        )
         self.registered = (len(names), shards)
-        print(f"bench: {len(names)} robots registered, {shards} shards ({time.monotonic() - started:.0f} s)",
-              flush=True)
+        print(
+            f"bench: {len(names)} robots registered, {shards} shards ({time.monotonic() - started:.0f} s)", flush=True
+        )
 
     def seed(self, by_repo: dict[str, list[str]]) -> None:
         """Exactly these robots' reports in each repository (and a releases
@@ -116,13 +127,16 @@ class Server:
                 info = tarfile.TarInfo(repo)
                 info.size = len(data)
                 tar.addfile(info, io.BytesIO(data))
-        self.sh(f"set -e; rm -rf {SEED_DIR}; mkdir -p {SEED_DIR}; tar -x -C {SEED_DIR}; "
-                f"for name in $(ls {SEED_DIR}); do where={REPOSITORIES}/$name.git; "
-                "git -C $where for-each-ref --format='delete %(refname)' refs/reports/ | "
-                "git -C $where update-ref --stdin; "
-                f"git -C $where fast-import --quiet --force < {SEED_DIR}/$name; "
-                "git -C $where pack-refs --all; done; "
-                f"rm -rf {SEED_DIR}", stdin=archive.getvalue())
+        self.sh(
+            f"set -e; rm -rf {SEED_DIR}; mkdir -p {SEED_DIR}; tar -x -C {SEED_DIR}; "
+            f"for name in $(ls {SEED_DIR}); do where={REPOSITORIES}/$name.git; "
+            "git -C $where for-each-ref --format='delete %(refname)' refs/reports/ | "
+            "git -C $where update-ref --stdin; "
+            f"git -C $where fast-import --quiet --force < {SEED_DIR}/$name; "
+            "git -C $where pack-refs --all; done; "
+            f"rm -rf {SEED_DIR}",
+            stdin=archive.getvalue(),
+        )
 
     def layout(self, names: list[str], shards: int) -> None:
         """The server holding ``names``' reports in ``shards`` shards (0: in the fleet repository)."""
@@ -131,20 +145,23 @@ class Server:
         self.register(names, shards)
         spread = report_shards.spread(names, shards)
         by_repo = {self.git["repo"]: names if shards == 0 else []}
-        by_repo.update({report_shards.shard_repo(self.git["repo"], shard): spread.get(shard, [])
-                        for shard in range(shards)})
+        by_repo.update(
+            {report_shards.shard_repo(self.git["repo"], shard): spread.get(shard, []) for shard in range(shards)}
+        )
         self.seed(by_repo)
 
     def cpu_seconds(self) -> float:
         """The server container's CPU time so far: its cgroup's (v1 cpuacct
         or v2 cpu.stat, whichever this machine has), read on the server."""
-        text = self.sh("cg=$(sed -n 's/^[0-9]*:\\(cpu,cpuacct\\|cpuacct,cpu\\|cpuacct\\):\\(.*\\)/\\2/p' "
-                       "/proc/1/cgroup | head -n1); "
-                       "for f in /sys/fs/cgroup/cpu,cpuacct$cg/cpuacct.usage /sys/fs/cgroup/cpuacct$cg/cpuacct.usage; "
-                       "do [ -r $f ] && { echo ns $(cat $f); exit 0; }; done; "
-                       "cg=$(sed -n 's/^0::\\(.*\\)/\\1/p' /proc/1/cgroup); "
-                       "for f in /sys/fs/cgroup/unified$cg/cpu.stat /sys/fs/cgroup$cg/cpu.stat; "
-                       "do [ -r $f ] && { echo us $(sed -n 's/^usage_usec //p' $f); exit 0; }; done; exit 1")
+        text = self.sh(
+            "cg=$(sed -n 's/^[0-9]*:\\(cpu,cpuacct\\|cpuacct,cpu\\|cpuacct\\):\\(.*\\)/\\2/p' "
+            "/proc/1/cgroup | head -n1); "
+            "for f in /sys/fs/cgroup/cpu,cpuacct$cg/cpuacct.usage /sys/fs/cgroup/cpuacct$cg/cpuacct.usage; "
+            "do [ -r $f ] && { echo ns $(cat $f); exit 0; }; done; "
+            "cg=$(sed -n 's/^0::\\(.*\\)/\\1/p' /proc/1/cgroup); "
+            "for f in /sys/fs/cgroup/unified$cg/cpu.stat /sys/fs/cgroup$cg/cpu.stat; "
+            "do [ -r $f ] && { echo us $(sed -n 's/^usage_usec //p' $f); exit 0; }; done; exit 1"
+        )
         unit, value = text.split()
         return int(value) / (1e9 if unit == "ns" else 1e6)
 
@@ -158,8 +175,9 @@ class Server:
             key = where / "id_ed25519"
             key.write_bytes(self.keys[robot][0])
             key.chmod(0o600)
-            (where / "known_hosts").write_text("".join(f"{agent_files.HOST_KEY_ALIAS} {' '.join(k.split()[:2])}\n"
-                                                       for k in self.git["host_keys"]))
+            (where / "known_hosts").write_text(
+                "".join(f"{agent_files.HOST_KEY_ALIAS} {' '.join(k.split()[:2])}\n" for k in self.git["host_keys"])
+            )
         return str(where)
 
     def remote(self, robot: str, repo: Path, shards: int):

@@ -43,8 +43,14 @@ def push_bytes(server: Server, robot: str, shards: int, samples: int) -> dict:
         remote = server.remote(robot, server.base / "robot" / robot, shards)
         remote.push_report(robot, gitolite_fleet.report(robot))
         push = remote.cost.exchanges[-1]
-        found.append({"bytes": push["sent"] + push["received"], "sent": push["sent"],
-                      "received": push["received"], "seconds": push["seconds"]})
+        found.append(
+            {
+                "bytes": push["sent"] + push["received"],
+                "sent": push["sent"],
+                "received": push["received"],
+                "seconds": push["seconds"],
+            }
+        )
     figures = {k: statistics.median(f[k] for f in found) for k in ("bytes", "sent", "received", "seconds")}
     return {**figures, "load": max(loads)}
 
@@ -100,15 +106,22 @@ def main(argv=None) -> int:
                     server.layout(names, shards)
                     if size in sizes:  # a robot of the fullest repository: the largest advertisement
                         fullest = max(report_shards.spread(names, shards).values(), key=len)
-                        row = {"refs": size, "shards": shards, "refs in its repository": len(fullest),
-                               **push_bytes(server, fullest[0], shards, args.samples)}
+                        row = {
+                            "refs": size,
+                            "shards": shards,
+                            "refs in its repository": len(fullest),
+                            **push_bytes(server, fullest[0], shards, args.samples),
+                        }
                         figures["push"].append(row)
-                        print(f"bench: report push at {size} refs, {shards or 'no'} shards: {json.dumps(row)}",
-                              flush=True)
+                        print(
+                            f"bench: report push at {size} refs, {shards or 'no'} shards: {json.dumps(row)}", flush=True
+                        )
                     if size == args.fleet:
                         figures["reads"][shards] = read_times(server, names, shards)
-                        print(f"bench: reads at {size} reports, {shards} shards: "
-                              f"{json.dumps(figures['reads'][shards])}", flush=True)
+                        print(
+                            f"bench: reads at {size} reports, {shards} shards: {json.dumps(figures['reads'][shards])}",
+                            flush=True,
+                        )
     finally:
         if not args.keep:
             hosts.down(args.prefix)

@@ -23,13 +23,19 @@ def test_the_schedule_is_a_steady_fleet_s_checks_and_heartbeat_pushes():
 def test_the_schedule_is_bounded_in_count_and_time():
     assert len(git_load.schedule(ROBOTS, 900, 300, 3600, minutes=60, limit=100)) == 100
     assert max(e[0] for e in git_load.schedule(ROBOTS, 900, 300, 3600, minutes=5, limit=10**6)) <= 300
-    assert git_load.schedule(ROBOTS, 900, 300, 3600, 5, 10**6) == git_load.schedule(ROBOTS, 900, 300, 3600,
-                                                                                                5, 10**6)
+    assert git_load.schedule(ROBOTS, 900, 300, 3600, 5, 10**6) == git_load.schedule(ROBOTS, 900, 300, 3600, 5, 10**6)
 
 
 def _row(at: float, lag: float, seconds: float, ok=True) -> dict:
-    return {"at": at, "lag": lag, "seconds": seconds, "ok": ok, "push": at % 2 == 0, "requests": 1 + (at % 2 == 0),
-            "bytes": 9000}
+    return {
+        "at": at,
+        "lag": lag,
+        "seconds": seconds,
+        "ok": ok,
+        "push": at % 2 == 0,
+        "requests": 1 + (at % 2 == 0),
+        "bytes": 9000,
+    }
 
 
 def test_the_summary_shows_a_queue_as_lag_growing_from_the_first_third_to_the_last():
