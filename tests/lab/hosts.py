@@ -187,6 +187,17 @@ def add_git_server(prefix: str) -> dict:
     return lab
 
 
+def git_server_alone(prefix: str) -> tuple[dict, Path]:
+    """Start (or reuse) only the git server of lab ``prefix``: its network,
+    its key and gitolite, no services and no hosts (what the git server's
+    benchmarks need).  (state.json's "git", the lab key); `down` removes it."""
+    check_prefix(prefix)
+    dc = client()
+    _ensure_network(dc, prefix)
+    key_path = _ensure_ssh_key(prefix)
+    return gitserver.ensure(dc, prefix, key_path), key_path
+
+
 def _has_git_server(dc, prefix: str) -> bool:
     return get_or_none(dc.containers, gitserver.container_name(prefix)) is not None
 
