@@ -1,6 +1,6 @@
 """Defaults for every host, assembled from the settings the engine and the
 roles declare (robotfleet/fleet/connection.py, roles/*/settings.py; listed in
-docs/settings.md).  Override any of them in the fleet file."""
+docs/reference/settings.md).  Override any of them in the fleet file."""
 
 from robotfleet.deploy_roles import group_data
 

@@ -15,7 +15,7 @@ that command's own argument list (pyinfra/connectors/util.py), where every
 local user can read it for a moment (ps, /proc/<pid>/cmdline; measured by
 tests/bench/sudo_password.py).  On a laptop other people log in to, give the
 deploying user passwordless sudo for the run and take it back after, or
-mount /proc with hidepid=2 (see docs/security.md); on a single-user laptop
+mount /proc with hidepid=2 (see docs/explanations/security.md); on a single-user laptop
 the exposure is to yourself.
 """
 

@@ -109,10 +109,9 @@ def operation_order_from_stack(state) -> list:
     frames.reverse()
     places = [_place(frame) for frame in frames]
     i = 0
-    if state.current_deploy_filename:
-        for i, (filename, _) in enumerate(places):
-            if filename == state.current_deploy_filename:
-                break
+    if state.current_deploy_filename:  # from its frame on; not found: the last, where pyinfra's loop ends
+        i = next((n for n, (filename, _) in enumerate(places) if filename == state.current_deploy_filename),
+                 len(places) - 1)
     line_numbers = []
     if pyinfra.is_cli:
         line_numbers.append(state.current_op_file_number)

@@ -4,7 +4,7 @@ A role is one folder under roles/ whose ``__init__.py`` defines
 ``ROLE = Role(...)``; deploy.py lists the roles in the order they run.  The
 engine builds everything else from these declarations: the fleet file's
 checks, the editors' JSON schema, the defaults pyinfra reads (group_data/),
-the settings table (docs/settings.md), the host's one snapshot command, the
+the settings table (docs/reference/settings.md), the host's one snapshot command, the
 status table and the rollout's target.  ARCHITECTURE.md has a worked example.
 """
 

@@ -1,7 +1,7 @@
 """The commands the documentation shows, found as a reader finds them.
 
 Every line of a code block (fenced, or indented four spaces after a blank
-line) of README.md, docs/*.md and roles/*/README.md that starts with
+line) of README.md, docs/**/*.md and roles/*/README.md that starts with
 ``robotfleet``, ``pyinfra``, ``python3 -m`` or ``.venv/bin/...`` (after
 ``VAR=value`` assignments, and in each part of an ``&&`` chain) is a
 command; so is an inline code span of prose that starts with ``robotfleet``,
@@ -41,8 +41,8 @@ ASSIGNMENT = re.compile(r"^[A-Z_][A-Z0-9_]*=")
 
 
 def documents() -> list[Path]:
-    """The operator's documentation: README.md, docs/*.md, each role's README.md."""
-    return [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), *sorted((ROOT / "roles").glob("*/README.md"))]
+    """The operator's documentation: README.md, docs/ (guides, reference, explanations), each role's README.md."""
+    return [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md")), *sorted((ROOT / "roles").glob("*/README.md"))]
 
 
 @dataclass
@@ -315,7 +315,7 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
 # as the docs' are: a command line in a comment (indented past the comment's
 # text) or a `code span`; a link is a path of the checkout, a Markdown
 # file's #anchor, or a section named as README, "Title".
-SECTION = re.compile(r"\b(README|ARCHITECTURE|docs/[\w-]+)(?:\.md)?"
+SECTION = re.compile(r"\b(README|ARCHITECTURE|docs/[\w/-]+|roles/\w+/README)(?:\.md)?"
                      r"(?:, \"([^\"]+)\"|, ([A-Z][^\",;:()]*\w)|'s \"([^\"]+)\"|\.md#([\w-]+))")
 PATH = re.compile(r"(?<![\w/.-])((?:tests|roles|robotfleet|docs|inventories|files|group_data)/[\w./-]*[\w/])")
 

@@ -2,7 +2,7 @@
 
 import argparse
 
-# --limit's help, the same for every command that takes it (docs/fleet-file.md#--limit).
+# --limit's help, the same for every command that takes it (docs/reference/fleet-file.md#--limit).
 LIMIT_HELP = ("groups, host globs or Ansible patterns (all, robots[0:2]), comma-separated (&group: also in it, "
               "!host: not it); repeatable")
 

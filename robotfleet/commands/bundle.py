@@ -17,7 +17,7 @@ the robot's own key will be; the hash of its public half is kept in
 the fleet entry whose settings they start with, each robot names itself
 --name-prefix and its machine-id (or board serial: robotfleet/pull/protocol/naming.py),
 and the one enrollment key may report as any name the rule can make but a
-registered robot's.  See docs/pull.md.
+registered robot's.  See docs/guides/pull.md.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def make(args) -> int:
         raise selection.Refused(str(error)) from None
     pull = pull_settings.part()
     if not pull.pulls(data):
-        raise selection.Refused(f"{fleet}: {args.robot} is not a pull robot (pull: true)")
+        raise selection.Refused(f"{fleet}: {args.robot} is not a pull robot (pull_enabled: true)")
     clone = install.releases_clone(robotfleet.CHECKOUT)
     repository = Repository(clone)
     try:
@@ -74,7 +74,7 @@ def make(args) -> int:
             raise selection.Refused(f"{clone}: no release published yet (robotfleet publish)")
         if args.robot not in record.robots:
             raise selection.Refused(f"release {record.version} is not for {args.robot}: publish a release whose fleet "
-                                "file has it (pull: true), then make its bundle")
+                                "file has it (pull_enabled: true), then make its bundle")
         code = repository.blob(record.code)
         wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(pull.platform(data))]
         root = install.trust_root(robotfleet.CHECKOUT, pull.trust_root(data))

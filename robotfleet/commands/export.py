@@ -15,7 +15,7 @@ same checks as over the network, loads the images (docker load) and checks
 each one's id against the signed release before it runs them.
 
 The media are refused once their timestamp expires (--timestamp-expiry,
-7 days by default): give the time the media must last.  See docs/pull.md.
+7 days by default): give the time the media must last.  See docs/guides/pull.md.
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
-"""Write the files built from the roles' declarations, so they cannot drift: the fleet file's schema, docs/settings.md.
+"""Write the files built from the roles' declarations, so they cannot drift: the fleet file's schema,
+docs/reference/settings.md.
 
     robotfleet generate          # writes them
     robotfleet generate --check  # exit 1 naming each file that is stale
 
 - inventories/fleet.schema.json: the fleet file's JSON Schema for editors;
-- docs/settings.md: every setting with its default and one line of doc.
+- docs/reference/settings.md: every setting with its default and one line of doc.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from robotfleet.fleet.registry import Registry
 from robotfleet.role import UNSET
 
 SCHEMA = CHECKOUT / "inventories" / "fleet.schema.json"
-SETTINGS_DOC = CHECKOUT / "docs" / "settings.md"
+SETTINGS_DOC = CHECKOUT / "docs" / "reference" / "settings.md"
 
 
 def shown_default(value) -> str:
@@ -29,7 +30,7 @@ def shown_default(value) -> str:
 
 
 def settings_doc(registry: Registry) -> str:
-    """docs/settings.md: a table per part (the engine's own, then each role)."""
+    """docs/reference/settings.md: a table per part (the engine's own, then each role)."""
     lines = [
         "# Settings",
         "",

@@ -6,7 +6,7 @@ A halt is signed like a release: the next version of the release record,
 with the same code and images and `halt: true`.  Robots already on the
 release keep it (roll them back with a new release, or rollback.py); the
 waves that have not opened never will.  Publishing a new release ends the
-halt.  See docs/pull.md.
+halt.  See docs/guides/pull.md.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ printed.  The root key signs only a new root (the first publish, a key
 change, a renewal of the root's year); the online key signs every publish.
 A new root is signed by the old root key and, for a root key change, by the
 new one too; robots that trust the old root follow the chain.  Where each
-option goes: --remote/--to-dir as for publish.  See docs/pull.md.
+option goes: --remote/--to-dir as for publish.  See docs/guides/pull.md.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def init(args) -> int:
     for name, public in made:
         print(f"keys: {keys.file(name)} ({_says(public)})")
     print("keys: the first publish signs the repository's root with the root key; then move "
-          f"{keys.file(ROOT)} to offline storage (docs/pull.md)")
+          f"{keys.file(ROOT)} to offline storage (docs/guides/pull.md)")
     return selection.OK
 
 

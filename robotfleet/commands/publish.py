@@ -5,7 +5,7 @@
     robotfleet publish --renew [--remote NAME|URL | --to-dir DIR] [--keys DIR]
 
 FLEET_FILE (default inventories/robots.yaml) is read as the commit has it;
-its hosts with `pull: true` are the release's robots.  Every image of
+its hosts with `pull_enabled: true` are the release's robots.  Every image of
 their payload is resolved to its digest in its registry now, the deploy
 tree at the commit (default HEAD; a tree with uncommitted changes is
 refused unless --allow-dirty) is archived, the wheels of the robots'
@@ -18,7 +18,7 @@ repository's root, signed with the root key.
 --renew re-signs the short-lived timestamp (and whatever else is due)
 without a new release: run it daily, or robots refuse the repository as
 expired once the timestamp's validity (--timestamp-expiry, 7 days) ends.
-See docs/pull.md.
+See docs/guides/pull.md.
 """
 
 from __future__ import annotations

@@ -193,7 +193,7 @@ def main(argv=None) -> int:
         inventory = selection.inventory(args.inventory)
         chosen = [h for h in selection.select(inventory, args.inventory, args.limit) if pull_settings.pulls(h.data)]
         if not chosen:
-            raise selection.Refused(f"{args.inventory}: no pull robot (pull: true) to enroll")
+            raise selection.Refused(f"{args.inventory}: no pull robot (pull_enabled: true) to enroll")
         unknown = [name for name in args.replace if name not in {h.name for h in chosen}]
         if unknown:
             raise selection.Refused(f"--replace {' '.join(unknown)}: no such pull robot selected in {args.inventory}; "

@@ -27,7 +27,7 @@ from robotfleet.pull.operator.repository import Repository
 
 
 def add_options(parser) -> None:
-    pull = parser.add_argument_group("pull robots (docs/pull.md)")
+    pull = parser.add_argument_group("pull robots (docs/guides/pull.md)")
     pull.add_argument("--fleet", default=None, metavar="FILE",
                       help="the fleet file the release carries, a path in the commit (default $ROBOT_FLEET, "
                            "else inventories/robots.yaml)")

@@ -8,11 +8,11 @@ Each wave is the normal deploy (`pyinfra -y --json INVENTORY deploy.py
 this one has reached its target (each role with a rollout part says what:
 the payload, every image of the robot's compose project running healthy)
 or is counted against the budget.
-Robots not reached keep their release.  Robots with `pull: true` are not
+Robots not reached keep their release.  Robots with `pull_enabled: true` are not
 deployed over SSH: the rollout publishes a signed release with these waves
 and follows the robots' reports (robotfleet/commands/pullrollout.py).  The state lives in
 .rollout/<key>.json on this machine: rerunning the same command resumes with
-the robots not yet on the new release.  See docs/releases.md, "Rollouts in waves".
+the robots not yet on the new release.  See docs/guides/releases.md, "Rollouts in waves".
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ def main(argv=None) -> int:
         return selection.REFUSED
     pulls = pull_part(deploy_roles.roles()).pulls
     pulled = [name for name, data in hosts if pulls(data)]
-    if pulled:  # robots that converge themselves: publish and follow their reports (docs/pull.md)
+    if pulled:  # robots that converge themselves: publish and follow their reports (docs/guides/pull.md)
         from robotfleet.commands import pullrollout
 
         if args.pyinfra_env and not args.fleet:  # the fleet named as the inventory is the one the release carries

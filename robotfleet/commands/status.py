@@ -5,7 +5,7 @@
 
 One row per host, one SSH command per host (a pull robot's row comes from
 its last report on the fleet's releases remote instead, --remote, default
-the one the fleet names; docs/pull.md): the engine's own part (the
+the one the fleet names; docs/guides/pull.md): the engine's own part (the
 host's architecture, as the snapshot reads it) and each role with a status
 part (deploy.py's roles) add their columns, e.g. Docker's version, the current
 release, its image, container state and health, the GPU driver.

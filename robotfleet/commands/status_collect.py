@@ -23,7 +23,7 @@ def collect(inventory_path: str, limits: list[str], roles=None, answered=None, r
             parallel: int = PARALLEL) -> list[dict]:
     """One row per host of ``inventory_path`` matching ``limits``, in
     inventory order; ``answered(row, count, total)`` is called as each host
-    answers (or fails to).  Hosts with ``pull: true`` are read from their
+    answers (or fails to).  Hosts with ``pull_enabled: true`` are read from their
     reports on the fleet remote (``remote``, else the checkout's origin), not
     over SSH; at most ``parallel`` at once.  Raises selection.Refused."""
     from pyinfra.api import Config, State

@@ -111,5 +111,5 @@ class Registry:
 
 
 def setting_of(field: str) -> str:
-    """The setting a problem's field belongs to: sensors[1].serial -> sensors."""
+    """The setting a problem's field belongs to: udev_sensors[1].serial -> udev_sensors."""
     return field.split(".")[0].split("[")[0]

@@ -2,7 +2,7 @@
 checker carries the schema of what it accepts, from the same patterns), so
 an editor flags mistakes as the operator types and agrees with the run
 (tests/unit/test_schema_agreement.py).  What the schema cannot say is
-BEYOND_SCHEMA; the run checks it, and docs/fleet-file.md names it."""
+BEYOND_SCHEMA; the run checks it, and docs/reference/fleet-file.md names it."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry
 
 
-# The rules only the run checks, each with what docs/fleet-file.md says of it.
+# The rules only the run checks, each with what docs/reference/fleet-file.md says of it.
 BEYOND_SCHEMA = {
     "rules across settings": "each role's rules on a host's merged settings: x11_user when x11_enabled is true, "
     "a pinned payload image, sensors that would match the same device, ros_roscore with ros_preset: ros1, "

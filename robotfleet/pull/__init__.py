@@ -1,4 +1,5 @@
-"""Pull mode: robots that converge themselves from signed releases (docs/pull.md).
+"""Pull mode: robots that converge themselves from signed releases (docs/guides/pull.md;
+how it works: docs/explanations/pull.md).
 
 Three layers, held by import-linter (pyproject.toml):
 

@@ -1,6 +1,6 @@
 """roles/gpu: the NVIDIA container toolkit on GPU robots and laptops.
 
-Runs where ``gpu: nvidia`` or ``payload_gpu`` is set, before the docker role,
+Runs where ``gpu_vendor: nvidia`` or ``payload_gpu`` is set, before the docker role,
 so a host that cannot have GPU containers fails (that host only, one line)
 before anything is installed:
 
@@ -115,6 +115,7 @@ ROLE = Role(
     runs_on=plan.wanted,
     reads=declare_reads,
     steps=nvidia_toolkit,
+    renamed=settings.RENAMED,
     adds={
         docker_hooks.DAEMON_OPTIONS: plan.daemon_options,
         payload_hooks.SERVICES: plan.payload_services,

@@ -30,7 +30,7 @@ DRIVER_MISSING = (
 
 def wanted(data) -> bool:
     """The gpu role runs where the payload asks for GPUs or the host is a GPU host."""
-    return data.get("gpu") == "nvidia" or payload_hooks.wants_gpus(data)
+    return data.get("gpu_vendor") == "nvidia" or payload_hooks.wants_gpus(data)
 
 
 # --- what the host snapshot tells -------------------------------------------

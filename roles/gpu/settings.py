@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
-from robotfleet.role import Setting
+from robotfleet.role import Renamed, Setting
 
 SETTINGS = (
-    Setting("gpu", None, c.optional(c.string(choices=("nvidia",))),
+    Setting("gpu_vendor", None, c.optional(c.string(choices=("nvidia",))),
             "nvidia: this host has an NVIDIA GPU for containers (payload_gpu implies it); the driver must be loaded."),
     Setting("gpu_repo_url", "https://nvidia.github.io/libnvidia-container", v.url,
             "NVIDIA's container toolkit repository (or a mirror with its layout): <url>/<channel>/deb/<arch>."),
@@ -35,3 +35,4 @@ SETTINGS = (
     Setting("gpu_driver_version_file", "/proc/driver/nvidia/version", v.private_path,
             "Where the loaded driver announces itself (change only to test without a GPU, as the lab does)."),
 )
+RENAMED = (Renamed("gpu", "gpu_vendor"),)

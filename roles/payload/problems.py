@@ -213,11 +213,12 @@ def project_problems(data) -> list[tuple[str, str]]:
                     problems.append((f"{where}.environment.{key}", f"expected a string, got {value!r} "
                                      "(quote it: YAML reads true/false, null and numbers as other types)"))
         env_files = spec.get("env_file")
-        for index, entry in enumerate(env_files if isinstance(env_files, list) else [env_files]):
+        listed = isinstance(env_files, list)
+        for index, entry in enumerate(env_files if listed else [env_files]):
             path = entry.get("path") if isinstance(entry, dict) else entry
             if isinstance(path, str) and (not path.startswith("/") or _under(path, payload_dir)):
-                problems.append((f"{where}.env_file", f"{path} would be read from the release directory; "
-                                 "use an absolute path outside it"))
+                problems.append((f"{where}.env_file" + (f"[{index}]" if listed else ""), f"{path} would be read "
+                                 "from the release directory; use an absolute path outside it"))
     if not raw and not value_of(data, "payload_allow_privileged"):
         volumes = {"volumes": list(value_of(data, "payload_volumes") or [])}
         problems += [(f"payload_volumes{key.removeprefix('.volumes')}", f"{what} gives the container root on the "

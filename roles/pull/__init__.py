@@ -1,6 +1,6 @@
 """roles/pull: the agent that lets a robot converge itself (pull mode).
 
-Where ``pull`` is true, a push deploy installs the agent: git and
+Where ``pull_enabled`` is true, a push deploy installs the agent: git and
 python3-venv, a venv made from the operator's wheels for the robot's
 python and architecture, the deploy tree the agent runs, its configuration
 and the release repository's root.json (root's only), the robot's own SSH
@@ -8,7 +8,8 @@ key for the fleet remote (made on the robot; it never leaves it), and
 robot-pull.service run by robot-pull.timer.  When the agent itself runs the
 deploy (a release, robotfleet/pull/robot/agent.py), the venv and the tree are
 the release's, which the agent put in place: the role leaves them alone.
-docs/pull.md says how it all fits; roles/pull/README.md what the role does.
+docs/guides/pull.md says how to use it, docs/explanations/pull.md how it all fits; roles/pull/README.md
+what the role does.
 """
 
 from __future__ import annotations
@@ -151,6 +152,7 @@ ROLE = Role(
     reads=declare_reads,
     steps=pull_agent,
     rules=settings.rules,
+    renamed=settings.RENAMED,
     pull=plan.PART,
 )
 

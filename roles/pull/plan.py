@@ -32,7 +32,7 @@ def value(data, name: str):
 
 
 def pulls(data) -> bool:
-    return value(data, "pull") is True
+    return value(data, "pull_enabled") is True
 
 
 def config(data, robot: str, **extra) -> agent_files.Config:

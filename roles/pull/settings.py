@@ -9,7 +9,7 @@ from __future__ import annotations
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
 from robotfleet.pull.protocol import agent_files, waves
-from robotfleet.role import Setting
+from robotfleet.role import Renamed, Setting
 
 # The fleet remote as git takes it (never through a shell, but still no
 # character a shell or git's option parser gives a meaning to):
@@ -60,13 +60,13 @@ def _number(field: str) -> tuple:
 
 
 SETTINGS = (
-    Setting("pull", False, c.boolean,
-            "This host converges itself from the signed releases robotfleet publish writes (docs/pull.md)."),
+    Setting("pull_enabled", False, c.boolean,
+            "This host converges itself from the signed releases robotfleet publish writes (docs/guides/pull.md)."),
     Setting("pull_platform", "cp313-x86_64",
             c.string(r"cp3[0-9]{1,2}-(x86_64|aarch64|armv7l)", "a platform like cp313-x86_64 (Python, machine)"),
             "A pull host's Python and machine (cp313-x86_64, cp311-aarch64): the wheels its releases carry."),
     Setting("pull_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
-            "The fleet remote the agent fetches releases from and pushes its reports to (required with pull)."),
+            "The fleet remote the agent fetches releases from and pushes its reports to (required with pull_enabled)."),
     Setting("pull_report_remote", None, c.optional(c.string(REMOTE, REMOTE_WHAT)),
             "Where the agent pushes its reports, when not to pull_remote (e.g. ssh to the git server while releases "
             "come from an https mirror); null: pull_remote."),
@@ -105,14 +105,16 @@ SETTINGS = (
             "null: the one robotfleet publish keeps (.robotfleet/releases/metadata/root.json)."),
 )
 
+RENAMED = (Renamed("pull", "pull_enabled"),)
+
 
 def rules(data: dict, refused: frozenset) -> list[c.Problem]:
-    if data.get("pull") is not True or "pull" in refused:
+    if data.get("pull_enabled") is not True or "pull_enabled" in refused:
         return []
     problems = []
     remote = data.get("pull_remote")
     if remote is None and "pull_remote" not in refused:
-        problems.append(("pull_remote", "required when pull is true: the git URL of the fleet remote "
+        problems.append(("pull_remote", "required when pull_enabled is true: the git URL of the fleet remote "
                                         "(e.g. ssh://gitolite3@git.example.com/fleet)"))
     elif (any(isinstance(url, str) and not url.startswith("https://")
               for url in (remote, data.get("pull_report_remote")))

@@ -90,8 +90,8 @@ def sensor_rules(play: Play):
             operations.fail(name="Check vendor rules", message=f"udev_vendor_rules: files/udev/{name} does not exist")
             return
     files = dict(vendor_rules(data))
-    if data.sensors:
-        files[data.udev_rules_file] = rules.render(data.sensors)
+    if data.udev_sensors:
+        files[data.udev_rules_file] = rules.render(data.udev_sensors)
     for path, text in files.items():
         problems = rules.lint(text, data.udev_allow_world_writable)
         if problems:
@@ -110,7 +110,7 @@ def sensor_rules(play: Play):
                 validate=validate,
             )
         )
-    if not data.sensors:
+    if not data.udev_sensors:
         changes.append(
             operations.absent(name="Remove sensor rules", paths=[data.udev_rules_file], present=snap.files)
         )
@@ -128,9 +128,10 @@ ROLE = Role(
     doc="udev rules that give sensors stable names (two identical cameras become front/back); "
         "the payload gets the devices.",
     settings=settings.SETTINGS,
-    runs_on=lambda data: bool(data.sensors or data.udev_vendor_rules),
+    runs_on=lambda data: bool(data.udev_sensors or data.udev_vendor_rules),
     reads=declare_reads,
     steps=sensor_rules,
+    renamed=settings.RENAMED,
     rules=lambda data, refused: settings.rules(data, refused) + passthrough.problems(data, refused),
     adds={payload_hooks.SERVICES: passthrough.devices_for},
 )

@@ -9,5 +9,5 @@ def converged(play, host: str) -> None:
     data, snap = play.data, play.snapshot
     for path, text in udev.vendor_rules(data).items():
         snap.files[path] = file_state(text)
-    if data.sensors:
-        snap.files[data.udev_rules_file] = file_state(rules.render(data.sensors))
+    if data.udev_sensors:
+        snap.files[data.udev_rules_file] = file_state(rules.render(data.udev_sensors))

@@ -14,7 +14,7 @@ def service_devices(data, services: dict[str, dict]) -> dict[str, list[str]]:
     asking = [name for name, spec in services.items() if "devices" in spec]
     default = asking or (list(services) if len(services) == 1 else [])
     result: dict[str, list[str]] = {name: [] for name in services}
-    for sensor in data.get("sensors") or []:
+    for sensor in data.get("udev_sensors") or []:
         if not sensor.get("passthrough", True):
             continue
         for name in sensor.get("services") or default:
@@ -32,22 +32,22 @@ def devices_for(data, services: dict[str, dict]) -> dict:
 def problems(data: dict, refused: frozenset) -> list[c.Problem]:
     """Sensors that name a service the payload does not have, or that no
     service of a several-service payload would get."""
-    if "sensors" in refused:
+    if "udev_sensors" in refused:
         return []
     services = payload_hooks.declared_services(data, refused)
     if not services:
         return []
     found = []
     asking = [name for name, spec in services.items() if "devices" in spec]
-    for index, sensor in enumerate(data.get("sensors") or []):
+    for index, sensor in enumerate(data.get("udev_sensors") or []):
         if not isinstance(sensor, dict) or not sensor.get("passthrough", True):
             continue
         named = sensor.get("services")
         for name in named or []:
             if name not in services:
-                found.append((f"sensors[{index}].services", f"no service called {name!r} "
+                found.append((f"udev_sensors[{index}].services", f"no service called {name!r} "
                               f"(services: {', '.join(services)})"))
         if not named and len(services) > 1 and not asking:
-            found.append((f"sensors[{index}]", "name the service(s) that use it (services: [...]); "
+            found.append((f"udev_sensors[{index}]", "name the service(s) that use it (services: [...]); "
                           "no service asks for devices"))
     return found

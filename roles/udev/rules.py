@@ -8,7 +8,7 @@ from roles.udev.settings import DEFAULT_SENSOR_GROUP
 
 HEADER = (
     "# Managed by the robot fleet provisioner (roles/udev) from the fleet file's\n"
-    "# `sensors`; local edits are overwritten.\n"
+    "# `udev_sensors`; local edits are overwritten.\n"
 )
 # Only the first node of a V4L device (index 0) is the capture node; the
 # others are metadata nodes that must not steal the name.

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
-from robotfleet.role import Setting
+from robotfleet.role import Renamed, Setting
 
 SUBSYSTEMS = ("tty", "video4linux", "hidraw", "input", "usb", "sound")
 DEFAULT_SENSOR_GROUP = {
@@ -81,7 +81,7 @@ def udev_rules_path(value):
 c.with_schema(udev_rules_path, {"type": "string", "pattern": "^/etc/udev/rules\\.d/[A-Za-z0-9._@+-]+\\.rules$"})
 
 SETTINGS = (
-    Setting("sensors", [], c.list_of(sensor),
+    Setting("udev_sensors", [], c.list_of(sensor),
             "Sensors given stable names under /dev (see README, Describing a fleet: name, subsystem, a match)."),
     Setting("udev_rules_file", "/etc/udev/rules.d/70-robot-sensors.rules", udev_rules_path,
             "The generated rules file."),
@@ -92,31 +92,33 @@ SETTINGS = (
     Setting("udev_allow_world_writable", False, c.boolean, "Allow world-writable device modes (refused otherwise)."),
 )
 
+RENAMED = (Renamed("sensors", "udev_sensors"),)
+
 
 def rules(data: dict, refused: frozenset) -> list[c.Problem]:
     """Rules across sensors, over the sensors that are valid on their own."""
-    sensors = data.get("sensors")
+    sensors = data.get("udev_sensors")
     if not isinstance(sensors, list) or "udev_allow_world_writable" in refused:
         return []
     # A refused list still has sensors that are valid on their own.
-    valid = [(i, s) for i, s in enumerate(sensors) if "sensors" not in refused or not sensor(s)]
+    valid = [(i, s) for i, s in enumerate(sensors) if "udev_sensors" not in refused or not sensor(s)]
     allow_world_writable = data.get("udev_allow_world_writable") is True
     problems = []
     names, links, matches = {}, {}, {}
     for index, item in valid:
-        where = f"sensors[{index}]"
+        where = f"udev_sensors[{index}]"
         name = item["name"]
         if name in names:
-            problems.append((f"{where}.name", f"duplicate sensor name {name!r} (also sensors[{names[name]}])"))
+            problems.append((f"{where}.name", f"duplicate sensor name {name!r} (also udev_sensors[{names[name]}])"))
         names.setdefault(name, index)
         link = item.get("symlink") or f"robot/{name}"
         if link in links:
-            problems.append((f"{where}.symlink", f"/dev/{link} is already used by sensors[{links[link]}]"))
+            problems.append((f"{where}.symlink", f"/dev/{link} is already used by udev_sensors[{links[link]}]"))
         links.setdefault(link, index)
         match = tuple(item.get(k) for k in ("subsystem", "serial", "vendor_id", "product_id", "usb_port"))
         if match in matches:
             problems.append(
-                (where, f"matches the same devices as sensors[{matches[match]}]; "
+                (where, f"matches the same devices as udev_sensors[{matches[match]}]; "
                         "add a serial or usb_port to tell them apart")
             )
         matches.setdefault(match, index)

@@ -76,8 +76,8 @@ class Bench:
         extra = "".join(f"    robot{i}: {{}}\n" for i in range(4, self.n + 1))
         text = text.replace("\nlaptops:", "\n" + extra + "\nlaptops:", 1) if extra else text
         if command:
-            text = text.replace("    robot1:\n      sensors:",
-                                f"    robot1:\n      payload_command: {command}\n      sensors:", 1)
+            text = text.replace("    robot1:\n      udev_sensors:",
+                                f"    robot1:\n      payload_command: {command}\n      udev_sensors:", 1)
         return text
 
     def fleet(self, tag: str, command: str | None = None) -> Path:

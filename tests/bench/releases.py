@@ -42,8 +42,8 @@ def fleet(tmp: Path, name: str, host: str, tag: str, command: str | None = None)
     text = (ROOT / "inventories" / "lab.yaml").read_text()
     text = text.replace(LAB_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
     if command:
-        anchor = f"    {host}:\n      sensors:"
-        text = text.replace(anchor, f"    {host}:\n      payload_command: {command}\n      sensors:", 1)
+        anchor = f"    {host}:\n      udev_sensors:"
+        text = text.replace(anchor, f"    {host}:\n      payload_command: {command}\n      udev_sensors:", 1)
     path = tmp / f"{name}.yaml"
     path.write_text(text)
     return path

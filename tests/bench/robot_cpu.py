@@ -201,10 +201,11 @@ def main(argv=None) -> int:
         sections.write("robot_cpu", "\n".join([
             "## The robot's CPU per command, program by program", "",
             f"Written by `python3 -m tests.bench.robot_cpu --runs {args.runs}"
-            f"{' --snapshot' if args.snapshot else ''} --write` ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-            f"commit {commit.stdout.strip()}, {args.host} of a converged lab): every task descending from the "
-            "robot container's processes, from the kernel's scheduler tracepoints, per run, the robot's "
-            "background over the same time taken away; the container's cgroup count beside it.", "",
+            f"{' --snapshot' if args.snapshot else ''} --write` "
+            f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit.stdout.strip()}, "
+            f"{args.host} of a converged lab): every task descending from the robot container's processes, "
+            "from the kernel's scheduler tracepoints, per run, the robot's background over the same time "
+            "taken away; the container's cgroup count beside it.", "",
             table(costs), "", loads + "."]), {"costs": {n: vars(c) for n, c in costs.items()}}, HERE / "PROFILE.md")
     return 0
 

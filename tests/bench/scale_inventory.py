@@ -15,7 +15,7 @@ from robotfleet.inventory import parse_or_exit, pyinfra_groups
 def _load():
     spec = json.loads(Path(os.environ["ROBOT_SCALE_HOSTS"]).read_text())
     fleet = parse_or_exit(Path(spec["fleet"]).read_text(), spec["fleet"])
-    for group, hosts in fleet.groups.items():
+    for hosts in fleet.groups.values():
         for name, data in hosts:
             data.update(
                 ssh_hostname="127.0.0.1",

@@ -55,9 +55,9 @@ def fleet(tmp: Path, name: str, host: str, tag: str, settings: dict | None = Non
     text = text.replace(LAB_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
     settings = dict(settings or {})
     if settings:
-        anchor = f"    {host}:\n      sensors:"
+        anchor = f"    {host}:\n      udev_sensors:"
         lines = "".join(f"      {key}: {json.dumps(value)}\n" for key, value in settings.items())
-        text = text.replace(anchor, f"    {host}:\n{lines}      sensors:", 1)
+        text = text.replace(anchor, f"    {host}:\n{lines}      udev_sensors:", 1)
     path = tmp / f"{name}.yaml"
     path.write_text(text)
     return path

@@ -40,7 +40,7 @@ def fleet_text(hosts: int, sensors: bool) -> str:
     for index in range(hosts):
         lines.append(f"    robot{index}:\n      address: 10.{index // 65536}.{index // 256 % 256}.{index % 256}\n")
         if sensors:
-            lines.append("      sensors:\n" + SENSORS)
+            lines.append("      udev_sensors:\n" + SENSORS)
     return "".join(lines)
 
 

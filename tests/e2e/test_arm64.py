@@ -113,7 +113,8 @@ def pi1_fleet(arm, tmp_path, image: str, delivery: str):
     """inventories/lab.yaml with pi1's payload image and delivery set."""
     return arm.fleet_with(tmp_path, **{
         "      x11_enabled: true\n":
-            f"      x11_enabled: true\n      payload_delivery: {delivery}\n      payload_image: \"{image}\"\n"})
+            f"      x11_enabled: true\n      payload_delivery: {delivery}\n"
+            f"      payload_image: \"{image}\"\n"})
 
 
 @pytest.fixture(scope="module")

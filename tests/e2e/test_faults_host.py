@@ -100,7 +100,8 @@ def test_failed_udev_trigger_is_a_warning_and_the_payload_still_deploys(lab, fle
         wait_for(lambda: lab.sh(host, "udevadm control --ping")[0] == 0, 20, "udevd in robot3")
         changed = fleet(**{
             '{name: gps, subsystem: tty, serial: "GPS-42"}':
-                '{name: gps, subsystem: tty, serial: "GPS-42", mode: "0640"}',
+                '{name: gps, subsystem: tty, serial: "GPS-42", '
+                'mode: "0640"}',
             ALL_TAG: 'payload_image: "@registry@/ros/payload:1.1"',
         })
         run = lab.provision("--limit", host, fleet=changed, label="(robot3, new rules, udev trigger fails)")

@@ -33,7 +33,7 @@ STALL_PORT = 5999  # a "registry" on the robot that accepts connections and neve
 def host_settings(host: str, *lines: str) -> dict[str, str]:
     """A fleet_with() replacement adding settings to one robot."""
     extra = "".join(f"      {line}\n" for line in lines)
-    return {f"    {host}:\n      sensors:": f"    {host}:\n{extra}      sensors:"}
+    return {f"    {host}:\n      udev_sensors:": f"    {host}:\n{extra}      udev_sensors:"}
 
 
 def image(tag_or_ref: str) -> dict[str, str]:

@@ -132,8 +132,8 @@ def test_changing_one_robots_tag_changes_that_robot_alone(lab, first_run, tmp_pa
     before = {h: lab.payload(h)["Id"] for h in lab.robots}
     fleet = lab.fleet_with(
         tmp_path,
-        **{"      sensors:\n        - {name: imu,": "      payload_image: \"@registry@/ros/payload:1.1\"\n      "
-                                                    "sensors:\n        - {name: imu,"},
+        **{"      udev_sensors:\n        - {name: imu,": "      payload_image: \"@registry@/ros/payload:1.1\"\n      "
+                                                    "udev_sensors:\n        - {name: imu,"},
     )
     run = lab.provision(fleet=fleet, label="(robot2 to 1.1)")
     assert run.returncode == 0, run.output[-4000:]

@@ -9,7 +9,7 @@
 - robot1: no driver -> that host fails with one line before anything is
   installed.
 
-What the stand-ins do not prove is in docs/gpu.md ("What the lab proves")."""
+What the stand-ins do not prove is in roles/gpu/README.md ("What the lab proves")."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ GPU_HOSTS = ("robot1", "robot2", "robot3")
 
 
 def gpu_block(settings: dict, **override) -> str:
-    values = {"gpu": "nvidia", **settings, **override}
+    values = {"gpu_vendor": "nvidia", **settings, **override}
     return "".join(f"      {key}: {json.dumps(value)}\n" for key, value in values.items())
 
 

@@ -286,7 +286,7 @@ DEFAULTS_PAUSE = 150  # publish's default is 600 s; the canary applies within th
 
 
 def user_fleet(pull, image: str) -> str:
-    """The fleet a user writes from docs/pull.md: the payload by its tag in
+    """The fleet a user writes from docs/guides/pull.md: the payload by its tag in
     all.vars (no digest: publish resolves it), payload_stable_seconds 5 and
     the pull settings in robots' vars; robot1..4."""
     fleet = json.loads(pull.fleet("1.1").split("\n", 1)[1])

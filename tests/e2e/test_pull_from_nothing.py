@@ -1,4 +1,4 @@
-"""End to end: docs/pull-from-nothing.md's git server, from its own shell
+"""End to end: docs/guides/pull-from-nothing.md's git server, from its own shell
 blocks (issue 35 item 3), run as written on a stock Debian machine of the
 lab: the host image (Debian 13, nothing of gitolite), on the lab network
 under the guide's name for it, `git.example.com`, with the lab's apt proxy.
@@ -32,7 +32,7 @@ from tests.e2e.conftest import phase
 
 pytestmark = pytest.mark.e2e
 
-GUIDE = "docs/pull-from-nothing.md"
+GUIDE = "docs/guides/pull-from-nothing.md"
 SERVER_NAME = "git.example.com"  # the guide's name for the git server
 OPERATOR = "ops"
 KEY_PATH = "/path/to/your-key.pub"  # the guide's placeholder, made a real file
@@ -44,8 +44,11 @@ def guide_blocks() -> dict[int, list[str]]:
     from tests import doccommands
 
     doc = doccommands.ROOT / GUIDE
-    headings = [(number, int(match.group(1))) for number, text in enumerate(doc.read_text().splitlines(), 1)
-                if (match := re.match(r"^## (\d+)\. ", text))]
+    headings = [
+        (number, int(match.group(1)))
+        for number, text in enumerate(doc.read_text().splitlines(), 1)
+        if (match := re.match(r"^## (\d+)\. ", text))
+    ]
     found: dict[int, list[str]] = {}
     for block in doccommands.blocks(doc):
         steps = [step for line, step in headings if line < block.line]
@@ -70,22 +73,35 @@ class Server:
         self.port = pick_free_port(24001, published_ports(dc))
         network = f"{lab.prefix}-net"
         self.container = hostimage.create_systemd_container(
-            dc, hostimage.ensure_host_image(dc), self.name, hostname="git", network=network,
-            labels={"robot-lab.prefix": lab.prefix, "robot-lab.role": "guide-git"}, ports={22: self.port},
-            volumes={})
+            dc,
+            hostimage.ensure_host_image(dc),
+            self.name,
+            hostname="git",
+            network=network,
+            labels={"robot-lab.prefix": lab.prefix, "robot-lab.role": "guide-git"},
+            ports={22: self.port},
+            volumes={},
+        )
         dc.networks.get(network).disconnect(self.container)  # again, under the guide's name
         dc.networks.get(network).connect(self.container, aliases=[SERVER_NAME])
         proxy = lab.ok(lab.robots[0], "cat /etc/apt/apt.conf.d/01robot-lab-proxy")
-        put_files(self.container, {"/etc/machine-id": uuid.uuid4().hex + "\n",
-                                   "/etc/apt/apt.conf.d/01robot-lab-proxy": proxy})
+        put_files(
+            self.container, {"/etc/machine-id": uuid.uuid4().hex + "\n", "/etc/apt/apt.conf.d/01robot-lab-proxy": proxy}
+        )
         self.container.start()
         self.host_keys = sshd.wait_for_host_keys(self.container, 90)
         key = Path(lab.state["ssh_key"])
         home = f"/home/{OPERATOR}"
         self.root(f"mkdir -p {Path(KEY_PATH).parent} {home}/.ssh")
         put_files(self.container, {KEY_PATH: key.with_suffix(".pub").read_text()})
-        put_files(self.container, {f"{home}/.ssh/id_ed25519": key.read_text(),
-                                   f"{home}/.ssh/id_ed25519.pub": key.with_suffix(".pub").read_text()}, mode=0o600)
+        put_files(
+            self.container,
+            {
+                f"{home}/.ssh/id_ed25519": key.read_text(),
+                f"{home}/.ssh/id_ed25519.pub": key.with_suffix(".pub").read_text(),
+            },
+            mode=0o600,
+        )
         self.root(f"chown -R {OPERATOR}: {home}/.ssh && chmod 700 {home}/.ssh")
 
     def run(self, script: str, user: str = "root") -> str:
@@ -143,17 +159,27 @@ def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_
     server.run(f"git ls-remote {shlex.quote(remote)}", OPERATOR)  # it exists, and the operator reads it
 
     # robotfleet's admin of that server (as bundle and pull-enroll run it), from this machine
-    admin = gitolite.Admin(f"ssh://gitolite3@127.0.0.1:{server.port}", server.lab.state["ssh_key"],
-                           str(server.known_hosts(tmp_path / "known_hosts")))
+    admin = gitolite.Admin(
+        f"ssh://gitolite3@127.0.0.1:{server.port}",
+        server.lab.state["ssh_key"],
+        str(server.known_hosts(tmp_path / "known_hosts")),
+    )
     robot_key = tmp_path / "robot1"
     subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(robot_key)], check=True)
     gitolite.register(admin, "fleet", "robot1", robot_key.with_suffix(".pub").read_text())
-    ssh = (f"ssh -F /dev/null -i {robot_key} -o IdentitiesOnly=yes -o BatchMode=yes -o StrictHostKeyChecking=yes "
-           f"-o UserKnownHostsFile={tmp_path / 'known_hosts'}")
-    read = subprocess.run(["git", "ls-remote", f"ssh://gitolite3@127.0.0.1:{server.port}/fleet"],
-                          env={"GIT_SSH_COMMAND": ssh, "PATH": "/usr/bin:/bin"}, capture_output=True, text=True)
+    ssh = (
+        f"ssh -F /dev/null -i {robot_key} -o IdentitiesOnly=yes -o BatchMode=yes -o StrictHostKeyChecking=yes "
+        f"-o UserKnownHostsFile={tmp_path / 'known_hosts'}"
+    )
+    read = subprocess.run(
+        ["git", "ls-remote", f"ssh://gitolite3@127.0.0.1:{server.port}/fleet"],
+        env={"GIT_SSH_COMMAND": ssh, "PATH": "/usr/bin:/bin"},
+        capture_output=True,
+        text=True,
+    )
     assert read.returncode == 0, read.stderr  # the robot's key reads the fleet's releases
-    conf = server.root("sudo -u gitolite3 -H git -C /var/lib/gitolite3/repositories/gitolite-admin.git "
-                       "show HEAD:conf/gitolite.conf")
+    conf = server.root(
+        "sudo -u gitolite3 -H git -C /var/lib/gitolite3/repositories/gitolite-admin.git show HEAD:conf/gitolite.conf"
+    )
     assert "RW+ = admin" in conf and "robot1" in conf, conf  # the admin kept, the robot's rule added
     phase("pull guide: steps 2 and 3 as the operator, a robot registered by robotfleet", started)

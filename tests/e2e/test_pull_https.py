@@ -1,5 +1,5 @@
 """End to end: a pull robot fetching its releases from a static HTTPS mirror
-(issue 35 item 5; docs/pull.md "Releases over HTTPS"), its reports going to
+(issue 35 item 5; docs/guides/pull.md "Releases over HTTPS"), its reports going to
 the lab's gitolite over SSH with its own key.
 
 The mirror is what an operator would put near the robots: a copy of the
@@ -69,8 +69,9 @@ class Mirror:
         self.git("-C", str(self.repo), "update-server-info")
 
     def serve(self, cert=None, key=None, port: int = 0) -> None:
-        self.server = self.httpsgit.Server(self.root, cert or self.cert, key or self.key, smart=False,
-                                           host=self.address, port=port)
+        self.server = self.httpsgit.Server(
+            self.root, cert or self.cert, key or self.key, smart=False, host=self.address, port=port
+        )
 
     def close(self) -> None:
         if self.server is not None:
@@ -85,9 +86,18 @@ class Https(Pull):
     def fleet(self, tag: str, robots=(ROBOT,), **more) -> str:
         from tests.lab import gitserver
 
-        return self.pullfleet.fleet_text(self.op.lab, payload_tag=tag, robots=list(robots), **{
-            **QUIET, "pull_remote": self.mirror.url(), "pull_remote_ca": CA_FILE,
-            "pull_report_remote": gitserver.robot_url(self.op.git), **more})
+        return self.pullfleet.fleet_text(
+            self.op.lab,
+            payload_tag=tag,
+            robots=list(robots),
+            **{
+                **QUIET,
+                "pull_remote": self.mirror.url(),
+                "pull_remote_ca": CA_FILE,
+                "pull_report_remote": gitserver.robot_url(self.op.git),
+                **more,
+            },
+        )
 
     def check(self) -> None:
         self.trigger([ROBOT])
@@ -102,8 +112,14 @@ class Https(Pull):
 
         started = time.monotonic()
         env = self.op.env(ROBOT_LAB_FLEET=str(self.op.repo / self.pullfleet.FLEET), PYINFRA_PROGRESS="off")
-        done = subprocess.run([sys.executable, "-c", PYINFRA, "-y", f"--limit={ROBOT}", "inventories/lab.py",
-                               "deploy.py"], cwd=self.op.repo, env=env, capture_output=True, text=True, timeout=1500)
+        done = subprocess.run(
+            [sys.executable, "-c", PYINFRA, "-y", f"--limit={ROBOT}", "inventories/lab.py", "deploy.py"],
+            cwd=self.op.repo,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=1500,
+        )
         phase(f"pyinfra deploy.py (pull agent, https mirror; exit {done.returncode})", started)
         assert done.returncode == 0, (done.stderr + done.stdout)[-4000:]
 

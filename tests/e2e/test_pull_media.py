@@ -1,8 +1,9 @@
 """End to end: a pull robot with no network converges from exported media
 and refuses tampered or replayed media, and a robot outside its maintenance
 window prefetches, then only switches inside it (issue 35 items 6 and 7;
-docs/pull.md "Robots with no network: releases on media" and "Prefetch
-before the window"), on the lab's real Docker engine.
+docs/guides/pull.md "Robots with no network: releases on media",
+docs/explanations/pull.md "Prefetch before the window"), on the lab's real
+Docker engine.
 
 One robot of the session's lab (robot3), its own pull agent and release
 keys on the lab's git server, its timer at an hour (every check here is

@@ -110,9 +110,9 @@ def test_push_delivery_to_a_robot_without_registry(lab, fleet_on):
     engine = docker.from_env()
     engine.images.get("ros/payload:1.1").tag("offline.invalid/ros/payload", "1.1")
     extra = {
-        "      sensors:\n        - {name: gps,":
+        "      udev_sensors:\n        - {name: gps,":
             "      payload_delivery: push\n      payload_image: offline.invalid/ros/payload:1.1\n"
-            "      sensors:\n        - {name: gps,",
+            "      udev_sensors:\n        - {name: gps,",
     }
     fleet = fleet_on("1.0", extra)
     assert lab.sh("robot3", "docker pull offline.invalid/ros/payload:1.1")[0] != 0  # no route to that registry
@@ -133,7 +133,7 @@ def test_push_delivery_to_a_robot_without_registry(lab, fleet_on):
     assert status(lab)["robot3"]["image"] == "offline.invalid/ros/payload:1.1"
 
 
-ROBOT1 = "    robot1:\n      sensors:"
+ROBOT1 = "    robot1:\n      udev_sensors:"
 LOOP = "while :; do touch /tmp/heartbeat; sleep 1 & wait $!; done"
 
 
@@ -162,12 +162,13 @@ def test_an_update_stops_the_old_payload_by_its_own_signal(lab, fleet_on, what, 
     second, not Docker's 10 s default and a kill."""
     try:
         setup = lab.provision("--limit", "robot1",
-                              fleet=fleet_on("1.0", {ROBOT1: f"    robot1:\n{lines}      sensors:"}),
+                              fleet=fleet_on("1.0", {ROBOT1: f"    robot1:\n{lines}      udev_sensors:"}),
                               label=f"(robot1: {what})")
         assert setup.returncode == 0, setup.output[-3000:]
         assert inspect(lab.payload("robot1")), lab.payload("robot1")["Config"]
         since = lab.ok("robot1", "date +%s.%N").strip()
-        run = lab.provision("--limit", "robot1", fleet=fleet_on("1.1", {ROBOT1: f"    robot1:\n{lines}      sensors:"}),
+        run = lab.provision("--limit", "robot1",
+                            fleet=fleet_on("1.1", {ROBOT1: f"    robot1:\n{lines}      udev_sensors:"}),
                             label=f"(robot1 to 1.1: {what})")
         assert run.returncode == 0, run.output[-3000:]
         assert lab.version("robot1") == "1.1" and inspect(lab.payload("robot1"))

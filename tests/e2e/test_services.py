@@ -79,7 +79,7 @@ def test_two_service_payload_deploys(lab, fleet):
         assert running["payload"]["HostConfig"]["CapAdd"] in (["CAP_NET_ADMIN"], ["NET_ADMIN"])
         record = lab.record(host)
         assert record["state"] == "active"
-        for ref, image in record["images"].items():
+        for image in record["images"].values():
             assert "@sha256:" in image["pinned"]
         assert {ref.rsplit("/", 2)[-2] + "/" + ref.rsplit("/", 1)[-1] for ref in record["images"]} == {
             "ros/payload:1.1", "ros/driver:1.0"}
@@ -210,7 +210,8 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
 
     # robot2's old setup was a compose project: taken over only because payload_replaces names it (issue 27.2).
     good = fleet('    payload_image: "@registry@/ros/payload:1.1"\n', **{
-        "    robot2:\n      sensors:": '    robot2:\n      payload_replaces: ["project:rosapp"]\n      sensors:'})
+        "    robot2:\n      udev_sensors:":
+            '    robot2:\n      payload_replaces: ["project:rosapp"]\n      udev_sensors:'})
     run = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover robot2, robot3)")
     assert run.returncode == 0, run.output[-4000:]
     assert ("[robot3] payload: taking over what runs the payload another way (stopped, restart policy no): "

@@ -279,8 +279,8 @@ def test_a_vars_file_not_read_is_noted_with_the_errors_it_explains(tmp_path):
     ("inventory.sh", "#!/bin/sh\necho '{}'\n", "inventory.sh: a dynamic inventory script: robotfleet reads static "
      "inventories; write its output to a file: ansible-inventory -i {d}/inventory.sh --list -y > fleet.yaml"),
     ("aws_ec2.yml", "plugin: amazon.aws.aws_ec2\nregions: [eu-west-1]\n", "aws_ec2.yml: an inventory plugin's "
-     "configuration (plugin: 'amazon.aws.aws_ec2'): robotfleet reads static inventories; write the plugin's output "
-     "to a file: ansible-inventory -i {d}/aws_ec2.yml --list -y > fleet.yaml"),
+     "configuration (plugin: 'amazon.aws.aws_ec2'): robotfleet reads static inventories; write the plugin's "
+     "output to a file: ansible-inventory -i {d}/aws_ec2.yml --list -y > fleet.yaml"),
     ("hosts.toml", "[robots.hosts]\nrobot1 = {}\n", "hosts.toml: a TOML inventory is not read here: convert it: "
      "ansible-inventory -i {d}/hosts.toml --list -y > fleet.yaml"),
 ])

@@ -1,4 +1,4 @@
-"""Every command README.md, docs/*.md and roles/*/README.md show
+"""Every command README.md, docs/**/*.md and roles/*/README.md show
 (tests/doccommands.py finds them) is what the program it names takes: its
 subcommand and options as the real `--help` prints them.  And each one the
 doc test can run without robots runs, as written, in a copy of the checkout:
@@ -29,7 +29,7 @@ from tests.fixtures import PYINFRA, ROOT
 COMMANDS = doccommands.all_commands()
 NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache",
                                     ".rollout", ".robotfleet")
-GENERATED = ("docs/settings.md", "inventories/fleet.schema.json")
+GENERATED = ("docs/reference/settings.md", "inventories/fleet.schema.json")
 # The host names the docs' commands that run name (--limit, --replace), robots and a
 # laptop; few robots, so that a rollout's waves are few.
 ROBOTS = ["robot1", "robot2"]
@@ -223,7 +223,7 @@ def table_header(text: str) -> list[str]:
 
 
 def test_the_status_table_shown_is_the_one_status_prints(sandbox):
-    """README's and docs/status.md's example rows have status's columns."""
+    """README's and docs/reference/status.md's example rows have status's columns."""
     command = doccommands.parse("test", 0, "robotfleet status inventories/robots.py")[0]
     printed = sandbox.run(command).stdout.splitlines()[0]
     shown = [line for doc in doccommands.documents() for block in doccommands.blocks(doc)

@@ -134,7 +134,8 @@ def test_a_mistyped_deploy_file_is_pyinfras_exit_1_before_any_host_is_contacted(
 def test_pull_enroll_and_bundle_refuse_a_robot_that_does_not_pull(tmp_path):
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
     result = run(path, tmp_path, "-m", "robotfleet", "pull-enroll", "inventories/robots.py")
-    assert (result.returncode, result.stderr) == (2, "inventories/robots.py: no pull robot (pull: true) to enroll\n")
+    assert (result.returncode, result.stderr) == (
+        2, "inventories/robots.py: no pull robot (pull_enabled: true) to enroll\n")
     result = run(path, tmp_path, "-m", "robotfleet", "bundle", "robot1", "--out", str(tmp_path / "b"))
     assert result.returncode == 2 and result.stderr.startswith("bundle: ")
     assert "robot1 is not a pull robot" in result.stderr

@@ -59,7 +59,7 @@ def test_cli_refuses_generated_fleets_before_any_connection(tmp_path):
         control.write_text(yaml12.dump(one_host))
 
         *results, control_result = run_cli(paths + [control])
-        for (label, data, lines), result in zip(refused, results):
+        for (label, _, lines), result in zip(refused, results):
             output = result.stdout + result.stderr
             assert result.returncode == 2, f"{label}: exit {result.returncode}\n{output}"
             assert "Traceback" not in output, f"{label}\n{output}"

@@ -40,7 +40,7 @@ def test_a_known_hosts_with_marker_lines_is_read_whole(tmp_path):
     path.write_text("# fleet\n" + line("*.fleet,!bad.fleet", ca, "@cert-authority") + "not a key line\n"
                     + line("[10.0.0.1]:2222", robot1) + line("*", revoked, "@revoked")
                     + line(paramiko.HostKeys.hash_host("robot2.fleet"), robot2) + line("robot3.fleet", revoked))
-    with pytest.raises(Exception):  # paramiko (pyinfra's reader) gives up on the file
+    with pytest.raises(paramiko.hostkeys.InvalidHostKey):  # paramiko (pyinfra's reader) gives up on the file
         paramiko.HostKeys(str(path))
     known = hostkeys.read(str(path))
     assert known.plain.lookup("[10.0.0.1]:2222") == {robot1.get_name(): robot1}
@@ -67,8 +67,8 @@ def test_a_revoked_key_is_refused_though_a_plain_line_names_it(tmp_path, monkeyp
     (tmp_path / "known_hosts").write_text(line(f"[127.0.0.1]:{server.port}", server.host_key)
                                           + line("*", server.host_key, "@revoked"))
     assert connect(path, monkeypatch) == {"robot1": (
-        f"host key REVOKED: {server.host_key.get_name()} {hostkeys.fingerprint(server.host_key)} is marked @revoked "
-        f"in {tmp_path / 'known_hosts'}; refused")}
+        f"host key REVOKED: {server.host_key.get_name()} {hostkeys.fingerprint(server.host_key)} is marked "
+        f"@revoked in {tmp_path / 'known_hosts'}; refused")}
 
 
 @pytest.mark.parametrize("strictness", ["yes", "accept-new"])

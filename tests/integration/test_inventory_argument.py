@@ -85,14 +85,14 @@ def test_every_command_that_contacts_robots_reads_it_too(tmp_path, kinds, argv, 
 
 def test_pull_enroll_reads_it(tmp_path, kinds):
     result = run(tmp_path, "-m", "robotfleet", "pull-enroll", "-i", str(kinds["directory"]))
-    line = f"{kinds['directory']}: no pull robot (pull: true) to enroll"
+    line = f"{kinds['directory']}: no pull robot (pull_enabled: true) to enroll"
     assert (result.returncode, result.stderr.strip()) == (2, line), result.stderr
 
 
 def test_bundle_reads_it(tmp_path, kinds):
     result = run(tmp_path, "-m", "robotfleet", "bundle", "robot1", "--out", str(tmp_path / "out"),
                  "-i", str(kinds["directory"]))
-    line = f"bundle: {kinds['directory']}: robot1 is not a pull robot (pull: true)"
+    line = f"bundle: {kinds['directory']}: robot1 is not a pull robot (pull_enabled: true)"
     assert (result.returncode, result.stderr.strip()) == (2, line), result.stderr
 
 

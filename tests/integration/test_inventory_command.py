@@ -56,7 +56,8 @@ def test_a_host_s_values_name_where_they_come_from(tmp_path):
 
 def test_secrets_are_masked_and_sibling_groups_that_disagree_are_noted(tmp_path):
     path = write(tmp_path / "inventory", {
-        "hosts": "[robots:children]\nwarehouse_a\nlidar_bots\n\n[warehouse_a]\nrobot[1:2]\n\n[lidar_bots]\nrobot2\n",
+        "hosts": "[robots:children]\nwarehouse_a\nlidar_bots\n\n"
+                 "[warehouse_a]\nrobot[1:2]\n\n[lidar_bots]\nrobot2\n",
         "group_vars/all.yml": "payload_image: reg.example.com/p:1\nansible_user: ops\n",
         "group_vars/warehouse_a.yml": "ssh_port: 2222\npayload_environment: {DB_URL: 'postgres://u:s3cret@db/x'}\n",
         "group_vars/lidar_bots.yml": "ssh_port: 22\n"})

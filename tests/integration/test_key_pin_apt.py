@@ -154,7 +154,7 @@ def test_nvidias_key_as_the_gpu_role_declares_it_goes_the_same_way(signers, repo
     served = tmp_path / "gpgkey"
     served.write_bytes(_variant(signers, "text after the BEGIN line"))
     dest = tmp_path / "keyrings" / "nvidia-container-toolkit.asc"
-    data = merged("robots", {"gpu": "nvidia", "gpu_apt_key_url": f"file://{served}",
+    data = merged("robots", {"gpu_vendor": "nvidia", "gpu_apt_key_url": f"file://{served}",
                              "gpu_apt_key_path": str(dest), "gpu_apt_key_fingerprint": fprs["pinned"]})
     repo = gpu.repository(data, "amd64")
     assert (repo.what, repo.fingerprint, repo.key_path) == ("NVIDIA", fprs["pinned"], str(dest))

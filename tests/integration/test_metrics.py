@@ -166,7 +166,7 @@ def test_pull_robots_are_in_the_metrics_from_their_reports_stale_marked(tmp_path
     inventory = tmp_path / "inv.py"
     # Addresses nothing listens on: a connection attempt would be an error row, not a report's.
     # Status judges a report's age by the fleet's settings, not by what the report says it was told.
-    pull = '"pull": True, "pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3, "pull_heartbeat": 10'
+    pull = '"pull_enabled": True, "pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3, "pull_heartbeat": 10'
     inventory.write_text("robots = [" + ", ".join(f'("robot{i}", {{{pull}, "ssh_hostname": "192.0.2.{i}"}})'
                                                   for i in range(1, 5)) + "]\n")
     result = subprocess.run([sys.executable, "-m", "robotfleet", "status", str(inventory), "--remote", f"file://{bare}",

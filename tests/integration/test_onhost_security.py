@@ -112,7 +112,7 @@ def _nvidia_repo(url: str, key_path: str, fingerprint: str) -> aptrepo.Repositor
     from roles import gpu
     from tests.unit.harness import merged
 
-    data = merged("robots", {"gpu": "nvidia", "gpu_apt_key_url": url, "gpu_apt_key_path": key_path,
+    data = merged("robots", {"gpu_vendor": "nvidia", "gpu_apt_key_url": url, "gpu_apt_key_path": key_path,
                              "gpu_apt_key_fingerprint": fingerprint})
     return gpu.repository(data, "amd64")
 

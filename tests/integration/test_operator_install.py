@@ -106,15 +106,15 @@ def test_editable_install_renders_from_any_directory(checkout, venv_python, tmp_
 
 
 def test_readme_installs_operators_before_the_lab_and_without_the_lab_setup():
-    """README's "Install for operators" (and docs/install.md, docs/laptops.md)
+    """README's "Install for operators" (and docs/guides/install.md, docs/guides/laptops.md)
     install with pip into .venv, never with the lab's .ci/setup; the lab is
     a page of docs/, after the operator's path."""
     text = (ROOT / "README.md").read_text()
     titles = re.findall(r"^## (.+)$", text, re.M)
     assert titles.index("Install for operators") < titles.index("Describing a fleet")
-    assert "The simulated fleet" not in titles and "](docs/lab.md)" in text.split("\n## More\n", 1)[1]
+    assert "The simulated fleet" not in titles and "](docs/guides/lab.md)" in text.split("\n## More\n", 1)[1]
     section = text.split("## Install for operators", 1)[1].split("\n## ", 1)[0]
-    pages = [section, *((ROOT / "docs" / name).read_text() for name in ("install.md", "laptops.md"))]
+    pages = [section, *((ROOT / "docs" / "guides" / name).read_text() for name in ("install.md", "laptops.md"))]
     for page in pages:
         commands = [line.strip() for line in page.splitlines() if line.startswith("    ")]
         assert not [c for c in commands

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.pull.robot import agent, transport
+from robotfleet.pull.robot import agent, agent_state, transport, wake_report
 from robotfleet.pull.protocol import agent_files, reports, tree
 from tests.integration import craftedgit
 from tests.unit import pullkit
@@ -114,8 +114,8 @@ class World:
         try:
             awake = agent.Wake(self.config, clock=lambda: NOW)
             report, outcome = awake.run()
-            sent = awake.send(report)
-            agent.save_state(self.state, awake.state)
+            sent = wake_report.send(awake, report)
+            agent_state.save_state(self.state, awake.state)
         finally:
             del os.environ["STUB"]
         return report, outcome, sent
@@ -140,7 +140,7 @@ def test_a_new_release_is_verified_applied_recorded_and_reported(world):
     report, outcome, sent = world.wake()
     assert (outcome.result, outcome.reason) == ("applied", "release 1 applied")
     assert sent == "report sent"
-    state = agent.load_state(world.state)
+    state = agent_state.load_state(world.state)
     assert state["applied"]["version"] == 1 and state["fleet"]["path"] == "inventories/robots.yaml"
     assert os.path.realpath(world.state / "code" / "current") == str(world.state / "code" / record.tree_sha256)
     assert (world.state / "last-run.log").read_text().startswith("ran pull-robot1-1-")
@@ -161,7 +161,7 @@ def test_a_rolled_back_release_is_reported_not_recorded_and_not_tried_again(worl
     world.release(2)
     report, outcome, _ = world.wake("rolled-back")
     assert outcome.result == "rolled-back" and "rolled back to y" in outcome.reason
-    state = agent.load_state(world.state)
+    state = agent_state.load_state(world.state)
     assert state["applied"]["version"] == 1 and state["attempted"]["result"] == "rolled-back"
     assert world.pushed_report()["attempted"] == {"version": 2, "result": "rolled-back", "tries": 1}
     _, again, _ = world.wake("applied")  # not tried a second time
@@ -199,7 +199,7 @@ def test_a_tampered_code_archive_is_refused_before_anything_runs(world, tmp_path
     report, outcome, _ = world.wake()
     assert (outcome.result, outcome.refusal) == ("refused", "tampered")
     assert "the code archive's tree hashes to" in outcome.reason
-    assert agent.load_state(world.state)["applied"]["version"] == 1
+    assert agent_state.load_state(world.state)["applied"]["version"] == 1
 
 
 def test_a_refused_repository_changes_nothing_and_says_why(world):
@@ -212,7 +212,7 @@ def test_a_refused_repository_changes_nothing_and_says_why(world):
     report, outcome, sent = world.wake()
     assert (outcome.result, outcome.refusal) == ("refused", "tampered") and sent == "report sent"
     assert world.pushed_report()["refusal"] == "tampered"
-    assert agent.load_state(world.state)["applied"]["version"] == 1
+    assert agent_state.load_state(world.state)["applied"]["version"] == 1
     assert sorted(p.name for p in world.state.iterdir()) == before
 
 
@@ -253,7 +253,7 @@ def test_a_robot_whose_key_the_remote_does_not_know_yet_waits_for_enrollment(wor
         assert outcome.reason.startswith("waiting for enrollment: the fleet remote does not accept this robot's key "
                                          "yet (robotfleet pull-enroll registers it; fetch: ")
         assert "Permission denied (publickey" in outcome.reason and sent.startswith("report not sent")
-        agent.save_state(world.state, {**agent.load_state(world.state), "seen": {"version": 1}})
+        agent_state.save_state(world.state, {**agent_state.load_state(world.state), "seen": {"version": 1}})
         _, outcome, _ = world.wake()
         assert outcome.result == "failed" and outcome.reason.startswith("fetch: ")
     finally:
@@ -283,7 +283,7 @@ def test_a_release_fetched_over_https_is_verified_applied_and_reported_elsewhere
 def test_the_journal_line_says_the_outcome_and_its_cost():
     report = {"result": "refused", "seen": {"version": 3}, "reason": "timestamp.json: expired",
               "check": {"cpu": 0.42, "sent": 1200, "received": 3400, "requests": 2}}
-    assert agent.journal_line(report, "report sent", 1.25) == (
+    assert wake_report.journal_line(report, "report sent", 1.25) == (
         "robot-pull: refused (release 3): timestamp.json: expired; 1.2 s, 0.42 s CPU, sent 1200 B, "
         "received 3400 B in 2 requests; report sent")
 
@@ -311,9 +311,9 @@ def test_the_enrollment_key_goes_once_the_remote_took_the_robot_s_own_key_even_w
     (world.etc / "enroll_ed25519").write_text("k")
     awake = agent.Wake(world.config, clock=lambda: NOW)
     report, _ = awake.run()
-    awake.state = agent.load_state(world.state)
+    awake.state = agent_state.load_state(world.state)
     awake.remote.accepted_key = str(world.etc / "id_ed25519")  # what ssh's log said (file:// has no ssh)
-    said = awake.send(report)
+    said = wake_report.send(awake, report)
     assert said.startswith("report unchanged; the enrollment key is retired")
     assert not (world.etc / "enroll_ed25519").exists()
 

@@ -109,7 +109,7 @@ def test_a_bundle_for_an_image_shared_by_many_robots_carries_the_name_rule(tmp_p
 
 def test_under_a_loose_umask_the_image_s_directories_keep_their_modes(tmp_path):
     # The operator's umask 002 (a shared group): the bundle is made in a
-    # process that has it, then unpacked as docs/pull.md says onto an image
+    # process that has it, then unpacked as docs/guides/pull.md says onto an image
     # whose /etc, /usr and /var are 0755.
     code = tmp_path / "code.tar.gz"
     code.write_bytes(b"code")

@@ -19,12 +19,12 @@ FLEET = """\
 all:
   vars: {payload_image: "reg.example.com/ros/payload:1.0"}
 robots:
-  vars: {pull: true, pull_remote: "https://git.lan/fleet.git"}
+  vars: {pull_enabled: true, pull_remote: "https://git.lan/fleet.git"}
   hosts:
     robot1: {address: 10.0.0.1, ssh_user: ops, ros_domain_id: 9}
 laptops:
   hosts:
-    laptop1: {pull: true, pull_remote: "https://git.lan/fleet.git", x11_user: alice, docker_users: [alice]}
+    laptop1: {pull_enabled: true, pull_remote: "https://git.lan/fleet.git", x11_user: alice, docker_users: [alice]}
 """
 
 

@@ -54,7 +54,7 @@ class Site:
         subprocess.run(["git", "init", "-q", "--bare", str(self.remote)], check=True)
         self.known_hosts = tmp_path / "known_hosts"
         self.kept = tmp_path / "enrollments.json"
-        self.fleet = fleet(tmp_path, {name: {"address": "127.0.0.1", "ssh_port": port, "pull": True}
+        self.fleet = fleet(tmp_path, {name: {"address": "127.0.0.1", "ssh_port": port, "pull_enabled": True}
                                       for name, port in (("robot9", 2209), ("robot-0123456789ab", 2210))},
                            pull_remote="ssh://gitolite3@git.lan/fleet", pull_remote_host_keys=[SERVER],
                            ssh_known_hosts_file=str(self.known_hosts))

@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from robotfleet.pull.robot import agent
+from robotfleet.pull.robot import agent_state
 from tests.integration.test_pull_agent import World
 
 
@@ -33,10 +33,10 @@ def world(tmp_path, monkeypatch):
 
 def age_state(world, seconds: float) -> None:
     """The last status read and report push, ``seconds`` earlier."""
-    state = agent.load_state(world.state)
+    state = agent_state.load_state(world.state)
     state["status"]["at"] -= seconds
     state["reported"]["at"] -= seconds
-    agent.save_state(world.state, state)
+    agent_state.save_state(world.state, state)
 
 
 def test_an_idle_check_runs_no_status_process_and_pushes_nothing(world):
@@ -82,7 +82,7 @@ def test_the_heartbeat_reads_the_status_and_pushes_the_report(world):
     before = time.time()
     _, _, sent = world.wake()
     assert world.runs.read_text() == "status\n" and sent == "report sent"
-    assert agent.load_state(world.state)["reported"]["at"] >= before
+    assert agent_state.load_state(world.state)["reported"]["at"] >= before
 
 
 def test_a_release_to_try_again_is_verified_in_full_before_it_is_applied(world):
@@ -91,4 +91,4 @@ def test_a_release_to_try_again_is_verified_in_full_before_it_is_applied(world):
     assert outcome.result == "failed"
     _, outcome, _ = world.wake()  # the same repository: recalled, then verified in full to download
     assert outcome.result == "applied"
-    assert agent.load_state(world.state)["applied"]["version"] == 2
+    assert agent_state.load_state(world.state)["applied"]["version"] == 2

@@ -26,7 +26,7 @@ import pytest
 
 from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.protocol import agent_files, media, platforms, reports
-from robotfleet.pull.robot import agent
+from robotfleet.pull.robot import agent_state
 from tests.integration.test_pull_agent import World, code_archive
 from tests.integration.test_pull_publish import git, registry, robot_fetch, robotfleet_cmd, site  # noqa: F401
 from tests.integration.test_pull_trust import refused
@@ -35,13 +35,14 @@ from tests.unit import pullkit
 from tests.unit.pullkit import DAY, NOW
 
 MACHINE = platforms.parse_platform(platforms.platform_key())[1]
+refusals = pullkit.module("robot.refusals")
 FLEET = """\
 all:
   vars:
     payload_image: {registry}/ros/payload:1.0
 robots:
   vars:
-    pull: true
+    pull_enabled: true
     pull_remote: https://git.example.com/fleet.git
   hosts:
     robot1: {{address: 127.0.0.1}}
@@ -177,42 +178,37 @@ def exported(fleet: pullkit.Fleet, where: Path) -> Path:
     return where
 
 
-@pytest.fixture
-def trust():
-    return pullkit.module("robot.verify")
-
-
 def test_media_are_verified_like_the_network(tmp_path):
     fleet = media_fleet(tmp_path)
     assert fleet.refresh(source=exported(fleet, tmp_path / "usb")).version == 1
 
 
-def test_tampered_media_are_refused(tmp_path, trust):
+def test_tampered_media_are_refused(tmp_path):
     fleet = media_fleet(tmp_path)
     usb = exported(fleet, tmp_path / "usb")
     pullkit.edit_json(usb / "metadata" / "timestamp.json",
                       lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z"))
-    assert refused(fleet, trust, trust.TAMPERED, source=usb).startswith("timestamp.json: changed after it was signed")
+    assert refused(fleet, refusals.TAMPERED, source=usb).startswith("timestamp.json: changed after it was signed")
 
 
-def test_replayed_older_media_are_refused_as_a_rollback(tmp_path, trust):
+def test_replayed_older_media_are_refused_as_a_rollback(tmp_path):
     fleet = media_fleet(tmp_path)
     old = exported(fleet, tmp_path / "old-usb")
     fleet.release(2)
     assert fleet.refresh(source=exported(fleet, tmp_path / "usb")).version == 2
-    assert "rollback" in refused(fleet, trust, trust.ROLLBACK, source=old)
+    assert "rollback" in refused(fleet, refusals.ROLLBACK, source=old)
 
 
-def test_expired_media_are_refused_as_a_freeze(tmp_path, trust):
+def test_expired_media_are_refused_as_a_freeze(tmp_path):
     fleet = media_fleet(tmp_path, now=NOW - 10 * DAY)  # its timestamp (7 days) expired 3 days ago
-    line = refused(fleet, trust, trust.EXPIRED, source=exported(fleet, tmp_path / "usb"))
+    line = refused(fleet, refusals.EXPIRED, source=exported(fleet, tmp_path / "usb"))
     assert "expired" in line and "freeze" in line
 
 
-def test_media_signed_by_another_fleet_s_keys_are_refused(tmp_path, trust):
+def test_media_signed_by_another_fleet_s_keys_are_refused(tmp_path):
     fleet = media_fleet(tmp_path)
     other = media_fleet(tmp_path / "other", name="keys")
-    line = refused(fleet, trust, trust.UNKNOWN_KEY, source=exported(other, tmp_path / "usb"))
+    line = refused(fleet, refusals.UNKNOWN_KEY, source=exported(other, tmp_path / "usb"))
     assert "does not trust" in line
 
 
@@ -312,7 +308,7 @@ def test_an_image_archive_whose_bytes_differ_from_the_signed_target_is_refused(w
     assert (outcome.result, outcome.refusal) == ("refused", "tampered"), outcome.reason
     assert outcome.reason.startswith(f"{world.archive}: does not match what was signed"), outcome.reason
     assert loads(docker) == []  # never given to docker
-    assert not agent.load_state(world.state).get("applied")
+    assert not agent_state.load_state(world.state).get("applied")
 
 
 def test_on_the_classic_image_store_the_checked_image_id_is_tagged_by_the_release_s_digest(world, docker, monkeypatch):

@@ -24,7 +24,7 @@ import pytest
 
 from robotfleet.commands import pullrollout, pullstatus, status
 from robotfleet.pull.protocol import agent_files, platforms, reports
-from robotfleet.pull.robot import agent
+from robotfleet.pull.robot import agent_state
 from tests.integration.test_pull_agent import World, code_archive
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
@@ -130,7 +130,7 @@ def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switc
     # only images asked for and pulled: no container touched, no converge run (nor its apply lock)
     assert all(line.startswith(("docker image inspect ", "docker pull ")) for line in robot.docker_log())
     assert not (robot.state / "last-run.log").exists()
-    state = agent.load_state(robot.state)
+    state = agent_state.load_state(robot.state)
     assert state.get("applied") is None and state.get("attempted") is None
     placed, calls = robot.placed(), len(robot.docker_log())
     assert any(name.startswith("targets/wheels/") for name in placed) and f"code/{record.tree_sha256}" in placed
@@ -168,7 +168,7 @@ def test_an_interrupted_prefetch_takes_up_where_it_stopped(robot):
                                      "from daemon: ")
     assert outcome.reason.endswith(" dial tcp: connection refused; outside the maintenance window; next at "
                                    f"{outcome.reason.rsplit('next at ', 1)[1]}")
-    assert agent.load_state(robot.state).get("attempted") is None  # not a failed release
+    assert agent_state.load_state(robot.state).get("attempted") is None  # not a failed release
     placed, calls = robot.placed(), len(robot.docker_log())
     assert any(name.startswith("targets/wheels/") for name in placed)
 

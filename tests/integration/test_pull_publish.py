@@ -26,12 +26,12 @@ all:
     payload_image: {registry}/ros/payload:1.1
 robots:
   vars:
-    pull: true
+    pull_enabled: true
     pull_remote: https://git.example.com/fleet.git
   hosts:
     robot1: {{address: 127.0.0.1}}
     robot2: {{address: 127.0.0.1, payload_image: "{registry}/ros/payload:1.2"}}
-    robot3: {{address: 127.0.0.1, pull: false}}
+    robot3: {{address: 127.0.0.1, pull_enabled: false}}
 """
 
 
@@ -195,11 +195,11 @@ def test_a_one_part_repository_on_a_private_registry_is_published(site, registry
 
 def test_bad_fleet_data_in_the_commit_is_refused_with_its_lines(site):
     fleet = site["checkout"] / "inventories" / "robots.yaml"
-    fleet.write_text(fleet.read_text().replace("pull: true", "pull: yes please"))
+    fleet.write_text(fleet.read_text().replace("pull_enabled: true", "pull_enabled: yes please"))
     git(site["checkout"], "commit", "-qam", "bad")
     done = publish(site, check=False)
     assert done.returncode == 2
-    assert "robots.vars.pull: expected true or false" in done.stderr
+    assert "robots.vars.pull_enabled: expected true or false" in done.stderr
     assert "nothing was published" in done.stderr
 
 
@@ -296,7 +296,8 @@ def test_wheels_for_a_robot_platform_are_carried_and_verified(site):
     pyproject = site["checkout"] / "pyproject.toml"
     pyproject.write_text('[project]\nname = "x"\nversion = "1"\ndependencies = ["six==1.16.0"]\n')
     fleet = site["checkout"] / "inventories" / "robots.yaml"
-    fleet.write_text(fleet.read_text().replace("pull: true", "pull: true\n    pull_platform: cp311-aarch64"))
+    fleet.write_text(fleet.read_text().replace("pull_enabled: true",
+                                               "pull_enabled: true\n    pull_platform: cp311-aarch64"))
     git(site["checkout"], "commit", "-qam", "tiny requirements")
     cache = site["base"] / "wheels"
     robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache)
@@ -354,7 +355,7 @@ def test_the_pull_robots_pull_remote_is_the_default(site, tmp_path):
     git(site["checkout"], "config", "--unset", "robotfleet.remote")
     url = f"https://127.0.0.1:{sshserver.closed_port()}/fleet.git"
     fleet = tmp_path / "fleet.yaml"
-    fleet.write_text(f"robots:\n  vars: {{pull: true, pull_remote: '{url}', payload_image: 'reg/p:1'}}\n"
+    fleet.write_text(f"robots:\n  vars: {{pull_enabled: true, pull_remote: '{url}', payload_image: 'reg/p:1'}}\n"
                      "  hosts:\n    robot1: {address: 127.0.0.1}\n")
     done = robotfleet_cmd("keys", "show", "--checkout", site["checkout"], "--keys", site["keys"],
                           env={"ROBOT_FLEET": str(fleet)}, check=False)

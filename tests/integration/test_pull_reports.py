@@ -158,8 +158,9 @@ def test_status_reads_pull_robots_from_their_reports_and_never_connects(tmp_path
         "robot1", reports.to_bytes(fresh))
     inventory = tmp_path / "inv.py"
     # Addresses nothing listens on: a connection attempt would be an error row, not a report's.
-    inventory.write_text('robots = [("robot1", {"pull": True, "ssh_hostname": "192.0.2.1", "pull_interval": 60}),\n'
-                         '          ("robot2", {"pull": True, "ssh_hostname": "192.0.2.2"})]\n')
+    inventory.write_text('robots = [("robot1", {"pull_enabled": True, "ssh_hostname": "192.0.2.1",\n'
+                         '                      "pull_interval": 60}),\n'
+                         '          ("robot2", {"pull_enabled": True, "ssh_hostname": "192.0.2.2"})]\n')
     rows = {r["host"]: r for r in status_collect.collect(str(inventory), [], remote=f"file://{bare}")}
     assert rows["robot1"]["reachable"] == "pull" and rows["robot1"]["pull"] == "applied 7"
     assert rows["robot1"]["health"] == "healthy" and "error" not in rows["robot1"]
@@ -209,8 +210,8 @@ def test_each_malformed_report_is_its_robot_s_line_in_status(fleet, tmp_path):
     tree = craftedgit.git(work, "mktree", stdin=f"100644 blob {large}\tx\n".encode())
     craftedgit.push_report_entry(bare, work, "robot7", f"040000 tree {tree}\treport.json")  # a well-formed tree
     inventory = tmp_path / "inv.py"
-    inventory.write_text("robots = [" + ", ".join(f'("robot{n}", {{"pull": True, "ssh_hostname": "192.0.2.{n}"}})'
-                                                  for n in range(2, 8)) + "]\n")
+    inventory.write_text("robots = [" + ", ".join(
+        f'("robot{n}", {{"pull_enabled": True, "ssh_hostname": "192.0.2.{n}"}})' for n in range(2, 8)) + "]\n")
     rows = {r["host"]: r for r in status_collect.collect(str(inventory), [], remote=f"file://{bare}")}
     assert rows["robot2"]["pull"] == "failed 7" and rows["robot3"]["pull"] == "applied 7"
     unreadable = {name: row["error"] for name, row in rows.items() if row["pull"] == "unreadable"}

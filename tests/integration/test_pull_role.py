@@ -57,8 +57,8 @@ def released(tmp_path, monkeypatch):
 @pytest.fixture
 def pulled(released):
     """Robot data in pull mode."""
-    return {**ROBOT, "pull": True, "pull_remote": "ssh://gitolite3@git.lan/fleet", "pull_remote_host_keys": [KEY],
-            "pull_interval": 60, "pull_jitter": 5}
+    return {**ROBOT, "pull_enabled": True, "pull_remote": "ssh://gitolite3@git.lan/fleet",
+            "pull_remote_host_keys": [KEY], "pull_interval": 60, "pull_jitter": 5}
 
 
 def robot(**extra):
@@ -66,9 +66,9 @@ def robot(**extra):
 
 
 @pytest.mark.parametrize("doc, expected", [
-    (robot(pull=True), "robots.yaml: robot3.pull_remote: required when pull is true: the git URL of the fleet "
-                       "remote (e.g. ssh://gitolite3@git.example.com/fleet)"),
-    (robot(pull=True, pull_remote="ssh://git@git.lan/fleet"),
+    (robot(pull_enabled=True), "robots.yaml: robot3.pull_remote: required when pull_enabled is true: the git URL of "
+                               "the fleet remote (e.g. ssh://gitolite3@git.example.com/fleet)"),
+    (robot(pull_enabled=True, pull_remote="ssh://git@git.lan/fleet"),
      "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
      "(ssh-keyscan HOST, checked against the server's own)"),
     (robot(pull_remote="ssh://git@git.lan/fleet;reboot"),
@@ -87,8 +87,8 @@ def robot(**extra):
     (robot(pull_windows=["daily 01:00-01:00"]),
      "robots.yaml: robot3.pull_windows[0]: maintenance window 'daily 01:00-01:00': starts and ends at the same "
      "time; for all day write 00:00-23:59"),
-    (robot(pull="yes"), "robots.yaml: robot3.pull: expected true or false, got 'yes'"),
-    (robot(pull=True, pull_remote="https://git.lan/fleet", pull_report_remote="ssh://git@git.lan/fleet"),
+    (robot(pull_enabled="yes"), "robots.yaml: robot3.pull_enabled: expected true or false, got 'yes'"),
+    (robot(pull_enabled=True, pull_remote="https://git.lan/fleet", pull_report_remote="ssh://git@git.lan/fleet"),
      "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
      "(ssh-keyscan HOST, checked against the server's own)"),
 ])
@@ -97,13 +97,13 @@ def test_bad_pull_settings_get_one_clear_line(doc, expected):
 
 
 @pytest.mark.parametrize("extra", [
-    {"pull": True, "pull_remote": "ssh://gitolite3@git.lan:2222/fleet", "pull_remote_host_keys": [KEY]},
-    {"pull": True, "pull_remote": "git@git.lan:robots/fleet.git", "pull_remote_host_keys": [KEY]},
-    {"pull": True, "pull_remote": "https://git.lan/robots/fleet.git"},
-    {"pull": True, "pull_remote": "https://mirror.lan/fleet.git", "pull_report_remote": "ssh://gitolite3@git.lan/fleet",
+    {"pull_enabled": True, "pull_remote": "ssh://gitolite3@git.lan:2222/fleet", "pull_remote_host_keys": [KEY]},
+    {"pull_enabled": True, "pull_remote": "git@git.lan:robots/fleet.git", "pull_remote_host_keys": [KEY]},
+    {"pull_enabled": True, "pull_remote": "https://git.lan/robots/fleet.git"},
+    {"pull_enabled": True, "pull_remote": "https://mirror.lan/fleet.git", "pull_report_remote": "ssh://gitolite3@git.lan/fleet",
      "pull_remote_host_keys": [KEY], "pull_remote_ca": "files/fleet-ca.pem"},
     {"pull_windows": ["Mon-Fri 01:00-05:00", "Sat,Sun 00:00-23:59 UTC"]},
-    {"pull_remote": "ssh://git@10.20.0.5/fleet"},  # set for the fleet; used where pull is true
+    {"pull_remote": "ssh://git@10.20.0.5/fleet"},  # set for the fleet; used where pull_enabled is true
 ])
 def test_good_pull_settings_are_accepted(extra):
     assert fleet_problems(robot(**extra)) == []

@@ -13,7 +13,7 @@ import pytest
 
 from robotfleet.pull.operator import channel
 from robotfleet.pull.protocol import reports
-from robotfleet.pull.robot import transport, trust_state
+from robotfleet.pull.robot import transport, transport_cost, trust_state
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
 debug1: Server accepts key: /etc/robot-pull/id_ed25519 ED25519 SHA256:abc explicit
@@ -59,8 +59,8 @@ def test_ssh_pins_the_server_and_offers_only_the_robot_s_keys():
 
 
 def test_the_bytes_and_the_accepted_key_come_from_ssh_s_log():
-    assert transport.read_ssh_log(LOG) == (3140, 3364, "/etc/robot-pull/id_ed25519")
-    assert transport.read_ssh_log("") == (0, 0, None)
+    assert transport_cost.read_ssh_log(LOG) == (3140, 3364, "/etc/robot-pull/id_ed25519")
+    assert transport_cost.read_ssh_log("") == (0, 0, None)
 
 
 def test_the_telling_line_of_a_git_failure():

@@ -135,7 +135,7 @@ def test_push_of_a_multi_service_payload_sends_the_primary_password_to_no_other_
         "WWW-Authenticate": 'Basic realm="give me yours"'}))
     monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", USER)
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", PASSWORD)
-    data = {**ROBOT, "payload_image": None, "sensors": [], "payload_delivery": "push",
+    data = {**ROBOT, "payload_image": None, "udev_sensors": [], "payload_delivery": "push",
             "payload_services": {"main": {"image": f"{primary.address}/ros/payload:1.0"},
                                  "tools": {"image": f"{hostile.address}/ros/tools:1.0"}}}
     result = plan({"r1": ("robots", data, converged("robots", data, "debian-13"))})
@@ -300,7 +300,7 @@ def test_pull_logs_in_to_each_registry_with_its_own_credentials(monkeypatch, tmp
     monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", USER)
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", PASSWORD)
     monkeypatch.setenv("REG2_USER", "puller2")
-    data = {**ROBOT, "payload_image": None, "sensors": [],
+    data = {**ROBOT, "payload_image": None, "udev_sensors": [],
             "payload_services": {"main": {"image": "reg.example.com/ros/payload:1.0"},
                                  "tools": {"image": "reg2.example.com:5000/ros/tools:1.0"},
                                  "db": {"image": "docker.io/library/postgres:16"}},

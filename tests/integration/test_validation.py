@@ -14,7 +14,7 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
     (tmp_path / "inventories" / "robots.py").write_text((ROOT / "inventories" / "robots.py").read_text())
     (tmp_path / "inventories" / "robots.yaml").write_text(
         "robots:\n  hosts:\n    robot3:\n      address: 192.0.2.1\n"
-        "      payload_image: reg.example.com/p:1\n      sensors:\n"
+        "      payload_image: reg.example.com/p:1\n      udev_sensors:\n"
         "        - {name: cam, subsystem: tty, serial: 42}\n"
     )
     (tmp_path / "deploy.py").write_text("raise SystemExit('deploy must not run')\n")
@@ -24,7 +24,7 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
     )
     assert proc.returncode == 2
-    assert "inventories/robots.yaml: robot3.sensors[0].serial: expected a string, got 42; quote it" in proc.stderr
+    assert "inventories/robots.yaml: robot3.udev_sensors[0].serial: expected a string, got 42; quote it" in proc.stderr
     assert "Traceback" not in proc.stderr + proc.stdout
     assert "Connecting" not in proc.stderr + proc.stdout
 

@@ -49,7 +49,7 @@ RUN sh /tmp/install.sh && rm /tmp/install.sh
 """
 
 # Its git's settings, for every repository it serves: a push holding an
-# object git's fsck finds malformed is refused whole (docs/pull.md).
+# object git's fsck finds malformed is refused whole (docs/guides/pull.md).
 GIT_CONFIG = {"receive.fsckObjects": "true"}
 # Run as the gitolite user once the admin key is in place: idempotent (a
 # second run replaces the admin key and keeps every repository).

@@ -1,4 +1,4 @@
-"""Host certificates for a lab host, as docs/host-certificates.md tells an
+"""Host certificates for a lab host, as docs/guides/host-certificates.md tells an
 operator to make them: a host CA (ssh-keygen), the host's ed25519 key signed
 with principals and a validity period, the certificate installed with a
 HostCertificate line and sshd reloaded.  Nothing here runs at `up`: only

@@ -61,7 +61,7 @@ def sensors_from_inventory(path: Path = INVENTORY) -> dict[str, list[str]]:
         return {}
     fleet = yaml.safe_load(path.read_text()) or {}
     declared = ((fleet.get("robots") or {}).get("hosts") or {})
-    return {host: [s["name"] for s in (data or {}).get("sensors") or []]
+    return {host: [s["name"] for s in (data or {}).get("udev_sensors") or []]
             for host, data in declared.items()}
 
 

@@ -1,5 +1,5 @@
 """Pull mode on the lab: a deploy repository whose fleet file marks the
-robots `pull`, its fleet remote on the lab's git server, release keys, and
+robots `pull_enabled`, its fleet remote on the lab's git server, release keys, and
 the commands the operator runs (publish, halt, status) with them.
 
 The fleet file robots read comes from the release's code, so it is the
@@ -57,7 +57,7 @@ def fleet_text(lab: dict, payload_tag: str = "1.0", robots: list[str] | None = N
     fleet["robots"]["hosts"] = {name: fleet["robots"]["hosts"].get(name) or {} for name in names}
     fleet["all"]["vars"]["payload_image"] = pinned(lab, "ros/payload", payload_tag)
     fleet["robots"]["vars"].update({
-        "pull": True, "pull_remote": gitserver.robot_url(git), "pull_remote_host_keys": ed25519,
+        "pull_enabled": True, "pull_remote": gitserver.robot_url(git), "pull_remote_host_keys": ed25519,
         "pull_interval": 30, "pull_jitter": 2, "pull_boot_delay": 5, "pull_min_free_mb": 64,
         "pull_platform": "cp313-x86_64", **pull})
     # JSON is YAML 1.2, and quotes every string ("0825" stays text).

@@ -47,7 +47,7 @@ from tests.fixtures import IMAGE, ROOT
 ROBOT = {
     "payload_image": IMAGE,
     "docker_users": ["ops"],
-    "sensors": [
+    "udev_sensors": [
         {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825",
          "usb_port": "1-1.2"},
         {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3"},
@@ -228,7 +228,7 @@ def plan(
 
     defaults = group_data()
     groups: dict[str, tuple[list, dict]] = {"robots": ([], defaults["robots"]), "laptops": ([], defaults["laptops"])}
-    for name, (group, data, snap) in hosts.items():
+    for name, (group, data, _) in hosts.items():
         # Our deliberate failures (operations.fail) exit 1 on a real shell.
         responses = {re.compile(r">&2; exit 1'$"): {"stdout": [], "success": False}}
         host_data = {**data, "fake_responses": responses, "fake_delay": 0, "fake_delay_jitter": 0}

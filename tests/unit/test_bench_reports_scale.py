@@ -11,7 +11,7 @@ def test_the_schedule_is_a_steady_fleet_s_checks_and_heartbeat_pushes():
     # each robot checks every 900 + 150 s on average, and pushes once an hour
     assert 2_000 * 3600 / 1050 * 0.9 < len(events) < 2_000 * 3600 / 1050 * 1.1
     pushes = sum(e[2] for e in events)
-    # at the first check a heartbeat after the last push: between docs/pull.md's bound
+    # at the first check a heartbeat after the last push: between docs/explanations/pull.md's bound
     # N*3600/(heartbeat + interval + jitter/2) and one an hour
     assert 2_000 * 3600 / 4650 * 0.95 < pushes <= 2_000, pushes
     one = [e for e in events if e[1] == ROBOTS[7]]

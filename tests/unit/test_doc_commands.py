@@ -29,7 +29,8 @@ def ids(commands: list[Command]) -> list[str]:
 
 def test_the_commands_are_found_in_every_kind_of_block():
     docs = {c.doc for c in BLOCK_COMMANDS}
-    assert {"README.md", "docs/pull.md", "docs/releases.md", "docs/status.md", "docs/fleet-file.md"} <= docs, docs
+    assert {"README.md", "docs/guides/pull.md", "docs/guides/releases.md", "docs/reference/status.md",
+            "docs/reference/fleet-file.md"} <= docs, docs
     assert len(BLOCK_COMMANDS) >= 40, len(BLOCK_COMMANDS)
     shown = {c.text for c in BLOCK_COMMANDS}
     assert ".venv/bin/python -m tests.lab demo" in shown  # fenced, in an && chain

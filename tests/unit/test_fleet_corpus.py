@@ -37,24 +37,24 @@ CORPUS = [
     # 1. wrong types where a scalar or string is assumed; keys must be strings
     ("mapping as image", host("payload_image: {a: 1}"),
      ["f.yaml: r1.payload_image: expected a string, got a mapping"]),
-    ("list as serial and symlink", host("sensors:", "  - {name: a, subsystem: tty, serial: [1]}",
+    ("list as serial and symlink", host("udev_sensors:", "  - {name: a, subsystem: tty, serial: [1]}",
                                         "  - {name: b, subsystem: tty, serial: '2', symlink: [x]}"),
-     ["f.yaml: r1.sensors[0].serial: expected a string, got a list",
-      "f.yaml: r1.sensors[1].symlink: expected a string, got a list"]),
-    ("list as sensor name, twice", host("sensors:", "  - {name: [a], subsystem: tty, serial: '1'}",
+     ["f.yaml: r1.udev_sensors[0].serial: expected a string, got a list",
+      "f.yaml: r1.udev_sensors[1].symlink: expected a string, got a list"]),
+    ("list as sensor name, twice", host("udev_sensors:", "  - {name: [a], subsystem: tty, serial: '1'}",
                                         "  - {name: [a], subsystem: tty, serial: '1'}"),
-     ["f.yaml: r1.sensors[0].name: expected a string, got a list",
-      "f.yaml: r1.sensors[1].name: expected a string, got a list"]),
-    ("refused sensor, duplicates among the others", host("sensors:", "  - {name: x, subsystem: tty, serial: [1]}",
+     ["f.yaml: r1.udev_sensors[0].name: expected a string, got a list",
+      "f.yaml: r1.udev_sensors[1].name: expected a string, got a list"]),
+    ("refused sensor, duplicates among the others", host("udev_sensors:", "  - {name: x, subsystem: tty, serial: [1]}",
                                                           "  - {name: a, subsystem: tty, serial: '1'}",
                                                           "  - {name: a, subsystem: tty, serial: '2'}"),
-     ["f.yaml: r1.sensors[0].serial: expected a string, got a list",
-      "f.yaml: r1.sensors[2].name: duplicate sensor name 'a' (also sensors[1])",
-      "f.yaml: r1.sensors[2].symlink: /dev/robot/a is already used by sensors[1]"]),
+     ["f.yaml: r1.udev_sensors[0].serial: expected a string, got a list",
+      "f.yaml: r1.udev_sensors[2].name: duplicate sensor name 'a' (also udev_sensors[1])",
+      "f.yaml: r1.udev_sensors[2].symlink: /dev/robot/a is already used by udev_sensors[1]"]),
     ("number as setting key", host("8080: 80"),
      ["f.yaml: r1.8080: a setting name must be a string, got 8080; quote it"]),
-    ("number as sensor field", host("sensors:", "  - {name: a, subsystem: tty, serial: '1', 1: x}"),
-     ["f.yaml: r1.sensors[0].1: a sensor field name must be a string, got 1; quote it"]),
+    ("number as sensor field", host("udev_sensors:", "  - {name: a, subsystem: tty, serial: '1', 1: x}"),
+     ["f.yaml: r1.udev_sensors[0].1: a sensor field name must be a string, got 1; quote it"]),
     ("list as mapping key", host("? [a, b]", ": 1"),
      ["f.yaml: line 7: YAML error: a key must be a plain name, not a list"]),
     ("not UTF-8", (BASE + "robots:\n  hosts:\n    r1: {address: caf\xe9}\n").encode("latin-1"),
@@ -150,13 +150,14 @@ CORPUS = [
      ["f.yaml: line 7: YAML error: duplicate key 'r1'"]),
     # 8. merge keys are valid YAML
     ("merge keys", "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
-                   + host("sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}",
+                   + host("udev_sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}",
                           "  - {<<: *camera, name: back, usb_port: '1-1.3'}"), []),
     ("merge keys, then a mistake", "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
-                                   + host("sensors:", "  - {<<: *camera, name: front}",
+                                   + host("udev_sensors:", "  - {<<: *camera, name: front}",
                                           "  - {<<: *camera, name: back}"),
-     ["f.yaml: r1.sensors[1]: matches the same devices as sensors[0]; add a serial or usb_port to tell them apart"]),
-    ("merge of a scalar", host("sensors:", "  - {<<: 1, name: a}"),
+     ["f.yaml: r1.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
+      "add a serial or usb_port to tell them apart"]),
+    ("merge of a scalar", host("udev_sensors:", "  - {<<: 1, name: a}"),
      ["f.yaml: line 8: YAML error: a merge key (<<) takes a mapping or a list of mappings"]),
     # 9. yes/no are text in YAML 1.2: the documented words as written
     ("strict host key checking no", host("ssh_strict_host_key_checking: no", "payload_restart_policy: no"), []),
@@ -166,15 +167,15 @@ CORPUS = [
      ["f.yaml: r1.payload_restart_policy: expected a string, got a boolean (true); quote it"]),
     # issue 8, item 2: URLs are http(s) URLs without shell characters
     ("key URL injection", host("docker_apt_key_url: 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"),
-     ["f.yaml: r1.docker_apt_key_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & quotes), "
-      "got 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"]),
+     ["f.yaml: r1.docker_apt_key_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & "
+      "quotes), got 'https://mirror.lan/gpg?x=$(touch${IFS}/tmp/x)'"]),
     ("repo URL scheme", host("docker_repo_url: 'ftp://mirror.lan/linux'"),
-     ["f.yaml: r1.docker_repo_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & quotes), "
-      "got 'ftp://mirror.lan/linux'"]),
+     ["f.yaml: r1.docker_repo_url: expected an http(s) URL without spaces or shell characters ($ ` ; | & "
+      "quotes), got 'ftp://mirror.lan/linux'"]),
     # a refused value is shown, but never the password a URL in it carries
     ("mirror URL with a password", host("docker_registry_mirrors: ['https://ci:hunter2@mirror.lan/$(x)']"),
-     ["f.yaml: r1.docker_registry_mirrors[0]: expected an http(s) URL without spaces or shell characters ($ ` ; | & "
-      "quotes), got 'https://ci:****@mirror.lan/$(x)'"]),
+     ["f.yaml: r1.docker_registry_mirrors[0]: expected an http(s) URL without spaces or shell characters ($ ` "
+      "; | & quotes), got 'https://ci:****@mirror.lan/$(x)'"]),
     ("good URLs", host("docker_repo_url: 'http://10.0.0.2:8080/linux'",
                        "docker_apt_key_url: 'https://mirror.lan/keys/docker.asc?v=2'",
                        "docker_registry_mirrors: ['https://[fd00::1]:5000']"), []),
@@ -215,13 +216,14 @@ CORPUS = [
       "password_file (a file outside the checkout), not the value itself"]),
     ("a relative credential file and a plain-HTTP realm", host(
         "payload_registry_auths: {reg.example.com: {username_env: U, password_file: secrets/reg, token_realms: ['http://auth.lan/t']}}"),
-     ["f.yaml: r1.payload_registry_auths.reg.example.com.password_file: expected an absolute path (or ~/...) on this "
-      "machine, got 'secrets/reg'",
+     ["f.yaml: r1.payload_registry_auths.reg.example.com.password_file: expected an absolute path (or ~/...) "
+      "on this machine, got 'secrets/reg'",
       "f.yaml: r1.payload_registry_auths.reg.example.com.token_realms[0]: expected an https URL, got 'http://auth.lan/t'"]),
     ("a credential file inside the checkout", host(
-        f"payload_registry_auths: {{reg.example.com: {{username_env: U, password_file: {ROOT}/inventories/reg.pw}}}}"),
-     [f"f.yaml: r1.payload_registry_auths.reg.example.com.password_file: '{ROOT}/inventories/reg.pw' is inside the "
-      f"checkout {ROOT}; keep credentials outside the repository (e.g. ~/.config/robotfleet/)"]),
+        "payload_registry_auths: {reg.example.com: {username_env: U, password_file: "
+        f"{ROOT}/inventories/reg.pw}}}}"),
+     [f"f.yaml: r1.payload_registry_auths.reg.example.com.password_file: '{ROOT}/inventories/reg.pw' is inside "
+      f"the checkout {ROOT}; keep credentials outside the repository (e.g. ~/.config/robotfleet/)"]),
     ("a registry that is a URL",
      host("payload_registry_auths: {'https://reg.example.com': {username_env: U, password_env: P}}"),
      ["f.yaml: r1.payload_registry_auths.https://reg.example.com: expected a registry host[:port], got 'https://reg.example.com'"]),
@@ -242,9 +244,9 @@ CORPUS = [
           ("/var/lib/php/sessions", "/var/lib/php/sessions", "world-writable (1733)"),
       )],
     *[(f"payload_dir {place}", host(f"payload_dir: {place}"),
-       [f"f.yaml: r1.payload_dir: '{place}' is not in a place only root writes on Debian and Ubuntu (/etc, /opt, /srv, "
-        "/mnt, /root, /usr, /var/lib, /var/opt, /var/cache, /var/log, /run, /proc/driver); use a directory there "
-        "(e.g. under /var/lib)"])
+       [f"f.yaml: r1.payload_dir: '{place}' is not in a place only root writes on Debian and Ubuntu (/etc, "
+        "/opt, /srv, /mnt, /root, /usr, /var/lib, /var/opt, /var/cache, /var/log, /run, /proc/driver); use a "
+        "directory there (e.g. under /var/lib)"])
       for place in ("/data/robot", "/var/robot", "/", "/boot/p", "/proc/1/root/var/lib/p", "/dev/robot")],
     ("lock file in /var/lock", host("payload_update_lock_path: /var/lock/robot"),
      ["f.yaml: r1.payload_update_lock_path: '/var/lock/robot' is in the world-writable /run/lock; "
@@ -258,20 +260,21 @@ CORPUS = [
     # issue 27, item 12: the Docker API on TCP only with TLS client verification, or opted in by name
     *[(f"unauthenticated TCP API {listener}",
        host(f"docker_daemon_options: {{hosts: ['unix:///run/docker.sock', '{listener}']}}"),
-       [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS client "
-        "verification (missing: tlsverify, tlscacert, tlscert, tlskey): anyone who reaches it is root on this host; "
-        "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"])
+       [f"f.yaml: r1.docker_daemon_options.hosts[1]: '{listener}' opens the Docker API on TCP without TLS "
+        "client verification (missing: tlsverify, tlscacert, tlscert, tlskey): anyone who reaches it is root "
+        "on this host; set tlsverify: true, tlscacert, tlscert and tlskey, or "
+        "docker_allow_unauthenticated_tcp: true"])
       for listener in ("tcp://0.0.0.0:2375", "0.0.0.0:2375", "tcp://", "tcp://127.0.0.1:2375")],
     ("TCP API with tls but no client verification",
      host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2376'], tls: true, tlsverify: false, tlscert: "
           "/etc/docker/c.pem, "
           "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"),
-     ["f.yaml: r1.docker_daemon_options.hosts[0]: 'tcp://0.0.0.0:2376' opens the Docker API on TCP without TLS client "
-      "verification (missing: tlsverify): anyone who reaches it is root on this host; "
+     ["f.yaml: r1.docker_daemon_options.hosts[0]: 'tcp://0.0.0.0:2376' opens the Docker API on TCP without TLS "
+      "client verification (missing: tlsverify): anyone who reaches it is root on this host; "
       "set tlsverify: true, tlscacert, tlscert and tlskey, or docker_allow_unauthenticated_tcp: true"]),
     ("TCP API with client verification", host(
-        "docker_daemon_options: {hosts: ['fd://', 'tcp://0.0.0.0:2376'], tlsverify: true, tlscert: /etc/docker/c.pem, "
-        "tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"), []),
+        "docker_daemon_options: {hosts: ['fd://', 'tcp://0.0.0.0:2376'], tlsverify: true, tlscert: "
+        "/etc/docker/c.pem, tlskey: /etc/docker/k.pem, tlscacert: /etc/docker/ca.pem}"), []),
     ("unauthenticated TCP API opted in by name", host("docker_daemon_options: {hosts: ['tcp://0.0.0.0:2375']}",
                                                       "docker_allow_unauthenticated_tcp: true"), []),
     ("unix sockets only", host("docker_daemon_options: {hosts: ['unix:///run/docker.sock', 'fd://']}"), []),
@@ -294,18 +297,18 @@ def test_accepted_yes_no_reads_as_the_documented_word():
 
 def test_merge_keys_give_each_sensor_the_shared_fields_and_its_own():
     text = "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825', usb_port: '9-9'}\n"
-    text += host("sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}", "  - {<<: *camera, name: back}")
+    text += host("udev_sensors:", "  - {<<: *camera, name: front, usb_port: '1-1.2'}", "  - {<<: *camera, name: back}")
     (_, data), = fleet.parse(text, "f.yaml").hosts("robots")
-    assert data["sensors"] == [
+    assert data["udev_sensors"] == [
         {"name": "front", "usb_port": "1-1.2", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
         {"name": "back", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "9-9"},
     ]
 
 
 def readme_mistakes():
-    """The broken fleet file and the lines shown in docs/fleet-file.md (linked
+    """The broken fleet file and the lines shown in docs/reference/fleet-file.md (linked
     from README's "Describing a fleet")."""
-    section = (Path(__file__).resolve().parents[2] / "docs" / "fleet-file.md").read_text()
+    section = (Path(__file__).resolve().parents[2] / "docs" / "reference" / "fleet-file.md").read_text()
     blocks = section.split("```")
     (fleet_block,) = [b for b in blocks if b.startswith("yaml\n") and "docker_usres" in b]
     (output_block,) = [b for b in blocks if "problem(s) in the fleet file" in b]

@@ -73,7 +73,7 @@ def good_fleet(port: int) -> dict:
     sensor = {"name": "cam", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "1-1"}
     return {
         "all": {"vars": {"payload_image": "reg.example.com/p:1", "ssh_port": port, "ssh_connect_retries": 0}},
-        "robots": {"hosts": {f"r{i}": {"address": "127.0.0.1", "sensors": [dict(sensor)]} for i in range(3)}},
+        "robots": {"hosts": {f"r{i}": {"address": "127.0.0.1", "udev_sensors": [dict(sensor)]} for i in range(3)}},
         "laptops": {"hosts": {"l1": {"address": "127.0.0.1", "x11_user": "alice"}}},
     }
 
@@ -82,7 +82,7 @@ def mutate_data(rng: random.Random, doc: dict) -> None:
     """Wrong types at settings, random keys, hostile values, at every level."""
     for _ in range(rng.randrange(1, 4)):
         layer = rng.choice([
-            doc["all"]["vars"], doc["robots"]["hosts"]["r0"], doc["robots"]["hosts"]["r1"]["sensors"][0],
+            doc["all"]["vars"], doc["robots"]["hosts"]["r0"], doc["robots"]["hosts"]["r1"]["udev_sensors"][0],
             doc["laptops"]["hosts"]["l1"], doc["robots"],
         ])
         key = rng.choice(list(fleet.setting_checks())) if rng.random() < 0.7 else random_key(rng)

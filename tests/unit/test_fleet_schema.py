@@ -33,10 +33,10 @@ def test_example_fleet_wires_the_schema_for_editors():
 
 def test_schema_flags_the_common_mistakes(validator):
     doc = {"robots": {"hosts": {"r1": {"docker_usres": [], "ssh_port": "22", "payload_dir": "/tmp/p",
-                                       "sensors": [{"name": "cam", "subsystem": "camera", "serial": "1"}]}}}}
+                                       "udev_sensors": [{"name": "cam", "subsystem": "camera", "serial": "1"}]}}}}
     paths = sorted(".".join(map(str, error.absolute_path)) for error in validator.iter_errors(doc))
-    assert paths == ["robots.hosts.r1", "robots.hosts.r1.payload_dir", "robots.hosts.r1.sensors.0.subsystem",
-                     "robots.hosts.r1.ssh_port"]
+    assert paths == ["robots.hosts.r1", "robots.hosts.r1.payload_dir", "robots.hosts.r1.ssh_port",
+                     "robots.hosts.r1.udev_sensors.0.subsystem"]
 
 
 def accepted_documents():

@@ -15,7 +15,7 @@ from tests.fixtures import IMAGE
 from tests.unit.harness import find, fresh_host, plan, written_files
 
 NVIDIA_FPR = "C95B321B61E88C1809C4F759DDCAE044F796ECB0"
-GPU_ROBOT = {"payload_image": IMAGE, "gpu": "nvidia"}
+GPU_ROBOT = {"payload_image": IMAGE, "gpu_vendor": "nvidia"}
 NVRM = "NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14  Thu Feb 22 01:44:30 UTC 2024"
 MATRIX = [(o, a) for o in ("ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13") for a in ("amd64", "arm64")]
 SOURCES = "/etc/apt/sources.list.d/nvidia-container-toolkit.sources"
@@ -182,11 +182,11 @@ def test_runtime_change_restarts_docker_once_and_only_then():
 
 
 def test_daemon_options_merge_keeps_other_runtimes_and_explicit_entry():
-    data = {"gpu": "nvidia"}
+    data = {"gpu_vendor": "nvidia"}
     options = {"runtimes": {"crun": {"path": "/usr/bin/crun"}, "nvidia": {"path": "/opt/nv/runtime"}}}
     merged = gpu_plan.daemon_options(data, options)
     assert merged["runtimes"] == options["runtimes"]
-    assert gpu_plan.daemon_options({"gpu": None}, options) is options
+    assert gpu_plan.daemon_options({"gpu_vendor": None}, options) is options
     assert gpu_plan.daemon_options(data, {})["runtimes"]["nvidia"]["path"] == "nvidia-container-runtime"
 
 

@@ -49,7 +49,7 @@ CARRIED_AS_DATA = {
     ("docker_daemon_options", "dns item"): "daemon.json",
     ("docker_daemon_options", "features key"): "daemon.json",
     ("docker_daemon_options", "builder value"): "daemon.json",
-    ("sensors", "serial"): "udev",
+    ("udev_sensors", "serial"): "udev",
     # An argv payloadctl hands to `docker exec` (no shell), inside the container.
     ("gpu_check_command", "list item"): "argv",
 }
@@ -76,7 +76,7 @@ def places(name: str, value):
                         ("in an image tag", f"reg.example.com/p:{value}")):
         yield place, text
         yield f"{place}, list item", [text]
-    if name == "sensors":
+    if name == "udev_sensors":
         for field in SENSOR_KEYS:
             sensor = {"name": "a", "subsystem": "tty", "serial": "1", field: value}
             if field in ("vendor_id", "product_id"):  # the pair rule is not what is tested here

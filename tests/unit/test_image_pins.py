@@ -51,7 +51,7 @@ def test_every_service_and_the_roscore_of_the_preset_run_by_their_pins():
             "payload_image_pins": {f"{REG}/ros/driver:2.0": A, f"{REG}/ros/slam@{C}": C, ROSCORE: B}}
     assert images_of(rendered(data)) == {"roscore": f"{ROSCORE}@{B}", "driver": f"{REG}/ros/driver:2.0@{A}",
                                          "slam": f"{REG}/ros/slam@{C}"}
-    assert fleet_problems(robot_fleet(**{k: v for k, v in data.items() if k != "sensors"})) == []
+    assert fleet_problems(robot_fleet(**{k: v for k, v in data.items() if k != "udev_sensors"})) == []
 
 
 def test_pins_for_images_the_project_does_not_use_are_ignored():
@@ -85,7 +85,8 @@ def test_what_publish_pins_is_what_the_deploy_looks_up():
      f"robot3.payload_image_pins: no digest for {PAYLOAD}: the pins must cover every image of the project "
      "(1 here), or that image would run whatever its tag names now"),
     ({"payload_image_pins": {PAYLOAD: "sha256:abc"}},
-     f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got 'sha256:abc'"),
+     f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
+     "'sha256:abc'"),
     ({"payload_image_pins": {PAYLOAD: A.upper()}},
      f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
      f"'{A.upper()}'"),
@@ -96,7 +97,8 @@ def test_what_publish_pins_is_what_the_deploy_looks_up():
      "text: payload_image_pins='{\"reg/ros/payload:1.1\": \"sha256:...\"}'"),
     ({"payload_image_pins": {PAYLOAD: A}, "payload_delivery": "push"},
      "robot3.payload_image_pins: pins need payload_delivery: pull: a pushed image arrives by docker load, which "
-     "keeps its image id but not the registry digest a release pins, so the robot could not run it by that digest"),
+     "keeps its image id but not the registry digest a release pins, so the robot could not run it by that "
+     "digest"),
 ])
 def test_a_bad_pin_is_one_line_naming_host_and_field(settings, line):
     assert fleet_problems(robot_fleet(payload_image=PAYLOAD, **settings)) == [f"robots.yaml: {line}"]

@@ -33,7 +33,7 @@ def test_emulated_hosts_get_longer_to_boot(hosts):
 
 def test_sensors_from_inventory(hosts, tmp_path):
     path = tmp_path / "lab.yaml"
-    path.write_text("robots:\n  hosts:\n    robot1:\n      sensors:\n        - {name: lidar, serial: x}\n"
+    path.write_text("robots:\n  hosts:\n    robot1:\n      udev_sensors:\n        - {name: lidar, serial: x}\n"
                     "        - {name: imu}\n    robot2: {}\nlaptops:\n  hosts:\n    laptop1: {}\n")
     assert hosts.sensors_from_inventory(path) == {"robot1": ["lidar", "imu"], "robot2": []}
     assert hosts.sensors_from_inventory(tmp_path / "missing.yaml") == {}

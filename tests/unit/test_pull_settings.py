@@ -28,7 +28,7 @@ NUMBERS = {"interval": "pull_interval", "jitter": "pull_jitter", "min_free_mb": 
 
 
 def test_every_pull_setting_is_the_pull_role_s():
-    assert {"pull", "pull_platform"} <= set(DECLARED)
+    assert {"pull_enabled", "pull_platform"} <= set(DECLARED)
     assert not [s.name for s in connection.SETTINGS if s.name == "pull" or s.name.startswith("pull_")]
     assert pull_part(deploy_roles.roles()) is plan.PART
 
@@ -60,19 +60,19 @@ def test_agent_json_refuses_what_the_fleet_file_refuses(field, value, range_):
 
 
 def test_the_agent_s_config_is_the_host_s_settings_with_their_declared_defaults():
-    config = plan.config({"pull": True, "pull_remote": "ssh://g@h/fleet", "pull_interval": 60}, "robot1")
+    config = plan.config({"pull_enabled": True, "pull_remote": "ssh://g@h/fleet", "pull_interval": 60}, "robot1")
     assert (config.remote, config.interval, config.jitter, config.heartbeat, config.stale_after) == (
         "ssh://g@h/fleet", 60, 300, 3600, 2)
     assert config.media_dir is None and config.report_remote is None and config.report_shards == 0
-    assert plan.pulls({"pull": True}) and not plan.pulls({}) and not plan.pulls({"pull": False})
+    assert plan.pulls({"pull_enabled": True}) and not plan.pulls({}) and not plan.pulls({"pull_enabled": False})
     assert "OnUnitInactiveSec=60\n" in plan.timer_unit({"pull_interval": 60})
     assert "OnBootSec=60\n" in plan.timer_unit({})
 
 
 def test_without_a_pull_role_no_host_pulls():
-    assert pull_part(()) is NO_PULL and not NO_PULL.pulls({"pull": True})
+    assert pull_part(()) is NO_PULL and not NO_PULL.pulls({"pull_enabled": True})
     with pytest.raises(LookupError, match="no role of deploy.py declares pull mode"):
-        NO_PULL.config({"pull": True}, "robot1")
+        NO_PULL.config({"pull_enabled": True}, "robot1")
 
 
 def test_status_judges_a_report_by_the_declared_defaults_not_by_what_the_report_says():

@@ -62,18 +62,22 @@ def test_the_path_shows_each_step_s_commands():
     assert any("--metrics" in c for c in shown["Status"])
     assert any(c.startswith("robotfleet rollout inventories/robots.py") for c in shown["Updates and rollbacks"])
     assert "pyinfra inventories/robots.py rollback.py --limit robot2" in shown["Updates and rollbacks"]
-    assert "](docs/pull.md)" in section("Push or pull")
+    assert "](docs/guides/pull.md)" in section("Push or pull")
 
 
-def test_the_rest_is_in_docs_and_more_links_every_page():
+def test_the_rest_is_in_docs_and_more_links_its_index_and_every_kind_of_page():
+    """More links docs/README.md, the index of every page
+    (tests/unit/test_docs_layout.py), and each guide, reference and explanation."""
     more = section("More")
-    pages = sorted(path.relative_to(ROOT).as_posix() for path in (ROOT / "docs").glob("*.md"))
+    assert "](docs/README.md)" in more
+    pages = sorted(path.relative_to(ROOT).as_posix() for path in (ROOT / "docs").glob("*/*.md"))
     for page in pages:
         assert f"]({page})" in more, f"README's More does not link {page}"
     for link in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", README):
         assert (ROOT / link).exists(), link
-    for moved in ("docs/fleet-file.md", "docs/settings.md", "docs/host-certificates.md", "docs/status.md",
-                  "docs/laptops.md", "docs/releases.md", "docs/pull.md", "docs/install.md"):
+    for moved in ("docs/reference/fleet-file.md", "docs/reference/settings.md", "docs/guides/host-certificates.md",
+                  "docs/reference/status.md", "docs/guides/laptops.md", "docs/guides/releases.md",
+                  "docs/guides/pull.md", "docs/guides/install.md"):
         assert re.search(rf"^(?!- ).*\]\({re.escape(moved)}[)#]", README, re.M), f"the path itself links {moved}"
 
 

@@ -8,10 +8,10 @@ import pytest
 
 from robotfleet.pull.operator import releases_remote as rr
 
-ROBOTS = [("robot1", {"pull": True, "pull_remote": "https://mirror/fleet.git",
+ROBOTS = [("robot1", {"pull_enabled": True, "pull_remote": "https://mirror/fleet.git",
                       "pull_report_remote": "ssh://git@server/fleet"}),
-          ("robot2", {"pull": True, "pull_remote": "https://mirror/fleet.git"}),
-          ("robot3", {"pull": False, "pull_remote": "ssh://elsewhere/x"})]
+          ("robot2", {"pull_enabled": True, "pull_remote": "https://mirror/fleet.git"}),
+          ("robot3", {"pull_enabled": False, "pull_remote": "ssh://elsewhere/x"})]
 
 
 def test_the_pull_robots_name_their_remote_and_push_robots_name_none():
@@ -32,5 +32,5 @@ def test_nothing_named_or_two_remotes_is_one_line_saying_how_to_name_it():
         rr.choose(None, None, [])
     with pytest.raises(rr.Unnamed, match=r"^the pull robots name 2 remotes \(https://a/x, https://b/x\); say which "):
         rr.choose(None, None, ["https://a/x", "https://b/x"])
-    with pytest.raises(rr.Unnamed, match=r"the fleet file could not be read: f\.yaml: robot1\.pull: expected"):
-        rr.choose(None, None, [], "f.yaml: robot1.pull: expected true or false")
+    with pytest.raises(rr.Unnamed, match=r"the fleet file could not be read: f\.yaml: robot1\.pull_enabled: expected"):
+        rr.choose(None, None, [], "f.yaml: robot1.pull_enabled: expected true or false")

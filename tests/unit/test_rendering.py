@@ -72,7 +72,7 @@ def test_daemon_json_sorted_with_robot_defaults_and_registries():
 
 def test_compose_for_a_robot():
     data = merged("robots", {
-        "payload_image": "reg.lan/ros/payload:1.0", "sensors": SENSORS, "ros_domain_id": 7,
+        "payload_image": "reg.lan/ros/payload:1.0", "udev_sensors": SENSORS, "ros_domain_id": 7,
         "payload_environment": {"DEBUG": True, "RATE": 10}, "payload_volumes": ["/var/lib/maps:/maps"],
     })
     doc = yaml.safe_load(compose.dump(desired_compose(data, "10.0.0.1")))

@@ -1,7 +1,7 @@
 """One source for the schema (issue 18, item 4): the editors' JSON Schema and
 the run's checks are built from the same declarations, and give the same
 verdict on the validation corpus and the hostile-value corpus wherever JSON
-Schema can express the rule; docs/fleet-file.md names the rules it cannot
+Schema can express the rule; docs/reference/fleet-file.md names the rules it cannot
 (robotfleet/fleet/schema.py BEYOND_SCHEMA)."""
 
 import json
@@ -124,9 +124,9 @@ def test_the_yaml_version_is_the_editors(tmp_path):
 
 
 def test_the_fleet_file_doc_names_the_rules_the_schema_cannot_express():
-    """docs/fleet-file.md (README, "Describing a fleet", links it) lists them."""
-    page = (ROOT / "docs" / "fleet-file.md").read_text()
-    assert "](docs/fleet-file.md)" in (ROOT / "README.md").read_text()
+    """docs/reference/fleet-file.md (README, "Describing a fleet", links it) lists them."""
+    page = (ROOT / "docs" / "reference" / "fleet-file.md").read_text()
+    assert "](docs/reference/fleet-file.md)" in (ROOT / "README.md").read_text()
     listed = page.split("these only the run checks:", 1)[1].split("\n## ", 1)[0]
     for rule in fleet_schema.BEYOND_SCHEMA:
         assert rule in listed, rule

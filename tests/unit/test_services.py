@@ -56,7 +56,7 @@ def test_merge_replaces_lists_and_removes_keys_with_null():
 def test_the_shorthand_document_is_unchanged_by_the_project_builder():
     data = merged("robots", {"payload_image": f"{REG}/ros/payload:1.0", "payload_command": ["run"],
                              "payload_volumes": ["/srv/maps:/maps:ro"], "payload_gpu": True,
-                             "sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
+                             "udev_sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
     # What the single-service builder made before there were several services.
     old = {"name": "robot-payload", "services": {"payload": {
         "image": f"{REG}/ros/payload:1.0",
@@ -83,7 +83,7 @@ def rendered(extra: dict, address="10.0.0.9", files_dir=None) -> dict:
 
 def test_two_services_get_our_defaults_under_their_own_keys():
     doc = rendered({"payload_services": TWO, "payload_environment": {"SITE": "lab"},
-                    "sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
+                    "udev_sensors": [{"name": "lidar", "subsystem": "tty", "serial": "A"}]})
     driver, slam = doc["services"]["driver"], doc["services"]["slam"]
     assert driver["image"] == f"{REG}/ros/driver:2.0"
     assert driver["restart"] == "unless-stopped" and driver["network_mode"] == "host"
@@ -98,7 +98,7 @@ def test_two_services_get_our_defaults_under_their_own_keys():
 
 
 def test_a_sensor_goes_to_the_services_it_names():
-    doc = rendered({"payload_services": TWO, "sensors": [
+    doc = rendered({"payload_services": TWO, "udev_sensors": [
         {"name": "cam", "subsystem": "video4linux", "serial": "C", "services": ["slam"]},
         {"name": "imu", "subsystem": "tty", "serial": "I"},
         {"name": "dbg", "subsystem": "tty", "serial": "D", "passthrough": False},
@@ -144,7 +144,7 @@ def test_ros2_preset_with_a_dds_profile(tmp_path, monkeypatch, profile, env):
     monkeypatch.setattr(presets.dds_profile_text, "__defaults__", (tmp_path,))
     monkeypatch.setattr(presets.preset, "__defaults__", (tmp_path,))
     doc = rendered({"payload_services": TWO, "ros_preset": "ros2", "ros_domain_id": 42, "ros_dds_profile": "p.xml"})
-    for name, service in doc["services"].items():
+    for service in doc["services"].values():
         assert service["ipc"] == "host"
         assert service["environment"]["ROS_DOMAIN_ID"] == "42"
         assert {k: service["environment"][k] for k in env} == env
@@ -161,13 +161,15 @@ def test_ros2_preset_keeps_a_service_s_own_ipc():
 
 @pytest.mark.parametrize("service, line", [
     ({"image": f"{REG}/a:1", "ipcc": "host"},
-     "robots.yaml: robot3.payload_services.drv.ipcc: not a key of the Compose Specification (did you mean 'ipc'?)"),
+     "robots.yaml: robot3.payload_services.drv.ipcc: not a key of the Compose Specification (did you mean "
+     "'ipc'?)"),
     ({"image": f"{REG}/a:1", "restart": 5},
      "robots.yaml: robot3.payload_services.drv.restart: Compose Specification: 5 is not of type 'string'"),
     ({"image": f"{REG}/a:1", "ulimits": {"rtprio": {"soft": "x"}}},
      "robots.yaml: robot3.payload_services.drv.ulimits.rtprio"),
     ({"image": f"{REG}/a:1", "cap_add": "SYS_NICE"},
-     "robots.yaml: robot3.payload_services.drv.cap_add: Compose Specification: 'SYS_NICE' is not of type 'array'"),
+     "robots.yaml: robot3.payload_services.drv.cap_add: Compose Specification: 'SYS_NICE' is not of type "
+     "'array'"),
     ({"image": f"{REG}/a:1", "privileged": True},
      "robots.yaml: robot3.payload_services.drv.privileged: privileged containers are refused unless "
      "payload_allow_privileged is true (prefer devices / cap_add)"),
@@ -177,6 +179,10 @@ def test_ros2_preset_keeps_a_service_s_own_ipc():
     ({"image": f"{REG}/a:1", "volumes": [{"type": "bind", "source": "./cfg", "target": "/cfg"}]},
      "robots.yaml: robot3.payload_services.drv.volumes[0]: relative path ./cfg would resolve inside the "
      "release directory; use an absolute host path"),
+    ({"image": f"{REG}/a:1", "env_file": ["/etc/robot.env", {"path": "cfg.env"}]},
+     "robots.yaml: robot3.payload_services.drv.env_file[1]: cfg.env would be read from the release directory"),
+    ({"image": f"{REG}/a:1", "env_file": "cfg.env"},
+     "robots.yaml: robot3.payload_services.drv.env_file: cfg.env would be read from the release directory"),
     ({"image": f"{REG}/a:1", "build": "."},
      "robots.yaml: robot3.payload_services.drv.build: robots do not build images; push the image and set image"),
     ({"image": f"{REG}/a:1", "environment": {"DEBUG": True}},
@@ -217,13 +223,13 @@ def test_refusals_that_need_the_whole_project():
     assert fleet_problems(host_with(payload_services=TWO, payload_command=["x"])) == [
         "robots.yaml: robot3.payload_command: applies to the single-image payload; with payload_services "
         "give each service its own 'command' key"]
-    assert fleet_problems(host_with(payload_services=TWO, sensors=[
+    assert fleet_problems(host_with(payload_services=TWO, udev_sensors=[
         {"name": "cam", "subsystem": "tty", "serial": "C", "services": ["nav"]}])) == [
-        "robots.yaml: robot3.sensors[0].services: no service called 'nav' (services: driver, slam)"]
+        "robots.yaml: robot3.udev_sensors[0].services: no service called 'nav' (services: driver, slam)"]
     no_devices = {"a": {"image": f"{REG}/a:1"}, "b": {"image": f"{REG}/b:1"}}
-    assert fleet_problems(host_with(payload_services=no_devices, sensors=[
+    assert fleet_problems(host_with(payload_services=no_devices, udev_sensors=[
         {"name": "cam", "subsystem": "tty", "serial": "C"}])) == [
-        "robots.yaml: robot3.sensors[0]: name the service(s) that use it (services: [...]); "
+        "robots.yaml: robot3.udev_sensors[0]: name the service(s) that use it (services: [...]); "
         "no service asks for devices"]
     assert fleet_problems(host_with(payload_services=TWO, payload_allow_privileged=True)) == []
     assert fleet_problems(host_with(payload_services={"a": {"image": f"{REG}/a:1", "privileged": True}},
@@ -337,7 +343,7 @@ def test_a_converged_two_service_robot_plans_nothing_and_a_new_tag_only_releases
 def test_the_documented_example_project_is_valid_and_uses_the_shipped_profile():
     from tests.unit.test_validation import ROOT
 
-    readme = (ROOT / "docs" / "roles.md").read_text()
+    readme = (ROOT / "roles" / "payload" / "README.md").read_text()
     section = readme.split("## The payload as a compose project", 1)[1]
     example = yaml.safe_load(section.split("```yaml\n", 1)[1].split("```", 1)[0])
     example["robots"]["hosts"]["robot2"]["address"] = "10.0.0.2"

@@ -32,7 +32,8 @@ RELOAD = r"^systemctl daemon-reload$"
     (robot(time_servers=["ntp server.lan"]),
      "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address, got 'ntp server.lan'"),
     (robot(time_servers=["fe80::1%eth0\nallow all"]),  # the engine's address check refuses the newline
-     "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address, got 'fe80::1%eth0\\nallow all'"),
+     "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address, got 'fe80::1%eth0\\nallow "
+     "all'"),
     (robot(time_servers=["fe80::1%eth0"]),  # chrony's server line takes no zone
      "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address without a zone (%interface), "
      "got 'fe80::1%eth0'"),

@@ -41,23 +41,25 @@ def test_a_setting_has_one_default_only():
     assert not set(defaults["robots"]) & {"docker_users", "payload_image"}
 
 
+# The docs written by hand: README, docs/ but the generated settings table, each role's README.
+GENERATED_DOC = ROOT / "docs" / "reference" / "settings.md"
+HAND_WRITTEN = [ROOT / "README.md", *(ROOT / "roles").glob("*/README.md"),
+                *(path for path in (ROOT / "docs").rglob("*.md") if path != GENERATED_DOC)]
+
+
 def test_every_setting_is_documented_by_hand():
-    """Beyond the generated docs/settings.md: README, the docs it links, or a
-    role's own roles/<name>/README.md (everything about a role is in its folder)."""
-    written = "".join((ROOT / name).read_text() for name in ("README.md", "docs/roles.md", "docs/gpu.md",
-                                                             "docs/releases.md", "docs/architectures.md",
-                                                             "docs/pull.md"))
-    written += "".join(path.read_text() for path in (ROOT / "roles").glob("*/README.md"))
+    """Beyond the generated docs/reference/settings.md: README, the docs it
+    links, or a role's own roles/<name>/README.md (everything about a role is
+    in its folder)."""
+    written = "".join(path.read_text() for path in HAND_WRITTEN)
     undocumented = [k for k in fleet.setting_checks() if f"`{k}`" not in written]
     assert undocumented == []
 
 
 def test_defaults_are_written_once_in_the_declarations():
-    """The hand-written docs link docs/settings.md (generated) instead of
+    """The hand-written docs link docs/reference/settings.md (generated) instead of
     copying defaults: no table of theirs has a default column."""
-    hand = [ROOT / "README.md", *(ROOT / "roles").glob("*/README.md"),
-            *(path for path in (ROOT / "docs").glob("*.md") if path.name != "settings.md")]
-    copied = [f"{path.relative_to(ROOT)}: {line}" for path in hand for line in path.read_text().splitlines()
+    copied = [f"{path.relative_to(ROOT)}: {line}" for path in HAND_WRITTEN for line in path.read_text().splitlines()
               if line.startswith("|") and "default" in (cell.strip().lower() for cell in line.strip("|").split("|"))]
     assert copied == []
 
@@ -65,30 +67,31 @@ def test_defaults_are_written_once_in_the_declarations():
 @pytest.mark.parametrize(
     "doc, expected",
     [
-        (robot(sensors=[{"name": "cam", "subsystem": "tty", "serial": 42}]),
-         "robots.yaml: robot3.sensors[0].serial: expected a string, got 42; quote it"),
-        (robot(sensors=[{"name": "cam", "subsystem": "tty"}]),
-         "robots.yaml: robot3.sensors[0]: needs a match: serial, vendor_id/product_id or usb_port"),
-        (robot(sensors=[{"name": "cam", "subsystem": "tty", "serail": "x", "serial": "x"}]),
-         "robots.yaml: robot3.sensors[0].serail: unknown sensor field (did you mean 'serial'?)"),
-        (robot(sensors=[{"name": "cam", "subsystem": "camera", "serial": "x"}]),
-         "robots.yaml: robot3.sensors[0].subsystem: expected one of tty, video4linux, hidraw, input, usb, sound, "
+        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serial": 42}]),
+         "robots.yaml: robot3.udev_sensors[0].serial: expected a string, got 42; quote it"),
+        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty"}]),
+         "robots.yaml: robot3.udev_sensors[0]: needs a match: serial, vendor_id/product_id or usb_port"),
+        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serail": "x", "serial": "x"}]),
+         "robots.yaml: robot3.udev_sensors[0].serail: unknown sensor field (did you mean 'serial'?)"),
+        (robot(udev_sensors=[{"name": "cam", "subsystem": "camera", "serial": "x"}]),
+         "robots.yaml: robot3.udev_sensors[0].subsystem: expected one of tty, video4linux, hidraw, input, usb, sound, "
          "got 'camera'"),
-        (robot(sensors=[{"name": "cam", "subsystem": "tty", "vendor_id": "046d"}]),
-         "robots.yaml: robot3.sensors[0].product_id: vendor_id and product_id go together"),
-        (robot(sensors=[{"name": "cam", "subsystem": "tty", "usb_port": "usb2"}]),
-         "robots.yaml: robot3.sensors[0].usb_port: expected a USB port path like 1-2.1, got 'usb2'"),
-        (robot(sensors=[{"name": "cam", "subsystem": "tty", "serial": "a", "mode": "0666"}]),
-         "robots.yaml: robot3.sensors[0].mode: 0666 is world-writable; use a group (or set udev_allow_world_writable)"),
-        (robot(sensors=[{"name": "a", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
+        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "vendor_id": "046d"}]),
+         "robots.yaml: robot3.udev_sensors[0].product_id: vendor_id and product_id go together"),
+        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "usb_port": "usb2"}]),
+         "robots.yaml: robot3.udev_sensors[0].usb_port: expected a USB port path like 1-2.1, got 'usb2'"),
+        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serial": "a", "mode": "0666"}]),
+         "robots.yaml: robot3.udev_sensors[0].mode: 0666 is world-writable; use a group "
+         "(or set udev_allow_world_writable)"),
+        (robot(udev_sensors=[{"name": "a", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
                         {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"}]),
-         "robots.yaml: robot3.sensors[1]: matches the same devices as sensors[0]; "
+         "robots.yaml: robot3.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
          "add a serial or usb_port to tell them apart"),
-        (robot(sensors=[{"name": "a", "subsystem": "tty", "serial": "1"},
+        (robot(udev_sensors=[{"name": "a", "subsystem": "tty", "serial": "1"},
                         {"name": "a", "subsystem": "tty", "serial": "2"}]),
-         "robots.yaml: robot3.sensors[1].name: duplicate sensor name 'a' (also sensors[0])"),
-        (robot(sensors=[{"name": "a", "subsystem": "tty", "serial": '1", RUN+="/bin/sh'}]),
-         "robots.yaml: robot3.sensors[0].serial: expected a serial of letters, digits and . _ : / + -, got '1\", "
+         "robots.yaml: robot3.udev_sensors[1].name: duplicate sensor name 'a' (also udev_sensors[0])"),
+        (robot(udev_sensors=[{"name": "a", "subsystem": "tty", "serial": '1", RUN+="/bin/sh'}]),
+         "robots.yaml: robot3.udev_sensors[0].serial: expected a serial of letters, digits and . _ : / + -, got '1\", "
          "RUN+=\"/bin/sh'"),
         (robot(payload_image="reg.example.com/ros/payload"),
          "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload' has no tag or digest; "
@@ -141,7 +144,7 @@ def test_bad_data_gets_one_clear_line(doc, expected):
 
 
 def test_every_problem_is_reported_at_once():
-    doc = robot(ssh_port="22", docker_users=["Alice"], sensors=[{"name": "x", "subsystem": "tty", "serial": 1}])
+    doc = robot(ssh_port="22", docker_users=["Alice"], udev_sensors=[{"name": "x", "subsystem": "tty", "serial": 1}])
     assert len(fleet_problems(doc)) == 3
 
 

@@ -98,7 +98,7 @@ say "venv $id and deploy tree $tree in place; the agent's first check starts"
 systemctl start --no-block {agent_files.SERVICE}
 """
 
-README = """A first-boot bundle for robot {robot} (robotfleet bundle; docs/pull.md).
+README = """A first-boot bundle for robot {robot} (robotfleet bundle; docs/guides/pull.md).
 
 Put it on the robot's image, as root, with the image mounted at /mnt/image:
 

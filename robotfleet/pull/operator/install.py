@@ -134,7 +134,7 @@ def trust_root(checkout: Path, setting: str | None) -> bytes:
         data = path.read_bytes()
     except OSError:
         raise InstallError(f"pull_trust_root: {path} cannot be read; publish a first release "
-                           "(robotfleet keys init; robotfleet publish), docs/pull.md") from None
+                           "(robotfleet keys init; robotfleet publish), docs/guides/pull.md") from None
     try:
         md = Metadata[Root].from_bytes(data)
         md.signed.verify_delegate(Root.type, md.signed_bytes, md.signatures)

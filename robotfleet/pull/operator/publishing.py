@@ -4,7 +4,7 @@ roles pin; published, halted or renewed in a release repository.
 The engine names no role: the images a release binds come from each role's
 ``pins`` part (robotfleet/role.py PinPart); the payload role resolves its
 images to digests through its registry client.  The pull hosts are the
-fleet file's hosts with ``pull: true`` (an engine setting); their
+fleet file's hosts with ``pull_enabled: true`` (an engine setting); their
 platforms (``pull_platform``) say which wheelhouses the release carries.
 """
 
@@ -46,7 +46,7 @@ class Options:
 
 
 def pull_hosts(fleet: Fleet, registry) -> list[tuple[str, HostData]]:
-    """The fleet's hosts with ``pull: true``, robots then laptops, in file
+    """The fleet's hosts with ``pull_enabled: true``, robots then laptops, in file
     order, with every setting's default for their group under what the file says."""
     pulls = pull_part(registry.roles).pulls
     merged = [(name, HostData({**registry.defaults(group), **data})) for group in ("robots", "laptops")
@@ -116,7 +116,7 @@ def build(checkout, options: Options, roles, registry, version: int, now: dateti
     fleet, fleet_sha = read_fleet(checkout, commit, options.fleet, registry)
     hosts = pull_hosts(fleet, registry)
     if not hosts:
-        raise PublishError(f"{options.fleet}: no host has pull: true; nothing to publish for")
+        raise PublishError(f"{options.fleet}: no host has pull_enabled: true; nothing to publish for")
     images = resolve_pins(roles, hosts)
     try:
         archive = work / "code.tar.gz"

@@ -7,7 +7,7 @@ pull-enroll (the pull robots' reports) take it from, in this order:
 the robots fetch from an https mirror); the fleet file's pull robots'
 ``pull_remote`` (for reports, ``pull_report_remote`` where set), when they
 all name one.  Never the checkout's ``origin`` by default: that is the
-deploy repository, which docs/pull.md keeps apart from the releases (robots
+deploy repository, which docs/guides/pull.md keeps apart from the releases (robots
 can read all of a remote they fetch from), so a command that writes there is
 refused unless ``--remote origin`` names it.
 """

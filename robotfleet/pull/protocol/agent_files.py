@@ -178,7 +178,7 @@ FIRST_BOOT_SERVICE = "robot-pull-first-boot.service"
 
 def service_unit() -> str:
     return HEADER + f"""[Unit]
-Description=Robot fleet pull agent: fetch, verify and apply a signed release (docs/pull.md)
+Description=Robot fleet pull agent: fetch, verify and apply a signed release (docs/guides/pull.md)
 Wants=network-online.target
 After=network-online.target {FIRST_BOOT_SERVICE}
 ConditionPathExists={CONFIG}

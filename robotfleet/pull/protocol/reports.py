@@ -8,7 +8,7 @@ fleet remote (a commit holding ``report.json``).
      "applied": {"version": 7, "release": "...", "commit": "...", "time": "...Z"},
      "result": "applied" | "up-to-date" | "waiting" | "prefetched" | "halted" | "stopped" | "refused"
                | "rolled-back" | "failed",
-     "reason": "one line, or null", "refusal": "tampered" (robotfleet/pull/robot/verify.py REASONS) | null,
+     "reason": "one line, or null", "refusal": "tampered" (robotfleet/pull/robot/refusals.py REASONS) | null,
      "attempted": {"version": 8, "result": "rolled-back", "tries": 1} | null,
      "wave": 0, "status": {... the roles' status cells, as robotfleet status --json has them ...},
      "host_keys": ["ssh-ed25519 AAAA..."], "key": "ssh-ed25519 AAAA... (its key for the remote)",

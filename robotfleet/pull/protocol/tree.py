@@ -98,7 +98,7 @@ def entries_of_commit(checkout, commit: str, paths=DEPLOY_PATHS) -> list[Entry]:
         return []
     batch = git(checkout, "cat-file", "--batch", stdin=b"".join(f"{obj}\n".encode() for _, _, obj in rows))
     entries, at = [], 0
-    for path, mode, obj in rows:
+    for path, mode, _ in rows:
         header_end = batch.index(b"\n", at)
         size = int(batch[at:header_end].split()[2])
         content = batch[header_end + 1: header_end + 1 + size]

@@ -22,10 +22,11 @@
    again (a process: python, the roles, payloadctl, docker) only when a
    path the roles watch changed, the code the agent runs changed, or the
    heartbeat is due; else what the last read found.
-6. Report (robotfleet/pull/protocol/reports.py) to refs/reports/<robot>, when it
+6. Report (robotfleet/pull/robot/wake_report.py) to refs/reports/<robot>, when it
    says something new or its heartbeat is due; one line in the journal.
    While it holds a bundle's enrollment key, that key signs the robot's
    name and keys in the report (robotfleet/pull/protocol/enrollment.py).
+   What it keeps between wakes: robotfleet/pull/robot/agent_state.py.
 """
 
 from __future__ import annotations
@@ -33,22 +34,15 @@ from __future__ import annotations
 import argparse
 import datetime
 import fcntl
-import glob
-import hashlib
-import json
 import os
-import resource
 import secrets
 import shutil
 import sys
 import time
 from pathlib import Path
 
-import robotfleet
-from robotfleet import atomicfile
-from robotfleet.pull.robot import prefetch, release_run, trust_state
-from robotfleet.pull.protocol import agent_files, enrollment, reports, waves
-from robotfleet.pull.robot import enrollment_proof
+from robotfleet.pull.robot import agent_state, prefetch, release_run, trust_state, wake_report
+from robotfleet.pull.protocol import agent_files, reports, waves
 from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.robot.transport import Remote, TransportError
@@ -56,7 +50,6 @@ from robotfleet.pull.robot.transport import Remote, TransportError
 # trust (python-tuf), prepare and wheels are imported where a check needs
 # them: a check that finds nothing new never does.
 
-STATE_FILE = "agent-state.json"
 # What ssh says when the git server knows none of the robot's keys: before
 # `robotfleet pull-enroll` registered its own, for a robot that never read
 # a release (one that did was enrolled: its key refused now is a failure).
@@ -75,18 +68,6 @@ class Outcome(Exception):
         self.result, self.reason, self.refusal, self.wave = result, reason, refusal, wave
 
 
-def load_state(state: Path) -> dict:
-    try:
-        found = json.loads((state / STATE_FILE).read_text())
-        return found if isinstance(found, dict) else {}
-    except (OSError, ValueError):
-        return {}
-
-
-def save_state(state: Path, data: dict) -> None:
-    atomicfile.write(state / STATE_FILE, json.dumps(data, sort_keys=True, indent=1) + "\n")
-
-
 class Wake:
     """One check of one robot (``config``: robotfleet/pull/protocol/agent_files.py)."""
 
@@ -96,7 +77,7 @@ class Wake:
         self.clock = clock
         self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout,
                              config.report_remote, config.report_shards)
-        self.state = load_state(self.state_dir)
+        self.state = agent_state.load_state(self.state_dir)
         self.record = None
         self.status: dict = {}
         self.status_time: str | None = None
@@ -141,7 +122,7 @@ class Wake:
 
     def verify(self):
         """The record, verified in full; the trust client (for downloads)."""
-        from robotfleet.pull.robot import verify
+        from robotfleet.pull.robot import refusals, verify
 
         if not (self.state_dir / "tuf" / "root.json").exists():
             root = Path(self.config.etc("root.json")).read_bytes()
@@ -150,7 +131,7 @@ class Wake:
         client = verify.Client(self.state_dir, self.source(), clock=self.clock)
         try:
             self.record = client.refresh(applied=self.applied_version())
-        except verify.Refused as refused:
+        except refusals.Refused as refused:
             raise Outcome("refused", refused.line, refused.reason) from None
         self.reference_time = client.reference_time or self.clock()
         return client
@@ -176,7 +157,7 @@ class Wake:
         return decision
 
     def apply(self, client, wave: int | None) -> Outcome:
-        from robotfleet.pull.robot import prepare, verify
+        from robotfleet.pull.robot import prepare, refusals
         from robotfleet.pull.protocol import platforms
 
         record, robot = self.record, self.config.robot
@@ -191,10 +172,10 @@ class Wake:
                 from robotfleet.pull.robot import media
 
                 media.load_images(client, record, robot, platform.split("-", 1)[1], self.state_dir / "media")
-        except verify.Refused as refused:
+        except refusals.Refused as refused:
             raise Outcome("refused", refused.line, refused.reason, wave) from None
         except prepare.Mismatch as error:
-            raise Outcome("refused", f"release {record.version}: {error}", verify.TAMPERED, wave) from None
+            raise Outcome("refused", f"release {record.version}: {error}", refusals.TAMPERED, wave) from None
         except (prepare.PrepareError, OSError) as error:
             return self.tried(Outcome("failed", f"release {record.version} could not be prepared: {error}", wave=wave))
         deployment = f"pull-{robot}-{record.version}-{secrets.token_hex(3)}"
@@ -248,7 +229,7 @@ class Wake:
             outcome = ended
         if self.status_time is None:
             self.roles_status()
-        return self.report(outcome), outcome
+        return wake_report.build(self, outcome), outcome
 
     # -- the roles' status ----------------------------------------------------
 
@@ -276,86 +257,9 @@ class Wake:
         fleet = (self.state.get("fleet") or {}).get("path")
         self.read_status(release_run.status(self.state_dir, self.config.robot, fleet), code)
 
-    def report(self, outcome: Outcome) -> dict:
-        record = self.record
-        usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
-        cost = self.remote.cost.as_dict()
-        cost["cpu"] = round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
-        hosts, key = host_keys(), public_key(self.config.etc("id_ed25519.pub"))
-        try:
-            proof = enrollment_proof.proof(self.config.etc("enroll_ed25519"), self.config.robot, key, hosts, self.state)
-        except enrollment.ProofError as error:
-            print(f"robot-pull: no enrollment proof in the report: {error}", flush=True)
-            proof = None
-        return reports.build(
-            self.config.robot, self.clock(), outcome.result, reason=outcome.reason, refusal=outcome.refusal,
-            seen=reports.version_of(record) if record else self.state.get("seen"),
-            applied=self.state.get("applied"), attempted=self.state.get("attempted"), wave=outcome.wave,
-            status=self.status, host_keys=hosts, key=key, config=self.config, check=cost, agent=agent_version(),
-            status_time=self.status_time, enrollment=proof)
-
-    def send(self, report: dict) -> str:
-        """Push the report when it says something new or the heartbeat is
-        due; what happened, for the journal line."""
-        substance = hashlib.sha256(json.dumps(reports.substance(report), sort_keys=True).encode()).hexdigest()
-        last = self.state.get("reported") or {}
-        age = time.time() - last.get("at", 0)
-        if last.get("substance") == substance and 0 <= age < self.config.heartbeat:
-            said = "report unchanged"
-        else:
-            try:
-                self.remote.push_report(self.config.robot, reports.to_bytes(report))
-                self.state["reported"] = {"substance": substance, "at": time.time()}
-                said = "report sent"
-            except TransportError as error:
-                said = f"report not sent ({error})"
-                if self.medium is not None:
-                    from robotfleet.pull.robot import media
-
-                    said += "; " + media.write_report(self.medium, self.config.robot, reports.to_bytes(report))
-        if self.remote.retire_enrollment_key():  # the server took this robot's own key in this wake
-            said += "; the enrollment key is retired (the remote knows this robot's own key)"
-        return said
-
 
 def record_time(moment: datetime.datetime) -> str:
     return moment.astimezone(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-
-
-def host_keys() -> list[str]:
-    keys = []
-    for path in sorted(glob.glob("/etc/ssh/ssh_host_*_key.pub")):
-        key = public_key(path)
-        if key:
-            keys.append(key)
-    return keys
-
-
-def public_key(path: str) -> str | None:
-    try:
-        return " ".join(Path(path).read_text().split()[:2]) or None
-    except OSError:
-        return None
-
-
-def agent_version() -> str:
-    code = os.path.realpath(robotfleet.CHECKOUT)
-    return f"{robotfleet.__version__} (tree {os.path.basename(code)[:12]})"
-
-
-def journal_line(report: dict, sent: str, seconds: float) -> str:
-    """The wake's one line: its outcome, and what it cost (the whole wake:
-    CPU of the agent and everything it ran, bytes over the network)."""
-    check = report.get("check") or {}
-    seen = report.get("seen") or {}
-    head = f"robot-pull: {report['result']}"
-    if seen:
-        head += f" (release {seen.get('version')})"
-    if report.get("reason"):
-        head += f": {report['reason']}"
-    return (f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
-            f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
-            f"requests; {sent}")
 
 
 def main(argv=None) -> int:
@@ -380,13 +284,12 @@ def main(argv=None) -> int:
         report, _ = wake.run()
         if wake.record is not None:
             wake.state["seen"] = reports.version_of(wake.record)
-        sent = wake.send(report)
-        save_state(state, wake.state)
-        usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
-        report["check"]["cpu"] = round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
+        sent = wake_report.send(wake, report)
+        agent_state.save_state(state, wake.state)
+        report["check"]["cpu"] = wake_report.cpu_seconds()
         report["check"].update({"sent": wake.remote.cost.sent, "received": wake.remote.cost.received,
                                 "requests": wake.remote.cost.requests})
-        print(journal_line(report, sent, time.monotonic() - started), flush=True)
+        print(wake_report.journal_line(report, sent, time.monotonic() - started), flush=True)
     return 0
 
 

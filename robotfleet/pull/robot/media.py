@@ -96,9 +96,9 @@ def image_id(name: str) -> str | None:
 
 def load_images(client, record, robot: str, machine: str, work: Path) -> int:
     """Each image the release pins for ``robot`` in the engine, from the
-    medium's archives, checked; how many were loaded.  verify.Refused for
+    medium's archives, checked; how many were loaded.  refusals.Refused for
     a medium that is not what was signed, MediaFailure otherwise."""
-    from robotfleet.pull.robot import verify
+    from robotfleet.pull.robot import refusals
 
     pins = record.images_of(robot)
     if not pins:
@@ -107,16 +107,16 @@ def load_images(client, record, robot: str, machine: str, work: Path) -> int:
     try:
         index = media.parse(index_file.read_bytes())
     except media.MediaError as error:
-        raise verify.Refused(verify.MALFORMED, str(error)) from None
+        raise refusals.Refused(refusals.MALFORMED, str(error)) from None
     if index["version"] != record.version:
-        raise verify.Refused(verify.MALFORMED, f"{media.NAME}: for release {index['version']}, "
+        raise refusals.Refused(refusals.MALFORMED, f"{media.NAME}: for release {index['version']}, "
                                                f"not release {record.version}")
     mine = index["images"].get(machine, {})
     loaded = 0
     for ref, pin in sorted(pins.items()):
         entry = mine.get(ref)
         if entry is None or entry["digest"] != pin:
-            raise verify.Refused(verify.MALFORMED, f"{media.NAME}: no archive of {ref}@{pin} for {machine}")
+            raise refusals.Refused(refusals.MALFORMED, f"{media.NAME}: no archive of {ref}@{pin} for {machine}")
         wanted, tag = digest_ref(ref, pin), media_tag(ref, pin)
         if image_id(wanted) in (entry["image"], pin) or image_id(tag) == entry["image"]:
             continue  # already here, checked
@@ -137,7 +137,7 @@ def load_images(client, record, robot: str, machine: str, work: Path) -> int:
                     said = (tagged.stderr or tagged.stdout).strip().splitlines() or ["the tag does not name it"]
                     raise MediaFailure(f"docker tag {entry['image']} {tag}: {said[-1][:300]}")
         if found not in (entry["image"], pin):
-            raise verify.Refused(verify.TAMPERED, f"{ref}: docker load gave {wanted} the id {found or 'none'}, "
+            raise refusals.Refused(refusals.TAMPERED, f"{ref}: docker load gave {wanted} the id {found or 'none'}, "
                                                   f"the release binds {entry['image']}")
         loaded += 1
     return loaded

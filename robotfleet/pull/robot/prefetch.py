@@ -84,7 +84,7 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
     the record binds (the apply would refuse it the same way).  ``wake``:
     the agent's Wake (record, config, state, verify); ``client``: its TUF
     client, when this check verified in full."""
-    from robotfleet.pull.robot import prepare, verify
+    from robotfleet.pull.robot import prepare, refusals
 
     record, config, state_dir = wake.record, wake.config, wake.state_dir
     version = record.version
@@ -99,12 +99,12 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
         if wheels:
             paths.append(str(prepare.venv_for(state_dir, wheels)))
         images = pull_images(record.images_of(config.robot), config.docker_dir, config.min_free_mb)
-    except verify.Refused as refused:
-        if refused.reason != verify.UNAVAILABLE:
+    except refusals.Refused as refused:
+        if refused.reason != refusals.UNAVAILABLE:
             return "refused", refused.line, refused.reason
         return WAITING, f"release {version} not prefetched yet: {refused.line}; {waiting.reason}", None
     except prepare.Mismatch as error:
-        return "refused", f"release {version}: {error}", verify.TAMPERED
+        return "refused", f"release {version}: {error}", refusals.TAMPERED
     except (Incomplete, prepare.PrepareError, OSError) as error:
         return WAITING, f"release {version} not prefetched yet: {error}; {waiting.reason}", None
     wake.state["prefetched"] = done = {"version": version, "paths": paths, "wheels": len(wheels),

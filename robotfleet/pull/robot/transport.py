@@ -23,7 +23,7 @@ host keys are pinned (StrictHostKeyChecking, under one alias, so a new
 address or port does not matter).  Bytes are ssh's own count of what went
 over the connection ("Transferred: sent N, received M bytes"; its debug
 level also names the key the server accepted); each ssh session is one
-request.
+request (the counting: robotfleet/pull/robot/transport_cost.py).
 
 Over HTTPS (``https://host/path``: git's smart HTTP, or a static directory
 served as a "dumb" remote, which cannot answer a shallow fetch, so the
@@ -40,7 +40,6 @@ when the releases come from a static HTTPS mirror).
 from __future__ import annotations
 
 import os
-import re
 import shlex
 import signal
 import subprocess
@@ -48,52 +47,22 @@ import tempfile
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, report_shards, report_store, reports
+from robotfleet.pull.robot import transport_cost
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
-_TRANSFERRED = re.compile(r"Transferred: sent (\d+), received (\d+) bytes")
-# git's trace of curl (http.c): "=> Send header, 0000000247 bytes (0xf7)"
-_CURL = re.compile(rb"^\S+ \S+:\d+ +(=>|<=) (?:Send|Recv) (header|data), (\d+) bytes")
-_TRACE = re.compile(rb"^\d\d:\d\d:\d\d\.\d+ \S+:\d+ ")
 _SHALLOW_REFUSED = "dumb http transport does not support shallow"
 # What a server says of a repository or ref the robot may not write (gitolite, git's own).
 _REFUSED = ("DENIED", "does not appear to be a git repository", "not found")
-_ACCEPTED = re.compile(r"Authenticated to .* using \"publickey\"|Server accepts key: (\S+)")
 IDENTITY = {"GIT_AUTHOR_NAME": "robot-pull", "GIT_AUTHOR_EMAIL": "robot-pull@localhost",
             "GIT_COMMITTER_NAME": "robot-pull", "GIT_COMMITTER_EMAIL": "robot-pull@localhost"}
 
 
 class TransportError(Exception):
     """The remote could not be reached or read (one line)."""
-
-
-@dataclass
-class Cost:
-    """What the exchanges of one wake cost: bytes over the network and time."""
-
-    sent: int = 0
-    received: int = 0
-    seconds: float = 0.0
-    requests: int = 0
-    exchanges: list = field(default_factory=list)
-    lock: threading.Lock = field(default_factory=threading.Lock, repr=False, compare=False)
-
-    def add(self, what: str, sent: int, received: int, seconds: float, requests: int = 1) -> None:
-        with self.lock:  # the shards' fetches run in threads
-            self.sent += sent
-            self.received += received
-            self.seconds += seconds
-            self.requests += requests
-            self.exchanges.append({"what": what, "sent": sent, "received": received, "seconds": round(seconds, 3),
-                                   "requests": requests})
-
-    def as_dict(self) -> dict:
-        return {"sent": self.sent, "received": self.received, "seconds": round(self.seconds, 3),
-                "requests": self.requests, "exchanges": self.exchanges}
 
 
 def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> str:
@@ -126,46 +95,6 @@ def is_https(url: str) -> bool:
     return url.startswith("https://")
 
 
-class CurlTrace:
-    """git's stderr with GIT_TRACE_CURL=2, read as it streams (a fetch's
-    trace is several times its size): the HTTP bytes each way, the requests,
-    and git's own lines (its complaint, if any) apart."""
-
-    def __init__(self):
-        self.sent = self.received = self.requests = 0
-        self.said: list[bytes] = []
-
-    def line(self, line: bytes) -> None:
-        match = _CURL.match(line)
-        if match:
-            size = int(match.group(3))
-            if match.group(1) == b"=>":
-                self.sent += size
-                self.requests += match.group(2) == b"header"
-            else:
-                self.received += size
-        elif not _TRACE.match(line) and len(self.said) < 200:
-            self.said.append(line)
-
-    def read(self, stream) -> None:
-        for line in stream:
-            self.line(line)
-
-    @property
-    def stderr(self) -> bytes:
-        return b"".join(self.said)
-
-
-def read_ssh_log(text: str) -> tuple[int, int, str | None]:
-    """(bytes sent, bytes received, the key the server accepted) from ssh's log."""
-    sent = received = 0
-    for match in _TRANSFERRED.finditer(text):
-        sent += int(match.group(1))
-        received += int(match.group(2))
-    accepted = [m.group(1) for m in _ACCEPTED.finditer(text) if m.group(1)]
-    return sent, received, accepted[-1] if accepted else None
-
-
 class Remote:
     """The fleet remote as one robot reaches it."""
 
@@ -177,7 +106,7 @@ class Remote:
         self.repo = Path(repo)
         self.etc = etc
         self.timeout = timeout
-        self.cost = Cost()
+        self.cost = transport_cost.Cost()
         self.accepted_key: str | None = None
 
     # -- git with bounds ---------------------------------------------------
@@ -196,7 +125,7 @@ class Remote:
         ssh_said = ""  # ssh's own complaint: with -E it goes to its log, not to git's stderr
         options: list[str] = []
         if network and is_https(url):
-            trace = CurlTrace()
+            trace = transport_cost.CurlTrace()
             environment.update(GIT_TRACE_CURL="2", GIT_TRACE_REDACT="1")
             environment.pop("GIT_SSL_NO_VERIFY", None)
             options = ["-c", "http.sslVerify=true"]
@@ -231,7 +160,7 @@ class Remote:
             if log:
                 try:
                     text = Path(log).read_text(errors="replace")
-                    sent, received, accepted = read_ssh_log(text)
+                    sent, received, accepted = transport_cost.read_ssh_log(text)
                     ssh_said = "\n".join(line for line in text.splitlines() if any(c in line for c in _CAUSES))
                 finally:
                     os.unlink(log)

@@ -42,9 +42,7 @@ from robotfleet.pull.protocol import record as records
 from robotfleet.pull.robot import fetched, trust_state, tufprivate
 from robotfleet.pull.robot.refusals import (EXPIRED, MALFORMED, ROLLBACK, WORDS, Refused, classified, first_line,
                                             unsigned_reason)
-# A refusal's reasons, read here by the agent, media, prefetch and their tests (as verify.Refused is).
-from robotfleet.pull.robot.refusals import REASONS, TAMPERED, UNAVAILABLE, UNKNOWN_KEY, UNSIGNED  # noqa: F401
-from robotfleet.pull.robot.trust_state import EPOCH, STATE_FORMAT, State  # noqa: F401 (where they were)
+from robotfleet.pull.robot.trust_state import EPOCH, State
 
 
 def _now() -> datetime.datetime:
@@ -57,10 +55,6 @@ def read_state(state_dir) -> State:
         return trust_state.read_state(state_dir)
     except trust_state.Unreadable as error:
         raise Refused(MALFORMED, str(error)) from None
-
-
-write_state = trust_state.write_state
-_write_atomic = trust_state.write_atomic
 
 
 def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = None) -> None:
@@ -83,7 +77,7 @@ def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = 
     os.symlink(f"root_history/{md.signed.version}.root.json", fresh / "root.json")
     _swap_in(state_dir, fresh)
     trust_state.forget(state_dir)
-    write_state(state_dir, State(trusted_time or EPOCH, 0, None))
+    trust_state.write_state(state_dir, State(trusted_time or EPOCH, 0, None))
 
 
 def _swap_in(state_dir: Path, fresh: Path) -> None:
@@ -233,7 +227,7 @@ class Client:
             shutil.rmtree(work, ignore_errors=True)
             raise
         _swap_in(self.state_dir, work)
-        write_state(self.state_dir, State(max(state.time, now, found.published_at),
+        trust_state.write_state(self.state_dir, State(max(state.time, now, found.published_at),
                                           max(state.version, found.version), found.release))
         self.updater, self.record = updater, found
         self._remember(raw, release_file, found)

@@ -88,7 +88,7 @@ def apply(spec, run_, life, lock=None):
     try:
         life.prepare(rid, spec.to_dict(), compose_yaml(release_compose(doc)), record)
     except OSError as error:  # e.g. disk full: nothing half-written stays behind
-        raise Failure("cannot write release {}: {}; the old release keeps running".format(rid, error))
+        raise Failure("cannot write release {}: {}; the old release keeps running".format(rid, error)) from None
     refused = check_compose(spec.name, life.releases.path(rid, "compose.yaml"))
     if refused:
         life.discard(rid)

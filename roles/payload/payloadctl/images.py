@@ -2,7 +2,7 @@
 release keeps running) or already pushed, checked against this robot's
 platform, then pinned by digest.
 
-A release on removable media (docs/pull.md) arrives by ``docker load``:
+A release on removable media (docs/guides/pull.md) arrives by ``docker load``:
 the pull agent checks each loaded image's id against the signed release,
 and where Docker cannot find it by the release's digest (the classic image
 store keeps no registry digest for a loaded image) it tags that id
@@ -62,7 +62,7 @@ def pull(ref, timeout, platform=None):
             raise Failure(
                 "docker pull {} did not finish within {} s (payload_pull_timeout); "
                 "the old release keeps running".format(ref, timeout)
-            )
+            ) from None
         if proc.returncode == 0:
             return None
         last = (proc.stderr or proc.stdout).strip()[-300:]

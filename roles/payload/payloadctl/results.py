@@ -3,7 +3,7 @@ reads it (runs/<id>/result.json, and last-result.json for status and the
 pull agent) and printed as one JSON line on stdout.  Lines for people go to
 stderr; programs read the result, never them.
 
-The result, format 1 (docs/releases.md):
+The result, format 1 (docs/reference/payloadctl.md):
 
     {"payloadctl": 1, "ok": bool, "outcome": one of OUTCOMES, "action": "apply" | "rollback",
      "release": what `current` is after the run, "previous": what `previous` is,
