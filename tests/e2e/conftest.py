@@ -23,7 +23,9 @@ ARM64_MODULE = "test_arm64.py"
 PULL_MODULE = "test_pull.py"
 # Pull mode on a robot with no network, and prefetch (tests/e2e/test_pull_media.py).
 PULL_MEDIA_MODULE = "test_pull_media.py"
-PULL_MODULES = (PULL_MODULE, PULL_MEDIA_MODULE)
+# Releases from a static HTTPS mirror, reports to gitolite (tests/e2e/test_pull_https.py).
+PULL_HTTPS_MODULE = "test_pull_https.py"
+PULL_MODULES = (PULL_MODULE, PULL_MEDIA_MODULE, PULL_HTTPS_MODULE)
 # The emulated arm64 robot costs about 4 minutes of the end-to-end layer and
 # 12-15 minutes of one core to build its host image beside it: on CI's two
 # cores that took the test command over its 30 minutes, so it is opt-in.

@@ -1,10 +1,9 @@
 """End to end: a pull robot with no network converges from exported media
-and refuses tampered or replayed media (issue 35 item 7; docs/guides/pull.md
-"Robots with no network: releases on media"), on the lab's real Docker
-engine.  Prefetch is integration-tested only (tests/integration/
-test_pull_prefetch.py): its end-to-end test, which judged the prefetch by
-Docker's events, saw no pull event once in the full sequence although the
-image had arrived by its digest, and is left out until that is understood.
+and refuses tampered or replayed media, and a robot outside its maintenance
+window prefetches, then only switches inside it (issue 35 items 6 and 7;
+docs/guides/pull.md "Robots with no network: releases on media",
+docs/explanations/pull.md "Prefetch before the window"), on the lab's real
+Docker engine.
 
 One robot of the session's lab (robot3), its own pull agent and release
 keys on the lab's git server, its timer at an hour (every check here is
@@ -16,6 +15,7 @@ after tests/e2e/test_pull.py.
 
 from __future__ import annotations
 
+import datetime
 import json
 import subprocess
 import time
@@ -221,3 +221,81 @@ def test_a_robot_with_its_network_cut_converges_from_exported_media_and_refuses_
         lab.sh(ROBOT, f"rm -rf {MEDIUM}")
         world.network(True)
     assert ssh_error(lab, ROBOT) is None  # its SSH port published again
+
+
+def window_from(start: datetime.datetime, minutes: int = 30) -> str:
+    end = start + datetime.timedelta(minutes=minutes)
+    return f"daily {start:%H:%M}-{end:%H:%M} UTC"
+
+
+class PullsSeen:
+    """The images the robot's Docker pulls while this watch runs, seen as
+    they happen: a live `docker events` subscription (a transient unit on the
+    robot), filtered by the daemon.  Not `docker events --since` read
+    afterwards: the daemon keeps only its last 256 events for that, and each
+    health check of each running container adds three (an exec's create,
+    start and die, every 2 s for the lab's payload), so on a robot the
+    modules before left running a few containers a pull drops out of that
+    history within a minute (a prefetch check outlasts that: once in the
+    full sequence its pull was no longer there to read)."""
+
+    UNIT = "robot-lab-pulls"
+
+    def __init__(self, lab):
+        self.lab, self.out = lab, f"/run/{self.UNIT}.out"
+        lab.sh(ROBOT, f"systemctl stop {self.UNIT}; systemctl reset-failed {self.UNIT}; rm -f {self.out}")
+        # --since: what the daemon sent before the subscription took hold is replayed, nothing is missed
+        lab.ok(ROBOT, f"systemd-run -q --unit {self.UNIT} -p StandardOutput=file:{self.out} docker events "
+                      "--since $(date +%s) --filter type=image --filter event=pull --format '{{.Actor.ID}}'")
+        lab.ok(ROBOT, f"systemctl is-active -q {self.UNIT}")
+
+    def stop(self) -> list[str]:
+        self.lab.ok(ROBOT, f"systemctl stop {self.UNIT}; systemctl reset-failed {self.UNIT} 2>/dev/null; true")
+        return self.lab.ok(ROBOT, f"cat {self.out}").split()
+
+
+PREFETCH_LEAD = 120  # seconds at least to the window: an apply, a publish and a prefetch before it
+
+
+def test_a_robot_outside_its_window_prefetches_then_switches_inside_it_without_pulling(world, lab):
+    started = time.monotonic()
+    now = datetime.datetime.now(datetime.timezone.utc)
+    opens = (now + datetime.timedelta(seconds=PREFETCH_LEAD + 59)).replace(second=0, microsecond=0)
+    window = window_from(opens)
+    # The window reaches the robot's agent with a release (applied now: its config had none).
+    world.op.publish(world.fleet("1.0", pull_windows=[window]), "release: a maintenance window",
+                     "--no-wheels", "--pause", "0")
+    world.check()
+    report = world.report()
+    assert report["result"] == "applied", report
+    assert window in lab.ok(ROBOT, "cat /etc/robot-pull/agent.json")
+    running = lab.version(ROBOT)
+    ref = world.pinned("ros/driver", "1.0")
+    forget_images(world, [("ros/driver", "1.0")])  # whatever put it there, the prefetch must pull it
+
+    world.op.publish(world.fleet("1.0", repository="ros/driver", pull_windows=[window]),
+                     "release: ros/driver 1.0 in the window", "--no-wheels", "--pause", "0")
+    watch = PullsSeen(lab)
+    world.check()
+    pulled = watch.stop()
+    report = world.report()
+    version = report["seen"]["version"]
+    assert report["result"] == "prefetched", report
+    assert (report.get("applied") or {}).get("version") != version, report
+    assert pulled == [by_digest(ref)], pulled  # pulled by the digest the release names, and only that
+    assert lab.sh(ROBOT, f"docker image inspect {by_digest(ref)}")[0] == 0
+    assert lab.version(ROBOT) == running  # the old payload still runs
+    left = (opens - datetime.datetime.now(datetime.timezone.utc)).total_seconds()
+    assert left > 0, f"the window opened {-left:.0f} s before the prefetch was checked (raise PREFETCH_LEAD)"
+    phase(f"pull prefetch: release {version} prefetched {left:.0f} s before its window", started)
+
+    time.sleep(left + 2)
+    watch = PullsSeen(lab)
+    world.check()
+    pulled = watch.stop()
+    report = world.report()
+    assert report["result"] == "applied" and report["applied"]["version"] == version, report
+    assert lab.payload(ROBOT)["Config"]["Image"] == by_digest(ref), lab.payload(ROBOT)["Config"]["Image"]
+    assert lab.version(ROBOT) == "driver-1.0"
+    assert pulled == [], f"the switch pulled {pulled}"
+    phase(f"pull prefetch: release {version} switched in its window", started)

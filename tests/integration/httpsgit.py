@@ -14,8 +14,8 @@ import threading
 from pathlib import Path
 
 
-def make_ca(where: Path) -> tuple[Path, Path, Path]:
-    """(CA certificate, server certificate, server key) for 127.0.0.1."""
+def make_ca(where: Path, address: str = "127.0.0.1") -> tuple[Path, Path, Path]:
+    """(CA certificate, server certificate, server key) for ``address`` (an IP address)."""
     where.mkdir(parents=True, exist_ok=True)
 
     def openssl(*args: str) -> None:
@@ -23,19 +23,22 @@ def make_ca(where: Path) -> tuple[Path, Path, Path]:
 
     openssl("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-days", "2",
             "-subj", "/CN=fleet test CA", "-keyout", "ca.key", "-out", "ca.pem")
-    openssl("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-subj", "/CN=127.0.0.1",
+    openssl("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-subj", f"/CN={address}",
             "-keyout", "server.key", "-out", "server.csr")
-    (where / "ext").write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n")
+    (where / "ext").write_text(f"subjectAltName=IP:{address},DNS:localhost\n")
     openssl("x509", "-req", "-in", "server.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
             "-days", "2", "-extfile", "ext", "-out", "server.pem")
     return where / "ca.pem", where / "server.pem", where / "server.key"
 
 
 class Server:
-    """``root`` (a directory of bare repositories) at https://127.0.0.1:PORT/."""
+    """``root`` (a directory of bare repositories) at https://HOST:PORT/
+    (127.0.0.1 and a free port unless given: an end-to-end test serves the
+    lab's robots on its docker network's gateway address)."""
 
-    def __init__(self, root: Path, cert: Path, key: Path, smart: bool = True):
-        self.root, self.smart, self.requests = Path(root), smart, 0
+    def __init__(self, root: Path, cert: Path, key: Path, smart: bool = True, host: str = "127.0.0.1",
+                 port: int = 0):
+        self.root, self.smart, self.requests, self.host = Path(root), smart, 0, host
         server = self
 
         class Handler(http.server.SimpleHTTPRequestHandler):
@@ -87,7 +90,7 @@ class Server:
                 self.end_headers()
                 self.wfile.write(content)
 
-        self.httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd = http.server.ThreadingHTTPServer((host, port), Handler)
         context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
         context.load_cert_chain(cert, key)
         self.httpd.socket = context.wrap_socket(self.httpd.socket, server_side=True)
@@ -96,7 +99,7 @@ class Server:
         self.thread.start()
 
     def url(self, name: str) -> str:
-        return f"https://127.0.0.1:{self.port}/{name}"
+        return f"https://{self.host}:{self.port}/{name}"
 
     def close(self) -> None:
         self.httpd.shutdown()
