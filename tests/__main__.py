@@ -108,7 +108,13 @@ def main(argv: list[str]) -> int:
     exits = ", ".join(f"{layer.label} exit {code}" for layer, code in zip((local, *e2e), codes))
     print(f"\n===== tests: {exits}; {duration(time.monotonic() - started)} in all "
           f"(load average at the end {load}) =====", flush=True)
-    # 5 is pytest's "no tests collected": options that select none of a process's tests.
+    return exit_code(codes)
+
+
+def exit_code(codes: list[int]) -> int:
+    """The first failing process's code, in order; 0 when all passed.  5 is
+    pytest's "no tests collected" (options that select none of a process's
+    tests): it counts only when every process says it."""
     ran = [code for code in codes if code != 5] or [5]
     return next((code for code in ran if code), 0)
 

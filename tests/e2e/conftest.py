@@ -226,16 +226,22 @@ class Lab:
         return path
 
 
+@pytest.fixture(scope="session", autouse=True)
+def arm64_image(request):
+    """The arm64 host image (when its recipe changed) built in the background
+    from the session's first test on, when the arm64 module is in the session."""
+    if any(item.fspath.basename == ARM64_MODULE for item in request.session.items):
+        from tests.lab import hostimage, hosts
+
+        BACKGROUND["arm64 host image"] = Background(
+            "arm64 host image", lambda: hostimage.ensure_host_image(hosts.client(), "arm64"))
+
+
 @pytest.fixture(scope="session")
 def lab(request):
     from tests.lab import hosts
 
     started = time.monotonic()
-    if any(item.fspath.basename == ARM64_MODULE for item in request.session.items):
-        from tests.lab import hostimage  # its image builds (when its recipe changed) from the start
-
-        BACKGROUND["arm64 host image"] = Background(
-            "arm64 host image", lambda: hostimage.ensure_host_image(hosts.client(), "arm64"))
     hosts.down(PREFIX)  # fresh hosts every session, whatever an earlier run left
     # The git server pull mode needs, only when one of its modules runs (tests/e2e/test_pull*.py).
     git_server = any(item.fspath.basename in PULL_MODULES for item in request.session.items)
