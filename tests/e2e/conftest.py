@@ -99,7 +99,8 @@ def phase(name: str, started: float) -> None:
 
 # {module: [wall seconds, CPU seconds]}, each test's setup, call and teardown counted (docs/development.md).
 MODULES: dict[str, list[float]] = {}
-CONTAINER_CPU: dict[str, float] = {}  # the last CPU seconds read of each of the lab's containers
+# Of each of the lab's containers: [the last CPU seconds read, the CPU seconds counted] (a restart zeroes its cgroup).
+CONTAINER_CPU: dict[str, list[float]] = {}
 
 
 def cpu_seconds() -> float:
@@ -123,9 +124,11 @@ def cpu_seconds() -> float:
                     text = Path(path).read_text()
                 except OSError:
                     continue
-                CONTAINER_CPU[container.id] = scale * int(text.split()[1] if "usage_usec" in text else text)
+                seconds = scale * int(text.split()[1] if "usage_usec" in text else text)
+                last, counted = CONTAINER_CPU.get(container.id, [0.0, 0.0])
+                CONTAINER_CPU[container.id] = [seconds, counted + (seconds - last if seconds >= last else seconds)]
                 break
-    return used + sum(CONTAINER_CPU.values())
+    return used + sum(counted for _, counted in CONTAINER_CPU.values())
 
 
 @pytest.hookimpl(hookwrapper=True)
