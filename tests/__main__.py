@@ -1,59 +1,121 @@
 """The test command (README, .ci/run): the three layers, the end-to-end one
-beside the other two.
+on several labs at once, beside the other two.
 
     .venv/bin/python -m tests [PYTEST OPTIONS]
 
 The end-to-end layer spends most of its time waiting on its simulated
 hosts (their apt, Docker and systemd), and the unit and integration layers
-need no host, so they run at the same time, as two pytest processes: the
-end-to-end output streams here, the other layers' output follows when they
-are done.  The exit code is pytest's for the first layer that failed (0 when
-both passed; a layer whose tests the options leave out does not count).
-Options are handed to both (e.g. -x, -k, -p no:cacheprovider).
+need no host, so they run at the same time: one pytest process for unit and
+integration, one per end-to-end lab group (tests/e2e/groups.py: each group
+on its own lab, prefix ``<ROBOT_LAB_E2E_PREFIX or e2e>-<group>``, its modules
+one after the other).  The first group's output streams here; each other
+group's, then unit and integration's, follow whole when done, each headed
+with its wall time.  The exit code is pytest's for the first layer that
+failed, unit and integration first, then the groups in order (0 when all
+passed; a process whose tests the options leave out does not count).
+Options are handed to every process (e.g. -x, -k, -p no:cacheprovider).
 
 One layer alone: .venv/bin/python -m pytest tests/unit (or tests/integration,
-tests/e2e); all three one after the other: .venv/bin/python -m pytest.
+tests/e2e: every end-to-end module on one lab); all three one after the
+other: .venv/bin/python -m pytest.
 """
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from tests.e2e import groups
+
 ROOT = Path(__file__).resolve().parent.parent
 LOCAL_LAYERS = ["tests/unit", "tests/integration"]
-E2E_LAYER = ["tests/e2e"]
+E2E_PREFIX = "ROBOT_LAB_E2E_PREFIX"
 
 
-def pytest(paths: list[str], options: list[str], **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "pytest", *paths, *options], cwd=ROOT, **kwargs)
+class Layer:
+    """One pytest process: its output streamed, or kept until it is done."""
+
+    def __init__(self, label: str, what: str, paths: list[str], options: list[str], env: dict | None = None,
+                 stream: bool = False) -> None:
+        self.label, self.name, self.started, self.ended = label, f"{label} ({what})", time.monotonic(), None
+        if stream:
+            print(f"===== {self.name}: streamed here; the others follow when done =====", flush=True)
+        self.log = None if stream else tempfile.TemporaryFile(mode="w+", prefix="tests-")
+        self.process = subprocess.Popen([sys.executable, "-m", "pytest", *paths, *options], cwd=ROOT,
+                                        env=env, stdout=self.log, stderr=subprocess.STDOUT if self.log else None,
+                                        text=True)
+
+    def wait(self) -> int:
+        code = self.process.wait()
+        self.ended = self.ended or time.monotonic()
+        return code
+
+    def poll(self) -> None:
+        if self.ended is None and self.process.poll() is not None:
+            self.ended = time.monotonic()
+
+    def show(self) -> None:
+        code = self.wait()
+        print(f"\n===== {self.name}: exit {code} in {duration(self.ended - self.started)} =====", flush=True)
+        if self.log is not None:
+            self.log.seek(0)
+            sys.stdout.write(self.log.read())
+            sys.stdout.flush()
+            self.log.close()
+
+
+def duration(seconds: float) -> str:
+    minutes, seconds = divmod(round(seconds), 60)
+    return f"{minutes} min {seconds} s"
+
+
+def e2e_layers(options: list[str]) -> list[Layer]:
+    base = os.environ.get(E2E_PREFIX, "e2e")
+    planned = groups.plan(groups.modules())
+    layers = []
+    for index, (group, modules) in enumerate(planned.items()):
+        env = dict(os.environ, **{E2E_PREFIX: f"{base}-{group}"})
+        layers.append(Layer(f"end to end, lab group {group}", f"lab {base}-{group}: {', '.join(modules)}",
+                            [f"tests/e2e/{module}" for module in modules], options, env, stream=index == 0))
+    return layers
 
 
 def main(argv: list[str]) -> int:
     started = time.monotonic()
-    with tempfile.TemporaryFile(mode="w+", prefix="tests-local-") as local_log:
-        local = pytest(LOCAL_LAYERS, argv, stdout=local_log, stderr=subprocess.STDOUT, text=True)
-        e2e = pytest(E2E_LAYER, argv)
-        try:
-            e2e_code = e2e.wait()
-            local_code = local.wait()
-        except KeyboardInterrupt:
-            for process in (local, e2e):
-                process.terminate()
-            for process in (local, e2e):
-                process.wait()
-            raise
-        local_log.seek(0)
-        print(f"\n===== {' and '.join(LOCAL_LAYERS)} (run beside the end-to-end layer) =====", flush=True)
-        sys.stdout.write(local_log.read())
-    minutes, seconds = divmod(round(time.monotonic() - started), 60)
-    print(f"\n===== tests: unit and integration exit {local_code}, end to end exit {e2e_code}, "
-          f"{minutes} min {seconds} s in all =====", flush=True)
-    # 5 is pytest's "no tests collected": options that select one layer's tests only.
-    ran = [code for code in (local_code, e2e_code) if code != 5] or [5]
+    local = Layer("unit and integration", " and ".join(LOCAL_LAYERS), LOCAL_LAYERS, argv)
+    e2e = e2e_layers(argv)
+    try:
+        while True:  # each end noted as it comes, so each wall time is its own
+            for layer in (local, *e2e):
+                layer.poll()
+            if all(layer.ended is not None for layer in (local, *e2e)):
+                break
+            time.sleep(1)
+        for layer in [*e2e, local]:
+            layer.show()
+    except KeyboardInterrupt:
+        for layer in (local, *e2e):
+            layer.process.terminate()
+        for layer in (local, *e2e):
+            layer.process.wait()
+        raise
+    codes = [layer.wait() for layer in (local, *e2e)]
+    load = " ".join(f"{value:.2f}" for value in os.getloadavg())
+    exits = ", ".join(f"{layer.label} exit {code}" for layer, code in zip((local, *e2e), codes))
+    print(f"\n===== tests: {exits}; {duration(time.monotonic() - started)} in all "
+          f"(load average at the end {load}) =====", flush=True)
+    return exit_code(codes)
+
+
+def exit_code(codes: list[int]) -> int:
+    """The first failing process's code, in order; 0 when all passed.  5 is
+    pytest's "no tests collected" (options that select none of a process's
+    tests): it counts only when every process says it."""
+    ran = [code for code in codes if code != 5] or [5]
     return next((code for code in ran if code), 0)
 
 

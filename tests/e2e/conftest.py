@@ -26,27 +26,16 @@ PULL_MEDIA_MODULE = "test_pull_media.py"
 # Releases from a static HTTPS mirror, reports to gitolite (tests/e2e/test_pull_https.py).
 PULL_HTTPS_MODULE = "test_pull_https.py"
 PULL_MODULES = (PULL_MODULE, PULL_MEDIA_MODULE, PULL_HTTPS_MODULE)
-# The emulated arm64 robot costs about 4 minutes of the end-to-end layer and
-# 12-15 minutes of one core to build its host image beside it: on CI's two
-# cores that took the test command over its 30 minutes, so it is opt-in.
-ARM64_OPT_IN = "ROBOT_E2E_ARM64"
-ARM64_SKIPPED = (f"the emulated arm64 robot is opt-in, outside the test command's CI time: "
-                 f"{ARM64_OPT_IN}=1 .venv/bin/python -m pytest tests/e2e/test_arm64.py")
-
-
-def arm64_wanted() -> bool:
-    return os.environ.get(ARM64_OPT_IN) == "1"
 
 
 def pytest_collection_modifyitems(items):
     for item in items:
         if "/e2e/" in str(item.fspath):
             item.add_marker(pytest.mark.e2e)
-        if item.fspath.basename == ARM64_MODULE and not arm64_wanted():
-            item.add_marker(pytest.mark.skip(reason=ARM64_SKIPPED))
     # The emulated arm64 robot is the slowest host to build: its module runs
     # after the others, and its image is built (when its recipe changed) in
-    # the background while they run (see `lab`).  Its run expects robot1 as
+    # the background while they run (see `lab`; another lab building the same
+    # tag is waited for: tests/lab/machinelock.py).  Its run expects robot1 as
     # the session's first run left it.
     # The pull module turns the robots' sshd off while it runs (it turns it
     # back on at its end) and leaves them on its own releases: it runs last,
@@ -111,12 +100,62 @@ def phase(name: str, started: float) -> None:
     print(f"\n[e2e] {line}", flush=True)
 
 
+# {module: [wall seconds, CPU seconds]}, each test's setup, call and teardown counted (docs/development.md).
+MODULES: dict[str, list[float]] = {}
+# Of each of the lab's containers: [the last CPU seconds read, the CPU seconds counted] (a restart zeroes its cgroup).
+CONTAINER_CPU: dict[str, list[float]] = {}
+
+
+def cpu_seconds() -> float:
+    """CPU time of this process, its children and its labs' containers
+    (prefix PREFIX and PREFIX-*; a removed container counts until its last reading)."""
+    import resource
+
+    from tests.lab.engine import LabError, client
+
+    used = sum(getattr(resource.getrusage(who), field) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+               for field in ("ru_utime", "ru_stime"))
+    try:
+        containers = client().containers.list(filters={"label": "robot-lab.prefix"})
+    except LabError:  # no engine: the lab fixture says so
+        containers = []
+    for container in containers:
+        if container.name.startswith(f"{PREFIX}-"):
+            for path, scale in ((f"/sys/fs/cgroup/cpuacct/docker/{container.id}/cpuacct.usage", 1e-9),
+                                (f"/sys/fs/cgroup/system.slice/docker-{container.id}.scope/cpu.stat", 1e-6)):
+                try:
+                    text = Path(path).read_text()
+                except OSError:
+                    continue
+                seconds = scale * int(text.split()[1] if "usage_usec" in text else text)
+                last, counted = CONTAINER_CPU.get(container.id, [0.0, 0.0])
+                CONTAINER_CPU[container.id] = [seconds, counted + (seconds - last if seconds >= last else seconds)]
+                break
+    return used + sum(counted for _, counted in CONTAINER_CPU.values())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item):
+    wall, cpu = time.monotonic(), cpu_seconds()
+    yield
+    spent = MODULES.setdefault(item.fspath.basename, [0.0, 0.0])
+    spent[0] += time.monotonic() - wall
+    spent[1] += cpu_seconds() - cpu
+
+
 def pytest_terminal_summary(terminalreporter):
-    """The time of each end-to-end phase, also when output is captured."""
+    """The time of each end-to-end phase and module, also when output is captured."""
     if PHASES:
         terminalreporter.section("end-to-end phases")
         for line in PHASES:
             terminalreporter.write_line(line)
+    if MODULES:
+        terminalreporter.section(f"end-to-end modules on lab {PREFIX} (wall; CPU of pytest, its children, the lab)")
+        for module, (wall, cpu) in MODULES.items():
+            terminalreporter.write_line(f"{module:<28} {wall:7.1f} s wall {cpu:7.1f} s CPU")
+        load = " ".join(f"{value:.2f}" for value in os.getloadavg())
+        terminalreporter.write_line(f"{'all':<28} {sum(w for w, _ in MODULES.values()):7.1f} s wall "
+                                    f"{sum(c for _, c in MODULES.values()):7.1f} s CPU (load average {load})")
 
 
 def wait_for(predicate, seconds: float, what: str, interval: float = 0.5):
@@ -193,6 +232,17 @@ class Lab:
         return path
 
 
+@pytest.fixture(scope="session", autouse=True)
+def arm64_image(request):
+    """The arm64 host image (when its recipe changed) built in the background
+    from the session's first test on, when the arm64 module is in the session."""
+    if any(item.fspath.basename == ARM64_MODULE for item in request.session.items):
+        from tests.lab import hostimage, hosts
+
+        BACKGROUND["arm64 host image"] = Background(
+            "arm64 host image", lambda: hostimage.ensure_host_image(hosts.client(), "arm64"))
+
+
 @pytest.fixture(scope="session")
 def lab(request):
     from tests.lab import hosts
@@ -203,11 +253,6 @@ def lab(request):
     git_server = any(item.fspath.basename in PULL_MODULES for item in request.session.items)
     state = hosts.up(PREFIX, robots=3, laptops=1, git_server=git_server)
     phase("lab up (images, services, hosts)", started)
-    if arm64_wanted() and any(item.fspath.basename == ARM64_MODULE for item in request.session.items):
-        from tests.lab import hostimage
-
-        BACKGROUND["arm64 host image"] = Background(
-            "arm64 host image", lambda: hostimage.ensure_host_image(hosts.client(), "arm64"))
     yield Lab(state)
     if not os.environ.get("ROBOT_LAB_KEEP"):
         hosts.down(PREFIX)

@@ -5,12 +5,12 @@ platform's variant of one multi-platform tag; then pull, a rerun that changes
 nothing, and a refused single-platform amd64 image, all checked from inside
 the hosts.
 
-Opt-in: the test command skips this module unless ROBOT_E2E_ARM64=1
-(tests/e2e/conftest.py says why).  pi1 joins the session's lab for this module only (`hosts.up(...,
+pi1 joins the session's lab for this module only (`hosts.up(...,
 arm64_robots=1)` reuses its services, mirror and registry; the module's end
 removes pi1 and its volumes, so the other modules see the lab as before).
-It runs last (tests/e2e/conftest.py), while its host image, when its
-recipe changed, was built in the background during the other modules; it
+It runs last in its session (tests/e2e/conftest.py; in the test command, last
+in its lab group, tests/e2e/groups.py), while its host image, when its
+recipe changed, was built in the background from the session's start; it
 runs after the session's first run, so robot1 arrives converged and
 changes nothing; pi1 is provisioned from nothing.  The first run sends pi1
 its payload by push (inventories/lab.yaml with pi1's delivery set to push),

@@ -45,7 +45,7 @@ def docker_pid(lab, host: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def gpu_fleet(lab, tmp_path_factory):
+def gpu_fleet(lab, first_run, tmp_path_factory):  # robot3's daemon.json and payload are the first run's
     settings = nvidia_mirror.lab_settings(lab.state)
     path = lab.fleet_with(
         tmp_path_factory.mktemp("gpu"),

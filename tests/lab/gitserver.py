@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 from robotfleet.pull.operator import gitolite
 
 from . import apt_install, hostimage, sshd, state
+from .machinelock import PORTS_LOCK, machine_lock
 from .engine import LabError, get_or_none, pick_free_port, published_ports, put_files, timed_phase
 
 if TYPE_CHECKING:
@@ -76,7 +77,9 @@ def ensure_image(dc: docker.DockerClient) -> str:
     if hostimage.image_exists(dc, tag):
         return tag
     host = hostimage.ensure_host_image(dc)
-    with timed_phase(f"build git server image {tag}"):
+    with machine_lock(f"image {tag}"), timed_phase(f"build git server image {tag}"):
+        if hostimage.image_exists(dc, tag):  # another lab built it meanwhile
+            return tag
         hostimage.build_image(dc, tag, _DOCKERFILE.format(host=host), {"install.sh": INSTALL_SCRIPT})
     return tag
 
@@ -96,12 +99,13 @@ def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
         container.remove(force=True)
         container = None
     if container is None:
-        port = pick_free_port(PORT_START, published_ports(dc))
-        container = hostimage.create_systemd_container(
-            dc, image, name, hostname="git", network=f"{prefix}-net",
-            labels={"robot-lab.prefix": prefix, "robot-lab.role": "git", "robot-lab.image": image,
-                    "robot-lab.ssh-port": str(port)},
-            ports={22: port}, volumes={})
+        with machine_lock(PORTS_LOCK):  # the port is taken once the container exists
+            port = pick_free_port(PORT_START, published_ports(dc))
+            container = hostimage.create_systemd_container(
+                dc, image, name, hostname="git", network=f"{prefix}-net",
+                labels={"robot-lab.prefix": prefix, "robot-lab.role": "git", "robot-lab.image": image,
+                        "robot-lab.ssh-port": str(port)},
+                ports={22: port}, volumes={})
         put_files(container, {"/etc/machine-id": uuid.uuid4().hex + "\n"})
     if container.status != "running":
         container.start()

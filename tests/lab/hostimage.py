@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 from .debian_archive import ArchiveError, debian_archive_url
 from .engine import LAB_DIR, LabError, get_or_none, timed_phase
+from .machinelock import machine_lock
 
 if TYPE_CHECKING:
     import docker
@@ -229,18 +230,21 @@ def ensure_host_image(dc: docker.DockerClient, arch: str = NATIVE_ARCH) -> str:
     tag = host_tag(arch)
     if image_exists(dc, tag):
         return tag
-    base = base_tag(arch)
-    if arch != NATIVE_ARCH:
-        from .emulation import ensure_arm64_emulation
+    with machine_lock(f"image {tag}"):  # another lab may be building it: wait, then use its build
+        if image_exists(dc, tag):
+            return tag
+        base = base_tag(arch)
+        if arch != NATIVE_ARCH:
+            from .emulation import ensure_arm64_emulation
 
-        ensure_arm64_emulation()
-    if not image_exists(dc, base):
-        with timed_phase(f"build base image {base} (debootstrap {SUITE} {arch})"):
-            _debootstrap_and_import(dc, base, arch)
-    with timed_phase(f"build host image {tag} ({arch})"):
-        files = {f"rootfs/{path}": text for path, text in host_files(arch).items()}
-        files["customise.sh"] = customise_script(arch)
-        build_image(dc, tag, _HOST_DOCKERFILE.format(base=base), files)
+            ensure_arm64_emulation()
+        if not image_exists(dc, base):
+            with timed_phase(f"build base image {base} (debootstrap {SUITE} {arch})"):
+                _debootstrap_and_import(dc, base, arch)
+        with timed_phase(f"build host image {tag} ({arch})"):
+            files = {f"rootfs/{path}": text for path, text in host_files(arch).items()}
+            files["customise.sh"] = customise_script(arch)
+            build_image(dc, tag, _HOST_DOCKERFILE.format(base=base), files)
     return tag
 
 

@@ -21,6 +21,7 @@ import paramiko
 import yaml
 
 from . import gitserver, hostimage, services, sshd, state
+from .machinelock import PORTS_LOCK, machine_lock
 from .engine import (REPO_ROOT, LabError, client, get_or_none, pick_free_port,
                      published_ports, put_files, timed_phase)
 
@@ -129,7 +130,7 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     key_path = _ensure_ssh_key(prefix)
     with timed_phase("start services"):
         registry_port = services.ensure_services(dc, prefix, network, services_image, mirror_dir)
-    with timed_phase("payload images in the lab registry"):
+    with timed_phase("payload images in the lab registry"), machine_lock("payload images"):
         from . import payload_images
 
         try:
@@ -351,14 +352,15 @@ def _create_host(dc, prefix, host, group, image):
         if get_or_none(dc.volumes, volume) is None:
             dc.volumes.create(volume, labels={"robot-lab.prefix": prefix, "robot-lab.host": host})
         volumes[volume] = path
-    port = pick_free_port(SSH_PORT_START, published_ports(dc))
-    container = hostimage.create_systemd_container(
-        dc, image, f"{prefix}-{host}", hostname=host, network=f"{prefix}-net",
-        labels={"robot-lab.prefix": prefix, "robot-lab.role": "host",
-                "robot-lab.host": host, "robot-lab.group": group,
-                "robot-lab.image": image, "robot-lab.ssh-port": str(port)},
-        ports={22: port}, volumes=volumes,
-    )
+    with machine_lock(PORTS_LOCK):  # the port is taken once the container exists
+        port = pick_free_port(SSH_PORT_START, published_ports(dc))
+        container = hostimage.create_systemd_container(
+            dc, image, f"{prefix}-{host}", hostname=host, network=f"{prefix}-net",
+            labels={"robot-lab.prefix": prefix, "robot-lab.role": "host",
+                    "robot-lab.host": host, "robot-lab.group": group,
+                    "robot-lab.image": image, "robot-lab.ssh-port": str(port)},
+            ports={22: port}, volumes=volumes,
+        )
     put_files(container, {"/etc/machine-id": uuid.uuid4().hex + "\n"})
     return container
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from . import apt_install, hostimage
+from .machinelock import PORTS_LOCK, machine_lock
 from .engine import (LAB_DIR, LabError, get_or_none, pick_free_port, published_ports,
                      put_files, timed_phase)
 
@@ -112,7 +113,9 @@ def ensure_services_image(dc: docker.DockerClient, host_tag: str) -> str:
     tag = services_tag()
     if hostimage.image_exists(dc, tag):
         return tag
-    with timed_phase(f"build services image {tag}"):
+    with machine_lock(f"image {tag}"), timed_phase(f"build services image {tag}"):
+        if hostimage.image_exists(dc, tag):  # another lab built it meanwhile
+            return tag
         files = {f"rootfs/{path}": text for path, text in SERVICES_FILES.items()}
         files["install.sh"] = INSTALL_SCRIPT
         hostimage.build_image(dc, tag, _DOCKERFILE.format(host=host_tag), files)
@@ -161,14 +164,15 @@ def ensure_services(dc: docker.DockerClient, prefix: str, network: str,
 
 
 def _create(dc, name, network, image, mirror: Path, labels: dict):
-    port = pick_free_port(REGISTRY_LOCAL_PORT_START, published_ports(dc))
-    container = hostimage.create_systemd_container(
-        dc, image, name, hostname="services", network=network,
-        labels={**labels, "robot-lab.registry-port": str(port)},
-        ports={REGISTRY_PORT: port},
-        volumes={APT_CACHE_VOLUME: "/var/cache/apt-cacher-ng",
-                 str(mirror.parent): f"{MIRROR_PARENT_MOUNT}:ro"},
-    )
+    with machine_lock(PORTS_LOCK):  # the port is taken once the container exists
+        port = pick_free_port(REGISTRY_LOCAL_PORT_START, published_ports(dc))
+        container = hostimage.create_systemd_container(
+            dc, image, name, hostname="services", network=network,
+            labels={**labels, "robot-lab.registry-port": str(port)},
+            ports={REGISTRY_PORT: port},
+            volumes={APT_CACHE_VOLUME: "/var/cache/apt-cacher-ng",
+                     str(mirror.parent): f"{MIRROR_PARENT_MOUNT}:ro"},
+        )
     put_files(container, {
         STATIC_ENV: f"STATIC_DIR={MIRROR_PARENT_MOUNT}/{mirror.name}\n",
         "/etc/machine-id": uuid.uuid4().hex + "\n",

@@ -62,13 +62,50 @@ def forget(prefix: str, root: Path = LAB_DIR) -> None:
     state_path(prefix, root).unlink(missing_ok=True)
 
 
+# docker exec loses a command's output now and then, more often under load (moby/moby#27289,
+# docker/docker-py#2042): exit 0 and no output.  The command's output goes to a file in the host's
+# /dev/shm (tmpfs, any user may write) and is printed from it with an end mark; a stream without the
+# mark is read again from the file (a read-only cat, safe to repeat), never by running the command again.
+EXEC_MARK = "\n__lab_exec_end__\n"
+PRINT_MARK = r"printf '\n%s\n' __lab_exec_end__"
+EXEC_SCRIPT = f'out=$1; shift; "$@" >"$out" 2>&1; rc=$?; cat "$out"; {PRINT_MARK}; exit "$rc"'
+EXEC_REREADS = 5
+
+
+def exec_argv(cmd: str | list[str], out: str) -> list[str]:
+    """The docker exec argv that runs ``cmd`` with its output in ``out``, then prints it and the mark."""
+    command = ["sh", "-c", cmd] if isinstance(cmd, str) else list(cmd)
+    return ["sh", "-c", EXEC_SCRIPT, "lab-exec", out, *command]
+
+
+def exec_output(streamed: str) -> str | None:
+    """The command's output from what the exec streamed; None when the stream lost part of it."""
+    output, mark, rest = streamed.rpartition(EXEC_MARK)
+    return output if mark and not rest.strip() else None
+
+
 def exec_in(prefix: str, host_name: str, cmd: str | list[str],
             user: str | None = None) -> tuple[int, str]:
     """Run `cmd` (a shell string or argv) in `<prefix>-<host_name>` via docker exec.
 
     Returns (exit code, stdout and stderr together).
     """
-    argv = ["sh", "-c", cmd] if isinstance(cmd, str) else list(cmd)
+    import uuid
+
+    import docker.errors
+
     container = client().containers.get(f"{prefix}-{host_name}")
-    code, out = container.exec_run(argv, user=user or "")
-    return code, out.decode(errors="replace")
+    out = f"/dev/shm/lab-exec-{uuid.uuid4().hex}"
+    code, streamed = container.exec_run(exec_argv(cmd, out), user=user or "")
+    streamed = streamed.decode(errors="replace")
+    output = exec_output(streamed)
+    try:
+        for _ in range(EXEC_REREADS if output is None else 0):
+            _, again = container.exec_run(["sh", "-c", f'cat "$0" && {PRINT_MARK}', out], user=user or "")
+            output = exec_output(again.decode(errors="replace"))
+            if output is not None:
+                break
+        container.exec_run(["rm", "-f", out], detach=True)
+    except docker.errors.APIError:  # the command stopped its host (a power cut, a reboot): what came is all
+        pass
+    return code, streamed if output is None else output

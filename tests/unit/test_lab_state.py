@@ -40,3 +40,23 @@ def test_prefix_comes_from_the_environment(state, monkeypatch):
     assert state.lab_prefix() == "lab"
     monkeypatch.setenv("ROBOT_LAB_PREFIX", "e2e")
     assert state.lab_prefix() == "e2e"
+
+
+def test_exec_output_is_what_came_before_the_end_mark_and_none_when_the_stream_lost_it():
+    from tests.lab import state
+
+    assert state.exec_output("hi\nerr\n" + state.EXEC_MARK) == "hi\nerr\n"
+    assert state.exec_output("abc" + state.EXEC_MARK) == "abc"
+    assert state.exec_output(state.EXEC_MARK) == ""
+    assert state.exec_output("") is None  # docker exec lost the output: read the file again
+    assert state.exec_output("hi\n") is None
+    assert state.exec_output("a" + state.EXEC_MARK + "b" + state.EXEC_MARK) == "a" + state.EXEC_MARK + "b"
+
+
+def test_exec_argv_runs_the_command_itself_with_its_output_in_the_file():
+    from tests.lab import state
+
+    argv = state.exec_argv("echo 'a b'; exit 3", "/dev/shm/lab-exec-1")
+    assert argv[:2] == ["sh", "-c"]
+    assert argv[3:] == ["lab-exec", "/dev/shm/lab-exec-1", "sh", "-c", "echo 'a b'; exit 3"]
+    assert state.exec_argv(["cat", "/etc/hostname"], "/o")[3:] == ["lab-exec", "/o", "cat", "/etc/hostname"]

@@ -1,0 +1,36 @@
+"""The end-to-end modules split into lab groups: each group is one pytest
+process on its own lab (prefix ``<ROBOT_LAB_E2E_PREFIX>-<group>``), the
+groups run at once (tests/__main__.py), a group's modules one after the
+other as in one session.  The host images are the machine's, built once
+(tests/lab/machinelock.py).  A module not named here runs in DEFAULT_GROUP.
+Times per module: docs/development.md."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+E2E_DIR = Path(__file__).resolve().parent
+DEFAULT_GROUP = "main"
+# Balanced by measured wall time; the arm64 module runs last in its group, its host image being built
+# in the background meanwhile (conftest.py), so its group's other modules are those that cost little CPU.
+GROUPS: dict[str, tuple[str, ...]] = {
+    "pull": ("test_pull.py", "test_pull_https.py", "test_pull_media.py"),
+    "arm64": ("test_enroll.py", "test_hostcerts.py", "test_stock_machine.py", "test_laptop_sudo.py",
+              "test_time.py", "test_gpu.py", "test_x11.py", "test_pull_from_nothing.py", "test_arm64.py"),
+}
+
+
+def group_of(module: str) -> str:
+    return next((group for group, modules in GROUPS.items() if module in modules), DEFAULT_GROUP)
+
+
+def modules(directory: Path = E2E_DIR) -> list[str]:
+    return sorted(path.name for path in directory.glob("test_*.py"))
+
+
+def plan(names: list[str]) -> dict[str, list[str]]:
+    """{group: its modules} for these module file names; groups without one are left out."""
+    planned: dict[str, list[str]] = {}
+    for name in names:
+        planned.setdefault(group_of(name), []).append(name)
+    return {group: planned[group] for group in [DEFAULT_GROUP, *GROUPS] if group in planned}

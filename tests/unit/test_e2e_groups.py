@@ -1,0 +1,34 @@
+"""The end-to-end lab groups of the test command (tests/e2e/groups.py) and
+its exit code (tests/__main__.py)."""
+
+from tests.__main__ import exit_code
+from tests.e2e import groups
+
+
+def test_every_module_the_groups_name_exists_and_is_in_one_group_only():
+    named = [module for modules in groups.GROUPS.values() for module in modules]
+    assert len(named) == len(set(named)), named
+    assert set(named) <= set(groups.modules()), set(named) - set(groups.modules())
+
+
+def test_a_module_no_group_names_runs_in_the_default_group():
+    plan = groups.plan(["test_pull.py", "test_a_new_module.py", "test_arm64.py", "test_fleet.py"])
+    assert plan == {groups.DEFAULT_GROUP: ["test_a_new_module.py", "test_fleet.py"],
+                    "pull": ["test_pull.py"], "arm64": ["test_arm64.py"]}
+    assert groups.group_of("test_pull_over_something_new.py") == groups.DEFAULT_GROUP
+
+
+def test_the_plan_has_every_module_once_and_no_empty_group():
+    plan = groups.plan(groups.modules())
+    assert sorted(m for modules in plan.values() for m in modules) == groups.modules()
+    assert all(plan.values())
+    assert groups.plan(["test_fleet.py"]) == {groups.DEFAULT_GROUP: ["test_fleet.py"]}
+
+
+def test_the_exit_code_is_the_first_failing_process_s():
+    assert exit_code([0, 0, 0, 0]) == 0
+    assert exit_code([0, 1, 2, 0]) == 1
+    assert exit_code([2, 1, 0, 0]) == 2
+    assert exit_code([5, 0, 1, 5]) == 1  # a process the options left without tests does not count
+    assert exit_code([5, 0, 5, 5]) == 0
+    assert exit_code([5, 5, 5, 5]) == 5
