@@ -41,12 +41,16 @@ def _load():
         text = text.decode()
     except UnicodeDecodeError:
         pass  # parse() says where, in one line
-    for key, value in {} if isinstance(text, bytes) else {
-        "@registry_local@": state["registry_local"],  # the registry as this machine reaches it (push)
-        "@registry@": state["registry"],
-        "@mirror@": state["mirror_url"],
-        "@mirror_fingerprint@": _mirror_fingerprint(state),
-    }.items():
+    for key, value in (
+        {}
+        if isinstance(text, bytes)
+        else {
+            "@registry_local@": state["registry_local"],  # the registry as this machine reaches it (push)
+            "@registry@": state["registry"],
+            "@mirror@": state["mirror_url"],
+            "@mirror_fingerprint@": _mirror_fingerprint(state),
+        }.items()
+    ):
         text = text.replace(key, value)
     ports = {h["name"]: h["port"] for h in state["hosts"]}
     fleet = parse_or_exit(text, os.path.relpath(_FLEET), source=f"{_FLEET}@{_STATE}")

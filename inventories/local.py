@@ -34,10 +34,12 @@ _name = os.environ.get("ROBOT_FLEET_HOST") or socket.gethostname()
 _mine = [data for name, data in _fleet.hosts("laptops") if name == _name]
 if not _mine:
     _known = ", ".join(name for name, _ in _fleet.hosts("laptops")) or "none"
-    refuse([
-        f"{display_path(_path)}: no laptop named {_name!r} (laptops: {_known}); "
-        "add this machine or set ROBOT_FLEET_HOST"
-    ])
+    refuse(
+        [
+            f"{display_path(_path)}: no laptop named {_name!r} (laptops: {_known}); "
+            "add this machine or set ROBOT_FLEET_HOST"
+        ]
+    )
 
 require_sudo("@local")
 laptops = [("@local", {k: v for k, v in _mine[0].items() if not k.startswith("ssh_")})]

@@ -15,8 +15,9 @@ from typing import BinaryIO
 
 
 @contextlib.contextmanager
-def replacing(path: str | Path, mode: int | None = None, make_parents: bool = False,
-              keep_mode: bool = False) -> Iterator[BinaryIO]:
+def replacing(
+    path: str | Path, mode: int | None = None, make_parents: bool = False, keep_mode: bool = False
+) -> Iterator[BinaryIO]:
     """A binary file to write that replaces ``path`` when the block ends
     (fsynced, given its mode, renamed over it), or leaves no trace when it
     raises: for what is written as a stream (a copy, an archive).  ``mode``
@@ -47,8 +48,9 @@ def replacing(path: str | Path, mode: int | None = None, make_parents: bool = Fa
         raise
 
 
-def write(path: str | Path, data: bytes | str, mode: int | None = None, make_parents: bool = False,
-          keep_mode: bool = False) -> None:
+def write(
+    path: str | Path, data: bytes | str, mode: int | None = None, make_parents: bool = False, keep_mode: bool = False
+) -> None:
     """Replace ``path`` with ``data`` (``replacing``'s options)."""
     with replacing(path, mode, make_parents, keep_mode) as handle:
         handle.write(data.encode() if isinstance(data, str) else data)

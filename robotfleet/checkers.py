@@ -197,8 +197,9 @@ def mapping_of(key: Checker, value_check: Checker) -> Checker:
                 problems += [(f"{where}{sub}", msg) for sub, msg in value_check(v)]
         return problems
 
-    return with_schema(check, {"type": "object", "propertyNames": key.schema,
-                               "additionalProperties": value_check.schema})
+    return with_schema(
+        check, {"type": "object", "propertyNames": key.schema, "additionalProperties": value_check.schema}
+    )
 
 
 MAX_JSON_VALUES = 10_000
@@ -269,15 +270,19 @@ def text(value):
             return [("", "NUL characters cannot be in an environment value")]
         return []
     if isinstance(value, bool):
-        return [("", f"expected a string, got {describe(value)}; "
-                     "quote it (YAML reads an unquoted true/false as a boolean)")]
+        return [
+            ("", f"expected a string, got {describe(value)}; quote it (YAML reads an unquoted true/false as a boolean)")
+        ]
     if _not_text(value):
         return [("", expected_string(value))]
     return [("", f"expected a string, got {describe(value)}")]
 
 
-text.schema = {"type": "string", "pattern": "^[^\\x00]*$",
-               "description": "a string: quote values YAML would read as something else"}
+text.schema = {
+    "type": "string",
+    "pattern": "^[^\\x00]*$",
+    "description": "a string: quote values YAML would read as something else",
+}
 
 
 # Patterns shared by several settings.

@@ -50,8 +50,14 @@ def usage() -> str:
     for name, module in COMMANDS.items():
         doc = importlib.import_module(f"robotfleet.commands.{module}").__doc__ or ""
         lines.append(f"  {name:10} {commands.summary(doc)}")
-    lines += ["", "options:", "  -h, --help  this help", "  --version   the version of robotfleet and of pyinfra",
-              "", __doc__.strip().split("\n\n", 1)[1]]
+    lines += [
+        "",
+        "options:",
+        "  -h, --help  this help",
+        "  --version   the version of robotfleet and of pyinfra",
+        "",
+        __doc__.strip().split("\n\n", 1)[1],
+    ]
     return "\n".join(lines)
 
 
@@ -75,8 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         print(version())
         return 0
     if argv[0] not in COMMANDS:
-        print(f"robotfleet: no command {argv[0]!r} (commands: {', '.join(COMMANDS)}; robotfleet --help)",
-              file=sys.stderr)
+        print(
+            f"robotfleet: no command {argv[0]!r} (commands: {', '.join(COMMANDS)}; robotfleet --help)", file=sys.stderr
+        )
         return 2
     module = importlib.import_module(f"robotfleet.commands.{COMMANDS[argv[0]]}")
     return module.main(argv[1:])

@@ -103,8 +103,11 @@ class FleetConnector(ssh.SSHConnector):
     """pyinfra's SSH connector; what differs is in the module's doc."""
 
     data_cls = Data
-    data_meta = {**ssh.connector_data_meta, "ssh_connect_timeout": ssh.DataMeta("Seconds to connect, in all", 10),
-                 "ssh_revoked_host_keys": ssh.DataMeta("A KRL file of revoked host keys and certificates", None)}
+    data_meta = {
+        **ssh.connector_data_meta,
+        "ssh_connect_timeout": ssh.DataMeta("Seconds to connect, in all", 10),
+        "ssh_revoked_host_keys": ssh.DataMeta("A KRL file of revoked host keys and certificates", None),
+    }
 
     @staticmethod
     def make_names_data(name):
@@ -169,8 +172,13 @@ class FleetConnector(ssh.SSHConnector):
             return None
         known = os.path.expanduser(kwargs.pop("_pyinfra_ssh_known_hosts_file", None) or "~/.ssh/known_hosts")
         revoked = self.data["ssh_revoked_host_keys"]
-        return HostKeyCheck(known, os.path.expanduser(revoked) if revoked else None,
-                            kwargs.get("username") or self.data["ssh_user"], self.timeout(), strict == "accept-new")
+        return HostKeyCheck(
+            known,
+            os.path.expanduser(revoked) if revoked else None,
+            kwargs.get("username") or self.data["ssh_user"],
+            self.timeout(),
+            strict == "accept-new",
+        )
 
     # -- reasons, in words ---------------------------------------------------
 
@@ -184,14 +192,18 @@ class FleetConnector(ssh.SSHConnector):
         address, port = self.where()
         known_hosts = self.data["ssh_known_hosts_file"] or "~/.ssh/known_hosts"
         if isinstance(error, UnknownHostKey):
-            return (f"unknown host key: {error.entry} is not in {known_hosts} (ssh_strict_host_key_checking: yes); "
-                    f"check and enroll it: {enroll_command(self.host.name)}"), False
+            return (
+                f"unknown host key: {error.entry} is not in {known_hosts} (ssh_strict_host_key_checking: yes); "
+                f"check and enroll it: {enroll_command(self.host.name)}"
+            ), False
         if isinstance(error, RefusedHostKey):
             return error.reason, False
         if isinstance(error, BadHostKeyException):
-            return (f"host key CHANGED: {known_hosts} has {hostkeys.fingerprint(error.expected_key)} for "
-                    f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused "
-                    f"({replace_advice(INVENTORY, self.host.name)})"), False
+            return (
+                f"host key CHANGED: {known_hosts} has {hostkeys.fingerprint(error.expected_key)} for "
+                f"{hostkeys.entry(address, port)}, the host offers {hostkeys.fingerprint(error.key)}; refused "
+                f"({replace_advice(INVENTORY, self.host.name)})"
+            ), False
         if isinstance(error, PyinfraError):  # e.g. the ssh_key file is missing or unreadable
             return f"cannot connect: {error}", False
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
@@ -208,8 +220,10 @@ class FleetConnector(ssh.SSHConnector):
         if isinstance(error, BadAuthenticationType) and error.allowed_types:
             accepts = f" (the server accepts: {', '.join(error.allowed_types)})"
         if not tried and "password" not in kwargs:
-            return (f"authentication failed for user {user}: no key to offer (ssh_key is not set, no SSH agent key, "
-                    f"no key in ~/.ssh); set ssh_key to the fleet's private key")
+            return (
+                f"authentication failed for user {user}: no key to offer (ssh_key is not set, no SSH agent key, "
+                f"no key in ~/.ssh); set ssh_key to the fleet's private key"
+            )
         return f"authentication failed for user {user} with {' and '.join(tried) or 'a password'}{accepts}"
 
     def keys_offered(self, config: dict) -> list[str]:

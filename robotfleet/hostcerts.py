@@ -55,8 +55,11 @@ _CERT_KEYS = {
 }
 # Lines ssh writes at their start (a server's text before its banner is
 # logged after a prefix of ssh's, "kex_exchange_identification: banner line").
-_CERTIFICATE = re.compile(r'^debug1: Server host certificate: \S+ (SHA256:[A-Za-z0-9+/]+),? serial (\d+) ID "(.*)" '
-                          r"CA \S+ (SHA256:[A-Za-z0-9+/]+) valid (.*)$", re.M)
+_CERTIFICATE = re.compile(
+    r'^debug1: Server host certificate: \S+ (SHA256:[A-Za-z0-9+/]+),? serial (\d+) ID "(.*)" '
+    r"CA \S+ (SHA256:[A-Za-z0-9+/]+) valid (.*)$",
+    re.M,
+)
 _INVALID = re.compile(r"^Certificate invalid: (.*)", re.M)
 # ssh-agent protocol (draft-miller-ssh-agent): what ssh sends, what we answer.
 _REQUEST_IDENTITIES, _IDENTITIES_ANSWER, _EXTENSION, _SUCCESS, _FAILURE = 11, 12, 27, 6, 5
@@ -73,17 +76,36 @@ class Verdict:
     reason: str | None = None
 
 
-def command(address: str, port: int, user: str | None, key_type: str, known_hosts: str, revoked: str | None,
-            timeout: int, agent: str = "none") -> list[str]:
+def command(
+    address: str,
+    port: int,
+    user: str | None,
+    key_type: str,
+    known_hosts: str,
+    revoked: str | None,
+    timeout: int,
+    agent: str = "none",
+) -> list[str]:
     """ssh checking the host's certificate and stopping before a login
     (PreferredAuthentications=none: only the "none" method is tried); its
     agent the socket ``agent``, which learns the host key ssh accepted."""
     options = {
-        "BatchMode": "yes", "StrictHostKeyChecking": "yes", "UserKnownHostsFile": known_hosts,
-        "GlobalKnownHostsFile": "/dev/null", "HostKeyAlgorithms": CERT_ALGORITHMS.get(key_type, key_type),
-        "CheckHostIP": "no", "UpdateHostKeys": "no", "PreferredAuthentications": "none",
-        "IdentitiesOnly": "yes", "IdentityFile": "none", "IdentityAgent": agent, "ConnectTimeout": str(timeout),
-        "ConnectionAttempts": "1", "ControlMaster": "no", "ControlPath": "none", "ForwardAgent": "no",
+        "BatchMode": "yes",
+        "StrictHostKeyChecking": "yes",
+        "UserKnownHostsFile": known_hosts,
+        "GlobalKnownHostsFile": "/dev/null",
+        "HostKeyAlgorithms": CERT_ALGORITHMS.get(key_type, key_type),
+        "CheckHostIP": "no",
+        "UpdateHostKeys": "no",
+        "PreferredAuthentications": "none",
+        "IdentitiesOnly": "yes",
+        "IdentityFile": "none",
+        "IdentityAgent": agent,
+        "ConnectTimeout": str(timeout),
+        "ConnectionAttempts": "1",
+        "ControlMaster": "no",
+        "ControlPath": "none",
+        "ForwardAgent": "no",
     }
     if revoked:
         options["RevokedHostKeys"] = revoked
@@ -128,8 +150,10 @@ def refusal(output: str, address: str, known_hosts: str) -> str:
     if "no matching host key type found" in output:
         return "it offers no host certificate for that key (sshd_config HostCertificate)"
     if found and "Host key verification failed." in output:
-        return (f"its host certificate is signed by CA {found.group(4)}, which no @cert-authority line "
-                f"of {known_hosts} trusts for it{_about(found)}")
+        return (
+            f"its host certificate is signed by CA {found.group(4)}, which no @cert-authority line "
+            f"of {known_hosts} trusts for it{_about(found)}"
+        )
     last = [line for line in output.splitlines() if line.strip() and not line.startswith(("debug", "OpenSSH_"))]
     return f"the certificate check with ssh failed: {last[-1].strip() if last else 'no answer'}"
 
@@ -207,8 +231,9 @@ def _exactly(conn, size: int) -> bytes | None:
     return data
 
 
-def verify(address: str, port: int, user: str | None, key_type: str, known_hosts: str, revoked: str | None,
-           timeout: int) -> Verdict:
+def verify(
+    address: str, port: int, user: str | None, key_type: str, known_hosts: str, revoked: str | None, timeout: int
+) -> Verdict:
     """Check the host's certificate with OpenSSH's ssh.  The files reach
     ssh through links of plain names: ssh_config expands % tokens in file
     names and splits UserKnownHostsFile at spaces."""
@@ -221,12 +246,21 @@ def verify(address: str, port: int, user: str | None, key_type: str, known_hosts
         try:
             agent = Agent(os.path.join(links, "agent"))
         except OSError as error:
-            return Verdict(None, f"its host certificate cannot be checked: no socket for ssh's agent in {links}: "
-                                 f"{error.strerror or error}")
+            return Verdict(
+                None,
+                f"its host certificate cannot be checked: no socket for ssh's agent in {links}: "
+                f"{error.strerror or error}",
+            )
         argv = command(address, port, user, key_type, *names, *([] if revoked else [None]), timeout, agent.path)
         try:
-            proc = subprocess.run(argv, stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                                  timeout=timeout * 3 + 5, errors="replace")
+            proc = subprocess.run(
+                argv,
+                stdin=subprocess.DEVNULL,
+                capture_output=True,
+                text=True,
+                timeout=timeout * 3 + 5,
+                errors="replace",
+            )
         except FileNotFoundError:
             return Verdict(None, "its host certificate cannot be checked: OpenSSH's ssh is not installed here")
         except subprocess.TimeoutExpired:
@@ -236,8 +270,11 @@ def verify(address: str, port: int, user: str | None, key_type: str, known_hosts
     if agent.host_key is not None:
         return accepted(agent.host_key)
     if agent.asked:
-        return Verdict(None, "its host certificate cannot be checked: this machine's ssh is older than OpenSSH 8.9 "
-                             "(it does not say which host key it accepted)")
+        return Verdict(
+            None,
+            "its host certificate cannot be checked: this machine's ssh is older than OpenSSH 8.9 "
+            "(it does not say which host key it accepted)",
+        )
     said = proc.stderr
     for link, target in names.items():
         said = said.replace(link, target)

@@ -66,8 +66,11 @@ class FleetPolicy(MissingHostKeyPolicy):
     def missing_host_key(self, client, hostname, key):
         known = hostkeys.cached(self.check.known_hosts)
         if known.revoked_key(key):
-            raise RefusedHostKey(hostname, f"host key REVOKED: {key.get_name()} {hostkeys.fingerprint(key)} is marked "
-                                           f"@revoked in {self.check.known_hosts}; refused")
+            raise RefusedHostKey(
+                hostname,
+                f"host key REVOKED: {key.get_name()} {hostkeys.fingerprint(key)} is marked "
+                f"@revoked in {self.check.known_hosts}; refused",
+            )
         address, port = address_of(hostname)
         if known.authorities_for(hostname) or known.authorities_for(address):
             self.certified(hostname, address, port, key)
@@ -77,16 +80,27 @@ class FleetPolicy(MissingHostKeyPolicy):
 
     def certified(self, hostname: str, address: str, port: int, key) -> None:
         if self.check.revoked and not os.path.isfile(self.check.revoked):
-            raise RefusedHostKey(hostname, f"host certificate refused: the KRL {self.check.revoked} "
-                                           "(ssh_revoked_host_keys) is missing")
-        verdict = hostcerts.verify(address, port, self.check.user, key.get_name(), self.check.known_hosts,
-                                   self.check.revoked, self.check.timeout)
+            raise RefusedHostKey(
+                hostname, f"host certificate refused: the KRL {self.check.revoked} (ssh_revoked_host_keys) is missing"
+            )
+        verdict = hostcerts.verify(
+            address,
+            port,
+            self.check.user,
+            key.get_name(),
+            self.check.known_hosts,
+            self.check.revoked,
+            self.check.timeout,
+        )
         offered = hostkeys.fingerprint(key)
         if verdict.fingerprint is None:
             raise RefusedHostKey(hostname, f"host certificate refused: {verdict.reason}")
         if verdict.fingerprint != offered:
-            raise RefusedHostKey(hostname, f"host certificate refused: it certifies {verdict.fingerprint}, but this "
-                                           f"connection was offered {key.get_name()} {offered}")
+            raise RefusedHostKey(
+                hostname,
+                f"host certificate refused: it certifies {verdict.fingerprint}, but this "
+                f"connection was offered {key.get_name()} {offered}",
+            )
 
     def unknown(self, client, hostname, key):
         if not self.check.accept_new:

@@ -161,8 +161,11 @@ def append(path: str, name: str, key) -> bool:
 def add_all(path: str, entries: list[tuple[str, object]]) -> int:
     """Append each (name, key) not already in the file; the number added."""
     current = load(path)
-    lines = [HostKeyEntry([name], key).to_line() for name, key in entries
-             if (current.lookup(name) or {}).get(key.get_name()) != key]
+    lines = [
+        HostKeyEntry([name], key).to_line()
+        for name, key in entries
+        if (current.lookup(name) or {}).get(key.get_name()) != key
+    ]
     lines = list(dict.fromkeys(lines))
     if not lines:
         return 0

@@ -10,12 +10,21 @@ from pathlib import Path
 
 import click
 
-from robotfleet import CHECKOUT, connect, limits, deploy_roles, pyinfra_patches
-from robotfleet import selection
+from robotfleet import CHECKOUT, connect, deploy_roles, limits, pyinfra_patches, selection
 from robotfleet.fleet.validate import Fleet, FleetError, display_path, load, parse
 
-__all__ = ["Fleet", "FleetError", "display_path", "load_or_exit", "parse_or_exit", "pyinfra_groups", "refuse",
-           "require_checkout", "require_python_inventory", "SOURCES"]
+__all__ = [
+    "Fleet",
+    "FleetError",
+    "display_path",
+    "load_or_exit",
+    "parse_or_exit",
+    "pyinfra_groups",
+    "refuse",
+    "require_checkout",
+    "require_python_inventory",
+    "SOURCES",
+]
 
 # Where the fleet this process loaded came from (its file or directory):
 # what a rollout's lock is per (robotfleet/commands/rollout_plan.py lock_path).
@@ -40,11 +49,13 @@ def require_checkout() -> None:
     if click.get_current_context(silent=True) is None:
         return  # robotfleet's own commands: they read the settings themselves
     if Path.cwd().resolve() != CHECKOUT:
-        refuse([
-            f"pyinfra runs in {Path.cwd()}, not in the checkout {CHECKOUT}: its config.py and group_data/ "
-            f"(strict host-key checking, sudo, every default) would not apply; run it there: "
-            f"cd {CHECKOUT}, or pyinfra --chdir {CHECKOUT} ..."
-        ])
+        refuse(
+            [
+                f"pyinfra runs in {Path.cwd()}, not in the checkout {CHECKOUT}: its config.py and group_data/ "
+                f"(strict host-key checking, sudo, every default) would not apply; run it there: "
+                f"cd {CHECKOUT}, or pyinfra --chdir {CHECKOUT} ..."
+            ]
+        )
 
 
 def require_python_inventory() -> None:
@@ -60,8 +71,12 @@ def require_python_inventory() -> None:
     if given in words:
         words.remove(given)
     rest = " ".join(shlex.quote(word) for word in words)
-    refuse([f"{given}: pyinfra takes a Python inventory; it reads a fleet file or an Ansible inventory through "
-            f"inventories/robots.py: {selection.pyinfra_command(given)} {rest}".rstrip()])
+    refuse(
+        [
+            f"{given}: pyinfra takes a Python inventory; it reads a fleet file or an Ansible inventory through "
+            f"inventories/robots.py: {selection.pyinfra_command(given)} {rest}".rstrip()
+        ]
+    )
 
 
 def _refuse_fleet(error: FleetError) -> None:
@@ -130,8 +145,12 @@ def _limit_groups(fleet: Fleet, inventory: str) -> dict[str, list]:
             refuse([problem if option == "limit" else problem.replace("--limit", "--exclude", 1)])
         for value in values:
             if selection.terms(value) == [selection.ALL]:  # pyinfra's inventories have no group all to find
-                refuse([f"--{option} all: pyinfra has no group all; a deploy without --{option} is every host "
-                        f"(all,!HOST leaves some out); nothing was done"])
+                refuse(
+                    [
+                        f"--{option} all: pyinfra has no group all; a deploy without --{option} is every host "
+                        f"(all,!HOST leaves some out); nothing was done"
+                    ]
+                )
             if selection.needs_group(value):
                 chosen = selection.resolve([value], hosts, groups)[0]
                 made[value] = connect.names([(host, {}) for host in chosen])

@@ -39,9 +39,11 @@ def raise_open_files(hosts: int) -> str | None:
             return None  # left as it was: pyinfra's pool follows the soft limit
         soft = new
     if soft != resource.RLIM_INFINITY and soft < want:
-        return (f"{hosts} hosts need about {want} open files and this process may have at most {hard} "
-                f"(ulimit -Hn): raise the hard limit (limits.conf, systemd's LimitNOFILE) or run fewer hosts "
-                f"at once (--limit a group, robotfleet rollout)")
+        return (
+            f"{hosts} hosts need about {want} open files and this process may have at most {hard} "
+            f"(ulimit -Hn): raise the hard limit (limits.conf, systemd's LimitNOFILE) or run fewer hosts "
+            f"at once (--limit a group, robotfleet rollout)"
+        )
     return None
 
 

@@ -32,10 +32,12 @@ def sudoers_line(user: str) -> str:
 
 
 def needs_password_line(host: str, user: str) -> str:
-    return (f"[{host}] sudo needs a password for {user}, and there is no terminal to ask for it: run pyinfra with "
-            "--use-sudo-password (it asks once, from stdin without a terminal, and hands the password to sudo "
-            f"through SUDO_ASKPASS), or let {user} use sudo without one: echo '{sudoers_line(user)}' | sudo tee "
-            f"{SUDOERS_FILE} (then sudo visudo -cf {SUDOERS_FILE}; remove it after the deploy)")
+    return (
+        f"[{host}] sudo needs a password for {user}, and there is no terminal to ask for it: run pyinfra with "
+        "--use-sudo-password (it asks once, from stdin without a terminal, and hands the password to sudo "
+        f"through SUDO_ASKPASS), or let {user} use sudo without one: echo '{sudoers_line(user)}' | sudo tee "
+        f"{SUDOERS_FILE} (then sudo visudo -cf {SUDOERS_FILE}; remove it after the deploy)"
+    )
 
 
 def has_terminal() -> bool:
@@ -52,8 +54,9 @@ def has_terminal() -> bool:
 def probe() -> tuple[str, str]:
     """('ok' | 'password' | 'missing' | 'refused', what sudo said)."""
     try:
-        done = subprocess.run(["sudo", "-n", "true"], stdin=subprocess.DEVNULL, capture_output=True, text=True,
-                              timeout=30)
+        done = subprocess.run(
+            ["sudo", "-n", "true"], stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=30
+        )
     except FileNotFoundError:
         return "missing", "sudo is not installed"
     except subprocess.TimeoutExpired:
@@ -74,8 +77,9 @@ def problem(host: str, user: str, verdict: str, said: str, terminal: bool) -> st
     if verdict == "password":
         return needs_password_line(host, user)
     if verdict == "missing":
-        return (f"[{host}] sudo is not installed, and every step runs through it: "
-                "install it as root (apt-get install sudo)")
+        return (
+            f"[{host}] sudo is not installed, and every step runs through it: install it as root (apt-get install sudo)"
+        )
     return f"[{host}] sudo refuses {user}: {said}"
 
 
@@ -95,8 +99,10 @@ def require(host: str = "@local") -> None:
     if line is None and verdict == "password":
         print(f"[{host}] sudo needs {user}'s password once for this deploy:", file=sys.stderr, flush=True)
         if subprocess.run(["sudo", "-v"]).returncode != 0:
-            line = (f"[{host}] sudo refused {user} (a wrong password, or {user} may not use sudo): run as a user "
-                    f"who may, or let {user} use sudo: echo '{sudoers_line(user)}' | sudo tee {SUDOERS_FILE} (as root)")
+            line = (
+                f"[{host}] sudo refused {user} (a wrong password, or {user} may not use sudo): run as a user "
+                f"who may, or let {user} use sudo: echo '{sudoers_line(user)}' | sudo tee {SUDOERS_FILE} (as root)"
+            )
     if line is not None:
         print(line, file=sys.stderr)
         sys.stderr.flush()

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pyinfra import host
 
-from robotfleet import deploy_roles, secrets, pyinfra_patches
+from robotfleet import deploy_roles, pyinfra_patches, secrets
 from robotfleet.host import operations
 from robotfleet.host.snapshot import HostSnapshot, SnapshotQuery
 from robotfleet.role import Play, cards

@@ -66,25 +66,33 @@ class Speedup:
 
 
 SPEEDUPS = {
-    "order": Speedup(("pyinfra.api.operation:get_operation_order_from_stack",),
-                     ("pyinfra.api.operation:get_operation_order_from_stack",)),
-    "arguments": Speedup(("pyinfra.api.arguments:all_global_arguments",),
-                         ("pyinfra.api.arguments:all_global_arguments",)),
+    "order": Speedup(
+        ("pyinfra.api.operation:get_operation_order_from_stack",),
+        ("pyinfra.api.operation:get_operation_order_from_stack",),
+    ),
+    "arguments": Speedup(
+        ("pyinfra.api.arguments:all_global_arguments",), ("pyinfra.api.arguments:all_global_arguments",)
+    ),
     # importlib's entry_points, as get_all_connectors calls it: the caller is what it was written for.
     "connectors": Speedup(("pyinfra.api.connectors:entry_points",), ("pyinfra.api.connectors:get_all_connectors",)),
-    "groups_data": Speedup(("pyinfra.api.inventory:Inventory.get_groups_data",),
-                           ("pyinfra.api.inventory:Inventory.get_groups_data",)),
+    "groups_data": Speedup(
+        ("pyinfra.api.inventory:Inventory.get_groups_data",), ("pyinfra.api.inventory:Inventory.get_groups_data",)
+    ),
     # Imported by name where it is called; its lookups are HostData.__getattr__'s.
-    "pop_arguments": Speedup(tuple(f"pyinfra.api.{module}:pop_global_arguments"
-                                   for module in ("operation", "deploy", "facts")),
-                             ("pyinfra.api.arguments:pop_global_arguments", "pyinfra.api.host:HostData.__getattr__")),
+    "pop_arguments": Speedup(
+        tuple(f"pyinfra.api.{module}:pop_global_arguments" for module in ("operation", "deploy", "facts")),
+        ("pyinfra.api.arguments:pop_global_arguments", "pyinfra.api.host:HostData.__getattr__"),
+    ),
     "host_data": Speedup(("pyinfra.api.host:HostData.__getattr__",), ("pyinfra.api.host:HostData.__getattr__",)),
     # inspect's signature, as _wrap_operation calls it: the caller is what it was written for.
     "signature": Speedup(("pyinfra.api.operation:signature",), ("pyinfra.api.operation:_wrap_operation",)),
 }
 # pyinfra's own object at each site and each source, as imported (before any install).
-_ORIGINAL = {path: pyinfra_private.resolve(path)
-             for speedup in SPEEDUPS.values() for path in speedup.sites + speedup.written_from}
+_ORIGINAL = {
+    path: pyinfra_private.resolve(path)
+    for speedup in SPEEDUPS.values()
+    for path in speedup.sites + speedup.written_from
+}
 COPIED_FROM = {path: pyinfra_private.pinned(path) for speedup in SPEEDUPS.values() for path in speedup.written_from}
 
 digest = pyinfra_private.digest
@@ -110,8 +118,9 @@ def operation_order_from_stack(state) -> list:
     places = [_place(frame) for frame in frames]
     i = 0
     if state.current_deploy_filename:  # from its frame on; not found: the last, where pyinfra's loop ends
-        i = next((n for n, (filename, _) in enumerate(places) if filename == state.current_deploy_filename),
-                 len(places) - 1)
+        i = next(
+            (n for n, (filename, _) in enumerate(places) if filename == state.current_deploy_filename), len(places) - 1
+        )
     line_numbers = []
     if pyinfra.is_cli:
         line_numbers.append(state.current_op_file_number)
@@ -238,9 +247,15 @@ def host_data_getattr(self, key: str):
     raise AttributeError(f"Host `{self.host}` has no data `{key}`")
 
 
-OURS = {"order": operation_order_from_stack, "arguments": all_global_arguments, "connectors": entry_points,
-        "groups_data": groups_data, "pop_arguments": pop_global_arguments, "host_data": host_data_getattr,
-        "signature": signature}
+OURS = {
+    "order": operation_order_from_stack,
+    "arguments": all_global_arguments,
+    "connectors": entry_points,
+    "groups_data": groups_data,
+    "pop_arguments": pop_global_arguments,
+    "host_data": host_data_getattr,
+    "signature": signature,
+}
 
 
 def _owner(site: str):
@@ -279,8 +294,10 @@ def install() -> list[str]:
         changed = _changed(key)
         if changed:
             module, _, name = changed.partition(":")
-            logger.warning(f"robotfleet: pyinfra {pyinfra.__version__} has another {module}.{name} than "
-                           "robotfleet/pyinfra_patches.py was written from; pyinfra's own runs (slower, same answers)")
+            logger.warning(
+                f"robotfleet: pyinfra {pyinfra.__version__} has another {module}.{name} than "
+                "robotfleet/pyinfra_patches.py was written from; pyinfra's own runs (slower, same answers)"
+            )
             continue
         for site in speedup.sites:
             owner, name = _owner(site)

@@ -15,14 +15,31 @@ from paramiko.ssh_exception import NoValidConnectionsError
 
 # How each reason a host cannot be reached begins (what rollout looks for in
 # pyinfra's output to tell an unreachable robot from a failed one).
-REASONS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
-           "authentication failed", "connection refused", "connection closed",
-           "cannot connect", "cannot resolve", "timed out", "not an SSH server", "the SSH session", "no route to")
+REASONS = (
+    "unknown host key",
+    "host key CHANGED",
+    "host key REVOKED",
+    "host certificate refused",
+    "authentication failed",
+    "connection refused",
+    "connection closed",
+    "cannot connect",
+    "cannot resolve",
+    "timed out",
+    "not an SSH server",
+    "the SSH session",
+    "no route to",
+)
 # Of those, the ones where the host answered and it or we refused: a host key
 # not trusted, a login refused.  The host failed (exit status 1); the others
 # are the network's (unreachable, exit status 3).
-REFUSALS = ("unknown host key", "host key CHANGED", "host key REVOKED", "host certificate refused",
-            "authentication failed")
+REFUSALS = (
+    "unknown host key",
+    "host key CHANGED",
+    "host key REVOKED",
+    "host certificate refused",
+    "authentication failed",
+)
 
 
 def unreachable(reason: str) -> bool:
@@ -34,16 +51,28 @@ def unreachable(reason: str) -> bool:
 def replace_advice(inventory: str, host: str) -> str:
     """The one instruction for a changed host key, wherever it is met (a deploy, status, enroll): never trust
     the new key on first use, replace it only when it matches a fingerprint recorded for the robot."""
-    return (f"if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
-            f"{shlex.quote(inventory)} --replace {shlex.quote(host)} --fingerprints FILE")
+    return (
+        f"if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
+        f"{shlex.quote(inventory)} --replace {shlex.quote(host)} --fingerprints FILE"
+    )
 
 
 # The few words of each reason the status table shows after "no:" (--json has the whole line).
-SHORT = (("unknown host key", "host key"), ("host key CHANGED", "host key"), ("host key REVOKED", "host key"),
-         ("host certificate refused", "host key"), ("authentication failed", "login refused"),
-         ("connection refused", "refused"), ("connection closed", "closed"), ("the SSH session", "closed"),
-         ("cannot resolve", "unknown name"), ("timed out", "timed out"), ("not an SSH server", "not SSH"),
-         ("no route to", "no route"), ("cannot connect", "cannot connect"))
+SHORT = (
+    ("unknown host key", "host key"),
+    ("host key CHANGED", "host key"),
+    ("host key REVOKED", "host key"),
+    ("host certificate refused", "host key"),
+    ("authentication failed", "login refused"),
+    ("connection refused", "refused"),
+    ("connection closed", "closed"),
+    ("the SSH session", "closed"),
+    ("cannot resolve", "unknown name"),
+    ("timed out", "timed out"),
+    ("not an SSH server", "not SSH"),
+    ("no route to", "no route"),
+    ("cannot connect", "cannot connect"),
+)
 
 
 def short_reason(reason: str) -> str | None:
@@ -52,8 +81,9 @@ def short_reason(reason: str) -> str | None:
     return next((word for start, word in SHORT if reason.startswith(start)), None)
 
 
-def network_reason(error: Exception, address: str, port: int, timeout: float,
-                   elapsed: float | None = None) -> tuple[str, bool]:
+def network_reason(
+    error: Exception, address: str, port: int, timeout: float, elapsed: float | None = None
+) -> tuple[str, bool]:
     """Why reaching ``address:port`` failed, in words, and whether trying
     again may help (a host key or login failure is told by the connector).
     ``timeout``: the attempt's limit; ``elapsed``: how long it took."""
@@ -68,21 +98,29 @@ def network_reason(error: Exception, address: str, port: int, timeout: float,
     if isinstance(error, socket.gaierror):
         return f"cannot resolve {address} ({error.strerror})", False
     if isinstance(error, (socket.timeout, TimeoutError)):
-        return (f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a "
-                "firewall)"), True
+        return (
+            f"timed out after {timeout} s connecting to {at} (no answer: powered off, wrong address or a firewall)"
+        ), True
     if isinstance(error, SSHException):
         text = str(error)
         if "Error reading SSH protocol banner" in text and isinstance(error.__context__, (EOFError, ConnectionError)):
-            return (f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
-                    "e.g. MaxStartups, or a firewall)"), True
+            return (
+                f"connection closed by {at} before the SSH greeting (an sshd turning connections away, "
+                "e.g. MaxStartups, or a firewall)"
+            ), True
         if "Indecipherable protocol version" in text or (
-                "Error reading SSH protocol banner" in text and elapsed < float(timeout) - 0.5):
+            "Error reading SSH protocol banner" in text and elapsed < float(timeout) - 0.5
+        ):
             # paramiko waits 2 s for each line after a first one that is not SSH's
-            return (f"not an SSH server: {at} answered, but not with an SSH greeting (another service on that "
-                    "port? wrong port?)"), False
+            return (
+                f"not an SSH server: {at} answered, but not with an SSH greeting (another service on that "
+                "port? wrong port?)"
+            ), False
         if "Error reading SSH protocol banner" in text:
-            return (f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
-                    f"{timeout} s (wrong port?)"), False
+            return (
+                f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
+                f"{timeout} s (wrong port?)"
+            ), False
         if "No existing session" in text or "Unable to connect" in text:
             return f"the SSH session to {at} closed during the handshake", True
         return f"SSH error from {at}: {text}", False

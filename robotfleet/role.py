@@ -195,8 +195,15 @@ def _no_pull_role(*args, **kwargs):
 
 
 # Where no role declares pull mode: no host pulls.
-NO_PULL = PullPart(pulls=_pulls_not, config=_no_pull_role, platform=_no_pull_role, known_hosts=_no_pull_role,
-                   timer=_no_pull_role, trust_root=_no_pull_role, remote_ca=_no_pull_role)
+NO_PULL = PullPart(
+    pulls=_pulls_not,
+    config=_no_pull_role,
+    platform=_no_pull_role,
+    known_hosts=_no_pull_role,
+    timer=_no_pull_role,
+    trust_root=_no_pull_role,
+    remote_ca=_no_pull_role,
+)
 
 
 def pull_part(roles) -> PullPart:

@@ -29,8 +29,12 @@ OK = 0  # every host did what was asked
 FAILED = 1  # a host failed: a step, a changed host key, a rollout's budget
 REFUSED = 2  # nothing was contacted: bad fleet data, bad arguments, a --limit matching nothing
 UNREACHABLE = 3  # a host could not be reached (and none failed otherwise)
-CODES = {OK: "done", FAILED: "a host failed", REFUSED: "refused before contacting any host",
-         UNREACHABLE: "a host was unreachable"}
+CODES = {
+    OK: "done",
+    FAILED: "a host failed",
+    REFUSED: "refused before contacting any host",
+    UNREACHABLE: "a host was unreachable",
+}
 
 
 ALL = "all"  # Ansible's group of every host (pyinfra's inventories have none: robotfleet/inventory.py)
@@ -98,14 +102,18 @@ def _unmatched(term: str, hosts: list[tuple[str, set[str]]], groups: set[str]) -
     subscript = SUBSCRIPT.fullmatch(term)
     if not subscript:
         return "no host or group of {inventory} matches"
-    base, shown = subscript["base"], term[len(subscript["base"]):]
+    base, shown = subscript["base"], term[len(subscript["base"]) :]
     found = _matches(base, hosts, groups)
     if found:
-        return (f"{base} matches {len(found)} host(s), {base}[0] to {base}[{len(found) - 1}]; {shown} is Ansible's "
-                "subscript of them, counted from 0")
-    return (f"{shown} is Ansible's subscript of the hosts {base} matches (counted from 0), and no host or group of "
-            f"{{inventory}} matches {base}; for host names in a range write a glob ({base}[1-3], {base}*) or a comma "
-            "list")
+        return (
+            f"{base} matches {len(found)} host(s), {base}[0] to {base}[{len(found) - 1}]; {shown} is Ansible's "
+            "subscript of them, counted from 0"
+        )
+    return (
+        f"{shown} is Ansible's subscript of the hosts {base} matches (counted from 0), and no host or group of "
+        f"{{inventory}} matches {base}; for host names in a range write a glob ({base}[1-3], {base}*) or a comma "
+        "list"
+    )
 
 
 def resolve(limits: list[str], hosts: list[tuple[str, set[str]]], groups: set[str]) -> tuple[list[str], list[str]]:
@@ -165,8 +173,10 @@ def pyinfra_inventory(path: str) -> tuple[str, dict[str, str]]:
     checkout's inventories/robots.py with ROBOT_FLEET naming it.  Refused
     when there is no such file or directory."""
     if not os.path.exists(path):
-        raise Refused(f"{path}: no such inventory: give the fleet file (inventories/robots.yaml), an Ansible "
-                      "inventory file or directory, or a pyinfra inventory (inventories/robots.py)")
+        raise Refused(
+            f"{path}: no such inventory: give the fleet file (inventories/robots.yaml), an Ansible "
+            "inventory file or directory, or a pyinfra inventory (inventories/robots.py)"
+        )
     if os.path.isfile(path) and path.endswith(".py"):
         return path, {}
     return os.path.relpath(CHECKOUT / "inventories" / "robots.py"), {"ROBOT_FLEET": os.path.abspath(path)}
@@ -208,9 +218,11 @@ def inventory(path: str):
         except Exception as error:  # a .py that is no inventory (deploy.py): pyinfra's traceback otherwise
             cause = getattr(error, "exception", error)
             why = " ".join(f"{type(cause).__name__}: {cause}".split())
-            raise Refused(f"{path}: not an inventory pyinfra can load ({why}); give the "
-                          "fleet file (inventories/robots.yaml), an Ansible inventory file or directory, or "
-                          "inventories/robots.py") from None
+            raise Refused(
+                f"{path}: not an inventory pyinfra can load ({why}); give the "
+                "fleet file (inventories/robots.yaml), an Ansible inventory file or directory, or "
+                "inventories/robots.py"
+            ) from None
 
 
 def select(inventory_, path: str, limits: list[str]) -> list:

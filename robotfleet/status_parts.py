@@ -35,7 +35,7 @@ def sections(stdout: str) -> dict[str, str]:
     current = None
     for line in stdout.splitlines():
         if line.startswith(MARK):
-            current = line[len(MARK):].strip()
+            current = line[len(MARK) :].strip()
             found[current] = []
         elif current is not None:
             found[current].append(line)

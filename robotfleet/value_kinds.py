@@ -27,8 +27,20 @@ ALIASES = (("/var/run", "/run"), ("/var/lock", "/run/lock"), ("/run/shm", "/dev/
 # is group mail's, /var/local group staff's, /var/spool holds both kinds,
 # /home and /media belong to users): anything not listed is refused.
 # /proc/driver holds kernel drivers' files (gpu_driver_version_file).
-ROOT_ONLY = ("/etc", "/opt", "/srv", "/mnt", "/root", "/usr", "/var/lib", "/var/opt", "/var/cache", "/var/log",
-             "/run", "/proc/driver")
+ROOT_ONLY = (
+    "/etc",
+    "/opt",
+    "/srv",
+    "/mnt",
+    "/root",
+    "/usr",
+    "/var/lib",
+    "/var/opt",
+    "/var/cache",
+    "/var/log",
+    "/run",
+    "/proc/driver",
+)
 # Inside those, directories others may write: /usr/local is 2775 root:staff on
 # older Debian; PHP's session directory is 1733.
 SHARED_INSIDE = ("/usr/local", "/var/lib/php/sessions")
@@ -55,9 +67,11 @@ def canonical(path: str) -> str:
         changed = False
         for alias, target in ALIASES:
             if normal == alias or normal.startswith(alias + "/"):
-                normal = target + normal[len(alias):]
+                normal = target + normal[len(alias) :]
                 changed = True
     return normal
+
+
 _DOTTED_NUMBERS = re.compile(r"[0-9.]+")
 _HOST_PORT = re.compile(r"([^:\s\[\]]+|\[[^\]]*\]):([0-9]+)")
 _LABEL = r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
@@ -73,8 +87,9 @@ _V6_LAST = rf"(?:{_H}:{_H}|{IPV4})"  # the last 32 bits: two groups or an IPv4 a
 
 def _after_gap(groups: int) -> str:
     """At most ``groups`` groups after '::' (an IPv4 address counts two)."""
-    options = ([rf"(?:{_H}:){{0,{groups - 1}}}{_H}"]
-               + ([rf"(?:{_H}:){{0,{groups - 2}}}{_V6_LAST}"] if groups >= 2 else []))
+    options = [rf"(?:{_H}:){{0,{groups - 1}}}{_H}"] + (
+        [rf"(?:{_H}:){{0,{groups - 2}}}{_V6_LAST}"] if groups >= 2 else []
+    )
     return "(?:" + "|".join(options) + ")?"
 
 
@@ -106,8 +121,13 @@ def address(value):
         return [("", f"expected an IPv6 address without brackets, got {c.shown(value)}")]
     host_port = _HOST_PORT.fullmatch(value)
     if host_port:
-        return [("", f"expected a host name or an IP address, got {c.shown(value)}; put the port in ssh_port: "
-                     f"{host_port.group(2)}")]
+        return [
+            (
+                "",
+                f"expected a host name or an IP address, got {c.shown(value)}; put the port in ssh_port: "
+                f"{host_port.group(2)}",
+            )
+        ]
     if _DOTTED_NUMBERS.fullmatch(value):
         return [("", f"{c.shown(value)} is not a valid IPv4 address")]
     return [("", f"expected a host name or an IP address, got {c.shown(value)}")]
@@ -151,15 +171,30 @@ def private_path(value):
     normal = canonical(value)
     shared = _under(normal, WORLD_WRITABLE)
     if shared:
-        return [("", f"{c.shown(value)} is in the world-writable {shared}; "
-                     "use a directory only root can write (e.g. under /var/lib)")]
+        return [
+            (
+                "",
+                f"{c.shown(value)} is in the world-writable {shared}; "
+                "use a directory only root can write (e.g. under /var/lib)",
+            )
+        ]
     shared = _under(normal, SHARED_INSIDE) or (None if _under(normal, ROOT_ONLY) else _under(normal, NOT_ROOT_ONLY))
     if shared:
-        return [("", f"{c.shown(value)} is in {shared}, {NOT_ROOT_ONLY[shared]}; use a directory only root can write "
-                     "(e.g. under /var/lib)")]
+        return [
+            (
+                "",
+                f"{c.shown(value)} is in {shared}, {NOT_ROOT_ONLY[shared]}; use a directory only root can write "
+                "(e.g. under /var/lib)",
+            )
+        ]
     if not _under(normal, ROOT_ONLY):
-        return [("", f"{c.shown(value)} is not in a place only root writes on Debian and Ubuntu "
-                     f"({', '.join(ROOT_ONLY)}); use a directory there (e.g. under /var/lib)")]
+        return [
+            (
+                "",
+                f"{c.shown(value)} is not in a place only root writes on Debian and Ubuntu "
+                f"({', '.join(ROOT_ONLY)}); use a directory there (e.g. under /var/lib)",
+            )
+        ]
     return []
 
 
@@ -180,34 +215,59 @@ def _spellings(places) -> list[str]:
     schema, which cannot resolve them)."""
     found = set(places)
     while True:
-        more = {alias + path[len(target):] for path in found for alias, target in ALIASES
-                if path == target or path.startswith(target + "/")}
+        more = {
+            alias + path[len(target) :]
+            for path in found
+            for alias, target in ALIASES
+            if path == target or path.startswith(target + "/")
+        }
         if more <= found:
             return sorted(found)
         found |= more
 
 
 _SEP = r"/(?:\.?/)*"  # what normpath reads as one slash: //, /./
-_path_schema = {"type": "string", "pattern": c.json_pattern(c.ABS_PATH), "not": {"pattern": "(?:^|/)\\.\\.(?:/|$)"},
-                "description": "an absolute path without '..'"}
-c.with_schema(address, {"type": "string", "pattern": c.json_pattern(ADDRESS),
-                        "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)"})
+_path_schema = {
+    "type": "string",
+    "pattern": c.json_pattern(c.ABS_PATH),
+    "not": {"pattern": "(?:^|/)\\.\\.(?:/|$)"},
+    "description": "an absolute path without '..'",
+}
+c.with_schema(
+    address,
+    {
+        "type": "string",
+        "pattern": c.json_pattern(ADDRESS),
+        "description": "a host name, an IPv4 or an IPv6 address (the port goes in ssh_port)",
+    },
+)
 c.with_schema(abs_path, _path_schema)
-c.with_schema(local_path,
-              {"type": "string", "pattern": c.json_pattern(LOCAL_PATH), "description": "a path on this machine"})
+c.with_schema(
+    local_path, {"type": "string", "pattern": c.json_pattern(LOCAL_PATH), "description": "a path on this machine"}
+)
 
 
 def _places_pattern(places) -> str:
     return "^" + _SEP + "(?:" + "|".join(w.lstrip("/").replace("/", _SEP) for w in _spellings(places)) + ")(?:/|$)"
 
 
-c.with_schema(private_path, {
-    **_path_schema,
-    "not": {"anyOf": [_path_schema["not"], {"pattern": _places_pattern(WORLD_WRITABLE + SHARED_INSIDE)},
-                      {"not": {"pattern": _places_pattern(ROOT_ONLY)}}]},
-    "description": "an absolute path in a place only root writes (" + ", ".join(ROOT_ONLY)
-    + "), outside world-writable directories (/tmp, /run/lock, ...)",
-})
-c.with_schema(fingerprint,
-              {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$",
-               "description": "a 40-digit hex OpenPGP fingerprint"})
+c.with_schema(
+    private_path,
+    {
+        **_path_schema,
+        "not": {
+            "anyOf": [
+                _path_schema["not"],
+                {"pattern": _places_pattern(WORLD_WRITABLE + SHARED_INSIDE)},
+                {"not": {"pattern": _places_pattern(ROOT_ONLY)}},
+            ]
+        },
+        "description": "an absolute path in a place only root writes ("
+        + ", ".join(ROOT_ONLY)
+        + "), outside world-writable directories (/tmp, /run/lock, ...)",
+    },
+)
+c.with_schema(
+    fingerprint,
+    {"type": "string", "pattern": "^(?: *[0-9A-Fa-f]){40} *$", "description": "a 40-digit hex OpenPGP fingerprint"},
+)

@@ -39,15 +39,21 @@ E2E_PREFIX = "ROBOT_LAB_E2E_PREFIX"
 class Layer:
     """One pytest process: its output streamed, or kept until it is done."""
 
-    def __init__(self, label: str, what: str, paths: list[str], options: list[str], env: dict | None = None,
-                 stream: bool = False) -> None:
+    def __init__(
+        self, label: str, what: str, paths: list[str], options: list[str], env: dict | None = None, stream: bool = False
+    ) -> None:
         self.label, self.name, self.started, self.ended = label, f"{label} ({what})", time.monotonic(), None
         if stream:
             print(f"===== {self.name}: streamed here; the others follow when done =====", flush=True)
         self.log = None if stream else tempfile.TemporaryFile(mode="w+", prefix="tests-")
-        self.process = subprocess.Popen([sys.executable, "-m", "pytest", *paths, *options], cwd=ROOT,
-                                        env=env, stdout=self.log, stderr=subprocess.STDOUT if self.log else None,
-                                        text=True)
+        self.process = subprocess.Popen(
+            [sys.executable, "-m", "pytest", *paths, *options],
+            cwd=ROOT,
+            env=env,
+            stdout=self.log,
+            stderr=subprocess.STDOUT if self.log else None,
+            text=True,
+        )
 
     def wait(self) -> int:
         code = self.process.wait()
@@ -79,8 +85,16 @@ def e2e_layers(options: list[str]) -> list[Layer]:
     layers = []
     for index, (group, modules) in enumerate(planned.items()):
         env = dict(os.environ, **{E2E_PREFIX: f"{base}-{group}"})
-        layers.append(Layer(f"end to end, lab group {group}", f"lab {base}-{group}: {', '.join(modules)}",
-                            [f"tests/e2e/{module}" for module in modules], options, env, stream=index == 0))
+        layers.append(
+            Layer(
+                f"end to end, lab group {group}",
+                f"lab {base}-{group}: {', '.join(modules)}",
+                [f"tests/e2e/{module}" for module in modules],
+                options,
+                env,
+                stream=index == 0,
+            )
+        )
     return layers
 
 
@@ -106,8 +120,10 @@ def main(argv: list[str]) -> int:
     codes = [layer.wait() for layer in (local, *e2e)]
     load = " ".join(f"{value:.2f}" for value in os.getloadavg())
     exits = ", ".join(f"{layer.label} exit {code}" for layer, code in zip((local, *e2e), codes))
-    print(f"\n===== tests: {exits}; {duration(time.monotonic() - started)} in all "
-          f"(load average at the end {load}) =====", flush=True)
+    print(
+        f"\n===== tests: {exits}; {duration(time.monotonic() - started)} in all (load average at the end {load}) =====",
+        flush=True,
+    )
     return exit_code(codes)
 
 

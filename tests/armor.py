@@ -33,8 +33,18 @@ def new_key(home: Path, uid: str, with_subkey: bool = False) -> str:
     listing = gpg(home, "--with-colons", "--list-keys", uid, text=True).stdout
     fingerprint = next(line.split(":")[9] for line in listing.splitlines() if line.startswith("fpr"))
     if with_subkey:
-        gpg(home, "--passphrase", "", "--pinentry-mode", "loopback", "--quick-add-key", fingerprint, "ed25519", "sign",
-            "never")
+        gpg(
+            home,
+            "--passphrase",
+            "",
+            "--pinentry-mode",
+            "loopback",
+            "--quick-add-key",
+            fingerprint,
+            "ed25519",
+            "sign",
+            "never",
+        )
     return fingerprint
 
 
@@ -54,13 +64,17 @@ def signers(home: Path) -> tuple[dict[str, str], dict[str, str]]:
 def repository(home, signer: str, where: Path) -> None:
     """A flat apt repository in ``where`` offering a fake docker-ce, InRelease signed by ``signer``."""
     where.mkdir(parents=True)
-    packages = (f"Package: docker-ce\nVersion: 99:{FAKE_VERSION}\nArchitecture: all\n"
-                "Maintainer: nobody <nobody@example.invalid>\nFilename: ./docker-ce.deb\nSize: 1\n"
-                f"SHA256: {'0' * 64}\nDescription: fake\n\n")
+    packages = (
+        f"Package: docker-ce\nVersion: 99:{FAKE_VERSION}\nArchitecture: all\n"
+        "Maintainer: nobody <nobody@example.invalid>\nFilename: ./docker-ce.deb\nSize: 1\n"
+        f"SHA256: {'0' * 64}\nDescription: fake\n\n"
+    )
     (where / "Packages").write_text(packages)
     digest = subprocess.run(["sha256sum"], input=packages.encode(), capture_output=True, check=True).stdout.split()[0]
-    release = ("Origin: fake\nLabel: fake\nSuite: fake\nCodename: fake\nDate: Thu, 01 Jan 2026 00:00:00 UTC\n"
-               f"SHA256:\n {digest.decode()} {len(packages)} Packages\n")
+    release = (
+        "Origin: fake\nLabel: fake\nSuite: fake\nCodename: fake\nDate: Thu, 01 Jan 2026 00:00:00 UTC\n"
+        f"SHA256:\n {digest.decode()} {len(packages)} Packages\n"
+    )
     (where / "Release").write_text(release)
     gpg(home, "--local-user", signer + "!", "--clearsign", "-o", str(where / "InRelease"), str(where / "Release"))
 
@@ -72,20 +86,24 @@ def apt_check_script(key_file: str, repo: str, work: str) -> str:
     ``update=<exit code>``.  APT_CONFIG is read before apt.conf.d, so the
     machine's own configuration is never read."""
     k, r, d = (shlex.quote(v) for v in (key_file, repo, work))
-    options = (f"-oDir::Etc::SourceList=/dev/null -oDir::Etc::SourceParts={d}/sources -oDir::State::Lists={d}/lists "
-               f"-oDir::Cache={d}/cache -oDir::State::status={d}/status -oDir::Etc::Preferences=/dev/null "
-               f"-oDir::Etc::PreferencesParts={d}/preferences -oDir::Etc::Trusted=/dev/null "
-               f"-oDir::Etc::TrustedParts={d}/parts -oDebug::NoLocking=1 -oAPT::Sandbox::User=root")
-    return "\n".join([
-        f"mkdir -p {d}/lists/partial {d}/cache/archives/partial {d}/sources {d}/parts {d}/preferences",
-        f": > {d}/status",
-        f"printf 'Types: deb\\nURIs: file:%s\\nSuites: ./\\nSigned-By: %s\\n' {r} {k} > {d}/sources/fake.sources",
-        f"printf 'Dir::Etc::Parts \"%s/parts\";\\nDir::Etc::Main \"/dev/null\";\\n' {d} > {d}/apt.conf",
-        f"export APT_CONFIG={d}/apt.conf LC_ALL=C",
-        f"apt-get {options} update > {d}/update.log 2>&1; rc=$?",
-        f"apt-cache {options} policy docker-ce 2>/dev/null | grep -qF {FAKE_VERSION} && echo offered",
-        "echo update=$rc",
-    ])
+    options = (
+        f"-oDir::Etc::SourceList=/dev/null -oDir::Etc::SourceParts={d}/sources -oDir::State::Lists={d}/lists "
+        f"-oDir::Cache={d}/cache -oDir::State::status={d}/status -oDir::Etc::Preferences=/dev/null "
+        f"-oDir::Etc::PreferencesParts={d}/preferences -oDir::Etc::Trusted=/dev/null "
+        f"-oDir::Etc::TrustedParts={d}/parts -oDebug::NoLocking=1 -oAPT::Sandbox::User=root"
+    )
+    return "\n".join(
+        [
+            f"mkdir -p {d}/lists/partial {d}/cache/archives/partial {d}/sources {d}/parts {d}/preferences",
+            f": > {d}/status",
+            f"printf 'Types: deb\\nURIs: file:%s\\nSuites: ./\\nSigned-By: %s\\n' {r} {k} > {d}/sources/fake.sources",
+            f'printf \'Dir::Etc::Parts "%s/parts";\\nDir::Etc::Main "/dev/null";\\n\' {d} > {d}/apt.conf',
+            f"export APT_CONFIG={d}/apt.conf LC_ALL=C",
+            f"apt-get {options} update > {d}/update.log 2>&1; rc=$?",
+            f"apt-cache {options} policy docker-ce 2>/dev/null | grep -qF {FAKE_VERSION} && echo offered",
+            "echo update=$rc",
+        ]
+    )
 
 
 def parse_check(output: str) -> bool:
@@ -99,7 +117,7 @@ def _body(armored: str) -> list[str]:
     """The base64 lines of an armored key (between the blank line and the CRC)."""
     lines = armored.splitlines()
     start = lines.index("") + 1
-    return lines[start:next(i for i in range(start, len(lines)) if lines[i].startswith("="))]
+    return lines[start : next(i for i in range(start, len(lines)) if lines[i].startswith("="))]
 
 
 def _crc(armored: str) -> str:
@@ -122,8 +140,9 @@ VARIANTS = {
     "inside the block after its CRC line": lambda p, i: "\n".join(p.splitlines()[:-1] + _body(i) + [END]) + "\n",
     "PGP SIGNATURE label": _labelled("PGP SIGNATURE"),
     "PGP MESSAGE label": _labelled("PGP MESSAGE"),
-    "signed-message header, no END": lambda p, i: p + "\n".join(
-        ["-----BEGIN PGP SIGNED MESSAGE-----", "Hash: SHA256", "", *_body(i)]) + "\n",
+    "signed-message header, no END": lambda p, i: (
+        p + "\n".join(["-----BEGIN PGP SIGNED MESSAGE-----", "Hash: SHA256", "", *_body(i)]) + "\n"
+    ),
     "indented BEGIN line": lambda p, i: p + block(" " + BEGIN, _body(i) + [_crc(i)], END),
 }
 # Those apt 2.6 (awk+base64 dearmoring, then gpgv) reads the hidden key from,

@@ -40,10 +40,20 @@ def sent_to_a_fresh_robot():
     from roles.payload.payloadctl.releases import compose_yaml, release_compose
     from tests.unit.harness import ROBOT, find, fresh_host, plan, written_files
 
-    commands = plan({"robot1": ("robots", {
-        **ROBOT, "ssh_hostname": "10.20.0.11",
-        "docker_registry_mirrors": ["https://mirror.lan"], "docker_insecure_registries": ["registry.lan:5000"],
-    }, fresh_host("debian-13"))})["robot1"]
+    commands = plan(
+        {
+            "robot1": (
+                "robots",
+                {
+                    **ROBOT,
+                    "ssh_hostname": "10.20.0.11",
+                    "docker_registry_mirrors": ["https://mirror.lan"],
+                    "docker_insecure_registries": ["registry.lan:5000"],
+                },
+                fresh_host("debian-13"),
+            )
+        }
+    )["robot1"]
     files = written_files(commands)
     release = find(commands, "payloadctl apply")
     assert len(release) == 1

@@ -193,8 +193,10 @@ def block_commands(block: Block) -> list[Command]:
             joined.append((number, text.strip()))
     for number, text in joined:
         for command in parse(block.doc, number, text):
-            if block.marker is not None and (not block.covers or any(
-                    command.text.startswith(c) or " ".join(command.argv).startswith(c) for c in block.covers)):
+            if block.marker is not None and (
+                not block.covers
+                or any(command.text.startswith(c) or " ".join(command.argv).startswith(c) for c in block.covers)
+            ):
                 command.marker = block.marker
             found.append(command)
     return found
@@ -251,7 +253,8 @@ def checkout_paths(command: Command) -> list[str]:
         if word.startswith(("-", "/", "~", "$")) or "://" in word or "=" in word or word in ("...", "."):
             continue
         if word in ("deploy.py", "rollback.py", "config.py") or (
-                "/" in word and re.match(r"^(inventories|roles|docs|files|tests|group_data|robotfleet)/", word)):
+            "/" in word and re.match(r"^(inventories|roles|docs|files|tests|group_data|robotfleet)/", word)
+        ):
             paths.append(word.rstrip("/"))
     return paths
 
@@ -301,8 +304,12 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
             if command.subcommand == "rollout" and not {"-y", "--yes", "--dry"} & set(args):
                 return "unreachable", 2  # it would ask, and there is no terminal to ask in
             return "unreachable", UNREACHABLE_CODE["robotfleet"]
-    if command.program == "pyinfra" and len(args) > 1 and args[1] in ("deploy.py", "rollback.py") or (
-            command.program == "pyinfra" and args[:1] == ["-y"] and args[2:3] in (["deploy.py"], ["rollback.py"])):
+    if (
+        command.program == "pyinfra"
+        and len(args) > 1
+        and args[1] in ("deploy.py", "rollback.py")
+        or (command.program == "pyinfra" and args[:1] == ["-y"] and args[2:3] in (["deploy.py"], ["rollback.py"]))
+    ):
         inventory = args[0] if args[0] != "-y" else args[1]
         if inventory == "inventories/robots.py":
             return "unreachable", UNREACHABLE_CODE["pyinfra"]
@@ -315,16 +322,25 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
 # as the docs' are: a command line in a comment (indented past the comment's
 # text) or a `code span`; a link is a path of the checkout, a Markdown
 # file's #anchor, or a section named as README, "Title".
-SECTION = re.compile(r"\b(README|ARCHITECTURE|docs/[\w/-]+|roles/\w+/README)(?:\.md)?"
-                     r"(?:, \"([^\"]+)\"|, ([A-Z][^\",;:()]*\w)|'s \"([^\"]+)\"|\.md#([\w-]+))")
+SECTION = re.compile(
+    r"\b(README|ARCHITECTURE|docs/[\w/-]+|roles/\w+/README)(?:\.md)?"
+    r"(?:, \"([^\"]+)\"|, ([A-Z][^\",;:()]*\w)|'s \"([^\"]+)\"|\.md#([\w-]+))"
+)
 PATH = re.compile(r"(?<![\w/.-])((?:tests|roles|robotfleet|docs|inventories|files|group_data)/[\w./-]*[\w/])")
 
 
 def shipped() -> list[Path]:
     """The example fleet, inventories/, group_data/, files/, the deploy's files, the engine's and roles' .py."""
-    found = [*(ROOT / "inventories").iterdir(), *(ROOT / "group_data").glob("*.py"), *(ROOT / "files").rglob("*"),
-             ROOT / "deploy.py", ROOT / "rollback.py", ROOT / "config.py", *(ROOT / "robotfleet").rglob("*.py"),
-             *(ROOT / "roles").rglob("*.py")]
+    found = [
+        *(ROOT / "inventories").iterdir(),
+        *(ROOT / "group_data").glob("*.py"),
+        *(ROOT / "files").rglob("*"),
+        ROOT / "deploy.py",
+        ROOT / "rollback.py",
+        ROOT / "config.py",
+        *(ROOT / "robotfleet").rglob("*.py"),
+        *(ROOT / "roles").rglob("*.py"),
+    ]
     return sorted(p for p in found if p.is_file() and p.name != "known_hosts" and "__pycache__" not in p.parts)
 
 
@@ -341,8 +357,9 @@ def comment_lines(path: Path) -> list[tuple[int, str, bool]]:
         import ast
 
         for node in ast.walk(ast.parse(text)):
-            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) \
-                    and ast.get_docstring(node):
+            if isinstance(
+                node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)
+            ) and ast.get_docstring(node):
                 first = node.body[0].lineno
                 for offset, line in enumerate(ast.get_docstring(node).splitlines()):
                     found.append((first + offset, line, line.startswith("    ")))

@@ -60,7 +60,12 @@ def run_command(command, **kwargs) -> subprocess.CompletedProcess:
     pyinfra would send it; stdout and stderr as text."""
     arguments = getattr(command, "connector_arguments", None) or {}
     stdin = arguments.get("_stdin")
-    proc = subprocess.run(["sh", "-c", command.get_raw_value()], input=stdin_bytes(stdin) if stdin else b"",
-                          capture_output=True, **{"timeout": 60, **kwargs})
-    return subprocess.CompletedProcess(proc.args, proc.returncode, proc.stdout.decode(errors="replace"),
-                                       proc.stderr.decode(errors="replace"))
+    proc = subprocess.run(
+        ["sh", "-c", command.get_raw_value()],
+        input=stdin_bytes(stdin) if stdin else b"",
+        capture_output=True,
+        **{"timeout": 60, **kwargs},
+    )
+    return subprocess.CompletedProcess(
+        proc.args, proc.returncode, proc.stdout.decode(errors="replace"), proc.stderr.decode(errors="replace")
+    )

@@ -3,15 +3,18 @@
 import argparse
 
 # --limit's help, the same for every command that takes it (docs/reference/fleet-file.md#--limit).
-LIMIT_HELP = ("groups, host globs or Ansible patterns (all, robots[0:2]), comma-separated (&group: also in it, "
-              "!host: not it); repeatable")
+LIMIT_HELP = (
+    "groups, host globs or Ansible patterns (all, robots[0:2]), comma-separated (&group: also in it, "
+    "!host: not it); repeatable"
+)
 
 
 def parser(name: str, doc: str) -> argparse.ArgumentParser:
     """A command's parser: ``robotfleet NAME``, its module's docstring as
     its help (the usage lines and the paragraphs after them, whole)."""
-    return argparse.ArgumentParser(prog=f"robotfleet {name}", description=doc,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
+    return argparse.ArgumentParser(
+        prog=f"robotfleet {name}", description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
 
 
 def summary(doc: str) -> str:
@@ -19,8 +22,10 @@ def summary(doc: str) -> str:
     return " ".join(doc.strip().split("\n\n", 1)[0].split())
 
 
-INVENTORY_HELP = ("the fleet: its file (inventories/robots.yaml), an Ansible inventory file (YAML, INI) or "
-                  "directory, or a pyinfra inventory (inventories/robots.py, which reads $ROBOT_FLEET)")
+INVENTORY_HELP = (
+    "the fleet: its file (inventories/robots.yaml), an Ansible inventory file (YAML, INI) or "
+    "directory, or a pyinfra inventory (inventories/robots.py, which reads $ROBOT_FLEET)"
+)
 
 
 def add_inventory(parser: argparse.ArgumentParser) -> None:
@@ -28,8 +33,9 @@ def add_inventory(parser: argparse.ArgumentParser) -> None:
     positional INVENTORY or, as Ansible has it, -i INVENTORY (read by
     inventory_of)."""
     parser.add_argument("inventory", nargs="?", metavar="INVENTORY", help=INVENTORY_HELP)
-    parser.add_argument("-i", "--inventory", dest="inventory_option", metavar="INVENTORY",
-                        help="the same, as Ansible's -i")
+    parser.add_argument(
+        "-i", "--inventory", dest="inventory_option", metavar="INVENTORY", help="the same, as Ansible's -i"
+    )
 
 
 def inventory_of(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
@@ -38,6 +44,8 @@ def inventory_of(parser: argparse.ArgumentParser, args: argparse.Namespace) -> s
     if args.inventory and args.inventory_option:
         parser.error(f"the inventory given twice ({args.inventory} and -i {args.inventory_option}); give one")
     if not (args.inventory or args.inventory_option):
-        parser.error("no inventory: give the fleet (inventories/robots.yaml, an Ansible inventory file or "
-                     "directory) or inventories/robots.py, as INVENTORY or -i INVENTORY")
+        parser.error(
+            "no inventory: give the fleet (inventories/robots.yaml, an Ansible inventory file or "
+            "directory) or inventories/robots.py, as INVENTORY or -i INVENTORY"
+        )
     return args.inventory or args.inventory_option

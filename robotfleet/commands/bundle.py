@@ -27,20 +27,24 @@ import sys
 from pathlib import Path
 
 import robotfleet
-from robotfleet import commands, deploy_roles
-from robotfleet import selection
-from robotfleet.pull.operator import bundle, gitolite, install
-from robotfleet.pull.protocol import naming
-from robotfleet.pull.operator import enrollments, pull_settings
-from robotfleet.pull.protocol.robot_data import DataError, host_data
+from robotfleet import commands, deploy_roles, selection
+from robotfleet.pull.operator import bundle, enrollments, gitolite, install, pull_settings
 from robotfleet.pull.operator.repository import Repository, RepositoryError
+from robotfleet.pull.protocol import naming
+from robotfleet.pull.protocol.robot_data import DataError, host_data
 
 
 def add_admin(parser) -> None:
-    parser.add_argument("--admin", metavar="URL", help="the gitolite server, as its admin (ssh://gitolite3@host[:port])")
+    parser.add_argument(
+        "--admin", metavar="URL", help="the gitolite server, as its admin (ssh://gitolite3@host[:port])"
+    )
     parser.add_argument("--admin-key", metavar="FILE", help="the admin's private key")
-    parser.add_argument("--admin-known-hosts", metavar="FILE", default=os.path.expanduser("~/.ssh/known_hosts"),
-                        help="the gitolite server's host key (default ~/.ssh/known_hosts)")
+    parser.add_argument(
+        "--admin-known-hosts",
+        metavar="FILE",
+        default=os.path.expanduser("~/.ssh/known_hosts"),
+        help="the gitolite server's host key (default ~/.ssh/known_hosts)",
+    )
 
 
 def admin_of(args) -> gitolite.Admin | None:
@@ -73,8 +77,10 @@ def make(args) -> int:
         if record is None:
             raise selection.Refused(f"{clone}: no release published yet (robotfleet publish)")
         if args.robot not in record.robots:
-            raise selection.Refused(f"release {record.version} is not for {args.robot}: publish a release whose fleet "
-                                "file has it (pull_enabled: true), then make its bundle")
+            raise selection.Refused(
+                f"release {record.version} is not for {args.robot}: publish a release whose fleet "
+                "file has it (pull_enabled: true), then make its bundle"
+            )
         code = repository.blob(record.code)
         wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(pull.platform(data))]
         root = install.trust_root(robotfleet.CHECKOUT, pull.trust_root(data))
@@ -97,14 +103,17 @@ def make(args) -> int:
     kept = enrollments.kept_file(robotfleet.CHECKOUT)
     bundle.remember(kept, owner, public, record.version)
     like = f"robots named {args.name_prefix}<{args.name_from}> like " if rule else ""
-    print(f"bundle: {args.out}/rootfs.tar for {like}"
-          f"{args.robot}: release {record.version}, {len(wheels)} wheels "
-          f"({pull.platform(data)}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}")
+    print(
+        f"bundle: {args.out}/rootfs.tar for {like}"
+        f"{args.robot}: release {record.version}, {len(wheels)} wheels "
+        f"({pull.platform(data)}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}"
+    )
     if admin is not None:
         try:
             config = pull.config(data, args.robot)
-            gitolite.register(admin, repository_name(config.remote), owner, public, enrollment=not rule,
-                              shards=config.report_shards)
+            gitolite.register(
+                admin, repository_name(config.remote), owner, public, enrollment=not rule, shards=config.report_shards
+            )
         except gitolite.GitoliteError as error:
             print(f"bundle: {error}; the enrollment key is not registered yet", file=sys.stderr)
             return selection.FAILED
@@ -118,12 +127,19 @@ def main(argv=None) -> int:
     parser = commands.parser("bundle", __doc__)
     parser.add_argument("robot")
     parser.add_argument("--out", required=True, metavar="DIR", help="a new directory for the bundle")
-    parser.add_argument("-i", "--fleet", metavar="INVENTORY",
-                        help="the fleet file or an Ansible inventory file or directory (default $ROBOT_FLEET, else "
-                             "inventories/robots.yaml)")
+    parser.add_argument(
+        "-i",
+        "--fleet",
+        metavar="INVENTORY",
+        help="the fleet file or an Ansible inventory file or directory (default $ROBOT_FLEET, else "
+        "inventories/robots.yaml)",
+    )
     add_admin(parser)
-    parser.add_argument("--name-from", choices=sorted(naming.RULES),
-                        help="an image shared by many robots: each names itself from its machine-id or board serial")
+    parser.add_argument(
+        "--name-from",
+        choices=sorted(naming.RULES),
+        help="an image shared by many robots: each names itself from its machine-id or board serial",
+    )
     parser.add_argument("--name-prefix", default="robot-", help="what the derived names start with (default robot-)")
     args = parser.parse_args(argv)
     try:

@@ -31,11 +31,8 @@ from dataclasses import dataclass
 
 import paramiko
 
-from robotfleet import commands
-from robotfleet import connect, hostkeys, reasons
+from robotfleet import commands, connect, hostkeys, reasons, selection
 from robotfleet.checkers import one_line
-from robotfleet import selection
-
 
 # The summary's word for each outcome (decide's outcomes are verbs).
 SAID = {"enroll": "enrolled", "replace": "replaced"}
@@ -56,9 +53,13 @@ class Target:
 
 def target(host) -> Target:
     data = host.data
-    return Target(host.name, data.get("ssh_hostname") or host.name, int(data.get("ssh_port") or 22),
-                  os.path.expanduser(data.get("ssh_known_hosts_file") or "~/.ssh/known_hosts"),
-                  int(data.get("ssh_connect_timeout") or 10))
+    return Target(
+        host.name,
+        data.get("ssh_hostname") or host.name,
+        int(data.get("ssh_port") or 22),
+        os.path.expanduser(data.get("ssh_known_hosts_file") or "~/.ssh/known_hosts"),
+        int(data.get("ssh_connect_timeout") or 10),
+    )
 
 
 def fetch(host: Target):
@@ -90,20 +91,25 @@ def read_fingerprints(path: str) -> dict[str, set[str]]:
             lines = handle.read().splitlines()
     except (OSError, UnicodeDecodeError) as error:
         why = error.strerror if isinstance(error, OSError) else "not UTF-8 text"
-        raise ValueError(f"--fingerprints {path}: {why}; give the file of the hosts' recorded fingerprints "
-                         "(HOST SHA256:... a line); nothing was done") from None
+        raise ValueError(
+            f"--fingerprints {path}: {why}; give the file of the hosts' recorded fingerprints "
+            "(HOST SHA256:... a line); nothing was done"
+        ) from None
     for number, line in enumerate(lines, 1):
         words = line.split("#", 1)[0].split()
         if not words:
             continue
         prints = [w for w in words[1:] if w.startswith("SHA256:")]
         if not prints:
-            raise ValueError(f"{path}: line {number}: expected 'HOST SHA256:...', got {line.strip()!r}; nothing "
-                             "was done")
+            raise ValueError(
+                f"{path}: line {number}: expected 'HOST SHA256:...', got {line.strip()!r}; nothing was done"
+            )
         bad = next((p for p in prints if not FINGERPRINT.fullmatch(p)), None)
         if bad:
-            raise ValueError(f"{path}: line {number}: {bad!r} is not a SHA256 fingerprint (SHA256: and 43 base64 "
-                             "characters, as ssh-keygen -lf shows it); nothing was done")
+            raise ValueError(
+                f"{path}: line {number}: {bad!r} is not a SHA256 fingerprint (SHA256: and 43 base64 "
+                "characters, as ssh-keygen -lf shows it); nothing was done"
+            )
         found.setdefault(words[0], set()).update(p.rstrip("=") for p in prints)
     return found
 
@@ -142,14 +148,16 @@ def changed(host: Target, key, there: dict, choices: Choices) -> tuple[str, str]
     new = f"{key.get_name()} {hostkeys.fingerprint(key)}"
     head = f"{host.name}: host key CHANGED for {host.entry}: {host.known_hosts} has {old}, the host offers {new}"
     if host.name not in choices.replace:
-        return "refused", (f"{head}; refused, its line is left as it is "
-                           f"({reasons.replace_advice(choices.inventory, host.name)})")
+        return "refused", (
+            f"{head}; refused, its line is left as it is ({reasons.replace_advice(choices.inventory, host.name)})"
+        )
     recorded = recorded_for(host, choices.expected)
     if recorded is None:
         return "refused", f"{head}; not in {choices.source}: not replaced, its line is left as it is"
     if hostkeys.fingerprint(key) not in recorded:
-        return "refused", (f"{head}; {choices.source} has {', '.join(sorted(recorded))}: not replaced, its line is "
-                           "left as it is")
+        return "refused", (
+            f"{head}; {choices.source} has {', '.join(sorted(recorded))}: not replaced, its line is left as it is"
+        )
     return "replace", f"{host.name} ({host.entry}): host key replaced: was {old}, now {new} (matches {choices.source})"
 
 
@@ -165,16 +173,22 @@ def decide(host: Target, key, choices: Choices) -> tuple[str, str]:
     if recorded is not None:
         if hostkeys.fingerprint(key) in recorded:
             return "enroll", f"{shown}: matches {choices.source}; enrolled"
-        return "refused", (f"{host.name}: fingerprint mismatch for {host.entry}: {choices.source} has "
-                           f"{', '.join(sorted(recorded))}, the host offers {hostkeys.fingerprint(key)}; refused")
+        return "refused", (
+            f"{host.name}: fingerprint mismatch for {host.entry}: {choices.source} has "
+            f"{', '.join(sorted(recorded))}, the host offers {hostkeys.fingerprint(key)}; refused"
+        )
     if choices.expected is not None and not choices.allow_unlisted:
-        return "refused", (f"{shown}: not in {choices.source}; refused (a host missing from the fingerprints file "
-                           "is enrolled only with --allow-unlisted)")
+        return "refused", (
+            f"{shown}: not in {choices.source}; refused (a host missing from the fingerprints file "
+            "is enrolled only with --allow-unlisted)"
+        )
     if choices.yes:
         return "enroll", f"{shown}: new; enrolled (--yes)"
     if not sys.stdin.isatty():
-        return "declined", (f"{shown}: new; not enrolled: no terminal to ask (check the fingerprint, then pass "
-                            "--yes, or give --fingerprints FILE)")
+        return "declined", (
+            f"{shown}: new; not enrolled: no terminal to ask (check the fingerprint, then pass "
+            "--yes, or give --fingerprints FILE)"
+        )
     if ask(f"{shown}: new. Is this the robot's key? [y/N] "):
         return "enroll", f"{shown}: enrolled"
     return "declined", f"{shown}: not enrolled"
@@ -184,40 +198,55 @@ def main(argv=None) -> int:
     parser = commands.parser("enroll", __doc__)
     commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
-    parser.add_argument("--fingerprints", metavar="FILE",
-                        help="the hosts' recorded fingerprints: HOST SHA256:... per line")
-    parser.add_argument("--allow-unlisted", action="store_true",
-                        help="with --fingerprints: hosts missing from FILE are asked for (or taken with --yes) "
-                             "instead of refused")
-    parser.add_argument("--replace", metavar="HOST", action="append", default=[],
-                        help="replace HOST's changed key when the new one matches --fingerprints FILE (repeatable)")
+    parser.add_argument(
+        "--fingerprints", metavar="FILE", help="the hosts' recorded fingerprints: HOST SHA256:... per line"
+    )
+    parser.add_argument(
+        "--allow-unlisted",
+        action="store_true",
+        help="with --fingerprints: hosts missing from FILE are asked for (or taken with --yes) instead of refused",
+    )
+    parser.add_argument(
+        "--replace",
+        metavar="HOST",
+        action="append",
+        default=[],
+        help="replace HOST's changed key when the new one matches --fingerprints FILE (repeatable)",
+    )
     parser.add_argument("-y", "--yes", action="store_true", help="enroll new keys as shown, without asking")
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
     try:
         if args.replace and not args.fingerprints:
-            raise selection.Refused("--replace needs --fingerprints FILE: a changed key is replaced only when it "
-                                    "matches the fingerprint recorded for the host; nothing was done")
+            raise selection.Refused(
+                "--replace needs --fingerprints FILE: a changed key is replaced only when it "
+                "matches the fingerprint recorded for the host; nothing was done"
+            )
         expected = read_fingerprints(args.fingerprints) if args.fingerprints else None
         inventory = selection.inventory(args.inventory)
         names = [h.name for h in inventory]
         unknown = [name for name in args.replace if name not in names]
         if unknown:
-            raise selection.Refused(f"--replace {' '.join(unknown)}: no such host in {args.inventory}; "
-                                    "nothing was done")
+            raise selection.Refused(
+                f"--replace {' '.join(unknown)}: no such host in {args.inventory}; nothing was done"
+            )
         limits = args.limit or args.replace  # --replace alone: only those hosts
         chosen = [target(h) for h in selection.select(inventory, args.inventory, limits) if not h.name.startswith("@")]
     except (OSError, ValueError) as error:
         return selection.refused(selection.Refused(one_line(str(error))))
     except selection.Refused as error:
         return selection.refused(error)
-    choices = Choices(expected, args.fingerprints, args.yes, args.allow_unlisted, frozenset(args.replace),
-                      args.inventory)
+    choices = Choices(
+        expected, args.fingerprints, args.yes, args.allow_unlisted, frozenset(args.replace), args.inventory
+    )
     if not chosen:
-        return selection.refused(selection.Refused(
-            f"{args.inventory}: no SSH host to enroll (@local hosts have no host key)"))
-    print(f"fetching the host keys of {len(chosen)} host(s) (at most {max(h.timeout for h in chosen)} s)...",
-          file=sys.stderr)
+        return selection.refused(
+            selection.Refused(f"{args.inventory}: no SSH host to enroll (@local hosts have no host key)")
+        )
+    print(
+        f"fetching the host keys of {len(chosen)} host(s) (at most {max(h.timeout for h in chosen)} s)...",
+        file=sys.stderr,
+    )
     with ThreadPoolExecutor(max_workers=min(32, len(chosen))) as pool:
         keys = list(pool.map(fetch, chosen))
     outcomes: dict[str, list[str]] = {}

@@ -24,8 +24,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from robotfleet import commands, deploy_roles
-from robotfleet import selection
+from robotfleet import commands, deploy_roles, selection
 from robotfleet.pull.operator import commandline
 from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.operator.keys import ONLINE
@@ -33,8 +32,12 @@ from robotfleet.pull.operator.keys import ONLINE
 
 def parse_args(argv: list[str]):
     parser = commands.parser("export", __doc__)
-    parser.add_argument("medium", type=Path, metavar="DIR",
-                        help="where the release and its images are written (a mounted USB stick, an NFS share)")
+    parser.add_argument(
+        "medium",
+        type=Path,
+        metavar="DIR",
+        help="where the release and its images are written (a mounted USB stick, an NFS share)",
+    )
     commandline.add_channel(parser)
     commandline.add_expiry(parser)
     return parser.parse_args(argv)
@@ -47,14 +50,25 @@ def export(args) -> int:
     args.medium.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="robotfleet-export-") as work:
         try:
-            done = exporting.export(repository, args.medium, args.checkout, deploy_roles.roles(),
-                                    deploy_roles.registry(), online, expiry, commandline.now(), Path(work))
+            done = exporting.export(
+                repository,
+                args.medium,
+                args.checkout,
+                deploy_roles.roles(),
+                deploy_roles.registry(),
+                online,
+                expiry,
+                commandline.now(),
+                Path(work),
+            )
         except exporting.ExportError as error:
             raise commandline.Failed(str(error)) from None
     where = commandline.pushed(chosen, f"export: release {done.version} with {done.images} image archive(s)")
-    print(f"export: release {done.version} for {done.robots} robot(s), {done.images} image archive(s) "
-          f"({done.size / (1 << 20):.1f} MiB), written to {args.medium}; timestamp valid until "
-          f"{repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}; metadata {where}")
+    print(
+        f"export: release {done.version} for {done.robots} robot(s), {done.images} image archive(s) "
+        f"({done.size / (1 << 20):.1f} MiB), written to {args.medium}; timestamp valid until "
+        f"{repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}; metadata {where}"
+    )
     return selection.OK
 
 

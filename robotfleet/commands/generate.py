@@ -13,8 +13,7 @@ from __future__ import annotations
 import json
 import sys
 
-from robotfleet import commands
-from robotfleet import CHECKOUT, deploy_roles
+from robotfleet import CHECKOUT, commands, deploy_roles
 from robotfleet.fleet import connection, schema
 from robotfleet.fleet.registry import Registry
 from robotfleet.role import UNSET
@@ -42,8 +41,9 @@ def settings_doc(registry: Registry) -> str:
         "",
     ]
     parts = [("The engine (connection, apt, rollouts)", "robotfleet/fleet/connection.py", connection.SETTINGS)]
-    parts += [(f"{role.name}: {role.doc}", f"roles/{role.name}/", role.settings)
-              for role in registry.roles if role.settings]
+    parts += [
+        (f"{role.name}: {role.doc}", f"roles/{role.name}/", role.settings) for role in registry.roles if role.settings
+    ]
     for title, where, settings in parts:
         lines += [f"## {title}", "", f"Declared in `{where}`.", "", "| setting | default | what |", "|---|---|---|"]
         for setting in settings:
@@ -52,10 +52,14 @@ def settings_doc(registry: Registry) -> str:
             lines.append(f"| `{setting.name}` | {default}{groups} | {setting.doc} |")
         lines.append("")
     if registry.renamed:
-        lines += ["## Renamed settings", "",
-                  "Each old name is still read, with a note asking to rename it; "
-                  "setting both names in one place is refused.",
-                  "", "| old name | now | values |", "|---|---|---|"]
+        lines += [
+            "## Renamed settings",
+            "",
+            "Each old name is still read, with a note asking to rename it; setting both names in one place is refused.",
+            "",
+            "| old name | now | values |",
+            "|---|---|---|",
+        ]
         for old, rename in registry.renamed.items():
             values = ", ".join(f"`{before}` is now `{after}`" for before, after in rename.values.items()) or "the same"
             lines.append(f"| `{old}` | `{rename.new}` | {values} |")

@@ -13,10 +13,8 @@ from __future__ import annotations
 
 import sys
 
-from robotfleet import commands
-from robotfleet import selection
-from robotfleet.pull.operator import commandline
-from robotfleet.pull.operator import publishing
+from robotfleet import commands, selection
+from robotfleet.pull.operator import commandline, publishing
 
 
 def parse_args(argv: list[str]):

@@ -23,7 +23,7 @@ import os
 import sys
 from pathlib import Path
 
-from robotfleet import commands, inventory, deploy_roles, secrets, selection
+from robotfleet import commands, deploy_roles, inventory, secrets, selection
 from robotfleet.checkers import did_you_mean, one_line
 from robotfleet.fleet import provenance, tree
 from robotfleet.fleet.connection import OLDER_NAMES
@@ -42,16 +42,21 @@ def written(registry):
     """What a layer sets, under the settings' own names: setting -> (the key as written, its value).
     Ansible's older ansible_ssh_* names win over the newer ones wherever they
     are set (host_lines), in one place too."""
+
     def of(layer: tree.Layer) -> dict:
         found = {}
         for key, value in layer.values.items():
-            if not isinstance(key, str) or key == PRIORITY_KEY or (
-                    key.startswith("ansible_") and key not in registry.aliases):
+            if (
+                not isinstance(key, str)
+                or key == PRIORITY_KEY
+                or (key.startswith("ansible_") and key not in registry.aliases)
+            ):
                 continue
             setting = OLDER_NAMES.get(key) or registry.name_of(key)
             if found.get(setting, ("",))[0] not in OLDER_NAMES:
                 found[setting] = (key, value)
         return found
+
     return of
 
 
@@ -89,15 +94,20 @@ def host_lines(fleet, host: str, registry, defaults: bool) -> list[str]:
         value = data.get(name, winner.value[1])
         combined = " (combined with the values below)" if name in dict(registry.mergers) else ""
         rows.append((name, shown(value, masked), origin(winner, name) + combined))
-        rows += [("", "  over " + shown(o.value[1], masked), origin(o, name)) for o in reversed(found)
-                 if o is not winner]
+        rows += [
+            ("", "  over " + shown(o.value[1], masked), origin(o, name)) for o in reversed(found) if o is not winner
+        ]
     if defaults:
-        rows += [(name, shown(value, masked), f"default ({kind})")
-                 for name, value in sorted(registry.defaults(kind).items()) if name not in data]
+        rows += [
+            (name, shown(value, masked), f"default ({kind})")
+            for name, value in sorted(registry.defaults(kind).items())
+            if name not in data
+        ]
     width = max(len(r[0]) for r in rows + [("SETTING", "", "")])
     values = min(48, max(len(r[1]) for r in rows + [("", "VALUE", "")]))
-    return ([f"{host}: a {kind[:-1]}, in {', '.join(groups)}", f"{'SETTING':{width}}  {'VALUE':{values}}  FROM"]
-            + [f"{n:{width}}  {v:{values}}  {f}" for n, v, f in rows])
+    return [f"{host}: a {kind[:-1]}, in {', '.join(groups)}", f"{'SETTING':{width}}  {'VALUE':{values}}  FROM"] + [
+        f"{n:{width}}  {v:{values}}  {f}" for n, v, f in rows
+    ]
 
 
 def origin(found: provenance.Origin, setting: str) -> str:
@@ -168,16 +178,23 @@ def main(argv=None) -> int:
     if args.host is not None:
         if kind_and_data(fleet, args.host) is None:
             known = [name for hosts in fleet.groups.values() for name, _ in hosts]
-            return selection.refused(selection.Refused(
-                f"inventory: no host {args.host!r} in {inventory.display_path(path)}" + did_you_mean(args.host, known)))
+            return selection.refused(
+                selection.Refused(
+                    f"inventory: no host {args.host!r} in {inventory.display_path(path)}"
+                    + did_you_mean(args.host, known)
+                )
+            )
         print("\n".join(host_lines(fleet, args.host, registry, args.defaults)))
     elif args.list:
         print(listing(fleet, registry))
     else:
         if args.graph not in {*fleet.tree.groups, tree.UNGROUPED}:
-            return selection.refused(selection.Refused(
-                f"inventory: --graph {args.graph}: no group of that name in {inventory.display_path(path)}"
-                + did_you_mean(args.graph, sorted(fleet.tree.groups))))
+            return selection.refused(
+                selection.Refused(
+                    f"inventory: --graph {args.graph}: no group of that name in {inventory.display_path(path)}"
+                    + did_you_mean(args.graph, sorted(fleet.tree.groups))
+                )
+            )
         print("\n".join(graph(fleet.tree, args.graph)))
     return selection.OK
 

@@ -23,8 +23,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from robotfleet import commands
-from robotfleet import selection
+from robotfleet import commands, selection
 from robotfleet.pull.operator import commandline
 from robotfleet.pull.operator import keys as keyfiles
 from robotfleet.pull.operator.keys import ONLINE, ROOT
@@ -41,8 +40,9 @@ def parse_args(argv: list[str]):
     show = sub.add_parser("show", help="the repository's root and which keys are here")
     rotate = sub.add_parser("rotate", help="replace a key now (the root key must be at hand)")
     rotate.add_argument("which", choices=("online", "root"))
-    rotate.add_argument("--root-key", type=Path, metavar="FILE",
-                        help="the current root key (default: the key directory's)")
+    rotate.add_argument(
+        "--root-key", type=Path, metavar="FILE", help="the current root key (default: the key directory's)"
+    )
     prepare = sub.add_parser("prepare", help="write the next root, unsigned, for the offline root key to sign")
     prepare.add_argument("which", choices=("online", "root", "renew"))
     prepare.add_argument("--out", type=Path, required=True, metavar="FILE")
@@ -69,8 +69,10 @@ def init(args) -> int:
     made = [(name, keys.generate(name)) for name in (ROOT, ONLINE)]
     for name, public in made:
         print(f"keys: {keys.file(name)} ({_says(public)})")
-    print("keys: the first publish signs the repository's root with the root key; then move "
-          f"{keys.file(ROOT)} to offline storage (docs/guides/pull.md)")
+    print(
+        "keys: the first publish signs the repository's root with the root key; then move "
+        f"{keys.file(ROOT)} to offline storage (docs/guides/pull.md)"
+    )
     return selection.OK
 
 
@@ -88,8 +90,10 @@ def show(args) -> int:
             print(f"  here: {keys.file(name)} ({_says(keys.public(name))})")
     record = repository.record()
     if record:
-        print(f"release {record.version} ({record.release}){' HALTED' if record.halt else ''}, "
-              f"timestamp expires {repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}")
+        print(
+            f"release {record.version} ({record.release}){' HALTED' if record.halt else ''}, "
+            f"timestamp expires {repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}"
+        )
     return selection.OK
 
 
@@ -107,15 +111,19 @@ def prepare(args) -> int:
         online = _next_key(keys, NEXT_ONLINE)
     elif args.which == "root":
         if not args.root_public:
-            raise commandline.Failed("prepare root needs --root-public NEW.pub: make the new root key offline first "
-                                 "(robotfleet keys generate NEW.key) and give its .pub file")
+            raise commandline.Failed(
+                "prepare root needs --root-public NEW.pub: make the new root key offline first "
+                "(robotfleet keys generate NEW.key) and give its .pub file"
+            )
         root_key = keyfiles.public_of(args.root_public)
     data = prepare_root(repository, expiry, commandline.now(), online_key=online, root_key=root_key)
     args.out.write_bytes(data)
     version = repository.root().signed.version + 1
     signers = "the current root key" + (" and the new root key" if root_key else "")
-    print(f"keys: root version {version} written to {args.out}, unsigned; sign it with {signers} "
-          f"(robotfleet keys sign {args.out} --key ...), then robotfleet keys install {args.out}")
+    print(
+        f"keys: root version {version} written to {args.out}, unsigned; sign it with {signers} "
+        f"(robotfleet keys sign {args.out} --key ...), then robotfleet keys install {args.out}"
+    )
     return selection.OK
 
 
@@ -179,8 +187,15 @@ def generate(args) -> int:
     return selection.OK
 
 
-ACTIONS = {"init": init, "show": show, "rotate": rotate, "prepare": prepare, "sign": sign, "install": install,
-           "generate": generate}
+ACTIONS = {
+    "init": init,
+    "show": show,
+    "rotate": rotate,
+    "prepare": prepare,
+    "sign": sign,
+    "install": install,
+    "generate": generate,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -48,12 +48,22 @@ _NAME = re.compile(r"[a-zA-Z_][a-zA-Z0-9_]*")
 
 
 def engine_metrics(row: dict) -> list[Metric]:
-    found = [Metric("up", "1 the host answered its status command (a pull robot: its report is fresh), 0 it could "
-                          "not be reached (its report is stale or missing).",
-                    1 if row.get("reachable") else 0)]
+    found = [
+        Metric(
+            "up",
+            "1 the host answered its status command (a pull robot: its report is fresh), 0 it could "
+            "not be reached (its report is stale or missing).",
+            1 if row.get("reachable") else 0,
+        )
+    ]
     if row.get("reachable") and "drift" in row:
-        found.append(Metric("drift", "1 the host is not in its declared state (where status can tell), 0 it is.",
-                            1 if row["drift"] else 0))
+        found.append(
+            Metric(
+                "drift",
+                "1 the host is not in its declared state (where status can tell), 0 it is.",
+                1 if row["drift"] else 0,
+            )
+        )
     return found
 
 
@@ -82,15 +92,19 @@ def render(rows: list[dict], roles, now: float) -> str:
         if not _NAME.fullmatch(metric.name):
             raise ValueError(f"metric name {metric.name!r} is not a valid OpenMetrics name")
         families.setdefault(metric.name, []).append((metric, labels))
-    families["status_timestamp_seconds"] = [(Metric("status_timestamp_seconds",
-                                                    "When robotfleet status read the fleet (Unix time).", now), {})]
+    families["status_timestamp_seconds"] = [
+        (Metric("status_timestamp_seconds", "When robotfleet status read the fleet (Unix time).", now), {})
+    ]
     lines = []
     for name, members in families.items():
         lines += [f"# HELP {PREFIX}{name} {_help(members[0][0].help)}", f"# TYPE {PREFIX}{name} gauge"]
         for metric, labels in members:
             shown = ",".join(f'{key}="{_label(value)}"' for key, value in labels.items())
-            lines.append(f"{PREFIX}{name}{{{shown}}} {_number(metric.value)}" if shown
-                         else f"{PREFIX}{name} {_number(metric.value)}")
+            lines.append(
+                f"{PREFIX}{name}{{{shown}}} {_number(metric.value)}"
+                if shown
+                else f"{PREFIX}{name} {_number(metric.value)}"
+            )
     return "\n".join(lines + ["# EOF"]) + "\n"
 
 

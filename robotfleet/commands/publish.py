@@ -29,12 +29,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-from robotfleet import commands, deploy_roles
-from robotfleet import selection
-from robotfleet.pull.operator import commandline
-from robotfleet.pull.operator import publishing
-from robotfleet.pull.protocol import waves
+from robotfleet import commands, deploy_roles, selection
+from robotfleet.pull.operator import commandline, publishing
 from robotfleet.pull.operator.keys import ONLINE, ROOT
+from robotfleet.pull.protocol import waves
 
 
 def default_wheel_cache() -> Path:
@@ -44,28 +42,58 @@ def default_wheel_cache() -> Path:
 
 def parse_args(argv: list[str]):
     parser = commands.parser("publish", __doc__)
-    parser.add_argument("fleet", nargs="?", default=publishing.DEFAULT_FLEET, metavar="FLEET_FILE",
-                        help=f"the fleet file, a path in the commit (default {publishing.DEFAULT_FLEET})")
+    parser.add_argument(
+        "fleet",
+        nargs="?",
+        default=publishing.DEFAULT_FLEET,
+        metavar="FLEET_FILE",
+        help=f"the fleet file, a path in the commit (default {publishing.DEFAULT_FLEET})",
+    )
     parser.add_argument("--commit", default="HEAD", metavar="REV", help="the deploy code's commit (default HEAD)")
-    parser.add_argument("--allow-dirty", action="store_true",
-                        help="publish HEAD even if the working tree has uncommitted changes (they are not published)")
+    parser.add_argument(
+        "--allow-dirty",
+        action="store_true",
+        help="publish HEAD even if the working tree has uncommitted changes (they are not published)",
+    )
     parser.add_argument("--renew", action="store_true", help="only re-sign what is due (timestamp); no new release")
     parser.add_argument("--canary", default="1", help="robots of the first wave: a number or a share (default 1)")
-    parser.add_argument("--waves", default="100%",
-                        help="cumulative shares of the robots after the canaries, comma-separated (default 100%%)")
+    parser.add_argument(
+        "--waves",
+        default="100%",
+        help="cumulative shares of the robots after the canaries, comma-separated (default 100%%)",
+    )
     parser.add_argument("--pause", type=int, default=600, help="seconds between waves (default 600)")
-    parser.add_argument("--max-failed", default="0",
-                        help="failures of earlier waves tolerated before a wave starts (number or share; default 0)")
+    parser.add_argument(
+        "--max-failed",
+        default="0",
+        help="failures of earlier waves tolerated before a wave starts (number or share; default 0)",
+    )
     wheel = parser.add_mutually_exclusive_group()
-    wheel.add_argument("--wheel-cache", type=Path, default=None, metavar="DIR",
-                       help="where pip's downloads are kept (default ~/.cache/robotfleet/wheels)")
-    wheel.add_argument("--no-wheels", action="store_true",
-                       help="carry no wheels (robots then install their venv from an index themselves)")
-    parser.add_argument("--platform", action="append", default=[], metavar="cpXY-MACHINE",
-                        help="also carry wheels for this platform (beyond the pull hosts' pull_platform)")
+    wheel.add_argument(
+        "--wheel-cache",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="where pip's downloads are kept (default ~/.cache/robotfleet/wheels)",
+    )
+    wheel.add_argument(
+        "--no-wheels",
+        action="store_true",
+        help="carry no wheels (robots then install their venv from an index themselves)",
+    )
+    parser.add_argument(
+        "--platform",
+        action="append",
+        default=[],
+        metavar="cpXY-MACHINE",
+        help="also carry wheels for this platform (beyond the pull hosts' pull_platform)",
+    )
     parser.add_argument("--index-url", help="the Python package index pip downloads wheels from (default PyPI)")
-    parser.add_argument("--refresh-wheels", action="store_true",
-                        help="ask the index for newer wheels even when the cache holds every requirement")
+    parser.add_argument(
+        "--refresh-wheels",
+        action="store_true",
+        help="ask the index for newer wheels even when the cache holds every requirement",
+    )
     commandline.add_channel(parser)
     commandline.add_expiry(parser)
     return parser.parse_args(argv)
@@ -78,24 +106,37 @@ OPTIONS = {"canary": "--canary", "waves": "--waves", "pause": "--pause", "max_fa
 def plan_of(args) -> waves.Plan:
     """The rollout plan the options give; ValueError naming the option (``--waves 50%,40%: its share 2: ...``)."""
     try:
-        return waves.parse_plan({"canary": args.canary, "waves": [w.strip() for w in args.waves.split(",")],
-                                 "pause": args.pause, "max_failed": args.max_failed}, where="options")
+        return waves.parse_plan(
+            {
+                "canary": args.canary,
+                "waves": [w.strip() for w in args.waves.split(",")],
+                "pause": args.pause,
+                "max_failed": args.max_failed,
+            },
+            where="options",
+        )
     except ValueError as error:
         found = re.match(r"options\.(\w+)(?:\[(\d+)\])?: ", str(error))
         if not found:
             raise
         option = OPTIONS[found[1]]
         shown = f"{option} {getattr(args, found[1])}" + (f": its share {int(found[2]) + 1}" if found[2] else "")
-        raise ValueError(f"{shown}: {str(error)[found.end():]}; nothing was published") from None
+        raise ValueError(f"{shown}: {str(error)[found.end() :]}; nothing was published") from None
 
 
 def options_of(args) -> publishing.Options:
     plan = plan_of(args)
     return publishing.Options(
-        revision=args.commit, fleet=args.fleet, plan=plan, expiry=commandline.expiry_of(args),
+        revision=args.commit,
+        fleet=args.fleet,
+        plan=plan,
+        expiry=commandline.expiry_of(args),
         wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),
-        index_url=args.index_url, refresh_wheels=args.refresh_wheels, allow_dirty=args.allow_dirty,
-        platforms=tuple(args.platform))
+        index_url=args.index_url,
+        refresh_wheels=args.refresh_wheels,
+        allow_dirty=args.allow_dirty,
+        platforms=tuple(args.platform),
+    )
 
 
 def renew(args) -> int:
@@ -106,8 +147,10 @@ def renew(args) -> int:
         raise commandline.Failed(f"{chosen.url}: no release repository yet; publish a release first")
     signed = repository.renew(online, expiry, commandline.now())
     where = commandline.pushed(chosen, f"renew: {', '.join(signed)}")
-    print(f"publish: re-signed {', '.join(signed)}; timestamp valid until "
-          f"{repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}; {where}")
+    print(
+        f"publish: re-signed {', '.join(signed)}; timestamp valid until "
+        f"{repository.timestamp().signed.expires:%Y-%m-%dT%H:%M:%SZ}; {where}"
+    )
     return selection.OK
 
 
@@ -122,16 +165,19 @@ def release(args) -> int:
     now = commandline.now()
     with tempfile.TemporaryDirectory(prefix="robotfleet-publish-") as work:
         try:
-            record, files = publishing.build(args.checkout, options, deploy_roles.roles(), deploy_roles.registry(),
-                                             version, now, Path(work))
+            record, files = publishing.build(
+                args.checkout, options, deploy_roles.roles(), deploy_roles.registry(), version, now, Path(work)
+            )
             publishing.publish(repository, record, files, keys, options, now)
         except publishing.PublishError as error:
             raise commandline.Failed(str(error)) from None
     where = commandline.pushed(chosen, f"release {record.version}: {record.commit[:12]}")
     images = len({ref for pins in record.images.values() for ref in pins})
     wheels = ", ".join(f"{p} ({len(f)})" for p, f in sorted(record.wheels.items())) or "none"
-    print(f"publish: release {record.version} ({record.release}): commit {record.commit[:12]}, "
-          f"{len(record.robots)} robot(s), {images} image(s) by digest, wheels {wheels}; {where}")
+    print(
+        f"publish: release {record.version} ({record.release}): commit {record.commit[:12]}, "
+        f"{len(record.robots)} robot(s), {images} image(s) by digest, wheels {wheels}; {where}"
+    )
     for line in waves.describe(list(record.robots), record.version, options.plan, record.published_at):
         print(f"publish: {line}")
     return selection.OK

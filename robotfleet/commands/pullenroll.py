@@ -33,14 +33,12 @@ from dataclasses import dataclass
 import paramiko
 
 import robotfleet
-from robotfleet import commands, hostkeys
+from robotfleet import commands, hostkeys, selection
 from robotfleet.checkers import one_line
-from robotfleet import selection
 from robotfleet.commands import enroll, pullstatus
 from robotfleet.commands.bundle import add_admin, admin_of, repository_name
+from robotfleet.pull.operator import enrollments, gitolite, pull_settings
 from robotfleet.pull.protocol import agent_files, enrollment, report_shards
-from robotfleet.pull.operator import enrollments, pull_settings
-from robotfleet.pull.operator import gitolite
 
 
 def key_of(line: str):
@@ -73,9 +71,11 @@ def host_keys(name: str, data, lines: list[str], replace: bool = False) -> list[
         if there.get(key.get_name()) == key:
             said.append(f"{head}: already in {path}")
         elif key.get_name() in there:
-            said.append(f"{name}: host key CHANGED for {entry}: {path} has "
-                        f"{hostkeys.fingerprint(there[key.get_name()])}, the report says {hostkeys.fingerprint(key)}; "
-                        "refused, its line is left as it is")
+            said.append(
+                f"{name}: host key CHANGED for {entry}: {path} has "
+                f"{hostkeys.fingerprint(there[key.get_name()])}, the report says {hostkeys.fingerprint(key)}; "
+                "refused, its line is left as it is"
+            )
         else:
             new.append((entry, key))
             said.append(f"{head}: from its report; enrolled in {path}")
@@ -140,19 +140,28 @@ def judge(host, report: dict, asked: Asked) -> tuple[str, str]:
     elif proven == "robot":
         how, line = proven, f"{name}: its report is proven by its bundle's enrollment key"
     elif proven == "shared":
-        how, line = proven, (f"{name}: its report is proven by a shared image's enrollment key (whoever holds a copy "
-                             "of the image could have sent it)")
+        how, line = (
+            proven,
+            (
+                f"{name}: its report is proven by a shared image's enrollment key (whoever holds a copy "
+                "of the image could have sent it)"
+            ),
+        )
     else:
         how, line = "", ""
     enrolled = enrollments.enrolled_key(asked.kept, name)
     if key and enrolled and enrollment.key_sha256(key) != enrolled:
         head = f"{name}: reported with its own key {shown(key)}, but it was enrolled with another ({asked.kept_path})"
         if name not in asked.replace:
-            return "refused", (f"{head}; refused: if {name} was reinstalled, robotfleet pull-enroll {asked.inventory} "
-                               f"--replace {name} with its new bundle's proof or --fingerprints FILE")
+            return "refused", (
+                f"{head}; refused: if {name} was reinstalled, robotfleet pull-enroll {asked.inventory} "
+                f"--replace {name} with its new bundle's proof or --fingerprints FILE"
+            )
         if how not in ("robot", "listed"):
-            return "refused", (f"{head}; --replace {name} needs its own bundle's proof or --fingerprints FILE"
-                               f"{f' ({why})' if why else ''}; not replaced")
+            return "refused", (
+                f"{head}; --replace {name} needs its own bundle's proof or --fingerprints FILE"
+                f"{f' ({why})' if why else ''}; not replaced"
+            )
         return how, f"{line}; it replaces the key {name} was enrolled with (--replace)"
     if how:
         return how, line
@@ -168,8 +177,10 @@ def judge(host, report: dict, asked: Asked) -> tuple[str, str]:
         if enroll.ask(f"{name}: {why}. Are these {name}'s keys (as its console shows them)? [y/N] "):
             return "confirmed", f"{name}: its keys, confirmed"
         return "refused", f"{name}: not enrolled"
-    return "refused", (f"{name}: not enrolled: {why} ({', '.join(prints)}); give --fingerprints FILE with the "
-                       "fingerprints read on the robot, or confirm them on a terminal")
+    return "refused", (
+        f"{name}: not enrolled: {why} ({', '.join(prints)}); give --fingerprints FILE with the "
+        "fingerprints read on the robot, or confirm them on a terminal"
+    )
 
 
 def main(argv=None) -> int:
@@ -177,13 +188,22 @@ def main(argv=None) -> int:
     commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--remote", metavar="NAME|URL", help="the releases remote (default: the one the fleet names)")
-    parser.add_argument("--ssh", action="store_true",
-                        help="read the key of robots without a report (or a proven one) over SSH")
-    parser.add_argument("--fingerprints", metavar="FILE",
-                        help="the robots' recorded fingerprints: ROBOT SHA256:... per line, every key of its report")
-    parser.add_argument("--replace", metavar="ROBOT", action="append", default=[],
-                        help="take ROBOT's new keys in place of those it was enrolled with, when proven by its own "
-                             "bundle or --fingerprints (repeatable)")
+    parser.add_argument(
+        "--ssh", action="store_true", help="read the key of robots without a report (or a proven one) over SSH"
+    )
+    parser.add_argument(
+        "--fingerprints",
+        metavar="FILE",
+        help="the robots' recorded fingerprints: ROBOT SHA256:... per line, every key of its report",
+    )
+    parser.add_argument(
+        "--replace",
+        metavar="ROBOT",
+        action="append",
+        default=[],
+        help="take ROBOT's new keys in place of those it was enrolled with, when proven by its own "
+        "bundle or --fingerprints (repeatable)",
+    )
     add_admin(parser)
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
@@ -196,8 +216,9 @@ def main(argv=None) -> int:
             raise selection.Refused(f"{args.inventory}: no pull robot (pull_enabled: true) to enroll")
         unknown = [name for name in args.replace if name not in {h.name for h in chosen}]
         if unknown:
-            raise selection.Refused(f"--replace {' '.join(unknown)}: no such pull robot selected in {args.inventory}; "
-                                    "nothing was done")
+            raise selection.Refused(
+                f"--replace {' '.join(unknown)}: no such pull robot selected in {args.inventory}; nothing was done"
+            )
         url = pullstatus.remote_of(args.remote, [(h.name, h.data) for h in chosen])
         shards = pullstatus.shards_of([(h.name, h.data) for h in chosen])
         found = pullstatus.fetch(url, shards=shards)
@@ -206,8 +227,15 @@ def main(argv=None) -> int:
     except (selection.Refused, pullstatus.ReportsUnavailable) as error:
         return selection.refused(selection.Refused(str(error)))
     path = enrollments.kept_file(robotfleet.CHECKOUT)
-    asked = Asked(args.inventory, str(path), enrollments.read_kept(path), expected, args.fingerprints,
-                  frozenset(args.replace), args.ssh)
+    asked = Asked(
+        args.inventory,
+        str(path),
+        enrollments.read_kept(path),
+        expected,
+        args.fingerprints,
+        frozenset(args.replace),
+        args.ssh,
+    )
     code = selection.OK
     verdicts = {}
     for host in chosen:
@@ -239,20 +267,29 @@ def main(argv=None) -> int:
         elif args.ssh:
             key = over_ssh.get(host.name, "")
             if key.startswith("error: "):
-                print(one_line(f"{host.name}: {'no report' if not how else 'no proof'}, and over SSH: "
-                               f"{key[len('error: '):]}"), file=sys.stderr)
+                print(
+                    one_line(
+                        f"{host.name}: {'no report' if not how else 'no proof'}, and over SSH: {key[len('error: ') :]}"
+                    ),
+                    file=sys.stderr,
+                )
                 code = max(code, selection.UNREACHABLE)
                 continue
             enrolled = enrollments.enrolled_key(asked.kept, host.name)
             if key and enrolled and enrollment.key_sha256(key) != enrolled and host.name not in asked.replace:
-                print(f"{host.name}: its key over SSH is not the one it was enrolled with ({path}); refused "
-                      f"(--replace {host.name} takes it)", file=sys.stderr)
+                print(
+                    f"{host.name}: its key over SSH is not the one it was enrolled with ({path}); refused "
+                    f"(--replace {host.name} takes it)",
+                    file=sys.stderr,
+                )
                 code = max(code, selection.FAILED)
                 continue
         else:
-            print(f"{host.name}: no report in refs/reports/{host.name} of "
-                  f"{report_shards.report_url(url, host.name, shards)} (--ssh reads its key over SSH)",
-                  file=sys.stderr)
+            print(
+                f"{host.name}: no report in refs/reports/{host.name} of "
+                f"{report_shards.report_url(url, host.name, shards)} (--ssh reads its key over SSH)",
+                file=sys.stderr,
+            )
             code = max(code, selection.UNREACHABLE)
             continue
         if not key:
@@ -270,6 +307,8 @@ def main(argv=None) -> int:
             print(f"{host.name}: {error}", file=sys.stderr)
             code = max(code, selection.FAILED)
             continue
-        print(f"{host.name}: its own key is {'now registered' if changed else 'registered'} with {args.admin}"
-              " (an enrollment key, if any, removed)")
+        print(
+            f"{host.name}: its own key is {'now registered' if changed else 'registered'} with {args.admin}"
+            " (an enrollment key, if any, removed)"
+        )
     return code

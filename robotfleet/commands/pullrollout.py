@@ -22,24 +22,37 @@ import robotfleet
 from robotfleet import selection
 from robotfleet.commands import pullstatus
 from robotfleet.pull.operator import channel
-from robotfleet.pull.protocol import reports, waves
 from robotfleet.pull.operator.repository import Repository
+from robotfleet.pull.protocol import reports, waves
 
 
 def add_options(parser) -> None:
     pull = parser.add_argument_group("pull robots (docs/guides/pull.md)")
-    pull.add_argument("--fleet", default=None, metavar="FILE",
-                      help="the fleet file the release carries, a path in the commit (default $ROBOT_FLEET, "
-                           "else inventories/robots.yaml)")
-    pull.add_argument("--remote", metavar="NAME|URL",
-                      help="the releases remote (default: git config robotfleet.remote, else the robots' pull_remote)")
+    pull.add_argument(
+        "--fleet",
+        default=None,
+        metavar="FILE",
+        help="the fleet file the release carries, a path in the commit (default $ROBOT_FLEET, "
+        "else inventories/robots.yaml)",
+    )
+    pull.add_argument(
+        "--remote",
+        metavar="NAME|URL",
+        help="the releases remote (default: git config robotfleet.remote, else the robots' pull_remote)",
+    )
     pull.add_argument("--keys", metavar="DIR", help="the release keys (default: robotfleet keys' directory)")
     pull.add_argument("--pause", type=int, default=600, help="seconds between two waves opening (default 600)")
-    pull.add_argument("--timeout", type=int, default=3600,
-                      help="seconds to follow the reports before giving up (default 3600)")
+    pull.add_argument(
+        "--timeout", type=int, default=3600, help="seconds to follow the reports before giving up (default 3600)"
+    )
     pull.add_argument("--poll", type=int, default=15, help="seconds between two reads of the reports (default 15)")
-    pull.add_argument("--publish-option", action="append", default=[], metavar="OPTION",
-                      help="passed to robotfleet publish (repeatable), e.g. --publish-option=--no-wheels")
+    pull.add_argument(
+        "--publish-option",
+        action="append",
+        default=[],
+        metavar="OPTION",
+        help="passed to robotfleet publish (repeatable), e.g. --publish-option=--no-wheels",
+    )
 
 
 def plan_of(args) -> waves.Plan:
@@ -49,13 +62,27 @@ def plan_of(args) -> waves.Plan:
         shares = [f"{min(100, step * i)}%" for i in range(1, 100 // step + 2) if step * (i - 1) < 100]
     else:
         shares = ["100%"]  # a count per wave has no meaning before the robots rank themselves
-    return waves.parse_plan({"canary": str(args.canary), "waves": list(dict.fromkeys(shares)),
-                             "pause": args.pause, "max_failed": str(args.max_failed)})
+    return waves.parse_plan(
+        {
+            "canary": str(args.canary),
+            "waves": list(dict.fromkeys(shares)),
+            "pause": args.pause,
+            "max_failed": str(args.max_failed),
+        }
+    )
 
 
 def publish_argv(args, plan: waves.Plan) -> list[str]:
-    found = ["--canary", str(plan.canary), "--waves", ",".join(str(w) for w in plan.waves),
-             "--pause", str(plan.pause), "--max-failed", str(plan.max_failed)]
+    found = [
+        "--canary",
+        str(plan.canary),
+        "--waves",
+        ",".join(str(w) for w in plan.waves),
+        "--pause",
+        str(plan.pause),
+        "--max-failed",
+        str(plan.max_failed),
+    ]
     for option in ("remote", "keys"):
         if getattr(args, option):
             found += [f"--{option}", getattr(args, option)]
@@ -77,8 +104,11 @@ def outcome(report: dict | None, version: int) -> str | None:
 def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
     pushed = [name for name, _ in hosts if name not in pulled]
     if pushed:
-        print(f"rollout: {', '.join(pulled[:5])} converge themselves (pull) and {', '.join(pushed[:5])} do not; "
-              "roll them out separately (--limit)", file=sys.stderr)
+        print(
+            f"rollout: {', '.join(pulled[:5])} converge themselves (pull) and {', '.join(pushed[:5])} do not; "
+            "roll them out separately (--limit)",
+            file=sys.stderr,
+        )
         return selection.REFUSED
     try:
         shards = pullstatus.shards_of(hosts)
@@ -87,8 +117,10 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
         return selection.REFUSED
     plan = plan_of(args)
     if args.dry:
-        print(f"rollout: would publish a release for {len(pulled)} pull robot(s): canary {plan.canary}, waves "
-              f"{', '.join(str(w) for w in plan.waves)}, {plan.pause} s apart, at most {plan.max_failed} failed")
+        print(
+            f"rollout: would publish a release for {len(pulled)} pull robot(s): canary {plan.canary}, waves "
+            f"{', '.join(str(w) for w in plan.waves)}, {plan.pause} s apart, at most {plan.max_failed} failed"
+        )
         return selection.OK
     from robotfleet.commands import halt as halting
     from robotfleet.commands import publish as publishing
@@ -107,8 +139,12 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
     robots = list(record.robots)
     url = pullstatus.remote_of(given, hosts)
     allowed = waves.allowed_failures(plan.max_failed, len(robots))
-    print(f"rollout: release {record.version} published for {len(robots)} robot(s); following their reports "
-          f"on {url} (budget: {allowed} failure(s))", file=sys.stderr, flush=True)
+    print(
+        f"rollout: release {record.version} published for {len(robots)} robot(s); following their reports "
+        f"on {url} (budget: {allowed} failure(s))",
+        file=sys.stderr,
+        flush=True,
+    )
     said: dict[str, str] = {}
     deadline = time.monotonic() + args.timeout
     while True:
@@ -122,24 +158,36 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
             if state and said.get(robot) != state:
                 said[robot] = state
                 why = (found[robot].get("reason") or "") if state == "failed" else ""
-                print(f"rollout: [{robot}] {state}" + (f": {why}" if why else "") +
-                      f" ({len(said)}/{len(robots)})", file=sys.stderr, flush=True)
+                print(
+                    f"rollout: [{robot}] {state}" + (f": {why}" if why else "") + f" ({len(said)}/{len(robots)})",
+                    file=sys.stderr,
+                    flush=True,
+                )
         failed = [r for r, s in said.items() if s == "failed"]
         if len(failed) > allowed:
             reason = f"rollout: {len(failed)} robot(s) failed release {record.version} (budget {allowed})"
-            halt_argv = ["--reason", reason] + [a for o in ("remote", "keys") if getattr(args, o)
-                                                 for a in (f"--{o}", getattr(args, o))]
+            halt_argv = ["--reason", reason] + [
+                a for o in ("remote", "keys") if getattr(args, o) for a in (f"--{o}", getattr(args, o))
+            ]
             halting.main(halt_argv)
-            print(f"{reason}: halted; {len(said) - len(failed)} applied it, {len(robots) - len(said)} never start",
-                  file=sys.stderr)
+            print(
+                f"{reason}: halted; {len(said) - len(failed)} applied it, {len(robots) - len(said)} never start",
+                file=sys.stderr,
+            )
             return selection.FAILED
         if len(said) == len(robots):
-            print(f"rollout: release {record.version}: {len(robots) - len(failed)} robot(s) applied it, "
-                  f"{len(failed)} failed (budget {allowed})", file=sys.stderr)
+            print(
+                f"rollout: release {record.version}: {len(robots) - len(failed)} robot(s) applied it, "
+                f"{len(failed)} failed (budget {allowed})",
+                file=sys.stderr,
+            )
             return selection.OK if not failed else selection.FAILED
         if time.monotonic() > deadline:
             waiting = [r for r in robots if r not in said]
-            print(f"rollout: release {record.version}: no outcome within {args.timeout} s from "
-                  f"{', '.join(waiting[:10])}" + (" ..." if len(waiting) > 10 else ""), file=sys.stderr)
+            print(
+                f"rollout: release {record.version}: no outcome within {args.timeout} s from "
+                f"{', '.join(waiting[:10])}" + (" ..." if len(waiting) > 10 else ""),
+                file=sys.stderr,
+            )
             return selection.UNREACHABLE
         time.sleep(args.poll)

@@ -19,8 +19,7 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet.checkers import one_line
-from robotfleet.pull.operator import releases_remote
-from robotfleet.pull.operator import channel, pull_settings
+from robotfleet.pull.operator import channel, pull_settings, releases_remote
 from robotfleet.pull.protocol import report_shards, report_store, reports
 from robotfleet.pull.protocol.record import parse_time
 from robotfleet.role import Metric
@@ -51,8 +50,9 @@ def shards_of(hosts) -> int:
         counts.setdefault(pull.config(data, name).report_shards, name)
     if len(counts) > 1:
         (one, first), (other, second) = sorted(counts.items())[:2]
-        raise ReportsUnavailable(f"pull_report_shards: {first} has {one}, {second} has {other}: "
-                                 "give every pull robot the same")
+        raise ReportsUnavailable(
+            f"pull_report_shards: {first} has {one}, {second} has {other}: give every pull robot the same"
+        )
     return next(iter(counts), report_shards.SINGLE)
 
 
@@ -63,8 +63,9 @@ def fetch(url: str, cache: Path | None = None, shards: int = report_shards.SINGL
     try:
         return report_store.fetch_every(url, shards, cache)
     except reports.ReportError as error:
-        raise ReportsUnavailable(f"reports from {url}{f' and its {shards} shards' if shards else ''}: "
-                                 f"{error}") from None
+        raise ReportsUnavailable(
+            f"reports from {url}{f' and its {shards} shards' if shards else ''}: {error}"
+        ) from None
 
 
 def pull_cell(report: dict) -> str:
@@ -85,23 +86,43 @@ def pull_cell(report: dict) -> str:
 def row(name: str, report: dict | None, data, now: datetime.datetime, url: str) -> dict:
     """A status row for pull robot ``name`` (pure)."""
     if report is None:
-        return {"host": name, "reachable": False, "via": "report", "pull": "no report", "reported": None,
-                "stale": True, "error": f"no report in refs/reports/{name} of {url} (the agent has not reported yet, "
-                         "or cannot reach the remote)"}
+        return {
+            "host": name,
+            "reachable": False,
+            "via": "report",
+            "pull": "no report",
+            "reported": None,
+            "stale": True,
+            "error": f"no report in refs/reports/{name} of {url} (the agent has not reported yet, "
+            "or cannot reach the remote)",
+        }
     if "error" in report:
-        return {"host": name, "reachable": False, "via": "report", "pull": "unreadable", "reported": None,
-                "stale": True, "error": report["error"]}
+        return {
+            "host": name,
+            "reachable": False,
+            "via": "report",
+            "pull": "unreadable",
+            "reported": None,
+            "stale": True,
+            "error": report["error"],
+        }
     cells = {k: v for k, v in (report.get("status") or {}).items() if k not in ("host", "reachable", "error")}
     config = pull_settings.part().config(data, name)
     interval, jitter, stale_after, heartbeat = config.interval, config.jitter, config.stale_after, config.heartbeat
     limit = reports.stale_limit(interval, jitter, stale_after, heartbeat)
     is_stale = reports.stale(report, now, interval, jitter, stale_after, heartbeat)
-    cells.update(host=name, reachable="pull", via="report", pull=pull_cell(report), report=report,
-                 reported=report["time"] + (" STALE" if is_stale else ""), stale=is_stale)
+    cells.update(
+        host=name,
+        reachable="pull",
+        via="report",
+        pull=pull_cell(report),
+        report=report,
+        reported=report["time"] + (" STALE" if is_stale else ""),
+        stale=is_stale,
+    )
     if is_stale:
         cells["reachable"] = False
-        cells["error"] = (f"stale report: last at {report['time']}, more than {stale_after} heartbeats "
-                          f"({limit} s) ago")
+        cells["error"] = f"stale report: last at {report['time']}, more than {stale_after} heartbeats ({limit} s) ago"
     elif report["result"] in FAILED:
         cells["error"] = one_line(f"{report['result']}: {report.get('reason') or 'no reason given'}")
     return cells
@@ -111,22 +132,44 @@ def metrics(row: dict) -> list[Metric]:
     """A pull robot's own gauges, from its report (pure): whether the report
     is stale (or missing), when it was made, the versions seen and applied,
     and the outcome of the last check."""
-    found = [Metric("pull_report_stale", "1 the pull robot's report is stale, missing or unreadable, 0 it is fresh.",
-                    1 if row.get("stale", True) else 0)]
+    found = [
+        Metric(
+            "pull_report_stale",
+            "1 the pull robot's report is stale, missing or unreadable, 0 it is fresh.",
+            1 if row.get("stale", True) else 0,
+        )
+    ]
     report = row.get("report")
     if not report:
         return found
-    found.append(Metric("pull_report_timestamp_seconds", "When the pull robot made its last report (Unix time).",
-                        parse_time(report["time"], "time").timestamp()))
+    found.append(
+        Metric(
+            "pull_report_timestamp_seconds",
+            "When the pull robot made its last report (Unix time).",
+            parse_time(report["time"], "time").timestamp(),
+        )
+    )
     for key in ("seen", "applied"):
         version = (report.get(key) or {}).get("version")
         if version is not None:
-            found.append(Metric(f"pull_{key}_version", f"The newest release version the pull robot has {key}.",
-                                version))
-    found.append(Metric("pull_result_info", "The outcome of the pull robot's last check, and why it refused.", 1,
-                        (("result", report["result"]), ("refusal", report.get("refusal") or ""))))
-    found.append(Metric("pull_failed", "1 the pull robot refused, failed or rolled back its release, 0 not.",
-                        1 if report["result"] in FAILED else 0))
+            found.append(
+                Metric(f"pull_{key}_version", f"The newest release version the pull robot has {key}.", version)
+            )
+    found.append(
+        Metric(
+            "pull_result_info",
+            "The outcome of the pull robot's last check, and why it refused.",
+            1,
+            (("result", report["result"]), ("refusal", report.get("refusal") or "")),
+        )
+    )
+    found.append(
+        Metric(
+            "pull_failed",
+            "1 the pull robot refused, failed or rolled back its release, 0 not.",
+            1 if report["result"] in FAILED else 0,
+        )
+    )
     return found
 
 
@@ -139,5 +182,7 @@ def rows(hosts, url: str, found: dict[str, dict] | None = None) -> dict[str, dic
     shards = shards_of(hosts)
     found = fetch(url, shards=shards) if found is None else found
     moment = now()
-    return {name: row(name, found.get(name), data, moment, report_shards.report_url(url, name, shards))
-            for name, data in hosts}
+    return {
+        name: row(name, found.get(name), data, moment, report_shards.report_url(url, name, shards))
+        for name, data in hosts
+    }

@@ -25,10 +25,11 @@ import subprocess
 import sys
 import tempfile
 
-from robotfleet import commands
-from robotfleet import inventory as fleet_inventory, reasons, deploy_roles, selection
+from robotfleet import commands, deploy_roles, reasons, selection
+from robotfleet import inventory as fleet_inventory
 from robotfleet.checkers import one_line
-from robotfleet.commands import status, status_collect, rollout_plan as waves
+from robotfleet.commands import rollout_plan as waves
+from robotfleet.commands import status, status_collect
 from robotfleet.commands.rollout_judge import judge_wave, missing, not_connected, read_overrides, targets_of
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
 from robotfleet.role import DEPLOYMENT_ENV, pull_part
@@ -54,8 +55,9 @@ def read_status(inventory: str, hosts: list[str], parallel: int | None = None) -
     return {row["host"]: row for row in rows}
 
 
-def deploy_wave(inventory: str, hosts: list[str], extra: list[str], script: str, deployment: str,
-                fleet_env: dict | None = None) -> dict | None:
+def deploy_wave(
+    inventory: str, hosts: list[str], extra: list[str], script: str, deployment: str, fleet_env: dict | None = None
+) -> dict | None:
     """Run the normal deploy on ``hosts``, named ``deployment`` (the roles
     record it with their results on each host); pyinfra's JSON results (None
     if it printed none, e.g. every host failed).  What it prints is for the
@@ -79,16 +81,20 @@ def parse_args(argv):
     parser = commands.parser("rollout", __doc__)
     commands.add_inventory(parser)
     parser.add_argument("script", nargs="?", help="the deploy (default: deploy.py)")
-    parser.add_argument("--canary", default="1",
-                        help="robots in the first wave when none has rollout_canary (default 1)")
+    parser.add_argument(
+        "--canary", default="1", help="robots in the first wave when none has rollout_canary (default 1)"
+    )
     parser.add_argument("--batch", default="25%", help="robots per later wave, a number or a share (default 25%%)")
     parser.add_argument("--max-failed", default="0", help="failures tolerated, a number or a share (default 0)")
     parser.add_argument("--unreachable-fails", action="store_true", help="unreachable robots count as failures")
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--data", action="append", default=[], help="key=value passed to pyinfra (repeatable)")
-    parser.add_argument("--parallel", type=status.hosts_at_once,
-                        help="pyinfra's --parallel for each wave (default: CPUs x 20), and the most hosts its status "
-                             "reads ask at once (default: status's)")
+    parser.add_argument(
+        "--parallel",
+        type=status.hosts_at_once,
+        help="pyinfra's --parallel for each wave (default: CPUs x 20), and the most hosts its status "
+        "reads ask at once (default: status's)",
+    )
     parser.add_argument("-y", "--yes", action="store_true", help="do not ask before starting")
     parser.add_argument("--dry", action="store_true", help="show the waves and the changes, change nothing")
     from robotfleet.commands import pullrollout
@@ -112,8 +118,9 @@ def relayed(command: list[str], fleet_env: dict | None = None) -> int:
     """Run ``command`` with its output escaped on the way (what robots sent
     is in it): stderr as it comes, stdout after; its exit status."""
     with tempfile.TemporaryFile("w+") as out:
-        proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True,
-                                env=dict(os.environ, **(fleet_env or {})))
+        proc = subprocess.Popen(
+            command, stdout=out, stderr=subprocess.PIPE, text=True, env=dict(os.environ, **(fleet_env or {}))
+        )
         for line in proc.stderr:
             relay(line)
         proc.wait()
@@ -191,25 +198,37 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         todo = [h for h in wave if h not in state["done"]]
         notes = ([f"{len(wave) - len(todo)} already on the new release"] if len(todo) < len(wave) else []) + (
             [f"unreachable now: {', '.join(h for h in todo if h in unreachable)}"]
-            if set(todo) & set(unreachable) else [])
+            if set(todo) & set(unreachable)
+            else []
+        )
         say(f"wave {index + 1}/{len(state['waves'])}: {', '.join(wave)}" + (f" ({'; '.join(notes)})" if notes else ""))
-    say(f"failure budget: {state['allowed_failures']} robot(s); unreachable robots "
-        + ("count" if args.unreachable_fails else "are skipped"))
+    say(
+        f"failure budget: {state['allowed_failures']} robot(s); unreachable robots "
+        + ("count" if args.unreachable_fails else "are skipped")
+    )
 
     if args.dry:
         todo = [h for h in waves.pending(state) if h not in unreachable]
         code = selection.OK
         if todo:
             limits = [a for h in todo for a in ("--limit", h)]
-            code = selection.FAILED if relayed([sys.executable, "-c", PYINFRA, "--dry", args.pyinfra, args.script,
-                                                *limits, *extra], args.pyinfra_env) else code
+            code = (
+                selection.FAILED
+                if relayed(
+                    [sys.executable, "-c", PYINFRA, "--dry", args.pyinfra, args.script, *limits, *extra],
+                    args.pyinfra_env,
+                )
+                else code
+            )
         for host, why in unreachable.items():
             say(f"rollout: [{host}] {'unreachable' if reasons.unreachable(why or '') else 'failed'}: {why}")
         network = [h for h, why in unreachable.items() if reasons.unreachable(why or "")]
         refused = [h for h in unreachable if h not in network]
         if refused:  # a host key or login refused: the robot failed
-            say(f"rollout: dry run incomplete: {len(refused)} robot(s) refused (host key or login), not planned: "
-                f"{', '.join(refused)}")
+            say(
+                f"rollout: dry run incomplete: {len(refused)} robot(s) refused (host key or login), not planned: "
+                f"{', '.join(refused)}"
+            )
             code = selection.FAILED
         if network and code == selection.OK:
             say(f"rollout: dry run incomplete: {len(network)} robot(s) unreachable, not planned: {', '.join(network)}")
@@ -233,11 +252,20 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         results = deploy_wave(args.pyinfra, todo, extra, args.script, deployment, args.pyinfra_env)
         # A robot the deploy could not reach is not tried again in this wave
         # (no JSON from pyinfra: nor is one that did not answer the status before).
-        lost = not_connected(results) | ({h for h in todo if not rows.get(h, {}).get("reachable")}
-                                         if results is None else set())
+        lost = not_connected(results) | (
+            {h for h in todo if not rows.get(h, {}).get("reachable")} if results is None else set()
+        )
         wave_rows = read_status(args.inventory, [h for h in todo if h not in lost], args.parallel)
-        wave_rows.update({h: {"host": h, "reachable": False,
-                              "error": rows.get(h, {}).get("error") or "the deploy could not connect"} for h in lost})
+        wave_rows.update(
+            {
+                h: {
+                    "host": h,
+                    "reachable": False,
+                    "error": rows.get(h, {}).get("error") or "the deploy could not connect",
+                }
+                for h in lost
+            }
+        )
         rows.update(wave_rows)
         done, failed, skipped = judge_wave(todo, results, wave_rows, targets, args.unreachable_fails, roles, deployment)
         state = waves.record_wave(state, index, done, failed, skipped)
@@ -255,8 +283,12 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
     reached = [h for h in state["done"] if h in {x for w in state["waves"] for x in w}]
     print(one_line(f"resume:   {resume_command(argv)}"))
     if reached:
-        print(one_line(f"roll back the robots it reached: {selection.pyinfra_command(args.inventory)} rollback.py "
-                       + " ".join(f"--limit {h}" for h in reached)))
+        print(
+            one_line(
+                f"roll back the robots it reached: {selection.pyinfra_command(args.inventory)} rollback.py "
+                + " ".join(f"--limit {h}" for h in reached)
+            )
+        )
     only_skipped = state["status"] != "stopped" and not state["failed"] and state["skipped"]
     return selection.UNREACHABLE if only_skipped else selection.FAILED
 

@@ -7,7 +7,7 @@ commands/rollout.py's."""
 
 from __future__ import annotations
 
-from robotfleet import reasons, deploy_roles
+from robotfleet import deploy_roles, reasons
 
 
 class _WithOverrides(dict):
@@ -58,8 +58,11 @@ def reported(roles, row: dict, deployment: str | None) -> tuple[bool, str] | Non
     status row): (ok, why) of the first that failed, else of the first."""
     if not deployment:
         return None
-    found = [r for r in (role.rollout.result(row, deployment) for role in roles
-                         if role.rollout and role.rollout.result) if r is not None]
+    found = [
+        r
+        for r in (role.rollout.result(row, deployment) for role in roles if role.rollout and role.rollout.result)
+        if r is not None
+    ]
     return next((r for r in found if not r[0]), found[0] if found else None)
 
 
@@ -78,8 +81,9 @@ def judge_wave(hosts, results, rows, targets, unreachable_fails, roles=None, dep
         why = missing(roles, row, targets[host])
         own = reported(roles, row, deployment)
         deploy_failed = results is None or bool(op_errors[host]) or host in results.get("failed_hosts", [])
-        if own is None and (host in lost or not row.get("reachable")) and reasons.unreachable(
-                row.get("error") or ""):  # a host key or login refused is a failure, below
+        if (
+            own is None and (host in lost or not row.get("reachable")) and reasons.unreachable(row.get("error") or "")
+        ):  # a host key or login refused is a failure, below
             reason = "unreachable: " + (row.get("error") or "cannot connect")
             (failed if unreachable_fails else skipped)[host] = reason
         elif own is not None and not own[0]:

@@ -138,8 +138,9 @@ def held(path: str):
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             note = os.pread(fd, 200, 0).decode(errors="replace").strip()
-            raise RolloutBusy(f"another rollout of this fleet is running ({note or 'unknown process'}); "
-                              "wait for it, or stop it") from None
+            raise RolloutBusy(
+                f"another rollout of this fleet is running ({note or 'unknown process'}); wait for it, or stop it"
+            ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"pid {os.getpid()} since {time.strftime('%Y-%m-%dT%H:%M:%S')}".encode(), 0)
         yield
@@ -210,6 +211,7 @@ def summary(state: dict) -> str:
     waves = len(state["waves"])
     return (
         f"rollout {state['key']}: {state['status']} after wave {min(state['wave'] + 1, waves)}/{waves}; "
-        + ", ".join(f"{counts[name]} {name}" for name in OUTCOMES) + f" of {len(robots)} robot(s)"
+        + ", ".join(f"{counts[name]} {name}" for name in OUTCOMES)
+        + f" of {len(robots)} robot(s)"
         + f"; pending: {', '.join(left) or 'none'}"
     )

@@ -38,8 +38,15 @@ def table(rows: dict[str, dict], state: dict) -> str:
         for host in wave:
             row = rows.get(host) or {}
             image = ", ".join(row.get("image_refs") or []) or ("unreachable" if not row.get("reachable") else "-")
-            cells.append((host, f"{index + 1}/{len(state['waves'])}", waves.outcome(state, host),
-                          row.get("release") or "-", image))
+            cells.append(
+                (
+                    host,
+                    f"{index + 1}/{len(state['waves'])}",
+                    waves.outcome(state, host),
+                    row.get("release") or "-",
+                    image,
+                )
+            )
     cells = [tuple(one_line(str(cell)) for cell in line) for line in cells]
     widths = [max(len(line[i]) for line in cells) for i in range(len(cells[0]))]
     assert len(cells) == len(robots) + 1

@@ -34,9 +34,8 @@ import os
 import re
 import sys
 
-from robotfleet import commands, reasons, deploy_roles
+from robotfleet import commands, deploy_roles, reasons, selection
 from robotfleet.checkers import one_line
-from robotfleet import selection
 from robotfleet.commands import metrics, rollout_plan
 from robotfleet.commands.status_collect import PARALLEL, collect
 from robotfleet.status_parts import columns
@@ -56,8 +55,13 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
             return re.sub(r"@sha256:([0-9a-f]{12})[0-9a-f]{52}", r"@sha256:\1", value)
         return value
 
-    cells = [[reachable(r) if key == "reachable" and r.get(key) is False else cell(short(key, r.get(key)))
-              for key, _ in shown] for r in rows]
+    cells = [
+        [
+            reachable(r) if key == "reachable" and r.get(key) is False else cell(short(key, r.get(key)))
+            for key, _ in shown
+        ]
+        for r in rows
+    ]
     widths = [max([len(title)] + [len(c[i]) for c in cells]) for i, (_, title) in enumerate(shown)]
     lines = ["  ".join(title.ljust(w) for (_, title), w in zip(shown, widths)).rstrip()]
     lines += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in cells]
@@ -89,8 +93,13 @@ def hosts_at_once(text: str) -> int:
 def progress(found: dict, count: int, total: int) -> None:
     """One line on stderr as a host answers: the operator sees the run move."""
     error = found.get("error") or ""
-    state = ("answered" if found["reachable"] else f"unreachable: {error}" if reasons.unreachable(error)
-             else f"failed: {error}")  # a host key or login refused: the host was reached
+    state = (
+        "answered"
+        if found["reachable"]
+        else f"unreachable: {error}"
+        if reasons.unreachable(error)
+        else f"failed: {error}"
+    )  # a host key or login refused: the host was reached
     print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
 
 
@@ -117,14 +126,26 @@ def main(argv=None) -> int:
     commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--json", action="store_true", help="machine-readable output (--format json)")
-    parser.add_argument("--format", choices=("table", "json", "openmetrics"), default=None,
-                        help="what to print: the table (default), JSON, or OpenMetrics text")
+    parser.add_argument(
+        "--format",
+        choices=("table", "json", "openmetrics"),
+        default=None,
+        help="what to print: the table (default), JSON, or OpenMetrics text",
+    )
     parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
-    parser.add_argument("--remote", metavar="NAME|URL",
-                        help="the remote pull robots report to (default: git config robotfleet.remote, else "
-                             "their pull_report_remote or pull_remote)")
-    parser.add_argument("--parallel", type=hosts_at_once, default=PARALLEL, metavar="N",
-                        help=f"hosts asked at once (default {PARALLEL})")
+    parser.add_argument(
+        "--remote",
+        metavar="NAME|URL",
+        help="the remote pull robots report to (default: git config robotfleet.remote, else "
+        "their pull_report_remote or pull_remote)",
+    )
+    parser.add_argument(
+        "--parallel",
+        type=hosts_at_once,
+        default=PARALLEL,
+        metavar="N",
+        help=f"hosts asked at once (default {PARALLEL})",
+    )
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
     if args.json and args.format not in (None, "json"):
@@ -133,13 +154,17 @@ def main(argv=None) -> int:
     if args.metrics:
         directory = os.path.dirname(os.path.abspath(args.metrics))
         if not os.path.isdir(directory) or not os.access(directory, os.W_OK):
-            print(one_line(f"status: --metrics {args.metrics}: cannot write in {directory} (no such directory, or "
-                           "not writable); no host was contacted"), file=sys.stderr)
+            print(
+                one_line(
+                    f"status: --metrics {args.metrics}: cannot write in {directory} (no such directory, or "
+                    "not writable); no host was contacted"
+                ),
+                file=sys.stderr,
+            )
             return selection.REFUSED
     roles = deploy_roles.roles()
     try:
-        rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote,
-                       parallel=args.parallel)
+        rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote, parallel=args.parallel)
     except selection.Refused as error:
         return selection.refused(error)
     rollout = rollout_plan.latest_state()

@@ -19,8 +19,14 @@ from robotfleet.status_parts import row, sections, status_command
 PARALLEL = 200
 
 
-def collect(inventory_path: str, limits: list[str], roles=None, answered=None, remote: str | None = None,
-            parallel: int = PARALLEL) -> list[dict]:
+def collect(
+    inventory_path: str,
+    limits: list[str],
+    roles=None,
+    answered=None,
+    remote: str | None = None,
+    parallel: int = PARALLEL,
+) -> list[dict]:
     """One row per host of ``inventory_path`` matching ``limits``, in
     inventory order; ``answered(row, count, total)`` is called as each host
     answers (or fails to).  Hosts with ``pull_enabled: true`` are read from their
@@ -65,8 +71,17 @@ def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
         pulled = [(h.name, h.data) for h in hosts]
         return pullstatus.rows(pulled, pullstatus.remote_of(remote, pulled))
     except pullstatus.ReportsUnavailable as error:
-        return {h.name: {"host": h.name, "reachable": False, "via": "report", "pull": "no report", "stale": True,
-                         "error": str(error)} for h in hosts}
+        return {
+            h.name: {
+                "host": h.name,
+                "reachable": False,
+                "via": "report",
+                "pull": "no report",
+                "stale": True,
+                "error": str(error),
+            }
+            for h in hosts
+        }
 
 
 def _value(job, host, roles) -> dict:

@@ -29,27 +29,59 @@ ALIASES = {
 }
 
 SETTINGS = (
-    Setting("ssh_hostname", UNSET, v.address,
-            "The address SSH connects to (write it as address:); default: the host's name."),
+    Setting(
+        "ssh_hostname",
+        UNSET,
+        v.address,
+        "The address SSH connects to (write it as address:); default: the host's name.",
+    ),
     Setting("ssh_user", UNSET, v.user_name, "The SSH user (sudo runs every step); default: yours."),
     Setting("ssh_port", 22, c.integer(1, 65535), "The port sshd listens on."),
     Setting("ssh_key", UNSET, v.local_path, "Private key file on this machine; default: your agent and ~/.ssh keys."),
-    Setting("ssh_known_hosts_file", "inventories/known_hosts", v.local_path,
-            "known_hosts file for strict host key checking (relative to the checkout)."),
-    Setting("ssh_strict_host_key_checking", "yes", c.string(choices=("yes", "accept-new", "no")),
-            "yes refuses unknown or changed host keys; accept-new trusts on first use; no disables checking."),
-    Setting("ssh_revoked_host_keys", None, c.optional(v.local_path),
-            "A KRL (ssh-keygen -k) on this machine: host keys and certificates it revokes are refused; null: none."),
-    Setting("ssh_connect_timeout", 10, c.integer(1, 600),
-            "Seconds to reach a host, retries included: TCP connect, SSH greeting and login each give up "
-            "after this, and a retry gets what is left of it."),
-    Setting("ssh_connect_retries", 1, c.integer(0, 100),
-            "Reconnects after a refused, reset or dropped connection (a flaky link) while "
-            "ssh_connect_timeout leaves at least a second; never after a host key, login or non-SSH answer."),
+    Setting(
+        "ssh_known_hosts_file",
+        "inventories/known_hosts",
+        v.local_path,
+        "known_hosts file for strict host key checking (relative to the checkout).",
+    ),
+    Setting(
+        "ssh_strict_host_key_checking",
+        "yes",
+        c.string(choices=("yes", "accept-new", "no")),
+        "yes refuses unknown or changed host keys; accept-new trusts on first use; no disables checking.",
+    ),
+    Setting(
+        "ssh_revoked_host_keys",
+        None,
+        c.optional(v.local_path),
+        "A KRL (ssh-keygen -k) on this machine: host keys and certificates it revokes are refused; null: none.",
+    ),
+    Setting(
+        "ssh_connect_timeout",
+        10,
+        c.integer(1, 600),
+        "Seconds to reach a host, retries included: TCP connect, SSH greeting and login each give up "
+        "after this, and a retry gets what is left of it.",
+    ),
+    Setting(
+        "ssh_connect_retries",
+        1,
+        c.integer(0, 100),
+        "Reconnects after a refused, reset or dropped connection (a flaky link) while "
+        "ssh_connect_timeout leaves at least a second; never after a host key, login or non-SSH answer.",
+    ),
     Setting("ssh_connect_retry_min_delay", 1, c.integer(0, 600), "Seconds before a reconnect, at least."),
     Setting("ssh_connect_retry_max_delay", 2, c.integer(0, 600), "Seconds before a reconnect, at most."),
-    Setting("apt_lock_timeout", 300, c.integer(0, 86400),
-            "Seconds apt waits in all for the apt/dpkg locks another process holds, then the host fails naming it."),
-    Setting("rollout_canary", False, c.boolean,
-            "This robot is updated in a rollout's first wave (else the first --canary N robots are)."),
+    Setting(
+        "apt_lock_timeout",
+        300,
+        c.integer(0, 86400),
+        "Seconds apt waits in all for the apt/dpkg locks another process holds, then the host fails naming it.",
+    ),
+    Setting(
+        "rollout_canary",
+        False,
+        c.boolean,
+        "This robot is updated in a rollout's first wave (else the first --canary N robots are).",
+    ),
 )

@@ -44,7 +44,7 @@ def _ranges(name: str, pattern: str) -> list[str]:
         return [name]
     if end < start:
         raise PatternProblem(f"host pattern {pattern!r}: '[' is not closed by ']'")
-    head, spec, tail = name[:start], name[start + 1:end], name[end + 1:]
+    head, spec, tail = name[:start], name[start + 1 : end], name[end + 1 :]
     bounds = spec.split(":")
     if len(bounds) not in (2, 3):
         raise PatternProblem(f"host range [{spec}] in {pattern!r} must be [begin:end] or [begin:end:step]")
@@ -58,11 +58,13 @@ def _ranges(name: str, pattern: str) -> list[str]:
         first, final = string.ascii_letters.index(begin), string.ascii_letters.index(last)
         if first > final:
             raise PatternProblem(f"host range [{spec}] in {pattern!r} must have begin <= end")
-        values = list(string.ascii_letters[first:final + 1:int(step)])
+        values = list(string.ascii_letters[first : final + 1 : int(step)])
     elif begin.isdigit() and last.isdigit():
         if begin[0] == "0" and len(begin) > 1 and len(begin) != len(last):
-            raise PatternProblem(f"host range [{spec}] in {pattern!r}: a zero-padded begin needs an end of the "
-                                 f"same width ({begin}:{'0' * (len(begin) - len(last))}{last})")
+            raise PatternProblem(
+                f"host range [{spec}] in {pattern!r}: a zero-padded begin needs an end of the "
+                f"same width ({begin}:{'0' * (len(begin) - len(last))}{last})"
+            )
         if int(begin) > int(last):
             raise PatternProblem(f"host range [{spec}] in {pattern!r} must have begin <= end")
         width = len(begin) if begin[0] == "0" and len(begin) > 1 else 0
@@ -71,8 +73,9 @@ def _ranges(name: str, pattern: str) -> list[str]:
             raise PatternProblem(f"host range [{spec}] in {pattern!r} makes {count} hosts (at most {MAX_HOSTS})")
         values = [str(n).zfill(width) for n in range(int(begin), int(last) + 1, int(step))]
     else:
-        raise PatternProblem(f"host range [{spec}] in {pattern!r}: begin and end must both be numbers "
-                             "or both single letters")
+        raise PatternProblem(
+            f"host range [{spec}] in {pattern!r}: begin and end must both be numbers or both single letters"
+        )
     names: list[str] = []
     for value in values:
         names.extend(_ranges(head + value + tail, pattern))

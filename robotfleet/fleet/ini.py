@@ -94,8 +94,11 @@ class Reader:
                 group, kind = section.group(1), section.group(2) or "hosts"
                 layer = None
                 if kind not in ("hosts", "children", "vars"):
-                    self.problem(number, f"[{group}:{kind}]: unknown section type {kind!r} "
-                                         "(a section is [group], [group:vars] or [group:children])")
+                    self.problem(
+                        number,
+                        f"[{group}:{kind}]: unknown section type {kind!r} "
+                        "(a section is [group], [group:vars] or [group:children])",
+                    )
                     kind = "skip"
                 elif not HOST_NAME.fullmatch(group):
                     self.problem(number, f"[{line.split(']')[0][1:]}]: invalid group name (letters, digits, . _ -)")
@@ -107,8 +110,11 @@ class Reader:
                     self.group(group)
                 continue
             if line.startswith("[") and line.endswith("]"):
-                self.problem(number, f"{line}: not a section header (no spaces inside the brackets; "
-                                     "[group], [group:vars] or [group:children])")
+                self.problem(
+                    number,
+                    f"{line}: not a section header (no spaces inside the brackets; "
+                    "[group], [group:vars] or [group:children])",
+                )
                 kind = "skip"
                 continue
             if kind == "hosts":
@@ -178,14 +184,18 @@ class Reader:
     def finish(self) -> None:
         for name, (number, where) in self.pending.items():
             if name not in self.declared:
-                self.problem(number, f"{where} names the group {name!r}, which is declared nowhere "
-                                     f"(add a [{name}] or [{name}:children] section)")
+                self.problem(
+                    number,
+                    f"{where} names the group {name!r}, which is declared nowhere "
+                    f"(add a [{name}] or [{name}:children] section)",
+                )
         for parent, child, number in self.edges:
             if child not in self.declared:
                 continue
             if child == parent or child in self.ancestors(parent):
-                self.problem(number, f"[{parent}:children]: {child} is already above {parent} "
-                                     "(the groups would form a circle)")
+                self.problem(
+                    number, f"[{parent}:children]: {child} is already above {parent} (the groups would form a circle)"
+                )
                 continue
             self.group(child).parents.add(parent)
 

@@ -118,8 +118,9 @@ def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
     context, problem = error.context or "", error.problem or "invalid YAML"
     opened, found = error.context_mark, error.problem_mark
     if "maximum nesting depth" in problem:  # libyaml 0.2.6+ stops deep nesting itself
-        return YamlProblem((found or opened).line + 1 if (found or opened) else None,
-                           f"nested more than {MAX_DEPTH} levels deep")
+        return YamlProblem(
+            (found or opened).line + 1 if (found or opened) else None, f"nested more than {MAX_DEPTH} levels deep"
+        )
     if opened is not None and found is not None and ("quoted" in context or "flow" in context):
         return YamlProblem(
             opened.line + 1,
@@ -141,7 +142,8 @@ def _marked_problem(error: yaml.MarkedYAMLError, text: str) -> YamlProblem:
         line = lines[found.line] if found.line < len(lines) else ""
         character = line[found.column] if found.column < len(line) else ""
         problem = f"found {character!r}, which cannot start any token" + (
-            "; indent with spaces, not tabs" if character == "\t" else "")
+            "; indent with spaces, not tabs" if character == "\t" else ""
+        )
     if context.startswith("expected a single document"):
         problem = "a second YAML document starts here; a fleet file is one document"
     elif context and opened is not None and found is not None and opened.line != found.line:
@@ -161,8 +163,11 @@ def _runaway_quote(text: str, found):
             token = loader.get_token()
             if token is None or token.start_mark.line > found.line:
                 break
-            if (isinstance(token, yaml.ScalarToken) and token.style in ('"', "'")
-                    and token.end_mark.line > token.start_mark.line):
+            if (
+                isinstance(token, yaml.ScalarToken)
+                and token.style in ('"', "'")
+                and token.end_mark.line > token.start_mark.line
+            ):
                 last = token
     except yaml.YAMLError:
         pass
@@ -232,8 +237,9 @@ class _Builder:
                 raise ValueError(node.value)
             value = convert(node.value)
         except (ValueError, TypeError, OverflowError):
-            raise YamlProblem(node.start_mark.line + 1,
-                              f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}") from None
+            raise YamlProblem(
+                node.start_mark.line + 1, f"{node.value!r} is not a valid {node.tag.rsplit(':', 1)[-1]}"
+            ) from None
         if isinstance(value, (int, float)) and not isinstance(value, bool) and _changed(value, node.value):
             return Misread(value, node.value)
         return value
@@ -254,8 +260,9 @@ class _Builder:
             sources = value_node.value if isinstance(value_node, SequenceNode) else [value_node]
             for source in sources:
                 if not isinstance(source, MappingNode):
-                    raise YamlProblem(value_node.start_mark.line + 1,
-                                      "a merge key (<<) takes a mapping or a list of mappings")
+                    raise YamlProblem(
+                        value_node.start_mark.line + 1, "a merge key (<<) takes a mapping or a list of mappings"
+                    )
                 for merged_key, merged_value in self.build(source, depth + 1).items():
                     result.setdefault(merged_key, merged_value)
         return result

@@ -70,9 +70,15 @@ def disagreements(tree: Tree, host: str, named: Callable[[Layer], dict], merged=
             continue
         value = named(layer)[setting]
         depth = tree.depth(winner)
-        losers = {name: other for k, name, other in sourced[:index]
-                  if k == "group" and name != winner and tree.depth(name) == depth
-                  and setting in named(other) and named(other)[setting] != value}
+        losers = {
+            name: other
+            for k, name, other in sourced[:index]
+            if k == "group"
+            and name != winner
+            and tree.depth(name) == depth
+            and setting in named(other)
+            and named(other)[setting] != value
+        }
         if losers:
             why = "; ".join(dict.fromkeys(_why(tree, winner, layer, name, other) for name, other in losers.items()))
             found.append(Disagreement(setting, winner, tuple(sorted(losers)), why, layer.at(setting)))

@@ -26,8 +26,9 @@ class Registry:
         self.renamed: dict[str, Renamed] = {}
         for rename in (r for role in self.roles for r in role.renamed):
             if rename.new not in self.settings or rename.old in self.settings or rename.old in self.renamed:
-                raise ValueError(f"rename {rename.old} -> {rename.new}: "
-                                 "the old name must be free and the new one declared")
+                raise ValueError(
+                    f"rename {rename.old} -> {rename.new}: the old name must be free and the new one declared"
+                )
             self.renamed[rename.old] = rename
 
     def name_of(self, key: str) -> str:

@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import json
 
-from robotfleet.fleet.validate import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
 from robotfleet.fleet.connection import OLDER_NAMES
 from robotfleet.fleet.registry import Registry
-
+from robotfleet.fleet.validate import ANSIBLE_PREFIX, EXTENSION_PREFIX, HOST_NAME
 
 # The rules only the run checks, each with what docs/reference/fleet-file.md says of it.
 BEYOND_SCHEMA = {
@@ -47,8 +46,11 @@ def setting_schemas(registry: Registry) -> dict:
             doc = f"{name}: {registry.settings[name].doc}"
         properties[alias] = {**registry.settings[name].check.schema, "description": doc}
     for old, rename in registry.renamed.items():
-        properties[old] = {**registry.old_check(rename).schema, "deprecated": True,
-                           "description": f"Deprecated: {renamed_line(rename)}. {registry.settings[rename.new].doc}"}
+        properties[old] = {
+            **registry.old_check(rename).schema,
+            "deprecated": True,
+            "description": f"Deprecated: {renamed_line(rename)}. {registry.settings[rename.new].doc}",
+        }
     return properties
 
 

@@ -65,15 +65,20 @@ class Reading:
         if path.is_dir():
             files = list(self.inventory_files(path))
             if not files and not self.lines:
-                self.problem(display_path(path), "an inventory directory with no inventory file in it "
-                                                 "(hosts, hosts.ini, hosts.yaml, ...)")
+                self.problem(
+                    display_path(path),
+                    "an inventory directory with no inventory file in it (hosts, hosts.ini, hosts.yaml, ...)",
+                )
             for file in files:
                 self.file(file)
             base = path
         elif path.suffix == ".py" and path.is_file():
-            self.problem(display_path(path), "a pyinfra inventory (Python), not a fleet file: $ROBOT_FLEET and "
-                                             "--fleet name the fleet (inventories/robots.yaml, or an Ansible "
-                                             "inventory file or directory)")
+            self.problem(
+                display_path(path),
+                "a pyinfra inventory (Python), not a fleet file: $ROBOT_FLEET and "
+                "--fleet name the fleet (inventories/robots.yaml, or an Ansible "
+                "inventory file or directory)",
+            )
             return
         else:
             self.file(path)
@@ -84,8 +89,10 @@ class Reading:
         for entry in sorted(os.listdir(directory)):
             path = directory / entry
             if entry in VARS_DIRS and not top and path.is_dir():
-                self.notes.append(f"{display_path(path)}: note: not read: Ansible reads group_vars/ and host_vars/ "
-                                  "at the top of an inventory directory only")
+                self.notes.append(
+                    f"{display_path(path)}: note: not read: Ansible reads group_vars/ and host_vars/ "
+                    "at the top of an inventory directory only"
+                )
             if entry.startswith(".") or entry in VARS_DIRS or entry.endswith(IGNORED_SUFFIXES):
                 continue
             if path.is_dir():
@@ -99,12 +106,18 @@ class Reading:
         if data is None:
             return
         if data.startswith(b"#!"):
-            self.problem(shown, "a dynamic inventory script: robotfleet reads static inventories; write its "
-                                f"output to a file: {CONVERT.format(shown)}")
+            self.problem(
+                shown,
+                "a dynamic inventory script: robotfleet reads static inventories; write its "
+                f"output to a file: {CONVERT.format(shown)}",
+            )
             return
         if data.startswith(VAULT):
-            self.problem(shown, "encrypted with ansible-vault, which robotfleet does not read: "
-                                f"ansible-vault view {shown} > fleet.yaml (and keep it safe)")
+            self.problem(
+                shown,
+                "encrypted with ansible-vault, which robotfleet does not read: "
+                f"ansible-vault view {shown} > fleet.yaml (and keep it safe)",
+            )
             return
         if path.suffix == ".toml":
             self.problem(shown, f"a TOML inventory is not read here: convert it: {CONVERT.format(shown)}")
@@ -135,9 +148,12 @@ class Reading:
             self.problem(shown, f"expected a mapping with all/robots/laptops at the top, got {c.describe(raw)}")
             return
         if "plugin" in raw and not isinstance(raw.get("plugin"), dict):
-            self.problem(shown, f"an inventory plugin's configuration (plugin: {c.describe(raw['plugin'])}): "
-                                f"robotfleet reads static inventories; write the plugin's output to a file: "
-                                f"{CONVERT.format(shown)}")
+            self.problem(
+                shown,
+                f"an inventory plugin's configuration (plugin: {c.describe(raw['plugin'])}): "
+                f"robotfleet reads static inventories; write the plugin's output to a file: "
+                f"{CONVERT.format(shown)}",
+            )
             return
         tree.read(raw, self.lines, shown, self.tree)
 
@@ -206,8 +222,11 @@ class Reading:
         if data is None:
             return None
         if data.startswith(VAULT):
-            self.problem(shown, "encrypted with ansible-vault, which robotfleet does not read: decrypt it "
-                                f"(ansible-vault decrypt {shown}) or move the fleet's settings out of it")
+            self.problem(
+                shown,
+                "encrypted with ansible-vault, which robotfleet does not read: decrypt it "
+                f"(ansible-vault decrypt {shown}) or move the fleet's settings out of it",
+            )
             return None
         text = self.decode(data, shown)
         if text is None:
@@ -240,12 +259,17 @@ class Reading:
                 self.notes.append(f"{shown}: note: not read: a vars file ends in .yml, .yaml or .json, or has none")
             elif stem in known:
                 read = next(u for u in [stem, *(stem + x for x in VARS_SUFFIXES)] if u in used)
-                self.notes.append(f"{shown}: note: not read: {kind}/{read} is read for the {what} {stem} instead "
-                                  "(Ansible reads the first of NAME/, NAME, NAME.yml, NAME.yaml, NAME.json); "
-                                  "merge them")
+                self.notes.append(
+                    f"{shown}: note: not read: {kind}/{read} is read for the {what} {stem} instead "
+                    "(Ansible reads the first of NAME/, NAME, NAME.yml, NAME.yaml, NAME.json); "
+                    "merge them"
+                )
             else:
-                self.notes.append(f"{shown}: note: no {what} {stem!r} in the inventory"
-                                  + c.did_you_mean(stem, sorted(known)) + "; not read")
+                self.notes.append(
+                    f"{shown}: note: no {what} {stem!r} in the inventory"
+                    + c.did_you_mean(stem, sorted(known))
+                    + "; not read"
+                )
 
 
 def _dir_files(path: Path):

@@ -97,10 +97,12 @@ class Tree:
         """``host``'s layers as ``layers`` orders them, each with whose it is:
         ("group", its name) or ("host", ``host``)."""
         groups = self.ordered(self.above(host))
-        return ([("group", g, layer) for g in groups for layer in self.groups[g].layers]
-                + [("group", g, layer) for g in groups for layer in self.groups[g].files]
-                + [("host", host, layer) for _, layer in self.hosts[host]]
-                + [("host", host, layer) for layer in self.host_files.get(host, [])])
+        return (
+            [("group", g, layer) for g in groups for layer in self.groups[g].layers]
+            + [("group", g, layer) for g in groups for layer in self.groups[g].files]
+            + [("host", host, layer) for _, layer in self.hosts[host]]
+            + [("host", host, layer) for layer in self.host_files.get(host, [])]
+        )
 
     def listed(self, host: str, group: str, layer: Layer, port: int | None = None) -> None:
         """``host`` listed in ``group`` with ``layer``; a host pattern's port
@@ -182,8 +184,10 @@ def read(raw: dict, lines: list[str], shown: str, tree: Tree | None = None) -> T
             return
         for key in node:
             if key not in GROUP_KEYS:
-                problem(f"{name}.{c.key_name(key)}", "unknown key" + c.did_you_mean(str(key), GROUP_KEYS)
-                        + "; a group has vars, hosts and children")
+                problem(
+                    f"{name}.{c.key_name(key)}",
+                    "unknown key" + c.did_you_mean(str(key), GROUP_KEYS) + "; a group has vars, hosts and children",
+                )
         variables = node.get("vars")
         if isinstance(variables, dict):
             group.layers.append(Layer(variables, shown))
@@ -237,8 +241,12 @@ def host_names(pattern, problem) -> list[tuple[str, int | None]]:
         return []
     bad = [name for name in names if not HOST_NAME.fullmatch(name)]
     if bad:
-        problem(c.key_name(pattern), "invalid host name (letters, digits, . _ -)" if bad == [pattern]
-                else f"invalid host name {bad[0]!r} (letters, digits, . _ -)")
+        problem(
+            c.key_name(pattern),
+            "invalid host name (letters, digits, . _ -)"
+            if bad == [pattern]
+            else f"invalid host name {bad[0]!r} (letters, digits, . _ -)",
+        )
         return []
     return [(name, port) for name in names]
 

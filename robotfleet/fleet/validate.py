@@ -80,8 +80,9 @@ def check(raw, shown: str, registry: Registry) -> Fleet:
     if raw is None:
         raw = {}
     if not isinstance(raw, dict):
-        raise FleetError([c.one_line(f"{shown}: expected a mapping with all/robots/laptops at the top, "
-                                     f"got {c.describe(raw)}")])
+        raise FleetError(
+            [c.one_line(f"{shown}: expected a mapping with all/robots/laptops at the top, got {c.describe(raw)}")]
+        )
     return check_tree(tree.read(raw, lines, shown), shown, registry, lines, [])
 
 
@@ -94,8 +95,12 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         for sub, message in problems:
             location = f"{where}.{sub}" if sub and not sub.startswith("[") else f"{where}{sub}"
             key = setting_of(sub) if sub else None
-            if layer is not None and layer.lines and isinstance(layer.values.get(key), str) \
-                    and message.startswith("expected true or false"):
+            if (
+                layer is not None
+                and layer.lines
+                and isinstance(layer.values.get(key), str)
+                and message.startswith("expected true or false")
+            ):
                 message += INI_BOOLEAN
             at = layer.at(key) if layer is not None else shown
             lines.append(f"{at}: {location.strip('.')}: {message}")
@@ -113,8 +118,17 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
             elif isinstance(key, str) and key.startswith(ANSIBLE_PREFIX) and key not in registry.aliases:
                 ignored.add(key)
             elif isinstance(value, loader.Vaulted):
-                report(layer, where, [(c.key_name(key), "an ansible-vault value (!vault), which robotfleet does not "
-                                                        "decrypt: write the value, or keep it in a secret store")])
+                report(
+                    layer,
+                    where,
+                    [
+                        (
+                            c.key_name(key),
+                            "an ansible-vault value (!vault), which robotfleet does not "
+                            "decrypt: write the value, or keep it in a secret store",
+                        )
+                    ],
+                )
             else:
                 own[key] = value
         problems = registry.check_layer(own)
@@ -129,8 +143,9 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
                 refused.add(name)
                 continue
             if rename is not None:
-                notes.append(f"{layer.at(key)}: note: {where}: {key} is now {name}; "
-                             "the old name still works (rename it)")
+                notes.append(
+                    f"{layer.at(key)}: note: {where}: {key} is now {name}; the old name still works (rename it)"
+                )
                 value = registry.renamed_value(rename, value)
             if name in named:
                 report(layer, where, [(c.key_name(key), f"sets {name} a second time in the same place; keep one")])
@@ -161,8 +176,10 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
             continue
         if not kinds:
             where = sorted(above - {tree.ALL}) or [tree.ALL]
-            lines.append(f"{home.at(None)}: {name}: in neither a robots nor a laptops group "
-                         f"(groups: {', '.join(where)})" + c.did_you_mean(where[-1], GROUPS))
+            lines.append(
+                f"{home.at(None)}: {name}: in neither a robots nor a laptops group "
+                f"(groups: {', '.join(where)})" + c.did_you_mean(where[-1], GROUPS)
+            )
             continue
         layers, refused = [], set()
         for layer in groups.layers(name):
@@ -189,16 +206,19 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         notes.append(f"{shown}: note: {', '.join(sorted(ignored))}: Ansible's own, ignored here")
     fleet.notes = notes
     if not lines and not any(fleet.groups.values()):
-        lines.append(f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] "
-                     "in an INI inventory)")
+        lines.append(
+            f"{shown}: no hosts: declare them under robots.hosts or laptops.hosts ([robots] or [laptops] "
+            "in an INI inventory)"
+        )
     if lines:
         # a refused value is quoted in its line: never with the password a URL in it carries
         raise FleetError([secrets.mask(c.one_line(line)) for line in lines], notes)
     return fleet
 
 
-def resolve_older_names(data: dict, layers: list[dict], refused: set[str], host: str, home: tree.Layer,
-                        notes: list[str]) -> None:
+def resolve_older_names(
+    data: dict, layers: list[dict], refused: set[str], host: str, home: tree.Layer, notes: list[str]
+) -> None:
     """Ansible's older connection names (ansible_ssh_host, ...) win over the
     newer ones wherever each is set, as in Ansible; a note says so where the
     newer name was set in a later layer and differs."""
@@ -211,14 +231,18 @@ def resolve_older_names(data: dict, layers: list[dict], refused: set[str], host:
         last_older = max(i for i, layer in enumerate(layers) if older in layer)
         later = [layer[setting] for layer in layers[last_older:] if setting in layer]
         if later and later[-1] != value:
-            notes.append(f"{home.at(None)}: note: {host}: {older} ({c.describe(value)}) wins over "
-                         f"{setting} ({c.describe(later[-1])}), as in Ansible")
+            notes.append(
+                f"{home.at(None)}: note: {host}: {older} ({c.describe(value)}) wins over "
+                f"{setting} ({c.describe(later[-1])}), as in Ansible"
+            )
         data[setting] = value
 
 
 def sibling_note(found: provenance.Disagreement, hosts: list[str]) -> str:
     """One note for a setting sibling groups disagree on, for every host concerned."""
     shown = ", ".join(hosts[:3]) + (f" and {len(hosts) - 3} more" if len(hosts) > 3 else "")
-    return (f"{found.at}: note: {shown}: {found.setting} is group {found.winner}'s, not {', '.join(found.losers)}'s "
-            f"(sibling groups that set it differently; {found.why}, as in Ansible); set it on the host or give one "
-            "group a higher ansible_group_priority")
+    return (
+        f"{found.at}: note: {shown}: {found.setting} is group {found.winner}'s, not {', '.join(found.losers)}'s "
+        f"(sibling groups that set it differently; {found.why}, as in Ansible); set it on the host or give one "
+        "group a higher ansible_group_priority"
+    )

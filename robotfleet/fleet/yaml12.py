@@ -27,8 +27,13 @@ CORE_SCHEMA = (
     (NULL, re.compile(r"(?:~|null|Null|NULL|)\Z")),
     (BOOL, re.compile(r"(?:true|True|TRUE|false|False|FALSE)\Z")),
     (INT, re.compile(r"(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)\Z")),
-    (FLOAT, re.compile(r"(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
-                        r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z")),
+    (
+        FLOAT,
+        re.compile(
+            r"(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
+            r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z"
+        ),
+    ),
     (MERGE, re.compile(r"<<\Z")),  # merge keys: YAML 1.1's, which editors also honour
 )
 
@@ -98,4 +103,4 @@ SCALARS = {
 
 
 def short_tag(tag: str) -> str:
-    return "!!" + tag[len(TAG):] if tag.startswith(TAG) else tag
+    return "!!" + tag[len(TAG) :] if tag.startswith(TAG) else tag

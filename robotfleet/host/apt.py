@@ -95,9 +95,9 @@ def apt_install(
     if update_first:
         yield shell(apt_script(f"{update} && {install}"))
     else:
-        yield shell(apt_script(
-            f"{install} || {{ rc=$?; [ $rc -eq {LOCK_TIMED_OUT} ] && exit $rc; {update} && {install}; }}"
-        ))
+        yield shell(
+            apt_script(f"{install} || {{ rc=$?; [ $rc -eq {LOCK_TIMED_OUT} ] && exit $rc; {update} && {install}; }}")
+        )
 
 
 @operation()
@@ -175,6 +175,4 @@ def dpkg_repair(audit: str):
     if not dpkg_interrupted(audit):
         host.noop("dpkg has no unfinished work")
         return
-    yield shell(apt_script(
-        f"apt_locked {DPKG_REPAIR} && apt_locked {APT_GET} --fix-broken install"
-    ))
+    yield shell(apt_script(f"apt_locked {DPKG_REPAIR} && apt_locked {APT_GET} --fix-broken install"))

@@ -33,8 +33,7 @@ KEYRING_DIR = "/etc/apt/keyrings"
 SOURCES_DIR = "/etc/apt/sources.list.d"
 # Primary keys only (pub, or sec if someone served a secret key): the fpr
 # record that follows each; subkeys' fingerprints are not primaries.
-_PRIMARIES_AWK = ("awk -F: '$1==\"pub\"||$1==\"sec\"{p=1;next} $1==\"fpr\"&&p{print $10;p=0} "
-                  "$1==\"sub\"||$1==\"ssb\"{p=0}'")
+_PRIMARIES_AWK = 'awk -F: \'$1=="pub"||$1=="sec"{p=1;next} $1=="fpr"&&p{print $10;p=0} $1=="sub"||$1=="ssb"{p=0}\''
 
 
 @dataclass(frozen=True)
@@ -57,8 +56,9 @@ class Repository:
         return f"{SOURCES_DIR}/{self.sources_name}.sources"
 
 
-def deb822(owner: str, uris: str, suites: str, signed_by: str, components: str | None = None,
-           architectures: str | None = None) -> str:
+def deb822(
+    owner: str, uris: str, suites: str, signed_by: str, components: str | None = None, architectures: str | None = None
+) -> str:
     lines = [f"# Managed by the robot fleet provisioner ({owner}).", "Types: deb", f"URIs: {uris}", f"Suites: {suites}"]
     if components:
         lines.append(f"Components: {components}")
@@ -131,7 +131,7 @@ def key_script(repo: Repository) -> str:
         'mkdir -p "$(dirname "$dest")"',
         'tmp=$(mktemp "$(dirname "$dest")/.robotprov.XXXXXX")',
         "h=$(mktemp -d)",
-        "trap 'rm -f \"$tmp\"; rm -rf \"$h\"' EXIT",
+        'trap \'rm -f "$tmp"; rm -rf "$h"\' EXIT',
     ]
     download = '"$h/download"' if repo.fingerprint else '"$tmp"'
     if repo.fingerprint:
@@ -151,7 +151,7 @@ def key_script(repo: Repository) -> str:
             "  else",
             '    [ -z "$old" ] || [ "$old" = "$pin" ] || '
             f'GNUPGHOME="$h/installed" gpg --batch --no-autostart {export} "$old" > "$h/installed.key" '
-            '2>/dev/null || true',
+            "2>/dev/null || true",
             '    if [ -z "$old" ] || ! cmp -s "$h/installed.key" "$dest"; then',
             '      rm -f "$dest"; echo "$dest is not exactly the pinned key as gpg exports it ($setting $pin); '
             'removed" >&2',
@@ -174,7 +174,7 @@ def key_script(repo: Repository) -> str:
         lines += [
             'fprs=$(canonical "$h/download" "$h/new" "$tmp")',
             'count=$(printf "%s\\n" "$fprs" | grep -c . || true)',
-            'listed=$(echo $fprs)',
+            "listed=$(echo $fprs)",
             'printf "%s\\n" "$fprs" | grep -qx "$pin" || { echo "$what from $url: fingerprint '
             '${listed:-(none: no key gpg can read)} does not match $setting $pin; key not installed" >&2; exit 1; }',
             '[ "$count" -eq 1 ] || { echo "$what from $url: holds $count keys ($listed); '
@@ -231,8 +231,11 @@ def declare_reads(repo: Repository, query: SnapshotQuery) -> None:
 @operations.operation()
 def pinned_key(repo: Repository, up_to_date: bool):
     if up_to_date:
-        host.noop(f"{repo.key_path} is exactly the pinned key as gpg exports it" if repo.fingerprint
-                  else f"{repo.key_path} is in place")
+        host.noop(
+            f"{repo.key_path} is exactly the pinned key as gpg exports it"
+            if repo.fingerprint
+            else f"{repo.key_path} is in place"
+        )
         return
     yield operations.shell(key_script(repo))
 
@@ -240,8 +243,9 @@ def pinned_key(repo: Repository, up_to_date: bool):
 def set_up(repo: Repository, snap: Snapshot, *also_changed) -> None:
     """The keyring directory, the key, the source, and apt update when any
     of them (or ``also_changed``, e.g. removed legacy files) changed."""
-    operations.directory(name=f"apt keyring directory {KEYRING_DIR}", path=KEYRING_DIR,
-                         current=snap.files.get(KEYRING_DIR))
+    operations.directory(
+        name=f"apt keyring directory {KEYRING_DIR}", path=KEYRING_DIR, current=snap.files.get(KEYRING_DIR)
+    )
     key = pinned_key(
         name=f"Download {repo.what}'s apt key and check it is exactly the pinned key",
         repo=repo,

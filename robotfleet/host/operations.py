@@ -25,6 +25,7 @@ from robotfleet import secrets
 from robotfleet.checkers import one_line
 from robotfleet.host.snapshot import FileState
 
+
 def sha256(content: bytes) -> str:
     return hashlib.sha256(content).hexdigest()
 
@@ -49,9 +50,7 @@ def shell_with_warnings(script: str, stdin: str | list[str] | None = None) -> Fu
     command's output only when it fails).  Call it inside an operation."""
     command = shell(script, stdin)
     arguments = {
-        key: value
-        for key, value in (host.current_op_global_arguments or {}).items()
-        if key in CONNECTOR_ARGUMENT_KEYS
+        key: value for key, value in (host.current_op_global_arguments or {}).items() if key in CONNECTOR_ARGUMENT_KEYS
     }
     arguments.update(command.connector_arguments)
 
@@ -131,8 +130,7 @@ def file(
         host.noop(f"{path} is up to date")
         return
     yield shell(
-        f"chown {shlex.quote(user)}:{shlex.quote(group)} {shlex.quote(path)}"
-        f" && chmod {_mode(mode)} {shlex.quote(path)}"
+        f"chown {shlex.quote(user)}:{shlex.quote(group)} {shlex.quote(path)} && chmod {_mode(mode)} {shlex.quote(path)}"
     )
 
 
@@ -198,9 +196,11 @@ def planning_output_wanted() -> bool:
 
 
 def unified_diff(path: str, old: str, new: str) -> list[str]:
-    return list(difflib.unified_diff(
-        old.splitlines(), new.splitlines(), f"{path} (on the host)", f"{path} (planned)", lineterm=""
-    ))
+    return list(
+        difflib.unified_diff(
+            old.splitlines(), new.splitlines(), f"{path} (on the host)", f"{path} (planned)", lineterm=""
+        )
+    )
 
 
 def mask_credentials(text: str) -> str:

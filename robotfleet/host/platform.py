@@ -14,7 +14,7 @@ class PlanError(Exception):
 
 
 def distribution(os_release: dict) -> str:
-    """"ubuntu" or "debian" (derivatives such as Mint map through ID_LIKE)."""
+    """ "ubuntu" or "debian" (derivatives such as Mint map through ID_LIKE)."""
     ident = os_release.get("id", "")
     like = os_release.get("id_like", "").split()
     if ident == "ubuntu" or "ubuntu" in like:
@@ -36,6 +36,7 @@ def codename(os_release: dict) -> str:
 
 def architecture(dpkg_arch: str) -> str:
     if dpkg_arch not in ARCHITECTURES:
-        raise PlanError(f"architecture {dpkg_arch or 'unknown'} is not supported (supported: "
-                        f"{', '.join(ARCHITECTURES)})")
+        raise PlanError(
+            f"architecture {dpkg_arch or 'unknown'} is not supported (supported: {', '.join(ARCHITECTURES)})"
+        )
     return dpkg_arch

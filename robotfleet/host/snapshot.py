@@ -185,7 +185,7 @@ def parse(lines: list[str], query: dict) -> Snapshot:
     for index, size in sizes:  # the blob: the probes' outputs one after another, in the order of sizes
         if index.isdigit() and int(index) < len(names):
             snap.probes[names[int(index)]] = ones[index] if size is None else blob[:size].decode()
-        blob = blob[size or 0:]
+        blob = blob[size or 0 :]
     for name in names:  # cut off by the timeout: unknown, as a failed probe
         snap.probes.setdefault(name, "")
     for path in query.get("files") or ():
@@ -218,8 +218,12 @@ class HostSnapshot(FactBase):
 
     def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None):
         self.query = {
-            "files": files, "packages": packages, "users": users,
-            "units": units, "commands": commands, "probes": probes or {},
+            "files": files,
+            "packages": packages,
+            "users": users,
+            "units": units,
+            "commands": commands,
+            "probes": probes or {},
         }
         return snapshot_script(files, packages, users, units, commands, probes, memo)
 

@@ -57,9 +57,11 @@ def memo_name(name: str, snippet: str, inputs) -> str:
 
 
 def _os_release() -> list[str]:
-    return ["l=; while IFS= read -r l || [ -n \"$l\" ]; do printf 'osl\\t%s\\n' \"$l\"; l=; "
-            "done 2>/dev/null < /etc/os-release",
-            "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo"]
+    return [
+        'l=; while IFS= read -r l || [ -n "$l" ]; do printf \'osl\\t%s\\n\' "$l"; l=; '
+        "done 2>/dev/null < /etc/os-release",
+        "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo",
+    ]
 
 
 def _files(files) -> list[str]:
@@ -77,11 +79,11 @@ def _files(files) -> list[str]:
             continue
         p = _q(path)
         lines.append(
-            f"if [ -L {p} ]; then echo \"file${{T}}\"{p}\"${{T}}link${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
-            f"elif [ -d {p} ]; then echo \"file${{T}}\"{p}\"${{T}}dir${{T}}-${{T}}$(stat -c '%a %U %G' {p})\"; "
-            f"elif [ -f {p} ]; then echo \"file${{T}}\"{p}\"${{T}}file${{T}}"
+            f'if [ -L {p} ]; then echo "file${{T}}"{p}"${{T}}link${{T}}-${{T}}$(stat -c \'%a %U %G\' {p})"; '
+            f'elif [ -d {p} ]; then echo "file${{T}}"{p}"${{T}}dir${{T}}-${{T}}$(stat -c \'%a %U %G\' {p})"; '
+            f'elif [ -f {p} ]; then echo "file${{T}}"{p}"${{T}}file${{T}}'
             f"$(sha256sum < {p} | cut -d' ' -f1)${{T}}$(stat -c '%a %U %G' {p})\"; "
-            f"else echo \"file${{T}}\"{p}\"${{T}}none\"; fi"
+            f'else echo "file${{T}}"{p}"${{T}}none"; fi'
         )
     return lines
 
@@ -106,10 +108,14 @@ def _packages(packages) -> list[str]:
     # (it reads the journal too).
     wanted = _q(" " + " ".join(packages) + " ")
     emit = 'if (index(w, " " p " ")) print "pkg\\t" p "\\t" s "\\t" v; p = s = v = ""'
-    awk = (f"awk -v w={wanted} '/^Package: /{{p = substr($0, 10)}} /^Status: /{{s = substr($0, 9)}} "
-           f"/^Version: /{{v = substr($0, 10)}} /^$/{{{emit}}} END{{{emit}}}' /var/lib/dpkg/status 2>/dev/null")
-    return ["j=; for f in /var/lib/dpkg/updates/*; do [ -e \"$f\" ] && j=1; done",
-            f"if [ -n \"$j\" ]; then {query}; else {awk}; fi"]
+    awk = (
+        f"awk -v w={wanted} '/^Package: /{{p = substr($0, 10)}} /^Status: /{{s = substr($0, 9)}} "
+        f"/^Version: /{{v = substr($0, 10)}} /^$/{{{emit}}} END{{{emit}}}' /var/lib/dpkg/status 2>/dev/null"
+    )
+    return [
+        'j=; for f in /var/lib/dpkg/updates/*; do [ -e "$f" ] && j=1; done',
+        f'if [ -n "$j" ]; then {query}; else {awk}; fi',
+    ]
 
 
 def _units(units) -> list[str]:
@@ -137,7 +143,7 @@ def _probes_program(probes: dict) -> str:
     arguments, as ``sh -c SNIPPET`` ran it."""
     arms = "".join(f"{index})\n{snippet}\n;;\n" for index, snippet in enumerate(probes.values()))
     return (
-        f'D=$1; shift\nrun() {{ i=$1; shift\ncase $i in\n{arms}esac; }}\n'
+        f"D=$1; shift\nrun() {{ i=$1; shift\ncase $i in\n{arms}esac; }}\n"
         'if [ -n "$D" ]; then\n'
         '  for i; do ( ( run $i ) >"$D/p$i" 2>/dev/null; : >"$D/p$i.ok" ) & done; wait\n'
         'else ( run "$1" ) 2>/dev/null; fi'
@@ -160,7 +166,7 @@ def _memo_key(memo: dict) -> list[str]:
         f"if [ ! -L {_q(MEMO_DIR)} ] && {{ [ -d {_q(MEMO_DIR)} ] || mkdir -m 700 {_q(MEMO_DIR)} 2>/dev/null; }}; then",
         f"  K=$(stat -L --printf '%n %a %u %d %i %s %y %z|' -- {words} {found} 2>/dev/null)",
         # Only root's own directory, closed to others; itself not part of the key.
-        f'  case $K in {_q(f"{MEMO_DIR} 700 {MEMO_OWNER} ")}*) K=${{K#*|}} ;; *) K= ;; esac',
+        f"  case $K in {_q(f'{MEMO_DIR} 700 {MEMO_OWNER} ')}*) K=${{K#*|}} ;; *) K= ;; esac",
         "fi",
     ]
 
@@ -177,7 +183,8 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
             path = _q(f"{MEMO_DIR}/{memo_name(name, snippet, memo[name])}")
             lines.append(
                 f'if [ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]; '
-                f"then printf 'pone\\t{index}\\t%s\\n' \"$v\"; else R=\"$R {index}\"; fi")
+                f'then printf \'pone\\t{index}\\t%s\\n\' "$v"; else R="$R {index}"; fi'
+            )
         else:
             lines.append(f'R="$R {index}"')
     if probes:
@@ -210,7 +217,8 @@ def _probe_results(probes: dict, memo: dict) -> list[str]:
         path = _q(f"{MEMO_DIR}/{memo_name(name, probes[name], inputs)}")
         lines.append(
             f'  if [ -n "$K" ] && [ -e "$d/p{index}.ok" ]; then v=$(base64 -w0 < "$d/p{index}") && '
-            f'printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}; fi')
+            f'printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}; fi'
+        )
     lines += [
         '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; echo "pblob$T$(cat -- "$@" | base64 -w0)"; fi',
         'elif [ -n "$R" ]; then',

@@ -32,8 +32,11 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
         fingerprint_setting="docker_apt_key_fingerprint",
         sources_name=data.docker_apt_filename,
         sources=plan.sources_text(
-            plan.repo_uri(data.docker_repo_url, dist), plan.suite(os_release),
-            data.docker_apt_release_channel, plan.architecture(arch), data.docker_apt_key_path,
+            plan.repo_uri(data.docker_repo_url, dist),
+            plan.suite(os_release),
+            data.docker_apt_release_channel,
+            plan.architecture(arch),
+            data.docker_apt_key_path,
         ),
         probe=KEY_PROBE,
         sha256=data.docker_apt_key_sha256,
@@ -44,8 +47,9 @@ def repository(data, os_release: dict, arch: str) -> aptrepo.Repository:
 def daemon_json(play: Play) -> str:
     """/etc/docker/daemon.json as this host gets it: docker_daemon_options,
     what the other roles add (hooks.DAEMON_OPTIONS), each DaemonSetting."""
-    return plan.daemon_json(play.with_additions(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options),
-                            settings.daemon_keys(play.data))
+    return plan.daemon_json(
+        play.with_additions(hooks.DAEMON_OPTIONS, play.data.docker_daemon_options), settings.daemon_keys(play.data)
+    )
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -53,13 +57,21 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     packages |= {"docker-ce", "gpg"} | set(data.docker_distro_packages or [])
     packages |= {name for names in plan.DISTRO_PACKAGES.values() for name in names}
     query.packages |= packages
-    query.files |= {aptrepo.KEYRING_DIR, data.docker_apt_key_path, sources_path(data), "/etc/docker", DAEMON_JSON,
-                    daemon.PENDING, daemon.PREVIOUS}
+    query.files |= {
+        aptrepo.KEYRING_DIR,
+        data.docker_apt_key_path,
+        sources_path(data),
+        "/etc/docker",
+        DAEMON_JSON,
+        daemon.PENDING,
+        daemon.PREVIOUS,
+    }
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
-    aptrepo.declare_key_probe(query, KEY_PROBE, data.docker_apt_key_path,
-                              value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint))
+    aptrepo.declare_key_probe(
+        query, KEY_PROBE, data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint)
+    )
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
     users.declare_reads(data, query)
 
@@ -108,8 +120,9 @@ def install_docker(play: Play):
             installed=snap.packages,
         )
 
-    operations.directory(name="Docker configuration directory /etc/docker", path="/etc/docker",
-                         current=snap.files.get("/etc/docker"))
+    operations.directory(
+        name="Docker configuration directory /etc/docker", path="/etc/docker", current=snap.files.get("/etc/docker")
+    )
     operations.service(
         name="Docker enabled and running",
         unit="docker.service",
@@ -122,7 +135,7 @@ def install_docker(play: Play):
     pending = snap.files.get(daemon.PENDING) is not None
     written = daemon.daemon_json(
         name=f"Write /etc/docker/daemon.json and {action} Docker "
-             "(the previous file comes back if Docker does not start)",
+        "(the previous file comes back if Docker does not start)",
         content=content,
         current=snap.files.get(DAEMON_JSON),
         action=action,
@@ -165,7 +178,7 @@ STATUS = StatusPart(
 ROLE = Role(
     name="docker",
     doc="Docker CE and the compose plugin from Docker's apt repository (or the distribution's engine), daemon.json, "
-        "the declared users in the docker group (never created).",
+    "the declared users in the docker group (never created).",
     settings=settings.SETTINGS,
     rules=settings.rules,
     renamed=settings.RENAMED,

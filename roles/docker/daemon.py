@@ -48,12 +48,12 @@ def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS, pending: str
         'dir=$(dirname "$dest")\n'
         'mkdir -p "$dir" || exit 1\n'
         'tmp=$(mktemp "$dir/.robotprov.XXXXXX") || exit 1\n'
-        "trap 'rm -f \"$tmp\" \"$prev.tmp\"' EXIT\n"
+        'trap \'rm -f "$tmp" "$prev.tmp"\' EXIT\n'
         'base64 -d > "$tmp" && chown root:root "$tmp" && chmod 600 "$tmp" || exit 1\n'
         "if dockerd --help 2>&1 | grep -q -- '--validate'; then\n"
         '  out=$(dockerd --validate --config-file "$tmp" 2>&1) || '
         '{ echo "docker: dockerd rejects the new daemon.json: $(echo "$out" | tail -n 1); nothing changed" >&2; '
-        'exit 1; }\n'
+        "exit 1; }\n"
         "else\n"
         f"  echo {q(NO_VALIDATE_WARNING)} >&2\n"
         "fi\n"
@@ -74,8 +74,9 @@ def write_script(dest: str = DAEMON_JSON, previous: str = PREVIOUS, pending: str
     )
 
 
-def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous: str = PREVIOUS,
-                   pending: str = PENDING) -> str:
+def restart_script(
+    action: str, timeout: int, dest: str = DAEMON_JSON, previous: str = PREVIOUS, pending: str = PENDING
+) -> str:
     """``systemctl <action> docker``; if Docker is not active within
     ``timeout`` seconds, put the previous daemon.json back (or remove the new
     one when there was none), restart, and fail with dockerd's reason."""
@@ -88,7 +89,7 @@ def restart_script(action: str, timeout: int, dest: str = DAEMON_JSON, previous:
         "docker_up() {\n"
         "  systemctl reset-failed docker.service 2>/dev/null\n"
         f'  timeout "$timeout" systemctl {action} docker.service >/dev/null 2>&1 '
-        '&& systemctl is-active --quiet docker.service\n'
+        "&& systemctl is-active --quiet docker.service\n"
         "}\n"
         "dockerd_said() {\n"
         '  journalctl -u docker.service SYSLOG_IDENTIFIER=dockerd --since "@$1" -o cat --no-pager 2>/dev/null'
@@ -124,13 +125,17 @@ def restarts_docker(content: str, current: FileState | None, pending: bool) -> b
 
 def loose(state: FileState | None) -> bool:
     """A regular file others than root may read (an earlier version wrote 0644)."""
-    return state is not None and state.kind == "file" and (
-        state.mode != MODE or (state.owner, state.group) != ("root", "root"))
+    return (
+        state is not None
+        and state.kind == "file"
+        and (state.mode != MODE or (state.owner, state.group) != ("root", "root"))
+    )
 
 
 @operations.operation()
-def daemon_json(content: str, current: FileState | None, action: str, timeout: int, pending: bool,
-                previous: FileState | None = None):
+def daemon_json(
+    content: str, current: FileState | None, action: str, timeout: int, pending: bool, previous: FileState | None = None
+):
     """Make daemon.json hold ``content`` and apply it (``action``: restart or
     reload) with a way back; the owner and mode of the file and of its
     previous copy alone are fixed without touching Docker.  ``pending``: an
@@ -154,6 +159,4 @@ def daemon_json(content: str, current: FileState | None, action: str, timeout: i
     if operations.planning_output_wanted() and host.state.config.DIFF:
         operations.show_diff(DAEMON_JSON, data, exists=current is not None and current.kind == "file")
     encoded = base64.encodebytes(data).decode().splitlines()
-    yield operations.shell_with_warnings(
-        write_script() + restart_script(action, timeout), stdin=encoded or [""]
-    )
+    yield operations.shell_with_warnings(write_script() + restart_script(action, timeout), stdin=encoded or [""])

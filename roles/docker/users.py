@@ -50,4 +50,3 @@ def docker_users(play: Play):
         users=play.data.docker_users,
         groups_now=play.snapshot.users,
     )
-

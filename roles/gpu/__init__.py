@@ -24,13 +24,13 @@ from __future__ import annotations
 
 from pyinfra.api import deploy
 
+import roles.docker.hooks as docker_hooks
+import roles.payload.hooks as payload_hooks
 from robotfleet import value_kinds
 from robotfleet.host import apt, aptrepo, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role, StatusPart
-import roles.docker.hooks as docker_hooks
 from roles.gpu import plan, settings
-import roles.payload.hooks as payload_hooks
 
 PREREQUISITES = ["ca-certificates", "curl", "gpg"]
 READINGS = "gpu_readings"
@@ -58,8 +58,9 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.packages |= set(PREREQUISITES) | {plan.TOOLKIT}
     query.files |= {aptrepo.KEYRING_DIR, data.gpu_apt_key_path, sources_path(data)}
     query.probes[READINGS] = plan.readings_probe(data.gpu_driver_version_file)
-    aptrepo.declare_key_probe(query, KEY_PROBE, data.gpu_apt_key_path,
-                              value_kinds.normal_fingerprint(data.gpu_apt_key_fingerprint))
+    aptrepo.declare_key_probe(
+        query, KEY_PROBE, data.gpu_apt_key_path, value_kinds.normal_fingerprint(data.gpu_apt_key_fingerprint)
+    )
 
 
 @deploy("GPU")

@@ -11,11 +11,11 @@ import base64
 import re
 import shlex
 
+import roles.payload.hooks as payload_hooks
+import roles.x11.hooks as x11_hooks
 from robotfleet.host import aptrepo
 from robotfleet.host import platform as host_platform
 from robotfleet.host.platform import PlanError
-import roles.payload.hooks as payload_hooks
-import roles.x11.hooks as x11_hooks
 
 TOOLKIT = "nvidia-container-toolkit"
 RUNTIME_NAME = "nvidia"
@@ -42,11 +42,11 @@ def readings_probe(driver_version_file: str) -> str:
     output (values base64, one line each)."""
     f = shlex.quote(driver_version_file)
     return (
-        f"[ -r {f} ] && echo \"driver=$(head -n 1 {f} | base64 -w0)\"; "
-        f"[ -f {TEGRA_RELEASE} ] && echo \"tegra=$(head -n 1 {TEGRA_RELEASE} | base64 -w0)\"; "
+        f'[ -r {f} ] && echo "driver=$(head -n 1 {f} | base64 -w0)"; '
+        f'[ -f {TEGRA_RELEASE} ] && echo "tegra=$(head -n 1 {TEGRA_RELEASE} | base64 -w0)"; '
         "if command -v nvidia-smi >/dev/null 2>&1; then "
-        "o=$(timeout 20 nvidia-smi -L 2>&1); echo \"smi_rc=$?\"; "
-        "echo \"smi=$(printf %s \"$o\" | head -c 400 | base64 -w0)\"; "
+        'o=$(timeout 20 nvidia-smi -L 2>&1); echo "smi_rc=$?"; '
+        'echo "smi=$(printf %s "$o" | head -c 400 | base64 -w0)"; '
         "else echo smi_rc=absent; fi"
     )
 
@@ -99,11 +99,14 @@ def driver_problem(readings: dict[str, str], driver_version_file: str) -> str | 
 def check_os(os_release: dict, arch: str) -> None:
     try:
         dist = host_platform.distribution(os_release)
-        codename = ((os_release.get("ubuntu_codename") if dist == "ubuntu" else None)
-                    or os_release.get("version_codename"))
+        codename = (os_release.get("ubuntu_codename") if dist == "ubuntu" else None) or os_release.get(
+            "version_codename"
+        )
         if codename not in SUPPORTED[dist]:
-            raise PlanError(f"{dist} {codename or '(unknown release)'} is not supported for the container toolkit "
-                            f"(supported: {', '.join(SUPPORTED['ubuntu'] + SUPPORTED['debian'])})")
+            raise PlanError(
+                f"{dist} {codename or '(unknown release)'} is not supported for the container toolkit "
+                f"(supported: {', '.join(SUPPORTED['ubuntu'] + SUPPORTED['debian'])})"
+            )
         host_platform.architecture(arch)
     except PlanError as error:
         raise PlanError(f"gpu: {error}") from None
@@ -155,12 +158,15 @@ def payload_environment(data) -> dict[str, str]:
     capabilities = data.get("gpu_driver_capabilities")
     if not capabilities:
         capabilities = "compute,utility,graphics" if x11_hooks.has_display(data) else "compute,utility"
-    return {"NVIDIA_VISIBLE_DEVICES": str(data.get("gpu_visible_devices") or "all"),
-            "NVIDIA_DRIVER_CAPABILITIES": capabilities}
+    return {
+        "NVIDIA_VISIBLE_DEVICES": str(data.get("gpu_visible_devices") or "all"),
+        "NVIDIA_DRIVER_CAPABILITIES": capabilities,
+    }
 
 
-RESERVATION = {"resources": {"reservations": {"devices": [{"driver": "nvidia", "count": "all",
-                                                           "capabilities": ["gpu"]}]}}}
+RESERVATION = {
+    "resources": {"reservations": {"devices": [{"driver": "nvidia", "count": "all", "capabilities": ["gpu"]}]}}
+}
 
 
 def payload_services(data, services: dict) -> dict:

@@ -26,8 +26,13 @@ def _compact(source: str) -> str:
     drop = set()
     for node in ast.walk(ast.parse(source)):
         body = getattr(node, "body", None)
-        if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
-                and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+        if (
+            isinstance(body, list)
+            and body
+            and isinstance(body[0], ast.Expr)
+            and isinstance(body[0].value, ast.Constant)
+            and isinstance(body[0].value.value, str)
+        ):
             drop |= set(range(body[0].lineno, body[0].end_lineno + 1))
     lines = source.splitlines()
     for token in tokenize.generate_tokens(io.StringIO(source).readline):
@@ -38,15 +43,19 @@ def _compact(source: str) -> str:
 
 
 _PROGRAM = _compact((Path(__file__).parent / "docker_read.py").read_text())
-_IDENTITY = ('{{json (printf "%s\\t%s\\t%s\\t%s\\t%v\\t%s" .Id .Name .Config.Image '
-             f'(index .Config.Labels "{LABEL}") .State.Running .HostConfig.RestartPolicy.Name)}}}}')
+_IDENTITY = (
+    '{{json (printf "%s\\t%s\\t%s\\t%s\\t%v\\t%s" .Id .Name .Config.Image '
+    f'(index .Config.Labels "{LABEL}") .State.Running .HostConfig.RestartPolicy.Name)}}}}'
+)
 
 
 def cli(project: str, foreign: bool) -> str:
     """The same lines from the docker CLI."""
     q = shlex.quote
-    lines = [f"docker ps -a --filter label={LABEL}={q(project)} --format "
-             f"{q('c' + chr(9) + '{{.State}}' + chr(9) + '{{.Status}}')}"]
+    lines = [
+        f"docker ps -a --filter label={LABEL}={q(project)} --format "
+        f"{q('c' + chr(9) + '{{.State}}' + chr(9) + '{{.Status}}')}"
+    ]
     if foreign:
         lines.append(f"docker ps -aq --no-trunc 2>/dev/null | xargs -r docker inspect -f {q('f' + chr(9) + _IDENTITY)}")
     return "; ".join(lines)
@@ -55,12 +64,14 @@ def cli(project: str, foreign: bool) -> str:
 def probe(project: str, foreign: bool) -> str:
     q = shlex.quote
     args = q(project) + (" foreign" if foreign else "")
-    return (f"if command -v python3 >/dev/null 2>&1 && python3 -I -S -c {q(_PROGRAM)} {args}; then :; "
-            f"else {cli(project, foreign)}; fi")
+    return (
+        f"if command -v python3 >/dev/null 2>&1 && python3 -I -S -c {q(_PROGRAM)} {args}; then :; "
+        f"else {cli(project, foreign)}; fi"
+    )
 
 
 def part(output: str, kind: str) -> str:
     """The lines of one kind ("c": the payload's containers, "f": every
     container's identity), without their mark, as the old probes gave them."""
     mark = kind + "\t"
-    return "".join(line[len(mark):] + "\n" for line in output.splitlines() if line.startswith(mark))
+    return "".join(line[len(mark) :] + "\n" for line in output.splitlines() if line.startswith(mark))

@@ -19,18 +19,18 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import roles.payload.payloadctl.imageref as imageref
+import roles.payload.services as services
 from robotfleet import CHECKOUT
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
-import roles.payload.payloadctl.imageref as imageref
-import roles.payload.services as services
 
 DOCKER_HUB = ("docker.io", "index.docker.io", "registry-1.docker.io")
 # Docker Hub's registry sends its clients to its token service on another host.
 KNOWN_REALMS = {"docker.io": ("https://auth.docker.io/token",)}
 REGISTRY = r"[A-Za-z0-9][A-Za-z0-9.-]*(?::[0-9]+)?"
 _SOURCE = r"(?:/|~/)" + v.LOCAL_PATH
-_HTTPS_URL = "https" + v.URL[len("https?"):]
+_HTTPS_URL = "https" + v.URL[len("https?") :]
 
 
 def registry_key(registry: str) -> str:
@@ -57,14 +57,24 @@ class CredentialError(Exception):
 
 _env = c.string(c.ENV_NAME, "an environment variable name")
 _file = c.string(_SOURCE, "an absolute path (or ~/...) on this machine")
-FIELDS = {"username_env": _env, "username_file": _file, "password_env": _env, "password_file": _file,
-          "token_realms": c.list_of(c.string(_HTTPS_URL, "an https URL"), unique=True)}
+FIELDS = {
+    "username_env": _env,
+    "username_file": _file,
+    "password_env": _env,
+    "password_file": _file,
+    "token_realms": c.list_of(c.string(_HTTPS_URL, "an https URL"), unique=True),
+}
 
 
 def auth_entry(value):
     if not isinstance(value, dict):
-        return [("", f"expected a mapping with username_env or username_file and password_env or password_file, "
-                     f"got {c.describe(value)}")]
+        return [
+            (
+                "",
+                f"expected a mapping with username_env or username_file and password_env or password_file, "
+                f"got {c.describe(value)}",
+            )
+        ]
     problems = []
     for key, item in value.items():
         if key not in FIELDS:
@@ -74,19 +84,29 @@ def auth_entry(value):
     for what in ("username", "password"):
         given = [k for k in (f"{what}_env", f"{what}_file") if k in value]
         if len(given) != 1:
-            problems.append(("", f"give one of {what}_env (an environment variable) or {what}_file "
-                                 "(a file outside the checkout), not the value itself"))
+            problems.append(
+                (
+                    "",
+                    f"give one of {what}_env (an environment variable) or {what}_file "
+                    "(a file outside the checkout), not the value itself",
+                )
+            )
     return problems
 
 
-c.with_schema(auth_entry, {
-    "type": "object",
-    "properties": {key: check.schema for key, check in FIELDS.items()},
-    "additionalProperties": False,
-    "allOf": [{"oneOf": [{"required": [f"{what}_env"]}, {"required": [f"{what}_file"]}]}
-              for what in ("username", "password")],
-    "description": "where this registry's username and password come from on this machine",
-})
+c.with_schema(
+    auth_entry,
+    {
+        "type": "object",
+        "properties": {key: check.schema for key, check in FIELDS.items()},
+        "additionalProperties": False,
+        "allOf": [
+            {"oneOf": [{"required": [f"{what}_env"]}, {"required": [f"{what}_file"]}]}
+            for what in ("username", "password")
+        ],
+        "description": "where this registry's username and password come from on this machine",
+    },
+)
 auths = c.mapping_of(c.string(REGISTRY, "a registry host[:port]"), auth_entry)
 
 
@@ -97,9 +117,13 @@ def files_in_checkout(value) -> list[c.Problem]:
         for key in ("username_file", "password_file"):
             path = entry.get(key) if isinstance(entry, dict) else None
             if isinstance(path, str) and _inside_checkout(path):
-                problems.append((f"payload_registry_auths.{c.key_name(registry)}.{key}",
-                                 f"{c.shown(path)} is inside the checkout {CHECKOUT}; keep credentials outside the "
-                                 "repository (e.g. ~/.config/robotfleet/)"))
+                problems.append(
+                    (
+                        f"payload_registry_auths.{c.key_name(registry)}.{key}",
+                        f"{c.shown(path)} is inside the checkout {CHECKOUT}; keep credentials outside the "
+                        "repository (e.g. ~/.config/robotfleet/)",
+                    )
+                )
     return problems
 
 
@@ -109,6 +133,7 @@ def _inside_checkout(path: str) -> bool:
 
 
 # -- reading them ----------------------------------------------------------
+
 
 def primary_registry(data) -> str | None:
     """The registry of the first service's image (the single-registry settings' one)."""
@@ -136,8 +161,11 @@ def entries(data) -> dict[str, dict]:
     found = {registry_key(k): dict(e) for k, e in (data.get("payload_registry_auths") or {}).items()}
     primary = primary_registry(data)
     if primary and registry_key(primary) not in found:
-        found[registry_key(primary)] = {"username_env": data.get("payload_registry_username_env"),
-                                        "password_env": data.get("payload_registry_password_env"), "default": True}
+        found[registry_key(primary)] = {
+            "username_env": data.get("payload_registry_username_env"),
+            "password_env": data.get("payload_registry_password_env"),
+            "default": True,
+        }
     return found
 
 
@@ -150,8 +178,10 @@ def _read(entry: dict, what: str, registry: str) -> str | None:
         with open(path, encoding="utf-8") as handle:
             return handle.read().rstrip("\r\n") or None
     except (OSError, UnicodeDecodeError) as error:
-        raise CredentialError(f"payload_registry_auths.{registry}.{what}_file: cannot read {path}: "
-                              f"{getattr(error, 'strerror', None) or error}") from None
+        raise CredentialError(
+            f"payload_registry_auths.{registry}.{what}_file: cannot read {path}: "
+            f"{getattr(error, 'strerror', None) or error}"
+        ) from None
 
 
 def lookup(data, registry: str) -> Credentials | None:
@@ -166,8 +196,11 @@ def lookup(data, registry: str) -> Credentials | None:
     if not (username and password):
         if entry.get("default"):
             return None
-        missing = [f"{w}_env {entry[w + '_env']} is not set" if entry.get(f"{w}_env") else f"{w}_file is empty"
-                   for w, got in (("username", username), ("password", password)) if not got]
+        missing = [
+            f"{w}_env {entry[w + '_env']} is not set" if entry.get(f"{w}_env") else f"{w}_file is empty"
+            for w, got in (("username", username), ("password", password))
+            if not got
+        ]
         raise CredentialError(f"payload_registry_auths.{key}: " + " and ".join(missing))
     return Credentials(key, username, password, KNOWN_REALMS.get(key, ()) + tuple(entry.get("token_realms") or ()))
 

@@ -11,9 +11,9 @@ signed release exists to prevent)."""
 
 from __future__ import annotations
 
-from robotfleet.checkers import key_name
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.services as services
+from robotfleet.checkers import key_name
 
 SETTING = "payload_image_pins"
 DIGEST = r"sha256:[a-f0-9]{64}"
@@ -81,20 +81,31 @@ def problems(data) -> list[tuple[str, str]]:
     if not pins:
         return []
     if services.value_of(data, "payload_delivery") == "push":
-        return [(SETTING, "pins need payload_delivery: pull: a pushed image arrives by docker load, which keeps "
-                          "its image id but not the registry digest a release pins, so the robot could not "
-                          "run it by that digest")]
+        return [
+            (
+                SETTING,
+                "pins need payload_delivery: pull: a pushed image arrives by docker load, which keeps "
+                "its image id but not the registry digest a release pins, so the robot could not "
+                "run it by that digest",
+            )
+        ]
     found = []
     refs = services.images(data)
     missing = [ref for ref in refs if ref not in pins]
     if missing:
-        found.append((SETTING, f"no digest for {', '.join(missing)}: the pins must cover every image of the "
-                               f"project ({len(refs)} here), or that image would run whatever its tag names now"))
+        found.append(
+            (
+                SETTING,
+                f"no digest for {', '.join(missing)}: the pins must cover every image of the "
+                f"project ({len(refs)} here), or that image would run whatever its tag names now",
+            )
+        )
     for ref in refs:
         own = _own_digest(ref)
         if own and ref in pins and pins[ref] != own:
-            found.append((f"{SETTING}.{key_name(ref)}",
-                          f"{pins[ref]} differs from the digest the image names itself ({own})"))
+            found.append(
+                (f"{SETTING}.{key_name(ref)}", f"{pins[ref]} differs from the digest the image names itself ({own})")
+            )
     return found
 
 

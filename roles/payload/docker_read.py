@@ -79,8 +79,13 @@ def go_json(text: str) -> str:
     from _json import encode_basestring
 
     out = encode_basestring(text)
-    for plain, escaped in (("<", "\\u003c"), (">", "\\u003e"), ("&", "\\u0026"),
-                           ("\u2028", "\\u2028"), ("\u2029", "\\u2029")):
+    for plain, escaped in (
+        ("<", "\\u003c"),
+        (">", "\\u003e"),
+        ("&", "\\u0026"),
+        ("\u2028", "\\u2028"),
+        ("\u2029", "\\u2029"),
+    ):
         out = out.replace(plain, escaped)
     return out
 

@@ -2,13 +2,13 @@
 
 import json
 
-from robotfleet.host.fixtures import file_state
-from robotfleet.host.snapshot import FileState
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
 import roles.payload.installed_files as installed_files
 import roles.payload.services as services
 import roles.payload.steps as steps
+from robotfleet.host.fixtures import file_state
+from robotfleet.host.snapshot import FileState
 
 
 def desired(play, host: str) -> dict:
@@ -21,16 +21,20 @@ def desired(play, host: str) -> dict:
 def converged(play, host: str) -> None:
     data, snap = play.data, play.snapshot
     additions = play.added(hooks.SERVICES, services.declared(data))
-    snap.files.update({
-        data.payload_dir: FileState("dir", None, "755", "root", "root"),
-        installed_files.HELPER: file_state(installed_files.helper_bytes(), "755"),
-    })
+    snap.files.update(
+        {
+            data.payload_dir: FileState("dir", None, "755", "root", "root"),
+            installed_files.HELPER: file_state(installed_files.helper_bytes(), "755"),
+        }
+    )
     if data.payload_autostart:
         snap.files[installed_files.unit_path(data)] = file_state(
-            installed_files.unit_text(data, steps.unit_devices(additions)))
+            installed_files.unit_text(data, steps.unit_devices(additions))
+        )
         snap.units[f"{data.payload_name}.service"] = ("enabled", "active")
         snap.probes["payload_containers"] = "c\trunning\tUp 3 hours (healthy)\n"
     doc = compose.project(data, data.get("ssh_hostname") or host, additions)
     state = "active" if data.payload_autostart else "staged"
-    snap.probes["payload_record"] = json.dumps({"spec_hash": compose.spec_hash(doc, data.payload_autostart),
-                                                "state": state})
+    snap.probes["payload_record"] = json.dumps(
+        {"spec_hash": compose.spec_hash(doc, data.payload_autostart), "state": state}
+    )

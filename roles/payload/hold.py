@@ -15,8 +15,18 @@ def hold_command(data, token_file: str) -> list[str]:
     installed (the first deploy installs it; nothing can hold the lock yet)."""
     if not os.path.exists(HELPER):
         return []
-    return ["/usr/bin/python3", HELPER, "hold", "--dir", data.payload_dir, "--token-file", token_file,
-            "--by", "pull agent", "--"]
+    return [
+        "/usr/bin/python3",
+        HELPER,
+        "hold",
+        "--dir",
+        data.payload_dir,
+        "--token-file",
+        token_file,
+        "--by",
+        "pull agent",
+        "--",
+    ]
 
 
 HOLD = HoldPart(command=hold_command, setting="payload_lock_token")

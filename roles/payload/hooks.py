@@ -1,8 +1,8 @@
 """Where other roles add to what the payload role builds, and what they may
 read of it (through these functions, never the payload's settings themselves)."""
 
-from robotfleet.role import Hook
 import roles.payload.services as services
+from robotfleet.role import Hook
 
 SERVICES = Hook(
     "payload compose services",

@@ -40,10 +40,7 @@ from robotfleet.host import operations
 from robotfleet.host.stream import FileStdin
 from roles.payload.payloadctl import imageref, platforms
 
-LAYERS_PROBE = (
-    "docker image ls -q --no-trunc | sort -u | "
-    "xargs -r docker image inspect -f '{{json .RootFS.Layers}}'"
-)
+LAYERS_PROBE = "docker image ls -q --no-trunc | sort -u | xargs -r docker image inspect -f '{{json .RootFS.Layers}}'"
 
 
 def parse_layer_sets(probe_output: str) -> list[list[str]]:
@@ -112,13 +109,18 @@ def registry_variant(image: str, arch: str, insecure: list[str], credentials) ->
         platform["variant"] = parsed["variant"]
     if not platforms.matches(arch, platform):
         return {"refused": [platforms.text(platform)]}
-    return {"id": manifest["config"]["digest"], "config": config.getvalue(),
-            "layers": [(layer["digest"], layer["size"]) for layer in manifest["layers"]],
-            "diff_ids": parsed["rootfs"]["diff_ids"], "platform": platforms.text(platform)}
+    return {
+        "id": manifest["config"]["digest"],
+        "config": config.getvalue(),
+        "layers": [(layer["digest"], layer["size"]) for layer in manifest["layers"]],
+        "diff_ids": parsed["rootfs"]["diff_ids"],
+        "platform": platforms.text(platform),
+    }
 
 
-def write_registry_archive(image: str, variant: dict, path: str, have: list[list[str]], report: dict,
-                           insecure: list[str], credentials) -> None:
+def write_registry_archive(
+    image: str, variant: dict, path: str, have: list[list[str]], report: dict, insecure: list[str], credentials
+) -> None:
     """A `docker load` archive of the registry ``variant`` into ``path``,
     holding only the layer blobs whose chain the robot lacks."""
     from roles.payload.registry import Registry
@@ -137,15 +139,20 @@ def write_registry_archive(image: str, variant: dict, path: str, have: list[list
                 info = tarfile.TarInfo(name)
                 info.size = size
                 archive.addfile(info, blob)
-        _add(archive, "manifest.json",
-             json.dumps([{"Config": config_name, "RepoTags": [image], "Layers": names}]).encode())
-    report.update({
-        "full": len(variant["config"]) + sum(size for _, size in variant["layers"]),
-        "sent": os.path.getsize(path),
-        "layers": len(variant["layers"]),
-        "skipped": skip,
-        "platform": variant["platform"],
-    })
+        _add(
+            archive,
+            "manifest.json",
+            json.dumps([{"Config": config_name, "RepoTags": [image], "Layers": names}]).encode(),
+        )
+    report.update(
+        {
+            "full": len(variant["config"]) + sum(size for _, size in variant["layers"]),
+            "sent": os.path.getsize(path),
+            "layers": len(variant["layers"]),
+            "skipped": skip,
+            "platform": variant["platform"],
+        }
+    )
 
 
 def _add(archive: tarfile.TarFile, name: str, data: bytes) -> None:
@@ -193,9 +200,11 @@ def load_command(archive: str, log_dir: str, image: str, image_id: str, figures:
     worked.  Every value reaches the shell as a variable (data), never as
     code: an image name holding `$(...)` is logged as written."""
     q = shlex.quote
-    sent = (f"sent {figures.get('sent')} of {figures.get('full')} bytes, "
-            f"{figures.get('layers', 0) - figures.get('skipped', 0)} of {figures.get('layers')} layers"
-            + (f", {figures['platform']} from the registry" if figures.get("platform") else ""))
+    sent = (
+        f"sent {figures.get('sent')} of {figures.get('full')} bytes, "
+        f"{figures.get('layers', 0) - figures.get('skipped', 0)} of {figures.get('layers')} layers"
+        + (f", {figures['platform']} from the registry" if figures.get("platform") else "")
+    )
     return operations.shell(
         f"log_dir={q(log_dir)}; image={q(image)}; image_id={q(image_id)}; sent={q(sent)}\n"
         "base64 -d | docker load -q >/dev/null; rc=$?; "
@@ -206,8 +215,9 @@ def load_command(archive: str, log_dir: str, image: str, image_id: str, figures:
     )
 
 
-def choose_source(image: str, remote_id: str, robot: str, arch: str, insecure: list[str], credentials,
-                  local: dict | None) -> tuple:
+def choose_source(
+    image: str, remote_id: str, robot: str, arch: str, insecure: list[str], credentials, local: dict | None
+) -> tuple:
     """What to send the robot: ("send", writer, its arguments after the
     path, image id), ("noop", why) or ("fail", the line).  The local
     engine's image when it is built for the robot's architecture, else the
@@ -222,8 +232,11 @@ def choose_source(image: str, remote_id: str, robot: str, arch: str, insecure: l
         variant = registry_variant(image, arch, insecure, credentials)
     except (RegistryError, ValueError, KeyError) as error:
         if local is None:
-            return ("fail", f"payload_delivery push: {image} is neither in the local Docker engine "
-                            f"nor readable from its registry ({error})")
+            return (
+                "fail",
+                f"payload_delivery push: {image} is neither in the local Docker engine "
+                f"nor readable from its registry ({error})",
+            )
         where = f"in the local Docker engine; its registry: {error}"
         return ("fail", "payload: " + platforms.refusal(robot, arch, image, [platforms.text(local["platform"])], where))
     if "refused" in variant:
@@ -234,8 +247,16 @@ def choose_source(image: str, remote_id: str, robot: str, arch: str, insecure: l
 
 
 @operations.operation()
-def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_dir: str, robot: str = "",
-               arch: str = "", insecure: list[str] = (), credentials=None):
+def push_image(
+    image: str,
+    remote_id: str,
+    remote_layers: list[list[str]],
+    log_dir: str,
+    robot: str = "",
+    arch: str = "",
+    insecure: list[str] = (),
+    credentials=None,
+):
     try:
         local = local_image(image)
     except Exception as error:  # no engine on the operator machine
@@ -256,8 +277,9 @@ def push_image(image: str, remote_id: str, remote_layers: list[list[str]], log_d
         if writer is write_archive:
             yield FunctionCommand(write_archive, (image, local_path, remote_layers, report), {})
         else:
-            yield FunctionCommand(writer, (image, *extra, local_path, remote_layers, report, list(insecure),
-                                           credentials), {})
+            yield FunctionCommand(
+                writer, (image, *extra, local_path, remote_layers, report, list(insecure), credentials), {}
+            )
         # pyinfra runs each command before asking for the next: report is filled.
         yield load_command(local_path, log_dir, image, image_id, report)
     finally:

@@ -63,16 +63,19 @@ def write(text: str, digest: str, machine: str, path, insecure: list[str], own) 
             entries = platforms.index_entries(json.loads(top))
             chosen = platforms.choose(entries, arch)
             if chosen is None:
-                raise ValueError(f"image {text}@{digest} has no variant for {machine} (it has: "
-                                 f"{', '.join(platforms.text(e['platform']) for e in entries) or 'none'})")
+                raise ValueError(
+                    f"image {text}@{digest} has no variant for {machine} (it has: "
+                    f"{', '.join(platforms.text(e['platform']) for e in entries) or 'none'})"
+                )
             _, manifest, _ = registry.manifest(ref.repository, chosen["digest"])
         parsed = json.loads(manifest)
         config = io.BytesIO()
         registry.blob(ref.repository, parsed["config"]["digest"], config)
         image = json.loads(config.getvalue())
         if not platforms.matches(arch, {"os": image.get("os") or "linux", "architecture": image.get("architecture")}):
-            raise ValueError(f"image {text}@{digest} is built for {image.get('os')}/{image.get('architecture')}, "
-                             f"not {machine}")
+            raise ValueError(
+                f"image {text}@{digest} is built for {image.get('os')}/{image.get('architecture')}, not {machine}"
+            )
         name = full_name(ref)
         tagged = f"{name}:{ref.tag}" if ref.tag else None
         layers = [layer["digest"] for layer in parsed["layers"]]
@@ -81,8 +84,19 @@ def write(text: str, digest: str, machine: str, path, insecure: list[str], own) 
             annotations = {"io.containerd.image.name": tagged or f"{name}@{digest}"}
             if ref.tag:
                 annotations["org.opencontainers.image.ref.name"] = ref.tag
-            _add(out, "index.json", json.dumps({"schemaVersion": 2, "mediaType": OCI_INDEX, "manifests": [
-                {"mediaType": top_type, "digest": digest, "size": len(top), "annotations": annotations}]}).encode())
+            _add(
+                out,
+                "index.json",
+                json.dumps(
+                    {
+                        "schemaVersion": 2,
+                        "mediaType": OCI_INDEX,
+                        "manifests": [
+                            {"mediaType": top_type, "digest": digest, "size": len(top), "annotations": annotations}
+                        ],
+                    }
+                ).encode(),
+            )
             _add(out, _blob_name(digest), top)
             if manifest is not top:
                 _add(out, _blob_name("sha256:" + _sha256(manifest)), manifest)
@@ -94,9 +108,19 @@ def write(text: str, digest: str, machine: str, path, insecure: list[str], own) 
                     info = tarfile.TarInfo(_blob_name(layer))
                     info.size, info.mode = size, 0o644
                     out.addfile(info, blob)
-            _add(out, "manifest.json", json.dumps([{
-                "Config": _blob_name(parsed["config"]["digest"]), "RepoTags": [tagged] if tagged else [],
-                "Layers": [_blob_name(layer) for layer in layers]}]).encode())
+            _add(
+                out,
+                "manifest.json",
+                json.dumps(
+                    [
+                        {
+                            "Config": _blob_name(parsed["config"]["digest"]),
+                            "RepoTags": [tagged] if tagged else [],
+                            "Layers": [_blob_name(layer) for layer in layers],
+                        }
+                    ]
+                ).encode(),
+            )
     except RegistryError as error:
         raise ValueError(f"image {text}: {error}") from None
     except (KeyError, TypeError, json.JSONDecodeError) as error:

@@ -6,13 +6,13 @@ reads it).  A reference already pinned by digest keeps its digest."""
 
 from __future__ import annotations
 
-from robotfleet.role import PinPart
-import roles.payload.credentials as credentials
 import roles.docker.hooks as docker_hooks
+import roles.payload.credentials as credentials
 import roles.payload.digests as digests
 import roles.payload.media_archive as media_archive
-import roles.payload.services as services
 import roles.payload.payloadctl.imageref as imageref
+import roles.payload.services as services
+from robotfleet.role import PinPart
 
 SETTING = digests.SETTING
 

@@ -87,4 +87,3 @@ def preset(data, address: str, files_dir: Path = FILES_DIR) -> dict:
             # A changed profile is a new release: the containers must reread it.
             result["labels"][PROFILE_LABEL] = hashlib.sha256(text.encode()).hexdigest()[:16]
     return result
-

@@ -11,12 +11,13 @@ import re
 from functools import lru_cache
 from pathlib import Path
 
-from robotfleet.checkers import key_name
 import roles.payload.compose as compose
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
+from robotfleet.checkers import key_name
 from roles.payload.presets import DDS_DIR, dds_profile_text, dds_vendor
-from roles.payload.services import SERVICE_NAME, SHORTHAND_SETTINGS, value_of, declared, layer_problems
+from roles.payload.services import SERVICE_NAME, SHORTHAND_SETTINGS, declared, layer_problems, value_of
+
 
 @lru_cache(maxsize=1)
 def compose_schema() -> dict:
@@ -72,8 +73,12 @@ def _schema_problems(canonical: str) -> tuple:
     for error in sorted(_validator().iter_errors(doc), key=lambda e: [str(p) for p in e.absolute_path]):
         path = list(error.absolute_path)
         if len(path) < 2 or path[0] != "services":
-            problems.append((f"payload_services{_field(path[1:] if path[:1] == ['services'] else path)}",
-                             f"Compose Specification: {error.message}"))
+            problems.append(
+                (
+                    f"payload_services{_field(path[1:] if path[:1] == ['services'] else path)}",
+                    f"Compose Specification: {error.message}",
+                )
+            )
             continue
         where = f"payload_services.{path[1]}{_field(path[2:])}"
         if error.validator in ("unevaluatedProperties", "additionalProperties"):
@@ -110,8 +115,11 @@ def root_equivalents(spec: dict) -> list[tuple[str, str]]:
         if spec.get(key) == "host":
             found.append((f".{key}", f"{key}: host"))
     for index, opt in enumerate(spec.get("security_opt") or [] if isinstance(spec.get("security_opt"), list) else []):
-        if isinstance(opt, str) and opt.replace("=", ":") in ("seccomp:unconfined", "apparmor:unconfined",
-                                                              "label:disable"):
+        if isinstance(opt, str) and opt.replace("=", ":") in (
+            "seccomp:unconfined",
+            "apparmor:unconfined",
+            "label:disable",
+        ):
             found.append((f".security_opt[{index}]", f"security_opt {opt}"))
     for index, source in _bind_sources(spec):
         if any(_under(source.rstrip("/") or "/", socket) for socket in DOCKER_SOCKETS) or source.rstrip("/") == "":
@@ -143,20 +151,31 @@ def project_problems(data) -> list[tuple[str, str]]:
     problems: list[tuple[str, str]] = []
     raw = value_of(data, "payload_services") or {}
     if raw and value_of(data, "payload_image"):
-        return [("payload_services", "set either payload_image (one service called payload) or "
-                 "payload_services, not both (set payload_image: null where payload_services is used)")]
+        return [
+            (
+                "payload_services",
+                "set either payload_image (one service called payload) or "
+                "payload_services, not both (set payload_image: null where payload_services is used)",
+            )
+        ]
     if raw:
         for key, empty in SHORTHAND_SETTINGS.items():
             if value_of(data, key) not in (None, empty):
-                problems.append((key, f"applies to the single-image payload; with payload_services "
-                                 f"give each service its own '{key.removeprefix('payload_')}' key"))
+                problems.append(
+                    (
+                        key,
+                        f"applies to the single-image payload; with payload_services "
+                        f"give each service its own '{key.removeprefix('payload_')}' key",
+                    )
+                )
     services = declared(data)
     if not services:
         return [("payload_image", "required: the payload image, pinned by tag or digest")]
     allow_latest = bool(value_of(data, "payload_allow_latest"))
     payload_dir = value_of(data, "payload_dir") or "/var/lib/robot-payload"
-    replaces = {entry.partition(":")[2] for entry in value_of(data, "payload_replaces") or []
-                if entry.startswith("container:")}
+    replaces = {
+        entry.partition(":")[2] for entry in value_of(data, "payload_replaces") or [] if entry.startswith("container:")
+    }
     names: dict[str, str] = {}
     # The shorthand's one service is checked by the payload_* settings themselves.
     for name, spec in (services if raw else {}).items():
@@ -173,19 +192,38 @@ def project_problems(data) -> list[tuple[str, str]]:
             if why:
                 problems.append((f"{where}.image", why))
         if spec.get("privileged") and not value_of(data, "payload_allow_privileged"):
-            problems.append((f"{where}.privileged", "privileged containers are refused unless "
-                             "payload_allow_privileged is true (prefer devices / cap_add)"))
+            problems.append(
+                (
+                    f"{where}.privileged",
+                    "privileged containers are refused unless "
+                    "payload_allow_privileged is true (prefer devices / cap_add)",
+                )
+            )
         if not value_of(data, "payload_allow_privileged"):
-            problems += [(f"{where}{key}", f"{what} gives the container root on the robot: refused unless "
-                          "payload_allow_privileged is true") for key, what in root_equivalents(spec)]
+            problems += [
+                (
+                    f"{where}{key}",
+                    f"{what} gives the container root on the robot: refused unless payload_allow_privileged is true",
+                )
+                for key, what in root_equivalents(spec)
+            ]
         container_name = spec.get("container_name")
         if isinstance(container_name, str):
             if container_name in names:
-                problems.append((f"{where}.container_name",
-                                 f"{container_name!r} is also the container_name of service {names[container_name]}"))
+                problems.append(
+                    (
+                        f"{where}.container_name",
+                        f"{container_name!r} is also the container_name of service {names[container_name]}",
+                    )
+                )
             elif container_name in replaces:
-                problems.append((f"{where}.container_name", f"{container_name!r} is listed in payload_replaces: "
-                                 "the takeover would stop this project's own container"))
+                problems.append(
+                    (
+                        f"{where}.container_name",
+                        f"{container_name!r} is listed in payload_replaces: "
+                        "the takeover would stop this project's own container",
+                    )
+                )
             names.setdefault(container_name, name)
         if "platform" in spec:
             try:
@@ -193,37 +231,63 @@ def project_problems(data) -> list[tuple[str, str]]:
             except ValueError as error:
                 problems.append((f"{where}.platform", str(error)))
         if "profiles" in spec:
-            problems.append((f"{where}.profiles", "no profile is activated on the robot, so the service would "
-                             "never start (and the health gate could not see it); remove profiles or the service"))
+            problems.append(
+                (
+                    f"{where}.profiles",
+                    "no profile is activated on the robot, so the service would "
+                    "never start (and the health gate could not see it); remove profiles or the service",
+                )
+            )
         if spec.get("scale") in (0, "0"):
             problems.append((f"{where}.scale", "0 never starts the service; remove the service instead (null)"))
         if spec.get("scale") not in (None, 1) and container_name:
             problems.append((f"{where}.scale", "a fixed container_name allows one container only"))
         for index, source in _bind_sources(spec):
             if source.startswith("/") and _under(source, payload_dir):
-                problems.append((f"{where}.volumes[{index}]", f"{source} is inside {payload_dir} (the releases); "
-                                 "mount a path outside it"))
+                problems.append(
+                    (
+                        f"{where}.volumes[{index}]",
+                        f"{source} is inside {payload_dir} (the releases); mount a path outside it",
+                    )
+                )
             elif source.startswith("."):
-                problems.append((f"{where}.volumes[{index}]", f"relative path {source} would resolve inside "
-                                 "the release directory; use an absolute host path"))
+                problems.append(
+                    (
+                        f"{where}.volumes[{index}]",
+                        f"relative path {source} would resolve inside the release directory; use an absolute host path",
+                    )
+                )
         environment = spec.get("environment")
         if isinstance(environment, dict):
             for key, value in environment.items():
                 if value is not None and not isinstance(value, str):
-                    problems.append((f"{where}.environment.{key}", f"expected a string, got {value!r} "
-                                     "(quote it: YAML reads true/false, null and numbers as other types)"))
+                    problems.append(
+                        (
+                            f"{where}.environment.{key}",
+                            f"expected a string, got {value!r} "
+                            "(quote it: YAML reads true/false, null and numbers as other types)",
+                        )
+                    )
         env_files = spec.get("env_file")
         listed = isinstance(env_files, list)
         for index, entry in enumerate(env_files if listed else [env_files]):
             path = entry.get("path") if isinstance(entry, dict) else entry
             if isinstance(path, str) and (not path.startswith("/") or _under(path, payload_dir)):
-                problems.append((f"{where}.env_file" + (f"[{index}]" if listed else ""), f"{path} would be read "
-                                 "from the release directory; use an absolute path outside it"))
+                problems.append(
+                    (
+                        f"{where}.env_file" + (f"[{index}]" if listed else ""),
+                        f"{path} would be read from the release directory; use an absolute path outside it",
+                    )
+                )
     if not raw and not value_of(data, "payload_allow_privileged"):
         volumes = {"volumes": list(value_of(data, "payload_volumes") or [])}
-        problems += [(f"payload_volumes{key.removeprefix('.volumes')}", f"{what} gives the container root on the "
-                      "robot: refused unless payload_allow_privileged is true")
-                     for key, what in root_equivalents(volumes)]
+        problems += [
+            (
+                f"payload_volumes{key.removeprefix('.volumes')}",
+                f"{what} gives the container root on the robot: refused unless payload_allow_privileged is true",
+            )
+            for key, what in root_equivalents(volumes)
+        ]
     problems += _preset_problems(data, allow_latest)
     return problems
 
@@ -251,8 +315,13 @@ def _preset_problems(data, allow_latest: bool) -> list[tuple[str, str]]:
         if text is None:
             problems.append(("ros_dds_profile", f"no file files/{DDS_DIR}/{profile}"))
         elif dds_vendor(text) is None:
-            problems.append(("ros_dds_profile", f"files/{DDS_DIR}/{profile} is neither a Cyclone DDS "
-                             "(<CycloneDDS>) nor a Fast DDS (<profiles>/<dds>) XML profile"))
+            problems.append(
+                (
+                    "ros_dds_profile",
+                    f"files/{DDS_DIR}/{profile} is neither a Cyclone DDS "
+                    "(<CycloneDDS>) nor a Fast DDS (<profiles>/<dds>) XML profile",
+                )
+            )
     return problems
 
 

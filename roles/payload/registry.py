@@ -24,7 +24,8 @@ import urllib.error
 import urllib.parse
 import urllib.request
 
-from roles.payload.credentials import DOCKER_HUB as DOCKER_HUB_NAMES, Credentials, registry_key
+from roles.payload.credentials import DOCKER_HUB as DOCKER_HUB_NAMES
+from roles.payload.credentials import Credentials, registry_key
 from roles.payload.payloadctl import platforms
 
 ACCEPT = ", ".join(platforms.INDEX_TYPES + platforms.MANIFEST_TYPES)
@@ -122,8 +123,10 @@ class Registry:
         listed = {(u.scheme, u.netloc.lower(), u.path) for u in map(urllib.parse.urlsplit, self.credentials.realms)}
         if (parts.scheme, parts.netloc.lower(), parts.path) in listed:
             return None
-        return (f"on another host ({parts.netloc}) and not listed in "
-                f"payload_registry_auths.{self.credentials.registry}.token_realms")
+        return (
+            f"on another host ({parts.netloc}) and not listed in "
+            f"payload_registry_auths.{self.credentials.registry}.token_realms"
+        )
 
     def _authorize(self, header: str) -> bool:
         scheme, params = challenge(header)
@@ -134,8 +137,10 @@ class Registry:
             return False
         why = self.realm_refusal(params["realm"]) if self.credentials else None
         if why:
-            raise RegistryError(f"{self.name}: its token realm {params['realm']} is {why}; the credentials for "
-                                f"{self.credentials.registry} are not sent there")
+            raise RegistryError(
+                f"{self.name}: its token realm {params['realm']} is {why}; the credentials for "
+                f"{self.credentials.registry} are not sent there"
+            )
         query = urllib.parse.urlencode({k: v for k, v in params.items() if k in ("service", "scope")})
         request = urllib.request.Request(f"{params['realm']}?{query}")
         if self.credentials:

@@ -18,16 +18,16 @@ from pyinfra.api import FunctionCommand, deploy
 from pyinfra.api.arguments import CONNECTOR_ARGUMENT_KEYS
 from pyinfra.api.util import format_text, print_host_combined_output
 
+import roles.payload.compose as compose
+import roles.payload.takeover_plan as takeover_plan
 from robotfleet.checkers import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot
 from robotfleet.role import deployment
-import roles.payload.compose as compose
-import roles.payload.takeover_plan as takeover_plan
+from roles.payload.installed_files import HELPER
 from roles.payload.payloadctl import lock, results
 from roles.payload.payloadctl.lifecycle import SETTLED
 from roles.payload.payloadctl.spec import Spec
-from roles.payload.installed_files import HELPER
 
 
 def spec(data, doc: dict, checks: list = ()) -> Spec:
@@ -58,8 +58,12 @@ def request(data, doc: dict, checks: list) -> str:
     """What `payloadctl apply` reads: the spec, who asks, the deployment
     that asks (named in the result) and the apply lock's token of the run
     this deploy is part of (payload_lock_token: sent on stdin, never shown)."""
-    run = {"by": f"{operator()} (pyinfra)", "force": bool(data.payload_force), "host": host.name,
-           "deployment": deployment()}
+    run = {
+        "by": f"{operator()} (pyinfra)",
+        "force": bool(data.payload_force),
+        "host": host.name,
+        "deployment": deployment(),
+    }
     if data.payload_lock_token:
         run["lock_token"] = data.payload_lock_token
     return json.dumps({"spec": spec(data, doc, checks).to_dict(), "run": run}, sort_keys=True)
@@ -99,8 +103,9 @@ def payloadctl_command(script: str, stdin: list[str] | None = None) -> FunctionC
     structured result decides the run and what is said.  Without one (the
     script failed before payloadctl), its own output is shown."""
     command = operations.shell(script, stdin)
-    arguments = {key: value for key, value in (host.current_op_global_arguments or {}).items()
-                 if key in CONNECTOR_ARGUMENT_KEYS}
+    arguments = {
+        key: value for key, value in (host.current_op_global_arguments or {}).items() if key in CONNECTOR_ARGUMENT_KEYS
+    }
     arguments.update(command.connector_arguments)
 
     def run(state, host):

@@ -4,16 +4,14 @@ the robot's compose project running healthy)."""
 
 from __future__ import annotations
 
+import datetime
 import json
 import shlex
 
-import datetime
-
+import roles.payload.digests as digests
 from robotfleet.checkers import one_line
 from robotfleet.role import Metric, RolloutPart, StatusPart
-import roles.payload.digests as digests
 from roles.payload.installed_files import HELPER
-
 
 # HEALTH of a container whose image declares no health check (Docker reports none).
 NO_CHECK = "no check"
@@ -120,20 +118,34 @@ def healthy(row: dict) -> bool:
     health = (row.get("health") or "").split(", ")
     states = (row.get("state") or "").split(", ")
     return all(s.rsplit(":", 1)[-1] == "running" for s in states) and all(
-        h.rsplit(":", 1)[-1] in ("healthy", NO_CHECK, "none") for h in health)  # "none": an older robot's report
+        h.rsplit(":", 1)[-1] in ("healthy", NO_CHECK, "none") for h in health
+    )  # "none": an older robot's report
 
 
 def metrics(row: dict) -> list[Metric]:
     """The payload's gauges for robotfleet status --metrics."""
     found = []
     if row.get("release"):
-        found.append(Metric("payload_release_info",
-                            "The payload release the host runs, its state and the previous one.",
-                            1, (("release", row["release"]), ("state", row.get("release_state") or ""),
-                                ("previous", row.get("previous") or ""))))
+        found.append(
+            Metric(
+                "payload_release_info",
+                "The payload release the host runs, its state and the previous one.",
+                1,
+                (
+                    ("release", row["release"]),
+                    ("state", row.get("release_state") or ""),
+                    ("previous", row.get("previous") or ""),
+                ),
+            )
+        )
     if row.get("state"):
-        found.append(Metric("payload_healthy", "1 every payload container runs healthy (or has no health check), "
-                                               "0 not.", 1 if healthy(row) else 0))
+        found.append(
+            Metric(
+                "payload_healthy",
+                "1 every payload container runs healthy (or has no health check), 0 not.",
+                1 if healthy(row) else 0,
+            )
+        )
         found.append(Metric("payload_restarts", "Restarts of the payload's containers.", row.get("restarts") or 0))
     deployed = row.get("deployed")
     try:
@@ -141,8 +153,13 @@ def metrics(row: dict) -> list[Metric]:
     except ValueError:
         when = None
     if when is not None:
-        found.append(Metric("payload_last_change_timestamp_seconds", "When the payload's current release was "
-                            "activated or rolled back to (Unix time).", when.timestamp()))
+        found.append(
+            Metric(
+                "payload_last_change_timestamp_seconds",
+                "When the payload's current release was activated or rolled back to (Unix time).",
+                when.timestamp(),
+            )
+        )
     return found
 
 
@@ -156,8 +173,15 @@ def watch(data) -> list[str]:
 STATUS = StatusPart(
     command=status_command,
     cells=cells,
-    columns=(("release", "RELEASE"), ("image", "IMAGE"), ("state", "STATE"), ("health", "HEALTH"),
-             ("previous", "PREVIOUS"), ("deployed", "LAST DEPLOY"), ("lock", "LOCK")),
+    columns=(
+        ("release", "RELEASE"),
+        ("image", "IMAGE"),
+        ("state", "STATE"),
+        ("health", "HEALTH"),
+        ("previous", "PREVIOUS"),
+        ("deployed", "LAST DEPLOY"),
+        ("lock", "LOCK"),
+    ),
     order=20,
     metrics=metrics,
     watch=watch,

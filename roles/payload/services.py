@@ -15,8 +15,8 @@ import copy
 import json
 import re
 
-from robotfleet.checkers import key_name
 import roles.payload.payloadctl.imageref as imageref
+from robotfleet.checkers import key_name
 
 SHORTHAND = "payload"
 SERVICE_NAME = r"[a-zA-Z0-9][a-zA-Z0-9._-]*"
@@ -159,7 +159,6 @@ def repositories(data) -> list[str]:
     return sorted(set(result))
 
 
-
 def layer_problems(value) -> list[tuple[str, str]]:
     """One layer's payload_services: a mapping of service name -> mapping (or
     null to remove it).  Keys are checked on the merged project."""
@@ -168,9 +167,11 @@ def layer_problems(value) -> list[tuple[str, str]]:
     problems = []
     for name, spec in value.items():
         if not isinstance(name, str) or not re.fullmatch(SERVICE_NAME, name):
-            problems.append((f".{key_name(name)}",
-                             "service names are letters, digits, . _ - (starting with a letter or digit)"))
+            problems.append(
+                (f".{key_name(name)}", "service names are letters, digits, . _ - (starting with a letter or digit)")
+            )
         elif spec is not None and not isinstance(spec, dict):
-            problems.append((f".{key_name(name)}",
-                             "expected a mapping of compose keys (or null to remove the service)"))
+            problems.append(
+                (f".{key_name(name)}", "expected a mapping of compose keys (or null to remove the service)")
+            )
     return problems

@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import re
 
-from robotfleet import checkers as c
-from robotfleet import value_kinds as v
-from robotfleet.role import Renamed, Setting
 import roles.payload.credentials as credentials
 import roles.payload.digests as digests
 import roles.payload.payloadctl.imageref as imageref
@@ -15,6 +12,9 @@ import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets
 import roles.payload.problems as problems
 import roles.payload.services as services
+from robotfleet import checkers as c
+from robotfleet import value_kinds as v
+from robotfleet.role import Renamed, Setting
 
 
 def parsed_by(parse):
@@ -63,8 +63,13 @@ def replaced(value):
         return problems
     kind, sep, name = value.partition(":")
     if not sep and re.fullmatch(_NAME, value):
-        return [("", f"{c.shown(value)} could be a container or a compose project: "
-                     f"write container:{value} or project:{value}")]
+        return [
+            (
+                "",
+                f"{c.shown(value)} could be a container or a compose project: "
+                f"write container:{value} or project:{value}",
+            )
+        ]
     if kind not in ("container", "project") or not re.fullmatch(_NAME, name):
         return [("", f"expected container:NAME or project:NAME, got {c.shown(value)}")]
     return []
@@ -73,14 +78,26 @@ def replaced(value):
 platform = parsed_by(platforms.parse)
 
 
-c.with_schema(platform, {"type": "string", "pattern": "^[a-z0-9]+/[a-z0-9_]+(?:/[a-z0-9]+)?$",
-                         "description": "os/architecture[/variant], e.g. linux/arm64"})
-c.with_schema(replaced, {"type": "string", "pattern": f"^(?:container|project):{_NAME}$",
-                         "description": "container:NAME or project:NAME"})
-c.with_schema(image, {"type": "string", "pattern": imageref.JSON_PATTERN,
-                     "description": "an image reference, pinned by tag or digest"})
-c.with_schema(volume, {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$",
-                      "description": "host_path:container_path[:ro]"})
+c.with_schema(
+    platform,
+    {
+        "type": "string",
+        "pattern": "^[a-z0-9]+/[a-z0-9_]+(?:/[a-z0-9]+)?$",
+        "description": "os/architecture[/variant], e.g. linux/arm64",
+    },
+)
+c.with_schema(
+    replaced,
+    {"type": "string", "pattern": f"^(?:container|project):{_NAME}$", "description": "container:NAME or project:NAME"},
+)
+c.with_schema(
+    image,
+    {"type": "string", "pattern": imageref.JSON_PATTERN, "description": "an image reference, pinned by tag or digest"},
+)
+c.with_schema(
+    volume,
+    {"type": "string", "pattern": "^/[^:]*:/[^:]*(?::(?:ro|rw))?$", "description": "host_path:container_path[:ro]"},
+)
 payload_services = c.with_schema(
     services.layer_problems,
     {
@@ -101,8 +118,14 @@ def lock_token(value):
     return [("", "expected the token payloadctl hold wrote (hex digits); the value is not shown")]
 
 
-c.with_schema(lock_token, {"type": "string", "pattern": "^[0-9a-f]{32,128}$",
-                           "description": "a token payloadctl hold wrote (set by the pull agent, never by hand)"})
+c.with_schema(
+    lock_token,
+    {
+        "type": "string",
+        "pattern": "^[0-9a-f]{32,128}$",
+        "description": "a token payloadctl hold wrote (set by the pull agent, never by hand)",
+    },
+)
 
 digest = c.string(digests.DIGEST, "a digest: sha256: and 64 lowercase hex digits")
 _pins = c.mapping_of(image, digest)
@@ -112,8 +135,13 @@ def image_pins(value):
     """A mapping image -> digest (pyinfra's --data turns JSON text into one;
     text that is not valid JSON arrives as a string)."""
     if isinstance(value, str):
-        return [("", f"expected a mapping image -> digest, got {c.shown(value)}; on --data give JSON text: "
-                     "payload_image_pins='{\"reg/ros/payload:1.1\": \"sha256:...\"}'")]
+        return [
+            (
+                "",
+                f"expected a mapping image -> digest, got {c.shown(value)}; on --data give JSON text: "
+                'payload_image_pins=\'{"reg/ros/payload:1.1": "sha256:..."}\'',
+            )
+        ]
     return _pins(value)
 
 
@@ -122,70 +150,156 @@ c.with_schema(image_pins, _pins.schema)
 SETTINGS = (
     Setting("payload_image", None, c.optional(image), "The ROS payload image, pinned by tag or digest."),
     Setting("payload_allow_latest", False, c.boolean, "Allow the moving tag 'latest'."),
-    Setting("payload_name", "robot-payload", c.string(c.IDENTIFIER, "a name of lowercase letters, digits, - and _"),
-            "Compose project, systemd unit (<name>.service) and directory name."),
+    Setting(
+        "payload_name",
+        "robot-payload",
+        c.string(c.IDENTIFIER, "a name of lowercase letters, digits, - and _"),
+        "Compose project, systemd unit (<name>.service) and directory name.",
+    ),
     Setting("payload_dir", "/var/lib/robot-payload", v.private_path, "Where the releases live on the host."),
-    Setting("payload_delivery", "pull", c.string(choices=("pull", "push")),
-            "pull: the robot pulls from the registry; push: sent from this machine's Docker engine over SSH."),
-    Setting("payload_autostart", True, c.boolean, "Start the payload at boot (robots) or only stage it (laptops).",
-            groups={"robots": True, "laptops": False}),
-    Setting("payload_restart_policy", "unless-stopped",
-            c.string(choices=("no", "always", "on-failure", "unless-stopped")),
-            "The containers' restart policy."),
+    Setting(
+        "payload_delivery",
+        "pull",
+        c.string(choices=("pull", "push")),
+        "pull: the robot pulls from the registry; push: sent from this machine's Docker engine over SSH.",
+    ),
+    Setting(
+        "payload_autostart",
+        True,
+        c.boolean,
+        "Start the payload at boot (robots) or only stage it (laptops).",
+        groups={"robots": True, "laptops": False},
+    ),
+    Setting(
+        "payload_restart_policy",
+        "unless-stopped",
+        c.string(choices=("no", "always", "on-failure", "unless-stopped")),
+        "The containers' restart policy.",
+    ),
     Setting("payload_network_mode", "host", c.string(choices=("host", "bridge", "none")), "The containers' network."),
-    Setting("payload_stop_grace_period", None, c.optional(c.integer(0, 3600)),
-            "Seconds a container has to stop on its signal before it is killed (compose stop_grace_period); "
-            "null: Docker's 10."),
-    Setting("payload_init", False, c.boolean,
-            "Run an init process as PID 1 (compose init): it passes signals on to an entrypoint that is a shell."),
-    Setting("payload_environment", {}, c.mapping_of(_env_name, c.text),
-            "Extra container environment; values reach the container verbatim."),
+    Setting(
+        "payload_stop_grace_period",
+        None,
+        c.optional(c.integer(0, 3600)),
+        "Seconds a container has to stop on its signal before it is killed (compose stop_grace_period); "
+        "null: Docker's 10.",
+    ),
+    Setting(
+        "payload_init",
+        False,
+        c.boolean,
+        "Run an init process as PID 1 (compose init): it passes signals on to an entrypoint that is a shell.",
+    ),
+    Setting(
+        "payload_environment",
+        {},
+        c.mapping_of(_env_name, c.text),
+        "Extra container environment; values reach the container verbatim.",
+    ),
     Setting("payload_command", None, c.optional(c.list_of(c.string())), "The container's command; null: the image's."),
     Setting("payload_volumes", [], c.list_of(volume), "Extra bind mounts, host_path:container_path[:ro]."),
     Setting("payload_gpu", False, c.boolean, "Give the payload the host's NVIDIA GPUs (the gpu role runs)."),
-    Setting("payload_platform", None, c.optional(platform),
-            "The image's platform (linux/arm64) where a vendor ships one tag per architecture; null: the robot's own."),
+    Setting(
+        "payload_platform",
+        None,
+        c.optional(platform),
+        "The image's platform (linux/arm64) where a vendor ships one tag per architecture; null: the robot's own.",
+    ),
     Setting("ros_domain_id", 0, c.integer(0, 232), "ROS 2 ROS_DOMAIN_ID."),
-    Setting("ros_master_uri", None, c.optional(c.string(r"https?://[A-Za-z0-9.-]+(?::[0-9]+)?/?", "a URL like http://master:11311")),
-            "ROS 1 ROS_MASTER_URI (instead of ros_domain_id)."),
+    Setting(
+        "ros_master_uri",
+        None,
+        c.optional(c.string(r"https?://[A-Za-z0-9.-]+(?::[0-9]+)?/?", "a URL like http://master:11311")),
+        "ROS 1 ROS_MASTER_URI (instead of ros_domain_id).",
+    ),
     Setting("ros_hostname", None, c.optional(v.address), "ROS 1 ROS_HOSTNAME; null: the host's address."),
     Setting("payload_health_timeout", 120, c.integer(5, 3600), "Seconds for a new release to become healthy."),
-    Setting("payload_stable_seconds", 10, c.integer(0, 600),
-            "For images without a HEALTHCHECK: seconds it must run without restarting."),
+    Setting(
+        "payload_stable_seconds",
+        10,
+        c.integer(0, 600),
+        "For images without a HEALTHCHECK: seconds it must run without restarting.",
+    ),
     Setting("payload_pull_timeout", 300, c.integer(5, 86400), "Seconds for docker pull, all tries."),
-    Setting("payload_apply_lock_timeout", 300, c.integer(0, 86400),
-            "Seconds to wait for another deploy, rollback or boot recovery of the same robot."),
+    Setting(
+        "payload_apply_lock_timeout",
+        300,
+        c.integer(0, 86400),
+        "Seconds to wait for another deploy, rollback or boot recovery of the same robot.",
+    ),
     Setting("payload_device_wait", 30, c.integer(0, 600), "Seconds to wait at boot for the sensors' device links."),
-    Setting("payload_keep_releases", 3, c.integer(2, 50),
-            "Releases kept on the robot (their images too, for offline rollback)."),
-    Setting("payload_update_lock_path", "/run/robot-payload/update.lock", v.private_path,
-            "The update lock: while this file exists on the robot, updates are refused unless forced."),
+    Setting(
+        "payload_keep_releases",
+        3,
+        c.integer(2, 50),
+        "Releases kept on the robot (their images too, for offline rollback).",
+    ),
+    Setting(
+        "payload_update_lock_path",
+        "/run/robot-payload/update.lock",
+        v.private_path,
+        "The update lock: while this file exists on the robot, updates are refused unless forced.",
+    ),
     Setting("payload_force", False, c.boolean, "Update although the update lock is held."),
-    Setting("payload_lock_token", None, c.optional(lock_token),
-            "The apply lock's token of the run this deploy is part of (payloadctl hold); never printed."),
-    Setting(digests.SETTING, {}, image_pins,
-            "Image -> the digest it runs by; normally set by the pull agent from a signed release, not by hand."),
-    Setting("payload_registry_username_env", "PAYLOAD_REGISTRY_USERNAME", _env_name,
-            "Environment variable (on this machine) holding the registry user; never stored, never printed."),
-    Setting("payload_registry_password_env", "PAYLOAD_REGISTRY_PASSWORD", _env_name,
-            "Environment variable (on this machine) holding the registry password or token."),
-    Setting("payload_registry_auths", {}, credentials.auths,
-            "Credentials per registry (as Docker's auths): registry -> username_env/username_file, "
-            "password_env/password_file (files outside the checkout), token_realms; each goes to its registry only."),
-    Setting("payload_services", {}, payload_services,
-            "Several services instead of payload_image: name -> a Compose service; layers merge per service and key.",
-            merge=services.merge_values),
-    Setting("payload_replaces", [], c.list_of(replaced, unique=True),
-            "What was set up another way and the payload replaces: container:NAME or project:NAME "
-            "(a compose project)."),
+    Setting(
+        "payload_lock_token",
+        None,
+        c.optional(lock_token),
+        "The apply lock's token of the run this deploy is part of (payloadctl hold); never printed.",
+    ),
+    Setting(
+        digests.SETTING,
+        {},
+        image_pins,
+        "Image -> the digest it runs by; normally set by the pull agent from a signed release, not by hand.",
+    ),
+    Setting(
+        "payload_registry_username_env",
+        "PAYLOAD_REGISTRY_USERNAME",
+        _env_name,
+        "Environment variable (on this machine) holding the registry user; never stored, never printed.",
+    ),
+    Setting(
+        "payload_registry_password_env",
+        "PAYLOAD_REGISTRY_PASSWORD",
+        _env_name,
+        "Environment variable (on this machine) holding the registry password or token.",
+    ),
+    Setting(
+        "payload_registry_auths",
+        {},
+        credentials.auths,
+        "Credentials per registry (as Docker's auths): registry -> username_env/username_file, "
+        "password_env/password_file (files outside the checkout), token_realms; each goes to its registry only.",
+    ),
+    Setting(
+        "payload_services",
+        {},
+        payload_services,
+        "Several services instead of payload_image: name -> a Compose service; layers merge per service and key.",
+        merge=services.merge_values,
+    ),
+    Setting(
+        "payload_replaces",
+        [],
+        c.list_of(replaced, unique=True),
+        "What was set up another way and the payload replaces: container:NAME or project:NAME (a compose project).",
+    ),
     Setting("payload_allow_privileged", False, c.boolean, "Allow privileged services."),
-    Setting("ros_preset", None, c.optional(c.string(choices=("ros1", "ros2"))),
-            "ros1 or ros2: the usual ROS environment, ipc and DDS profile in one line."),
+    Setting(
+        "ros_preset",
+        None,
+        c.optional(c.string(choices=("ros1", "ros2"))),
+        "ros1 or ros2: the usual ROS environment, ipc and DDS profile in one line.",
+    ),
     Setting("ros_roscore", False, c.boolean, "ROS 1: run roscore as a service of the project."),
     Setting("ros_roscore_image", None, c.optional(image), "ROS 1: the roscore image, pinned."),
-    Setting("ros_dds_profile", None,
-            c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
-            "ROS 2: a DDS profile from files/dds/ (Cyclone DDS or Fast DDS XML), mounted read-only."),
+    Setting(
+        "ros_dds_profile",
+        None,
+        c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),
+        "ROS 2: a DDS profile from files/dds/ (Cyclone DDS or Fast DDS XML), mounted read-only.",
+    ),
 )
 RENAMED = (Renamed("payload_lock_file", "payload_update_lock_path"),)
 

@@ -10,24 +10,24 @@ from pyinfra import host
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
-from robotfleet.host import apt, operations
-from robotfleet.host.snapshot import SnapshotQuery
-from robotfleet.role import Play
 import roles.docker.hooks as docker_hooks
 import roles.payload.compose as compose
 import roles.payload.containers as containers
 import roles.payload.credentials as credentials
 import roles.payload.dds_profile as dds_profile
 import roles.payload.hooks as hooks
+import roles.payload.image_transfer as image_transfer
 import roles.payload.installed_files as installed_files
+import roles.payload.login as login
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
-import roles.payload.login as login
-import roles.payload.image_transfer as image_transfer
-import roles.payload.transferred_images as transferred_images
 import roles.payload.release as release
 import roles.payload.services as services
 import roles.payload.takeover_plan as takeover_plan
+import roles.payload.transferred_images as transferred_images
+from robotfleet.host import apt, operations
+from robotfleet.host.snapshot import SnapshotQuery
+from robotfleet.role import Play
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -107,8 +107,11 @@ def deploy_payload(play: Play):
 
     if not snap.commands.get("python3"):
         apt.apt_install(name="Install python3 for payloadctl", packages=["python3"], installed=snap.packages)
-    operations.directory(name=f"Payload releases directory {data.payload_dir}", path=data.payload_dir,
-                         current=snap.files.get(data.payload_dir))
+    operations.directory(
+        name=f"Payload releases directory {data.payload_dir}",
+        path=data.payload_dir,
+        current=snap.files.get(data.payload_dir),
+    )
     operations.file(
         name="Install the release helper payloadctl",
         path=installed_files.HELPER,
@@ -123,8 +126,12 @@ def deploy_payload(play: Play):
         snap.files.get(unit), unit_content.encode(), "0644", "root", "root"
     )
     if data.payload_autostart:
-        unit_op = operations.file(name=f"Write the autostart unit {data.payload_name}.service", path=unit,
-                                  content=unit_content, current=snap.files.get(unit))
+        unit_op = operations.file(
+            name=f"Write the autostart unit {data.payload_name}.service",
+            path=unit,
+            content=unit_content,
+            current=snap.files.get(unit),
+        )
         operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=unit_op.did_change)
         operations.service(
             name=f"Enable {data.payload_name}.service at boot",
@@ -181,12 +188,21 @@ def deploy_payload(play: Play):
     )
     needed = needed or unit_changes or bool(taken_over)
     the_release = {"data": data, "document": doc, "checks": play.added(hooks.CHECKS)}
-    release.release(name="Release the payload (pull, switch, health check, roll back on failure)",
-                    needed=needed, restart=unit_changes or bool(taken_over), **the_release)
+    release.release(
+        name="Release the payload (pull, switch, health check, roll back on failure)",
+        needed=needed,
+        restart=unit_changes or bool(taken_over),
+        **the_release,
+    )
     restarts = play.announced(docker_hooks.RESTARTED)
     if restarts and not needed:
         # A daemon.json Docker accepts can still lose the payload (a new
         # data-root, userns-remap): the same release, checked and made again
         # if its containers are gone, under the health gate.
-        release.release(name="Check the payload after Docker restarted (released again if it does not run)",
-                        needed=True, restart=False, _if=any_changed(*restarts), **the_release)
+        release.release(
+            name="Check the payload after Docker restarted (released again if it does not run)",
+            needed=True,
+            restart=False,
+            _if=any_changed(*restarts),
+            **the_release,
+        )

@@ -10,18 +10,21 @@ import json
 
 from pyinfra import host, logger
 
-from robotfleet.checkers import one_line
-from robotfleet.host.snapshot import Snapshot
 import roles.payload.containers as containers
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.takeover as takeover_rule
 import roles.payload.services as services
+from robotfleet.checkers import one_line
+from robotfleet.host.snapshot import Snapshot
+
 
 def takeover_of(data) -> dict:
     """What payloadctl may take over (the spec's "takeover"): the primary
     image's repository, and what payload_replaces names."""
-    return {"primary": imageref.repository(services.primary_image(data) or ""),
-            **takeover_rule.parse_replaces(data.payload_replaces)}
+    return {
+        "primary": imageref.repository(services.primary_image(data) or ""),
+        **takeover_rule.parse_replaces(data.payload_replaces),
+    }
 
 
 def foreign(probe_output: str, project: str, takeover: dict, recorded=()) -> list[dict]:
@@ -36,9 +39,15 @@ def foreign(probe_output: str, project: str, takeover: dict, recorded=()) -> lis
             continue
         # No such label: Docker's printf renders the missing value as "%!s(<nil>)".
         label = "" if label.startswith("%!") or label == "<no value>" else label
-        container = {"id": cid[:12], "name": name.lstrip("/"), "image": image, "project": label or None,
-                     "running": running == "true", "restart": policy or "no",
-                     "repositories": [imageref.repository(image)]}
+        container = {
+            "id": cid[:12],
+            "name": name.lstrip("/"),
+            "image": image,
+            "project": label or None,
+            "running": running == "true",
+            "restart": policy or "no",
+            "repositories": [imageref.repository(image)],
+        }
         why = takeover_rule.reason(container, project, takeover, recorded)
         if why:
             found.append(dict(container, why=why))
@@ -60,8 +69,9 @@ def takeover(data, snap: Snapshot, current_record: dict | None = None) -> list[d
     if not data.payload_autostart:
         return []
     recorded = takeover_rule.recorded_projects(current_record, data.payload_name)
-    found = foreign(containers.part(snap.probes.get(containers.PROBE, ""), "f"), data.payload_name, takeover_of(data),
-                    recorded)
+    found = foreign(
+        containers.part(snap.probes.get(containers.PROBE, ""), "f"), data.payload_name, takeover_of(data), recorded
+    )
     if found:
         # Names and images come from the robot: one line, nothing that moves the cursor.
         logger.warning(f"[{host.name}] {one_line(takeover_line(found))}")

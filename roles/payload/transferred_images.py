@@ -8,12 +8,12 @@ import shlex
 
 from pyinfra import host
 
-from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 import roles.docker.hooks as docker_hooks
-from roles.payload.credentials import registry_key
-import roles.payload.payloadctl.imageref as imageref
 import roles.payload.image_transfer as image_transfer
+import roles.payload.payloadctl.imageref as imageref
 import roles.payload.services as services
+from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+from roles.payload.credentials import registry_key
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -34,8 +34,12 @@ def image_id_probe(ref: str) -> str:
 def push_target(data, snap: Snapshot, credentials) -> dict:
     """Who a push is for: the robot, its architecture (from the snapshot),
     and how to read the image's registry for its own variant."""
-    return {"robot": host.name, "arch": snap.arch, "insecure": docker_hooks.insecure_registries(data),
-            "credentials": credentials}
+    return {
+        "robot": host.name,
+        "arch": snap.arch,
+        "insecure": docker_hooks.insecure_registries(data),
+        "credentials": credentials,
+    }
 
 
 def push_more_images(data, snap: Snapshot, auths: dict | None = None) -> None:

@@ -18,6 +18,8 @@ from pyinfra import host
 from pyinfra.api import deploy, operation
 from pyinfra.operations.util import any_changed
 
+import roles.pull.plan as plan
+import roles.pull.settings as settings
 from robotfleet import CHECKOUT
 from robotfleet.host import apt, operations
 from robotfleet.host.snapshot import SnapshotQuery
@@ -25,16 +27,21 @@ from robotfleet.host.stream import FileStdin
 from robotfleet.pull.operator import install
 from robotfleet.pull.protocol import agent_files
 from robotfleet.role import Play, Role
-import roles.pull.plan as plan
-import roles.pull.settings as settings
 
 INSTALLED_PROBE = "pull_installed"
 PYTHON_PROBE = "pull_python"
 # Set in a host's data by the agent when it runs the deploy itself.
 AGENT_RUN = agent_files.AGENT_RUN
-FILES = (agent_files.CONFIG, agent_files.TRUST_ROOT, agent_files.KNOWN_HOSTS, agent_files.REMOTE_CA, agent_files.KEY,
-         f"{agent_files.KEY}.pub",
-         f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}", f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")
+FILES = (
+    agent_files.CONFIG,
+    agent_files.TRUST_ROOT,
+    agent_files.KNOWN_HOSTS,
+    agent_files.REMOTE_CA,
+    agent_files.KEY,
+    f"{agent_files.KEY}.pub",
+    f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}",
+    f"{agent_files.UNIT_DIR}/{agent_files.TIMER}",
+)
 
 
 runs_on = plan.pulls
@@ -70,55 +77,89 @@ def pull_agent(play: Play):
     except install.InstallError as error:
         operations.fail(name="Read the fleet remote's CA", message=str(error))
         return
-    apt.apt_install(name="Install git and python3-venv for the pull agent", packages=list(plan.PACKAGES),
-                    installed=snap.packages)
+    apt.apt_install(
+        name="Install git and python3-venv for the pull agent", packages=list(plan.PACKAGES), installed=snap.packages
+    )
     for path in (agent_files.ETC, agent_files.STATE):
-        operations.directory(name=f"Pull agent directory {path}", path=path, current=snap.files.get(path),
-                             mode="0700")
-    operations.file(name="Write the pull agent's configuration", path=agent_files.CONFIG,
-                    content=plan.config(data, name).to_json(), current=snap.files.get(agent_files.CONFIG),
-                    mode="0600")
+        operations.directory(name=f"Pull agent directory {path}", path=path, current=snap.files.get(path), mode="0700")
+    operations.file(
+        name="Write the pull agent's configuration",
+        path=agent_files.CONFIG,
+        content=plan.config(data, name).to_json(),
+        current=snap.files.get(agent_files.CONFIG),
+        mode="0600",
+    )
     if not agent_run:
-        operations.file(name="Write the release repository's root.json (the agent's first trust)",
-                        path=agent_files.TRUST_ROOT, content=root, current=snap.files.get(agent_files.TRUST_ROOT),
-                        mode="0600")
-    operations.file(name="Write the fleet remote's host keys", path=agent_files.KNOWN_HOSTS,
-                    content=plan.known_hosts(data), current=snap.files.get(agent_files.KNOWN_HOSTS))
+        operations.file(
+            name="Write the release repository's root.json (the agent's first trust)",
+            path=agent_files.TRUST_ROOT,
+            content=root,
+            current=snap.files.get(agent_files.TRUST_ROOT),
+            mode="0600",
+        )
+    operations.file(
+        name="Write the fleet remote's host keys",
+        path=agent_files.KNOWN_HOSTS,
+        content=plan.known_hosts(data),
+        current=snap.files.get(agent_files.KNOWN_HOSTS),
+    )
     if ca is not None:
-        operations.file(name="Write the CA the https fleet remote's certificate is checked against",
-                        path=agent_files.REMOTE_CA, content=ca, current=snap.files.get(agent_files.REMOTE_CA))
+        operations.file(
+            name="Write the CA the https fleet remote's certificate is checked against",
+            path=agent_files.REMOTE_CA,
+            content=ca,
+            current=snap.files.get(agent_files.REMOTE_CA),
+        )
     elif snap.files.get(agent_files.REMOTE_CA) is not None:
-        operations.absent(name="Remove the fleet remote's CA (pull_remote_ca is not set)",
-                          paths=[agent_files.REMOTE_CA],
-                          present=snap.files)
+        operations.absent(
+            name="Remove the fleet remote's CA (pull_remote_ca is not set)",
+            paths=[agent_files.REMOTE_CA],
+            present=snap.files,
+        )
     if snap.files.get(agent_files.KEY) is None or snap.files.get(f"{agent_files.KEY}.pub") is None:
-        operations.run(name="Make the robot's own key for the fleet remote (it never leaves the robot)",
-                       script=plan.keygen_script(name))
+        operations.run(
+            name="Make the robot's own key for the fleet remote (it never leaves the robot)",
+            script=plan.keygen_script(name),
+        )
     if not agent_run:
         _install_venv_and_code(data, snap)
     units = [
-        operations.file(name=f"Write {agent_files.SERVICE}", path=f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}",
-                        content=plan.service_unit(),
-                        current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}")),
-        operations.file(name=f"Write {agent_files.TIMER}", path=f"{agent_files.UNIT_DIR}/{agent_files.TIMER}",
-                        content=plan.timer_unit(data),
-                        current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.TIMER}")),
+        operations.file(
+            name=f"Write {agent_files.SERVICE}",
+            path=f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}",
+            content=plan.service_unit(),
+            current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}"),
+        ),
+        operations.file(
+            name=f"Write {agent_files.TIMER}",
+            path=f"{agent_files.UNIT_DIR}/{agent_files.TIMER}",
+            content=plan.timer_unit(data),
+            current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"),
+        ),
     ]
     operations.run(name="systemd daemon-reload", script="systemctl daemon-reload", _if=any_changed(*units))
-    operations.run(name=f"Restart {agent_files.TIMER} with its new schedule",
-                   script=f"systemctl restart {agent_files.TIMER}",
-                   _if=any_changed(*units[1:]))
-    operations.service(name=f"{agent_files.TIMER} enabled and running", unit=agent_files.TIMER,
-                       enabled_now=snap.unit_enabled(agent_files.TIMER), active_now=snap.unit_active(agent_files.TIMER))
+    operations.run(
+        name=f"Restart {agent_files.TIMER} with its new schedule",
+        script=f"systemctl restart {agent_files.TIMER}",
+        _if=any_changed(*units[1:]),
+    )
+    operations.service(
+        name=f"{agent_files.TIMER} enabled and running",
+        unit=agent_files.TIMER,
+        enabled_now=snap.unit_enabled(agent_files.TIMER),
+        active_now=snap.unit_active(agent_files.TIMER),
+    )
 
 
 def _install_venv_and_code(data, snap) -> None:
     platform = plan.platform(snap.probes.get(PYTHON_PROBE, ""), snap.os_release, snap.arch)
     if platform != data.pull_platform:
-        operations.fail(name="Check pull_platform against the robot",
-                        message=f"pull_platform: {data.pull_platform}, but this robot runs "
-                                f"{platform or 'a python or machine without wheels'}; its releases carry the "
-                                f"wheels of pull_platform" + (f" (set pull_platform: {platform})" if platform else ""))
+        operations.fail(
+            name="Check pull_platform against the robot",
+            message=f"pull_platform: {data.pull_platform}, but this robot runs "
+            f"{platform or 'a python or machine without wheels'}; its releases carry the "
+            f"wheels of pull_platform" + (f" (set pull_platform: {platform})" if platform else ""),
+        )
         return
     installed = install.read_probe(snap.probes.get(INSTALLED_PROBE, ""))
     try:
@@ -127,11 +168,20 @@ def _install_venv_and_code(data, snap) -> None:
     except install.InstallError as error:
         operations.fail(name="Find what the pull agent runs", message=f"pull: {error}")
         return
-    send(name=f"Make the pull agent's venv from {len(files)} wheels ({platform})",
-         wanted=venv, present=installed["venv"], script=install.venv_script(venv),
-         archive=install.wheels_archive(files))
-    send(name=f"Install the deploy tree the pull agent runs ({code[:12]})",
-         wanted=code, present=installed["code"], script=install.code_script(code), archive=archive)
+    send(
+        name=f"Make the pull agent's venv from {len(files)} wheels ({platform})",
+        wanted=venv,
+        present=installed["venv"],
+        script=install.venv_script(venv),
+        archive=install.wheels_archive(files),
+    )
+    send(
+        name=f"Install the deploy tree the pull agent runs ({code[:12]})",
+        wanted=code,
+        present=installed["code"],
+        script=install.code_script(code),
+        archive=archive,
+    )
 
 
 @operation()
@@ -155,4 +205,3 @@ ROLE = Role(
     renamed=settings.RENAMED,
     pull=plan.PART,
 )
-

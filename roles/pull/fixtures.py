@@ -1,12 +1,12 @@
 """Test fixtures: what a successful run of the pull role leaves on a host."""
 
+import roles.pull as role
+import roles.pull.plan as plan
 from robotfleet import CHECKOUT
 from robotfleet.host.fixtures import file_state
 from robotfleet.host.snapshot import FileState
 from robotfleet.pull.operator import install
 from robotfleet.pull.protocol import agent_files
-import roles.pull as role
-import roles.pull.plan as plan
 
 
 def converged(play, host: str) -> None:

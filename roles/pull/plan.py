@@ -13,8 +13,12 @@ PACKAGES = ("python3-venv", "git", "openssh-client")
 # The python a release of Debian or Ubuntu ships (python3), for a host that
 # has none yet: its wheels are chosen before python3 is installed.
 DISTRIBUTION_PYTHON = {
-    ("debian", "11"): "39", ("debian", "12"): "311", ("debian", "13"): "313",
-    ("ubuntu", "20.04"): "38", ("ubuntu", "22.04"): "310", ("ubuntu", "24.04"): "312",
+    ("debian", "11"): "39",
+    ("debian", "12"): "311",
+    ("debian", "13"): "313",
+    ("ubuntu", "20.04"): "38",
+    ("ubuntu", "22.04"): "310",
+    ("ubuntu", "24.04"): "312",
 }
 # dpkg's architecture -> what Python calls the machine (platform.machine()).
 MACHINES = {"amd64": "x86_64", "arm64": "aarch64", "armhf": "armv7l", "i386": "i686"}
@@ -38,12 +42,20 @@ def pulls(data) -> bool:
 def config(data, robot: str, **extra) -> agent_files.Config:
     """The agent's configuration for a host with ``data``."""
     return agent_files.Config(
-        robot=robot, remote=value(data, "pull_remote"), interval=value(data, "pull_interval"),
-        jitter=value(data, "pull_jitter"), windows=tuple(value(data, "pull_windows")),
-        min_free_mb=value(data, "pull_min_free_mb"), fetch_timeout=value(data, "pull_fetch_timeout"),
-        stale_after=value(data, "pull_stale_after"), heartbeat=value(data, "pull_heartbeat"),
-        report_remote=value(data, "pull_report_remote"), report_shards=value(data, "pull_report_shards"),
-        media_dir=value(data, "pull_media_dir"), extra=extra)
+        robot=robot,
+        remote=value(data, "pull_remote"),
+        interval=value(data, "pull_interval"),
+        jitter=value(data, "pull_jitter"),
+        windows=tuple(value(data, "pull_windows")),
+        min_free_mb=value(data, "pull_min_free_mb"),
+        fetch_timeout=value(data, "pull_fetch_timeout"),
+        stale_after=value(data, "pull_stale_after"),
+        heartbeat=value(data, "pull_heartbeat"),
+        report_remote=value(data, "pull_report_remote"),
+        report_shards=value(data, "pull_report_shards"),
+        media_dir=value(data, "pull_media_dir"),
+        extra=extra,
+    )
 
 
 def known_hosts(data) -> str:
@@ -72,10 +84,17 @@ service_unit = agent_files.service_unit
 
 
 def timer_unit(data) -> str:
-    return agent_files.timer_unit(value(data, "pull_interval"), value(data, "pull_jitter"),
-                                  value(data, "pull_boot_delay"))
+    return agent_files.timer_unit(
+        value(data, "pull_interval"), value(data, "pull_jitter"), value(data, "pull_boot_delay")
+    )
 
 
-PART = PullPart(pulls=pulls, config=config, platform=lambda data: value(data, "pull_platform"),
-                known_hosts=known_hosts, timer=timer_unit, trust_root=lambda data: value(data, "pull_trust_root"),
-                remote_ca=lambda data: value(data, "pull_remote_ca"))
+PART = PullPart(
+    pulls=pulls,
+    config=config,
+    platform=lambda data: value(data, "pull_platform"),
+    known_hosts=known_hosts,
+    timer=timer_unit,
+    trust_root=lambda data: value(data, "pull_trust_root"),
+    remote_ca=lambda data: value(data, "pull_remote_ca"),
+)

@@ -14,11 +14,11 @@ from __future__ import annotations
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
+import roles.time.plan as plan
+import roles.time.settings as settings
 from robotfleet.host import apt, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role
-import roles.time.plan as plan
-import roles.time.settings as settings
 
 CAPABILITIES_PROBE = "time_capabilities"
 
@@ -41,7 +41,7 @@ def chrony(play: Play):
         operations.fail(
             name="Check that chrony may set the clock",
             message="time_set_clock: this host cannot set its clock (no CAP_SYS_TIME: a container?); "
-                    "set time_set_clock: false to track and serve time without setting it",
+            "set time_set_clock: false to track and serve time without setting it",
         )
         return
     others = plan.replaced(snap.packages)
@@ -50,16 +50,20 @@ def chrony(play: Play):
         packages=["chrony"],
         installed=snap.packages,
     )
-    changes = [operations.file(
-        name=f"Write {plan.CONF}",
-        path=plan.CONF,
-        content=plan.chrony_conf(data),
-        current=snap.files.get(plan.CONF),
-        validate=plan.VALIDATE,
-    )]
+    changes = [
+        operations.file(
+            name=f"Write {plan.CONF}",
+            path=plan.CONF,
+            content=plan.chrony_conf(data),
+            current=snap.files.get(plan.CONF),
+            validate=plan.VALIDATE,
+        )
+    ]
     if data.time_set_clock:
         unit_changed = operations.absent(
-            name="chrony may set the clock (no -x drop-in)", paths=[plan.DROP_IN], present=snap.files,
+            name="chrony may set the clock (no -x drop-in)",
+            paths=[plan.DROP_IN],
+            present=snap.files,
         )
     else:
         unit_changed = operations.file(

@@ -1,7 +1,7 @@
 """Test fixtures: what a successful run of the time role leaves on a host."""
 
-from robotfleet.host.fixtures import file_state
 import roles.time.plan as plan
+from robotfleet.host.fixtures import file_state
 
 
 def converged(play, host: str) -> None:

@@ -32,34 +32,68 @@ def network(value):
     return []
 
 
-c.with_schema(server, {"type": "string", "pattern": c.json_pattern(SERVER),
-                       "description": "a host name or an IP address (no %zone)"})
-c.with_schema(network, {"type": "string", "pattern": c.json_pattern(NETWORK),
-                        "description": "a network like 10.20.0.0/24, or an address"})
+c.with_schema(
+    server,
+    {"type": "string", "pattern": c.json_pattern(SERVER), "description": "a host name or an IP address (no %zone)"},
+)
+c.with_schema(
+    network,
+    {"type": "string", "pattern": c.json_pattern(NETWORK), "description": "a network like 10.20.0.0/24, or an address"},
+)
 
 SETTINGS = (
-    Setting("time_servers", [], c.list_of(server, unique=True),
-            "NTP servers this host follows with chrony (host names or addresses); the role runs where this "
-            "is set or time_serve is true."),
-    Setting("time_serve", False, c.boolean,
-            "This host serves time to time_allow, from its own clock at time_local_stratum when no server answers."),
-    Setting("time_allow", [], c.list_of(network, unique=True),
-            "Networks (10.20.0.0/24) or addresses that may ask this host for time; required when time_serve is true."),
-    Setting("time_set_clock", True, c.boolean,
-            "chrony sets the system clock; false: it only tracks and serves time (chronyd -x, for containers)."),
-    Setting("time_local_stratum", 10, c.integer(1, 15),
-            "The stratum a serving host announces while it serves from its own clock."),
+    Setting(
+        "time_servers",
+        [],
+        c.list_of(server, unique=True),
+        "NTP servers this host follows with chrony (host names or addresses); the role runs where this "
+        "is set or time_serve is true.",
+    ),
+    Setting(
+        "time_serve",
+        False,
+        c.boolean,
+        "This host serves time to time_allow, from its own clock at time_local_stratum when no server answers.",
+    ),
+    Setting(
+        "time_allow",
+        [],
+        c.list_of(network, unique=True),
+        "Networks (10.20.0.0/24) or addresses that may ask this host for time; required when time_serve is true.",
+    ),
+    Setting(
+        "time_set_clock",
+        True,
+        c.boolean,
+        "chrony sets the system clock; false: it only tracks and serves time (chronyd -x, for containers).",
+    ),
+    Setting(
+        "time_local_stratum",
+        10,
+        c.integer(1, 15),
+        "The stratum a serving host announces while it serves from its own clock.",
+    ),
 )
 
 
 def rules(data: dict, refused: frozenset) -> list[c.Problem]:
     problems = []
     if data.get("time_serve") is True and not {"time_serve", "time_allow"} & refused and not data.get("time_allow"):
-        problems.append(("time_allow", "required when time_serve is true: the networks that may ask this host "
-                                       "for time (e.g. 10.20.0.0/24); nothing is open by default"))
+        problems.append(
+            (
+                "time_allow",
+                "required when time_serve is true: the networks that may ask this host "
+                "for time (e.g. 10.20.0.0/24); nothing is open by default",
+            )
+        )
     own = data.get("ssh_hostname")
     if "time_servers" not in refused and isinstance(own, str) and own in (data.get("time_servers") or []):
         index = data["time_servers"].index(own)
-        problems.append((f"time_servers[{index}]", f"{own} is this host itself; a host does not follow its own "
-                                                   "clock (give it time_servers: [] or other servers)"))
+        problems.append(
+            (
+                f"time_servers[{index}]",
+                f"{own} is this host itself; a host does not follow its own "
+                "clock (give it time_servers: [] or other servers)",
+            )
+        )
     return problems

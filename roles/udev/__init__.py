@@ -11,10 +11,10 @@ from pyinfra import host
 from pyinfra.api import deploy
 from pyinfra.operations.util import any_changed
 
+import roles.payload.hooks as payload_hooks
 from robotfleet.host import operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role
-import roles.payload.hooks as payload_hooks
 from roles.udev import passthrough, rules, settings
 
 VENDOR_RULES_DIR = Path(__file__).resolve().parents[2] / "files" / "udev"
@@ -27,9 +27,7 @@ VERIFY_PROBE = (
 
 def vendor_rules(data) -> dict[str, str]:
     """Installed path -> content of each static rules file the host asks for."""
-    return {
-        f"{RULES_DIR}/{name}": (VENDOR_RULES_DIR / name).read_text() for name in data.udev_vendor_rules
-    }
+    return {f"{RULES_DIR}/{name}": (VENDOR_RULES_DIR / name).read_text() for name in data.udev_vendor_rules}
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -111,9 +109,7 @@ def sensor_rules(play: Play):
             )
         )
     if not data.udev_sensors:
-        changes.append(
-            operations.absent(name="Remove sensor rules", paths=[data.udev_rules_file], present=snap.files)
-        )
+        changes.append(operations.absent(name="Remove sensor rules", paths=[data.udev_rules_file], present=snap.files))
     subsystems = set().union(*(rules.subsystems(text) for text in files.values())) if files else set()
     if changes:
         reload_rules(
@@ -126,7 +122,7 @@ def sensor_rules(play: Play):
 ROLE = Role(
     name="udev",
     doc="udev rules that give sensors stable names (two identical cameras become front/back); "
-        "the payload gets the devices.",
+    "the payload gets the devices.",
     settings=settings.SETTINGS,
     runs_on=lambda data: bool(data.udev_sensors or data.udev_vendor_rules),
     reads=declare_reads,

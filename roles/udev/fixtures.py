@@ -1,8 +1,8 @@
 """Test fixtures: what a successful run of the udev role leaves on a host."""
 
+import roles.udev.rules as rules
 from robotfleet.host.fixtures import file_state
 from roles import udev
-import roles.udev.rules as rules
 
 
 def converged(play, host: str) -> None:

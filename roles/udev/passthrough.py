@@ -3,9 +3,9 @@ gets which device (added through the payload role's hook)."""
 
 from __future__ import annotations
 
-from robotfleet import checkers as c
 import roles.payload.hooks as payload_hooks
 import roles.udev.rules as rules
+from robotfleet import checkers as c
 
 
 def service_devices(data, services: dict[str, dict]) -> dict[str, list[str]]:
@@ -25,8 +25,11 @@ def service_devices(data, services: dict[str, dict]) -> dict[str, list[str]]:
 
 def devices_for(data, services: dict[str, dict]) -> dict:
     """The payload hook: each service's devices, mapped at the same path."""
-    return {name: {"devices": [f"{path}:{path}" for path in paths]}
-            for name, paths in service_devices(data, services).items() if paths}
+    return {
+        name: {"devices": [f"{path}:{path}" for path in paths]}
+        for name, paths in service_devices(data, services).items()
+        if paths
+    }
 
 
 def problems(data: dict, refused: frozenset) -> list[c.Problem]:
@@ -45,9 +48,14 @@ def problems(data: dict, refused: frozenset) -> list[c.Problem]:
         named = sensor.get("services")
         for name in named or []:
             if name not in services:
-                found.append((f"udev_sensors[{index}].services", f"no service called {name!r} "
-                              f"(services: {', '.join(services)})"))
+                found.append(
+                    (f"udev_sensors[{index}].services", f"no service called {name!r} (services: {', '.join(services)})")
+                )
         if not named and len(services) > 1 and not asking:
-            found.append((f"udev_sensors[{index}]", "name the service(s) that use it (services: [...]); "
-                          "no service asks for devices"))
+            found.append(
+                (
+                    f"udev_sensors[{index}]",
+                    "name the service(s) that use it (services: [...]); no service asks for devices",
+                )
+            )
     return found

@@ -46,9 +46,7 @@ def rule(sensor: dict) -> str:
 def render(sensors: list[dict]) -> str:
     lines = [HEADER]
     for sensor in sensors:
-        how = ", ".join(
-            f"{k}={sensor[k]}" for k in ("serial", "vendor_id", "product_id", "usb_port") if k in sensor
-        )
+        how = ", ".join(f"{k}={sensor[k]}" for k in ("serial", "vendor_id", "product_id", "usb_port") if k in sensor)
         lines.append(f"# {sensor['name']}: {sensor['subsystem']} by {how}\n{rule(sensor)}\n")
     return "\n".join(lines)
 
@@ -62,10 +60,35 @@ _TOKEN = re.compile(
     r'\s*(?P<key>[A-Z_]+)(?:\{(?P<attr>[^}"]*)\})?\s*(?P<op>==|!=|\+=|-=|:=|=)\s*"(?P<value>(?:[^"\\]|\\.)*)"\s*'
 )
 KNOWN_KEYS = {
-    "ACTION", "DEVPATH", "KERNEL", "KERNELS", "NAME", "SYMLINK", "SUBSYSTEM", "SUBSYSTEMS",
-    "DRIVER", "DRIVERS", "ATTR", "ATTRS", "SYSCTL", "TAG", "TAGS", "ENV", "CONST", "TEST",
-    "PROGRAM", "RESULT", "OWNER", "GROUP", "MODE", "SECLABEL", "RUN", "LABEL", "GOTO",
-    "IMPORT", "OPTIONS",
+    "ACTION",
+    "DEVPATH",
+    "KERNEL",
+    "KERNELS",
+    "NAME",
+    "SYMLINK",
+    "SUBSYSTEM",
+    "SUBSYSTEMS",
+    "DRIVER",
+    "DRIVERS",
+    "ATTR",
+    "ATTRS",
+    "SYSCTL",
+    "TAG",
+    "TAGS",
+    "ENV",
+    "CONST",
+    "TEST",
+    "PROGRAM",
+    "RESULT",
+    "OWNER",
+    "GROUP",
+    "MODE",
+    "SECLABEL",
+    "RUN",
+    "LABEL",
+    "GOTO",
+    "IMPORT",
+    "OPTIONS",
 }
 
 

@@ -28,7 +28,7 @@ SENSOR_FIELDS = {
     "product_id": c.string(c.HEX4, "a 4-digit hex USB product id"),
     "usb_port": c.string(USB_PORT, "a USB port path like 1-2.1"),
     "group": c.string(c.USER_NAME, "a group name"),
-    "mode": c.string(MODE, "an octal mode like \"0660\""),
+    "mode": c.string(MODE, 'an octal mode like "0660"'),
     "symlink": c.string(SYMLINK, "a path relative to /dev like robot/front_camera"),
     "passthrough": c.boolean,
     # The payload's compose services that get the device (default: those
@@ -44,8 +44,9 @@ def sensor(value):
     problems = []
     for key in value:
         if not isinstance(key, str):
-            problems.append((f".{c.key_name(key)}",
-                             f"a sensor field name must be a string, got {c.describe(key)}; quote it"))
+            problems.append(
+                (f".{c.key_name(key)}", f"a sensor field name must be a string, got {c.describe(key)}; quote it")
+            )
         elif key not in SENSOR_KEYS:
             problems.append((f".{c.key_name(key)}", "unknown sensor field" + c.did_you_mean(key, SENSOR_KEYS)))
     for key in ("name", "subsystem"):
@@ -62,13 +63,16 @@ def sensor(value):
     return problems
 
 
-c.with_schema(sensor, {
-    "type": "object",
-    "properties": {key: check.schema for key, check in SENSOR_FIELDS.items()},
-    "required": ["name", "subsystem"],
-    "anyOf": [{"required": [key]} for key in ("serial", "vendor_id", "usb_port")],
-    "additionalProperties": False,
-})
+c.with_schema(
+    sensor,
+    {
+        "type": "object",
+        "properties": {key: check.schema for key, check in SENSOR_FIELDS.items()},
+        "required": ["name", "subsystem"],
+        "anyOf": [{"required": [key]} for key in ("serial", "vendor_id", "usb_port")],
+        "additionalProperties": False,
+    },
+)
 
 
 def udev_rules_path(value):
@@ -81,14 +85,22 @@ def udev_rules_path(value):
 c.with_schema(udev_rules_path, {"type": "string", "pattern": "^/etc/udev/rules\\.d/[A-Za-z0-9._@+-]+\\.rules$"})
 
 SETTINGS = (
-    Setting("udev_sensors", [], c.list_of(sensor),
-            "Sensors given stable names under /dev (see README, Describing a fleet: name, subsystem, a match)."),
-    Setting("udev_rules_file", "/etc/udev/rules.d/70-robot-sensors.rules", udev_rules_path,
-            "The generated rules file."),
-    Setting("udev_vendor_rules", [],
-            c.list_of(c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules"), unique=True),
-            "Static rules files from files/udev/ installed on the host.",
-            groups={"robots": ["60-usb-serial-low-latency.rules"]}),
+    Setting(
+        "udev_sensors",
+        [],
+        c.list_of(sensor),
+        "Sensors given stable names under /dev (see README, Describing a fleet: name, subsystem, a match).",
+    ),
+    Setting(
+        "udev_rules_file", "/etc/udev/rules.d/70-robot-sensors.rules", udev_rules_path, "The generated rules file."
+    ),
+    Setting(
+        "udev_vendor_rules",
+        [],
+        c.list_of(c.string(r"[A-Za-z0-9_.-]+\.rules", "a file name in files/udev/ ending in .rules"), unique=True),
+        "Static rules files from files/udev/ installed on the host.",
+        groups={"robots": ["60-usb-serial-low-latency.rules"]},
+    ),
     Setting("udev_allow_world_writable", False, c.boolean, "Allow world-writable device modes (refused otherwise)."),
 )
 
@@ -118,12 +130,16 @@ def rules(data: dict, refused: frozenset) -> list[c.Problem]:
         match = tuple(item.get(k) for k in ("subsystem", "serial", "vendor_id", "product_id", "usb_port"))
         if match in matches:
             problems.append(
-                (where, f"matches the same devices as udev_sensors[{matches[match]}]; "
-                        "add a serial or usb_port to tell them apart")
+                (
+                    where,
+                    f"matches the same devices as udev_sensors[{matches[match]}]; "
+                    "add a serial or usb_port to tell them apart",
+                )
             )
         matches.setdefault(match, index)
         mode = item.get("mode")
         if mode is not None and int(mode, 8) & 0o002 and not allow_world_writable:
-            problems.append((f"{where}.mode",
-                             f"{mode} is world-writable; use a group (or set udev_allow_world_writable)"))
+            problems.append(
+                (f"{where}.mode", f"{mode} is world-writable; use a group (or set udev_allow_world_writable)")
+            )
     return problems

@@ -8,16 +8,15 @@ mounts the directory read-only with XAUTHORITY set.  Never `xhost +`.
 from __future__ import annotations
 
 import functools
-
 from pathlib import Path
 
 import jinja2
 from pyinfra.api import deploy
 
+import roles.payload.hooks as payload_hooks
 from robotfleet.host import apt, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.role import Play, Role
-import roles.payload.hooks as payload_hooks
 from roles.x11 import settings
 
 HERE = Path(__file__).resolve().parent
@@ -97,8 +96,9 @@ def x11_cookie(play: Play):
         current=snap.files.get(AUTOSTART),
     )
     operations.directory(
-        name=f"Cookie directories root {data.x11_cookie_dir}", path=data.x11_cookie_dir,
-        current=snap.files.get(data.x11_cookie_dir)
+        name=f"Cookie directories root {data.x11_cookie_dir}",
+        path=data.x11_cookie_dir,
+        current=snap.files.get(data.x11_cookie_dir),
     )
     operations.directory(
         name=f"Cookie directory of {data.x11_user}",

@@ -35,8 +35,7 @@ TARGETS = [
     ("update all / update one", 10, 1.1, "update of all 10 <= 1.1x one robot"),
     ("max update window (s)", 10, 0.5, "update window <= 0.5 s on every robot (old FinishedAt -> new StartedAt)"),
     ("exits at once: exit -> old running (s)", 10, 1.0, "a release that exits at once: exit -> old running <= 1 s"),
-    ("never healthy: unhealthy -> old running (s)", 10, 0.5,
-     "what the tool adds after Docker's `unhealthy` <= 0.5 s"),
+    ("never healthy: unhealthy -> old running (s)", 10, 0.5, "what the tool adds after Docker's `unhealthy` <= 0.5 s"),
 ]
 
 ROWS = [
@@ -75,43 +74,68 @@ def all_idle(results: list[dict]) -> bool:
 
 def markdown(results: list[dict], conditions: dict) -> str:
     ns = [r["robots"] for r in results]
-    lines = ["# Fleet benchmark results", "",
-             "Written by `python3 -m tests.bench`; seconds unless said otherwise.  Each figure: median of "
-             f"{results[0]['runs']} samples (min–max); a figure with a sample that did not start idle (its first "
-             "at a 1-minute load average of 1.5 or more, a later one with 0.5 cores or more busy) carries "
-             "`[load X]`, the highest load before its samples.", "",
-             "## Conditions", ""]
+    lines = [
+        "# Fleet benchmark results",
+        "",
+        "Written by `python3 -m tests.bench`; seconds unless said otherwise.  Each figure: median of "
+        f"{results[0]['runs']} samples (min–max); a figure with a sample that did not start idle (its first "
+        "at a 1-minute load average of 1.5 or more, a later one with 0.5 cores or more busy) carries "
+        "`[load X]`, the highest load before its samples.",
+        "",
+        "## Conditions",
+        "",
+    ]
     lines += [f"- {k}: {v}" for k, v in conditions.items()]
     if not all_idle(results):
-        lines += ["", "**Not every figure was taken on an idle machine** (see `[load X]`): "
-                  "such figures and their ratios are development figures, not results."]
-    lines += ["", "## Figures", "", "| figure | " + " | ".join(f"N={n}" for n in ns) + " |",
-              "|---|" + "---|" * len(ns)]
+        lines += [
+            "",
+            "**Not every figure was taken on an idle machine** (see `[load X]`): "
+            "such figures and their ratios are development figures, not results.",
+        ]
+    lines += ["", "## Figures", "", "| figure | " + " | ".join(f"N={n}" for n in ns) + " |", "|---|" + "---|" * len(ns)]
     for title, key in ROWS:
         lines.append(f"| {title} | " + " | ".join(hygiene.shown(r["figures"].get(key)) for r in results) + " |")
-    lines.append("| no-op: SSH commands per host | "
-                 + " | ".join(fmt(r.get("noop_commands_per_host")) for r in results) + " |")
-    lines.append("| fresh: SSH commands per host | " + " | ".join(
-        fmt(max(r["fresh_commands_per_host"])) if r.get("fresh_commands_per_host") else "-" for r in results) + " |")
+    lines.append(
+        "| no-op: SSH commands per host | " + " | ".join(fmt(r.get("noop_commands_per_host")) for r in results) + " |"
+    )
+    lines.append(
+        "| fresh: SSH commands per host | "
+        + " | ".join(
+            fmt(max(r["fresh_commands_per_host"])) if r.get("fresh_commands_per_host") else "-" for r in results
+        )
+        + " |"
+    )
     lines.append("| rollout: waves | " + " | ".join(fmt(r.get("rollout_waves")) for r in results) + " |")
-    lines.append("| update window per robot, all N at once: median (min–max) over the runs | " + " | ".join(
-        per_robot(r.get("window", {})) for r in results) + " |")
-    lines.append("| load average at start / end (1 min) | " + " | ".join(
-        f"{r['load_at_start'][0]:.2f} / {r['load_at_end'][0]:.2f}" for r in results) + " |")
+    lines.append(
+        "| update window per robot, all N at once: median (min–max) over the runs | "
+        + " | ".join(per_robot(r.get("window", {})) for r in results)
+        + " |"
+    )
+    lines.append(
+        "| load average at start / end (1 min) | "
+        + " | ".join(f"{r['load_at_start'][0]:.2f} / {r['load_at_end'][0]:.2f}" for r in results)
+        + " |"
+    )
     settings = [(kind, text) for r in results for kind, text in (r.get("broken_settings") or {}).items()]
     if settings:
         lines += ["", "Broken releases (robot1), with the health-check settings they ran with:", ""]
         lines += [f"- {kind}: {text}" for kind, text in settings]
-    lines += ["", "## Ratios to the floors (medians)", "",
-              "| ratio | " + " | ".join(f"N={n}" for n in ns) + " | target |", "|---|" + "---|" * (len(ns) + 1)]
+    lines += [
+        "",
+        "## Ratios to the floors (medians)",
+        "",
+        "| ratio | " + " | ".join(f"N={n}" for n in ns) + " | target |",
+        "|---|" + "---|" * (len(ns) + 1),
+    ]
     for key in results[0]["ratios"]:
         cells = []
         for r in results:
             value = r["ratios"].get(key)
             mark = "" if value is None or r.get("ratios_idle", {}).get(key, True) else " [loaded]"
             cells.append(fmt(value) + mark)
-        targets = "; ".join(f"{text}: **{verdict(results, key, n, limit)}**"
-                            for k, n, limit, text in TARGETS if k == key)
+        targets = "; ".join(
+            f"{text}: **{verdict(results, key, n, limit)}**" for k, n, limit, text in TARGETS if k == key
+        )
         lines.append(f"| {key} | " + " | ".join(cells) + f" | {targets} |")
     return "\n".join(lines) + "\n"
 
@@ -148,25 +172,32 @@ window, all N at once"; one robot alone: python3 -m tests.bench.releases."""
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m tests.bench", description=__doc__.splitlines()[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
+    parser = argparse.ArgumentParser(
+        prog="python3 -m tests.bench",
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=EPILOG,
+    )
     parser.add_argument("--robots", type=int, nargs="+", default=[3, 10])
     parser.add_argument("--runs", type=int, default=3, help=f"samples per figure (at least {hygiene.MIN_SAMPLES})")
     parser.add_argument("--fresh-at", type=int, nargs="*", default=[3], help="N at which to time fresh provisions")
-    parser.add_argument("--updates-at", type=int, nargs="*", default=[10],
-                        help="N at which to time updates, rollouts, crashes")
+    parser.add_argument(
+        "--updates-at", type=int, nargs="*", default=[10], help="N at which to time updates, rollouts, crashes"
+    )
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "bench"))
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--write-loaded", action="store_true", help="write even figures taken under load (marked)")
     parser.add_argument("--keep", action="store_true", help="leave the last lab up")
     args = parser.parse_args(argv)
     if args.runs < hygiene.MIN_SAMPLES and not args.no_write:
-        parser.error(f"--runs {args.runs}: results need at least {hygiene.MIN_SAMPLES} samples a figure "
-                     "(or --no-write)")
+        parser.error(
+            f"--runs {args.runs}: results need at least {hygiene.MIN_SAMPLES} samples a figure (or --no-write)"
+        )
     results = []
     for n in args.robots:
-        result = measure(n, args.prefix, keep=args.keep, runs=args.runs, fresh=n in args.fresh_at,
-                         updates=n in args.updates_at)
+        result = measure(
+            n, args.prefix, keep=args.keep, runs=args.runs, fresh=n in args.fresh_at, updates=n in args.updates_at
+        )
         results.append(result)
         print(json.dumps(result, indent=2), flush=True)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
@@ -182,9 +213,11 @@ def main(argv=None) -> int:
     if args.no_write:
         return 0
     if not all_idle(results) and not args.write_loaded:
-        print("[bench] not written: some samples started at a load average >= "
-              f"{hygiene.LIMIT} (see [load X] above); rerun on an idle machine, or pass --write-loaded",
-              file=sys.stderr)
+        print(
+            "[bench] not written: some samples started at a load average >= "
+            f"{hygiene.LIMIT} (see [load X] above); rerun on an idle machine, or pass --write-loaded",
+            file=sys.stderr,
+        )
         return 1
     (HERE / "RESULTS.json").write_text(json.dumps({"conditions": conditions, "results": results}, indent=2) + "\n")
     (HERE / "RESULTS.md").write_text(sections.rewrite_main(text))  # the other benchmarks' sections kept

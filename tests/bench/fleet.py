@@ -70,14 +70,20 @@ class Bench:
 
     def fleet_text(self, tag: str, command: str | None = None) -> str:
         """lab.yaml on ``tag``, for N robots; ``command``: robot1's payload_command."""
-        text = (ROOT / "inventories" / "lab.yaml").read_text().replace(
-            ALL_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
+        text = (
+            (ROOT / "inventories" / "lab.yaml")
+            .read_text()
+            .replace(ALL_TAG, f'payload_image: "@registry@/ros/payload:{tag}"', 1)
+        )
         # lab.yaml declares robot1-3; the lab's inventory only has declared hosts.
         extra = "".join(f"    robot{i}: {{}}\n" for i in range(4, self.n + 1))
         text = text.replace("\nlaptops:", "\n" + extra + "\nlaptops:", 1) if extra else text
         if command:
-            text = text.replace("    robot1:\n      udev_sensors:",
-                                f"    robot1:\n      payload_command: {command}\n      udev_sensors:", 1)
+            text = text.replace(
+                "    robot1:\n      udev_sensors:",
+                f"    robot1:\n      payload_command: {command}\n      udev_sensors:",
+                1,
+            )
         return text
 
     def fleet(self, tag: str, command: str | None = None) -> Path:
@@ -86,32 +92,58 @@ class Bench:
         return path
 
     def env(self, tag: str = "1.0", command: str | None = None) -> dict:
-        return dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, ROBOT_LAB_FLEET=str(self.fleet(tag, command)),
-                    PYINFRA_PROGRESS="off", ROBOT_ROLLOUT_DIR=str(self.workdir / "rollout"))
+        return dict(
+            os.environ,
+            ROBOT_LAB_PREFIX=self.prefix,
+            ROBOT_LAB_FLEET=str(self.fleet(tag, command)),
+            PYINFRA_PROGRESS="off",
+            ROBOT_ROLLOUT_DIR=str(self.workdir / "rollout"),
+        )
 
     def ssh(self, host: str, command: str) -> list[str]:
         port = next(h["port"] for h in self.state["hosts"] if h["name"] == host)
-        return ["ssh", "-q", "-i", self.state["ssh_key"], "-p", str(port), "-o", "BatchMode=yes",
-                "-o", f"UserKnownHostsFile={self.state['known_hosts']}", "-o", "StrictHostKeyChecking=yes",
-                f"{self.state['ssh_user']}@127.0.0.1", command]
+        return [
+            "ssh",
+            "-q",
+            "-i",
+            self.state["ssh_key"],
+            "-p",
+            str(port),
+            "-o",
+            "BatchMode=yes",
+            "-o",
+            f"UserKnownHostsFile={self.state['known_hosts']}",
+            "-o",
+            "StrictHostKeyChecking=yes",
+            f"{self.state['ssh_user']}@127.0.0.1",
+            command,
+        ]
 
     def parallel_ssh(self, command: str) -> float:
         started = time.monotonic()
-        procs = [subprocess.Popen(self.ssh(h, command), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-                 for h in self.robots]
+        procs = [
+            subprocess.Popen(self.ssh(h, command), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            for h in self.robots
+        ]
         errors = [p.communicate()[1] for p in procs if p.wait() != 0]
         seconds = time.monotonic() - started
         if errors:
             raise RuntimeError(f"ssh {command[:60]}...: {errors[0][-500:]}")
         return seconds
 
-    def pyinfra(self, *args: str, tag: str = "1.0", count: bool = False, command: str | None = None
-                ) -> tuple[float, int, dict]:
+    def pyinfra(
+        self, *args: str, tag: str = "1.0", count: bool = False, command: str | None = None
+    ) -> tuple[float, int, dict]:
         report = self.workdir / "counts.json"
         prog = [sys.executable, "-c", COUNTING_PYINFRA, str(report)] if count else [sys.executable, "-c", PYINFRA]
         started = time.monotonic()
-        proc = subprocess.run([*prog, "-y", "inventories/lab.py", *args], cwd=ROOT, env=self.env(tag, command),
-                              capture_output=True, text=True)
+        proc = subprocess.run(
+            [*prog, "-y", "inventories/lab.py", *args],
+            cwd=ROOT,
+            env=self.env(tag, command),
+            capture_output=True,
+            text=True,
+        )
         seconds = time.monotonic() - started
         if proc.returncode != 0:
             log(f"pyinfra {' '.join(args)} exit {proc.returncode}: {proc.stderr[-800:]}")
@@ -120,8 +152,10 @@ class Bench:
 
     def sh(self, host: str):
         """A function running a shell command on ``host`` over SSH, returning its output."""
+
         def run(command: str) -> str:
             return subprocess.run(self.ssh(host, command), capture_output=True, text=True).stdout
+
         return run
 
     def watching(self, hosts: list[str], action) -> dict[str, window.Watch]:
@@ -144,26 +178,28 @@ class Bench:
         its health check passes."""
         mirror = self.state["mirror_url"] + "/debian"
         registry = self.state["registry"]
-        return " && ".join([
-            "set -e",
-            "export DEBIAN_FRONTEND=noninteractive",
-            "sudo -E apt-get update -qq",
-            "sudo -E apt-get install -y -qq ca-certificates curl >/dev/null",
-            "sudo install -m 0755 -d /etc/apt/keyrings",
-            f"sudo curl -fsSL {mirror}/gpg -o /etc/apt/keyrings/docker.asc",
-            "sudo chmod a+r /etc/apt/keyrings/docker.asc",
-            "printf 'Types: deb\\nURIs: %s\\nSuites: %s\\nComponents: stable\\nSigned-By: "
-            "/etc/apt/keyrings/docker.asc\\n' "
-            f"{mirror} \"$(. /etc/os-release && echo $VERSION_CODENAME)\" | sudo tee "
-            "/etc/apt/sources.list.d/docker.sources >/dev/null",
-            "sudo mkdir -p /etc/docker",
-            # Not in Docker's recipe: the lab registry speaks plain HTTP.
-            f"echo '{{\"insecure-registries\": [\"{registry}\"]}}' | sudo tee /etc/docker/daemon.json >/dev/null",
-            "sudo -E apt-get update -qq",
-            "sudo -E apt-get install -y -qq docker-ce docker-ce-cli containerd.io docker-buildx-plugin "
-            "docker-compose-plugin >/dev/null",
-            f"sudo docker pull -q {registry}/ros/payload:1.0 >/dev/null",
-        ])
+        return " && ".join(
+            [
+                "set -e",
+                "export DEBIAN_FRONTEND=noninteractive",
+                "sudo -E apt-get update -qq",
+                "sudo -E apt-get install -y -qq ca-certificates curl >/dev/null",
+                "sudo install -m 0755 -d /etc/apt/keyrings",
+                f"sudo curl -fsSL {mirror}/gpg -o /etc/apt/keyrings/docker.asc",
+                "sudo chmod a+r /etc/apt/keyrings/docker.asc",
+                "printf 'Types: deb\\nURIs: %s\\nSuites: %s\\nComponents: stable\\nSigned-By: "
+                "/etc/apt/keyrings/docker.asc\\n' "
+                f'{mirror} "$(. /etc/os-release && echo $VERSION_CODENAME)" | sudo tee '
+                "/etc/apt/sources.list.d/docker.sources >/dev/null",
+                "sudo mkdir -p /etc/docker",
+                # Not in Docker's recipe: the lab registry speaks plain HTTP.
+                f'echo \'{{"insecure-registries": ["{registry}"]}}\' | sudo tee /etc/docker/daemon.json >/dev/null',
+                "sudo -E apt-get update -qq",
+                "sudo -E apt-get install -y -qq docker-ce docker-ce-cli containerd.io docker-buildx-plugin "
+                "docker-compose-plugin >/dev/null",
+                f"sudo docker pull -q {registry}/ros/payload:1.0 >/dev/null",
+            ]
+        )
 
     def health_window(self) -> float:
         """Time from `docker run` of the payload to its health check passing
@@ -174,7 +210,7 @@ class Bench:
             "for i in $(seq 1 300); do "
             "[ \"$(sudo docker inspect -f '{{.State.Health.Status}}' bench-health)\" = healthy ] && break; sleep 0.2; "
             "done; "
-            "e=$(date +%s.%N); sudo docker rm -f bench-health >/dev/null; echo \"$s $e\""
+            'e=$(date +%s.%N); sudo docker rm -f bench-health >/dev/null; echo "$s $e"'
         )
         out = subprocess.run(self.ssh(self.robots[0], script), capture_output=True, text=True).stdout.split()
         return float(out[1]) - float(out[0])
@@ -216,7 +252,8 @@ class Bench:
                     self.timed("fresh", lambda: result.update(zip(("code", "counts"), self.deploy(count=True))))
                     r["fresh_exit"].append(result["code"])
                     r["fresh_commands_per_host"].append(
-                        max(c.get("commands", 0) for c in result["counts"].values()) if result["counts"] else None)
+                        max(c.get("commands", 0) for c in result["counts"].values()) if result["counts"] else None
+                    )
         if order[-1] == "floor":  # leave the hosts provisioned
             self.up(fresh=True)
             self.deploy()
@@ -246,14 +283,19 @@ class Bench:
         for index in range(runs):
             new, old = tags[index % 2], tags[(index + 1) % 2]
             log(f"update all robots to {new} ({index + 1}/{runs})")
-            watches = self.watching(self.robots, lambda: self.timed(
-                "update_all", lambda: r["update_exits"].append(self.deploy(tag=new)[0])))
+            watches = self.watching(
+                self.robots, lambda: self.timed("update_all", lambda: r["update_exits"].append(self.deploy(tag=new)[0]))
+            )
             self.windows("window_all", watches, "update_all", r["window"])
             for tag in (old, new):
                 log(f"update one robot to {tag}")
-                watches = self.watching(self.robots[:1],
-                                        lambda: self.timed("update_one", lambda: r["update_exits"].append(
-                    self.deploy("--limit", self.robots[0], tag=tag)[0])))
+                watches = self.watching(
+                    self.robots[:1],
+                    lambda: self.timed(
+                        "update_one",
+                        lambda: r["update_exits"].append(self.deploy("--limit", self.robots[0], tag=tag)[0]),
+                    ),
+                )
                 self.windows("window_one", watches, "update_one")
 
     def windows(self, name: str, watches: dict, taken_with: str, per_robot: dict | None = None) -> None:
@@ -278,9 +320,29 @@ class Bench:
             # to do: each sample starts without the earlier ones' state.
             shutil.rmtree(self.workdir / "rollout", ignore_errors=True)
             proc = {}
-            self.timed("rollout", lambda: proc.update(p=subprocess.run(
-                [sys.executable, "-m", "robotfleet", "rollout", "inventories/lab.py", "-y", "--canary", "1",
-                 "--batch", "50%"], cwd=ROOT, env=self.env(tag), capture_output=True, text=True)))
+            self.timed(
+                "rollout",
+                lambda: proc.update(
+                    p=subprocess.run(
+                        [
+                            sys.executable,
+                            "-m",
+                            "robotfleet",
+                            "rollout",
+                            "inventories/lab.py",
+                            "-y",
+                            "--canary",
+                            "1",
+                            "--batch",
+                            "50%",
+                        ],
+                        cwd=ROOT,
+                        env=self.env(tag),
+                        capture_output=True,
+                        text=True,
+                    )
+                ),
+            )
             self.tag = tag
             r["rollout_exit"].append(proc["p"].returncode)
             waves = sum(1 for line in proc["p"].stderr.splitlines() if line.startswith("--> wave "))
@@ -297,17 +359,24 @@ class Bench:
             for index in range(runs):
                 log(f"broken release on one robot, {kind} ({index + 1}/{runs})")
                 found = {}
-                watches = self.watching([host], lambda: self.timed(f"broken_{key}_deploy", lambda: found.update(
-                    code=self.deploy("--limit", host, tag=tag, command=command)[0])))
+                watches = self.watching(
+                    [host],
+                    lambda: self.timed(
+                        f"broken_{key}_deploy",
+                        lambda: found.update(code=self.deploy("--limit", host, tag=tag, command=command)[0]),
+                    ),
+                )
                 r["broken_exit"].append(found["code"])
                 figure = self.figures[f"broken_{key}_deploy"]
                 seen = watches[host].broken() or {}
                 for part, name in (("verdict_to_old_running", "verdict"), ("first_start_to_old_running", "first")):
                     if part in seen:
                         self.figures.setdefault(f"broken_{key}_{name}", hygiene.Figure()).add(
-                            seen[part], figure.loads[-1], figure.idles[-1])
+                            seen[part], figure.loads[-1], figure.idles[-1]
+                        )
                 r["broken_settings"][kind] = f"verdict: {seen.get('verdict', 'none seen')}; " + window.health_settings(
-                    self.sh(host), tag, self.fleet_text(tag, command))
+                    self.sh(host), tag, self.fleet_text(tag, command)
+                )
 
     def run(self, runs: int = 3, fresh: bool = True, updates: bool = True) -> dict:
         self.figures: dict[str, hygiene.Figure] = {}
@@ -330,15 +399,18 @@ class Bench:
         r["figures"] = {name: figure.as_dict() for name, figure in self.figures.items()}
         if "floor_apt_pull" in self.figures and "floor_health" in self.figures:
             r["figures"]["floor_fresh"] = {
-                **hygiene.Figure([a + b
-                                  for a, b in zip(self.figures["floor_apt_pull"].samples,
-                                                  self.figures["floor_health"].samples)],
-                                 [max(a, b)
-                                  for a, b in zip(self.figures["floor_apt_pull"].loads,
-                                                  self.figures["floor_health"].loads)],
-                                 [a and b
-                                  for a, b in zip(self.figures["floor_apt_pull"].idles,
-                                                  self.figures["floor_health"].idles)]).as_dict()}
+                **hygiene.Figure(
+                    [
+                        a + b
+                        for a, b in zip(self.figures["floor_apt_pull"].samples, self.figures["floor_health"].samples)
+                    ],
+                    [
+                        max(a, b)
+                        for a, b in zip(self.figures["floor_apt_pull"].loads, self.figures["floor_health"].loads)
+                    ],
+                    [a and b for a, b in zip(self.figures["floor_apt_pull"].idles, self.figures["floor_health"].idles)],
+                ).as_dict()
+            }
         r["load_at_end"] = [round(x, 2) for x in os.getloadavg()]
         self.ratios(r)
         return r
@@ -364,29 +436,34 @@ class Bench:
             "update all / update one": ratio("update_all", "update_one"),
             "rollout / update all": ratio("rollout", "update_all"),
             "rollout / (waves x update one)": round(median("rollout") / (waves * one), 2)
-            if median("rollout") and waves and one else None,
+            if median("rollout") and waves and one
+            else None,
             "max update window (s)": round(max(windows), 2) if windows else None,
             "exits at once: exit -> old running (s)": median("broken_exit_verdict"),
             "never healthy: unhealthy -> old running (s)": median("broken_unhealthy_verdict"),
         }
         # Which ratio had every sample of both its figures taken idle.
-        pairs = {"noop / pyinfra exec true": ("noop", "floor_exec_true"), "noop / ssh true": ("noop", "floor_ssh_true"),
-                 "fresh / (apt+pull+health)": ("fresh", "floor_fresh"),
-                 "update all / update one": ("update_all", "update_one"),
-                 "rollout / update all": ("rollout", "update_all"),
-                 "max update window (s)": ("window_all", "window_all"),
-                 "exits at once: exit -> old running (s)": ("broken_exit_verdict", "broken_exit_verdict"),
-                 "never healthy: unhealthy -> old running (s)": ("broken_unhealthy_verdict",
-                                                                 "broken_unhealthy_verdict")}
-        r["ratios_idle"] = {key: all((figures.get(name) or {}).get("idle", False) for name in names)
-                            for key, names in pairs.items()}
+        pairs = {
+            "noop / pyinfra exec true": ("noop", "floor_exec_true"),
+            "noop / ssh true": ("noop", "floor_ssh_true"),
+            "fresh / (apt+pull+health)": ("fresh", "floor_fresh"),
+            "update all / update one": ("update_all", "update_one"),
+            "rollout / update all": ("rollout", "update_all"),
+            "max update window (s)": ("window_all", "window_all"),
+            "exits at once: exit -> old running (s)": ("broken_exit_verdict", "broken_exit_verdict"),
+            "never healthy: unhealthy -> old running (s)": ("broken_unhealthy_verdict", "broken_unhealthy_verdict"),
+        }
+        r["ratios_idle"] = {
+            key: all((figures.get(name) or {}).get("idle", False) for name in names) for key, names in pairs.items()
+        }
         for key in ("exits at once: exit -> old running (s)", "never healthy: unhealthy -> old running (s)"):
             if r["ratios"][key] is not None:
                 r["ratios"][key] = round(r["ratios"][key], 2)
 
 
-def measure(robots: int, prefix: str, keep: bool = False, runs: int = 3, fresh: bool = True,
-            updates: bool = True) -> dict:
+def measure(
+    robots: int, prefix: str, keep: bool = False, runs: int = 3, fresh: bool = True, updates: bool = True
+) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         bench = Bench(prefix, robots, Path(tmp))
         try:

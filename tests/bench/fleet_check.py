@@ -17,16 +17,28 @@ REG = "registry.example.com/acme"
 
 def fleet(hosts: int, services: bool) -> dict:
     if not services:
-        return {"robots": {"hosts": {f"robot{i}": {"address": f"10.0.{i // 250}.{i % 250}",
-                                                   "payload_image": f"{REG}/payload:1.0"} for i in range(hosts)}}}
-    group = {"payload_services": {
-        "driver": {"image": f"{REG}/driver:2.0", "devices": [], "cap_add": ["SYS_NICE"],
-                   "ulimits": {"rtprio": 99}},
-        "slam": {"image": f"{REG}/slam:1.0", "shm_size": "1g", "volumes": ["/srv/maps:/maps"]},
-    }, "ros_preset": "ros2"}
-    hosts_data = {f"robot{i}": {"address": f"10.0.{i // 250}.{i % 250}",
-                                "payload_services": {"slam": {"image": f"{REG}/slam:1.{i % 4}"}}}
-                  for i in range(hosts)}
+        return {
+            "robots": {
+                "hosts": {
+                    f"robot{i}": {"address": f"10.0.{i // 250}.{i % 250}", "payload_image": f"{REG}/payload:1.0"}
+                    for i in range(hosts)
+                }
+            }
+        }
+    group = {
+        "payload_services": {
+            "driver": {"image": f"{REG}/driver:2.0", "devices": [], "cap_add": ["SYS_NICE"], "ulimits": {"rtprio": 99}},
+            "slam": {"image": f"{REG}/slam:1.0", "shm_size": "1g", "volumes": ["/srv/maps:/maps"]},
+        },
+        "ros_preset": "ros2",
+    }
+    hosts_data = {
+        f"robot{i}": {
+            "address": f"10.0.{i // 250}.{i % 250}",
+            "payload_services": {"slam": {"image": f"{REG}/slam:1.{i % 4}"}},
+        }
+        for i in range(hosts)
+    }
     return {"robots": {"vars": group, "hosts": hosts_data}}
 
 

@@ -42,14 +42,20 @@ def wait_for_idle(label: str = "", limit: float = LIMIT, patience: float | None 
     told = False
     while current >= limit and time.monotonic() < deadline:
         if not told:
-            print(f"[bench] {label}: load average {current:.2f} >= {limit}; waiting for an idle machine",
-                  file=sys.stderr, flush=True)
+            print(
+                f"[bench] {label}: load average {current:.2f} >= {limit}; waiting for an idle machine",
+                file=sys.stderr,
+                flush=True,
+            )
             told = True
         time.sleep(poll)
         current = load()
     if current >= limit:
-        print(f"[bench] {label}: still {current:.2f} after waiting; this figure is marked loaded",
-              file=sys.stderr, flush=True)
+        print(
+            f"[bench] {label}: still {current:.2f} after waiting; this figure is marked loaded",
+            file=sys.stderr,
+            flush=True,
+        )
     return round(current, 2)
 
 
@@ -81,8 +87,11 @@ def wait_for_quiet(label: str = "", patience: float | None = None) -> tuple[floa
             told = True
         busy = busy_cores()
     if busy >= QUIET:
-        print(f"[bench] {label}: still {busy:.2f} cores busy after waiting; this figure is marked loaded",
-              file=sys.stderr, flush=True)
+        print(
+            f"[bench] {label}: still {busy:.2f} cores busy after waiting; this figure is marked loaded",
+            file=sys.stderr,
+            flush=True,
+        )
     return round(load(), 2), busy < QUIET
 
 
@@ -118,8 +127,15 @@ class Figure:
         return bool(flags) and all(flags)
 
     def as_dict(self) -> dict:
-        return {"median": self.median, "min": min(self.samples, default=None), "max": max(self.samples, default=None),
-                "samples": self.samples, "loads": self.loads, "idles": self.idles, "idle": self.idle}
+        return {
+            "median": self.median,
+            "min": min(self.samples, default=None),
+            "max": max(self.samples, default=None),
+            "samples": self.samples,
+            "loads": self.loads,
+            "idles": self.idles,
+            "idle": self.idle,
+        }
 
 
 def shown(figure: dict | None) -> str:

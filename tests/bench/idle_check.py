@@ -141,12 +141,12 @@ class Setup:
             self.proxy = CountingProxy(self.https.port)
             (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
             remote = f"https://127.0.0.1:{self.proxy.port}/fleet.git"
-        world.config = agent_files.Config(**{**world.config.__dict__, "remote": remote,
-                                             "report_remote": report_remote})
+        world.config = agent_files.Config(**{**world.config.__dict__, "remote": remote, "report_remote": report_remote})
         self.config = base / "agent.json"
         self.config.write_text(world.config.to_json())
-        self.env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(base / "pycache"),
-                        STUB="applied")
+        self.env = dict(
+            os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(base / "pycache"), STUB="applied"
+        )
 
     def check(self, old: bool = False) -> dict:
         """One check: its CPU and bytes (``old``: as before the probe and the bytecode directory)."""
@@ -160,8 +160,14 @@ class Setup:
         if self.proxy is not self.ssh_proxy:  # the report's push, if any
             more = self.ssh_proxy.take()
             sent, received, connections = sent + more[0], received + more[1], connections + more[2]
-        return {"cpu": cpu, "sent": sent, "received": received, "connections": connections, "load": load,
-                "line": out.strip().splitlines()[-1] if out.strip() else ""}
+        return {
+            "cpu": cpu,
+            "sent": sent,
+            "received": received,
+            "connections": connections,
+            "load": load,
+            "line": out.strip().splitlines()[-1] if out.strip() else "",
+        }
 
     def heartbeat_due(self):
         state = agent_state.load_state(self.world.state)
@@ -186,11 +192,11 @@ def floors(runs: int) -> dict:
         cached = dict(env, PYTHONPYCACHEPREFIX=cache)
         cpu_of([sys.executable, "-c", "import robotfleet.pull.robot.agent"], dict(cached, PYTHONDONTWRITEBYTECODE=""))
         found = {}
-        for name, command, where in (("python -c pass", ["-c", "pass"], env),
-                                     ("python + the agent's imports (bytecode cached)",
-                                      ["-c", "import robotfleet.pull.robot.agent"], cached),
-                                     ("python + the agent's imports (compiled each time)",
-                                      ["-c", "import robotfleet.pull.robot.agent"], env)):
+        for name, command, where in (
+            ("python -c pass", ["-c", "pass"], env),
+            ("python + the agent's imports (bytecode cached)", ["-c", "import robotfleet.pull.robot.agent"], cached),
+            ("python + the agent's imports (compiled each time)", ["-c", "import robotfleet.pull.robot.agent"], env),
+        ):
             found[name] = statistics.median(cpu_of([sys.executable, *command], where)[0] for _ in range(runs))
         return found
     finally:
@@ -222,19 +228,21 @@ def show(kind: str, found: dict) -> list[str]:
     with_beats = size * (MONTH - HEARTBEATS) + (beat["sent"] + beat["received"]) * HEARTBEATS
     loads = f"load {min(c['load'] for c in idle):.2f}-{max(c['load'] for c in idle):.2f}"
     verdict = lambda ok: "met" if ok else "NOT met"  # noqa: E731
-    lines = [f"{kind}: idle check {cpu:.3f} s CPU (median of {len(idle)}, {min(c['cpu'] for c in idle):.3f}-"
-             f"{max(c['cpu'] for c in idle):.3f}; target {cpu_target} s: {verdict(cpu <= cpu_target)}), "
-             f"sent {median(idle, 'sent'):.0f} B, received {median(idle, 'received'):.0f} B in "
-             f"{median(idle, 'connections'):.0f} connection(s)"
-             + (f" (target {bytes_target} B: {verdict(size <= bytes_target)})" if bytes_target else "")
-             + f"; {loads}",
-             f"{kind}:   per robot per month at 15 min: {month / 1e6:.2f} MB idle only, "
-             f"{with_beats / 1e6:.2f} MB with the hour's heartbeat (a heartbeat check: {beat['cpu']:.3f} s CPU, "
-             f"sent {beat['sent']} B, received {beat['received']} B, load {beat['load']:.2f})",
-             f"{kind}:   without the probe and the bytecode directory (a fetch and checkout, every module "
-             f"compiled): {median(old, 'cpu'):.3f} s CPU, "
-             f"sent {median(old, 'sent'):.0f} B, received {median(old, 'received'):.0f} B "
-             f"({median(old, 'connections'):.0f} connection(s)), load {old[0]['load']:.2f}"]
+    lines = [
+        f"{kind}: idle check {cpu:.3f} s CPU (median of {len(idle)}, {min(c['cpu'] for c in idle):.3f}-"
+        f"{max(c['cpu'] for c in idle):.3f}; target {cpu_target} s: {verdict(cpu <= cpu_target)}), "
+        f"sent {median(idle, 'sent'):.0f} B, received {median(idle, 'received'):.0f} B in "
+        f"{median(idle, 'connections'):.0f} connection(s)"
+        + (f" (target {bytes_target} B: {verdict(size <= bytes_target)})" if bytes_target else "")
+        + f"; {loads}",
+        f"{kind}:   per robot per month at 15 min: {month / 1e6:.2f} MB idle only, "
+        f"{with_beats / 1e6:.2f} MB with the hour's heartbeat (a heartbeat check: {beat['cpu']:.3f} s CPU, "
+        f"sent {beat['sent']} B, received {beat['received']} B, load {beat['load']:.2f})",
+        f"{kind}:   without the probe and the bytecode directory (a fetch and checkout, every module "
+        f"compiled): {median(old, 'cpu'):.3f} s CPU, "
+        f"sent {median(old, 'sent'):.0f} B, received {median(old, 'received'):.0f} B "
+        f"({median(old, 'connections'):.0f} connection(s)), load {old[0]['load']:.2f}",
+    ]
     return lines
 
 

@@ -29,10 +29,17 @@ PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra
 def inventory(state: dict, n: int) -> str:
     robot = state["hosts"][0]
     data = {
-        "ssh_hostname": "127.0.0.1", "ssh_port": robot["port"], "ssh_user": state["ssh_user"],
-        "ssh_key": state["ssh_key"], "ssh_known_hosts_file": state["known_hosts"],
-        "ssh_strict_host_key_checking": "yes", "ssh_allow_agent": False, "ssh_look_for_keys": False,
-        "ssh_connect_retries": 5, "ssh_connect_retry_min_delay": 0.2, "ssh_connect_retry_max_delay": 1,
+        "ssh_hostname": "127.0.0.1",
+        "ssh_port": robot["port"],
+        "ssh_user": state["ssh_user"],
+        "ssh_key": state["ssh_key"],
+        "ssh_known_hosts_file": state["known_hosts"],
+        "ssh_strict_host_key_checking": "yes",
+        "ssh_allow_agent": False,
+        "ssh_look_for_keys": False,
+        "ssh_connect_retries": 5,
+        "ssh_connect_retry_min_delay": 0.2,
+        "ssh_connect_retry_max_delay": 1,
     }
     return f"hosts = [(f'alias{{i}}', {data!r}) for i in range({n})]\n"
 
@@ -51,9 +58,14 @@ def measure(state: dict, n: int, hold: float) -> dict:
         inv = Path(tmp) / "aliases.py"
         inv.write_text(inventory(state, n))
         started = time.monotonic()
-        proc = subprocess.Popen([sys.executable, "-c", PYINFRA, "-y", str(inv), "exec", "--", f"sleep {hold}"],
-                                cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                env=dict(os.environ, PYINFRA_PROGRESS="off"))
+        proc = subprocess.Popen(
+            [sys.executable, "-c", PYINFRA, "-y", str(inv), "exec", "--", f"sleep {hold}"],
+            cwd=tmp,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=dict(os.environ, PYINFRA_PROGRESS="off"),
+        )
         peak_fds = peak_rss = 0
         while proc.poll() is None:
             fds, rss = sample(proc.pid)
@@ -61,8 +73,14 @@ def measure(state: dict, n: int, hold: float) -> dict:
             time.sleep(0.05)
         stderr = proc.stderr.read()
     failed = stderr.count("Could not connect") + stderr.count("Error")
-    return {"hosts": n, "peak_fds": peak_fds, "peak_rss_mb": round(peak_rss / 1024, 1),
-            "seconds": round(time.monotonic() - started, 2), "exit": proc.returncode, "failed_lines": failed}
+    return {
+        "hosts": n,
+        "peak_fds": peak_fds,
+        "peak_rss_mb": round(peak_rss / 1024, 1),
+        "seconds": round(time.monotonic() - started, 2),
+        "exit": proc.returncode,
+        "failed_lines": failed,
+    }
 
 
 def main(argv=None) -> int:
@@ -81,8 +99,16 @@ def main(argv=None) -> int:
         a, b = rows[0], rows[-1]
         per_host_fds = (b["peak_fds"] - a["peak_fds"]) / (b["hosts"] - a["hosts"])
         per_host_mb = (b["peak_rss_mb"] - a["peak_rss_mb"]) / (b["hosts"] - a["hosts"])
-        print(json.dumps({"fds_per_host": round(per_host_fds, 2), "rss_mb_per_host": round(per_host_mb, 2),
-                          "base_fds": a["peak_fds"], "base_rss_mb": a["peak_rss_mb"]}))
+        print(
+            json.dumps(
+                {
+                    "fds_per_host": round(per_host_fds, 2),
+                    "rss_mb_per_host": round(per_host_mb, 2),
+                    "base_fds": a["peak_fds"],
+                    "base_rss_mb": a["peak_rss_mb"],
+                }
+            )
+        )
     return 0
 
 

@@ -59,21 +59,38 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
 
     opens, window = window_ahead(datetime.datetime.now(datetime.timezone.utc))
     other = "1.0" if tag == "1.1" else "1.1"
-    op.publish(pullfleet.fleet_text(op.lab, payload_tag=other, pull_windows=[window]), f"window {window}",
-               "--pause", "0", "--no-wheels", "--canary", "100%")
+    op.publish(
+        pullfleet.fleet_text(op.lab, payload_tag=other, pull_windows=[window]),
+        f"window {window}",
+        "--pause",
+        "0",
+        "--no-wheels",
+        "--canary",
+        "100%",
+    )
     lab.trigger(lab.robots)  # applied inside the previous window (or none): the new window in agent.json
     image = f"{op.lab['registry']}/ros/payload@{pullfleet.digest_of(op.lab, 'ros/payload', tag)}"
     for robot in lab.robots:
         lab.sh(robot, "systemctl stop robot-pull.timer")
         lab.sh(robot, f"docker image rm -f {image} >/dev/null 2>&1; true")  # not running: the other tag runs
-    done = op.publish(pullfleet.fleet_text(op.lab, payload_tag=tag, pull_windows=[window]), f"bench {tag}",
-                      "--pause", "0", "--no-wheels", "--canary", "100%")
+    done = op.publish(
+        pullfleet.fleet_text(op.lab, payload_tag=tag, pull_windows=[window]),
+        f"bench {tag}",
+        "--pause",
+        "0",
+        "--no-wheels",
+        "--canary",
+        "100%",
+    )
     version = int(re.search(r"release (\d+)", done.stdout).group(1))
     if prefetch:
         lab.trigger(lab.robots)
     said = {robot: (journal(lab, robot) or [{}])[-1].get("result") for robot in lab.robots}
-    load, idle = hygiene.wait(f"window {window}", first=True, patience=max(1, int(
-        (opens - datetime.datetime.now(datetime.timezone.utc)).total_seconds()) - 5))
+    load, idle = hygiene.wait(
+        f"window {window}",
+        first=True,
+        patience=max(1, int((opens - datetime.datetime.now(datetime.timezone.utc)).total_seconds()) - 5),
+    )
     late = (datetime.datetime.now(datetime.timezone.utc) - opens).total_seconds()
     if late < 0:
         time.sleep(-late)
@@ -83,17 +100,34 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
     deadline = woken + 900
     while len(reached) < len(lab.robots) and time.monotonic() < deadline:
         for robot, report in op.reports().items():
-            if robot in lab.robots and robot not in reached and (report.get("applied") or {}).get("version", 0) >= \
-                    version and (report.get("status") or {}).get("health") == "healthy":
+            if (
+                robot in lab.robots
+                and robot not in reached
+                and (report.get("applied") or {}).get("version", 0) >= version
+                and (report.get("status") or {}).get("health") == "healthy"
+            ):
                 reached[robot] = time.monotonic() - woken
         time.sleep(1)
-    wakes = [float(line["seconds"]) for robot in lab.robots for line in journal(lab, robot)
-             if line["result"] == "applied" and line["version"] == str(version)]
+    wakes = [
+        float(line["seconds"])
+        for robot in lab.robots
+        for line in journal(lab, robot)
+        if line["result"] == "applied" and line["version"] == str(version)
+    ]
     for robot in lab.robots:
         lab.sh(robot, "systemctl start robot-pull.timer")
-    return {"prefetch": prefetch, "robots": len(lab.robots), "before_window": said, "late_s": max(0.0, late),
-            "reached": len(reached), "to_healthy": sorted(reached.values()), "applying_wake_s": sorted(wakes),
-            "window": window, "load": load, "idle": idle}
+    return {
+        "prefetch": prefetch,
+        "robots": len(lab.robots),
+        "before_window": said,
+        "late_s": max(0.0, late),
+        "reached": len(reached),
+        "to_healthy": sorted(reached.values()),
+        "applying_wake_s": sorted(wakes),
+        "window": window,
+        "load": load,
+        "idle": idle,
+    }
 
 
 def compare(runs: list[dict]) -> dict:
@@ -103,10 +137,13 @@ def compare(runs: list[dict]) -> dict:
         mine = [r for r in runs if r["prefetch"] is prefetched]
         wakes = [s for r in mine for s in r["applying_wake_s"]]
         healthy = [s for r in mine for s in r["to_healthy"]]
-        found[mode] = {"runs": len(mine), "applying_wake_s": statistics.median(wakes) if wakes else None,
-                       "to_healthy_s": statistics.median(healthy) if healthy else None,
-                       "all_reached": all(r["reached"] == r["robots"] for r in mine),
-                       "idle": all(r["idle"] for r in mine)}
+        found[mode] = {
+            "runs": len(mine),
+            "applying_wake_s": statistics.median(wakes) if wakes else None,
+            "to_healthy_s": statistics.median(healthy) if healthy else None,
+            "all_reached": all(r["reached"] == r["robots"] for r in mine),
+            "idle": all(r["idle"] for r in mine),
+        }
     return found
 
 

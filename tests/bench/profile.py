@@ -140,8 +140,13 @@ class Lab:
     def run(self, *args: str) -> dict:
         report = self.workdir / "profile.json"
         started = time.perf_counter()
-        proc = subprocess.run([sys.executable, "-c", WRAPPER, str(report), "-y", "inventories/lab.py", *args],
-                              cwd=ROOT, env=self.bench.env(), capture_output=True, text=True)
+        proc = subprocess.run(
+            [sys.executable, "-c", WRAPPER, str(report), "-y", "inventories/lab.py", *args],
+            cwd=ROOT,
+            env=self.bench.env(),
+            capture_output=True,
+            text=True,
+        )
         wall = time.perf_counter() - started
         if proc.returncode != 0:
             raise RuntimeError(f"pyinfra {' '.join(args)}: exit {proc.returncode}: {proc.stderr[-600:]}")
@@ -151,16 +156,24 @@ class Lab:
 
     def on_robot(self, script: str, runs: int) -> list[float]:
         """Seconds ``script`` takes on the first robot (sudo sh), timed there."""
-        timed = ("s=$(date +%s%N); sudo sh -c \"$1\" >/dev/null 2>&1; e=$(date +%s%N); echo $(( (e - s) / 1000 ))")
+        timed = 's=$(date +%s%N); sudo sh -c "$1" >/dev/null 2>&1; e=$(date +%s%N); echo $(( (e - s) / 1000 ))'
         command = f"sh -c {_q(timed)} timed {_q(script)}"
-        return [int(subprocess.run(self.bench.ssh(self.bench.robots[0], command), capture_output=True,
-                                   text=True, check=True).stdout.strip()) / 1e6 for _ in range(runs)]
+        return [
+            int(
+                subprocess.run(
+                    self.bench.ssh(self.bench.robots[0], command), capture_output=True, text=True, check=True
+                ).stdout.strip()
+            )
+            / 1e6
+            for _ in range(runs)
+        ]
 
 
 def cgroup_cpu_ns(container: str) -> int | None:
     """CPU the container's cgroup has used, in ns (cgroup v1 cpuacct or v2 cpu.stat)."""
-    cid = subprocess.run(["docker", "inspect", "-f", "{{.Id}}", container], capture_output=True,
-                         text=True).stdout.strip()
+    cid = subprocess.run(
+        ["docker", "inspect", "-f", "{{.Id}}", container], capture_output=True, text=True
+    ).stdout.strip()
     v1 = Path(f"/sys/fs/cgroup/cpuacct/docker/{cid}/cpuacct.usage")
     if v1.exists():
         return int(v1.read_text())
@@ -192,8 +205,13 @@ def _q(text: str) -> str:
 
 def stages(data: dict) -> dict[str, tuple[float, float]]:
     """stage -> (wall, cpu) seconds, the start-up (imports, inventory) first."""
-    names = {"start": "start-up, inventory", "Connect": "connect", "Prepare": "prepare",
-             "Execute": "execute", "Disconnect": "results, exit"}
+    names = {
+        "start": "start-up, inventory",
+        "Connect": "connect",
+        "Prepare": "prepare",
+        "Execute": "execute",
+        "Disconnect": "results, exit",
+    }
     marks = data["marks"]
     return {names.get(a[0], a[0]): (b[1] - a[1], b[2] - a[2]) for a, b in zip(marks, marks[1:])}
 
@@ -222,11 +240,16 @@ def fresh_timeline(prefix: str, workdir: Path) -> str:
     lab.bench, lab.workdir = bench, workdir
     run = lab.run("deploy.py")
     bench.down()
-    lines = ["## A fresh provision of one robot, command by command", "",
-             f"Floor on the same reset host: apt + pull {floor:.2f} s, health window {health:.2f} s, "
-             f"together {floor + health:.2f} s (load before: {load:.2f}).  The provision: {run['wall']:.2f} s "
-             f"(load before: {load_fresh:.2f}), {run['wall'] / (floor + health):.2f}x.", "",
-             "| starts at (s) | takes (s) | operation |", "|---|---|---|"]
+    lines = [
+        "## A fresh provision of one robot, command by command",
+        "",
+        f"Floor on the same reset host: apt + pull {floor:.2f} s, health window {health:.2f} s, "
+        f"together {floor + health:.2f} s (load before: {load:.2f}).  The provision: {run['wall']:.2f} s "
+        f"(load before: {load_fresh:.2f}), {run['wall'] / (floor + health):.2f}x.",
+        "",
+        "| starts at (s) | takes (s) | operation |",
+        "|---|---|---|",
+    ]
     stage = {name: round(wall, 2) for name, (wall, _) in stages(run).items()}
     lines.insert(4, "Stages: " + ", ".join(f"{k} {v} s" for k, v in stage.items()) + ".")
     lines.insert(5, "")
@@ -240,13 +263,22 @@ def median_spread(values: list[float]) -> str:
 
 
 def summarize(runs: dict[str, list[dict]], robot: dict[str, list[float]], robots: int, loads: list[float]) -> str:
-    lines = [f"# Profile: a converged rerun of {robots} robots against `pyinfra exec -- true`", "",
-             "Written by `python3 -m tests.bench.profile --write`; medians of "
-             f"{len(runs['noop'])} alternating runs (min–max), seconds.  Load average (1 min) before each run: "
-             + ", ".join(f"{x:.2f}" for x in loads) + " (the first runs waited for a load below 1.5, the later "
-             "ones for a quiet machine: tests/bench/hygiene.py).", ""]
-    lines += ["## Wall and CPU by pyinfra stage", "",
-              "| stage | exec true: wall | exec true: CPU | no-op: wall | no-op: CPU |", "|---|---|---|---|---|"]
+    lines = [
+        f"# Profile: a converged rerun of {robots} robots against `pyinfra exec -- true`",
+        "",
+        "Written by `python3 -m tests.bench.profile --write`; medians of "
+        f"{len(runs['noop'])} alternating runs (min–max), seconds.  Load average (1 min) before each run: "
+        + ", ".join(f"{x:.2f}" for x in loads)
+        + " (the first runs waited for a load below 1.5, the later "
+        "ones for a quiet machine: tests/bench/hygiene.py).",
+        "",
+    ]
+    lines += [
+        "## Wall and CPU by pyinfra stage",
+        "",
+        "| stage | exec true: wall | exec true: CPU | no-op: wall | no-op: CPU |",
+        "|---|---|---|---|---|",
+    ]
     names = list(stages(runs["noop"][0]))
     for name in names:
         cells = []
@@ -256,27 +288,41 @@ def summarize(runs: dict[str, list[dict]], robot: dict[str, list[float]], robots
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     total = {kind: [r["wall"] for r in runs[kind]] for kind in runs}
     cpu = {kind: [r["marks"][-1][2] - r["marks"][0][2] for r in runs[kind]] for kind in runs}
-    lines.append(f"| **whole run** (wall from outside) | {median_spread(total['exec'])} | {median_spread(cpu['exec'])} "
-                 f"| {median_spread(total['noop'])} | {median_spread(cpu['noop'])} |")
+    lines.append(
+        f"| **whole run** (wall from outside) | {median_spread(total['exec'])} | {median_spread(cpu['exec'])} "
+        f"| {median_spread(total['noop'])} | {median_spread(cpu['noop'])} |"
+    )
     lines += ["", "## SSH commands", ""]
     for kind in ("exec", "noop"):
         per_run = [[c[1] for c in r["commands"]] for r in runs[kind]]
-        lines.append(f"- {kind}: {len(per_run[0])} commands per run ({len(per_run[0]) // robots} per host); "
-                     f"each {median_spread([statistics.median(p) for p in per_run])} s median, "
-                     f"slowest {median_spread([max(p) for p in per_run])} s")
-    lines += ["", "## The robot's side (first robot, alone, over SSH, timed on the robot)", "",
-              f"- `true`: {median_spread(robot['true'])} s",
-              f"- the snapshot script: {median_spread(robot['snapshot'])} s"]
+        lines.append(
+            f"- {kind}: {len(per_run[0])} commands per run ({len(per_run[0]) // robots} per host); "
+            f"each {median_spread([statistics.median(p) for p in per_run])} s median, "
+            f"slowest {median_spread([max(p) for p in per_run])} s"
+        )
+    lines += [
+        "",
+        "## The robot's side (first robot, alone, over SSH, timed on the robot)",
+        "",
+        f"- `true`: {median_spread(robot['true'])} s",
+        f"- the snapshot script: {median_spread(robot['snapshot'])} s",
+    ]
     if robot.get("cpu_snapshot") is not None:
-        lines += [f"- CPU the robot's container spends per SSH command, as its cgroup counts it (sshd, sudo, the "
-                  f"command, the daemons it asks, and the container's own background over the same time): "
-                  f"`sudo true` {robot['cpu_true']:.3f} s, the snapshot {robot['cpu_snapshot']:.3f} s; "
-                  f"{robots} robots on this machine's {os.cpu_count()} cores: at least "
-                  f"{robots * (robot['cpu_snapshot'] - robot['cpu_true']) / os.cpu_count():.2f} s of wall for the "
-                  "snapshots beyond `true`, were the cores idle"]
+        lines += [
+            f"- CPU the robot's container spends per SSH command, as its cgroup counts it (sshd, sudo, the "
+            f"command, the daemons it asks, and the container's own background over the same time): "
+            f"`sudo true` {robot['cpu_true']:.3f} s, the snapshot {robot['cpu_snapshot']:.3f} s; "
+            f"{robots} robots on this machine's {os.cpu_count()} cores: at least "
+            f"{robots * (robot['cpu_snapshot'] - robot['cpu_true']) / os.cpu_count():.2f} s of wall for the "
+            "snapshots beyond `true`, were the cores idle"
+        ]
     lines += [""]
-    lines += ["## Where the operator's CPU goes (sampled every 5 ms, all runs added)", "",
-              "| category | exec true | no-op |", "|---|---|---|"]
+    lines += [
+        "## Where the operator's CPU goes (sampled every 5 ms, all runs added)",
+        "",
+        "| category | exec true | no-op |",
+        "|---|---|---|",
+    ]
     cats = {kind: collections.Counter() for kind in runs}
     for kind in runs:
         for r in runs[kind]:
@@ -284,8 +330,10 @@ def summarize(runs: dict[str, list[dict]], robot: dict[str, list[float]], robots
     n = {kind: len(runs[kind]) for kind in runs}
     for name, _ in CATEGORIES:
         if cats["exec"][name] or cats["noop"][name]:
-            lines.append(f"| {name} | {cats['exec'][name] * 0.005 / n['exec']:.2f} s | "
-                         f"{cats['noop'][name] * 0.005 / n['noop']:.2f} s |")
+            lines.append(
+                f"| {name} | {cats['exec'][name] * 0.005 / n['exec']:.2f} s | "
+                f"{cats['noop'][name] * 0.005 / n['noop']:.2f} s |"
+            )
     lines.append("")
     lines.append("(Samples are taken every 5 ms of wall time while Python runs; per run, averaged.)")
     return "\n".join(lines) + "\n"
@@ -296,8 +344,12 @@ def main(argv=None) -> int:
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "perf"))
     parser.add_argument("--robots", type=int, default=10)
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--fresh", metavar="PREFIX", help="also time a fresh provision of one robot, command by "
-                        "command, on a lab PREFIX of its own (reset, then removed)")
+    parser.add_argument(
+        "--fresh",
+        metavar="PREFIX",
+        help="also time a fresh provision of one robot, command by "
+        "command, on a lab PREFIX of its own (reset, then removed)",
+    )
     parser.add_argument("--write", action="store_true", help="write tests/bench/PROFILE.md")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
@@ -310,8 +362,12 @@ def main(argv=None) -> int:
                 loads.append(hygiene.wait(kind, first=index == 0)[0])
                 runs[kind].append(lab.run(*command))
         script = snapshot_script(runs["noop"][0])
-        robot = {"true": lab.on_robot("true", 5), "snapshot": lab.on_robot(script, 5),
-                 "cpu_true": robot_cpu(lab, "sudo true"), "cpu_snapshot": robot_cpu(lab, f"sudo sh -c {_q(script)}")}
+        robot = {
+            "true": lab.on_robot("true", 5),
+            "snapshot": lab.on_robot(script, 5),
+            "cpu_true": robot_cpu(lab, "sudo true"),
+            "cpu_snapshot": robot_cpu(lab, f"sudo sh -c {_q(script)}"),
+        }
     text = summarize(runs, robot, args.robots, loads)
     if args.fresh:
         with tempfile.TemporaryDirectory() as tmp:

@@ -45,9 +45,11 @@ from pathlib import Path
 from tests.bench import hygiene, sections
 
 ROOT = Path(__file__).resolve().parents[2]
-LINE = re.compile(r"robot-pull: (?P<result>[a-z-]+)(?: \(release (?P<version>\d+)\))?.*; (?P<seconds>[\d.]+) s, "
-                  r"(?P<cpu>[\d.]+) s CPU, sent (?P<sent>\d+) B, received (?P<received>\d+) B"
-                  r"(?: in (?P<requests>\d+) requests)?; (?P<report>.*)$")
+LINE = re.compile(
+    r"robot-pull: (?P<result>[a-z-]+)(?: \(release (?P<version>\d+)\))?.*; (?P<seconds>[\d.]+) s, "
+    r"(?P<cpu>[\d.]+) s CPU, sent (?P<sent>\d+) B, received (?P<received>\d+) B"
+    r"(?: in (?P<requests>\d+) requests)?; (?P<report>.*)$"
+)
 FLEET_SIZE = 10_000
 COST = ("seconds", "cpu", "sent", "received", "requests")
 # bytes per report ref a push receives (pkt-line: 4 + 40-hex oid + space + refs/reports/<name> + LF)
@@ -87,8 +89,13 @@ def setup(prefix: str, robots: int, base: Path):
     hosts.up(prefix, robots=robots, laptops=0, git_server=True)
     env = dict(os.environ, ROBOT_LAB_PREFIX=prefix, PYINFRA_PROGRESS="off")
     started = time.monotonic()
-    done = subprocess.run([sys.executable, "-m", "pyinfra", "-y", "inventories/lab.py", "deploy.py"], cwd=ROOT,
-                          env=env, capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "pyinfra", "-y", "inventories/lab.py", "deploy.py"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     if done.returncode:
         raise SystemExit(f"bench: the fresh provisioning failed: {done.stderr[-2000:]}")
     print(f"bench: {robots} robots provisioned by push in {time.monotonic() - started:.0f} s", flush=True)
@@ -96,13 +103,23 @@ def setup(prefix: str, robots: int, base: Path):
     op.setup()
     op.publish(pullfleet.fleet_text(op.lab), "release 1", "--pause", "0")
     fleet = str(op.repo / pullfleet.FLEET)
-    done = subprocess.run([sys.executable, "-m", "pyinfra", "-y", "inventories/lab.py", "deploy.py"], cwd=ROOT,
-                          env={**op.env(ROBOT_LAB_FLEET=fleet), "PYINFRA_PROGRESS": "off"},
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-m", "pyinfra", "-y", "inventories/lab.py", "deploy.py"],
+        cwd=ROOT,
+        env={**op.env(ROBOT_LAB_FLEET=fleet), "PYINFRA_PROGRESS": "off"},
+        capture_output=True,
+        text=True,
+    )
     if done.returncode:
         raise SystemExit(f"bench: installing the agent failed: {done.stderr[-2000:]}")
-    op.robotfleet("pull-enroll", "inventories/lab.py", "--ssh", *op.admin_options(), *op.remote(),
-                  env=op.env(ROBOT_LAB_FLEET=fleet))
+    op.robotfleet(
+        "pull-enroll",
+        "inventories/lab.py",
+        "--ssh",
+        *op.admin_options(),
+        *op.remote(),
+        env=op.env(ROBOT_LAB_FLEET=fleet),
+    )
     lab = Lab(prefix)
     lab.trigger(lab.robots)
     return op, lab
@@ -117,8 +134,11 @@ def idle_check(lab, op, samples: int) -> dict:
     found = {"without a report push": [], "with a report push": []}
     for index in range(samples * 2):
         if index % 2:  # a heartbeat: the report is pushed although nothing changed
-            lab.sh(robot, "python3 -c \"import json; p='/var/lib/robot-pull/agent-state.json'; "
-                          "s=json.load(open(p)); s.pop('reported', None); json.dump(s, open(p, 'w'))\"")
+            lab.sh(
+                robot,
+                "python3 -c \"import json; p='/var/lib/robot-pull/agent-state.json'; "
+                "s=json.load(open(p)); s.pop('reported', None); json.dump(s, open(p, 'w'))\"",
+            )
         load, idle = hygiene.wait(f"idle check {index}", first=index == 0, patience=120)
         lab.trigger([robot])
         line = journal(lab, robot)[-1]
@@ -129,10 +149,14 @@ def idle_check(lab, op, samples: int) -> dict:
 
 def summary(samples: list[dict]) -> dict:
     """The median of each cost, the CPU seconds' spread, the samples and whether all started idle (pure)."""
-    return {**{k: statistics.median(s[k] for s in samples) for k in COST},
-            "cpu_min": min(s["cpu"] for s in samples), "cpu_max": max(s["cpu"] for s in samples),
-            "samples": len(samples), "idle": all(s["idle"] for s in samples),
-            "load": max(s["load"] for s in samples)}
+    return {
+        **{k: statistics.median(s[k] for s in samples) for k in COST},
+        "cpu_min": min(s["cpu"] for s in samples),
+        "cpu_max": max(s["cpu"] for s in samples),
+        "samples": len(samples),
+        "idle": all(s["idle"] for s in samples),
+        "load": max(s["load"] for s in samples),
+    }
 
 
 def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
@@ -140,36 +164,65 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
     from tests.lab import pullfleet
 
     settings = {"pull_interval": interval, "pull_jitter": jitter, "pull_boot_delay": 5}
-    op.publish(pullfleet.fleet_text(op.lab, payload_tag="1.0" if tag == "1.1" else "1.1", **settings),
-               f"timers {interval}/{jitter}", "--pause", "0", "--no-wheels")
+    op.publish(
+        pullfleet.fleet_text(op.lab, payload_tag="1.0" if tag == "1.1" else "1.1", **settings),
+        f"timers {interval}/{jitter}",
+        "--pause",
+        "0",
+        "--no-wheels",
+    )
     lab.trigger(lab.robots)  # the new timers in place (and that release applied)
     load, idle = hygiene.wait(f"rollout {interval}/{jitter}", first=True, patience=300)
     published = time.monotonic()
-    done = op.publish(pullfleet.fleet_text(op.lab, payload_tag=tag, **settings), f"bench {tag}", "--pause", "0",
-                      "--no-wheels", "--canary", "100%")
+    done = op.publish(
+        pullfleet.fleet_text(op.lab, payload_tag=tag, **settings),
+        f"bench {tag}",
+        "--pause",
+        "0",
+        "--no-wheels",
+        "--canary",
+        "100%",
+    )
     version = int(re.search(r"release (\d+)", done.stdout).group(1))
     reached: dict[str, float] = {}
     deadline = published + 10 * (interval + jitter) + 300
     while len(reached) < len(lab.robots) and time.monotonic() < deadline:
         for robot, report in op.reports().items():
-            if robot in lab.robots and robot not in reached and (report.get("applied") or {}).get("version", 0) >= \
-                    version and (report.get("status") or {}).get("health") == "healthy":
+            if (
+                robot in lab.robots
+                and robot not in reached
+                and (report.get("applied") or {}).get("version", 0) >= version
+                and (report.get("status") or {}).get("health") == "healthy"
+            ):
                 reached[robot] = time.monotonic() - published
         time.sleep(1)
     times = sorted(reached.values())
     half = times[(len(lab.robots) + 1) // 2 - 1] if len(times) >= (len(lab.robots) + 1) // 2 else None
-    updates = [line for robot in lab.robots for line in journal(lab, robot)
-               if line["result"] == "applied" and line["version"] == str(version)]
-    return {"interval": interval, "jitter": jitter, "robots": len(lab.robots), "reached": len(times),
-            "to_50%": half, "to_100%": times[-1] if len(times) == len(lab.robots) else None,
-            "bytes_per_update": (statistics.median(int(u["sent"]) + int(u["received"]) for u in updates)
-                                 if updates else None),
-            "load": load, "idle": idle}
+    updates = [
+        line
+        for robot in lab.robots
+        for line in journal(lab, robot)
+        if line["result"] == "applied" and line["version"] == str(version)
+    ]
+    return {
+        "interval": interval,
+        "jitter": jitter,
+        "robots": len(lab.robots),
+        "reached": len(times),
+        "to_50%": half,
+        "to_100%": times[-1] if len(times) == len(lab.robots) else None,
+        "bytes_per_update": (
+            statistics.median(int(u["sent"]) + int(u["received"]) for u in updates) if updates else None
+        ),
+        "load": load,
+        "idle": idle,
+    }
 
 
 def rollout_figure(samples: list[dict]) -> dict:
     """Samples of one interval x jitter: median and spread of the times to
     50% and 100% (None when a sample did not get there), pure."""
+
     def spread(key: str) -> dict | None:
         values = [s[key] for s in samples]
         if not values or None in values:
@@ -178,15 +231,24 @@ def rollout_figure(samples: list[dict]) -> dict:
 
     first = samples[0]
     updates = [s["bytes_per_update"] for s in samples if s["bytes_per_update"] is not None]
-    return {"interval": first["interval"], "jitter": first["jitter"], "robots": first["robots"],
-            "samples": len(samples), "reached": min(s["reached"] for s in samples),
-            "to_50%": spread("to_50%"), "to_100%": spread("to_100%"),
-            "bytes_per_update": statistics.median(updates) if updates else None,
-            "idle": all(s["idle"] for s in samples), "load": max(s["load"] for s in samples), "runs": samples}
+    return {
+        "interval": first["interval"],
+        "jitter": first["jitter"],
+        "robots": first["robots"],
+        "samples": len(samples),
+        "reached": min(s["reached"] for s in samples),
+        "to_50%": spread("to_50%"),
+        "to_100%": spread("to_100%"),
+        "bytes_per_update": statistics.median(updates) if updates else None,
+        "idle": all(s["idle"] for s in samples),
+        "load": max(s["load"] for s in samples),
+        "runs": samples,
+    }
 
 
-def fleet_per_hour(idle: dict, interval: int, jitter: int, heartbeat: int = 3600, robots_measured: int = 1,
-                   fleet: int = FLEET_SIZE) -> dict:
+def fleet_per_hour(
+    idle: dict, interval: int, jitter: int, heartbeat: int = 3600, robots_measured: int = 1, fleet: int = FLEET_SIZE
+) -> dict:
     """What ``fleet`` robots ask of the git server per hour at this interval
     and jitter, from one robot's measured check cost (pure).
 
@@ -207,23 +269,35 @@ def fleet_per_hour(idle: dict, interval: int, jitter: int, heartbeat: int = 3600
     push_extra += REF_ADVERTISEMENT * (fleet - robots_measured)
     requests = checks * plain.get("requests", 0) + pushes * (pushed.get("requests", 0) - plain.get("requests", 0))
     per_hour = checks * idle_bytes + pushes * push_extra
-    return {"robots": fleet, "interval": interval, "jitter": jitter, "heartbeat": heartbeat,
-            "checks_per_hour": round(checks), "report_pushes_per_hour": round(pushes),
-            "git_requests_per_hour": round(requests), "git_requests_per_second": round(requests / 3600, 1),
-            "bytes_per_hour": round(per_hour), "megabits_per_second": round(per_hour * 8 / 3600 / 1e6, 2),
-            "formula": (
-                "checks = N*3600/(interval + jitter/2 + check s); pushes = min(checks, N*3600/(heartbeat + interval "
-                "+ jitter/2)); requests = checks*(idle check requests) + pushes*(push requests - idle requests); "
-                f"bytes = checks*(idle check bytes) + pushes*(push bytes - idle bytes + {REF_ADVERTISEMENT}*(N - "
-                "robots measured) advertised report refs)")}
+    return {
+        "robots": fleet,
+        "interval": interval,
+        "jitter": jitter,
+        "heartbeat": heartbeat,
+        "checks_per_hour": round(checks),
+        "report_pushes_per_hour": round(pushes),
+        "git_requests_per_hour": round(requests),
+        "git_requests_per_second": round(requests / 3600, 1),
+        "bytes_per_hour": round(per_hour),
+        "megabits_per_second": round(per_hour * 8 / 3600 / 1e6, 2),
+        "formula": (
+            "checks = N*3600/(interval + jitter/2 + check s); pushes = min(checks, N*3600/(heartbeat + interval "
+            "+ jitter/2)); requests = checks*(idle check requests) + pushes*(push requests - idle requests); "
+            f"bytes = checks*(idle check bytes) + pushes*(push bytes - idle bytes + {REF_ADVERTISEMENT}*(N - "
+            "robots measured) advertised report refs)"
+        ),
+    }
 
 
 def print_fleet(rows: list[dict]) -> None:
     for row in rows:
-        print(f"bench: {row['robots']} robots, interval {row['interval']} s, jitter {row['jitter']} s, heartbeat "
-              f"{row['heartbeat']} s: {row['checks_per_hour']} checks and {row['report_pushes_per_hour']} report "
-              f"pushes an hour, {row['git_requests_per_hour']} git requests ({row['git_requests_per_second']}/s), "
-              f"{row['bytes_per_hour'] / 1e9:.2f} GB ({row['megabits_per_second']} Mbit/s)", flush=True)
+        print(
+            f"bench: {row['robots']} robots, interval {row['interval']} s, jitter {row['jitter']} s, heartbeat "
+            f"{row['heartbeat']} s: {row['checks_per_hour']} checks and {row['report_pushes_per_hour']} report "
+            f"pushes an hour, {row['git_requests_per_hour']} git requests ({row['git_requests_per_second']}/s), "
+            f"{row['bytes_per_hour'] / 1e9:.2f} GB ({row['megabits_per_second']} Mbit/s)",
+            flush=True,
+        )
     if rows:
         print(f"bench: {rows[0]['formula']}", flush=True)
 
@@ -241,38 +315,60 @@ def loaded(figure: dict) -> str:
 def markdown(figures: dict, conditions: dict) -> str:
     """The pull-mode section of RESULTS.md (pure)."""
     n = figures["robots"]
-    lines = ["## Pull mode (issue 26)", "",
-             "Written by `python3 -m tests.bench.pull`: its own lab of N robots and the git server, the agent "
-             "installed by push and each robot enrolled; seconds unless said otherwise.  A figure whose sample did "
-             "not start idle carries `[load X]`.", ""]
+    lines = [
+        "## Pull mode (issue 26)",
+        "",
+        "Written by `python3 -m tests.bench.pull`: its own lab of N robots and the git server, the agent "
+        "installed by push and each robot enrolled; seconds unless said otherwise.  A figure whose sample did "
+        "not start idle carries `[load X]`.",
+        "",
+    ]
     lines += [f"- {k}: {v}" for k, v in conditions.items()]
-    lines += ["", f"Publish -> robots healthy on the new release, N={n}, each robot woken only by its timer "
-                  "(median (min–max) of the runs; `pull_boot_delay` 5 s):", "",
-              "| pull_interval / pull_jitter | 50% healthy | 100% healthy | bytes per update, one robot | runs |",
-              "|---|---|---|---|---|"]
+    lines += [
+        "",
+        f"Publish -> robots healthy on the new release, N={n}, each robot woken only by its timer "
+        "(median (min–max) of the runs; `pull_boot_delay` 5 s):",
+        "",
+        "| pull_interval / pull_jitter | 50% healthy | 100% healthy | bytes per update, one robot | runs |",
+        "|---|---|---|---|---|",
+    ]
     for row in figures.get("rollouts", []):
         update = f"{row['bytes_per_update']:,.0f}" if row.get("bytes_per_update") is not None else "-"
-        lines.append(f"| {row['interval']} s / {row['jitter']} s | {spread_text(row['to_50%'])} | "
-                     f"{spread_text(row['to_100%'])}{loaded(row)} | {update} | {row['samples']} |")
-    lines += ["", "An idle check on one robot (a wake that finds nothing new; median of its samples; CPU: the "
-                  "agent and every program it ran, from its journal line; bytes: its git transport's):", "",
-              "| check | wall | CPU (min–max) | bytes sent | bytes received | git requests | samples |",
-              "|---|---|---|---|---|---|---|"]
+        lines.append(
+            f"| {row['interval']} s / {row['jitter']} s | {spread_text(row['to_50%'])} | "
+            f"{spread_text(row['to_100%'])}{loaded(row)} | {update} | {row['samples']} |"
+        )
+    lines += [
+        "",
+        "An idle check on one robot (a wake that finds nothing new; median of its samples; CPU: the "
+        "agent and every program it ran, from its journal line; bytes: its git transport's):",
+        "",
+        "| check | wall | CPU (min–max) | bytes sent | bytes received | git requests | samples |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for kind, cost in figures.get("idle_check", {}).items():
-        lines.append(f"| {kind} | {cost['seconds']:.2f} | {cost['cpu']:.2f} ({cost['cpu_min']:.2f}–"
-                     f"{cost['cpu_max']:.2f}){loaded(cost)} | {cost['sent']:,.0f} | {cost['received']:,.0f} | "
-                     f"{cost['requests']:.0f} | {cost['samples']} |")
+        lines.append(
+            f"| {kind} | {cost['seconds']:.2f} | {cost['cpu']:.2f} ({cost['cpu_min']:.2f}–"
+            f"{cost['cpu_max']:.2f}){loaded(cost)} | {cost['sent']:,.0f} | {cost['received']:,.0f} | "
+            f"{cost['requests']:.0f} | {cost['samples']} |"
+        )
     rows = figures.get("fleet_per_hour", [])
     if rows:
-        lines += ["", f"What a {rows[0]['robots']:,}-robot fleet asks of its git server per hour, computed from "
-                      "the idle checks above (not measured at that size):", "",
-                  "| interval / jitter / heartbeat | checks | report pushes | git requests (per s) | bytes (Mbit/s) |",
-                  "|---|---|---|---|---|"]
+        lines += [
+            "",
+            f"What a {rows[0]['robots']:,}-robot fleet asks of its git server per hour, computed from "
+            "the idle checks above (not measured at that size):",
+            "",
+            "| interval / jitter / heartbeat | checks | report pushes | git requests (per s) | bytes (Mbit/s) |",
+            "|---|---|---|---|---|",
+        ]
         for row in rows:
-            lines.append(f"| {row['interval']} s / {row['jitter']} s / {row['heartbeat']} s | "
-                         f"{row['checks_per_hour']:,} | {row['report_pushes_per_hour']:,} | "
-                         f"{row['git_requests_per_hour']:,} ({row['git_requests_per_second']}) | "
-                         f"{row['bytes_per_hour'] / 1e9:.2f} GB ({row['megabits_per_second']}) |")
+            lines.append(
+                f"| {row['interval']} s / {row['jitter']} s / {row['heartbeat']} s | "
+                f"{row['checks_per_hour']:,} | {row['report_pushes_per_hour']:,} | "
+                f"{row['git_requests_per_hour']:,} ({row['git_requests_per_second']}) | "
+                f"{row['bytes_per_hour'] / 1e9:.2f} GB ({row['megabits_per_second']}) |"
+            )
         lines += ["", f"Formula: {rows[0]['formula']}."]
     return "\n".join(lines) + "\n"
 
@@ -301,8 +397,10 @@ def main(argv=None) -> int:
             op, lab = setup(args.prefix, args.robots, Path(base))
             figures["idle_check"] = idle_check(lab, op, args.idle_samples)
             print(f"bench: idle check: {json.dumps(figures['idle_check'])}", flush=True)
-            figures["fleet_per_hour"] = [fleet_per_hour(figures["idle_check"], i, j, robots_measured=len(lab.robots))
-                                         for i, j in ((300, 60), (900, 300), (3600, 600))]
+            figures["fleet_per_hour"] = [
+                fleet_per_hour(figures["idle_check"], i, j, robots_measured=len(lab.robots))
+                for i, j in ((300, 60), (900, 300), (3600, 600))
+            ]
             print_fleet(figures["fleet_per_hour"])
             figures["rollouts"] = []
             tag = "1.1"
@@ -318,17 +416,24 @@ def main(argv=None) -> int:
         if not args.keep:
             hosts.down(args.prefix)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    conditions = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-                  "commit": commit.stdout.strip(), "cpus": os.cpu_count(), "robots": args.robots,
-                  "load limit before each figure (1 min)": hygiene.LIMIT}
+    conditions = {
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "commit": commit.stdout.strip(),
+        "cpus": os.cpu_count(),
+        "robots": args.robots,
+        "load limit before each figure (1 min)": hygiene.LIMIT,
+    }
     text = markdown(figures, conditions)
     print(json.dumps(figures, indent=2))
     print(text)
     if args.no_write:
         return 0
     if not all_idle(figures) and not args.write_loaded:
-        print("[bench] not written: some samples did not start idle (see [load X]); rerun on an idle machine, "
-              "or pass --write-loaded", file=sys.stderr)
+        print(
+            "[bench] not written: some samples did not start idle (see [load X]); rerun on an idle machine, "
+            "or pass --write-loaded",
+            file=sys.stderr,
+        )
         return 1
     sections.write("pull", text, {"conditions": conditions, "figures": figures})
     return 0

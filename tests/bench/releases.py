@@ -52,15 +52,23 @@ def fleet(tmp: Path, name: str, host: str, tag: str, command: str | None = None)
 def deploy(prefix: str, host: str, fleet_file: Path) -> tuple[int, float]:
     env = dict(os.environ, ROBOT_LAB_PREFIX=prefix, ROBOT_LAB_FLEET=str(fleet_file), PYINFRA_PROGRESS="off")
     started = time.monotonic()
-    proc = subprocess.run([sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit", host],
-                          cwd=ROOT, env=env, capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit", host],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
     return proc.returncode, time.monotonic() - started
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.releases", description=__doc__.split("\n\n")[0],
-                                     epilog="The window of each of 10 robots updated at once: python3 -m tests.bench "
-                                            "--robots 10 --updates-at 10 --fresh-at (see its --help).")
+    parser = argparse.ArgumentParser(
+        prog="python3 -m tests.bench.releases",
+        description=__doc__.split("\n\n")[0],
+        epilog="The window of each of 10 robots updated at once: python3 -m tests.bench "
+        "--robots 10 --updates-at 10 --fresh-at (see its --help).",
+    )
     parser.add_argument("--prefix", default="bench")
     parser.add_argument("--host", default="robot1")
     parser.add_argument("--robots", type=int, default=1, help="robots in the lab (the others idle)")
@@ -99,13 +107,18 @@ def main() -> int:
                 with window.Watch(sh) as watch:
                     code, seconds = deploy(args.prefix, host, fleet(tmp, f"broken-{index}", host, tag, command))
                 found = watch.broken() or {}
-                print(f"broken release ({kind}): {found}, deploy exit {code} (a failure is expected), "
-                      f"{seconds:.1f} s wall", flush=True)
+                print(
+                    f"broken release ({kind}): {found}, deploy exit {code} (a failure is expected), "
+                    f"{seconds:.1f} s wall",
+                    flush=True,
+                )
                 sample(f"{kind}: verdict -> old release running", found.get("verdict_to_old_running"), load, idle)
-                sample(f"{kind}: first start -> old release running", found.get("first_start_to_old_running"), load,
-                       idle)
+                sample(
+                    f"{kind}: first start -> old release running", found.get("first_start_to_old_running"), load, idle
+                )
                 settings[kind] = f"verdict: {found.get('verdict', '?')}; " + window.health_settings(
-                    sh, tag, (ROOT / "inventories" / "lab.yaml").read_text())
+                    sh, tag, (ROOT / "inventories" / "lab.yaml").read_text()
+                )
         print(f"\n{'figure (one robot, seconds)':58} {'median (min-max)':>24}")
         for name, figure in figures.items():
             print(f"{name:58} {hygiene.shown(figure.as_dict()):>24}")

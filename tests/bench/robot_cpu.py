@@ -56,10 +56,13 @@ class Cost:
 
 def container_tasks(container: str) -> dict[int, str]:
     """Host thread id -> command name of every task in the container's cgroup."""
-    cid = subprocess.run(["docker", "inspect", "-f", "{{.Id}}", container], capture_output=True, text=True,
-                         check=True).stdout.strip()
-    for path in (f"/sys/fs/cgroup/cpuacct/docker/{cid}/tasks",
-                 f"/sys/fs/cgroup/system.slice/docker-{cid}.scope/cgroup.threads"):
+    cid = subprocess.run(
+        ["docker", "inspect", "-f", "{{.Id}}", container], capture_output=True, text=True, check=True
+    ).stdout.strip()
+    for path in (
+        f"/sys/fs/cgroup/cpuacct/docker/{cid}/tasks",
+        f"/sys/fs/cgroup/system.slice/docker-{cid}.scope/cgroup.threads",
+    ):
         if os.path.exists(path):
             tids = [int(line) for line in Path(path).read_text().split()]
             break
@@ -108,8 +111,11 @@ def record(argv: list[str], runs: int, workdir: Path) -> tuple[list[str], float]
     script = workdir / "runs.sh"
     script.write_text(f"i=0; while [ $i -lt {runs} ]; do {shlex.join(argv)} >/dev/null 2>&1; i=$((i+1)); done\n")
     started = time.monotonic()
-    subprocess.run(["perf", "record", "-q", *sum((["-e", e] for e in EVENTS), []), "-a", "-o", str(data),
-                    "--", "sh", str(script)], check=True, capture_output=True)
+    subprocess.run(
+        ["perf", "record", "-q", *sum((["-e", e] for e in EVENTS), []), "-a", "-o", str(data), "--", "sh", str(script)],
+        check=True,
+        capture_output=True,
+    )
     wall = time.monotonic() - started
     out = subprocess.run(["perf", "script", "-i", str(data)], capture_output=True, text=True, check=True).stdout
     return out.splitlines(), wall
@@ -142,8 +148,7 @@ def table(costs: dict[str, Cost], top: int = 40) -> str:
     for cost in costs.values():
         programs += [p for p in cost.programs if p not in programs]
     programs.sort(key=lambda p: -max(c.programs.get(p, (0, 0.0))[1] for c in costs.values()))
-    lines = ["| program | " + " | ".join(f"`{n}`: starts, CPU" for n in names) + " |",
-             "|---|" + "---|" * len(names)]
+    lines = ["| program | " + " | ".join(f"`{n}`: starts, CPU" for n in names) + " |", "|---|" + "---|" * len(names)]
     shown, rest = programs[:top], programs[top:]
     for program in shown:
         cells = []
@@ -152,11 +157,17 @@ def table(costs: dict[str, Cost], top: int = 40) -> str:
             cells.append(f"{starts:g}, {seconds * 1000:.1f} ms" if starts or seconds >= 0.00005 else "–")
         lines.append(f"| {program} | " + " | ".join(cells) + " |")
     if rest:
-        lines.append("| (the others) | " + " | ".join(
-            f"{sum(costs[n].programs.get(p, (0, 0.0))[1] for p in rest) * 1000:.1f} ms" for n in names) + " |")
+        lines.append(
+            "| (the others) | "
+            + " | ".join(f"{sum(costs[n].programs.get(p, (0, 0.0))[1] for p in rest) * 1000:.1f} ms" for n in names)
+            + " |"
+        )
     lines.append("| **all, per run** | " + " | ".join(f"**{costs[n].seconds * 1000:.1f} ms**" for n in names) + " |")
-    lines.append("| the container's cgroup, per run (its background included) | " + " | ".join(
-        f"{costs[n].cgroup * 1000:.1f} ms" if costs[n].cgroup is not None else "–" for n in names) + " |")
+    lines.append(
+        "| the container's cgroup, per run (its background included) | "
+        + " | ".join(f"{costs[n].cgroup * 1000:.1f} ms" if costs[n].cgroup is not None else "–" for n in names)
+        + " |"
+    )
     return "\n".join(lines)
 
 
@@ -198,15 +209,27 @@ def main(argv=None) -> int:
     print("\n" + loads)
     if args.write:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-        sections.write("robot_cpu", "\n".join([
-            "## The robot's CPU per command, program by program", "",
-            f"Written by `python3 -m tests.bench.robot_cpu --runs {args.runs}"
-            f"{' --snapshot' if args.snapshot else ''} --write` "
-            f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit.stdout.strip()}, "
-            f"{args.host} of a converged lab): every task descending from the robot container's processes, "
-            "from the kernel's scheduler tracepoints, per run, the robot's background over the same time "
-            "taken away; the container's cgroup count beside it.", "",
-            table(costs), "", loads + "."]), {"costs": {n: vars(c) for n, c in costs.items()}}, HERE / "PROFILE.md")
+        sections.write(
+            "robot_cpu",
+            "\n".join(
+                [
+                    "## The robot's CPU per command, program by program",
+                    "",
+                    f"Written by `python3 -m tests.bench.robot_cpu --runs {args.runs}"
+                    f"{' --snapshot' if args.snapshot else ''} --write` "
+                    f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit.stdout.strip()}, "
+                    f"{args.host} of a converged lab): every task descending from the robot container's processes, "
+                    "from the kernel's scheduler tracepoints, per run, the robot's background over the same time "
+                    "taken away; the container's cgroup count beside it.",
+                    "",
+                    table(costs),
+                    "",
+                    loads + ".",
+                ]
+            ),
+            {"costs": {n: vars(c) for n, c in costs.items()}},
+            HERE / "PROFILE.md",
+        )
     return 0
 
 

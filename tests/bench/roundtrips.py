@@ -54,7 +54,10 @@ def run_once(prefix: str, label: str) -> dict:
     started = time.monotonic()
     proc = subprocess.run(
         [sys.executable, "-c", COUNTING_PYINFRA, str(out), "-y", "inventories/lab.py", "deploy.py"],
-        cwd=ROOT, env=env, capture_output=True, text=True,
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
     )
     seconds = time.monotonic() - started
     counts = json.loads(out.read_text())

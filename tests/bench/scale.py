@@ -94,11 +94,16 @@ class Scale:
         from robotfleet.fleet import loader, yaml12
 
         text = (ROOT / "inventories" / "lab.yaml").read_text()
-        fingerprint = json.loads((Path(self.lab["mirror_dir"]) / "manifest.json").read_text())["fingerprint"] \
-            if (Path(self.lab["mirror_dir"]) / "manifest.json").exists() else \
-            json.loads((Path(self.lab["mirror_dir"]).parent / "manifest.json").read_text())["fingerprint"]
-        for key, value in {"@registry@": self.lab["registry"], "@mirror@": self.lab["mirror_url"],
-                           "@mirror_fingerprint@": fingerprint}.items():
+        fingerprint = (
+            json.loads((Path(self.lab["mirror_dir"]) / "manifest.json").read_text())["fingerprint"]
+            if (Path(self.lab["mirror_dir"]) / "manifest.json").exists()
+            else json.loads((Path(self.lab["mirror_dir"]).parent / "manifest.json").read_text())["fingerprint"]
+        )
+        for key, value in {
+            "@registry@": self.lab["registry"],
+            "@mirror@": self.lab["mirror_url"],
+            "@mirror_fingerprint@": fingerprint,
+        }.items():
             text = text.replace(key, value)
         raw = loader.load(text)
         doc = {"all": raw["all"], "robots": {"vars": raw["robots"]["vars"], "hosts": {name: {} for name in names}}}
@@ -110,11 +115,17 @@ class Scale:
         ports = {h["name"]: h["port"] for h in self.lab["hosts"]}
         ports.update({name: PORT_BASE + int(name[5:]) for name in names if name.startswith("light")})
         path = self.workdir / f"hosts-{len(names)}.json"
-        path.write_text(json.dumps({
-            "fleet": str(self.fleet(names)), "ports": {n: ports[n] for n in names},
-            "ssh_user": self.lab["ssh_user"], "ssh_key": self.lab["ssh_key"],
-            "known_hosts": str(self.light_dir / "known_hosts"),
-        }))
+        path.write_text(
+            json.dumps(
+                {
+                    "fleet": str(self.fleet(names)),
+                    "ports": {n: ports[n] for n in names},
+                    "ssh_user": self.lab["ssh_user"],
+                    "ssh_key": self.lab["ssh_key"],
+                    "known_hosts": str(self.light_dir / "known_hosts"),
+                }
+            )
+        )
         return path
 
     def env(self, spec: Path) -> dict:
@@ -126,13 +137,25 @@ class Scale:
         spec = self.spec([ANCHORS[0]])
         self._known_hosts(light=0)
         inventory = "tests/bench/scale_inventory.py"
-        subprocess.run([sys.executable, "-c", COUNTING_PYINFRA, str(self.workdir / "c.json"), "-y", inventory,
-                        "deploy.py"], cwd=ROOT, env=self.env(spec), capture_output=True, text=True, check=True)
+        subprocess.run(
+            [sys.executable, "-c", COUNTING_PYINFRA, str(self.workdir / "c.json"), "-y", inventory, "deploy.py"],
+            cwd=ROOT,
+            env=self.env(spec),
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         answers = {}
         for kind, args in (("snapshot", ["-y", inventory, "deploy.py"]), ("status", ["status", inventory])):
             report = self.workdir / f"capture-{kind}.json"
-            subprocess.run([sys.executable, "-c", CAPTURING, str(report), *args], cwd=ROOT, env=self.env(spec),
-                           capture_output=True, text=True, check=True)
+            subprocess.run(
+                [sys.executable, "-c", CAPTURING, str(report), *args],
+                cwd=ROOT,
+                env=self.env(spec),
+                capture_output=True,
+                text=True,
+                check=True,
+            )
             outputs = json.loads(report.read_text())
             (answer,) = next(iter(outputs.values()))  # one command: the snapshot, or the status
             answers[kind] = answer
@@ -148,26 +171,57 @@ class Scale:
             old.unlink()
         ports = [PORT_BASE + i for i in range(1, count + 1)]
         for index in range(0, len(ports), 16):
-            listen = "\n".join(f"Port {port}" for port in ports[index:index + 16])
+            listen = "\n".join(f"Port {port}" for port in ports[index : index + 16])
             (self.light_dir / f"sshd_config.{index // 16:03d}").write_text(
                 f"{listen}\nListenAddress 127.0.0.1\nHostKey /etc/ssh/ssh_host_ed25519_key\n"
                 "AuthorizedKeysFile /light/authorized_keys\nPasswordAuthentication no\n"
                 "KbdInteractiveAuthentication no\n"
                 "UsePAM no\nForceCommand /light/replay\nMaxStartups 1000:30:1000\nPerSourcePenalties no\n"
-                "LogLevel ERROR\nStrictModes no\n")
+                "LogLevel ERROR\nStrictModes no\n"
+            )
         (self.light_dir / "authorized_keys").write_text(Path(self.lab["ssh_key"] + ".pub").read_text())
-        image = subprocess.run(["docker", "inspect", "-f", "{{.Config.Image}}", f"{self.prefix}-robot1"],
-                               capture_output=True, text=True, check=True).stdout.strip()
-        script = ("mkdir -p /run/sshd && ssh-keygen -q -t ed25519 -N '' -f /etc/ssh/ssh_host_ed25519_key <<< y "
-                  ">/dev/null 2>&1;"
-                  " for f in /light/sshd_config.*; do /usr/sbin/sshd -f $f || exit 1; done; exec sleep infinity")
-        subprocess.run(["docker", "run", "-d", "--name", self.container, "--network", "host",
-                        "--memory", self.memory, "--cpus", self.cpus, "-v", f"{self.light_dir}:/light:ro",
-                        "--entrypoint", "bash", image, "-c", script],
-                       capture_output=True, text=True, check=True)
+        image = subprocess.run(
+            ["docker", "inspect", "-f", "{{.Config.Image}}", f"{self.prefix}-robot1"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        script = (
+            "mkdir -p /run/sshd && ssh-keygen -q -t ed25519 -N '' -f /etc/ssh/ssh_host_ed25519_key <<< y "
+            ">/dev/null 2>&1;"
+            " for f in /light/sshd_config.*; do /usr/sbin/sshd -f $f || exit 1; done; exec sleep infinity"
+        )
+        subprocess.run(
+            [
+                "docker",
+                "run",
+                "-d",
+                "--name",
+                self.container,
+                "--network",
+                "host",
+                "--memory",
+                self.memory,
+                "--cpus",
+                self.cpus,
+                "-v",
+                f"{self.light_dir}:/light:ro",
+                "--entrypoint",
+                "bash",
+                image,
+                "-c",
+                script,
+            ],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
         for _ in range(100):
-            key = subprocess.run(["docker", "exec", self.container, "cat", "/etc/ssh/ssh_host_ed25519_key.pub"],
-                                 capture_output=True, text=True)
+            key = subprocess.run(
+                ["docker", "exec", self.container, "cat", "/etc/ssh/ssh_host_ed25519_key.pub"],
+                capture_output=True,
+                text=True,
+            )
             if key.returncode == 0 and key.stdout and self._listening(PORT_BASE + count):
                 break
             time.sleep(0.2)
@@ -195,8 +249,15 @@ class Scale:
         subprocess.run(["docker", "rm", "-f", self.container], capture_output=True)
 
     def light_memory_mb(self) -> float | None:
-        out = subprocess.run(["docker", "stats", "--no-stream", "--format", "{{.MemUsage}}", self.container],
-                             capture_output=True, text=True).stdout.split("/")[0].strip()
+        out = (
+            subprocess.run(
+                ["docker", "stats", "--no-stream", "--format", "{{.MemUsage}}", self.container],
+                capture_output=True,
+                text=True,
+            )
+            .stdout.split("/")[0]
+            .strip()
+        )
         for unit, scale in (("GiB", 1024), ("MiB", 1), ("KiB", 1 / 1024)):
             if out.endswith(unit):
                 return round(float(out[: -len(unit)]) * scale, 1)
@@ -224,9 +285,13 @@ class Scale:
             err_file.seek(0)
             out, err = out_file.read(), err_file.read()
         wall = time.monotonic() - started
-        row = {"seconds": round(wall, 3), "cpu_seconds": round(_children_cpu() - cpu, 3),
-               "peak_rss_mb": round(peak_rss / 1024, 1), "peak_fds": peak_fds,
-               "exit": proc.returncode}
+        row = {
+            "seconds": round(wall, 3),
+            "cpu_seconds": round(_children_cpu() - cpu, 3),
+            "peak_rss_mb": round(peak_rss / 1024, 1),
+            "peak_fds": peak_fds,
+            "exit": proc.returncode,
+        }
         if kind == "noop":
             counts = json.loads(report.read_text()) if report.exists() else {}
             row["commands_per_host"] = max((c.get("commands", 0) for c in counts.values()), default=None)
@@ -282,24 +347,40 @@ a quick check that it runs: --hosts 20 --runs 1.  Take the lab down after:
 
 def main(argv=None) -> int:
     global ANCHORS
-    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.scale", description=__doc__.splitlines()[0],
-                                     epilog=HOW, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python3 -m tests.bench.scale",
+        description=__doc__.splitlines()[0],
+        epilog=HOW,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "perf"))
-    parser.add_argument("--hosts", type=int, nargs="+", default=[1, 10, 50, 100, 200],
-                        help="the sizes N of the curve (1 to 1000)")
+    parser.add_argument(
+        "--hosts", type=int, nargs="+", default=[1, 10, 50, 100, 200], help="the sizes N of the curve (1 to 1000)"
+    )
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--parallel", type=int, nargs="*", default=[],
-                        help="also run the no-op at the largest N with pyinfra --parallel P")
-    parser.add_argument("--anchors", nargs="+", default=list(ANCHORS), metavar="ROBOT",
-                        help="the real lab robots in every run (default: robot4 robot5 robot6)")
+    parser.add_argument(
+        "--parallel",
+        type=int,
+        nargs="*",
+        default=[],
+        help="also run the no-op at the largest N with pyinfra --parallel P",
+    )
+    parser.add_argument(
+        "--anchors",
+        nargs="+",
+        default=list(ANCHORS),
+        metavar="ROBOT",
+        help="the real lab robots in every run (default: robot4 robot5 robot6)",
+    )
     parser.add_argument("--light-cpus", default="1", help="CPUs of the light hosts' container (docker --cpus)")
     parser.add_argument("--light-memory", default="2g", help="its memory (docker --memory)")
     parser.add_argument("--write", action="store_true", help="write SCALE.json and scale.png beside this file")
     args = parser.parse_args(argv)
     ANCHORS = tuple(args.anchors)
     if not all(1 <= n <= MAX_HOSTS for n in args.hosts):
-        parser.error(f"--hosts: each N from 1 to {MAX_HOSTS} "
-                     "(the light hosts' ports end below Linux's ephemeral range)")
+        parser.error(
+            f"--hosts: each N from 1 to {MAX_HOSTS} (the light hosts' ports end below Linux's ephemeral range)"
+        )
     import datetime
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -322,49 +403,78 @@ def main(argv=None) -> int:
                         load, idle = hygiene.wait(f"{kind} N={n}", first=index == 0)
                         loads.append(load)
                         runs.append({**scale.run(kind, spec, []), "load": load, "idle": idle})
-                    row = {"hosts": n, "real": len(names) - light, "light": light,
-                           "seconds": summarize([r["seconds"] for r in runs]),
-                           "peak_rss_mb": summarize([r["peak_rss_mb"] for r in runs]),
-                           "peak_fds": summarize([r["peak_fds"] for r in runs]),
-                           "cpu_seconds": summarize([r["cpu_seconds"] for r in runs]),
-                           "loads": [r["load"] for r in runs], "idle": all(r["idle"] for r in runs), "runs": runs,
-                           "light_hosts_memory_mb": scale.light_memory_mb()}
+                    row = {
+                        "hosts": n,
+                        "real": len(names) - light,
+                        "light": light,
+                        "seconds": summarize([r["seconds"] for r in runs]),
+                        "peak_rss_mb": summarize([r["peak_rss_mb"] for r in runs]),
+                        "peak_fds": summarize([r["peak_fds"] for r in runs]),
+                        "cpu_seconds": summarize([r["cpu_seconds"] for r in runs]),
+                        "loads": [r["load"] for r in runs],
+                        "idle": all(r["idle"] for r in runs),
+                        "runs": runs,
+                        "light_hosts_memory_mb": scale.light_memory_mb(),
+                    }
                     curve[kind].append(row)
-                    log(f"N={n} {kind}: {row['seconds']} s, CPU {row['cpu_seconds']['median']} s "
+                    log(
+                        f"N={n} {kind}: {row['seconds']} s, CPU {row['cpu_seconds']['median']} s "
                         f"({row['cpu_seconds']['median'] / n * 1000:.1f} ms/robot), {row['peak_rss_mb']['median']} MB, "
                         f"{row['peak_fds']['median']} fds, loads {row['loads']}; last run: "
-                        + ", ".join(f"{k} {v}" for k, v in runs[-1].items() if k in ("exit", "commands_per_host",
-                                                                                     "hosts_answered", "changed",
-                                                                                     "rows")))
+                        + ", ".join(
+                            f"{k} {v}"
+                            for k, v in runs[-1].items()
+                            if k in ("exit", "commands_per_host", "hosts_answered", "changed", "rows")
+                        )
+                    )
                 if n == max(args.hosts):
                     for parallel in args.parallel:
                         runs = []
                         for index in range(args.runs):
                             load, idle = hygiene.wait(f"noop N={n} --parallel {parallel}", first=index == 0)
                             loads.append(load)
-                            runs.append({**scale.run("noop", spec, ["--parallel", str(parallel)]), "load": load,
-                                         "idle": idle})
-                        extra_rows.append({"hosts": n, "parallel": parallel,
-                                           "seconds": summarize([r["seconds"] for r in runs]),
-                                           "peak_rss_mb": summarize([r["peak_rss_mb"] for r in runs]),
-                                           "peak_fds": summarize([r["peak_fds"] for r in runs]), "runs": runs})
+                            runs.append(
+                                {**scale.run("noop", spec, ["--parallel", str(parallel)]), "load": load, "idle": idle}
+                            )
+                        extra_rows.append(
+                            {
+                                "hosts": n,
+                                "parallel": parallel,
+                                "seconds": summarize([r["seconds"] for r in runs]),
+                                "peak_rss_mb": summarize([r["peak_rss_mb"] for r in runs]),
+                                "peak_fds": summarize([r["peak_fds"] for r in runs]),
+                                "runs": runs,
+                            }
+                        )
                         log(f"N={n} noop --parallel {parallel}: {extra_rows[-1]['seconds']}")
         finally:
             scale.stop()
-    fits = {kind: {key: fit([(r["hosts"], r[key]["median"]) for r in rows])
-                   for key in ("seconds", "cpu_seconds", "peak_rss_mb", "peak_fds")} for kind, rows in curve.items()}
+    fits = {
+        kind: {
+            key: fit([(r["hosts"], r[key]["median"]) for r in rows])
+            for key in ("seconds", "cpu_seconds", "peak_rss_mb", "peak_fds")
+        }
+        for kind, rows in curve.items()
+    }
     result = {
         "conditions": {
             "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-            "commit": subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                     cwd=ROOT).stdout.strip(),
-            "cpus": os.cpu_count(), "load_range": f"{min(loads):.1f}–{max(loads):.1f}",
+            "commit": subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
+            ).stdout.strip(),
+            "cpus": os.cpu_count(),
+            "load_range": f"{min(loads):.1f}–{max(loads):.1f}",
             "ulimit_n": __import__("resource").getrlimit(__import__("resource").RLIMIT_NOFILE)[0],
         },
-        "curve": curve, "fits": fits, "parallel": extra_rows,
+        "curve": curve,
+        "fits": fits,
+        "parallel": extra_rows,
     }
-    print(json.dumps({"fits": fits, "parallel": [{k: v for k, v in r.items() if k != "runs"} for r in extra_rows]},
-                     indent=2))
+    print(
+        json.dumps(
+            {"fits": fits, "parallel": [{k: v for k, v in r.items() if k != "runs"} for r in extra_rows]}, indent=2
+        )
+    )
     if args.write:
         (HERE / "SCALE.json").write_text(json.dumps(result, indent=2) + "\n")
         plot(result, HERE / "scale.png")

@@ -28,21 +28,35 @@ def plot(result: dict, path: Path) -> None:
     for kind, style in (("noop", "o-"), ("status", "s--")):
         rows = result["curve"][kind]
         ns = [r["hosts"] for r in rows]
-        left.errorbar(ns, [r["seconds"]["median"] for r in rows],
-                      yerr=[[r["seconds"]["median"] - r["seconds"]["min"] for r in rows],
-                            [r["seconds"]["max"] - r["seconds"]["median"] for r in rows]], fmt=style, capsize=3,
-                      label=f"{kind} (fit {result['fits'][kind]['seconds']['a']:.2f} s + "
-                            f"{result['fits'][kind]['seconds']['b_per_host'] * 1000:.1f} ms/host)")
-        right.plot(ns, [r["peak_rss_mb"]["median"] for r in rows], style,
-                   label=f"{kind} (fit {result['fits'][kind]['peak_rss_mb']['a']:.0f} MB + "
-                         f"{result['fits'][kind]['peak_rss_mb']['b_per_host']:.2f} MB/host)")
+        left.errorbar(
+            ns,
+            [r["seconds"]["median"] for r in rows],
+            yerr=[
+                [r["seconds"]["median"] - r["seconds"]["min"] for r in rows],
+                [r["seconds"]["max"] - r["seconds"]["median"] for r in rows],
+            ],
+            fmt=style,
+            capsize=3,
+            label=f"{kind} (fit {result['fits'][kind]['seconds']['a']:.2f} s + "
+            f"{result['fits'][kind]['seconds']['b_per_host'] * 1000:.1f} ms/host)",
+        )
+        right.plot(
+            ns,
+            [r["peak_rss_mb"]["median"] for r in rows],
+            style,
+            label=f"{kind} (fit {result['fits'][kind]['peak_rss_mb']['a']:.0f} MB + "
+            f"{result['fits'][kind]['peak_rss_mb']['b_per_host']:.2f} MB/host)",
+        )
     left.set(xlabel="robots (N)", ylabel="wall time (s)", title="Operator: time against N")
     right.set(xlabel="robots (N)", ylabel="peak resident memory (MB)", title="Operator: memory against N")
     for axis in (left, right):
         axis.grid(True, alpha=0.3)
         axis.legend(fontsize=8)
-    fig.suptitle(f"No-op rerun and status, one operator process ({result['conditions']['date']}, "
-                 f"load {result['conditions']['load_range']})", fontsize=9)
+    fig.suptitle(
+        f"No-op rerun and status, one operator process ({result['conditions']['date']}, "
+        f"load {result['conditions']['load_range']})",
+        fontsize=9,
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 

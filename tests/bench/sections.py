@@ -40,7 +40,7 @@ def replace(text: str, name: str, body: str) -> str:
     block = f"{begin(name)}\n{body.rstrip()}\n{end(name)}\n"
     for match in SECTION.finditer(text):
         if match.group("name") == name:
-            return text[:match.start()] + block + text[match.end():]
+            return text[: match.start()] + block + text[match.end() :]
     return text.rstrip("\n") + "\n\n" + block
 
 

@@ -41,12 +41,16 @@ from tests.bench.releases import LAB_TAG, ROOT, deploy
 LOOP = "while :; do touch /tmp/heartbeat; sleep 1 & wait $!; done"
 STOPS = {
     "lab": ("the lab payload (payload.sh traps TERM and INT)", {}, {"ros_preset": "ros2"}),
-    "sigint-only": ("stops on SIGINT only, as roslaunch / ros2 launch",
-                    {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"]},
-                    {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"], "ros_preset": "ros2"}),
-    "no-trap": ("a shell entrypoint with no trap",
-                {"payload_command": ["/bin/sh", "-c", LOOP]},
-                {"payload_command": ["/bin/sh", "-c", LOOP], "payload_init": True}),
+    "sigint-only": (
+        "stops on SIGINT only, as roslaunch / ros2 launch",
+        {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"]},
+        {"payload_command": ["/bin/sh", "-c", f"trap 'exit 0' INT; {LOOP}"], "ros_preset": "ros2"},
+    ),
+    "no-trap": (
+        "a shell entrypoint with no trap",
+        {"payload_command": ["/bin/sh", "-c", LOOP]},
+        {"payload_command": ["/bin/sh", "-c", LOOP], "payload_init": True},
+    ),
 }
 
 
@@ -73,18 +77,28 @@ def events(prefix: str, host: str, since: str) -> list[dict]:
     from tests.lab.state import exec_in
 
     until = robot_now(prefix, host)
-    code, out = exec_in(prefix, host, (
-        f"docker events --since {since} --until {until} --filter type=container"
-        " --filter label=com.docker.compose.project=robot-payload --format '{{json .}}'"))
+    code, out = exec_in(
+        prefix,
+        host,
+        (
+            f"docker events --since {since} --until {until} --filter type=container"
+            " --filter label=com.docker.compose.project=robot-payload --format '{{json .}}'"
+        ),
+    )
     found = []
     for line in out.splitlines():
         try:
             event = json.loads(line)
         except ValueError:
             continue
-        found.append({"action": event.get("Action") or event.get("status"), "time": event["timeNano"] / 1e9,
-                      "image": event.get("Actor", {}).get("Attributes", {}).get("image", ""),
-                      "id": event.get("id", "")[:12]})
+        found.append(
+            {
+                "action": event.get("Action") or event.get("status"),
+                "time": event["timeNano"] / 1e9,
+                "image": event.get("Actor", {}).get("Attributes", {}).get("image", ""),
+                "id": event.get("id", "")[:12],
+            }
+        )
     return found
 
 
@@ -125,54 +139,93 @@ def stop_figures(prefix: str, host: str, tmp: Path, kinds: list[str], rounds: in
                 code, seconds = deploy(prefix, host, fleet(tmp, f"{kind}-{tag}", host, tag, settings=settings))
                 evs = events(prefix, host, since)
                 rows.append((seconds, old_stop(evs), update_downtime(evs), code))
-            cells = [statistics.median(v) if v else None for v in
-                     ([r[0] for r in rows], [r[1] for r in rows if r[1] is not None],
-                      [r[2] for r in rows if r[2] is not None],
-                      [r[0] - r[1] for r in rows if r[1] is not None])]
+            cells = [
+                statistics.median(v) if v else None
+                for v in (
+                    [r[0] for r in rows],
+                    [r[1] for r in rows if r[1] is not None],
+                    [r[2] for r in rows if r[2] is not None],
+                    [r[0] - r[1] for r in rows if r[1] is not None],
+                )
+            ]
             exits = sorted({r[3] for r in rows})
-            print(f"{what[:50]:50} {label:18} " + " ".join(
-                f"{'-' if v is None else round(v, 2)!s:>6}" for v in cells) + f"   deploy exits {exits}")
+            print(
+                f"{what[:50]:50} {label:18} "
+                + " ".join(f"{'-' if v is None else round(v, 2)!s:>6}" for v in cells)
+                + f"   deploy exits {exits}"
+            )
             print(f"{'':50} {'':18} settings: {json.dumps(settings) if settings else '(none)'}")
             stops = [r[1] for r in rows if r[1] is not None]
-            found.append({"kind": kind, "payload": what, "settings_label": label, "settings": settings,
-                          "update": cells[0], "stop": cells[1], "down": cells[2], "rest": cells[3],
-                          "stop_min": min(stops, default=None), "stop_max": max(stops, default=None),
-                          "samples": len(rows), "exits": exits, "idle": all(idle for _, idle in loads),
-                          "load": max(load for load, _ in loads)})
+            found.append(
+                {
+                    "kind": kind,
+                    "payload": what,
+                    "settings_label": label,
+                    "settings": settings,
+                    "update": cells[0],
+                    "stop": cells[1],
+                    "down": cells[2],
+                    "rest": cells[3],
+                    "stop_min": min(stops, default=None),
+                    "stop_max": max(stops, default=None),
+                    "samples": len(rows),
+                    "exits": exits,
+                    "idle": all(idle for _, idle in loads),
+                    "load": max(load for load, _ in loads),
+                }
+            )
     return found
 
 
 def markdown(rows: list[dict], conditions: dict) -> str:
     """The stops section of RESULTS.md (pure)."""
+
     def cell(value) -> str:
         return "-" if value is None else f"{value:.2f}"
 
-    lines = ["## The old payload's stop inside an update (issue 29 item 5)", "",
-             "Written by `python3 -m tests.bench.stops`: one robot updated 1.0 <-> 1.1, times from `docker events` "
-             "on the robot (medians; stop: min–max).  stop: Docker's first signal to the old container -> its exit; "
-             "down: its exit -> the new one's start; rest: the deploy's wall time without the stop.", ""]
+    lines = [
+        "## The old payload's stop inside an update (issue 29 item 5)",
+        "",
+        "Written by `python3 -m tests.bench.stops`: one robot updated 1.0 <-> 1.1, times from `docker events` "
+        "on the robot (medians; stop: min–max).  stop: Docker's first signal to the old container -> its exit; "
+        "down: its exit -> the new one's start; rest: the deploy's wall time without the stop.",
+        "",
+    ]
     lines += [f"- {k}: {v}" for k, v in conditions.items()]
-    lines += ["", "| payload | settings | update | stop | down | rest | deploy exits | samples |",
-              "|---|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "| payload | settings | update | stop | down | rest | deploy exits | samples |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for row in rows:
-        settings = ", ".join(f"`{k}: {json.dumps(v)}`" for k, v in row["settings"].items()
-                             if k != "payload_command") or "-"
-        stop = cell(row["stop"]) + (f" ({cell(row['stop_min'])}–{cell(row['stop_max'])})"
-                                    if row["stop_min"] is not None else "")
+        settings = (
+            ", ".join(f"`{k}: {json.dumps(v)}`" for k, v in row["settings"].items() if k != "payload_command") or "-"
+        )
+        stop = cell(row["stop"]) + (
+            f" ({cell(row['stop_min'])}–{cell(row['stop_max'])})" if row["stop_min"] is not None else ""
+        )
         mark = "" if row["idle"] else f" [load {row['load']:.1f}]"
-        lines.append(f"| {row['payload']} | {row['settings_label']}: {settings} | {cell(row['update'])} | "
-                     f"{stop}{mark} | {cell(row['down'])} | {cell(row['rest'])} | {row['exits']} | {row['samples']} |")
+        lines.append(
+            f"| {row['payload']} | {row['settings_label']}: {settings} | {cell(row['update'])} | "
+            f"{stop}{mark} | {cell(row['down'])} | {cell(row['rest'])} | {row['exits']} | {row['samples']} |"
+        )
     return "\n".join(lines) + "\n"
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(prog="python3 -m tests.bench.stops", description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="python3 -m tests.bench.stops",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--prefix", default="bench")
     parser.add_argument("--host", default="robot1")
     parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--stops", default="lab,sigint-only,no-trap",
-                        help=f"kinds of payload whose stop to time, of: {', '.join(STOPS)}")
+    parser.add_argument(
+        "--stops",
+        default="lab,sigint-only,no-trap",
+        help=f"kinds of payload whose stop to time, of: {', '.join(STOPS)}",
+    )
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--write-loaded", action="store_true", help="write even figures taken under load (marked)")
     parser.add_argument("--keep", action="store_true", help="leave the lab up")
@@ -194,16 +247,23 @@ def main() -> int:
         if not args.keep:
             hosts.down(args.prefix)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    conditions = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-                  "commit": commit.stdout.strip(), "cpus": os.cpu_count(), "robot": host,
-                  "updates per row": 2 * args.rounds}
+    conditions = {
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "commit": commit.stdout.strip(),
+        "cpus": os.cpu_count(),
+        "robot": host,
+        "updates per row": 2 * args.rounds,
+    }
     text = markdown(rows, conditions)
     print(text)
     if args.no_write:
         return 0
     if not all(row["idle"] for row in rows) and not args.write_loaded:
-        print("[bench] not written: some samples did not start idle (see [load X]); rerun on an idle machine, "
-              "or pass --write-loaded", file=sys.stderr)
+        print(
+            "[bench] not written: some samples did not start idle (see [load X]); rerun on an idle machine, "
+            "or pass --write-loaded",
+            file=sys.stderr,
+        )
         return 1
     sections.write("stops", text, {"conditions": conditions, "rows": rows})
     return 0

@@ -81,8 +81,10 @@ def main() -> None:
     root(f"id {USER} >/dev/null 2>&1 || useradd -m -s /bin/bash {USER}")
     root(f"echo '{USER}:{password}' | chpasswd")
     root(f"echo '{USER} ALL=(ALL) ALL' > /etc/sudoers.d/{USER} && chmod 440 /etc/sudoers.d/{USER}")
-    root(f"install -d -m 700 -o {USER} /home/{USER}/.ssh && echo '{pubkey}' > /home/{USER}/.ssh/authorized_keys"
-         f" && chown {USER} /home/{USER}/.ssh/authorized_keys")
+    root(
+        f"install -d -m 700 -o {USER} /home/{USER}/.ssh && echo '{pubkey}' > /home/{USER}/.ssh/authorized_keys"
+        f" && chown {USER} /home/{USER}/.ssh/authorized_keys"
+    )
     shell = root(f"getent passwd {USER} | cut -d: -f7").strip()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -100,27 +102,37 @@ def main() -> None:
         )
         seconds = 60 + args.commands * 2
         sampler = base64.b64encode(SAMPLER.encode()).decode()
-        root(f"rm -f {SAMPLES} {SAMPLES}.stop; echo {sampler} | base64 -d > {SAMPLES}.py && "
-             f"systemd-run --unit=sudopw-sampler --collect --uid=nobody python3 {SAMPLES}.py "
-             f"{password} {seconds} {SAMPLES}")
+        root(
+            f"rm -f {SAMPLES} {SAMPLES}.stop; echo {sampler} | base64 -d > {SAMPLES}.py && "
+            f"systemd-run --unit=sudopw-sampler --collect --uid=nobody python3 {SAMPLES}.py "
+            f"{password} {seconds} {SAMPLES}"
+        )
         started = time.monotonic()
         proc = subprocess.run(
-
             [sys.executable, "-m", "pyinfra", "-y", "--use-sudo-password", str(inventory), str(deploy)],
-            input=password + "\n", capture_output=True, text=True, cwd=tmp, start_new_session=True,
-            env=dict(os.environ, PYINFRA_PROGRESS="off"), timeout=seconds,
+            input=password + "\n",
+            capture_output=True,
+            text=True,
+            cwd=tmp,
+            start_new_session=True,
+            env=dict(os.environ, PYINFRA_PROGRESS="off"),
+            timeout=seconds,
         )
         ran = time.monotonic() - started
         root(f"touch {SAMPLES}.stop; for i in $(seq 100); do [ -s " + SAMPLES + " ] && break; sleep 0.1; done; true")
         samples = json.loads(root(f"cat {SAMPLES}") or "{}")
 
-    print(f"host {args.host} (login shell {shell}), pyinfra exit {proc.returncode}, "
-          f"{args.commands} sudo commands in {ran:.1f} s")
+    print(
+        f"host {args.host} (login shell {shell}), pyinfra exit {proc.returncode}, "
+        f"{args.commands} sudo commands in {ran:.1f} s"
+    )
     if proc.returncode:
         print(proc.stderr[-2000:])
     print(f"password in pyinfra's output: {'yes' if password in proc.stdout + proc.stderr else 'no'}")
-    print(f"sampler (as nobody): {samples.get('sweeps')} sweeps of /proc/*/cmdline, "
-          f"{samples.get('sweeps_with_password')} saw the password, in: {samples.get('seen_in')}")
+    print(
+        f"sampler (as nobody): {samples.get('sweeps')} sweeps of /proc/*/cmdline, "
+        f"{samples.get('sweeps_with_password')} saw the password, in: {samples.get('seen_in')}"
+    )
     root(f"rm -f /etc/sudoers.d/{USER} {SAMPLES} {SAMPLES}.stop {SAMPLES}.py; userdel -r {USER} 2>/dev/null; true")
 
 

@@ -71,13 +71,17 @@ def main() -> None:
             path = Path(directory) / "robots.yaml"
             path.write_text(fleet_text(args.hosts, sensors))
             wall, cpu, count, load = measure(path, args.runs)
-            print(f"{count} hosts ({label}, {path.stat().st_size // 1024} KiB): "
-                  f"load + check {wall} wall, {cpu} CPU (median of {args.runs}; load average before: {load:.2f})")
+            print(
+                f"{count} hosts ({label}, {path.stat().st_size // 1024} KiB): "
+                f"load + check {wall} wall, {cpu} CPU (median of {args.runs}; load average before: {load:.2f})"
+            )
             if not sensors:
                 started = time.process_time()
                 yaml.load(path.read_text(), Loader=yaml.SafeLoader)
-                print("  for comparison, PyYAML's pure-Python SafeLoader alone: "
-                      f"{time.process_time() - started:.3f} s CPU")
+                print(
+                    "  for comparison, PyYAML's pure-Python SafeLoader alone: "
+                    f"{time.process_time() - started:.3f} s CPU"
+                )
 
 
 if __name__ == "__main__":

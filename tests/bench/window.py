@@ -32,31 +32,41 @@ CTR_LINE = re.compile(r"^\S+ \S+ \S+ \S+ (?P<namespace>\S+) (?P<topic>/\S+) (?P<
 def start_recorder() -> str:
     """A robot-side shell command: record containerd's events of Docker's
     namespace in the background until stop_recorder()."""
-    return (f"sudo sh -c 'rm -f {RECORDER}.txt; nohup ctr -n moby events > {RECORDER}.txt 2>&1 < /dev/null &"
-            f" echo $! > {RECORDER}.pid'; sleep 0.3")
+    return (
+        f"sudo sh -c 'rm -f {RECORDER}.txt; nohup ctr -n moby events > {RECORDER}.txt 2>&1 < /dev/null &"
+        f" echo $! > {RECORDER}.pid'; sleep 0.3"
+    )
 
 
 def stop_recorder() -> str:
     """Stop the recorder and print what it recorded."""
-    return (f"sudo sh -c 'kill $(cat {RECORDER}.pid) 2>/dev/null; sleep 0.1; cat {RECORDER}.txt;"
-            f" rm -f {RECORDER}.txt {RECORDER}.pid'")
+    return (
+        f"sudo sh -c 'kill $(cat {RECORDER}.pid) 2>/dev/null; sleep 0.1; cat {RECORDER}.txt;"
+        f" rm -f {RECORDER}.txt {RECORDER}.pid'"
+    )
 
 
 def containers_command(project: str = PROJECT) -> str:
     """Robot-side: one JSON object per line for each container of the
     payload's project: id, service, version label, StartedAt, FinishedAt, running."""
-    fmt = ('{"id": "{{.Id}}", "service": "{{index .Config.Labels "com.docker.compose.service"}}", '
-           '"version": "{{index .Config.Labels "org.opencontainers.image.version"}}", '
-           '"started": "{{.State.StartedAt}}", "finished": "{{.State.FinishedAt}}", "running": {{.State.Running}}}')
-    return (f"ids=$(sudo docker ps -aq --no-trunc --filter label=com.docker.compose.project={project});"
-            f" [ -z \"$ids\" ] || sudo docker inspect --format {shlex.quote(fmt)} $ids")
+    fmt = (
+        '{"id": "{{.Id}}", "service": "{{index .Config.Labels "com.docker.compose.service"}}", '
+        '"version": "{{index .Config.Labels "org.opencontainers.image.version"}}", '
+        '"started": "{{.State.StartedAt}}", "finished": "{{.State.FinishedAt}}", "running": {{.State.Running}}}'
+    )
+    return (
+        f"ids=$(sudo docker ps -aq --no-trunc --filter label=com.docker.compose.project={project});"
+        f' [ -z "$ids" ] || sudo docker inspect --format {shlex.quote(fmt)} $ids'
+    )
 
 
 def health_events_command(since: float, project: str = PROJECT) -> str:
     """Robot-side: Docker's health verdicts of the project's containers since ``since``."""
-    return (f"sudo docker events --since {since:.3f} --until $(date +%s.%N) --filter type=container"
-            f" --filter label=com.docker.compose.project={project} --filter event=health_status"
-            " --format '{{.TimeNano}} {{.ID}} {{.Action}}'")
+    return (
+        f"sudo docker events --since {since:.3f} --until $(date +%s.%N) --filter type=container"
+        f" --filter label=com.docker.compose.project={project} --filter event=health_status"
+        " --format '{{.TimeNano}} {{.ID}} {{.Action}}'"
+    )
 
 
 def docker_time(text: str) -> float | None:
@@ -151,14 +161,20 @@ def broken_release(before: list[dict], after: list[dict], events: list[dict], he
     broken = {e["id"] for e in starts}
     first = min(e["time"] for e in starts)
     verdicts = [(e["time"], "exit") for e in events if e["topic"] == "/tasks/exit" and e["id"] in broken]
-    verdicts += [(h["time"], "unhealthy") for h in health
-                 if h["status"] == "unhealthy" and any(b.startswith(h["id"]) or h["id"].startswith(b) for b in broken)]
+    verdicts += [
+        (h["time"], "unhealthy")
+        for h in health
+        if h["status"] == "unhealthy" and any(b.startswith(h["id"]) or h["id"].startswith(b) for b in broken)
+    ]
     back = [c["started"] for c in after if c.get("running") and c.get("started") and c["started"] > first]
     if not back or not verdicts:
         return None
     verdict_at, kind = min(verdicts)
-    return {"verdict": kind, "first_start_to_old_running": min(back) - first,
-            "verdict_to_old_running": min(back) - verdict_at}
+    return {
+        "verdict": kind,
+        "first_start_to_old_running": min(back) - first,
+        "verdict_to_old_running": min(back) - verdict_at,
+    }
 
 
 class Watch:
@@ -200,22 +216,32 @@ def describe_healthcheck(check: dict | None) -> str:
     if not check or not check.get("Test") or check["Test"][0] == "NONE":
         return "no HEALTHCHECK"
     seconds = {k: (check.get(k) or 0) / 1e9 for k in ("Interval", "Timeout", "StartPeriod")}
-    return (f"HEALTHCHECK interval {seconds['Interval']:g} s, timeout {seconds['Timeout']:g} s, "
-            f"start period {seconds['StartPeriod']:g} s, retries {check.get('Retries') or 3}")
+    return (
+        f"HEALTHCHECK interval {seconds['Interval']:g} s, timeout {seconds['Timeout']:g} s, "
+        f"start period {seconds['StartPeriod']:g} s, retries {check.get('Retries') or 3}"
+    )
 
 
 def healthcheck_command(tag: str) -> str:
     """Robot-side: the HEALTHCHECK of the lab's ros/payload:<tag> as JSON."""
-    return (f"ref=$(sudo docker images --format '{{{{.Repository}}}}:{{{{.Tag}}}}' | grep -m1 '/ros/payload:{tag}$');"
-            " sudo docker image inspect -f '{{json .Config.Healthcheck}}' \"$ref\"")
+    return (
+        f"ref=$(sudo docker images --format '{{{{.Repository}}}}:{{{{.Tag}}}}' | grep -m1 '/ros/payload:{tag}$');"
+        " sudo docker image inspect -f '{{json .Config.Healthcheck}}' \"$ref\""
+    )
 
 
 def health_settings(sh, tag: str, fleet_text: str) -> str:
     """The image's HEALTHCHECK and the fleet's payload_health_timeout, as one line."""
     out = sh(healthcheck_command(tag)).strip().splitlines()
     check = json.loads(out[-1]) if out and out[-1].startswith(("{", "null")) else None
-    timeout = next((line.split(":")[1].strip() for line in fleet_text.splitlines()
-                    if line.strip().startswith("payload_health_timeout:")), "120 (default)")
+    timeout = next(
+        (
+            line.split(":")[1].strip()
+            for line in fleet_text.splitlines()
+            if line.strip().startswith("payload_health_timeout:")
+        ),
+        "120 (default)",
+    )
     return describe_healthcheck(check) + f"; payload_health_timeout {timeout} s"
 
 

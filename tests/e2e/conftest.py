@@ -41,8 +41,13 @@ def pytest_collection_modifyitems(items):
     # back on at its end) and leaves them on its own releases: it runs last,
     # then the media module (it takes robot3 into its own pull fleet and
     # removes that fleet's agent and releases at its end).
-    items.sort(key=lambda item: (item.fspath.basename in PULL_MODULES, item.fspath.basename == PULL_MEDIA_MODULE,
-                                 item.fspath.basename == ARM64_MODULE))
+    items.sort(
+        key=lambda item: (
+            item.fspath.basename in PULL_MODULES,
+            item.fspath.basename == PULL_MEDIA_MODULE,
+            item.fspath.basename == ARM64_MODULE,
+        )
+    )
 
 
 class Background:
@@ -113,16 +118,21 @@ def cpu_seconds() -> float:
 
     from tests.lab.engine import LabError, client
 
-    used = sum(getattr(resource.getrusage(who), field) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
-               for field in ("ru_utime", "ru_stime"))
+    used = sum(
+        getattr(resource.getrusage(who), field)
+        for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+        for field in ("ru_utime", "ru_stime")
+    )
     try:
         containers = client().containers.list(filters={"label": "robot-lab.prefix"})
     except LabError:  # no engine: the lab fixture says so
         containers = []
     for container in containers:
         if container.name.startswith(f"{PREFIX}-"):
-            for path, scale in ((f"/sys/fs/cgroup/cpuacct/docker/{container.id}/cpuacct.usage", 1e-9),
-                                (f"/sys/fs/cgroup/system.slice/docker-{container.id}.scope/cpu.stat", 1e-6)):
+            for path, scale in (
+                (f"/sys/fs/cgroup/cpuacct/docker/{container.id}/cpuacct.usage", 1e-9),
+                (f"/sys/fs/cgroup/system.slice/docker-{container.id}.scope/cpu.stat", 1e-6),
+            ):
                 try:
                     text = Path(path).read_text()
                 except OSError:
@@ -154,8 +164,10 @@ def pytest_terminal_summary(terminalreporter):
         for module, (wall, cpu) in MODULES.items():
             terminalreporter.write_line(f"{module:<28} {wall:7.1f} s wall {cpu:7.1f} s CPU")
         load = " ".join(f"{value:.2f}" for value in os.getloadavg())
-        terminalreporter.write_line(f"{'all':<28} {sum(w for w, _ in MODULES.values()):7.1f} s wall "
-                                    f"{sum(c for _, c in MODULES.values()):7.1f} s CPU (load average {load})")
+        terminalreporter.write_line(
+            f"{'all':<28} {sum(w for w, _ in MODULES.values()):7.1f} s wall "
+            f"{sum(c for _, c in MODULES.values()):7.1f} s CPU (load average {load})"
+        )
 
 
 def wait_for(predicate, seconds: float, what: str, interval: float = 0.5):
@@ -203,15 +215,20 @@ class Lab:
     def record(self, host: str, link: str = "current") -> dict:
         return json.loads(self.ok(host, f"cat /var/lib/robot-payload/{link}/record.json"))
 
-    def provision(self, *args: str, fleet: Path | None = None, script: str = "deploy.py", label: str = "",
-                  env: dict | None = None) -> Run:
+    def provision(
+        self, *args: str, fleet: Path | None = None, script: str = "deploy.py", label: str = "", env: dict | None = None
+    ) -> Run:
         env = dict(os.environ, ROBOT_LAB_PREFIX=self.prefix, PYINFRA_PROGRESS="off", **(env or {}))
         if fleet:
             env["ROBOT_LAB_FLEET"] = str(fleet)
         started = time.monotonic()
         proc = subprocess.run(
             [sys.executable, "-c", PYINFRA, "-y", "--json", "inventories/lab.py", script, *args],
-            cwd=ROOT, env=env, capture_output=True, text=True, timeout=1500,
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=1500,
         )
         seconds = time.monotonic() - started
         phase(f"pyinfra {script} {label} (exit {proc.returncode})", started)
@@ -240,7 +257,8 @@ def arm64_image(request):
         from tests.lab import hostimage, hosts
 
         BACKGROUND["arm64 host image"] = Background(
-            "arm64 host image", lambda: hostimage.ensure_host_image(hosts.client(), "arm64"))
+            "arm64 host image", lambda: hostimage.ensure_host_image(hosts.client(), "arm64")
+        )
 
 
 @pytest.fixture(scope="session")

@@ -15,8 +15,17 @@ DEFAULT_GROUP = "main"
 # in the background meanwhile (conftest.py), so its group's other modules are those that cost little CPU.
 GROUPS: dict[str, tuple[str, ...]] = {
     "pull": ("test_pull.py", "test_pull_https.py", "test_pull_media.py"),
-    "arm64": ("test_enroll.py", "test_hostcerts.py", "test_stock_machine.py", "test_laptop_sudo.py",
-              "test_time.py", "test_gpu.py", "test_x11.py", "test_pull_from_nothing.py", "test_arm64.py"),
+    "arm64": (
+        "test_enroll.py",
+        "test_hostcerts.py",
+        "test_stock_machine.py",
+        "test_laptop_sudo.py",
+        "test_time.py",
+        "test_gpu.py",
+        "test_x11.py",
+        "test_pull_from_nothing.py",
+        "test_arm64.py",
+    ),
 }
 
 

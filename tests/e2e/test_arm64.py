@@ -74,8 +74,10 @@ LIMIT = ("--limit", PI, "--limit", NUC)
 PAYLOAD_DIR = "/var/lib/robot-payload"
 OCI_INDEX = "application/vnd.oci.image.index.v1+json"
 REFUSED = "payload: pi1 is linux/arm64 but image {ref} is linux/amd64 only: refused before anything switched"
-QEMU_RUNC_ERROR = ("runc create failed: unable to start container process: waiting for init preliminary setup: "
-                   "read init-p: connection reset by peer")
+QEMU_RUNC_ERROR = (
+    "runc create failed: unable to start container process: waiting for init preliminary setup: "
+    "read init-p: connection reset by peer"
+)
 # The clone() calls runc init makes, from Python (arm64 syscall number 220).
 CLONE_PROBE = r"""
 import ctypes, errno, os
@@ -90,8 +92,10 @@ for name, flags in (("fork", 17), ("CLONE_PARENT", 0x8000 | 17), ("CLONE_NEWNS",
 
 def native_sizes(lab) -> dict[str, int]:
     hosts = [h for h in lab.state["hosts"] if h.get("arch", "amd64") == "amd64"]
-    return {"robots": sum(h["group"] == "robots" for h in hosts),
-            "laptops": sum(h["group"] == "laptops" for h in hosts)}
+    return {
+        "robots": sum(h["group"] == "robots" for h in hosts),
+        "laptops": sum(h["group"] == "laptops" for h in hosts),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -111,10 +115,13 @@ def arm(lab, first_run):
 
 def pi1_fleet(arm, tmp_path, image: str, delivery: str):
     """inventories/lab.yaml with pi1's payload image and delivery set."""
-    return arm.fleet_with(tmp_path, **{
-        "      x11_enabled: true\n":
-            f"      x11_enabled: true\n      payload_delivery: {delivery}\n"
-            f"      payload_image: \"{image}\"\n"})
+    return arm.fleet_with(
+        tmp_path,
+        **{
+            "      x11_enabled: true\n": f"      x11_enabled: true\n      payload_delivery: {delivery}\n"
+            f'      payload_image: "{image}"\n'
+        },
+    )
 
 
 @pytest.fixture(scope="module")
@@ -129,8 +136,9 @@ def provisioned(arm, tmp_path_factory):
 
 
 def registry_manifest(lab, ref: str, accept: str) -> dict:
-    request = urllib.request.Request(f"http://{lab.state['registry_local']}/v2/ros/payload/manifests/{ref}",
-                                     headers={"Accept": accept})
+    request = urllib.request.Request(
+        f"http://{lab.state['registry_local']}/v2/ros/payload/manifests/{ref}", headers={"Accept": accept}
+    )
     with urllib.request.urlopen(request, timeout=10) as answer:
         return json.load(answer)
 
@@ -140,8 +148,10 @@ def variants(lab, tag: str) -> dict[str, dict]:
     found = {}
     for entry in registry_manifest(lab, tag, OCI_INDEX)["manifests"]:
         manifest = registry_manifest(lab, entry["digest"], entry["mediaType"])
-        found[entry["platform"]["architecture"]] = {"layers": sum(layer["size"] for layer in manifest["layers"]),
-                                                    "config": manifest["config"]["size"]}
+        found[entry["platform"]["architecture"]] = {
+            "layers": sum(layer["size"] for layer in manifest["layers"]),
+            "config": manifest["config"]["size"],
+        }
     return found
 
 
@@ -154,7 +164,8 @@ def running(lab, host: str, ref: str, platform: str, version: str) -> dict:
     assert container["State"]["Health"]["Status"] == "healthy"
     assert container["Config"]["Labels"]["org.opencontainers.image.version"] == version
     assert lab.ok(host, f"docker exec {container['Id']} uname -m").strip() == (
-        "aarch64" if "arm64" in platform else "x86_64")
+        "aarch64" if "arm64" in platform else "x86_64"
+    )
     image = json.loads(lab.ok(host, f"docker image inspect {record['images'][ref]['id']}"))[0]
     assert image["Architecture"] == platform.split("/")[1]
     return container
@@ -173,8 +184,11 @@ def test_docker_ce_for_each_architecture_from_the_mirror(arm, provisioned):
     for host, arch in ((PI, "arm64"), (NUC, "amd64")):
         sources = arm.ok(host, "cat /etc/apt/sources.list.d/docker.sources")
         assert f"URIs: {arm.state['mirror_url']}/debian" in sources and f"Architectures: {arch}\n" in sources
-        packages = arm.ok(host, "dpkg-query -W -f '${Package} ${Architecture} ${Status}\\n' "
-                                "docker-ce docker-ce-cli containerd.io docker-compose-plugin").splitlines()
+        packages = arm.ok(
+            host,
+            "dpkg-query -W -f '${Package} ${Architecture} ${Status}\\n' "
+            "docker-ce docker-ce-cli containerd.io docker-compose-plugin",
+        ).splitlines()
         assert len(packages) == 4 and all(line.endswith(f" {arch} install ok installed") for line in packages), packages
         assert arm.ok(host, "docker version -f '{{.Server.Arch}}'").strip() == arch
         assert arm.ok(host, "systemctl is-active docker").strip() == "active"
@@ -190,8 +204,11 @@ def test_users_udev_and_x11_on_pi1(arm, provisioned):
     assert 'ATTRS{idVendor}=="2341", ATTRS{idProduct}=="0043", SYMLINK+="robot/imu"' in rules
     arm.ok(PI, "udevadm verify --resolve-names=never /etc/udev/rules.d/70-robot-sensors.rules")
     assert arm.ok(PI, "dpkg-query -W -f '${Architecture}' xauth") == "arm64"
-    arm.ok(PI, "test -x /usr/local/bin/robot-x11-cookie && test -f /etc/X11/Xsession.d/90robot-x11-cookie "
-               "&& test -f /etc/xdg/autostart/robot-x11-cookie.desktop")
+    arm.ok(
+        PI,
+        "test -x /usr/local/bin/robot-x11-cookie && test -f /etc/X11/Xsession.d/90robot-x11-cookie "
+        "&& test -f /etc/xdg/autostart/robot-x11-cookie.desktop",
+    )
     assert arm.ok(PI, "stat -c '%a %U' /var/lib/robot-x11/ros").split() == ["700", "ros"]
 
 
@@ -199,7 +216,9 @@ def test_each_robot_runs_its_own_platforms_payload(arm, provisioned):
     running(arm, NUC, f"{arm.state['registry']}/ros/payload:1.0", "linux/amd64", "1.0")
     container = running(arm, PI, provisioned["pushed"], "linux/arm64/v8", "1.0")
     assert arm.ok(PI, "systemctl is-enabled robot-payload; systemctl is-active robot-payload").split() == [
-        "enabled", "active"]
+        "enabled",
+        "active",
+    ]
     assert {d["PathOnHost"] for d in container["HostConfig"]["Devices"]} == {"/dev/robot/imu"}
     assert container["HostConfig"]["NetworkMode"] == "host"
     service = yaml.safe_load(arm.ok(PI, f"cat {PAYLOAD_DIR}/current/compose.yaml"))["services"]["payload"]
@@ -231,8 +250,14 @@ def test_emulated_runc_cannot_start_a_container(arm, provisioned):
     code, output = arm.sh(PI, f"docker run --rm --runtime runc --network host {image} true")
     assert code == 125 and QEMU_RUNC_ERROR in output, output
     arm.ok(PI, f"cat > /root/clone.py <<'EOF'\n{CLONE_PROBE}EOF")
-    assert arm.ok(PI, "python3 /root/clone.py").split() == ["fork", "ok", "CLONE_PARENT", "EINVAL",
-                                                            "CLONE_NEWNS", "EINVAL"]
+    assert arm.ok(PI, "python3 /root/clone.py").split() == [
+        "fork",
+        "ok",
+        "CLONE_PARENT",
+        "EINVAL",
+        "CLONE_NEWNS",
+        "EINVAL",
+    ]
 
 
 def test_pull_gets_pi1_the_arm64_variant_of_the_tag(arm, provisioned):
@@ -247,8 +272,24 @@ def test_a_rerun_changes_nothing_in_one_ssh_command_per_host(arm, provisioned):
     report = ROOT / ".lab" / arm.prefix / "arm64-roundtrips.json"
     env = dict(os.environ, ROBOT_LAB_PREFIX=arm.prefix, PYINFRA_PROGRESS="off")
     started = time.monotonic()
-    proc = subprocess.run([sys.executable, "-c", COUNTING_PYINFRA, str(report), "-y", "--json", "inventories/lab.py",
-                           "deploy.py", *LIMIT], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            COUNTING_PYINFRA,
+            str(report),
+            "-y",
+            "--json",
+            "inventories/lab.py",
+            "deploy.py",
+            *LIMIT,
+        ],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
     phase(f"pyinfra deploy.py (pi1 and robot1: rerun, counted) (exit {proc.returncode})", started)
     assert proc.returncode == 0, (proc.stderr + proc.stdout)[-4000:]
     results = json.loads(proc.stdout)["results"]
@@ -278,11 +319,12 @@ def test_a_payload_built_for_another_machine_is_named_by_the_health_gate_and_rol
     old release back."""
     ref = f"{arm.state['registry']}/ros/payload:1.3-exec-format"
     current = arm.ok(NUC, f"readlink {PAYLOAD_DIR}/current")
-    fleet = arm.fleet_with(tmp_path, **{"    robot1:\n": f"    robot1:\n      payload_image: \"{ref}\"\n"})
+    fleet = arm.fleet_with(tmp_path, **{"    robot1:\n": f'    robot1:\n      payload_image: "{ref}"\n'})
     run = arm.provision("--limit", NUC, fleet=fleet, label="(robot1: a payload built for another machine)")
     assert run.returncode != 0
-    assert "cannot run: exec format error: its program is not built for this robot's architecture" in run.output, \
+    assert "cannot run: exec format error: its program is not built for this robot's architecture" in run.output, (
         run.output[-4000:]
+    )
     assert arm.ok(NUC, f"readlink {PAYLOAD_DIR}/current") == current
     container = arm.payload(NUC)
     assert container["State"]["Health"]["Status"] == "healthy"

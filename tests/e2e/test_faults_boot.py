@@ -24,8 +24,14 @@ import time
 import pytest
 
 from tests.e2e.conftest import wait_for
-from tests.e2e.test_faults_release import (DIR, HEALTH_WAIT, NEW_CONTAINERS, Background, build_image_with_a_new_layer,
-                                           image)
+from tests.e2e.test_faults_release import (
+    DIR,
+    HEALTH_WAIT,
+    NEW_CONTAINERS,
+    Background,
+    build_image_with_a_new_layer,
+    image,
+)
 
 pytestmark = pytest.mark.e2e
 
@@ -45,8 +51,9 @@ def on(lab, version: str) -> bool:
 
 
 def payload_running(lab) -> bool:
-    code, out = lab.sh(HOST, "docker ps -q --filter label=com.docker.compose.project=robot-payload "
-                             "--filter status=running")
+    code, out = lab.sh(
+        HOST, "docker ps -q --filter label=com.docker.compose.project=robot-payload --filter status=running"
+    )
     return code == 0 and bool(out.strip())
 
 
@@ -74,8 +81,9 @@ def cut_and_rerun(lab, deploy: Background, when: str, fleet, expect_waiting: boo
     powered_on = time.monotonic()
     wait_for(lambda: ssh_answers(lab), 120, f"sshd on {HOST} after boot", interval=0.1)
     if expect_waiting:
-        wait_for(lambda: lab.sh(HOST, "test -e /run/slow-compose-up")[0] == 0, 60, "the boot's compose up",
-                 interval=0.1)
+        wait_for(
+            lambda: lab.sh(HOST, "test -e /run/slow-compose-up")[0] == 0, 60, "the boot's compose up", interval=0.1
+        )
     rerun = Background(lab, "--limit", HOST, fleet=fleet)
     wait_for(lambda: payload_running(lab), 90, f"a payload running on {HOST} after boot", interval=0.2)
     seconds = time.monotonic() - powered_on
@@ -100,10 +108,14 @@ def test_a_rerun_right_after_boot_finishes_an_update_cut_at_any_moment(lab, firs
         # (moment, the cut's condition on the robot, the update's target, its version label)
         ("as compose replaces the containers", NEW_CONTAINERS.format(version="1.1"), "1.1", "1.1"),
         ("during the pull", "pgrep -f 'docker [p]ull' >/dev/null", "big", "1.1"),
-        ("right after the switch", f"grep -q '\"state\": \"switching\"' {record} 2>/dev/null", "1.0", "1.0"),
+        ("right after the switch", f'grep -q \'"state": "switching"\' {record} 2>/dev/null', "1.0", "1.0"),
         ("during the health wait", HEALTH_WAIT, "1.1", "1.1"),
-        ("right after verification",
-         f"grep -q '\"state\": \"active\"' {record} && grep -q 'ros/payload:1.0\"' {record}", "1.0", "1.0"),
+        (
+            "right after verification",
+            f'grep -q \'"state": "active"\' {record} && grep -q \'ros/payload:1.0"\' {record}',
+            "1.0",
+            "1.0",
+        ),
     ]
     seconds = {}
     for moment, when, target, version in moments:
@@ -115,11 +127,14 @@ def test_a_rerun_right_after_boot_finishes_an_update_cut_at_any_moment(lab, firs
     assert max(seconds.values()) < 60, seconds  # a boot of the container and its Docker, then compose up
 
     # The deploy arrives while the boot's recovery is in its compose up.
-    lab.ok(HOST, "mkdir -p /usr/local/lab-slow /etc/systemd/system/robot-payload.service.d"
-                 f" && printf '%s' '{SLOW_DOCKER}' > /usr/local/lab-slow/docker && chmod 755 /usr/local/lab-slow/docker"
-                 " && printf '[Service]\\nEnvironment=PATH=/usr/local/lab-slow:/usr/sbin:/usr/bin:/sbin:/bin\\n' > "
-                 f"{SLOW_UNIT}"
-                 " && systemctl daemon-reload")
+    lab.ok(
+        HOST,
+        "mkdir -p /usr/local/lab-slow /etc/systemd/system/robot-payload.service.d"
+        f" && printf '%s' '{SLOW_DOCKER}' > /usr/local/lab-slow/docker && chmod 755 /usr/local/lab-slow/docker"
+        " && printf '[Service]\\nEnvironment=PATH=/usr/local/lab-slow:/usr/sbin:/usr/bin:/sbin:/bin\\n' > "
+        f"{SLOW_UNIT}"
+        " && systemctl daemon-reload",
+    )
     try:
         deploy = Background(lab, "--limit", HOST, fleet=to["1.1"])
         output, _ = cut_and_rerun(lab, deploy, HEALTH_WAIT, to["1.1"], expect_waiting=True)

@@ -27,10 +27,10 @@ REGISTRIES = '    docker_insecure_registries: ["@registry@"]\n'
 HEALTH_WINDOW = 60  # payload_health_timeout in inventories/lab.yaml
 
 
-
 def healthy(lab, host: str) -> bool:
-    code, out = lab.sh(host, "docker ps -q --filter label=com.docker.compose.project=robot-payload "
-                             "--filter health=healthy")
+    code, out = lab.sh(
+        host, "docker ps -q --filter label=com.docker.compose.project=robot-payload --filter health=healthy"
+    )
     return code == 0 and len(out.split()) == 1
 
 
@@ -78,7 +78,12 @@ def test_daemon_json_docker_refuses_is_put_back_and_the_host_fails_with_the_reas
     before = lab.payload(host)
     # Valid JSON that `dockerd --validate` accepts, but Docker refuses to start
     # with: `hosts` conflicts with the unit's own `-H fd://`.
-    refused = fleet(**{REGISTRIES: REGISTRIES + '    docker_daemon_options: {live-restore: true, hosts: ["unix:///var/run/docker.sock"]}\n'})
+    refused = fleet(
+        **{
+            REGISTRIES: REGISTRIES
+            + '    docker_daemon_options: {live-restore: true, hosts: ["unix:///var/run/docker.sock"]}\n'
+        }
+    )
     run = lab.provision("--limit", host, fleet=refused, label="(robot2, a daemon.json Docker refuses)")
     assert run.returncode != 0  # (the only host failed: pyinfra prints no results)
     reason = lines_with(run.output, "docker: Docker did not start with the new daemon.json")
@@ -98,19 +103,21 @@ def test_failed_udev_trigger_is_a_warning_and_the_payload_still_deploys(lab, fle
     lab.ok(host, "systemd-run --unit=lab-udevd /usr/lib/systemd/systemd-udevd")
     try:
         wait_for(lambda: lab.sh(host, "udevadm control --ping")[0] == 0, 20, "udevd in robot3")
-        changed = fleet(**{
-            '{name: gps, subsystem: tty, serial: "GPS-42"}':
-                '{name: gps, subsystem: tty, serial: "GPS-42", '
+        changed = fleet(
+            **{
+                '{name: gps, subsystem: tty, serial: "GPS-42"}': '{name: gps, subsystem: tty, serial: "GPS-42", '
                 'mode: "0640"}',
-            ALL_TAG: 'payload_image: "@registry@/ros/payload:1.1"',
-        })
+                ALL_TAG: 'payload_image: "@registry@/ros/payload:1.1"',
+            }
+        )
         run = lab.provision("--limit", host, fleet=changed, label="(robot3, new rules, udev trigger fails)")
         assert run.returncode == 0, run.output[-4000:]
         warning = lines_with(run.output, "warning: udev: udevadm trigger failed for subsystem tty: ")
         assert len(warning) == 1, run.output[-4000:]
         assert "Failed to write 'change' to '/sys/devices/" in warning[0]  # names the device
         assert 'ATTRS{serial}=="GPS-42", SYMLINK+="robot/gps", GROUP="dialout", MODE="0640"' in lab.ok(
-            host, "cat /etc/udev/rules.d/70-robot-sensors.rules")
+            host, "cat /etc/udev/rules.d/70-robot-sensors.rules"
+        )
         assert lab.version(host) == "1.1" and healthy(lab, host)
         converged(lab, host, "(robot3 after the failed trigger)", fleet=changed)
     finally:
@@ -121,14 +128,13 @@ def test_failed_udev_trigger_is_a_warning_and_the_payload_still_deploys(lab, fle
 
 HOLD_DPKG_LOCK = (
     "systemd-run --unit=hold-dpkg-lock python3 -c "
-    "'import fcntl, time; f = open(\"/var/lib/dpkg/lock-frontend\", \"w\"); "
+    '\'import fcntl, time; f = open("/var/lib/dpkg/lock-frontend", "w"); '
     "fcntl.lockf(f, fcntl.LOCK_EX); time.sleep(120)'"
 )
 
 
 LOCK_IS_FREE = (
-    "python3 -c 'import fcntl; fcntl.lockf(open(\"/var/lib/dpkg/lock-frontend\", \"w\"), "
-    "fcntl.LOCK_EX | fcntl.LOCK_NB)'"
+    'python3 -c \'import fcntl; fcntl.lockf(open("/var/lib/dpkg/lock-frontend", "w"), fcntl.LOCK_EX | fcntl.LOCK_NB)\''
 )
 
 
@@ -157,11 +163,16 @@ def test_held_apt_lock_fails_the_host_in_bound_naming_the_holder(lab, first_run)
 
 # --- a fresh robot cut off at several steps ----------------------------------
 
+
 def start_deploy(lab, fleet_file, host: str) -> subprocess.Popen:
     env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(fleet_file), PYINFRA_PROGRESS="off")
     return subprocess.Popen(
         [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit", host],
-        cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
     )
 
 
@@ -190,8 +201,9 @@ def cut_when(lab, operator: subprocess.Popen, host: str, probe: str, what: str, 
 
 # dpkg marks a package half-installed (H), unpacked (U), half-configured (F)
 # while it works on it; apt hands it the .debs in a directory, not by name.
-DPKG_UNPACKS_DOCKER = ("dpkg-query -W -f='${db:Status-Abbrev}\\n' containerd.io docker-ce 2>/dev/null "
-                       "| grep -q '^.[HUF]'")
+DPKG_UNPACKS_DOCKER = (
+    "dpkg-query -W -f='${db:Status-Abbrev}\\n' containerd.io docker-ce 2>/dev/null | grep -q '^.[HUF]'"
+)
 DAEMON_JSON_OR_RELEASE = (
     "test -e /etc/docker/daemon.json.pending || "
     "systemctl list-units --no-legend 'robot-payload-update-*' | grep -q update"
@@ -215,21 +227,32 @@ def test_fresh_provision_cut_off_at_each_step_finishes_on_rerun(lab, fresh_robot
     # 1. The link drops while apt runs (the prerequisites).
     cut_when(lab, start_deploy(lab, fresh_robot, host), host, "pgrep -x apt-get >/dev/null", "apt-get running")
     # 2. The power goes while dpkg unpacks Docker.
-    cut_when(lab, start_deploy(lab, fresh_robot, host), host, DPKG_UNPACKS_DOCKER, "dpkg unpacking Docker",
-             power_cut=True)
+    cut_when(
+        lab, start_deploy(lab, fresh_robot, host), host, DPKG_UNPACKS_DOCKER, "dpkg unpacking Docker", power_cut=True
+    )
     assert lab.ok(host, "dpkg --audit; ls -A /var/lib/dpkg/updates").strip(), "dpkg was not left interrupted"
     # 3. The link drops once Docker is installed (daemon.json step or the release).
-    cut_when(lab, start_deploy(lab, fresh_robot, host), host, DAEMON_JSON_OR_RELEASE,
-             "the daemon.json step or the release")
-    wait_for(lambda: "update" not in lab.sh(host, "systemctl list-units --no-legend 'robot-payload-update-*'")[1],
-             120, "a release left running to finish")
+    cut_when(
+        lab, start_deploy(lab, fresh_robot, host), host, DAEMON_JSON_OR_RELEASE, "the daemon.json step or the release"
+    )
+    wait_for(
+        lambda: "update" not in lab.sh(host, "systemctl list-units --no-legend 'robot-payload-update-*'")[1],
+        120,
+        "a release left running to finish",
+    )
     run = lab.provision("--limit", host, fleet=fresh_robot, label="(robot4 after the cuts)")
     assert run.returncode == 0, run.output[-4000:]
     assert lab.ok(host, "dpkg --audit; ls -A /var/lib/dpkg/updates").strip() == ""
     assert "install ok installed" in lab.ok(host, "dpkg-query -W -f '${Status}' docker-ce")
     daemon = json.loads(lab.ok(host, "cat /etc/docker/daemon.json"))
     assert daemon["insecure-registries"] == [lab.state["registry"]]
-    assert lab.sh(host, "ls /etc/docker/daemon.json.pending /etc/docker/.robotprov.* /etc/apt/keyrings/.robotprov.*"
-                        " /etc/apt/sources.list.d/.robotprov.* 2>/dev/null")[1].strip() == ""
+    assert (
+        lab.sh(
+            host,
+            "ls /etc/docker/daemon.json.pending /etc/docker/.robotprov.* /etc/apt/keyrings/.robotprov.*"
+            " /etc/apt/sources.list.d/.robotprov.* 2>/dev/null",
+        )[1].strip()
+        == ""
+    )
     assert lab.version(host) == "1.0" and healthy(lab, host)
     converged(lab, host, "(robot4 converged)", fleet=fresh_robot)

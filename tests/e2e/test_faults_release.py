@@ -29,7 +29,6 @@ LAB_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 STALL_PORT = 5999  # a "registry" on the robot that accepts connections and never answers
 
 
-
 def host_settings(host: str, *lines: str) -> dict[str, str]:
     """A fleet_with() replacement adding settings to one robot."""
     extra = "".join(f"      {line}\n" for line in lines)
@@ -65,13 +64,14 @@ def converges(lab, host: str, fleet=None):
 
 
 def start_stalled_registry(lab, host: str):
-    code = ("import socket; s = socket.socket(); s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1); "
-            f"s.bind(('127.0.0.1', {STALL_PORT})); s.listen(64); held = []; "
-            "[held.append(s.accept()) for _ in iter(int, 1)]")
+    code = (
+        "import socket; s = socket.socket(); s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1); "
+        f"s.bind(('127.0.0.1', {STALL_PORT})); s.listen(64); held = []; "
+        "[held.append(s.accept()) for _ in iter(int, 1)]"
+    )
     lab.ok(host, f'systemd-run --unit=stalled-registry python3 -c "{code}"')
     connect = f"python3 -c \"import socket; socket.create_connection(('127.0.0.1', {STALL_PORT}))\""
-    wait_for(lambda: lab.sh(host, connect)[0] == 0,
-             10, "the stalled registry to listen")
+    wait_for(lambda: lab.sh(host, connect)[0] == 0, 10, "the stalled registry to listen")
 
 
 def stop_stalled_registry(lab, host: str):
@@ -88,7 +88,12 @@ class Background:
             env["ROBOT_LAB_FLEET"] = str(fleet)
         self.proc = subprocess.Popen(
             [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", script, *args],
-            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
         )
 
     def wait(self, seconds: float = 300) -> tuple[int, str]:
@@ -108,8 +113,11 @@ def cut_power(lab, host: str, when: str):
     container = f"{lab.prefix}-{host}"
     subprocess.run(["docker", "kill", container], check=True, capture_output=True)
     subprocess.run(["docker", "start", container], check=True, capture_output=True)
-    wait_for(lambda: lab.sh(host, "systemctl is-active robot-payload")[1].strip() == "active", 180,
-             f"robot-payload.service to start at boot on {host}")
+    wait_for(
+        lambda: lab.sh(host, "systemctl is-active robot-payload")[1].strip() == "active",
+        180,
+        f"robot-payload.service to start at boot on {host}",
+    )
     wait_for(lambda: healthy(lab, host), 90, f"the payload on {host} to be healthy after boot")
 
 
@@ -124,7 +132,7 @@ STARTED_SINCE_BOOT = (
 )  # Docker keeps its events in memory: only this boot's
 
 HEALTH_WAIT = (
-    f"grep -q '\"state\": \"switching\"' {DIR}/current/record.json 2>/dev/null"
+    f'grep -q \'"state": "switching"\' {DIR}/current/record.json 2>/dev/null'
     " && docker ps -q --filter label=com.docker.compose.project=robot-payload --filter health=starting | grep -q ."
 )  # `current` switched, its container up, its verdict not given yet
 
@@ -157,8 +165,11 @@ def test_a_failing_update_leaves_the_old_release_running_and_says_why(lab, first
 
     start_stalled_registry(lab, host)
     try:
-        run = attempt("stalled pull", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1"),
-                      **host_settings(host, "payload_pull_timeout: 5"))
+        run = attempt(
+            "stalled pull",
+            **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1"),
+            **host_settings(host, "payload_pull_timeout: 5"),
+        )
         assert "did not finish within 5 s (payload_pull_timeout)" in line_of(run, host, "payload:")
     finally:
         stop_stalled_registry(lab, host)
@@ -185,11 +196,18 @@ def test_two_deploys_at_once_are_serialized(lab, first_run, tmp_path):
     start_stalled_registry(lab, host)
     (tmp_path / "stalled").mkdir()
     (tmp_path / "bounded").mkdir()
-    holder = Background(lab, "--limit", host,
-                        fleet=lab.fleet_with(tmp_path / "stalled", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1")))
+    holder = Background(
+        lab,
+        "--limit",
+        host,
+        fleet=lab.fleet_with(tmp_path / "stalled", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1")),
+    )
     try:
-        wait_for(lambda: lab.sh(host, f"test -s {DIR}/lock/owner.json && pgrep -f 'docker [p]ull'")[0] == 0, 120,
-                 "the first deploy to hold the robot")
+        wait_for(
+            lambda: lab.sh(host, f"test -s {DIR}/lock/owner.json && pgrep -f 'docker [p]ull'")[0] == 0,
+            120,
+            "the first deploy to hold the robot",
+        )
         bounded = lab.fleet_with(tmp_path / "bounded", **host_settings(host, "payload_apply_lock_timeout: 3"))
         run = lab.provision("--limit", host, fleet=bounded, label=f"({host}: while another deploy runs)")
         assert run.returncode != 0
@@ -244,12 +262,16 @@ def test_first_release_failing_and_a_full_disk(lab, first_run, tmp_path):
     # Disk full while the release is written: one free page holds this run's
     # spec, nothing more (a tmpfs over the payload directory).
     kept = releases(lab, host)
-    lab.ok(host, f"mkdir -p /run/payload-copy && cp -a {DIR}/. /run/payload-copy/ &&"
-                 f" mount -t tmpfs -o size=2m,mode=755 full {DIR} && cp -a /run/payload-copy/. {DIR}/ &&"
-                 f" (dd if=/dev/zero of={DIR}/.filler bs=4k 2>/dev/null; truncate -s -4K {DIR}/.filler)")
+    lab.ok(
+        host,
+        f"mkdir -p /run/payload-copy && cp -a {DIR}/. /run/payload-copy/ &&"
+        f" mount -t tmpfs -o size=2m,mode=755 full {DIR} && cp -a /run/payload-copy/. {DIR}/ &&"
+        f" (dd if=/dev/zero of={DIR}/.filler bs=4k 2>/dev/null; truncate -s -4K {DIR}/.filler)",
+    )
     try:
-        run = lab.provision("--limit", host, fleet=_fleet(lab, tmp_path, "full", **image("1.1")),
-                            label=f"({host}: disk full)")
+        run = lab.provision(
+            "--limit", host, fleet=_fleet(lab, tmp_path, "full", **image("1.1")), label=f"({host}: disk full)"
+        )
         assert run.returncode != 0
         assert "payloadctl recorded no result for this run" in line_of(run, host, "disk full?")
         assert "is healthy" not in run.output
@@ -262,8 +284,9 @@ def test_first_release_failing_and_a_full_disk(lab, first_run, tmp_path):
     tag = build_image_with_a_new_layer(lab)
     lab.ok(host, "mkdir -p /var/lib/docker/tmp && mount -t tmpfs -o size=64k full /var/lib/docker/tmp")
     try:
-        run = lab.provision("--limit", host, fleet=_fleet(lab, tmp_path, "pull", **image(tag)),
-                            label=f"({host}: disk full during pull)")
+        run = lab.provision(
+            "--limit", host, fleet=_fleet(lab, tmp_path, "pull", **image(tag)), label=f"({host}: disk full during pull)"
+        )
         assert run.returncode != 0
         line = line_of(run, host, "cannot pull")
         assert "no space left on device" in line.lower() and "the old release keeps running" in line
@@ -286,8 +309,9 @@ def test_power_cuts_during_a_release_and_a_rollback(lab, first_run, tmp_path):
 
     # During the pull: nothing was switched, the old release boots.
     start_stalled_registry(lab, host)
-    deploy = Background(lab, "--limit", host,
-                        fleet=_fleet(lab, tmp_path, "stalled", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1")))
+    deploy = Background(
+        lab, "--limit", host, fleet=_fleet(lab, tmp_path, "stalled", **image(f"127.0.0.1:{STALL_PORT}/ros/payload:1.1"))
+    )
     try:
         cut_power(lab, host, "pgrep -f 'docker [p]ull' >/dev/null")
     finally:

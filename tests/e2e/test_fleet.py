@@ -70,10 +70,16 @@ def test_udev_rules_are_in_place_and_accepted(lab, first_run):
     for host in lab.robots:
         rules = lab.ok(host, "cat /etc/udev/rules.d/70-robot-sensors.rules")
         assert 'SYMLINK+="robot/' in rules
-        lab.ok(host, "udevadm verify --resolve-names=never /etc/udev/rules.d/70-robot-sensors.rules "
-                     "/etc/udev/rules.d/60-usb-serial-low-latency.rules")
-    front, back = (line for line in lab.ok("robot1", "cat /etc/udev/rules.d/70-robot-sensors.rules").splitlines()
-                   if "camera" in line and not line.startswith("#"))
+        lab.ok(
+            host,
+            "udevadm verify --resolve-names=never /etc/udev/rules.d/70-robot-sensors.rules "
+            "/etc/udev/rules.d/60-usb-serial-low-latency.rules",
+        )
+    front, back = (
+        line
+        for line in lab.ok("robot1", "cat /etc/udev/rules.d/70-robot-sensors.rules").splitlines()
+        if "camera" in line and not line.startswith("#")
+    )
     assert 'KERNELS=="1-1.2"' in front and 'KERNELS=="1-1.3"' in back
 
 
@@ -116,7 +122,11 @@ def test_dry_diff_shows_a_drifted_daemon_json_and_changes_nothing(lab, first_run
         env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, PYINFRA_PROGRESS="off")
         proc = subprocess.run(
             [sys.executable, "-c", PYINFRA, "--dry", "--diff", "--limit", host, "inventories/lab.py", "deploy.py"],
-            cwd=ROOT, env=env, capture_output=True, text=True, timeout=300,
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
         )
         output = proc.stdout + proc.stderr
         assert proc.returncode == 0, output[-4000:]
@@ -132,8 +142,10 @@ def test_changing_one_robots_tag_changes_that_robot_alone(lab, first_run, tmp_pa
     before = {h: lab.payload(h)["Id"] for h in lab.robots}
     fleet = lab.fleet_with(
         tmp_path,
-        **{"      udev_sensors:\n        - {name: imu,": "      payload_image: \"@registry@/ros/payload:1.1\"\n      "
-                                                    "udev_sensors:\n        - {name: imu,"},
+        **{
+            "      udev_sensors:\n        - {name: imu,": '      payload_image: "@registry@/ros/payload:1.1"\n      '
+            "udev_sensors:\n        - {name: imu,"
+        },
     )
     run = lab.provision(fleet=fleet, label="(robot2 to 1.1)")
     assert run.returncode == 0, run.output[-4000:]

@@ -85,8 +85,9 @@ def test_gpu_hosts_repository_key_pin_runtime_and_refusals(lab, gpu_fleet):
 
     # robot3: exactly the pinned key, NVIDIA's source layout, the stand-in toolkit.
     fingerprint = nvidia_mirror.lab_settings(lab.state)["gpu_apt_key_fingerprint"]
-    keys = lab.ok("robot3",
-                  f"h=$(mktemp -d); GNUPGHOME=$h gpg --batch --show-keys --with-colons {KEY} 2>/dev/null; rm -rf $h")
+    keys = lab.ok(
+        "robot3", f"h=$(mktemp -d); GNUPGHOME=$h gpg --batch --show-keys --with-colons {KEY} 2>/dev/null; rm -rf $h"
+    )
     records = [line.split(":") for line in keys.splitlines()]
     assert [r[0] for r in records].count("pub") == 1
     assert [r[9] for r in records if r[0] == "fpr"][0] == fingerprint

@@ -67,10 +67,16 @@ def fleet(lab, signed, tmp_path):
     known_hosts.write_text(f"@cert-authority * {signed.ca.with_suffix('.pub').read_text()}")
     krl = tmp_path / "revoked.krl"
     subprocess.run(["ssh-keygen", "-q", "-k", "-f", str(krl)], check=True, input="", text=True)  # an empty KRL
-    fleet_file = lab.fleet_with(tmp_path, **{"  vars:\n    ssh_user: ops\n":
-                                             f"  vars:\n    ssh_user: ops\n    ssh_revoked_host_keys: {krl}\n"})
-    env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_KNOWN_HOSTS=str(known_hosts),
-               ROBOT_LAB_FLEET=str(fleet_file), PYINFRA_PROGRESS="off")
+    fleet_file = lab.fleet_with(
+        tmp_path, **{"  vars:\n    ssh_user: ops\n": f"  vars:\n    ssh_user: ops\n    ssh_revoked_host_keys: {krl}\n"}
+    )
+    env = dict(
+        os.environ,
+        ROBOT_LAB_PREFIX=lab.prefix,
+        ROBOT_LAB_KNOWN_HOSTS=str(known_hosts),
+        ROBOT_LAB_FLEET=str(fleet_file),
+        PYINFRA_PROGRESS="off",
+    )
 
     def run(label: str, *argv: str) -> subprocess.CompletedProcess:
         started = time.monotonic()
@@ -102,8 +108,9 @@ def test_a_certified_host_connects_with_only_the_ca_line(signed, fleet):
     (row,) = json.loads(status.stdout)
     assert row["reachable"] is True and row["arch"] == "amd64"
     # The pyinfra CLI through the same connector, strict checking on.
-    run = fleet("pyinfra exec with a valid certificate", "-c", PYINFRA, "-y", "inventories/lab.py", "exec", "--",
-                "true")
+    run = fleet(
+        "pyinfra exec with a valid certificate", "-c", PYINFRA, "-y", "inventories/lab.py", "exec", "--", "true"
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     assert fleet.known_hosts.read_text() == before  # nothing learnt on first use
 
@@ -114,17 +121,20 @@ def test_expired_wrong_principal_revoked_and_another_ca_are_each_refused_in_one_
     before = fleet.known_hosts.read_text()
     signed(validity="20200101:20200201")
     assert refusal(fleet("status, expired certificate", *STATUS)).startswith(
-        "host certificate refused: its host certificate is invalid: expired (certificate 'robot1', serial ")
+        "host certificate refused: its host certificate is invalid: expired (certificate 'robot1', serial "
+    )
 
     signed(principals=("robot7",))
     assert refusal(fleet("status, wrong principal", *STATUS)).startswith(
         "host certificate refused: its host certificate is invalid: 127.0.0.1 is not one of its principals "
-        "(certificate 'robot1', serial ")
+        "(certificate 'robot1', serial "
+    )
 
     cert = signed()
     hostcert.revoke(cert, fleet.krl)
     assert refusal(fleet("status, revoked certificate", *STATUS)).startswith(
-        f"host certificate refused: its host key is revoked by the KRL {fleet.krl} (certificate 'robot1', serial ")
+        f"host certificate refused: its host key is revoked by the KRL {fleet.krl} (certificate 'robot1', serial "
+    )
 
     fleet.krl.unlink()
     subprocess.run(["ssh-keygen", "-q", "-k", "-f", str(fleet.krl)], check=True, input="", text=True)
@@ -133,6 +143,7 @@ def test_expired_wrong_principal_revoked_and_another_ca_are_each_refused_in_one_
     other_ca = shown.split("Signing CA: ", 1)[1].split()[1]
     assert refusal(fleet("status, another CA", *STATUS)).startswith(
         f"host certificate refused: its host certificate is signed by CA {other_ca}, which no @cert-authority line "
-        f"of {fleet.known_hosts} trusts for it (certificate 'robot1', serial ")
+        f"of {fleet.known_hosts} trusts for it (certificate 'robot1', serial "
+    )
 
     assert fleet.known_hosts.read_text() == before  # never trusted on first use

@@ -39,8 +39,11 @@ def on_robot(lab, tmp_path_factory):
     packed = io.BytesIO()
     with tarfile.open(fileobj=packed, mode="w:gz") as tar:
         tar.add(base, arcname=".")
-    lab.ok(HOST, f"rm -rf {WORK} && mkdir -p {WORK} && echo {base64.b64encode(packed.getvalue()).decode()} "
-                 f"| base64 -d | tar -xz -C {WORK}")
+    lab.ok(
+        HOST,
+        f"rm -rf {WORK} && mkdir -p {WORK} && echo {base64.b64encode(packed.getvalue()).decode()} "
+        f"| base64 -d | tar -xz -C {WORK}",
+    )
     assert "sqv" in lab.ok(HOST, "apt-get --version | head -1; command -v sqv")
     yield fprs, {name: f"{WORK}/variants/{n}.asc" for n, name in enumerate(sorted(armor.VARIANTS))}
     lab.sh(HOST, f"rm -rf {WORK}")
@@ -58,10 +61,13 @@ def test_sqv_itself_trusts_keys_gpg_does_not_list(lab, on_robot):
     assert _offered(lab, f"{WORK}/pinned.asc", "pinned", "plain")
     assert not _offered(lab, f"{WORK}/pinned.asc", "intruder", "plain")
     for name in armor.SQV_TRUSTS_HIDDEN:
-        lines = lab.ok(HOST, f"h=$(mktemp -d); GNUPGHOME=$h gpg --batch --show-keys --with-colons {files[name]} "
-                             "2>/dev/null; rm -rf $h").splitlines()
-        assert [lines[n + 1].split(":")[9]
-                for n, line in enumerate(lines) if line.startswith("pub:")] == [fprs["pinned"]]
+        lines = lab.ok(
+            HOST,
+            f"h=$(mktemp -d); GNUPGHOME=$h gpg --batch --show-keys --with-colons {files[name]} 2>/dev/null; rm -rf $h",
+        ).splitlines()
+        assert [lines[n + 1].split(":")[9] for n, line in enumerate(lines) if line.startswith("pub:")] == [
+            fprs["pinned"]
+        ]
         assert _offered(lab, files[name], "intruder", f"raw{sorted(armor.VARIANTS).index(name)}"), name
 
 
@@ -80,4 +86,3 @@ def test_the_installed_key_is_exactly_the_pinned_key_as_sqv_reads_it(lab, on_rob
     # the same file planted as it was downloaded: not current
     planted = lab.ok(HOST, ["sh", "-c", aptrepo.key_probe(files[name], fprs["pinned"])])
     assert not aptrepo.installed_key(planted).canonical
-

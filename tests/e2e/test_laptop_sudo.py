@@ -29,10 +29,12 @@ laptops:
     devbox: {x11_user: dev, docker_users: [dev]}
 """
 DEPLOY = "env ROBOT_FLEET=/tmp/fleet.yaml PYINFRA_PROGRESS=off .venv/bin/pyinfra --dry inventories/local.py deploy.py"
-LINE = ("[@local] sudo needs a password for dev, and there is no terminal to ask for it: run pyinfra with "
-        "--use-sudo-password (it asks once, from stdin without a terminal, and hands the password to sudo through "
-        "SUDO_ASKPASS), or let dev use sudo without one: echo 'dev ALL=(ALL:ALL) NOPASSWD: ALL' | sudo tee "
-        "/etc/sudoers.d/robotfleet (then sudo visudo -cf /etc/sudoers.d/robotfleet; remove it after the deploy)")
+LINE = (
+    "[@local] sudo needs a password for dev, and there is no terminal to ask for it: run pyinfra with "
+    "--use-sudo-password (it asks once, from stdin without a terminal, and hands the password to sudo through "
+    "SUDO_ASKPASS), or let dev use sudo without one: echo 'dev ALL=(ALL:ALL) NOPASSWD: ALL' | sudo tee "
+    "/etc/sudoers.d/robotfleet (then sudo visudo -cf /etc/sudoers.d/robotfleet; remove it after the deploy)"
+)
 
 
 @pytest.fixture(scope="module")
@@ -52,8 +54,9 @@ def laptop():
     name = f"{PREFIX}-laptop-sudo"
     for stale in dc.containers.list(all=True, filters={"name": f"^{name}$"}):  # an interrupted run's
         stale.remove(force=True)
-    container = dc.containers.create(image, ["sleep", "1800"], name=name, hostname="devbox",
-                                     volumes=volumes, environment=environment)
+    container = dc.containers.create(
+        image, ["sleep", "1800"], name=name, hostname="devbox", volumes=volumes, environment=environment
+    )
     try:
         container.start()
         container.put_archive("/", checkout_tar())
@@ -65,8 +68,10 @@ def laptop():
 
         code, out = sh("cd /w && .ci/setup --python 2>&1")
         assert code == 0, out[-4000:]
-        code, out = sh("useradd -m dev && echo 'dev:s3cret-pw' | chpasswd && chmod -R a+rX /w && "
-                       f"printf '%s' {quote(FLEET)} > /tmp/fleet.yaml && chmod a+r /tmp/fleet.yaml")
+        code, out = sh(
+            "useradd -m dev && echo 'dev:s3cret-pw' | chpasswd && chmod -R a+rX /w && "
+            f"printf '%s' {quote(FLEET)} > /tmp/fleet.yaml && chmod a+r /tmp/fleet.yaml"
+        )
         assert code == 0, out
         phase("laptop container: .ci/setup --python", started)
         yield sh
@@ -103,12 +108,15 @@ def test_each_way_on_works(laptop):
         assert out.count("[sudo] password for dev") == 1 and "sudo password:" not in out, out[:2000]
         code, out = laptop(f"sudo -k; (sleep 5; echo wrong) | script -qec {quote(DEPLOY)} /dev/null 2>&1", user="dev")
         assert code == 1 and out.splitlines()[-1].startswith(
-            "[@local] sudo refused dev (a wrong password, or dev may not use sudo)"), out[-2000:]
+            "[@local] sudo refused dev (a wrong password, or dev may not use sudo)"
+        ), out[-2000:]
 
         # 3. the sudoers line the message prints, as it is
         line = LINE.split("echo '", 1)[1].split("'", 1)[0]
-        code, out = laptop(f"echo {quote(line)} > /etc/sudoers.d/robotfleet && chmod 440 /etc/sudoers.d/robotfleet "
-                           "&& visudo -cf /etc/sudoers.d/robotfleet")
+        code, out = laptop(
+            f"echo {quote(line)} > /etc/sudoers.d/robotfleet && chmod 440 /etc/sudoers.d/robotfleet "
+            "&& visudo -cf /etc/sudoers.d/robotfleet"
+        )
         assert code == 0, out
         code, out = laptop(f"sudo -k; {DEPLOY} < /dev/null 2>&1", user="dev")
         assert code == 0 and "Detected changes" in out, out[-3000:]

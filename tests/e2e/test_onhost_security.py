@@ -22,8 +22,11 @@ def _intruder_key(tmp_path) -> bytes:
     home = tmp_path / "gnupg"
     home.mkdir(mode=0o700)
     gpg = ["gpg", "--batch", "--homedir", str(home)]
-    subprocess.run(gpg + ["--passphrase", "", "--quick-gen-key", "intruder@example", "ed25519", "sign", "never"],
-                   capture_output=True, check=True)
+    subprocess.run(
+        gpg + ["--passphrase", "", "--quick-gen-key", "intruder@example", "ed25519", "sign", "never"],
+        capture_output=True,
+        check=True,
+    )
     return subprocess.run(gpg + ["--armor", "--export"], capture_output=True, check=True).stdout
 
 
@@ -48,13 +51,17 @@ def test_a_poisoned_keyring_is_repaired_and_a_two_key_file_refused(lab, first_ru
 
     # The key URL serves Docker's key + another: refused, and the poisoned keyring is not kept.
     lab.ok("robot1", f"mkdir -p /root/keysrv && cat {KEYRING} /root/intruder.asc > /root/keysrv/gpg")
-    lab.ok("robot1", "systemd-run --unit=e2e-keysrv --collect python3 -m http.server 8765 --bind 127.0.0.1 "
-                     "--directory /root/keysrv && for i in $(seq 50); do "
-                     "curl -fso /dev/null http://127.0.0.1:8765/gpg && exit 0; sleep 0.2; done; exit 1")
+    lab.ok(
+        "robot1",
+        "systemd-run --unit=e2e-keysrv --collect python3 -m http.server 8765 --bind 127.0.0.1 "
+        "--directory /root/keysrv && for i in $(seq 50); do "
+        "curl -fso /dev/null http://127.0.0.1:8765/gpg && exit 0; sleep 0.2; done; exit 1",
+    )
     try:
         lab.ok("robot1", poison)
-        bad = lab.provision("--limit", "robot1", "--data", "docker_apt_key_url=http://127.0.0.1:8765/gpg",
-                            label="(two-key file)")
+        bad = lab.provision(
+            "--limit", "robot1", "--data", "docker_apt_key_url=http://127.0.0.1:8765/gpg", label="(two-key file)"
+        )
         assert bad.returncode != 0
         assert "holds 2 keys" in bad.output and "key not installed" in bad.output
         assert lab.ok("robot1", "ls -A /etc/apt/keyrings").split() == []
@@ -67,8 +74,10 @@ def test_a_poisoned_keyring_is_repaired_and_a_two_key_file_refused(lab, first_ru
 
 def test_a_symlinked_daemon_json_is_replaced_once(lab, first_run):
     invocation = "systemctl show -p InvocationID --value docker.service"
-    lab.ok("robot2", "cp /etc/docker/daemon.json /root/daemon.json.real && "
-                     "ln -sfn /root/daemon.json.real /etc/docker/daemon.json")
+    lab.ok(
+        "robot2",
+        "cp /etc/docker/daemon.json /root/daemon.json.real && ln -sfn /root/daemon.json.real /etc/docker/daemon.json",
+    )
     started = lab.ok("robot2", invocation).strip()
     run = lab.provision("--limit", "robot2", label="(daemon.json symlinked)")
     assert run.returncode == 0, run.output[-3000:]
@@ -76,8 +85,9 @@ def test_a_symlinked_daemon_json_is_replaced_once(lab, first_run):
         "Docker | Write /etc/docker/daemon.json and restart Docker "
         "(the previous file comes back if Docker does not start)"
     ]
-    assert lab.ok("robot2", "readlink -f /root/daemon.json.real") and \
-        lab.ok("robot2", "cat /root/daemon.json.real")  # the link's target is left alone
+    assert lab.ok("robot2", "readlink -f /root/daemon.json.real") and lab.ok(
+        "robot2", "cat /root/daemon.json.real"
+    )  # the link's target is left alone
     assert lab.ok("robot2", "stat -c %F /etc/docker/daemon.json").strip() == "regular file"
     restarted = lab.ok("robot2", invocation).strip()
     assert restarted != started
@@ -92,8 +102,9 @@ def test_a_changed_registry_password_logs_in_again_and_is_never_shown(lab, first
     login = "Payload | Log in to the payload registry"
     record = "cat /root/.docker/robotprov-login-*"
 
-    run = lab.provision("-vv", "--limit", "robot2", env={**user, "PAYLOAD_REGISTRY_PASSWORD": first},
-                        label="(registry login)")
+    run = lab.provision(
+        "-vv", "--limit", "robot2", env={**user, "PAYLOAD_REGISTRY_PASSWORD": first}, label="(registry login)"
+    )
     assert run.returncode == 0, run.output[-3000:]
     assert login in run.changes("robot2") and first not in run.output
     stored = lab.ok("robot2", record)
@@ -103,8 +114,9 @@ def test_a_changed_registry_password_logs_in_again_and_is_never_shown(lab, first
     same = lab.provision("--limit", "robot2", env={**user, "PAYLOAD_REGISTRY_PASSWORD": first}, label="(same password)")
     assert same.returncode == 0 and same.changed_hosts == set()
 
-    changed = lab.provision("-vv", "--limit", "robot2", env={**user, "PAYLOAD_REGISTRY_PASSWORD": second},
-                            label="(changed password)")
+    changed = lab.provision(
+        "-vv", "--limit", "robot2", env={**user, "PAYLOAD_REGISTRY_PASSWORD": second}, label="(changed password)"
+    )
     assert changed.returncode == 0, changed.output[-3000:]
     assert changed.changes("robot2") == [login]
     assert second not in changed.output and first not in changed.output

@@ -61,8 +61,10 @@ class Pull:
         """A check starting now on each robot, at once (systemctl start waits
         for the oneshot; a check the timer started earlier is waited for
         first: a start would only join it)."""
-        command = ("while [ \"$(systemctl show -p ActiveState --value robot-pull.service)\" = activating ]; "
-                   "do sleep 0.5; done; systemctl start robot-pull.service")
+        command = (
+            'while [ "$(systemctl show -p ActiveState --value robot-pull.service)" = activating ]; '
+            "do sleep 0.5; done; systemctl start robot-pull.service"
+        )
         threads = [threading.Thread(target=self.lab.sh, args=(r, command)) for r in robots]
         for thread in threads:
             thread.start()
@@ -94,16 +96,29 @@ def pull(lab, first_run, tmp_path_factory):
     world.release1 = world.attacks.checkout()
     phase("pull: keys, release 1 published with wheels", started)
     # robot4 boots from its image now, converging while the others get the agent by push.
-    op.robotfleet("bundle", FIRST_BOOT, "--out", str(op.base / "bundle"), "--fleet", world.pullfleet.FLEET,
-                  *op.admin_options())
+    op.robotfleet(
+        "bundle", FIRST_BOOT, "--out", str(op.base / "bundle"), "--fleet", world.pullfleet.FLEET, *op.admin_options()
+    )
     firstboot.start(lab.prefix, FIRST_BOOT, op.base / "bundle" / "rootfs.tar")
-    run = lab.provision(*(f"--limit={robot}" for robot in ROBOTS), fleet=op.repo / world.pullfleet.FLEET,
-                        label="(pull agent installed)",
-                        env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")})
+    run = lab.provision(
+        *(f"--limit={robot}" for robot in ROBOTS),
+        fleet=op.repo / world.pullfleet.FLEET,
+        label="(pull agent installed)",
+        env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")},
+    )
     assert run.returncode == 0, run.output[-4000:]
     env = op.env(ROBOT_LAB_FLEET=str(op.repo / world.pullfleet.FLEET))
-    enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", ",".join(ROBOTS), "--ssh",
-                             *op.admin_options(), *op.remote(), env=env, check=False)
+    enrolled = op.robotfleet(
+        "pull-enroll",
+        "inventories/lab.py",
+        "--limit",
+        ",".join(ROBOTS),
+        "--ssh",
+        *op.admin_options(),
+        *op.remote(),
+        env=env,
+        check=False,
+    )
     assert enrolled.returncode == 0, enrolled.stdout + enrolled.stderr
     for robot in ROBOTS:
         assert f"{robot}: its own key is now registered" in enrolled.stdout, enrolled.stdout + enrolled.stderr
@@ -114,8 +129,11 @@ def pull(lab, first_run, tmp_path_factory):
     phase("pull: agents installed by push, robots enrolled, sshd off", started)
     yield world
     for robot in ROBOTS:
-        lab.sh(robot, "systemctl disable --now robot-pull.timer; systemctl unmask ssh.service ssh.socket; "
-                      "systemctl start ssh.service")
+        lab.sh(
+            robot,
+            "systemctl disable --now robot-pull.timer; systemctl unmask ssh.service ssh.socket; "
+            "systemctl start ssh.service",
+        )
     from tests.lab import state
     from tests.lab.engine import client
 
@@ -125,8 +143,13 @@ def pull(lab, first_run, tmp_path_factory):
     saved["hosts"] = [h for h in saved["hosts"] if h["name"] != FIRST_BOOT]
     state.save(saved)
     known = Path(saved["known_hosts"])  # its keys, from its report: the port may serve another host later
-    known.write_text("".join(line for line in known.read_text().splitlines(keepends=True)
-                             if not any(line.startswith(f"[127.0.0.1]:{port} ") for port in gone)))
+    known.write_text(
+        "".join(
+            line
+            for line in known.read_text().splitlines(keepends=True)
+            if not any(line.startswith(f"[127.0.0.1]:{port} ") for port in gone)
+        )
+    )
 
 
 def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
@@ -137,12 +160,14 @@ def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
     from tests.lab import gitserver
 
     # a commit the remote does not have yet (an up-to-date push would not be judged)
-    push = ("cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
-            "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m forged) && "
-            "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 "
-            "-o IdentitiesOnly=yes -o UserKnownHostsFile=/etc/robot-pull/known_hosts -o "
-            "HostKeyAlias=robotfleet-remote' "
-            f"git push --force {gitserver.robot_url(pull.op.git)} \"$c:{{ref}}\" 2>&1")
+    push = (
+        "cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
+        "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m forged) && "
+        "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 "
+        "-o IdentitiesOnly=yes -o UserKnownHostsFile=/etc/robot-pull/known_hosts -o "
+        "HostKeyAlias=robotfleet-remote' "
+        f'git push --force {gitserver.robot_url(pull.op.git)} "$c:{{ref}}" 2>&1'
+    )
     for ref in ("refs/reports/robot2", "refs/heads/robotfleet/releases"):
         code, output = lab.sh("robot1", push.format(ref=ref))
         assert code != 0 and "DENIED" in output, (ref, output)
@@ -158,32 +183,46 @@ def test_a_shared_image_s_key_reports_only_as_a_name_its_rule_makes_and_no_enrol
     from tests.lab import gitserver
 
     git = pull.op.git
-    admin = gitolite.Admin(f"ssh://{git['user']}@127.0.0.1:{git['port']}", pull.op.lab["ssh_key"],
-                           git["known_hosts"])
+    admin = gitolite.Admin(f"ssh://{git['user']}@127.0.0.1:{git['port']}", pull.op.lab["ssh_key"], git["known_hosts"])
     shared, enrolled = gitolite.shared_user("machine-id", "robot-"), "robot-0aa0aa0aa0aa"
-    lab.ok("robot1", "rm -f /tmp/shared /tmp/shared.pub /tmp/other /tmp/other.pub && "
-                     "ssh-keygen -q -t ed25519 -N '' -f /tmp/shared && ssh-keygen -q -t ed25519 -N '' -f /tmp/other")
-    keys = {gitolite.key_file(shared): lab.sh("robot1", "cat /tmp/shared.pub")[1],
-            gitolite.key_file(enrolled): lab.sh("robot1", "cat /tmp/other.pub")[1]}
+    lab.ok(
+        "robot1",
+        "rm -f /tmp/shared /tmp/shared.pub /tmp/other /tmp/other.pub && "
+        "ssh-keygen -q -t ed25519 -N '' -f /tmp/shared && ssh-keygen -q -t ed25519 -N '' -f /tmp/other",
+    )
+    keys = {
+        gitolite.key_file(shared): lab.sh("robot1", "cat /tmp/shared.pub")[1],
+        gitolite.key_file(enrolled): lab.sh("robot1", "cat /tmp/other.pub")[1],
+    }
     gitolite.update(admin, git["repo"], add=keys, message="e2e: a shared image's key, an enrolled robot-<hex>")
-    push = ("cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
-            "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m shared) && "
-            "GIT_SSH_COMMAND='ssh -F /dev/null -i /tmp/shared -o IdentitiesOnly=yes "
-            "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
-            f"git push --force {gitserver.robot_url(git)} \"$c:{{ref}}\" 2>&1")
+    push = (
+        "cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
+        "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m shared) && "
+        "GIT_SSH_COMMAND='ssh -F /dev/null -i /tmp/shared -o IdentitiesOnly=yes "
+        "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
+        f'git push --force {gitserver.robot_url(git)} "$c:{{ref}}" 2>&1'
+    )
     try:
         code, output = lab.sh("robot1", push.format(ref="refs/reports/robot-3f2a9c0d1e2b"))
         assert code == 0, output
-        for ref in (f"refs/reports/{enrolled}", "refs/reports/robot2", "refs/reports/robot-3f2a9c0d1e2",
-                    "refs/heads/robotfleet/releases"):
+        for ref in (
+            f"refs/reports/{enrolled}",
+            "refs/reports/robot2",
+            "refs/reports/robot-3f2a9c0d1e2",
+            "refs/heads/robotfleet/releases",
+        ):
             code, output = lab.sh("robot1", push.format(ref=ref))
             assert code != 0 and "DENIED" in output, (ref, output)
     finally:
         gitolite.update(admin, git["repo"], remove=list(keys), message="e2e: the shared image's keys removed")
         lab.sh("robot1", "rm -f /tmp/shared /tmp/shared.pub /tmp/other /tmp/other.pub")
     # the report it wrote is removed by the admin, as a lost robot's would be
-    subprocess.run(["git", "push", "-q", gitserver.local_url(git), ":refs/reports/robot-3f2a9c0d1e2b"],
-                   env=pull.op.env(), check=True, capture_output=True)
+    subprocess.run(
+        ["git", "push", "-q", gitserver.local_url(git), ":refs/reports/robot-3f2a9c0d1e2b"],
+        env=pull.op.env(),
+        check=True,
+        capture_output=True,
+    )
 
 
 def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_up_at_boot(pull, lab):
@@ -192,14 +231,36 @@ def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_
 
     client().containers.get(f"{lab.prefix}-robot3").stop(timeout=20)
     result = {}
-    follower = threading.Thread(target=lambda: result.update(done=pull.op.rollout(
-        pull.fleet("1.1"), "release 2: payload 1.1", "--canary", "1", "--batch", "100%", "--pause", "0",
-        "--poll", "2", "--timeout", "420", "--publish-option=--no-wheels")))
+    follower = threading.Thread(
+        target=lambda: result.update(
+            done=pull.op.rollout(
+                pull.fleet("1.1"),
+                "release 2: payload 1.1",
+                "--canary",
+                "1",
+                "--batch",
+                "100%",
+                "--pause",
+                "0",
+                "--poll",
+                "2",
+                "--timeout",
+                "420",
+                "--publish-option=--no-wheels",
+            )
+        )
+    )
     follower.start()
     # Published while robot3 was off (a running robot's timer has seen it): robot3 boots and catches up
     # by its own timer (OnBootSec), while the others apply it.
-    wait_for(lambda: any(((pull.reports().get(r) or {}).get("seen") or {}).get("version", 0) >= 2
-                         for r in ("robot1", "robot2")), 120, "release 2 seen by a running robot", interval=2)
+    wait_for(
+        lambda: any(
+            ((pull.reports().get(r) or {}).get("seen") or {}).get("version", 0) >= 2 for r in ("robot1", "robot2")
+        ),
+        120,
+        "release 2 seen by a running robot",
+        interval=2,
+    )
     client().containers.get(f"{lab.prefix}-robot3").start()
     follower.join(timeout=500)
     done = result["done"]
@@ -217,8 +278,10 @@ def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_
     phase("pull: release 2 on every robot, robot3 after its boot", started)
 
 
-@pytest.mark.parametrize("attack, refusal", [("tamper", "tampered"), ("replay", "rollback"), ("expire", "expired"),
-                                             ("other_key", "unknown-key")])
+@pytest.mark.parametrize(
+    "attack, refusal",
+    [("tamper", "tampered"), ("replay", "rollback"), ("expire", "expired"), ("other_key", "unknown-key")],
+)
 def test_a_bad_repository_is_refused_everywhere_and_changes_nothing(pull, lab, attack, refusal):
     good = pull.attacks.checkout()
     before = {r: lab.record(r) for r in ROBOTS}
@@ -241,9 +304,23 @@ def test_a_crash_looping_release_is_rolled_back_on_the_canary_and_halts_the_rest
     from robotfleet.pull.protocol import waves
 
     started = time.monotonic()
-    done = pull.op.rollout(pull.fleet("1.2-broken", robots=ROBOTS), "release: payload 1.2-broken", "--canary", "1",
-                           "--batch", "100%", "--pause", "300", "--max-failed", "0", "--poll", "2", "--timeout", "300",
-                           "--publish-option=--no-wheels")
+    done = pull.op.rollout(
+        pull.fleet("1.2-broken", robots=ROBOTS),
+        "release: payload 1.2-broken",
+        "--canary",
+        "1",
+        "--batch",
+        "100%",
+        "--pause",
+        "300",
+        "--max-failed",
+        "0",
+        "--poll",
+        "2",
+        "--timeout",
+        "300",
+        "--publish-option=--no-wheels",
+    )
     pull.trigger(ROBOTS)  # a check after the halt on each
     assert done.returncode == 1, done.stdout + done.stderr
     assert "halted" in done.stderr
@@ -267,8 +344,9 @@ def test_a_robot_from_a_first_boot_image_converges_reports_healthy_and_is_enroll
     op.commit(pull.fleet("1.1"), "the fleet with robot4 again")  # the crash-looping release was for robot1..3
     env = op.env(ROBOT_LAB_FLEET=str(op.repo / pull.pullfleet.FLEET))
     assert ssh_error(lab, FIRST_BOOT)  # not in known_hosts yet: no trust on first use
-    enrolled = op.robotfleet("pull-enroll", "inventories/lab.py", "--limit", FIRST_BOOT, *op.admin_options(),
-                             *op.remote(), env=env)
+    enrolled = op.robotfleet(
+        "pull-enroll", "inventories/lab.py", "--limit", FIRST_BOOT, *op.admin_options(), *op.remote(), env=env
+    )
     assert f"{FIRST_BOOT}: its report is proven by its bundle's enrollment key" in enrolled.stdout, enrolled.stdout
     assert "from its report; enrolled" in enrolled.stdout and "its own key is now registered" in enrolled.stdout
     assert ssh_error(lab, FIRST_BOOT) is None  # strict host keys: the key from its report
@@ -304,8 +382,8 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
     the tag.  The module's other releases name their image with its digest
     in the fleet file, which hid a converge that judged the robot against
     the fleet file's tag instead of the digest the release pinned."""
-    from robotfleet.pull.protocol import waves
     from robotfleet.pull.operator.repository import Repository
+    from robotfleet.pull.protocol import waves
     from tests.lab.engine import client
     from tests.lab.registryproxy import RegistryProxy
 
@@ -323,8 +401,18 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
         # publish reads the digest from the registry by the robots' name for it
         proxy = RegistryProxy(registry, op.lab["registry_local"])
         try:
-            done = op.robotfleet("publish", pull.pullfleet.FLEET, "--checkout", str(op.repo), "--keys", str(op.keys),
-                                 "--no-wheels", "--pause", str(DEFAULTS_PAUSE), env=op.env(**proxy.env()))
+            done = op.robotfleet(
+                "publish",
+                pull.pullfleet.FLEET,
+                "--checkout",
+                str(op.repo),
+                "--keys",
+                str(op.keys),
+                "--no-wheels",
+                "--pause",
+                str(DEFAULTS_PAUSE),
+                env=op.env(**proxy.env()),
+            )
         finally:
             proxy.close()
         assert f"publish: release {version} (" in done.stdout, done.stdout
@@ -332,8 +420,11 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
 
         def applied(robots) -> bool:
             reports = pull.reports()
-            return all((reports.get(r) or {}).get("result") in ("applied", "up-to-date")
-                       and ((reports.get(r) or {}).get("applied") or {}).get("version") == version for r in robots)
+            return all(
+                (reports.get(r) or {}).get("result") in ("applied", "up-to-date")
+                and ((reports.get(r) or {}).get("applied") or {}).get("version") == version
+                for r in robots
+            )
 
         on = [robot for robot in ALL if robot != off]
         wait_for(lambda: applied(on), DEFAULTS_PAUSE + 420, f"release {version} on {', '.join(on)}", interval=3)

@@ -31,8 +31,13 @@ pytestmark = pytest.mark.e2e
 ROBOT = "robot3"
 MEDIUM = "/mnt/fleet-media"
 # Every check is the test's own (the timer's first check after install aside).
-QUIET = {"payload_health_timeout": 20, "payload_stable_seconds": 2, "pull_interval": 3600, "pull_jitter": 0,
-         "pull_media_dir": MEDIUM}
+QUIET = {
+    "payload_health_timeout": 20,
+    "payload_stable_seconds": 2,
+    "pull_interval": 3600,
+    "pull_jitter": 0,
+    "pull_media_dir": MEDIUM,
+}
 RESET = "systemctl disable --now robot-pull.timer; rm -rf /etc/robot-pull /var/lib/robot-pull " + MEDIUM
 
 
@@ -59,8 +64,15 @@ class Media(Pull):
 
         proxy = RegistryProxy(self.op.lab["registry"], self.op.lab["registry_local"])
         try:
-            done = self.op.robotfleet("export", str(directory), "--checkout", str(self.op.repo), "--keys",
-                                      str(self.op.keys), env=self.op.env(**proxy.env()))
+            done = self.op.robotfleet(
+                "export",
+                str(directory),
+                "--checkout",
+                str(self.op.repo),
+                "--keys",
+                str(self.op.keys),
+                env=self.op.env(**proxy.env()),
+            )
         finally:
             proxy.close()
         assert "export" in done.stdout + done.stderr, done.stdout + done.stderr
@@ -73,8 +85,7 @@ class Media(Pull):
         and moved into place (a check never reads half a copy)."""
         container = f"{self.lab.prefix}-{ROBOT}"
         self.lab.ok(ROBOT, f"rm -rf {MEDIUM} {MEDIUM}.new")
-        subprocess.run(["docker", "cp", str(directory), f"{container}:{MEDIUM}.new"], check=True,
-                       capture_output=True)
+        subprocess.run(["docker", "cp", str(directory), f"{container}:{MEDIUM}.new"], check=True, capture_output=True)
         self.lab.ok(ROBOT, f"chown -R root:root {MEDIUM}.new && mv {MEDIUM}.new {MEDIUM}")
 
     def network(self, connected: bool) -> None:
@@ -82,8 +93,7 @@ class Media(Pull):
         from tests.lab.engine import client
 
         dc = client()
-        network, container = dc.networks.get(f"{self.lab.prefix}-net"), dc.containers.get(
-            f"{self.lab.prefix}-{ROBOT}")
+        network, container = dc.networks.get(f"{self.lab.prefix}-net"), dc.containers.get(f"{self.lab.prefix}-{ROBOT}")
         container.reload()
         attached = f"{self.lab.prefix}-net" in container.attrs["NetworkSettings"]["Networks"]
         if connected and not attached:
@@ -105,10 +115,18 @@ def by_digest(ref: str) -> str:
 def remote_refs(world) -> list[str]:
     from tests.lab import gitserver
 
-    done = subprocess.run(["git", "ls-remote", gitserver.local_url(world.op.git)], capture_output=True, text=True,
-                          env=world.op.env(), check=True)
-    return [line.split()[1] for line in done.stdout.splitlines()
-            if line.split()[1] == "refs/heads/robotfleet/releases" or line.split()[1].startswith("refs/reports/")]
+    done = subprocess.run(
+        ["git", "ls-remote", gitserver.local_url(world.op.git)],
+        capture_output=True,
+        text=True,
+        env=world.op.env(),
+        check=True,
+    )
+    return [
+        line.split()[1]
+        for line in done.stdout.splitlines()
+        if line.split()[1] == "refs/heads/robotfleet/releases" or line.split()[1].startswith("refs/reports/")
+    ]
 
 
 def clear_remote(world) -> None:
@@ -117,8 +135,12 @@ def clear_remote(world) -> None:
 
     refs = remote_refs(world)
     if refs:
-        subprocess.run(["git", "push", "-q", gitserver.local_url(world.op.git), *(f":{ref}" for ref in refs)],
-                       env=world.op.env(), check=True, capture_output=True)
+        subprocess.run(
+            ["git", "push", "-q", gitserver.local_url(world.op.git), *(f":{ref}" for ref in refs)],
+            env=world.op.env(),
+            check=True,
+            capture_output=True,
+        )
 
 
 def forget_images(world, images) -> None:
@@ -141,8 +163,12 @@ def world(lab, tmp_path_factory):
     op.publish(world.fleet("1.0"), "release 1", "--pause", "0")
     world.release1 = world.attacks.checkout()
     world.old_timestamp = (world.attacks.work / "metadata" / "timestamp.json").read_bytes()
-    run = lab.provision(f"--limit={ROBOT}", fleet=op.repo / world.pullfleet.FLEET, label="(pull agent, media)",
-                        env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")})
+    run = lab.provision(
+        f"--limit={ROBOT}",
+        fleet=op.repo / world.pullfleet.FLEET,
+        label="(pull agent, media)",
+        env={"ROBOTFLEET_KEYS": str(op.keys), "ROBOTFLEET_RELEASES_CLONE": str(op.base / "releases")},
+    )
     assert run.returncode == 0, run.output[-4000:]
     op.register_robots([ROBOT])
     world.check()
@@ -179,8 +205,9 @@ def test_a_robot_with_its_network_cut_converges_from_exported_media_and_refuses_
         # Docker 26, overlay2) only the id: the agent tags the id it checked by the digest's hex
         repository, digest = by_digest(ref).split("@")
         containerd = lab.ok(ROBOT, "docker info -f '{{.Driver}}'").strip() != "overlay2"
-        assert payload["Config"]["Image"] == (by_digest(ref) if containerd
-                                              else f"{repository}:media-sha256-{digest[7:]}"), payload["Config"]
+        assert payload["Config"]["Image"] == (
+            by_digest(ref) if containerd else f"{repository}:media-sha256-{digest[7:]}"
+        ), payload["Config"]
         loaded = json.loads(lab.ok(ROBOT, f"docker image inspect {payload['Config']['Image']}"))[0]
         assert loaded["Id"] == entry["image"], loaded["Id"]
         phase("pull media: release 2 applied from the medium, network cut", started)
@@ -188,8 +215,9 @@ def test_a_robot_with_its_network_cut_converges_from_exported_media_and_refuses_
         # an image the robot does not have yet (one it has by the digest is not loaded again: its archive unread)
         before, ref = lab.record(ROBOT), world.pinned("ros/driver", "1.1")
         assert lab.sh(ROBOT, f"docker image inspect {by_digest(ref)}")[0] != 0
-        world.op.publish(world.fleet("1.1", repository="ros/driver"), "release 3: ros/driver 1.1", "--no-wheels",
-                         "--pause", "0")
+        world.op.publish(
+            world.fleet("1.1", repository="ros/driver"), "release 3: ros/driver 1.1", "--no-wheels", "--pause", "0"
+        )
         index = world.export(tmp_path / "media-3")
         assert ref in index["images"]["x86_64"], index
         archives = sorted((tmp_path / "media-3").rglob("*.tar"))
@@ -245,8 +273,11 @@ class PullsSeen:
         self.lab, self.out = lab, f"/run/{self.UNIT}.out"
         lab.sh(ROBOT, f"systemctl stop {self.UNIT}; systemctl reset-failed {self.UNIT}; rm -f {self.out}")
         # --since: what the daemon sent before the subscription took hold is replayed, nothing is missed
-        lab.ok(ROBOT, f"systemd-run -q --unit {self.UNIT} -p StandardOutput=file:{self.out} docker events "
-                      "--since $(date +%s) --filter type=image --filter event=pull --format '{{.Actor.ID}}'")
+        lab.ok(
+            ROBOT,
+            f"systemd-run -q --unit {self.UNIT} -p StandardOutput=file:{self.out} docker events "
+            "--since $(date +%s) --filter type=image --filter event=pull --format '{{.Actor.ID}}'",
+        )
         lab.ok(ROBOT, f"systemctl is-active -q {self.UNIT}")
 
     def stop(self) -> list[str]:
@@ -263,8 +294,9 @@ def test_a_robot_outside_its_window_prefetches_then_switches_inside_it_without_p
     opens = (now + datetime.timedelta(seconds=PREFETCH_LEAD + 59)).replace(second=0, microsecond=0)
     window = window_from(opens)
     # The window reaches the robot's agent with a release (applied now: its config had none).
-    world.op.publish(world.fleet("1.0", pull_windows=[window]), "release: a maintenance window",
-                     "--no-wheels", "--pause", "0")
+    world.op.publish(
+        world.fleet("1.0", pull_windows=[window]), "release: a maintenance window", "--no-wheels", "--pause", "0"
+    )
     world.check()
     report = world.report()
     assert report["result"] == "applied", report
@@ -273,8 +305,13 @@ def test_a_robot_outside_its_window_prefetches_then_switches_inside_it_without_p
     ref = world.pinned("ros/driver", "1.0")
     forget_images(world, [("ros/driver", "1.0")])  # whatever put it there, the prefetch must pull it
 
-    world.op.publish(world.fleet("1.0", repository="ros/driver", pull_windows=[window]),
-                     "release: ros/driver 1.0 in the window", "--no-wheels", "--pause", "0")
+    world.op.publish(
+        world.fleet("1.0", repository="ros/driver", pull_windows=[window]),
+        "release: ros/driver 1.0 in the window",
+        "--no-wheels",
+        "--pause",
+        "0",
+    )
     watch = PullsSeen(lab)
     world.check()
     pulled = watch.stop()

@@ -21,7 +21,11 @@ ALL_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 def status(lab) -> dict[str, dict]:
     proc = subprocess.run(
         [sys.executable, "-m", "robotfleet", "status", "inventories/lab.py", "--json"],
-        cwd=ROOT, env=dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix), capture_output=True, text=True, timeout=120,
+        cwd=ROOT,
+        env=dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix),
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
     return {row["host"]: row for row in json.loads(proc.stdout)}
@@ -30,10 +34,12 @@ def status(lab) -> dict[str, dict]:
 @pytest.fixture(scope="module")
 def fleet_on(lab, first_run, tmp_path_factory):
     """fleet_on(tag, **host_lines): a fleet file with every host on `tag`."""
+
     def make(tag: str, extra: dict[str, str] | None = None):
         path = tmp_path_factory.mktemp("fleet")
         replacements = {ALL_TAG: f'payload_image: "@registry@/ros/payload:{tag}"', **(extra or {})}
         return lab.fleet_with(path, **replacements)
+
     return make
 
 
@@ -66,8 +72,10 @@ def test_update_to_a_broken_tag_rolls_every_robot_back(lab, fleet_on):
         assert lab.record(host)["id"] == before[host]
         assert lab.version(host) == "1.1"
         assert lab.payload(host)["State"]["Health"]["Status"] == "healthy"
-        failed = [json.loads(lab.ok(host, f"cat {p}")) for p in lab.ok(
-            host, "ls -d /var/lib/robot-payload/releases/*/record.json").split()]
+        failed = [
+            json.loads(lab.ok(host, f"cat {p}"))
+            for p in lab.ok(host, "ls -d /var/lib/robot-payload/releases/*/record.json").split()
+        ]
         assert any(r["state"] == "failed" and "unhealthy" in r["reason"] for r in failed)
         assert "unhealthy" in status(lab)[host]["rolled_back_from"]["reason"]
     rows = status(lab)
@@ -110,9 +118,10 @@ def test_push_delivery_to_a_robot_without_registry(lab, fleet_on):
     engine = docker.from_env()
     engine.images.get("ros/payload:1.1").tag("offline.invalid/ros/payload", "1.1")
     extra = {
-        "      udev_sensors:\n        - {name: gps,":
+        "      udev_sensors:\n        - {name: gps,": (
             "      payload_delivery: push\n      payload_image: offline.invalid/ros/payload:1.1\n"
-            "      udev_sensors:\n        - {name: gps,",
+            "      udev_sensors:\n        - {name: gps,"
+        ),
     }
     fleet = fleet_on("1.0", extra)
     assert lab.sh("robot3", "docker pull offline.invalid/ros/payload:1.1")[0] != 0  # no route to that registry
@@ -139,37 +148,54 @@ LOOP = "while :; do touch /tmp/heartbeat; sleep 1 & wait $!; done"
 
 def old_payload_stop(lab, host: str, since: str) -> float:
     """Docker's first signal to the old payload container (kill) -> its exit (die), read on the robot."""
-    out = lab.ok(host, f"docker events --since {since} --until $(date +%s.%N) --filter type=container "
-                       "--filter event=kill --filter event=die --format '{{json .}}'")
+    out = lab.ok(
+        host,
+        f"docker events --since {since} --until $(date +%s.%N) --filter type=container "
+        "--filter event=kill --filter event=die --format '{{json .}}'",
+    )
     events = [json.loads(line) for line in out.splitlines() if line.strip()]
     die = next(e for e in events if e["Action"] == "die")
     kill = next(e for e in events if e["Action"] == "kill" and e["id"] == die["id"])
     return (die["timeNano"] - kill["timeNano"]) / 1e9
 
 
-@pytest.mark.parametrize("what, lines, inspect", [
-    # A ROS launch shuts down on SIGINT only; as PID 1 it would sit out Docker's SIGTERM for 10 s.
-    ("a SIGINT-only payload under ros_preset",
-     f"      ros_preset: ros2\n      payload_command: [/bin/sh, -c, \"trap 'exit 0' INT; {LOOP}\"]\n",
-     lambda c: c["Config"]["StopSignal"] == "SIGINT"),
-    # A shell entrypoint without a trap ignores every signal as PID 1; under an init it does not.
-    ("a shell with no trap under payload_init", f"      payload_init: true\n      payload_stop_grace_period: 5\n"
-                                                f"      payload_command: [/bin/sh, -c, \"{LOOP}\"]\n",
-     lambda c: c["HostConfig"]["Init"] is True),
-])
+@pytest.mark.parametrize(
+    "what, lines, inspect",
+    [
+        # A ROS launch shuts down on SIGINT only; as PID 1 it would sit out Docker's SIGTERM for 10 s.
+        (
+            "a SIGINT-only payload under ros_preset",
+            f"      ros_preset: ros2\n      payload_command: [/bin/sh, -c, \"trap 'exit 0' INT; {LOOP}\"]\n",
+            lambda c: c["Config"]["StopSignal"] == "SIGINT",
+        ),
+        # A shell entrypoint without a trap ignores every signal as PID 1; under an init it does not.
+        (
+            "a shell with no trap under payload_init",
+            f"      payload_init: true\n      payload_stop_grace_period: 5\n"
+            f'      payload_command: [/bin/sh, -c, "{LOOP}"]\n',
+            lambda c: c["HostConfig"]["Init"] is True,
+        ),
+    ],
+)
 def test_an_update_stops_the_old_payload_by_its_own_signal(lab, fleet_on, what, lines, inspect):
     """issue 29 item 5: the old release's stop inside an update is under a
     second, not Docker's 10 s default and a kill."""
     try:
-        setup = lab.provision("--limit", "robot1",
-                              fleet=fleet_on("1.0", {ROBOT1: f"    robot1:\n{lines}      udev_sensors:"}),
-                              label=f"(robot1: {what})")
+        setup = lab.provision(
+            "--limit",
+            "robot1",
+            fleet=fleet_on("1.0", {ROBOT1: f"    robot1:\n{lines}      udev_sensors:"}),
+            label=f"(robot1: {what})",
+        )
         assert setup.returncode == 0, setup.output[-3000:]
         assert inspect(lab.payload("robot1")), lab.payload("robot1")["Config"]
         since = lab.ok("robot1", "date +%s.%N").strip()
-        run = lab.provision("--limit", "robot1",
-                            fleet=fleet_on("1.1", {ROBOT1: f"    robot1:\n{lines}      udev_sensors:"}),
-                            label=f"(robot1 to 1.1: {what})")
+        run = lab.provision(
+            "--limit",
+            "robot1",
+            fleet=fleet_on("1.1", {ROBOT1: f"    robot1:\n{lines}      udev_sensors:"}),
+            label=f"(robot1 to 1.1: {what})",
+        )
         assert run.returncode == 0, run.output[-3000:]
         assert lab.version("robot1") == "1.1" and inspect(lab.payload("robot1"))
         stop = old_payload_stop(lab, "robot1", since)

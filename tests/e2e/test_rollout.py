@@ -21,8 +21,10 @@ pytestmark = pytest.mark.e2e
 
 ALL_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 # Short health windows keep this module fast; the tags are all that differ.
-FAST = {"payload_health_timeout: 60": "payload_health_timeout: 20",
-        "payload_stable_seconds: 5": "payload_stable_seconds: 2"}
+FAST = {
+    "payload_health_timeout: 60": "payload_health_timeout: 20",
+    "payload_stable_seconds: 5": "payload_stable_seconds: 2",
+}
 
 
 @pytest.fixture(scope="module")
@@ -30,20 +32,29 @@ def rollout(lab, first_run, tmp_path_factory):
     states = tmp_path_factory.mktemp("rollout-state")
 
     def fleet(tag: str):
-        return lab.fleet_with(tmp_path_factory.mktemp("fleet"), **FAST,
-                              **{ALL_TAG: f'payload_image: "@registry@/ros/payload:{tag}"'})
+        return lab.fleet_with(
+            tmp_path_factory.mktemp("fleet"), **FAST, **{ALL_TAG: f'payload_image: "@registry@/ros/payload:{tag}"'}
+        )
 
     def run(tag, *args: str):
         """A rollout to ``tag`` of the lab fleet, or of the fleet file ``tag`` names (a Path)."""
         import time
 
-        env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix,
-                   ROBOT_LAB_FLEET=str(tag if isinstance(tag, Path) else fleet(tag)),
-                   ROBOT_ROLLOUT_DIR=str(states), PYINFRA_PROGRESS="off")
+        env = dict(
+            os.environ,
+            ROBOT_LAB_PREFIX=lab.prefix,
+            ROBOT_LAB_FLEET=str(tag if isinstance(tag, Path) else fleet(tag)),
+            ROBOT_ROLLOUT_DIR=str(states),
+            PYINFRA_PROGRESS="off",
+        )
         started = time.monotonic()
         proc = subprocess.run(
             [sys.executable, "-m", "robotfleet", "rollout", "inventories/lab.py", "--limit", "robots", "-y", *args],
-            cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
         )
         phase(f"rollout to {tag} {' '.join(args)} (exit {proc.returncode})", started)
         return proc.returncode, proc.stdout + proc.stderr
@@ -51,8 +62,11 @@ def rollout(lab, first_run, tmp_path_factory):
     def status():
         proc = subprocess.run(
             [sys.executable, "-m", "robotfleet", "status", "inventories/lab.py", "--limit", "robots", "--json"],
-            cwd=ROOT, env=dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_ROLLOUT_DIR=str(states)),
-            capture_output=True, text=True, timeout=120,
+            cwd=ROOT,
+            env=dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_ROLLOUT_DIR=str(states)),
+            capture_output=True,
+            text=True,
+            timeout=120,
         )
         return {row["host"]: row for row in json.loads(proc.stdout)}
 
@@ -122,8 +136,11 @@ def test_a_rollout_of_robots_with_several_services_completes(lab, rollout, tmp_p
     from tests.e2e.test_services import two_services
 
     def fleet(driver: str) -> Path:
-        return lab.fleet_with(tmp_path_factory.mktemp("services"), **FAST,
-                              **{f"    {ALL_TAG}\n": two_services(payload="1.1", driver=driver)})
+        return lab.fleet_with(
+            tmp_path_factory.mktemp("services"),
+            **FAST,
+            **{f"    {ALL_TAG}\n": two_services(payload="1.1", driver=driver)},
+        )
 
     setup = lab.provision("--limit", "robots", fleet=fleet("1.0"), label="(robots with two services)")
     assert setup.returncode == 0, setup.output[-3000:]
@@ -132,8 +149,9 @@ def test_a_rollout_of_robots_with_several_services_completes(lab, rollout, tmp_p
         assert code == 0, output[-3000:]
         assert waves_run(output) == ["robot1", "robot2, robot3"]
         for host, row in rollout.status().items():
-            assert row["image_refs"] == sorted([f"{lab.state['registry']}/ros/driver:1.1",
-                                                f"{lab.state['registry']}/ros/payload:1.1"]), (host, row)
+            assert row["image_refs"] == sorted(
+                [f"{lab.state['registry']}/ros/driver:1.1", f"{lab.state['registry']}/ros/payload:1.1"]
+            ), (host, row)
             assert row["state"] == "driver:running, payload:running"
     finally:
         back = lab.provision("--limit", "robots", fleet=rollout.fleet("1.1"), label="(robots back to one service)")

@@ -12,12 +12,13 @@ pytestmark = pytest.mark.e2e
 
 def test_apt_key_fingerprint_mismatch_fails_the_host_and_keeps_the_trusted_key(lab, first_run):
     before = lab.ok("robot1", "sha256sum /etc/apt/keyrings/docker.asc")
-    run = lab.provision("--limit", "robot1", "--data", "docker_apt_key_fingerprint=" + "DEAD" * 10,
-                        label="(wrong key pin)")
+    run = lab.provision(
+        "--limit", "robot1", "--data", "docker_apt_key_fingerprint=" + "DEAD" * 10, label="(wrong key pin)"
+    )
     assert run.returncode != 0  # the only host of the run failed: pyinfra says "No hosts remaining!"
     assert f"does not match docker_apt_key_fingerprint {'DEAD' * 10}; key not installed" in run.output
     assert lab.ok("robot1", "sha256sum /etc/apt/keyrings/docker.asc") == before
-    assert lab.ok("robot1", "ls -A /etc/apt/keyrings") .split() == ["docker.asc"]  # no temp file left
+    assert lab.ok("robot1", "ls -A /etc/apt/keyrings").split() == ["docker.asc"]  # no temp file left
 
 
 def test_registry_credentials_are_used_but_never_printed(lab, first_run):

@@ -25,9 +25,9 @@ def two_services(payload: str = "1.1", driver: str = "1.0", driver_extra: str = 
         "    payload_image: null\n"
         "    payload_services:\n"
         f'      payload: {{image: "@registry@/ros/payload:{payload}", ipc: host, cap_add: [NET_ADMIN], '
-        'stop_grace_period: 3s}\n'
+        "stop_grace_period: 3s}\n"
         f'      driver: {{image: "@registry@/ros/driver:{driver}", devices: [], tty: true, stop_grace_period: '
-        f'3s{driver_extra}}}\n'
+        f"3s{driver_extra}}}\n"
     )
 
 
@@ -48,11 +48,12 @@ def running_payloads(lab, host: str) -> list[str]:
     return sorted(line.split()[0] for line in lines if "/ros/payload" in line)
 
 
-
 def failed_alone(run, host: str) -> bool:
     """The one host of a --limit run failed (pyinfra then prints no JSON results)."""
-    return run.returncode != 0 and (run.failed_hosts == {host} or (
-        run.results is None and "No hosts remaining" in run.output and f"[{host}]  Error" in run.output))
+    return run.returncode != 0 and (
+        run.failed_hosts == {host}
+        or (run.results is None and "No hosts remaining" in run.output and f"[{host}]  Error" in run.output)
+    )
 
 
 def limits(*hosts: str) -> list[str]:
@@ -63,6 +64,7 @@ def limits(*hosts: str) -> list[str]:
 def fleet(lab, first_run, tmp_path_factory):
     def make(all_vars: str, **more: str):
         return lab.fleet_with(tmp_path_factory.mktemp("fleet"), **{ALL_TAG: all_vars, **more})
+
     return make
 
 
@@ -82,15 +84,23 @@ def test_two_service_payload_deploys(lab, fleet):
         for image in record["images"].values():
             assert "@sha256:" in image["pinned"]
         assert {ref.rsplit("/", 2)[-2] + "/" + ref.rsplit("/", 1)[-1] for ref in record["images"]} == {
-            "ros/payload:1.1", "ros/driver:1.0"}
+            "ros/payload:1.1",
+            "ros/driver:1.0",
+        }
     # The sensors go to the service that asked for devices.
     devices = [d["PathOnHost"] for d in services_of(lab, "robot1")["driver"]["HostConfig"]["Devices"]]
     assert sorted(devices) == ["/dev/robot/back_camera", "/dev/robot/front_camera", "/dev/robot/lidar"]
     assert not services_of(lab, "robot1")["payload"]["HostConfig"]["Devices"]
-    status = json.loads(lab.ok("robot1", "python3 /usr/local/lib/robot-payload/payloadctl status "
-                                         "--dir /var/lib/robot-payload --name robot-payload"))
+    status = json.loads(
+        lab.ok(
+            "robot1",
+            "python3 /usr/local/lib/robot-payload/payloadctl status --dir /var/lib/robot-payload --name robot-payload",
+        )
+    )
     assert {k: (v["state"], v["health"]) for k, v in status["services"].items()} == {
-        "payload": ("running", "healthy"), "driver": ("running", None)}
+        "payload": ("running", "healthy"),
+        "driver": ("running", None),
+    }
     # The laptop has the same project staged for development.
     staged = json.loads(lab.ok("laptop1", "sed 1d /var/lib/robot-payload/current/compose.yaml"))
     assert set(staged["services"]) == {"payload", "driver"}
@@ -100,8 +110,11 @@ def test_two_service_payload_deploys(lab, fleet):
 def test_one_service_s_new_tag_leaves_the_other_running(lab, fleet):
     before = services_of(lab, "robot1")
     robot1_driver = '    robot1:\n      payload_services: {driver: {image: "@registry@/ros/driver:1.1"}}\n'
-    run = lab.provision(*limits("robot1", "robot2"), fleet=fleet(two_services(), **{"    robot1:\n": robot1_driver}),
-                        label="(robot1 driver 1.1)")
+    run = lab.provision(
+        *limits("robot1", "robot2"),
+        fleet=fleet(two_services(), **{"    robot1:\n": robot1_driver}),
+        label="(robot1 driver 1.1)",
+    )
     assert run.returncode == 0, run.output[-4000:]
     assert run.changed_hosts == {"robot1"}  # robot2 converged: nothing sent but the snapshot
     after = services_of(lab, "robot1")
@@ -112,8 +125,11 @@ def test_one_service_s_new_tag_leaves_the_other_running(lab, fleet):
 
 def test_a_failing_service_rolls_the_whole_project_back(lab, fleet):
     before = lab.record("robot1")["id"]
-    run = lab.provision(*limits("robot1"), fleet=fleet(two_services(payload="1.2-broken", driver="1.0")),
-                        label="(robot1 payload broken, driver 1.0)")
+    run = lab.provision(
+        *limits("robot1"),
+        fleet=fleet(two_services(payload="1.2-broken", driver="1.0")),
+        label="(robot1 payload broken, driver 1.0)",
+    )
     assert failed_alone(run, "robot1"), run.output[-3000:]
     line = next(x for x in run.output.splitlines() if "[robot1]" in x and "payload: release" in x)
     assert "unhealthy" in line and f"rolled back to {before} and it is running" in line
@@ -129,8 +145,11 @@ def test_compose_config_refusal_on_the_robot_fails_before_anything_switches(lab,
     releases = lab.ok("robot1", "ls /var/lib/robot-payload/releases")
     # Valid for the Compose Specification; only the robot knows the file is missing.
     missing = ", env_file: [/etc/robot-payload-missing.env]"
-    run = lab.provision(*limits("robot1"), fleet=fleet(two_services(driver="1.0", driver_extra=missing)),
-                        label="(robot1 env_file missing)")
+    run = lab.provision(
+        *limits("robot1"),
+        fleet=fleet(two_services(driver="1.0", driver_extra=missing)),
+        label="(robot1 env_file missing)",
+    )
     assert failed_alone(run, "robot1"), run.output[-3000:]
     assert "docker compose config refused the release (nothing switched)" in run.output
     assert "robot-payload-missing.env" in run.output
@@ -156,8 +175,10 @@ def test_push_delivery_sends_every_image_of_the_project(lab, fleet):
     run = lab.provision(*limits("robot1"), fleet=fleet(offline), label="(robot1 two images by push)")
     assert run.returncode == 0, run.output[-3000:]
     sent = lab.ok("robot1", "cat /var/lib/robot-payload/push.log").splitlines()
-    assert sorted(line.split()[1] for line in sent) == ["offline.invalid/ros/driver:1.1",
-                                                        "offline.invalid/ros/payload:1.1"]
+    assert sorted(line.split()[1] for line in sent) == [
+        "offline.invalid/ros/driver:1.1",
+        "offline.invalid/ros/payload:1.1",
+    ]
     running = services_of(lab, "robot1")
     assert version(running["payload"]) == "1.1" and version(running["driver"]) == "driver-1.1"
     again = lab.provision(*limits("robot1"), fleet=fleet(offline), label="(robot1 by push, again)")
@@ -177,16 +198,23 @@ services:
 
 def set_up_another_way(lab, host: str, how: str) -> None:
     """Our payload gone (as on a robot we never provisioned), theirs running."""
-    lab.ok(host, "systemctl disable --now robot-payload.service && rm -f /etc/systemd/system/robot-payload.service"
-                 " && systemctl daemon-reload && rm -rf /var/lib/robot-payload")
+    lab.ok(
+        host,
+        "systemctl disable --now robot-payload.service && rm -f /etc/systemd/system/robot-payload.service"
+        " && systemctl daemon-reload && rm -rf /var/lib/robot-payload",
+    )
     lab.ok(host, "docker rm -f ros_payload ros_payload_copy >/dev/null 2>&1; true")  # a rerun on a kept lab
     registry = lab.state["registry"]
     if how == "docker run":
         lab.ok(host, f"docker run -d --restart always --name ros_payload {registry}/ros/payload:1.0")
     else:
-        lab.ok(host, "mkdir -p /opt/rosapp && cat > /opt/rosapp/compose.yaml <<'EOF'\n"
-                     + FOREIGN_COMPOSE.format(registry=registry) + "EOF\n"
-                     "docker compose -p rosapp -f /opt/rosapp/compose.yaml up -d")
+        lab.ok(
+            host,
+            "mkdir -p /opt/rosapp && cat > /opt/rosapp/compose.yaml <<'EOF'\n"
+            + FOREIGN_COMPOSE.format(registry=registry)
+            + "EOF\n"
+            "docker compose -p rosapp -f /opt/rosapp/compose.yaml up -d",
+        )
     assert running_payloads(lab, host) == ["ros_payload"]
 
 
@@ -200,8 +228,11 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     set_up_another_way(lab, "robot2", "compose")
 
     # A first release that fails gives the robot back as it was.
-    failed = lab.provision(*limits("robot3"), fleet=fleet('    payload_image: "@registry@/ros/payload:1.2-broken"\n'),
-                           label="(robot3 first release broken)")
+    failed = lab.provision(
+        *limits("robot3"),
+        fleet=fleet('    payload_image: "@registry@/ros/payload:1.2-broken"\n'),
+        label="(robot3 first release broken)",
+    )
     assert failed_alone(failed, "robot3"), failed.output[-3000:]
     assert "taking over what runs the payload another way" in failed.output and "ros_payload" in failed.output
     assert "restored what it had taken over: ros_payload" in failed.output
@@ -209,14 +240,21 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     assert running_payloads(lab, "robot3") == ["ros_payload"]
 
     # robot2's old setup was a compose project: taken over only because payload_replaces names it (issue 27.2).
-    good = fleet('    payload_image: "@registry@/ros/payload:1.1"\n', **{
-        "    robot2:\n      udev_sensors:":
-            '    robot2:\n      payload_replaces: ["project:rosapp"]\n      udev_sensors:'})
+    good = fleet(
+        '    payload_image: "@registry@/ros/payload:1.1"\n',
+        **{
+            "    robot2:\n      udev_sensors:": (
+                '    robot2:\n      payload_replaces: ["project:rosapp"]\n      udev_sensors:'
+            ),
+        },
+    )
     run = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover robot2, robot3)")
     assert run.returncode == 0, run.output[-4000:]
-    assert ("[robot3] payload: taking over what runs the payload another way (stopped, restart policy no): "
-            f"ros_payload ({lab.state['registry']}/ros/payload:1.0, running, restart always: "
-            "it runs the payload's image)") in run.output
+    assert (
+        "[robot3] payload: taking over what runs the payload another way (stopped, restart policy no): "
+        f"ros_payload ({lab.state['registry']}/ros/payload:1.0, running, restart always: "
+        "it runs the payload's image)"
+    ) in run.output
     assert "ros_payload (compose project rosapp, " in run.output
     for host in ("robot2", "robot3"):
         assert f"[{host}] payload: taking over what runs the payload another way" in run.output
@@ -226,12 +264,16 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
         assert [(c["name"], c["restart"], c["running"]) for c in taken] == [("ros_payload", "always", True)]
     assert lab.record("robot2")["taken_over"][0]["project"] == "rosapp"
     assert lab.record("robot2")["taken_over"][0]["why"] == "payload_replaces names its compose project"
-    assert ("[robot3] payload: stopped ros_payload (" + lab.state["registry"] + "/ros/payload:1.0): "
-            "it runs the payload's image") in run.output  # what payloadctl stopped, from its result
+    assert (
+        "[robot3] payload: stopped ros_payload (" + lab.state["registry"] + "/ros/payload:1.0): "
+        "it runs the payload's image"
+    ) in run.output  # what payloadctl stopped, from its result
     # A rerun changes nothing on robot2; on robot3 a copy started by hand
     # since then (the project already running there) is taken over too.
-    lab.ok("robot3",
-           f"docker run -d --restart unless-stopped --name ros_payload_copy {lab.state['registry']}/ros/payload:1.0")
+    lab.ok(
+        "robot3",
+        f"docker run -d --restart unless-stopped --name ros_payload_copy {lab.state['registry']}/ros/payload:1.0",
+    )
     rerun = lab.provision(*limits("robot2", "robot3"), fleet=good, label="(takeover rerun, robot3 copy)")
     assert rerun.returncode == 0 and rerun.changed_hosts == {"robot3"}, rerun.output[-3000:]
     assert "[robot3] payload: taking over what runs the payload another way" in rerun.output
@@ -243,17 +285,26 @@ def test_takeover_of_robots_set_up_another_way(lab, fleet):
     for host in ("robot2", "robot3"):
         lab.ok(host, "systemctl restart docker")
     for host in ("robot2", "robot3"):
-        wait_for(lambda: running_payloads(lab, host) == [f"{PROJECT}-payload-1"], 60,
-                 f"{host}'s payload after a Docker restart")
+        wait_for(
+            lambda: running_payloads(lab, host) == [f"{PROJECT}-payload-1"],
+            60,
+            f"{host}'s payload after a Docker restart",
+        )
         time.sleep(3)
         assert running_payloads(lab, host) == [f"{PROJECT}-payload-1"]
 
     # A reboot: the unit brings ours back, nothing brings theirs back.
     subprocess.run(["docker", "restart", "-t", "30", f"{lab.prefix}-robot3"], check=True, capture_output=True)
-    wait_for(lambda: lab.sh("robot3", "systemctl is-active robot-payload")[1].strip() == "active", 120,
-             "robot-payload.service at boot")
-    wait_for(lambda: lab.payload("robot3")["State"].get("Health", {}).get("Status") == "healthy", 60,
-             "robot3's payload healthy after the reboot")
+    wait_for(
+        lambda: lab.sh("robot3", "systemctl is-active robot-payload")[1].strip() == "active",
+        120,
+        "robot-payload.service at boot",
+    )
+    wait_for(
+        lambda: lab.payload("robot3")["State"].get("Health", {}).get("Status") == "healthy",
+        60,
+        "robot3's payload healthy after the reboot",
+    )
     assert running_payloads(lab, "robot3") == [f"{PROJECT}-payload-1"]
     assert foreign_state(lab, "robot3") == ("exited", "no")
     assert foreign_state(lab, "robot3", "ros_payload_copy") == ("exited", "no")
@@ -281,17 +332,27 @@ def test_another_compose_project_of_the_payload_image_is_never_taken_over(lab, f
     robot1: the first release, an update and a rollback never stop it nor
     touch its restart policy (issue 27, item 2: an update used to)."""
     host = "robot1"
-    lab.ok(host, "systemctl disable --now robot-payload.service && rm -f /etc/systemd/system/robot-payload.service"
-                 " && systemctl daemon-reload && rm -rf /var/lib/robot-payload")
+    lab.ok(
+        host,
+        "systemctl disable --now robot-payload.service && rm -f /etc/systemd/system/robot-payload.service"
+        " && systemctl daemon-reload && rm -rf /var/lib/robot-payload",
+    )
     lab.ok(host, "docker ps -aq --filter label=com.docker.compose.project=robot-payload | xargs -r docker rm -f")
-    lab.ok(host, "mkdir -p /opt/homeauto && cat > /opt/homeauto/compose.yaml <<'EOF'\n"
-                 + HOMEAUTO_COMPOSE.format(registry=lab.state["registry"]) + "EOF\n"
-                 "docker compose -p homeauto -f /opt/homeauto/compose.yaml up -d")
+    lab.ok(
+        host,
+        "mkdir -p /opt/homeauto && cat > /opt/homeauto/compose.yaml <<'EOF'\n"
+        + HOMEAUTO_COMPOSE.format(registry=lab.state["registry"])
+        + "EOF\n"
+        "docker compose -p homeauto -f /opt/homeauto/compose.yaml up -d",
+    )
     try:
         assert homeauto(lab, host) == ("running", "always")
         for label, tag in (("first release", "1.0"), ("update", "1.1")):
-            run = lab.provision(*limits(host), fleet=fleet(f'    payload_image: "@registry@/ros/payload:{tag}"\n'),
-                                label=f"({host} {label} beside homeauto)")
+            run = lab.provision(
+                *limits(host),
+                fleet=fleet(f'    payload_image: "@registry@/ros/payload:{tag}"\n'),
+                label=f"({host} {label} beside homeauto)",
+            )
             assert run.returncode == 0, run.output[-4000:]
             assert "taking over" not in run.output and "homeauto" not in run.output, run.output[-3000:]
             assert homeauto(lab, host) == ("running", "always"), label

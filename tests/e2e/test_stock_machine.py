@@ -24,14 +24,30 @@ SMOKE = ["tests/unit/test_validation.py", "tests/unit/test_rendering.py"]
 # The host's trust store: where HTTPS to PyPI goes through an inspecting
 # proxy, the machine's own pip trusts it through this bundle.
 CA_BUNDLE = "/etc/ssl/certs/ca-certificates.crt"
-PASSED_ENV = ("http_proxy", "https_proxy", "no_proxy", "HTTP_PROXY", "HTTPS_PROXY", "NO_PROXY",
-              "PIP_INDEX_URL", "PIP_EXTRA_INDEX_URL")
+PASSED_ENV = (
+    "http_proxy",
+    "https_proxy",
+    "no_proxy",
+    "HTTP_PROXY",
+    "HTTPS_PROXY",
+    "NO_PROXY",
+    "PIP_INDEX_URL",
+    "PIP_EXTRA_INDEX_URL",
+)
 
 
 def checkout_tar() -> bytes:
     """The files of this checkout that git would see (tracked or not ignored)."""
-    names = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-                           cwd=ROOT, check=True, capture_output=True).stdout.decode().split("\0")
+    names = (
+        subprocess.run(
+            ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            check=True,
+            capture_output=True,
+        )
+        .stdout.decode()
+        .split("\0")
+    )
     buffer = io.BytesIO()
     with tarfile.open(fileobj=buffer, mode="w") as tar:
         for name in filter(None, names):

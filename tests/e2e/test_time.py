@@ -55,20 +55,21 @@ def network(lab) -> tuple[str, str]:
 def time_fleet(lab, tmp_path, subnet: str, stratum: int = 10):
     """inventories/lab.yaml with robot1 serving the lab network and the other
     hosts following it by its container name (Docker's DNS on the network)."""
-    return lab.fleet_with(tmp_path, **{
-        "    payload_device_wait: 10\n": (
-            "    payload_device_wait: 10\n"
-            f"    time_servers: [{lab.prefix}-robot1]\n"
-            "    time_set_clock: false\n"
-        ),
-        "    robot1:\n": (
-            "    robot1:\n"
-            "      time_servers: []\n"
-            "      time_serve: true\n"
-            f"      time_allow: [\"{subnet}\"]\n"
-            f"      time_local_stratum: {stratum}\n"
-        ),
-    })
+    return lab.fleet_with(
+        tmp_path,
+        **{
+            "    payload_device_wait: 10\n": (
+                f"    payload_device_wait: 10\n    time_servers: [{lab.prefix}-robot1]\n    time_set_clock: false\n"
+            ),
+            "    robot1:\n": (
+                "    robot1:\n"
+                "      time_servers: []\n"
+                "      time_serve: true\n"
+                f'      time_allow: ["{subnet}"]\n'
+                f"      time_local_stratum: {stratum}\n"
+            ),
+        },
+    )
 
 
 def tracked_source(lab, host: str) -> str | None:
@@ -80,8 +81,11 @@ def tracked_source(lab, host: str) -> str | None:
 
 
 def tracking(lab, host: str) -> dict[str, str]:
-    return dict(re.split(r"\s*:\s*", line, maxsplit=1) for line in lab.ok(host, "chronyc -n tracking").splitlines()
-                if ":" in line)
+    return dict(
+        re.split(r"\s*:\s*", line, maxsplit=1)
+        for line in lab.ok(host, "chronyc -n tracking").splitlines()
+        if ":" in line
+    )
 
 
 @pytest.fixture(scope="module")
@@ -95,14 +99,25 @@ def served(lab, first_run, tmp_path_factory):
     assert run.returncode == 0, run.output[-6000:]
     yield {"fleet": fleet, "run": run, "subnet": subnet, "address": address}
     for host in lab.hosts:
-        lab.ok(host, "systemctl disable --now chrony.service && "
-                     "DEBIAN_FRONTEND=noninteractive apt-get purge -y -q chrony && "
-                     f"rm -rf {os.path.dirname(plan.DROP_IN)} && systemctl daemon-reload")
+        lab.ok(
+            host,
+            "systemctl disable --now chrony.service && "
+            "DEBIAN_FRONTEND=noninteractive apt-get purge -y -q chrony && "
+            f"rm -rf {os.path.dirname(plan.DROP_IN)} && systemctl daemon-reload",
+        )
 
 
-TIME_STEPS = [f"Time (chrony) | {name}" for name in (
-    "Install chrony", "Write /etc/chrony/chrony.conf", "chrony never sets the clock (-x, drop-in)",
-    "Reload systemd units", "Restart chrony with the new configuration", "chrony enabled and running")]
+TIME_STEPS = [
+    f"Time (chrony) | {name}"
+    for name in (
+        "Install chrony",
+        "Write /etc/chrony/chrony.conf",
+        "chrony never sets the clock (-x, drop-in)",
+        "Reload systemd units",
+        "Restart chrony with the new configuration",
+        "chrony enabled and running",
+    )
+]
 
 
 def test_every_host_got_chrony_in_the_time_role_s_steps(lab, served):
@@ -130,8 +145,14 @@ def test_robot1_serves_the_lab_network_from_its_own_clock(lab, served):
     assert state["Reference ID"].startswith(LOCAL_REFERENCE) and state["Stratum"] == "10", state
     conf = lab.ok("robot1", f"cat {plan.CONF}")
     assert f"allow {served['subnet']}\n" in conf and "local stratum 10\n" in conf and "\nserver " not in conf
-    wait_for(lambda: int(re.search(r"NTP packets received\s*:\s*(\d+)", lab.ok("robot1", "chronyc serverstats"))[1])
-             >= len(CLIENTS), 30, "robot1 to answer its clients")
+    wait_for(
+        lambda: (
+            int(re.search(r"NTP packets received\s*:\s*(\d+)", lab.ok("robot1", "chronyc serverstats"))[1])
+            >= len(CLIENTS)
+        ),
+        30,
+        "robot1 to answer its clients",
+    )
 
 
 def test_chronyd_runs_without_setting_the_clock(lab, served):
@@ -150,8 +171,9 @@ def test_the_config_check_is_debian_13_chronyds_own(lab, served):
     would never render: chronyd refuses it, naming the line."""
     check = plan.VALIDATE.replace("{}", '"$tmp"')
     lab.ok("robot2", f"tmp={plan.CONF}; {check}")
-    code, output = lab.sh("robot2", "printf 'server x iburst\\nlocal stratum 99\\n' > /root/broken.conf; "
-                                    f"tmp=/root/broken.conf; {check}")
+    code, output = lab.sh(
+        "robot2", f"printf 'server x iburst\\nlocal stratum 99\\n' > /root/broken.conf; tmp=/root/broken.conf; {check}"
+    )
     assert code != 0 and "Could not parse local directive at line 2" in output, output
 
 
@@ -159,8 +181,14 @@ def test_a_rerun_changes_nothing_in_one_ssh_command_per_host(lab, served):
     report = ROOT / ".lab" / lab.prefix / "time-roundtrips.json"
     env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(served["fleet"]), PYINFRA_PROGRESS="off")
     started = time.monotonic()
-    proc = subprocess.run([sys.executable, "-c", COUNTING_PYINFRA, str(report), "-y", "--json", "inventories/lab.py",
-                           "deploy.py"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(
+        [sys.executable, "-c", COUNTING_PYINFRA, str(report), "-y", "--json", "inventories/lab.py", "deploy.py"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     phase(f"pyinfra deploy.py (time: rerun, counted) (exit {proc.returncode})", started)
     assert proc.returncode == 0, (proc.stderr + proc.stdout)[-4000:]
     results = json.loads(proc.stdout)["results"]
@@ -176,8 +204,10 @@ def test_a_changed_stratum_restarts_robot1_alone_and_the_clients_follow(lab, ser
     changed = lab.provision(fleet=time_fleet(lab, tmp_path, served["subnet"], stratum=8), label="(time: stratum 8)")
     assert changed.returncode == 0, changed.output[-4000:]
     assert changed.changed_hosts == {"robot1"}
-    assert changed.changes("robot1") == ["Time (chrony) | Write /etc/chrony/chrony.conf",
-                                         "Time (chrony) | Restart chrony with the new configuration"]
+    assert changed.changes("robot1") == [
+        "Time (chrony) | Write /etc/chrony/chrony.conf",
+        "Time (chrony) | Restart chrony with the new configuration",
+    ]
     assert lab.ok("robot1", "systemctl show -p MainPID --value chrony.service") != before["robot1"]
     for host in CLIENTS:
         assert lab.ok(host, "systemctl show -p MainPID --value chrony.service") == before[host]

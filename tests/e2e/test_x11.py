@@ -27,11 +27,17 @@ PROBE = f"docker compose -p x11probe -f {COMPOSE} -f /tmp/probe.yaml run --rm --
 @pytest.fixture(scope="module")
 def desktop(lab, first_run):
     laptop = lab.laptops[0]
-    lab.ok(laptop, "DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends xvfb xinit x11-utils "
-                   "x11-xserver-utils")
+    lab.ok(
+        laptop,
+        "DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends xvfb xinit x11-utils "
+        "x11-xserver-utils",
+    )
     lab.ok(laptop, BUILD_PROBE)
-    lab.ok(laptop, "printf '#!/bin/sh\\nexec sleep infinity\\n' > /usr/local/bin/lab-session && chmod 755 "
-                   "/usr/local/bin/lab-session")
+    lab.ok(
+        laptop,
+        "printf '#!/bin/sh\\nexec sleep infinity\\n' > /usr/local/bin/lab-session && chmod 755 "
+        "/usr/local/bin/lab-session",
+    )
     yield laptop
     lab.sh(laptop, "pkill -u alice -f xinit; pkill -u alice Xvfb; true")
 
@@ -40,8 +46,11 @@ def login(lab, laptop: str) -> None:
     """A graphical login of alice: startx runs the X server with a fresh
     cookie and Xsession runs the session hooks, ours included."""
     lab.sh(laptop, "pkill -u alice -f xinit; pkill -u alice Xvfb; rm -f /tmp/.X0-lock; true")
-    lab.ok(laptop, "su - alice -c 'nohup startx /etc/X11/Xsession /usr/local/bin/lab-session -- "
-                   "/usr/bin/Xvfb :0 -screen 0 1024x768x24 > /tmp/startx.log 2>&1 &'")
+    lab.ok(
+        laptop,
+        "su - alice -c 'nohup startx /etc/X11/Xsession /usr/local/bin/lab-session -- "
+        "/usr/bin/Xvfb :0 -screen 0 1024x768x24 > /tmp/startx.log 2>&1 &'",
+    )
     for _ in range(30):
         if lab.sh(laptop, "pgrep -u alice -x sleep")[0] == 0:
             return
@@ -54,11 +63,15 @@ def test_login_writes_a_private_cookie_and_containers_can_use_it(lab, desktop):
     lab.ok(laptop, "rm -f /var/lib/robot-x11/alice/Xauthority")
     login(lab, laptop)
     assert lab.ok(laptop, "stat -c '%a %U' /var/lib/robot-x11/alice /var/lib/robot-x11/alice/Xauthority").split() == [
-        "700", "alice", "600", "alice"]
+        "700",
+        "alice",
+        "600",
+        "alice",
+    ]
     # The cookie's address family is "wild" (ffff), valid from any container host name.
     assert lab.ok(laptop, "xauth -f /var/lib/robot-x11/alice/Xauthority nlist").startswith("ffff")
     output = lab.ok(laptop, f"{PROBE} payload")
-    assert 'name of display:    :0' in output and "X.Org" in output
+    assert "name of display:    :0" in output and "X.Org" in output
 
 
 def test_a_container_without_the_cookie_is_refused(lab, desktop):
@@ -72,7 +85,7 @@ def test_a_new_login_refreshes_the_cookie_for_running_containers(lab, desktop):
     first = lab.ok(desktop, "sha256sum /var/lib/robot-x11/alice/Xauthority")
     login(lab, desktop)  # a new X session: a new cookie
     assert lab.ok(desktop, "sha256sum /var/lib/robot-x11/alice/Xauthority") != first
-    assert 'name of display:    :0' in lab.ok(desktop, f"{PROBE} payload")
+    assert "name of display:    :0" in lab.ok(desktop, f"{PROBE} payload")
 
 
 def test_nobody_opened_the_display_to_everyone(lab, desktop):

@@ -50,8 +50,20 @@ class HostCA:
         """A new ed25519 host key, signed: its certificate's path."""
         private = self.directory / name
         keygen("-t", "ed25519", "-N", "", "-f", str(private))
-        keygen("-s", str(self.path), "-h", "-I", name, "-n", principals, "-V", validity, "-z", str(serial),
-               str(private) + ".pub")
+        keygen(
+            "-s",
+            str(self.path),
+            "-h",
+            "-I",
+            name,
+            "-n",
+            principals,
+            "-V",
+            validity,
+            "-z",
+            str(serial),
+            str(private) + ".pub",
+        )
         return self.directory / f"{name}-cert.pub"
 
 

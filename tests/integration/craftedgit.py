@@ -9,10 +9,24 @@ from pathlib import Path
 
 
 def git(where: Path, *args: str, stdin: bytes | None = None) -> str:
-    return subprocess.run(["git", "-C", str(where), *args], input=stdin, check=True, capture_output=True,
-                          env={"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-                               "GIT_COMMITTER_EMAIL": "t@t", "HOME": str(where), "PATH": "/usr/bin:/bin"}
-                          ).stdout.decode().strip()
+    return (
+        subprocess.run(
+            ["git", "-C", str(where), *args],
+            input=stdin,
+            check=True,
+            capture_output=True,
+            env={
+                "GIT_AUTHOR_NAME": "t",
+                "GIT_AUTHOR_EMAIL": "t@t",
+                "GIT_COMMITTER_NAME": "t",
+                "GIT_COMMITTER_EMAIL": "t@t",
+                "HOME": str(where),
+                "PATH": "/usr/bin:/bin",
+            },
+        )
+        .stdout.decode()
+        .strip()
+    )
 
 
 def workspace(where: Path) -> Path:

@@ -44,8 +44,13 @@ class _GitServer(sshserver._Server):
 
     def _run(self, channel, program: str, path: Path) -> None:
         env = {"PATH": os.environ["PATH"], "HOME": str(self.owner.root), **self.env}
-        process = subprocess.Popen(["git", program.removeprefix("git-"), str(path)], stdin=subprocess.PIPE,
-                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env)
+        process = subprocess.Popen(
+            ["git", program.removeprefix("git-"), str(path)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            env=env,
+        )
 
         def feed():
             while data := channel.recv(65536):
@@ -72,8 +77,9 @@ class GitSSHServer(sshserver.Listener):
 
     def __init__(self, root: Path, client_key: paramiko.PKey):
         self.root, self.sessions, self.commands = Path(root), [], []
-        super().__init__(host_key=paramiko.Ed25519Key.from_private_key_file(_host_key(self.root)),
-                         client_key=client_key)
+        super().__init__(
+            host_key=paramiko.Ed25519Key.from_private_key_file(_host_key(self.root)), client_key=client_key
+        )
 
     def _ssh(self, conn):
         transport = paramiko.Transport(conn)

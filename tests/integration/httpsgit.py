@@ -21,13 +21,55 @@ def make_ca(where: Path, address: str = "127.0.0.1") -> tuple[Path, Path, Path]:
     def openssl(*args: str) -> None:
         subprocess.run(["openssl", *args], check=True, capture_output=True, cwd=where)
 
-    openssl("req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-days", "2",
-            "-subj", "/CN=fleet test CA", "-keyout", "ca.key", "-out", "ca.pem")
-    openssl("req", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes", "-subj", f"/CN={address}",
-            "-keyout", "server.key", "-out", "server.csr")
+    openssl(
+        "req",
+        "-x509",
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:P-256",
+        "-nodes",
+        "-days",
+        "2",
+        "-subj",
+        "/CN=fleet test CA",
+        "-keyout",
+        "ca.key",
+        "-out",
+        "ca.pem",
+    )
+    openssl(
+        "req",
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:P-256",
+        "-nodes",
+        "-subj",
+        f"/CN={address}",
+        "-keyout",
+        "server.key",
+        "-out",
+        "server.csr",
+    )
     (where / "ext").write_text(f"subjectAltName=IP:{address},DNS:localhost\n")
-    openssl("x509", "-req", "-in", "server.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial",
-            "-days", "2", "-extfile", "ext", "-out", "server.pem")
+    openssl(
+        "x509",
+        "-req",
+        "-in",
+        "server.csr",
+        "-CA",
+        "ca.pem",
+        "-CAkey",
+        "ca.key",
+        "-CAcreateserial",
+        "-days",
+        "2",
+        "-extfile",
+        "ext",
+        "-out",
+        "server.pem",
+    )
     return where / "ca.pem", where / "server.pem", where / "server.key"
 
 
@@ -36,8 +78,7 @@ class Server:
     (127.0.0.1 and a free port unless given: an end-to-end test serves the
     lab's robots on its docker network's gateway address)."""
 
-    def __init__(self, root: Path, cert: Path, key: Path, smart: bool = True, host: str = "127.0.0.1",
-                 port: int = 0):
+    def __init__(self, root: Path, cert: Path, key: Path, smart: bool = True, host: str = "127.0.0.1", port: int = 0):
         self.root, self.smart, self.requests, self.host = Path(root), smart, 0, host
         server = self
 
@@ -66,15 +107,24 @@ class Server:
                 path, _, query = self.path.partition("?")
                 length = int(self.headers.get("Content-Length") or 0)
                 body = self.rfile.read(length) if length else b""
-                env = {"PATH": os.environ["PATH"], "GIT_PROJECT_ROOT": str(server.root), "GIT_HTTP_EXPORT_ALL": "1",
-                       "PATH_INFO": path, "QUERY_STRING": query, "REQUEST_METHOD": self.command,
-                       "CONTENT_TYPE": self.headers.get("Content-Type") or "", "CONTENT_LENGTH": str(len(body)),
-                       "REMOTE_ADDR": "127.0.0.1", "REMOTE_USER": "robot"}
+                env = {
+                    "PATH": os.environ["PATH"],
+                    "GIT_PROJECT_ROOT": str(server.root),
+                    "GIT_HTTP_EXPORT_ALL": "1",
+                    "PATH_INFO": path,
+                    "QUERY_STRING": query,
+                    "REQUEST_METHOD": self.command,
+                    "CONTENT_TYPE": self.headers.get("Content-Type") or "",
+                    "CONTENT_LENGTH": str(len(body)),
+                    "REMOTE_ADDR": "127.0.0.1",
+                    "REMOTE_USER": "robot",
+                }
                 for header, name in (("Git-Protocol", "GIT_PROTOCOL"), ("Content-Encoding", "HTTP_CONTENT_ENCODING")):
                     if self.headers.get(header):
                         env[name] = self.headers[header]
-                done = subprocess.run([shutil.which("git") or "git", "http-backend"], input=body, env=env,
-                                      capture_output=True)
+                done = subprocess.run(
+                    [shutil.which("git") or "git", "http-backend"], input=body, env=env, capture_output=True
+                )
                 head, _, content = done.stdout.partition(b"\r\n\r\n")
                 status, headers = 200, []
                 for line in head.decode("latin-1").split("\r\n"):

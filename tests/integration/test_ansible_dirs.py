@@ -22,10 +22,18 @@ from tests.unit.harness import FleetError, load
 IMAGE = "reg.example.com/acme/ros-payload:1.4.2"
 ANSIBLE_INVENTORY = shutil.which("ansible-inventory", path=str(Path(sys.executable).parent))
 # Ansible's names as ours (robotfleet/fleet/connection.py ALIASES)
-OURS = {"ansible_host": "ssh_hostname", "ansible_user": "ssh_user", "ansible_port": "ssh_port",
-        "ansible_private_key_file": "ssh_key"}
-OLDER = {"ansible_ssh_host": "ssh_hostname", "ansible_ssh_user": "ssh_user", "ansible_ssh_port": "ssh_port",
-         "ansible_ssh_private_key_file": "ssh_key"}
+OURS = {
+    "ansible_host": "ssh_hostname",
+    "ansible_user": "ssh_user",
+    "ansible_port": "ssh_port",
+    "ansible_private_key_file": "ssh_key",
+}
+OLDER = {
+    "ansible_ssh_host": "ssh_hostname",
+    "ansible_ssh_user": "ssh_user",
+    "ansible_ssh_port": "ssh_port",
+    "ansible_ssh_private_key_file": "ssh_key",
+}
 
 INI_HOSTS = f"""\
 # the warehouse fleet, as the Ansible team keeps it
@@ -115,14 +123,17 @@ def ours(path: Path) -> dict[str, dict]:
 def ansibles(path: Path) -> dict[str, dict]:
     """Each host's settings as Ansible has them, under our names."""
     assert ANSIBLE_INVENTORY, "ansible-core (the test extra) is not installed"
-    out = subprocess.run([ANSIBLE_INVENTORY, "-i", str(path), "--list"], capture_output=True, text=True, check=True,
-                         env={"PATH": "/usr/bin:/bin", "ANSIBLE_LOCAL_TEMP": str(path.parent / ".ansible"),
-                              "HOME": str(path.parent)})
+    out = subprocess.run(
+        [ANSIBLE_INVENTORY, "-i", str(path), "--list"],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PATH": "/usr/bin:/bin", "ANSIBLE_LOCAL_TEMP": str(path.parent / ".ansible"), "HOME": str(path.parent)},
+    )
     hostvars = json.loads(out.stdout)["_meta"]["hostvars"]
     result = {}
     for host, variables in hostvars.items():
-        data = {OURS.get(k, k): v for k, v in variables.items()
-                if not k.startswith("ansible_") or k in OURS}
+        data = {OURS.get(k, k): v for k, v in variables.items() if not k.startswith("ansible_") or k in OURS}
         for older, setting in OLDER.items():  # the older name wins, wherever it is set
             if older in variables:
                 data[setting] = variables[older]
@@ -157,8 +168,19 @@ def test_the_precedence_is_ansibles(tmp_path):
 
 def test_ranges_ports_and_older_names(tmp_path):
     found = ours(write(tmp_path, {"hosts": INI_HOSTS}))
-    assert sorted(found) == ["alice-laptop", "robot-a", "robot-b", "robot-c", "robot01", "robot02", "robot03",
-                             "robot10", "robot12", "robot14", "robot7"]
+    assert sorted(found) == [
+        "alice-laptop",
+        "robot-a",
+        "robot-b",
+        "robot-c",
+        "robot01",
+        "robot02",
+        "robot03",
+        "robot10",
+        "robot12",
+        "robot14",
+        "robot7",
+    ]
     assert found["robot7"]["ssh_hostname"] == "10.20.1.7"
     assert "ssh_port" not in found["robot7"]  # robot7:2222 is not its first listing: Ansible ignores the port
     assert found["robot7"]["ros_domain_id"] == 70  # the ungrouped line's settings still count
@@ -168,7 +190,7 @@ def test_ranges_ports_and_older_names(tmp_path):
 
 
 def test_an_older_name_overriding_a_newer_one_is_a_note(tmp_path, capfd):
-    fleet = load(write(tmp_path, {"hosts": INI_HOSTS})/ "hosts")
+    fleet = load(write(tmp_path, {"hosts": INI_HOSTS}) / "hosts")
     assert fleet.notes == [
         f"{display(tmp_path / 'hosts')}:2: note: robot7: ansible_ssh_host ('10.20.1.7') wins over ssh_hostname "
         "('10.20.1.70'), as in Ansible",
@@ -194,40 +216,77 @@ def problems(tmp_path: Path, files: dict[str, str], target: str = "") -> list[st
 BASE = f"[all:vars]\npayload_image={IMAGE}\n"
 
 
-@pytest.mark.parametrize("text, line", [
-    ("[robots]\nrobot1 x11_enabled=true\n",
-     "hosts:2: robot1.x11_enabled: expected true or false, got 'true'; INI reads "
-                                        "it as text, as Ansible does: write True or False"),
-    ("[robots]\nrobot1 docker_usres=['ops']\n", "hosts:2: robot1.docker_usres: unknown setting "
-                                                "(did you mean 'docker_users'?)"),
-    ("[robots]\nrobot[3:1]\n", "hosts:2: 'robot[3:1]': host range [3:1] in 'robot[3:1]' must have begin <= end"),
-    ("[robots]\nrobot[01:3]\n", "hosts:2: 'robot[01:3]': host range [01:3] in 'robot[01:3]': a zero-padded begin "
-                                "needs an end of the same width (01:03)"),
-    ("[robots]\nrobot1 \"unclosed\n", "hosts:2: cannot read this host line: No closing quotation (an unclosed quote?)"),
-    ("[robots]\nrobot1 ansible_host\n", "hosts:2: robot1: expected key=value after the host name, got 'ansible_host'"),
-    ("[robots:varz]\n[robots]\nrobot1\n", "hosts:1: [robots:varz]: unknown section type 'varz' (a section is "
-                                          "[group], [group:vars] or [group:children])"),
-    ("[robots]\nrobot1\n[ghost:vars]\nx=1\n", "hosts:3: [ghost:vars] names the group 'ghost', which is declared "
-                                              "nowhere (add a [ghost] or [ghost:children] section)"),
-    ("[robots:children]\nsite\n[robots]\nrobot1\n", "hosts:2: [robots:children] names the group 'site', which is "
-                                                   "declared nowhere (add a [site] or [site:children] section)"),
-    ("[robots]\nrobot1\n[a:children]\nb\n[b:children]\na\n", "hosts:6: [b:children]: a is already above b (the "
-                                                             "groups would form a circle)"),
-    ("[robots]\nrobot1\n[robots:vars]\nros_domain_id\n", "hosts:4: [robots:vars]: expected key=value, got "
-                                                         "'ros_domain_id'"),
-    ("[robots ]\nrobot1\n", "hosts:1: [robots ]: not a section header (no spaces inside the brackets; [group], "
-                            "[group:vars] or [group:children])"),
-    ("[site]\nrobot1\n", "hosts:2: robot1: in neither a robots nor a laptops group (groups: site)"),
-])
+@pytest.mark.parametrize(
+    "text, line",
+    [
+        (
+            "[robots]\nrobot1 x11_enabled=true\n",
+            "hosts:2: robot1.x11_enabled: expected true or false, got 'true'; INI reads "
+            "it as text, as Ansible does: write True or False",
+        ),
+        (
+            "[robots]\nrobot1 docker_usres=['ops']\n",
+            "hosts:2: robot1.docker_usres: unknown setting (did you mean 'docker_users'?)",
+        ),
+        ("[robots]\nrobot[3:1]\n", "hosts:2: 'robot[3:1]': host range [3:1] in 'robot[3:1]' must have begin <= end"),
+        (
+            "[robots]\nrobot[01:3]\n",
+            "hosts:2: 'robot[01:3]': host range [01:3] in 'robot[01:3]': a zero-padded begin "
+            "needs an end of the same width (01:03)",
+        ),
+        (
+            '[robots]\nrobot1 "unclosed\n',
+            "hosts:2: cannot read this host line: No closing quotation (an unclosed quote?)",
+        ),
+        (
+            "[robots]\nrobot1 ansible_host\n",
+            "hosts:2: robot1: expected key=value after the host name, got 'ansible_host'",
+        ),
+        (
+            "[robots:varz]\n[robots]\nrobot1\n",
+            "hosts:1: [robots:varz]: unknown section type 'varz' (a section is "
+            "[group], [group:vars] or [group:children])",
+        ),
+        (
+            "[robots]\nrobot1\n[ghost:vars]\nx=1\n",
+            "hosts:3: [ghost:vars] names the group 'ghost', which is declared "
+            "nowhere (add a [ghost] or [ghost:children] section)",
+        ),
+        (
+            "[robots:children]\nsite\n[robots]\nrobot1\n",
+            "hosts:2: [robots:children] names the group 'site', which is "
+            "declared nowhere (add a [site] or [site:children] section)",
+        ),
+        (
+            "[robots]\nrobot1\n[a:children]\nb\n[b:children]\na\n",
+            "hosts:6: [b:children]: a is already above b (the groups would form a circle)",
+        ),
+        (
+            "[robots]\nrobot1\n[robots:vars]\nros_domain_id\n",
+            "hosts:4: [robots:vars]: expected key=value, got 'ros_domain_id'",
+        ),
+        (
+            "[robots ]\nrobot1\n",
+            "hosts:1: [robots ]: not a section header (no spaces inside the brackets; [group], "
+            "[group:vars] or [group:children])",
+        ),
+        ("[site]\nrobot1\n", "hosts:2: robot1: in neither a robots nor a laptops group (groups: site)"),
+    ],
+)
 def test_ini_mistakes_get_one_line_with_file_and_line(tmp_path, text, line):
     assert line in problems(tmp_path, {"hosts": text + BASE}, "hosts")
 
 
 def test_vars_file_mistakes_name_the_file(tmp_path):
-    assert problems(tmp_path, {"hosts": "[robots]\nrobot1\n" + BASE,
-                               "group_vars/robots.yml": "docker_usres: [ops]\n",
-                               "host_vars/robot1.yml": "- not a mapping\n",
-                               "group_vars/all/secrets.yml": "$ANSIBLE_VAULT;1.1;AES256\n6162\n"}) == [
+    assert problems(
+        tmp_path,
+        {
+            "hosts": "[robots]\nrobot1\n" + BASE,
+            "group_vars/robots.yml": "docker_usres: [ops]\n",
+            "host_vars/robot1.yml": "- not a mapping\n",
+            "group_vars/all/secrets.yml": "$ANSIBLE_VAULT;1.1;AES256\n6162\n",
+        },
+    ) == [
         "group_vars/all/secrets.yml: encrypted with ansible-vault, which robotfleet does not read: decrypt it "
         f"(ansible-vault decrypt {display(tmp_path / 'inv')}/group_vars/all/secrets.yml) or move the fleet's "
         "settings out of it",
@@ -237,12 +296,17 @@ def test_vars_file_mistakes_name_the_file(tmp_path):
 
 
 def test_vars_files_that_are_not_read_are_notes(tmp_path):
-    root = write(tmp_path / "inv", {"hosts": "[robots]\nrobot1\n" + BASE,
-                                    "group_vars/robot.yml": "x: 1\n",
-                                    "group_vars/robots/main.yml": "ros_domain_id: 5\n",
-                                    "group_vars/robots.yml": "ros_domain_id: 6\n",
-                                    "group_vars/robots.yml.orig": "x: 1\n",
-                                    "host_vars/robot2.yml": "x: 1\n"})
+    root = write(
+        tmp_path / "inv",
+        {
+            "hosts": "[robots]\nrobot1\n" + BASE,
+            "group_vars/robot.yml": "x: 1\n",
+            "group_vars/robots/main.yml": "ros_domain_id: 5\n",
+            "group_vars/robots.yml": "ros_domain_id: 6\n",
+            "group_vars/robots.yml.orig": "x: 1\n",
+            "host_vars/robot2.yml": "x: 1\n",
+        },
+    )
     fleet = load(root)
     shown = display(root)
     assert fleet.notes == [
@@ -259,14 +323,23 @@ def test_a_vars_file_not_read_is_noted_with_the_errors_it_explains(tmp_path):
     """group_vars/robot.yml (not read) holds the payload image the robots
     then lack: its note comes with the error, not once every error is fixed
     (issue 39, item 10)."""
-    root = write(tmp_path / "inv", {"hosts": "[robots]\nrobot1 ansible_host=127.0.0.1\n",
-                                    "group_vars/robot.yml": f"payload_image: {IMAGE}\n"})
-    result = subprocess.run([sys.executable, "-m", "robotfleet", "status", "inventories/robots.py"],
-                            cwd=ROOT, capture_output=True, text=True, timeout=60,
-                            env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(root), "HOME": str(tmp_path)})
+    root = write(
+        tmp_path / "inv",
+        {"hosts": "[robots]\nrobot1 ansible_host=127.0.0.1\n", "group_vars/robot.yml": f"payload_image: {IMAGE}\n"},
+    )
+    result = subprocess.run(
+        [sys.executable, "-m", "robotfleet", "status", "inventories/robots.py"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(root), "HOME": str(tmp_path)},
+    )
     lines = result.stderr.splitlines()
-    note = (f"{display(root)}/group_vars/robot.yml: note: no group 'robot' in the inventory (did you mean "
-            "'robots'?); not read")
+    note = (
+        f"{display(root)}/group_vars/robot.yml: note: no group 'robot' in the inventory (did you mean "
+        "'robots'?); not read"
+    )
     assert result.returncode == 2, result.stderr
     assert note in lines and lines[-1] == "1 problem(s) in the fleet file; no host was contacted.", result.stderr
     assert any("robot1" in line and "payload_image" in line for line in lines), result.stderr
@@ -275,61 +348,103 @@ def test_a_vars_file_not_read_is_noted_with_the_errors_it_explains(tmp_path):
     assert error.value.notes == [note]
 
 
-@pytest.mark.parametrize("name, text, line", [
-    ("inventory.sh", "#!/bin/sh\necho '{}'\n", "inventory.sh: a dynamic inventory script: robotfleet reads static "
-     "inventories; write its output to a file: ansible-inventory -i {d}/inventory.sh --list -y > fleet.yaml"),
-    ("aws_ec2.yml", "plugin: amazon.aws.aws_ec2\nregions: [eu-west-1]\n", "aws_ec2.yml: an inventory plugin's "
-     "configuration (plugin: 'amazon.aws.aws_ec2'): robotfleet reads static inventories; write the plugin's "
-     "output to a file: ansible-inventory -i {d}/aws_ec2.yml --list -y > fleet.yaml"),
-    ("hosts.toml", "[robots.hosts]\nrobot1 = {}\n", "hosts.toml: a TOML inventory is not read here: convert it: "
-     "ansible-inventory -i {d}/hosts.toml --list -y > fleet.yaml"),
-])
+@pytest.mark.parametrize(
+    "name, text, line",
+    [
+        (
+            "inventory.sh",
+            "#!/bin/sh\necho '{}'\n",
+            "inventory.sh: a dynamic inventory script: robotfleet reads static "
+            "inventories; write its output to a file: ansible-inventory -i {d}/inventory.sh --list -y > fleet.yaml",
+        ),
+        (
+            "aws_ec2.yml",
+            "plugin: amazon.aws.aws_ec2\nregions: [eu-west-1]\n",
+            "aws_ec2.yml: an inventory plugin's "
+            "configuration (plugin: 'amazon.aws.aws_ec2'): robotfleet reads static inventories; write the plugin's "
+            "output to a file: ansible-inventory -i {d}/aws_ec2.yml --list -y > fleet.yaml",
+        ),
+        (
+            "hosts.toml",
+            "[robots.hosts]\nrobot1 = {}\n",
+            "hosts.toml: a TOML inventory is not read here: convert it: "
+            "ansible-inventory -i {d}/hosts.toml --list -y > fleet.yaml",
+        ),
+    ],
+)
 def test_what_ansible_reads_and_we_cannot_is_refused_saying_what_to_do(tmp_path, name, text, line):
     assert problems(tmp_path, {name: text}) == [line.format(d=display(tmp_path / "inv"))]
 
 
 def test_an_inventory_directory_skips_what_ansible_skips(tmp_path):
-    root = write(tmp_path / "inv",
-                 {"10-hosts": "[robots]\nrobot1\n", "20-more.yaml": "laptops: {hosts: {lap1: {x11_user: a}}}\n",
-                                    "README.md": "# not an inventory [robots]\n", "ansible.cfg": "[defaults]\n",
-                                    ".hidden": "[robots]\nrobot9\n", "old.bak": "[robots]\nrobot8\n",
-                                    "more/group_vars/all.yml": "ros_domain_id: 5\n",
-                                    "group_vars/all.yml": f"payload_image: {IMAGE}\n"})
+    root = write(
+        tmp_path / "inv",
+        {
+            "10-hosts": "[robots]\nrobot1\n",
+            "20-more.yaml": "laptops: {hosts: {lap1: {x11_user: a}}}\n",
+            "README.md": "# not an inventory [robots]\n",
+            "ansible.cfg": "[defaults]\n",
+            ".hidden": "[robots]\nrobot9\n",
+            "old.bak": "[robots]\nrobot8\n",
+            "more/group_vars/all.yml": "ros_domain_id: 5\n",
+            "group_vars/all.yml": f"payload_image: {IMAGE}\n",
+        },
+    )
     fleet = load(root)
     assert [name for name, _ in fleet.hosts("robots")] == ["robot1"]
     assert [name for name, _ in fleet.hosts("laptops")] == ["lap1"]
     assert "ros_domain_id" not in dict(fleet.hosts("robots"))["robot1"]
-    assert fleet.notes == [f"{display(root)}/more/group_vars: note: not read: Ansible reads group_vars/ and "
-                           "host_vars/ at the top of an inventory directory only"]
+    assert fleet.notes == [
+        f"{display(root)}/more/group_vars: note: not read: Ansible reads group_vars/ and "
+        "host_vars/ at the top of an inventory directory only"
+    ]
 
 
-@pytest.mark.parametrize("pattern, names, port", [
-    ("robot[01:03]", ["robot01", "robot02", "robot03"], None),
-    ("robot[a:c]", ["robota", "robotb", "robotc"], None),
-    ("robot[1:10:3]", ["robot1", "robot4", "robot7", "robot10"], None),
-    ("robot[:2]", ["robot0", "robot1", "robot2"], None),
-    ("r[1:2]-[a:b].lan", ["r1-a.lan", "r1-b.lan", "r2-a.lan", "r2-b.lan"], None),
-    ("robot[01:02]:2222", ["robot01", "robot02"], 2222),
-    ("robot7:22", ["robot7"], 22),
-    ("robot7", ["robot7"], None),
-])
+@pytest.mark.parametrize(
+    "pattern, names, port",
+    [
+        ("robot[01:03]", ["robot01", "robot02", "robot03"], None),
+        ("robot[a:c]", ["robota", "robotb", "robotc"], None),
+        ("robot[1:10:3]", ["robot1", "robot4", "robot7", "robot10"], None),
+        ("robot[:2]", ["robot0", "robot1", "robot2"], None),
+        ("r[1:2]-[a:b].lan", ["r1-a.lan", "r1-b.lan", "r2-a.lan", "r2-b.lan"], None),
+        ("robot[01:02]:2222", ["robot01", "robot02"], 2222),
+        ("robot7:22", ["robot7"], 22),
+        ("robot7", ["robot7"], None),
+    ],
+)
 def test_host_patterns_expand_as_ansible_expands_them(pattern, names, port):
     assert hostpattern.expand(pattern) == (names, port)
 
 
-@pytest.mark.parametrize("pattern", ["robot[1:2:0]", "robot[1:2:3:4]", "robot[1:]", "robot[a:5]", "robot[0:999999]",
-                                     "robot[1:3", "robot7:"])
+@pytest.mark.parametrize(
+    "pattern", ["robot[1:2:0]", "robot[1:2:3:4]", "robot[1:]", "robot[a:5]", "robot[0:999999]", "robot[1:3", "robot7:"]
+)
 def test_host_patterns_ansible_refuses_are_refused(pattern):
     with pytest.raises(hostpattern.PatternProblem):
         hostpattern.expand(pattern)
 
 
-@pytest.mark.parametrize("text, value", [
-    ("2222", 2222), ("True", True), ("true", "true"), ("FALSE", "FALSE"), ("['ops', 'ci']", ["ops", "ci"]),
-    ("('a', 'b')", ["a", "b"]), ("'0755'", "0755"), ("0755", "0755"), ("1.10", 1.1), ("10-5", "10-5"),
-    ("None", None), ("ops # a comment", "ops # a comment"), ("23 # a comment", 23), ("{'a': 1}", {"a": 1}),
-    ("[" * 400 + "]" * 400, "[" * 400 + "]" * 400),
-])
+@pytest.mark.parametrize(
+    "text, value",
+    [
+        ("2222", 2222),
+        ("True", True),
+        ("true", "true"),
+        ("FALSE", "FALSE"),
+        ("['ops', 'ci']", ["ops", "ci"]),
+        ("('a', 'b')", ["a", "b"]),
+        ("'0755'", "0755"),
+        ("0755", "0755"),
+        ("1.10", 1.1),
+        ("10-5", "10-5"),
+        ("None", None),
+        ("ops # a comment", "ops # a comment"),
+        ("23 # a comment", 23),
+        ("{'a': 1}", {"a": 1}),
+        ("[" * 400 + "]" * 400, "[" * 400 + "]" * 400),
+    ],
+)
 def test_ini_values_are_typed_as_ansible_types_them(text, value):
     assert ini.value(text) == value
 
@@ -356,4 +471,5 @@ def test_vault_values_are_ignored_in_ansibles_variables_and_refused_in_settings(
     assert problems(tmp_path, files) == [
         "group_vars/robots.yml: robots.x11_user: an ansible-vault value (!vault), which robotfleet "
         "does not decrypt: write the value, or keep it in a secret store",
-        "host_vars/robot1.yml: robot1.docker_users[1]: expected a string, got an ansible-vault value (!vault)"]
+        "host_vars/robot1.yml: robot1.docker_users[1]: expected a string, got an ansible-vault value (!vault)",
+    ]

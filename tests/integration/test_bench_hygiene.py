@@ -10,8 +10,14 @@ from tests.bench import hygiene
 
 def _result(load: float) -> dict:
     figure = lambda seconds: hygiene.Figure([seconds] * 3, [load] * 3).as_dict()  # noqa: E731
-    r = {"robots": 10, "runs": 3, "figures": {"noop": figure(1.5), "floor_exec_true": figure(1.2)},
-         "load_at_start": [load], "load_at_end": [load], "noop_commands_per_host": 1}
+    r = {
+        "robots": 10,
+        "runs": 3,
+        "figures": {"noop": figure(1.5), "floor_exec_true": figure(1.2)},
+        "load_at_start": [load],
+        "load_at_end": [load],
+        "noop_commands_per_host": 1,
+    }
     from tests.bench.fleet import Bench
 
     Bench.ratios(r)

@@ -37,8 +37,14 @@ def dead_fleet(tmp_path, kind: str, count: int = 10, retries: int = 1):
             keep.append(server)
             port = server.port
         hosts[f"robot{index}"] = {"address": "127.0.0.1", "ssh_port": port}
-    path = fleet(tmp_path, hosts, ssh_connect_timeout=TIMEOUT, ssh_connect_retries=retries,
-                 ssh_connect_retry_min_delay=1, ssh_connect_retry_max_delay=1)
+    path = fleet(
+        tmp_path,
+        hosts,
+        ssh_connect_timeout=TIMEOUT,
+        ssh_connect_retries=retries,
+        ssh_connect_retry_min_delay=1,
+        ssh_connect_retry_max_delay=1,
+    )
     return path, keep
 
 
@@ -56,8 +62,16 @@ def timed(tmp_path, kind: str, command: list[str], retries: int = 1):
     return elapsed, result
 
 
-@pytest.mark.parametrize("command, kind", [(["status"], "closed"), (["status"], "silent"), (["status"], "unanswered"),
-                                           (["rollout", "--dry"], "closed"), (["rollout", "--dry"], "unanswered")])
+@pytest.mark.parametrize(
+    "command, kind",
+    [
+        (["status"], "closed"),
+        (["status"], "silent"),
+        (["status"], "unanswered"),
+        (["rollout", "--dry"], "closed"),
+        (["rollout", "--dry"], "unanswered"),
+    ],
+)
 def test_ten_dead_robots_take_one_connect_timeout(tmp_path, command, kind):
     """Against the same command over robots that fail at once (its own
     start-up: Python, deploy.py's roles, the fleet)."""
@@ -73,8 +87,14 @@ def test_a_retry_happens_only_while_the_timeout_leaves_room(tmp_path, monkeypatc
 
     dropping = sshserver.Listener(hang_up=True)
     try:
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": dropping.port}}, ssh_connect_timeout=3,
-                     ssh_connect_retries=5, ssh_connect_retry_min_delay=1, ssh_connect_retry_max_delay=1)
+        path = fleet(
+            tmp_path,
+            {"robot1": {"address": "127.0.0.1", "ssh_port": dropping.port}},
+            ssh_connect_timeout=3,
+            ssh_connect_retries=5,
+            ssh_connect_retry_min_delay=1,
+            ssh_connect_retry_max_delay=1,
+        )
         started = time.monotonic()
         line = connect(path, monkeypatch)["robot1"]
         elapsed = time.monotonic() - started
@@ -89,15 +109,21 @@ def test_a_dropped_connection_times_out_once(tmp_path, monkeypatch):
 
     server = sshserver.Unanswered()
     try:
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
-                     ssh_connect_timeout=2, ssh_connect_retries=3)
+        path = fleet(
+            tmp_path,
+            {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+            ssh_connect_timeout=2,
+            ssh_connect_retries=3,
+        )
         started = time.monotonic()
         line = connect(path, monkeypatch)["robot1"]
         elapsed = time.monotonic() - started
     finally:
         server.close()
-    assert line == (f"timed out after 2 s connecting to 127.0.0.1:{server.port} (no answer: powered off, "
-                    "wrong address or a firewall)")
+    assert line == (
+        f"timed out after 2 s connecting to 127.0.0.1:{server.port} (no answer: powered off, "
+        "wrong address or a firewall)"
+    )
     assert elapsed < 3, elapsed
 
 
@@ -120,11 +146,15 @@ def test_status_asks_at_most_parallel_hosts_at_once(tmp_path, client_key):
 
     servers = [sshserver.ssh_server(client_key, answer) for _ in range(5)]
     try:
-        path = fleet(tmp_path, {f"robot{i}": {"address": "127.0.0.1", "ssh_port": s.port}
-                                for i, s in enumerate(servers)})
-        (tmp_path / "known_hosts").write_text("".join(
-            f"{hostkeys.entry('127.0.0.1', s.port)} {s.host_key.get_name()} {s.host_key.get_base64()}\n"
-            for s in servers))
+        path = fleet(
+            tmp_path, {f"robot{i}": {"address": "127.0.0.1", "ssh_port": s.port} for i, s in enumerate(servers)}
+        )
+        (tmp_path / "known_hosts").write_text(
+            "".join(
+                f"{hostkeys.entry('127.0.0.1', s.port)} {s.host_key.get_name()} {s.host_key.get_base64()}\n"
+                for s in servers
+            )
+        )
         result = run(path, tmp_path, "-m", "robotfleet", "status", "inventories/robots.py", "--parallel", "2")
         assert result.stderr.count("(5/5)") == 1 and "unreachable" not in result.stderr, result.stderr[-2000:]
         assert most[0] == 2, most[0]

@@ -27,8 +27,9 @@ from tests import doccommands
 from tests.fixtures import PYINFRA, ROOT
 
 COMMANDS = doccommands.all_commands()
-NOT_COPIED = shutil.ignore_patterns(".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache",
-                                    ".rollout", ".robotfleet")
+NOT_COPIED = shutil.ignore_patterns(
+    ".git", ".lab", ".venv", "__pycache__", "*.egg-info", "build", ".pytest_cache", ".rollout", ".robotfleet"
+)
 GENERATED = ("docs/reference/settings.md", "inventories/fleet.schema.json")
 # The host names the docs' commands that run name (--limit, --replace), robots and a
 # laptop; few robots, so that a rollout's waves are few.
@@ -39,8 +40,14 @@ LAPTOPS = {"alice-laptop": {"docker_users": ["alice"], "x11_user": "alice"}}
 
 @lru_cache(maxsize=None)
 def help_of(*argv: str) -> str:
-    result = subprocess.run([sys.executable, *argv, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60,
-                            stdin=subprocess.DEVNULL)
+    result = subprocess.run(
+        [sys.executable, *argv, "--help"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        stdin=subprocess.DEVNULL,
+    )
     assert result.returncode == 0, (argv, result.stderr)
     return result.stdout
 
@@ -88,22 +95,34 @@ class Sandbox:
         self.port = closed_port()
         (base / "known_hosts").write_text("")
         (base / "home").mkdir()
-        self.settings = {"payload_image": "registry.example.com/acme/ros-payload:1.4.2", "ssh_user": "ops",
-                         "ssh_port": self.port, "ssh_known_hosts_file": str(base / "known_hosts"),
-                         "ssh_connect_timeout": 2, "ssh_connect_retries": 0}
+        self.settings = {
+            "payload_image": "registry.example.com/acme/ros-payload:1.4.2",
+            "ssh_user": "ops",
+            "ssh_port": self.port,
+            "ssh_known_hosts_file": str(base / "known_hosts"),
+            "ssh_connect_timeout": 2,
+            "ssh_connect_retries": 0,
+        }
         self.fleet = self.yaml_fleet(base / "fleet.yaml")
         self.yaml_fleet(self.checkout / "inventories" / "robots.yaml")  # named directly: never the example's hosts
         self.runs = 0
 
     def yaml_fleet(self, path: Path) -> Path:
         local = {"address": "127.0.0.1"}
-        path.write_text(yaml12.dump({
-            "all": {"vars": self.settings},
-            "robots": {"hosts": {name: local for name in ROBOTS},
-                       "children": {group: {"hosts": {name: local for name in names}}
-                                    for group, names in NESTED.items()}},
-            "laptops": {"hosts": {name: {**local, **data} for name, data in LAPTOPS.items()}},
-        }))
+        path.write_text(
+            yaml12.dump(
+                {
+                    "all": {"vars": self.settings},
+                    "robots": {
+                        "hosts": {name: local for name in ROBOTS},
+                        "children": {
+                            group: {"hosts": {name: local for name in names}} for group, names in NESTED.items()
+                        },
+                    },
+                    "laptops": {"hosts": {name: {**local, **data} for name, data in LAPTOPS.items()}},
+                }
+            )
+        )
         return path
 
     def ansible_directory(self, path: Path) -> Path:
@@ -120,10 +139,15 @@ class Sandbox:
 
     def env(self, command: doccommands.Command) -> dict[str, str]:
         self.runs += 1
-        env = {"PATH": f"{Path(sys.executable).parent}:/usr/bin:/bin", "HOME": str(self.base / "home"),
-               "ROBOT_FLEET": str(self.fleet), "ROBOTFLEET_KEYS": str(self.base / f"keys{self.runs}"),
-               "ROBOT_ROLLOUT_DIR": str(self.base / "rollouts"), "PYINFRA_PROGRESS": "off",
-               "ROBOTFLEET_RELEASES_CLONE": str(self.base / "releases")}
+        env = {
+            "PATH": f"{Path(sys.executable).parent}:/usr/bin:/bin",
+            "HOME": str(self.base / "home"),
+            "ROBOT_FLEET": str(self.fleet),
+            "ROBOTFLEET_KEYS": str(self.base / f"keys{self.runs}"),
+            "ROBOT_ROLLOUT_DIR": str(self.base / "rollouts"),
+            "PYINFRA_PROGRESS": "off",
+            "ROBOTFLEET_RELEASES_CLONE": str(self.base / "releases"),
+        }
         for key, value in command.env.items():
             if key == "ROBOT_FLEET":
                 self.made(self.checkout / value)
@@ -161,8 +185,15 @@ class Sandbox:
 
     def run(self, command: doccommands.Command) -> subprocess.CompletedProcess:
         env = self.env(command)
-        result = subprocess.run(self.argv(command), cwd=self.checkout, env=env, capture_output=True, text=True,
-                                timeout=180, stdin=subprocess.DEVNULL)
+        result = subprocess.run(
+            self.argv(command),
+            cwd=self.checkout,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=180,
+            stdin=subprocess.DEVNULL,
+        )
         result.env = env
         return result
 
@@ -226,8 +257,13 @@ def test_the_status_table_shown_is_the_one_status_prints(sandbox):
     """README's and docs/reference/status.md's example rows have status's columns."""
     command = doccommands.parse("test", 0, "robotfleet status inventories/robots.py")[0]
     printed = sandbox.run(command).stdout.splitlines()[0]
-    shown = [line for doc in doccommands.documents() for block in doccommands.blocks(doc)
-             for _, line in block.lines if line.startswith("HOST ")]
+    shown = [
+        line
+        for doc in doccommands.documents()
+        for block in doccommands.blocks(doc)
+        for _, line in block.lines
+        if line.startswith("HOST ")
+    ]
     assert len(shown) >= 2
     for line in shown:
         assert table_header(line) == table_header(printed), line

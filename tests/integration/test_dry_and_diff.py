@@ -10,7 +10,6 @@ from tests.fixtures import ROOT
 from tests.unit.harness import ROBOT
 from tests.unit.test_dry_and_diff import DAEMON_JSON
 
-
 CLI = """
 import sys
 from pyinfra_cli.main import main
@@ -24,11 +23,18 @@ with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}
 def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
     host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
     inventory = tmp_path / "fake.py"
-    inventory.write_text(f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', "
-                         f"{host!r})]\n")
+    inventory.write_text(
+        f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', {host!r})]\n"
+    )
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
-    proc = subprocess.run([sys.executable, "-c", CLI, "--dry", str(inventory), "deploy.py"],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", CLI, "--dry", str(inventory), "deploy.py"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     output = proc.stdout + proc.stderr
     assert proc.returncode == 1, output[-3000:]
     planning = output.split("--> Preparing operation", 1)[1].split("--> Detected changes", 1)[0]
@@ -58,8 +64,14 @@ def test_pyinfra_dry_diff_prints_the_drifted_file(tmp_path):
     host = {**ROBOT, "fake_delay": 0, "fake_delay_jitter": 0}
     inventory.write_text(f"robots = [('@fake/r1', {host!r})]\n")
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
-    proc = subprocess.run([sys.executable, "-c", DIFF_CLI, "--dry", "--diff", str(inventory), "deploy.py"],
-                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", DIFF_CLI, "--dry", "--diff", str(inventory), "deploy.py"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     output = proc.stdout + proc.stderr
     assert proc.returncode == 0, output[-3000:]
     assert f"[@fake/r1] Will modify {DAEMON_JSON}" in output

@@ -34,8 +34,9 @@ def run(path, monkeypatch, capsys, *args) -> tuple[int, list[str]]:
 
 
 def two_robots(tmp_path, servers):
-    return fleet(tmp_path,
-                 {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port} for i, s in enumerate(servers)})
+    return fleet(
+        tmp_path, {f"robot{i + 1}": {"address": "127.0.0.1", "ssh_port": s.port} for i, s in enumerate(servers)}
+    )
 
 
 def line(server, name) -> str:
@@ -48,17 +49,21 @@ def test_from_an_empty_known_hosts_to_a_strict_connection(tmp_path, monkeypatch,
     known_hosts.write_text("")
     code, lines = run(path, monkeypatch, capsys, "--yes")
     assert code == 0, lines
-    assert lines[1:] == [f"{line(servers[0], 'robot1')}: new; enrolled (--yes)",
-                         f"{line(servers[1], 'robot2')}: new; enrolled (--yes)",
-                         f"{known_hosts}: 2 key(s) added", "enroll: 2 enrolled"]
+    assert lines[1:] == [
+        f"{line(servers[0], 'robot1')}: new; enrolled (--yes)",
+        f"{line(servers[1], 'robot2')}: new; enrolled (--yes)",
+        f"{known_hosts}: 2 key(s) added",
+        "enroll: 2 enrolled",
+    ]
     assert connect(path, monkeypatch) == {"robot1": None, "robot2": None}  # strict checking passes
     written = known_hosts.read_text()
     code, lines = run(path, monkeypatch, capsys, "--yes")
     assert code == 0 and lines[-1] == "enroll: 2 known" and known_hosts.read_text() == written
 
 
-def test_a_changed_key_is_refused_with_both_fingerprints_and_the_file_left_alone(tmp_path, monkeypatch, capsys,
-                                                                                 servers):
+def test_a_changed_key_is_refused_with_both_fingerprints_and_the_file_left_alone(
+    tmp_path, monkeypatch, capsys, servers
+):
     path = two_robots(tmp_path, servers)
     old = paramiko.ECDSAKey.generate()
     known_hosts = tmp_path / "known_hosts"
@@ -66,11 +71,13 @@ def test_a_changed_key_is_refused_with_both_fingerprints_and_the_file_left_alone
     before = known_hosts.read_text()
     code, lines = run(path, monkeypatch, capsys, "--yes", "--limit", "robot1")
     assert code == 1
-    assert lines[1] == (f"robot1: host key CHANGED for [127.0.0.1]:{servers[0].port}: {known_hosts} has "
-                        f"ecdsa-sha2-nistp256 {hostkeys.fingerprint(old)}, the host offers ecdsa-sha2-nistp256 "
-                        f"{hostkeys.fingerprint(servers[0].host_key)}; refused, its line is left as it is "
-                        "(if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
-                        "inventories/robots.py --replace robot1 --fingerprints FILE)")
+    assert lines[1] == (
+        f"robot1: host key CHANGED for [127.0.0.1]:{servers[0].port}: {known_hosts} has "
+        f"ecdsa-sha2-nistp256 {hostkeys.fingerprint(old)}, the host offers ecdsa-sha2-nistp256 "
+        f"{hostkeys.fingerprint(servers[0].host_key)}; refused, its line is left as it is "
+        "(if the robot was reinstalled, record its new fingerprint and replace it: robotfleet enroll "
+        "inventories/robots.py --replace robot1 --fingerprints FILE)"
+    )
     assert known_hosts.read_text() == before
 
 
@@ -78,13 +85,17 @@ def test_fingerprints_from_a_file_enroll_or_refuse(tmp_path, monkeypatch, capsys
     path = two_robots(tmp_path, servers)
     recorded = tmp_path / "fingerprints.txt"
     wrong = hostkeys.fingerprint(paramiko.ECDSAKey.generate())
-    recorded.write_text(f"# from the image build\nrobot1 {hostkeys.fingerprint(servers[0].host_key)}\n"
-                        f"127.0.0.1 ecdsa-sha2-nistp256 {wrong}\n")
+    recorded.write_text(
+        f"# from the image build\nrobot1 {hostkeys.fingerprint(servers[0].host_key)}\n"
+        f"127.0.0.1 ecdsa-sha2-nistp256 {wrong}\n"
+    )
     code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(recorded))
     assert code == 1
     assert lines[1] == f"{line(servers[0], 'robot1')}: matches {recorded}; enrolled"
-    assert lines[2] == (f"robot2: fingerprint mismatch for [127.0.0.1]:{servers[1].port}: {recorded} has {wrong}, "
-                        f"the host offers {hostkeys.fingerprint(servers[1].host_key)}; refused")
+    assert lines[2] == (
+        f"robot2: fingerprint mismatch for [127.0.0.1]:{servers[1].port}: {recorded} has {wrong}, "
+        f"the host offers {hostkeys.fingerprint(servers[1].host_key)}; refused"
+    )
     assert hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[0].port}")
     assert not hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
 
@@ -96,10 +107,13 @@ def test_a_host_missing_from_the_fingerprints_file_is_refused_even_with_yes(tmp_
     recorded.write_text(f"robot1 {hostkeys.fingerprint(servers[0].host_key)}\n")
     code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(recorded), "--yes")
     assert code == 1
-    assert lines[1:] == [f"{line(servers[0], 'robot1')}: matches {recorded}; enrolled",
-                         f"{line(servers[1], 'robot2')}: not in {recorded}; refused (a host missing from the "
-                         "fingerprints file is enrolled only with --allow-unlisted)",
-                         f"{tmp_path / 'known_hosts'}: 1 key(s) added", "enroll: 1 enrolled, 1 refused"]
+    assert lines[1:] == [
+        f"{line(servers[0], 'robot1')}: matches {recorded}; enrolled",
+        f"{line(servers[1], 'robot2')}: not in {recorded}; refused (a host missing from the "
+        "fingerprints file is enrolled only with --allow-unlisted)",
+        f"{tmp_path / 'known_hosts'}: 1 key(s) added",
+        "enroll: 1 enrolled, 1 refused",
+    ]
     assert not hostkeys.known(str(tmp_path / "known_hosts"), f"[127.0.0.1]:{servers[1].port}")
     # Asked for by name: the unlisted host is taken as shown (--yes).
     code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(recorded), "--yes", "--allow-unlisted")
@@ -115,9 +129,11 @@ def test_replace_takes_a_reflashed_robots_new_key_only_when_it_matches_the_file(
     entry1, entry2 = f"[127.0.0.1]:{servers[0].port}", f"[127.0.0.1]:{servers[1].port}"
     old = paramiko.ECDSAKey.generate()
     hashed = paramiko.HostKeys.hash_host(entry1)
-    known_hosts.write_text(f"# the fleet\n{hashed} {old.get_name()} {old.get_base64()}\n"
-                           f"{entry2},{entry1} {old.get_name()} {old.get_base64()}\n"
-                           f"@cert-authority *.fleet {old.get_name()} {old.get_base64()}\n")
+    known_hosts.write_text(
+        f"# the fleet\n{hashed} {old.get_name()} {old.get_base64()}\n"
+        f"{entry2},{entry1} {old.get_name()} {old.get_base64()}\n"
+        f"@cert-authority *.fleet {old.get_name()} {old.get_base64()}\n"
+    )
     before = known_hosts.read_text()
     new_print, old_print = hostkeys.fingerprint(servers[0].host_key), hostkeys.fingerprint(old)
     recorded = tmp_path / "fingerprints.txt"
@@ -125,15 +141,19 @@ def test_replace_takes_a_reflashed_robots_new_key_only_when_it_matches_the_file(
     recorded.write_text(f"robot1 {hostkeys.fingerprint(paramiko.ECDSAKey.generate())}\n")
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
     assert code == 1 and known_hosts.read_text() == before
-    assert lines[1].startswith(f"robot1: host key CHANGED for {entry1}: "
-                               f"{known_hosts} has ecdsa-sha2-nistp256 {old_print}")
+    assert lines[1].startswith(
+        f"robot1: host key CHANGED for {entry1}: {known_hosts} has ecdsa-sha2-nistp256 {old_print}"
+    )
     assert lines[1].endswith(": not replaced, its line is left as it is")
 
     recorded.write_text(f"robot1 {new_print}\n")
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--fingerprints", str(recorded))
     assert code == 0, lines
-    assert lines[1:] == [f"robot1 ({entry1}): host key replaced: was ecdsa-sha2-nistp256 {old_print}, now "
-                         f"ecdsa-sha2-nistp256 {new_print} (matches {recorded})", "enroll: 1 replaced"]
+    assert lines[1:] == [
+        f"robot1 ({entry1}): host key replaced: was ecdsa-sha2-nistp256 {old_print}, now "
+        f"ecdsa-sha2-nistp256 {new_print} (matches {recorded})",
+        "enroll: 1 replaced",
+    ]
     text = known_hosts.read_text().splitlines()
     assert text[0] == "# the fleet" and hashed not in "\n".join(text)
     assert text[1] == f"{entry2} {old.get_name()} {old.get_base64()}"  # robot2's name on the shared line stays
@@ -145,8 +165,10 @@ def test_replace_takes_a_reflashed_robots_new_key_only_when_it_matches_the_file(
 def test_replace_needs_a_fingerprints_file_and_a_host_of_the_inventory(tmp_path, monkeypatch, capsys, servers):
     path = two_robots(tmp_path, servers)
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot1", "--yes")
-    assert code == 2 and lines == ["--replace needs --fingerprints FILE: a changed key is replaced only when it "
-                                   "matches the fingerprint recorded for the host; nothing was done"]
+    assert code == 2 and lines == [
+        "--replace needs --fingerprints FILE: a changed key is replaced only when it "
+        "matches the fingerprint recorded for the host; nothing was done"
+    ]
     recorded = tmp_path / "fingerprints.txt"
     recorded.write_text("")
     code, lines = run(path, monkeypatch, capsys, "--replace", "robot9", "--fingerprints", str(recorded))
@@ -158,8 +180,10 @@ def test_without_a_terminal_nothing_is_enrolled_unasked(tmp_path, monkeypatch, c
     monkeypatch.setattr(sys, "stdin", open("/dev/null"))
     code, lines = run(path, monkeypatch, capsys, "--limit", "robot2")
     assert code == 1
-    assert lines[1] == (f"{line(servers[1], 'robot2')}: new; not enrolled: no terminal to ask (check the "
-                        "fingerprint, then pass --yes, or give --fingerprints FILE)")
+    assert lines[1] == (
+        f"{line(servers[1], 'robot2')}: new; not enrolled: no terminal to ask (check the "
+        "fingerprint, then pass --yes, or give --fingerprints FILE)"
+    )
     assert not (tmp_path / "known_hosts").exists()
 
 
@@ -173,8 +197,14 @@ def test_asking_shows_the_fingerprint_and_takes_the_answer(tmp_path, servers):
     path = two_robots(tmp_path, servers)
     env = {"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)}
     main, terminal = pty.openpty()
-    proc = subprocess.Popen([sys.executable, "-m", "robotfleet", "enroll", "inventories/robots.py"], cwd=ROOT, env=env,
-                            stdin=terminal, stdout=terminal, stderr=terminal)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "robotfleet", "enroll", "inventories/robots.py"],
+        cwd=ROOT,
+        env=env,
+        stdin=terminal,
+        stdout=terminal,
+        stderr=terminal,
+    )
     os.close(terminal)
     seen, answers, deadline = b"", [b"y\n", b"n\n"], time.monotonic() + 60
     while proc.poll() is None and time.monotonic() < deadline:
@@ -198,12 +228,15 @@ def test_unreachable_and_unmatched(tmp_path, monkeypatch, capsys):
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": closed}})
     code, lines = run(path, monkeypatch, capsys, "--yes")
     assert code == 3
-    assert lines[1] == (f"robot1: unreachable: connection refused by 127.0.0.1:{closed} "
-                        f"(no SSH server listens on port {closed})")
+    assert lines[1] == (
+        f"robot1: unreachable: connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})"
+    )
     code, lines = run(path, monkeypatch, capsys, "--limit", "bot-z")
     assert code == 2
-    assert lines == ["--limit bot-z: no host or group of inventories/robots.py matches (hosts: robot1; "
-                     "groups: robots); nothing was done"]
+    assert lines == [
+        "--limit bot-z: no host or group of inventories/robots.py matches (hosts: robot1; "
+        "groups: robots); nothing was done"
+    ]
 
 
 def test_the_command_is_listed():
@@ -211,17 +244,28 @@ def test_the_command_is_listed():
     assert "robotfleet enroll INVENTORY" in result.stderr
 
 
-def test_a_fingerprints_file_that_is_missing_or_holds_a_bogus_fingerprint_is_one_line(tmp_path, monkeypatch, capsys,
-                                                                                     servers):
+def test_a_fingerprints_file_that_is_missing_or_holds_a_bogus_fingerprint_is_one_line(
+    tmp_path, monkeypatch, capsys, servers
+):
     """Issue 39 item 9: no bare [Errno 2], and SHA256:abc is not a fingerprint (43 base64 characters)."""
     path = two_robots(tmp_path, servers)
     missing = tmp_path / "missing.txt"
     code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(missing))
-    assert (code, lines) == (2, [f"--fingerprints {missing}: No such file or directory; give the file of the hosts' "
-                                 "recorded fingerprints (HOST SHA256:... a line); nothing was done"])
+    assert (code, lines) == (
+        2,
+        [
+            f"--fingerprints {missing}: No such file or directory; give the file of the hosts' "
+            "recorded fingerprints (HOST SHA256:... a line); nothing was done"
+        ],
+    )
     bogus = tmp_path / "fingerprints.txt"
     bogus.write_text(f"robot1 {hostkeys.fingerprint(servers[0].host_key)}\nrobot2 SHA256:abc\n")
     code, lines = run(path, monkeypatch, capsys, "--fingerprints", str(bogus), "--yes")
-    assert (code, lines) == (2, [f"{bogus}: line 2: 'SHA256:abc' is not a SHA256 fingerprint (SHA256: and 43 base64 "
-                                 "characters, as ssh-keygen -lf shows it); nothing was done"])
+    assert (code, lines) == (
+        2,
+        [
+            f"{bogus}: line 2: 'SHA256:abc' is not a SHA256 fingerprint (SHA256: and 43 base64 "
+            "characters, as ssh-keygen -lf shows it); nothing was done"
+        ],
+    )
     assert not (tmp_path / "known_hosts").exists()  # nothing was enrolled

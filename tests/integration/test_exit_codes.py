@@ -26,19 +26,28 @@ def key(client_key):
 
 def run(path, tmp_path, *argv, timeout=120) -> subprocess.CompletedProcess:
     (tmp_path / "known_hosts").touch()  # as inventories/known_hosts ships: empty
-    env = {"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path),
-           "ROBOT_ROLLOUT_DIR": str(tmp_path / "rollouts")}
+    env = {
+        "PATH": "/usr/bin:/bin",
+        "ROBOT_FLEET": str(path),
+        "PYINFRA_PROGRESS": "off",
+        "HOME": str(tmp_path),
+        "ROBOT_ROLLOUT_DIR": str(tmp_path / "rollouts"),
+    }
     return subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def test_a_limit_that_matches_nothing_is_refused_by_every_command(tmp_path):
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
-    line = ("--limit bot-z: no host or group of inventories/robots.py matches (hosts: robot1; groups: robots); "
-            "nothing was done")
-    for argv in (["-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py", "--limit", "bot-z"],
-                 ["-m", "robotfleet", "status", "inventories/robots.py", "--limit", "bot-z"],
-                 ["-m", "robotfleet", "rollout", "inventories/robots.py", "--limit", "bot-z", "--dry"],
-                 ["-m", "robotfleet", "enroll", "inventories/robots.py", "--limit", "bot-z"]):
+    line = (
+        "--limit bot-z: no host or group of inventories/robots.py matches (hosts: robot1; groups: robots); "
+        "nothing was done"
+    )
+    for argv in (
+        ["-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py", "--limit", "bot-z"],
+        ["-m", "robotfleet", "status", "inventories/robots.py", "--limit", "bot-z"],
+        ["-m", "robotfleet", "rollout", "inventories/robots.py", "--limit", "bot-z", "--dry"],
+        ["-m", "robotfleet", "enroll", "inventories/robots.py", "--limit", "bot-z"],
+    ):
         result = run(path, tmp_path, *argv)
         ours = [x for x in result.stderr.splitlines() if not x.startswith("--> ")]
         assert (result.returncode, ours) == (2, [line]), (argv, result.stderr)
@@ -46,17 +55,27 @@ def test_a_limit_that_matches_nothing_is_refused_by_every_command(tmp_path):
 
 def test_status_tells_as_hosts_answer_and_each_reason(tmp_path):
     with sshserver.wrong_hosts() as (silent, closed):
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": silent.port},
-                                "robot2": {"address": "127.0.0.1", "ssh_port": closed}}, ssh_connect_retries=0)
+        path = fleet(
+            tmp_path,
+            {
+                "robot1": {"address": "127.0.0.1", "ssh_port": silent.port},
+                "robot2": {"address": "127.0.0.1", "ssh_port": closed},
+            },
+            ssh_connect_retries=0,
+        )
         started = time.monotonic()
         result = run(path, tmp_path, "-m", "robotfleet", "status", "inventories/robots.py", "--json")
         elapsed = time.monotonic() - started
     assert result.returncode == 3, result.stderr
     refused = f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})"
-    silent_reason = (f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-                     "within 2 s (wrong port?)")
-    assert result.stderr.splitlines() == [f"[robot2] unreachable: {refused} (1/2)",
-                                          f"[robot1] unreachable: {silent_reason} (2/2)"]
+    silent_reason = (
+        f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
+        "within 2 s (wrong port?)"
+    )
+    assert result.stderr.splitlines() == [
+        f"[robot2] unreachable: {refused} (1/2)",
+        f"[robot1] unreachable: {silent_reason} (2/2)",
+    ]
     rows = {row["host"]: row for row in json.loads(result.stdout)}
     assert (rows["robot1"]["error"], rows["robot2"]["error"]) == (silent_reason, refused)
     assert elapsed < 20, elapsed
@@ -75,8 +94,9 @@ def test_a_rollout_targets_robots_and_tries_a_dead_one_once_per_wave(tmp_path):
     try:
         path = tmp_path / "fleet.yaml"
         fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": silent.port}}, ssh_connect_retries=0)
-        text = (path.read_text()
-                + "laptops:\n  hosts:\n    laptop1: {address: 127.0.0.1, ssh_port: 9, x11_user: alice}\n")
+        text = (
+            path.read_text() + "laptops:\n  hosts:\n    laptop1: {address: 127.0.0.1, ssh_port: 9, x11_user: alice}\n"
+        )
         path.write_text(text)
         result = run(path, tmp_path, "-m", "robotfleet", "rollout", "inventories/robots.py", "-y")
     finally:
@@ -94,15 +114,26 @@ def test_pyinfra_from_outside_the_checkout_is_refused_before_any_connection(tmp_
     """Run elsewhere, pyinfra would drop config.py and group_data/ (strict
     host-key checking among them) without a word (issue 27, item 3)."""
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": 1}})
-    env = {"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path),
-           "ROBOT_FLEET_HOST": "robot1"}
-    result = subprocess.run([sys.executable, "-c", PYINFRA, "-y", str(ROOT / "inventories" / inventory),
-                             str(ROOT / "deploy.py")], cwd=tmp_path, capture_output=True, text=True, timeout=120,
-                            env=env)
+    env = {
+        "PATH": "/usr/bin:/bin",
+        "ROBOT_FLEET": str(path),
+        "PYINFRA_PROGRESS": "off",
+        "HOME": str(tmp_path),
+        "ROBOT_FLEET_HOST": "robot1",
+    }
+    result = subprocess.run(
+        [sys.executable, "-c", PYINFRA, "-y", str(ROOT / "inventories" / inventory), str(ROOT / "deploy.py")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert result.returncode == 2, result.stderr[-2000:]
     assert result.stderr.strip().splitlines()[-1] == (
         f"pyinfra runs in {tmp_path}, not in the checkout {ROOT}: its config.py and group_data/ (strict host-key "
-        f"checking, sudo, every default) would not apply; run it there: cd {ROOT}, or pyinfra --chdir {ROOT} ...")
+        f"checking, sudo, every default) would not apply; run it there: cd {ROOT}, or pyinfra --chdir {ROOT} ..."
+    )
     assert not (tmp_path / ".ssh").exists()  # no key accepted on first use
 
 
@@ -135,7 +166,9 @@ def test_pull_enroll_and_bundle_refuse_a_robot_that_does_not_pull(tmp_path):
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
     result = run(path, tmp_path, "-m", "robotfleet", "pull-enroll", "inventories/robots.py")
     assert (result.returncode, result.stderr) == (
-        2, "inventories/robots.py: no pull robot (pull_enabled: true) to enroll\n")
+        2,
+        "inventories/robots.py: no pull robot (pull_enabled: true) to enroll\n",
+    )
     result = run(path, tmp_path, "-m", "robotfleet", "bundle", "robot1", "--out", str(tmp_path / "b"))
     assert result.returncode == 2 and result.stderr.startswith("bundle: ")
     assert "robot1 is not a pull robot" in result.stderr

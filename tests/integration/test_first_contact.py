@@ -23,11 +23,19 @@ from robotfleet.fleet import yaml12
 from tests.fixtures import PYINFRA, ROOT
 from tests.integration import sshserver
 
+
 def fleet(tmp_path, hosts: dict, **common) -> Path:
     path = tmp_path / "fleet.yaml"
-    settings = {"payload_image": "reg.example.com/p:1", "ssh_user": "ops", "ssh_key": str(tmp_path / "id_fleet"),
-                "ssh_known_hosts_file": str(tmp_path / "known_hosts"), "ssh_connect_timeout": 2,
-                "ssh_connect_retry_min_delay": 0, "ssh_connect_retry_max_delay": 0, **common}
+    settings = {
+        "payload_image": "reg.example.com/p:1",
+        "ssh_user": "ops",
+        "ssh_key": str(tmp_path / "id_fleet"),
+        "ssh_known_hosts_file": str(tmp_path / "known_hosts"),
+        "ssh_connect_timeout": 2,
+        "ssh_connect_retry_min_delay": 0,
+        "ssh_connect_retry_max_delay": 0,
+        **common,
+    }
     settings = {key: value for key, value in settings.items() if value is not None}
     path.write_text(yaml12.dump({"all": {"vars": settings}, "robots": {"hosts": hosts}}))
     return path
@@ -61,9 +69,11 @@ def test_unknown_host_key_names_the_file_and_the_command_and_is_not_retried(tmp_
         line = connect(path, monkeypatch)["robot1"]
     finally:
         server.close()
-    assert line == (f"unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
-                    "(ssh_strict_host_key_checking: yes); check and enroll it: "
-                    "robotfleet enroll inventories/robots.py --limit robot1")
+    assert line == (
+        f"unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
+        "(ssh_strict_host_key_checking: yes); check and enroll it: "
+        "robotfleet enroll inventories/robots.py --limit robot1"
+    )
     assert server.connections == 1
 
 
@@ -78,11 +88,15 @@ def test_changed_host_key_is_refused_with_both_fingerprints(tmp_path, monkeypatc
         line = connect(path, monkeypatch)["robot1"]
     finally:
         server.close()
-    assert line.startswith(f"host key CHANGED: {tmp_path}/known_hosts has {hostkeys.fingerprint(old)} for {entry}, "
-                           f"the host offers {hostkeys.fingerprint(server.host_key)}; refused")
+    assert line.startswith(
+        f"host key CHANGED: {tmp_path}/known_hosts has {hostkeys.fingerprint(old)} for {entry}, "
+        f"the host offers {hostkeys.fingerprint(server.host_key)}; refused"
+    )
     # the one instruction enroll gives too (issue 39 item 3): never trust the new key on first use
-    assert line.endswith("; refused (if the robot was reinstalled, record its new fingerprint and replace it: "
-                         "robotfleet enroll inventories/robots.py --replace robot1 --fingerprints FILE)")
+    assert line.endswith(
+        "; refused (if the robot was reinstalled, record its new fingerprint and replace it: "
+        "robotfleet enroll inventories/robots.py --replace robot1 --fingerprints FILE)"
+    )
     assert (tmp_path / "known_hosts").read_text() == before
     assert server.connections == 1
 
@@ -91,8 +105,11 @@ def test_accept_new_writes_a_key_once(tmp_path, monkeypatch, client_key):
     """A rollout connects to a host several times in one process."""
     server = sshserver.ssh_server(client_key)
     try:
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
-                     ssh_strict_host_key_checking="accept-new")
+        path = fleet(
+            tmp_path,
+            {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+            ssh_strict_host_key_checking="accept-new",
+        )
         assert connect(path, monkeypatch, times=3) == {"robot1": None}
         assert connect(path, monkeypatch, times=1) == {"robot1": None}
     finally:
@@ -104,8 +121,12 @@ def test_accept_new_writes_a_key_once(tmp_path, monkeypatch, client_key):
 def test_authentication_failure_names_the_user_and_the_key(tmp_path, monkeypatch, client_key):
     server = sshserver.ssh_server(paramiko.ECDSAKey.generate())  # accepts another key
     try:
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
-                     ssh_strict_host_key_checking="accept-new", ssh_connect_retries=3)
+        path = fleet(
+            tmp_path,
+            {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+            ssh_strict_host_key_checking="accept-new",
+            ssh_connect_retries=3,
+        )
         line = connect(path, monkeypatch)["robot1"]
     finally:
         server.close()
@@ -118,25 +139,37 @@ def test_no_key_at_all_says_so(tmp_path, monkeypatch, client_key):
     monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.ssh keys
     monkeypatch.delenv("SSH_AUTH_SOCK", raising=False)
     try:
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
-                     ssh_strict_host_key_checking="accept-new", ssh_key=None)
+        path = fleet(
+            tmp_path,
+            {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+            ssh_strict_host_key_checking="accept-new",
+            ssh_key=None,
+        )
         line = connect(path, monkeypatch)["robot1"]
     finally:
         server.close()
-    assert line == ("authentication failed for user ops: no key to offer (ssh_key is not set, no SSH agent key, "
-                    "no key in ~/.ssh); set ssh_key to the fleet's private key")
+    assert line == (
+        "authentication failed for user ops: no key to offer (ssh_key is not set, no SSH agent key, "
+        "no key in ~/.ssh); set ssh_key to the fleet's private key"
+    )
 
 
 def test_wrong_hosts_fail_in_one_line_each_within_the_timeout(tmp_path, monkeypatch, client_key):
     with sshserver.wrong_hosts() as (silent, closed):
-        path = fleet(tmp_path, {"silent": {"address": "127.0.0.1", "ssh_port": silent.port},
-                                "closed": {"address": "127.0.0.1", "ssh_port": closed}}, ssh_connect_retries=1)
+        path = fleet(
+            tmp_path,
+            {
+                "silent": {"address": "127.0.0.1", "ssh_port": silent.port},
+                "closed": {"address": "127.0.0.1", "ssh_port": closed},
+            },
+            ssh_connect_retries=1,
+        )
         started = time.monotonic()
         lines = connect(path, monkeypatch)
         elapsed = time.monotonic() - started
     assert lines == {
         "silent": f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-                  "within 2 s (wrong port?)",
+        "within 2 s (wrong port?)",
         "closed": f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})",
     }
     assert silent.connections == 1  # not an SSH server: not tried again
@@ -151,8 +184,10 @@ def test_a_connection_closed_before_the_greeting_is_tried_again(tmp_path, monkey
         line = connect(path, monkeypatch)["robot1"]
     finally:
         dropping.close()
-    assert line == (f"connection closed by 127.0.0.1:{dropping.port} before the SSH greeting (an sshd turning "
-                    "connections away, e.g. MaxStartups, or a firewall)")
+    assert line == (
+        f"connection closed by 127.0.0.1:{dropping.port} before the SSH greeting (an sshd turning "
+        "connections away, e.g. MaxStartups, or a firewall)"
+    )
     assert dropping.connections == 3
 
 
@@ -160,12 +195,20 @@ def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key)
     silent = sshserver.Listener()
     server = sshserver.ssh_server(client_key)
     try:
-        path = fleet(tmp_path, {"silent": {"address": "127.0.0.1", "ssh_port": silent.port},
-                                "robot1": {"address": "127.0.0.1", "ssh_port": server.port}})
+        path = fleet(
+            tmp_path,
+            {
+                "silent": {"address": "127.0.0.1", "ssh_port": silent.port},
+                "robot1": {"address": "127.0.0.1", "ssh_port": server.port},
+            },
+        )
         (tmp_path / "known_hosts").write_text("")
         result = subprocess.run(
-            [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"], cwd=ROOT,
-            capture_output=True, text=True, timeout=120,
+            [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=120,
             env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path)},
         )
     finally:
@@ -175,10 +218,12 @@ def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key)
     assert "Traceback" not in output and "paramiko" not in output, output
     assert result.returncode != 0
     host_lines = [line.strip() for line in result.stderr.splitlines() if line.strip().startswith("[")]
-    assert sorted(host_lines) == sorted([
-        f"[robot1] unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
-        "(ssh_strict_host_key_checking: yes); check and enroll it: "
-        "robotfleet enroll inventories/robots.py --limit robot1",
-        f"[silent] not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-        "within 2 s (wrong port?)",
-    ]), result.stderr
+    assert sorted(host_lines) == sorted(
+        [
+            f"[robot1] unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
+            "(ssh_strict_host_key_checking: yes); check and enroll it: "
+            "robotfleet enroll inventories/robots.py --limit robot1",
+            f"[silent] not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
+            "within 2 s (wrong port?)",
+        ]
+    ), result.stderr

@@ -21,9 +21,17 @@ def run_cli(paths: list[Path]) -> list[subprocess.CompletedProcess]:
     procs = [
         subprocess.Popen(
             [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
-            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, errors="replace",
-            env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off",
-                 "HOME": str(path.parent)},
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            errors="replace",
+            env={
+                "PATH": "/usr/bin:/bin",
+                "ROBOT_FLEET": str(path),
+                "PYINFRA_PROGRESS": "off",
+                "HOME": str(path.parent),
+            },
         )
         for path in paths
     ]
@@ -65,8 +73,9 @@ def test_cli_refuses_generated_fleets_before_any_connection(tmp_path):
             assert "Traceback" not in output, f"{label}\n{output}"
             ours = [line for line in result.stderr.splitlines() if not line.startswith("--> ")]
             assert ours[-1] == f"{len(lines)} problem(s) in the fleet file; no host was contacted.", output
-            assert [line.rsplit(SHOWN + ": ", 1)[-1] for line in ours[:-1]] == [line.split(": ", 1)[1]
-                                                                                for line in lines]
+            assert [line.rsplit(SHOWN + ": ", 1)[-1] for line in ours[:-1]] == [
+                line.split(": ", 1)[1] for line in lines
+            ]
         assert listener.connections == 0
         assert control_result.returncode != 2 and control_listener.connections > 0
     finally:

@@ -26,7 +26,9 @@ def systemd_verify(unit_text: str, root: Path) -> subprocess.CompletedProcess:
             executable.chmod(0o755)
     return subprocess.run(
         ["systemd-analyze", "verify", "--man=no", "--generators=no", f"--root={root}", UNIT],
-        capture_output=True, text=True, timeout=60,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
 
 

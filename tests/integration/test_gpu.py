@@ -17,9 +17,18 @@ def test_key_download_accepts_exactly_the_pinned_primary_key(tmp_path, case):
     key = tmp_path / "gpgkey"
     key.write_bytes(armor.gpg(home, "--armor", "--export", *exported).stdout)
     dest = tmp_path / "keyrings" / "nvidia.asc"
-    script = aptrepo.key_script(aptrepo.Repository("NVIDIA", f"file://{key}", str(dest), pinned,
-                                                   "gpu_apt_key_fingerprint",
-                                                   "nvidia-container-toolkit", "", "gpu_key_fingerprints"))
+    script = aptrepo.key_script(
+        aptrepo.Repository(
+            "NVIDIA",
+            f"file://{key}",
+            str(dest),
+            pinned,
+            "gpu_apt_key_fingerprint",
+            "nvidia-container-toolkit",
+            "",
+            "gpu_key_fingerprints",
+        )
+    )
     proc = sh(script)
     if case == "pinned":
         assert proc.returncode == 0, proc.stderr

@@ -61,24 +61,34 @@ print(json.dumps(report))
 """
 
 
-@pytest.mark.parametrize(("keep_alive", "timeout", "keepalives"), [
-    (None, 5.0, 0),  # a connected host sleeps 5 s between looks
-    (1, 1.0, 2),  # ServerAliveInterval 1: sent each second, as before
-])
-def test_an_idle_connection_sleeps_longer_and_keeps_its_keepalives(tmp_path, client_key, keep_alive, timeout,
-                                                                   keepalives):
+@pytest.mark.parametrize(
+    ("keep_alive", "timeout", "keepalives"),
+    [
+        (None, 5.0, 0),  # a connected host sleeps 5 s between looks
+        (1, 1.0, 2),  # ServerAliveInterval 1: sent each second, as before
+    ],
+)
+def test_an_idle_connection_sleeps_longer_and_keeps_its_keepalives(
+    tmp_path, client_key, keep_alive, timeout, keepalives
+):
     server = sshserver.ssh_server(client_key)
     try:
         path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}})
         key = server.host_key
-        (tmp_path / "known_hosts").write_text(f"{hostkeys.entry('127.0.0.1', server.port)} {key.get_name()} "
-                                              f"{key.get_base64()}\n")
+        (tmp_path / "known_hosts").write_text(
+            f"{hostkeys.entry('127.0.0.1', server.port)} {key.get_name()} {key.get_base64()}\n"
+        )
         if keep_alive:
             (tmp_path / ".ssh").mkdir()
             (tmp_path / ".ssh" / "config").write_text(f"Host *\n    ServerAliveInterval {keep_alive}\n")
         result = subprocess.run(
-            [sys.executable, "-c", OPERATOR, "2.6"], cwd=ROOT, capture_output=True, text=True, timeout=60,
-            env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)})
+            [sys.executable, "-c", OPERATOR, "2.6"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)},
+        )
         assert result.returncode == 0, result.stderr[-2000:]
         report = json.loads(result.stdout.splitlines()[-1])["robot1"]
     finally:

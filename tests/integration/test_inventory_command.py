@@ -18,15 +18,25 @@ from tests.integration.test_ansible_dirs import ANSIBLE_INVENTORY, INI_HOSTS, VA
 
 
 def robotfleet(tmp_path: Path, *argv: str, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "robotfleet", "inventory", *argv], cwd=ROOT, capture_output=True,
-                          text=True, timeout=60, env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), **(env or {})})
+    return subprocess.run(
+        [sys.executable, "-m", "robotfleet", "inventory", *argv],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path), **(env or {})},
+    )
 
 
 def ansible_graph(path: Path) -> str:
     assert ANSIBLE_INVENTORY, "ansible-core (the test extra) is not installed"
-    return subprocess.run([ANSIBLE_INVENTORY, "-i", str(path), "--graph"], capture_output=True, text=True, check=True,
-                          env={"PATH": "/usr/bin:/bin", "ANSIBLE_LOCAL_TEMP": str(path.parent / ".ansible"),
-                               "HOME": str(path.parent)}).stdout
+    return subprocess.run(
+        [ANSIBLE_INVENTORY, "-i", str(path), "--graph"],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PATH": "/usr/bin:/bin", "ANSIBLE_LOCAL_TEMP": str(path.parent / ".ansible"), "HOME": str(path.parent)},
+    ).stdout
 
 
 @pytest.mark.parametrize("layout", ["ini-dir", "yaml-file"])
@@ -55,16 +65,22 @@ def test_a_host_s_values_name_where_they_come_from(tmp_path):
 
 
 def test_secrets_are_masked_and_sibling_groups_that_disagree_are_noted(tmp_path):
-    path = write(tmp_path / "inventory", {
-        "hosts": "[robots:children]\nwarehouse_a\nlidar_bots\n\n"
-                 "[warehouse_a]\nrobot[1:2]\n\n[lidar_bots]\nrobot2\n",
-        "group_vars/all.yml": "payload_image: reg.example.com/p:1\nansible_user: ops\n",
-        "group_vars/warehouse_a.yml": "ssh_port: 2222\npayload_environment: {DB_URL: 'postgres://u:s3cret@db/x'}\n",
-        "group_vars/lidar_bots.yml": "ssh_port: 22\n"})
-    note = (f"{display(path)}/group_vars/warehouse_a.yml: note: robot2: ssh_port is group warehouse_a's, not "
-            "lidar_bots's (sibling groups that set it differently; same depth and ansible_group_priority: "
-            "warehouse_a sorts after lidar_bots by name, as in Ansible); set it on the host or give one group a "
-            "higher ansible_group_priority")
+    path = write(
+        tmp_path / "inventory",
+        {
+            "hosts": "[robots:children]\nwarehouse_a\nlidar_bots\n\n"
+            "[warehouse_a]\nrobot[1:2]\n\n[lidar_bots]\nrobot2\n",
+            "group_vars/all.yml": "payload_image: reg.example.com/p:1\nansible_user: ops\n",
+            "group_vars/warehouse_a.yml": "ssh_port: 2222\npayload_environment: {DB_URL: 'postgres://u:s3cret@db/x'}\n",
+            "group_vars/lidar_bots.yml": "ssh_port: 22\n",
+        },
+    )
+    note = (
+        f"{display(path)}/group_vars/warehouse_a.yml: note: robot2: ssh_port is group warehouse_a's, not "
+        "lidar_bots's (sibling groups that set it differently; same depth and ansible_group_priority: "
+        "warehouse_a sorts after lidar_bots by name, as in Ansible); set it on the host or give one group a "
+        "higher ansible_group_priority"
+    )
     for argv in (["--host", "robot1"], ["--list"]):
         result = robotfleet(tmp_path, "-i", str(path), *argv)
         assert result.returncode == 0, result.stderr
@@ -77,16 +93,20 @@ def test_secrets_are_masked_and_sibling_groups_that_disagree_are_noted(tmp_path)
 
 def test_a_pyinfra_inventory_shows_the_fleet_it_reads(tmp_path):
     path = write(tmp_path, {"fleet.yaml": "robots:\n  hosts:\n    robot1: {address: 10.0.0.1, payload_image: r/p:1}\n"})
-    result = robotfleet(tmp_path, "inventories/robots.py", "--host", "robot1",
-                        env={"ROBOT_FLEET": str(path / "fleet.yaml")})
+    result = robotfleet(
+        tmp_path, "inventories/robots.py", "--host", "robot1", env={"ROBOT_FLEET": str(path / "fleet.yaml")}
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.splitlines()[2].split()[:2] == ["payload_image", "r/p:1"]
 
 
-@pytest.mark.parametrize("argv, line", [
-    (["--host", "robot9"], "inventory: no host 'robot9' in {fleet} (did you mean 'robot1'?)"),
-    (["--graph", "robot"], "inventory: --graph robot: no group of that name in {fleet} (did you mean 'robots'?)"),
-])
+@pytest.mark.parametrize(
+    "argv, line",
+    [
+        (["--host", "robot9"], "inventory: no host 'robot9' in {fleet} (did you mean 'robot1'?)"),
+        (["--graph", "robot"], "inventory: --graph robot: no group of that name in {fleet} (did you mean 'robots'?)"),
+    ],
+)
 def test_what_is_not_there_is_one_line(tmp_path, argv, line):
     path = write(tmp_path, {"fleet.yaml": "robots:\n  hosts:\n    robot1: {address: 10.0.0.1, payload_image: r/p:1}\n"})
     result = robotfleet(tmp_path, "-i", str(path / "fleet.yaml"), *argv)

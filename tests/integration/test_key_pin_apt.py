@@ -48,8 +48,12 @@ def apt_offers_the_repository(key_file, repo: str, tmp_path) -> bool:
     """Whether apt, with ``key_file`` as Signed-By, accepts ``repo``'s
     InRelease (then apt-cache policy offers its fake docker-ce)."""
     work = tmp_path / f"apt-{len(list(tmp_path.glob('apt-*')))}"
-    proc = subprocess.run(["sh", "-c", armor.apt_check_script(str(key_file), repo, str(work))],
-                          capture_output=True, text=True, timeout=180)
+    proc = subprocess.run(
+        ["sh", "-c", armor.apt_check_script(str(key_file), repo, str(work))],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
     return armor.parse_check(proc.stdout)
 
 
@@ -93,8 +97,12 @@ def test_a_download_with_a_hidden_key_installs_only_the_pinned_key_as_apt_reads_
     served.write_bytes(_variant(signers, variant))
     dest = tmp_path / "keyrings" / "docker.asc"
     dest.parent.mkdir()
-    proc = subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fprs["pinned"]))],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        ["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fprs["pinned"]))],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0, proc.stderr
     assert not apt_offers_the_repository(dest, repos["intruder"], tmp_path), f"apt trusts the key hidden {variant}"
     assert apt_offers_the_repository(dest, repos["pinned"], tmp_path)
@@ -103,8 +111,9 @@ def test_a_download_with_a_hidden_key_installs_only_the_pinned_key_as_apt_reads_
 
 
 def _key_probe(path, fingerprint):
-    return subprocess.run(["sh", "-c", aptrepo.key_probe(str(path), fingerprint)], capture_output=True,
-                          text=True).stdout
+    return subprocess.run(
+        ["sh", "-c", aptrepo.key_probe(str(path), fingerprint)], capture_output=True, text=True
+    ).stdout
 
 
 @pytest.mark.parametrize("variant", ALL)
@@ -115,8 +124,10 @@ def test_a_planted_key_file_with_a_hidden_key_is_not_current_and_is_replaced(sig
     dest.write_bytes(_variant(signers, variant))
     dest.chmod(0o644)
     repo = docker_repo("", str(dest), fprs["pinned"])
-    snap = Snapshot(files={str(dest): FileState("file", "a" * 64, "644", "root", "root")},
-                    probes={"docker_key_fingerprints": _key_probe(dest, fprs["pinned"])})
+    snap = Snapshot(
+        files={str(dest): FileState("file", "a" * 64, "644", "root", "root")},
+        probes={"docker_key_fingerprints": _key_probe(dest, fprs["pinned"])},
+    )
     assert not aptrepo.key_is_current(repo, snap)
     served = tmp_path / "gpg"
     served.write_text(armored["pinned"])
@@ -154,16 +165,25 @@ def test_nvidias_key_as_the_gpu_role_declares_it_goes_the_same_way(signers, repo
     served = tmp_path / "gpgkey"
     served.write_bytes(_variant(signers, "text after the BEGIN line"))
     dest = tmp_path / "keyrings" / "nvidia-container-toolkit.asc"
-    data = merged("robots", {"gpu_vendor": "nvidia", "gpu_apt_key_url": f"file://{served}",
-                             "gpu_apt_key_path": str(dest), "gpu_apt_key_fingerprint": fprs["pinned"]})
+    data = merged(
+        "robots",
+        {
+            "gpu_vendor": "nvidia",
+            "gpu_apt_key_url": f"file://{served}",
+            "gpu_apt_key_path": str(dest),
+            "gpu_apt_key_fingerprint": fprs["pinned"],
+        },
+    )
     repo = gpu.repository(data, "amd64")
     assert (repo.what, repo.fingerprint, repo.key_path) == ("NVIDIA", fprs["pinned"], str(dest))
     proc = _run(repo)
     assert proc.returncode == 0, proc.stderr
     assert not apt_offers_the_repository(dest, repos["intruder"], tmp_path)
     assert apt_offers_the_repository(dest, repos["pinned"], tmp_path)
-    snap = Snapshot(files={str(dest): FileState("file", "a" * 64, "644", "root", "root")},
-                    probes={gpu.KEY_PROBE: _key_probe(dest, fprs["pinned"])})
+    snap = Snapshot(
+        files={str(dest): FileState("file", "a" * 64, "644", "root", "root")},
+        probes={gpu.KEY_PROBE: _key_probe(dest, fprs["pinned"])},
+    )
     assert aptrepo.key_is_current(repo, snap)
 
 
@@ -198,8 +218,10 @@ def test_the_sha256_pins_the_download_and_the_installed_export_is_still_current(
     assert _run(repo).returncode == 0
     installed = subprocess.run(["sha256sum", str(dest)], capture_output=True, text=True).stdout.split()[0]
     assert installed != digest
-    snap = Snapshot(files={str(dest): FileState("file", installed, "644", "root", "root")},
-                    probes={repo.probe: _key_probe(dest, fprs["pinned"])})
+    snap = Snapshot(
+        files={str(dest): FileState("file", installed, "644", "root", "root")},
+        probes={repo.probe: _key_probe(dest, fprs["pinned"])},
+    )
     assert aptrepo.key_is_current(repo, snap)
 
 
@@ -210,8 +232,9 @@ def test_a_planted_key_file_is_named_in_one_line_when_removed(signers, tmp_path)
     dest.write_bytes(_variant(signers, "inside the block after its CRC line"))
     proc = _run(docker_repo(f"file://{tmp_path}/nothing-here", str(dest), fprs["pinned"]))
     lines = proc.stderr.splitlines()  # curl's own error line comes between
-    assert lines[0] == (f"{dest} is not exactly the pinned key as gpg exports it "
-                        f"(docker_apt_key_fingerprint {fprs['pinned']}); removed")
+    assert lines[0] == (
+        f"{dest} is not exactly the pinned key as gpg exports it (docker_apt_key_fingerprint {fprs['pinned']}); removed"
+    )
     assert lines[-1] == f"cannot download the Docker apt key from file://{tmp_path}/nothing-here"
 
 
@@ -226,7 +249,8 @@ def test_a_download_gpg_cannot_read_is_refused_in_one_line(signers, repos, tmp_p
     assert proc.returncode == 1
     assert proc.stderr.splitlines() == [
         f"Docker apt key from file://{served}: fingerprint (none: no key gpg can read) does not match "
-        f"docker_apt_key_fingerprint {fprs['pinned']}; key not installed"]
+        f"docker_apt_key_fingerprint {fprs['pinned']}; key not installed"
+    ]
     assert list(dest.parent.iterdir()) == []
 
 
@@ -261,8 +285,12 @@ def test_a_mistyped_pin_leaves_the_robots_working_key_in_place(signers, tmp_path
     dest.parent.mkdir()
 
     def run(pin):
-        return subprocess.run(["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), pin))],
-                              capture_output=True, text=True, timeout=60)
+        return subprocess.run(
+            ["sh", "-c", aptrepo.key_script(docker_repo(f"file://{served}", str(dest), pin))],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
 
     assert run(fprs["pinned"]).returncode == 0
     good = dest.read_bytes()

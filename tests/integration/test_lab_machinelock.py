@@ -30,8 +30,14 @@ print(name, "uses the image built by", built.read_text(), flush=True)
 
 def start(work: Path, name: str, locks: Path) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROBOT_LAB_LOCK_DIR=str(locks))
-    return subprocess.Popen([sys.executable, "-c", LAB, str(work), name], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(
+        [sys.executable, "-c", LAB, str(work), name],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def test_a_tag_another_lab_is_building_is_waited_for_then_used_not_built_again(tmp_path):

@@ -16,8 +16,9 @@ def test_flat_repository_is_signed_and_indexes_the_stand_in(tmp_path):
     flat = top / "stable" / "deb" / "amd64"
     keyring = tmp_path / "key.gpg"
     subprocess.run(["gpg", "--batch", "--dearmor", "-o", str(keyring), str(top / "gpgkey")], check=True)
-    verified = subprocess.run(["gpgv", "--keyring", str(keyring), str(flat / "InRelease")], capture_output=True,
-                              text=True)
+    verified = subprocess.run(
+        ["gpgv", "--keyring", str(keyring), str(flat / "InRelease")], capture_output=True, text=True
+    )
     assert verified.returncode == 0, verified.stderr
     release = (flat / "Release").read_text()
     assert "Suite:" not in release and "Components:" not in release  # flat, like NVIDIA's

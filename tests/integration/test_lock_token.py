@@ -17,8 +17,8 @@ import sys
 import time
 
 from roles.payload.payloadctl import lock as apply_lock
-from tests.unit.harness import ROBOT, converged, plan
 from tests.integration.test_payloadctl import switching, wait_until
+from tests.unit.harness import ROBOT, converged, plan
 
 # COMMAND for `payloadctl hold`: an apply (and a rollback) as part of the
 # holder's run, the token read from the file hold names in the environment.
@@ -38,8 +38,19 @@ print(json.dumps(codes))
 
 
 def hold(robot, tmp_path, *command, timeout=30, wait=True):
-    args = [sys.executable, robot.helper, "hold", "--dir", str(robot.root), "--token-file", str(tmp_path / "token"),
-            "--by", "robot-pull agent", "--", *command]
+    args = [
+        sys.executable,
+        robot.helper,
+        "hold",
+        "--dir",
+        str(robot.root),
+        "--token-file",
+        str(tmp_path / "token"),
+        "--by",
+        "robot-pull agent",
+        "--",
+        *command,
+    ]
     if not wait:
         return subprocess.Popen(args, env=robot.env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return subprocess.run(args, env=robot.env(), capture_output=True, text=True, timeout=timeout)
@@ -50,9 +61,11 @@ def result_of(robot, run_id):
 
 
 def test_hold_runs_its_command_with_a_private_token_and_lets_go(robot, tmp_path):
-    probe = ("import os, stat, json; p = os.environ['PAYLOADCTL_LOCK_TOKEN_FILE']; "
-             "print(json.dumps([p, oct(stat.S_IMODE(os.stat(p).st_mode)), open(p).read().strip()])); "
-             "raise SystemExit(7)")
+    probe = (
+        "import os, stat, json; p = os.environ['PAYLOADCTL_LOCK_TOKEN_FILE']; "
+        "print(json.dumps([p, oct(stat.S_IMODE(os.stat(p).st_mode)), open(p).read().strip()])); "
+        "raise SystemExit(7)"
+    )
     proc = hold(robot, tmp_path, sys.executable, "-c", probe)
     path, mode, token = json.loads(proc.stdout)
     assert proc.returncode == 7  # the command's own exit status
@@ -128,10 +141,29 @@ def test_a_joined_apply_holds_the_lock_itself_when_the_agent_goes_away(robot, tm
     robot.image("reg/ros/payload:1.1")
     request = robot.spec("reg/ros/payload:1.1", "joined-1")
     env = robot.env(FAKE_COMPOSE_SLEEP="4")
-    agent = subprocess.Popen([sys.executable, robot.helper, "hold", "--dir", str(robot.root), "--token-file",
-                              str(tmp_path / "token"), "--", sys.executable, "-c", JOINED, robot.helper, request,
-                              str(robot.root)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                             start_new_session=True)
+    agent = subprocess.Popen(
+        [
+            sys.executable,
+            robot.helper,
+            "hold",
+            "--dir",
+            str(robot.root),
+            "--token-file",
+            str(tmp_path / "token"),
+            "--",
+            sys.executable,
+            "-c",
+            JOINED,
+            robot.helper,
+            request,
+            str(robot.root),
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         wait_until(lambda: "compose_up" in robot.state(), "the joined apply's compose up", seconds=20)
         lock = apply_lock.Lock(str(robot.root))
@@ -161,7 +193,8 @@ def test_hold_says_so_and_exits_75_when_the_lock_stays_busy(robot, tmp_path):
     assert proc.returncode == 75 and not (tmp_path / "token").exists()
     assert time.monotonic() - started < 10
     assert "another deploy is running" in proc.stderr and proc.stderr.rstrip().endswith(
-        "(by ops@laptop (pyinfra)); gave up after 1 s (payload_apply_lock_timeout)")
+        "(by ops@laptop (pyinfra)); gave up after 1 s (payload_apply_lock_timeout)"
+    )
 
 
 # --- the deploy's side: payload_lock_token ----------------------------------------
@@ -191,8 +224,18 @@ def test_a_rollback_sends_the_token_into_its_own_private_file():
 def test_a_wrong_token_setting_is_refused_without_being_shown():
     from tests.unit.harness import fleet_problems
 
-    doc = {"robots": {"hosts": {"robot3": {"address": "10.0.0.3", "payload_image": "reg.example.com/a:1",
-                                           "payload_lock_token": "s3cret-x"}}}}
+    doc = {
+        "robots": {
+            "hosts": {
+                "robot3": {
+                    "address": "10.0.0.3",
+                    "payload_image": "reg.example.com/a:1",
+                    "payload_lock_token": "s3cret-x",
+                }
+            }
+        }
+    }
     assert fleet_problems(doc) == [
         "robots.yaml: robot3.payload_lock_token: expected the token payloadctl hold wrote (hex digits); "
-        "the value is not shown"]
+        "the value is not shown"
+    ]

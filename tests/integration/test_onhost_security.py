@@ -60,8 +60,9 @@ def test_a_key_file_holding_a_second_key_is_refused(tmp_path, keys):
     proc = sh(aptrepo.key_script(docker_repo(f"file://{served}", str(dest), fpr, None)))
     assert proc.returncode == 1
     assert proc.stderr.count("\n") == 1, proc.stderr  # one line
-    assert (f"holds 2 keys ({fpr} {other}); only docker_apt_key_fingerprint {fpr} may be in it; "
-            "key not installed") in proc.stderr
+    assert (
+        f"holds 2 keys ({fpr} {other}); only docker_apt_key_fingerprint {fpr} may be in it; key not installed"
+    ) in proc.stderr
     assert list(dest.parent.iterdir()) == []
 
 
@@ -112,12 +113,19 @@ def _nvidia_repo(url: str, key_path: str, fingerprint: str) -> aptrepo.Repositor
     from roles import gpu
     from tests.unit.harness import merged
 
-    data = merged("robots", {"gpu_vendor": "nvidia", "gpu_apt_key_url": url, "gpu_apt_key_path": key_path,
-                             "gpu_apt_key_fingerprint": fingerprint})
+    data = merged(
+        "robots",
+        {
+            "gpu_vendor": "nvidia",
+            "gpu_apt_key_url": url,
+            "gpu_apt_key_path": key_path,
+            "gpu_apt_key_fingerprint": fingerprint,
+        },
+    )
     return gpu.repository(data, "amd64")
 
 
-@pytest.mark.parametrize("payload", ["$(touch${IFS}%s)", "`touch${IFS}%s`", "\"$(touch${IFS}%s)\""])
+@pytest.mark.parametrize("payload", ["$(touch${IFS}%s)", "`touch${IFS}%s`", '"$(touch${IFS}%s)"'])
 def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload):
     """Every message that prints the URL (download failed, fingerprint,
     sha256), Docker's and NVIDIA's: none runs it."""
@@ -129,10 +137,15 @@ def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload)
     missing = f"file://{tmp_path}/missing?x=" + payload % pwned
     assert subprocess.run(["curl", "-fsS", url], capture_output=True).returncode == 0  # the mismatch path is reached
     dest = tmp_path / "docker.asc"
-    repos = [docker_repo(url, str(dest), fingerprint, sha256)
-             for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64))]
-    repos += [_nvidia_repo(url, str(dest), "DEAD" * 10), _nvidia_repo(missing, str(dest), fpr),
-              docker_repo(missing, str(dest), fpr)]
+    repos = [
+        docker_repo(url, str(dest), fingerprint, sha256)
+        for fingerprint, sha256 in (("DEAD" * 10, None), (None, "0" * 64), (fpr, "0" * 64))
+    ]
+    repos += [
+        _nvidia_repo(url, str(dest), "DEAD" * 10),
+        _nvidia_repo(missing, str(dest), fpr),
+        docker_repo(missing, str(dest), fpr),
+    ]
     for repo in repos:
         proc = sh(aptrepo.key_script(repo))
         assert proc.returncode == 1, proc.stderr
@@ -142,6 +155,7 @@ def test_the_key_url_is_never_run_on_the_mismatch_paths(tmp_path, keys, payload)
 
 
 # --- symlinks where a managed file or directory is wanted (items 7, 8) ------
+
 
 def test_the_snapshot_reports_a_symlink_as_a_link(tmp_path):
     (tmp_path / "target").write_text("{}\n")
@@ -194,6 +208,7 @@ def test_the_directory_command_itself_refuses_a_symlink(tmp_path):
 
 # --- push: the image goes over the command's stdin, no path on the robot (item 6)
 
+
 def test_the_pushed_archive_goes_over_stdin_intact_through_pyinfras_writer(tmp_path):
     """pyinfra's own write_stdin sends it, a real base64 -d reads it back."""
     import os
@@ -205,8 +220,9 @@ def test_the_pushed_archive_goes_over_stdin_intact_through_pyinfras_writer(tmp_p
 
     archive = tmp_path / "image.tar"
     archive.write_bytes(os.urandom(3 * FileStdin.CHUNK + 12345))
-    command = image_transfer.load_command(str(archive), "/var/lib/robot-payload", "reg.lan/ros/payload:1.0",
-                                          "sha256:a", {})
+    command = image_transfer.load_command(
+        str(archive), "/var/lib/robot-payload", "reg.lan/ros/payload:1.0", "sha256:a", {}
+    )
     raw = command.get_raw_value()
     assert "base64 -d | docker load" in raw
     assert "/tmp" not in raw and "robotprov-image" not in raw and "-i " not in raw
@@ -225,6 +241,7 @@ def test_the_pushed_archive_goes_over_stdin_intact_through_pyinfras_writer(tmp_p
 
 # --- daemon.json may hold proxy credentials: root's alone (issue 27, item 7) ---
 
+
 def test_daemon_json_and_its_previous_copy_are_written_0600_whatever_the_old_mode(tmp_path):
     """The write script runs for real (sh, this machine's dockerd): an old
     0644 daemon.json holding a proxy password is kept as .previous 0600 (not
@@ -241,8 +258,13 @@ def test_daemon_json_and_its_previous_copy_are_written_0600_whatever_the_old_mod
     dest.write_text(old)
     os.chmod(dest, 0o644)
     new = base64.encodebytes(b'{"live-restore": true}\n').decode()
-    proc = subprocess.run(["sh", "-c", daemon.write_script(str(dest), str(previous), str(pending))],
-                          input=new, capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        ["sh", "-c", daemon.write_script(str(dest), str(previous), str(pending))],
+        input=new,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0, proc.stderr
     assert dest.read_text() == '{"live-restore": true}\n' and previous.read_text() == old
     for path in (dest, previous):

@@ -21,8 +21,9 @@ print(json.dumps({"soft": resource.getrlimit(resource.RLIMIT_NOFILE)[0], "line":
 
 
 def child(soft: int, hard: int, hosts: int) -> dict:
-    out = subprocess.run([sys.executable, "-c", CHILD, str(soft), str(hard), str(hosts)], capture_output=True,
-                         text=True, check=True).stdout
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, str(soft), str(hard), str(hosts)], capture_output=True, text=True, check=True
+    ).stdout
     return json.loads(out)
 
 
@@ -44,9 +45,11 @@ def test_it_is_never_lowered():
 def test_a_hard_limit_too_low_is_one_line_and_the_soft_limit_goes_to_it():
     found = child(256, 1024, 1000)
     assert found["soft"] == 1024
-    assert found["line"] == ("1000 hosts need about 3064 open files and this process may have at most 1024 "
-                             "(ulimit -Hn): raise the hard limit (limits.conf, systemd's LimitNOFILE) or run fewer "
-                             "hosts at once (--limit a group, robotfleet rollout)")
+    assert found["line"] == (
+        "1000 hosts need about 3064 open files and this process may have at most 1024 "
+        "(ulimit -Hn): raise the hard limit (limits.conf, systemd's LimitNOFILE) or run fewer "
+        "hosts at once (--limit a group, robotfleet rollout)"
+    )
 
 
 def test_an_inventory_run_collects_garbage_less_often(tmp_path):
@@ -54,12 +57,20 @@ def test_an_inventory_run_collects_garbage_less_often(tmp_path):
     from tests.integration.test_first_contact import fleet
 
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
-    script = ("import gc, json; from pyinfra.api import State; from pyinfra.context import ctx_state; "
-              "from pyinfra_cli.inventory import make_inventory\n"
-              "before = gc.get_threshold()\n"
-              "with ctx_state.use(State()): make_inventory('inventories/robots.py')\n"
-              "print(json.dumps([before, gc.get_threshold()]))")
-    out = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, check=True,
-                         env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)}).stdout
+    script = (
+        "import gc, json; from pyinfra.api import State; from pyinfra.context import ctx_state; "
+        "from pyinfra_cli.inventory import make_inventory\n"
+        "before = gc.get_threshold()\n"
+        "with ctx_state.use(State()): make_inventory('inventories/robots.py')\n"
+        "print(json.dumps([before, gc.get_threshold()]))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", script],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "HOME": str(tmp_path)},
+    ).stdout
     before, after = json.loads(out)
     assert after == [max(before[0], limits.COLLECT_EVERY), *before[1:]] and after != before

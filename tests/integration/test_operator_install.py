@@ -54,21 +54,44 @@ def venv_python(tmp_path_factory):
     env = tmp_path_factory.mktemp("venv") / "venv"
     venv.create(env, with_pip=False)  # this interpreter's pip installs into it (--python)
     python = env / "bin" / "python"
-    purelib = run(str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])",
-                  cwd=env).stdout.strip()
+    purelib = run(
+        str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])", cwd=env
+    ).stdout.strip()
     Path(purelib, "deps-of-the-test-runner.pth").write_text("\n".join(site.getsitepackages()) + "\n")
     return python
 
 
 def pip_install(python, *args, cwd):
-    result = run(sys.executable, "-m", "pip", "--python", str(python), "install", "-q", "--no-deps",
-                 "--no-build-isolation", *args, cwd=cwd)
+    result = run(
+        sys.executable,
+        "-m",
+        "pip",
+        "--python",
+        str(python),
+        "install",
+        "-q",
+        "--no-deps",
+        "--no-build-isolation",
+        *args,
+        cwd=cwd,
+    )
     assert result.returncode == 0, result.stderr[-2000:]
 
 
 def test_a_wheel_installs_only_robotfleet_and_refuses_in_one_line(checkout, venv_python, tmp_path):
-    built = run(sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(tmp_path),
-                str(checkout), cwd=tmp_path)
+    built = run(
+        sys.executable,
+        "-m",
+        "pip",
+        "wheel",
+        "-q",
+        "--no-deps",
+        "--no-build-isolation",
+        "-w",
+        str(tmp_path),
+        str(checkout),
+        cwd=tmp_path,
+    )
     assert built.returncode == 0, built.stderr[-2000:]
     wheel = next(tmp_path.glob("*.whl"))
     with zipfile.ZipFile(wheel) as archive:
@@ -76,14 +99,18 @@ def test_a_wheel_installs_only_robotfleet_and_refuses_in_one_line(checkout, venv
     assert top == {"robotfleet"}, top  # no `engine`, no `roles` in site-packages
     pip_install(venv_python, str(wheel), cwd=tmp_path)
     script = venv_python.parent / "robotfleet"
-    for argv in ([str(script), "--help"], [str(script), "status", "x.py"],
-                 [str(venv_python), "-c", "import robotfleet"]):
+    for argv in (
+        [str(script), "--help"],
+        [str(script), "status", "x.py"],
+        [str(venv_python), "-c", "import robotfleet"],
+    ):
         result = run(*argv, cwd=tmp_path)
         assert result.returncode == 2, (argv, result.stderr)
         assert result.stderr.strip().splitlines() == [
             f"robotfleet: {result.stderr.split()[1]} is not in a checkout of the robot fleet provisioner "
             "(no deploy.py beside it); it runs from its checkout: in the checkout, "
-            "python3 -m venv .venv && .venv/bin/pip install -e .  (README: Install for operators)"], argv
+            "python3 -m venv .venv && .venv/bin/pip install -e .  (README: Install for operators)"
+        ], argv
         assert "/site-packages/robotfleet" in result.stderr
 
 
@@ -117,8 +144,11 @@ def test_readme_installs_operators_before_the_lab_and_without_the_lab_setup():
     pages = [section, *((ROOT / "docs" / "guides" / name).read_text() for name in ("install.md", "laptops.md"))]
     for page in pages:
         commands = [line.strip() for line in page.splitlines() if line.startswith("    ")]
-        assert not [c for c in commands
-                    if ".ci/setup" in c or c.startswith("sudo pip") or "pip install ." in c.replace("-e .", "")]
+        assert not [
+            c
+            for c in commands
+            if ".ci/setup" in c or c.startswith("sudo pip") or "pip install ." in c.replace("-e .", "")
+        ]
     for page in pages[:2]:
         commands = [line.strip() for line in page.splitlines() if line.startswith("    ")]
         assert "python3 -m venv .venv" in commands

@@ -9,8 +9,9 @@ import sys
 import pytest
 
 from roles.payload import release
-from roles.payload.payloadctl import durable, health, lifecycle, releases as releases_module
+from roles.payload.payloadctl import durable, health, lifecycle
 from roles.payload.payloadctl import lock as apply_lock
+from roles.payload.payloadctl import releases as releases_module
 
 
 class store:
@@ -34,7 +35,8 @@ def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
     present.write_text("")
     proc = subprocess.run(
         [helper, "wait-devices", "--timeout", "1", str(present), str(tmp_path / "lidar")],
-        capture_output=True, text=True,
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 1 and proc.stderr.strip().endswith(str(tmp_path / "lidar"))
 
@@ -42,8 +44,9 @@ def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
 def test_result_reports_the_last_apply(tmp_path, helper):
     (tmp_path / "last-result.json").write_text(json.dumps({"ok": False, "message": "payload: release x failed"}))
     proc = subprocess.run(
-        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"], capture_output=True,
-        text=True
+        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"],
+        capture_output=True,
+        text=True,
     )
     assert proc.returncode == 1 and proc.stderr.strip() == "payload: release x failed"
 
@@ -54,13 +57,26 @@ def test_apply_finds_the_release_already_current(tmp_path, helper):
     (tmp_path / "releases" / "r1").mkdir(parents=True)
     releases.write_record("r1", {"id": "r1", "created": "x", "spec_hash": "abc", "state": "staged"})
     releases.point("current", "r1")
-    spec = {"dir": str(tmp_path), "spec_hash": "abc", "autostart": False, "name": "robot-payload",
-            "lock_file": str(tmp_path / "lock"), "compose": {"services": {}}, "delivery": "pull",
-            "health_timeout": 60, "stable_seconds": 1, "pull_timeout": 30, "apply_lock_timeout": 30,
-            "keep_releases": 3, "checks": [], "takeover": {}}
+    spec = {
+        "dir": str(tmp_path),
+        "spec_hash": "abc",
+        "autostart": False,
+        "name": "robot-payload",
+        "lock_file": str(tmp_path / "lock"),
+        "compose": {"services": {}},
+        "delivery": "pull",
+        "health_timeout": 60,
+        "stable_seconds": 1,
+        "pull_timeout": 30,
+        "apply_lock_timeout": 30,
+        "keep_releases": 3,
+        "checks": [],
+        "takeover": {},
+    }
     (tmp_path / "request.json").write_text(json.dumps({"spec": spec, "run": {}}))
-    proc = subprocess.run([sys.executable, helper, "apply", str(tmp_path / "request.json")],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, helper, "apply", str(tmp_path / "request.json")], capture_output=True, text=True
+    )
     assert proc.returncode == 0 and "release r1 is already current" in proc.stdout
     assert sorted(p.name for p in (tmp_path / "releases").iterdir()) == ["r1"]
 
@@ -108,15 +124,24 @@ def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch
 
 import os  # noqa: E402
 import shutil  # noqa: E402
-import tempfile  # noqa: E402
 import socket  # noqa: E402
 import stat  # noqa: E402
+import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 FAKEBIN = Path(__file__).resolve().parent / "fakebin"
-SPEC = {"name": "robot-payload", "autostart": True, "delivery": "pull", "health_timeout": 600, "stable_seconds": 1,
-        "keep_releases": 3, "pull_timeout": 30, "apply_lock_timeout": 30, "checks": [],
-        "takeover": {"primary": "reg/ros/payload", "container": [], "project": []}}
+SPEC = {
+    "name": "robot-payload",
+    "autostart": True,
+    "delivery": "pull",
+    "health_timeout": 600,
+    "stable_seconds": 1,
+    "keep_releases": 3,
+    "pull_timeout": 30,
+    "apply_lock_timeout": 30,
+    "checks": [],
+    "takeover": {"primary": "reg/ros/payload", "container": [], "project": []},
+}
 
 
 def spec_hash(ref):
@@ -140,8 +165,13 @@ class FakeRobot:
 
     def image(self, ref, behaviour="healthy", present=True, pull="ok", platform="linux/amd64"):
         state = self.state()
-        state["images"][ref] = {"id": "sha256:" + ref.replace(":", "-").replace("/", "-"), "behaviour": behaviour,
-                                "present": present, "pull": pull, "platform": platform}
+        state["images"][ref] = {
+            "id": "sha256:" + ref.replace(":", "-").replace("/", "-"),
+            "behaviour": behaviour,
+            "present": present,
+            "pull": pull,
+            "platform": platform,
+        }
         self.save(state)
 
     def architecture(self, arch):
@@ -150,8 +180,14 @@ class FakeRobot:
         self.save(state)
 
     def spec_fields(self, ref, **extra):
-        return {**SPEC, "dir": str(self.root), "spec_hash": spec_hash(ref), "lock_file": str(self.root / "update.lock"),
-                "compose": {"name": "robot-payload", "services": {"payload": {"image": ref}}}, **extra}
+        return {
+            **SPEC,
+            "dir": str(self.root),
+            "spec_hash": spec_hash(ref),
+            "lock_file": str(self.root / "update.lock"),
+            "compose": {"name": "robot-payload", "services": {"payload": {"image": ref}}},
+            **extra,
+        }
 
     def release(self, rid, ref, state="active", created=None, spec=None, **extra):
         """A release already on the robot (``spec``: what differs in its spec)."""
@@ -160,31 +196,55 @@ class FakeRobot:
         durable.write_text(self.releases.path(rid, "compose.yaml"), store.compose_yaml(doc))
         durable.write_json(self.releases.path(rid, "spec.json"), self.spec_fields(ref, **(spec or {})))
         image_id = self.state()["images"][ref]["id"]
-        self.releases.write_record(rid, {"id": rid, "created": created or rid, "spec_hash": spec_hash(ref),
-                                         "state": state, "autostart": True,
-                                         "images": {ref: {"id": image_id, "pinned": ref}}, **extra})
+        self.releases.write_record(
+            rid,
+            {
+                "id": rid,
+                "created": created or rid,
+                "spec_hash": spec_hash(ref),
+                "state": state,
+                "autostart": True,
+                "images": {ref: {"id": image_id, "pinned": ref}},
+                **extra,
+            },
+        )
 
     def running(self, ref):
         state = self.state()
-        state["containers"] = {"robot-payload-payload-1": {"image": ref, "looks": 5, "name": "robot-payload-payload-1",
-                                                           "service": "payload", "policy": "unless-stopped"}}
+        state["containers"] = {
+            "robot-payload-payload-1": {
+                "image": ref,
+                "looks": 5,
+                "name": "robot-payload-payload-1",
+                "service": "payload",
+                "policy": "unless-stopped",
+            }
+        }
         state["unit_active"] = True
         self.save(state)
 
     def spec(self, ref, run_id="run-1", **extra):
-        request = {"spec": self.spec_fields(ref, **extra),
-                   "run": {"by": "ops@laptop (pyinfra)", "force": False, "host": "pi1"}}
+        request = {
+            "spec": self.spec_fields(ref, **extra),
+            "run": {"by": "ops@laptop (pyinfra)", "force": False, "host": "pi1"},
+        }
         path = self.root.parent / f"spec-{run_id}.json"
         path.write_text(json.dumps(request))
         return str(path)
 
     def payloadctl(self, *args, timeout=30):
-        return subprocess.run([sys.executable, self.helper, *args], env=self.env(), capture_output=True, text=True,
-                              timeout=timeout)
+        return subprocess.run(
+            [sys.executable, self.helper, *args], env=self.env(), capture_output=True, text=True, timeout=timeout
+        )
 
     def env(self, **more):
-        return dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(self.state_path),
-                    FAKE_HELPER=self.helper, **more)
+        return dict(
+            os.environ,
+            PATH=f"{FAKEBIN}:{os.environ['PATH']}",
+            FAKE_STATE=str(self.state_path),
+            FAKE_HELPER=self.helper,
+            **more,
+        )
 
     def apply(self, ref, run_id="run-1", **extra):
         self.payloadctl("apply", self.spec(ref, run_id, **extra), "--run-id", run_id)
@@ -220,11 +280,14 @@ def test_healthy_release_is_recorded_private_and_reported_for_this_run(robot):
     assert not (robot.root / "runs" / "run-7").exists()  # the run's own files are gone once reported
 
 
-@pytest.mark.parametrize("behaviour, reason", [
-    ("crash", "robot-payload-payload-1 is crash-looping"),  # containers are named as compose names them
-    ("exit", "robot-payload-payload-1 exited with code 1"),
-    ("unhealthy", "robot-payload-payload-1 is unhealthy: heartbeat check unhealthy"),
-])
+@pytest.mark.parametrize(
+    "behaviour, reason",
+    [
+        ("crash", "robot-payload-payload-1 is crash-looping"),  # containers are named as compose names them
+        ("exit", "robot-payload-payload-1 exited with code 1"),
+        ("unhealthy", "robot-payload-payload-1 is unhealthy: heartbeat check unhealthy"),
+    ],
+)
 def test_broken_release_fails_at_once_and_the_old_one_runs_again(robot, behaviour, reason):
     robot.image("reg/ros/payload:bad", behaviour)
     # health_timeout is 600 s: waiting it out would hit the 30 s process bound.
@@ -334,8 +397,13 @@ def test_failed_rollback_is_undone_and_the_old_release_started_again(robot):
 
 
 def switching(robot, rid, ref, kind, came_from, previous_before, **extra):
-    robot.release(rid, ref, state="switching", created=rid,
-                  switch={"kind": kind, "from": came_from, "previous_before": previous_before, **extra})
+    robot.release(
+        rid,
+        ref,
+        state="switching",
+        created=rid,
+        switch={"kind": kind, "from": came_from, "previous_before": previous_before, **extra},
+    )
 
 
 def test_boot_undoes_a_release_a_power_cut_left_unverified(robot):
@@ -347,8 +415,13 @@ def test_boot_undoes_a_release_a_power_cut_left_unverified(robot):
     assert proc.returncode == 0, proc.stderr
     assert robot.pointers() == ("r1", "r0")
     assert robot.releases.record("r2")["state"] == "failed" and "interrupted" in robot.releases.record("r2")["reason"]
-    assert robot.state()["compose_up"][-5:] == ["-f", str(robot.root / "current" / "compose.yaml"), "up", "-d",
-                                                "--remove-orphans"]
+    assert robot.state()["compose_up"][-5:] == [
+        "-f",
+        str(robot.root / "current" / "compose.yaml"),
+        "up",
+        "-d",
+        "--remove-orphans",
+    ]
 
 
 def test_boot_undoes_an_interrupted_rollback(robot):
@@ -365,8 +438,17 @@ def test_boot_runs_an_unverified_first_release_for_the_deploy_to_verify(tmp_path
     robot.image("reg/ros/payload:1.0")
     switching(robot, "r1", "reg/ros/payload:1.0", "apply", None, None)
     robot.releases.point("current", "r1")
-    durable.write_text(robot.releases.path("r1", "compose.yaml"), store.compose_yaml(releases_module.release_compose(
-        {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.0", "restart": "always"}}})))
+    durable.write_text(
+        robot.releases.path("r1", "compose.yaml"),
+        store.compose_yaml(
+            releases_module.release_compose(
+                {
+                    "name": "robot-payload",
+                    "services": {"payload": {"image": "reg/ros/payload:1.0", "restart": "always"}},
+                }
+            )
+        ),
+    )
     robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     assert robot.pointers() == ("r1", None) and robot.releases.record("r1")["state"] == "switching"
     assert "compose_up" in robot.state()
@@ -395,8 +477,10 @@ def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path
     robot.releases.point("current", "r2")  # rolled back far: current and previous are old ones
     robot.releases.point("previous", "r1")
     env = dict(os.environ, PATH=f"{FAKEBIN}:{os.environ['PATH']}", FAKE_STATE=str(robot.state_path))
-    code = ("import sys; sys.path.insert(0, sys.argv[1]); from payloadctl import releases; "
-            "releases.gc(3, releases.Releases(sys.argv[2]))")
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[1]); from payloadctl import releases; "
+        "releases.gc(3, releases.Releases(sys.argv[2]))"
+    )
     subprocess.run([sys.executable, "-c", code, helper, str(robot.root)], env=env, check=True)
     assert sorted(robot.releases.all()) == ["r1", "r2", "r5", "r6", "r7"]
     removed = [line for line in robot.state()["log"] if line.startswith("docker image rm")]
@@ -404,11 +488,14 @@ def test_gc_keeps_the_newest_releases_current_previous_and_their_images(tmp_path
 
 
 def test_result_of_a_run_that_recorded_nothing_fails_with_a_clear_line(tmp_path, helper):
-    (tmp_path / "last-result.json").write_text(json.dumps({"ok": True, "message": "payload: release old is healthy",
-                                                           "run_id": "earlier"}))
-    proc = subprocess.run([sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload",
-                           "--run-id", "this-run"],
-                          capture_output=True, text=True)
+    (tmp_path / "last-result.json").write_text(
+        json.dumps({"ok": True, "message": "payload: release old is healthy", "run_id": "earlier"})
+    )
+    proc = subprocess.run(
+        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload", "--run-id", "this-run"],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 1 and "healthy" not in proc.stdout
     assert proc.stderr.startswith("payload: payloadctl recorded no result for this run (this-run): disk full?")
 
@@ -451,9 +538,16 @@ def test_a_lock_held_by_a_process_that_is_not_ours_is_named_as_such(robot):
     assert not os.path.exists(held.owner_path)
     # An earlier deploy's note left behind must not be taken for the holder either.
     durable.write_json(held.owner_path, {"by": "old@laptop (pyinfra)", "since": "2026-01-01T00:00:00Z", "pid": 1})
-    holder = subprocess.Popen([sys.executable, "-c", f"import fcntl, time; f = open({held.path!r}); "
-                               "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(30)"],
-                              stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            f"import fcntl, time; f = open({held.path!r}); "
+            "fcntl.flock(f, fcntl.LOCK_EX); print('held', flush=True); time.sleep(30)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "held"
         robot.image("reg/ros/payload:1.1")
@@ -483,10 +577,13 @@ def test_a_deploy_waits_for_the_boot_recovery_and_says_so(robot):
     """The boot holds the lock until its compose up is done: a deploy that
     arrives meanwhile waits (it used to restart the unit mid-recreate)."""
     interrupted_update(robot)
-    boot = subprocess.Popen([sys.executable, robot.helper, "start", "--dir", str(robot.root), "--name",
-                             "robot-payload"],
-                            env=robot.env(FAKE_COMPOSE_SLEEP="3"), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    boot = subprocess.Popen(
+        [sys.executable, robot.helper, "start", "--dir", str(robot.root), "--name", "robot-payload"],
+        env=robot.env(FAKE_COMPOSE_SLEEP="3"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     try:
         wait_until(lambda: "compose_up" in robot.state(), "the boot's compose up to begin")
         deploy = robot.payloadctl("apply", robot.spec("reg/ros/payload:1.1", "run-9"), "--run-id", "run-9")
@@ -497,9 +594,13 @@ def test_a_deploy_waits_for_the_boot_recovery_and_says_so(robot):
     assert deploy.stderr.rstrip().splitlines()[0].endswith("; waiting")
     assert result.returncode == 0 and "is healthy" in result.stdout
     log = robot.state()["log"]
-    boot_up = max(i for i, line in enumerate(log)
-                  if "current/compose.yaml up -d --remove-orphans" in line and "--no-start" not in line
-                  and i < log.index("docker pull -q reg/ros/payload:1.1"))
+    boot_up = max(
+        i
+        for i, line in enumerate(log)
+        if "current/compose.yaml up -d --remove-orphans" in line
+        and "--no-start" not in line
+        and i < log.index("docker pull -q reg/ros/payload:1.1")
+    )
     assert boot_up < log.index("docker pull -q reg/ros/payload:1.1")  # the deploy began once the boot was done
     assert robot.releases.record("r2")["state"] == "failed"  # the boot decided: back on r1
     assert robot.releases.record(robot.pointers()[0])["state"] == "active"  # and the deploy finished the update
@@ -521,17 +622,26 @@ def test_what_an_interrupted_compose_up_left_is_removed_before_the_next(robot):
     the new one not started; the next compose up failed on the name."""
     state = robot.state()
     state["containers"] = {
-        "0123456789ab_robot-payload-payload-1": {"image": "reg/ros/payload:1.0", "project": "robot-payload",
-                                                 "name": "0123456789ab_robot-payload-payload-1", "running": False,
-                                                 "status": "exited"},
-        "robot-payload-payload-1": {"image": "reg/ros/payload:1.0", "name": "robot-payload-payload-1",
-                                    "running": False, "status": "created"},
+        "0123456789ab_robot-payload-payload-1": {
+            "image": "reg/ros/payload:1.0",
+            "project": "robot-payload",
+            "name": "0123456789ab_robot-payload-payload-1",
+            "running": False,
+            "status": "exited",
+        },
+        "robot-payload-payload-1": {
+            "image": "reg/ros/payload:1.0",
+            "name": "robot-payload-payload-1",
+            "running": False,
+            "status": "created",
+        },
     }
     robot.save(state)
     boot = robot.payloadctl("start", "--dir", str(robot.root), "--name", "robot-payload")
     assert boot.returncode == 0, boot.stdout + boot.stderr
-    assert ("removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, "
-            "robot-payload-payload-1") in boot.stderr
+    assert (
+        "removed what an interrupted compose up left: 0123456789ab_robot-payload-payload-1, robot-payload-payload-1"
+    ) in boot.stderr
     assert list(robot.state()["containers"]) == ["robot-payload-payload-1"]
     assert robot.state()["containers"]["robot-payload-payload-1"]["running"] is True
 
@@ -543,8 +653,10 @@ def test_an_unverified_release_has_no_restart_policy_until_it_is_verified(robot)
     x-restart-when-verified), so one compose up creates and starts it
     without one, and the policy is given once it is verified."""
     robot.image("reg/ros/payload:1.1")
-    compose = {"name": "robot-payload",
-               "services": {"payload": {"image": "reg/ros/payload:1.1", "restart": "unless-stopped"}}}
+    compose = {
+        "name": "robot-payload",
+        "services": {"payload": {"image": "reg/ros/payload:1.1", "restart": "unless-stopped"}},
+    }
     result = robot.apply("reg/ros/payload:1.1", compose=compose)
     assert result.returncode == 0
     log = robot.state()["log"]
@@ -578,8 +690,11 @@ def test_an_unverified_release_an_older_payloadctl_wrote_is_created_then_strippe
     assert robot.releases.record("r1")["state"] == "switching"  # still for the next deploy to verify
 
 
-@pytest.mark.parametrize("written", [releases_module.release_compose, lambda doc: doc],
-                         ids=["this payloadctl's file", "an older payloadctl's"])
+@pytest.mark.parametrize(
+    "written",
+    [releases_module.release_compose, lambda doc: doc],
+    ids=["this payloadctl's file", "an older payloadctl's"],
+)
 def test_the_boot_gives_a_verified_release_its_restart_policy_back(robot, written):
     """A power cut between the verdict and the policy: the boot restores it."""
     state = robot.state()
@@ -601,19 +716,29 @@ def test_takeover_stops_an_earlier_copy_of_the_payload_and_no_other_projects_con
     robot.image("reg/ros/payload:1.1")
     robot.image("reg/lib/mosquitto:2")
     state = robot.state()
-    state["containers"].update({
-        "homeauto-broker-1": {"image": "reg/lib/mosquitto:2", "name": "homeauto-broker-1", "project": "homeauto",
-                              "service": "broker", "policy": "always"},
-        "ros_payload": {"image": "reg/ros/payload:1.1", "name": "ros_payload", "project": None, "policy": "always"},
-    })
+    state["containers"].update(
+        {
+            "homeauto-broker-1": {
+                "image": "reg/lib/mosquitto:2",
+                "name": "homeauto-broker-1",
+                "project": "homeauto",
+                "service": "broker",
+                "policy": "always",
+            },
+            "ros_payload": {"image": "reg/ros/payload:1.1", "name": "ros_payload", "project": None, "policy": "always"},
+        }
+    )
     robot.save(state)
-    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/payload:1.1"},
-                                                     "broker": {"image": "reg/lib/mosquitto:2"}}}
+    compose = {
+        "name": "robot-payload",
+        "services": {"payload": {"image": "reg/ros/payload:1.1"}, "broker": {"image": "reg/lib/mosquitto:2"}},
+    }
     result = robot.apply("reg/ros/payload:1.1", compose=compose)
     assert result.returncode == 0, result.stderr
     containers = robot.state()["containers"]
-    assert containers["homeauto-broker-1"].get("running",
-                                               True) and containers["homeauto-broker-1"]["policy"] == "always"
+    assert (
+        containers["homeauto-broker-1"].get("running", True) and containers["homeauto-broker-1"]["policy"] == "always"
+    )
     assert not containers["ros_payload"]["running"] and containers["ros_payload"]["policy"] == "no"
     taken = robot.releases.record(robot.pointers()[0])["taken_over"]
     assert [(c["name"], c["why"]) for c in taken] == [("ros_payload", "it runs the payload's image")]
@@ -623,8 +748,12 @@ def test_text_the_robot_controls_reaches_the_operator_as_one_printable_line(robo
     """A healthcheck's output is the image's to write: an escape sequence or
     a newline in it is shown, never obeyed by the operator's terminal."""
     state = robot.state()
-    state["images"]["reg/ros/payload:evil"] = {"id": "sha256:evil", "behaviour": "unhealthy", "present": True,
-                                               "health_log": "ok\x1b[2J\x1b[31mfake: release is healthy\nsecond line"}
+    state["images"]["reg/ros/payload:evil"] = {
+        "id": "sha256:evil",
+        "behaviour": "unhealthy",
+        "present": True,
+        "health_log": "ok\x1b[2J\x1b[31mfake: release is healthy\nsecond line",
+    }
     robot.save(state)
     result = robot.apply("reg/ros/payload:evil")
     assert result.returncode == 1
@@ -642,8 +771,10 @@ def test_an_image_for_another_platform_is_refused_before_anything_switches(robot
     result = robot.apply("reg/ros/payload:1.1")
     assert result.returncode == 1
     line = [found for found in result.stderr.splitlines() if "refused" in found]
-    assert line == ["payload: pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only: "
-                    "refused before anything switched"]
+    assert line == [
+        "payload: pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only: "
+        "refused before anything switched"
+    ]
     assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # no release was even written
     assert not any(entry.startswith("docker compose") for entry in robot.state()["log"])
 
@@ -675,8 +806,10 @@ def test_an_image_present_by_the_digest_it_names_is_not_pulled_again(robot):
 def test_a_service_that_pins_its_platform_is_pulled_for_that_platform(robot):
     robot.architecture("arm64")
     robot.image("reg/ros/camera:2.0-arm64", platform="linux/arm64")
-    compose = {"name": "robot-payload", "services": {"payload": {"image": "reg/ros/camera:2.0-arm64",
-                                                                 "platform": "linux/arm64"}}}
+    compose = {
+        "name": "robot-payload",
+        "services": {"payload": {"image": "reg/ros/camera:2.0-arm64", "platform": "linux/arm64"}},
+    }
     result = robot.apply("reg/ros/camera:2.0-arm64", compose=compose)
     assert result.returncode == 0, result.stderr
     assert "docker pull -q --platform linux/arm64 reg/ros/camera:2.0-arm64" in robot.state()["log"]
@@ -686,16 +819,32 @@ def test_a_payload_that_dies_with_exec_format_error_is_named_and_rolled_back(rob
     robot.image("reg/ros/payload:mislabeled", "execformat")
     result = robot.apply("reg/ros/payload:mislabeled")
     assert result.returncode == 1
-    assert ("robot-payload-payload-1 cannot run: exec format error: its program is not built for this robot's "
-            "architecture (image reg/ros/payload:mislabeled)") in result.stderr
+    assert (
+        "robot-payload-payload-1 cannot run: exec format error: its program is not built for this robot's "
+        "architecture (image reg/ros/payload:mislabeled)"
+    ) in result.stderr
     assert "rolled back to r1 and it is running" in result.stderr
     assert robot.pointers() == ("r1", None)
 
 
 # --- one structured result per run (issue 30, item 2) --------------------------------
 
-RESULT_KEYS = {"payloadctl", "ok", "outcome", "action", "release", "previous", "target", "reason", "message",
-               "taken_over", "run_id", "deployment", "host", "time"}
+RESULT_KEYS = {
+    "payloadctl",
+    "ok",
+    "outcome",
+    "action",
+    "release",
+    "previous",
+    "target",
+    "reason",
+    "message",
+    "taken_over",
+    "run_id",
+    "deployment",
+    "host",
+    "time",
+}
 
 
 def one_json_line(text):
@@ -704,15 +853,24 @@ def one_json_line(text):
     return json.loads(lines[0])
 
 
-@pytest.mark.parametrize("case, outcome, ok, release, reason", [
-    ("healthy", "applied", True, "new", None),
-    ("same", "already-current", True, "r1", None),
-    ("laptop", "staged", True, "new", None),
-    ("broken", "rolled-back", False, "r1", "robot-payload-payload-1 is unhealthy: heartbeat check unhealthy"),
-    ("no pull", "failed", False, "r1", "cannot pull reg/ros/payload:1.1: Error response from daemon"),
-    ("update lock", "refused", False, "r1", "update refused, "),
-    ("other platform", "refused", False, "r1", "pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only"),
-])
+@pytest.mark.parametrize(
+    "case, outcome, ok, release, reason",
+    [
+        ("healthy", "applied", True, "new", None),
+        ("same", "already-current", True, "r1", None),
+        ("laptop", "staged", True, "new", None),
+        ("broken", "rolled-back", False, "r1", "robot-payload-payload-1 is unhealthy: heartbeat check unhealthy"),
+        ("no pull", "failed", False, "r1", "cannot pull reg/ros/payload:1.1: Error response from daemon"),
+        ("update lock", "refused", False, "r1", "update refused, "),
+        (
+            "other platform",
+            "refused",
+            False,
+            "r1",
+            "pi1 is linux/arm64 but image reg/ros/payload:1.1 is linux/amd64 only",
+        ),
+    ],
+)
 def test_each_apply_gives_one_structured_result(robot, case, outcome, ok, release, reason):
     extra = {}
     if case == "broken":
@@ -756,8 +914,12 @@ def test_a_rollback_gives_its_structured_result(robot):
     robot.release("r0", "reg/ros/payload:0.9", created="r0")
     robot.releases.point("previous", "r0")
     result = one_json_line(robot.rollback().stdout)
-    assert ((result["action"], result["outcome"], result["ok"], result["target"])
-            == ("rollback", "rolled-back", False, "r0"))
+    assert (result["action"], result["outcome"], result["ok"], result["target"]) == (
+        "rollback",
+        "rolled-back",
+        False,
+        "r0",
+    )
     assert (result["release"], result["previous"]) == ("r1", "r0") and "crash-looping" in result["reason"]
     robot.releases.point("previous", None)
     result = one_json_line(robot.rollback("rb-2").stdout)
@@ -776,24 +938,40 @@ def test_status_carries_the_last_result(robot):
 
 
 def test_the_deploy_reads_the_result_and_says_it_from_the_result():
-    result = {"payloadctl": 1, "ok": False, "outcome": "rolled-back",
-              "message": "payload: release r2 failed (\x1b[31mx)",
-              "taken_over": [{"name": "ros_payload", "project": None, "image": "reg/ros/payload:1.0",
-                              "why": "it runs the payload's image"}]}
+    result = {
+        "payloadctl": 1,
+        "ok": False,
+        "outcome": "rolled-back",
+        "message": "payload: release r2 failed (\x1b[31mx)",
+        "taken_over": [
+            {
+                "name": "ros_payload",
+                "project": None,
+                "image": "reg/ros/payload:1.0",
+                "why": "it runs the payload's image",
+            }
+        ],
+    }
     lines = ["payload: a line for people", "[robot2] Error", json.dumps(result)]
     found = release.read_result(lines)
     assert found == result
     assert release.said(found) == [
         ("warning", "payload: stopped ros_payload (reg/ros/payload:1.0): it runs the payload's image"),
-        ("error", "payload: release r2 failed (\\x1b[31mx)")]
+        ("error", "payload: release r2 failed (\\x1b[31mx)"),
+    ]
     assert release.read_result(["payload: release r1 is healthy", '{"ok": true}', "{not json"]) is None
     assert release.said({**result, "ok": True, "taken_over": []}) == []
 
 
 # --- takeover as promised (issue 27, item 2) ------------------------------------------
 
-HOMEAUTO = {"image": "reg/ros/payload:1.0", "name": "homeauto-bridge-1", "project": "homeauto", "service": "bridge",
-            "policy": "always"}
+HOMEAUTO = {
+    "image": "reg/ros/payload:1.0",
+    "name": "homeauto-bridge-1",
+    "project": "homeauto",
+    "service": "bridge",
+    "policy": "always",
+}
 
 
 def homeauto_untouched(robot):
@@ -809,21 +987,25 @@ def test_another_compose_project_of_the_payload_image_is_never_taken_over(tmp_pa
     for tag in ("1.0", "1.1"):
         robot.image(f"reg/ros/payload:{tag}")
     state = robot.state()
-    state["containers"] = {"homeauto-bridge-1": dict(HOMEAUTO),
-                           "ros_payload": {"image": "reg/ros/payload:1.0", "name": "ros_payload", "project": None,
-                                           "policy": "always"}}
+    state["containers"] = {
+        "homeauto-bridge-1": dict(HOMEAUTO),
+        "ros_payload": {"image": "reg/ros/payload:1.0", "name": "ros_payload", "project": None, "policy": "always"},
+    }
     robot.save(state)
     first = robot.payloadctl("apply", robot.spec("reg/ros/payload:1.0", "first"), "--run-id", "first")
     result = one_json_line(first.stdout)
     assert first.returncode == 0 and homeauto_untouched(robot)
     assert [c["name"] for c in result["taken_over"]] == ["ros_payload"]  # the copy in no project is ours to stop
-    assert ("payload: stopping ros_payload (reg/ros/payload:1.0, restart always): "
-            "it runs the payload's image") in first.stderr
+    assert (
+        "payload: stopping ros_payload (reg/ros/payload:1.0, restart always): it runs the payload's image"
+    ) in first.stderr
     assert "homeauto" not in first.stderr
     assert robot.apply("reg/ros/payload:1.1", run_id="update").returncode == 0 and homeauto_untouched(robot)
     assert json.loads(robot.rollback("rb").stdout)["outcome"] == "applied" and homeauto_untouched(robot)
-    assert not any(line.startswith("docker stop homeauto") or "homeauto-bridge-1" in line and "update" in line
-                   for line in robot.state()["log"])
+    assert not any(
+        line.startswith("docker stop homeauto") or "homeauto-bridge-1" in line and "update" in line
+        for line in robot.state()["log"]
+    )
 
 
 def test_the_compose_project_the_payload_used_before_is_taken_over(robot):
@@ -832,15 +1014,25 @@ def test_the_compose_project_the_payload_used_before_is_taken_over(robot):
     robot.image("reg/ros/payload:1.1")
     durable.write_json(robot.releases.path("r1", "record.json"), {**robot.releases.record("r1"), "project": "ros-old"})
     state = robot.state()
-    state["containers"].update({
-        "ros-old-payload-1": {"image": "reg/ros/payload:1.0", "name": "ros-old-payload-1", "project": "ros-old",
-                              "policy": "always"},
-        "homeauto-bridge-1": dict(HOMEAUTO)})
+    state["containers"].update(
+        {
+            "ros-old-payload-1": {
+                "image": "reg/ros/payload:1.0",
+                "name": "ros-old-payload-1",
+                "project": "ros-old",
+                "policy": "always",
+            },
+            "homeauto-bridge-1": dict(HOMEAUTO),
+        }
+    )
     robot.save(state)
     result = json.loads(robot.apply("reg/ros/payload:1.1").stdout)
     assert [(c["name"], c["why"]) for c in result["taken_over"]] == [
-        ("ros-old-payload-1", "it runs the payload's image in compose project ros-old, which this robot's payload "
-                              "used before")]
+        (
+            "ros-old-payload-1",
+            "it runs the payload's image in compose project ros-old, which this robot's payload used before",
+        )
+    ]
     assert homeauto_untouched(robot)
 
 
@@ -860,16 +1052,23 @@ def test_a_robot_without_compose_v2_is_told_so_in_one_line_not_dockers_usage(rob
         (v1 / "docker-compose").write_text("#!/bin/sh\necho 'docker-compose version 1.29.2, build unknown'\n")
         (v1 / "docker-compose").chmod(0o755)
         env["PATH"] = f"{env['PATH']}:{v1}"
-    subprocess.run([sys.executable, robot.helper, "apply", robot.spec("reg/ros/payload:1.1"), "--run-id", "run-1"],
-                   env=env, capture_output=True, text=True, timeout=30)
+    subprocess.run(
+        [sys.executable, robot.helper, "apply", robot.spec("reg/ros/payload:1.1"), "--run-id", "run-1"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     result = robot.result("run-1")
     assert result.returncode == 1
     lines = [line for line in result.stderr.splitlines() if line.strip()]
     older = " (only the old docker-compose v1 is installed, which payloadctl does not use)" if old_v1 else ""
-    assert lines == [f"payload: Docker Compose v2 is missing on this robot: `docker compose version` fails{older}; "
-                     "nothing switched. The docker role installs it (docker-compose-plugin in docker_packages, or "
-                     "the distribution's compose v2 with docker_source: distro): deploy with the docker role in "
-                     "ROLES, then again."], result.stderr
+    assert lines == [
+        f"payload: Docker Compose v2 is missing on this robot: `docker compose version` fails{older}; "
+        "nothing switched. The docker role installs it (docker-compose-plugin in docker_packages, or "
+        "the distribution's compose v2 with docker_source: distro): deploy with the docker role in "
+        "ROLES, then again."
+    ], result.stderr
     assert "Usage:" not in result.stderr and "docker compose config refused" not in result.stderr
     assert robot.pointers() == ("r1", None) and robot.releases.all() == ["r1"]  # nothing switched, nothing kept
 

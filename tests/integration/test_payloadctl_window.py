@@ -65,9 +65,14 @@ def unhealthy_release(fake_docker):
     third look (the first two say starting)."""
     state = json.loads(fake_docker.read_text())
     state["images"]["reg/ros/payload:bad"] = {"id": "sha256:bad", "behaviour": "unhealthy", "present": True}
-    state["containers"] = {"robot-payload-payload-1": {"image": "reg/ros/payload:bad",
-                                                       "name": "robot-payload-payload-1",
-                                                       "service": "payload", "policy": "no"}}
+    state["containers"] = {
+        "robot-payload-payload-1": {
+            "image": "reg/ros/payload:bad",
+            "name": "robot-payload-payload-1",
+            "service": "payload",
+            "policy": "no",
+        }
+    }
     fake_docker.write_text(json.dumps(state))
 
 

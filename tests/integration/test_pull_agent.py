@@ -18,13 +18,13 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.pull.robot import agent, agent_state, transport, wake_report
 from robotfleet.pull.protocol import agent_files, reports, tree
+from robotfleet.pull.robot import agent, agent_state, transport, wake_report
 from tests.integration import craftedgit
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
-STUB = '''import json, os, sys
+STUB = """import json, os, sys
 from robotfleet.pull.protocol import agent_files
 args = sys.argv[1:]
 if os.environ.get("STUB_LOG"):
@@ -47,16 +47,19 @@ else:
     print(json.dumps({"exit": 1, "row": row, "results": [{"role": "payload", "ok": False,
                       "why": "release x failed (unhealthy); rolled back to y", "outcome": mode}],
                       "missing": [], "errors": ["[@local] Error"]}))
-'''
+"""
 
 
 def code_archive(base: Path, version: int) -> tuple[Path, str, str]:
     """A release's code: (archive, tree hash, fleet file hash)."""
-    files = {"robotfleet/__init__.py": "", "robotfleet/commands/__init__.py": "",
-             "robotfleet/commands/converge.py": STUB,
-             "robotfleet/pull/__init__.py": "",
-             "robotfleet/pull/protocol/agent_files.py": Path(agent_files.__file__).read_text(),
-             "inventories/robots.yaml": f"# release {version}\n"}
+    files = {
+        "robotfleet/__init__.py": "",
+        "robotfleet/commands/__init__.py": "",
+        "robotfleet/commands/converge.py": STUB,
+        "robotfleet/pull/__init__.py": "",
+        "robotfleet/pull/protocol/agent_files.py": Path(agent_files.__file__).read_text(),
+        "inventories/robots.yaml": f"# release {version}\n",
+    }
     root = base / f"tree-{version}"
     for name, text in files.items():
         (root / name).parent.mkdir(parents=True, exist_ok=True)
@@ -83,19 +86,36 @@ class World:
         venv.mkdir(parents=True)
         os.symlink(sys.executable, venv / "python")
         os.symlink("venvs/stub", self.state / "venv")
-        self.config = agent_files.Config(robot="robot1", remote=f"file://{self.bare}", interval=60, jitter=5,
-                                    state_dir=str(self.state), etc_dir=str(self.etc), docker_dir=str(base / "none"),
-                                    min_free_mb=0)
+        self.config = agent_files.Config(
+            robot="robot1",
+            remote=f"file://{self.bare}",
+            interval=60,
+            jitter=5,
+            state_dir=str(self.state),
+            etc_dir=str(self.etc),
+            docker_dir=str(base / "none"),
+            min_free_mb=0,
+        )
 
     def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
         record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
         built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
-        built = record.build(version, NOW, NOW + datetime.timedelta(days=30),
-                             hashlib.sha1(bytes([version])).hexdigest(),
-                             tree_sha, "inventories/robots.yaml", fleet_sha, list(robots), {}, {},
-                             waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}))
-        self.fleet.repository.publish(built, {built.code: archive or built_archive}, self.fleet.keys.signer("online"),
-                                      self.fleet.expiry, NOW)
+        built = record.build(
+            version,
+            NOW,
+            NOW + datetime.timedelta(days=30),
+            hashlib.sha1(bytes([version])).hexdigest(),
+            tree_sha,
+            "inventories/robots.yaml",
+            fleet_sha,
+            list(robots),
+            {},
+            {},
+            waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}),
+        )
+        self.fleet.repository.publish(
+            built, {built.code: archive or built_archive}, self.fleet.keys.signer("online"), self.fleet.expiry, NOW
+        )
         self.push()
         return built
 
@@ -103,10 +123,18 @@ class World:
         repo = self.fleet.repository.path
         if not (repo / ".git").exists():
             subprocess.run(["git", "-C", str(repo), "init", "-q"], check=True)
-        env = dict(os.environ, GIT_AUTHOR_NAME="op", GIT_AUTHOR_EMAIL="op@x", GIT_COMMITTER_NAME="op",
-                   GIT_COMMITTER_EMAIL="op@x")
-        for args in (["add", "-A", "metadata", "targets"], ["commit", "-q", "--allow-empty", "-m", "publish"],
-                     ["push", "-q", "--force", str(self.bare), "HEAD:refs/heads/robotfleet/releases"]):
+        env = dict(
+            os.environ,
+            GIT_AUTHOR_NAME="op",
+            GIT_AUTHOR_EMAIL="op@x",
+            GIT_COMMITTER_NAME="op",
+            GIT_COMMITTER_EMAIL="op@x",
+        )
+        for args in (
+            ["add", "-A", "metadata", "targets"],
+            ["commit", "-q", "--allow-empty", "-m", "publish"],
+            ["push", "-q", "--force", str(self.bare), "HEAD:refs/heads/robotfleet/releases"],
+        ):
             subprocess.run(["git", "-C", str(repo), *args], check=True, env=env, capture_output=True)
 
     def wake(self, stub="applied", monkeypatch=None):
@@ -121,8 +149,9 @@ class World:
         return report, outcome, sent
 
     def pushed_report(self) -> dict:
-        data = subprocess.run(["git", "-C", str(self.bare), "show", "refs/reports/robot1:report.json"], check=True,
-                              capture_output=True).stdout
+        data = subprocess.run(
+            ["git", "-C", str(self.bare), "show", "refs/reports/robot1:report.json"], check=True, capture_output=True
+        ).stdout
         return reports.parse(data, "robot1")
 
 
@@ -174,10 +203,12 @@ def test_a_robot_s_crafted_report_neither_forges_another_s_nor_stops_a_later_wav
     robot3 rolled it back, so robot1 halts (no failure allowed), whatever
     robot2 pushed as its report."""
     world.release(3, robots=("robot1", "robot2", "robot3"), canary="2")
-    rolled_back = reports.build("robot3", NOW, "rolled-back", attempted={"version": 3, "result": "rolled-back",
-                                                                         "tries": 1})
+    rolled_back = reports.build(
+        "robot3", NOW, "rolled-back", attempted={"version": 3, "result": "rolled-back", "tries": 1}
+    )
     transport.Remote(f"file://{world.bare}", world.base / "robot3", str(world.base / "etc3"), timeout=30).push_report(
-        "robot3", reports.to_bytes(rolled_back))
+        "robot3", reports.to_bytes(rolled_back)
+    )
     work = craftedgit.workspace(world.base / "hostile")
     if crafted.startswith("a tree"):
         applied = reports.build("robot3", NOW, "applied", attempted={"version": 3, "result": "applied", "tries": 1})
@@ -206,8 +237,10 @@ def test_a_refused_repository_changes_nothing_and_says_why(world):
     world.release(1)
     world.wake()
     before = sorted(p.name for p in world.state.iterdir())
-    pullkit.edit_json(world.fleet.repository.metadata / "timestamp.json",
-                      lambda d: d["signed"].update(version=d["signed"]["version"] + 1))
+    pullkit.edit_json(
+        world.fleet.repository.metadata / "timestamp.json",
+        lambda d: d["signed"].update(version=d["signed"]["version"] + 1),
+    )
     world.push()
     report, outcome, sent = world.wake()
     assert (outcome.result, outcome.refusal) == ("refused", "tampered") and sent == "report sent"
@@ -247,11 +280,15 @@ def test_a_robot_whose_key_the_remote_does_not_know_yet_waits_for_enrollment(wor
     try:
         key = server.host_key
         (world.etc / "known_hosts").write_text(f"{transport.HOST_KEY_ALIAS} {key.get_name()} {key.get_base64()}\n")
-        world.config = agent_files.Config(**{**world.config.__dict__, "remote": f"ssh://git@127.0.0.1:{server.port}/fleet"})
+        world.config = agent_files.Config(
+            **{**world.config.__dict__, "remote": f"ssh://git@127.0.0.1:{server.port}/fleet"}
+        )
         report, outcome, sent = world.wake()
         assert outcome.result == "waiting", outcome.reason
-        assert outcome.reason.startswith("waiting for enrollment: the fleet remote does not accept this robot's key "
-                                         "yet (robotfleet pull-enroll registers it; fetch: ")
+        assert outcome.reason.startswith(
+            "waiting for enrollment: the fleet remote does not accept this robot's key "
+            "yet (robotfleet pull-enroll registers it; fetch: "
+        )
         assert "Permission denied (publickey" in outcome.reason and sent.startswith("report not sent")
         agent_state.save_state(world.state, {**agent_state.load_state(world.state), "seen": {"version": 1}})
         _, outcome, _ = world.wake()
@@ -271,8 +308,9 @@ def test_a_release_fetched_over_https_is_verified_applied_and_reported_elsewhere
     server = httpsgit.Server(world.base, cert, key, smart=False)
     try:
         (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
-        world.config = agent_files.Config(**{**world.config.__dict__, "remote": server.url("fleet.git"),
-                                        "report_remote": f"file://{world.bare}"})
+        world.config = agent_files.Config(
+            **{**world.config.__dict__, "remote": server.url("fleet.git"), "report_remote": f"file://{world.bare}"}
+        )
         _, outcome, sent = world.wake()
         assert (outcome.result, sent) == ("applied", "report sent") and server.requests > 0
         assert world.pushed_report()["applied"]["version"] == 1
@@ -281,20 +319,28 @@ def test_a_release_fetched_over_https_is_verified_applied_and_reported_elsewhere
 
 
 def test_the_journal_line_says_the_outcome_and_its_cost():
-    report = {"result": "refused", "seen": {"version": 3}, "reason": "timestamp.json: expired",
-              "check": {"cpu": 0.42, "sent": 1200, "received": 3400, "requests": 2}}
+    report = {
+        "result": "refused",
+        "seen": {"version": 3},
+        "reason": "timestamp.json: expired",
+        "check": {"cpu": 0.42, "sent": 1200, "received": 3400, "requests": 2},
+    }
     assert wake_report.journal_line(report, "report sent", 1.25) == (
         "robot-pull: refused (release 3): timestamp.json: expired; 1.2 s, 0.42 s CPU, sent 1200 B, "
-        "received 3400 B in 2 requests; report sent")
+        "received 3400 B in 2 requests; report sent"
+    )
 
 
 def test_the_agent_configuration_is_checked_field_by_field(tmp_path):
     good = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
     assert agent_files.read_config(good).robot == "robot1"
-    for change, line in ((lambda d: d.pop("robot"), "robot: required"), (lambda d: d.update(interval=0), "interval"),
-                         (lambda d: d.update(extra_field=1), "unknown field 'extra_field'"),
-                         (lambda d: d.update(state_dir="var/lib"), "state_dir: expected an absolute path"),
-                         (lambda d: d.update(robot="a b"), "is not a robot name")):
+    for change, line in (
+        (lambda d: d.pop("robot"), "robot: required"),
+        (lambda d: d.update(interval=0), "interval"),
+        (lambda d: d.update(extra_field=1), "unknown field 'extra_field'"),
+        (lambda d: d.update(state_dir="var/lib"), "state_dir: expected an absolute path"),
+        (lambda d: d.update(robot="a b"), "is not a robot name"),
+    ):
         data = json.loads(good)
         change(data)
         with pytest.raises(agent_files.ConfigError, match=line):
@@ -319,8 +365,8 @@ def test_the_enrollment_key_goes_once_the_remote_took_the_robot_s_own_key_even_w
 
 
 def test_a_robot_holding_its_bundle_s_enrollment_key_proves_its_report_and_keeps_the_proof_once_it_is_retired(world):
-    from robotfleet.pull.protocol import enrollment
     from robotfleet.pull.operator import enrollments
+    from robotfleet.pull.protocol import enrollment
 
     key = world.etc / "enroll_ed25519"
     subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(key)], check=True)

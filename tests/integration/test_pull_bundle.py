@@ -16,10 +16,21 @@ from robotfleet.pull.operator import bundle
 from robotfleet.pull.protocol import agent_files
 
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
-DATA = SimpleNamespace(pull_remote="ssh://gitolite3@git.lan/fleet", pull_interval=60, pull_jitter=5,
-                       pull_windows=[], pull_min_free_mb=256, pull_fetch_timeout=120, pull_stale_after=3,
-                       pull_boot_delay=30, pull_remote_host_keys=[KEY], pull_platform="cp313-x86_64",
-                       pull_heartbeat=3600, pull_report_remote=None, pull_remote_ca=None)
+DATA = SimpleNamespace(
+    pull_remote="ssh://gitolite3@git.lan/fleet",
+    pull_interval=60,
+    pull_jitter=5,
+    pull_windows=[],
+    pull_min_free_mb=256,
+    pull_fetch_timeout=120,
+    pull_stale_after=3,
+    pull_boot_delay=30,
+    pull_remote_host_keys=[KEY],
+    pull_platform="cp313-x86_64",
+    pull_heartbeat=3600,
+    pull_report_remote=None,
+    pull_remote_ca=None,
+)
 DATA.pull_report_shards = 0
 RECORD = SimpleNamespace(version=4, published="2026-11-25T10:00:00Z", tree_sha256="ab" * 32)
 
@@ -30,8 +41,9 @@ def made(tmp_path):
     code.write_bytes(b"code")
     wheel = tmp_path / "w.whl"
     wheel.write_bytes(b"wheel")
-    public = bundle.make(tmp_path / "out", "robot9", DATA, RECORD, code, [("pyinfra-3.10-py3-none-any.whl", wheel)],
-                         b'{"root": 1}')
+    public = bundle.make(
+        tmp_path / "out", "robot9", DATA, RECORD, code, [("pyinfra-3.10-py3-none-any.whl", wheel)], b'{"root": 1}'
+    )
     return tmp_path / "out", public
 
 
@@ -49,8 +61,10 @@ def test_the_bundle_holds_the_robot_s_agent_its_trust_and_a_first_boot(made):
         assert read("var/lib/robot-pull/first-boot/tree-id").decode().strip() == RECORD.tree_sha256
         assert read("var/lib/robot-pull/first-boot/wheels/pyinfra-3.10-py3-none-any.whl") == b"wheel"
         assert b"OnBootSec=30" in read("etc/systemd/system/robot-pull.timer")
-        assert members["etc/systemd/system/multi-user.target.wants/robot-pull-first-boot.service"].linkname == \
-            "../robot-pull-first-boot.service"
+        assert (
+            members["etc/systemd/system/multi-user.target.wants/robot-pull-first-boot.service"].linkname
+            == "../robot-pull-first-boot.service"
+        )
         assert members["etc/systemd/system/timers.target.wants/robot-pull.timer"].issym()
         for name, member in members.items():
             assert (member.uid, member.gid) == (0, 0), name
@@ -66,8 +80,16 @@ def test_the_bundle_holds_the_robot_s_agent_its_trust_and_a_first_boot(made):
 def test_the_first_boot_script_is_valid_sh_and_does_its_steps_in_order():
     script = bundle.FIRST_BOOT_SCRIPT
     assert subprocess.run(["sh", "-n"], input=script, text=True).returncode == 0
-    order = [script.index(step) for step in ("ssh-keygen -A", "python3 -m venv", "tar -xzf", 'rm -rf "$fb"',
-                                             "systemctl start --no-block robot-pull.service")]
+    order = [
+        script.index(step)
+        for step in (
+            "ssh-keygen -A",
+            "python3 -m venv",
+            "tar -xzf",
+            'rm -rf "$fb"',
+            "systemctl start --no-block robot-pull.service",
+        )
+    ]
     assert order == sorted(order)
     assert "ConditionPathExists=/var/lib/robot-pull/first-boot" in bundle.FIRST_BOOT_UNIT
 
@@ -113,27 +135,40 @@ def test_under_a_loose_umask_the_image_s_directories_keep_their_modes(tmp_path):
     # whose /etc, /usr and /var are 0755.
     code = tmp_path / "code.tar.gz"
     code.write_bytes(b"code")
-    made = ("import os, sys; from pathlib import Path; os.umask(0o002); "
-            "from robotfleet.pull.operator import bundle; from tests.integration.test_pull_bundle import DATA, RECORD; "
-            "code = Path(sys.argv[1]); "
-            "bundle.make(Path(sys.argv[2]), 'robot9', DATA, RECORD, code, [('w.whl', code)], b'{}')")
-    subprocess.run([sys.executable, "-c", made, str(code), str(tmp_path / "out")], check=True,
-                   cwd=Path(__file__).resolve().parents[2])
+    made = (
+        "import os, sys; from pathlib import Path; os.umask(0o002); "
+        "from robotfleet.pull.operator import bundle; from tests.integration.test_pull_bundle import DATA, RECORD; "
+        "code = Path(sys.argv[1]); "
+        "bundle.make(Path(sys.argv[2]), 'robot9', DATA, RECORD, code, [('w.whl', code)], b'{}')"
+    )
+    subprocess.run(
+        [sys.executable, "-c", made, str(code), str(tmp_path / "out")],
+        check=True,
+        cwd=Path(__file__).resolve().parents[2],
+    )
     with tarfile.open(tmp_path / "out" / "rootfs.tar") as tar:
         members = tar.getmembers()
     directories = sorted(m.name for m in members if m.isdir())
-    assert directories == ["etc/robot-pull", "var/lib/robot-pull", "var/lib/robot-pull/first-boot",
-                           "var/lib/robot-pull/first-boot/wheels"]
+    assert directories == [
+        "etc/robot-pull",
+        "var/lib/robot-pull",
+        "var/lib/robot-pull/first-boot",
+        "var/lib/robot-pull/first-boot/wheels",
+    ]
     assert [(m.name, oct(m.mode)) for m in members if not m.issym() and m.mode & 0o022] == []
     image = tmp_path / "image"
     for top in ("etc", "usr", "var"):
         (image / top).mkdir(parents=True)
         (image / top).chmod(0o755)
     # root's usual umask makes the directories the image lacks (etc/systemd/system/timers.target.wants)
-    subprocess.run(["sh", "-c", 'umask 022 && tar -xpf "$0" -C "$1"', tmp_path / "out" / "rootfs.tar", image],
-                   check=True)
-    loose = [str(path.relative_to(image)) for path in image.rglob("*")
-             if not path.is_symlink() and path.stat().st_mode & 0o022]
+    subprocess.run(
+        ["sh", "-c", 'umask 022 && tar -xpf "$0" -C "$1"', tmp_path / "out" / "rootfs.tar", image], check=True
+    )
+    loose = [
+        str(path.relative_to(image))
+        for path in image.rglob("*")
+        if not path.is_symlink() and path.stat().st_mode & 0o022
+    ]
     assert loose == []
     assert (image / "etc").stat().st_mode & 0o777 == 0o755
     assert (image / "usr/local/sbin/robot-pull-first-boot").stat().st_mode & 0o777 == 0o755

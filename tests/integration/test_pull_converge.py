@@ -10,8 +10,8 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-from robotfleet.pull.robot import converge
 from robotfleet.pull.protocol import robot_data
+from robotfleet.pull.robot import converge
 from robotfleet.role import RolloutPart
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,8 +35,14 @@ def inventory(tmp_path, robot: str, run: dict | None = None) -> tuple[int, str, 
     if run is not None:
         (tmp_path / "run.json").write_text(json.dumps(run))
         env["ROBOT_PULL_DATA"] = str(tmp_path / "run.json")
-    done = subprocess.run([sys.executable, "-m", "pyinfra", "inventories/pull.py", "debug-inventory"], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=120)
+    done = subprocess.run(
+        [sys.executable, "-m", "pyinfra", "inventories/pull.py", "debug-inventory"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     out = done.stdout + done.stderr
     data = json.JSONDecoder().raw_decode(out.split("--> Data:", 1)[1].strip())[0] if "--> Data:" in out else None
     groups = next((line for line in out.splitlines() if "--> Groups:" in line), "")
@@ -45,10 +51,17 @@ def inventory(tmp_path, robot: str, run: dict | None = None) -> tuple[int, str, 
 
 def test_the_pull_inventory_is_the_robot_on_local_with_the_run_s_data(tmp_path):
     (tmp_path / "token").write_text("abc123\n")
-    code, out, data = inventory(tmp_path, "robot1", {
-        "data": {"payload_image_pins": {"reg.example.com/ros/payload:1.0": "sha256:" + "a" * 64},
-                 "pull_agent_run": {"robot": "robot1", "version": 3}},
-        "tokens": {"payload_lock_token": str(tmp_path / "token")}})
+    code, out, data = inventory(
+        tmp_path,
+        "robot1",
+        {
+            "data": {
+                "payload_image_pins": {"reg.example.com/ros/payload:1.0": "sha256:" + "a" * 64},
+                "pull_agent_run": {"robot": "robot1", "version": 3},
+            },
+            "tokens": {"payload_lock_token": str(tmp_path / "token")},
+        },
+    )
     assert code == 0, out
     assert "[@local]" in out and "robots" in out
     assert data["ros_domain_id"] == 9 and data["payload_lock_token"] == "abc123"
@@ -65,22 +78,31 @@ def test_a_robot_in_another_group_and_one_the_release_is_not_for(tmp_path):
 
 
 def role(name, result=None, missing=None, runs=True):
-    return SimpleNamespace(name=name, runs_on=lambda data: runs, rollout=RolloutPart(
-        target=lambda data: ["img"], missing=lambda row, target: missing, result=result))
+    return SimpleNamespace(
+        name=name,
+        runs_on=lambda data: runs,
+        rollout=RolloutPart(target=lambda data: ["img"], missing=lambda row, target: missing, result=result),
+    )
 
 
 def test_the_run_s_outcome_is_read_from_the_roles_parts():
     row = {"result": {"deployment": "pull-r1-3-ab", "outcome": "rolled-back"}, "other": {"deployment": "old"}}
-    roles = [role("payload", result=lambda row, d: (False, "release x failed; rolled back to y")),
-             role("docker", missing="docker is not running"), role("gpu", runs=False, missing="no gpu")]
+    roles = [
+        role("payload", result=lambda row, d: (False, "release x failed; rolled back to y")),
+        role("docker", missing="docker is not running"),
+        role("gpu", runs=False, missing="no gpu"),
+    ]
     assert converge.results(roles, {}, row, "pull-r1-3-ab") == [
-        {"role": "payload", "ok": False, "why": "release x failed; rolled back to y", "outcome": "rolled-back"}]
+        {"role": "payload", "ok": False, "why": "release x failed; rolled back to y", "outcome": "rolled-back"}
+    ]
     assert converge.missing(roles, {}, row) == [{"role": "docker", "why": "docker is not running"}]
 
 
 def test_pyinfra_s_lines_that_say_why():
-    stderr = ("--> Starting operation: X\n    [@local] Success\n    [@local] Error: payload: refused\n"
-              "--> pyinfra error: No hosts remaining!\n")
+    stderr = (
+        "--> Starting operation: X\n    [@local] Success\n    [@local] Error: payload: refused\n"
+        "--> pyinfra error: No hosts remaining!\n"
+    )
     assert converge.errors_of(stderr) == ["[@local] Error: payload: refused", "--> pyinfra error: No hosts remaining!"]
     assert converge.errors_of("only this\n") == ["only this"]
 
@@ -100,7 +122,10 @@ def test_what_the_roles_status_watches_and_how_a_change_shows(tmp_path):
 
     data = robot_data.host_data("robot1", None, deploy_roles.registry())
     assert set(converge.watch(deploy_roles.roles(), data)) == {
-        "/var/lib/robot-payload", "/run/systemd/units/invocation:robot-payload.service", "/usr/bin/dockerd"}
+        "/var/lib/robot-payload",
+        "/run/systemd/units/invocation:robot-payload.service",
+        "/usr/bin/dockerd",
+    }
     directory, link = tmp_path / "payload", tmp_path / "current"
     directory.mkdir()
     link.symlink_to("releases/1")

@@ -17,17 +17,20 @@ import pytest
 
 from robotfleet import hostkeys
 from robotfleet.commands import pullenroll
-from robotfleet.pull.operator import bundle
+from robotfleet.pull.operator import bundle, enrollments
 from robotfleet.pull.protocol import enrollment, reports
-from robotfleet.pull.operator import enrollments
 from robotfleet.pull.robot import enrollment_proof
 from tests.fixtures import ROOT
 from tests.integration.test_first_contact import fleet
 from tests.unit.pullkit import NOW
 
 SERVER = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
-ENV = {"GIT_AUTHOR_NAME": "robot", "GIT_AUTHOR_EMAIL": "robot@x", "GIT_COMMITTER_NAME": "robot",
-       "GIT_COMMITTER_EMAIL": "robot@x"}
+ENV = {
+    "GIT_AUTHOR_NAME": "robot",
+    "GIT_AUTHOR_EMAIL": "robot@x",
+    "GIT_COMMITTER_NAME": "robot",
+    "GIT_COMMITTER_EMAIL": "robot@x",
+}
 
 
 def keypair(path) -> str:
@@ -54,10 +57,16 @@ class Site:
         subprocess.run(["git", "init", "-q", "--bare", str(self.remote)], check=True)
         self.known_hosts = tmp_path / "known_hosts"
         self.kept = tmp_path / "enrollments.json"
-        self.fleet = fleet(tmp_path, {name: {"address": "127.0.0.1", "ssh_port": port, "pull_enabled": True}
-                                      for name, port in (("robot9", 2209), ("robot-0123456789ab", 2210))},
-                           pull_remote="ssh://gitolite3@git.lan/fleet", pull_remote_host_keys=[SERVER],
-                           ssh_known_hosts_file=str(self.known_hosts))
+        self.fleet = fleet(
+            tmp_path,
+            {
+                name: {"address": "127.0.0.1", "ssh_port": port, "pull_enabled": True}
+                for name, port in (("robot9", 2209), ("robot-0123456789ab", 2210))
+            },
+            pull_remote="ssh://gitolite3@git.lan/fleet",
+            pull_remote_host_keys=[SERVER],
+            ssh_known_hosts_file=str(self.known_hosts),
+        )
         monkeypatch.setenv("ROBOT_FLEET", str(self.fleet))
         monkeypatch.setenv(enrollments.ENV, str(self.kept))
         monkeypatch.chdir(ROOT)
@@ -77,9 +86,15 @@ class Site:
 
     def push(self, report: dict, robot="robot9") -> None:
         """The report at refs/reports/<robot>, as a robot's push leaves it."""
+
         def git(*args, data=None):
-            return subprocess.run(["git", "-C", str(self.remote), *args], input=data, capture_output=True,
-                                  check=True, env={**os.environ, **ENV}).stdout.strip()
+            return subprocess.run(
+                ["git", "-C", str(self.remote), *args],
+                input=data,
+                capture_output=True,
+                check=True,
+                env={**os.environ, **ENV},
+            ).stdout.strip()
 
         blob = git("hash-object", "-w", "--stdin", data=reports.to_bytes(report)).decode()
         tree = git("mktree", data=f"100644 blob {blob}\treport.json\n".encode()).decode()
@@ -135,13 +150,16 @@ def forged(site, how: str) -> dict:
     raise AssertionError(how)
 
 
-@pytest.mark.parametrize("how, why", [
-    ("no proof", "its report carries no enrollment proof"),
-    ("signed by a key of its own", "its report is signed by an enrollment key {kept} does not keep for robot9"),
-    ("signed by another key, naming the bundle's", "its enrollment proof does not verify"),
-    ("another robot's bundle", "its report is signed by an enrollment key {kept} does not keep for robot9"),
-    ("host keys changed after signing", "its enrollment proof does not verify"),
-])
+@pytest.mark.parametrize(
+    "how, why",
+    [
+        ("no proof", "its report carries no enrollment proof"),
+        ("signed by a key of its own", "its report is signed by an enrollment key {kept} does not keep for robot9"),
+        ("signed by another key, naming the bundle's", "its enrollment proof does not verify"),
+        ("another robot's bundle", "its report is signed by an enrollment key {kept} does not keep for robot9"),
+        ("host keys changed after signing", "its enrollment proof does not verify"),
+    ],
+)
 def test_a_forged_first_report_is_not_enrolled(site, capsys, how, why):
     site.push(forged(site, how))
     code, out, err = site.enroll(capsys, "--limit", "robot9")
@@ -161,16 +179,19 @@ def test_a_name_reported_again_with_another_key_is_refused_until_the_operator_re
     site.push(site.report(signer=site.bundle_key, key=intruder, host_keys=[line_of(paramiko.ECDSAKey.generate())]))
     code, out, err = site.enroll(capsys, "--limit", "robot9")
     assert code == 1
-    assert (f"robot9: reported with its own key ssh-ed25519 {hostkeys.fingerprint(pullenroll.key_of(intruder))}, but "
-            f"it was enrolled with another ({site.kept}); refused: if robot9 was reinstalled, robotfleet pull-enroll "
-            "inventories/robots.py --replace robot9 with its new bundle's proof or --fingerprints FILE") in err
+    assert (
+        f"robot9: reported with its own key ssh-ed25519 {hostkeys.fingerprint(pullenroll.key_of(intruder))}, but "
+        f"it was enrolled with another ({site.kept}); refused: if robot9 was reinstalled, robotfleet pull-enroll "
+        "inventories/robots.py --replace robot9 with its new bundle's proof or --fingerprints FILE"
+    ) in err
     assert site.known_hosts.read_text() == before and site.kept_key() == enrollment.key_sha256(site.own)
     # the operator decides: robot9 was reflashed, its new keys read on its console
     new_host = paramiko.ECDSAKey.generate()
     site.push(site.report(key=intruder, host_keys=[line_of(new_host)]))
     recorded = site.base / "fingerprints.txt"
-    recorded.write_text(f"robot9 {hostkeys.fingerprint(new_host)} "
-                        f"{hostkeys.fingerprint(pullenroll.key_of(intruder))}\n")
+    recorded.write_text(
+        f"robot9 {hostkeys.fingerprint(new_host)} {hostkeys.fingerprint(pullenroll.key_of(intruder))}\n"
+    )
     code, out, err = site.enroll(capsys, "--limit", "robot9", "--replace", "robot9")
     assert code == 1 and "--replace robot9 needs its own bundle's proof or --fingerprints FILE" in err
     code, out, err = site.enroll(capsys, "--limit", "robot9", "--replace", "robot9", "--fingerprints", str(recorded))
@@ -186,8 +207,10 @@ def test_a_fingerprints_file_must_list_every_key_of_the_report(site, capsys):
     code, out, err = site.enroll(capsys, "--limit", "robot9", "--fingerprints", str(recorded))
     assert code == 1 and "robot9: own key ssh-ed25519 " in err and f"not in {recorded}; refused" in err
     assert not site.known_hosts.exists()
-    recorded.write_text(f"# read on its console\nrobot9 {hostkeys.fingerprint(site.host_key)} "
-                        f"{hostkeys.fingerprint(pullenroll.key_of(site.own))}\n")
+    recorded.write_text(
+        f"# read on its console\nrobot9 {hostkeys.fingerprint(site.host_key)} "
+        f"{hostkeys.fingerprint(pullenroll.key_of(site.own))}\n"
+    )
     code, out, err = site.enroll(capsys, "--limit", "robot9", "--fingerprints", str(recorded))
     assert code == 0 and f"robot9: its report's keys match {recorded}" in out, err
     assert site.enrolled() == {"ecdsa-sha2-nistp256": site.host_key}
@@ -200,8 +223,10 @@ def test_a_shared_image_s_key_proves_only_the_names_its_rule_makes(site, capsys)
     site.push(site.report(signer=image))  # robot9 is no name the rule makes
     code, out, err = site.enroll(capsys)
     assert code == 1
-    assert ("robot-0123456789ab: its report is proven by a shared image's enrollment key (whoever holds a copy of "
-            "the image could have sent it)") in out
+    assert (
+        "robot-0123456789ab: its report is proven by a shared image's enrollment key (whoever holds a copy of "
+        "the image could have sent it)"
+    ) in out
     assert f"robot9: not enrolled: its report is signed by an enrollment key {site.kept} does not keep" in err
     assert site.kept_key("robot-0123456789ab") and site.kept_key() is None
 
@@ -214,8 +239,17 @@ def test_a_report_whose_key_is_no_key_is_one_line(site, capsys):
 
 def test_on_a_terminal_the_operator_confirms_the_fingerprints(site):
     site.push(site.report())
-    command = [sys.executable, "-m", "robotfleet", "pull-enroll", "inventories/robots.py", "--limit", "robot9",
-               "--remote", f"file://{site.remote}"]
+    command = [
+        sys.executable,
+        "-m",
+        "robotfleet",
+        "pull-enroll",
+        "inventories/robots.py",
+        "--limit",
+        "robot9",
+        "--remote",
+        f"file://{site.remote}",
+    ]
     for answer, code in ((b"n\n", 1), (b"y\n", 0)):
         primary, secondary = pty.openpty()
         done = subprocess.Popen(command, stdin=secondary, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT)

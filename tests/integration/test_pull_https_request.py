@@ -62,8 +62,10 @@ def ask(server, ca, limit=1000):
 
 
 def test_a_chunked_answer_is_read_whole_and_its_bytes_counted(tls):
-    server = Scripted(tls, b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\nETag: \"a\"\r\n\r\n"
-                           b"5\r\nhello\r\n6;x=y\r\n world\r\n0\r\n\r\n")
+    server = Scripted(
+        tls,
+        b'HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\nETag: "a"\r\n\r\n5\r\nhello\r\n6;x=y\r\n world\r\n0\r\n\r\n',
+    )
     try:
         answer = ask(server, tls[0])
         assert (answer.status, answer.body, answer.headers["etag"]) == (200, b"hello world", '"a"')
@@ -73,16 +75,21 @@ def test_a_chunked_answer_is_read_whole_and_its_bytes_counted(tls):
         server.close()
 
 
-@pytest.mark.parametrize("answer, said", [
-    (b"HTTP/1.1 200 OK\r\nContent-Length: 5000\r\n\r\n" + b"x" * 5000, "larger than 1000 bytes"),
-    (b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\n800\r\n" + b"x" * 2048 + b"\r\n0\r\n\r\n",
-     "larger than 1000 bytes"),
-    (b"HTTP/1.1 200 OK\r\n\r\n" + b"x" * 5000, "larger than 1000 bytes"),
-    (b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n", "not a chunk's size"),
-    (b"HTTP/1.1 200 OK\r\nX: " + b"y" * 20000, "did not end"),
-    (b"SSH-2.0-OpenSSH_9.2\r\n\r\n", "not an HTTP answer"),
-    (b"HTTP/1.1 200 OK\r\nContent-Length: 50\r\n\r\nshort", "ended early"),
-])
+@pytest.mark.parametrize(
+    "answer, said",
+    [
+        (b"HTTP/1.1 200 OK\r\nContent-Length: 5000\r\n\r\n" + b"x" * 5000, "larger than 1000 bytes"),
+        (
+            b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\n800\r\n" + b"x" * 2048 + b"\r\n0\r\n\r\n",
+            "larger than 1000 bytes",
+        ),
+        (b"HTTP/1.1 200 OK\r\n\r\n" + b"x" * 5000, "larger than 1000 bytes"),
+        (b"HTTP/1.1 200 OK\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n", "not a chunk's size"),
+        (b"HTTP/1.1 200 OK\r\nX: " + b"y" * 20000, "did not end"),
+        (b"SSH-2.0-OpenSSH_9.2\r\n\r\n", "not an HTTP answer"),
+        (b"HTTP/1.1 200 OK\r\nContent-Length: 50\r\n\r\nshort", "ended early"),
+    ],
+)
 def test_a_broken_or_hostile_answer_is_one_failure(tls, answer, said):
     server = Scripted(tls, answer)
     try:

@@ -49,8 +49,10 @@ def test_an_idle_check_runs_no_status_process_and_pushes_nothing(world):
 def test_an_idle_check_imports_no_tuf(world, tmp_path):
     config = tmp_path / "agent.json"
     config.write_text(world.config.to_json())
-    code = ("import sys; from robotfleet.pull.robot import agent; agent.main(['--config', sys.argv[1]]); "
-            "print(sorted({m.split('.')[0] for m in sys.modules} & {'tuf', 'securesystemslib', 'urllib3'}))")
+    code = (
+        "import sys; from robotfleet.pull.robot import agent; agent.main(['--config', sys.argv[1]]); "
+        "print(sorted({m.split('.')[0] for m in sys.modules} & {'tuf', 'securesystemslib', 'urllib3'}))"
+    )
     done = subprocess.run([sys.executable, "-c", code, str(config)], capture_output=True, text=True, check=True)
     line, modules = done.stdout.strip().splitlines()
     assert line.startswith("robot-pull: up-to-date (release 1); ") and line.endswith("; report unchanged"), line

@@ -42,8 +42,9 @@ def https_world(tmp_path, tls, smart: bool):
     serve_static(world)
     world.server = httpsgit.Server(world.base, cert, key, smart=smart)
     (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
-    world.config = agent_files.Config(**{**world.config.__dict__, "remote": world.server.url("fleet.git"),
-                                         "report_remote": f"file://{world.bare}"})
+    world.config = agent_files.Config(
+        **{**world.config.__dict__, "remote": world.server.url("fleet.git"), "report_remote": f"file://{world.bare}"}
+    )
     return world
 
 
@@ -140,8 +141,9 @@ def test_an_idle_check_over_ssh_is_one_session_asking_for_the_branch_only(tmp_pa
     server = gitssh.GitSSHServer(world.base, key)
     try:
         (world.etc / "known_hosts").write_text(server.known_hosts(transport.HOST_KEY_ALIAS))
-        world.config = agent_files.Config(**{**world.config.__dict__, "remote": server.url("fleet.git"),
-                                             "report_remote": f"file://{world.bare}"})
+        world.config = agent_files.Config(
+            **{**world.config.__dict__, "remote": server.url("fleet.git"), "report_remote": f"file://{world.bare}"}
+        )
         world.release(1)
         assert world.wake()[1].result == "applied"
         sessions, server.commands[:] = len(server.sessions), []
@@ -167,8 +169,10 @@ def test_a_fetch_cut_before_its_checkout_is_complete_leaves_no_memo(tmp_path):
     world.release(1)
     world.wake()
     repo = world.state / "releases"
-    assert probe.read_memo(repo, world.config.remote, world.config.branch)["commit"] == transport.Remote(
-        world.config.remote, repo).fetch_releases()
+    assert (
+        probe.read_memo(repo, world.config.remote, world.config.branch)["commit"]
+        == transport.Remote(world.config.remote, repo).fetch_releases()
+    )
     world.release(2)
     (repo / ".git" / "index.lock").write_text("")  # the checkout fails, as a cut one would
     with pytest.raises(transport.TransportError):

@@ -30,7 +30,7 @@ from robotfleet.pull.robot import agent_state
 from tests.integration.test_pull_agent import World, code_archive
 from tests.integration.test_pull_publish import git, registry, robot_fetch, robotfleet_cmd, site  # noqa: F401
 from tests.integration.test_pull_trust import refused
-from tests.integration.test_push_platforms import Store, registry as platform_registry  # noqa: F401
+from tests.integration.test_push_platforms import Store  # noqa: F401
 from tests.unit import pullkit
 from tests.unit.pullkit import DAY, NOW
 
@@ -54,7 +54,7 @@ robots:
 # OCI index's name finds its digest and the image's id is that digest (as
 # the containerd image store does); classic: only the tag, the id the
 # config's digest (as the classic store does).
-FAKE_DOCKER = '''#!{python}
+FAKE_DOCKER = """#!{python}
 import hashlib, json, os, sys, tarfile
 args = sys.argv[1:]
 with open(os.environ["FAKE_DOCKER_LOG"], "a") as log:
@@ -83,11 +83,11 @@ elif args[0] == "tag":
         sys.exit("Error response from daemon: No such image: " + args[1])
     store[args[2]] = store.get(args[1], args[1])
 json.dump(store, open(path, "w"))
-'''
+"""
 
 
 @pytest.fixture
-def image_registry(platform_registry):  # noqa: F811 (test_push_platforms' fixture, imported)
+def image_registry(platform_registry):
     """test_push_platforms' registry, its index also served by its digest (as registries do)."""
     address, store, fetched = platform_registry
     store.manifests["sha256:" + hashlib.sha256(store.manifests["1.0"][1]).hexdigest()] = store.manifests["1.0"]
@@ -107,10 +107,12 @@ def docker(tmp_path, monkeypatch):
 
     def calls() -> list[list[str]]:
         return [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
+
     return calls
 
 
 # -- the operator: robotfleet export --------------------------------------------
+
 
 def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_robot_verifies(site, image_registry):  # noqa: F811 (test_pull_publish's fixture)
     address, store, _ = image_registry
@@ -138,14 +140,18 @@ def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_rob
             oci = json.load(tar.extractfile("index.json"))["manifests"][0]
             assert saved["RepoTags"] == [ref] and saved["Config"] == "blobs/sha256/" + store.ids[arch][7:]
             assert oci["digest"] == entry["digest"]  # the registry's own bytes: the containerd store keeps the pin
-            assert hashlib.sha256(tar.extractfile(f"blobs/sha256/{entry['digest'][7:]}").read()).hexdigest() \
+            assert (
+                hashlib.sha256(tar.extractfile(f"blobs/sha256/{entry['digest'][7:]}").read()).hexdigest()
                 == entry["digest"][7:]
+            )
     # the releases branch carries the re-signed metadata, not the archives,
     # and a robot that took the media goes back to the network without a rollback
     listed = git(site["remote"], "ls-tree", "-r", "--name-only", "robotfleet/releases")
     assert "media.json" in listed and "images/" not in listed
-    assert git(site["remote"], "show", "robotfleet/releases:metadata/timestamp.json") == \
-        (medium / "metadata" / "timestamp.json").read_text().strip()
+    assert (
+        git(site["remote"], "show", "robotfleet/releases:metadata/timestamp.json")
+        == (medium / "metadata" / "timestamp.json").read_text().strip()
+    )
     assert trust.Client(site["robot"], str(robot_fetch(site))).refresh().version == 1
     # exported again: the same release, its archives replaced, the media pruned to one set
     robotfleet_cmd("export", medium, *common)
@@ -154,13 +160,15 @@ def test_export_writes_a_signed_repository_with_each_robot_s_image_archive_a_rob
 
 
 def test_export_of_nothing_published_is_one_line(site):  # noqa: F811 (test_pull_publish's fixture)
-    done = robotfleet_cmd("export", site["base"] / "usb", "--checkout", site["checkout"], "--keys", site["keys"],
-                          check=False)
+    done = robotfleet_cmd(
+        "export", site["base"] / "usb", "--checkout", site["checkout"], "--keys", site["keys"], check=False
+    )
     assert done.returncode != 0 and done.stderr.strip().count("\n") == 0, done.stderr
     assert "export:" in done.stderr
 
 
 # -- the robot's checks, on media as over the network --------------------------
+
 
 def media_fleet(base: Path, now=NOW, name="keys", expiry=None) -> pullkit.Fleet:
     """A repository whose release 1 carries a media index, and a robot trusting it."""
@@ -186,8 +194,9 @@ def test_media_are_verified_like_the_network(tmp_path):
 def test_tampered_media_are_refused(tmp_path):
     fleet = media_fleet(tmp_path)
     usb = exported(fleet, tmp_path / "usb")
-    pullkit.edit_json(usb / "metadata" / "timestamp.json",
-                      lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z"))
+    pullkit.edit_json(
+        usb / "metadata" / "timestamp.json", lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z")
+    )
     assert refused(fleet, refusals.TAMPERED, source=usb).startswith("timestamp.json: changed after it was signed")
 
 
@@ -223,6 +232,7 @@ def test_a_halt_after_an_export_halts_the_release_on_the_network_without_its_arc
 
 # -- the agent's wake from a mounted medium ------------------------------------
 
+
 class MediaWorld(World):
     """test_pull_agent's robot (a release whose converge answers as the
     contract says), whose release pins an image of the registry, exported
@@ -232,8 +242,9 @@ class MediaWorld(World):
         super().__init__(base)
         self.ref = f"{address}/ros/payload:1.0"
         self.usb = base / "usb"
-        self.config = agent_files.Config(**{**self.config.__dict__, "media_dir": str(self.usb),
-                                            "remote": f"file://{base}/out-of-reach.git"})
+        self.config = agent_files.Config(
+            **{**self.config.__dict__, "media_dir": str(self.usb), "remote": f"file://{base}/out-of-reach.git"}
+        )
 
     def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
         record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
@@ -243,10 +254,19 @@ class MediaWorld(World):
 
         address, _, path = self.ref.partition("/")
         _, _, digest = Registry(address).manifest(path.rsplit(":", 1)[0], "1.0")
-        built = record.build(version, NOW, NOW + datetime.timedelta(days=30),
-                             hashlib.sha1(bytes([version])).hexdigest(), tree_sha, "inventories/robots.yaml", fleet_sha,
-                             list(robots), {r: {self.ref: digest} for r in robots}, {},
-                             waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}))
+        built = record.build(
+            version,
+            NOW,
+            NOW + datetime.timedelta(days=30),
+            hashlib.sha1(bytes([version])).hexdigest(),
+            tree_sha,
+            "inventories/robots.yaml",
+            fleet_sha,
+            list(robots),
+            {r: {self.ref: digest} for r in robots},
+            {},
+            waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}),
+        )
         signer = self.fleet.keys.signer("online")
         self.fleet.repository.publish(built, {built.code: archive or built_archive}, signer, self.fleet.expiry, NOW)
         from roles.payload import media_archive
@@ -255,11 +275,13 @@ class MediaWorld(World):
         local = self.base / name
         local.parent.mkdir(parents=True, exist_ok=True)
         image = media_archive.write(self.ref, digest, MACHINE, local, [], None)
-        (self.base / media.NAME).write_bytes(media.build(version, {MACHINE: {self.ref: {
-            "digest": digest, "archive": name, "image": image}}}))
+        (self.base / media.NAME).write_bytes(
+            media.build(version, {MACHINE: {self.ref: {"digest": digest, "archive": name, "image": image}}})
+        )
         usb = repository.Repository(self.usb)
-        self.fleet.repository.extend({media.NAME: self.base / media.NAME, name: local}, signer, self.fleet.expiry, NOW,
-                                     elsewhere={name: usb})
+        self.fleet.repository.extend(
+            {media.NAME: self.base / media.NAME, name: local}, signer, self.fleet.expiry, NOW, elsewhere={name: usb}
+        )
         exporting.copy_out(self.fleet.repository, usb)
         self.digest, self.image, self.archive = digest, image, name
         return built
@@ -271,8 +293,9 @@ def world(tmp_path, image_registry, monkeypatch):
 
     # test_pull_agent's converge stub still names the module agent_files was
     # called before the pull layers (layout): the same stub, with today's name.
-    monkeypatch.setattr(test_pull_agent, "STUB",
-                        test_pull_agent.STUB.replace("getattr(layout,", "getattr(agent_files,"))
+    monkeypatch.setattr(
+        test_pull_agent, "STUB", test_pull_agent.STUB.replace("getattr(layout,", "getattr(agent_files,")
+    )
     return MediaWorld(tmp_path, image_registry[0])
 
 
@@ -285,8 +308,7 @@ def test_a_robot_converges_from_a_mounted_medium_and_writes_its_report_there(wor
     report, outcome, sent = world.wake()
     assert (outcome.result, outcome.reason) == ("applied", "release 1 applied"), outcome.reason
     assert len(loads(docker)) == 1
-    assert ["image", "inspect", "--format", "{{json .Id}}", f"{world.ref.rsplit(':', 1)[0]}@{world.digest}"] \
-        in docker()
+    assert ["image", "inspect", "--format", "{{json .Id}}", f"{world.ref.rsplit(':', 1)[0]}@{world.digest}"] in docker()
     # the remote is out of reach: the report is on the medium, and waits for the next contact
     assert sent.startswith("report not sent") and f"written to {world.usb}/reports/robot1.json" in sent
     written = reports.parse((world.usb / "reports" / "robot1.json").read_bytes(), "robot1")
@@ -333,10 +355,12 @@ def test_a_loaded_image_whose_id_is_not_the_release_s_is_refused_and_not_tagged(
     index["images"][MACHINE][world.ref]["image"] = "sha256:" + "0" * 64  # signed, but not what the archive holds
     (world.base / media.NAME).write_bytes(media.build(1, index["images"]))
     repository = pullkit.module("operator.repository")
-    world.fleet.repository.extend({}, world.fleet.keys.signer("online"), world.fleet.expiry, NOW,
-                                  replacing=[media.NAME])
-    world.fleet.repository.extend({media.NAME: world.base / media.NAME}, world.fleet.keys.signer("online"),
-                                  world.fleet.expiry, NOW)
+    world.fleet.repository.extend(
+        {}, world.fleet.keys.signer("online"), world.fleet.expiry, NOW, replacing=[media.NAME]
+    )
+    world.fleet.repository.extend(
+        {media.NAME: world.base / media.NAME}, world.fleet.keys.signer("online"), world.fleet.expiry, NOW
+    )
     exporting.copy_out(world.fleet.repository, repository.Repository(world.usb))
     _, outcome, _ = world.wake()
     assert (outcome.result, outcome.refusal) == ("refused", "tampered"), outcome.reason

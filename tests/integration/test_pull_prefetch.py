@@ -47,10 +47,12 @@ OUTSIDE, INSIDE = window(2, 3), window(-1, 1)
 def wheel(base: Path) -> Path:
     """A real (tiny) wheel, installable by pip with no index."""
     path = base / "pf_probe-1.0-py3-none-any.whl"
-    files = {"pf_probe/__init__.py": "ANSWER = 42\n",
-             "pf_probe-1.0.dist-info/METADATA": "Metadata-Version: 2.1\nName: pf-probe\nVersion: 1.0\n",
-             "pf_probe-1.0.dist-info/WHEEL": "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\n"
-                                             "Tag: py3-none-any\n"}
+    files = {
+        "pf_probe/__init__.py": "ANSWER = 42\n",
+        "pf_probe-1.0.dist-info/METADATA": "Metadata-Version: 2.1\nName: pf-probe\nVersion: 1.0\n",
+        "pf_probe-1.0.dist-info/WHEEL": "Wheel-Version: 1.0\nGenerator: test\nRoot-Is-Purelib: true\n"
+        "Tag: py3-none-any\n",
+    }
     record = "".join(f"{name},,\n" for name in files) + "pf_probe-1.0.dist-info/RECORD,,\n"
     with zipfile.ZipFile(path, "w") as archive:
         for name, text in {**files, "pf_probe-1.0.dist-info/RECORD": record}.items():
@@ -64,8 +66,9 @@ class Robot(World):
     def __init__(self, base: Path, monkeypatch):
         super().__init__(base)
         self.docker_state = base / "docker.json"
-        self.docker_state.write_text(json.dumps({"images": {ref: {"id": "sha256:" + ref[-64:], "pull": "ok"}
-                                                            for ref in BY_DIGEST}}))
+        self.docker_state.write_text(
+            json.dumps({"images": {ref: {"id": "sha256:" + ref[-64:], "pull": "ok"} for ref in BY_DIGEST}})
+        )
         monkeypatch.setenv("FAKE_STATE", str(self.docker_state))
         monkeypatch.setenv("PATH", f"{FAKEBIN}{os.pathsep}{os.environ['PATH']}")
         self.windows(OUTSIDE)
@@ -79,14 +82,26 @@ class Robot(World):
         made = wheel(self.base)
         target = f"wheels/{made.name}"
         carried = {target: made} if wheels else {}
-        built = record.build(version, NOW, NOW + datetime.timedelta(days=30),
-                             hashlib.sha1(bytes([version])).hexdigest(), tree_sha, "inventories/robots.yaml",
-                             fleet_sha, list(robots), {"robot1": dict(IMAGES)},
-                             {platforms.platform_key(): list(carried)},
-                             waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": pause,
-                                               "max_failed": "0"}))
-        self.fleet.repository.publish(built, {built.code: archive or built_archive, **carried},
-                                      self.fleet.keys.signer("online"), self.fleet.expiry, NOW)
+        built = record.build(
+            version,
+            NOW,
+            NOW + datetime.timedelta(days=30),
+            hashlib.sha1(bytes([version])).hexdigest(),
+            tree_sha,
+            "inventories/robots.yaml",
+            fleet_sha,
+            list(robots),
+            {"robot1": dict(IMAGES)},
+            {platforms.platform_key(): list(carried)},
+            waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": pause, "max_failed": "0"}),
+        )
+        self.fleet.repository.publish(
+            built,
+            {built.code: archive or built_archive, **carried},
+            self.fleet.keys.signer("online"),
+            self.fleet.expiry,
+            NOW,
+        )
         self.push()
         return built
 
@@ -118,8 +133,9 @@ def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switc
     record = robot.release(1)
     report, outcome, sent = robot.wake()
     assert outcome.result == "prefetched" and sent == "report sent"
-    assert outcome.reason.startswith("release 1 prefetched (code, 1 wheel(s), 2 image(s)); outside the maintenance "
-                                     "window; next at ")
+    assert outcome.reason.startswith(
+        "release 1 prefetched (code, 1 wheel(s), 2 image(s)); outside the maintenance window; next at "
+    )
     assert robot.pushed_report()["result"] == "prefetched"
     # everything in place, nothing switched
     code = robot.state / "code" / record.tree_sha256
@@ -164,10 +180,13 @@ def test_an_interrupted_prefetch_takes_up_where_it_stopped(robot):
     robot.set_pull(BY_DIGEST[1], "down")  # the network goes away after the first image
     _, outcome, sent = robot.wake()
     assert outcome.result == "waiting" and sent == "report sent"
-    assert outcome.reason.startswith(f"release 1 not prefetched yet: docker pull {BY_DIGEST[1]}: Error response "
-                                     "from daemon: ")
-    assert outcome.reason.endswith(" dial tcp: connection refused; outside the maintenance window; next at "
-                                   f"{outcome.reason.rsplit('next at ', 1)[1]}")
+    assert outcome.reason.startswith(
+        f"release 1 not prefetched yet: docker pull {BY_DIGEST[1]}: Error response from daemon: "
+    )
+    assert outcome.reason.endswith(
+        " dial tcp: connection refused; outside the maintenance window; next at "
+        f"{outcome.reason.rsplit('next at ', 1)[1]}"
+    )
     assert agent_state.load_state(robot.state).get("attempted") is None  # not a failed release
     placed, calls = robot.placed(), len(robot.docker_log())
     assert any(name.startswith("targets/wheels/") for name in placed)
@@ -218,4 +237,3 @@ def test_status_and_a_rollout_read_prefetched_as_not_yet_applied_and_not_failed(
     assert status.exit_code([row]) == 0
     assert {m.name: m.value for m in pullstatus.metrics(row)}["pull_failed"] == 0
     assert pullrollout.outcome(report, 1) is None and not reports.failed_for(report, 1)
-

@@ -18,8 +18,17 @@ import pytest
 import robotfleet
 from tests.unit import pullkit
 
-DEPLOY = ("deploy.py", "config.py", "rollback.py", "pyproject.toml", "robotfleet", "roles", "inventories",
-          "group_data", "files")
+DEPLOY = (
+    "deploy.py",
+    "config.py",
+    "rollback.py",
+    "pyproject.toml",
+    "robotfleet",
+    "roles",
+    "inventories",
+    "group_data",
+    "files",
+)
 FLEET = """\
 all:
   vars:
@@ -36,13 +45,22 @@ robots:
 
 
 def git(where, *args) -> str:
-    return subprocess.run(["git", "-C", str(where), "-c", "user.name=op", "-c", "user.email=op@x", *args],
-                          check=True, capture_output=True, text=True).stdout.strip()
+    return subprocess.run(
+        ["git", "-C", str(where), "-c", "user.name=op", "-c", "user.email=op@x", *args],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
 
 
 def robotfleet_cmd(*args, env=None, check=True) -> subprocess.CompletedProcess:
-    done = subprocess.run([sys.executable, "-m", "robotfleet", *map(str, args)], capture_output=True, text=True,
-                          env={**os.environ, **(env or {})}, timeout=600)
+    done = subprocess.run(
+        [sys.executable, "-m", "robotfleet", *map(str, args)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **(env or {})},
+        timeout=600,
+    )
     if check and done.returncode:
         raise AssertionError(f"robotfleet {args[0]} exited {done.returncode}: {done.stderr}")
     return done
@@ -81,21 +99,37 @@ def site(tmp_path, registry):
     registry.tag("ros/payload", "1.2", "two")
     keys = tmp_path / "keys"
     robotfleet_cmd("keys", "init", "--keys", keys)
-    return {"checkout": checkout, "remote": remote, "origin": origin, "keys": keys, "robot": tmp_path / "robot",
-            "base": tmp_path}
+    return {
+        "checkout": checkout,
+        "remote": remote,
+        "origin": origin,
+        "keys": keys,
+        "robot": tmp_path / "robot",
+        "base": tmp_path,
+    }
 
 
 def publish(site, *more, check=True):
-    return robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--no-wheels", *more,
-                          check=check)
+    return robotfleet_cmd(
+        "publish", "--checkout", site["checkout"], "--keys", site["keys"], "--no-wheels", *more, check=check
+    )
 
 
 def robot_fetch(site) -> Path:
     """The robot's copy of the releases branch (fetched shallow, as the agent does)."""
     copy = site["robot"] / "releases"
     if not copy.exists():
-        git(site["base"], "clone", "-q", "--depth", "1", "--branch", "robotfleet/releases",
-            f"file://{site['remote']}", str(copy))
+        git(
+            site["base"],
+            "clone",
+            "-q",
+            "--depth",
+            "1",
+            "--branch",
+            "robotfleet/releases",
+            f"file://{site['remote']}",
+            str(copy),
+        )
     else:
         git(copy, "fetch", "-q", "--depth", "1", "origin", "robotfleet/releases")
         git(copy, "reset", "-q", "--hard", "FETCH_HEAD")
@@ -125,7 +159,8 @@ def test_publish_binds_commit_tree_fleet_and_digests_and_a_robot_verifies_it(sit
     assert record.robots == ("robot1", "robot2")  # robot3 is not pull
     one = registry.manifests[("ros/payload", "1.1")][1]
     assert record.images["robot1"] == {
-        f"{registry.address}/ros/payload:1.1": "sha256:" + pullkit.hashlib.sha256(one).hexdigest()}
+        f"{registry.address}/ros/payload:1.1": "sha256:" + pullkit.hashlib.sha256(one).hexdigest()
+    }
     assert record.images["robot2"] == {f"{registry.address}/ros/payload:1.2": registry.tag("ros/payload", "1.2", "two")}
     got = client.download([record.code], site["robot"] / "targets")
     tree = pullkit.module("protocol.tree")
@@ -144,15 +179,21 @@ def test_halt_then_a_new_release(site):
     publish(site, "--canary", "10%", "--waves", "50%,100%", "--pause", "60")
     _, first = robot_refresh(site)
     assert first.rollout.to_dict() == {"canary": "10%", "waves": ["50%", "100%"], "pause": 60, "max_failed": "0"}
-    done = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], "--reason",
-                          "canary crash-loops")
+    done = robotfleet_cmd(
+        "halt", "--checkout", site["checkout"], "--keys", site["keys"], "--reason", "canary crash-loops"
+    )
     assert done.stdout.startswith("halt: release 2 halts commit")
     _, halted = robot_refresh(site)
-    assert ((halted.version, halted.halt, halted.halt_reason, halted.commit)
-            == (2, True, "canary crash-loops", first.commit))
+    assert (halted.version, halted.halt, halted.halt_reason, halted.commit) == (
+        2,
+        True,
+        "canary crash-loops",
+        first.commit,
+    )
     again = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
-    assert again.returncode == 2 and again.stderr == ("halt: release 2 is already halted (canary crash-loops); nothing "
-                                                      "was changed (a new publish ends the halt).\n")
+    assert again.returncode == 2 and again.stderr == (
+        "halt: release 2 is already halted (canary crash-loops); nothing was changed (a new publish ends the halt).\n"
+    )
     publish(site)
     _, third = robot_refresh(site)
     assert (third.version, third.halt) == (3, False)
@@ -204,11 +245,14 @@ def test_bad_fleet_data_in_the_commit_is_refused_with_its_lines(site):
 
 
 def test_publish_without_keys_says_where_it_looked(site, tmp_path):
-    done = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", tmp_path / "none", "--no-wheels",
-                          check=False)
+    done = robotfleet_cmd(
+        "publish", "--checkout", site["checkout"], "--keys", tmp_path / "none", "--no-wheels", check=False
+    )
     assert done.returncode == 2  # refused before anything was read or written (README's exit codes)
-    assert done.stderr == f"publish: {tmp_path / 'none' / 'online.key'}: no online key here " \
-                          "(robotfleet keys init; --keys DIR or $ROBOTFLEET_KEYS)\n"
+    assert (
+        done.stderr == f"publish: {tmp_path / 'none' / 'online.key'}: no online key here "
+        "(robotfleet keys init; --keys DIR or $ROBOTFLEET_KEYS)\n"
+    )
 
 
 def test_to_dir_is_served_over_http(site):
@@ -258,18 +302,21 @@ def test_offline_root_key_prepare_sign_install(site):
     offline.mkdir(mode=0o700)
     for suffix in (".key", ".pub"):
         shutil.move(site["keys"] / f"root{suffix}", offline / f"root{suffix}")
-    refused = robotfleet_cmd("keys", "rotate", "online", "--checkout", site["checkout"], "--keys", site["keys"],
-                             check=False)
+    refused = robotfleet_cmd(
+        "keys", "rotate", "online", "--checkout", site["checkout"], "--keys", site["keys"], check=False
+    )
     assert refused.returncode == 2 and "no root key here" in refused.stderr
     # a new root key made offline; the change prepared online, signed offline, installed online
     robotfleet_cmd("keys", "generate", offline / "root2.key")
     common = ("--checkout", site["checkout"], "--keys", site["keys"])
-    robotfleet_cmd("keys", "prepare", "root", "--out", site["base"] / "next.json", "--root-public",
-                   offline / "root2.pub", *common)
+    robotfleet_cmd(
+        "keys", "prepare", "root", "--out", site["base"] / "next.json", "--root-public", offline / "root2.pub", *common
+    )
     unsigned = robotfleet_cmd("keys", "install", site["base"] / "next.json", *common, check=False)
     assert unsigned.returncode == 1 and "not signed by the current root key" in unsigned.stderr
-    robotfleet_cmd("keys", "sign", site["base"] / "next.json", "--key", offline / "root.key", "--key",
-                   offline / "root2.key")
+    robotfleet_cmd(
+        "keys", "sign", site["base"] / "next.json", "--key", offline / "root.key", "--key", offline / "root2.key"
+    )
     done = robotfleet_cmd("keys", "install", site["base"] / "next.json", *common)
     assert "root version 2 installed" in done.stdout
     publish(site)
@@ -296,8 +343,9 @@ def test_wheels_for_a_robot_platform_are_carried_and_verified(site):
     pyproject = site["checkout"] / "pyproject.toml"
     pyproject.write_text('[project]\nname = "x"\nversion = "1"\ndependencies = ["six==1.16.0"]\n')
     fleet = site["checkout"] / "inventories" / "robots.yaml"
-    fleet.write_text(fleet.read_text().replace("pull_enabled: true",
-                                               "pull_enabled: true\n    pull_platform: cp311-aarch64"))
+    fleet.write_text(
+        fleet.read_text().replace("pull_enabled: true", "pull_enabled: true\n    pull_platform: cp311-aarch64")
+    )
     git(site["checkout"], "commit", "-qam", "tiny requirements")
     cache = site["base"] / "wheels"
     robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache)
@@ -323,11 +371,32 @@ def test_robots_without_pull_platform_get_the_setting_s_default_and_a_full_cache
     robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache)
     _, record = robot_refresh(site)
     assert record.wheels == {default: ["wheels/six-1.16.0-py2.py3-none-any.whl"]}
-    done = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache,
-                          "--index-url", "http://127.0.0.1:9/simple", "--allow-dirty")
+    done = robotfleet_cmd(
+        "publish",
+        "--checkout",
+        site["checkout"],
+        "--keys",
+        site["keys"],
+        "--wheel-cache",
+        cache,
+        "--index-url",
+        "http://127.0.0.1:9/simple",
+        "--allow-dirty",
+    )
     assert "publish: release 2" in done.stdout
-    refused = robotfleet_cmd("publish", "--checkout", site["checkout"], "--keys", site["keys"], "--wheel-cache", cache,
-                             "--index-url", "http://127.0.0.1:9/simple", "--refresh-wheels", check=False)
+    refused = robotfleet_cmd(
+        "publish",
+        "--checkout",
+        site["checkout"],
+        "--keys",
+        site["keys"],
+        "--wheel-cache",
+        cache,
+        "--index-url",
+        "http://127.0.0.1:9/simple",
+        "--refresh-wheels",
+        check=False,
+    )
     assert refused.returncode != 0 and "wheels for " in refused.stderr
 
 
@@ -339,13 +408,22 @@ def test_with_no_releases_remote_named_a_pull_command_says_how_to_name_it(site, 
     push_only = tmp_path / "push-only.yaml"  # no pull robot: nothing names a remote
     push_only.write_text("robots:\n  hosts:\n    robot1: {address: 127.0.0.1, payload_image: 'reg/p:1'}\n")
     for argv in (["halt"], ["keys", "show"]):
-        done = robotfleet_cmd(*argv, "--checkout", site["checkout"], "--keys", site["keys"],
-                              env={"ROBOT_FLEET": str(push_only)}, check=False)
+        done = robotfleet_cmd(
+            *argv,
+            "--checkout",
+            site["checkout"],
+            "--keys",
+            site["keys"],
+            env={"ROBOT_FLEET": str(push_only)},
+            check=False,
+        )
         assert done.returncode == 2, done.stderr
-        assert done.stderr == (f"{argv[0]}: no releases remote is named (no --remote, no robotfleet.remote in the "
-                               "checkout's git config, no pull robot with pull_remote in the fleet file); name it "
-                               "once: git config robotfleet.remote URL in the checkout (or pull_remote for the pull "
-                               "robots in the fleet file), or give --remote URL.\n")
+        assert done.stderr == (
+            f"{argv[0]}: no releases remote is named (no --remote, no robotfleet.remote in the "
+            "checkout's git config, no pull robot with pull_remote in the fleet file); name it "
+            "once: git config robotfleet.remote URL in the checkout (or pull_remote for the pull "
+            "robots in the fleet file), or give --remote URL.\n"
+        )
     assert git(site["origin"], "branch", "--list", "robotfleet/releases") == ""  # origin is never the default
 
 
@@ -355,15 +433,27 @@ def test_the_pull_robots_pull_remote_is_the_default(site, tmp_path):
     git(site["checkout"], "config", "--unset", "robotfleet.remote")
     url = f"https://127.0.0.1:{sshserver.closed_port()}/fleet.git"
     fleet = tmp_path / "fleet.yaml"
-    fleet.write_text(f"robots:\n  vars: {{pull_enabled: true, pull_remote: '{url}', payload_image: 'reg/p:1'}}\n"
-                     "  hosts:\n    robot1: {address: 127.0.0.1}\n")
-    done = robotfleet_cmd("keys", "show", "--checkout", site["checkout"], "--keys", site["keys"],
-                          env={"ROBOT_FLEET": str(fleet)}, check=False)
+    fleet.write_text(
+        f"robots:\n  vars: {{pull_enabled: true, pull_remote: '{url}', payload_image: 'reg/p:1'}}\n"
+        "  hosts:\n    robot1: {address: 127.0.0.1}\n"
+    )
+    done = robotfleet_cmd(
+        "keys",
+        "show",
+        "--checkout",
+        site["checkout"],
+        "--keys",
+        site["keys"],
+        env={"ROBOT_FLEET": str(fleet)},
+        check=False,
+    )
     assert done.returncode == 1, done.stderr
     assert done.stderr.startswith(f"keys: cannot read the releases remote {url}: ")
     assert len(done.stderr.splitlines()) == 1
-    assert done.stderr.endswith("; check its URL (--remote, git config robotfleet.remote or the robots' pull_remote) "
-                                "and that you may read it.\n")
+    assert done.stderr.endswith(
+        "; check its URL (--remote, git config robotfleet.remote or the robots' pull_remote) "
+        "and that you may read it.\n"
+    )
 
 
 def test_publishing_to_the_deploy_repository_s_own_remote_is_refused_unless_named(site):
@@ -373,11 +463,13 @@ def test_publishing_to_the_deploy_repository_s_own_remote_is_refused_unless_name
         done = publish(site, *given, check=False)
         assert done.returncode == 2, done.stderr
         shown = f"{origin}/" if named == "origin/" else origin
-        assert done.stderr == (f"publish: {shown} is the deploy repository's own remote (origin), and robots can read "
-                               "all of a remote they fetch from; keep the releases on another remote (name it once: "
-                               "git config robotfleet.remote URL in the checkout (or pull_remote for the pull robots "
-                               "in the fleet file), or give --remote URL), or give --remote origin to publish there "
-                               "anyway.\n")
+        assert done.stderr == (
+            f"publish: {shown} is the deploy repository's own remote (origin), and robots can read "
+            "all of a remote they fetch from; keep the releases on another remote (name it once: "
+            "git config robotfleet.remote URL in the checkout (or pull_remote for the pull robots "
+            "in the fleet file), or give --remote URL), or give --remote origin to publish there "
+            "anyway.\n"
+        )
     halted = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
     assert halted.returncode == 2 and "is the deploy repository's own remote (origin)" in halted.stderr
     assert git(site["origin"], "branch", "--list", "robotfleet/releases") == ""
@@ -390,14 +482,17 @@ def test_a_releases_remote_that_does_not_exist_is_one_sentence_naming_the_fix(si
     missing = tmp_path / "nonexistent.git"
     done = publish(site, "--remote", missing, check=False)
     assert done.returncode == 1
-    assert done.stderr == (f"publish: cannot read the releases remote {missing}: '{missing}' does not appear to be a "
-                           "git repository; check its URL (--remote, git config robotfleet.remote or the robots' "
-                           "pull_remote) and that you may read it.\n")
+    assert done.stderr == (
+        f"publish: cannot read the releases remote {missing}: '{missing}' does not appear to be a "
+        "git repository; check its URL (--remote, git config robotfleet.remote or the robots' "
+        "pull_remote) and that you may read it.\n"
+    )
 
 
 def test_halting_before_any_release_is_refused_in_one_sentence(site):
     done = robotfleet_cmd("halt", "--checkout", site["checkout"], "--keys", site["keys"], check=False)
     assert done.returncode == 2
-    assert done.stderr.startswith("halt: ") and done.stderr.endswith(": no release to halt; there is nothing for "
-                                                                      "robots to stop.\n")
+    assert done.stderr.startswith("halt: ") and done.stderr.endswith(
+        ": no release to halt; there is nothing for robots to stop.\n"
+    )
     assert git(site["remote"], "branch", "--list", "robotfleet/releases") == ""

@@ -42,13 +42,15 @@ def fleet(tmp_path: Path, shards: int = SHARDS) -> Path:
 
 
 def report(robot: str, result: str = "applied", when: datetime.datetime = NOW, version: int = 3) -> bytes:
-    return reports.to_bytes(reports.build(robot, when, result, attempted={"version": version, "result": result,
-                                                                          "tries": 1}))
+    return reports.to_bytes(
+        reports.build(robot, when, result, attempted={"version": version, "result": result, "tries": 1})
+    )
 
 
 def robot_remote(tmp_path: Path, remote: Path, robot: str, shards: int = SHARDS) -> transport.Remote:
-    return transport.Remote(f"file://{remote}", tmp_path / "robots" / robot, str(tmp_path / "etc"), timeout=60,
-                            shards=shards)
+    return transport.Remote(
+        f"file://{remote}", tmp_path / "robots" / robot, str(tmp_path / "etc"), timeout=60, shards=shards
+    )
 
 
 def refs(repo: Path) -> list[str]:
@@ -63,8 +65,15 @@ def test_a_robot_pushes_its_report_to_its_own_shard_and_nowhere_else(tmp_path):
         where = Path(report_shards.shard_url(str(remote), shard))
         assert refs(where) == (["refs/reports/robot1"] if shard == own else []), shard
     assert refs(remote) == []
-    assert reports.parse(craftedgit.git(Path(report_shards.shard_url(str(remote), own)), "show",
-                                        "refs/reports/robot1:report.json").encode(), "robot1")["result"] == "applied"
+    assert (
+        reports.parse(
+            craftedgit.git(
+                Path(report_shards.shard_url(str(remote), own)), "show", "refs/reports/robot1:report.json"
+            ).encode(),
+            "robot1",
+        )["result"]
+        == "applied"
+    )
 
 
 def test_a_push_the_shard_refuses_goes_to_the_fleet_remote_where_it_was_before(tmp_path):
@@ -90,8 +99,10 @@ def fill(repo: Path, robots: list[str], seed: tuple[Path, str]) -> None:
     writes them (10,000 loose refs would take most of a minute to make)."""
     (repo / "objects" / "info" / "alternates").write_text(f"{seed[0] / 'objects'}\n")
     names = sorted(f"refs/reports/{robot}".encode() for robot in robots)
-    (repo / "packed-refs").write_bytes(b"# pack-refs with: peeled fully-peeled sorted \n" +
-                                       b"".join(seed[1].encode() + b" " + name + b"\n" for name in names))
+    (repo / "packed-refs").write_bytes(
+        b"# pack-refs with: peeled fully-peeled sorted \n"
+        + b"".join(seed[1].encode() + b" " + name + b"\n" for name in names)
+    )
 
 
 def received_by_push(tmp_path: Path, remote: Path, robot: str, shards: int, monkeypatch) -> int:
@@ -124,7 +135,8 @@ def test_a_push_receives_only_its_shard_s_refs_at_ten_thousand_robots(tmp_path, 
     biggest = max(len(members) for members in report_shards.spread(robots, shards).values())
     assert before > PUSH_BUDGET and after <= PUSH_BUDGET, (
         f"a report push at 10,000 report refs received {before} B from one repository, {after} B from its shard "
-        f"(of {shards}, the largest holding {biggest} refs); git's budget is {PUSH_BUDGET} B")
+        f"(of {shards}, the largest holding {biggest} refs); git's budget is {PUSH_BUDGET} B"
+    )
     assert after < before / 50, (before, after)
 
 
@@ -146,8 +158,9 @@ def forge_in_another_shard(tmp_path: Path, remote: Path, robot: str) -> None:
     shared enrollment key may write its names in every shard)."""
     other = (report_shards.shard_of(robot, SHARDS) + 1) % SHARDS
     work = craftedgit.workspace(tmp_path / "hostile")
-    entry = f"100644 blob {craftedgit.blob(work, report(robot, 'applied', NOW + datetime.timedelta(hours=1)))}" \
-            "\treport.json"
+    entry = (
+        f"100644 blob {craftedgit.blob(work, report(robot, 'applied', NOW + datetime.timedelta(hours=1)))}\treport.json"
+    )
     craftedgit.push_report_entry(Path(report_shards.shard_url(str(remote), other)), work, robot, entry)
 
 
@@ -174,8 +187,10 @@ def test_status_rows_come_from_the_shards_of_the_fleet_file_s_count(tmp_path, mo
 
 
 def test_a_fleet_file_with_two_shard_counts_is_refused_in_one_line():
-    with pytest.raises(pullstatus.ReportsUnavailable,
-                       match="pull_report_shards: robot1 has 0, robot2 has 4: give every pull robot the same"):
+    with pytest.raises(
+        pullstatus.ReportsUnavailable,
+        match="pull_report_shards: robot1 has 0, robot2 has 4: give every pull robot the same",
+    ):
         pullstatus.shards_of([("robot1", {}), ("robot2", {"pull_report_shards": 4}), ("robot3", {})])
 
 
@@ -189,8 +204,10 @@ def test_a_later_wave_robot_reads_the_earlier_waves_from_their_shards(tmp_path):
     assert found["robot2"]["result"] == "applied"
     assert found["robot9"]["result"] == "applied"  # not moved: read where it reported before
     touched = {exchange["what"] for exchange in reader.cost.exchanges}
-    assert touched == {"reports"} and len(reader.cost.exchanges) == len(
-        report_shards.spread([f"robot{i}" for i in range(1, 10)], SHARDS)) + 1  # each shard once, the fleet remote once
+    assert (
+        touched == {"reports"}
+        and len(reader.cost.exchanges) == len(report_shards.spread([f"robot{i}" for i in range(1, 10)], SHARDS)) + 1
+    )  # each shard once, the fleet remote once
     # nothing kept: every fetch checks its objects against every local ref, so
     # refs left by each read made a read of 7,500 reports walk them 256 times
     assert craftedgit.git(reader.repo, "for-each-ref", "--format=%(refname)", "refs/fleet-shards/") == ""
@@ -200,15 +217,17 @@ def test_a_later_wave_robot_reads_the_earlier_waves_from_their_shards(tmp_path):
 def test_the_agent_reports_to_its_shard_and_halts_on_an_earlier_wave_s_failure_read_from_its_shard(tmp_path):
     from dataclasses import replace
 
-    from tests.integration.test_pull_agent import NOW as RELEASED, World
+    from tests.integration.test_pull_agent import NOW as RELEASED
+    from tests.integration.test_pull_agent import World
 
     world = World(tmp_path)
     for shard in range(SHARDS):
         bare(Path(report_shards.shard_url(str(world.bare), shard)))
     world.config = replace(world.config, report_shards=SHARDS)
     world.release(3, robots=("robot1", "robot2", "robot3"), canary="2")  # robot2 and robot3 first
-    rolled_back = reports.build("robot3", RELEASED, "rolled-back", attempted={"version": 3, "result": "rolled-back",
-                                                                              "tries": 1})
+    rolled_back = reports.build(
+        "robot3", RELEASED, "rolled-back", attempted={"version": 3, "result": "rolled-back", "tries": 1}
+    )
     robot_remote(tmp_path, world.bare, "robot3").push_report("robot3", reports.to_bytes(rolled_back))
     _, outcome, sent = world.wake()
     assert (outcome.result, outcome.wave) == ("stopped", 1)

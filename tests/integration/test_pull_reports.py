@@ -23,10 +23,19 @@ CONFIG = SimpleNamespace(interval=60, jitter=5, stale_after=3, heartbeat=0)
 
 
 def made(result="applied", robot="robot1", when=NOW, **more) -> dict:
-    return reports.build(robot, when, result, seen={"version": 7, "release": "r7", "commit": "a" * 40},
-                         applied={"version": 7, "release": "r7", "commit": "a" * 40, "time": "2026-11-25T09:59:00Z"},
-                         attempted={"version": 7, "result": result, "tries": 1}, host_keys=[KEY], key=KEY,
-                         config=CONFIG, status={"release": "20261125T0959Z-1", "health": "healthy"}, **more)
+    return reports.build(
+        robot,
+        when,
+        result,
+        seen={"version": 7, "release": "r7", "commit": "a" * 40},
+        applied={"version": 7, "release": "r7", "commit": "a" * 40, "time": "2026-11-25T09:59:00Z"},
+        attempted={"version": 7, "result": result, "tries": 1},
+        host_keys=[KEY],
+        key=KEY,
+        config=CONFIG,
+        status={"release": "20261125T0959Z-1", "health": "healthy"},
+        **more,
+    )
 
 
 def test_a_report_reads_back_as_written():
@@ -38,18 +47,25 @@ def test_a_report_reads_back_as_written():
     assert found["host_keys"] == [KEY] and found["interval"] == 60
 
 
-@pytest.mark.parametrize("change, line", [
-    (lambda r: r.update(robot="robot2"), "report of robot1: names another robot (robot2)"),
-    (lambda r: r.update(result="pwned"), "report of robot1: unknown result pwned"),
-    (lambda r: r.update(format=2), "report of robot1: not a format 1 report"),
-    (lambda r: r.update(time="yesterday"), "report of robot1: time is not a UTC time"),
-    (lambda r: r.update(host_keys=["ssh-ed25519 AAAA; rm -rf /"]),
-     "report of robot1: host_keys: expected public key lines"),
-    (lambda r: r.update(key="not a key"), "report of robot1: key: expected a public key line"),
-    (lambda r: r.update(enrollment={"key": KEY, "signature": "-----BEGIN SSH SIGNATURE-----\n$(x)"}),
-     "report of robot1: enrollment: expected {key, signature}"),
-    (lambda r: r["seen"].update(version=-1), "seen.version: expected a whole number"),
-])
+@pytest.mark.parametrize(
+    "change, line",
+    [
+        (lambda r: r.update(robot="robot2"), "report of robot1: names another robot (robot2)"),
+        (lambda r: r.update(result="pwned"), "report of robot1: unknown result pwned"),
+        (lambda r: r.update(format=2), "report of robot1: not a format 1 report"),
+        (lambda r: r.update(time="yesterday"), "report of robot1: time is not a UTC time"),
+        (
+            lambda r: r.update(host_keys=["ssh-ed25519 AAAA; rm -rf /"]),
+            "report of robot1: host_keys: expected public key lines",
+        ),
+        (lambda r: r.update(key="not a key"), "report of robot1: key: expected a public key line"),
+        (
+            lambda r: r.update(enrollment={"key": KEY, "signature": "-----BEGIN SSH SIGNATURE-----\n$(x)"}),
+            "report of robot1: enrollment: expected {key, signature}",
+        ),
+        (lambda r: r["seen"].update(version=-1), "seen.version: expected a whole number"),
+    ],
+)
 def test_a_report_a_robot_wrote_wrong_is_one_line(change, line):
     report = made()
     change(report)
@@ -105,17 +121,23 @@ def test_the_substance_leaves_out_when_and_what_it_cost():
 def test_status_rows_from_reports():
     data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3, "pull_heartbeat": 600}
     row = pullstatus.row("robot1", reports.parse(reports.to_bytes(made()), "robot1"), data, NOW, "url")
-    assert (row["reachable"], row["pull"], row["health"], row["reported"]) == ("pull", "applied 7", "healthy",
-                                                                                "2026-11-25T10:00:00Z")
+    assert (row["reachable"], row["pull"], row["health"], row["reported"]) == (
+        "pull",
+        "applied 7",
+        "healthy",
+        "2026-11-25T10:00:00Z",
+    )
     assert "error" not in row
-    late = pullstatus.row("robot1", reports.parse(reports.to_bytes(made()), "robot1"), data,
-                          NOW + datetime.timedelta(hours=1), "url")
+    late = pullstatus.row(
+        "robot1", reports.parse(reports.to_bytes(made()), "robot1"), data, NOW + datetime.timedelta(hours=1), "url"
+    )
     assert late["reachable"] is False and late["reported"].endswith(" STALE") and "stale report" in late["error"]
     refused = made("refused", refusal="tampered", reason="timestamp.json: changed after it was signed")
     row = pullstatus.row("robot1", reports.parse(reports.to_bytes(refused), "robot1"), data, NOW, "url")
     assert row["pull"] == "refused 7 (tampered)" and row["error"].startswith("refused: timestamp.json")
-    stopped = made("stopped", reason="wave 1 stopped by the failure budget: 1 robot(s) of the earlier waves failed "
-                                     "(budget 0)")
+    stopped = made(
+        "stopped", reason="wave 1 stopped by the failure budget: 1 robot(s) of the earlier waves failed (budget 0)"
+    )
     row = pullstatus.row("robot1", reports.parse(reports.to_bytes(stopped), "robot1"), data, NOW, "url")
     assert row["pull"] == "stopped 7 (failure budget)" and "error" not in row  # not an operator's halt, not a fault
     missing = pullstatus.row("robot2", None, data, NOW, "ssh://git/fleet")
@@ -135,8 +157,12 @@ def test_the_operator_reads_every_report_with_one_fetch(tmp_path):
 
 
 def test_a_pull_rollout_s_waves_and_what_it_counts():
-    args = SimpleNamespace(canary=waves.parse_count("1", "c"), batch=waves.parse_count("25%", "b"), pause=60,
-                           max_failed=waves.parse_count("0", "m"))
+    args = SimpleNamespace(
+        canary=waves.parse_count("1", "c"),
+        batch=waves.parse_count("25%", "b"),
+        pause=60,
+        max_failed=waves.parse_count("0", "m"),
+    )
     assert [str(w) for w in pullrollout.plan_of(args).waves] == ["25%", "50%", "75%", "100%"]
     args.batch = waves.parse_count("30%", "b")
     assert [str(w) for w in pullrollout.plan_of(args).waves] == ["30%", "60%", "90%", "100%"]
@@ -155,12 +181,15 @@ def test_status_reads_pull_robots_from_their_reports_and_never_connects(tmp_path
     subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
     fresh = made(when=datetime.datetime.now(UTC).replace(microsecond=0))
     transport.Remote(f"file://{bare}", tmp_path / "r1", str(tmp_path / "etc"), timeout=30).push_report(
-        "robot1", reports.to_bytes(fresh))
+        "robot1", reports.to_bytes(fresh)
+    )
     inventory = tmp_path / "inv.py"
     # Addresses nothing listens on: a connection attempt would be an error row, not a report's.
-    inventory.write_text('robots = [("robot1", {"pull_enabled": True, "ssh_hostname": "192.0.2.1",\n'
-                         '                      "pull_interval": 60}),\n'
-                         '          ("robot2", {"pull_enabled": True, "ssh_hostname": "192.0.2.2"})]\n')
+    inventory.write_text(
+        'robots = [("robot1", {"pull_enabled": True, "ssh_hostname": "192.0.2.1",\n'
+        '                      "pull_interval": 60}),\n'
+        '          ("robot2", {"pull_enabled": True, "ssh_hostname": "192.0.2.2"})]\n'
+    )
     rows = {r["host"]: r for r in status_collect.collect(str(inventory), [], remote=f"file://{bare}")}
     assert rows["robot1"]["reachable"] == "pull" and rows["robot1"]["pull"] == "applied 7"
     assert rows["robot1"]["health"] == "healthy" and "error" not in rows["robot1"]
@@ -178,7 +207,8 @@ def fleet(tmp_path):
     subprocess.run(["git", "init", "-q", "--bare", str(bare)], check=True)
     for name, result in (("robot2", "failed"), ("robot3", "applied")):
         transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(
-            name, reports.to_bytes(made(result, robot=name)))
+            name, reports.to_bytes(made(result, robot=name))
+        )
     return bare, craftedgit.workspace(tmp_path / "hostile")
 
 
@@ -210,8 +240,11 @@ def test_each_malformed_report_is_its_robot_s_line_in_status(fleet, tmp_path):
     tree = craftedgit.git(work, "mktree", stdin=f"100644 blob {large}\tx\n".encode())
     craftedgit.push_report_entry(bare, work, "robot7", f"040000 tree {tree}\treport.json")  # a well-formed tree
     inventory = tmp_path / "inv.py"
-    inventory.write_text("robots = [" + ", ".join(
-        f'("robot{n}", {{"pull_enabled": True, "ssh_hostname": "192.0.2.{n}"}})' for n in range(2, 8)) + "]\n")
+    inventory.write_text(
+        "robots = ["
+        + ", ".join(f'("robot{n}", {{"pull_enabled": True, "ssh_hostname": "192.0.2.{n}"}})' for n in range(2, 8))
+        + "]\n"
+    )
     rows = {r["host"]: r for r in status_collect.collect(str(inventory), [], remote=f"file://{bare}")}
     assert rows["robot2"]["pull"] == "failed 7" and rows["robot3"]["pull"] == "applied 7"
     unreadable = {name: row["error"] for name, row in rows.items() if row["pull"] == "unreadable"}
@@ -219,7 +252,8 @@ def test_each_malformed_report_is_its_robot_s_line_in_status(fleet, tmp_path):
         "robot4": f"report of robot4: nested deeper than {reports.MAX_DEPTH} levels",
         "robot5": f"report of robot5: report.json: larger than {reports.MAX_BYTES} bytes ({3 * 1024 * 1024})",
         "robot6": "report of robot6: report.json: missing",
-        "robot7": "report of robot7: report.json: a tree, not a blob"}
+        "robot7": "report of robot7: report.json: a tree, not a blob",
+    }
 
 
 def test_a_report_larger_than_allowed_is_never_read_into_memory(fleet, tmp_path):

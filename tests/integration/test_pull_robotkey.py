@@ -14,8 +14,9 @@ from roles.pull import plan
 
 def run(script: str, etc, path: str | None = None) -> subprocess.CompletedProcess:
     env = {**os.environ, "PATH": path or os.environ["PATH"]}
-    return subprocess.run(["sh", "-c", script.replace(agent_files.ETC, str(etc))], capture_output=True, text=True,
-                          env=env)
+    return subprocess.run(
+        ["sh", "-c", script.replace(agent_files.ETC, str(etc))], capture_output=True, text=True, env=env
+    )
 
 
 def test_the_key_pair_is_made_private_under_its_name_and_nothing_else_is_left(tmp_path):

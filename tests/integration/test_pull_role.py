@@ -10,13 +10,13 @@ import tarfile
 
 import pytest
 
-from robotfleet.pull.operator import install
-from robotfleet.pull.protocol import agent_files
 import roles.pull as pull_role
 import roles.pull.plan as plan
-from tests.unit.harness import ROBOT, converged, find, fleet_problems, fresh_host, merged, plan as run_plan
+from robotfleet.pull.operator import install
+from robotfleet.pull.protocol import agent_files
 from tests.unit import pullkit
-from tests.unit.harness import written_files
+from tests.unit.harness import ROBOT, converged, find, fleet_problems, fresh_host, merged, written_files
+from tests.unit.harness import plan as run_plan
 from tests.unit.pullkit import NOW
 
 KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"
@@ -35,8 +35,19 @@ def publish_with_wheels(fleet, version: int, wheels: dict[str, dict[str, bytes]]
             local.write_bytes(content)
             files[f"wheels/{name}"] = local
             listed[platform].append(f"wheels/{name}")
-    built = record.build(version, NOW, NOW + fleet.expiry.targets, "a" * 40, "b" * 64, "inventories/robots.yaml",
-                         "c" * 64, ["r1"], {}, listed, waves.Plan())
+    built = record.build(
+        version,
+        NOW,
+        NOW + fleet.expiry.targets,
+        "a" * 40,
+        "b" * 64,
+        "inventories/robots.yaml",
+        "c" * 64,
+        ["r1"],
+        {},
+        listed,
+        waves.Plan(),
+    )
     code = fleet.base / f"code-{version}.tar.gz"
     code.write_bytes(b"code")
     fleet.repository.publish(built, {built.code: code, **files}, fleet.keys.signer("online"), fleet.expiry, NOW)
@@ -47,8 +58,9 @@ def publish_with_wheels(fleet, version: int, wheels: dict[str, dict[str, bytes]]
 def released(tmp_path, monkeypatch):
     """The operator's keys and release repository (as robotfleet publish leaves them), release 1 with wheels."""
     fleet = pullkit.Fleet(tmp_path)
-    publish_with_wheels(fleet, 1, {"cp313-x86_64": {WHEEL: b"cp313-x86_64"},
-                                   "cp311-aarch64": {ARM_WHEEL: b"cp311-aarch64"}})
+    publish_with_wheels(
+        fleet, 1, {"cp313-x86_64": {WHEEL: b"cp313-x86_64"}, "cp311-aarch64": {ARM_WHEEL: b"cp311-aarch64"}}
+    )
     monkeypatch.setenv("ROBOTFLEET_RELEASES_CLONE", str(fleet.repository.path))
     monkeypatch.setenv("ROBOTFLEET_KEYS", str(tmp_path / "keys"))
     return fleet
@@ -57,54 +69,88 @@ def released(tmp_path, monkeypatch):
 @pytest.fixture
 def pulled(released):
     """Robot data in pull mode."""
-    return {**ROBOT, "pull_enabled": True, "pull_remote": "ssh://gitolite3@git.lan/fleet",
-            "pull_remote_host_keys": [KEY], "pull_interval": 60, "pull_jitter": 5}
+    return {
+        **ROBOT,
+        "pull_enabled": True,
+        "pull_remote": "ssh://gitolite3@git.lan/fleet",
+        "pull_remote_host_keys": [KEY],
+        "pull_interval": 60,
+        "pull_jitter": 5,
+    }
 
 
 def robot(**extra):
     return {"robots": {"hosts": {"robot3": {"payload_image": "reg.example.com/ros/payload:1.0", **extra}}}}
 
 
-@pytest.mark.parametrize("doc, expected", [
-    (robot(pull_enabled=True), "robots.yaml: robot3.pull_remote: required when pull_enabled is true: the git URL of "
-                               "the fleet remote (e.g. ssh://gitolite3@git.example.com/fleet)"),
-    (robot(pull_enabled=True, pull_remote="ssh://git@git.lan/fleet"),
-     "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
-     "(ssh-keyscan HOST, checked against the server's own)"),
-    (robot(pull_remote="ssh://git@git.lan/fleet;reboot"),
-     "robots.yaml: robot3.pull_remote: expected a git URL: ssh://user@host[:port]/path, user@host:path or "
-     "https://host/path, got 'ssh://git@git.lan/fleet;reboot'"),
-    (robot(pull_remote="-oProxyCommand=x"),
-     "robots.yaml: robot3.pull_remote: expected a git URL: ssh://user@host[:port]/path, user@host:path or "
-     "https://host/path, got '-oProxyCommand=x'"),
-    (robot(pull_remote_host_keys=["git.lan ssh-ed25519 AAAA"]),
-     "robots.yaml: robot3.pull_remote_host_keys[0]: expected a public host key like 'ssh-ed25519 AAAA...' "
-     "(ssh-keyscan's line without the host), got 'git.lan ssh-ed25519 AAAA'"),
-    (robot(pull_interval=5), "robots.yaml: robot3.pull_interval: expected at least 10, got 5"),
-    (robot(pull_windows=["weekdays 01:00-05:00"]),
-     "robots.yaml: robot3.pull_windows[0]: expected a maintenance window like 'Mon-Fri 01:00-05:00' or "
-     "'daily 22:00-02:00 UTC', got 'weekdays 01:00-05:00'"),
-    (robot(pull_windows=["daily 01:00-01:00"]),
-     "robots.yaml: robot3.pull_windows[0]: maintenance window 'daily 01:00-01:00': starts and ends at the same "
-     "time; for all day write 00:00-23:59"),
-    (robot(pull_enabled="yes"), "robots.yaml: robot3.pull_enabled: expected true or false, got 'yes'"),
-    (robot(pull_enabled=True, pull_remote="https://git.lan/fleet", pull_report_remote="ssh://git@git.lan/fleet"),
-     "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
-     "(ssh-keyscan HOST, checked against the server's own)"),
-])
+@pytest.mark.parametrize(
+    "doc, expected",
+    [
+        (
+            robot(pull_enabled=True),
+            "robots.yaml: robot3.pull_remote: required when pull_enabled is true: the git URL of "
+            "the fleet remote (e.g. ssh://gitolite3@git.example.com/fleet)",
+        ),
+        (
+            robot(pull_enabled=True, pull_remote="ssh://git@git.lan/fleet"),
+            "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
+            "(ssh-keyscan HOST, checked against the server's own)",
+        ),
+        (
+            robot(pull_remote="ssh://git@git.lan/fleet;reboot"),
+            "robots.yaml: robot3.pull_remote: expected a git URL: ssh://user@host[:port]/path, user@host:path or "
+            "https://host/path, got 'ssh://git@git.lan/fleet;reboot'",
+        ),
+        (
+            robot(pull_remote="-oProxyCommand=x"),
+            "robots.yaml: robot3.pull_remote: expected a git URL: ssh://user@host[:port]/path, user@host:path or "
+            "https://host/path, got '-oProxyCommand=x'",
+        ),
+        (
+            robot(pull_remote_host_keys=["git.lan ssh-ed25519 AAAA"]),
+            "robots.yaml: robot3.pull_remote_host_keys[0]: expected a public host key like 'ssh-ed25519 AAAA...' "
+            "(ssh-keyscan's line without the host), got 'git.lan ssh-ed25519 AAAA'",
+        ),
+        (robot(pull_interval=5), "robots.yaml: robot3.pull_interval: expected at least 10, got 5"),
+        (
+            robot(pull_windows=["weekdays 01:00-05:00"]),
+            "robots.yaml: robot3.pull_windows[0]: expected a maintenance window like 'Mon-Fri 01:00-05:00' or "
+            "'daily 22:00-02:00 UTC', got 'weekdays 01:00-05:00'",
+        ),
+        (
+            robot(pull_windows=["daily 01:00-01:00"]),
+            "robots.yaml: robot3.pull_windows[0]: maintenance window 'daily 01:00-01:00': starts and ends at the same "
+            "time; for all day write 00:00-23:59",
+        ),
+        (robot(pull_enabled="yes"), "robots.yaml: robot3.pull_enabled: expected true or false, got 'yes'"),
+        (
+            robot(pull_enabled=True, pull_remote="https://git.lan/fleet", pull_report_remote="ssh://git@git.lan/fleet"),
+            "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
+            "(ssh-keyscan HOST, checked against the server's own)",
+        ),
+    ],
+)
 def test_bad_pull_settings_get_one_clear_line(doc, expected):
     assert fleet_problems(doc) == [expected]
 
 
-@pytest.mark.parametrize("extra", [
-    {"pull_enabled": True, "pull_remote": "ssh://gitolite3@git.lan:2222/fleet", "pull_remote_host_keys": [KEY]},
-    {"pull_enabled": True, "pull_remote": "git@git.lan:robots/fleet.git", "pull_remote_host_keys": [KEY]},
-    {"pull_enabled": True, "pull_remote": "https://git.lan/robots/fleet.git"},
-    {"pull_enabled": True, "pull_remote": "https://mirror.lan/fleet.git", "pull_report_remote": "ssh://gitolite3@git.lan/fleet",
-     "pull_remote_host_keys": [KEY], "pull_remote_ca": "files/fleet-ca.pem"},
-    {"pull_windows": ["Mon-Fri 01:00-05:00", "Sat,Sun 00:00-23:59 UTC"]},
-    {"pull_remote": "ssh://git@10.20.0.5/fleet"},  # set for the fleet; used where pull_enabled is true
-])
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {"pull_enabled": True, "pull_remote": "ssh://gitolite3@git.lan:2222/fleet", "pull_remote_host_keys": [KEY]},
+        {"pull_enabled": True, "pull_remote": "git@git.lan:robots/fleet.git", "pull_remote_host_keys": [KEY]},
+        {"pull_enabled": True, "pull_remote": "https://git.lan/robots/fleet.git"},
+        {
+            "pull_enabled": True,
+            "pull_remote": "https://mirror.lan/fleet.git",
+            "pull_report_remote": "ssh://gitolite3@git.lan/fleet",
+            "pull_remote_host_keys": [KEY],
+            "pull_remote_ca": "files/fleet-ca.pem",
+        },
+        {"pull_windows": ["Mon-Fri 01:00-05:00", "Sat,Sun 00:00-23:59 UTC"]},
+        {"pull_remote": "ssh://git@10.20.0.5/fleet"},  # set for the fleet; used where pull_enabled is true
+    ],
+)
 def test_good_pull_settings_are_accepted(extra):
     assert fleet_problems(robot(**extra)) == []
 
@@ -121,13 +167,19 @@ def test_agent_configuration_and_units(pulled):
     assert config.robot == "robot7" and config.remote == "ssh://gitolite3@git.lan/fleet"
     assert (config.interval, config.jitter, config.windows) == (60, 5, ("Mon-Fri 01:00-05:00",))
     timer = plan.timer_unit(data)
-    for line in ("OnBootSec=60", "OnUnitInactiveSec=60", "RandomizedDelaySec=5", "Persistent=true",
-                 "WantedBy=timers.target"):
+    for line in (
+        "OnBootSec=60",
+        "OnUnitInactiveSec=60",
+        "RandomizedDelaySec=5",
+        "Persistent=true",
+        "WantedBy=timers.target",
+    ):
         assert f"\n{line}\n" in timer
     service = plan.service_unit()
     assert "\nType=oneshot\n" in service and "\nUser=" not in service
-    assert (f"\nExecStart={agent_files.VENV}/bin/python -m robotfleet.pull.agent "
-            f"--config {agent_files.CONFIG}\n") in service
+    assert (
+        f"\nExecStart={agent_files.VENV}/bin/python -m robotfleet.pull.agent --config {agent_files.CONFIG}\n"
+    ) in service
     assert plan.known_hosts(data) == f"{plan.KNOWN_HOSTS_ALIAS} {KEY}\n"
 
 
@@ -143,7 +195,7 @@ def test_a_fresh_robot_gets_the_agent(pulled, released):
     for path in (agent_files.CONFIG, agent_files.TRUST_ROOT):
         assert "chmod 600" in find(commands, f"dest={path}\n")[0]
     keygen = find(commands, "ssh-keygen -q -t ed25519")
-    assert len(keygen) == 1 and f"mv -T \"$tmp/key\" {agent_files.KEY}" in keygen[0]
+    assert len(keygen) == 1 and f'mv -T "$tmp/key" {agent_files.KEY}' in keygen[0]
     # The wheels of the robot's python (Debian 13: 3.13) and architecture, as one archive.
     venv = find(commands, "python3 -m venv")
     assert len(venv) == 1
@@ -153,8 +205,9 @@ def test_a_fresh_robot_gets_the_agent(pulled, released):
     code = find(commands, r"tar -xz -C")
     assert len(code) == 1
     tree = tarfile.open(fileobj=io.BytesIO(base64.b64decode(code[0].stdin)))
-    assert {"deploy.py", "robotfleet/role.py", "roles/payload/__init__.py",
-            "inventories/robots.yaml"} <= set(tree.getnames())
+    assert {"deploy.py", "robotfleet/role.py", "roles/payload/__init__.py", "inventories/robots.yaml"} <= set(
+        tree.getnames()
+    )
     assert not [n for n in tree.getnames() if n.startswith(("tests/", "docs/")) or "__pycache__" in n]
     assert find(commands, "systemctl enable robot-pull.timer")
 
@@ -170,8 +223,9 @@ def test_an_arm64_robot_gets_its_own_wheels(pulled):
 def test_a_robot_that_is_not_its_pull_platform_is_refused_in_one_line(pulled):
     result = run_plan({"r1": ("robots", pulled, fresh_host("ubuntu-22.04"))})
     assert result.failed == {"r1"}
-    assert find(result["r1"], "pull_platform: cp313-x86_64, but this robot runs cp310-x86_64; .*"
-                              "set pull_platform: cp310-x86_64")
+    assert find(
+        result["r1"], "pull_platform: cp313-x86_64, but this robot runs cp310-x86_64; .*set pull_platform: cp310-x86_64"
+    )
 
 
 def test_a_platform_the_release_carries_no_wheels_for_is_refused_in_one_line(pulled):
@@ -212,8 +266,9 @@ def test_an_existing_key_is_kept_and_a_changed_interval_restarts_the_timer(pulle
 
 
 def test_a_missing_trust_root_fails_the_host_naming_the_file(pulled, tmp_path):
-    result = run_plan({"r1": ("robots", {**pulled, "pull_trust_root": str(tmp_path / "nope.json")},
-                              fresh_host("debian-13"))})
+    result = run_plan(
+        {"r1": ("robots", {**pulled, "pull_trust_root": str(tmp_path / "nope.json")}, fresh_host("debian-13"))}
+    )
     assert result.failed == {"r1"}
     assert find(result["r1"], "pull_trust_root: .*nope.json cannot be read")
 
@@ -241,8 +296,9 @@ def test_an_https_remote_s_ca_is_installed_and_removed_when_unset(pulled, tmp_pa
     assert not written_files(run_plan({"r1": ("robots", https, snap)})["r1"])  # converged: nothing
     commands = run_plan({"r1": ("robots", pulled, snap)})["r1"]
     assert find(commands, f"rm -f {agent_files.REMOTE_CA}")
-    result = run_plan({"r1": ("robots", {**https, "pull_remote_ca": str(tmp_path / "tls" / "ca.key")},
-                              fresh_host("debian-13"))})
+    result = run_plan(
+        {"r1": ("robots", {**https, "pull_remote_ca": str(tmp_path / "tls" / "ca.key")}, fresh_host("debian-13"))}
+    )
     assert result.failed == {"r1"} and find(result["r1"], "pull_remote_ca: .*ca.key holds no PEM certificate")
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from robotfleet.pull.operator import channel
 from robotfleet.pull.protocol import reports
-from robotfleet.pull.robot import transport, transport_cost, trust_state
+from robotfleet.pull.robot import ssh_options, transport, transport_cost, trust_state
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
 debug1: Server accepts key: /etc/robot-pull/id_ed25519 ED25519 SHA256:abc explicit
@@ -23,9 +23,20 @@ Bytes per second: sent 31400.0, received 33640.0
 
 
 def git(where: Path, *args: str) -> str:
-    return subprocess.run(["git", "-C", str(where), *args], check=True, capture_output=True, text=True,
-                          env={"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t",
-                               "GIT_COMMITTER_EMAIL": "t@t", "HOME": str(where), "PATH": "/usr/bin:/bin"}).stdout
+    return subprocess.run(
+        ["git", "-C", str(where), *args],
+        check=True,
+        capture_output=True,
+        text=True,
+        env={
+            "GIT_AUTHOR_NAME": "t",
+            "GIT_AUTHOR_EMAIL": "t@t",
+            "GIT_COMMITTER_NAME": "t",
+            "GIT_COMMITTER_EMAIL": "t@t",
+            "HOME": str(where),
+            "PATH": "/usr/bin:/bin",
+        },
+    ).stdout
 
 
 @pytest.fixture
@@ -45,16 +56,24 @@ def remote(tmp_path):
 
 
 def report(robot: str, result: str = "applied") -> bytes:
-    return reports.to_bytes(reports.build(robot, datetime.datetime(2026, 11, 25, tzinfo=datetime.timezone.utc),
-                                          result))
+    return reports.to_bytes(reports.build(robot, datetime.datetime(2026, 11, 25, tzinfo=datetime.timezone.utc), result))
 
 
 def test_ssh_pins_the_server_and_offers_only_the_robot_s_keys():
-    command = transport.ssh_command(["/etc/robot-pull/id_ed25519", "/etc/robot-pull/enroll_ed25519"],
-                                    "/etc/robot-pull/known_hosts", "/tmp/log", 300)
-    for part in ("-F /dev/null", "IdentitiesOnly=yes", "BatchMode=yes", "StrictHostKeyChecking=yes",
-                 "UserKnownHostsFile=/etc/robot-pull/known_hosts", "HostKeyAlias=robotfleet-remote",
-                 "ConnectTimeout=30", "-E /tmp/log", "-i /etc/robot-pull/id_ed25519 -i /etc/robot-pull/enroll_ed25519"):
+    command = ssh_options.ssh_command(
+        ["/etc/robot-pull/id_ed25519", "/etc/robot-pull/enroll_ed25519"], "/etc/robot-pull/known_hosts", "/tmp/log", 300
+    )
+    for part in (
+        "-F /dev/null",
+        "IdentitiesOnly=yes",
+        "BatchMode=yes",
+        "StrictHostKeyChecking=yes",
+        "UserKnownHostsFile=/etc/robot-pull/known_hosts",
+        "HostKeyAlias=robotfleet-remote",
+        "ConnectTimeout=30",
+        "-E /tmp/log",
+        "-i /etc/robot-pull/id_ed25519 -i /etc/robot-pull/enroll_ed25519",
+    ):
         assert part in command
 
 
@@ -64,8 +83,10 @@ def test_the_bytes_and_the_accepted_key_come_from_ssh_s_log():
 
 
 def test_the_telling_line_of_a_git_failure():
-    said = ("gitolite3@git.lan: Permission denied (publickey).\r\nfatal: Could not read from remote repository.\n\n"
-            "Please make sure you have the correct access rights\nand the repository exists.\n")
+    said = (
+        "gitolite3@git.lan: Permission denied (publickey).\r\nfatal: Could not read from remote repository.\n\n"
+        "Please make sure you have the correct access rights\nand the repository exists.\n"
+    )
     assert transport.git_error(said, 128) == "gitolite3@git.lan: Permission denied (publickey)."
     denied = "FATAL: W refs/reports/robot2 fleet robot1 DENIED by fallthru\n"
     assert transport.git_error(denied, 1).startswith("FATAL: W")
@@ -97,8 +118,10 @@ def test_a_missing_branch_is_one_line(tmp_path):
 
 def test_reports_are_pushed_as_one_file_commits_and_read_back_by_name(remote, tmp_path):
     bare, _ = remote
-    robots = {name: transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30)
-              for name in ("robot1", "robot10", "robot2")}
+    robots = {
+        name: transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30)
+        for name in ("robot1", "robot10", "robot2")
+    }
     for name, robot in robots.items():
         robot.push_report(name, report(name))
     robots["robot1"].push_report("robot1", report("robot1", "waiting"))  # forced over the last
@@ -173,8 +196,9 @@ def test_reports_go_to_the_report_remote_while_releases_come_over_https(https_re
     (etc / "remote-ca.pem").write_bytes(ca.read_bytes())
     elsewhere = tmp_path / "reports.git"
     subprocess.run(["git", "init", "-q", "--bare", str(elsewhere)], check=True)
-    robot = transport.Remote(server.url("fleet.git"), tmp_path / "releases", str(etc), timeout=30,
-                             report_url=f"file://{elsewhere}")
+    robot = transport.Remote(
+        server.url("fleet.git"), tmp_path / "releases", str(etc), timeout=30, report_url=f"file://{elsewhere}"
+    )
     robot.fetch_releases()
     robot.push_report("robot1", report("robot1"))
     assert git(elsewhere, "show", "refs/reports/robot1:report.json") == report("robot1").decode()
@@ -183,7 +207,8 @@ def test_reports_go_to_the_report_remote_while_releases_come_over_https(https_re
     git(bare, "update-server-info")
     if server.smart:  # the earlier waves' reports are read from the releases' remote, over HTTPS too
         assert robot.fetch_reports(["robot2"]) == {
-            "robot2": {"robot": "robot2", "error": "report of robot2: names another robot (robot1)"}}
+            "robot2": {"robot": "robot2", "error": "report of robot2: names another robot (robot1)"}
+        }
 
 
 def test_links_on_the_releases_branch_are_checked_out_as_files(remote, tmp_path):
@@ -203,8 +228,12 @@ def test_links_on_the_releases_branch_are_checked_out_as_files(remote, tmp_path)
     assert git(bare, "ls-tree", "robotfleet/releases", "targets").startswith("120000 blob")
     robot = transport.Remote(f"file://{bare}", tmp_path / "state" / "releases", str(tmp_path / "etc"), timeout=30)
     robot.fetch_releases()
-    links = [os.path.join(where, name) for where, dirs, files in os.walk(robot.repo) for name in dirs + files
-             if os.path.islink(os.path.join(where, name))]
+    links = [
+        os.path.join(where, name)
+        for where, dirs, files in os.walk(robot.repo)
+        for name in dirs + files
+        if os.path.islink(os.path.join(where, name))
+    ]
     assert links == []
     # what the trusted-metadata reader reads there is the links' text, never what they point at
     assert trust_state._read(str(robot.repo), "metadata/timestamp.json") == str(secret).encode()
@@ -212,8 +241,9 @@ def test_links_on_the_releases_branch_are_checked_out_as_files(remote, tmp_path)
     assert (robot.repo / "targets").is_file()
     # nor does the operator's publishing clone of the branch hold them
     clone = channel.GitChannel(tmp_path, str(bare), clone=tmp_path / "publishing").open()
-    assert not any(os.path.islink(os.path.join(where, name)) for where, dirs, files in os.walk(clone)
-                   for name in dirs + files)
+    assert not any(
+        os.path.islink(os.path.join(where, name)) for where, dirs, files in os.walk(clone) for name in dirs + files
+    )
     assert (clone / "metadata" / "2.root.json").read_bytes() == b"/dev/zero"
 
 
@@ -226,7 +256,8 @@ def test_a_read_of_many_robots_asks_for_every_report_and_reads_only_the_robots_a
     names = ("robot1", "robot10", "robot2", "robot3")
     for name in names:
         transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(
-            name, report(name))
+            name, report(name)
+        )
     for at_most in (1, 256):
         monkeypatch.setattr(transport, "PREFIXES_AT_MOST", at_most)
         reader = transport.Remote(f"file://{bare}", tmp_path / f"reader{at_most}", str(tmp_path / "etc"), timeout=30)

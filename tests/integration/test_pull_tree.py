@@ -15,8 +15,12 @@ from robotfleet.pull.protocol import tree
 
 
 def git(where, *args):
-    return subprocess.run(["git", "-C", str(where), "-c", "user.name=t", "-c", "user.email=t@t", *args],
-                          check=True, capture_output=True, text=True).stdout.strip()
+    return subprocess.run(
+        ["git", "-C", str(where), "-c", "user.name=t", "-c", "user.email=t@t", *args],
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
 
 
 @pytest.fixture
@@ -39,8 +43,12 @@ def checkout(tmp_path):
 def test_the_hash_from_git_and_from_the_unpacked_archive_agree(checkout, tmp_path):
     commit = tree.resolve(checkout, "HEAD")
     from_git = tree.entries_of_commit(checkout, commit)
-    assert sorted(e.path for e in from_git) == ["deploy.py", "roles/link.py", "roles/payload/__init__.py",
-                                                "roles/payload/run.sh"]
+    assert sorted(e.path for e in from_git) == [
+        "deploy.py",
+        "roles/link.py",
+        "roles/payload/__init__.py",
+        "roles/payload/run.sh",
+    ]
     modes = {e.path: e.mode for e in from_git}
     assert (modes["roles/payload/run.sh"], modes["roles/link.py"], modes["deploy.py"]) == ("100755", "120000", "100644")
     assert {e.path: e.sha256 for e in from_git}["deploy.py"] == hashlib.sha256(b"ROLES = []\n").hexdigest()
@@ -97,14 +105,17 @@ def evil(tmp_path, name: str, member: tarfile.TarInfo, data: bytes = b"") -> str
     return path
 
 
-@pytest.mark.parametrize("make, says", [
-    (lambda: tarfile.TarInfo("../escape.py"), "a path outside the archive's directory"),
-    (lambda: tarfile.TarInfo("/etc/cron.d/x"), "a path outside the archive's directory"),
-    (lambda: _link("roles/x", "/etc/shadow"), "a link to an absolute path"),
-    (lambda: _link("roles/x", "../../etc"), "a link pointing outside the archive's directory"),
-    (lambda: _kind("dev", tarfile.CHRTYPE), "not a file, directory or link"),
-    (lambda: _kind("hard", tarfile.LNKTYPE), "not a file, directory or link"),
-])
+@pytest.mark.parametrize(
+    "make, says",
+    [
+        (lambda: tarfile.TarInfo("../escape.py"), "a path outside the archive's directory"),
+        (lambda: tarfile.TarInfo("/etc/cron.d/x"), "a path outside the archive's directory"),
+        (lambda: _link("roles/x", "/etc/shadow"), "a link to an absolute path"),
+        (lambda: _link("roles/x", "../../etc"), "a link pointing outside the archive's directory"),
+        (lambda: _kind("dev", tarfile.CHRTYPE), "not a file, directory or link"),
+        (lambda: _kind("hard", tarfile.LNKTYPE), "not a file, directory or link"),
+    ],
+)
 def test_unpacking_refuses_what_would_leave_its_directory(tmp_path, make, says):
     path = evil(tmp_path, "evil.tar.gz", make(), b"x" if make().isfile() else b"")
     with pytest.raises(tree.TreeError, match=says):
@@ -143,8 +154,9 @@ def archive_of(path, *members: tarfile.TarInfo, data: bytes = b"x"):
 def test_a_link_chain_cannot_carry_a_file_outside_the_tree(tmp_path):
     # Each link alone points inside by its text; l/l is the tree itself, so
     # l/l/up2 is two levels above it, and a file under it lands there.
-    path = archive_of(tmp_path / "chain.tar.gz", _link("l", "."), _link("l/l/up2", "../.."),
-                      tarfile.TarInfo("l/l/up2/escaped.py"))
+    path = archive_of(
+        tmp_path / "chain.tar.gz", _link("l", "."), _link("l/l/up2", "../.."), tarfile.TarInfo("l/l/up2/escaped.py")
+    )
     destination = tmp_path / "a" / "b" / "out"
     destination.parent.mkdir(parents=True)
     with pytest.raises(tree.TreeError, match="chain.tar.gz: 'l/l/up2': a path through the link 'l'"):
@@ -153,10 +165,13 @@ def test_a_link_chain_cannot_carry_a_file_outside_the_tree(tmp_path):
     assert list(destination.parent.iterdir()) == []
 
 
-@pytest.mark.parametrize("members", [
-    [("a", "."), ("b", "a/a/..")],     # b's text stays inside; through a it is the tree's parent
-    [("b", "l/.."), ("l", ".")],       # the same, with the link b goes through made after b
-])
+@pytest.mark.parametrize(
+    "members",
+    [
+        [("a", "."), ("b", "a/a/..")],  # b's text stays inside; through a it is the tree's parent
+        [("b", "l/.."), ("l", ".")],  # the same, with the link b goes through made after b
+    ],
+)
 def test_a_link_resolving_outside_through_other_links_is_refused(tmp_path, members):
     path = archive_of(tmp_path / "links.tar.gz", *(_link(name, target) for name, target in members))
     with pytest.raises(tree.TreeError, match="'b': a link resolving outside the archive's directory"):

@@ -61,8 +61,13 @@ def test_what_an_interrupted_refresh_left_is_swept(fleet):
     (fleet.state / ".tuf-link-0000").symlink_to("tuf-leftover")
     fleet.refresh()
     current = (fleet.state / "tuf").resolve().name
-    assert {p.name for p in fleet.state.iterdir()} == {"trust.json", "tuf", current, "verified.json",
-                                                       "verified.release.json"}
+    assert {p.name for p in fleet.state.iterdir()} == {
+        "trust.json",
+        "tuf",
+        current,
+        "verified.json",
+        "verified.release.json",
+    }
 
 
 def test_a_new_release_is_accepted_after_the_first(fleet):
@@ -91,8 +96,9 @@ def test_tampered_targets_metadata_is_refused(fleet):
 
 def test_a_changed_timestamp_with_the_old_signature_is_refused_as_tampered(fleet):
     fleet.release(2)
-    edit_json(fleet.repository.metadata / "timestamp.json",
-              lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z"))
+    edit_json(
+        fleet.repository.metadata / "timestamp.json", lambda md: md["signed"].update(expires="2099-01-01T00:00:00Z")
+    )
     line = refused(fleet, refusals.TAMPERED)
     assert line.startswith("timestamp.json: changed after it was signed")
 
@@ -235,8 +241,9 @@ def test_root_key_rotation_is_followed_and_the_old_root_key_alone_cannot_make_a_
     new_root = keys.generate("root.next")
     unsigned = ceremony.prepare_root(repository, fleet.expiry, NOW, root_key=new_root)
     with pytest.raises(pullkit.module("operator.repository").RepositoryError, match="not signed by its own root key"):
-        ceremony.install_root(repository, sign_root(unsigned, [keys.signer("root")]), keys.signer("online"),
-                              fleet.expiry, NOW)
+        ceremony.install_root(
+            repository, sign_root(unsigned, [keys.signer("root")]), keys.signer("online"), fleet.expiry, NOW
+        )
     signed = sign_root(unsigned, [keys.signer("root"), keys.signer("root.next")])
     ceremony.install_root(repository, signed, keys.signer("online"), fleet.expiry, NOW)
     fleet.release(2)
@@ -252,8 +259,10 @@ def test_the_operator_side_refuses_to_sign_with_an_online_key_the_root_does_not_
     repository = pullkit.module("operator.repository")
     stranger = pullkit.module("operator.keys").KeyDir(tmp_path / "stranger")
     stranger.generate("online")
-    for attempt in (lambda: fleet.repository.renew(stranger.signer("online"), fleet.expiry, NOW),
-                    lambda: fleet.repository.resign(stranger.signer("online"), fleet.expiry, NOW)):
+    for attempt in (
+        lambda: fleet.repository.renew(stranger.signer("online"), fleet.expiry, NOW),
+        lambda: fleet.repository.resign(stranger.signer("online"), fleet.expiry, NOW),
+    ):
         with pytest.raises(repository.RepositoryError, match="is not the one the repository's root names"):
             attempt()
     assert fleet.refresh().version == 1
@@ -336,8 +345,11 @@ def test_a_link_in_the_repository_is_not_followed(fleet):
 @pytest.mark.parametrize("flooded", ["metadata/timestamp.json", "the record"])
 def test_an_endless_answer_of_a_mirror_is_read_only_to_its_cap(fleet, flooded):
     if flooded == "the record":
-        flooded = next(f"targets/{p.name}" for p in (fleet.repository.path / "targets").iterdir()
-                       if p.name.endswith(".release.json"))
+        flooded = next(
+            f"targets/{p.name}"
+            for p in (fleet.repository.path / "targets").iterdir()
+            if p.name.endswith(".release.json")
+        )
     with pullkit.Flood(fleet.repository.path, flooded) as mirror:
         line = refused(fleet, refusals.TAMPERED, source=mirror.url)
     assert "longer than what was signed" in line

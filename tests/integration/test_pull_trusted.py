@@ -44,11 +44,13 @@ def test_the_same_repository_gives_the_verified_record_back(fleet):
 
 
 def test_recalling_imports_no_tuf(fleet):
-    code = ("import sys, datetime; from robotfleet.pull.robot import trust_state; "
-            f"found = trust_state.recall({str(fleet.state)!r}, {str(fleet.repository.path)!r}, "
-            "datetime.datetime.now(datetime.timezone.utc)); "
-            "assert found and found[0].version == 1, found; "
-            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('tuf', 'securesystemslib', 'urllib3')))")
+    code = (
+        "import sys, datetime; from robotfleet.pull.robot import trust_state; "
+        f"found = trust_state.recall({str(fleet.state)!r}, {str(fleet.repository.path)!r}, "
+        "datetime.datetime.now(datetime.timezone.utc)); "
+        "assert found and found[0].version == 1, found; "
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('tuf', 'securesystemslib', 'urllib3')))"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert done.stdout.strip() == "[]"
 
@@ -94,6 +96,7 @@ def test_over_http_the_same_files_are_read(fleet):
 
 # -- a hostile mirror or git server: links and endless files --------------------------------------------------------
 
+
 def reads(fleet) -> list[str]:
     """What the last full verification read, as the next check reads it."""
     return json.loads((fleet.state / trust_state.VERIFIED).read_text())["reads"]
@@ -103,10 +106,16 @@ def test_a_link_to_dev_zero_is_not_read(fleet):
     # The repository as a mirror (or a checkout made with links) might hold it.
     (fleet.repository.metadata / "2.root.json").symlink_to("/dev/zero")
     # In a process of bounded memory: reading /dev/zero would end in MemoryError.
-    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30)); "
-            "from robotfleet.pull.robot import trust_state; print(trust_state.fingerprint(sys.argv[1], sys.argv[2:]))")
-    done = subprocess.run([sys.executable, "-c", code, str(fleet.repository.path), *reads(fleet)],
-                          capture_output=True, text=True, timeout=120)
+    code = (
+        "import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30)); "
+        "from robotfleet.pull.robot import trust_state; print(trust_state.fingerprint(sys.argv[1], sys.argv[2:]))"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(fleet.repository.path), *reads(fleet)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert (done.returncode, done.stdout.strip()) == (0, "None"), done.stderr[-2000:]
     with pytest.raises(OSError, match="2.root.json: a symbolic link, not read"):
         trust_state._read(str(fleet.repository.path), "metadata/2.root.json")

@@ -47,8 +47,7 @@ def test_a_cache_holding_every_requirement_is_used_without_the_index(tmp_path, m
     monkeypatch.delenv("PIP_FIND_LINKS", raising=False)
     found = wheels.build_wheelhouse(["MarkupSafe==2.1.5", "six"], "cp311-aarch64", tmp_path)
     nowhere = "http://127.0.0.1:9/simple"  # nothing listens: any question to the index fails
-    assert wheels.build_wheelhouse(["MarkupSafe==2.1.5", "six"], "cp311-aarch64", tmp_path,
-                                   index_url=nowhere) == found
+    assert wheels.build_wheelhouse(["MarkupSafe==2.1.5", "six"], "cp311-aarch64", tmp_path, index_url=nowhere) == found
     # a requirement the cache lacks goes to the index (which here cannot answer) ...
     with pytest.raises(wheels.WheelError, match="wheels for cp311-aarch64: "):
         wheels.build_wheelhouse(["MarkupSafe==2.1.4"], "cp311-aarch64", tmp_path, index_url=nowhere)

@@ -48,23 +48,38 @@ class Store:
         for arch in arches:
             top, top_id = layer(f"bin-{arch}")
             self.blobs[digest(top)] = top
-            config = json.dumps({"architecture": arch, "os": "linux",
-                                 "rootfs": {"type": "layers", "diff_ids": [base_id, top_id]}}).encode()
+            config = json.dumps(
+                {"architecture": arch, "os": "linux", "rootfs": {"type": "layers", "diff_ids": [base_id, top_id]}}
+            ).encode()
             self.blobs[digest(config)] = config
             self.ids[arch] = digest(config)
             self.diff_ids = {arch: [base_id, top_id], **getattr(self, "diff_ids", {})}
-            manifest = json.dumps({"schemaVersion": 2, "mediaType": DOCKER_V2,
-                                   "config": {"mediaType": "x", "digest": digest(config), "size": len(config)},
-                                   "layers": [{"mediaType": "y", "digest": digest(b), "size": len(b)}
-                                              for b in (base, top)]}).encode()
+            manifest = json.dumps(
+                {
+                    "schemaVersion": 2,
+                    "mediaType": DOCKER_V2,
+                    "config": {"mediaType": "x", "digest": digest(config), "size": len(config)},
+                    "layers": [{"mediaType": "y", "digest": digest(b), "size": len(b)} for b in (base, top)],
+                }
+            ).encode()
             self.manifests[digest(manifest)] = (DOCKER_V2, manifest)
             self.manifests[f"1.0-{arch}"] = (DOCKER_V2, manifest)
-            entries.append({"mediaType": DOCKER_V2, "digest": digest(manifest), "size": len(manifest),
-                            "platform": {"os": "linux", "architecture": arch}})
-        self.manifests["1.0"] = (OCI_INDEX, json.dumps({"schemaVersion": 2, "mediaType": OCI_INDEX,
-                                                         "manifests": entries}).encode())
-        self.top = {arch: len(self.blobs[json.loads(self.manifests[f"1.0-{arch}"][1])["layers"][1]["digest"]])
-                    for arch in arches}
+            entries.append(
+                {
+                    "mediaType": DOCKER_V2,
+                    "digest": digest(manifest),
+                    "size": len(manifest),
+                    "platform": {"os": "linux", "architecture": arch},
+                }
+            )
+        self.manifests["1.0"] = (
+            OCI_INDEX,
+            json.dumps({"schemaVersion": 2, "mediaType": OCI_INDEX, "manifests": entries}).encode(),
+        )
+        self.top = {
+            arch: len(self.blobs[json.loads(self.manifests[f"1.0-{arch}"][1])["layers"][1]["digest"]])
+            for arch in arches
+        }
 
 
 @pytest.fixture
@@ -108,8 +123,9 @@ def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(i
     kind, writer, (variant,), image_id = decision
     assert (kind, writer) == ("send", image_transfer.write_registry_archive)
     assert image_id == store.ids["arm64"] == variant["id"] and variant["platform"] == "linux/arm64"
-    again = image_transfer.choose_source(f"{address}/ros/payload:1.0", store.ids["arm64"], "pi1", "arm64", [], None,
-                                         None)
+    again = image_transfer.choose_source(
+        f"{address}/ros/payload:1.0", store.ids["arm64"], "pi1", "arm64", [], None, None
+    )
     assert again == ("noop", f"{address}/ros/payload:1.0 (linux/arm64) is already on the host")
 
 
@@ -117,8 +133,9 @@ def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_
     """registry.lan:5000/payload:1 is /v2/payload/... on its registry (Docker
     adds library/ on Docker Hub only)."""
     address, store, _ = registry
-    kind, writer, (variant,), image_id = image_transfer.choose_source(f"{address}/payload:1.0", "", "pi1", "arm64",
-                                                                      [], None, AMD64_LOCAL)
+    kind, writer, (variant,), image_id = image_transfer.choose_source(
+        f"{address}/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL
+    )
     assert (kind, writer) == ("send", image_transfer.write_registry_archive)
     assert image_id == store.ids["arm64"] == variant["id"]
 
@@ -130,8 +147,9 @@ def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, regis
     fetched.clear()
     report = {}
     # The robot has the amd64 image: the base layer is shared, the arm64 top is not.
-    image_transfer.write_registry_archive(image, variant, str(tmp_path / "a.tar"), [store.diff_ids["amd64"]], report,
-                                          [], None)
+    image_transfer.write_registry_archive(
+        image, variant, str(tmp_path / "a.tar"), [store.diff_ids["amd64"]], report, [], None
+    )
     with tarfile.open(tmp_path / "a.tar") as archive:
         names = archive.getnames()
         manifest = json.load(archive.extractfile("manifest.json"))[0]
@@ -150,19 +168,27 @@ def test_an_image_without_the_robots_platform_is_refused_with_one_line(image_tra
     address, store, _ = registry
     single = f"{address}/ros/payload:1.0-amd64"
     assert image_transfer.choose_source(single, "", "pi1", "arm64", [], None, None) == (
-        "fail", f"payload: pi1 is linux/arm64 but image {single} is linux/amd64 only (in its registry): "
-                "refused before anything switched")
+        "fail",
+        f"payload: pi1 is linux/arm64 but image {single} is linux/amd64 only (in its registry): "
+        "refused before anything switched",
+    )
     kind, line = image_transfer.choose_source(f"{address}/ros/payload:1.0", "", "rv1", "riscv64", [], None, None)
-    assert kind == "fail" and line == (f"payload: rv1 is linux/riscv64 but image {address}/ros/payload:1.0 is "
-                                       "linux/amd64, linux/arm64 (in its registry): refused before anything switched")
+    assert kind == "fail" and line == (
+        f"payload: rv1 is linux/riscv64 but image {address}/ros/payload:1.0 is "
+        "linux/amd64, linux/arm64 (in its registry): refused before anything switched"
+    )
 
 
 def test_a_local_image_of_another_platform_and_no_registry_is_refused_with_one_line(image_transfer):
     kind, line = image_transfer.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, AMD64_LOCAL)
     assert kind == "fail" and "\n" not in line
-    assert line.startswith("payload: pi1 is linux/arm64 but image 127.0.0.1:1/ros/payload:1.1 is linux/amd64 "
-                           "only (in the local Docker engine; its registry: 127.0.0.1:1: GET ")
+    assert line.startswith(
+        "payload: pi1 is linux/arm64 but image 127.0.0.1:1/ros/payload:1.1 is linux/amd64 "
+        "only (in the local Docker engine; its registry: 127.0.0.1:1: GET "
+    )
     assert line.endswith("): refused before anything switched")
     kind, line = image_transfer.choose_source("127.0.0.1:1/ros/payload:1.1", "", "pi1", "arm64", [], None, None)
-    assert kind == "fail" and line.startswith("payload_delivery push: 127.0.0.1:1/ros/payload:1.1 is neither in "
-                                              "the local Docker engine nor readable from its registry (")
+    assert kind == "fail" and line.startswith(
+        "payload_delivery push: 127.0.0.1:1/ros/payload:1.1 is neither in "
+        "the local Docker engine nor readable from its registry ("
+    )

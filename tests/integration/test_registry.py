@@ -6,10 +6,9 @@ Its pure rules are in tests/unit/test_registry_rules.py."""
 
 import hashlib
 import http.server
+import importlib
 import json
 import threading
-
-import importlib
 
 import pytest
 
@@ -22,8 +21,9 @@ def _registry():
     registry = importlib.import_module("roles.payload.registry")
 
 
-MANIFEST = json.dumps({"schemaVersion": 2, "mediaType": "application/vnd.oci.image.index.v1+json",
-                       "manifests": []}).encode()
+MANIFEST = json.dumps(
+    {"schemaVersion": 2, "mediaType": "application/vnd.oci.image.index.v1+json", "manifests": []}
+).encode()
 
 
 @pytest.fixture
@@ -44,8 +44,10 @@ def token_registry():
             elif self.headers.get("Authorization") != "Bearer t0k":
                 body = b'{"errors": [{"code": "UNAUTHORIZED"}]}'
                 self.send_response(401)
-                self.send_header("WWW-Authenticate", f'Bearer realm="http://127.0.0.1:{port}/token",'
-                                                      'service="lab",scope="repository:ros/payload:pull"')
+                self.send_header(
+                    "WWW-Authenticate",
+                    f'Bearer realm="http://127.0.0.1:{port}/token",service="lab",scope="repository:ros/payload:pull"',
+                )
             else:
                 body = MANIFEST
                 self.send_response(200)
@@ -70,8 +72,11 @@ def test_a_token_is_fetched_once_and_sent(token_registry):
     assert media_type == "application/vnd.oci.image.index.v1+json" and body == MANIFEST
     assert digest == "sha256:" + hashlib.sha256(MANIFEST).hexdigest()
     paths = [path for path, _, _ in seen]
-    assert paths == ["/v2/ros/payload/manifests/1.0", "/token?service=lab&scope=repository%3Aros%2Fpayload%3Apull",
-                     "/v2/ros/payload/manifests/1.0"]
+    assert paths == [
+        "/v2/ros/payload/manifests/1.0",
+        "/token?service=lab&scope=repository%3Aros%2Fpayload%3Apull",
+        "/v2/ros/payload/manifests/1.0",
+    ]
     assert seen[1][1].startswith("Basic ")  # the credentials go to the token realm only (the registry's own host)
     assert seen[2][1] == "Bearer t0k" and "application/vnd.oci.image.index.v1+json" in seen[2][2]
 

@@ -8,8 +8,6 @@ credential."""
 
 from __future__ import annotations
 
-import pyinfra_cli  # noqa: F401  (gevent patches first: these servers then run as greenlets beside pyinfra)
-
 import base64
 import datetime
 import http.server
@@ -19,10 +17,11 @@ import json
 import ssl
 import threading
 
+import pyinfra_cli  # noqa: F401  (gevent patches first: these servers then run as greenlets beside pyinfra)
 import pytest
 
-from tests.unit.harness import ROBOT, converged, find, plan
 from tests.integration.test_push_platforms import Store
+from tests.unit.harness import ROBOT, converged, find, plan
 
 USER, PASSWORD = "robot", "s3cret-primary"
 BASIC = "Basic " + base64.b64encode(f"{USER}:{PASSWORD}".encode()).decode()
@@ -60,9 +59,13 @@ class Server:
                 if server.answer and server.answer(self):
                     return
                 kind, ref = self.path.split("/")[-2:] if self.path.startswith("/v2/") else ("", "")
-                found = (server.store.manifests.get(ref) if kind == "manifests"
-                         else ("application/octet-stream",
-                               server.store.blobs[ref]) if ref in server.store.blobs else None)
+                found = (
+                    server.store.manifests.get(ref)
+                    if kind == "manifests"
+                    else ("application/octet-stream", server.store.blobs[ref])
+                    if ref in server.store.blobs
+                    else None
+                )
                 if found is None:
                     return send(self, 404, b"{}")
                 send(self, 200, found[1], {"Content-Type": found[0]})
@@ -100,6 +103,7 @@ def bearer_from(realm: str):
         if handler.headers.get("Authorization") == "Bearer t0k":
             return False
         return send(handler, 401, b"{}", {"WWW-Authenticate": f'Bearer realm="{realm}",service="reg",scope="x"'})
+
     return answer
 
 
@@ -126,18 +130,28 @@ def own(registry_address: str, *realms: str):
 
 # -- push: each image is read with its own registry's credentials ------------
 
+
 def test_push_of_a_multi_service_payload_sends_the_primary_password_to_no_other_registry(servers, monkeypatch):
     """The real deploy (the plan harness: the payload role's steps, the
     local Docker engine that lacks these images, the registry client): the
     primary registry gets its credentials, the second registry (hostile, it
     asks for Basic auth to collect them) gets none."""
-    primary, hostile = servers(answer=basic_only), servers(answer=lambda h: send(h, 401, b"{}", {
-        "WWW-Authenticate": 'Basic realm="give me yours"'}))
+    primary, hostile = (
+        servers(answer=basic_only),
+        servers(answer=lambda h: send(h, 401, b"{}", {"WWW-Authenticate": 'Basic realm="give me yours"'})),
+    )
     monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", USER)
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", PASSWORD)
-    data = {**ROBOT, "payload_image": None, "udev_sensors": [], "payload_delivery": "push",
-            "payload_services": {"main": {"image": f"{primary.address}/ros/payload:1.0"},
-                                 "tools": {"image": f"{hostile.address}/ros/tools:1.0"}}}
+    data = {
+        **ROBOT,
+        "payload_image": None,
+        "udev_sensors": [],
+        "payload_delivery": "push",
+        "payload_services": {
+            "main": {"image": f"{primary.address}/ros/payload:1.0"},
+            "tools": {"image": f"{hostile.address}/ros/tools:1.0"},
+        },
+    }
     result = plan({"r1": ("robots", data, converged("robots", data, "debian-13"))})
     assert BASIC in primary.authorizations  # the primary image was read with its credentials
     assert hostile.seen and set(hostile.authorizations) == {None}
@@ -155,10 +169,15 @@ def test_a_pull_release_resolves_each_image_with_its_own_registrys_credentials(s
     hostile = servers(answer=lambda h: send(h, 401, b"{}", {"WWW-Authenticate": 'Basic realm="give me yours"'}))
     monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", USER)
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", PASSWORD)
-    data = HostData(payload_registry_username_env="PAYLOAD_REGISTRY_USERNAME",
-                    payload_registry_password_env="PAYLOAD_REGISTRY_PASSWORD", docker_insecure_registries=[],
-                    payload_services={"main": {"image": f"{primary.address}/ros/payload:1.0"},
-                                      "tools": {"image": f"{hostile.address}/ros/tools:1.0"}})
+    data = HostData(
+        payload_registry_username_env="PAYLOAD_REGISTRY_USERNAME",
+        payload_registry_password_env="PAYLOAD_REGISTRY_PASSWORD",
+        docker_insecure_registries=[],
+        payload_services={
+            "main": {"image": f"{primary.address}/ros/payload:1.0"},
+            "tools": {"image": f"{hostile.address}/ros/tools:1.0"},
+        },
+    )
     first = f"{primary.address}/ros/payload:1.0"
     assert pins.resolve(data, [first])[first].startswith("sha256:") and BASIC in primary.authorizations
     with pytest.raises(ValueError, match="HTTP 401"):
@@ -176,25 +195,32 @@ def test_a_registry_client_drops_credentials_given_for_another_registry(servers)
 
 # -- token realms -------------------------------------------------------------
 
+
 def test_no_credentials_to_a_plain_http_token_realm_on_another_host(servers):
     realm = servers(answer=token_service)
     primary = servers(answer=bearer_from(f"http://{realm.address}/token"))
     with pytest.raises(registry.RegistryError) as refused:
         registry.Registry(primary.address, credentials=own(primary.address)).manifest(
-            f"{primary.address}/ros/payload", "1.0")
-    assert str(refused.value) == (f"{primary.address}: its token realm http://{realm.address}/token is plain HTTP; "
-                                  f"the credentials for {primary.address} are not sent there")
+            f"{primary.address}/ros/payload", "1.0"
+        )
+    assert str(refused.value) == (
+        f"{primary.address}: its token realm http://{realm.address}/token is plain HTTP; "
+        f"the credentials for {primary.address} are not sent there"
+    )
     assert realm.connections == 0
 
 
 def test_the_same_plain_http_host_as_a_plain_http_registry_may_be_its_realm(servers):
     primary = servers()
-    primary.answer = lambda h: token_service(h) if h.path.startswith("/token") else bearer_from(
-        f"http://{primary.address}/token")(h)
+    primary.answer = lambda h: (
+        token_service(h) if h.path.startswith("/token") else bearer_from(f"http://{primary.address}/token")(h)
+    )
     client = registry.Registry(primary.address, credentials=own(primary.address))
     assert client.manifest(f"{primary.address}/ros/payload", "1.0")[0] == "application/vnd.oci.image.index.v1+json"
-    assert (next(a for p, a in primary.seen if p.startswith("/token")),
-            primary.authorizations[-1]) == (BASIC, "Bearer t0k")
+    assert (next(a for p, a in primary.seen if p.startswith("/token")), primary.authorizations[-1]) == (
+        BASIC,
+        "Bearer t0k",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -209,15 +235,22 @@ def tls(tmp_path_factory):
     key = ec.generate_private_key(ec.SECP256R1())
     name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "127.0.0.1")])
     now = datetime.datetime.now(datetime.timezone.utc)
-    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name).public_key(key.public_key())
-            .serial_number(x509.random_serial_number()).not_valid_before(now - datetime.timedelta(minutes=5))
-            .not_valid_after(now + datetime.timedelta(hours=1))
-            .add_extension(x509.SubjectAlternativeName([x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), False)
-            .add_extension(x509.BasicConstraints(ca=True, path_length=None), True)
-            .sign(key, hashes.SHA256()))
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(hours=1))
+        .add_extension(x509.SubjectAlternativeName([x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), False)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=None), True)
+        .sign(key, hashes.SHA256())
+    )
     (base / "cert.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    (base / "key.pem").write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                                                     serialization.NoEncryption()))
+    (base / "key.pem").write_bytes(
+        key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())
+    )
     context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
     context.load_cert_chain(base / "cert.pem", base / "key.pem")
     return context, str(base / "cert.pem")
@@ -230,11 +263,13 @@ def test_an_https_realm_on_another_host_gets_them_only_when_listed(servers, tls,
     primary = servers(answer=bearer_from(f"https://{realm.address}/token"))
     with pytest.raises(registry.RegistryError) as refused:
         registry.Registry(primary.address, credentials=own(primary.address)).manifest(
-            f"{primary.address}/ros/payload", "1.0")
+            f"{primary.address}/ros/payload", "1.0"
+        )
     assert str(refused.value) == (
         f"{primary.address}: its token realm https://{realm.address}/token is on another host ({realm.address}) "
         f"and not listed in payload_registry_auths.{primary.address}.token_realms; the credentials for "
-        f"{primary.address} are not sent there")
+        f"{primary.address} are not sent there"
+    )
     assert realm.connections == 0
     listed = registry.Registry(primary.address, credentials=own(primary.address, f"https://{realm.address}/token"))
     assert listed.manifest(f"{primary.address}/ros/payload", "1.0")[0] == "application/vnd.oci.image.index.v1+json"
@@ -255,6 +290,7 @@ def test_anonymous_token_requests_go_where_the_registry_says():
 
 # -- redirects ----------------------------------------------------------------
 
+
 def test_no_credentials_follow_a_redirect_to_another_host(servers, tmp_path):
     store = Store()
     blob_store = servers(store=store)
@@ -264,7 +300,9 @@ def test_no_credentials_follow_a_redirect_to_another_host(servers, tmp_path):
         if basic_only(handler):
             return True
         if "/blobs/" in handler.path:  # as registries send blobs to their storage
-            return send(handler, 307, b"", {"Location": f"http://{blob_store.address}/v2/x/blobs/{handler.path.split('/')[-1]}"})
+            return send(
+                handler, 307, b"", {"Location": f"http://{blob_store.address}/v2/x/blobs/{handler.path.split('/')[-1]}"}
+            )
         return False
 
     primary.answer = answer
@@ -288,11 +326,13 @@ def test_a_redirect_on_the_same_host_keeps_them(servers):
     primary.answer = answer
     config = next(d for d, b in primary.store.blobs.items() if b.startswith(b"{"))
     registry.Registry(primary.address, credentials=own(primary.address)).json_blob(
-        f"{primary.address}/ros/payload", config)
+        f"{primary.address}/ros/payload", config
+    )
     assert primary.seen[-1] == (f"/v2/storage/blobs/{config}", BASIC)
 
 
 # -- pull: one login per registry, each with its own password ----------------
+
 
 def test_pull_logs_in_to_each_registry_with_its_own_credentials(monkeypatch, tmp_path):
     password_file = tmp_path / "reg2-password"
@@ -300,12 +340,19 @@ def test_pull_logs_in_to_each_registry_with_its_own_credentials(monkeypatch, tmp
     monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", USER)
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", PASSWORD)
     monkeypatch.setenv("REG2_USER", "puller2")
-    data = {**ROBOT, "payload_image": None, "udev_sensors": [],
-            "payload_services": {"main": {"image": "reg.example.com/ros/payload:1.0"},
-                                 "tools": {"image": "reg2.example.com:5000/ros/tools:1.0"},
-                                 "db": {"image": "docker.io/library/postgres:16"}},
-            "payload_registry_auths": {"reg2.example.com:5000": {"username_env": "REG2_USER",
-                                                                  "password_file": str(password_file)}}}
+    data = {
+        **ROBOT,
+        "payload_image": None,
+        "udev_sensors": [],
+        "payload_services": {
+            "main": {"image": "reg.example.com/ros/payload:1.0"},
+            "tools": {"image": "reg2.example.com:5000/ros/tools:1.0"},
+            "db": {"image": "docker.io/library/postgres:16"},
+        },
+        "payload_registry_auths": {
+            "reg2.example.com:5000": {"username_env": "REG2_USER", "password_file": str(password_file)}
+        },
+    }
     result = plan({"r1": ("robots", data, converged("robots", data, "debian-13"))})
     assert result.failed == set()
     logins = find(result["r1"], "docker login")
@@ -321,8 +368,10 @@ def test_pull_logs_in_to_each_registry_with_its_own_credentials(monkeypatch, tmp
 def test_a_configured_registry_whose_credentials_are_missing_fails_the_host_in_one_line(monkeypatch):
     monkeypatch.delenv("REG2_PASSWORD", raising=False)
     monkeypatch.setenv("REG2_USER", "puller2")
-    data = {**ROBOT, "payload_registry_auths": {"reg.example.com": {"username_env": "REG2_USER",
-                                                                    "password_env": "REG2_PASSWORD"}}}
+    data = {
+        **ROBOT,
+        "payload_registry_auths": {"reg.example.com": {"username_env": "REG2_USER", "password_env": "REG2_PASSWORD"}},
+    }
     result = plan({"r1": ("robots", data, converged("robots", data, "debian-13"))})
     assert result.failed == {"r1"}
     (line,) = find(result["r1"], "payload_registry_auths")
@@ -334,10 +383,14 @@ def test_the_registry_passwords_are_the_roles_secrets(monkeypatch, tmp_path):
     password_file.write_text("from-a-file")
     monkeypatch.setenv("PAYLOAD_REGISTRY_USERNAME", USER)
     monkeypatch.setenv("PAYLOAD_REGISTRY_PASSWORD", PASSWORD)
-    data = {"payload_image": "reg.example.com/p:1", "payload_registry_username_env": "PAYLOAD_REGISTRY_USERNAME",
-            "payload_registry_password_env": "PAYLOAD_REGISTRY_PASSWORD",
-            "payload_registry_auths": {"index.docker.io": {"username_env": "PAYLOAD_REGISTRY_USERNAME",
-                                                           "password_file": str(password_file)}}}
+    data = {
+        "payload_image": "reg.example.com/p:1",
+        "payload_registry_username_env": "PAYLOAD_REGISTRY_USERNAME",
+        "payload_registry_password_env": "PAYLOAD_REGISTRY_PASSWORD",
+        "payload_registry_auths": {
+            "index.docker.io": {"username_env": "PAYLOAD_REGISTRY_USERNAME", "password_file": str(password_file)}
+        },
+    }
     assert sorted(credentials.secrets(data)) == sorted([PASSWORD, "from-a-file"])
     assert credentials.lookup(data, "registry-1.docker.io").realms == ("https://auth.docker.io/token",)
     assert PASSWORD not in repr(credentials.lookup(data, "reg.example.com"))

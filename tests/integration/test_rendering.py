@@ -6,9 +6,8 @@ import os
 import platform
 import re
 
-from robotfleet.host import aptrepo
+from robotfleet.host import aptrepo, snapshot_sh
 from robotfleet.host import snapshot as hoststate
-from robotfleet.host import snapshot_sh
 from roles import x11
 from tests import armor
 from tests.fixtures import me, run_command, sh
@@ -67,9 +66,14 @@ def test_snapshot_reads_files_in_one_stat_as_it_would_one_by_one(tmp_path, monke
     assert "\nfile\t" in "\n" + text
     assert batched == one_by_one
     kinds = {path.rsplit("/", 1)[1]: state and (state.kind, state.sha256) for path, state in batched.items()}
-    assert kinds == {"f": ("file", "5891b5b522d5df086d0ff0b110fbd9d21bb4fc7163af34d08286a2e846f6be03"),
-                     "empty": ("file", "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"),
-                     "d": ("dir", None), "link": ("link", None), "fifo": None, "missing": None}
+    assert kinds == {
+        "f": ("file", "5891b5b522d5df086d0ff0b110fbd9d21bb4fc7163af34d08286a2e846f6be03"),
+        "empty": ("file", "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"),
+        "d": ("dir", None),
+        "link": ("link", None),
+        "fifo": None,
+        "missing": None,
+    }
 
 
 def test_snapshot_runs_its_slow_reads_one_after_another_without_a_temporary_directory(tmp_path):

@@ -12,7 +12,7 @@ import re
 
 import pytest
 
-from robotfleet.commands import rolloutreport, rollout_plan
+from robotfleet.commands import rollout_plan, rolloutreport
 from tests.integration import sshserver
 from tests.integration.test_exit_codes import run
 from tests.integration.test_first_contact import fleet
@@ -20,16 +20,22 @@ from tests.integration.test_first_contact import fleet
 # An OSC that retitles the terminal, a bell, a screen clear, a cursor move.
 EVIL = "\x1b]0;owned\x07\x1b[2J\x1b[1;1H"
 SHOWN = "\\x1b]0;owned\\x07\\x1b[2J\\x1b[1;1H"
-REPORT = {"current": {"id": f"r1{EVIL}", "state": "active",
-                      "images": {f"reg.example.com/p:9{EVIL}": {"pinned": "reg.example.com/p@sha256:" + "a" * 64}}},
-          "containers": [{"status": f"running{EVIL}", "health": "healthy"}]}
+REPORT = {
+    "current": {
+        "id": f"r1{EVIL}",
+        "state": "active",
+        "images": {f"reg.example.com/p:9{EVIL}": {"pinned": "reg.example.com/p@sha256:" + "a" * 64}},
+    },
+    "containers": [{"status": f"running{EVIL}", "health": "healthy"}],
+}
 
 
 def evil_robot(command: str):
     """A robot whose status report and every other answer carry escapes."""
     if "@@@robot-fleet-status" in command:
-        return (f"@@@robot-fleet-status engine:host\namd64{EVIL}\n"
-                f"@@@robot-fleet-status payload\n{json.dumps(REPORT)}\n").encode(), 0
+        return (
+            f"@@@robot-fleet-status engine:host\namd64{EVIL}\n@@@robot-fleet-status payload\n{json.dumps(REPORT)}\n"
+        ).encode(), 0
     return f"payload: release failed{EVIL}\n".encode(), 1
 
 
@@ -37,10 +43,16 @@ def evil_robot(command: str):
 def robots(tmp_path, client_key):
     server = sshserver.ssh_server(client_key, evil_robot)
     closed = sshserver.closed_port()
-    path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port},
-                            "robot2": {"address": "127.0.0.1", "ssh_port": closed},
-                            "robot3": {"address": "127.0.0.1", "ssh_port": closed}},
-                 ssh_strict_host_key_checking="accept-new", ssh_connect_retries=0)
+    path = fleet(
+        tmp_path,
+        {
+            "robot1": {"address": "127.0.0.1", "ssh_port": server.port},
+            "robot2": {"address": "127.0.0.1", "ssh_port": closed},
+            "robot3": {"address": "127.0.0.1", "ssh_port": closed},
+        },
+        ssh_strict_host_key_checking="accept-new",
+        ssh_connect_retries=0,
+    )
     yield path, server
     server.close()
 
@@ -71,8 +83,19 @@ def rollout_lines(output: str) -> dict[str, list[str]]:
 
 def test_one_line_per_robot_counts_that_add_up_and_nothing_obeyed_in_rollout(tmp_path, robots):
     path, server = robots
-    argv = ["-m", "robotfleet", "rollout", "inventories/robots.py", "-y", "--canary", "0", "--batch", "100%",
-            "--max-failed", "3"]
+    argv = [
+        "-m",
+        "robotfleet",
+        "rollout",
+        "inventories/robots.py",
+        "-y",
+        "--canary",
+        "0",
+        "--batch",
+        "100%",
+        "--max-failed",
+        "3",
+    ]
     first = run(path, tmp_path, *argv)
     assert first.returncode == 1, first.stderr[-3000:]
     assert obeyable(first.stdout + first.stderr) == [], first.stderr[-3000:]
@@ -87,7 +110,10 @@ def test_one_line_per_robot_counts_that_add_up_and_nothing_obeyed_in_rollout(tmp
     second = run(path, tmp_path, *argv)
     assert second.returncode == 3, second.stderr[-3000:]
     assert {host: len(found) for host, found in rollout_lines(second.stderr).items()} == {
-        "robot1": 1, "robot2": 1, "robot3": 1}
+        "robot1": 1,
+        "robot2": 1,
+        "robot3": 1,
+    }
     assert "0 done, 0 failed, 3 skipped, 0 pending of 3 robot(s)" in second.stdout, second.stdout
 
 
@@ -103,5 +129,8 @@ def test_each_robot_has_one_outcome_whatever_the_runs():
     state = rollout_plan.record_wave(state, 1, ["r2"], {"r3": "unhealthy"}, {})
     assert [rollout_plan.outcome(state, h) for h in ("r1", "r2", "r3")] == ["skipped", "done", "failed"]
     assert [rolloutreport.robot_line(state, h) for h in ("r1", "r2", "r3")] == [
-        "rollout: [r1] skipped: unreachable: timed out", "rollout: [r2] done", "rollout: [r3] failed: unhealthy"]
+        "rollout: [r1] skipped: unreachable: timed out",
+        "rollout: [r2] done",
+        "rollout: [r3] failed: unhealthy",
+    ]
     assert "; 1 done, 1 failed, 1 skipped, 0 pending of 3 robot(s);" in rollout_plan.summary(state)

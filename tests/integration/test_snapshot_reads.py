@@ -13,9 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.host import apt
+from robotfleet.host import apt, snapshot_sh
 from robotfleet.host import snapshot as hoststate
-from robotfleet.host import snapshot_sh
 
 NATIVE = subprocess.run(["dpkg", "--print-architecture"], capture_output=True, text=True).stdout.strip()
 
@@ -44,8 +43,10 @@ def admindir(tmp_path, stanzas, info=None, journal=False, multiarch_db=True) -> 
 
 def audit_before(d: Path) -> str:
     """The probe as it was: the journal, then dpkg --audit's first lines."""
-    script = (f"ls {d}/updates 2>/dev/null | grep -q . && echo 'dpkg journal not empty'; "
-              f"dpkg --admindir={d} --audit 2>/dev/null | head -n 5")
+    script = (
+        f"ls {d}/updates 2>/dev/null | grep -q . && echo 'dpkg journal not empty'; "
+        f"dpkg --admindir={d} --audit 2>/dev/null | head -n 5"
+    )
     return subprocess.run(["sh", "-c", script], capture_output=True, text=True).stdout
 
 
@@ -58,17 +59,30 @@ def both_files(*names):
 
 
 CASES = {
-    "healthy": ([stanza("a"), stanza("b", arch="all"), stanza("c", "deinstall ok config-files"),
-                 stanza("lib", multiarch="same")], both_files("a", "b", f"lib:{NATIVE}")),
+    "healthy": (
+        [
+            stanza("a"),
+            stanza("b", arch="all"),
+            stanza("c", "deinstall ok config-files"),
+            stanza("lib", multiarch="same"),
+        ],
+        both_files("a", "b", f"lib:{NATIVE}"),
+    ),
     "unpacked": ([stanza("a"), stanza("b", "install ok unpacked")], both_files("a", "b")),
     "half-configured": ([stanza("a", "install ok half-configured")], both_files("a")),
     "half-installed": ([stanza("a", "install ok half-installed")], both_files("a")),
     "reinstreq": ([stanza("a", "install reinstreq installed")], both_files("a")),
-    "triggers pending": ([stanza("a", "install ok triggers-pending", extra=["Triggers-Pending: /usr/share/x"])],
-                         both_files("a")),
-    "triggers awaited": ([stanza("a", "install ok triggers-awaited", extra=["Triggers-Awaited: b"]),
-                          stanza("b", "install ok triggers-pending", extra=["Triggers-Pending: /usr/share/x"])],
-                         both_files("a", "b")),
+    "triggers pending": (
+        [stanza("a", "install ok triggers-pending", extra=["Triggers-Pending: /usr/share/x"])],
+        both_files("a"),
+    ),
+    "triggers awaited": (
+        [
+            stanza("a", "install ok triggers-awaited", extra=["Triggers-Awaited: b"]),
+            stanza("b", "install ok triggers-pending", extra=["Triggers-Pending: /usr/share/x"]),
+        ],
+        both_files("a", "b"),
+    ),
     "no list file": ([stanza("a"), stanza("b")], both_files("a") + ["b.md5sums"]),
     "no md5sums file": ([stanza("a")], ["a.list"]),
     "multiarch file named without its arch": ([stanza("lib", multiarch="same")], both_files("lib")),
@@ -104,8 +118,9 @@ def test_packages_are_read_as_dpkg_query_reads_them(tmp_path):
     names = ["dpkg", "coreutils", "surely-not-a-package", "libc6"]
     script = hoststate.snapshot_script(packages=names)
     awk = subprocess.run(["sh", "-c", script], capture_output=True, text=True, check=True).stdout
-    query = subprocess.run(["dpkg-query", "-W", "-f=pkg\\t${Package}\\t${Status}\\t${Version}\\n", *names],
-                           capture_output=True, text=True).stdout
+    query = subprocess.run(
+        ["dpkg-query", "-W", "-f=pkg\\t${Package}\\t${Status}\\t${Version}\\n", *names], capture_output=True, text=True
+    ).stdout
     assert sorted(line for line in awk.splitlines() if line.startswith("pkg\t")) == sorted(query.splitlines())
     assert "dpkg-query -W" in script and "/var/lib/dpkg/updates/*" in script
 
@@ -127,8 +142,9 @@ def snapshot_with_memo(tmp_path, inputs=None, path=None):
     probe = f"echo run >> {shlex.quote(str(counter))}; cat {shlex.quote(str(key))}"
     query = dict(probes={"key": probe, "plain": "echo plain"}, memo={"key": inputs or (str(key), "sh")})
     env = dict(os.environ, PATH=path or os.environ["PATH"])
-    out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True,
-                         env=env)
+    out = subprocess.run(
+        ["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True, env=env
+    )
     snap = hoststate.parse(out.stdout.splitlines(), query)
     runs = len(counter.read_text().splitlines()) if counter.exists() else 0
     return snap.probes["key"], snap.probes["plain"], runs
@@ -182,8 +198,9 @@ def test_a_probe_cut_off_by_the_timeout_is_not_kept(tmp_path, memo_here, monkeyp
     monkeypatch.setattr(snapshot_sh, "PROBE_TIMEOUT", 1)
     query = dict(probes={"slow": "sleep 5; echo late"}, memo={"slow": ("/etc/hostname",)})
     for _ in range(2):
-        out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True,
-                             check=True, timeout=20)
+        out = subprocess.run(
+            ["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True, timeout=20
+        )
         assert hoststate.parse(out.stdout.splitlines(), query).probes["slow"] == ""
     assert list(memo_here.iterdir()) == []
 
@@ -213,11 +230,15 @@ def test_units_are_asked_at_once_and_one_by_one_where_systemd_says_nothing_for_a
     log = tmp_path / "log"
     env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}", LOG=str(log), OLD="1" if old else "")
     units = ["alias.service", "docker.service", "gone.service"]
-    out = subprocess.run(["sh", "-c", hoststate.snapshot_script(units=units)], capture_output=True, text=True,
-                         check=True, env=env)
+    out = subprocess.run(
+        ["sh", "-c", hoststate.snapshot_script(units=units)], capture_output=True, text=True, check=True, env=env
+    )
     snap = hoststate.parse(out.stdout.splitlines(), {"units": units})
-    assert dict(snap.units) == {"alias.service": ("alias", "active"), "docker.service": ("enabled", "active"),
-                                "gone.service": ("" if old else "not-found", "inactive")}
+    assert dict(snap.units) == {
+        "alias.service": ("alias", "active"),
+        "docker.service": ("enabled", "active"),
+        "gone.service": ("" if old else "not-found", "inactive"),
+    }
     calls = log.read_text().splitlines()
     assert calls[:2] == ["is-enabled " + " ".join(units), "is-active " + " ".join(units)]
     assert len(calls) == (2 + 2 * len(units) if old else 2)
@@ -270,8 +291,15 @@ def engine(tmp_path, routes: dict[str, tuple[int, str]]):
 def inspect(cid, name, image, labels, running, policy):
     import json
 
-    return json.dumps({"Id": cid, "Name": name, "Config": {"Image": image, "Labels": labels},
-                       "State": {"Running": running}, "HostConfig": {"RestartPolicy": {"Name": policy}}})
+    return json.dumps(
+        {
+            "Id": cid,
+            "Name": name,
+            "Config": {"Image": image, "Labels": labels},
+            "State": {"Running": running},
+            "HostConfig": {"RestartPolicy": {"Name": policy}},
+        }
+    )
 
 
 def test_the_containers_are_read_from_the_engines_api_as_the_cli_printed_them(tmp_path, monkeypatch, capsys):
@@ -280,18 +308,33 @@ def test_the_containers_are_read_from_the_engines_api_as_the_cli_printed_them(tm
     from roles.payload import containers, docker_read
 
     listing = [
-        {"Id": "a" * 64, "State": "running", "Status": "Up 3 hours (healthy)",
-         "Labels": {containers.LABEL: "robot-payload"}},
+        {
+            "Id": "a" * 64,
+            "State": "running",
+            "Status": "Up 3 hours (healthy)",
+            "Labels": {containers.LABEL: "robot-payload"},
+        },
         {"Id": "b" * 64, "State": "exited", "Status": "Exited (0) 2 days ago", "Labels": {}},
         {"Id": "c" * 64, "State": "running", "Status": "Up 1 second", "Labels": None},
         {"Id": "d" * 64, "State": "created", "Status": "Created", "Labels": {"other": "x"}},  # gone before inspect
     ]
     routes = {
         "/containers/json?all=1": (200, json.dumps(listing)),
-        f"/containers/{'a' * 64}/json": (200, inspect("a" * 64, "/robot-payload-payload-1", "reg/ros/payload:1",
-                                                      {containers.LABEL: "robot-payload"}, True, "unless-stopped")),
-        f"/containers/{'b' * 64}/json": (200, inspect("b" * 64, "/old<&>é", "reg/ros/payload:0.9", {}, False,
-                                                      "always")),
+        f"/containers/{'a' * 64}/json": (
+            200,
+            inspect(
+                "a" * 64,
+                "/robot-payload-payload-1",
+                "reg/ros/payload:1",
+                {containers.LABEL: "robot-payload"},
+                True,
+                "unless-stopped",
+            ),
+        ),
+        f"/containers/{'b' * 64}/json": (
+            200,
+            inspect("b" * 64, "/old<&>é", "reg/ros/payload:0.9", {}, False, "always"),
+        ),
         f"/containers/{'c' * 64}/json": (200, inspect("c" * 64, "/plain", "debian", None, True, "")),
     }
     server, path = engine(tmp_path, routes)
@@ -311,10 +354,14 @@ def test_the_containers_are_read_from_the_engines_api_as_the_cli_printed_them(tm
         "c\trunning\tUp 3 hours (healthy)\n"
         f'f\t"{"a" * 64}\\t/robot-payload-payload-1\\treg/ros/payload:1\\trobot-payload\\ttrue\\tunless-stopped"\n'
         f'f\t"{"b" * 64}\\t/old\\u003c\\u0026\\u003eé\\treg/ros/payload:0.9\\t\\tfalse\\talways"\n'
-        f'f\t"{"c" * 64}\\t/plain\\tdebian\\t\\ttrue\\t"\n')
+        f'f\t"{"c" * 64}\\t/plain\\tdebian\\t\\ttrue\\t"\n'
+    )
     assert containers.part(out, "c") == "running\tUp 3 hours (healthy)\n"
     assert [json.loads(line).split("\t")[1] for line in containers.part(out, "f").splitlines()] == [
-        "/robot-payload-payload-1", "/old<&>é", "/plain"]
+        "/robot-payload-payload-1",
+        "/old<&>é",
+        "/plain",
+    ]
 
 
 def test_the_containers_probe_leaves_another_engine_to_the_docker_cli(tmp_path):
@@ -322,16 +369,18 @@ def test_the_containers_probe_leaves_another_engine_to_the_docker_cli(tmp_path):
     probe asks the CLI (here a stand-in that says who it is)."""
     from roles.payload import containers
 
-    (tmp_path / "docker").write_text("#!/bin/sh\necho \"cli $*\" | head -c 60; echo\n")
+    (tmp_path / "docker").write_text('#!/bin/sh\necho "cli $*" | head -c 60; echo\n')
     (tmp_path / "docker").chmod(0o755)
     env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}", DOCKER_HOST="tcp://elsewhere:2375")
-    out = subprocess.run(["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True,
-                         text=True, env=env).stdout
+    out = subprocess.run(
+        ["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True, text=True, env=env
+    ).stdout
     assert out.startswith("cli ps -a --filter label=com.docker.compose")
     env.pop("DOCKER_HOST")
     (tmp_path / ".docker").mkdir()
     (tmp_path / ".docker" / "config.json").write_text('{"currentContext": "remote"}')
     env["HOME"] = str(tmp_path)
-    out = subprocess.run(["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True,
-                         text=True, env=env).stdout
+    out = subprocess.run(
+        ["sh", "-c", containers.probe("robot-payload", foreign=False)], capture_output=True, text=True, env=env
+    ).stdout
     assert out.startswith("cli ps -a")

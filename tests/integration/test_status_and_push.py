@@ -27,8 +27,9 @@ def test_status_shows_the_gpu_driver_version_and_the_runtime(tmp_path):
     assert (cells["gpu_driver"], cells["gpu_runtime"]) == ("550.54.14", True)
     plain = status_parts.row("r1", roles(), {"docker": "26.1.5", "gpu": "\tno\n"})
     assert (plain["gpu_driver"], plain["gpu_runtime"]) == (None, None)
-    broken = status_parts.row("r2", roles(),
-                              {"gpu": "NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n"})
+    broken = status_parts.row(
+        "r2", roles(), {"gpu": "NVRM version: NVIDIA UNIX x86_64 Kernel Module  550.54.14 x\tno\n"}
+    )
     assert broken["gpu_runtime"] is False
     text = status.table([cells], status_parts.columns(roles()))
     assert text.splitlines()[1].split()[-3:] == ["550.54.14", "yes", "-"]  # then ROLLOUT
@@ -48,9 +49,13 @@ def test_a_hostile_image_name_in_the_push_log_is_never_run(tmp_path, payload):
     (bindir / "docker").write_text('#!/bin/sh\n[ "$1 $2" = "load -q" ] && exec cat >/dev/null\nexit 2\n')
     (bindir / "docker").chmod(0o755)
     log_dir = tmp_path / "payload dir"
-    command = image_transfer.load_command(str(archive), log_dir=str(log_dir), image=image,
-                                          image_id="sha256:" + "a" * 64,
-                                          figures={"sent": 10, "full": 20, "layers": 1, "skipped": 0})
+    command = image_transfer.load_command(
+        str(archive),
+        log_dir=str(log_dir),
+        image=image,
+        image_id="sha256:" + "a" * 64,
+        figures={"sent": 10, "full": 20, "layers": 1, "skipped": 0},
+    )
     proc = run_command(command, env={"PATH": f"{bindir}:/usr/bin:/bin"})
     assert proc.returncode == 0, proc.stderr
     assert not pwned.exists(), "the image name ran as a command"

@@ -39,8 +39,10 @@ def test_a_service_that_answers_otherwise_is_not_called_silent(tmp_path, monkeyp
         line, elapsed = timed_connect(path, monkeypatch)
     finally:
         mail.close()
-    assert line == (f"not an SSH server: 127.0.0.1:{mail.port} answered, but not with an SSH greeting (another "
-                    "service on that port? wrong port?)")
+    assert line == (
+        f"not an SSH server: 127.0.0.1:{mail.port} answered, but not with an SSH greeting (another "
+        "service on that port? wrong port?)"
+    )
     assert elapsed < 10
     assert mail.connections == 1
 
@@ -52,8 +54,10 @@ def test_a_silent_listener_is_said_silent_after_the_time_it_claims(tmp_path, mon
         line, elapsed = timed_connect(path, monkeypatch)
     finally:
         silent.close()
-    assert line == (f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-                    "within 2 s (wrong port?)")
+    assert line == (
+        f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
+        "within 2 s (wrong port?)"
+    )
     assert 2 <= elapsed < 3
 
 
@@ -71,8 +75,9 @@ def test_a_timeout_is_said_after_that_long(tmp_path, monkeypatch):
 def test_a_missing_key_file_is_named(tmp_path, monkeypatch):
     server = sshserver.ssh_server()
     try:
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
-                     ssh_key=str(tmp_path / "nowhere"))
+        path = fleet(
+            tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}}, ssh_key=str(tmp_path / "nowhere")
+        )
         line, _ = timed_connect(path, monkeypatch)
     finally:
         server.close()
@@ -116,7 +121,8 @@ def test_status_exit_codes_are_readmes(tmp_path, client_key):
         code, errors = case("robot1", robot1=changed.port)
         assert code == 1 and errors["robot1"].startswith("host key CHANGED")
         assert status(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": changed.port}})[2].stderr.startswith(
-            "[robot1] failed: host key CHANGED: ")  # reached, and refused: not "unreachable"
+            "[robot1] failed: host key CHANGED: "
+        )  # reached, and refused: not "unreachable"
         code, errors = case("robot1", robot1=unknown.port)
         assert code == 1 and errors["robot1"].startswith("unknown host key")
         code, errors = case("robot1", robot1=refusing.port)
@@ -149,8 +155,9 @@ def test_a_rollout_over_a_robot_whose_host_key_changed_fails(tmp_path, client_ke
     finally:
         changed.close()
     assert dry.returncode == 1, dry.stderr[-3000:]
-    assert dry.stderr.splitlines()[-1] == ("rollout: dry run incomplete: 1 robot(s) refused (host key or login), "
-                                           "not planned: robot1")
+    assert dry.stderr.splitlines()[-1] == (
+        "rollout: dry run incomplete: 1 robot(s) refused (host key or login), not planned: robot1"
+    )
     assert result.returncode == 1, result.stderr[-3000:]
     assert "rollout: [robot1] failed: host key CHANGED: " in result.stderr, result.stderr[-3000:]
 
@@ -165,6 +172,8 @@ def test_the_laptops_sudo_lines_say_what_happened_and_the_ways_on():
     assert line.startswith("[@local] sudo needs a password for dev, and there is no terminal to ask for it: ")
     assert "--use-sudo-password" in line and "echo 'dev ALL=(ALL:ALL) NOPASSWD: ALL' | sudo tee" in line
     assert localsudo.problem("@local", "dev", "missing", "sudo is not installed", terminal=True).startswith(
-        "[@local] sudo is not installed")
+        "[@local] sudo is not installed"
+    )
     assert localsudo.problem("@local", "dev", "refused", "sudo: account validation failure", terminal=True) == (
-        "[@local] sudo refuses dev: sudo: account validation failure")
+        "[@local] sudo refuses dev: sudo: account validation failure"
+    )

@@ -20,7 +20,10 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
     (tmp_path / "deploy.py").write_text("raise SystemExit('deploy must not run')\n")
     proc = subprocess.run(
         [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=60,
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
     )
     assert proc.returncode == 2
@@ -31,7 +34,11 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
 
 def _pyinfra(*args, env=None):
     return subprocess.run(
-        [sys.executable, "-c", PYINFRA, *args], cwd=ROOT, capture_output=True, text=True, timeout=60,
+        [sys.executable, "-c", PYINFRA, *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
         env={"PATH": "/usr/bin:/bin", **(env or {})},
     )
 

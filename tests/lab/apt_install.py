@@ -10,6 +10,6 @@ def script(packages) -> str:
 printf '#!/bin/sh\\nexit 101\\n' > /usr/sbin/policy-rc.d
 chmod 0755 /usr/sbin/policy-rc.d
 apt-get update
-DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends {' '.join(packages)}
+DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends {" ".join(packages)}
 rm /usr/sbin/policy-rc.d
 """

@@ -22,8 +22,18 @@ APT_DIR = Path("/etc/apt")
 # Debian release names (and aliases) whose main archive can serve trixie:
 # a Debian machine's own sources name one of these; an Ubuntu machine's do not.
 DEBIAN_SUITES = {
-    "buster", "bullseye", "bookworm", "trixie", "forky", "duke", "sid",
-    "oldoldstable", "oldstable", "stable", "testing", "unstable",
+    "buster",
+    "bullseye",
+    "bookworm",
+    "trixie",
+    "forky",
+    "duke",
+    "sid",
+    "oldoldstable",
+    "oldstable",
+    "stable",
+    "testing",
+    "unstable",
 }
 
 
@@ -66,8 +76,9 @@ def parse_deb822_style(text: str, origin: str = "x.sources") -> list[Source]:
         for kind in fields.get("types", "").split():
             for uri in fields.get("uris", "").split():
                 for suite in fields.get("suites", "").split():
-                    sources.append(Source(kind, uri, suite, tuple(fields.get("components", "").split()),
-                                          f"{origin}:{start}"))
+                    sources.append(
+                        Source(kind, uri, suite, tuple(fields.get("components", "").split()), f"{origin}:{start}")
+                    )
     return sources
 
 

@@ -37,11 +37,11 @@ def demo(prefix: str = "lab") -> int:
     known = os.path.relpath(lab["known_hosts"], ROOT)
     print(
         f"""
-The simulated fleet '{prefix}' is {'provisioned' if code == 0 else 'up, but the run FAILED (see above)'}.
+The simulated fleet '{prefix}' is {"provisioned" if code == 0 else "up, but the run FAILED (see above)"}.
 
 Look inside a robot:
-  ssh -i {key} -o UserKnownHostsFile={known} -p {robot['port']} ops@127.0.0.1
-  docker exec -it {robot['container']} bash        # then: systemctl status robot-payload; docker ps; ls -l /dev/robot
+  ssh -i {key} -o UserKnownHostsFile={known} -p {robot["port"]} ops@127.0.0.1
+  docker exec -it {robot["container"]} bash        # then: systemctl status robot-payload; docker ps; ls -l /dev/robot
 Fleet status:
   ROBOT_LAB_PREFIX={prefix} {python} -m robotfleet status inventories/lab.py
 Run again (changes nothing):

@@ -107,8 +107,10 @@ def ensure_arm64_emulation() -> str:
     """Make sure arm64 programs run here, in containers too; returns what is
     registered (one line).  Raises LabError with one line when they cannot."""
     if not kernel_has_binfmt_misc(_read(Path("/proc/filesystems")) or ""):
-        raise LabError("this kernel has no binfmt_misc (not in /proc/filesystems), so it cannot run arm64 "
-                       "programs under qemu-user: the arm64 lab host needs a kernel with CONFIG_BINFMT_MISC")
+        raise LabError(
+            "this kernel has no binfmt_misc (not in /proc/filesystems), so it cannot run arm64 "
+            "programs under qemu-user: the arm64 lab host needs a kernel with CONFIG_BINFMT_MISC"
+        )
     interpreter, conf = _cached_qemu()
     if problem(current(), str(interpreter)) is None:
         return _described()
@@ -130,8 +132,9 @@ def _described() -> str:
 def _mount_binfmt_misc() -> None:
     if (BINFMT_DIR / "register").exists():
         return
-    done = subprocess.run(["mount", "-t", "binfmt_misc", "binfmt_misc", str(BINFMT_DIR)],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        ["mount", "-t", "binfmt_misc", "binfmt_misc", str(BINFMT_DIR)], capture_output=True, text=True
+    )
     if done.returncode != 0:
         said = (done.stderr or done.stdout).strip().splitlines() or [f"exit {done.returncode}"]
         raise LabError(f"cannot mount binfmt_misc on {BINFMT_DIR}: {said[-1]} (root is needed)")

@@ -5,15 +5,14 @@ In CI a missing engine is a failure, never a skip: callers get LabError.
 
 from __future__ import annotations
 
-import os
 import io
+import os
 import shutil
 import socket
 import subprocess
 import tarfile
 import time
 from pathlib import Path
-
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -93,8 +92,11 @@ def _start_dockerd() -> None:
     with open(DOCKERD_LOG, "ab") as log:
         # A new session so dockerd outlives us and our terminal.
         subprocess.Popen(
-            ["dockerd"], stdout=log, stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL, start_new_session=True,
+            ["dockerd"],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
         )
 
 
@@ -106,8 +108,7 @@ def _wait_for_engine(timeout_s: float) -> docker.DockerClient:
             return found
         time.sleep(1)
     raise LabError(
-        f"no Docker engine and cannot start one: dockerd did not answer within "
-        f"{timeout_s}s (see {DOCKERD_LOG})"
+        f"no Docker engine and cannot start one: dockerd did not answer within {timeout_s}s (see {DOCKERD_LOG})"
     )
 
 
@@ -169,8 +170,7 @@ def pick_free_port(start: int, avoid: set[int]) -> int:
     raise LabError(f"no free 127.0.0.1 port in {start}..{start + 1999}")
 
 
-def put_files(container, files: dict[str, str], mode: int = 0o644,
-              owner: tuple[int, int] = (0, 0)) -> None:
+def put_files(container, files: dict[str, str], mode: int = 0o644, owner: tuple[int, int] = (0, 0)) -> None:
     """Write text files (absolute paths) into a container, running or not.
 
     Parent directories must already exist in the container.

@@ -22,13 +22,22 @@ def start(prefix: str, name: str, rootfs_tar: Path) -> dict:
     container = hosts._create_host(dc, prefix, name, "robots", image)
     put_files(container, {hosts.APT_PROXY_CONF: hosts.apt_proxy_conf(services.container_name(prefix))})
     key = Path(lab["ssh_key"]).with_suffix(".pub").read_text()
-    put_files(container, {f"/home/{hostimage.OPS_USER}/.ssh/authorized_keys": key}, mode=0o600,
-              owner=(hostimage.USER_UIDS[hostimage.OPS_USER],) * 2)
+    put_files(
+        container,
+        {f"/home/{hostimage.OPS_USER}/.ssh/authorized_keys": key},
+        mode=0o600,
+        owner=(hostimage.USER_UIDS[hostimage.OPS_USER],) * 2,
+    )
     if not container.put_archive("/", rootfs_tar.read_bytes()):
         raise RuntimeError(f"could not unpack {rootfs_tar} onto {container.name}")
     container.start()
-    entry = {"name": name, "group": "robots", "arch": hostimage.NATIVE_ARCH, "container": container.name,
-             "port": int(container.labels["robot-lab.ssh-port"])}
+    entry = {
+        "name": name,
+        "group": "robots",
+        "arch": hostimage.NATIVE_ARCH,
+        "container": container.name,
+        "port": int(container.labels["robot-lab.ssh-port"]),
+    }
     lab["hosts"] = [h for h in lab["hosts"] if h["name"] != name] + [entry]
     state.save(lab)
     return entry

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING
 from robotfleet.pull.operator import gitolite
 
 from . import apt_install, hostimage, sshd, state
-from .machinelock import PORTS_LOCK, machine_lock
 from .engine import LabError, get_or_none, pick_free_port, published_ports, put_files, timed_phase
+from .machinelock import PORTS_LOCK, machine_lock
 
 if TYPE_CHECKING:
     import docker
@@ -54,8 +54,12 @@ RUN sh /tmp/install.sh && rm /tmp/install.sh
 GIT_CONFIG = {"receive.fsckObjects": "true"}
 # Run as the gitolite user once the admin key is in place: idempotent (a
 # second run replaces the admin key and keeps every repository).
-SETUP = " && ".join([*(f"git config --file {HOME}/.gitconfig {key} {value}" for key, value in GIT_CONFIG.items()),
-                     f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}"])
+SETUP = " && ".join(
+    [
+        *(f"git config --file {HOME}/.gitconfig {key} {value}" for key, value in GIT_CONFIG.items()),
+        f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}",
+    ]
+)
 
 
 def container_name(prefix: str) -> str:
@@ -63,8 +67,12 @@ def container_name(prefix: str) -> str:
 
 
 def recipe() -> dict:
-    return {"host": hostimage.host_recipe(), "packages": list(PACKAGES),
-            "script": INSTALL_SCRIPT, "dockerfile": _DOCKERFILE}
+    return {
+        "host": hostimage.host_recipe(),
+        "packages": list(PACKAGES),
+        "script": INSTALL_SCRIPT,
+        "dockerfile": _DOCKERFILE,
+    }
 
 
 def image_tag() -> str:
@@ -102,10 +110,20 @@ def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
         with machine_lock(PORTS_LOCK):  # the port is taken once the container exists
             port = pick_free_port(PORT_START, published_ports(dc))
             container = hostimage.create_systemd_container(
-                dc, image, name, hostname="git", network=f"{prefix}-net",
-                labels={"robot-lab.prefix": prefix, "robot-lab.role": "git", "robot-lab.image": image,
-                        "robot-lab.ssh-port": str(port)},
-                ports={22: port}, volumes={})
+                dc,
+                image,
+                name,
+                hostname="git",
+                network=f"{prefix}-net",
+                labels={
+                    "robot-lab.prefix": prefix,
+                    "robot-lab.role": "git",
+                    "robot-lab.image": image,
+                    "robot-lab.ssh-port": str(port),
+                },
+                ports={22: port},
+                volumes={},
+            )
         put_files(container, {"/etc/machine-id": uuid.uuid4().hex + "\n"})
     if container.status != "running":
         container.start()
@@ -118,8 +136,15 @@ def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
             raise LabError(f"{name}: gitolite setup failed: {out.decode(errors='replace').strip()[-300:]}")
         known_hosts = state.lab_dir(prefix) / "git_known_hosts"
         known_hosts.write_text("\n".join(known_hosts_lines([f"[127.0.0.1]:{port}", name], keys)) + "\n")
-        git = {"container": name, "host": name, "port": port, "user": USER, "repo": FLEET_REPO,
-               "known_hosts": str(known_hosts), "host_keys": keys}
+        git = {
+            "container": name,
+            "host": name,
+            "port": port,
+            "user": USER,
+            "repo": FLEET_REPO,
+            "known_hosts": str(known_hosts),
+            "host_keys": keys,
+        }
         gitolite.update(admin(git, key_path), FLEET_REPO, message="robotfleet: the lab's fleet repository")
     return git
 

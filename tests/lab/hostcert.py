@@ -32,23 +32,50 @@ def host_key(prefix: str, host: str) -> str:
     return out.strip()
 
 
-def sign(ca: Path, public_key: str, directory: Path, identity: str, principals: list[str],
-         validity: str = "-5m:+1h", serial: int = 1) -> Path:
+def sign(
+    ca: Path,
+    public_key: str,
+    directory: Path,
+    identity: str,
+    principals: list[str],
+    validity: str = "-5m:+1h",
+    serial: int = 1,
+) -> Path:
     """A host certificate of ``public_key`` (ssh-keygen -s -h), written in
     ``directory``; its path."""
     directory.mkdir(parents=True, exist_ok=True)
     plain = directory / f"{identity}-{serial}.pub"
     plain.write_text(public_key + "\n")
-    subprocess.run(["ssh-keygen", "-q", "-s", str(ca), "-h", "-I", identity, "-n", ",".join(principals),
-                    "-V", validity, "-z", str(serial), str(plain)], check=True, capture_output=True)
+    subprocess.run(
+        [
+            "ssh-keygen",
+            "-q",
+            "-s",
+            str(ca),
+            "-h",
+            "-I",
+            identity,
+            "-n",
+            ",".join(principals),
+            "-V",
+            validity,
+            "-z",
+            str(serial),
+            str(plain),
+        ],
+        check=True,
+        capture_output=True,
+    )
     return directory / f"{identity}-{serial}-cert.pub"
 
 
 def install(prefix: str, host: str, certificate: Path) -> None:
     """Put the certificate on the host and make its sshd present it."""
     text = certificate.read_text().strip()
-    script = (f"printf '%s\\n' '{text}' > {CERTIFICATE} && chmod 644 {CERTIFICATE} && "
-              f"echo 'HostCertificate {CERTIFICATE}' > {DROP_IN} && sshd -t && systemctl reload ssh")
+    script = (
+        f"printf '%s\\n' '{text}' > {CERTIFICATE} && chmod 644 {CERTIFICATE} && "
+        f"echo 'HostCertificate {CERTIFICATE}' > {DROP_IN} && sshd -t && systemctl reload ssh"
+    )
     code, out = lab_state.exec_in(prefix, host, script)
     if code != 0:
         raise lab_state.LabError(f"{host}: installing the host certificate failed: {out.strip()}")

@@ -34,8 +34,19 @@ if TYPE_CHECKING:
 SUITE = "trixie"
 VARIANT = "minbase"
 INCLUDE_PACKAGES = (
-    "systemd", "systemd-sysv", "dbus", "udev", "openssh-server", "sudo",
-    "python3", "ca-certificates", "curl", "gnupg", "iproute2", "procps", "less",
+    "systemd",
+    "systemd-sysv",
+    "dbus",
+    "udev",
+    "openssh-server",
+    "sudo",
+    "python3",
+    "ca-certificates",
+    "curl",
+    "gnupg",
+    "iproute2",
+    "procps",
+    "less",
 )
 ARCHES = ("amd64", "arm64")
 NATIVE_ARCH = "amd64"
@@ -66,7 +77,8 @@ while read -r name; do
 done < %(list)s
 """ % {"list": SENSORS_LIST}
 
-_SENSORS_UNIT = """[Unit]
+_SENSORS_UNIT = (
+    """[Unit]
 Description=Robot lab: fake sensor device nodes from %s
 DefaultDependencies=no
 After=systemd-tmpfiles-setup-dev.service
@@ -79,7 +91,9 @@ ExecStart=/usr/local/sbin/robot-lab-sensors
 
 [Install]
 WantedBy=sysinit.target
-""" % SENSORS_LIST
+"""
+    % SENSORS_LIST
+)
 
 # Debian only generates host keys on "first boot"; our containers are never
 # that (machine-id is written before start), so drop the condition: every
@@ -199,8 +213,7 @@ def check_arch(arch: str) -> str:
 
 
 def base_recipe(arch: str = NATIVE_ARCH) -> dict:
-    recipe = {"suite": SUITE, "mirror": debian_url(), "variant": VARIANT,
-              "include": list(INCLUDE_PACKAGES)}
+    recipe = {"suite": SUITE, "mirror": debian_url(), "variant": VARIANT, "include": list(INCLUDE_PACKAGES)}
     if check_arch(arch) != NATIVE_ARCH:
         # Only foreign images name their architecture: the amd64 recipe, and
         # so every machine's cached amd64 image, stays what it was.
@@ -209,8 +222,12 @@ def base_recipe(arch: str = NATIVE_ARCH) -> dict:
 
 
 def host_recipe(arch: str = NATIVE_ARCH) -> dict:
-    return {"base": base_recipe(arch), "files": host_files(arch),
-            "script": customise_script(arch), "dockerfile": _HOST_DOCKERFILE}
+    return {
+        "base": base_recipe(arch),
+        "files": host_files(arch),
+        "script": customise_script(arch),
+        "dockerfile": _HOST_DOCKERFILE,
+    }
 
 
 def base_tag(arch: str = NATIVE_ARCH) -> str:
@@ -254,8 +271,10 @@ def debootstrap_commands(rootfs: str, arch: str = NATIVE_ARCH) -> list[list[str]
     first = ["debootstrap", f"--variant={VARIANT}", "--include=" + ",".join(INCLUDE_PACKAGES)]
     if arch == NATIVE_ARCH:
         return [first + [SUITE, rootfs, debian_url()]]
-    return [first + [f"--arch={arch}", "--foreign", SUITE, rootfs, debian_url()],
-            ["chroot", rootfs, "/debootstrap/debootstrap", "--second-stage"]]
+    return [
+        first + [f"--arch={arch}", "--foreign", SUITE, rootfs, debian_url()],
+        ["chroot", rootfs, "/debootstrap/debootstrap", "--second-stage"],
+    ]
 
 
 def trimmed_packages_list(text: str, wanted: set[str]) -> str:
@@ -263,7 +282,7 @@ def trimmed_packages_list(text: str, wanted: set[str]) -> str:
     kept = []
     for paragraph in text.split("\n\n"):
         first = paragraph.lstrip("\n").split("\n", 1)[0]
-        if first.startswith("Package:") and first[len("Package:"):].strip() in wanted:
+        if first.startswith("Package:") and first[len("Package:") :].strip() in wanted:
             kept.append(paragraph.strip("\n"))
     return "\n\n".join(kept) + "\n"
 
@@ -295,13 +314,13 @@ def _debootstrap_and_import(dc: docker.DockerClient, tag: str, arch: str = NATIV
                 try:
                     done = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
                 except FileNotFoundError:
-                    raise LabError("cannot build the host image: debootstrap is not "
-                                   "installed (apt-get install debootstrap)") from None
+                    raise LabError(
+                        "cannot build the host image: debootstrap is not installed (apt-get install debootstrap)"
+                    ) from None
                 if done.returncode != 0:
                     raise LabError(f"{' '.join(cmd[:2])} ({arch}) failed (exit {done.returncode}); see {log_path}")
         if arch == NATIVE_ARCH:
-            tar = subprocess.Popen(["tar", "-C", rootfs, "--numeric-owner", "-c", "."],
-                                   stdout=subprocess.PIPE)
+            tar = subprocess.Popen(["tar", "-C", rootfs, "--numeric-owner", "-c", "."], stdout=subprocess.PIPE)
             try:
                 dc.api.import_image_from_stream(tar.stdout, repository=repo, tag=version)
             finally:
@@ -320,12 +339,17 @@ def rootfs_image_archive(layer: Path, tag: str, arch: str, out: Path) -> None:
         while chunk := f.read(1 << 20):
             digest.update(chunk)
     diff_id = f"sha256:{digest.hexdigest()}"
-    config = json.dumps({
-        "architecture": arch, "os": "linux", **({"variant": "v8"} if arch == "arm64" else {}),
-        "config": {"Env": ["PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"]},
-        "rootfs": {"type": "layers", "diff_ids": [diff_id]},
-        "history": [{"created_by": f"debootstrap {SUITE} ({arch}, robot lab)"}],
-    }, sort_keys=True).encode()
+    config = json.dumps(
+        {
+            "architecture": arch,
+            "os": "linux",
+            **({"variant": "v8"} if arch == "arm64" else {}),
+            "config": {"Env": ["PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"]},
+            "rootfs": {"type": "layers", "diff_ids": [diff_id]},
+            "history": [{"created_by": f"debootstrap {SUITE} ({arch}, robot lab)"}],
+        },
+        sort_keys=True,
+    ).encode()
     config_name = hashlib.sha256(config).hexdigest() + ".json"
     manifest = json.dumps([{"Config": config_name, "RepoTags": [tag], "Layers": ["rootfs/layer.tar"]}]).encode()
     with tarfile.open(out, "w") as archive:
@@ -341,8 +365,9 @@ def load_rootfs(dc: docker.DockerClient, rootfs: str, tag: str, arch: str, tmp: 
     Docker 20.10 labels every import with the engine's own architecture
     (its --platform sets only the OS), so a foreign rootfs is loaded instead."""
     layer, archive = Path(tmp, "layer.tar"), Path(tmp, "image.tar")
-    done = subprocess.run(["tar", "-C", rootfs, "--numeric-owner", "-cf", str(layer), "."],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        ["tar", "-C", rootfs, "--numeric-owner", "-cf", str(layer), "."], capture_output=True, text=True
+    )
     if done.returncode != 0:
         raise LabError(f"tar of the debootstrap rootfs failed (exit {done.returncode}): {done.stderr.strip()[-200:]}")
     rootfs_image_archive(layer, tag, arch, archive)
@@ -351,8 +376,7 @@ def load_rootfs(dc: docker.DockerClient, rootfs: str, tag: str, arch: str, tmp: 
         dc.images.load(f)
 
 
-def build_image(dc: docker.DockerClient, tag: str, dockerfile: str,
-                files: dict[str, str]) -> None:
+def build_image(dc: docker.DockerClient, tag: str, dockerfile: str, files: dict[str, str]) -> None:
     """docker build from an in-memory context; the log goes to .lab/cache/build."""
     context = io.BytesIO()
     with tarfile.open(fileobj=context, mode="w") as tar:
@@ -367,8 +391,9 @@ def build_image(dc: docker.DockerClient, tag: str, dockerfile: str,
     log_path = BUILD_DIR / (tag.replace(":", "_").replace("/", "_") + ".log")
     error = None
     with open(log_path, "w") as log:
-        for chunk in dc.api.build(fileobj=context, custom_context=True, tag=tag,
-                                  rm=True, forcerm=True, pull=False, decode=True):
+        for chunk in dc.api.build(
+            fileobj=context, custom_context=True, tag=tag, rm=True, forcerm=True, pull=False, decode=True
+        ):
             log.write(chunk.get("stream", "") or json.dumps(chunk) + "\n")
             if "error" in chunk:
                 error = chunk["error"].strip()
@@ -376,9 +401,17 @@ def build_image(dc: docker.DockerClient, tag: str, dockerfile: str,
         raise LabError(f"building {tag} failed: {error} (log: {log_path})")
 
 
-def create_systemd_container(dc: docker.DockerClient, image: str, name: str, *,
-                             hostname: str, network: str, labels: dict[str, str],
-                             ports: dict[int, int], volumes: dict[str, str]):
+def create_systemd_container(
+    dc: docker.DockerClient,
+    image: str,
+    name: str,
+    *,
+    hostname: str,
+    network: str,
+    labels: dict[str, str],
+    ports: dict[int, int],
+    volumes: dict[str, str],
+):
     """Create (not start) a container running systemd as PID 1 on this machine.
 
     `ports` maps container port -> 127.0.0.1 host port; `volumes` maps a named
@@ -406,9 +439,13 @@ def create_systemd_container(dc: docker.DockerClient, image: str, name: str, *,
     host_config["MaskedPaths"] = []
     host_config["ReadonlyPaths"] = []
     created = dc.api.create_container(
-        image, name=name, hostname=hostname, labels=labels, detach=True,
-        ports=list(ports), host_config=host_config,
-        networking_config=dc.api.create_networking_config(
-            {network: dc.api.create_endpoint_config()}),
+        image,
+        name=name,
+        hostname=hostname,
+        labels=labels,
+        detach=True,
+        ports=list(ports),
+        host_config=host_config,
+        networking_config=dc.api.create_networking_config({network: dc.api.create_endpoint_config()}),
     )
     return dc.containers.get(created["Id"])

@@ -21,9 +21,8 @@ import paramiko
 import yaml
 
 from . import gitserver, hostimage, services, sshd, state
+from .engine import REPO_ROOT, LabError, client, get_or_none, pick_free_port, published_ports, put_files, timed_phase
 from .machinelock import PORTS_LOCK, machine_lock
-from .engine import (REPO_ROOT, LabError, client, get_or_none, pick_free_port,
-                     published_ports, put_files, timed_phase)
 
 if TYPE_CHECKING:
     import docker
@@ -51,8 +50,11 @@ def check_prefix(prefix: str) -> str:
 def plan_hosts(robots: int, laptops: int, arm64_robots: int = 0) -> list[tuple[str, str, str]]:
     """[(host name, group, architecture)] for a lab of that size."""
     counts = {"robots": robots, "laptops": laptops}
-    planned = [(f"{GROUP_PREFIXES[group]}{i}", group, hostimage.NATIVE_ARCH)
-               for group, count in counts.items() for i in range(1, count + 1)]
+    planned = [
+        (f"{GROUP_PREFIXES[group]}{i}", group, hostimage.NATIVE_ARCH)
+        for group, count in counts.items()
+        for i in range(1, count + 1)
+    ]
     return planned + [(f"{ARM64_ROBOT_PREFIX}{i}", "robots", "arm64") for i in range(1, arm64_robots + 1)]
 
 
@@ -61,9 +63,8 @@ def sensors_from_inventory(path: Path = INVENTORY) -> dict[str, list[str]]:
     if not path.exists():
         return {}
     fleet = yaml.safe_load(path.read_text()) or {}
-    declared = ((fleet.get("robots") or {}).get("hosts") or {})
-    return {host: [s["name"] for s in (data or {}).get("udev_sensors") or []]
-            for host, data in declared.items()}
+    declared = (fleet.get("robots") or {}).get("hosts") or {}
+    return {host: [s["name"] for s in (data or {}).get("udev_sensors") or []] for host, data in declared.items()}
 
 
 def known_hosts_line(port: int, public_key: str) -> str:
@@ -74,8 +75,10 @@ def known_hosts_line(port: int, public_key: str) -> str:
 
 
 def apt_proxy_conf(services_host: str) -> str:
-    return (f'Acquire::http::Proxy "http://{services_host}:{services.APT_CACHE_PORT}";\n'
-            f'Acquire::http::Proxy::{services_host} "DIRECT";\n')
+    return (
+        f'Acquire::http::Proxy "http://{services_host}:{services.APT_CACHE_PORT}";\n'
+        f'Acquire::http::Proxy::{services_host} "DIRECT";\n'
+    )
 
 
 INOTIFY_INSTANCES = Path("/proc/sys/fs/inotify/max_user_instances")
@@ -92,16 +95,25 @@ def _raise_inotify_instances() -> None:
         if current >= INOTIFY_WANTED:
             return
         INOTIFY_INSTANCES.write_text(f"{INOTIFY_WANTED}\n")
-        logging.getLogger(__name__).info("lab: raised fs.inotify.max_user_instances from %s to %s",
-                                         current, INOTIFY_WANTED)
+        logging.getLogger(__name__).info(
+            "lab: raised fs.inotify.max_user_instances from %s to %s", current, INOTIFY_WANTED
+        )
     except (OSError, ValueError):
-        print(f"lab: fs.inotify.max_user_instances is low; if hosts exit at boot, run "
-              f"`sysctl -w fs.inotify.max_user_instances={INOTIFY_WANTED}` as root", flush=True)
+        print(
+            f"lab: fs.inotify.max_user_instances is low; if hosts exit at boot, run "
+            f"`sysctl -w fs.inotify.max_user_instances={INOTIFY_WANTED}` as root",
+            flush=True,
+        )
 
 
-def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
-       sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int = 0,
-       git_server: bool = False) -> dict:
+def up(
+    prefix: str = "lab",
+    robots: int = 3,
+    laptops: int = 1,
+    sensors: dict[str, list[str]] | list[str] | None = None,
+    arm64_robots: int = 0,
+    git_server: bool = False,
+) -> dict:
     """Start (or reuse) a lab and write its state.json; returns the state.
 
     `sensors`: names per robot, or one list for every robot; default: what
@@ -121,8 +133,10 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
         ensure_arm64_emulation()  # registered on every up: a reboot forgets it
     with timed_phase("build images (cached by recipe)"):
         host_image = hostimage.ensure_host_image(dc)
-        host_images = {arch: hostimage.ensure_host_image(dc, arch)
-                       for arch in sorted({arch for _, _, arch in wanted} - {hostimage.NATIVE_ARCH})}
+        host_images = {
+            arch: hostimage.ensure_host_image(dc, arch)
+            for arch in sorted({arch for _, _, arch in wanted} - {hostimage.NATIVE_ARCH})
+        }
         host_images[hostimage.NATIVE_ARCH] = host_image
         services_image = services.ensure_services_image(dc, host_image)
         mirror_dir = services.mirror_dir()
@@ -141,8 +155,16 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
     services_host = services.container_name(prefix)
     with timed_phase(f"start hosts ({len(wanted)})"):
         started = [
-            _ensure_host(dc, prefix, name, group, host_images[arch], key_path,
-                         apt_proxy_conf(services_host), sensors_by_host.get(name, []))
+            _ensure_host(
+                dc,
+                prefix,
+                name,
+                group,
+                host_images[arch],
+                key_path,
+                apt_proxy_conf(services_host),
+                sensors_by_host.get(name, []),
+            )
             for name, group, arch in wanted
         ]
         for (_, _, arch), (container, _) in zip(wanted, started):
@@ -163,8 +185,10 @@ def up(prefix: str = "lab", robots: int = 3, laptops: int = 1,
         "ssh_key": str(key_path),
         "known_hosts": str(known_hosts),
         "ssh_user": hostimage.OPS_USER,
-        "hosts": [{"name": name, "group": group, "arch": arch, "container": c.name, "port": port}
-                  for (name, group, arch), (c, port) in zip(wanted, started)],
+        "hosts": [
+            {"name": name, "group": group, "arch": arch, "container": c.name, "port": port}
+            for (name, group, arch), (c, port) in zip(wanted, started)
+        ],
         "services_host": services_host,
         "apt_proxy": f"http://{services_host}:{services.APT_CACHE_PORT}",
         "registry": f"{services_host}:{services.REGISTRY_PORT}",
@@ -219,18 +243,25 @@ def down(prefix: str = "lab") -> None:
     print(f"lab: '{prefix}' is down")
 
 
-def reset(prefix: str = "lab", robots: int | None = None, laptops: int | None = None,
-          sensors: dict[str, list[str]] | list[str] | None = None, arm64_robots: int | None = None,
-          git_server: bool | None = None) -> dict:
+def reset(
+    prefix: str = "lab",
+    robots: int | None = None,
+    laptops: int | None = None,
+    sensors: dict[str, list[str]] | list[str] | None = None,
+    arm64_robots: int | None = None,
+    git_server: bool | None = None,
+) -> dict:
     """Down then up with fresh hosts; sizes (and the git server) default to the previous lab's."""
     previous = _previous_sizes(prefix)
     down(prefix)
-    return up(prefix,
-              robots if robots is not None else previous.get("robots", 3),
-              laptops if laptops is not None else previous.get("laptops", 1),
-              sensors,
-              arm64_robots if arm64_robots is not None else previous.get("arm64_robots", 0),
-              git_server if git_server is not None else bool(previous.get("git_server")))
+    return up(
+        prefix,
+        robots if robots is not None else previous.get("robots", 3),
+        laptops if laptops is not None else previous.get("laptops", 1),
+        sensors,
+        arm64_robots if arm64_robots is not None else previous.get("arm64_robots", 0),
+        git_server if git_server is not None else bool(previous.get("git_server")),
+    )
 
 
 def status(prefix: str = "lab") -> list[str]:
@@ -253,8 +284,7 @@ def status(prefix: str = "lab") -> list[str]:
             continue
         port = int(c.labels["robot-lab.ssh-port"])
         reachable = c.status == "running" and _ssh_login_error(port, key_path, known_hosts) is None
-        lines.append(f"{c.name:<24} {c.status:<9} ssh 127.0.0.1:{port:<6} "
-                     f"reachable {'yes' if reachable else 'no'}")
+        lines.append(f"{c.name:<24} {c.status:<9} ssh 127.0.0.1:{port:<6} reachable {'yes' if reachable else 'no'}")
     return lines
 
 
@@ -301,8 +331,9 @@ def _ensure_ssh_key(prefix: str) -> Path:
     key = state.lab_dir(prefix) / "id_ed25519"
     key.parent.mkdir(parents=True, exist_ok=True)
     if not key.exists():
-        subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C",
-                        f"robot-lab-{prefix}", "-f", str(key)], check=True)
+        subprocess.run(
+            ["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", f"robot-lab-{prefix}", "-f", str(key)], check=True
+        )
     key.chmod(0o600)
     return key.resolve()
 
@@ -321,13 +352,13 @@ def _host_volume_names(prefix: str, host: str) -> dict[str, str]:
     return {f"{prefix}-{host}-{kind}": path for kind, path in NESTED_DOCKER_DIRS.items()}
 
 
-def _ensure_host(dc, prefix, host, group, image, key_path: Path, apt_conf: str,
-                 sensors: list[str]):
+def _ensure_host(dc, prefix, host, group, image, key_path: Path, apt_conf: str, sensors: list[str]):
     """(container, ssh port) of a started host, created if needed."""
     name = f"{prefix}-{host}"
     container = get_or_none(dc.containers, name)
-    if container is not None and (container.labels.get("robot-lab.image") != image
-                                  or container.labels.get("robot-lab.group") != group):
+    if container is not None and (
+        container.labels.get("robot-lab.image") != image or container.labels.get("robot-lab.group") != group
+    ):
         container.remove(force=True)
         container = None
     was_running = container is not None and container.status == "running"
@@ -336,9 +367,12 @@ def _ensure_host(dc, prefix, host, group, image, key_path: Path, apt_conf: str,
     old_sensors = _read_file(container, hostimage.SENSORS_LIST) if was_running else None
     new_sensors = "".join(f"{s}\n" for s in sensors)
     put_files(container, {APT_PROXY_CONF: apt_conf, hostimage.SENSORS_LIST: new_sensors})
-    put_files(container, {f"/home/{hostimage.OPS_USER}/.ssh/authorized_keys":
-                          key_path.with_suffix(".pub").read_text()},
-              mode=0o600, owner=(hostimage.USER_UIDS[hostimage.OPS_USER],) * 2)
+    put_files(
+        container,
+        {f"/home/{hostimage.OPS_USER}/.ssh/authorized_keys": key_path.with_suffix(".pub").read_text()},
+        mode=0o600,
+        owner=(hostimage.USER_UIDS[hostimage.OPS_USER],) * 2,
+    )
     if not was_running:
         container.start()
     elif old_sensors != new_sensors:
@@ -355,11 +389,21 @@ def _create_host(dc, prefix, host, group, image):
     with machine_lock(PORTS_LOCK):  # the port is taken once the container exists
         port = pick_free_port(SSH_PORT_START, published_ports(dc))
         container = hostimage.create_systemd_container(
-            dc, image, f"{prefix}-{host}", hostname=host, network=f"{prefix}-net",
-            labels={"robot-lab.prefix": prefix, "robot-lab.role": "host",
-                    "robot-lab.host": host, "robot-lab.group": group,
-                    "robot-lab.image": image, "robot-lab.ssh-port": str(port)},
-            ports={22: port}, volumes=volumes,
+            dc,
+            image,
+            f"{prefix}-{host}",
+            hostname=host,
+            network=f"{prefix}-net",
+            labels={
+                "robot-lab.prefix": prefix,
+                "robot-lab.role": "host",
+                "robot-lab.host": host,
+                "robot-lab.group": group,
+                "robot-lab.image": image,
+                "robot-lab.ssh-port": str(port),
+            },
+            ports={22: port},
+            volumes=volumes,
         )
     put_files(container, {"/etc/machine-id": uuid.uuid4().hex + "\n"})
     return container
@@ -378,9 +422,17 @@ def _ssh_login_error(port: int, key_path: Path, known_hosts: Path) -> str | None
     try:
         ssh.load_host_keys(str(known_hosts))
         ssh.set_missing_host_key_policy(paramiko.RejectPolicy())
-        ssh.connect("127.0.0.1", port=port, username=hostimage.OPS_USER,
-                    key_filename=str(key_path), timeout=5, banner_timeout=5,
-                    auth_timeout=5, look_for_keys=False, allow_agent=False)
+        ssh.connect(
+            "127.0.0.1",
+            port=port,
+            username=hostimage.OPS_USER,
+            key_filename=str(key_path),
+            timeout=5,
+            banner_timeout=5,
+            auth_timeout=5,
+            look_for_keys=False,
+            allow_agent=False,
+        )
         _, stdout, _ = ssh.exec_command("sudo -n true", timeout=10)
         code = stdout.channel.recv_exit_status()
         return None if code == 0 else f"`sudo -n true` exited {code}"
@@ -392,8 +444,9 @@ def _ssh_login_error(port: int, key_path: Path, known_hosts: Path) -> str | None
         ssh.close()
 
 
-def _wait_for_ssh_login(name: str, port: int, key_path: Path, known_hosts: Path,
-                        timeout: int = SSH_READY_TIMEOUT_S) -> None:
+def _wait_for_ssh_login(
+    name: str, port: int, key_path: Path, known_hosts: Path, timeout: int = SSH_READY_TIMEOUT_S
+) -> None:
     deadline = time.monotonic() + timeout
     while True:
         error = _ssh_login_error(port, key_path, known_hosts)

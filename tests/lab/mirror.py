@@ -78,14 +78,16 @@ RULES: tuple[Rule, ...] = (
     # a provisioned host looks like.
     # Debian installs dockerd in /usr/sbin, Docker in /usr/bin: both paths work
     # (e.g. for an ExecStart= override written against Docker's layout).
-    Rule("docker-ce", ("docker.io",), epoch="5", add_depends=("docker-ce-cli",),
-         drop_relations=("needrestart",),
-         add_symlinks=(("usr/bin/dockerd", "../sbin/dockerd"),
-                       ("usr/bin/docker-proxy", "../sbin/docker-proxy"))),
-    Rule("docker-ce-cli", ("docker-cli",), epoch="5",
-         add_recommends=("docker-buildx-plugin", "docker-compose-plugin")),
-    Rule("containerd.io", ("containerd", "runc"), distro_suffix=False,
-         drop_relations=("criu",)),
+    Rule(
+        "docker-ce",
+        ("docker.io",),
+        epoch="5",
+        add_depends=("docker-ce-cli",),
+        drop_relations=("needrestart",),
+        add_symlinks=(("usr/bin/dockerd", "../sbin/dockerd"), ("usr/bin/docker-proxy", "../sbin/docker-proxy")),
+    ),
+    Rule("docker-ce-cli", ("docker-cli",), epoch="5", add_recommends=("docker-buildx-plugin", "docker-compose-plugin")),
+    Rule("containerd.io", ("containerd", "runc"), distro_suffix=False, drop_relations=("criu",)),
     Rule("docker-buildx-plugin", ("docker-buildx",)),
     Rule("docker-compose-plugin", ("docker-compose",), drop_paths=("usr/bin/docker-compose",)),
 )
@@ -106,6 +108,7 @@ class MirrorError(RuntimeError):
 
 # ---------------------------------------------------------------- timing / exec
 
+
 @contextlib.contextmanager
 def phase(name: str):
     start = time.monotonic()
@@ -122,6 +125,7 @@ def run(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
 
 
 # ------------------------------------------------------------ deb822 / relations
+
 
 def parse_paragraphs(text: str) -> list[dict[str, str]]:
     """Parse deb822 text into ordered dicts; continuation lines are kept verbatim."""
@@ -194,6 +198,7 @@ def _dedupe(groups: list[list[Alt]]) -> list[list[Alt]]:
 
 def _merge_lower_bounds(groups: list[list[Alt]]) -> list[list[Alt]]:
     """Merging packages gives 'libc6 (>= 2.34), libc6 (>= 2.38)': keep the stronger."""
+
     def lower_bound(g):
         return g[0] if len(g) == 1 and g[0].op == ">=" else None
 
@@ -216,6 +221,7 @@ def _merge_lower_bounds(groups: list[list[Alt]]) -> list[list[Alt]]:
 
 # ---------------------------------------------------------------- versions
 
+
 def _order(c: str) -> int:
     if c == "~":
         return -1
@@ -234,21 +240,23 @@ def _compare_part(a: str, b: str) -> int:
             cb = _order(nb[i]) if i < len(nb) else 0
             if ca != cb:
                 return -1 if ca < cb else 1
-        a, b = a[len(na):], b[len(nb):]
+        a, b = a[len(na) :], b[len(nb) :]
         da = re.match(r"^[0-9]*", a)[0]
         db = re.match(r"^[0-9]*", b)[0]
         if int(da or 0) != int(db or 0):
             return -1 if int(da or 0) < int(db or 0) else 1
-        a, b = a[len(da):], b[len(db):]
+        a, b = a[len(da) :], b[len(db) :]
     return 0
 
 
 def compare_versions(a: str, b: str) -> int:
     """-1, 0, 1 like `dpkg --compare-versions`."""
+
     def split(v):
         epoch, _, rest = v.partition(":") if ":" in v else ("0", "", v)
         upstream, _, revision = rest.rpartition("-") if "-" in rest else (rest, "", "")
         return int(epoch or 0), upstream, revision
+
     ea, ua, ra = split(a)
     eb, ub, rb = split(b)
     if ea != eb:
@@ -274,6 +282,7 @@ def docker_version(rule: Rule, debian_version: str) -> str:
 
 # ---------------------------------------------------------- control rewriting
 
+
 def rewrite_control(rule: Rule, controls: list[dict[str, str]], version: str) -> dict[str, str]:
     """Build the control paragraph of ``rule.name`` from its Debian sources' ones."""
     primary = controls[0]
@@ -293,8 +302,7 @@ def rewrite_control(rule: Rule, controls: list[dict[str, str]], version: str) ->
             g = [a for a in g if a.name not in rule.drop_relations]
             if g:
                 renamed.append(g)
-        renamed += [[Alt(n)] for n in {"Depends": rule.add_depends,
-                                       "Recommends": rule.add_recommends}.get(field, ())]
+        renamed += [[Alt(n)] for n in {"Depends": rule.add_depends, "Recommends": rule.add_recommends}.get(field, ())]
         if renamed:
             out[field] = format_relations(_merge_lower_bounds(_dedupe(renamed)))
         else:
@@ -312,8 +320,7 @@ def rewrite_control(rule: Rule, controls: list[dict[str, str]], version: str) ->
     for field in NEGATIVE_FIELDS + ("Provides",):
         groups = []
         for ctl in controls:
-            groups += [g for g in parse_relations(ctl.get(field, ""))
-                       if not any(a.name in DOCKER_NAMES for a in g)]
+            groups += [g for g in parse_relations(ctl.get(field, "")) if not any(a.name in DOCKER_NAMES for a in g)]
         if field != "Breaks":
             groups += own_debian_names
         if groups:
@@ -333,15 +340,18 @@ def rewrite_control(rule: Rule, controls: list[dict[str, str]], version: str) ->
     src_version = src_field.split("(", 1)[1].rstrip(") ") if "(" in src_field else primary["Version"]
     repacked = ", ".join(f"{c['Package']} {c['Version']}" for c in controls)
     description = primary["Description"] + (
-        f"\n .\n Lab repackaging of Debian {SUITE} {repacked} under Docker's package name.")
+        f"\n .\n Lab repackaging of Debian {SUITE} {repacked} under Docker's package name."
+    )
 
-    out.update({
-        "Package": rule.name,
-        "Source": f"{src} ({src_version})",
-        "Version": version,
-        "Maintainer": LAB_MAINTAINER,
-        "Installed-Size": str(sum(int(c.get("Installed-Size", 0)) for c in controls)),
-    })
+    out.update(
+        {
+            "Package": rule.name,
+            "Source": f"{src} ({src_version})",
+            "Version": version,
+            "Maintainer": LAB_MAINTAINER,
+            "Installed-Size": str(sum(int(c.get("Installed-Size", 0)) for c in controls)),
+        }
+    )
     out.pop("Description")
     ordered = {k: out[k] for k in LEADING_FIELDS if k in out}
     ordered.update({k: v for k, v in out.items() if k not in ordered})
@@ -361,8 +371,9 @@ def file_hashes(data: bytes) -> dict[str, str]:
 def packages_entry(control: dict[str, str], filename: str, data: bytes) -> str:
     h = file_hashes(data)
     fields = dict(control)
-    fields.update({"Filename": filename, "Size": str(len(data)), "MD5sum": h["md5"],
-                   "SHA1": h["sha1"], "SHA256": h["sha256"]})
+    fields.update(
+        {"Filename": filename, "Size": str(len(data)), "MD5sum": h["md5"], "SHA1": h["sha1"], "SHA256": h["sha256"]}
+    )
     return format_paragraph(fields)
 
 
@@ -371,8 +382,10 @@ def release_date(t: float) -> str:
     days = ("Mon", "Tue", "Wed", "Thu", "Fri", "Sat", "Sun")
     months = ("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec")
     tm = time.gmtime(t)
-    return (f"{days[tm.tm_wday]}, {tm.tm_mday:02d} {months[tm.tm_mon - 1]} {tm.tm_year} "
-            f"{tm.tm_hour:02d}:{tm.tm_min:02d}:{tm.tm_sec:02d} UTC")
+    return (
+        f"{days[tm.tm_wday]}, {tm.tm_mday:02d} {months[tm.tm_mon - 1]} {tm.tm_year} "
+        f"{tm.tm_hour:02d}:{tm.tm_min:02d}:{tm.tm_sec:02d} UTC"
+    )
 
 
 def release_text(index_files: dict[str, bytes], date: str, arches: tuple[str, ...] = ARCHES) -> str:
@@ -396,6 +409,7 @@ def release_text(index_files: dict[str, bytes], date: str, arches: tuple[str, ..
 
 
 # ---------------------------------------------------------------- apt (trixie)
+
 
 def debian_url() -> str:
     """This machine's Debian archive (its apt sources; ROBOT_LAB_DEBIAN_URL overrides)."""
@@ -483,8 +497,10 @@ def prune_sources(dest: Path, wanted: set[str]) -> None:
 
 # ---------------------------------------------------------------- repackaging
 
-def repack(rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path,
-           work: Path, arch: str) -> tuple[Path, dict[str, str]]:
+
+def repack(
+    rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path, work: Path, arch: str
+) -> tuple[Path, dict[str, str]]:
     tree = work / rule.name
     shutil.rmtree(tree, ignore_errors=True)
     work.mkdir(parents=True, exist_ok=True)
@@ -496,8 +512,9 @@ def repack(rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path
         ctl_dir = work / f"{rule.name}.{extra.name}.control"
         shutil.rmtree(ctl_dir, ignore_errors=True)
         run(["dpkg-deb", "-e", str(extra), str(ctl_dir)])
-        scripts = [p.name for p in ctl_dir.iterdir()
-                   if p.name in ("preinst", "postinst", "prerm", "postrm", "triggers")]
+        scripts = [
+            p.name for p in ctl_dir.iterdir() if p.name in ("preinst", "postinst", "prerm", "postrm", "triggers")
+        ]
         if scripts:
             raise MirrorError(f"{extra.name}: cannot merge maintainer scripts {scripts}")
         controls.append(parse_paragraphs((ctl_dir / "control").read_text())[0])
@@ -515,8 +532,9 @@ def repack(rule: Rule, debs: list[Path], versions: dict[str, str], out_dir: Path
         target.unlink()
         md5 = meta / "md5sums"
         if md5.exists():
-            md5.write_text("".join(line for line in md5.read_text().splitlines(True)
-                                   if line.split(None, 1)[1].strip() != rel))
+            md5.write_text(
+                "".join(line for line in md5.read_text().splitlines(True) if line.split(None, 1)[1].strip() != rel)
+            )
 
     for rel, target in rule.add_symlinks:
         link = tree / rel
@@ -549,6 +567,7 @@ def check_installable(apt: TrixieApt, debs: list[Path]) -> None:
 
 # ---------------------------------------------------------------- signing
 
+
 class LabKey:
     def __init__(self, home: Path):
         self.home = home
@@ -565,8 +584,17 @@ class LabKey:
 
     def ensure(self) -> str:
         if not self.fingerprint():
-            self.gpg("--passphrase", "", "--pinentry-mode", "loopback",
-                     "--quick-gen-key", KEY_UID, "ed25519", "sign", "never")
+            self.gpg(
+                "--passphrase",
+                "",
+                "--pinentry-mode",
+                "loopback",
+                "--quick-gen-key",
+                KEY_UID,
+                "ed25519",
+                "sign",
+                "never",
+            )
         return self.fingerprint()
 
     def export_armored(self) -> bytes:
@@ -575,20 +603,18 @@ class LabKey:
     def sign(self, release: Path) -> None:
         common = ("--local-user", self.fingerprint(), "--digest-algo", "SHA512")
         self.gpg(*common, "--clearsign", "-o", str(release.with_name("InRelease")), str(release))
-        self.gpg(*common, "--armor", "--detach-sign", "-o", str(release.with_name("Release.gpg")),
-                 str(release))
+        self.gpg(*common, "--armor", "--detach-sign", "-o", str(release.with_name("Release.gpg")), str(release))
 
     def stop_agent(self) -> None:
-        subprocess.run(["gpgconf", "--homedir", str(self.home), "--kill", "gpg-agent"],
-                       capture_output=True)
+        subprocess.run(["gpgconf", "--homedir", str(self.home), "--kill", "gpg-agent"], capture_output=True)
 
 
 # ---------------------------------------------------------------- build
 
+
 def rules_digest() -> str:
     """The repack rules and the code applying them: any edit here rebuilds."""
-    h = hashlib.sha256(json.dumps([SUITE, [dataclasses.asdict(r) for r in RULES]],
-                                  sort_keys=True).encode())
+    h = hashlib.sha256(json.dumps([SUITE, [dataclasses.asdict(r) for r in RULES]], sort_keys=True).encode())
     h.update(Path(__file__).read_bytes())
     return h.hexdigest()
 
@@ -601,13 +627,17 @@ def recipe_digest(sources: dict[str, dict[str, str]]) -> str:
 
 def _complete(out_dir: Path, manifest: dict) -> bool:
     root = out_dir / "repo"
-    return all((root / rel).is_file() and (root / rel).stat().st_size == size
-               for rel, size in manifest.get("files", {}).items()) and bool(manifest.get("files"))
+    return all(
+        (root / rel).is_file() and (root / rel).stat().st_size == size
+        for rel, size in manifest.get("files", {}).items()
+    ) and bool(manifest.get("files"))
 
 
 def _result(out_dir: Path, manifest: dict) -> dict:
-    return {"root": str(out_dir / "repo"), **{k: manifest[k] for k in
-            ("fingerprint", "key_sha256", "packages", "sources")}}
+    return {
+        "root": str(out_dir / "repo"),
+        **{k: manifest[k] for k in ("fingerprint", "key_sha256", "packages", "sources")},
+    }
 
 
 def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict:
@@ -635,8 +665,9 @@ def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict
         with phase("download"):
             for arch, apt in apts.items():
                 fetch_sources(apt, sources[arch], src_dir)
-            prune_sources(src_dir, {deb_filename(n, v, arch) for arch, versions in sources.items()
-                                    for n, v in versions.items()})
+            prune_sources(
+                src_dir, {deb_filename(n, v, arch) for arch, versions in sources.items() for n, v in versions.items()}
+            )
 
         staging = out_dir / "staging"
         shutil.rmtree(staging, ignore_errors=True)
@@ -646,9 +677,16 @@ def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict
             for arch in ARCHES:
                 (dist / pool_rel(arch)).mkdir(parents=True)
                 built[arch] = [
-                    repack(rule, [src_dir / deb_filename(s, sources[arch][s], arch) for s in rule.sources],
-                           sources[arch], dist / pool_rel(arch), staging / "work", arch)
-                    for rule in RULES]
+                    repack(
+                        rule,
+                        [src_dir / deb_filename(s, sources[arch][s], arch) for s in rule.sources],
+                        sources[arch],
+                        dist / pool_rel(arch),
+                        staging / "work",
+                        arch,
+                    )
+                    for rule in RULES
+                ]
             shutil.rmtree(staging / "work")
         with phase("check installable"):
             for arch, apt in apts.items():
@@ -664,7 +702,8 @@ def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict
                 for arch in ARCHES:
                     packages = "\n".join(
                         packages_entry(ctl, f"{pool_rel(arch)}/{deb.name}", deb.read_bytes())
-                        for deb, ctl in built[arch]).encode()
+                        for deb, ctl in built[arch]
+                    ).encode()
                     index_rel = f"{COMPONENT}/binary-{arch}/Packages"
                     indexes.update({index_rel: packages, index_rel + ".gz": gzip.compress(packages, mtime=0)})
                 suite_dir = dist / "dists" / SUITE
@@ -685,8 +724,7 @@ def build_mirror(out_dir: Path = DEFAULT_OUT_DIR, refresh: bool = False) -> dict
             "packages": {ctl["Package"]: ctl["Version"] for _, ctl in built["amd64"]},
             "architectures": {arch: {ctl["Package"]: ctl["Version"] for _, ctl in built[arch]} for arch in ARCHES},
             "sources": sources,
-            "files": {str(p.relative_to(root)): p.stat().st_size
-                      for p in sorted(root.rglob("*")) if p.is_file()},
+            "files": {str(p.relative_to(root)): p.stat().st_size for p in sorted(root.rglob("*")) if p.is_file()},
         }
         shutil.rmtree(out_dir / "repo", ignore_errors=True)
         root.rename(out_dir / "repo")

@@ -56,9 +56,9 @@ CONTROL = {
     "Section": "utils",
     "Priority": "optional",
     "Description": "ROBOT LAB STAND-IN for nvidia-container-toolkit (not NVIDIA software)\n"
-                   " Built by tests/lab/nvidia_mirror.py so the gpu role installs a package\n"
-                   " named like NVIDIA's through the same apt path.  Its\n"
-                   " nvidia-container-runtime execs runc; it injects no GPU.",
+    " Built by tests/lab/nvidia_mirror.py so the gpu role installs a package\n"
+    " named like NVIDIA's through the same apt path.  Its\n"
+    " nvidia-container-runtime execs runc; it injects no GPU.",
 }
 
 
@@ -67,8 +67,17 @@ class NvidiaKey(LabKey):
 
     def ensure(self) -> str:
         if not self.fingerprint():
-            self.gpg("--passphrase", "", "--pinentry-mode", "loopback",
-                     "--quick-gen-key", KEY_UID, "ed25519", "sign", "never")
+            self.gpg(
+                "--passphrase",
+                "",
+                "--pinentry-mode",
+                "loopback",
+                "--quick-gen-key",
+                KEY_UID,
+                "ed25519",
+                "sign",
+                "never",
+            )
         return self.fingerprint()
 
 
@@ -89,8 +98,9 @@ def build_deb(out: Path, work: Path) -> Path:
     doc.parent.mkdir(parents=True)
     doc.write_text(CONTROL["Description"].replace("\n ", "\n") + "\n")
     deb = out / f"{PACKAGE}_{VERSION}_{ARCH}.deb"
-    subprocess.run(["dpkg-deb", "--root-owner-group", "-Zgzip", "-b", str(tree), str(deb)],
-                   check=True, capture_output=True)
+    subprocess.run(
+        ["dpkg-deb", "--root-owner-group", "-Zgzip", "-b", str(tree), str(deb)], check=True, capture_output=True
+    )
     shutil.rmtree(tree)
     return deb
 
@@ -158,18 +168,24 @@ def lab_settings(state: dict) -> dict:
 
 def fake_driver_script() -> str:
     """Shell (run as root in a lab host) installing the driver stand-in."""
-    line = (f"NVRM version: ROBOT LAB STAND-IN (no NVIDIA driver) x86_64 Kernel Module  "
-            f"{FAKE_DRIVER_VERSION}  lab")
-    smi = ("#!/bin/sh\n# ROBOT LAB STAND-IN for nvidia-smi: no GPU exists here.\n"
-           "echo 'GPU 0: Robot lab stand-in (UUID: GPU-00000000-0000-0000-0000-robotlab0000)'\n")
+    line = f"NVRM version: ROBOT LAB STAND-IN (no NVIDIA driver) x86_64 Kernel Module  {FAKE_DRIVER_VERSION}  lab"
+    smi = (
+        "#!/bin/sh\n# ROBOT LAB STAND-IN for nvidia-smi: no GPU exists here.\n"
+        "echo 'GPU 0: Robot lab stand-in (UUID: GPU-00000000-0000-0000-0000-robotlab0000)'\n"
+    )
     import base64
 
     def put(path, text, mode):
         encoded = base64.b64encode(text.encode()).decode()
         return f"echo {encoded} | base64 -d > {path} && chmod {mode} {path}"
 
-    return " && ".join([f"mkdir -p {Path(FAKE_DRIVER_FILE).parent}",
-                        put(FAKE_DRIVER_FILE, line + "\n", "644"), put(FAKE_NVIDIA_SMI, smi, "755")])
+    return " && ".join(
+        [
+            f"mkdir -p {Path(FAKE_DRIVER_FILE).parent}",
+            put(FAKE_DRIVER_FILE, line + "\n", "644"),
+            put(FAKE_NVIDIA_SMI, smi, "755"),
+        ]
+    )
 
 
 def remove_fake_driver_script() -> str:

@@ -75,12 +75,16 @@ def static_busybox(cache_dir: Path = CACHE_DIR) -> Path:
     with tempfile.TemporaryDirectory() as tmp:
         proc = subprocess.run(
             ["apt-get", "-q", "-o", "APT::Sandbox::User=root", "download", "busybox-static"],
-            cwd=tmp, capture_output=True, text=True)
+            cwd=tmp,
+            capture_output=True,
+            text=True,
+        )
         debs = list(Path(tmp).glob("busybox-static_*.deb"))
         if proc.returncode != 0 or not debs:
             raise PayloadImageError(
                 "apt-get download busybox-static failed (run apt-get update?): "
-                + (proc.stderr.strip().splitlines() or ["no output"])[-1])
+                + (proc.stderr.strip().splitlines() or ["no output"])[-1]
+            )
         subprocess.run(["dpkg-deb", "-x", str(debs[0]), f"{tmp}/x"], check=True)
         shutil.copy2(f"{tmp}/x/bin/busybox", binary.with_suffix(".part"))
     binary.with_suffix(".part").rename(binary)
@@ -146,12 +150,24 @@ def content_hash(busybox: Path, build_args: dict[str, str]) -> str:
     return h.hexdigest()
 
 
-def _build(client: docker.DockerClient, context: Path, ref: str, build_args: dict[str, str],
-           content: str, target: str = "payload"):
+def _build(
+    client: docker.DockerClient,
+    context: Path,
+    ref: str,
+    build_args: dict[str, str],
+    content: str,
+    target: str = "payload",
+):
     try:
-        image, _ = client.images.build(path=str(context), tag=ref, buildargs=build_args, target=target,
-                                       labels={CONTENT_LABEL: content}, rm=True,
-                                       forcerm=True)
+        image, _ = client.images.build(
+            path=str(context),
+            tag=ref,
+            buildargs=build_args,
+            target=target,
+            labels={CONTENT_LABEL: content},
+            rm=True,
+            forcerm=True,
+        )
     except docker.errors.BuildError as e:
         tail = [entry.get("stream", "").strip() for entry in e.build_log][-3:]
         raise PayloadImageError(f"building {ref} failed: {e.msg} {' | '.join(tail)}") from None
@@ -223,8 +239,9 @@ def publish_platforms(registry: str, result: dict) -> None:
     try:
         busyboxes = trixie_busyboxes()
         with tempfile.TemporaryDirectory(prefix="payload-platforms-") as tmp:
-            layers = payload_platforms.rootfs_layers(assemble_context, busyboxes, applets(busyboxes["amd64"]),
-                                                     Path(tmp))
+            layers = payload_platforms.rootfs_layers(
+                assemble_context, busyboxes, applets(busyboxes["amd64"]), Path(tmp)
+            )
         for local, info in result.items():
             repository, tag = local.rsplit(":", 1)
             exec_format = layers["exec-format"] if repository == REPOSITORY else None

@@ -29,8 +29,10 @@ from pathlib import Path
 from roles.payload.registry import Registry, RegistryError, path_of
 
 OCI_INDEX = "application/vnd.oci.image.index.v1+json"
-PLATFORMS = {"amd64": {"os": "linux", "architecture": "amd64"},
-             "arm64": {"os": "linux", "architecture": "arm64", "variant": "v8"}}
+PLATFORMS = {
+    "amd64": {"os": "linux", "architecture": "amd64"},
+    "arm64": {"os": "linux", "architecture": "arm64", "variant": "v8"},
+}
 SINGLE_PLATFORM_TAGS = ("1.0",)
 EXEC_FORMAT_TAG = ("1.0", "1.3-exec-format")
 VERSION_LABEL = "org.opencontainers.image.version"
@@ -82,12 +84,17 @@ def variant_config(config: dict, diff_id: str, platform: dict, version: str | No
 
 def index_document(entries: list[tuple[str, bytes, str, dict]]) -> bytes:
     """An OCI index of (media type, manifest, digest, platform) entries."""
-    return json.dumps({
-        "schemaVersion": 2,
-        "mediaType": OCI_INDEX,
-        "manifests": [{"mediaType": media_type, "digest": digest, "size": len(body), "platform": platform}
-                      for media_type, body, digest, platform in entries],
-    }, indent=2).encode()
+    return json.dumps(
+        {
+            "schemaVersion": 2,
+            "mediaType": OCI_INDEX,
+            "manifests": [
+                {"mediaType": media_type, "digest": digest, "size": len(body), "platform": platform}
+                for media_type, body, digest, platform in entries
+            ],
+        },
+        indent=2,
+    ).encode()
 
 
 class Writer(Registry):
@@ -151,8 +158,12 @@ def publish(registry: str, repository: str, tag: str, arm64_rootfs: bytes, exec_
         body, digest = variant(exec_format_rootfs, PLATFORMS["amd64"], EXEC_FORMAT_TAG[1])
         writer.put_manifest(repository, EXEC_FORMAT_TAG[1], media_type, body)
         published["exec-format"] = digest
-    index = index_document([(media_type, amd64_body, amd64_digest, PLATFORMS["amd64"]),
-                            (media_type, arm64_body, arm64_digest, PLATFORMS["arm64"])])
+    index = index_document(
+        [
+            (media_type, amd64_body, amd64_digest, PLATFORMS["amd64"]),
+            (media_type, arm64_body, arm64_digest, PLATFORMS["arm64"]),
+        ]
+    )
     published["index"] = writer.put_manifest(repository, tag, OCI_INDEX, index)
     return published
 

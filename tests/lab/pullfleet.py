@@ -44,11 +44,17 @@ def fleet_text(lab: dict, payload_tag: str = "1.0", robots: list[str] | None = N
     """inventories/lab.yaml for pull robots: the lab's values filled in,
     only ``robots`` (default: the lab's native robots), pull settings."""
     text = (REPO_ROOT / "inventories" / "lab.yaml").read_text()
-    manifest = json.loads((Path(lab["mirror_dir"]) / "manifest.json").read_text()) \
-        if (Path(lab["mirror_dir"]) / "manifest.json").exists() \
+    manifest = (
+        json.loads((Path(lab["mirror_dir"]) / "manifest.json").read_text())
+        if (Path(lab["mirror_dir"]) / "manifest.json").exists()
         else json.loads((Path(lab["mirror_dir"]).parent / "manifest.json").read_text())
-    for key, value in {"@registry_local@": lab["registry_local"], "@registry@": lab["registry"],
-                       "@mirror@": lab["mirror_url"], "@mirror_fingerprint@": manifest["fingerprint"]}.items():
+    )
+    for key, value in {
+        "@registry_local@": lab["registry_local"],
+        "@registry@": lab["registry"],
+        "@mirror@": lab["mirror_url"],
+        "@mirror_fingerprint@": manifest["fingerprint"],
+    }.items():
         text = text.replace(key, value)
     fleet = yaml.safe_load(text)
     git = lab["git"]
@@ -56,10 +62,19 @@ def fleet_text(lab: dict, payload_tag: str = "1.0", robots: list[str] | None = N
     names = robots or [h["name"] for h in lab["hosts"] if h["group"] == "robots" and h["arch"] == "amd64"]
     fleet["robots"]["hosts"] = {name: fleet["robots"]["hosts"].get(name) or {} for name in names}
     fleet["all"]["vars"]["payload_image"] = pinned(lab, "ros/payload", payload_tag)
-    fleet["robots"]["vars"].update({
-        "pull_enabled": True, "pull_remote": gitserver.robot_url(git), "pull_remote_host_keys": ed25519,
-        "pull_interval": 30, "pull_jitter": 2, "pull_boot_delay": 5, "pull_min_free_mb": 64,
-        "pull_platform": "cp313-x86_64", **pull})
+    fleet["robots"]["vars"].update(
+        {
+            "pull_enabled": True,
+            "pull_remote": gitserver.robot_url(git),
+            "pull_remote_host_keys": ed25519,
+            "pull_interval": 30,
+            "pull_jitter": 2,
+            "pull_boot_delay": 5,
+            "pull_min_free_mb": 64,
+            "pull_platform": "cp313-x86_64",
+            **pull,
+        }
+    )
     # JSON is YAML 1.2, and quotes every string ("0825" stays text).
     return "# The lab's fleet in pull mode (tests/lab/pullfleet.py).\n" + json.dumps(fleet, indent=1) + "\n"
 
@@ -79,12 +94,21 @@ class Operator:
         self.git = self.lab["git"]
 
     def env(self, **more) -> dict:
-        ssh = (f"ssh -F /dev/null -i {shlex.quote(self.lab['ssh_key'])} -o IdentitiesOnly=yes -o BatchMode=yes "
-               f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.git['known_hosts'])}")
-        return dict(os.environ, GIT_SSH_COMMAND=ssh, ROBOTFLEET_KEYS=str(self.keys), GIT_TERMINAL_PROMPT="0",
-                    ROBOTFLEET_RELEASES_CLONE=str(self.base / "releases"), ROBOT_LAB_PREFIX=self.prefix,
-                    ROBOTFLEET_ENROLLMENTS=str(self.base / "enrollments.json"),
-                    XDG_CACHE_HOME=str(REPO_ROOT / ".lab" / "cache" / "pull"), **more)
+        ssh = (
+            f"ssh -F /dev/null -i {shlex.quote(self.lab['ssh_key'])} -o IdentitiesOnly=yes -o BatchMode=yes "
+            f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.git['known_hosts'])}"
+        )
+        return dict(
+            os.environ,
+            GIT_SSH_COMMAND=ssh,
+            ROBOTFLEET_KEYS=str(self.keys),
+            GIT_TERMINAL_PROMPT="0",
+            ROBOTFLEET_RELEASES_CLONE=str(self.base / "releases"),
+            ROBOT_LAB_PREFIX=self.prefix,
+            ROBOTFLEET_ENROLLMENTS=str(self.base / "enrollments.json"),
+            XDG_CACHE_HOME=str(REPO_ROOT / ".lab" / "cache" / "pull"),
+            **more,
+        )
 
     def _git(self, *args: str) -> str:
         done = subprocess.run(["git", "-C", str(self.repo), *args], capture_output=True, text=True, env=self.env())
@@ -105,8 +129,11 @@ class Operator:
 
     def sync(self) -> None:
         """The deploy repository's files made this checkout's (its tracked files, as they are now)."""
-        files = subprocess.run(["git", "-C", str(REPO_ROOT), "ls-files", "-z"], capture_output=True,
-                               check=True).stdout.decode().split("\0")
+        files = (
+            subprocess.run(["git", "-C", str(REPO_ROOT), "ls-files", "-z"], capture_output=True, check=True)
+            .stdout.decode()
+            .split("\0")
+        )
         for name in filter(None, files):
             source = REPO_ROOT / name
             if source.is_file():
@@ -117,24 +144,43 @@ class Operator:
         self.sync()
         (self.repo / FLEET).write_text(fleet)
         self._git("add", "-A")
-        self._git("-c", "user.name=lab", "-c", "user.email=lab@localhost", "commit", "-q", "--allow-empty",
-                  "-m", message)
+        self._git(
+            "-c", "user.name=lab", "-c", "user.email=lab@localhost", "commit", "-q", "--allow-empty", "-m", message
+        )
         return self._git("rev-parse", "HEAD").strip()
 
     def robotfleet(self, *args: str, check: bool = True, env: dict | None = None) -> subprocess.CompletedProcess:
-        done = subprocess.run([*ROBOTFLEET, *args], cwd=self.repo if (self.repo / ".git").exists() else REPO_ROOT,
-                              capture_output=True, text=True, env=env or self.env(), timeout=900)
+        done = subprocess.run(
+            [*ROBOTFLEET, *args],
+            cwd=self.repo if (self.repo / ".git").exists() else REPO_ROOT,
+            capture_output=True,
+            text=True,
+            env=env or self.env(),
+            timeout=900,
+        )
         if check and done.returncode:
-            raise LabError(f"robotfleet {' '.join(args[:2])} exited {done.returncode}: "
-                           f"{(done.stderr or done.stdout).strip()[-800:]}")
+            raise LabError(
+                f"robotfleet {' '.join(args[:2])} exited {done.returncode}: "
+                f"{(done.stderr or done.stdout).strip()[-800:]}"
+            )
         return done
 
     def rollout(self, fleet: str, message: str, *options: str) -> subprocess.CompletedProcess:
         """robotfleet rollout over the lab's pull robots (publish, then follow their reports)."""
         self.commit(fleet, message)
         env = self.env(ROBOT_LAB_FLEET=str(self.repo / FLEET))
-        return self.robotfleet("rollout", "inventories/lab.py", "--fleet", FLEET, "--keys", str(self.keys), "-y",
-                               *options, check=False, env=env)
+        return self.robotfleet(
+            "rollout",
+            "inventories/lab.py",
+            "--fleet",
+            FLEET,
+            "--keys",
+            str(self.keys),
+            "-y",
+            *options,
+            check=False,
+            env=env,
+        )
 
     def status(self, *options: str) -> subprocess.CompletedProcess:
         env = self.env(ROBOT_LAB_FLEET=str(self.repo / FLEET))
@@ -142,10 +188,12 @@ class Operator:
 
     def publish(self, fleet: str, message: str, *options: str) -> subprocess.CompletedProcess:
         self.commit(fleet, message)
-        wheels = [] if "--no-wheels" in options else ["--wheel-cache",
-                                                      str(REPO_ROOT / ".lab" / "cache" / "pull-wheels")]
-        return self.robotfleet("publish", FLEET, "--checkout", str(self.repo), "--keys", str(self.keys),
-                               *wheels, *options)
+        wheels = (
+            [] if "--no-wheels" in options else ["--wheel-cache", str(REPO_ROOT / ".lab" / "cache" / "pull-wheels")]
+        )
+        return self.robotfleet(
+            "publish", FLEET, "--checkout", str(self.repo), "--keys", str(self.keys), *wheels, *options
+        )
 
     def reports(self) -> dict[str, dict]:
         """Every robot's last report on the lab's git server (as the operator reads them)."""
@@ -154,16 +202,35 @@ class Operator:
         cache = self.base / "reports-cache"
         if not (cache / "HEAD").exists():
             subprocess.run(["git", "init", "-q", "--bare", str(cache)], check=True)
-        done = subprocess.run(["git", "-C", str(cache), "fetch", "-q", "--prune", gitserver.local_url(self.git),
-                               "+refs/reports/*:refs/reports/*"], capture_output=True, text=True, env=self.env())
+        done = subprocess.run(
+            [
+                "git",
+                "-C",
+                str(cache),
+                "fetch",
+                "-q",
+                "--prune",
+                gitserver.local_url(self.git),
+                "+refs/reports/*:refs/reports/*",
+            ],
+            capture_output=True,
+            text=True,
+            env=self.env(),
+        )
         if done.returncode:
             raise LabError(f"git fetch of the reports: {done.stderr.strip()[-300:]}")
         return report_store.read_all(cache)
 
     def admin_options(self) -> list[str]:
         """robotfleet bundle / pull-enroll's options for the lab's gitolite (the lab key is its admin)."""
-        return ["--admin", f"ssh://{self.git['user']}@127.0.0.1:{self.git['port']}", "--admin-key",
-                self.lab["ssh_key"], "--admin-known-hosts", self.git["known_hosts"]]
+        return [
+            "--admin",
+            f"ssh://{self.git['user']}@127.0.0.1:{self.git['port']}",
+            "--admin-key",
+            self.lab["ssh_key"],
+            "--admin-known-hosts",
+            self.git["known_hosts"],
+        ]
 
     def remote(self) -> list[str]:
         return ["--remote", gitserver.local_url(self.git)]
@@ -205,8 +272,9 @@ class Attacks:
 
     def push(self, message: str) -> None:
         self._git("add", "-A", ".")
-        self._git("-c", "user.name=attacker", "-c", "user.email=a@localhost", "commit", "-q", "--allow-empty",
-                  "-m", message)
+        self._git(
+            "-c", "user.name=attacker", "-c", "user.email=a@localhost", "commit", "-q", "--allow-empty", "-m", message
+        )
         self._git("push", "-q", "--force", self.url, "HEAD:refs/heads/robotfleet/releases")
 
     def restore(self, commit: str) -> None:
@@ -238,8 +306,9 @@ class Attacks:
 
         self.checkout()
         past = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0) - datetime.timedelta(days=2)
-        Repository(self.work).renew(KeyDir(self.op.keys).signer("online"),
-                                    Expiry(timestamp=datetime.timedelta(days=1)), past)
+        Repository(self.work).renew(
+            KeyDir(self.op.keys).signer("online"), Expiry(timestamp=datetime.timedelta(days=1)), past
+        )
         self.push("expired timestamp")
 
     def other_key(self) -> None:

@@ -19,8 +19,14 @@ import urllib.error
 import urllib.parse
 import urllib.request
 
-FORWARDED = ("Content-Type", "Content-Length", "Docker-Content-Digest", "Docker-Distribution-Api-Version",
-             "WWW-Authenticate", "Location")
+FORWARDED = (
+    "Content-Type",
+    "Content-Length",
+    "Docker-Content-Digest",
+    "Docker-Distribution-Api-Version",
+    "WWW-Authenticate",
+    "Location",
+)
 
 
 class RegistryProxy:
@@ -50,9 +56,11 @@ class RegistryProxy:
                     self.send_error(502, f"only {proxy.name} is proxied")
                     return
                 headers = {k: v for k, v in self.headers.items() if k.lower() in ("accept", "authorization")}
-                request = urllib.request.Request(f"http://{proxy.local}{parts.path}"
-                                                 + (f"?{parts.query}" if parts.query else ""),
-                                                 method=self.command, headers=headers)
+                request = urllib.request.Request(
+                    f"http://{proxy.local}{parts.path}" + (f"?{parts.query}" if parts.query else ""),
+                    method=self.command,
+                    headers=headers,
+                )
                 try:
                     answer = direct.open(request, timeout=60)
                 except urllib.error.HTTPError as error:
@@ -72,8 +80,12 @@ class RegistryProxy:
 
     def env(self) -> dict[str, str]:
         """The environment a process reads the registry through this proxy with."""
-        return {"http_proxy": self.url, "HTTP_PROXY": self.url, "no_proxy": "127.0.0.1,localhost",
-                "NO_PROXY": "127.0.0.1,localhost"}
+        return {
+            "http_proxy": self.url,
+            "HTTP_PROXY": self.url,
+            "no_proxy": "127.0.0.1,localhost",
+            "NO_PROXY": "127.0.0.1,localhost",
+        }
 
     def close(self) -> None:
         self.server.shutdown()

@@ -18,9 +18,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from . import apt_install, hostimage
+from .engine import LAB_DIR, LabError, get_or_none, pick_free_port, published_ports, put_files, timed_phase
 from .machinelock import PORTS_LOCK, machine_lock
-from .engine import (LAB_DIR, LabError, get_or_none, pick_free_port, published_ports,
-                     put_files, timed_phase)
 
 if TYPE_CHECKING:
     import docker
@@ -101,8 +100,13 @@ def container_name(prefix: str) -> str:
 
 
 def services_recipe() -> dict:
-    return {"host": hostimage.host_recipe(), "packages": list(PACKAGES),
-            "files": SERVICES_FILES, "script": INSTALL_SCRIPT, "dockerfile": _DOCKERFILE}
+    return {
+        "host": hostimage.host_recipe(),
+        "packages": list(PACKAGES),
+        "files": SERVICES_FILES,
+        "script": INSTALL_SCRIPT,
+        "dockerfile": _DOCKERFILE,
+    }
 
 
 def services_tag() -> str:
@@ -144,12 +148,15 @@ def mirror_dir() -> Path:
     return root
 
 
-def ensure_services(dc: docker.DockerClient, prefix: str, network: str,
-                    image: str, mirror: Path) -> int:
+def ensure_services(dc: docker.DockerClient, prefix: str, network: str, image: str, mirror: Path) -> int:
     """Start (or reuse) the services container; returns its registry's local port."""
     name = container_name(prefix)
-    wanted = {"robot-lab.prefix": prefix, "robot-lab.role": "services",
-              "robot-lab.image": image, "robot-lab.mirror": str(mirror)}
+    wanted = {
+        "robot-lab.prefix": prefix,
+        "robot-lab.role": "services",
+        "robot-lab.image": image,
+        "robot-lab.mirror": str(mirror),
+    }
     container = get_or_none(dc.containers, name)
     if container is not None and any(container.labels.get(k) != v for k, v in wanted.items()):
         container.remove(force=True)
@@ -167,16 +174,22 @@ def _create(dc, name, network, image, mirror: Path, labels: dict):
     with machine_lock(PORTS_LOCK):  # the port is taken once the container exists
         port = pick_free_port(REGISTRY_LOCAL_PORT_START, published_ports(dc))
         container = hostimage.create_systemd_container(
-            dc, image, name, hostname="services", network=network,
+            dc,
+            image,
+            name,
+            hostname="services",
+            network=network,
             labels={**labels, "robot-lab.registry-port": str(port)},
             ports={REGISTRY_PORT: port},
-            volumes={APT_CACHE_VOLUME: "/var/cache/apt-cacher-ng",
-                     str(mirror.parent): f"{MIRROR_PARENT_MOUNT}:ro"},
+            volumes={APT_CACHE_VOLUME: "/var/cache/apt-cacher-ng", str(mirror.parent): f"{MIRROR_PARENT_MOUNT}:ro"},
         )
-    put_files(container, {
-        STATIC_ENV: f"STATIC_DIR={MIRROR_PARENT_MOUNT}/{mirror.name}\n",
-        "/etc/machine-id": uuid.uuid4().hex + "\n",
-    })
+    put_files(
+        container,
+        {
+            STATIC_ENV: f"STATIC_DIR={MIRROR_PARENT_MOUNT}/{mirror.name}\n",
+            "/etc/machine-id": uuid.uuid4().hex + "\n",
+        },
+    )
     return container
 
 
@@ -203,8 +216,7 @@ def _wait_ready(container, registry_local_port: int) -> None:
     while waiting and time.monotonic() < deadline:
         container.reload()
         if container.status not in ("running", "created"):
-            raise LabError(f"{container.name} stopped ({container.status}); "
-                           f"see `docker logs {container.name}`")
+            raise LabError(f"{container.name} stopped ({container.status}); see `docker logs {container.name}`")
         for what, probe in list(waiting.items()):
             if probe is None:
                 ok = _local_registry_answers(registry_local_port)
@@ -216,5 +228,7 @@ def _wait_ready(container, registry_local_port: int) -> None:
         if waiting:
             time.sleep(1)
     if waiting:
-        raise LabError(f"{container.name}: {', '.join(waiting)} did not answer within "
-                       f"{READY_TIMEOUT_S}s (docker exec {container.name} systemctl --failed)")
+        raise LabError(
+            f"{container.name}: {', '.join(waiting)} did not answer within "
+            f"{READY_TIMEOUT_S}s (docker exec {container.name} systemctl --failed)"
+        )

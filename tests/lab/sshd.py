@@ -22,5 +22,6 @@ def wait_for_host_keys(container, timeout: float) -> list[str]:
         if code == 0 and keys:
             return keys
         time.sleep(0.5)
-    raise LabError(f"{container.name}: sshd not running after {timeout}s "
-                   f"(docker exec {container.name} systemctl status ssh)")
+    raise LabError(
+        f"{container.name}: sshd not running after {timeout}s (docker exec {container.name} systemctl status ssh)"
+    )

@@ -15,8 +15,17 @@ from pathlib import Path
 from .engine import LAB_DIR, LabError, client
 
 STATE_KEYS = (
-    "prefix", "ssh_key", "known_hosts", "ssh_user", "hosts", "services_host",
-    "apt_proxy", "registry", "registry_local", "mirror_url", "mirror_dir",
+    "prefix",
+    "ssh_key",
+    "known_hosts",
+    "ssh_user",
+    "hosts",
+    "services_host",
+    "apt_proxy",
+    "registry",
+    "registry_local",
+    "mirror_url",
+    "mirror_dir",
 )
 # Only in a lab started with its git server (tests/lab/gitserver.py).
 OPTIONAL_KEYS = ("git",)
@@ -54,8 +63,9 @@ def load(prefix: str | None = None, root: Path = LAB_DIR) -> dict:
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
-        raise LabError(f"lab '{prefix}' is not up (no {path}): "
-                       f"run `python3 -m tests.lab up --prefix {prefix}`") from None
+        raise LabError(
+            f"lab '{prefix}' is not up (no {path}): run `python3 -m tests.lab up --prefix {prefix}`"
+        ) from None
 
 
 def forget(prefix: str, root: Path = LAB_DIR) -> None:
@@ -84,8 +94,7 @@ def exec_output(streamed: str) -> str | None:
     return output if mark and not rest.strip() else None
 
 
-def exec_in(prefix: str, host_name: str, cmd: str | list[str],
-            user: str | None = None) -> tuple[int, str]:
+def exec_in(prefix: str, host_name: str, cmd: str | list[str], user: str | None = None) -> tuple[int, str]:
     """Run `cmd` (a shell string or argv) in `<prefix>-<host_name>` via docker exec.
 
     Returns (exit code, stdout and stderr together).

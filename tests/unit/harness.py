@@ -17,39 +17,41 @@
 from __future__ import annotations
 
 import base64
+import contextlib
+import importlib
 import re
 import shlex
 
-import contextlib
-import importlib
-
 import pyinfra
-
 from pyinfra.api import Config, Inventory, State
-from pyinfra.api.exceptions import PyinfraError
 from pyinfra.api.connect import connect_all, disconnect_all
+from pyinfra.api.exceptions import PyinfraError
 from pyinfra.api.operations import run_ops
 from pyinfra.api.state import StateStage
 from pyinfra.connectors.fake import FakeConnector
 from pyinfra.context import ctx_state
 
 from robotfleet import deploy_roles
-from robotfleet.host import aptrepo
 from robotfleet.fleet import validate as fleet_check
+from robotfleet.host import aptrepo
 from robotfleet.host import snapshot as hoststate
 from robotfleet.host.snapshot import FileState, Snapshot
 from robotfleet.role import Play, added
 from roles.payload import compose, hooks, release, services
 from tests.fixtures import IMAGE, ROOT
 
-
 # Sample hosts most tests start from.
 ROBOT = {
     "payload_image": IMAGE,
     "docker_users": ["ops"],
     "udev_sensors": [
-        {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825",
-         "usb_port": "1-1.2"},
+        {
+            "name": "front_camera",
+            "subsystem": "video4linux",
+            "vendor_id": "046d",
+            "product_id": "0825",
+            "usb_port": "1-1.2",
+        },
         {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3"},
     ],
 }
@@ -57,16 +59,36 @@ LAPTOP = {"payload_image": IMAGE, "docker_users": ["alice"], "x11_user": "alice"
 SNAPSHOT_MARK = "export LC_ALL=C"
 
 OS_RELEASES = {
-    "ubuntu-20.04": {"id": "ubuntu", "id_like": "debian", "version_id": "20.04", "version_codename": "focal",
-                     "ubuntu_codename": "focal"},
-    "ubuntu-22.04": {"id": "ubuntu", "id_like": "debian", "version_id": "22.04", "version_codename": "jammy",
-                     "ubuntu_codename": "jammy"},
-    "ubuntu-24.04": {"id": "ubuntu", "id_like": "debian", "version_id": "24.04", "version_codename": "noble",
-                     "ubuntu_codename": "noble"},
+    "ubuntu-20.04": {
+        "id": "ubuntu",
+        "id_like": "debian",
+        "version_id": "20.04",
+        "version_codename": "focal",
+        "ubuntu_codename": "focal",
+    },
+    "ubuntu-22.04": {
+        "id": "ubuntu",
+        "id_like": "debian",
+        "version_id": "22.04",
+        "version_codename": "jammy",
+        "ubuntu_codename": "jammy",
+    },
+    "ubuntu-24.04": {
+        "id": "ubuntu",
+        "id_like": "debian",
+        "version_id": "24.04",
+        "version_codename": "noble",
+        "ubuntu_codename": "noble",
+    },
     "debian-12": {"id": "debian", "version_id": "12", "version_codename": "bookworm"},
     "debian-13": {"id": "debian", "version_id": "13", "version_codename": "trixie"},
-    "mint-22": {"id": "linuxmint", "id_like": "ubuntu debian", "version_id": "22", "version_codename": "wilma",
-                "ubuntu_codename": "noble"},
+    "mint-22": {
+        "id": "linuxmint",
+        "id_like": "ubuntu debian",
+        "version_id": "22",
+        "version_codename": "wilma",
+        "ubuntu_codename": "noble",
+    },
 }
 
 
@@ -237,9 +259,11 @@ def plan(
     inventory = Inventory((names, defaults["all"]), **groups)
     state = State(inventory=inventory, config=Config(DIFF=diff))
     state.cwd = str(ROOT)
-    with ctx_state.use(state), _Recorder({name: snap for name, (_, _, snap) in hosts.items()},
-                                         contents or {}) as recorder, \
-            _as_the_cli():
+    with (
+        ctx_state.use(state),
+        _Recorder({name: snap for name, (_, _, snap) in hosts.items()}, contents or {}) as recorder,
+        _as_the_cli(),
+    ):
         state.set_stage(StateStage.Connect)
         connect_all(state)
         state.set_stage(StateStage.Prepare)
@@ -286,8 +310,10 @@ def written_files(commands: list[Sent]) -> dict[str, str | bytes]:
 def everything_sent(commands: list[Sent]) -> str:
     """All a host receives: command lines, stdin, and decoded file contents."""
     parts = [f"{c}\n{c.stdin}" for c in commands]
-    files = [content if isinstance(content, str) else content.decode("latin-1")
-             for content in written_files(commands).values()]
+    files = [
+        content if isinstance(content, str) else content.decode("latin-1")
+        for content in written_files(commands).values()
+    ]
     return "\n".join(parts + files)
 
 
@@ -377,11 +403,42 @@ def release_spec(data, doc: dict) -> dict:
 
 def docker_repo(url: str, key_path: str, fingerprint: str | None, sha256: str | None = None) -> aptrepo.Repository:
     """Docker's repository as the docker role declares it, for the key script's own tests."""
-    return aptrepo.Repository("Docker", url, key_path, fingerprint, "docker_apt_key_fingerprint", "docker", "",
-                              "docker_key_fingerprints", sha256, "docker_apt_key_sha256")
+    return aptrepo.Repository(
+        "Docker",
+        url,
+        key_path,
+        fingerprint,
+        "docker_apt_key_fingerprint",
+        "docker",
+        "",
+        "docker_key_fingerprints",
+        sha256,
+        "docker_apt_key_sha256",
+    )
 
 
-__all__ = ["fleet_problems", "FileState", "Snapshot", "Sent", "fresh_host", "plan", "find", "written_files",
-           "everything_sent", "OS_RELEASES", "merged", "converged", "parse", "check", "load", "group_data", "Data",
-           "IMAGE", "ROBOT",
-           "LAPTOP", "desired_compose", "release_spec", "docker_repo"]
+__all__ = [
+    "fleet_problems",
+    "FileState",
+    "Snapshot",
+    "Sent",
+    "fresh_host",
+    "plan",
+    "find",
+    "written_files",
+    "everything_sent",
+    "OS_RELEASES",
+    "merged",
+    "converged",
+    "parse",
+    "check",
+    "load",
+    "group_data",
+    "Data",
+    "IMAGE",
+    "ROBOT",
+    "LAPTOP",
+    "desired_compose",
+    "release_spec",
+    "docker_repo",
+]

@@ -40,24 +40,41 @@ class Fleet:
         self.repository.create(self.keys.signer("root"), self.keys.signer("online"), self.expiry, now)
         self.state = base / "robot"
 
-    def release(self, version: int, now: datetime.datetime = NOW, code: bytes | None = None,
-                expiry=None, robots=("robot1", "robot2"), record_expires: datetime.datetime | None = None):
+    def release(
+        self,
+        version: int,
+        now: datetime.datetime = NOW,
+        code: bytes | None = None,
+        expiry=None,
+        robots=("robot1", "robot2"),
+        record_expires: datetime.datetime | None = None,
+    ):
         """Publish release ``version`` (its code archive: ``code``); the record."""
         record, waves = module("protocol.record"), module("protocol.waves")
         expiry = expiry or self.expiry
         commit = hashlib.sha1(f"commit {version}".encode()).hexdigest()
-        built = record.build(version, now, record_expires or now + expiry.targets, commit, "b" * 64,
-                             "inventories/robots.yaml",
-                             "c" * 64, list(robots), {r: {"reg.lan/ros/payload:1": "sha256:" + "d" * 64}
-                                                      for r in robots}, {}, waves.Plan())
+        built = record.build(
+            version,
+            now,
+            record_expires or now + expiry.targets,
+            commit,
+            "b" * 64,
+            "inventories/robots.yaml",
+            "c" * 64,
+            list(robots),
+            {r: {"reg.lan/ros/payload:1": "sha256:" + "d" * 64} for r in robots},
+            {},
+            waves.Plan(),
+        )
         archive = self.base / f"code-{version}.tar.gz"
         archive.write_bytes(code if code is not None else f"code of release {version}".encode())
         self.repository.publish(built, {built.code: archive}, self.keys.signer("online"), expiry, now)
         return built
 
     def trust(self, trusted_time: datetime.datetime | None = None) -> None:
-        module("robot.verify").initialize(self.state, (self.repository.metadata / "root.json").read_bytes(),
-                                          trusted_time)
+        module("robot.verify").initialize(
+            self.state, (self.repository.metadata / "root.json").read_bytes(), trusted_time
+        )
 
     def client(self, clock=None, source=None):
         trust = module("robot.verify")
@@ -140,7 +157,7 @@ class Registry:
                 if self.path == "/v2/":
                     return self._send(200, "application/json", b"{}", head)
                 parts = self.path.split("/manifests/")
-                found = registry.manifests.get((parts[0][len("/v2/"):], parts[1])) if len(parts) == 2 else None
+                found = registry.manifests.get((parts[0][len("/v2/") :], parts[1])) if len(parts) == 2 else None
                 if found is None:
                     body = json.dumps({"errors": [{"code": "MANIFEST_UNKNOWN", "message": "manifest unknown"}]})
                     return self._send(404, "application/json", body.encode(), head)
@@ -162,10 +179,20 @@ class Registry:
         threading.Thread(target=self.server.serve_forever, daemon=True).start()
 
     def tag(self, name: str, tag: str, layers: str = "x") -> str:
-        body = json.dumps({"schemaVersion": 2, "mediaType": OCI_INDEX, "manifests": [
-            {"mediaType": "application/vnd.oci.image.manifest.v1+json", "size": 1, "platform":
-             {"os": "linux", "architecture": "amd64"},
-             "digest": "sha256:" + hashlib.sha256(layers.encode()).hexdigest()}]}).encode()
+        body = json.dumps(
+            {
+                "schemaVersion": 2,
+                "mediaType": OCI_INDEX,
+                "manifests": [
+                    {
+                        "mediaType": "application/vnd.oci.image.manifest.v1+json",
+                        "size": 1,
+                        "platform": {"os": "linux", "architecture": "amd64"},
+                        "digest": "sha256:" + hashlib.sha256(layers.encode()).hexdigest(),
+                    }
+                ],
+            }
+        ).encode()
         digest = "sha256:" + hashlib.sha256(body).hexdigest()
         self.manifests[(name, tag)] = self.manifests[(name, digest)] = (OCI_INDEX, body)
         return digest
@@ -202,8 +229,9 @@ class Flood:
                 except OSError:  # the client stopped reading and closed
                     pass
 
-        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(Handler,
-                                                                                          directory=str(directory)))
+        self.server = http.server.ThreadingHTTPServer(
+            ("127.0.0.1", 0), functools.partial(Handler, directory=str(directory))
+        )
         self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
         threading.Thread(target=self.server.serve_forever, daemon=True).start()
 

@@ -3,9 +3,8 @@ groups at any depth, settings merged from every group above a host, Ansible's
 connection variables read as ours, Ansible's other variables ignored with a
 note; robots and laptops (at any depth) say which host is which."""
 
-
-from tests.unit.harness import fleet_problems, parse
 from tests.fixtures import ROOT
+from tests.unit.harness import fleet_problems, parse
 
 IMAGE = "reg.example.com/p:1"
 
@@ -58,7 +57,11 @@ def test_ansible_connection_variables_are_read_as_ours():
     fleet = parse(ANSIBLE)
     robot7 = dict(fleet.hosts("robots"))["robot7"]
     assert (robot7["ssh_hostname"], robot7["ssh_port"], robot7["ssh_key"], robot7["ssh_user"]) == (
-        "10.20.1.7", 2222, "~/.ssh/fleet_ed25519", "ops")
+        "10.20.1.7",
+        2222,
+        "~/.ssh/fleet_ed25519",
+        "ops",
+    )
     assert not any(key.startswith("ansible_") for key in robot7)
     alice = dict(fleet.hosts("laptops"))["alice-laptop"]
     assert (alice["ssh_hostname"], alice["ssh_user"]) == ("10.20.0.50", "alice")  # the host's user wins over all's
@@ -70,18 +73,28 @@ def test_ansible_own_variables_are_ignored_with_one_note():
 
 
 def test_kinds_stay_explicit_at_any_depth():
-    both = {"all": {"children": {
-        "robots": {"children": {"site": {"hosts": {"r1": {"payload_image": IMAGE}}}}},
-        "laptops": {"children": {"desk": {"children": {"site": None}}}},
-    }}}
+    both = {
+        "all": {
+            "children": {
+                "robots": {"children": {"site": {"hosts": {"r1": {"payload_image": IMAGE}}}}},
+                "laptops": {"children": {"desk": {"children": {"site": None}}}},
+            }
+        }
+    }
     assert fleet_problems(both) == ["robots.yaml: r1: declared in both robots and laptops"]
     neither = {"all": {"children": {"site": {"hosts": {"r1": {"payload_image": IMAGE}}}}}}
     assert fleet_problems(neither) == ["robots.yaml: r1: in neither a robots nor a laptops group (groups: site)"]
 
 
 def test_mistakes_in_nested_groups_name_the_group_and_field():
-    doc = {"robots": {"children": {"site_a": {"vars": {"ssh_prot": 22}, "host": {}},
-                                   "site_b": {"hosts": {"r1": {"payload_image": IMAGE, "ansible_port": "22"}}}}}}
+    doc = {
+        "robots": {
+            "children": {
+                "site_a": {"vars": {"ssh_prot": 22}, "host": {}},
+                "site_b": {"hosts": {"r1": {"payload_image": IMAGE, "ansible_port": "22"}}},
+            }
+        }
+    }
     assert fleet_problems(doc) == [
         "robots.yaml: site_a.host: unknown key (did you mean 'hosts'?); a group has vars, hosts and children",
         "robots.yaml: site_a.vars.ssh_prot: unknown setting (did you mean 'ssh_port'?)",
@@ -91,8 +104,9 @@ def test_mistakes_in_nested_groups_name_the_group_and_field():
 
 def test_the_same_setting_twice_under_two_names_is_refused():
     doc = {"robots": {"hosts": {"r1": {"payload_image": IMAGE, "address": "10.0.0.1", "ansible_host": "10.0.0.2"}}}}
-    assert fleet_problems(doc) == ["robots.yaml: r1.ansible_host: sets ssh_hostname a second time in the same place; "
-                                   "keep one"]
+    assert fleet_problems(doc) == [
+        "robots.yaml: r1.ansible_host: sets ssh_hostname a second time in the same place; keep one"
+    ]
 
 
 def test_pyinfra_sees_the_ansible_groups(tmp_path, monkeypatch, capfd):

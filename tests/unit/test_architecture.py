@@ -27,13 +27,19 @@ def setting_reads(tree: ast.AST, names: set[str], not_data: frozenset = frozense
         if isinstance(node, ast.Attribute) and node.attr in names:
             holder = node.value
             if (isinstance(holder, ast.Name) and holder.id == "data") or (
-                    isinstance(holder, ast.Attribute) and holder.attr == "data"):
+                isinstance(holder, ast.Attribute) and holder.attr == "data"
+            ):
                 yield node.lineno, node.attr
         elif isinstance(node, ast.Call) and node.args:
             function = node.func
             called = function.attr if isinstance(function, ast.Attribute) else getattr(function, "id", None)
-            key = (node.args[0] if called == "get"
-                   else node.args[1] if called in ("value_of", "getattr") and len(node.args) > 1 else None)
+            key = (
+                node.args[0]
+                if called == "get"
+                else node.args[1]
+                if called in ("value_of", "getattr") and len(node.args) > 1
+                else None
+            )
             if isinstance(key, ast.Constant) and key.value in names:
                 yield node.lineno, key.value
         elif isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant) and node.slice.value in names:
@@ -56,8 +62,11 @@ def test_a_role_reads_only_its_own_settings():
 
 def _holder(node) -> str | None:
     """The variable name ``x`` of ``x.get(...)`` or ``x[...]``."""
-    target = node.func.value if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) else (
-        node.value if isinstance(node, ast.Subscript) else None)
+    target = (
+        node.func.value
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+        else (node.value if isinstance(node, ast.Subscript) else None)
+    )
     return target.id if isinstance(target, ast.Name) else None
 
 
@@ -74,8 +83,9 @@ def test_the_engine_reads_no_role_s_setting():
     from robotfleet.fleet import connection
 
     own = {setting.name for setting in connection.SETTINGS}  # the allowlist: the engine's own settings
-    owner = {setting.name: role.name for role in deploy_roles.roles() for setting in role.settings
-             if setting.name not in own}
+    owner = {
+        setting.name: role.name for role in deploy_roles.roles() for setting in role.settings if setting.name not in own
+    }
     found = []
     for path in sorted((ROOT / "robotfleet").rglob("*.py")):
         for line, name in setting_reads(ast.parse(path.read_text()), set(owner), ROWS):
@@ -84,8 +94,10 @@ def test_the_engine_reads_no_role_s_setting():
 
 
 def test_the_reads_found_are_the_ones_written():
-    code = ('a = data.payload_gpu\nb = host.data.x11_enabled\nc = data.get("sensors", [])\n'
-            'd = value_of(data, "x11_user")\ne = data["gpu"]\nf = plan.payload_gpu\ng = {"display": 1}\n')
+    code = (
+        'a = data.payload_gpu\nb = host.data.x11_enabled\nc = data.get("sensors", [])\n'
+        'd = value_of(data, "x11_user")\ne = data["gpu"]\nf = plan.payload_gpu\ng = {"display": 1}\n'
+    )
     reads = sorted(setting_reads(ast.parse(code), {"payload_gpu", "x11_enabled", "sensors", "x11_user", "gpu"}))
     assert reads == [(1, "payload_gpu"), (2, "x11_enabled"), (3, "sensors"), (4, "x11_user"), (5, "gpu")]
     rows = 'h = row.get("gpu")\ni = row["gpu"]\nj = data.get("gpu")\nk = getattr(data, "gpu", None)\n'
@@ -130,8 +142,9 @@ def product_modules() -> dict[str, str]:
     """module name -> path, for every .py of the checkout but the tests'."""
     found = {}
     for directory, subdirectories, files in os.walk(ROOT):
-        subdirectories[:] = sorted(d for d in subdirectories
-                                   if not d.startswith(".") and d not in NOT_THE_PRODUCT and d != "__pycache__")
+        subdirectories[:] = sorted(
+            d for d in subdirectories if not d.startswith(".") and d not in NOT_THE_PRODUCT and d != "__pycache__"
+        )
         for name in files:
             if name.endswith(".py"):
                 path = os.path.join(directory, name)
@@ -153,7 +166,7 @@ def imported_by(path: str, module: str, known: set[str]) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
-                parts = package.split(".")[:len(package.split(".")) - node.level + 1]
+                parts = package.split(".")[: len(package.split(".")) - node.level + 1]
                 base = ".".join([*parts, base] if base else parts)
             targets |= {base, *(f"{base}.{alias.name}" for alias in node.names)}
     resolved = set()
@@ -166,8 +179,9 @@ def imported_by(path: str, module: str, known: set[str]) -> set[str]:
 
 
 def test_imports_are_resolved_to_the_checkouts_modules():
-    imports = imported_by(str(ROOT / "roles" / "udev" / "passthrough.py"), "roles.udev.passthrough",
-                          set(product_modules()))
+    imports = imported_by(
+        str(ROOT / "roles" / "udev" / "passthrough.py"), "roles.udev.passthrough", set(product_modules())
+    )
     assert imports == {"robotfleet", "robotfleet.checkers", "roles.payload.hooks", "roles.udev.rules"}
 
 
@@ -180,8 +194,9 @@ def test_no_import_circle():
 def test_no_module_over_400_lines():
     over = []
     for directory, subdirectories, files in os.walk(ROOT):
-        subdirectories[:] = [d for d in subdirectories
-                             if not d.startswith(".") and d not in NOT_THE_PRODUCT and d != "__pycache__"]
+        subdirectories[:] = [
+            d for d in subdirectories if not d.startswith(".") and d not in NOT_THE_PRODUCT and d != "__pycache__"
+        ]
         for name in files:
             if name.endswith(".py"):
                 path = os.path.join(directory, name)

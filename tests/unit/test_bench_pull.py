@@ -5,8 +5,10 @@ import pytest
 
 from tests.bench import pull
 
-IDLE = {"without a report push": {"seconds": 1.0, "cpu": 0.2, "sent": 4000, "received": 5000, "requests": 1},
-        "with a report push": {"seconds": 2.0, "cpu": 0.3, "sent": 9000, "received": 6000, "requests": 2}}
+IDLE = {
+    "without a report push": {"seconds": 1.0, "cpu": 0.2, "sent": 4000, "received": 5000, "requests": 1},
+    "with a report push": {"seconds": 2.0, "cpu": 0.3, "sent": 9000, "received": 6000, "requests": 2},
+}
 
 
 def test_checks_pushes_requests_and_bytes_per_hour_from_the_measured_check():
@@ -27,8 +29,10 @@ def test_a_push_at_most_every_check():
 
 
 def test_the_journal_line_with_and_without_its_request_count():
-    new = ("robot-pull: up-to-date (release 3): nothing new; 0.9 s, 0.22 s CPU, sent 4108 B, received 4936 B "
-           "in 1 requests; report unchanged")
+    new = (
+        "robot-pull: up-to-date (release 3): nothing new; 0.9 s, 0.22 s CPU, sent 4108 B, received 4936 B "
+        "in 1 requests; report unchanged"
+    )
     old = "robot-pull: waiting (release 3): w; 1.0 s, 0.22 s CPU, sent 4108 B, received 4936 B; report unchanged"
     assert pull.LINE.match(new)["requests"] == "1" and pull.LINE.match(new)["received"] == "4936"
     assert pull.LINE.match(old)["requests"] is None and pull.LINE.match(old)["report"] == "report unchanged"

@@ -36,8 +36,17 @@ def test_write_sets_the_section_and_its_data_file(tmp_path):
 
 
 def sample(to50, to100, idle=True):
-    return {"interval": 30, "jitter": 15, "robots": 10, "reached": 10 if to100 else 7, "to_50%": to50,
-            "to_100%": to100, "bytes_per_update": 20_000, "load": 0.4 if idle else 2.1, "idle": idle}
+    return {
+        "interval": 30,
+        "jitter": 15,
+        "robots": 10,
+        "reached": 10 if to100 else 7,
+        "to_50%": to50,
+        "to_100%": to100,
+        "bytes_per_update": 20_000,
+        "load": 0.4 if idle else 2.1,
+        "idle": idle,
+    }
 
 
 def test_rollout_samples_give_median_and_spread_or_none_when_one_never_got_there():
@@ -49,11 +58,24 @@ def test_rollout_samples_give_median_and_spread_or_none_when_one_never_got_there
 
 
 def test_the_pull_section_marks_a_figure_taken_under_load():
-    idle = {"seconds": 0.9, "cpu": 0.2, "cpu_min": 0.18, "cpu_max": 0.25, "sent": 4000, "received": 5000,
-            "requests": 1, "samples": 5, "idle": True, "load": 0.3}
-    figures = {"robots": 10, "idle_check": {"without a report push": idle},
-               "rollouts": [pull.rollout_figure([sample(10.0, 40.0, idle=False)])],
-               "fleet_per_hour": [pull.fleet_per_hour({"without a report push": idle}, 900, 300)]}
+    idle = {
+        "seconds": 0.9,
+        "cpu": 0.2,
+        "cpu_min": 0.18,
+        "cpu_max": 0.25,
+        "sent": 4000,
+        "received": 5000,
+        "requests": 1,
+        "samples": 5,
+        "idle": True,
+        "load": 0.3,
+    }
+    figures = {
+        "robots": 10,
+        "idle_check": {"without a report push": idle},
+        "rollouts": [pull.rollout_figure([sample(10.0, 40.0, idle=False)])],
+        "fleet_per_hour": [pull.fleet_per_hour({"without a report push": idle}, 900, 300)],
+    }
     text = pull.markdown(figures, {"commit": "abc"})
     assert "| 30 s / 15 s | 10.0 (10.0–10.0) | 40.0 (40.0–40.0) [load 2.1] | 20,000 | 1 |" in text
     assert "| without a report push | 0.90 | 0.20 (0.18–0.25) | 4,000 | 5,000 | 1 | 5 |" in text
@@ -62,10 +84,22 @@ def test_the_pull_section_marks_a_figure_taken_under_load():
 
 
 def test_the_stops_section_shows_the_settings_but_not_the_command():
-    row = {"kind": "sigint-only", "payload": "stops on SIGINT only", "settings_label": "with the settings",
-           "settings": {"payload_command": ["/bin/sh"], "ros_preset": "ros2"}, "update": 5.2, "stop": 0.11,
-           "down": 0.2, "rest": 5.09, "stop_min": 0.1, "stop_max": 0.12, "samples": 4, "exits": [0],
-           "idle": True, "load": 0.2}
+    row = {
+        "kind": "sigint-only",
+        "payload": "stops on SIGINT only",
+        "settings_label": "with the settings",
+        "settings": {"payload_command": ["/bin/sh"], "ros_preset": "ros2"},
+        "update": 5.2,
+        "stop": 0.11,
+        "down": 0.2,
+        "rest": 5.09,
+        "stop_min": 0.1,
+        "stop_max": 0.12,
+        "samples": 4,
+        "exits": [0],
+        "idle": True,
+        "load": 0.2,
+    }
     text = stops.markdown([row], {"robot": "robot1"})
     assert '| stops on SIGINT only | with the settings: `ros_preset: "ros2"` | 5.20 | 0.11 (0.10–0.12) | 0.20 |' in text
     assert "/bin/sh" not in text

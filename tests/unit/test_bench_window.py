@@ -9,7 +9,8 @@ import json
 
 import pytest
 
-from tests.bench import __main__ as bench, window
+from tests.bench import __main__ as bench
+from tests.bench import window
 
 OLD = "d428bab95037142e27de2a83731bd9d65e8eeed3e8c209b6064390202f63642e"
 NEW = "6e635894b032266c05aa308755ce59d5da1f180b6607ef0185eb680540ded5d5"
@@ -25,8 +26,16 @@ CTR = f"""\
 
 
 def inspected(cid, started, finished="0001-01-01T00:00:00Z", running=True, service="payload", version="1.1"):
-    return json.dumps({"id": cid, "service": service, "version": version, "started": started, "finished": finished,
-                       "running": running})
+    return json.dumps(
+        {
+            "id": cid,
+            "service": service,
+            "version": version,
+            "started": started,
+            "finished": finished,
+            "running": running,
+        }
+    )
 
 
 def test_docker_times_keep_their_nanoseconds():
@@ -55,12 +64,15 @@ def test_the_window_runs_from_the_old_containers_exit_to_the_new_ones_start():
 def test_a_broken_release_is_timed_from_dockers_verdict_and_from_its_first_start():
     before = window.containers(inspected(OLD, "2026-11-25T08:40:00Z", version="1.0"))
     after = window.containers(inspected(NEW, "2026-11-25T08:42:33.5Z", version="1.0"))
-    ctr = (f"2026-11-25 08:42:26.000000000 +0000 UTC moby /tasks/start {{\"container_id\":\"{BROKEN}\",\"pid\":5}}\n"
-           "2026-11-25 08:42:33.100000000 +0000 UTC moby /tasks/exit "
-           f"{{\"container_id\":\"{BROKEN}\",\"id\":\"{BROKEN}\","
-           f"\"exited_at\":{{\"seconds\":1795596153,\"nanos\":100000000}}}}\n")
-    health = window.health_events(f"1795596153000000000 {BROKEN} health_status: unhealthy\n"
-                                  f"1795596150000000000 {BROKEN} health_status: starting\n")
+    ctr = (
+        f'2026-11-25 08:42:26.000000000 +0000 UTC moby /tasks/start {{"container_id":"{BROKEN}","pid":5}}\n'
+        "2026-11-25 08:42:33.100000000 +0000 UTC moby /tasks/exit "
+        f'{{"container_id":"{BROKEN}","id":"{BROKEN}",'
+        f'"exited_at":{{"seconds":1795596153,"nanos":100000000}}}}\n'
+    )
+    health = window.health_events(
+        f"1795596153000000000 {BROKEN} health_status: unhealthy\n1795596150000000000 {BROKEN} health_status: starting\n"
+    )
     found = window.broken_release(before, after, window.ctr_events(ctr), health)
     assert found["verdict"] == "unhealthy"  # before its exit (the stop of the rollback)
     assert found["verdict_to_old_running"] == pytest.approx(0.5)
@@ -71,22 +83,41 @@ def test_a_broken_release_is_timed_from_dockers_verdict_and_from_its_first_start
 
 
 def test_health_check_settings_are_said_in_one_line():
-    check = {"Test": ["CMD", "/bin/sh", "/healthcheck.sh"], "Interval": 2_000_000_000, "Timeout": 2_000_000_000,
-             "StartPeriod": 2_000_000_000, "Retries": 3}
-    assert window.describe_healthcheck(check) == ("HEALTHCHECK interval 2 s, timeout 2 s, start period 2 s, "
-                                                  "retries 3")
+    check = {
+        "Test": ["CMD", "/bin/sh", "/healthcheck.sh"],
+        "Interval": 2_000_000_000,
+        "Timeout": 2_000_000_000,
+        "StartPeriod": 2_000_000_000,
+        "Retries": 3,
+    }
+    assert window.describe_healthcheck(check) == ("HEALTHCHECK interval 2 s, timeout 2 s, start period 2 s, retries 3")
     assert window.describe_healthcheck(None) == "no HEALTHCHECK"
     fleet = "all:\n  vars:\n    payload_health_timeout: 60\n"
     assert window.health_settings(lambda command: json.dumps(check) + "\n", "1.0", fleet).endswith(
-        "; payload_health_timeout 60 s")
+        "; payload_health_timeout 60 s"
+    )
 
 
 def test_the_results_show_each_robots_window_and_the_broken_releases_settings():
-    r = {"robots": 10, "runs": 3, "load_at_start": [0.5], "load_at_end": [0.5],
-         "figures": {"window_all": {"median": 0.21, "min": 0.18, "max": 0.3, "samples": [0.18, 0.21, 0.3],
-                                    "loads": [0.5] * 3, "idles": [True] * 3, "idle": True}},
-         "window": {"robot1": [0.2, 0.18, 0.25], "robot2": [0.3]},
-         "broken_settings": {"runs, never healthy": "verdict: unhealthy; HEALTHCHECK interval 2 s"}}
+    r = {
+        "robots": 10,
+        "runs": 3,
+        "load_at_start": [0.5],
+        "load_at_end": [0.5],
+        "figures": {
+            "window_all": {
+                "median": 0.21,
+                "min": 0.18,
+                "max": 0.3,
+                "samples": [0.18, 0.21, 0.3],
+                "loads": [0.5] * 3,
+                "idles": [True] * 3,
+                "idle": True,
+            }
+        },
+        "window": {"robot1": [0.2, 0.18, 0.25], "robot2": [0.3]},
+        "broken_settings": {"runs, never healthy": "verdict: unhealthy; HEALTHCHECK interval 2 s"},
+    }
     from tests.bench.fleet import Bench
 
     Bench.ratios(r)

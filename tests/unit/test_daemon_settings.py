@@ -49,8 +49,9 @@ def test_a_daemon_setting_is_written_under_its_key_and_a_converged_host_plans_no
 def test_a_new_daemon_setting_is_one_declaration(monkeypatch):
     """ARCHITECTURE.md's example, docker_ipv6: declared, it reaches the planned
     daemon.json and the converged host with no other change."""
-    ipv6 = DaemonSetting("docker_ipv6", None, c.optional(c.boolean), "Enable IPv6 for containers (daemon.json ipv6).",
-                         key="ipv6")
+    ipv6 = DaemonSetting(
+        "docker_ipv6", None, c.optional(c.boolean), "Enable IPv6 for containers (daemon.json ipv6).", key="ipv6"
+    )
     monkeypatch.setattr(settings, "SETTINGS", (*settings.SETTINGS, ipv6))
     data = {**ROBOT, "docker_ipv6": True}
     assert planned_daemon_json(data)["ipv6"] is True
@@ -64,6 +65,15 @@ def test_a_list_setting_merges_into_the_options_list_and_a_value_replaces_it():
     from roles.docker import plan as docker_plan
 
     options = {"registry-mirrors": ["https://a.lan"], "ipv6": False}
-    written = json.loads(docker_plan.daemon_json(options, {"registry-mirrors": ["https://b.lan", "https://a.lan"],
-                                                           "ipv6": True, "insecure-registries": [], "bip": None}))
+    written = json.loads(
+        docker_plan.daemon_json(
+            options,
+            {
+                "registry-mirrors": ["https://b.lan", "https://a.lan"],
+                "ipv6": True,
+                "insecure-registries": [],
+                "bip": None,
+            },
+        )
+    )
     assert written == {"registry-mirrors": ["https://a.lan", "https://b.lan"], "ipv6": True}

@@ -29,8 +29,13 @@ def ids(commands: list[Command]) -> list[str]:
 
 def test_the_commands_are_found_in_every_kind_of_block():
     docs = {c.doc for c in BLOCK_COMMANDS}
-    assert {"README.md", "docs/guides/pull.md", "docs/guides/releases.md", "docs/reference/status.md",
-            "docs/reference/fleet-file.md"} <= docs, docs
+    assert {
+        "README.md",
+        "docs/guides/pull.md",
+        "docs/guides/releases.md",
+        "docs/reference/status.md",
+        "docs/reference/fleet-file.md",
+    } <= docs, docs
     assert len(BLOCK_COMMANDS) >= 40, len(BLOCK_COMMANDS)
     shown = {c.text for c in BLOCK_COMMANDS}
     assert ".venv/bin/python -m tests.lab demo" in shown  # fenced, in an && chain
@@ -41,24 +46,40 @@ def test_the_commands_are_found_in_every_kind_of_block():
 
 
 def test_a_synopsis_is_read_with_its_options_in_and_the_first_alternative():
-    command = doccommands.parse("x.md", 1, "robotfleet status inventories/robots.py [--limit robots] "
-                                "[--json | --format openmetrics] [--metrics FILE]   # a comment")[0]
-    assert command.argv == ["robotfleet", "status", "inventories/robots.py", "--limit", "robots", "--json",
-                            "--metrics", "FILE"]
-    assert command.text == ("robotfleet status inventories/robots.py [--limit robots] "
-                            "[--json | --format openmetrics] [--metrics FILE]")
+    command = doccommands.parse(
+        "x.md",
+        1,
+        "robotfleet status inventories/robots.py [--limit robots] "
+        "[--json | --format openmetrics] [--metrics FILE]   # a comment",
+    )[0]
+    assert command.argv == [
+        "robotfleet",
+        "status",
+        "inventories/robots.py",
+        "--limit",
+        "robots",
+        "--json",
+        "--metrics",
+        "FILE",
+    ]
+    assert command.text == (
+        "robotfleet status inventories/robots.py [--limit robots] [--json | --format openmetrics] [--metrics FILE]"
+    )
     assert doccommands.parse("x.md", 1, "echo robotfleet status") == []
     chained = doccommands.parse("x.md", 1, "ROBOT_FLEET=f.yaml .venv/bin/pyinfra -y inventories/robots.py deploy.py")
     assert [(c.program, c.env, c.args) for c in chained] == [
-        ("pyinfra", {"ROBOT_FLEET": "f.yaml"}, ["-y", "inventories/robots.py", "deploy.py"])]
+        ("pyinfra", {"ROBOT_FLEET": "f.yaml"}, ["-y", "inventories/robots.py", "deploy.py"])
+    ]
 
 
 def test_a_marker_covers_the_block_after_it_and_only_the_commands_it_names(tmp_path, monkeypatch):
     monkeypatch.setattr(doccommands, "ROOT", tmp_path)
     doc = tmp_path / "x.md"
-    doc.write_text("text\n\n<!-- illustrative (robotfleet publish): needs a remote -->\n\n"
-                   "    robotfleet keys init\n    robotfleet publish --renew\n\n"
-                   "    robotfleet status inventories/robots.py\n\n<!-- illustrative: dangling -->\n\nprose\n")
+    doc.write_text(
+        "text\n\n<!-- illustrative (robotfleet publish): needs a remote -->\n\n"
+        "    robotfleet keys init\n    robotfleet publish --renew\n\n"
+        "    robotfleet status inventories/robots.py\n\n<!-- illustrative: dangling -->\n\nprose\n"
+    )
     found = doccommands.commands(doc, inline=False)
     assert [(c.line, c.marker) for c in found] == [(5, None), (6, "needs a remote"), (8, None)]
     assert [(b.line, b.lines, b.marker) for b in doccommands.blocks(doc) if not b.lines] == [(10, [], "dangling")]
@@ -69,7 +90,8 @@ def test_each_command_is_run_by_the_doc_test_or_marked_illustrative_with_its_rea
     if command.marker is None:
         assert doccommands.how_to_run(command), (
             f"{command.where}: the doc test cannot run this; teach tests/doccommands.py how_to_run it, or "
-            "say why not before its block: <!-- illustrative: why -->")
+            "say why not before its block: <!-- illustrative: why -->"
+        )
     else:
         assert len(command.marker.split()) >= 3, f"{command.where}: say why it is not run"
         for named in re.findall(r"tests/[\w/]+\.py", command.marker):
@@ -103,7 +125,8 @@ def test_each_command_names_a_program_and_files_that_exist(command):
     if program == "robotfleet":
         if command.subcommand and not placeholder(command.subcommand):
             assert command.subcommand in cli.COMMANDS, (
-                f"{command.where}: robotfleet has no command {command.subcommand!r}")
+                f"{command.where}: robotfleet has no command {command.subcommand!r}"
+            )
         if command.subcommand == "keys" and len(command.args) > 1:
             for action in command.args[1].split("|"):
                 assert action in keys_actions(), f"{command.where}: robotfleet keys has no {action!r}"
@@ -141,8 +164,11 @@ def test_the_paths_and_tests_the_docs_name_exist():
         for span in re.findall(r"`([^`\n]+)`", text):
             if ": " in span:
                 continue  # a setting's example value (`ssh_revoked_host_keys: inventories/revoked.krl`)
-            for path in re.findall(r"(?<![\w/.-])((?:tests|roles|robotfleet|docs|inventories|files|group_data)/"
-                                   r"[\w./-]*[\w/])", span):
+            for path in re.findall(
+                r"(?<![\w/.-])((?:tests|roles|robotfleet|docs|inventories|files|group_data)/"
+                r"[\w./-]*[\w/])",
+                span,
+            ):
                 if path == "robotfleet/releases":  # the releases branch
                     continue
                 if not re.search(r"[A-Z<*]", path) and not (ROOT / path).exists():
@@ -171,11 +197,18 @@ def test_the_commands_of_shipped_comments_are_found():
     fleet = [c.text for c in SHIPPED_COMMANDS if c.doc == "inventories/robots.yaml"]
     assert fleet[0].startswith("robotfleet enroll inventories/robots.py"), fleet
     assert {c.text for c in SHIPPED_COMMANDS if c.doc == "rollback.py"} >= {
-        "pyinfra inventories/robots.py rollback.py --limit robot2", "pyinfra inventories/robots.py rollback.py"}
+        "pyinfra inventories/robots.py rollback.py --limit robot2",
+        "pyinfra inventories/robots.py rollback.py",
+    }
     pull = next(c for c in SHIPPED_COMMANDS if c.doc == "inventories/pull.py")
     assert (pull.env["ROBOT_FLEET_HOST"], pull.args) == ("robot1", ["-y", "inventories/pull.py", "deploy.py"])
-    assert {c.doc for c in SHIPPED_COMMANDS} >= {"inventories/lab.yaml", "inventories/local.py", "deploy.py",
-                                                  "robotfleet/cli.py", "robotfleet/commands/status.py"}
+    assert {c.doc for c in SHIPPED_COMMANDS} >= {
+        "inventories/lab.yaml",
+        "inventories/local.py",
+        "deploy.py",
+        "robotfleet/cli.py",
+        "robotfleet/commands/status.py",
+    }
 
 
 def test_the_links_of_shipped_comments_lead_somewhere():
@@ -195,12 +228,18 @@ def test_a_dangling_link_or_command_in_a_comment_is_found(tmp_path, monkeypatch)
     for name in ("robots.py", "local.py"):
         (tmp_path / "inventories" / name).write_text("")
     fleet = tmp_path / "robots.yaml"
-    fleet.write_text("# see README, Describing a fleet: fine; (see README, \"Laptops\"); docs/gone.md\n"
-                     "# docs/laptops.md#a-laptop-provisioning-itself, docs/laptops.md#nowhere\n"
-                     "#   python3 -m engine enroll inventories/robots.py\n"
-                     "# prose: robotfleet reads it, and `pyinfra inventories/local.py deploy.py`\n")
+    fleet.write_text(
+        '# see README, Describing a fleet: fine; (see README, "Laptops"); docs/gone.md\n'
+        "# docs/laptops.md#a-laptop-provisioning-itself, docs/laptops.md#nowhere\n"
+        "#   python3 -m engine enroll inventories/robots.py\n"
+        "# prose: robotfleet reads it, and `pyinfra inventories/local.py deploy.py`\n"
+    )
     assert doccommands.dangling_links(fleet) == [
-        "robots.yaml:1: docs/gone.md is not in the checkout", "robots.yaml:1: README.md has no section 'Laptops'",
-        "robots.yaml:2: docs/laptops.md has no section 'nowhere'"]
+        "robots.yaml:1: docs/gone.md is not in the checkout",
+        "robots.yaml:1: README.md has no section 'Laptops'",
+        "robots.yaml:2: docs/laptops.md has no section 'nowhere'",
+    ]
     assert [(c.line, c.program) for c in doccommands.shipped_commands(fleet)] == [
-        (3, "python -m engine"), (4, "pyinfra")]
+        (3, "python -m engine"),
+        (4, "pyinfra"),
+    ]

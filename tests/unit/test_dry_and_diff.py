@@ -7,10 +7,9 @@ import logging
 import pytest
 
 from robotfleet.host import operations
-from robotfleet.host.snapshot import FileState
-from tests.unit.harness import find, fresh_host, plan
 from robotfleet.host.fixtures import file_state as _file
-from tests.unit.harness import ROBOT, converged
+from robotfleet.host.snapshot import FileState
+from tests.unit.harness import ROBOT, converged, find, fresh_host, plan
 
 DAEMON_JSON = "/etc/docker/daemon.json"
 DRIFTED = '{\n  "live-restore": false\n}\n'
@@ -30,20 +29,29 @@ def drifted_robot():
 
 def test_unified_diff_of_a_file():
     assert operations.unified_diff("/f", "a\nb\n", "a\nc\n") == [
-        "--- /f (on the host)", "+++ /f (planned)", "@@ -1,2 +1,2 @@", " a", "-b", "+c",
+        "--- /f (on the host)",
+        "+++ /f (planned)",
+        "@@ -1,2 +1,2 @@",
+        " a",
+        "-b",
+        "+c",
     ]
 
 
 def test_diff_shows_the_drifted_file_and_reads_only_that_file(log):
-    result = plan({"r1": ("robots", ROBOT, drifted_robot())}, run=False, diff=True,
-                  contents={"r1": {DAEMON_JSON: DRIFTED}})
+    result = plan(
+        {"r1": ("robots", ROBOT, drifted_robot())}, run=False, diff=True, contents={"r1": {DAEMON_JSON: DRIFTED}}
+    )
     # Planning sent one read: the content of the one file the snapshot found different.
     assert result["r1"] == [f"( test -e {DAEMON_JSON} && cat {DAEMON_JSON} ) || echo __pyinfra_missing_{DAEMON_JSON}"]
     lines = [r.getMessage().strip() for r in log.records]
     assert f"[@fake/r1] Will modify {DAEMON_JSON}" in "\n".join(lines)
     start = lines.index(f"--- {DAEMON_JSON} (on the host)")
-    assert lines[start:start + 5] == [
-        f"--- {DAEMON_JSON} (on the host)", f"+++ {DAEMON_JSON} (planned)", "@@ -1,3 +1,8 @@", "{",
+    assert lines[start : start + 5] == [
+        f"--- {DAEMON_JSON} (on the host)",
+        f"+++ {DAEMON_JSON} (planned)",
+        "@@ -1,3 +1,8 @@",
+        "{",
         '-  "live-restore": false',
     ]
     assert '+  "live-restore": true,' in lines and result.failed == set()
@@ -72,15 +80,31 @@ def test_diff_is_printed_once_per_file_in_a_full_run(log):
     assert len([r for r in log.records if f"Will modify {DAEMON_JSON}" in r.getMessage()]) == 1
 
 
-@pytest.mark.parametrize("name, data, snap, reason", [
-    ("arch", ROBOT, fresh_host("ubuntu-24.04", "armhf"), "docker: architecture armhf is not supported"),
-    ("user", {**ROBOT, "docker_users": ["ops", "ghost"]}, fresh_host("debian-13"),
-     "docker_users: ghost does not exist on this host"),
-    ("settings", {**ROBOT, "ssh_port": "x"}, fresh_host("debian-13"), "settings: ssh_port: expected a whole number"),
-    ("x11", {**ROBOT, "x11_enabled": True, "x11_user": "alice"}, fresh_host("debian-13"),
-     "x11_user: alice does not exist on this host"),
-    ("dir", ROBOT, "daemon.json is a directory", "/etc/docker/daemon.json exists but is not a regular file"),
-])
+@pytest.mark.parametrize(
+    "name, data, snap, reason",
+    [
+        ("arch", ROBOT, fresh_host("ubuntu-24.04", "armhf"), "docker: architecture armhf is not supported"),
+        (
+            "user",
+            {**ROBOT, "docker_users": ["ops", "ghost"]},
+            fresh_host("debian-13"),
+            "docker_users: ghost does not exist on this host",
+        ),
+        (
+            "settings",
+            {**ROBOT, "ssh_port": "x"},
+            fresh_host("debian-13"),
+            "settings: ssh_port: expected a whole number",
+        ),
+        (
+            "x11",
+            {**ROBOT, "x11_enabled": True, "x11_user": "alice"},
+            fresh_host("debian-13"),
+            "x11_user: alice does not exist on this host",
+        ),
+        ("dir", ROBOT, "daemon.json is a directory", "/etc/docker/daemon.json exists but is not a regular file"),
+    ],
+)
 def test_dry_run_names_the_failure_while_planning_and_counts_it(log, name, data, snap, reason):
     if snap == "daemon.json is a directory":
         snap = converged("robots", ROBOT, "debian-13")
@@ -93,8 +117,12 @@ def test_dry_run_names_the_failure_while_planning_and_counts_it(log, name, data,
 
 
 def test_a_planned_failure_still_fails_the_host_when_run():
-    result = plan({"bad": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf")),
-                   "good": ("robots", ROBOT, fresh_host("debian-13"))})
+    result = plan(
+        {
+            "bad": ("robots", ROBOT, fresh_host("ubuntu-24.04", "armhf")),
+            "good": ("robots", ROBOT, fresh_host("debian-13")),
+        }
+    )
     assert result.failed == {"bad"} and "architecture armhf is not supported" in result["bad"][0]
     assert find(result["good"], "payloadctl apply")
 
@@ -105,8 +133,12 @@ def test_diff_masks_the_passwords_in_daemon_json_on_both_sides(log):
     old = '{\n  "proxies": {"http-proxy": "http://robot:oldS3cret@proxy.lan:3128"}\n}\n'
     snap = converged("robots", ROBOT, "debian-13")
     snap.files[DAEMON_JSON] = _file(old)
-    data = {**ROBOT, "docker_daemon_options": {"proxies": {"http-proxy": "http://robot:n3wS3cret@proxy.lan:3128",
-                                                           "no-proxy": "localhost"}}}
+    data = {
+        **ROBOT,
+        "docker_daemon_options": {
+            "proxies": {"http-proxy": "http://robot:n3wS3cret@proxy.lan:3128", "no-proxy": "localhost"}
+        },
+    }
     plan({"r1": ("robots", data, snap)}, run=False, diff=True, contents={"r1": {DAEMON_JSON: old}})
     text = "\n".join(r.getMessage() for r in log.records)
     assert "http://robot:****@proxy.lan:3128" in text and "Will modify" in text
@@ -115,7 +147,8 @@ def test_diff_masks_the_passwords_in_daemon_json_on_both_sides(log):
 
 def test_masking_leaves_urls_without_a_password_alone():
     assert operations.mask_credentials('"https://mirror.lan/x" "http://u:p@h:1/" "ssh://git@host"') == (
-        '"https://mirror.lan/x" "http://u:****@h:1/" "ssh://git@host"')
+        '"https://mirror.lan/x" "http://u:****@h:1/" "ssh://git@host"'
+    )
 
 
 # Passwords of every shape (issue 27, item 6): a quote, raw @ (URL parsers
@@ -134,8 +167,15 @@ def test_diff_masks_every_password_the_fleet_holds_by_value(log, password):
     old = json.dumps({"proxies": {"http-proxy": f"http://robot:{old_password}@proxy.lan:3128"}}, indent=2) + "\n"
     snap = converged("robots", ROBOT, "debian-13")
     snap.files[DAEMON_JSON] = _file(old)
-    data = {**ROBOT, "docker_daemon_options": {"proxies": {"http-proxy": f"http://robot:{password}@proxy.lan:3128",
-                                                           "https-proxy": f"http://robot:{password}@proxy.lan:3129"}}}
+    data = {
+        **ROBOT,
+        "docker_daemon_options": {
+            "proxies": {
+                "http-proxy": f"http://robot:{password}@proxy.lan:3128",
+                "https-proxy": f"http://robot:{password}@proxy.lan:3129",
+            }
+        },
+    }
     plan({"r1": ("robots", data, snap)}, run=False, diff=True, contents={"r1": {DAEMON_JSON: old}})
     text = "\n".join(r.getMessage() for r in log.records)
     assert "Will modify" in text and "proxy.lan:3129" in text
@@ -149,9 +189,16 @@ def test_diff_masks_every_password_the_fleet_holds_by_value(log, password):
 def test_the_secrets_of_a_host_are_every_url_password_and_password_value_in_its_data():
     from robotfleet import secrets
 
-    data = {"ssh_password": "s5h-pw", "docker_daemon_options": {"proxies": {"http-proxy": "http://u:a@b@p:1"},
-                                                                "registry-mirrors": ["https://m.lan", "https://x:y'z@m2"]},
-            "payload_environment": {"DB": "postgres://app:db%2Fpw@db/app"}, "ssh_port": 22, "payload_dir": "/var/lib/p"}
+    data = {
+        "ssh_password": "s5h-pw",
+        "docker_daemon_options": {
+            "proxies": {"http-proxy": "http://u:a@b@p:1"},
+            "registry-mirrors": ["https://m.lan", "https://x:y'z@m2"],
+        },
+        "payload_environment": {"DB": "postgres://app:db%2Fpw@db/app"},
+        "ssh_port": 22,
+        "payload_dir": "/var/lib/p",
+    }
     assert secrets.held_in(data) >= {"s5h-pw", "a@b", "y'z", "db%2Fpw"}
     assert secrets.mask("db/pw and db%2Fpw and a@b", secrets.held_in(data)) == "**** and **** and ****"
 
@@ -160,7 +207,8 @@ def test_masking_by_shape_reads_the_password_as_url_parsers_do():
     from robotfleet import secrets
 
     assert secrets.mask('"http://u:p@ss@h:1/" "http://u:it\'s@h" "http://u:q\\"x@h"') == (
-        '"http://u:****@h:1/" "http://u:****@h" "http://u:****@h"')
+        '"http://u:****@h:1/" "http://u:****@h" "http://u:****@h"'
+    )
 
 
 def test_diff_masks_the_registry_passwords_too(log, monkeypatch):

@@ -30,10 +30,59 @@ DOCUMENTS = 400
 HANG_SECONDS = 5  # a guard against hangs, not a timing target (tests/bench/validation.py measures)
 
 HOSTILE_TEXT = [
-    "", " ", "a b", "$(touch /tmp/x)", "`id`", "a;b", "a|b", "a&b", "'", '"', "\n", "a\nb", "\t", "..", "../..",
-    "/tmp", "/var/tmp/x", "${X:?}", "s3cr$et", "\u0430dmin", "r\u043ebot", "\uff11", "\u202e", "\x00", "\x85",
-    "NO", "no", "yes", "on", "off", "1.10", "0755", "12:30", "~", "null", "2026-01-02", "0x1F", ".inf", "-.nan",
-    "<<", "&a", "*a", "!tag", "%", "{", "}", "[", "]", ",", "#", "- x", "? x", "x" * 300,
+    "",
+    " ",
+    "a b",
+    "$(touch /tmp/x)",
+    "`id`",
+    "a;b",
+    "a|b",
+    "a&b",
+    "'",
+    '"',
+    "\n",
+    "a\nb",
+    "\t",
+    "..",
+    "../..",
+    "/tmp",
+    "/var/tmp/x",
+    "${X:?}",
+    "s3cr$et",
+    "\u0430dmin",
+    "r\u043ebot",
+    "\uff11",
+    "\u202e",
+    "\x00",
+    "\x85",
+    "NO",
+    "no",
+    "yes",
+    "on",
+    "off",
+    "1.10",
+    "0755",
+    "12:30",
+    "~",
+    "null",
+    "2026-01-02",
+    "0x1F",
+    ".inf",
+    "-.nan",
+    "<<",
+    "&a",
+    "*a",
+    "!tag",
+    "%",
+    "{",
+    "}",
+    "[",
+    "]",
+    ",",
+    "#",
+    "- x",
+    "? x",
+    "x" * 300,
 ]
 
 
@@ -81,10 +130,15 @@ def good_fleet(port: int) -> dict:
 def mutate_data(rng: random.Random, doc: dict) -> None:
     """Wrong types at settings, random keys, hostile values, at every level."""
     for _ in range(rng.randrange(1, 4)):
-        layer = rng.choice([
-            doc["all"]["vars"], doc["robots"]["hosts"]["r0"], doc["robots"]["hosts"]["r1"]["udev_sensors"][0],
-            doc["laptops"]["hosts"]["l1"], doc["robots"],
-        ])
+        layer = rng.choice(
+            [
+                doc["all"]["vars"],
+                doc["robots"]["hosts"]["r0"],
+                doc["robots"]["hosts"]["r1"]["udev_sensors"][0],
+                doc["laptops"]["hosts"]["l1"],
+                doc["robots"],
+            ]
+        )
         key = rng.choice(list(fleet.setting_checks())) if rng.random() < 0.7 else random_key(rng)
         layer[key] = random_value(rng)
     if rng.random() < 0.2:
@@ -122,8 +176,11 @@ def mutate_text(rng: random.Random, text: str) -> bytes:
             lines.append(f"    payload_environment: {{A: {'[' * deep}{']' * deep}}}")
         elif kind == 6:
             cut = rng.randrange(len(lines[index]) + 1)
-            lines[index] = lines[index][:cut] + rng.choice(["&a ", "*a", "<<: *a", "!!set ", "'", '"', "{",
-                                                            "\t"]) + lines[index][cut:]
+            lines[index] = (
+                lines[index][:cut]
+                + rng.choice(["&a ", "*a", "<<: *a", "!!set ", "'", '"', "{", "\t"])
+                + lines[index][cut:]
+            )
         elif kind == 7:
             lines[index] = lines[index] + "  # " + rng.choice(HOSTILE_TEXT).replace("\n", "")
         else:
@@ -191,8 +248,20 @@ def test_random_documents_are_accepted_or_refused_with_problem_lines(seed):
     assert accepted and refused  # the generator reaches both sides
 
 
-WRONG_TYPES = [-1, 2**70, float("nan"), False, None, "", "x" * 500, [[[]]], {1: 2}, {"a": {"b": [None]}},
-               [{"name": None}], "\n"]
+WRONG_TYPES = [
+    -1,
+    2**70,
+    float("nan"),
+    False,
+    None,
+    "",
+    "x" * 500,
+    [[[]]],
+    {1: 2},
+    {"a": {"b": [None]}},
+    [{"name": None}],
+    "\n",
+]
 
 
 def test_wrong_types_at_every_setting_in_every_layer():
@@ -202,13 +271,12 @@ def test_wrong_types_at_every_setting_in_every_layer():
         for value in WRONG_TYPES:
             for layer in ("all.vars", "host"):
                 doc = good_fleet(9)
-                target = (doc["robots"]["hosts"]["r0"] if layer == "host"
-                          else doc[layer.split(".")[0]].setdefault("vars", {}))
+                target = (
+                    doc["robots"]["hosts"]["r0"] if layer == "host" else doc[layer.split(".")[0]].setdefault("vars", {})
+                )
                 target[setting] = value
                 try:
                     with hang_guard(HANG_SECONDS):
                         fleet.check(doc, SHOWN)
                 except fleet.FleetError as error:
                     assert_problem_lines(error.lines, f"{setting}={value!r} in {layer}", b"")
-
-

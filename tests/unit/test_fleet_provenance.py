@@ -65,8 +65,10 @@ def test_a_child_group_overriding_its_parent_or_siblings_agreeing_is_no_note():
 def test_each_value_names_whose_it_is_and_what_it_overrides():
     fleet = parse(FLEET)
     found = provenance.origins(fleet.tree, "robot7", inventoryview.written(registry()))
-    assert [(o.who, o.value) for o in found["ssh_port"]] == [("group lidar_bots", ("ssh_port", 22)),
-                                                             ("group warehouse_a", ("ssh_port", 2222))]
+    assert [(o.who, o.value) for o in found["ssh_port"]] == [
+        ("group lidar_bots", ("ssh_port", 22)),
+        ("group warehouse_a", ("ssh_port", 2222)),
+    ]
     assert [(o.who, o.value) for o in found["ssh_hostname"]] == [("host robot7", ("ansible_host", "10.20.1.7"))]
     lines = inventoryview.host_lines(fleet, "robot7", registry(), defaults=False)
     assert lines[0] == "robot7: a robot, in lidar_bots, robots, warehouse_a"
@@ -76,7 +78,7 @@ def test_each_value_names_whose_it_is_and_what_it_overrides():
     assert ["ssh_hostname", "10.20.1.7", "host", "robot7", "as", "ansible_host", "(f.yaml)"] in rows
     assert ["ros_domain_id", "3", "group", "warehouse_a", "(f.yaml)"] in rows
     assert ["over", "2", "group", "robots", "(f.yaml)"] in rows
-    assert "s3cret" not in "\n".join(lines) and 'postgres://ros:****@db/maps' in "\n".join(lines)
+    assert "s3cret" not in "\n".join(lines) and "postgres://ros:****@db/maps" in "\n".join(lines)
     with_defaults = inventoryview.host_lines(fleet, "robot7", registry(), defaults=True)
     assert any(line.split()[:3] == ["apt_lock_timeout", "300", "default"] for line in with_defaults)
 
@@ -84,9 +86,22 @@ def test_each_value_names_whose_it_is_and_what_it_overrides():
 def test_the_graph_and_the_list_are_ansible_inventorys():
     fleet = parse(FLEET)
     assert inventoryview.graph(fleet.tree, "all") == [
-        "@all:", "  |--@ungrouped:", "  |--@robots:", "  |  |--@warehouse_a:", "  |  |  |--robot7", "  |  |  |--robot8",
-        "  |  |--@lidar_bots:", "  |  |  |--robot7", "  |  |  |--robot8", "  |  |--@fast:", "  |  |  |--robot9",
-        "  |  |--@slow:", "  |  |  |--robot9", "  |--@laptops:", "  |  |--alice-laptop"]
+        "@all:",
+        "  |--@ungrouped:",
+        "  |--@robots:",
+        "  |  |--@warehouse_a:",
+        "  |  |  |--robot7",
+        "  |  |  |--robot8",
+        "  |  |--@lidar_bots:",
+        "  |  |  |--robot7",
+        "  |  |  |--robot8",
+        "  |  |--@fast:",
+        "  |  |  |--robot9",
+        "  |  |--@slow:",
+        "  |  |  |--robot9",
+        "  |--@laptops:",
+        "  |  |--alice-laptop",
+    ]
     listed = inventoryview.listing(fleet, registry())
     assert "s3cret" not in listed
     data = json.loads(listed)

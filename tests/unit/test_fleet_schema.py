@@ -7,8 +7,8 @@ import pytest
 
 from robotfleet.commands import generate
 from robotfleet.fleet import loader as fleetyaml
-from tests.unit import test_fleet_corpus, test_fleet_fuzz
 from tests.fixtures import ROOT
+from tests.unit import test_fleet_corpus, test_fleet_fuzz
 
 jsonschema = pytest.importorskip("jsonschema")
 
@@ -32,11 +32,25 @@ def test_example_fleet_wires_the_schema_for_editors():
 
 
 def test_schema_flags_the_common_mistakes(validator):
-    doc = {"robots": {"hosts": {"r1": {"docker_usres": [], "ssh_port": "22", "payload_dir": "/tmp/p",
-                                       "udev_sensors": [{"name": "cam", "subsystem": "camera", "serial": "1"}]}}}}
+    doc = {
+        "robots": {
+            "hosts": {
+                "r1": {
+                    "docker_usres": [],
+                    "ssh_port": "22",
+                    "payload_dir": "/tmp/p",
+                    "udev_sensors": [{"name": "cam", "subsystem": "camera", "serial": "1"}],
+                }
+            }
+        }
+    }
     paths = sorted(".".join(map(str, error.absolute_path)) for error in validator.iter_errors(doc))
-    assert paths == ["robots.hosts.r1", "robots.hosts.r1.payload_dir", "robots.hosts.r1.ssh_port",
-                     "robots.hosts.r1.udev_sensors.0.subsystem"]
+    assert paths == [
+        "robots.hosts.r1",
+        "robots.hosts.r1.payload_dir",
+        "robots.hosts.r1.ssh_port",
+        "robots.hosts.r1.udev_sensors.0.subsystem",
+    ]
 
 
 def accepted_documents():

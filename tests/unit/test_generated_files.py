@@ -19,18 +19,20 @@ REGENERATE = os.environ.get("ROBOT_REGENERATE_GOLDEN") == "1"
 UNIT = "/etc/systemd/system/robot-payload.service"
 
 
-@pytest.mark.parametrize("golden, sent", [
-    ("daemon.json", "/etc/docker/daemon.json"),
-    ("robot-payload.service", UNIT),
-    ("70-robot-sensors.rules", "/etc/udev/rules.d/70-robot-sensors.rules"),
-    ("compose.yaml", "compose.yaml"),
-])
+@pytest.mark.parametrize(
+    "golden, sent",
+    [
+        ("daemon.json", "/etc/docker/daemon.json"),
+        ("robot-payload.service", UNIT),
+        ("70-robot-sensors.rules", "/etc/udev/rules.d/70-robot-sensors.rules"),
+        ("compose.yaml", "compose.yaml"),
+    ],
+)
 def test_sent_file_matches_its_golden_copy(sent_to_a_fresh_robot, golden, sent):
     content = sent_to_a_fresh_robot[sent]
     path = GOLDEN / golden
     if REGENERATE:
         path.write_text(content)
     assert content == path.read_text(), (
-        f"{sent} differs from tests/unit/golden/{golden} (ROBOT_REGENERATE_GOLDEN=1 to accept)")
-
-
+        f"{sent} differs from tests/unit/golden/{golden} (ROBOT_REGENERATE_GOLDEN=1 to accept)"
+    )

@@ -9,8 +9,8 @@ import json
 import pytest
 
 from robotfleet.host import aptrepo
-from roles.gpu import plan as gpu_plan
 from robotfleet.host.snapshot import FileState
+from roles.gpu import plan as gpu_plan
 from tests.fixtures import IMAGE
 from tests.unit.harness import find, fresh_host, plan, written_files
 
@@ -81,8 +81,9 @@ def test_gpu_host_gets_nvidias_repository_key_pin_and_toolkit(os_name, arch):
     assert update and all("apt_lock_timeout=300\n" in c and "apt_lock_left()" in c for c in update)
     docker_install = find(commands, "install docker-ce ")[0]
     # Key and source first, then apt update, then the toolkit, all before Docker.
-    assert (commands.index(key[0]) < commands.index(update[0]) < commands.index(install[0])
-            < commands.index(docker_install))
+    assert (
+        commands.index(key[0]) < commands.index(update[0]) < commands.index(install[0]) < commands.index(docker_install)
+    )
     daemon = json.loads(written_files(commands)["/etc/docker/daemon.json"])
     assert daemon["runtimes"] == {"nvidia": {"args": [], "path": "nvidia-container-runtime"}}
     assert "default-runtime" not in daemon
@@ -101,17 +102,24 @@ def test_hosts_without_gpu_read_and_install_nothing_of_it():
     assert "nvidia" not in json.loads(written_files(result["r1"])["/etc/docker/daemon.json"]).get("runtimes", {})
 
 
-@pytest.mark.parametrize("kwargs, reason", [
-    ({"driver": None}, "/proc/driver/nvidia/version is absent"),
-    ({"smi_rc": "absent"}, "nvidia-smi is not installed"),
-    ({"smi_rc": "9", "smi": "NVIDIA-SMI has failed because it couldn't communicate with the NVIDIA driver."},
-     "nvidia-smi failed: NVIDIA-SMI has failed because it couldn"),
-])
+@pytest.mark.parametrize(
+    "kwargs, reason",
+    [
+        ({"driver": None}, "/proc/driver/nvidia/version is absent"),
+        ({"smi_rc": "absent"}, "nvidia-smi is not installed"),
+        (
+            {"smi_rc": "9", "smi": "NVIDIA-SMI has failed because it couldn't communicate with the NVIDIA driver."},
+            "nvidia-smi failed: NVIDIA-SMI has failed because it couldn",
+        ),
+    ],
+)
 def test_no_driver_fails_that_host_only_before_anything_is_installed(kwargs, reason):
-    result = plan({
-        "gpu1": ("robots", GPU_ROBOT, gpu_host(**kwargs)),
-        "r2": ("robots", {"payload_image": IMAGE}, fresh_host("ubuntu-24.04")),
-    })
+    result = plan(
+        {
+            "gpu1": ("robots", GPU_ROBOT, gpu_host(**kwargs)),
+            "r2": ("robots", {"payload_image": IMAGE}, fresh_host("ubuntu-24.04")),
+        }
+    )
     assert result.failed == {"gpu1"}
     assert len(result["gpu1"]) == 1, result["gpu1"]  # the failure, nothing else
     assert reason in result["gpu1"][0]
@@ -127,8 +135,13 @@ def test_driver_version_file_is_a_setting():
 
 
 def test_jetson_uses_jetpacks_toolkit_and_adds_no_desktop_repository():
-    snap = gpu_host("ubuntu-22.04", "arm64", driver=None, smi_rc="absent",
-                    tegra="# R36 (release), REVISION: 4.3, GCID: 38968081, BOARD: generic, EABI: aarch64")
+    snap = gpu_host(
+        "ubuntu-22.04",
+        "arm64",
+        driver=None,
+        smi_rc="absent",
+        tegra="# R36 (release), REVISION: 4.3, GCID: 38968081, BOARD: generic, EABI: aarch64",
+    )
     result = plan({"jet": ("robots", GPU_ROBOT, snap)})
     commands = result["jet"]
     assert result.failed == set()
@@ -148,11 +161,14 @@ def test_converged_gpu_host_sends_nothing():
     assert not find(commands, "systemctl restart docker")
 
 
-@pytest.mark.parametrize("probe", [
-    f"{NVIDIA_FPR}\n{'A' * 40}\n{aptrepo.CANONICAL}\n",  # an extra primary key
-    f"{NVIDIA_FPR}\n",  # only the pinned key as gpg reads it, but not gpg's export of it: a hidden block
-    f"{aptrepo.CANONICAL}\n",  # nothing gpg can read
-])
+@pytest.mark.parametrize(
+    "probe",
+    [
+        f"{NVIDIA_FPR}\n{'A' * 40}\n{aptrepo.CANONICAL}\n",  # an extra primary key
+        f"{NVIDIA_FPR}\n",  # only the pinned key as gpg reads it, but not gpg's export of it: a hidden block
+        f"{aptrepo.CANONICAL}\n",  # nothing gpg can read
+    ],
+)
 def test_keyring_other_than_the_pinned_key_as_gpg_exports_it_is_replaced(probe):
     snap, _ = converged(gpu_host(), GPU_ROBOT)
     snap.packages.update({"nvidia-container-toolkit": "1.17.8-1", "gpg": "2"})
@@ -163,8 +179,13 @@ def test_keyring_other_than_the_pinned_key_as_gpg_exports_it_is_replaced(probe):
 
 
 def test_default_runtime_version_pin_and_mirror():
-    data = {**GPU_ROBOT, "gpu_default_runtime": True, "gpu_toolkit_version": "1.17.8-1",
-            "gpu_repo_url": "http://mirror.lan/nvidia", "gpu_apt_key_url": "http://mirror.lan/nvidia.asc"}
+    data = {
+        **GPU_ROBOT,
+        "gpu_default_runtime": True,
+        "gpu_toolkit_version": "1.17.8-1",
+        "gpu_repo_url": "http://mirror.lan/nvidia",
+        "gpu_apt_key_url": "http://mirror.lan/nvidia.asc",
+    }
     commands = plan({"r1": ("robots", data, gpu_host("debian-12", "arm64"))})["r1"]
     assert find(commands, "url=http://mirror.lan/nvidia.asc\n(.|\n)*curl ")
     assert "URIs: http://mirror.lan/nvidia/stable/deb/arm64" in written_files(commands)[SOURCES]
@@ -192,17 +213,23 @@ def test_daemon_options_merge_keeps_other_runtimes_and_explicit_entry():
 
 def test_payload_environment_adds_graphics_with_a_display():
     assert gpu_plan.payload_environment({"x11_enabled": False}) == {
-        "NVIDIA_VISIBLE_DEVICES": "all", "NVIDIA_DRIVER_CAPABILITIES": "compute,utility"}
+        "NVIDIA_VISIBLE_DEVICES": "all",
+        "NVIDIA_DRIVER_CAPABILITIES": "compute,utility",
+    }
     environment = gpu_plan.payload_environment({"x11_enabled": True})
     assert environment["NVIDIA_DRIVER_CAPABILITIES"] == "compute,utility,graphics"
     assert gpu_plan.payload_environment({"gpu_visible_devices": "0", "gpu_driver_capabilities": "all"}) == {
-        "NVIDIA_VISIBLE_DEVICES": "0", "NVIDIA_DRIVER_CAPABILITIES": "all"}
+        "NVIDIA_VISIBLE_DEVICES": "0",
+        "NVIDIA_DRIVER_CAPABILITIES": "all",
+    }
 
 
 def test_driver_version_from_the_nvrm_line():
     assert gpu_plan.driver_version(NVRM) == "550.54.14"
-    assert gpu_plan.driver_version(
-        "NVRM version: NVIDIA UNIX Open Kernel Module for x86_64  570.86.15  Release Build") == "570.86.15"
+    assert (
+        gpu_plan.driver_version("NVRM version: NVIDIA UNIX Open Kernel Module for x86_64  570.86.15  Release Build")
+        == "570.86.15"
+    )
     assert gpu_plan.driver_version("") is None
 
 

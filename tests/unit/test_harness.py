@@ -8,8 +8,7 @@ import pytest
 
 from robotfleet.host import snapshot as hoststate
 from robotfleet.host.snapshot import FileState, Readings, UndeclaredRead
-from tests.unit.harness import everything_sent, find, fresh_host, plan, written_files
-from tests.unit.harness import LAPTOP, ROBOT, converged
+from tests.unit.harness import LAPTOP, ROBOT, converged, everything_sent, find, fresh_host, plan, written_files
 
 
 def test_snapshot_refuses_a_read_nobody_declared():
@@ -23,9 +22,14 @@ def test_snapshot_refuses_a_read_nobody_declared():
         "snapshot: files '/etc/apt/keyrings/docker.asc' was not read from the host; "
         "add it to the role's declare_reads (query.files)"
     )
-    for read in (lambda: "gpg" in snap.packages, lambda: snap.units.get("docker.service"),
-                 lambda: snap.unit_active("docker.service"), lambda: snap.installed("gpg"),
-                 lambda: snap.users["ops"], lambda: snap.commands.get("gpg")):
+    for read in (
+        lambda: "gpg" in snap.packages,
+        lambda: snap.units.get("docker.service"),
+        lambda: snap.unit_active("docker.service"),
+        lambda: snap.installed("gpg"),
+        lambda: snap.users["ops"],
+        lambda: snap.commands.get("gpg"),
+    ):
         with pytest.raises(UndeclaredRead):
             read()
 
@@ -54,8 +58,12 @@ def test_harness_answers_only_declared_reads(monkeypatch):
 
 
 def test_harness_records_the_query_per_host():
-    result = plan({"r1": ("robots", ROBOT, fresh_host("debian-13")),
-                   "l1": ("laptops", LAPTOP, fresh_host("ubuntu-24.04", users=("alice",)))})
+    result = plan(
+        {
+            "r1": ("robots", ROBOT, fresh_host("debian-13")),
+            "l1": ("laptops", LAPTOP, fresh_host("ubuntu-24.04", users=("alice",))),
+        }
+    )
     assert "/etc/docker/daemon.json" in result.queries["r1"]["files"]
     assert "xauth" in result.queries["l1"]["packages"] and "xauth" not in result.queries["r1"]["packages"]
 
@@ -90,15 +98,18 @@ def test_registry_token_travels_only_as_stdin_of_the_login(monkeypatch):
 # --- decisions a reviewer broke without any unit test noticing (issue 10) ----
 
 
-@pytest.mark.parametrize("role, kind, key", [
-    ("docker", "files", "/etc/docker/daemon.json"),
-    ("docker", "files", "/etc/apt/keyrings/docker.asc"),
-    ("docker", "files", "/etc/apt/sources.list.d/docker.sources"),
-    ("docker", "probes", "docker_key_fingerprints"),
-    ("docker", "units", "docker.service"),
-    ("payload", "files", "/etc/systemd/system/robot-payload.service"),
-    ("payload", "units", "robot-payload.service"),
-])
+@pytest.mark.parametrize(
+    "role, kind, key",
+    [
+        ("docker", "files", "/etc/docker/daemon.json"),
+        ("docker", "files", "/etc/apt/keyrings/docker.asc"),
+        ("docker", "files", "/etc/apt/sources.list.d/docker.sources"),
+        ("docker", "probes", "docker_key_fingerprints"),
+        ("docker", "units", "docker.service"),
+        ("payload", "files", "/etc/systemd/system/robot-payload.service"),
+        ("payload", "units", "robot-payload.service"),
+    ],
+)
 def test_a_role_that_stops_declaring_a_read_fails_the_plan(monkeypatch, role, kind, key):
     import importlib
 
@@ -149,8 +160,13 @@ def test_robots_and_laptops_in_one_run_order_their_operations_without_a_cycle():
     and a laptop (x11, distro engine) in one run make a cycle in pyinfra's
     operation order and nothing runs (seen on the simulated fleet)."""
     laptop = {**LAPTOP, "docker_source": "distro"}
-    result = plan({"r1": ("robots", ROBOT, fresh_host("debian-13")), "r2": ("robots", ROBOT, fresh_host("debian-13")),
-                   "l1": ("laptops", laptop, fresh_host("debian-13", users=("alice",)))})
+    result = plan(
+        {
+            "r1": ("robots", ROBOT, fresh_host("debian-13")),
+            "r2": ("robots", ROBOT, fresh_host("debian-13")),
+            "l1": ("laptops", laptop, fresh_host("debian-13", users=("alice",))),
+        }
+    )
     assert result.failed == set()
     assert find(result["r1"], "udevadm") and find(result["l1"], "xauth") and find(result["l1"], "payloadctl apply")
 
@@ -159,12 +175,16 @@ def test_deploy_py_names_its_roles_and_a_misspelt_name_is_one_line(tmp_path):
     from robotfleet import deploy_roles
 
     deploy = tmp_path / "deploy.py"
-    deploy.write_text('from robotfleet.provision import provision\nfrom roles import named\n'
-                      'ROLES = named("time", "docker")\nprovision(ROLES)\n')
+    deploy.write_text(
+        "from robotfleet.provision import provision\nfrom roles import named\n"
+        'ROLES = named("time", "docker")\nprovision(ROLES)\n'
+    )
     assert [role.name for role in deploy_roles.roles(deploy)] == ["time", "docker"]
     deploy = tmp_path / "misspelt.py"
-    deploy.write_text('from robotfleet.provision import provision\nfrom roles import named\n'
-                      'ROLES = named("docker", "usres")\nprovision(ROLES)\n')
+    deploy.write_text(
+        "from robotfleet.provision import provision\nfrom roles import named\n"
+        'ROLES = named("docker", "usres")\nprovision(ROLES)\n'
+    )
     with pytest.raises(LookupError) as error:
         deploy_roles.roles(deploy)
     assert str(error.value) == "deploy.py: ROLES names 'usres', but there is no roles/usres/"

@@ -18,22 +18,44 @@ import pytest
 import yaml
 
 from robotfleet.fleet import loader as fleetyaml
-from roles.udev.settings import SENSOR_KEYS
-from tests.unit import harness as fleet
 from roles.docker import plan
 from roles.gpu import plan as gpu_plan
 from roles.payload import compose
 from roles.udev import rules
+from roles.udev.settings import SENSOR_KEYS
+from tests.unit import harness as fleet
 
 HOSTILE = [
-    "$(touch /tmp/x)", "`id`", "a;b", "a|b", "a&b", "a'b", 'a"b', "a\nb", "a\rb", "a b", "${X:?}", "s3cr$et",
-    "..", "../../etc", "/var/lib/../../tmp", "/tmp", "/var/tmp/x", "-rf", "--help", "a\\b", "a#b", "*", "~root",
+    "$(touch /tmp/x)",
+    "`id`",
+    "a;b",
+    "a|b",
+    "a&b",
+    "a'b",
+    'a"b',
+    "a\nb",
+    "a\rb",
+    "a b",
+    "${X:?}",
+    "s3cr$et",
+    "..",
+    "../../etc",
+    "/var/lib/../../tmp",
+    "/tmp",
+    "/var/tmp/x",
+    "-rf",
+    "--help",
+    "a\\b",
+    "a#b",
+    "*",
+    "~root",
     "\u0430dmin",  # Cyrillic a
     "r\u043ebot",  # Cyrillic o
     "v\uff11",  # fullwidth digit one
     "x\u202ey",  # right-to-left override
     "a\u00a0b",  # no-break space
-    "\x00", "a\x1bb",
+    "\x00",
+    "a\x1bb",
 ]
 # YAML traps, written unquoted in the fleet file (YAML 1.2: these are not text).
 YAML_TRAPS = ["true", "False", "1.10", "0755", "0x1F", "1e3", "~"]
@@ -61,8 +83,14 @@ BENIGN_INSIDE = {
     "in a URL": {"..", "../../etc", "/var/lib/../../tmp", "/tmp", "/var/tmp/x", "-rf", "--help", "~root"},
 }
 # Files on the operator's machine, opened there by pyinfra; never sent to a host.
-OPERATOR_SIDE = {"ssh_key", "ssh_known_hosts_file", "ssh_revoked_host_keys", "pull_wheelhouse", "pull_trust_root",
-                 "pull_remote_ca"}
+OPERATOR_SIDE = {
+    "ssh_key",
+    "ssh_known_hosts_file",
+    "ssh_revoked_host_keys",
+    "pull_wheelhouse",
+    "pull_trust_root",
+    "pull_remote_ca",
+}
 
 
 def places(name: str, value):
@@ -72,8 +100,11 @@ def places(name: str, value):
     yield "mapping key", {value: "x"}
     yield "mapping value", {"X": value}
     # Inside otherwise valid URLs, paths and image references.
-    for place, text in (("in a URL", f"https://mirror.lan/gpg?x={value}"), ("in a path", f"/var/lib/{value}"),
-                        ("in an image tag", f"reg.example.com/p:{value}")):
+    for place, text in (
+        ("in a URL", f"https://mirror.lan/gpg?x={value}"),
+        ("in a path", f"/var/lib/{value}"),
+        ("in an image tag", f"reg.example.com/p:{value}"),
+    ):
         yield place, text
         yield f"{place}, list item", [text]
     if name == "udev_sensors":
@@ -140,8 +171,9 @@ def test_every_hostile_value_is_refused_in_one_line_or_reaches_the_host_as_data(
             continue
         if hostile in BENIGN_INSIDE.get(place.removesuffix(", list item"), ()):
             continue
-        if setting in ("payload_command",
-                       "gpu_check_command") or (setting == "payload_environment" and place == "mapping value"):
+        if setting in ("payload_command", "gpu_check_command") or (
+            setting == "payload_environment" and place == "mapping value"
+        ):
             place = "list item" if setting != "payload_environment" else place  # any text: it is the container's
         assert (setting, place) in CARRIED_AS_DATA, f"{setting} ({place}) accepts {hostile!r}"
         value = dict(places(setting, hostile))[place]
@@ -165,7 +197,8 @@ def test_yaml_traps_in_text_settings_say_quote_it(trap):
     """Unquoted, these are not the text written; every text setting refuses
     them with 'quote it'."""
     text_settings = [
-        name for name, check in fleet.setting_checks().items()
+        name
+        for name, check in fleet.setting_checks().items()
         if check.schema.get("type") == "string" or "string" in json.dumps(check.schema)[:40]
     ]
     for name in text_settings:

@@ -13,7 +13,8 @@ from pyinfra_cli.util import parse_cli_arg
 
 from robotfleet import deploy_roles
 from robotfleet.commands import rollout_judge
-from roles.payload import compose, digests, pins as publish_pins, report
+from roles.payload import compose, digests, report
+from roles.payload import pins as publish_pins
 from tests.fixtures import robot_fleet
 from tests.unit.harness import ROBOT, converged, desired_compose, find, fleet_problems, merged, plan
 
@@ -41,36 +42,59 @@ def test_a_pinned_image_runs_by_its_digest_and_keeps_its_tag():
     assert images_of(doc) == {"payload": f"{PAYLOAD}@{A}"}
     without = rendered({**ROBOT, "payload_image": PAYLOAD})
     assert {**doc, "services": {}} == {**without, "services": {}}  # nothing but the image changes
-    assert {k: v for k, v in doc["services"]["payload"].items() if k != "image"} == \
-        {k: v for k, v in without["services"]["payload"].items() if k != "image"}
+    assert {k: v for k, v in doc["services"]["payload"].items() if k != "image"} == {
+        k: v for k, v in without["services"]["payload"].items() if k != "image"
+    }
 
 
 def test_every_service_and_the_roscore_of_the_preset_run_by_their_pins():
-    data = {**ROBOT, "payload_image": None, "payload_services": TWO, "ros_preset": "ros1", "ros_roscore": True,
-            "ros_roscore_image": ROSCORE,
-            "payload_image_pins": {f"{REG}/ros/driver:2.0": A, f"{REG}/ros/slam@{C}": C, ROSCORE: B}}
-    assert images_of(rendered(data)) == {"roscore": f"{ROSCORE}@{B}", "driver": f"{REG}/ros/driver:2.0@{A}",
-                                         "slam": f"{REG}/ros/slam@{C}"}
+    data = {
+        **ROBOT,
+        "payload_image": None,
+        "payload_services": TWO,
+        "ros_preset": "ros1",
+        "ros_roscore": True,
+        "ros_roscore_image": ROSCORE,
+        "payload_image_pins": {f"{REG}/ros/driver:2.0": A, f"{REG}/ros/slam@{C}": C, ROSCORE: B},
+    }
+    assert images_of(rendered(data)) == {
+        "roscore": f"{ROSCORE}@{B}",
+        "driver": f"{REG}/ros/driver:2.0@{A}",
+        "slam": f"{REG}/ros/slam@{C}",
+    }
     assert fleet_problems(robot_fleet(**{k: v for k, v in data.items() if k != "udev_sensors"})) == []
 
 
 def test_pins_for_images_the_project_does_not_use_are_ignored():
-    data = {**ROBOT, "payload_image": PAYLOAD,
-            "payload_image_pins": {PAYLOAD: A, f"{REG}/ros/other:9": B, f"{REG}/ros/payload:1.0": C}}
+    data = {
+        **ROBOT,
+        "payload_image": PAYLOAD,
+        "payload_image_pins": {PAYLOAD: A, f"{REG}/ros/other:9": B, f"{REG}/ros/payload:1.0": C},
+    }
     assert images_of(rendered(data)) == {"payload": f"{PAYLOAD}@{A}"}
     assert fleet_problems(robot_fleet(payload_image=PAYLOAD, payload_image_pins=data["payload_image_pins"])) == []
 
 
 def test_no_pins_leave_the_document_as_it_was():
-    assert rendered({**ROBOT, "payload_image": PAYLOAD, "payload_image_pins": {}}) == \
-        rendered({**ROBOT, "payload_image": PAYLOAD})
+    assert rendered({**ROBOT, "payload_image": PAYLOAD, "payload_image_pins": {}}) == rendered(
+        {**ROBOT, "payload_image": PAYLOAD}
+    )
 
 
 def test_what_publish_pins_is_what_the_deploy_looks_up():
     """The release record's keys are the pins part's refs (robotfleet
     publish); given back as the setting, they cover the project whole."""
-    data = merged("robots", {**ROBOT, "payload_image": None, "payload_services": TWO, "ros_preset": "ros1",
-                             "ros_roscore": True, "ros_roscore_image": ROSCORE})
+    data = merged(
+        "robots",
+        {
+            **ROBOT,
+            "payload_image": None,
+            "payload_services": TWO,
+            "ros_preset": "ros1",
+            "ros_roscore": True,
+            "ros_roscore_image": ROSCORE,
+        },
+    )
     given = {ref: B for ref in publish_pins.PINS.refs(data)}
     assert publish_pins.PINS.setting == digests.SETTING
     assert digests.problems({**data, digests.SETTING: {**given, f"{REG}/ros/slam@{C}": C}}) == []
@@ -80,42 +104,64 @@ def test_what_publish_pins_is_what_the_deploy_looks_up():
 # --- refusals: one line each, naming host and field -------------------------------------
 
 
-@pytest.mark.parametrize("settings, line", [
-    ({"payload_image_pins": {f"{REG}/ros/other:1": A}},
-     f"robot3.payload_image_pins: no digest for {PAYLOAD}: the pins must cover every image of the project "
-     "(1 here), or that image would run whatever its tag names now"),
-    ({"payload_image_pins": {PAYLOAD: "sha256:abc"}},
-     f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
-     "'sha256:abc'"),
-    ({"payload_image_pins": {PAYLOAD: A.upper()}},
-     f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
-     f"'{A.upper()}'"),
-    ({"payload_image_pins": {"Reg/Bad Ref": A}},
-     "robot3.payload_image_pins.'Reg/Bad Ref': 'Reg/Bad Ref' is not a valid image reference"),
-    ({"payload_image_pins": '{"broken": '},
-     "robot3.payload_image_pins: expected a mapping image -> digest, got '{\"broken\": '; on --data give JSON "
-     "text: payload_image_pins='{\"reg/ros/payload:1.1\": \"sha256:...\"}'"),
-    ({"payload_image_pins": {PAYLOAD: A}, "payload_delivery": "push"},
-     "robot3.payload_image_pins: pins need payload_delivery: pull: a pushed image arrives by docker load, which "
-     "keeps its image id but not the registry digest a release pins, so the robot could not run it by that "
-     "digest"),
-])
+@pytest.mark.parametrize(
+    "settings, line",
+    [
+        (
+            {"payload_image_pins": {f"{REG}/ros/other:1": A}},
+            f"robot3.payload_image_pins: no digest for {PAYLOAD}: the pins must cover every image of the project "
+            "(1 here), or that image would run whatever its tag names now",
+        ),
+        (
+            {"payload_image_pins": {PAYLOAD: "sha256:abc"}},
+            f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
+            "'sha256:abc'",
+        ),
+        (
+            {"payload_image_pins": {PAYLOAD: A.upper()}},
+            f"robot3.payload_image_pins.{PAYLOAD}: expected a digest: sha256: and 64 lowercase hex digits, got "
+            f"'{A.upper()}'",
+        ),
+        (
+            {"payload_image_pins": {"Reg/Bad Ref": A}},
+            "robot3.payload_image_pins.'Reg/Bad Ref': 'Reg/Bad Ref' is not a valid image reference",
+        ),
+        (
+            {"payload_image_pins": '{"broken": '},
+            "robot3.payload_image_pins: expected a mapping image -> digest, got '{\"broken\": '; on --data give JSON "
+            'text: payload_image_pins=\'{"reg/ros/payload:1.1": "sha256:..."}\'',
+        ),
+        (
+            {"payload_image_pins": {PAYLOAD: A}, "payload_delivery": "push"},
+            "robot3.payload_image_pins: pins need payload_delivery: pull: a pushed image arrives by docker load, which "
+            "keeps its image id but not the registry digest a release pins, so the robot could not run it by that "
+            "digest",
+        ),
+    ],
+)
 def test_a_bad_pin_is_one_line_naming_host_and_field(settings, line):
     assert fleet_problems(robot_fleet(payload_image=PAYLOAD, **settings)) == [f"robots.yaml: {line}"]
 
 
 def test_a_service_the_pins_leave_out_is_named_with_the_others_in_one_line():
-    doc = robot_fleet(payload_services=TWO, ros_preset="ros1", ros_roscore=True, ros_roscore_image=ROSCORE,
-                      payload_image_pins={f"{REG}/ros/driver:2.0": A})
+    doc = robot_fleet(
+        payload_services=TWO,
+        ros_preset="ros1",
+        ros_roscore=True,
+        ros_roscore_image=ROSCORE,
+        payload_image_pins={f"{REG}/ros/driver:2.0": A},
+    )
     assert fleet_problems(doc) == [
         f"robots.yaml: robot3.payload_image_pins: no digest for {REG}/ros/slam@{C}, {ROSCORE}: the pins must "
-        "cover every image of the project (3 here), or that image would run whatever its tag names now"]
+        "cover every image of the project (3 here), or that image would run whatever its tag names now"
+    ]
 
 
 def test_a_pin_that_contradicts_the_image_s_own_digest_is_refused():
     ref = f"{REG}/ros/payload@{A}"
     assert fleet_problems(robot_fleet(payload_image=ref, payload_image_pins={ref: B})) == [
-        f"robots.yaml: robot3.payload_image_pins.{ref}: {B} differs from the digest the image names itself ({A})"]
+        f"robots.yaml: robot3.payload_image_pins.{ref}: {B} differs from the digest the image names itself ({A})"
+    ]
     assert fleet_problems(robot_fleet(payload_image=ref, payload_image_pins={ref: A})) == []
 
 
@@ -127,8 +173,12 @@ def test_pins_given_on_the_command_line_are_refused_before_anything_changes():
     fails that host with one line and sends it nothing else."""
     pinned = {**ROBOT, "payload_image": PAYLOAD}
     snap = converged("robots", pinned, "debian-13")
-    result = plan({"r1": ("robots", {**pinned, "payload_image_pins": {f"{REG}/ros/other:1": A}}, snap),
-                   "r2": ("robots", {**pinned, "payload_image_pins": {PAYLOAD: A}}, snap)})
+    result = plan(
+        {
+            "r1": ("robots", {**pinned, "payload_image_pins": {f"{REG}/ros/other:1": A}}, snap),
+            "r2": ("robots", {**pinned, "payload_image_pins": {PAYLOAD: A}}, snap),
+        }
+    )
     assert result.failed == {"r1"} and len(result["r1"]) == 1
     assert f"settings: payload_image_pins: no digest for {PAYLOAD}" in result["r1"][0]
     assert "\n" not in result["r1"][0].split("echo ", 1)[1].rstrip("\n")
@@ -155,11 +205,17 @@ def test_the_agent_s_json_text_reaches_the_setting_as_pyinfra_reads_it():
     assert images_of(rendered(data)) == {"payload": f"{PAYLOAD}@{A}"}
     overrides = rollout_judge.read_overrides([f"payload_image_pins={text}", "payload_force=true", "x"])
     assert overrides == {"payload_image_pins": {PAYLOAD: A}, "payload_force": True}
-    target = rollout_judge.targets_of(deploy_roles.roles(), dict(merged("robots", {**ROBOT, "payload_image": PAYLOAD})),
-                                overrides)
+    target = rollout_judge.targets_of(
+        deploy_roles.roles(), dict(merged("robots", {**ROBOT, "payload_image": PAYLOAD})), overrides
+    )
     assert target["payload"] == [f"{PAYLOAD}@{A}"]
-    row = {"reachable": True, "image_refs": [f"{PAYLOAD}@{A}"], "release_state": "active",
-           "state": "running", "health": "healthy"}
+    row = {
+        "reachable": True,
+        "image_refs": [f"{PAYLOAD}@{A}"],
+        "release_state": "active",
+        "state": "running",
+        "health": "healthy",
+    }
     assert report.missing(row, target["payload"]) is None
     assert report.missing({**row, "image_refs": [PAYLOAD]}, target["payload"]).startswith(f"runs {PAYLOAD}, not ")
 
@@ -177,8 +233,10 @@ def test_a_reference_runs_the_wanted_image_by_its_digest_or_else_its_tag():
     assert not digests.runs(f"{REG}/ros/other:1.1@{A}", f"{REG}/ros/payload@{A}")
     assert digests.shown(f"{PAYLOAD}@{A}", f"{REG}/ros/payload@{A}") == f"{PAYLOAD}@{A}"
     assert digests.shown(PAYLOAD, f"{REG}/ros/payload@{B}") == f"{PAYLOAD}@{B}"
-    assert digests.shown("offline.invalid/ros/payload:1.1", "offline.invalid/ros/payload:1.1") == \
-        "offline.invalid/ros/payload:1.1"  # pushed: no registry digest
+    assert (
+        digests.shown("offline.invalid/ros/payload:1.1", "offline.invalid/ros/payload:1.1")
+        == "offline.invalid/ros/payload:1.1"
+    )  # pushed: no registry digest
 
 
 def test_a_pull_robot_running_its_release_by_digest_is_not_reported_missing_its_tag():
@@ -186,13 +244,18 @@ def test_a_pull_robot_running_its_release_by_digest_is_not_reported_missing_its_
     no health check.  The robot runs reg:5000/team/payload:2@sha256:...;
     neither the converge run (the release's pins) nor status (the fleet
     file's tag) may call that a miss; another digest is one."""
-    from robotfleet.pull.robot import converge
     from robotfleet.pull.operator.publishing import HostData
+    from robotfleet.pull.robot import converge
 
     image = "reg:5000/team/payload:2"
     data = merged("robots", {**ROBOT, "payload_image": image})
-    row = {"reachable": True, "image_refs": [f"{image}@{A}"], "release_state": "active", "state": "running",
-           "health": report.NO_CHECK}
+    row = {
+        "reachable": True,
+        "image_refs": [f"{image}@{A}"],
+        "release_state": "active",
+        "state": "running",
+        "health": report.NO_CHECK,
+    }
     roles = deploy_roles.roles()
     assert converge.missing(roles, HostData(data), row) == []  # status's drift reads the fleet file like this
     assert converge.missing(roles, HostData({**data, digests.SETTING: {image: A}}), row) == []

@@ -68,11 +68,15 @@ def test_url_from_sources_list_comes_first(tmp_path):
 
 
 def test_other_distributions_and_security_archives_are_not_the_debian_archive(tmp_path):
-    d = apt_dir(tmp_path, "deb http://archive.ubuntu.com/ubuntu noble main\n", {
-        "security.list": "deb http://security.debian.org/debian-security bookworm-security main\n",
-        "nodesource.sources": "Types: deb\nURIs: https://deb.nodesource.com/node_20.x\n"
-                              "Suites: nodistro\nComponents: main\n",
-    })
+    d = apt_dir(
+        tmp_path,
+        "deb http://archive.ubuntu.com/ubuntu noble main\n",
+        {
+            "security.list": "deb http://security.debian.org/debian-security bookworm-security main\n",
+            "nodesource.sources": "Types: deb\nURIs: https://deb.nodesource.com/node_20.x\n"
+            "Suites: nodistro\nComponents: main\n",
+        },
+    )
     assert debian_archive_url(d, {}) == "http://deb.debian.org/debian"
 
 

@@ -2,15 +2,19 @@
 
 import pytest
 
-DEBIAN_CONF = (r":qemu-aarch64:M::\x7f\x45\x4c\x46\x02\x01\x01\x00\x00\x00\x00\x00\x00\x00\x00\x00\x02\x00\xb7\x00"
-               r":\xff\xff\xff\xff\xff\xff\xff\x00\xff\xff\xff\xff\xff\xff\xff\xff\xfe\xff\xff\xff"
-               r":/usr/libexec/qemu-binfmt/aarch64-binfmt-P:OPF" "\n")
+DEBIAN_CONF = (
+    r":qemu-aarch64:M::\x7f\x45\x4c\x46\x02\x01\x01\x00\x00\x00\x00\x00\x00\x00\x00\x00\x02\x00\xb7\x00"
+    r":\xff\xff\xff\xff\xff\xff\xff\x00\xff\xff\xff\xff\xff\xff\xff\xff\xfe\xff\xff\xff"
+    r":/usr/libexec/qemu-binfmt/aarch64-binfmt-P:OPF"
+    "\n"
+)
 OURS = "/lab/cache/qemu/10/aarch64-binfmt-P"
 
 
 def entry(flags="POCF", interpreter=OURS, enabled=True):
-    return (("enabled\n" if enabled else "disabled\n") + f"interpreter {interpreter}\nflags: {flags}\n"
-            "offset 0\nmagic 7f454c460201010000000000000000000200b700\n")
+    return (
+        "enabled\n" if enabled else "disabled\n"
+    ) + f"interpreter {interpreter}\nflags: {flags}\noffset 0\nmagic 7f454c460201010000000000000000000200b700\n"
 
 
 def test_the_kernel_lists_binfmt_misc_or_not(emulation):
@@ -30,7 +34,8 @@ def test_only_our_emulator_with_open_credentials_and_fix_binary_is_accepted(emul
     assert "disabled" in emulation.problem(reg(entry(enabled=False)), OURS)
     # Debian 12's update-binfmts registers qemu 7.2 with P and F only.
     assert emulation.problem(reg(entry("PF", "/usr/libexec/qemu-binfmt/aarch64-binfmt-P")), OURS) == (
-        f"qemu-aarch64 runs /usr/libexec/qemu-binfmt/aarch64-binfmt-P, not {OURS}")
+        f"qemu-aarch64 runs /usr/libexec/qemu-binfmt/aarch64-binfmt-P, not {OURS}"
+    )
     assert emulation.problem(reg(entry("PF")), OURS) == "qemu-aarch64 lacks the binfmt_misc flag(s) OC (has PF)"
 
 

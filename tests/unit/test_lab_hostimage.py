@@ -56,12 +56,15 @@ def test_a_foreign_rootfs_is_two_stages_the_second_under_emulation(hostimage):
 
 
 def test_the_package_list_keeps_only_what_the_first_stage_fetched(hostimage):
-    text = ("Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\n"
-            "Package: vim\nVersion: 9\n\n"
-            "Package: apt\nVersion: 3.0\nDepends: libc6\n\n")
+    text = (
+        "Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\n"
+        "Package: vim\nVersion: 9\n\n"
+        "Package: apt\nVersion: 3.0\nDepends: libc6\n\n"
+    )
     trimmed = hostimage.trimmed_packages_list(text, {"libc6", "apt"})
-    assert trimmed == ("Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\n"
-                       "Package: apt\nVersion: 3.0\nDepends: libc6\n")
+    assert trimmed == (
+        "Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\nPackage: apt\nVersion: 3.0\nDepends: libc6\n"
+    )
     assert hostimage.trimmed_packages_list(text, {"libc"}) == "\n"
 
 
@@ -80,4 +83,5 @@ def test_a_foreign_base_image_says_its_architecture(hostimage, tmp_path):
         assert archive.extractfile("rootfs/layer.tar").read() == layer.read_bytes()
     assert (config["architecture"], config["os"], config["variant"]) == ("arm64", "linux", "v8")
     import hashlib
+
     assert config["rootfs"]["diff_ids"] == ["sha256:" + hashlib.sha256(layer.read_bytes()).hexdigest()]

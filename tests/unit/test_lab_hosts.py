@@ -12,7 +12,8 @@ def test_known_hosts_line_uses_bracketed_host_and_port(hosts):
 def test_known_hosts_line_is_what_paramiko_looks_up(hosts, tmp_path):
     paramiko = pytest.importorskip("paramiko")
     line = hosts.known_hosts_line(
-        22001, "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIEv7c1MIxS1aDiHnkvLJpm9leEXrCUGb/lZ0/a7wfecX x")
+        22001, "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIEv7c1MIxS1aDiHnkvLJpm9leEXrCUGb/lZ0/a7wfecX x"
+    )
     path = tmp_path / "known_hosts"
     path.write_text(line + "\n")
     keys = paramiko.HostKeys(str(path))
@@ -20,10 +21,16 @@ def test_known_hosts_line_is_what_paramiko_looks_up(hosts, tmp_path):
 
 
 def test_plan_hosts_names_groups_and_architectures(hosts):
-    assert hosts.plan_hosts(2, 1) == [("robot1", "robots", "amd64"), ("robot2", "robots", "amd64"),
-                                      ("laptop1", "laptops", "amd64")]
-    assert hosts.plan_hosts(1, 0, arm64_robots=2) == [("robot1", "robots", "amd64"), ("pi1", "robots", "arm64"),
-                                                      ("pi2", "robots", "arm64")]
+    assert hosts.plan_hosts(2, 1) == [
+        ("robot1", "robots", "amd64"),
+        ("robot2", "robots", "amd64"),
+        ("laptop1", "laptops", "amd64"),
+    ]
+    assert hosts.plan_hosts(1, 0, arm64_robots=2) == [
+        ("robot1", "robots", "amd64"),
+        ("pi1", "robots", "arm64"),
+        ("pi2", "robots", "arm64"),
+    ]
     assert hosts.plan_hosts(0, 0) == []
 
 
@@ -33,8 +40,10 @@ def test_emulated_hosts_get_longer_to_boot(hosts):
 
 def test_sensors_from_inventory(hosts, tmp_path):
     path = tmp_path / "lab.yaml"
-    path.write_text("robots:\n  hosts:\n    robot1:\n      udev_sensors:\n        - {name: lidar, serial: x}\n"
-                    "        - {name: imu}\n    robot2: {}\nlaptops:\n  hosts:\n    laptop1: {}\n")
+    path.write_text(
+        "robots:\n  hosts:\n    robot1:\n      udev_sensors:\n        - {name: lidar, serial: x}\n"
+        "        - {name: imu}\n    robot2: {}\nlaptops:\n  hosts:\n    laptop1: {}\n"
+    )
     assert hosts.sensors_from_inventory(path) == {"robot1": ["lidar", "imu"], "robot2": []}
     assert hosts.sensors_from_inventory(tmp_path / "missing.yaml") == {}
 
@@ -74,8 +83,11 @@ def test_no_e2e_module_but_the_session_fixture_takes_the_session_lab_up_or_down(
     from pathlib import Path
 
     e2e = Path(__file__).resolve().parents[1] / "e2e"
-    offenders = [path.name for path in sorted(e2e.glob("test_*.py"))
-                 if re.search(r"hosts\.(up|down|reset)\(\s*PREFIX\b", path.read_text())]
+    offenders = [
+        path.name
+        for path in sorted(e2e.glob("test_*.py"))
+        if re.search(r"hosts\.(up|down|reset)\(\s*PREFIX\b", path.read_text())
+    ]
     assert offenders == []
     assert re.search(r"hosts\.down\(PREFIX\)", (e2e / "conftest.py").read_text())
 

@@ -14,8 +14,10 @@ def _module():
     global pp
     pp = __import__("tests.lab.payload_platforms", fromlist=["x"])
 
+
 CONFIG = {
-    "architecture": "amd64", "os": "linux",
+    "architecture": "amd64",
+    "os": "linux",
     "config": {"Labels": {"org.opencontainers.image.version": "1.0"}, "Cmd": ["/bin/sh", "/payload.sh"]},
     "rootfs": {"type": "layers", "diff_ids": ["sha256:" + "a" * 64, "sha256:" + "b" * 64]},
 }
@@ -58,8 +60,16 @@ def test_the_arm64_config_is_the_amd64_one_with_its_own_rootfs_and_platform():
 
 def test_the_index_names_each_manifest_and_its_platform():
     manifest_type = "application/vnd.docker.distribution.manifest.v2+json"
-    index = json.loads(pp.index_document([(manifest_type, b"{}", "sha256:1", pp.PLATFORMS["amd64"]),
-                                          (manifest_type, b"{ }", "sha256:2", pp.PLATFORMS["arm64"])]))
+    index = json.loads(
+        pp.index_document(
+            [
+                (manifest_type, b"{}", "sha256:1", pp.PLATFORMS["amd64"]),
+                (manifest_type, b"{ }", "sha256:2", pp.PLATFORMS["arm64"]),
+            ]
+        )
+    )
     assert index["mediaType"] == pp.OCI_INDEX and index["schemaVersion"] == 2
     assert [(m["digest"], m["size"], m["platform"]["architecture"]) for m in index["manifests"]] == [
-        ("sha256:1", 2, "amd64"), ("sha256:2", 3, "arm64")]
+        ("sha256:1", 2, "amd64"),
+        ("sha256:2", 3, "arm64"),
+    ]

@@ -13,7 +13,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from roles.payload import installed_files as payload
 from roles.payload.payloadctl import durable, lifecycle
@@ -61,8 +62,16 @@ def life_at(tmp_path) -> Life:
 
 
 def record(rid, **more):
-    return lifecycle.Record(created=rid, spec_hash="h-" + rid, project="robot-payload", images={}, autostart=True,
-                            deployed_by="test", run_id="run-" + rid, **more)
+    return lifecycle.Record(
+        created=rid,
+        spec_hash="h-" + rid,
+        project="robot-payload",
+        images={},
+        autostart=True,
+        deployed_by="test",
+        run_id="run-" + rid,
+        **more,
+    )
 
 
 def prepare(life, rid):
@@ -211,8 +220,9 @@ def first_release(life, outcome):
     if outcome == "give back":
         life.adopt("r1", [{"name": "ros_payload", "why": "it runs the payload's image"}])
         life.abandon("r1")
-        life.fail("r1", "unhealthy; restored what it had taken over: ros_payload",
-                  restored={"containers": ["ros_payload"]})
+        life.fail(
+            "r1", "unhealthy; restored what it had taken over: ros_payload", restored={"containers": ["ros_payload"]}
+        )
     elif outcome == "keep":
         life.keep("r1")
     else:
@@ -350,8 +360,11 @@ def operate(life, operation):
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(operations=st.lists(st.sampled_from(OPERATIONS), min_size=1, max_size=6), cut_at=st.integers(0, 80),
-       recovery_cut=st.one_of(st.none(), st.integers(0, 12)))
+@given(
+    operations=st.lists(st.sampled_from(OPERATIONS), min_size=1, max_size=6),
+    cut_at=st.integers(0, 80),
+    recovery_cut=st.one_of(st.none(), st.integers(0, 12)),
+)
 def test_any_history_cut_anywhere_recovers_to_a_consistent_robot(tmp_path_factory, operations, cut_at, recovery_cut):
     life = life_at(tmp_path_factory.mktemp("history"))
     released(life, "r1")
@@ -403,8 +416,11 @@ def offences(source: str) -> list[tuple[int, str]]:
                 found.append((node.lineno, "names record.json"))
         if isinstance(node, ast.Attribute) and node.attr in ("symlink", "_write", "_point", "write_record", "point"):
             found.append((node.lineno, node.attr))
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in (
-                "write_json", "write_text", "write_bytes", "unlink", "replace", "rename", "rmtree"):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr in ("write_json", "write_text", "write_bytes", "unlink", "replace", "rename", "rmtree")
+        ):
             target = ast.unparse(node.args[0]) if node.args else ""
             if any(word in target for word in ('"current"', '"previous"', "record", "pointer")):
                 found.append((node.lineno, ast.unparse(node)))
@@ -413,8 +429,9 @@ def offences(source: str) -> list[tuple[int, str]]:
 
 def test_only_lifecycle_writes_records_and_pointers():
     """Every other module of payloadctl reads records and pointers only."""
-    found = {path.name: offences(path.read_text())
-             for path in sorted(PAYLOADCTL.glob("*.py")) if path.name not in WRITERS}
+    found = {
+        path.name: offences(path.read_text()) for path in sorted(PAYLOADCTL.glob("*.py")) if path.name not in WRITERS
+    }
     assert {name: lines for name, lines in found.items() if lines} == {}
 
 
@@ -423,8 +440,10 @@ def test_the_ownership_check_finds_a_writer():
     used to write: takeover.py its record, apply.py and recovery.py the
     pointers."""
     assert len(offences(LIFECYCLE.read_text())) >= 5
-    for old in ('durable.write_json(releases.path(rid, "record.json"), record)\n',
-                'releases.point("current", good_old)\n',
-                'releases.write_record(rid, record)\n',
-                'os.symlink(os.path.join("releases", rid), tmp)\n'):
+    for old in (
+        'durable.write_json(releases.path(rid, "record.json"), record)\n',
+        'releases.point("current", good_old)\n',
+        "releases.write_record(rid, record)\n",
+        'os.symlink(os.path.join("releases", rid), tmp)\n',
+    ):
         assert offences(old), old

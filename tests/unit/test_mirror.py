@@ -29,8 +29,7 @@ DOCKER_IO = {
     "Architecture": "amd64",
     "Maintainer": "Debian Go Packaging Team <team+pkg-go@tracker.debian.org>",
     "Installed-Size": "94954",
-    "Depends": "libc6 (>= 2.34), libsystemd0, adduser, containerd (>= 1.4~), iptables, "
-               "runc (>= 1.0.0~rc8~), tini",
+    "Depends": "libc6 (>= 2.34), libsystemd0, adduser, containerd (>= 1.4~), iptables, runc (>= 1.0.0~rc8~), tini",
     "Pre-Depends": "init-system-helpers (>= 1.54~)",
     "Recommends": "apparmor, ca-certificates, docker-cli, git, needrestart (>= 3.1~), xz-utils",
     "Conflicts": "docker-ce, docker-ce-rootless-extras",
@@ -70,21 +69,24 @@ RUNC = {
 
 
 def rels(value):
-    return [str(g[0]) if len(g) == 1 else " | ".join(map(str, g))
-            for g in parse_relations(value)]
+    return [str(g[0]) if len(g) == 1 else " | ".join(map(str, g)) for g in parse_relations(value)]
 
 
 # ------------------------------------------------------------ versions
 
-@pytest.mark.parametrize("debian, upstream", [
-    ("26.1.5+dfsg1-9+deb13u1", "26.1.5"),
-    ("1.7.24~ds1-6+deb13u1", "1.7.24"),
-    ("1.1.15+ds1-2+b4", "1.1.15"),
-    ("0.13.1+ds1-3", "0.13.1"),
-    ("2.26.1-4", "2.26.1"),
-    ("1:2.0.1-2", "2.0.1"),
-    ("3.0", "3.0"),
-])
+
+@pytest.mark.parametrize(
+    "debian, upstream",
+    [
+        ("26.1.5+dfsg1-9+deb13u1", "26.1.5"),
+        ("1.7.24~ds1-6+deb13u1", "1.7.24"),
+        ("1.1.15+ds1-2+b4", "1.1.15"),
+        ("0.13.1+ds1-3", "0.13.1"),
+        ("2.26.1-4", "2.26.1"),
+        ("1:2.0.1-2", "2.0.1"),
+        ("3.0", "3.0"),
+    ],
+)
 def test_upstream_version_strips_epoch_revision_and_repack_suffix(debian, upstream):
     assert upstream_version(debian) == upstream
 
@@ -100,21 +102,25 @@ def test_epoch_5_outranks_any_debian_docker_io_version():
     assert compare_versions("5:26.1.5-1~debian.13~trixie", "26.1.5+dfsg1-9+deb13u1") > 0
 
 
-@pytest.mark.parametrize("a, b, expected", [
-    ("1.0", "1.0~rc1", 1),
-    ("2.38", "2.34", 1),
-    ("1:0.1", "2.0", 1),
-    ("1.0-1", "1.0-1+b1", -1),
-    ("1.0~", "1.0", -1),
-    ("1.0a", "1.0", 1),
-    ("1.0", "1.0.0", -1),
-    ("1.2.3", "1.2.3", 0),
-])
+@pytest.mark.parametrize(
+    "a, b, expected",
+    [
+        ("1.0", "1.0~rc1", 1),
+        ("2.38", "2.34", 1),
+        ("1:0.1", "2.0", 1),
+        ("1.0-1", "1.0-1+b1", -1),
+        ("1.0~", "1.0", -1),
+        ("1.0a", "1.0", 1),
+        ("1.0", "1.0.0", -1),
+        ("1.2.3", "1.2.3", 0),
+    ],
+)
 def test_compare_versions_matches_dpkg(a, b, expected):
     assert compare_versions(a, b) == expected
 
 
 # ------------------------------------------------------------ relations
+
 
 def test_relations_roundtrip():
     value = "libc6 (>= 2.34), zfs-fuse | zfsutils-linux, foo:any"
@@ -130,6 +136,7 @@ def test_relations_reject_garbage():
 
 
 # ------------------------------------------------------------ control rewriting
+
 
 def test_docker_ce_depends_on_docker_names_without_debian_versions():
     ctl = rewrite_control(RULE["docker-ce"], [DOCKER_IO], "5:26.1.5-1~debian.13~trixie")
@@ -153,8 +160,7 @@ def test_docker_ce_conflicts_replaces_provides_docker_io_only():
 
 def test_identity_fields_and_order():
     ctl = rewrite_control(RULE["docker-ce"], [DOCKER_IO], "5:26.1.5-1~debian.13~trixie")
-    assert list(ctl)[:6] == ["Package", "Source", "Version", "Architecture", "Maintainer",
-                             "Installed-Size"]
+    assert list(ctl)[:6] == ["Package", "Source", "Version", "Architecture", "Maintainer", "Installed-Size"]
     assert list(ctl)[-1] == "Description"
     assert ctl["Package"] == "docker-ce"
     assert ctl["Source"] == "docker.io (26.1.5+dfsg1-9+deb13u1)"
@@ -192,8 +198,13 @@ def test_source_field_keeps_the_binnmu_source_version():
 
 
 def test_plugins_recommend_the_docker_cli():
-    compose = {"Package": "docker-compose", "Version": "2.26.1-4", "Depends": "libc6 (>= 2.34)",
-               "Recommends": "docker-cli", "Description": "compose"}
+    compose = {
+        "Package": "docker-compose",
+        "Version": "2.26.1-4",
+        "Depends": "libc6 (>= 2.34)",
+        "Recommends": "docker-cli",
+        "Description": "compose",
+    }
     ctl = rewrite_control(RULE["docker-compose-plugin"], [compose], "2.26.1-1~debian.13~trixie")
     assert ctl["Recommends"] == "docker-ce-cli"
     assert ctl["Provides"] == ctl["Conflicts"] == ctl["Replaces"] == "docker-compose"
@@ -211,8 +222,11 @@ def test_rules_digest_is_stable_and_covers_rules(monkeypatch):
     for index, rule in enumerate(RULES):
         for field in dataclasses.fields(rule):
             value = getattr(rule, field.name)
-            other = ((not value) if isinstance(value, bool)
-                     else (value + ("x",) if isinstance(value, tuple) else f"{value}x"))
+            other = (
+                (not value)
+                if isinstance(value, bool)
+                else (value + ("x",) if isinstance(value, tuple) else f"{value}x")
+            )
             edited = list(RULES)
             edited[index] = dataclasses.replace(rule, **{field.name: other})
             monkeypatch.setattr(mirror, "RULES", tuple(edited))
@@ -225,6 +239,7 @@ def test_rules_digest_is_stable_and_covers_rules(monkeypatch):
 
 # ------------------------------------------------------------ deb822 / indexes
 
+
 def test_parse_paragraphs_keeps_continuation_lines():
     text = "Package: a\nDescription: short\n long line\n .\n\nPackage: b\nVersion: 1\n"
     a, b = parse_paragraphs(text)
@@ -234,8 +249,9 @@ def test_parse_paragraphs_keeps_continuation_lines():
 
 def test_packages_entry_appends_file_fields():
     data = b"not really a deb"
-    entry = packages_entry({"Package": "x", "Version": "1", "Description": "d\n more"},
-                           "pool/stable/amd64/x_1_amd64.deb", data)
+    entry = packages_entry(
+        {"Package": "x", "Version": "1", "Description": "d\n more"}, "pool/stable/amd64/x_1_amd64.deb", data
+    )
     fields = parse_paragraphs(entry)[0]
     assert entry.startswith("Package: x\n")
     assert fields["Filename"] == "pool/stable/amd64/x_1_amd64.deb"
@@ -246,20 +262,18 @@ def test_packages_entry_appends_file_fields():
 
 
 def test_release_lists_every_index_under_every_hash():
-    indexes = {"stable/binary-amd64/Packages": b"abc",
-               "stable/binary-amd64/Packages.gz": b"defg"}
+    indexes = {"stable/binary-amd64/Packages": b"abc", "stable/binary-amd64/Packages.gz": b"defg"}
     text = release_text(indexes, "Sat, 01 Feb 2025 10:00:00 UTC")
     fields = parse_paragraphs(text)[0]
     assert fields["Suite"] == fields["Codename"] == "trixie"
     assert fields["Components"] == "stable"
     assert fields["Architectures"] == "amd64 arm64"
     assert fields["Date"] == "Sat, 01 Feb 2025 10:00:00 UTC"
-    for field, algo in (("MD5Sum", "md5"), ("SHA1", "sha1"), ("SHA256", "sha256"),
-                        ("SHA512", "sha512")):
+    for field, algo in (("MD5Sum", "md5"), ("SHA1", "sha1"), ("SHA256", "sha256"), ("SHA512", "sha512")):
         lines = fields[field].splitlines()[1:]
         assert [line.split() for line in lines] == [
-            [hashlib.new(algo, data).hexdigest(), str(len(data)), path]
-            for path, data in sorted(indexes.items())]
+            [hashlib.new(algo, data).hexdigest(), str(len(data)), path] for path, data in sorted(indexes.items())
+        ]
         assert all(line.startswith(" ") for line in lines)
 
 

@@ -18,8 +18,13 @@ def test_the_archive_puts_runc_and_its_amd64_libraries_where_an_amd64_system_has
         members = {m.name: m for m in tar.getmembers()}
         assert tar.extractfile(members["usr/local/lib/robot-lab/runc"]).read() == b"usr/local/lib/robot-lab/runc"
     assert sorted(members) == [
-        "lib64", "usr/lib/x86_64-linux-gnu/ld-linux-x86-64.so.2", "usr/lib/x86_64-linux-gnu/libc.so.6",
-        "usr/lib/x86_64-linux-gnu/libseccomp.so.2", "usr/lib64/ld-linux-x86-64.so.2", "usr/local/lib/robot-lab/runc"]
+        "lib64",
+        "usr/lib/x86_64-linux-gnu/ld-linux-x86-64.so.2",
+        "usr/lib/x86_64-linux-gnu/libc.so.6",
+        "usr/lib/x86_64-linux-gnu/libseccomp.so.2",
+        "usr/lib64/ld-linux-x86-64.so.2",
+        "usr/local/lib/robot-lab/runc",
+    ]
     assert members["usr/local/lib/robot-lab/runc"].mode == 0o755
     # runc's ELF interpreter is /lib64/ld-linux-x86-64.so.2: lib64 -> usr/lib64 -> the loader.
     assert (members["lib64"].issym(), members["lib64"].linkname) == (True, "usr/lib64")

@@ -14,17 +14,20 @@ import tarfile
 import yaml
 
 from robotfleet.host.snapshot import FileState
-from roles.payload import compose, login, image_transfer
+from roles.payload import compose, image_transfer, login
 from tests.unit.harness import ROBOT, converged, desired_compose, find, merged, plan
 
 
 def test_every_string_written_to_compose_has_its_dollars_escaped():
-    data = merged("robots", {
-        "payload_image": "reg.lan/ros/payload:1.0",
-        "payload_environment": {"PASSWORD": "s3cr$et", "REQUIRED": "${X:?}", "PLAIN": "a$$b"},
-        "payload_command": ["sh", "-c", "echo $HOME"],
-        "payload_volumes": ["/srv/$data:/data"],
-    })
+    data = merged(
+        "robots",
+        {
+            "payload_image": "reg.lan/ros/payload:1.0",
+            "payload_environment": {"PASSWORD": "s3cr$et", "REQUIRED": "${X:?}", "PLAIN": "a$$b"},
+            "payload_command": ["sh", "-c", "echo $HOME"],
+            "payload_volumes": ["/srv/$data:/data"],
+        },
+    )
     doc = yaml.safe_load(compose.dump(desired_compose(data, "10.0.0.1")))
     service = doc["services"]["payload"]
     assert service["environment"]["PASSWORD"] == "s3cr$$et"
@@ -105,10 +108,11 @@ def test_the_archive_sent_is_gzip_compressed_and_smaller_than_the_layers(tmp_pat
     saved = tmp_path / "saved.tar"
     layer = (b"robot payload layer " * 4000) + os.urandom(2000)
     with tarfile.open(saved, "w") as tar:
-        for name, data in (("cfg.json", json.dumps({"rootfs": {"diff_ids": ["sha256:a"]}}).encode()),
-                           ("l1/layer.tar", layer),
-                           ("manifest.json",
-                            json.dumps([{"Config": "cfg.json", "Layers": ["l1/layer.tar"]}]).encode())):
+        for name, data in (
+            ("cfg.json", json.dumps({"rootfs": {"diff_ids": ["sha256:a"]}}).encode()),
+            ("l1/layer.tar", layer),
+            ("manifest.json", json.dumps([{"Config": "cfg.json", "Layers": ["l1/layer.tar"]}]).encode()),
+        ):
             info = tarfile.TarInfo(name)
             info.size = len(data)
             tar.addfile(info, io.BytesIO(data))

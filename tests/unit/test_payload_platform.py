@@ -15,27 +15,34 @@ REG = "reg.example.com"
 
 def test_the_shorthand_carries_its_platform_to_its_one_service():
     assert services.declared({"payload_image": f"{REG}/cam:2.0-arm64", "payload_platform": "linux/arm64"}) == {
-        "payload": {"image": f"{REG}/cam:2.0-arm64", "platform": "linux/arm64"}}
+        "payload": {"image": f"{REG}/cam:2.0-arm64", "platform": "linux/arm64"}
+    }
     assert services.declared({"payload_image": f"{REG}/cam:2.0"}) == {"payload": {"image": f"{REG}/cam:2.0"}}
-    assert services.platforms({"payload_services": {"a": {"image": "x:1", "platform": "linux/arm64"},
-                                                    "b": {"image": "y:1"}}}) == {"a": "linux/arm64"}
+    assert services.platforms(
+        {"payload_services": {"a": {"image": "x:1", "platform": "linux/arm64"}, "b": {"image": "y:1"}}}
+    ) == {"a": "linux/arm64"}
 
 
 def test_a_platform_is_checked_in_either_place():
     assert fleet_problems(host_with(payload_image=f"{REG}/a:1", payload_platform="arm64")) == [
-        "robots.yaml: robot3.payload_platform: expected os/architecture[/variant] like linux/arm64, got 'arm64'"]
+        "robots.yaml: robot3.payload_platform: expected os/architecture[/variant] like linux/arm64, got 'arm64'"
+    ]
     assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1", "platform": "aarch64"}})) == [
         "robots.yaml: robot3.payload_services.cam.platform: expected os/architecture[/variant] like linux/arm64, "
-        "got 'aarch64'"]
+        "got 'aarch64'"
+    ]
     assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1", "platform": 64}})) == [
-        "robots.yaml: robot3.payload_services.cam.platform: expected os/architecture[/variant] like linux/arm64, "
-        "got 64"]
-    assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1"}},
-                                    payload_platform="linux/arm64")) == [
+        "robots.yaml: robot3.payload_services.cam.platform: expected os/architecture[/variant] like linux/arm64, got 64"
+    ]
+    assert fleet_problems(
+        host_with(payload_services={"cam": {"image": f"{REG}/a:1"}}, payload_platform="linux/arm64")
+    ) == [
         "robots.yaml: robot3.payload_platform: applies to the single-image payload; with payload_services "
-        "give each service its own 'platform' key"]
-    assert fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1",
-                                                              "platform": "linux/arm/v7"}})) == []
+        "give each service its own 'platform' key"
+    ]
+    assert (
+        fleet_problems(host_with(payload_services={"cam": {"image": f"{REG}/a:1", "platform": "linux/arm/v7"}})) == []
+    )
 
 
 FLEET = f"""
@@ -70,14 +77,27 @@ def test_robots_of_one_architecture_pin_a_vendors_per_architecture_tag_per_servi
 
 
 def test_a_service_pinned_to_another_platform_fails_that_robot_before_the_payload_changes():
-    arm64 = {**ROBOT, "payload_services": {"payload": {"image": f"{REG}/cam:2.0-amd64", "platform": "linux/amd64"}},
-             "payload_image": None}
-    result = plan({"pi1": ("robots", arm64, fresh_host("debian-13", "arm64")),
-                   "nuc1": ("robots", arm64, fresh_host("debian-13", "amd64"))})
+    arm64 = {
+        **ROBOT,
+        "payload_services": {"payload": {"image": f"{REG}/cam:2.0-amd64", "platform": "linux/amd64"}},
+        "payload_image": None,
+    }
+    result = plan(
+        {
+            "pi1": ("robots", arm64, fresh_host("debian-13", "arm64")),
+            "nuc1": ("robots", arm64, fresh_host("debian-13", "amd64")),
+        }
+    )
     assert result.failed == {"pi1"}
     refusal = [c for c in result["pi1"] if "refused" in c]
-    assert len(refusal) == 1 and ("payload: @fake/pi1 is linux/arm64 but service payload pins platform "
-                                  "linux/amd64: refused before anything switched") in refusal[0]
+    assert (
+        len(refusal) == 1
+        and (
+            "payload: @fake/pi1 is linux/arm64 but service payload pins platform "
+            "linux/amd64: refused before anything switched"
+        )
+        in refusal[0]
+    )
     assert not find(result["pi1"], "payloadctl") and not find(result["pi1"], "robot-payload.service")
     assert find(result["nuc1"], "payloadctl apply")
 

@@ -6,7 +6,7 @@ import pytest
 import yaml
 
 from roles.payload import compose, problems
-from tests.unit.harness import converged, desired_compose, fleet_problems, merged, plan, ROBOT
+from tests.unit.harness import ROBOT, converged, desired_compose, fleet_problems, merged, plan
 
 REG = "reg.example.com"
 TWO = {"driver": {"image": f"{REG}/ros/driver:2.0"}, "slam": {"image": f"{REG}/ros/slam:1.0"}}
@@ -22,22 +22,27 @@ def test_without_settings_docker_stops_as_it_always_did():
     assert not {"stop_signal", "stop_grace_period", "init"} & set(service)
 
 
-@pytest.mark.parametrize("preset, extra", [
-    ("ros1", {"ros_roscore": True, "ros_roscore_image": f"{REG}/ros:noetic-ros-core"}),
-    ("ros2", {}),
-])
+@pytest.mark.parametrize(
+    "preset, extra",
+    [
+        ("ros1", {"ros_roscore": True, "ros_roscore_image": f"{REG}/ros:noetic-ros-core"}),
+        ("ros2", {}),
+    ],
+)
 def test_ros_presets_stop_every_service_with_sigint(preset, extra):
     doc = rendered({"payload_services": TWO, "ros_preset": preset, **extra})
     assert {name: s.get("stop_signal") for name, s in doc["services"].items()} == {
-        name: "SIGINT" for name in doc["services"]}
+        name: "SIGINT" for name in doc["services"]
+    }
     assert len(doc["services"]) == (3 if preset == "ros1" else 2)  # roscore too
     assert problems.schema_problems(doc) == []
 
 
 def test_a_service_keeps_its_own_stop_signal_and_settings_reach_every_service():
     services = dict(TWO, slam={**TWO["slam"], "stop_signal": "SIGTERM", "init": False, "stop_grace_period": "1m"})
-    doc = rendered({"payload_services": services, "ros_preset": "ros2",
-                    "payload_stop_grace_period": 3, "payload_init": True})
+    doc = rendered(
+        {"payload_services": services, "ros_preset": "ros2", "payload_stop_grace_period": 3, "payload_init": True}
+    )
     driver, slam = doc["services"]["driver"], doc["services"]["slam"]
     assert (driver["stop_signal"], driver["stop_grace_period"], driver["init"]) == ("SIGINT", "3s", True)
     assert (slam["stop_signal"], slam["stop_grace_period"], slam["init"]) == ("SIGTERM", "1m", False)
@@ -45,18 +50,26 @@ def test_a_service_keeps_its_own_stop_signal_and_settings_reach_every_service():
 
 
 def test_the_single_image_payload_gets_the_grace_period_and_init():
-    service = rendered({"payload_image": f"{REG}/ros/payload:1.0", "payload_stop_grace_period": 0,
-                        "payload_init": True})["services"]["payload"]
+    service = rendered(
+        {"payload_image": f"{REG}/ros/payload:1.0", "payload_stop_grace_period": 0, "payload_init": True}
+    )["services"]["payload"]
     assert service["stop_grace_period"] == "0s" and service["init"] is True
 
 
-@pytest.mark.parametrize("settings, line", [
-    ({"payload_stop_grace_period": -1},
-     "robots.yaml: robot3.payload_stop_grace_period: expected at least 0, got -1"),
-    ({"payload_stop_grace_period": "10s"},
-     "robots.yaml: robot3.payload_stop_grace_period: expected a whole number, got '10s'"),
-    ({"payload_init": "yes"}, "robots.yaml: robot3.payload_init: expected true or false, got 'yes'"),
-])
+@pytest.mark.parametrize(
+    "settings, line",
+    [
+        (
+            {"payload_stop_grace_period": -1},
+            "robots.yaml: robot3.payload_stop_grace_period: expected at least 0, got -1",
+        ),
+        (
+            {"payload_stop_grace_period": "10s"},
+            "robots.yaml: robot3.payload_stop_grace_period: expected a whole number, got '10s'",
+        ),
+        ({"payload_init": "yes"}, "robots.yaml: robot3.payload_init: expected true or false, got 'yes'"),
+    ],
+)
 def test_bad_stop_settings_are_one_line(settings, line):
     host = {"address": "10.0.0.3", "payload_image": f"{REG}/a:1", **settings}
     assert fleet_problems({"robots": {"hosts": {"robot3": host}}}) == [line]

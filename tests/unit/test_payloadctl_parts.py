@@ -9,8 +9,9 @@ import sys
 import yaml
 
 from roles.payload import installed_files as payload
-from roles.payload.payloadctl import durable, imageref, images, lifecycle, releases as store
+from roles.payload.payloadctl import durable, imageref, images, lifecycle
 from roles.payload.payloadctl import lock as apply_lock
+from roles.payload.payloadctl import releases as store
 
 
 def test_repository_of_references():
@@ -20,8 +21,10 @@ def test_repository_of_references():
 
 
 def test_pinned_prefers_the_digest_of_the_same_repository():
-    info = {"id": "sha256:1",
-            "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64]}
+    info = {
+        "id": "sha256:1",
+        "repo_digests": ["other/x@sha256:" + "b" * 64, "reg.lan:5000/ros/payload@sha256:" + "a" * 64],
+    }
     assert images.pinned("reg.lan:5000/ros/payload:1.0", info) == "reg.lan:5000/ros/payload@sha256:" + "a" * 64
     assert images.pinned("loaded/only:1.0", {"id": "sha256:1", "repo_digests": []}) == "loaded/only:1.0"
 
@@ -30,8 +33,10 @@ def test_pinned_keeps_the_digest_the_reference_names():
     """A pull release names each image by its signed digest: the release
     records that one, not another digest the same image was pulled under."""
     signed, other = "sha256:" + "c" * 64, "sha256:" + "a" * 64
-    info = {"id": "sha256:1", "repo_digests": ["reg.lan:5000/ros/payload@" + other,
-                                                "reg.lan:5000/ros/payload@" + signed]}
+    info = {
+        "id": "sha256:1",
+        "repo_digests": ["reg.lan:5000/ros/payload@" + other, "reg.lan:5000/ros/payload@" + signed],
+    }
     assert images.pinned("reg.lan:5000/ros/payload:1.1@" + signed, info) == "reg.lan:5000/ros/payload@" + signed
 
 
@@ -44,13 +49,21 @@ def test_a_release_file_grants_no_restart_policy_and_keeps_the_ones_asked_for():
     """Compose creates an unverified release's containers without a policy
     (a power cut must not bring them back before the boot decides); the
     policies wait in x-restart-when-verified for the verdict."""
-    doc = {"name": "p", "services": {
-        "payload": {"image": "a", "restart": "unless-stopped"},
-        "driver": {"image": "b", "deploy": {"restart_policy": {"condition": "on-failure", "max_attempts": 3},
-                                            "resources": {"limits": {"cpus": "1"}}}},
-        "tool": {"image": "c"},
-        "sidecar": {"image": "d", "restart": "always", "deploy": {"restart_policy": {"condition": "none"}}},
-    }}
+    doc = {
+        "name": "p",
+        "services": {
+            "payload": {"image": "a", "restart": "unless-stopped"},
+            "driver": {
+                "image": "b",
+                "deploy": {
+                    "restart_policy": {"condition": "on-failure", "max_attempts": 3},
+                    "resources": {"limits": {"cpus": "1"}},
+                },
+            },
+            "tool": {"image": "c"},
+            "sidecar": {"image": "d", "restart": "always", "deploy": {"restart_policy": {"condition": "none"}}},
+        },
+    }
     asked = {"payload": "unless-stopped", "driver": "on-failure:3", "tool": "no", "sidecar": "no"}
     assert store.restart_policies(doc) == asked and not store.grants_no_policy(doc)
     written = yaml.safe_load(store.compose_yaml(store.release_compose(doc)))
@@ -131,4 +144,3 @@ def test_writes_are_fsynced_file_and_directory_before_they_count(tmp_path, monke
     synced.clear()
     life._point("current", "r1")
     assert synced == [str(tmp_path)]
-

@@ -13,8 +13,11 @@ from roles.payload import installed_files
 from tests.unit.harness import LAPTOP, ROBOT, converged, everything_sent, find, fresh_host, merged, plan
 
 DOCKER_FPR = "9DC858229FC7DD38854AE2D88D81803C0EBFCD88"
-MATRIX = [(os_name, arch) for os_name in ("ubuntu-20.04", "ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13")
-          for arch in ("amd64", "arm64")]
+MATRIX = [
+    (os_name, arch)
+    for os_name in ("ubuntu-20.04", "ubuntu-22.04", "ubuntu-24.04", "debian-12", "debian-13")
+    for arch in ("amd64", "arm64")
+]
 
 
 def sources_of(commands):
@@ -54,10 +57,18 @@ def test_docker_sources_file_names_suite_arch_and_key(os_name, arch):
     dist = docker_plan.distribution(snap.os_release)
     text = docker_plan.sources_text(
         docker_plan.repo_uri("https://download.docker.com/linux", dist),
-        docker_plan.suite(snap.os_release), "stable", docker_plan.architecture(arch), "/etc/apt/keyrings/docker.asc",
+        docker_plan.suite(snap.os_release),
+        "stable",
+        docker_plan.architecture(arch),
+        "/etc/apt/keyrings/docker.asc",
     )
-    expected_suite = {"ubuntu-20.04": "focal", "ubuntu-22.04": "jammy", "ubuntu-24.04": "noble",
-                      "debian-12": "bookworm", "debian-13": "trixie"}[os_name]
+    expected_suite = {
+        "ubuntu-20.04": "focal",
+        "ubuntu-22.04": "jammy",
+        "ubuntu-24.04": "noble",
+        "debian-12": "bookworm",
+        "debian-13": "trixie",
+    }[os_name]
     assert text.splitlines()[1:] == [
         "Types: deb",
         f"URIs: https://download.docker.com/linux/{dist}",
@@ -93,9 +104,14 @@ def test_legacy_docker_files_are_removed_before_apt_update():
 
 
 def test_version_pin_and_mirror_urls():
-    data = {**ROBOT, "docker_version": "5:28.5.2-1~ubuntu.24.04~noble",
-            "docker_repo_url": "http://mirror.lan/docker", "docker_apt_key_url": "http://mirror.lan/key.asc",
-            "docker_apt_key_fingerprint": None, "docker_apt_key_sha256": "a" * 64}
+    data = {
+        **ROBOT,
+        "docker_version": "5:28.5.2-1~ubuntu.24.04~noble",
+        "docker_repo_url": "http://mirror.lan/docker",
+        "docker_apt_key_url": "http://mirror.lan/key.asc",
+        "docker_apt_key_fingerprint": None,
+        "docker_apt_key_sha256": "a" * 64,
+    }
     commands = plan({"r1": ("robots", data, fresh_host("ubuntu-24.04"))})["r1"]
     install = find(commands, "--allow-downgrades install")[0]
     assert "docker-ce=5:28.5.2-1~ubuntu.24.04~noble" in install
@@ -118,8 +134,9 @@ def test_unsupported_architecture_is_refused():
     assert result.failed == {"r1"} and "architecture armhf is not supported" in result["r1"][0]
 
 
-@pytest.mark.parametrize("os_name, packages",
-                         [("debian-13", "docker.io docker-compose"), ("ubuntu-24.04", "docker.io docker-compose-v2")])
+@pytest.mark.parametrize(
+    "os_name, packages", [("debian-13", "docker.io docker-compose"), ("ubuntu-24.04", "docker.io docker-compose-v2")]
+)
 def test_distro_source_installs_the_distributions_engine(os_name, packages):
     commands = plan({"r1": ("robots", {**ROBOT, "docker_source": "distro"}, fresh_host(os_name))})["r1"]
     assert find(commands, f"install {packages}")
@@ -165,9 +182,15 @@ def test_converged_robot_plans_nothing(os_name, arch):
 
 def converged_sources(snap):
     dist = docker_plan.distribution(snap.os_release)
-    return file_state(docker_plan.sources_text(
-        docker_plan.repo_uri("https://download.docker.com/linux", dist), docker_plan.suite(snap.os_release),
-        "stable", snap.arch, "/etc/apt/keyrings/docker.asc"))
+    return file_state(
+        docker_plan.sources_text(
+            docker_plan.repo_uri("https://download.docker.com/linux", dist),
+            docker_plan.suite(snap.os_release),
+            "stable",
+            snap.arch,
+            "/etc/apt/keyrings/docker.asc",
+        )
+    )
 
 
 def test_converged_laptop_plans_nothing():
@@ -175,15 +198,18 @@ def test_converged_laptop_plans_nothing():
     assert result["l1"] == []
 
 
-@pytest.mark.parametrize("state, containers", [
-    ("failed", "running\tUp 3 hours (healthy)\n"),      # a first release that failed its health check
-    ("switching", "running\tUp 3 hours (healthy)\n"),   # a power cut before its verdict
-    ("active", ""),                                       # the payload is down, the oneshot unit still "active"
-    ("active", "exited\tExited (1) 2 minutes ago\n"),
-    ("active", "restarting\tRestarting (1) 1 second ago\n"),
-    ("active", "running\tUp 2 minutes (unhealthy)\n"),
-    ("active", "unit failed"),                            # containers up by Docker's restart policy, unit failed
-])
+@pytest.mark.parametrize(
+    "state, containers",
+    [
+        ("failed", "running\tUp 3 hours (healthy)\n"),  # a first release that failed its health check
+        ("switching", "running\tUp 3 hours (healthy)\n"),  # a power cut before its verdict
+        ("active", ""),  # the payload is down, the oneshot unit still "active"
+        ("active", "exited\tExited (1) 2 minutes ago\n"),
+        ("active", "restarting\tRestarting (1) 1 second ago\n"),
+        ("active", "running\tUp 2 minutes (unhealthy)\n"),
+        ("active", "unit failed"),  # containers up by Docker's restart policy, unit failed
+    ],
+)
 def test_failed_half_done_or_dead_release_is_released_again(state, containers):
     snap = converged("robots", ROBOT, "debian-13")
     if containers == "unit failed":
@@ -234,9 +260,11 @@ def test_daemon_json_and_its_previous_copy_written_0644_by_an_older_version_beco
     snap.files["/etc/docker/daemon.json"] = FileState("file", state.sha256, "644", "root", "root")
     snap.files["/etc/docker/daemon.json.previous"] = FileState("file", "ab" * 32, "644", "root", "root")
     commands = plan({"r1": ("robots", ROBOT, snap)})["r1"]
-    assert commands == ["sh -c 'chown root:root /etc/docker/daemon.json && chmod 600 /etc/docker/daemon.json && "
-                        "chown root:root /etc/docker/daemon.json.previous && chmod 600 "
-                        "/etc/docker/daemon.json.previous'"]
+    assert commands == [
+        "sh -c 'chown root:root /etc/docker/daemon.json && chmod 600 /etc/docker/daemon.json && "
+        "chown root:root /etc/docker/daemon.json.previous && chmod 600 "
+        "/etc/docker/daemon.json.previous'"
+    ]
     snap.files["/etc/docker/daemon.json"] = state
     snap.files["/etc/docker/daemon.json.previous"] = FileState("file", "ab" * 32, "600", "root", "root")
     assert plan({"r1": ("robots", ROBOT, snap)})["r1"] == []
@@ -320,15 +348,19 @@ def test_snapshot_encoding_roundtrip():
     snap = converged("robots", ROBOT, "debian-13")
     from robotfleet.host.snapshot import parse
     from tests.unit.harness import query_of, snapshot_lines
+
     again = parse(snapshot_lines(snap, query_of(snap)), query_of(snap))
     assert again.files == snap.files and again.probes == snap.probes and again.packages == snap.packages
     assert again.users == snap.users and again.units == snap.units and again.os_release == snap.os_release
 
 
 def test_bad_override_data_fails_that_host_before_anything_runs():
-    result = plan({"r1": ("robots", {**ROBOT, "docker_apt_key_fingerprint": 0, "ssh_port": "x"},
-                          fresh_host("debian-13")),
-                   "r2": ("robots", ROBOT, fresh_host("debian-13"))})
+    result = plan(
+        {
+            "r1": ("robots", {**ROBOT, "docker_apt_key_fingerprint": 0, "ssh_port": "x"}, fresh_host("debian-13")),
+            "r2": ("robots", ROBOT, fresh_host("debian-13")),
+        }
+    )
     assert result.failed == {"r1"}
     assert len(result["r1"]) == 1 and "settings: " in result["r1"][0]
     assert "docker_apt_key_fingerprint: expected a string, got 0" in result["r1"][0]
@@ -338,12 +370,14 @@ def test_bad_override_data_fails_that_host_before_anything_runs():
 
 def test_a_deploy_that_finds_the_boot_recovery_holding_the_lock_says_it_waits(caplog):
     snap = converged("robots", ROBOT, "debian-13")
-    snap.probes["payload_lock"] = json.dumps({"action": "start", "by": "boot", "since": "2026-11-23T10:00:00Z",
-                                              "pid": 7})
+    snap.probes["payload_lock"] = json.dumps(
+        {"action": "start", "by": "boot", "since": "2026-11-23T10:00:00Z", "pid": 7}
+    )
     data = {**ROBOT, "payload_image": "reg.example.com/ros/payload:1.1"}
     commands = plan({"r1": ("robots", data, snap)})["r1"]
-    assert ("[@fake/r1] @fake/r1 is recovering from an interrupted release since 2026-11-23T10:00:00Z; "
-            "waiting") in caplog.text
+    assert (
+        "[@fake/r1] @fake/r1 is recovering from an interrupted release since 2026-11-23T10:00:00Z; waiting"
+    ) in caplog.text
     assert len(commands) == 1 and "payloadctl apply" in commands[0]  # the release waits on the robot, bounded
 
 

@@ -9,14 +9,22 @@ import pytest
 from robotfleet.commands import publish
 
 
-@pytest.mark.parametrize("argv, said", [
-    (["--waves", "50%,40%"], "--waves 50%,40%: its share 2: shares are cumulative and must rise, got 40% after 50%; "
-                             "nothing was published"),
-    (["--waves", "50%"], "--waves 50%: the last wave must be 100% (every robot), got 50%; nothing was published"),
-    (["--canary", "many"], "--canary many: expected a number of robots or a percentage like 25%, got 'many'; "
-                           "nothing was published"),
-    (["--max-failed", "-1"], "--max-failed -1: "),
-])
+@pytest.mark.parametrize(
+    "argv, said",
+    [
+        (
+            ["--waves", "50%,40%"],
+            "--waves 50%,40%: its share 2: shares are cumulative and must rise, got 40% after 50%; "
+            "nothing was published",
+        ),
+        (["--waves", "50%"], "--waves 50%: the last wave must be 100% (every robot), got 50%; nothing was published"),
+        (
+            ["--canary", "many"],
+            "--canary many: expected a number of robots or a percentage like 25%, got 'many'; nothing was published",
+        ),
+        (["--max-failed", "-1"], "--max-failed -1: "),
+    ],
+)
 def test_a_bad_rollout_option_is_named_as_given(argv, said):
     with pytest.raises(ValueError) as raised:
         publish.plan_of(publish.parse_args(argv))

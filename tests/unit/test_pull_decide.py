@@ -4,9 +4,9 @@ import datetime
 
 import pytest
 
-from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.protocol import waves
+from robotfleet.pull.robot import decide as deciding
 
 UTC = datetime.timezone.utc
 PUBLISHED = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)  # a Wednesday
@@ -14,10 +14,19 @@ ROBOTS = [f"robot{i}" for i in range(1, 11)]
 
 
 def record(version=7, robots=ROBOTS, halt=False, **plan):
-    made = records.build(version, PUBLISHED, PUBLISHED + datetime.timedelta(days=30), "a" * 40, "b" * 64,
-                         "inventories/robots.yaml", "c" * 64, robots, {}, {},
-                         waves.parse_plan({"canary": "1", "waves": ["50%", "100%"], "pause": 600,
-                                           "max_failed": "0", **plan}))
+    made = records.build(
+        version,
+        PUBLISHED,
+        PUBLISHED + datetime.timedelta(days=30),
+        "a" * 40,
+        "b" * 64,
+        "inventories/robots.yaml",
+        "c" * 64,
+        robots,
+        {},
+        {},
+        waves.parse_plan({"canary": "1", "waves": ["50%", "100%"], "pause": 600, "max_failed": "0", **plan}),
+    )
     return made.halted(version, PUBLISHED, PUBLISHED + datetime.timedelta(days=30), "bad payload") if halt else made
 
 

@@ -17,8 +17,12 @@ def test_each_robot_may_write_only_its_own_report_ref():
     assert "    RW+ refs/reports/robot2$ = robot2" in text
     # robots get no other write rule: the releases branch is the admin's alone
     writes = [line for line in text.splitlines() if line.strip().startswith("RW")]
-    assert writes == ["    RW+ = admin", "    RW+ = admin",
-                      "    RW+ refs/reports/robot1$ = robot1", "    RW+ refs/reports/robot2$ = robot2"]
+    assert writes == [
+        "    RW+ = admin",
+        "    RW+ = admin",
+        "    RW+ refs/reports/robot1$ = robot1",
+        "    RW+ refs/reports/robot2$ = robot2",
+    ]
 
 
 def test_a_robot_name_is_matched_literally_not_as_a_pattern():
@@ -58,8 +62,14 @@ def test_with_shards_each_robot_writes_its_own_ref_in_its_own_shard_only():
 
     robots = [f"robot{i}" for i in range(1, 21)]
     rules = blocks(gitolite.conf("fleet", robots, shards=4))
-    assert sorted(rules) == ["fleet", "fleet-reports-0", "fleet-reports-1", "fleet-reports-2", "fleet-reports-3",
-                             "gitolite-admin"]
+    assert sorted(rules) == [
+        "fleet",
+        "fleet-reports-0",
+        "fleet-reports-1",
+        "fleet-reports-2",
+        "fleet-reports-3",
+        "gitolite-admin",
+    ]
     for robot in robots:
         own = f"RW+ refs/reports/{robot}$ = {robot}"
         where = sorted(repo for repo, lines in rules.items() if own in lines)
@@ -86,7 +96,8 @@ def test_with_shards_a_shared_key_writes_its_names_in_every_shard_but_a_register
         assert (deny in rules[repo]) == (repo in ("fleet", own)), repo
         if deny in rules[repo]:  # the deny comes before the shared key's write
             assert rules[repo].index(deny) < rules[repo].index(
-                f"RW+ refs/reports/{gitolite.shared_refex(shared)}$ = {shared}")
+                f"RW+ refs/reports/{gitolite.shared_refex(shared)}$ = {shared}"
+            )
 
 
 def test_no_shards_is_the_one_repository_as_before():
@@ -115,8 +126,13 @@ def test_a_public_key_is_one_line_without_its_comment():
 def test_admin_uses_strict_host_keys_and_only_its_key():
     env = gitolite.Admin("ssh://gitolite3@h:2222", "/k/id", "/k/known").env()
     ssh = env["GIT_SSH_COMMAND"]
-    for option in ("-i /k/id", "IdentitiesOnly=yes", "StrictHostKeyChecking=yes",
-                   "UserKnownHostsFile=/k/known", "BatchMode=yes"):
+    for option in (
+        "-i /k/id",
+        "IdentitiesOnly=yes",
+        "StrictHostKeyChecking=yes",
+        "UserKnownHostsFile=/k/known",
+        "BatchMode=yes",
+    ):
         assert option in ssh
 
 

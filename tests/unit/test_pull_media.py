@@ -24,18 +24,27 @@ def test_an_index_is_written_and_read_back():
     assert media.build(3, {"x86_64": {"reg.lan:5000/ros/payload:1.1": ENTRY}}) == data
 
 
-@pytest.mark.parametrize("change, line", [
-    (lambda d: d.update(format=2), "media.json: format: expected 1 (a newer robotfleet wrote these media?), got 2"),
-    (lambda d: d.update(extra=1), "media.json: the index: expected exactly format, version and images"),
-    (lambda d: d.update(version=0), "media.json: version: expected an integer >= 1, got 0"),
-    (lambda d: d["images"].update(sparc={}), "media.json: images.sparc: expected x86_64, aarch64 or armv7l"),
-    (lambda d: d["images"]["x86_64"]["r:1"].update(digest="sha256:x"),
-     "media.json: images.x86_64.r:1.digest: expected sha256:<64 hex digits>, got 'sha256:x'"),
-    (lambda d: d["images"]["x86_64"]["r:1"].update(archive="../../etc/passwd"),
-     "media.json: images.x86_64.r:1.archive: expected a target path images/<name>.tar"),
-    (lambda d: d["images"]["x86_64"]["r:1"].update(archive="images/a/../b.tar"),
-     "media.json: images.x86_64.r:1.archive: expected a target path images/<name>.tar"),
-])
+@pytest.mark.parametrize(
+    "change, line",
+    [
+        (lambda d: d.update(format=2), "media.json: format: expected 1 (a newer robotfleet wrote these media?), got 2"),
+        (lambda d: d.update(extra=1), "media.json: the index: expected exactly format, version and images"),
+        (lambda d: d.update(version=0), "media.json: version: expected an integer >= 1, got 0"),
+        (lambda d: d["images"].update(sparc={}), "media.json: images.sparc: expected x86_64, aarch64 or armv7l"),
+        (
+            lambda d: d["images"]["x86_64"]["r:1"].update(digest="sha256:x"),
+            "media.json: images.x86_64.r:1.digest: expected sha256:<64 hex digits>, got 'sha256:x'",
+        ),
+        (
+            lambda d: d["images"]["x86_64"]["r:1"].update(archive="../../etc/passwd"),
+            "media.json: images.x86_64.r:1.archive: expected a target path images/<name>.tar",
+        ),
+        (
+            lambda d: d["images"]["x86_64"]["r:1"].update(archive="images/a/../b.tar"),
+            "media.json: images.x86_64.r:1.archive: expected a target path images/<name>.tar",
+        ),
+    ],
+)
 def test_every_bad_field_is_one_line_naming_it(change, line):
     data = {"format": 1, "version": 1, "images": {"x86_64": {"r:1": dict(ENTRY)}}}
     change(data)

@@ -35,11 +35,14 @@ def test_a_placeholder_serial_is_refused_since_every_robot_would_share_it(raw):
         naming.derive("dmi-serial", "robot-", raw)
 
 
-@pytest.mark.parametrize("rule, prefix, line", [
-    ("hostname", "robot-", "name rule 'hostname': expected one of machine-id, dmi-serial"),
-    ("machine-id", "-x", "name prefix '-x': expected letters"),
-    ("machine-id", "a/b", "name prefix 'a/b': expected letters"),
-])
+@pytest.mark.parametrize(
+    "rule, prefix, line",
+    [
+        ("hostname", "robot-", "name rule 'hostname': expected one of machine-id, dmi-serial"),
+        ("machine-id", "-x", "name prefix '-x': expected letters"),
+        ("machine-id", "a/b", "name prefix 'a/b': expected letters"),
+    ],
+)
 def test_bad_rules_and_prefixes_are_one_line(rule, prefix, line):
     with pytest.raises(naming.NamingError, match=re.escape(line)):
         naming.derive(rule, prefix, MACHINE_ID)

@@ -24,7 +24,8 @@ def test_an_image_reference_and_its_digest_make_what_docker_pulls():
 def test_room_keeps_pull_min_free_mb_free_after_the_downloads():
     assert prefetch.room(600 * MB, 88 * MB, 512, "/var/lib/robot-pull") is None
     assert prefetch.room(600 * MB, 89 * MB, 512, "/var/lib/robot-pull") == (
-        "it needs about 89 MB, 600 MB are free on /var/lib/robot-pull's file system (pull_min_free_mb: 512)")
+        "it needs about 89 MB, 600 MB are free on /var/lib/robot-pull's file system (pull_min_free_mb: 512)"
+    )
     assert prefetch.room(10 * MB, 0, 0, "/x") is None
 
 

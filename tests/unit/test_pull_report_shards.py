@@ -18,10 +18,14 @@ def test_a_robot_s_shard_is_pinned_by_its_name_and_the_count():
     assert all(report_shards.shard_of(f"robot{i}", 1) == 0 for i in range(50))
 
 
-@pytest.mark.parametrize("names", [
-    [f"robot{i}" for i in range(1, 10_001)],
-    [f"robot-{(i * 2654435761) % (1 << 48):012x}" for i in range(10_000)],  # machine-id names
-], ids=["numbered", "machine-id"])
+@pytest.mark.parametrize(
+    "names",
+    [
+        [f"robot{i}" for i in range(1, 10_001)],
+        [f"robot-{(i * 2654435761) % (1 << 48):012x}" for i in range(10_000)],  # machine-id names
+    ],
+    ids=["numbered", "machine-id"],
+)
 def test_ten_thousand_robots_spread_over_256_shards_evenly(names):
     counts = Counter(report_shards.shard_of(name, 256) for name in names)
     assert len(counts) == 256
@@ -29,14 +33,17 @@ def test_ten_thousand_robots_spread_over_256_shards_evenly(names):
     assert 20 <= min(counts.values()) and max(counts.values()) <= 62, (min(counts.values()), max(counts.values()))
 
 
-@pytest.mark.parametrize("url, shard, expected", [
-    ("ssh://gitolite3@git.lan/fleet", 3, "ssh://gitolite3@git.lan/fleet-reports-3"),
-    ("ssh://gitolite3@git.lan:2222/fleets/a/", 0, "ssh://gitolite3@git.lan:2222/fleets/a-reports-0"),
-    ("gitolite3@git.lan:fleet.git", 12, "gitolite3@git.lan:fleet-reports-12.git"),
-    ("https://mirror.lan/fleet.git", 5, "https://mirror.lan/fleet-reports-5.git"),
-    ("file:///srv/fleet.git", 1, "file:///srv/fleet-reports-1.git"),
-    ("ssh://gitolite3@git.lan/fleet", None, "ssh://gitolite3@git.lan/fleet"),
-])
+@pytest.mark.parametrize(
+    "url, shard, expected",
+    [
+        ("ssh://gitolite3@git.lan/fleet", 3, "ssh://gitolite3@git.lan/fleet-reports-3"),
+        ("ssh://gitolite3@git.lan:2222/fleets/a/", 0, "ssh://gitolite3@git.lan:2222/fleets/a-reports-0"),
+        ("gitolite3@git.lan:fleet.git", 12, "gitolite3@git.lan:fleet-reports-12.git"),
+        ("https://mirror.lan/fleet.git", 5, "https://mirror.lan/fleet-reports-5.git"),
+        ("file:///srv/fleet.git", 1, "file:///srv/fleet-reports-1.git"),
+        ("ssh://gitolite3@git.lan/fleet", None, "ssh://gitolite3@git.lan/fleet"),
+    ],
+)
 def test_a_shard_s_url_is_the_fleet_remote_s_beside_it(url, shard, expected):
     assert report_shards.shard_url(url, shard) == expected
 
@@ -55,8 +62,9 @@ def test_robots_are_grouped_by_shard():
     assert report_shards.spread(["b", "a"], 0) == {None: ["a", "b"]}
 
 
-@pytest.mark.parametrize("robots, count", [(10, 0), (50, 0), (51, 2), (1_000, 32), (10_000, 256),
-                                           (100_000, 2048), (10**7, 4096)])
+@pytest.mark.parametrize(
+    "robots, count", [(10, 0), (50, 0), (51, 2), (1_000, 32), (10_000, 256), (100_000, 2048), (10**7, 4096)]
+)
 def test_the_suggested_count_keeps_fifty_refs_a_shard_or_fewer(robots, count):
     assert report_shards.suggested(robots) == count
 
@@ -78,6 +86,7 @@ def test_the_agent_configuration_carries_the_shard_count():
     assert "report_shards" not in json.loads(single.to_json())  # an agent from before shards reads it too
     assert agent_files.read_config(single.to_json()).report_shards == 0
     raw = {**json.loads(single.to_json()), "report_shards": 5000}
-    with pytest.raises(agent_files.ConfigError,
-                       match=r"agent.json: report_shards: expected a whole number from 0 to 4096, got 5000"):
+    with pytest.raises(
+        agent_files.ConfigError, match=r"agent.json: report_shards: expected a whole number from 0 to 4096, got 5000"
+    ):
         agent_files.read_config(json.dumps(raw), "agent.json")

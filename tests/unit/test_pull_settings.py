@@ -22,9 +22,15 @@ from roles.pull.settings import SETTINGS
 
 DECLARED = {setting.name: setting for setting in SETTINGS}
 # The agent's whole numbers and the pull role's settings that give them.
-NUMBERS = {"interval": "pull_interval", "jitter": "pull_jitter", "min_free_mb": "pull_min_free_mb",
-           "fetch_timeout": "pull_fetch_timeout", "stale_after": "pull_stale_after",
-           "heartbeat": "pull_heartbeat", "report_shards": "pull_report_shards"}
+NUMBERS = {
+    "interval": "pull_interval",
+    "jitter": "pull_jitter",
+    "min_free_mb": "pull_min_free_mb",
+    "fetch_timeout": "pull_fetch_timeout",
+    "stale_after": "pull_stale_after",
+    "heartbeat": "pull_heartbeat",
+    "report_shards": "pull_report_shards",
+}
 
 
 def test_every_pull_setting_is_the_pull_role_s():
@@ -49,8 +55,10 @@ def test_agent_json_and_the_fleet_file_take_one_default_and_one_range(field):
             assert getattr(agent_files.read_config(text), field) == value
 
 
-@pytest.mark.parametrize("field, value, range_", [("interval", 9, "10 to 604800"), ("heartbeat", 1, "10 to 604800"),
-                                                  ("fetch_timeout", 4, "5 to 86400")])
+@pytest.mark.parametrize(
+    "field, value, range_",
+    [("interval", 9, "10 to 604800"), ("heartbeat", 1, "10 to 604800"), ("fetch_timeout", 4, "5 to 86400")],
+)
 def test_agent_json_refuses_what_the_fleet_file_refuses(field, value, range_):
     """The three the agent once took below the fleet file's minimum (1 s)."""
     assert DECLARED[NUMBERS[field]].check(value)
@@ -62,7 +70,12 @@ def test_agent_json_refuses_what_the_fleet_file_refuses(field, value, range_):
 def test_the_agent_s_config_is_the_host_s_settings_with_their_declared_defaults():
     config = plan.config({"pull_enabled": True, "pull_remote": "ssh://g@h/fleet", "pull_interval": 60}, "robot1")
     assert (config.remote, config.interval, config.jitter, config.heartbeat, config.stale_after) == (
-        "ssh://g@h/fleet", 60, 300, 3600, 2)
+        "ssh://g@h/fleet",
+        60,
+        300,
+        3600,
+        2,
+    )
     assert config.media_dir is None and config.report_remote is None and config.report_shards == 0
     assert plan.pulls({"pull_enabled": True}) and not plan.pulls({}) and not plan.pulls({"pull_enabled": False})
     assert "OnUnitInactiveSec=60\n" in plan.timer_unit({"pull_interval": 60})

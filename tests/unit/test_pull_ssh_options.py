@@ -23,5 +23,11 @@ def test_the_options_offer_aead_ciphers_and_the_pinned_algorithms(tmp_path):
     pinned = tmp_path / "known_hosts"
     pinned.write_text(f"{ED}\n")
     assert ssh_options.options(str(pinned)) == [
-        "-o", f"Ciphers={ssh_options.CIPHERS}", "-o", f"MACs={ssh_options.MACS}", "-o", "HostKeyAlgorithms=ssh-ed25519"]
+        "-o",
+        f"Ciphers={ssh_options.CIPHERS}",
+        "-o",
+        f"MACs={ssh_options.MACS}",
+        "-o",
+        "HostKeyAlgorithms=ssh-ed25519",
+    ]
     assert "HostKeyAlgorithms" not in " ".join(ssh_options.options(str(tmp_path / "absent")))

@@ -70,15 +70,21 @@ def test_a_halt_or_another_robots_release_does_not_open():
     assert waves.gate("robot99", ROBOTS, 7, plan(), PUBLISHED, PUBLISHED, 0).why == "release 7 is not for robot99"
 
 
-@pytest.mark.parametrize("raw, says", [
-    ({"waves": ["50%", "40%", "100%"]}, "rollout.waves[1]: shares are cumulative and must rise, got 40% after 50%"),
-    ({"waves": ["3", "100%"]}, "rollout.waves[0]: expected a share of the robots like 50%, got '3'"),
-    ({"waves": []}, "rollout.waves: expected a list of cumulative shares ending at 100%"),
-    ({"pause": -1}, "rollout.pause: expected seconds between waves"),
-    ({"pause": True}, "rollout.pause: expected seconds between waves"),
-    ({"max_failed": "150%"}, "rollout.max_failed: expected a number of robots or a percentage like 25%, got '150%'"),
-    ({"speed": 3}, "rollout: unknown field 'speed'"),
-])
+@pytest.mark.parametrize(
+    "raw, says",
+    [
+        ({"waves": ["50%", "40%", "100%"]}, "rollout.waves[1]: shares are cumulative and must rise, got 40% after 50%"),
+        ({"waves": ["3", "100%"]}, "rollout.waves[0]: expected a share of the robots like 50%, got '3'"),
+        ({"waves": []}, "rollout.waves: expected a list of cumulative shares ending at 100%"),
+        ({"pause": -1}, "rollout.pause: expected seconds between waves"),
+        ({"pause": True}, "rollout.pause: expected seconds between waves"),
+        (
+            {"max_failed": "150%"},
+            "rollout.max_failed: expected a number of robots or a percentage like 25%, got '150%'",
+        ),
+        ({"speed": 3}, "rollout: unknown field 'speed'"),
+    ],
+)
 def test_a_bad_plan_is_one_line(raw, says):
     with pytest.raises(ValueError) as caught:
         plan(**raw)
@@ -130,14 +136,17 @@ def test_lists_ranges_and_the_next_opening():
     assert waves.next_window([], at(1, 12)) is None
 
 
-@pytest.mark.parametrize("text, says", [
-    ("Mon-Fri 01:00", "maintenance window 'Mon-Fri 01:00': expected DAYS HH:MM-HH:MM [UTC]"),
-    ("Mon-Fry 01:00-05:00", "maintenance window 'Mon-Fry 01:00-05:00': 'Mon-Fry' is not a day or a range of days"),
-    ("daily 25:00-05:00", "maintenance window 'daily 25:00-05:00': 25:00 is not a time of day"),
-    ("daily 01:00-01:00", "maintenance window 'daily 01:00-01:00': starts and ends at the same time"),
-    ("Mon 01:00-02:00 CET", "maintenance window 'Mon 01:00-02:00 CET': expected DAYS HH:MM-HH:MM [UTC]"),
-    (5, "maintenance window: expected text like 'Mon-Fri 01:00-05:00', got 5"),
-])
+@pytest.mark.parametrize(
+    "text, says",
+    [
+        ("Mon-Fri 01:00", "maintenance window 'Mon-Fri 01:00': expected DAYS HH:MM-HH:MM [UTC]"),
+        ("Mon-Fry 01:00-05:00", "maintenance window 'Mon-Fry 01:00-05:00': 'Mon-Fry' is not a day or a range of days"),
+        ("daily 25:00-05:00", "maintenance window 'daily 25:00-05:00': 25:00 is not a time of day"),
+        ("daily 01:00-01:00", "maintenance window 'daily 01:00-01:00': starts and ends at the same time"),
+        ("Mon 01:00-02:00 CET", "maintenance window 'Mon 01:00-02:00 CET': expected DAYS HH:MM-HH:MM [UTC]"),
+        (5, "maintenance window: expected text like 'Mon-Fri 01:00-05:00', got 5"),
+    ],
+)
 def test_a_bad_window_is_one_line(text, says):
     with pytest.raises(ValueError) as caught:
         waves.parse_window(text)

@@ -39,8 +39,9 @@ def test_operation_order_is_pyinfras(monkeypatch, deploy_file, is_cli):
     # Both called from the same line, so the stacks are the same but for the
     # functions' own frames.
     for _ in range(2):  # the second time from the places looked up the first
-        theirs, ours = (_nested(4, lambda f=f: f(state))
-                        for f in (pyinfra_order, pyinfra_patches.operation_order_from_stack))
+        theirs, ours = (
+            _nested(4, lambda f=f: f(state)) for f in (pyinfra_order, pyinfra_patches.operation_order_from_stack)
+        )
         assert ours == theirs
     if deploy_file == __file__:
         assert len(theirs) >= 5 + is_cli  # the line numbers of the nested calls at least
@@ -126,8 +127,10 @@ def test_global_arguments_from_layered_host_data_are_pyinfras():
 def test_host_data_lookups_are_pyinfras():
     from collections import OrderedDict
 
-    inventory = Inventory((["h1"], {"everywhere": "inventory", "deep": [1, 2]}),
-                          robots=(["h1"], {"everywhere": "group", "group_only": {"a": 1}}))
+    inventory = Inventory(
+        (["h1"], {"everywhere": "inventory", "deep": [1, 2]}),
+        robots=(["h1"], {"everywhere": "group", "group_only": {"a": 1}}),
+    )
     host = inventory.get_host("h1")
     host.data.everywhere = "override"
     host.data.__dict__["datas"] += (OrderedDict(mapping_only=3),)  # a layer that is no plain dict
@@ -184,6 +187,7 @@ def test_a_pyinfra_whose_function_changed_keeps_its_own_with_one_line(pyinfras_o
     """An operator may install a later pyinfra 3.x.  Simulated: the operation
     module calls a changed function, while pyinfra.api.util still has the
     old one; the function checked is the one pyinfra calls, so it stays."""
+
     def get_operation_order_from_stack(state):  # a later pyinfra's
         return [state.current_op_file_number]
 
@@ -193,10 +197,12 @@ def test_a_pyinfra_whose_function_changed_keeps_its_own_with_one_line(pyinfras_o
     assert pyinfra_patches.install() == ALL[1:]
     assert operation.get_operation_order_from_stack is get_operation_order_from_stack
     assert arguments.all_global_arguments is pyinfra_patches.all_global_arguments
-    assert _lines(caplog) == [f"robotfleet: pyinfra {pyinfra.__version__} has another "
-                              "pyinfra.api.operation.get_operation_order_from_stack than "
-                              "robotfleet/pyinfra_patches.py was written from; pyinfra's own runs (slower, "
-                              "same answers)"]
+    assert _lines(caplog) == [
+        f"robotfleet: pyinfra {pyinfra.__version__} has another "
+        "pyinfra.api.operation.get_operation_order_from_stack than "
+        "robotfleet/pyinfra_patches.py was written from; pyinfra's own runs (slower, "
+        "same answers)"
+    ]
 
 
 def test_a_changed_host_data_lookup_keeps_pyinfras_lookup_and_argument_reading(pyinfras_own, monkeypatch, caplog):
@@ -207,9 +213,15 @@ def test_a_changed_host_data_lookup_keeps_pyinfras_lookup_and_argument_reading(p
     assert pyinfra_patches.install() == ["order", "arguments", "connectors", "groups_data", "signature"]
     assert HostData.__getattr__ is pyinfra_patches.original("host_data")
     assert operation.pop_global_arguments is pyinfra_patches.original("pop_arguments")
-    assert _lines(caplog) == [f"robotfleet: pyinfra {pyinfra.__version__} has another "
-                              "pyinfra.api.host.HostData.__getattr__ than robotfleet/pyinfra_patches.py was written "
-                              "from; pyinfra's own runs (slower, same answers)"] * 2
+    assert (
+        _lines(caplog)
+        == [
+            f"robotfleet: pyinfra {pyinfra.__version__} has another "
+            "pyinfra.api.host.HostData.__getattr__ than robotfleet/pyinfra_patches.py was written "
+            "from; pyinfra's own runs (slower, same answers)"
+        ]
+        * 2
+    )
 
 
 def test_a_changed_caller_or_another_function_where_it_calls_keeps_pyinfras(pyinfras_own, monkeypatch, caplog):
@@ -220,8 +232,11 @@ def test_a_changed_caller_or_another_function_where_it_calls_keeps_pyinfras(pyin
     assert "connectors" not in pyinfra_patches.install()
     assert pyinfra_connectors.entry_points is pyinfra_patches.original("connectors")
     assert "pyinfra.api.connectors.get_all_connectors" in _lines(caplog)[0]
-    monkeypatch.setitem(pyinfra_patches.COPIED_FROM, "pyinfra.api.connectors:get_all_connectors",
-                        pyinfra_patches.digest(pyinfra_connectors.get_all_connectors))
+    monkeypatch.setitem(
+        pyinfra_patches.COPIED_FROM,
+        "pyinfra.api.connectors:get_all_connectors",
+        pyinfra_patches.digest(pyinfra_connectors.get_all_connectors),
+    )
 
     def entry_points(group):  # not importlib's
         return []

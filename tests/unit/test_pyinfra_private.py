@@ -7,10 +7,10 @@ from __future__ import annotations
 import ast
 import importlib
 
+import pyinfra.api
 import pytest
 
-import pyinfra.api
-from robotfleet import pyinfra_private, pyinfra_patches
+from robotfleet import pyinfra_patches, pyinfra_private
 from tests.fixtures import ROOT
 
 LISTED = {name for entry in pyinfra_private.USED for name in entry.names}
@@ -30,7 +30,8 @@ def test_each_private_name_is_still_what_it_was(entry):
     found = pyinfra_private.digest(PYINFRAS_OWN.get(entry.source) or pyinfra_private.resolve(entry.source))
     assert found == entry.digest, (
         f"pyinfra changed {entry.source} ({entry.used_in}: {entry.why}); check the code that uses it, "
-        f"then pin {found} in robotfleet/pyinfra_private.py")
+        f"then pin {found} in robotfleet/pyinfra_private.py"
+    )
 
 
 def code_files():
@@ -53,8 +54,11 @@ def private_imports(tree: ast.AST) -> set[str]:
             name = alias.name
             if module.split(".")[0] == "pyinfra_cli" or (module.split(".")[0] == "pyinfra" and name.startswith("_")):
                 found.add(f"{module}:{name}")
-            elif module.split(".")[0] == "pyinfra" and module not in PUBLIC_MODULES \
-                    and not module.startswith(PUBLIC_PACKAGES):
+            elif (
+                module.split(".")[0] == "pyinfra"
+                and module not in PUBLIC_MODULES
+                and not module.startswith(PUBLIC_PACKAGES)
+            ):
                 imported = getattr(importlib.import_module(module), name, None)
                 if imported is None or getattr(pyinfra.api, name, None) is not imported:
                     found.add(f"{module}:{name}")
@@ -63,8 +67,11 @@ def private_imports(tree: ast.AST) -> set[str]:
 
 def private_attributes(tree: ast.AST) -> set[str]:
     """Underscore attributes read or written on something (not dunders)."""
-    return {node.attr for node in ast.walk(tree) if isinstance(node, ast.Attribute)
-            and node.attr.startswith("_") and not node.attr.startswith("__")}
+    return {
+        node.attr
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")
+    }
 
 
 def defined(tree: ast.AST) -> set[str]:
@@ -86,25 +93,36 @@ def listed(name: str) -> bool:
 
 def test_every_private_pyinfra_name_the_code_uses_is_listed():
     listed_attributes = {name.rpartition(".")[2].rpartition(":")[2] for name in LISTED} | {
-        "_host_keys", "_host_keys_filename", "_ssh_config",  # set by the listed SSHClient.connect, load_host_keys
-        "_policy", "_trusted_set"}  # set by the listed set_missing_host_key_policy, Updater.__init__
+        "_host_keys",
+        "_host_keys_filename",
+        "_ssh_config",  # set by the listed SSHClient.connect, load_host_keys
+        "_policy",
+        "_trusted_set",
+    }  # set by the listed set_missing_host_key_policy, Updater.__init__
     trees = {path: ast.parse(path.read_text()) for path in code_files()}
     ours = {"_getframe", "_exit"} | {name for tree in trees.values() for name in defined(tree)}  # sys's, os's
     unlisted = []
     for path, tree in trees.items():
         unlisted += [f"{path.relative_to(ROOT)}: {name}" for name in sorted(private_imports(tree)) if not listed(name)]
-        unlisted += [f"{path.relative_to(ROOT)}: .{name}"
-                     for name in sorted(private_attributes(tree) - listed_attributes - ours)]
+        unlisted += [
+            f"{path.relative_to(ROOT)}: .{name}" for name in sorted(private_attributes(tree) - listed_attributes - ours)
+        ]
     assert unlisted == []
 
 
 def test_the_scan_sees_a_private_import():
-    tree = ast.parse("from pyinfra.api.util import format_text, "
-                     "make_hash\nfrom pyinfra.api.command import StringCommand\n"
-                     "from pyinfra_cli.util import load_deploy_file\nfrom pyinfra.connectors.ssh_util import _x\n"
-                     "from pyinfra.facts.files import File\nclient._secret = 1\n")
-    assert private_imports(tree) == {"pyinfra.api.util:format_text", "pyinfra.api.util:make_hash",
-                                     "pyinfra_cli.util:load_deploy_file", "pyinfra.connectors.ssh_util:_x"}
+    tree = ast.parse(
+        "from pyinfra.api.util import format_text, "
+        "make_hash\nfrom pyinfra.api.command import StringCommand\n"
+        "from pyinfra_cli.util import load_deploy_file\nfrom pyinfra.connectors.ssh_util import _x\n"
+        "from pyinfra.facts.files import File\nclient._secret = 1\n"
+    )
+    assert private_imports(tree) == {
+        "pyinfra.api.util:format_text",
+        "pyinfra.api.util:make_hash",
+        "pyinfra_cli.util:load_deploy_file",
+        "pyinfra.connectors.ssh_util:_x",
+    }
     assert private_attributes(tree) == {"_secret"}
 
 

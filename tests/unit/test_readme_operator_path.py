@@ -17,8 +17,16 @@ from tests.fixtures import ROOT
 
 README = (ROOT / "README.md").read_text()
 LINES = README.splitlines()
-PATH = ["Install for operators", "Describing a fleet", "Enrolling the robots' host keys", "First deploy", "Status",
-        "Updates and rollbacks", "Push or pull", "Exit codes"]
+PATH = [
+    "Install for operators",
+    "Describing a fleet",
+    "Enrolling the robots' host keys",
+    "First deploy",
+    "Status",
+    "Updates and rollbacks",
+    "Push or pull",
+    "Exit codes",
+]
 
 
 def section(title: str) -> str:
@@ -38,8 +46,11 @@ def test_the_two_commands_stay_at_the_top():
 def test_the_operator_path_comes_first_and_reaches_a_deploy_before_line_150():
     titles = re.findall(r"^## (.+)$", README, re.M)
     assert titles == ["What it does", *PATH, "More"], titles
-    first_deploy = next(c.line for c in doccommands.commands(ROOT / "README.md", inline=False)
-                        if c.program == "pyinfra" and "deploy.py" in c.args)
+    first_deploy = next(
+        c.line
+        for c in doccommands.commands(ROOT / "README.md", inline=False)
+        if c.program == "pyinfra" and "deploy.py" in c.args
+    )
     assert LINES.index("## First deploy") < first_deploy < 150, first_deploy
     assert len(LINES) < 300, len(LINES)
 
@@ -47,15 +58,17 @@ def test_the_operator_path_comes_first_and_reaches_a_deploy_before_line_150():
 def test_the_path_shows_each_step_s_commands():
     shown: dict[str, list[str]] = {}
     for command in doccommands.commands(ROOT / "README.md", inline=False):
-        title = next((line[3:] for line in reversed(LINES[:command.line]) if line.startswith("## ")), None)
+        title = next((line[3:] for line in reversed(LINES[: command.line]) if line.startswith("## ")), None)
         shown.setdefault(title, []).append(command.text)
     assert "robotfleet --version" in shown["Install for operators"]
-    assert any(c.startswith("robotfleet enroll inventories/robots.py")
-               for c in shown["Enrolling the robots' host keys"])
+    assert any(
+        c.startswith("robotfleet enroll inventories/robots.py") for c in shown["Enrolling the robots' host keys"]
+    )
     assert "pyinfra inventories/robots.py deploy.py" in shown["First deploy"]
     # pyinfra's form for any fleet, next to the first deploy; -i for robotfleet's commands (issue 39, item 1)
-    assert any(c.startswith("ROBOT_FLEET=") and "pyinfra inventories/robots.py deploy.py" in c
-               for c in shown["First deploy"])
+    assert any(
+        c.startswith("ROBOT_FLEET=") and "pyinfra inventories/robots.py deploy.py" in c for c in shown["First deploy"]
+    )
     assert any(c.startswith("robotfleet enroll -i ") for c in shown["Enrolling the robots' host keys"])
     assert "as Ansible's `-i`" in section("First deploy")
     assert any(c.startswith("robotfleet status inventories/robots.py") for c in shown["Status"])
@@ -75,9 +88,16 @@ def test_the_rest_is_in_docs_and_more_links_its_index_and_every_kind_of_page():
         assert f"]({page})" in more, f"README's More does not link {page}"
     for link in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", README):
         assert (ROOT / link).exists(), link
-    for moved in ("docs/reference/fleet-file.md", "docs/reference/settings.md", "docs/guides/host-certificates.md",
-                  "docs/reference/status.md", "docs/guides/laptops.md", "docs/guides/releases.md",
-                  "docs/guides/pull.md", "docs/guides/install.md"):
+    for moved in (
+        "docs/reference/fleet-file.md",
+        "docs/reference/settings.md",
+        "docs/guides/host-certificates.md",
+        "docs/reference/status.md",
+        "docs/guides/laptops.md",
+        "docs/guides/releases.md",
+        "docs/guides/pull.md",
+        "docs/guides/install.md",
+    ):
         assert re.search(rf"^(?!- ).*\]\({re.escape(moved)}[)#]", README, re.M), f"the path itself links {moved}"
 
 

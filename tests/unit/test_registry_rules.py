@@ -32,7 +32,14 @@ def test_a_one_part_name_is_under_library_on_docker_hub_only(registry):
 
 
 def test_a_bearer_challenge_is_read(registry):
-    assert registry.challenge('Bearer realm="https://auth.docker.io/token",service="registry.docker.io",'
-                              'scope="repository:library/ubuntu:pull"') == (
-        "bearer", {"realm": "https://auth.docker.io/token", "service": "registry.docker.io",
-                   "scope": "repository:library/ubuntu:pull"})
+    assert registry.challenge(
+        'Bearer realm="https://auth.docker.io/token",service="registry.docker.io",'
+        'scope="repository:library/ubuntu:pull"'
+    ) == (
+        "bearer",
+        {
+            "realm": "https://auth.docker.io/token",
+            "service": "registry.docker.io",
+            "scope": "repository:library/ubuntu:pull",
+        },
+    )

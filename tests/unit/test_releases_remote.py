@@ -8,10 +8,18 @@ import pytest
 
 from robotfleet.pull.operator import releases_remote as rr
 
-ROBOTS = [("robot1", {"pull_enabled": True, "pull_remote": "https://mirror/fleet.git",
-                      "pull_report_remote": "ssh://git@server/fleet"}),
-          ("robot2", {"pull_enabled": True, "pull_remote": "https://mirror/fleet.git"}),
-          ("robot3", {"pull_enabled": False, "pull_remote": "ssh://elsewhere/x"})]
+ROBOTS = [
+    (
+        "robot1",
+        {
+            "pull_enabled": True,
+            "pull_remote": "https://mirror/fleet.git",
+            "pull_report_remote": "ssh://git@server/fleet",
+        },
+    ),
+    ("robot2", {"pull_enabled": True, "pull_remote": "https://mirror/fleet.git"}),
+    ("robot3", {"pull_enabled": False, "pull_remote": "ssh://elsewhere/x"}),
+]
 
 
 def test_the_pull_robots_name_their_remote_and_push_robots_name_none():
@@ -27,8 +35,11 @@ def test_given_then_configured_then_the_fleet_s_one_remote():
 
 
 def test_nothing_named_or_two_remotes_is_one_line_saying_how_to_name_it():
-    with pytest.raises(rr.Unnamed, match=r"^no releases remote is named .*name it once: git config robotfleet"
-                                         r"\.remote URL in the checkout .*or give --remote URL\.$"):
+    with pytest.raises(
+        rr.Unnamed,
+        match=r"^no releases remote is named .*name it once: git config robotfleet"
+        r"\.remote URL in the checkout .*or give --remote URL\.$",
+    ):
         rr.choose(None, None, [])
     with pytest.raises(rr.Unnamed, match=r"^the pull robots name 2 remotes \(https://a/x, https://b/x\); say which "):
         rr.choose(None, None, ["https://a/x", "https://b/x"])

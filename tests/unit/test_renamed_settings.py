@@ -48,6 +48,7 @@ def load(tmp_path):
             raise FleetError([line.replace(shown, "f.yaml") for line in error.lines]) from None
         loaded.notes = [note.replace(shown, "f.yaml") for note in loaded.notes]
         return loaded
+
     return loading
 
 
@@ -72,12 +73,15 @@ def test_an_old_name_still_works_with_a_note(old, new, written, value, load):
 def test_an_inventory_with_lines_names_the_line(tmp_path):
     """INI inventories have lines (YAML fleet lines name the file only, as every problem does)."""
     path = tmp_path / "hosts"
-    path.write_text(f"[robots]\nr0 address=10.0.0.2 payload_image={IMAGE}\n"
-                    f"r1 address=10.0.0.3 payload_image={IMAGE} display=True x11_user=alice\n")
+    path.write_text(
+        f"[robots]\nr0 address=10.0.0.2 payload_image={IMAGE}\n"
+        f"r1 address=10.0.0.3 payload_image={IMAGE} display=True x11_user=alice\n"
+    )
     loaded = fleet.load(path)
     assert dict(loaded.hosts("robots"))["r1"]["x11_enabled"] is True
-    assert loaded.notes == [f"{fleet.display_path(path)}:3: note: r1: display is now x11_enabled; "
-                            "the old name still works (rename it)"]
+    assert loaded.notes == [
+        f"{fleet.display_path(path)}:3: note: r1: display is now x11_enabled; the old name still works (rename it)"
+    ]
 
 
 def test_the_new_name_takes_no_note(load):
@@ -104,14 +108,17 @@ ACROSS = [
 
 
 @pytest.mark.parametrize("old, new, old_written, new_written, old_value, new_value", ACROSS)
-def test_one_note_per_layer_and_the_later_layer_wins_across_names(old, new, old_written, new_written, old_value,
-                                                                   new_value, load):
+def test_one_note_per_layer_and_the_later_layer_wins_across_names(
+    old, new, old_written, new_written, old_value, new_value, load
+):
     """The group sets the old name, one host the new: the host's wins there, the group's elsewhere."""
     needs = "".join(f"    {line}\n" for line in NEEDS.get(new, []))
-    text = (f"all:\n  vars:\n    {old}: {old_written}\n{needs}"
-            f"robots:\n  hosts:\n    r1:\n      address: 10.0.0.3\n      payload_image: {IMAGE}\n"
-            f"      {new}: {new_written}\n"
-            f"    r2:\n      address: 10.0.0.4\n      payload_image: {IMAGE}\n")
+    text = (
+        f"all:\n  vars:\n    {old}: {old_written}\n{needs}"
+        f"robots:\n  hosts:\n    r1:\n      address: 10.0.0.3\n      payload_image: {IMAGE}\n"
+        f"      {new}: {new_written}\n"
+        f"    r2:\n      address: 10.0.0.4\n      payload_image: {IMAGE}\n"
+    )
     loaded = load(text)
     hosts = dict(loaded.hosts("robots"))
     assert hosts["r1"][new] == new_value and hosts["r2"][new] == old_value
@@ -120,12 +127,15 @@ def test_one_note_per_layer_and_the_later_layer_wins_across_names(old, new, old_
 
 
 @pytest.mark.parametrize("old, new, old_written, new_written, old_value, new_value", ACROSS)
-def test_a_host_s_old_name_wins_over_its_group_s_new_name(old, new, old_written, new_written, old_value, new_value,
-                                                          load):
+def test_a_host_s_old_name_wins_over_its_group_s_new_name(
+    old, new, old_written, new_written, old_value, new_value, load
+):
     needs = "".join(f"    {line}\n" for line in NEEDS.get(new, []))
-    text = (f"all:\n  vars:\n    {new}: {new_written}\n{needs}"
-            f"robots:\n  hosts:\n    r1:\n      address: 10.0.0.3\n      payload_image: {IMAGE}\n"
-            f"      {old}: {old_written}\n")
+    text = (
+        f"all:\n  vars:\n    {new}: {new_written}\n{needs}"
+        f"robots:\n  hosts:\n    r1:\n      address: 10.0.0.3\n      payload_image: {IMAGE}\n"
+        f"      {old}: {old_written}\n"
+    )
     loaded = load(text)
     assert dict(loaded.hosts("robots"))["r1"][new] == old_value
     assert loaded.notes == [f"f.yaml: note: r1: {old} is now {new}; the old name still works (rename it)"]
@@ -134,25 +144,28 @@ def test_a_host_s_old_name_wins_over_its_group_s_new_name(old, new, old_written,
 def test_an_old_name_keeps_its_own_values(load):
     with pytest.raises(FleetError) as error:
         load(one_robot("docker_restart_handler_state: reload"))
-    assert error.value.lines == ["f.yaml: r1.docker_restart_handler_state: expected one of restarted, reloaded, "
-                                 "got 'reload'"]
+    assert error.value.lines == [
+        "f.yaml: r1.docker_restart_handler_state: expected one of restarted, reloaded, got 'reload'"
+    ]
     with pytest.raises(FleetError) as error:
         load(one_robot("display: yes"))
     assert error.value.lines == ["f.yaml: r1.display: expected true or false, got 'yes'"]
 
 
 def test_the_rules_read_an_old_name_as_the_new_one():
-    assert fleet.fleet_problems({"robots": {"hosts": {"r1": {"address": "10.0.0.3", "payload_image": IMAGE,
-                                                               "display": True}}}}) == [
-        "robots.yaml: r1.x11_user: required when x11_enabled is true: the desktop user"]
-    assert fleet.fleet_problems({"robots": {"hosts": {"r1": {"address": "10.0.0.3", "payload_image": IMAGE,
-                                                               "pull": True}}}}) == [
+    assert fleet.fleet_problems(
+        {"robots": {"hosts": {"r1": {"address": "10.0.0.3", "payload_image": IMAGE, "display": True}}}}
+    ) == ["robots.yaml: r1.x11_user: required when x11_enabled is true: the desktop user"]
+    assert fleet.fleet_problems(
+        {"robots": {"hosts": {"r1": {"address": "10.0.0.3", "payload_image": IMAGE, "pull": True}}}}
+    ) == [
         "robots.yaml: r1.pull_remote: required when pull_enabled is true: the git URL of the fleet remote "
-        "(e.g. ssh://gitolite3@git.example.com/fleet)"]
+        "(e.g. ssh://gitolite3@git.example.com/fleet)"
+    ]
     twins = [SENSOR, {**SENSOR, "serial": "B2", "symlink": "imu2"}]
-    assert fleet.fleet_problems({"robots": {"hosts": {"r1": {"address": "10.0.0.3", "payload_image": IMAGE,
-                                                               "sensors": twins}}}}) == [
-        "robots.yaml: r1.udev_sensors[1].name: duplicate sensor name 'imu' (also udev_sensors[0])"]
+    assert fleet.fleet_problems(
+        {"robots": {"hosts": {"r1": {"address": "10.0.0.3", "payload_image": IMAGE, "sensors": twins}}}}
+    ) == ["robots.yaml: r1.udev_sensors[1].name: duplicate sensor name 'imu' (also udev_sensors[0])"]
 
 
 @pytest.mark.parametrize("written, action", [("reloaded", "reload"), ("restarted", "restart")])
@@ -171,27 +184,35 @@ def gpu_host():
     return snap
 
 
-@pytest.mark.parametrize("old, new, written, fresh, role_s", [
-    ("gpu", "gpu_vendor", "nvidia", gpu_host, "nvidia-container-toolkit"),
-    ("sensors", "udev_sensors", json.dumps([SENSOR]), lambda: fresh_host("debian-13"), "70-robot-sensors.rules"),
-])
+@pytest.mark.parametrize(
+    "old, new, written, fresh, role_s",
+    [
+        ("gpu", "gpu_vendor", "nvidia", gpu_host, "nvidia-container-toolkit"),
+        ("sensors", "udev_sensors", json.dumps([SENSOR]), lambda: fresh_host("debian-13"), "70-robot-sensors.rules"),
+    ],
+)
 def test_an_old_name_reaches_its_role_as_the_new_one(old, new, written, fresh, role_s, load):
     """gpu: nvidia still installs the toolkit, sensors still writes the rules: the very commands of the new name."""
     sent = {}
     for name in (old, new, None):
         data = dict(load(one_robot(*([f"{name}: {written}"] if name else []))).hosts("robots"))["r1"]
-        data = {**{k: v for k, v in fleet.ROBOT.items() if k != "udev_sensors"},
-                **{k: v for k, v in data.items() if k != "address"}}
-        sent[name] = [(str(c), str(c.stdin)) for c in fleet.find(fleet.plan({"r1": ("robots", data, fresh())})["r1"],
-                                                                   role_s)]
+        data = {
+            **{k: v for k, v in fleet.ROBOT.items() if k != "udev_sensors"},
+            **{k: v for k, v in data.items() if k != "address"},
+        }
+        sent[name] = [
+            (str(c), str(c.stdin)) for c in fleet.find(fleet.plan({"r1": ("robots", data, fresh())})["r1"], role_s)
+        ]
     assert sent[old] and sent[old] == sent[new] and not sent[None]
 
 
 def test_pull_reaches_the_engine_as_pull_enabled(load):
     """publish, status and bundle read the pull hosts through the pull role: an old pull: true is one."""
-    loaded = load("robots:\n  vars: {pull: true, pull_remote: 'https://git.lan/fleet.git'}\n  hosts:\n"
-                  f"    r1: {{address: 10.0.0.3, payload_image: {IMAGE}}}\n"
-                  f"    r2: {{address: 10.0.0.4, payload_image: {IMAGE}, pull: false}}\n")
+    loaded = load(
+        "robots:\n  vars: {pull: true, pull_remote: 'https://git.lan/fleet.git'}\n  hosts:\n"
+        f"    r1: {{address: 10.0.0.3, payload_image: {IMAGE}}}\n"
+        f"    r2: {{address: 10.0.0.4, payload_image: {IMAGE}, pull: false}}\n"
+    )
     assert [name for name, _ in publishing.pull_hosts(loaded, fleet.registry())] == ["r1"]
 
 
@@ -207,11 +228,13 @@ def test_the_schema_accepts_the_old_names_marked_deprecated():
 
 def test_the_settings_table_lists_the_renames():
     text = generate.settings_doc(fleet.registry())
-    renamed = text[text.index("## Renamed settings"):]
+    renamed = text[text.index("## Renamed settings") :]
     assert "| `display` | `x11_enabled` | the same |" in renamed
     assert "| `payload_lock_file` | `payload_update_lock_path` | the same |" in renamed
     assert "| `pull` | `pull_enabled` | the same |" in renamed
     assert "| `gpu` | `gpu_vendor` | the same |" in renamed
     assert "| `sensors` | `udev_sensors` | the same |" in renamed
-    assert ("| `docker_restart_handler_state` | `docker_daemon_config_change` | "
-            "`restarted` is now `restart`, `reloaded` is now `reload` |") in renamed
+    assert (
+        "| `docker_restart_handler_state` | `docker_daemon_config_change` | "
+        "`restarted` is now `restart`, `reloaded` is now `reload` |"
+    ) in renamed

@@ -12,8 +12,13 @@ from roles.udev import rules
 from tests.unit.harness import desired_compose, merged, release_spec
 
 SENSORS = [
-    {"name": "front_camera", "subsystem": "video4linux", "vendor_id": "046D", "product_id": "0825",
-     "usb_port": "1-1.2"},
+    {
+        "name": "front_camera",
+        "subsystem": "video4linux",
+        "vendor_id": "046D",
+        "product_id": "0825",
+        "usb_port": "1-1.2",
+    },
     {"name": "back_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825", "usb_port": "1-1.3"},
     {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3", "group": "plugdev", "mode": "640"},
     {"name": "debug", "subsystem": "tty", "serial": "X", "passthrough": False, "symlink": "robot/dbg/uart"},
@@ -49,6 +54,7 @@ def test_udev_lint_catches_broken_and_world_writable_rules():
 
 def test_shipped_vendor_rules_pass_the_lint():
     from roles.udev import VENDOR_RULES_DIR
+
     files = sorted(VENDOR_RULES_DIR.glob("*.rules"))
     assert files
     for path in files:
@@ -57,8 +63,9 @@ def test_shipped_vendor_rules_pass_the_lint():
 
 def test_daemon_json_sorted_with_robot_defaults_and_registries():
     data = merged("robots", {})
-    text = docker_plan.daemon_json(data["docker_daemon_options"],
-                                   {"registry-mirrors": ["https://m.lan"], "insecure-registries": ["lab:5000"]})
+    text = docker_plan.daemon_json(
+        data["docker_daemon_options"], {"registry-mirrors": ["https://m.lan"], "insecure-registries": ["lab:5000"]}
+    )
     assert text.endswith("}\n")
     parsed = json.loads(text)
     assert parsed["live-restore"] is True
@@ -71,10 +78,16 @@ def test_daemon_json_sorted_with_robot_defaults_and_registries():
 
 
 def test_compose_for_a_robot():
-    data = merged("robots", {
-        "payload_image": "reg.lan/ros/payload:1.0", "udev_sensors": SENSORS, "ros_domain_id": 7,
-        "payload_environment": {"DEBUG": True, "RATE": 10}, "payload_volumes": ["/var/lib/maps:/maps"],
-    })
+    data = merged(
+        "robots",
+        {
+            "payload_image": "reg.lan/ros/payload:1.0",
+            "udev_sensors": SENSORS,
+            "ros_domain_id": 7,
+            "payload_environment": {"DEBUG": True, "RATE": 10},
+            "payload_volumes": ["/var/lib/maps:/maps"],
+        },
+    )
     doc = yaml.safe_load(compose.dump(desired_compose(data, "10.0.0.1")))
     service = doc["services"]["payload"]
     assert doc["name"] == "robot-payload"
@@ -91,10 +104,16 @@ def test_compose_for_a_robot():
 
 
 def test_compose_ros1_x11_and_gpu():
-    data = merged("laptops", {
-        "payload_image": "reg.lan/ros/payload:1.0", "x11_user": "alice", "ros_domain_id": 0,
-        "ros_master_uri": "http://master:11311", "payload_gpu": True,
-    })
+    data = merged(
+        "laptops",
+        {
+            "payload_image": "reg.lan/ros/payload:1.0",
+            "x11_user": "alice",
+            "ros_domain_id": 0,
+            "ros_master_uri": "http://master:11311",
+            "payload_gpu": True,
+        },
+    )
     service = desired_compose(data, "10.0.0.5")["services"]["payload"]
     env = service["environment"]
     assert env["ROS_MASTER_URI"] == "http://master:11311" and env["ROS_HOSTNAME"] == "10.0.0.5"
@@ -117,15 +136,26 @@ def test_spec_hash_changes_with_what_runs_only():
         return release_spec(data, desired_compose(data, "h"))
 
     one = spec()
-    how = {"payload_health_timeout": 300, "payload_stable_seconds": 0, "payload_pull_timeout": 60,
-           "payload_apply_lock_timeout": 10, "payload_keep_releases": 5, "payload_delivery": "push",
-           "payload_update_lock_path": "/run/elsewhere/update.lock"}
+    how = {
+        "payload_health_timeout": 300,
+        "payload_stable_seconds": 0,
+        "payload_pull_timeout": 60,
+        "payload_apply_lock_timeout": 10,
+        "payload_keep_releases": 5,
+        "payload_delivery": "push",
+        "payload_update_lock_path": "/run/elsewhere/update.lock",
+    }
     for name, value in how.items():
         other = spec(**{name: value})
         assert other.to_dict() != one.to_dict(), name  # the setting does reach the spec ...
         assert other.spec_hash == one.spec_hash, name  # ... but not the release's identity
-    what = {"payload_image": "r.lan/p:1.1", "payload_environment": {"RATE": "10"},
-            "payload_volumes": ["/var/lib/maps:/maps"], "payload_autostart": False, "ros_domain_id": 7}
+    what = {
+        "payload_image": "r.lan/p:1.1",
+        "payload_environment": {"RATE": "10"},
+        "payload_volumes": ["/var/lib/maps:/maps"],
+        "payload_autostart": False,
+        "ros_domain_id": 7,
+    }
     for name, value in what.items():
         assert spec(**{name: value}).spec_hash != one.spec_hash, name
     doc = desired_compose(merged("robots", base), "h")
@@ -143,8 +173,9 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
     assert not [line for line in lines if line.startswith(("Requires=", "BindsTo=", "PartOf="))]
     assert "Wants=docker.service network-online.target" in lines
     # Boot goes through payloadctl, which undoes a release a power cut left unverified.
-    assert any(line.startswith("ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start ")
-               for line in lines)
+    assert any(
+        line.startswith("ExecStart=/usr/bin/python3 /usr/local/lib/robot-payload/payloadctl start ") for line in lines
+    )
     assert " -v" not in text
     assert "ExecStartPre" not in installed_files.unit_text(data, [])
 
@@ -152,8 +183,6 @@ def test_unit_never_removes_volumes_and_waits_only_for_devices_it_has():
 def test_x11_cookie_script_uses_the_family_wild_method():
     data = merged("laptops", {"x11_user": "alice"})
     script = x11.cookie_script(data)
-    assert "xauth nlist \"$DISPLAY\" | sed -e 's/^..../ffff/' | xauth -q -f \"$tmp\" nmerge -" in script
+    assert 'xauth nlist "$DISPLAY" | sed -e \'s/^..../ffff/\' | xauth -q -f "$tmp" nmerge -' in script
     assert 'dir="/var/lib/robot-x11/$(id -un)"' in script and "umask 077" in script
     assert "xhost" not in script.replace("`xhost +`", "")
-
-

@@ -10,12 +10,12 @@ import pytest
 
 from robotfleet import deploy_roles
 from robotfleet.checkers import Misread
-from robotfleet.fleet import validate as fleet_check
 from robotfleet.fleet import loader as fleetyaml
 from robotfleet.fleet import schema as fleet_schema
+from robotfleet.fleet import validate as fleet_check
 from robotfleet.fleet.registry import Registry
-from tests.unit import test_fleet_corpus, test_hostile_values
 from tests.fixtures import ROOT
+from tests.unit import test_fleet_corpus, test_hostile_values
 
 jsonschema = pytest.importorskip("jsonschema")
 
@@ -24,8 +24,25 @@ VALIDATOR = jsonschema.Draft7Validator(SCHEMA)
 # What the schema says of one host's (or one group's vars') settings: the
 # definition every place a setting sits refers to (test_a_setting_is_checked_alike_in_every_place).
 SETTINGS = jsonschema.Draft7Validator({**SCHEMA["definitions"]["settings"], "definitions": SCHEMA["definitions"]})
-MORE_VALUES = ["on", "off", "yes", "", " ", "fe80::1%eth0", "::ffff:10.0.0.1", "1::", "10.0.0.01", "robot-1.lan",
-               "robot_1", "1.2.3", "x" * 64, "/var/lib/./tmp", "//tmp/x", "/var//tmp", "reg.example.com/p:1 2"]
+MORE_VALUES = [
+    "on",
+    "off",
+    "yes",
+    "",
+    " ",
+    "fe80::1%eth0",
+    "::ffff:10.0.0.1",
+    "1::",
+    "10.0.0.01",
+    "robot-1.lan",
+    "robot_1",
+    "1.2.3",
+    "x" * 64,
+    "/var/lib/./tmp",
+    "//tmp/x",
+    "/var//tmp",
+    "reg.example.com/p:1 2",
+]
 TRAPS = [fleetyaml.load(f"v: {trap}")["v"] for trap in test_hostile_values.YAML_TRAPS]
 
 
@@ -59,8 +76,11 @@ def test_a_setting_is_checked_alike_in_every_place():
     assert group["properties"]["hosts"]["additionalProperties"] == settings
     assert group["properties"]["children"]["additionalProperties"] == {"$ref": "#/definitions/group"}
     assert SCHEMA["additionalProperties"] == {"$ref": "#/definitions/group"}
-    for document in ({"robots": {"hosts": {"r1": {"ssh_port": "22"}}}}, {"all": {"vars": {"ssh_port": "22"}}},
-                     {"robots": {"children": {"east": {"hosts": {"r1": {"ssh_port": "22"}}}}}}):
+    for document in (
+        {"robots": {"hosts": {"r1": {"ssh_port": "22"}}}},
+        {"all": {"vars": {"ssh_port": "22"}}},
+        {"robots": {"children": {"east": {"hosts": {"r1": {"ssh_port": "22"}}}}}},
+    ):
         assert schema_refuses(document) and not SETTINGS.is_valid({"ssh_port": "22"}), document
 
 
@@ -117,8 +137,10 @@ def test_the_yaml_version_is_the_editors(tmp_path):
     """Unquoted on/yes are text to the editor and to the run: ROS_LOCALHOST_ONLY: on
     is accepted by both, x11_enabled: on refused by both."""
     base = "robots:\n  hosts:\n    r1:\n      payload_image: reg.example.com/p:1\n"
-    for text, refused in ((base + "      payload_environment: {ROS_LOCALHOST_ONLY: on}\n", False),
-                          (base + "      x11_enabled: on\n", True)):
+    for text, refused in (
+        (base + "      payload_environment: {ROS_LOCALHOST_ONLY: on}\n", False),
+        (base + "      x11_enabled: on\n", True),
+    ):
         raw = fleetyaml.load(text)
         assert bool(expressible_lines(raw)) is refused and schema_refuses(raw) is refused, text
 

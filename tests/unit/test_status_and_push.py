@@ -28,16 +28,21 @@ def test_archive_leaves_out_layers_the_robot_has(tmp_path):
     """strip_layers on an archive laid out like `docker save` output."""
     saved = tmp_path / "saved.tar"
     with tarfile.open(saved, "w") as tar:
+
         def add(name, data):
             info = tarfile.TarInfo(name)
             info.size = len(data)
             tar.addfile(info, io.BytesIO(data))
+
         add("cfg.json", json.dumps({"rootfs": {"diff_ids": [A, B]}}).encode())
         add("l1/layer.tar", b"x" * 50000)
         add("l2/layer.tar", b"y" * 70000)
-        add("manifest.json",
-            json.dumps([{"Config": "cfg.json", "RepoTags": ["r/p:1"],
-                         "Layers": ["l1/layer.tar", "l2/layer.tar"]}]).encode())
+        add(
+            "manifest.json",
+            json.dumps(
+                [{"Config": "cfg.json", "RepoTags": ["r/p:1"], "Layers": ["l1/layer.tar", "l2/layer.tar"]}]
+            ).encode(),
+        )
     out = tmp_path / "sent.tar"
     report = image_transfer.strip_layers(str(saved), str(out), [[A]])
     with tarfile.open(out) as sent:
@@ -52,23 +57,61 @@ def roles():
 
 def test_status_rows_and_table():
     report = {
-        "current": {"id": "r2", "state": "active", "activated": "2026-11-21T10:00:00Z",
-                    "images": {"reg/p:1.1": {"id": "sha256:1", "pinned": "reg/p@sha256:" + "d" * 64}}},
+        "current": {
+            "id": "r2",
+            "state": "active",
+            "activated": "2026-11-21T10:00:00Z",
+            "images": {"reg/p:1.1": {"id": "sha256:1", "pinned": "reg/p@sha256:" + "d" * 64}},
+        },
         "previous": {"id": "r1"},
         "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
         "update_lock": None,
     }
-    rows = [status_parts.row("robot1", roles(),
-                       {status_parts.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}),
-            status_parts.row("robot2", roles(), None, "cannot connect")]
+    rows = [
+        status_parts.row(
+            "robot1", roles(), {status_parts.HOST_SECTION: "arm64\n", "docker": "26.1.5", "payload": json.dumps(report)}
+        ),
+        status_parts.row("robot2", roles(), None, "cannot connect"),
+    ]
     assert rows[0]["image"] == "reg/p:1.1@sha256:" + "d" * 64 and rows[0]["previous"] == "r1"  # the tag kept
     assert rows[1] == {"host": "robot2", "reachable": False, "error": "cannot connect"}
     text = status.table(rows, status_parts.columns(roles())).splitlines()
     assert rows[0]["arch"] == "arm64"
-    assert text[0].split() == ["HOST", "REACHABLE", "ARCH", "DOCKER", "RELEASE", "IMAGE", "STATE", "HEALTH", "PREVIOUS",
-                               "LAST", "DEPLOY", "LOCK", "GPU", "DRIVER", "GPU", "RUNTIME", "ROLLOUT"]
-    assert text[1].split() == ["robot1", "yes", "arm64", "26.1.5", "r2", "reg/p:1.1@sha256:" + "d" * 12, "running",
-                               "healthy", "r1", "2026-11-21T10:00:00Z", "-", "-", "-", "-"]
+    assert text[0].split() == [
+        "HOST",
+        "REACHABLE",
+        "ARCH",
+        "DOCKER",
+        "RELEASE",
+        "IMAGE",
+        "STATE",
+        "HEALTH",
+        "PREVIOUS",
+        "LAST",
+        "DEPLOY",
+        "LOCK",
+        "GPU",
+        "DRIVER",
+        "GPU",
+        "RUNTIME",
+        "ROLLOUT",
+    ]
+    assert text[1].split() == [
+        "robot1",
+        "yes",
+        "arm64",
+        "26.1.5",
+        "r2",
+        "reg/p:1.1@sha256:" + "d" * 12,
+        "running",
+        "healthy",
+        "r1",
+        "2026-11-21T10:00:00Z",
+        "-",
+        "-",
+        "-",
+        "-",
+    ]
     assert text[2].split()[:4] == ["robot2", "no:", "cannot", "connect"]
 
 
@@ -77,6 +120,10 @@ AMD64_LOCAL = {"id": "sha256:" + "1" * 64, "platform": {"os": "linux", "architec
 
 def test_the_local_image_goes_when_it_is_built_for_the_robot():
     assert image_transfer.choose_source("r/p:1", "", "robot1", "amd64", [], None, AMD64_LOCAL)[:2] == (
-        "send", image_transfer.write_archive)
+        "send",
+        image_transfer.write_archive,
+    )
     assert image_transfer.choose_source("r/p:1", AMD64_LOCAL["id"], "robot1", "amd64", [], None, AMD64_LOCAL) == (
-        "noop", "r/p:1 is already on the host")
+        "noop",
+        "r/p:1 is already on the host",
+    )

@@ -8,12 +8,13 @@ import base64
 import pytest
 import yaml
 
-from robotfleet.host.fixtures import file_state
 import roles.time as time_role
 import roles.time.plan as plan
-from tests.fixtures import ROOT, good_robot as robot
-from tests.unit.harness import LAPTOP, ROBOT, converged, find, fleet_problems, fresh_host, merged, plan as run_plan
-from tests.unit.harness import written_files
+from robotfleet.host.fixtures import file_state
+from tests.fixtures import ROOT
+from tests.fixtures import good_robot as robot
+from tests.unit.harness import LAPTOP, ROBOT, converged, find, fleet_problems, fresh_host, merged, written_files
+from tests.unit.harness import plan as run_plan
 
 SERVER = {**ROBOT, "time_serve": True, "time_allow": ["10.20.0.0/24"], "time_servers": ["ntp1.lan", "10.20.0.1"]}
 CLIENT = {**ROBOT, "time_servers": ["10.20.0.11"]}
@@ -25,43 +26,65 @@ RESTART = r"^systemctl restart chrony\.service$"
 RELOAD = r"^systemctl daemon-reload$"
 
 
-@pytest.mark.parametrize("doc, expected", [
-    (robot(time_serve=True),
-     "robots.yaml: robot3.time_allow: required when time_serve is true: the networks that may ask this host "
-     "for time (e.g. 10.20.0.0/24); nothing is open by default"),
-    (robot(time_servers=["ntp server.lan"]),
-     "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address, got 'ntp server.lan'"),
-    (robot(time_servers=["fe80::1%eth0\nallow all"]),  # the engine's address check refuses the newline
-     "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address, got 'fe80::1%eth0\\nallow "
-     "all'"),
-    (robot(time_servers=["fe80::1%eth0"]),  # chrony's server line takes no zone
-     "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address without a zone (%interface), "
-     "got 'fe80::1%eth0'"),
-    (robot(time_servers="ntp.lan"), "robots.yaml: robot3.time_servers: expected a list, got 'ntp.lan'"),
-    (robot(time_servers=["ntp.lan", "ntp.lan"]), "robots.yaml: robot3.time_servers[1]: duplicate entry 'ntp.lan'"),
-    (robot(time_servers=["10.0.0.3"]),
-     "robots.yaml: robot3.time_servers[0]: 10.0.0.3 is this host itself; a host does not follow its own clock "
-     "(give it time_servers: [] or other servers)"),
-    (robot(time_serve=True, time_allow=["10.20.0.0/33"]),
-     "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, got '10.20.0.0/33'"),
-    (robot(time_serve=True, time_allow=["lan"]),
-     "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, got 'lan'"),
-    (robot(time_serve=True, time_allow=["10.20.0.0/24 allow all"]),
-     "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, "
-     "got '10.20.0.0/24 allow all'"),
-    (robot(time_serve="yes"), "robots.yaml: robot3.time_serve: expected true or false, got 'yes'"),
-    (robot(time_set_clock=0), "robots.yaml: robot3.time_set_clock: expected true or false, got 0"),
-    (robot(time_local_stratum=16), "robots.yaml: robot3.time_local_stratum: expected at most 15, got 16"),
-])
+@pytest.mark.parametrize(
+    "doc, expected",
+    [
+        (
+            robot(time_serve=True),
+            "robots.yaml: robot3.time_allow: required when time_serve is true: the networks that may ask this host "
+            "for time (e.g. 10.20.0.0/24); nothing is open by default",
+        ),
+        (
+            robot(time_servers=["ntp server.lan"]),
+            "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address, got 'ntp server.lan'",
+        ),
+        (
+            robot(time_servers=["fe80::1%eth0\nallow all"]),  # the engine's address check refuses the newline
+            "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address, got 'fe80::1%eth0\\nallow "
+            "all'",
+        ),
+        (
+            robot(time_servers=["fe80::1%eth0"]),  # chrony's server line takes no zone
+            "robots.yaml: robot3.time_servers[0]: expected a host name or an IP address without a zone (%interface), "
+            "got 'fe80::1%eth0'",
+        ),
+        (robot(time_servers="ntp.lan"), "robots.yaml: robot3.time_servers: expected a list, got 'ntp.lan'"),
+        (robot(time_servers=["ntp.lan", "ntp.lan"]), "robots.yaml: robot3.time_servers[1]: duplicate entry 'ntp.lan'"),
+        (
+            robot(time_servers=["10.0.0.3"]),
+            "robots.yaml: robot3.time_servers[0]: 10.0.0.3 is this host itself; a host does not follow its own clock "
+            "(give it time_servers: [] or other servers)",
+        ),
+        (
+            robot(time_serve=True, time_allow=["10.20.0.0/33"]),
+            "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, got '10.20.0.0/33'",
+        ),
+        (
+            robot(time_serve=True, time_allow=["lan"]),
+            "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, got 'lan'",
+        ),
+        (
+            robot(time_serve=True, time_allow=["10.20.0.0/24 allow all"]),
+            "robots.yaml: robot3.time_allow[0]: expected a network like 10.20.0.0/24 or an address, "
+            "got '10.20.0.0/24 allow all'",
+        ),
+        (robot(time_serve="yes"), "robots.yaml: robot3.time_serve: expected true or false, got 'yes'"),
+        (robot(time_set_clock=0), "robots.yaml: robot3.time_set_clock: expected true or false, got 0"),
+        (robot(time_local_stratum=16), "robots.yaml: robot3.time_local_stratum: expected at most 15, got 16"),
+    ],
+)
 def test_bad_time_settings_get_one_clear_line(doc, expected):
     assert fleet_problems(doc) == [expected]
 
 
-@pytest.mark.parametrize("extra", [
-    {"time_servers": ["ntp.lan", "10.20.0.1", "fd00::1"]},
-    {"time_serve": True, "time_allow": ["10.20.0.0/24", "10.30.0.7", "fd00::/64"]},
-    {"time_allow": ["10.20.0.0/24"]},  # set for the whole fleet in all.vars; used where time_serve is true
-])
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {"time_servers": ["ntp.lan", "10.20.0.1", "fd00::1"]},
+        {"time_serve": True, "time_allow": ["10.20.0.0/24", "10.30.0.7", "fd00::/64"]},
+        {"time_allow": ["10.20.0.0/24"]},  # set for the whole fleet in all.vars; used where time_serve is true
+    ],
+)
 def test_good_time_settings_are_accepted(extra):
     assert fleet_problems(robot(**extra)) == []
 
@@ -106,8 +129,15 @@ def test_a_client_allows_nobody_and_a_server_without_upstream_keeps_its_clock():
 def test_the_drop_in_runs_chronyd_with_x_and_lifts_the_capability_condition():
     text = plan.drop_in()
     lines = [line for line in text.splitlines() if line and not line.startswith("#")]
-    assert lines == ["[Unit]", "ConditionCapability=", "[Service]", "Type=simple", "PIDFile=", "ExecStart=",
-                     "ExecStart=!/usr/sbin/chronyd -n -x $DAEMON_OPTS"]
+    assert lines == [
+        "[Unit]",
+        "ConditionCapability=",
+        "[Service]",
+        "Type=simple",
+        "PIDFile=",
+        "ExecStart=",
+        "ExecStart=!/usr/sbin/chronyd -n -x $DAEMON_OPTS",
+    ]
 
 
 @pytest.mark.parametrize("os_name", RELEASES)
@@ -125,8 +155,10 @@ def test_fresh_host_gets_chrony_configured_checked_and_started(os_name):
     assert plan.DROP_IN not in written_files(commands) and len(find(commands, RELOAD)) == len(find(without, RELOAD))
     # Restarted once, after the file is in place; then enabled (start is a no-op by then).
     assert len(find(commands, RESTART)) == 1
-    order = [commands.index(c) for c in (install[0], conf[0], find(commands, RESTART)[0],
-                                         find(commands, "systemctl enable chrony.service")[0])]
+    order = [
+        commands.index(c)
+        for c in (install[0], conf[0], find(commands, RESTART)[0], find(commands, "systemctl enable chrony.service")[0])
+    ]
     assert order == sorted(order)
     # After Docker's installs (dpkg repaired there), before the payload.
     assert commands.index(find(commands, "docker-compose-plugin")[0]) < commands.index(install[0])
@@ -134,16 +166,18 @@ def test_fresh_host_gets_chrony_configured_checked_and_started(os_name):
 
 
 def test_the_write_command_checks_the_file_with_chronyd_before_replacing_it():
-    conf = find(run_plan({"r1": ("robots", CLIENT, fresh_host("debian-13"))})["r1"],
-                r"dest=/etc/chrony/chrony.conf\n")[0]
+    conf = find(run_plan({"r1": ("robots", CLIENT, fresh_host("debian-13"))})["r1"], r"dest=/etc/chrony/chrony.conf\n")[
+        0
+    ]
     check = conf.index('chronyd -p -f "$tmp"')
     assert conf.index("chronyd -v") < check < conf.index('mv -fT "$tmp" "$dest"')
     assert '"${major:-0}" -ge 4' in conf  # chrony 3.5 would fork a daemon on -p
 
 
 @pytest.mark.parametrize("os_name", RELEASES)
-@pytest.mark.parametrize("data", [SERVER, CLIENT, {**CLIENT, "time_set_clock": False}],
-                         ids=["server", "client", "no-clock"])
+@pytest.mark.parametrize(
+    "data", [SERVER, CLIENT, {**CLIENT, "time_set_clock": False}], ids=["server", "client", "no-clock"]
+)
 def test_converged_host_plans_nothing(os_name, data):
     snap = converged("robots", data, os_name)
     snap.probes[time_role.CAPABILITIES_PROBE] = FULL_BOUNDING_SET
@@ -182,8 +216,11 @@ def test_a_host_that_cannot_set_its_clock_is_refused_unless_time_set_clock_is_fa
     snap.probes[time_role.CAPABILITIES_PROBE] = CONTAINER_BOUNDING_SET + "\n"
     result = run_plan({"r1": ("robots", CLIENT, snap), "r2": ("robots", {**CLIENT, "time_set_clock": False}, snap)})
     assert result.failed == {"r1"}
-    assert find(result["r1"], "time_set_clock: this host cannot set its clock \\(no CAP_SYS_TIME: a container\\?\\); "
-                              "set time_set_clock: false")
+    assert find(
+        result["r1"],
+        "time_set_clock: this host cannot set its clock \\(no CAP_SYS_TIME: a container\\?\\); "
+        "set time_set_clock: false",
+    )
     assert not find(result["r1"], "chrony")
     assert plan.DROP_IN in written_files(result["r2"])
 
@@ -237,7 +274,8 @@ def test_a_drifted_conf_is_rewritten():
     snap.files[plan.CONF] = file_state("pool 2.debian.pool.ntp.org iburst\n")
     commands = run_plan({"r1": ("robots", SERVER, snap)})["r1"]
     assert base64.b64decode(find(commands, "dest=/etc/chrony/chrony.conf")[0].stdin).decode() == plan.chrony_conf(
-        merged("robots", SERVER))
+        merged("robots", SERVER)
+    )
     assert len(find(commands, RESTART)) == 1
 
 
@@ -246,14 +284,19 @@ def test_a_fleet_where_some_hosts_keep_time_plans_every_host():
     without the role: the hosts run different roles, and pyinfra's CLI must
     agree on one order of operations for them all."""
     no_clock = {**CLIENT, "time_set_clock": False}
-    result = run_plan({
-        "robot1": ("robots", {**SERVER, "time_set_clock": False}, fresh_host("debian-13")),
-        "robot2": ("robots", no_clock, fresh_host("debian-13")),
-        "robot3": ("robots", ROBOT, fresh_host("debian-13")),
-        "robot4": ("robots", CLIENT, fresh_host("ubuntu-24.04")),
-        "laptop1": ("laptops", {**LAPTOP, "time_servers": ["10.20.0.11"]},
-                    fresh_host("ubuntu-22.04", users=("alice",))),
-    })
+    result = run_plan(
+        {
+            "robot1": ("robots", {**SERVER, "time_set_clock": False}, fresh_host("debian-13")),
+            "robot2": ("robots", no_clock, fresh_host("debian-13")),
+            "robot3": ("robots", ROBOT, fresh_host("debian-13")),
+            "robot4": ("robots", CLIENT, fresh_host("ubuntu-24.04")),
+            "laptop1": (
+                "laptops",
+                {**LAPTOP, "time_servers": ["10.20.0.11"]},
+                fresh_host("ubuntu-22.04", users=("alice",)),
+            ),
+        }
+    )
     assert result.failed == set()
     for host in ("robot1", "robot2", "robot4", "laptop1"):
         assert len(find(result[host], RESTART)) == 1, host

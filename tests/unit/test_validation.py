@@ -4,7 +4,8 @@ field (pyinfra's own CLI refuses it in tests/integration/test_validation.py)."""
 import pytest
 import yaml
 
-from tests.fixtures import GOOD_HOST, ROOT, good_robot as robot
+from tests.fixtures import GOOD_HOST, ROOT
+from tests.fixtures import good_robot as robot
 from tests.unit import harness as fleet
 from tests.unit.harness import fleet_problems
 
@@ -43,8 +44,11 @@ def test_a_setting_has_one_default_only():
 
 # The docs written by hand: README, docs/ but the generated settings table, each role's README.
 GENERATED_DOC = ROOT / "docs" / "reference" / "settings.md"
-HAND_WRITTEN = [ROOT / "README.md", *(ROOT / "roles").glob("*/README.md"),
-                *(path for path in (ROOT / "docs").rglob("*.md") if path != GENERATED_DOC)]
+HAND_WRITTEN = [
+    ROOT / "README.md",
+    *(ROOT / "roles").glob("*/README.md"),
+    *(path for path in (ROOT / "docs").rglob("*.md") if path != GENERATED_DOC),
+]
 
 
 def test_every_setting_is_documented_by_hand():
@@ -59,84 +63,142 @@ def test_every_setting_is_documented_by_hand():
 def test_defaults_are_written_once_in_the_declarations():
     """The hand-written docs link docs/reference/settings.md (generated) instead of
     copying defaults: no table of theirs has a default column."""
-    copied = [f"{path.relative_to(ROOT)}: {line}" for path in HAND_WRITTEN for line in path.read_text().splitlines()
-              if line.startswith("|") and "default" in (cell.strip().lower() for cell in line.strip("|").split("|"))]
+    copied = [
+        f"{path.relative_to(ROOT)}: {line}"
+        for path in HAND_WRITTEN
+        for line in path.read_text().splitlines()
+        if line.startswith("|") and "default" in (cell.strip().lower() for cell in line.strip("|").split("|"))
+    ]
     assert copied == []
 
 
 @pytest.mark.parametrize(
     "doc, expected",
     [
-        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serial": 42}]),
-         "robots.yaml: robot3.udev_sensors[0].serial: expected a string, got 42; quote it"),
-        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty"}]),
-         "robots.yaml: robot3.udev_sensors[0]: needs a match: serial, vendor_id/product_id or usb_port"),
-        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serail": "x", "serial": "x"}]),
-         "robots.yaml: robot3.udev_sensors[0].serail: unknown sensor field (did you mean 'serial'?)"),
-        (robot(udev_sensors=[{"name": "cam", "subsystem": "camera", "serial": "x"}]),
-         "robots.yaml: robot3.udev_sensors[0].subsystem: expected one of tty, video4linux, hidraw, input, usb, sound, "
-         "got 'camera'"),
-        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "vendor_id": "046d"}]),
-         "robots.yaml: robot3.udev_sensors[0].product_id: vendor_id and product_id go together"),
-        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "usb_port": "usb2"}]),
-         "robots.yaml: robot3.udev_sensors[0].usb_port: expected a USB port path like 1-2.1, got 'usb2'"),
-        (robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serial": "a", "mode": "0666"}]),
-         "robots.yaml: robot3.udev_sensors[0].mode: 0666 is world-writable; use a group "
-         "(or set udev_allow_world_writable)"),
-        (robot(udev_sensors=[{"name": "a", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
-                        {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"}]),
-         "robots.yaml: robot3.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
-         "add a serial or usb_port to tell them apart"),
-        (robot(udev_sensors=[{"name": "a", "subsystem": "tty", "serial": "1"},
-                        {"name": "a", "subsystem": "tty", "serial": "2"}]),
-         "robots.yaml: robot3.udev_sensors[1].name: duplicate sensor name 'a' (also udev_sensors[0])"),
-        (robot(udev_sensors=[{"name": "a", "subsystem": "tty", "serial": '1", RUN+="/bin/sh'}]),
-         "robots.yaml: robot3.udev_sensors[0].serial: expected a serial of letters, digits and . _ : / + -, got '1\", "
-         "RUN+=\"/bin/sh'"),
-        (robot(payload_image="reg.example.com/ros/payload"),
-         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload' has no tag or digest; "
-         "pin a version (e.g. reg.example.com/ros/payload:1.4.2 or @sha256:...)"),
-        (robot(payload_image="reg.example.com/ros/payload:latest"),
-         "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload:latest' uses the moving tag 'latest'; "
-         "pin a version or digest (or set payload_allow_latest: true)"),
-        (robot(payload_image="Reg/Bad Image:1"),
-         "robots.yaml: robot3.payload_image: 'Reg/Bad Image:1' is not a valid image reference"),
-        (robot(docker_users=["Alice"]),
-         "robots.yaml: robot3.docker_users[0]: expected a user name, got 'Alice'"),
-        (robot(docker_users="alice"),
-         "robots.yaml: robot3.docker_users: expected a list, got 'alice'"),
-        (robot(docker_usres=["alice"]),
-         "robots.yaml: robot3.docker_usres: unknown setting (did you mean 'docker_users'?)"),
+        (
+            robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serial": 42}]),
+            "robots.yaml: robot3.udev_sensors[0].serial: expected a string, got 42; quote it",
+        ),
+        (
+            robot(udev_sensors=[{"name": "cam", "subsystem": "tty"}]),
+            "robots.yaml: robot3.udev_sensors[0]: needs a match: serial, vendor_id/product_id or usb_port",
+        ),
+        (
+            robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serail": "x", "serial": "x"}]),
+            "robots.yaml: robot3.udev_sensors[0].serail: unknown sensor field (did you mean 'serial'?)",
+        ),
+        (
+            robot(udev_sensors=[{"name": "cam", "subsystem": "camera", "serial": "x"}]),
+            "robots.yaml: robot3.udev_sensors[0].subsystem: expected one of tty, video4linux, hidraw, input, usb, "
+            "sound, got 'camera'",
+        ),
+        (
+            robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "vendor_id": "046d"}]),
+            "robots.yaml: robot3.udev_sensors[0].product_id: vendor_id and product_id go together",
+        ),
+        (
+            robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "usb_port": "usb2"}]),
+            "robots.yaml: robot3.udev_sensors[0].usb_port: expected a USB port path like 1-2.1, got 'usb2'",
+        ),
+        (
+            robot(udev_sensors=[{"name": "cam", "subsystem": "tty", "serial": "a", "mode": "0666"}]),
+            "robots.yaml: robot3.udev_sensors[0].mode: 0666 is world-writable; use a group "
+            "(or set udev_allow_world_writable)",
+        ),
+        (
+            robot(
+                udev_sensors=[
+                    {"name": "a", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
+                    {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
+                ]
+            ),
+            "robots.yaml: robot3.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
+            "add a serial or usb_port to tell them apart",
+        ),
+        (
+            robot(
+                udev_sensors=[
+                    {"name": "a", "subsystem": "tty", "serial": "1"},
+                    {"name": "a", "subsystem": "tty", "serial": "2"},
+                ]
+            ),
+            "robots.yaml: robot3.udev_sensors[1].name: duplicate sensor name 'a' (also udev_sensors[0])",
+        ),
+        (
+            robot(udev_sensors=[{"name": "a", "subsystem": "tty", "serial": '1", RUN+="/bin/sh'}]),
+            "robots.yaml: robot3.udev_sensors[0].serial: expected a serial of letters, digits and . _ : / + -, "
+            "got '1\", RUN+=\"/bin/sh'",
+        ),
+        (
+            robot(payload_image="reg.example.com/ros/payload"),
+            "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload' has no tag or digest; "
+            "pin a version (e.g. reg.example.com/ros/payload:1.4.2 or @sha256:...)",
+        ),
+        (
+            robot(payload_image="reg.example.com/ros/payload:latest"),
+            "robots.yaml: robot3.payload_image: 'reg.example.com/ros/payload:latest' uses the moving tag 'latest'; "
+            "pin a version or digest (or set payload_allow_latest: true)",
+        ),
+        (
+            robot(payload_image="Reg/Bad Image:1"),
+            "robots.yaml: robot3.payload_image: 'Reg/Bad Image:1' is not a valid image reference",
+        ),
+        (robot(docker_users=["Alice"]), "robots.yaml: robot3.docker_users[0]: expected a user name, got 'Alice'"),
+        (robot(docker_users="alice"), "robots.yaml: robot3.docker_users: expected a list, got 'alice'"),
+        (
+            robot(docker_usres=["alice"]),
+            "robots.yaml: robot3.docker_usres: unknown setting (did you mean 'docker_users'?)",
+        ),
         (robot(ssh_port=70000), "robots.yaml: robot3.ssh_port: expected at most 65535, got 70000"),
         (robot(ssh_port="22"), "robots.yaml: robot3.ssh_port: expected a whole number, got '22'"),
         (robot(x11_enabled="yes"), "robots.yaml: robot3.x11_enabled: expected true or false, got 'yes'"),
         (robot(x11_enabled=True), "robots.yaml: robot3.x11_user: required when x11_enabled is true: the desktop user"),
-        (robot(payload_volumes=["maps:/maps"]),
-         "robots.yaml: robot3.payload_volumes[0]: expected 'host_path:container_path[:ro]' with absolute paths, "
-         "got 'maps:/maps'"),
-        (robot(payload_dir="/var/lib/../etc"),
-         "robots.yaml: robot3.payload_dir: paths must not contain '..', got '/var/lib/../etc'"),
-        (robot(udev_rules_file="/etc/udev/robot.rules"),
-         "robots.yaml: robot3.udev_rules_file: expected a file in /etc/udev/rules.d/ ending in .rules, "
-         "got '/etc/udev/robot.rules'"),
+        (
+            robot(payload_volumes=["maps:/maps"]),
+            "robots.yaml: robot3.payload_volumes[0]: expected 'host_path:container_path[:ro]' with absolute paths, "
+            "got 'maps:/maps'",
+        ),
+        (
+            robot(payload_dir="/var/lib/../etc"),
+            "robots.yaml: robot3.payload_dir: paths must not contain '..', got '/var/lib/../etc'",
+        ),
+        (
+            robot(udev_rules_file="/etc/udev/robot.rules"),
+            "robots.yaml: robot3.udev_rules_file: expected a file in /etc/udev/rules.d/ ending in .rules, "
+            "got '/etc/udev/robot.rules'",
+        ),
         (robot(docker_source="snap"), "robots.yaml: robot3.docker_source: expected one of docker, distro, got 'snap'"),
-        (robot(payload_environment={"ROS DISTRO": "jazzy"}),
-         "robots.yaml: robot3.payload_environment.'ROS DISTRO': expected an environment variable name, "
-         "got 'ROS DISTRO'"),
-        (robot(ros_master_uri="http://master:11311", ros_domain_id=3),
-         "robots.yaml: robot3.ros_master_uri: set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"),
-        ({"robots": {"hosts": {"robot3": {"address": "10.0.0.1"}}}},
-         "robots.yaml: robot3.payload_image: required: the payload image, pinned by tag or digest"),
-        ({"robots": {"vars": {"payload_imag": "x:1"}, "hosts": {}}},
-         "robots.yaml: robots.vars.payload_imag: unknown setting (did you mean 'payload_image'?)"),
+        (
+            robot(payload_environment={"ROS DISTRO": "jazzy"}),
+            "robots.yaml: robot3.payload_environment.'ROS DISTRO': expected an environment variable name, "
+            "got 'ROS DISTRO'",
+        ),
+        (
+            robot(ros_master_uri="http://master:11311", ros_domain_id=3),
+            "robots.yaml: robot3.ros_master_uri: set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both",
+        ),
+        (
+            {"robots": {"hosts": {"robot3": {"address": "10.0.0.1"}}}},
+            "robots.yaml: robot3.payload_image: required: the payload image, pinned by tag or digest",
+        ),
+        (
+            {"robots": {"vars": {"payload_imag": "x:1"}, "hosts": {}}},
+            "robots.yaml: robots.vars.payload_imag: unknown setting (did you mean 'payload_image'?)",
+        ),
         # Top-level keys are groups, as in Ansible: a misspelt robots holds hosts of no kind.
-        ({"robot": {"hosts": {"robot3": GOOD_HOST}}},
-         "robots.yaml: robot3: in neither a robots nor a laptops group (groups: robot) (did you mean 'robots'?)"),
+        (
+            {"robot": {"hosts": {"robot3": GOOD_HOST}}},
+            "robots.yaml: robot3: in neither a robots nor a laptops group (groups: robot) (did you mean 'robots'?)",
+        ),
         ({"robots": {"hosts": {"a b": GOOD_HOST}}}, "robots.yaml: 'a b': invalid host name (letters, digits, . _ -)"),
-        ({"robots": {"hosts": {"r1": GOOD_HOST}}, "laptops": {"hosts": {"r1": {**GOOD_HOST, "x11_user": "a"}}}},
-         "robots.yaml: r1: declared in both robots and laptops"),
-        ({"robots": {"hosts": {"r1": ["not", "a", "mapping"]}}},
-         "robots.yaml: r1: expected a mapping of settings, got a list"),
+        (
+            {"robots": {"hosts": {"r1": GOOD_HOST}}, "laptops": {"hosts": {"r1": {**GOOD_HOST, "x11_user": "a"}}}},
+            "robots.yaml: r1: declared in both robots and laptops",
+        ),
+        (
+            {"robots": {"hosts": {"r1": ["not", "a", "mapping"]}}},
+            "robots.yaml: r1: expected a mapping of settings, got a list",
+        ),
     ],
 )
 def test_bad_data_gets_one_clear_line(doc, expected):
@@ -154,8 +216,9 @@ def test_yaml_syntax_error_names_the_line(tmp_path):
     with pytest.raises(fleet.FleetError) as error:
         fleet.load(path)
     (line,) = error.value.lines
-    assert line.startswith(fleet.display_path(path) + ": line 3: YAML error: a flow mapping opened here (column 9) "
-                                                      "is not closed: ")
+    assert line.startswith(
+        fleet.display_path(path) + ": line 3: YAML error: a flow mapping opened here (column 9) is not closed: "
+    )
 
 
 def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
@@ -166,8 +229,17 @@ def test_duplicate_hosts_in_yaml_are_refused(tmp_path):
     assert "duplicate key 'r1'" in error.value.lines[0]
 
 
-@pytest.mark.parametrize("path", ["/var/run/lock/robot.lock", "/var/lock/x", "/run/shm/x", "/var/run/shm/x",
-                                  "/run/user/1000/payload", "/var/run/user/1000/x"])
+@pytest.mark.parametrize(
+    "path",
+    [
+        "/var/run/lock/robot.lock",
+        "/var/lock/x",
+        "/run/shm/x",
+        "/var/run/shm/x",
+        "/run/user/1000/payload",
+        "/var/run/user/1000/x",
+    ],
+)
 def test_world_writable_directories_are_refused_under_their_other_names(path):
     """/var/run is /run on Debian and Ubuntu: /var/run/lock is the 1777 /run/lock."""
     lines = fleet_problems(robot(payload_update_lock_path=path))

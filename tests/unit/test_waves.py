@@ -25,8 +25,12 @@ def test_counts_are_numbers_or_percentages_and_anything_else_is_one_line():
 
 def test_canary_then_batches_in_inventory_order():
     plan = waves.build_waves(ROBOTS, [], count("1"), count("25%"))
-    assert plan == [["robot1"], ["robot2", "robot3", "robot4"], ["robot5", "robot6", "robot7"],
-                    ["robot8", "robot9", "robot10"]]
+    assert plan == [
+        ["robot1"],
+        ["robot2", "robot3", "robot4"],
+        ["robot5", "robot6", "robot7"],
+        ["robot8", "robot9", "robot10"],
+    ]
 
 
 def test_flagged_canaries_replace_the_first_n():
@@ -89,8 +93,13 @@ def is_done(row: dict, target: str) -> bool:
 
 
 def test_done_means_the_target_image_is_current_and_healthy():
-    row = {"reachable": True, "image_refs": ["reg/p:1.1"], "release_state": "active",
-           "state": "running", "health": "healthy"}
+    row = {
+        "reachable": True,
+        "image_refs": ["reg/p:1.1"],
+        "release_state": "active",
+        "state": "running",
+        "health": "healthy",
+    }
     assert is_done(row, "reg/p:1.1")
     assert not is_done(row, "reg/p:1.2")
     assert not is_done({**row, "health": "unhealthy"}, "reg/p:1.1")
@@ -105,8 +114,13 @@ def test_done_means_the_target_image_is_current_and_healthy():
 def test_done_for_a_project_of_several_services_means_every_image():
     """The rollout's target is the whole compose project: a robot running
     driver and slam is done once both run healthy (it used to be failed)."""
-    row = {"reachable": True, "image_refs": ["reg/driver:2", "reg/slam:1"], "release_state": "active",
-           "state": "driver:running, slam:running", "health": "driver:healthy, slam:none"}
+    row = {
+        "reachable": True,
+        "image_refs": ["reg/driver:2", "reg/slam:1"],
+        "release_state": "active",
+        "state": "driver:running, slam:running",
+        "health": "driver:healthy, slam:none",
+    }
     assert report.missing(row, ["reg/driver:2", "reg/slam:1"]) is None
     assert report.missing(row, ["reg/driver:3", "reg/slam:1"]) == "runs reg/driver:2, reg/slam:1, not reg/driver:3"
     assert report.missing({**row, "state": "driver:running, slam:restarting"}, ["reg/driver:2", "reg/slam:1"])
@@ -127,21 +141,39 @@ def test_the_same_command_finds_the_same_state_file_and_writes_it_atomically(tmp
 def test_status_cells_and_summary():
     state = waves.record_wave(state_for([["r1"], ["r2"], ["r3"]], 0), 0, ["r1"], {}, {})
     assert [waves.host_state(state, h) for h in ("r1", "r2", "r9")] == ["wave 1/3 done", "wave 2/3 pending", None]
-    assert waves.summary(state) == ("rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped, 2 pending "
-                                    "of 3 robot(s); pending: r2, r3")
+    assert waves.summary(state) == (
+        "rollout k: running after wave 1/3; 1 done, 0 failed, 0 skipped, 2 pending of 3 robot(s); pending: r2, r3"
+    )
 
 
 def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
     from robotfleet.commands.rollout_judge import judge_wave
 
-    good = {"reachable": True, "image_refs": ["i:2"], "release_state": "active", "state": "running",
-            "health": "healthy"}
-    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
-            "rolled_back_from": {"reason": "unhealthy"}}
-    results = {"operations": [{"name": "Release the payload", "error": ["r2", "r5"]}],
-               "failed_hosts": ["r2", "r3", "r5"]}
-    rows = {"r1": good, "r2": {**back, "result": result("w1", False, "payload: release x failed")},
-            "r3": {"reachable": False, "error": "cannot connect"}, "r4": back, "r5": good}
+    good = {
+        "reachable": True,
+        "image_refs": ["i:2"],
+        "release_state": "active",
+        "state": "running",
+        "health": "healthy",
+    }
+    back = {
+        "reachable": True,
+        "image_refs": ["i:1"],
+        "release": "r1",
+        "release_state": "active",
+        "rolled_back_from": {"reason": "unhealthy"},
+    }
+    results = {
+        "operations": [{"name": "Release the payload", "error": ["r2", "r5"]}],
+        "failed_hosts": ["r2", "r3", "r5"],
+    }
+    rows = {
+        "r1": good,
+        "r2": {**back, "result": result("w1", False, "payload: release x failed")},
+        "r3": {"reachable": False, "error": "cannot connect"},
+        "r4": back,
+        "r5": good,
+    }
     targets = dict.fromkeys(rows, {"payload": ["i:2"]})
     done, failed, skipped = judge_wave(list(rows), results, rows, targets, False, deployment="w1")
     assert done == ["r1"]
@@ -156,8 +188,13 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
 
 def result(deployment, ok, message):
     """payloadctl's structured result as the payload's status cells carry it."""
-    return {"payloadctl": 1, "ok": ok, "outcome": "applied" if ok else "rolled-back", "message": message,
-            "deployment": deployment}
+    return {
+        "payloadctl": 1,
+        "ok": ok,
+        "outcome": "applied" if ok else "rolled-back",
+        "message": message,
+        "deployment": deployment,
+    }
 
 
 def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
@@ -166,18 +203,34 @@ def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():
     from robotfleet.commands.rollout_judge import judge_wave
 
     line = "payload: release x failed (p is unhealthy); rolled back to r1 and it is running"
-    back = {"reachable": True, "image_refs": ["i:1"], "release": "r1", "release_state": "active",
-            "result": result("w2", False, line)}
+    back = {
+        "reachable": True,
+        "image_refs": ["i:1"],
+        "release": "r1",
+        "release_state": "active",
+        "result": result("w2", False, line),
+    }
     done, failed, skipped = judge_wave(["r1"], None, {"r1": back}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")
     assert (done, failed, skipped) == ([], {"r1": line}, {})
     # A result of an earlier deployment is not this one's.
-    stale = {**back, "image_refs": ["i:2"], "state": "running", "health": "healthy",
-             "result": result("w1", False, line)}
+    stale = {
+        **back,
+        "image_refs": ["i:2"],
+        "state": "running",
+        "health": "healthy",
+        "result": result("w1", False, line),
+    }
     assert judge_wave(["r1"], None, {"r1": stale}, {"r1": {"payload": ["i:2"]}}, False, deployment="w2")[1] == {
-        "r1": "the deploy failed"}
-    assert judge_wave(["r2"], None, {"r2": {"reachable": False, "error": "Could not connect (timed out)"}},
-                      {"r2": {"payload": ["i:2"]}}, False, deployment="w2")[2] == {
-        "r2": "unreachable: Could not connect (timed out)"}
+        "r1": "the deploy failed"
+    }
+    assert judge_wave(
+        ["r2"],
+        None,
+        {"r2": {"reachable": False, "error": "Could not connect (timed out)"}},
+        {"r2": {"payload": ["i:2"]}},
+        False,
+        deployment="w2",
+    )[2] == {"r2": "unreachable: Could not connect (timed out)"}
 
 
 def test_the_state_file_is_written_without_following_anything_planted(tmp_path):

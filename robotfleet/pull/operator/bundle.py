@@ -35,8 +35,8 @@ import subprocess
 from pathlib import Path
 
 from robotfleet import atomicfile
-from robotfleet.pull.protocol import enrollment, agent_files, robot_key
 from robotfleet.pull.operator import enrollments, pull_settings
+from robotfleet.pull.protocol import agent_files, enrollment, robot_key
 
 FIRST_BOOT = f"{agent_files.STATE}/first-boot"
 SCRIPT = "/usr/local/sbin/robot-pull-first-boot"
@@ -138,8 +138,17 @@ def _link(path: Path, target: str) -> None:
     os.symlink(target, path)
 
 
-def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str, Path]], root: bytes,
-         ca: bytes | None = None, rule: tuple[str, str] | None = None) -> str:
+def make(
+    out: Path,
+    robot: str,
+    data,
+    record,
+    code: Path,
+    wheels: list[tuple[str, Path]],
+    root: bytes,
+    ca: bytes | None = None,
+    rule: tuple[str, str] | None = None,
+) -> str:
     """Write the bundle for ``robot`` (host ``data``) into ``out`` (which must
     not exist), with the https remote's CA ``ca`` if any; ``rule`` (name rule,
     prefix): for an image shared by robots that name themselves, ``robot``'s
@@ -148,8 +157,10 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
         raise BundleError(f"{out}: already exists; give a new directory")
     pull = pull_settings.part()
     if not wheels:
-        raise BundleError(f"release {record.version} carries no wheels for {pull.platform(data)}: the robot could "
-                          "not make its venv (publish with wheels)")
+        raise BundleError(
+            f"release {record.version} carries no wheels for {pull.platform(data)}: the robot could "
+            "not make its venv (publish with wheels)"
+        )
     out.mkdir(parents=True, mode=0o700)
     rootfs = out / "rootfs"
     etc, first = rootfs / agent_files.ETC.lstrip("/"), rootfs / FIRST_BOOT.lstrip("/")
@@ -163,8 +174,22 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     _write(etc / "known_hosts", pull.known_hosts(data))
     if ca is not None:
         _write(etc / "remote-ca.pem", ca)
-    done = subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-C", f"robot-pull-enroll@{robot}",
-                           "-f", str(etc / "enroll_ed25519")], capture_output=True, text=True)
+    done = subprocess.run(
+        [
+            "ssh-keygen",
+            "-q",
+            "-t",
+            "ed25519",
+            "-N",
+            "",
+            "-C",
+            f"robot-pull-enroll@{robot}",
+            "-f",
+            str(etc / "enroll_ed25519"),
+        ],
+        capture_output=True,
+        text=True,
+    )
     if done.returncode:
         raise BundleError(f"ssh-keygen: {done.stderr.strip()}")
     (first / "wheels").mkdir(parents=True)
@@ -184,8 +209,10 @@ def make(out: Path, robot: str, data, record, code: Path, wheels: list[tuple[str
     public = (etc / "enroll_ed25519.pub").read_text().strip()
     _archive(rootfs, out / "rootfs.tar")
     shutil.rmtree(rootfs)
-    _write(out / "README",
-           README.format(robot=robot if rule is None else f"{rule[1]}<{rule[0]}> (with the settings of {robot})"))
+    _write(
+        out / "README",
+        README.format(robot=robot if rule is None else f"{rule[1]}<{rule[0]}> (with the settings of {robot})"),
+    )
     return public
 
 
@@ -210,8 +237,11 @@ def _archive(rootfs: Path, tar_path: Path) -> None:
     with tarfile.open(tar_path, "w") as tar:
         for path in sorted(rootfs.rglob("*")):
             name = str(path.relative_to(rootfs))
-            if path.is_dir() and not path.is_symlink() and not any(
-                    name == own or name.startswith(own + "/") for own in OWN_DIRECTORIES):
+            if (
+                path.is_dir()
+                and not path.is_symlink()
+                and not any(name == own or name.startswith(own + "/") for own in OWN_DIRECTORIES)
+            ):
                 continue
             tar.add(path, arcname=name, recursive=False, filter=as_root)
     os.chmod(tar_path, 0o600)

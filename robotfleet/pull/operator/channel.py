@@ -24,8 +24,7 @@ from pathlib import Path
 BRANCH = "robotfleet/releases"
 CLONE_ENV = "ROBOTFLEET_RELEASES_CLONE"
 GIT_TIMEOUT = 600
-IDENTITY = ["-c", "user.name=robotfleet publish", "-c", "user.email=robotfleet@localhost",
-            "-c", "commit.gpgsign=false"]
+IDENTITY = ["-c", "user.name=robotfleet publish", "-c", "user.email=robotfleet@localhost", "-c", "commit.gpgsign=false"]
 
 
 class ChannelError(Exception):
@@ -34,8 +33,14 @@ class ChannelError(Exception):
 
 def _git(where: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
     try:
-        done = subprocess.run(["git", "-C", str(where), *args], capture_output=True, text=True,
-                              timeout=GIT_TIMEOUT, check=False, env={**os.environ, "GIT_TERMINAL_PROMPT": "0"})
+        done = subprocess.run(
+            ["git", "-C", str(where), *args],
+            capture_output=True,
+            text=True,
+            timeout=GIT_TIMEOUT,
+            check=False,
+            env={**os.environ, "GIT_TERMINAL_PROMPT": "0"},
+        )
     except (OSError, subprocess.TimeoutExpired) as error:
         raise ChannelError(f"git {args[0]}: {error}") from None
     if check and done.returncode:
@@ -82,17 +87,26 @@ class GitChannel:
         _git(self.clone, "remote", "remove", "fleet", check=False)
         _git(self.clone, "remote", "add", "fleet", self.url)
         _git(self.clone, "config", "core.symlinks", "false")  # a link on the branch is checked out as a file
-        fetched = _git(self.clone, "fetch", "--quiet", "--no-tags", "fleet",
-                       f"+refs/heads/{BRANCH}:refs/remotes/fleet/{BRANCH}", check=False)
+        fetched = _git(
+            self.clone,
+            "fetch",
+            "--quiet",
+            "--no-tags",
+            "fleet",
+            f"+refs/heads/{BRANCH}:refs/remotes/fleet/{BRANCH}",
+            check=False,
+        )
         if fetched.returncode == 0:
             self.base = _git(self.clone, "rev-parse", f"refs/remotes/fleet/{BRANCH}").stdout.strip()
             _git(self.clone, "checkout", "--quiet", "--force", "-B", BRANCH, self.base)
         else:
             listed = _git(self.clone, "ls-remote", "--heads", "fleet", BRANCH, check=False)
             if listed.returncode:
-                raise ChannelError(f"cannot read the releases remote {self.url}: {why(listed)}; check its URL "
-                                   "(--remote, git config robotfleet.remote or the robots' pull_remote) and that "
-                                   "you may read it.")
+                raise ChannelError(
+                    f"cannot read the releases remote {self.url}: {why(listed)}; check its URL "
+                    "(--remote, git config robotfleet.remote or the robots' pull_remote) and that "
+                    "you may read it."
+                )
             if listed.stdout.strip():
                 raise ChannelError(f"git fetch {self.url} {BRANCH}: {why(fetched)}")
             self.base = None  # a new orphan branch (a failed earlier attempt's local one is dropped)
@@ -111,10 +125,14 @@ class GitChannel:
         if pushed.returncode:
             said = [line for line in pushed.stderr.splitlines() if line.strip()]
             if any("non-fast-forward" in line or "fetch first" in line or "rejected" in line for line in said):
-                raise ChannelError(f"{self.url} {BRANCH} moved while publishing (another publish?); "
-                                   "nothing was changed there: rerun the command")
-            raise ChannelError(f"cannot push to the releases remote {self.url} ({BRANCH}): {why(pushed)}; check "
-                               "that you may write there.")
+                raise ChannelError(
+                    f"{self.url} {BRANCH} moved while publishing (another publish?); "
+                    "nothing was changed there: rerun the command"
+                )
+            raise ChannelError(
+                f"cannot push to the releases remote {self.url} ({BRANCH}): {why(pushed)}; check "
+                "that you may write there."
+            )
         return head
 
 
@@ -131,4 +149,3 @@ class DirChannel:
 
     def push(self, message: str) -> str:
         return ""
-

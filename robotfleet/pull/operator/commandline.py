@@ -11,36 +11,57 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet import selection
-from robotfleet.pull.operator import releases_remote
 from robotfleet.pull.operator import channel as channels
+from robotfleet.pull.operator import releases_remote
 from robotfleet.pull.operator.keys import KeyDir, KeyProblem
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError, parse_duration
 
 
 def add_channel(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
-    where.add_argument("--remote", metavar="NAME|URL",
-                       help="the releases remote whose robotfleet/releases branch is written (default: git config "
-                            "robotfleet.remote, else the pull robots' pull_remote; never origin unless named)")
-    where.add_argument("--to-dir", metavar="DIR", type=Path,
-                       help="write the repository into DIR instead (serve it over static HTTPS)")
-    parser.add_argument("--checkout", metavar="DIR", type=Path, default=robotfleet.CHECKOUT,
-                        help="the deploy repository (default: this checkout)")
-    parser.add_argument("--keys", metavar="DIR", type=Path,
-                        help="the key directory (default: $ROBOTFLEET_KEYS, else ~/.config/robotfleet/keys)")
+    where.add_argument(
+        "--remote",
+        metavar="NAME|URL",
+        help="the releases remote whose robotfleet/releases branch is written (default: git config "
+        "robotfleet.remote, else the pull robots' pull_remote; never origin unless named)",
+    )
+    where.add_argument(
+        "--to-dir", metavar="DIR", type=Path, help="write the repository into DIR instead (serve it over static HTTPS)"
+    )
+    parser.add_argument(
+        "--checkout",
+        metavar="DIR",
+        type=Path,
+        default=robotfleet.CHECKOUT,
+        help="the deploy repository (default: this checkout)",
+    )
+    parser.add_argument(
+        "--keys",
+        metavar="DIR",
+        type=Path,
+        help="the key directory (default: $ROBOTFLEET_KEYS, else ~/.config/robotfleet/keys)",
+    )
 
 
 def add_expiry(parser: argparse.ArgumentParser) -> None:
     default = Expiry()
     for role in ("timestamp", "snapshot", "targets", "root"):
         days = getattr(default, role).days
-        parser.add_argument(f"--{role}-expiry", metavar="DURATION", default=f"{days}d",
-                            help=f"how long {role} metadata stays valid (default {days}d; 90m, 12h, 7d, 4w)")
+        parser.add_argument(
+            f"--{role}-expiry",
+            metavar="DURATION",
+            default=f"{days}d",
+            help=f"how long {role} metadata stays valid (default {days}d; 90m, 12h, 7d, 4w)",
+        )
 
 
 def expiry_of(args) -> Expiry:
-    return Expiry(**{role: parse_duration(getattr(args, f"{role}_expiry"), f"--{role}-expiry")
-                     for role in ("timestamp", "snapshot", "targets", "root")})
+    return Expiry(
+        **{
+            role: parse_duration(getattr(args, f"{role}_expiry"), f"--{role}-expiry")
+            for role in ("timestamp", "snapshot", "targets", "root")
+        }
+    )
 
 
 def channel_of(args, writes: bool = True):

@@ -81,8 +81,12 @@ def verify(report: dict, kept: dict, where: str) -> str:
         Path(signers).write_text(f'enrollment namespaces="{NAMESPACE}" {given["key"]}\n')
         Path(signature).write_text(given["signature"])
         try:
-            done = subprocess.run(["ssh-keygen", "-Y", "verify", "-f", signers, "-I", "enrollment", "-n", NAMESPACE,
-                                   "-s", signature], input=text, capture_output=True, timeout=TIMEOUT)
+            done = subprocess.run(
+                ["ssh-keygen", "-Y", "verify", "-f", signers, "-I", "enrollment", "-n", NAMESPACE, "-s", signature],
+                input=text,
+                capture_output=True,
+                timeout=TIMEOUT,
+            )
         except (OSError, subprocess.TimeoutExpired) as error:
             raise ProofError(f"ssh-keygen -Y verify: {error}") from None
     if done.returncode:

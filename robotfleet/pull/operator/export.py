@@ -95,8 +95,17 @@ def copy_out(repository: Repository, out: Repository) -> None:
             stale.unlink()
 
 
-def export(repository: Repository, medium: Path, checkout, roles, registry, signer, expiry: Expiry,
-           now: datetime.datetime, work: Path) -> Exported:
+def export(
+    repository: Repository,
+    medium: Path,
+    checkout,
+    roles,
+    registry,
+    signer,
+    expiry: Expiry,
+    now: datetime.datetime,
+    work: Path,
+) -> Exported:
     """Re-sign ``repository``'s current release with its image archives
     (stored in ``medium`` only) and write the whole of it into ``medium``."""
     try:
@@ -120,10 +129,15 @@ def export(repository: Repository, medium: Path, checkout, roles, registry, sign
     current = repository.targets().signed.targets
     old = [path for path in current if path == media.NAME or path.startswith("images/")]
     try:  # an earlier export of this release: its index and archives are replaced
-        repository.extend({media.NAME: work / media.NAME, **files}, signer, expiry, now,
-                          elsewhere={path: out for path in files}, replacing=old)
+        repository.extend(
+            {media.NAME: work / media.NAME, **files},
+            signer,
+            expiry,
+            now,
+            elsewhere={path: out for path in files},
+            replacing=old,
+        )
     except RepositoryError as error:
         raise ExportError(str(error)) from None
     copy_out(repository, out)
     return Exported(record.version, len(files), sum(os.path.getsize(f) for f in files.values()), len(record.robots))
-

@@ -151,16 +151,19 @@ class Admin:
     admins: tuple[str, ...] = ("admin",)
 
     def env(self) -> dict:
-        ssh = (f"ssh -i {shlex.quote(self.key)} -o IdentitiesOnly=yes -o BatchMode=yes "
-               f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.known_hosts)} "
-               f"-o ConnectTimeout=10")
+        ssh = (
+            f"ssh -i {shlex.quote(self.key)} -o IdentitiesOnly=yes -o BatchMode=yes "
+            f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.known_hosts)} "
+            f"-o ConnectTimeout=10"
+        )
         return dict(os.environ, GIT_SSH_COMMAND=ssh, GIT_TERMINAL_PROMPT="0")
 
 
 def _git(admin: Admin, *args: str, cwd: str | None = None) -> str:
     try:
-        done = subprocess.run(["git", *args], cwd=cwd, env=admin.env(), capture_output=True,
-                              text=True, timeout=GIT_TIMEOUT)
+        done = subprocess.run(
+            ["git", *args], cwd=cwd, env=admin.env(), capture_output=True, text=True, timeout=GIT_TIMEOUT
+        )
     except subprocess.TimeoutExpired:
         raise GitoliteError(f"git {args[0]} to {admin.url}: no answer within {GIT_TIMEOUT} s") from None
     if done.returncode != 0:
@@ -169,9 +172,14 @@ def _git(admin: Admin, *args: str, cwd: str | None = None) -> str:
     return done.stdout
 
 
-def update(admin: Admin, repo: str, add: dict[str, str] | None = None,
-           remove: list[str] | None = None, message: str = "robotfleet: robots' keys",
-           shards: int = report_shards.SINGLE) -> bool:
+def update(
+    admin: Admin,
+    repo: str,
+    add: dict[str, str] | None = None,
+    remove: list[str] | None = None,
+    message: str = "robotfleet: robots' keys",
+    shards: int = report_shards.SINGLE,
+) -> bool:
     """Change the robots' keys on the server: ``add`` maps key files
     (``key_file(...)``) to public keys, ``remove`` names key files; the
     configuration is rewritten for the robots that then have a key.  False
@@ -190,18 +198,28 @@ def update(admin: Admin, repo: str, add: dict[str, str] | None = None,
         _git(admin, "add", "-A", ".", cwd=work)
         if not _git(admin, "status", "--porcelain", cwd=work).strip():
             return False
-        _git(admin, "-c", "user.name=robotfleet", "-c", "user.email=robotfleet@localhost",
-             "commit", "-q", "-m", message, cwd=work)
+        _git(
+            admin,
+            "-c",
+            "user.name=robotfleet",
+            "-c",
+            "user.email=robotfleet@localhost",
+            "commit",
+            "-q",
+            "-m",
+            message,
+            cwd=work,
+        )
         _git(admin, "push", "-q", "origin", "HEAD:master", cwd=work)
     return True
 
 
-def register(admin: Admin, repo: str, robot: str, public_key: str, enrollment: bool = False,
-             shards: int = report_shards.SINGLE) -> bool:
+def register(
+    admin: Admin, repo: str, robot: str, public_key: str, enrollment: bool = False, shards: int = report_shards.SINGLE
+) -> bool:
     """Give ``robot`` read access to ``repo`` (and its ``shards`` report
     shards) and write access to its own report ref, with ``public_key``;
     registering its own key retires its enrollment key."""
     add = {key_file(robot, enrollment): public_key}
     remove = [] if enrollment else [key_file(robot, enrollment=True)]
-    return update(admin, repo, add, remove, f"robotfleet: {'enrollment ' if enrollment else ''}key of {robot}",
-                  shards)
+    return update(admin, repo, add, remove, f"robotfleet: {'enrollment ' if enrollment else ''}key of {robot}", shards)

@@ -24,9 +24,9 @@ from pathlib import Path
 from tuf.api.metadata import Metadata, Root
 
 from robotfleet.pull.operator import channel
-from robotfleet.pull.protocol import agent_files, tree
 from robotfleet.pull.operator import keys as keyfiles
 from robotfleet.pull.operator.repository import Repository, RepositoryError
+from robotfleet.pull.protocol import agent_files, tree
 
 _SKIPPED_PARTS = ("__pycache__",)
 _SKIPPED_SUFFIXES = (".pyc", ".pyo")
@@ -39,8 +39,9 @@ class InstallError(Exception):
 def _tracked(checkout: Path) -> list[str] | None:
     """The deploy tree's files git tracks in ``checkout`` (None: not a git checkout)."""
     try:
-        done = subprocess.run(["git", "-C", str(checkout), "ls-files", "-z", "--", *tree.DEPLOY_PATHS],
-                              capture_output=True, timeout=60)
+        done = subprocess.run(
+            ["git", "-C", str(checkout), "ls-files", "-z", "--", *tree.DEPLOY_PATHS], capture_output=True, timeout=60
+        )
     except (OSError, subprocess.TimeoutExpired):
         return None
     if done.returncode != 0:
@@ -88,8 +89,11 @@ def code_archive(checkout: Path) -> tuple[str, str]:
         raise InstallError(f"{checkout}: no deploy tree ({', '.join(tree.DEPLOY_PATHS)})")
     entries = [_entry(checkout, f) for f in files]
     fd, path = tempfile.mkstemp(prefix="robotfleet-code-", suffix=".tar.gz")
-    with os.fdopen(fd, "wb") as raw, gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as packed, \
-            tarfile.open(fileobj=packed, mode="w") as archive:
+    with (
+        os.fdopen(fd, "wb") as raw,
+        gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0) as packed,
+        tarfile.open(fileobj=packed, mode="w") as archive,
+    ):
         for entry in sorted(entries):
             info = archive.gettarinfo(str(checkout / entry.path), arcname=entry.path)
             info.uid = info.gid = 0
@@ -133,18 +137,24 @@ def trust_root(checkout: Path, setting: str | None) -> bytes:
     try:
         data = path.read_bytes()
     except OSError:
-        raise InstallError(f"pull_trust_root: {path} cannot be read; publish a first release "
-                           "(robotfleet keys init; robotfleet publish), docs/guides/pull.md") from None
+        raise InstallError(
+            f"pull_trust_root: {path} cannot be read; publish a first release "
+            "(robotfleet keys init; robotfleet publish), docs/guides/pull.md"
+        ) from None
     try:
         md = Metadata[Root].from_bytes(data)
         md.signed.verify_delegate(Root.type, md.signed_bytes, md.signatures)
     except Exception as error:  # every way a root can be bad is one refusal
-        raise InstallError(f"pull_trust_root: {path} is not a TUF root signed by its own keys "
-                           f"({str(error).splitlines()[0] if str(error) else type(error).__name__})") from None
+        raise InstallError(
+            f"pull_trust_root: {path} is not a TUF root signed by its own keys "
+            f"({str(error).splitlines()[0] if str(error) else type(error).__name__})"
+        ) from None
     known = _operator_root_keys()
     if known and not known & set(md.signed.roles[Root.type].keyids):
-        raise InstallError(f"pull_trust_root: {path} is signed by none of the root keys in "
-                           f"{keyfiles.default_dir()} (root.pub): not this operator's repository")
+        raise InstallError(
+            f"pull_trust_root: {path} is signed by none of the root keys in "
+            f"{keyfiles.default_dir()} (root.pub): not this operator's repository"
+        )
     return data
 
 
@@ -167,12 +177,16 @@ def wheel_set(clone: Path, platform: str) -> tuple[str, tuple[tuple[str, Path], 
     try:
         record = repository.record() if repository.exists() else None
         if record is None:
-            raise InstallError(f"{clone}: no release published yet; the agent runs in the venv of the "
-                               "current release (robotfleet publish first)")
+            raise InstallError(
+                f"{clone}: no release published yet; the agent runs in the venv of the "
+                "current release (robotfleet publish first)"
+            )
         paths = record.wheels_for(platform)
         if not paths:
-            raise InstallError(f"release {record.version} carries no wheels for {platform} (pull_platform); "
-                               f"publish again (robotfleet publish --platform {platform})")
+            raise InstallError(
+                f"release {record.version} carries no wheels for {platform} (pull_platform); "
+                f"publish again (robotfleet publish --platform {platform})"
+            )
         targets = repository.targets().signed.targets
         files = tuple((path.rsplit("/", 1)[-1], repository.blob(path)) for path in paths)
     except RepositoryError as error:
@@ -205,8 +219,10 @@ def read_probe(text: str) -> dict[str, str]:
 
 
 # Each link's target, when what it points at is usable.
-PROBE = (f"v=$(readlink {agent_files.VENV}); [ -x {agent_files.VENV}/bin/python ] || v=; echo venv=$v; "
-         f"c=$(readlink {agent_files.CURRENT_CODE}); [ -f {agent_files.CURRENT_CODE}/deploy.py ] || c=; echo code=$c")
+PROBE = (
+    f"v=$(readlink {agent_files.VENV}); [ -x {agent_files.VENV}/bin/python ] || v=; echo venv=$v; "
+    f"c=$(readlink {agent_files.CURRENT_CODE}); [ -f {agent_files.CURRENT_CODE}/deploy.py ] || c=; echo code=$c"
+)
 
 
 def venv_script(venv: str) -> str:

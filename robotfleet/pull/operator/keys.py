@@ -46,8 +46,9 @@ def public_of(path) -> SSlibKey:
         raw = json.loads(Path(path).read_text())
         return SSlibKey.from_dict(raw["keyid"], dict(raw["key"]))
     except FileNotFoundError:
-        raise KeyProblem(f"{path}: no such public key file; give the .pub file robotfleet keys generate wrote "
-                         "beside its key") from None
+        raise KeyProblem(
+            f"{path}: no such public key file; give the .pub file robotfleet keys generate wrote beside its key"
+        ) from None
     except (ValueError, KeyError, TypeError) as error:
         raise KeyProblem(f"{path}: not a robotfleet public key file ({error})") from None
 
@@ -64,8 +65,9 @@ def signer_of(path) -> CryptoSigner:
             raise KeyProblem(f"{path}: readable by others (mode {stat.S_IMODE(info.st_mode):o}); chmod 600 it")
         private = load_pem_private_key(path.read_bytes(), None)
     except FileNotFoundError:
-        raise KeyProblem(f"{path}: no such key file; give a .key file robotfleet keys init or keys generate "
-                         "made") from None
+        raise KeyProblem(
+            f"{path}: no such key file; give a .key file robotfleet keys init or keys generate made"
+        ) from None
     except (ValueError, TypeError) as error:
         raise KeyProblem(f"{path}: not a PEM private key ({str(error).splitlines()[0]})") from None
     public = path.with_suffix(".pub")
@@ -85,8 +87,10 @@ def generate(path) -> SSlibKey:
     path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
     signer = CryptoSigner.generate_ed25519()
     _write_private(path, signer.private_bytes)
-    public.write_text(json.dumps({"keyid": signer.public_key.keyid, "key": signer.public_key.to_dict()},
-                                 indent=1, sort_keys=True) + "\n")
+    public.write_text(
+        json.dumps({"keyid": signer.public_key.keyid, "key": signer.public_key.to_dict()}, indent=1, sort_keys=True)
+        + "\n"
+    )
     return signer.public_key
 
 

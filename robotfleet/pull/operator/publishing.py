@@ -16,11 +16,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from robotfleet.fleet.validate import Fleet, FleetError, parse
-from robotfleet.pull.protocol import record as records
-from robotfleet.pull.protocol.robot_data import HostData
-from robotfleet.pull.protocol import tree, waves
 from robotfleet.pull.operator import wheels
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError
+from robotfleet.pull.protocol import record as records
+from robotfleet.pull.protocol import tree, waves
+from robotfleet.pull.protocol.robot_data import HostData
 from robotfleet.role import pull_part
 
 DEFAULT_FLEET = "inventories/robots.yaml"
@@ -49,8 +49,11 @@ def pull_hosts(fleet: Fleet, registry) -> list[tuple[str, HostData]]:
     """The fleet's hosts with ``pull_enabled: true``, robots then laptops, in file
     order, with every setting's default for their group under what the file says."""
     pulls = pull_part(registry.roles).pulls
-    merged = [(name, HostData({**registry.defaults(group), **data})) for group in ("robots", "laptops")
-              for name, data in fleet.hosts(group)]
+    merged = [
+        (name, HostData({**registry.defaults(group), **data}))
+        for group in ("robots", "laptops")
+        for name, data in fleet.hosts(group)
+    ]
     return [(name, data) for name, data in merged if pulls(data)]
 
 
@@ -91,17 +94,20 @@ def read_fleet(checkout, commit: str, path: str, registry) -> tuple[Fleet, str]:
     try:
         data = tree.blob(checkout, commit, path)
     except tree.TreeError:
-        raise PublishError(f"{path}: not in commit {commit[:12]} (commit the fleet file: robots get it "
-                           "from the release's code)") from None
+        raise PublishError(
+            f"{path}: not in commit {commit[:12]} (commit the fleet file: robots get it from the release's code)"
+        ) from None
     try:
         return parse(data, f"{path}@{commit[:12]}", registry), hashlib.sha256(data).hexdigest()
     except FleetError as error:
-        raise PublishError("\n".join(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; "
-                                                    "nothing was published."])) from None
+        raise PublishError(
+            "\n".join(error.lines + [f"{len(error.lines)} problem(s) in the fleet file; nothing was published."])
+        ) from None
 
 
-def build(checkout, options: Options, roles, registry, version: int, now: datetime.datetime,
-          work: Path) -> tuple[records.Record, dict[str, Path]]:
+def build(
+    checkout, options: Options, roles, registry, version: int, now: datetime.datetime, work: Path
+) -> tuple[records.Record, dict[str, Path]]:
     """The release record and its target files (code archive, wheels, in
     ``work``), checked before anything is signed."""
     try:
@@ -111,8 +117,10 @@ def build(checkout, options: Options, roles, registry, version: int, now: dateti
     if not options.allow_dirty and commit == tree.resolve(checkout, "HEAD"):
         changed = dirty(checkout)
         if changed:
-            raise PublishError(f"{changed[0]}: changed and not committed ({len(changed)} file(s)); robots get the "
-                               "commit, not the working tree: commit first, or --allow-dirty")
+            raise PublishError(
+                f"{changed[0]}: changed and not committed ({len(changed)} file(s)); robots get the "
+                "commit, not the working tree: commit first, or --allow-dirty"
+            )
     fleet, fleet_sha = read_fleet(checkout, commit, options.fleet, registry)
     hosts = pull_hosts(fleet, registry)
     if not hosts:
@@ -132,15 +140,31 @@ def build(checkout, options: Options, roles, registry, version: int, now: dateti
         try:
             requirements = wheels.requirements_of(tree.blob(checkout, commit, "pyproject.toml"))
             for platform in platforms:
-                found = wheels.build_wheelhouse(requirements, platform, options.wheel_cache,
-                                                index_url=options.index_url, refresh=options.refresh_wheels)
+                found = wheels.build_wheelhouse(
+                    requirements,
+                    platform,
+                    options.wheel_cache,
+                    index_url=options.index_url,
+                    refresh=options.refresh_wheels,
+                )
                 wheel_targets[platform] = [f"wheels/{p.name}" for p in found]
                 files.update({f"wheels/{p.name}": p for p in found})
         except (wheels.WheelError, tree.TreeError) as error:
             raise PublishError(str(error)) from None
     try:
-        record = records.build(version, now, now + options.expiry.targets, commit, tree_sha, options.fleet, fleet_sha,
-                               [name for name, _ in hosts], images, wheel_targets, options.plan)
+        record = records.build(
+            version,
+            now,
+            now + options.expiry.targets,
+            commit,
+            tree_sha,
+            options.fleet,
+            fleet_sha,
+            [name for name, _ in hosts],
+            images,
+            wheel_targets,
+            options.plan,
+        )
     except records.RecordError as error:
         raise PublishError(str(error)) from None
     return record, files
@@ -151,8 +175,14 @@ def next_version(repository: Repository) -> int:
     return current.version + 1 if current else 1
 
 
-def publish(repository: Repository, record: records.Record, files: dict[str, Path], keys, options: Options,
-            now: datetime.datetime) -> None:
+def publish(
+    repository: Repository,
+    record: records.Record,
+    files: dict[str, Path],
+    keys,
+    options: Options,
+    now: datetime.datetime,
+) -> None:
     """Sign ``record`` and its files into ``repository`` (made first, with
     the root key, if it is new)."""
     from robotfleet.pull.operator.keys import ONLINE, ROOT
@@ -175,8 +205,10 @@ def halt(repository: Repository, keys, reason: str, expiry: Expiry, now: datetim
         if current is None:
             raise PublishError(f"{repository.path}: no release to halt; there is nothing for robots to stop.")
         if current.halt:
-            raise PublishError(f"release {current.version} is already halted ({current.halt_reason}); nothing was "
-                               "changed (a new publish ends the halt).")
+            raise PublishError(
+                f"release {current.version} is already halted ({current.halt_reason}); nothing was "
+                "changed (a new publish ends the halt)."
+            )
         halted = current.halted(current.version + 1, now, now + expiry.targets, reason)
         files = {path: repository.blob(path) for path in halted.targets()}
         repository.publish(halted, files, keys.signer(ONLINE), expiry, now)

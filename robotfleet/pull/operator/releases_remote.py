@@ -20,8 +20,10 @@ from pathlib import Path
 
 CONFIG = "robotfleet.remote"
 DEPLOY = "origin"
-HOW = (f"name it once: git config {CONFIG} URL in the checkout (or pull_remote for the pull robots in the fleet "
-       "file), or give --remote URL")
+HOW = (
+    f"name it once: git config {CONFIG} URL in the checkout (or pull_remote for the pull robots in the fleet "
+    "file), or give --remote URL"
+)
 
 
 class Unnamed(Exception):
@@ -30,8 +32,14 @@ class Unnamed(Exception):
 
 def _git(checkout, *args: str) -> str | None:
     try:
-        done = subprocess.run(["git", "-C", str(checkout), *args], capture_output=True, text=True, timeout=30,
-                              check=False, env={**os.environ, "GIT_TERMINAL_PROMPT": "0"})
+        done = subprocess.run(
+            ["git", "-C", str(checkout), *args],
+            capture_output=True,
+            text=True,
+            timeout=30,
+            check=False,
+            env={**os.environ, "GIT_TERMINAL_PROMPT": "0"},
+        )
     except (OSError, subprocess.TimeoutExpired):
         return None
     return done.stdout.strip() or None if done.returncode == 0 else None
@@ -69,18 +77,23 @@ def choose(given: str | None, config: str | None, fleet: list[str], unread: str 
     if len(fleet) == 1:
         return fleet[0]
     if fleet:
-        raise Unnamed(f"the pull robots name {len(fleet)} remotes ({', '.join(fleet[:3])}); "
-                      f"say which one the operator uses: {HOW}.")
-    fleet_said = f"the fleet file could not be read: {unread}" if unread else \
-        "no pull robot with pull_remote in the fleet file"
-    raise Unnamed(f"no releases remote is named (no --remote, no {CONFIG} in the checkout's git config, "
-                  f"{fleet_said}); {HOW}.")
+        raise Unnamed(
+            f"the pull robots name {len(fleet)} remotes ({', '.join(fleet[:3])}); "
+            f"say which one the operator uses: {HOW}."
+        )
+    fleet_said = (
+        f"the fleet file could not be read: {unread}" if unread else "no pull robot with pull_remote in the fleet file"
+    )
+    raise Unnamed(
+        f"no releases remote is named (no --remote, no {CONFIG} in the checkout's git config, {fleet_said}); {HOW}."
+    )
 
 
 def _same(one: str, other: str) -> bool:
     def plain(url: str) -> str:
         url = url.rstrip("/").removesuffix(".git").removeprefix("file://")
         return os.path.realpath(url) if "://" not in url and not _scp_like(url) else url
+
     return plain(one) == plain(other)
 
 
@@ -97,9 +110,11 @@ def refuse_deploy_remote(checkout, given: str | None, url: str) -> None:
     origin = _git(checkout, "remote", "get-url", DEPLOY)
     resolved = _git(checkout, "remote", "get-url", url) or url
     if origin and _same(resolved, origin):
-        raise Unnamed(f"{url} is the deploy repository's own remote ({DEPLOY}), and robots can read all of a remote "
-                      f"they fetch from; keep the releases on another remote ({HOW}), or give --remote {DEPLOY} to "
-                      "publish there anyway.")
+        raise Unnamed(
+            f"{url} is the deploy repository's own remote ({DEPLOY}), and robots can read all of a remote "
+            f"they fetch from; keep the releases on another remote ({HOW}), or give --remote {DEPLOY} to "
+            "publish there anyway."
+        )
 
 
 def fleet_hosts(checkout, fleet: str | None = None) -> tuple[list[tuple[str, dict]], str]:
@@ -118,8 +133,9 @@ def fleet_hosts(checkout, fleet: str | None = None) -> tuple[list[tuple[str, dic
     return [host for group in ("robots", "laptops") for host in read.hosts(group)], ""
 
 
-def of(checkout, given: str | None, hosts=None, fleet: str | None = None, writes: bool = False,
-       reports: bool = False) -> str:
+def of(
+    checkout, given: str | None, hosts=None, fleet: str | None = None, writes: bool = False, reports: bool = False
+) -> str:
     """The releases remote (a name of the checkout or a URL) for a command; Unnamed if none is named, or if a
     command that ``writes`` would write to the deploy repository's remote without --remote origin."""
     config = None if given else configured(checkout)

@@ -25,7 +25,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from tuf.api.metadata import MetaFile, Metadata, Root, Snapshot, TargetFile, Targets, Timestamp
+from tuf.api.metadata import Metadata, MetaFile, Root, Snapshot, TargetFile, Targets, Timestamp
 from tuf.api.serialization.json import JSONSerializer
 
 from robotfleet import atomicfile
@@ -167,8 +167,9 @@ class Repository:
                 shutil.copyfileobj(source, copy)
         return info
 
-    def publish(self, record: records.Record, files: dict[str, Path], online_signer, expiry: Expiry,
-                now: datetime.datetime) -> None:
+    def publish(
+        self, record: records.Record, files: dict[str, Path], online_signer, expiry: Expiry, now: datetime.datetime
+    ) -> None:
         """Make ``record`` the current release: release.json and ``files``
         (target path -> local file: exactly the record's code and wheels)
         become the targets; targets, snapshot and timestamp get their next
@@ -189,8 +190,15 @@ class Repository:
         targets.signed.targets = chosen
         self._publish_targets(targets, online_signer, expiry, now)
 
-    def extend(self, files: dict[str, Path], online_signer, expiry: Expiry, now: datetime.datetime,
-               elsewhere=None, replacing=()) -> None:
+    def extend(
+        self,
+        files: dict[str, Path],
+        online_signer,
+        expiry: Expiry,
+        now: datetime.datetime,
+        elsewhere=None,
+        replacing=(),
+    ) -> None:
         """The current release with more targets (``files``: target path ->
         local file; a release on media adds its image index and archives):
         the same record, targets, snapshot and timestamp at their next
@@ -209,8 +217,9 @@ class Repository:
             targets.signed.targets[path] = (elsewhere[path] if path in elsewhere else self)._store(path, Path(local))
         self._publish_targets(targets, online_signer, expiry, now)
 
-    def _publish_targets(self, targets: Metadata[Targets], online_signer, expiry: Expiry, now: datetime.datetime,
-                         first: bool = False) -> None:
+    def _publish_targets(
+        self, targets: Metadata[Targets], online_signer, expiry: Expiry, now: datetime.datetime, first: bool = False
+    ) -> None:
         """Sign and write ``targets`` at its next version (``first``: as is,
         version 1, with snapshot and timestamp version 1), then a snapshot and
         a timestamp naming it."""
@@ -225,21 +234,25 @@ class Repository:
         self._publish_snapshot(snapshot, online_signer, expiry, now, first)
         self._prune()
 
-    def _publish_snapshot(self, snapshot: Metadata[Snapshot], online_signer, expiry: Expiry,
-                          now: datetime.datetime, first: bool = False) -> None:
+    def _publish_snapshot(
+        self, snapshot: Metadata[Snapshot], online_signer, expiry: Expiry, now: datetime.datetime, first: bool = False
+    ) -> None:
         snapshot.signed.version += 0 if first else 1
         snapshot.signed.expires = expires(now, expiry.snapshot)
         snapshot.sign(online_signer)
         data = snapshot.to_bytes(SERIALIZER)
         _write(self.metadata / f"{snapshot.signed.version}.snapshot.json", data)
         version = 0 if first else self.timestamp().signed.version
-        self._publish_timestamp(version, MetaFile.from_data(snapshot.signed.version, data, ["sha256"]),
-                                online_signer, expiry, now)
+        self._publish_timestamp(
+            version, MetaFile.from_data(snapshot.signed.version, data, ["sha256"]), online_signer, expiry, now
+        )
 
-    def _publish_timestamp(self, previous: int, snapshot_meta: MetaFile, online_signer, expiry: Expiry,
-                           now: datetime.datetime) -> None:
-        timestamp = Metadata(Timestamp(version=previous + 1, expires=expires(now, expiry.timestamp),
-                                       snapshot_meta=snapshot_meta))
+    def _publish_timestamp(
+        self, previous: int, snapshot_meta: MetaFile, online_signer, expiry: Expiry, now: datetime.datetime
+    ) -> None:
+        timestamp = Metadata(
+            Timestamp(version=previous + 1, expires=expires(now, expiry.timestamp), snapshot_meta=snapshot_meta)
+        )
         timestamp.sign(online_signer)
         _write(self.metadata / "timestamp.json", timestamp.to_bytes(SERIALIZER))
 
@@ -247,9 +260,11 @@ class Repository:
         """Refuse to sign with a key the root does not name (robots would refuse it as unknown)."""
         named = self.root().signed.roles[Timestamp.type].keyids
         if signer.public_key.keyid not in named:
-            raise RepositoryError(f"the online key here ({signer.public_key.keyid[:16]}) is not the one the "
-                                  f"repository's root names ({', '.join(k[:16] for k in named)}): "
-                                  "was it rotated on another machine?")
+            raise RepositoryError(
+                f"the online key here ({signer.public_key.keyid[:16]}) is not the one the "
+                f"repository's root names ({', '.join(k[:16] for k in named)}): "
+                "was it rotated on another machine?"
+            )
 
     def renew(self, online_signer, expiry: Expiry, now: datetime.datetime) -> list[str]:
         """Re-sign what expires before the next timestamp would: always the
@@ -265,8 +280,9 @@ class Repository:
             self._publish_snapshot(snapshot, online_signer, expiry, now)
             return [Snapshot.type, Timestamp.type]
         self._check_online(online_signer)
-        self._publish_timestamp(self.timestamp().signed.version, self.timestamp().signed.snapshot_meta,
-                                online_signer, expiry, now)
+        self._publish_timestamp(
+            self.timestamp().signed.version, self.timestamp().signed.snapshot_meta, online_signer, expiry, now
+        )
         return [Timestamp.type]
 
     def resign(self, online_signer, expiry: Expiry, now: datetime.datetime) -> None:
@@ -278,15 +294,19 @@ class Repository:
         """Keep the newest KEEP snapshot and targets versions and the target blobs they name."""
         kept_targets: set[Path] = set()
         for role in (Snapshot.type, Targets.type):
-            versions = sorted(int(p.name.split(".")[0]) for p in self.metadata.glob(f"*.{role}.json")
-                              if p.name.split(".")[0].isdigit())
+            versions = sorted(
+                int(p.name.split(".")[0])
+                for p in self.metadata.glob(f"*.{role}.json")
+                if p.name.split(".")[0].isdigit()
+            )
             for version in versions[:-KEEP]:
                 (self.metadata / f"{version}.{role}.json").unlink()
             if role == Targets.type:
                 for version in versions[-KEEP:]:
                     md = Metadata.from_file(str(self.metadata / f"{version}.{role}.json"))
-                    kept_targets |= {self.targets_dir / blob_name(p, i.hashes["sha256"])
-                                     for p, i in md.signed.targets.items()}
+                    kept_targets |= {
+                        self.targets_dir / blob_name(p, i.hashes["sha256"]) for p, i in md.signed.targets.items()
+                    }
         for stored in self.targets_dir.rglob("*") if self.targets_dir.exists() else ():
             if stored.is_file() and stored not in kept_targets:
                 stored.unlink()

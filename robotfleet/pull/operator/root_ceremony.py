@@ -14,8 +14,9 @@ from tuf.api.metadata import Metadata, Root
 from robotfleet.pull.operator.repository import ONLINE_ROLES, SERIALIZER, Expiry, Repository, RepositoryError, expires
 
 
-def prepare_root(repository: Repository, expiry: Expiry, now: datetime.datetime, online_key=None,
-                 root_key=None) -> bytes:
+def prepare_root(
+    repository: Repository, expiry: Expiry, now: datetime.datetime, online_key=None, root_key=None
+) -> bytes:
     """The next root, unsigned: the same keys but ``online_key`` (a new
     online key for targets, snapshot, timestamp) and ``root_key`` (a new
     root key) where given, a new expiry.  It must be signed by the
@@ -47,17 +48,22 @@ def install_root(repository: Repository, data: bytes, online_signer, expiry: Exp
     if not isinstance(new.signed, Root):
         raise RepositoryError(f"{new.signed.type} metadata, not a root")
     if new.signed.version != current.signed.version + 1:
-        raise RepositoryError(f"root version {new.signed.version}: the next root is version "
-                              f"{current.signed.version + 1}")
+        raise RepositoryError(
+            f"root version {new.signed.version}: the next root is version {current.signed.version + 1}"
+        )
     for signer_root, who in ((current.signed, "the current root key"), (new.signed, "its own root key")):
         result = signer_root.get_verification_result(Root.type, new.signed_bytes, new.signatures)
         if not result.verified:
-            raise RepositoryError(f"root version {new.signed.version} is not signed by {who} "
-                                  f"({len(result.signed)} of {result.threshold} signatures); robotfleet keys sign")
+            raise RepositoryError(
+                f"root version {new.signed.version} is not signed by {who} "
+                f"({len(result.signed)} of {result.threshold} signatures); robotfleet keys sign"
+            )
     for role in ONLINE_ROLES:
         if online_signer.public_key.keyid not in new.signed.roles[role].keyids:
-            raise RepositoryError(f"root version {new.signed.version} does not name the online key "
-                                  f"{online_signer.public_key.keyid[:16]} for {role}")
+            raise RepositoryError(
+                f"root version {new.signed.version} does not name the online key "
+                f"{online_signer.public_key.keyid[:16]} for {role}"
+            )
     repository.write_root(data, new.signed.version)
     repository.resign(online_signer, expiry, now)
     return new.signed.version

@@ -22,8 +22,14 @@ from pathlib import Path
 from robotfleet.pull.protocol.platforms import parse_platform
 
 # glibc wheel tags pip accepts for a machine, newest first (Debian 12: glibc 2.36, Ubuntu 22.04: 2.35).
-_MANYLINUX = ("manylinux_2_34_{m}", "manylinux_2_28_{m}", "manylinux_2_17_{m}", "manylinux2014_{m}",
-              "manylinux_2_5_{m}", "manylinux1_{m}")
+_MANYLINUX = (
+    "manylinux_2_34_{m}",
+    "manylinux_2_28_{m}",
+    "manylinux_2_17_{m}",
+    "manylinux2014_{m}",
+    "manylinux_2_5_{m}",
+    "manylinux1_{m}",
+)
 PIP_TIMEOUT = 1800
 
 
@@ -31,14 +37,33 @@ class WheelError(Exception):
     """The wheelhouse cannot be built; the message is one line."""
 
 
-def pip_command(requirements: list[str], key: str, directory: Path, python: str = sys.executable,
-                index_url: str | None = None, offline: bool = False) -> list[str]:
+def pip_command(
+    requirements: list[str],
+    key: str,
+    directory: Path,
+    python: str = sys.executable,
+    index_url: str | None = None,
+    offline: bool = False,
+) -> list[str]:
     """The ``pip download`` that fills ``directory`` with ``key``'s wheels
     (``offline``: from the wheels already in ``directory`` only)."""
     version, machine = parse_platform(key)
-    command = [python, "-m", "pip", "download", "--disable-pip-version-check", "--no-input", "--quiet",
-               "--only-binary=:all:", "--implementation", "cp", "--python-version", version,
-               "--dest", str(directory)]
+    command = [
+        python,
+        "-m",
+        "pip",
+        "download",
+        "--disable-pip-version-check",
+        "--no-input",
+        "--quiet",
+        "--only-binary=:all:",
+        "--implementation",
+        "cp",
+        "--python-version",
+        version,
+        "--dest",
+        str(directory),
+    ]
     for tag in _MANYLINUX:
         command += ["--platform", tag.format(m=machine)]
     command += ["--platform", "any"]
@@ -49,8 +74,14 @@ def pip_command(requirements: list[str], key: str, directory: Path, python: str 
     return command + list(requirements)
 
 
-def build_wheelhouse(requirements: list[str], key: str, cache_dir, python: str = sys.executable,
-                     index_url: str | None = None, refresh: bool = False) -> list[Path]:
+def build_wheelhouse(
+    requirements: list[str],
+    key: str,
+    cache_dir,
+    python: str = sys.executable,
+    index_url: str | None = None,
+    refresh: bool = False,
+) -> list[Path]:
     """The wheels (sorted paths) that install ``requirements`` on platform
     ``key``, from ``cache_dir``/``key`` when it holds them all, else
     downloaded there from the index (always, with ``refresh``).  WheelError
@@ -75,8 +106,7 @@ def _download(requirements, key, directory: Path, python, index_url, offline: bo
         raise WheelError(f"wheels for {key}: pip download: {error}") from None
     if done.returncode:
         said = [line for line in done.stderr.splitlines() if line.strip() and not line.startswith("WARNING")]
-        raise WheelError(f"wheels for {key}: {said[-1].strip() if said else 'pip download failed'} "
-                         f"(pip's log: {log})")
+        raise WheelError(f"wheels for {key}: {said[-1].strip() if said else 'pip download failed'} (pip's log: {log})")
     names = _resolved(log, directory) or sorted(p.name for p in directory.glob("*.whl"))
     return [directory / name for name in sorted(names)]
 

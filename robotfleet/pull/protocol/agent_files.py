@@ -69,8 +69,14 @@ class Config:
     def to_json(self) -> str:
         data = {"format": FORMAT, **asdict(self)}
         data["windows"] = list(self.windows)
-        for name, default in (("extra", {}), ("report_remote", None), ("report_shards", 0),
-                              ("name_rule", None), ("name_prefix", ""), ("media_dir", None)):
+        for name, default in (
+            ("extra", {}),
+            ("report_remote", None),
+            ("report_shards", 0),
+            ("name_rule", None),
+            ("name_prefix", ""),
+            ("media_dir", None),
+        ):
             if data[name] == default:
                 del data[name]
         return json.dumps(data, indent=2, sort_keys=True) + "\n"
@@ -86,9 +92,15 @@ class Config:
 # The bounds of the configuration's whole numbers, written once: the pull
 # role's settings (roles/pull/settings.py) check the fleet file with them,
 # the agent its agent.json; the defaults are Config's.
-LIMITS = {"interval": (10, 7 * 86400), "jitter": (0, 86400), "min_free_mb": (0, 1 << 20),
-          "fetch_timeout": (5, 86400), "stale_after": (1, 1000), "heartbeat": (10, 7 * 86400),
-          "report_shards": (0, 4096)}
+LIMITS = {
+    "interval": (10, 7 * 86400),
+    "jitter": (0, 86400),
+    "min_free_mb": (0, 1 << 20),
+    "fetch_timeout": (5, 86400),
+    "stale_after": (1, 1000),
+    "heartbeat": (10, 7 * 86400),
+    "report_shards": (0, 4096),
+}
 
 
 def default(name: str):
@@ -103,7 +115,7 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     except ValueError as error:
         raise ConfigError(f"{where}: not JSON ({error})") from None
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
-        raise ConfigError(f"{where}: expected an object with \"format\": {FORMAT}")
+        raise ConfigError(f'{where}: expected an object with "format": {FORMAT}')
     known = {f for f in Config.__dataclass_fields__} | {"format"}
     unknown = sorted(set(raw) - known)
     if unknown:
@@ -178,7 +190,9 @@ FIRST_BOOT_SERVICE = "robot-pull-first-boot.service"
 
 
 def service_unit() -> str:
-    return HEADER + f"""[Unit]
+    return (
+        HEADER
+        + f"""[Unit]
 Description=Robot fleet pull agent: fetch, verify and apply a signed release (docs/guides/pull.md)
 Wants=network-online.target
 After=network-online.target {FIRST_BOOT_SERVICE}
@@ -195,12 +209,15 @@ Nice=10
 IOSchedulingClass=best-effort
 IOSchedulingPriority=7
 """
+    )
 
 
 def timer_unit(interval: int, jitter: int, boot_delay: int) -> str:
     # Persistent= acts only on OnCalendar= timers; a robot that was off
     # catches up through OnBootSec=, the first check after each boot.
-    return HEADER + f"""[Unit]
+    return (
+        HEADER
+        + f"""[Unit]
 Description=Robot fleet pull agent: check for a new release every {interval} s
 
 [Timer]
@@ -214,6 +231,7 @@ AccuracySec=1s
 [Install]
 WantedBy=timers.target
 """
+    )
 
 
 def watched(paths) -> dict[str, str]:

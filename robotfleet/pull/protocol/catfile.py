@@ -42,10 +42,14 @@ def blobs(repo: Path | str, names: list[str], limit: int, timeout: float = 300) 
     found: list[bytes | str] = []
     with tempfile.TemporaryFile() as errors:
         try:
-            process = subprocess.Popen(["git", "-C", str(repo), "cat-file", f"--batch={FORMAT}"],
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=errors,
-                                       env=dict(os.environ, LC_ALL="C", GIT_TERMINAL_PROMPT="0"),
-                                       start_new_session=True)
+            process = subprocess.Popen(
+                ["git", "-C", str(repo), "cat-file", f"--batch={FORMAT}"],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                stderr=errors,
+                env=dict(os.environ, LC_ALL="C", GIT_TERMINAL_PROMPT="0"),
+                start_new_session=True,
+            )
         except OSError as error:
             raise CatFileError(f"cannot run git ({error})") from None
         timer = threading.Timer(timeout, _kill, (process.pid,))

@@ -48,8 +48,9 @@ def archive_path(name: str, machine: str) -> str:
 
 def build(version: int, images: dict[str, dict[str, dict[str, str]]]) -> bytes:
     """The index's bytes (sorted keys: same index, same bytes), checked as a robot reads it."""
-    data = (json.dumps({"format": FORMAT, "version": version, "images": images}, indent=1, sort_keys=True)
-            + "\n").encode()
+    data = (
+        json.dumps({"format": FORMAT, "version": version, "images": images}, indent=1, sort_keys=True) + "\n"
+    ).encode()
     parse(data)
     return data
 
@@ -63,8 +64,11 @@ def parse(data: bytes) -> dict:
     """``media.json``'s bytes -> {"version": int, "images": {machine: {ref: {digest, archive, image}}}}."""
     raw = load_json(data, NAME, MAX_BYTES, MediaError)
     if not isinstance(raw, dict) or raw.get("format") != FORMAT:
-        raise _fail("format", f"{FORMAT} (a newer robotfleet wrote these media?)", raw.get("format")
-                    if isinstance(raw, dict) else raw)
+        raise _fail(
+            "format",
+            f"{FORMAT} (a newer robotfleet wrote these media?)",
+            raw.get("format") if isinstance(raw, dict) else raw,
+        )
     if sorted(raw) != ["format", "images", "version"]:
         raise _fail("the index", "exactly format, version and images", sorted(raw))
     version = raw["version"]

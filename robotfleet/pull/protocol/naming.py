@@ -26,9 +26,26 @@ NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._+-]{0,252}\Z")
 MACHINE_ID = re.compile(r"[0-9a-f]{32}\Z")
 # What a name derived by each rule looks like after the prefix (gitolite's refex for a shared enrollment key).
 PATTERNS = {"machine-id": "[0-9a-f]{12}", "dmi-serial": "[a-z0-9._+-]+"}
-PLACEHOLDERS = {"", "0", "none", "null", "n/a", "na", "default string", "to be filled by o.e.m.", "not specified",
-                "system serial number", "chassis serial number", "123456789", "0123456789", "1234567890",
-                "not applicable", "unknown", "oem", "o.e.m."}
+PLACEHOLDERS = {
+    "",
+    "0",
+    "none",
+    "null",
+    "n/a",
+    "na",
+    "default string",
+    "to be filled by o.e.m.",
+    "not specified",
+    "system serial number",
+    "chassis serial number",
+    "123456789",
+    "0123456789",
+    "1234567890",
+    "not applicable",
+    "unknown",
+    "oem",
+    "o.e.m.",
+}
 
 
 class NamingError(ValueError):
@@ -39,8 +56,10 @@ def check_rule(rule: str, prefix: str) -> None:
     if rule not in RULES:
         raise NamingError(f"name rule {rule!r}: expected one of {', '.join(RULES)}")
     if not PREFIX.match(prefix):
-        raise NamingError(f"name prefix {prefix!r}: expected letters, digits, '-', '.', '_', '+' "
-                          "(starting with a letter or digit, at most 64)")
+        raise NamingError(
+            f"name prefix {prefix!r}: expected letters, digits, '-', '.', '_', '+' "
+            "(starting with a letter or digit, at most 64)"
+        )
 
 
 def derive(rule: str, prefix: str, raw: str) -> str:
@@ -49,12 +68,16 @@ def derive(rule: str, prefix: str, raw: str) -> str:
     text = raw.strip()
     if rule == "machine-id":
         if not MACHINE_ID.match(text):
-            raise NamingError(f"{RULES[rule]}: expected 32 lowercase hex digits, got {text[:40]!r} "
-                              "(an image must ship it empty, so that each robot makes its own)")
+            raise NamingError(
+                f"{RULES[rule]}: expected 32 lowercase hex digits, got {text[:40]!r} "
+                "(an image must ship it empty, so that each robot makes its own)"
+            )
         return prefix + text[:12]
     if text.lower() in PLACEHOLDERS or len(set(text.lower())) == 1:
-        raise NamingError(f"{RULES[rule]}: {text[:40]!r} is a placeholder, not this board's serial: "
-                          "every robot would take the same name (use --name-from machine-id)")
+        raise NamingError(
+            f"{RULES[rule]}: {text[:40]!r} is a placeholder, not this board's serial: "
+            "every robot would take the same name (use --name-from machine-id)"
+        )
     name = prefix + re.sub(r"[^a-z0-9._+-]", "-", text.lower())
     if not NAME.match(name):
         raise NamingError(f"{RULES[rule]}: {text[:40]!r} makes no robot name")

@@ -36,8 +36,23 @@ _PLATFORM = re.compile(r"cp3[0-9]{1,2}-[a-z0-9_]+")
 _ROBOT = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,252}")
 _TIME = "%Y-%m-%dT%H:%M:%SZ"
 _TIME_TEXT = re.compile(r"(\d{4})-(\d{1,2})-(\d{1,2})T(\d{1,2}):(\d{1,2}):(\d{1,2})Z", re.ASCII)
-FIELDS = ("format", "version", "release", "published", "expires", "commit", "tree_sha256", "code", "fleet",
-          "robots", "images", "wheels", "rollout", "halt", "halt_reason")
+FIELDS = (
+    "format",
+    "version",
+    "release",
+    "published",
+    "expires",
+    "commit",
+    "tree_sha256",
+    "code",
+    "fleet",
+    "robots",
+    "images",
+    "wheels",
+    "rollout",
+    "halt",
+    "halt_reason",
+)
 
 
 class RecordError(ValueError):
@@ -99,23 +114,39 @@ class Record:
         return [self.code] + sorted({w for files in self.wheels.values() for w in files})
 
     def to_dict(self) -> dict:
-        return {"format": FORMAT, "version": self.version, "release": self.release,
-                "published": self.published, "expires": self.expires, "commit": self.commit,
-                "tree_sha256": self.tree_sha256, "code": self.code, "fleet": dict(self.fleet),
-                "robots": list(self.robots), "images": {r: dict(i) for r, i in self.images.items()},
-                "wheels": {p: list(w) for p, w in self.wheels.items()}, "rollout": self.rollout.to_dict(),
-                "halt": self.halt, "halt_reason": self.halt_reason}
+        return {
+            "format": FORMAT,
+            "version": self.version,
+            "release": self.release,
+            "published": self.published,
+            "expires": self.expires,
+            "commit": self.commit,
+            "tree_sha256": self.tree_sha256,
+            "code": self.code,
+            "fleet": dict(self.fleet),
+            "robots": list(self.robots),
+            "images": {r: dict(i) for r, i in self.images.items()},
+            "wheels": {p: list(w) for p, w in self.wheels.items()},
+            "rollout": self.rollout.to_dict(),
+            "halt": self.halt,
+            "halt_reason": self.halt_reason,
+        }
 
     def to_bytes(self) -> bytes:
         """The record as written: sorted keys, one trailing newline (same record, same bytes)."""
         return (json.dumps(self.to_dict(), indent=1, sort_keys=True) + "\n").encode()
 
-    def halted(self, version: int, published: datetime.datetime, expires: datetime.datetime,
-               reason: str) -> Record:
+    def halted(self, version: int, published: datetime.datetime, expires: datetime.datetime, reason: str) -> Record:
         """The halt of this release: a later version, same contents, ``halt`` true."""
-        return dataclasses.replace(self, version=version, release=release_id(published, version),
-                                   published=utc(published), expires=utc(expires), halt=True,
-                                   halt_reason=reason or "halted")
+        return dataclasses.replace(
+            self,
+            version=version,
+            release=release_id(published, version),
+            published=utc(published),
+            expires=utc(expires),
+            halt=True,
+            halt_reason=reason or "halted",
+        )
 
 
 def release_id(published: datetime.datetime, version: int) -> str:
@@ -126,14 +157,34 @@ def code_path(commit: str) -> str:
     return f"code/{commit}.tar.gz"
 
 
-def build(version: int, published: datetime.datetime, expires: datetime.datetime, commit: str,
-          tree_sha256: str, fleet_path: str, fleet_sha256: str, robots: list[str],
-          images: dict[str, dict[str, str]], wheels: dict[str, list[str]], rollout: waves.Plan) -> Record:
+def build(
+    version: int,
+    published: datetime.datetime,
+    expires: datetime.datetime,
+    commit: str,
+    tree_sha256: str,
+    fleet_path: str,
+    fleet_sha256: str,
+    robots: list[str],
+    images: dict[str, dict[str, str]],
+    wheels: dict[str, list[str]],
+    rollout: waves.Plan,
+) -> Record:
     """A new record, checked as a robot will read it (RecordError if not)."""
-    record = Record(version=version, release=release_id(published, version), published=utc(published),
-                    expires=utc(expires), commit=commit, tree_sha256=tree_sha256, code=code_path(commit),
-                    fleet={"path": fleet_path, "sha256": fleet_sha256}, robots=tuple(robots),
-                    images=images, wheels=wheels, rollout=rollout)
+    record = Record(
+        version=version,
+        release=release_id(published, version),
+        published=utc(published),
+        expires=utc(expires),
+        commit=commit,
+        tree_sha256=tree_sha256,
+        code=code_path(commit),
+        fleet={"path": fleet_path, "sha256": fleet_sha256},
+        robots=tuple(robots),
+        images=images,
+        wheels=wheels,
+        rollout=rollout,
+    )
     return parse(record.to_bytes())
 
 
@@ -150,8 +201,14 @@ def _hex(raw: dict, key: str, lengths: tuple[int, ...]) -> str:
 
 
 def _target_path(value, where: str, prefix: str, suffix: str) -> str:
-    if (not isinstance(value, str) or not value.startswith(prefix) or not value.endswith(suffix)
-            or "/" in value[len(prefix):] or value[len(prefix):] in ("", ".", "..") or "\\" in value):
+    if (
+        not isinstance(value, str)
+        or not value.startswith(prefix)
+        or not value.endswith(suffix)
+        or "/" in value[len(prefix) :]
+        or value[len(prefix) :] in ("", ".", "..")
+        or "\\" in value
+    ):
         raise _fail(where, f"a target path {prefix}<name>{suffix}", value)
     return value
 
@@ -193,8 +250,14 @@ def parse(data) -> Record:
     if code != code_path(commit):
         raise _fail("code", f"the archive of the commit, {code_path(commit)}", code)
     fleet = data.get("fleet")
-    if (not isinstance(fleet, dict) or set(fleet) != {"path", "sha256"} or not isinstance(fleet["path"], str)
-            or not fleet["path"] or fleet["path"].startswith("/") or ".." in fleet["path"].split("/")):
+    if (
+        not isinstance(fleet, dict)
+        or set(fleet) != {"path", "sha256"}
+        or not isinstance(fleet["path"], str)
+        or not fleet["path"]
+        or fleet["path"].startswith("/")
+        or ".." in fleet["path"].split("/")
+    ):
         raise _fail("fleet", "{path: the fleet file in the tree, sha256}", fleet)
     _hex(fleet, "sha256", (64,))
     robots = data.get("robots")
@@ -232,7 +295,19 @@ def parse(data) -> Record:
         raise _fail("halt", "true or false", halt)
     if reason is not None and (not isinstance(reason, str) or "\n" in reason or len(reason) > 500):
         raise _fail("halt_reason", "one line of text or null", reason)
-    return Record(version=version, release=release, published=published, expires=expires, commit=commit,
-                  tree_sha256=tree, code=code, fleet=dict(fleet), robots=tuple(robots),
-                  images={r: dict(p) for r, p in images.items()}, wheels={p: list(f) for p, f in wheels.items()},
-                  rollout=rollout, halt=halt, halt_reason=reason)
+    return Record(
+        version=version,
+        release=release,
+        published=published,
+        expires=expires,
+        commit=commit,
+        tree_sha256=tree,
+        code=code,
+        fleet=dict(fleet),
+        robots=tuple(robots),
+        images={r: dict(p) for r, p in images.items()},
+        wheels={p: list(f) for p, f in wheels.items()},
+        rollout=rollout,
+        halt=halt,
+        halt_reason=reason,
+    )

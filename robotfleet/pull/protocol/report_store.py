@@ -29,8 +29,18 @@ def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
     if not (cache / "HEAD").exists():
         cache.mkdir(parents=True, exist_ok=True)
         _git(cache, "init", "--bare", "-q")
-    _git(cache, "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", "--prune", url,
-         "+refs/reports/*:refs/reports/*", timeout=timeout)
+    _git(
+        cache,
+        "-c",
+        "protocol.version=2",
+        "fetch",
+        "--quiet",
+        "--no-tags",
+        "--prune",
+        url,
+        "+refs/reports/*:refs/reports/*",
+        timeout=timeout,
+    )
 
 
 FETCHERS = 8  # shards fetched at once
@@ -46,8 +56,11 @@ def fetch_every(url: str, count: int, cache: Path, timeout: int = 300) -> dict[s
         shard, where = place
         fetch_all(report_shards.shard_url(url, shard), where, timeout)
         found = read_all(where)
-        return {robot: report for robot, report in found.items()
-                if shard is None or report_shards.shard_of(robot, count) == shard}
+        return {
+            robot: report
+            for robot, report in found.items()
+            if shard is None or report_shards.shard_of(robot, count) == shard
+        }
 
     with ThreadPoolExecutor(max_workers=min(FETCHERS, len(places))) as pool:
         return merged(list(pool.map(one, places)))
@@ -85,7 +98,7 @@ def read(repo: Path, prefix: str, wanted: set[str] | None = None, timeout: int =
     refs = {}
     for line in filter(None, listed.decode(errors="replace").split("\n")):
         name, _, commit = line.partition(" ")
-        robot = name[len(prefix):]
+        robot = name[len(prefix) :]
         if wanted is None or robot in wanted:
             refs[robot] = commit
     try:
@@ -106,14 +119,21 @@ def _parsed(robot: str, data: bytes | str) -> dict:
 
 def _git(where: Path, *args: str, stdin: bytes | None = None, timeout: int = 300) -> bytes:
     try:
-        done = subprocess.run(["git", "-C", str(where), *args], input=stdin, capture_output=True, timeout=timeout,
-                              env=dict(os.environ, GIT_TERMINAL_PROMPT="0"))
+        done = subprocess.run(
+            ["git", "-C", str(where), *args],
+            input=stdin,
+            capture_output=True,
+            timeout=timeout,
+            env=dict(os.environ, GIT_TERMINAL_PROMPT="0"),
+        )
     except subprocess.TimeoutExpired:
         raise ReportError(f"git {args[0]}: no answer within {timeout} s") from None
     except OSError as error:
         raise ReportError(f"git: {error}") from None
     if done.returncode:
         lines = [line for line in done.stderr.decode(errors="replace").splitlines() if line.strip()]
-        raise ReportError(f"git {' '.join(a for a in args[:3] if not a.startswith('-'))}: "
-                          f"{lines[-1].strip() if lines else f'exit {done.returncode}'}")
+        raise ReportError(
+            f"git {' '.join(a for a in args[:3] if not a.startswith('-'))}: "
+            f"{lines[-1].strip() if lines else f'exit {done.returncode}'}"
+        )
     return done.stdout

@@ -37,8 +37,7 @@ from robotfleet.pull.protocol.record import parse_time, utc
 FORMAT = 1
 # prefetched: waiting, with everything the release needs already in place (robotfleet/pull/robot/prefetch.py);
 # halted: the release is a signed halt; stopped: its wave stopped by the failure budget.
-RESULTS = ("applied", "up-to-date", "waiting", "prefetched", "halted", "stopped", "refused", "rolled-back",
-           "failed")
+RESULTS = ("applied", "up-to-date", "waiting", "prefetched", "halted", "stopped", "refused", "rolled-back", "failed")
 FAILURES = ("rolled-back", "failed")
 MAX_BYTES = 256 * 1024
 # Arrays and objects within each other: a report has a few; json.loads would recurse into each.
@@ -55,20 +54,50 @@ def version_of(record) -> dict:
     return {"version": record.version, "release": record.release, "commit": record.commit}
 
 
-def build(robot: str, now: datetime.datetime, result: str, *, reason: str | None = None,
-          refusal: str | None = None, seen: dict | None = None, applied: dict | None = None,
-          attempted: dict | None = None, wave: int | None = None, status: dict | None = None,
-          host_keys=(), key: str | None = None, config=None, check: dict | None = None,
-          agent: str | None = None, status_time: str | None = None, enrollment: dict | None = None) -> dict:
+def build(
+    robot: str,
+    now: datetime.datetime,
+    result: str,
+    *,
+    reason: str | None = None,
+    refusal: str | None = None,
+    seen: dict | None = None,
+    applied: dict | None = None,
+    attempted: dict | None = None,
+    wave: int | None = None,
+    status: dict | None = None,
+    host_keys=(),
+    key: str | None = None,
+    config=None,
+    check: dict | None = None,
+    agent: str | None = None,
+    status_time: str | None = None,
+    enrollment: dict | None = None,
+) -> dict:
     if result not in RESULTS:
         raise ValueError(f"unknown result {result!r}")
     return {
-        "format": FORMAT, "robot": robot, "time": utc(now), "agent": agent, "seen": seen, "applied": applied,
-        "result": result, "reason": one_line(reason) if reason else None, "refusal": refusal,
-        "attempted": attempted, "wave": wave, "status": status or {}, "host_keys": list(host_keys), "key": key,
-        "interval": getattr(config, "interval", None), "jitter": getattr(config, "jitter", None),
-        "stale_after": getattr(config, "stale_after", None), "heartbeat": getattr(config, "heartbeat", None),
-        "status_time": status_time, "check": check or {}, "enrollment": enrollment,
+        "format": FORMAT,
+        "robot": robot,
+        "time": utc(now),
+        "agent": agent,
+        "seen": seen,
+        "applied": applied,
+        "result": result,
+        "reason": one_line(reason) if reason else None,
+        "refusal": refusal,
+        "attempted": attempted,
+        "wave": wave,
+        "status": status or {},
+        "host_keys": list(host_keys),
+        "key": key,
+        "interval": getattr(config, "interval", None),
+        "jitter": getattr(config, "jitter", None),
+        "stale_after": getattr(config, "stale_after", None),
+        "heartbeat": getattr(config, "heartbeat", None),
+        "status_time": status_time,
+        "check": check or {},
+        "enrollment": enrollment,
     }
 
 
@@ -107,9 +136,11 @@ def _version(value, where: str) -> dict | None:
         return None
     if not isinstance(value, dict):
         raise ReportError(f"{where}: expected an object")
-    found = {"version": _int(value.get("version"), f"{where}.version", optional=False),
-             "release": _text(value.get("release"), f"{where}.release"),
-             "commit": _text(value.get("commit"), f"{where}.commit", limit=64)}
+    found = {
+        "version": _int(value.get("version"), f"{where}.version", optional=False),
+        "release": _text(value.get("release"), f"{where}.release"),
+        "commit": _text(value.get("commit"), f"{where}.commit", limit=64),
+    }
     if "time" in value:
         found["time"] = _text(value.get("time"), f"{where}.time", limit=40)
     return found
@@ -163,31 +194,52 @@ def parse(data: bytes, ref_robot: str) -> dict:
     if key is not None and not (isinstance(key, str) and _KEY.fullmatch(key)):
         raise ReportError(f"report of {ref_robot}: key: expected a public key line")
     proof = raw.get("enrollment")
-    if proof is not None and not (isinstance(proof, dict) and isinstance(proof.get("key"), str)
-                                  and _KEY.fullmatch(proof["key"]) and isinstance(proof.get("signature"), str)
-                                  and SIGNATURE.fullmatch(proof["signature"])):
-        raise ReportError(f"report of {ref_robot}: enrollment: expected {{key, signature}} (a public key line, "
-                          "an SSH signature)")
+    if proof is not None and not (
+        isinstance(proof, dict)
+        and isinstance(proof.get("key"), str)
+        and _KEY.fullmatch(proof["key"])
+        and isinstance(proof.get("signature"), str)
+        and SIGNATURE.fullmatch(proof["signature"])
+    ):
+        raise ReportError(
+            f"report of {ref_robot}: enrollment: expected {{key, signature}} (a public key line, an SSH signature)"
+        )
     attempted = raw.get("attempted")
     if attempted is not None:
         if not isinstance(attempted, dict) or attempted.get("result") not in RESULTS:
             raise ReportError(f"report of {ref_robot}: attempted: expected {{version, result, tries}}")
-        attempted = {"version": _int(attempted.get("version"), "attempted.version", optional=False),
-                     "result": attempted["result"], "tries": _int(attempted.get("tries"), "attempted.tries")}
+        attempted = {
+            "version": _int(attempted.get("version"), "attempted.version", optional=False),
+            "result": attempted["result"],
+            "tries": _int(attempted.get("tries"), "attempted.tries"),
+        }
     check = raw.get("check") if isinstance(raw.get("check"), dict) else {}
     return {
-        "format": FORMAT, "robot": ref_robot, "time": utc(time), "agent": _text(raw.get("agent"), "agent", limit=120),
-        "seen": _version(raw.get("seen"), "seen"), "applied": _version(raw.get("applied"), "applied"),
-        "result": raw["result"], "reason": _text(raw.get("reason"), "reason"),
-        "refusal": _text(raw.get("refusal"), "refusal", limit=40), "attempted": attempted,
-        "wave": _int(raw.get("wave"), "wave"), "status": _cells(raw.get("status")),
-        "host_keys": keys, "key": key, "enrollment": proof and {"key": proof["key"], "signature": proof["signature"]},
-        "interval": _int(raw.get("interval"), "interval"), "jitter": _int(raw.get("jitter"), "jitter"),
+        "format": FORMAT,
+        "robot": ref_robot,
+        "time": utc(time),
+        "agent": _text(raw.get("agent"), "agent", limit=120),
+        "seen": _version(raw.get("seen"), "seen"),
+        "applied": _version(raw.get("applied"), "applied"),
+        "result": raw["result"],
+        "reason": _text(raw.get("reason"), "reason"),
+        "refusal": _text(raw.get("refusal"), "refusal", limit=40),
+        "attempted": attempted,
+        "wave": _int(raw.get("wave"), "wave"),
+        "status": _cells(raw.get("status")),
+        "host_keys": keys,
+        "key": key,
+        "enrollment": proof and {"key": proof["key"], "signature": proof["signature"]},
+        "interval": _int(raw.get("interval"), "interval"),
+        "jitter": _int(raw.get("jitter"), "jitter"),
         "stale_after": _int(raw.get("stale_after"), "stale_after"),
         "heartbeat": _int(raw.get("heartbeat"), "heartbeat"),
         "status_time": _text(raw.get("status_time"), "status_time", limit=40),
-        "check": {k: check[k] for k in ("sent", "received", "requests", "seconds", "cpu")
-                  if isinstance(check.get(k), (int, float)) and not isinstance(check.get(k), bool)},
+        "check": {
+            k: check[k]
+            for k in ("sent", "received", "requests", "seconds", "cpu")
+            if isinstance(check.get(k), (int, float)) and not isinstance(check.get(k), bool)
+        },
     }
 
 
@@ -225,8 +277,9 @@ def stale_limit(interval: int, jitter: int, stale_after: int, heartbeat: int) ->
     return stale_after * (heartbeat + interval + jitter)
 
 
-def stale(report: dict, now: datetime.datetime, interval: int, jitter: int, stale_after: int,
-          heartbeat: int = 0) -> bool:
+def stale(
+    report: dict, now: datetime.datetime, interval: int, jitter: int, stale_after: int, heartbeat: int = 0
+) -> bool:
     """Older than the stale limit: the robot has missed checks, or cannot report."""
     age = (now - parse_time(report["time"], "time")).total_seconds()
     return age > stale_limit(interval, jitter, stale_after, heartbeat)

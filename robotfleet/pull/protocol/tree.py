@@ -29,8 +29,17 @@ from pathlib import Path
 from robotfleet import atomicfile
 
 # What a robot needs to run the deploy (not tests/ or docs/).
-DEPLOY_PATHS = ("deploy.py", "config.py", "rollback.py", "pyproject.toml", "robotfleet", "roles", "inventories",
-                "group_data", "files")
+DEPLOY_PATHS = (
+    "deploy.py",
+    "config.py",
+    "rollback.py",
+    "pyproject.toml",
+    "robotfleet",
+    "roles",
+    "inventories",
+    "group_data",
+    "files",
+)
 FILE, EXECUTABLE, LINK = "100644", "100755", "120000"
 GIT_TIMEOUT = 300
 
@@ -57,8 +66,9 @@ def tree_sha256(entries) -> str:
 def git(checkout, *args: str, stdin: bytes | None = None) -> bytes:
     """``git -C checkout args`` -> stdout; TreeError with git's last line if it fails."""
     try:
-        done = subprocess.run(["git", "-C", str(checkout), *args], input=stdin, capture_output=True,
-                              timeout=GIT_TIMEOUT, check=False)
+        done = subprocess.run(
+            ["git", "-C", str(checkout), *args], input=stdin, capture_output=True, timeout=GIT_TIMEOUT, check=False
+        )
     except (OSError, subprocess.TimeoutExpired) as error:
         raise TreeError(f"git {args[0]}: {error}") from None
     if done.returncode:
@@ -91,8 +101,9 @@ def entries_of_commit(checkout, commit: str, paths=DEPLOY_PATHS) -> list[Entry]:
         meta, _, path = item.partition(b"\t")
         mode, kind, obj = meta.decode().split()
         if kind != "blob":
-            raise TreeError(f"{path.decode(errors='replace')}: a {kind} (submodule) in the deploy tree; "
-                            "a release holds files only")
+            raise TreeError(
+                f"{path.decode(errors='replace')}: a {kind} (submodule) in the deploy tree; a release holds files only"
+            )
         rows.append((path.decode(errors="surrogateescape"), mode, obj))
     if not rows:
         return []
@@ -101,10 +112,15 @@ def entries_of_commit(checkout, commit: str, paths=DEPLOY_PATHS) -> list[Entry]:
     for path, mode, _ in rows:
         header_end = batch.index(b"\n", at)
         size = int(batch[at:header_end].split()[2])
-        content = batch[header_end + 1: header_end + 1 + size]
+        content = batch[header_end + 1 : header_end + 1 + size]
         at = header_end + 1 + size + 1
-        entries.append(Entry(path, LINK if mode == LINK else EXECUTABLE if mode == EXECUTABLE else FILE,
-                             hashlib.sha256(content).hexdigest()))
+        entries.append(
+            Entry(
+                path,
+                LINK if mode == LINK else EXECUTABLE if mode == EXECUTABLE else FILE,
+                hashlib.sha256(content).hexdigest(),
+            )
+        )
     return entries
 
 
@@ -122,8 +138,11 @@ def entries_of_directory(root) -> list[Entry]:
                 entries.append(Entry(path, LINK, hashlib.sha256(os.fsencode(os.readlink(full))).hexdigest()))
             elif stat.S_ISREG(info.st_mode):
                 with open(full, "rb") as handle:
-                    digest = hashlib.file_digest(handle, "sha256").hexdigest() if hasattr(hashlib, "file_digest") \
+                    digest = (
+                        hashlib.file_digest(handle, "sha256").hexdigest()
+                        if hasattr(hashlib, "file_digest")
                         else hashlib.sha256(handle.read()).hexdigest()
+                    )
                 entries.append(Entry(path, EXECUTABLE if info.st_mode & 0o111 else FILE, digest))
     return entries
 
@@ -135,8 +154,10 @@ def write_archive(checkout, commit: str, out, paths=DEPLOY_PATHS) -> str:
     if not listed:
         raise TreeError(f"commit {commit[:12]} has none of {', '.join(paths)}: not a deploy repository")
     tar = git(checkout, "archive", "--format=tar", commit, "--", *listed)
-    with atomicfile.replacing(out, 0o644, make_parents=True) as raw, \
-            gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0, compresslevel=9) as packed:
+    with (
+        atomicfile.replacing(out, 0o644, make_parents=True) as raw,
+        gzip.GzipFile(filename="", mode="wb", fileobj=raw, mtime=0, compresslevel=9) as packed,
+    ):
         packed.write(tar)
     with open(out, "rb") as handle:
         return hashlib.sha256(handle.read()).hexdigest()

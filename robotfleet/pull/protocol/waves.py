@@ -70,8 +70,12 @@ class Plan:
     max_failed: Count = Count(0, False)
 
     def to_dict(self) -> dict:
-        return {"canary": str(self.canary), "waves": [str(w) for w in self.waves], "pause": self.pause,
-                "max_failed": str(self.max_failed)}
+        return {
+            "canary": str(self.canary),
+            "waves": [str(w) for w in self.waves],
+            "pause": self.pause,
+            "max_failed": str(self.max_failed),
+        }
 
 
 MAX_PAUSE = 366 * 86400
@@ -94,8 +98,9 @@ def parse_plan(raw, where: str = "rollout") -> Plan:
         if not wave.percent:
             raise ValueError(f"{where}.waves[{i}]: expected a share of the robots like 50%, got {str(wave)!r}")
         if i and wave.value <= waves[i - 1].value:
-            raise ValueError(f"{where}.waves[{i}]: shares are cumulative and must rise, "
-                             f"got {wave} after {waves[i - 1]}")
+            raise ValueError(
+                f"{where}.waves[{i}]: shares are cumulative and must rise, got {wave} after {waves[i - 1]}"
+            )
     if waves[-1].value != 100:
         raise ValueError(f"{where}.waves: the last wave must be 100% (every robot), got {waves[-1]}")
     pause = raw.get("pause", default.pause)
@@ -143,14 +148,15 @@ def earlier_robots(robot: str, robots: list[str], version: int, plan: Plan) -> l
     return [name for members in waves(robots, version, plan)[: index or 0] for name in members]
 
 
-def describe(robots: list[str], version: int, plan: Plan, published: datetime.datetime,
-             shown: int = 5) -> list[str]:
+def describe(robots: list[str], version: int, plan: Plan, published: datetime.datetime, shown: int = 5) -> list[str]:
     """The signed plan in words, a line a wave: who opens when, under which
     budget (``publish`` prints it).  At most ``shown`` names a wave."""
     members = waves(robots, version, plan)
     allowed = allowed_failures(plan.max_failed, len(set(robots)))
-    lines = [f"{len(members)} wave(s); wave k opens at publish + k x {plan.pause} s, and only while at most "
-             f"{allowed} robot(s) of the earlier waves failed (--max-failed {plan.max_failed}):"]
+    lines = [
+        f"{len(members)} wave(s); wave k opens at publish + k x {plan.pause} s, and only while at most "
+        f"{allowed} robot(s) of the earlier waves failed (--max-failed {plan.max_failed}):"
+    ]
     for index, names in enumerate(members):
         canary = index == 0 and plan.canary.of(len(set(robots)), round_up=True) > 0
         listed = ", ".join(names[:shown]) + (f" and {len(names) - shown} more" if len(names) > shown else "")
@@ -170,8 +176,16 @@ class Gate:
     at: datetime.datetime | None = None
 
 
-def gate(robot: str, robots: list[str], version: int, plan: Plan, published: datetime.datetime,
-         now: datetime.datetime, failed: int, halted: bool = False) -> Gate:
+def gate(
+    robot: str,
+    robots: list[str],
+    version: int,
+    plan: Plan,
+    published: datetime.datetime,
+    now: datetime.datetime,
+    failed: int,
+    halted: bool = False,
+) -> Gate:
     """May ``robot`` start release ``version`` at ``now``?  ``failed``: how
     many robots of the earlier waves reported a failure for this version."""
     index = wave_of(robot, robots, version, plan)
@@ -181,8 +195,12 @@ def gate(robot: str, robots: list[str], version: int, plan: Plan, published: dat
         return Gate(False, index, f"release {version} is halted")
     allowed = allowed_failures(plan.max_failed, len(set(robots)))
     if index and failed > allowed:
-        return Gate(False, index, f"wave {index} stopped by the failure budget: {failed} robot(s) of the earlier "
-                                  f"waves failed (budget {allowed})")
+        return Gate(
+            False,
+            index,
+            f"wave {index} stopped by the failure budget: {failed} robot(s) of the earlier "
+            f"waves failed (budget {allowed})",
+        )
     at = opens_at(index, published, plan)
     if now < at:
         return Gate(False, index, f"waiting for wave {index} (opens at {at.strftime('%Y-%m-%dT%H:%M:%SZ')})", at)
@@ -227,8 +245,10 @@ def _days(spec: str, text: str) -> frozenset[int]:
         first, dash, last = part.partition("-")
         a, b = _day(first), _day(last if dash else first)
         if a < 0 or b < 0:
-            raise ValueError(f"maintenance window {text!r}: {part!r} is not a day or a range of days "
-                             "(Mon, Mon-Fri, Sat,Sun or daily)")
+            raise ValueError(
+                f"maintenance window {text!r}: {part!r} is not a day or a range of days "
+                "(Mon, Mon-Fri, Sat,Sun or daily)"
+            )
         day = a
         found.add(day)
         while day != b:
@@ -251,8 +271,9 @@ def parse_window(text) -> Window:
             raise ValueError(f"maintenance window {text!r}: {hour}:{minute} is not a time of day (00:00 to 23:59)")
     start, end = int(h1) * 60 + int(m1), int(h2) * 60 + int(m2)
     if start == end:
-        raise ValueError(f"maintenance window {text!r}: starts and ends at the same time; "
-                         "for all day write 00:00-23:59")
+        raise ValueError(
+            f"maintenance window {text!r}: starts and ends at the same time; for all day write 00:00-23:59"
+        )
     return Window(_days(spec, text), start, (end - start) % 1440, bool(zone and zone.lower() == "utc"), text.strip())
 
 
@@ -273,8 +294,9 @@ def _inside(window: Window, when: datetime.datetime, local) -> bool:
     return False
 
 
-def next_window(windows: list[Window], when: datetime.datetime,
-                local: datetime.tzinfo | None = None) -> datetime.datetime | None:
+def next_window(
+    windows: list[Window], when: datetime.datetime, local: datetime.tzinfo | None = None
+) -> datetime.datetime | None:
     """The first minute at or after ``when`` inside a window (None: no windows)."""
     if not windows:
         return None

@@ -73,8 +73,14 @@ class Wake:
         self.config = config
         self.state_dir = Path(config.state_dir)
         self.clock = clock
-        self.remote = Remote(config.remote, self.state_dir / "releases", config.etc_dir, config.fetch_timeout,
-                             config.report_remote, config.report_shards)
+        self.remote = Remote(
+            config.remote,
+            self.state_dir / "releases",
+            config.etc_dir,
+            config.fetch_timeout,
+            config.report_remote,
+            config.report_shards,
+        )
         self.state = agent_state.load_state(self.state_dir)
         self.record = None
         self.status: dict = {}
@@ -90,8 +96,11 @@ class Wake:
                 fs = os.statvfs(path)  # what shutil.disk_usage says is free, without its import
                 free = fs.f_bavail * fs.f_frsize // (1 << 20)
                 if free < self.config.min_free_mb:
-                    raise Outcome("failed", f"only {free} MB free on {path}'s file system "
-                                            f"(pull_min_free_mb: {self.config.min_free_mb}); nothing was downloaded")
+                    raise Outcome(
+                        "failed",
+                        f"only {free} MB free on {path}'s file system "
+                        f"(pull_min_free_mb: {self.config.min_free_mb}); nothing was downloaded",
+                    )
 
     def fetch(self) -> None:
         if self.config.media_dir:
@@ -104,8 +113,11 @@ class Wake:
             self.remote.fetch_releases(self.config.branch)
         except TransportError as error:
             if not self.state.get("seen") and ENROLLMENT_PENDING in str(error):
-                raise Outcome("waiting", f"waiting for enrollment: the fleet remote does not accept this robot's "
-                                         f"key yet (robotfleet pull-enroll registers it; {error})") from None
+                raise Outcome(
+                    "waiting",
+                    f"waiting for enrollment: the fleet remote does not accept this robot's "
+                    f"key yet (robotfleet pull-enroll registers it; {error})",
+                ) from None
             raise Outcome("failed", f"fetch: {error}") from None
 
     def source(self) -> str:
@@ -140,8 +152,14 @@ class Wake:
 
     def decide(self) -> deciding.Decision:
         windows = [waves.parse_window(w) for w in self.config.windows]
-        args = (self.record, self.config.robot, self.applied_version(), self.state.get("attempted"),
-                self.reference_time, windows)
+        args = (
+            self.record,
+            self.config.robot,
+            self.applied_version(),
+            self.state.get("attempted"),
+            self.reference_time,
+            windows,
+        )
         decision = deciding.decide(*args)
         if decision.earlier:
             try:
@@ -150,8 +168,9 @@ class Wake:
                 if self.medium is None:
                     raise Outcome("waiting", f"the earlier waves' reports: {error}", wave=decision.wave) from None
                 found = {}  # out of reach from a medium: its wave's time alone decides
-            failed = sum(reports.failed_for(report, self.record.version) for report in found.values()
-                         if "error" not in report)
+            failed = sum(
+                reports.failed_for(report, self.record.version) for report in found.values() if "error" not in report
+            )
             decision = deciding.decide(*args, failed=failed)
         return decision
 
@@ -168,8 +187,11 @@ class Wake:
         try:
             files = client.download(wanted, self.state_dir / "targets")
             code = prepare.code_dir(self.state_dir, record, files[record.code])
-            venv = (prepare.venv_for(self.state_dir, {p: files[p] for p in record.wheels_for(platform)})
-                    if record.wheels_for(platform) else Path(os.path.realpath(self.state_dir / "venv")))
+            venv = (
+                prepare.venv_for(self.state_dir, {p: files[p] for p in record.wheels_for(platform)})
+                if record.wheels_for(platform)
+                else Path(os.path.realpath(self.state_dir / "venv"))
+            )
             if self.medium is not None:  # its images too, checked (robot/media.py)
                 from robotfleet.pull.robot import media
 
@@ -185,9 +207,23 @@ class Wake:
         release_file = work.with_suffix(".release.json")
         work.mkdir(parents=True, exist_ok=True, mode=0o700)
         release_file.write_bytes(record.to_bytes())
-        said = release_run.run(venv / "bin" / "python", code, ["run", "--robot", robot, "--fleet",
-                            str(code / record.fleet["path"]), "--record", str(release_file), "--deployment",
-                            deployment, "--work", str(work)])
+        said = release_run.run(
+            venv / "bin" / "python",
+            code,
+            [
+                "run",
+                "--robot",
+                robot,
+                "--fleet",
+                str(code / record.fleet["path"]),
+                "--record",
+                str(release_file),
+                "--deployment",
+                deployment,
+                "--work",
+                str(work),
+            ],
+        )
         release_file.unlink(missing_ok=True)
         if said.get("row"):
             self.read_status(said, code)
@@ -208,8 +244,12 @@ class Wake:
     def tried(self, outcome: Outcome) -> Outcome:
         previous = self.state.get("attempted") or {}
         tries = previous.get("tries", 0) + 1 if previous.get("version") == self.record.version else 1
-        self.state["attempted"] = {"version": self.record.version, "result": outcome.result, "tries": tries,
-                                   "reason": outcome.reason}
+        self.state["attempted"] = {
+            "version": self.record.version,
+            "result": outcome.result,
+            "tries": tries,
+            "reason": outcome.reason,
+        }
         return outcome
 
     # -- the wake ------------------------------------------------------------
@@ -241,8 +281,13 @@ class Wake:
         """Keep what a converge run (or status) just read, and what the
         roles' watched paths looked like before it read."""
         self.status, self.status_time = said.get("row") or {}, record_time(self.clock())
-        self.state["status"] = {"row": self.status, "at": time.time(), "time": self.status_time,
-                                "watch": said.get("watch") or {}, "code": os.path.realpath(code)}
+        self.state["status"] = {
+            "row": self.status,
+            "at": time.time(),
+            "time": self.status_time,
+            "watch": said.get("watch") or {},
+            "code": os.path.realpath(code),
+        }
 
     def roles_status(self) -> None:
         """The roles' status as the code the agent runs reads it: read again
@@ -251,8 +296,13 @@ class Wake:
         last = self.state.get("status") or {}
         watch = last.get("watch") if isinstance(last.get("watch"), dict) else None
         age = time.time() - float(last.get("at") or 0)
-        if (last.get("row") is not None and watch is not None and 0 <= age < self.config.heartbeat
-                and last.get("code") == os.path.realpath(code) and agent_files.watched(watch) == watch):
+        if (
+            last.get("row") is not None
+            and watch is not None
+            and 0 <= age < self.config.heartbeat
+            and last.get("code") == os.path.realpath(code)
+            and agent_files.watched(watch) == watch
+        ):
             self.status, self.status_time = last["row"], last.get("time")
             return
         if not code.exists():
@@ -293,8 +343,13 @@ def main(argv=None) -> int:
         sent = wake_report.send(wake, report)
         agent_state.save_state(state, wake.state)
         report["check"]["cpu"] = wake_report.cpu_seconds()
-        report["check"].update({"sent": wake.remote.cost.sent, "received": wake.remote.cost.received,
-                                "requests": wake.remote.cost.requests})
+        report["check"].update(
+            {
+                "sent": wake.remote.cost.sent,
+                "received": wake.remote.cost.received,
+                "requests": wake.remote.cost.requests,
+            }
+        )
         print(wake_report.journal_line(report, sent, time.monotonic() - started), flush=True)
     return 0
 

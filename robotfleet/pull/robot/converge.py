@@ -27,8 +27,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from robotfleet import CHECKOUT, deploy_roles
-from robotfleet import status_parts
+from robotfleet import CHECKOUT, deploy_roles, status_parts
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.protocol.robot_data import DataError, HostData, host_data, pin_settings
@@ -45,8 +44,12 @@ class ConvergeError(Exception):
 def watch(roles, data) -> dict[str, str]:
     """What the roles' watched paths look like now (taken before their
     status is read: a change during the read shows at the next check)."""
-    return agent_files.watched(path for role in roles if role.status and role.status.watch and role.runs_on(data)
-                          for path in role.status.watch(data))
+    return agent_files.watched(
+        path
+        for role in roles
+        if role.status and role.status.watch and role.runs_on(data)
+        for path in role.status.watch(data)
+    )
 
 
 def status_row(robot: str, roles, data) -> dict:
@@ -80,8 +83,14 @@ def results(roles, data, row: dict, deployment: str) -> list[dict]:
         said = role.rollout.result(row, deployment)
         if said is None:
             continue
-        outcome = next((cell.get("outcome") for cell in row.values()
-                        if isinstance(cell, dict) and cell.get("deployment") == deployment), None)
+        outcome = next(
+            (
+                cell.get("outcome")
+                for cell in row.values()
+                if isinstance(cell, dict) and cell.get("deployment") == deployment
+            ),
+            None,
+        )
         found.append({"role": role.name, "ok": said[0], "why": said[1], "outcome": outcome})
     return found
 
@@ -108,18 +117,25 @@ def run(args) -> dict:
                 prefix += held
                 tokens[role.hold.setting] = token_file
     pins = pin_settings(roles, record, args.robot)
-    run_data = {**pins,
-                agent_files.AGENT_RUN: {"robot": args.robot, "version": record.version, "release": record.release}}
+    run_data = {
+        **pins,
+        agent_files.AGENT_RUN: {"robot": args.robot, "version": record.version, "release": record.release},
+    }
     data_file = work / "run.json"
     data_file.write_text(json.dumps({"data": run_data, "tokens": tokens}))
-    env = dict(os.environ, ROBOT_FLEET=str(Path(args.fleet).resolve()), ROBOT_FLEET_HOST=args.robot,
-               ROBOT_PULL_DATA=str(data_file), PYINFRA_PROGRESS="off", PYTHONPATH=str(CHECKOUT),
-               **{DEPLOYMENT_ENV: args.deployment})
+    env = dict(
+        os.environ,
+        ROBOT_FLEET=str(Path(args.fleet).resolve()),
+        ROBOT_FLEET_HOST=args.robot,
+        ROBOT_PULL_DATA=str(data_file),
+        PYINFRA_PROGRESS="off",
+        PYTHONPATH=str(CHECKOUT),
+        **{DEPLOYMENT_ENV: args.deployment},
+    )
     command = prefix + [sys.executable, "-m", "pyinfra", "-y", "--json", "inventories/pull.py", "deploy.py"]
     log = work / "pyinfra.log"
     try:
-        done = subprocess.run(command, cwd=CHECKOUT, env=env, capture_output=True, text=True,
-                              timeout=PYINFRA_TIMEOUT)
+        done = subprocess.run(command, cwd=CHECKOUT, env=env, capture_output=True, text=True, timeout=PYINFRA_TIMEOUT)
         code, stdout, stderr = done.returncode, done.stdout, done.stderr
     except subprocess.TimeoutExpired as error:
         code, stdout, stderr = 124, error.stdout or "", (error.stderr or "") + "\npyinfra: timed out"
@@ -128,8 +144,15 @@ def run(args) -> dict:
     row = status_row(args.robot, roles, data)
     # What the robot must run is the release's images by the digests it pinned, as the deploy was given them.
     pinned = HostData({**data, **pins})
-    return {"exit": code, "row": row, "watch": watched, "results": results(roles, data, row, args.deployment),
-            "missing": missing(roles, pinned, row), "errors": errors_of(stderr) if code else [], "log": str(log)}
+    return {
+        "exit": code,
+        "row": row,
+        "watch": watched,
+        "results": results(roles, data, row, args.deployment),
+        "missing": missing(roles, pinned, row),
+        "errors": errors_of(stderr) if code else [],
+        "log": str(log),
+    }
 
 
 def status(args) -> dict:

@@ -37,8 +37,16 @@ class Decision:
     earlier: tuple[str, ...] = ()
 
 
-def decide(record, robot: str, applied: int, attempted: dict | None, now: datetime.datetime,
-           windows=(), local=None, failed: int | None = None) -> Decision:
+def decide(
+    record,
+    robot: str,
+    applied: int,
+    attempted: dict | None,
+    now: datetime.datetime,
+    windows=(),
+    local=None,
+    failed: int | None = None,
+) -> Decision:
     """``applied``: the version this robot applied last (0: none);
     ``attempted``: {version, result, tries, reason} of its last try;
     ``windows``: its maintenance windows (waves.Window); ``failed``: the
@@ -52,8 +60,10 @@ def decide(record, robot: str, applied: int, attempted: dict | None, now: dateti
         return Decision("up-to-date", f"release {version} is not for {robot}")
     tried = attempted if attempted and attempted.get("version") == version else None
     if tried and (tried.get("result") == "rolled-back" or tried.get("tries", 0) >= MAX_TRIES):
-        return Decision(tried["result"], f"release {version} failed here ({tried.get('reason') or 'no reason'}); "
-                                         "waiting for a newer release")
+        return Decision(
+            tried["result"],
+            f"release {version} failed here ({tried.get('reason') or 'no reason'}); waiting for a newer release",
+        )
     plan = record.rollout
     gate = waves.gate(robot, list(record.robots), version, plan, record.published_at, now, failed or 0)
     if not gate.open and gate.at is not None:

@@ -14,8 +14,12 @@ from robotfleet.pull.protocol.enrollment import NAMESPACE, SIGNATURE, TIMEOUT, P
 def sign(private_key: str, text: bytes) -> str:
     """The armored signature of ``text`` by ``private_key`` (ProofError: why not)."""
     try:
-        done = subprocess.run(["ssh-keygen", "-q", "-Y", "sign", "-n", NAMESPACE, "-f", private_key], input=text,
-                              capture_output=True, timeout=TIMEOUT)
+        done = subprocess.run(
+            ["ssh-keygen", "-q", "-Y", "sign", "-n", NAMESPACE, "-f", private_key],
+            input=text,
+            capture_output=True,
+            timeout=TIMEOUT,
+        )
     except (OSError, subprocess.TimeoutExpired) as error:
         raise ProofError(f"ssh-keygen -Y sign: {error}") from None
     signature = done.stdout.decode(errors="replace")

@@ -55,10 +55,11 @@ def open_file(base, path: str) -> int:
             except OSError as error:
                 if isinstance(error, FileNotFoundError):
                     raise
-                shown = "/".join(parts[:index + 1])
+                shown = "/".join(parts[: index + 1])
                 if _is_link(at, part):
-                    raise NotAFile(f"{base}/{shown}: a symbolic link, not read (a mirror's files are read "
-                                   "where they are)") from None
+                    raise NotAFile(
+                        f"{base}/{shown}: a symbolic link, not read (a mirror's files are read where they are)"
+                    ) from None
                 raise NotAFile(f"{base}/{shown}: {'not a directory' if not last else error.strerror}") from None
             os.close(at)
             at = fd

@@ -57,7 +57,7 @@ def split_ref(ref: str) -> tuple[str, str | None]:
     """An image reference as a release names it -> (repository, tag or None)."""
     name = ref.split("@", 1)[0]
     slash, colon = name.rfind("/"), name.rfind(":")
-    return (name[:colon], name[colon + 1:]) if colon > slash else (name, None)
+    return (name[:colon], name[colon + 1 :]) if colon > slash else (name, None)
 
 
 def digest_ref(ref: str, digest: str) -> str:
@@ -109,8 +109,9 @@ def load_images(client, record, robot: str, machine: str, work: Path) -> int:
     except media.MediaError as error:
         raise refusals.Refused(refusals.MALFORMED, str(error)) from None
     if index["version"] != record.version:
-        raise refusals.Refused(refusals.MALFORMED, f"{media.NAME}: for release {index['version']}, "
-                                               f"not release {record.version}")
+        raise refusals.Refused(
+            refusals.MALFORMED, f"{media.NAME}: for release {index['version']}, not release {record.version}"
+        )
     mine = index["images"].get(machine, {})
     loaded = 0
     for ref, pin in sorted(pins.items()):
@@ -137,8 +138,10 @@ def load_images(client, record, robot: str, machine: str, work: Path) -> int:
                     said = (tagged.stderr or tagged.stdout).strip().splitlines() or ["the tag does not name it"]
                     raise MediaFailure(f"docker tag {entry['image']} {tag}: {said[-1][:300]}")
         if found not in (entry["image"], pin):
-            raise refusals.Refused(refusals.TAMPERED, f"{ref}: docker load gave {wanted} the id {found or 'none'}, "
-                                                  f"the release binds {entry['image']}")
+            raise refusals.Refused(
+                refusals.TAMPERED,
+                f"{ref}: docker load gave {wanted} the id {found or 'none'}, the release binds {entry['image']}",
+            )
         loaded += 1
     return loaded
 

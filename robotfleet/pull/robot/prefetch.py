@@ -54,7 +54,7 @@ def by_digest(ref: str, digest: str) -> str:
     reference or digest that is neither."""
     name = ref.split("@", 1)[0]
     if name.rfind(":") > name.rfind("/"):
-        name = name[:name.rfind(":")]
+        name = name[: name.rfind(":")]
     if not _NAME.fullmatch(name) or not _DIGEST.fullmatch(digest or ""):
         raise ValueError(f"image {ref!r} -> {digest!r}: not an image reference and a sha256 digest")
     return f"{name}@{digest}"
@@ -65,8 +65,10 @@ def room(free: int, needed: int, min_free_mb: int, where: str) -> str | None:
     and ``min_free_mb`` must stay free; None when they can (pure)."""
     if free - needed >= min_free_mb * MB:
         return None
-    return (f"it needs about {_mb(needed)} MB, {_mb(free)} MB are free on {where}'s file system "
-            f"(pull_min_free_mb: {min_free_mb})")
+    return (
+        f"it needs about {_mb(needed)} MB, {_mb(free)} MB are free on {where}'s file system "
+        f"(pull_min_free_mb: {min_free_mb})"
+    )
 
 
 def _mb(size: int) -> int:
@@ -107,8 +109,12 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
         return "refused", f"release {version}: {error}", refusals.TAMPERED
     except (Incomplete, prepare.PrepareError, OSError) as error:
         return WAITING, f"release {version} not prefetched yet: {error}; {waiting.reason}", None
-    wake.state["prefetched"] = done = {"version": version, "paths": paths, "wheels": len(wheels),
-                                       "images": None if images is None else len(images)}
+    wake.state["prefetched"] = done = {
+        "version": version,
+        "paths": paths,
+        "wheels": len(wheels),
+        "images": None if images is None else len(images),
+    }
     return PREFETCHED, _said(done, waiting.reason), None
 
 
@@ -153,8 +159,9 @@ def pull_images(images: dict[str, str], docker_dir: str, min_free_mb: int, docke
             continue
         free = free_on(docker_dir)
         if free is not None and free < min_free_mb * MB:
-            raise Incomplete(f"{pinned}: only {free // MB} MB free on {docker_dir}'s file system "
-                             f"(pull_min_free_mb: {min_free_mb})")
+            raise Incomplete(
+                f"{pinned}: only {free // MB} MB free on {docker_dir}'s file system (pull_min_free_mb: {min_free_mb})"
+            )
         done = _docker(docker, ["pull", "-q", pinned], PULL_TIMEOUT)
         if done.returncode:
             lines = [line.strip() for line in (done.stderr or done.stdout).splitlines() if line.strip()]
@@ -164,8 +171,9 @@ def pull_images(images: dict[str, str], docker_dir: str, min_free_mb: int, docke
 
 def _docker(docker: str, args: list[str], timeout: int) -> subprocess.CompletedProcess:
     try:
-        return subprocess.run([docker, *args], capture_output=True, text=True, timeout=timeout,
-                              stdin=subprocess.DEVNULL)
+        return subprocess.run(
+            [docker, *args], capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL
+        )
     except subprocess.TimeoutExpired:
         raise Incomplete(f"docker {args[0]} {args[-1]}: no answer within {timeout} s") from None
     except OSError as error:

@@ -47,8 +47,9 @@ def code_dir(state: Path, record, archive: Path) -> Path:
     except OSError:
         raise Mismatch(f"the release's tree has no {record.fleet['path']}") from None
     if digest != record.fleet["sha256"]:
-        raise Mismatch(f"{record.fleet['path']} hashes to {digest[:12]}, "
-                       f"the record binds {record.fleet['sha256'][:12]}")
+        raise Mismatch(
+            f"{record.fleet['path']} hashes to {digest[:12]}, the record binds {record.fleet['sha256'][:12]}"
+        )
     return target
 
 
@@ -67,8 +68,20 @@ def venv_for(state: Path, wheels: dict[str, Path], python: str = "/usr/bin/pytho
         for path, file in wheels.items():
             os.link(file, flat / path.rsplit("/", 1)[-1]) if _same_fs(file, flat) else shutil.copy(file, flat)
         _run([python, "-m", "venv", str(work / "venv")], "python3 -m venv")
-        _run([str(work / "venv" / "bin" / "python"), "-m", "pip", "install", "--quiet", "--no-index", "--no-deps",
-              "--disable-pip-version-check", *sorted(str(p) for p in flat.iterdir())], "pip install")
+        _run(
+            [
+                str(work / "venv" / "bin" / "python"),
+                "-m",
+                "pip",
+                "install",
+                "--quiet",
+                "--no-index",
+                "--no-deps",
+                "--disable-pip-version-check",
+                *sorted(str(p) for p in flat.iterdir()),
+            ],
+            "pip install",
+        )
         os.replace(work / "venv", target)
     finally:
         shutil.rmtree(work, ignore_errors=True)

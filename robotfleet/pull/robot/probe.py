@@ -100,14 +100,14 @@ def pkt_lines(data: bytes) -> bytes | None:
     out, at = [], 0
     while at + 4 <= len(data):
         try:
-            size = int(data[at:at + 4], 16)
+            size = int(data[at : at + 4], 16)
         except ValueError:
             return None
         if size == 0:
             return b"".join(out)
         if size < 4 or at + size > len(data):
             return None
-        out.append(data[at + 4:at + size])
+        out.append(data[at + 4 : at + size])
         at += size
     return None
 
@@ -137,14 +137,17 @@ def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float) -> 
     if memo.get("kind") == "static":
         validators = memo.get("validators") or {}
         head = f"GET {base}/info/refs HTTP/1.1\r\n{host}" + "".join(
-            f"{name}: {validators[key]}\r\n" for name, key in (("If-None-Match", "etag"),
-                                                              ("If-Modified-Since", "last_modified"))
-            if isinstance(validators.get(key), str) and validators[key].isprintable())
+            f"{name}: {validators[key]}\r\n"
+            for name, key in (("If-None-Match", "etag"), ("If-Modified-Since", "last_modified"))
+            if isinstance(validators.get(key), str) and validators[key].isprintable()
+        )
         body, limit = b"", INFO_REFS_MAX
     else:
         body, limit = ls_refs_request(ref), ANSWER_MAX
-        head = (f"POST {base}/git-upload-pack HTTP/1.1\r\n{host}Content-Type: application/x-git-upload-pack-request"
-                f"\r\nGit-Protocol: version=2\r\nContent-Length: {len(body)}\r\n")
+        head = (
+            f"POST {base}/git-upload-pack HTTP/1.1\r\n{host}Content-Type: application/x-git-upload-pack-request"
+            f"\r\nGit-Protocol: version=2\r\nContent-Length: {len(body)}\r\n"
+        )
     try:
         answer = https_request.request(parts.hostname, parts.port or 443, head.encode(), body, ca, timeout, limit)
     except (OSError, ssl.SSLError, ValueError):
@@ -185,5 +188,3 @@ def validators_of(headers: dict) -> dict:
         except (TypeError, ValueError):
             return {}
     return {k: v for k, v in (("etag", etag), ("last_modified", modified)) if v}
-
-

@@ -54,8 +54,11 @@ def unsigned_reason(data: bytes | None, metadata_dir: Path) -> tuple[str, str]:
     return TAMPERED, role
 
 
-WORDS = {UNSIGNED: "not signed", UNKNOWN_KEY: "signed by a key the robot does not trust",
-          TAMPERED: "changed after it was signed"}
+WORDS = {
+    UNSIGNED: "not signed",
+    UNKNOWN_KEY: "signed by a key the robot does not trust",
+    TAMPERED: "changed after it was signed",
+}
 
 
 def classified(error: BaseException) -> Refused:

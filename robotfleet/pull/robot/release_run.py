@@ -34,8 +34,14 @@ def run(python: Path, code: Path, arguments: list[str]) -> dict:
     """Run the release's converge module in its own tree; its JSON line."""
     env = dict(os.environ, PYTHONPATH=str(code), PYTHONDONTWRITEBYTECODE="1")
     try:
-        done = subprocess.run([str(python), "-m", "robotfleet.commands.converge", *arguments], cwd=code, env=env,
-                              capture_output=True, text=True, timeout=TIMEOUT)
+        done = subprocess.run(
+            [str(python), "-m", "robotfleet.commands.converge", *arguments],
+            cwd=code,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT,
+        )
     except (OSError, subprocess.TimeoutExpired) as error:
         return {"error": f"converge: {error}"}
     lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
@@ -50,5 +56,8 @@ def status(state: Path, robot: str, fleet: str | None) -> dict:
     release): converge status's answer ({"row", "missing", "watch"});
     ``fleet``: the fleet file's path in that code (None: the defaults)."""
     code = state / "code" / "current"
-    return run(state / "venv" / "bin" / "python", code,
-               ["status", "--robot", robot] + (["--fleet", str(code / fleet)] if fleet else []))
+    return run(
+        state / "venv" / "bin" / "python",
+        code,
+        ["status", "--robot", robot] + (["--fleet", str(code / fleet)] if fleet else []),
+    )

@@ -1,4 +1,5 @@
-"""What the robot's ssh offers the git server in its key exchange, cut to
+"""The ssh the robot's git runs (``ssh_command``: only its keys, the pinned
+host keys, no prompt) and what it offers the git server in its key exchange, cut to
 what can be used (robotfleet/pull/robot/transport.py): each list goes
 whole in the client's first packet of every session, ~1.2 KB of an idle
 check's ~5 KB over SSH (tests/bench/idle_check.py).
@@ -18,13 +19,21 @@ check's ~5 KB over SSH (tests/bench/idle_check.py).
 
 from __future__ import annotations
 
+import shlex
+
+from robotfleet.pull.protocol.agent_files import HOST_KEY_ALIAS
+
 CIPHERS = "chacha20-poly1305@openssh.com,aes128-gcm@openssh.com,aes256-gcm@openssh.com"
 MACS = "hmac-sha2-256-etm@openssh.com"
-_ALGORITHMS = {"ssh-ed25519": ("ssh-ed25519",), "ssh-rsa": ("rsa-sha2-512", "rsa-sha2-256"),
-               "ecdsa-sha2-nistp256": ("ecdsa-sha2-nistp256",), "ecdsa-sha2-nistp384": ("ecdsa-sha2-nistp384",),
-               "ecdsa-sha2-nistp521": ("ecdsa-sha2-nistp521",),
-               "sk-ssh-ed25519@openssh.com": ("sk-ssh-ed25519@openssh.com",),
-               "sk-ecdsa-sha2-nistp256@openssh.com": ("sk-ecdsa-sha2-nistp256@openssh.com",)}
+_ALGORITHMS = {
+    "ssh-ed25519": ("ssh-ed25519",),
+    "ssh-rsa": ("rsa-sha2-512", "rsa-sha2-256"),
+    "ecdsa-sha2-nistp256": ("ecdsa-sha2-nistp256",),
+    "ecdsa-sha2-nistp384": ("ecdsa-sha2-nistp384",),
+    "ecdsa-sha2-nistp521": ("ecdsa-sha2-nistp521",),
+    "sk-ssh-ed25519@openssh.com": ("sk-ssh-ed25519@openssh.com",),
+    "sk-ecdsa-sha2-nistp256@openssh.com": ("sk-ecdsa-sha2-nistp256@openssh.com",),
+}
 
 
 def host_key_algorithms(known_hosts: str) -> str | None:
@@ -50,3 +59,36 @@ def options(known_hosts_path: str) -> list[str]:
         algorithms = None
     chosen = ["-o", f"Ciphers={CIPHERS}", "-o", f"MACs={MACS}"]
     return chosen + (["-o", f"HostKeyAlgorithms={algorithms}"] if algorithms else [])
+
+
+def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> str:
+    """The ssh git runs: only these keys, the pinned host keys, no prompt."""
+    parts = [
+        "ssh",
+        "-F",
+        "/dev/null",
+        "-o",
+        "IdentitiesOnly=yes",
+        "-o",
+        "BatchMode=yes",
+        "-o",
+        "StrictHostKeyChecking=yes",
+        "-o",
+        f"UserKnownHostsFile={known_hosts}",
+        "-o",
+        f"HostKeyAlias={HOST_KEY_ALIAS}",
+        "-o",
+        f"ConnectTimeout={min(timeout, 30)}",
+        "-o",
+        "ServerAliveInterval=15",
+        "-o",
+        "ServerAliveCountMax=4",
+        "-o",
+        "LogLevel=DEBUG1",
+        "-E",
+        log,
+        *options(known_hosts),
+    ]
+    for key in keys:
+        parts += ["-i", key]
+    return " ".join(shlex.quote(p) for p in parts)

@@ -41,7 +41,6 @@ when the releases come from a static HTTPS mirror).
 from __future__ import annotations
 
 import os
-import shlex
 import signal
 import subprocess
 import tempfile
@@ -60,29 +59,29 @@ _REFUSED = ("DENIED", "does not appear to be a git repository", "not found")
 # A read of more robots than this asks for the repository's every report
 # rather than each robot's by its prefix (then reads only the robots asked for).
 PREFIXES_AT_MOST = 256
-IDENTITY = {"GIT_AUTHOR_NAME": "robot-pull", "GIT_AUTHOR_EMAIL": "robot-pull@localhost",
-            "GIT_COMMITTER_NAME": "robot-pull", "GIT_COMMITTER_EMAIL": "robot-pull@localhost"}
+IDENTITY = {
+    "GIT_AUTHOR_NAME": "robot-pull",
+    "GIT_AUTHOR_EMAIL": "robot-pull@localhost",
+    "GIT_COMMITTER_NAME": "robot-pull",
+    "GIT_COMMITTER_EMAIL": "robot-pull@localhost",
+}
 
 
 class TransportError(Exception):
     """The remote could not be reached or read (one line)."""
 
 
-def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> str:
-    """The ssh git runs: only these keys, the pinned host keys, no prompt."""
-    parts = ["ssh", "-F", "/dev/null", "-o", "IdentitiesOnly=yes", "-o", "BatchMode=yes",
-             "-o", "StrictHostKeyChecking=yes", "-o", f"UserKnownHostsFile={known_hosts}",
-             "-o", f"HostKeyAlias={HOST_KEY_ALIAS}", "-o", f"ConnectTimeout={min(timeout, 30)}",
-             "-o", "ServerAliveInterval=15", "-o", "ServerAliveCountMax=4",
-             "-o", "LogLevel=DEBUG1", "-E", log, *ssh_options.options(known_hosts)]
-    for key in keys:
-        parts += ["-i", key]
-    return " ".join(shlex.quote(p) for p in parts)
-
-
 # What ssh and the server say of the cause, before git's own summary line.
-_CAUSES = ("Permission denied", "Host key verification failed", "REMOTE HOST IDENTIFICATION HAS CHANGED",
-           "Could not resolve", "Connection refused", "Connection timed out", "No route to host", "DENIED")
+_CAUSES = (
+    "Permission denied",
+    "Host key verification failed",
+    "REMOTE HOST IDENTIFICATION HAS CHANGED",
+    "Could not resolve",
+    "Connection refused",
+    "Connection timed out",
+    "No route to host",
+    "DENIED",
+)
 _SAYS = ("FATAL:", "fatal:", "ERROR:", "error:", "remote:")
 
 
@@ -101,8 +100,15 @@ def is_https(url: str) -> bool:
 class Remote:
     """The fleet remote as one robot reaches it."""
 
-    def __init__(self, url: str, repo: str | Path, etc: str = agent_files.ETC, timeout: int = 300,
-                 report_url: str | None = None, shards: int = report_shards.SINGLE):
+    def __init__(
+        self,
+        url: str,
+        repo: str | Path,
+        etc: str = agent_files.ETC,
+        timeout: int = 300,
+        report_url: str | None = None,
+        shards: int = report_shards.SINGLE,
+    ):
         self.url = url
         self.report_url = report_url or url
         self.shards = report_shards.check_count(shards)
@@ -118,8 +124,15 @@ class Remote:
         own, enroll = f"{self.etc}/id_ed25519", f"{self.etc}/enroll_ed25519"
         return [key for key in (own, enroll) if os.path.exists(key)]
 
-    def _git(self, what: str, *args: str, network: bool = False, stdin: bytes | None = None,
-             env: dict | None = None, url: str | None = None) -> bytes:
+    def _git(
+        self,
+        what: str,
+        *args: str,
+        network: bool = False,
+        stdin: bytes | None = None,
+        env: dict | None = None,
+        url: str | None = None,
+    ) -> bytes:
         """git with ``args`` in the agent's repository; ``network``: it
         talks to ``url`` (the fleet remote by default): bounded, and counted."""
         url = url or self.url
@@ -138,12 +151,19 @@ class Remote:
         elif network:
             fd, log = tempfile.mkstemp(prefix="robot-pull-ssh-", suffix=".log")
             os.close(fd)
-            environment["GIT_SSH_COMMAND"] = ssh_command(self.keys(), f"{self.etc}/known_hosts", log, self.timeout)
+            environment["GIT_SSH_COMMAND"] = ssh_options.ssh_command(
+                self.keys(), f"{self.etc}/known_hosts", log, self.timeout
+            )
         started = time.monotonic()
         try:
-            process = subprocess.Popen(["git", *options, "-C", str(self.repo), *args],
-                                       stdin=subprocess.PIPE if stdin else None, stdout=subprocess.PIPE,
-                                       stderr=subprocess.PIPE, env=environment, start_new_session=True)
+            process = subprocess.Popen(
+                ["git", *options, "-C", str(self.repo), *args],
+                stdin=subprocess.PIPE if stdin else None,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                env=environment,
+                start_new_session=True,
+            )
             reader = None
             if trace is not None:
                 reader = threading.Thread(target=trace.read, args=(process.stderr,), daemon=True)
@@ -153,8 +173,9 @@ class Remote:
             except subprocess.TimeoutExpired:
                 os.killpg(process.pid, signal.SIGKILL)
                 process.wait()
-                raise TransportError(f"{what}: no answer from {url} within {self.timeout} s "
-                                     "(pull_fetch_timeout)") from None
+                raise TransportError(
+                    f"{what}: no answer from {url} within {self.timeout} s (pull_fetch_timeout)"
+                ) from None
             if trace is not None:
                 err = trace.stderr
         except OSError as error:
@@ -182,8 +203,11 @@ class Remote:
             self._git("init", "init", "-q")
             # gc runs in this process (a oneshot unit would kill a detached
             # one), and what older fetches left goes at once.
-            for key, value in (("gc.autoDetach", "false"), ("gc.pruneExpire", "now"),
-                               ("core.logAllRefUpdates", "false")):
+            for key, value in (
+                ("gc.autoDetach", "false"),
+                ("gc.pruneExpire", "now"),
+                ("core.logAllRefUpdates", "false"),
+            ):
                 self._git("init", "config", key, value)
 
     # -- the releases branch -----------------------------------------------
@@ -203,8 +227,18 @@ class Remote:
         spec = f"+refs/heads/{branch}:{LOCAL_BRANCH}"
         kind = "https" if is_https(self.url) else "git"
         try:
-            self._git("fetch", "-c", "protocol.version=2", "fetch", "--quiet", "--no-tags", "--depth=1",
-                      self.url, spec, network=True)
+            self._git(
+                "fetch",
+                "-c",
+                "protocol.version=2",
+                "fetch",
+                "--quiet",
+                "--no-tags",
+                "--depth=1",
+                self.url,
+                spec,
+                network=True,
+            )
         except TransportError as error:
             if _SHALLOW_REFUSED not in str(error):
                 raise
@@ -234,8 +268,7 @@ class Remote:
                 self.cost.add("probe", answer.sent, answer.received, time.monotonic() - started)
             return answer
         # --heads: protocol v2 then asks for refs/heads/ only, not every report ref
-        listing = self._git("probe", "-c", "protocol.version=2", "ls-remote", "--heads", self.url, branch,
-                            network=True)
+        listing = self._git("probe", "-c", "protocol.version=2", "ls-remote", "--heads", self.url, branch, network=True)
         return probe.Answer(probe.commit_of(listing, ref))
 
     # -- reports -----------------------------------------------------------
@@ -270,8 +303,20 @@ class Remote:
 
         try:
             # Shards are fetched at once into this repository: no FETCH_HEAD, no gc between them.
-            self._git("reports", "-c", "protocol.version=2", "-c", "gc.auto=0", "fetch", "--quiet", "--no-tags",
-                      "--no-write-fetch-head", report_shards.shard_url(self.url, shard), *specs, network=True)
+            self._git(
+                "reports",
+                "-c",
+                "protocol.version=2",
+                "-c",
+                "gc.auto=0",
+                "fetch",
+                "--quiet",
+                "--no-tags",
+                "--no-write-fetch-head",
+                report_shards.shard_url(self.url, shard),
+                *specs,
+                network=True,
+            )
             return report_store.read(self.repo, local, set(robots), self.timeout)
         except reports.ReportError as error:
             raise TransportError(f"reports: {error}") from None

@@ -35,12 +35,18 @@ class Cost:
             self.received += received
             self.seconds += seconds
             self.requests += requests
-            self.exchanges.append({"what": what, "sent": sent, "received": received, "seconds": round(seconds, 3),
-                                   "requests": requests})
+            self.exchanges.append(
+                {"what": what, "sent": sent, "received": received, "seconds": round(seconds, 3), "requests": requests}
+            )
 
     def as_dict(self) -> dict:
-        return {"sent": self.sent, "received": self.received, "seconds": round(self.seconds, 3),
-                "requests": self.requests, "exchanges": self.exchanges}
+        return {
+            "sent": self.sent,
+            "received": self.received,
+            "seconds": round(self.seconds, 3),
+            "requests": self.requests,
+            "exchanges": self.exchanges,
+        }
 
 
 def read_ssh_log(text: str) -> tuple[int, int, str | None]:

@@ -31,8 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from robotfleet import atomicfile
-from robotfleet.pull.robot import fetched
 from robotfleet.pull.protocol import record as records
+from robotfleet.pull.robot import fetched
 
 STATE_FORMAT = 1
 EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
@@ -69,9 +69,21 @@ def write_atomic(path: Path, data: bytes) -> None:
 
 
 def write_state(state_dir, state: State) -> None:
-    write_atomic(Path(state_dir, "trust.json"), (json.dumps(
-        {"format": STATE_FORMAT, "time": records.utc(state.time), "version": state.version,
-         "release": state.release}, sort_keys=True) + "\n").encode())
+    write_atomic(
+        Path(state_dir, "trust.json"),
+        (
+            json.dumps(
+                {
+                    "format": STATE_FORMAT,
+                    "time": records.utc(state.time),
+                    "version": state.version,
+                    "release": state.release,
+                },
+                sort_keys=True,
+            )
+            + "\n"
+        ).encode(),
+    )
 
 
 def _read(source: str, path: str) -> bytes | None:
@@ -112,10 +124,23 @@ def remember(state_dir, source, reads: list[str], record_bytes: bytes, expires: 
         forget(state_dir)
         return
     write_atomic(state_dir / RECORD_COPY, record_bytes)
-    write_atomic(state_dir / VERIFIED, (json.dumps(
-        {"format": STATE_FORMAT, "source": str(source), "fingerprint": found, "expires": records.utc(expires),
-         "reads": list(reads), "record_sha256": hashlib.sha256(record_bytes).hexdigest()},
-        sort_keys=True) + "\n").encode())
+    write_atomic(
+        state_dir / VERIFIED,
+        (
+            json.dumps(
+                {
+                    "format": STATE_FORMAT,
+                    "source": str(source),
+                    "fingerprint": found,
+                    "expires": records.utc(expires),
+                    "reads": list(reads),
+                    "record_sha256": hashlib.sha256(record_bytes).hexdigest(),
+                },
+                sort_keys=True,
+            )
+            + "\n"
+        ).encode(),
+    )
 
 
 def forget(state_dir) -> None:

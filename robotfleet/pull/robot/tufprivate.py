@@ -21,6 +21,8 @@ def set_reference_time(updater, moment: datetime.datetime) -> None:
     """Make ``updater`` (a fresh tuf.ngclient.Updater) check expiry against ``moment``."""
     trusted = updater._trusted_set
     if not isinstance(getattr(trusted, "reference_time", None), datetime.datetime):
-        raise RuntimeError("python-tuf no longer keeps Updater._trusted_set.reference_time: "
-                           "robotfleet/pull/robot/tufprivate.py needs updating for this tuf version")
+        raise RuntimeError(
+            "python-tuf no longer keeps Updater._trusted_set.reference_time: "
+            "robotfleet/pull/robot/tufprivate.py needs updating for this tuf version"
+        )
     trusted.reference_time = moment

@@ -40,8 +40,16 @@ from tuf.ngclient import FetcherInterface, Updater, UpdaterConfig
 
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.robot import fetched, trust_state, tufprivate
-from robotfleet.pull.robot.refusals import (EXPIRED, MALFORMED, ROLLBACK, WORDS, Refused, classified, first_line,
-                                            unsigned_reason)
+from robotfleet.pull.robot.refusals import (
+    EXPIRED,
+    MALFORMED,
+    ROLLBACK,
+    WORDS,
+    Refused,
+    classified,
+    first_line,
+    unsigned_reason,
+)
 from robotfleet.pull.robot.trust_state import EPOCH, State
 
 
@@ -152,9 +160,13 @@ class _Recording(FetcherInterface):
 
 def _config() -> UpdaterConfig:
     """ngclient's settings; a metadata file's cap is the one the cheap check reads by (fetched.py)."""
-    return UpdaterConfig(app_user_agent="robotfleet", root_max_length=fetched.ROOT_MAX,
-                         timestamp_max_length=fetched.TIMESTAMP_MAX, snapshot_max_length=fetched.SNAPSHOT_MAX,
-                         targets_max_length=fetched.TARGETS_MAX)
+    return UpdaterConfig(
+        app_user_agent="robotfleet",
+        root_max_length=fetched.ROOT_MAX,
+        timestamp_max_length=fetched.TIMESTAMP_MAX,
+        snapshot_max_length=fetched.SNAPSHOT_MAX,
+        targets_max_length=fetched.TARGETS_MAX,
+    )
 
 
 class Client:
@@ -199,8 +211,7 @@ class Client:
             metadata_url, targets_url, fetcher = self._bases()
             recording = _Recording(fetcher or _https_fetcher())
             try:
-                updater = Updater(str(work), metadata_url, None, targets_url, recording, _config(),
-                                  bootstrap=None)
+                updater = Updater(str(work), metadata_url, None, targets_url, recording, _config(), bootstrap=None)
                 tufprivate.set_reference_time(updater, self.reference_time)
                 updater.refresh()
                 raw, release_file = self._release_bytes(updater, work)
@@ -218,17 +229,25 @@ class Client:
                 raise Refused(MALFORMED, str(error)) from None
             floor = max(applied, state.version)
             if found.version < floor:
-                raise Refused(ROLLBACK, f"release {found.version} ({found.release}) is older than release {floor} "
-                                        "already accepted: refused as a rollback")
+                raise Refused(
+                    ROLLBACK,
+                    f"release {found.version} ({found.release}) is older than release {floor} "
+                    "already accepted: refused as a rollback",
+                )
             if found.expires_at <= self.reference_time:
-                raise Refused(EXPIRED, f"release {found.version} ({found.release}) expired at {found.expires} "
-                                       f"(trusted time {records.utc(self.reference_time)}): refused as a freeze")
+                raise Refused(
+                    EXPIRED,
+                    f"release {found.version} ({found.release}) expired at {found.expires} "
+                    f"(trusted time {records.utc(self.reference_time)}): refused as a freeze",
+                )
         except BaseException:
             shutil.rmtree(work, ignore_errors=True)
             raise
         _swap_in(self.state_dir, work)
-        trust_state.write_state(self.state_dir, State(max(state.time, now, found.published_at),
-                                          max(state.version, found.version), found.release))
+        trust_state.write_state(
+            self.state_dir,
+            State(max(state.time, now, found.published_at), max(state.version, found.version), found.release),
+        )
         self.updater, self.record = updater, found
         self._remember(raw, release_file, found)
         return found
@@ -238,8 +257,10 @@ class Client:
         nothing changed (robotfleet/pull/robot/trust_state.py)."""
         try:
             tuf_dir = self.state_dir / "tuf"
-            roles = [Metadata.from_file(str(tuf_dir / f"{role}.json")) for role in
-                     (Root.type, "timestamp", "snapshot", "targets")]
+            roles = [
+                Metadata.from_file(str(tuf_dir / f"{role}.json"))
+                for role in (Root.type, "timestamp", "snapshot", "targets")
+            ]
             expires = min([md.signed.expires for md in roles] + [found.expires_at])
             reads = trust_state.reads_of(roles[0].signed.version, release_file)
         except Exception:  # without it the next check verifies in full

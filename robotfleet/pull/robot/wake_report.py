@@ -33,11 +33,24 @@ def build(wake, outcome) -> dict:
         print(f"robot-pull: no enrollment proof in the report: {error}", flush=True)
         proof = None
     return reports.build(
-        wake.config.robot, wake.clock(), outcome.result, reason=outcome.reason, refusal=outcome.refusal,
+        wake.config.robot,
+        wake.clock(),
+        outcome.result,
+        reason=outcome.reason,
+        refusal=outcome.refusal,
         seen=reports.version_of(record) if record else wake.state.get("seen"),
-        applied=wake.state.get("applied"), attempted=wake.state.get("attempted"), wave=outcome.wave,
-        status=wake.status, host_keys=hosts, key=key, config=wake.config, check=cost, agent=agent_version(),
-        status_time=wake.status_time, enrollment=proof)
+        applied=wake.state.get("applied"),
+        attempted=wake.state.get("attempted"),
+        wave=outcome.wave,
+        status=wake.status,
+        host_keys=hosts,
+        key=key,
+        config=wake.config,
+        check=cost,
+        agent=agent_version(),
+        status_time=wake.status_time,
+        enrollment=proof,
+    )
 
 
 def send(wake, report: dict) -> str:
@@ -101,6 +114,8 @@ def journal_line(report: dict, sent: str, seconds: float) -> str:
         head += f" (release {seen.get('version')})"
     if report.get("reason"):
         head += f": {report['reason']}"
-    return (f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
-            f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
-            f"requests; {sent}")
+    return (
+        f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
+        f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
+        f"requests; {sent}"
+    )

@@ -60,11 +60,16 @@ def compose_missing():
     old docker-compose v1), which Docker would answer with its usage text; None when it has it."""
     if run(["docker", "compose", "version"], check=False).returncode == 0:
         return None
-    v1 = " (only the old docker-compose v1 is installed, which payloadctl does not use)" if shutil.which(
-        "docker-compose") else ""
-    return ("Docker Compose v2 is missing on this robot: `docker compose version` fails{}; nothing switched. "
-            "The docker role installs it (docker-compose-plugin in docker_packages, or the distribution's compose "
-            "v2 with docker_source: distro): deploy with the docker role in ROLES, then again.".format(v1))
+    v1 = (
+        " (only the old docker-compose v1 is installed, which payloadctl does not use)"
+        if shutil.which("docker-compose")
+        else ""
+    )
+    return (
+        "Docker Compose v2 is missing on this robot: `docker compose version` fails{}; nothing switched. "
+        "The docker role installs it (docker-compose-plugin in docker_packages, or the distribution's compose "
+        "v2 with docker_source: distro): deploy with the docker role in ROLES, then again.".format(v1)
+    )
 
 
 def apply(spec, run_, life, lock=None):
@@ -79,12 +84,20 @@ def apply(spec, run_, life, lock=None):
     holder = update_lock_holder(spec.lock_file)
     if holder and old and not run_.force:
         why = "update refused, {} is held ({})".format(spec.lock_file, holder)
-        return finish(results.REFUSED, "payload: {}; run again with --data payload_force=true to override".format(why),
-                      reason=why)
+        return finish(
+            results.REFUSED, "payload: {}; run again with --data payload_force=true to override".format(why), reason=why
+        )
     doc, pinned = obtain_images(spec, run_.host)
     rid = life.releases.new_id(spec.spec_hash)
-    record = Record(created=now(), spec_hash=spec.spec_hash, project=spec.name, images=pinned,
-                    deployed_by=run_.by, autostart=spec.autostart, run_id=run_.run_id)
+    record = Record(
+        created=now(),
+        spec_hash=spec.spec_hash,
+        project=spec.name,
+        images=pinned,
+        deployed_by=run_.by,
+        autostart=spec.autostart,
+        run_id=run_.run_id,
+    )
     try:
         life.prepare(rid, spec.to_dict(), compose_yaml(release_compose(doc)), record)
     except OSError as error:  # e.g. disk full: nothing half-written stays behind
@@ -108,9 +121,21 @@ def apply(spec, run_, life, lock=None):
         return finish(results.APPLIED, "payload: release {} is healthy".format(rid), rid, taken=taken)
     back = life.fail(rid, why, restored)
     if not back:
-        return finish(results.FAILED, "payload: release {} failed: {}; no healthy release to roll back to "
-                      "(the next run tries again)".format(rid, why), rid, why, taken)
+        return finish(
+            results.FAILED,
+            "payload: release {} failed: {}; no healthy release to roll back to (the next run tries again)".format(
+                rid, why
+            ),
+            rid,
+            why,
+            taken,
+        )
     back_ok, back_why = start.start_and_check(life.releases, life.releases.spec(back) or spec, run_.restart, lock)
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
-    return finish(results.ROLLED_BACK, "payload: release {} failed ({}); rolled back to {} {}".format(
-        rid, why, back, state), rid, why, taken)
+    return finish(
+        results.ROLLED_BACK,
+        "payload: release {} failed ({}); rolled back to {} {}".format(rid, why, back, state),
+        rid,
+        why,
+        taken,
+    )

@@ -63,8 +63,14 @@ def cmd_apply(args):
     except (OSError, ValueError, KeyError, TypeError) as error:
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(args.request))))  # <dir>/runs/<id>/
         why = "this payloadctl cannot read the deploy's request ({}); deploy again".format(error)
-        return results.finish(root, "apply", results.REFUSED, "payload: " + why,
-                              Run(args.run_id, "unknown", False, False, socket.gethostname()), reason=why)
+        return results.finish(
+            root,
+            "apply",
+            results.REFUSED,
+            "payload: " + why,
+            Run(args.run_id, "unknown", False, False, socket.gethostname()),
+            reason=why,
+        )
     run_ = run_._replace(run_id=args.run_id or run_.run_id, restart=args.restart or run_.restart)
     releases = Releases(spec.dir)
     durable.make_private_dir(releases.dir)
@@ -74,8 +80,14 @@ def cmd_apply(args):
 
 def cmd_rollback(args):
     releases = Releases(args.dir)
-    run_ = Run(args.run_id, args.by or "unknown", args.force, False, socket.gethostname(),
-               lock_token=read_token(args.lock_token_file))
+    run_ = Run(
+        args.run_id,
+        args.by or "unknown",
+        args.force,
+        False,
+        socket.gethostname(),
+        lock_token=read_token(args.lock_token_file),
+    )
     spec = releases.spec(releases.pointer("current")) or releases.spec(releases.pointer("previous"))
     lock_timeout = spec.apply_lock_timeout if spec else 0  # releases of an older payloadctl: do not wait
     owner = {"by": run_.by, "action": "rollback", "run_id": run_.run_id}
@@ -128,8 +140,11 @@ def parser():
     p = sub.add_parser("hold", help="hold the apply lock while COMMAND runs; requests with its token join it")
     p.add_argument("--dir", required=True)
     p.add_argument("--token-file", required=True, help="where the token is written (0600) for COMMAND")
-    p.add_argument("--timeout", type=int, help="seconds to wait for another holder (default: the release's "
-                   "payload_apply_lock_timeout, else 300)")
+    p.add_argument(
+        "--timeout",
+        type=int,
+        help="seconds to wait for another holder (default: the release's payload_apply_lock_timeout, else 300)",
+    )
     p.add_argument("--by", default="payloadctl hold", help="who holds it, as waiters are told")
     p.add_argument("command", nargs="+", help="the command to run (after --)")
     p.set_defaults(func=cmd_hold)

@@ -17,8 +17,16 @@ ACTIONS = ("start", "die", "restart", "oom", "destroy", "health_status")
 
 
 def command(project, since=None):
-    args = ["docker", "events", "--format", "{{.Action}}", "--filter", "type=container",
-            "--filter", "label=com.docker.compose.project=" + project]
+    args = [
+        "docker",
+        "events",
+        "--format",
+        "{{.Action}}",
+        "--filter",
+        "type=container",
+        "--filter",
+        "label=com.docker.compose.project=" + project,
+    ]
     for action in ACTIONS:
         args += ["--filter", "event=" + action]
     if since is not None:
@@ -32,8 +40,9 @@ class Events:
 
     def __init__(self, project, since=None):
         try:
-            self.proc = subprocess.Popen(command(project, since), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                         stderr=subprocess.DEVNULL)
+            self.proc = subprocess.Popen(
+                command(project, since), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL
+            )
         except OSError:
             self.proc = None
 

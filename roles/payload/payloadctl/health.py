@@ -74,7 +74,8 @@ def verdict(found, baseline):
             return "fail", "{} exited with code {}".format(s["name"], s["exit_code"])
         if s["status"] == "restarting" or s["restarts"] > baseline[s["name"]]:
             return "fail", "{} is crash-looping (restarted {} times, last exit code {})".format(
-                s["name"], s["restarts"], s["exit_code"])
+                s["name"], s["restarts"], s["exit_code"]
+            )
         if s["health"] == "unhealthy":
             return "fail", "{} is unhealthy: {}".format(s["name"], s["health_log"] or "health check failed")
         if s["status"] != "running":
@@ -94,8 +95,10 @@ def exec_format_failure(found, output_of):
         if s["status"] in ("running",) and not s["restarts"]:
             continue
         if platforms.exec_format_error(s.get("error")) or platforms.exec_format_error(output_of(s["name"])):
-            return ("{} cannot run: exec format error: its program is not built for this robot's architecture "
-                    "(image {})".format(s["name"], s["image"]))
+            return (
+                "{} cannot run: exec format error: its program is not built for this robot's architecture "
+                "(image {})".format(s["name"], s["image"])
+            )
     return None
 
 
@@ -156,8 +159,20 @@ def clear_leftovers(name):
     project's names (compose creates them afresh).  Returns their names.
     One `docker ps` reads them (this runs before every compose up)."""
     removed = []
-    listed = run(["docker", "ps", "-a", "--no-trunc", "--filter", "label=com.docker.compose.project=" + name,
-                  "--format", "{{.ID}} {{.Names}} {{.State}}"], check=False, timeout=60)
+    listed = run(
+        [
+            "docker",
+            "ps",
+            "-a",
+            "--no-trunc",
+            "--filter",
+            "label=com.docker.compose.project=" + name,
+            "--format",
+            "{{.ID}} {{.Names}} {{.State}}",
+        ],
+        check=False,
+        timeout=60,
+    )
     for line in listed.stdout.splitlines():
         cid, cname, state = (line.split() + ["", "", ""])[:3]
         if cid and (LEFTOVER.match(cname) or state not in RUNNING):

@@ -89,7 +89,6 @@ def pinning_problem(text: str, allow_latest: bool) -> Optional[str]:
         return f"{_shown(text)} has no tag or digest; pin a version (e.g. {text}:1.4.2 or @sha256:...)"
     if ref.tag == "latest" and not allow_latest:
         return (
-            f"{_shown(text)} uses the moving tag 'latest'; pin a version or digest "
-            "(or set payload_allow_latest: true)"
+            f"{_shown(text)} uses the moving tag 'latest'; pin a version or digest (or set payload_allow_latest: true)"
         )
     return None

@@ -56,8 +56,11 @@ def pull(ref, timeout, platform=None):
         if left <= 0:
             break
         try:
-            proc = run(["docker", "pull", "-q"] + (["--platform", platform] if platform else []) + [ref],
-                       check=False, timeout=left)
+            proc = run(
+                ["docker", "pull", "-q"] + (["--platform", platform] if platform else []) + [ref],
+                check=False,
+                timeout=left,
+            )
         except subprocess.TimeoutExpired:
             raise Failure(
                 "docker pull {} did not finish within {} s (payload_pull_timeout); "

@@ -60,9 +60,26 @@ class Switch(collections.namedtuple("Switch", ("kind", "came_from", "previous_be
 
 
 FIELDS = (
-    "id", "created", "spec_hash", "project", "images", "deployed_by", "autostart", "run_id", "state", "switch",
-    "switched", "activated", "failed", "reason", "rolled_back_from", "rolled_back_to", "rollback_failed",
-    "rollback_interrupted", "taken_over", "restored",
+    "id",
+    "created",
+    "spec_hash",
+    "project",
+    "images",
+    "deployed_by",
+    "autostart",
+    "run_id",
+    "state",
+    "switch",
+    "switched",
+    "activated",
+    "failed",
+    "reason",
+    "rolled_back_from",
+    "rolled_back_to",
+    "rollback_failed",
+    "rollback_interrupted",
+    "taken_over",
+    "restored",
 )
 
 
@@ -136,8 +153,9 @@ class Life:
     def _expect(self, rid, *states):
         record = self.record(rid)
         if record is None or record.state not in states:
-            raise Refused("release {} is {}, not {}".format(rid, record.state if record else "missing",
-                                                            " or ".join(states)))
+            raise Refused(
+                "release {} is {}, not {}".format(rid, record.state if record else "missing", " or ".join(states))
+            )
         return record
 
     # --- the transitions -----------------------------------------------------

@@ -133,8 +133,9 @@ class Lock:
     def _holder_has(self, fd, token):
         holder = self.holder(fd) or {}
         digest = holder.get("token_sha256")
-        return bool(not holder.get("foreign") and isinstance(digest, str)
-                    and hmac.compare_digest(digest, token_digest(token)))
+        return bool(
+            not holder.get("foreign") and isinstance(digest, str) and hmac.compare_digest(digest, token_digest(token))
+        )
 
     def _take_over_when_free(self):
         """A joined run whose holder went away (the agent stopped) holds the
@@ -217,12 +218,15 @@ def describe(holder, host=None):
         return "the apply lock on {} is held by an unknown process".format(host)
     if holder.get("foreign"):
         return "the apply lock on {} is held by process {} ({}), which is not a deploy of this tool".format(
-            host, holder["pid"], holder["command"])
+            host, holder["pid"], holder["command"]
+        )
     if holder.get("action") == "start":
         return "{} is recovering from an interrupted release since {}".format(
-            host, holder.get("since", "an unknown time"))
+            host, holder.get("since", "an unknown time")
+        )
     return "another deploy is running on {} since {} (by {})".format(
-        host, holder.get("since", "an unknown time"), holder.get("by", "unknown"))
+        host, holder.get("since", "an unknown time"), holder.get("by", "unknown")
+    )
 
 
 def update_lock_holder(path):

@@ -12,12 +12,22 @@ Everything here compares Go's.
 import re
 
 _GO_ARCH = {
-    "x86_64": "amd64", "amd64": "amd64",
-    "aarch64": "arm64", "arm64": "arm64",
-    "armhf": "arm", "armel": "arm", "armv7l": "arm", "armv6l": "arm", "arm": "arm",
-    "i386": "386", "i686": "386", "386": "386",
-    "ppc64el": "ppc64le", "ppc64le": "ppc64le",
-    "s390x": "s390x", "riscv64": "riscv64",
+    "x86_64": "amd64",
+    "amd64": "amd64",
+    "aarch64": "arm64",
+    "arm64": "arm64",
+    "armhf": "arm",
+    "armel": "arm",
+    "armv7l": "arm",
+    "armv6l": "arm",
+    "arm": "arm",
+    "i386": "386",
+    "i686": "386",
+    "386": "386",
+    "ppc64el": "ppc64le",
+    "ppc64le": "ppc64le",
+    "s390x": "s390x",
+    "riscv64": "riscv64",
 }
 _PLATFORM = re.compile(r"([a-z0-9]+)/([a-z0-9_]+)(?:/([a-z0-9]+))?")
 
@@ -38,7 +48,7 @@ def go_arch(name):
 
 
 def parse(text):
-    """"linux/arm64" or "linux/arm/v7" -> {"os", "architecture"[, "variant"]};
+    """ "linux/arm64" or "linux/arm/v7" -> {"os", "architecture"[, "variant"]};
     ValueError with the reason otherwise."""
     match = _PLATFORM.fullmatch(text) if isinstance(text, str) else None
     if not match:
@@ -74,13 +84,15 @@ def refusal(robot, robot_arch, image, platforms, where=""):
     shown = ", ".join(platforms) or "of no platform"
     only = " only" if len(platforms) == 1 else ""
     return "{} is {} but image {} is {}{}{}: refused before anything switched".format(
-        robot, text(robot_platform(robot_arch)), image, shown, only, " ({})".format(where) if where else "")
+        robot, text(robot_platform(robot_arch)), image, shown, only, " ({})".format(where) if where else ""
+    )
 
 
 def pinned_refusal(robot, robot_arch, service, platform):
     """The one line that refuses a service pinned to another platform."""
     return "{} is {} but service {} pins platform {}: refused before anything switched".format(
-        robot, text(robot_platform(robot_arch)), service, platform)
+        robot, text(robot_platform(robot_arch)), service, platform
+    )
 
 
 def index_entries(index):
@@ -93,8 +105,14 @@ def index_entries(index):
         annotations = entry.get("annotations") or {}
         if platform.get("os") == "unknown" or "vnd.docker.reference.type" in annotations:
             continue
-        found.append({"digest": entry.get("digest"), "mediaType": entry.get("mediaType"),
-                      "size": entry.get("size"), "platform": platform})
+        found.append(
+            {
+                "digest": entry.get("digest"),
+                "mediaType": entry.get("mediaType"),
+                "size": entry.get("size"),
+                "platform": platform,
+            }
+        )
     return found
 
 

@@ -48,12 +48,20 @@ def document(root, action, outcome, message, run=None, target=None, reason=None,
         raise ValueError("unknown outcome {!r}".format(outcome))
     releases = Releases(root)
     return {
-        "payloadctl": FORMAT, "ok": outcome in OK, "outcome": outcome, "action": action,
-        "release": releases.pointer("current"), "previous": releases.pointer("previous"), "target": target,
-        "reason": one_line(reason) if reason and outcome not in OK else None, "message": one_line(message),
+        "payloadctl": FORMAT,
+        "ok": outcome in OK,
+        "outcome": outcome,
+        "action": action,
+        "release": releases.pointer("current"),
+        "previous": releases.pointer("previous"),
+        "target": target,
+        "reason": one_line(reason) if reason and outcome not in OK else None,
+        "message": one_line(message),
         "taken_over": [{k: c.get(k) for k in ("name", "project", "image", "why")} for c in taken_over or ()],
-        "run_id": run.run_id if run else None, "deployment": run.deployment if run else None,
-        "host": run.host if run else None, "time": now(),
+        "run_id": run.run_id if run else None,
+        "deployment": run.deployment if run else None,
+        "host": run.host if run else None,
+        "time": now(),
     }
 
 
@@ -77,12 +85,22 @@ def upgraded(result):
     if result.get("payloadctl") == FORMAT:
         return result
     ok = bool(result.get("ok"))
-    return {"payloadctl": FORMAT, "ok": ok, "outcome": APPLIED if ok else FAILED, "action": "apply",
-            "release": result.get("release"), "previous": None, "target": None,
-            "reason": None if ok else one_line(str(result.get("message"))),
-            "message": one_line(str(result.get("message"))),
-            "taken_over": [], "run_id": result.get("run_id"), "deployment": None, "host": None,
-            "time": result.get("time")}
+    return {
+        "payloadctl": FORMAT,
+        "ok": ok,
+        "outcome": APPLIED if ok else FAILED,
+        "action": "apply",
+        "release": result.get("release"),
+        "previous": None,
+        "target": None,
+        "reason": None if ok else one_line(str(result.get("message"))),
+        "message": one_line(str(result.get("message"))),
+        "taken_over": [],
+        "run_id": result.get("run_id"),
+        "deployment": None,
+        "host": None,
+        "time": result.get("time"),
+    }
 
 
 def last(root):
@@ -97,9 +115,11 @@ def report(root, name, run_id):
     path = os.path.join(run_dir(root, run_id), "result.json") if run_id else os.path.join(root, RESULT)
     result = durable.read_json(path)
     if not result or (run_id and result.get("run_id") != run_id):
-        message = ("payload: payloadctl recorded no result for this run ({}): disk full? see journalctl -u '{}-*-{}' "
-                   "on the robot".format(run_id, name, run_id))
-        result = document(root, "apply", FAILED, message, reason=message[len("payload: "):])
+        message = (
+            "payload: payloadctl recorded no result for this run ({}): disk full? see journalctl -u '{}-*-{}' "
+            "on the robot".format(run_id, name, run_id)
+        )
+        result = document(root, "apply", FAILED, message, reason=message[len("payload: ") :])
         result["run_id"] = run_id
     else:
         result = upgraded(result)

@@ -25,12 +25,17 @@ def rollback(run_, life, lock=None):
         return results.finish(root, "rollback", outcome, message, run_, target, reason)
 
     if not previous or life.record(previous) is None or current is None:
-        return finish(results.REFUSED, "payload: no previous release to roll back to",
-                      reason="no previous release to roll back to")
+        return finish(
+            results.REFUSED,
+            "payload: no previous release to roll back to",
+            reason="no previous release to roll back to",
+        )
     spec = target_spec(life.releases, previous, current)
     if spec is None:
-        why = ("releases {} and {} have no recorded spec (made by an older payloadctl); deploy the version you "
-               "want instead".format(previous, current))
+        why = (
+            "releases {} and {} have no recorded spec (made by an older payloadctl); deploy the version you "
+            "want instead".format(previous, current)
+        )
         return finish(results.REFUSED, "payload: " + why, reason=why)
     holder = update_lock_holder(spec.lock_file)
     if holder and not run_.force:
@@ -43,11 +48,16 @@ def rollback(run_, life, lock=None):
     ok, why = start.start_and_check(life.releases, spec, False, lock)
     if ok:
         life.keep(previous)
-        health.set_restart_policies(spec.name,
-                                    restart_policies(compose_doc(life.releases.path(previous, "compose.yaml"))))
+        health.set_restart_policies(
+            spec.name, restart_policies(compose_doc(life.releases.path(previous, "compose.yaml")))
+        )
         return finish(results.APPLIED, "payload: rolled back from {} to {}".format(current, previous), previous)
     life.fail(previous, why)
     back_ok, back_why = start.start_and_check(life.releases, life.releases.spec(current) or spec, False, lock)
     state = "and it is running" if back_ok else "but it is not healthy either: " + back_why
-    return finish(results.ROLLED_BACK, "payload: rollback to {} failed ({}); restored {} {}".format(
-        previous, why, current, state), previous, why)
+    return finish(
+        results.ROLLED_BACK,
+        "payload: rollback to {} failed ({}); restored {} {}".format(previous, why, current, state),
+        previous,
+        why,
+    )

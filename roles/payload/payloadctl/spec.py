@@ -59,13 +59,22 @@ class Run(collections.namedtuple("Run", RUN_FIELDS, defaults=(None, None))):
 
     @classmethod
     def from_dict(cls, data):
-        return cls(data.get("run_id"), data.get("by") or "unknown", bool(data.get("force")), bool(data.get("restart")),
-                   data.get("host") or socket.gethostname(), _deployment(data.get("deployment")),
-                   data.get("lock_token") if isinstance(data.get("lock_token"), str) else None)
+        return cls(
+            data.get("run_id"),
+            data.get("by") or "unknown",
+            bool(data.get("force")),
+            bool(data.get("restart")),
+            data.get("host") or socket.gethostname(),
+            _deployment(data.get("deployment")),
+            data.get("lock_token") if isinstance(data.get("lock_token"), str) else None,
+        )
 
     def __repr__(self):
-        return "Run({})".format(", ".join("{}={!r}".format(k, "<hidden>" if k == "lock_token" and v else v)
-                                          for k, v in self._asdict().items()))
+        return "Run({})".format(
+            ", ".join(
+                "{}={!r}".format(k, "<hidden>" if k == "lock_token" and v else v) for k, v in self._asdict().items()
+            )
+        )
 
 
 def _deployment(value):

@@ -13,9 +13,12 @@ def service_states(name):
     found = {}
     for c in health.inspect_containers(health.project_containers(name)):
         service = (c["Config"].get("Labels") or {}).get("com.docker.compose.service", c["Name"].lstrip("/"))
-        found[service] = {"image": c["Config"].get("Image"), "state": c["State"].get("Status"),
-                          "health": (c["State"].get("Health") or {}).get("Status"),
-                          "restarts": c.get("RestartCount", 0)}
+        found[service] = {
+            "image": c["Config"].get("Image"),
+            "state": c["State"].get("Status"),
+            "health": (c["State"].get("Health") or {}).get("Status"),
+            "restarts": c.get("RestartCount", 0),
+        }
     return found
 
 

@@ -21,7 +21,11 @@ def log(message):
 
 def run(args, check=True, input_text=None, timeout=None):
     proc = subprocess.run(
-        args, input=input_text, stdout=subprocess.PIPE, stderr=subprocess.PIPE, universal_newlines=True,
+        args,
+        input=input_text,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        universal_newlines=True,
         timeout=timeout,
     )
     if check and proc.returncode != 0:

@@ -68,7 +68,8 @@ def reason(container, project, takeover, recorded=()):
         return "it runs the payload's image"
     if container["project"] in recorded:
         return "it runs the payload's image in compose project {}, which this robot's payload used before".format(
-            container["project"])
+            container["project"]
+        )
     return None  # another compose project's, even of the same image
 
 
@@ -76,10 +77,15 @@ def described(data):
     """A `docker inspect` record as the rule reads it (repositories: of the
     image it was started with; ``image_repositories`` adds the rest)."""
     labels = data["Config"].get("Labels") or {}
-    return {"id": data["Id"], "name": data["Name"].lstrip("/"), "image": data["Config"].get("Image"),
-            "project": labels.get(COMPOSE_PROJECT), "running": bool(data["State"].get("Running")),
-            "restart": (data["HostConfig"].get("RestartPolicy") or {}).get("Name") or "no",
-            "repositories": [imageref.repository(data["Config"].get("Image") or "")]}
+    return {
+        "id": data["Id"],
+        "name": data["Name"].lstrip("/"),
+        "image": data["Config"].get("Image"),
+        "project": labels.get(COMPOSE_PROJECT),
+        "running": bool(data["State"].get("Running")),
+        "restart": (data["HostConfig"].get("RestartPolicy") or {}).get("Name") or "no",
+        "repositories": [imageref.repository(data["Config"].get("Image") or "")],
+    }
 
 
 def image_repositories(data):
