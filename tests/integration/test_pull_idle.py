@@ -121,3 +121,19 @@ def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, t
     subprocess.run(run, capture_output=True, text=True, env=env, check=True)
     assert {p: p.stat().st_mtime_ns for p in mine.rglob("*.pyc")} == compiled  # read, not written again
     assert "ROBOT_PULL_PYCACHE=/var/lib/robot-pull/pycache" in agent_files.service_unit()
+
+
+def test_a_bytecode_directory_that_cannot_be_made_does_not_stop_the_check(world, tmp_path):
+    """A full disk or a broken path where the unit names the bytecode
+    directory costs the check its cache, not the check: it runs compiled
+    as before (here the directory's parent is a file)."""
+    import os
+
+    config = tmp_path / "agent.json"
+    config.write_text(world.config.to_json())
+    blocked = tmp_path / "not-a-directory"
+    blocked.write_text("")
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(blocked / "pycache"))
+    run = [sys.executable, "-m", "robotfleet.pull.agent", "--config", str(config)]
+    done = subprocess.run(run, capture_output=True, text=True, env=env)
+    assert done.returncode == 0 and "robot-pull: up-to-date" in done.stdout, done.stderr

@@ -26,12 +26,15 @@ def use(where: str | None = None) -> str | None:
     if not where or not os.path.isabs(where):
         return None
     cache = os.path.join(where, robotfleet.CHECKOUT.name)
-    if not os.path.isdir(cache):
-        os.makedirs(where, mode=0o700, exist_ok=True)
-        for entry in os.listdir(where):  # other trees' (their names: sha256 hex)
-            if len(entry) == 64 and all(c in "0123456789abcdef" for c in entry):
-                shutil.rmtree(os.path.join(where, entry), ignore_errors=True)
-        os.makedirs(cache, mode=0o700)
+    try:
+        if not os.path.isdir(cache):
+            os.makedirs(where, mode=0o700, exist_ok=True)
+            for entry in os.listdir(where):  # other trees' (their names: sha256 hex)
+                if len(entry) == 64 and all(c in "0123456789abcdef" for c in entry):
+                    shutil.rmtree(os.path.join(where, entry), ignore_errors=True)
+            os.makedirs(cache, mode=0o700, exist_ok=True)  # a check started by hand may make it first
+    except OSError:  # a full disk, a broken path: the check runs, compiling as before
+        return None
     sys.pycache_prefix, sys.dont_write_bytecode = cache, False
     return cache
 
