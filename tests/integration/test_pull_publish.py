@@ -16,19 +16,9 @@ from pathlib import Path
 import pytest
 
 import robotfleet
+from robotfleet.pull.protocol.tree import DEPLOY_PATHS
 from tests.unit import pullkit
 
-DEPLOY = (
-    "deploy.py",
-    "config.py",
-    "rollback.py",
-    "pyproject.toml",
-    "robotfleet",
-    "roles",
-    "inventories",
-    "group_data",
-    "files",
-)
 FLEET = """\
 all:
   vars:
@@ -78,7 +68,7 @@ def site(tmp_path, registry):
     """A deploy repository pushed to a bare remote, keys, and a robot's directory."""
     checkout = tmp_path / "deploy"
     checkout.mkdir()
-    for name in DEPLOY:
+    for name in DEPLOY_PATHS:  # what a robot needs of a checkout, as publish takes it
         source = robotfleet.CHECKOUT / name
         if source.is_dir():
             shutil.copytree(source, checkout / name, ignore=shutil.ignore_patterns("__pycache__"))
