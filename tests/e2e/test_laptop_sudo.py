@@ -12,6 +12,7 @@ changes)."""
 
 from __future__ import annotations
 
+import shlex
 import time
 
 import pytest
@@ -35,6 +36,42 @@ LINE = (
     "SUDO_ASKPASS), or let dev use sudo without one: echo 'dev ALL=(ALL:ALL) NOPASSWD: ALL' | sudo tee "
     "/etc/sudoers.d/robotfleet (then sudo visudo -cf /etc/sudoers.d/robotfleet; remove it after the deploy)"
 )
+
+
+# A person at a terminal: the command runs in a pseudo-terminal and each of
+# sudo's prompts gets the answer once it shows (echo is off by then), the
+# last answer again for every further prompt; cut after 600 s (exit 124).
+# `script` fed from a pipe raced sudo: a line typed ahead was echoed or
+# flushed, and after a wrong password the EOF meant for its second prompt was
+# flushed too, so sudo waited for ever (CI, 2026-11-27).
+TERMINAL = r"""
+import os, pty, select, signal, sys, time
+answers = [answer.encode() + b"\n" for answer in sys.argv[2:]]
+pid, fd = pty.fork()
+if pid == 0:
+    os.execvp("sh", ["sh", "-c", sys.argv[1]])
+out, answered, deadline = b"", 0, time.monotonic() + 600
+while time.monotonic() < deadline:
+    if not select.select([fd], [], [], 1)[0]:
+        continue
+    try:
+        chunk = os.read(fd, 4096)
+    except OSError:
+        chunk = b""
+    if not chunk:
+        break
+    out += chunk
+    while out.count(b"password for ") > answered:
+        os.write(fd, answers[min(answered, len(answers) - 1)])
+        answered += 1
+else:
+    os.killpg(pid, signal.SIGKILL)
+    out += b"\n(still running after 600 s: killed)\n"
+_, status = os.waitpid(pid, 0)
+sys.stdout.write(out.decode(errors="replace").replace("\r\n", "\n"))
+sys.exit(124 if time.monotonic() >= deadline else os.waitstatus_to_exitcode(status))
+"""
+IN_TERMINAL = ".venv/bin/python -c " + shlex.quote(TERMINAL)  # then the command, then the answers
 
 
 @pytest.fixture(scope="module")
@@ -80,8 +117,6 @@ def laptop():
 
 
 def quote(text: str) -> str:
-    import shlex
-
     return shlex.quote(text)
 
 
@@ -103,13 +138,14 @@ def test_each_way_on_works(laptop):
         assert code == 0 and "Detected changes" in out, out[-3000:]
 
         # 2. in a terminal: sudo asks once, itself; pyinfra never asks (the password stays off argv)
-        code, out = laptop(f"(sleep 5; echo s3cret-pw) | script -qec {quote(DEPLOY)} /dev/null 2>&1", user="dev")
+        code, out = laptop(f"{IN_TERMINAL} {quote(DEPLOY)} s3cret-pw", user="dev")
         assert code == 0 and "Detected changes" in out, out[-3000:]
         assert out.count("[sudo] password for dev") == 1 and "sudo password:" not in out, out[:2000]
-        code, out = laptop(f"sudo -k; (sleep 5; echo wrong) | script -qec {quote(DEPLOY)} /dev/null 2>&1", user="dev")
+        code, out = laptop(f"sudo -k; {IN_TERMINAL} {quote(DEPLOY)} wrong", user="dev")
         assert code == 1 and out.splitlines()[-1].startswith(
             "[@local] sudo refused dev (a wrong password, or dev may not use sudo)"
         ), out[-2000:]
+        assert out.count("[sudo] password for dev") == 3, out[-2000:]  # sudo's own three tries, then the line
 
         # 3. the sudoers line the message prints, as it is
         line = LINE.split("echo '", 1)[1].split("'", 1)[0]
