@@ -79,6 +79,7 @@ def laptop():
     import os
 
     from tests.lab import engine, hostimage
+    from tests.lab.state import exec_container
 
     dc = engine.client()
     image = hostimage.ensure_host_image(dc)
@@ -100,8 +101,7 @@ def laptop():
 
         def sh(script: str, user: str | None = None) -> tuple[int, str]:
             command = script if user is None else f"su {user} -c {quote('cd /w && ' + script)}"
-            code, out = container.exec_run(["sh", "-c", command])
-            return code, out.decode(errors="replace")
+            return exec_container(container, command)
 
         code, out = sh("cd /w && .ci/setup --python 2>&1")
         assert code == 0, out[-4000:]

@@ -29,6 +29,7 @@ from pathlib import Path
 import pytest
 
 from tests.e2e.conftest import phase
+from tests.lab.state import exec_container
 
 pytestmark = pytest.mark.e2e
 
@@ -108,8 +109,7 @@ class Server:
         """A block of the guide, line by line as a shell runs it, stopping at the first failure."""
         wrapped = f"set -e\n{script}\n"
         argv = ["sh", "-c", wrapped] if user == "root" else ["su", "-", user, "-c", wrapped]
-        code, out = self.container.exec_run(argv)
-        text = out.decode(errors="replace")
+        code, text = exec_container(self.container, argv)
         assert code == 0, f"{GUIDE} ({user}): exit {code}:\n{script}\n---\n{text[-3000:]}"
         return text
 

@@ -17,6 +17,7 @@ import time
 import pytest
 
 from tests.e2e.conftest import ROOT, phase
+from tests.lab.state import exec_container
 
 pytestmark = pytest.mark.e2e
 
@@ -75,17 +76,16 @@ def test_setup_and_unit_smoke_on_a_stock_debian_13(tmp_path):
     try:
         container.start()
         container.put_archive("/", checkout_tar())
-        code, out = container.exec_run(["sh", "-c", "python3 -m pip --version; pip3 --version"])
-        assert code != 0, f"the stock rootfs unexpectedly has pip: {out.decode()}"
-        code, out = container.exec_run(["sh", "-c", "cd /w && .ci/setup --python 2>&1"])
-        assert code == 0, out.decode()[-4000:]
+        code, out = exec_container(container, "python3 -m pip --version; pip3 --version")
+        assert code != 0, f"the stock rootfs unexpectedly has pip: {out}"
+        code, out = exec_container(container, "cd /w && .ci/setup --python 2>&1")
+        assert code == 0, out[-4000:]
         smoke = ".venv/bin/python -m pytest -q -p no:cacheprovider -m 'not e2e' " + " ".join(SMOKE)
-        code, out = container.exec_run(["sh", "-c", f"cd /w && {smoke} 2>&1"])
-        text = out.decode()
+        code, text = exec_container(container, f"cd /w && {smoke} 2>&1")
         assert code == 0 and " passed" in text, text[-4000:]
         # A second setup finds everything in place and changes nothing.
-        code, out = container.exec_run(["sh", "-c", "cd /w && .ci/setup --python 2>&1"])
-        assert code == 0 and "-->" not in out.decode(), out.decode()
+        code, out = exec_container(container, "cd /w && .ci/setup --python 2>&1")
+        assert code == 0 and "-->" not in out, out
     finally:
         container.remove(force=True)
         phase("stock Debian 13: .ci/setup --python + unit smoke", started)

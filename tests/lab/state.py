@@ -99,11 +99,15 @@ def exec_in(prefix: str, host_name: str, cmd: str | list[str], user: str | None 
 
     Returns (exit code, stdout and stderr together).
     """
+    return exec_container(client().containers.get(f"{prefix}-{host_name}"), cmd, user)
+
+
+def exec_container(container, cmd: str | list[str], user: str | None = None) -> tuple[int, str]:
+    """exec_in for a container object (any container with sh and /dev/shm)."""
     import uuid
 
     import docker.errors
 
-    container = client().containers.get(f"{prefix}-{host_name}")
     out = f"/dev/shm/lab-exec-{uuid.uuid4().hex}"
     code, streamed = container.exec_run(exec_argv(cmd, out), user=user or "")
     streamed = streamed.decode(errors="replace")
