@@ -6,7 +6,8 @@ on several labs at once, beside the other two.
 The end-to-end layer spends most of its time waiting on its simulated
 hosts (their apt, Docker and systemd), and the unit and integration layers
 need no host, so they run at the same time: one pytest process for unit and
-integration, one per end-to-end lab group (tests/e2e/groups.py: each group
+integration (then the end-to-end modules that need no lab: groups.WITH_UNIT),
+one per end-to-end lab group (tests/e2e/groups.py: each group
 on its own lab, prefix ``<ROBOT_LAB_E2E_PREFIX or e2e>-<group>``, its modules
 one after the other).  The first group's output streams here; each other
 group's, then unit and integration's, follow whole when done, each headed
@@ -79,9 +80,22 @@ def duration(seconds: float) -> str:
     return f"{minutes} min {seconds} s"
 
 
+def local_layer(options: list[str]) -> Layer:
+    """Unit and integration, then the end-to-end modules that need no lab (groups.WITH_UNIT)."""
+    base = os.environ.get(E2E_PREFIX, "e2e")
+    paths = local_paths(groups.plan(groups.modules()))
+    what = " and ".join(LOCAL_LAYERS) + "".join(f", {path}" for path in paths[len(LOCAL_LAYERS) :])
+    return Layer("unit and integration", what, paths, options, dict(os.environ, **{E2E_PREFIX: f"{base}-unit"}))
+
+
+def local_paths(planned: dict[str, list[str]]) -> list[str]:
+    return LOCAL_LAYERS + [f"tests/e2e/{module}" for module in planned.get(groups.WITH_UNIT, [])]
+
+
 def e2e_layers(options: list[str]) -> list[Layer]:
     base = os.environ.get(E2E_PREFIX, "e2e")
     planned = groups.plan(groups.modules())
+    planned.pop(groups.WITH_UNIT, None)
     layers = []
     for index, (group, modules) in enumerate(planned.items()):
         env = dict(os.environ, **{E2E_PREFIX: f"{base}-{group}"})
@@ -100,7 +114,7 @@ def e2e_layers(options: list[str]) -> list[Layer]:
 
 def main(argv: list[str]) -> int:
     started = time.monotonic()
-    local = Layer("unit and integration", " and ".join(LOCAL_LAYERS), LOCAL_LAYERS, argv)
+    local = local_layer(argv)
     e2e = e2e_layers(argv)
     try:
         while True:  # each end noted as it comes, so each wall time is its own

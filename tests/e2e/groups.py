@@ -3,7 +3,9 @@ process on its own lab (prefix ``<ROBOT_LAB_E2E_PREFIX>-<group>``), the
 groups run at once (tests/__main__.py), a group's modules one after the
 other as in one session.  The host images are the machine's, built once
 (tests/lab/machinelock.py).  A module not named here runs in DEFAULT_GROUP.
-Times per module: docs/development.md."""
+The modules of WITH_UNIT start containers of their own and no lab: they run
+in the unit and integration process, after its tests (it ends minutes
+before the lab groups).  Times per module: docs/guides/development.md."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from pathlib import Path
 
 E2E_DIR = Path(__file__).resolve().parent
 DEFAULT_GROUP = "main"
+WITH_UNIT = "with unit and integration"
 # Balanced by measured wall time; the arm64 module runs last in its group, its host image being built
 # in the background meanwhile (conftest.py), so its group's other modules are those that cost little CPU.
 GROUPS: dict[str, tuple[str, ...]] = {
@@ -18,14 +21,15 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "arm64": (
         "test_enroll.py",
         "test_hostcerts.py",
-        "test_stock_machine.py",
-        "test_laptop_sudo.py",
+        "test_resilience.py",
+        "test_security.py",
         "test_time.py",
         "test_gpu.py",
         "test_x11.py",
         "test_pull_from_nothing.py",
         "test_arm64.py",
     ),
+    WITH_UNIT: ("test_stock_machine.py", "test_laptop_sudo.py"),
 }
 
 

@@ -1,7 +1,7 @@
 """The end-to-end lab groups of the test command (tests/e2e/groups.py) and
 its exit code (tests/__main__.py)."""
 
-from tests.__main__ import exit_code
+from tests.__main__ import LOCAL_LAYERS, exit_code, local_paths
 from tests.e2e import groups
 
 
@@ -35,3 +35,10 @@ def test_the_exit_code_is_the_first_failing_process_s():
     assert exit_code([5, 0, 1, 5]) == 1  # a process the options left without tests does not count
     assert exit_code([5, 0, 5, 5]) == 0
     assert exit_code([5, 5, 5, 5]) == 5
+
+
+def test_the_modules_that_need_no_lab_run_after_unit_and_integration():
+    plan = groups.plan(["test_fleet.py", "test_laptop_sudo.py", "test_stock_machine.py"])
+    assert plan[groups.WITH_UNIT] == ["test_laptop_sudo.py", "test_stock_machine.py"]
+    assert local_paths(plan) == [*LOCAL_LAYERS, "tests/e2e/test_laptop_sudo.py", "tests/e2e/test_stock_machine.py"]
+    assert local_paths(groups.plan(["test_fleet.py"])) == LOCAL_LAYERS
