@@ -21,7 +21,6 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "arm64": (
         "test_enroll.py",
         "test_hostcerts.py",
-        "test_resilience.py",
         "test_security.py",
         "test_time.py",
         "test_gpu.py",
