@@ -97,7 +97,8 @@ class World:
             min_free_mb=0,
         )
 
-    def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
+    def record(self, version: int, robots, canary="1", images=None, wheels=None, pause=0):
+        """Release ``version``'s record (code archive made in base) and its archive: (record, archive)."""
         record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
         built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
         built = record.build(
@@ -109,10 +110,14 @@ class World:
             "inventories/robots.yaml",
             fleet_sha,
             list(robots),
-            {},
-            {},
-            waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}),
+            images or {},
+            wheels or {},
+            waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": pause, "max_failed": "0"}),
         )
+        return built, built_archive
+
+    def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
+        built, built_archive = self.record(version, robots, canary)
         self.fleet.repository.publish(
             built, {built.code: archive or built_archive}, self.fleet.keys.signer("online"), self.fleet.expiry, NOW
         )

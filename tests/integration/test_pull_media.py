@@ -12,7 +12,6 @@ the remote is out of reach, then pushes it at the next contact."""
 
 from __future__ import annotations
 
-import datetime
 import hashlib
 import json
 import os
@@ -27,7 +26,7 @@ import pytest
 from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.protocol import agent_files, media, platforms, reports
 from robotfleet.pull.robot import agent_state
-from tests.integration.test_pull_agent import World, code_archive
+from tests.integration.test_pull_agent import World
 from tests.integration.test_pull_publish import git, registry, robot_fetch, robotfleet_cmd, site  # noqa: F401
 from tests.integration.test_pull_trust import refused
 from tests.integration.test_push_platforms import Store  # noqa: F401
@@ -248,26 +247,12 @@ class MediaWorld(World):
         )
 
     def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1"):
-        record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
         repository = pullkit.module("operator.repository")
-        built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
         from roles.payload.registry import Registry
 
         address, _, path = self.ref.partition("/")
         _, _, digest = Registry(address).manifest(path.rsplit(":", 1)[0], "1.0")
-        built = record.build(
-            version,
-            NOW,
-            NOW + datetime.timedelta(days=30),
-            hashlib.sha1(bytes([version])).hexdigest(),
-            tree_sha,
-            "inventories/robots.yaml",
-            fleet_sha,
-            list(robots),
-            {r: {self.ref: digest} for r in robots},
-            {},
-            waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": 0, "max_failed": "0"}),
-        )
+        built, built_archive = self.record(version, robots, canary, images={r: {self.ref: digest} for r in robots})
         signer = self.fleet.keys.signer("online")
         self.fleet.repository.publish(built, {built.code: archive or built_archive}, signer, self.fleet.expiry, NOW)
         from roles.payload import media_archive

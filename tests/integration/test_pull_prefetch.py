@@ -13,7 +13,6 @@ images is the end-to-end layer's."""
 from __future__ import annotations
 
 import datetime
-import hashlib
 import json
 import os
 import shutil
@@ -25,7 +24,7 @@ import pytest
 from robotfleet.commands import pullrollout, pullstatus, status
 from robotfleet.pull.protocol import agent_files, platforms, reports
 from robotfleet.pull.robot import agent_state
-from tests.integration.test_pull_agent import World, code_archive
+from tests.integration.test_pull_agent import World
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
@@ -77,23 +76,11 @@ class Robot(World):
         self.config = agent_files.Config(**{**self.config.__dict__, "windows": tuple(given), **more})
 
     def release(self, version: int, robots=("robot1", "robot2"), archive=None, canary="1", pause=0, wheels=True):
-        record, waves = pullkit.module("protocol.record"), pullkit.module("protocol.waves")
-        built_archive, tree_sha, fleet_sha = code_archive(self.base, version)
         made = wheel(self.base)
         target = f"wheels/{made.name}"
         carried = {target: made} if wheels else {}
-        built = record.build(
-            version,
-            NOW,
-            NOW + datetime.timedelta(days=30),
-            hashlib.sha1(bytes([version])).hexdigest(),
-            tree_sha,
-            "inventories/robots.yaml",
-            fleet_sha,
-            list(robots),
-            {"robot1": dict(IMAGES)},
-            {platforms.platform_key(): list(carried)},
-            waves.parse_plan({"canary": canary, "waves": ["100%"], "pause": pause, "max_failed": "0"}),
+        built, built_archive = self.record(
+            version, robots, canary, {"robot1": dict(IMAGES)}, {platforms.platform_key(): list(carried)}, pause
         )
         self.fleet.repository.publish(
             built,
