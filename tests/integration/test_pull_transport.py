@@ -7,36 +7,19 @@ from __future__ import annotations
 import datetime
 import os
 import subprocess
-from pathlib import Path
 
 import pytest
 
 from robotfleet.pull.operator import channel
 from robotfleet.pull.protocol import reports
 from robotfleet.pull.robot import ssh_options, transport, transport_cost, trust_state
+from tests.integration.craftedgit import git
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
 debug1: Server accepts key: /etc/robot-pull/id_ed25519 ED25519 SHA256:abc explicit
 Transferred: sent 3140, received 3364 bytes, in 0.1 seconds
 Bytes per second: sent 31400.0, received 33640.0
 """
-
-
-def git(where: Path, *args: str) -> str:
-    return subprocess.run(
-        ["git", "-C", str(where), *args],
-        check=True,
-        capture_output=True,
-        text=True,
-        env={
-            "GIT_AUTHOR_NAME": "t",
-            "GIT_AUTHOR_EMAIL": "t@t",
-            "GIT_COMMITTER_NAME": "t",
-            "GIT_COMMITTER_EMAIL": "t@t",
-            "HOME": str(where),
-            "PATH": "/usr/bin:/bin",
-        },
-    ).stdout
 
 
 @pytest.fixture
@@ -201,7 +184,7 @@ def test_reports_go_to_the_report_remote_while_releases_come_over_https(https_re
     )
     robot.fetch_releases()
     robot.push_report("robot1", report("robot1"))
-    assert git(elsewhere, "show", "refs/reports/robot1:report.json") == report("robot1").decode()
+    assert git(elsewhere, "show", "refs/reports/robot1:report.json") == report("robot1").decode().strip()
     assert "refs/reports" not in git(bare, "for-each-ref")
     git(elsewhere, "push", "-q", str(bare), "refs/reports/robot1:refs/reports/robot2")  # as robot2 pushed it
     git(bare, "update-server-info")
