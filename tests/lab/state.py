@@ -76,9 +76,16 @@ def forget(prefix: str, root: Path = LAB_DIR) -> None:
 # docker/docker-py#2042): exit 0 and no output.  The command's output goes to a file in the host's
 # /dev/shm (tmpfs, any user may write) and is printed from it with an end mark; a stream without the
 # mark is read again from the file (a read-only cat, safe to repeat), never by running the command again.
+# The files are not removed by another docker exec (one more per command, the engine's CPU on every
+# poll of a wait): once 64 are there, a command's script removes those older than a minute.
 EXEC_MARK = "\n__lab_exec_end__\n"
 PRINT_MARK = r"printf '\n%s\n' __lab_exec_end__"
-EXEC_SCRIPT = f'out=$1; shift; "$@" >"$out" 2>&1; rc=$?; cat "$out"; {PRINT_MARK}; exit "$rc"'
+EXEC_KEEP = 64
+EXEC_SCRIPT = (
+    f'out=$1; shift; "$@" >"$out" 2>&1; rc=$?; cat "$out"; {PRINT_MARK}; '
+    f'set -- "${{out%/*}}"/lab-exec-*; [ "$#" -lt {EXEC_KEEP} ] || '
+    'find "${out%/*}" -maxdepth 1 -name "lab-exec-*" -mmin +1 -delete 2>/dev/null; exit "$rc"'
+)
 EXEC_REREADS = 5
 
 
@@ -118,7 +125,6 @@ def exec_container(container, cmd: str | list[str], user: str | None = None) -> 
             output = exec_output(again.decode(errors="replace"))
             if output is not None:
                 break
-        container.exec_run(["rm", "-f", out], detach=True)
     except docker.errors.APIError:  # the command stopped its host (a power cut, a reboot): what came is all
         pass
     return code, streamed if output is None else output
