@@ -46,8 +46,8 @@ def helper(tmp_path_factory):
 
 @pytest.fixture
 def robot(tmp_path, helper):
-    """A robot of payloadctl's tests (tests/integration/test_payloadctl.py) running reg/ros/payload:1.0."""
-    from tests.integration.test_payloadctl import FakeRobot
+    """A robot of payloadctl's tests (tests/integration/payloadrobot.py) running reg/ros/payload:1.0."""
+    from tests.integration.payloadrobot import FakeRobot
 
     robot = FakeRobot(tmp_path, helper)
     robot.image("reg/ros/payload:1.0")

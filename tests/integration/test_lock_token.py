@@ -17,7 +17,7 @@ import sys
 import time
 
 from roles.payload.payloadctl import lock as apply_lock
-from tests.integration.test_payloadctl import switching, wait_until
+from tests.integration.payloadrobot import switching, wait_until
 from tests.unit.harness import ROBOT, converged, plan
 
 # COMMAND for `payloadctl hold`: an apply (and a rollback) as part of the

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from roles.payload.payloadctl import events, health
-from tests.integration.test_payloadctl import FAKEBIN
+from tests.integration.payloadrobot import FAKEBIN
 
 
 @pytest.fixture
