@@ -3,7 +3,7 @@ robot's apply lock for a whole converge run, and the payload's apply inside
 that run joins it instead of waiting for itself; everything else (a push
 deploy, the boot's start) meets the held lock as it meets any holder.  The
 zip application runs as a process against the stand-ins for docker and
-systemctl, as in test_payloadctl.py."""
+systemctl, as in tests/integration/payloadrobot.py."""
 
 from __future__ import annotations
 

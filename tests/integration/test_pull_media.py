@@ -322,7 +322,7 @@ def test_an_image_archive_whose_bytes_differ_from_the_signed_target_is_refused(w
 def test_on_the_classic_image_store_the_checked_image_id_is_tagged_by_the_release_s_digest(world, docker, monkeypatch):
     """The classic store keeps no registry digest for a loaded image: the id
     it loaded is checked against the release's, then tagged by the digest
-    (the payload runs that tag: tests/integration/test_payloadctl.py)."""
+    (the payload runs that tag: tests/integration/test_payloadctl_images.py)."""
     monkeypatch.setenv("FAKE_DOCKER_MODE", "classic")
     world.release(1)
     _, outcome, _ = world.wake()

@@ -1,7 +1,7 @@
 """The on-robot release helper payloadctl, its pure parts in process: image
 references, the release store's files, the update lock, and what the zip
 application is made of.  It runs as a process, against stand-ins for docker
-and systemctl, in tests/integration/test_payloadctl.py."""
+and systemctl, in tests/integration/test_payloadctl*.py."""
 
 import os
 import sys
