@@ -1,30 +1,25 @@
-"""End to end: docs/guides/pull-from-nothing.md followed by a new user, from
-its own blocks (issue 35 item 3), steps 1 to 8, on the lab: a pull robot
-that applies a signed release and reports it, from a stock Debian machine.
+"""End to end: docs/guides/pull-from-nothing.md followed as a new user would,
+steps 1 to 8 (issue 35 item 3): from a stock Debian machine to a pull robot
+that applies a signed release and reports it.
 
 The guide's blocks are read from the guide (tests/doccommands.py finds them,
-as for every doc command) and run as a shell runs them, stopping at the
-first failure: a wrong flag or a missing step fails the test.  Steps 1 to 3
-on the git server, a stock Debian machine of the lab (the host image: Debian
-13, nothing of gitolite) on the lab network under the guide's name,
-`git.example.com`: step 1 as root, steps 2 and 3 as the operator (`ops`,
-whose `~/.ssh/id_ed25519` is the admin key the guide's `/path/to/your-key.pub`
-names).  robotfleet's own gitolite admin (robotfleet/pull/operator/gitolite.py)
-registers a robot there.  Steps 3 to 8 as the operator on this machine, in a
-checkout of this repository with a home of its own: the keys (4), the fleet
-file (5), publish with its defaults (6), the push deploy and pull-enroll (7,
-a robot reached over SSH; the first-boot bundle of the same step is
-tests/e2e/test_pull.py's), then the robot's check and status (8): the robot
-`applied`, status exits 0.  Only what must differ in the lab is substituted
-(LAB below says what, each in one place).
+as for every doc command) and run as a shell runs them, stopping at the first
+failure: a wrong flag or a missing step fails the test.  Steps 1 to 3 on the
+git server, the lab's stock host image (nothing of gitolite) on the lab
+network under the guide's name, `git.example.com`: step 1 as root, 2 and 3 as
+the operator (`ops`, whose `~/.ssh/id_ed25519` is the guide's
+`/path/to/your-key.pub`); robotfleet's gitolite admin registers a robot there.
+Steps 3 to 8 as the operator on this machine, in a checkout of this
+repository with a home of its own: keys (4), the fleet file (5), publish with
+its defaults (6), the push deploy and pull-enroll (7; its first-boot bundle is
+tests/e2e/test_pull.py's), the robot's check and status (8): `applied`, exit
+0.  Only what must differ in the lab is substituted (LAB below, each once).
 
-One robot, the session's ROBOT, already provisioned by the first run: the
-push deploy adds only the agent.  Its check is started directly instead of
-at its timer's next (its first ran at the install, before pull-enroll
-registered its key; the next is 900 s later).  At the end its agent is
-removed and a push deploy of the lab's fleet gives it back the payload by
-its tag, as the first run left it.  Cost: the push deploy and the robot's
-first converge dominate (docs/guides/development.md).
+One robot, the session's ROBOT, provisioned by the first run: the push deploy
+adds only the agent.  Its check is started directly (the timer's first ran at
+the install, before pull-enroll registered its key; its next is 900 s later).
+At the end its agent is removed and a push deploy of the lab's fleet gives it
+back its payload by tag.  Cost: docs/guides/development.md.
 """
 
 from __future__ import annotations
@@ -43,7 +38,9 @@ from pathlib import Path
 import pytest
 import yaml
 
+from tests import doccommands
 from tests.e2e.conftest import PYINFRA, ROOT, phase
+from tests.e2e.test_pull import CHECK_NOW
 from tests.lab.state import exec_container
 
 pytestmark = pytest.mark.e2e
@@ -66,7 +63,7 @@ RESET = (
 #   - the git server from this machine: 127.0.0.1 on its lab port; the operator's SSH config says so
 #     (Operator.ssh_config: ssh reads the user's real home, not $HOME), and so does --admin (lab_commands)
 #   - the operator's robotfleet and pyinfra: this venv's, running the operator's checkout (Operator.bin),
-#     as a venv installed from that checkout would; publish's wheels from the lab's cache (no index here)
+#     as a venv installed from that checkout would; publish's wheels from a cache of the lab's (~/.cache)
 HOST_KEY = '"ssh-ed25519 AAAA..."'
 GUIDE_IMAGE = "registry.lan:5000/payload:1"
 LAB_IMAGE = "ros/payload:1.0"  # the first run's (inventories/lab.yaml)
@@ -76,8 +73,6 @@ def guide_blocks() -> dict[int, list[str]]:
     """Each of the guide's indented and fenced blocks (shell and YAML, marked
     illustrative or not) by the number of the step (``## N. ...``) they are
     in; comments kept (the shell drops them)."""
-    from tests import doccommands
-
     doc = doccommands.ROOT / GUIDE
     headings = [
         (number, int(match.group(1)))
@@ -181,7 +176,10 @@ class Operator:
             f"  IdentityFile {key}\n  IdentitiesOnly yes\n  UserKnownHostsFile {ssh / 'known_hosts'}\n"
             "  StrictHostKeyChecking yes\n  BatchMode yes\n"
         )
-        wheels = ROOT / ".lab" / "cache" / "pull-wheels"
+        # a wheel cache of its own (two publishes sharing one race on pip's log there), the pull group's copied
+        wheels, pulled = ROOT / ".lab" / "cache" / "pull-guide-wheels", ROOT / ".lab" / "cache" / "pull-wheels"
+        if pulled.is_dir():
+            shutil.copytree(pulled, wheels, dirs_exist_ok=True, ignore=shutil.ignore_patterns("*.log"))
         wheels.mkdir(parents=True, exist_ok=True)
         (self.home / ".cache" / "robotfleet").mkdir(parents=True)
         (self.home / ".cache" / "robotfleet" / "wheels").symlink_to(wheels)
@@ -356,8 +354,6 @@ def operator(server, made, lab, first_run, tmp_path_factory):
 
 
 def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(server, made, operator, lab):
-    from tests.e2e.test_pull import CHECK_NOW
-
     started, steps = time.monotonic(), made
     operator.run(steps[3][1], "step 3, the remote named in the operator's checkout")
     operator.run(steps[4][0], "step 4, the signing keys")
@@ -394,4 +390,8 @@ def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(ser
         and "applied (release 1)" in lab.ok(ROBOT, "journalctl -u robot-pull.service --no-pager")
     )
     assert applied and f" {registry}/{LAB_IMAGE}@sha256:" in row, said  # by its digest, the tag kept
+    # step 8's halt, in its prose, signed with the defaults too
+    halt = next(c.text for c in doccommands.inline_commands(ROOT / GUIDE) if c.subcommand == "halt")
+    said = operator.run(halt, "step 8, halt", {'"..."': "'the guide, end to end'"})
+    assert re.search(r"^halt: release 2 halts commit \w+ \(the guide, end to end\)", said, re.M), said
     phase("pull guide: steps 4 to 8 on this machine, the robot applied release 1", started)
