@@ -44,6 +44,12 @@ FIRST_BOOT = "robot4"
 ALL = ROBOTS + [FIRST_BOOT]
 # Short health windows and the shortest check interval keep the module fast.
 FAST = {"payload_health_timeout": 20, "payload_stable_seconds": 2, "pull_interval": 10, "pull_jitter": 0}
+# A robot's check started now (systemctl start waits for the oneshot); one its timer started is waited for
+# first (a start would only join it).
+CHECK_NOW = (
+    'while [ "$(systemctl show -p ActiveState --value robot-pull.service)" = activating ]; '
+    "do sleep 0.5; done; systemctl start robot-pull.service"
+)
 
 
 class Pull:
@@ -61,11 +67,7 @@ class Pull:
         """A check starting now on each robot, at once (systemctl start waits
         for the oneshot; a check the timer started earlier is waited for
         first: a start would only join it)."""
-        command = (
-            'while [ "$(systemctl show -p ActiveState --value robot-pull.service)" = activating ]; '
-            "do sleep 0.5; done; systemctl start robot-pull.service"
-        )
-        threads = [threading.Thread(target=self.lab.sh, args=(r, command)) for r in robots]
+        threads = [threading.Thread(target=self.lab.sh, args=(r, CHECK_NOW)) for r in robots]
         for thread in threads:
             thread.start()
         for thread in threads:

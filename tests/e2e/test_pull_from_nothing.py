@@ -1,34 +1,46 @@
-"""End to end: docs/guides/pull-from-nothing.md's git server, from its own shell
-blocks (issue 35 item 3), run as written on a stock Debian machine of the
-lab: the host image (Debian 13, nothing of gitolite), on the lab network
-under the guide's name for it, `git.example.com`, with the lab's apt proxy.
+"""End to end: docs/guides/pull-from-nothing.md followed as a new user would,
+steps 1 to 8 (issue 35 item 3): from a stock Debian machine to a pull robot
+that applies a signed release and reports it.
 
-The guide's steps 1 to 3 are read from the guide (tests/doccommands.py
-finds its blocks, as for every doc command) and run line by line as the
-guide says: step 1 as root on the server, steps 2 and 3 as the operator
-(`ops`, whose `~/.ssh/id_ed25519` is the admin key the guide's
-`/path/to/your-key.pub` names).  Then robotfleet's own gitolite admin
-(robotfleet/pull/operator/gitolite.py) registers a robot on that server,
-as `bundle` and `pull-enroll` do, and the robot's key reads the fleet
-repository: the guide's server is one robotfleet can run.
+The guide's blocks are read from the guide (tests/doccommands.py finds them,
+as for every doc command) and run as a shell runs them, stopping at the first
+failure: a wrong flag or a missing step fails the test.  Steps 1 to 3 on the
+git server, the lab's stock host image (nothing of gitolite) on the lab
+network under the guide's name, `git.example.com`: step 1 as root, 2 and 3 as
+the operator (`ops`, whose `~/.ssh/id_ed25519` is the guide's
+`/path/to/your-key.pub`); robotfleet's gitolite admin registers a robot there.
+Steps 3 to 8 as the operator on this machine, in a checkout of this
+repository with a home of its own: keys (4), the fleet file (5), publish with
+its defaults (6), the push deploy and pull-enroll (7; its first-boot bundle is
+tests/e2e/test_pull.py's), the robot's check and status (8): `applied`, exit
+0.  Only what must differ in the lab is substituted (LAB below, each once).
 
-What the guide's later steps do (publish, the push deploy, pull-enroll,
-status) is what tests/e2e/test_pull.py does on the lab's own gitolite
-(tests/lab/gitserver.py: the same Debian package, set up from Python).
+One robot, the session's ROBOT, provisioned by the first run: the push deploy
+adds only the agent.  Its check is started directly (the timer's first ran at
+the install, before pull-enroll registered its key; its next is 900 s later).
+At the end its agent is removed and a push deploy of the lab's fleet gives it
+back its payload by tag.  Cost: docs/guides/development.md.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import re
 import shlex
+import shutil
 import subprocess
+import sys
 import time
 import uuid
 from pathlib import Path
 
 import pytest
+import yaml
 
-from tests.e2e.conftest import phase
+from tests import doccommands
+from tests.e2e.conftest import PYINFRA, ROOT, phase
+from tests.e2e.test_pull import CHECK_NOW
 from tests.lab.state import exec_container
 
 pytestmark = pytest.mark.e2e
@@ -37,13 +49,30 @@ GUIDE = "docs/guides/pull-from-nothing.md"
 SERVER_NAME = "git.example.com"  # the guide's name for the git server
 OPERATOR = "ops"
 KEY_PATH = "/path/to/your-key.pub"  # the guide's placeholder, made a real file
+ROBOT = "robot3"  # of the session's lab: robot1 is test_arm64.py's as the first run left it
+RESET = (
+    "systemctl disable --now robot-pull.timer; rm -rf /etc/robot-pull /var/lib/robot-pull "
+    "/etc/systemd/system/robot-pull.service /etc/systemd/system/robot-pull.timer; systemctl daemon-reload"
+)
+# LAB: what differs in the lab, each substituted in one place; the rest of every block is the guide's.
+#   - the robots (step 5): the guide's robot1 and robot2 at 10.20.0.x are ROBOT, at 127.0.0.1 on its lab
+#     port with the lab key, with its settings and the lab's (apt mirror, registry) under the guide's:
+#     lab_fleet_file; the guide's host key placeholder is step 2's line (HOST_KEY)
+#   - the registry (step 5): GUIDE_IMAGE is the lab registry's LAB_IMAGE; this machine resolves the
+#     robots' name for it through a proxy (Operator.proxy), as the guide's /etc/hosts line would
+#   - the git server from this machine: 127.0.0.1 on its lab port; the operator's SSH config says so
+#     (Operator.ssh_config: ssh reads the user's real home, not $HOME), and so does --admin (lab_commands)
+#   - the operator's robotfleet and pyinfra: this venv's, running the operator's checkout (Operator.bin),
+#     as a venv installed from that checkout would; publish's wheels from a cache of the lab's (~/.cache)
+HOST_KEY = '"ssh-ed25519 AAAA..."'
+GUIDE_IMAGE = "registry.lan:5000/payload:1"
+LAB_IMAGE = "ros/payload:1.0"  # the first run's (inventories/lab.yaml)
 
 
 def guide_blocks() -> dict[int, list[str]]:
-    """The guide's indented and fenced shell blocks by the number of the
-    step (``## N. ...``) they are in; comments kept (the shell drops them)."""
-    from tests import doccommands
-
+    """Each of the guide's indented and fenced blocks (shell and YAML, marked
+    illustrative or not) by the number of the step (``## N. ...``) they are
+    in; comments kept (the shell drops them)."""
     doc = doccommands.ROOT / GUIDE
     headings = [
         (number, int(match.group(1)))
@@ -53,9 +82,8 @@ def guide_blocks() -> dict[int, list[str]]:
     found: dict[int, list[str]] = {}
     for block in doccommands.blocks(doc):
         steps = [step for line, step in headings if line < block.line]
-        text = "\n".join(line for _, line in block.lines).strip()
-        if steps and block.marker is None and not text.startswith(("robots:", "robotfleet ")):
-            found.setdefault(steps[-1], []).append(text)
+        if steps and block.lines:
+            found.setdefault(steps[-1], []).append("\n".join(line for _, line in block.lines).strip())
     return found
 
 
@@ -116,12 +144,136 @@ class Server:
     def root(self, command: str) -> str:
         return self.run(command)
 
-    def known_hosts(self, path: Path) -> Path:
-        path.write_text("".join(f"[127.0.0.1]:{self.port} {' '.join(k.split()[:2])}\n" for k in self.host_keys))
-        return path
+    def known_hosts_lines(self) -> str:
+        """Its host keys as this machine reaches it (127.0.0.1, its lab port)."""
+        return "".join(f"[127.0.0.1]:{self.port} {' '.join(k.split()[:2])}\n" for k in self.host_keys)
 
     def remove(self) -> None:
         self.container.remove(force=True)
+
+
+class Operator:
+    """The guide's operator on this machine, from step 3 on: a checkout of
+    this repository (its tracked files) and a home of its own ($HOME: the
+    keys, pip's cache, ~/.ssh), with the lab's substitutions (LAB above)."""
+
+    def __init__(self, server: Server, base: Path):
+        from tests.lab import pullfleet
+        from tests.lab.registryproxy import RegistryProxy
+
+        self.server, self.home, self.checkout, self.bin = server, base / "home", base / "checkout", base / "bin"
+        ssh = self.home / ".ssh"
+        ssh.mkdir(parents=True, mode=0o700)
+        key = ssh / "id_ed25519"
+        shutil.copy(server.lab.state["ssh_key"], key)
+        key.chmod(0o600)
+        # the known_hosts step 2 made (git.example.com); the same keys at the lab's address, for --admin
+        made = server.run("cat .ssh/known_hosts", OPERATOR)
+        (ssh / "known_hosts").write_text(made + server.known_hosts_lines())
+        self.ssh_config = ssh / "config"
+        self.ssh_config.write_text(
+            f"Host {SERVER_NAME}\n  HostName 127.0.0.1\n  Port {server.port}\n  HostKeyAlias {SERVER_NAME}\n"
+            f"  IdentityFile {key}\n  IdentitiesOnly yes\n  UserKnownHostsFile {ssh / 'known_hosts'}\n"
+            "  StrictHostKeyChecking yes\n  BatchMode yes\n"
+        )
+        # a wheel cache of its own (two publishes sharing one race on pip's log there), the pull group's copied
+        wheels, pulled = ROOT / ".lab" / "cache" / "pull-guide-wheels", ROOT / ".lab" / "cache" / "pull-wheels"
+        if pulled.is_dir():
+            shutil.copytree(pulled, wheels, dirs_exist_ok=True, ignore=shutil.ignore_patterns("*.log"))
+        wheels.mkdir(parents=True, exist_ok=True)
+        (self.home / ".cache" / "robotfleet").mkdir(parents=True)
+        (self.home / ".cache" / "robotfleet" / "wheels").symlink_to(wheels)
+        self.bin.mkdir()
+        for name, args in {"robotfleet": "-m robotfleet", "pyinfra": f"-c {shlex.quote(PYINFRA)}"}.items():
+            (self.bin / name).write_text(f'#!/bin/sh\nexec {shlex.quote(sys.executable)} {args} "$@"\n')
+            (self.bin / name).chmod(0o755)
+        self.proxy = RegistryProxy(server.lab.state["registry"], server.lab.state["registry_local"])
+        pullfleet.copy_tracked(self.checkout)
+        self.git("init", "-q", "-b", "main")
+
+    def env(self) -> dict:
+        unset = ("ROBOTFLEET_", "ROBOT_FLEET", "ROBOT_LAB_", "XDG_", "GIT_", "SSH_AUTH_SOCK")
+        env = {name: value for name, value in os.environ.items() if not name.startswith(unset)}
+        return dict(
+            env,
+            HOME=str(self.home),
+            PATH=f"{self.bin}:{env['PATH']}",
+            GIT_SSH_COMMAND=f"ssh -F {self.ssh_config}",
+            GIT_AUTHOR_NAME="Operator",
+            GIT_AUTHOR_EMAIL="ops@example.com",
+            GIT_COMMITTER_NAME="Operator",
+            GIT_COMMITTER_EMAIL="ops@example.com",
+            PYINFRA_PROGRESS="off",
+            **self.proxy.env(),
+        )
+
+    def git(self, *args: str) -> str:
+        done = subprocess.run(["git", *args], cwd=self.checkout, env=self.env(), capture_output=True, text=True)
+        assert done.returncode == 0, f"git {' '.join(args)}: {done.stderr}"
+        return done.stdout
+
+    def run(self, block: str, what: str, substitutions: dict | None = None, answer: str = "") -> str:
+        """A block of the guide in the checkout, as a shell runs it (stopping at the first failure), with
+        ``substitutions`` made; ``answer`` on its stdin (pyinfra's Enter)."""
+        started = time.monotonic()
+        script = substituted(block, substitutions or {})
+        done = subprocess.run(
+            ["bash", "-c", f"set -e\n{script}\n"],
+            cwd=self.checkout,
+            env=self.env(),
+            input=answer,
+            capture_output=True,
+            text=True,
+            timeout=1500,
+        )
+        phase(f"pull guide: {what} (exit {done.returncode})", started)
+        said = done.stdout + done.stderr
+        assert done.returncode == 0, f"{GUIDE}, {what}: exit {done.returncode}:\n{script}\n---\n{said[-4000:]}"
+        return said
+
+    def close(self) -> None:
+        self.proxy.close()
+
+
+def substituted(text: str, substitutions: dict[str, str]) -> str:
+    for old, new in substitutions.items():
+        assert old in text, f"{GUIDE} no longer says {old!r}: the lab's substitution for it (LAB) is stale"
+        text = text.replace(old, new)
+    return text
+
+
+def lab_commands(server: Server) -> dict[str, str]:
+    """The commands' substitutions: gitolite's admin as this machine reaches it (the guide's name for the
+    server resolves on the lab network only; its operator's own SSH is told by its ~/.ssh/config)."""
+    return {f"--admin ssh://gitolite3@{SERVER_NAME} ": f"--admin ssh://gitolite3@127.0.0.1:{server.port} "}
+
+
+def lab_fleet_file(block: str, lab, key_line: str, known_hosts: Path) -> str:
+    """Step 5's fleet file as the lab needs it: its robots (robot1 and robot2 at
+    10.20.0.x) are ROBOT, reached at its lab port with the lab key and with its
+    settings of inventories/lab.yaml; its registry is the lab registry's
+    LAB_IMAGE; the lab's own settings (its apt mirror, its registry as an
+    insecure one) under the guide's; the host key is step 2's line."""
+    from tests.lab import pullfleet
+
+    text = substituted(block, {HOST_KEY: key_line, GUIDE_IMAGE: f"{lab.state['registry']}/{LAB_IMAGE}"})
+    guide = yaml.safe_load(text)
+    assert list(guide) == ["robots"] and list(guide["robots"]) == ["vars", "hosts"], guide
+    assert all(list(data) == ["address"] for data in guide["robots"]["hosts"].values()), guide
+    base = pullfleet.lab_fleet(lab.state)
+    port = next(h["port"] for h in lab.state["hosts"] if h["name"] == ROBOT)
+    robot = {
+        **(base["robots"]["hosts"].get(ROBOT) or {}),
+        "address": "127.0.0.1",
+        "ssh_port": port,
+        "ssh_key": lab.state["ssh_key"],
+        "ssh_known_hosts_file": str(known_hosts),
+    }
+    robots = {"vars": {**base["robots"]["vars"], **guide["robots"]["vars"]}, "hosts": {ROBOT: robot}}
+    # JSON is YAML 1.2, and quotes every string ("0825" stays text).
+    return f"# {GUIDE}'s fleet on the lab ({Path(__file__).name}).\n" + json.dumps(
+        {"all": base["all"], "robots": robots}, indent=1
+    )
 
 
 @pytest.fixture(scope="module")
@@ -131,12 +283,12 @@ def server(lab):
     server.remove()
 
 
-def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_it(server, tmp_path):
-    from robotfleet.pull.operator import gitolite
-
+@pytest.fixture(scope="module")
+def made(server):
+    """The guide's steps 1 to 3: the git server, the operator's SSH to it, the fleet's repository."""
     started = time.monotonic()
     steps = guide_blocks()
-    assert [len(steps.get(n, [])) for n in (1, 2, 3)] == [1, 1, 2], steps  # the blocks this test runs
+    assert [len(steps.get(n, [])) for n in range(1, 9)] == [1, 1, 2, 1, 1, 1, 2, 1], steps  # the guide's blocks
     assert server.root("id -u gitolite3 2>&1 || true").strip().startswith("id:")  # stock: no gitolite yet
 
     said = server.run(steps[1][0])  # step 1, on the server as root
@@ -152,6 +304,14 @@ def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_
     server.run(steps[3][0], OPERATOR)  # step 3: the fleet's repository
     checkout = "mkdir -p fleet-deploy && cd fleet-deploy && git init -q && "
     server.run(checkout + steps[3][1], OPERATOR)  # named once in the operator's checkout
+    phase("pull guide: steps 2 and 3 as the operator", started)
+    return steps
+
+
+def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_it(server, made, tmp_path):
+    from robotfleet.pull.operator import gitolite
+
+    started = time.monotonic()
     info = server.run(f"ssh gitolite3@{SERVER_NAME} info", OPERATOR)
     assert "hello admin," in info and re.search(r"R W\s+fleet$", info, re.M), info  # the admin is `admin`
     remote = server.run("cd fleet-deploy && git config robotfleet.remote", OPERATOR).strip()
@@ -159,17 +319,15 @@ def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_
     server.run(f"git ls-remote {shlex.quote(remote)}", OPERATOR)  # it exists, and the operator reads it
 
     # robotfleet's admin of that server (as bundle and pull-enroll run it), from this machine
-    admin = gitolite.Admin(
-        f"ssh://gitolite3@127.0.0.1:{server.port}",
-        server.lab.state["ssh_key"],
-        str(server.known_hosts(tmp_path / "known_hosts")),
-    )
+    known_hosts = tmp_path / "known_hosts"
+    known_hosts.write_text(server.known_hosts_lines())
+    admin = gitolite.Admin(f"ssh://gitolite3@127.0.0.1:{server.port}", server.lab.state["ssh_key"], str(known_hosts))
     robot_key = tmp_path / "robot1"
     subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(robot_key)], check=True)
     gitolite.register(admin, "fleet", "robot1", robot_key.with_suffix(".pub").read_text())
     ssh = (
         f"ssh -F /dev/null -i {robot_key} -o IdentitiesOnly=yes -o BatchMode=yes -o StrictHostKeyChecking=yes "
-        f"-o UserKnownHostsFile={tmp_path / 'known_hosts'}"
+        f"-o UserKnownHostsFile={known_hosts}"
     )
     read = subprocess.run(
         ["git", "ls-remote", f"ssh://gitolite3@127.0.0.1:{server.port}/fleet"],
@@ -182,4 +340,58 @@ def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_
         "sudo -u gitolite3 -H git -C /var/lib/gitolite3/repositories/gitolite-admin.git show HEAD:conf/gitolite.conf"
     )
     assert "RW+ = admin" in conf and "robot1" in conf, conf  # the admin kept, the robot's rule added
-    phase("pull guide: steps 2 and 3 as the operator, a robot registered by robotfleet", started)
+    phase("pull guide: a robot registered by robotfleet", started)
+
+
+@pytest.fixture(scope="module")
+def operator(server, made, lab, first_run, tmp_path_factory):
+    operator = Operator(server, tmp_path_factory.mktemp("pull-guide"))
+    yield operator
+    operator.close()
+    lab.sh(ROBOT, RESET)  # the robot as the session's first run left it, for the modules after this one
+    run = lab.provision(f"--limit={ROBOT}", label=f"({ROBOT} back to the lab's fleet)")
+    assert run.returncode == 0, run.output[-4000:]
+
+
+def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(server, made, operator, lab):
+    started, steps = time.monotonic(), made
+    operator.run(steps[3][1], "step 3, the remote named in the operator's checkout")
+    operator.run(steps[4][0], "step 4, the signing keys")
+    keys = operator.home / ".config" / "robotfleet" / "keys"
+    assert {p.name: p.stat().st_mode & 0o777 for p in keys.glob("*.key")} == {"root.key": 0o600, "online.key": 0o600}
+
+    written = server.run("cat /tmp/git.key", OPERATOR).splitlines()  # step 2's key line, without the host name
+    key_line = next(line.split(None, 1)[1] for line in written if line.startswith(f"{SERVER_NAME} ssh-ed25519 "))
+    known_hosts = operator.home / "robots_known_hosts"  # the robots' host keys (the lab's), as enrolled
+    shutil.copy(lab.state["known_hosts"], known_hosts)
+    fleet = lab_fleet_file(steps[5][0], lab, key_line, known_hosts)
+    (operator.checkout / "inventories" / "robots.yaml").write_text(fleet)
+    operator.git("add", "-A")
+    operator.git("commit", "-q", "-m", "a pull fleet from nothing")  # "commit your fleet file first"
+
+    said = operator.run(steps[6][0], "step 6, publish with the defaults")
+    registry = lab.state["registry"]
+    assert f"GET http://{registry}/v2/{LAB_IMAGE.split(':')[0]}/manifests/1.0" in operator.proxy.requests
+    # one robot: the canary is the release's only wave, so the default 600 s pause never holds it
+    assert "1 wave(s); wave k opens at publish + k x 600 s" in said and "(--max-failed 0)" in said, said
+    assert re.search(rf"^publish:   wave 0 \(canary\): 1 robot\(s\) from \S+: {ROBOT}$", said, re.M), said
+
+    said = operator.run(steps[7][0], "step 7, the push deploy and pull-enroll", lab_commands(server), answer="\n")
+    assert f"{ROBOT}: its own key is now registered" in said, said[-3000:]
+    # its check now, not at its timer's next: the timer's first ran at the install, before its key was registered
+    code, said = lab.sh(ROBOT, CHECK_NOW)
+    assert code == 0, said + lab.ok(ROBOT, "journalctl -u robot-pull.service --no-pager | tail -40")
+
+    said = operator.run(steps[8][0], "step 8, status")
+    row = next((line for line in said.splitlines() if line.startswith(f"{ROBOT} ")), None)
+    assert row is not None and " pull " in row, said
+    applied = "applied 1 " in row or (
+        "up-to-date 1 " in row  # a timer's check after ours
+        and "applied (release 1)" in lab.ok(ROBOT, "journalctl -u robot-pull.service --no-pager")
+    )
+    assert applied and f" {registry}/{LAB_IMAGE}@sha256:" in row, said  # by its digest, the tag kept
+    # step 8's halt, in its prose, signed with the defaults too
+    halt = next(c.text for c in doccommands.inline_commands(ROOT / GUIDE) if c.subcommand == "halt")
+    said = operator.run(halt, "step 8, halt", {'"..."': "'the guide, end to end'"})
+    assert re.search(r"^halt: release 2 halts commit \w+ \(the guide, end to end\)", said, re.M), said
+    phase("pull guide: steps 4 to 8 on this machine, the robot applied release 1", started)

@@ -40,9 +40,8 @@ def pinned(lab: dict, repository: str, tag: str) -> str:
     return f"{lab['registry']}/{repository}:{tag}@{digest_of(lab, repository, tag)}"
 
 
-def fleet_text(lab: dict, payload_tag: str = "1.0", robots: list[str] | None = None, **pull) -> str:
-    """inventories/lab.yaml for pull robots: the lab's values filled in,
-    only ``robots`` (default: the lab's native robots), pull settings."""
+def lab_fleet(lab: dict) -> dict:
+    """inventories/lab.yaml with the lab's values filled in (what inventories/lab.py fills in)."""
     text = (REPO_ROOT / "inventories" / "lab.yaml").read_text()
     manifest = (
         json.loads((Path(lab["mirror_dir"]) / "manifest.json").read_text())
@@ -56,7 +55,13 @@ def fleet_text(lab: dict, payload_tag: str = "1.0", robots: list[str] | None = N
         "@mirror_fingerprint@": manifest["fingerprint"],
     }.items():
         text = text.replace(key, value)
-    fleet = yaml.safe_load(text)
+    return yaml.safe_load(text)
+
+
+def fleet_text(lab: dict, payload_tag: str = "1.0", robots: list[str] | None = None, **pull) -> str:
+    """inventories/lab.yaml for pull robots: the lab's values filled in,
+    only ``robots`` (default: the lab's native robots), pull settings."""
+    fleet = lab_fleet(lab)
     git = lab["git"]
     ed25519 = [" ".join(k.split()[:2]) for k in git["host_keys"] if k.startswith("ssh-ed25519")]
     names = robots or [h["name"] for h in lab["hosts"] if h["group"] == "robots" and h["arch"] == "amd64"]
@@ -77,6 +82,20 @@ def fleet_text(lab: dict, payload_tag: str = "1.0", robots: list[str] | None = N
     )
     # JSON is YAML 1.2, and quotes every string ("0825" stays text).
     return "# The lab's fleet in pull mode (tests/lab/pullfleet.py).\n" + json.dumps(fleet, indent=1) + "\n"
+
+
+def copy_tracked(destination: Path) -> None:
+    """This checkout's tracked files, as they are now, copied into ``destination``."""
+    files = (
+        subprocess.run(["git", "-C", str(REPO_ROOT), "ls-files", "-z"], capture_output=True, check=True)
+        .stdout.decode()
+        .split("\0")
+    )
+    for name in filter(None, files):
+        source = REPO_ROOT / name
+        if source.is_file():
+            (destination / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, destination / name)
 
 
 class Operator:
@@ -129,16 +148,7 @@ class Operator:
 
     def sync(self) -> None:
         """The deploy repository's files made this checkout's (its tracked files, as they are now)."""
-        files = (
-            subprocess.run(["git", "-C", str(REPO_ROOT), "ls-files", "-z"], capture_output=True, check=True)
-            .stdout.decode()
-            .split("\0")
-        )
-        for name in filter(None, files):
-            source = REPO_ROOT / name
-            if source.is_file():
-                (self.repo / name).parent.mkdir(parents=True, exist_ok=True)
-                shutil.copy2(source, self.repo / name)
+        copy_tracked(self.repo)
 
     def commit(self, fleet: str, message: str) -> str:
         self.sync()
