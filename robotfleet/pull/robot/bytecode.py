@@ -12,7 +12,6 @@ sets it up; with no ROBOT_PULL_PYCACHE (tests, a checkout) it does nothing.
 """
 
 import os
-import shutil
 import sys
 
 import robotfleet
@@ -25,9 +24,11 @@ def use(where: str | None = None) -> str | None:
     where = where or os.environ.get(VARIABLE)
     if not where or not os.path.isabs(where):
         return None
-    cache = os.path.join(where, robotfleet.CHECKOUT.name)
+    cache = os.path.join(where, os.path.basename(robotfleet.CHECKOUT_DIR))
     try:
         if not os.path.isdir(cache):
+            import shutil  # only when a new tree starts: not on an idle check
+
             os.makedirs(where, mode=0o700, exist_ok=True)
             for entry in os.listdir(where):  # other trees' (their names: sha256 hex)
                 if len(entry) == 64 and all(c in "0123456789abcdef" for c in entry):
