@@ -14,7 +14,6 @@ from __future__ import annotations
 import socket
 import ssl
 import struct
-from dataclasses import dataclass, field
 
 HEAD_MAX = 16384
 _TCP_INFO_BYTES = struct.Struct("=QQ")  # tcpi_bytes_acked, tcpi_bytes_received (Linux >= 4.1)
@@ -25,13 +24,13 @@ class Failed(OSError):
     """The exchange did not give an HTTP answer (one line)."""
 
 
-@dataclass
 class Answer:
-    status: int
-    headers: dict = field(default_factory=dict)  # lower-case name -> value
-    body: bytes = b""
-    sent: int = 0
-    received: int = 0
+    """An HTTP answer (a plain class: the idle check imports no dataclasses)."""
+
+    def __init__(self, status: int, headers: dict | None = None, body: bytes = b""):
+        self.status, self.body = status, body
+        self.headers = headers if headers is not None else {}  # lower-case name -> value
+        self.sent = self.received = 0
 
 
 def context(ca: str | None) -> ssl.SSLContext:
@@ -52,9 +51,11 @@ def request(host: str, port: int, head: bytes, body: bytes, ca: str | None, time
     """Send ``head`` (the request line and headers, without the blank line
     that ends them) and ``body``; the answer, its body at most ``limit``
     bytes (Failed beyond).  OSError, ssl.SSLError, Failed."""
-    raw = socket.create_connection((host, port), timeout=timeout)
+    # An ASCII name as bytes: what the idna codec would make of it, without its import (a few ms of each check).
+    name = host.encode("ascii") if isinstance(host, str) and host.isascii() else host
+    raw = socket.create_connection((name, port), timeout=timeout)
     try:
-        with context(ca).wrap_socket(raw, server_hostname=host) as tls:
+        with context(ca).wrap_socket(raw, server_hostname=name) as tls:
             tls.sendall(head + b"Connection: close\r\n\r\n" + body)
             answer = _read(_Reader(tls), limit)
             answer.sent, answer.received = _tcp_bytes(tls)
