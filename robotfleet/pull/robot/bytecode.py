@@ -26,17 +26,26 @@ def use(where: str | None = None) -> str | None:
         return None
     cache = os.path.join(where, os.path.basename(robotfleet.CHECKOUT_DIR))
     try:
-        if not os.path.isdir(cache):
-            import shutil  # only when a new tree starts: not on an idle check
-
+        fresh = not os.path.isdir(cache)
+        if fresh:
             os.makedirs(where, mode=0o700, exist_ok=True)
-            for entry in os.listdir(where):  # other trees' (their names: sha256 hex)
-                if len(entry) == 64 and all(c in "0123456789abcdef" for c in entry):
-                    shutil.rmtree(os.path.join(where, entry), ignore_errors=True)
             os.makedirs(cache, mode=0o700, exist_ok=True)  # a check started by hand may make it first
     except OSError:  # a full disk, a broken path: the check runs, compiling as before
         return None
     sys.pycache_prefix, sys.dont_write_bytecode = cache, False
+    if fresh:  # a new tree: the others' go (shutil imported now, compiled into the new directory)
+        import shutil
+
+        try:
+            for entry in os.listdir(where):  # other trees' (their names: sha256 hex)
+                if (
+                    len(entry) == 64
+                    and all(c in "0123456789abcdef" for c in entry)
+                    and entry != os.path.basename(cache)
+                ):
+                    shutil.rmtree(os.path.join(where, entry), ignore_errors=True)
+        except OSError:
+            pass
     return cache
 
 

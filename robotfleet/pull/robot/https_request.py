@@ -51,11 +51,9 @@ def request(host: str, port: int, head: bytes, body: bytes, ca: str | None, time
     """Send ``head`` (the request line and headers, without the blank line
     that ends them) and ``body``; the answer, its body at most ``limit``
     bytes (Failed beyond).  OSError, ssl.SSLError, Failed."""
-    # An ASCII name as bytes: what the idna codec would make of it, without its import (a few ms of each check).
-    name = host.encode("ascii") if isinstance(host, str) and host.isascii() else host
-    raw = socket.create_connection((name, port), timeout=timeout)
+    raw = socket.create_connection((host, port), timeout=timeout)
     try:
-        with context(ca).wrap_socket(raw, server_hostname=name) as tls:
+        with context(ca).wrap_socket(raw, server_hostname=host) as tls:
             tls.sendall(head + b"Connection: close\r\n\r\n" + body)
             answer = _read(_Reader(tls), limit)
             answer.sent, answer.received = _tcp_bytes(tls)

@@ -12,7 +12,7 @@ import json
 from robotfleet.pull.robot import fetched
 
 STATE_FORMAT = 1
-RECORD_MAX = 16 << 20  # record.py's MAX_BYTES (a unit test holds them equal)
+RECORD_MAX = 16 << 20  # record.py's MAX_BYTES (tests/unit/test_pull_idle_memo.py holds them equal)
 
 
 def read(source: str, path: str) -> bytes | None:
