@@ -1,5 +1,7 @@
 """The idle check in robot-pull.service's own process (robotfleet/pull/robot/idle.py):
-``python -S -m robotfleet.pull.agent`` as the unit runs it, against a real
+``python -m robotfleet.pull.agent`` as the unit runs it (its imports counted
+under ``python -S``: ``site`` and this venv's editable install are not the
+agent's), against a real
 TUF repository served over HTTPS on 127.0.0.1 (a static copy and git's smart
 HTTP, tests/integration/httpsgit.py, as test_pull_idle_probe.py serves it).
 A check that finds nothing new ends before the agent is imported, and says
@@ -59,7 +61,6 @@ def check(world, *flags: str) -> tuple[str, set[str], int]:
     done = subprocess.run(
         [
             sys.executable,
-            "-S",
             "-X",
             "importtime",
             *flags,
@@ -104,7 +105,7 @@ def test_an_idle_check_imports_none_of_the_agent_s_heavy_modules(robot):
     (robot.state / idle.MEMO).unlink()
     full, modules, _ = check(robot)  # the same check by the full wake, which leaves the memo again
     assert "robotfleet.pull.robot.agent" in modules
-    line, modules, requests = check(robot)
+    line, modules, requests = check(robot, "-S")
     assert modules & HEAVY == set(), sorted(modules & HEAVY)
     assert "robotfleet.pull.robot.agent" not in modules
     assert words(line) == words(full) == ("robot-pull: up-to-date (release 1)", "report unchanged")
@@ -161,7 +162,7 @@ def test_a_changed_key_sends_the_check_to_the_full_wake_and_its_report_is_sent(r
     key.write_text(
         "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIBm0f0mPAKu8JQrhvXYlGQbWqZLhGJ7+hNYRqoAPeOrK robot-pull@robot1\n"
     )
-    line, modules, _ = check(robot)
+    line, modules, _ = check(robot, "-S")  # the full wake, under -S, adds the site-packages itself (idle.leave)
     assert words(line) == ("robot-pull: up-to-date (release 1)", "report sent") and "tuf" not in modules
     assert "robotfleet.pull.robot.agent" in modules
 

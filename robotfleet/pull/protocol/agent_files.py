@@ -202,9 +202,7 @@ ConditionPathExists={CONFIG}
 Type=oneshot
 WorkingDirectory={CURRENT_CODE}
 Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1 ROBOT_PULL_PYCACHE={PYCACHE}
-# -S: no site at start (an idle check needs none of the venv's packages); the agent adds them when
-# a check goes beyond the idle one (robotfleet/pull/robot/idle.py).
-ExecStart={VENV}/bin/python -S -m robotfleet.pull.agent --config {CONFIG}
+ExecStart={VENV}/bin/python -m robotfleet.pull.agent --config {CONFIG}
 # A release may install Docker and pull images: hours, not the default 90 s.
 TimeoutStartSec=4h
 Nice=10

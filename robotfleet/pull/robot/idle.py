@@ -228,9 +228,10 @@ def _is_time(text) -> bool:
 
 
 def leave() -> None:
-    """Before the full wake: the site-packages the unit's ``python -S`` left
-    out (the agent's dependencies: python-tuf and the rest), as ``site``
-    would have added them at start."""
+    """Before the full wake, when python was started with -S (the bench and
+    the tests, to leave ``site`` out of what they measure; robot-pull.service
+    does not: an earlier release's agent has no such step): the
+    site-packages ``site`` would have added at start (python-tuf and the rest)."""
     if sys.flags.no_site:
         import site
 
