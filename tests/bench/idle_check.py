@@ -2,8 +2,9 @@
 
     python3 -m tests.bench.idle_check [--runs 5] [--transports static,smart,ssh]
 
-On this machine, no lab: the agent (``python -m robotfleet.pull.agent``, as
-robot-pull.service runs it, with its bytecode directory) against a real TUF
+On this machine, no lab: the agent (``python -m robotfleet.pull.agent``,
+as robot-pull.service runs it: its code on PYTHONPATH, its bytecode
+directory; the idle memo robotfleet/pull/robot/idle.py keeps) against a real TUF
 repository published as the integration tests do
 (tests/integration/test_pull_agent.py's World, whose release's converge is a
 stub), served by the integration tests' real servers on 127.0.0.1: a static
@@ -19,9 +20,12 @@ bytes sent and received, and bytes per robot per month at a 15-minute
 interval (2,880 checks); then one check at the heartbeat (the roles' status
 read again, the report pushed) and the month with the hour's heartbeat
 (720 of the 2,880 checks).  Beside them, for where the time goes: the same
-idle check the way it ran before (no probe: a fetch and checkout each time;
-no bytecode directory: every module compiled at each check), a bare
-``python -c pass`` and the agent's imports alone.  The 1-minute load
+idle check under ``python -S`` (without ``site``, which this venv's
+editable install makes dearer than a robot's), by the full wake (no idle memo: the agent imported), and the way
+it ran before the probe (a fetch and checkout each time; no bytecode
+directory: every module compiled at each check); floors: ``python -S -c
+pass``, python -S with the standard modules any HTTPS check imports, with
+the idle check's own imports, and (without -S) the agent's imports.  The 1-minute load
 average is printed with each figure: CPU time holds up on a busy machine
 better than wall time, but caches and frequency still make it dearer.
 Nothing here is a test: targets are compared, never asserted.
@@ -42,10 +46,14 @@ import time
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files
-from robotfleet.pull.robot import agent_state, probe, transport
+from robotfleet.pull.robot import agent_state, idle, probe, transport
 
 MONTH = 30 * 24 * 4  # checks at a 15-minute interval
 HEARTBEATS = 30 * 24  # the hour's heartbeat
+ROOT = Path(__file__).resolve().parents[2]
+# robot-pull.service's python flags (agent_files.service_unit): none.  With -S the bench would leave out
+# `site`, which costs this venv (an editable install) ~0.02 s and a robot's ~0.003 s: the floors show both.
+UNIT_FLAGS: list[str] = []
 TARGETS = {"static": (2048, 0.05), "smart": (2048, 0.05), "ssh": (None, 0.1)}  # bytes, CPU seconds
 
 
@@ -144,18 +152,25 @@ class Setup:
         world.config = agent_files.Config(**{**world.config.__dict__, "remote": remote, "report_remote": report_remote})
         self.config = base / "agent.json"
         self.config.write_text(world.config.to_json())
-        self.env = dict(
-            os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(base / "pycache"), STUB="applied"
+        self.env = dict(  # as robot-pull.service: the code on PYTHONPATH
+            os.environ,
+            PYTHONPATH=str(ROOT),
+            PYTHONDONTWRITEBYTECODE="1",
+            ROBOT_PULL_PYCACHE=str(base / "pycache"),
+            STUB="applied",
         )
 
-    def check(self, old: bool = False) -> dict:
-        """One check: its CPU and bytes (``old``: as before the probe and the bytecode directory)."""
+    def check(self, old: bool = False, full: bool = False, flags: list[str] = UNIT_FLAGS) -> dict:
+        """One check: its CPU and bytes (``old``: as before the probe and the
+        bytecode directory; ``full``: the full wake, without the idle memo)."""
         env = dict(self.env)
         if old:
             probe.forget(self.world.state / "releases")
             env.pop("ROBOT_PULL_PYCACHE")
+        if old or full:
+            idle.forget(self.world.state)
         load = os.getloadavg()[0]
-        cpu, out = cpu_of([sys.executable, "-m", "robotfleet.pull.agent", "--config", str(self.config)], env)
+        cpu, out = cpu_of([sys.executable, *flags, "-m", "robotfleet.pull.agent", "--config", str(self.config)], env)
         sent, received, connections = self.proxy.take()
         if self.proxy is not self.ssh_proxy:  # the report's push, if any
             more = self.ssh_proxy.take()
@@ -185,14 +200,25 @@ def median(checks: list[dict], key: str) -> float:
     return statistics.median(c[key] for c in checks)
 
 
+STDLIB = "import ssl, socket, json, hashlib"
+IDLE_IMPORTS = "import robotfleet.pull.robot.bytecode, robotfleet.pull.robot.idle, robotfleet.pull.robot.https_request"
+
+
 def floors(runs: int) -> dict:
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
     cache = tempfile.mkdtemp(prefix="idle-bench-pyc-")
     try:
         cached = dict(env, PYTHONPYCACHEPREFIX=cache)
         cpu_of([sys.executable, "-c", "import robotfleet.pull.robot.agent"], dict(cached, PYTHONDONTWRITEBYTECODE=""))
+        cpu_of(
+            [sys.executable, "-S", "-c", IDLE_IMPORTS], dict(cached, PYTHONDONTWRITEBYTECODE="", PYTHONPATH=str(ROOT))
+        )
         found = {}
+        slim = dict(cached, PYTHONPATH=str(ROOT))
         for name, command, where in (
+            ("python -S -c pass", ["-S", "-c", "pass"], env),
+            ("python -S + ssl, socket, json, hashlib (what any HTTPS check imports)", ["-S", "-c", STDLIB], env),
+            ("python -S + the idle check's imports (bytecode cached)", ["-S", "-c", IDLE_IMPORTS], slim),
             ("python -c pass", ["-c", "pass"], env),
             ("python + the agent's imports (bytecode cached)", ["-c", "import robotfleet.pull.robot.agent"], cached),
             ("python + the agent's imports (compiled each time)", ["-c", "import robotfleet.pull.robot.agent"], env),
@@ -210,18 +236,21 @@ def measure(kind: str, runs: int, tls, base: Path) -> dict:
         if "applied" not in first["line"]:
             raise SystemExit(f"{kind}: the first check did not apply the release: {first['line']}")
         setup.check()  # the first idle one learns a static copy's validators
-        idle = [setup.check() for _ in range(runs)]
+        setup.check()  # the full wake that leaves the idle memo
+        idle_checks = [setup.check() for _ in range(runs)]
+        no_site = [setup.check(flags=["-S"]) for _ in range(runs)]
+        full = [setup.check(full=True) for _ in range(runs)]
         old = [setup.check(old=True) for _ in range(runs)]
         setup.check()
         setup.heartbeat_due()
         beat = setup.check()
-        return {"idle": idle, "old": old, "heartbeat": beat}
+        return {"idle": idle_checks, "no_site": no_site, "full": full, "old": old, "heartbeat": beat}
     finally:
         setup.close()
 
 
 def show(kind: str, found: dict) -> list[str]:
-    idle, old, beat = found["idle"], found["old"], found["heartbeat"]
+    idle, full, old, beat = found["idle"], found["full"], found["old"], found["heartbeat"]
     size, cpu = median(idle, "sent") + median(idle, "received"), median(idle, "cpu")
     bytes_target, cpu_target = TARGETS[kind]
     month = size * MONTH
@@ -238,6 +267,12 @@ def show(kind: str, found: dict) -> list[str]:
         f"{kind}:   per robot per month at 15 min: {month / 1e6:.2f} MB idle only, "
         f"{with_beats / 1e6:.2f} MB with the hour's heartbeat (a heartbeat check: {beat['cpu']:.3f} s CPU, "
         f"sent {beat['sent']} B, received {beat['received']} B, load {beat['load']:.2f})",
+        f"{kind}:   the same under python -S (no site: this venv's editable install left out, as a robot's "
+        f"venv nearly is): {median(found['no_site'], 'cpu'):.3f} s CPU "
+        f"({min(c['cpu'] for c in found['no_site']):.3f}-{max(c['cpu'] for c in found['no_site']):.3f})",
+        f"{kind}:   the full wake (no idle memo: the agent imported, as before robot/idle.py): "
+        f"{median(full, 'cpu'):.3f} s CPU ({min(c['cpu'] for c in full):.3f}-{max(c['cpu'] for c in full):.3f}), "
+        f"load {full[0]['load']:.2f}",
         f"{kind}:   without the probe and the bytecode directory (a fetch and checkout, every module "
         f"compiled): {median(old, 'cpu'):.3f} s CPU, "
         f"sent {median(old, 'sent'):.0f} B, received {median(old, 'received'):.0f} B "

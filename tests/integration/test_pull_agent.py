@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.pull.protocol import agent_files, reports, tree
+from robotfleet.pull.protocol import agent_files, path_signatures, reports, tree
 from robotfleet.pull.robot import agent, agent_state, transport, wake_report
 from tests.integration import craftedgit
 from tests.unit import pullkit
@@ -58,6 +58,7 @@ def code_archive(base: Path, version: int) -> tuple[Path, str, str]:
         "robotfleet/commands/converge.py": STUB,
         "robotfleet/pull/__init__.py": "",
         "robotfleet/pull/protocol/agent_files.py": Path(agent_files.__file__).read_text(),
+        "robotfleet/pull/protocol/path_signatures.py": Path(path_signatures.__file__).read_text(),
         "inventories/robots.yaml": f"# release {version}\n",
     }
     root = base / f"tree-{version}"

@@ -138,7 +138,7 @@ def test_each_command_names_a_program_and_files_that_exist(command):
         text = source.read_text()
         # an entry point kept at its old name (robotfleet.pull.agent, robotfleet.commands.converge) runs the
         # module it imports main from: its options are that module's
-        entry = re.search(r"^from (robotfleet\.[\w.]+) import main$", text, re.M)
+        entry = re.search(r"^\s*from (robotfleet\.[\w.]+) import main$", text, re.M)
         if entry:
             text = (ROOT / (entry[1].replace(".", "/") + ".py")).read_text()
         words = [w for w in command.args if not w.startswith("-")]

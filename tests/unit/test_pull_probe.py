@@ -3,6 +3,8 @@ git's listings, pkt-lines, and which validators of a static copy stand."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from robotfleet.pull.robot import probe
 
 A, B = "a" * 40, "b" * 64
@@ -43,7 +45,7 @@ def test_a_memo_is_read_only_for_its_remote_and_branch_with_a_commit(tmp_path):
     assert probe.read_memo(tmp_path, "https://m/fleet.git", "robotfleet/releases")["commit"] == A
     assert probe.read_memo(tmp_path, "https://other/fleet.git", "robotfleet/releases") is None
     assert probe.read_memo(tmp_path, "https://m/fleet.git", "main") is None
-    probe.memo_path(tmp_path).write_text('{"url": "u", "branch": "b", "commit": "../x"}')
+    Path(probe.memo_path(tmp_path)).write_text('{"url": "u", "branch": "b", "commit": "../x"}')
     assert probe.read_memo(tmp_path, "u", "b") is None
     probe.forget(tmp_path)
     assert probe.read_memo(tmp_path, "u", "b") is None

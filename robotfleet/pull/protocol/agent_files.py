@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import re
-import stat
 from dataclasses import asdict, dataclass, field
+
+from robotfleet.pull.protocol.path_signatures import watched  # noqa: F401 (agent_files.watched: its name here)
 
 ETC = "/etc/robot-pull"
 STATE = "/var/lib/robot-pull"
@@ -232,27 +232,6 @@ AccuracySec=1s
 WantedBy=timers.target
 """
     )
-
-
-def watched(paths) -> dict[str, str]:
-    """path -> what lstat (and readlink, for a link) says of it now, "-"
-    when it is not there: compared at each check, it says whether what the
-    roles' status reads may have changed (no process, no import)."""
-    found = {}
-    for path in sorted(set(paths)):
-        try:
-            info = os.lstat(path)
-        except OSError:
-            found[path] = "-"
-            continue
-        said = f"{info.st_ino}:{info.st_mtime_ns}:{info.st_size}"
-        if stat.S_ISLNK(info.st_mode):
-            try:
-                said += ":" + os.readlink(path)
-            except OSError:
-                pass
-        found[path] = said
-    return found
 
 
 def venv_id(wheels) -> str:

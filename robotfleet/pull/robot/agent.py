@@ -41,7 +41,7 @@ from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, reports, waves
 from robotfleet.pull.protocol import record as records
-from robotfleet.pull.robot import agent_state, trust_state, wake_report
+from robotfleet.pull.robot import agent_state, idle, trust_state, wake_report
 from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.robot.transport import Remote, TransportError
 
@@ -324,7 +324,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     started = time.monotonic()
     try:
-        config = agent_files.named(agent_files.read_config(Path(args.config).read_text(), args.config))
+        text = Path(args.config).read_text()
+        config = agent_files.named(agent_files.read_config(text, args.config))
     except (OSError, agent_files.ConfigError) as error:
         print(f"robot-pull: cannot start: {error}", flush=True)
         return 1
@@ -336,12 +337,14 @@ def main(argv=None) -> int:
         except BlockingIOError:
             print("robot-pull: another check is running; this one does nothing", flush=True)
             return 0
+        idle.forget(state)  # the idle check's memo stands again only if this wake says so
         wake = Wake(config)
-        report, _ = wake.run()
+        report, outcome = wake.run()
         if wake.record is not None:
             wake.state["seen"] = reports.version_of(wake.record)
         sent = wake_report.send(wake, report)
         agent_state.save_state(state, wake.state)
+        idle.remember(wake, outcome, text, sent)
         report["check"]["cpu"] = wake_report.cpu_seconds()
         report["check"].update(
             {

@@ -12,7 +12,6 @@ sets it up; with no ROBOT_PULL_PYCACHE (tests, a checkout) it does nothing.
 """
 
 import os
-import shutil
 import sys
 
 import robotfleet
@@ -25,17 +24,28 @@ def use(where: str | None = None) -> str | None:
     where = where or os.environ.get(VARIABLE)
     if not where or not os.path.isabs(where):
         return None
-    cache = os.path.join(where, robotfleet.CHECKOUT.name)
+    cache = os.path.join(where, os.path.basename(robotfleet.CHECKOUT_DIR))
     try:
-        if not os.path.isdir(cache):
+        fresh = not os.path.isdir(cache)
+        if fresh:
             os.makedirs(where, mode=0o700, exist_ok=True)
-            for entry in os.listdir(where):  # other trees' (their names: sha256 hex)
-                if len(entry) == 64 and all(c in "0123456789abcdef" for c in entry):
-                    shutil.rmtree(os.path.join(where, entry), ignore_errors=True)
             os.makedirs(cache, mode=0o700, exist_ok=True)  # a check started by hand may make it first
     except OSError:  # a full disk, a broken path: the check runs, compiling as before
         return None
     sys.pycache_prefix, sys.dont_write_bytecode = cache, False
+    if fresh:  # a new tree: the others' go (shutil imported now, compiled into the new directory)
+        import shutil
+
+        try:
+            for entry in os.listdir(where):  # other trees' (their names: sha256 hex)
+                if (
+                    len(entry) == 64
+                    and all(c in "0123456789abcdef" for c in entry)
+                    and entry != os.path.basename(cache)
+                ):
+                    shutil.rmtree(os.path.join(where, entry), ignore_errors=True)
+        except OSError:
+            pass
     return cache
 
 

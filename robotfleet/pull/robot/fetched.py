@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import os
 import stat
-from pathlib import Path
 
 ROOT_MAX = 512000
 TIMESTAMP_MAX = 16384
@@ -98,7 +97,7 @@ def read(base, path: str, limit: int) -> bytes | None:
         fd = open_file(base, path)
     except FileNotFoundError:
         return None
-    return b"".join(chunks(fd, limit, f"{Path(base, path)}"))
+    return b"".join(chunks(fd, limit, os.path.join(base, path)))
 
 
 def read_url(url: str, limit: int, timeout: float = 60) -> bytes | None:

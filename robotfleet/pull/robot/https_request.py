@@ -14,7 +14,6 @@ from __future__ import annotations
 import socket
 import ssl
 import struct
-from dataclasses import dataclass, field
 
 HEAD_MAX = 16384
 _TCP_INFO_BYTES = struct.Struct("=QQ")  # tcpi_bytes_acked, tcpi_bytes_received (Linux >= 4.1)
@@ -25,13 +24,13 @@ class Failed(OSError):
     """The exchange did not give an HTTP answer (one line)."""
 
 
-@dataclass
 class Answer:
-    status: int
-    headers: dict = field(default_factory=dict)  # lower-case name -> value
-    body: bytes = b""
-    sent: int = 0
-    received: int = 0
+    """An HTTP answer (a plain class: the idle check imports no dataclasses)."""
+
+    def __init__(self, status: int, headers: dict | None = None, body: bytes = b""):
+        self.status, self.body = status, body
+        self.headers = headers if headers is not None else {}  # lower-case name -> value
+        self.sent = self.received = 0
 
 
 def context(ca: str | None) -> ssl.SSLContext:

@@ -28,9 +28,6 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
-from pathlib import Path
-from urllib import parse
 
 from robotfleet import atomicfile
 
@@ -41,25 +38,47 @@ _PROXIES = ("https_proxy", "HTTPS_PROXY", "all_proxy", "ALL_PROXY")
 STABLE_AFTER = 60  # seconds between a Last-Modified and the Date it is trusted at
 
 
-@dataclass
 class Answer:
     """What one probe found: the branch's commit (None: unknown, fetch), the
-    static copy's new validators, and its cost."""
+    static copy's new validators, and its cost.  (A plain class: the idle
+    check imports no dataclasses.)"""
 
-    commit: str | None
-    validators: dict = field(default_factory=dict)
-    sent: int = 0
-    received: int = 0
+    __slots__ = ("commit", "validators", "sent", "received")
+
+    def __init__(self, commit: str | None, validators: dict | None = None, sent: int = 0, received: int = 0):
+        self.commit, self.validators, self.sent, self.received = commit, validators or {}, sent, received
+
+    def __eq__(self, other):
+        return isinstance(other, Answer) and all(getattr(self, k) == getattr(other, k) for k in self.__slots__)
+
+    def __repr__(self):
+        return f"Answer({', '.join(f'{k}={getattr(self, k)!r}' for k in self.__slots__)})"
 
 
-def memo_path(repo) -> Path:
-    return Path(repo) / ".git" / MEMO
+_GIVEN: dict = {}
+
+
+def give(memo: dict, answer: Answer | None, seconds: float) -> None:
+    """What a probe of this process already found for ``memo`` (the idle
+    check's, robotfleet/pull/robot/idle.py, before it handed over to the
+    full wake): the fetch takes it rather than ask the remote again."""
+    _GIVEN[json.dumps(memo, sort_keys=True)] = (answer, seconds)
+
+
+def given(memo: dict) -> tuple[Answer | None, float] | None:
+    """(the answer, its seconds) given for ``memo``, once; None."""
+    return _GIVEN.pop(json.dumps(memo, sort_keys=True), None)
+
+
+def memo_path(repo) -> str:
+    return os.path.join(repo, ".git", MEMO)
 
 
 def read_memo(repo, url: str, branch: str) -> dict | None:
     """The memo of the last completed fetch of ``branch`` from ``url``, or None."""
     try:
-        memo = json.loads(memo_path(repo).read_text())
+        with open(memo_path(repo)) as file:
+            memo = json.load(file)
     except (OSError, ValueError):
         return None
     if not isinstance(memo, dict) or memo.get("url") != url or memo.get("branch") != branch:
@@ -76,7 +95,10 @@ def write_memo(repo, url: str, branch: str, commit: str, kind: str, validators: 
 
 
 def forget(repo) -> None:
-    memo_path(repo).unlink(missing_ok=True)
+    try:
+        os.unlink(memo_path(repo))
+    except FileNotFoundError:
+        pass
 
 
 def _hex(text: str) -> bool:
@@ -121,19 +143,42 @@ def ls_refs_request(ref: str) -> bytes:
     return pkt("command=ls-refs\n") + b"0001" + pkt(f"ref-prefix {ref}\n") + b"0000"
 
 
+def target(url: str) -> dict | None:
+    """What a probe needs of the remote ``url`` (read once: the idle check
+    keeps it, robotfleet/pull/robot/idle.py, and imports no urllib); None
+    when it is not probed (not HTTPS, credentials in it: git's own fetch
+    knows how).  A port that is no number is None (the probe then fails)."""
+    from urllib import parse
+
+    parts = parse.urlsplit(url)
+    if parts.scheme != "https" or parts.username or parts.password:
+        return None
+    try:
+        port = parts.port or 443
+    except ValueError:
+        port = None
+    return {"netloc": parts.netloc, "host": parts.hostname, "port": port, "path": parts.path}
+
+
 def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float) -> Answer | None:
     """Ask the HTTPS remote ``url`` what ``branch`` is now, the way ``memo``
     says it answered last; None when this remote cannot be probed here
     (a proxy, credentials in the URL: git's own fetch knows how)."""
-    parts = parse.urlsplit(url)
-    if parts.scheme != "https" or parts.username or parts.password or any(os.environ.get(p) for p in _PROXIES):
+    return ask(target(url), branch, memo, ca, timeout)
+
+
+def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: float) -> Answer | None:
+    """``https`` of the remote ``where`` (``target``'s)."""
+    if where is None or any(os.environ.get(p) for p in _PROXIES):
         return None
     import ssl
 
     from robotfleet.pull.robot import https_request
 
-    base, ref = parts.path.rstrip("/"), f"refs/heads/{branch}"
-    host = f"Host: {parts.netloc}\r\nUser-Agent: robot-pull\r\n"
+    if where["port"] is None:
+        return Answer(None)
+    base, ref = where["path"].rstrip("/"), f"refs/heads/{branch}"
+    host = f"Host: {where['netloc']}\r\nUser-Agent: robot-pull\r\n"
     if memo.get("kind") == "static":
         validators = memo.get("validators") or {}
         head = f"GET {base}/info/refs HTTP/1.1\r\n{host}" + "".join(
@@ -149,7 +194,7 @@ def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float) -> 
             f"\r\nGit-Protocol: version=2\r\nContent-Length: {len(body)}\r\n"
         )
     try:
-        answer = https_request.request(parts.hostname, parts.port or 443, head.encode(), body, ca, timeout, limit)
+        answer = https_request.request(where["host"], where["port"], head.encode(), body, ca, timeout, limit)
     except (OSError, ssl.SSLError, ValueError):
         return Answer(None)
     if memo.get("kind") == "static":

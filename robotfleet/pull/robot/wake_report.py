@@ -11,13 +11,13 @@ import glob
 import hashlib
 import json
 import os
-import resource
 import time
 from pathlib import Path
 
 import robotfleet
 from robotfleet.pull.protocol import enrollment, reports
 from robotfleet.pull.robot import enrollment_proof
+from robotfleet.pull.robot.journal import cpu_seconds, journal_line  # noqa: F401 (their names here too)
 from robotfleet.pull.robot.transport import TransportError
 
 
@@ -77,12 +77,6 @@ def send(wake, report: dict) -> str:
     return said
 
 
-def cpu_seconds() -> float:
-    """CPU time of this process and everything it ran (and waited for)."""
-    usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
-    return round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
-
-
 def host_keys() -> list[str]:
     keys = []
     for path in sorted(glob.glob("/etc/ssh/ssh_host_*_key.pub")):
@@ -102,20 +96,3 @@ def public_key(path: str) -> str | None:
 def agent_version() -> str:
     code = os.path.realpath(robotfleet.CHECKOUT)
     return f"{robotfleet.__version__} (tree {os.path.basename(code)[:12]})"
-
-
-def journal_line(report: dict, sent: str, seconds: float) -> str:
-    """The wake's one line: its outcome, and what it cost (the whole wake:
-    CPU of the agent and everything it ran, bytes over the network)."""
-    check = report.get("check") or {}
-    seen = report.get("seen") or {}
-    head = f"robot-pull: {report['result']}"
-    if seen:
-        head += f" (release {seen.get('version')})"
-    if report.get("reason"):
-        head += f": {report['reason']}"
-    return (
-        f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
-        f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
-        f"requests; {sent}"
-    )
