@@ -10,7 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from roles.payload.payloadctl import durable, health, lifecycle
+from roles.payload.payloadctl import durable, lifecycle
 from roles.payload.payloadctl import releases as releases_module
 
 
@@ -28,93 +28,6 @@ class store:
             lifecycle.Life(self)._point(name, rid)
 
         record = releases_module.Releases.raw_record
-
-
-def test_wait_devices_names_the_missing_sensor(tmp_path, helper):
-    present = tmp_path / "cam"
-    present.write_text("")
-    proc = subprocess.run(
-        [helper, "wait-devices", "--timeout", "1", str(present), str(tmp_path / "lidar")],
-        capture_output=True,
-        text=True,
-    )
-    assert proc.returncode == 1 and proc.stderr.strip().endswith(str(tmp_path / "lidar"))
-
-
-def test_result_reports_the_last_apply(tmp_path, helper):
-    (tmp_path / "last-result.json").write_text(json.dumps({"ok": False, "message": "payload: release x failed"}))
-    proc = subprocess.run(
-        [sys.executable, helper, "result", "--dir", str(tmp_path), "--name", "robot-payload"],
-        capture_output=True,
-        text=True,
-    )
-    assert proc.returncode == 1 and proc.stderr.strip() == "payload: release x failed"
-
-
-def test_apply_finds_the_release_already_current(tmp_path, helper):
-    """A second apply of the same spec (say, after a dropped link) changes nothing."""
-    releases = store.Releases(str(tmp_path))
-    (tmp_path / "releases" / "r1").mkdir(parents=True)
-    releases.write_record("r1", {"id": "r1", "created": "x", "spec_hash": "abc", "state": "staged"})
-    releases.point("current", "r1")
-    spec = {
-        "dir": str(tmp_path),
-        "spec_hash": "abc",
-        "autostart": False,
-        "name": "robot-payload",
-        "lock_file": str(tmp_path / "lock"),
-        "compose": {"services": {}},
-        "delivery": "pull",
-        "health_timeout": 60,
-        "stable_seconds": 1,
-        "pull_timeout": 30,
-        "apply_lock_timeout": 30,
-        "keep_releases": 3,
-        "checks": [],
-        "takeover": {},
-    }
-    (tmp_path / "request.json").write_text(json.dumps({"spec": spec, "run": {}}))
-    proc = subprocess.run(
-        [sys.executable, helper, "apply", str(tmp_path / "request.json")], capture_output=True, text=True
-    )
-    assert proc.returncode == 0 and "release r1 is already current" in proc.stdout
-    assert sorted(p.name for p in (tmp_path / "releases").iterdir()) == ["r1"]
-
-
-def _stub_docker(tmp_path, monkeypatch, exec_exit: int):
-    """A `docker` on PATH answering `ps` with one container and `exec` with
-    ``exec_exit`` (no GPU exists on this machine to run the real check)."""
-    stub = tmp_path / "docker"
-    stub.write_text(
-        "#!/bin/sh\n"
-        'echo "$@" >> "$(dirname "$0")/calls"\n'
-        'case "$1" in\n'
-        "  ps) echo c0ffee ;;\n"
-        "  inspect) exit 1 ;;\n"
-        "  exec) echo 'NVIDIA-SMI has failed because it could not communicate with the NVIDIA driver' >&2; "
-        f"exit {exec_exit} ;;\n"
-        "esac\n"
-    )
-    stub.chmod(0o755)
-    monkeypatch.setenv("PATH", f"{tmp_path}:" + __import__("os").environ["PATH"])
-    return tmp_path / "calls"
-
-
-GPU_CHECK = {"command": ["nvidia-smi", "-L"], "failure": "cannot see a GPU"}  # what the gpu role adds
-
-
-def test_gpu_check_fails_a_container_that_cannot_see_a_gpu(tmp_path, monkeypatch):
-    calls = _stub_docker(tmp_path, monkeypatch, exec_exit=9)
-    ok, why = health.run_checks("robot-payload", [GPU_CHECK])
-    assert not ok and why.startswith("c0ffee cannot see a GPU (nvidia-smi -L failed: NVIDIA-SMI has failed")
-    assert "exec c0ffee nvidia-smi -L" in calls.read_text()
-
-
-def test_gpu_check_passes_and_is_skipped_without_a_command(tmp_path, monkeypatch):
-    calls = _stub_docker(tmp_path, monkeypatch, exec_exit=0)
-    assert health.run_checks("robot-payload", [GPU_CHECK]) == (True, "")
-    assert health.run_checks("robot-payload", []) == (True, "")
-    assert calls.read_text().count("exec") == 1
 
 
 # --- payloadctl against a fake `docker` and `systemctl` ------------------------
