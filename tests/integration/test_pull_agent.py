@@ -19,18 +19,18 @@ from pathlib import Path
 import pytest
 
 from robotfleet.pull.protocol import agent_files, path_signatures, reports, tree
-from robotfleet.pull.robot import agent, agent_state, transport, wake_report
+from robotfleet.pull.robot import agent, agent_state, journal, transport, wake_report
 from tests.integration import craftedgit
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
 STUB = """import json, os, sys
-from robotfleet.pull.protocol import agent_files
+from robotfleet.pull.protocol.path_signatures import watched
 args = sys.argv[1:]
 if os.environ.get("STUB_LOG"):
     with open(os.environ["STUB_LOG"], "a") as runs:
         runs.write(args[0] + "\\n")
-watch = getattr(agent_files, "watched", lambda paths: {})(filter(None, [os.environ.get("STUB_WATCH")]))
+watch = watched(filter(None, [os.environ.get("STUB_WATCH")]))
 row = {"host": "robot1", "reachable": True, "release": "r-" + os.environ.get("STUB", "applied"),
        "health": os.environ.get("STUB_HEALTH", "healthy")}
 if args[0] == "status":
@@ -331,7 +331,7 @@ def test_the_journal_line_says_the_outcome_and_its_cost():
         "reason": "timestamp.json: expired",
         "check": {"cpu": 0.42, "sent": 1200, "received": 3400, "requests": 2},
     }
-    assert wake_report.journal_line(report, "report sent", 1.25) == (
+    assert journal.journal_line(report, "report sent", 1.25) == (
         "robot-pull: refused (release 3): timestamp.json: expired; 1.2 s, 0.42 s CPU, sent 1200 B, "
         "received 3400 B in 2 requests; report sent"
     )

@@ -118,7 +118,7 @@ def test_what_the_roles_status_watches_and_how_a_change_shows(tmp_path):
     """The agent reads the roles' status again only when one of these changed
     (or at its heartbeat): the payload's directory and unit invocation, dockerd."""
     from robotfleet import deploy_roles
-    from robotfleet.pull.protocol import agent_files
+    from robotfleet.pull.protocol import path_signatures
 
     data = robot_data.host_data("robot1", None, deploy_roles.registry())
     assert set(converge.watch(deploy_roles.roles(), data)) == {
@@ -130,12 +130,12 @@ def test_what_the_roles_status_watches_and_how_a_change_shows(tmp_path):
     directory.mkdir()
     link.symlink_to("releases/1")
     paths = [str(directory), str(link), str(tmp_path / "absent")]
-    before = agent_files.watched(paths)
+    before = path_signatures.watched(paths)
     assert before[str(tmp_path / "absent")] == "-" and before[str(link)].endswith(":releases/1")
-    assert agent_files.watched(paths) == before
+    assert path_signatures.watched(paths) == before
     (directory / ".last-result.json.tmp").write_text("{}")
     os.replace(directory / ".last-result.json.tmp", directory / "last-result.json")
     link.unlink()
     link.symlink_to("releases/2")
-    after = agent_files.watched(paths)
+    after = path_signatures.watched(paths)
     assert after[str(directory)] != before[str(directory)] and after[str(link)].endswith(":releases/2")

@@ -274,14 +274,7 @@ class MediaWorld(World):
 
 
 @pytest.fixture
-def world(tmp_path, image_registry, monkeypatch):
-    from tests.integration import test_pull_agent
-
-    # test_pull_agent's converge stub still names the module agent_files was
-    # called before the pull layers (layout): the same stub, with today's name.
-    monkeypatch.setattr(
-        test_pull_agent, "STUB", test_pull_agent.STUB.replace("getattr(layout,", "getattr(agent_files,")
-    )
+def world(tmp_path, image_registry):
     return MediaWorld(tmp_path, image_registry[0])
 
 

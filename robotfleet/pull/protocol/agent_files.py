@@ -12,8 +12,6 @@ import json
 import re
 from dataclasses import asdict, dataclass, field
 
-from robotfleet.pull.protocol.path_signatures import watched  # noqa: F401 (agent_files.watched: its name here)
-
 ETC = "/etc/robot-pull"
 STATE = "/var/lib/robot-pull"
 CONFIG = f"{ETC}/agent.json"

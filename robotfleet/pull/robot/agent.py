@@ -41,8 +41,10 @@ from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, reports, waves
 from robotfleet.pull.protocol import record as records
+from robotfleet.pull.protocol.path_signatures import watched
 from robotfleet.pull.robot import agent_state, idle, trust_state, wake_report
 from robotfleet.pull.robot import decide as deciding
+from robotfleet.pull.robot.journal import cpu_seconds, journal_line
 from robotfleet.pull.robot.transport import Remote, TransportError
 
 # trust (python-tuf), prepare, wheels, prefetch, release_run, shutil...: imported
@@ -301,7 +303,7 @@ class Wake:
             and watch is not None
             and 0 <= age < self.config.heartbeat
             and last.get("code") == os.path.realpath(code)
-            and agent_files.watched(watch) == watch
+            and watched(watch) == watch
         ):
             self.status, self.status_time = last["row"], last.get("time")
             return
@@ -345,7 +347,7 @@ def main(argv=None) -> int:
         sent = wake_report.send(wake, report)
         agent_state.save_state(state, wake.state)
         idle.remember(wake, outcome, text, sent)
-        report["check"]["cpu"] = wake_report.cpu_seconds()
+        report["check"]["cpu"] = cpu_seconds()
         report["check"].update(
             {
                 "sent": wake.remote.cost.sent,
@@ -353,7 +355,7 @@ def main(argv=None) -> int:
                 "requests": wake.remote.cost.requests,
             }
         )
-        print(wake_report.journal_line(report, sent, time.monotonic() - started), flush=True)
+        print(journal_line(report, sent, time.monotonic() - started), flush=True)
     return 0
 
 

@@ -13,7 +13,7 @@ deploy.py`` on @local, with the release's image pins, then reads the
 roles' status on the robot.  Both print one JSON line: {"exit", "row",
 "results", "missing", "errors", "log", "watch"} (``status``: "row",
 "missing" and "watch": the roles' watched paths as they were just before
-the status was read, robotfleet/pull/protocol/agent_files.py ``watched``).
+the status was read, robotfleet/pull/protocol/path_signatures.py ``watched``).
 The agent depends only on that line and these arguments, which every
 release keeps.
 """
@@ -30,6 +30,7 @@ from pathlib import Path
 from robotfleet import CHECKOUT, deploy_roles, status_parts
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.protocol import record as records
+from robotfleet.pull.protocol.path_signatures import watched
 from robotfleet.pull.protocol.robot_data import DataError, HostData, host_data, pin_settings
 from robotfleet.role import DEPLOYMENT_ENV
 
@@ -44,7 +45,7 @@ class ConvergeError(Exception):
 def watch(roles, data) -> dict[str, str]:
     """What the roles' watched paths look like now (taken before their
     status is read: a change during the read shows at the next check)."""
-    return agent_files.watched(
+    return watched(
         path
         for role in roles
         if role.status and role.status.watch and role.runs_on(data)

@@ -32,8 +32,7 @@ from pathlib import Path
 
 from robotfleet import atomicfile
 from robotfleet.pull.protocol import record as records
-from robotfleet.pull.robot.trust_fingerprint import STATE_FORMAT, fingerprint, reads_of, trust_bytes  # noqa: F401
-from robotfleet.pull.robot.trust_fingerprint import read as _read  # noqa: F401
+from robotfleet.pull.robot.trust_fingerprint import STATE_FORMAT, fingerprint, trust_bytes
 
 EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 VERIFIED = "verified.json"

@@ -17,7 +17,7 @@ from pathlib import Path
 import robotfleet
 from robotfleet.pull.protocol import enrollment, reports
 from robotfleet.pull.robot import enrollment_proof
-from robotfleet.pull.robot.journal import cpu_seconds, journal_line  # noqa: F401 (their names here too)
+from robotfleet.pull.robot.journal import cpu_seconds
 from robotfleet.pull.robot.transport import TransportError
 
 
