@@ -188,3 +188,18 @@ def test_anything_the_memo_does_not_hold_sends_the_check_to_the_full_wake(robot,
     assert "robotfleet.pull.robot.agent" in modules, change
     if change == "watched":  # and the full wake read the roles' status again
         assert robot.runs.read_text() != ""
+
+
+def test_a_memo_that_cannot_be_written_costs_the_shortcut_not_the_check(robot):
+    """The memo only saves work: where it cannot be removed or written (here
+    its name is taken by a directory, as a full disk or a broken state file
+    would stop the write) every check is the full wake, and says so."""
+    settled(robot)
+    memo = robot.state / idle.MEMO
+    memo.unlink()
+    memo.mkdir()
+    for _ in range(2):
+        line, modules, _ = check(robot)
+        assert words(line) == ("robot-pull: up-to-date (release 1)", "report unchanged"), line
+        assert "robotfleet.pull.robot.agent" in modules
+    assert memo.is_dir() and not any(memo.iterdir())

@@ -57,9 +57,11 @@ def files_read(state_dir: str, etc_dir: str) -> list[str]:
 
 
 def forget(state_dir) -> None:
+    """No memo: a next check runs the full wake.  One that cannot be removed
+    (not a file) cannot be read either, so that holds too."""
     try:
         os.unlink(os.path.join(state_dir, MEMO))
-    except FileNotFoundError:
+    except OSError:
         pass
 
 
@@ -67,7 +69,16 @@ def remember(wake, outcome, config_text: str, said: str) -> None:
     """After a full wake (robotfleet/pull/robot/agent.py's Wake) that ended
     in ``outcome``, its report ``said``: the memo a next idle wake may stand
     on, when this one was idle and nothing of it depends on more than the
-    memo holds; else none."""
+    memo holds; else none.  The memo only saves work: one that cannot be
+    written (a full disk, a state file it cannot read) costs the next check
+    its shortcut, never this wake."""
+    try:
+        _remember(wake, outcome, config_text, said)
+    except (OSError, ValueError, KeyError, TypeError):
+        forget(str(wake.state_dir))
+
+
+def _remember(wake, outcome, config_text: str, said: str) -> None:
     from robotfleet.pull.protocol import record as records
 
     config, state, record = wake.config, wake.state, wake.record
@@ -98,7 +109,8 @@ def remember(wake, outcome, config_text: str, said: str) -> None:
         expires = records.parse_time(verified["expires"], "expires").timestamp()
     except (OSError, ValueError, KeyError, TypeError, records.RecordError):
         return
-    if fetched is None or probe.target(config.remote) is None or verified.get("fingerprint") is None:
+    target = probe.target(config.remote)
+    if fetched is None or target is None or verified.get("fingerprint") is None:
         return
     if verified.get("source") != str(wake.remote.repo):
         return
@@ -112,7 +124,7 @@ def remember(wake, outcome, config_text: str, said: str) -> None:
         "disks": [config.state_dir, config.docker_dir],
         "min_free_mb": config.min_free_mb,
         "url": config.remote,
-        "target": probe.target(config.remote),
+        "target": target,
         "branch": config.branch,
         "timeout": config.fetch_timeout,
         "fetched": fetched,
