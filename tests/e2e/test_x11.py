@@ -45,7 +45,14 @@ def desktop(lab, first_run):
 def login(lab, laptop: str) -> None:
     """A graphical login of alice: startx runs the X server with a fresh
     cookie and Xsession runs the session hooks, ours included."""
-    lab.sh(laptop, "pkill -u alice -f xinit; pkill -u alice Xvfb; rm -f /tmp/.X0-lock; true")
+    # The last session's processes die after pkill returns: until they are gone, its
+    # `sleep` would pass for the new session's (which then has not written its cookie).
+    lab.ok(
+        laptop,
+        "pkill -u alice -f xinit; pkill -u alice -x Xvfb; pkill -u alice -x sleep; "
+        "for i in $(seq 100); do pgrep -u alice -f 'xinit|Xvfb|sleep' >/dev/null || break; sleep 0.1; done; "
+        "! pgrep -u alice -f 'xinit|Xvfb|sleep' && rm -f /tmp/.X0-lock",
+    )
     lab.ok(
         laptop,
         "su - alice -c 'nohup startx /etc/X11/Xsession /usr/local/bin/lab-session -- "
