@@ -73,3 +73,16 @@ def test_the_index_names_each_manifest_and_its_platform():
         ("sha256:1", 2, "amd64"),
         ("sha256:2", 3, "arm64"),
     ]
+
+
+def test_a_health_cadence_replaces_the_timings_and_keeps_the_check():
+    config = {"config": {"Healthcheck": {"Test": ["CMD", "/bin/sh", "/healthcheck.sh"], "Interval": 2, "Retries": 3}}}
+    faster = pp.with_health_cadence(config, pp.HEALTH_CADENCE)
+    assert faster["config"]["Healthcheck"] == {
+        "Test": ["CMD", "/bin/sh", "/healthcheck.sh"],
+        "Retries": 3,
+        **pp.HEALTH_CADENCE,
+    }
+    assert config["config"]["Healthcheck"]["Interval"] == 2  # the original is untouched
+    assert pp.HEALTH_CADENCE["StartInterval"] == 10**9 and pp.HEALTH_CADENCE["Interval"] == 30 * 10**9
+    assert pp.with_health_cadence(CONFIG, pp.HEALTH_CADENCE)["config"] == CONFIG["config"]  # no HEALTHCHECK: as it was
