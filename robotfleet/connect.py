@@ -48,7 +48,7 @@ from pyinfra.connectors.sshuserclient import client as sshuserclient
 
 from robotfleet import hostkeys
 from robotfleet.hostkey_policy import FleetKnownHosts, FleetPolicy, HostKeyCheck, RefusedHostKey, UnknownHostKey
-from robotfleet.reasons import network_reason, replace_advice
+from robotfleet.reasons import greeting_seen, network_reason, replace_advice
 
 CONNECTOR = "fleet"
 PARAMIKO_LOG = "robotfleet.connect.paramiko"
@@ -209,7 +209,8 @@ class FleetConnector(ssh.SSHConnector):
         if isinstance(error, AuthenticationException) or "No authentication methods available" in str(error):
             return self.auth_reason(error), False
         elapsed = time.monotonic() - getattr(self, "_attempt_started", time.monotonic())
-        return network_reason(error, address, port, self.attempt_timeout(), elapsed)
+        transport = self.client.get_transport() if self.client is not None else None
+        return network_reason(error, address, port, self.attempt_timeout(), elapsed, greeting_seen(transport))
 
     def auth_reason(self, error: Exception) -> str:
         kwargs = getattr(self, "kwargs", {})

@@ -81,12 +81,18 @@ def short_reason(reason: str) -> str | None:
     return next((word for start, word in SHORT if reason.startswith(start)), None)
 
 
+def greeting_seen(transport) -> bool:
+    """Whether paramiko's ``transport`` (None: none made) read the server's SSH greeting."""
+    return bool(getattr(transport, "remote_version", ""))
+
+
 def network_reason(
-    error: Exception, address: str, port: int, timeout: float, elapsed: float | None = None
+    error: Exception, address: str, port: int, timeout: float, elapsed: float | None = None, greeted: bool = True
 ) -> tuple[str, bool]:
     """Why reaching ``address:port`` failed, in words, and whether trying
     again may help (a host key or login failure is told by the connector).
-    ``timeout``: the attempt's limit; ``elapsed``: how long it took."""
+    ``timeout``: the attempt's limit; ``elapsed``: how long it took;
+    ``greeted``: whether the server's SSH greeting came (``greeting_seen``)."""
     at = f"{address}:{port}"
     timeout = f"{timeout:.0f}" if timeout >= 1 else f"{timeout:.1f}"
     elapsed = float(timeout) if elapsed is None else elapsed
@@ -116,7 +122,9 @@ def network_reason(
                 f"not an SSH server: {at} answered, but not with an SSH greeting (another service on that "
                 "port? wrong port?)"
             ), False
-        if "Error reading SSH protocol banner" in text:
+        # paramiko's wait for the handshake and its wait for the greeting end together; under load the
+        # first may end first, and the missing greeting shows only as "No existing session"
+        if "Error reading SSH protocol banner" in text or ("No existing session" in text and not greeted):
             return (
                 f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
                 f"{timeout} s (wrong port?)"

@@ -73,7 +73,9 @@ def fetch(host: Target):
         transport.start_client(timeout=host.timeout)
         return transport.get_remote_server_key()
     except Exception as error:  # every way it fails is one line
-        return reasons.network_reason(error, host.address, host.port, host.timeout)[0]
+        return reasons.network_reason(
+            error, host.address, host.port, host.timeout, greeted=reasons.greeting_seen(transport)
+        )[0]
     finally:
         if transport is not None:
             transport.close()

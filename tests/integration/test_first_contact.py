@@ -7,6 +7,7 @@ the CLI, status and rollout make them."""
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 import time
@@ -18,7 +19,7 @@ from pyinfra.api.exceptions import ConnectError
 from pyinfra.context import ctx_state
 from pyinfra_cli.inventory import make_inventory
 
-from robotfleet import hostkeys
+from robotfleet import hostkeys, reasons
 from robotfleet.fleet import yaml12
 from tests.fixtures import PYINFRA, ROOT
 from tests.integration import sshserver
@@ -227,3 +228,46 @@ def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key)
             "within 2 s (wrong port?)",
         ]
     ), result.stderr
+
+
+def handshake_cut_short(listener) -> tuple[paramiko.SSHException, paramiko.Transport]:
+    """What a loaded machine can make of any handshake: paramiko's wait for it
+    (start_client's timeout) ends before its wait for the greeting says why."""
+    transport = paramiko.Transport(socket.create_connection(("127.0.0.1", listener.port), timeout=5))
+    transport.banner_timeout = 5
+    try:
+        transport.start_client(timeout=0.5)
+        try:
+            transport.get_remote_server_key()
+        except paramiko.SSHException as error:
+            return error, transport
+        raise AssertionError("the handshake finished")
+    finally:
+        transport.close()
+
+
+def test_a_silent_port_is_named_so_when_paramikos_handshake_wait_ends_first():
+    silent = sshserver.Listener()
+    try:
+        error, transport = handshake_cut_short(silent)
+    finally:
+        silent.close()
+    assert str(error) == "No existing session" and not reasons.greeting_seen(transport)
+    assert reasons.network_reason(error, "127.0.0.1", silent.port, 2, 2.0, reasons.greeting_seen(transport)) == (
+        f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting within 2 s "
+        "(wrong port?)",
+        False,
+    )
+
+
+def test_a_server_that_greets_then_stalls_is_a_cut_handshake():
+    stalled = sshserver.Listener(greeting=b"SSH-2.0-OpenSSH_9.9\r\n")
+    try:
+        error, transport = handshake_cut_short(stalled)
+    finally:
+        stalled.close()
+    assert str(error) == "No existing session" and reasons.greeting_seen(transport)
+    assert reasons.network_reason(error, "127.0.0.1", stalled.port, 2, 2.0, reasons.greeting_seen(transport)) == (
+        f"the SSH session to 127.0.0.1:{stalled.port} closed during the handshake",
+        True,
+    )
