@@ -34,7 +34,7 @@ from robotfleet.pull.protocol.path_signatures import watched
 from robotfleet.pull.robot import journal, probe, trust_fingerprint
 
 MEMO = "idle.json"
-FORMAT = 1
+FORMAT = 2
 STATE_FILE = "agent-state.json"  # robotfleet/pull/robot/agent_state.py's
 _TIME = "%Y-%m-%dT%H:%M:%SZ"  # robotfleet/pull/protocol/record.py's, in UTC
 
@@ -42,7 +42,8 @@ _TIME = "%Y-%m-%dT%H:%M:%SZ"  # robotfleet/pull/protocol/record.py's, in UTC
 def files_read(state_dir: str, etc_dir: str) -> list[str]:
     """What an idle wake's decision and report read besides the network:
     the agent's state, the last verification, the code it runs, the
-    robot's keys (its own, an enrollment key's, the host's) and the CA."""
+    robot's keys (its own, an enrollment key's, the host's), the CA and
+    the git server's pinned host keys."""
     host_keys = "/etc/ssh"
     try:
         names = sorted(n for n in os.listdir(host_keys) if n.startswith("ssh_host_") and n.endswith("_key.pub"))
@@ -50,7 +51,17 @@ def files_read(state_dir: str, etc_dir: str) -> list[str]:
         names = []
     return [
         *(f"{state_dir}/{name}" for name in (STATE_FILE, "verified.json", "verified.release.json", "code/current")),
-        *(f"{etc_dir}/{name}" for name in ("id_ed25519.pub", "enroll_ed25519", "enroll_ed25519.pub", "remote-ca.pem")),
+        *(
+            f"{etc_dir}/{name}"
+            for name in (
+                "id_ed25519",
+                "id_ed25519.pub",
+                "enroll_ed25519",
+                "enroll_ed25519.pub",
+                "remote-ca.pem",
+                "known_hosts",
+            )
+        ),
         host_keys,
         *(f"{host_keys}/{name}" for name in names),
     ]
@@ -80,8 +91,10 @@ def remember(wake, outcome, config_text: str, said: str) -> None:
 
 def _remember(wake, outcome, config_text: str, said: str) -> None:
     from robotfleet.pull.protocol import record as records
+    from robotfleet.pull.robot import remote_git
 
     config, state, record = wake.config, wake.state, wake.record
+    over = "https" if config.remote.startswith("https://") else "ssh" if remote_git.is_ssh(config.remote) else None
     state_dir = str(wake.state_dir)
     forget(state_dir)
     status, reported = state.get("status") or {}, state.get("reported") or {}
@@ -93,7 +106,9 @@ def _remember(wake, outcome, config_text: str, said: str) -> None:
         or wake.medium is not None
         or config.media_dir
         or config.name_rule is not None
-        or not config.remote.startswith("https://")
+        or over is None
+        # over SSH the full wake retires an enrollment key once the server takes the robot's own
+        or (over == "ssh" and os.path.lexists(f"{config.etc_dir}/enroll_ed25519"))
         or status.get("row") is None
         or not isinstance(status.get("watch"), dict)
         or status.get("code") != os.path.realpath(f"{state_dir}/code/current")
@@ -109,8 +124,8 @@ def _remember(wake, outcome, config_text: str, said: str) -> None:
         expires = records.parse_time(verified["expires"], "expires").timestamp()
     except (OSError, ValueError, KeyError, TypeError, records.RecordError):
         return
-    target = probe.target(config.remote)
-    if fetched is None or target is None or verified.get("fingerprint") is None:
+    target = probe.target(config.remote) if over == "https" else None
+    if fetched is None or (over == "https" and target is None) or verified.get("fingerprint") is None:
         return
     if verified.get("source") != str(wake.remote.repo):
         return
@@ -124,6 +139,7 @@ def _remember(wake, outcome, config_text: str, said: str) -> None:
         "disks": [config.state_dir, config.docker_dir],
         "min_free_mb": config.min_free_mb,
         "url": config.remote,
+        "over": over,
         "target": target,
         "branch": config.branch,
         "timeout": config.fetch_timeout,
@@ -209,9 +225,14 @@ def _idle(memo: dict, now: float) -> dict | None:
     fetched = probe.read_memo(repo, memo["url"], memo["branch"])
     if fetched != memo["fetched"] or not os.path.isdir(f"{repo}/.git"):
         return None
-    ca = f"{etc_dir}/remote-ca.pem"
     started = time.monotonic()
-    answer = probe.ask(memo["target"], memo["branch"], fetched, ca if os.path.exists(ca) else None, memo["timeout"])
+    if memo["over"] == "ssh":  # as the full wake asks (transport.Remote._probe): ssh, git and subprocess only here
+        from robotfleet.pull.robot import remote_git
+
+        answer = remote_git.ls_remote(repo, memo["url"], memo["branch"], etc_dir, memo["timeout"])
+    else:
+        ca = f"{etc_dir}/remote-ca.pem"
+        answer = probe.ask(memo["target"], memo["branch"], fetched, ca if os.path.exists(ca) else None, memo["timeout"])
     if answer is None or answer.commit != fetched["commit"]:
         probe.give(fetched, answer, time.monotonic() - started)
         return None

@@ -57,6 +57,14 @@ def environment(extra: dict | None = None) -> dict:
     return dict(os.environ, GIT_TERMINAL_PROMPT="0", LC_ALL="C", **IDENTITY, **(extra or {}))
 
 
+def is_ssh(url: str) -> bool:
+    """``url`` names a remote git reaches over SSH (``ssh://``, or scp's ``[user@]host:path``)."""
+    scheme, sep, _ = url.partition("://")
+    if sep:
+        return scheme in ("ssh", "git+ssh", "ssh+git")
+    return ":" in url.split("/", 1)[0]
+
+
 def keys(etc: str) -> list[str]:
     """The keys the robot offers: its own, then a first-boot bundle's enrollment key while it has one."""
     own, enroll = f"{etc}/id_ed25519", f"{etc}/enroll_ed25519"
