@@ -12,12 +12,16 @@ status and the report's heartbeat), and its journal line's words.  The next
 wake (``check``) that finds all of it still so, and the remote's branch
 still at that commit (one probe, robotfleet/pull/robot/probe.py), is that
 wake again: it moves the trusted time as trust_state.recall does, prints the
-same line and ends, having imported socket, ssl, json and a few small
-modules (no dataclasses, pathlib, subprocess, TUF, pyinfra, YAML, Jinja2:
-tests/integration/test_pull_idle_memo.py holds it).  Anything else (one
-file changed, a limit reached, the probe unanswered or another commit, a
-remote over SSH, a medium, a derived robot name, an enrollment key) and the
-full wake runs, as before; the probe's answer is handed to it, not asked again.
+same line and ends.  Over HTTPS the probe is one request from this process,
+which imports socket, ssl, json and a few small modules (no dataclasses,
+pathlib, subprocess, TUF, pyinfra, YAML, Jinja2); over SSH it is the full
+wake's own ``git ls-remote`` with its ssh (robotfleet/pull/robot/remote_git.py),
+subprocess the only one of those it imports (tests/integration/test_pull_idle_memo.py
+holds both).  Anything else (one file changed, known_hosts and the robot's
+keys among them; a limit reached; the probe unanswered, failed or another
+commit; a remote neither HTTPS nor SSH, a medium, a derived robot name, an
+enrollment key held over SSH) and the full wake runs, as before; the
+probe's answer (or its failure) is handed to it, not asked again.
 """
 
 from __future__ import annotations
