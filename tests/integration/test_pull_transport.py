@@ -12,7 +12,7 @@ import pytest
 
 from robotfleet.pull.operator import channel
 from robotfleet.pull.protocol import reports
-from robotfleet.pull.robot import ssh_options, transport, transport_cost, trust_fingerprint
+from robotfleet.pull.robot import remote_git, ssh_options, transport, trust_fingerprint
 from tests.integration.craftedgit import git
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
@@ -61,8 +61,8 @@ def test_ssh_pins_the_server_and_offers_only_the_robot_s_keys():
 
 
 def test_the_bytes_and_the_accepted_key_come_from_ssh_s_log():
-    assert transport_cost.read_ssh_log(LOG) == (3140, 3364, "/etc/robot-pull/id_ed25519")
-    assert transport_cost.read_ssh_log("") == (0, 0, None)
+    assert remote_git.read_ssh_log(LOG) == (3140, 3364, "/etc/robot-pull/id_ed25519")
+    assert remote_git.read_ssh_log("") == (0, 0, None)
 
 
 def test_the_telling_line_of_a_git_failure():
@@ -70,10 +70,10 @@ def test_the_telling_line_of_a_git_failure():
         "gitolite3@git.lan: Permission denied (publickey).\r\nfatal: Could not read from remote repository.\n\n"
         "Please make sure you have the correct access rights\nand the repository exists.\n"
     )
-    assert transport.git_error(said, 128) == "gitolite3@git.lan: Permission denied (publickey)."
+    assert remote_git.git_error(said, 128) == "gitolite3@git.lan: Permission denied (publickey)."
     denied = "FATAL: W refs/reports/robot2 fleet robot1 DENIED by fallthru\n"
-    assert transport.git_error(denied, 1).startswith("FATAL: W")
-    assert transport.git_error("", 7) == "git exited 7"
+    assert remote_git.git_error(denied, 1).startswith("FATAL: W")
+    assert remote_git.git_error("", 7) == "git exited 7"
 
 
 def test_fetch_checks_out_the_releases_branch_and_follows_it(remote, tmp_path):

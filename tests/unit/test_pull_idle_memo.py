@@ -42,3 +42,12 @@ def test_only_the_unit_s_own_arguments_are_taken_by_the_idle_check():
     assert idle._config_path(["--config=/x.json"]) == "/x.json"
     for other in ([], ["--help"], ["--config"], ["--config", "a", "--other"]):
         assert idle._config_path(other) is None, other
+
+
+def test_the_remotes_the_memo_covers_over_ssh_are_those_git_reaches_with_ssh():
+    from robotfleet.pull.robot import remote_git
+
+    for ssh in ("ssh://gitolite3@git.lan/fleet", "git+ssh://git.lan:2222/fleet", "gitolite3@git.lan:fleet", "h:f"):
+        assert remote_git.is_ssh(ssh), ssh
+    for other in ("https://git.lan/fleet", "file:///srv/fleet.git", "/srv/fleet.git", "./a:b", "git://git.lan/f"):
+        assert not remote_git.is_ssh(other), other

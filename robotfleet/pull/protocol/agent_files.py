@@ -12,6 +12,8 @@ import json
 import re
 from dataclasses import asdict, dataclass, field
 
+from robotfleet.pull.protocol.host_key_alias import HOST_KEY_ALIAS
+
 ETC = "/etc/robot-pull"
 STATE = "/var/lib/robot-pull"
 CONFIG = f"{ETC}/agent.json"
@@ -155,11 +157,6 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     values = {k: v for k, v in raw.items() if k != "format"}
     values["windows"] = tuple(windows)
     return Config(**values)
-
-
-# ssh looks the git server up under this name (HostKeyAlias), so its keys
-# are pinned to the fleet remote whatever address or port reaches it.
-HOST_KEY_ALIAS = "robotfleet-remote"
 
 
 def named(config: Config, read=None) -> Config:

@@ -12,12 +12,16 @@ status and the report's heartbeat), and its journal line's words.  The next
 wake (``check``) that finds all of it still so, and the remote's branch
 still at that commit (one probe, robotfleet/pull/robot/probe.py), is that
 wake again: it moves the trusted time as trust_state.recall does, prints the
-same line and ends, having imported socket, ssl, json and a few small
-modules (no dataclasses, pathlib, subprocess, TUF, pyinfra, YAML, Jinja2:
-tests/integration/test_pull_idle_memo.py holds it).  Anything else (one
-file changed, a limit reached, the probe unanswered or another commit, a
-remote over SSH, a medium, a derived robot name, an enrollment key) and the
-full wake runs, as before; the probe's answer is handed to it, not asked again.
+same line and ends.  Over HTTPS the probe is one request from this process,
+which imports socket, ssl, json and a few small modules (no dataclasses,
+pathlib, subprocess, TUF, pyinfra, YAML, Jinja2); over SSH it is the full
+wake's own ``git ls-remote`` with its ssh (robotfleet/pull/robot/remote_git.py),
+subprocess the only one of those it imports (tests/integration/test_pull_idle_memo.py
+holds both).  Anything else (one file changed, known_hosts and the robot's
+keys among them; a limit reached; the probe unanswered, failed or another
+commit; a remote neither HTTPS nor SSH, a medium, a derived robot name, an
+enrollment key held over SSH) and the full wake runs, as before; the
+probe's answer (or its failure) is handed to it, not asked again.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from robotfleet.pull.protocol.path_signatures import watched
 from robotfleet.pull.robot import journal, probe, trust_fingerprint
 
 MEMO = "idle.json"
-FORMAT = 1
+FORMAT = 2
 STATE_FILE = "agent-state.json"  # robotfleet/pull/robot/agent_state.py's
 _TIME = "%Y-%m-%dT%H:%M:%SZ"  # robotfleet/pull/protocol/record.py's, in UTC
 
@@ -42,7 +46,8 @@ _TIME = "%Y-%m-%dT%H:%M:%SZ"  # robotfleet/pull/protocol/record.py's, in UTC
 def files_read(state_dir: str, etc_dir: str) -> list[str]:
     """What an idle wake's decision and report read besides the network:
     the agent's state, the last verification, the code it runs, the
-    robot's keys (its own, an enrollment key's, the host's) and the CA."""
+    robot's keys (its own, an enrollment key's, the host's), the CA and
+    the git server's pinned host keys."""
     host_keys = "/etc/ssh"
     try:
         names = sorted(n for n in os.listdir(host_keys) if n.startswith("ssh_host_") and n.endswith("_key.pub"))
@@ -50,7 +55,17 @@ def files_read(state_dir: str, etc_dir: str) -> list[str]:
         names = []
     return [
         *(f"{state_dir}/{name}" for name in (STATE_FILE, "verified.json", "verified.release.json", "code/current")),
-        *(f"{etc_dir}/{name}" for name in ("id_ed25519.pub", "enroll_ed25519", "enroll_ed25519.pub", "remote-ca.pem")),
+        *(
+            f"{etc_dir}/{name}"
+            for name in (
+                "id_ed25519",
+                "id_ed25519.pub",
+                "enroll_ed25519",
+                "enroll_ed25519.pub",
+                "remote-ca.pem",
+                "known_hosts",
+            )
+        ),
         host_keys,
         *(f"{host_keys}/{name}" for name in names),
     ]
@@ -80,8 +95,10 @@ def remember(wake, outcome, config_text: str, said: str) -> None:
 
 def _remember(wake, outcome, config_text: str, said: str) -> None:
     from robotfleet.pull.protocol import record as records
+    from robotfleet.pull.robot import remote_git
 
     config, state, record = wake.config, wake.state, wake.record
+    over = "https" if config.remote.startswith("https://") else "ssh" if remote_git.is_ssh(config.remote) else None
     state_dir = str(wake.state_dir)
     forget(state_dir)
     status, reported = state.get("status") or {}, state.get("reported") or {}
@@ -93,7 +110,9 @@ def _remember(wake, outcome, config_text: str, said: str) -> None:
         or wake.medium is not None
         or config.media_dir
         or config.name_rule is not None
-        or not config.remote.startswith("https://")
+        or over is None
+        # over SSH the full wake retires an enrollment key once the server takes the robot's own
+        or (over == "ssh" and os.path.lexists(f"{config.etc_dir}/enroll_ed25519"))
         or status.get("row") is None
         or not isinstance(status.get("watch"), dict)
         or status.get("code") != os.path.realpath(f"{state_dir}/code/current")
@@ -109,8 +128,8 @@ def _remember(wake, outcome, config_text: str, said: str) -> None:
         expires = records.parse_time(verified["expires"], "expires").timestamp()
     except (OSError, ValueError, KeyError, TypeError, records.RecordError):
         return
-    target = probe.target(config.remote)
-    if fetched is None or target is None or verified.get("fingerprint") is None:
+    target = probe.target(config.remote) if over == "https" else None
+    if fetched is None or (over == "https" and target is None) or verified.get("fingerprint") is None:
         return
     if verified.get("source") != str(wake.remote.repo):
         return
@@ -124,6 +143,7 @@ def _remember(wake, outcome, config_text: str, said: str) -> None:
         "disks": [config.state_dir, config.docker_dir],
         "min_free_mb": config.min_free_mb,
         "url": config.remote,
+        "over": over,
         "target": target,
         "branch": config.branch,
         "timeout": config.fetch_timeout,
@@ -209,9 +229,14 @@ def _idle(memo: dict, now: float) -> dict | None:
     fetched = probe.read_memo(repo, memo["url"], memo["branch"])
     if fetched != memo["fetched"] or not os.path.isdir(f"{repo}/.git"):
         return None
-    ca = f"{etc_dir}/remote-ca.pem"
     started = time.monotonic()
-    answer = probe.ask(memo["target"], memo["branch"], fetched, ca if os.path.exists(ca) else None, memo["timeout"])
+    if memo["over"] == "ssh":  # as the full wake asks (transport.Remote._probe): ssh, git and subprocess only here
+        from robotfleet.pull.robot import remote_git
+
+        answer = remote_git.ls_remote(repo, memo["url"], memo["branch"], etc_dir, memo["timeout"])
+    else:
+        ca = f"{etc_dir}/remote-ca.pem"
+        answer = probe.ask(memo["target"], memo["branch"], fetched, ca if os.path.exists(ca) else None, memo["timeout"])
     if answer is None or answer.commit != fetched["commit"]:
         probe.give(fetched, answer, time.monotonic() - started)
         return None

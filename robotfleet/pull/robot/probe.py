@@ -40,13 +40,24 @@ STABLE_AFTER = 60  # seconds between a Last-Modified and the Date it is trusted 
 
 class Answer:
     """What one probe found: the branch's commit (None: unknown, fetch), the
-    static copy's new validators, and its cost.  (A plain class: the idle
-    check imports no dataclasses.)"""
+    static copy's new validators, and its cost; over SSH, why it failed
+    (``error``: then the fetch fails with it, robotfleet/pull/robot/remote_git.py)
+    and the key the server accepted.  (A plain class: the idle check imports
+    no dataclasses.)"""
 
-    __slots__ = ("commit", "validators", "sent", "received")
+    __slots__ = ("commit", "validators", "sent", "received", "error", "accepted")
 
-    def __init__(self, commit: str | None, validators: dict | None = None, sent: int = 0, received: int = 0):
+    def __init__(
+        self,
+        commit: str | None,
+        validators: dict | None = None,
+        sent: int = 0,
+        received: int = 0,
+        error: str | None = None,
+        accepted: str | None = None,
+    ):
         self.commit, self.validators, self.sent, self.received = commit, validators or {}, sent, received
+        self.error, self.accepted = error, accepted
 
     def __eq__(self, other):
         return isinstance(other, Answer) and all(getattr(self, k) == getattr(other, k) for k in self.__slots__)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import shlex
 
-from robotfleet.pull.protocol.agent_files import HOST_KEY_ALIAS
+from robotfleet.pull.protocol.host_key_alias import HOST_KEY_ALIAS
 
 CIPHERS = "chacha20-poly1305@openssh.com,aes128-gcm@openssh.com,aes256-gcm@openssh.com"
 MACS = "hmac-sha2-256-etm@openssh.com"

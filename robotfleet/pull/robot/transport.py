@@ -4,8 +4,9 @@ in time, with the bytes each exchange moved.
 - ``fetch_releases``: the releases branch at depth 1 into the agent's own
   repository, checked out (the TUF client reads that directory); protocol
   v2 asks the server for that one branch only; first one probe
-  (robotfleet/pull/robot/probe.py): a branch still at the commit checked
-  out is not fetched at all.
+  (robotfleet/pull/robot/probe.py; over SSH ``remote_git.ls_remote``), or
+  the answer the idle check's probe already had: a branch still at the
+  commit checked out is not fetched at all.
 - ``fetch_reports``: the reports of named robots (the waves before this
   robot's), each asked for by its own prefix, read as the operator reads
   them (``report_store.read``: each robot's own row, never another's).
@@ -24,7 +25,9 @@ host keys are pinned (StrictHostKeyChecking, under one alias, so a new
 address or port does not matter).  Bytes are ssh's own count of what went
 over the connection ("Transferred: sent N, received M bytes"; its debug
 level also names the key the server accepted); each ssh session is one
-request (the counting: robotfleet/pull/robot/transport_cost.py).
+request (the counting: robotfleet/pull/robot/transport_cost.py).  git runs
+through robotfleet/pull/robot/remote_git.py (bounded in time; over SSH, that
+ssh and its log), as does the idle check's probe (robotfleet/pull/robot/idle.py).
 
 Over HTTPS (``https://host/path``: git's smart HTTP, or a static directory
 served as a "dumb" remote, which cannot answer a shallow fetch, so the
@@ -41,15 +44,12 @@ when the releases come from a static HTTPS mirror).
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import tempfile
-import threading
 import time
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, report_shards, reports
-from robotfleet.pull.robot import probe, ssh_options, transport_cost
+from robotfleet.pull.robot import probe, remote_git, transport_cost
+from robotfleet.pull.robot.remote_git import git_error
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
@@ -59,38 +59,10 @@ _REFUSED = ("DENIED", "does not appear to be a git repository", "not found")
 # A read of more robots than this asks for the repository's every report
 # rather than each robot's by its prefix (then reads only the robots asked for).
 PREFIXES_AT_MOST = 256
-IDENTITY = {
-    "GIT_AUTHOR_NAME": "robot-pull",
-    "GIT_AUTHOR_EMAIL": "robot-pull@localhost",
-    "GIT_COMMITTER_NAME": "robot-pull",
-    "GIT_COMMITTER_EMAIL": "robot-pull@localhost",
-}
 
 
 class TransportError(Exception):
     """The remote could not be reached or read (one line)."""
-
-
-# What ssh and the server say of the cause, before git's own summary line.
-_CAUSES = (
-    "Permission denied",
-    "Host key verification failed",
-    "REMOTE HOST IDENTIFICATION HAS CHANGED",
-    "Could not resolve",
-    "Connection refused",
-    "Connection timed out",
-    "No route to host",
-    "DENIED",
-)
-_SAYS = ("FATAL:", "fatal:", "ERROR:", "error:", "remote:")
-
-
-def git_error(stderr: str, code: int) -> str:
-    """The line of git's (or ssh's, or the server's) complaint that says why."""
-    lines = [line.strip() for line in stderr.splitlines() if line.strip() and not line.startswith("hint:")]
-    causes = [line for line in lines if any(cause in line for cause in _CAUSES)]
-    said = [line for line in lines if line.startswith(_SAYS)]
-    return (causes or said or lines or [f"git exited {code}"])[0][:300]
 
 
 def is_https(url: str) -> bool:
@@ -121,8 +93,7 @@ class Remote:
     # -- git with bounds ---------------------------------------------------
 
     def keys(self) -> list[str]:
-        own, enroll = f"{self.etc}/id_ed25519", f"{self.etc}/enroll_ed25519"
-        return [key for key in (own, enroll) if os.path.exists(key)]
+        return remote_git.keys(self.etc)
 
     def _git(
         self,
@@ -136,11 +107,17 @@ class Remote:
         """git with ``args`` in the agent's repository; ``network``: it
         talks to ``url`` (the fleet remote by default): bounded, and counted."""
         url = url or self.url
-        environment = dict(os.environ, GIT_TERMINAL_PROMPT="0", LC_ALL="C", **IDENTITY, **(env or {}))
-        log = trace = None
-        ssh_said = ""  # ssh's own complaint: with -E it goes to its log, not to git's stderr
+        if network and not is_https(url):  # over SSH (or a local path)
+            ran = remote_git.over_ssh(self.repo, args, url, self.etc, self.timeout, stdin, env)
+            self.cost.add(what, ran.sent, ran.received, ran.seconds)
+            self.accepted_key = ran.accepted or self.accepted_key
+            if ran.error:
+                raise TransportError(f"{what}: {ran.error}")
+            return ran.out
+        environment = remote_git.environment(env)
+        trace = None
         options: list[str] = []
-        if network and is_https(url):
+        if network:
             trace = transport_cost.CurlTrace()
             environment.update(GIT_TRACE_CURL="2", GIT_TRACE_REDACT="1")
             environment.pop("GIT_SSL_NO_VERIFY", None)
@@ -148,53 +125,21 @@ class Remote:
             ca = f"{self.etc}/remote-ca.pem"
             if os.path.exists(ca):  # the environment's GIT_SSL_CAINFO would win over http.sslCAInfo
                 environment["GIT_SSL_CAINFO"] = ca
-        elif network:
-            fd, log = tempfile.mkstemp(prefix="robot-pull-ssh-", suffix=".log")
-            os.close(fd)
-            environment["GIT_SSH_COMMAND"] = ssh_options.ssh_command(
-                self.keys(), f"{self.etc}/known_hosts", log, self.timeout
-            )
         started = time.monotonic()
+        argv = ["git", *options, "-C", str(self.repo), *args]
         try:
-            process = subprocess.Popen(
-                ["git", *options, "-C", str(self.repo), *args],
-                stdin=subprocess.PIPE if stdin else None,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.PIPE,
-                env=environment,
-                start_new_session=True,
-            )
-            reader = None
-            if trace is not None:
-                reader = threading.Thread(target=trace.read, args=(process.stderr,), daemon=True)
-                reader.start()
-            try:
-                out, err = _communicate(process, stdin, self.timeout, reader)
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait()
-                raise TransportError(
-                    f"{what}: no answer from {url} within {self.timeout} s (pull_fetch_timeout)"
-                ) from None
-            if trace is not None:
-                err = trace.stderr
+            code, out, err = remote_git.run(argv, environment, stdin, self.timeout, trace and trace.read)
+        except remote_git.NoAnswer:
+            raise TransportError(f"{what}: {remote_git.no_answer(url, self.timeout)}") from None
         except OSError as error:
             raise TransportError(f"{what}: cannot run git ({error})") from None
         finally:
-            if log:
-                try:
-                    text = Path(log).read_text(errors="replace")
-                    sent, received, accepted = transport_cost.read_ssh_log(text)
-                    ssh_said = "\n".join(line for line in text.splitlines() if any(c in line for c in _CAUSES))
-                finally:
-                    os.unlink(log)
-                self.cost.add(what, sent, received, time.monotonic() - started)
-                self.accepted_key = accepted or self.accepted_key
-            elif trace is not None:
+            if trace is not None:
                 self.cost.add(what, trace.sent, trace.received, time.monotonic() - started, trace.requests)
-        if process.returncode:
-            said = err.decode(errors="replace") + "\n" + ssh_said
-            raise TransportError(f"{what}: {git_error(said, process.returncode)}")
+        if trace is not None:
+            err = trace.stderr
+        if code:
+            raise TransportError(f"{what}: {git_error(err.decode(errors='replace'), code)}")
         return out
 
     def _init(self) -> None:
@@ -259,21 +204,22 @@ class Remote:
     def _probe(self, memo: dict, branch: str) -> probe.Answer | None:
         """What the remote says the branch is now, in one exchange (None: it
         could not say; the fetch then asks)."""
-        ref = f"refs/heads/{branch}"
-        if is_https(self.url):
-            started = time.monotonic()
-            had = probe.given(memo)  # this process's idle check asked already (robotfleet/pull/robot/idle.py)
-            if had is None:
+        started = time.monotonic()
+        had = probe.given(memo)  # this process's idle check asked already (robotfleet/pull/robot/idle.py)
+        if had is None:
+            if is_https(self.url):
                 ca = f"{self.etc}/remote-ca.pem"
                 answer = probe.https(self.url, branch, memo, ca if os.path.exists(ca) else None, self.timeout)
-                had = answer, time.monotonic() - started
-            answer, seconds = had
-            if answer is not None:
-                self.cost.add("probe", answer.sent, answer.received, seconds)
-            return answer
-        # --heads: protocol v2 then asks for refs/heads/ only, not every report ref
-        listing = self._git("probe", "-c", "protocol.version=2", "ls-remote", "--heads", self.url, branch, network=True)
-        return probe.Answer(probe.commit_of(listing, ref))
+            else:
+                answer = remote_git.ls_remote(self.repo, self.url, branch, self.etc, self.timeout)
+            had = answer, time.monotonic() - started
+        answer, seconds = had
+        if answer is not None:
+            self.cost.add("probe", answer.sent, answer.received, seconds)
+            self.accepted_key = answer.accepted or self.accepted_key
+            if answer.error:  # over SSH: as any exchange's failure
+                raise TransportError(f"probe: {answer.error}")
+        return answer
 
     # -- reports -----------------------------------------------------------
 
@@ -370,21 +316,3 @@ class Remote:
             if os.path.exists(path):
                 os.unlink(path)
         return True
-
-
-def _communicate(process, stdin: bytes | None, timeout: float, reader: threading.Thread | None):
-    """``process.communicate``, or, while ``reader`` drains its stderr, the
-    same for stdin and stdout alone; TimeoutExpired after ``timeout``."""
-    if reader is None:
-        return process.communicate(stdin, timeout=timeout)
-    deadline = time.monotonic() + timeout
-    if stdin:
-        process.stdin.write(stdin)
-        process.stdin.close()
-    chunks: list[bytes] = []
-    out = threading.Thread(target=lambda: chunks.extend(iter(lambda: process.stdout.read(65536), b"")), daemon=True)
-    out.start()
-    process.wait(timeout=max(0.0, deadline - time.monotonic()))
-    for thread in (out, reader):
-        thread.join(max(0.0, deadline - time.monotonic()))
-    return b"".join(chunks), b""

@@ -1,9 +1,9 @@
 """What a wake's exchanges with the fleet remote cost (robotfleet/pull/robot/transport.py
 makes them): bytes each way, requests and seconds, per exchange and in all.
-Over SSH, ssh's own count from its log ("Transferred: sent N, received M
-bytes"; its debug level also names the key the server accepted), each ssh
-session one request; over HTTPS, git's own trace of its HTTP exchanges
-(GIT_TRACE_CURL, read as it streams)."""
+Over SSH, ssh's own count from its log (read by
+robotfleet/pull/robot/remote_git.py), each ssh session one request; over
+HTTPS, git's own trace of its HTTP exchanges (GIT_TRACE_CURL, read as it
+streams)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,6 @@ import re
 import threading
 from dataclasses import dataclass, field
 
-_TRANSFERRED = re.compile(r"Transferred: sent (\d+), received (\d+) bytes")
-_ACCEPTED = re.compile(r"Authenticated to .* using \"publickey\"|Server accepts key: (\S+)")
 # git's trace of curl (http.c): "=> Send header, 0000000247 bytes (0xf7)"
 _CURL = re.compile(rb"^\S+ \S+:\d+ +(=>|<=) (?:Send|Recv) (header|data), (\d+) bytes")
 _TRACE = re.compile(rb"^\d\d:\d\d:\d\d\.\d+ \S+:\d+ ")
@@ -47,16 +45,6 @@ class Cost:
             "requests": self.requests,
             "exchanges": self.exchanges,
         }
-
-
-def read_ssh_log(text: str) -> tuple[int, int, str | None]:
-    """(bytes sent, bytes received, the key the server accepted) from ssh's log."""
-    sent = received = 0
-    for match in _TRANSFERRED.finditer(text):
-        sent += int(match.group(1))
-        received += int(match.group(2))
-    accepted = [m.group(1) for m in _ACCEPTED.finditer(text) if m.group(1)]
-    return sent, received, accepted[-1] if accepted else None
 
 
 class CurlTrace:
