@@ -88,6 +88,12 @@ class Listener:
             return
 
     def close(self):
+        # shutdown first: close alone leaves the accept() blocked in _serve's thread listening in the kernel,
+        # and under load the next test's server came to share its port (a client then met this one's host key)
+        try:
+            self.socket.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
         self.socket.close()
         for item in self.open:
             try:

@@ -54,6 +54,10 @@ class Scripted:
                 pass
 
     def close(self):
+        try:  # wakes the accept() in _serve's thread; close alone leaves it listening (sshserver.Listener.close)
+            self.socket.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
         self.socket.close()
 
 
