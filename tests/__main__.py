@@ -15,6 +15,8 @@ with its wall time.  The exit code is pytest's for the first layer that
 failed, unit and integration first, then the groups in order (0 when all
 passed; a process whose tests the options leave out does not count).
 Options are handed to every process (e.g. -x, -k, -p no:cacheprovider).
+Every process runs with at most 1,024 open files (OPEN_FILES), as on a
+fresh machine, whatever this shell's limit is.
 
 One layer alone: .venv/bin/python -m pytest tests/unit (or tests/integration,
 tests/e2e: every end-to-end module on one lab); all three one after the
@@ -24,6 +26,7 @@ other: .venv/bin/python -m pytest.
 from __future__ import annotations
 
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -112,8 +115,20 @@ def e2e_layers(options: list[str]) -> list[Layer]:
     return layers
 
 
+# The usual soft limit of open files on a fresh machine: the layers run
+# under it wherever they run, so a descriptor leak fails here as on CI.
+OPEN_FILES = 1024
+
+
+def usual_open_file_limit() -> None:
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY or soft > OPEN_FILES:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (OPEN_FILES, hard))
+
+
 def main(argv: list[str]) -> int:
     started = time.monotonic()
+    usual_open_file_limit()
     local = local_layer(argv)
     e2e = e2e_layers(argv)
     try:

@@ -7,6 +7,7 @@ makes gevent warn.  So each of these fixtures imports its module when a
 test runs."""
 
 import importlib
+import sys
 
 import pytest
 
@@ -27,6 +28,23 @@ state = _imported_when_used("state", "tests.lab.state")
 emulation = _imported_when_used("emulation", "tests.lab.emulation")
 registry = _imported_when_used("registry", "roles.payload.registry")
 image_transfer = _imported_when_used("image_transfer", "roles.payload.image_transfer")
+
+
+@pytest.fixture(autouse=True)
+def _deferred_closes_done():
+    """Once pyinfra has patched the process with gevent (gevent >= 25.8.1),
+    ``os.close`` of anything but a regular file (a directory, a pipe) only
+    closes when gevent's loop next runs.  Tests that run no greenlet after
+    an earlier test made the hub (test_lifecycle's fsynced directories)
+    left thousands of descriptors open, and the session ended on "Too many
+    open files" under a soft limit of 1024.  The loop runs once after each
+    test, as it does all the time in a pyinfra run."""
+    yield
+    monkey = sys.modules.get("gevent.monkey")
+    if monkey is not None and monkey.is_module_patched("os"):
+        import gevent
+
+        gevent.idle()
 
 
 @pytest.fixture(scope="module")
