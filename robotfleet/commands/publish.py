@@ -1,7 +1,7 @@
 """Publish a signed release for the pull robots: the deploy code at a commit, the fleet file and every image digest.
 
     robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME|URL | --to-dir DIR] [--keys DIR]
-                       [--canary 1] [--waves 50%,100%] [--pause 600] [--max-failed 0]
+                       [--canary 1] [--waves 50%,100%] [--pause SECONDS] [--max-failed 0]
     robotfleet publish --renew [--remote NAME|URL | --to-dir DIR] [--keys DIR]
 
 FLEET_FILE (default inventories/robots.yaml) is read as the commit has it;
@@ -62,7 +62,13 @@ def parse_args(argv: list[str]):
         default="100%",
         help="cumulative shares of the robots after the canaries, comma-separated (default 100%%)",
     )
-    parser.add_argument("--pause", type=int, default=600, help="seconds between waves (default 600)")
+    parser.add_argument(
+        "--pause",
+        type=int,
+        default=None,
+        help="seconds between waves (default: the robots' longest pull_interval + pull_jitter, so each wave's "
+        "robots have checked before the next opens)",
+    )
     parser.add_argument(
         "--max-failed",
         default="0",
@@ -110,7 +116,7 @@ def plan_of(args) -> waves.Plan:
             {
                 "canary": args.canary,
                 "waves": [w.strip() for w in args.waves.split(",")],
-                "pause": args.pause,
+                "pause": 0 if args.pause is None else args.pause,
                 "max_failed": args.max_failed,
             },
             where="options",
@@ -130,6 +136,7 @@ def options_of(args) -> publishing.Options:
         revision=args.commit,
         fleet=args.fleet,
         plan=plan,
+        pause_from_checks=args.pause is None,
         expiry=commandline.expiry_of(args),
         wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),
         index_url=args.index_url,
@@ -178,7 +185,7 @@ def release(args) -> int:
         f"publish: release {record.version} ({record.release}): commit {record.commit[:12]}, "
         f"{len(record.robots)} robot(s), {images} image(s) by digest, wheels {wheels}; {where}"
     )
-    for line in waves.describe(list(record.robots), record.version, options.plan, record.published_at):
+    for line in waves.describe(list(record.robots), record.version, record.rollout, record.published_at):
         print(f"publish: {line}")
     return selection.OK
 

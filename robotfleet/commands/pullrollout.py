@@ -41,7 +41,13 @@ def add_options(parser) -> None:
         help="the releases remote (default: git config robotfleet.remote, else the robots' pull_remote)",
     )
     pull.add_argument("--keys", metavar="DIR", help="the release keys (default: robotfleet keys' directory)")
-    pull.add_argument("--pause", type=int, default=600, help="seconds between two waves opening (default 600)")
+    pull.add_argument(
+        "--pause",
+        type=int,
+        default=None,
+        help="seconds between two waves opening (default: robotfleet publish's, the robots' longest "
+        "pull_interval + pull_jitter)",
+    )
     pull.add_argument(
         "--timeout", type=int, default=3600, help="seconds to follow the reports before giving up (default 3600)"
     )
@@ -66,10 +72,16 @@ def plan_of(args) -> waves.Plan:
         {
             "canary": str(args.canary),
             "waves": list(dict.fromkeys(shares)),
-            "pause": args.pause,
+            "pause": 0 if args.pause is None else args.pause,
             "max_failed": str(args.max_failed),
         }
     )
+
+
+def apart(args, plan: waves.Plan) -> str:
+    if args.pause is None:
+        return "as far apart as the robots' longest pull_interval + pull_jitter"
+    return f"{plan.pause} s apart"
 
 
 def publish_argv(args, plan: waves.Plan) -> list[str]:
@@ -78,11 +90,11 @@ def publish_argv(args, plan: waves.Plan) -> list[str]:
         str(plan.canary),
         "--waves",
         ",".join(str(w) for w in plan.waves),
-        "--pause",
-        str(plan.pause),
         "--max-failed",
         str(plan.max_failed),
     ]
+    if args.pause is not None:
+        found += ["--pause", str(plan.pause)]
     for option in ("remote", "keys"):
         if getattr(args, option):
             found += [f"--{option}", getattr(args, option)]
@@ -119,7 +131,7 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
     if args.dry:
         print(
             f"rollout: would publish a release for {len(pulled)} pull robot(s): canary {plan.canary}, waves "
-            f"{', '.join(str(w) for w in plan.waves)}, {plan.pause} s apart, at most {plan.max_failed} failed"
+            f"{', '.join(str(w) for w in plan.waves)}, {apart(args, plan)}, at most {plan.max_failed} failed"
         )
         return selection.OK
     from robotfleet.commands import halt as halting

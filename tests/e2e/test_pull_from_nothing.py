@@ -372,8 +372,8 @@ def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(ser
     said = operator.run(steps[6][0], "step 6, publish with the defaults")
     registry = lab.state["registry"]
     assert f"GET http://{registry}/v2/{LAB_IMAGE.split(':')[0]}/manifests/1.0" in operator.proxy.requests
-    # one robot: the canary is the release's only wave, so the default 600 s pause never holds it
-    assert "1 wave(s); wave k opens at publish + k x 600 s" in said and "(--max-failed 0)" in said, said
+    # one robot: the canary is the release's only wave, so the default pause (900 + 300 s) never holds it
+    assert "1 wave(s); wave k opens at publish + k x 1200 s" in said and "(--max-failed 0)" in said, said
     assert re.search(rf"^publish:   wave 0 \(canary\): 1 robot\(s\) from \S+: {ROBOT}$", said, re.M), said
 
     said = operator.run(steps[7][0], "step 7, the push deploy and pull-enroll", lab_commands(server), answer="\n")

@@ -29,7 +29,7 @@ robots:
     pull_remote: https://git.example.com/fleet.git
   hosts:
     robot1: {{address: 127.0.0.1}}
-    robot2: {{address: 127.0.0.1, payload_image: "{registry}/ros/payload:1.2"}}
+    robot2: {{address: 127.0.0.1, payload_image: "{registry}/ros/payload:1.2", pull_interval: 1000}}
     robot3: {{address: 127.0.0.1, pull_enabled: false}}
 """
 
@@ -142,8 +142,10 @@ def test_publish_binds_commit_tree_fleet_and_digests_and_a_robot_verifies_it(sit
     assert "pushed robotfleet/releases to" in done.stdout
     client, record = robot_refresh(site)
     assert record.version == 1
-    # the plan it signed, as the robots will read it
-    assert "publish: 2 wave(s); wave k opens at publish + k x 600 s" in done.stdout
+    # the plan it signed, as the robots will read it: without --pause, the waves are as far apart as the
+    # robots' longest pull_interval + pull_jitter (robot2: 1000 + the default 300)
+    assert record.rollout.pause == 1300
+    assert "publish: 2 wave(s); wave k opens at publish + k x 1300 s" in done.stdout
     assert f"publish:   wave 0 (canary): 1 robot(s) from {record.published}: " in done.stdout
     assert record.commit == git(site["checkout"], "rev-parse", "HEAD")
     assert record.robots == ("robot1", "robot2")  # robot3 is not pull

@@ -168,6 +168,11 @@ def test_a_pull_rollout_s_waves_and_what_it_counts():
     assert [str(w) for w in pullrollout.plan_of(args).waves] == ["30%", "60%", "90%", "100%"]
     args.batch = waves.parse_count("2", "b")
     assert [str(w) for w in pullrollout.plan_of(args).waves] == ["100%"]
+    args.fleet, args.remote, args.keys, args.publish_option = "robots.yaml", None, None, []
+    assert pullrollout.publish_argv(args, pullrollout.plan_of(args))[-2:] == ["--pause", "60"]
+    args.pause = None  # no --pause: publish's own default (the robots' longest check period) decides
+    assert "--pause" not in pullrollout.publish_argv(args, pullrollout.plan_of(args))
+    assert pullrollout.apart(args, pullrollout.plan_of(args)).startswith("as far apart as the robots' longest")
     applied = reports.parse(reports.to_bytes(made()), "robot1")
     assert pullrollout.outcome(applied, 7) == "done" and pullrollout.outcome(applied, 8) is None
     assert pullrollout.outcome(reports.parse(reports.to_bytes(made("rolled-back")), "robot1"), 7) == "failed"

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import datetime
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from robotfleet.fleet.validate import Fleet, FleetError, parse
@@ -37,6 +37,7 @@ class Options:
     revision: str = "HEAD"
     fleet: str = DEFAULT_FLEET  # the fleet file, as a path in the commit
     plan: waves.Plan = waves.Plan()
+    pause_from_checks: bool = False  # the plan's pause: the robots' longest check period (longest_check)
     expiry: Expiry = Expiry()
     wheel_cache: Path | None = None  # None: no wheels (tests; robots then need an index)
     index_url: str | None = None
@@ -55,6 +56,14 @@ def pull_hosts(fleet: Fleet, registry) -> list[tuple[str, HostData]]:
         for name, data in fleet.hosts(group)
     ]
     return [(name, data) for name, data in merged if pulls(data)]
+
+
+def longest_check(roles, hosts: list[tuple[str, HostData]]) -> int:
+    """The longest wait between two checks of the release's robots
+    (pull_interval + pull_jitter): the default pause between waves, so that
+    every robot of a wave that is on has checked before the next one opens."""
+    config = pull_part(roles).config
+    return max(found.interval + found.jitter for found in (config(data, name) for name, data in hosts))
 
 
 def resolve_pins(roles, hosts: list[tuple[str, HostData]]) -> dict[str, dict[str, str]]:
@@ -163,7 +172,7 @@ def build(
             [name for name, _ in hosts],
             images,
             wheel_targets,
-            options.plan,
+            replace(options.plan, pause=longest_check(roles, hosts)) if options.pause_from_checks else options.plan,
         )
     except records.RecordError as error:
         raise PublishError(str(error)) from None
