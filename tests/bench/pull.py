@@ -159,8 +159,11 @@ def summary(samples: list[dict]) -> dict:
     }
 
 
-def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
-    """Publish, then the time until 50% and 100% of the robots report the release applied and healthy."""
+def rollout_times(lab, op, interval: int, jitter: int, tag: str, staged: bool = False) -> dict:
+    """Publish, then the time until 50% and 100% of the robots report the
+    release applied and healthy.  All robots in one wave, or ``staged``: with
+    publish's default plan (a canary, then the rest once its pause, the
+    robots' longest interval + jitter, has passed)."""
     from tests.lab import pullfleet
 
     settings = {"pull_interval": interval, "pull_jitter": jitter, "pull_boot_delay": 5}
@@ -177,11 +180,8 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
     done = op.publish(
         pullfleet.fleet_text(op.lab, payload_tag=tag, **settings),
         f"bench {tag}",
-        "--pause",
-        "0",
         "--no-wheels",
-        "--canary",
-        "100%",
+        *(() if staged else ("--canary", "100%", "--pause", "0")),
     )
     version = int(re.search(r"release (\d+)", done.stdout).group(1))
     reached: dict[str, float] = {}
@@ -204,11 +204,14 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
         for line in journal(lab, robot)
         if line["result"] == "applied" and line["version"] == str(version)
     ]
+    applies = [float(u["seconds"]) for u in updates]
     return {
         "interval": interval,
         "jitter": jitter,
+        "staged": staged,
         "robots": len(lab.robots),
         "reached": len(times),
+        "longest_apply": max(applies) if applies else None,
         "to_50%": half,
         "to_100%": times[-1] if len(times) == len(lab.robots) else None,
         "bytes_per_update": (
@@ -217,6 +220,19 @@ def rollout_times(lab, op, interval: int, jitter: int, tag: str) -> dict:
         "load": load,
         "idle": idle,
     }
+
+
+def target_of(sample: dict) -> float | None:
+    """Issue 38 item 5: every robot applied within twice (interval + jitter)
+    plus one apply (the run's longest), pure."""
+    if sample.get("longest_apply") is None:
+        return None
+    return 2 * (sample["interval"] + sample["jitter"]) + sample["longest_apply"]
+
+
+def within_target(sample: dict) -> bool:
+    target = target_of(sample)
+    return target is not None and sample["to_100%"] is not None and sample["to_100%"] <= target
 
 
 def rollout_figure(samples: list[dict]) -> dict:
@@ -234,6 +250,8 @@ def rollout_figure(samples: list[dict]) -> dict:
     return {
         "interval": first["interval"],
         "jitter": first["jitter"],
+        "staged": first.get("staged", False),
+        "within_target": all(within_target(s) for s in samples),
         "robots": first["robots"],
         "samples": len(samples),
         "reached": min(s["reached"] for s in samples),
@@ -338,6 +356,28 @@ def markdown(figures: dict, conditions: dict) -> str:
             f"| {row['interval']} s / {row['jitter']} s | {spread_text(row['to_50%'])} | "
             f"{spread_text(row['to_100%'])}{loaded(row)} | {update} | {row['samples']} |"
         )
+    staged = figures.get("staged")
+    if staged:
+        lines += [
+            "",
+            "Publish with the plan a user gets (no option: one canary, then the rest once the pause, the "
+            "robots' longest `pull_interval` + `pull_jitter`, has passed), the timers 900 s / 300 s of the "
+            f"role's defaults compressed to {staged['interval']} s / {staged['jitter']} s (the pause "
+            f"{staged['interval'] + staged['jitter']} s).  Target (issue 38 item 5): every robot applied "
+            "within 2 x (interval + jitter) + one apply (the run's longest applying wake):",
+            "",
+            "| run | 50% healthy | 100% healthy | longest apply | target | met |",
+            "|---|---|---|---|---|---|",
+        ]
+        for index, run in enumerate(staged["runs"], 1):
+            target = target_of(run)
+            lines.append(
+                f"| {index} | {run['to_50%'] or 0:.1f} | "
+                + (f"{run['to_100%']:.1f}" if run["to_100%"] is not None else f"{run['reached']} robots")
+                + f"{loaded(run)} | {run['longest_apply'] or 0:.1f} | "
+                + (f"{target:.1f}" if target is not None else "-")
+                + f" | {'yes' if within_target(run) else '**no**'} |"
+            )
     lines += [
         "",
         "An idle check on one robot (a wake that finds nothing new; median of its samples; CPU: the "
@@ -374,7 +414,8 @@ def markdown(figures: dict, conditions: dict) -> str:
 
 
 def all_idle(figures: dict) -> bool:
-    return all(f.get("idle") for f in [*figures.get("idle_check", {}).values(), *figures.get("rollouts", [])])
+    found = [*figures.get("idle_check", {}).values(), *figures.get("rollouts", []), figures.get("staged") or {}]
+    return all(f.get("idle", True) for f in found)
 
 
 def main(argv=None) -> int:
@@ -384,6 +425,15 @@ def main(argv=None) -> int:
     parser.add_argument("--intervals", default="30,60")
     parser.add_argument("--jitters", default="0,15")
     parser.add_argument("--runs", type=int, default=3, help="rollouts per interval x jitter")
+    parser.add_argument(
+        "--staged-runs", type=int, default=3, help="rollouts with publish's default plan (a canary, then the rest)"
+    )
+    parser.add_argument(
+        "--staged-timers",
+        default="60/20",
+        metavar="INTERVAL/JITTER",
+        help="their timers (default 60/20: the role's 900/300 divided by 15)",
+    )
     parser.add_argument("--idle-samples", type=int, default=5)
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--write-loaded", action="store_true", help="write even figures taken under load (marked)")
@@ -411,7 +461,16 @@ def main(argv=None) -> int:
                         samples.append(rollout_times(lab, op, interval, jitter, tag))
                         print(f"bench: publish -> healthy: {json.dumps(samples[-1])}", flush=True)
                         tag = "1.0" if tag == "1.1" else "1.1"
-                    figures["rollouts"].append(rollout_figure(samples))
+                    if samples:
+                        figures["rollouts"].append(rollout_figure(samples))
+            interval, jitter = (int(v) for v in args.staged_timers.split("/"))
+            samples = []
+            for _ in range(args.staged_runs):
+                samples.append(rollout_times(lab, op, interval, jitter, tag, staged=True))
+                print(f"bench: staged publish -> healthy: {json.dumps(samples[-1])}", flush=True)
+                tag = "1.0" if tag == "1.1" else "1.1"
+            if samples:
+                figures["staged"] = rollout_figure(samples)
     finally:
         if not args.keep:
             hosts.down(args.prefix)

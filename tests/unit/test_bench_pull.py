@@ -36,3 +36,33 @@ def test_the_journal_line_with_and_without_its_request_count():
     old = "robot-pull: waiting (release 3): w; 1.0 s, 0.22 s CPU, sent 4108 B, received 4936 B; report unchanged"
     assert pull.LINE.match(new)["requests"] == "1" and pull.LINE.match(new)["received"] == "4936"
     assert pull.LINE.match(old)["requests"] is None and pull.LINE.match(old)["report"] == "report unchanged"
+
+
+def staged_run(to_100, longest_apply=12.0, **more):
+    return {
+        "interval": 60,
+        "jitter": 20,
+        "staged": True,
+        "robots": 10,
+        "reached": 10 if to_100 is not None else 7,
+        "longest_apply": longest_apply,
+        "to_50%": 70.0,
+        "to_100%": to_100,
+        "bytes_per_update": 1000,
+        "load": 0.5,
+        "idle": True,
+        **more,
+    }
+
+
+def test_a_staged_rollout_is_judged_against_twice_the_check_period_plus_one_apply():
+    assert pull.target_of(staged_run(150.0)) == 2 * (60 + 20) + 12.0
+    assert pull.within_target(staged_run(172.0)) and not pull.within_target(staged_run(172.5))
+    assert not pull.within_target(staged_run(None))  # a robot that never got there
+    assert not pull.within_target(staged_run(100.0, longest_apply=None))  # no applying wake in the journals
+    figure = pull.rollout_figure([staged_run(150.0), staged_run(180.0)])
+    assert figure["staged"] and not figure["within_target"]
+    text = pull.markdown({"robots": 10, "staged": figure}, {"date": "d"})
+    assert "| 1 | 70.0 | 150.0 | 12.0 | 172.0 | yes |" in text
+    assert "| 2 | 70.0 | 180.0 | 12.0 | 172.0 | **no** |" in text
+    assert pull.all_idle({"staged": figure}) and not pull.all_idle({"staged": {**figure, "idle": False}})
