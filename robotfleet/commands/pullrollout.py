@@ -49,7 +49,10 @@ def add_options(parser) -> None:
         "pull_interval + pull_jitter)",
     )
     pull.add_argument(
-        "--timeout", type=int, default=3600, help="seconds to follow the reports before giving up (default 3600)"
+        "--timeout",
+        type=int,
+        default=None,
+        help="seconds to follow the reports before giving up (default: until an hour after the last wave opens)",
     )
     pull.add_argument("--poll", type=int, default=15, help="seconds between two reads of the reports (default 15)")
     pull.add_argument(
@@ -82,6 +85,16 @@ def apart(args, plan: waves.Plan) -> str:
     if args.pause is None:
         return "as far apart as the robots' longest pull_interval + pull_jitter"
     return f"{plan.pause} s apart"
+
+
+def following(timeout: int | None, record) -> int:
+    """Seconds to follow the reports of ``record``: ``timeout``, or by
+    default an hour past its last wave's opening (the waves' pause is
+    publish's choice when --pause is not given)."""
+    if timeout is not None:
+        return timeout
+    last = len(waves.waves(list(record.robots), record.version, record.rollout)) - 1
+    return last * record.rollout.pause + 3600
 
 
 def publish_argv(args, plan: waves.Plan) -> list[str]:
@@ -158,7 +171,8 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
         flush=True,
     )
     said: dict[str, str] = {}
-    deadline = time.monotonic() + args.timeout
+    timeout = following(args.timeout, record)
+    deadline = time.monotonic() + timeout
     while True:
         try:
             found = pullstatus.fetch(url, shards=shards)
@@ -197,7 +211,7 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
         if time.monotonic() > deadline:
             waiting = [r for r in robots if r not in said]
             print(
-                f"rollout: release {record.version}: no outcome within {args.timeout} s from "
+                f"rollout: release {record.version}: no outcome within {timeout} s from "
                 f"{', '.join(waiting[:10])}" + (" ..." if len(waiting) > 10 else ""),
                 file=sys.stderr,
             )

@@ -173,6 +173,12 @@ def test_a_pull_rollout_s_waves_and_what_it_counts():
     args.pause = None  # no --pause: publish's own default (the robots' longest check period) decides
     assert "--pause" not in pullrollout.publish_argv(args, pullrollout.plan_of(args))
     assert pullrollout.apart(args, pullrollout.plan_of(args)).startswith("as far apart as the robots' longest")
+    # followed until an hour past the last wave's opening, unless --timeout says: a canary and 4 waves of 8
+    args.pause, args.batch = 60, waves.parse_count("25%", "b")
+    record = SimpleNamespace(robots=[f"robot{i}" for i in range(8)], version=3, rollout=pullrollout.plan_of(args))
+    assert len(waves.waves(record.robots, 3, record.rollout)) == 5
+    assert pullrollout.following(None, record) == 4 * 60 + 3600
+    assert pullrollout.following(120, record) == 120
     applied = reports.parse(reports.to_bytes(made()), "robot1")
     assert pullrollout.outcome(applied, 7) == "done" and pullrollout.outcome(applied, 8) is None
     assert pullrollout.outcome(reports.parse(reports.to_bytes(made("rolled-back")), "robot1"), 7) == "failed"
