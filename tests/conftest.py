@@ -7,6 +7,7 @@ makes gevent warn.  So each of these fixtures imports its module when a
 test runs."""
 
 import importlib
+import os
 import sys
 
 import pytest
@@ -30,21 +31,33 @@ registry = _imported_when_used("registry", "roles.payload.registry")
 image_transfer = _imported_when_used("image_transfer", "roles.payload.image_transfer")
 
 
+# Once pyinfra's CLI is imported, gevent (>= 25.8.1) patches ``os.close`` to
+# close a directory or a pipe only when gevent's loop next runs.  Tests that
+# run no greenlet (temporary directories removed, files fsynced) left
+# thousands of descriptors open, and CI's run ended on "Too many open files".
+
+
 @pytest.fixture(autouse=True)
 def _deferred_closes_done():
-    """Once pyinfra has patched the process with gevent (gevent >= 25.8.1),
-    ``os.close`` of anything but a regular file (a directory, a pipe) only
-    closes when gevent's loop next runs.  Tests that run no greenlet after
-    an earlier test made the hub (test_lifecycle's fsynced directories)
-    left thousands of descriptors open, and the session ended on "Too many
-    open files" under a soft limit of 1024.  The loop runs once after each
-    test, as it does all the time in a pyinfra run."""
+    """The loop runs once after each test, as it does all the time in a
+    pyinfra run (a test that closes thousands by itself, test_lifecycle,
+    takes os.close as it was)."""
     yield
     monkey = sys.modules.get("gevent.monkey")
     if monkey is not None and monkey.is_module_patched("os"):
         import gevent
 
         gevent.idle()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_sessionfinish(session, exitstatus):
+    """pytest's own cleanup removes old temporary directories with
+    shutil.rmtree, which opens and closes every directory while no greenlet
+    runs: the tests being over, os.close is gevent's no more."""
+    monkey = sys.modules.get("gevent.monkey")
+    if monkey is not None and monkey.is_module_patched("os"):
+        os.close = monkey.get_original("os", "close")
 
 
 @pytest.fixture(scope="module")

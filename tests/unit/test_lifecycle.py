@@ -24,6 +24,18 @@ from roles.payload.payloadctl.releases import Releases
 LIFECYCLE = Path(lifecycle.__file__).resolve()
 
 
+@pytest.fixture(autouse=True)
+def _closes_at_once(monkeypatch):
+    """payloadctl runs on robots, never under gevent.  In this process an
+    earlier test's import of pyinfra's CLI may have patched ``os.close`` to
+    close a directory only when gevent's loop next runs, which it never does
+    here: one hypothesis test fsyncs directories thousands of times, past
+    a soft limit of 1,024 open files within the test."""
+    monkey = sys.modules.get("gevent.monkey")
+    if monkey is not None and monkey.is_module_patched("os"):
+        monkeypatch.setattr(os, "close", monkey.get_original("os", "close"))
+
+
 class PowerCut(BaseException):
     """The power goes: nothing after this step happens (not an Exception:
     no handler of payloadctl's may catch it and tidy up)."""
