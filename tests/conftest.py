@@ -8,9 +8,10 @@ test runs."""
 
 import importlib
 import os
-import sys
 
 import pytest
+
+from tests.fixtures import gevent_os_patched
 
 
 def _imported_when_used(name: str, module: str):
@@ -43,8 +44,7 @@ def _deferred_closes_done():
     pyinfra run (a test that closes thousands by itself, test_lifecycle,
     takes os.close as it was)."""
     yield
-    monkey = sys.modules.get("gevent.monkey")
-    if monkey is not None and monkey.is_module_patched("os"):
+    if gevent_os_patched():
         import gevent
 
         gevent.idle()
@@ -55,8 +55,8 @@ def pytest_sessionfinish(session, exitstatus):
     """pytest's own cleanup removes old temporary directories with
     shutil.rmtree, which opens and closes every directory while no greenlet
     runs: the tests being over, os.close is gevent's no more."""
-    monkey = sys.modules.get("gevent.monkey")
-    if monkey is not None and monkey.is_module_patched("os"):
+    monkey = gevent_os_patched()
+    if monkey:
         os.close = monkey.get_original("os", "close")
 
 

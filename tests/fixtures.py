@@ -10,9 +10,20 @@ import io
 import os
 import pwd
 import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def gevent_os_patched():
+    """gevent.monkey when it has patched this process's os module (pyinfra's
+    CLI imported: ``os.close`` of a directory or pipe waits for gevent's
+    loop, tests/conftest.py), else None."""
+    monkey = sys.modules.get("gevent.monkey")
+    return monkey if monkey is not None and monkey.is_module_patched("os") else None
+
+
 # pyinfra's command line as `python -c PYINFRA ...`: the CLI of the pyinfra
 # this interpreter imports, whatever is first on PATH.
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"

@@ -20,6 +20,7 @@ from roles.payload import installed_files as payload
 from roles.payload.payloadctl import durable, lifecycle
 from roles.payload.payloadctl.lifecycle import ACTIVE, FAILED, PREPARED, SETTLED, STAGED, STATES, SWITCHING, Life
 from roles.payload.payloadctl.releases import Releases
+from tests.fixtures import gevent_os_patched
 
 LIFECYCLE = Path(lifecycle.__file__).resolve()
 
@@ -31,8 +32,8 @@ def _closes_at_once(monkeypatch):
     close a directory only when gevent's loop next runs, which it never does
     here: one hypothesis test fsyncs directories thousands of times, past
     a soft limit of 1,024 open files within the test."""
-    monkey = sys.modules.get("gevent.monkey")
-    if monkey is not None and monkey.is_module_patched("os"):
+    monkey = gevent_os_patched()
+    if monkey:
         monkeypatch.setattr(os, "close", monkey.get_original("os", "close"))
 
 
