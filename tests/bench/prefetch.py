@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 
 from tests.bench import hygiene
-from tests.bench.pull import journal, setup
+from tests.bench.pull import journal, phases, setup
 
 LEAD = 240  # seconds from a run's start to its window: the settings release applied, the prefetch done
 
@@ -108,12 +108,13 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
             ):
                 reached[robot] = time.monotonic() - woken
         time.sleep(1)
-    wakes = [
-        float(line["seconds"])
+    applying = [
+        line
         for robot in lab.robots
         for line in journal(lab, robot)
         if line["result"] == "applied" and line["version"] == str(version)
     ]
+    wakes = [float(line["seconds"]) for line in applying]
     for robot in lab.robots:
         lab.sh(robot, "systemctl start robot-pull.timer")
     return {
@@ -124,6 +125,7 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
         "reached": len(reached),
         "to_healthy": sorted(reached.values()),
         "applying_wake_s": sorted(wakes),
+        "phases": [phases(line) for line in applying],
         "window": window,
         "load": load,
         "idle": idle,
@@ -141,10 +143,17 @@ def compare(runs: list[dict]) -> dict:
             "runs": len(mine),
             "applying_wake_s": statistics.median(wakes) if wakes else None,
             "to_healthy_s": statistics.median(healthy) if healthy else None,
+            "phases_s": median_phases([p for r in mine for p in r.get("phases", [])]),
             "all_reached": all(r["reached"] == r["robots"] for r in mine),
             "idle": all(r["idle"] for r in mine),
         }
     return found
+
+
+def median_phases(found: list[dict[str, float]]) -> dict[str, float]:
+    """Each phase's median over the applying wakes that had it (pure)."""
+    names = list(dict.fromkeys(name for each in found for name in each))
+    return {name: round(statistics.median(e[name] for e in found if name in e), 2) for name in names}
 
 
 def main(argv=None) -> int:

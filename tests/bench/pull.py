@@ -48,12 +48,22 @@ ROOT = Path(__file__).resolve().parents[2]
 LINE = re.compile(
     r"robot-pull: (?P<result>[a-z-]+)(?: \(release (?P<version>\d+)\))?.*; (?P<seconds>[\d.]+) s, "
     r"(?P<cpu>[\d.]+) s CPU, sent (?P<sent>\d+) B, received (?P<received>\d+) B"
-    r"(?: in (?P<requests>\d+) requests)?; (?P<report>.*)$"
+    r"(?: in (?P<requests>\d+) requests)?; (?P<report>.*?)(?: \[(?P<phases>[^\]]*)\])?$"
 )
 FLEET_SIZE = 10_000
 COST = ("seconds", "cpu", "sent", "received", "requests")
 # bytes per report ref a push receives (pkt-line: 4 + 40-hex oid + space + refs/reports/<name> + LF)
 REF_ADVERTISEMENT = 64
+
+
+def phases(line: dict) -> dict[str, float]:
+    """A journal line's phases ("verify 0.31 s, deploy 4.20 s") as {name: seconds} (pure)."""
+    found = {}
+    for part in (line.get("phases") or "").split(", "):
+        name, _, rest = part.rpartition(" ")[0].rpartition(" ")
+        if name and rest:
+            found[name] = float(rest)
+    return found
 
 
 def journal(lab, robot: str) -> list[dict]:

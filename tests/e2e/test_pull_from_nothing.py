@@ -390,6 +390,11 @@ def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(ser
         and "applied (release 1)" in lab.ok(ROBOT, "journalctl -u robot-pull.service --no-pager")
     )
     assert applied and f" {registry}/{LAB_IMAGE}@sha256:" in row, said  # by its digest, the tag kept
+    # the applying wake's journal line says where its seconds went, the converge's deploy and status read included
+    journal = lab.ok(ROBOT, "journalctl -u robot-pull.service -o cat --no-pager")
+    took = re.search(r"^robot-pull: applied \(release 1\).*; report sent \[(.*)\]$", journal, re.M)
+    names = [part.split(" ")[0] for part in took[1].split(", ")] if took else None
+    assert names == ["fetch", "verify", "decide", "prepare", "load", "deploy", "status", "report"], journal
     # step 8's halt, in its prose, signed with the defaults too
     halt = next(c.text for c in doccommands.inline_commands(ROOT / GUIDE) if c.subcommand == "halt")
     said = operator.run(halt, "step 8, halt", {'"..."': "'the guide, end to end'"})

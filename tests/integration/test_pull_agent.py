@@ -42,7 +42,8 @@ with open(os.path.join(args[args.index("--work") + 1], "pyinfra.log"), "w") as l
 mode = os.environ.get("STUB", "applied")
 if mode == "applied":
     print(json.dumps({"exit": 0, "row": row, "results": [{"role": "payload", "ok": True, "why": "healthy",
-                      "outcome": "applied"}], "missing": [], "errors": [], "watch": watch}))
+                      "outcome": "applied"}], "missing": [], "errors": [], "watch": watch,
+                      "took": {"deploy": 0.5, "status": 0.25}}))
 else:
     print(json.dumps({"exit": 1, "row": row, "results": [{"role": "payload", "ok": False,
                       "why": "release x failed (unhealthy); rolled back to y", "outcome": mode}],
@@ -335,6 +336,40 @@ def test_the_journal_line_says_the_outcome_and_its_cost():
         "robot-pull: refused (release 3): timestamp.json: expired; 1.2 s, 0.42 s CPU, sent 1200 B, "
         "received 3400 B in 2 requests; report sent"
     )
+    phases = journal.Phases()
+    phases.add("fetch", 0.2)
+    phases.add("verify", 0.5)
+    phases.add("fetch", 0.1)
+    phases.add("ignored", -1)
+    assert journal.journal_line(report, "report sent", 1.25, phases).endswith(
+        "in 2 requests; report sent [fetch 0.30 s, verify 0.50 s]"
+    )
+
+
+def test_an_applying_wake_s_journal_line_says_where_its_seconds_went(world):
+    world.release(1)
+    awake = agent.Wake(world.config, clock=lambda: NOW)
+    os.environ["STUB"] = "applied"
+    try:
+        report, outcome = awake.run()
+    finally:
+        del os.environ["STUB"]
+    took = awake.phases.seconds
+    assert outcome.result == "applied"
+    assert list(took) == ["fetch", "verify", "decide", "prepare", "load", "deploy", "status"]
+    # the converge's own figures as it timed them; the rest of its process's time is the release's loading
+    assert (took["deploy"], took["status"]) == (0.5, 0.25) and took["load"] >= 0
+    line = journal.journal_line(report, "report sent", 2.0, awake.phases)
+    assert line.endswith("; report sent [" + ", ".join(f"{k} {v:.2f} s" for k, v in took.items()) + "]")
+
+
+def test_a_converge_that_times_nothing_leaves_its_whole_time_as_load():
+    phases = journal.Phases()
+    awake = agent.Wake.__new__(agent.Wake)
+    awake.phases = phases
+    awake.converge_took(1.5, None)
+    awake.converge_took(1.0, {"deploy": 2.0, "status": "x", "other": 1})  # more than it took: load stays 0
+    assert phases.seconds == {"load": 1.5, "deploy": 2.0}
 
 
 def test_the_agent_configuration_is_checked_field_by_field(tmp_path):

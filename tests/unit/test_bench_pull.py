@@ -3,7 +3,7 @@ git server per hour, from one robot's measured check (pure)."""
 
 import pytest
 
-from tests.bench import pull
+from tests.bench import prefetch, pull
 
 IDLE = {
     "without a report push": {"seconds": 1.0, "cpu": 0.2, "sent": 4000, "received": 5000, "requests": 1},
@@ -36,6 +36,22 @@ def test_the_journal_line_with_and_without_its_request_count():
     old = "robot-pull: waiting (release 3): w; 1.0 s, 0.22 s CPU, sent 4108 B, received 4936 B; report unchanged"
     assert pull.LINE.match(new)["requests"] == "1" and pull.LINE.match(new)["received"] == "4936"
     assert pull.LINE.match(old)["requests"] is None and pull.LINE.match(old)["report"] == "report unchanged"
+
+
+def test_an_applying_wake_s_phases_are_read_from_its_journal_line():
+    line = pull.LINE.match(
+        "robot-pull: applied (release 4): release 4 applied; 7.3 s, 2.10 s CPU, sent 10 B, received 20 B in 3 "
+        "requests; report sent [fetch 0.21 s, verify 0.50 s, deploy 4.20 s, status 0.61 s, report 0.30 s]"
+    )
+    assert line["report"] == "report sent"
+    assert pull.phases(line.groupdict()) == {"fetch": 0.21, "verify": 0.5, "deploy": 4.2, "status": 0.61, "report": 0.3}
+    idle = pull.LINE.match("robot-pull: idle; 0.1 s, 0.07 s CPU, sent 1 B, received 2 B; r")
+    assert pull.phases(idle.groupdict()) == {}
+
+
+def test_each_phase_s_median_over_the_wakes_that_had_it():
+    found = [{"verify": 0.5, "deploy": 4.0}, {"verify": 0.7, "deploy": 5.0, "prepare": 1.0}, {"deploy": 6.0}]
+    assert prefetch.median_phases(found) == {"verify": 0.6, "deploy": 5.0, "prepare": 1.0}
 
 
 def staged_run(to_100, longest_apply=12.0, **more):

@@ -44,7 +44,7 @@ from robotfleet.pull.protocol import record as records
 from robotfleet.pull.protocol.path_signatures import watched
 from robotfleet.pull.robot import agent_state, idle, trust_state, wake_report
 from robotfleet.pull.robot import decide as deciding
-from robotfleet.pull.robot.journal import cpu_seconds, journal_line
+from robotfleet.pull.robot.journal import Phases, cpu_seconds, journal_line
 from robotfleet.pull.robot.transport import Remote, TransportError
 
 # trust (python-tuf), prepare, wheels, prefetch, release_run, shutil...: imported
@@ -89,6 +89,7 @@ class Wake:
         self.status_time: str | None = None
         self.reference_time = clock()
         self.medium: Path | None = None  # a mounted release on media, this wake's source (robot/media.py)
+        self.phases = Phases()
 
     # -- the steps ---------------------------------------------------------
 
@@ -187,17 +188,18 @@ class Wake:
         platform = platforms.platform_key()
         wanted = [record.code, *record.wheels_for(platform)]
         try:
-            files = client.download(wanted, self.state_dir / "targets")
-            code = prepare.code_dir(self.state_dir, record, files[record.code])
-            venv = (
-                prepare.venv_for(self.state_dir, {p: files[p] for p in record.wheels_for(platform)})
-                if record.wheels_for(platform)
-                else Path(os.path.realpath(self.state_dir / "venv"))
-            )
-            if self.medium is not None:  # its images too, checked (robot/media.py)
-                from robotfleet.pull.robot import media
+            with self.phases.timed("prepare"):
+                files = client.download(wanted, self.state_dir / "targets")
+                code = prepare.code_dir(self.state_dir, record, files[record.code])
+                venv = (
+                    prepare.venv_for(self.state_dir, {p: files[p] for p in record.wheels_for(platform)})
+                    if record.wheels_for(platform)
+                    else Path(os.path.realpath(self.state_dir / "venv"))
+                )
+                if self.medium is not None:  # its images too, checked (robot/media.py)
+                    from robotfleet.pull.robot import media
 
-                media.load_images(client, record, robot, platform.split("-", 1)[1], self.state_dir / "media")
+                    media.load_images(client, record, robot, platform.split("-", 1)[1], self.state_dir / "media")
         except refusals.Refused as refused:
             raise Outcome("refused", refused.line, refused.reason, wave) from None
         except prepare.Mismatch as error:
@@ -209,6 +211,7 @@ class Wake:
         release_file = work.with_suffix(".release.json")
         work.mkdir(parents=True, exist_ok=True, mode=0o700)
         release_file.write_bytes(record.to_bytes())
+        started = time.monotonic()
         said = release_run.run(
             venv / "bin" / "python",
             code,
@@ -227,6 +230,7 @@ class Wake:
             ],
         )
         release_file.unlink(missing_ok=True)
+        self.converge_took(time.monotonic() - started, said.get("took"))
         if said.get("row"):
             self.read_status(said, code)
         outcome = Outcome(*release_run.classify(said, record.version), wave=wave)
@@ -242,6 +246,14 @@ class Wake:
             os.replace(work / "pyinfra.log", self.state_dir / "last-run.log")
         shutil.rmtree(work, ignore_errors=True)
         return self.tried(outcome)
+
+    def converge_took(self, seconds: float, took) -> None:
+        """The converge run's seconds: its deploy and status read as it
+        timed them, the rest (the release's Python and roles loading) as load."""
+        took = {k: v for k, v in (took or {}).items() if k in ("deploy", "status") and isinstance(v, (int, float))}
+        self.phases.add("load", max(0.0, seconds - sum(took.values())))
+        for name, spent in took.items():
+            self.phases.add(name, spent)
 
     def tried(self, outcome: Outcome) -> Outcome:
         previous = self.state.get("attempted") or {}
@@ -260,21 +272,29 @@ class Wake:
         outcome = None
         try:
             self.check_disk()
-            self.fetch()
-            client = None if self.recall() else self.verify()
-            decision = self.decide()
+            with self.phases.timed("fetch"):
+                self.fetch()
+            with self.phases.timed("verify"):
+                client = None if self.recall() else self.verify()
+            with self.phases.timed("decide"):
+                decision = self.decide()
             if decision.result == deciding.APPLY:
-                outcome = self.apply(client or self.verify(), decision.wave)
+                if client is None:
+                    with self.phases.timed("verify"):
+                        client = self.verify()
+                outcome = self.apply(client, decision.wave)
             elif decision.result == "waiting":  # time to put it in place: robotfleet/pull/robot/prefetch.py
                 from robotfleet.pull.robot import prefetch
 
-                outcome = Outcome(*prefetch.ahead(self, client, decision), wave=decision.wave)
+                with self.phases.timed("prefetch"):
+                    outcome = Outcome(*prefetch.ahead(self, client, decision), wave=decision.wave)
             else:
                 outcome = Outcome(decision.result, decision.reason, wave=decision.wave)
         except Outcome as ended:
             outcome = ended
         if self.status_time is None:
-            self.roles_status()
+            with self.phases.timed("status"):
+                self.roles_status()
         return wake_report.build(self, outcome), outcome
 
     # -- the roles' status ----------------------------------------------------
@@ -344,7 +364,8 @@ def main(argv=None) -> int:
         report, outcome = wake.run()
         if wake.record is not None:
             wake.state["seen"] = reports.version_of(wake.record)
-        sent = wake_report.send(wake, report)
+        with wake.phases.timed("report"):
+            sent = wake_report.send(wake, report)
         agent_state.save_state(state, wake.state)
         idle.remember(wake, outcome, text, sent)
         report["check"]["cpu"] = cpu_seconds()
@@ -355,7 +376,7 @@ def main(argv=None) -> int:
                 "requests": wake.remote.cost.requests,
             }
         )
-        print(journal_line(report, sent, time.monotonic() - started), flush=True)
+        print(journal_line(report, sent, time.monotonic() - started, wake.phases), flush=True)
     return 0
 
 

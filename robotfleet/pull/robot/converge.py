@@ -11,7 +11,8 @@ payload's apply lock, with a token its own apply joins), runs the same
 deploy the operator runs, ``pyinfra -y --json inventories/pull.py
 deploy.py`` on @local, with the release's image pins, then reads the
 roles' status on the robot.  Both print one JSON line: {"exit", "row",
-"results", "missing", "errors", "log", "watch"} (``status``: "row",
+"results", "missing", "errors", "log", "watch", "took"} (``took``: the
+deploy's and the status read's seconds; ``status``: "row",
 "missing" and "watch": the roles' watched paths as they were just before
 the status was read, robotfleet/pull/protocol/path_signatures.py ``watched``).
 The agent depends only on that line and these arguments, which every
@@ -25,6 +26,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from robotfleet import CHECKOUT, deploy_roles, status_parts
@@ -135,14 +137,17 @@ def run(args) -> dict:
     )
     command = prefix + [sys.executable, "-m", "pyinfra", "-y", "--json", "inventories/pull.py", "deploy.py"]
     log = work / "pyinfra.log"
+    started = time.monotonic()
     try:
         done = subprocess.run(command, cwd=CHECKOUT, env=env, capture_output=True, text=True, timeout=PYINFRA_TIMEOUT)
         code, stdout, stderr = done.returncode, done.stdout, done.stderr
     except subprocess.TimeoutExpired as error:
         code, stdout, stderr = 124, error.stdout or "", (error.stderr or "") + "\npyinfra: timed out"
     log.write_text(stderr + "\n" + stdout)
+    deployed = time.monotonic()
     watched = watch(roles, data)
     row = status_row(args.robot, roles, data)
+    took = {"deploy": round(deployed - started, 3), "status": round(time.monotonic() - deployed, 3)}
     # What the robot must run is the release's images by the digests it pinned, as the deploy was given them.
     pinned = HostData({**data, **pins})
     return {
@@ -153,6 +158,7 @@ def run(args) -> dict:
         "missing": missing(roles, pinned, row),
         "errors": errors_of(stderr) if code else [],
         "log": str(log),
+        "took": took,
     }
 
 

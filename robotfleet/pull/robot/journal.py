@@ -5,6 +5,8 @@ wake's (robotfleet/pull/robot/wake_report.py) and the idle check's
 from __future__ import annotations
 
 import resource
+import time
+from contextlib import contextmanager
 
 
 def cpu_seconds() -> float:
@@ -13,9 +15,33 @@ def cpu_seconds() -> float:
     return round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
 
 
-def journal_line(report: dict, sent: str, seconds: float) -> str:
+class Phases:
+    """Where a full wake's seconds went, in the order its steps ran: the
+    journal line ends with them, so a slow wake says which step was slow."""
+
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def timed(self, name: str):
+        started = time.monotonic()
+        try:
+            yield
+        finally:
+            self.add(name, time.monotonic() - started)
+
+    def add(self, name: str, seconds) -> None:
+        if isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and seconds >= 0:
+            self.seconds[name] = self.seconds.get(name, 0.0) + seconds
+
+    def text(self) -> str:
+        return ", ".join(f"{name} {seconds:.2f} s" for name, seconds in self.seconds.items())
+
+
+def journal_line(report: dict, sent: str, seconds: float, phases: Phases | None = None) -> str:
     """The wake's one line: its outcome, and what it cost (the whole wake:
-    CPU of the agent and everything it ran, bytes over the network)."""
+    CPU of the agent and everything it ran, bytes over the network), then
+    where its seconds went (``phases``, a full wake's)."""
     check = report.get("check") or {}
     seen = report.get("seen") or {}
     head = f"robot-pull: {report['result']}"
@@ -26,5 +52,5 @@ def journal_line(report: dict, sent: str, seconds: float) -> str:
     return (
         f"{head}; {seconds:.1f} s, {check.get('cpu', 0):.2f} s CPU, "
         f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
-        f"requests; {sent}"
+        f"requests; {sent}" + (f" [{phases.text()}]" if phases and phases.seconds else "")
     )
