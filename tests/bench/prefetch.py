@@ -3,7 +3,7 @@ release, with the release prefetched before the window (issue 35 item 6)
 and with nothing prefetched.  Prints figures; asserts nothing; not part of
 the test command (it builds its own lab).
 
-    python3 -m tests.bench.prefetch [--prefix pf] [--robots 3] [--runs 3] [--keep]
+    python3 -m tests.bench.prefetch [--prefix pf] [--robots 3] [--runs 3] [--keep] [--no-write]
 
 Each run, on every robot of the lab (pull agents installed as
 tests/bench/pull.py's setup does):
@@ -25,7 +25,10 @@ tests/bench/pull.py's setup does):
    payload healthy; then the timers started again.
 
 The two modes alternate run by run, on the same lab and images.  Figures
-wait for an idle machine before each window (tests/bench/hygiene.py).
+wait for an idle machine before each window (tests/bench/hygiene.py); when
+every window started idle they are written to RESULTS.md's section
+``prefetch`` (tests/bench/sections.py), with each phase of the applying
+wake (its journal line: robotfleet/pull/robot/journal.py).
 """
 
 from __future__ import annotations
@@ -33,13 +36,16 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import os
 import re
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
 
-from tests.bench import hygiene
+from tests.bench import hygiene, sections
 from tests.bench.pull import journal, phases, setup
 
 LEAD = 240  # seconds from a run's start to its window: the settings release applied, the prefetch done
@@ -156,12 +162,51 @@ def median_phases(found: list[dict[str, float]]) -> dict[str, float]:
     return {name: round(statistics.median(e[name] for e in found if name in e), 2) for name in names}
 
 
+PHASES = ("fetch", "verify", "decide", "prepare", "load", "deploy", "status", "report")
+
+
+def markdown(found: dict, conditions: dict) -> str:
+    """RESULTS.md's section for ``compare``'s figures (pure)."""
+
+    def cell(value) -> str:
+        return "-" if value is None else f"{value:.2f}"
+
+    lines = [
+        "## A prefetched release in its maintenance window (issue 35 item 6, issue 38 item 5)",
+        "",
+        "Written by `python3 -m tests.bench.prefetch`: its own lab, the robots woken at the window's first second "
+        '(docs/reference/benchmarks.md, "Prefetch"); seconds, medians over the robots and runs.',
+        "",
+        *[f"- {k}: {v}" for k, v in conditions.items()],
+        "",
+        "| mode | window opens -> payload healthy (report) | applying wake | runs |",
+        "|---|---|---|---|",
+    ]
+    for mode, figures in found.items():
+        lines.append(
+            f"| {mode} | {cell(figures['to_healthy_s'])} | {cell(figures['applying_wake_s'])} | {figures['runs']} |"
+        )
+    lines += [
+        "",
+        "Where the applying wake's seconds go (its journal line's phases; `load`: the release's Python and roles "
+        "starting, `deploy`: the converge's pyinfra run, the payload's switch and health gate included):",
+        "",
+        "| mode | " + " | ".join(PHASES) + " |",
+        "|---|" + "---|" * len(PHASES),
+    ]
+    for mode, figures in found.items():
+        phases = figures.get("phases_s") or {}
+        lines.append(f"| {mode} | " + " | ".join(cell(phases.get(name)) for name in PHASES) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python3 -m tests.bench.prefetch", description=__doc__.split("\n\n")[0])
     parser.add_argument("--prefix", default="pf")
     parser.add_argument("--robots", type=int, default=3)
     parser.add_argument("--runs", type=int, default=3, help="runs of each mode (they alternate)")
     parser.add_argument("--keep", action="store_true", help="leave the lab up")
+    parser.add_argument("--no-write", action="store_true", help="print the figures, write nothing")
     args = parser.parse_args(argv)
     from tests.lab import hosts
 
@@ -178,7 +223,24 @@ def main(argv=None) -> int:
     finally:
         if not args.keep:
             hosts.down(args.prefix)
-    print(json.dumps({"runs": runs, "compare": compare(runs)}, indent=2))
+    found = compare(runs)
+    print(json.dumps({"runs": runs, "compare": found}, indent=2))
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    conditions = {
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "commit": commit.stdout.strip(),
+        "cpus": os.cpu_count(),
+        "robots": args.robots,
+        "every window started idle": all(r["idle"] for r in runs),
+    }
+    text = markdown(found, conditions)
+    print(text)
+    if args.no_write:
+        return 0
+    if not runs or not conditions["every window started idle"]:
+        print("[bench] not written: a window did not start idle; rerun on an idle machine", file=sys.stderr)
+        return 1
+    sections.write("prefetch", text, {"conditions": conditions, "runs": runs, "compare": found})
     return 0
 
 

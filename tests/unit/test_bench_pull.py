@@ -54,6 +54,17 @@ def test_each_phase_s_median_over_the_wakes_that_had_it():
     assert prefetch.median_phases(found) == {"verify": 0.6, "deploy": 5.0, "prepare": 1.0}
 
 
+def test_the_prefetch_section_has_a_row_per_mode_and_a_dash_for_a_phase_it_did_not_have():
+    found = {
+        "prefetched": {"runs": 2, "to_healthy_s": 6.47, "applying_wake_s": 5.8, "phases_s": {"deploy": 3.54}},
+        "nothing prefetched": {"runs": 0, "to_healthy_s": None, "applying_wake_s": None, "phases_s": {}},
+    }
+    text = prefetch.markdown(found, {"commit": "abc1234"})
+    assert "- commit: abc1234" in text
+    assert "| prefetched | 6.47 | 5.80 | 2 |" in text and "| nothing prefetched | - | - | 0 |" in text
+    assert "| prefetched | - | - | - | - | - | 3.54 | - | - |" in text
+
+
 def staged_run(to_100, longest_apply=12.0, **more):
     return {
         "interval": 60,
