@@ -47,6 +47,7 @@ from pathlib import Path
 
 from tests.bench import hygiene, sections
 from tests.bench.pull import journal, phases, setup
+from tests.bench.sections import cell
 
 LEAD = 240  # seconds from a run's start to its window: the settings release applied, the prefetch done
 
@@ -167,9 +168,6 @@ PHASES = ("fetch", "verify", "decide", "prepare", "load", "deploy", "status", "r
 
 def markdown(found: dict, conditions: dict) -> str:
     """RESULTS.md's section for ``compare``'s figures (pure)."""
-
-    def cell(value) -> str:
-        return "-" if value is None else f"{value:.2f}"
 
     lines = [
         "## A prefetched release in its maintenance window (issue 35 item 6, issue 38 item 5)",

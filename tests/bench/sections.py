@@ -14,6 +14,11 @@ HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "RESULTS.md"
 
 
+def cell(value) -> str:
+    """A table cell of seconds: two decimals, or a dash for none (pure)."""
+    return "-" if value is None else f"{value:.2f}"
+
+
 def begin(name: str) -> str:
     return f"<!-- section {name}: written by python3 -m tests.bench.{name} -->"
 

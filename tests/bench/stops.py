@@ -32,6 +32,7 @@ from pathlib import Path
 
 from tests.bench import hygiene, sections
 from tests.bench.releases import LAB_TAG, ROOT, deploy
+from tests.bench.sections import cell
 
 # How the payload stops: (what it is, the host's settings without and with
 # the settings for it).  The lab payload (payload.sh) traps TERM and INT; a
@@ -179,9 +180,6 @@ def stop_figures(prefix: str, host: str, tmp: Path, kinds: list[str], rounds: in
 
 def markdown(rows: list[dict], conditions: dict) -> str:
     """The stops section of RESULTS.md (pure)."""
-
-    def cell(value) -> str:
-        return "-" if value is None else f"{value:.2f}"
 
     lines = [
         "## The old payload's stop inside an update (issue 29 item 5)",
