@@ -43,7 +43,7 @@ mode = os.environ.get("STUB", "applied")
 if mode == "applied":
     print(json.dumps({"exit": 0, "row": row, "results": [{"role": "payload", "ok": True, "why": "healthy",
                       "outcome": "applied"}], "missing": [], "errors": [], "watch": watch,
-                      "took": {"deploy": 0.5, "status": 0.25}}))
+                      "took": {"deploy": 0.02, "status": 0.01}}))
 else:
     print(json.dumps({"exit": 1, "row": row, "results": [{"role": "payload", "ok": False,
                       "why": "release x failed (unhealthy); rolled back to y", "outcome": mode}],
@@ -358,7 +358,7 @@ def test_an_applying_wake_s_journal_line_says_where_its_seconds_went(world):
     assert outcome.result == "applied"
     assert list(took) == ["fetch", "verify", "decide", "prepare", "load", "deploy", "status"]
     # the converge's own figures as it timed them; the rest of its process's time is the release's loading
-    assert (took["deploy"], took["status"]) == (0.5, 0.25) and took["load"] >= 0
+    assert (took["deploy"], took["status"]) == (0.02, 0.01) and took["load"] >= 0
     line = journal.journal_line(report, "report sent", 2.0, awake.phases)
     assert line.endswith("; report sent [" + ", ".join(f"{k} {v:.2f} s" for k, v in took.items()) + "]")
 
@@ -368,8 +368,11 @@ def test_a_converge_that_times_nothing_leaves_its_whole_time_as_load():
     awake = agent.Wake.__new__(agent.Wake)
     awake.phases = phases
     awake.converge_took(1.5, None)
-    awake.converge_took(1.0, {"deploy": 2.0, "status": "x", "other": 1})  # more than it took: load stays 0
-    assert phases.seconds == {"load": 1.5, "deploy": 2.0}
+    awake.converge_took(1.0, ["not", "a", "dict"])
+    # what the converge cannot have spent, and what is not a figure, is not taken from it
+    awake.converge_took(1.0, {"deploy": 2.0, "status": "x", "other": 0.5})
+    awake.converge_took(2.0, {"deploy": 1.5, "status": True})
+    assert phases.seconds == {"load": 4.0, "deploy": 1.5}
 
 
 def test_the_agent_configuration_is_checked_field_by_field(tmp_path):

@@ -250,8 +250,11 @@ class Wake:
     def converge_took(self, seconds: float, took) -> None:
         """The converge run's seconds: its deploy and status read as it
         timed them, the rest (the release's Python and roles loading) as load."""
-        took = {k: v for k, v in (took or {}).items() if k in ("deploy", "status") and isinstance(v, (int, float))}
-        self.phases.add("load", max(0.0, seconds - sum(took.values())))
+        said = took if isinstance(took, dict) else {}
+        took = {
+            k: v for k, v in said.items() if k in ("deploy", "status") and type(v) in (int, float) and 0 <= v < seconds
+        }
+        self.phases.add("load", seconds - sum(took.values()))
         for name, spent in took.items():
             self.phases.add(name, spent)
 
