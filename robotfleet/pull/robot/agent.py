@@ -379,7 +379,9 @@ def main(argv=None) -> int:
                 "requests": wake.remote.cost.requests,
             }
         )
-        print(journal_line(report, sent, time.monotonic() - started, wake.phases), flush=True)
+        # an up-to-date wake's line stays the idle check's (robot/idle.py), which times no phases
+        phases = wake.phases if outcome.result != "up-to-date" else None
+        print(journal_line(report, sent, time.monotonic() - started, phases), flush=True)
     return 0
 
 
