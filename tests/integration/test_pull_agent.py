@@ -365,13 +365,11 @@ def test_an_applying_wake_s_journal_line_says_where_its_seconds_went(world):
 
 def test_a_converge_that_times_nothing_leaves_its_whole_time_as_load():
     phases = journal.Phases()
-    awake = agent.Wake.__new__(agent.Wake)
-    awake.phases = phases
-    awake.converge_took(1.5, None)
-    awake.converge_took(1.0, ["not", "a", "dict"])
+    phases.add_run(1.5, None)
+    phases.add_run(1.0, ["not", "a", "dict"])
     # what the converge cannot have spent, and what is not a figure, is not taken from it
-    awake.converge_took(1.0, {"deploy": 2.0, "status": "x", "other": 0.5})
-    awake.converge_took(2.0, {"deploy": 1.5, "status": True})
+    phases.add_run(1.0, {"deploy": 2.0, "status": "x", "other": 0.5})
+    phases.add_run(2.0, {"deploy": 1.5, "status": True})
     assert phases.seconds == {"load": 4.0, "deploy": 1.5}
 
 

@@ -230,7 +230,7 @@ class Wake:
             ],
         )
         release_file.unlink(missing_ok=True)
-        self.converge_took(time.monotonic() - started, said.get("took"))
+        self.phases.add_run(time.monotonic() - started, said.get("took"))
         if said.get("row"):
             self.read_status(said, code)
         outcome = Outcome(*release_run.classify(said, record.version), wave=wave)
@@ -246,17 +246,6 @@ class Wake:
             os.replace(work / "pyinfra.log", self.state_dir / "last-run.log")
         shutil.rmtree(work, ignore_errors=True)
         return self.tried(outcome)
-
-    def converge_took(self, seconds: float, took) -> None:
-        """The converge run's seconds: its deploy and status read as it
-        timed them, the rest (the release's Python and roles loading) as load."""
-        said = took if isinstance(took, dict) else {}
-        took = {
-            k: v for k, v in said.items() if k in ("deploy", "status") and type(v) in (int, float) and 0 <= v < seconds
-        }
-        self.phases.add("load", seconds - sum(took.values()))
-        for name, spent in took.items():
-            self.phases.add(name, spent)
 
     def tried(self, outcome: Outcome) -> Outcome:
         previous = self.state.get("attempted") or {}

@@ -34,6 +34,18 @@ class Phases:
         if isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and seconds >= 0:
             self.seconds[name] = self.seconds.get(name, 0.0) + seconds
 
+    def add_run(self, seconds: float, took) -> None:
+        """A converge run's seconds: its deploy and status read as it timed
+        them (figures it can have spent), the rest (the release's Python and
+        roles loading) as load."""
+        said = took if isinstance(took, dict) else {}
+        took = {
+            k: v for k, v in said.items() if k in ("deploy", "status") and type(v) in (int, float) and 0 <= v < seconds
+        }
+        self.add("load", seconds - sum(took.values()))
+        for name, spent in took.items():
+            self.add(name, spent)
+
     def text(self) -> str:
         return ", ".join(f"{name} {seconds:.2f} s" for name, seconds in self.seconds.items())
 
