@@ -36,17 +36,15 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
 import re
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 from tests.bench import hygiene, sections
-from tests.bench.pull import journal, phases, setup
+from tests.bench.pull import journal, phases, run_conditions, setup
 from tests.bench.sections import cell
 
 LEAD = 240  # seconds from a run's start to its window: the settings release applied, the prefetch done
@@ -229,14 +227,7 @@ def main(argv=None) -> int:
             hosts.down(args.prefix)
     found = compare(runs)
     print(json.dumps({"runs": runs, "compare": found}, indent=2))
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    conditions = {
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "commit": commit.stdout.strip(),
-        "cpus": os.cpu_count(),
-        "robots": args.robots,
-        "every window started idle": all(r["idle"] for r in runs),
-    }
+    conditions = run_conditions(args.robots, **{"every window started idle": all(r["idle"] for r in runs)})
     text = markdown(found, conditions)
     print(text)
     if args.no_write:

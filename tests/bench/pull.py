@@ -66,6 +66,18 @@ def phases(line: dict) -> dict[str, float]:
     return found
 
 
+def run_conditions(robots: int, **more) -> dict:
+    """A section's conditions: when, at which commit, on how many CPUs and robots, and ``more``."""
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    return {
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+        "commit": commit.stdout.strip(),
+        "cpus": os.cpu_count(),
+        "robots": robots,
+        **more,
+    }
+
+
 def journal(lab, robot: str) -> list[dict]:
     code, out = lab.sh(robot, "journalctl -u robot-pull.service -o cat --no-pager | grep '^robot-pull: '")
     return [m.groupdict() for m in map(LINE.match, out.splitlines()) if m]
@@ -484,14 +496,7 @@ def main(argv=None) -> int:
     finally:
         if not args.keep:
             hosts.down(args.prefix)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    conditions = {
-        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-        "commit": commit.stdout.strip(),
-        "cpus": os.cpu_count(),
-        "robots": args.robots,
-        "load limit before each figure (1 min)": hygiene.LIMIT,
-    }
+    conditions = run_conditions(args.robots, **{"load limit before each figure (1 min)": hygiene.LIMIT})
     text = markdown(figures, conditions)
     print(json.dumps(figures, indent=2))
     print(text)
