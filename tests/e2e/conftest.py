@@ -27,6 +27,9 @@ PULL_MEDIA_MODULE = "test_pull_media.py"
 # Releases from a static HTTPS mirror, reports to gitolite (tests/e2e/test_pull_https.py).
 PULL_HTTPS_MODULE = "test_pull_https.py"
 PULL_MODULES = (PULL_MODULE, PULL_MEDIA_MODULE, PULL_HTTPS_MODULE)
+# Modules that never use the laptop: a session of only these starts none (its
+# first run, idle engine and payload are CPU the other labs need).
+WITHOUT_LAPTOP = PULL_MODULES
 
 
 def pytest_collection_modifyitems(items):
@@ -291,8 +294,10 @@ def lab(request):
     started = time.monotonic()
     hosts.down(PREFIX)  # fresh hosts every session, whatever an earlier run left
     # The git server pull mode needs, only when one of its modules runs (tests/e2e/test_pull*.py).
-    git_server = any(item.fspath.basename in PULL_MODULES for item in request.session.items)
-    state = hosts.up(PREFIX, robots=3, laptops=1, git_server=git_server)
+    modules = {item.fspath.basename for item in request.session.items}
+    git_server = bool(modules & set(PULL_MODULES))
+    laptops = 0 if modules <= set(WITHOUT_LAPTOP) else 1
+    state = hosts.up(PREFIX, robots=3, laptops=laptops, git_server=git_server)
     phase("lab up (images, services, hosts)", started)
     yield Lab(state)
     if not os.environ.get("ROBOT_LAB_KEEP"):
