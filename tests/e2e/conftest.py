@@ -288,6 +288,17 @@ def favour_this_thread() -> None:
 
 
 @pytest.fixture(scope="session")
+def stock_machine():
+    """A stock Debian 13 container with this checkout set up (tests/e2e/stock_machine.py)."""
+    from tests.e2e import stock_machine as machine
+
+    started = time.monotonic()
+    for made in machine.started(f"{PREFIX}-stock"):
+        phase("stock Debian 13 container: .ci/setup --python", started)
+        yield made
+
+
+@pytest.fixture(scope="session")
 def lab(request):
     from tests.lab import hosts
 

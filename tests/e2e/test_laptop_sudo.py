@@ -5,20 +5,16 @@ line names the host, that sudo needs a password and the two ways on, and
 each way on works: --use-sudo-password with the password on stdin, the
 sudoers line the message prints, and in a terminal sudo's own prompt, once.
 
-A plain container of the lab's Debian 13 host image (sudo, python3) gets
-this checkout, `.ci/setup --python` as root, and a user `dev`; the deploys
-run as dev with --dry (the snapshot and every sudo command run, nothing
-changes)."""
+The session's stock Debian 13 container with this checkout set up
+(`stock_machine`, tests/e2e/stock_machine.py: sudo, python3) gets a user
+`dev`; the deploys run as dev with --dry (the snapshot and every sudo
+command run, nothing changes)."""
 
 from __future__ import annotations
 
-import shlex
-import time
-
 import pytest
 
-from tests.e2e.conftest import PREFIX, phase
-from tests.e2e.test_stock_machine import CA_BUNDLE, PASSED_ENV, checkout_tar
+from tests.e2e.stock_machine import quote
 
 pytestmark = pytest.mark.e2e
 
@@ -71,53 +67,20 @@ _, status = os.waitpid(pid, 0)
 sys.stdout.write(out.decode(errors="replace").replace("\r\n", "\n"))
 sys.exit(124 if time.monotonic() >= deadline else os.waitstatus_to_exitcode(status))
 """
-IN_TERMINAL = ".venv/bin/python -c " + shlex.quote(TERMINAL)  # then the command, then the answers
+IN_TERMINAL = ".venv/bin/python -c " + quote(TERMINAL)  # then the command, then the answers
 
 
 @pytest.fixture(scope="module")
-def laptop():
-    import os
-
-    from tests.lab import engine, hostimage
-    from tests.lab.state import exec_container
-
-    dc = engine.client()
-    image = hostimage.ensure_host_image(dc)
-    volumes, environment = {}, {"DEBIAN_FRONTEND": "noninteractive"}
-    if os.path.exists(CA_BUNDLE):
-        volumes[CA_BUNDLE] = {"bind": "/etc/host-ca.crt", "mode": "ro"}
-        environment["PIP_CERT"] = "/etc/host-ca.crt"
-    environment.update({k: os.environ[k] for k in PASSED_ENV if k in os.environ})
-    started = time.monotonic()
-    name = f"{PREFIX}-laptop-sudo"
-    for stale in dc.containers.list(all=True, filters={"name": f"^{name}$"}):  # an interrupted run's
-        stale.remove(force=True)
-    container = dc.containers.create(
-        image, ["sleep", "1800"], name=name, hostname="devbox", volumes=volumes, environment=environment
+def laptop(stock_machine):
+    code, out = stock_machine.setup
+    assert code == 0, out[-4000:]
+    code, out = stock_machine.sh(
+        "useradd -m dev && echo 'dev:s3cret-pw' | chpasswd && chmod -R a+rX /w && "
+        f"printf '%s' {quote(FLEET)} > /tmp/fleet.yaml && chmod a+r /tmp/fleet.yaml"
     )
-    try:
-        container.start()
-        container.put_archive("/", checkout_tar())
-
-        def sh(script: str, user: str | None = None) -> tuple[int, str]:
-            command = script if user is None else f"su {user} -c {quote('cd /w && ' + script)}"
-            return exec_container(container, command)
-
-        code, out = sh("cd /w && .ci/setup --python 2>&1")
-        assert code == 0, out[-4000:]
-        code, out = sh(
-            "useradd -m dev && echo 'dev:s3cret-pw' | chpasswd && chmod -R a+rX /w && "
-            f"printf '%s' {quote(FLEET)} > /tmp/fleet.yaml && chmod a+r /tmp/fleet.yaml"
-        )
-        assert code == 0, out
-        phase("laptop container: .ci/setup --python", started)
-        yield sh
-    finally:
-        container.remove(force=True)
-
-
-def quote(text: str) -> str:
-    return shlex.quote(text)
+    assert code == 0, out
+    yield stock_machine.sh
+    stock_machine.sh("userdel -r dev; rm -f /tmp/fleet.yaml")
 
 
 def test_no_sudo_rights_and_no_terminal_is_one_line(laptop):
