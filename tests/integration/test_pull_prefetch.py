@@ -16,6 +16,7 @@ import datetime
 import json
 import os
 import shutil
+import subprocess
 import zipfile
 from pathlib import Path
 
@@ -185,13 +186,35 @@ def test_an_interrupted_prefetch_takes_up_where_it_stopped(robot):
     assert [line for line in robot.docker_log()[calls:] if " pull " in line] == [f"docker pull -q {BY_DIGEST[1]}"]
 
 
-def test_too_little_disk_for_the_release_prefetches_nothing_and_says_why(robot):
+@pytest.fixture
+def own_disk(robot, tmp_path):
+    """The robot's state directory on a file system of its own (a 256 MB
+    tmpfs), so that what it has free is what this test leaves there: on the
+    test command's shared disk the labs beside it take and give back
+    hundreds of MB between the test's reading and the agent's."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=256m", "tmpfs", str(disk)], capture_output=True)
+    if mounted.returncode:
+        pytest.skip(f"a tmpfs of a known size needs root: {mounted.stderr.decode().strip()}")
+    try:
+        shutil.copytree(robot.state, disk / "state", symlinks=True)
+        robot.state = disk / "state"
+        robot.config = agent_files.Config(**{**robot.config.__dict__, "state_dir": str(robot.state)})
+        yield robot
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], check=True)
+
+
+def test_too_little_disk_for_the_release_prefetches_nothing_and_says_why(own_disk):
+    robot = own_disk
     big = robot.base / "big.tar.gz"
     with open(big, "wb") as handle:
         handle.truncate(64 << 20)  # 64 MB the robot would download (and unpack)
     robot.release(1, archive=big)
     needed = -(-3 * (big.stat().st_size + (robot.base / "pf_probe-1.0-py3-none-any.whl").stat().st_size) >> 20)
     free = shutil.disk_usage(robot.state).free >> 20
+    assert needed > 96 < free  # the check can start (free - 96 >= 0), the release cannot be taken
     robot.windows(OUTSIDE, min_free_mb=free - 96)  # enough for the check to start, not to take 3 x 64 MB
     before = robot.placed()
     _, outcome, _ = robot.wake()
