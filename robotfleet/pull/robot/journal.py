@@ -31,7 +31,7 @@ class Phases:
             self.add(name, time.monotonic() - started)
 
     def add(self, name: str, seconds) -> None:
-        if isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and seconds >= 0:
+        if _figure(seconds):
             self.seconds[name] = self.seconds.get(name, 0.0) + seconds
 
     def add_run(self, seconds: float, took) -> None:
@@ -39,9 +39,7 @@ class Phases:
         them (figures it can have spent), the rest (the release's Python and
         roles loading) as load."""
         said = took if isinstance(took, dict) else {}
-        took = {
-            k: v for k, v in said.items() if k in ("deploy", "status") and type(v) in (int, float) and 0 <= v < seconds
-        }
+        took = {k: v for k, v in said.items() if k in ("deploy", "status") and _figure(v) and v < seconds}
         self.add("load", seconds - sum(took.values()))
         for name, spent in took.items():
             self.add(name, spent)
@@ -66,3 +64,8 @@ def journal_line(report: dict, sent: str, seconds: float, phases: Phases | None 
         f"sent {check.get('sent', 0)} B, received {check.get('received', 0)} B in {check.get('requests', 0)} "
         f"requests; {sent}" + (f" [{phases.text()}]" if phases and phases.seconds else "")
     )
+
+
+def _figure(seconds) -> bool:
+    """A number of seconds a step can have taken (a JSON line's value may be anything)."""
+    return isinstance(seconds, (int, float)) and not isinstance(seconds, bool) and seconds >= 0
