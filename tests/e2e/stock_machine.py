@@ -12,9 +12,8 @@ import io
 import os
 import subprocess
 import tarfile
-import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from shlex import quote
 
 from tests.fixtures import ROOT
@@ -41,7 +40,6 @@ class StockMachine:
     container: object
     pip_before_setup: tuple[int, str]
     setup: tuple[int, str]
-    seconds: dict[str, float] = field(default_factory=dict)
 
     def sh(self, script: str, user: str | None = None) -> tuple[int, str]:
         """A shell script as root, or as ``user`` in /w."""
@@ -76,6 +74,7 @@ def started(name: str) -> Iterator[StockMachine]:
     """The machine, set up (whatever the setup said: the tests judge it);
     removed after."""
     from tests.lab import engine, hostimage
+    from tests.lab.state import exec_container
 
     dc = engine.client()
     hostimage.ensure_host_image(dc)  # builds the stock rootfs layer if missing
@@ -86,7 +85,6 @@ def started(name: str) -> Iterator[StockMachine]:
     environment.update({k: os.environ[k] for k in PASSED_ENV if k in os.environ})
     for stale in dc.containers.list(all=True, filters={"name": f"^{name}$"}):  # an interrupted run's
         stale.remove(force=True)
-    begun = time.monotonic()
     container = dc.containers.create(
         hostimage.base_tag(),
         ["sleep", "1800"],
@@ -98,10 +96,7 @@ def started(name: str) -> Iterator[StockMachine]:
     try:
         container.start()
         container.put_archive("/", checkout_tar())
-        machine = StockMachine(container, (0, ""), (0, ""))
-        machine.pip_before_setup = machine.sh("python3 -m pip --version; pip3 --version")
-        machine.setup = machine.sh("cd /w && .ci/setup --python 2>&1")
-        machine.seconds["setup"] = time.monotonic() - begun
-        yield machine
+        pip = exec_container(container, "python3 -m pip --version; pip3 --version")
+        yield StockMachine(container, pip, exec_container(container, "cd /w && .ci/setup --python 2>&1"))
     finally:
         container.remove(force=True)
