@@ -6,14 +6,13 @@ from another CA) refused with one exception, never read without bound."""
 
 from __future__ import annotations
 
-import socket
 import ssl
-import threading
 
 import pytest
 
 from robotfleet.pull.robot import https_request, probe
 from tests.integration import httpsgit
+from tests.integration.httpsgit import Scripted
 
 HEAD = b"GET /fleet.git/info/refs HTTP/1.1\r\nHost: 127.0.0.1\r\n"
 
@@ -21,44 +20,6 @@ HEAD = b"GET /fleet.git/info/refs HTTP/1.1\r\nHost: 127.0.0.1\r\n"
 @pytest.fixture(scope="module")
 def tls(tmp_path_factory):
     return httpsgit.make_ca(tmp_path_factory.mktemp("tls"))
-
-
-class Scripted:
-    """A TLS server answering each connection with ``answer`` (bytes, sent after the request's head)."""
-
-    def __init__(self, tls, answer: bytes, tls12_only: bool = False):
-        ca, cert, key = tls
-        self.context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-        self.context.load_cert_chain(cert, key)
-        if tls12_only:
-            self.context.maximum_version = ssl.TLSVersion.TLSv1_2
-        self.answer, self.requests = answer, []
-        self.socket = socket.create_server(("127.0.0.1", 0))
-        self.port = self.socket.getsockname()[1]
-        threading.Thread(target=self._serve, daemon=True).start()
-
-    def _serve(self):
-        while True:
-            try:
-                raw, _ = self.socket.accept()
-            except OSError:
-                return
-            try:
-                with self.context.wrap_socket(raw, server_side=True) as conn:
-                    data = b""
-                    while b"\r\n\r\n" not in data and (chunk := conn.recv(4096)):
-                        data += chunk
-                    self.requests.append(data)
-                    conn.sendall(self.answer)
-            except (OSError, ssl.SSLError):
-                pass
-
-    def close(self):
-        try:  # wakes the accept() in _serve's thread; close alone leaves it listening (sshserver.Listener.close)
-            self.socket.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self.socket.close()
 
 
 def ask(server, ca, limit=1000):
@@ -123,3 +84,48 @@ def test_no_tls_1_3_or_another_ca_is_refused_and_the_probe_leaves_it_to_git(tls,
     finally:
         old.close()
         good.close()
+
+
+def test_the_certificate_s_names_are_checked(tls):
+    """_ssl's context checks the host name as ssl's did: the certificate
+    names 127.0.0.1 and localhost, nothing else."""
+    server = Scripted(tls, b"HTTP/1.1 304 Not Modified\r\n\r\n")
+    try:
+        for name in ("127.0.0.1", "localhost"):
+            raw = https_request._connect("127.0.0.1", server.port, 10)
+            try:
+                conn = https_request._tls(raw, name, str(tls[0]))
+                conn.write(HEAD + b"\r\n")
+                assert conn.read(100).startswith(b"HTTP/1.1 304")
+            finally:
+                raw.close()
+        for name in ("robot.example", "127.0.0.2"):
+            raw = https_request._connect("127.0.0.1", server.port, 10)
+            try:
+                with pytest.raises(ssl.SSLCertVerificationError, match="mismatch"):
+                    https_request._tls(raw, name, str(tls[0]))
+            finally:
+                raw.close()
+    finally:
+        server.close()
+
+
+def test_a_python_whose_ssl_differs_leaves_the_check_to_git(tls, monkeypatch):
+    server = Scripted(tls, b"HTTP/1.1 304 Not Modified\r\n\r\n")
+
+    class Older:
+        def __init__(self, protocol):
+            pass
+
+        def load_verify_locations(self, **where):
+            pass
+
+    monkeypatch.setattr(https_request._ssl, "_SSLContext", Older)  # no minimum_version, no _wrap_socket
+    try:
+        with pytest.raises(https_request.Failed, match="this Python's _ssl cannot make the request"):
+            ask(server, tls[0])
+        memo = {"kind": "static", "commit": "a" * 40, "validators": {"etag": '"a"'}}
+        url = f"https://127.0.0.1:{server.port}/fleet.git"
+        assert probe.https(url, "robotfleet/releases", memo, str(tls[0]), 10).commit is None  # git's fetch follows
+    finally:
+        server.close()

@@ -7,13 +7,25 @@ against ``ca`` (a file), else the system's CAs, looked up by hash as the
 handshake needs one (loading the whole bundle was another tenth).  TLS 1.3
 only: its ClientHello is ~300 bytes shorter; a server without it fails here,
 and the caller's fallback (git, which takes TLS 1.2) reads the branch.  The
-bytes each way are the kernel's count for the connection, TLS included."""
+bytes each way are the kernel's count for the connection, TLS included.
+
+TLS is `_ssl`'s, the C module `ssl` wraps, with the same checks (a context
+for PROTOCOL_TLS_CLIENT: the certificate against the CAs and the host
+name, by OpenSSL): importing `ssl` (its enums, built at import, and what
+it imports: socket, base64, re) costs ~23 ms of CPU against ~4 ms for
+`_ssl` and `_socket`, and a str host name goes through the IDNA codec;
+together a quarter of an idle check.  Where `_ssl` does not offer what
+this uses (another Python), the request fails and git's fetch reads the
+branch."""
 
 from __future__ import annotations
 
-import socket
-import ssl
+import _socket
+import _ssl
+import os
 import struct
+
+SSLError = _ssl.SSLError  # what `ssl` raises as ssl.SSLError: the same class
 
 HEAD_MAX = 16384
 _TCP_INFO_BYTES = struct.Struct("=QQ")  # tcpi_bytes_acked, tcpi_bytes_received (Linux >= 4.1)
@@ -33,33 +45,77 @@ class Answer:
         self.sent = self.received = 0
 
 
-def context(ca: str | None) -> ssl.SSLContext:
-    made = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)  # hostname and certificate checked
-    made.minimum_version = ssl.TLSVersion.TLSv1_3
+def context(ca: str | None):
+    """A client context (`_ssl`'s) that checks the certificate and the host
+    name, TLS 1.3 only; its CAs from ``ca``, else the system's, as
+    ssl.get_default_verify_paths finds them (SSL_CERT_FILE, SSL_CERT_DIR)."""
+    made = _ssl._SSLContext(_ssl.PROTOCOL_TLS_CLIENT)
+    made.minimum_version = _ssl.PROTO_TLSv1_3
     if ca:
         made.load_verify_locations(cafile=ca)
-    else:
-        paths = ssl.get_default_verify_paths()
-        if paths.capath:
-            made.load_verify_locations(capath=paths.capath)
-        if paths.cafile and not paths.capath:
-            made.load_verify_locations(cafile=paths.cafile)
+        return made
+    file_env, file, dir_env, directory = _ssl.get_default_verify_paths()
+    file, directory = os.environ.get(file_env, file), os.environ.get(dir_env, directory)
+    if directory and os.path.isdir(directory):
+        made.load_verify_locations(capath=directory)
+    elif file and os.path.isfile(file):
+        made.load_verify_locations(cafile=file)
     return made
 
 
 def request(host: str, port: int, head: bytes, body: bytes, ca: str | None, timeout: float, limit: int) -> Answer:
     """Send ``head`` (the request line and headers, without the blank line
     that ends them) and ``body``; the answer, its body at most ``limit``
-    bytes (Failed beyond).  OSError, ssl.SSLError, Failed."""
-    raw = socket.create_connection((host, port), timeout=timeout)
+    bytes (Failed beyond).  OSError, SSLError, Failed."""
+    raw = _connect(host, port, timeout)
     try:
-        with context(ca).wrap_socket(raw, server_hostname=host) as tls:
-            tls.sendall(head + b"Connection: close\r\n\r\n" + body)
-            answer = _read(_Reader(tls), limit)
-            answer.sent, answer.received = _tcp_bytes(tls)
-            return answer
+        tls = _tls(raw, host, ca)
+        data = memoryview(head + b"Connection: close\r\n\r\n" + body)
+        while data:
+            data = data[tls.write(data) :]
+        answer = _read(_Reader(tls), limit)
+        answer.sent, answer.received = _tcp_bytes(raw)
+        return answer
     finally:
         raw.close()
+
+
+class _Socket(_socket.socket):
+    """`_socket`'s socket, with the weak reference `_ssl` keeps to it."""
+
+    __slots__ = ("__weakref__",)
+
+
+def _connect(host: str, port: int, timeout: float):
+    """socket.create_connection with `_socket`'s socket, which `_ssl` takes
+    whatever patched the `socket` module (gevent's, in a pyinfra process),
+    and an ASCII name as bytes (a str goes through the IDNA codec)."""
+    error = None
+    for family, kind, proto, _, address in _socket.getaddrinfo(
+        host.encode() if host.isascii() else host, port, 0, _socket.SOCK_STREAM
+    ):
+        sock = _Socket(family, kind, proto)
+        try:
+            sock.settimeout(timeout)
+            sock.connect(address)
+            return sock
+        except OSError as failed:
+            sock.close()
+            error = failed
+    raise error or Failed(f"{host}: no address")
+
+
+def _tls(raw, host: str, ca: str | None):
+    """`_ssl`'s TLS connection over ``raw`` (read, write), its handshake
+    done; Failed where this Python's `_ssl` differs from what this uses
+    (the probe then leaves the check to git, as for any failure)."""
+    name = host if host.isascii() else host.encode("idna").decode("ascii")
+    try:
+        made = context(ca)._wrap_socket(raw, False, name)
+    except (AttributeError, TypeError) as error:
+        raise Failed(f"this Python's _ssl cannot make the request: {error}") from None
+    made.do_handshake()
+    return made
 
 
 class _Reader:
@@ -70,8 +126,8 @@ class _Reader:
         if self.ended:
             return False
         try:
-            data = self.sock.recv(65536)
-        except ssl.SSLZeroReturnError:
+            data = self.sock.read(65536)
+        except (_ssl.SSLZeroReturnError, _ssl.SSLEOFError):  # closed, with or without TLS's close_notify
             data = b""
         self.ended = not data
         self.buffer += data
@@ -137,7 +193,7 @@ def _tcp_bytes(sock) -> tuple[int, int]:
     """(bytes sent, bytes received) on the connection, as the kernel counts
     them; (0, 0) where it does not."""
     try:
-        info = sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_INFO, _TCP_INFO_AT + _TCP_INFO_BYTES.size)
+        info = sock.getsockopt(_socket.IPPROTO_TCP, _socket.TCP_INFO, _TCP_INFO_AT + _TCP_INFO_BYTES.size)
         return _TCP_INFO_BYTES.unpack_from(info, _TCP_INFO_AT)
     except (OSError, struct.error, AttributeError):
         return 0, 0

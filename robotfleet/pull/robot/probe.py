@@ -182,8 +182,6 @@ def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: fl
     """``https`` of the remote ``where`` (``target``'s)."""
     if where is None or any(os.environ.get(p) for p in _PROXIES):
         return None
-    import ssl
-
     from robotfleet.pull.robot import https_request
 
     if where["port"] is None:
@@ -206,7 +204,7 @@ def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: fl
         )
     try:
         answer = https_request.request(where["host"], where["port"], head.encode(), body, ca, timeout, limit)
-    except (OSError, ssl.SSLError, ValueError):
+    except (OSError, https_request.SSLError, ValueError):
         return Answer(None)
     if memo.get("kind") == "static":
         found = _static(answer, memo, ref)
