@@ -1,6 +1,6 @@
 """What an idle pull check costs a robot: CPU and bytes on the wire.
 
-    python3 -m tests.bench.idle_check [--runs 5] [--transports static,smart,ssh]
+    python3 -m tests.bench.idle_check [--runs 5] [--transports static,smart,ssh] [--against CHECKOUT]
 
 On this machine, no lab: the agent (``python -m robotfleet.pull.agent``,
 as robot-pull.service runs it: its code on PYTHONPATH, its bytecode
@@ -112,9 +112,9 @@ class CountingProxy:
         self.socket.close()
 
 
-def cpu_of(command: list[str], env: dict) -> tuple[float, str]:
+def cpu_of(command: list[str], env: dict, cwd: Path | None = None) -> tuple[float, str]:
     """(user + system CPU seconds of ``command`` and what it waited for, its stdout)."""
-    process = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    process = subprocess.Popen(command, env=env, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     out = process.stdout.read().decode(errors="replace")
     _, status, usage = os.wait4(process.pid, 0)
     process.returncode = os.waitstatus_to_exitcode(status)
@@ -152,6 +152,7 @@ class Setup:
         world.config = agent_files.Config(**{**world.config.__dict__, "remote": remote, "report_remote": report_remote})
         self.config = base / "agent.json"
         self.config.write_text(world.config.to_json())
+        self.code = ROOT  # the agent's code: robot-pull.service's WorkingDirectory and PYTHONPATH
         self.env = dict(  # as robot-pull.service: the code on PYTHONPATH
             os.environ,
             PYTHONPATH=str(ROOT),
@@ -170,7 +171,8 @@ class Setup:
         if old or full:
             idle.forget(self.world.state)
         load = os.getloadavg()[0]
-        cpu, out = cpu_of([sys.executable, *flags, "-m", "robotfleet.pull.agent", "--config", str(self.config)], env)
+        command = [sys.executable, *flags, "-m", "robotfleet.pull.agent", "--config", str(self.config)]
+        cpu, out = cpu_of(command, dict(env, PYTHONPATH=str(self.code)), cwd=self.code)
         sent, received, connections = self.proxy.take()
         if self.proxy is not self.ssh_proxy:  # the report's push, if any
             more = self.ssh_proxy.take()
@@ -201,6 +203,7 @@ def median(checks: list[dict], key: str) -> float:
 
 
 STDLIB = "import ssl, socket, json, hashlib"
+STDLIB_CORE = "import _ssl, _socket, json, hashlib"  # what the idle check's HTTPS imports instead (https_request.py)
 IDLE_IMPORTS = "import robotfleet.pull.robot.bytecode, robotfleet.pull.robot.idle, robotfleet.pull.robot.https_request"
 
 
@@ -217,7 +220,8 @@ def floors(runs: int) -> dict:
         slim = dict(cached, PYTHONPATH=str(ROOT))
         for name, command, where in (
             ("python -S -c pass", ["-S", "-c", "pass"], env),
-            ("python -S + ssl, socket, json, hashlib (what any HTTPS check imports)", ["-S", "-c", STDLIB], env),
+            ("python -S + ssl, socket, json, hashlib (an HTTPS check with ssl)", ["-S", "-c", STDLIB], env),
+            ("python -S + _ssl, _socket, json, hashlib (the idle check's: no ssl)", ["-S", "-c", STDLIB_CORE], env),
             ("python -S + the idle check's imports (bytecode cached)", ["-S", "-c", IDLE_IMPORTS], slim),
             ("python -c pass", ["-c", "pass"], env),
             ("python + the agent's imports (bytecode cached)", ["-c", "import robotfleet.pull.robot.agent"], cached),
@@ -247,6 +251,36 @@ def measure(kind: str, runs: int, tls, base: Path) -> dict:
         return {"idle": idle_checks, "no_site": no_site, "full": full, "old": old, "heartbeat": beat}
     finally:
         setup.close()
+
+
+def against(kind: str, runs: int, tls, base: Path, other: Path) -> list[str]:
+    """The idle check of this checkout and of ``other`` (another checkout of
+    this repository, e.g. a git worktree of main), taking turns on one world
+    for ``runs`` turns, three checks a turn of which the first is left out
+    (the idle memo is the other agent's): a before and after taken under the
+    same load, which separate runs of this shared machine are not."""
+    setup = Setup(base / f"{kind}-against", kind, tls)
+    trees = {"this checkout": ROOT, str(other): other.resolve()}
+    cpu: dict[str, list[float]] = {name: [] for name in trees}
+    try:
+        setup.check()
+        for turn in range(runs):
+            for name in list(trees) if turn % 2 == 0 else list(trees)[::-1]:
+                setup.code = trees[name]
+                setup.env["ROBOT_PULL_PYCACHE"] = str(base / f"{kind}-pycache-{list(trees).index(name)}")
+                for check in range(3):
+                    found = setup.check()
+                    if "up-to-date" not in found["line"]:
+                        raise SystemExit(f"{kind} ({name}): not an idle check: {found['line']}")
+                    if check:
+                        cpu[name].append(found["cpu"])
+    finally:
+        setup.close()
+    return [
+        f"{kind}: in turns, {name}: {statistics.median(got):.3f} s CPU (median of {len(got)}, "
+        f"{min(got):.3f}-{max(got):.3f})"
+        for name, got in cpu.items()
+    ]
 
 
 def show(kind: str, found: dict) -> list[str]:
@@ -285,7 +319,10 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python3 -m tests.bench.idle_check", description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--transports", default="static,smart,ssh")
+    parser.add_argument("--against", type=Path, help="another checkout: its idle check and this one's, in turns")
     args = parser.parse_args(argv)
+    if args.against and not (args.against / "robotfleet" / "pull" / "agent.py").is_file():
+        parser.error(f"--against: {args.against} is not a checkout of this repository")
     from tests.integration import httpsgit
 
     with tempfile.TemporaryDirectory(prefix="idle-bench-") as where:
@@ -294,8 +331,15 @@ def main(argv=None) -> int:
         for kind in args.transports.split(","):
             if kind not in TARGETS:
                 parser.error(f"--transports: {kind!r} is none of {', '.join(TARGETS)}")
-            for line in show(kind, measure(kind, args.runs, tls, base)):
+            lines = (
+                against(kind, args.runs, tls, base, args.against)
+                if args.against
+                else show(kind, measure(kind, args.runs, tls, base))
+            )
+            for line in lines:
                 print(line, flush=True)
+        if args.against:
+            return 0
         load = os.getloadavg()[0]
         for name, seconds in floors(args.runs).items():
             print(f"floor: {name}: {seconds:.3f} s CPU (load {load:.2f})", flush=True)
