@@ -9,12 +9,15 @@ which logs each time it runs."""
 
 from __future__ import annotations
 
+import os
+import shlex
 import subprocess
 import sys
 import time
 
 import pytest
 
+from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import agent_state
 from tests.integration.test_pull_agent import World
 
@@ -100,10 +103,7 @@ def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, t
     """robot-pull.service names a bytecode directory: the first check
     compiles the agent's modules there (one directory per tree, the other
     trees' removed), the next ones read them; the tree gets none."""
-    import os
-
     import robotfleet
-    from robotfleet.pull.protocol import agent_files
 
     config = tmp_path / "agent.json"
     config.write_text(world.config.to_json())
@@ -123,12 +123,42 @@ def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, t
     assert "ROBOT_PULL_PYCACHE=/var/lib/robot-pull/pycache" in agent_files.service_unit()
 
 
+def test_the_unit_starts_an_older_release_s_tree_as_before(tmp_path):
+    """robot-pull.service's command (agent_files.start_command) runs
+    robotfleet/pull/start.py under -S where its tree has it, and in a tree
+    without it (an older release's, which the unit may still start after a
+    failed apply) ``python -m robotfleet.pull.agent`` with site, as units
+    did before."""
+    unit = agent_files.service_unit()
+    exec_start = next(line for line in unit.splitlines() if line.startswith("ExecStart="))
+    assert shlex.split(exec_start.removeprefix("ExecStart=")) == agent_files.start_command()
+    assert "WorkingDirectory=/var/lib/robot-pull/code/current" in unit  # where start_command looks
+    for tree, has_start in ((tmp_path / "old", False), (tmp_path / "new", True)):
+        package = tree / "robotfleet" / "pull"
+        package.mkdir(parents=True)
+        for name in ("robotfleet/__init__.py", "robotfleet/pull/__init__.py"):
+            (tree / name).write_text("")
+        said = "print(__name__, sys.flags.no_site, sys.argv[1:])"
+        (package / "agent.py").write_text(f"import sys\nif __name__ == '__main__':\n    {said}\n")
+        if has_start:
+            (package / "start.py").write_text(f"import sys\ndef main():\n    {said}\n    return 3\n")
+        done = subprocess.run(
+            agent_files.start_command(sys.executable, "the-config"),
+            cwd=tree,
+            env=dict(os.environ, PYTHONPATH=str(tree)),
+            capture_output=True,
+            text=True,
+        )
+        if has_start:
+            assert (done.returncode, done.stdout) == (3, "robotfleet.pull.start 1 ['--config', 'the-config']\n")
+        else:
+            assert (done.returncode, done.stdout) == (0, "__main__ 0 ['--config', 'the-config']\n"), done.stderr
+
+
 def test_a_bytecode_directory_that_cannot_be_made_does_not_stop_the_check(world, tmp_path):
     """A full disk or a broken path where the unit names the bytecode
     directory costs the check its cache, not the check: it runs compiled
     as before (here the directory's parent is a file)."""
-    import os
-
     config = tmp_path / "agent.json"
     config.write_text(world.config.to_json())
     blocked = tmp_path / "not-a-directory"
