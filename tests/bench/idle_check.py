@@ -1,6 +1,6 @@
 """What an idle pull check costs a robot: CPU and bytes on the wire.
 
-    python3 -m tests.bench.idle_check [--runs 5] [--transports static,smart,ssh] [--against CHECKOUT]
+    python3 -m tests.bench.idle_check [--runs 5] [--transports static,smart,ssh] [--against CHECKOUT] [--write]
 
 On this machine, no lab: the agent (``python -m robotfleet.pull.agent``,
 as robot-pull.service runs it: its code on PYTHONPATH, its bytecode
@@ -321,11 +321,14 @@ def main(argv=None) -> int:
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--transports", default="static,smart,ssh")
     parser.add_argument("--against", type=Path, help="another checkout: its idle check and this one's, in turns")
+    parser.add_argument("--write", action="store_true", help="write the figures to RESULTS.md (section idle_check)")
     args = parser.parse_args(argv)
     if args.against and not (args.against / "robotfleet" / "pull" / "agent.py").is_file():
         parser.error(f"--against: {args.against} is not a checkout of this repository")
     from tests.integration import httpsgit
 
+    printed: list[str] = []
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     with tempfile.TemporaryDirectory(prefix="idle-bench-") as where:
         base = Path(where)
         tls = httpsgit.make_ca(base / "tls")
@@ -339,12 +342,35 @@ def main(argv=None) -> int:
             )
             for line in lines:
                 print(line, flush=True)
-        if args.against:
-            return 0
-        load = os.getloadavg()[0]
-        for name, seconds in floors(args.runs).items():
-            print(f"floor: {name}: {seconds:.3f} s CPU (load {load:.2f})", flush=True)
+            printed += lines
+        if not args.against:
+            load = os.getloadavg()[0]
+            for name, seconds in floors(args.runs).items():
+                printed.append(f"floor: {name}: {seconds:.3f} s CPU (load {load:.2f})")
+                print(printed[-1], flush=True)
+    if args.write:
+        write(printed, started, args)
     return 0
+
+
+def write(printed: list[str], started: str, args) -> None:
+    from tests.bench import sections
+
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    command = f"python3 -m tests.bench.idle_check --runs {args.runs} --transports {args.transports}" + (
+        f" --against {args.against}" if args.against else ""
+    )
+    body = (
+        "## An idle pull check (issue 38 item 3)\n\n"
+        f"Written by `{command} --write` ({started}, commit {commit.stdout.strip()}, "
+        f"{os.cpu_count()} CPUs): no lab, the agent started as robot-pull.service starts it against the integration "
+        "tests' servers on 127.0.0.1; CPU is the agent's and its children's, bytes are counted at the socket "
+        '(docs/reference/benchmarks.md, "An idle pull check"; where the CPU goes: docs/explanations/pull.md).  '
+        "Targets: over HTTPS at most 2 KB and 0.05 s of CPU, over SSH at most 0.1 s.\n\n"
+        + "".join(f"- {line}\n" for line in printed)
+    )
+    sections.write("idle_check", body, {"command": command, "date": started, "lines": printed})
+    print(f"[bench] written: {sections.RESULTS}", flush=True)
 
 
 if __name__ == "__main__":
