@@ -62,6 +62,19 @@ SETUP = " && ".join(
 )
 
 
+# OpenSSH >= 9.8 refuses for a while an address whose connections keep
+# failing to authenticate (PerSourcePenalties): a robot waiting for its
+# enrollment fails at each check, and robots behind one NAT share an
+# address.  A fleet's git server exempts the fleet's networks
+# (docs/guides/pull.md); the lab's robots are on private docker networks.
+PENALTY_EXEMPT = "/etc/ssh/sshd_config.d/robotfleet-fleet-networks.conf"
+EXEMPT_NETWORKS = "10.0.0.0/8,172.16.0.0/12,192.168.0.0/16"
+EXEMPT = (
+    f"printf 'PerSourcePenaltyExemptList {EXEMPT_NETWORKS}\\n' > {PENALTY_EXEMPT} && "
+    f"if sshd -t 2>/dev/null; then systemctl reload ssh.service; else rm -f {PENALTY_EXEMPT}; fi"  # older sshd
+)
+
+
 def container_name(prefix: str) -> str:
     return f"{prefix}-git"
 
@@ -134,6 +147,9 @@ def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
         code, out = container.exec_run(["su", "-s", "/bin/sh", USER, "-c", SETUP])
         if code != 0:
             raise LabError(f"{name}: gitolite setup failed: {out.decode(errors='replace').strip()[-300:]}")
+        code, out = container.exec_run(["sh", "-c", EXEMPT])
+        if code != 0:
+            raise LabError(f"{name}: sshd's exemption for the lab's networks: {out.decode(errors='replace')[-300:]}")
         known_hosts = state.lab_dir(prefix) / "git_known_hosts"
         known_hosts.write_text("\n".join(known_hosts_lines([f"[127.0.0.1]:{port}", name], keys)) + "\n")
         git = {
