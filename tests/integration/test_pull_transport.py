@@ -74,6 +74,11 @@ def test_the_telling_line_of_a_git_failure():
     denied = "FATAL: W refs/reports/robot2 fleet robot1 DENIED by fallthru\n"
     assert remote_git.git_error(denied, 1).startswith("FATAL: W")
     assert remote_git.git_error("", 7) == "git exited 7"
+    # ssh's line, from its log, when the server drops the connection before a login (OpenSSH 10's penalty)
+    reset = (
+        "fatal: Could not read from remote repository.\n\nPlease make sure...\nConnection reset by 172.19.0.4 port 22\n"
+    )
+    assert remote_git.git_error(reset, 128) == "Connection reset by 172.19.0.4 port 22"
 
 
 def test_fetch_checks_out_the_releases_branch_and_follows_it(remote, tmp_path):

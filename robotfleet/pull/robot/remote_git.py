@@ -39,6 +39,10 @@ CAUSES = (
     "Connection refused",
     "Connection timed out",
     "No route to host",
+    # the server dropped the connection before a login: its MaxStartups, or OpenSSH >= 9.8's
+    # PerSourcePenalties refusing this address after failed logins (docs/guides/pull.md)
+    "Connection reset by",
+    "Connection closed by",
     "DENIED",
 )
 _SAYS = ("FATAL:", "fatal:", "ERROR:", "error:", "remote:")
