@@ -296,7 +296,9 @@ def test_a_robot_whose_key_the_remote_does_not_know_yet_waits_for_enrollment(wor
             "waiting for enrollment: the fleet remote does not accept this robot's key "
             "yet (robotfleet pull-enroll registers it; fetch: "
         )
-        assert "Permission denied (publickey" in outcome.reason and sent.startswith("report not sent")
+        assert "Permission denied (publickey" in outcome.reason
+        assert sent == "report not sent (the fleet remote refused this robot's key in this check)"
+        assert server.connections == 1  # the report was not tried on the server that had just refused the key
         agent_state.save_state(world.state, {**agent_state.load_state(world.state), "seen": {"version": 1}})
         _, outcome, _ = world.wake()
         assert outcome.result == "failed" and outcome.reason.startswith("fetch: ")

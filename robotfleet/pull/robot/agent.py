@@ -89,6 +89,7 @@ class Wake:
         self.status_time: str | None = None
         self.reference_time = clock()
         self.medium: Path | None = None  # a mounted release on media, this wake's source (robot/media.py)
+        self.key_refused_by: str | None = None  # the remote that refused the robot's keys in this wake
         self.phases = Phases()
 
     # -- the steps ---------------------------------------------------------
@@ -116,6 +117,7 @@ class Wake:
             self.remote.fetch_releases(self.config.branch)
         except TransportError as error:
             if not self.state.get("seen") and ENROLLMENT_PENDING in str(error):
+                self.key_refused_by = self.remote.url
                 raise Outcome(
                     "waiting",
                     f"waiting for enrollment: the fleet remote does not accept this robot's "

@@ -61,6 +61,10 @@ def send(wake, report: dict) -> str:
     age = time.time() - last.get("at", 0)
     if last.get("substance") == substance and 0 <= age < wake.config.heartbeat:
         said = "report unchanged"
+    elif wake.key_refused_by and same_ssh_server(wake.key_refused_by, wake.remote.report_url):
+        # the same keys would be refused again, and each refused login counts against this
+        # address on an OpenSSH >= 9.8 server (PerSourcePenalties, docs/guides/pull.md)
+        said = "report not sent (the fleet remote refused this robot's key in this check)"
     else:
         try:
             wake.remote.push_report(wake.config.robot, reports.to_bytes(report))
@@ -75,6 +79,17 @@ def send(wake, report: dict) -> str:
     if wake.remote.retire_enrollment_key():  # the server took this robot's own key in this wake
         said += "; the enrollment key is retired (the remote knows this robot's own key)"
     return said
+
+
+def same_ssh_server(one: str, other: str) -> bool:
+    """Two ssh:// remotes on one server, as one user (pure)."""
+    from urllib.parse import urlsplit
+
+    try:
+        a, b = urlsplit(one), urlsplit(other)
+        return a.scheme == b.scheme == "ssh" and (a.hostname, a.port, a.username) == (b.hostname, b.port, b.username)
+    except ValueError:
+        return False
 
 
 def host_keys() -> list[str]:
