@@ -1,6 +1,7 @@
 """What an idle pull check costs a robot: CPU and bytes on the wire.
 
-    python3 -m tests.bench.idle_check [--runs 5] [--transports static,smart,ssh] [--against CHECKOUT] [--write]
+    python3 -m tests.bench.idle_check [--runs 5] [--transports static,smart,ssh] [--against CHECKOUT]
+        [--server-tickets N] [--write]
 
 On this machine, no lab: the agent (``python -m robotfleet.pull.agent``,
 as robot-pull.service runs it: its code on PYTHONPATH, its bytecode
@@ -125,7 +126,7 @@ def cpu_of(command: list[str], env: dict, cwd: Path | None = None) -> tuple[floa
 class Setup:
     """One robot's agent and its fleet remote over ``kind`` (static, smart, ssh)."""
 
-    def __init__(self, base: Path, kind: str, tls):
+    def __init__(self, base: Path, kind: str, tls, tickets: int | None = None):
         from tests.integration import gitssh, httpsgit
         from tests.integration.test_pull_agent import World
 
@@ -144,7 +145,7 @@ class Setup:
             remote, self.proxy = report_remote, self.ssh_proxy
         else:
             ca, cert, key = tls
-            self.https = httpsgit.Server(world.base, cert, key, smart=kind == "smart")
+            self.https = httpsgit.Server(world.base, cert, key, smart=kind == "smart", tickets=tickets)
             self.proxy = CountingProxy(self.https.port)
             (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
             remote = f"https://127.0.0.1:{self.proxy.port}/fleet.git"
@@ -234,8 +235,8 @@ def floors(runs: int) -> dict:
         shutil.rmtree(cache, ignore_errors=True)
 
 
-def measure(kind: str, runs: int, tls, base: Path) -> dict:
-    setup = Setup(base / kind, kind, tls)
+def measure(kind: str, runs: int, tls, base: Path, tickets: int | None = None) -> dict:
+    setup = Setup(base / kind, kind, tls, tickets)
     try:
         first = setup.check()
         if "applied" not in first["line"]:
@@ -322,6 +323,9 @@ def main(argv=None) -> int:
     parser.add_argument("--transports", default="static,smart,ssh")
     parser.add_argument("--against", type=Path, help="another checkout: its idle check and this one's, in turns")
     parser.add_argument("--write", action="store_true", help="write the figures to RESULTS.md (section idle_check)")
+    parser.add_argument(
+        "--server-tickets", type=int, help="TLS 1.3 session tickets the HTTPS server sends (OpenSSL's default: 2)"
+    )
     args = parser.parse_args(argv)
     if args.against and not (args.against / "robotfleet" / "pull" / "agent.py").is_file():
         parser.error(f"--against: {args.against} is not a checkout of this repository")
@@ -338,7 +342,7 @@ def main(argv=None) -> int:
             lines = (
                 against(kind, args.runs, tls, base, args.against)
                 if args.against
-                else show(kind, measure(kind, args.runs, tls, base))
+                else show(kind, measure(kind, args.runs, tls, base, args.server_tickets))
             )
             for line in lines:
                 print(line, flush=True)
@@ -357,8 +361,10 @@ def write(printed: list[str], started: str, args) -> None:
     from tests.bench import sections
 
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    command = f"python3 -m tests.bench.idle_check --runs {args.runs} --transports {args.transports}" + (
-        f" --against {args.against}" if args.against else ""
+    command = (
+        f"python3 -m tests.bench.idle_check --runs {args.runs} --transports {args.transports}"
+        + (f" --against {args.against}" if args.against else "")
+        + (f" --server-tickets {args.server_tickets}" if args.server_tickets is not None else "")
     )
     body = (
         "## An idle pull check (issue 38 item 3)\n\n"

@@ -120,9 +120,21 @@ class Server(_Child):
     (127.0.0.1 and a free port unless given: an end-to-end test serves the
     lab's robots on its docker network's gateway address)."""
 
-    def __init__(self, root: Path, cert: Path, key: Path, smart: bool = True, host: str = "127.0.0.1", port: int = 0):
+    def __init__(
+        self,
+        root: Path,
+        cert: Path,
+        key: Path,
+        smart: bool = True,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        tickets: int | None = None,
+    ):
+        """``tickets``: the TLS 1.3 session tickets it sends a client (OpenSSL's default: 2)."""
         self.root, self.smart, self.host = Path(root), smart, host
-        super().__init__("git", str(root), str(cert), str(key), "smart" if smart else "static", host, str(port))
+        kind = "smart" if smart else "static"
+        more = () if tickets is None else (str(tickets),)
+        super().__init__("git", str(root), str(cert), str(key), kind, host, str(port), *more)
 
     @property
     def requests(self) -> int:
@@ -167,7 +179,9 @@ class _Recorder:
         os.replace(self.work / f"{number}.tmp", self.work / f"{number}.request")
 
 
-def _serve_git(recorder: _Recorder, root: str, cert: str, key: str, kind: str, host: str, port: str) -> None:
+def _serve_git(
+    recorder: _Recorder, root: str, cert: str, key: str, kind: str, host: str, port: str, tickets: str = ""
+) -> None:
     smart = kind == "smart"
 
     class Handler(http.server.SimpleHTTPRequestHandler):
@@ -231,6 +245,8 @@ def _serve_git(recorder: _Recorder, root: str, cert: str, key: str, kind: str, h
     httpd = http.server.ThreadingHTTPServer((host, int(port)), Handler)
     context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
     context.load_cert_chain(cert, key)
+    if tickets:
+        context.num_tickets = int(tickets)
     httpd.socket = context.wrap_socket(httpd.socket, server_side=True)
     print(httpd.server_address[1], flush=True)
     httpd.serve_forever()
