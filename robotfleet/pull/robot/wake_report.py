@@ -11,6 +11,7 @@ import glob
 import hashlib
 import json
 import os
+import re
 import time
 from pathlib import Path
 
@@ -82,14 +83,27 @@ def send(wake, report: dict) -> str:
 
 
 def same_ssh_server(one: str, other: str) -> bool:
-    """Two ssh:// remotes on one server, as one user (pure)."""
+    """Two remotes reached by one SSH login: the same user, host and port
+    (pure).  Both forms pull_remote takes (roles/pull/settings.py):
+    ssh://user@host[:port]/path and git's scp-like user@host:path."""
+    login = ssh_login(one)
+    return login is not None and login == ssh_login(other)
+
+
+def ssh_login(remote: str) -> tuple[str, str, int] | None:
+    """(user, host, port) of an SSH remote, None for any other (pure)."""
     from urllib.parse import urlsplit
 
+    scp_like = re.match(r"([^@/:]+)@(\[[^\]/]+\]|[^:/\[]+):(?!//)", remote)
+    if scp_like:
+        return scp_like[1], scp_like[2].strip("[]").lower(), 22
     try:
-        a, b = urlsplit(one), urlsplit(other)
-        return a.scheme == b.scheme == "ssh" and (a.hostname, a.port, a.username) == (b.hostname, b.port, b.username)
+        parts = urlsplit(remote)
+        if parts.scheme == "ssh" and parts.hostname:
+            return parts.username or "", parts.hostname, parts.port or 22
     except ValueError:
-        return False
+        pass
+    return None
 
 
 def host_keys() -> list[str]:
