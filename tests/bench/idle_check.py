@@ -152,10 +152,9 @@ class Setup:
         world.config = agent_files.Config(**{**world.config.__dict__, "remote": remote, "report_remote": report_remote})
         self.config = base / "agent.json"
         self.config.write_text(world.config.to_json())
-        self.code = ROOT  # the agent's code: robot-pull.service's WorkingDirectory and PYTHONPATH
-        self.env = dict(  # as robot-pull.service: the code on PYTHONPATH
+        self.code = ROOT  # the agent's code: robot-pull.service's WorkingDirectory and PYTHONPATH (check)
+        self.env = dict(  # as robot-pull.service
             os.environ,
-            PYTHONPATH=str(ROOT),
             PYTHONDONTWRITEBYTECODE="1",
             ROBOT_PULL_PYCACHE=str(base / "pycache"),
             STUB="applied",

@@ -90,8 +90,11 @@ class _Child:
     """A server of this module running in a child process; ``work`` holds
     what it records (each request)."""
 
-    def __init__(self, *args: str):
+    def __init__(self, *args: str, files: dict[str, bytes] | None = None):
+        """``args``: the server's (``__main__`` below); ``files``: put in ``work`` first, for it to read."""
         self.work = Path(tempfile.mkdtemp(prefix="httpsgit-"))
+        for name, data in (files or {}).items():
+            (self.work / name).write_bytes(data)
         self.process = subprocess.Popen(
             [sys.executable, "-m", "tests.integration.httpsgit", str(self.work), *args],
             cwd=ROOT,
@@ -103,10 +106,6 @@ class _Child:
             self.process.kill()
             raise RuntimeError(f"the test HTTPS server did not start ({self.process.wait()})")
         self.port = int(line)
-
-    def recorded(self) -> list[bytes]:
-        """What it recorded of each request, in order."""
-        return [path.read_bytes() for path in sorted(self.work.glob("*.request"), key=lambda p: int(p.stem))]
 
     def close(self) -> None:
         self.process.terminate()
@@ -131,7 +130,7 @@ class Server(_Child):
         tickets: int | None = None,
     ):
         """``tickets``: the TLS 1.3 session tickets it sends a client (OpenSSL's default: 2)."""
-        self.root, self.smart, self.host = Path(root), smart, host
+        self.smart, self.host = smart, host
         kind = "smart" if smart else "static"
         more = () if tickets is None else (str(tickets),)
         super().__init__("git", str(root), str(cert), str(key), kind, host, str(port), *more)
@@ -151,18 +150,12 @@ class Scripted(_Child):
 
     def __init__(self, tls, answer: bytes, tls12_only: bool = False):
         ca, cert, key = tls
-        self.answer_file = Path(tempfile.mkstemp(prefix="httpsgit-answer-")[1])
-        self.answer_file.write_bytes(answer)
-        super().__init__("scripted", str(cert), str(key), str(self.answer_file), "tls12" if tls12_only else "tls13")
+        super().__init__("scripted", str(cert), str(key), "tls12" if tls12_only else "tls13", files={"answer": answer})
 
     @property
     def requests(self) -> list[bytes]:
         """Each request's head, in order."""
-        return self.recorded()
-
-    def close(self) -> None:
-        super().close()
-        self.answer_file.unlink(missing_ok=True)
+        return [path.read_bytes() for path in sorted(self.work.glob("*.request"), key=lambda p: int(p.stem))]
 
 
 class _Recorder:
@@ -252,12 +245,12 @@ def _serve_git(
     httpd.serve_forever()
 
 
-def _serve_scripted(recorder: _Recorder, cert: str, key: str, answer_file: str, version: str) -> None:
+def _serve_scripted(recorder: _Recorder, cert: str, key: str, version: str) -> None:
     context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
     context.load_cert_chain(cert, key)
     if version == "tls12":
         context.maximum_version = ssl.TLSVersion.TLSv1_2
-    answer = Path(answer_file).read_bytes()
+    answer = (recorder.work / "answer").read_bytes()
     listener = socket.create_server(("127.0.0.1", 0))
     print(listener.getsockname()[1], flush=True)
     while True:
