@@ -172,7 +172,7 @@ class Setup:
         load = os.getloadavg()[0]
         command = agent_files.start_command(sys.executable, str(self.config))  # robot-pull.service's ExecStart
         if module:  # as units ran it before robotfleet/pull/start.py
-            command = [sys.executable, "-m", "robotfleet.pull.agent", "--config", str(self.config)]
+            command = agent_files.module_command(sys.executable, str(self.config))
         cpu, out = cpu_of(command, dict(env, PYTHONPATH=str(self.code)), cwd=self.code)
         sent, received, connections = self.proxy.take()
         if self.proxy is not self.ssh_proxy:  # the report's push, if any

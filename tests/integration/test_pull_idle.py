@@ -111,7 +111,7 @@ def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, t
     other = cache / ("ab" * 32)
     other.mkdir(parents=True)
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(cache))
-    run = [sys.executable, "-m", "robotfleet.pull.agent", "--config", str(config)]
+    run = agent_files.module_command(sys.executable, str(config))
     done = subprocess.run(run, capture_output=True, text=True, env=env, check=True)
     assert "robot-pull: up-to-date" in done.stdout
     mine = cache / robotfleet.CHECKOUT.name
@@ -164,6 +164,6 @@ def test_a_bytecode_directory_that_cannot_be_made_does_not_stop_the_check(world,
     blocked = tmp_path / "not-a-directory"
     blocked.write_text("")
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(blocked / "pycache"))
-    run = [sys.executable, "-m", "robotfleet.pull.agent", "--config", str(config)]
+    run = agent_files.module_command(sys.executable, str(config))
     done = subprocess.run(run, capture_output=True, text=True, env=env)
     assert done.returncode == 0 and "robot-pull: up-to-date" in done.stdout, done.stderr

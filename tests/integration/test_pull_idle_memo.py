@@ -69,7 +69,7 @@ def check(world, module: bool = False) -> tuple[str, set[str], int]:
     )
     before = world.count()
     unit = agent_files.start_command(sys.executable, str(world.config_file))[1:]
-    old = ["-m", "robotfleet.pull.agent", "--config", str(world.config_file)]
+    old = agent_files.module_command(sys.executable, str(world.config_file))[1:]
     done = subprocess.run(
         [sys.executable, "-X", "importtime", *(old if module else unit)],
         cwd=ROOT,

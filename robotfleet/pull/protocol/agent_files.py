@@ -200,6 +200,11 @@ def start_command(python: str = f"{VENV}/bin/python", config: str = CONFIG) -> l
     return [python, "-S", "-c", START_CODE, "--config", config]
 
 
+def module_command(python: str = f"{VENV}/bin/python", config: str = CONFIG) -> list[str]:
+    """The agent as units before robotfleet/pull/start.py ran it (and START_CODE in an older tree)."""
+    return [python, "-m", "robotfleet.pull.agent", "--config", config]
+
+
 def service_unit() -> str:
     return (
         HEADER
