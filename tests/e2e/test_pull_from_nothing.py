@@ -295,6 +295,8 @@ def made(server):
     noted = re.findall(r"SHA256:[A-Za-z0-9+/]+", said)
     assert len(noted) == 1, said[-2000:]
     assert server.root("sudo -u gitolite3 -H git config --global receive.fsckObjects").strip() == "true"
+    exempt = server.root("sshd -T 2>&1 | grep -i '^persourcepenaltyexemptlist' || true")
+    assert "192.168.0.0/16" in exempt, exempt  # the guide's exemption, taken by this Debian 13 sshd
     phase("pull guide: step 1, gitolite3 from Debian on a stock machine", started)
     # the same machine as the operator's (git is there now), with an operator's own git identity
     server.run("git config --global user.name Operator && git config --global user.email ops@example.com", OPERATOR)

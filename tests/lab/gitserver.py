@@ -65,8 +65,8 @@ SETUP = " && ".join(
 # OpenSSH >= 9.8 refuses for a while an address whose connections keep
 # failing to authenticate (PerSourcePenalties): a robot waiting for its
 # enrollment fails at each check, and robots behind one NAT share an
-# address.  A fleet's git server exempts the fleet's networks
-# (docs/guides/pull.md); the lab's robots are on private docker networks.
+# address.  A fleet's git server exempts the fleet's networks (step 1 of
+# docs/guides/pull-from-nothing.md); the lab's robots are on private docker networks.
 PENALTY_EXEMPT = "/etc/ssh/sshd_config.d/robotfleet-fleet-networks.conf"
 EXEMPT_NETWORKS = "10.0.0.0/8,172.16.0.0/12,192.168.0.0/16"
 EXEMPT = (
