@@ -7,9 +7,13 @@ is read, and nothing a robot pushed more than its own row.
 
 With the reports sharded (``report_shards``), ``fetch_every`` fetches the
 fleet remote's own report refs (the single-repository layout, kept while
-robots move) and every shard concurrently, each into its own cache, and
-reads each with ``read``: a robot's report is taken only from its own shard
-or the fleet remote, the newer of the two when both have one."""
+robots move) and its read copy of the shards' reports (``COPY``, kept by the
+git server's hook, files/git-server/post-receive: one commit, each report at
+``<shard>/<robot>``), read with ``read_copy``: a robot's report only from its
+own shard's path.  A fleet remote without that copy has every shard fetched
+concurrently, each into its own cache, read each with ``read``.  A robot's
+report is taken only from its own shard or the fleet remote, the newer of the
+two when both have one."""
 
 from __future__ import annotations
 
@@ -39,31 +43,38 @@ def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
         "--prune",
         url,
         "+refs/reports/*:refs/reports/*",
+        COPY_SPEC,
         timeout=timeout,
     )
 
 
 FETCHERS = 8  # shards fetched at once
+# The git server's read copy of every shard's reports (files/git-server/post-receive);
+# the glob fetches it when it is there (and prunes it when it is gone).
+COPY = "refs/report-copy"
+COPY_SPEC = f"+{COPY}*:{COPY}*"
 
 
 def fetch_every(url: str, count: int, cache: Path, timeout: int = 300) -> dict[str, dict]:
     """Every robot's report from the fleet remote ``url`` and its ``count``
     report shards (fetched concurrently into ``cache`` and ``cache``-shards/<i>),
     read each from its robot's own shard (or the fleet remote's)."""
-    places = [(None, cache)] + [(shard, cache.parent / f"{cache.name}-shards" / str(shard)) for shard in range(count)]
+    fetch_all(url, cache, timeout)
+    fleet = read_all(cache)
+    if count and has(cache, COPY):
+        return merged([fleet, read_copy(cache, COPY, count)])
+    places = [(shard, cache.parent / f"{cache.name}-shards" / str(shard)) for shard in range(count)]
 
     def one(place) -> dict[str, dict]:
         shard, where = place
         fetch_all(report_shards.shard_url(url, shard), where, timeout)
         found = read_all(where)
-        return {
-            robot: report
-            for robot, report in found.items()
-            if shard is None or report_shards.shard_of(robot, count) == shard
-        }
+        return {robot: report for robot, report in found.items() if report_shards.shard_of(robot, count) == shard}
 
+    if not places:
+        return fleet
     with ThreadPoolExecutor(max_workers=min(FETCHERS, len(places))) as pool:
-        return merged(list(pool.map(one, places)))
+        return merged([fleet, *pool.map(one, places)])
 
 
 def merged(sources: list[dict[str, dict]]) -> dict[str, dict]:
@@ -106,6 +117,33 @@ def read(repo: Path, prefix: str, wanted: set[str] | None = None, timeout: int =
     except catfile.CatFileError as error:
         raise ReportError(str(error)) from None
     return {robot: _parsed(robot, data) for robot, data in zip(refs, found)}
+
+
+def has(repo: Path, ref: str) -> bool:
+    return bool(_git(repo, "for-each-ref", "--format=%(objectname)", ref).strip())
+
+
+def read_copy(repo: Path, ref: str, count: int, wanted: set[str] | None = None, timeout: int = 300) -> dict[str, dict]:
+    """robot -> its report in the read copy ``ref`` of the local repository
+    ``repo`` (a commit holding ``<shard>/<robot>`` for each report; ``count``
+    shards), read as ``read`` reads a ref: a robot's only from its own
+    shard's path, each blob checked by its size before it is read."""
+    listed = _git(repo, "ls-tree", "-r", "-z", "--full-tree", ref, timeout=timeout)
+    blobs = {}
+    for entry in filter(None, listed.split(b"\0")):
+        info, _, path = entry.decode(errors="replace").partition("\t")
+        shard, _, robot = path.partition("/")
+        if (
+            (wanted is None or robot in wanted)
+            and shard.isdigit()
+            and report_shards.shard_of(robot, count) == int(shard)
+        ):
+            blobs[robot] = info.split()[-1]
+    try:
+        found = catfile.blobs(repo, list(blobs.values()), MAX_BYTES, timeout)
+    except catfile.CatFileError as error:
+        raise ReportError(str(error)) from None
+    return {robot: _parsed(robot, data) for robot, data in zip(blobs, found)}
 
 
 def _parsed(robot: str, data: bytes | str) -> dict:

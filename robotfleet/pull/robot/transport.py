@@ -53,6 +53,7 @@ from robotfleet.pull.robot.remote_git import git_error
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
 LOCAL_BRANCH = "refs/remotes/fleet/releases"
+COPY = "refs/fleet-report-copy"  # the server's read copy of the shards' reports, as last fetched
 _SHALLOW_REFUSED = "dumb http transport does not support shallow"
 # What a server says of a repository or ref the robot may not write (gitolite, git's own).
 _REFUSED = ("DENIED", "does not appear to be a git repository", "not found")
@@ -233,14 +234,18 @@ class Remote:
         from robotfleet.pull.protocol import report_store
 
         self._init()
+        # the fleet remote: where robots not moved to their shard report, and the server's read copy of the shards
+        fleet = self._reports_of(None, robots)
+        if not self.shards:
+            return fleet
+        if report_store.has(self.repo, COPY):
+            try:
+                return report_store.merged([fleet, report_store.read_copy(self.repo, COPY, self.shards, set(robots))])
+            except reports.ReportError as error:
+                raise TransportError(f"reports: {error}") from None
         by_shard = report_shards.spread(robots, self.shards)
         with ThreadPoolExecutor(max_workers=min(report_store.FETCHERS, len(by_shard))) as pool:
-            parts = list(pool.map(lambda item: self._reports_of(*item), by_shard.items()))
-        found = report_store.merged(parts)
-        missing = sorted(set(robots) - set(found))
-        if self.shards and missing:  # not moved to its shard yet: where it reported before
-            found.update(self._reports_of(None, missing))
-        return found
+            return report_store.merged([fleet, *pool.map(lambda item: self._reports_of(*item), by_shard.items())])
 
     def _reports_of(self, shard: int | None, robots: list[str]) -> dict[str, dict]:
         """The reports of ``robots`` (all of shard ``shard``) from that shard
@@ -250,6 +255,9 @@ class Remote:
         if len(specs) > PREFIXES_AT_MOST:  # git matches each refspec against each ref: 7,500 of them took 31 s of CPU
             specs = [f"+refs/reports/*:{local}*"]  # every report of the repository, the wanted ones read
         from robotfleet.pull.protocol import report_store
+
+        if shard is None and self.shards:  # the read copy, kept: the next read fetches only what changed
+            specs.append(f"+{report_store.COPY}*:{COPY}*")
 
         try:
             # Shards are fetched at once into this repository: no FETCH_HEAD, no gc between them.
@@ -263,6 +271,7 @@ class Remote:
                 "--quiet",
                 "--no-tags",
                 "--no-write-fetch-head",
+                *(["--prune"] if shard is None and self.shards else []),  # a copy the server no longer keeps
                 report_shards.shard_url(self.url, shard),
                 *specs,
                 network=True,
