@@ -3,6 +3,7 @@ Prints figures; asserts nothing; not part of the test command (it starts
 only its own lab's git server, on 127.0.0.1, and takes it down).
 
     python3 -m tests.bench.git_load [--prefix gl] [--fleet 10000] [--speed 1] [--minutes 10] [--workers 32]
+        [--checks ssh|https]
 
 A generator replays a ``--fleet``-robot fleet in its steady state against
 the lab's gitolite (tests/bench/gitolite_fleet.py: every robot a gitolite
@@ -15,6 +16,12 @@ a ``--heartbeat`` after its last push (nothing changes in the steady state).
 Each robot's first check falls anywhere in its first interval and jitter,
 its last push anywhere in the heartbeat before the start, so the replay
 starts in the steady state.
+
+With ``--checks https`` the checks go to a static copy of the fleet remote
+that the git server's own nginx serves over TLS (tests/bench/https_mirror.py),
+each the agent's one conditional request, and the reports to gitolite over
+SSH as ``pull_report_remote`` sends them: the layout docs/explanations/pull.md
+gives 10,000 robots.  The server's CPU counts both.
 
 Time compression: ``--speed s`` plays the schedule s times faster, so the
 server sees the request rate of a fleet of ``fleet x s`` robots in real
@@ -49,7 +56,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from tests.bench import gitolite_fleet, hygiene
+from tests.bench import gitolite_fleet, https_mirror, hygiene
 from tests.bench.gitolite_fleet import Server
 
 
@@ -109,8 +116,9 @@ def _percentiles(rows: list[dict], key: str) -> list[float]:
     return [round(values[len(values) // 2], 3), round(values[min(len(values) - 1, int(len(values) * 0.95))], 3)]
 
 
-def replay(server: Server, names: list[str], shards: int, args) -> dict:
-    """``schedule`` played against the server at ``args.speed`` times real time."""
+def replay(server: Server, names: list[str], shards: int, args, mirror=None) -> dict:
+    """``schedule`` played against the server at ``args.speed`` times real time
+    (the checks against ``mirror``, https_mirror.py, when given)."""
     events = schedule(names, args.interval, args.jitter, args.heartbeat, args.minutes * args.speed, args.max_requests)
     local = threading.local()
     done: list[dict] = []
@@ -121,7 +129,7 @@ def replay(server: Server, names: list[str], shards: int, args) -> dict:
         if not hasattr(local, "repo"):
             local.repo = server.base / f"worker-{threading.get_ident()}"
         began = time.monotonic() - start
-        remote = server.remote(robot, local.repo, shards)
+        remote = server.remote(robot, local.repo, shards, mirror)
         ok: bool | str = True
         try:
             remote.fetch_releases()
@@ -157,6 +165,7 @@ def replay(server: Server, names: list[str], shards: int, args) -> dict:
         "speed": args.speed,
         "as a fleet of": len(names) * args.speed,
         "shards": shards,
+        "checks over": "https" if mirror else "ssh",
         "interval": args.interval,
         "jitter": args.jitter,
         "heartbeat": args.heartbeat,
@@ -185,6 +194,12 @@ def main(argv=None) -> int:
     parser.add_argument("--minutes", type=float, default=10, help="the run's wall time, at most")
     parser.add_argument("--max-requests", type=int, default=20_000, help="checks, at most")
     parser.add_argument("--workers", type=int, default=32, help="checks at once, at most")
+    parser.add_argument(
+        "--checks",
+        choices=("ssh", "https"),
+        default="ssh",
+        help="https: the idle checks from a static copy the git server's nginx serves, the reports over SSH",
+    )
     parser.add_argument("--keep", action="store_true", help="leave the git server up")
     args = parser.parse_args(argv)
     from robotfleet.pull.protocol import report_shards
@@ -196,7 +211,8 @@ def main(argv=None) -> int:
             server = Server(args.prefix, Path(base))
             names = gitolite_fleet.robots(args.fleet)
             server.layout(names, shards)
-            figures = replay(server, names, shards, args)
+            mirror = https_mirror.ensure(server, gitolite_fleet.REPOSITORIES) if args.checks == "https" else None
+            figures = replay(server, names, shards, args, mirror)
     finally:
         if not args.keep:
             hosts.down(args.prefix)

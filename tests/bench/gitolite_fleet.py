@@ -4,7 +4,9 @@ benchmarks (reports_scale.py, git_load.py): only the lab's git server runs
 with its own key and the rules ``pull-enroll`` writes
 (robotfleet/pull/operator/gitolite.py), and each robot's report is seeded
 into the server's repositories with ``git fast-import`` as the server's user
-(a commit holding a valid report.json per robot, as the agent pushes it).
+(a commit holding a valid report.json per robot, as the agent pushes it),
+and with shards the server's read copy seeded from them (its hook,
+files/git-server/post-receive, which the lab installs as the guide says).
 A robot is then played by robotfleet's own transport with that robot's key.
 """
 
@@ -22,6 +24,7 @@ RELEASES = "refs/heads/robotfleet/releases"
 NAME = "robot-{:05d}"
 REPOSITORIES = "/var/lib/gitolite3/repositories"
 SEED_DIR = "/tmp/bench-seed"
+HOOK = "/var/lib/gitolite3/.gitolite/hooks/common/post-receive"
 
 
 def robots(count: int) -> list[str]:
@@ -80,6 +83,10 @@ class Server:
         from tests.lab import gitserver, hosts
 
         self.git, key = hosts.git_server_alone(prefix)
+        self.prefix = prefix
+        self.container_id = subprocess.run(
+            ["docker", "inspect", "-f", "{{.Id}}", self.git["container"]], capture_output=True, text=True, check=True
+        ).stdout.strip()
         self.admin = gitserver.admin(self.git, key)
         self.url = gitserver.local_url(self.git)  # ssh://gitolite3@127.0.0.1:PORT/fleet
         self.base = base
@@ -99,12 +106,50 @@ class Server:
             raise SystemExit(f"bench: on the git server: {script[:80]}: {done.stderr.decode()[-500:]}")
         return done.stdout.decode()
 
+    def _kept(self) -> Path:
+        """Where the robots' keys and what was registered are kept for the
+        lab's next bench process (a compile of 10,000 keys takes minutes)."""
+        from tests.lab import state
+
+        return state.lab_dir(self.prefix) / "bench-fleet"
+
+    def _load_kept(self, names: list[str], shards: int) -> bool:
+        import json
+
+        kept = self._kept()
+        try:
+            marker = json.loads((kept / "registered.json").read_text())
+        except (OSError, ValueError):
+            return False
+        if marker != {"container": self.container_id, "robots": len(names), "shards": shards}:
+            return False
+        for robot in names:
+            self.keys[robot] = ((kept / robot).read_bytes(), (kept / f"{robot}.pub").read_text())
+        return True
+
+    def _keep(self, names: list[str], shards: int) -> None:
+        import json
+
+        kept = self._kept()
+        kept.mkdir(parents=True, exist_ok=True)
+        for robot in names:
+            (kept / robot).write_bytes(self.keys[robot][0])
+            (kept / f"{robot}.pub").write_text(self.keys[robot][1])
+        marker = {"container": self.container_id, "robots": len(names), "shards": shards}
+        (kept / "registered.json").write_text(json.dumps(marker))
+
     def register(self, names: list[str], shards: int) -> None:
-        """Every robot a gitolite user with its own key; the rules for ``shards``."""
+        """Every robot a gitolite user with its own key; the rules for ``shards``
+        (skipped when this lab's server has them from an earlier bench process)."""
         from robotfleet.pull.operator import gitolite
 
         if self.registered == (len(names), shards):
             return
+        if self._load_kept(names, shards):
+            self.registered = (len(names), shards)
+            print(f"bench: {len(names)} robots, {shards} shards: registered already", flush=True)
+            return
+        (self._kept() / "registered.json").unlink(missing_ok=True)
         for robot in names:
             self.keys.setdefault(robot, keypair())
         add = {gitolite.key_file(robot): self.keys[robot][1] for robot in names}
@@ -113,6 +158,7 @@ class Server:
             self.admin, self.git["repo"], add, message=f"bench: {len(names)} robots, {shards} shards", shards=shards
         )
         self.registered = (len(names), shards)
+        self._keep(names, shards)
         print(
             f"bench: {len(names)} robots registered, {shards} shards ({time.monotonic() - started:.0f} s)", flush=True
         )
@@ -149,6 +195,12 @@ class Server:
             {report_shards.shard_repo(self.git["repo"], shard): spread.get(shard, []) for shard in range(shards)}
         )
         self.seed(by_repo)
+        if shards:  # the server's read copy of the shards (its hook, installed by the lab as the guide says)
+            self.sh(f"sh {HOOK} --seed {REPOSITORIES}/{self.git['repo']}.git")
+
+    def drop_copy(self) -> None:
+        """The fleet remote without its read copy: readers fetch every shard."""
+        self.sh(f"git -C {REPOSITORIES}/{self.git['repo']}.git update-ref -d refs/report-copy")
 
     def cpu_seconds(self) -> float:
         """The server container's CPU time so far: its cgroup's (v1 cpuacct
@@ -175,13 +227,22 @@ class Server:
             key = where / "id_ed25519"
             key.write_bytes(self.keys[robot][0])
             key.chmod(0o600)
+            pinned = [k for k in self.git["host_keys"] if k.startswith("ssh-ed25519 ")]  # as the guides pin it
             (where / "known_hosts").write_text(
-                "".join(f"{agent_files.HOST_KEY_ALIAS} {' '.join(k.split()[:2])}\n" for k in self.git["host_keys"])
+                "".join(f"{agent_files.HOST_KEY_ALIAS} {' '.join(k.split()[:2])}\n" for k in pinned)
             )
         return str(where)
 
-    def remote(self, robot: str, repo: Path, shards: int):
-        """The fleet remote as ``robot`` reaches it (robotfleet's transport), from ``repo``."""
+    def remote(self, robot: str, repo: Path, shards: int, mirror: tuple[str, Path] | None = None):
+        """The fleet remote as ``robot`` reaches it (robotfleet's transport), from
+        ``repo``; with ``mirror`` (its URL and CA: https_mirror.py), the releases
+        from there and the reports pushed here, as pull_report_remote says."""
         from robotfleet.pull.robot import transport
 
-        return transport.Remote(self.url, repo, self.etc(robot), timeout=300, shards=shards)
+        etc = self.etc(robot)
+        if mirror is None:
+            return transport.Remote(self.url, repo, etc, timeout=300, shards=shards)
+        ca = Path(etc) / "remote-ca.pem"
+        if not ca.exists():
+            ca.write_bytes(mirror[1].read_bytes())
+        return transport.Remote(mirror[0], repo, etc, timeout=300, report_url=self.url, shards=shards)

@@ -16,6 +16,7 @@ import uuid
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import robotfleet
 from robotfleet.pull.operator import gitolite
 
 from . import apt_install, hostimage, sshd, state
@@ -52,12 +53,19 @@ RUN sh /tmp/install.sh && rm /tmp/install.sh
 # Its git's settings, for every repository it serves: a push holding an
 # object git's fsck finds malformed is refused whole (docs/guides/pull.md).
 GIT_CONFIG = {"receive.fsckObjects": "true"}
-# Run as the gitolite user once the admin key is in place: idempotent (a
-# second run replaces the admin key and keeps every repository).
+# robotfleet's post-receive hook, the read copy of sharded reports (docs/guides/pull.md,
+# "The reports' read copy"), as a fleet's git server has it: in gitolite's
+# common hooks, linked into every repository.
+REPORT_COPY_HOOK = robotfleet.CHECKOUT / "files" / "git-server" / "post-receive"
+HOOK_IN_CONTAINER = "/etc/robot-lab/post-receive"
+# Run as the gitolite user once the admin key and the hook are in place:
+# idempotent (a second run replaces the admin key and keeps every repository).
 SETUP = " && ".join(
     [
         *(f"git config --file {HOME}/.gitconfig {key} {value}" for key, value in GIT_CONFIG.items()),
         f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}",
+        f"install -m 0755 {HOOK_IN_CONTAINER} {HOME}/.gitolite/hooks/common/post-receive",
+        "gitolite setup --hooks-only",
     ]
 )
 
@@ -144,6 +152,7 @@ def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
     with timed_phase("git server (gitolite3)"):
         keys = sshd.wait_for_host_keys(container, READY_TIMEOUT_S)
         put_files(container, {ADMIN_KEY_IN_CONTAINER: key_path.with_suffix(".pub").read_text()})
+        put_files(container, {HOOK_IN_CONTAINER: REPORT_COPY_HOOK.read_text()}, mode=0o755)
         code, out = container.exec_run(["su", "-s", "/bin/sh", USER, "-c", SETUP])
         if code != 0:
             raise LabError(f"{name}: gitolite setup failed: {out.decode(errors='replace').strip()[-300:]}")

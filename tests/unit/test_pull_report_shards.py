@@ -63,9 +63,9 @@ def test_robots_are_grouped_by_shard():
 
 
 @pytest.mark.parametrize(
-    "robots, count", [(10, 0), (50, 0), (51, 2), (1_000, 32), (10_000, 256), (100_000, 2048), (10**7, 4096)]
+    "robots, count", [(10, 0), (16, 0), (17, 2), (1_000, 64), (10_000, 1024), (100_000, 4096), (10**7, 4096)]
 )
-def test_the_suggested_count_keeps_fifty_refs_a_shard_or_fewer(robots, count):
+def test_the_suggested_count_keeps_sixteen_refs_a_shard_or_fewer(robots, count):
     assert report_shards.suggested(robots) == count
 
 

@@ -27,7 +27,10 @@ import math
 
 SINGLE = 0  # the reports in the fleet remote itself
 MAX_SHARDS = 4096
-REFS_PER_SHARD = 50  # ~64-80 bytes a ref: an advertisement of ~4 KB, beside the ~4.5 KB of the SSH session itself
+# ~70 bytes a ref: a push's advertisement of ~1 KB (~1.5 KB in the fullest
+# shard), beside the ~7 KB of its SSH session (docs/explanations/pull.md); the
+# readers pay nothing for many shards once the server keeps their read copy.
+REFS_PER_SHARD = 16
 
 
 class ShardError(ValueError):
