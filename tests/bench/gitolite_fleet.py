@@ -82,17 +82,13 @@ class Server:
         from robotfleet.pull.operator import gitolite
         from tests.lab import gitserver, hosts
 
+        gitolite.GIT_TIMEOUT = 1800  # a gitolite-admin push compiling 10,000 keys takes minutes (a kept lab's too)
         self.git, key = hosts.git_server_alone(prefix)
-        self.prefix = prefix
-        self.container_id = subprocess.run(
-            ["docker", "inspect", "-f", "{{.Id}}", self.git["container"]], capture_output=True, text=True, check=True
-        ).stdout.strip()
         self.admin = gitserver.admin(self.git, key)
         self.url = gitserver.local_url(self.git)  # ssh://gitolite3@127.0.0.1:PORT/fleet
         self.base = base
         self.keys: dict[str, tuple[bytes, str]] = {}
         self.registered: tuple[int, int] | None = None
-        gitolite.GIT_TIMEOUT = 1800  # a gitolite-admin push compiling 10,000 keys takes minutes
         os.environ["GIT_SSH_COMMAND"] = self.admin.env()["GIT_SSH_COMMAND"]  # the operator's reads
 
     def sh(self, script: str, stdin: bytes | None = None, user: str = "gitolite3") -> str:
@@ -106,50 +102,12 @@ class Server:
             raise SystemExit(f"bench: on the git server: {script[:80]}: {done.stderr.decode()[-500:]}")
         return done.stdout.decode()
 
-    def _kept(self) -> Path:
-        """Where the robots' keys and what was registered are kept for the
-        lab's next bench process (a compile of 10,000 keys takes minutes)."""
-        from tests.lab import state
-
-        return state.lab_dir(self.prefix) / "bench-fleet"
-
-    def _load_kept(self, names: list[str], shards: int) -> bool:
-        import json
-
-        kept = self._kept()
-        try:
-            marker = json.loads((kept / "registered.json").read_text())
-        except (OSError, ValueError):
-            return False
-        if marker != {"container": self.container_id, "robots": len(names), "shards": shards}:
-            return False
-        for robot in names:
-            self.keys[robot] = ((kept / robot).read_bytes(), (kept / f"{robot}.pub").read_text())
-        return True
-
-    def _keep(self, names: list[str], shards: int) -> None:
-        import json
-
-        kept = self._kept()
-        kept.mkdir(parents=True, exist_ok=True)
-        for robot in names:
-            (kept / robot).write_bytes(self.keys[robot][0])
-            (kept / f"{robot}.pub").write_text(self.keys[robot][1])
-        marker = {"container": self.container_id, "robots": len(names), "shards": shards}
-        (kept / "registered.json").write_text(json.dumps(marker))
-
     def register(self, names: list[str], shards: int) -> None:
-        """Every robot a gitolite user with its own key; the rules for ``shards``
-        (skipped when this lab's server has them from an earlier bench process)."""
+        """Every robot a gitolite user with its own key; the rules for ``shards``."""
         from robotfleet.pull.operator import gitolite
 
         if self.registered == (len(names), shards):
             return
-        if self._load_kept(names, shards):
-            self.registered = (len(names), shards)
-            print(f"bench: {len(names)} robots, {shards} shards: registered already", flush=True)
-            return
-        (self._kept() / "registered.json").unlink(missing_ok=True)
         for robot in names:
             self.keys.setdefault(robot, keypair())
         add = {gitolite.key_file(robot): self.keys[robot][1] for robot in names}
@@ -158,7 +116,6 @@ class Server:
             self.admin, self.git["repo"], add, message=f"bench: {len(names)} robots, {shards} shards", shards=shards
         )
         self.registered = (len(names), shards)
-        self._keep(names, shards)
         print(
             f"bench: {len(names)} robots registered, {shards} shards ({time.monotonic() - started:.0f} s)", flush=True
         )

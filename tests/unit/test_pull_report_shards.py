@@ -90,3 +90,15 @@ def test_the_agent_configuration_carries_the_shard_count():
         agent_files.ConfigError, match=r"agent.json: report_shards: expected a whole number from 0 to 4096, got 5000"
     ):
         agent_files.read_config(json.dumps(raw), "agent.json")
+
+
+def test_the_server_s_copy_hook_keeps_the_readers_size_limit_and_ref():
+    """files/git-server/post-receive is shell: what it shares with the readers is checked here."""
+    import re
+
+    import robotfleet
+    from robotfleet.pull.protocol import report_store, reports
+
+    hook = (robotfleet.CHECKOUT / "files" / "git-server" / "post-receive").read_text()
+    assert re.search(r"^MAX_BYTES=(\d+) ", hook, re.M).group(1) == str(reports.MAX_BYTES)
+    assert re.search(r"^COPY=(\S+)$", hook, re.M).group(1) == report_store.COPY
