@@ -13,9 +13,8 @@ every ``--interval`` plus up to ``--jitter`` seconds (the agent's idle
 check: robotfleet's transport fetching the releases branch as that robot,
 a protocol-v2 fetch of one branch) and pushes its report at its first check
 a ``--heartbeat`` after its last push (nothing changes in the steady state).
-Each robot's first check falls anywhere in its first interval and jitter,
-its last push anywhere in the heartbeat before the start, so the replay
-starts in the steady state.
+Each robot's history is played from two hours and more before the start,
+so the replay starts in the steady state, pushes included.
 
 With ``--checks https`` the checks go to a static copy of the fleet remote
 that the git server's own nginx serves over TLS (tests/bench/https_mirror.py),
@@ -65,12 +64,20 @@ def schedule(
 ) -> list[tuple[float, str, bool]]:
     """(seconds from the start, robot, pushes its report) of each check a
     fleet in its steady state makes in ``minutes``, at most ``limit`` (pure):
-    each robot's first check falls anywhere in one interval and jitter, the
-    next ones every interval plus up to jitter; its last push anywhere in
-    the heartbeat before the start, the next at its first check a heartbeat later."""
+    each robot checks every interval plus up to jitter, and pushes at its
+    first check a heartbeat after its last push.  Each robot's history is
+    played from two heartbeats and intervals before the start (its first
+    check anywhere in one interval and jitter there, its last push anywhere
+    in one push cycle before that), so the replay opens in the steady state:
+    a start with each last push anywhere in the hour before made a 10-minute
+    run push a third as often."""
     rng = random.Random(seed)
     events: list[tuple[float, str, bool]] = []
-    due = [(rng.uniform(0, interval + jitter), robot, -rng.uniform(0, heartbeat)) for robot in robots]
+    warm, cycle = 2 * (heartbeat + interval + jitter), heartbeat + (interval + jitter) / 2
+    due = []
+    for robot in robots:
+        first = rng.uniform(0, interval + jitter) - warm
+        due.append((first, robot, first - rng.uniform(0, cycle)))  # its pushes' phase anywhere in one cycle
     heapq.heapify(due)
     end = minutes * 60
     while due and len(events) < limit:
@@ -78,7 +85,8 @@ def schedule(
         if at > end:
             break
         push = at - pushed >= heartbeat
-        events.append((at, robot, push))
+        if at >= 0:
+            events.append((at, robot, push))
         heapq.heappush(due, (at + interval + rng.uniform(0, jitter), robot, at if push else pushed))
     return events
 

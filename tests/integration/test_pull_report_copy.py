@@ -154,3 +154,27 @@ def test_the_copy_keeps_the_newest_push_of_each_robot(tmp_path):
     for hour, result in enumerate(("applied", "failed", "up-to-date")):
         robot.push_report("robot1", report("robot1", result, NOW + datetime.timedelta(hours=hour)))
     assert reports.parse(copied(remote)[path_of("robot1")].encode(), "robot1")["result"] == "up-to-date"
+
+
+def test_a_robot_reads_the_copy_from_a_static_https_mirror_of_the_fleet_remote(tmp_path):
+    """A mirror made as docs/guides/pull-from-nothing.md step 9 says carries the
+    copy with the rest: a robot reading from it needs no shard there."""
+    from tests.integration import httpsgit
+
+    remote = copied_fleet(tmp_path)
+    mirror = tmp_path / "www" / "fleet.git"
+    subprocess.run(["git", "clone", "-q", "--mirror", str(remote), str(mirror)], check=True)
+    craftedgit.git(mirror, "update-server-info")
+    ca, cert, key = httpsgit.make_ca(tmp_path / "tls")
+    server = httpsgit.Server(tmp_path / "www", cert, key, smart=False)
+    try:
+        etc = tmp_path / "mirror-etc"
+        etc.mkdir()
+        (etc / "remote-ca.pem").write_bytes(ca.read_bytes())
+        reader = transport.Remote(server.url("fleet.git"), tmp_path / "reader", str(etc), timeout=60, shards=SHARDS)
+        found = reader.fetch_reports([f"robot{i}" for i in range(1, 10)])
+    finally:
+        server.close()
+    assert sorted(found) == [f"robot{i}" for i in range(1, 10)]
+    assert found["robot3"]["result"] == "failed" and found["robot9"]["result"] == "applied"
+    assert len(reader.cost.exchanges) == 1

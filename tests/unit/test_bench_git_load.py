@@ -50,3 +50,13 @@ def test_the_summary_shows_a_queue_as_lag_growing_from_the_first_third_to_the_la
     assert queue["duration p50/p95 last third"][0] > queue["duration p50/p95 first third"][0]
     failed = git_load.summary([_row(0, 0, 1, ok="reports: DENIED")], 1.0, 0.0, 0.0, 2)
     assert failed["failed"] == 1 and failed["first failure"] == ["reports: DENIED"]
+
+
+def test_the_schedule_opens_in_the_steady_state_pushes_included():
+    """A 10-minute replay pushes at the fleet's steady rate: N / (heartbeat +
+    the wait for the next check, ~529 s at 900 + U(0, 300)) a second."""
+    events = git_load.schedule(ROBOTS, 900, 300, 3600, minutes=10, limit=10**6)
+    steady = 2_000 * 600 / (3600 + 529)
+    assert 0.85 * steady < sum(e[2] for e in events) < 1.15 * steady
+    assert 0.9 * 2_000 * 600 / 1050 < len(events) < 1.1 * 2_000 * 600 / 1050
+    assert min(e[0] for e in events) >= 0
