@@ -178,3 +178,17 @@ def test_a_robot_reads_the_copy_from_a_static_https_mirror_of_the_fleet_remote(t
     assert sorted(found) == [f"robot{i}" for i in range(1, 10)]
     assert found["robot3"]["result"] == "failed" and found["robot9"]["result"] == "applied"
     assert len(reader.cost.exchanges) == 1
+
+
+def test_a_copy_changed_behind_the_hook_is_read_again_before_the_next_push(tmp_path):
+    """The hook keeps its index between pushes; a copy seeded or rewritten by
+    anything else is what the next push adds to, not the hook's old index."""
+    remote = fleet(tmp_path)
+    install(remote)
+    robot_remote(tmp_path, remote, "robot1").push_report("robot1", report("robot1"))
+    craftedgit.git(remote, "update-ref", "-d", report_store.COPY)
+    robot_remote(tmp_path, remote, "robot2").push_report("robot2", report("robot2"))
+    assert list(copied(remote)) == [path_of("robot2")]  # started again: robot1's entry was only in the index
+    subprocess.run(["sh", str(HOOK), "--seed", str(remote)], capture_output=True, check=True)
+    robot_remote(tmp_path, remote, "robot3").push_report("robot3", report("robot3"))
+    assert sorted(copied(remote)) == sorted(path_of(f"robot{i}") for i in (1, 2, 3))

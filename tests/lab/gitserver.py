@@ -77,7 +77,11 @@ SETUP = " && ".join(
 # docs/guides/pull-from-nothing.md); the lab's robots are on private docker networks.
 PENALTY_EXEMPT = "/etc/ssh/sshd_config.d/robotfleet-fleet-networks.conf"
 EXEMPT_NETWORKS = "10.0.0.0/8,172.16.0.0/12,192.168.0.0/16"
+# sshd drops connections beyond 10 not yet logged in (MaxStartups 10:30:100):
+# thousands of robots' checks and pushes come in bursts (docs/guides/pull.md).
+STARTUPS = "/etc/ssh/sshd_config.d/robotfleet-fleet-scale.conf"
 EXEMPT = (
+    f"printf 'MaxStartups 100:30:200\\n' > {STARTUPS} && "
     f"printf 'PerSourcePenaltyExemptList {EXEMPT_NETWORKS}\\n' > {PENALTY_EXEMPT} && "
     f"if sshd -t 2>/dev/null; then systemctl reload ssh.service; else rm -f {PENALTY_EXEMPT}; fi"  # older sshd
 )
