@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 import os
 import re
 import statistics
@@ -295,18 +296,22 @@ def fleet_per_hour(
     Each robot checks every interval + jitter/2 (+ the check's own time) on
     average; a check pushes its report only at its first check after the
     heartbeat (nothing new: the steady state), so pushes per robot per hour
-    are 3600 / (heartbeat + interval + jitter/2), at most one per check.  A
-    push's extra bytes over an idle check hold the advertisement of the
-    measured lab's report refs: that part is scaled from ``robots_measured``
-    to ``fleet`` robots."""
+    are 3600 / (heartbeat + the wait for that check, half a period on
+    average), at most one per check.  A push's extra bytes over an idle
+    check hold the advertisement of its repository's report refs: scaled
+    from ``robots_measured`` (one repository) to the refs of one of the
+    shards ``report_shards.suggested`` gives ``fleet`` robots."""
+    from robotfleet.pull.protocol import report_shards
+
     plain = idle.get("without a report push") or {}
     pushed = idle.get("with a report push") or plain
     period = interval + jitter / 2
     checks = fleet * 3600 / (period + plain.get("seconds", 0))
-    pushes = min(checks, fleet * 3600 / (heartbeat + period))
+    pushes = min(checks, fleet * 3600 / (heartbeat + period / 2))
     idle_bytes = plain.get("sent", 0) + plain.get("received", 0)
     push_extra = pushed.get("sent", 0) + pushed.get("received", 0) - idle_bytes
-    push_extra += REF_ADVERTISEMENT * (fleet - robots_measured)
+    shards = report_shards.suggested(fleet)
+    push_extra += REF_ADVERTISEMENT * (math.ceil(fleet / max(1, shards)) - robots_measured)
     requests = checks * plain.get("requests", 0) + pushes * (pushed.get("requests", 0) - plain.get("requests", 0))
     per_hour = checks * idle_bytes + pushes * push_extra
     return {
@@ -321,10 +326,10 @@ def fleet_per_hour(
         "bytes_per_hour": round(per_hour),
         "megabits_per_second": round(per_hour * 8 / 3600 / 1e6, 2),
         "formula": (
-            "checks = N*3600/(interval + jitter/2 + check s); pushes = min(checks, N*3600/(heartbeat + interval "
-            "+ jitter/2)); requests = checks*(idle check requests) + pushes*(push requests - idle requests); "
-            f"bytes = checks*(idle check bytes) + pushes*(push bytes - idle bytes + {REF_ADVERTISEMENT}*(N - "
-            "robots measured) advertised report refs)"
+            "checks = N*3600/(interval + jitter/2 + check s); pushes = min(checks, N*3600/(heartbeat + (interval "
+            "+ jitter/2)/2)); requests = checks*(idle check requests) + pushes*(push requests - idle requests); "
+            f"bytes = checks*(idle check bytes) + pushes*(push bytes - idle bytes + {REF_ADVERTISEMENT}*(N/shards - "
+            "robots measured) advertised report refs, shards = report_shards.suggested(N))"
         ),
     }
 

@@ -14,11 +14,11 @@ IDLE = {
 def test_checks_pushes_requests_and_bytes_per_hour_from_the_measured_check():
     row = pull.fleet_per_hour(IDLE, 900, 300, heartbeat=3600, robots_measured=4)
     checks = 10_000 * 3600 / (900 + 150 + 1.0)
-    pushes = 10_000 * 3600 / (3600 + 900 + 150)
+    pushes = 10_000 * 3600 / (3600 + (900 + 150) / 2)  # at the first check after the heartbeat
     assert row["checks_per_hour"] == round(checks) == 34_253
-    assert row["report_pushes_per_hour"] == round(pushes) == 7_742
+    assert row["report_pushes_per_hour"] == round(pushes) == 8_727
     assert row["git_requests_per_hour"] == round(checks * 1 + pushes * 1)
-    push_extra = (15_000 - 9_000) + 64 * (10_000 - 4)  # the advertisement grows with the fleet's report refs
+    push_extra = (15_000 - 9_000) + 64 * (10 - 4)  # the advertisement of one of 1,024 shards: 10 refs, not 10,000
     assert row["bytes_per_hour"] == round(checks * 9_000 + pushes * push_extra)
     assert row["megabits_per_second"] == pytest.approx(row["bytes_per_hour"] * 8 / 3600 / 1e6, abs=0.01)
 
