@@ -106,7 +106,8 @@ SETTINGS = (
         "pull_report_shards",
         *_number("report_shards"),
         "Report repositories beside the fleet remote (<remote>-reports-<n>), each robot's fixed by a hash of its "
-        "name; about one per 50 robots keeps a report push under 10 KB; 0: the reports in the fleet remote itself. "
+        "name; about one per 16 robots keeps a report push under 10 KB, with the server's read copy of them "
+        "(files/git-server/post-receive) for the readers; 0: the reports in the fleet remote itself. "
         "The same on every robot.",
     ),
     Setting(
