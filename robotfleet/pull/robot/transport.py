@@ -11,8 +11,11 @@ in time, with the bytes each exchange moved.
   robot's), each asked for by its own prefix, read as the operator reads
   them (``report_store.read``: each robot's own row, never another's).
   With the reports sharded (``shards``, robotfleet/pull/protocol/report_shards.py),
-  each robot's own shard, the shards fetched a few at once; a robot not
-  found in its shard is looked for in the fleet remote (it has not moved yet).
+  one fetch from the fleet remote: its own report refs (robots not moved to
+  their shard yet) and the server's read copy of every shard
+  (``report_store.read_copy``, kept as ``COPY``, so the next read fetches
+  only what changed); a remote without that copy has each robot's own
+  shard fetched, a few at once.
 - ``push_report``: this robot's report as a one-file commit, force-pushed
   to ``refs/reports/<robot>`` (the only ref the server lets it write) of
   its shard; a push the shard refuses (the server's rules not rewritten for
