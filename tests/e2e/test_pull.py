@@ -449,3 +449,55 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
         assert f" {image}@sha256:" in line and " no check " in line, status.stdout  # the tag kept
         assert f"applied {version} " in line or f"up-to-date {version} " in line, status.stdout
     phase(f"pull: release {version} by publish's defaults on every robot, {off} after its boot", started)
+
+
+def test_sharded_reports_reach_the_operator_through_the_git_server_s_read_copy(pull, lab, tmp_path, monkeypatch):
+    """The lab's gitolite has the read-copy hook as docs/guides/pull.md installs
+    it (its common hooks).  With the rules for two report shards, robot1
+    pushes its report with its own key to its own shard and is refused
+    another's; the hook copies it into the fleet remote's refs/report-copy,
+    and the operator's read (what `robotfleet status` runs) takes it from
+    there, fetching no shard."""
+    from robotfleet.pull.operator import gitolite
+    from robotfleet.pull.protocol import report_shards, report_store
+    from tests.lab import gitserver
+    from tests.lab.engine import client
+
+    git, shards = pull.op.git, 2
+    admin = gitserver.admin(git, lab.state["ssh_key"])
+    gitolite.update(admin, git["repo"], message="e2e: two report shards", shards=shards)
+    try:
+        own, url = report_shards.shard_of("robot1", shards), gitserver.robot_url(git)
+        ssh = (
+            "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 -o IdentitiesOnly=yes "
+            "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
+        )
+        push = (  # its last report, from the fleet remote, into a shard
+            f"d=$(mktemp -d) && git init -q $d && cd $d && {ssh}git fetch -q {url} refs/reports/robot1 && "
+            f"{ssh}git push --force {{shard}} FETCH_HEAD:refs/reports/robot1 2>&1; c=$?; rm -rf $d; exit $c"
+        )
+        code, output = lab.sh("robot1", push.format(shard=report_shards.shard_url(url, 1 - own)))
+        assert code != 0 and "DENIED" in output, output
+        code, output = lab.sh("robot1", push.format(shard=report_shards.shard_url(url, own)))
+        assert code == 0, output
+        server = client().containers.get(git["container"])
+        code, listed = server.exec_run(
+            [
+                "git",
+                "-C",
+                f"{gitserver.HOME}/repositories/{git['repo']}.git",
+                "ls-tree",
+                "-r",
+                "--name-only",
+                report_store.COPY,
+            ],
+            user=gitserver.USER,
+        )
+        assert code == 0 and listed.decode().split() == [f"{own}/robot1"], listed
+        monkeypatch.setenv("GIT_SSH_COMMAND", pull.op.env()["GIT_SSH_COMMAND"])
+        found = report_store.fetch_every(gitserver.local_url(git), shards, tmp_path / "reports")
+        copied = report_store.read_copy(tmp_path / "reports", report_store.COPY, shards)
+        assert found["robot1"] == copied["robot1"] == pull.reports()["robot1"]
+        assert not (tmp_path / "reports-shards").exists()  # the copy read, no shard fetched
+    finally:
+        gitolite.update(admin, git["repo"], message="e2e: the reports in one repository again")
