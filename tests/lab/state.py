@@ -76,13 +76,17 @@ def forget(prefix: str, root: Path = LAB_DIR) -> None:
 # docker/docker-py#2042): exit 0 and no output.  The command's output goes to a file in the host's
 # /dev/shm (tmpfs, any user may write) and is printed from it with an end mark; a stream without the
 # mark is read again from the file (a read-only cat, safe to repeat), never by running the command again.
+# Under load its stream has also come back missing its start, a frame header inside the text (the
+# start mark catches that).
 # The files are not removed by another docker exec (one more per command, the engine's CPU on every
 # poll of a wait): once 64 are there, a command's script removes those older than a minute.
+EXEC_START = "__lab_exec_start__\n"
+PRINT_START = r"printf '%s\n' __lab_exec_start__"
 EXEC_MARK = "\n__lab_exec_end__\n"
 PRINT_MARK = r"printf '\n%s\n' __lab_exec_end__"
 EXEC_KEEP = 64
 EXEC_SCRIPT = (
-    f'out=$1; shift; "$@" >"$out" 2>&1; rc=$?; cat "$out"; {PRINT_MARK}; '
+    f'out=$1; shift; "$@" >"$out" 2>&1; rc=$?; {PRINT_START}; cat "$out"; {PRINT_MARK}; '
     f'set -- "${{out%/*}}"/lab-exec-*; [ "$#" -lt {EXEC_KEEP} ] || '
     'find "${out%/*}" -maxdepth 1 -name "lab-exec-*" -mmin +1 -delete 2>/dev/null; exit "$rc"'
 )
@@ -96,8 +100,11 @@ def exec_argv(cmd: str | list[str], out: str) -> list[str]:
 
 
 def exec_output(streamed: str) -> str | None:
-    """The command's output from what the exec streamed; None when the stream lost part of it."""
-    output, mark, rest = streamed.rpartition(EXEC_MARK)
+    """The command's output from what the exec streamed, between its start and
+    end marks; None when the stream lost part of it (either mark)."""
+    if not streamed.startswith(EXEC_START):
+        return None
+    output, mark, rest = streamed[len(EXEC_START) :].rpartition(EXEC_MARK)
     return output if mark and not rest.strip() else None
 
 
@@ -121,10 +128,12 @@ def exec_container(container, cmd: str | list[str], user: str | None = None) -> 
     output = exec_output(streamed)
     try:
         for _ in range(EXEC_REREADS if output is None else 0):
-            _, again = container.exec_run(["sh", "-c", f'cat "$0" && {PRINT_MARK}', out], user=user or "")
+            _, again = container.exec_run(
+                ["sh", "-c", f'{PRINT_START} && cat "$0" && {PRINT_MARK}', out], user=user or ""
+            )
             output = exec_output(again.decode(errors="replace"))
             if output is not None:
                 break
     except docker.errors.APIError:  # the command stopped its host (a power cut, a reboot): what came is all
         pass
-    return code, streamed if output is None else output
+    return code, streamed.removeprefix(EXEC_START) if output is None else output
