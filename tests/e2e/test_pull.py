@@ -472,9 +472,10 @@ def test_sharded_reports_reach_the_operator_through_the_git_server_s_read_copy(p
             "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 -o IdentitiesOnly=yes "
             "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
         )
-        push = (  # its last report, from the fleet remote, into a shard
+        push = (  # its last report, from the fleet remote, into a shard (the report's blob printed last)
             f"d=$(mktemp -d) && git init -q $d && cd $d && {ssh}git fetch -q {url} refs/reports/robot1 && "
-            f"{ssh}git push --force {{shard}} FETCH_HEAD:refs/reports/robot1 2>&1; c=$?; rm -rf $d; exit $c"
+            f"{ssh}git push --force {{shard}} FETCH_HEAD:refs/reports/robot1 2>&1 && "
+            "git rev-parse FETCH_HEAD:report.json; c=$?; rm -rf $d; exit $c"
         )
         code, output = lab.sh("robot1", push.format(shard=report_shards.shard_url(url, 1 - own)))
         assert code != 0 and "DENIED" in output, output
@@ -494,10 +495,23 @@ def test_sharded_reports_reach_the_operator_through_the_git_server_s_read_copy(p
             user=gitserver.USER,
         )
         assert code == 0 and listed.decode().split() == [f"{own}/robot1"], listed
+        code, blob = server.exec_run(
+            [
+                "git",
+                "-C",
+                f"{gitserver.HOME}/repositories/{git['repo']}.git",
+                "rev-parse",
+                f"{report_store.COPY}:{own}/robot1",
+            ],
+            user=gitserver.USER,
+        )
+        assert blob.decode().strip() == output.split()[-1]  # the report robot1 pushed, copied
         monkeypatch.setenv("GIT_SSH_COMMAND", pull.op.env()["GIT_SSH_COMMAND"])
         found = report_store.fetch_every(gitserver.local_url(git), shards, tmp_path / "reports")
         copied = report_store.read_copy(tmp_path / "reports", report_store.COPY, shards)
-        assert found["robot1"] == copied["robot1"] == pull.reports()["robot1"]
+        assert "error" not in copied["robot1"] and copied["robot1"]["robot"] == "robot1", copied
+        # its timer may have reported since, to the fleet remote (its agent has no shards): the newer one read
+        assert found["robot1"]["time"] >= copied["robot1"]["time"]
         assert not (tmp_path / "reports-shards").exists()  # the copy read, no shard fetched
     finally:
         gitolite.update(admin, git["repo"], message="e2e: the reports in one repository again")
