@@ -42,6 +42,11 @@ pytestmark = pytest.mark.e2e
 ROBOTS = ["robot1", "robot2", "robot3"]
 FIRST_BOOT = "robot4"
 ALL = ROBOTS + [FIRST_BOOT]
+# git on a robot as the robot's agent reaches the fleet remote: its own key, the pinned host key
+ROBOT_GIT_SSH = (
+    "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 -o IdentitiesOnly=yes "
+    "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
+)
 # Short health windows and the shortest check interval keep the module fast.
 FAST = {"payload_health_timeout": 20, "payload_stable_seconds": 2, "pull_interval": 10, "pull_jitter": 0}
 # A robot's check started now (systemctl start waits for the oneshot); one its timer started is waited for
@@ -165,10 +170,7 @@ def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
     push = (
         "cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
         "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m forged) && "
-        "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 "
-        "-o IdentitiesOnly=yes -o UserKnownHostsFile=/etc/robot-pull/known_hosts -o "
-        "HostKeyAlias=robotfleet-remote' "
-        f'git push --force {gitserver.robot_url(pull.op.git)} "$c:{{ref}}" 2>&1'
+        f'{ROBOT_GIT_SSH}git push --force {gitserver.robot_url(pull.op.git)} "$c:{{ref}}" 2>&1'
     )
     for ref in ("refs/reports/robot2", "refs/heads/robotfleet/releases"):
         code, output = lab.sh("robot1", push.format(ref=ref))
@@ -468,10 +470,7 @@ def test_sharded_reports_reach_the_operator_through_the_git_server_s_read_copy(p
     gitolite.update(admin, git["repo"], message="e2e: two report shards", shards=shards)
     try:
         own, url = report_shards.shard_of("robot1", shards), gitserver.robot_url(git)
-        ssh = (
-            "GIT_SSH_COMMAND='ssh -F /dev/null -i /etc/robot-pull/id_ed25519 -o IdentitiesOnly=yes "
-            "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
-        )
+        ssh = ROBOT_GIT_SSH
         push = (  # its last report, from the fleet remote, into a shard (the report's blob printed last)
             f"d=$(mktemp -d) && git init -q $d && cd $d && {ssh}git fetch -q {url} refs/reports/robot1 && "
             f"{ssh}git push --force {{shard}} FETCH_HEAD:refs/reports/robot1 2>&1 && "
