@@ -7,6 +7,7 @@ every shard, and each report is still read only from its own robot's shard."""
 from __future__ import annotations
 
 import datetime
+import os
 import shutil
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
@@ -192,3 +193,31 @@ def test_a_copy_changed_behind_the_hook_is_read_again_before_the_next_push(tmp_p
     subprocess.run(["sh", str(HOOK), "--seed", str(remote)], capture_output=True, check=True)
     robot_remote(tmp_path, remote, "robot3").push_report("robot3", report("robot3"))
     assert sorted(copied(remote)) == sorted(path_of(f"robot{i}") for i in (1, 2, 3))
+
+
+def test_a_copy_path_the_hook_never_writes_is_not_read(tmp_path):
+    """Paths only an admin's hand could put in the copy (a deeper path, a
+    non-ASCII digit) are not read as any robot's report."""
+    remote = fleet(tmp_path)
+    install(remote)
+    robot_remote(tmp_path, remote, "robot1").push_report("robot1", report("robot1"))
+    listed = craftedgit.git(remote, "ls-tree", "-r", report_store.COPY)
+    blob = listed.split()[2]
+    # each would pass the shard check were it read as a path of the hook's kind
+    deep = next(f"robot9/{i}" for i in range(100) if report_shards.shard_of(f"robot9/{i}", SHARDS) == 0)
+    third = next(f"robot{i}" for i in range(2, 100) if report_shards.shard_of(f"robot{i}", SHARDS) == 3)
+    odd = [f"0/{deep}", f"\u0663/{third}"]  # a path deeper than <shard>/<robot>; an Arabic-Indic 3
+    env = {**os.environ, "GIT_INDEX_FILE": str(tmp_path / "odd.index")}
+
+    def index(*args: str) -> str:
+        return subprocess.run(
+            ["git", "-C", str(remote), *args], env=env, check=True, capture_output=True, text=True
+        ).stdout
+
+    index("read-tree", report_store.COPY)
+    for path in odd:
+        index("update-index", "--add", "--cacheinfo", f"100644,{blob},{path}")
+    tree = index("write-tree").strip()
+    craftedgit.git(remote, "update-ref", report_store.COPY, craftedgit.git(remote, "commit-tree", tree, "-m", "odd"))
+    found = report_store.fetch_every(f"file://{remote}", SHARDS, tmp_path / "cache" / "reports")
+    assert sorted(found) == ["robot1"]

@@ -135,7 +135,10 @@ def read_copy(repo: Path, ref: str, count: int, wanted: set[str] | None = None, 
         shard, _, robot = path.partition("/")
         if (
             (wanted is None or robot in wanted)
+            and shard.isascii()
             and shard.isdigit()
+            and robot
+            and "/" not in robot  # the hook writes <shard>/<robot>, nothing deeper
             and report_shards.shard_of(robot, count) == int(shard)
         ):
             blobs[robot] = info.split()[-1]
