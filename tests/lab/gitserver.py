@@ -83,7 +83,7 @@ STARTUPS = "/etc/ssh/sshd_config.d/robotfleet-fleet-scale.conf"
 EXEMPT = (
     f"printf 'MaxStartups 100:30:200\\n' > {STARTUPS} && "
     f"printf 'PerSourcePenaltyExemptList {EXEMPT_NETWORKS}\\n' > {PENALTY_EXEMPT} && "
-    f"if sshd -t 2>/dev/null; then systemctl reload ssh.service; else rm -f {PENALTY_EXEMPT}; fi"  # older sshd
+    f"{{ sshd -t 2>/dev/null || rm -f {PENALTY_EXEMPT}; }} && systemctl reload ssh.service"  # older sshd: no penalties
 )
 
 
