@@ -1,5 +1,10 @@
 """A release: download first, switch, wait healthy, keep it or switch back.
 
+`apply` does it all at once.  A pull robot can split it at the prepared
+state: `prepare` (before its maintenance window: the images present, the
+release written and checked, nothing that runs touched) and `switch`
+(in the window: the rest of an apply, from the switch on).
+
 Runs holding the robot's apply lock (cli.locked); every change of a record
 or a pointer is a transition of lifecycle.Life, so a power cut at any point
 is undone at boot (recovery.py) or by the next deploy."""
@@ -7,7 +12,7 @@ is undone at boot (recovery.py) or by the next deploy."""
 import shutil
 
 from . import health, images, platforms, results, start, takeover
-from .lifecycle import SETTLED, Record
+from .lifecycle import PREPARED, SETTLED, Record
 from .lock import update_lock_holder
 from .releases import compose_yaml, gc, release_compose, restart_policies
 from .system import Failure, Refusal, now, run
@@ -72,21 +77,26 @@ def compose_missing():
     )
 
 
-def apply(spec, run_, life, lock=None):
-    root = spec.dir
-    old = life.current()
-
+def _finisher(spec, run_, action):
     def finish(outcome, message, target=None, reason=None, taken=()):
-        return results.finish(root, "apply", outcome, message, run_, target, reason, taken)
+        return results.finish(spec.dir, action, outcome, message, run_, target, reason, taken)
 
-    if already_current(spec, run_, life, old):
-        return finish(results.ALREADY_CURRENT, "payload: release {} is already current".format(old), old)
+    return finish
+
+
+def _held(spec, run_, old, finish):
+    """The refusal while the update lock is held (None: go on)."""
     holder = update_lock_holder(spec.lock_file)
     if holder and old and not run_.force:
         why = "update refused, {} is held ({})".format(spec.lock_file, holder)
         return finish(
             results.REFUSED, "payload: {}; run again with --data payload_force=true to override".format(why), reason=why
         )
+    return None
+
+
+def _prepared(spec, run_, life):
+    """The release written whole and checked, in the prepared state: its id."""
     doc, pinned = obtain_images(spec, run_.host)
     rid = life.releases.new_id(spec.spec_hash)
     record = Record(
@@ -106,6 +116,46 @@ def apply(spec, run_, life, lock=None):
     if refused:
         life.discard(rid)
         raise Refusal(refused)
+    return rid
+
+
+def apply(spec, run_, life, lock=None):
+    old = life.current()
+    finish = _finisher(spec, run_, "apply")
+    if already_current(spec, run_, life, old):
+        return finish(results.ALREADY_CURRENT, "payload: release {} is already current".format(old), old)
+    return _held(spec, run_, old, finish) or _switch(spec, run_, life, lock, _prepared(spec, run_, life), old, finish)
+
+
+def prepare(spec, run_, life):
+    """Everything of an apply before the switch; what runs is not touched.
+    An earlier prepared release of the same spec is used again."""
+    old = life.current()
+    finish = _finisher(spec, run_, "prepare")
+    if already_current(spec, run_, life, old):
+        return finish(results.ALREADY_CURRENT, "payload: release {} is already current".format(old), old)
+    for rid in reversed(life.releases.ids()):
+        record = life.record(rid)
+        if record and record.state == PREPARED and life.releases.spec(rid) == spec:
+            return finish(results.PREPARED, "payload: release {} is prepared".format(rid), rid)
+    rid = _prepared(spec, run_, life)
+    return finish(results.PREPARED, "payload: release {} is prepared; `payloadctl switch` runs it".format(rid), rid)
+
+
+def switch(rid, run_, life, lock=None):
+    """The rest of an apply for a release `prepare` made, with its own spec."""
+    known = rid in life.releases.ids()  # a release's name, never a path elsewhere
+    record = life.record(rid) if known else None
+    spec = life.releases.spec(rid) if known else None
+    if record is None or record.state != PREPARED or spec is None:
+        state = record.state if record else "missing"
+        raise Refusal("release {} is {}, not prepared: nothing switched".format(rid, state))
+    finish = _finisher(spec, run_, "switch")
+    old = life.current()
+    return _held(spec, run_, old, finish) or _switch(spec, run_, life, lock, rid, old, finish)
+
+
+def _switch(spec, run_, life, lock, rid, old, finish):
     came_from = life.switch(rid).switch.came_from
     if not spec.autostart:
         life.stage(rid)
@@ -116,7 +166,8 @@ def apply(spec, run_, life, lock=None):
         ok, why = health.run_checks(spec.name, spec.checks)
     if ok:
         life.keep(rid)
-        health.set_restart_policies(spec.name, restart_policies(doc))  # verified: Docker may bring it back
+        # verified: Docker may bring it back (the spec's policies: what the pinned copy keeps)
+        health.set_restart_policies(spec.name, restart_policies(spec.compose))
         gc(spec.keep_releases, life.releases)
         return finish(results.APPLIED, "payload: release {} is healthy".format(rid), rid, taken=taken)
     back = life.fail(rid, why, restored)

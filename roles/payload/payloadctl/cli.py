@@ -7,7 +7,7 @@ import sys
 import time
 
 from . import durable, hold, recovery, results, status
-from .apply import apply
+from .apply import apply, prepare, switch
 from .lifecycle import Life, Refused
 from .lock import Busy, Lock, describe
 from .releases import Releases
@@ -57,25 +57,50 @@ def read_token(path):
         return handle.read().strip() or None
 
 
-def cmd_apply(args):
+def _request(args, action):
+    """(spec, run) of a request file; a result refusing it when it cannot be read."""
     try:
         spec, run_ = load_request(args.request)
     except (OSError, ValueError, KeyError, TypeError) as error:
         root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(args.request))))  # <dir>/runs/<id>/
         why = "this payloadctl cannot read the deploy's request ({}); deploy again".format(error)
-        return results.finish(
-            root,
-            "apply",
-            results.REFUSED,
-            "payload: " + why,
-            Run(args.run_id, "unknown", False, False, socket.gethostname()),
-            reason=why,
-        )
-    run_ = run_._replace(run_id=args.run_id or run_.run_id, restart=args.restart or run_.restart)
+        run_ = Run(args.run_id, "unknown", False, False, socket.gethostname())
+        return None, results.finish(root, action, results.REFUSED, "payload: " + why, run_, reason=why)
+    return (
+        spec,
+        run_._replace(run_id=args.run_id or run_.run_id, restart=getattr(args, "restart", False) or run_.restart),
+    ), None
+
+
+def cmd_apply(args):
+    found, refused = _request(args, "apply")
+    if found is None:
+        return refused
+    spec, run_ = found
     releases = Releases(spec.dir)
     durable.make_private_dir(releases.dir)
     owner = {"by": run_.by, "action": "apply", "run_id": run_.run_id}
     return locked(releases, spec.apply_lock_timeout, owner, lambda life, lock: apply(spec, run_, life, lock), run_)
+
+
+def cmd_prepare(args):
+    found, refused = _request(args, "prepare")
+    if found is None:
+        return refused
+    spec, run_ = found
+    releases = Releases(spec.dir)
+    durable.make_private_dir(releases.dir)
+    owner = {"by": run_.by, "action": "prepare", "run_id": run_.run_id}
+    return locked(releases, spec.apply_lock_timeout, owner, lambda life, lock: prepare(spec, run_, life), run_)
+
+
+def cmd_switch(args):
+    releases = Releases(args.dir)
+    run_ = Run(args.run_id, args.by or "unknown", False, False, socket.gethostname(), args.deployment)
+    spec = releases.spec(args.release) if args.release in releases.ids() else None
+    lock_timeout = spec.apply_lock_timeout if spec else 0
+    owner = {"by": run_.by, "action": "switch", "run_id": run_.run_id}
+    return locked(releases, lock_timeout, owner, lambda life, lock: switch(args.release, run_, life, lock), run_)
 
 
 def cmd_rollback(args):
@@ -130,6 +155,17 @@ def parser():
     p.add_argument("--restart", action="store_true", help="restart the unit (it changed)")
     p.add_argument("--run-id")
     p.set_defaults(func=cmd_apply)
+    p = sub.add_parser("prepare", help="all of an apply before the switch: the release written and checked")
+    p.add_argument("request", help="as apply's")
+    p.add_argument("--run-id")
+    p.set_defaults(func=cmd_prepare)
+    p = sub.add_parser("switch", help="the rest of an apply, for a release prepare made")
+    p.add_argument("--dir", required=True)
+    p.add_argument("--release", required=True, help="the id prepare's result names (its target)")
+    p.add_argument("--run-id")
+    p.add_argument("--by")
+    p.add_argument("--deployment", help="the deployment named in the result")
+    p.set_defaults(func=cmd_switch)
     p = sub.add_parser("rollback", help="go back to the previous release, with its own spec")
     p.add_argument("--dir", required=True)
     p.add_argument("--run-id")

@@ -5,7 +5,8 @@ stderr; programs read the result, never them.
 
 The result, format 1 (docs/reference/payloadctl.md):
 
-    {"payloadctl": 1, "ok": bool, "outcome": one of OUTCOMES, "action": "apply" | "rollback",
+    {"payloadctl": 1, "ok": bool, "outcome": one of OUTCOMES,
+     "action": "apply" | "rollback" | "prepare" | "switch",
      "release": what `current` is after the run, "previous": what `previous` is,
      "target": the release this run made or switched to (None: none),
      "reason": why it is not ok (one line; None when ok), "message": the line for people,
@@ -26,8 +27,9 @@ FORMAT = 1
 RESULT = "last-result.json"
 APPLIED, ALREADY_CURRENT, STAGED = "applied", "already-current", "staged"
 ROLLED_BACK, FAILED, REFUSED = "rolled-back", "failed", "refused"
-OUTCOMES = (APPLIED, ALREADY_CURRENT, STAGED, ROLLED_BACK, FAILED, REFUSED)
-OK = (APPLIED, ALREADY_CURRENT, STAGED)
+PREPARED = "prepared"  # `payloadctl prepare`: written and checked, `switch` runs it
+OUTCOMES = (APPLIED, ALREADY_CURRENT, STAGED, PREPARED, ROLLED_BACK, FAILED, REFUSED)
+OK = (APPLIED, ALREADY_CURRENT, STAGED, PREPARED)
 # Control characters (an escape sequence in a healthcheck's output, a label,
 # docker's stderr) are shown, not obeyed, on the operator's terminal.
 _SHOWN = {i: "\\x{:02x}".format(i) for i in list(range(0x20)) + [0x7F] + list(range(0x80, 0xA0))}
