@@ -164,6 +164,25 @@ class HoldPart:
 
 
 @dataclass(frozen=True)
+class SwitchPart:
+    """How a pull robot's release is made ready before its maintenance
+    window and switched to in it (robotfleet/pull/robot/converge.py
+    ``prepare`` and ``switch``).  ``setting``: the role's setting naming a
+    file; in a planning run (``pyinfra --dry``) given it, the role's step
+    that would change the robot writes its request there instead;
+    ``prepare(data, request_file)``: the argv that makes that request
+    ready on the robot without running it; ``switch(data, prepared,
+    deployment)``: the argv that runs what was prepared, under the role's
+    own checks; ``read(stdout)``: what either said, {"ok", "outcome",
+    "target", "message"} (None: nothing it could read)."""
+
+    setting: str
+    prepare: Callable[[Any, str], list[str]]
+    switch: Callable[[Any, str, str], list[str]]
+    read: Callable[[str], dict | None]
+
+
+@dataclass(frozen=True)
 class PullPart:
     """Pull mode as the engine reads it of a host, given by the role that
     declares pull mode's settings (roles/pull), so the engine (publish,
@@ -244,6 +263,8 @@ class Role:
       data (e.g. passwords read from the environment), masked in output
       like the URL passwords of the data (robotfleet/secrets.py);
     - ``hold``: its lock, held by the pull agent for a converge run (HoldPart);
+    - ``switch``: its release made ready before a pull robot's window and
+      switched to in it (SwitchPart);
     - ``pull``: pull mode's settings as the engine reads them (PullPart);
     - ``renamed``: older names of its settings, still read (Renamed)."""
 
@@ -260,6 +281,7 @@ class Role:
     pins: PinPart | None = None
     secrets: Callable[[Any], list[str]] = _no_secrets
     hold: HoldPart | None = None
+    switch: SwitchPart | None = None
     pull: PullPart | None = None
     renamed: tuple[Renamed, ...] = ()
 

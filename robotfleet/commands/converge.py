@@ -5,7 +5,8 @@ robotfleet/pull/robot/converge.py."""
 
 import sys
 
+from robotfleet.pull.robot import window_switch
 from robotfleet.pull.robot.converge import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(more={"prepare": window_switch.prepare, "switch": window_switch.switch}))

@@ -18,11 +18,13 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
   payloadctl/ (the robot-side program), payload.service.j2: what runs on the robot;
 - report.py: its columns in status, what a rollout waits for; pins.py: the
   image digests a pull release binds (robotfleet publish); digests.py: those
-  digests applied when the robot runs the release (payload_image_pins).
+  digests applied when the robot runs the release (payload_image_pins);
+  hold.py, window_switch.py: its parts in a pull robot's converge (the apply
+  lock held for the run; a release prepared before its window, switched in it).
 """
 
 from robotfleet.role import Role
-from roles.payload import credentials, hold, pins, report, settings, steps
+from roles.payload import credentials, hold, pins, report, settings, steps, window_switch
 from roles.payload.release import rollback_release
 
 ROLE = Role(
@@ -38,6 +40,7 @@ ROLE = Role(
     rollout=report.ROLLOUT,
     pins=pins.PINS,
     hold=hold.HOLD,
+    switch=window_switch.SWITCH,
 )
 
 __all__ = ["ROLE", "rollback_release"]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import datetime
 import getpass
 import json
+import os
 import secrets
 import shlex
 import socket
@@ -216,11 +217,36 @@ def apply_script(data, restart: bool, run_id: str) -> str:
     return on_robot(data, "apply", spec_path + (" --restart" if restart else ""), run_id, prelude, unit="update")
 
 
+# Where the planning run writes the request on the robot itself: pyinfra's own
+# machine (anywhere else the file would be written on the operator's).
+WRITES_HERE = ("@local",)
+
+
+def prepares(data, restart: bool, host_name: str) -> bool:
+    """Whether this run writes its release for a window's switch (the pull
+    agent's planning run, on the robot itself) instead of applying it; a
+    release that restarts the unit is applied in the window whole."""
+    return bool(data.payload_switch_request) and not restart and host_name in WRITES_HERE
+
+
+def write_request(path: str, text: str) -> None:
+    """The request, readable by root alone, written whole (then moved)."""
+    temporary = f"{path}.{os.getpid()}"
+    descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(descriptor, "w") as handle:
+        handle.write(text)
+    os.replace(temporary, path)
+
+
 @operations.operation()
 def release(data, document: dict, checks: list, needed: bool, restart: bool):
     """Apply the release on the robot when it is not what runs there."""
     if not needed:
         host.noop("payload release is current")
+        return
+    if prepares(data, restart, host.name):
+        write_request(data.payload_switch_request, request(data, document, checks))
+        host.noop("payload release written for the window's switch")
         return
     run_id = new_run_id()
     yield payloadctl_command(apply_script(data, restart, run_id), stdin=request(data, document, checks).splitlines())

@@ -248,6 +248,13 @@ SETTINGS = (
         "The apply lock's token of the run this deploy is part of (payloadctl hold); never printed.",
     ),
     Setting(
+        "payload_switch_request",
+        None,
+        c.optional(v.private_path),
+        "Set by the pull agent's planning run on the robot (@local, --dry): a release is written here for its "
+        "window's switch instead of applied; ignored anywhere else.",
+    ),
+    Setting(
         digests.SETTING,
         {},
         image_pins,

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import re
 import subprocess
 import time
 from pathlib import Path
@@ -319,6 +320,12 @@ def test_a_robot_outside_its_window_prefetches_then_switches_inside_it_without_p
     version = report["seen"]["version"]
     assert report["result"] == "prefetched", report
     assert (report.get("applied") or {}).get("version") != version, report
+    # its plan changes nothing but what runs: the payload's release is written and checked, not switched to
+    assert ", its switch prepared)" in report["reason"], report
+    prepared = json.loads(lab.ok(ROBOT, "cat /var/lib/robot-payload/last-result.json"))
+    assert prepared["outcome"] == "prepared" and prepared["release"] != prepared["target"], prepared
+    record = json.loads(lab.ok(ROBOT, f"cat /var/lib/robot-payload/releases/{prepared['target']}/record.json"))
+    assert record["state"] == "prepared", record
     assert pulled == [by_digest(ref)], pulled  # pulled by the digest the release names, and only that
     assert lab.sh(ROBOT, f"docker image inspect {by_digest(ref)}")[0] == 0
     assert lab.version(ROBOT) == running  # the old payload still runs
@@ -335,4 +342,10 @@ def test_a_robot_outside_its_window_prefetches_then_switches_inside_it_without_p
     assert lab.payload(ROBOT)["Config"]["Image"] == by_digest(ref), lab.payload(ROBOT)["Config"]["Image"]
     assert lab.version(ROBOT) == "driver-1.0"
     assert pulled == [], f"the switch pulled {pulled}"
+    assert lab.ok(ROBOT, "readlink /var/lib/robot-payload/current") == f"releases/{prepared['target']}"
+    # the window's wake switched to the prepared release first, then ran the release's whole converge
+    journal = lab.ok(ROBOT, "journalctl -u robot-pull.service -o cat --no-pager")
+    took = re.findall(rf"^robot-pull: applied \(release {version}\).*; report sent \[(.*)\]$", journal, re.M)
+    names = [part.split(" ")[0] for part in took[-1].split(", ")] if took else None
+    assert names == ["fetch", "verify", "decide", "prepare", "switch", "load", "deploy", "status", "report"], journal
     phase(f"pull prefetch: release {version} switched in its window", started)

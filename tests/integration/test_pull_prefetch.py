@@ -117,13 +117,17 @@ def robot(tmp_path, monkeypatch):
     return Robot(tmp_path, monkeypatch)
 
 
-def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switched(robot):
+def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switched(robot, tmp_path, monkeypatch):
+    converges = tmp_path / "converges.log"
+    monkeypatch.setenv("STUB_LOG", str(converges))
     record = robot.release(1)
     report, outcome, sent = robot.wake()
     assert outcome.result == "prefetched" and sent == "report sent"
     assert outcome.reason.startswith(
-        "release 1 prefetched (code, 1 wheel(s), 2 image(s)); outside the maintenance window; next at "
+        "release 1 prefetched (code, 1 wheel(s), 2 image(s), its switch prepared); outside the maintenance window; "
+        "next at "
     )
+    assert converges.read_text() == "prepare\n"  # the release's converge planned it, once
     assert robot.pushed_report()["result"] == "prefetched"
     # everything in place, nothing switched
     code = robot.state / "code" / record.tree_sha256
@@ -150,6 +154,48 @@ def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switc
     assert robot.placed() == placed and robot.docker_log()[calls:] == []
     assert os.path.realpath(robot.state / "venv") == str(venv)
     assert os.path.realpath(robot.state / "code" / "current") == str(code)
+    # the prepared switch first, then the release's whole converge (which finds it in place)
+    assert converges.read_text() == "prepare\nswitch\nrun\n"
+
+
+def test_a_release_that_changes_more_than_what_runs_is_converged_whole_in_its_window(robot, tmp_path, monkeypatch):
+    converges = tmp_path / "converges.log"
+    monkeypatch.setenv("STUB_LOG", str(converges))
+    monkeypatch.setenv("STUB_PREPARE", "it changes more than what runs: Docker | Write /etc/docker/daemon.json")
+    robot.release(1)
+    _, outcome, _ = robot.wake()
+    assert outcome.result == "prefetched"
+    assert "2 image(s), its window runs the whole converge: it changes more than what runs: Docker | " in outcome.reason
+    _, again, _ = robot.wake()  # planned once a release
+    assert again.result == "prefetched" and converges.read_text() == "prepare\n"
+    robot.windows(INSIDE)
+    _, applied, _ = robot.wake()
+    assert applied.result == "applied" and converges.read_text() == "prepare\nrun\n"
+
+
+def test_a_prepared_switch_that_rolls_back_is_the_window_s_outcome(robot, tmp_path, monkeypatch):
+    converges = tmp_path / "converges.log"
+    monkeypatch.setenv("STUB_LOG", str(converges))
+    robot.release(1)
+    robot.wake()
+    robot.windows(INSIDE)
+    monkeypatch.setenv("STUB_SWITCH", "rolled-back")
+    _, outcome, _ = robot.wake()
+    assert outcome.result == "rolled-back" and "rolled back to y" in outcome.reason
+    assert converges.read_text() == "prepare\nswitch\n"  # not tried again whole in the same window
+    assert agent_state.load_state(robot.state)["attempted"]["result"] == "rolled-back"
+
+
+def test_a_prepared_switch_that_gives_way_leaves_the_window_to_the_whole_converge(robot, tmp_path, monkeypatch):
+    """The prepared release gone (a push deploy since, say): payloadctl refuses, nothing switched."""
+    converges = tmp_path / "converges.log"
+    monkeypatch.setenv("STUB_LOG", str(converges))
+    robot.release(1)
+    robot.wake()
+    robot.windows(INSIDE)
+    monkeypatch.setenv("STUB_SWITCH", "refused")
+    _, outcome, _ = robot.wake()
+    assert outcome.result == "applied" and converges.read_text() == "prepare\nswitch\nrun\n"
 
 
 def test_a_release_whose_wave_opens_later_is_prefetched(robot):

@@ -181,7 +181,6 @@ class Wake:
 
     def apply(self, client, wave: int | None) -> Outcome:
         import secrets
-        import shutil
 
         from robotfleet.pull.protocol import platforms
         from robotfleet.pull.robot import prepare, refusals, release_run
@@ -209,30 +208,11 @@ class Wake:
         except (prepare.PrepareError, OSError) as error:
             return self.tried(Outcome("failed", f"release {record.version} could not be prepared: {error}", wave=wave))
         deployment = f"pull-{robot}-{record.version}-{secrets.token_hex(3)}"
-        work = self.state_dir / "runs" / deployment
-        release_file = work.with_suffix(".release.json")
-        work.mkdir(parents=True, exist_ok=True, mode=0o700)
-        release_file.write_bytes(record.to_bytes())
-        started = time.monotonic()
-        said = release_run.run(
-            venv / "bin" / "python",
-            code,
-            [
-                "run",
-                "--robot",
-                robot,
-                "--fleet",
-                str(code / record.fleet["path"]),
-                "--record",
-                str(release_file),
-                "--deployment",
-                deployment,
-                "--work",
-                str(work),
-            ],
-        )
-        release_file.unlink(missing_ok=True)
-        self.phases.add_run(time.monotonic() - started, said.get("took"))
+        said = self.switched(code, venv, deployment)
+        if said is None:  # the release's whole converge, also after its prepared switch
+            started = time.monotonic()
+            said = release_run.converge(self.state_dir, record, robot, code, venv, "run", deployment)
+            self.phases.add_run(time.monotonic() - started, said.get("took"))
         if said.get("row"):
             self.read_status(said, code)
         outcome = Outcome(*release_run.classify(said, record.version), wave=wave)
@@ -244,10 +224,26 @@ class Wake:
             self.state["applied"] = {**reports.version_of(record), "time": record_time(self.clock())}
             self.state["fleet"] = record.fleet
             prepare.prune_targets(self.state_dir / "targets", set(files.values()))
-        if (work / "pyinfra.log").exists():
-            os.replace(work / "pyinfra.log", self.state_dir / "last-run.log")
-        shutil.rmtree(work, ignore_errors=True)
         return self.tried(outcome)
+
+    def switched(self, code: Path, venv: Path, deployment: str) -> dict | None:
+        """The window's switch to a release prefetched and prepared
+        (robotfleet/pull/robot/window_switch.py): its converge line when it
+        failed or rolled back (the outcome); None when it applied, or gave
+        way (nothing prepared, the preparation gone), for the whole converge."""
+        from robotfleet.pull.robot import release_run
+
+        prefetched = self.state.get("prefetched") or {}
+        prepared = prefetched.get("switch") if prefetched.get("version") == self.record.version else None
+        if not isinstance(prepared, dict) or not prepared.get("target") or not prepared.get("role"):
+            return None
+        more = ("--role", str(prepared["role"]), "--target", str(prepared["target"]))
+        with self.phases.timed("switch"):
+            said = release_run.converge(
+                self.state_dir, self.record, self.config.robot, code, venv, "switch", deployment, *more
+            )
+        prefetched.pop("switch", None)  # used: a second try is the whole converge's
+        return said if (said.get("switch") or {}).get("outcome") in ("rolled-back", "failed") else None
 
     def tried(self, outcome: Outcome) -> Outcome:
         previous = self.state.get("attempted") or {}

@@ -5,6 +5,8 @@ status.
 
     python -m robotfleet.commands.converge run --robot R --fleet F --record release.json --deployment D --work DIR
     python -m robotfleet.commands.converge status --robot R --fleet F
+    python -m robotfleet.commands.converge prepare (as run)
+    python -m robotfleet.commands.converge switch (as run) --role NAME --target PREPARED
 
 ``run`` holds each role's lock for the whole run (``Role.hold``: the
 payload's apply lock, with a token its own apply joins), runs the same
@@ -17,6 +19,15 @@ deploy's and the status read's seconds; ``status``: "row",
 the status was read, robotfleet/pull/protocol/path_signatures.py ``watched``).
 The agent depends only on that line and these arguments, which every
 release keeps.
+
+``prepare`` and ``switch`` split a release for a maintenance window
+(robotfleet/pull/robot/window_switch.py says when and why): ``prepare``
+plans the deploy (``pyinfra --dry``, nothing changed) with each role's
+SwitchPart setting naming a file; when the plan changes nothing and one
+role wrote its request there, that role makes it ready (``{"prepared":
+{"role", "target"} or null, "why"}``).  ``switch`` runs what a role
+prepared (``{"switch": what the role said, ...}``, with run's fields when
+it did not apply).
 """
 
 from __future__ import annotations
@@ -105,61 +116,80 @@ def errors_of(stderr: str, limit: int = 3) -> list[str]:
     return (picked or lines)[-limit:]
 
 
-def run(args) -> dict:
+def _setup(args):
+    """(roles, data, pins, run data, tokens, env) of a run: its data (the
+    release's pins, who it is for) goes to its work directory's run.json
+    (_write_run_data), where the pull inventory reads it."""
     roles = deploy_roles.roles()
     data = host_data(args.robot, args.fleet, deploy_roles.registry())
     record = records.parse(Path(args.record).read_bytes())
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True, mode=0o700)
-    prefix, tokens = [], {}
-    for role in roles:
-        if role.hold is not None and role.runs_on(data):
-            token_file = str(work / f"{role.name}.token")
-            held = role.hold.command(data, token_file)
-            if held:
-                prefix += held
-                tokens[role.hold.setting] = token_file
     pins = pin_settings(roles, record, args.robot)
     run_data = {
         **pins,
         agent_files.AGENT_RUN: {"robot": args.robot, "version": record.version, "release": record.release},
     }
-    data_file = work / "run.json"
-    data_file.write_text(json.dumps({"data": run_data, "tokens": tokens}))
+    tokens = {}
     env = dict(
         os.environ,
         ROBOT_FLEET=str(Path(args.fleet).resolve()),
         ROBOT_FLEET_HOST=args.robot,
-        ROBOT_PULL_DATA=str(data_file),
+        ROBOT_PULL_DATA=str(work / "run.json"),
         PYINFRA_PROGRESS="off",
         PYTHONPATH=str(CHECKOUT),
         **{DEPLOYMENT_ENV: args.deployment},
     )
-    command = prefix + [sys.executable, "-m", "pyinfra", "-y", "--json", "inventories/pull.py", "deploy.py"]
-    log = work / "pyinfra.log"
-    started = time.monotonic()
+    return roles, data, pins, run_data, tokens, env
+
+
+def _write_run_data(args, run_data: dict, tokens: dict) -> None:
+    (Path(args.work) / "run.json").write_text(json.dumps({"data": run_data, "tokens": tokens}))
+
+
+def _pyinfra(arguments: list[str], env: dict, prefix=()) -> tuple[int, str, str]:
+    command = [*prefix, sys.executable, "-m", "pyinfra", *arguments, "inventories/pull.py", "deploy.py"]
     try:
         done = subprocess.run(command, cwd=CHECKOUT, env=env, capture_output=True, text=True, timeout=PYINFRA_TIMEOUT)
-        code, stdout, stderr = done.returncode, done.stdout, done.stderr
+        return done.returncode, done.stdout, done.stderr
     except subprocess.TimeoutExpired as error:
-        code, stdout, stderr = 124, error.stdout or "", (error.stderr or "") + "\npyinfra: timed out"
-    log.write_text(stderr + "\n" + stdout)
-    deployed = time.monotonic()
+        return 124, error.stdout or "", (error.stderr or "") + "\npyinfra: timed out"
+
+
+def _outcome(args, roles, data, pins: dict) -> dict:
+    """The roles' status read now, and what it says of this run."""
     watched = watch(roles, data)
     row = status_row(args.robot, roles, data)
-    took = {"deploy": round(deployed - started, 3), "status": round(time.monotonic() - deployed, 3)}
     # What the robot must run is the release's images by the digests it pinned, as the deploy was given them.
     pinned = HostData({**data, **pins})
     return {
-        "exit": code,
         "row": row,
         "watch": watched,
         "results": results(roles, data, row, args.deployment),
         "missing": missing(roles, pinned, row),
-        "errors": errors_of(stderr) if code else [],
-        "log": str(log),
-        "took": took,
     }
+
+
+def run(args) -> dict:
+    roles, data, pins, run_data, tokens, env = _setup(args)
+    prefix = []
+    for role in roles:
+        if role.hold is not None and role.runs_on(data):
+            token_file = str(Path(args.work) / f"{role.name}.token")
+            held = role.hold.command(data, token_file)
+            if held:
+                prefix += held
+                tokens[role.hold.setting] = token_file
+    _write_run_data(args, run_data, tokens)
+    started = time.monotonic()
+    code, stdout, stderr = _pyinfra(["-y", "--json"], env, prefix)
+    log = Path(args.work) / "pyinfra.log"
+    log.write_text(stderr + "\n" + stdout)
+    deployed = time.monotonic()
+    found = _outcome(args, roles, data, pins)
+    took = {"deploy": round(deployed - started, 3), "status": round(time.monotonic() - deployed, 3)}
+    errors = errors_of(stderr) if code else []
+    return {"exit": code, **found, "errors": errors, "log": str(log), "took": took}
 
 
 def status(args) -> dict:
@@ -173,21 +203,28 @@ def status(args) -> dict:
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m robotfleet.commands.converge")
     sub = top.add_subparsers(dest="action", required=True)
-    for name in ("run", "status"):
+    for name in ("run", "status", "prepare", "switch"):
         each = sub.add_parser(name)
         each.add_argument("--robot", required=True)
-        each.add_argument("--fleet", required=name == "run")
-        if name == "run":
+        each.add_argument("--fleet", required=name != "status")
+        if name != "status":
             each.add_argument("--record", required=True)
             each.add_argument("--deployment", required=True)
             each.add_argument("--work", required=True)
+        if name == "switch":
+            each.add_argument("--role", required=True)
+            each.add_argument("--target", required=True)
     return top
 
 
-def main(argv=None) -> int:
+def main(argv=None, more=None) -> int:
+    """``more``: the other actions (prepare, switch: robotfleet/pull/robot/window_switch.py)."""
     args = parser().parse_args(argv)
     try:
-        found = run(args) if args.action == "run" else status(args)
+        actions = {"run": run, "status": status, **(more or {})}
+        if args.action not in actions:
+            raise ConvergeError(f"this entry point has no {args.action!r}")
+        found = actions[args.action](args)
     except (ConvergeError, DataError, records.RecordError, OSError) as error:
         found = {"error": str(error)}
     print(json.dumps(found, sort_keys=True, default=str))

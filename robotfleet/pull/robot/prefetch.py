@@ -12,8 +12,12 @@ digest.  The check then reports ``prefetched``; the apply, when the gate
 opens, finds every target cached (python-tuf's ``find_cached_target``), the
 tree and the venv made, and the images present.
 
-Nothing here takes the payload's apply lock or touches what runs: the
-switch (``code/current``, ``venv``, the payload) is the apply's alone.
+Once everything is in place, the release's switch is prepared, once a
+release (``prepare_switch``; robotfleet/pull/robot/window_switch.py): when its plan
+changes nothing but what runs, the window holds only the switch.
+
+Nothing here touches what runs: the switch (``code/current``, ``venv``,
+the payload) is the apply's alone.
 
 An interrupted prefetch (no network, a reboot) is taken up again at the
 next check where it stopped: targets already verified are kept whole, a
@@ -92,6 +96,7 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
     version = record.version
     done = wake.state.get("prefetched") or {}
     if done.get("version") == version and all(Path(p).exists() for p in done.get("paths", [])):
+        prepare_switch(wake, done)
         return PREFETCHED, _said(done, waiting.reason), None
     try:
         client = client or wake.verify()
@@ -115,12 +120,35 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
         "wheels": len(wheels),
         "images": None if images is None else len(images),
     }
+    prepare_switch(wake, done)
     return PREFETCHED, _said(done, waiting.reason), None
+
+
+def prepare_switch(wake, done: dict) -> None:
+    """The release's switch prepared for its window, once (``done["switch"]``:
+    what was prepared, or why the window runs the whole converge)."""
+    if "switch" in done or done.get("images") is None:
+        return
+    import secrets
+
+    from robotfleet.pull.robot import release_run
+
+    robot = wake.config.robot
+    code = Path(done["paths"][0])
+    venv = Path(done["paths"][1]) if len(done["paths"]) > 1 else Path(os.path.realpath(wake.state_dir / "venv"))
+    deployment = f"prepare-{robot}-{done['version']}-{secrets.token_hex(3)}"
+    said = release_run.converge(wake.state_dir, wake.record, robot, code, venv, "prepare", deployment)
+    prepared = said.get("prepared")
+    done["switch"] = prepared if isinstance(prepared, dict) else {"why": str(said.get("why") or said.get("error"))}
 
 
 def _said(done: dict, waiting: str | None) -> str:
     images = "no Docker yet: images at the apply" if done.get("images") is None else f"{done['images']} image(s)"
-    return f"release {done['version']} prefetched (code, {done.get('wheels', 0)} wheel(s), {images}); {waiting}"
+    switch = done.get("switch") or {}
+    ready = ", its switch prepared" if switch.get("target") else ""
+    if switch.get("why"):
+        ready = f", its window runs the whole converge: {switch['why'][:160]}"
+    return f"release {done['version']} prefetched (code, {done.get('wheels', 0)} wheel(s), {images}{ready}); {waiting}"
 
 
 def _targets(record, client, state_dir: Path, min_free_mb: int) -> dict[str, Path]:

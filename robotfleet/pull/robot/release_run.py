@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -61,3 +62,26 @@ def status(state: Path, robot: str, fleet: str | None) -> dict:
         code,
         ["status", "--robot", robot] + (["--fleet", str(code / fleet)] if fleet else []),
     )
+
+
+def converge(state: Path, record, robot: str, code: Path, venv: Path, action: str, deployment: str, *more) -> dict:
+    """One converge action (run, prepare, switch) of the release ``record``
+    in its tree and venv, in a work directory of its own that goes
+    afterwards; a run's pyinfra log becomes ``last-run.log``."""
+    work = state / "runs" / deployment
+    release_file = work.with_suffix(".release.json")
+    work.mkdir(parents=True, exist_ok=True, mode=0o700)
+    release_file.write_bytes(record.to_bytes())
+    fleet = str(code / record.fleet["path"])
+    try:
+        return run(
+            venv / "bin" / "python",
+            code,
+            [action, "--robot", robot, "--fleet", fleet, "--record", str(release_file), "--deployment", deployment]
+            + ["--work", str(work), *more],
+        )
+    finally:
+        release_file.unlink(missing_ok=True)
+        if action == "run" and (work / "pyinfra.log").exists():
+            os.replace(work / "pyinfra.log", state / "last-run.log")
+        shutil.rmtree(work, ignore_errors=True)
