@@ -20,9 +20,11 @@ tests/bench/pull.py's setup does):
    check of the release is the one in the window, as before prefetch;
 4. at the window's first second every robot is woken; measured per robot:
    its applying wake's own seconds (its journal line: fetch, verify,
-   download, converge, the payload's health gate) and, from the moment of
-   the wake, the time until its report says the release applied and the
-   payload healthy; then the timers started again.
+   download, converge, the payload's health gate), the part of them up to
+   the end of its prepared switch (the payload healthy on the new release:
+   ``switched``, the line's seconds less its phases after the switch) and,
+   from the moment of the wake, the time until its report says the release
+   applied and the payload healthy; then the timers started again.
 
 The two modes alternate run by run, on the same lab and images.  Figures
 wait for an idle machine before each window (tests/bench/hygiene.py); when
@@ -120,6 +122,7 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
         if line["result"] == "applied" and line["version"] == str(version)
     ]
     wakes = [float(line["seconds"]) for line in applying]
+    switched = [s for s in map(until_switched, applying) if s is not None]
     for robot in lab.robots:
         lab.sh(robot, "systemctl start robot-pull.timer")
     return {
@@ -130,11 +133,23 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
         "reached": len(reached),
         "to_healthy": sorted(reached.values()),
         "applying_wake_s": sorted(wakes),
+        "switched_s": sorted(switched),
         "phases": [phases(line) for line in applying],
         "window": window,
         "load": load,
         "idle": idle,
     }
+
+
+def until_switched(line: dict) -> float | None:
+    """An applying wake's seconds up to the end of its prepared switch (the
+    payload healthy on the release): its seconds less its phases after the
+    switch; None for a wake without one (pure)."""
+    found = phases(line)
+    if "switch" not in found:
+        return None
+    after = list(found)[list(found).index("switch") + 1 :]
+    return round(float(line["seconds"]) - sum(found[name] for name in after), 2)
 
 
 def compare(runs: list[dict]) -> dict:
@@ -144,9 +159,11 @@ def compare(runs: list[dict]) -> dict:
         mine = [r for r in runs if r["prefetch"] is prefetched]
         wakes = [s for r in mine for s in r["applying_wake_s"]]
         healthy = [s for r in mine for s in r["to_healthy"]]
+        switched = [s for r in mine for s in r.get("switched_s", [])]
         found[mode] = {
             "runs": len(mine),
             "applying_wake_s": statistics.median(wakes) if wakes else None,
+            "switched_s": statistics.median(switched) if switched else None,
             "to_healthy_s": statistics.median(healthy) if healthy else None,
             "phases_s": median_phases([p for r in mine for p in r.get("phases", [])]),
             "all_reached": all(r["reached"] == r["robots"] for r in mine),
@@ -161,7 +178,7 @@ def median_phases(found: list[dict[str, float]]) -> dict[str, float]:
     return {name: round(statistics.median(e[name] for e in found if name in e), 2) for name in names}
 
 
-PHASES = ("fetch", "verify", "decide", "prepare", "load", "deploy", "status", "report")
+PHASES = ("fetch", "verify", "decide", "prepare", "switch", "load", "deploy", "status", "report")
 
 
 def markdown(found: dict, conditions: dict) -> str:
@@ -175,17 +192,19 @@ def markdown(found: dict, conditions: dict) -> str:
         "",
         *[f"- {k}: {v}" for k, v in conditions.items()],
         "",
-        "| mode | window opens -> payload healthy (report) | applying wake | runs |",
-        "|---|---|---|---|",
+        "| mode | window opens -> payload healthy (report) | applying wake | its prepared switch done | runs |",
+        "|---|---|---|---|---|",
     ]
     for mode, figures in found.items():
         lines.append(
-            f"| {mode} | {cell(figures['to_healthy_s'])} | {cell(figures['applying_wake_s'])} | {figures['runs']} |"
+            f"| {mode} | {cell(figures['to_healthy_s'])} | {cell(figures['applying_wake_s'])} | "
+            f"{cell(figures.get('switched_s'))} | {figures['runs']} |"
         )
     lines += [
         "",
         "Where the applying wake's seconds go (its journal line's phases; `load`: the release's Python and roles "
-        "starting, `deploy`: the converge's pyinfra run, the payload's switch and health gate included):",
+        "starting, `deploy`: the converge's pyinfra run, the payload's switch and health gate included where "
+        "nothing was prepared; `switch`: the prepared switch and its health gate):",
         "",
         "| mode | " + " | ".join(PHASES) + " |",
         "|---|" + "---|" * len(PHASES),
@@ -196,8 +215,9 @@ def markdown(found: dict, conditions: dict) -> str:
     lines += [
         "",
         "Target (issue 38 item 5): window opens -> healthy within the payload's update window plus its health "
-        "check.  Not met on this design: the window's wake runs the release's whole converge; where its seconds "
-        'go, and what would meet it: docs/reference/benchmarks.md, "Prefetch".',
+        "check: with the prepared switch the payload is healthy when the switch is done (the applying wake up to "
+        "its switch); the wake then runs the release's whole converge, and the report follows it "
+        '(docs/reference/benchmarks.md, "Prefetch").',
     ]
     return "\n".join(lines) + "\n"
 

@@ -61,8 +61,22 @@ def test_the_prefetch_section_has_a_row_per_mode_and_a_dash_for_a_phase_it_did_n
     }
     text = prefetch.markdown(found, {"commit": "abc1234"})
     assert "- commit: abc1234" in text
-    assert "| prefetched | 6.47 | 5.80 | 2 |" in text and "| nothing prefetched | - | - | 0 |" in text
-    assert "| prefetched | - | - | - | - | - | 3.54 | - | - |" in text
+    assert "| prefetched | 6.47 | 5.80 | - | 2 |" in text and "| nothing prefetched | - | - | - | 0 |" in text
+    assert "| prefetched | - | - | - | - | - | - | 3.54 | - | - |" in text
+
+
+def test_a_prepared_switch_is_done_at_the_wake_s_seconds_less_its_phases_after_it():
+    line = pull.LINE.match(
+        "robot-pull: applied (release 4): release 4 applied; 6.1 s, 2.10 s CPU, sent 10 B, received 20 B in 3 "
+        "requests; report sent [fetch 0.21 s, verify 0.20 s, decide 0.00 s, prepare 0.04 s, switch 1.50 s, "
+        "load 1.00 s, deploy 1.80 s, status 0.50 s, report 0.30 s]"
+    ).groupdict()
+    assert prefetch.until_switched(line) == 2.5  # 6.1 - (1.0 + 1.8 + 0.5 + 0.3)
+    whole = pull.LINE.match(
+        "robot-pull: applied (release 4): release 4 applied; 7.3 s, 2.10 s CPU, sent 10 B, received 20 B in 3 "
+        "requests; report sent [fetch 0.21 s, load 1.00 s, deploy 4.20 s]"
+    ).groupdict()
+    assert prefetch.until_switched(whole) is None
 
 
 def staged_run(to_100, longest_apply=12.0, **more):
