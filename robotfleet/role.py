@@ -166,15 +166,16 @@ class HoldPart:
 @dataclass(frozen=True)
 class SwitchPart:
     """How a pull robot's release is made ready before its maintenance
-    window and switched to in it (robotfleet/pull/robot/converge.py
-    ``prepare`` and ``switch``).  ``setting``: the role's setting naming a
-    file; in a planning run (``pyinfra --dry``) given it, the role's step
-    that would change the robot writes its request there instead;
-    ``prepare(data, request_file)``: the argv that makes that request
-    ready on the robot without running it; ``switch(data, prepared,
-    deployment)``: the argv that runs what was prepared, under the role's
-    own checks; ``read(stdout)``: what either said, {"ok", "outcome",
-    "target", "message"} (None: nothing it could read)."""
+    window and switched to in it (robotfleet/pull/robot/window_switch.py).
+    ``setting``: the role's setting naming a file; in a planning run
+    (``pyinfra --dry``) given it, the role's step that would change the
+    robot writes its request there instead; ``prepare(data,
+    request_file)``: the argv that makes that request ready on the robot
+    without running it; ``switch(data, prepared, deployment)``: the argv
+    that runs what was prepared, under the role's own checks (the agent
+    runs it in the window as it is, without the release's Python);
+    ``read(stdout)``: what either said, from its last JSON line, {"ok",
+    "outcome", "target", "message"} (None: nothing it could read)."""
 
     setting: str
     prepare: Callable[[Any, str], list[str]]

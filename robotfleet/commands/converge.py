@@ -9,4 +9,4 @@ from robotfleet.pull.robot import window_switch
 from robotfleet.pull.robot.converge import main
 
 if __name__ == "__main__":
-    sys.exit(main(more={"prepare": window_switch.prepare, "switch": window_switch.switch}))
+    sys.exit(main(more={"prepare": window_switch.prepare}))

@@ -41,19 +41,13 @@ with open(os.path.join(args[args.index("--work") + 1], "pyinfra.log"), "w") as l
     log.write("ran " + deployment)
 if args[0] == "prepare":  # STUB_PREPARE: why the window would run the whole converge, else prepared
     why = os.environ.get("STUB_PREPARE")
-    print(json.dumps({"prepared": None if why else {"role": "payload", "target": "r-prepared"},
+    switch = [sys.executable, "-c", "import json, os; o = os.environ.get('STUB_SWITCH', 'applied'); "
+              "print(json.dumps({'ok': o == 'applied', 'outcome': o, 'message': 'payload: release r-prepared ' + o}))"]
+    if os.environ.get("STUB_LOG"):
+        switch[-1] += "; open(os.environ['STUB_LOG'], 'a').write('switch' + chr(10))"
+    prepared = {"role": "payload", "target": "r-prepared", "switch": switch, "deployment": deployment}
+    print(json.dumps({"prepared": None if why else prepared,
                       "why": why or "payload: release r-prepared is prepared", "took": {"plan": 0.01}}))
-    raise SystemExit(0)
-if args[0] == "switch":  # STUB_SWITCH: its outcome (applied unless set)
-    outcome = os.environ.get("STUB_SWITCH", "applied")
-    said = {"ok": outcome == "applied", "outcome": outcome, "target": args[args.index("--target") + 1],
-            "message": "payload: " + outcome}
-    found = {"switch": said, "took": {"switch": 0.01}}
-    if outcome != "applied":
-        found.update(exit=1, row=row, missing=[], errors=[], watch=watch, results=[
-            {"role": "payload", "ok": False, "why": "release r-prepared failed (unhealthy); rolled back to y",
-             "outcome": outcome}])
-    print(json.dumps(found))
     raise SystemExit(0)
 mode = os.environ.get("STUB", "applied")
 if mode == "applied":

@@ -181,7 +181,7 @@ def test_a_prepared_switch_that_rolls_back_is_the_window_s_outcome(robot, tmp_pa
     robot.windows(INSIDE)
     monkeypatch.setenv("STUB_SWITCH", "rolled-back")
     _, outcome, _ = robot.wake()
-    assert outcome.result == "rolled-back" and "rolled back to y" in outcome.reason
+    assert (outcome.result, outcome.reason) == ("rolled-back", "release 1: payload: release r-prepared rolled-back")
     assert converges.read_text() == "prepare\nswitch\n"  # not tried again whole in the same window
     assert agent_state.load_state(robot.state)["attempted"]["result"] == "rolled-back"
 

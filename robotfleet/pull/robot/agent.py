@@ -207,12 +207,15 @@ class Wake:
             raise Outcome("refused", f"release {record.version}: {error}", refusals.TAMPERED, wave) from None
         except (prepare.PrepareError, OSError) as error:
             return self.tried(Outcome("failed", f"release {record.version} could not be prepared: {error}", wave=wave))
-        deployment = f"pull-{robot}-{record.version}-{secrets.token_hex(3)}"
-        said = self.switched(code, venv, deployment)
-        if said is None:  # the release's whole converge, also after its prepared switch
-            started = time.monotonic()
-            said = release_run.converge(self.state_dir, record, robot, code, venv, "run", deployment)
-            self.phases.add_run(time.monotonic() - started, said.get("took"))
+        prepared = self.prepared()
+        deployment = prepared["deployment"] if prepared else f"pull-{robot}-{record.version}-{secrets.token_hex(3)}"
+        if prepared:
+            ended = self.switched(prepared, wave)
+            if ended is not None:
+                return self.tried(ended)
+        started = time.monotonic()  # the release's whole converge, also after its prepared switch
+        said = release_run.converge(self.state_dir, record, robot, code, venv, "run", deployment)
+        self.phases.add_run(time.monotonic() - started, said.get("took"))
         if said.get("row"):
             self.read_status(said, code)
         outcome = Outcome(*release_run.classify(said, record.version), wave=wave)
@@ -226,24 +229,27 @@ class Wake:
             prepare.prune_targets(self.state_dir / "targets", set(files.values()))
         return self.tried(outcome)
 
-    def switched(self, code: Path, venv: Path, deployment: str) -> dict | None:
-        """The window's switch to a release prefetched and prepared
-        (robotfleet/pull/robot/window_switch.py): its converge line when it
-        failed or rolled back (the outcome); None when it applied, or gave
-        way (nothing prepared, the preparation gone), for the whole converge."""
+    def prepared(self) -> dict | None:
+        """This release's switch as its prefetch prepared it
+        (robotfleet/pull/robot/window_switch.py), once: a second try is the whole converge's."""
+        prefetched = self.state.get("prefetched") or {}
+        found = prefetched.pop("switch", None) if prefetched.get("version") == self.record.version else None
+        if isinstance(found, dict) and isinstance(found.get("switch"), list) and found.get("deployment"):
+            return found
+        return None
+
+    def switched(self, prepared: dict, wave: int | None) -> Outcome | None:
+        """The window's prepared switch: the outcome when it failed its gate
+        (rolled back, or nothing to go back to); None when it applied, or
+        gave way (its release gone: refused), for the whole converge."""
         from robotfleet.pull.robot import release_run
 
-        prefetched = self.state.get("prefetched") or {}
-        prepared = prefetched.get("switch") if prefetched.get("version") == self.record.version else None
-        if not isinstance(prepared, dict) or not prepared.get("target") or not prepared.get("role"):
-            return None
-        more = ("--role", str(prepared["role"]), "--target", str(prepared["target"]))
         with self.phases.timed("switch"):
-            said = release_run.converge(
-                self.state_dir, self.record, self.config.robot, code, venv, "switch", deployment, *more
-            )
-        prefetched.pop("switch", None)  # used: a second try is the whole converge's
-        return said if (said.get("switch") or {}).get("outcome") in ("rolled-back", "failed") else None
+            said = release_run.switch(prepared["switch"])
+        if said.get("outcome") in ("rolled-back", "failed"):
+            why = " ".join(str(said.get("message") or said["outcome"]).split())[:300]
+            return Outcome(said["outcome"], f"release {self.record.version}: {why}", wave=wave)
+        return None
 
     def tried(self, outcome: Outcome) -> Outcome:
         previous = self.state.get("attempted") or {}

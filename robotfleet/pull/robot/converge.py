@@ -6,7 +6,6 @@ status.
     python -m robotfleet.commands.converge run --robot R --fleet F --record release.json --deployment D --work DIR
     python -m robotfleet.commands.converge status --robot R --fleet F
     python -m robotfleet.commands.converge prepare (as run)
-    python -m robotfleet.commands.converge switch (as run) --role NAME --target PREPARED
 
 ``run`` holds each role's lock for the whole run (``Role.hold``: the
 payload's apply lock, with a token its own apply joins), runs the same
@@ -20,14 +19,13 @@ the status was read, robotfleet/pull/protocol/path_signatures.py ``watched``).
 The agent depends only on that line and these arguments, which every
 release keeps.
 
-``prepare`` and ``switch`` split a release for a maintenance window
-(robotfleet/pull/robot/window_switch.py says when and why): ``prepare``
-plans the deploy (``pyinfra --dry``, nothing changed) with each role's
-SwitchPart setting naming a file; when the plan changes nothing and one
-role wrote its request there, that role makes it ready (``{"prepared":
-{"role", "target"} or null, "why"}``).  ``switch`` runs what a role
-prepared (``{"switch": what the role said, ...}``, with run's fields when
-it did not apply).
+``prepare`` makes a release ready for its maintenance window
+(robotfleet/pull/robot/window_switch.py says when and why): it plans the
+deploy (``pyinfra --dry``, nothing changed) with each role's SwitchPart
+setting naming a file; when the plan changes nothing and one role wrote
+its request there, that role makes it ready (``{"prepared": {"role",
+"target", "switch", "deployment"} or null, "why"}``; ``--deployment``: the
+window's).
 """
 
 from __future__ import annotations
@@ -203,7 +201,7 @@ def status(args) -> dict:
 def parser() -> argparse.ArgumentParser:
     top = argparse.ArgumentParser(prog="python -m robotfleet.commands.converge")
     sub = top.add_subparsers(dest="action", required=True)
-    for name in ("run", "status", "prepare", "switch"):
+    for name in ("run", "status", "prepare"):
         each = sub.add_parser(name)
         each.add_argument("--robot", required=True)
         each.add_argument("--fleet", required=name != "status")
@@ -211,14 +209,11 @@ def parser() -> argparse.ArgumentParser:
             each.add_argument("--record", required=True)
             each.add_argument("--deployment", required=True)
             each.add_argument("--work", required=True)
-        if name == "switch":
-            each.add_argument("--role", required=True)
-            each.add_argument("--target", required=True)
     return top
 
 
 def main(argv=None, more=None) -> int:
-    """``more``: the other actions (prepare, switch: robotfleet/pull/robot/window_switch.py)."""
+    """``more``: the other actions (prepare: robotfleet/pull/robot/window_switch.py)."""
     args = parser().parse_args(argv)
     try:
         actions = {"run": run, "status": status, **(more or {})}

@@ -136,7 +136,7 @@ def prepare_switch(wake, done: dict) -> None:
     robot = wake.config.robot
     code = Path(done["paths"][0])
     venv = Path(done["paths"][1]) if len(done["paths"]) > 1 else Path(os.path.realpath(wake.state_dir / "venv"))
-    deployment = f"prepare-{robot}-{done['version']}-{secrets.token_hex(3)}"
+    deployment = f"pull-{robot}-{done['version']}-{secrets.token_hex(3)}"  # the window's, named now
     said = release_run.converge(wake.state_dir, wake.record, robot, code, venv, "prepare", deployment)
     prepared = said.get("prepared")
     done["switch"] = prepared if isinstance(prepared, dict) else {"why": str(said.get("why") or said.get("error"))}

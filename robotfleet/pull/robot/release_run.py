@@ -85,3 +85,24 @@ def converge(state: Path, record, robot: str, code: Path, venv: Path, action: st
         if action == "run" and (work / "pyinfra.log").exists():
             os.replace(work / "pyinfra.log", state / "last-run.log")
         shutil.rmtree(work, ignore_errors=True)
+
+
+def switch(argv: list[str]) -> dict:
+    """A prepared switch, its role's own command (robotfleet.role
+    SwitchPart): the last JSON line it printed, {"ok", "outcome",
+    "message", ...}; {} when it said nothing readable."""
+    try:
+        done = subprocess.run(
+            [str(a) for a in argv], capture_output=True, text=True, timeout=TIMEOUT, stdin=subprocess.DEVNULL
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return {}
+    for line in reversed(done.stdout.splitlines()):
+        if line.startswith("{"):
+            try:
+                found = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(found, dict):
+                return found
+    return {}

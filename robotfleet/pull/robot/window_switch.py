@@ -1,6 +1,6 @@
 """A release switched to in its maintenance window alone, made ready
-before it: converge's ``prepare`` and ``switch`` (robotfleet/pull/robot/converge.py),
-run in the release's own code.
+before it: converge's ``prepare`` (robotfleet/pull/robot/converge.py), run in
+the release's own code.
 
 When a prefetch has put a release in place (robotfleet/pull/robot/prefetch.py),
 ``prepare`` plans that release's deploy on the robot, ``pyinfra --dry``:
@@ -11,10 +11,13 @@ operation would change anything, that role makes its request ready
 (``payloadctl prepare``: images present, the release written and checked);
 otherwise the window runs the release's whole converge, as without it.
 
-In the window, ``switch`` runs what was prepared (``payloadctl switch``:
-the same health gate and rollback as an apply), and the agent then runs
-the whole converge as always: it finds the release in place, and puts
-right anything that changed on the robot since the plan.
+``prepare`` also answers the command that switches to it (``{"prepared":
+{"role", "target", "switch": argv, "deployment"}}``, the deployment being
+the window's, named now).  In the window the agent runs that command
+itself (``payloadctl switch``: the same health gate and rollback as an
+apply), with no Python of the release to start, then the release's whole
+converge as always, under the same deployment: it finds the release in
+place, and puts right anything that changed on the robot since the plan.
 
 The plan's conditional operations (``_if=``) are not counted: in every
 role they follow another operation's change (``did_change``,
@@ -93,36 +96,10 @@ def prepare(args) -> dict:
         return _not(f"{role.name}: {tail[-1] if tail else f'exit {done.returncode}'}", took)
     if not said["ok"] or not said.get("target") or said.get("outcome") != "prepared":
         return _not(str(said.get("message") or said.get("outcome")), took)
-    return {"prepared": {"role": role.name, "target": said["target"]}, "why": said.get("message"), "took": took}
-
-
-def switch(args) -> dict:
-    roles, data, pins, run_data, tokens, env = converge._setup(args)
-    role = next((r for r in roles if r.name == args.role and r.switch is not None), None)
-    if role is None:
-        return {"error": f"no role {args.role!r} switches in this release"}
-    started = time.monotonic()
-    try:
-        done = subprocess.run(
-            role.switch.switch(data, args.target, args.deployment),
-            capture_output=True,
-            text=True,
-            timeout=converge.PYINFRA_TIMEOUT,
-            stdin=subprocess.DEVNULL,
-        )
-        said = role.switch.read(done.stdout)
-        why = [line for line in done.stderr.splitlines() if line.strip()][-1:]
-    except (OSError, subprocess.TimeoutExpired) as error:
-        said, why = None, [str(error)]
-    took = {"switch": round(time.monotonic() - started, 3)}
-    if said is None:
-        said = {
-            "ok": False,
-            "outcome": None,
-            "target": None,
-            "message": f"{role.name}: {why[0] if why else 'no result'}",
-        }
-    found = {"switch": said, "took": took}
-    if said.get("outcome") != "applied":  # what the report says comes from here: read now
-        found.update(converge._outcome(args, roles, data, pins), exit=0 if said["ok"] else 1, errors=[])
-    return found
+    prepared = {
+        "role": role.name,
+        "target": said["target"],
+        "switch": role.switch.switch(data, said["target"], args.deployment),
+        "deployment": args.deployment,
+    }
+    return {"prepared": prepared, "why": said.get("message"), "took": took}
