@@ -11,9 +11,11 @@ tests/bench/pull.py's setup does):
 1. a release whose fleet file gives the robots a maintenance window opening
    a few minutes ahead (``daily HH:MM-HH:MM UTC``; applied while the last
    run's window, or none, is open), so the next release waits for it;
-2. the robots' timers stopped (only the benchmark wakes them from here on)
-   and the new release's payload image removed from each robot, so its
-   pull really goes to the registry;
+2. the new release's payload image removed from each robot, so its pull
+   really goes to the registry; the robots' timers run as in the field, at
+   an interval of an hour (``TIMER``), so only the benchmark wakes them
+   (a stopped timer is a change the release's plan would put right: no
+   switch could be prepared);
 3. a release of the other payload tag published; with prefetch, each robot
    woken once now: it reports ``prefetched`` (code, wheels, images by
    digest in place); without, no robot checks before the window: its first
@@ -24,7 +26,7 @@ tests/bench/pull.py's setup does):
    the end of its prepared switch (the payload healthy on the new release:
    ``switched``, the line's seconds less its phases after the switch) and,
    from the moment of the wake, the time until its report says the release
-   applied and the payload healthy; then the timers started again.
+   applied and the payload healthy.
 
 The two modes alternate run by run, on the same lab and images.  Figures
 wait for an idle machine before each window (tests/bench/hygiene.py); when
@@ -50,6 +52,7 @@ from tests.bench.pull import journal, phases, run_conditions, setup
 from tests.bench.sections import cell
 
 LEAD = 240  # seconds from a run's start to its window: the settings release applied, the prefetch done
+TIMER = {"pull_interval": 3600, "pull_jitter": 0}  # the timers never wake a robot within a run
 
 
 def window_ahead(now: datetime.datetime, lead: int = LEAD, span_minutes: int = 30) -> tuple[datetime.datetime, str]:
@@ -67,7 +70,7 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
     opens, window = window_ahead(datetime.datetime.now(datetime.timezone.utc))
     other = "1.0" if tag == "1.1" else "1.1"
     op.publish(
-        pullfleet.fleet_text(op.lab, payload_tag=other, pull_windows=[window]),
+        pullfleet.fleet_text(op.lab, payload_tag=other, pull_windows=[window], **TIMER),
         f"window {window}",
         "--pause",
         "0",
@@ -78,10 +81,9 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
     lab.trigger(lab.robots)  # applied inside the previous window (or none): the new window in agent.json
     image = f"{op.lab['registry']}/ros/payload@{pullfleet.digest_of(op.lab, 'ros/payload', tag)}"
     for robot in lab.robots:
-        lab.sh(robot, "systemctl stop robot-pull.timer")
         lab.sh(robot, f"docker image rm -f {image} >/dev/null 2>&1; true")  # not running: the other tag runs
     done = op.publish(
-        pullfleet.fleet_text(op.lab, payload_tag=tag, pull_windows=[window]),
+        pullfleet.fleet_text(op.lab, payload_tag=tag, pull_windows=[window], **TIMER),
         f"bench {tag}",
         "--pause",
         "0",
@@ -123,8 +125,6 @@ def window_run(lab, op, tag: str, prefetch: bool) -> dict:
     ]
     wakes = [float(line["seconds"]) for line in applying]
     switched = [s for s in map(until_switched, applying) if s is not None]
-    for robot in lab.robots:
-        lab.sh(robot, "systemctl start robot-pull.timer")
     return {
         "prefetch": prefetch,
         "robots": len(lab.robots),
