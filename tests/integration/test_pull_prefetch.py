@@ -117,9 +117,15 @@ def robot(tmp_path, monkeypatch):
     return Robot(tmp_path, monkeypatch)
 
 
-def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switched(robot, tmp_path, monkeypatch):
-    converges = tmp_path / "converges.log"
-    monkeypatch.setenv("STUB_LOG", str(converges))
+@pytest.fixture
+def converges(tmp_path, monkeypatch):
+    """Where the release's (stub) converge notes each action it is asked, and the switch when it runs."""
+    path = tmp_path / "converges.log"
+    monkeypatch.setenv("STUB_LOG", str(path))
+    return path
+
+
+def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switched(robot, converges):
     record = robot.release(1)
     report, outcome, sent = robot.wake()
     assert outcome.result == "prefetched" and sent == "report sent"
@@ -158,9 +164,7 @@ def test_outside_its_window_a_release_is_prefetched_and_in_its_window_only_switc
     assert converges.read_text() == "prepare\nswitch\nrun\n"
 
 
-def test_a_release_that_changes_more_than_what_runs_is_converged_whole_in_its_window(robot, tmp_path, monkeypatch):
-    converges = tmp_path / "converges.log"
-    monkeypatch.setenv("STUB_LOG", str(converges))
+def test_a_release_that_changes_more_than_what_runs_is_converged_whole_in_its_window(robot, converges, monkeypatch):
     monkeypatch.setenv("STUB_PREPARE", "it changes more than what runs: Docker | Write /etc/docker/daemon.json")
     robot.release(1)
     _, outcome, _ = robot.wake()
@@ -173,9 +177,7 @@ def test_a_release_that_changes_more_than_what_runs_is_converged_whole_in_its_wi
     assert applied.result == "applied" and converges.read_text() == "prepare\nrun\n"
 
 
-def test_a_prepared_switch_that_rolls_back_is_the_window_s_outcome(robot, tmp_path, monkeypatch):
-    converges = tmp_path / "converges.log"
-    monkeypatch.setenv("STUB_LOG", str(converges))
+def test_a_prepared_switch_that_rolls_back_is_the_window_s_outcome(robot, converges, monkeypatch):
     robot.release(1)
     robot.wake()
     robot.windows(INSIDE)
@@ -186,10 +188,8 @@ def test_a_prepared_switch_that_rolls_back_is_the_window_s_outcome(robot, tmp_pa
     assert agent_state.load_state(robot.state)["attempted"]["result"] == "rolled-back"
 
 
-def test_a_prepared_switch_that_gives_way_leaves_the_window_to_the_whole_converge(robot, tmp_path, monkeypatch):
+def test_a_prepared_switch_that_gives_way_leaves_the_window_to_the_whole_converge(robot, converges, monkeypatch):
     """The prepared release gone (a push deploy since, say): payloadctl refuses, nothing switched."""
-    converges = tmp_path / "converges.log"
-    monkeypatch.setenv("STUB_LOG", str(converges))
     robot.release(1)
     robot.wake()
     robot.windows(INSIDE)

@@ -72,26 +72,24 @@ def _request(args, action):
     ), None
 
 
-def cmd_apply(args):
-    found, refused = _request(args, "apply")
+def _requested(args, action, work):
+    """``work(spec, run, life, lock)`` for the request file, under the lock."""
+    found, refused = _request(args, action)
     if found is None:
         return refused
     spec, run_ = found
     releases = Releases(spec.dir)
     durable.make_private_dir(releases.dir)
-    owner = {"by": run_.by, "action": "apply", "run_id": run_.run_id}
-    return locked(releases, spec.apply_lock_timeout, owner, lambda life, lock: apply(spec, run_, life, lock), run_)
+    owner = {"by": run_.by, "action": action, "run_id": run_.run_id}
+    return locked(releases, spec.apply_lock_timeout, owner, lambda life, lock: work(spec, run_, life, lock), run_)
+
+
+def cmd_apply(args):
+    return _requested(args, "apply", apply)
 
 
 def cmd_prepare(args):
-    found, refused = _request(args, "prepare")
-    if found is None:
-        return refused
-    spec, run_ = found
-    releases = Releases(spec.dir)
-    durable.make_private_dir(releases.dir)
-    owner = {"by": run_.by, "action": "prepare", "run_id": run_.run_id}
-    return locked(releases, spec.apply_lock_timeout, owner, lambda life, lock: prepare(spec, run_, life), run_)
+    return _requested(args, "prepare", lambda spec, run_, life, lock: prepare(spec, run_, life))
 
 
 def cmd_switch(args):
