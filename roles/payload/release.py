@@ -17,6 +17,7 @@ import socket
 from pyinfra import host, logger
 from pyinfra.api import FunctionCommand, deploy
 from pyinfra.api.arguments import CONNECTOR_ARGUMENT_KEYS
+from pyinfra.api.state import StateStage
 from pyinfra.api.util import format_text, print_host_combined_output
 
 import roles.payload.compose as compose
@@ -222,11 +223,13 @@ def apply_script(data, restart: bool, run_id: str) -> str:
 WRITES_HERE = ("@local",)
 
 
-def prepares(data, restart: bool, host_name: str) -> bool:
+def prepares(data, restart: bool, host_name: str, planning: bool) -> bool:
     """Whether this run writes its release for a window's switch (the pull
-    agent's planning run, on the robot itself) instead of applying it; a
-    release that restarts the unit is applied in the window whole."""
-    return bool(data.payload_switch_request) and not restart and host_name in WRITES_HERE
+    agent's planning run, on the robot itself) instead of applying it: only
+    while pyinfra plans (``--dry``); a run that executes (``-y``) applies,
+    whatever the setting says.  A release that restarts the unit is applied
+    in the window whole."""
+    return bool(data.payload_switch_request) and not restart and host_name in WRITES_HERE and planning
 
 
 def write_request(path: str, text: str) -> None:
@@ -244,7 +247,7 @@ def release(data, document: dict, checks: list, needed: bool, restart: bool):
     if not needed:
         host.noop("payload release is current")
         return
-    if prepares(data, restart, host.name):
+    if prepares(data, restart, host.name, host.state.current_stage == StateStage.Prepare):
         write_request(data.payload_switch_request, request(data, document, checks))
         host.noop("payload release written for the window's switch")
         return

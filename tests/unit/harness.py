@@ -162,10 +162,14 @@ def stdin_text(stdin) -> str:
 
 class Plan(dict):
     """Host name -> commands (``Sent``) sent after the snapshot; ``failed``:
-    host names; ``queries``: host name -> what its snapshot asked for."""
+    host names; ``queries``: host name -> what its snapshot asked for;
+    ``changes``: host name -> the operations planning found would change it,
+    the conditional ones (``_if``) left out (what ``--dry --json`` lists as
+    ``hosts_with_change``)."""
 
     failed: set[str]
     queries: dict[str, dict]
+    changes: dict[str, list[str]]
 
 
 class _Recorder:
@@ -280,6 +284,14 @@ def plan(
                     raise
         result = Plan(recorder.sent)
         result.queries = recorder.queries
+        result.changes = {
+            host.name.removeprefix("@fake/"): [
+                ", ".join(sorted(state.op_meta[op_hash].names))
+                for op_hash, op in state.ops[host].items()
+                if op.operation_meta._maybe_is_change and not op.global_arguments["_if"]
+            ]
+            for host in state.inventory
+        }
         result.failed = {h.name.removeprefix("@fake/") for h in state.failed_hosts}
         disconnect_all(state)
     return result

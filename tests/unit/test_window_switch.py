@@ -42,10 +42,11 @@ def test_output_without_a_plan_is_no_plan(stdout):
 
 def test_only_the_planning_run_on_the_robot_itself_writes_its_release():
     data = merged("robots", {**ROBOT, "payload_switch_request": "/var/lib/robot-pull/runs/x/payload.switch.json"})
-    assert release.prepares(data, False, "@local")
-    assert not release.prepares(data, True, "@local")  # a unit change is applied whole, in the window
-    assert not release.prepares(data, False, "robot1")  # a push deploy: that file would be the operator's
-    assert not release.prepares(merged("robots", ROBOT), False, "@local")
+    assert release.prepares(data, False, "@local", planning=True)
+    assert not release.prepares(data, True, "@local", planning=True)  # a unit change is applied whole, in the window
+    assert not release.prepares(data, False, "robot1", planning=True)  # a push deploy: the file would be the operator's
+    assert not release.prepares(data, False, "@local", planning=False)  # a run that executes (-y) applies
+    assert not release.prepares(merged("robots", ROBOT), False, "@local", planning=True)
     assert SWITCH.setting == "payload_switch_request"
 
 
@@ -63,12 +64,19 @@ def test_the_planning_run_writes_the_new_release_for_the_switch_and_plans_no_cha
     snap = converged("robots", data, "debian-13")
     request = private_dir / "payload.switch.json"
     new = {**data, "payload_image_pins": {PAYLOAD: B}, "payload_switch_request": str(request)}
-    assert plan({"r1": ("robots", new, snap)})["r1"] == []  # the snapshot only: nothing to change
+    planned = plan({"r1": ("robots", new, snap)}, run=False)  # what --dry does
+    assert planned.changes["r1"] == []  # nothing would change: the release is written for the switch
     written = json.loads(request.read_text())
     assert written["spec"]["compose"]["services"]["payload"]["image"] == f"{PAYLOAD}@{B}"
     assert oct(request.stat().st_mode & 0o777) == "0o600"
-    # the same release without the setting is applied
-    commands = plan({"r1": ("robots", {**data, "payload_image_pins": {PAYLOAD: B}}, snap)})["r1"]
+    # the same release without the setting would change the robot, and is applied
+    without = {**data, "payload_image_pins": {PAYLOAD: B}}
+    assert planned.changes["r1"] != plan({"r1": ("robots", without, snap)}, run=False).changes["r1"]
+    commands = plan({"r1": ("robots", without, snap)})["r1"]
+    assert len(commands) == 1 and "payloadctl apply" in commands[0]
+    # with the setting, a run that executes applies it all the same (the window's converge: -y)
+    request.unlink()
+    commands = plan({"r1": ("robots", new, snap)})["r1"]
     assert len(commands) == 1 and "payloadctl apply" in commands[0]
 
 
