@@ -160,8 +160,10 @@ USED = (
         ),
         "pyinfra.api.state:State",
         "8c6b6d12b1c7c768",
-        "robotfleet/host/operations.py, robotfleet/commands/status_collect.py, robotfleet/pyinfra_patches.py",
-        "planning or executing (operations compare with the snapshot while planning), whether to print "
+        "robotfleet/host/operations.py, robotfleet/commands/status_collect.py, robotfleet/pyinfra_patches.py, "
+        "roles/payload/release.py",
+        "planning or executing (operations compare with the snapshot while planning; the payload writes its "
+        "release for a window's switch only while planning), whether to print "
         "output, failed_hosts and limit_hosts (a State's attributes set in __init__), and where the "
         "deploy file is (operation order)",
     ),

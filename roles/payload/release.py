@@ -17,7 +17,6 @@ import socket
 from pyinfra import host, logger
 from pyinfra.api import FunctionCommand, deploy
 from pyinfra.api.arguments import CONNECTOR_ARGUMENT_KEYS
-from pyinfra.api.state import StateStage
 from pyinfra.api.util import format_text, print_host_combined_output
 
 import roles.payload.compose as compose
@@ -247,7 +246,7 @@ def release(data, document: dict, checks: list, needed: bool, restart: bool):
     if not needed:
         host.noop("payload release is current")
         return
-    if prepares(data, restart, host.name, host.state.current_stage == StateStage.Prepare):
+    if prepares(data, restart, host.name, planning=not host.state.is_executing):
         write_request(data.payload_switch_request, request(data, document, checks))
         host.noop("payload release written for the window's switch")
         return
