@@ -4,6 +4,7 @@ it, the switch in it), against the fake docker and systemctl of
 tests/integration/payloadrobot.py."""
 
 import json
+import os
 
 from tests.integration.payloadrobot import one_json_line
 
@@ -26,7 +27,7 @@ def test_prepare_writes_the_release_and_touches_nothing_that_runs(robot):
     assert done.returncode == 0 and result["outcome"] == "prepared" and result["ok"]
     rid = result["target"]
     assert robot.releases.record(rid)["state"] == "prepared"
-    assert (robot.releases.path(rid, "compose.yaml")) and robot.pointers() == ("r1", None)
+    assert os.path.isfile(robot.releases.path(rid, "compose.yaml")) and robot.pointers() == ("r1", None)
     assert "started" not in robot.state()  # nothing started, nothing stopped
     assert robot.state()["containers"]["robot-payload-payload-1"]["image"] == "reg/ros/payload:1.0"
 
