@@ -174,8 +174,9 @@ class SwitchPart:
     without running it; ``switch(data, prepared, deployment)``: the argv
     that runs what was prepared, under the role's own checks (the agent
     runs it in the window as it is, without the release's Python);
-    ``read(stdout)``: what either said, from its last JSON line, {"ok",
-    "outcome", "target", "message"} (None: nothing it could read)."""
+    ``read(stdout)``: what the prepare said, from its last JSON line, {"ok",
+    "outcome", "target", "message"} (None: nothing it could read); the
+    switch's last JSON line carries "ok", "outcome" and "message" too."""
 
     setting: str
     prepare: Callable[[Any, str], list[str]]

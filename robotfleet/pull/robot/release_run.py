@@ -65,7 +65,7 @@ def status(state: Path, robot: str, fleet: str | None) -> dict:
 
 
 def converge(state: Path, record, robot: str, code: Path, venv: Path, action: str, deployment: str, *more) -> dict:
-    """One converge action (run, prepare, switch) of the release ``record``
+    """One converge action (run, prepare) of the release ``record``
     in its tree and venv, in a work directory of its own that goes
     afterwards; a run's pyinfra log becomes ``last-run.log``."""
     work = state / "runs" / deployment
