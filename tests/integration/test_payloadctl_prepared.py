@@ -91,3 +91,11 @@ def test_switch_honours_the_update_lock_as_an_apply_does(robot):
     result, done = switch(robot, rid)
     assert done.returncode == 1 and result["outcome"] == "refused" and "update.lock is held" in result["reason"]
     assert robot.releases.record(rid)["state"] == "prepared" and robot.pointers() == ("r1", None)
+
+
+def test_switch_takes_a_release_s_name_only_never_a_path_to_a_prepared_record_elsewhere(robot):
+    robot.image("reg/ros/payload:1.1")
+    robot.release("../elsewhere", "reg/ros/payload:1.1", state="prepared")  # a record beside releases/
+    result, done = switch(robot, "../elsewhere")
+    assert done.returncode == 1 and result["outcome"] == "refused" and "missing, not prepared" in result["reason"]
+    assert robot.pointers() == ("r1", None) and "started" not in robot.state()
