@@ -73,6 +73,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
         query, KEY_PROBE, data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint)
     )
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
+    query.memo["dpkg_audit"] = apt.dpkg_audit_inputs()
     users.declare_reads(data, query)
 
 
