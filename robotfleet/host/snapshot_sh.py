@@ -9,8 +9,8 @@ so it starts as few programs as it can, each asked once for everything:
   rest is read; their outputs come back in one base64 blob (``stat`` gives
   the sizes that cut it apart);
 - one ``stat`` and one ``sha256sum`` for all plain files, one
-  ``systemctl is-enabled`` and one ``systemctl is-active`` for all units
-  (one by one where systemd's answer does not come one line a unit), one
+  ``systemctl show`` for all units (``is-enabled`` and ``is-active`` unit
+  by unit where its answer does not come a block a unit), one
   ``id`` a user, the package database read with ``awk`` (``dpkg-query``
   while dpkg's journal holds an unfinished run);
 - a probe declared with its inputs (``SnapshotQuery.memo``: the files and
@@ -121,16 +121,23 @@ def _packages(packages) -> list[str]:
 def _units(units) -> list[str]:
     if not units:
         return []
+    # One `systemctl show` for all (one program, one bus connection): a block
+    # a unit, in the order asked, the two properties (-p shows them even
+    # empty) in any order.  Where the blocks do not add up (no systemd to ask,
+    # a name it refuses), each unit is asked alone with is-enabled/is-active.
     return [
         f"set -- {' '.join(_q(u) for u in units)}",
-        'e=$(systemctl is-enabled "$@" 2>/dev/null)$NL; a=$(systemctl is-active "$@" 2>/dev/null)$NL; o=; n=',
-        "for u; do",
-        '  [ -n "$e" ] && [ -n "$a" ] || { n=1; break; }',
-        '  o="${o}unit$T$u$T${e%%$NL*}$T${a%%$NL*}$NL"; e=${e#*$NL}; a=${a#*$NL}',
-        "done",
-        # systemd answers one line a unit; an older one says nothing for a
-        # unit it does not know: then each unit is asked alone.
-        'if [ -z "$n$e$a" ]; then printf %s "$o"; else for u; do',
+        's=$(systemctl show -p UnitFileState,ActiveState -- "$@" 2>/dev/null); o=; e=; a=; n=',
+        "while IFS= read -r l; do case $l in",
+        "  UnitFileState=*) e=${l#*=}; n=1 ;; ActiveState=*) a=${l#*=}; n=1 ;; *=*) ;;",
+        '  "") [ $# -gt 0 ] && [ -n "$n" ] || { set -- x; break; }',
+        '      o="${o}unit$T$1$T$e$T$a$NL"; shift; e=; a=; n= ;;',
+        "  *) set -- x; break ;;",
+        "esac; done <<EOF",
+        "$s",
+        "",
+        "EOF",
+        f'if [ $# -eq 0 ]; then printf %s "$o"; else for u in {" ".join(_q(u) for u in units)}; do',
         '  echo "unit$T$u$T$(systemctl is-enabled "$u" 2>/dev/null)$T$(systemctl is-active "$u" 2>/dev/null)"',
         "done; fi",
     ]

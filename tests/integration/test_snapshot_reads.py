@@ -108,6 +108,30 @@ def test_dpkg_audit_probe_with_a_journal_or_an_old_database(tmp_path):
     assert audit_now(old) == audit_before(old) == ""
 
 
+def test_dpkg_audit_probe_is_kept_in_the_memo_until_dpkg_s_database_changes(tmp_path, memo_here):
+    stanzas, info = CASES["healthy"]
+    d = admindir(tmp_path, stanzas, info)
+    probes, memo = {"dpkg_audit": apt.dpkg_audit_probe(str(d))}, {"dpkg_audit": apt.dpkg_audit_inputs(str(d))}
+    query = dict(probes=probes, memo=memo)
+
+    def snapshot():
+        out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True).stdout
+        return hoststate.parse(out.splitlines(), query).probes["dpkg_audit"], "pblob" not in out
+
+    assert snapshot() == ("", False)
+    assert snapshot() == ("", True)  # answered from the memo
+    (d / "info" / info[0]).unlink()  # a package's file list gone: the info directory changed
+    assert snapshot() == (audit_now(d), False) and audit_now(d) != ""
+    (d / "info" / info[0]).write_text("/.\n")
+    assert snapshot() == ("", False)
+    (d / "updates" / "0000").write_text(stanzas[0])  # an unfinished dpkg run
+    assert snapshot() == ("dpkg journal not empty\n", False)
+    assert snapshot() == ("dpkg journal not empty\n", True)
+    (d / "updates" / "0000").unlink()
+    (d / "status").write_text("\n".join([stanza("half", status="install reinstreq half-installed"), *stanzas]))
+    assert snapshot() == (audit_now(d), False) and audit_now(d) != ""
+
+
 def test_dpkg_audit_probe_on_this_machine():
     assert audit_now(Path("/var/lib/dpkg")) == audit_before(Path("/var/lib/dpkg"))
 
@@ -206,42 +230,74 @@ def test_a_probe_cut_off_by_the_timeout_is_not_kept(tmp_path, memo_here, monkeyp
 
 
 FAKE_SYSTEMCTL = """#!/bin/sh
-# is-enabled / is-active UNIT...: one line a unit, as systemd 257 does; with
-# OLD set, nothing for a unit it does not know (an error on stderr), as
-# older systemd did.
+# show -p UnitFileState,ActiveState -- UNIT...: a block a unit, blank lines
+# between, as systemd does; with NOBUS set, nothing (no systemd to ask), and
+# is-enabled / is-active UNIT say what they can, as systemd 257 does.
 verb=$1; shift
+echo "$verb $*" >> "$LOG"
+if [ "$verb" = show ]; then
+  [ -n "$NOBUS" ] && exit 1
+  shift 3; first=1
+  for u; do
+    [ -n "$first" ] || echo; first=
+    case $u in
+      docker.service|alias.service) printf 'ActiveState=active\\nUnitFileState=enabled\\n' ;;
+      masked.service) printf 'UnitFileState=masked\\nActiveState=inactive\\n' ;;
+      *) printf 'ActiveState=inactive\\nUnitFileState=\\n' ;;
+    esac
+  done
+  exit 0
+fi
 for u; do
   case $verb:$u in
     is-enabled:docker.service) echo enabled ;;
     is-enabled:alias.service) echo alias ;;
-    is-enabled:*) if [ -n "$OLD" ]; then echo "Failed to get unit file state for $u" >&2; else echo not-found; fi ;;
+    is-enabled:*) echo not-found ;;
     is-active:docker.service|is-active:alias.service) echo active ;;
     is-active:*) echo inactive ;;
   esac
 done
-echo "$verb $*" >> "$LOG"
 """
 
 
-@pytest.mark.parametrize("old", [False, True])
-def test_units_are_asked_at_once_and_one_by_one_where_systemd_says_nothing_for_a_unit(tmp_path, old):
+@pytest.mark.parametrize("bus", [True, False])
+def test_units_are_asked_at_once_and_one_by_one_where_systemd_cannot_say(tmp_path, bus):
     (tmp_path / "systemctl").write_text(FAKE_SYSTEMCTL)
     (tmp_path / "systemctl").chmod(0o755)
     log = tmp_path / "log"
-    env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}", LOG=str(log), OLD="1" if old else "")
-    units = ["alias.service", "docker.service", "gone.service"]
+    env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}", LOG=str(log), NOBUS="" if bus else "1")
+    units = ["alias.service", "docker.service", "gone.service", "masked.service"]
     out = subprocess.run(
         ["sh", "-c", hoststate.snapshot_script(units=units)], capture_output=True, text=True, check=True, env=env
     )
     snap = hoststate.parse(out.stdout.splitlines(), {"units": units})
     assert dict(snap.units) == {
-        "alias.service": ("alias", "active"),
+        "alias.service": ("enabled" if bus else "alias", "active"),
         "docker.service": ("enabled", "active"),
-        "gone.service": ("" if old else "not-found", "inactive"),
+        "gone.service": ("" if bus else "not-found", "inactive"),
+        "masked.service": ("masked" if bus else "not-found", "inactive"),
     }
+    assert snap.unit_enabled("alias.service") and not snap.unit_enabled("masked.service")
     calls = log.read_text().splitlines()
-    assert calls[:2] == ["is-enabled " + " ".join(units), "is-active " + " ".join(units)]
-    assert len(calls) == (2 + 2 * len(units) if old else 2)
+    assert calls[0] == "show -p UnitFileState,ActiveState -- " + " ".join(units)
+    assert len(calls) == (1 if bus else 1 + 2 * len(units))
+
+
+@pytest.mark.parametrize("answer", ["", "ActiveState=active\n", "A=1\n\nB=2\n\nC=3\n\nD=4\n\nE=5\n", "garbled\n"])
+def test_a_systemctl_show_answer_that_does_not_add_up_is_not_read(tmp_path, answer):
+    """Fewer blocks than units, more, or lines that are not properties: each
+    unit asked alone, nothing read from the answer."""
+    fake = f'#!/bin/sh\n[ "$1" = show ] && printf %s {shlex.quote(answer)} && exit 0\necho alone\n'
+    (tmp_path / "systemctl").write_text(fake)
+    (tmp_path / "systemctl").chmod(0o755)
+    env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}")
+    units = ["a.service", "b.service"]
+    out = subprocess.run(
+        ["sh", "-c", hoststate.snapshot_script(units=units)], capture_output=True, text=True, check=True, env=env
+    )
+    assert dict(hoststate.parse(out.stdout.splitlines(), {"units": units}).units) == {
+        u: ("alone", "alone") for u in units
+    }
 
 
 ENGINE = """
