@@ -140,7 +140,7 @@ def parse(lines: list[str], query: dict) -> Snapshot:
     (``SnapshotQuery.as_kwargs()``)."""
     snap = Snapshot(**{kind: Readings(kind, query.get(kind) or ()) for kind in READING_KINDS})
     stats, shas, os_lines, sizes, blob, ones = {}, {}, [], [], b"", {}
-    for line in lines:
+    for line in _unkept(lines):
         kind, _, rest = line.partition("\t")
         parts = rest.split("\t")
         if kind == "osl":
@@ -198,6 +198,19 @@ def parse(lines: list[str], query: dict) -> Snapshot:
         mode, owner, group = (attributes.split() + ["", "", ""])[:3]
         snap.files[path] = FileState(kind, shas.get(path, "") if kind == "file" else None, mode, owner, group)
     return snap
+
+
+def _unkept(lines):
+    """The lines, with those the host kept in its memo (a ``memo`` line) in
+    place of it, as the host read them the first time."""
+    for line in lines:
+        if line.startswith("memo\t"):
+            try:
+                yield from base64.b64decode(line[5:]).decode().splitlines()
+            except ValueError:  # not base64 or not UTF-8: nothing of it read
+                continue
+        else:
+            yield line
 
 
 def parse_os_release(text: str) -> dict[str, str]:

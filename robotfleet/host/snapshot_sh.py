@@ -17,8 +17,11 @@ so it starts as few programs as it can, each asked once for everything:
   programs its answer depends on alone) is answered from the robot's memo
   (``MEMO_DIR``, root's own, in /run) while none of them nor the package
   database changed (device, inode, size, modification and change times),
-  and run again otherwise.  Writing that memo (a temporary file, then a
-  rename) is the only thing the script changes on a host.
+  and run again otherwise; so is the part that reads the architecture, the
+  files and the packages (``_kept``: on a converged host no ``dpkg``,
+  ``stat`` of the files, ``sha256sum`` or ``awk`` runs).  One ``stat`` of
+  every input gives the key of all.  Writing that memo (a temporary file,
+  then a rename) is the only thing the script changes on a host.
 
 Where no temporary directory can be made, the probes run one after
 another, each under its own timeout."""
@@ -60,7 +63,6 @@ def _os_release() -> list[str]:
     return [
         'l=; while IFS= read -r l || [ -n "$l" ]; do printf \'osl\\t%s\\n\' "$l"; l=; '
         "done 2>/dev/null < /etc/os-release",
-        "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo",
     ]
 
 
@@ -157,15 +159,15 @@ def _probes_program(probes: dict) -> str:
     )
 
 
-def _memo_key(memo: dict) -> list[str]:
+def _memo_key(inputs) -> list[str]:
     # Read at each call (not bound at import), so the tests can point them elsewhere.
-    """$K: the memo inputs' identities (empty: no memo on this host)."""
-    paths, programs = list(MEMO_ALWAYS), []
-    for inputs in memo.values():
-        for item in inputs:
-            target = paths if item.startswith("/") else programs
-            if item not in target:
-                target.append(item)
+    """$K: the identities of ``inputs`` (paths, and programs by name), empty
+    where the memo is not root's own directory (no memo on this host)."""
+    paths, programs = [], []
+    for item in (*MEMO_ALWAYS, *inputs):
+        target = paths if item.startswith("/") else programs
+        if item not in target:
+            target.append(item)
     words = " ".join([_q(MEMO_DIR), *(_q(p) for p in paths)])
     found = f"$(command -v {' '.join(_q(p) for p in programs)})" if programs else ""
     return [
@@ -178,13 +180,42 @@ def _memo_key(memo: dict) -> list[str]:
     ]
 
 
+def _kept(lines: list[str], inputs) -> list[str]:
+    """``lines``, whose output depends on ``inputs`` alone, answered from the
+    memo while $K holds (one ``memo`` line: their output in base64)."""
+    path = _q(f"{MEMO_DIR}/{memo_name('kept', chr(10).join(lines), inputs)}")
+    return [
+        "kept() {",
+        *lines,
+        "}",
+        f'if [ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]; then',
+        "  printf 'memo\\t%s\\n' \"$v\"",
+        'elif [ -n "$K" ]; then',
+        '  o=$(kept; echo .); o=${o%.}; printf %s "$o"',
+        f'  v=$(printf %s "$o" | base64 -w0) && printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}',
+        "else kept; fi",
+    ]
+
+
+def _kept_inputs(files, packages) -> tuple[str, ...]:
+    """What the architecture, the files' and the packages' lines depend on:
+    dpkg (the architecture), the files themselves (their owners' names too),
+    and dpkg's status file and journal (the packages)."""
+    inputs = ["dpkg", *files]
+    if files:
+        inputs += ["/etc/passwd", "/etc/group"]
+    if packages:
+        inputs += ["/var/lib/dpkg/status", "/var/lib/dpkg/updates"]
+    return tuple(inputs)
+
+
 def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None) -> str:
-    """The script (read-only but for the probes' memo, see the module)."""
+    """The script (read-only but for the memo, see the module)."""
     probes = dict(probes or {})
     memo = {name: tuple(inputs) for name, inputs in (memo or {}).items() if name in probes}
+    kept_inputs = _kept_inputs(files, packages)
     lines = ["export LC_ALL=C", f"T='{T}'", "NL='\n'", "R="]
-    if memo:
-        lines += _memo_key(memo)
+    lines += _memo_key([item for inputs in memo.values() for item in inputs] + list(kept_inputs))
     for index, (name, snippet) in enumerate(probes.items()):
         if name in memo:
             path = _q(f"{MEMO_DIR}/{memo_name(name, snippet, memo[name])}")
@@ -203,9 +234,14 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
             "  P=$!",
             "fi",
         ]
-    lines += _os_release() + _files(files) + _users(users)
+    lines += _os_release()
+    lines += _kept(
+        ["printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo", *_files(files), *_packages(packages)],
+        kept_inputs,
+    )
+    lines += _users(users)
     lines += [f"printf 'cmd\\t%s\\t' {_q(c)}; command -v {_q(c)} || echo" for c in commands]
-    lines += _packages(packages) + _units(units)
+    lines += _units(units)
     if probes:
         lines += _probe_results(probes, memo)
     lines.append("true")

@@ -1,8 +1,9 @@
 """The snapshot's cheaper reads give the answers of the commands they
 replace, checked against those commands on this machine: dpkg --audit on
-dpkg databases in every state it reports, the payload's containers from
-the engine's API against what the docker CLI printed, and the memo that
-keeps a probe's answer while its inputs are unchanged."""
+dpkg databases in every state it reports, the packages from dpkg's status
+file, the units from one systemctl show, and the payload's containers from
+the engine's API against what the docker CLI printed (the memo:
+test_snapshot_memo)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.host import apt, snapshot_sh
+from robotfleet.host import apt
 from robotfleet.host import snapshot as hoststate
 
 NATIVE = subprocess.run(["dpkg", "--print-architecture"], capture_output=True, text=True).stdout.strip()
@@ -108,30 +109,6 @@ def test_dpkg_audit_probe_with_a_journal_or_an_old_database(tmp_path):
     assert audit_now(old) == audit_before(old) == ""
 
 
-def test_dpkg_audit_probe_is_kept_in_the_memo_until_dpkg_s_database_changes(tmp_path, memo_here):
-    stanzas, info = CASES["healthy"]
-    d = admindir(tmp_path, stanzas, info)
-    probes, memo = {"dpkg_audit": apt.dpkg_audit_probe(str(d))}, {"dpkg_audit": apt.dpkg_audit_inputs(str(d))}
-    query = dict(probes=probes, memo=memo)
-
-    def snapshot():
-        out = subprocess.run(["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True).stdout
-        return hoststate.parse(out.splitlines(), query).probes["dpkg_audit"], "pblob" not in out
-
-    assert snapshot() == ("", False)
-    assert snapshot() == ("", True)  # answered from the memo
-    (d / "info" / info[0]).unlink()  # a package's file list gone: the info directory changed
-    assert snapshot() == (audit_now(d), False) and audit_now(d) != ""
-    (d / "info" / info[0]).write_text("/.\n")
-    assert snapshot() == ("", False)
-    (d / "updates" / "0000").write_text(stanzas[0])  # an unfinished dpkg run
-    assert snapshot() == ("dpkg journal not empty\n", False)
-    assert snapshot() == ("dpkg journal not empty\n", True)
-    (d / "updates" / "0000").unlink()
-    (d / "status").write_text("\n".join([stanza("half", status="install reinstreq half-installed"), *stanzas]))
-    assert snapshot() == (audit_now(d), False) and audit_now(d) != ""
-
-
 def test_dpkg_audit_probe_on_this_machine():
     assert audit_now(Path("/var/lib/dpkg")) == audit_before(Path("/var/lib/dpkg"))
 
@@ -147,86 +124,6 @@ def test_packages_are_read_as_dpkg_query_reads_them(tmp_path):
     ).stdout
     assert sorted(line for line in awk.splitlines() if line.startswith("pkg\t")) == sorted(query.splitlines())
     assert "dpkg-query -W" in script and "/var/lib/dpkg/updates/*" in script
-
-
-@pytest.fixture
-def memo_here(tmp_path, monkeypatch):
-    """The memo in a directory of this test, kept for this user."""
-    monkeypatch.setattr(snapshot_sh, "MEMO_DIR", str(tmp_path / "memo"))
-    monkeypatch.setattr(snapshot_sh, "MEMO_OWNER", os.getuid())
-    return tmp_path / "memo"
-
-
-def snapshot_with_memo(tmp_path, inputs=None, path=None):
-    """Run a snapshot whose one probe counts its runs; its answer."""
-    key = tmp_path / "key"
-    if not key.exists():
-        key.write_text("one\n")
-    counter = tmp_path / "runs"
-    probe = f"echo run >> {shlex.quote(str(counter))}; cat {shlex.quote(str(key))}"
-    query = dict(probes={"key": probe, "plain": "echo plain"}, memo={"key": inputs or (str(key), "sh")})
-    env = dict(os.environ, PATH=path or os.environ["PATH"])
-    out = subprocess.run(
-        ["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True, env=env
-    )
-    snap = hoststate.parse(out.stdout.splitlines(), query)
-    runs = len(counter.read_text().splitlines()) if counter.exists() else 0
-    return snap.probes["key"], snap.probes["plain"], runs
-
-
-def test_a_memo_probe_is_answered_from_the_memo_while_its_inputs_are_unchanged(tmp_path, memo_here):
-    assert snapshot_with_memo(tmp_path) == ("one\n", "plain\n", 1)
-    assert snapshot_with_memo(tmp_path) == ("one\n", "plain\n", 1)  # not run again
-    assert oct(memo_here.stat().st_mode)[-3:] == "700" and not [p for p in memo_here.iterdir() if ".$" in p.name]
-    (tmp_path / "key").write_text("two\n")  # an input changed
-    assert snapshot_with_memo(tmp_path) == ("two\n", "plain\n", 2)
-    assert snapshot_with_memo(tmp_path) == ("two\n", "plain\n", 2)
-
-
-def test_a_memo_probe_runs_again_when_its_program_changes(tmp_path, memo_here):
-    bin_dir = tmp_path / "bin"
-    bin_dir.mkdir()
-    tool = bin_dir / "tool"
-    tool.write_text("#!/bin/sh\necho v1\n")
-    tool.chmod(0o755)
-    path = f"{bin_dir}:{os.environ['PATH']}"
-    inputs = (str(tmp_path / "key"), "tool")
-    assert snapshot_with_memo(tmp_path, inputs, path)[2] == 1
-    assert snapshot_with_memo(tmp_path, inputs, path)[2] == 1
-    tool.unlink()
-    tool.write_text("#!/bin/sh\necho v2\n")  # upgraded: another file
-    tool.chmod(0o755)
-    assert snapshot_with_memo(tmp_path, inputs, path)[2] == 2
-
-
-@pytest.mark.parametrize("spoil", ["open to others", "someone else's", "a link", "a stale entry"])
-def test_no_memo_is_trusted_but_the_owners_own_up_to_date_one(tmp_path, memo_here, monkeypatch, spoil):
-    assert snapshot_with_memo(tmp_path)[2] == 1
-    if spoil == "open to others":
-        memo_here.chmod(0o777)
-    elif spoil == "someone else's":
-        monkeypatch.setattr(snapshot_sh, "MEMO_OWNER", os.getuid() + 1)
-    elif spoil == "a link":
-        real = tmp_path / "elsewhere"
-        memo_here.rename(real)
-        memo_here.symlink_to(real)
-    else:
-        for entry in memo_here.iterdir():
-            key, value = entry.read_text().splitlines()
-            entry.write_text(f"{key}x\n{value}\n")
-    assert snapshot_with_memo(tmp_path) == ("one\n", "plain\n", 2)
-    assert snapshot_with_memo(tmp_path)[2] == (2 if spoil == "a stale entry" else 3)
-
-
-def test_a_probe_cut_off_by_the_timeout_is_not_kept(tmp_path, memo_here, monkeypatch):
-    monkeypatch.setattr(snapshot_sh, "PROBE_TIMEOUT", 1)
-    query = dict(probes={"slow": "sleep 5; echo late"}, memo={"slow": ("/etc/hostname",)})
-    for _ in range(2):
-        out = subprocess.run(
-            ["sh", "-c", hoststate.snapshot_script(**query)], capture_output=True, text=True, check=True, timeout=20
-        )
-        assert hoststate.parse(out.stdout.splitlines(), query).probes["slow"] == ""
-    assert list(memo_here.iterdir()) == []
 
 
 FAKE_SYSTEMCTL = """#!/bin/sh
