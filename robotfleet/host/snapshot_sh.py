@@ -149,12 +149,17 @@ def _probes_program(probes: dict) -> str:
     """``sh -c "$I" sh DIR INDEX...``: the probes INDEX... at once, each
     into DIR/pINDEX (DIR/pINDEX.ok once it is done); with DIR empty, the
     one probe INDEX to stdout.  Each probe runs in a subshell with no
-    arguments, as ``sh -c SNIPPET`` ran it."""
-    arms = "".join(f"{index})\n{snippet}\n;;\n" for index, snippet in enumerate(probes.values()))
+    arguments, as ``sh -c SNIPPET`` ran it: one process a probe, whose
+    EXIT trap marks it done however it ends but killed (by the timeout);
+    a probe that sets a trap of its own gets a subshell inside it."""
+    arms = "".join(
+        f"{index})\n{'( ' if 'trap' in snippet else ''}{snippet}{' )' if 'trap' in snippet else ''}\n;;\n"
+        for index, snippet in enumerate(probes.values())
+    )
     return (
         f"D=$1; shift\nrun() {{ i=$1; shift\ncase $i in\n{arms}esac; }}\n"
         'if [ -n "$D" ]; then\n'
-        '  for i; do ( ( run $i ) >"$D/p$i" 2>/dev/null; : >"$D/p$i.ok" ) & done; wait\n'
+        '  for i; do ( trap \': >"$D/p$i.ok"\' EXIT; run $i >"$D/p$i" 2>/dev/null ) & done; wait\n'
         'else ( run "$1" ) 2>/dev/null; fi'
     )
 
@@ -235,10 +240,7 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
             "fi",
         ]
     lines += _os_release()
-    lines += _kept(
-        ["printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo", *_files(files), *_packages(packages)],
-        kept_inputs,
-    )
+    lines += _kept(["printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo", *_files(files), *_packages(packages)], kept_inputs)
     lines += _users(users)
     lines += [f"printf 'cmd\\t%s\\t' {_q(c)}; command -v {_q(c)} || echo" for c in commands]
     lines += _units(units)

@@ -23,7 +23,12 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
         packages=["dpkg", "surely-not-a-package"],
         users=["root", "surely-not-a-user"],
         commands=["sh", "surely-not-a-command"],
-        probes={"two lines": "echo a; echo 'b c'", "fails": "false"},
+        probes={
+            "two lines": "echo a; echo 'b c'",
+            "fails": "false",
+            "exits": "echo before; exit 3; echo after",
+            "traps": "trap 'echo trapped' EXIT; echo body",
+        },
     )
     out = sh(hoststate.snapshot_script(**query), check=True)
     snap = hoststate.parse(out.stdout.splitlines(), query)
@@ -39,6 +44,8 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
     assert "root" in snap.users["root"] and snap.users["surely-not-a-user"] is None
     assert snap.commands["sh"] and snap.commands["surely-not-a-command"] is None
     assert snap.probes["two lines"] == "a\nb c\n" and snap.probes["fails"] == ""
+    # A probe that exits, or sets a trap of its own, is still read whole.
+    assert snap.probes["exits"] == "before\n" and snap.probes["traps"] == "body\ntrapped\n"
 
 
 def _all_kinds_of_paths(tmp_path) -> list[str]:
