@@ -240,7 +240,8 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
             "fi",
         ]
     lines += _os_release()
-    lines += _kept(["printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo", *_files(files), *_packages(packages)], kept_inputs)
+    arch = "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo"
+    lines += _kept([arch, *_files(files), *_packages(packages)], kept_inputs)
     lines += _users(users)
     lines += [f"printf 'cmd\\t%s\\t' {_q(c)}; command -v {_q(c)} || echo" for c in commands]
     lines += _units(units)
