@@ -59,6 +59,22 @@ def memo_name(name: str, snippet: str, inputs) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
+def print_file(path: str) -> str:
+    """sh that prints a text file as ``cat`` does (a last line without a
+    newline gets one), with the shell's builtins: a probe that starts no
+    program; fails, printing nothing, where the file cannot be read."""
+    return f'l=; while IFS= read -r l || [ -n "$l" ]; do printf \'%s\\n\' "$l"; l=; done < {_q(path)}'
+
+
+def has_text(path: str, text: str) -> str:
+    """sh that succeeds where a line of the file holds ``text`` (``grep -qF``
+    with the shell's builtins)."""
+    return (
+        f'{{ t={_q(text)}; l=; while IFS= read -r l || [ -n "$l" ]; do '
+        f'case $l in *"$t"*) break ;; esac; l=; done < {_q(path)}; [ -n "$l" ]; }}'
+    )
+
+
 def _os_release() -> list[str]:
     return [
         'l=; while IFS= read -r l || [ -n "$l" ]; do printf \'osl\\t%s\\n\' "$l"; l=; '

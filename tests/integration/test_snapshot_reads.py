@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.host import apt
+from robotfleet.host import apt, snapshot_sh
 from robotfleet.host import snapshot as hoststate
 
 NATIVE = subprocess.run(["dpkg", "--print-architecture"], capture_output=True, text=True).stdout.strip()
@@ -124,6 +124,26 @@ def test_packages_are_read_as_dpkg_query_reads_them(tmp_path):
     ).stdout
     assert sorted(line for line in awk.splitlines() if line.startswith("pkg\t")) == sorted(query.splitlines())
     assert "dpkg-query -W" in script and "/var/lib/dpkg/updates/*" in script
+
+
+TEXTS = ["x\ny\n", "no newline at the end", "", "\n\n  indented \\n \ttabs\t\n", '{"auths": {"reg:5000": {}}}\n']
+
+
+@pytest.mark.parametrize("text", TEXTS)
+def test_a_file_is_printed_as_cat_prints_it_and_searched_as_grep_does(tmp_path, text):
+    """The probes' builtin reads (no program started): what cat prints, a
+    newline added to a last line without one; grep -qF's answer."""
+    f = tmp_path / "f"
+    f.write_text(text)
+    printed = subprocess.run(["sh", "-c", snapshot_sh.print_file(str(f))], capture_output=True, text=True).stdout
+    cat = subprocess.run(["cat", str(f)], capture_output=True, text=True).stdout
+    assert printed == (cat + "\n" if cat and not cat.endswith("\n") else cat)
+    for needle in ['"reg:5000"', "reg:5001", "*", "y", "\\n", "tabs\t"]:
+        found = subprocess.run(["sh", "-c", snapshot_sh.has_text(str(f), needle)], capture_output=True).returncode == 0
+        assert found == (subprocess.run(["grep", "-qF", needle, str(f)]).returncode == 0), needle
+    missing = str(tmp_path / "missing")
+    assert subprocess.run(["sh", "-c", snapshot_sh.print_file(missing)], capture_output=True).stdout == b""
+    assert subprocess.run(["sh", "-c", snapshot_sh.has_text(missing, "x")], capture_output=True).returncode != 0
 
 
 FAKE_SYSTEMCTL = """#!/bin/sh
