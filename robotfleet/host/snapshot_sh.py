@@ -10,8 +10,8 @@ so it starts as few programs as it can, each asked once for everything:
   the sizes that cut it apart);
 - one ``stat`` and one ``sha256sum`` for all plain files, one
   ``systemctl show`` for all units (``is-enabled`` and ``is-active`` unit
-  by unit where its answer does not come a block a unit), one
-  ``id`` a user, the package database read with ``awk`` (``dpkg-query``
+  by unit where its answer does not come a block a unit), one ``groups``
+  for all users, the package database read with ``awk`` (``dpkg-query``
   while dpkg's journal holds an unfinished run);
 - a probe declared with its inputs (``SnapshotQuery.memo``: the files and
   programs its answer depends on alone) is answered from the robot's memo
@@ -107,12 +107,19 @@ def _files(files) -> list[str]:
 
 
 def _users(users) -> list[str]:
-    # `id -nG` fails for a user that does not exist (and for a group with no
-    # name, printing what it has): only then is `id -u` asked which it was.
+    # One `groups` for all: a line "NAME : GROUP..." a user that exists (a
+    # group with no name as its number), none for one that does not ("-").
+    if not users:
+        return []
+    names = " ".join(_q(u) for u in users)
     return [
-        f"printf 'user\\t%s\\t' {_q(u)}; id -nG {_q(u)} 2>/dev/null || "
-        f"{{ id -u {_q(u)} >/dev/null 2>&1 && echo || echo -; }}"
-        for u in users
+        f"g=$(groups -- {names} 2>/dev/null)",
+        f"for u in {names}; do v=-; while IFS= read -r l; do case $l in",
+        '  "$u : "*) v=${l#"$u : "}; break ;; "$u :") v=; break ;;',
+        "esac; done <<EOF",
+        "$g",
+        "EOF",
+        'printf \'user\\t%s\\t%s\\n\' "$u" "$v"; done',
     ]
 
 
@@ -282,7 +289,9 @@ def _probe_results(probes: dict, memo: dict) -> list[str]:
             f'printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}; fi'
         )
     lines += [
-        '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; echo "pblob$T$(cat -- "$@" | base64 -w0)"; fi',
+        '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; printf "pblob$T"',
+        '    if [ $# -eq 1 ]; then base64 -w0 -- "$1"; else cat -- "$@" | base64 -w0; fi; echo',
+        "  fi",
         'elif [ -n "$R" ]; then',
         # No temporary directory: one after another, each under its own timeout.
         f"  for i in $R; do printf 'pone\\t%s\\t' $i; timeout {PROBE_TIMEOUT} sh -c \"$I\" sh '' $i | base64 -w0; "

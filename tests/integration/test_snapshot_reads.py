@@ -146,6 +146,21 @@ def test_a_file_is_printed_as_cat_prints_it_and_searched_as_grep_does(tmp_path, 
     assert subprocess.run(["sh", "-c", snapshot_sh.has_text(missing, "x")], capture_output=True).returncode != 0
 
 
+def test_users_groups_are_read_as_id_reads_them():
+    """One groups for every user: id -nG's answer for each, "no such user"
+    for a name that is not one (nor a prefix of one that is)."""
+    users = ["root", "daemon", "nobody", "roo", "surely-not-a-user"]
+    snap = hoststate.parse(
+        subprocess.run(
+            ["sh", "-c", hoststate.snapshot_script(users=users)], capture_output=True, text=True
+        ).stdout.splitlines(),
+        {"users": users},
+    )
+    for user in users:
+        ids = subprocess.run(["id", "-nG", user], capture_output=True, text=True)
+        assert snap.users[user] == (ids.stdout.split() if ids.returncode == 0 else None), user
+
+
 FAKE_SYSTEMCTL = """#!/bin/sh
 # show -p UnitFileState,ActiveState -- UNIT...: a block a unit, blank lines
 # between, as systemd does; with NOBUS set, nothing (no systemd to ask), and
