@@ -1,10 +1,12 @@
 """What a command costs a lab robot in CPU, program by program.
 
-    python3 -m tests.bench.robot_cpu [--prefix perf] [--host robot1] [--runs 10] [--snapshot] [COMMAND ...]
+    python3 -m tests.bench.robot_cpu [--prefix perf] [--host robot1] [--runs 10] [--rounds 4] [--snapshot] [COMMAND ...]
 
 Runs each COMMAND (default: `sudo true`; `--snapshot` adds the host's
 snapshot command, captured from a no-op run of deploy.py) over SSH on one
-robot of a running lab, ``runs`` times, while the kernel's scheduler
+robot of a running lab, ``runs`` times in each of ``rounds`` rounds (the
+commands alternating, so a drift of the machine's speed falls on all
+alike; each command's figure against the first's printed), while the kernel's scheduler
 tracepoints are recorded on this machine (`perf record -a`: fork, exec and
 the CPU time each task gets; root, and a kernel with these tracepoints).
 Every task that descends from the robot container's own processes (its
@@ -141,6 +143,29 @@ def measure(ssh: list[str], container: str, command: str, runs: int, workdir: Pa
     return Cost(total, dict(sorted(programs.items(), key=lambda kv: -kv[1][1])), cgroup, load)
 
 
+def merged(rounds: list[Cost]) -> Cost:
+    """The mean of one command's rounds."""
+    n = len(rounds)
+    programs: dict[str, tuple[float, float]] = {}
+    for cost in rounds:
+        for program, (starts, seconds) in cost.programs.items():
+            was = programs.get(program, (0.0, 0.0))
+            programs[program] = (was[0] + starts / n, was[1] + seconds / n)
+    cgroups = [c.cgroup for c in rounds if c.cgroup is not None]
+    return Cost(
+        sum(c.seconds for c in rounds) / n,
+        dict(sorted(programs.items(), key=lambda kv: -kv[1][1])),
+        sum(cgroups) / len(cgroups) if cgroups else None,
+        sum(c.load for c in rounds) / n,
+    )
+
+
+def ratios(costs: dict[str, Cost]) -> str:
+    """Each command's CPU against the first's (`sudo true`: what any SSH command costs)."""
+    first, *others = costs
+    return "; ".join(f"{n}: {costs[n].seconds / costs[first].seconds:.2f}x `{first}`" for n in others)
+
+
 def table(costs: dict[str, Cost], top: int = 40) -> str:
     """Markdown: one column per command, one row per program (the dearest first)."""
     names = list(costs)
@@ -184,7 +209,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python3 -m tests.bench.robot_cpu", description=__doc__.splitlines()[0])
     parser.add_argument("--prefix", default=os.environ.get("ROBOT_LAB_PREFIX", "perf"))
     parser.add_argument("--host", default="robot1")
-    parser.add_argument("--runs", type=int, default=10)
+    parser.add_argument("--runs", type=int, default=10, help="runs of each command a round")
+    parser.add_argument("--rounds", type=int, default=4, help="rounds, the commands alternating")
     parser.add_argument("--snapshot", action="store_true", help="also the host's snapshot command")
     parser.add_argument("--write", action="store_true", help="write its section of tests/bench/PROFILE.md")
     parser.add_argument("commands", nargs="*", help="commands to run on the robot (default: sudo true)")
@@ -203,8 +229,16 @@ def main(argv=None) -> int:
         commands = {c: c for c in args.commands or ["sudo true"]}
         if args.snapshot:
             commands["the snapshot"] = snapshot_command(args.prefix, args.host, Path(tmp))
-        costs = {name: measure(ssh, container, command, args.runs, Path(tmp)) for name, command in commands.items()}
+        # Rounds alternate the commands, so that a drift of the machine's
+        # speed (other guests, frequency) falls on all of them alike.
+        rounds: dict[str, list[Cost]] = {name: [] for name in commands}
+        for _ in range(args.rounds):
+            for name, command in commands.items():
+                rounds[name].append(measure(ssh, container, command, args.runs, Path(tmp)))
+        costs = {name: merged(r) for name, r in rounds.items()}
     print(table(costs))
+    if len(costs) > 1:
+        print("\n" + ratios(costs))
     loads = "1-minute load before each: " + ", ".join(f"{n} {c.load:.2f}" for n, c in costs.items())
     print("\n" + loads)
     if args.write:
@@ -215,7 +249,7 @@ def main(argv=None) -> int:
                 [
                     "## The robot's CPU per command, program by program",
                     "",
-                    f"Written by `python3 -m tests.bench.robot_cpu --runs {args.runs}"
+                    f"Written by `python3 -m tests.bench.robot_cpu --runs {args.runs} --rounds {args.rounds}"
                     f"{' --snapshot' if args.snapshot else ''} --write` "
                     f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, commit {commit.stdout.strip()}, "
                     f"{args.host} of a converged lab): every task descending from the robot container's processes, "
@@ -224,6 +258,7 @@ def main(argv=None) -> int:
                     "",
                     table(costs),
                     "",
+                    *([ratios(costs) + ".", ""] if len(costs) > 1 else []),
                     loads + ".",
                 ]
             ),
