@@ -45,11 +45,25 @@ def run(python: Path, code: Path, arguments: list[str]) -> dict:
         )
     except (OSError, subprocess.TimeoutExpired) as error:
         return {"error": f"converge: {error}"}
-    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
-    if not lines:
+    said = last_json(done.stdout)
+    if said is None:
         tail = [line for line in done.stderr.splitlines() if line.strip()]
         return {"error": f"converge said nothing ({tail[-1] if tail else f'exit {done.returncode}'})"}
-    return json.loads(lines[-1])
+    return said
+
+
+def last_json(text: str) -> dict | None:
+    """The last line of ``text`` that is a JSON object: what a converge, or
+    a role's switch, answers after whatever else it printed."""
+    for line in reversed(text.splitlines()):
+        if line.startswith("{"):
+            try:
+                found = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(found, dict):
+                return found
+    return None
 
 
 def status(state: Path, robot: str, fleet: str | None) -> dict:
@@ -97,12 +111,4 @@ def switch(argv: list[str]) -> dict:
         )
     except (OSError, subprocess.TimeoutExpired):
         return {}
-    for line in reversed(done.stdout.splitlines()):
-        if line.startswith("{"):
-            try:
-                found = json.loads(line)
-            except ValueError:
-                continue
-            if isinstance(found, dict):
-                return found
-    return {}
+    return last_json(done.stdout) or {}
