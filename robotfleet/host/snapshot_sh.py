@@ -182,7 +182,8 @@ def _probes_program(probes: dict) -> str:
     return (
         f"D=$1; shift\nrun() {{ i=$1; shift\ncase $i in\n{arms}esac; }}\n"
         'if [ -n "$D" ]; then\n'
-        '  for i; do ( trap \': >"$D/p$i.ok"\' EXIT; run $i >"$D/p$i" 2>/dev/null ) & done; wait\n'
+        # The trap names its file when set: a probe may assign i or D.
+        '  for i; do ( trap ": >\'$D/p$i.ok\'" EXIT; run $i >"$D/p$i" 2>/dev/null ) & done; wait\n'
         'else ( run "$1" ) 2>/dev/null; fi'
     )
 

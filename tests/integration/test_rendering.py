@@ -28,6 +28,7 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
             "fails": "false",
             "exits": "echo before; exit 3; echo after",
             "traps": "trap 'echo trapped' EXIT; echo body",
+            "assigns": "i=0; D=/nonexistent; sleep 0.2; echo mine",
         },
     )
     out = sh(hoststate.snapshot_script(**query), check=True)
@@ -46,6 +47,7 @@ def test_snapshot_script_runs_on_a_real_shell(tmp_path):
     assert snap.probes["two lines"] == "a\nb c\n" and snap.probes["fails"] == ""
     # A probe that exits, or sets a trap of its own, is still read whole.
     assert snap.probes["exits"] == "before\n" and snap.probes["traps"] == "body\ntrapped\n"
+    assert snap.probes["assigns"] == "mine\n"  # its own i and D: still its own answer, the others theirs
 
 
 def _all_kinds_of_paths(tmp_path) -> list[str]:
