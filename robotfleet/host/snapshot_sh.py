@@ -59,11 +59,13 @@ def memo_name(name: str, snippet: str, inputs) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
-def print_file(path: str) -> str:
+def print_file(path: str, mark: str = "") -> str:
     """sh that prints a text file as ``cat`` does (a last line without a
-    newline gets one), with the shell's builtins: a probe that starts no
-    program; fails, printing nothing, where the file cannot be read."""
-    return f'l=; while IFS= read -r l || [ -n "$l" ]; do printf \'%s\\n\' "$l"; l=; done < {_q(path)}'
+    newline gets one; each line after ``mark``), with the shell's builtins:
+    a probe that starts no program; fails, printing nothing (not even an
+    error), where the file cannot be read."""
+    loop = f'while IFS= read -r l || [ -n "$l" ]; do printf \'{mark}%s\\n\' "$l"; l=; done'
+    return f"l=; {loop} 2>/dev/null < {_q(path)}"
 
 
 def has_text(path: str, text: str) -> str:
@@ -76,10 +78,7 @@ def has_text(path: str, text: str) -> str:
 
 
 def _os_release() -> list[str]:
-    return [
-        'l=; while IFS= read -r l || [ -n "$l" ]; do printf \'osl\\t%s\\n\' "$l"; l=; '
-        "done 2>/dev/null < /etc/os-release",
-    ]
+    return [print_file("/etc/os-release", mark="osl\\t")]
 
 
 def _files(files) -> list[str]:
@@ -209,19 +208,33 @@ def _memo_key(inputs) -> list[str]:
     ]
 
 
+def _memo_path(name: str, snippet: str, inputs) -> str:
+    return _q(f"{MEMO_DIR}/{memo_name(name, snippet, inputs)}")
+
+
+def _memo_holds(path: str) -> str:
+    """sh: true where the memo file holds an answer under today's key $K (in $v)."""
+    return f'[ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]'
+
+
+def _memo_keep(path: str) -> str:
+    """sh: $v kept under $K (a temporary file, then a rename)."""
+    return f'printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}'
+
+
 def _kept(lines: list[str], inputs) -> list[str]:
     """``lines``, whose output depends on ``inputs`` alone, answered from the
     memo while $K holds (one ``memo`` line: their output in base64)."""
-    path = _q(f"{MEMO_DIR}/{memo_name('kept', chr(10).join(lines), inputs)}")
+    path = _memo_path("kept", "\n".join(lines), inputs)
     return [
         "kept() {",
         *lines,
         "}",
-        f'if [ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]; then',
+        f"if {_memo_holds(path)}; then",
         "  printf 'memo\\t%s\\n' \"$v\"",
         'elif [ -n "$K" ]; then',
         '  o=$(kept; echo .); o=${o%.}; printf %s "$o"',
-        f'  v=$(printf %s "$o" | base64 -w0) && printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}',
+        f'  v=$(printf %s "$o" | base64 -w0) && {_memo_keep(path)}',
         "else kept; fi",
     ]
 
@@ -247,10 +260,9 @@ def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), prob
     lines += _memo_key([item for inputs in memo.values() for item in inputs] + list(kept_inputs))
     for index, (name, snippet) in enumerate(probes.items()):
         if name in memo:
-            path = _q(f"{MEMO_DIR}/{memo_name(name, snippet, memo[name])}")
+            path = _memo_path(name, snippet, memo[name])
             lines.append(
-                f'if [ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]; '
-                f'then printf \'pone\\t{index}\\t%s\\n\' "$v"; else R="$R {index}"; fi'
+                f'if {_memo_holds(path)}; then printf \'pone\\t{index}\\t%s\\n\' "$v"; else R="$R {index}"; fi'
             )
         else:
             lines.append(f'R="$R {index}"')
@@ -284,10 +296,10 @@ def _probe_results(probes: dict, memo: dict) -> list[str]:
     ]
     for name, inputs in memo.items():
         index = names.index(name)
-        path = _q(f"{MEMO_DIR}/{memo_name(name, probes[name], inputs)}")
+        path = _memo_path(name, probes[name], inputs)
         lines.append(
-            f'  if [ -n "$K" ] && [ -e "$d/p{index}.ok" ]; then v=$(base64 -w0 < "$d/p{index}") && '
-            f'printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}; fi'
+            f'  if [ -n "$K" ] && [ -e "$d/p{index}.ok" ]; then '
+            f'v=$(base64 -w0 < "$d/p{index}") && {_memo_keep(path)}; fi'
         )
     lines += [
         '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; printf "pblob$T"',
