@@ -39,8 +39,7 @@ PROBE_TIMEOUT = 60
 
 MEMO_DIR = "/run/robotfleet-memo"
 MEMO_OWNER = 0  # root: the snapshot runs as root (sudo); as anyone else it keeps no memo
-# What every memo also depends on: any package installed, upgraded or removed.
-MEMO_ALWAYS = ("/var/lib/dpkg/status",)
+DPKG_DIR = "/var/lib/dpkg"  # dpkg's database: its status file and journal (updates/)
 
 # Paths that stat and sha256sum print as they are given (no escaping), read
 # with one call of each; any other path gets its own tests and commands.
@@ -134,10 +133,10 @@ def _packages(packages) -> list[str]:
     emit = 'if (index(w, " " p " ")) print "pkg\\t" p "\\t" s "\\t" v; p = s = v = ""'
     awk = (
         f"awk -v w={wanted} '/^Package: /{{p = substr($0, 10)}} /^Status: /{{s = substr($0, 9)}} "
-        f"/^Version: /{{v = substr($0, 10)}} /^$/{{{emit}}} END{{{emit}}}' /var/lib/dpkg/status 2>/dev/null"
+        f"/^Version: /{{v = substr($0, 10)}} /^$/{{{emit}}} END{{{emit}}}' {_q(DPKG_DIR)}/status 2>/dev/null"
     )
     return [
-        'j=; for f in /var/lib/dpkg/updates/*; do [ -e "$f" ] && j=1; done',
+        f'j=; for f in {_q(DPKG_DIR)}/updates/*; do [ -e "$f" ] && j=1; done',
         f'if [ -n "$j" ]; then {query}; else {awk}; fi',
     ]
 
@@ -192,7 +191,8 @@ def _memo_key(inputs) -> list[str]:
     """$K: the identities of ``inputs`` (paths, and programs by name), empty
     where the memo is not root's own directory (no memo on this host)."""
     paths, programs = [], []
-    for item in (*MEMO_ALWAYS, *inputs):
+    # Every memo also depends on any package installed, upgraded or removed.
+    for item in (f"{DPKG_DIR}/status", *inputs):
         target = paths if item.startswith("/") else programs
         if item not in target:
             target.append(item)
@@ -242,12 +242,12 @@ def _kept(lines: list[str], inputs) -> list[str]:
 def _kept_inputs(files, packages) -> tuple[str, ...]:
     """What the architecture, the files' and the packages' lines depend on:
     dpkg (the architecture), the files themselves (their owners' names too),
-    and dpkg's status file and journal (the packages)."""
+    and dpkg's journal (the packages; its status file is in every key)."""
     inputs = ["dpkg", *files]
     if files:
         inputs += ["/etc/passwd", "/etc/group"]
     if packages:
-        inputs += ["/var/lib/dpkg/status", "/var/lib/dpkg/updates"]
+        inputs.append(f"{DPKG_DIR}/updates")
     return tuple(inputs)
 
 

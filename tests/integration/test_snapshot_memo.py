@@ -174,7 +174,15 @@ def test_without_a_memo_everything_is_read_every_time(tmp_path, memo_here, monke
     assert kept_snapshot(tmp_path, files) == (first, started)
 
 
-def test_the_kept_part_follows_dpkg_s_database(tmp_path, memo_here, monkeypatch):
-    inputs = snapshot_sh._kept_inputs([], ["dpkg"])
-    assert "/var/lib/dpkg/status" in inputs and "/var/lib/dpkg/updates" in inputs and "dpkg" in inputs
-    assert {"/etc/passwd", "/etc/group"} <= set(snapshot_sh._kept_inputs(["/etc/x"], []))
+def test_the_packages_are_read_again_when_dpkg_s_database_changes(tmp_path, memo_here, monkeypatch):
+    d = admindir(tmp_path, [stanza("a"), stanza("b")])
+    monkeypatch.setattr(snapshot_sh, "DPKG_DIR", str(d))
+    packages = ("a", "b")
+    first, started = kept_snapshot(tmp_path, [], packages)
+    assert first[2] == {"a": "1.0", "b": "1.0"} and "awk" in started
+    assert kept_snapshot(tmp_path, [], packages) == (first, [])
+    (d / "status").write_text((d / "status").read_text().replace("Version: 1.0", "Version: 2.0", 1))  # an upgrade
+    again, started = kept_snapshot(tmp_path, [], packages)
+    assert again[2] == {"a": "2.0", "b": "1.0"} and "awk" in started
+    (d / "updates" / "0000").write_text(stanza("a"))  # an unfinished dpkg run: dpkg-query answers
+    assert "dpkg-query" in kept_snapshot(tmp_path, [], packages)[1]
