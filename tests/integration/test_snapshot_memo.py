@@ -12,7 +12,7 @@ import pytest
 
 from robotfleet.host import apt, snapshot_sh
 from robotfleet.host import snapshot as hoststate
-from tests.integration.test_snapshot_reads import CASES, admindir, audit_now, stanza
+from tests.integration.dpkg_databases import CASES, admindir, audit_now, stanza
 
 
 @pytest.fixture
