@@ -1,7 +1,8 @@
 """What counts as a secret in a host's data, and text with them masked.
 
 One rule decides both what output masks (inventory, --diff, the deploy's
-log) and what a release refuses to carry (robotfleet/pull/operator/publishing.py):
+log, the fleet file's problem lines) and what a release refuses to carry
+(robotfleet/pull/operator/publishing.py):
 
 - the password of every URL anywhere in the data (a proxy's, a mirror's,
   one in a payload environment value);
@@ -9,10 +10,10 @@ log) and what a release refuses to carry (robotfleet/pull/operator/publishing.py
   token, secret, pass, passwd, password, passphrase, key, credential, their
   plurals, or a word ending in one (dbpassword, authToken, APIKey),
   case-insensitive: API_TOKEN, AWS_SECRET_ACCESS_KEY, ssh_key_password,
-  clientSecret.  The last word, because that is what the key names:
-  KEY_FINGERPRINT, AWS_ACCESS_KEY_ID, token_realms, *_password_env and
-  *_key_file name something about a secret, not the secret, and a public or
-  host key (JWT_PUBLIC_KEY) is none.  A path (``/dir/...``, ``~/...``; and
+  clientSecret; a number there too (an unquoted PIN).  The last word,
+  because that is what the key names: KEY_FINGERPRINT, AWS_ACCESS_KEY_ID,
+  token_realms, *_password_env and *_key_file name something about a
+  secret, not the secret, and a public or host key (JWT_PUBLIC_KEY) is none.  A path (``/dir/...``, ``~/...``; and
   the settings that name a file, pyinfra's ``ssh_key`` and
   ``ssh_revoked_host_keys``, whatever their form) says where a secret is
   kept, not what it is: a key file's path is shown and may travel, the key
@@ -103,6 +104,8 @@ def found_in(data) -> list[tuple[str, str]]:
             found.extend((field, password) for password in sorted(url_passwords(value)))
             if value and named_secret(key) and not is_path(value):
                 found.append((field, value))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and named_secret(key):
+            found.append((field, str(value)))  # a PIN or a numeric token, unquoted in YAML
         elif isinstance(value, dict):
             for k, item in value.items():
                 walk(item, f"{field}.{k}" if field else str(k), str(k))

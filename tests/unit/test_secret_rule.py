@@ -96,3 +96,15 @@ def test_masking_hides_every_secret_the_rule_finds():
     data = {"payload_environment": {"API_TOKEN": "tok-91f", "AWS_SECRET_ACCESS_KEY": "wJalr/XUtn+FEMI"}}
     text = "API_TOKEN=tok-91f AWS_SECRET_ACCESS_KEY=wJalr/XUtn+FEMI"
     assert secrets.mask(text, secrets.held_in(data)) == "API_TOKEN=**** AWS_SECRET_ACCESS_KEY=****"
+
+
+def test_a_refused_value_is_quoted_in_its_line_without_the_secret_it_holds():
+    """A token written unquoted (an integer, refused) is masked in the problem line that quotes it."""
+    from tests.unit.harness import fleet_problems
+
+    host = {"payload_image": "reg.example.com/p:1", "payload_environment": {"API_TOKEN": 918273645, "RATE": 10}}
+    assert fleet_problems({"robots": {"hosts": {"r1": host}}}) == [
+        "robots.yaml: r1.payload_environment.API_TOKEN: expected a string, got ****; quote it",
+        "robots.yaml: r1.payload_environment.RATE: expected a string, got 10; quote it",
+    ]
+    assert secrets.found_in({"PIN_PASSWORD": 4711, "retries": 3, "use_key": True}) == [("PIN_PASSWORD", "4711")]
