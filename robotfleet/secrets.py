@@ -1,12 +1,30 @@
-"""The secrets a host's data holds, and text with them masked (--diff).
+"""What counts as a secret in a host's data, and text with them masked.
 
-Masked by value: every password of a URL anywhere in the host's data (a
-proxy's, a mirror's, one in a payload environment value), every ``*_password``
-value (pyinfra's ssh_password, ssh_key_password) and what the roles say they
-hold (``Role.secrets``: the registry passwords), whatever characters they
-contain; in the forms they take in a file (as written, percent-decoded,
-JSON-escaped).  Text the fleet did not write (the file on the host, with an
-older password) is masked by shape too: the password of every URL in it.
+One rule decides both what output masks (inventory, --diff, the deploy's
+log, the fleet file's problem lines) and what a release refuses to carry
+(robotfleet/pull/operator/publishing.py):
+
+- the password of every URL anywhere in the data (a proxy's, a mirror's,
+  one in a payload environment value);
+- the value of a key whose last word names a secret (``named_secret``):
+  token, secret, pass, passwd, password, passphrase, key, credential, their
+  plurals, or a word ending in one (dbpassword, authToken, APIKey),
+  case-insensitive: API_TOKEN, AWS_SECRET_ACCESS_KEY, ssh_key_password,
+  clientSecret; a number there too (an unquoted PIN).  The last word,
+  because that is what the key names: KEY_FINGERPRINT, AWS_ACCESS_KEY_ID,
+  token_realms, *_password_env and *_key_file name something about a
+  secret, not the secret, and a public or host key (JWT_PUBLIC_KEY) is none.  A path (``/dir/...``, ``~/...``; and
+  the settings that name a file, pyinfra's ``ssh_key`` and
+  ``ssh_revoked_host_keys``, whatever their form) says where a secret is
+  kept, not what it is: a key file's path is shown and may travel, the key
+  in it does neither;
+- what the roles say they hold (``Role.secrets``: the registry passwords,
+  the payload's secret files).
+
+Masked by value, whatever characters they contain, in the forms they take
+in a file (as written, percent-decoded, JSON-escaped).  Text the fleet did
+not write (the file on the host, with an older password) is masked by
+shape too: the password of every URL in it.
 """
 
 from __future__ import annotations
@@ -44,25 +62,65 @@ def url_passwords(text: str) -> set[str]:
     return {p for p in found if p}
 
 
-def held_in(data) -> set[str]:
-    """Every secret in a host's data (any nesting): URL passwords and the
-    values of keys ending in ``password``."""
-    found: set[str] = set()
+# The last word of a key that names a secret, and the ends of a word that do.
+_SECRET_WORDS = frozenset(
+    "token tokens secret secrets pass passwd password passwords passphrase key keys credential credentials".split()
+)
+_SECRET_ENDS = ("password", "passwd", "passphrase", "token", "secret", "credentials", "apikey", "privatekey")
+# A key of these is public (JWT_PUBLIC_KEY, pull_remote_host_keys).
+_PUBLIC = frozenset({"public", "pub", "host"})
+# Settings whose value is a file name by definition (pyinfra's ssh_key: the key is in the file).
+_FILE_NAMES = frozenset({"ssh_key", "ssh_revoked_host_keys"})
+# /dir/... or ~/...: where a secret is kept.  The first directory is a plain
+# name (a random token that starts with "/" is very unlikely to read so).
+_PATH = re.compile(r"(?:~|/[a-z0-9_.-]*[a-z][a-z0-9_.-]*)(?:/[A-Za-z0-9_.@-]+)+/?")
+_WORDS = re.compile(r"[^A-Za-z0-9]+|(?<=[a-z0-9])(?=[A-Z])")
 
-    def walk(value, key=""):
+
+def named_secret(key: str) -> bool:
+    """Whether a value under ``key`` is a secret, by the key's last word."""
+    words = [w for w in _WORDS.split(str(key)) if w]
+    if not words or key in _FILE_NAMES:
+        return False
+    last = words[-1].lower()
+    if last in ("key", "keys") and len(words) > 1 and words[-2].lower() in _PUBLIC:
+        return False
+    return last in _SECRET_WORDS or last.endswith(_SECRET_ENDS)
+
+
+def is_path(value: str) -> bool:
+    """A path to a file (``/run/secrets/db``, ``~/.ssh/id_ed25519``): where a secret is, not the secret."""
+    return _PATH.fullmatch(value) is not None
+
+
+def found_in(data) -> list[tuple[str, str]]:
+    """Every secret in a host's data (any nesting), each with the field that
+    holds it (``payload_environment.API_TOKEN``, ``docker_daemon_options.proxies.http-proxy``),
+    in the data's order: the URL passwords, and the values of keys that name a secret."""
+    found: list[tuple[str, str]] = []
+
+    def walk(value, field: str, key: str = ""):
         if isinstance(value, str):
-            found.update(url_passwords(value))
-            if key.lower().endswith("password") and value:
-                found.add(value)
+            found.extend((field, password) for password in sorted(url_passwords(value)))
+            if value and named_secret(key) and not is_path(value):
+                found.append((field, value))
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and named_secret(key):
+            found.append((field, str(value)))  # a PIN or a numeric token, unquoted in YAML
         elif isinstance(value, dict):
             for k, item in value.items():
-                walk(item, str(k))
+                walk(item, f"{field}.{k}" if field else str(k), str(k))
         elif isinstance(value, (list, tuple, set, frozenset)):
-            for item in value:
-                walk(item)
+            # A list's items are not its key's values one by one (compose's secrets: [name] lists names).
+            for index, item in enumerate(value):
+                walk(item, f"{field}[{index}]")
 
-    walk(data)
+    walk(data, "")
     return found
+
+
+def held_in(data) -> set[str]:
+    """Every secret in a host's data (found_in's values)."""
+    return {secret for _, secret in found_in(data)}
 
 
 def forms(secret: str) -> set[str]:

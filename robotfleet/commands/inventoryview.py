@@ -7,8 +7,9 @@
 --host shows each setting the fleet gives the host, its value and the file,
 line and group or host that set it, then the values it overrides (lowest
 last); --defaults adds every other setting at its default.  Secrets (URL
-passwords, *password values, the registry passwords the roles know of) are
-masked.  Where sibling groups (of one depth) set a setting differently,
+passwords, values whose key names a token, secret, password, key or
+credential, the registry passwords the roles know of: robotfleet/secrets.py)
+are masked.  Where sibling groups (of one depth) set a setting differently,
 Ansible's rule picks one silently; a note says which won and why (as every
 command that reads the fleet does).  Nothing is contacted.  INVENTORY is the
 fleet file, an Ansible inventory file or directory, or a pyinfra inventory

@@ -211,9 +211,19 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
             "in an INI inventory)"
         )
     if lines:
-        # a refused value is quoted in its line: never with the password a URL in it carries
-        raise FleetError([secrets.mask(c.one_line(line)) for line in lines], notes)
+        # a refused value is quoted in its line: never a secret it holds (robotfleet/secrets.py)
+        held = set().union(*(secrets.held_in(layer.values) for layer in every_layer(groups)))
+        raise FleetError([secrets.mask(c.one_line(line), held) for line in lines], notes)
     return fleet
+
+
+def every_layer(groups: tree.Tree) -> list[tree.Layer]:
+    """Every place of the tree that sets values: the groups' and the hosts'."""
+    return [
+        *(layer for group in groups.groups.values() for layer in [*group.layers, *group.files]),
+        *(layer for listed in groups.hosts.values() for _, layer in listed),
+        *(layer for layers in groups.host_files.values() for layer in layers),
+    ]
 
 
 def resolve_older_names(

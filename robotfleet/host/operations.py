@@ -111,9 +111,11 @@ def file(
     user: str = "root",
     group: str = "root",
     validate: str | None = None,
+    secret: bool = False,
 ):
     """Make ``path`` hold exactly ``content`` (checked with ``validate`` first,
-    a shell command in which ``{}`` is the new file)."""
+    a shell command in which ``{}`` is the new file); a ``secret`` file's
+    content is never shown, --diff says only that it changes."""
     if isinstance(content, str):
         content = content.encode()
     if current is not None and current.kind == "dir":
@@ -123,7 +125,7 @@ def file(
     # its target is left alone): chmod/chown would act on the target.
     if current is None or current.kind == "link" or current.sha256 != sha256(content):
         if planning_output_wanted() and host.state.config.DIFF:
-            show_diff(path, content, exists=current is not None and current.kind == "file")
+            show_diff(path, content, exists=current is not None and current.kind == "file", secret=secret)
         yield write_file_command(path, content, mode, user, group, validate)
         return
     if _attributes_match(current, mode, user, group):
@@ -208,18 +210,22 @@ def mask_credentials(text: str) -> str:
     return secrets.mask(text, secrets.of(host.name) if ctx_host.isset() else ())
 
 
-def show_diff(path: str, content: bytes, exists: bool) -> None:
+def show_diff(path: str, content: bytes, exists: bool, secret: bool = False) -> None:
     """Print what writing ``content`` to ``path`` changes (--diff), with the
     host's secrets masked by value (and URL passwords by shape) and control
     characters escaped on both sides: a changed password shows as a changed
     line, never its value.  The current content is fetched only here: for a
-    file the snapshot found different."""
+    file the snapshot found different; a ``secret`` file's, never (nor its new content)."""
+    what = f"{'Will modify' if exists else 'Will create'} {format_text(path, bold=True)}"
+    if secret:
+        host.log(f"{what} (a secret: its content is not shown)", logger.info)
+        return
     old = ""
     if exists:
         lines = host.get_fact(FileContents, path=path) or []
         old = "".join(line + "\n" for line in lines)
     new = content.decode(errors="replace")
-    host.log(f"{'Will modify' if exists else 'Will create'} {format_text(path, bold=True)}", logger.info)
+    host.log(what, logger.info)
     for line in unified_diff(path, old, new):
         line = one_line(mask_credentials(line))
         colour = {"+": "green", "-": "red"}.get(line[:1]) if not line.startswith(("+++", "---")) else None

@@ -24,8 +24,14 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
 """
 
 from robotfleet.role import Role
-from roles.payload import credentials, hold, pins, report, settings, steps, window_switch
+from roles.payload import credentials, hold, pins, report, secret_files, settings, steps, window_switch
 from roles.payload.release import rollback_release
+
+
+def held_secrets(data) -> list[str]:
+    """The registry passwords and the secret files' contents (masked in output)."""
+    return credentials.secrets(data) + secret_files.secrets(data)
+
 
 ROLE = Role(
     name="payload",
@@ -35,7 +41,7 @@ ROLE = Role(
     steps=steps.deploy_payload,
     rules=settings.rules,
     renamed=settings.RENAMED,
-    secrets=credentials.secrets,
+    secrets=held_secrets,
     status=report.STATUS,
     rollout=report.ROLLOUT,
     pins=pins.PINS,

@@ -9,6 +9,7 @@ import yaml
 
 import roles.payload.digests as digests
 import roles.payload.presets as presets
+import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 
 SERVICE = services.SHORTHAND
@@ -64,6 +65,8 @@ def base_service(data, image: str, address: str, added: dict) -> dict:
         service["devices"] = list(added["devices"])
     if added["deploy"]:
         service["deploy"] = added["deploy"]
+    if secret_files.names(data):
+        service["secrets"] = secret_files.names(data)
     return service
 
 
@@ -111,4 +114,4 @@ def project(data, address: str, additions: list[dict] = ()) -> dict:
         built[name] = services.service(base, escape_interpolation(user), escape_interpolation(extra), name)
         if pins:
             built[name]["image"] = digests.pinned(built[name].get("image"), pins)
-    return {"name": data.payload_name, "services": built}
+    return {"name": data.payload_name, "services": built, **secret_files.top_level(data)}

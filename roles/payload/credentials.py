@@ -56,12 +56,12 @@ class CredentialError(Exception):
 # -- the setting -----------------------------------------------------------
 
 _env = c.string(c.ENV_NAME, "an environment variable name")
-_file = c.string(_SOURCE, "an absolute path (or ~/...) on this machine")
+local_file = c.string(_SOURCE, "an absolute path (or ~/...) on this machine")
 FIELDS = {
     "username_env": _env,
-    "username_file": _file,
+    "username_file": local_file,
     "password_env": _env,
-    "password_file": _file,
+    "password_file": local_file,
     "token_realms": c.list_of(c.string(_HTTPS_URL, "an https URL"), unique=True),
 }
 
@@ -116,7 +116,7 @@ def files_in_checkout(value) -> list[c.Problem]:
     for registry, entry in (value or {}).items() if isinstance(value, dict) else ():
         for key in ("username_file", "password_file"):
             path = entry.get(key) if isinstance(entry, dict) else None
-            if isinstance(path, str) and _inside_checkout(path):
+            if isinstance(path, str) and inside_checkout(path):
                 problems.append(
                     (
                         f"payload_registry_auths.{c.key_name(registry)}.{key}",
@@ -127,7 +127,7 @@ def files_in_checkout(value) -> list[c.Problem]:
     return problems
 
 
-def _inside_checkout(path: str) -> bool:
+def inside_checkout(path: str) -> bool:
     resolved = Path(os.path.expanduser(path)).resolve()
     return resolved == CHECKOUT or CHECKOUT in resolved.parents
 

@@ -5,6 +5,7 @@ import json
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
 import roles.payload.installed_files as installed_files
+import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 import roles.payload.steps as steps
 from robotfleet.host.fixtures import file_state
@@ -27,6 +28,10 @@ def converged(play, host: str) -> None:
             installed_files.HELPER: file_state(installed_files.helper_bytes(), "755"),
         }
     )
+    if secret_files.names(data):
+        snap.files[secret_files.directory(data.payload_dir)] = FileState("dir", None, "700", "root", "root")
+        for name, content in secret_files.read(data).items():
+            snap.files[secret_files.robot_path(data, name)] = file_state(content, "600")
     if data.payload_autostart:
         snap.files[installed_files.unit_path(data)] = file_state(
             installed_files.unit_text(data, steps.unit_devices(additions))

@@ -14,6 +14,7 @@ from pathlib import Path
 import roles.payload.compose as compose
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
+import roles.payload.secret_files as secret_files
 from robotfleet.checkers import key_name
 from roles.payload.presets import DDS_DIR, dds_profile_text, dds_vendor
 from roles.payload.services import SERVICE_NAME, SHORTHAND_SETTINGS, declared, layer_problems, value_of
@@ -272,7 +273,11 @@ def project_problems(data) -> list[tuple[str, str]]:
         listed = isinstance(env_files, list)
         for index, entry in enumerate(env_files if listed else [env_files]):
             path = entry.get("path") if isinstance(entry, dict) else entry
-            if isinstance(path, str) and (not path.startswith("/") or _under(path, payload_dir)):
+            # a secret file may be an env file: the one place in payload_dir it may be read from
+            if isinstance(path, str) and (
+                not path.startswith("/")
+                or (_under(path, payload_dir) and not _under(path, secret_files.directory(payload_dir)))
+            ):
                 problems.append(
                     (
                         f"{where}.env_file" + (f"[{index}]" if listed else ""),

@@ -11,6 +11,7 @@ import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets
 import roles.payload.problems as problems
+import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
@@ -280,6 +281,13 @@ SETTINGS = (
         "password_env/password_file (files outside the checkout), token_realms; each goes to its registry only.",
     ),
     Setting(
+        secret_files.SETTING,
+        {},
+        secret_files.check,
+        "Secrets the containers read: name -> a file on this machine (outside the checkout), sent to the robot "
+        "0600 and mounted at /run/secrets/NAME; never in the fleet file or a release.",
+    ),
+    Setting(
         "payload_services",
         {},
         payload_services,
@@ -365,6 +373,8 @@ def _rules(usable: dict, refused: frozenset) -> list[c.Problem]:
         found += digests.problems(usable)
     if "payload_registry_auths" not in refused:
         found += credentials.files_in_checkout(usable.get("payload_registry_auths"))
+    if not refused & {secret_files.SETTING, "payload_services"}:
+        found += secret_files.problems(usable)
     if usable.get("ros_master_uri") and usable.get("ros_domain_id"):
         found.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
     return found

@@ -22,6 +22,7 @@ import roles.payload.login as login
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.release as release
+import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 import roles.payload.takeover_plan as takeover_plan
 import roles.payload.transferred_images as transferred_images
@@ -43,6 +44,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
         for registry in other_registries_with_credentials(data):
             query.probes[login_probe(registry)] = login.registry_probe(registry)
     dds_profile.declare_reads(data, query)
+    secret_files.declare_reads(data, query)
     transferred_images.declare_reads(data, query)
     if data.payload_delivery == "push":
         query.probes["payload_image_id"] = (
@@ -175,6 +177,9 @@ def deploy_payload(play: Play):
         transferred_images.push_more_images(data, snap, auths)
 
     dds_profile.install_files(data, snap)
+    secrets_changed = secret_files.place(data, snap)
+    if secrets_changed is None:
+        return
     release.say_who_holds_the_lock(snap.probes.get("payload_lock", ""))
     # said in the output, done by payloadctl
     taken_over = takeover_plan.takeover(data, snap, release.current_record(snap))
@@ -187,12 +192,13 @@ def deploy_payload(play: Play):
         release.containers_running(containers.part(snap.probes.get(containers.PROBE, ""), "c"))
         and snap.unit_active(f"{data.payload_name}.service"),
     )
-    needed = needed or unit_changes or bool(taken_over)
+    # A changed secret file: the containers are made anew, with it (compose binds it when it creates them).
+    needed = needed or unit_changes or bool(taken_over) or secrets_changed
     the_release = {"data": data, "document": doc, "checks": play.added(hooks.CHECKS)}
     release.release(
         name="Release the payload (pull, switch, health check, roll back on failure)",
         needed=needed,
-        restart=unit_changes or bool(taken_over),
+        restart=unit_changes or bool(taken_over) or secrets_changed,
         **the_release,
     )
     restarts = play.announced(docker_hooks.RESTARTED)

@@ -31,10 +31,10 @@ def _intruder_key(tmp_path) -> bytes:
 
 
 def test_compose_values_reach_the_container_verbatim(lab, first_run):
-    """inventories/lab.yaml gives the robots `s3cr$et` and `${X:?}`: compose
-    would have made the first `s3cr` and refused to start on the second."""
+    """inventories/lab.yaml gives the robots `pay$day` and `${X:?}`: compose
+    would have made the first `pay` and refused to start on the second."""
     env = lab.payload("robot1")["Config"]["Env"]
-    assert "ROBOT_TOKEN=s3cr$et" in env and "ROBOT_TEMPLATE=${X:?}" in env
+    assert "ROBOT_MOTTO=pay$day" in env and "ROBOT_TEMPLATE=${X:?}" in env
 
 
 def test_a_poisoned_keyring_is_repaired_and_a_two_key_file_refused(lab, first_run, tmp_path):

@@ -7,8 +7,11 @@ foreign compose project), through a Docker restart and a reboot."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
+import tempfile
 import time
+from pathlib import Path
 
 import pytest
 
@@ -18,6 +21,9 @@ pytestmark = pytest.mark.e2e
 
 ALL_TAG = '    payload_image: "@registry@/ros/payload:1.0"\n'
 PROJECT = "robot-payload"
+# On the operator's machine, outside the checkout (the fleet fixture writes it).
+SECRET_FILE = Path(tempfile.gettempdir()) / f"robotfleet-e2e-{os.getpid()}-db_password"
+SECRET = "db-pa55-e2e"
 
 
 def two_services(payload: str = "1.1", driver: str = "1.0", driver_extra: str = "") -> str:
@@ -28,6 +34,7 @@ def two_services(payload: str = "1.1", driver: str = "1.0", driver_extra: str = 
         "stop_grace_period: 3s}\n"
         f'      driver: {{image: "@registry@/ros/driver:{driver}", devices: [], tty: true, stop_grace_period: '
         f"3s{driver_extra}}}\n"
+        f"    payload_secret_files: {{db_password: {SECRET_FILE}}}\n"
     )
 
 
@@ -65,7 +72,9 @@ def fleet(lab, first_run, tmp_path_factory):
     def make(all_vars: str, **more: str):
         return lab.fleet_with(tmp_path_factory.mktemp("fleet"), **{ALL_TAG: all_vars, **more})
 
-    return make
+    SECRET_FILE.write_text(SECRET + "\n")
+    yield make
+    SECRET_FILE.unlink()
 
 
 def test_two_service_payload_deploys(lab, fleet):
@@ -101,6 +110,11 @@ def test_two_service_payload_deploys(lab, fleet):
         "payload": ("running", "healthy"),
         "driver": ("running", None),
     }
+    # The secret file (issue 50, item 3): on the robot 0600 root's, read by every service, in no compose file.
+    assert lab.ok("robot1", "stat -c '%a %U:%G' /var/lib/robot-payload/secrets/db_password").strip() == "600 root:root"
+    for container in services_of(lab, "robot1").values():
+        assert lab.ok("robot1", f"docker exec {container['Id']} cat /run/secrets/db_password").strip() == SECRET
+    assert SECRET not in lab.ok("robot1", "cat /var/lib/robot-payload/current/compose.yaml")
     # The laptop has the same project staged for development.
     staged = json.loads(lab.ok("laptop1", "sed 1d /var/lib/robot-payload/current/compose.yaml"))
     assert set(staged["services"]) == {"payload", "driver"}

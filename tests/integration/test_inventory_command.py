@@ -91,6 +91,27 @@ def test_secrets_are_masked_and_sibling_groups_that_disagree_are_noted(tmp_path)
     assert listed["lidar_bots"] == {"hosts": ["robot2"]}
 
 
+def test_tokens_and_keys_are_masked_as_passwords_are_and_a_key_file_s_path_is_shown(tmp_path):
+    """Issue 50, item 4: what a key's last word names a secret is masked in
+    --host and --list; a path to a key file and a key's fingerprint are not secrets."""
+    path = write(
+        tmp_path / "inventory",
+        {
+            "hosts": "[robots]\nrobot1\n",
+            "group_vars/robots.yml": "payload_image: reg.example.com/p:1\nansible_ssh_private_key_file: ~/.ssh/fleet\n"
+            "payload_environment: {API_TOKEN: tok-8a2c, AWS_SECRET_ACCESS_KEY: wJalr/XUtn+FEMI, "
+            "AWS_ACCESS_KEY_ID: AKIAEXAMPLE, GOOGLE_APPLICATION_CREDENTIALS: /run/secrets/gcp.json}\n",
+        },
+    )
+    for argv in (["--host", "robot1"], ["--list"]):
+        result = robotfleet(tmp_path, "-i", str(path), *argv)
+        assert result.returncode == 0, result.stderr
+        assert "tok-8a2c" not in result.stdout and "XUtn" not in result.stdout, result.stdout
+        assert '"API_TOKEN": "****"' in result.stdout and '"AWS_SECRET_ACCESS_KEY": "****"' in result.stdout
+        for shown in ("AKIAEXAMPLE", "/run/secrets/gcp.json", "~/.ssh/fleet"):
+            assert shown in result.stdout, (shown, result.stdout)
+
+
 def test_a_pyinfra_inventory_shows_the_fleet_it_reads(tmp_path):
     path = write(tmp_path, {"fleet.yaml": "robots:\n  hosts:\n    robot1: {address: 10.0.0.1, payload_image: r/p:1}\n"})
     result = robotfleet(

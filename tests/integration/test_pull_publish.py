@@ -488,3 +488,85 @@ def test_halting_before_any_release_is_refused_in_one_sentence(site):
         ": no release to halt; there is nothing for robots to stop.\n"
     )
     assert git(site["remote"], "branch", "--list", "robotfleet/releases") == ""
+
+
+# -- a secret in the fleet file never travels (issue 50, item 3) ----------------
+
+REFUSED_TOKEN = (
+    "inventories/robots.yaml: robot1.payload_environment.API_TOKEN holds a secret ({more}), and the fleet file "
+    "travels in every release to every robot and mirror: keep it out of the fleet file (payload_secret_files, or "
+    "an _env/_file form such as payload_registry_auths' password_file); nothing was {done}"
+)
+
+
+def with_secrets(site) -> None:
+    """A token in a pull robot's environment and a proxy's password on a push-only robot, committed."""
+    fleet = site["checkout"] / "inventories" / "robots.yaml"
+    text = fleet.read_text()
+    text = text.replace(
+        "robot1: {address: 127.0.0.1}", "robot1: {address: 127.0.0.1, payload_environment: {API_TOKEN: tok-77c1}}"
+    )
+    text = text.replace(
+        "pull_enabled: false}",
+        "pull_enabled: false, docker_daemon_options: {proxies: {http-proxy: 'http://op:pr0xy@proxy.lan:3128'}}}",
+    )
+    fleet.write_text(text)
+    git(site["checkout"], "commit", "-qam", "secrets in the fleet file")
+
+
+def test_a_fleet_file_holding_a_secret_is_refused_in_one_line_naming_host_and_field(site, registry):
+    with_secrets(site)
+    done = publish(site, check=False)
+    assert done.returncode == 2
+    assert done.stderr == "publish: " + REFUSED_TOKEN.format(more="1 more in the file", done="published") + "\n"
+    assert "tok-77c1" not in done.stderr + done.stdout and "pr0xy" not in done.stderr + done.stdout
+    assert git(site["remote"], "branch", "--list", "robotfleet/releases") == ""
+    # a path to the secret's file is no secret: the release goes out
+    fleet = site["checkout"] / "inventories" / "robots.yaml"
+    fleet.write_text(
+        FLEET.format(registry=registry.address).replace(
+            "robot1: {address: 127.0.0.1}",
+            "robot1: {address: 127.0.0.1, payload_environment: {API_TOKEN_FILE: /run/secrets/api, "
+            "TLS_KEY: /run/secrets/tls}, payload_secret_files: {api: ~/.config/robotfleet/api-token, "
+            "tls: /etc/robotfleet/tls.key}}",
+        )
+    )
+    git(site["checkout"], "commit", "-qam", "secrets in files")
+    assert "publish: release 1 (" in publish(site).stdout
+
+
+def test_export_refuses_a_release_whose_fleet_file_holds_a_secret(site, monkeypatch):
+    """A release an earlier robotfleet published with a token in its fleet
+    file: export re-signs nothing and writes nothing to the medium."""
+    from robotfleet import deploy_roles
+    from robotfleet.pull.operator import publishing
+    from robotfleet.pull.operator.keys import KeyDir
+    from robotfleet.pull.operator.repository import Repository
+
+    with_secrets(site)
+    repository = Repository(site["base"] / "published")
+    options, now = publishing.Options(), pullkit.NOW
+    with monkeypatch.context() as earlier:  # publish as it was before the refusal
+        earlier.setattr(publishing, "secret_refusal", lambda fleet, path: None)
+        work = site["base"] / "work"
+        work.mkdir()
+        record, files = publishing.build(
+            site["checkout"], options, deploy_roles.roles(), deploy_roles.registry(), 1, now, work
+        )
+        publishing.publish(repository, record, files, KeyDir(site["keys"]), options, now)
+    signed = pullkit.tree_state(repository.path)
+    medium = site["base"] / "usb"
+    done = robotfleet_cmd(
+        "export",
+        medium,
+        "--to-dir",
+        repository.path,
+        "--checkout",
+        site["checkout"],
+        "--keys",
+        site["keys"],
+        check=False,
+    )
+    assert done.returncode == 2
+    assert done.stderr == "export: " + REFUSED_TOKEN.format(more="1 more in the file", done="exported") + "\n"
+    assert list(medium.iterdir()) == [] and pullkit.tree_state(repository.path) == signed

@@ -222,3 +222,15 @@ def test_diff_masks_the_registry_passwords_too(log, monkeypatch):
     plan({"r1": ("robots", data, drifted_robot())}, run=False, diff=True, contents={"r1": {DAEMON_JSON: DRIFTED}})
     text = "\n".join(r.getMessage() for r in log.records)
     assert '"pull-token=****"' in text and "reg-pw-7x" not in text
+
+
+def test_diff_masks_every_value_whose_key_names_a_secret(log):
+    """API_TOKEN, AWS_SECRET_ACCESS_KEY (issue 50, item 4): held for the host
+    like a password, so wherever their values appear they are masked."""
+    environment = {"API_TOKEN": "tok-5e1f", "AWS_SECRET_ACCESS_KEY": "wJalr/XUtn+FEMI", "ROS_LOG_DIR": "/tmp/ros"}
+    labels = ["api=tok-5e1f", "aws=wJalr/XUtn+FEMI", "logs=/tmp/ros"]
+    data = {**ROBOT, "payload_environment": environment, "docker_daemon_options": {"labels": labels}}
+    plan({"r1": ("robots", data, drifted_robot())}, run=False, diff=True, contents={"r1": {DAEMON_JSON: DRIFTED}})
+    text = "\n".join(r.getMessage() for r in log.records)
+    assert '"api=****"' in text and '"aws=****"' in text and '"logs=/tmp/ros"' in text, text
+    assert "tok-5e1f" not in text and "XUtn" not in text

@@ -91,6 +91,8 @@ OPERATOR_SIDE = {
     "pull_trust_root",
     "pull_remote_ca",
 }
+# ... and the values of these mappings (name -> a file here; its content is what is sent).
+OPERATOR_SIDE_VALUES = {"payload_secret_files"}
 
 
 def places(name: str, value):
@@ -168,6 +170,9 @@ def test_every_hostile_value_is_refused_in_one_line_or_reaches_the_host_as_data(
     for place, hostile in accepted:
         if setting in OPERATOR_SIDE:
             assert place in ("value", "in a path", "in a URL", "in an image tag") and hostile.isprintable()
+            continue
+        if setting in OPERATOR_SIDE_VALUES:
+            assert place == "mapping value" and hostile.isprintable(), (place, hostile)
             continue
         if hostile in BENIGN_INSIDE.get(place.removesuffix(", list item"), ()):
             continue

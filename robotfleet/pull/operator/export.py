@@ -122,6 +122,9 @@ def export(
         fleet, _ = publishing.read_fleet(checkout, record.commit, record.fleet["path"], registry)
     except publishing.PublishError as error:
         raise ExportError(str(error).splitlines()[-1]) from None
+    refused = publishing.secret_refusal(fleet, record.fleet["path"])
+    if refused:
+        raise ExportError(f"{refused}; nothing was exported")
     hosts = dict(publishing.pull_hosts(fleet, registry))
     index, files = archives(record, hosts, roles, work)
     (work / media.NAME).write_bytes(media.build(record.version, index))

@@ -15,6 +15,7 @@ import hashlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from robotfleet import secrets
 from robotfleet.fleet.validate import Fleet, FleetError, parse
 from robotfleet.pull.operator import wheels
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError
@@ -64,6 +65,28 @@ def longest_check(roles, hosts: list[tuple[str, HostData]]) -> int:
     every robot of a wave that is on has checked before the next one opens."""
     config = pull_part(roles).config
     return max(found.interval + found.jitter for found in (config(data, name) for name, data in hosts))
+
+
+def secret_refusal(fleet: Fleet, path: str) -> str | None:
+    """The line refusing a release whose fleet file holds a secret (by
+    robotfleet/secrets.py's rule), naming the first host and field: the
+    file travels in the release's code to every robot, mirror and medium,
+    and each robot reads every host's values in it."""
+    found = [
+        (name, field)
+        for group in ("robots", "laptops")
+        for name, data in fleet.hosts(group)
+        for field, _ in secrets.found_in(data)
+    ]
+    if not found:
+        return None
+    name, field = found[0]
+    more = f" ({len(found) - 1} more in the file)" if len(found) > 1 else ""
+    return (
+        f"{path}: {name}.{field} holds a secret{more}, and the fleet file travels in every release to every robot "
+        "and mirror: keep it out of the fleet file (payload_secret_files, or an _env/_file form such as "
+        "payload_registry_auths' password_file)"
+    )
 
 
 def resolve_pins(roles, hosts: list[tuple[str, HostData]]) -> dict[str, dict[str, str]]:
@@ -131,6 +154,9 @@ def build(
                 "commit, not the working tree: commit first, or --allow-dirty"
             )
     fleet, fleet_sha = read_fleet(checkout, commit, options.fleet, registry)
+    refused = secret_refusal(fleet, options.fleet)
+    if refused:
+        raise PublishError(f"{refused}; nothing was published")
     hosts = pull_hosts(fleet, registry)
     if not hosts:
         raise PublishError(f"{options.fleet}: no host has pull_enabled: true; nothing to publish for")
