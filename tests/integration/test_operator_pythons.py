@@ -166,3 +166,25 @@ def test_pyinfra_dry_plans_the_deploy_and_names_the_reason(python, tmp_path):
         "create the account first (users are never created by this tool)"
     ]
     assert "@fake/good" in output.split("--> Detected changes", 1)[1]  # the other robot's plan
+
+
+def test_ubuntu_20_04_s_python_is_refused_in_one_line_that_says_what_to_do(tmp_path):
+    """pip itself checks requires-python only after resolving every dependency: on 3.8 it ended on
+    "No matching distribution found for tuf<8,>=7" (robotfleet/build_backend.py)."""
+    python = pythons.require("3.8")
+    subprocess.run([str(python), "-m", "venv", "--without-pip", str(tmp_path / "venv")], check=True)
+    refused = subprocess.run(
+        [sys.executable, "-m", "pip", "--python", str(tmp_path / "venv" / "bin" / "python"), "install"]
+        + ["--disable-pip-version-check", "--no-index", "--no-build-isolation", "-e", str(ROOT)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, "PIP_CONFIG_FILE": os.devnull},
+    )
+    assert refused.returncode == 1
+    line = (
+        "robot-fleet-provisioner needs Python 3.10 or later (pyinfra 3), and this is Python 3.8: "
+        "make the venv with a newer Python (docs/guides/install.md, Ubuntu 20.04)"
+    )
+    assert [said.strip() for said in refused.stderr.splitlines() if "robot-fleet-provisioner" in said] == [line]
+    assert "No matching distribution" not in refused.stderr
