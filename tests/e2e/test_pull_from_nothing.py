@@ -16,7 +16,10 @@ tests/e2e/test_pull.py's), the robot's check and status (8): `applied`, exit
 0.  Only what must differ in the lab is substituted (LAB below, each once).
 
 One robot, the session's ROBOT, provisioned by the first run: the push deploy
-adds only the agent.  Its check is started directly (the timer's first ran at
+adds only the agent.  Its python3 is Ubuntu 24.04's 3.12 (this machine's
+build, tests/lab/robot_python.py), not the lab's 3.13, as on most robots a
+guide's reader has (issue 51): publish fetches its cp312 wheels, its agent's
+venv and the converge it runs are 3.12's, and so is its payloadctl.  Its check is started directly (the timer's first ran at
 the install, before pull-enroll registered its key; its next is 900 s later).
 At the end its agent is removed and a push deploy of the lab's fleet gives it
 back its payload by tag.  Cost: docs/guides/development.md.
@@ -62,11 +65,14 @@ RESET = (
 #     robots' name for it through a proxy (Operator.proxy), as the guide's /etc/hosts line would
 #   - the git server from this machine: 127.0.0.1 on its lab port; the operator's SSH config says so
 #     (Operator.ssh_config: ssh reads the user's real home, not $HOME), and so does --admin (lab_commands)
+#   - the robot's python3 (ROBOT_PYTHON, Ubuntu 24.04's): its pull_platform says so (lab_fleet_file)
 #   - the operator's robotfleet and pyinfra: this venv's, running the operator's checkout (Operator.bin),
 #     as a venv installed from that checkout would; publish's wheels from a cache of the lab's (~/.cache)
 HOST_KEY = '"ssh-ed25519 AAAA..."'
 GUIDE_IMAGE = "registry.lan:5000/payload:1"
 LAB_IMAGE = "ros/payload:1.0"  # the first run's (inventories/lab.yaml)
+ROBOT_PYTHON = "3.12"
+ROBOT_PLATFORM = "cp312-x86_64"
 
 
 def guide_blocks() -> dict[int, list[str]]:
@@ -268,6 +274,7 @@ def lab_fleet_file(block: str, lab, key_line: str, known_hosts: Path) -> str:
         "ssh_port": port,
         "ssh_key": lab.state["ssh_key"],
         "ssh_known_hosts_file": str(known_hosts),
+        "pull_platform": ROBOT_PLATFORM,
     }
     robots = {"vars": {**base["robots"]["vars"], **guide["robots"]["vars"]}, "hosts": {ROBOT: robot}}
     # JSON is YAML 1.2, and quotes every string ("0825" stays text).
@@ -347,9 +354,15 @@ def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_
 
 @pytest.fixture(scope="module")
 def operator(server, made, lab, first_run, tmp_path_factory):
+    from tests import pythons
+    from tests.lab import robot_python
+
+    said = robot_python.install(f"{lab.prefix}-{ROBOT}", pythons.require(ROBOT_PYTHON))
+    assert said.startswith(f"Python {ROBOT_PYTHON}."), said
     operator = Operator(server, tmp_path_factory.mktemp("pull-guide"))
     yield operator
     operator.close()
+    robot_python.restore(f"{lab.prefix}-{ROBOT}", ROBOT_PYTHON)
     lab.sh(ROBOT, RESET)  # the robot as the session's first run left it, for the modules after this one
     run = lab.provision(f"--limit={ROBOT}", label=f"({ROBOT} back to the lab's fleet)")
     assert run.returncode == 0, run.output[-4000:]
@@ -397,6 +410,10 @@ def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(ser
     took = re.search(r"^robot-pull: applied \(release 1\).*; report sent \[(.*)\]$", journal, re.M)
     names = [part.split(" ")[0] for part in took[1].split(", ")] if took else None
     assert names == ["fetch", "verify", "decide", "prepare", "load", "deploy", "status", "report"], journal
+    # all of it on the robot's own Python: the agent's venv, the converge's deploy, payloadctl
+    agent = lab.ok(ROBOT, "/var/lib/robot-pull/venv/bin/python -c 'import sys, pyinfra; print(sys.version_info[:2])'")
+    assert agent.strip() == str(tuple(int(n) for n in ROBOT_PYTHON.split("."))), agent
+    assert lab.ok(ROBOT, "readlink -f /usr/bin/python3").strip() == f"/usr/bin/python{ROBOT_PYTHON}"
     # step 8's halt, in its prose, signed with the defaults too
     halt = next(c.text for c in doccommands.inline_commands(ROOT / GUIDE) if c.subcommand == "halt")
     said = operator.run(halt, "step 8, halt", {'"..."': "'the guide, end to end'"})

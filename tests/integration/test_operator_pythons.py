@@ -30,7 +30,7 @@ from robotfleet.pull.protocol import platforms
 from tests import pythons
 from tests.fixtures import ROOT
 from tests.integration import sshserver
-from tests.integration.test_dry_and_diff import CLI as DRY_CLI
+from tests.integration.test_dry_and_diff import dry_run
 from tests.integration.test_first_contact import fleet
 
 CACHE = ROOT / ".lab" / "cache" / "python-wheels"
@@ -144,27 +144,7 @@ def test_status_names_each_robot_it_cannot_reach(python, tmp_path):
 
 
 def test_pyinfra_dry_plans_the_deploy_and_names_the_reason(python, tmp_path):
-    host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
-    inventory = tmp_path / "fake.py"
-    inventory.write_text(
-        f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', {host!r})]\n"
-    )
-    env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
-    planned = subprocess.run(
-        [str(python), "-c", DRY_CLI, "--dry", str(inventory), "deploy.py"],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    output = planned.stdout + planned.stderr
-    assert planned.returncode == 1, output[-3000:]
-    planning = output.split("--> Preparing operation", 1)[1].split("--> Detected changes", 1)[0]
-    assert [line.strip() for line in planning.splitlines() if "ghost" in line] == [
-        "[@fake/bad]  docker_users: ghost does not exist on this host; "
-        "create the account first (users are never created by this tool)"
-    ]
+    output = dry_run(tmp_path, str(python))
     assert "@fake/good" in output.split("--> Detected changes", 1)[1]  # the other robot's plan
 
 
