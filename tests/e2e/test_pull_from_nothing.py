@@ -19,8 +19,9 @@ One robot, the session's ROBOT, provisioned by the first run: the push deploy
 adds only the agent.  Its python3 is Ubuntu 24.04's 3.12 (this machine's
 build, tests/lab/robot_python.py), not the lab's 3.13, as on most robots a
 guide's reader has (issue 51): publish fetches its cp312 wheels, its agent's
-venv and the converge it runs are 3.12's, and so is its payloadctl.  Its check is started directly (the timer's first ran at
-the install, before pull-enroll registered its key; its next is 900 s later).
+venv and the converge it runs are 3.12's, and so is its payloadctl.  Its
+check is started directly (the timer's first ran at the install, before
+pull-enroll registered its key; its next is 900 s later).
 At the end its agent is removed and a push deploy of the lab's fleet gives it
 back its payload by tag.  Cost: docs/guides/development.md.
 """
