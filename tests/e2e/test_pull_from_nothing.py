@@ -420,3 +420,38 @@ def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(ser
     said = operator.run(halt, "step 8, halt", {'"..."': "'the guide, end to end'"})
     assert re.search(r"^halt: release 2 halts commit \w+ \(the guide, end to end\)", said, re.M), said
     phase("pull guide: steps 4 to 8 on this machine, the robot applied release 1", started)
+
+
+def test_a_robot_whose_python_is_too_old_for_pull_mode_is_refused_before_anything_changes(operator, lab):
+    """Ubuntu 20.04's 3.8 as the robot's python3: step 7's push deploy refuses it in one line naming its
+    Python and the way out, before any role changes anything on it."""
+    from tests import pythons
+    from tests.lab import robot_python
+
+    started, container = time.monotonic(), f"{lab.prefix}-{ROBOT}"
+    robot_python.restore(container, ROBOT_PYTHON)
+    assert robot_python.install(container, pythons.require("3.8")).startswith("Python 3.8.")
+    kept = "ls -l --time-style=+%s.%N /etc/robot-pull /etc/systemd/system/robot-pull.* /var/lib/robot-pull"
+    before = lab.ok(ROBOT, kept)
+    try:
+        done = subprocess.run(
+            ["bash", "-c", "pyinfra -y inventories/robots.py deploy.py"],
+            cwd=operator.checkout,
+            env=operator.env(),
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        said = done.stdout + done.stderr
+        line = (
+            "this robot's python3 3.8 is too old for pull mode (the robot runs pyinfra 3, which needs Python 3.10 "
+            "or later): provision it by push (pull_enabled: false), or give it a python3 of 3.10 or later"
+        )
+        assert done.returncode != 0 and line in said, said[-3000:]
+        named = {text.strip() for text in said.splitlines() if "too old for pull mode" in text}
+        assert len(named) == 1 and ROBOT in next(iter(named)), said  # one line, naming the robot
+        assert lab.ok(ROBOT, kept) == before  # the agent, its units and its venv as they were
+    finally:
+        robot_python.restore(container, "3.8")
+        robot_python.install(container, pythons.require(ROBOT_PYTHON))  # as the module's teardown expects it
+    phase("pull guide: a robot on Python 3.8 refused", started)
