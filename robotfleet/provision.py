@@ -32,6 +32,10 @@ def provision(listed) -> None:
     for role in running:
         role.reads(host.data, query)
     play = Play(host.data, host.get_fact(HostSnapshot, **query.as_kwargs()), running)
+    refusal = next(filter(None, (role.refuses(host.data, play.snapshot) for role in running)), None)
+    if refusal:  # before any role's steps: nothing changes on the host
+        operations.fail(name="Check the host can take its roles", message=refusal)
+        return
     # pyinfra's CLI tells operations apart by the line numbers of their call
     # stack, not the file names: the roles' steps are all called from the line
     # below, so each role gets its own place in deploy.py's list (host.loop),

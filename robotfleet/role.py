@@ -255,6 +255,8 @@ class Role:
     - ``runs_on(data)``: whether it has anything to do on a host;
     - ``reads(data, query)``: what its steps need to know about the host;
     - ``steps(play)``: its operations, comparing with ``play.snapshot``;
+    - ``refuses(data, snapshot)``: why this host must not be changed at all
+      (one line), read from its snapshot before any role's steps; None: go on;
     - ``rules(data, refused)``: checks across settings on a host's merged
       data (defaults included); ``refused`` names settings that already have
       a problem, which a rule does not look at again;
@@ -276,6 +278,7 @@ class Role:
     runs_on: Callable[[Any], bool] = _always
     reads: Callable[[Any, SnapshotQuery], None] = _nothing
     steps: Callable[[Play], None] = _nothing
+    refuses: Callable[[Any, Snapshot], str | None] = _nothing
     rules: Callable[[dict, frozenset], list[Problem]] = _no_problems
     adds: Mapping[Hook, Callable] = field(default_factory=dict)
     status: StatusPart | None = None

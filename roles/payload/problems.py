@@ -1,11 +1,11 @@
 """Every refusal of a host's compose project, as (field, message) pairs,
-including the Compose Specification's published JSON Schema (shipped by the
-check-jsonschema package with its licence; never hand-written here)."""
+including the Compose Specification's published JSON Schema (vendor/: the
+compose-spec.json check-jsonschema vendors, copied with its licence; never
+hand-written here)."""
 
 from __future__ import annotations
 
 import difflib
-import importlib.util
 import json
 import re
 from functools import lru_cache
@@ -22,16 +22,14 @@ from roles.payload.services import SERVICE_NAME, SHORTHAND_SETTINGS, declared, l
 
 @lru_cache(maxsize=1)
 def compose_schema() -> dict:
-    """The Compose Specification's JSON Schema as check-jsonschema vendors it."""
-    return json.loads(compose_schema_path().read_text())
+    """The Compose Specification's JSON Schema (vendor/compose-spec.json)."""
+    return json.loads(COMPOSE_SCHEMA.read_text())
 
 
-def compose_schema_path() -> Path:
-    """Found without importing check_jsonschema (its CLI imports take a second)."""
-    spec = importlib.util.find_spec("check_jsonschema")
-    if spec is None or not spec.submodule_search_locations:
-        raise RuntimeError("check-jsonschema is not installed (pip install -e .): it carries the Compose schema")
-    return Path(list(spec.submodule_search_locations)[0]) / "builtin_schemas" / "vendor" / "compose-spec.json"
+# check-jsonschema's copy of compose-spec's schema, the same on every operator's
+# Python (check-jsonschema itself needs 3.11); refreshed from the release the
+# test extra pins (roles/payload/README.md, Checked before connecting).
+COMPOSE_SCHEMA = Path(__file__).resolve().parent / "vendor" / "compose-spec.json"
 
 
 @lru_cache(maxsize=1)

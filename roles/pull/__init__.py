@@ -25,7 +25,7 @@ from robotfleet.host import apt, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.host.stream import FileStdin
 from robotfleet.pull.operator import install
-from robotfleet.pull.protocol import agent_files
+from robotfleet.pull.protocol import agent_files, platforms
 from robotfleet.role import Play, Role
 
 INSTALLED_PROBE = "pull_installed"
@@ -151,6 +151,16 @@ def pull_agent(play: Play):
     )
 
 
+def refuses(data, snap) -> str | None:
+    """A robot whose python3 (or, without one, its release's) is too old for
+    the agent: refused before any role changes anything on it."""
+    if data.get(AGENT_RUN):
+        return None  # the agent runs there already
+    platform = plan.platform(snap.probes.get(PYTHON_PROBE, ""), snap.os_release, snap.arch)
+    old = platforms.too_old(platform[2:].split("-")[0]) if platform else None
+    return f"this robot's {old}" if old else None
+
+
 def _install_venv_and_code(data, snap) -> None:
     platform = plan.platform(snap.probes.get(PYTHON_PROBE, ""), snap.os_release, snap.arch)
     if platform != data.pull_platform:
@@ -201,6 +211,7 @@ ROLE = Role(
     runs_on=runs_on,
     reads=declare_reads,
     steps=pull_agent,
+    refuses=refuses,
     rules=settings.rules,
     renamed=settings.RENAMED,
     pull=plan.PART,

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
-from robotfleet.pull.protocol import agent_files, waves
+from robotfleet.pull.protocol import agent_files, platforms, waves
 from robotfleet.role import Renamed, Setting
 
 # The fleet remote as git takes it (never through a shell, but still no
@@ -206,4 +206,8 @@ def rules(data: dict, refused: frozenset) -> list[c.Problem]:
                 "(ssh-keyscan HOST, checked against the server's own)",
             )
         )
+    platform = data.get("pull_platform")
+    old = platforms.too_old(str(platform)[2:].split("-")[0]) if "pull_platform" not in refused else None
+    if old:
+        problems.append(("pull_platform", f"{platform}: a robot's {old}"))
     return problems

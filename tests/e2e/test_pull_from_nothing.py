@@ -16,8 +16,12 @@ tests/e2e/test_pull.py's), the robot's check and status (8): `applied`, exit
 0.  Only what must differ in the lab is substituted (LAB below, each once).
 
 One robot, the session's ROBOT, provisioned by the first run: the push deploy
-adds only the agent.  Its check is started directly (the timer's first ran at
-the install, before pull-enroll registered its key; its next is 900 s later).
+adds only the agent.  Its python3 is Ubuntu 24.04's 3.12 (this machine's
+build, tests/lab/robot_python.py), not the lab's 3.13, as on most robots a
+guide's reader has (issue 51): publish fetches its cp312 wheels, its agent's
+venv and the converge it runs are 3.12's, and so is its payloadctl.  Its
+check is started directly (the timer's first ran at the install, before
+pull-enroll registered its key; its next is 900 s later).
 At the end its agent is removed and a push deploy of the lab's fleet gives it
 back its payload by tag.  Cost: docs/guides/development.md.
 """
@@ -62,11 +66,14 @@ RESET = (
 #     robots' name for it through a proxy (Operator.proxy), as the guide's /etc/hosts line would
 #   - the git server from this machine: 127.0.0.1 on its lab port; the operator's SSH config says so
 #     (Operator.ssh_config: ssh reads the user's real home, not $HOME), and so does --admin (lab_commands)
+#   - the robot's python3 (ROBOT_PYTHON, Ubuntu 24.04's): its pull_platform says so (lab_fleet_file)
 #   - the operator's robotfleet and pyinfra: this venv's, running the operator's checkout (Operator.bin),
 #     as a venv installed from that checkout would; publish's wheels from a cache of the lab's (~/.cache)
 HOST_KEY = '"ssh-ed25519 AAAA..."'
 GUIDE_IMAGE = "registry.lan:5000/payload:1"
 LAB_IMAGE = "ros/payload:1.0"  # the first run's (inventories/lab.yaml)
+ROBOT_PYTHON = "3.12"
+ROBOT_PLATFORM = "cp312-x86_64"
 
 
 def guide_blocks() -> dict[int, list[str]]:
@@ -268,6 +275,7 @@ def lab_fleet_file(block: str, lab, key_line: str, known_hosts: Path) -> str:
         "ssh_port": port,
         "ssh_key": lab.state["ssh_key"],
         "ssh_known_hosts_file": str(known_hosts),
+        "pull_platform": ROBOT_PLATFORM,
     }
     robots = {"vars": {**base["robots"]["vars"], **guide["robots"]["vars"]}, "hosts": {ROBOT: robot}}
     # JSON is YAML 1.2, and quotes every string ("0825" stays text).
@@ -347,9 +355,15 @@ def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_
 
 @pytest.fixture(scope="module")
 def operator(server, made, lab, first_run, tmp_path_factory):
+    from tests import pythons
+    from tests.lab import robot_python
+
+    said = robot_python.install(f"{lab.prefix}-{ROBOT}", pythons.require(ROBOT_PYTHON))
+    assert said.startswith(f"Python {ROBOT_PYTHON}."), said
     operator = Operator(server, tmp_path_factory.mktemp("pull-guide"))
     yield operator
     operator.close()
+    robot_python.restore(f"{lab.prefix}-{ROBOT}", ROBOT_PYTHON)
     lab.sh(ROBOT, RESET)  # the robot as the session's first run left it, for the modules after this one
     run = lab.provision(f"--limit={ROBOT}", label=f"({ROBOT} back to the lab's fleet)")
     assert run.returncode == 0, run.output[-4000:]
@@ -397,8 +411,47 @@ def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(ser
     took = re.search(r"^robot-pull: applied \(release 1\).*; report sent \[(.*)\]$", journal, re.M)
     names = [part.split(" ")[0] for part in took[1].split(", ")] if took else None
     assert names == ["fetch", "verify", "decide", "prepare", "load", "deploy", "status", "report"], journal
+    # all of it on the robot's own Python: the agent's venv, the converge's deploy, payloadctl
+    agent = lab.ok(ROBOT, "/var/lib/robot-pull/venv/bin/python -c 'import sys, pyinfra; print(sys.version_info[:2])'")
+    assert agent.strip() == str(tuple(int(n) for n in ROBOT_PYTHON.split("."))), agent
+    assert lab.ok(ROBOT, "readlink -f /usr/bin/python3").strip() == f"/usr/bin/python{ROBOT_PYTHON}"
     # step 8's halt, in its prose, signed with the defaults too
     halt = next(c.text for c in doccommands.inline_commands(ROOT / GUIDE) if c.subcommand == "halt")
     said = operator.run(halt, "step 8, halt", {'"..."': "'the guide, end to end'"})
     assert re.search(r"^halt: release 2 halts commit \w+ \(the guide, end to end\)", said, re.M), said
     phase("pull guide: steps 4 to 8 on this machine, the robot applied release 1", started)
+
+
+def test_a_robot_whose_python_is_too_old_for_pull_mode_is_refused_before_anything_changes(operator, lab):
+    """Ubuntu 20.04's 3.8 as the robot's python3: step 7's push deploy refuses it in one line naming its
+    Python and the way out, before any role changes anything on it."""
+    from tests import pythons
+    from tests.lab import robot_python
+
+    started, container = time.monotonic(), f"{lab.prefix}-{ROBOT}"
+    robot_python.restore(container, ROBOT_PYTHON)
+    assert robot_python.install(container, pythons.require("3.8")).startswith("Python 3.8.")
+    kept = "ls -l --time-style=+%s.%N /etc/robot-pull /etc/systemd/system/robot-pull.* /var/lib/robot-pull"
+    before = lab.ok(ROBOT, kept)
+    try:
+        done = subprocess.run(
+            ["bash", "-c", "pyinfra -y inventories/robots.py deploy.py"],
+            cwd=operator.checkout,
+            env=operator.env(),
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        said = done.stdout + done.stderr
+        line = (
+            "this robot's python3 3.8 is too old for pull mode (the robot runs pyinfra 3, which needs Python 3.10 "
+            "or later): provision it by push (pull_enabled: false), or give it a python3 of 3.10 or later"
+        )
+        assert done.returncode != 0 and line in said, said[-3000:]
+        named = {text.strip() for text in said.splitlines() if "too old for pull mode" in text}
+        assert len(named) == 1 and ROBOT in next(iter(named)), said  # one line, naming the robot
+        assert lab.ok(ROBOT, kept) == before  # the agent, its units and its venv as they were
+    finally:
+        robot_python.restore(container, "3.8")
+        robot_python.install(container, pythons.require(ROBOT_PYTHON))  # as the module's teardown expects it
+    phase("pull guide: a robot on Python 3.8 refused", started)

@@ -56,10 +56,10 @@ def spec_hash(ref):
 
 
 class FakeRobot:
-    def __init__(self, tmp_path, helper):
+    def __init__(self, tmp_path, helper, python=sys.executable):
         self.root = tmp_path / "payload"
         self.root.mkdir()
-        self.helper = helper
+        self.helper, self.python = helper, str(python)  # python: the robot's python3
         self.state_path = tmp_path / "state.json"
         self.releases = store.Releases(str(self.root))
         self.save({"root": str(self.root), "images": {}, "containers": {}, "log": []})
@@ -141,7 +141,7 @@ class FakeRobot:
 
     def payloadctl(self, *args, timeout=30):
         return subprocess.run(
-            [sys.executable, self.helper, *args], env=self.env(), capture_output=True, text=True, timeout=timeout
+            [self.python, self.helper, *args], env=self.env(), capture_output=True, text=True, timeout=timeout
         )
 
     def env(self, **more):
@@ -150,6 +150,7 @@ class FakeRobot:
             PATH=f"{FAKEBIN}:{os.environ['PATH']}",
             FAKE_STATE=str(self.state_path),
             FAKE_HELPER=self.helper,
+            FAKE_PYTHON=self.python,
             **more,
         )
 

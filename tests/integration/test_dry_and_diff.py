@@ -20,7 +20,10 @@ with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}
 """
 
 
-def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
+def dry_run(tmp_path, python: str = sys.executable) -> str:
+    """pyinfra --dry over a robot whose docker_users names a missing account and a good one: its
+    output, once it exited 1 having named the reason (tests/integration/test_operator_pythons.py: on
+    other Pythons)."""
     host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
     inventory = tmp_path / "fake.py"
     inventory.write_text(
@@ -28,7 +31,7 @@ def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
     )
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
     proc = subprocess.run(
-        [sys.executable, "-c", CLI, "--dry", str(inventory), "deploy.py"],
+        [python, "-c", CLI, "--dry", str(inventory), "deploy.py"],
         cwd=ROOT,
         env=env,
         capture_output=True,
@@ -43,6 +46,11 @@ def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
         "[@fake/bad]  docker_users: ghost does not exist on this host; "
         "create the account first (users are never created by this tool)"
     ]
+    return output
+
+
+def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
+    dry_run(tmp_path)
 
 
 DIFF_CLI = """

@@ -6,6 +6,7 @@ from __future__ import annotations
 import base64
 import io
 import json
+import subprocess
 import tarfile
 
 import pytest
@@ -128,6 +129,12 @@ def robot(**extra):
             "robots.yaml: robot3.pull_remote_host_keys: required for an ssh remote: the git server's host keys "
             "(ssh-keyscan HOST, checked against the server's own)",
         ),
+        (
+            robot(pull_enabled=True, pull_remote="https://git.lan/fleet", pull_platform="cp38-x86_64"),
+            "robots.yaml: robot3.pull_platform: cp38-x86_64: a robot's python3 3.8 is too old for pull mode (the "
+            "robot runs pyinfra 3, which needs Python 3.10 or later): provision it by push (pull_enabled: false), "
+            "or give it a python3 of 3.10 or later",
+        ),
     ],
 )
 def test_bad_pull_settings_get_one_clear_line(doc, expected):
@@ -149,6 +156,8 @@ def test_bad_pull_settings_get_one_clear_line(doc, expected):
         },
         {"pull_windows": ["Mon-Fri 01:00-05:00", "Sat,Sun 00:00-23:59 UTC"]},
         {"pull_remote": "ssh://git@10.20.0.5/fleet"},  # set for the fleet; used where pull_enabled is true
+        {"pull_enabled": True, "pull_remote": "https://git.lan/fleet", "pull_platform": "cp310-x86_64"},
+        {"pull_platform": "cp38-x86_64"},  # a robot provisioned by push
     ],
 )
 def test_good_pull_settings_are_accepted(extra):
@@ -227,6 +236,23 @@ def test_a_robot_that_is_not_its_pull_platform_is_refused_in_one_line(pulled):
     assert find(
         result["r1"], "pull_platform: cp313-x86_64, but this robot runs cp310-x86_64; .*set pull_platform: cp310-x86_64"
     )
+
+
+@pytest.mark.parametrize("probed", ["38\n", ""])  # Ubuntu 20.04's python3, or none yet (apt would bring 3.8)
+def test_a_robot_whose_python_is_too_old_for_pull_mode_is_refused_before_anything_changes(pulled, probed):
+    snap = fresh_host("ubuntu-20.04")
+    snap.probes[pull_role.PYTHON_PROBE] = probed
+    result = run_plan({"r1": ("robots", {**pulled, "pull_platform": "cp310-x86_64"}, snap)})
+    assert result.failed == {"r1"}
+    line = (
+        "this robot's python3 3.8 is too old for pull mode (the robot runs pyinfra 3, which needs Python 3.10 "
+        "or later): provision it by push (pull_enabled: false), or give it a python3 of 3.10 or later"
+    )
+    assert len(result["r1"]) == 1  # the refusal, and nothing of any role before it
+    said = subprocess.run(result["r1"][0], shell=True, capture_output=True, text=True)  # it only echoes
+    assert (said.returncode, said.stderr) == (1, line + "\n")
+    pushed = run_plan({"r1": ("robots", {**pulled, "pull_enabled": False}, snap)})
+    assert pushed.failed == set() and len(pushed["r1"]) > 10  # the way out: push mode provisions it
 
 
 def test_a_platform_the_release_carries_no_wheels_for_is_refused_in_one_line(pulled):

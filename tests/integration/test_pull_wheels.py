@@ -54,3 +54,35 @@ def test_a_cache_holding_every_requirement_is_used_without_the_index(tmp_path, m
     # ... and so does everything when asked to refresh
     with pytest.raises(wheels.WheelError):
         wheels.build_wheelhouse(["six"], "cp311-aarch64", tmp_path, index_url=nowhere, refresh=True)
+
+
+def test_a_robot_s_wheels_follow_the_markers_of_its_own_python(tmp_path):
+    """pip evaluates markers for the interpreter it runs in: a 3.10 robot's wheelhouse fetched from a newer
+    operator lacked what pip on 3.10 installs (pyinfra's typing-extensions; python_version < '3.11')."""
+    wanted = ["six==1.17.0", "tomli==2.0.1; python_version < '3.11'"]
+    older = wheels.build_wheelhouse(wanted, "cp310-x86_64", tmp_path)
+    assert [p.name for p in older] == ["six-1.17.0-py2.py3-none-any.whl", "tomli-2.0.1-py3-none-any.whl"]
+    newer = wheels.build_wheelhouse(wanted, "cp313-x86_64", tmp_path)
+    assert [p.name for p in newer] == ["six-1.17.0-py2.py3-none-any.whl"]
+
+
+def test_a_python_too_old_for_pull_mode_gets_no_wheels_and_one_line(tmp_path):
+    with pytest.raises(wheels.WheelError) as caught:
+        wheels.build_wheelhouse(["six"], "cp38-x86_64", tmp_path)
+    assert str(caught.value) == (
+        "wheels for cp38-x86_64: a robot's python3 3.8 is too old for pull mode (the robot runs pyinfra 3, which "
+        "needs Python 3.10 or later): provision it by push (pull_enabled: false), or give it a python3 of 3.10 "
+        "or later"
+    )
+    assert not (tmp_path / "cp38-x86_64").exists()  # pip was not asked
+
+
+def test_a_package_without_a_wheel_for_the_platform_is_named_with_it(tmp_path):
+    """PyYAML publishes no wheel for 32-bit ARM: a robot there cannot be given one."""
+    with pytest.raises(wheels.WheelError) as caught:
+        wheels.build_wheelhouse(["pyyaml==6.0.2"], "cp313-armv7l", tmp_path)
+    said = str(caught.value)
+    assert said.startswith(
+        "wheels for cp313-armv7l: no wheel of pyyaml==6.0.2 for CPython 3.13 on armv7l (robots install binary wheels "
+        "only) (pip's log: "
+    ), said

@@ -126,3 +126,13 @@ def test_the_example_fleet_names_commands_that_work():
         for word in command.split():
             if word.endswith(".py"):
                 assert (ROOT / word).exists(), command
+
+
+def test_one_minimum_python_for_the_install_the_build_and_pull_robots():
+    import tomllib
+
+    from robotfleet import build_backend
+    from robotfleet.pull.protocol import platforms
+
+    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    assert declared == ">=%d.%d" % build_backend.MINIMUM and build_backend.MINIMUM == platforms.MIN_PYTHON

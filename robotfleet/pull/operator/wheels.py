@@ -19,7 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from robotfleet.pull.protocol.platforms import parse_platform
+from robotfleet.pull.protocol.platforms import parse_platform, too_old
 
 # glibc wheel tags pip accepts for a machine, newest first (Debian 12: glibc 2.36, Ubuntu 22.04: 2.35).
 _MANYLINUX = (
@@ -31,6 +31,20 @@ _MANYLINUX = (
     "manylinux1_{m}",
 )
 PIP_TIMEOUT = 1800
+# pip evaluates the requirements' markers (``typing-extensions; python_version < '3.11'``) for the
+# interpreter it runs in, never for --python-version and --platform: it runs here with the robot's
+# values in their place, so a wheelhouse holds what pip on the robot's own Python would install.
+_AS_ROBOT = """import runpy, sys
+from pip._vendor.packaging import markers
+version, machine = sys.argv[1:3]
+robot = dict(markers.default_environment(), python_version=version, python_full_version=version + ".0",
+             implementation_version=version + ".0", implementation_name="cpython",
+             platform_python_implementation="CPython", platform_machine=machine, platform_system="Linux",
+             sys_platform="linux", os_name="posix")
+markers.default_environment = lambda: dict(robot)
+sys.argv = ["pip", *sys.argv[3:]]
+runpy.run_module("pip", run_name="__main__", alter_sys=True)
+"""
 
 
 class WheelError(Exception):
@@ -50,8 +64,10 @@ def pip_command(
     version, machine = parse_platform(key)
     command = [
         python,
-        "-m",
-        "pip",
+        "-c",
+        _AS_ROBOT,
+        version,
+        machine,
         "download",
         "--disable-pip-version-check",
         "--no-input",
@@ -86,6 +102,9 @@ def build_wheelhouse(
     ``key``, from ``cache_dir``/``key`` when it holds them all, else
     downloaded there from the index (always, with ``refresh``).  WheelError
     (pip's last line) when a requirement has no wheel for that platform."""
+    version, _ = parse_platform(key)
+    if too_old(version):
+        raise WheelError(f"wheels for {key}: a robot's {too_old(version)}")
     directory = Path(cache_dir, key)
     directory.mkdir(parents=True, exist_ok=True)
     if not refresh and any(directory.glob("*.whl")):
@@ -106,7 +125,12 @@ def _download(requirements, key, directory: Path, python, index_url, offline: bo
         raise WheelError(f"wheels for {key}: pip download: {error}") from None
     if done.returncode:
         said = [line for line in done.stderr.splitlines() if line.strip() and not line.startswith("WARNING")]
-        raise WheelError(f"wheels for {key}: {said[-1].strip() if said else 'pip download failed'} (pip's log: {log})")
+        last = said[-1].strip() if said else "pip download failed"
+        missing = re.search(r"No matching distribution found for (\S+)", last)
+        if missing:
+            version, machine = parse_platform(key)
+            last = f"no wheel of {missing[1]} for CPython {version} on {machine} (robots install binary wheels only)"
+        raise WheelError(f"wheels for {key}: {last} (pip's log: {log})")
     names = _resolved(log, directory) or sorted(p.name for p in directory.glob("*.whl"))
     return [directory / name for name in sorted(names)]
 
@@ -127,8 +151,8 @@ def requirements_of(pyproject: bytes) -> list[str]:
     """The ``[project] dependencies`` of a pyproject.toml's bytes."""
     try:
         import tomllib
-    except ImportError:  # Python 3.10
-        raise WheelError("reading pyproject.toml needs Python 3.11 or later (tomllib)") from None
+    except ImportError:  # Python 3.10: the same parser, from its own package (pyproject.toml's dependencies)
+        import tomli as tomllib
     try:
         return list(tomllib.loads(pyproject.decode())["project"]["dependencies"])
     except (ValueError, KeyError, UnicodeDecodeError) as error:
