@@ -98,8 +98,15 @@ def found_in(data) -> list[tuple[str, str]]:
     holds it (``payload_environment.API_TOKEN``, ``docker_daemon_options.proxies.http-proxy``),
     in the data's order: the URL passwords, and the values of keys that name a secret."""
     found: list[tuple[str, str]] = []
+    # A container met again (a YAML alias) holds nothing new: walked once, however often it is
+    # referred to, so an alias bomb costs its size, not its expansion.
+    walked: set[int] = set()
 
     def walk(value, field: str, key: str = ""):
+        if isinstance(value, (dict, list, tuple, set, frozenset)):
+            if id(value) in walked:
+                return
+            walked.add(id(value))
         if isinstance(value, str):
             found.extend((field, password) for password in sorted(url_passwords(value)))
             if value and named_secret(key) and not is_path(value):
