@@ -214,9 +214,10 @@ class Repository:
         if taken:
             raise RepositoryError(f"{taken[0]}: already a target of the current release")
         for path, local in sorted(files.items()):
-            targets.signed.targets[path] = (
-                TargetFile.from_file(path, str(local), ["sha256"]) if path in elsewhere else self._store(path, Path(local))
-            )
+            if path in elsewhere:
+                targets.signed.targets[path] = TargetFile.from_file(path, str(local), ["sha256"])
+            else:
+                targets.signed.targets[path] = self._store(path, Path(local))
         self._publish_targets(targets, online_signer, expiry, now)
 
     def _publish_targets(
