@@ -46,13 +46,13 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from robotfleet.pull.operator import gitolite_admin
 from robotfleet.pull.protocol import report_shards
 
 RELEASES_BRANCH = "robotfleet/releases"
 REPORTS = "refs/reports"
 ENROLL_SUFFIX = "@enroll"
 SHARED = "enroll+"  # a shared image's enrollment user: enroll+<rule>+<prefix>
-ROBOTS_GROUP = "@robots"
 # gitolite user names (and so robot names in pull mode): what gitolite's own
 # USERNAME_PATT accepts, without '@' (ours marks a second key of a user).
 ROBOT_NAME = re.compile(r"[A-Za-z0-9][-0-9a-zA-Z._+]*\Z")
@@ -94,36 +94,35 @@ def shared_refex(user: str) -> str:
 
 
 def conf(repo: str, robots, admins=("admin",), shards: int = report_shards.SINGLE) -> str:
-    """gitolite.conf: the admin repository, and the fleet repository every
-    robot reads and writes only its own report ref of (a shared image's
-    enrollment user: any report ref its rule can name but a registered
-    robot's); with ``shards``, a block per report shard likewise, each
-    robot's rule in its own shard only."""
+    """The fleet's own conf file (conf/robotfleet/<repo>.conf, which
+    gitolite.conf includes: robotfleet/pull/operator/gitolite_admin.py): the
+    fleet repository every robot reads and writes only its own report ref of
+    (a shared image's enrollment user: any report ref its rule can name but a
+    registered robot's); with ``shards``, a block per report shard likewise,
+    each robot's rule in its own shard only."""
     admin = " ".join(admins)
-    lines = [
-        "# Written by robotfleet (robotfleet/pull/operator/gitolite.py); edits here are replaced.",
-        "repo gitolite-admin",
-        f"    RW+ = {admin}",
-        "",
-    ]
+    team = gitolite_admin.group(repo)
+    lines = [gitolite_admin.HEADER.format(repo=repo), ""]
     users = sorted({check_robot(r) for r in robots})
     shared = [u for u in users if u.startswith(SHARED)]
     robots = [u for u in users if not u.startswith(SHARED)]
     if users:
-        lines += [f"{ROBOTS_GROUP} = {' '.join(users)}", ""]
-    lines += _block(repo, admin, users, robots, shared)
+        lines += [f"{team} = {' '.join(users)}", ""]
+    lines += _block(repo, admin, team, users, robots, shared)
     by_shard = report_shards.spread(robots, shards) if shards else {}
     for shard in range(report_shards.check_count(shards)):
-        lines += [""] + _block(report_shards.shard_repo(repo, shard), admin, users, by_shard.get(shard, []), shared)
+        lines += [""] + _block(
+            report_shards.shard_repo(repo, shard), admin, team, users, by_shard.get(shard, []), shared
+        )
     return "\n".join(lines) + "\n"
 
 
-def _block(repo: str, admin: str, users: list[str], robots: list[str], shared: list[str]) -> list[str]:
-    """One repository's rules: the admin's, every robot reads, ``robots``
+def _block(repo: str, admin: str, team: str, users: list[str], robots: list[str], shared: list[str]) -> list[str]:
+    """One repository's rules: the admin's, every robot (``team``) reads, ``robots``
     write their own report refs, the shared users theirs but ``robots``'."""
     lines = [f"repo {repo}", f"    RW+ = {admin}"]
     if users:
-        lines.append(f"    R = {ROBOTS_GROUP}")
+        lines.append(f"    R = {team}")
         lines += [f"    RW+ {REPORTS}/{re.escape(robot)}$ = {robot}" for robot in robots]
     for user in shared:
         refex = re.compile(shared_refex(user))
@@ -134,11 +133,6 @@ def _block(repo: str, admin: str, users: list[str], robots: list[str], shared: l
 
 def key_file(robot: str, enrollment: bool = False) -> str:
     return f"keydir/{check_robot(robot)}{ENROLL_SUFFIX if enrollment else ''}.pub"
-
-
-def robots_in(keydir: Path) -> set[str]:
-    """Robot users with a key in ``keydir`` (the admin's own keys excluded by the caller)."""
-    return {p.name[:-4].split("@", 1)[0] for p in keydir.glob("*.pub")}
 
 
 @dataclass(frozen=True)
@@ -181,20 +175,32 @@ def update(
     shards: int = report_shards.SINGLE,
 ) -> bool:
     """Change the robots' keys on the server: ``add`` maps key files
-    (``key_file(...)``) to public keys, ``remove`` names key files; the
-    configuration is rewritten for the robots that then have a key.  False
-    when nothing changed."""
+    (``key_file(...)``) to public keys, ``remove`` names key files, both in
+    the fleet's own key directory; the fleet's conf file is rewritten for the
+    robots that then have a key there (robotfleet/pull/operator/gitolite_admin.py:
+    every other line and key of the admin repository stays as it was).
+    False when nothing changed; GitoliteError (one line) when the admin
+    repository's layout is not one robotfleet can add to safely."""
     with tempfile.TemporaryDirectory(prefix="robotfleet-gitolite-") as tmp:
         work = os.path.join(tmp, "admin")
         _git(admin, "clone", "-q", f"{admin.url}/gitolite-admin", work)
-        keydir = Path(work, "keydir")
-        keydir.mkdir(exist_ok=True)
-        for path, key in (add or {}).items():
-            Path(work, path).write_text(check_key(key, path) + "\n")
-        for path in remove or ():
-            Path(work, path).unlink(missing_ok=True)
-        robots = robots_in(keydir) - set(admin.admins)
-        Path(work, "conf", "gitolite.conf").write_text(conf(repo, robots, admin.admins, shards))
+        layout = gitolite_admin.Layout(work, repo)
+        try:
+            layout.check()
+            moved = layout.migrate(admin.admins) if layout.old() else []
+            if moved:
+                where = gitolite_admin.key_dir(repo)
+                message += f" (and the older layout's robots moved to {where}: {' '.join(moved)})"
+            layout.keys.mkdir(parents=True, exist_ok=True)
+            for path, key in (add or {}).items():
+                Path(layout.keys, _in_keydir(path)).write_text(check_key(key, path) + "\n")
+            for path in remove or ():
+                Path(layout.keys, _in_keydir(path)).unlink(missing_ok=True)
+            robots = layout.robots(admin.admins)
+            layout.check_users(robots)
+            layout.write(conf(repo, robots, admin.admins, shards))
+        except gitolite_admin.LayoutError as error:
+            raise GitoliteError(f"{admin.url}/gitolite-admin: {error}") from None
         _git(admin, "add", "-A", ".", cwd=work)
         if not _git(admin, "status", "--porcelain", cwd=work).strip():
             return False
@@ -212,6 +218,14 @@ def update(
         )
         _git(admin, "push", "-q", "origin", "HEAD:master", cwd=work)
     return True
+
+
+def _in_keydir(path: str) -> str:
+    """A ``key_file()`` name's file in the fleet's key directory."""
+    name = path.removeprefix("keydir/")
+    if "/" in name or not name.endswith(".pub"):
+        raise GitoliteError(f"{path}: not a key file of a robot (keydir/<robot>.pub)")
+    return name
 
 
 def register(
