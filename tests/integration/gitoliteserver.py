@@ -5,8 +5,10 @@ directory that is its HOME, behind paramiko's SSH server
 the user gitolite's authorized_keys names for it (``command="...
 gitolite-shell USER"``, re-read at each login, as sshd reads it), and each
 session runs that command with SSH_ORIGINAL_COMMAND, stderr included (where
-gitolite says DENIED), as sshd would.  Needs the gitolite3 package
-(.ci/setup installs it)."""
+gitolite says DENIED), as sshd would.  Set up as the lab's git server is
+(tests/lab/gitserver.py): its rc lets the fleet's rules set
+receive.maxInputSize, robotfleet's hooks (files/git-server/) are its common
+hooks.  Needs the gitolite3 package (.ci/setup installs it)."""
 
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ from pathlib import Path
 import paramiko
 
 from tests.integration import sshserver
+from tests.lab.gitserver import HOOK_FILES, RC_CONFIG_KEYS
 
 _ENTRY = re.compile(r'command="(?P<shell>[^"]+) (?P<user>[^" ]+)",\S+ (?P<type>\S+) (?P<key>\S+)')
 INSTALLED = shutil.which("gitolite") is not None
@@ -96,6 +99,10 @@ class GitoliteServer(sshserver.Listener):
         admin_pub = self.base / "admin.pub"  # gitolite names the user by the file
         admin_pub.write_text(Path(f"{admin_key}.pub").read_text())
         self.gitolite("setup", "-pk", str(admin_pub))
+        subprocess.run(["sh", "-c", RC_CONFIG_KEYS], env=dict(os.environ, HOME=str(self.home)), check=True)
+        for hook, path in HOOK_FILES.items():
+            shutil.copy(path, self.home / ".gitolite" / "hooks" / "common" / hook)
+        self.gitolite("setup", "--hooks-only")
         host_key = self.base / "ssh_host_ed25519_key"
         subprocess.run(["ssh-keygen", "-q", "-t", "ed25519", "-N", "", "-f", str(host_key)], check=True)
         super().__init__(host_key=paramiko.Ed25519Key.from_private_key_file(str(host_key)))

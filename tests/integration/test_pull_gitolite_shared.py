@@ -13,6 +13,8 @@ still enrolled."""
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 from pathlib import Path
 
@@ -235,3 +237,81 @@ def test_an_older_robotfleet_s_layout_is_moved_with_its_robots_still_enrolled(sh
     assert "older layout's robots moved to keydir/robotfleet/fleet: robot1" in message, message
     for robot in ("robot1", "robot2"):
         assert shared.reads(robot, "fleet") and shared.pushes(robot, "fleet", f"refs/reports/{robot}"), robot
+
+
+def test_a_server_whose_rc_lets_no_rule_set_a_push_s_size_refuses_the_change_and_undoes_it(shared):
+    rc = shared.server.home / ".gitolite.rc"
+    text = rc.read_text()
+    rc.write_text(text.replace("'receive.maxInputSize'", "''"))  # gitolite's default: no git config from rules
+    try:
+        with pytest.raises(gitolite.GitoliteError) as error:
+            shared.enroll("robot1")
+        line = str(error.value)
+        assert "\n" not in line and "GIT_CONFIG_KEYS" in line and "(undone)" in line, line
+        assert shared.admin_files() == shared.files  # the admin repository as it was
+        assert shared.pushes("alice", "team-app", "refs/heads/main")  # gitolite's rules still compiled
+    finally:
+        rc.write_text(text)
+
+
+# -- what the server takes from a robot: files/git-server/pre-receive, receive.maxInputSize --
+
+
+def robot(shared, name: str, shards: int):
+    """The pull agent's own transport (robotfleet/pull/robot/transport.py) as robot ``name``."""
+    from robotfleet.pull.robot.transport import Remote
+
+    etc = shared.base / f"etc-{name}"
+    etc.mkdir(exist_ok=True)
+    for suffix in ("", ".pub"):
+        (etc / f"id_ed25519{suffix}").write_bytes(Path(f"{shared.keys[name]}{suffix}").read_bytes())
+    (etc / "id_ed25519").chmod(0o600)
+    key = shared.server.host_key
+    (etc / "known_hosts").write_text(f"robotfleet-remote {key.get_name()} {key.get_base64()}\n")
+    return Remote(f"{shared.server.url}/fleet", shared.base / f"releases-{name}", str(etc), 60, shards=shards)
+
+
+def server_report(shared, repo: str, name: str) -> str:
+    done = subprocess.run(
+        ["git", "-C", str(shared.server.repository(repo)), "show", f"refs/reports/{name}:report.json"],
+        capture_output=True,
+        text=True,
+    )
+    return done.stdout
+
+
+def test_a_robot_s_oversized_or_misshapen_report_is_refused_where_it_arrives(shared):
+    from robotfleet.pull.protocol import reports
+    from robotfleet.pull.robot.transport import TransportError
+
+    assert shared.enroll("robot1", shards=2) and shared.enroll("robot2", shards=2)
+    assert shared.pushes("admin", "fleet", "refs/heads/robotfleet/releases")  # a fleet repository: it has releases
+    for repo, size in (("fleet", "1g"), ("fleet-reports-0", "1m"), ("fleet-reports-1", "1m")):
+        config = ["git", "-C", str(shared.server.repository(repo)), "config", "receive.maxInputSize"]
+        assert subprocess.run(config, capture_output=True, text=True).stdout.strip() == size, repo
+    small = {"robot": "robot1", "result": "applied"}
+    one, two = robot(shared, "robot1", 0), robot(shared, "robot2", 2)
+    one.push_report("robot1", reports.to_bytes(small))
+    two.push_report("robot2", reports.to_bytes({**small, "robot": "robot2"}))
+    # 20 MiB that compress to almost nothing (no receive.maxInputSize stops them): the hook does
+    with pytest.raises(TransportError) as error:
+        one.push_report("robot1", reports.to_bytes({**small, "log": " " * (20 << 20)}))
+    assert "robotfleet: refs/reports/robot1: report.json of 20971" in str(error.value), error.value
+    # 2 MiB that do not compress: its shard cuts the push off as it arrives
+    with pytest.raises(TransportError) as error:
+        two.push_report("robot2", reports.to_bytes({**small, "robot": "robot2", "log": os.urandom(1 << 20).hex()}))
+    assert "pack exceeds maximum allowed size" in str(error.value), error.value
+    # misshapen: a report with a parent, a tree of two files
+    work = shared.base / "push-robot1"
+    (work / "extra.txt").write_text("more\n")
+    assert shared.git("robot1", "add", "extra.txt", cwd=work).returncode == 0
+    assert shared.git("robot1", "commit", "-qm", "two files", cwd=work).returncode == 0
+    said = shared.git("robot1", "push", "-f", f"{shared.server.url}/fleet", "HEAD:refs/reports/robot1", cwd=work)
+    assert "robotfleet: refs/reports/robot1: a commit with a parent" in said.stderr, said.stderr
+    tree = shared.git("robot1", "write-tree", cwd=work).stdout.strip()
+    lone = shared.git("robot1", "commit-tree", tree, "-m", "two files, no parent", cwd=work).stdout.strip()
+    said = shared.git("robot1", "push", "-f", f"{shared.server.url}/fleet", f"{lone}:refs/reports/robot1", cwd=work)
+    assert "its tree is not one report.json file" in said.stderr, said.stderr
+    # every reader still finds each robot's last report the server took, and only it
+    assert json.loads(server_report(shared, "fleet", "robot1")) == small
+    assert json.loads(server_report(shared, "fleet-reports-1", "robot2")) == {**small, "robot": "robot2"}

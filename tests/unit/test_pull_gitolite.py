@@ -36,7 +36,7 @@ def test_a_robot_name_is_matched_literally_not_as_a_pattern():
 def test_no_robots_no_robot_rules():
     text = gitolite.conf("fleet", [])
     assert "@robotfleet" not in text and "refs/reports" not in text
-    assert "repo fleet\n    RW+ = admin\n" in text
+    assert "repo fleet\n    config receive.maxInputSize = 1g\n    RW+ = admin\n" in text
 
 
 @pytest.mark.parametrize("name", ["", "-x", "a/b", "robot 1", "a@enroll", "a\nb", 7])
@@ -46,12 +46,12 @@ def test_names_gitolite_cannot_take_are_refused(name):
 
 
 def blocks(text: str) -> dict[str, list[str]]:
-    """repo -> its rule lines, from gitolite.conf."""
+    """repo -> its rule lines (not its git config lines), from gitolite.conf."""
     found: dict[str, list[str]] = {}
     for line in text.splitlines():
         if line.startswith("repo "):
             current = found.setdefault(line.split()[1], [])
-        elif line.startswith("    "):
+        elif line.startswith("    ") and not line.startswith("    config "):
             current.append(line.strip())
     return found
 

@@ -58,6 +58,13 @@ SHARED = "enroll+"  # a shared image's enrollment user: enroll+<rule>+<prefix>
 ROBOT_NAME = re.compile(r"[A-Za-z0-9][-0-9a-zA-Z._+]*\Z")
 KEY_LINE = re.compile(r"(ssh-ed25519|ssh-rsa|ecdsa-sha2-nistp(256|384|521)) [A-Za-z0-9+/=]+( .*)?\Z")
 GIT_TIMEOUT = 60
+IDENTITY = ("-c", "user.name=robotfleet", "-c", "user.email=robotfleet@localhost")
+# What one push may bring (git's receive.maxInputSize), each repository's
+# through gitolite's rules: a push larger is cut off as it arrives.  The
+# fleet repository takes the operator's releases (code and wheels); a shard
+# only reports, each at most 256 KiB (files/git-server/pre-receive refuses
+# any other shape of report, in both).
+MAX_INPUT = {"fleet": "1g", "shard": "1m"}
 
 
 class GitoliteError(Exception):
@@ -108,19 +115,28 @@ def conf(repo: str, robots, admins=("admin",), shards: int = report_shards.SINGL
     robots = [u for u in users if not u.startswith(SHARED)]
     if users:
         lines += [f"{team} = {' '.join(users)}", ""]
-    lines += _block(repo, admin, team, users, robots, shared)
+    lines += _block(repo, admin, team, users, robots, shared, MAX_INPUT["fleet"])
     by_shard = report_shards.spread(robots, shards) if shards else {}
     for shard in range(report_shards.check_count(shards)):
         lines += [""] + _block(
-            report_shards.shard_repo(repo, shard), admin, team, users, by_shard.get(shard, []), shared
+            report_shards.shard_repo(repo, shard),
+            admin,
+            team,
+            users,
+            by_shard.get(shard, []),
+            shared,
+            MAX_INPUT["shard"],
         )
     return "\n".join(lines) + "\n"
 
 
-def _block(repo: str, admin: str, team: str, users: list[str], robots: list[str], shared: list[str]) -> list[str]:
+def _block(
+    repo: str, admin: str, team: str, users: list[str], robots: list[str], shared: list[str], max_input: str
+) -> list[str]:
     """One repository's rules: the admin's, every robot (``team``) reads, ``robots``
-    write their own report refs, the shared users theirs but ``robots``'."""
-    lines = [f"repo {repo}", f"    RW+ = {admin}"]
+    write their own report refs, the shared users theirs but ``robots``'; at
+    most ``max_input`` a push."""
+    lines = [f"repo {repo}", f"    config receive.maxInputSize = {max_input}", f"    RW+ = {admin}"]
     if users:
         lines.append(f"    R = {team}")
         lines += [f"    RW+ {REPORTS}/{re.escape(robot)}$ = {robot}" for robot in robots]
@@ -153,7 +169,7 @@ class Admin:
         return dict(os.environ, GIT_SSH_COMMAND=ssh, GIT_TERMINAL_PROMPT="0")
 
 
-def _git(admin: Admin, *args: str, cwd: str | None = None) -> str:
+def _git(admin: Admin, *args: str, cwd: str | None = None, said: list | None = None) -> str:
     try:
         done = subprocess.run(
             ["git", *args], cwd=cwd, env=admin.env(), capture_output=True, text=True, timeout=GIT_TIMEOUT
@@ -163,6 +179,8 @@ def _git(admin: Admin, *args: str, cwd: str | None = None) -> str:
     if done.returncode != 0:
         lines = [line for line in done.stderr.splitlines() if line.strip()]
         raise GitoliteError(f"git {args[0]} to {admin.url}: {lines[-1] if lines else f'exit {done.returncode}'}")
+    if said is not None:
+        said += done.stderr.splitlines()
     return done.stdout
 
 
@@ -204,19 +222,20 @@ def update(
         _git(admin, "add", "-A", ".", cwd=work)
         if not _git(admin, "status", "--porcelain", cwd=work).strip():
             return False
-        _git(
-            admin,
-            "-c",
-            "user.name=robotfleet",
-            "-c",
-            "user.email=robotfleet@localhost",
-            "commit",
-            "-q",
-            "-m",
-            message,
-            cwd=work,
-        )
-        _git(admin, "push", "-q", "origin", "HEAD:master", cwd=work)
+        _git(admin, *IDENTITY, "commit", "-q", "-m", message, cwd=work)
+        said: list[str] = []
+        _git(admin, "push", "-q", "origin", "HEAD:master", cwd=work, said=said)
+        fatal = [line.split("FATAL:", 1)[1].strip() for line in said if "FATAL:" in line]
+        if fatal:  # pushed, but gitolite could not compile it (its rules stay the last ones it did): undone
+            _git(admin, *IDENTITY, "revert", "--no-edit", "HEAD", cwd=work)
+            _git(admin, "push", "-q", "origin", "HEAD:master", cwd=work)
+            hint = (
+                "; let robotfleet's rules set it: add receive.maxInputSize to GIT_CONFIG_KEYS in the "
+                "server's ~/.gitolite.rc (docs/guides/pull.md)"
+                if "receive.maxInputSize" in fatal[0]
+                else ""
+            )
+            raise GitoliteError(f"{admin.url}/gitolite-admin: gitolite refused the change (undone): {fatal[0]}{hint}")
     return True
 
 
