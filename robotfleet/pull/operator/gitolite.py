@@ -10,10 +10,15 @@ and unescaped: robot ``r.1`` could then write the report of ``rx1``.)  Keep
 the deploy repository (its history, other branches) out of this one: a
 robot can read all of it.
 
-A robot's gitolite user is its name: ``keydir/<robot>.pub`` is its own key,
-``keydir/<robot>@enroll.pub`` the single-use enrollment key of a first-boot
+A robot's gitolite user is its name: ``<robot>.pub`` is its own key,
+``<robot>@enroll.pub`` the single-use enrollment key of a first-boot
 bundle (gitolite reads ``name@anything.pub`` as user ``name``); the operator
-removes the second once the robot's own key is registered.
+removes the second once the robot's own key is registered.  Both live in
+the fleet's own key directory, ``keydir/robotfleet/<repo>/``, and the rules
+in the fleet's own conf file: on a server that serves a team's other
+repositories nothing else of the admin repository is touched
+(robotfleet/pull/operator/gitolite_admin.py).  ``key_file()`` names a key
+as ``keydir/<file>``; ``update()`` puts it in the fleet's directory.
 
 A bundle for an image shared by many robots (``robotfleet bundle
 --name-from``) carries one enrollment key for all of them, gitolite user
