@@ -167,7 +167,7 @@ SETTINGS = (
         None,
         c.optional(v.private_path),
         "Where releases on removable media or a LAN share are mounted (robotfleet export; e.g. /mnt/fleet-media): "
-        "looked at each check, the release comes from there when it holds one; null: never.",
+        "looked at each check, the newer signed release of it and the fleet remote is taken; null: never.",
     ),
     Setting(
         "pull_trust_root",

@@ -159,6 +159,15 @@ def pull(lab, first_run, tmp_path_factory):
     )
 
 
+# A commit shaped as a robot's report, "$c", made in the robot's releases repository (the server's
+# pre-receive hook refuses a report of any other shape); a str.format template, its braces doubled.
+REPORT_COMMIT = (
+    "cd /var/lib/robot-pull/releases && b=$(printf '{{}}\\n' | git hash-object -w --stdin) && "
+    "t=$(printf '100644 blob %s\\treport.json\\n' \"$b\" | git mktree) && c=$(GIT_AUTHOR_NAME=x "
+    'GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x GIT_COMMITTER_EMAIL=x@x git commit-tree "$t" -m report) && '
+)
+
+
 def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
     reports = pull.reports()  # each robot wrote its own
     for robot in ROBOTS:  # release 1 applied (a later check of its timer says up-to-date)
@@ -166,12 +175,12 @@ def test_a_robot_s_key_writes_only_its_own_report(pull, lab):
         assert reports[robot]["applied"]["version"] == 1, reports[robot]
     from tests.lab import gitserver
 
-    # a commit the remote does not have yet (an up-to-date push would not be judged)
-    push = (
-        "cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
-        "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m forged) && "
-        f'{ROBOT_GIT_SSH}git push --force {gitserver.robot_url(pull.op.git)} "$c:{{ref}}" 2>&1'
-    )
+    # a commit the remote does not have yet (an up-to-date push would not be judged), shaped as a report:
+    # the server's pre-receive hook refuses any other shape (one with a parent, first: the lab's hook, for real)
+    push = REPORT_COMMIT + f'{ROBOT_GIT_SSH}git push --force {gitserver.robot_url(pull.op.git)} "$c:{{ref}}" 2>&1'
+    with_parent = push.replace(" -m report)", " -m report -p HEAD)")
+    code, output = lab.sh("robot1", with_parent.format(ref="refs/reports/robot1"))
+    assert code != 0 and "refs/reports/robot1: a commit with a parent" in output, output
     for ref in ("refs/reports/robot2", "refs/heads/robotfleet/releases"):
         code, output = lab.sh("robot1", push.format(ref=ref))
         assert code != 0 and "DENIED" in output, (ref, output)
@@ -199,9 +208,7 @@ def test_a_shared_image_s_key_reports_only_as_a_name_its_rule_makes_and_no_enrol
         gitolite.key_file(enrolled): lab.sh("robot1", "cat /tmp/other.pub")[1],
     }
     gitolite.update(admin, git["repo"], add=keys, message="e2e: a shared image's key, an enrolled robot-<hex>")
-    push = (
-        "cd /var/lib/robot-pull/releases && c=$(GIT_AUTHOR_NAME=x GIT_AUTHOR_EMAIL=x@x GIT_COMMITTER_NAME=x "
-        "GIT_COMMITTER_EMAIL=x@x git commit-tree 'HEAD^{{tree}}' -p HEAD -m shared) && "
+    push = REPORT_COMMIT + (
         "GIT_SSH_COMMAND='ssh -F /dev/null -i /tmp/shared -o IdentitiesOnly=yes "
         "-o UserKnownHostsFile=/etc/robot-pull/known_hosts -o HostKeyAlias=robotfleet-remote' "
         f'git push --force {gitserver.robot_url(git)} "$c:{{ref}}" 2>&1'

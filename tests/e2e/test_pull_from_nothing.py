@@ -348,6 +348,7 @@ def test_the_guide_s_git_server_is_made_by_its_own_commands_and_robotfleet_runs_
     assert read.returncode == 0, read.stderr  # the robot's key reads the fleet's releases
     conf = server.root(
         "sudo -u gitolite3 -H git -C /var/lib/gitolite3/repositories/gitolite-admin.git show HEAD:conf/gitolite.conf"
+        " HEAD:conf/robotfleet/fleet.conf"
     )
     assert "RW+ = admin" in conf and "robot1" in conf, conf  # the admin kept, the robot's rule added
     phase("pull guide: a robot registered by robotfleet", started)

@@ -266,9 +266,9 @@ class MediaWorld(World):
         )
         usb = repository.Repository(self.usb)
         self.fleet.repository.extend(
-            {media.NAME: self.base / media.NAME, name: local}, signer, self.fleet.expiry, NOW, elsewhere={name: usb}
+            {media.NAME: self.base / media.NAME, name: local}, signer, self.fleet.expiry, NOW, elsewhere={name}
         )
-        exporting.copy_out(self.fleet.repository, usb)
+        exporting.copy_out(self.fleet.repository, usb, {name: local})
         self.digest, self.image, self.archive = digest, image, name
         return built
 

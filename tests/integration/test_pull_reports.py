@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import os
 import subprocess
 from types import SimpleNamespace
 
@@ -304,3 +305,20 @@ def test_the_lab_s_git_server_refuses_a_push_holding_a_malformed_object(fleet):
         craftedgit.push_report_entry(bare, work, "robot4", f"040000 tree {tree}\tcrafted")
     assert b"hasDotgit" in refused.value.stderr, refused.value.stderr
     assert "refs/reports/robot4" not in craftedgit.git(bare, "for-each-ref")
+
+
+def test_where_the_server_allows_a_filter_the_operator_never_downloads_a_report_over_the_cap(fleet, tmp_path):
+    bare, work = fleet
+    subprocess.run(["git", "-C", str(bare), "config", "uploadpack.allowFilter", "true"], check=True)
+    huge = craftedgit.blob(work, os.urandom(4 * 1024 * 1024))  # does not compress: the download would show
+    craftedgit.push_report_entry(bare, work, "robot1", f"100644 blob {huge}\treport.json")
+    cache = tmp_path / "cache"
+
+    def stored() -> int:
+        return sum(p.stat().st_size for p in (cache / "objects").rglob("*") if p.is_file())
+
+    for _ in range(2):  # a second read neither fetches the blob after all (no lazy fetch) nor fails
+        found = report_store.fetch_every(f"file://{bare}", 0, cache)
+        assert found["robot1"] == {"robot": "robot1", "error": "report of robot1: report.json: missing"}
+        assert found["robot2"]["result"] == "failed" and found["robot3"]["result"] == "applied"
+        assert stored() < 1024 * 1024, stored()

@@ -53,18 +53,25 @@ RUN sh /tmp/install.sh && rm /tmp/install.sh
 # Its git's settings, for every repository it serves: a push holding an
 # object git's fsck finds malformed is refused whole (docs/guides/pull.md).
 GIT_CONFIG = {"receive.fsckObjects": "true"}
-# robotfleet's post-receive hook, the read copy of sharded reports (docs/guides/pull.md,
-# "The reports' read copy"), as a fleet's git server has it: in gitolite's
-# common hooks, linked into every repository.
-REPORT_COPY_HOOK = robotfleet.CHECKOUT / "files" / "git-server" / "post-receive"
-HOOK_IN_CONTAINER = "/etc/robot-lab/post-receive"
-# Run as the gitolite user once the admin key and the hook are in place:
+# robotfleet's hooks, as a fleet's git server has them: in gitolite's common
+# hooks, linked into every repository.  post-receive: the read copy of
+# sharded reports (docs/guides/pull.md, "The reports' read copy");
+# pre-receive: a report that is not one report.json of at most 256 KiB is
+# refused ("What the git server takes from a robot").
+HOOKS = ("post-receive", "pre-receive")
+HOOK_FILES = {hook: robotfleet.CHECKOUT / "files" / "git-server" / hook for hook in HOOKS}
+HOOKS_IN_CONTAINER = "/etc/robot-lab"
+# gitolite's rc lets the fleet's rules set receive.maxInputSize per repository
+# (robotfleet/pull/operator/gitolite.py MAX_INPUT); its default lets no git config through.
+RC_CONFIG_KEYS = 'sed -i "/^ *GIT_CONFIG_KEYS/s/=>.*/=> \'receive.maxInputSize\',/" "$HOME/.gitolite.rc"'
+# Run as the gitolite user once the admin key and the hooks are in place:
 # idempotent (a second run replaces the admin key and keeps every repository).
 SETUP = " && ".join(
     [
         *(f"git config --file {HOME}/.gitconfig {key} {value}" for key, value in GIT_CONFIG.items()),
         f"cd {HOME} && gitolite setup -pk {ADMIN_KEY_IN_CONTAINER}",
-        f"install -m 0755 {HOOK_IN_CONTAINER} {HOME}/.gitolite/hooks/common/post-receive",
+        f"HOME={HOME} {RC_CONFIG_KEYS}",
+        *(f"install -m 0755 {HOOKS_IN_CONTAINER}/{hook} {HOME}/.gitolite/hooks/common/{hook}" for hook in HOOKS),
         "gitolite setup --hooks-only",
     ]
 )
@@ -156,7 +163,8 @@ def ensure(dc: docker.DockerClient, prefix: str, key_path: Path) -> dict:
     with timed_phase("git server (gitolite3)"):
         keys = sshd.wait_for_host_keys(container, READY_TIMEOUT_S)
         put_files(container, {ADMIN_KEY_IN_CONTAINER: key_path.with_suffix(".pub").read_text()})
-        put_files(container, {HOOK_IN_CONTAINER: REPORT_COPY_HOOK.read_text()}, mode=0o755)
+        hooks = {f"{HOOKS_IN_CONTAINER}/{hook}": path.read_text() for hook, path in HOOK_FILES.items()}
+        put_files(container, hooks, mode=0o755)
         code, out = container.exec_run(["su", "-s", "/bin/sh", USER, "-c", SETUP])
         if code != 0:
             raise LabError(f"{name}: gitolite setup failed: {out.decode(errors='replace').strip()[-300:]}")

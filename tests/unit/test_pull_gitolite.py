@@ -11,14 +11,13 @@ KEY = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBY
 
 def test_each_robot_may_write_only_its_own_report_ref():
     text = gitolite.conf("fleet", ["robot2", "robot1"])
-    assert "@robots = robot1 robot2" in text
-    assert "    R = @robots" in text
+    assert "@robotfleet-fleet = robot1 robot2" in text  # the fleet's own group, never a team's @robots
+    assert "    R = @robotfleet-fleet" in text
     assert "    RW+ refs/reports/robot1$ = robot1" in text
     assert "    RW+ refs/reports/robot2$ = robot2" in text
     # robots get no other write rule: the releases branch is the admin's alone
     writes = [line for line in text.splitlines() if line.strip().startswith("RW")]
-    assert writes == [
-        "    RW+ = admin",
+    assert writes == [  # the fleet's file only: gitolite-admin's rules stay the admin's, in gitolite.conf
         "    RW+ = admin",
         "    RW+ refs/reports/robot1$ = robot1",
         "    RW+ refs/reports/robot2$ = robot2",
@@ -36,8 +35,8 @@ def test_a_robot_name_is_matched_literally_not_as_a_pattern():
 
 def test_no_robots_no_robot_rules():
     text = gitolite.conf("fleet", [])
-    assert "@robots" not in text and "refs/reports" not in text
-    assert "repo fleet\n    RW+ = admin\n" in text
+    assert "@robotfleet" not in text and "refs/reports" not in text
+    assert "repo fleet\n    config receive.maxInputSize = 1g\n    RW+ = admin\n" in text
 
 
 @pytest.mark.parametrize("name", ["", "-x", "a/b", "robot 1", "a@enroll", "a\nb", 7])
@@ -47,12 +46,12 @@ def test_names_gitolite_cannot_take_are_refused(name):
 
 
 def blocks(text: str) -> dict[str, list[str]]:
-    """repo -> its rule lines, from gitolite.conf."""
+    """repo -> its rule lines (not its git config lines), from gitolite.conf."""
     found: dict[str, list[str]] = {}
     for line in text.splitlines():
         if line.startswith("repo "):
             current = found.setdefault(line.split()[1], [])
-        elif line.startswith("    "):
+        elif line.startswith("    ") and not line.startswith("    config "):
             current.append(line.strip())
     return found
 
@@ -68,7 +67,6 @@ def test_with_shards_each_robot_writes_its_own_ref_in_its_own_shard_only():
         "fleet-reports-1",
         "fleet-reports-2",
         "fleet-reports-3",
-        "gitolite-admin",
     ]
     for robot in robots:
         own = f"RW+ refs/reports/{robot}$ = {robot}"
@@ -78,7 +76,7 @@ def test_with_shards_each_robot_writes_its_own_ref_in_its_own_shard_only():
     spread = report_shards.spread(robots, 4)
     for shard in range(4):
         lines = rules[f"fleet-reports-{shard}"]
-        assert lines[:2] == ["RW+ = admin", "R = @robots"], shard  # every robot reads every shard
+        assert lines[:2] == ["RW+ = admin", "R = @robotfleet-fleet"], shard  # every robot reads every shard
         # and nothing else is written there but the shard's robots' own report refs
         assert lines[2:] == [f"RW+ refs/reports/{robot}$ = {robot}" for robot in spread[shard]], shard
 
@@ -110,10 +108,15 @@ def test_key_files_of_own_and_enrollment_keys():
     assert gitolite.key_file("robot1", enrollment=True) == "keydir/robot1@enroll.pub"
 
 
-def test_robots_are_read_back_from_the_key_directory(tmp_path):
+def test_robots_are_read_back_from_the_fleet_s_own_key_directory(tmp_path):
+    from robotfleet.pull.operator import gitolite_admin
+
+    layout = gitolite_admin.Layout(tmp_path, "fleet")
+    layout.keys.mkdir(parents=True)
     for name in ("robot1.pub", "robot1@enroll.pub", "robot2@enroll.pub", "admin.pub", "notes.txt"):
-        (tmp_path / name).write_text(KEY)
-    assert gitolite.robots_in(tmp_path) == {"robot1", "robot2", "admin"}
+        (layout.keys / name).write_text(KEY)
+    (tmp_path / "keydir" / "alice.pub").write_text(KEY)  # a colleague's key: never a robot
+    assert layout.robots(("admin",)) == {"robot1", "robot2"}
 
 
 def test_a_public_key_is_one_line_without_its_comment():

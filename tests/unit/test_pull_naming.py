@@ -68,7 +68,7 @@ def test_a_shared_enrollment_key_writes_only_reports_of_names_its_rule_makes_and
     user = gitolite.shared_user("machine-id", "robot-")
     assert user == "enroll+machine-id+robot-"
     text = gitolite.conf("fleet", ["robot1", "robot-0123456789ab", user])
-    assert "@robots = enroll+machine-id+robot- robot-0123456789ab robot1" in text  # it reads the releases
+    assert "@robotfleet-fleet = enroll+machine-id+robot- robot-0123456789ab robot1" in text  # it reads the releases
     rules = [line.split() for line in text.splitlines() if line.strip().endswith(f"= {user}")]
     # gitolite takes the first rule matching a ref: the enrolled robot's deny comes first
     assert [r[0] for r in rules] == ["-", "RW+"]

@@ -22,8 +22,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from robotfleet import atomicfile
 from robotfleet.pull.operator import publishing
+from robotfleet.pull.operator.medium import METADATA_NAME, Medium, MediumError
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError, blob_name
 from robotfleet.pull.protocol import media, platforms
 from robotfleet.role import pull_part
@@ -73,26 +73,40 @@ def archives(record, hosts: dict, roles, work: Path) -> tuple[dict, dict[str, Pa
     return index, files
 
 
-def copy_out(repository: Repository, out: Repository) -> None:
-    """Every file of ``repository``'s current release into ``out`` (blobs
-    checked against what was signed), the metadata after them and the
-    timestamp last; what ``out`` held of older exports is pruned."""
+def copy_out(repository: Repository, medium, extra: dict[str, Path] | None = None) -> None:
+    """Every file of ``repository``'s current release into ``medium`` (a
+    directory, or a Medium already open: robotfleet/pull/operator/medium.py,
+    no link under it followed, only the names an export writes replaced or
+    deleted), each blob checked against what was signed (one already there
+    is kept only when its bytes are the signed ones), the metadata after
+    them and the timestamp last; what the medium held of older exports is
+    pruned.  ``extra``: target path -> local file, for the blobs stored
+    nowhere else (an export's image archives)."""
+    if not isinstance(medium, Medium):
+        with Medium(getattr(medium, "path", medium)) as out:
+            return copy_out(repository, out, extra)
+    extra = extra or {}
+    kept = set()
     for path, info in repository.targets().signed.targets.items():
-        stored = blob_name(path, info.hashes["sha256"])
-        if (out.targets_dir / stored).is_file():
+        stored = f"targets/{blob_name(path, info.hashes['sha256'])}"
+        kept.add(stored)
+        if medium.has(stored, info.length, info.hashes["sha256"]):
             continue
-        source = repository.targets_dir / stored
-        if not source.is_file():
-            raise ExportError(f"{source}: missing from the repository")
-        out._store(path, source)
-    out.metadata.mkdir(parents=True, exist_ok=True)
-    names = sorted(p.name for p in repository.metadata.iterdir() if p.is_file() and p.name != "timestamp.json")
+        source = Path(extra[path]) if path in extra else repository.targets_dir / stored.removeprefix("targets/")
+        try:
+            with open(source, "rb") as handle:
+                medium.write(stored, handle, info.length, info.hashes["sha256"])
+        except FileNotFoundError:
+            raise ExportError(f"{source}: missing from the repository") from None
+    names = sorted(
+        p.name
+        for p in repository.metadata.iterdir()
+        if p.is_file() and METADATA_NAME.match(p.name) and p.name != "timestamp.json"
+    )
     for name in names + ["timestamp.json"]:
-        atomicfile.write(out.metadata / name, (repository.metadata / name).read_bytes(), mode=0o644)
-    out._prune()
-    for stale in sorted(out.metadata.iterdir()):
-        if stale.is_file() and stale.name not in names + ["timestamp.json"]:
-            stale.unlink()
+        medium.write(f"metadata/{name}", (repository.metadata / name).read_bytes())
+    medium.prune("targets", kept)
+    medium.prune("metadata", {f"metadata/{name}" for name in names + ["timestamp.json"]})
 
 
 def export(
@@ -119,6 +133,11 @@ def export(
     if medium.resolve() == repository.path.resolve():
         raise ExportError(f"{medium}: the media directory is the published repository itself")
     try:
+        with Medium(medium):  # refused before anything is read, signed or written
+            pass
+    except MediumError as error:
+        raise ExportError(str(error)) from None
+    try:
         fleet, _ = publishing.read_fleet(checkout, record.commit, record.fleet["path"], registry)
     except publishing.PublishError as error:
         raise ExportError(str(error).splitlines()[-1]) from None
@@ -128,7 +147,6 @@ def export(
     hosts = dict(publishing.pull_hosts(fleet, registry))
     index, files = archives(record, hosts, roles, work)
     (work / media.NAME).write_bytes(media.build(record.version, index))
-    out = Repository(medium)
     current = repository.targets().signed.targets
     old = [path for path in current if path == media.NAME or path.startswith("images/")]
     try:  # an earlier export of this release: its index and archives are replaced
@@ -137,10 +155,13 @@ def export(
             signer,
             expiry,
             now,
-            elsewhere={path: out for path in files},
+            elsewhere=set(files),
             replacing=old,
         )
     except RepositoryError as error:
         raise ExportError(str(error)) from None
-    copy_out(repository, out)
+    try:
+        copy_out(repository, medium, files)
+    except MediumError as error:
+        raise ExportError(str(error)) from None
     return Exported(record.version, len(files), sum(os.path.getsize(f) for f in files.values()), len(record.robots))

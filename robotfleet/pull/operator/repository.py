@@ -202,11 +202,11 @@ class Repository:
         """The current release with more targets (``files``: target path ->
         local file; a release on media adds its image index and archives):
         the same record, targets, snapshot and timestamp at their next
-        versions.  Files whose path is in ``elsewhere`` (a dict: path ->
-        Repository) are signed but stored in that repository instead (image
-        archives live on the media, never on the releases branch); targets
-        in ``replacing`` (an earlier export's) are dropped first."""
-        elsewhere = elsewhere or {}
+        versions.  Files whose path is in ``elsewhere`` are signed but not
+        stored here (image archives live on the media, never on the releases
+        branch: robotfleet/pull/operator/export.py copies them there);
+        targets in ``replacing`` (an earlier export's) are dropped first."""
+        elsewhere = set(elsewhere or ())
         targets = self.targets()
         for path in replacing:
             targets.signed.targets.pop(path, None)
@@ -214,7 +214,10 @@ class Repository:
         if taken:
             raise RepositoryError(f"{taken[0]}: already a target of the current release")
         for path, local in sorted(files.items()):
-            targets.signed.targets[path] = (elsewhere[path] if path in elsewhere else self)._store(path, Path(local))
+            if path in elsewhere:
+                targets.signed.targets[path] = TargetFile.from_file(path, str(local), ["sha256"])
+            else:
+                targets.signed.targets[path] = self._store(path, Path(local))
         self._publish_targets(targets, online_signer, expiry, now)
 
     def _publish_targets(

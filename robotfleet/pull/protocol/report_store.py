@@ -17,7 +17,9 @@ two when both have one."""
 
 from __future__ import annotations
 
+import functools
 import os
+import re
 import subprocess
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -41,11 +43,51 @@ def fetch_all(url: str, cache: Path, timeout: int = 300) -> None:
         "--quiet",
         "--no-tags",
         "--prune",
+        *filter_args(url),
         url,
         "+refs/reports/*:refs/reports/*",
         COPY_SPEC,
         timeout=timeout,
     )
+    unpromise(cache, url)
+
+
+def filter_args(url: str) -> list[str]:
+    """A fetch's blob size filter: where the server allows it
+    (``uploadpack.allowFilter``), no blob over the cap is downloaded (its
+    report reads as missing); elsewhere git warns and fetches it all, and
+    the cap applies as it is read.  Over SSH and local repositories only,
+    with a git known to take a filter into a repository that is no partial
+    clone (2.39): over a static HTTPS mirror (git's "dumb" protocol) a
+    filtered fetch asks again for each object it left out, without end."""
+    if not url.startswith(("ssh://", "file://", "/")) and not _SCP_LIKE.match(url):
+        return []
+    return [f"--filter=blob:limit={MAX_BYTES + 1}"] if _git_version() >= (2, 39) else []
+
+
+def unpromise(repo: Path, url: str) -> None:
+    """Forget what a filtered fetch from ``url`` wrote (the remote as a
+    promisor): reading a blob it left out must answer "missing", never
+    fetch it after all."""
+    if filter_args(url):
+        subprocess.run(
+            ["git", "-C", str(repo), "config", "--remove-section", f"remote.{url}"],
+            capture_output=True,
+            check=False,
+        )
+
+
+_SCP_LIKE = re.compile(r"[^/:]+@[^/:]+:")
+
+
+@functools.cache
+def _git_version() -> tuple[int, ...]:
+    try:
+        said = subprocess.run(["git", "version"], capture_output=True, text=True, check=False).stdout
+    except OSError:
+        return (0,)
+    found = re.search(r"(\d+)\.(\d+)", said)
+    return (int(found[1]), int(found[2])) if found else (0,)
 
 
 FETCHERS = 8  # shards fetched at once

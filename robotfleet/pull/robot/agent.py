@@ -8,7 +8,9 @@
    tampered, a rollback, expired) leaves everything as it was.  A fetch that
    reads exactly what the last verification accepted, before anything it
    verified expired, is that verification again (robotfleet/pull/robot/trust_state.py):
-   no TUF, not even its import, unless the release is to be applied.
+   no TUF, not even its import, unless the release is to be applied.  With a
+   medium mounted (robotfleet/pull/robot/media.py) the remote is fetched too,
+   and the newer of the two verified releases taken.
 3. Decide (robotfleet/pull/robot/decide.py): nothing new, wait for a wave or a
    maintenance window (meanwhile putting the release in place:
    robotfleet/pull/robot/prefetch.py), a halt, or apply.
@@ -89,6 +91,7 @@ class Wake:
         self.status_time: str | None = None
         self.reference_time = clock()
         self.medium: Path | None = None  # a mounted release on media, this wake's source (robot/media.py)
+        self.mounted: Path | None = None  # a medium mounted while the remote answered too: verify() chooses
         self.key_refused_by: str | None = None  # the remote that refused the robot's keys in this wake
         self.phases = Phases()
 
@@ -110,12 +113,13 @@ class Wake:
         if self.config.media_dir:
             from robotfleet.pull.robot import media
 
-            self.medium = media.mounted(self.config.media_dir)
-            if self.medium is not None:
-                return  # verified like the remote's, by the same refresh
+            self.mounted = media.mounted(self.config.media_dir)
         try:
             self.remote.fetch_releases(self.config.branch)
         except TransportError as error:
+            if self.mounted is not None:  # out of reach: the medium alone, verified by the same refresh
+                self.medium, self.mounted = self.mounted, None
+                return
             if not self.state.get("seen") and ENROLLMENT_PENDING in str(error):
                 self.key_refused_by = self.remote.url
                 raise Outcome(
@@ -130,6 +134,8 @@ class Wake:
 
     def recall(self) -> bool:
         """The record, when the fetch found what the last verification accepted."""
+        if self.mounted is not None:  # two sources: both verified, the newer taken
+            return False
         found = trust_state.recall(self.state_dir, self.source(), self.clock(), self.applied_version())
         if found is None:
             return False
@@ -146,7 +152,12 @@ class Wake:
             verify.initialize(self.state_dir, root, records.parse_time(first, "trusted_time") if first else None)
         client = verify.Client(self.state_dir, self.source(), clock=self.clock)
         try:
-            self.record = client.refresh(applied=self.applied_version())
+            if self.mounted is None:
+                self.record = client.refresh(applied=self.applied_version())
+            else:  # the newer signed release of the two, a halt from either (robot/media.py)
+                sources = [str(self.mounted), self.source()]
+                client = verify.newest(self.state_dir, sources, self.applied_version(), self.clock)
+                self.record, self.medium = client.record, self.mounted if client.source == sources[0] else None
         except refusals.Refused as refused:
             raise Outcome("refused", refused.line, refused.reason) from None
         self.reference_time = client.reference_time or self.clock()

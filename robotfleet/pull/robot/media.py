@@ -3,10 +3,14 @@ the robot.
 
 The agent's ``media_dir`` (the pull role's ``pull_media_dir``: where a USB
 stick or an NFS share is mounted) is looked at each wake; when it holds a
-release repository (``metadata/timestamp.json``), that directory is the
-wake's source instead of the fleet remote, verified by the same TUF refresh
-(robotfleet/pull/robot/verify.py): tampered, replayed, expired and
-foreign-signed media are refused exactly as over the network.
+release repository (``metadata/timestamp.json``), that directory is
+verified by the same TUF refresh (robotfleet/pull/robot/verify.py):
+tampered, replayed, expired and foreign-signed media are refused exactly as
+over the network.  The fleet remote is still fetched: when it answers, both
+are verified from the same trusted state and the newer signed record is the
+wake's (verify.newest: the medium on the same version, a halt on the same
+version first), so a stale medium never pins the robot nor hides a halt;
+when it does not, the medium alone is.
 
 To apply, each image the release pins for this robot comes from the media:
 ``media.json`` and the image's archive are TUF targets (length and sha256

@@ -199,9 +199,15 @@ class Client:
         below version max(``applied``, the highest accepted), expired, or
         malformed, leaving the trusted state untouched.  On success the new
         metadata and trust.json are kept."""
-        if not (self.state_dir / "tuf" / "root.json").exists():
-            raise Refused(MALFORMED, f"{self.state_dir}: no trusted root (initialize the robot's trust first)")
+        self._check_root()
         _sweep(self.state_dir)
+        self.trial(applied)
+        return self.keep()
+
+    def trial(self, applied: int = 0) -> records.Record:
+        """refresh() without keeping anything yet: keep() or discard() next
+        (``newest`` tries two sources from the same trusted state)."""
+        self._check_root()
         state = read_state(self.state_dir)
         now = self.clock()
         self.reference_time = max(now, state.time)
@@ -243,14 +249,29 @@ class Client:
         except BaseException:
             shutil.rmtree(work, ignore_errors=True)
             raise
+        self.updater, self.record = updater, found
+        self._tried = (work, state, now, raw, release_file)
+        return found
+
+    def _check_root(self) -> None:
+        if not (self.state_dir / "tuf" / "root.json").exists():
+            raise Refused(MALFORMED, f"{self.state_dir}: no trusted root (initialize the robot's trust first)")
+
+    def keep(self) -> records.Record:
+        """What trial() verified becomes the trusted state."""
+        work, state, now, raw, release_file = self._tried
+        found = self.record
         _swap_in(self.state_dir, work)
         trust_state.write_state(
             self.state_dir,
             State(max(state.time, now, found.published_at), max(state.version, found.version), found.release),
         )
-        self.updater, self.record = updater, found
         self._remember(raw, release_file, found)
         return found
+
+    def discard(self) -> None:
+        shutil.rmtree(self._tried[0], ignore_errors=True)
+        self.updater = self.record = None
 
     def _remember(self, raw: bytes, release_file: str, found: records.Record) -> None:
         """What this verification read, for the next check's cheap proof that
@@ -314,6 +335,32 @@ class Client:
                 raise Refused(refused.reason, f"{path}: {refused.line}") from None
             found[path] = destination
         return found
+
+
+def newest(state_dir, sources: list[str], applied: int = 0, clock=_now) -> Client:
+    """Each of ``sources`` (a mounted medium, the fetched releases branch)
+    verified from the same trusted state; the client of the newest record
+    is kept (on equal versions a halt, else the first source); the others'
+    trial is dropped.  Refused: none verified (the first source's refusal,
+    the others' lines after it)."""
+    Client(state_dir, "")._check_root()
+    _sweep(Path(state_dir))
+    tried, refused = [], []
+    for source in sources:
+        client = Client(state_dir, source, clock)
+        try:
+            client.trial(applied)
+            tried.append(client)
+        except Refused as error:
+            refused.append(error)
+    if not tried:
+        raise Refused(refused[0].reason, "; ".join(error.line for error in refused))
+    chosen = max(tried, key=lambda client: (client.record.version, client.record.halt))
+    for client in tried:
+        if client is not chosen:
+            client.discard()
+    chosen.keep()
+    return chosen
 
 
 def _https_fetcher() -> FetcherInterface:
