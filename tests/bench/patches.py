@@ -3,9 +3,10 @@
     python3 -m tests.bench.patches [--hosts 250] [--runs 5] [--keys order arguments ...]
 
 A no-op of ``--hosts`` converged robots planned and run through pyinfra's
-own API against @fake hosts (tests/unit/harness.py: every host answers the
-snapshot as a converged robot; no SSH, so what is left is the operator's
-planning, where these replacements act), in a fresh process each time: with
+own API as `pyinfra -y` runs them, against @fake hosts (tests/unit/harness.py:
+every host answers the snapshot as a converged robot; no SSH, so what is
+left is the operator's planning, where these replacements act), in a fresh
+process each time: with
 every replacement in place, and with each one left out in turn (pyinfra's
 own function runs there), the variants taking turns.  Prints the median CPU
 seconds of each and what the one left out costs per host.  Asserts nothing.
@@ -28,6 +29,8 @@ import json, sys, time
 from robotfleet import pyinfra_patches
 left_out, changed = json.loads(sys.argv[1]), pyinfra_patches._changed
 pyinfra_patches._changed = lambda key: "left:out" if key in left_out else changed(key)  # as if pyinfra changed it
+from pyinfra.api import State
+State.should_check_for_changes = lambda self: False  # as `pyinfra -y` runs (the CLI's check_for_changes)
 from tests.unit.harness import ROBOT, converged, plan
 snap = converged("robots", ROBOT, "ubuntu-24.04")
 hosts = {f"r{i}": ("robots", ROBOT, snap) for i in range(int(sys.argv[2]))}
