@@ -19,15 +19,9 @@ More are per host, found at a thousand hosts (tests/bench/SCALE.md):
 - ``get_all_connectors`` reads every installed package's entry points on
   each call, and the inventory calls it for each host named
   ``@connector/...`` (every host of ours): the entry points are read once.
-- ``Inventory.get_groups_data`` merges the host's groups' data on every
-  lookup of host data that the host itself does not set: each list of
-  groups is merged once.
 - ``pop_global_arguments`` looks each of its ~40 operation arguments up in
   the host's data one by one, for every operation of every host, most of
   them absent from every layer: the layers are read once for all of them.
-- ``HostData.__getattr__`` (every ``host.data.<setting>``) walks the layers
-  through a generator and an exception per layer without the key: plain
-  dicts are asked with ``in``.
 
 One more per operation of every host: ``_wrap_operation`` checks an
 operation's arguments with ``inspect.signature(func).bind(...)``, building
@@ -39,7 +33,9 @@ when it calls it (SPEEDUPS' sites), only where what it was written from is
 still the same source (its digest, pinned in robotfleet/pyinfra_private.py):
 a pyinfra release that changes one keeps its own, slower but right, and one
 line says so.  tests/unit/test_pyinfra_patches.py checks they answer as pyinfra's
-own do, and are active with the pyinfra this project installs.
+own do, and are active with the pyinfra this project installs; what each
+saves: tests/bench/patches.py, and docs/explanations/pyinfra-upstream.md
+(each as a change pyinfra could take).
 """
 
 from __future__ import annotations
@@ -75,15 +71,11 @@ SPEEDUPS = {
     ),
     # importlib's entry_points, as get_all_connectors calls it: the caller is what it was written for.
     "connectors": Speedup(("pyinfra.api.connectors:entry_points",), ("pyinfra.api.connectors:get_all_connectors",)),
-    "groups_data": Speedup(
-        ("pyinfra.api.inventory:Inventory.get_groups_data",), ("pyinfra.api.inventory:Inventory.get_groups_data",)
-    ),
     # Imported by name where it is called; its lookups are HostData.__getattr__'s.
     "pop_arguments": Speedup(
         tuple(f"pyinfra.api.{module}:pop_global_arguments" for module in ("operation", "deploy", "facts")),
         ("pyinfra.api.arguments:pop_global_arguments", "pyinfra.api.host:HostData.__getattr__"),
     ),
-    "host_data": Speedup(("pyinfra.api.host:HostData.__getattr__",), ("pyinfra.api.host:HostData.__getattr__",)),
     # inspect's signature, as _wrap_operation calls it: the caller is what it was written for.
     "signature": Speedup(("pyinfra.api.operation:signature",), ("pyinfra.api.operation:_wrap_operation",)),
 }
@@ -166,16 +158,6 @@ def signature(func):
     return original("signature")(func)
 
 
-def groups_data(inventory, groups) -> dict:
-    """Inventory.get_groups_data, merged once for each list of groups (the
-    inventory's group data is set when it is made, before any lookup)."""
-    memo = inventory.__dict__.setdefault("_merged_groups_data", {})
-    key = tuple(groups)
-    if key not in memo:
-        memo[key] = original("groups_data")(inventory, groups)
-    return memo[key]
-
-
 def _host_arguments(host, keys: frozenset) -> dict:
     """key -> what ``getattr(host.data, key)`` finds (uncopied), for the
     ``keys`` some layer of the host's data holds: the first layer holding
@@ -231,29 +213,11 @@ def pop_global_arguments(state, host, kwargs):
     return result, found_keys
 
 
-def host_data_getattr(self, key: str):
-    """HostData.__getattr__: the first layer holding ``key``, copied."""
-    for data in self.datas:
-        if callable(data):
-            data = data()
-        if type(data) is dict:
-            if key in data:
-                return copy.copy(data[key])
-            continue
-        try:
-            return copy.copy(data[key])
-        except KeyError:
-            pass
-    raise AttributeError(f"Host `{self.host}` has no data `{key}`")
-
-
 OURS = {
     "order": operation_order_from_stack,
     "arguments": all_global_arguments,
     "connectors": entry_points,
-    "groups_data": groups_data,
     "pop_arguments": pop_global_arguments,
-    "host_data": host_data_getattr,
     "signature": signature,
 }
 

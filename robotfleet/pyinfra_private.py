@@ -225,13 +225,6 @@ USED = (
         "reads them once",
     ),
     Private(
-        ("pyinfra.api.inventory:Inventory.get_groups_data",),
-        "pyinfra.api.inventory:Inventory.get_groups_data",
-        "6d7b0baffe2d4773",
-        "robotfleet/pyinfra_patches.py",
-        "replaced by the same merge done once per list of groups",
-    ),
-    Private(
         (
             "pyinfra.api.arguments:pop_global_arguments",
             "pyinfra.api.arguments:all_argument_meta",
@@ -261,8 +254,7 @@ USED = (
         "pyinfra.api.host:HostData.__getattr__",
         "87152f64f2a65e53",
         "robotfleet/pyinfra_patches.py",
-        "replaced by the same lookup through the host's data layers (HostData.datas) asking plain dicts "
-        "with 'in'; the copy of pop_global_arguments looks up as it does",
+        "the copy of pop_global_arguments looks a key up in the host's data layers (HostData.datas) as it does",
     ),
 )
 

@@ -32,15 +32,6 @@ registry = _imported_when_used("registry", "roles.payload.registry")
 image_transfer = _imported_when_used("image_transfer", "roles.payload.image_transfer")
 
 
-@pytest.fixture(autouse=True)
-def _memo_of_this_test(tmp_path, monkeypatch):
-    """A snapshot script a test runs on this machine (as root) keeps its memo
-    in a directory of the test, not in this machine's /run."""
-    from robotfleet.host import snapshot_sh
-
-    monkeypatch.setattr(snapshot_sh, "MEMO_DIR", str(tmp_path / "memo"))
-
-
 # Once pyinfra's CLI is imported, gevent (>= 25.8.1) patches ``os.close`` to
 # close a directory or a pipe only when gevent's loop next runs.  Tests that
 # run no greenlet (temporary directories removed, files fsynced) left

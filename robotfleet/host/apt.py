@@ -165,14 +165,6 @@ def dpkg_audit_probe(admindir: str = "/var/lib/dpkg") -> str:
     )
 
 
-def dpkg_audit_inputs(admindir: str = "/var/lib/dpkg") -> tuple[str, ...]:
-    """What the probe's answer depends on alone (its memo, snapshot_sh): the
-    status file, the journal's and the info directory's entries (their
-    directories change with them), the info format, and dpkg itself (the
-    native architecture; and what ``dpkg --audit`` reports)."""
-    return (f"{admindir}/status", f"{admindir}/updates", f"{admindir}/info", f"{admindir}/info/format", "dpkg")
-
-
 DPKG_AUDIT_PROBE = dpkg_audit_probe()
 
 

@@ -213,19 +213,10 @@ def key_is_current(repo: Repository, snap: Snapshot) -> bool:
     return not repo.sha256 or current.sha256 == repo.sha256
 
 
-def declare_key_probe(query: SnapshotQuery, probe: str, key_path: str, fingerprint: str | None) -> None:
-    """The snapshot probe ``probe`` reading the installed key (``key_probe``)."""
-    query.probes[probe] = key_probe(key_path, fingerprint)
-    if fingerprint:
-        # gpg's verdict on the same file is the same: the host keeps it
-        # while neither the key file nor gpg changed.
-        query.memo[probe] = (key_path, "gpg")
-
-
 def declare_reads(repo: Repository, query: SnapshotQuery) -> None:
     query.files |= {KEYRING_DIR, repo.key_path, repo.sources_path}
     if repo.fingerprint:
-        declare_key_probe(query, repo.probe, repo.key_path, repo.fingerprint)
+        query.probes[repo.probe] = key_probe(repo.key_path, repo.fingerprint)
 
 
 @operations.operation()

@@ -15,11 +15,9 @@ command or probe that no role declared raises ``UndeclaredRead``.  Otherwise a
 role that forgot to declare a read would see "absent" and change the host on
 every run.
 
-The script itself (``snapshot_sh.py``) starts as few programs on the host as
-it can: the same command runs at every deploy and every pull-mode check.  A
-probe whose answer depends only on some files and programs (gpg's verdict on
-a key file, what udevadm can do) is declared with them in ``memo`` and kept
-on the host while they are unchanged.
+The script itself (``snapshot_sh.py``) starts few programs on the host, each
+asked once for everything: the same command runs at every deploy and every
+pull-mode check.
 """
 
 from __future__ import annotations
@@ -44,10 +42,6 @@ class SnapshotQuery:
     commands: set[str] = field(default_factory=set)
     # name -> shell snippet; its stdout is returned verbatim.
     probes: dict[str, str] = field(default_factory=dict)
-    # probe name -> the files (absolute paths) and programs (names on PATH)
-    # its answer depends on alone: the host answers it from its memo while
-    # none of them changed (robotfleet/host/snapshot_sh.py).
-    memo: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     def as_kwargs(self) -> dict:
         return {
@@ -57,7 +51,6 @@ class SnapshotQuery:
             "units": sorted(self.units),
             "commands": sorted(self.commands),
             "probes": dict(sorted(self.probes.items())),
-            "memo": {name: tuple(self.memo[name]) for name in sorted(self.memo) if name in self.probes},
         }
 
 
@@ -140,7 +133,7 @@ def parse(lines: list[str], query: dict) -> Snapshot:
     (``SnapshotQuery.as_kwargs()``)."""
     snap = Snapshot(**{kind: Readings(kind, query.get(kind) or ()) for kind in READING_KINDS})
     stats, shas, os_lines, sizes, blob, ones = {}, {}, [], [], b"", {}
-    for line in _unkept(lines):
+    for line in lines:
         kind, _, rest = line.partition("\t")
         parts = rest.split("\t")
         if kind == "osl":
@@ -200,19 +193,6 @@ def parse(lines: list[str], query: dict) -> Snapshot:
     return snap
 
 
-def _unkept(lines):
-    """The lines, with those the host kept in its memo (a ``memo`` line) in
-    place of it, as the host read them the first time."""
-    for line in lines:
-        if line.startswith("memo\t"):
-            try:
-                yield from base64.b64decode(line[5:]).decode().splitlines()
-            except ValueError:  # not base64 or not UTF-8: nothing of it read
-                continue
-        else:
-            yield line
-
-
 def parse_os_release(text: str) -> dict[str, str]:
     values = {}
     for line in text.splitlines():
@@ -229,7 +209,7 @@ def parse_os_release(text: str) -> dict[str, str]:
 class HostSnapshot(FactBase):
     """Everything the roles need from a host, read in one command."""
 
-    def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None):
+    def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None):
         self.query = {
             "files": files,
             "packages": packages,
@@ -238,7 +218,7 @@ class HostSnapshot(FactBase):
             "commands": commands,
             "probes": probes or {},
         }
-        return snapshot_script(files, packages, users, units, commands, probes, memo)
+        return snapshot_script(files, packages, users, units, commands, probes)
 
     def process(self, output):
         return parse(list(output), self.query)

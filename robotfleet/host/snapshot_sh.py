@@ -1,8 +1,9 @@
 """The shell script behind the snapshot (POSIX sh), built from what the
-roles declared; ``snapshot.parse`` reads its output.
+roles declared; ``snapshot.parse`` reads its output.  It changes nothing on
+the host.
 
 It runs on every host at every deploy, and in pull mode many times a day,
-so it starts as few programs as it can, each asked once for everything:
+so it starts few programs, each asked once for everything:
 
 - the declared probes start at once, in the background, under ONE
   ``timeout``, each into its own file of a temporary directory, while the
@@ -12,23 +13,13 @@ so it starts as few programs as it can, each asked once for everything:
   ``systemctl show`` for all units (``is-enabled`` and ``is-active`` unit
   by unit where its answer does not come a block a unit), one ``groups``
   for all users, the package database read with ``awk`` (``dpkg-query``
-  while dpkg's journal holds an unfinished run);
-- a probe declared with its inputs (``SnapshotQuery.memo``: the files and
-  programs its answer depends on alone) is answered from the robot's memo
-  (``MEMO_DIR``, root's own, in /run) while none of them nor the package
-  database changed (device, inode, size, modification and change times),
-  and run again otherwise; so is the part that reads the architecture, the
-  files and the packages (``_kept``: on a converged host no ``dpkg``,
-  ``stat`` of the files, ``sha256sum`` or ``awk`` runs).  One ``stat`` of
-  every input gives the key of all.  Writing that memo (a temporary file,
-  then a rename) is the only thing the script changes on a host.
+  while dpkg's journal holds an unfinished run).
 
 Where no temporary directory can be made, the probes run one after
 another, each under its own timeout."""
 
 from __future__ import annotations
 
-import hashlib
 import re
 import shlex
 
@@ -37,8 +28,6 @@ import shlex
 # command; a probe cut off reads as empty (unknown), as a failed one does.
 PROBE_TIMEOUT = 60
 
-MEMO_DIR = "/run/robotfleet-memo"
-MEMO_OWNER = 0  # root: the snapshot runs as root (sudo); as anyone else it keeps no memo
 DPKG_DIR = "/var/lib/dpkg"  # dpkg's database: its status file and journal (updates/)
 
 # Paths that stat and sha256sum print as they are given (no escaping), read
@@ -52,32 +41,12 @@ def _q(value: str) -> str:
     return shlex.quote(value)
 
 
-def memo_name(name: str, snippet: str, inputs) -> str:
-    """The memo file of one probe: the same probe with the same inputs only."""
-    text = "\0".join([name, snippet, *inputs])
-    return hashlib.sha256(text.encode()).hexdigest()[:32]
-
-
-def print_file(path: str, mark: str = "") -> str:
-    """sh that prints a text file as ``cat`` does (a last line without a
-    newline gets one; each line after ``mark``), with the shell's builtins:
-    a probe that starts no program; fails, printing nothing (not even an
-    error), where the file cannot be read."""
-    loop = f'while IFS= read -r l || [ -n "$l" ]; do printf \'{mark}%s\\n\' "$l"; l=; done'
-    return f"l=; {loop} 2>/dev/null < {_q(path)}"
-
-
-def has_text(path: str, text: str) -> str:
-    """sh that succeeds where a line of the file holds ``text`` (``grep -qF``
-    with the shell's builtins)."""
-    return (
-        f'{{ t={_q(text)}; l=; while IFS= read -r l || [ -n "$l" ]; do '
-        f'case $l in *"$t"*) break ;; esac; l=; done < {_q(path)}; [ -n "$l" ]; }}'
-    )
-
-
 def _os_release() -> list[str]:
-    return [print_file("/etc/os-release", mark="osl\\t")]
+    return [
+        'l=; while IFS= read -r l || [ -n "$l" ]; do printf \'osl\\t%s\\n\' "$l"; l=; '
+        "done 2>/dev/null < /etc/os-release",
+        "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo",
+    ]
 
 
 def _files(files) -> list[str]:
@@ -186,129 +155,40 @@ def _probes_program(probes: dict) -> str:
     )
 
 
-def _memo_key(inputs) -> list[str]:
-    # Read at each call (not bound at import), so the tests can point them elsewhere.
-    """$K: the identities of ``inputs`` (paths, and programs by name), empty
-    where the memo is not root's own directory (no memo on this host)."""
-    paths, programs = [], []
-    # Every memo also depends on any package installed, upgraded or removed.
-    for item in (f"{DPKG_DIR}/status", *inputs):
-        target = paths if item.startswith("/") else programs
-        if item not in target:
-            target.append(item)
-    words = " ".join([_q(MEMO_DIR), *(_q(p) for p in paths)])
-    found = f"$(command -v {' '.join(_q(p) for p in programs)})" if programs else ""
-    return [
-        "K=",
-        f"if [ ! -L {_q(MEMO_DIR)} ] && {{ [ -d {_q(MEMO_DIR)} ] || mkdir -m 700 {_q(MEMO_DIR)} 2>/dev/null; }}; then",
-        f"  K=$(stat -L --printf '%n %a %u %d %i %s %y %z|' -- {words} {found} 2>/dev/null)",
-        # Only root's own directory, closed to others; itself not part of the key.
-        f"  case $K in {_q(f'{MEMO_DIR} 700 {MEMO_OWNER} ')}*) K=${{K#*|}} ;; *) K= ;; esac",
-        "fi",
-    ]
-
-
-def _memo_path(name: str, snippet: str, inputs) -> str:
-    return _q(f"{MEMO_DIR}/{memo_name(name, snippet, inputs)}")
-
-
-def _memo_holds(path: str) -> str:
-    """sh: true where the memo file holds an answer under today's key $K (in $v)."""
-    return f'[ -n "$K" ] && {{ IFS= read -r k && IFS= read -r v; }} 2>/dev/null < {path} && [ "$k" = "$K" ]'
-
-
-def _memo_keep(path: str) -> str:
-    """sh: $v kept under $K (a temporary file, then a rename)."""
-    return f'printf \'%s\\n%s\\n\' "$K" "$v" > {path}.$$ && mv -f {path}.$$ {path}'
-
-
-def _kept(lines: list[str], inputs) -> list[str]:
-    """``lines``, whose output depends on ``inputs`` alone, answered from the
-    memo while $K holds (one ``memo`` line: their output in base64)."""
-    path = _memo_path("kept", "\n".join(lines), inputs)
-    return [
-        "kept() {",
-        *lines,
-        "}",
-        f"if {_memo_holds(path)}; then",
-        "  printf 'memo\\t%s\\n' \"$v\"",
-        'elif [ -n "$K" ]; then',
-        '  o=$(kept; echo .); o=${o%.}; printf %s "$o"',
-        f'  v=$(printf %s "$o" | base64 -w0) && {_memo_keep(path)}',
-        "else kept; fi",
-    ]
-
-
-def _kept_inputs(files, packages) -> tuple[str, ...]:
-    """What the architecture, the files' and the packages' lines depend on:
-    dpkg (the architecture), the files themselves (their owners' names too),
-    and dpkg's journal (the packages; its status file is in every key)."""
-    inputs = ["dpkg", *files]
-    if files:
-        inputs += ["/etc/passwd", "/etc/group"]
-    if packages:
-        inputs.append(f"{DPKG_DIR}/updates")
-    return tuple(inputs)
-
-
-def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None) -> str:
-    """The script (read-only but for the memo, see the module)."""
+def snapshot_script(files=(), packages=(), users=(), units=(), commands=(), probes=None) -> str:
+    """The script (read-only, see the module)."""
     probes = dict(probes or {})
-    memo = {name: tuple(inputs) for name, inputs in (memo or {}).items() if name in probes}
-    kept_inputs = _kept_inputs(files, packages)
-    lines = ["export LC_ALL=C", f"T='{T}'", "NL='\n'", "R="]
-    lines += _memo_key([item for inputs in memo.values() for item in inputs] + list(kept_inputs))
-    for index, (name, snippet) in enumerate(probes.items()):
-        if name in memo:
-            path = _memo_path(name, snippet, memo[name])
-            lines.append(
-                f'if {_memo_holds(path)}; then printf \'pone\\t{index}\\t%s\\n\' "$v"; else R="$R {index}"; fi'
-            )
-        else:
-            lines.append(f'R="$R {index}"')
+    lines = ["export LC_ALL=C", f"T='{T}'", "NL='\n'"]
     if probes:
         lines += [
             f"I={_q(_probes_program(probes))}",
-            'P=; if [ -n "$R" ] && d=$(mktemp -d 2>/dev/null); then',
+            f"R={_q(' '.join(str(i) for i in range(len(probes))))}",
+            "P=; if d=$(mktemp -d 2>/dev/null); then",
             "  trap 'rm -rf \"$d\"' EXIT",
             f'  timeout {PROBE_TIMEOUT} sh -c "$I" sh "$d" $R &',
             "  P=$!",
             "fi",
         ]
-    lines += _os_release()
-    arch = "printf 'arch\\t'; dpkg --print-architecture 2>/dev/null || echo"
-    lines += _kept([arch, *_files(files), *_packages(packages)], kept_inputs)
-    lines += _users(users)
+    lines += _os_release() + _files(files) + _packages(packages) + _users(users)
     lines += [f"printf 'cmd\\t%s\\t' {_q(c)}; command -v {_q(c)} || echo" for c in commands]
     lines += _units(units)
     if probes:
-        lines += _probe_results(probes, memo)
+        lines += _probe_results()
     lines.append("true")
     return "\n".join(lines)
 
 
-def _probe_results(probes: dict, memo: dict) -> list[str]:
-    names = list(probes)
-    lines = [
+def _probe_results() -> list[str]:
+    return [
         'if [ -n "$P" ]; then',
         '  wait "$P"; set --',
         '  for i in $R; do [ -e "$d/p$i.ok" ] && set -- "$@" "$d/p$i"; done',
-    ]
-    for name, inputs in memo.items():
-        index = names.index(name)
-        path = _memo_path(name, probes[name], inputs)
-        lines.append(
-            f'  if [ -n "$K" ] && [ -e "$d/p{index}.ok" ]; then '
-            f'v=$(base64 -w0 < "$d/p{index}") && {_memo_keep(path)}; fi'
-        )
-    lines += [
         '  if [ $# -gt 0 ]; then stat -c "psize$T%n$T%s" -- "$@"; printf "pblob$T"',
         '    if [ $# -eq 1 ]; then base64 -w0 -- "$1"; else cat -- "$@" | base64 -w0; fi; echo',
         "  fi",
-        'elif [ -n "$R" ]; then',
+        "else",
         # No temporary directory: one after another, each under its own timeout.
         f"  for i in $R; do printf 'pone\\t%s\\t' $i; timeout {PROBE_TIMEOUT} sh -c \"$I\" sh '' $i | base64 -w0; "
         "echo; done",
         "fi",
     ]
-    return lines

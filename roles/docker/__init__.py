@@ -69,11 +69,10 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= set(data.docker_apt_legacy_files)
     query.units.add("docker.service")
     query.commands.add("gpg")
-    aptrepo.declare_key_probe(
-        query, KEY_PROBE, data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint)
+    query.probes[KEY_PROBE] = aptrepo.key_probe(
+        data.docker_apt_key_path, value_kinds.normal_fingerprint(data.docker_apt_key_fingerprint)
     )
     query.probes["dpkg_audit"] = apt.DPKG_AUDIT_PROBE
-    query.memo["dpkg_audit"] = apt.dpkg_audit_inputs()
     users.declare_reads(data, query)
 
 

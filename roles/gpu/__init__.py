@@ -58,8 +58,8 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.packages |= set(PREREQUISITES) | {plan.TOOLKIT}
     query.files |= {aptrepo.KEYRING_DIR, data.gpu_apt_key_path, sources_path(data)}
     query.probes[READINGS] = plan.readings_probe(data.gpu_driver_version_file)
-    aptrepo.declare_key_probe(
-        query, KEY_PROBE, data.gpu_apt_key_path, value_kinds.normal_fingerprint(data.gpu_apt_key_fingerprint)
+    query.probes[KEY_PROBE] = aptrepo.key_probe(
+        data.gpu_apt_key_path, value_kinds.normal_fingerprint(data.gpu_apt_key_fingerprint)
     )
 
 

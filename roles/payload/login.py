@@ -12,7 +12,6 @@ import shlex
 from pyinfra import host
 
 from robotfleet.host import operations
-from robotfleet.host.snapshot_sh import has_text, print_file
 
 DOCKER_CONFIG_DIR = "/root/.docker"
 DOCKER_HUB_NAMES = ("docker.io", "index.docker.io", "registry-1.docker.io")
@@ -51,8 +50,11 @@ def credentials_match(stored: str, registry: str, username: str, password: str) 
 
 def registry_probe(registry: str) -> str:
     """The stored credentials record, if Docker still holds a login there."""
-    config_key = json.dumps(registry_config_key(registry))
-    return f"{has_text(f'{DOCKER_CONFIG_DIR}/config.json', config_key)} && {print_file(login_record_path(registry))}"
+    q = shlex.quote
+    return (
+        f"grep -qF {q(json.dumps(registry_config_key(registry)))} {DOCKER_CONFIG_DIR}/config.json"
+        f" && cat {q(login_record_path(registry))}"
+    )
 
 
 @operations.operation()

@@ -24,7 +24,6 @@ import roles.payload.takeover_plan as takeover_plan
 from robotfleet.checkers import one_line
 from robotfleet.host import operations
 from robotfleet.host.snapshot import Snapshot
-from robotfleet.host.snapshot_sh import print_file
 from robotfleet.role import deployment
 from roles.payload.installed_files import HELPER
 from roles.payload.payloadctl import lock, results
@@ -157,8 +156,7 @@ def release_needed(record: dict, wanted_hash: str, autostart: bool, running: boo
 def lock_probe(payload_dir: str) -> str:
     """The apply lock holder's note, when the lock is held (read-only)."""
     d = shlex.quote(f"{payload_dir}/{lock.DIR}")
-    owner = print_file(f"{payload_dir}/{lock.DIR}/owner.json")
-    return f"[ -f {d}/apply.lock ] && ! flock -n {d}/apply.lock true 2>/dev/null && {owner}"
+    return f"[ -f {d}/apply.lock ] && ! flock -n {d}/apply.lock true 2>/dev/null && cat {d}/owner.json"
 
 
 def say_who_holds_the_lock(probe_output: str) -> None:

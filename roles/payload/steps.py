@@ -28,7 +28,6 @@ import roles.payload.takeover_plan as takeover_plan
 import roles.payload.transferred_images as transferred_images
 from robotfleet.host import apt, operations
 from robotfleet.host.snapshot import SnapshotQuery
-from robotfleet.host.snapshot_sh import print_file
 from robotfleet.role import Play
 
 
@@ -36,7 +35,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= {installed_files.HELPER, installed_files.unit_path(data), data.payload_dir}
     query.units.add(f"{data.payload_name}.service")
     query.commands |= {"python3", "systemd-run"}
-    query.probes["payload_record"] = print_file(f"{data.payload_dir}/current/record.json")
+    query.probes["payload_record"] = f"cat {shlex.quote(data.payload_dir)}/current/record.json"
     query.probes[containers.PROBE] = containers.probe(data.payload_name, foreign=data.payload_autostart)
     query.probes["payload_lock"] = release.lock_probe(data.payload_dir)
     query.probes["registry_auth"] = login.registry_probe(imageref.parse(services.primary_image(data)).registry)

@@ -34,7 +34,6 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files.add(data.udev_rules_file)
     query.files |= {f"{RULES_DIR}/{name}" for name in data.udev_vendor_rules}
     query.probes["udevadm_verify"] = VERIFY_PROBE
-    query.memo["udevadm_verify"] = ("udevadm",)  # what this udevadm can do
 
 
 def verify_command(probe: str) -> str | None:

@@ -20,12 +20,10 @@ CPU (user + system of it and every process it waited for: git, ssh), its
 bytes sent and received, and bytes per robot per month at a 15-minute
 interval (2,880 checks); then one check at the heartbeat (the roles' status
 read again, the report pushed) and the month with the hour's heartbeat
-(720 of the 2,880 checks).  The agent starts as robot-pull.service starts
-it (agent_files.start_command: python -S -c, in the code's directory).
-Beside them, for where the time goes: the same idle check as units before
-robotfleet/pull/start.py ran it (``python -m``, with ``site``, which this
-venv's editable install makes dearer than a robot's), by the full wake (no
-idle memo: the agent imported), and the way it ran before the probe (a fetch and checkout each time; no bytecode
+(720 of the 2,880 checks).  Beside them, for where the time goes: the same
+idle check under ``python -S`` (without ``site``, which this venv's
+editable install makes dearer than a robot's), by the full wake (no idle memo: the agent imported), and the way
+it ran before the probe (a fetch and checkout each time; no bytecode
 directory: every module compiled at each check); floors: ``python -S -c
 pass``, python -S with the standard modules any HTTPS check imports, with
 the idle check's own imports, and (without -S) the agent's imports.  The 1-minute load
@@ -54,6 +52,9 @@ from robotfleet.pull.robot import agent_state, idle, probe, transport
 MONTH = 30 * 24 * 4  # checks at a 15-minute interval
 HEARTBEATS = 30 * 24  # the hour's heartbeat
 ROOT = Path(__file__).resolve().parents[2]
+# robot-pull.service's python flags (agent_files.service_unit): none.  With -S the bench would leave out
+# `site`, which costs this venv (an editable install) ~0.02 s and a robot's ~0.003 s: the floors show both.
+UNIT_FLAGS: list[str] = []
 TARGETS = {"static": (2048, 0.05), "smart": (2048, 0.05), "ssh": (None, 0.1)}  # bytes, CPU seconds
 
 
@@ -160,7 +161,7 @@ class Setup:
             STUB="applied",
         )
 
-    def check(self, old: bool = False, full: bool = False, module: bool = False) -> dict:
+    def check(self, old: bool = False, full: bool = False, flags: list[str] = UNIT_FLAGS) -> dict:
         """One check: its CPU and bytes (``old``: as before the probe and the
         bytecode directory; ``full``: the full wake, without the idle memo)."""
         env = dict(self.env)
@@ -170,9 +171,7 @@ class Setup:
         if old or full:
             idle.forget(self.world.state)
         load = os.getloadavg()[0]
-        command = agent_files.start_command(sys.executable, str(self.config))  # robot-pull.service's ExecStart
-        if module:  # as units ran it before robotfleet/pull/start.py
-            command = agent_files.module_command(sys.executable, str(self.config))
+        command = [sys.executable, *flags, "-m", "robotfleet.pull.agent", "--config", str(self.config)]
         cpu, out = cpu_of(command, dict(env, PYTHONPATH=str(self.code)), cwd=self.code)
         sent, received, connections = self.proxy.take()
         if self.proxy is not self.ssh_proxy:  # the report's push, if any
@@ -243,13 +242,13 @@ def measure(kind: str, runs: int, tls, base: Path, tickets: int | None = None) -
         setup.check()  # the first idle one learns a static copy's validators
         setup.check()  # the full wake that leaves the idle memo
         idle_checks = [setup.check() for _ in range(runs)]
-        module = [setup.check(module=True) for _ in range(runs)]
+        no_site = [setup.check(flags=["-S"]) for _ in range(runs)]
         full = [setup.check(full=True) for _ in range(runs)]
         old = [setup.check(old=True) for _ in range(runs)]
         setup.check()
         setup.heartbeat_due()
         beat = setup.check()
-        return {"idle": idle_checks, "module": module, "full": full, "old": old, "heartbeat": beat}
+        return {"idle": idle_checks, "no_site": no_site, "full": full, "old": old, "heartbeat": beat}
     finally:
         setup.close()
 
@@ -302,9 +301,9 @@ def show(kind: str, found: dict) -> list[str]:
         f"{kind}:   per robot per month at 15 min: {month / 1e6:.2f} MB idle only, "
         f"{with_beats / 1e6:.2f} MB with the hour's heartbeat (a heartbeat check: {beat['cpu']:.3f} s CPU, "
         f"sent {beat['sent']} B, received {beat['received']} B, load {beat['load']:.2f})",
-        f"{kind}:   the same as units before robotfleet/pull/start.py ran it (python -m, with site: this "
-        f"venv's editable install, dearer than a robot's): {median(found['module'], 'cpu'):.3f} s CPU "
-        f"({min(c['cpu'] for c in found['module']):.3f}-{max(c['cpu'] for c in found['module']):.3f})",
+        f"{kind}:   the same under python -S (no site: this venv's editable install left out, as a robot's "
+        f"venv nearly is): {median(found['no_site'], 'cpu'):.3f} s CPU "
+        f"({min(c['cpu'] for c in found['no_site']):.3f}-{max(c['cpu'] for c in found['no_site']):.3f})",
         f"{kind}:   the full wake (no idle memo: the agent imported, as before robot/idle.py): "
         f"{median(full, 'cpu'):.3f} s CPU ({min(c['cpu'] for c in full):.3f}-{max(c['cpu'] for c in full):.3f}), "
         f"load {full[0]['load']:.2f}",

@@ -17,9 +17,20 @@ import time
 
 import pytest
 
+import robotfleet
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import agent_state
 from tests.integration.test_pull_agent import World
+
+# robot-pull.service's python code in the units the releases of 2026-11-28 to
+# issue 53 wrote (python -S -c, robotfleet/pull/start.py): such a unit stays on
+# a robot until the next release's converge writes the unit again, and starts
+# the new tree meanwhile.  Frozen: it is on robots.
+FIELD_START_CODE = (
+    'import os, sys; os.path.exists("robotfleet/pull/start.py") or os.execv(sys.executable, '
+    '[sys.executable, "-m", "robotfleet.pull.agent"] + sys.argv[1:]); '
+    "from robotfleet.pull.start import main; sys.exit(main())"
+)
 
 
 @pytest.fixture
@@ -103,15 +114,13 @@ def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, t
     """robot-pull.service names a bytecode directory: the first check
     compiles the agent's modules there (one directory per tree, the other
     trees' removed), the next ones read them; the tree gets none."""
-    import robotfleet
-
     config = tmp_path / "agent.json"
     config.write_text(world.config.to_json())
     cache = tmp_path / "pycache"
     other = cache / ("ab" * 32)
     other.mkdir(parents=True)
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(cache))
-    run = agent_files.module_command(sys.executable, str(config))
+    run = agent_files.start_command(sys.executable, str(config))
     done = subprocess.run(run, capture_output=True, text=True, env=env, check=True)
     assert "robot-pull: up-to-date" in done.stdout
     mine = cache / robotfleet.CHECKOUT.name
@@ -123,36 +132,23 @@ def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, t
     assert "ROBOT_PULL_PYCACHE=/var/lib/robot-pull/pycache" in agent_files.service_unit()
 
 
-def test_the_unit_starts_an_older_release_s_tree_as_before(tmp_path):
-    """robot-pull.service's command (agent_files.start_command) runs
-    robotfleet/pull/start.py under -S where its tree has it, and in a tree
-    without it (an older release's, which the unit may still start after a
-    failed apply) ``python -m robotfleet.pull.agent`` with site, as units
-    did before."""
+def test_the_unit_runs_the_agent_s_entry_point_and_a_unit_of_the_python_s_start_does_too(world, tmp_path):
+    """robot-pull.service runs ``python -m robotfleet.pull.agent``, the
+    entry point every release keeps; a unit of the releases that started
+    ``python -S -c`` (FIELD_START_CODE) finds no robotfleet/pull/start.py in
+    this tree and runs the same entry point, with site."""
     unit = agent_files.service_unit()
     exec_start = next(line for line in unit.splitlines() if line.startswith("ExecStart="))
     assert shlex.split(exec_start.removeprefix("ExecStart=")) == agent_files.start_command()
-    assert "WorkingDirectory=/var/lib/robot-pull/code/current" in unit  # where start_command looks
-    for tree, has_start in ((tmp_path / "old", False), (tmp_path / "new", True)):
-        package = tree / "robotfleet" / "pull"
-        package.mkdir(parents=True)
-        for name in ("robotfleet/__init__.py", "robotfleet/pull/__init__.py"):
-            (tree / name).write_text("")
-        said = "print(__name__, sys.flags.no_site, sys.argv[1:])"
-        (package / "agent.py").write_text(f"import sys\nif __name__ == '__main__':\n    {said}\n")
-        if has_start:
-            (package / "start.py").write_text(f"import sys\ndef main():\n    {said}\n    return 3\n")
-        done = subprocess.run(
-            agent_files.start_command(sys.executable, "the-config"),
-            cwd=tree,
-            env=dict(os.environ, PYTHONPATH=str(tree)),
-            capture_output=True,
-            text=True,
-        )
-        if has_start:
-            assert (done.returncode, done.stdout) == (3, "robotfleet.pull.start 1 ['--config', 'the-config']\n")
-        else:
-            assert (done.returncode, done.stdout) == (0, "__main__ 0 ['--config', 'the-config']\n"), done.stderr
+    assert "WorkingDirectory=/var/lib/robot-pull/code/current" in unit  # where FIELD_START_CODE looks
+    assert not (robotfleet.CHECKOUT / "robotfleet" / "pull" / "start.py").exists()
+    config = tmp_path / "agent.json"
+    config.write_text(world.config.to_json())
+    field = [sys.executable, "-S", "-c", FIELD_START_CODE, "--config", str(config)]
+    for command in (agent_files.start_command(sys.executable, str(config)), field):
+        env = dict(os.environ, PYTHONPATH=str(robotfleet.CHECKOUT), PYTHONDONTWRITEBYTECODE="1")
+        done = subprocess.run(command, cwd=robotfleet.CHECKOUT, env=env, capture_output=True, text=True)
+        assert done.returncode == 0 and "robot-pull: up-to-date" in done.stdout, done.stderr
 
 
 def test_a_bytecode_directory_that_cannot_be_made_does_not_stop_the_check(world, tmp_path):
@@ -164,6 +160,6 @@ def test_a_bytecode_directory_that_cannot_be_made_does_not_stop_the_check(world,
     blocked = tmp_path / "not-a-directory"
     blocked.write_text("")
     env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(blocked / "pycache"))
-    run = agent_files.module_command(sys.executable, str(config))
+    run = agent_files.start_command(sys.executable, str(config))
     done = subprocess.run(run, capture_output=True, text=True, env=env)
     assert done.returncode == 0 and "robot-pull: up-to-date" in done.stdout, done.stderr

@@ -1,6 +1,7 @@
 """The idle check in robot-pull.service's own process (robotfleet/pull/robot/idle.py):
-the unit's own command (agent_files.start_command: ``python -S -c``, no
-``site`` until the full wake adds it), against a real
+``python -m robotfleet.pull.agent`` as the unit runs it (its imports counted
+under ``python -S``: ``site`` and this venv's editable install are not the
+agent's), against a real
 TUF repository served over HTTPS on 127.0.0.1 (a static copy and git's smart
 HTTP, tests/integration/httpsgit.py, as test_pull_idle_probe.py serves it)
 and over SSH (git's upload-pack behind paramiko's server, tests/integration/gitssh.py).
@@ -30,8 +31,6 @@ ROOT = Path(__file__).resolve().parents[2]
 HEAVY = {"pyinfra", "tuf", "securesystemslib", "yaml", "jinja2", "dataclasses", "pathlib", "subprocess", "tempfile"}
 # Nor over HTTPS the ssl module and the IDNA codec: its TLS is _ssl's (robotfleet/pull/robot/https_request.py).
 TLS_WRAPPERS = {"ssl", "encodings.idna"}
-# Nor what python -m and site bring: the unit starts python -S -c (agent_files.start_command).
-STARTERS = {"runpy", "importlib.util", "contextlib", "site"}
 
 
 @pytest.fixture(scope="module")
@@ -54,11 +53,9 @@ def robot(request, tmp_path, tls):
     world.server.close()
 
 
-def check(world, module: bool = False) -> tuple[str, set[str], int]:
-    """One wake as the unit runs it (``module``: as units before
-    robotfleet/pull/start.py ran it, ``python -m robotfleet.pull.agent``):
-    its journal line, the modules it imported, and the requests the server
-    answered meanwhile."""
+def check(world, *flags: str) -> tuple[str, set[str], int]:
+    """One wake as the unit runs it: its journal line, the modules it
+    imported, and the requests the server answered meanwhile."""
     env = dict(
         os.environ,
         PYTHONPATH=str(ROOT),
@@ -68,11 +65,17 @@ def check(world, module: bool = False) -> tuple[str, set[str], int]:
         STUB_WATCH=str(world.watched),
     )
     before = world.count()
-    unit = agent_files.start_command(sys.executable, str(world.config_file))[1:]
-    old = agent_files.module_command(sys.executable, str(world.config_file))[1:]
     done = subprocess.run(
-        [sys.executable, "-X", "importtime", *(old if module else unit)],
-        cwd=ROOT,
+        [
+            sys.executable,
+            "-X",
+            "importtime",
+            *flags,
+            "-m",
+            "robotfleet.pull.agent",
+            "--config",
+            str(world.config_file),
+        ],
         env=env,
         capture_output=True,
         text=True,
@@ -109,14 +112,11 @@ def test_an_idle_check_imports_none_of_the_agent_s_heavy_modules(robot):
     (robot.state / idle.MEMO).unlink()
     full, modules, _ = check(robot)  # the same check by the full wake, which leaves the memo again
     assert "robotfleet.pull.robot.agent" in modules
-    line, modules, requests = check(robot)
+    line, modules, requests = check(robot, "-S")
     assert modules & HEAVY == set(), sorted(modules & HEAVY)
     assert modules & TLS_WRAPPERS == set() and "_ssl" in modules, sorted(modules & TLS_WRAPPERS)
-    assert modules & STARTERS == set(), sorted(modules & STARTERS)
     assert "robotfleet.pull.robot.agent" not in modules
     assert words(line) == words(full) == ("robot-pull: up-to-date (release 1)", "report unchanged")
-    old, modules, _ = check(robot, module=True)  # a unit written before robotfleet/pull/start.py: the same check
-    assert words(old) == words(line) and {"runpy", "site"} <= modules and "robotfleet.pull.robot.agent" not in modules
     assert requests == 1 and " in 1 requests;" in line
 
 
@@ -170,7 +170,7 @@ def test_a_changed_key_sends_the_check_to_the_full_wake_and_its_report_is_sent(r
     key.write_text(
         "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIBm0f0mPAKu8JQrhvXYlGQbWqZLhGJ7+hNYRqoAPeOrK robot-pull@robot1\n"
     )
-    line, modules, _ = check(robot)  # the full wake, under -S, adds the site-packages itself (idle.leave)
+    line, modules, _ = check(robot, "-S")  # the full wake, under -S, adds the site-packages itself (idle.leave)
     assert words(line) == ("robot-pull: up-to-date (release 1)", "report sent") and "tuf" not in modules
     assert "robotfleet.pull.robot.agent" in modules
 
@@ -250,7 +250,7 @@ def test_an_idle_check_over_ssh_is_one_session_without_the_agent(over_ssh):
     full, modules, _ = check(robot)
     assert "robotfleet.pull.robot.agent" in modules
     robot.server.commands[:] = []
-    line, modules, connections = check(robot)
+    line, modules, connections = check(robot, "-S")
     # subprocess (git, ssh) it cannot do without; nothing of the agent's full path
     assert modules & (HEAVY - {"subprocess"}) == set(), sorted(modules & HEAVY)
     assert "robotfleet.pull.robot.agent" not in modules

@@ -187,8 +187,7 @@ def test_agent_configuration_and_units(pulled):
     service = plan.service_unit()
     assert "\nType=oneshot\n" in service and "\nUser=" not in service
     assert (
-        f"\nExecStart={agent_files.VENV}/bin/python -S -c '{agent_files.START_CODE}' --config {agent_files.CONFIG}\n"
-        in (service)
+        f"\nExecStart={agent_files.VENV}/bin/python -m robotfleet.pull.agent --config {agent_files.CONFIG}\n" in service
     )
     assert plan.known_hosts(data) == f"{plan.KNOWN_HOSTS_ALIAS} {KEY}\n"
 

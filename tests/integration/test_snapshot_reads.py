@@ -2,13 +2,13 @@
 replace, checked against those commands on this machine: dpkg --audit on
 dpkg databases in every state it reports, the packages from dpkg's status
 file, the units from one systemctl show, and the payload's containers from
-the engine's API against what the docker CLI printed (the memo:
-test_snapshot_memo)."""
+the engine's API against what the docker CLI printed."""
 
 from __future__ import annotations
 
 import os
 import shlex
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -50,27 +50,28 @@ def test_packages_are_read_as_dpkg_query_reads_them(tmp_path):
         ["dpkg-query", "-W", "-f=pkg\\t${Package}\\t${Status}\\t${Version}\\n", *names], capture_output=True, text=True
     ).stdout
     assert sorted(line for line in awk.splitlines() if line.startswith("pkg\t")) == sorted(query.splitlines())
-    assert "dpkg-query -W" in script and "/var/lib/dpkg/updates/*" in script
 
 
-TEXTS = ["x\ny\n", "no newline at the end", "", "\n\n  indented \\n \ttabs\t\n", '{"auths": {"reg:5000": {}}}\n']
+def test_packages_are_asked_of_dpkg_query_while_dpkg_s_journal_holds_a_run(tmp_path, monkeypatch):
+    d = admindir(tmp_path, [stanza("a"), stanza("b")])
+    monkeypatch.setattr(snapshot_sh, "DPKG_DIR", str(d))
+    log = tmp_path / "started"
+    real = f"{shutil.which('dpkg-query')} --admindir={shlex.quote(str(d))}"
+    (tmp_path / "dpkg-query").write_text(f'#!/bin/sh\necho dpkg-query >> {shlex.quote(str(log))}\nexec {real} "$@"\n')
+    (tmp_path / "dpkg-query").chmod(0o755)
+    env = dict(os.environ, PATH=f"{tmp_path}:{os.environ['PATH']}")
 
+    def packages():
+        query = {"packages": ["a", "b"]}
+        script = hoststate.snapshot_script(**query)
+        out = subprocess.run(["sh", "-c", script], capture_output=True, text=True, check=True, env=env).stdout
+        return dict(hoststate.parse(out.splitlines(), query).packages), log.exists()
 
-@pytest.mark.parametrize("text", TEXTS)
-def test_a_file_is_printed_as_cat_prints_it_and_searched_as_grep_does(tmp_path, text):
-    """The probes' builtin reads (no program started): what cat prints, a
-    newline added to a last line without one; grep -qF's answer."""
-    f = tmp_path / "f"
-    f.write_text(text)
-    printed = subprocess.run(["sh", "-c", snapshot_sh.print_file(str(f))], capture_output=True, text=True).stdout
-    cat = subprocess.run(["cat", str(f)], capture_output=True, text=True).stdout
-    assert printed == (cat + "\n" if cat and not cat.endswith("\n") else cat)
-    for needle in ['"reg:5000"', "reg:5001", "*", "y", "\\n", "tabs\t"]:
-        found = subprocess.run(["sh", "-c", snapshot_sh.has_text(str(f), needle)], capture_output=True).returncode == 0
-        assert found == (subprocess.run(["grep", "-qF", needle, str(f)]).returncode == 0), needle
-    missing = str(tmp_path / "missing")
-    assert subprocess.run(["sh", "-c", snapshot_sh.print_file(missing)], capture_output=True).stdout == b""
-    assert subprocess.run(["sh", "-c", snapshot_sh.has_text(missing, "x")], capture_output=True).returncode != 0
+    assert packages() == ({"a": "1.0", "b": "1.0"}, False)  # the status file, with awk
+    (d / "status").write_text((d / "status").read_text().replace("Version: 1.0", "Version: 2.0", 1))  # an upgrade
+    assert packages() == ({"a": "2.0", "b": "1.0"}, False)
+    (d / "updates" / "0000").write_text(stanza("a").replace("Version: 1.0", "Version: 3.0"))  # an unfinished run
+    assert packages() == ({"a": "3.0", "b": "1.0"}, True)  # dpkg-query reads the journal too
 
 
 def test_users_groups_are_read_as_id_reads_them():

@@ -187,10 +187,10 @@ class _Recorder:
         recorder = self
         self._command, self._run = hoststate.HostSnapshot.command, FakeConnector.run_shell_command
 
-        def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None, memo=None):
+        def command(self, files=(), packages=(), users=(), units=(), commands=(), probes=None):
             from pyinfra import host
 
-            script = recorder._command(self, files, packages, users, units, commands, probes, memo)
+            script = recorder._command(self, files, packages, users, units, commands, probes)
             recorder.queries[host.name.removeprefix("@fake/")] = self.query
             return script
 

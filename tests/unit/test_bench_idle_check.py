@@ -12,7 +12,7 @@ def check(cpu: float, sent: int, received: int) -> dict:
 def test_a_month_is_2880_checks_and_the_heartbeat_720_of_them():
     found = {
         "idle": [check(0.04, 500, 1500)] * 3,
-        "module": [check(0.03, 500, 1500)] * 3,
+        "no_site": [check(0.03, 500, 1500)] * 3,
         "full": [check(0.1, 500, 1500)] * 3,
         "old": [check(0.3, 3000, 6000)] * 3,
         "heartbeat": check(0.2, 4000, 4000),

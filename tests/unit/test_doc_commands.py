@@ -137,12 +137,9 @@ def test_each_command_names_a_program_and_files_that_exist(command):
         assert source.is_file(), f"{command.where}: no module {module} in the checkout"
         text = source.read_text()
         # an entry point kept at its old name (robotfleet.pull.agent, robotfleet.commands.converge) runs the
-        # module it imports main from, which may hand on to another (robotfleet.pull.start): its options
-        # are the last one's
-        for _ in range(3):
-            entry = re.search(r"^\s*from (robotfleet\.[\w.]+) import main(?: as \w+)?$", text, re.M)
-            if not entry:
-                break
+        # module it imports main from: its options are that module's
+        entry = re.search(r"^\s*from (robotfleet\.[\w.]+) import main$", text, re.M)
+        if entry:
             text = (ROOT / (entry[1].replace(".", "/") + ".py")).read_text()
         words = [w for w in command.args if not w.startswith("-")]
         if module == "tests.lab" and words:

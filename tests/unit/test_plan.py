@@ -198,6 +198,18 @@ def test_converged_laptop_plans_nothing():
     assert result["l1"] == []
 
 
+def test_the_snapshot_memo_earlier_releases_kept_is_removed_once():
+    """A robot that still holds the memo of releases before the snapshot
+    lost it has it removed (its own directory only), then plans nothing."""
+    from robotfleet.provision import EARLIER_MEMO
+
+    snap = converged("laptops", LAPTOP, "ubuntu-24.04")
+    snap.files[EARLIER_MEMO] = FileState("dir", None, "700", "root", "root")
+    assert plan({"l1": ("laptops", LAPTOP, snap)})["l1"] == [f"rm -rf {EARLIER_MEMO}"]
+    snap.files[EARLIER_MEMO] = FileState("link", None, "777", "root", "root")  # not the directory it made
+    assert plan({"l1": ("laptops", LAPTOP, snap)})["l1"] == []
+
+
 @pytest.mark.parametrize(
     "state, containers",
     [

@@ -184,24 +184,9 @@ HEADER = "# Managed by the robot fleet provisioner (roles/pull); local edits are
 FIRST_BOOT_SERVICE = "robot-pull-first-boot.service"
 
 
-# robot-pull.service's python code (-c): robotfleet/pull/start.py where the
-# tree it starts in (WorkingDirectory) has it, else, in an older release's
-# tree, ``python -m robotfleet.pull.agent`` with site as before.  Only double
-# quotes inside: the unit single-quotes it; nothing systemd expands ($, %).
-START_CODE = (
-    'import os, sys; os.path.exists("robotfleet/pull/start.py") or os.execv(sys.executable, '
-    '[sys.executable, "-m", "robotfleet.pull.agent"] + sys.argv[1:]); '
-    "from robotfleet.pull.start import main; sys.exit(main())"
-)
-
-
 def start_command(python: str = f"{VENV}/bin/python", config: str = CONFIG) -> list[str]:
-    """robot-pull.service's ExecStart, run in the code's directory."""
-    return [python, "-S", "-c", START_CODE, "--config", config]
-
-
-def module_command(python: str = f"{VENV}/bin/python", config: str = CONFIG) -> list[str]:
-    """The agent as units before robotfleet/pull/start.py ran it (and START_CODE in an older tree)."""
+    """robot-pull.service's ExecStart, run in the code's directory: the
+    entry point every release keeps (robotfleet/pull/agent.py)."""
     return [python, "-m", "robotfleet.pull.agent", "--config", config]
 
 
@@ -218,7 +203,7 @@ ConditionPathExists={CONFIG}
 Type=oneshot
 WorkingDirectory={CURRENT_CODE}
 Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1 ROBOT_PULL_PYCACHE={PYCACHE}
-ExecStart={VENV}/bin/python -S -c '{START_CODE}' --config {CONFIG}
+ExecStart={VENV}/bin/python -m robotfleet.pull.agent --config {CONFIG}
 # A release may install Docker and pull images: hours, not the default 90 s.
 TimeoutStartSec=4h
 Nice=10

@@ -1,5 +1,5 @@
 """An idle check that costs the exchange and little more: the first thing
-robot-pull.service's process does (robotfleet/pull/start.py), before it
+robot-pull.service's process does (robotfleet/pull/agent.py), before it
 imports the agent.
 
 A full wake (robotfleet/pull/robot/agent.py) that found nothing to do ends
@@ -265,8 +265,9 @@ def _is_time(text) -> bool:
 
 
 def leave() -> None:
-    """Before the full wake, when python was started with -S (as
-    robot-pull.service starts it: agent_files.start_command): the
+    """Before the full wake, when python was started with -S (the bench and
+    the tests, to leave ``site`` out of what they measure; robot-pull.service
+    does not: an earlier release's agent has no such step): the
     site-packages ``site`` would have added at start (python-tuf and the rest)."""
     if sys.flags.no_site:
         import site

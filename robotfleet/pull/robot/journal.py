@@ -6,24 +6,13 @@ from __future__ import annotations
 
 import resource
 import time
+from contextlib import contextmanager
 
 
 def cpu_seconds() -> float:
     """CPU time of this process and everything it ran (and waited for)."""
     usage = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
     return round(sum(u.ru_utime + u.ru_stime for u in usage), 3)
-
-
-class _Timed:
-    # Not contextlib.contextmanager: the idle check imports this module, and contextlib costs it ~3 ms.
-    def __init__(self, phases: Phases, name: str):
-        self.phases, self.name = phases, name
-
-    def __enter__(self) -> None:
-        self.started = time.monotonic()
-
-    def __exit__(self, *raised) -> None:
-        self.phases.add(self.name, time.monotonic() - self.started)
 
 
 class Phases:
@@ -33,9 +22,13 @@ class Phases:
     def __init__(self):
         self.seconds: dict[str, float] = {}
 
-    def timed(self, name: str) -> _Timed:
-        """``with phases.timed(name):`` adds the block's seconds to ``name``."""
-        return _Timed(self, name)
+    @contextmanager
+    def timed(self, name: str):
+        started = time.monotonic()
+        try:
+            yield
+        finally:
+            self.add(name, time.monotonic() - started)
 
     def add(self, name: str, seconds) -> None:
         if _figure(seconds):
