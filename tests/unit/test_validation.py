@@ -112,8 +112,36 @@ def test_defaults_are_written_once_in_the_declarations():
                     {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
                 ]
             ),
-            "robots.yaml: robot3.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
+            "robots.yaml: robot3.udev_sensors[1]: b matches the same devices as a (udev_sensors[0]); "
             "add a serial or usb_port to tell them apart",
+        ),
+        # Two identical cameras, only one told by its port: the other's rule matches both (issue 54, item 1).
+        (
+            robot(
+                udev_sensors=[
+                    {
+                        "name": "front_camera",
+                        "subsystem": "video4linux",
+                        "vendor_id": "046d",
+                        "product_id": "0825",
+                        "usb_port": "1-1.2",
+                    },
+                    {"name": "back_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
+                ]
+            ),
+            "robots.yaml: robot3.udev_sensors[1]: back_camera also matches the devices of front_camera "
+            "(udev_sensors[0]): its match (subsystem, vendor_id, product_id) is a part of the other's; "
+            "add a serial or usb_port to tell them apart",
+        ),
+        (
+            robot(
+                udev_sensors=[
+                    {"name": "gps", "subsystem": "tty", "usb_port": "1-1.3"},
+                    {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3", "usb_port": "1-1.3"},
+                ]
+            ),
+            "robots.yaml: robot3.udev_sensors[1]: gps (udev_sensors[0]) also matches the devices of lidar: "
+            "its match (subsystem, usb_port) is a part of the other's; add a serial or usb_port to tell them apart",
         ),
         (
             robot(
