@@ -187,6 +187,9 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
                 verdicts[id(layer)] = checked(name, layer)
             values, bad = verdicts[id(layer)]
             layers.append(values)
+            # A refused value a later layer replaces (all.vars' under a host's
+            # own) is not the host's: the rules look at the one it gets.
+            refused -= values.keys() - combining
             refused |= bad
         data = registry.merge(layers)
         for found in provenance.disagreements(groups, name, lambda layer: verdicts[id(layer)][0], combining):

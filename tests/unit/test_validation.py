@@ -238,6 +238,56 @@ def test_every_problem_is_reported_at_once():
     assert len(fleet_problems(doc)) == 3
 
 
+def test_a_bad_value_in_all_vars_hides_none_of_the_hosts_own():
+    """Issue 54, item 6: a refused all.vars value (an allowing flag that is not
+    a boolean, a list that is not one) left the rules that read it unchecked on
+    every host, whose own problems showed only once it was fixed."""
+    latest = "reg.example.com/ros/payload:latest"
+    sensors = [{"name": "a", "subsystem": "tty", "serial": "1"}, {"name": "a", "subsystem": "tty", "serial": "2"}]
+    hosts = {
+        "robot1": {"address": "10.0.0.1", "payload_image": latest, "udev_sensors": sensors},
+        "robot2": {
+            "address": "10.0.0.2",
+            "payload_image": latest,
+            "payload_allow_latest": False,  # its own value replaces the refused one
+            "udev_allow_world_writable": False,
+            "udev_sensors": [{"name": "b", "subsystem": "tty", "serial": "1", "mode": "0666"}],
+        },
+    }
+    doc = {
+        "all": {"vars": {"ssh_user": "ops", "payload_allow_latest": "yes", "udev_allow_world_writable": "no"}},
+        "robots": {"hosts": hosts},
+    }
+    pinned = "pin a version or digest (or set payload_allow_latest: true)"
+    assert fleet_problems(doc) == [
+        "robots.yaml: all.vars.payload_allow_latest: expected true or false, got 'yes'",
+        "robots.yaml: all.vars.udev_allow_world_writable: expected true or false, got 'no'",
+        "robots.yaml: robot1.udev_sensors[1].name: duplicate sensor name 'a' (also udev_sensors[0])",
+        "robots.yaml: robot1.udev_sensors[1].symlink: /dev/robot/a is already used by udev_sensors[0]",
+        f"robots.yaml: robot1.payload_image: {latest!r} uses the moving tag 'latest'; {pinned}",
+        "robots.yaml: robot2.udev_sensors[0].mode: 0666 is world-writable; use a group "
+        "(or set udev_allow_world_writable)",
+        f"robots.yaml: robot2.payload_image: {latest!r} uses the moving tag 'latest'; {pinned}",
+    ]
+
+
+def test_a_refused_sensor_hides_nothing_of_the_others():
+    """A sensor refused on its own leaves the others' passthrough checked."""
+    services = {"driver": {"image": "reg.example.com/ros/driver:1.0"}, "ui": {"image": "reg.example.com/ros/ui:1.0"}}
+    sensors = [{"name": "a", "subsystem": "camera", "serial": "1"}, {"name": "b", "subsystem": "tty", "serial": "2"}]
+    problems = fleet_problems(robot(payload_image=None, payload_services=services, udev_sensors=sensors))
+    assert (
+        "robots.yaml: robot3.udev_sensors[1]: name the service(s) that use it (services: [...]); no service asks "
+        "for devices" in problems
+    ), problems
+
+
+def test_a_refused_flag_allows_nothing_of_docker():
+    options = {"hosts": ["tcp://0.0.0.0:2375"]}
+    problems = fleet_problems(robot(docker_daemon_options=options, docker_allow_unauthenticated_tcp="yes"))
+    assert len(problems) == 2 and "opens the Docker API on TCP without TLS client verification" in problems[1]
+
+
 def test_yaml_syntax_error_names_the_line(tmp_path):
     path = tmp_path / "robots.yaml"
     path.write_text("robots:\n  hosts:\n    r1: {address: 10.0.0.1\n    r2: {}\n")
