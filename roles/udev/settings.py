@@ -131,11 +131,11 @@ def overlapping(this: tuple[str, dict], other: tuple[str, dict]) -> str | None:
 def rules(data: dict, refused: frozenset) -> list[c.Problem]:
     """Rules across sensors, over the sensors that are valid on their own."""
     sensors = data.get("udev_sensors")
-    if not isinstance(sensors, list) or "udev_allow_world_writable" in refused:
+    if not isinstance(sensors, list):
         return []
     # A refused list still has sensors that are valid on their own.
     valid = [(i, s) for i, s in enumerate(sensors) if "udev_sensors" not in refused or not sensor(s)]
-    allow_world_writable = data.get("udev_allow_world_writable") is True
+    allow_world_writable = data.get("udev_allow_world_writable") is True  # a refused value allows nothing
     problems = []
     names, links, matches = {}, {}, {}
     for index, item in valid:

@@ -271,6 +271,19 @@ def test_a_bad_value_in_all_vars_hides_none_of_the_hosts_own():
     ]
 
 
+def test_a_refused_value_a_host_replaces_keeps_no_rule_off_the_hosts_own():
+    latest = "reg.example.com/ros/payload:latest"
+    doc = {
+        "all": {"vars": {"ssh_user": "ops", "payload_image": 42}},
+        "robots": {"hosts": {"r1": {"payload_image": latest}}},
+    }
+    assert fleet_problems(doc) == [
+        "robots.yaml: all.vars.payload_image: expected a string, got 42; quote it",
+        f"robots.yaml: r1.payload_image: {latest!r} uses the moving tag 'latest'; pin a version or digest "
+        "(or set payload_allow_latest: true)",
+    ]
+
+
 def test_a_refused_sensor_hides_nothing_of_the_others():
     """A sensor refused on its own leaves the others' passthrough checked."""
     services = {"driver": {"image": "reg.example.com/ros/driver:1.0"}, "ui": {"image": "reg.example.com/ros/ui:1.0"}}
