@@ -9,11 +9,11 @@ directories complete where a command takes one (INVENTORY, FILE, DIR).
 --install writes it where the shell finds it instead, replacing only one
 robotfleet wrote: bash's in bash-completion's directory of the user
 ($BASH_COMPLETION_USER_DIR/completions, else
-~/.local/share/bash-completion/completions/robotfleet), loaded when
-robotfleet is first completed in a new shell (without the bash-completion
-package, source the file from ~/.bashrc); zsh's as
-~/.local/share/zsh/site-functions/_robotfleet, whose directory goes in
-fpath before compinit (the line for ~/.zshrc is printed).
+$XDG_DATA_HOME or ~/.local/share, then bash-completion/completions/robotfleet),
+loaded when robotfleet is first completed in a new shell (without the
+bash-completion package, source the file from ~/.bashrc); zsh's as
+zsh/site-functions/_robotfleet there, whose directory goes in fpath before
+compinit (the line for ~/.zshrc is printed).
 Exit status: 0, or 2 (bad arguments, a file there that robotfleet did not write).
 """
 
