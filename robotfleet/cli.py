@@ -11,6 +11,8 @@
     robotfleet bundle ROBOT --out DIR [--admin URL --admin-key FILE]
     robotfleet pull-enroll INVENTORY [--limit ...] [--admin URL --admin-key FILE] [--ssh]
     robotfleet inventory INVENTORY --graph | --list | --host NAME
+    robotfleet completion bash|zsh [--install]
+    robotfleet man [--install]
 
 INVENTORY (or -i INVENTORY) is the fleet as it is kept: the fleet file
 (inventories/robots.yaml), an Ansible inventory file (INI or YAML) or
@@ -22,33 +24,20 @@ ROBOT_FLEET=PATH pyinfra inventories/robots.py deploy.py)
 
 from __future__ import annotations
 
-import importlib
 import sys
 
 import robotfleet
 from robotfleet import commands
 
-# name -> module under robotfleet/commands/ (imported only when run: each
-# brings its own dependencies, e.g. gevent for status and rollout)
-COMMANDS = {
-    "enroll": "enroll",
-    "status": "status",
-    "rollout": "rollout",
-    "generate": "generate",
-    "publish": "publish",
-    "halt": "halt",
-    "export": "export",
-    "keys": "keys",
-    "bundle": "bundle",
-    "pull-enroll": "pullenroll",
-    "inventory": "inventoryview",
-}
+# The commands, name -> module: robotfleet/commands/__init__.py (the completion and
+# the manual page read them there too).
+COMMANDS = commands.COMMANDS
 
 
 def usage() -> str:
     lines = [__doc__.strip().split("\n\n")[0], "", "commands:"]
-    for name, module in COMMANDS.items():
-        doc = importlib.import_module(f"robotfleet.commands.{module}").__doc__ or ""
+    for name in COMMANDS:
+        doc = commands.module_of(name).__doc__ or ""
         lines.append(f"  {name:10} {commands.summary(doc)}")
     lines += [
         "",
@@ -85,5 +74,4 @@ def main(argv: list[str] | None = None) -> int:
             f"robotfleet: no command {argv[0]!r} (commands: {', '.join(COMMANDS)}; robotfleet --help)", file=sys.stderr
         )
         return 2
-    module = importlib.import_module(f"robotfleet.commands.{COMMANDS[argv[0]]}")
-    return module.main(argv[1:])
+    return commands.module_of(argv[0]).main(argv[1:])

@@ -179,7 +179,8 @@ def pyinfra_inventory(path: str) -> tuple[str, dict[str, str]]:
         )
     if os.path.isfile(path) and path.endswith(".py"):
         return path, {}
-    return os.path.relpath(CHECKOUT / "inventories" / "robots.py"), {"ROBOT_FLEET": os.path.abspath(path)}
+    # The fleet as given (relative to this directory, where pyinfra runs): its lines name it so.
+    return os.path.relpath(CHECKOUT / "inventories" / "robots.py"), {"ROBOT_FLEET": path}
 
 
 def pyinfra_command(path: str) -> str:

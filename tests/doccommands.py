@@ -269,11 +269,14 @@ def options(command: Command) -> list[str]:
 #   generate    robotfleet generate [--check] in a copy of the checkout: exit 0, nothing changed
 #   keys-init   robotfleet keys init into a new key directory: exit 0, both keys 0600
 #   inventory   robotfleet inventory of the fleet below: exit 0, what it shows on stdout
+#   shell       robotfleet completion / man: printed, or --install'ed under the sandbox's home (the manual
+#               page into a virtual environment of the sandbox's): exit 0, what it wrote is there
 #   unreachable against a fleet of the same host names on 127.0.0.1 ports nothing listens on (through
 #               $ROBOT_FLEET, or named directly: made where the command names it, a .yaml or an Ansible
 #               directory): the exit code README's "Exit codes" gives an unreachable robot, one line each
 UNREACHABLE_CODE = {"pyinfra": 1, "robotfleet": 3}
 CONTACTING = ("status", "enroll", "rollout")
+SHELL = ("completion", "man")
 
 
 def inventory_of(command: Command) -> str | None:
@@ -297,6 +300,8 @@ def how_to_run(command: Command) -> tuple[str, int] | None:
             return "generate", 0
         if args == ["keys", "init"]:
             return "keys-init", 0
+        if command.subcommand in SHELL:
+            return "shell", 0
         inventory = inventory_of(command) or ""
         if command.subcommand == "inventory" and inventory.startswith(("inventories/", "../")):
             return "inventory", 0

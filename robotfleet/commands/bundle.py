@@ -22,6 +22,7 @@ registered robot's.  See docs/guides/pull.md.
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 from pathlib import Path
@@ -123,7 +124,8 @@ def make(args) -> int:
     return selection.OK
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet bundle``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("bundle", __doc__)
     parser.add_argument("robot")
     parser.add_argument("--out", required=True, metavar="DIR", help="a new directory for the bundle")
@@ -141,7 +143,11 @@ def main(argv=None) -> int:
         help="an image shared by many robots: each names itself from its machine-id or board serial",
     )
     parser.add_argument("--name-prefix", default="robot-", help="what the derived names start with (default robot-)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         return make(args)
     except selection.Refused as error:

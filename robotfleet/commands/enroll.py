@@ -22,6 +22,7 @@ their fingerprints with ssh-keyscan on the jump host.
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import socket
@@ -196,7 +197,8 @@ def decide(host: Target, key, choices: Choices) -> tuple[str, str]:
     return "declined", f"{shown}: not enrolled"
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet enroll``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("enroll", __doc__)
     commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
@@ -216,6 +218,11 @@ def main(argv=None) -> int:
         help="replace HOST's changed key when the new one matches --fingerprints FILE (repeatable)",
     )
     parser.add_argument("-y", "--yes", action="store_true", help="enroll new keys as shown, without asking")
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
     try:

@@ -20,6 +20,7 @@ The media are refused once their timestamp expires (--timestamp-expiry,
 
 from __future__ import annotations
 
+import argparse
 import sys
 import tempfile
 from pathlib import Path
@@ -30,7 +31,8 @@ from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.operator.keys import ONLINE
 
 
-def parse_args(argv: list[str]):
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet export``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("export", __doc__)
     parser.add_argument(
         "medium",
@@ -40,7 +42,11 @@ def parse_args(argv: list[str]):
     )
     commandline.add_channel(parser)
     commandline.add_expiry(parser)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str]):
+    return build_parser().parse_args(argv)
 
 
 def export(args) -> int:

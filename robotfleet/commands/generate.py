@@ -10,6 +10,7 @@ docs/reference/settings.md.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 
@@ -72,10 +73,15 @@ def generated() -> dict:
     return {SCHEMA: schema.render(registry), SETTINGS_DOC: settings_doc(registry)}
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet generate``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("generate", __doc__)
     parser.add_argument("--check", action="store_true", help="change nothing; exit 1 if a file is stale")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     stale = []
     for path, text in generated().items():
         if path.exists() and path.read_text() == text:

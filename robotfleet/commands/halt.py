@@ -11,18 +11,24 @@ halt.  See docs/guides/pull.md.
 
 from __future__ import annotations
 
+import argparse
 import sys
 
 from robotfleet import commands, selection
 from robotfleet.pull.operator import commandline, publishing
 
 
-def parse_args(argv: list[str]):
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet halt``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("halt", __doc__)
     parser.add_argument("--reason", default="halted by the operator", help="one line robots report with the halt")
     commandline.add_channel(parser)
     commandline.add_expiry(parser)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str]):
+    return build_parser().parse_args(argv)
 
 
 def halt(args) -> int:

@@ -19,6 +19,7 @@ Exit status: 0, or 2 (bad fleet data, no such host or group).
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -160,7 +161,8 @@ def listing(fleet, registry) -> str:
     return secrets.mask(json.dumps(out, indent=2, sort_keys=True), masked)
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet inventoryview``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("inventory", __doc__)
     commands.add_inventory(parser)
     shown_as = parser.add_mutually_exclusive_group(required=True)
@@ -168,6 +170,11 @@ def main(argv=None) -> int:
     shown_as.add_argument("--list", action="store_true", help="every group and host's settings, as JSON")
     shown_as.add_argument("--host", metavar="NAME", help="one host's settings and where each comes from")
     parser.add_argument("--defaults", action="store_true", help="with --host: every other setting at its default")
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
     try:

@@ -20,6 +20,7 @@ option goes: --remote/--to-dir as for publish.  See docs/guides/pull.md.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -32,7 +33,8 @@ from robotfleet.pull.operator.root_ceremony import install_root, prepare_root, s
 NEXT_ONLINE, NEXT_ROOT = "online.next", "root.next"
 
 
-def parse_args(argv: list[str]):
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet keys``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("keys", __doc__)
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     init = sub.add_parser("init", help="make the root key and the online key")
@@ -57,7 +59,11 @@ def parse_args(argv: list[str]):
     for each in (show, rotate, prepare, install):
         commandline.add_channel(each)
         commandline.add_expiry(each)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str]):
+    return build_parser().parse_args(argv)
 
 
 def _says(public) -> str:

@@ -8,8 +8,9 @@ FLEET_FILE (default inventories/robots.yaml) is read as the commit has it;
 its hosts with `pull_enabled: true` are the release's robots.  Every image of
 their payload is resolved to its digest in its registry now, the deploy
 tree at the commit (default HEAD; a tree with uncommitted changes is
-refused unless --allow-dirty) is archived, the wheels of the robots'
-platforms (`pull_platform`) are fetched with pip (cached), and one release
+refused unless --leave-out-uncommitted: then they are left out, and named)
+is archived, the wheels of the robots' platforms (`pull_platform`) are
+fetched with pip (cached), and one release
 record binding all of them is signed with the online key (TUF targets,
 snapshot, timestamp) and pushed to the fleet remote's robotfleet/releases
 branch (or written to --to-dir).  The first publish also makes the
@@ -23,6 +24,7 @@ See docs/guides/pull.md.
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import sys
@@ -40,7 +42,8 @@ def default_wheel_cache() -> Path:
     return Path(base, "robotfleet", "wheels")
 
 
-def parse_args(argv: list[str]):
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet publish``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("publish", __doc__)
     parser.add_argument(
         "fleet",
@@ -51,10 +54,13 @@ def parse_args(argv: list[str]):
     )
     parser.add_argument("--commit", default="HEAD", metavar="REV", help="the deploy code's commit (default HEAD)")
     parser.add_argument(
-        "--allow-dirty",
+        "--leave-out-uncommitted",
         action="store_true",
-        help="publish HEAD even if the working tree has uncommitted changes (they are not published)",
+        help="publish the commit though the working tree has uncommitted changes: they are left out of the "
+        "release (a release is a commit), and named",
     )
+    # its old name, which read as if the changes were published: still taken, with a note
+    parser.add_argument("--allow-dirty", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--renew", action="store_true", help="only re-sign what is due (timestamp); no new release")
     parser.add_argument("--canary", default="1", help="robots of the first wave: a number or a share (default 1)")
     parser.add_argument(
@@ -102,7 +108,11 @@ def parse_args(argv: list[str]):
     )
     commandline.add_channel(parser)
     commandline.add_expiry(parser)
-    return parser.parse_args(argv)
+    return parser
+
+
+def parse_args(argv: list[str]):
+    return build_parser().parse_args(argv)
 
 
 # The plan's fields as the options that give them, for its problems' lines.
@@ -141,7 +151,7 @@ def options_of(args) -> publishing.Options:
         wheel_cache=None if args.no_wheels else (args.wheel_cache or default_wheel_cache()),
         index_url=args.index_url,
         refresh_wheels=args.refresh_wheels,
-        allow_dirty=args.allow_dirty,
+        leave_out_uncommitted=args.leave_out_uncommitted or args.allow_dirty,
         platforms=tuple(args.platform),
     )
 
@@ -163,6 +173,13 @@ def renew(args) -> int:
 
 def release(args) -> int:
     options = options_of(args)
+    if args.allow_dirty:
+        print(
+            "publish: note: --allow-dirty is now --leave-out-uncommitted: a release is the commit, never the "
+            "working tree's changes",
+            file=sys.stderr,
+        )
+    left_out = publishing.uncommitted(args.checkout, options.revision) if options.leave_out_uncommitted else []
     keys = commandline.keys_of(args)
     keys.signer(ONLINE)  # fail before the slow parts
     chosen, repository = commandline.opened(args)
@@ -187,6 +204,13 @@ def release(args) -> int:
     )
     for line in waves.describe(list(record.robots), record.version, record.rollout, record.published_at):
         print(f"publish: {line}")
+    if left_out:
+        shown = ", ".join(left_out[:5]) + (f" and {len(left_out) - 5} more" if len(left_out) > 5 else "")
+        print(
+            f"publish: left out of release {record.version}, changed and not committed: {shown} "
+            f"({len(left_out)} file(s)); robots get commit {record.commit[:12]} as committed",
+            file=sys.stderr,
+        )
     return selection.OK
 
 

@@ -25,6 +25,7 @@ robotfleet enroll; its host keys are not taken from its report).
 
 from __future__ import annotations
 
+import argparse
 import base64
 import os
 import sys
@@ -183,7 +184,8 @@ def judge(host, report: dict, asked: Asked) -> tuple[str, str]:
     )
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet pullenroll``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("pull-enroll", __doc__)
     commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
@@ -205,6 +207,11 @@ def main(argv=None) -> int:
         "bundle or --fingerprints (repeatable)",
     )
     add_admin(parser)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
     try:

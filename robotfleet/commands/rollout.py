@@ -17,6 +17,7 @@ the robots not yet on the new release.  See docs/guides/releases.md, "Rollouts i
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import secrets
@@ -77,7 +78,8 @@ def deploy_wave(
             return None
 
 
-def parse_args(argv):
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet rollout``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("rollout", __doc__)
     commands.add_inventory(parser)
     parser.add_argument("script", nargs="?", help="the deploy (default: deploy.py)")
@@ -100,6 +102,11 @@ def parse_args(argv):
     from robotfleet.commands import pullrollout
 
     pullrollout.add_options(parser)
+    return parser
+
+
+def parse_args(argv):
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.inventory_option and args.inventory and not args.script:  # rollout -i INVENTORY SCRIPT
         args.inventory, args.script = None, args.inventory

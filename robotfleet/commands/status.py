@@ -114,14 +114,8 @@ def exit_code(rows: list[dict]) -> int:
     return selection.OK
 
 
-def main(argv=None) -> int:
-    # Hosts are queried in parallel greenlets over paramiko; patching is the
-    # command's business, not its importers' (the unit tests import this module).
-    from gevent import monkey
-
-    monkey.patch_all()
-    import time
-
+def build_parser() -> argparse.ArgumentParser:
+    """``robotfleet status``'s command line (the shell completion and the manual page read it too)."""
     parser = commands.parser("status", __doc__)
     commands.add_inventory(parser)
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
@@ -146,6 +140,18 @@ def main(argv=None) -> int:
         metavar="N",
         help=f"hosts asked at once (default {PARALLEL})",
     )
+    return parser
+
+
+def main(argv=None) -> int:
+    # Hosts are queried in parallel greenlets over paramiko; patching is the
+    # command's business, not its importers' (the unit tests import this module).
+    from gevent import monkey
+
+    monkey.patch_all()
+    import time
+
+    parser = build_parser()
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
     if args.json and args.format not in (None, "json"):

@@ -53,11 +53,13 @@ class YamlProblem(Exception):
         super().__init__(f"line {line}: YAML error: {message}" if line else f"YAML error: {message}")
 
 
-def load(data: bytes | str):
-    """The document's data (None for an empty document), or YamlProblem."""
+def load(data: bytes | str, places: dict | None = None):
+    """The document's data (None for an empty document), or YamlProblem.
+    ``places``, if given, gets each mapping's keys' lines: id(the mapping)
+    -> {key: line} (where a value is written, for inventory --host)."""
     text = _decode(data) if isinstance(data, bytes) else data
     with _no_collection():
-        return _load(text)
+        return _load(text, places)
 
 
 @contextlib.contextmanager
@@ -75,7 +77,7 @@ def _no_collection():
             gc.enable()
 
 
-def _load(text: str):
+def _load(text: str, places: dict | None):
     loader = None
     try:
         loader = resolving(LOADER)(text)
@@ -91,7 +93,7 @@ def _load(text: str):
     finally:
         if loader is not None:
             loader.dispose()
-    return None if node is None else _Builder().build(node, 0)
+    return None if node is None else _Builder(places).build(node, 0)
 
 
 def _decode(data: bytes) -> str:
@@ -185,9 +187,10 @@ def _changed(number, text: str) -> bool:
 
 
 class _Builder:
-    def __init__(self):
+    def __init__(self, places: dict | None = None):
         self.built: dict[int, object] = {}  # id(node) -> value: aliases share it
         self.building: set[int] = set()
+        self.places = places  # id(mapping) -> {key: line}, when asked for
 
     def build(self, node, depth: int):
         key = id(node)
@@ -247,6 +250,7 @@ class _Builder:
     def mapping(self, node: MappingNode, depth: int) -> dict:
         result: dict = {}
         merges = []
+        lines: dict | None = {} if self.places is not None else None
         for key_node, value_node in node.value:
             if key_node.tag == MERGE:
                 merges.append(value_node)
@@ -255,6 +259,8 @@ class _Builder:
             if key in result:
                 raise YamlProblem(key_node.start_mark.line + 1, f"duplicate key {str(key)!r}")
             result[key] = self.value(value_node, depth + 1)
+            if lines is not None:
+                lines[key] = key_node.start_mark.line + 1
         # Own keys win over merged ones; among merged mappings the first wins.
         for value_node in merges:
             sources = value_node.value if isinstance(value_node, SequenceNode) else [value_node]
@@ -263,8 +269,13 @@ class _Builder:
                     raise YamlProblem(
                         value_node.start_mark.line + 1, "a merge key (<<) takes a mapping or a list of mappings"
                     )
-                for merged_key, merged_value in self.build(source, depth + 1).items():
+                merged = self.build(source, depth + 1)
+                for merged_key, merged_value in merged.items():
                     result.setdefault(merged_key, merged_value)
+                    if lines is not None:
+                        lines.setdefault(merged_key, self.places.get(id(merged), {}).get(merged_key))
+        if lines is not None:
+            self.places[id(result)] = lines
         return result
 
     def key(self, node):

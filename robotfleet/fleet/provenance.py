@@ -24,7 +24,7 @@ class Origin:
 
     who: str
     at: str  # file[:line]
-    value: object
+    value: tuple  # (the key as written, its value)
 
 
 @dataclass(frozen=True)
@@ -38,11 +38,12 @@ class Disagreement:
 
 def origins(tree: Tree, host: str, named: Callable[[Layer], dict]) -> dict[str, list[Origin]]:
     """Each setting ``host``'s layers set -> every layer that sets it, lowest
-    first (the last wins, unless the setting merges its layers)."""
+    first (the last wins, unless the setting merges its layers); ``named``:
+    setting -> (the key as written, its value), whose line is shown."""
     found: dict[str, list[Origin]] = {}
     for kind, name, layer in tree.sourced(host):
         for setting, value in named(layer).items():
-            found.setdefault(setting, []).append(Origin(f"{kind} {name}", layer.at(setting), value))
+            found.setdefault(setting, []).append(Origin(f"{kind} {name}", layer.source(value[0]), value))
     return found
 
 

@@ -40,10 +40,9 @@ CONVERT = "ansible-inventory -i {0} --list -y > fleet.yaml"
 
 
 def display_path(path: Path) -> str:
-    try:
-        return os.path.relpath(path)
-    except ValueError:
-        return str(path)
+    """A path as the user gave it (absolute stays absolute: /srv/fleets/robots.yaml
+    is not ../../srv/fleets/robots.yaml), and the files found under it below it."""
+    return str(path)
 
 
 class Reading:
@@ -128,8 +127,9 @@ class Reading:
         if path.suffix == ".ini":
             ini.read(text, shown, self.tree, self.lines)
             return
+        places: dict = {}
         try:
-            raw = loader.load(text)
+            raw = loader.load(text, places)
         except loader.YamlProblem as problem:
             if path.suffix not in YAML_SUFFIXES and ini.has_section(text):
                 ini.read(text, shown, self.tree, self.lines)
@@ -139,9 +139,9 @@ class Reading:
         if not isinstance(raw, (dict, type(None))) and path.suffix not in YAML_SUFFIXES and ini.has_section(text):
             ini.read(text, shown, self.tree, self.lines)
             return
-        self.yaml_inventory(raw, shown)
+        self.yaml_inventory(raw, shown, places)
 
-    def yaml_inventory(self, raw, shown: str) -> None:
+    def yaml_inventory(self, raw, shown: str, places: dict) -> None:
         if raw is None:
             raw = {}
         if not isinstance(raw, dict):
@@ -155,7 +155,7 @@ class Reading:
                 f"{CONVERT.format(shown)}",
             )
             return
-        tree.read(raw, self.lines, shown, self.tree)
+        tree.read(raw, self.lines, shown, self.tree, places)
 
     def read_bytes(self, path: Path, what: str) -> bytes | None:
         shown = display_path(path)
@@ -231,8 +231,9 @@ class Reading:
         text = self.decode(data, shown)
         if text is None:
             return None
+        places: dict = {}
         try:
-            values = loader.load(text)
+            values = loader.load(text, places)
         except loader.YamlProblem as problem:
             self.problem(shown, str(problem))
             return None
@@ -241,7 +242,7 @@ class Reading:
         if not isinstance(values, dict):
             self.problem(shown, f"expected a mapping of settings for the {kind[:-5]} {name}, got {c.describe(values)}")
             return None
-        return tree.Layer(values, shown)
+        return tree.Layer(values, shown, places=places.get(id(values), {}))
 
     def unread(self, directory: Path, kind: str, known: set[str], used: set[str]) -> None:
         """A note for each entry of ``directory`` that is not read: it names no

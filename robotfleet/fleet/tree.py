@@ -54,17 +54,25 @@ PRIORITY_KEY = "ansible_group_priority"  # orders sibling groups of one depth, a
 @dataclass
 class Layer:
     """Settings as written in one place: ``file`` (as shown), the line of
-    each key where the format has lines (INI), and the line of the place."""
+    each key where the format has lines (INI), and the line of the place;
+    for YAML, ``places``: each key's line, shown where a value comes from
+    (inventory --host), while problem lines name the YAML file alone."""
 
     values: dict
     file: str
     lines: dict = field(default_factory=dict)
     line: int | None = None
+    places: dict = field(default_factory=dict)
 
     def at(self, key) -> str:
         """``file`` or ``file:line`` for ``key`` (or for the place)."""
         line = self.lines.get(key, self.line) if isinstance(key, str) else self.line
         return f"{self.file}:{line}" if line else self.file
+
+    def source(self, key) -> str:
+        """``file:line`` where ``key`` (as written) is, in either format; else as ``at``."""
+        line = self.places.get(key) if isinstance(key, str) else None
+        return f"{self.file}:{line}" if line else self.at(key)
 
 
 @dataclass
@@ -165,10 +173,12 @@ class Tree:
         return looped
 
 
-def read(raw: dict, lines: list[str], shown: str, tree: Tree | None = None) -> Tree:
+def read(raw: dict, lines: list[str], shown: str, tree: Tree | None = None, places: dict | None = None) -> Tree:
     """The tree of ``raw`` (a loaded YAML inventory), added to ``tree`` if
-    given; problems appended to ``lines``."""
+    given; problems appended to ``lines``; ``places``: its keys' lines
+    (robotfleet/fleet/loader.py ``load``)."""
     tree = Tree() if tree is None else tree
+    places = places or {}
 
     def problem(where: str, message: str):
         lines.append(f"{shown}: {where}: {message}" if where else f"{shown}: {message}")
@@ -190,7 +200,7 @@ def read(raw: dict, lines: list[str], shown: str, tree: Tree | None = None) -> T
                 )
         variables = node.get("vars")
         if isinstance(variables, dict):
-            group.layers.append(Layer(variables, shown))
+            group.layers.append(Layer(variables, shown, places=places.get(id(variables), {})))
         elif variables is not None:
             problem(f"{name}.vars", f"expected a mapping of settings, got {c.describe(variables)}")
         hosts = node.get("hosts")
@@ -205,7 +215,7 @@ def read(raw: dict, lines: list[str], shown: str, tree: Tree | None = None) -> T
                     problem(c.key_name(pattern), f"expected a mapping of settings, got {c.describe(host_vars)}")
                     continue
                 for host, port in named:
-                    tree.listed(host, name, Layer(host_vars, shown), port)
+                    tree.listed(host, name, Layer(host_vars, shown, places=places.get(id(host_vars), {})), port)
         elif hosts is not None:
             problem(f"{name}.hosts", f"expected a mapping of host name to settings, got {c.describe(hosts)}")
         children = node.get("children")

@@ -91,10 +91,14 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
     reading it, ``notes`` what reading it has to say."""
     ignored: set[str] = set()
 
-    def report(layer: tree.Layer | None, where: str, problems):
+    def report(layer: tree.Layer | None, where: str, problems, placed: dict | None = None):
+        """Each problem as a line at ``layer``'s file (and the key's line), or
+        with ``placed`` (a host's rules) where the host's value is written."""
         for sub, message in problems:
             location = f"{where}.{sub}" if sub and not sub.startswith("[") else f"{where}{sub}"
             key = setting_of(sub) if sub else None
+            if placed is not None:
+                layer, key = placed.get(key, (layer, key))
             if (
                 layer is not None
                 and layer.lines
@@ -187,6 +191,9 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
                 verdicts[id(layer)] = checked(name, layer)
             values, bad = verdicts[id(layer)]
             layers.append(values)
+            # A refused value a later layer replaces (all.vars' under a host's
+            # own) is not the host's: the rules look at the one it gets.
+            refused -= values.keys() - combining
             refused |= bad
         data = registry.merge(layers)
         for found in provenance.disagreements(groups, name, lambda layer: verdicts[id(layer)][0], combining):
@@ -197,7 +204,9 @@ def check_tree(groups: tree.Tree, shown: str, registry: Registry, lines: list[st
         if kinds[0] not in defaults:
             defaults[kinds[0]] = registry.defaults(kinds[0])
         merged = {**defaults[kinds[0]], **data}
-        report(home, name, registry.check_host(merged, refused))
+        found = registry.check_host(merged, refused)
+        if found:
+            report(home, name, found, placements(groups.layers(name), registry))
         fleet.groups[kinds[0]].append((name, data))
         for group in above - {tree.ALL, *GROUPS}:
             fleet.subgroups.setdefault(group, []).append(name)
@@ -224,6 +233,18 @@ def every_layer(groups: tree.Tree) -> list[tree.Layer]:
         *(layer for listed in groups.hosts.values() for _, layer in listed),
         *(layer for layers in groups.host_files.values() for layer in layers),
     ]
+
+
+def placements(layers: list[tree.Layer], registry: Registry) -> dict[str, tuple[tree.Layer, str]]:
+    """Each setting of a host -> (the layer that gives the host its value,
+    the key as written there): where a rule's problem with it is shown (an
+    INI group's line, a group_vars/ file), not where the host is listed."""
+    placed = {}
+    for layer in layers:
+        for key in layer.values:
+            if isinstance(key, str):
+                placed[OLDER_NAMES.get(key) or registry.name_of(key)] = (layer, key)
+    return placed
 
 
 def resolve_older_names(

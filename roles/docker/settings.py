@@ -258,10 +258,10 @@ def rules(data: dict, refused: frozenset) -> list[c.Problem]:
     for anyone who reaches the port (localhost: any local user): refused
     unless TLS verification is set or the operator opts in by name."""
     options = data.get("docker_daemon_options")
-    if {"docker_daemon_options", "docker_allow_unauthenticated_tcp"} & refused or not isinstance(options, dict):
+    if "docker_daemon_options" in refused or not isinstance(options, dict):
         return []
     listeners = [(i, h) for i, h in enumerate(options.get("hosts") or []) if tcp_listener(h)]
-    if not listeners or data.get("docker_allow_unauthenticated_tcp") is True:
+    if not listeners or data.get("docker_allow_unauthenticated_tcp") is True:  # a refused value allows nothing
         return []
     missing = [key for key in TLS_VERIFY if options.get(key) in (None, False, "")]
     if not missing:

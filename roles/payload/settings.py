@@ -364,7 +364,8 @@ def _rules(usable: dict, refused: frozenset) -> list[c.Problem]:
     found = []
     if "payload_image" not in refused and "payload_services" not in refused:
         single = usable.get("payload_image")
-        if single is not None and not usable.get("payload_services") and "payload_allow_latest" not in refused:
+        if single is not None and not usable.get("payload_services"):
+            # a refused payload_allow_latest is not in usable: it allows nothing
             why = imageref.pinning_problem(single, usable.get("payload_allow_latest", False))
             if why:
                 found.append(("payload_image", why))

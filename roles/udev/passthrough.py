@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import roles.payload.hooks as payload_hooks
 import roles.udev.rules as rules
+import roles.udev.settings as settings
 from robotfleet import checkers as c
 
 
@@ -34,16 +35,18 @@ def devices_for(data, services: dict[str, dict]) -> dict:
 
 def problems(data: dict, refused: frozenset) -> list[c.Problem]:
     """Sensors that name a service the payload does not have, or that no
-    service of a several-service payload would get."""
-    if "udev_sensors" in refused:
-        return []
+    service of a several-service payload would get (of the sensors that are
+    valid on their own: one refused hides nothing of the others)."""
     services = payload_hooks.declared_services(data, refused)
     if not services:
         return []
     found = []
     asking = [name for name, spec in services.items() if "devices" in spec]
-    for index, sensor in enumerate(data.get("udev_sensors") or []):
+    sensors = data.get("udev_sensors")
+    for index, sensor in enumerate(sensors if isinstance(sensors, list) else []):
         if not isinstance(sensor, dict) or not sensor.get("passthrough", True):
+            continue
+        if "udev_sensors" in refused and settings.sensor(sensor):
             continue
         named = sensor.get("services")
         for name in named or []:

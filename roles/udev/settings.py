@@ -107,14 +107,35 @@ SETTINGS = (
 RENAMED = (Renamed("sensors", "udev_sensors"),)
 
 
+# What a sensor's rule matches a device by (robotfleet's udev rules: roles/udev/rules.py).
+MATCH_KEYS = ("subsystem", "serial", "vendor_id", "product_id", "usb_port")
+
+
+def overlapping(this: tuple[str, dict], other: tuple[str, dict]) -> str | None:
+    """How two sensors (name as shown, match) can select one device, or None: one's
+    match keys are a part of the other's with the same values, so that every
+    device the narrower one matches, the wider one matches too."""
+    (name, match), (other_name, other_match) = this, other
+    if match == other_match:
+        return f"{name} matches the same devices as {other_name}"
+    for wide, wide_match, narrow, narrow_match in (
+        (name, match, other_name, other_match),
+        (other_name, other_match, name, match),
+    ):
+        if wide_match.items() <= narrow_match.items():
+            keys = ", ".join(wide_match)
+            return f"{wide} also matches the devices of {narrow}: its match ({keys}) is a part of the other's"
+    return None
+
+
 def rules(data: dict, refused: frozenset) -> list[c.Problem]:
     """Rules across sensors, over the sensors that are valid on their own."""
     sensors = data.get("udev_sensors")
-    if not isinstance(sensors, list) or "udev_allow_world_writable" in refused:
+    if not isinstance(sensors, list):
         return []
     # A refused list still has sensors that are valid on their own.
     valid = [(i, s) for i, s in enumerate(sensors) if "udev_sensors" not in refused or not sensor(s)]
-    allow_world_writable = data.get("udev_allow_world_writable") is True
+    allow_world_writable = data.get("udev_allow_world_writable") is True  # a refused value allows nothing
     problems = []
     names, links, matches = {}, {}, {}
     for index, item in valid:
@@ -127,16 +148,13 @@ def rules(data: dict, refused: frozenset) -> list[c.Problem]:
         if link in links:
             problems.append((f"{where}.symlink", f"/dev/{link} is already used by udev_sensors[{links[link]}]"))
         links.setdefault(link, index)
-        match = tuple(item.get(k) for k in ("subsystem", "serial", "vendor_id", "product_id", "usb_port"))
-        if match in matches:
-            problems.append(
-                (
-                    where,
-                    f"matches the same devices as udev_sensors[{matches[match]}]; "
-                    "add a serial or usb_port to tell them apart",
-                )
-            )
-        matches.setdefault(match, index)
+        match = {k: item[k] for k in MATCH_KEYS if k in item}
+        for other, (other_name, other_match) in matches.items():
+            overlap = overlapping((name, match), (f"{other_name} (udev_sensors[{other}])", other_match))
+            if overlap:
+                problems.append((where, f"{overlap}; add a serial or usb_port to tell them apart"))
+                break
+        matches[index] = (name, match)
         mode = item.get("mode")
         if mode is not None and int(mode, 8) & 0o002 and not allow_world_writable:
             problems.append(

@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import re
 import shutil
+import site
 import socket
 import subprocess
 import sys
+import venv
 from functools import lru_cache
 from pathlib import Path
 
@@ -181,7 +183,24 @@ class Sandbox:
             args.append(word)
         if command.program == "pyinfra":
             return [sys.executable, "-c", PYINFRA, *args]
+        if command.subcommand in doccommands.SHELL:  # man --install writes beside its Python's bin/
+            return [str(self.environment()), "-m", "robotfleet", *args]
         return [sys.executable, "-m", "robotfleet", *args]
+
+    def environment(self) -> Path:
+        """A virtual environment of the sandbox's (the test runner's dependencies through a .pth,
+        robotfleet the copy's, run from it): its Python."""
+        python = self.base / "venv" / "bin" / "python"
+        if not python.exists():
+            venv.create(self.base / "venv", with_pip=False)
+            purelib = subprocess.run(
+                [python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                capture_output=True,
+                text=True,
+                check=True,
+            ).stdout.strip()
+            Path(purelib, "deps-of-the-test-runner.pth").write_text("\n".join(site.getsitepackages()) + "\n")
+        return python
 
     def run(self, command: doccommands.Command) -> subprocess.CompletedProcess:
         env = self.env(command)
@@ -219,7 +238,7 @@ RUNNABLE = unique_runnable()
 
 def test_the_runnable_commands_cover_the_operators_path():
     kinds = {doccommands.how_to_run(c)[0] for c in RUNNABLE}
-    assert kinds == {"help", "generate", "keys-init", "unreachable", "inventory"}, kinds
+    assert kinds == {"help", "generate", "keys-init", "unreachable", "inventory", "shell"}, kinds
     shown = {c.text for c in RUNNABLE}
     assert "robotfleet enroll inventories/robots.py" in shown and "pyinfra -y inventories/robots.py deploy.py" in shown
 
@@ -236,6 +255,13 @@ def test_each_command_that_needs_no_robot_runs_as_the_docs_say(command, sandbox)
     elif how == "generate":
         for name in GENERATED:
             assert (sandbox.checkout / name).read_bytes() == (ROOT / name).read_bytes(), name
+    elif how == "shell":
+        written = re.match(r"(?:completion|man): (/[^:]+): ", result.stdout)
+        if "--install" in command.args:
+            assert written and Path(written[1]).is_file(), result.stdout
+            assert str(sandbox.base) in written[1], written[1]  # the sandbox's, never this machine's own
+        else:
+            assert result.stdout.startswith(('.\\" robotfleet', "#compdef", "# robotfleet")), result.stdout[:200]
     elif how == "keys-init":
         keys = Path(result.env["ROBOTFLEET_KEYS"])
         for name in ("root.key", "online.key"):

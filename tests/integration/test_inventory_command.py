@@ -57,11 +57,20 @@ def test_a_host_s_values_name_where_they_come_from(tmp_path):
     rows = [line.split() for line in result.stdout.splitlines()]
     shown = display(path)
     assert rows[0] == ["robot02:", "a", "robot,", "in", "robots,", "warehouse_a"]
-    assert ["ros_domain_id", "99", "host", "robot02", f"({shown}/host_vars/robot02.yml)"] in rows
+    # the vars files are YAML: their lines too (issue 54, item 5)
+    assert ["ros_domain_id", "99", "host", "robot02", f"({shown}/host_vars/robot02.yml:1)"] in rows
     assert ["over", "3", "group", "warehouse_a", f"({shown}/hosts:16)"] in rows
-    assert ["ssh_user", "root", "host", "robot02", "as", "ansible_ssh_user", f"({shown}/host_vars/robot02.yml)"] in rows
+    assert [
+        "ssh_user",
+        "root",
+        "host",
+        "robot02",
+        "as",
+        "ansible_ssh_user",
+        f"({shown}/host_vars/robot02.yml:2)",
+    ] in rows
     assert ["over", "ops", "group", "all", "as", "ansible_user", f"({shown}/hosts:27)"] in rows
-    assert ["docker_users", '["ops",', '"ci"]', "group", "robots", f"({shown}/group_vars/robots/users)"] in rows
+    assert ["docker_users", '["ops",', '"ci"]', "group", "robots", f"({shown}/group_vars/robots/users:1)"] in rows
 
 
 def test_secrets_are_masked_and_sibling_groups_that_disagree_are_noted(tmp_path):
@@ -132,3 +141,47 @@ def test_what_is_not_there_is_one_line(tmp_path, argv, line):
     path = write(tmp_path, {"fleet.yaml": "robots:\n  hosts:\n    robot1: {address: 10.0.0.1, payload_image: r/p:1}\n"})
     result = robotfleet(tmp_path, "-i", str(path / "fleet.yaml"), *argv)
     assert (result.returncode, result.stderr.splitlines()) == (2, [line.format(fleet=display(path / "fleet.yaml"))])
+
+
+# Issue 54, item 5: paths and lines as the user wrote them.
+LATEST = "reg.example.com/ros/payload:latest"
+
+
+def test_a_fleet_given_by_its_absolute_path_is_named_so(tmp_path):
+    """Not relative to where robotfleet runs (../../../tmp/...); through a
+    pyinfra inventory's $ROBOT_FLEET too."""
+    fleet = (
+        write(tmp_path, {"fleet.yaml": f"robots:\n  hosts:\n    robot1: {{payload_image: {LATEST}}}\n"}) / "fleet.yaml"
+    )
+    refused = f"{fleet}: robot1.payload_image: {LATEST!r} uses the moving tag 'latest'"
+    for argv, env in (([str(fleet)], None), (["inventories/robots.py"], {"ROBOT_FLEET": str(fleet)})):
+        result = robotfleet(tmp_path, *argv, "--graph", env=env)
+        assert result.returncode == 2 and result.stderr.startswith(refused), result.stderr
+
+
+def test_an_ini_value_s_problem_is_on_the_line_it_is_written(tmp_path):
+    """The group's payload_image on line 18, not the host's line (it was hosts:16)."""
+    text = "\n".join(["# the fleet", *[""] * 13, "[robots]", "robot1 ansible_host=10.0.0.1", "[robots:vars]"])
+    path = write(tmp_path / "inventory", {"hosts": f"{text}\npayload_image={LATEST}\n"})
+    result = robotfleet(tmp_path, "-i", str(path), "--graph")
+    assert result.stderr.splitlines()[0].startswith(f"{path}/hosts:18: robot1.payload_image: {LATEST!r} uses"), (
+        result.stderr
+    )
+
+
+def test_a_yaml_host_s_values_name_their_lines(tmp_path):
+    """inventory --host gives the file and line for YAML as for INI, group_vars/ files too."""
+    path = write(
+        tmp_path,
+        {
+            "hosts.yaml": "all:\n  vars:\n    ssh_user: ops\nrobots:\n  hosts:\n    robot1:\n"
+            "      address: 10.0.0.1\n      payload_image: r/p:1\n",
+            "group_vars/robots.yml": "# the robots\ndocker_users: [ops]\n",
+        },
+    )
+    result = robotfleet(tmp_path, "-i", str(path / "hosts.yaml"), "--host", "robot1")
+    assert result.returncode == 0, result.stderr
+    rows = [line.split() for line in result.stdout.splitlines()]
+    assert ["ssh_user", "ops", "group", "all", f"({path}/hosts.yaml:3)"] in rows, rows
+    assert ["ssh_hostname", "10.0.0.1", "host", "robot1", "as", "address", f"({path}/hosts.yaml:7)"] in rows, rows
+    assert ["docker_users", '["ops"]', "group", "robots", f"({path}/group_vars/robots.yml:2)"] in rows, rows

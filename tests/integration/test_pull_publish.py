@@ -196,8 +196,24 @@ def test_a_dirty_tree_is_refused_unless_allowed(site):
     done = publish(site, check=False)
     assert done.returncode == 2
     assert done.stderr.startswith("publish: deploy.py: changed and not committed (1 file(s))")
+    assert "or --leave-out-uncommitted to publish the commit without them" in done.stderr
     assert git(site["remote"], "branch", "--list", "robotfleet/releases") == ""
-    assert publish(site, "--allow-dirty").returncode == 0
+    # Issue 54, item 7: the flag says what it does, and what it left out
+    head = git(site["checkout"], "rev-parse", "HEAD").strip()
+    left = (
+        "publish: left out of release {}, changed and not committed: deploy.py (1 file(s)); "
+        f"robots get commit {head[:12]} as committed"
+    )
+    done = publish(site, "--leave-out-uncommitted")
+    assert left.format(1) in done.stderr.splitlines(), done.stderr
+    _, record = robot_refresh(site)
+    assert (record.version, record.commit) == (1, head)  # the commit, not the working tree
+    old = publish(site, "--allow-dirty")  # the old name still works, with a note
+    assert old.stderr.splitlines() == [
+        "publish: note: --allow-dirty is now --leave-out-uncommitted: a release is the commit, never the "
+        "working tree's changes",
+        left.format(2),
+    ]
 
 
 def test_an_image_the_registry_lacks_is_refused_and_nothing_is_pushed(site, registry):
@@ -282,7 +298,7 @@ def test_online_rotation_with_the_root_key_at_hand(site):
     done = robotfleet_cmd("keys", "rotate", "online", "--checkout", site["checkout"], "--keys", site["keys"])
     assert "root version 2 installed" in done.stdout
     assert (site["keys"] / "online.old.key").exists()
-    publish(site, "--allow-dirty")
+    publish(site, "--leave-out-uncommitted")
     _, record = robot_refresh(site)
     assert record.version == 2
 
@@ -373,7 +389,7 @@ def test_robots_without_pull_platform_get_the_setting_s_default_and_a_full_cache
         cache,
         "--index-url",
         "http://127.0.0.1:9/simple",
-        "--allow-dirty",
+        "--leave-out-uncommitted",
     )
     assert "publish: release 2" in done.stdout
     refused = robotfleet_cmd(

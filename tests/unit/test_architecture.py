@@ -182,7 +182,13 @@ def test_imports_are_resolved_to_the_checkouts_modules():
     imports = imported_by(
         str(ROOT / "roles" / "udev" / "passthrough.py"), "roles.udev.passthrough", set(product_modules())
     )
-    assert imports == {"robotfleet", "robotfleet.checkers", "roles.payload.hooks", "roles.udev.rules"}
+    assert imports == {
+        "robotfleet",
+        "robotfleet.checkers",
+        "roles.payload.hooks",
+        "roles.udev.rules",
+        "roles.udev.settings",
+    }
 
 
 def test_no_import_circle():

@@ -311,7 +311,7 @@ CORPUS = [
         "x-camera: &camera {subsystem: video4linux, vendor_id: '046d', product_id: '0825'}\n"
         + host("udev_sensors:", "  - {<<: *camera, name: front}", "  - {<<: *camera, name: back}"),
         [
-            "f.yaml: r1.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
+            "f.yaml: r1.udev_sensors[1]: back matches the same devices as front (udev_sensors[0]); "
             "add a serial or usb_port to tell them apart"
         ],
     ),

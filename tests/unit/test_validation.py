@@ -112,8 +112,36 @@ def test_defaults_are_written_once_in_the_declarations():
                     {"name": "b", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
                 ]
             ),
-            "robots.yaml: robot3.udev_sensors[1]: matches the same devices as udev_sensors[0]; "
+            "robots.yaml: robot3.udev_sensors[1]: b matches the same devices as a (udev_sensors[0]); "
             "add a serial or usb_port to tell them apart",
+        ),
+        # Two identical cameras, only one told by its port: the other's rule matches both (issue 54, item 1).
+        (
+            robot(
+                udev_sensors=[
+                    {
+                        "name": "front_camera",
+                        "subsystem": "video4linux",
+                        "vendor_id": "046d",
+                        "product_id": "0825",
+                        "usb_port": "1-1.2",
+                    },
+                    {"name": "back_camera", "subsystem": "video4linux", "vendor_id": "046d", "product_id": "0825"},
+                ]
+            ),
+            "robots.yaml: robot3.udev_sensors[1]: back_camera also matches the devices of front_camera "
+            "(udev_sensors[0]): its match (subsystem, vendor_id, product_id) is a part of the other's; "
+            "add a serial or usb_port to tell them apart",
+        ),
+        (
+            robot(
+                udev_sensors=[
+                    {"name": "gps", "subsystem": "tty", "usb_port": "1-1.3"},
+                    {"name": "lidar", "subsystem": "tty", "serial": "0001A2B3", "usb_port": "1-1.3"},
+                ]
+            ),
+            "robots.yaml: robot3.udev_sensors[1]: gps (udev_sensors[0]) also matches the devices of lidar: "
+            "its match (subsystem, usb_port) is a part of the other's; add a serial or usb_port to tell them apart",
         ),
         (
             robot(
@@ -208,6 +236,69 @@ def test_bad_data_gets_one_clear_line(doc, expected):
 def test_every_problem_is_reported_at_once():
     doc = robot(ssh_port="22", docker_users=["Alice"], udev_sensors=[{"name": "x", "subsystem": "tty", "serial": 1}])
     assert len(fleet_problems(doc)) == 3
+
+
+def test_a_bad_value_in_all_vars_hides_none_of_the_hosts_own():
+    """Issue 54, item 6: a refused all.vars value (an allowing flag that is not
+    a boolean, a list that is not one) left the rules that read it unchecked on
+    every host, whose own problems showed only once it was fixed."""
+    latest = "reg.example.com/ros/payload:latest"
+    sensors = [{"name": "a", "subsystem": "tty", "serial": "1"}, {"name": "a", "subsystem": "tty", "serial": "2"}]
+    hosts = {
+        "robot1": {"address": "10.0.0.1", "payload_image": latest, "udev_sensors": sensors},
+        "robot2": {
+            "address": "10.0.0.2",
+            "payload_image": latest,
+            "payload_allow_latest": False,  # its own value replaces the refused one
+            "udev_allow_world_writable": False,
+            "udev_sensors": [{"name": "b", "subsystem": "tty", "serial": "1", "mode": "0666"}],
+        },
+    }
+    doc = {
+        "all": {"vars": {"ssh_user": "ops", "payload_allow_latest": "yes", "udev_allow_world_writable": "no"}},
+        "robots": {"hosts": hosts},
+    }
+    pinned = "pin a version or digest (or set payload_allow_latest: true)"
+    assert fleet_problems(doc) == [
+        "robots.yaml: all.vars.payload_allow_latest: expected true or false, got 'yes'",
+        "robots.yaml: all.vars.udev_allow_world_writable: expected true or false, got 'no'",
+        "robots.yaml: robot1.udev_sensors[1].name: duplicate sensor name 'a' (also udev_sensors[0])",
+        "robots.yaml: robot1.udev_sensors[1].symlink: /dev/robot/a is already used by udev_sensors[0]",
+        f"robots.yaml: robot1.payload_image: {latest!r} uses the moving tag 'latest'; {pinned}",
+        "robots.yaml: robot2.udev_sensors[0].mode: 0666 is world-writable; use a group "
+        "(or set udev_allow_world_writable)",
+        f"robots.yaml: robot2.payload_image: {latest!r} uses the moving tag 'latest'; {pinned}",
+    ]
+
+
+def test_a_refused_value_a_host_replaces_keeps_no_rule_off_the_hosts_own():
+    latest = "reg.example.com/ros/payload:latest"
+    doc = {
+        "all": {"vars": {"ssh_user": "ops", "payload_image": 42}},
+        "robots": {"hosts": {"r1": {"payload_image": latest}}},
+    }
+    assert fleet_problems(doc) == [
+        "robots.yaml: all.vars.payload_image: expected a string, got 42; quote it",
+        f"robots.yaml: r1.payload_image: {latest!r} uses the moving tag 'latest'; pin a version or digest "
+        "(or set payload_allow_latest: true)",
+    ]
+
+
+def test_a_refused_sensor_hides_nothing_of_the_others():
+    """A sensor refused on its own leaves the others' passthrough checked."""
+    services = {"driver": {"image": "reg.example.com/ros/driver:1.0"}, "ui": {"image": "reg.example.com/ros/ui:1.0"}}
+    sensors = [{"name": "a", "subsystem": "camera", "serial": "1"}, {"name": "b", "subsystem": "tty", "serial": "2"}]
+    problems = fleet_problems(robot(payload_image=None, payload_services=services, udev_sensors=sensors))
+    assert (
+        "robots.yaml: robot3.udev_sensors[1]: name the service(s) that use it (services: [...]); no service asks "
+        "for devices" in problems
+    ), problems
+
+
+def test_a_refused_flag_allows_nothing_of_docker():
+    options = {"hosts": ["tcp://0.0.0.0:2375"]}
+    problems = fleet_problems(robot(docker_daemon_options=options, docker_allow_unauthenticated_tcp="yes"))
+    assert len(problems) == 2 and "opens the Docker API on TCP without TLS client verification" in problems[1]
 
 
 def test_yaml_syntax_error_names_the_line(tmp_path):

@@ -43,7 +43,9 @@ class Options:
     wheel_cache: Path | None = None  # None: no wheels (tests; robots then need an index)
     index_url: str | None = None
     refresh_wheels: bool = False  # ask the index even when the cache holds every requirement
-    allow_dirty: bool = False
+    # Publish the commit though the deploy paths have uncommitted changes: they
+    # are left out (a release is a commit, as reviewed), and named (uncommitted).
+    leave_out_uncommitted: bool = False
     platforms: tuple[str, ...] = field(default_factory=tuple)  # beyond the pull hosts' own
 
 
@@ -115,6 +117,17 @@ def resolve_pins(roles, hosts: list[tuple[str, HostData]]) -> dict[str, dict[str
     return result
 
 
+def uncommitted(checkout, revision: str) -> list[str]:
+    """What a release of ``revision`` leaves out of the working tree: the
+    deploy paths' uncommitted changes when it is HEAD (else nothing of the
+    working tree was to be published)."""
+    try:
+        commit = tree.resolve(checkout, revision)
+        return dirty(checkout) if commit == tree.resolve(checkout, "HEAD") else []
+    except tree.TreeError:
+        return []  # build names the revision
+
+
 def dirty(checkout, paths=tree.DEPLOY_PATHS) -> list[str]:
     """Tracked files of the deploy paths changed in the working tree (git status)."""
     listed = tree.git(checkout, "status", "--porcelain", "--untracked-files=no", "--", *paths)
@@ -146,12 +159,13 @@ def build(
         commit = tree.resolve(checkout, options.revision)
     except tree.TreeError:
         raise PublishError(f"{options.revision}: not a commit of {checkout}") from None
-    if not options.allow_dirty and commit == tree.resolve(checkout, "HEAD"):
+    if not options.leave_out_uncommitted and commit == tree.resolve(checkout, "HEAD"):
         changed = dirty(checkout)
         if changed:
             raise PublishError(
                 f"{changed[0]}: changed and not committed ({len(changed)} file(s)); robots get the "
-                "commit, not the working tree: commit first, or --allow-dirty"
+                "commit, not the working tree: commit first, or --leave-out-uncommitted to publish the "
+                "commit without them"
             )
     fleet, fleet_sha = read_fleet(checkout, commit, options.fleet, registry)
     refused = secret_refusal(fleet, options.fleet)
