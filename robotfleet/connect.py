@@ -187,7 +187,7 @@ class FleetConnector(ssh.SSHConnector):
         name, status shows it."""
         try:
             ok, output = super().run_shell_command(command, print_output, print_input, **arguments)
-        except (OSError, EOFError, SSHException) as error:  # the command or its stdin could not be sent
+        except (OSError, EOFError, SSHException) as error:  # the command or its stdin could not be sent (Frozen too)
             reason = self.lost(error)
             if reason is None:
                 raise

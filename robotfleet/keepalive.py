@@ -1,6 +1,7 @@
 """SSH keepalives that give up: OpenSSH's ServerAliveInterval and
 ServerAliveCountMax for the connections the tool opens itself (paramiko's,
-robotfleet/connect.py) and the options for those it leaves to ``ssh``.
+robotfleet/connect.py) and for the ``ssh`` its git runs (a pull robot's:
+robotfleet/pull/robot/ssh_options.py; the operator's: ``git_environment``).
 
 A frozen link (a cell hand-over, a stalled tunnel) keeps the TCP
 connection open and delivers nothing: TCP never reports it, and a read
@@ -9,24 +10,31 @@ keepalive asks for an answer (``keepalive@openssh.com``, which every server
 answers, if only with a refusal), and when the server has not answered for
 ``count_max`` intervals the transport ends with ``Frozen``: its channels
 close, so the command waiting on one returns, and the host fails with the
-reason (robotfleet/reasons.py ``frozen``)."""
+reason (robotfleet/reasons.py ``frozen``).  No paramiko import here: a
+pull robot's agent reads its defaults and options without it."""
 
 from __future__ import annotations
 
+import functools
+import subprocess
 import threading
 import time
 
-from paramiko import SSHException
-
 REQUEST = "keepalive@openssh.com"
+# (interval, count_max): robotfleet/fleet/connection.py's defaults, a link silent for a minute given up.
+DEFAULT = (15, 3)
 
 
-class Frozen(SSHException):
-    """The server stopped answering; ``seconds`` since the unanswered keepalive was sent."""
+class Frozen(TimeoutError):
+    """The server stopped answering; ``seconds`` since the unanswered keepalive was sent.  An OSError
+    without arguments, as paramiko's transport thread words a socket's error (str: the message)."""
 
     def __init__(self, seconds: float, interval: int, count_max: int):
-        super().__init__(f"no answer for {seconds:.0f} s")
+        super().__init__()
         self.seconds, self.interval, self.count_max = seconds, interval, count_max
+
+    def __str__(self) -> str:
+        return f"no answer for {self.seconds:.0f} s"
 
 
 class Watch:
@@ -67,3 +75,31 @@ class Watch:
 def openssh_options(interval: int, count_max: int) -> list[str]:
     """The same bound for OpenSSH's ``ssh``: its -o options."""
     return ["-o", f"ServerAliveInterval={interval}", "-o", f"ServerAliveCountMax={count_max}"]
+
+
+def silence(keepalive: tuple[int, int]) -> int:
+    """The seconds without an answer after which ``keepalive`` gives a connection up (OpenSSH's rule:
+    ServerAliveCountMax + 1 intervals); HTTPS exchanges are allowed as long."""
+    interval, count_max = keepalive
+    return interval * (count_max + 1)
+
+
+def git_environment(env: dict, where: str, keepalive: tuple[int, int] = DEFAULT) -> dict:
+    """``env`` for the operator's git in the repository ``where``, whose ssh
+    (to a fleet remote) then gives up on a frozen server as the connector
+    does; unless the user chose the ssh git runs (GIT_SSH_COMMAND, GIT_SSH,
+    core.sshCommand), which is left as it is."""
+    if "GIT_SSH_COMMAND" in env or "GIT_SSH" in env or _ssh_configured(where):
+        return env
+    return {**env, "GIT_SSH_COMMAND": " ".join(["ssh", *openssh_options(*keepalive)])}
+
+
+@functools.lru_cache(maxsize=64)
+def _ssh_configured(where: str) -> bool:
+    try:
+        asked = subprocess.run(
+            ["git", "-C", where, "config", "--get", "core.sshCommand"], capture_output=True, timeout=30, check=False
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return bool(asked.stdout.strip())

@@ -12,16 +12,37 @@ while connections run through it (docs: tests/lab/README.md, "Bad links").
 
 Threads, no asyncio: a pytest process or a benchmark starts it beside
 what it runs.  ``sent`` and ``received`` count the bytes to the target and
-back; ``connections`` the connections accepted."""
+back; ``connections`` the connections accepted.  ``through`` points the
+lab's inventory (inventories/lab.py) at links for some of its hosts."""
 
 from __future__ import annotations
 
+import json
 import queue
 import socket
 import threading
 import time
 
 CHUNK = 65536
+
+
+def through(state: dict, links: dict) -> dict:
+    """The environment that has inventories/lab.py reach each host of
+    ``links`` (name -> Link to that host's SSH port) through its link: the
+    ports, and a copy of the lab's known_hosts with each host's keys also
+    under its link's port (written beside it)."""
+    ports = {h["name"]: h["port"] for h in state["hosts"]}
+    lines = open(state["known_hosts"]).read().splitlines()
+    for name, link in links.items():
+        at = f"[127.0.0.1]:{ports[name]} "
+        lines += [f"[127.0.0.1]:{link.port} " + line[len(at) :] for line in lines if line.startswith(at)]
+    path = f"{state['known_hosts']}.links"
+    with open(path, "w") as out:
+        out.write("\n".join(lines) + "\n")
+    return {
+        "ROBOT_LAB_VIA": json.dumps({name: link.port for name, link in links.items()}),
+        "ROBOT_LAB_KNOWN_HOSTS": path,
+    }
 
 
 class Link:
