@@ -47,6 +47,7 @@ def fleet(lab, tmp_path, tag: str | None = None):
     replacements = {"    payload_device_wait: 10\n": "    payload_device_wait: 10\n" + KEEPALIVE}
     for robot in ("robot1", "robot2") if tag else ():
         replacements[f"    {robot}:\n"] = f'    {robot}:\n      payload_image: "@registry@/ros/payload:{tag}"\n'
+    tmp_path.mkdir(parents=True, exist_ok=True)
     return lab.fleet_with(tmp_path, **replacements)
 
 
@@ -137,6 +138,7 @@ def test_a_cut_and_a_freeze_mid_update_fail_those_robots_in_bound_and_the_rerun_
             assert again.returncode == 0 and again.changed_hosts == set(), again.output[-4000:]
     back = lab.provision("--limit", "robot1,robot2", fleet=fleet(lab, tmp_path / "back", before), label="(back)")
     assert back.returncode == 0, back.output[-4000:]
+    assert back.changed_hosts == {"robot1", "robot2"} and {lab.version(r) for r in ("robot1", "robot2")} == {before}
 
 
 def test_status_with_a_frozen_robot_returns_within_its_bound(lab, first_run, tmp_path):
