@@ -6,7 +6,9 @@ supplies the SSH ports, the lab key and known_hosts, the registry (@registry@
 as the hosts reach it, @registry_local@ as this machine does) and the Docker
 CE mirror.  Host keys are checked strictly against the lab's known_hosts,
 like a real fleet ($ROBOT_LAB_KNOWN_HOSTS names another file: first contact
-starts from an empty one, tests/e2e/test_enroll.py).
+starts from an empty one, tests/e2e/test_enroll.py).  $ROBOT_LAB_VIA (JSON,
+host -> port) reaches hosts through a bad link on 127.0.0.1 instead
+(tests/lab/linkproxy.py ``through``, which writes the known_hosts to use).
 """
 
 import json
@@ -53,6 +55,7 @@ def _load():
     ):
         text = text.replace(key, value)
     ports = {h["name"]: h["port"] for h in state["hosts"]}
+    via = json.loads(os.environ.get("ROBOT_LAB_VIA") or "{}")
     fleet = parse_or_exit(text, os.path.relpath(_FLEET), source=f"{_FLEET}@{_STATE}")
     groups = {}
     for group, hosts in fleet.groups.items():
@@ -62,7 +65,7 @@ def _load():
                 continue  # declared but not started (e.g. `up --robots 2`)
             data.update(
                 ssh_hostname="127.0.0.1",
-                ssh_port=ports[name],
+                ssh_port=via.get(name, ports[name]),
                 ssh_user=state.get("ssh_user", "ops"),
                 ssh_key=state["ssh_key"],
                 ssh_known_hosts_file=os.environ.get("ROBOT_LAB_KNOWN_HOSTS") or state["known_hosts"],

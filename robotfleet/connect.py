@@ -16,6 +16,12 @@ points), so the pyinfra CLI, status and rollout connect the same way:
   fails; a host key, authentication or non-SSH answer, which would fail the
   same way, is never tried again; the delay before a retry lets other hosts
   run (time.sleep, patched by gevent, looked up when it is called);
+- a connection that stops answering ends (robotfleet/keepalive.py): a
+  keepalive after ``ssh_keepalive_interval`` seconds without traffic,
+  ``ssh_keepalive_count_max`` of them unanswered end it, and the command
+  that waited fails its host with one line naming the frozen link (a
+  connection the host or the link closed during a command likewise), so one
+  robot's frozen link never holds the run, status or a rollout;
 - an idle connection wakes its paramiko thread every few seconds, not ten
   times a second (idle_wakeup below);
 - a host's key is checked by the fleet's policy (robotfleet/hostkey_policy.py:
@@ -45,10 +51,11 @@ from pyinfra.api.exceptions import ConnectError, PyinfraError
 from pyinfra.connectors import ssh
 from pyinfra.connectors.ssh_util import _patch_paramiko_sk_key_support
 from pyinfra.connectors.sshuserclient import client as sshuserclient
+from pyinfra.connectors.util import CommandOutput, OutputLine
 
-from robotfleet import hostkeys
+from robotfleet import hostkeys, keepalive
 from robotfleet.hostkey_policy import FleetKnownHosts, FleetPolicy, HostKeyCheck, RefusedHostKey, UnknownHostKey
-from robotfleet.reasons import greeting_seen, network_reason, replace_advice
+from robotfleet.reasons import closed_during_command, frozen, greeting_seen, network_reason, replace_advice
 
 CONNECTOR = "fleet"
 PARAMIKO_LOG = "robotfleet.connect.paramiko"
@@ -83,11 +90,10 @@ class Client(sshuserclient.SSHClient, FleetKnownHosts):
     def __init__(self, check: HostKeyCheck | None = None):
         super().__init__()
         self.check = check
-        self.keep_alive = 0  # ssh_config's ServerAliveInterval, once parse_config has read it
 
     def parse_config(self, hostname, initial_cfg=None, ssh_config_file=None, strict_host_key_checking=None):
         parsed = list(super().parse_config(hostname, initial_cfg, ssh_config_file, strict_host_key_checking))
-        self.keep_alive = parsed[5]
+        parsed[5] = 0  # ssh_config's ServerAliveInterval: the fleet's keepalives (Watch) replace it
         if self.check is not None:
             parsed[3] = FleetPolicy(self.check)
             parsed[4] = ()  # the fleet's known_hosts is read by the policy, not by paramiko
@@ -97,6 +103,8 @@ class Client(sshuserclient.SSHClient, FleetKnownHosts):
 class Data(ssh.ConnectorData):
     ssh_connect_timeout: int
     ssh_revoked_host_keys: str | None
+    ssh_keepalive_interval: int
+    ssh_keepalive_count_max: int
 
 
 class FleetConnector(ssh.SSHConnector):
@@ -107,6 +115,8 @@ class FleetConnector(ssh.SSHConnector):
         **ssh.connector_data_meta,
         "ssh_connect_timeout": ssh.DataMeta("Seconds to connect, in all", 10),
         "ssh_revoked_host_keys": ssh.DataMeta("A KRL file of revoked host keys and certificates", None),
+        "ssh_keepalive_interval": ssh.DataMeta("Seconds without traffic before a keepalive", 15),
+        "ssh_keepalive_count_max": ssh.DataMeta("Unanswered keepalives that end the connection", 3),
     }
 
     @staticmethod
@@ -120,6 +130,8 @@ class FleetConnector(ssh.SSHConnector):
         """This attempt's limit for each of connect, greeting and login: the
         timeout, or on a retry what is left of it."""
         return getattr(self, "_attempt_timeout", None) or self.timeout()
+
+    watch: keepalive.Watch | None = None
 
     def make_paramiko_kwargs(self):
         kwargs = super().make_paramiko_kwargs()
@@ -160,9 +172,46 @@ class FleetConnector(ssh.SSHConnector):
             if not self._retry_paramiko_agent_keys(hostname, kwargs, error):
                 raise
         transport = self.client.get_transport()
-        wakeup = idle_wakeup(self.client.keep_alive, monkey.is_module_patched("socket"))
-        if transport is not None and wakeup is not None:
+        if transport is None:
+            return
+        interval = self.data["ssh_keepalive_interval"]
+        self.watch = keepalive.Watch(transport, interval, self.data["ssh_keepalive_count_max"])
+        wakeup = idle_wakeup(interval, monkey.is_module_patched("socket"))
+        if wakeup is not None:
             transport.sock.settimeout(wakeup)
+
+    def run_shell_command(self, command, print_output=False, print_input=False, **arguments):
+        """pyinfra's; a command that failed because the connection ended
+        under it (frozen, or closed by the host or the link) gets the
+        reason as its last line of stderr: pyinfra prints it with the host's
+        name, status shows it."""
+        try:
+            ok, output = super().run_shell_command(command, print_output, print_input, **arguments)
+        except (OSError, EOFError, SSHException) as error:  # the command or its stdin could not be sent (Frozen too)
+            reason = self.lost(error)
+            if reason is None:
+                raise
+            ok, output = False, CommandOutput([])
+        else:
+            reason = None if ok else self.lost()
+        if reason is not None:
+            output.combined_lines.append(OutputLine("stderr", reason))
+            if print_output:  # pyinfra printed the command's lines as they came, and prints none at its failure
+                self.host.log_styled(reason, fg="red", log_func=logging.getLogger("pyinfra").error)
+        return ok, output
+
+    def lost(self, error: BaseException | None = None) -> str | None:
+        """Why the connection ended under a command (``error``: what the
+        command raised, if it did), when it has (None: it is up)."""
+        transport = self.client.get_transport() if self.client is not None else None
+        if transport is None or transport.is_active():
+            return None
+        address, port = self.where()
+        stopped = self.watch.frozen if self.watch is not None else None
+        if stopped is not None:
+            return frozen(address, port, stopped.seconds, stopped.interval, stopped.count_max)
+        # paramiko hands its transport's error to the first caller that asks, then forgets it
+        return closed_during_command(address, port, transport.saved_exception or error)
 
     def host_key_check(self, kwargs: dict) -> HostKeyCheck | None:
         """The fleet's host key checking (yes, accept-new), taking the
@@ -251,7 +300,8 @@ class FleetConnector(ssh.SSHConnector):
 def idle_wakeup(keep_alive: int, gevent_sockets: bool) -> float | None:
     """How often an idle connection's paramiko thread wakes (None: paramiko's 0.1 s).  Only where gevent
     patched sockets (CLI, status, rollout), where a close wakes the reader at once: a real thread asleep
-    on a closed descriptor could read a newer socket given its number.  Keepalives keep their interval."""
+    on a closed descriptor could read a newer socket given its number.  Keepalives (``keep_alive``
+    seconds) keep their interval."""
     if not gevent_sockets:
         return None
     return float(min(IDLE_WAKEUP_SECONDS, keep_alive)) if keep_alive else IDLE_WAKEUP_SECONDS

@@ -67,7 +67,25 @@ USED = (
         "robotfleet/connect.py",
         "its result's fourth item is the host-key policy: swapped for one that names the file and the enroll "
         "command (strict), or writes a key once (accept-new); its sixth, ssh_config's ServerAliveInterval, "
-        "bounds how long an idle connection sleeps",
+        "is zeroed: the fleet's keepalives (robotfleet/keepalive.py) replace pyinfra's send-only one",
+    ),
+    Private(
+        ("paramiko.packet:Packetizer.set_keepalive", "paramiko.transport:Transport.global_request"),
+        "paramiko.packet:Packetizer._check_keepalive",
+        "3b0c2f57931ff10c",
+        "robotfleet/keepalive.py, robotfleet/connect.py",
+        "paramiko's keepalive callback is the one hook in its transport thread that runs when a read finds "
+        "nothing after an interval without a write: the watch counts unanswered keepalives there and ends "
+        "the transport by raising (transport.packetizer); the error the transport saved "
+        "(transport.saved_exception) says why a command's connection ended",
+    ),
+    Private(
+        ("pyinfra.connectors.util:CommandOutput", "pyinfra.connectors.util:OutputLine"),
+        "pyinfra.connectors.ssh:SSHConnector.run_shell_command",
+        "6e742d04535439d4",
+        "robotfleet/connect.py",
+        "a command whose connection ended under it gets the reason as a last stderr line of its output, "
+        "which pyinfra prints with the host's name and status reads",
     ),
     Private(
         ("paramiko.transport:Transport._active_check_timeout",),

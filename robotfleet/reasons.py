@@ -29,6 +29,7 @@ REASONS = (
     "not an SSH server",
     "the SSH session",
     "no route to",
+    "link frozen",
 )
 # Of those, the ones where the host answered and it or we refused: a host key
 # not trusted, a login refused.  The host failed (exit status 1); the others
@@ -72,6 +73,7 @@ SHORT = (
     ("not an SSH server", "not SSH"),
     ("no route to", "no route"),
     ("cannot connect", "cannot connect"),
+    ("link frozen", "frozen"),
 )
 
 
@@ -79,6 +81,20 @@ def short_reason(reason: str) -> str | None:
     """A connection failure's reason in a word or two (``refused``, ``timed out``, ``host key``); None for a
     line that is not one of this module's reasons."""
     return next((word for start, word in SHORT if reason.startswith(start)), None)
+
+
+def frozen(address: str, port: int, seconds: float, interval: int, count_max: int) -> str:
+    """A connection that stopped answering (robotfleet/keepalive.py), ended by its keepalives."""
+    return (
+        f"link frozen: no answer from {address}:{port} for {seconds:.0f} s, the connection was given up "
+        f"(ssh_keepalive_interval: {interval}, ssh_keepalive_count_max: {count_max})"
+    )
+
+
+def closed_during_command(address: str, port: int, error: BaseException | None) -> str:
+    """A connection the host or the link closed while a command ran (a cut link, sshd or the host gone)."""
+    why = f" ({error.strerror})" if isinstance(error, OSError) and error.strerror else ""
+    return f"connection closed by {address}:{port} during a command{why}: the link dropped, or sshd or the host stopped"
 
 
 def greeting_seen(transport) -> bool:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import gevent
 from gevent.lock import Semaphore
 
-from robotfleet import deploy_roles, selection
+from robotfleet import deploy_roles, reasons, selection
 from robotfleet.checkers import one_line
 from robotfleet.role import GROUPS, pull_part
 from robotfleet.status_parts import row, sections, status_command
@@ -100,7 +100,11 @@ def _one(host, roles) -> dict:
         return _about(host, row(host.name, roles, None, error.args[0]))
     ok, output = host.run_shell_command(StringCommand(status_command(roles, host.data)), _sudo=True)
     if not ok:
-        return _about(host, {**row(host.name, roles, {}), "error": output.stderr.strip()[-200:]})
+        said = output.stderr.strip()
+        last = said.splitlines()[-1] if said else ""
+        if reasons.short_reason(last):  # the connection ended under the command (robotfleet/connect.py)
+            return _about(host, row(host.name, roles, None, last))
+        return _about(host, {**row(host.name, roles, {}), "error": said[-200:]})
     found = row(host.name, roles, sections(output.stdout))
     found["drift"] = drift(roles, found, host.data)
     return _about(host, found)

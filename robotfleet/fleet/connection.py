@@ -73,6 +73,20 @@ SETTINGS = (
     Setting("ssh_connect_retry_min_delay", 1, c.integer(0, 600), "Seconds before a reconnect, at least."),
     Setting("ssh_connect_retry_max_delay", 2, c.integer(0, 600), "Seconds before a reconnect, at most."),
     Setting(
+        "ssh_keepalive_interval",
+        15,
+        c.integer(1, 3600),
+        "Seconds without traffic on a connection before an SSH keepalive asks the host to answer "
+        "(OpenSSH's ServerAliveInterval; for the agent's own git on a pull robot too).",
+    ),
+    Setting(
+        "ssh_keepalive_count_max",
+        3,
+        c.integer(1, 100),
+        "Intervals a keepalive may go unanswered before the connection is given up and the host fails "
+        "naming the frozen link: by default a link silent for a minute.",
+    ),
+    Setting(
         "apt_lock_timeout",
         300,
         c.integer(0, 86400),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import shlex
 
+from robotfleet.fleet import connection
 from robotfleet.pull.protocol import agent_files, robot_key
 from robotfleet.role import PullPart
 from roles.pull.settings import SETTINGS
@@ -25,12 +26,13 @@ MACHINES = {"amd64": "x86_64", "arm64": "aarch64", "armhf": "armv7l", "i386": "i
 PYTHON_PROBE = "python3 -c 'import sys; print(\"%d%d\" % sys.version_info[:2])'"
 
 
-_DEFAULTS = {setting.name: setting.default for setting in SETTINGS}
+# The pull settings, and the connection settings the agent reuses (its keepalives).
+_DEFAULTS = {setting.name: setting.default for setting in (*SETTINGS, *connection.SETTINGS)}
 
 
 def value(data, name: str):
-    """The pull setting ``name`` of a host's data (pyinfra's, the fleet
-    file's, or a mapping): its declared default where the data has none."""
+    """The pull or connection setting ``name`` of a host's data (pyinfra's,
+    the fleet file's, or a mapping): its declared default where the data has none."""
     found = data.get(name) if hasattr(data, "get") else getattr(data, name, None)
     return _DEFAULTS[name] if found is None else found
 
@@ -49,6 +51,8 @@ def config(data, robot: str, **extra) -> agent_files.Config:
         windows=tuple(value(data, "pull_windows")),
         min_free_mb=value(data, "pull_min_free_mb"),
         fetch_timeout=value(data, "pull_fetch_timeout"),
+        keepalive_interval=value(data, "ssh_keepalive_interval"),
+        keepalive_count_max=value(data, "ssh_keepalive_count_max"),
         stale_after=value(data, "pull_stale_after"),
         heartbeat=value(data, "pull_heartbeat"),
         report_remote=value(data, "pull_report_remote"),

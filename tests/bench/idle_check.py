@@ -203,7 +203,6 @@ def median(checks: list[dict], key: str) -> float:
 
 
 STDLIB = "import ssl, socket, json, hashlib"
-STDLIB_CORE = "import _ssl, _socket, json, hashlib"  # what the idle check's HTTPS imports instead (https_request.py)
 IDLE_IMPORTS = "import robotfleet.pull.robot.bytecode, robotfleet.pull.robot.idle, robotfleet.pull.robot.https_request"
 
 
@@ -220,8 +219,7 @@ def floors(runs: int) -> dict:
         slim = dict(cached, PYTHONPATH=str(ROOT))
         for name, command, where in (
             ("python -S -c pass", ["-S", "-c", "pass"], env),
-            ("python -S + ssl, socket, json, hashlib (an HTTPS check with ssl)", ["-S", "-c", STDLIB], env),
-            ("python -S + _ssl, _socket, json, hashlib (the idle check's: no ssl)", ["-S", "-c", STDLIB_CORE], env),
+            ("python -S + ssl, socket, json, hashlib (the idle check's HTTPS)", ["-S", "-c", STDLIB], env),
             ("python -S + the idle check's imports (bytecode cached)", ["-S", "-c", IDLE_IMPORTS], slim),
             ("python -c pass", ["-c", "pass"], env),
             ("python + the agent's imports (bytecode cached)", ["-c", "import robotfleet.pull.robot.agent"], cached),

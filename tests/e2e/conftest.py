@@ -30,6 +30,10 @@ PULL_MODULES = (PULL_MODULE, PULL_MEDIA_MODULE, PULL_HTTPS_MODULE)
 # Modules that never use the laptop: a session of only these starts none (its
 # first run, idle engine and payload are CPU the other labs need).
 WITHOUT_LAPTOP = PULL_MODULES
+# Bad links (tests/e2e/test_links.py): in a session with it, the first run
+# reaches SLOW_ROBOT over a 300 ms round trip (150 ms each way).
+LINKS_MODULE = "test_links.py"
+SLOW_ROBOT, SLOW_DELAY = "robot3", 0.150
 
 
 def pytest_collection_modifyitems(items):
@@ -334,8 +338,24 @@ def one_robot_lab(name: str):
 
 
 @pytest.fixture(scope="session")
-def first_run(lab):
-    """The fresh provisioning of the whole lab, shared by every e2e module."""
-    run = lab.provision(label="(fresh fleet)")
+def slow_link(lab):
+    """The bad link the session's first run reaches SLOW_ROBOT through (tests/lab/linkproxy.py)."""
+    from tests.lab import linkproxy
+
+    port = next(h["port"] for h in lab.state["hosts"] if h["name"] == SLOW_ROBOT)
+    with linkproxy.Link(port, delay=SLOW_DELAY) as link:
+        yield link
+
+
+@pytest.fixture(scope="session")
+def first_run(lab, request):
+    """The fresh provisioning of the whole lab, shared by every e2e module
+    (with the links module in the session, SLOW_ROBOT over its slow link)."""
+    env = None
+    if any(item.fspath.basename == LINKS_MODULE for item in request.session.items):
+        from tests.lab import linkproxy
+
+        env = linkproxy.through(lab.state, {SLOW_ROBOT: request.getfixturevalue("slow_link")})
+    run = lab.provision(label="(fresh fleet)", env=env)
     assert run.returncode == 0, run.output[-6000:]
     return run

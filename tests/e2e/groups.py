@@ -21,6 +21,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "arm64": (
         "test_enroll.py",
         "test_hostcerts.py",
+        "test_links.py",
         "test_onhost_security.py",
         "test_security.py",
         "test_time.py",

@@ -22,6 +22,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -148,9 +149,11 @@ class Scripted(_Child):
     """A TLS server on 127.0.0.1 answering each connection with ``answer``
     (bytes, sent after the request's head); TLS 1.2 at most if asked."""
 
-    def __init__(self, tls, answer: bytes, tls12_only: bool = False):
+    def __init__(self, tls, answer: bytes, tls12_only: bool = False, pace: float = 0.0):
+        """``pace``: seconds between the answer's bytes (a server that trickles)."""
         ca, cert, key = tls
-        super().__init__("scripted", str(cert), str(key), "tls12" if tls12_only else "tls13", files={"answer": answer})
+        files = {"answer": answer, "pace": str(pace).encode()}
+        super().__init__("scripted", str(cert), str(key), "tls12" if tls12_only else "tls13", files=files)
 
     @property
     def requests(self) -> list[bytes]:
@@ -251,6 +254,7 @@ def _serve_scripted(recorder: _Recorder, cert: str, key: str, version: str) -> N
     if version == "tls12":
         context.maximum_version = ssl.TLSVersion.TLSv1_2
     answer = (recorder.work / "answer").read_bytes()
+    pace = float((recorder.work / "pace").read_text())
     listener = socket.create_server(("127.0.0.1", 0))
     print(listener.getsockname()[1], flush=True)
     while True:
@@ -261,7 +265,9 @@ def _serve_scripted(recorder: _Recorder, cert: str, key: str, version: str) -> N
                 while b"\r\n\r\n" not in data and (chunk := conn.recv(4096)):
                     data += chunk
                 recorder.record(data)
-                conn.sendall(answer)
+                for at in range(0, len(answer), 1 if pace else len(answer) or 1):
+                    time.sleep(pace)
+                    conn.sendall(answer[at : at + 1] if pace else answer)
         except (OSError, ssl.SSLError):
             pass
 

@@ -2,8 +2,8 @@
 thread wakes every 0.1 s to look for a close, a keepalive or a rekey; the
 operator's connector lets a connected host sleep longer where gevent runs
 the sockets (robotfleet/connect.py, idle_wakeup), and keeps what the
-wake-ups were for: a keepalive (ssh_config's ServerAliveInterval) still goes
-out on time, and closing the connection ends its reader at once.  A real SSH
+wake-ups were for: a keepalive (ssh_keepalive_interval) still goes out on
+time, and closing the connection ends its reader at once.  A real SSH
 server on 127.0.0.1 (tests/integration/sshserver.py), the operator in its
 own process as the CLI runs it."""
 
@@ -64,8 +64,8 @@ print(json.dumps(report))
 @pytest.mark.parametrize(
     ("keep_alive", "timeout", "keepalives"),
     [
-        (None, 5.0, 0),  # a connected host sleeps 5 s between looks
-        (1, 1.0, 2),  # ServerAliveInterval 1: sent each second, as before
+        (None, 5.0, 0),  # a connected host sleeps 5 s between looks (keepalives every 15 s)
+        (1, 1.0, 2),  # ssh_keepalive_interval 1: sent each second
     ],
 )
 def test_an_idle_connection_sleeps_longer_and_keeps_its_keepalives(
@@ -73,14 +73,15 @@ def test_an_idle_connection_sleeps_longer_and_keeps_its_keepalives(
 ):
     server = sshserver.ssh_server(client_key)
     try:
-        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}})
+        path = fleet(
+            tmp_path,
+            {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}},
+            ssh_keepalive_interval=keep_alive,
+        )
         key = server.host_key
         (tmp_path / "known_hosts").write_text(
             f"{hostkeys.entry('127.0.0.1', server.port)} {key.get_name()} {key.get_base64()}\n"
         )
-        if keep_alive:
-            (tmp_path / ".ssh").mkdir()
-            (tmp_path / ".ssh" / "config").write_text(f"Host *\n    ServerAliveInterval {keep_alive}\n")
         result = subprocess.run(
             [sys.executable, "-c", OPERATOR, "2.6"],
             cwd=ROOT,
@@ -94,9 +95,9 @@ def test_an_idle_connection_sleeps_longer_and_keeps_its_keepalives(
     finally:
         server.close()
     assert report["timeout"] == timeout
-    assert server.global_requests.count("keepalive@lag.net") >= keepalives
+    assert server.global_requests.count("keepalive@openssh.com") >= keepalives
     if not keepalives:
-        assert "keepalive@lag.net" not in server.global_requests
+        assert "keepalive@openssh.com" not in server.global_requests
     # A close wakes the reader: it does not sleep its 5 s out.
     assert report["reading_before"] and report["reader_ended_after"] < 1.0, report
 

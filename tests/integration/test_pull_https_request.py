@@ -2,17 +2,21 @@
 against a real TLS server on 127.0.0.1 that answers what each test scripts:
 a chunked answer read whole, and a hostile or broken peer (an answer too
 long, a head without end, no HTTP, a server without TLS 1.3, a certificate
-from another CA) refused with one exception, never read without bound."""
+from another CA) refused with one exception, never read without bound;
+a server that stalls or trickles given up in bound."""
 
 from __future__ import annotations
 
+import socket
 import ssl
+import time
 
 import pytest
 
 from robotfleet.pull.robot import https_request, probe
 from tests.integration import httpsgit
 from tests.integration.httpsgit import Scripted
+from tests.lab.linkproxy import Link
 
 HEAD = b"GET /fleet.git/info/refs HTTP/1.1\r\nHost: 127.0.0.1\r\n"
 
@@ -87,45 +91,42 @@ def test_no_tls_1_3_or_another_ca_is_refused_and_the_probe_leaves_it_to_git(tls,
 
 
 def test_the_certificate_s_names_are_checked(tls):
-    """_ssl's context checks the host name as ssl's did: the certificate
-    names 127.0.0.1 and localhost, nothing else."""
+    """The context checks the host name: the certificate names 127.0.0.1
+    and localhost, nothing else."""
     server = Scripted(tls, b"HTTP/1.1 304 Not Modified\r\n\r\n")
     try:
-        for name in ("127.0.0.1", "localhost"):
-            raw = https_request._connect("127.0.0.1", server.port, 10)
-            try:
-                conn = https_request._tls(raw, name, str(tls[0]))
-                conn.write(HEAD + b"\r\n")
-                assert conn.read(100).startswith(b"HTTP/1.1 304")
-            finally:
-                raw.close()
-        for name in ("robot.example", "127.0.0.2"):
-            raw = https_request._connect("127.0.0.1", server.port, 10)
-            try:
-                with pytest.raises(ssl.SSLCertVerificationError, match="mismatch"):
-                    https_request._tls(raw, name, str(tls[0]))
-            finally:
-                raw.close()
+        for name, good in (("127.0.0.1", True), ("localhost", True), ("robot.example", False), ("127.0.0.2", False)):
+            with socket.create_connection(("127.0.0.1", server.port), timeout=10) as raw:
+                conn = https_request._Tls(raw, https_request.context(str(tls[0])), name, time.monotonic() + 10, 10)
+                if good:
+                    conn.call(conn.tls.do_handshake)
+                    conn.call(conn.tls.write, HEAD + b"\r\n")
+                    assert conn.read().startswith(b"HTTP/1.1 304")
+                else:
+                    with pytest.raises(ssl.SSLCertVerificationError, match="mismatch"):
+                        conn.call(conn.tls.do_handshake)
     finally:
         server.close()
 
 
-def test_a_python_whose_ssl_differs_leaves_the_check_to_git(tls, monkeypatch):
+def test_a_server_that_stalls_or_trickles_is_given_up_in_bound(tls):
+    """A server that accepts and then sends nothing (a frozen link before it)
+    is given up after ``silent`` seconds; one that trickles a byte at a time
+    after the whole request's ``timeout``.  Before: each read waited up to
+    the timeout, so a trickle held the robot's check for ever."""
     server = Scripted(tls, b"HTTP/1.1 304 Not Modified\r\n\r\n")
-
-    class Older:
-        def __init__(self, protocol):
-            pass
-
-        def load_verify_locations(self, **where):
-            pass
-
-    monkeypatch.setattr(https_request._ssl, "_SSLContext", Older)  # no minimum_version, no _wrap_socket
+    slow = Scripted(tls, b"HTTP/1.1 200 OK\r\nContent-Length: 100\r\n\r\n" + b"x" * 100, pace=0.2)
     try:
-        with pytest.raises(https_request.Failed, match="this Python's _ssl cannot make the request"):
-            ask(server, tls[0])
-        memo = {"kind": "static", "commit": "a" * 40, "validators": {"etag": '"a"'}}
-        url = f"https://127.0.0.1:{server.port}/fleet.git"
-        assert probe.https(url, "robotfleet/releases", memo, str(tls[0]), 10).commit is None  # git's fetch follows
+        with Link(server.port) as link:
+            link.freeze()
+            began = time.monotonic()
+            with pytest.raises(TimeoutError):
+                https_request.request("127.0.0.1", link.port, HEAD, b"", str(tls[0]), 30, 1000, silent=1)
+            assert time.monotonic() - began < 5
+        began = time.monotonic()
+        with pytest.raises(TimeoutError):
+            https_request.request("127.0.0.1", slow.port, HEAD, b"", str(tls[0]), 3, 1000, silent=1)
+        assert time.monotonic() - began < 6
     finally:
         server.close()
+        slow.close()

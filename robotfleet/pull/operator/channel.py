@@ -21,6 +21,8 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from robotfleet import keepalive
+
 BRANCH = "robotfleet/releases"
 CLONE_ENV = "ROBOTFLEET_RELEASES_CLONE"
 GIT_TIMEOUT = 600
@@ -39,7 +41,7 @@ def _git(where: Path, *args: str, check: bool = True) -> subprocess.CompletedPro
             text=True,
             timeout=GIT_TIMEOUT,
             check=False,
-            env={**os.environ, "GIT_TERMINAL_PROMPT": "0"},
+            env=keepalive.git_environment({**os.environ, "GIT_TERMINAL_PROMPT": "0"}, str(where)),
         )
     except (OSError, subprocess.TimeoutExpired) as error:
         raise ChannelError(f"git {args[0]}: {error}") from None

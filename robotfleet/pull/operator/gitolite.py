@@ -51,6 +51,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from robotfleet import keepalive
 from robotfleet.pull.operator import gitolite_admin
 from robotfleet.pull.protocol import report_shards
 
@@ -169,7 +170,7 @@ class Admin:
         ssh = (
             f"ssh -i {shlex.quote(self.key)} -o IdentitiesOnly=yes -o BatchMode=yes "
             f"-o StrictHostKeyChecking=yes -o UserKnownHostsFile={shlex.quote(self.known_hosts)} "
-            f"-o ConnectTimeout=10"
+            f"-o ConnectTimeout=10 {' '.join(keepalive.openssh_options(*keepalive.DEFAULT))}"
         )
         return dict(os.environ, GIT_SSH_COMMAND=ssh, GIT_TERMINAL_PROMPT="0")
 

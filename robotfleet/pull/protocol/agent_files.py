@@ -53,6 +53,10 @@ class Config:
     windows: tuple[str, ...] = ()
     min_free_mb: int = 512
     fetch_timeout: int = 300
+    # the host's ssh_keepalive_interval and ssh_keepalive_count_max (robotfleet/fleet/connection.py, the same
+    # defaults): the agent's ssh to the fleet remote gives up after their silence, its HTTPS after as long
+    keepalive_interval: int = 15
+    keepalive_count_max: int = 3
     stale_after: int = 2
     heartbeat: int = 3600
     report_remote: str | None = None  # where reports are pushed; None: remote
@@ -76,6 +80,8 @@ class Config:
             ("name_rule", None),
             ("name_prefix", ""),
             ("media_dir", None),
+            ("keepalive_interval", 15),
+            ("keepalive_count_max", 3),
         ):
             if data[name] == default:
                 del data[name]
@@ -97,6 +103,8 @@ LIMITS = {
     "jitter": (0, 86400),
     "min_free_mb": (0, 1 << 20),
     "fetch_timeout": (5, 86400),
+    "keepalive_interval": (1, 3600),
+    "keepalive_count_max": (1, 100),
     "stale_after": (1, 1000),
     "heartbeat": (10, 7 * 86400),
     "report_shards": (0, 4096),

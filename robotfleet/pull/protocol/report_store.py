@@ -24,6 +24,7 @@ import subprocess
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from robotfleet import keepalive
 from robotfleet.checkers import one_line
 from robotfleet.pull.protocol import catfile, report_shards
 from robotfleet.pull.protocol.reports import MAX_BYTES, ReportError, parse
@@ -201,13 +202,15 @@ def _parsed(robot: str, data: bytes | str) -> dict:
 
 
 def _git(where: Path, *args: str, stdin: bytes | None = None, timeout: int = 300) -> bytes:
+    env = dict(os.environ, GIT_TERMINAL_PROMPT="0")
     try:
         done = subprocess.run(
             ["git", "-C", str(where), *args],
             input=stdin,
             capture_output=True,
             timeout=timeout,
-            env=dict(os.environ, GIT_TERMINAL_PROMPT="0"),
+            # a fetch from the fleet remote: its ssh gives up on a frozen server (robotfleet/keepalive.py)
+            env=keepalive.git_environment(env, str(where)) if "fetch" in args else env,
         )
     except subprocess.TimeoutExpired:
         raise ReportError(f"git {args[0]}: no answer within {timeout} s") from None

@@ -84,6 +84,7 @@ class Wake:
             config.fetch_timeout,
             config.report_remote,
             config.report_shards,
+            (config.keepalive_interval, config.keepalive_count_max),
         )
         self.state = agent_state.load_state(self.state_dir)
         self.record = None

@@ -2,34 +2,28 @@
 (robotfleet/pull/robot/probe.py), without http.client (its import, with
 the email package's, was a fifth of an idle check's CPU): HTTP/1.1,
 ``Connection: close``, an answer's body by its Content-Length, chunked, or
-up to the end, never more than a cap.  The server's certificate is checked
-against ``ca`` (a file), else the system's CAs, looked up by hash as the
-handshake needs one (loading the whole bundle was another tenth).  TLS 1.3
-only: its ClientHello is ~300 bytes shorter; a server without it fails here,
-and the caller's fallback (git, which takes TLS 1.2) reads the branch.  The
-bytes each way are the kernel's count for the connection, TLS included.
+up to the end, never more than a cap.  TLS is the ``ssl`` module's
+(PROTOCOL_TLS_CLIENT: the certificate against ``ca``, a file, else the
+system's CAs, looked up by hash as the handshake needs one, and the host
+name, checked by OpenSSL), TLS 1.3 only: its
+ClientHello is ~300 bytes shorter; a server without it fails here, and
+the caller's fallback (git, which takes TLS 1.2) reads the branch.
 
-TLS is `_ssl`'s, the C module `ssl` wraps, with the same checks (a context
-for PROTOCOL_TLS_CLIENT: the certificate against the CAs and the host
-name, by OpenSSL): importing `ssl` (its enums, built at import, and what
-it imports: socket, base64, re) costs ~23 ms of CPU against ~4 ms for
-`_ssl` and `_socket`, and a str host name goes through the IDNA codec;
-together a quarter of an idle check.  Where `_ssl` does not offer what
-this uses (another Python), the request fails and git's fetch reads the
-branch."""
+Bounded as the agent's other exchanges are: the whole request within
+``timeout`` (pull_fetch_timeout), and a server that accepts, then stalls or
+trickles, given up once it has sent nothing for ``silent`` seconds (the
+silence the host's SSH keepalives allow).  The TLS records go through
+memory (ssl.MemoryBIO), so the bytes each way, TLS included, are counted
+as they pass."""
 
 from __future__ import annotations
 
-import _socket
-import _ssl
-import os
-import struct
-
-SSLError = _ssl.SSLError  # what `ssl` raises as ssl.SSLError: the same class
+import socket
+import ssl
+import time
 
 HEAD_MAX = 16384
-_TCP_INFO_BYTES = struct.Struct("=QQ")  # tcpi_bytes_acked, tcpi_bytes_received (Linux >= 4.1)
-_TCP_INFO_AT = 120
+CHUNK = 65536
 
 
 class Failed(OSError):
@@ -45,90 +39,96 @@ class Answer:
         self.sent = self.received = 0
 
 
-def context(ca: str | None):
-    """A client context (`_ssl`'s) that checks the certificate and the host
-    name, TLS 1.3 only; its CAs from ``ca``, else the system's, as
-    ssl.get_default_verify_paths finds them (SSL_CERT_FILE, SSL_CERT_DIR)."""
-    made = _ssl._SSLContext(_ssl.PROTOCOL_TLS_CLIENT)
-    made.minimum_version = _ssl.PROTO_TLSv1_3
+def context(ca: str | None) -> ssl.SSLContext:
+    made = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)  # host name and certificate checked
+    made.minimum_version = ssl.TLSVersion.TLSv1_3
     if ca:
         made.load_verify_locations(cafile=ca)
         return made
-    file_env, file, dir_env, directory = _ssl.get_default_verify_paths()
-    file, directory = os.environ.get(file_env, file), os.environ.get(dir_env, directory)
-    if directory and os.path.isdir(directory):
-        made.load_verify_locations(capath=directory)
-    elif file and os.path.isfile(file):
-        made.load_verify_locations(cafile=file)
+    paths = ssl.get_default_verify_paths()  # the directory's CAs are looked up by hash as the handshake needs one
+    if paths.capath:
+        made.load_verify_locations(capath=paths.capath)
+    elif paths.cafile:
+        made.load_verify_locations(cafile=paths.cafile)
     return made
 
 
-def request(host: str, port: int, head: bytes, body: bytes, ca: str | None, timeout: float, limit: int) -> Answer:
+def request(
+    host: str, port: int, head: bytes, body: bytes, ca: str | None, timeout: float, limit: int, silent: float = 60
+) -> Answer:
     """Send ``head`` (the request line and headers, without the blank line
     that ends them) and ``body``; the answer, its body at most ``limit``
-    bytes (Failed beyond).  OSError, SSLError, Failed."""
-    raw = _connect(host, port, timeout)
-    try:
-        tls = _tls(raw, host, ca)
-        data = memoryview(head + b"Connection: close\r\n\r\n" + body)
-        while data:
-            data = data[tls.write(data) :]
+    bytes (Failed beyond).  OSError (TimeoutError past a bound), ssl.SSLError, Failed."""
+    deadline = time.monotonic() + timeout
+    with socket.create_connection((host, port), timeout=min(timeout, silent)) as raw:
+        tls = _Tls(raw, context(ca), host, deadline, silent)
+        tls.call(tls.tls.do_handshake)
+        tls.call(tls.tls.write, head + b"Connection: close\r\n\r\n" + body)
         answer = _read(_Reader(tls), limit)
-        answer.sent, answer.received = _tcp_bytes(raw)
+        answer.sent, answer.received = tls.sent, tls.received
         return answer
-    finally:
-        raw.close()
 
 
-class _Socket(_socket.socket):
-    """`_socket`'s socket, with the weak reference `_ssl` keeps to it."""
+class _Tls:
+    """TLS over ``raw`` through memory: each record read or written counted,
+    each wait on the socket bounded by the deadline and the silence."""
 
-    __slots__ = ("__weakref__",)
+    def __init__(self, raw: socket.socket, made: ssl.SSLContext, host: str, deadline: float, silent: float):
+        self.raw, self.deadline, self.silent = raw, deadline, silent
+        self.incoming, self.outgoing = ssl.MemoryBIO(), ssl.MemoryBIO()
+        self.tls = made.wrap_bio(self.incoming, self.outgoing, server_hostname=host)
+        self.sent = self.received = 0
 
+    def call(self, operation, *args):
+        """``operation`` of the TLS object, fed from the socket until it can answer."""
+        while True:
+            try:
+                result = operation(*args)
+            except ssl.SSLWantReadError:
+                self._flush()
+                self._fill()
+                continue
+            self._flush()
+            return result
 
-def _connect(host: str, port: int, timeout: float):
-    """socket.create_connection with `_socket`'s socket, which `_ssl` takes
-    whatever patched the `socket` module (gevent's, in a pyinfra process),
-    and an ASCII name as bytes (a str goes through the IDNA codec)."""
-    error = None
-    for family, kind, proto, _, address in _socket.getaddrinfo(
-        host.encode() if host.isascii() else host, port, 0, _socket.SOCK_STREAM
-    ):
-        sock = _Socket(family, kind, proto)
+    def read(self) -> bytes:
+        """Some of the answer; b"" at its end (with or without TLS's close_notify)."""
         try:
-            sock.settimeout(timeout)
-            sock.connect(address)
-            return sock
-        except OSError as failed:
-            sock.close()
-            error = failed
-    raise error or Failed(f"{host}: no address")
+            return self.call(self.tls.read, CHUNK)
+        except (ssl.SSLZeroReturnError, ssl.SSLEOFError):
+            return b""
 
+    def _wait(self) -> None:
+        left = self.deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError("the server did not answer in time")
+        self.raw.settimeout(min(left, self.silent))
 
-def _tls(raw, host: str, ca: str | None):
-    """`_ssl`'s TLS connection over ``raw`` (read, write), its handshake
-    done; Failed where this Python's `_ssl` differs from what this uses
-    (the probe then leaves the check to git, as for any failure)."""
-    name = host if host.isascii() else host.encode("idna").decode("ascii")
-    try:
-        made = context(ca)._wrap_socket(raw, False, name)
-    except (AttributeError, TypeError) as error:
-        raise Failed(f"this Python's _ssl cannot make the request: {error}") from None
-    made.do_handshake()
-    return made
+    def _flush(self) -> None:
+        data = self.outgoing.read()
+        if data:
+            self._wait()
+            self.raw.sendall(data)
+            self.sent += len(data)
+
+    def _fill(self) -> None:
+        self._wait()
+        data = self.raw.recv(CHUNK)
+        if data:
+            self.received += len(data)
+            self.incoming.write(data)
+        else:
+            self.incoming.write_eof()
 
 
 class _Reader:
-    def __init__(self, sock):
-        self.sock, self.buffer, self.ended = sock, b"", False
+    def __init__(self, tls: _Tls):
+        self.tls, self.buffer, self.ended = tls, b"", False
 
     def fill(self) -> bool:
         if self.ended:
             return False
-        try:
-            data = self.sock.read(65536)
-        except (_ssl.SSLZeroReturnError, _ssl.SSLEOFError):  # closed, with or without TLS's close_notify
-            data = b""
+        data = self.tls.read()
         self.ended = not data
         self.buffer += data
         return bool(data)
@@ -187,13 +187,3 @@ def _chunk_size(line: bytes) -> int:
         return int(line.split(b";")[0].strip(), 16)
     except ValueError:
         raise Failed(f"not a chunk's size: {line[:40]!r}") from None
-
-
-def _tcp_bytes(sock) -> tuple[int, int]:
-    """(bytes sent, bytes received) on the connection, as the kernel counts
-    them; (0, 0) where it does not."""
-    try:
-        info = sock.getsockopt(_socket.IPPROTO_TCP, _socket.TCP_INFO, _TCP_INFO_AT + _TCP_INFO_BYTES.size)
-        return _TCP_INFO_BYTES.unpack_from(info, _TCP_INFO_AT)
-    except (OSError, struct.error, AttributeError):
-        return 0, 0

@@ -38,7 +38,7 @@ from robotfleet.pull.protocol.path_signatures import watched
 from robotfleet.pull.robot import journal, probe, trust_fingerprint
 
 MEMO = "idle.json"
-FORMAT = 2
+FORMAT = 3  # 3: the keepalives the probe is bounded by
 STATE_FILE = "agent-state.json"  # robotfleet/pull/robot/agent_state.py's
 _TIME = "%Y-%m-%dT%H:%M:%SZ"  # robotfleet/pull/protocol/record.py's, in UTC
 
@@ -147,6 +147,8 @@ def _remember(wake, outcome, config_text: str, said: str) -> None:
         "target": target,
         "branch": config.branch,
         "timeout": config.fetch_timeout,
+        "keepalive": list(wake.remote.keepalive),
+        "silent": wake.remote.silence,
         "fetched": fetched,
         "verified": {k: verified.get(k) for k in ("source", "reads", "fingerprint")},
         "trust": {"version": trust.get("version"), "release": trust.get("release")},
@@ -233,10 +235,12 @@ def _idle(memo: dict, now: float) -> dict | None:
     if memo["over"] == "ssh":  # as the full wake asks (transport.Remote._probe): ssh, git and subprocess only here
         from robotfleet.pull.robot import remote_git
 
-        answer = remote_git.ls_remote(repo, memo["url"], memo["branch"], etc_dir, memo["timeout"])
+        keepalive = tuple(memo["keepalive"])
+        answer = remote_git.ls_remote(repo, memo["url"], memo["branch"], etc_dir, memo["timeout"], keepalive)
     else:
         ca = f"{etc_dir}/remote-ca.pem"
-        answer = probe.ask(memo["target"], memo["branch"], fetched, ca if os.path.exists(ca) else None, memo["timeout"])
+        ca = ca if os.path.exists(ca) else None
+        answer = probe.ask(memo["target"], memo["branch"], fetched, ca, memo["timeout"], memo["silent"])
     if answer is None or answer.commit != fetched["commit"]:
         probe.give(fetched, answer, time.monotonic() - started)
         return None

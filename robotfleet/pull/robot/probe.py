@@ -171,15 +171,16 @@ def target(url: str) -> dict | None:
     return {"netloc": parts.netloc, "host": parts.hostname, "port": port, "path": parts.path}
 
 
-def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float) -> Answer | None:
+def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float, silent: float = 60) -> Answer | None:
     """Ask the HTTPS remote ``url`` what ``branch`` is now, the way ``memo``
     says it answered last; None when this remote cannot be probed here
     (a proxy, credentials in the URL: git's own fetch knows how)."""
-    return ask(target(url), branch, memo, ca, timeout)
+    return ask(target(url), branch, memo, ca, timeout, silent)
 
 
-def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: float) -> Answer | None:
-    """``https`` of the remote ``where`` (``target``'s)."""
+def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: float, silent: float = 60):
+    """``https`` of the remote ``where`` (``target``'s): within ``timeout``, given up after ``silent``
+    seconds without a byte (robotfleet/pull/robot/https_request.py)."""
     if where is None or any(os.environ.get(p) for p in _PROXIES):
         return None
     from robotfleet.pull.robot import https_request
@@ -203,8 +204,8 @@ def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: fl
             f"\r\nGit-Protocol: version=2\r\nContent-Length: {len(body)}\r\n"
         )
     try:
-        answer = https_request.request(where["host"], where["port"], head.encode(), body, ca, timeout, limit)
-    except (OSError, https_request.SSLError, ValueError):
+        answer = https_request.request(where["host"], where["port"], head.encode(), body, ca, timeout, limit, silent)
+    except (OSError, ValueError):  # ssl.SSLError and TimeoutError are OSErrors
         return Answer(None)
     if memo.get("kind") == "static":
         found = _static(answer, memo, ref)

@@ -153,9 +153,12 @@ class Ran:
         self.accepted, self.seconds = accepted, seconds
 
 
-def over_ssh(repo, args, url: str, etc: str, timeout: float, stdin: bytes | None = None, env=None) -> Ran:
+def over_ssh(
+    repo, args, url: str, etc: str, timeout: float, stdin: bytes | None = None, env=None, keepalive=None
+) -> Ran:
     """git ``args`` in the repository ``repo``, talking to ``url`` with the
-    robot's ssh (``etc``: its keys and known_hosts); never raises."""
+    robot's ssh (``etc``: its keys and known_hosts; ``keepalive``: its
+    ServerAliveInterval and ServerAliveCountMax); never raises."""
     started = time.monotonic()
     sent = received = 0
     accepted, out, error = None, b"", None
@@ -164,7 +167,9 @@ def over_ssh(repo, args, url: str, etc: str, timeout: float, stdin: bytes | None
     except OSError as failed:
         return Ran(out, f"cannot make ssh's log ({failed})", sent, received, accepted, 0.0)
     try:
-        command = ssh_options.ssh_command(keys(etc), f"{etc}/known_hosts", log, timeout)
+        command = ssh_options.ssh_command(
+            keys(etc), f"{etc}/known_hosts", log, timeout, keepalive or ssh_options.KEEPALIVE
+        )
         code, out, err = run(
             ["git", "-C", str(repo), *args], environment({**(env or {}), "GIT_SSH_COMMAND": command}), stdin, timeout
         )
@@ -190,12 +195,12 @@ def over_ssh(repo, args, url: str, etc: str, timeout: float, stdin: bytes | None
     return Ran(out, error, sent, received, accepted, time.monotonic() - started)
 
 
-def ls_remote(repo, url: str, branch: str, etc: str, timeout: float) -> probe.Answer:
+def ls_remote(repo, url: str, branch: str, etc: str, timeout: float, keepalive=ssh_options.KEEPALIVE) -> probe.Answer:
     """The probe of a remote over SSH (robotfleet/pull/robot/probe.py): ``git
     ls-remote --heads`` of the one branch (one session: protocol v2's
     ``ls-refs`` for refs/heads/ only).  An answer with an ``error`` is the
     fetch's failure, as it would be git's."""
-    ran = over_ssh(repo, [*LS_REMOTE, url, branch], url, etc, timeout)
+    ran = over_ssh(repo, [*LS_REMOTE, url, branch], url, etc, timeout, keepalive=keepalive)
     commit = probe.commit_of(ran.out, f"refs/heads/{branch}") if ran.error is None else None
     return probe.Answer(commit, sent=ran.sent, received=ran.received, error=ran.error, accepted=ran.accepted)
 

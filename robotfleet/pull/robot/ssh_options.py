@@ -21,8 +21,13 @@ from __future__ import annotations
 
 import shlex
 
+from robotfleet import keepalive as keepalives
 from robotfleet.pull.protocol.host_key_alias import HOST_KEY_ALIAS
 
+# (ServerAliveInterval, ServerAliveCountMax): the agent's config gives the host's ssh_keepalive_interval and
+# ssh_keepalive_count_max (robotfleet/pull/protocol/agent_files.py); these are their defaults.
+KEEPALIVE = keepalives.DEFAULT
+silence = keepalives.silence
 CIPHERS = "chacha20-poly1305@openssh.com,aes128-gcm@openssh.com,aes256-gcm@openssh.com"
 MACS = "hmac-sha2-256-etm@openssh.com"
 _ALGORITHMS = {
@@ -61,8 +66,9 @@ def options(known_hosts_path: str) -> list[str]:
     return chosen + (["-o", f"HostKeyAlgorithms={algorithms}"] if algorithms else [])
 
 
-def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> str:
-    """The ssh git runs: only these keys, the pinned host keys, no prompt."""
+def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int, keepalive=KEEPALIVE) -> str:
+    """The ssh git runs: only these keys, the pinned host keys, no prompt; a
+    server that stops answering given up by ``keepalive`` (interval, count)."""
     parts = [
         "ssh",
         "-F",
@@ -79,10 +85,7 @@ def ssh_command(keys: list[str], known_hosts: str, log: str, timeout: int) -> st
         f"HostKeyAlias={HOST_KEY_ALIAS}",
         "-o",
         f"ConnectTimeout={min(timeout, 30)}",
-        "-o",
-        "ServerAliveInterval=15",
-        "-o",
-        "ServerAliveCountMax=4",
+        *keepalives.openssh_options(*keepalive),
         "-o",
         "LogLevel=DEBUG1",
         "-E",

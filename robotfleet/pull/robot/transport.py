@@ -51,7 +51,7 @@ import time
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, report_shards, reports
-from robotfleet.pull.robot import probe, remote_git, transport_cost
+from robotfleet.pull.robot import probe, remote_git, ssh_options, transport_cost
 from robotfleet.pull.robot.remote_git import git_error
 
 HOST_KEY_ALIAS = agent_files.HOST_KEY_ALIAS
@@ -84,6 +84,7 @@ class Remote:
         timeout: int = 300,
         report_url: str | None = None,
         shards: int = report_shards.SINGLE,
+        keepalive: tuple[int, int] = ssh_options.KEEPALIVE,
     ):
         self.url = url
         self.report_url = report_url or url
@@ -91,10 +92,15 @@ class Remote:
         self.repo = Path(repo)
         self.etc = etc
         self.timeout = timeout
+        self.keepalive = keepalive  # a server silent that long is given up (ssh_options.silence)
         self.cost = transport_cost.Cost()
         self.accepted_key: str | None = None
 
     # -- git with bounds ---------------------------------------------------
+
+    @property
+    def silence(self) -> int:
+        return ssh_options.silence(self.keepalive)
 
     def keys(self) -> list[str]:
         return remote_git.keys(self.etc)
@@ -112,7 +118,7 @@ class Remote:
         talks to ``url`` (the fleet remote by default): bounded, and counted."""
         url = url or self.url
         if network and not is_https(url):  # over SSH (or a local path)
-            ran = remote_git.over_ssh(self.repo, args, url, self.etc, self.timeout, stdin, env)
+            ran = remote_git.over_ssh(self.repo, args, url, self.etc, self.timeout, stdin, env, self.keepalive)
             self.cost.add(what, ran.sent, ran.received, ran.seconds)
             self.accepted_key = ran.accepted or self.accepted_key
             if ran.error:
@@ -124,6 +130,8 @@ class Remote:
         if network:
             trace = transport_cost.CurlTrace()
             environment.update(GIT_TRACE_CURL="2", GIT_TRACE_REDACT="1")
+            # curl gives up on a server that sent nothing for the keepalives' silence (under 1 byte a second)
+            environment.update(GIT_HTTP_LOW_SPEED_LIMIT="1", GIT_HTTP_LOW_SPEED_TIME=str(self.silence))
             environment.pop("GIT_SSL_NO_VERIFY", None)
             options = ["-c", "http.sslVerify=true"]
             ca = f"{self.etc}/remote-ca.pem"
@@ -213,9 +221,10 @@ class Remote:
         if had is None:
             if is_https(self.url):
                 ca = f"{self.etc}/remote-ca.pem"
-                answer = probe.https(self.url, branch, memo, ca if os.path.exists(ca) else None, self.timeout)
+                ca = ca if os.path.exists(ca) else None
+                answer = probe.https(self.url, branch, memo, ca, self.timeout, self.silence)
             else:
-                answer = remote_git.ls_remote(self.repo, self.url, branch, self.etc, self.timeout)
+                answer = remote_git.ls_remote(self.repo, self.url, branch, self.etc, self.timeout, self.keepalive)
             had = answer, time.monotonic() - started
         answer, seconds = had
         if answer is not None:
