@@ -27,6 +27,9 @@ SECRET = "db-pa55-e2e"
 
 
 def two_services(payload: str = "1.1", driver: str = "1.0", driver_extra: str = "") -> str:
+    """The fleet's all.vars for the two-service payload; its secret file is written here, since other
+    modules (test_rollout) use these vars without this module's fixture."""
+    SECRET_FILE.write_text(SECRET + "\n")
     return (
         "    payload_image: null\n"
         "    payload_services:\n"
@@ -72,9 +75,8 @@ def fleet(lab, first_run, tmp_path_factory):
     def make(all_vars: str, **more: str):
         return lab.fleet_with(tmp_path_factory.mktemp("fleet"), **{ALL_TAG: all_vars, **more})
 
-    SECRET_FILE.write_text(SECRET + "\n")
     yield make
-    SECRET_FILE.unlink()
+    SECRET_FILE.unlink(missing_ok=True)
 
 
 def test_two_service_payload_deploys(lab, fleet):
