@@ -163,6 +163,26 @@ def metrics(row: dict) -> list[Metric]:
     return found
 
 
+def history(row: dict) -> list[tuple[str, str]]:
+    """The host's releases as its row tells them, newest first (pure): the
+    current one (its state, since when), the one rolled back from and why,
+    the previous one, and the last run's result when it did not succeed."""
+    found = []
+    if row.get("release"):
+        since = f" since {row['deployed']}" if row.get("deployed") else ""
+        found.append(("current", f"{row['release']} ({row.get('release_state') or 'state unknown'}{since})"))
+    back = row.get("rolled_back_from") or {}
+    if back.get("id"):
+        when = f" at {back['time']}" if back.get("time") else ""
+        found.append(("rolled back from", f"{back['id']}{when}: {back.get('reason') or 'no reason given'}"))
+    if row.get("previous"):
+        found.append(("previous", str(row["previous"])))
+    result = row.get("result") or {}
+    if result and not result.get("ok"):
+        found.append(("last run", f"{result.get('outcome')}: {result.get('reason') or result.get('message')}"))
+    return found
+
+
 def watch(data) -> list[str]:
     """What changes when the payload's status may have: its directory (the
     current and previous links and last-result.json are renamed into it)
@@ -185,5 +205,6 @@ STATUS = StatusPart(
     order=20,
     metrics=metrics,
     watch=watch,
+    history=history,
 )
 ROLLOUT = RolloutPart(target=target, missing=missing, result=result)
