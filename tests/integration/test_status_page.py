@@ -252,3 +252,19 @@ def test_the_page_on_a_phone(fleet_run, tmp_path):
     assert done.returncode == 0 and shot.is_file(), done.stderr[-2000:]
     assert png_size(shot) == (390, 844)
     assert shot.stat().st_size > 10_000  # drawn, not a blank page
+
+
+def test_a_page_it_cannot_write_is_refused_before_any_host_is_contacted(tmp_path):
+    server = sshserver.ssh_server()
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": server.port}})
+        page = tmp_path / "missing" / "fleet.html"
+        result = run(path, tmp_path, "-m", "robotfleet", "status", "inventories/robots.py", "--html", str(page))
+        assert result.returncode == 2, result.stderr
+        assert result.stderr.strip() == (
+            f"status: --html {page}: cannot write in {page.parent} (no such directory, or not writable); "
+            "no host was contacted"
+        )
+        assert server.connections == 0
+    finally:
+        server.close()
