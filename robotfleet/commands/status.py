@@ -184,23 +184,22 @@ def main(argv=None) -> int:
     rollout = rollout_plan.latest_state()
     for r in rows:
         r["rollout"] = rollout_plan.host_state(rollout, r["host"])
-    taken = time.time()
-    if args.html:
-        from robotfleet.commands import statuspage
-
-        try:
-            statuspage.write(args.html, rows, rollout, roles, taken)
-        except OSError as error:
-            print(one_line(f"status: cannot write {args.html}: {error.strerror}"), file=sys.stderr)
-            return selection.FAILED
     if args.metrics or shown == "openmetrics":
-        text = metrics.render(rows + metrics.reported(args.inventory, [r["host"] for r in rows]), roles, taken)
+        text = metrics.render(rows + metrics.reported(args.inventory, [r["host"] for r in rows]), roles, time.time())
         if args.metrics:
             try:
                 metrics.write(args.metrics, text)
             except OSError as error:
                 print(one_line(f"status: cannot write {args.metrics}: {error.strerror}"), file=sys.stderr)
                 return selection.FAILED
+    if args.html:
+        from robotfleet.commands import statuspage
+
+        try:
+            statuspage.write(args.html, rows, rollout, roles, time.time())
+        except OSError as error:
+            print(one_line(f"status: cannot write {args.html}: {error.strerror}"), file=sys.stderr)
+            return selection.FAILED
     if shown == "json":
         print(json.dumps(rows, indent=2, sort_keys=True))
     elif shown == "openmetrics":
