@@ -48,6 +48,7 @@ def cells(output: str) -> dict:
         **per_service(report.get("services") or {}, named),
         "image_refs": sorted(current.get("images") or {}),
         "result": last_result(report.get("result")),
+        "releases": [r for r in report.get("releases") or [] if isinstance(r, dict) and r.get("id")] or None,
     }
 
 
@@ -164,9 +165,25 @@ def metrics(row: dict) -> list[Metric]:
 
 
 def history(row: dict) -> list[tuple[str, str]]:
-    """The host's releases as its row tells them, newest first (pure): the
-    current one (its state, since when), the one rolled back from and why,
-    the previous one, and the last run's result when it did not succeed."""
+    """The host's releases as its row tells them, newest first (pure): each
+    release kept on it (current, previous or its state; when; why it failed),
+    or from an older payloadctl the current one, the one rolled back from and
+    the previous one; then the last run's result when it did not succeed."""
+    found = [_kept(kept, row) for kept in row.get("releases") or []] or _pointers(row)
+    result = row.get("result") or {}
+    if result and not result.get("ok"):
+        found.append(("last run", f"{result.get('outcome')}: {result.get('reason') or result.get('message')}"))
+    return found
+
+
+def _kept(kept: dict, row: dict) -> tuple[str, str]:
+    what = {row.get("release"): "current", row.get("previous"): "previous"}.get(kept["id"], kept.get("state"))
+    when = kept.get("activated") or kept.get("created")
+    why = f": {kept['reason']}" if kept.get("reason") else ""
+    return str(what), f"{kept['id']} ({kept.get('state')}{f', {when}' if when else ''}){why}"
+
+
+def _pointers(row: dict) -> list[tuple[str, str]]:
     found = []
     if row.get("release"):
         since = f" since {row['deployed']}" if row.get("deployed") else ""
@@ -177,9 +194,6 @@ def history(row: dict) -> list[tuple[str, str]]:
         found.append(("rolled back from", f"{back['id']}{when}: {back.get('reason') or 'no reason given'}"))
     if row.get("previous"):
         found.append(("previous", str(row["previous"])))
-    result = row.get("result") or {}
-    if result and not result.get("ok"):
-        found.append(("last run", f"{result.get('outcome')}: {result.get('reason') or result.get('message')}"))
     return found
 
 

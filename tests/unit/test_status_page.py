@@ -51,6 +51,18 @@ def test_the_payload_s_releases_newest_first():
         ("last run", "rolled-back: unhealthy"),
     ]
     assert report.history({}) == []
+    # a payloadctl that lists the releases kept on the robot: each of them, newest first
+    row["releases"] = [
+        {"id": "r4", "state": "failed", "created": "2026-11-25T10:04:00Z", "reason": "unhealthy"},
+        {"id": "r3", "state": "active", "created": "2026-11-25T09:59:00Z", "activated": "2026-11-25T10:00:00Z"},
+        {"id": "r2", "state": "active", "created": "2026-11-24T09:00:00Z"},
+    ]
+    assert report.history(row) == [
+        ("failed", "r4 (failed, 2026-11-25T10:04:00Z): unhealthy"),
+        ("current", "r3 (active, 2026-11-25T10:00:00Z)"),
+        ("previous", "r2 (active, 2026-11-24T09:00:00Z)"),
+        ("last run", "rolled-back: unhealthy"),
+    ]
 
 
 def test_a_rollout_s_waves_and_how_far_each_got():
