@@ -3,9 +3,10 @@
 One self-contained HTML file made from the rows ``status --json`` prints:
 a summary of the hosts' health, every host's row (health and why, what its
 roles read: the table's columns), each host's history as its roles tell it
-(StatusPart.history: the payload's releases), the latest rollout's waves and
-their progress (.rollout/, robotfleet/commands/rollout_plan.py), the pull
-robots' last reports and their age, and when it was taken.  Nothing on it
+(StatusPart.history: the payload's releases), the latest push rollout's
+waves and their progress (.rollout/, robotfleet/commands/rollout_plan.py),
+the pull robots' waves for the newest release they have seen (their
+reports), their last reports and their age, and when it was taken.  Nothing on it
 is fetched (inline CSS, no script; its Content-Security-Policy forbids any
 fetch), so it opens from a file, a mail or a CI artifact; it reflows to a
 card per host on a phone.  Every value is escaped (jinja2's autoescape):
@@ -20,7 +21,7 @@ from pathlib import Path
 import jinja2
 
 from robotfleet import atomicfile, reasons
-from robotfleet.commands import rollout_plan
+from robotfleet.commands import pullrollout, rollout_plan
 from robotfleet.status_parts import columns, reporting
 
 # Each host's health on the page, in the summary's order.
@@ -112,26 +113,31 @@ def host_view(row: dict, roles, shown: list[tuple[str, str]], taken: datetime.da
     }
 
 
+def wave_view(number, label: str, outcomes: list[tuple[str, str, str | None]]) -> dict:
+    """A wave: its robots (name, where it stands, why), how far it got (done of its robots)."""
+    done = sum(1 for _, o, _ in outcomes if o == "done")
+    return {
+        "number": number,
+        "label": label,
+        "hosts": outcomes,
+        "done": done,
+        "total": len(outcomes),
+        "percent": round(100 * done / len(outcomes)) if outcomes else 100,
+    }
+
+
 def rollout_view(state: dict | None) -> dict | None:
-    """The latest rollout's waves: each one's robots, where each stands, and
-    how far the wave got (done of its robots)."""
+    """The latest push rollout's waves, as its state (.rollout/) holds them."""
     if not state:
         return None
-    waves = []
-    for number, hosts in enumerate(state["waves"], 1):
-        outcomes = [(h, rollout_plan.outcome(state, h), rollout_plan.reason(state, h)) for h in hosts]
-        done = sum(1 for _, o, _ in outcomes if o == "done")
-        counts = {name: sum(1 for _, o, _ in outcomes if o == name) for name in rollout_plan.OUTCOMES}
-        waves.append(
-            {
-                "number": number,
-                "hosts": outcomes,
-                "done": done,
-                "total": len(hosts),
-                "percent": round(100 * done / len(hosts)) if hosts else 100,
-                "counts": counts,
-            }
+    waves = [
+        wave_view(
+            number,
+            f"Wave {number}",
+            [(h, rollout_plan.outcome(state, h), rollout_plan.reason(state, h)) for h in hosts],
         )
+        for number, hosts in enumerate(state["waves"], 1)
+    ]
     return {
         "key": state.get("key"),
         "status": state.get("status"),
@@ -139,6 +145,29 @@ def rollout_view(state: dict | None) -> dict | None:
         "waves": waves,
         "current": min(state.get("wave", 0) + 1, len(waves)),
     }
+
+
+def pull_rollout_view(rows: list[dict]) -> dict | None:
+    """The newest release the pull robots have seen, wave by wave as each
+    robot placed itself (its report's wave; 0 the canary), and where each
+    stands for it as ``robotfleet rollout`` follows it: done, failed, or
+    pending (not yet, or not seen).  None: no pull robot has seen a release."""
+    pulled = [r for r in rows if r.get("via") == "report"]
+    seen = [((r.get("report") or {}).get("seen") or {}).get("version") for r in pulled]
+    version = max((v for v in seen if isinstance(v, int)), default=None)
+    if version is None:
+        return None
+    placed: dict = {}
+    for r, saw in zip(pulled, seen):
+        report = r.get("report") or {}
+        outcome = pullrollout.outcome(report, version) or "pending"
+        why = report.get("reason") if outcome == "failed" else None
+        placed.setdefault(report.get("wave") if saw == version else None, []).append((r["host"], outcome, why))
+    numbers = sorted(n for n in placed if n is not None)
+    waves = [wave_view(n, "Wave 0 (canary)" if n == 0 else f"Wave {n}", placed[n]) for n in numbers]
+    if None in placed:
+        waves.append(wave_view("none", "Not placed yet (the release not seen)", placed[None]))
+    return {"version": version, "waves": waves}
 
 
 def render(rows: list[dict], rollout: dict | None, roles, taken: float) -> str:
@@ -156,6 +185,7 @@ def render(rows: list[dict], rollout: dict | None, roles, taken: float) -> str:
         counts=counts,
         total=len(hosts),
         rollout=rollout_view(rollout),
+        pull_rollout=pull_rollout_view(rows),
         pulls=[h for h in hosts if h["pull"]],
     )
 

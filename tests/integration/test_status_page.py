@@ -30,7 +30,7 @@ from tests.integration import sshserver
 from tests.integration.test_exit_codes import run
 from tests.integration.test_first_contact import fleet
 from tests.integration.test_metrics import IMAGE, report, robot
-from tests.integration.test_pull_reports import KEY, made
+from tests.integration.test_pull_reports import KEY
 
 pytestmark = pytest.mark.integration
 
@@ -147,6 +147,7 @@ def fleet_run(tmp_path_factory):
         "robot5",
         when,
         "applied",
+        wave=0,
         seen={"version": 3, "release": "r3", "commit": "a" * 40},
         applied={"version": 3, "release": "r3", "commit": "a" * 40, "time": "2026-11-25T09:59:00Z"},
         host_keys=[KEY],
@@ -159,7 +160,19 @@ def fleet_run(tmp_path_factory):
             "health": "healthy",
         },
     )
-    failed = made("failed", robot="robot6", when=when, reason=f"release 7: {BOLD}")
+    failed = reports.build(
+        "robot6",
+        when,
+        "failed",
+        reason=f"release 3: {BOLD}",
+        seen={"version": 3, "release": "r3", "commit": "a" * 40},
+        applied={"version": 2, "release": "r2", "commit": "b" * 40, "time": "2026-11-24T09:59:00Z"},
+        attempted={"version": 3, "result": "failed", "tries": 1},
+        wave=1,
+        host_keys=[KEY],
+        key=KEY,
+        status={"release": "20261124T0959Z-2", "health": "healthy"},
+    )
     for body in (fresh, failed):
         transport.Remote(f"file://{bare}", base / body["robot"], str(base / "etc"), timeout=30).push_report(
             body["robot"], reports.to_bytes(body)
@@ -211,11 +224,22 @@ def test_the_page_a_browser_renders_says_what_status_json_says(fleet_run):
     assert f"rolled back from: 20261120T1Z-1 at 2026-11-21T20:40Z: {FORGED_ROW}" in robot3
 
     # the rollout's waves and their progress, as its state holds them
-    waves = {a["data-wave"]: (int(a["data-done"]), int(a["data-total"])) for a, _ in with_attr(dom, "li", "data-wave")}
-    assert waves == {"1": (1, 1), "2": (1, 2), "3": (0, 1)}
-    outcomes = {a["data-host"]: a["data-outcome"] for a, _ in with_attr(dom, "li", "data-outcome")}
-    assert outcomes == {h: rollout_plan.outcome(state, h) for wave in state["waves"] for h in wave}
-    assert outcomes["robot3"] == "failed" and dom.all(data_rollout_status="stopped")
+    def waves(kind):
+        found = with_attr(dom, "li", "data-wave")
+        return {
+            a["data-wave"]: (int(a["data-done"]), int(a["data-total"])) for a, _ in found if a["data-rollout"] == kind
+        }
+
+    def outcomes(kind):
+        found = with_attr(dom, "li", "data-outcome")
+        return {a["data-host"]: a["data-outcome"] for a, _ in found if a["data-rollout"] == kind}
+
+    assert waves("push") == {"1": (1, 1), "2": (1, 2), "3": (0, 1)}
+    assert outcomes("push") == {h: rollout_plan.outcome(state, h) for wave in state["waves"] for h in wave}
+    assert outcomes("push")["robot3"] == "failed" and dom.all(data_rollout_status="stopped")
+    # a pull rollout's: release 3 as the robots placed themselves, the canary done, wave 1 failed, robot7 not there
+    assert waves("pull") == {"0": (1, 1), "1": (0, 1), "none": (0, 1)}
+    assert outcomes("pull") == {"robot5": "done", "robot6": "failed", "robot7": "pending"}
 
     # pull robots: the last report, its time as --json has it, its age as of the page's time
     [(_, taken)] = dom.all("time", id="taken")
