@@ -95,7 +95,9 @@ class StatusPart:
     ``metrics(row)``, the gauges its cells make (robotfleet/commands/metrics.py);
     ``watch(data)``, paths on the host whose change (lstat, a link's target)
     says its status may have changed: a pull robot's agent reads the status
-    again only then, after a release, or at its heartbeat."""
+    again only then, after a release, or at its heartbeat; ``history(row)``,
+    what its cells say of the host's past, newest first, as (what, text)
+    pairs (the page of ``status --html``)."""
 
     command: Callable[[Any], str]
     cells: Callable[[str], dict]
@@ -103,6 +105,7 @@ class StatusPart:
     order: int = 50  # where its columns stand in the table, lower first
     metrics: Callable[[dict], list[Metric]] | None = None
     watch: Callable[[Any], list[str]] | None = None
+    history: Callable[[dict], list[tuple[str, str]]] | None = None
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """Fleet status: what each host runs and whether it is healthy.
 
     robotfleet status inventories/robots.py [--limit robot2] [--json | --format openmetrics] [--metrics FILE]
-                                            [--parallel N]
+                                            [--html FILE] [--parallel N]
 
 One row per host, one SSH command per host (a pull robot's row comes from
 its last report on the fleet's releases remote instead, --remote, default
@@ -21,6 +21,9 @@ inventory order.
 --format openmetrics prints it instead of the table (for a Pushgateway):
 per host up, drift (not in its declared state), and each role's gauges
 (the payload's release, health, last change).
+--html FILE also writes the fleet as one self-contained page to FILE (the
+rows --json prints, each host's health and releases, the latest rollout's
+waves, the pull robots' reports and their age; robotfleet/commands/statuspage.py).
 Exit status: 0 every host answered, 1 a host failed (answered with an
 error, or its host key or login was refused), 2 refused (no such inventory,
 a --limit matching nothing), 3 a host was unreachable (and none failed).
@@ -128,6 +131,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
     parser.add_argument(
+        "--html",
+        metavar="FILE",
+        help="also write the fleet as one self-contained HTML page to FILE (replaced atomically)",
+    )
+    parser.add_argument(
         "--remote",
         metavar="NAME|URL",
         help="the remote pull robots report to (default: git config robotfleet.remote, else "
@@ -157,12 +165,12 @@ def main(argv=None) -> int:
     if args.json and args.format not in (None, "json"):
         parser.error("--json and --format openmetrics/table: choose one")
     shown = "json" if args.json else args.format or "table"
-    if args.metrics:
-        directory = os.path.dirname(os.path.abspath(args.metrics))
-        if not os.path.isdir(directory) or not os.access(directory, os.W_OK):
+    for flag, target in (("--metrics", args.metrics), ("--html", args.html)):
+        directory = os.path.dirname(os.path.abspath(target)) if target else None
+        if directory and (not os.path.isdir(directory) or not os.access(directory, os.W_OK)):
             print(
                 one_line(
-                    f"status: --metrics {args.metrics}: cannot write in {directory} (no such directory, or "
+                    f"status: {flag} {target}: cannot write in {directory} (no such directory, or "
                     "not writable); no host was contacted"
                 ),
                 file=sys.stderr,
@@ -184,6 +192,14 @@ def main(argv=None) -> int:
             except OSError as error:
                 print(one_line(f"status: cannot write {args.metrics}: {error.strerror}"), file=sys.stderr)
                 return selection.FAILED
+    if args.html:
+        from robotfleet.commands import statuspage
+
+        try:
+            statuspage.write(args.html, rows, rollout, roles, time.time())
+        except OSError as error:
+            print(one_line(f"status: cannot write {args.html}: {error.strerror}"), file=sys.stderr)
+            return selection.FAILED
     if shown == "json":
         print(json.dumps(rows, indent=2, sort_keys=True))
     elif shown == "openmetrics":
