@@ -132,6 +132,7 @@ class FleetConnector(ssh.SSHConnector):
         return getattr(self, "_attempt_timeout", None) or self.timeout()
 
     watch: keepalive.Watch | None = None
+    unreached: str | None = None  # why the last connect failed, in words
 
     def make_paramiko_kwargs(self):
         kwargs = super().make_paramiko_kwargs()
@@ -155,6 +156,7 @@ class FleetConnector(ssh.SSHConnector):
             delay = uniform(self.data["ssh_connect_retry_min_delay"], self.data["ssh_connect_retry_max_delay"])
             left = self.timeout() - (time.monotonic() - started) - delay
             if not transient or retries <= 0 or left < 1:
+                self.unreached = reason  # robotfleet deploy's exit code: the network's, or a refusal
                 raise ConnectError(reason)
             retries -= 1
             self._attempt_timeout = left
