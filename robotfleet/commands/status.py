@@ -29,6 +29,7 @@ a --limit matching nothing), 3 a host was unreachable (and none failed).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import re
@@ -36,7 +37,7 @@ import sys
 
 from robotfleet import commands, deploy_roles, reasons, selection
 from robotfleet.checkers import one_line
-from robotfleet.commands import metrics, rollout_plan
+from robotfleet.commands import metrics, progressline, rollout_plan
 from robotfleet.commands.status_collect import PARALLEL, collect
 from robotfleet.status_parts import columns
 
@@ -132,8 +133,10 @@ def hosts_at_once(text: str) -> int:
     return value
 
 
-def progress(found: dict, count: int, total: int) -> None:
-    """One line on stderr as a host answers: the operator sees the run move."""
+def progress(found: dict, count: int, total: int, line=None) -> None:
+    """As a host answers: one line on stderr (the operator sees the run
+    move), or on a terminal the progress ``line`` (progressline.Line) moves
+    and only a host that did not answer gets a line of its own above it."""
     error = found.get("error") or ""
     state = (
         "answered"
@@ -142,7 +145,12 @@ def progress(found: dict, count: int, total: int) -> None:
         if reasons.unreachable(error)
         else f"failed: {error}"
     )  # a host key or login refused: the host was reached
-    print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
+    if line is None or not line.enabled:
+        print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
+        return
+    line.advance(failed=int(state != "answered"), total=total)
+    if state != "answered":
+        line.say(one_line(f"[{found['host']}] {state}"))
 
 
 def exit_code(rows: list[dict]) -> int:
@@ -216,7 +224,10 @@ def main(argv=None) -> int:
             return selection.REFUSED
     roles = deploy_roles.roles()
     try:
-        rows, rollout = rows_of(args.inventory, args.limit, roles, progress, args.remote, args.parallel)
+        # the progress line only with the table (nothing of it with --json or OpenMetrics)
+        with progressline.Line("status", enabled=shown in ("table", "wide")) as line:
+            answered = functools.partial(progress, line=line)
+            rows, rollout = rows_of(args.inventory, args.limit, roles, answered, args.remote, args.parallel)
     except selection.Refused as error:
         return selection.refused(error)
     if args.metrics or shown == "openmetrics":
