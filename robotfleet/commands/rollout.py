@@ -66,6 +66,7 @@ def deploy_wave(
     limits = [arg for host in hosts for arg in ("--limit", host)]
     command = [sys.executable, "-c", PYINFRA, "-y", "--json", inventory, script, *limits, *extra]
     env = dict(os.environ, PYINFRA_PROGRESS="off", **(fleet_env or {}), **{DEPLOYMENT_ENV: deployment})
+    env[fleet_inventory.TOLD_ENV] = "1"  # the fleet's notes: told by the rollout itself
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True, env=env)
         for line in proc.stderr:
@@ -126,7 +127,11 @@ def relayed(command: list[str], fleet_env: dict | None = None) -> int:
     is in it): stderr as it comes, stdout after; its exit status."""
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(
-            command, stdout=out, stderr=subprocess.PIPE, text=True, env=dict(os.environ, **(fleet_env or {}))
+            command,
+            stdout=out,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=dict(os.environ, **(fleet_env or {}), **{fleet_inventory.TOLD_ENV: "1"}),
         )
         for line in proc.stderr:
             relay(line)

@@ -1,8 +1,9 @@
 """Long work shows its progress (issue 54, item 4): on a terminal (a real
 pseudo-terminal here) status, enroll and rollout draw one progress line on
 stderr (done/total, failures, the wave, time left) and status colours its
-table; in a pipe, with --json or with NO_COLOR there is none of it.  A fleet
-of robots on a closed port of 127.0.0.1."""
+table; in a pipe, with --json or with NO_COLOR there is none of it; a fleet
+file's notes are told once there.  A fleet of robots on a closed port of
+127.0.0.1."""
 
 from __future__ import annotations
 
@@ -116,3 +117,22 @@ def test_enroll_and_a_rollout_on_a_terminal(tmp_path, fleet):
     plain = COLOUR.sub("", shown)
     assert code == 3, plain[-2000:]
     assert re.search(rf"rollout {DRAWN} +\d+/{ROBOTS} robots, 0 failed, wave 2/3, left", plain), plain[-3000:]
+
+
+def test_a_fleet_files_notes_are_told_once_on_a_terminal(tmp_path, fleet):
+    """Ansible's own variables are ignored, and said so once per fleet file on a terminal (remembered in the
+    user's cache), every time in a pipe or a log, and by robotfleet inventory always (issue 54, item 3)."""
+    fleet.write_text(fleet.read_text().replace("ssh_user: ops", "ssh_user: ops\n    ansible_become: true"))
+    note = "note: ansible_become: Ansible's own, ignored here"
+    env = environment(tmp_path)
+    told = [on_a_terminal(robotfleet("status", str(fleet), "--limit", "robot1"), env)[1] for _ in range(2)]
+    assert note in told[0] and "(said once for this fleet; robotfleet inventory" in told[0], told[0][:2000]
+    assert note not in told[1], told[1][:2000]
+    assert list((tmp_path / ".cache" / "robotfleet" / "notes-told").iterdir())
+    code, shown = on_a_terminal(robotfleet("inventory", str(fleet), "--graph"), env)
+    assert code == 0 and note in shown
+    for _ in range(2):
+        piped = subprocess.run(
+            robotfleet("status", str(fleet), "--limit", "robot1"), cwd=ROOT, env=env, capture_output=True, text=True
+        )
+        assert note in piped.stderr
