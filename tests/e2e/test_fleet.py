@@ -132,6 +132,18 @@ def test_dry_diff_shows_a_drifted_daemon_json_and_changes_nothing(lab, first_run
         assert proc.returncode == 0, output[-4000:]
         assert "Will modify /etc/docker/daemon.json" in output
         assert '-    "max-size": "1m"' in output and '+    "max-size": "10m"' in output, output[-4000:]
+        # robotfleet deploy runs the same deploy: the same operations, the same lines (issue 54, item 2)
+        ours = subprocess.run(
+            [sys.executable, "-m", "robotfleet", "deploy", "-i", "inventories/lab.py", "--dry", "--diff"]
+            + ["--limit", host],
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        assert ours.returncode == 0, (ours.stdout + ours.stderr)[-4000:]
+        assert (ours.stdout, ours.stderr.splitlines()) == (proc.stdout, proc.stderr.splitlines())
         assert lab.ok(host, "cat /etc/docker/daemon.json") == drifted
         assert lab.ok(host, "systemctl show -p ActiveEnterTimestampMonotonic docker.service") == started
     finally:
