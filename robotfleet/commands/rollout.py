@@ -49,10 +49,12 @@ def selected_hosts(inventory_path: str, limits: list[str]) -> list[tuple[str, ob
     return [(h.name, h.data) for h in hosts]
 
 
-def read_status(inventory: str, hosts: list[str], parallel: int | None = None) -> dict[str, dict]:
+def read_status(inventory: str, hosts: list[str], parallel: int | None = None, answered=None) -> dict[str, dict]:
     """One status row per host (one SSH command each, at most ``parallel``
-    at once: the rollout's --parallel, else status's default)."""
-    rows = status_collect.collect(inventory, hosts, parallel=parallel or status_collect.PARALLEL) if hosts else []
+    at once: the rollout's --parallel, else status's default; ``answered``
+    as status_collect.collect's)."""
+    parallel = parallel or status_collect.PARALLEL
+    rows = status_collect.collect(inventory, hosts, parallel=parallel, answered=answered) if hosts else []
     return {row["host"]: row for row in rows}
 
 
@@ -202,7 +204,13 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
     state["allowed_failures"] = waves.allowed_failures(args.max_failed, len(names))
     state = waves.start_run(state)
 
-    rows = read_status(args.inventory, names, args.parallel)
+    with progressline.Line("status", unit="robots") as line:  # a large fleet's status takes a while
+        rows = read_status(
+            args.inventory,
+            names,
+            args.parallel,
+            lambda row, n, total: line.advance(failed=int(not row["reachable"]), total=total),
+        )
     unreachable = {h: rows[h].get("error") for h in names if not rows.get(h, {}).get("reachable")}
     already = [h for h in names if missing(roles, rows.get(h, {}), targets[h]) is None]
     state["done"] = sorted(set(state["done"]) | set(already))
