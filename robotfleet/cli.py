@@ -2,7 +2,7 @@
 
     robotfleet deploy INVENTORY [deploy.py] [--limit ...] [--dry] [--diff] [-y]
     robotfleet enroll INVENTORY [--limit ...] [--fingerprints FILE] [--yes]
-    robotfleet status INVENTORY [--limit ...] [--json]
+    robotfleet status INVENTORY [--limit ...] [-o wide | --json]
     robotfleet rollout INVENTORY [deploy.py] [--canary 1 --batch 25% --max-failed 10%] [-y]
     robotfleet generate [--check]
     robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME | --to-dir DIR]

@@ -1,4 +1,4 @@
-"""Deploy the fleet: the mission's deploy.py on every host (or --limit's), as pyinfra runs it.
+"""Deploy the fleet: the checkout's deploy.py on every host (or --limit's), as pyinfra runs it.
 
     robotfleet deploy [-i] INVENTORY [SCRIPT] [--limit robot2] [--dry] [--diff] [-y]
 
