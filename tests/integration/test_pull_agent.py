@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from robotfleet import status_parts
 from robotfleet.pull.protocol import agent_files, path_signatures, reports, tree
 from robotfleet.pull.robot import agent, agent_state, journal, transport, wake_report
 from tests.integration import craftedgit
@@ -287,7 +288,7 @@ def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
     data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3, "pull_heartbeat": 600}
     row = pullstatus.row("robot1", reports.parse(reports.to_bytes(report), "robot1"), data, NOW, "url")
     assert row["error"] == f"out of reach of its releases remote: {outcome.reason}"
-    assert (status.state_of(row), status.exit_code([row]), status.reachable(row)) == (
+    assert (status_parts.state_of(row), status.exit_code([row]), status.reachable(row)) == (
         "unreachable",
         3,
         "pull: remote out of reach",
