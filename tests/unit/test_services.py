@@ -165,7 +165,7 @@ def test_ros1_preset_with_roscore_service():
         env = doc["services"][name]["environment"]
         assert env["ROS_MASTER_URI"] == "http://localhost:11311" and env["ROS_HOSTNAME"] == "10.0.0.9"
         assert "ROS_DOMAIN_ID" not in env
-        assert doc["services"][name]["depends_on"] == ["roscore"]
+        assert doc["services"][name]["depends_on"] == {"roscore": {"condition": "service_healthy", "restart": True}}
     assert problems.schema_problems(doc) == []
 
 
