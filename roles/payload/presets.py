@@ -15,6 +15,7 @@ FILES_DIR = CHECKOUT / "files"
 DDS_DIR = "dds"
 CONTAINER_DDS_DIR = "/etc/ros/dds"
 PROFILE_LABEL = "io.robot-fleet.dds-profile"
+CONTAINER_LOG_DIR = "/var/log/ros"
 
 
 def dds_vendor(xml_text: str) -> str | None:
@@ -82,6 +83,9 @@ def preset(data, address: str, files_dir: Path = FILES_DIR) -> dict:
         # roslaunch and ros2 launch shut their nodes down cleanly on SIGINT
         # (Ctrl-C); on Docker's SIGTERM they are killed when the grace ends.
         result["keys"]["stop_signal"] = "SIGINT"
+        # Logs outlive the containers, on the host, kept under ros_log_max_mb (ros_logs.py).
+        result["environment"]["ROS_LOG_DIR"] = CONTAINER_LOG_DIR
+        result["volumes"].append(f"{value_of(data, 'ros_log_dir')}:{CONTAINER_LOG_DIR}")
     if kind == "ros1":
         roscore = bool(value_of(data, "ros_roscore"))
         host_network = value_of(data, "payload_network_mode") == "host"

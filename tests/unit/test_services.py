@@ -182,6 +182,7 @@ def test_ros1_preset_with_an_external_master_and_one_service():
     assert doc["services"]["payload"]["environment"] == {
         "ROS_MASTER_URI": "http://master:11311",
         "ROS_HOSTNAME": "robot7",
+        "ROS_LOG_DIR": "/var/log/ros",
     }
 
 
