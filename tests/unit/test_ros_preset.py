@@ -7,7 +7,7 @@ import yaml
 
 from roles.payload import compose, presets, problems
 from roles.payload.payloadctl import releases
-from tests.unit.harness import desired_compose, merged
+from tests.unit.harness import desired_compose, fleet_problems, merged
 
 REG = "reg.example.com"
 NODES = {
@@ -87,3 +87,13 @@ def test_engines_older_than_25_get_the_check_without_start_interval():
     assert "start_interval" in doc["services"]["roscore"]["healthcheck"]  # the input is left alone
     for version in ("25.0.0", "26.1.5+dfsg1", "28.5.2", None):
         assert releases.for_engine(doc, version) == doc
+
+
+def test_the_guide_s_fleet_file_is_accepted_and_orders_its_graph():
+    from tests.e2e.test_ros import guide_vars  # the block tests/e2e/test_ros.py deploys
+
+    graph = guide_vars("reg.example.com/")
+    assert fleet_problems({"robots": {"vars": graph, "hosts": {"robot3": {"address": "10.0.0.3"}}}}) == []
+    doc = rendered(graph)
+    assert list(doc["services"]) == ["roscore", "talker", "listener"]
+    assert all(doc["services"][name]["depends_on"] == WAIT for name in ("talker", "listener"))
