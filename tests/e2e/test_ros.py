@@ -11,12 +11,9 @@ the lab's fleet file (the heartbeat payload) for the group's later modules."""
 
 from __future__ import annotations
 
-import json
-
 import pytest
-import yaml
 
-from tests.e2e.conftest import BACKGROUND, ROOT, wait_for
+from tests.e2e.conftest import BACKGROUND, wait_for
 
 pytestmark = pytest.mark.e2e
 
@@ -24,25 +21,6 @@ HOST_NET, BRIDGE = "robot2", "robot3"
 ROBOTS = (HOST_NET, BRIDGE)
 PROJECT = "robot-payload"
 NODES = ("/rosout", "/talker", "/listener")
-
-
-GUIDE = ROOT / "docs" / "guides" / "ros-payload.md"
-GUIDE_MARKER = "<!-- the ROS graph test_ros.py deploys -->"
-GUIDE_REGISTRY = "registry.example.com/"
-
-
-def guide_vars(image_registry: str) -> dict:
-    """The guide's fleet file for the graph, its registry the lab's: the vars of its group."""
-    text = GUIDE.read_text()
-    block = text[text.index(GUIDE_MARKER) :].split("```yaml\n", 1)[1].split("```", 1)[0]
-    found = yaml.safe_load(block)["robots"]["vars"]
-    return json.loads(json.dumps(found).replace(GUIDE_REGISTRY, image_registry))
-
-
-def host_vars(extra: dict) -> str:
-    """Host vars for robots.hosts.NAME in the lab's fleet file (6 spaces in)."""
-    dumped = yaml.safe_dump(extra, sort_keys=False, default_flow_style=False, width=1000)
-    return "".join(f"      {line}\n" for line in dumped.splitlines())
 
 
 def container(service: str) -> str:
@@ -55,21 +33,16 @@ def limits() -> list[str]:
 
 @pytest.fixture(scope="module")
 def graph(lab, first_run, tmp_path_factory):
-    from tests.lab import ros_images
+    from tests.lab import ros_graph, ros_images
 
     if "ROS image" in BACKGROUND:
         BACKGROUND["ROS image"].wait()
     ros_images.ensure(lab.state)
-    graph_vars = guide_vars("@registry@/")
-    graph_vars["payload_services"]["talker"]["devices"] = []  # the lab robots' udev_sensors go to one service
-    # The guide's vars on robot2 and robot3 only (the lab's other hosts keep theirs); robot3 on a bridge,
+    # The guide's graph on robot2 and robot3 only (the lab's other hosts keep theirs); robot3 on a bridge,
     # robot2's logs kept under 10 MB so that the test can pass the bound.
-    fleet = lab.fleet_with(
-        tmp_path_factory.mktemp("ros"),
-        **{
-            f"    {HOST_NET}:\n": f"    {HOST_NET}:\n" + host_vars({**graph_vars, "ros_log_max_mb": 10}),
-            f"    {BRIDGE}:\n": f"    {BRIDGE}:\n" + host_vars({**graph_vars, "payload_network_mode": "bridge"}),
-        },
+    fleet = tmp_path_factory.mktemp("ros") / "lab.yaml"
+    fleet.write_text(
+        ros_graph.lab_fleet({HOST_NET: {"ros_log_max_mb": 10}, BRIDGE: {"payload_network_mode": "bridge"}})
     )
     run = lab.provision(*limits(), fleet=fleet, label="(the ROS graph, first release)")
     yield run

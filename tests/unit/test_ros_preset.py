@@ -90,7 +90,7 @@ def test_engines_older_than_25_get_the_check_without_start_interval():
 
 
 def test_the_guide_s_fleet_file_is_accepted_and_orders_its_graph():
-    from tests.e2e.test_ros import guide_vars  # the block tests/e2e/test_ros.py deploys
+    from tests.lab.ros_graph import guide_vars  # the block tests/e2e/test_ros.py and the demo deploy
 
     graph = guide_vars("reg.example.com/")
     assert fleet_problems({"robots": {"vars": graph, "hosts": {"robot3": {"address": "10.0.0.3"}}}}) == []
