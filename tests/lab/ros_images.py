@@ -99,7 +99,8 @@ def push(registry_local: str, dc=None) -> None:
 def ensure(lab_state: dict) -> str:
     """The ROS image in the lab's registry; returns the reference its robots pull."""
     started = time.monotonic()
-    with machine_lock("ros image push"):
+    build()  # outside the push's lock: another lab may be building it (its own lock)
+    with machine_lock(f"ros image push {lab_state['registry_local']}"):  # one lab's registry, one push at a time
         push(lab_state["registry_local"])
     print(f"[ros] {REPOSITORY}:{TAG} in {lab_state['registry_local']} ({time.monotonic() - started:.1f} s)", flush=True)
     return f"{lab_state['registry']}/{REPOSITORY}:{TAG}"
