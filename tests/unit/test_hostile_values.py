@@ -197,10 +197,17 @@ def test_yaml_1_1_traps_are_the_text_written():
     assert list(doc.values()) == YAML_1_1_ONLY
 
 
+# Refused as a secret is: the value never quoted, so no "read by YAML as" either.
+SECRET_LINE = "expected the token payloadctl hold wrote (hex digits); the value is not shown"
+
+
 @pytest.mark.parametrize("trap", YAML_TRAPS)
 def test_yaml_traps_in_text_settings_say_quote_it(trap):
     """Unquoted, these are not the text written; every text setting refuses
-    them with 'quote it'."""
+    them with 'quote it', saying what YAML read (a secret's line shows no
+    value).  ``~`` (null) is refused as nothing, except where null is the
+    setting's own value (its default, or its doc says what null means)."""
+    settings = fleet.registry().settings
     text_settings = [
         name
         for name, check in fleet.setting_checks().items()
@@ -209,15 +216,22 @@ def test_yaml_traps_in_text_settings_say_quote_it(trap):
     for name in text_settings:
         image = "" if name == "payload_image" else "      payload_image: reg.example.com/p:1\n"
         doc = fleetyaml.load(f"robots:\n  hosts:\n    r1:\n{image}      {name}: {trap}\n")
-        try:
-            fleet.check(doc, "f.yaml")
-        except fleet.FleetError as error:
-            (line,) = [line for line in error.lines if line.startswith(f"f.yaml: r1.{name}")]
-            if trap == "~":
-                assert line.endswith("nothing (null)") or "required" in line, line
-            elif "expected a string" in line or "read by YAML" in line or "a date" in line:
-                assert line.endswith("quote it") or "(read by YAML as" in line or "quote it" in line, line
+        setting = settings[name]
+        null_is_a_value = setting.default is None or "null:" in setting.doc
+        if trap == "~" and null_is_a_value and name != "payload_image":
+            fleet.check(doc, "f.yaml")  # accepted: raises nothing
+            assert doc["robots"]["hosts"]["r1"][name] is None
             continue
-        # Accepted: only an optional setting left empty.
-        value = doc["robots"]["hosts"]["r1"][name]
-        assert trap == "~", (name, trap, value)
+        with pytest.raises(fleet.FleetError) as raised:
+            fleet.check(doc, "f.yaml")
+        (line,) = [line for line in raised.value.lines if line.startswith(f"f.yaml: r1.{name}: ")]
+        said = line[len(f"f.yaml: r1.{name}: ") :]
+        if name == "payload_image" and trap == "~":
+            assert said.startswith("required: "), line
+        elif trap == "~":
+            assert said.startswith("expected ") and said.endswith(", got nothing (null)"), line
+        elif name == "payload_lock_token":
+            assert said == SECRET_LINE, line
+        else:
+            read = "got a boolean (" if trap in ("true", "False") else f"got {trap} (read by YAML as "
+            assert said.startswith("expected ") and read in said and said.endswith("); quote it"), line
