@@ -15,12 +15,12 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import tarfile
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, wait_for
+from tests.e2e.conftest import wait_for
+from tests.fixtures import start_pyinfra
 
 pytestmark = pytest.mark.e2e
 
@@ -86,9 +86,11 @@ class Background:
         env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, PYINFRA_PROGRESS="off")
         if fleet:
             env["ROBOT_LAB_FLEET"] = str(fleet)
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", script, *args],
-            cwd=ROOT,
+        self.proc = start_pyinfra(
+            "-y",
+            "inventories/lab.py",
+            script,
+            *args,
             env=env,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import PYINFRA, ROOT, pyinfra
 from tests.integration import sshserver
 from tests.integration.test_first_contact import fleet
 
@@ -121,14 +121,7 @@ def test_pyinfra_from_outside_the_checkout_is_refused_before_any_connection(tmp_
         "HOME": str(tmp_path),
         "ROBOT_FLEET_HOST": "robot1",
     }
-    result = subprocess.run(
-        [sys.executable, "-c", PYINFRA, "-y", str(ROOT / "inventories" / inventory), str(ROOT / "deploy.py")],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=env,
-    )
+    result = pyinfra("-y", str(ROOT / "inventories" / inventory), str(ROOT / "deploy.py"), cwd=tmp_path, env=env)
     assert result.returncode == 2, result.stderr[-2000:]
     assert result.stderr.strip().splitlines()[-1] == (
         f"pyinfra runs in {tmp_path}, not in the checkout {ROOT}: its config.py and group_data/ (strict host-key "

@@ -8,8 +8,6 @@ the CLI, status and rollout make them."""
 from __future__ import annotations
 
 import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -21,7 +19,7 @@ from pyinfra_cli.inventory import make_inventory
 
 from robotfleet import hostkeys, reasons
 from robotfleet.fleet import yaml12
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import ROOT, pyinfra
 from tests.integration import sshserver
 
 
@@ -204,12 +202,10 @@ def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key)
             },
         )
         (tmp_path / "known_hosts").write_text("")
-        result = subprocess.run(
-            [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=120,
+        result = pyinfra(
+            "-y",
+            "inventories/robots.py",
+            "deploy.py",
             env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path)},
         )
     finally:
