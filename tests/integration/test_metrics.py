@@ -19,8 +19,7 @@ from prometheus_client.openmetrics import parser as openmetrics
 from robotfleet import deploy_roles
 from robotfleet.commands import metrics
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet, run
 
 RELEASE = "20261121T204438Z-dadf84de"
 IMAGE = "reg.example.com/p:1"

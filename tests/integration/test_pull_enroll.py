@@ -21,7 +21,7 @@ from robotfleet.pull.operator import bundle, enrollments
 from robotfleet.pull.protocol import enrollment, reports
 from robotfleet.pull.robot import enrollment_proof
 from tests.fixtures import ROOT
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet
 from tests.unit.pullkit import NOW
 
 SERVER = "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0"

@@ -26,7 +26,7 @@ import pytest
 from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.protocol import agent_files, media, platforms, reports
 from robotfleet.pull.robot import agent_state
-from tests.integration.test_pull_agent import World
+from tests.integration.pullworld import World
 from tests.integration.test_pull_publish import git, registry, robot_fetch, robotfleet_cmd, site  # noqa: F401
 from tests.integration.test_pull_trust import refused
 from tests.integration.test_push_platforms import Store  # noqa: F401
