@@ -8,7 +8,7 @@ import sys
 
 from tests.fixtures import ROOT
 from tests.unit.harness import ROBOT
-from tests.unit.test_dry_and_diff import DAEMON_JSON
+from tests.unit.samples import DAEMON_JSON
 
 CLI = """
 import sys
@@ -57,7 +57,7 @@ DIFF_CLI = """
 import sys
 from pyinfra_cli.main import main
 from tests.unit.harness import _Recorder
-from tests.unit.test_dry_and_diff import DAEMON_JSON, DRIFTED, drifted_robot
+from tests.unit.samples import DAEMON_JSON, DRIFTED, drifted_robot
 sys.argv = ["pyinfra", *sys.argv[1:]]
 with _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}) as recorder:
     try:

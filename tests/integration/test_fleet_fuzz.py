@@ -10,7 +10,7 @@ from pathlib import Path
 from robotfleet.fleet import yaml12
 from tests.fixtures import start_pyinfra
 from tests.integration import sshserver
-from tests.unit.test_fleet_fuzz import SHOWN, documents, good_fleet, outcome
+from tests.unit.fleetfuzz import SHOWN, documents, good_fleet, outcome
 
 
 def run_cli(paths: list[Path]) -> list[subprocess.CompletedProcess]:

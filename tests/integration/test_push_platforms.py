@@ -15,7 +15,7 @@ import threading
 
 import pytest
 
-from tests.unit.test_status_and_push import AMD64_LOCAL
+from tests.unit.samples import AMD64_LOCAL
 
 DOCKER_V2 = "application/vnd.docker.distribution.manifest.v2+json"
 OCI_INDEX = "application/vnd.oci.image.index.v1+json"

@@ -22,43 +22,9 @@ from roles.docker import plan
 from roles.gpu import plan as gpu_plan
 from roles.payload import compose
 from roles.udev import rules
-from roles.udev.settings import SENSOR_KEYS
 from tests.unit import harness as fleet
+from tests.unit.hostile import HOSTILE, YAML_TRAPS, places
 
-HOSTILE = [
-    "$(touch /tmp/x)",
-    "`id`",
-    "a;b",
-    "a|b",
-    "a&b",
-    "a'b",
-    'a"b',
-    "a\nb",
-    "a\rb",
-    "a b",
-    "${X:?}",
-    "s3cr$et",
-    "..",
-    "../../etc",
-    "/var/lib/../../tmp",
-    "/tmp",
-    "/var/tmp/x",
-    "-rf",
-    "--help",
-    "a\\b",
-    "a#b",
-    "*",
-    "~root",
-    "\u0430dmin",  # Cyrillic a
-    "r\u043ebot",  # Cyrillic o
-    "v\uff11",  # fullwidth digit one
-    "x\u202ey",  # right-to-left override
-    "a\u00a0b",  # no-break space
-    "\x00",
-    "a\x1bb",
-]
-# YAML traps, written unquoted in the fleet file (YAML 1.2: these are not text).
-YAML_TRAPS = ["true", "False", "1.10", "0755", "0x1F", "1e3", "~"]
 # YAML 1.1 traps that the fleet file, YAML 1.2, reads as the text written.
 YAML_1_1_ONLY = ["NO", "off", "yes", "on", "12:30", "2026-01-02", "0b101", "1_000"]
 DEFAULTS = fleet.group_data()
@@ -93,33 +59,6 @@ OPERATOR_SIDE = {
 }
 # ... and the values of these mappings (name -> a file here; its content is what is sent).
 OPERATOR_SIDE_VALUES = {"payload_secret_files"}
-
-
-def places(name: str, value):
-    """Every place in setting ``name`` where a string can go."""
-    yield "value", value
-    yield "list item", [value]
-    yield "mapping key", {value: "x"}
-    yield "mapping value", {"X": value}
-    # Inside otherwise valid URLs, paths and image references.
-    for place, text in (
-        ("in a URL", f"https://mirror.lan/gpg?x={value}"),
-        ("in a path", f"/var/lib/{value}"),
-        ("in an image tag", f"reg.example.com/p:{value}"),
-    ):
-        yield place, text
-        yield f"{place}, list item", [text]
-    if name == "udev_sensors":
-        for field in SENSOR_KEYS:
-            sensor = {"name": "a", "subsystem": "tty", "serial": "1", field: value}
-            if field in ("vendor_id", "product_id"):  # the pair rule is not what is tested here
-                sensor = {"vendor_id": "046d", "product_id": "0825", **sensor}
-            yield field, [sensor]
-    if name == "docker_daemon_options":
-        yield "log-opts value", {"log-opts": {"max-size": value}}
-        yield "dns item", {"dns": [value]}
-        yield "features key", {"features": {value: True}}
-        yield "builder value", {"builder": {"x": value}}
 
 
 def outcome(setting: str, value) -> list[str]:
