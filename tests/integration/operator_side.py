@@ -1,10 +1,12 @@
 """The operator's side as the integration tests drive it: a fleet file of
 hosts on 127.0.0.1, connections made through the inventory and pyinfra's
-API (as the CLI, status and rollout make them), and a command run in the
-checkout with a bare environment."""
+API (as the CLI, status and rollout make them), a command run in the
+checkout with a bare environment, and pyinfra --dry over @fake hosts the
+unit harness answers (dry_run, on any Python)."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -69,3 +71,43 @@ def run(path, tmp_path, *argv, timeout=120) -> subprocess.CompletedProcess:
         "ROBOT_ROLLOUT_DIR": str(tmp_path / "rollouts"),
     }
     return subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+# pyinfra's CLI over @fake hosts "bad" and "good": fresh Debian 13 hosts as the unit harness answers them
+FAKE_PYINFRA = """
+import sys
+from pyinfra_cli.main import main
+from tests.unit.harness import _Recorder, fresh_host
+sys.argv = ["pyinfra", *sys.argv[1:]]
+with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}, {}):
+    main()
+"""
+
+
+def dry_run(tmp_path, python: str = sys.executable) -> str:
+    """pyinfra --dry over a robot whose docker_users names a missing account and a good one: its
+    output, once it exited 1 having named the reason (tests/integration/test_operator_pythons.py: on
+    other Pythons)."""
+    host = {"payload_image": "reg.example.com/ros/payload:1.0", "fake_delay": 0, "fake_delay_jitter": 0}
+    inventory = tmp_path / "fake.py"
+    inventory.write_text(
+        f"robots = [('@fake/bad', {{**{host!r}, 'docker_users': ['ops', 'ghost']}}), ('@fake/good', {host!r})]\n"
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
+    proc = subprocess.run(
+        [python, "-c", FAKE_PYINFRA, "--dry", str(inventory), "deploy.py"],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    output = proc.stdout + proc.stderr
+    assert proc.returncode == 1, output[-3000:]
+    planning = output.split("--> Preparing operation", 1)[1].split("--> Detected changes", 1)[0]
+    reasons = [line.strip() for line in planning.splitlines() if "ghost" in line]
+    assert reasons == [
+        "[@fake/bad]  docker_users: ghost does not exist on this host; "
+        "create the account first (users are never created by this tool)"
+    ]
+    return output
