@@ -6,7 +6,8 @@ on several labs at once, beside the other two.
 The end-to-end layer spends most of its time waiting on its simulated
 hosts (their apt, Docker and systemd), and the unit and integration layers
 need no host, so they run at the same time: one pytest process for unit and
-integration (then the end-to-end modules that need no lab: groups.WITH_UNIT),
+integration, in two processes (the second ends with the end-to-end modules
+that need no lab: groups.WITH_UNIT),
 one per end-to-end lab group (tests/e2e/groups.py: each group
 on its own lab, prefix ``<ROBOT_LAB_E2E_PREFIX or e2e>-<group>``, its modules
 one after the other).  The first group's output streams here; each other
@@ -36,7 +37,6 @@ from pathlib import Path
 from tests.e2e import groups
 
 ROOT = Path(__file__).resolve().parent.parent
-LOCAL_LAYERS = ["tests/unit", "tests/integration"]
 E2E_PREFIX = "ROBOT_LAB_E2E_PREFIX"
 
 
@@ -83,16 +83,30 @@ def duration(seconds: float) -> str:
     return f"{minutes} min {seconds} s"
 
 
-def local_layer(options: list[str]) -> Layer:
-    """Unit and integration, then the end-to-end modules that need no lab (groups.WITH_UNIT)."""
+def local_layers(options: list[str]) -> list[Layer]:
+    """Unit and integration in two processes (they spend much of their time
+    waiting on the processes they start, and pytest-xdist's workers do not
+    run under gevent's patches): the unit layer and every other integration
+    module, then the rest of integration and the end-to-end modules that need
+    no lab (groups.WITH_UNIT)."""
     base = os.environ.get(E2E_PREFIX, "e2e")
-    paths = local_paths(groups.plan(groups.modules()))
-    what = " and ".join(LOCAL_LAYERS) + "".join(f", {path}" for path in paths[len(LOCAL_LAYERS) :])
-    return Layer("unit and integration", what, paths, options, dict(os.environ, **{E2E_PREFIX: f"{base}-unit"}))
+    first, second = local_paths(groups.plan(groups.modules()))
+    layers = []
+    for index, (paths, prefix) in enumerate([(first, f"{base}-unit"), (second, f"{base}-unit2")], start=1):
+        modules = sum(path.startswith("tests/integration/") for path in paths)
+        what = ", ".join(
+            [p for p in paths if not p.startswith("tests/integration/")] + [f"{modules} integration modules"]
+        )
+        env = dict(os.environ, **{E2E_PREFIX: prefix})
+        layers.append(Layer(f"unit and integration ({index})", what, paths, options, env))
+    return layers
 
 
-def local_paths(planned: dict[str, list[str]]) -> list[str]:
-    return LOCAL_LAYERS + [f"tests/e2e/{module}" for module in planned.get(groups.WITH_UNIT, [])]
+def local_paths(planned: dict[str, list[str]], root: Path = ROOT) -> tuple[list[str], list[str]]:
+    integration = sorted(path.relative_to(root).as_posix() for path in (root / "tests/integration").glob("test_*.py"))
+    first = ["tests/unit", *integration[0::2]]
+    second = [*integration[1::2], *(f"tests/e2e/{module}" for module in planned.get(groups.WITH_UNIT, []))]
+    return first, second
 
 
 def e2e_layers(options: list[str]) -> list[Layer]:
@@ -129,26 +143,27 @@ def usual_open_file_limit() -> None:
 def main(argv: list[str]) -> int:
     started = time.monotonic()
     usual_open_file_limit()
-    local = local_layer(argv)
+    local = local_layers(argv)
     e2e = e2e_layers(argv)
+    every = [*local, *e2e]
     try:
         while True:  # each end noted as it comes, so each wall time is its own
-            for layer in (local, *e2e):
+            for layer in every:
                 layer.poll()
-            if all(layer.ended is not None for layer in (local, *e2e)):
+            if all(layer.ended is not None for layer in every):
                 break
             time.sleep(1)
-        for layer in [*e2e, local]:
+        for layer in [*e2e, *local]:
             layer.show()
     except KeyboardInterrupt:
-        for layer in (local, *e2e):
+        for layer in every:
             layer.process.terminate()
-        for layer in (local, *e2e):
+        for layer in every:
             layer.process.wait()
         raise
-    codes = [layer.wait() for layer in (local, *e2e)]
+    codes = [layer.wait() for layer in every]
     load = " ".join(f"{value:.2f}" for value in os.getloadavg())
-    exits = ", ".join(f"{layer.label} exit {code}" for layer, code in zip((local, *e2e), codes))
+    exits = ", ".join(f"{layer.label} exit {code}" for layer, code in zip(every, codes))
     print(
         f"\n===== tests: {exits}; {duration(time.monotonic() - started)} in all (load average at the end {load}) =====",
         flush=True,

@@ -1,7 +1,7 @@
 """The end-to-end lab groups of the test command (tests/e2e/groups.py) and
 its exit code (tests/__main__.py)."""
 
-from tests.__main__ import LOCAL_LAYERS, exit_code, local_paths
+from tests.__main__ import exit_code, local_paths
 from tests.e2e import groups
 
 
@@ -37,8 +37,14 @@ def test_the_exit_code_is_the_first_failing_process_s():
     assert exit_code([5, 5, 5, 5]) == 5
 
 
-def test_the_modules_that_need_no_lab_run_after_unit_and_integration():
+def test_the_modules_that_need_no_lab_run_after_unit_and_integration(tmp_path):
+    for name in ("test_a.py", "test_b.py", "test_c.py", "helper.py"):
+        (tmp_path / "tests/integration").mkdir(parents=True, exist_ok=True)
+        (tmp_path / "tests/integration" / name).write_text("")
     plan = groups.plan(["test_fleet.py", "test_laptop_sudo.py", "test_stock_machine.py"])
     assert plan[groups.WITH_UNIT] == ["test_laptop_sudo.py", "test_stock_machine.py"]
-    assert local_paths(plan) == [*LOCAL_LAYERS, "tests/e2e/test_laptop_sudo.py", "tests/e2e/test_stock_machine.py"]
-    assert local_paths(groups.plan(["test_fleet.py"])) == LOCAL_LAYERS
+    assert local_paths(plan, tmp_path) == (
+        ["tests/unit", "tests/integration/test_a.py", "tests/integration/test_c.py"],
+        ["tests/integration/test_b.py", "tests/e2e/test_laptop_sudo.py", "tests/e2e/test_stock_machine.py"],
+    )
+    assert local_paths(groups.plan(["test_fleet.py"]), tmp_path)[1] == ["tests/integration/test_b.py"]
