@@ -1,15 +1,20 @@
 """An image's blobs and manifests as a registry holds them: two layers (a
 shared base, an arch-specific top) for amd64 and arm64 under one tag, an
-OCI index over both.  The small registries of test_push_platforms.py and
-test_registry_credentials.py serve it."""
+OCI index over both, and ``registry``: a fixture serving it on 127.0.0.1
+(test_push_platforms.py, the pull media tests); test_registry_credentials.py
+serves it its own way."""
 
 from __future__ import annotations
 
 import gzip
 import hashlib
+import http.server
 import io
 import json
 import tarfile
+import threading
+
+import pytest
 
 DOCKER_V2 = "application/vnd.docker.distribution.manifest.v2+json"
 OCI_INDEX = "application/vnd.oci.image.index.v1+json"
@@ -74,3 +79,38 @@ class Store:
             arch: len(self.blobs[json.loads(self.manifests[f"1.0-{arch}"][1])["layers"][1]["digest"]])
             for arch in arches
         }
+
+
+@pytest.fixture
+def registry():
+    store = Store()
+    fetched = []
+
+    class Handler(http.server.BaseHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+        def do_GET(self):
+            # The image under a two-part name and a one-part one (no library/: this is not Docker Hub).
+            prefix = next((p for p in ("/v2/ros/payload/", "/v2/payload/") if self.path.startswith(p)), "")
+            _, _, repo_rest = self.path.partition(prefix) if prefix else ("", "", "")
+            kind, _, ref = repo_rest.partition("/")
+            if kind == "manifests" and ref in store.manifests:
+                media_type, body = store.manifests[ref]
+            elif kind == "blobs" and ref in store.blobs:
+                media_type, body = "application/octet-stream", store.blobs[ref]
+                fetched.append(ref)
+            else:
+                self.send_response(404)
+                self.end_headers()
+                return
+            self.send_response(200)
+            self.send_header("Content-Type", media_type)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), Handler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    yield f"127.0.0.1:{server.server_address[1]}", store, fetched
+    server.shutdown()

@@ -26,11 +26,11 @@ import pytest
 from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.protocol import agent_files, media, platforms, reports
 from robotfleet.pull.robot import agent_state
+from tests.integration.imagestore import Store  # noqa: F401
+from tests.integration.imagestore import registry as platform_registry  # noqa: F401 (a fixture)
 from tests.integration.pullworld import World
 from tests.integration.test_pull_publish import git, registry, robot_fetch, robotfleet_cmd, site  # noqa: F401
 from tests.integration.test_pull_trust import refused
-from tests.integration.test_push_platforms import Store  # noqa: F401
-from tests.integration.test_push_platforms import registry as platform_registry  # noqa: F401 (a fixture)
 from tests.unit import pullkit
 from tests.unit.pullkit import DAY, NOW
 

@@ -5,50 +5,11 @@ lacks; an image with no variant for the robot is refused with one line.
 A small registry answers here (the lab registry is the e2e tests'; the
 local image chosen without a registry: tests/unit/test_status_and_push.py)."""
 
-import http.server
 import json
 import tarfile
-import threading
 
-import pytest
-
-from tests.integration.imagestore import Store, digest
+from tests.integration.imagestore import digest
 from tests.unit.samples import AMD64_LOCAL
-
-
-@pytest.fixture
-def registry():
-    store = Store()
-    fetched = []
-
-    class Handler(http.server.BaseHTTPRequestHandler):
-        def log_message(self, *args):
-            pass
-
-        def do_GET(self):
-            # The image under a two-part name and a one-part one (no library/: this is not Docker Hub).
-            prefix = next((p for p in ("/v2/ros/payload/", "/v2/payload/") if self.path.startswith(p)), "")
-            _, _, repo_rest = self.path.partition(prefix) if prefix else ("", "", "")
-            kind, _, ref = repo_rest.partition("/")
-            if kind == "manifests" and ref in store.manifests:
-                media_type, body = store.manifests[ref]
-            elif kind == "blobs" and ref in store.blobs:
-                media_type, body = "application/octet-stream", store.blobs[ref]
-                fetched.append(ref)
-            else:
-                self.send_response(404)
-                self.end_headers()
-                return
-            self.send_response(200)
-            self.send_header("Content-Type", media_type)
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
-
-    server = http.server.HTTPServer(("127.0.0.1", 0), Handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    yield f"127.0.0.1:{server.server_address[1]}", store, fetched
-    server.shutdown()
 
 
 def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(image_transfer, registry):
