@@ -1,7 +1,7 @@
 """An image's blobs and manifests as a registry holds them: two layers (a
 shared base, an arch-specific top) for amd64 and arm64 under one tag, an
-OCI index over both, and ``registry``: a fixture serving it on 127.0.0.1
-(test_push_platforms.py, the pull media tests); test_registry_credentials.py
+OCI index over both, and ``serve``: a registry serving it on 127.0.0.1
+(tests/integration/conftest.py's platform_registry); test_registry_credentials.py
 serves it its own way."""
 
 from __future__ import annotations
@@ -13,8 +13,6 @@ import io
 import json
 import tarfile
 import threading
-
-import pytest
 
 DOCKER_V2 = "application/vnd.docker.distribution.manifest.v2+json"
 OCI_INDEX = "application/vnd.oci.image.index.v1+json"
@@ -81,8 +79,8 @@ class Store:
         }
 
 
-@pytest.fixture
-def registry():
+def serve():
+    """A registry on 127.0.0.1 serving a Store's image until closed: yields (address, store, blobs fetched)."""
     store = Store()
     fetched = []
 

@@ -18,7 +18,6 @@ import pytest
 
 from robotfleet.pull.operator import export as exporting
 from tests.integration.imagestore import Store  # noqa: F401
-from tests.integration.imagestore import registry as platform_registry  # noqa: F401 (a fixture)
 from tests.integration.test_pull_media import FLEET, image_registry, media_fleet  # noqa: F401 (a fixture)
 from tests.integration.test_pull_publish import git, registry, robotfleet_cmd, site  # noqa: F401
 from tests.unit import pullkit

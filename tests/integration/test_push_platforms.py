@@ -12,8 +12,8 @@ from tests.integration.imagestore import digest
 from tests.unit.samples import AMD64_LOCAL
 
 
-def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(image_transfer, registry):
-    address, store, _ = registry
+def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(image_transfer, platform_registry):
+    address, store, _ = platform_registry
     decision = image_transfer.choose_source(f"{address}/ros/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL)
     kind, writer, (variant,), image_id = decision
     assert (kind, writer) == ("send", image_transfer.write_registry_archive)
@@ -24,10 +24,10 @@ def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(i
     assert again == ("noop", f"{address}/ros/payload:1.0 (linux/arm64) is already on the host")
 
 
-def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_name(image_transfer, registry):
+def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_name(image_transfer, platform_registry):
     """registry.lan:5000/payload:1 is /v2/payload/... on its registry (Docker
     adds library/ on Docker Hub only)."""
-    address, store, _ = registry
+    address, store, _ = platform_registry
     kind, writer, (variant,), image_id = image_transfer.choose_source(
         f"{address}/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL
     )
@@ -35,8 +35,8 @@ def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_
     assert image_id == store.ids["arm64"] == variant["id"]
 
 
-def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, registry, tmp_path):
-    address, store, fetched = registry
+def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, platform_registry, tmp_path):
+    address, store, fetched = platform_registry
     image = f"{address}/ros/payload:1.0"
     variant = image_transfer.registry_variant(image, "arm64", [], None)
     fetched.clear()
@@ -59,8 +59,8 @@ def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, regis
     assert report["sent"] == (tmp_path / "a.tar").stat().st_size
 
 
-def test_an_image_without_the_robots_platform_is_refused_with_one_line(image_transfer, registry):
-    address, store, _ = registry
+def test_an_image_without_the_robots_platform_is_refused_with_one_line(image_transfer, platform_registry):
+    address, store, _ = platform_registry
     single = f"{address}/ros/payload:1.0-amd64"
     assert image_transfer.choose_source(single, "", "pi1", "arm64", [], None, None) == (
         "fail",
