@@ -95,14 +95,18 @@ class StatusPart:
     ``metrics(row)``, the gauges its cells make (robotfleet/commands/metrics.py);
     ``watch(data)``, paths on the host whose change (lstat, a link's target)
     says its status may have changed: a pull robot's agent reads the status
-    again only then, after a release, or at its heartbeat."""
+    again only then, after a release, or at its heartbeat; ``history(row)``,
+    what its cells say of the host's past, newest first, as (what, text)
+    pairs (the page of ``status --html``)."""
 
     command: Callable[[Any], str]
     cells: Callable[[str], dict]
     columns: tuple[tuple[str, str], ...] = ()
+    wide: tuple[str, ...] = ()  # of its columns' keys, those shown only with ``status -o wide``
     order: int = 50  # where its columns stand in the table, lower first
     metrics: Callable[[dict], list[Metric]] | None = None
     watch: Callable[[Any], list[str]] | None = None
+    history: Callable[[dict], list[tuple[str, str]]] | None = None
 
 
 @dataclass(frozen=True)

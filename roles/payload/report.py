@@ -48,6 +48,7 @@ def cells(output: str) -> dict:
         **per_service(report.get("services") or {}, named),
         "image_refs": sorted(current.get("images") or {}),
         "result": last_result(report.get("result")),
+        "releases": [r for r in report.get("releases") or [] if isinstance(r, dict) and r.get("id")] or None,
     }
 
 
@@ -163,6 +164,39 @@ def metrics(row: dict) -> list[Metric]:
     return found
 
 
+def history(row: dict) -> list[tuple[str, str]]:
+    """The host's releases as its row tells them, newest first (pure): each
+    release kept on it (current, previous or its state; when; why it failed),
+    or from an older payloadctl the current one, the one rolled back from and
+    the previous one; then the last run's result when it did not succeed."""
+    found = [_kept(kept, row) for kept in row.get("releases") or []] or _pointers(row)
+    result = row.get("result") or {}
+    if result and not result.get("ok"):
+        found.append(("last run", f"{result.get('outcome')}: {result.get('reason') or result.get('message')}"))
+    return found
+
+
+def _kept(kept: dict, row: dict) -> tuple[str, str]:
+    what = {row.get("release"): "current", row.get("previous"): "previous"}.get(kept["id"], kept.get("state"))
+    when = kept.get("activated") or kept.get("created")
+    why = f": {kept['reason']}" if kept.get("reason") else ""
+    return str(what), f"{kept['id']} ({kept.get('state')}{f', {when}' if when else ''}){why}"
+
+
+def _pointers(row: dict) -> list[tuple[str, str]]:
+    found = []
+    if row.get("release"):
+        since = f" since {row['deployed']}" if row.get("deployed") else ""
+        found.append(("current", f"{row['release']} ({row.get('release_state') or 'state unknown'}{since})"))
+    back = row.get("rolled_back_from") or {}
+    if back.get("id"):
+        when = f" at {back['time']}" if back.get("time") else ""
+        found.append(("rolled back from", f"{back['id']}{when}: {back.get('reason') or 'no reason given'}"))
+    if row.get("previous"):
+        found.append(("previous", str(row["previous"])))
+    return found
+
+
 def watch(data) -> list[str]:
     """What changes when the payload's status may have: its directory (the
     current and previous links and last-result.json are renamed into it)
@@ -182,8 +216,10 @@ STATUS = StatusPart(
         ("deployed", "LAST DEPLOY"),
         ("lock", "LOCK"),
     ),
+    wide=("image", "previous", "deployed", "lock"),  # the default table fits 100 characters
     order=20,
     metrics=metrics,
     watch=watch,
+    history=history,
 )
 ROLLOUT = RolloutPart(target=target, missing=missing, result=result)

@@ -10,10 +10,12 @@ network under the guide's name, `git.example.com`: step 1 as root, 2 and 3 as
 the operator (`ops`, whose `~/.ssh/id_ed25519` is the guide's
 `/path/to/your-key.pub`); robotfleet's gitolite admin registers a robot there.
 Steps 3 to 8 as the operator on this machine, in a checkout of this
-repository with a home of its own: keys (4), the fleet file (5), publish with
-its defaults (6), the push deploy and pull-enroll (7; its first-boot bundle is
-tests/e2e/test_pull.py's), the robot's check and status (8): `applied`, exit
-0.  Only what must differ in the lab is substituted (LAB below, each once).
+repository with a home of its own (no git identity until step 3 gives one):
+keys (4), the fleet file and the robot's own pull_platform (5), the commit and
+publish with its defaults (6), enroll on a terminal, the push deploy and
+pull-enroll (7; its first-boot bundle is tests/e2e/test_pull.py's), the
+robot's check and status (8): `applied`, exit 0.  Only what must differ in
+the lab is substituted (LAB below, each once).
 
 One robot, the session's ROBOT, provisioned by the first run: the push deploy
 adds only the agent.  Its python3 is Ubuntu 24.04's 3.12 (this machine's
@@ -67,7 +69,7 @@ RESET = (
 #     robots' name for it through a proxy (Operator.proxy), as the guide's /etc/hosts line would
 #   - the git server from this machine: 127.0.0.1 on its lab port; the operator's SSH config says so
 #     (Operator.ssh_config: ssh reads the user's real home, not $HOME), and so does --admin (lab_commands)
-#   - the robot's python3 (ROBOT_PYTHON, Ubuntu 24.04's): its pull_platform says so (lab_fleet_file)
+#   - the robot's python3 is ROBOT_PYTHON, Ubuntu 24.04's, whose pull_platform the guide's example gives
 #   - the operator's robotfleet and pyinfra: this venv's, running the operator's checkout (Operator.bin),
 #     as a venv installed from that checkout would; publish's wheels from a cache of the lab's (~/.cache)
 HOST_KEY = '"ssh-ed25519 AAAA..."'
@@ -198,6 +200,10 @@ class Operator:
         self.proxy = RegistryProxy(server.lab.state["registry"], server.lab.state["registry_local"])
         pullfleet.copy_tracked(self.checkout)
         self.git("init", "-q", "-b", "main")
+        # the deploy repository as the operator cloned it: its history is upstream's, not the operator's
+        upstream = ("-c", "user.name=Upstream", "-c", "user.email=upstream@example.com")
+        self.git("add", "-A")
+        self.git(*upstream, "commit", "-q", "-m", "the deploy repository, as cloned")
 
     def env(self) -> dict:
         unset = ("ROBOTFLEET_", "ROBOT_FLEET", "ROBOT_LAB_", "XDG_", "GIT_", "SSH_AUTH_SOCK")
@@ -207,10 +213,7 @@ class Operator:
             HOME=str(self.home),
             PATH=f"{self.bin}:{env['PATH']}",
             GIT_SSH_COMMAND=f"ssh -F {self.ssh_config}",
-            GIT_AUTHOR_NAME="Operator",
-            GIT_AUTHOR_EMAIL="ops@example.com",
-            GIT_COMMITTER_NAME="Operator",
-            GIT_COMMITTER_EMAIL="ops@example.com",
+            GIT_CONFIG_NOSYSTEM="1",  # the identity is the guide's (step 3), never this machine's
             PYINFRA_PROGRESS="off",
             **self.proxy.env(),
         )
@@ -220,20 +223,31 @@ class Operator:
         assert done.returncode == 0, f"git {' '.join(args)}: {done.stderr}"
         return done.stdout
 
-    def run(self, block: str, what: str, substitutions: dict | None = None, answer: str = "") -> str:
+    def run(
+        self, block: str, what: str, substitutions: dict | None = None, answer: str = "", terminal: bool = False
+    ) -> str:
         """A block of the guide in the checkout, as a shell runs it (stopping at the first failure), with
-        ``substitutions`` made; ``answer`` on its stdin (pyinfra's Enter)."""
+        ``substitutions`` made; ``answer`` on its stdin (pyinfra's Enter), typed ahead on a pseudo-terminal
+        with ``terminal`` (enroll asks only on a terminal)."""
         started = time.monotonic()
         script = substituted(block, substitutions or {})
-        done = subprocess.run(
-            ["bash", "-c", f"set -e\n{script}\n"],
-            cwd=self.checkout,
-            env=self.env(),
-            input=answer,
-            capture_output=True,
-            text=True,
-            timeout=1500,
-        )
+        argv = ["bash", "-c", f"set -e\n{script}\n"]
+        if terminal:
+            import pty
+
+            typed, stdin = pty.openpty()
+            os.write(typed, answer.encode())
+            try:
+                done = subprocess.run(
+                    argv, cwd=self.checkout, env=self.env(), stdin=stdin, capture_output=True, text=True, timeout=1500
+                )
+            finally:
+                os.close(stdin)
+                os.close(typed)
+        else:
+            done = subprocess.run(
+                argv, cwd=self.checkout, env=self.env(), input=answer, capture_output=True, text=True, timeout=1500
+            )
         phase(f"pull guide: {what} (exit {done.returncode})", started)
         said = done.stdout + done.stderr
         assert done.returncode == 0, f"{GUIDE}, {what}: exit {done.returncode}:\n{script}\n---\n{said[-4000:]}"
@@ -276,7 +290,6 @@ def lab_fleet_file(block: str, lab, key_line: str, known_hosts: Path) -> str:
         "ssh_port": port,
         "ssh_key": lab.state["ssh_key"],
         "ssh_known_hosts_file": str(known_hosts),
-        "pull_platform": ROBOT_PLATFORM,
     }
     robots = {"vars": {**base["robots"]["vars"], **guide["robots"]["vars"]}, "hosts": {ROBOT: robot}}
     # JSON is YAML 1.2, and quotes every string ("0825" stays text).
@@ -297,7 +310,7 @@ def made(server):
     """The guide's steps 1 to 3: the git server, the operator's SSH to it, the fleet's repository."""
     started = time.monotonic()
     steps = guide_blocks()
-    assert [len(steps.get(n, [])) for n in range(1, 9)] == [1, 1, 2, 1, 1, 1, 2, 1], steps  # the guide's blocks
+    assert [len(steps.get(n, [])) for n in range(1, 9)] == [1, 1, 3, 1, 2, 2, 2, 1], steps  # the guide's blocks
     assert server.root("id -u gitolite3 2>&1 || true").strip().startswith("id:")  # stock: no gitolite yet
 
     said = server.run(steps[1][0])  # step 1, on the server as root
@@ -307,14 +320,14 @@ def made(server):
     exempt = server.root("sshd -T 2>&1 | grep -i '^persourcepenaltyexemptlist' || true")
     assert "192.168.0.0/16" in exempt, exempt  # the guide's exemption, taken by this Debian 13 sshd
     phase("pull guide: step 1, gitolite3 from Debian on a stock machine", started)
-    # the same machine as the operator's (git is there now), with an operator's own git identity
-    server.run("git config --global user.name Operator && git config --global user.email ops@example.com", OPERATOR)
-
+    # the same machine as the operator's (git is there now)
     said = server.run(steps[2][0], OPERATOR)  # step 2: the server's key, compared with what step 1 noted
     assert re.findall(r"SHA256:[A-Za-z0-9+/]+", said) == noted, said
-    server.run(steps[3][0], OPERATOR)  # step 3: the fleet's repository
+    assert server.run("git config --global user.email || true", OPERATOR).strip() == ""  # no identity yet
+    server.run(steps[3][0], OPERATOR)  # step 3: the operator's git identity
+    server.run(steps[3][1], OPERATOR)  # the fleet's repository
     checkout = "mkdir -p fleet-deploy && cd fleet-deploy && git init -q && "
-    server.run(checkout + steps[3][1], OPERATOR)  # named once in the operator's checkout
+    server.run(checkout + steps[3][2], OPERATOR)  # named once in the operator's checkout
     phase("pull guide: steps 2 and 3 as the operator", started)
     return steps
 
@@ -373,28 +386,40 @@ def operator(server, made, lab, first_run, tmp_path_factory):
 
 def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(server, made, operator, lab):
     started, steps = time.monotonic(), made
-    operator.run(steps[3][1], "step 3, the remote named in the operator's checkout")
+    operator.run(steps[3][0], "step 3, the operator's git identity on this machine")
+    operator.run(steps[3][2], "step 3, the remote named in the operator's checkout")
     operator.run(steps[4][0], "step 4, the signing keys")
     keys = operator.home / ".config" / "robotfleet" / "keys"
     assert {p.name: p.stat().st_mode & 0o777 for p in keys.glob("*.key")} == {"root.key": 0o600, "online.key": 0o600}
 
     written = server.run("cat /tmp/git.key", OPERATOR).splitlines()  # step 2's key line, without the host name
     key_line = next(line.split(None, 1)[1] for line in written if line.startswith(f"{SERVER_NAME} ssh-ed25519 "))
-    known_hosts = operator.home / "robots_known_hosts"  # the robots' host keys (the lab's), as enrolled
-    shutil.copy(lab.state["known_hosts"], known_hosts)
+    known_hosts = operator.home / "robots_known_hosts"  # the robots' host keys: none until step 7's enroll
+    known_hosts.touch()
     fleet = lab_fleet_file(steps[5][0], lab, key_line, known_hosts)
+    # the guide's pull_platform is this robot's, as the robot itself says with the guide's command
+    assert yaml.safe_load(steps[5][0])["robots"]["vars"]["pull_platform"] == ROBOT_PLATFORM
+    assert lab.ok(ROBOT, steps[5][1]).strip() == ROBOT_PLATFORM
     (operator.checkout / "inventories" / "robots.yaml").write_text(fleet)
-    operator.git("add", "-A")
-    operator.git("commit", "-q", "-m", "a pull fleet from nothing")  # "commit your fleet file first"
+    operator.run(steps[6][0], "step 6, the fleet file committed")
+    assert "inventories/robots.yaml" in operator.git("show", "--name-only", "--format=%an <%ae>", "HEAD")
+    assert operator.git("status", "--porcelain", "inventories/robots.yaml") == ""
 
-    said = operator.run(steps[6][0], "step 6, publish with the defaults")
+    said = operator.run(steps[6][1], "step 6, publish with the defaults")
     registry = lab.state["registry"]
     assert f"GET http://{registry}/v2/{LAB_IMAGE.split(':')[0]}/manifests/1.0" in operator.proxy.requests
     # one robot: the canary is the release's only wave, so the default pause (900 + 300 s) never holds it
     assert "1 wave(s); wave k opens at publish + k x 1200 s" in said and "(--max-failed 0)" in said, said
     assert re.search(rf"^publish:   wave 0 \(canary\): 1 robot\(s\) from \S+: {ROBOT}$", said, re.M), said
 
-    said = operator.run(steps[7][0], "step 7, the push deploy and pull-enroll", lab_commands(server), answer="\n")
+    # enroll asks on the terminal (y: the fingerprint compared), then pyinfra waits for Enter
+    said = operator.run(
+        steps[7][0], "step 7, enroll, the push deploy and pull-enroll", lab_commands(server), "y\n\n", terminal=True
+    )
+    shown = re.search(rf"{ROBOT} \([^)]*\) \S+ (SHA256:\S+): enrolled$", said, re.M)
+    assert shown and known_hosts.read_text().strip(), said[-3000:]
+    # the fingerprint it asked about is the one the guide says to compare: the robot's own ssh-keygen -lf
+    assert shown[1] in lab.ok(ROBOT, "for k in /etc/ssh/ssh_host_*_key.pub; do ssh-keygen -lf $k; done")
     assert f"{ROBOT}: its own key is now registered" in said, said[-3000:]
     # its check now, not at its timer's next: the timer's first ran at the install, before its key was registered
     code, said = lab.sh(ROBOT, CHECK_NOW)

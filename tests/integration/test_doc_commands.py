@@ -273,6 +273,9 @@ def test_each_command_that_needs_no_robot_runs_as_the_docs_say(command, sandbox)
         assert refused in said, f"{command.where}\n{said[-3000:]}"
         for path in [w for w in result.args if w.endswith(".prom")]:
             assert Path(path).read_text().endswith("# EOF\n"), path
+        for path in [w for w in result.args if w.endswith(".html")]:  # status --html: the page, its hosts' rows
+            page = (sandbox.checkout / path).read_text()
+            assert page.startswith("<!DOCTYPE html>") and 'data-health="unreachable"' in page, path
 
 
 def table_header(text: str) -> list[str]:

@@ -135,6 +135,24 @@ def test_status_carries_the_last_result(robot):
     assert report.result(cells, "another-deployment") is None and report.result(cells, None) is None
 
 
+def test_status_carries_the_releases_kept_newest_first(robot):
+    """The page of status --html shows a robot's release history from them (roles/payload/report.py's history)."""
+    from roles.payload import report
+
+    for tag in ("1.1", "broken"):
+        robot.image(f"reg/ros/payload:{tag}", behaviour="unhealthy" if tag == "broken" else "healthy")
+        robot.apply(f"reg/ros/payload:{tag}")
+    proc = robot.payloadctl("status", "--dir", str(robot.root), "--name", "robot-payload")
+    cells = report.cells(proc.stdout)
+    kept = cells["releases"]
+    assert [r["id"] for r in kept] == list(reversed(robot.releases.all()))  # newest first, as the store orders them
+    [failed] = [r for r in kept if r["state"] == "failed"]
+    assert "unhealthy" in failed["reason"] and failed["id"] not in (cells["release"], cells["previous"])
+    said = dict((text.split(" ")[0], what) for what, text in report.history(cells) if what != "last run")
+    assert said == {cells["release"]: "current", cells["previous"]: "previous", failed["id"]: "failed"}
+    assert report.history(cells)[-1][0] == "last run"  # the broken release's run was rolled back
+
+
 def test_the_deploy_reads_the_result_and_says_it_from_the_result():
     result = {
         "payloadctl": 1,

@@ -22,6 +22,19 @@ def service_states(name):
     return found
 
 
+# What status says of each kept release (its record holds more: images, the switch, the deploy's names).
+KEPT_FIELDS = ("id", "state", "created", "activated", "reason")
+
+
+def kept(releases):
+    """The releases kept on the robot, newest first: what each was and when."""
+    found = []
+    for rid in reversed(releases.all()):
+        record = releases.raw_record(rid) or {}
+        found.append({key: record.get(key) for key in KEPT_FIELDS if record.get(key) is not None})
+    return found
+
+
 def report(root, name, lock_file):
     releases = Releases(root)
     current, previous = releases.pointer("current"), releases.pointer("previous")
@@ -34,6 +47,7 @@ def report(root, name, lock_file):
         "update_lock": update_lock_holder(lock_file) if lock_file else None,
         "services": service_states(name),
         "result": results.last(root),  # the last apply's or rollback's structured result
+        "releases": kept(releases),
     }
 
 
