@@ -2,8 +2,9 @@
 XWD version 7) read into RGB pixels, written as PNG, and looked at.
 
 Only what an X server at depth 24 writes (Xvfb -screen 0 WxHx24): ZPixmap,
-TrueColor, 24 or 32 bits per pixel, one byte per colour channel.  Anything
-else is refused with one line saying what the dump is.
+TrueColor or DirectColor (Xvfb's default visual: each channel through the
+dump's colormap), 24 or 32 bits per pixel, one byte per colour channel.
+Anything else is refused with one line saying what the dump is.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 HEADER_FIELDS = 25  # CARD32s, big-endian whatever the pixels' byte order
-ZPIXMAP, TRUECOLOR, LSB_FIRST = 2, 4, 0
+ZPIXMAP, TRUECOLOR, DIRECTCOLOR, LSB_FIRST = 2, 4, 5, 0
 XWD_COLOR_SIZE = 12
 
 
@@ -58,10 +59,10 @@ def read(data: bytes) -> Screenshot:
     ncolors = header[19]
     if version != 7:
         raise ValueError(f"XWD: file version {version}, not 7")
-    if pixmap_format != ZPIXMAP or visual_class != TRUECOLOR or bits_per_pixel not in (24, 32):
+    if pixmap_format != ZPIXMAP or visual_class not in (TRUECOLOR, DIRECTCOLOR) or bits_per_pixel not in (24, 32):
         raise ValueError(
             f"XWD: format {pixmap_format}, visual class {visual_class}, {bits_per_pixel} bits per pixel "
-            f"(depth {depth}): only ZPixmap TrueColor at 24 or 32 bits per pixel is read"
+            f"(depth {depth}): only ZPixmap TrueColor or DirectColor at 24 or 32 bits per pixel is read"
         )
     step = bits_per_pixel // 8
     lsb = byte_order == LSB_FIRST
@@ -72,10 +73,21 @@ def read(data: bytes) -> Screenshot:
     pixels = b"".join(
         data[start + row * bytes_per_line : start + row * bytes_per_line + width * step] for row in range(height)
     )
+    tables = _direct_colour_tables(data[size:start], ncolors) if visual_class == DIRECTCOLOR else (None,) * 3
     rgb = bytearray(3 * width * height)
     for channel, offset in enumerate(offsets):
-        rgb[channel::3] = pixels[offset::step]
+        values = pixels[offset::step]
+        rgb[channel::3] = values if tables[channel] is None else values.translate(tables[channel])
     return Screenshot(width, height, bytes(rgb))
+
+
+def _direct_colour_tables(colormap: bytes, ncolors: int) -> tuple[bytes, bytes, bytes]:
+    """DirectColor: entry i of the dump's colormap is what value i of each channel shows (xwd writes one
+    entry per channel value: pixel, then red, green and blue as CARD16, big-endian)."""
+    if ncolors < 256:
+        raise ValueError(f"XWD: DirectColor with {ncolors} colormap entries, 256 needed")
+    entries = [struct.unpack(">IHHH", colormap[i * XWD_COLOR_SIZE : i * XWD_COLOR_SIZE + 10])[1:] for i in range(256)]
+    return tuple(bytes(entry[channel] >> 8 for entry in entries) for channel in range(3))
 
 
 def _chunk(kind: bytes, body: bytes) -> bytes:

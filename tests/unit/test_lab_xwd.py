@@ -11,14 +11,18 @@ import pytest
 from tests.lab import xwd
 
 
-def dump(width, height, pixels, *, bits=32, byte_order=0, masks=(0xFF0000, 0xFF00, 0xFF), name=b"xwdump\0", pad=0):
-    """An XWD of these (r, g, b) pixels, rows padded by ``pad`` bytes, with two colormap entries."""
+def dump(
+    width, height, pixels, *, bits=32, byte_order=0, masks=(0xFF0000, 0xFF00, 0xFF), visual=4, colormap=None, pad=0
+):
+    """An XWD of these (r, g, b) pixels, rows padded by ``pad`` bytes; colormap: its (r, g, b) CARD16 entries."""
+    name = b"xwdump\0"
     step = bits // 8
     bytes_per_line = width * step + pad
     header_size = 100 + len(name)
-    header = [header_size, 7, 2, 24, width, height, 0, byte_order, 32, byte_order, 32, bits, bytes_per_line, 4]
-    header += [*masks, 8, 256, 2, width, height, 0, 0, 0]
-    colormap = bytes(2 * 12)
+    entries = colormap if colormap is not None else [(0, 0, 0), (65535, 65535, 65535)]
+    header = [header_size, 7, 2, 24, width, height, 0, byte_order, 32, byte_order, 32, bits, bytes_per_line, visual]
+    header += [*masks, 8, 256, len(entries), width, height, 0, 0, 0]
+    colormap = b"".join(struct.pack(">IHHHBB", i, *entry, 7, 0) for i, entry in enumerate(entries))
     rows = []
     for row in range(height):
         line = b""
@@ -45,6 +49,16 @@ def test_reads_pixels_in_either_byte_order_and_width(bits, byte_order):
 def test_bgr_masks():
     shot = xwd.read(dump(3, 2, PIXELS, masks=(0xFF, 0xFF00, 0xFF0000)))
     assert shot.pixel(0, 1) == (0, 0, 255)
+
+
+def test_direct_colour_goes_through_the_colormap():
+    # Xvfb's default visual at depth 24: entry i says what value i of each channel shows.
+    ramp = [(257 * (255 - i), 257 * i, 257 * (i // 2)) for i in range(256)]
+    shot = xwd.read(dump(3, 2, PIXELS, bits=24, visual=5, colormap=ramp))
+    assert shot.pixel(0, 0) == (255 - 48, 48, 24)
+    assert shot.pixel(0, 1) == (255, 0, 127)
+    with pytest.raises(ValueError, match="DirectColor with 2 colormap entries, 256 needed"):
+        xwd.read(dump(1, 1, PIXELS[:1], visual=5))
 
 
 def test_crop_and_colours():
@@ -77,6 +91,7 @@ def test_png_decodes_to_the_same_pixels():
         (b"\0" * 10, "shorter than its header"),
         (dump(1, 1, PIXELS[:1])[:-2], "expected for 1x1"),
         (dump(1, 1, PIXELS[:1], bits=16, masks=(0xF800, 0x7E0, 0x1F)), "16 bits per pixel"),
+        (dump(1, 1, PIXELS[:1], visual=3), "visual class 3"),
         (dump(1, 1, PIXELS[:1], masks=(0xFF0000, 0xFF00, 0xF)), "mask 0xf is not one whole byte"),
     ],
 )
