@@ -120,7 +120,8 @@ def push(registry_local: str, dc=None, image: Image = ROS_CORE) -> None:
 def ensure(lab_state: dict, image: Image = ROS_CORE) -> str:
     """The image in the lab's registry; returns the reference its hosts pull."""
     started = time.monotonic()
-    with machine_lock("ros image push"):
+    build(image=image)  # outside the push's lock: another lab may be building it (its own lock)
+    with machine_lock(f"ros image push {lab_state['registry_local']}"):  # one lab's registry, one push at a time
         push(lab_state["registry_local"], image=image)
     where = f"{image.repository}:{image.tag} in {lab_state['registry_local']}"
     print(f"[ros] {where} ({time.monotonic() - started:.1f} s)", flush=True)
