@@ -1,13 +1,12 @@
-"""rviz on a laptop for real: Debian bookworm's rviz 1.14 (Noetic's) in the
-laptop's payload image (tests/lab/ros_images.py, ros/noetic-rviz), started
-through the payload's compose file as the docs say (docs/guides/laptops.md),
-drawing with the X11 cookie the x11 role writes (no `xhost +`) on the
-laptop's X server (Xvfb, started by a login as in test_x11.py), with Mesa's
-software renderer, registered with a robot's roscore.
-
-The robot's roscore is a container the test starts on robot2 from the lab's
-ros/noetic-ros-core image (`docker run --network host`), beside robot2's own
-payload: what is deployed on robots is the subject of other modules.
+"""rviz on a laptop for real (docs/guides/ros-payload.md, "rviz on a
+laptop"): the guide's laptop entry, Debian bookworm's rviz 1.14 (Noetic's)
+in the laptop's payload image (tests/lab/ros_images.py, ros/noetic-rviz),
+deployed with the guide's ROS graph on robot2 in one run, started through
+the payload's compose file as the guide says, drawing with the X11 cookie
+the x11 role writes (no `xhost +`) on the laptop's X server (Xvfb, started
+by a login as in test_x11.py) with Mesa's software renderer, in robot2's
+graph.  It leaves robot2 on the graph and the laptop on rviz (its session's
+lab is its own).
 
 Costly: the rviz image (493 MB) is built once per machine and pushed to the
 lab's registry, the laptop pulls it.  Not in the test command: it runs on
@@ -21,17 +20,19 @@ import tarfile
 import time
 
 import pytest
+import yaml
 
 from tests.e2e.conftest import ROOT, phase, wait_for
 from tests.e2e.test_x11 import login
-from tests.lab import ros_images, xwd
+from tests.lab import ros_graph, ros_images, xwd
 from tests.lab.engine import client
 
 pytestmark = [pytest.mark.e2e, pytest.mark.rviz]
 
 LAPTOP, ROBOT = "laptop1", "robot2"
 COMPOSE = "/var/lib/robot-payload/current/compose.yaml"
-ROSCORE = "rviz-test-roscore"
+ROSCORE = "robot-payload-roscore-1"
+GUIDE_MARKER = "<!-- the rviz laptop test_rviz.py deploys -->"
 X = "DISPLAY=:0 XAUTHORITY=/var/lib/robot-x11/alice/Xauthority"
 # Not under /tmp: systemd mounts a tmpfs there, which the engine's archive API does not see.
 SHOT = "/var/tmp/rviz-shot.xwd"
@@ -41,19 +42,26 @@ BACKGROUND, GRID = (48, 48, 48), (104, 104, 106)
 SCREENSHOT_ENV = "ROBOT_LAB_RVIZ_SCREENSHOT"
 
 
-def laptop_entry(prefix: str, image: str) -> str:
-    """laptop1's lines in the fleet file: the rviz payload, ROS 1, robot2's master."""
-    return (
-        "      x11_user: alice\n"
-        f'      payload_image: "{image}"\n'
-        "      ros_preset: ros1\n"
-        f'      ros_master_uri: "http://{prefix}-{ROBOT}:11311"\n'
-        # The name robot2 reaches the laptop's nodes by (the lab's docker network resolves container names).
-        f"      ros_hostname: {prefix}-{LAPTOP}\n"
-        "      ros_domain_id: 0\n"
-        # No GPU is passed into the container: Mesa's llvmpipe draws rviz's OpenGL view.
-        '      payload_environment: {LIBGL_ALWAYS_SOFTWARE: "1"}\n'
-    )
+def laptop_vars(prefix: str) -> dict:
+    """The guide's laptop entry as the lab's laptop takes it: the lab's registry, and the hosts'
+    names on the lab's network (its docker network resolves container names, <prefix>-<host>)."""
+    text = ros_graph.GUIDE.read_text()
+    block = text[text.index(GUIDE_MARKER) :].split("```yaml\n", 1)[1].split("```", 1)[0]
+    found = yaml.safe_load(block)["laptops"]["hosts"][LAPTOP]
+    assert found.pop("x11_user") == "alice"  # as inventories/lab.yaml has it already
+    found["payload_image"] = found["payload_image"].replace(ros_graph.GUIDE_REGISTRY, "@registry@/")
+    assert found["ros_master_uri"] == f"http://{ROBOT}:11311" and found["ros_hostname"] == LAPTOP
+    found["ros_master_uri"] = f"http://{prefix}-{ROBOT}:11311"
+    found["ros_hostname"] = f"{prefix}-{LAPTOP}"
+    return {**found, "ros_domain_id": 0}  # inventories/lab.yaml gives every host 7 (ROS 2's)
+
+
+def fleet_text(prefix: str) -> str:
+    """inventories/lab.yaml with the guide's graph on robot2 (named as the laptop reaches it) and rviz on laptop1."""
+    text = ros_graph.lab_fleet({ROBOT: {"ros_hostname": f"{prefix}-{ROBOT}"}})
+    anchor = f"    {LAPTOP}:\n"
+    assert anchor in text
+    return text.replace(anchor, anchor + ros_graph.indented(laptop_vars(prefix), 6), 1)
 
 
 def screenshot(lab) -> xwd.Screenshot:
@@ -86,16 +94,11 @@ def drawn(shot: xwd.Screenshot) -> bool:
 @pytest.fixture(scope="module")
 def rviz(lab, first_run, tmp_path_factory):
     started = time.monotonic()
-    core = ros_images.ensure(lab.state)
+    ros_images.ensure(lab.state)
     image = ros_images.ensure(lab.state, ros_images.RVIZ)
     phase("rviz: ros-core and rviz images in the lab registry", started)
 
     started = time.monotonic()
-    lab.ok(
-        ROBOT,
-        f"docker rm -f {ROSCORE} >/dev/null 2>&1; docker run -d --name {ROSCORE} --network host "
-        f"-e ROS_HOSTNAME={lab.prefix}-{ROBOT} {core} roscore",
-    )
     lab.ok(
         LAPTOP,
         "DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends xvfb xinit x11-utils "
@@ -107,12 +110,13 @@ def rviz(lab, first_run, tmp_path_factory):
         "/usr/local/bin/lab-session",
     )
     login(lab, LAPTOP)
-    phase("rviz: roscore on robot2, X login on the laptop", started)
+    phase("rviz: X login on the laptop", started)
 
-    fleet = lab.fleet_with(
-        tmp_path_factory.mktemp("rviz"), **{"      x11_user: alice\n": laptop_entry(lab.prefix, image)}
+    fleet = tmp_path_factory.mktemp("rviz") / "lab.yaml"
+    fleet.write_text(fleet_text(lab.prefix))
+    run = lab.provision(
+        "--limit", ROBOT, "--limit", LAPTOP, fleet=fleet, label="(robot2: the ROS graph, laptop1: rviz)"
     )
-    run = lab.provision("--limit", LAPTOP, fleet=fleet, label="(laptop1: the rviz payload)")
     assert run.returncode == 0, run.output[-6000:]
     # Nothing drew on the display yet: the checks below cannot pass on a bare X server.
     assert rviz_window(lab) is None and not drawn(screenshot(lab))
@@ -122,7 +126,6 @@ def rviz(lab, first_run, tmp_path_factory):
     lab.ok(LAPTOP, f"docker compose -f {COMPOSE} up -d")
     yield image
     lab.sh(LAPTOP, f"docker compose -f {COMPOSE} down")
-    lab.sh(ROBOT, f"docker rm -f {ROSCORE}")
     lab.sh(LAPTOP, "pkill -u alice -f xinit; pkill -u alice Xvfb; true")
     phase("rviz: up to the checks' end", started)
 
@@ -151,9 +154,13 @@ def rviz_nodes(lab) -> list[str]:
 
 
 def test_rviz_is_a_node_of_the_robots_graph(lab, rviz):
-    """rviz registered with robot2's master, and robot2 reaches it back by its ROS_HOSTNAME."""
+    """rviz joined robot2's graph (its master, beside the guide's nodes), and robot2 reaches it back by
+    the laptop's ROS_HOSTNAME."""
     wait_for(lambda: rviz_nodes(lab), 60, "an rviz node in robot2's graph")
     node = rviz_nodes(lab)[0]
+    assert {"/talker", "/listener", "/rosout", node} <= set(
+        lab.ok(ROBOT, f"docker exec {ROSCORE} rosnode list").split()
+    )
     assert f"http://{lab.prefix}-{LAPTOP}:" in lab.ok(ROBOT, f"docker exec {ROSCORE} rosnode info {node}")
     assert "reply from" in lab.ok(ROBOT, f"docker exec {ROSCORE} rosnode ping -c 1 {node}")
 
