@@ -23,7 +23,7 @@ import pytest
 import yaml
 
 from tests.e2e.conftest import ROOT, phase, wait_for
-from tests.e2e.test_x11 import login
+from tests.e2e.x11login import login
 from tests.lab import ros_graph, ros_images, xwd
 from tests.lab.engine import client
 
