@@ -16,11 +16,17 @@ ROS1 = {
 
 
 def problems(health, **more):
-    return fleet_problems({"robots": {"hosts": {"robot3": {"address": "10.0.0.3", **ROS1, **more, "ros_health": health}}}})
+    return fleet_problems(
+        {"robots": {"hosts": {"robot3": {"address": "10.0.0.3", **ROS1, **more, "ros_health": health}}}}
+    )
 
 
 def test_a_graph_of_nodes_topics_and_services_is_accepted_and_becomes_the_release_check():
-    health = {"nodes": ["/talker"], "topics": {"/chatter": "2 Hz", "/scan/front": 10}, "services": ["/rosout/get_loggers"]}
+    health = {
+        "nodes": ["/talker"],
+        "topics": {"/chatter": "2 Hz", "/scan/front": 10},
+        "services": ["/rosout/get_loggers"],
+    }
     assert problems(health) == []
     check = ros_health.graph_check({**ROS1, "ros_health": health, "payload_health_timeout": 30})
     assert check["graph"]["topics"] == {"/chatter": 2.0, "/scan/front": 10.0} and check["graph"]["wait"] == 30
