@@ -11,6 +11,7 @@ import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets
 import roles.payload.problems as problems
+import roles.payload.ros_health as ros_health
 import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 from robotfleet import checkers as c
@@ -315,6 +316,12 @@ SETTINGS = (
         v.private_path,
         "ROS presets: the host directory every node logs to (ROS_LOG_DIR), kept across releases and rollbacks.",
     ),
+    Setting(
+        ros_health.SETTING,
+        None,
+        ros_health.check,
+        "ROS 1 with ros_roscore: what a healthy release publishes (nodes, topics: {/chatter: 2 Hz}, services).",
+    ),
     Setting("ros_log_max_mb", 500, c.integer(10), "ROS presets: the logs' size; the oldest files go, every 10 min."),
     Setting(
         "ros_dds_profile",
@@ -383,6 +390,7 @@ def _rules(usable: dict, refused: frozenset) -> list[c.Problem]:
         found += credentials.files_in_checkout(usable.get("payload_registry_auths"))
     if not refused & {secret_files.SETTING, "payload_services"}:
         found += secret_files.problems(usable)
+    found += ros_health.problems(usable)
     if usable.get("ros_master_uri") and usable.get("ros_domain_id"):
         found.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
     return found
