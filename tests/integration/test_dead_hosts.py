@@ -121,7 +121,7 @@ def test_a_dropped_connection_times_out_once(tmp_path, monkeypatch):
         server.close()
     assert line == (
         f"timed out after 2 s connecting to 127.0.0.1:{server.port} (no answer: powered off, "
-        "wrong address or a firewall)"
+        "wrong address or a firewall) (not tried again: ssh_connect_timeout: 2 s spent; ssh_connect_retries: 3)"
     )
     assert elapsed < 3, elapsed
 
