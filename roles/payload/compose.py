@@ -111,7 +111,8 @@ def project(data, address: str, additions: list[dict] = ()) -> dict:
             user = services.merge(extra["extra"][name], declared[name])
         base = escape_interpolation(base_service(data, user.get("image"), address, combined(list(additions), name)))
         # The user's and the preset's values are escaped here, once.
-        built[name] = services.service(base, escape_interpolation(user), escape_interpolation(extra), name)
+        mine = escape_interpolation(presets.for_service(extra, name))
+        built[name] = services.service(base, escape_interpolation(user), mine, name)
         if pins:
             built[name]["image"] = digests.pinned(built[name].get("image"), pins)
     return {"name": data.payload_name, "services": built, **secret_files.top_level(data)}

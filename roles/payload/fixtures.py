@@ -5,6 +5,7 @@ import json
 import roles.payload.compose as compose
 import roles.payload.hooks as hooks
 import roles.payload.installed_files as installed_files
+import roles.payload.ros_logs as ros_logs
 import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 import roles.payload.steps as steps
@@ -32,6 +33,12 @@ def converged(play, host: str) -> None:
         snap.files[secret_files.directory(data.payload_dir)] = FileState("dir", None, "700", "root", "root")
         for name, content in secret_files.read(data).items():
             snap.files[secret_files.robot_path(data, name)] = file_state(content, "600")
+    if ros_logs.enabled(data):
+        snap.files[data.ros_log_dir] = FileState("dir", None, "755", "root", "root")
+        service, timer = ros_logs.unit_paths(data)
+        snap.files[service] = file_state(ros_logs.service_text(data))
+        snap.files[timer] = file_state(ros_logs.timer_text(data))
+        snap.units[f"{ros_logs.unit_name(data)}.timer"] = ("enabled", "active")
     if data.payload_autostart:
         snap.files[installed_files.unit_path(data)] = file_state(
             installed_files.unit_text(data, steps.unit_devices(additions))

@@ -119,8 +119,14 @@ def service(base: dict, user: dict, extra: dict, name: str) -> dict:
         if key not in ("environment", "labels", "volumes", "devices"):
             result[key] = copy.deepcopy(value)
     for key, value in extra["keys"].items():
-        if key not in user and not (key == "depends_on" and name in extra["extra"]):
+        if key == "depends_on":
+            if name not in extra["extra"]:
+                result[key] = depends_on(user.get(key), value)
+        elif key not in user:
             result[key] = copy.deepcopy(value)
+    for key in extra.get("unset", []):
+        if key not in user:
+            result.pop(key, None)
     if volumes:
         result["volumes"] = _unique(volumes)
     if devices:
@@ -128,6 +134,14 @@ def service(base: dict, user: dict, extra: dict, name: str) -> dict:
     else:
         result.pop("devices", None)
     return result
+
+
+def depends_on(own, added: dict) -> dict:
+    """A service's own depends_on (a list of names or compose's long form)
+    with ``added`` (long form): a dependency the service names itself is its own."""
+    if isinstance(own, list):
+        own = {str(name): {"condition": "service_started"} for name in own}
+    return {**copy.deepcopy(added), **copy.deepcopy(own or {})} if isinstance(own, (dict, type(None))) else own
 
 
 def platforms(data) -> dict[str, str]:

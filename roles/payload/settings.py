@@ -310,6 +310,13 @@ SETTINGS = (
     Setting("ros_roscore", False, c.boolean, "ROS 1: run roscore as a service of the project."),
     Setting("ros_roscore_image", None, c.optional(image), "ROS 1: the roscore image, pinned."),
     Setting(
+        "ros_log_dir",
+        "/var/log/ros",
+        v.private_path,
+        "ROS presets: the host directory every node logs to (ROS_LOG_DIR), kept across releases and rollbacks.",
+    ),
+    Setting("ros_log_max_mb", 500, c.integer(10), "ROS presets: the logs' size; the oldest files go, every 10 min."),
+    Setting(
         "ros_dds_profile",
         None,
         c.optional(c.string(r"[A-Za-z0-9_.-]+\.xml", "a file name in files/dds/ ending in .xml")),

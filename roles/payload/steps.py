@@ -22,6 +22,7 @@ import roles.payload.login as login
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.release as release
+import roles.payload.ros_logs as ros_logs
 import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 import roles.payload.takeover_plan as takeover_plan
@@ -43,6 +44,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
         for registry in other_registries_with_credentials(data):
             query.probes[login_probe(registry)] = login.registry_probe(registry)
     dds_profile.declare_reads(data, query)
+    ros_logs.declare_reads(data, query)
     secret_files.declare_reads(data, query)
     transferred_images.declare_reads(data, query)
     if data.payload_delivery == "push":
@@ -176,6 +178,7 @@ def deploy_payload(play: Play):
         transferred_images.push_more_images(data, snap, auths)
 
     dds_profile.install_files(data, snap)
+    ros_logs.install(data, snap)
     secrets_changed = secret_files.place(data, snap)
     if secrets_changed is None:
         return

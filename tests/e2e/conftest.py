@@ -274,6 +274,20 @@ def arm64_image(request):
         BACKGROUND["arm64 host image"] = Background("arm64 host image", build)
 
 
+ROS_MODULE = "test_ros.py"
+
+
+@pytest.fixture(scope="session", autouse=True)
+def ros_image(request):
+    """The real ROS image (tests/lab/ros_images.py; when its recipe changed)
+    built in the background from the session's first test on, when the ROS
+    module is in the session."""
+    if any(item.fspath.basename == ROS_MODULE for item in request.session.items):
+        from tests.lab import ros_images
+
+        BACKGROUND["ROS image"] = Background("ROS image", ros_images.build)
+
+
 # The arm64 image's build (debootstrap's second stage under emulation, one
 # core for 12-15 minutes) is the test command's longest path on a machine
 # that has not built it: beside the other labs and unit tests it got half a

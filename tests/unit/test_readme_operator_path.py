@@ -36,7 +36,8 @@ def section(title: str) -> str:
 def test_the_two_commands_stay_at_the_top():
     assert LINES[2:6] == [
         "```sh",
-        ".ci/setup && .venv/bin/python -m tests.lab demo    # provision a simulated fleet: 3 robots and a laptop",
+        ".ci/setup && .venv/bin/python -m tests.lab demo    # provision a simulated fleet: "
+        "3 robots running real ROS, a laptop",
         ".ci/setup && .venv/bin/python -m tests             # the tests: "
         "unit and integration beside end to end on simulated hosts",
         "```",

@@ -165,7 +165,7 @@ def test_ros1_preset_with_roscore_service():
         env = doc["services"][name]["environment"]
         assert env["ROS_MASTER_URI"] == "http://localhost:11311" and env["ROS_HOSTNAME"] == "10.0.0.9"
         assert "ROS_DOMAIN_ID" not in env
-        assert doc["services"][name]["depends_on"] == ["roscore"]
+        assert doc["services"][name]["depends_on"] == {"roscore": {"condition": "service_healthy", "restart": True}}
     assert problems.schema_problems(doc) == []
 
 
@@ -182,6 +182,7 @@ def test_ros1_preset_with_an_external_master_and_one_service():
     assert doc["services"]["payload"]["environment"] == {
         "ROS_MASTER_URI": "http://master:11311",
         "ROS_HOSTNAME": "robot7",
+        "ROS_LOG_DIR": "/var/log/ros",
     }
 
 

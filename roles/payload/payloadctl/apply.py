@@ -14,7 +14,7 @@ import shutil
 from . import health, images, platforms, results, start, takeover
 from .lifecycle import PREPARED, SETTLED, Record
 from .lock import update_lock_holder
-from .releases import compose_yaml, gc, release_compose, restart_policies
+from .releases import compose_yaml, for_engine, gc, release_compose, restart_policies
 from .system import Failure, Refusal, now, run
 
 
@@ -37,14 +37,14 @@ def obtain_images(spec, robot):
     An image for another platform is refused here, before the switch."""
     doc = {**spec.compose, "services": {k: dict(v) for k, v in spec.compose["services"].items()}}
     found = {}
-    arch = images.robot_arch()
+    arch, version = images.engine()
     for service in doc["services"].values():
         ref = service["image"]
         info = images.obtain(ref, spec.delivery, spec.pull_timeout, service.get("platform"))
         images.check_platform(ref, info, robot, arch)
         service["image"] = images.pinned(ref, info)
         found[ref] = {"id": info["id"], "pinned": service["image"], "platform": platforms.text(info["platform"])}
-    return doc, found
+    return for_engine(doc, version), found
 
 
 def check_compose(name, path):

@@ -6,7 +6,7 @@ import socket
 import sys
 import time
 
-from . import durable, hold, recovery, results, status
+from . import durable, hold, logs, recovery, results, status
 from .apply import apply, prepare, switch
 from .lifecycle import Life, Refused
 from .lock import Busy, Lock, describe
@@ -133,6 +133,10 @@ def cmd_start(args):
     return recovery.start(Releases(args.dir), args.name, reload=args.reload)
 
 
+def cmd_prune_logs(args):
+    return logs.main(args.dir, args.max_mb)
+
+
 def cmd_wait_devices(args):
     deadline = time.time() + args.timeout
     while True:
@@ -197,6 +201,10 @@ def parser():
     p.add_argument("--name", required=True)
     p.add_argument("--reload", action="store_true", help="the unit's reload: run current, decide nothing")
     p.set_defaults(func=cmd_start)
+    p = sub.add_parser("prune-logs", help="remove the oldest ROS logs until the rest fit in --max-mb")
+    p.add_argument("--dir", required=True)
+    p.add_argument("--max-mb", type=int, required=True)
+    p.set_defaults(func=cmd_prune_logs)
     p = sub.add_parser("wait-devices", help="wait for the sensors' device links")
     p.add_argument("--timeout", type=int, default=30)
     p.add_argument("devices", nargs="+")

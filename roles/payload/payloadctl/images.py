@@ -30,15 +30,17 @@ def image_info(ref):
     return {"id": data["Id"], "repo_digests": data.get("RepoDigests") or [], "platform": platform}
 
 
-def robot_arch():
-    """This robot's architecture as its Docker engine runs images (an armhf
-    userland on an arm64 kernel runs arm images), else as dpkg says."""
-    proc = run(["docker", "version", "-f", "{{.Server.Arch}}"], check=False, timeout=60)
-    arch = proc.stdout.strip() if proc.returncode == 0 else ""
+def engine():
+    """(architecture, version) of this robot's Docker engine, one `docker
+    version`: the architecture as it runs images (an armhf userland on an
+    arm64 kernel runs arm images), else as dpkg says; the version "" when
+    the engine does not say."""
+    proc = run(["docker", "version", "-f", "{{.Server.Arch}} {{.Server.Version}}"], check=False, timeout=60)
+    arch, _, version = (proc.stdout.strip() if proc.returncode == 0 else "").partition(" ")
     if not arch:
         proc = run(["dpkg", "--print-architecture"], check=False, timeout=60)
         arch = proc.stdout.strip() if proc.returncode == 0 else ""
-    return platforms.go_arch(arch)
+    return platforms.go_arch(arch), version.strip()
 
 
 def check_platform(ref, info, robot, arch):

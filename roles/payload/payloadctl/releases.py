@@ -6,6 +6,7 @@ lifecycle.py alone."""
 import datetime
 import json
 import os
+import re
 import shutil
 import time
 
@@ -41,6 +42,23 @@ def release_compose(doc):
             service["deploy"] = {k: v for k, v in service["deploy"].items() if k != "restart_policy"}
         services[name] = service
     return dict(doc, services=services, **{RESTART_WHEN_VERIFIED: restart_policies(doc)})
+
+
+def for_engine(doc, version):
+    """The document as this robot's engine takes it: Docker Engine < 25
+    refuses a health check's start_interval (compose then starts nothing),
+    so it is dropped there and the check probes at its interval from the
+    start.  An engine that does not say its version keeps it."""
+    major = re.match(r"\d+", version or "")
+    if not major or int(major.group()) >= 25:
+        return doc
+    services = {}
+    for name, service in doc["services"].items():
+        check = service.get("healthcheck")
+        if isinstance(check, dict) and "start_interval" in check:
+            service = dict(service, healthcheck={k: v for k, v in check.items() if k != "start_interval"})
+        services[name] = service
+    return dict(doc, services=services)
 
 
 def restart_policies(doc):
