@@ -1,7 +1,8 @@
 """robotfleet: the operator's command.
 
+    robotfleet deploy INVENTORY [deploy.py] [--limit ...] [--dry] [--diff] [-y]
     robotfleet enroll INVENTORY [--limit ...] [--fingerprints FILE] [--yes]
-    robotfleet status INVENTORY [--limit ...] [--json]
+    robotfleet status INVENTORY [--limit ...] [-o wide | --json]
     robotfleet rollout INVENTORY [deploy.py] [--canary 1 --batch 25% --max-failed 10%] [-y]
     robotfleet generate [--check]
     robotfleet publish [FLEET_FILE] [--commit REV] [--remote NAME | --to-dir DIR]
@@ -17,9 +18,9 @@
 INVENTORY (or -i INVENTORY) is the fleet as it is kept: the fleet file
 (inventories/robots.yaml), an Ansible inventory file (INI or YAML) or
 directory, or inventories/robots.py (which reads $ROBOT_FLEET).
-`robotfleet COMMAND --help` explains each.  Deploys are plain pyinfra, run
-in the checkout: pyinfra inventories/robots.py deploy.py (another fleet:
-ROBOT_FLEET=PATH pyinfra inventories/robots.py deploy.py)
+`robotfleet COMMAND --help` explains each.  robotfleet deploy is pyinfra's
+deploy, run in the checkout, as pyinfra inventories/robots.py deploy.py
+(another fleet: ROBOT_FLEET=PATH pyinfra inventories/robots.py deploy.py)
 """
 
 from __future__ import annotations

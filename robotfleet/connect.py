@@ -132,6 +132,7 @@ class FleetConnector(ssh.SSHConnector):
         return getattr(self, "_attempt_timeout", None) or self.timeout()
 
     watch: keepalive.Watch | None = None
+    unreached: str | None = None  # why the last connect failed, in words
 
     def make_paramiko_kwargs(self):
         kwargs = super().make_paramiko_kwargs()
@@ -141,11 +142,13 @@ class FleetConnector(ssh.SSHConnector):
 
     def connect(self) -> None:
         _patch_paramiko_sk_key_support()
-        retries = self.data["ssh_connect_retries"]
+        retries = allowed = self.data["ssh_connect_retries"]
         started = time.monotonic()
         self._attempt_timeout = None
+        attempts = 0
         while True:
             self._attempt_started = time.monotonic()
+            attempts += 1
             try:
                 return self._connect()
             except Exception as error:  # every way a connection fails becomes one line
@@ -155,6 +158,8 @@ class FleetConnector(ssh.SSHConnector):
             delay = uniform(self.data["ssh_connect_retry_min_delay"], self.data["ssh_connect_retry_max_delay"])
             left = self.timeout() - (time.monotonic() - started) - delay
             if not transient or retries <= 0 or left < 1:
+                reason += tries(attempts, allowed, self.timeout(), transient and retries > 0)
+                self.unreached = reason  # robotfleet deploy's exit code: the network's, or a refusal
                 raise ConnectError(reason)
             retries -= 1
             self._attempt_timeout = left
@@ -295,6 +300,18 @@ class FleetConnector(ssh.SSHConnector):
             if found:
                 tried.append("key " + ", ".join(found))
         return tried
+
+
+def tries(attempts: int, retries: int, timeout: float, time_up: bool) -> str:
+    """What a connection failure's line adds about ssh_connect_retries: how
+    often the host was tried, and why not again when the time ran out first
+    ("": tried once, as asked, or for a reason a retry would not change)."""
+    if attempts > 1:
+        more = f", ssh_connect_timeout: {timeout:.0f} s spent" if time_up else ""
+        return f" (tried {attempts} times: ssh_connect_retries: {retries}{more})"
+    if time_up:
+        return f" (not tried again: ssh_connect_timeout: {timeout:.0f} s spent; ssh_connect_retries: {retries})"
+    return ""
 
 
 def idle_wakeup(keep_alive: int, gevent_sockets: bool) -> float | None:

@@ -3,6 +3,7 @@ against every setting of deploy.py's roles before pyinfra connects anywhere."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import shlex
 import sys
@@ -83,17 +84,53 @@ def _refuse_fleet(error: FleetError) -> None:
     refuse(error.lines + error.notes + [f"{len(error.lines)} problem(s) in the fleet file; no host was contacted."])
 
 
-def _noted(fleet: Fleet) -> Fleet:
-    for note in fleet.notes:
-        print(note, file=sys.stderr)
+# A fleet file's notes (Ansible's own variables ignored, an older name that
+# wins) say nothing wrong: on a terminal each is told once per fleet file,
+# remembered in the user's cache, so that every command does not repeat it,
+# and `robotfleet inventory` always tells them (EVERY_NOTE).  Where stderr is
+# not a terminal (a CI log, a pull robot's journal) a log stays whole: every
+# time, and nothing written.  TOLD_ENV: a robotfleet command that has told
+# them already runs pyinfra with it (a rollout's waves).
+EVERY_NOTE = False
+TOLD_ENV = "ROBOTFLEET_NOTES_TOLD"
+
+
+def _noted(fleet: Fleet, source: str) -> Fleet:
+    if fleet.notes and _to_tell(fleet.notes, source):
+        for note in fleet.notes:
+            print(note, file=sys.stderr)
+        if not EVERY_NOTE and sys.stderr.isatty():
+            print(
+                f"(said once for this fleet; robotfleet inventory {shlex.quote(source)} --graph says it again)",
+                file=sys.stderr,
+            )
     return fleet
+
+
+def _to_tell(notes: list[str], source: str) -> bool:
+    if EVERY_NOTE:
+        return True
+    if os.environ.get(TOLD_ENV):
+        return False
+    if not sys.stderr.isatty():
+        return True
+    key = hashlib.sha256("\0".join([os.path.abspath(source), *notes]).encode()).hexdigest()
+    mark = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "robotfleet" / "notes-told" / key
+    if mark.exists():
+        return False
+    try:
+        mark.parent.mkdir(parents=True, exist_ok=True)
+        mark.touch()
+    except OSError:  # no cache to remember it in: told each time
+        pass
+    return True
 
 
 def load_or_exit(path: Path) -> Fleet:
     """The fleet file at ``path``, or its problems printed and exit 2."""
     SOURCES.append(os.path.abspath(path))
     try:
-        return _noted(load(path, deploy_roles.registry()))
+        return _noted(load(path, deploy_roles.registry()), str(path))
     except FleetError as error:
         _refuse_fleet(error)
 
@@ -103,7 +140,7 @@ def parse_or_exit(text: str | bytes, shown: str, source: str | None = None) -> F
     default ``shown``), or exit 2."""
     SOURCES.append(os.path.abspath(source or shown))
     try:
-        return _noted(parse(text, shown, deploy_roles.registry()))
+        return _noted(parse(text, shown, deploy_roles.registry()), source or shown)
     except FleetError as error:
         _refuse_fleet(error)
 

@@ -27,6 +27,7 @@ REASONS = (
     "cannot resolve",
     "timed out",
     "not an SSH server",
+    "no SSH greeting",
     "the SSH session",
     "no route to",
     "link frozen",
@@ -71,6 +72,7 @@ SHORT = (
     ("cannot resolve", "unknown name"),
     ("timed out", "timed out"),
     ("not an SSH server", "not SSH"),
+    ("no SSH greeting", "no greeting"),
     ("no route to", "no route"),
     ("cannot connect", "cannot connect"),
     ("link frozen", "frozen"),
@@ -142,8 +144,8 @@ def network_reason(
         # first may end first, and the missing greeting shows only as "No existing session"
         if "Error reading SSH protocol banner" in text or ("No existing session" in text and not greeted):
             return (
-                f"not an SSH server: {at} accepted the connection but sent no SSH greeting within "
-                f"{timeout} s (wrong port?)"
+                f"no SSH greeting: {at} accepted the connection but sent nothing within {timeout} s: "
+                "a link that stalls (Wi-Fi, LTE), or not an SSH server (wrong port?)"
             ), False
         if "No existing session" in text or "Unable to connect" in text:
             return f"the SSH session to {at} closed during the handshake", True

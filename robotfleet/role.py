@@ -102,6 +102,7 @@ class StatusPart:
     command: Callable[[Any], str]
     cells: Callable[[str], dict]
     columns: tuple[tuple[str, str], ...] = ()
+    wide: tuple[str, ...] = ()  # of its columns' keys, those shown only with ``status -o wide``
     order: int = 50  # where its columns stand in the table, lower first
     metrics: Callable[[dict], list[Metric]] | None = None
     watch: Callable[[Any], list[str]] | None = None

@@ -11,6 +11,7 @@ HOST_SECTION = "engine:host"
 HOST_COMMAND = "dpkg --print-architecture"
 FIRST = [("host", "HOST"), ("reachable", "REACHABLE"), ("arch", "ARCH")]
 LAST = [("rollout", "ROLLOUT")]
+ENGINE_WIDE = ("arch",)
 
 
 def reporting(roles) -> list:
@@ -18,8 +19,13 @@ def reporting(roles) -> list:
     return sorted((r for r in roles if r.status), key=lambda r: r.status.order)
 
 
-def columns(roles) -> list[tuple[str, str]]:
-    return FIRST + [column for role in reporting(roles) for column in role.status.columns] + LAST
+def columns(roles, wide: bool = True) -> list[tuple[str, str]]:
+    """The table's columns: every one (``wide``, as ``status -o wide``), or
+    those that fit 100 characters, without the ones the engine and the
+    roles mark wide."""
+    hidden = set() if wide else {*ENGINE_WIDE, *(key for role in reporting(roles) for key in role.status.wide)}
+    every = FIRST + [column for role in reporting(roles) for column in role.status.columns] + LAST
+    return [column for column in every if column[0] not in hidden]
 
 
 def status_command(roles, data) -> str:

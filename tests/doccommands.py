@@ -275,7 +275,7 @@ def options(command: Command) -> list[str]:
 #               $ROBOT_FLEET, or named directly: made where the command names it, a .yaml or an Ansible
 #               directory): the exit code README's "Exit codes" gives an unreachable robot, one line each
 UNREACHABLE_CODE = {"pyinfra": 1, "robotfleet": 3}
-CONTACTING = ("status", "enroll", "rollout")
+CONTACTING = ("status", "enroll", "rollout", "deploy")
 SHELL = ("completion", "man")
 
 

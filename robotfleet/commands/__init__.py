@@ -12,6 +12,7 @@ from robotfleet import atomicfile, selection
 # name -> module under robotfleet/commands/ (imported only when run: each
 # brings its own dependencies, e.g. gevent for status and rollout)
 COMMANDS = {
+    "deploy": "deploy",
     "enroll": "enroll",
     "status": "status",
     "rollout": "rollout",

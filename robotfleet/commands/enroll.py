@@ -27,13 +27,14 @@ import os
 import re
 import socket
 import sys
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass
 
 import paramiko
 
 from robotfleet import commands, connect, hostkeys, reasons, selection
 from robotfleet.checkers import one_line
+from robotfleet.commands import progressline
 
 # The summary's word for each outcome (decide's outcomes are verbs).
 SAID = {"enroll": "enrolled", "replace": "replaced"}
@@ -256,8 +257,11 @@ def main(argv=None) -> int:
         f"fetching the host keys of {len(chosen)} host(s) (at most {max(h.timeout for h in chosen)} s)...",
         file=sys.stderr,
     )
-    with ThreadPoolExecutor(max_workers=min(32, len(chosen))) as pool:
-        keys = list(pool.map(fetch, chosen))
+    with ThreadPoolExecutor(max_workers=min(32, len(chosen))) as pool, progressline.Line("enroll", len(chosen)) as line:
+        jobs = {pool.submit(fetch, host): host for host in chosen}
+        for job in as_completed(jobs):
+            line.advance(failed=int(isinstance(job.result(), str)))
+        keys = [job.result() for job in jobs]
     outcomes: dict[str, list[str]] = {}
     accepted: dict[str, list] = {}
     for host, key in zip(chosen, keys):

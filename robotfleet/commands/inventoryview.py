@@ -182,6 +182,7 @@ def main(argv=None) -> int:
     except selection.Refused as error:
         return selection.refused(error)
     registry = deploy_roles.registry()
+    inventory.EVERY_NOTE = True  # the command that shows the fleet tells its notes each time
     fleet = inventory.load_or_exit(path)  # its problems and notes printed, exit 2
     if args.host is not None:
         if kind_and_data(fleet, args.host) is None:

@@ -7,7 +7,8 @@ A row holds what the robot's own status read (the same columns as a push
 robot's), and two more: PULL (the outcome of its last check and the
 release) and REPORTED (when; "STALE" once older than pull_stale_after
 heartbeats, each with an interval and its jitter).  A robot with no report or a stale one counts
-as unreachable; a refused, failed or rolled-back release as failed.  Rows
+as unreachable, so does one whose last check could not fetch from its releases remote (its words
+kept in "error"); a refused, failed or rolled-back release as failed.  Rows
 say ``via: "report"``; ``metrics(row)`` are their gauges for
 ``status --metrics`` beside the roles' (read from the report's cells).
 """
@@ -123,9 +124,22 @@ def row(name: str, report: dict | None, data, now: datetime.datetime, url: str) 
     if is_stale:
         cells["reachable"] = False
         cells["error"] = f"stale report: last at {report['time']}, more than {stale_after} heartbeats ({limit} s) ago"
+    elif stranded(report):  # the robot's own words, and it counts as out of reach, not failed
+        cells.update(reachable=False, pull="remote out of reach")
+        cells["error"] = one_line(f"out of reach of its releases remote: {report['reason']}")
     elif report["result"] in FAILED:
         cells["error"] = one_line(f"{report['result']}: {report.get('reason') or 'no reason given'}")
     return cells
+
+
+# How the agent words a check that could not fetch from the releases remote (robotfleet/pull/robot/agent.py).
+FETCH_FAILED = "fetch: "
+
+
+def stranded(report: dict) -> bool:
+    """Whether the robot's last check failed only because it could not reach its releases remote (a name it
+    could not resolve, a link down): out of reach, as a push robot that does not answer, not a failed release."""
+    return report["result"] == "failed" and (report.get("reason") or "").startswith(FETCH_FAILED)
 
 
 def metrics(row: dict) -> list[Metric]:

@@ -29,8 +29,8 @@ import tempfile
 from robotfleet import commands, deploy_roles, reasons, selection
 from robotfleet import inventory as fleet_inventory
 from robotfleet.checkers import one_line
+from robotfleet.commands import progressline, status, status_collect
 from robotfleet.commands import rollout_plan as waves
-from robotfleet.commands import status, status_collect
 from robotfleet.commands.rollout_judge import judge_wave, missing, not_connected, read_overrides, targets_of
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
 from robotfleet.role import DEPLOYMENT_ENV, pull_part
@@ -49,10 +49,12 @@ def selected_hosts(inventory_path: str, limits: list[str]) -> list[tuple[str, ob
     return [(h.name, h.data) for h in hosts]
 
 
-def read_status(inventory: str, hosts: list[str], parallel: int | None = None) -> dict[str, dict]:
+def read_status(inventory: str, hosts: list[str], parallel: int | None = None, answered=None) -> dict[str, dict]:
     """One status row per host (one SSH command each, at most ``parallel``
-    at once: the rollout's --parallel, else status's default)."""
-    rows = status_collect.collect(inventory, hosts, parallel=parallel or status_collect.PARALLEL) if hosts else []
+    at once: the rollout's --parallel, else status's default; ``answered``
+    as status_collect.collect's)."""
+    parallel = parallel or status_collect.PARALLEL
+    rows = status_collect.collect(inventory, hosts, parallel=parallel, answered=answered) if hosts else []
     return {row["host"]: row for row in rows}
 
 
@@ -66,6 +68,7 @@ def deploy_wave(
     limits = [arg for host in hosts for arg in ("--limit", host)]
     command = [sys.executable, "-c", PYINFRA, "-y", "--json", inventory, script, *limits, *extra]
     env = dict(os.environ, PYINFRA_PROGRESS="off", **(fleet_env or {}), **{DEPLOYMENT_ENV: deployment})
+    env[fleet_inventory.TOLD_ENV] = "1"  # the fleet's notes: told by the rollout itself
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(command, stdout=out, stderr=subprocess.PIPE, text=True, env=env)
         for line in proc.stderr:
@@ -126,7 +129,11 @@ def relayed(command: list[str], fleet_env: dict | None = None) -> int:
     is in it): stderr as it comes, stdout after; its exit status."""
     with tempfile.TemporaryFile("w+") as out:
         proc = subprocess.Popen(
-            command, stdout=out, stderr=subprocess.PIPE, text=True, env=dict(os.environ, **(fleet_env or {}))
+            command,
+            stdout=out,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=dict(os.environ, **(fleet_env or {}), **{fleet_inventory.TOLD_ENV: "1"}),
         )
         for line in proc.stderr:
             relay(line)
@@ -197,7 +204,13 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
     state["allowed_failures"] = waves.allowed_failures(args.max_failed, len(names))
     state = waves.start_run(state)
 
-    rows = read_status(args.inventory, names, args.parallel)
+    with progressline.Line("status", unit="robots") as line:  # a large fleet's status takes a while
+        rows = read_status(
+            args.inventory,
+            names,
+            args.parallel,
+            lambda row, n, total: line.advance(failed=int(not row["reachable"]), total=total),
+        )
     unreachable = {h: rows[h].get("error") for h in names if not rows.get(h, {}).get("reachable")}
     already = [h for h in names if missing(roles, rows.get(h, {}), targets[h]) is None]
     state["done"] = sorted(set(state["done"]) | set(already))
@@ -248,6 +261,31 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         if input("Start the rollout? [y/N] ").strip().lower() not in ("y", "yes"):
             return 0
 
+    with progressline.Line("rollout", len(names), unit="robots") as line:
+        line.advance(len([h for h in names if h in state["done"]]))
+        state = run_waves(args, roles, targets, state, path, extra, rows, line)
+
+    print("\n" + table(rows, state))
+    print(summary(state))
+    if state["status"] == "complete":
+        return selection.OK
+    reached = [h for h in state["done"] if h in {x for w in state["waves"] for x in w}]
+    print(one_line(f"resume:   {resume_command(argv)}"))
+    if reached:
+        print(
+            one_line(
+                f"roll back the robots it reached: {selection.pyinfra_command(args.inventory)} rollback.py "
+                + " ".join(f"--limit {h}" for h in reached)
+            )
+        )
+    only_skipped = state["status"] != "stopped" and not state["failed"] and state["skipped"]
+    return selection.UNREACHABLE if only_skipped else selection.FAILED
+
+
+def run_waves(args, roles, targets, state, path, extra, rows, line):
+    """Each wave not done yet, deployed and judged, until the budget stops
+    them (``rows``: each robot's latest status, updated); the state after.
+    ``line``: the progress line (progressline.Line), moved as each wave ends."""
     for index, wave in enumerate(state["waves"]):
         todo = [h for h in wave if h not in state["done"]]
         if not todo:
@@ -255,6 +293,7 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
             continue
         say("")
         say(f"--> wave {index + 1}/{len(state['waves'])}: {', '.join(todo)}")
+        line.wave(f"wave {index + 1}/{len(state['waves'])}")
         deployment = f"rollout-{state['key'][:12]}-wave{index + 1}-{secrets.token_hex(4)}"
         results = deploy_wave(args.pyinfra, todo, extra, args.script, deployment, args.pyinfra_env)
         # A robot the deploy could not reach is not tried again in this wave
@@ -279,25 +318,11 @@ def roll(args, argv, roles, names, targets, plan, key, path, extra) -> int:
         waves.save_state(path, state)
         for host in todo:
             say(robot_line(state, host))
+        line.advance(len(todo), failed=len(failed))
         if state["status"] == "stopped":
             break
     waves.save_state(path, state)
-
-    print("\n" + table(rows, state))
-    print(summary(state))
-    if state["status"] == "complete":
-        return selection.OK
-    reached = [h for h in state["done"] if h in {x for w in state["waves"] for x in w}]
-    print(one_line(f"resume:   {resume_command(argv)}"))
-    if reached:
-        print(
-            one_line(
-                f"roll back the robots it reached: {selection.pyinfra_command(args.inventory)} rollback.py "
-                + " ".join(f"--limit {h}" for h in reached)
-            )
-        )
-    only_skipped = state["status"] != "stopped" and not state["failed"] and state["skipped"]
-    return selection.UNREACHABLE if only_skipped else selection.FAILED
+    return state
 
 
 if __name__ == "__main__":

@@ -32,6 +32,7 @@ a --limit matching nothing), 3 a host was unreachable (and none failed).
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import re
@@ -39,12 +40,21 @@ import sys
 
 from robotfleet import commands, deploy_roles, reasons, selection
 from robotfleet.checkers import one_line
-from robotfleet.commands import metrics, rollout_plan
+from robotfleet.commands import metrics, progressline, rollout_plan
 from robotfleet.commands.status_collect import PARALLEL, collect
 from robotfleet.status_parts import columns
 
 
 def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
+    """The table as text: a header and one line per row, in ``shown``'s columns (pure)."""
+    return "\n".join(line.plain for line in table_lines(rows, shown))
+
+
+def table_lines(rows: list[dict], shown: list[tuple[str, str]]) -> list:
+    """The table's lines as rich Text, each host's name in its state's colour
+    (shown only where the output is a terminal that takes colour: Console)."""
+    from rich.text import Text
+
     def cell(value):
         if value is True:
             return "yes"
@@ -52,34 +62,67 @@ def table(rows: list[dict], shown: list[tuple[str, str]]) -> str:
             return "no"
         return "-" if value in (None, "") else one_line(str(value))
 
+    def shown_cell(key, r):
+        if key == "reachable" and (r.get(key) is False or (r.get("via") == "report" and r.get("error"))):
+            return reachable(r)
+        return cell(short(key, r.get(key)))
+
     def short(key, value):
         # The table shows the first 12 digits of a digest; --json has it whole.
         if key == "image" and isinstance(value, str) and "@sha256:" in value:
             return re.sub(r"@sha256:([0-9a-f]{12})[0-9a-f]{52}", r"@sha256:\1", value)
         return value
 
-    cells = [
-        [
-            reachable(r) if key == "reachable" and r.get(key) is False else cell(short(key, r.get(key)))
-            for key, _ in shown
-        ]
-        for r in rows
-    ]
+    cells = [[shown_cell(key, r) for key, _ in shown] for r in rows]
     widths = [max([len(title)] + [len(c[i]) for c in cells]) for i, (_, title) in enumerate(shown)]
-    lines = ["  ".join(title.ljust(w) for (_, title), w in zip(shown, widths)).rstrip()]
-    lines += ["  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in cells]
-    return "\n".join(lines)
+    lines = [Text("  ".join(title.ljust(w) for (_, title), w in zip(shown, widths)).rstrip(), style="bold")]
+    for r, line in zip(rows, cells):
+        text = Text("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip())
+        if shown and shown[0][0] == "host":
+            text.stylize(COLOURS[state_of(r)], 0, len(line[0]))
+        lines.append(text)
+    return lines
+
+
+# Each host's state in the summary line, in its order, and its colour on a terminal.
+COLOURS = {"healthy": "green", "drifted": "yellow", "failed": "red", "unreachable": "magenta"}
+
+
+def state_of(row: dict) -> str:
+    """A row's state for the summary (pure): unreachable (the network's, or
+    a pull robot with no fresh report or out of reach of its remote), failed
+    (answered with an error, a host key or login refused, a pull release
+    refused, failed or rolled back), drifted (answered, not in its declared
+    state: status's drift), else healthy."""
+    error = row.get("error")
+    if error and (row["reachable"] or not reasons.unreachable(error)):
+        return "failed"
+    if not row["reachable"]:
+        return "unreachable"
+    return "drifted" if row.get("drift") else "healthy"
+
+
+def summary(rows: list[dict]) -> str:
+    """``3 healthy, 1 failed, 2 unreachable``: the states with hosts in them (pure)."""
+    counts = {state: 0 for state in COLOURS}
+    for r in rows:
+        counts[state_of(r)] += 1
+    return ", ".join(f"{n} {state}" for state, n in counts.items() if n) or "no host"
 
 
 def reachable(row: dict) -> str:
     """An unreachable host's REACHABLE cell: ``no:`` and the reason in a word or two (``no: refused``,
-    ``no: timed out``, ``no: host key``); the whole line is in --json's "error" and on stderr."""
+    ``no: timed out``, ``no: host key``); the whole line is in --json's "error" and on stderr.  A pull
+    robot's in its own words: ``pull: no report yet``, ``pull: stale report``, ``pull: remote out of
+    reach``."""
     error = row.get("error") or ""
-    if row.get("via") == "report":  # a pull robot: its report is missing, unreadable or stale
-        word = "stale report" if error.startswith("stale report") else row.get("pull") or "no report"
-    else:
-        word = reasons.short_reason(error) or "error"
-    return f"no: {word}"
+    if row.get("via") == "report":  # a pull robot: its report is missing, unreadable or stale, or it is stranded
+        word = "stale report" if error.startswith("stale report") else PULL_WORDS.get(row.get("pull"), row.get("pull"))
+        return f"pull: {word or 'no report yet'}"
+    return f"no: {reasons.short_reason(error) or 'error'}"
+
+
+PULL_WORDS = {"no report": "no report yet", "unreadable": "unreadable report"}
 
 
 def hosts_at_once(text: str) -> int:
@@ -93,8 +136,10 @@ def hosts_at_once(text: str) -> int:
     return value
 
 
-def progress(found: dict, count: int, total: int) -> None:
-    """One line on stderr as a host answers: the operator sees the run move."""
+def progress(found: dict, count: int, total: int, line=None) -> None:
+    """As a host answers: one line on stderr (the operator sees the run
+    move), or on a terminal the progress ``line`` (progressline.Line) moves
+    and only a host that did not answer gets a line of its own above it."""
     error = found.get("error") or ""
     state = (
         "answered"
@@ -103,7 +148,12 @@ def progress(found: dict, count: int, total: int) -> None:
         if reasons.unreachable(error)
         else f"failed: {error}"
     )  # a host key or login refused: the host was reached
-    print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
+    if line is None or not line.enabled:
+        print(one_line(f"[{found['host']}] {state} ({count}/{total})"), file=sys.stderr, flush=True)
+        return
+    line.advance(failed=int(state != "answered"), total=total)
+    if state != "answered":
+        line.say(one_line(f"[{found['host']}] {state}"))
 
 
 def exit_code(rows: list[dict]) -> int:
@@ -124,10 +174,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--limit", action="append", default=[], help=commands.LIMIT_HELP)
     parser.add_argument("--json", action="store_true", help="machine-readable output (--format json)")
     parser.add_argument(
+        "-o",
+        "--output",
         "--format",
-        choices=("table", "json", "openmetrics"),
+        dest="format",
+        choices=("table", "wide", "json", "openmetrics"),
         default=None,
-        help="what to print: the table (default), JSON, or OpenMetrics text",
+        help="what to print: the table (default: the columns that fit 100 characters), wide (every column, "
+        "as kubectl's -o wide), JSON, or OpenMetrics text",
     )
     parser.add_argument("--metrics", metavar="FILE", help="also write OpenMetrics text to FILE, replaced atomically")
     parser.add_argument(
@@ -163,7 +217,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     args.inventory = commands.inventory_of(parser, args)
     if args.json and args.format not in (None, "json"):
-        parser.error("--json and --format openmetrics/table: choose one")
+        parser.error(f"--json and -o {args.format}: choose one")
     shown = "json" if args.json else args.format or "table"
     for flag, target in (("--metrics", args.metrics), ("--html", args.html)):
         directory = os.path.dirname(os.path.abspath(target)) if target else None
@@ -178,12 +232,12 @@ def main(argv=None) -> int:
             return selection.REFUSED
     roles = deploy_roles.roles()
     try:
-        rows = collect(args.inventory, args.limit, roles, answered=progress, remote=args.remote, parallel=args.parallel)
+        # the progress line only with the table (nothing of it with --json or OpenMetrics)
+        with progressline.Line("status", enabled=shown in ("table", "wide")) as line:
+            answered = functools.partial(progress, line=line)
+            rows, rollout = rows_of(args.inventory, args.limit, roles, answered, args.remote, args.parallel)
     except selection.Refused as error:
         return selection.refused(error)
-    rollout = rollout_plan.latest_state()
-    for r in rows:
-        r["rollout"] = rollout_plan.host_state(rollout, r["host"])
     if args.metrics or shown == "openmetrics":
         text = metrics.render(rows + metrics.reported(args.inventory, [r["host"] for r in rows]), roles, time.time())
         if args.metrics:
@@ -205,15 +259,47 @@ def main(argv=None) -> int:
     elif shown == "openmetrics":
         sys.stdout.write(text)
     else:
-        cols = columns(roles)
-        if any("pull" in r for r in rows):
+        from rich.console import Console
+
+        wide = shown == "wide"
+        cols = columns(roles, wide=wide)
+        if wide and any("pull" in r for r in rows):
             from robotfleet.commands.pullstatus import COLUMNS
 
             cols = cols[:-1] + COLUMNS + cols[-1:]
-        print(table(rows, cols))
+        # colour only on a terminal, none with NO_COLOR (or TERM=dumb); lines never wrapped
+        console = Console(highlight=False, soft_wrap=True)
+        for line in table_lines(rows, cols):
+            console.print(line)
         if rollout:
             print(one_line(rollout_plan.summary(rollout)))
+        console.print(summary_text(rows))
     return exit_code(rows)
+
+
+def summary_text(rows: list[dict]):
+    """summary() with each state's count in its colour (rich Text)."""
+    from rich.text import Text
+
+    text = Text()
+    for part in summary(rows).split(", "):
+        if text:
+            text.append(", ")
+        text.append(part, style=COLOURS.get(part.split(" ", 1)[-1], ""))
+    return text
+
+
+def rows_of(inventory: str, limits: list[str], roles=None, answered=None, remote=None, parallel=PARALLEL):
+    """(every row status --json prints, the latest rollout's state or None):
+    the hosts of ``inventory`` matching ``limits``, asked at most ``parallel``
+    at once (``answered(row, count, total)`` as each answers), each row with
+    its place in the latest rollout.  Raises selection.Refused."""
+    roles = deploy_roles.roles() if roles is None else roles
+    rows = collect(inventory, limits, roles, answered=answered, remote=remote, parallel=parallel)
+    rollout = rollout_plan.latest_state()
+    for r in rows:
+        r["rollout"] = rollout_plan.host_state(rollout, r["host"])
+    return rows, rollout
 
 
 if __name__ == "__main__":

@@ -76,7 +76,7 @@ def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
                 "host": h.name,
                 "reachable": False,
                 "via": "report",
-                "pull": "no report",
+                "pull": "reports unreadable",
                 "stale": True,
                 "error": str(error),
             }

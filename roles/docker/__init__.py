@@ -171,6 +171,7 @@ STATUS = StatusPart(
     command=lambda data: "docker version -f '{{.Server.Version}}'",
     cells=lambda output: {"docker": output.strip() or None},
     columns=(("docker", "DOCKER"),),
+    wide=("docker",),
     order=10,
     watch=lambda data: ["/usr/bin/dockerd"],  # an upgrade replaces it
 )

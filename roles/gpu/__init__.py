@@ -105,6 +105,7 @@ STATUS = StatusPart(
     command=plan.status_command,
     cells=plan.status_cells,
     columns=(("gpu_driver", "GPU DRIVER"), ("gpu_runtime", "GPU RUNTIME")),
+    wide=("gpu_driver", "gpu_runtime"),
     order=30,
 )
 

@@ -216,6 +216,7 @@ STATUS = StatusPart(
         ("deployed", "LAST DEPLOY"),
         ("lock", "LOCK"),
     ),
+    wide=("image", "previous", "deployed", "lock"),  # the default table fits 100 characters
     order=20,
     metrics=metrics,
     watch=watch,

@@ -9,10 +9,11 @@ import re
 import shlex
 import subprocess
 import sys
+import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT
+from tests.e2e.conftest import PYINFRA, ROOT, phase
 
 pytestmark = pytest.mark.e2e
 
@@ -132,6 +133,20 @@ def test_dry_diff_shows_a_drifted_daemon_json_and_changes_nothing(lab, first_run
         assert proc.returncode == 0, output[-4000:]
         assert "Will modify /etc/docker/daemon.json" in output
         assert '-    "max-size": "1m"' in output and '+    "max-size": "10m"' in output, output[-4000:]
+        # robotfleet deploy runs the same deploy: the same operations, the same lines (issue 54, item 2)
+        began = time.monotonic()
+        ours = subprocess.run(
+            [sys.executable, "-m", "robotfleet", "deploy", "-i", "inventories/lab.py", "--dry", "--diff"]
+            + ["--limit", host],
+            cwd=ROOT,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+        phase("robotfleet deploy --dry --diff (one robot)", began)
+        assert ours.returncode == 0, (ours.stdout + ours.stderr)[-4000:]
+        assert (ours.stdout, ours.stderr.splitlines()) == (proc.stdout, proc.stderr.splitlines())
         assert lab.ok(host, "cat /etc/docker/daemon.json") == drifted
         assert lab.ok(host, "systemctl show -p ActiveEnterTimestampMonotonic docker.service") == started
     finally:

@@ -69,8 +69,8 @@ def test_status_tells_as_hosts_answer_and_each_reason(tmp_path):
     assert result.returncode == 3, result.stderr
     refused = f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})"
     silent_reason = (
-        f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-        "within 2 s (wrong port?)"
+        f"no SSH greeting: 127.0.0.1:{silent.port} accepted the connection but sent nothing "
+        "within 2 s: a link that stalls (Wi-Fi, LTE), or not an SSH server (wrong port?)"
     )
     assert result.stderr.splitlines() == [
         f"[robot2] unreachable: {refused} (1/2)",

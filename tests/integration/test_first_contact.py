@@ -169,9 +169,10 @@ def test_wrong_hosts_fail_in_one_line_each_within_the_timeout(tmp_path, monkeypa
         lines = connect(path, monkeypatch)
         elapsed = time.monotonic() - started
     assert lines == {
-        "silent": f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-        "within 2 s (wrong port?)",
-        "closed": f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed})",
+        "silent": f"no SSH greeting: 127.0.0.1:{silent.port} accepted the connection but sent nothing "
+        "within 2 s: a link that stalls (Wi-Fi, LTE), or not an SSH server (wrong port?)",
+        "closed": f"connection refused by 127.0.0.1:{closed} (no SSH server listens on port {closed}) "
+        "(tried 2 times: ssh_connect_retries: 1)",
     }
     assert silent.connections == 1  # not an SSH server: not tried again
     assert elapsed < 6, elapsed  # 2 s for the silent one, the refused one twice at once
@@ -187,9 +188,23 @@ def test_a_connection_closed_before_the_greeting_is_tried_again(tmp_path, monkey
         dropping.close()
     assert line == (
         f"connection closed by 127.0.0.1:{dropping.port} before the SSH greeting (an sshd turning "
-        "connections away, e.g. MaxStartups, or a firewall)"
+        "connections away, e.g. MaxStartups, or a firewall) (tried 3 times: ssh_connect_retries: 2)"
     )
     assert dropping.connections == 3
+
+
+def test_a_host_out_of_time_says_it_was_not_tried_again(tmp_path, monkeypatch, client_key):
+    """ssh_connect_retries: 5, and the first try spent all of ssh_connect_timeout (issue 54, item 9)."""
+    unanswered = sshserver.Unanswered()
+    try:
+        path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1", "ssh_port": unanswered.port}}, ssh_connect_retries=5)
+        line = connect(path, monkeypatch)["robot1"]
+    finally:
+        unanswered.close()
+    assert line == (
+        f"timed out after 2 s connecting to 127.0.0.1:{unanswered.port} (no answer: powered off, wrong address or "
+        "a firewall) (not tried again: ssh_connect_timeout: 2 s spent; ssh_connect_retries: 5)"
+    )
 
 
 def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key):
@@ -224,8 +239,8 @@ def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key)
             f"[robot1] unknown host key: [127.0.0.1]:{server.port} is not in {tmp_path}/known_hosts "
             "(ssh_strict_host_key_checking: yes); check and enroll it: "
             "robotfleet enroll inventories/robots.py --limit robot1",
-            f"[silent] not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-            "within 2 s (wrong port?)",
+            f"[silent] no SSH greeting: 127.0.0.1:{silent.port} accepted the connection but sent nothing "
+            "within 2 s: a link that stalls (Wi-Fi, LTE), or not an SSH server (wrong port?)",
         ]
     ), result.stderr
 
@@ -254,8 +269,8 @@ def test_a_silent_port_is_named_so_when_paramikos_handshake_wait_ends_first():
         silent.close()
     assert str(error) == "No existing session" and not reasons.greeting_seen(transport)
     assert reasons.network_reason(error, "127.0.0.1", silent.port, 2, 2.0, reasons.greeting_seen(transport)) == (
-        f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting within 2 s "
-        "(wrong port?)",
+        f"no SSH greeting: 127.0.0.1:{silent.port} accepted the connection but sent nothing within 2 s: "
+        "a link that stalls (Wi-Fi, LTE), or not an SSH server (wrong port?)",
         False,
     )
 

@@ -280,6 +280,18 @@ def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
     report, outcome, sent = world.wake()
     assert outcome.result == "failed" and outcome.reason.startswith("fetch: ")
     assert sent.startswith("report not sent")
+    # when it does reach the operator (another report remote, a later push), status counts the robot out of
+    # reach in its own words, not as a failed release (issue 54, item 9)
+    from robotfleet.commands import pullstatus, status
+
+    data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3, "pull_heartbeat": 600}
+    row = pullstatus.row("robot1", reports.parse(reports.to_bytes(report), "robot1"), data, NOW, "url")
+    assert row["error"] == f"out of reach of its releases remote: {outcome.reason}"
+    assert (status.state_of(row), status.exit_code([row]), status.reachable(row)) == (
+        "unreachable",
+        3,
+        "pull: remote out of reach",
+    )
 
 
 def test_a_robot_whose_key_the_remote_does_not_know_yet_waits_for_enrollment(world):

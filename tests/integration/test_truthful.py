@@ -55,8 +55,8 @@ def test_a_silent_listener_is_said_silent_after_the_time_it_claims(tmp_path, mon
     finally:
         silent.close()
     assert line == (
-        f"not an SSH server: 127.0.0.1:{silent.port} accepted the connection but sent no SSH greeting "
-        "within 2 s (wrong port?)"
+        f"no SSH greeting: 127.0.0.1:{silent.port} accepted the connection but sent nothing "
+        "within 2 s: a link that stalls (Wi-Fi, LTE), or not an SSH server (wrong port?)"
     )
     assert 2 <= elapsed < 3
 

@@ -87,7 +87,7 @@ def test_a_pull_robot_without_a_fresh_report_says_so_in_the_column():
                 "error": "no report in refs/reports/r of URL",
             }
         )
-        == "no: no report"
+        == "pull: no report yet"
     )
     assert (
         status.reachable(
@@ -99,7 +99,7 @@ def test_a_pull_robot_without_a_fresh_report_says_so_in_the_column():
                 "error": "stale report: last at 2026-11-27T10:00:00Z, ...",
             }
         )
-        == "no: stale report"
+        == "pull: stale report"
     )
 
 
