@@ -11,6 +11,7 @@ import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.presets as presets
 import roles.payload.problems as problems
+import roles.payload.ros_health as ros_health
 import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 from robotfleet import checkers as c
@@ -309,6 +310,13 @@ SETTINGS = (
     ),
     Setting("ros_roscore", False, c.boolean, "ROS 1: run roscore as a service of the project."),
     Setting("ros_roscore_image", None, c.optional(image), "ROS 1: the roscore image, pinned."),
+    Setting(
+        ros_health.SETTING,
+        None,
+        c.optional(ros_health.check),
+        "ROS 1: the graph a healthy release shows (nodes up, topics at a minimum rate, services), read from inside "
+        "the project's roscore (needs ros_roscore); a release whose graph falls short is rolled back.",
+    ),
     Setting(
         "ros_log_dir",
         "/var/log/ros",

@@ -31,7 +31,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
         "test_ros.py",
         "test_arm64.py",
     ),
-    WITH_UNIT: ("test_stock_machine.py", "test_laptop_sudo.py"),
+    WITH_UNIT: ("test_stock_machine.py", "test_laptop_sudo.py", "test_ros_graph_probe.py"),
 }
 
 

@@ -2,7 +2,7 @@
 
 import json
 
-from . import health, results
+from . import health, results, rosgraph
 from .lock import update_lock_holder
 from .releases import Releases
 from .system import run
@@ -48,6 +48,7 @@ def report(root, name, lock_file):
         "services": service_states(name),
         "result": results.last(root),  # the last apply's or rollback's structured result
         "releases": kept(releases),
+        "graph": rosgraph.now_verdict(releases, name, current),  # ros_health, one look now
     }
 
 
