@@ -111,3 +111,30 @@ def test_the_gate_passes_a_release_that_declares_no_graph_without_looking():
 
 def test_the_probe_s_source_is_read_from_payloadctl_itself():
     assert "def probe(expected)" in rosgraph.probe_source()
+
+
+def test_status_shows_the_graph_s_verdict_and_a_graph_that_falls_short_is_drift():
+    import json
+
+    from robotfleet.commands import status
+    from roles.payload import report
+
+    def row(graph):
+        found = {
+            "current": {"id": "r2", "state": "active", "images": {IMAGE: {"pinned": IMAGE + "@sha256:" + "a" * 64}}},
+            "containers": [{"status": "running", "health": "healthy", "restarts": 0}],
+            "graph": graph,
+        }
+        return {"host": "robot2", "reachable": True, **report.cells(json.dumps(found))}
+
+    slow = row("/chatter: 0.0 Hz, 2 Hz required")
+    assert slow["graph"] == "/chatter: 0.0 Hz, 2 Hz required"
+    assert report.missing(slow, [IMAGE]) == "ROS graph: /chatter: 0.0 Hz, 2 Hz required"
+    assert report.missing(row("ok"), [IMAGE]) is None and report.missing(row(None), [IMAGE]) is None
+    assert ("graph", "GRAPH") in report.STATUS.columns
+    table = status.table([slow], list(report.STATUS.columns)).splitlines()
+    assert "GRAPH" in table[0] and "/chatter: 0.0 Hz, 2 Hz required" in table[1]
+    gauges = {m.name: m.value for m in report.metrics(slow)}
+    assert gauges["payload_ros_graph_ok"] == 0
+    assert {m.name: m.value for m in report.metrics(row("ok"))}["payload_ros_graph_ok"] == 1
+    assert "payload_ros_graph_ok" not in {m.name for m in report.metrics(row(None))}
