@@ -103,3 +103,20 @@ def test_a_project_without_a_running_roscore_is_one_line():
         "rates": {},
         "nodes": [],
     }
+
+
+def test_status_looks_at_the_current_release_s_graph_once(graph):
+    class Releases:
+        def __init__(self, health, autostart=True):
+            self.health, self.autostart = health, autostart
+
+        def spec(self, rid):
+            return type(
+                "Spec", (), {"compose": {rosgraph.KEY: self.health} if self.health else {}, "autostart": self.autostart}
+            )
+
+    assert rosgraph.now_verdict(Releases({"topics": {"/chatter": 2.0}}), graph, "r1") == "ok"
+    assert rosgraph.now_verdict(Releases({"topics": {"/slow": 2.0}}), graph, "r1") == "/slow: 1.0 Hz, 2 Hz required"
+    assert rosgraph.now_verdict(Releases(None), graph, "r1") is None  # declares no graph
+    assert rosgraph.now_verdict(Releases({"topics": {"/slow": 2.0}}, autostart=False), graph, "r1") is None  # staged
+    assert rosgraph.now_verdict(Releases({"topics": {"/slow": 2.0}}), graph, None) is None  # never deployed
