@@ -6,7 +6,9 @@ Every container runs, roscore is healthy: only the graph says the release
 is broken, and the gate rolls it back to what ran before, naming the topic
 and the rate it saw.  The probe on real ROS in detail (healthy, a
 misspelled topic, a slow one; the bridge network):
-tests/e2e/test_ros_graph_probe.py.  Two deploys of one robot: the silent
+tests/e2e/test_ros_graph_probe.py; the guide's graph passing the gate on
+the host's network and on a bridge: tests/e2e/test_ros.py's first release
+(the guide's block asks for it).  Two deploys of one robot: the silent
 release, then the lab's fleet file again (the ROS preset's log timer goes)."""
 
 from __future__ import annotations
