@@ -167,12 +167,12 @@ def look(master_uri, expected):
     """One look at the graph: (problems, {topic: Hz}, [nodes up])."""
     master = xmlrpc.client.ServerProxy(master_uri)
     try:
-        published, _subscribed, served = call(master, "getSystemState")
+        published, subscribed, served = call(master, "getSystemState")
     except (OSError, ValueError, xmlrpc.client.Error) as error:
         return ["the ROS master at {} does not answer: {}".format(master_uri, error)], {}, []
     publishers = {topic: nodes for topic, nodes in published}
     services = {name: nodes for name, nodes in served}
-    up = sorted({node for _name, nodes in published + _subscribed + served for node in nodes})
+    up = sorted({node for _name, nodes in published + subscribed + served for node in nodes})
     problems = []
     for node in expected.get("nodes") or ():
         if node not in up:
