@@ -5,6 +5,8 @@ status`` runs it over SSH, a pull robot's converge run on itself."""
 
 from __future__ import annotations
 
+from robotfleet import reasons
+
 MARK = "@@@robot-fleet-status "
 # The engine's own section (no role is called so: a role's name is an identifier).
 HOST_SECTION = "engine:host"
@@ -60,3 +62,17 @@ def row(name: str, roles, parts: dict[str, str] | None, error: str | None = None
         except ValueError:
             cells["error"] = f"unreadable {role.name} status"
     return cells
+
+
+def state_of(row: dict) -> str:
+    """A row's state for the summary (pure): unreachable (the network's, or
+    a pull robot with no fresh report or out of reach of its remote), failed
+    (answered with an error, a host key or login refused, a pull release
+    refused, failed or rolled back), drifted (answered, not in its declared
+    state: status's drift), else healthy."""
+    error = row.get("error")
+    if error and (row.get("reachable") or not reasons.unreachable(error)):
+        return "failed"
+    if not row.get("reachable"):
+        return "unreachable"
+    return "drifted" if row.get("drift") else "healthy"

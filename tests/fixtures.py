@@ -25,8 +25,29 @@ def gevent_os_patched():
 
 
 # pyinfra's command line as `python -c PYINFRA ...`: the CLI of the pyinfra
-# this interpreter imports, whatever is first on PATH.
+# this interpreter imports, whatever is first on PATH.  Every test and
+# benchmark starts pyinfra through pyinfra_argv, pyinfra or start_pyinfra.
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
+
+
+def pyinfra_argv(*args: str, python: str = sys.executable) -> list[str]:
+    """The command line of ``pyinfra *args`` run by ``python``."""
+    return [str(python), "-c", PYINFRA, *args]
+
+
+def pyinfra(*args: str, cwd=ROOT, env: dict | None = None, timeout: float = 120, **kwargs):
+    """``pyinfra *args`` run to its end in ``cwd`` (the checkout): a
+    CompletedProcess, its output as text unless ``kwargs`` say otherwise.
+    ``env`` is the whole environment (None: this process's)."""
+    options = {"capture_output": True, "text": True, **kwargs}
+    return subprocess.run(pyinfra_argv(*args), cwd=cwd, env=env, timeout=timeout, **options)
+
+
+def start_pyinfra(*args: str, cwd=ROOT, env: dict | None = None, **kwargs) -> subprocess.Popen:
+    """``pyinfra *args`` started in ``cwd`` and left running (Popen's ``kwargs``)."""
+    return subprocess.Popen(pyinfra_argv(*args), cwd=cwd, env=env, **kwargs)
+
+
 IMAGE = "reg.example.com/ros/payload:1.0"
 GOOD_HOST = {"address": "10.0.0.3", "payload_image": IMAGE}  # a robot that needs no other setting
 

@@ -1,11 +1,13 @@
 """Write the files built from the roles' declarations, so they cannot drift: the fleet file's schema,
-docs/reference/settings.md.
+docs/reference/settings.md, and the role links of docs/README.md and docs/reference/roles.md.
 
     robotfleet generate          # writes them
     robotfleet generate --check  # exit 1 naming each file that is stale
 
 - inventories/fleet.schema.json: the fleet file's JSON Schema for editors;
-- docs/reference/settings.md: every setting with its default and one line of doc.
+- docs/reference/settings.md: every setting with its default and one line of doc;
+- docs/README.md, docs/reference/roles.md: the lines between their markers (BEGIN, END) that link
+  each role of deploy.py's ROLES to its roles/<role>/README.md, with the card's one line of doc.
 """
 
 from __future__ import annotations
@@ -21,6 +23,10 @@ from robotfleet.role import UNSET
 
 SCHEMA = CHECKOUT / "inventories" / "fleet.schema.json"
 SETTINGS_DOC = CHECKOUT / "docs" / "reference" / "settings.md"
+INDEX = CHECKOUT / "docs" / "README.md"
+ROLES_DOC = CHECKOUT / "docs" / "reference" / "roles.md"
+BEGIN = "<!-- the roles of deploy.py, written by `robotfleet generate`: edit the roles, not these lines -->"
+END = "<!-- end of the roles -->"
 
 
 def shown_default(value) -> str:
@@ -68,9 +74,42 @@ def settings_doc(registry: Registry) -> str:
     return "\n".join(lines)
 
 
+def role_title(name: str) -> str:
+    """The title of roles/<name>/README.md without its "(roles/<name>)"; the name when it has none."""
+    readme = CHECKOUT / "roles" / name / "README.md"
+    first = readme.read_text().splitlines()[0] if readme.is_file() else ""
+    return first.lstrip("#").strip().removesuffix(f"(roles/{name})").strip() or name
+
+
+def index_links(roles) -> list[str]:
+    """docs/README.md's line of links to every role's README (by name)."""
+    return [", ".join(f"[{name}](../roles/{name}/README.md)" for name in sorted(role.name for role in roles)) + ";"]
+
+
+def roles_list(roles) -> list[str]:
+    """docs/reference/roles.md's list: each role in the order deploy.py runs them, with its doc."""
+    return [f"- **{role_title(r.name)}** ([roles/{r.name}](../../roles/{r.name}/README.md)): {r.doc}" for r in roles]
+
+
+def between_markers(path, lines: list[str]) -> str:
+    """``path``'s text with ``lines`` between its BEGIN and END lines (indented as BEGIN is)."""
+    text = path.read_text()
+    before, found, rest = text.partition(BEGIN)
+    if not found or END not in rest:
+        raise SystemExit(f"{path.relative_to(CHECKOUT)}: no lines {BEGIN} ... {END} to write the roles between")
+    indent = before[len(before.rstrip(" ")) :]
+    after = rest.partition(END)[2]
+    return before + BEGIN + "\n" + "".join(f"{indent}{line}\n" for line in lines) + indent + END + after
+
+
 def generated() -> dict:
     registry = deploy_roles.registry()
-    return {SCHEMA: schema.render(registry), SETTINGS_DOC: settings_doc(registry)}
+    return {
+        SCHEMA: schema.render(registry),
+        SETTINGS_DOC: settings_doc(registry),
+        INDEX: between_markers(INDEX, index_links(registry.roles)),
+        ROLES_DOC: between_markers(ROLES_DOC, roles_list(registry.roles)),
+    }
 
 
 def build_parser() -> argparse.ArgumentParser:

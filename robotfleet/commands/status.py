@@ -38,7 +38,7 @@ import os
 import re
 import sys
 
-from robotfleet import commands, deploy_roles, reasons, selection
+from robotfleet import commands, deploy_roles, reasons, selection, status_parts
 from robotfleet.checkers import one_line
 from robotfleet.commands import metrics, progressline, rollout_plan
 from robotfleet.commands.status_collect import PARALLEL, collect
@@ -79,7 +79,7 @@ def table_lines(rows: list[dict], shown: list[tuple[str, str]]) -> list:
     for r, line in zip(rows, cells):
         text = Text("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip())
         if shown and shown[0][0] == "host":
-            text.stylize(COLOURS[state_of(r)], 0, len(line[0]))
+            text.stylize(COLOURS[status_parts.state_of(r)], 0, len(line[0]))
         lines.append(text)
     return lines
 
@@ -88,25 +88,11 @@ def table_lines(rows: list[dict], shown: list[tuple[str, str]]) -> list:
 COLOURS = {"healthy": "green", "drifted": "yellow", "failed": "red", "unreachable": "magenta"}
 
 
-def state_of(row: dict) -> str:
-    """A row's state for the summary (pure): unreachable (the network's, or
-    a pull robot with no fresh report or out of reach of its remote), failed
-    (answered with an error, a host key or login refused, a pull release
-    refused, failed or rolled back), drifted (answered, not in its declared
-    state: status's drift), else healthy."""
-    error = row.get("error")
-    if error and (row["reachable"] or not reasons.unreachable(error)):
-        return "failed"
-    if not row["reachable"]:
-        return "unreachable"
-    return "drifted" if row.get("drift") else "healthy"
-
-
 def summary(rows: list[dict]) -> str:
     """``3 healthy, 1 failed, 2 unreachable``: the states with hosts in them (pure)."""
     counts = {state: 0 for state in COLOURS}
     for r in rows:
-        counts[state_of(r)] += 1
+        counts[status_parts.state_of(r)] += 1
     return ", ".join(f"{n} {state}" for state, n in counts.items() if n) or "no host"
 
 

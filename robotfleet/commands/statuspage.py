@@ -20,28 +20,15 @@ from pathlib import Path
 
 import jinja2
 
-from robotfleet import atomicfile, reasons
+from robotfleet import atomicfile
 from robotfleet.commands import pullrollout, rollout_plan
-from robotfleet.status_parts import columns, reporting
+from robotfleet.status_parts import columns, reporting, state_of
 
 # Each host's health on the page, in the summary's order.
 HEALTH = ("healthy", "drifted", "failed", "unreachable")
 TEMPLATE = Path(__file__).with_name("statuspage.html.j2")
 # Columns the page shows in their own places (the host and its health), not among the roles' cells.
 OWN = ("host", "reachable", "rollout")
-
-
-def health(row: dict) -> str:
-    """A row's health (pure): unreachable (the network's, or a pull robot
-    without a fresh report), failed (answered with an error, a host key or
-    login refused, a pull release refused, failed or rolled back), drifted
-    (answered, not in its declared state), else healthy."""
-    error = row.get("error")
-    if error and (row.get("reachable") or not reasons.unreachable(error)):
-        return "failed"
-    if not row.get("reachable"):
-        return "unreachable"
-    return "drifted" if row.get("drift") else "healthy"
 
 
 def age(seconds: float) -> str:
@@ -95,7 +82,7 @@ def pull_view(row: dict, taken: datetime.datetime) -> dict | None:
 
 
 def host_view(row: dict, roles, shown: list[tuple[str, str]], taken: datetime.datetime) -> dict:
-    state = health(row)
+    state = state_of(row)
     history = [entry for role in reporting(roles) if role.status.history for entry in role.status.history(row)]
     pull = pull_view(row, taken)
     if pull and pull["applied"]:

@@ -14,7 +14,6 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
   sent over SSH for payload_delivery push (image_transfer.py; the images
   beyond the first: transferred_images.py); takeover_plan.py: what the release
   will take over, said before it is done; dds_profile.py: the DDS profile file;
-  ros_health.py: the ROS graph a healthy release shows (the gate's check: payloadctl/rosgraph.py);
 - installed_files.py (payloadctl as one zip application, the systemd unit),
   payloadctl/ (the robot-side program), payload.service.j2: what runs on the robot;
 - report.py: its columns in status, what a rollout waits for; pins.py: the

@@ -9,7 +9,6 @@ import yaml
 
 import roles.payload.digests as digests
 import roles.payload.presets as presets
-import roles.payload.ros_health as ros_health
 import roles.payload.secret_files as secret_files
 import roles.payload.services as services
 
@@ -116,4 +115,4 @@ def project(data, address: str, additions: list[dict] = ()) -> dict:
         built[name] = services.service(base, escape_interpolation(user), mine, name)
         if pins:
             built[name]["image"] = digests.pinned(built[name].get("image"), pins)
-    return {"name": data.payload_name, "services": built, **secret_files.top_level(data), **ros_health.top_level(data)}
+    return {"name": data.payload_name, "services": built, **secret_files.top_level(data)}

@@ -14,7 +14,6 @@ from pathlib import Path
 import roles.payload.compose as compose
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
-import roles.payload.ros_health as ros_health
 import roles.payload.secret_files as secret_files
 from robotfleet.checkers import key_name
 from roles.payload.presets import DDS_DIR, dds_profile_text, dds_vendor
@@ -311,7 +310,6 @@ def _preset_problems(data, allow_latest: bool) -> list[tuple[str, str]]:
         problems.append(("ros_master_uri", "required with ros_preset: ros1 unless ros_roscore is true"))
     if value_of(data, "ros_roscore") and kind != "ros1":
         problems.append(("ros_roscore", "needs ros_preset: ros1"))
-    problems += ros_health.problems(data)
     profile = value_of(data, "ros_dds_profile")
     if profile:
         if kind != "ros2":

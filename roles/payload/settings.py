@@ -311,17 +311,16 @@ SETTINGS = (
     Setting("ros_roscore", False, c.boolean, "ROS 1: run roscore as a service of the project."),
     Setting("ros_roscore_image", None, c.optional(image), "ROS 1: the roscore image, pinned."),
     Setting(
-        ros_health.SETTING,
-        None,
-        c.optional(ros_health.check),
-        "ROS 1: the graph a healthy release shows (nodes up, topics at a minimum rate, services), read from inside "
-        "the project's roscore (needs ros_roscore); a release whose graph falls short is rolled back.",
-    ),
-    Setting(
         "ros_log_dir",
         "/var/log/ros",
         v.private_path,
         "ROS presets: the host directory every node logs to (ROS_LOG_DIR), kept across releases and rollbacks.",
+    ),
+    Setting(
+        ros_health.SETTING,
+        None,
+        ros_health.check,
+        "ROS 1 with ros_roscore: what a healthy release publishes (nodes, topics: {/chatter: 2 Hz}, services).",
     ),
     Setting("ros_log_max_mb", 500, c.integer(10), "ROS presets: the logs' size; the oldest files go, every 10 min."),
     Setting(
@@ -391,6 +390,7 @@ def _rules(usable: dict, refused: frozenset) -> list[c.Problem]:
         found += credentials.files_in_checkout(usable.get("payload_registry_auths"))
     if not refused & {secret_files.SETTING, "payload_services"}:
         found += secret_files.problems(usable)
+    found += ros_health.problems(usable)
     if usable.get("ros_master_uri") and usable.get("ros_domain_id"):
         found.append(("ros_master_uri", "set either ros_master_uri (ROS 1) or ros_domain_id (ROS 2), not both"))
     return found

@@ -22,6 +22,7 @@ import roles.payload.login as login
 import roles.payload.payloadctl.imageref as imageref
 import roles.payload.payloadctl.platforms as platforms
 import roles.payload.release as release
+import roles.payload.ros_health as ros_health
 import roles.payload.ros_logs as ros_logs
 import roles.payload.secret_files as secret_files
 import roles.payload.services as services
@@ -196,7 +197,7 @@ def deploy_payload(play: Play):
     )
     # A changed secret file: the containers are made anew, with it (compose binds it when it creates them).
     needed = needed or unit_changes or bool(taken_over) or secrets_changed
-    the_release = {"data": data, "document": doc, "checks": play.added(hooks.CHECKS)}
+    the_release = {"data": data, "document": doc, "checks": [*play.added(hooks.CHECKS), ros_health.graph_check(data)]}
     release.release(
         name="Release the payload (pull, switch, health check, roll back on failure)",
         needed=needed,

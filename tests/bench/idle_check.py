@@ -129,7 +129,7 @@ class Setup:
 
     def __init__(self, base: Path, kind: str, tls, tickets: int | None = None):
         from tests.integration import gitssh, httpsgit
-        from tests.integration.test_pull_agent import World
+        from tests.integration.pullworld import World
 
         self.kind, self.world = kind, World(base)
         world = self.world

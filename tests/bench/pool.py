@@ -22,8 +22,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from tests.fixtures import start_pyinfra
+
 ROOT = Path(__file__).resolve().parents[2]
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
 
 def inventory(state: dict, n: int) -> str:
@@ -58,8 +59,12 @@ def measure(state: dict, n: int, hold: float) -> dict:
         inv = Path(tmp) / "aliases.py"
         inv.write_text(inventory(state, n))
         started = time.monotonic()
-        proc = subprocess.Popen(
-            [sys.executable, "-c", PYINFRA, "-y", str(inv), "exec", "--", f"sleep {hold}"],
+        proc = start_pyinfra(
+            "-y",
+            str(inv),
+            "exec",
+            "--",
+            f"sleep {hold}",
             cwd=tmp,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,

@@ -25,16 +25,15 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 from tests.bench import hygiene, window
+from tests.fixtures import pyinfra
 
 ROOT = Path(__file__).resolve().parents[2]
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 LAB_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 
 
@@ -52,13 +51,7 @@ def fleet(tmp: Path, name: str, host: str, tag: str, command: str | None = None)
 def deploy(prefix: str, host: str, fleet_file: Path) -> tuple[int, float]:
     env = dict(os.environ, ROBOT_LAB_PREFIX=prefix, ROBOT_LAB_FLEET=str(fleet_file), PYINFRA_PROGRESS="off")
     started = time.monotonic()
-    proc = subprocess.run(
-        [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit", host],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-    )
+    proc = pyinfra("-y", "inventories/lab.py", "deploy.py", "--limit", host, env=env, timeout=None)
     return proc.returncode, time.monotonic() - started
 
 

@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 from tests.bench import hygiene
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import ROOT, pyinfra_argv
 from tests.lab.linkproxy import Link, through
 
 HERE = Path(__file__).resolve().parent
@@ -97,7 +97,7 @@ def measure(prefix: str, rtts: list[int], runs: int) -> dict:
     work = Path(tempfile.mkdtemp(prefix="bench-rtt-"))
     try:
         base = dict(os.environ, ROBOT_LAB_PREFIX=prefix, PYINFRA_PROGRESS="off", **through(state, links))
-        deploy = [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit"]
+        deploy = pyinfra_argv("-y", "inventories/lab.py", "deploy.py", "--limit")
         found: dict = {row: {} for row, _ in ROWS}
         for robot, rtt in zip(robots, rtts):
             links[robot].delay = rtt / 2000
@@ -121,7 +121,7 @@ def measure(prefix: str, rtts: list[int], runs: int) -> dict:
             same = {**base, "ROBOT_LAB_FLEET": str(fleet_file(work, current[0]))}
             found["noop"][rtt] = sample(f"no-op rerun at {rtt} ms", [*deploy, one], same, runs)
             found["update"][rtt] = sample(f"one-tag update at {rtt} ms", [*deploy, one], base, runs, flip)
-            exec_true = [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "exec", "--limit", one]
+            exec_true = pyinfra_argv("-y", "inventories/lab.py", "exec", "--limit", one)
             exec_true += ["--", "true"]
             found["exec"][rtt] = sample(f"pyinfra exec -- true at {rtt} ms", exec_true, same, runs)
             if ansible:

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -14,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.fixtures import PYINFRA, ROOT  # the e2e modules import them from here too
+from tests.fixtures import ROOT, pyinfra  # ROOT: the e2e modules import it from here too
 
 PREFIX = os.environ.get("ROBOT_LAB_E2E_PREFIX", "e2e")
 E2E_DIR = Path(__file__).resolve().parent
@@ -233,14 +231,7 @@ class Lab:
         if fleet:
             env["ROBOT_LAB_FLEET"] = str(fleet)
         started = time.monotonic()
-        proc = subprocess.run(
-            [sys.executable, "-c", PYINFRA, "-y", "--json", "inventories/lab.py", script, *args],
-            cwd=ROOT,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=1500,
-        )
+        proc = pyinfra("-y", "--json", "inventories/lab.py", script, *args, env=env, timeout=1500)
         seconds = time.monotonic() - started
         phase(f"pyinfra {script} {label} (exit {proc.returncode})", started)
         try:

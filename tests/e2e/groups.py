@@ -5,7 +5,9 @@ other as in one session.  The host images are the machine's, built once
 (tests/lab/machinelock.py).  A module not named here runs in DEFAULT_GROUP.
 The modules of WITH_UNIT start containers of their own and no lab: they run
 in the unit and integration process, after its tests (it ends minutes
-before the lab groups).  Times per module: docs/guides/development.md."""
+before the lab groups).  The modules of ON_DEMAND are not in the test
+command at all: they run when named (`pytest tests/e2e/test_rviz.py`), on a
+lab of their own.  Times per module: docs/guides/development.md."""
 
 from __future__ import annotations
 
@@ -14,6 +16,8 @@ from pathlib import Path
 E2E_DIR = Path(__file__).resolve().parent
 DEFAULT_GROUP = "main"
 WITH_UNIT = "with unit and integration"
+# Too costly for the test command's 25 minutes: rviz on the laptop builds and pulls a 493 MB image.
+ON_DEMAND = ("test_rviz.py",)
 # Balanced by measured wall time; the arm64 module runs last in its group, its host image being built
 # in the background meanwhile (conftest.py), so its group's other modules are those that cost little CPU.
 GROUPS: dict[str, tuple[str, ...]] = {
@@ -41,7 +45,8 @@ def group_of(module: str) -> str:
 
 
 def modules(directory: Path = E2E_DIR) -> list[str]:
-    return sorted(path.name for path in directory.glob("test_*.py"))
+    """The modules of the test command (those of ON_DEMAND left out)."""
+    return sorted(path.name for path in directory.glob("test_*.py") if path.name not in ON_DEMAND)
 
 
 def plan(names: list[str]) -> dict[str, list[str]]:

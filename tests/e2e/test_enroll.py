@@ -18,7 +18,8 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, one_robot_lab, phase
+from tests.e2e.conftest import ROOT, one_robot_lab, phase
+from tests.fixtures import PYINFRA
 
 pytestmark = pytest.mark.e2e
 

@@ -24,7 +24,7 @@ import time
 import pytest
 
 from tests.e2e.conftest import wait_for
-from tests.e2e.test_faults_release import (
+from tests.e2e.faults import (
     DIR,
     HEALTH_WAIT,
     NEW_CONTAINERS,

@@ -13,12 +13,12 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, wait_for
+from tests.e2e.conftest import wait_for
+from tests.fixtures import start_pyinfra
 
 pytestmark = pytest.mark.e2e
 
@@ -166,9 +166,12 @@ def test_held_apt_lock_fails_the_host_in_bound_naming_the_holder(lab, first_run)
 
 def start_deploy(lab, fleet_file, host: str) -> subprocess.Popen:
     env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(fleet_file), PYINFRA_PROGRESS="off")
-    return subprocess.Popen(
-        [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit", host],
-        cwd=ROOT,
+    return start_pyinfra(
+        "-y",
+        "inventories/lab.py",
+        "deploy.py",
+        "--limit",
+        host,
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

@@ -10,22 +10,16 @@ robot2 so the suite pays for few boots.
 
 from __future__ import annotations
 
-import io
 import json
-import os
-import signal
 import subprocess
-import sys
-import tarfile
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, wait_for
+from tests.e2e.conftest import wait_for
+from tests.e2e.faults import DIR, HEALTH_WAIT, NEW_CONTAINERS, Background, build_image_with_a_new_layer, image
 
 pytestmark = pytest.mark.e2e
 
-DIR = "/var/lib/robot-payload"
-LAB_TAG = 'payload_image: "@registry@/ros/payload:1.0"'
 STALL_PORT = 5999  # a "registry" on the robot that accepts connections and never answers
 
 
@@ -33,11 +27,6 @@ def host_settings(host: str, *lines: str) -> dict[str, str]:
     """A fleet_with() replacement adding settings to one robot."""
     extra = "".join(f"      {line}\n" for line in lines)
     return {f"    {host}:\n      udev_sensors:": f"    {host}:\n{extra}      udev_sensors:"}
-
-
-def image(tag_or_ref: str) -> dict[str, str]:
-    ref = tag_or_ref if "/" in tag_or_ref else f"@registry@/ros/payload:{tag_or_ref}"
-    return {LAB_TAG: f'payload_image: "{ref}"'}
 
 
 def line_of(run, host: str, text: str) -> str:
@@ -78,34 +67,6 @@ def stop_stalled_registry(lab, host: str):
     lab.sh(host, "systemctl stop stalled-registry; systemctl reset-failed stalled-registry")
 
 
-class Background:
-    """A pyinfra run the test does not wait for (a deploy racing another, or
-    one the power cut interrupts)."""
-
-    def __init__(self, lab, *args: str, fleet=None, script: str = "deploy.py"):
-        env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, PYINFRA_PROGRESS="off")
-        if fleet:
-            env["ROBOT_LAB_FLEET"] = str(fleet)
-        self.proc = subprocess.Popen(
-            [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", script, *args],
-            cwd=ROOT,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            start_new_session=True,
-        )
-
-    def wait(self, seconds: float = 300) -> tuple[int, str]:
-        output, _ = self.proc.communicate(timeout=seconds)
-        return self.proc.returncode, output
-
-    def kill(self):
-        if self.proc.poll() is None:
-            os.killpg(self.proc.pid, signal.SIGKILL)
-        self.proc.communicate()
-
-
 def cut_power(lab, host: str, when: str):
     """Wait on the robot until the shell condition `when` holds, then pull the
     plug (SIGKILL the host container) and switch it on again."""
@@ -121,20 +82,11 @@ def cut_power(lab, host: str, when: str):
     wait_for(lambda: healthy(lab, host), 90, f"the payload on {host} to be healthy after boot")
 
 
-NEW_CONTAINERS = (
-    "docker ps -aq --filter label=com.docker.compose.project=robot-payload"
-    " --filter label=org.opencontainers.image.version={version} | grep -q ."
-)  # the one compose up that switches has created the new release's containers (the old ones may still run)
 STARTED_SINCE_BOOT = (
     "docker events --since $(( $(date +%s) - 3600 )) --until $(date +%s.%N) --filter event=start"
     " --filter label=com.docker.compose.project=robot-payload --filter label=org.opencontainers.image.version={version}"
     " --format '{{{{.ID}}}}'"
 )  # Docker keeps its events in memory: only this boot's
-
-HEALTH_WAIT = (
-    f'grep -q \'"state": "switching"\' {DIR}/current/record.json 2>/dev/null'
-    " && docker ps -q --filter label=com.docker.compose.project=robot-payload --filter health=starting | grep -q ."
-)  # `current` switched, its container up, its verdict not given yet
 
 
 def test_a_failing_update_leaves_the_old_release_running_and_says_why(lab, first_run, tmp_path):
@@ -222,26 +174,6 @@ def test_two_deploys_at_once_are_serialized(lab, first_run, tmp_path):
     assert code != 0 and "cannot pull" in output
     assert lab.version(host) == "1.1" and healthy(lab, host)
     converges(lab, host)  # back to the lab fleet's 1.0
-
-
-def build_image_with_a_new_layer(lab, size: int = 1 << 20, tag: str = "1.1-big") -> str:
-    """ros/payload:1.1 plus ``size`` bytes the robot has never seen (every lab
-    tag shares its layers, so only a new layer makes a pull write to disk)."""
-    import docker
-
-    engine = docker.from_env()
-    context = io.BytesIO()
-    with tarfile.open(fileobj=context, mode="w") as tar:
-        for name, data in (("Dockerfile", b"FROM ros/payload:1.1\nCOPY blob /blob\n"), ("blob", os.urandom(size))):
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            tar.addfile(info, io.BytesIO(data))
-    context.seek(0)
-    local = f"{lab.state['registry_local']}/ros/payload"
-    engine.images.build(fileobj=context, custom_context=True, tag=f"{local}:{tag}", rm=True)
-    for line in engine.images.push(local, tag=tag, stream=True, decode=True):
-        assert "error" not in line, line
-    return tag
 
 
 def test_first_release_failing_and_a_full_disk(lab, first_run, tmp_path):

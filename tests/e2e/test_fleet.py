@@ -13,7 +13,8 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, phase
+from tests.e2e.conftest import ROOT, phase
+from tests.fixtures import pyinfra
 
 pytestmark = pytest.mark.e2e
 
@@ -121,14 +122,7 @@ def test_dry_diff_shows_a_drifted_daemon_json_and_changes_nothing(lab, first_run
     lab.ok(host, f"printf %s {shlex.quote(drifted)} > /etc/docker/daemon.json")
     try:
         env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, PYINFRA_PROGRESS="off")
-        proc = subprocess.run(
-            [sys.executable, "-c", PYINFRA, "--dry", "--diff", "--limit", host, "inventories/lab.py", "deploy.py"],
-            cwd=ROOT,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=300,
-        )
+        proc = pyinfra("--dry", "--diff", "--limit", host, "inventories/lab.py", "deploy.py", env=env, timeout=300)
         output = proc.stdout + proc.stderr
         assert proc.returncode == 0, output[-4000:]
         assert "Will modify /etc/docker/daemon.json" in output

@@ -29,7 +29,8 @@ import time
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, SLOW_DELAY, SLOW_ROBOT, Run, wait_for
+from tests.e2e.conftest import ROOT, SLOW_DELAY, SLOW_ROBOT, Run, wait_for
+from tests.fixtures import start_pyinfra
 from tests.lab.linkproxy import Link, through
 
 pytestmark = pytest.mark.e2e
@@ -81,9 +82,11 @@ def test_a_cut_and_a_freeze_mid_update_fail_those_robots_in_bound_and_the_rerun_
         )
         out, err = tmp_path / "stdout", tmp_path / "stderr"
         with open(out, "w") as stdout, open(err, "w") as stderr:
-            operator = subprocess.Popen(
-                [sys.executable, "-c", PYINFRA, "-y", "--json", "inventories/lab.py", "deploy.py"],
-                cwd=ROOT,
+            operator = start_pyinfra(
+                "-y",
+                "--json",
+                "inventories/lab.py",
+                "deploy.py",
                 env=env,
                 stdout=stdout,
                 stderr=stderr,

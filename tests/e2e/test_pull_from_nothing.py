@@ -45,8 +45,9 @@ import pytest
 import yaml
 
 from tests import doccommands
-from tests.e2e.conftest import PYINFRA, ROOT, phase
+from tests.e2e.conftest import ROOT, phase
 from tests.e2e.test_pull import CHECK_NOW
+from tests.fixtures import PYINFRA
 from tests.lab.state import exec_container
 
 pytestmark = pytest.mark.e2e

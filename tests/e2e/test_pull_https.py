@@ -21,7 +21,6 @@ its end, so it may run before or after the other pull modules.
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
 
 import pytest
@@ -29,6 +28,7 @@ import pytest
 from tests.e2e.conftest import phase
 from tests.e2e.test_pull import Pull
 from tests.e2e.test_pull_media import by_digest, clear_remote
+from tests.fixtures import pyinfra
 
 pytestmark = pytest.mark.e2e
 
@@ -108,17 +108,11 @@ class Https(Pull):
     def push_deploy(self) -> None:
         """pyinfra from the operator's deploy repository, as a user runs it
         (the deploy tree's pull_remote_ca is read there)."""
-        from tests.fixtures import PYINFRA
 
         started = time.monotonic()
         env = self.op.env(ROBOT_LAB_FLEET=str(self.op.repo / self.pullfleet.FLEET), PYINFRA_PROGRESS="off")
-        done = subprocess.run(
-            [sys.executable, "-c", PYINFRA, "-y", f"--limit={ROBOT}", "inventories/lab.py", "deploy.py"],
-            cwd=self.op.repo,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=1500,
+        done = pyinfra(
+            "-y", f"--limit={ROBOT}", "inventories/lab.py", "deploy.py", cwd=self.op.repo, env=env, timeout=1500
         )
         phase(f"pyinfra deploy.py (pull agent, https mirror; exit {done.returncode})", started)
         assert done.returncode == 0, (done.stderr + done.stdout)[-4000:]

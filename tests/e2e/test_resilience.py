@@ -5,11 +5,11 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import sys
 
 import pytest
 
-from tests.e2e.conftest import PYINFRA, ROOT, wait_for
+from tests.e2e.conftest import wait_for
+from tests.fixtures import start_pyinfra
 
 pytestmark = pytest.mark.e2e
 
@@ -23,9 +23,12 @@ def test_dropped_link_during_an_update_leaves_the_robot_switched(lab, first_run,
     # the operator off while it waits (as a dropped link would).
     lab.ok("robot1", "systemd-run --unit=hold-apply-lock flock /var/lib/robot-payload/lock/apply.lock sleep 8")
     env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(fleet), PYINFRA_PROGRESS="off")
-    operator = subprocess.Popen(
-        [sys.executable, "-c", PYINFRA, "-y", "inventories/lab.py", "deploy.py", "--limit", "robot1"],
-        cwd=ROOT,
+    operator = start_pyinfra(
+        "-y",
+        "inventories/lab.py",
+        "deploy.py",
+        "--limit",
+        "robot1",
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,

@@ -133,7 +133,7 @@ def test_a_rollout_of_robots_with_several_services_completes(lab, rollout, tmp_p
     """The rollout's target is every image of a robot's compose project (issue
     16): robots that use payload_services were counted as failed (the target
     was payload_image alone), so such a rollout stopped at its canary."""
-    from tests.e2e.test_services import SECRET_FILE, two_services
+    from tests.e2e.twoservices import SECRET_FILE, two_services
 
     def fleet(driver: str) -> Path:
         return lab.fleet_with(

@@ -7,38 +7,18 @@ foreign compose project), through a Docker restart and a reboot."""
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import tempfile
 import time
-from pathlib import Path
 
 import pytest
 
 from tests.e2e.conftest import wait_for
+from tests.e2e.twoservices import SECRET, SECRET_FILE, two_services
 
 pytestmark = pytest.mark.e2e
 
 ALL_TAG = '    payload_image: "@registry@/ros/payload:1.0"\n'
 PROJECT = "robot-payload"
-# On the operator's machine, outside the checkout (the fleet fixture writes it).
-SECRET_FILE = Path(tempfile.gettempdir()) / f"robotfleet-e2e-{os.getpid()}-db_password"
-SECRET = "db-pa55-e2e"
-
-
-def two_services(payload: str = "1.1", driver: str = "1.0", driver_extra: str = "") -> str:
-    """The fleet's all.vars for the two-service payload; its secret file is written here, since other
-    modules (test_rollout) use these vars without this module's fixture."""
-    SECRET_FILE.write_text(SECRET + "\n")
-    return (
-        "    payload_image: null\n"
-        "    payload_services:\n"
-        f'      payload: {{image: "@registry@/ros/payload:{payload}", ipc: host, cap_add: [NET_ADMIN], '
-        "stop_grace_period: 3s}\n"
-        f'      driver: {{image: "@registry@/ros/driver:{driver}", devices: [], tty: true, stop_grace_period: '
-        f"3s{driver_extra}}}\n"
-        f"    payload_secret_files: {{db_password: {SECRET_FILE}}}\n"
-    )
 
 
 def services_of(lab, host: str) -> dict[str, dict]:

@@ -4,9 +4,9 @@ started the way the payload is started opening the display with it."""
 
 from __future__ import annotations
 
-import time
-
 import pytest
+
+from tests.e2e.x11login import login
 
 pytestmark = pytest.mark.e2e
 
@@ -40,29 +40,6 @@ def desktop(lab, first_run):
     )
     yield laptop
     lab.sh(laptop, "pkill -u alice -f xinit; pkill -u alice Xvfb; true")
-
-
-def login(lab, laptop: str) -> None:
-    """A graphical login of alice: startx runs the X server with a fresh
-    cookie and Xsession runs the session hooks, ours included."""
-    # The last session's processes die after pkill returns: until they are gone, its
-    # `sleep` would pass for the new session's (which then has not written its cookie).
-    lab.ok(
-        laptop,
-        "pkill -u alice -f xinit; pkill -u alice -x Xvfb; pkill -u alice -x sleep; "
-        "for i in $(seq 100); do pgrep -u alice -f 'xinit|Xvfb|sleep' >/dev/null || break; sleep 0.1; done; "
-        "! pgrep -u alice -f 'xinit|Xvfb|sleep' && rm -f /tmp/.X0-lock",
-    )
-    lab.ok(
-        laptop,
-        "su - alice -c 'nohup startx /etc/X11/Xsession /usr/local/bin/lab-session -- "
-        "/usr/bin/Xvfb :0 -screen 0 1024x768x24 > /tmp/startx.log 2>&1 &'",
-    )
-    for _ in range(30):
-        if lab.sh(laptop, "pgrep -u alice -x sleep")[0] == 0:
-            return
-        time.sleep(0.5)
-    raise AssertionError(lab.sh(laptop, "cat /tmp/startx.log")[1])
 
 
 def test_login_writes_a_private_cookie_and_containers_can_use_it(lab, desktop):

@@ -6,6 +6,8 @@ end-to-end layer's."""
 
 import pytest
 
+from tests.integration import imagestore
+
 
 def pytest_collection_modifyitems(items):
     for item in items:
@@ -55,3 +57,10 @@ def robot(tmp_path, helper):
     robot.releases.point("current", "r1")
     robot.running("reg/ros/payload:1.0")
     return robot
+
+
+@pytest.fixture
+def platform_registry():
+    """A registry on 127.0.0.1 with one image for amd64 and arm64 under one tag
+    (tests/integration/imagestore.py): (address, store, the blobs fetched)."""
+    yield from imagestore.serve()

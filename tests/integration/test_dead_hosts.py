@@ -15,8 +15,7 @@ import time
 import pytest
 
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet, run
 
 TIMEOUT = 2
 MARGIN = 1.5  # what parallel hosts may add to one timeout on a busy shared machine
@@ -83,7 +82,7 @@ def test_ten_dead_robots_take_one_connect_timeout(tmp_path, command, kind):
 def test_a_retry_happens_only_while_the_timeout_leaves_room(tmp_path, monkeypatch):
     """A connection closed before the greeting is tried again after 1 s, and
     again while at least a second is left of the 3 s: twice in all."""
-    from tests.integration.test_first_contact import connect
+    from tests.integration.operator_side import connect
 
     dropping = sshserver.Listener(hang_up=True)
     try:
@@ -105,7 +104,7 @@ def test_a_retry_happens_only_while_the_timeout_leaves_room(tmp_path, monkeypatc
 
 
 def test_a_dropped_connection_times_out_once(tmp_path, monkeypatch):
-    from tests.integration.test_first_contact import connect
+    from tests.integration.operator_side import connect
 
     server = sshserver.Unanswered()
     try:

@@ -26,7 +26,7 @@ import pytest
 
 from robotfleet.fleet import yaml12
 from tests import doccommands
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import PYINFRA, ROOT, pyinfra_argv
 
 COMMANDS = doccommands.all_commands()
 NOT_COPIED = shutil.ignore_patterns(
@@ -182,7 +182,7 @@ class Sandbox:
                 (self.checkout / word).write_text("")  # none recorded: each host would be refused, were it reached
             args.append(word)
         if command.program == "pyinfra":
-            return [sys.executable, "-c", PYINFRA, *args]
+            return pyinfra_argv(*args)
         if command.subcommand in doccommands.SHELL:  # man --install writes beside its Python's bin/
             return [str(self.environment()), "-m", "robotfleet", *args]
         return [sys.executable, "-m", "robotfleet", *args]

@@ -15,7 +15,7 @@ from robotfleet import hostkeys
 from robotfleet.commands import enroll
 from tests.fixtures import ROOT
 from tests.integration import sshserver
-from tests.integration.test_first_contact import connect, fleet
+from tests.integration.operator_side import connect, fleet
 
 
 @pytest.fixture

@@ -8,32 +8,18 @@ robots and tries an unreachable robot once per wave.  Real sockets on
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import time
 
 import pytest
 
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import PYINFRA, ROOT, pyinfra
 from tests.integration import sshserver
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet, run
 
 
 @pytest.fixture(autouse=True)
 def key(client_key):
     return client_key
-
-
-def run(path, tmp_path, *argv, timeout=120) -> subprocess.CompletedProcess:
-    (tmp_path / "known_hosts").touch()  # as inventories/known_hosts ships: empty
-    env = {
-        "PATH": "/usr/bin:/bin",
-        "ROBOT_FLEET": str(path),
-        "PYINFRA_PROGRESS": "off",
-        "HOME": str(tmp_path),
-        "ROBOT_ROLLOUT_DIR": str(tmp_path / "rollouts"),
-    }
-    return subprocess.run([sys.executable, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout, env=env)
 
 
 def test_a_limit_that_matches_nothing_is_refused_by_every_command(tmp_path):
@@ -121,14 +107,7 @@ def test_pyinfra_from_outside_the_checkout_is_refused_before_any_connection(tmp_
         "HOME": str(tmp_path),
         "ROBOT_FLEET_HOST": "robot1",
     }
-    result = subprocess.run(
-        [sys.executable, "-c", PYINFRA, "-y", str(ROOT / "inventories" / inventory), str(ROOT / "deploy.py")],
-        cwd=tmp_path,
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=env,
-    )
+    result = pyinfra("-y", str(ROOT / "inventories" / inventory), str(ROOT / "deploy.py"), cwd=tmp_path, env=env)
     assert result.returncode == 2, result.stderr[-2000:]
     assert result.stderr.strip().splitlines()[-1] == (
         f"pyinfra runs in {tmp_path}, not in the checkout {ROOT}: its config.py and group_data/ (strict host-key "

@@ -8,58 +8,14 @@ the CLI, status and rollout make them."""
 from __future__ import annotations
 
 import socket
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import paramiko
-from pyinfra.api import Config, State
-from pyinfra.api.exceptions import ConnectError
-from pyinfra.context import ctx_state
-from pyinfra_cli.inventory import make_inventory
 
 from robotfleet import hostkeys, reasons
-from robotfleet.fleet import yaml12
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import pyinfra
 from tests.integration import sshserver
-
-
-def fleet(tmp_path, hosts: dict, **common) -> Path:
-    path = tmp_path / "fleet.yaml"
-    settings = {
-        "payload_image": "reg.example.com/p:1",
-        "ssh_user": "ops",
-        "ssh_key": str(tmp_path / "id_fleet"),
-        "ssh_known_hosts_file": str(tmp_path / "known_hosts"),
-        "ssh_connect_timeout": 2,
-        "ssh_connect_retry_min_delay": 0,
-        "ssh_connect_retry_max_delay": 0,
-        **common,
-    }
-    settings = {key: value for key, value in settings.items() if value is not None}
-    path.write_text(yaml12.dump({"all": {"vars": settings}, "robots": {"hosts": hosts}}))
-    return path
-
-
-def connect(path: Path, monkeypatch, times: int = 1) -> dict[str, str | None]:
-    """Each host's connection error (None: connected), connecting ``times``."""
-    monkeypatch.setenv("ROBOT_FLEET", str(path))
-    monkeypatch.chdir(ROOT)
-    with ctx_state.use(State()):
-        inventory = make_inventory("inventories/robots.py", cwd=str(ROOT))
-    state = State(inventory=inventory, config=Config())
-    outcome = {}
-    with ctx_state.use(state):
-        for host in inventory:
-            for _ in range(times):
-                try:
-                    host.connect(raise_exceptions=True, show_errors=False)
-                    outcome[host.name] = None
-                    host.disconnect()
-                except ConnectError as error:
-                    outcome[host.name] = error.args[0]
-    return outcome
+from tests.integration.operator_side import connect, fleet
 
 
 def test_unknown_host_key_names_the_file_and_the_command_and_is_not_retried(tmp_path, monkeypatch, client_key):
@@ -219,12 +175,10 @@ def test_the_cli_prints_one_line_per_host_and_no_traceback(tmp_path, client_key)
             },
         )
         (tmp_path / "known_hosts").write_text("")
-        result = subprocess.run(
-            [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
-            cwd=ROOT,
-            capture_output=True,
-            text=True,
-            timeout=120,
+        result = pyinfra(
+            "-y",
+            "inventories/robots.py",
+            "deploy.py",
             env={"PATH": "/usr/bin:/bin", "ROBOT_FLEET": str(path), "PYINFRA_PROGRESS": "off", "HOME": str(tmp_path)},
         )
     finally:

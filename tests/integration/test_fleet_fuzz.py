@@ -5,13 +5,12 @@ host; an accepted control fleet does connect (to a listener here)."""
 from __future__ import annotations
 
 import subprocess
-import sys
 from pathlib import Path
 
 from robotfleet.fleet import yaml12
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import start_pyinfra
 from tests.integration import sshserver
-from tests.unit.test_fleet_fuzz import SHOWN, documents, good_fleet, outcome
+from tests.unit.fleetfuzz import SHOWN, documents, good_fleet, outcome
 
 
 def run_cli(paths: list[Path]) -> list[subprocess.CompletedProcess]:
@@ -19,9 +18,10 @@ def run_cli(paths: list[Path]) -> list[subprocess.CompletedProcess]:
     chosen by $ROBOT_FLEET, several at once.  (Each costs seconds of pyinfra
     start-up; the in-process test above covers the many documents.)"""
     procs = [
-        subprocess.Popen(
-            [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
-            cwd=ROOT,
+        start_pyinfra(
+            "-y",
+            "inventories/robots.py",
+            "deploy.py",
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,

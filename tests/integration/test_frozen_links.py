@@ -19,8 +19,7 @@ import pytest
 from robotfleet import hostkeys
 from tests.fixtures import PYINFRA
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet, run
 from tests.lab.linkproxy import Link
 
 INTERVAL, COUNT = 1, 2

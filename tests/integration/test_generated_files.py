@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.unit.test_generated_files import UNIT
+from tests.unit.samples import UNIT
 
 
 def systemd_verify(unit_text: str, root: Path) -> subprocess.CompletedProcess:

@@ -20,7 +20,7 @@ import pytest
 
 from robotfleet import hostcerts, hostkeys
 from tests.integration import certserver, sshserver
-from tests.integration.test_first_contact import connect, fleet
+from tests.integration.operator_side import connect, fleet
 
 
 def line(names: str, key, marker: str = "") -> str:

@@ -19,7 +19,7 @@ from robotfleet import hostkeys
 from robotfleet.connect import idle_wakeup
 from tests.fixtures import ROOT
 from tests.integration import sshserver
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet
 
 # Connects to every host of inventories/robots.py as the CLI does (pyinfra_cli
 # patches the sockets with gevent), idles, then closes; prints what each

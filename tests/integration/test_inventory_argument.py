@@ -17,7 +17,7 @@ import pytest
 
 from tests.fixtures import PYINFRA, ROOT
 from tests.integration import sshserver
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet
 
 
 @pytest.fixture(autouse=True)

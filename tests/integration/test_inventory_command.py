@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from tests.fixtures import ROOT
-from tests.integration.test_ansible_dirs import ANSIBLE_INVENTORY, INI_HOSTS, VARS, YAML_HOSTS, display, write
+from tests.integration.ansibledirs import ANSIBLE_INVENTORY, INI_HOSTS, VARS, YAML_HOSTS, display, write
 
 
 def robotfleet(tmp_path: Path, *argv: str, env: dict | None = None) -> subprocess.CompletedProcess:

@@ -13,9 +13,9 @@ import re
 import pytest
 
 from robotfleet import selection
+from tests.fixtures import PYINFRA
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import PYINFRA, fleet
+from tests.integration.operator_side import fleet, run
 
 
 @pytest.fixture(autouse=True)

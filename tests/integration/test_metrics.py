@@ -7,7 +7,6 @@ last change and drift.  Real SSH servers on 127.0.0.1 play the robots."""
 
 from __future__ import annotations
 
-import json
 import os
 import stat
 import time
@@ -19,33 +18,8 @@ from prometheus_client.openmetrics import parser as openmetrics
 from robotfleet import deploy_roles
 from robotfleet.commands import metrics
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import fleet
-
-RELEASE = "20261121T204438Z-dadf84de"
-IMAGE = "reg.example.com/p:1"
-
-
-def report(release=RELEASE, health="healthy", image=IMAGE):
-    return {
-        "current": {
-            "id": release,
-            "state": "active",
-            "activated": "2026-11-21T20:44:42Z",
-            "images": {image: {"pinned": "reg.example.com/p@sha256:" + "a" * 64}},
-        },
-        "previous": {"id": "20261120T000000Z-0badcafe"},
-        "containers": [{"status": "running", "health": health, "restarts": 2}],
-    }
-
-
-def robot(answer_report: dict):
-    def answer(command: str):
-        return (
-            f"@@@robot-fleet-status engine:host\namd64\n@@@robot-fleet-status payload\n{json.dumps(answer_report)}\n"
-        ).encode(), 0
-
-    return answer
+from tests.integration.operator_side import fleet, run
+from tests.integration.statusrobots import IMAGE, RELEASE, report, robot
 
 
 @pytest.fixture
@@ -253,9 +227,9 @@ def test_pull_robots_are_in_the_metrics_from_their_reports_stale_marked(tmp_path
             config=config,
         ),
     }
-    for name, report in made.items():
+    for name, made_report in made.items():
         transport.Remote(f"file://{bare}", tmp_path / name, str(tmp_path / "etc"), timeout=30).push_report(
-            name, reports.to_bytes(report)
+            name, reports.to_bytes(made_report)
         )
     inventory = tmp_path / "inv.py"
     # Addresses nothing listens on: a connection attempt would be an error row, not a report's.

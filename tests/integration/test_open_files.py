@@ -54,7 +54,7 @@ def test_a_hard_limit_too_low_is_one_line_and_the_soft_limit_goes_to_it():
 
 def test_an_inventory_run_collects_garbage_less_often(tmp_path):
     from tests.fixtures import ROOT
-    from tests.integration.test_first_contact import fleet
+    from tests.integration.operator_side import fleet
 
     path = fleet(tmp_path, {"robot1": {"address": "127.0.0.1"}})
     script = (

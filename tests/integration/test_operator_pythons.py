@@ -31,8 +31,7 @@ from robotfleet.pull.protocol import platforms
 from tests import pythons
 from tests.fixtures import ROOT
 from tests.integration import sshserver
-from tests.integration.test_dry_and_diff import dry_run
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import dry_run, fleet
 
 CACHE = ROOT / ".lab" / "cache" / "python-wheels"
 BAD_COMPOSE = {

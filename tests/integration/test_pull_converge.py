@@ -5,14 +5,13 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 from robotfleet.pull.protocol import robot_data
 from robotfleet.pull.robot import converge
 from robotfleet.role import RolloutPart
+from tests.fixtures import pyinfra
 
 ROOT = Path(__file__).resolve().parents[2]
 FLEET = """\
@@ -35,14 +34,7 @@ def inventory(tmp_path, robot: str, run: dict | None = None) -> tuple[int, str, 
     if run is not None:
         (tmp_path / "run.json").write_text(json.dumps(run))
         env["ROBOT_PULL_DATA"] = str(tmp_path / "run.json")
-    done = subprocess.run(
-        [sys.executable, "-m", "pyinfra", "inventories/pull.py", "debug-inventory"],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    done = pyinfra("inventories/pull.py", "debug-inventory", env=env)
     out = done.stdout + done.stderr
     data = json.JSONDecoder().raw_decode(out.split("--> Data:", 1)[1].strip())[0] if "--> Data:" in out else None
     groups = next((line for line in out.splitlines() if "--> Groups:" in line), "")

@@ -17,10 +17,9 @@ from pathlib import Path
 import pytest
 
 from robotfleet.pull.operator import export as exporting
+from tests.integration.imagestore import Store  # noqa: F401
 from tests.integration.test_pull_media import FLEET, image_registry, media_fleet  # noqa: F401 (a fixture)
 from tests.integration.test_pull_publish import git, registry, robotfleet_cmd, site  # noqa: F401
-from tests.integration.test_push_platforms import Store  # noqa: F401
-from tests.integration.test_push_platforms import registry as platform_registry  # noqa: F401 (a fixture)
 from tests.unit import pullkit
 
 SECRETS = {"id_ed25519": "-----BEGIN OPENSSH PRIVATE KEY-----\n", "authorized_keys": "ssh-ed25519 AAAA op\n"}

@@ -20,7 +20,7 @@ import pytest
 import robotfleet
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import agent_state
-from tests.integration.test_pull_agent import World
+from tests.integration.pullworld import World
 
 # robot-pull.service's python code in the units the releases of 2026-11-28 to
 # issue 53 wrote (python -S -c, robotfleet/pull/start.py): such a unit stays on

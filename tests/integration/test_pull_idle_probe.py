@@ -19,7 +19,7 @@ import pytest
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import agent, agent_state, probe, transport
 from tests.integration import gitssh, httpsgit
-from tests.integration.test_pull_agent import World
+from tests.integration.pullworld import World
 from tests.unit.pullkit import NOW
 
 

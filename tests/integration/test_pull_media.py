@@ -26,11 +26,10 @@ import pytest
 from robotfleet.pull.operator import export as exporting
 from robotfleet.pull.protocol import agent_files, media, platforms, reports
 from robotfleet.pull.robot import agent_state
-from tests.integration.test_pull_agent import World
+from tests.integration.imagestore import Store  # noqa: F401
+from tests.integration.pullworld import World
 from tests.integration.test_pull_publish import git, registry, robot_fetch, robotfleet_cmd, site  # noqa: F401
 from tests.integration.test_pull_trust import refused
-from tests.integration.test_push_platforms import Store  # noqa: F401
-from tests.integration.test_push_platforms import registry as platform_registry  # noqa: F401 (a fixture)
 from tests.unit import pullkit
 from tests.unit.pullkit import DAY, NOW
 
@@ -87,8 +86,8 @@ json.dump(store, open(path, "w"))
 
 
 @pytest.fixture
-def image_registry(platform_registry):  # noqa: F811 (test_push_platforms' fixture, imported)
-    """test_push_platforms' registry, its index also served by its digest (as registries do)."""
+def image_registry(platform_registry):
+    """conftest's platform_registry, its index also served by its digest (as registries do)."""
     address, store, fetched = platform_registry
     store.manifests["sha256:" + hashlib.sha256(store.manifests["1.0"][1]).hexdigest()] = store.manifests["1.0"]
     return address, store, fetched

@@ -12,10 +12,9 @@ from __future__ import annotations
 
 from robotfleet.pull.operator import publishing
 from robotfleet.pull.protocol import agent_files
-from tests.integration.test_pull_agent import World
+from tests.integration.imagestore import Store  # noqa: F401
+from tests.integration.pullworld import World
 from tests.integration.test_pull_media import docker, image_registry, loads, world  # noqa: F401 (fixtures)
-from tests.integration.test_push_platforms import Store  # noqa: F401
-from tests.integration.test_push_platforms import registry as platform_registry  # noqa: F401 (a fixture)
 from tests.unit.pullkit import NOW
 
 

@@ -25,7 +25,7 @@ import pytest
 from robotfleet.commands import pullrollout, pullstatus, status
 from robotfleet.pull.protocol import agent_files, platforms, reports
 from robotfleet.pull.robot import agent_state
-from tests.integration.test_pull_agent import World
+from tests.integration.pullworld import World
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 

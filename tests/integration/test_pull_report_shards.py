@@ -218,8 +218,8 @@ def test_a_later_wave_robot_reads_the_earlier_waves_from_their_shards(tmp_path):
 def test_the_agent_reports_to_its_shard_and_halts_on_an_earlier_wave_s_failure_read_from_its_shard(tmp_path):
     from dataclasses import replace
 
-    from tests.integration.test_pull_agent import NOW as RELEASED
-    from tests.integration.test_pull_agent import World
+    from tests.integration.pullworld import World
+    from tests.unit.pullkit import NOW as RELEASED
 
     world = World(tmp_path)
     for shard in range(SHARDS):

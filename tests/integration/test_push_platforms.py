@@ -5,120 +5,15 @@ lacks; an image with no variant for the robot is refused with one line.
 A small registry answers here (the lab registry is the e2e tests'; the
 local image chosen without a registry: tests/unit/test_status_and_push.py)."""
 
-import gzip
-import hashlib
-import http.server
-import io
 import json
 import tarfile
-import threading
 
-import pytest
-
-from tests.unit.test_status_and_push import AMD64_LOCAL
-
-DOCKER_V2 = "application/vnd.docker.distribution.manifest.v2+json"
-OCI_INDEX = "application/vnd.oci.image.index.v1+json"
+from tests.integration.imagestore import digest
+from tests.unit.samples import AMD64_LOCAL
 
 
-def digest(data: bytes) -> str:
-    return "sha256:" + hashlib.sha256(data).hexdigest()
-
-
-def layer(name: str) -> tuple[bytes, str]:
-    """(gzipped blob, diff id) of a layer holding one file."""
-    plain = io.BytesIO()
-    with tarfile.open(fileobj=plain, mode="w") as tar:
-        info = tarfile.TarInfo(name)
-        info.size = len(name)
-        tar.addfile(info, io.BytesIO(name.encode()))
-    return gzip.compress(plain.getvalue(), mtime=0), digest(plain.getvalue())
-
-
-class Store:
-    """An image of two layers (a shared base, an arch-specific top) for amd64
-    and arm64 under one tag."""
-
-    def __init__(self, arches=("amd64", "arm64")):
-        self.blobs, self.manifests = {}, {}
-        base, base_id = layer("base")
-        self.blobs[digest(base)] = base
-        entries = []
-        self.ids = {}
-        for arch in arches:
-            top, top_id = layer(f"bin-{arch}")
-            self.blobs[digest(top)] = top
-            config = json.dumps(
-                {"architecture": arch, "os": "linux", "rootfs": {"type": "layers", "diff_ids": [base_id, top_id]}}
-            ).encode()
-            self.blobs[digest(config)] = config
-            self.ids[arch] = digest(config)
-            self.diff_ids = {arch: [base_id, top_id], **getattr(self, "diff_ids", {})}
-            manifest = json.dumps(
-                {
-                    "schemaVersion": 2,
-                    "mediaType": DOCKER_V2,
-                    "config": {"mediaType": "x", "digest": digest(config), "size": len(config)},
-                    "layers": [{"mediaType": "y", "digest": digest(b), "size": len(b)} for b in (base, top)],
-                }
-            ).encode()
-            self.manifests[digest(manifest)] = (DOCKER_V2, manifest)
-            self.manifests[f"1.0-{arch}"] = (DOCKER_V2, manifest)
-            entries.append(
-                {
-                    "mediaType": DOCKER_V2,
-                    "digest": digest(manifest),
-                    "size": len(manifest),
-                    "platform": {"os": "linux", "architecture": arch},
-                }
-            )
-        self.manifests["1.0"] = (
-            OCI_INDEX,
-            json.dumps({"schemaVersion": 2, "mediaType": OCI_INDEX, "manifests": entries}).encode(),
-        )
-        self.top = {
-            arch: len(self.blobs[json.loads(self.manifests[f"1.0-{arch}"][1])["layers"][1]["digest"]])
-            for arch in arches
-        }
-
-
-@pytest.fixture
-def registry():
-    store = Store()
-    fetched = []
-
-    class Handler(http.server.BaseHTTPRequestHandler):
-        def log_message(self, *args):
-            pass
-
-        def do_GET(self):
-            # The image under a two-part name and a one-part one (no library/: this is not Docker Hub).
-            prefix = next((p for p in ("/v2/ros/payload/", "/v2/payload/") if self.path.startswith(p)), "")
-            _, _, repo_rest = self.path.partition(prefix) if prefix else ("", "", "")
-            kind, _, ref = repo_rest.partition("/")
-            if kind == "manifests" and ref in store.manifests:
-                media_type, body = store.manifests[ref]
-            elif kind == "blobs" and ref in store.blobs:
-                media_type, body = "application/octet-stream", store.blobs[ref]
-                fetched.append(ref)
-            else:
-                self.send_response(404)
-                self.end_headers()
-                return
-            self.send_response(200)
-            self.send_header("Content-Type", media_type)
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
-
-    server = http.server.HTTPServer(("127.0.0.1", 0), Handler)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    yield f"127.0.0.1:{server.server_address[1]}", store, fetched
-    server.shutdown()
-
-
-def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(image_transfer, registry):
-    address, store, _ = registry
+def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(image_transfer, platform_registry):
+    address, store, _ = platform_registry
     decision = image_transfer.choose_source(f"{address}/ros/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL)
     kind, writer, (variant,), image_id = decision
     assert (kind, writer) == ("send", image_transfer.write_registry_archive)
@@ -129,10 +24,10 @@ def test_the_arm64_robot_gets_the_arm64_variant_of_the_index_from_the_registry(i
     assert again == ("noop", f"{address}/ros/payload:1.0 (linux/arm64) is already on the host")
 
 
-def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_name(image_transfer, registry):
+def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_name(image_transfer, platform_registry):
     """registry.lan:5000/payload:1 is /v2/payload/... on its registry (Docker
     adds library/ on Docker Hub only)."""
-    address, store, _ = registry
+    address, store, _ = platform_registry
     kind, writer, (variant,), image_id = image_transfer.choose_source(
         f"{address}/payload:1.0", "", "pi1", "arm64", [], None, AMD64_LOCAL
     )
@@ -140,8 +35,8 @@ def test_a_one_part_name_on_a_registry_other_than_docker_hub_is_read_under_that_
     assert image_id == store.ids["arm64"] == variant["id"]
 
 
-def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, registry, tmp_path):
-    address, store, fetched = registry
+def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, platform_registry, tmp_path):
+    address, store, fetched = platform_registry
     image = f"{address}/ros/payload:1.0"
     variant = image_transfer.registry_variant(image, "arm64", [], None)
     fetched.clear()
@@ -164,8 +59,8 @@ def test_only_the_layers_the_robot_lacks_are_read_and_sent(image_transfer, regis
     assert report["sent"] == (tmp_path / "a.tar").stat().st_size
 
 
-def test_an_image_without_the_robots_platform_is_refused_with_one_line(image_transfer, registry):
-    address, store, _ = registry
+def test_an_image_without_the_robots_platform_is_refused_with_one_line(image_transfer, platform_registry):
+    address, store, _ = platform_registry
     single = f"{address}/ros/payload:1.0-amd64"
     assert image_transfer.choose_source(single, "", "pi1", "arm64", [], None, None) == (
         "fail",

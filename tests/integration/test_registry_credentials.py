@@ -20,7 +20,7 @@ import threading
 import pyinfra_cli  # noqa: F401  (gevent patches first: these servers then run as greenlets beside pyinfra)
 import pytest
 
-from tests.integration.test_push_platforms import Store
+from tests.integration.imagestore import Store
 from tests.unit.harness import ROBOT, converged, find, plan
 
 USER, PASSWORD = "robot", "s3cret-primary"

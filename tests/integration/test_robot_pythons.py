@@ -24,12 +24,12 @@ import uuid
 import pytest
 
 from robotfleet import status_parts
+from robotfleet.deploy_roles import roles
 from roles.payload import containers
 from roles.payload.installed_files import HELPER
 from tests import pythons
 from tests.integration.payloadrobot import FakeRobot
 from tests.unit.harness import merged
-from tests.unit.test_status_and_push import roles
 
 ROBOT_PATH = "/usr/sbin:/usr/bin:/sbin:/bin"  # python3 is /usr/bin/python3, as on a robot
 

@@ -14,8 +14,7 @@ import pytest
 
 from robotfleet.commands import rollout_plan, rolloutreport
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import fleet
+from tests.integration.operator_side import fleet, run
 
 # An OSC that retitles the terminal, a bell, a screen clear, a cursor move.
 EVIL = "\x1b]0;owned\x07\x1b[2J\x1b[1;1H"

@@ -7,10 +7,10 @@ import pytest
 
 from robotfleet import status_parts
 from robotfleet.commands import status
+from robotfleet.deploy_roles import roles
 from roles.payload import image_transfer
 from tests.fixtures import run_command, sh
 from tests.unit.harness import merged
-from tests.unit.test_status_and_push import roles
 
 
 def test_status_shows_the_gpu_driver_version_and_the_runtime(tmp_path):

@@ -27,14 +27,14 @@ from robotfleet.commands import rollout_plan
 from robotfleet.pull.protocol import reports
 from robotfleet.pull.robot import transport
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import fleet
-from tests.integration.test_metrics import IMAGE, report, robot
-from tests.integration.test_pull_reports import KEY
+from tests.integration.operator_side import fleet, run
+from tests.integration.pullworld import pullkit_key
+from tests.integration.statusrobots import IMAGE, report, robot
 
 pytestmark = pytest.mark.integration
 
 UTC = datetime.timezone.utc
+KEY = " ".join(pullkit_key().split()[:2])  # a pull robot's own key
 FORGED_ROW = '</td></tr><tr data-host="forged" data-health="healthy"><td>'
 HANDLER = '<img src=x onerror="document.title=1">'
 BOLD = '<b id="injected">bold</b>'

@@ -15,8 +15,7 @@ import pytest
 
 from robotfleet import hostkeys
 from tests.integration import sshserver
-from tests.integration.test_exit_codes import run
-from tests.integration.test_first_contact import connect, fleet
+from tests.integration.operator_side import connect, fleet, run
 
 
 @pytest.fixture(autouse=True)

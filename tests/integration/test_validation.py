@@ -2,10 +2,7 @@
 checks the lines themselves): refused before any connection, one line, no
 traceback; the local inventory reads the fleet file."""
 
-import subprocess
-import sys
-
-from tests.fixtures import PYINFRA, ROOT
+from tests.fixtures import ROOT, pyinfra
 
 
 def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
@@ -18,11 +15,11 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
         "        - {name: cam, subsystem: tty, serial: 42}\n"
     )
     (tmp_path / "deploy.py").write_text("raise SystemExit('deploy must not run')\n")
-    proc = subprocess.run(
-        [sys.executable, "-c", PYINFRA, "-y", "inventories/robots.py", "deploy.py"],
+    proc = pyinfra(
+        "-y",
+        "inventories/robots.py",
+        "deploy.py",
         cwd=tmp_path,
-        capture_output=True,
-        text=True,
         timeout=60,
         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
     )
@@ -33,14 +30,7 @@ def test_cli_refuses_bad_fleet_before_connecting(tmp_path):
 
 
 def _pyinfra(*args, env=None):
-    return subprocess.run(
-        [sys.executable, "-c", PYINFRA, *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env={"PATH": "/usr/bin:/bin", **(env or {})},
-    )
+    return pyinfra(*args, timeout=60, env={"PATH": "/usr/bin:/bin", **(env or {})})
 
 
 def test_mistyped_inventory_path_is_refused():

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from tests.unit.test_waves import result
+from tests.unit.samples import result
 
 FAKE_PYINFRA = """\
 import json, sys

@@ -10,13 +10,15 @@ image: no Docker Hub involved.  No ROS 2 distribution is packaged, so there
 is no ROS 2 image.
 
     ros/noetic-ros-core:<TAG>   roscore, rostopic, rosnode, std_msgs, procps
+    ros/noetic-rviz:<TAG>       rviz and Mesa's drivers (software rendering where
+                                the container has no GPU): the laptop's GUI payload
 
 Cached like the host images: the local tag is a hash of the recipe (suite,
 archive, packages), built once per machine under the machine-wide lock.
 
-    ensure(lab_state) -> the reference the lab's robots pull (pushed first)
+    ensure(lab_state[, RVIZ]) -> the reference the lab's hosts pull (pushed first)
 
-CLI: python3 -m tests.lab.ros_images [--prefix lab]   (builds; pushes when that lab is up)
+CLI: python3 -m tests.lab.ros_images [--prefix lab] [--image rviz]   (builds; pushes when that lab is up)
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import argparse
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 
 from .engine import LabError, client, get_or_none, timed_phase
 from .hostimage import BUILD_DIR, debian_url, recipe_hash
@@ -41,41 +44,59 @@ TAG = "1.16-bookworm"
 ENV = ("PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin", "LANG=C.UTF-8")
 
 
-def recipe() -> dict:
-    return {"suite": SUITE, "mirror": debian_url(), "include": list(PACKAGES), "exclude": list(EXCLUDED_PATHS)}
+@dataclass(frozen=True)
+class Image:
+    """One image: its packages, local repository, lab repository and tag, command."""
+
+    packages: tuple[str, ...]
+    local_repo: str
+    repository: str
+    tag: str
+    command: str
 
 
-def local_tag() -> str:
-    return f"{LOCAL_REPO}:{recipe_hash(recipe())}"
+ROS_CORE = Image(PACKAGES, LOCAL_REPO, REPOSITORY, TAG, "roscore")
+# rviz 1.14 and the Mesa drivers its OpenGL view needs (llvmpipe, software, where no GPU is passed in);
+# no ros-core: it connects to a robot's roscore.  493 MB; 234 s wall, 79 CPU s to build here.
+RVIZ = Image(("rviz", "libgl1-mesa-dri", "procps"), "robot-lab-rviz", "ros/noetic-rviz", "1.14-bookworm", "rviz")
+IMAGES = {"ros-core": ROS_CORE, "rviz": RVIZ}
 
 
-def mmdebstrap_command(out: str) -> list[str]:
-    command = ["mmdebstrap", "--mode=root", "--variant=minbase", "--include=" + ",".join(PACKAGES)]
+def recipe(image: Image = ROS_CORE) -> dict:
+    return {"suite": SUITE, "mirror": debian_url(), "include": list(image.packages), "exclude": list(EXCLUDED_PATHS)}
+
+
+def local_tag(image: Image = ROS_CORE) -> str:
+    return f"{image.local_repo}:{recipe_hash(recipe(image))}"
+
+
+def mmdebstrap_command(out: str, image: Image = ROS_CORE) -> list[str]:
+    command = ["mmdebstrap", "--mode=root", "--variant=minbase", "--include=" + ",".join(image.packages)]
     command += [f"--dpkgopt=path-exclude={path}" for path in EXCLUDED_PATHS]
     return command + [SUITE, out, debian_url()]
 
 
-def build(dc=None) -> str:
-    """The local tag of the ROS image, built when this machine has none of its recipe."""
+def build(dc=None, image: Image = ROS_CORE) -> str:
+    """The local tag of the image, built when this machine has none of its recipe."""
     dc = dc or client()
-    tag = local_tag()
+    tag = local_tag(image)
     if get_or_none(dc.images, tag) is not None:
         return tag
     with machine_lock(f"image {tag}"):  # another lab may be building it: wait, then use its build
         if get_or_none(dc.images, tag) is not None:
             return tag
         BUILD_DIR.mkdir(parents=True, exist_ok=True)
-        log_path = BUILD_DIR / "ros-mmdebstrap.log"
-        with timed_phase(f"build ROS image {tag} (mmdebstrap {SUITE}: {', '.join(PACKAGES)})"):
+        log_path = BUILD_DIR / f"{image.local_repo}-mmdebstrap.log"
+        with timed_phase(f"build ROS image {tag} (mmdebstrap {SUITE}: {', '.join(image.packages)})"):
             with open(log_path, "wb") as log:
                 try:  # the root filesystem as a tar on stdout, straight into the engine
-                    tar = subprocess.Popen(mmdebstrap_command("-"), stdout=subprocess.PIPE, stderr=log)
+                    tar = subprocess.Popen(mmdebstrap_command("-", image), stdout=subprocess.PIPE, stderr=log)
                 except FileNotFoundError:
                     raise LabError(
                         "cannot build the ROS image: mmdebstrap is not installed (apt-get install mmdebstrap)"
                     ) from None
                 repo, _, version = tag.partition(":")
-                changes = [f"ENV {env}" for env in ENV] + ['CMD ["roscore"]']
+                changes = [f"ENV {env}" for env in ENV] + [f'CMD ["{image.command}"]']
                 try:
                     dc.api.import_image_from_stream(tar.stdout, repository=repo, tag=version, changes=changes)
                 finally:
@@ -85,38 +106,41 @@ def build(dc=None) -> str:
     return tag
 
 
-def push(registry_local: str, dc=None) -> None:
-    """Tag the image as <registry_local>/REPOSITORY:TAG and push it (layers already there are skipped)."""
+def push(registry_local: str, dc=None, image: Image = ROS_CORE) -> None:
+    """Tag the image as <registry_local>/<repository>:<tag> and push it (layers already there are skipped)."""
     dc = dc or client()
-    image = dc.images.get(build(dc))
-    remote = f"{registry_local}/{REPOSITORY}"
-    image.tag(remote, tag=TAG)
-    for line in dc.images.push(remote, tag=TAG, stream=True, decode=True):
+    built = dc.images.get(build(dc, image))
+    remote = f"{registry_local}/{image.repository}"
+    built.tag(remote, tag=image.tag)
+    for line in dc.images.push(remote, tag=image.tag, stream=True, decode=True):
         if "error" in line:
-            raise LabError(f"pushing {remote}:{TAG} failed: {line['error']}")
+            raise LabError(f"pushing {remote}:{image.tag} failed: {line['error']}")
 
 
-def ensure(lab_state: dict) -> str:
-    """The ROS image in the lab's registry; returns the reference its robots pull."""
+def ensure(lab_state: dict, image: Image = ROS_CORE) -> str:
+    """The image in the lab's registry; returns the reference its hosts pull."""
     started = time.monotonic()
-    build()  # outside the push's lock: another lab may be building it (its own lock)
+    build(image=image)  # outside the push's lock: another lab may be building it (its own lock)
     with machine_lock(f"ros image push {lab_state['registry_local']}"):  # one lab's registry, one push at a time
-        push(lab_state["registry_local"])
-    print(f"[ros] {REPOSITORY}:{TAG} in {lab_state['registry_local']} ({time.monotonic() - started:.1f} s)", flush=True)
-    return f"{lab_state['registry']}/{REPOSITORY}:{TAG}"
+        push(lab_state["registry_local"], image=image)
+    where = f"{image.repository}:{image.tag} in {lab_state['registry_local']}"
+    print(f"[ros] {where} ({time.monotonic() - started:.1f} s)", flush=True)
+    return f"{lab_state['registry']}/{image.repository}:{image.tag}"
 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python3 -m tests.lab.ros_images", description=__doc__.split("\n\n")[0])
     parser.add_argument("--prefix", help="also push to this lab's registry (the lab must be up)")
+    parser.add_argument("--image", choices=sorted(IMAGES), default="ros-core", help="which image (default ros-core)")
     args = parser.parse_args(argv)
+    image = IMAGES[args.image]
     try:
         if args.prefix:
             from . import state
 
-            print(ensure(state.load(args.prefix)))
+            print(ensure(state.load(args.prefix), image))
         else:
-            print(build())
+            print(build(image=image))
     except LabError as error:
         print(f"ros image: {error}", file=sys.stderr)
         return 1

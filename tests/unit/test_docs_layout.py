@@ -151,3 +151,13 @@ def test_a_broken_link_and_a_long_page_are_found(tmp_path, monkeypatch):
     assert long_stretches([page]) == [f"page.md:1: {SCREEN + 8} lines without a heading"]
     (tmp_path / "other.md").write_text("text\n# Other\n")
     assert long_stretches([tmp_path / "other.md"]) == ["other.md:1: the first line is not a heading"]
+
+
+def test_the_pull_protocol_reference_lists_every_refusal_reason_in_order():
+    """Its table's reasons are refusals.REASONS, the machine-readable refusal
+    of a report: a reason added or renamed in one place fails here."""
+    from robotfleet.pull.robot import refusals
+
+    page = DOCS / "reference" / "pull-protocol.md"
+    rows = [line for _, line in prose(page) if re.match(r"^\| `[a-z-]+` \|", line)]
+    assert [row.split("`")[1] for row in rows] == list(refusals.REASONS), page

@@ -11,21 +11,13 @@ from robotfleet.host.fixtures import file_state as _file
 from robotfleet.host.snapshot import FileState
 from tests.fixtures import ROOT
 from tests.unit.harness import ROBOT, converged, find, fresh_host, plan
-
-DAEMON_JSON = "/etc/docker/daemon.json"
-DRIFTED = '{\n  "live-restore": false\n}\n'
+from tests.unit.samples import DAEMON_JSON, DRIFTED, drifted_robot
 
 
 @pytest.fixture
 def log(caplog):
     caplog.set_level(logging.INFO, logger="pyinfra")
     return caplog
-
-
-def drifted_robot():
-    snap = converged("robots", ROBOT, "debian-13")
-    snap.files[DAEMON_JSON] = _file(DRIFTED)
-    return snap
 
 
 def test_unified_diff_of_a_file():

@@ -48,3 +48,10 @@ def test_the_modules_that_need_no_lab_run_after_unit_and_integration(tmp_path):
         ["tests/integration/test_b.py", "tests/e2e/test_laptop_sudo.py", "tests/e2e/test_stock_machine.py"],
     )
     assert local_paths(groups.plan(["test_fleet.py"]), tmp_path)[1] == ["tests/integration/test_b.py"]
+
+
+def test_the_on_demand_modules_exist_and_are_not_in_the_test_command():
+    assert set(groups.ON_DEMAND) <= {path.name for path in groups.E2E_DIR.glob("test_*.py")}
+    assert not set(groups.ON_DEMAND) & set(groups.modules())
+    named = {module for modules in groups.GROUPS.values() for module in modules}
+    assert not set(groups.ON_DEMAND) & named

@@ -8,7 +8,7 @@ import pytest
 from robotfleet.commands import generate
 from robotfleet.fleet import loader as fleetyaml
 from tests.fixtures import ROOT
-from tests.unit import test_fleet_corpus, test_fleet_fuzz
+from tests.unit import fleetcorpus, fleetfuzz
 
 jsonschema = pytest.importorskip("jsonschema")
 
@@ -54,11 +54,11 @@ def test_schema_flags_the_common_mistakes(validator):
 
 
 def accepted_documents():
-    for _, text, expected in test_fleet_corpus.CORPUS:
+    for _, text, expected in fleetcorpus.CORPUS:
         if not expected:
             yield text if isinstance(text, bytes) else text.encode()
-    for _, data in test_fleet_fuzz.documents(22, 100, seed=4):
-        if test_fleet_fuzz.outcome(data) is None:
+    for _, data in fleetfuzz.documents(22, 100, seed=4):
+        if fleetfuzz.outcome(data) is None:
             yield data
     yield (ROOT / "inventories" / "robots.yaml").read_bytes()
 

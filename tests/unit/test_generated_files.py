@@ -14,9 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from tests.unit.samples import UNIT
+
 GOLDEN = Path(__file__).resolve().parent / "golden"
 REGENERATE = os.environ.get("ROBOT_REGENERATE_GOLDEN") == "1"
-UNIT = "/etc/systemd/system/robot-payload.service"
 
 
 @pytest.mark.parametrize(

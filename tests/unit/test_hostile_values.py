@@ -22,43 +22,9 @@ from roles.docker import plan
 from roles.gpu import plan as gpu_plan
 from roles.payload import compose
 from roles.udev import rules
-from roles.udev.settings import SENSOR_KEYS
 from tests.unit import harness as fleet
+from tests.unit.hostile import HOSTILE, YAML_TRAPS, places
 
-HOSTILE = [
-    "$(touch /tmp/x)",
-    "`id`",
-    "a;b",
-    "a|b",
-    "a&b",
-    "a'b",
-    'a"b',
-    "a\nb",
-    "a\rb",
-    "a b",
-    "${X:?}",
-    "s3cr$et",
-    "..",
-    "../../etc",
-    "/var/lib/../../tmp",
-    "/tmp",
-    "/var/tmp/x",
-    "-rf",
-    "--help",
-    "a\\b",
-    "a#b",
-    "*",
-    "~root",
-    "\u0430dmin",  # Cyrillic a
-    "r\u043ebot",  # Cyrillic o
-    "v\uff11",  # fullwidth digit one
-    "x\u202ey",  # right-to-left override
-    "a\u00a0b",  # no-break space
-    "\x00",
-    "a\x1bb",
-]
-# YAML traps, written unquoted in the fleet file (YAML 1.2: these are not text).
-YAML_TRAPS = ["true", "False", "1.10", "0755", "0x1F", "1e3", "~"]
 # YAML 1.1 traps that the fleet file, YAML 1.2, reads as the text written.
 YAML_1_1_ONLY = ["NO", "off", "yes", "on", "12:30", "2026-01-02", "0b101", "1_000"]
 DEFAULTS = fleet.group_data()
@@ -93,33 +59,6 @@ OPERATOR_SIDE = {
 }
 # ... and the values of these mappings (name -> a file here; its content is what is sent).
 OPERATOR_SIDE_VALUES = {"payload_secret_files"}
-
-
-def places(name: str, value):
-    """Every place in setting ``name`` where a string can go."""
-    yield "value", value
-    yield "list item", [value]
-    yield "mapping key", {value: "x"}
-    yield "mapping value", {"X": value}
-    # Inside otherwise valid URLs, paths and image references.
-    for place, text in (
-        ("in a URL", f"https://mirror.lan/gpg?x={value}"),
-        ("in a path", f"/var/lib/{value}"),
-        ("in an image tag", f"reg.example.com/p:{value}"),
-    ):
-        yield place, text
-        yield f"{place}, list item", [text]
-    if name == "udev_sensors":
-        for field in SENSOR_KEYS:
-            sensor = {"name": "a", "subsystem": "tty", "serial": "1", field: value}
-            if field in ("vendor_id", "product_id"):  # the pair rule is not what is tested here
-                sensor = {"vendor_id": "046d", "product_id": "0825", **sensor}
-            yield field, [sensor]
-    if name == "docker_daemon_options":
-        yield "log-opts value", {"log-opts": {"max-size": value}}
-        yield "dns item", {"dns": [value]}
-        yield "features key", {"features": {value: True}}
-        yield "builder value", {"builder": {"x": value}}
 
 
 def outcome(setting: str, value) -> list[str]:
@@ -197,10 +136,17 @@ def test_yaml_1_1_traps_are_the_text_written():
     assert list(doc.values()) == YAML_1_1_ONLY
 
 
+# Refused as a secret is: the value never quoted, so no "read by YAML as" either.
+SECRET_LINE = "expected the token payloadctl hold wrote (hex digits); the value is not shown"
+
+
 @pytest.mark.parametrize("trap", YAML_TRAPS)
 def test_yaml_traps_in_text_settings_say_quote_it(trap):
     """Unquoted, these are not the text written; every text setting refuses
-    them with 'quote it'."""
+    them with 'quote it', saying what YAML read (a secret's line shows no
+    value).  ``~`` (null) is refused as nothing, except where null is the
+    setting's own value (its default, or its doc says what null means)."""
+    settings = fleet.registry().settings
     text_settings = [
         name
         for name, check in fleet.setting_checks().items()
@@ -209,15 +155,22 @@ def test_yaml_traps_in_text_settings_say_quote_it(trap):
     for name in text_settings:
         image = "" if name == "payload_image" else "      payload_image: reg.example.com/p:1\n"
         doc = fleetyaml.load(f"robots:\n  hosts:\n    r1:\n{image}      {name}: {trap}\n")
-        try:
-            fleet.check(doc, "f.yaml")
-        except fleet.FleetError as error:
-            (line,) = [line for line in error.lines if line.startswith(f"f.yaml: r1.{name}")]
-            if trap == "~":
-                assert line.endswith("nothing (null)") or "required" in line, line
-            elif "expected a string" in line or "read by YAML" in line or "a date" in line:
-                assert line.endswith("quote it") or "(read by YAML as" in line or "quote it" in line, line
+        setting = settings[name]
+        null_is_a_value = setting.default is None or "null:" in setting.doc
+        if trap == "~" and null_is_a_value and name != "payload_image":
+            fleet.check(doc, "f.yaml")  # accepted: raises nothing
+            assert doc["robots"]["hosts"]["r1"][name] is None
             continue
-        # Accepted: only an optional setting left empty.
-        value = doc["robots"]["hosts"]["r1"][name]
-        assert trap == "~", (name, trap, value)
+        with pytest.raises(fleet.FleetError) as raised:
+            fleet.check(doc, "f.yaml")
+        (line,) = [line for line in raised.value.lines if line.startswith(f"f.yaml: r1.{name}: ")]
+        said = line[len(f"f.yaml: r1.{name}: ") :]
+        if name == "payload_image" and trap == "~":
+            assert said.startswith("required: "), line
+        elif trap == "~":
+            assert said.startswith("expected ") and said.endswith(", got nothing (null)"), line
+        elif name == "payload_lock_token":
+            assert said == SECRET_LINE, line
+        else:
+            read = "got a boolean (" if trap in ("true", "False") else f"got {trap} (read by YAML as "
+            assert said.startswith("expected ") and read in said and said.endswith("); quote it"), line

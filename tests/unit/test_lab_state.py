@@ -2,21 +2,7 @@
 
 import pytest
 
-
-def sample(prefix="t"):
-    return {
-        "prefix": prefix,
-        "ssh_key": "/k",
-        "known_hosts": "/kh",
-        "ssh_user": "ops",
-        "hosts": [{"name": "robot1", "group": "robots", "container": f"{prefix}-robot1", "port": 22001}],
-        "services_host": f"{prefix}-services",
-        "apt_proxy": f"http://{prefix}-services:3142",
-        "registry": f"{prefix}-services:5000",
-        "registry_local": "127.0.0.1:25000",
-        "mirror_url": f"http://{prefix}-services:8080/linux",
-        "mirror_dir": "/m",
-    }
+from tests.unit.samples import lab_state as sample
 
 
 def test_round_trip(state, tmp_path):

@@ -148,7 +148,7 @@ def test_lab_git_server_known_hosts_names_it_both_ways():
 
 def test_lab_state_may_name_a_git_server(tmp_path):
     from tests.lab import state
-    from tests.unit.test_lab_state import sample
+    from tests.unit.samples import lab_state as sample
 
     lab = dict(sample(), git={"container": "t-git", "port": 24001})
     state.save(lab, root=tmp_path)

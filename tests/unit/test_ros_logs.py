@@ -8,7 +8,7 @@ from roles.payload import ros_logs
 from roles.payload.payloadctl import cli, logs
 from tests.fixtures import robot_fleet as host_with
 from tests.unit.harness import ROBOT, converged, fleet_problems, plan
-from tests.unit.test_ros_preset import NODES, ROS1, rendered
+from tests.unit.rosfleet import NODES, ROS1, rendered
 
 ROS = {**ROBOT, "payload_image": None, "payload_services": NODES, **ROS1, "udev_sensors": []}
 

@@ -3,24 +3,12 @@ asks the master, every node waits for it (first release, update, reboot),
 and the nodes find the master and each other in host and bridge networking.
 The end-to-end proof on real ROS: tests/e2e/test_ros.py."""
 
-import yaml
-
-from roles.payload import compose, presets, problems
+from roles.payload import presets, problems
 from roles.payload.payloadctl import releases
-from tests.unit.harness import desired_compose, fleet_problems, merged
+from tests.unit.harness import fleet_problems
+from tests.unit.rosfleet import NODES, REG, ROS1, rendered
 
-REG = "reg.example.com"
-NODES = {
-    "talker": {"image": f"{REG}/ros/noetic-ros-core:1.16", "command": ["rostopic", "pub", "/chatter", "x"]},
-    "listener": {"image": f"{REG}/ros/noetic-ros-core:1.16", "command": ["rostopic", "echo", "/chatter"]},
-}
-ROS1 = {"ros_preset": "ros1", "ros_roscore": True, "ros_roscore_image": f"{REG}/ros/noetic-ros-core:1.16"}
 WAIT = {"roscore": {"condition": "service_healthy", "restart": True}}
-
-
-def rendered(extra: dict, address="10.0.0.9") -> dict:
-    data = merged("robots", {"payload_image": None, **extra})
-    return yaml.safe_load(compose.dump(desired_compose(data, address)))
 
 
 def test_roscore_is_healthy_when_its_master_answers_and_every_node_waits_for_that():

@@ -15,7 +15,7 @@ from robotfleet.fleet import schema as fleet_schema
 from robotfleet.fleet import validate as fleet_check
 from robotfleet.fleet.registry import Registry
 from tests.fixtures import ROOT
-from tests.unit import test_fleet_corpus, test_hostile_values
+from tests.unit import fleetcorpus, hostile
 
 jsonschema = pytest.importorskip("jsonschema")
 
@@ -43,7 +43,7 @@ MORE_VALUES = [
     "/var//tmp",
     "reg.example.com/p:1 2",
 ]
-TRAPS = [fleetyaml.load(f"v: {trap}")["v"] for trap in test_hostile_values.YAML_TRAPS]
+TRAPS = [fleetyaml.load(f"v: {trap}")["v"] for trap in hostile.YAML_TRAPS]
 
 
 def schema_refuses(document) -> bool:
@@ -88,8 +88,8 @@ def test_a_setting_is_checked_alike_in_every_place():
 def test_each_setting_gets_the_same_verdict_from_the_schema_and_the_run(setting):
     check = deploy_roles.registry().settings[setting].check
     disagree = []
-    for value in [*test_hostile_values.HOSTILE, *MORE_VALUES, *TRAPS, 0, -1, 22, 70000, 1.5, True, None]:
-        for place, placed in test_hostile_values.places(setting, value):
+    for value in [*hostile.HOSTILE, *MORE_VALUES, *TRAPS, 0, -1, 22, 70000, 1.5, True, None]:
+        for place, placed in hostile.places(setting, value):
             if not json_only(placed):
                 continue
             if bool(check(placed)) == SETTINGS.is_valid({setting: placed}):
@@ -116,7 +116,7 @@ def expressible_lines(raw) -> list[str]:
 
 
 def corpus_documents():
-    for name, text, _ in test_fleet_corpus.CORPUS:
+    for name, text, _ in fleetcorpus.CORPUS:
         if "billion" in name or name == "too large":
             continue  # jsonschema would walk every expanded alias
         try:

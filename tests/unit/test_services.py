@@ -497,7 +497,7 @@ def test_a_converged_two_service_robot_plans_nothing_and_a_new_tag_only_releases
 
 
 def test_the_documented_example_project_is_valid_and_uses_the_shipped_profile():
-    from tests.unit.test_validation import ROOT
+    from tests.fixtures import ROOT
 
     readme = (ROOT / "roles" / "payload" / "README.md").read_text()
     section = readme.split("## The payload as a compose project", 1)[1]

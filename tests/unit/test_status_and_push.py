@@ -5,9 +5,11 @@ import io
 import json
 import tarfile
 
-from robotfleet import deploy_roles, status_parts
+from robotfleet import status_parts
 from robotfleet.commands import status
+from robotfleet.deploy_roles import roles
 from roles.payload import image_transfer
+from tests.unit.samples import AMD64_LOCAL
 
 A, B, C = ("sha256:" + c * 64 for c in "abc")
 
@@ -49,10 +51,6 @@ def test_archive_leaves_out_layers_the_robot_has(tmp_path):
         assert sorted(sent.getnames()) == ["cfg.json", "l2/layer.tar", "manifest.json"]
         assert sent.extractfile("l2/layer.tar").read() == b"y" * 70000
     assert report["layers"] == 2 and report["skipped"] == 1 and report["sent"] < report["full"]
-
-
-def roles():
-    return deploy_roles.roles()
 
 
 def test_status_rows_and_table():
@@ -115,9 +113,6 @@ def test_status_rows_and_table():
         "-",
     ]
     assert text[2].split()[:4] == ["robot2", "no:", "cannot", "connect"]
-
-
-AMD64_LOCAL = {"id": "sha256:" + "1" * 64, "platform": {"os": "linux", "architecture": "amd64"}}
 
 
 def test_the_local_image_goes_when_it_is_built_for_the_robot():

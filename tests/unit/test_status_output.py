@@ -65,7 +65,7 @@ def test_the_default_columns_fit_100_characters_and_wide_has_every_one():
 
 def test_the_summary_counts_each_state():
     rows = fleet()
-    assert [status.state_of(r) for r in rows] == ["healthy", "drifted", "unreachable", "failed", "unreachable"]
+    assert [status_parts.state_of(r) for r in rows] == ["healthy", "drifted", "unreachable", "failed", "unreachable"]
     assert status.summary(rows) == "1 healthy, 1 drifted, 1 failed, 2 unreachable"
     assert status.summary([answered("a"), answered("b"), answered("c")]) == "3 healthy"
     assert status.summary([]) == "no host"

@@ -8,18 +8,19 @@ import datetime
 
 from robotfleet import deploy_roles
 from robotfleet.commands import rollout_plan, statuspage
+from robotfleet.status_parts import state_of
 from roles.payload import report
 
 
 def test_a_host_s_health_from_its_row():
-    assert statuspage.health({"reachable": True}) == "healthy"
-    assert statuspage.health({"reachable": True, "drift": "runs p:0, not p:1"}) == "drifted"
-    assert statuspage.health({"reachable": True, "error": "unreadable payload status"}) == "failed"
+    assert state_of({"reachable": True}) == "healthy"
+    assert state_of({"reachable": True, "drift": "runs p:0, not p:1"}) == "drifted"
+    assert state_of({"reachable": True, "error": "unreadable payload status"}) == "failed"
     refused = "connection refused by 127.0.0.1:22 (no SSH server listens on port 22)"
-    assert statuspage.health({"reachable": False, "error": refused}) == "unreachable"
-    assert statuspage.health({"reachable": False, "error": "host key CHANGED for robot1"}) == "failed"
+    assert state_of({"reachable": False, "error": refused}) == "unreachable"
+    assert state_of({"reachable": False, "error": "host key CHANGED for robot1"}) == "failed"
     pulled = {"reachable": "pull", "via": "report", "error": "failed: release 7"}
-    assert statuspage.health(pulled) == "failed"
+    assert state_of(pulled) == "failed"
 
 
 def test_ages_in_words():

@@ -7,6 +7,7 @@ import pytest
 
 from robotfleet.commands import rollout_plan as waves
 from roles.payload import report
+from tests.unit.samples import result
 
 ROBOTS = [f"robot{i}" for i in range(1, 11)]
 
@@ -184,17 +185,6 @@ def test_a_wave_is_judged_from_pyinfra_results_and_release_records():
     assert skipped == {"r3": "unreachable: cannot connect"}
     _, failed, skipped = judge_wave(["r3"], None, rows, targets, True, deployment="w1")
     assert failed == {"r3": "unreachable: cannot connect"} and skipped == {}
-
-
-def result(deployment, ok, message):
-    """payloadctl's structured result as the payload's status cells carry it."""
-    return {
-        "payloadctl": 1,
-        "ok": ok,
-        "outcome": "applied" if ok else "rolled-back",
-        "message": message,
-        "deployment": deployment,
-    }
 
 
 def test_a_wave_whose_every_host_failed_is_failed_not_unreachable():

@@ -13,14 +13,13 @@ Modules by concern: durable (files that survive a power cut), spec (what a
 release is, who asks), lifecycle (a release's record, states and every
 transition: the only writer of records and pointers), releases (the store,
 read only), imageref and images (image references, pulls), health (is it
-running well), rosgraph (judged by its ROS graph: ros_health; rosgraph_probe,
-the script it runs in the roscore container), events (Docker's events that wake the health wait), start
+running well), events (Docker's events that wake the health wait), start
 (bring `current` up: here while the unit runs, else through the unit),
 lock (one deploy at a time, its token, the update lock),
 hold (the lock held for a command), recovery (boot), takeover (containers
 set up another way), apply and rollback, results (one structured result a
 run), status, cli.  The deploy side imports imageref, spec, lifecycle,
-results, takeover and rosgraph's key, so each rule is written once.
+results and takeover, so each rule is written once.
 
 Standard library only, Python >= 3.8 (Ubuntu 20.04).  Shipped to the robot
 as one zip application (roles/payload/installed_files.py builds it).

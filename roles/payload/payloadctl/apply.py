@@ -10,9 +10,8 @@ or a pointer is a transition of lifecycle.Life, so a power cut at any point
 is undone at boot (recovery.py) or by the next deploy."""
 
 import shutil
-import time
 
-from . import health, images, platforms, results, rosgraph, start, takeover
+from . import health, images, platforms, results, start, takeover
 from .lifecycle import PREPARED, SETTLED, Record
 from .lock import update_lock_holder
 from .releases import compose_yaml, for_engine, gc, release_compose, restart_policies
@@ -157,7 +156,6 @@ def switch(rid, run_, life, lock=None):
 
 
 def _switch(spec, run_, life, lock, rid, old, finish):
-    started = time.time()
     came_from = life.switch(rid).switch.came_from
     if not spec.autostart:
         life.stage(rid)
@@ -166,8 +164,6 @@ def _switch(spec, run_, life, lock, rid, old, finish):
     ok, why, taken, restored = takeover.start_taking_over(spec, life, rid, old, came_from, run_.restart, lock)
     if ok:
         ok, why = health.run_checks(spec.name, spec.checks)
-    if ok:  # what is left of payload_health_timeout (at least rosgraph.MIN_WITHIN) for the graph
-        ok, why = rosgraph.gate(spec, spec.health_timeout - (time.time() - started))
     if ok:
         life.keep(rid)
         # verified: Docker may bring it back (the spec's policies: what the pinned copy keeps)

@@ -2,6 +2,7 @@
 and the checks other roles add (the GPU check)."""
 
 import json
+import pkgutil
 import re
 import time
 
@@ -195,6 +196,11 @@ def run_checks(name, checks):
     """(True, "") when every check's command succeeds in every container of
     the project; (False, why) for the first that does not."""
     for check in checks or ():
+        if "graph" in check:
+            ok, why = graph_healthy(name, check["graph"])
+            if not ok:
+                return False, "{}: {}".format(check["failure"], why)
+            continue
         command = list(check["command"])
         for cid in project_containers(name):
             proc = run(["docker", "exec", cid] + command, check=False)
@@ -203,3 +209,37 @@ def run_checks(name, checks):
                 said = (proc.stderr or proc.stdout).strip()[-200:] or "exit {}".format(proc.returncode)
                 return False, "{} {} ({} failed: {})".format(who, check["failure"], " ".join(command), said)
     return True, ""
+
+
+def graph_healthy(name, wanted):
+    """(True, "") when the ROS graph is what ``wanted`` declares (ros_health),
+    read from inside it: graphprobe.py run by the python3 of the project's
+    roscore container; (False, its lines joined) when not."""
+    proc = run(
+        ["docker", "ps", "-q", "--filter", "label=com.docker.compose.project=" + name]
+        + ["--filter", "label=com.docker.compose.service=" + wanted["service"]],
+        check=False,
+        timeout=60,
+    )
+    found = proc.stdout.split()
+    if not found:
+        return False, "no running {} container to read the ROS graph from".format(wanted["service"])
+    return probe_graph(found[0], wanted)
+
+
+def probe_graph(container, wanted):
+    script = pkgutil.get_data(__package__, "graphprobe.py").decode()
+    wait = float(wanted.get("wait") or 0)
+    proc = run(
+        ["docker", "exec", "-i", container, "python3", "-", json.dumps(wanted)],
+        check=False,
+        input_text=script,
+        timeout=wait + 120,
+    )
+    if proc.returncode == 0:
+        return True, ""
+    lines = (
+        proc.stdout.strip().splitlines()
+        or (proc.stderr or "exit {}".format(proc.returncode)).strip()[-200:].splitlines()
+    )
+    return False, "; ".join(lines)
