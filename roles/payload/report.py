@@ -49,6 +49,8 @@ def cells(output: str) -> dict:
         "image_refs": sorted(current.get("images") or {}),
         "result": last_result(report.get("result")),
         "releases": [r for r in report.get("releases") or [] if isinstance(r, dict) and r.get("id")] or None,
+        # ros_health: "ok" or what the graph lacks, looked at now (None: the release declares no graph)
+        "graph": report.get("graph") if isinstance(report.get("graph"), str) else None,
     }
 
 
@@ -110,7 +112,8 @@ def missing(row: dict, wanted: list[str]) -> str | None:
     if state == "staged":
         return None
     if state == "active" and healthy(row):
-        return None
+        graph = row.get("graph")
+        return None if graph in (None, "ok") else f"ROS graph: {graph}"
     return f"release {row.get('release')} is {state}, containers {row.get('state')}/{row.get('health')}"
 
 
@@ -148,6 +151,14 @@ def metrics(row: dict) -> list[Metric]:
             )
         )
         found.append(Metric("payload_restarts", "Restarts of the payload's containers.", row.get("restarts") or 0))
+    if row.get("graph"):
+        found.append(
+            Metric(
+                "payload_ros_graph_ok",
+                "1 the ROS graph shows what ros_health declares, 0 not.",
+                int(row["graph"] == "ok"),
+            )
+        )
     deployed = row.get("deployed")
     try:
         when = datetime.datetime.fromisoformat(str(deployed).replace("Z", "+00:00")) if deployed else None
@@ -212,11 +223,13 @@ STATUS = StatusPart(
         ("image", "IMAGE"),
         ("state", "STATE"),
         ("health", "HEALTH"),
+        ("graph", "GRAPH"),
         ("previous", "PREVIOUS"),
         ("deployed", "LAST DEPLOY"),
         ("lock", "LOCK"),
     ),
-    wide=("image", "previous", "deployed", "lock"),  # the default table fits 100 characters
+    # The default table fits 100 characters; a graph that falls short is also the row's drift (counted "drifted").
+    wide=("image", "graph", "previous", "deployed", "lock"),
     order=20,
     metrics=metrics,
     watch=watch,

@@ -33,6 +33,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
         "test_x11.py",
         "test_pull_from_nothing.py",
         "test_ros.py",
+        "test_ros_health.py",
         "test_arm64.py",
     ),
     WITH_UNIT: ("test_stock_machine.py", "test_laptop_sudo.py", "test_ros_graph_probe.py"),

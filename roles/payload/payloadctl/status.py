@@ -35,6 +35,18 @@ def kept(releases):
     return found
 
 
+def graph_verdict(releases, name, rid):
+    """ros_health's verdict on the graph now, one look: "ok" or what it
+    lacks; None when release ``rid`` declares no graph (or is only staged)."""
+    spec = releases.spec(rid) if rid else None
+    checks = spec.checks if spec is not None and spec.autostart else ()
+    wanted = next((c["graph"] for c in checks or () if isinstance(c, dict) and isinstance(c.get("graph"), dict)), None)
+    if wanted is None:
+        return None
+    ok, why = health.graph_healthy(name, dict(wanted, wait=0))
+    return "ok" if ok else why
+
+
 def report(root, name, lock_file):
     releases = Releases(root)
     current, previous = releases.pointer("current"), releases.pointer("previous")
@@ -48,6 +60,7 @@ def report(root, name, lock_file):
         "services": service_states(name),
         "result": results.last(root),  # the last apply's or rollback's structured result
         "releases": kept(releases),
+        "graph": graph_verdict(releases, name, current),
     }
 
 
