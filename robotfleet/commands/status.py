@@ -62,7 +62,11 @@ def table_lines(rows: list[dict], shown: list[tuple[str, str]]) -> list:
             return "no"
         return "-" if value in (None, "") else one_line(str(value))
 
+    pull_shown = any(key == "pull" for key, _ in shown)
+
     def shown_cell(key, r):
+        if key == "rollout" and not pull_shown and not r.get(key):  # a pull robot's rollout: its last report
+            return cell(r.get("pull"))
         if key == "reachable" and (r.get(key) is False or (r.get("via") == "report" and r.get("error"))):
             return reachable(r)
         return cell(short(key, r.get(key)))
@@ -247,9 +251,8 @@ def main(argv=None) -> int:
     else:
         from rich.console import Console
 
-        wide = shown == "wide"
-        cols = columns(roles, wide=wide)
-        if wide and any("pull" in r for r in rows):
+        cols = columns(roles, wide=shown == "wide")
+        if shown == "wide" and any("pull" in r for r in rows):
             from robotfleet.commands.pullstatus import COLUMNS
 
             cols = cols[:-1] + COLUMNS + cols[-1:]

@@ -282,10 +282,10 @@ def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_
         assert ssh_error(lab, robot), f"{robot}: its sshd answers"
     pull.trigger(ROBOTS)  # a check after the rollout on each: "up-to-date", whether its last one applied or not
     status = pull.op.status("--limit", "robots", *pull.op.remote())
-    for robot in ROBOTS:
+    for robot in ROBOTS:  # the default table: a pull robot's last report in its ROLLOUT column
         line = next(line for line in status.stdout.splitlines() if line.startswith(robot + " "))
         assert " pull " in line and " healthy " in line, status.stdout
-        assert "up-to-date 2 " in line, status.stdout
+        assert line.endswith(" up-to-date 2"), status.stdout
     phase("pull: release 2 on every robot, robot3 after its boot", started)
 
 
@@ -458,9 +458,9 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
         "every robot's next check",
         interval=3,
     )
-    status = op.status("--limit", ",".join(ALL), *op.remote())
+    status = op.status("--limit", ",".join(ALL), "-o", "wide", *op.remote())
     assert status.returncode == 0, status.stdout + status.stderr
-    for robot in ALL:
+    for robot in ALL:  # -o wide: IMAGE, and PULL beside REPORTED
         line = next(line for line in status.stdout.splitlines() if line.startswith(robot + " "))
         assert f" {image}@sha256:" in line and " no check " in line, status.stdout  # the tag kept
         assert f" up-to-date {version} " in line, status.stdout

@@ -428,11 +428,14 @@ def test_the_guide_s_steps_4_to_8_give_a_pull_robot_that_applies_and_reports(ser
     said = operator.run(steps[8][0], "step 8, status")
     row = next((line for line in said.splitlines() if line.startswith(f"{ROBOT} ")), None)
     assert row is not None and " pull " in row, said
-    applied = "applied 1 " in row or (
-        "up-to-date 1 " in row  # a timer's check after ours
+    applied = row.endswith(" applied 1") or (
+        row.endswith(" up-to-date 1")  # a timer's check after ours
         and "applied (release 1)" in lab.ok(ROBOT, "journalctl -u robot-pull.service --no-pager")
     )
-    assert applied and f" {registry}/{LAB_IMAGE}@sha256:" in row, said  # by its digest, the tag kept
+    assert applied, said
+    said = operator.run(f"{steps[8][0]} -o wide", "step 8, status -o wide")
+    row = next((line for line in said.splitlines() if line.startswith(f"{ROBOT} ")), "")
+    assert f" {registry}/{LAB_IMAGE}@sha256:" in row, said  # by its digest, the tag kept
     # the applying wake's journal line says where its seconds went, the converge's deploy and status read included
     journal = lab.ok(ROBOT, "journalctl -u robot-pull.service -o cat --no-pager")
     took = re.search(r"^robot-pull: applied \(release 1\).*; report sent \[(.*)\]$", journal, re.M)

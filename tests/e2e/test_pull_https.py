@@ -171,7 +171,7 @@ def test_a_robot_converges_from_a_static_https_mirror_and_reports_to_gitolite_ov
     assert payload["Config"]["Image"] == by_digest(ref), payload["Config"]["Image"]  # run by the digest
     assert lab.ok(ROBOT, f"docker image inspect -f '{{{{.Id}}}}' {by_digest(ref)}").strip() == payload["Image"]
     assert ref in lab.ok(ROBOT, "cat /var/lib/robot-payload/current/record.json")  # keyed with its tag
-    status = op.status("--limit", ROBOT, *op.remote())
+    status = op.status("--limit", ROBOT, "-o", "wide", *op.remote())
     assert status.returncode == 0, status.stdout + status.stderr
     line = next(line for line in status.stdout.splitlines() if line.startswith(ROBOT + " "))
     assert " pull " in line and "applied 2 " in line, status.stdout

@@ -147,7 +147,9 @@ def test_status_names_each_robot_it_cannot_reach(python, tmp_path):
     path = fleet(tmp_path, {f"robot{n}": {"address": "127.0.0.1", "ssh_port": sshserver.closed_port()} for n in (1, 2)})
     code, stdout, stderr = beside_main(python, tmp_path, path, "-m", "robotfleet", "status", "inventories/robots.py")
     assert code == 3 and stderr.count("unreachable:") == 2, stderr
-    assert [line.split()[:2] for line in stdout.splitlines()[1:]] == [["robot1", "no:"], ["robot2", "no:"]], stdout
+    *rows, summary = stdout.splitlines()[1:]
+    assert [line.split()[:2] for line in rows] == [["robot1", "no:"], ["robot2", "no:"]], stdout
+    assert summary == "2 unreachable", stdout
 
 
 def test_pyinfra_dry_plans_the_deploy_and_names_the_reason(python, tmp_path):

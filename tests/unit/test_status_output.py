@@ -8,7 +8,7 @@ import json
 import re
 
 from robotfleet import deploy_roles, status_parts
-from robotfleet.commands import status
+from robotfleet.commands import pullstatus, status
 
 RELEASE = "20261121T204438Z-dadf84de"
 
@@ -76,3 +76,15 @@ def test_pull_robots_in_their_own_words():
     line = status.table(rows, status_parts.columns(roles(), wide=False)).splitlines()[-1]
     assert split(line)[:2] == ["warehouse-05", "pull: no report yet"]
     assert "no: no report" not in line
+
+
+def test_a_pull_robot_s_last_report_is_its_rollout_in_the_default_table():
+    """The pull guide's step 8 reads what each robot did (applied 1, waiting 1, ...) from the
+    default table; -o wide has it in PULL, beside REPORTED."""
+    reported = {"host": "warehouse-06", "reachable": "pull", "via": "report", "release": RELEASE, "health": "healthy"}
+    rows = [*fleet(), dict(reported, pull="prefetched 12")]
+    narrow = status.table(rows, status_parts.columns(roles(), wide=False)).splitlines()
+    assert max(len(line) for line in narrow) <= 100, "\n".join(narrow)
+    assert split(narrow[-1])[-1] == "prefetched 12" and split(narrow[1])[-1] == "wave 12/20 pending"
+    wide = status.table(rows, status_parts.columns(roles()) [:-1] + pullstatus.COLUMNS + [("rollout", "ROLLOUT")])
+    assert split(wide.splitlines()[-1])[-3:] == ["prefetched 12", "-", "-"]
