@@ -86,5 +86,5 @@ def test_a_pull_robot_s_last_report_is_its_rollout_in_the_default_table():
     narrow = status.table(rows, status_parts.columns(roles(), wide=False)).splitlines()
     assert max(len(line) for line in narrow) <= 100, "\n".join(narrow)
     assert split(narrow[-1])[-1] == "prefetched 12" and split(narrow[1])[-1] == "wave 12/20 pending"
-    wide = status.table(rows, status_parts.columns(roles()) [:-1] + pullstatus.COLUMNS + [("rollout", "ROLLOUT")])
+    wide = status.table(rows, status_parts.columns(roles())[:-1] + pullstatus.COLUMNS + [("rollout", "ROLLOUT")])
     assert split(wide.splitlines()[-1])[-3:] == ["prefetched 12", "-", "-"]
