@@ -12,7 +12,7 @@ one per end-to-end lab group (tests/e2e/groups.py: each group
 on its own lab, prefix ``<ROBOT_LAB_E2E_PREFIX or e2e>-<group>``, its modules
 one after the other).  The first group's output streams here; each other
 group's, then unit and integration's, follow whole when done, each headed
-with its wall time.  The exit code is pytest's for the first layer that
+with its wall time and CPU.  The exit code is pytest's for the first layer that
 failed, unit and integration first, then the groups in order (0 when all
 passed; a process whose tests the options leave out does not count).
 Options are handed to every process (e.g. -x, -k, -p no:cacheprovider).
@@ -47,6 +47,7 @@ class Layer:
         self, label: str, what: str, paths: list[str], options: list[str], env: dict | None = None, stream: bool = False
     ) -> None:
         self.label, self.name, self.started, self.ended = label, f"{label} ({what})", time.monotonic(), None
+        self.cpu = 0.0
         if stream:
             print(f"===== {self.name}: streamed here; the others follow when done =====", flush=True)
         self.log = None if stream else tempfile.TemporaryFile(mode="w+", prefix="tests-")
@@ -60,17 +61,27 @@ class Layer:
         )
 
     def wait(self) -> int:
-        code = self.process.wait()
-        self.ended = self.ended or time.monotonic()
-        return code
+        self.reap(0)
+        return self.process.returncode
 
     def poll(self) -> None:
-        if self.ended is None and self.process.poll() is not None:
-            self.ended = time.monotonic()
+        self.reap(os.WNOHANG)
+
+    def reap(self, flags: int) -> None:
+        """Waits with wait4: its CPU (user and system, with every process it
+        waited for: pyinfra, the CLIs; not the labs' containers) is the
+        layer's figure in the summary."""
+        if self.ended is not None:
+            return
+        pid, status, usage = os.wait4(self.process.pid, flags)
+        if pid:
+            self.process.returncode = os.waitstatus_to_exitcode(status)
+            self.cpu, self.ended = usage.ru_utime + usage.ru_stime, time.monotonic()
 
     def show(self) -> None:
         code = self.wait()
-        print(f"\n===== {self.name}: exit {code} in {duration(self.ended - self.started)} =====", flush=True)
+        took = f"{duration(self.ended - self.started)}, {self.cpu:.0f} s of CPU"
+        print(f"\n===== {self.name}: exit {code} in {took} =====", flush=True)
         if self.log is not None:
             self.log.seek(0)
             sys.stdout.write(self.log.read())
@@ -159,13 +170,15 @@ def main(argv: list[str]) -> int:
         for layer in every:
             layer.process.terminate()
         for layer in every:
-            layer.process.wait()
+            layer.wait()
         raise
     codes = [layer.wait() for layer in every]
     load = " ".join(f"{value:.2f}" for value in os.getloadavg())
     exits = ", ".join(f"{layer.label} exit {code}" for layer, code in zip(every, codes))
+    cpu = sum(layer.cpu for layer in every)
     print(
-        f"\n===== tests: {exits}; {duration(time.monotonic() - started)} in all (load average at the end {load}) =====",
+        f"\n===== tests: {exits}; {duration(time.monotonic() - started)} in all, {cpu:.0f} s of CPU in the layers'"
+        f" processes (load average at the end {load}) =====",
         flush=True,
     )
     return exit_code(codes)

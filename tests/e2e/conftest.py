@@ -279,8 +279,8 @@ def ros_image(request):
         BACKGROUND["ROS image"] = Background("ROS image", ros_images.build)
 
 
-# The arm64 image's build (debootstrap's second stage under emulation, one
-# core for 12-15 minutes) is the test command's longest path on a machine
+# The arm64 image's build (its dpkg and maintainer scripts under emulation,
+# one core for 8 minutes; 12-15 with debootstrap) is the test command's longest path on a machine
 # that has not built it: beside the other labs and unit tests it got half a
 # core and took 42 minutes on CI.  Linux keeps a nice value per thread and
 # its children inherit it, so the build's thread and the chroot under it get

@@ -1,5 +1,5 @@
 """A stock Debian 13 machine with this checkout set up: a plain container of
-the lab's debootstrap rootfs (python3 3.13 with neither pip nor venv, pip
+the lab's host image (python3 3.13 with neither pip nor venv, pip
 refusing system installs, sudo), this checkout in /w and `.ci/setup
 --python` run in it as root.  One per test session (tests/e2e/conftest.py's
 `stock_machine`): the setup's own test (test_stock_machine.py) and the

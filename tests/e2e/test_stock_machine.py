@@ -1,6 +1,6 @@
 """End to end: the setup's Python part on a stock Debian 13 machine.
 
-The lab's debootstrap rootfs is such a machine: python3 (3.13) with neither
+The lab's host image (an mmdebstrap rootfs) is such a machine: python3 (3.13) with neither
 pip nor venv, and pip refusing system installs (PEP 668).  A plain container
 of it gets this checkout and runs `.ci/setup --python` as root (the session's
 `stock_machine`, tests/e2e/stock_machine.py, which test_laptop_sudo.py

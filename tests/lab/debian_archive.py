@@ -1,4 +1,4 @@
-"""Which Debian archive the lab downloads from (debootstrap, the Docker CE
+"""Which Debian archive the lab downloads from (mmdebstrap, the Docker CE
 mirror's source packages).
 
 Robot networks often sit behind their own Debian mirror or proxy, so the

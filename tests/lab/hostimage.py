@@ -2,14 +2,14 @@
 
 Built in two cached layers, each tagged by a hash of its full recipe so a
 machine builds it once and rebuilds only when the recipe changes:
-  robot-lab-base:<sha12>  debootstrap rootfs (suite, mirror, package list, architecture)
+  robot-lab-base:<sha12>  mmdebstrap rootfs (suite, mirror, package list, architecture)
   robot-lab-host:<sha12>  + lab customisation (users, units, no host keys)
 Docker itself is deliberately NOT preinstalled: the provisioner installs it.
 
 The arm64 image (the emulated robot) is the same recipe for another
-architecture: `debootstrap --arch=arm64 --foreign` unpacks the packages here,
-its second stage runs the arm64 maintainer scripts in a chroot under
-qemu-user (binfmt_misc, tests/lab/emulation.py), and the host layer's build
+architecture: `mmdebstrap --arch=arm64` downloads the packages here and
+runs the arm64 dpkg and maintainer scripts in a chroot under qemu-user
+(binfmt_misc, tests/lab/emulation.py), and the host layer's build
 runs its arm64 shell the same way.  No emulator is copied into the image.
 """
 
@@ -213,7 +213,13 @@ def check_arch(arch: str) -> str:
 
 
 def base_recipe(arch: str = NATIVE_ARCH) -> dict:
-    recipe = {"suite": SUITE, "mirror": debian_url(), "variant": VARIANT, "include": list(INCLUDE_PACKAGES)}
+    recipe = {
+        "builder": "mmdebstrap",
+        "suite": SUITE,
+        "mirror": debian_url(),
+        "variant": VARIANT,
+        "include": list(INCLUDE_PACKAGES),
+    }
     if check_arch(arch) != NATIVE_ARCH:
         # Only foreign images name their architecture: the amd64 recipe, and
         # so every machine's cached amd64 image, stays what it was.
@@ -256,8 +262,8 @@ def ensure_host_image(dc: docker.DockerClient, arch: str = NATIVE_ARCH) -> str:
 
             ensure_arm64_emulation()
         if not image_exists(dc, base):
-            with timed_phase(f"build base image {base} (debootstrap {SUITE} {arch})"):
-                _debootstrap_and_import(dc, base, arch)
+            with timed_phase(f"build base image {base} (mmdebstrap {SUITE} {arch})"):
+                _mmdebstrap_and_import(dc, base, arch)
         with timed_phase(f"build host image {tag} ({arch})"):
             files = {f"rootfs/{path}": text for path, text in host_files(arch).items()}
             files["customise.sh"] = customise_script(arch)
@@ -265,70 +271,42 @@ def ensure_host_image(dc: docker.DockerClient, arch: str = NATIVE_ARCH) -> str:
     return tag
 
 
-def debootstrap_commands(rootfs: str, arch: str = NATIVE_ARCH) -> list[list[str]]:
-    """The commands that make the rootfs: one native run, or a foreign first
-    stage here and the second stage in a chroot under emulation."""
-    first = ["debootstrap", f"--variant={VARIANT}", "--include=" + ",".join(INCLUDE_PACKAGES)]
-    if arch == NATIVE_ARCH:
-        return [first + [SUITE, rootfs, debian_url()]]
-    return [
-        first + [f"--arch={arch}", "--foreign", SUITE, rootfs, debian_url()],
-        ["chroot", rootfs, "/debootstrap/debootstrap", "--second-stage"],
-    ]
+def mmdebstrap_command(out: str, arch: str = NATIVE_ARCH) -> list[str]:
+    """The command that writes the rootfs as a tar to ``out`` ("-": stdout).
+    A foreign architecture's maintainer scripts run in the chroot under
+    emulation; apt and the downloads run here.  mmdebstrap, not debootstrap:
+    one apt run instead of debootstrap's second stage (which re-unpacks every
+    package and greps the suite's whole package list, all under emulation),
+    half the arm64 build's CPU (446 against 720-900 core-seconds) and 27
+    against 64 for amd64 (2026-12-03)."""
+    command = ["mmdebstrap", "--mode=root", f"--variant={VARIANT}", "--include=" + ",".join(INCLUDE_PACKAGES)]
+    if arch != NATIVE_ARCH:
+        command.append(f"--arch={arch}")
+    return command + [SUITE, out, debian_url()]
 
 
-def trimmed_packages_list(text: str, wanted: set[str]) -> str:
-    """A Packages list with only the paragraphs of ``wanted`` packages."""
-    kept = []
-    for paragraph in text.split("\n\n"):
-        first = paragraph.lstrip("\n").split("\n", 1)[0]
-        if first.startswith("Package:") and first[len("Package:") :].strip() in wanted:
-            kept.append(paragraph.strip("\n"))
-    return "\n\n".join(kept) + "\n"
-
-
-def trim_package_lists(rootfs: str) -> None:
-    """Between the stages: debootstrap's second stage looks packages up in
-    the suite's whole Packages list (56 MB for trixie arm64) with grep and
-    perl, once per step; under emulation that had not finished after 17 minutes.
-    It only looks up what the first stage fetched (debootstrap/debpaths), so
-    the list is cut to those here, natively (the hosts get fresh lists from
-    `apt-get update` anyway)."""
-    root = Path(rootfs)
-    debpaths = (root / "debootstrap" / "debpaths").read_text()
-    wanted = {line.split()[0].split(":")[0] for line in debpaths.splitlines() if line.strip()}
-    for packages in (root / "var" / "lib" / "apt" / "lists").glob("*_Packages"):
-        packages.write_text(trimmed_packages_list(packages.read_text(), wanted))
-
-
-def _debootstrap_and_import(dc: docker.DockerClient, tag: str, arch: str = NATIVE_ARCH) -> None:
+def _mmdebstrap_and_import(dc: docker.DockerClient, tag: str, arch: str = NATIVE_ARCH) -> None:
     BUILD_DIR.mkdir(parents=True, exist_ok=True)
-    log_path = BUILD_DIR / ("debootstrap.log" if arch == NATIVE_ARCH else f"debootstrap-{arch}.log")
+    log_path = BUILD_DIR / f"mmdebstrap-{arch}.log"
     repo, _, version = tag.partition(":")
-    with tempfile.TemporaryDirectory(dir=BUILD_DIR) as tmp:
-        rootfs = f"{tmp}/rootfs"
-        with open(log_path, "wb") as log:
-            for step, cmd in enumerate(debootstrap_commands(rootfs, arch)):
-                if step == 1:
-                    trim_package_lists(rootfs)
-                try:
-                    done = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
-                except FileNotFoundError:
-                    raise LabError(
-                        "cannot build the host image: debootstrap is not installed (apt-get install debootstrap)"
-                    ) from None
-                if done.returncode != 0:
-                    raise LabError(f"{' '.join(cmd[:2])} ({arch}) failed (exit {done.returncode}); see {log_path}")
-        if arch == NATIVE_ARCH:
-            tar = subprocess.Popen(["tar", "-C", rootfs, "--numeric-owner", "-c", "."], stdout=subprocess.PIPE)
-            try:
-                dc.api.import_image_from_stream(tar.stdout, repository=repo, tag=version)
-            finally:
-                tar.stdout.close()
-                if tar.wait() != 0:
-                    raise LabError(f"tar of the debootstrap rootfs failed (exit {tar.returncode})")
-        else:
-            load_rootfs(dc, rootfs, tag, arch, tmp)
+    with tempfile.TemporaryDirectory(dir=BUILD_DIR) as tmp, open(log_path, "wb") as log:
+        layer = Path(tmp, "layer.tar")
+        out = "-" if arch == NATIVE_ARCH else str(layer)
+        try:
+            build = subprocess.Popen(mmdebstrap_command(out, arch), stdout=subprocess.PIPE, stderr=log)
+        except FileNotFoundError:
+            raise LabError(
+                "cannot build the host image: mmdebstrap is not installed (apt-get install mmdebstrap)"
+            ) from None
+        try:
+            if arch == NATIVE_ARCH:  # the tar on stdout, straight into the engine
+                dc.api.import_image_from_stream(build.stdout, repository=repo, tag=version)
+        finally:
+            build.stdout.close()
+            if build.wait() != 0:
+                raise LabError(f"mmdebstrap {SUITE} ({arch}) failed (exit {build.returncode}); see {log_path}")
+        if arch != NATIVE_ARCH:
+            load_layer(dc, layer, tag, arch, tmp)
 
 
 def rootfs_image_archive(layer: Path, tag: str, arch: str, out: Path) -> None:
@@ -346,7 +324,7 @@ def rootfs_image_archive(layer: Path, tag: str, arch: str, out: Path) -> None:
             **({"variant": "v8"} if arch == "arm64" else {}),
             "config": {"Env": ["PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin"]},
             "rootfs": {"type": "layers", "diff_ids": [diff_id]},
-            "history": [{"created_by": f"debootstrap {SUITE} ({arch}, robot lab)"}],
+            "history": [{"created_by": f"mmdebstrap {SUITE} ({arch}, robot lab)"}],
         },
         sort_keys=True,
     ).encode()
@@ -360,16 +338,11 @@ def rootfs_image_archive(layer: Path, tag: str, arch: str, out: Path) -> None:
             archive.addfile(info, io.BytesIO(data))
 
 
-def load_rootfs(dc: docker.DockerClient, rootfs: str, tag: str, arch: str, tmp: str) -> None:
-    """The rootfs as an image that says what it is: `docker import` of
+def load_layer(dc: docker.DockerClient, layer: Path, tag: str, arch: str, tmp: str) -> None:
+    """The rootfs tar as an image that says what it is: `docker import` of
     Docker 20.10 labels every import with the engine's own architecture
     (its --platform sets only the OS), so a foreign rootfs is loaded instead."""
-    layer, archive = Path(tmp, "layer.tar"), Path(tmp, "image.tar")
-    done = subprocess.run(
-        ["tar", "-C", rootfs, "--numeric-owner", "-cf", str(layer), "."], capture_output=True, text=True
-    )
-    if done.returncode != 0:
-        raise LabError(f"tar of the debootstrap rootfs failed (exit {done.returncode}): {done.stderr.strip()[-200:]}")
+    archive = Path(tmp, "image.tar")
     rootfs_image_archive(layer, tag, arch, archive)
     layer.unlink()
     with open(archive, "rb") as f:

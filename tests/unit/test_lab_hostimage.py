@@ -47,25 +47,12 @@ def test_an_unknown_architecture_is_one_error(hostimage, engine):
         hostimage.base_recipe("riscv64")
 
 
-def test_a_foreign_rootfs_is_two_stages_the_second_under_emulation(hostimage):
-    native = hostimage.debootstrap_commands("/r")
-    assert len(native) == 1 and "--foreign" not in native[0]
-    first, second = hostimage.debootstrap_commands("/r", "arm64")
-    assert "--arch=arm64" in first and "--foreign" in first
-    assert second == ["chroot", "/r", "/debootstrap/debootstrap", "--second-stage"]
-
-
-def test_the_package_list_keeps_only_what_the_first_stage_fetched(hostimage):
-    text = (
-        "Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\n"
-        "Package: vim\nVersion: 9\n\n"
-        "Package: apt\nVersion: 3.0\nDepends: libc6\n\n"
-    )
-    trimmed = hostimage.trimmed_packages_list(text, {"libc6", "apt"})
-    assert trimmed == (
-        "Package: libc6\nVersion: 2.41\nFilename: pool/l/libc6.deb\n\nPackage: apt\nVersion: 3.0\nDepends: libc6\n"
-    )
-    assert hostimage.trimmed_packages_list(text, {"libc"}) == "\n"
+def test_a_foreign_rootfs_names_its_architecture_and_the_native_one_does_not(hostimage):
+    native = hostimage.mmdebstrap_command("-")
+    assert native[:2] == ["mmdebstrap", "--mode=root"] and not any(a.startswith("--arch") for a in native)
+    assert native[-3:-1] == [hostimage.SUITE, "-"]
+    foreign = hostimage.mmdebstrap_command("/t/layer.tar", "arm64")
+    assert "--arch=arm64" in foreign and foreign[-3:-1] == [hostimage.SUITE, "/t/layer.tar"]
 
 
 def test_a_foreign_base_image_says_its_architecture(hostimage, tmp_path):
