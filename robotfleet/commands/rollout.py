@@ -33,7 +33,8 @@ from robotfleet.commands import progressline, status, status_collect
 from robotfleet.commands import rollout_plan as waves
 from robotfleet.commands.rollout_judge import judge_wave, missing, not_connected, read_overrides, targets_of
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
-from robotfleet.role import DEPLOYMENT_ENV, pull_part
+from robotfleet.fleet import pull_mode
+from robotfleet.role import DEPLOYMENT_ENV
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
@@ -170,8 +171,7 @@ def main(argv=None) -> int:
     if not hosts:
         say(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)")
         return selection.REFUSED
-    pulls = pull_part(deploy_roles.roles()).pulls
-    pulled = [name for name, data in hosts if pulls(data)]
+    pulled = [name for name, data in hosts if pull_mode.pulls(data)]
     if pulled:  # robots that converge themselves: publish and follow their reports (docs/guides/pull.md)
         from robotfleet.commands import pullrollout
 
