@@ -69,7 +69,7 @@ def make(args) -> int:
         data = host_data(args.robot, fleet, deploy_roles.registry())
     except DataError as error:
         raise selection.Refused(str(error)) from None
-    value, platform = pull_mode.value, pull_mode.value(data, "pull_platform")
+    platform = pull_mode.value(data, "pull_platform")
     if not pull_mode.pulls(data):
         raise selection.Refused(f"{fleet}: {args.robot} is not a pull robot (pull_enabled: true)")
     clone = install.releases_clone(robotfleet.CHECKOUT)
@@ -85,8 +85,8 @@ def make(args) -> int:
             )
         code = repository.blob(record.code)
         wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(platform)]
-        root = install.trust_root(robotfleet.CHECKOUT, value(data, "pull_trust_root"))
-        ca = install.remote_ca(robotfleet.CHECKOUT, value(data, "pull_remote_ca"))
+        root = install.trust_root(robotfleet.CHECKOUT, pull_mode.value(data, "pull_trust_root"))
+        ca = install.remote_ca(robotfleet.CHECKOUT, pull_mode.value(data, "pull_remote_ca"))
     except (RepositoryError, install.InstallError) as error:
         raise selection.Refused(str(error)) from None
     admin = admin_of(args)
@@ -112,7 +112,7 @@ def make(args) -> int:
     )
     if admin is not None:
         try:
-            remote, shards = value(data, "pull_remote"), value(data, "pull_report_shards")
+            remote, shards = pull_mode.value(data, "pull_remote"), pull_mode.value(data, "pull_report_shards")
             gitolite.register(admin, repository_name(remote), owner, public, enrollment=not rule, shards=shards)
         except gitolite.GitoliteError as error:
             print(f"bundle: {error}; the enrollment key is not registered yet", file=sys.stderr)

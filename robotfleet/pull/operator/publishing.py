@@ -64,8 +64,7 @@ def longest_check(hosts: list[tuple[str, HostData]]) -> int:
     """The longest wait between two checks of the release's robots
     (pull_interval + pull_jitter): the default pause between waves, so that
     every robot of a wave that is on has checked before the next one opens."""
-    value = pull_mode.value
-    return max(value(data, "pull_interval") + value(data, "pull_jitter") for _, data in hosts)
+    return max(pull_mode.value(data, "pull_interval") + pull_mode.value(data, "pull_jitter") for _, data in hosts)
 
 
 def secret_refusal(fleet: Fleet, path: str) -> str | None:

@@ -126,15 +126,14 @@ def default(name: str):
 
 def for_host(data, robot: str, **extra) -> Config:
     """The agent's configuration for a host with ``data`` (its pull settings)."""
-    value = pull_mode.value
     return Config(
         robot=robot,
-        remote=value(data, "pull_remote"),
-        windows=tuple(value(data, "pull_windows")),
-        report_remote=value(data, "pull_report_remote"),
-        media_dir=value(data, "pull_media_dir"),
+        remote=pull_mode.value(data, "pull_remote"),
+        windows=tuple(pull_mode.value(data, "pull_windows")),
+        report_remote=pull_mode.value(data, "pull_report_remote"),
+        media_dir=pull_mode.value(data, "pull_media_dir"),
         extra=extra,
-        **{field: value(data, name) for field, name in NUMBERS.items()},
+        **{field: pull_mode.value(data, name) for field, name in NUMBERS.items()},
     )
 
 
