@@ -1,7 +1,7 @@
 """Asking the fleet for status: one row per host, in inventory order, each
 host asked with one SSH command (its status parts, robotfleet/status_parts.py)
 at most ``parallel`` at once, a pull robot read from its last report instead
-(commands/pullstatus.py), and whether each host is in its declared state
+(commands/pull/status.py), and whether each host is in its declared state
 (drift).  What the rows look like to the operator is commands/status.py's."""
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def collect(
 def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
     if not hosts:
         return {}
-    from robotfleet.commands import pullstatus
+    from robotfleet.commands.pull import status as pullstatus
 
     try:
         pulled = [(h.name, h.data) for h in hosts]

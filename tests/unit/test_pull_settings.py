@@ -12,7 +12,7 @@ import json
 import pytest
 
 from robotfleet import deploy_roles
-from robotfleet.commands import pullstatus
+from robotfleet.commands.pull import status as pullstatus
 from robotfleet.fleet import connection, pull_mode
 from robotfleet.pull.protocol import agent_files, reports
 

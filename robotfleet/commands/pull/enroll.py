@@ -36,8 +36,9 @@ import paramiko
 import robotfleet
 from robotfleet import commands, hostkeys, selection
 from robotfleet.checkers import one_line
-from robotfleet.commands import enroll, pullstatus
-from robotfleet.commands.bundle import add_admin, admin_of, repository_name
+from robotfleet.commands import enroll
+from robotfleet.commands.pull import status as pullstatus
+from robotfleet.commands.pull.bundle import add_admin, admin_of, repository_name
 from robotfleet.fleet import pull_mode
 from robotfleet.pull.operator import enrollments, gitolite
 from robotfleet.pull.protocol import agent_files, enrollment, report_shards
