@@ -24,7 +24,7 @@ class Registry:
         """``settings``, ``rules`` and ``renamed``: the engine's own, beside each role's."""
         self.roles = tuple(roles)
         self.aliases = dict(aliases or {})
-        self.rules = (*rules, *(role.rules for role in self.roles))
+        self.rules = (*(role.rules for role in self.roles), *rules)  # the engine's after the roles'
         self.settings: dict[str, Setting] = {}
         for setting in [*settings, *(s for role in self.roles for s in role.settings)]:
             if setting.name in self.settings:
