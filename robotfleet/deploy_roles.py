@@ -14,7 +14,7 @@ import runpy
 from pathlib import Path
 
 from robotfleet import CHECKOUT
-from robotfleet.fleet import connection
+from robotfleet.fleet import connection, pull_mode
 from robotfleet.fleet.registry import Registry
 from robotfleet.role import Role, cards
 
@@ -42,8 +42,10 @@ def roles(deploy_file: Path = DEPLOY) -> tuple[Role, ...]:
 
 
 def registry_of(roles_: tuple[Role, ...]) -> Registry:
-    """Every setting: the engine's own (connection, apt, rollout) and the roles'."""
-    return Registry(connection.SETTINGS, roles_, connection.ALIASES)
+    """Every setting: the engine's own (connection, apt, rollout, pull mode) and the roles'."""
+    return Registry(
+        (*connection.SETTINGS, *pull_mode.SETTINGS), roles_, connection.ALIASES, (pull_mode.rules,), pull_mode.RENAMED
+    )
 
 
 @functools.lru_cache(maxsize=4)

@@ -14,10 +14,12 @@ import copy
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from robotfleet.checkers import Checker, Problem
-from robotfleet.host.snapshot import Snapshot, SnapshotQuery
+
+if TYPE_CHECKING:  # annotations only: the pull agent reads Setting without pyinfra
+    from robotfleet.host.snapshot import Snapshot, SnapshotQuery
 
 GROUPS = ("robots", "laptops")
 
@@ -188,54 +190,6 @@ class SwitchPart:
     read: Callable[[str], dict | None]
 
 
-@dataclass(frozen=True)
-class PullPart:
-    """Pull mode as the engine reads it of a host, given by the role that
-    declares pull mode's settings (roles/pull), so the engine (publish,
-    status, bundle, pull-enroll, the agent's files) reads none by name:
-    ``pulls(data)``, whether the host converges itself from signed
-    releases; ``config(data, robot, **extra)``, its agent's configuration
-    (robotfleet/pull/protocol/agent_files.py ``Config``: its remotes, its
-    schedule and staleness, its report shard count; ``extra`` its field
-    ``extra``); ``platform(data)``, the wheels its releases carry for it;
-    ``known_hosts(data)``, ``timer(data)``: its agent's known_hosts and
-    timer unit; ``trust_root(data)``, ``remote_ca(data)``: the files on this
-    machine its settings name (None: the defaults, no CA)."""
-
-    pulls: Callable[[Any], bool]
-    config: Callable[..., Any]
-    platform: Callable[[Any], str]
-    known_hosts: Callable[[Any], str]
-    timer: Callable[[Any], str]
-    trust_root: Callable[[Any], str | None]
-    remote_ca: Callable[[Any], str | None]
-
-
-def _pulls_not(data) -> bool:
-    return False
-
-
-def _no_pull_role(*args, **kwargs):
-    raise LookupError("no role of deploy.py declares pull mode (the pull role)")
-
-
-# Where no role declares pull mode: no host pulls.
-NO_PULL = PullPart(
-    pulls=_pulls_not,
-    config=_no_pull_role,
-    platform=_no_pull_role,
-    known_hosts=_no_pull_role,
-    timer=_no_pull_role,
-    trust_root=_no_pull_role,
-    remote_ca=_no_pull_role,
-)
-
-
-def pull_part(roles) -> PullPart:
-    """The pull part of ``roles`` (deploy.py's, robotfleet/deploy_roles.py ``roles()``)."""
-    return next((role.pull for role in roles if role.pull is not None), NO_PULL)
-
-
 def _always(data) -> bool:
     return True
 
@@ -273,7 +227,6 @@ class Role:
     - ``hold``: its lock, held by the pull agent for a converge run (HoldPart);
     - ``switch``: its release made ready before a pull robot's window and
       switched to in it (SwitchPart);
-    - ``pull``: pull mode's settings as the engine reads them (PullPart);
     - ``renamed``: older names of its settings, still read (Renamed)."""
 
     name: str
@@ -291,7 +244,6 @@ class Role:
     secrets: Callable[[Any], list[str]] = _no_secrets
     hold: HoldPart | None = None
     switch: SwitchPart | None = None
-    pull: PullPart | None = None
     renamed: tuple[Renamed, ...] = ()
 
 

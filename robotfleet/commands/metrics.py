@@ -14,7 +14,7 @@ Per host (labels ``host``, ``kind``: robots or laptops, ``via``):
   release, health and last change).
 
 A pull robot's row (``via="report"``) comes from its last report
-(robotfleet/commands/pullstatus.py): ``up`` is 1 while the report is fresh,
+(robotfleet/commands/pull/status.py): ``up`` is 1 while the report is fresh,
 its roles' gauges are its report's cells (none once stale: a stale report
 does not vouch for the robot now), and it adds ``pull_report_stale``,
 ``pull_report_timestamp_seconds``, ``pull_seen_version``,
@@ -74,7 +74,7 @@ def samples(rows: list[dict], roles) -> list[tuple[Metric, dict]]:
         labels = {"host": row["host"], "kind": row.get("kind") or "", "via": row.get("via") or "ssh"}
         metrics = engine_metrics(row)
         if "pull" in row:
-            from robotfleet.commands import pullstatus
+            from robotfleet.commands.pull import status as pullstatus
 
             metrics += pullstatus.metrics(row)
         if row.get("reachable"):

@@ -10,7 +10,7 @@ the payload, every image of the robot's compose project running healthy)
 or is counted against the budget.
 Robots not reached keep their release.  Robots with `pull_enabled: true` are not
 deployed over SSH: the rollout publishes a signed release with these waves
-and follows the robots' reports (robotfleet/commands/pullrollout.py).  The state lives in
+and follows the robots' reports (robotfleet/commands/pull/rollout.py).  The state lives in
 .rollout/<key>.json on this machine: rerunning the same command resumes with
 the robots not yet on the new release.  See docs/guides/releases.md, "Rollouts in waves".
 """
@@ -33,7 +33,8 @@ from robotfleet.commands import progressline, status, status_collect
 from robotfleet.commands import rollout_plan as waves
 from robotfleet.commands.rollout_judge import judge_wave, missing, not_connected, read_overrides, targets_of
 from robotfleet.commands.rolloutreport import relay, robot_line, say, summary, table
-from robotfleet.role import DEPLOYMENT_ENV, pull_part
+from robotfleet.fleet import pull_mode
+from robotfleet.role import DEPLOYMENT_ENV
 
 PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
 
@@ -102,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-y", "--yes", action="store_true", help="do not ask before starting")
     parser.add_argument("--dry", action="store_true", help="show the waves and the changes, change nothing")
-    from robotfleet.commands import pullrollout
+    from robotfleet.commands.pull import rollout as pullrollout
 
     pullrollout.add_options(parser)
     return parser
@@ -170,10 +171,9 @@ def main(argv=None) -> int:
     if not hosts:
         say(f"rollout: {args.inventory} has no robots; laptops are rolled out only when asked for (--limit laptops)")
         return selection.REFUSED
-    pulls = pull_part(deploy_roles.roles()).pulls
-    pulled = [name for name, data in hosts if pulls(data)]
+    pulled = [name for name, data in hosts if pull_mode.pulls(data)]
     if pulled:  # robots that converge themselves: publish and follow their reports (docs/guides/pull.md)
-        from robotfleet.commands import pullrollout
+        from robotfleet.commands.pull import rollout as pullrollout
 
         if args.pyinfra_env and not args.fleet:  # the fleet named as the inventory is the one the release carries
             args.fleet = os.path.relpath(args.inventory)

@@ -253,7 +253,7 @@ def main(argv=None) -> int:
 
         cols = columns(roles, wide=shown == "wide")
         if shown == "wide" and any("pull" in r for r in rows):
-            from robotfleet.commands.pullstatus import COLUMNS
+            from robotfleet.commands.pull.status import COLUMNS
 
             cols = cols[:-1] + COLUMNS + cols[-1:]
         # colour only on a terminal, none with NO_COLOR (or TERM=dumb); lines never wrapped

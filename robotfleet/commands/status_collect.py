@@ -1,7 +1,7 @@
 """Asking the fleet for status: one row per host, in inventory order, each
 host asked with one SSH command (its status parts, robotfleet/status_parts.py)
 at most ``parallel`` at once, a pull robot read from its last report instead
-(commands/pullstatus.py), and whether each host is in its declared state
+(commands/pull/status.py), and whether each host is in its declared state
 (drift).  What the rows look like to the operator is commands/status.py's."""
 
 from __future__ import annotations
@@ -11,7 +11,8 @@ from gevent.lock import Semaphore
 
 from robotfleet import deploy_roles, reasons, selection
 from robotfleet.checkers import one_line
-from robotfleet.role import GROUPS, pull_part
+from robotfleet.fleet import pull_mode
+from robotfleet.role import GROUPS
 from robotfleet.status_parts import row, sections, status_command
 
 # Hosts asked at once by default: a handshake costs the operator a few ms of its one core, so 200 in flight
@@ -38,8 +39,7 @@ def collect(
     roles = deploy_roles.roles() if roles is None else roles
     inventory = selection.inventory(inventory_path)
     hosts = selection.select(inventory, inventory_path, limits)
-    pulls = pull_part(roles).pulls
-    pulled = [h for h in hosts if pulls(h.data)]
+    pulled = [h for h in hosts if pull_mode.pulls(h.data)]
     found = _pull_rows(pulled, remote)
     for host in pulled:
         if found[host.name]["reachable"]:
@@ -65,7 +65,7 @@ def collect(
 def _pull_rows(hosts, remote: str | None) -> dict[str, dict]:
     if not hosts:
         return {}
-    from robotfleet.commands import pullstatus
+    from robotfleet.commands.pull import status as pullstatus
 
     try:
         pulled = [(h.name, h.data) for h in hosts]

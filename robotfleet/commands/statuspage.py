@@ -21,7 +21,8 @@ from pathlib import Path
 import jinja2
 
 from robotfleet import atomicfile
-from robotfleet.commands import pullrollout, rollout_plan
+from robotfleet.commands import rollout_plan
+from robotfleet.commands.pull import rollout as pullrollout
 from robotfleet.status_parts import columns, reporting, state_of
 
 # Each host's health on the page, in the summary's order.

@@ -1,6 +1,6 @@
 """The engine's own settings: how to reach a host (pyinfra's SSH connector
-data), how long apt waits for its lock, rollout canaries.  Pull mode's are the pull
-role's (roles/pull/settings.py)."""
+data), how long apt waits for its lock, rollout canaries.  Pull mode's are
+beside them (pull_mode.py)."""
 
 from __future__ import annotations
 

@@ -13,18 +13,27 @@ from robotfleet.role import UNSET, Renamed, Role, Setting
 
 
 class Registry:
-    def __init__(self, settings: Iterable[Setting], roles: Iterable[Role] = (), aliases: dict[str, str] | None = None):
+    def __init__(
+        self,
+        settings: Iterable[Setting],
+        roles: Iterable[Role] = (),
+        aliases: dict[str, str] | None = None,
+        rules: Iterable = (),
+        renamed: Iterable[Renamed] = (),
+    ):
+        """``settings``, ``rules`` and ``renamed``: the engine's own, beside each role's."""
         self.roles = tuple(roles)
         self.aliases = dict(aliases or {})
+        self.rules = (*(role.rules for role in self.roles), *rules)  # the engine's after the roles'
         self.settings: dict[str, Setting] = {}
         for setting in [*settings, *(s for role in self.roles for s in role.settings)]:
             if setting.name in self.settings:
                 raise ValueError(f"setting {setting.name} is declared twice")
             self.settings[setting.name] = setting
         self.mergers = [(name, s.merge) for name, s in self.settings.items() if s.merge is not None]
-        # A setting's older name -> its rename (each role's ``renamed``).
+        # A setting's older name -> its rename (the engine's and each role's ``renamed``).
         self.renamed: dict[str, Renamed] = {}
-        for rename in (r for role in self.roles for r in role.renamed):
+        for rename in (*renamed, *(r for role in self.roles for r in role.renamed)):
             if rename.new not in self.settings or rename.old in self.settings or rename.old in self.renamed:
                 raise ValueError(
                     f"rename {rename.old} -> {rename.new}: the old name must be free and the new one declared"
@@ -94,7 +103,7 @@ class Registry:
         layer).  A setting in ``refused`` already has a problem: no rule
         looks at it again."""
         refused = frozenset(refused)
-        return [problem for role in self.roles for problem in role.rules(data, refused)]
+        return [problem for rule in self.rules for problem in rule(data, refused)]
 
     def data_problems(self, data) -> list[str]:
         """Problems in a host's final data (pyinfra host.data, including

@@ -19,13 +19,13 @@ from pyinfra.api import deploy, operation
 from pyinfra.operations.util import any_changed
 
 import roles.pull.plan as plan
-import roles.pull.settings as settings
 from robotfleet import CHECKOUT
+from robotfleet.fleet import pull_mode
 from robotfleet.host import apt, operations
 from robotfleet.host.snapshot import SnapshotQuery
 from robotfleet.host.stream import FileStdin
 from robotfleet.pull.operator import install
-from robotfleet.pull.protocol import agent_files, platforms
+from robotfleet.pull.protocol import agent_files
 from robotfleet.role import Play, Role
 
 INSTALLED_PROBE = "pull_installed"
@@ -44,7 +44,7 @@ FILES = (
 )
 
 
-runs_on = plan.pulls
+runs_on = pull_mode.pulls
 
 
 def declare_reads(data, query: SnapshotQuery) -> None:
@@ -85,7 +85,7 @@ def pull_agent(play: Play):
     operations.file(
         name="Write the pull agent's configuration",
         path=agent_files.CONFIG,
-        content=plan.config(data, name).to_json(),
+        content=agent_files.for_host(data, name).to_json(),
         current=snap.files.get(agent_files.CONFIG),
         mode="0600",
     )
@@ -100,7 +100,7 @@ def pull_agent(play: Play):
     operations.file(
         name="Write the fleet remote's host keys",
         path=agent_files.KNOWN_HOSTS,
-        content=plan.known_hosts(data),
+        content=agent_files.known_hosts(data),
         current=snap.files.get(agent_files.KNOWN_HOSTS),
     )
     if ca is not None:
@@ -127,13 +127,13 @@ def pull_agent(play: Play):
         operations.file(
             name=f"Write {agent_files.SERVICE}",
             path=f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}",
-            content=plan.service_unit(),
+            content=agent_files.service_unit(),
             current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.SERVICE}"),
         ),
         operations.file(
             name=f"Write {agent_files.TIMER}",
             path=f"{agent_files.UNIT_DIR}/{agent_files.TIMER}",
-            content=plan.timer_unit(data),
+            content=agent_files.timer_unit(data),
             current=snap.files.get(f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"),
         ),
     ]
@@ -157,7 +157,7 @@ def refuses(data, snap) -> str | None:
     if data.get(AGENT_RUN):
         return None  # the agent runs there already
     platform = plan.platform(snap.probes.get(PYTHON_PROBE, ""), snap.os_release, snap.arch)
-    old = platforms.too_old(platform[2:].split("-")[0]) if platform else None
+    old = pull_mode.too_old(platform[2:].split("-")[0]) if platform else None
     return f"this robot's {old}" if old else None
 
 
@@ -207,12 +207,8 @@ def send(wanted: str, present: str, script: str, archive: str):
 ROLE = Role(
     name="pull",
     doc="Pull mode: the agent that fetches, verifies and applies signed releases on the robot itself.",
-    settings=settings.SETTINGS,
     runs_on=runs_on,
     reads=declare_reads,
     steps=pull_agent,
     refuses=refuses,
-    rules=settings.rules,
-    renamed=settings.RENAMED,
-    pull=plan.PART,
 )

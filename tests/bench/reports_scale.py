@@ -59,7 +59,7 @@ def push_bytes(server: Server, robot: str, shards: int, samples: int) -> dict:
 
 def read_times(server: Server, names: list[str], shards: int, how: str) -> dict:
     """status's read of every report, and a last-wave robot's read of the earlier 75%, fresh then warm."""
-    from robotfleet.commands import pullstatus
+    from robotfleet.commands.pull import status as pullstatus
 
     figures: dict = {}
     cache = server.base / f"status-{shards}-{how}" / "reports"

@@ -127,7 +127,8 @@ def test_an_unreachable_remote_is_a_failed_check_not_a_crash(world):
     assert sent.startswith("report not sent")
     # when it does reach the operator (another report remote, a later push), status counts the robot out of
     # reach in its own words, not as a failed release (issue 54, item 9)
-    from robotfleet.commands import pullstatus, status
+    from robotfleet.commands import status
+    from robotfleet.commands.pull import status as pullstatus
 
     data = {"pull_interval": 60, "pull_jitter": 5, "pull_stale_after": 3, "pull_heartbeat": 600}
     row = pullstatus.row("robot1", reports.parse(reports.to_bytes(report), "robot1"), data, NOW, "url")

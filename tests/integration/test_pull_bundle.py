@@ -111,7 +111,7 @@ def test_the_operator_keeps_only_the_hash_of_the_enrollment_key(tmp_path):
 
 
 def test_the_gitolite_repository_a_remote_names():
-    from robotfleet.commands.bundle import repository_name
+    from robotfleet.commands.pull.bundle import repository_name
 
     assert repository_name("ssh://gitolite3@git.lan:2222/fleet") == "fleet"
     assert repository_name("git@git.lan:robots/fleet.git") == "robots/fleet"

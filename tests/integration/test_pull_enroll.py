@@ -16,7 +16,7 @@ import paramiko
 import pytest
 
 from robotfleet import hostkeys
-from robotfleet.commands import pullenroll
+from robotfleet.commands.pull import enroll as pullenroll
 from robotfleet.pull.operator import bundle, enrollments
 from robotfleet.pull.protocol import enrollment, reports
 from robotfleet.pull.robot import enrollment_proof

@@ -22,7 +22,9 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.commands import pullrollout, pullstatus, status
+from robotfleet.commands import status
+from robotfleet.commands.pull import rollout as pullrollout
+from robotfleet.commands.pull import status as pullstatus
 from robotfleet.pull.protocol import agent_files, platforms, reports
 from robotfleet.pull.robot import agent_state
 from tests.integration.pullworld import World

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from robotfleet.commands import pullstatus
+from robotfleet.commands.pull import status as pullstatus
 from robotfleet.pull.protocol import report_shards, report_store, reports
 from robotfleet.pull.robot import transport
 from tests.integration import craftedgit

@@ -1,6 +1,6 @@
 """Pull robots' reports (robotfleet/pull/protocol/reports.py): the format, the
 operator's reading of them as untrusted input, staleness, status rows
-(robotfleet/commands/pullstatus.py) and the rollout's reading of them."""
+(robotfleet/commands/pull/status.py) and the rollout's reading of them."""
 
 from __future__ import annotations
 
@@ -12,7 +12,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from robotfleet.commands import pullrollout, pullstatus
+from robotfleet.commands.pull import rollout as pullrollout
+from robotfleet.commands.pull import status as pullstatus
 from robotfleet.pull.protocol import catfile, report_store, reports, waves
 from robotfleet.pull.robot import transport
 from tests.integration import craftedgit

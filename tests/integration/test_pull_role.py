@@ -172,10 +172,10 @@ def test_the_role_is_opt_in():
 
 def test_agent_configuration_and_units(pulled):
     data = merged("robots", {**pulled, "pull_windows": ["Mon-Fri 01:00-05:00"]})
-    config = agent_files.read_config(plan.config(data, "robot7").to_json())
+    config = agent_files.read_config(agent_files.for_host(data, "robot7").to_json())
     assert config.robot == "robot7" and config.remote == "ssh://gitolite3@git.lan/fleet"
     assert (config.interval, config.jitter, config.windows) == (60, 5, ("Mon-Fri 01:00-05:00",))
-    timer = plan.timer_unit(data)
+    timer = agent_files.timer_unit(data)
     for line in (
         "OnBootSec=60",
         "OnUnitInactiveSec=60",
@@ -184,12 +184,12 @@ def test_agent_configuration_and_units(pulled):
         "WantedBy=timers.target",
     ):
         assert f"\n{line}\n" in timer
-    service = plan.service_unit()
+    service = agent_files.service_unit()
     assert "\nType=oneshot\n" in service and "\nUser=" not in service
     assert (
         f"\nExecStart={agent_files.VENV}/bin/python -m robotfleet.pull.agent --config {agent_files.CONFIG}\n" in service
     )
-    assert plan.known_hosts(data) == f"{plan.KNOWN_HOSTS_ALIAS} {KEY}\n"
+    assert agent_files.known_hosts(data) == f"{agent_files.HOST_KEY_ALIAS} {KEY}\n"
 
 
 def test_a_fresh_robot_gets_the_agent(pulled, released):
@@ -200,7 +200,7 @@ def test_a_fresh_robot_gets_the_agent(pulled, released):
     files = written_files(commands)
     assert json.loads(files[agent_files.CONFIG])["robot"] == "@fake/r1"
     assert files[agent_files.TRUST_ROOT] == (released.repository.metadata / "root.json").read_text()
-    assert files[f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"] == plan.timer_unit(merged("robots", pulled))
+    assert files[f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"] == agent_files.timer_unit(merged("robots", pulled))
     for path in (agent_files.CONFIG, agent_files.TRUST_ROOT):
         assert "chmod 600" in find(commands, f"dest={path}\n")[0]
     keygen = find(commands, "ssh-keygen -q -t ed25519")

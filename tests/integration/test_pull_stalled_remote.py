@@ -18,7 +18,6 @@ import pytest
 from robotfleet import keepalive
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import transport
-from roles.pull import plan
 from tests.integration import httpsgit, sshserver
 from tests.integration.test_pull_transport import report
 from tests.lab.linkproxy import Link
@@ -28,10 +27,10 @@ TIMEOUT = 60  # pull_fetch_timeout: far beyond
 
 
 def test_the_agent_s_config_carries_the_host_s_keepalives():
-    config = plan.config({"pull_remote": "ssh://git@git.lan/fleet", "ssh_keepalive_interval": 5}, "robot1")
+    config = agent_files.for_host({"pull_remote": "ssh://git@git.lan/fleet", "ssh_keepalive_interval": 5}, "robot1")
     assert (config.keepalive_interval, config.keepalive_count_max) == (5, 3)
     assert agent_files.read_config(config.to_json()) == config
-    default = plan.config({"pull_remote": "ssh://git@git.lan/fleet"}, "robot1")
+    default = agent_files.for_host({"pull_remote": "ssh://git@git.lan/fleet"}, "robot1")
     assert "keepalive" not in default.to_json()  # the defaults: a robot's agent.json is as it was
 
 

@@ -77,12 +77,12 @@ ROWS = frozenset({"row"})
 
 def test_the_engine_reads_no_role_s_setting():
     """robotfleet/ knows no role by name, nor any role's setting: what it
-    needs of one it reads through the role's card (e.g. the pull role's
-    ``pull`` part: robotfleet/role.py PullPart); it reads by name only its
-    own settings (robotfleet/fleet/connection.py)."""
-    from robotfleet.fleet import connection
+    needs of one it reads through the role's card; it reads by name only its
+    own settings (robotfleet/fleet/connection.py, pull_mode.py)."""
+    from robotfleet.fleet import connection, pull_mode
 
-    own = {setting.name for setting in connection.SETTINGS}  # the allowlist: the engine's own settings
+    # the allowlist: the engine's own settings
+    own = {setting.name for setting in (*connection.SETTINGS, *pull_mode.SETTINGS)}
     owner = {
         setting.name: role.name for role in deploy_roles.roles() for setting in role.settings if setting.name not in own
     }

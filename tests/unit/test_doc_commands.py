@@ -111,7 +111,9 @@ def test_every_marker_stands_before_a_block_and_covers_a_command():
 
 
 def keys_actions() -> set[str]:
-    return set(re.findall(r'add_parser\("([\w-]+)"', (ROOT / "robotfleet" / "commands" / "keys.py").read_text()))
+    return set(
+        re.findall(r'add_parser\("([\w-]+)"', (ROOT / "robotfleet" / "commands" / "pull" / "keys.py").read_text())
+    )
 
 
 def placeholder(word: str) -> bool:

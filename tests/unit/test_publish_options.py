@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from robotfleet.commands import publish
+from robotfleet.commands.pull import publish
 
 
 @pytest.mark.parametrize(

@@ -1,8 +1,7 @@
-"""Pull mode's settings, declared once by the pull role (issue 37 item 2):
-the agent's agent.json takes the same defaults and bounds, status reads the
-declared defaults, and the engine reads them only through the role's ``pull``
-part (robotfleet/role.py PullPart).  tests/unit/test_architecture.py checks
-that no engine module reads a role's setting by name."""
+"""Pull mode's settings, the engine's own and declared once
+(robotfleet/fleet/pull_mode.py; issue 37 item 2, issue 53 item 1): the
+agent's agent.json takes the same defaults and bounds, status reads the
+declared defaults, and the pull role declares none."""
 
 from __future__ import annotations
 
@@ -13,30 +12,21 @@ import json
 import pytest
 
 from robotfleet import deploy_roles
-from robotfleet.commands import pullstatus
-from robotfleet.fleet import connection
+from robotfleet.commands.pull import status as pullstatus
+from robotfleet.fleet import connection, pull_mode
 from robotfleet.pull.protocol import agent_files, reports
-from robotfleet.role import NO_PULL, pull_part
-from roles.pull import plan
-from roles.pull.settings import SETTINGS
 
-DECLARED = {setting.name: setting for setting in SETTINGS}
-# The agent's whole numbers and the pull role's settings that give them.
-NUMBERS = {
-    "interval": "pull_interval",
-    "jitter": "pull_jitter",
-    "min_free_mb": "pull_min_free_mb",
-    "fetch_timeout": "pull_fetch_timeout",
-    "stale_after": "pull_stale_after",
-    "heartbeat": "pull_heartbeat",
-    "report_shards": "pull_report_shards",
-}
+DECLARED = {setting.name: setting for setting in (*pull_mode.SETTINGS, *connection.SETTINGS)}
+# The agent's whole numbers and the settings that give them.
+NUMBERS = agent_files.NUMBERS
 
 
-def test_every_pull_setting_is_the_pull_role_s():
-    assert {"pull_enabled", "pull_platform"} <= set(DECLARED)
+def test_every_pull_setting_is_the_engine_s_and_no_role_s():
+    assert {"pull_enabled", "pull_platform"} <= {s.name for s in pull_mode.SETTINGS}
+    assert all(s.name.startswith("pull_") for s in pull_mode.SETTINGS)
     assert not [s.name for s in connection.SETTINGS if s.name == "pull" or s.name.startswith("pull_")]
-    assert pull_part(deploy_roles.roles()) is plan.PART
+    assert not [(r.name, s.name) for r in deploy_roles.roles() for s in r.settings if s.name.startswith("pull")]
+    assert all(deploy_roles.registry().settings[s.name] is s for s in pull_mode.SETTINGS)
 
 
 @pytest.mark.parametrize("field", sorted(NUMBERS))
@@ -68,7 +58,9 @@ def test_agent_json_refuses_what_the_fleet_file_refuses(field, value, range_):
 
 
 def test_the_agent_s_config_is_the_host_s_settings_with_their_declared_defaults():
-    config = plan.config({"pull_enabled": True, "pull_remote": "ssh://g@h/fleet", "pull_interval": 60}, "robot1")
+    config = agent_files.for_host(
+        {"pull_enabled": True, "pull_remote": "ssh://g@h/fleet", "pull_interval": 60}, "robot1"
+    )
     assert (config.remote, config.interval, config.jitter, config.heartbeat, config.stale_after) == (
         "ssh://g@h/fleet",
         60,
@@ -77,20 +69,25 @@ def test_the_agent_s_config_is_the_host_s_settings_with_their_declared_defaults(
         2,
     )
     assert config.media_dir is None and config.report_remote is None and config.report_shards == 0
-    assert plan.pulls({"pull_enabled": True}) and not plan.pulls({}) and not plan.pulls({"pull_enabled": False})
-    assert "OnUnitInactiveSec=60\n" in plan.timer_unit({"pull_interval": 60})
-    assert "OnBootSec=60\n" in plan.timer_unit({})
+    assert pull_mode.pulls({"pull_enabled": True}) and not pull_mode.pulls({})
+    assert not pull_mode.pulls({"pull_enabled": False})
+    assert "OnUnitInactiveSec=60\n" in agent_files.timer_unit({"pull_interval": 60})
+    assert "OnBootSec=60\n" in agent_files.timer_unit({})
 
 
-def test_without_a_pull_role_no_host_pulls():
-    assert pull_part(()) is NO_PULL and not NO_PULL.pulls({"pull_enabled": True})
-    with pytest.raises(LookupError, match="no role of deploy.py declares pull mode"):
-        NO_PULL.config({"pull_enabled": True}, "robot1")
+def test_the_fleet_check_refuses_a_window_as_the_agent_does():
+    from robotfleet.pull.protocol import waves
+
+    for text in ("Mon-Fri 01:00-01:00", "daily 1:05-01:05 UTC"):
+        with pytest.raises(ValueError) as refused:
+            waves.parse_window(text)
+        assert pull_mode.window(text) == [("", str(refused.value))]
+    assert pull_mode.window("Mon-Fri 01:00-05:00") == [] and pull_mode.window("daily 22:00-02:00 UTC") == []
 
 
 def test_status_judges_a_report_by_the_declared_defaults_not_by_what_the_report_says():
     """A report's own numbers (here a heartbeat of 0) never set the stale
-    limit: the host's settings do, with the pull role's defaults (900 s
+    limit: the host's settings do, with their declared defaults (900 s
     interval, 300 s jitter, 3600 s heartbeat, 2 heartbeats)."""
     made = datetime.datetime(2026, 11, 25, 10, tzinfo=datetime.timezone.utc)
     config = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet", interval=60, jitter=0, heartbeat=10)

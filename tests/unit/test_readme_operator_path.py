@@ -133,7 +133,7 @@ def test_one_minimum_python_for_the_install_the_build_and_pull_robots():
     import tomllib
 
     from robotfleet import build_backend
-    from robotfleet.pull.protocol import platforms
+    from robotfleet.fleet import pull_mode
 
     declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
-    assert declared == ">=%d.%d" % build_backend.MINIMUM and build_backend.MINIMUM == platforms.MIN_PYTHON
+    assert declared == ">=%d.%d" % build_backend.MINIMUM and build_backend.MINIMUM == pull_mode.MIN_PYTHON

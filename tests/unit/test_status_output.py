@@ -8,7 +8,8 @@ import json
 import re
 
 from robotfleet import deploy_roles, status_parts
-from robotfleet.commands import pullstatus, status
+from robotfleet.commands import status
+from robotfleet.commands.pull import status as pullstatus
 
 RELEASE = "20261121T204438Z-dadf84de"
 

@@ -35,7 +35,8 @@ import subprocess
 from pathlib import Path
 
 from robotfleet import atomicfile
-from robotfleet.pull.operator import enrollments, pull_settings
+from robotfleet.fleet import pull_mode
+from robotfleet.pull.operator import enrollments
 from robotfleet.pull.protocol import agent_files, enrollment, robot_key
 
 FIRST_BOOT = f"{agent_files.STATE}/first-boot"
@@ -155,10 +156,9 @@ def make(
     settings.  The enrollment key's public half."""
     if out.exists():
         raise BundleError(f"{out}: already exists; give a new directory")
-    pull = pull_settings.part()
     if not wheels:
         raise BundleError(
-            f"release {record.version} carries no wheels for {pull.platform(data)}: the robot could "
+            f"release {record.version} carries no wheels for {pull_mode.value(data, 'pull_platform')}: the robot could "
             "not make its venv (publish with wheels)"
         )
     out.mkdir(parents=True, mode=0o700)
@@ -166,12 +166,12 @@ def make(
     etc, first = rootfs / agent_files.ETC.lstrip("/"), rootfs / FIRST_BOOT.lstrip("/")
     (rootfs / agent_files.STATE.lstrip("/")).mkdir(parents=True, mode=0o700)
     etc.mkdir(parents=True, mode=0o700)
-    config = pull.config(data, robot, trusted_time=record.published)
+    config = agent_files.for_host(data, robot, trusted_time=record.published)
     if rule is not None:
         config = dataclasses.replace(config, robot="", name_rule=rule[0], name_prefix=rule[1])
     _write(etc / "agent.json", config.to_json(), 0o600)
     _write(etc / "root.json", root, 0o600)
-    _write(etc / "known_hosts", pull.known_hosts(data))
+    _write(etc / "known_hosts", agent_files.known_hosts(data))
     if ca is not None:
         _write(etc / "remote-ca.pem", ca)
     done = subprocess.run(
@@ -201,7 +201,7 @@ def make(
     _write(first / "venv-id", venv + "\n")
     units = rootfs / agent_files.UNIT_DIR.lstrip("/")
     _write(units / agent_files.SERVICE, agent_files.service_unit())
-    _write(units / agent_files.TIMER, pull.timer(data))
+    _write(units / agent_files.TIMER, agent_files.timer_unit(data))
     _write(units / agent_files.FIRST_BOOT_SERVICE, FIRST_BOOT_UNIT)
     _link(units / "timers.target.wants" / agent_files.TIMER, f"../{agent_files.TIMER}")
     _link(units / "multi-user.target.wants" / agent_files.FIRST_BOOT_SERVICE, f"../{agent_files.FIRST_BOOT_SERVICE}")

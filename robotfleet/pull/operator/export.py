@@ -22,11 +22,11 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from robotfleet.fleet import pull_mode
 from robotfleet.pull.operator import publishing
 from robotfleet.pull.operator.medium import METADATA_NAME, Medium, MediumError
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError, blob_name
 from robotfleet.pull.protocol import media, platforms
-from robotfleet.role import pull_part
 
 
 class ExportError(Exception):
@@ -50,7 +50,7 @@ def archives(record, hosts: dict, roles, work: Path) -> tuple[dict, dict[str, Pa
         data = hosts.get(robot)
         if data is None:
             raise ExportError(f"{robot}: in release {record.version} but not a pull host of its fleet file")
-        machine = platforms.parse_platform(pull_part(roles).platform(data))[1]
+        machine = platforms.parse_platform(pull_mode.value(data, "pull_platform"))[1]
         pins = record.images_of(robot)
         for role in roles:
             if role.pins is None or not role.runs_on(data):

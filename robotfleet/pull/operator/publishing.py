@@ -16,13 +16,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from robotfleet import secrets
+from robotfleet.fleet import pull_mode
 from robotfleet.fleet.validate import Fleet, FleetError, parse
 from robotfleet.pull.operator import wheels
 from robotfleet.pull.operator.repository import Expiry, Repository, RepositoryError
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.protocol import tree, waves
 from robotfleet.pull.protocol.robot_data import HostData
-from robotfleet.role import pull_part
 
 DEFAULT_FLEET = "inventories/robots.yaml"
 
@@ -52,21 +52,19 @@ class Options:
 def pull_hosts(fleet: Fleet, registry) -> list[tuple[str, HostData]]:
     """The fleet's hosts with ``pull_enabled: true``, robots then laptops, in file
     order, with every setting's default for their group under what the file says."""
-    pulls = pull_part(registry.roles).pulls
     merged = [
         (name, HostData({**registry.defaults(group), **data}))
         for group in ("robots", "laptops")
         for name, data in fleet.hosts(group)
     ]
-    return [(name, data) for name, data in merged if pulls(data)]
+    return [(name, data) for name, data in merged if pull_mode.pulls(data)]
 
 
-def longest_check(roles, hosts: list[tuple[str, HostData]]) -> int:
+def longest_check(hosts: list[tuple[str, HostData]]) -> int:
     """The longest wait between two checks of the release's robots
     (pull_interval + pull_jitter): the default pause between waves, so that
     every robot of a wave that is on has checked before the next one opens."""
-    config = pull_part(roles).config
-    return max(found.interval + found.jitter for found in (config(data, name) for name, data in hosts))
+    return max(pull_mode.value(data, "pull_interval") + pull_mode.value(data, "pull_jitter") for _, data in hosts)
 
 
 def secret_refusal(fleet: Fleet, path: str) -> str | None:
@@ -184,8 +182,7 @@ def build(
     files = {records.code_path(commit): archive}
     wheel_targets: dict[str, list[str]] = {}
     if options.wheel_cache is not None:
-        platform_of = pull_part(roles).platform
-        platforms = sorted({platform_of(data) for _, data in hosts} | set(options.platforms))
+        platforms = sorted({pull_mode.value(data, "pull_platform") for _, data in hosts} | set(options.platforms))
         try:
             requirements = wheels.requirements_of(tree.blob(checkout, commit, "pyproject.toml"))
             for platform in platforms:
@@ -212,7 +209,7 @@ def build(
             [name for name, _ in hosts],
             images,
             wheel_targets,
-            replace(options.plan, pause=longest_check(roles, hosts)) if options.pause_from_checks else options.plan,
+            replace(options.plan, pause=longest_check(hosts)) if options.pause_from_checks else options.plan,
         )
     except records.RecordError as error:
         raise PublishError(str(error)) from None

@@ -53,15 +53,14 @@ def configured(checkout) -> str | None:
 def named_by(hosts, reports: bool = False) -> list[str]:
     """The distinct remotes the pull hosts [(name, data)] name, in fleet order (pure): their ``pull_remote``,
     or for reports their ``pull_report_remote`` where set."""
-    from robotfleet.pull.operator import pull_settings
+    from robotfleet.fleet import pull_mode
 
-    pull = pull_settings.part()
     found: list[str] = []
-    for name, data in hosts:
-        if not pull.pulls(data):
+    for _, data in hosts:
+        if not pull_mode.pulls(data):
             continue
-        config = pull.config(data, name)
-        url = (config.report_remote if reports else None) or config.remote
+        remote = pull_mode.value(data, "pull_remote")
+        url = (pull_mode.value(data, "pull_report_remote") if reports else None) or remote
         if url and url not in found:
             found.append(url)
     return found

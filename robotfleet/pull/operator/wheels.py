@@ -19,7 +19,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-from robotfleet.pull.protocol.platforms import parse_platform, too_old
+from robotfleet.fleet.pull_mode import too_old
+from robotfleet.pull.protocol.platforms import parse_platform
 
 # glibc wheel tags pip accepts for a machine, newest first (Debian 12: glibc 2.36, Ubuntu 22.04: 2.35).
 _MANYLINUX = (

@@ -1,8 +1,10 @@
 """Where the pull agent lives on a robot, and its configuration file.
 
 Written by the pull role (roles/pull) on a push deploy, or by a first-boot
-bundle; read by the agent (robotfleet/pull/robot/agent.py).  Everything is root's:
-/etc/robot-pull and /var/lib/robot-pull are 0700.
+bundle (``for_host``: a host's pull settings, robotfleet/fleet/pull_mode.py);
+read by the agent (robotfleet/pull/robot/agent.py), which checks its numbers
+against the same settings' bounds.  Everything is root's: /etc/robot-pull and
+/var/lib/robot-pull are 0700.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import json
 import re
 from dataclasses import asdict, dataclass, field
 
+from robotfleet.fleet import connection, pull_mode
 from robotfleet.pull.protocol.host_key_alias import HOST_KEY_ALIAS
 
 ETC = "/etc/robot-pull"
@@ -44,23 +47,44 @@ class ConfigError(ValueError):
     """The agent's configuration cannot be used (one line)."""
 
 
+# The configuration's whole numbers and the settings that give them, whose
+# defaults and bounds they take: pull mode's, and the connection's
+# keepalives (the agent's ssh to the fleet remote gives up after their
+# silence, its HTTPS after as long).
+NUMBERS = {
+    "interval": "pull_interval",
+    "jitter": "pull_jitter",
+    "min_free_mb": "pull_min_free_mb",
+    "fetch_timeout": "pull_fetch_timeout",
+    "keepalive_interval": "ssh_keepalive_interval",
+    "keepalive_count_max": "ssh_keepalive_count_max",
+    "stale_after": "pull_stale_after",
+    "heartbeat": "pull_heartbeat",
+    "report_shards": "pull_report_shards",
+}
+_SETTINGS = {s.name: s for s in (*pull_mode.SETTINGS, *connection.SETTINGS) if s.name in NUMBERS.values()}
+LIMITS = {
+    field: (_SETTINGS[name].check.schema["minimum"], _SETTINGS[name].check.schema["maximum"])
+    for field, name in NUMBERS.items()
+}
+_DEFAULT = {field: _SETTINGS[name].default for field, name in NUMBERS.items()}
+
+
 @dataclass(frozen=True)
 class Config:
     robot: str
     remote: str
-    interval: int = 900
-    jitter: int = 300
+    interval: int = _DEFAULT["interval"]
+    jitter: int = _DEFAULT["jitter"]
     windows: tuple[str, ...] = ()
-    min_free_mb: int = 512
-    fetch_timeout: int = 300
-    # the host's ssh_keepalive_interval and ssh_keepalive_count_max (robotfleet/fleet/connection.py, the same
-    # defaults): the agent's ssh to the fleet remote gives up after their silence, its HTTPS after as long
-    keepalive_interval: int = 15
-    keepalive_count_max: int = 3
-    stale_after: int = 2
-    heartbeat: int = 3600
+    min_free_mb: int = _DEFAULT["min_free_mb"]
+    fetch_timeout: int = _DEFAULT["fetch_timeout"]
+    keepalive_interval: int = _DEFAULT["keepalive_interval"]
+    keepalive_count_max: int = _DEFAULT["keepalive_count_max"]
+    stale_after: int = _DEFAULT["stale_after"]
+    heartbeat: int = _DEFAULT["heartbeat"]
     report_remote: str | None = None  # where reports are pushed; None: remote
-    report_shards: int = 0  # the reports' shard count (robotfleet/pull/protocol/report_shards.py); 0: one repository
+    report_shards: int = _DEFAULT["report_shards"]  # (robotfleet/pull/protocol/report_shards.py); 0: one repository
     name_rule: str | None = None  # a shared image's robot derives its name (robotfleet/pull/protocol/naming.py)
     name_prefix: str = ""
     media_dir: str | None = None  # where releases on media are mounted (robotfleet/pull/robot/media.py)
@@ -76,12 +100,12 @@ class Config:
         for name, default in (
             ("extra", {}),
             ("report_remote", None),
-            ("report_shards", 0),
+            ("report_shards", _DEFAULT["report_shards"]),
             ("name_rule", None),
             ("name_prefix", ""),
             ("media_dir", None),
-            ("keepalive_interval", 15),
-            ("keepalive_count_max", 3),
+            ("keepalive_interval", _DEFAULT["keepalive_interval"]),
+            ("keepalive_count_max", _DEFAULT["keepalive_count_max"]),
         ):
             if data[name] == default:
                 del data[name]
@@ -95,25 +119,22 @@ class Config:
         return f"{self.etc_dir}/{name}"
 
 
-# The bounds of the configuration's whole numbers, written once: the pull
-# role's settings (roles/pull/settings.py) check the fleet file with them,
-# the agent its agent.json; the defaults are Config's.
-LIMITS = {
-    "interval": (10, 7 * 86400),
-    "jitter": (0, 86400),
-    "min_free_mb": (0, 1 << 20),
-    "fetch_timeout": (5, 86400),
-    "keepalive_interval": (1, 3600),
-    "keepalive_count_max": (1, 100),
-    "stale_after": (1, 1000),
-    "heartbeat": (10, 7 * 86400),
-    "report_shards": (0, 4096),
-}
-
-
 def default(name: str):
     """Config's default for the field ``name``."""
     return Config.__dataclass_fields__[name].default
+
+
+def for_host(data, robot: str, **extra) -> Config:
+    """The agent's configuration for a host with ``data`` (its pull settings)."""
+    return Config(
+        robot=robot,
+        remote=pull_mode.value(data, "pull_remote"),
+        windows=tuple(pull_mode.value(data, "pull_windows")),
+        report_remote=pull_mode.value(data, "pull_report_remote"),
+        media_dir=pull_mode.value(data, "pull_media_dir"),
+        extra=extra,
+        **{field: pull_mode.value(data, name) for field, name in NUMBERS.items()},
+    )
 
 
 def read_config(text: str, where: str = CONFIG) -> Config:
@@ -183,9 +204,9 @@ def named(config: Config, read=None) -> Config:
         raise ConfigError(f"robot name: {error}") from None
 
 
-def known_hosts(keys) -> str:
-    """The git server's host ``keys``, under HOST_KEY_ALIAS."""
-    return "".join(f"{HOST_KEY_ALIAS} {key}\n" for key in keys)
+def known_hosts(data) -> str:
+    """The git server's host keys (pull_remote_host_keys) of a host with ``data``, under HOST_KEY_ALIAS."""
+    return "".join(f"{HOST_KEY_ALIAS} {key}\n" for key in pull_mode.value(data, "pull_remote_host_keys"))
 
 
 HEADER = "# Managed by the robot fleet provisioner (roles/pull); local edits are overwritten.\n"
@@ -221,7 +242,11 @@ IOSchedulingPriority=7
     )
 
 
-def timer_unit(interval: int, jitter: int, boot_delay: int) -> str:
+def timer_unit(data) -> str:
+    """robot-pull.timer for a host with ``data``: its pull_interval, pull_jitter and pull_boot_delay."""
+    interval, jitter, boot_delay = (
+        pull_mode.value(data, f"pull_{name}") for name in ("interval", "jitter", "boot_delay")
+    )
     # Persistent= acts only on OnCalendar= timers; a robot that was off
     # catches up through OnBootSec=, the first check after each boot.
     return (

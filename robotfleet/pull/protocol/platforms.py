@@ -10,9 +10,6 @@ import re
 import sys
 
 _PLATFORM = re.compile(r"cp3([0-9]{1,2})-(x86_64|aarch64|armv7l)")
-# A pull robot runs pyinfra 3 and this tree (pyproject.toml's requires-python): Python 3.10 or later.
-MIN_PYTHON = (3, 10)
-WAY_OUT = "provision it by push (pull_enabled: false), or give it a python3 of 3.10 or later"
 
 
 def platform_key(version: tuple[int, int] | None = None, machine: str | None = None) -> str:
@@ -31,15 +28,3 @@ def parse_platform(key: str) -> tuple[str, str]:
             "cp311-aarch64 (machines: x86_64, aarch64, armv7l)"
         )
     return f"3.{match.group(1)}", match.group(2)
-
-
-def too_old(version: str) -> str | None:
-    """Why a pull robot whose python is ``version`` ('3.8', '38') cannot pull, naming the way out
-    (the end of one line: "this robot's " + it); None when it can."""
-    major, minor = (version.split(".", 1) if "." in version else (version[:1], version[1:])) if version else ("", "")
-    if not (major.isdigit() and minor.isdigit()) or (int(major), int(minor)) >= MIN_PYTHON:
-        return None
-    return (
-        f"python3 {major}.{minor} is too old for pull mode (the robot runs pyinfra 3, which needs "
-        f"Python {MIN_PYTHON[0]}.{MIN_PYTHON[1]} or later): {WAY_OUT}"
-    )

@@ -1,7 +1,7 @@
 """A release from removable media or a LAN share (``robotfleet export``), on
 the robot.
 
-The agent's ``media_dir`` (the pull role's ``pull_media_dir``: where a USB
+The agent's ``media_dir`` (the host's ``pull_media_dir``: where a USB
 stick or an NFS share is mounted) is looked at each wake; when it holds a
 release repository (``metadata/timestamp.json``), that directory is
 verified by the same TUF refresh (robotfleet/pull/robot/verify.py):

@@ -84,7 +84,7 @@ def send(wake, report: dict) -> str:
 
 def same_ssh_server(one: str, other: str) -> bool:
     """Two remotes reached by one SSH login: the same user, host and port
-    (pure).  Both forms pull_remote takes (roles/pull/settings.py):
+    (pure).  Both forms pull_remote takes (robotfleet/fleet/pull_mode.py):
     ssh://user@host[:port]/path and git's scp-like user@host:path."""
     login = ssh_login(one)
     return login is not None and login == ssh_login(other)

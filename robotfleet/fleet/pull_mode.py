@@ -1,14 +1,17 @@
-"""The pull role's settings, every one of pull mode's: whether a host pulls,
-where it fetches releases, how often, and when it may apply them.  The
-numbers the agent's configuration holds take their defaults and bounds from
-robotfleet/pull/protocol/agent_files.py (``Config``, ``LIMITS``), which the
-agent checks its agent.json with: one declaration for both."""
+"""The engine's pull mode settings, like connection.py's: whether a host
+pulls, where it fetches releases, how often, and when it may apply them.
+Each is declared here once (name, default, bounds, doc) and read by name
+wherever it is needed (``value``): the fleet file's check, the pull role's
+steps, the operator's pull commands, and the agent's agent.json
+(robotfleet/pull/protocol/agent_files.py takes its defaults and bounds)."""
 
 from __future__ import annotations
 
+import re
+
 from robotfleet import checkers as c
 from robotfleet import value_kinds as v
-from robotfleet.pull.protocol import agent_files, platforms, waves
+from robotfleet.fleet import connection
 from robotfleet.role import Renamed, Setting
 
 # The fleet remote as git takes it (never through a shell, but still no
@@ -57,23 +60,31 @@ _WINDOW_CHECK = c.string(WINDOW, "a maintenance window like 'Mon-Fri 01:00-05:00
 
 
 def window(value):
-    """A maintenance window: DAYS HH:MM-HH:MM [UTC] (robotfleet/pull/protocol/waves.py)."""
+    """A maintenance window: DAYS HH:MM-HH:MM [UTC], as robotfleet/pull/protocol/waves.py reads it."""
     problems = _WINDOW_CHECK(value)
-    if problems:
-        return problems
-    try:
-        waves.parse_window(value)
-    except ValueError as error:
-        return [("", str(error))]
-    return []
+    times = [] if problems else [[int(n) for n in time.split(":")] for time in re.findall(r"[0-9]+:[0-9]+", value)]
+    if times and times[0] == times[1]:
+        return [("", f"maintenance window {value!r}: starts and ends at the same time; for all day write 00:00-23:59")]
+    return problems
 
 
 c.with_schema(window, _WINDOW_CHECK.schema)
 
+# A pull robot runs pyinfra 3 and this tree (pyproject.toml's requires-python): Python 3.10 or later.
+MIN_PYTHON = (3, 10)
+WAY_OUT = "provision it by push (pull_enabled: false), or give it a python3 of 3.10 or later"
 
-def _number(field: str) -> tuple:
-    """The default and check of the agent's whole number ``field``, as agent.json has them."""
-    return agent_files.default(field), c.integer(*agent_files.LIMITS[field])
+
+def too_old(version: str) -> str | None:
+    """Why a pull robot whose python is ``version`` ('3.8', '38') cannot pull, naming the way out
+    (the end of one line: "this robot's " + it); None when it can."""
+    major, minor = (version.split(".", 1) if "." in version else (version[:1], version[1:])) if version else ("", "")
+    if not (major.isdigit() and minor.isdigit()) or (int(major), int(minor)) >= MIN_PYTHON:
+        return None
+    return (
+        f"python3 {major}.{minor} is too old for pull mode (the robot runs pyinfra 3, which needs "
+        f"Python {MIN_PYTHON[0]}.{MIN_PYTHON[1]} or later): {WAY_OUT}"
+    )
 
 
 SETTINGS = (
@@ -104,7 +115,8 @@ SETTINGS = (
     ),
     Setting(
         "pull_report_shards",
-        *_number("report_shards"),
+        0,
+        c.integer(0, 4096),
         "Report repositories beside the fleet remote (<remote>-reports-<n>), each robot's fixed by a hash of its "
         "name; about one per 16 robots keeps a report push under 10 KB, with the server's read copy of them "
         "(files/git-server/post-receive) for the readers; 0: the reports in the fleet remote itself. "
@@ -125,12 +137,14 @@ SETTINGS = (
     ),
     Setting(
         "pull_interval",
-        *_number("interval"),
+        900,
+        c.integer(10, 7 * 86400),
         "Seconds between two checks for a new release (the timer's OnUnitInactiveSec).",
     ),
     Setting(
         "pull_jitter",
-        *_number("jitter"),
+        300,
+        c.integer(0, 86400),
         "Up to this many seconds added at random to each wait, so robots do not wake at once (RandomizedDelaySec).",
     ),
     Setting(
@@ -147,21 +161,24 @@ SETTINGS = (
     ),
     Setting(
         "pull_min_free_mb",
-        *_number("min_free_mb"),
+        512,
+        c.integer(0, 1 << 20),
         "Free MB the agent needs on its state directory's and Docker's file systems before it downloads.",
     ),
     Setting(
         "pull_heartbeat",
-        *_number("heartbeat"),
+        3600,
+        c.integer(10, 7 * 86400),
         "Seconds after which a robot with nothing new reads its roles' status again and pushes its report anyway.",
     ),
     Setting(
         "pull_stale_after",
-        *_number("stale_after"),
+        2,
+        c.integer(1, 1000),
         "status marks a pull robot's report stale when it is older than this many heartbeats (each plus an "
         "interval and its jitter).",
     ),
-    Setting("pull_fetch_timeout", *_number("fetch_timeout"), "Seconds one fetch from the fleet remote may take."),
+    Setting("pull_fetch_timeout", 300, c.integer(5, 86400), "Seconds one fetch from the fleet remote may take."),
     Setting(
         "pull_media_dir",
         None,
@@ -179,6 +196,21 @@ SETTINGS = (
 )
 
 RENAMED = (Renamed("pull", "pull_enabled"),)
+
+# The pull settings, and the connection settings the agent reuses (its keepalives).
+_DEFAULTS = {setting.name: setting.default for setting in (*SETTINGS, *connection.SETTINGS)}
+
+
+def value(data, name: str):
+    """The pull or connection setting ``name`` of a host's data (pyinfra's,
+    the fleet file's, or a mapping): its declared default where the data has none."""
+    found = data.get(name) if hasattr(data, "get") else getattr(data, name, None)
+    return _DEFAULTS[name] if found is None else found
+
+
+def pulls(data) -> bool:
+    """Whether a host with ``data`` converges itself from signed releases."""
+    return value(data, "pull_enabled") is True
 
 
 def rules(data: dict, refused: frozenset) -> list[c.Problem]:
@@ -207,7 +239,7 @@ def rules(data: dict, refused: frozenset) -> list[c.Problem]:
             )
         )
     platform = data.get("pull_platform")
-    old = platforms.too_old(str(platform)[2:].split("-")[0]) if "pull_platform" not in refused else None
+    old = too_old(str(platform)[2:].split("-")[0]) if "pull_platform" not in refused else None
     if old:
         problems.append(("pull_platform", f"{platform}: a robot's {old}"))
     return problems

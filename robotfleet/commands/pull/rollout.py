@@ -20,7 +20,7 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet import selection
-from robotfleet.commands import pullstatus
+from robotfleet.commands.pull import status as pullstatus
 from robotfleet.pull.operator import channel
 from robotfleet.pull.operator.repository import Repository
 from robotfleet.pull.protocol import reports, waves
@@ -147,8 +147,8 @@ def main(args, hosts: list[tuple[str, object]], pulled: list[str]) -> int:
             f"{', '.join(str(w) for w in plan.waves)}, {apart(args, plan)}, at most {plan.max_failed} failed"
         )
         return selection.OK
-    from robotfleet.commands import halt as halting
-    from robotfleet.commands import publish as publishing
+    from robotfleet.commands.pull import halt as halting
+    from robotfleet.commands.pull import publish as publishing
     from robotfleet.pull.operator import releases_remote
 
     given = args.remote

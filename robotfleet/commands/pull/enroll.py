@@ -36,9 +36,11 @@ import paramiko
 import robotfleet
 from robotfleet import commands, hostkeys, selection
 from robotfleet.checkers import one_line
-from robotfleet.commands import enroll, pullstatus
-from robotfleet.commands.bundle import add_admin, admin_of, repository_name
-from robotfleet.pull.operator import enrollments, gitolite, pull_settings
+from robotfleet.commands import enroll
+from robotfleet.commands.pull import status as pullstatus
+from robotfleet.commands.pull.bundle import add_admin, admin_of, repository_name
+from robotfleet.fleet import pull_mode
+from robotfleet.pull.operator import enrollments, gitolite
 from robotfleet.pull.protocol import agent_files, enrollment, report_shards
 
 
@@ -218,7 +220,7 @@ def main(argv=None) -> int:
         admin = admin_of(args)
         expected = enroll.read_fingerprints(args.fingerprints) if args.fingerprints else None
         inventory = selection.inventory(args.inventory)
-        chosen = [h for h in selection.select(inventory, args.inventory, args.limit) if pull_settings.pulls(h.data)]
+        chosen = [h for h in selection.select(inventory, args.inventory, args.limit) if pull_mode.pulls(h.data)]
         if not chosen:
             raise selection.Refused(f"{args.inventory}: no pull robot (pull_enabled: true) to enroll")
         unknown = [name for name in args.replace if name not in {h.name for h in chosen}]
@@ -307,7 +309,7 @@ def main(argv=None) -> int:
         if admin is None:
             print(f"{host.name}: its key for the fleet remote: {key}")
             continue
-        remote = pull_settings.part().config(host.data, host.name).remote
+        remote = pull_mode.value(host.data, "pull_remote")
         try:
             changed = gitolite.register(admin, repository_name(remote), host.name, key, shards=shards)
         except gitolite.GitoliteError as error:

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet.checkers import one_line
-from robotfleet.pull.operator import channel, pull_settings, releases_remote
+from robotfleet.fleet import pull_mode
+from robotfleet.pull.operator import channel, releases_remote
 from robotfleet.pull.protocol import report_shards, report_store, reports
 from robotfleet.pull.protocol.record import parse_time
 from robotfleet.role import Metric
@@ -45,10 +46,9 @@ def remote_of(given: str | None, hosts=(), checkout: Path = robotfleet.CHECKOUT)
 def shards_of(hosts) -> int:
     """The fleet's report shard count: pull_report_shards, one value for all
     the pull hosts [(name, data)] (a robot reads the others' shards with its own)."""
-    pull = pull_settings.part()
     counts = {}
     for name, data in hosts:
-        counts.setdefault(pull.config(data, name).report_shards, name)
+        counts.setdefault(pull_mode.value(data, "pull_report_shards"), name)
     if len(counts) > 1:
         (one, first), (other, second) = sorted(counts.items())[:2]
         raise ReportsUnavailable(
@@ -108,8 +108,9 @@ def row(name: str, report: dict | None, data, now: datetime.datetime, url: str) 
             "error": report["error"],
         }
     cells = {k: v for k, v in (report.get("status") or {}).items() if k not in ("host", "reachable", "error")}
-    config = pull_settings.part().config(data, name)
-    interval, jitter, stale_after, heartbeat = config.interval, config.jitter, config.stale_after, config.heartbeat
+    interval, jitter, stale_after, heartbeat = (
+        pull_mode.value(data, f"pull_{name}") for name in ("interval", "jitter", "stale_after", "heartbeat")
+    )
     limit = reports.stale_limit(interval, jitter, stale_after, heartbeat)
     is_stale = reports.stale(report, now, interval, jitter, stale_after, heartbeat)
     cells.update(

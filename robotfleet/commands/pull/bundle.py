@@ -29,7 +29,8 @@ from pathlib import Path
 
 import robotfleet
 from robotfleet import commands, deploy_roles, selection
-from robotfleet.pull.operator import bundle, enrollments, gitolite, install, pull_settings
+from robotfleet.fleet import pull_mode
+from robotfleet.pull.operator import bundle, enrollments, gitolite, install
 from robotfleet.pull.operator.repository import Repository, RepositoryError
 from robotfleet.pull.protocol import naming
 from robotfleet.pull.protocol.robot_data import DataError, host_data
@@ -68,8 +69,8 @@ def make(args) -> int:
         data = host_data(args.robot, fleet, deploy_roles.registry())
     except DataError as error:
         raise selection.Refused(str(error)) from None
-    pull = pull_settings.part()
-    if not pull.pulls(data):
+    platform = pull_mode.value(data, "pull_platform")
+    if not pull_mode.pulls(data):
         raise selection.Refused(f"{fleet}: {args.robot} is not a pull robot (pull_enabled: true)")
     clone = install.releases_clone(robotfleet.CHECKOUT)
     repository = Repository(clone)
@@ -83,9 +84,9 @@ def make(args) -> int:
                 "file has it (pull_enabled: true), then make its bundle"
             )
         code = repository.blob(record.code)
-        wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(pull.platform(data))]
-        root = install.trust_root(robotfleet.CHECKOUT, pull.trust_root(data))
-        ca = install.remote_ca(robotfleet.CHECKOUT, pull.remote_ca(data))
+        wheels = [(path.rsplit("/", 1)[-1], repository.blob(path)) for path in record.wheels_for(platform)]
+        root = install.trust_root(robotfleet.CHECKOUT, pull_mode.value(data, "pull_trust_root"))
+        ca = install.remote_ca(robotfleet.CHECKOUT, pull_mode.value(data, "pull_remote_ca"))
     except (RepositoryError, install.InstallError) as error:
         raise selection.Refused(str(error)) from None
     admin = admin_of(args)
@@ -107,14 +108,12 @@ def make(args) -> int:
     print(
         f"bundle: {args.out}/rootfs.tar for {like}"
         f"{args.robot}: release {record.version}, {len(wheels)} wheels "
-        f"({pull.platform(data)}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}"
+        f"({platform}); enrollment key {bundle.key_sha256(public)[:16]}... kept in {kept}"
     )
     if admin is not None:
         try:
-            config = pull.config(data, args.robot)
-            gitolite.register(
-                admin, repository_name(config.remote), owner, public, enrollment=not rule, shards=config.report_shards
-            )
+            remote, shards = pull_mode.value(data, "pull_remote"), pull_mode.value(data, "pull_report_shards")
+            gitolite.register(admin, repository_name(remote), owner, public, enrollment=not rule, shards=shards)
         except gitolite.GitoliteError as error:
             print(f"bundle: {error}; the enrollment key is not registered yet", file=sys.stderr)
             return selection.FAILED
