@@ -24,10 +24,18 @@ def gevent_os_patched():
     return monkey if monkey is not None and monkey.is_module_patched("os") else None
 
 
+def pyinfra_after(setup: str) -> str:
+    """pyinfra's command line for `python -c`, run after ``setup`` (Python code
+    of the same process: counters on the connector, the unit harness's
+    recorder) in the same process; the arguments after the code are pyinfra's."""
+    return f"import sys\n{setup}\nfrom pyinfra_cli.main import main\nsys.argv[0] = 'pyinfra'\nmain()\n"
+
+
 # pyinfra's command line as `python -c PYINFRA ...`: the CLI of the pyinfra
 # this interpreter imports, whatever is first on PATH.  Every test and
-# benchmark starts pyinfra through pyinfra_argv, pyinfra or start_pyinfra.
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
+# benchmark starts pyinfra through pyinfra_argv, pyinfra or start_pyinfra,
+# or with its own setup first through pyinfra_after.
+PYINFRA = pyinfra_after("")
 
 
 def pyinfra_argv(*args: str, python: str = sys.executable) -> list[str]:

@@ -18,12 +18,11 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.fixtures import ROOT, pyinfra_after
 
 # Runs inside the pyinfra process: wrap the SSH connector and count.
-COUNTING_PYINFRA = r"""
+COUNTING = r"""
 import atexit, collections, json, sys
 from pyinfra.connectors.ssh import SSHConnector
 REPORT = sys.argv.pop(1)
@@ -42,10 +41,8 @@ wrap("_get_file", "downloads")
 def report():
     with open(REPORT, "w") as out:
         json.dump(counts, out)
-from pyinfra_cli.main import main
-sys.argv[0] = "pyinfra"
-main()
 """
+COUNTING_PYINFRA = pyinfra_after(COUNTING)
 
 
 def run_once(prefix: str, label: str) -> dict:

@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-from tests.fixtures import ROOT
+from tests.fixtures import ROOT, pyinfra_after
 from tests.integration.operator_side import dry_run
 from tests.unit.harness import ROBOT
 from tests.unit.samples import DAEMON_JSON
@@ -16,18 +16,14 @@ def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
     dry_run(tmp_path)
 
 
-DIFF_CLI = """
-import sys
-from pyinfra_cli.main import main
+# What the recorder was sent, printed as pyinfra exits
+DIFF_CLI = pyinfra_after("""
+import atexit
 from tests.unit.harness import _Recorder
 from tests.unit.samples import DAEMON_JSON, DRIFTED, drifted_robot
-sys.argv = ["pyinfra", *sys.argv[1:]]
-with _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}) as recorder:
-    try:
-        main()
-    finally:
-        print("SENT", [str(c) for c in recorder.sent["r1"]])
-"""
+recorder = _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}).__enter__()
+atexit.register(lambda: print("SENT", [str(c) for c in recorder.sent["r1"]]))
+""")
 
 
 def test_pyinfra_dry_diff_prints_the_drifted_file(tmp_path):

@@ -10,7 +10,6 @@ import ast
 from tests.fixtures import ROOT
 
 
-
 def imported_test_modules(path) -> set[str]:
     """The test_*.py modules of tests/ that ``path`` imports (any depth, any form)."""
     found = set()
