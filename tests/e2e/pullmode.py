@@ -27,6 +27,9 @@ CHECK_NOW = (
 
 
 class Pull:
+    """The operator's side of pull mode over the lab (tests/lab/pullfleet.py),
+    the fleet files it publishes, the robots' checks and their reports."""
+
     def __init__(self, lab, base: Path):
         from tests.lab import pullfleet
 

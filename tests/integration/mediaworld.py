@@ -115,7 +115,7 @@ def exported(fleet: pullkit.Fleet, where: Path) -> Path:
 
 
 class MediaWorld(World):
-    """test_pull_agent's robot (a release whose converge answers as the
+    """pullworld's robot (a release whose converge answers as the
     contract says), whose release pins an image of the registry, exported
     with its archive for this machine to ``usb``."""
 
