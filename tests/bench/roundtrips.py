@@ -19,9 +19,10 @@ import subprocess
 import sys
 import time
 
-from tests.fixtures import ROOT, pyinfra_after
+from tests.fixtures import ROOT, pyinfra_argv
 
-# Runs inside the pyinfra process: wrap the SSH connector and count.
+# Runs inside the pyinfra process before its CLI (the report's path its first
+# argument): wrap the SSH connector and count.
 COUNTING = r"""
 import atexit, collections, json, sys
 from pyinfra.connectors.ssh import SSHConnector
@@ -42,7 +43,6 @@ def report():
     with open(REPORT, "w") as out:
         json.dump(counts, out)
 """
-COUNTING_PYINFRA = pyinfra_after(COUNTING)
 
 
 def run_once(prefix: str, label: str) -> dict:
@@ -50,7 +50,7 @@ def run_once(prefix: str, label: str) -> dict:
     env = dict(os.environ, ROBOT_LAB_PREFIX=prefix, PYINFRA_PROGRESS="off")
     started = time.monotonic()
     proc = subprocess.run(
-        [sys.executable, "-c", COUNTING_PYINFRA, str(out), "-y", "inventories/lab.py", "deploy.py"],
+        pyinfra_argv(str(out), "-y", "inventories/lab.py", "deploy.py", setup=COUNTING),
         cwd=ROOT,
         env=env,
         capture_output=True,
