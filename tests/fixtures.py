@@ -24,23 +24,31 @@ def gevent_os_patched():
     return monkey if monkey is not None and monkey.is_module_patched("os") else None
 
 
+def pyinfra_after(setup: str) -> str:
+    """pyinfra's command line for `python -c`, run after ``setup`` (Python code
+    of the same process: counters on the connector, the unit harness's
+    recorder) in the same process; the arguments after the code are pyinfra's."""
+    return f"import sys\n{setup}\nfrom pyinfra_cli.main import main\nsys.argv[0] = 'pyinfra'\nmain()\n"
+
+
 # pyinfra's command line as `python -c PYINFRA ...`: the CLI of the pyinfra
 # this interpreter imports, whatever is first on PATH.  Every test and
 # benchmark starts pyinfra through pyinfra_argv, pyinfra or start_pyinfra.
-PYINFRA = "import sys; from pyinfra_cli.main import main; sys.argv[0] = 'pyinfra'; main()"
+PYINFRA = pyinfra_after("")
 
 
-def pyinfra_argv(*args: str, python: str = sys.executable) -> list[str]:
-    """The command line of ``pyinfra *args`` run by ``python``."""
-    return [str(python), "-c", PYINFRA, *args]
+def pyinfra_argv(*args: str, python: str = sys.executable, setup: str = "") -> list[str]:
+    """The command line of ``pyinfra *args`` run by ``python``, after ``setup`` (pyinfra_after)."""
+    return [str(python), "-c", pyinfra_after(setup), *args]
 
 
-def pyinfra(*args: str, cwd=ROOT, env: dict | None = None, timeout: float = 120, **kwargs):
-    """``pyinfra *args`` run to its end in ``cwd`` (the checkout): a
-    CompletedProcess, its output as text unless ``kwargs`` say otherwise.
-    ``env`` is the whole environment (None: this process's)."""
+def pyinfra(*args: str, cwd=ROOT, env: dict | None = None, timeout: float = 120, setup: str = "", **kwargs):
+    """``pyinfra *args`` run to its end in ``cwd`` (the checkout), after
+    ``setup`` (pyinfra_after): a CompletedProcess, its output as text unless
+    ``kwargs`` say otherwise.  ``env`` is the whole environment (None: this
+    process's)."""
     options = {"capture_output": True, "text": True, **kwargs}
-    return subprocess.run(pyinfra_argv(*args), cwd=cwd, env=env, timeout=timeout, **options)
+    return subprocess.run(pyinfra_argv(*args, setup=setup), cwd=cwd, env=env, timeout=timeout, **options)
 
 
 def start_pyinfra(*args: str, cwd=ROOT, env: dict | None = None, **kwargs) -> subprocess.Popen:

@@ -38,7 +38,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from tests.bench import hygiene, window
-from tests.bench.roundtrips import COUNTING_PYINFRA
+from tests.bench.roundtrips import COUNTING
 from tests.fixtures import pyinfra_argv
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -135,7 +135,7 @@ class Bench:
         self, *args: str, tag: str = "1.0", count: bool = False, command: str | None = None
     ) -> tuple[float, int, dict]:
         report = self.workdir / "counts.json"
-        prog = [sys.executable, "-c", COUNTING_PYINFRA, str(report)] if count else pyinfra_argv()
+        prog = pyinfra_argv(str(report), setup=COUNTING) if count else pyinfra_argv()
         started = time.monotonic()
         proc = subprocess.run(
             [*prog, "-y", "inventories/lab.py", *args],

@@ -18,12 +18,12 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.fixtures import ROOT, pyinfra_argv
 
-# Runs inside the pyinfra process: wrap the SSH connector and count.
-COUNTING_PYINFRA = r"""
+# Runs inside the pyinfra process before its CLI (the report's path its first
+# argument): wrap the SSH connector and count.
+COUNTING = r"""
 import atexit, collections, json, sys
 from pyinfra.connectors.ssh import SSHConnector
 REPORT = sys.argv.pop(1)
@@ -42,9 +42,6 @@ wrap("_get_file", "downloads")
 def report():
     with open(REPORT, "w") as out:
         json.dump(counts, out)
-from pyinfra_cli.main import main
-sys.argv[0] = "pyinfra"
-main()
 """
 
 
@@ -53,7 +50,7 @@ def run_once(prefix: str, label: str) -> dict:
     env = dict(os.environ, ROBOT_LAB_PREFIX=prefix, PYINFRA_PROGRESS="off")
     started = time.monotonic()
     proc = subprocess.run(
-        [sys.executable, "-c", COUNTING_PYINFRA, str(out), "-y", "inventories/lab.py", "deploy.py"],
+        pyinfra_argv(str(out), "-y", "inventories/lab.py", "deploy.py", setup=COUNTING),
         cwd=ROOT,
         env=env,
         capture_output=True,

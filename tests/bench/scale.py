@@ -34,8 +34,9 @@ from pathlib import Path
 
 from tests.bench import hygiene
 from tests.bench.pool import sample
-from tests.bench.roundtrips import COUNTING_PYINFRA
+from tests.bench.roundtrips import COUNTING
 from tests.bench.scale_fit import fit, plot, summarize
+from tests.fixtures import pyinfra_argv
 
 ROOT = Path(__file__).resolve().parents[2]
 HERE = Path(__file__).resolve().parent
@@ -138,7 +139,7 @@ class Scale:
         self._known_hosts(light=0)
         inventory = "tests/bench/scale_inventory.py"
         subprocess.run(
-            [sys.executable, "-c", COUNTING_PYINFRA, str(self.workdir / "c.json"), "-y", inventory, "deploy.py"],
+            pyinfra_argv(str(self.workdir / "c.json"), "-y", inventory, "deploy.py", setup=COUNTING),
             cwd=ROOT,
             env=self.env(spec),
             capture_output=True,
@@ -268,7 +269,7 @@ class Scale:
         report = self.workdir / "counts.json"
         inventory = "tests/bench/scale_inventory.py"
         if kind == "noop":
-            argv = [sys.executable, "-c", COUNTING_PYINFRA, str(report), "-y", *extra, inventory, "deploy.py"]
+            argv = pyinfra_argv(str(report), "-y", *extra, inventory, "deploy.py", setup=COUNTING)
         else:
             argv = [sys.executable, "-m", "robotfleet", "status", inventory, *extra]
         started, cpu = time.monotonic(), _children_cpu()

@@ -57,15 +57,15 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 import time
 import urllib.request
 
 import pytest
 import yaml
 
-from tests.bench.roundtrips import COUNTING_PYINFRA
+from tests.bench.roundtrips import COUNTING
 from tests.e2e.conftest import BACKGROUND, ROOT, Lab, phase
+from tests.fixtures import pyinfra_argv
 
 pytestmark = pytest.mark.e2e
 
@@ -273,17 +273,7 @@ def test_a_rerun_changes_nothing_in_one_ssh_command_per_host(arm, provisioned):
     env = dict(os.environ, ROBOT_LAB_PREFIX=arm.prefix, PYINFRA_PROGRESS="off")
     started = time.monotonic()
     proc = subprocess.run(
-        [
-            sys.executable,
-            "-c",
-            COUNTING_PYINFRA,
-            str(report),
-            "-y",
-            "--json",
-            "inventories/lab.py",
-            "deploy.py",
-            *LIMIT,
-        ],
+        pyinfra_argv(str(report), "-y", "--json", "inventories/lab.py", "deploy.py", *LIMIT, setup=COUNTING),
         cwd=ROOT,
         env=env,
         capture_output=True,

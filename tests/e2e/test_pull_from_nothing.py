@@ -46,7 +46,7 @@ import yaml
 
 from tests import doccommands
 from tests.e2e.conftest import ROOT, phase
-from tests.e2e.test_pull import CHECK_NOW
+from tests.e2e.pullmode import CHECK_NOW
 from tests.fixtures import PYINFRA
 from tests.lab.state import exec_container
 

@@ -26,8 +26,7 @@ import time
 import pytest
 
 from tests.e2e.conftest import phase
-from tests.e2e.test_pull import Pull
-from tests.e2e.test_pull_media import by_digest, clear_remote
+from tests.e2e.pullmode import Pull, by_digest, clear_remote
 from tests.fixtures import pyinfra
 
 pytestmark = pytest.mark.e2e

@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 from tests.e2e.conftest import phase
-from tests.e2e.test_pull import Pull, ssh_error
+from tests.e2e.pullmode import Pull, by_digest, clear_remote, ssh_error
 
 pytestmark = pytest.mark.e2e
 
@@ -104,44 +104,6 @@ class Media(Pull):
 
     def pinned(self, repository: str, tag: str) -> str:
         return self.pullfleet.pinned(self.op.lab, repository, tag)
-
-
-def by_digest(ref: str) -> str:
-    """repository:tag@digest -> repository@digest (what `docker image inspect` finds by digest)."""
-    name, digest = ref.split("@", 1)
-    slash, colon = name.rfind("/"), name.rfind(":")
-    return f"{name[:colon] if colon > slash else name}@{digest}"
-
-
-def remote_refs(world) -> list[str]:
-    from tests.lab import gitserver
-
-    done = subprocess.run(
-        ["git", "ls-remote", gitserver.local_url(world.op.git)],
-        capture_output=True,
-        text=True,
-        env=world.op.env(),
-        check=True,
-    )
-    return [
-        line.split()[1]
-        for line in done.stdout.splitlines()
-        if line.split()[1] == "refs/heads/robotfleet/releases" or line.split()[1].startswith("refs/reports/")
-    ]
-
-
-def clear_remote(world) -> None:
-    """No releases branch and no report on the fleet remote (as the admin)."""
-    from tests.lab import gitserver
-
-    refs = remote_refs(world)
-    if refs:
-        subprocess.run(
-            ["git", "push", "-q", gitserver.local_url(world.op.git), *(f":{ref}" for ref in refs)],
-            env=world.op.env(),
-            check=True,
-            capture_output=True,
-        )
 
 
 def forget_images(world, images) -> None:

@@ -27,14 +27,14 @@ import json
 import os
 import re
 import subprocess
-import sys
 import time
 
 import pytest
 
 import roles.time.plan as plan
-from tests.bench.roundtrips import COUNTING_PYINFRA
+from tests.bench.roundtrips import COUNTING
 from tests.e2e.conftest import ROOT, phase, wait_for
+from tests.fixtures import pyinfra_argv
 
 pytestmark = pytest.mark.e2e
 
@@ -182,7 +182,7 @@ def test_a_rerun_changes_nothing_in_one_ssh_command_per_host(lab, served):
     env = dict(os.environ, ROBOT_LAB_PREFIX=lab.prefix, ROBOT_LAB_FLEET=str(served["fleet"]), PYINFRA_PROGRESS="off")
     started = time.monotonic()
     proc = subprocess.run(
-        [sys.executable, "-c", COUNTING_PYINFRA, str(report), "-y", "--json", "inventories/lab.py", "deploy.py"],
+        pyinfra_argv(str(report), "-y", "--json", "inventories/lab.py", "deploy.py", setup=COUNTING),
         cwd=ROOT,
         env=env,
         capture_output=True,

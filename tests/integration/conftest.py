@@ -6,7 +6,7 @@ end-to-end layer's."""
 
 import pytest
 
-from tests.integration import imagestore
+from tests.integration import imagestore, mediaworld, publishsite
 
 
 def pytest_collection_modifyitems(items):
@@ -64,3 +64,33 @@ def platform_registry():
     """A registry on 127.0.0.1 with one image for amd64 and arm64 under one tag
     (tests/integration/imagestore.py): (address, store, the blobs fetched)."""
     yield from imagestore.serve()
+
+
+@pytest.fixture(scope="module")
+def registry():
+    """An OCI registry on 127.0.0.1 answering manifest requests (tests/unit/pullkit.py's Registry)."""
+    from tests.unit import pullkit
+
+    server = pullkit.Registry()
+    yield server
+    server.close()
+
+
+@pytest.fixture
+def site(tmp_path, registry):
+    """An operator's deploy repository for the pull commands (tests/integration/publishsite.py):
+    a dict of its checkout, remotes, keys and a robot's directory.  test_pull_enroll.py has its own."""
+    return publishsite.site(tmp_path, registry)
+
+
+@pytest.fixture
+def image_registry(platform_registry):
+    """platform_registry, its index also served by its digest (as registries do)."""
+    return mediaworld.by_its_digest(platform_registry)
+
+
+@pytest.fixture
+def docker(tmp_path, monkeypatch):
+    """A `docker` for the pull agent that records its calls (tests/integration/mediaworld.py):
+    the calls made so far."""
+    return mediaworld.fake_docker(tmp_path, monkeypatch)

@@ -17,7 +17,7 @@ from pyinfra.context import ctx_state
 from pyinfra_cli.inventory import make_inventory
 
 from robotfleet.fleet import yaml12
-from tests.fixtures import ROOT
+from tests.fixtures import ROOT, pyinfra_argv
 
 
 def fleet(tmp_path, hosts: dict, **common) -> Path:
@@ -74,14 +74,10 @@ def run(path, tmp_path, *argv, timeout=120) -> subprocess.CompletedProcess:
 
 
 # pyinfra's CLI over @fake hosts "bad" and "good": fresh Debian 13 hosts as the unit harness answers them
-FAKE_PYINFRA = """
-import sys
-from pyinfra_cli.main import main
-from tests.unit.harness import _Recorder, fresh_host
-sys.argv = ["pyinfra", *sys.argv[1:]]
-with _Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}, {}):
-    main()
-"""
+FAKE_HOSTS = (
+    "from tests.unit.harness import _Recorder, fresh_host\n"
+    '_Recorder({"bad": fresh_host("debian-13"), "good": fresh_host("debian-13")}, {}).__enter__()'
+)
 
 
 def dry_run(tmp_path, python: str = sys.executable) -> str:
@@ -95,7 +91,7 @@ def dry_run(tmp_path, python: str = sys.executable) -> str:
     )
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
     proc = subprocess.run(
-        [python, "-c", FAKE_PYINFRA, "--dry", str(inventory), "deploy.py"],
+        pyinfra_argv("--dry", str(inventory), "deploy.py", python=python, setup=FAKE_HOSTS),
         cwd=ROOT,
         env=env,
         capture_output=True,

@@ -2,7 +2,8 @@
 repository, file://): a signed release repository (tests/unit/pullkit.py),
 release records and code archives whose converge is a stub (STUB: it says
 applied, failed or prepared as $STUB asks), and the agent's own wake,
-report and state.  The integration tests of the agent drive it."""
+report and state; https_world serves the same remote over HTTPS.  The
+integration tests of the agent drive it."""
 
 from __future__ import annotations
 
@@ -13,10 +14,12 @@ import os
 import subprocess
 import sys
 import tarfile
+import time
 from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, path_signatures, reports, tree
 from robotfleet.pull.robot import agent, agent_state, wake_report
+from tests.integration import httpsgit
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
 
@@ -170,3 +173,25 @@ class World:
 
 def pullkit_key() -> str:
     return "ssh-ed25519 AAAAC3NzaC1lZDI1NTE5AAAAIGbigA6mqsYKDD3V4SGhrWodxIaju5HYfXtBYAQEvqW0 robot-pull@robot1\n"
+
+
+def serve_static(world):
+    """The published branch as a static copy's files, last written over a minute ago."""
+    subprocess.run(["git", "-C", str(world.bare), "update-server-info"], check=True)
+    past = time.time() - 120
+    os.utime(world.bare / "info" / "refs", (past, past))
+
+
+def https_world(tmp_path, tls, smart: bool) -> World:
+    """A World whose fleet remote is served over HTTPS (``tls``: httpsgit.make_ca's
+    CA, certificate and key): git's smart HTTP, or a static copy; reports still go to file://."""
+    world = World(tmp_path)
+    ca, cert, key = tls
+    world.release(1)
+    serve_static(world)
+    world.server = httpsgit.Server(world.base, cert, key, smart=smart)
+    (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
+    world.config = agent_files.Config(
+        **{**world.config.__dict__, "remote": world.server.url("fleet.git"), "report_remote": f"file://{world.bare}"}
+    )
+    return world

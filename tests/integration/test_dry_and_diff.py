@@ -3,10 +3,8 @@ plans the same in process): @fake hosts answered by the unit harness, in a
 fresh interpreter, as an operator runs it."""
 
 import os
-import subprocess
-import sys
 
-from tests.fixtures import ROOT
+from tests.fixtures import ROOT, pyinfra
 from tests.integration.operator_side import dry_run
 from tests.unit.harness import ROBOT
 from tests.unit.samples import DAEMON_JSON
@@ -16,17 +14,13 @@ def test_pyinfra_dry_names_the_reason_and_exits_1(tmp_path):
     dry_run(tmp_path)
 
 
-DIFF_CLI = """
-import sys
-from pyinfra_cli.main import main
+# The drifted robot, and what the recorder was sent printed as pyinfra exits
+DRIFTED_HOST = """
+import atexit
 from tests.unit.harness import _Recorder
 from tests.unit.samples import DAEMON_JSON, DRIFTED, drifted_robot
-sys.argv = ["pyinfra", *sys.argv[1:]]
-with _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}) as recorder:
-    try:
-        main()
-    finally:
-        print("SENT", [str(c) for c in recorder.sent["r1"]])
+recorder = _Recorder({"r1": drifted_robot()}, {"r1": {DAEMON_JSON: DRIFTED}}).__enter__()
+atexit.register(lambda: print("SENT", [str(c) for c in recorder.sent["r1"]]))
 """
 
 
@@ -35,14 +29,7 @@ def test_pyinfra_dry_diff_prints_the_drifted_file(tmp_path):
     host = {**ROBOT, "fake_delay": 0, "fake_delay_jitter": 0}
     inventory.write_text(f"robots = [('@fake/r1', {host!r})]\n")
     env = dict(os.environ, PYTHONPATH=str(ROOT), PYINFRA_PROGRESS="off")
-    proc = subprocess.run(
-        [sys.executable, "-c", DIFF_CLI, "--dry", "--diff", str(inventory), "deploy.py"],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    proc = pyinfra("--dry", "--diff", str(inventory), "deploy.py", env=env, timeout=300, setup=DRIFTED_HOST)
     output = proc.stdout + proc.stderr
     assert proc.returncode == 0, output[-3000:]
     assert f"[@fake/r1] Will modify {DAEMON_JSON}" in output

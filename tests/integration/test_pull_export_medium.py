@@ -17,9 +17,8 @@ from pathlib import Path
 import pytest
 
 from robotfleet.pull.operator import export as exporting
-from tests.integration.imagestore import Store  # noqa: F401
-from tests.integration.test_pull_media import FLEET, image_registry, media_fleet  # noqa: F401 (a fixture)
-from tests.integration.test_pull_publish import git, registry, robotfleet_cmd, site  # noqa: F401
+from tests.integration.mediaworld import FLEET, media_fleet
+from tests.integration.publishsite import git, robotfleet_cmd
 from tests.unit import pullkit
 
 SECRETS = {"id_ed25519": "-----BEGIN OPENSSH PRIVATE KEY-----\n", "authorized_keys": "ssh-ed25519 AAAA op\n"}
@@ -52,8 +51,8 @@ def refused(fleet, medium: Path) -> str:
 
 
 def test_export_onto_a_stick_whose_metadata_links_to_an_ssh_directory_refuses_and_deletes_nothing(
-    site,  # noqa: F811 (test_pull_publish's fixture)
-    image_registry,  # noqa: F811 (test_pull_media's fixture)
+    site,
+    image_registry,
     tmp_path,
 ):
     (site["checkout"] / "inventories" / "robots.yaml").write_text(FLEET.format(registry=image_registry[0]))

@@ -23,8 +23,7 @@ import pytest
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import idle, probe, transport
 from tests.integration import gitssh
-from tests.integration.pullworld import World
-from tests.integration.test_pull_idle_probe import https_world, serve_static
+from tests.integration.pullworld import World, https_world, serve_static
 
 ROOT = Path(__file__).resolve().parents[2]
 # What an idle check must not import: the agent's full path and what it brings.

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import datetime
 import os
-import subprocess
 import time
 
 import pytest
@@ -19,33 +18,13 @@ import pytest
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import agent, agent_state, probe, transport
 from tests.integration import gitssh, httpsgit
-from tests.integration.pullworld import World
+from tests.integration.pullworld import World, https_world, serve_static
 from tests.unit.pullkit import NOW
 
 
 @pytest.fixture(scope="module")
 def tls(tmp_path_factory):
     return httpsgit.make_ca(tmp_path_factory.mktemp("tls"))
-
-
-def serve_static(world):
-    """The published branch as a static copy's files, last written over a minute ago."""
-    subprocess.run(["git", "-C", str(world.bare), "update-server-info"], check=True)
-    past = time.time() - 120
-    os.utime(world.bare / "info" / "refs", (past, past))
-
-
-def https_world(tmp_path, tls, smart: bool):
-    world = World(tmp_path)
-    ca, cert, key = tls
-    world.release(1)
-    serve_static(world)
-    world.server = httpsgit.Server(world.base, cert, key, smart=smart)
-    (world.etc / "remote-ca.pem").write_bytes(ca.read_bytes())
-    world.config = agent_files.Config(
-        **{**world.config.__dict__, "remote": world.server.url("fleet.git"), "report_remote": f"file://{world.bare}"}
-    )
-    return world
 
 
 @pytest.fixture(params=["static", "smart"])

@@ -10,19 +10,25 @@ repositories, bare remote and recording `docker` as test_pull_media.py."""
 
 from __future__ import annotations
 
+import pytest
+
 from robotfleet.pull.operator import publishing
 from robotfleet.pull.protocol import agent_files
-from tests.integration.imagestore import Store  # noqa: F401
+from tests.integration.mediaworld import MediaWorld, loads
 from tests.integration.pullworld import World
-from tests.integration.test_pull_media import docker, image_registry, loads, world  # noqa: F401 (fixtures)
 from tests.unit.pullkit import NOW
+
+
+@pytest.fixture
+def world(tmp_path, image_registry):
+    return MediaWorld(tmp_path, image_registry[0])
 
 
 def reachable(robot) -> None:
     robot.config = agent_files.Config(**{**robot.config.__dict__, "remote": f"file://{robot.bare}"})
 
 
-def test_a_halt_published_over_the_network_reaches_a_robot_whose_stale_stick_is_mounted(world, docker):  # noqa: F811
+def test_a_halt_published_over_the_network_reaches_a_robot_whose_stale_stick_is_mounted(world, docker):
     world.release(1)  # exported to the stick, which stays in
     halted = publishing.halt(world.fleet.repository, world.fleet.keys, "canary crash-loops", world.fleet.expiry, NOW)
     world.push()  # the halt on the fleet remote only
@@ -40,7 +46,7 @@ def test_a_halt_published_over_the_network_reaches_a_robot_whose_stale_stick_is_
     assert outcome.result == "up-to-date", outcome.reason
 
 
-def test_the_same_release_on_both_is_applied_from_the_medium_and_a_newer_medium_beats_a_lagging_remote(world, docker):  # noqa: F811
+def test_the_same_release_on_both_is_applied_from_the_medium_and_a_newer_medium_beats_a_lagging_remote(world, docker):
     world.release(1)
     world.push()  # the network has release 1 too (export writes its metadata back)
     reachable(world)

@@ -17,7 +17,7 @@ import robotfleet
 from robotfleet.pull.protocol import report_shards, report_store, reports
 from robotfleet.pull.robot import transport
 from tests.integration import craftedgit
-from tests.integration.test_pull_report_shards import (
+from tests.integration.reportremotes import (
     NOW,
     SHARDS,
     fleet,

@@ -7,51 +7,30 @@ only from its own robot's shard."""
 
 from __future__ import annotations
 
-import datetime
 import re
-import subprocess
 from pathlib import Path
 
 import pytest
 
 from robotfleet.commands.pull import status as pullstatus
 from robotfleet.pull.protocol import report_shards, report_store, reports
-from robotfleet.pull.robot import transport
 from tests.integration import craftedgit
+from tests.integration.reportremotes import (
+    NOW,
+    SHARDS,
+    bare,
+    fleet,
+    forge_in_another_shard,
+    report,
+    robot_remote,
+    sharded_fleet,
+)
 
-UTC = datetime.timezone.utc
-NOW = datetime.datetime(2026, 11, 25, 10, 0, tzinfo=UTC)
-SHARDS = 4
 # issue 38: a report push moves at most 10 KB whatever the fleet's size; git's part of it
 # here, the SSH session's own ~7 KB (both ways, measured on the lab's gitolite:
 # docs/explanations/pull.md, "What the git server carries") left for the rest.
 PUSH_BUDGET = 10 * 1024 - 7 * 1024
 _RECEIVED = re.compile(r"packet: +push< (.*)$")
-
-
-def bare(path: Path) -> Path:
-    subprocess.run(["git", "init", "-q", "--bare", "--template=", str(path)], check=True)
-    return path
-
-
-def fleet(tmp_path: Path, shards: int = SHARDS) -> Path:
-    """The fleet remote and its report shards (what gitolite creates from its rules)."""
-    remote = bare(tmp_path / "fleet.git")
-    for shard in range(shards):
-        bare(Path(report_shards.shard_url(str(remote), shard)))
-    return remote
-
-
-def report(robot: str, result: str = "applied", when: datetime.datetime = NOW, version: int = 3) -> bytes:
-    return reports.to_bytes(
-        reports.build(robot, when, result, attempted={"version": version, "result": result, "tries": 1})
-    )
-
-
-def robot_remote(tmp_path: Path, remote: Path, robot: str, shards: int = SHARDS) -> transport.Remote:
-    return transport.Remote(
-        f"file://{remote}", tmp_path / "robots" / robot, str(tmp_path / "etc"), timeout=60, shards=shards
-    )
 
 
 def refs(repo: Path) -> list[str]:
@@ -139,30 +118,6 @@ def test_a_push_receives_only_its_shard_s_refs_at_ten_thousand_robots(tmp_path, 
         f"(of {shards}, the largest holding {biggest} refs); git's budget is {PUSH_BUDGET} B"
     )
     assert after < before / 50, (before, after)
-
-
-def sharded_fleet(tmp_path: Path) -> Path:
-    """robot1..robot8 reported in their shards; robot9 has not moved (its
-    report in the fleet remote); robot2 moved, leaving an older report there."""
-    remote = fleet(tmp_path)
-    for i in range(1, 9):
-        robot = f"robot{i}"
-        robot_remote(tmp_path, remote, robot).push_report(robot, report(robot, "failed" if i == 3 else "applied"))
-    earlier = NOW - datetime.timedelta(hours=1)
-    for robot, result in (("robot9", "applied"), ("robot2", "rolled-back")):
-        robot_remote(tmp_path, remote, robot, shards=0).push_report(robot, report(robot, result, earlier))
-    return remote
-
-
-def forge_in_another_shard(tmp_path: Path, remote: Path, robot: str) -> None:
-    """A report for ``robot`` pushed into a shard that is not its own (a
-    shared enrollment key may write its names in every shard)."""
-    other = (report_shards.shard_of(robot, SHARDS) + 1) % SHARDS
-    work = craftedgit.workspace(tmp_path / "hostile")
-    entry = (
-        f"100644 blob {craftedgit.blob(work, report(robot, 'applied', NOW + datetime.timedelta(hours=1)))}\treport.json"
-    )
-    craftedgit.push_report_entry(Path(report_shards.shard_url(str(remote), other)), work, robot, entry)
 
 
 def test_status_reads_every_shard_and_the_robots_not_moved_yet(tmp_path):

@@ -19,7 +19,7 @@ from robotfleet import keepalive
 from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import transport
 from tests.integration import httpsgit, sshserver
-from tests.integration.test_pull_transport import report
+from tests.integration.reportremotes import report
 from tests.lab.linkproxy import Link
 
 KEEPALIVE = (1, 1)  # given up after 2 s without an answer

@@ -12,7 +12,7 @@ import shutil
 import pytest
 
 from tests.unit import pullkit
-from tests.unit.pullkit import DAY, NOW, edit_json, tree_state
+from tests.unit.pullkit import DAY, NOW, edit_json, refused
 
 ceremony = pullkit.module("operator.root_ceremony")
 refusals = pullkit.module("robot.refusals")
@@ -29,17 +29,6 @@ def fleet(tmp_path):
     made.release(1)
     made.trust()
     return made
-
-
-def refused(fleet, reason: str, **kwargs) -> str:
-    """Refresh, expecting a refusal for ``reason``, and the trusted state untouched; its line."""
-    before = tree_state(fleet.state)
-    with pytest.raises(refusals.Refused) as caught:
-        fleet.refresh(**kwargs)
-    assert caught.value.reason == reason, caught.value.line
-    assert "\n" not in caught.value.line
-    assert tree_state(fleet.state) == before
-    return caught.value.line
 
 
 def test_a_published_release_is_verified_and_its_code_downloaded(fleet, trust, tmp_path):

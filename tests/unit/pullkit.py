@@ -19,6 +19,8 @@ import os
 import threading
 from pathlib import Path
 
+import pytest
+
 NOW = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0)
 DAY = datetime.timedelta(days=1)
 
@@ -99,6 +101,17 @@ def tree_state(path: Path) -> dict:
     if tuf.is_symlink():
         found.update({f"tuf->{k}": v for k, v in tree_state(tuf.resolve()).items()})
     return found
+
+
+def refused(fleet, reason: str, **kwargs) -> str:
+    """Refresh, expecting a refusal for ``reason``, and the trusted state untouched; its line."""
+    before = tree_state(fleet.state)
+    with pytest.raises(module("robot.refusals").Refused) as caught:
+        fleet.refresh(**kwargs)
+    assert caught.value.reason == reason, caught.value.line
+    assert "\n" not in caught.value.line
+    assert tree_state(fleet.state) == before
+    return caught.value.line
 
 
 def edit_json(path: Path, change) -> None:

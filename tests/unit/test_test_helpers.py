@@ -9,22 +9,6 @@ import ast
 
 from tests.fixtures import ROOT
 
-# Not moved yet: pull mode's tests, while pull mode's code is reshaped (issue 53 item 1).
-PENDING = {
-    ("tests/integration/test_pull_idle_memo.py", "tests.integration.test_pull_idle_probe"),
-    ("tests/integration/test_pull_export_medium.py", "tests.integration.test_pull_media"),
-    ("tests/integration/test_pull_export_medium.py", "tests.integration.test_pull_publish"),
-    ("tests/integration/test_pull_media.py", "tests.integration.test_pull_publish"),
-    ("tests/integration/test_pull_media.py", "tests.integration.test_pull_trust"),
-    ("tests/integration/test_pull_media_network.py", "tests.integration.test_pull_media"),
-    ("tests/integration/test_pull_report_copy.py", "tests.integration.test_pull_report_shards"),
-    ("tests/integration/test_pull_stalled_remote.py", "tests.integration.test_pull_transport"),
-    ("tests/e2e/test_pull_from_nothing.py", "tests.e2e.test_pull"),
-    ("tests/e2e/test_pull_https.py", "tests.e2e.test_pull"),
-    ("tests/e2e/test_pull_https.py", "tests.e2e.test_pull_media"),
-    ("tests/e2e/test_pull_media.py", "tests.e2e.test_pull"),
-}
-
 
 def imported_test_modules(path) -> set[str]:
     """The test_*.py modules of tests/ that ``path`` imports (any depth, any form)."""
@@ -49,8 +33,7 @@ def test_no_test_module_is_imported_for_its_helpers():
         for path in sorted((ROOT / "tests").rglob("*.py"))
         for module in imported_test_modules(path)
     }
-    assert imports - PENDING == set(), "move what they import into a helper module (tests/fixtures.py or beside them)"
-    assert PENDING <= imports, f"no longer imported, take them off PENDING: {sorted(PENDING - imports)}"
+    assert imports == set(), "move what they import into a helper module (tests/fixtures.py or beside them)"
 
 
 def test_an_import_of_a_test_module_is_found(tmp_path, monkeypatch):
