@@ -33,9 +33,9 @@ def lab_vars(**more) -> dict:
     return {**graph, **more}
 
 
-def with_recorder(graph: dict) -> dict:
+def with_recorder(graph: dict, registry: str = "@registry@/") -> dict:
     """``graph``'s vars with the guide's recorder (section "Recording bags") added."""
-    recorder = guide_vars(marker=RECORDER_MARKER)
+    recorder = guide_vars(registry, RECORDER_MARKER)
     services = {**graph["payload_services"], **recorder.pop("payload_services")}
     return {**graph, **recorder, "payload_services": services}
 

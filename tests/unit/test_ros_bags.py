@@ -53,3 +53,13 @@ def test_bad_bag_settings_get_one_line():
     assert fleet_problems(host_with(**ros, ros_bag_dir="/var/lib/ros-bags", ros_bag_max_mb=5)) == [
         "robots.yaml: robot3.ros_bag_max_mb: expected at least 10, got 5"
     ]
+
+
+def test_the_guide_s_recorder_is_accepted_and_writes_to_the_bag_directory():
+    from tests.lab.ros_graph import guide_vars, with_recorder  # what tests/e2e/test_ros.py deploys on robot2
+
+    graph = with_recorder(guide_vars("reg.example.com/"), "reg.example.com/")
+    assert fleet_problems({"robots": {"vars": graph, "hosts": {"robot3": {"address": "10.0.0.3"}}}}) == []
+    recorder = rendered(graph)["services"]["recorder"]
+    assert recorder["command"][:4] == ["rosbag", "record", "-o", "/bags/chatter"] and "--split" in recorder["command"]
+    assert "/var/lib/ros-bags:/bags" in recorder["volumes"] and recorder["stop_signal"] == "SIGINT"
