@@ -81,8 +81,9 @@ def preset(data, address: str, files_dir: Path = FILES_DIR) -> dict:
     kind = value_of(data, "ros_preset")
     result: dict = {"environment": {}, "drop": [], "keys": {}, "volumes": [], "labels": {}, "extra": {}}
     if kind in ("ros1", "ros2"):
-        # roslaunch and ros2 launch shut their nodes down cleanly on SIGINT
-        # (Ctrl-C); on Docker's SIGTERM they are killed when the grace ends.
+        # roslaunch and ros2 launch shut their nodes down cleanly on SIGINT (Ctrl-C), what
+        # they are written for; a process that handles only SIGINT is killed at the grace's end
+        # on Docker's SIGTERM (roslaunch 1.16 handles both: tests/bench/roslaunch_stop.py).
         result["keys"]["stop_signal"] = "SIGINT"
         # Logs outlive the containers, on the host, kept under ros_log_max_mb (ros_logs.py).
         result["environment"]["ROS_LOG_DIR"] = CONTAINER_LOG_DIR
