@@ -36,6 +36,19 @@ def shown_default(value) -> str:
     return "`" + json.dumps(value, sort_keys=True).replace("|", "\\|") + "`"
 
 
+TABLE_ROWS = 40  # a longer table is split by the settings' first word (payload_, ros_), so a screen has a heading
+
+
+def tables(settings) -> list[tuple[str | None, list]]:
+    """(heading, settings) of one part's tables: one without a heading, or one per first word of the names."""
+    by_word: dict[str, list] = {}
+    for setting in settings:
+        by_word.setdefault(setting.name.split("_", 1)[0], []).append(setting)
+    if len(settings) <= TABLE_ROWS or len(by_word) == 1:
+        return [(None, list(settings))]
+    return [(f"`{word}_...`", members) for word, members in by_word.items()]
+
+
 def settings_doc(registry: Registry) -> str:
     """docs/reference/settings.md: a table per part (the engine's own, then each role)."""
     lines = [
@@ -56,12 +69,14 @@ def settings_doc(registry: Registry) -> str:
         (f"{role.name}: {role.doc}", f"roles/{role.name}/", role.settings) for role in registry.roles if role.settings
     ]
     for title, where, settings in parts:
-        lines += [f"## {title}", "", f"Declared in `{where}`.", "", "| setting | default | what |", "|---|---|---|"]
-        for setting in settings:
-            default = "(pyinfra's)" if setting.default is UNSET else shown_default(setting.default)
-            groups = "".join(f"; {group}: {shown_default(value)}" for group, value in setting.groups.items())
-            lines.append(f"| `{setting.name}` | {default}{groups} | {setting.doc} |")
-        lines.append("")
+        lines += [f"## {title}", "", f"Declared in `{where}`.", ""]
+        for heading, members in tables(settings):
+            lines += ([f"### {heading}", ""] if heading else []) + ["| setting | default | what |", "|---|---|---|"]
+            for setting in members:
+                default = "(pyinfra's)" if setting.default is UNSET else shown_default(setting.default)
+                groups = "".join(f"; {group}: {shown_default(value)}" for group, value in setting.groups.items())
+                lines.append(f"| `{setting.name}` | {default}{groups} | {setting.doc} |")
+            lines.append("")
     if registry.renamed:
         lines += [
             "## Renamed settings",

@@ -16,6 +16,7 @@ DDS_DIR = "dds"
 CONTAINER_DDS_DIR = "/etc/ros/dds"
 PROFILE_LABEL = "io.robot-fleet.dds-profile"
 CONTAINER_LOG_DIR = "/var/log/ros"
+CONTAINER_BAG_DIR = "/bags"
 
 
 def dds_vendor(xml_text: str) -> str | None:
@@ -80,12 +81,16 @@ def preset(data, address: str, files_dir: Path = FILES_DIR) -> dict:
     kind = value_of(data, "ros_preset")
     result: dict = {"environment": {}, "drop": [], "keys": {}, "volumes": [], "labels": {}, "extra": {}}
     if kind in ("ros1", "ros2"):
-        # roslaunch and ros2 launch shut their nodes down cleanly on SIGINT
-        # (Ctrl-C); on Docker's SIGTERM they are killed when the grace ends.
+        # roslaunch and ros2 launch shut their nodes down cleanly on SIGINT (Ctrl-C), what
+        # they are written for; a process that handles only SIGINT is killed at the grace's end
+        # on Docker's SIGTERM (roslaunch 1.16 handles both: tests/bench/roslaunch_stop.py).
         result["keys"]["stop_signal"] = "SIGINT"
         # Logs outlive the containers, on the host, kept under ros_log_max_mb (ros_logs.py).
         result["environment"]["ROS_LOG_DIR"] = CONTAINER_LOG_DIR
         result["volumes"].append(f"{value_of(data, 'ros_log_dir')}:{CONTAINER_LOG_DIR}")
+        # Bags (rosbag record -o /bags/...) outlive the containers the same way, kept under ros_bag_max_mb.
+        if value_of(data, "ros_bag_dir"):
+            result["volumes"].append(f"{value_of(data, 'ros_bag_dir')}:{CONTAINER_BAG_DIR}")
     if kind == "ros1":
         roscore = bool(value_of(data, "ros_roscore"))
         host_network = value_of(data, "payload_network_mode") == "host"

@@ -310,6 +310,11 @@ def _preset_problems(data, allow_latest: bool) -> list[tuple[str, str]]:
         problems.append(("ros_master_uri", "required with ros_preset: ros1 unless ros_roscore is true"))
     if value_of(data, "ros_roscore") and kind != "ros1":
         problems.append(("ros_roscore", "needs ros_preset: ros1"))
+    bags = value_of(data, "ros_bag_dir")
+    if bags and kind not in ("ros1", "ros2"):
+        problems.append(("ros_bag_dir", "needs ros_preset: ros1 or ros2"))
+    elif bags and bags.rstrip("/") == (value_of(data, "ros_log_dir") or "").rstrip("/"):
+        problems.append(("ros_bag_dir", "is ros_log_dir: give the bags a directory of their own"))
     profile = value_of(data, "ros_dds_profile")
     if profile:
         if kind != "ros2":

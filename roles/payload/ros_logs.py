@@ -2,7 +2,9 @@
 ``ros_log_dir`` on the host (presets.py mounts it, ROS_LOG_DIR), which no
 release or rollback touches, and a timer keeps it under ``ros_log_max_mb``,
 the oldest files going first (payloadctl prune-logs).  roslaunch only warns
-when its logs pass 1 GB; months of a robot's runs would fill its disk."""
+when its logs pass 1 GB; months of a robot's runs would fill its disk.
+``ros_bag_dir`` (mounted at /bags, for ``rosbag record``) is kept the same
+way under ``ros_bag_max_mb`` by the same timer."""
 
 from __future__ import annotations
 
@@ -29,18 +31,27 @@ def unit_paths(data) -> tuple[str, str]:
     return tuple(f"/etc/systemd/system/{unit_name(data)}.{kind}" for kind in ("service", "timer"))
 
 
+def bounded(data) -> list[tuple[str, int]]:
+    """(directory, MB) the timer keeps: the logs, and the bags where ros_bag_dir is set."""
+    found = [(data.ros_log_dir, data.ros_log_max_mb)]
+    return found + [(data.ros_bag_dir, data.ros_bag_max_mb)] if data.ros_bag_dir else found
+
+
 def service_text(data) -> str:
-    command = shlex.join(
-        [installed_files.HELPER, "prune-logs", "--dir", data.ros_log_dir, "--max-mb", str(data.ros_log_max_mb)]
+    starts = "".join(
+        "ExecStart=/usr/bin/python3 "
+        + shlex.join([installed_files.HELPER, "prune-logs", "--dir", directory, "--max-mb", str(mb)])
+        + "\n"
+        for directory, mb in bounded(data)
     )
+    bags = f" and the bags in {data.ros_bag_dir} under {data.ros_bag_max_mb} MB" if data.ros_bag_dir else ""
     return f"""# Managed by the robot fleet provisioner (roles/payload).
 [Unit]
-Description=Keep the ROS logs in {data.ros_log_dir} under {data.ros_log_max_mb} MB (oldest first)
+Description=Keep the ROS logs in {data.ros_log_dir} under {data.ros_log_max_mb} MB{bags} (oldest first)
 
 [Service]
 Type=oneshot
-ExecStart=/usr/bin/python3 {command}
-Nice=19
+{starts}Nice=19
 IOSchedulingClass=idle
 """
 
@@ -63,7 +74,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= set(unit_paths(data))
     query.units.add(f"{unit_name(data)}.timer")
     if enabled(data):
-        query.files.add(data.ros_log_dir)
+        query.files |= {directory for directory, _ in bounded(data)}
 
 
 def install(data, snap: Snapshot) -> None:
@@ -78,9 +89,10 @@ def install(data, snap: Snapshot) -> None:
             _if=removed.did_change,
         )
         return
-    operations.directory(
-        name=f"ROS logs directory {data.ros_log_dir}", path=data.ros_log_dir, current=snap.files.get(data.ros_log_dir)
-    )
+    for (directory, _), what in zip(bounded(data), ("logs", "bags")):
+        operations.directory(
+            name=f"ROS {what} directory {directory}", path=directory, current=snap.files.get(directory)
+        )
     written = [
         operations.file(name=f"Write {path.rsplit('/', 1)[1]}", path=path, content=text, current=snap.files.get(path))
         for path, text in ((service_path, service_text(data)), (timer_path, timer_text(data)))

@@ -323,6 +323,8 @@ SETTINGS = (
         "ROS 1 with ros_roscore: what a healthy release publishes (nodes, topics: {/chatter: 2 Hz}, services).",
     ),
     Setting("ros_log_max_mb", 500, c.integer(10), "ROS presets: the logs' size; the oldest files go, every 10 min."),
+    Setting("ros_bag_dir", None, c.optional(v.private_path), "ROS presets: host directory at /bags in every service."),
+    Setting("ros_bag_max_mb", 2000, c.integer(10), "ROS presets: ros_bag_dir's size; the oldest files go first."),
     Setting(
         "ros_dds_profile",
         None,

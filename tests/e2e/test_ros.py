@@ -6,8 +6,11 @@ network: roscore, a talker and a listener, each its own service, with
 from inside: every node in `rosnode list`, the listener hearing the talker,
 ROS_MASTER_URI and ROS_HOSTNAME as roles/payload/README.md says, the graph
 back after the payload's unit restarts (what a boot runs), the ROS logs on
-the host and kept under ros_log_max_mb.  At its end both robots go back to
-the lab's fleet file (the heartbeat payload) for the group's later modules."""
+the host and kept under ros_log_max_mb; on robot2 the guide's bag
+recorder (section 6), its bags kept across an update (every container
+recreated) that records new ones, and bounded by ros_bag_max_mb.  At its
+end both robots go back to the lab's fleet file (the heartbeat payload) for
+the group's later modules; robot2's bags stay."""
 
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ HOST_NET, BRIDGE = "robot2", "robot3"
 ROBOTS = (HOST_NET, BRIDGE)
 PROJECT = "robot-payload"
 NODES = ("/rosout", "/talker", "/listener")
+BAGS = "/var/lib/ros-bags"
 
 
 def container(service: str) -> str:
@@ -39,18 +43,31 @@ def graph(lab, first_run, tmp_path_factory):
         BACKGROUND["ROS image"].wait()
     ros_images.ensure(lab.state)
     # The guide's graph on robot2 and robot3 only (the lab's other hosts keep theirs); robot3 on a bridge,
-    # robot2's logs kept under 10 MB so that the test can pass the bound.
+    # robot2 with the guide's recorder, its logs and bags kept under 10 MB so that the test can pass the bounds.
     fleet = tmp_path_factory.mktemp("ros") / "lab.yaml"
-    fleet.write_text(
-        ros_graph.lab_fleet({HOST_NET: {"ros_log_max_mb": 10}, BRIDGE: {"payload_network_mode": "bridge"}})
-    )
+    fleet.write_text(ros_graph.lab_fleet({HOST_NET: recording(), BRIDGE: {"payload_network_mode": "bridge"}}))
     run = lab.provision(*limits(), fleet=fleet, label="(the ROS graph, first release)")
     yield run
+    kept = lab.sh(HOST_NET, f"ls {BAGS}")[1].split()  # none if the release failed: the restore runs all the same
     restored = lab.provision(*limits(), label="(robot2, robot3 back to the lab's fleet file)")
     assert restored.returncode == 0, restored.output[-4000:]
     for robot in ROBOTS:
         assert lab.version(robot) == "1.0"
         assert lab.sh(robot, "systemctl is-enabled robot-payload-ros-logs.timer")[1].strip() != "enabled"
+    # An update to a release without ROS: the bags stay, the one being written closed by the recorder's stop.
+    if kept:
+        assert bags(lab) == sorted(name.removesuffix(".active") for name in kept), (kept, bags(lab))
+
+
+def recording(**more) -> dict:
+    """robot2's vars: the guide's graph and recorder, the logs and the bags bounded at 10 MB."""
+    from tests.lab import ros_graph
+
+    return {**ros_graph.with_recorder(ros_graph.lab_vars()), "ros_log_max_mb": 10, "ros_bag_max_mb": 10, **more}
+
+
+def bags(lab, robot: str = HOST_NET) -> list[str]:
+    return sorted(lab.ok(robot, f"ls {BAGS}").split())  # the guide's command
 
 
 def hears(lab, robot: str) -> bool:
@@ -107,3 +124,32 @@ def test_ros_logs_land_on_the_host_and_stay_bounded(lab, graph):
     lab.ok(robot, "touch -d '2026-01-01' /var/log/ros/old-run/old.log && systemctl start robot-payload-ros-logs")
     assert lab.sh(robot, "test -e /var/log/ros/old-run")[0] != 0
     assert lab.ok(robot, "test -s /var/log/ros/talker.log && echo kept").strip() == "kept"
+
+
+def test_bags_recorded_before_an_update_are_kept_and_its_recorder_records_new_ones(lab, graph, tmp_path):
+    from tests.lab import ros_graph
+
+    before = bags(lab)
+    assert any(name.endswith(".bag.active") for name in before), before
+    # An update: an environment every service gets, so every container is recreated (the recorder's too).
+    fleet = tmp_path / "lab.yaml"
+    fleet.write_text(ros_graph.lab_fleet({HOST_NET: recording(payload_environment={"RELEASE": "2"})}))
+    run = lab.provision("--limit", HOST_NET, fleet=fleet, label="(robot2: an update of the graph)")
+    assert run.returncode == 0, run.output[-4000:]
+    after = bags(lab)
+    # Every bag from before is there, the one being written then closed by the recorder's stop (SIGINT) ...
+    closed = sorted(name.removesuffix(".active") for name in before)
+    assert set(closed) <= set(after) and all(name.endswith(".bag") for name in closed), (before, after)
+    info = lab.ok(HOST_NET, f"docker exec {container('recorder')} rosbag info /bags/{closed[-1]}")
+    assert "/chatter" in info and "std_msgs/String" in info and "messages:" in info, info
+    # ... and the new release's recorder writes a bag of its own, subscribed to /chatter.
+    new = [name for name in after if name not in before and name.endswith(".bag.active")]
+    assert len(new) == 1, (before, after)
+    subscribers = lab.ok(HOST_NET, f"docker exec {container('roscore')} rostopic info /chatter").split("Subscribers:")[
+        1
+    ]
+    assert "/record_" in subscribers, subscribers
+    # An old recording of 12 MB: over ros_bag_max_mb (10), the timer's service removes it, the bags above stay.
+    lab.ok(HOST_NET, f"head -c 12M /dev/zero > {BAGS}/old_0.bag && touch -d '2026-01-01' {BAGS}/old_0.bag")
+    lab.ok(HOST_NET, "systemctl start robot-payload-ros-logs")
+    assert bags(lab) == after, bags(lab)

@@ -8,7 +8,9 @@ and the rate it saw.  The probe on real ROS in detail (healthy, a
 misspelled topic, a slow one; the bridge network):
 tests/e2e/test_ros_graph_probe.py; the guide's graph passing the gate on
 the host's network and on a bridge: tests/e2e/test_ros.py's first release
-(the guide's block asks for it).  Two deploys of one robot: the silent
+(the guide's block asks for it).  The release records bags too (the
+guide's recorder, docs/guides/ros-payload.md section 6): the rollback keeps
+the one it wrote, closed by its stop, and every bag from before it.  Two deploys of one robot: the silent
 release, then the lab's fleet file again (the ROS preset's log timer goes)."""
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ pytestmark = pytest.mark.e2e
 
 ROBOT = "robot2"
 SILENT = ["rostopic", "pub", "/chatter", "std_msgs/String", "data: hi", "__name:=talker"]
+BAGS = "/var/lib/ros-bags"
 HEALTH = {"nodes": ["/talker", "/listener"], "topics": {"/chatter": "2 Hz"}}
 
 
@@ -31,10 +34,11 @@ def test_a_release_whose_topic_is_silent_is_rolled_back_with_the_rate_it_saw(lab
         BACKGROUND["ROS image"].wait()
     ros_images.ensure(lab.state)
     before = lab.record(ROBOT)["id"]
-    services = ros_graph.lab_vars()["payload_services"]
-    services["talker"]["command"] = SILENT
+    graph = ros_graph.with_recorder(ros_graph.lab_vars())
+    graph["payload_services"]["talker"]["command"] = SILENT
     # The graph check looks again until payload_health_timeout runs out: short, for a silent topic.
-    more = {"payload_services": services, "ros_health": HEALTH, "payload_health_timeout": 20}
+    more = {**graph, "ros_health": HEALTH, "payload_health_timeout": 20}
+    bags_before = set(lab.sh(ROBOT, f"ls {BAGS}")[1].split())  # test_ros.py's, when it ran before
     fleet = tmp_path / "lab.yaml"
     fleet.write_text(ros_graph.lab_fleet({ROBOT: more}))
     run = lab.provision("--limit", ROBOT, fleet=fleet, label="(robot2: the graph, its topic silent)")
@@ -50,6 +54,11 @@ def test_a_release_whose_topic_is_silent_is_rolled_back_with_the_rate_it_saw(lab
             and failed["reason"] == "ROS graph is not healthy (ros_health): /chatter: 0.0 Hz, 2 Hz required"
         )
         assert lab.version(ROBOT) == "1.0"  # the lab's heartbeat payload runs again
+        # The bags from before are kept, and so is the one the rolled-back release recorded, closed by its stop.
+        bags_after = set(lab.ok(ROBOT, f"ls {BAGS}").split())
+        assert bags_before <= bags_after, (bags_before, bags_after)
+        recorded = bags_after - bags_before
+        assert len(recorded) == 1 and next(iter(recorded)).endswith(".bag"), recorded
     finally:
         restored = lab.provision("--limit", ROBOT, label="(robot2 back to the lab's fleet file)")
         assert restored.returncode == 0, restored.output[-4000:]

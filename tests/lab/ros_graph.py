@@ -13,14 +13,15 @@ import yaml
 ROOT = Path(__file__).resolve().parents[2]
 GUIDE = ROOT / "docs" / "guides" / "ros-payload.md"
 GUIDE_MARKER = "<!-- the ROS graph test_ros.py deploys -->"
+RECORDER_MARKER = "<!-- the recorder test_ros.py adds -->"
 GUIDE_REGISTRY = "registry.example.com/"
 LAB_FLEET = ROOT / "inventories" / "lab.yaml"
 
 
-def guide_vars(registry: str = "@registry@/") -> dict:
-    """The guide's group vars for the graph, its images in ``registry``."""
+def guide_vars(registry: str = "@registry@/", marker: str = GUIDE_MARKER) -> dict:
+    """The guide's group vars for the graph (or the block after ``marker``), its images in ``registry``."""
     text = GUIDE.read_text()
-    block = text[text.index(GUIDE_MARKER) :].split("```yaml\n", 1)[1].split("```", 1)[0]
+    block = text[text.index(marker) :].split("```yaml\n", 1)[1].split("```", 1)[0]
     found = yaml.safe_load(block)["robots"]["vars"]
     return json.loads(json.dumps(found).replace(GUIDE_REGISTRY, registry))
 
@@ -30,6 +31,13 @@ def lab_vars(**more) -> dict:
     graph = guide_vars()
     graph["payload_services"]["talker"]["devices"] = []
     return {**graph, **more}
+
+
+def with_recorder(graph: dict, registry: str = "@registry@/") -> dict:
+    """``graph``'s vars with the guide's recorder (section "Recording bags") added."""
+    recorder = guide_vars(registry, RECORDER_MARKER)
+    services = {**graph["payload_services"], **recorder.pop("payload_services")}
+    return {**graph, **recorder, "payload_services": services}
 
 
 def indented(mapping: dict, spaces: int) -> str:

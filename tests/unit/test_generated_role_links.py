@@ -41,3 +41,17 @@ def test_the_links_are_written_between_the_markers_only(tmp_path, monkeypatch):
     page.write_text("# Page\n")
     with pytest.raises(SystemExit, match="docs/page.md: no lines"):
         generate.between_markers(page, ["a"])
+
+
+def test_a_long_settings_table_splits_by_the_settings_first_word():
+    from types import SimpleNamespace as S
+
+    short = [S(name=f"payload_{i}") for i in range(3)] + [S(name="ros_x")]
+    assert generate.tables(short) == [(None, short)]
+    long = [S(name=f"payload_{i}") for i in range(generate.TABLE_ROWS)] + [S(name="ros_x")]
+    assert [(heading, len(members)) for heading, members in generate.tables(long)] == [
+        ("`payload_...`", generate.TABLE_ROWS),
+        ("`ros_...`", 1),
+    ]
+    one_word = [S(name=f"payload_{i}") for i in range(generate.TABLE_ROWS + 1)]
+    assert generate.tables(one_word) == [(None, one_word)]

@@ -37,7 +37,9 @@ def test_a_fresh_robot_gets_the_directory_and_the_timer_and_a_converged_one_noth
 
 
 def test_the_timer_prunes_with_the_size_set():
-    text = ros_logs.service_text(type("D", (), {"ros_log_dir": "/var/log/ros", "ros_log_max_mb": 64})())
+    text = ros_logs.service_text(
+        type("D", (), {"ros_log_dir": "/var/log/ros", "ros_log_max_mb": 64, "ros_bag_dir": None})()
+    )
     assert "payloadctl prune-logs --dir /var/log/ros --max-mb 64" in text
     args = cli.parser().parse_args(["prune-logs", "--dir", "/var/log/ros", "--max-mb", "64"])
     assert (args.func, args.dir, args.max_mb) == (cli.cmd_prune_logs, "/var/log/ros", 64)

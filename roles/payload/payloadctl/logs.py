@@ -51,8 +51,8 @@ def main(directory, max_mb):
     removed, freed = prune(directory, max_mb * 1024 * 1024)
     if removed:
         print(
-            "payload: ROS logs over {} MB in {}: removed the {} oldest files ({:.1f} MB)".format(
-                max_mb, directory, removed, freed / 1048576
+            "payload: {} over {} MB: removed the {} oldest files ({:.1f} MB)".format(
+                directory, max_mb, removed, freed / 1048576
             )
         )
     return 0
