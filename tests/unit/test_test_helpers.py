@@ -11,7 +11,6 @@ from tests.fixtures import ROOT
 
 # Not moved yet: pull mode's tests, while pull mode's code is reshaped (issue 53 item 1).
 PENDING = {
-    ("tests/integration/test_pull_idle_memo.py", "tests.integration.test_pull_idle_probe"),
     ("tests/integration/test_pull_export_medium.py", "tests.integration.test_pull_media"),
     ("tests/integration/test_pull_export_medium.py", "tests.integration.test_pull_publish"),
     ("tests/integration/test_pull_media.py", "tests.integration.test_pull_publish"),
