@@ -19,13 +19,13 @@ install .``) has no roles and no deploy.py, and refuses with one line.
 
 import os
 import sys
+from pathlib import Path
 
 __version__ = "0.4.0"
 
-# The checkout's directory, as text; CHECKOUT is the same as a Path, made
-# when first asked for (module __getattr__): a pull robot's idle check
-# imports this package and should not pay for pathlib.
+# The checkout's directory, as text and as a Path.
 CHECKOUT_DIR = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
+CHECKOUT = Path(CHECKOUT_DIR)
 NOT_A_CHECKOUT = (
     f"robotfleet: {os.path.dirname(os.path.realpath(__file__))} is not in a checkout of the robot fleet provisioner "
     "(no deploy.py beside it); it runs from its checkout: in the checkout, "
@@ -38,12 +38,3 @@ if not os.path.isfile(os.path.join(CHECKOUT_DIR, "deploy.py")):
 
 if CHECKOUT_DIR not in sys.path[:1]:
     sys.path.insert(0, CHECKOUT_DIR)
-
-
-def __getattr__(name: str):
-    if name == "CHECKOUT":
-        from pathlib import Path
-
-        globals()["CHECKOUT"] = found = Path(CHECKOUT_DIR)
-        return found
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

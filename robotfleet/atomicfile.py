@@ -9,8 +9,8 @@ from __future__ import annotations
 import io
 import os
 
-# tempfile's mkstemp, without its import (tempfile brings shutil, random and
-# their own; a pull robot's idle check writes a file with nothing else of them).
+# tempfile's mkstemp, with a name robotfleet/pull/operator/medium.py's TEMP_NAME knows
+# (what an interrupted write left on a medium).
 _CREATE = os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
 
 

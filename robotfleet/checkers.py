@@ -294,7 +294,7 @@ HEX4 = r"[0-9a-fA-F]{4}"
 
 
 def did_you_mean(key: str, known) -> str:
-    import difflib  # for a misspelt key only: not at every import (the pull agent's idle check)
+    import difflib  # for a misspelt key only
 
     close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""

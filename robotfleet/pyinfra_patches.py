@@ -1,8 +1,8 @@
 """Some of pyinfra's per-operation and per-host steps, same answers, less work.
 
 Profiling a converged rerun of ten robots (tests/bench/PROFILE.md) found a
-third of the operator's CPU in two pyinfra functions called for every
-operation of every host, both recomputing what cannot change:
+third of the operator's CPU in a pyinfra function called for every
+operation of every host, recomputing what cannot change:
 
 - ``get_operation_order_from_stack`` (the CLI orders operations by the line
   numbers of their call stack) takes ``inspect.stack()``, which reads a line
@@ -11,8 +11,6 @@ operation of every host, both recomputing what cannot change:
   ``getframeinfo(frame, context=0)`` gives the same file name and line
   number without reading any source; both follow from the frame's code and
   the instruction it is at, so each place is looked up once.
-- ``all_global_arguments`` evaluates ``typing.get_type_hints`` of a
-  TypedDict on each call; the answer is fixed once pyinfra is imported.
 
 More are per host, found at a thousand hosts (tests/bench/SCALE.md):
 
@@ -21,7 +19,9 @@ More are per host, found at a thousand hosts (tests/bench/SCALE.md):
   ``@connector/...`` (every host of ours): the entry points are read once.
 - ``pop_global_arguments`` looks each of its ~40 operation arguments up in
   the host's data one by one, for every operation of every host, most of
-  them absent from every layer: the layers are read once for all of them.
+  them absent from every layer: the layers are read once for all of them
+  (and ``all_global_arguments``, which evaluates ``typing.get_type_hints``
+  of a TypedDict, asked once).
 
 One more per operation of every host: ``_wrap_operation`` checks an
 operation's arguments with ``inspect.signature(func).bind(...)``, building
@@ -65,9 +65,6 @@ SPEEDUPS = {
     "order": Speedup(
         ("pyinfra.api.operation:get_operation_order_from_stack",),
         ("pyinfra.api.operation:get_operation_order_from_stack",),
-    ),
-    "arguments": Speedup(
-        ("pyinfra.api.arguments:all_global_arguments",), ("pyinfra.api.arguments:all_global_arguments",)
     ),
     # importlib's entry_points, as get_all_connectors calls it: the caller is what it was written for.
     "connectors": Speedup(("pyinfra.api.connectors:entry_points",), ("pyinfra.api.connectors:get_all_connectors",)),
@@ -138,12 +135,7 @@ def _place(frame) -> tuple[str, int]:
 
 @functools.lru_cache(maxsize=1)
 def _global_arguments() -> tuple:
-    return tuple(original("arguments")())
-
-
-def all_global_arguments() -> list:
-    """pyinfra.api.arguments.all_global_arguments, evaluated once."""
-    return list(_global_arguments())
+    return tuple(arguments.all_global_arguments())
 
 
 @functools.lru_cache(maxsize=None)
@@ -215,7 +207,6 @@ def pop_global_arguments(state, host, kwargs):
 
 OURS = {
     "order": operation_order_from_stack,
-    "arguments": all_global_arguments,
     "connectors": entry_points,
     "pop_arguments": pop_global_arguments,
     "signature": signature,

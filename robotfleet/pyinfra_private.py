@@ -228,13 +228,6 @@ USED = (
         "the install directory and CLI flag as pyinfra's does",
     ),
     Private(
-        ("pyinfra.api.arguments:all_global_arguments",),
-        "pyinfra.api.arguments:all_global_arguments",
-        "f7afbc472d78c5d2",
-        "robotfleet/pyinfra_patches.py",
-        "replaced by the same answer computed once",
-    ),
-    Private(
         ("pyinfra.api.connectors:get_all_connectors", "pyinfra.api.connectors:entry_points"),
         "pyinfra.api.connectors:get_all_connectors",
         "7d05cb4b81d92078",

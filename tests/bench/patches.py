@@ -1,6 +1,6 @@
 """What each of robotfleet/pyinfra_patches.py's replacements saves the operator.
 
-    python3 -m tests.bench.patches [--hosts 250] [--runs 5] [--keys order arguments ...]
+    python3 -m tests.bench.patches [--hosts 250] [--runs 5] [--keys order connectors ...]
 
 A no-op of ``--hosts`` converged robots planned and run through pyinfra's
 own API as `pyinfra -y` runs them, against @fake hosts (tests/unit/harness.py:

@@ -14,7 +14,7 @@ import sys
 
 import pytest
 
-from robotfleet.pull.robot import trust_fingerprint, trust_state
+from robotfleet.pull.robot import trust_state
 from tests.unit import pullkit
 from tests.unit.pullkit import DAY, NOW, edit_json
 
@@ -108,7 +108,7 @@ def test_a_link_to_dev_zero_is_not_read(fleet):
     # In a process of bounded memory: reading /dev/zero would end in MemoryError.
     code = (
         "import resource, sys; resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30)); "
-        "from robotfleet.pull.robot import trust_fingerprint as t; print(t.fingerprint(sys.argv[1], sys.argv[2:]))"
+        "from robotfleet.pull.robot import trust_state as t; print(t.fingerprint(sys.argv[1], sys.argv[2:]))"
     )
     done = subprocess.run(
         [sys.executable, "-c", code, str(fleet.repository.path), *reads(fleet)],
@@ -118,7 +118,7 @@ def test_a_link_to_dev_zero_is_not_read(fleet):
     )
     assert (done.returncode, done.stdout.strip()) == (0, "None"), done.stderr[-2000:]
     with pytest.raises(OSError, match="2.root.json: a symbolic link, not read"):
-        trust_fingerprint.read(str(fleet.repository.path), "metadata/2.root.json")
+        trust_state.read(str(fleet.repository.path), "metadata/2.root.json")
     assert recall(fleet) is None
 
 
@@ -144,13 +144,13 @@ def test_what_is_not_a_regular_file_within_its_cap_is_refused(fleet, tmp_path, p
         (metadata / "timestamp.json").write_bytes(b" " * 16385)  # python-tuf's cap is 16384
         says = "timestamp.json: larger than 16384 bytes"
     with pytest.raises(OSError, match=says):
-        trust_fingerprint.read(str(fleet.repository.path), "metadata/timestamp.json")
+        trust_state.read(str(fleet.repository.path), "metadata/timestamp.json")
     assert recall(fleet) is None
 
 
 def test_an_endless_answer_of_a_mirror_is_read_only_to_its_cap(fleet):
     with pullkit.Flood(fleet.repository.path, "metadata/timestamp.json") as mirror:
-        assert trust_fingerprint.fingerprint(mirror.url, reads(fleet)) is None
+        assert trust_state.fingerprint(mirror.url, reads(fleet)) is None
         with pytest.raises(OSError, match="timestamp.json: larger than 16384 bytes"):
-            trust_fingerprint.read(mirror.url, "metadata/timestamp.json")
+            trust_state.read(mirror.url, "metadata/timestamp.json")
     assert mirror.sent < 24 << 20  # of 64 MiB: what the sockets' buffers took, no more

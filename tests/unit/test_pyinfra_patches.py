@@ -47,14 +47,6 @@ def test_operation_order_is_pyinfras(monkeypatch, deploy_file, is_cli):
         assert len(theirs) >= 5 + is_cli  # the line numbers of the nested calls at least
 
 
-def test_global_arguments_are_pyinfras():
-    ours = pyinfra_patches.all_global_arguments()
-    assert ours == pyinfra_patches.original("arguments")()
-    assert "_sudo" in dict(ours)
-    ours.clear()  # a caller's copy: the next call still has them all
-    assert pyinfra_patches.all_global_arguments() == pyinfra_patches.original("arguments")()
-
-
 def test_connectors_are_pyinfras(monkeypatch):
     monkeypatch.setattr(pyinfra_connectors, "entry_points", pyinfra_patches.original("connectors"))
     theirs = pyinfra_connectors.get_all_connectors()
@@ -108,16 +100,15 @@ def test_global_arguments_from_layered_host_data_are_pyinfras():
         with pytest.raises(ArgumentTypeError, match="Invalid argument `_timeout`"):
             pop(state, host, {"_timeout": "soon"})
     # No argument name is an attribute of HostData itself (getattr would find that first).
-    assert not {key for key, _ in pyinfra_patches.all_global_arguments()} & set(dir(host.data))
+    assert not {key for key, _ in arguments.all_global_arguments()} & set(dir(host.data))
 
 
-ALL = ["order", "arguments", "connectors", "pop_arguments", "signature"]
+ALL = ["order", "connectors", "pop_arguments", "signature"]
 
 
 def test_the_speedups_are_active_with_the_pyinfra_this_project_installs():
     """No digest forced: the functions pyinfra calls are the copies."""
     assert operation.get_operation_order_from_stack is pyinfra_patches.operation_order_from_stack
-    assert arguments.all_global_arguments is pyinfra_patches.all_global_arguments
     assert pyinfra_patches.install() == ALL  # a second install finds them in place
     assert pyinfra_connectors.entry_points is pyinfra_patches.entry_points
     assert operation.signature is pyinfra_patches.signature
@@ -142,7 +133,6 @@ def test_install_replaces_what_pyinfra_calls(pyinfras_own, caplog):
     assert operation.signature is inspect.signature
     assert pyinfra_patches.install() == ALL
     assert operation.get_operation_order_from_stack is pyinfra_patches.operation_order_from_stack
-    assert arguments.all_global_arguments is pyinfra_patches.all_global_arguments
     assert operation.signature is pyinfra_patches.signature
     assert _lines(caplog) == []
 
@@ -160,7 +150,6 @@ def test_a_pyinfra_whose_function_changed_keeps_its_own_with_one_line(pyinfras_o
     caplog.set_level(logging.WARNING, logger="pyinfra")
     assert pyinfra_patches.install() == ALL[1:]
     assert operation.get_operation_order_from_stack is get_operation_order_from_stack
-    assert arguments.all_global_arguments is pyinfra_patches.all_global_arguments
     assert _lines(caplog) == [
         f"robotfleet: pyinfra {pyinfra.__version__} has another "
         "pyinfra.api.operation.get_operation_order_from_stack than "
@@ -174,7 +163,7 @@ def test_a_changed_host_data_lookup_keeps_pyinfras_argument_reading(pyinfras_own
     HostData.__getattr__ does: a pyinfra that changed that keeps its own."""
     monkeypatch.setitem(pyinfra_patches.COPIED_FROM, "pyinfra.api.host:HostData.__getattr__", "0" * 16)
     caplog.set_level(logging.WARNING, logger="pyinfra")
-    assert pyinfra_patches.install() == ["order", "arguments", "connectors", "signature"]
+    assert pyinfra_patches.install() == ["order", "connectors", "signature"]
     assert operation.pop_global_arguments is pyinfra_patches.original("pop_arguments")
     assert _lines(caplog) == [
         f"robotfleet: pyinfra {pyinfra.__version__} has another "

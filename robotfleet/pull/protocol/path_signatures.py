@@ -1,7 +1,5 @@
 """What lstat says of a few paths, to compare from one check to the next
-(the roles' watched paths, robotfleet/pull/protocol/agent_files.py; the
-files an idle check's memo stands on, robotfleet/pull/robot/idle.py).
-Imports nothing but os and stat: the idle check reads it."""
+(the roles' watched paths, robotfleet/pull/protocol/agent_files.py)."""
 
 from __future__ import annotations
 

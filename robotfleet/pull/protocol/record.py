@@ -66,7 +66,7 @@ def utc(moment: datetime.datetime) -> str:
 
 def parse_time(text, where: str) -> datetime.datetime:
     """'2026-11-25T10:00:00Z' -> an aware UTC time; RecordError otherwise."""
-    # what strptime(_TIME) accepts, without its first call's locale tables (an idle check's CPU)
+    # what strptime(_TIME) accepts, in ASCII digits
     match = _TIME_TEXT.fullmatch(text) if isinstance(text, str) else None
     try:
         if match is None:

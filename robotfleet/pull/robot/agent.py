@@ -44,7 +44,7 @@ from pathlib import Path
 from robotfleet.pull.protocol import agent_files, reports, waves
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.protocol.path_signatures import watched
-from robotfleet.pull.robot import agent_state, idle, trust_state, wake_report
+from robotfleet.pull.robot import agent_state, trust_state, wake_report
 from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.robot.journal import Phases, cpu_seconds, journal_line
 from robotfleet.pull.robot.transport import Remote, TransportError
@@ -367,7 +367,7 @@ def main(argv=None) -> int:
         except BlockingIOError:
             print("robot-pull: another check is running; this one does nothing", flush=True)
             return 0
-        idle.forget(state)  # the idle check's memo stands again only if this wake says so
+        (state / "idle.json").unlink(missing_ok=True)  # an earlier release's idle memo: an older agent finds none
         wake = Wake(config)
         report, outcome = wake.run()
         if wake.record is not None:
@@ -375,7 +375,6 @@ def main(argv=None) -> int:
         with wake.phases.timed("report"):
             sent = wake_report.send(wake, report)
         agent_state.save_state(state, wake.state)
-        idle.remember(wake, outcome, text, sent)
         report["check"]["cpu"] = cpu_seconds()
         report["check"].update(
             {
@@ -384,7 +383,7 @@ def main(argv=None) -> int:
                 "requests": wake.remote.cost.requests,
             }
         )
-        # an up-to-date wake's line stays the idle check's (robot/idle.py), which times no phases
+        # an up-to-date wake's line times no phases (as its earlier releases' idle check printed it)
         phases = wake.phases if outcome.result != "up-to-date" else None
         print(journal_line(report, sent, time.monotonic() - started, phases), flush=True)
     return 0

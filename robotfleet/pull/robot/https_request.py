@@ -1,6 +1,5 @@
-"""One HTTPS request on its own connection, for the agent's idle probe
-(robotfleet/pull/robot/probe.py), without http.client (its import, with
-the email package's, was a fifth of an idle check's CPU): HTTP/1.1,
+"""One HTTPS request on its own connection, for the agent's probe
+(robotfleet/pull/robot/probe.py), its bytes counted with TLS: HTTP/1.1,
 ``Connection: close``, an answer's body by its Content-Length, chunked, or
 up to the end, never more than a cap.  TLS is the ``ssl`` module's
 (PROTOCOL_TLS_CLIENT: the certificate against ``ca``, a file, else the
@@ -31,7 +30,7 @@ class Failed(OSError):
 
 
 class Answer:
-    """An HTTP answer (a plain class: the idle check imports no dataclasses)."""
+    """An HTTP answer."""
 
     def __init__(self, status: int, headers: dict | None = None, body: bytes = b""):
         self.status, self.body = status, body

@@ -1,6 +1,4 @@
-"""A wake's one line in the journal, and the CPU it counts: the full
-wake's (robotfleet/pull/robot/wake_report.py) and the idle check's
-(robotfleet/pull/robot/idle.py), which imports nothing more than this."""
+"""A wake's one line in the journal, and the CPU it counts."""
 
 from __future__ import annotations
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import os
+from dataclasses import dataclass, field
 
 from robotfleet import atomicfile
 
@@ -38,47 +39,19 @@ _PROXIES = ("https_proxy", "HTTPS_PROXY", "all_proxy", "ALL_PROXY")
 STABLE_AFTER = 60  # seconds between a Last-Modified and the Date it is trusted at
 
 
+@dataclass
 class Answer:
     """What one probe found: the branch's commit (None: unknown, fetch), the
     static copy's new validators, and its cost; over SSH, why it failed
     (``error``: then the fetch fails with it, robotfleet/pull/robot/remote_git.py)
-    and the key the server accepted.  (A plain class: the idle check imports
-    no dataclasses.)"""
+    and the key the server accepted."""
 
-    __slots__ = ("commit", "validators", "sent", "received", "error", "accepted")
-
-    def __init__(
-        self,
-        commit: str | None,
-        validators: dict | None = None,
-        sent: int = 0,
-        received: int = 0,
-        error: str | None = None,
-        accepted: str | None = None,
-    ):
-        self.commit, self.validators, self.sent, self.received = commit, validators or {}, sent, received
-        self.error, self.accepted = error, accepted
-
-    def __eq__(self, other):
-        return isinstance(other, Answer) and all(getattr(self, k) == getattr(other, k) for k in self.__slots__)
-
-    def __repr__(self):
-        return f"Answer({', '.join(f'{k}={getattr(self, k)!r}' for k in self.__slots__)})"
-
-
-_GIVEN: dict = {}
-
-
-def give(memo: dict, answer: Answer | None, seconds: float) -> None:
-    """What a probe of this process already found for ``memo`` (the idle
-    check's, robotfleet/pull/robot/idle.py, before it handed over to the
-    full wake): the fetch takes it rather than ask the remote again."""
-    _GIVEN[json.dumps(memo, sort_keys=True)] = (answer, seconds)
-
-
-def given(memo: dict) -> tuple[Answer | None, float] | None:
-    """(the answer, its seconds) given for ``memo``, once; None."""
-    return _GIVEN.pop(json.dumps(memo, sort_keys=True), None)
+    commit: str | None
+    validators: dict = field(default_factory=dict)
+    sent: int = 0
+    received: int = 0
+    error: str | None = None
+    accepted: str | None = None
 
 
 def memo_path(repo) -> str:
@@ -154,41 +127,25 @@ def ls_refs_request(ref: str) -> bytes:
     return pkt("command=ls-refs\n") + b"0001" + pkt(f"ref-prefix {ref}\n") + b"0000"
 
 
-def target(url: str) -> dict | None:
-    """What a probe needs of the remote ``url`` (read once: the idle check
-    keeps it, robotfleet/pull/robot/idle.py, and imports no urllib); None
-    when it is not probed (not HTTPS, credentials in it: git's own fetch
-    knows how).  A port that is no number is None (the probe then fails)."""
+def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float, silent: float = 60) -> Answer | None:
+    """Ask the HTTPS remote ``url`` what ``branch`` is now, the way ``memo``
+    says it answered last, within ``timeout``, given up after ``silent``
+    seconds without a byte (robotfleet/pull/robot/https_request.py); None
+    when this remote cannot be probed here (a proxy, credentials in the URL:
+    git's own fetch knows how).  A port that is no number fails the probe."""
     from urllib import parse
 
     parts = parse.urlsplit(url)
-    if parts.scheme != "https" or parts.username or parts.password:
-        return None
-    try:
-        port = parts.port or 443
-    except ValueError:
-        port = None
-    return {"netloc": parts.netloc, "host": parts.hostname, "port": port, "path": parts.path}
-
-
-def https(url: str, branch: str, memo: dict, ca: str | None, timeout: float, silent: float = 60) -> Answer | None:
-    """Ask the HTTPS remote ``url`` what ``branch`` is now, the way ``memo``
-    says it answered last; None when this remote cannot be probed here
-    (a proxy, credentials in the URL: git's own fetch knows how)."""
-    return ask(target(url), branch, memo, ca, timeout, silent)
-
-
-def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: float, silent: float = 60):
-    """``https`` of the remote ``where`` (``target``'s): within ``timeout``, given up after ``silent``
-    seconds without a byte (robotfleet/pull/robot/https_request.py)."""
-    if where is None or any(os.environ.get(p) for p in _PROXIES):
+    if parts.scheme != "https" or parts.username or parts.password or any(os.environ.get(p) for p in _PROXIES):
         return None
     from robotfleet.pull.robot import https_request
 
-    if where["port"] is None:
+    try:
+        port = parts.port or 443
+    except ValueError:
         return Answer(None)
-    base, ref = where["path"].rstrip("/"), f"refs/heads/{branch}"
-    host = f"Host: {where['netloc']}\r\nUser-Agent: robot-pull\r\n"
+    base, ref = parts.path.rstrip("/"), f"refs/heads/{branch}"
+    host = f"Host: {parts.netloc}\r\nUser-Agent: robot-pull\r\n"
     if memo.get("kind") == "static":
         validators = memo.get("validators") or {}
         head = f"GET {base}/info/refs HTTP/1.1\r\n{host}" + "".join(
@@ -204,7 +161,7 @@ def ask(where: dict | None, branch: str, memo: dict, ca: str | None, timeout: fl
             f"\r\nGit-Protocol: version=2\r\nContent-Length: {len(body)}\r\n"
         )
     try:
-        answer = https_request.request(where["host"], where["port"], head.encode(), body, ca, timeout, limit, silent)
+        answer = https_request.request(parts.hostname, port, head.encode(), body, ca, timeout, limit, silent)
     except (OSError, ValueError):  # ssl.SSLError and TimeoutError are OSErrors
         return Answer(None)
     if memo.get("kind") == "static":

@@ -5,12 +5,8 @@ keys, its narrowed offer), whose ``-E`` log gives ssh's own count of the
 bytes ("Transferred: sent N, received M bytes") and names the key the
 server accepted.
 
-The full wake's exchanges (robotfleet/pull/robot/transport.py) run git
-through here, and so does the idle check's probe of an SSH remote
-(``ls_remote``, robotfleet/pull/robot/idle.py): the same command, the same
-way.  So this module imports what running a process needs and no more (no
-tempfile, pathlib or dataclasses); the idle check over HTTPS does not
-import it at all.
+The wake's exchanges (robotfleet/pull/robot/transport.py) run git through here,
+the probe of an SSH remote (``ls_remote``) among them.
 """
 
 from __future__ import annotations
@@ -19,8 +15,10 @@ import os
 import re
 import signal
 import subprocess
+import tempfile
 import threading
 import time
+from dataclasses import dataclass
 
 from robotfleet.pull.robot import probe, ssh_options
 
@@ -59,14 +57,6 @@ class NoAnswer(Exception):
 def environment(extra: dict | None = None) -> dict:
     """git's environment: this process's, no prompt, C messages, the agent's identity, ``extra``."""
     return dict(os.environ, GIT_TERMINAL_PROMPT="0", LC_ALL="C", **IDENTITY, **(extra or {}))
-
-
-def is_ssh(url: str) -> bool:
-    """``url`` names a remote git reaches over SSH (``ssh://``, or scp's ``[user@]host:path``)."""
-    scheme, sep, _ = url.partition("://")
-    if sep:
-        return scheme in ("ssh", "git+ssh", "ssh+git")
-    return ":" in url.split("/", 1)[0]
 
 
 def keys(etc: str) -> list[str]:
@@ -141,16 +131,18 @@ def _communicate(process, stdin: bytes | None, timeout: float, reader: threading
     return b"".join(chunks), b""
 
 
+@dataclass
 class Ran:
     """What one git command over SSH did: its stdout, why it failed (one
     line; None: it did not), its bytes each way, the key the server
-    accepted, its seconds.  (A plain class: the idle check imports no dataclasses.)"""
+    accepted, its seconds."""
 
-    __slots__ = ("out", "error", "sent", "received", "accepted", "seconds")
-
-    def __init__(self, out, error, sent, received, accepted, seconds):
-        self.out, self.error, self.sent, self.received = out, error, sent, received
-        self.accepted, self.seconds = accepted, seconds
+    out: bytes
+    error: str | None
+    sent: int
+    received: int
+    accepted: str | None
+    seconds: float
 
 
 def over_ssh(
@@ -206,13 +198,7 @@ def ls_remote(repo, url: str, branch: str, etc: str, timeout: float, keepalive=s
 
 
 def _log_file() -> str:
-    """A new file only this user can read, for ssh's log (as tempfile.mkstemp
-    in $TMPDIR or /tmp, without importing it)."""
-    directory = os.environ.get("TMPDIR") or "/tmp"
-    while True:
-        path = os.path.join(directory, f"robot-pull-ssh-{os.urandom(6).hex()}.log")
-        try:
-            os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o600))
-            return path
-        except FileExistsError:
-            continue
+    """A new file only this user can read, for ssh's log."""
+    descriptor, path = tempfile.mkstemp(prefix="robot-pull-ssh-", suffix=".log")
+    os.close(descriptor)
+    return path

@@ -4,9 +4,8 @@ in time, with the bytes each exchange moved.
 - ``fetch_releases``: the releases branch at depth 1 into the agent's own
   repository, checked out (the TUF client reads that directory); protocol
   v2 asks the server for that one branch only; first one probe
-  (robotfleet/pull/robot/probe.py; over SSH ``remote_git.ls_remote``), or
-  the answer the idle check's probe already had: a branch still at the
-  commit checked out is not fetched at all.
+  (robotfleet/pull/robot/probe.py; over SSH ``remote_git.ls_remote``): a
+  branch still at the commit checked out is not fetched at all.
 - ``fetch_reports``: the reports of named robots (the waves before this
   robot's), each asked for by its own prefix, read as the operator reads
   them (``report_store.read``: each robot's own row, never another's).
@@ -30,7 +29,7 @@ over the connection ("Transferred: sent N, received M bytes"; its debug
 level also names the key the server accepted); each ssh session is one
 request (the counting: robotfleet/pull/robot/transport_cost.py).  git runs
 through robotfleet/pull/robot/remote_git.py (bounded in time; over SSH, that
-ssh and its log), as does the idle check's probe (robotfleet/pull/robot/idle.py).
+ssh and its log).
 
 Over HTTPS (``https://host/path``: git's smart HTTP, or a static directory
 served as a "dumb" remote, which cannot answer a shallow fetch, so the
@@ -217,16 +216,12 @@ class Remote:
         """What the remote says the branch is now, in one exchange (None: it
         could not say; the fetch then asks)."""
         started = time.monotonic()
-        had = probe.given(memo)  # this process's idle check asked already (robotfleet/pull/robot/idle.py)
-        if had is None:
-            if is_https(self.url):
-                ca = f"{self.etc}/remote-ca.pem"
-                ca = ca if os.path.exists(ca) else None
-                answer = probe.https(self.url, branch, memo, ca, self.timeout, self.silence)
-            else:
-                answer = remote_git.ls_remote(self.repo, self.url, branch, self.etc, self.timeout, self.keepalive)
-            had = answer, time.monotonic() - started
-        answer, seconds = had
+        if is_https(self.url):
+            ca = f"{self.etc}/remote-ca.pem"
+            answer = probe.https(self.url, branch, memo, ca if os.path.exists(ca) else None, self.timeout, self.silence)
+        else:
+            answer = remote_git.ls_remote(self.repo, self.url, branch, self.etc, self.timeout, self.keepalive)
+        seconds = time.monotonic() - started
         if answer is not None:
             self.cost.add("probe", answer.sent, answer.received, seconds)
             self.accepted_key = answer.accepted or self.accepted_key
@@ -241,7 +236,7 @@ class Remote:
         "error"} when it cannot be read (robots without a report ref left out)."""
         if not robots:
             return {}
-        from concurrent.futures import ThreadPoolExecutor  # not at import: an idle check reads no reports
+        from concurrent.futures import ThreadPoolExecutor  # not at import: an idle wake reads no reports
 
         from robotfleet.pull.protocol import report_store
 

@@ -32,8 +32,9 @@ from pathlib import Path
 
 from robotfleet import atomicfile
 from robotfleet.pull.protocol import record as records
-from robotfleet.pull.robot.trust_fingerprint import STATE_FORMAT, fingerprint, trust_bytes
+from robotfleet.pull.robot import fetched
 
+STATE_FORMAT = 1
 EPOCH = datetime.datetime(1970, 1, 1, tzinfo=datetime.timezone.utc)
 VERIFIED = "verified.json"
 RECORD_COPY = "verified.release.json"
@@ -63,12 +64,42 @@ def read_state(state_dir) -> State:
         raise Unreadable(f"{Path(state_dir, 'trust.json')}: unreadable trust state ({error})") from None
 
 
+def read(source: str, path: str) -> bytes | None:
+    """One file of the repository at ``source`` (a directory, or an
+    http(s):// base URL), at most the cap of its kind, never through a
+    link (robotfleet/pull/robot/fetched.py); None when it is not there (HTTP 404)."""
+    limit = fetched.metadata_max(path) if path.startswith("metadata/") else records.MAX_BYTES
+    if source.startswith(("https://", "http://")):
+        return fetched.read_url(source.rstrip("/") + "/" + path, limit)
+    return fetched.read(source, path, limit)
+
+
+def fingerprint(source, reads) -> str | None:
+    """The sha256 of what a TUF refresh reads of an unchanged repository at
+    ``source``: the next root version (absent), timestamp.json and the
+    release record's target file (names and contents); None when one
+    cannot be read."""
+    digest = hashlib.sha256()
+    try:
+        for path in reads:
+            data = read(str(source), path)
+            digest.update(f"{path} {hashlib.sha256(data).hexdigest() if data is not None else '-'}\n".encode())
+    except (OSError, ValueError):
+        return None
+    return digest.hexdigest()
+
+
+def reads_of(root_version: int, release_file: str) -> list[str]:
+    return [f"metadata/{root_version + 1}.root.json", "metadata/timestamp.json", release_file]
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     atomicfile.write(path, data)
 
 
 def write_state(state_dir, state: State) -> None:
-    write_atomic(Path(state_dir, "trust.json"), trust_bytes(records.utc(state.time), state.version, state.release))
+    text = {"format": STATE_FORMAT, "time": records.utc(state.time), "version": state.version, "release": state.release}
+    write_atomic(Path(state_dir, "trust.json"), (json.dumps(text, sort_keys=True) + "\n").encode())
 
 
 def remember(state_dir, source, reads: list[str], record_bytes: bytes, expires: datetime.datetime) -> None:

@@ -39,7 +39,7 @@ from tuf.api.metadata import Metadata, Root
 from tuf.ngclient import FetcherInterface, Updater, UpdaterConfig
 
 from robotfleet.pull.protocol import record as records
-from robotfleet.pull.robot import fetched, trust_fingerprint, trust_state, tufprivate
+from robotfleet.pull.robot import fetched, trust_state, tufprivate
 from robotfleet.pull.robot.refusals import (
     EXPIRED,
     MALFORMED,
@@ -283,7 +283,7 @@ class Client:
                 for role in (Root.type, "timestamp", "snapshot", "targets")
             ]
             expires = min([md.signed.expires for md in roles] + [found.expires_at])
-            reads = trust_fingerprint.reads_of(roles[0].signed.version, release_file)
+            reads = trust_state.reads_of(roles[0].signed.version, release_file)
         except Exception:  # without it the next check verifies in full
             trust_state.forget(self.state_dir)
             return
