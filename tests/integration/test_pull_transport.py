@@ -12,7 +12,7 @@ import pytest
 
 from robotfleet.pull.operator import channel
 from robotfleet.pull.protocol import reports
-from robotfleet.pull.robot import remote_git, ssh_options, transport, trust_state
+from robotfleet.pull.robot import remote_git, ssh_options, transport
 from tests.integration.craftedgit import git
 
 LOG = """Authenticated to git.lan ([10.0.0.5]:22) using "publickey".
@@ -224,8 +224,8 @@ def test_links_on_the_releases_branch_are_checked_out_as_files(remote, tmp_path)
     ]
     assert links == []
     # what the trusted-metadata reader reads there is the links' text, never what they point at
-    assert trust_state.read(str(robot.repo), "metadata/timestamp.json") == str(secret).encode()
-    assert trust_state.read(str(robot.repo), "metadata/2.root.json") == b"/dev/zero"
+    assert (robot.repo / "metadata" / "timestamp.json").read_bytes() == str(secret).encode()
+    assert (robot.repo / "metadata" / "2.root.json").read_bytes() == b"/dev/zero"
     assert (robot.repo / "targets").is_file()
     # nor does the operator's publishing clone of the branch hold them
     clone = channel.GitChannel(tmp_path, str(bare), clone=tmp_path / "publishing").open()

@@ -54,8 +54,6 @@ def test_what_an_interrupted_refresh_left_is_swept(fleet):
         "trust.json",
         "tuf",
         current,
-        "verified.json",
-        "verified.release.json",
     }
 
 

@@ -5,10 +5,7 @@
 1. One wake at a time (a lock in the state directory); enough free disk first.
 2. Fetch the releases branch (robotfleet/pull/robot/transport.py) and verify it
    with TUF (robotfleet/pull/robot/verify.py): a refusal (unsigned, unknown key,
-   tampered, a rollback, expired) leaves everything as it was.  A fetch that
-   reads exactly what the last verification accepted, before anything it
-   verified expired, is that verification again (robotfleet/pull/robot/trust_state.py):
-   no TUF, not even its import, unless the release is to be applied.  With a
+   tampered, a rollback, expired) leaves everything as it was.  With a
    medium mounted (robotfleet/pull/robot/media.py) the remote is fetched too,
    and the newer of the two verified releases taken.
 3. Decide (robotfleet/pull/robot/decide.py): nothing new, wait for a wave or a
@@ -49,8 +46,7 @@ from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.robot.journal import Phases, cpu_seconds, journal_line
 from robotfleet.pull.robot.transport import Remote, TransportError
 
-# trust (python-tuf), prepare, wheels, prefetch, release_run, shutil...: imported
-# where a check needs them; a check that finds nothing new (a new process) never does.
+# prepare, wheels, prefetch, release_run, shutil...: imported where a check needs them.
 
 # What ssh says when the git server knows none of the robot's keys: before
 # `robotfleet pull-enroll` registered its own, for a robot that never read
@@ -132,16 +128,6 @@ class Wake:
 
     def source(self) -> str:
         return str(self.medium or self.remote.repo)
-
-    def recall(self) -> bool:
-        """The record, when the fetch found what the last verification accepted."""
-        if self.mounted is not None:  # two sources: both verified, the newer taken
-            return False
-        found = trust_state.recall(self.state_dir, self.source(), self.clock(), self.applied_version())
-        if found is None:
-            return False
-        self.record, self.reference_time = found
-        return True
 
     def verify(self):
         """The record, verified in full; the trust client (for downloads)."""
@@ -283,13 +269,10 @@ class Wake:
             with self.phases.timed("fetch"):
                 self.fetch()
             with self.phases.timed("verify"):
-                client = None if self.recall() else self.verify()
+                client = self.verify()
             with self.phases.timed("decide"):
                 decision = self.decide()
             if decision.result == deciding.APPLY:
-                if client is None:
-                    with self.phases.timed("verify"):
-                        client = self.verify()
                 outcome = self.apply(client, decision.wave)
             elif decision.result == "waiting":  # time to put it in place: robotfleet/pull/robot/prefetch.py
                 from robotfleet.pull.robot import prefetch
@@ -367,7 +350,8 @@ def main(argv=None) -> int:
         except BlockingIOError:
             print("robot-pull: another check is running; this one does nothing", flush=True)
             return 0
-        (state / "idle.json").unlink(missing_ok=True)  # an earlier release's idle memo: an older agent finds none
+        for earlier in ("idle.json", *trust_state.EARLIER):  # what earlier releases' shortcuts kept: gone
+            (state / earlier).unlink(missing_ok=True)
         wake = Wake(config)
         report, outcome = wake.run()
         if wake.record is not None:

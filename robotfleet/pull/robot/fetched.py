@@ -3,8 +3,7 @@ the releases checkout (a directory) or a static HTTPS mirror.  A mirror
 needs no more trust than a cache, so a file is read only where it is:
 never through a symbolic link (one to /dev/zero would read without end,
 one to /etc/hostname would read the robot's own file), only a regular file,
-and no more than a cap for its kind.  Over HTTP(S) the same caps bound what
-is read of an answer.
+and no more than a cap for its kind.
 
 The caps of TUF metadata are python-tuf ngclient's defaults (trust.py
 gives them to its Updater, so both readers agree); a target is bounded by
@@ -27,12 +26,6 @@ CHUNK = 1 << 16
 class NotAFile(OSError):
     """What the mirror has at a path is not a regular file there, or is
     larger than its cap (one line)."""
-
-
-def metadata_max(name: str) -> int:
-    """The cap of the metadata file ``name`` (``2.root.json``, ``timestamp.json``, ...)."""
-    role = name.rsplit("/", 1)[-1].removesuffix(".json").rsplit(".", 1)[-1]
-    return {"root": ROOT_MAX, "timestamp": TIMESTAMP_MAX, "snapshot": SNAPSHOT_MAX}.get(role, TARGETS_MAX)
 
 
 def open_file(base, path: str) -> int:
@@ -88,31 +81,3 @@ def chunks(fd: int, limit: int | None = None, where: str = "file"):
             if limit is not None and read > limit:
                 raise NotAFile(f"{where}: larger than {limit} bytes")
             yield chunk
-
-
-def read(base, path: str, limit: int) -> bytes | None:
-    """The file ``path`` under ``base`` (see open_file), at most ``limit``
-    bytes (NotAFile beyond); None when it is not there."""
-    try:
-        fd = open_file(base, path)
-    except FileNotFoundError:
-        return None
-    return b"".join(chunks(fd, limit, os.path.join(base, path)))
-
-
-def read_url(url: str, limit: int, timeout: float = 60) -> bytes | None:
-    """The body of ``url``, at most ``limit`` bytes (NotAFile beyond); None
-    for HTTP 403 or 404."""
-    import urllib.error
-    import urllib.request
-
-    try:
-        with urllib.request.urlopen(url, timeout=timeout) as answer:
-            data = answer.read(limit + 1)
-    except urllib.error.HTTPError as error:
-        if error.code in (403, 404):
-            return None
-        raise OSError(f"{url}: HTTP {error.code}") from None
-    if len(data) > limit:
-        raise NotAFile(f"{url}: larger than {limit} bytes")
-    return data

@@ -88,8 +88,7 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
     time: ``prefetched`` once everything is in place, else ``waiting`` with
     what is missing, or ``refused`` for a target or tree that is not what
     the record binds (the apply would refuse it the same way).  ``wake``:
-    the agent's Wake (record, config, state, verify); ``client``: its TUF
-    client, when this check verified in full."""
+    the agent's Wake (record, config, state); ``client``: its TUF client."""
     from robotfleet.pull.robot import prepare, refusals
 
     record, config, state_dir = wake.record, wake.config, wake.state_dir
@@ -99,7 +98,6 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
         prepare_switch(wake, done)
         return PREFETCHED, _said(done, waiting.reason), None
     try:
-        client = client or wake.verify()
         found = _targets(record, client, state_dir, config.min_free_mb)
         paths = [str(prepare.code_dir(state_dir, record, found[record.code]))]
         wheels = {p: found[p] for p in found if p != record.code}

@@ -19,8 +19,7 @@ tree holds.  Then an idle check is one exchange:
 What a server's answer can do is what serving the old branch could: a
 server that keeps answering 304 freezes the robot on its last release, which
 TUF's timestamp expiry catches, as it does a replayed branch (the agent
-still recalls or verifies the same metadata at each check,
-robotfleet/pull/robot/trust_state.py).  The server's certificate is checked
+verifies the same metadata at each check).  The server's certificate is checked
 as git checks it (``remote-ca.pem``, else the system's CAs).
 """
 

@@ -18,10 +18,7 @@ record below it (or below the version the agent applied) is a rollback.
 A refresh works on a copy of the trusted metadata and swaps it in (one
 rename of the ``tuf`` link) only when everything verified: a refusal leaves
 the trusted state as it was.  Every refusal is a Refused with one line and
-a reason from REASONS (robotfleet/pull/robot/refusals.py).  Nothing here needs the operator's keys.  A
-successful refresh also leaves what a check of the same repository would
-read (robotfleet/pull/robot/trust_state.py), so the next one can skip TUF when
-nothing changed.
+a reason from REASONS (robotfleet/pull/robot/refusals.py).  Nothing here needs the operator's keys.
 """
 
 from __future__ import annotations
@@ -84,7 +81,6 @@ def initialize(state_dir, root: bytes, trusted_time: datetime.datetime | None = 
     (fresh / "root_history" / f"{md.signed.version}.root.json").write_bytes(root)
     os.symlink(f"root_history/{md.signed.version}.root.json", fresh / "root.json")
     _swap_in(state_dir, fresh)
-    trust_state.forget(state_dir)
     trust_state.write_state(state_dir, State(trusted_time or EPOCH, 0, None))
 
 
@@ -220,7 +216,7 @@ class Client:
                 updater = Updater(str(work), metadata_url, None, targets_url, recording, _config(), bootstrap=None)
                 tufprivate.set_reference_time(updater, self.reference_time)
                 updater.refresh()
-                raw, release_file = self._release_bytes(updater, work)
+                raw = self._release_bytes(updater, work)
             except exceptions.UnsignedMetadataError as error:
                 reason, role = unsigned_reason(recording.last, work)
                 raise Refused(reason, f"{role}.json: {WORDS[reason]} ({first_line(error)})") from None
@@ -250,7 +246,7 @@ class Client:
             shutil.rmtree(work, ignore_errors=True)
             raise
         self.updater, self.record = updater, found
-        self._tried = (work, state, now, raw, release_file)
+        self._tried = (work, state, now)
         return found
 
     def _check_root(self) -> None:
@@ -259,40 +255,22 @@ class Client:
 
     def keep(self) -> records.Record:
         """What trial() verified becomes the trusted state."""
-        work, state, now, raw, release_file = self._tried
+        work, state, now = self._tried
         found = self.record
         _swap_in(self.state_dir, work)
         trust_state.write_state(
             self.state_dir,
             State(max(state.time, now, found.published_at), max(state.version, found.version), found.release),
         )
-        self._remember(raw, release_file, found)
         return found
 
     def discard(self) -> None:
         shutil.rmtree(self._tried[0], ignore_errors=True)
         self.updater = self.record = None
 
-    def _remember(self, raw: bytes, release_file: str, found: records.Record) -> None:
-        """What this verification read, for the next check's cheap proof that
-        nothing changed (robotfleet/pull/robot/trust_state.py)."""
-        try:
-            tuf_dir = self.state_dir / "tuf"
-            roles = [
-                Metadata.from_file(str(tuf_dir / f"{role}.json"))
-                for role in (Root.type, "timestamp", "snapshot", "targets")
-            ]
-            expires = min([md.signed.expires for md in roles] + [found.expires_at])
-            reads = trust_state.reads_of(roles[0].signed.version, release_file)
-        except Exception:  # without it the next check verifies in full
-            trust_state.forget(self.state_dir)
-            return
-        trust_state.remember(self.state_dir, self.source, reads, raw, expires)
-
     @staticmethod
-    def _release_bytes(updater: Updater, work: Path) -> tuple[bytes, str]:
-        """The record's bytes, and its file's path in the repository (as a
-        consistent snapshot names it: targets/<sha256>.release.json)."""
+    def _release_bytes(updater: Updater, work: Path) -> bytes:
+        """The record's bytes."""
         info = updater.get_targetinfo(records.NAME)
         if info is None:
             raise Refused(MALFORMED, f"the signed targets name no {records.NAME}: not a fleet release repository")
@@ -300,7 +278,7 @@ class Client:
         updater.download_target(info, str(target))
         data = target.read_bytes()
         target.unlink()
-        return data, f"targets/{info.hashes['sha256']}.{records.NAME}"
+        return data
 
     def download(self, paths, directory) -> dict[str, Path]:
         """Each TUF target in ``paths`` (e.g. the record's code archive and
