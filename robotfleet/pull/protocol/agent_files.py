@@ -30,7 +30,6 @@ VENVS = f"{STATE}/venvs"
 WHEELS = f"{STATE}/wheels"  # <id>/*.whl: the wheels the venv <id> was made from
 CODE = f"{STATE}/code"  # <tree sha256>/: deploy trees; current -> the one the agent runs
 CURRENT_CODE = f"{CODE}/current"
-PYCACHE = f"{STATE}/pycache"  # <tree>/: the agent's bytecode, outside the tree (robotfleet/pull/agent.py)
 SERVICE = "robot-pull.service"
 TIMER = "robot-pull.timer"
 UNIT_DIR = "/etc/systemd/system"
@@ -231,7 +230,7 @@ ConditionPathExists={CONFIG}
 [Service]
 Type=oneshot
 WorkingDirectory={CURRENT_CODE}
-Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1 ROBOT_PULL_PYCACHE={PYCACHE}
+Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1
 ExecStart={VENV}/bin/python -m robotfleet.pull.agent --config {CONFIG}
 # A release may install Docker and pull images: hours, not the default 90 s.
 TimeoutStartSec=4h

@@ -52,6 +52,9 @@ from robotfleet.pull.robot.transport import Remote, TransportError
 # `robotfleet pull-enroll` registered its own, for a robot that never read
 # a release (one that did was enrolled: its key refused now is a failure).
 ENROLLMENT_PENDING = "Permission denied (publickey"
+# The agent's bytecode directory in its state directory, which earlier
+# releases' units named (ROBOT_PULL_PYCACHE): unused now, and removed.
+EARLIER_BYTECODE = "pycache"
 
 
 def now() -> datetime.datetime:
@@ -352,6 +355,10 @@ def main(argv=None) -> int:
             return 0
         for earlier in ("idle.json", *trust_state.EARLIER):  # what earlier releases' shortcuts kept: gone
             (state / earlier).unlink(missing_ok=True)
+        if (state / EARLIER_BYTECODE).is_dir():
+            import shutil
+
+            shutil.rmtree(state / EARLIER_BYTECODE, ignore_errors=True)
         wake = Wake(config)
         report, outcome = wake.run()
         if wake.record is not None:
