@@ -34,19 +34,19 @@ import argparse
 import datetime
 import fcntl
 import os
+import secrets
+import shutil
 import sys
 import time
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files, reports, waves
+from robotfleet.pull.protocol import agent_files, platforms, reports, waves
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.protocol.path_signatures import watched
-from robotfleet.pull.robot import agent_state, trust_state, wake_report
+from robotfleet.pull.robot import agent_state, prepare, refusals, release_run, trust_state, verify, wake_report
 from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.robot.journal import Phases, cpu_seconds, journal_line
 from robotfleet.pull.robot.transport import Remote, TransportError
-
-# prepare, wheels, prefetch, release_run, shutil...: imported where a check needs them.
 
 # What ssh says when the git server knows none of the robot's keys: before
 # `robotfleet pull-enroll` registered its own, for a robot that never read
@@ -134,8 +134,6 @@ class Wake:
 
     def verify(self):
         """The record, verified in full; the trust client (for downloads)."""
-        from robotfleet.pull.robot import refusals, verify
-
         if not (self.state_dir / "tuf" / "root.json").exists():
             root = Path(self.config.etc("root.json")).read_bytes()
             first = self.config.extra.get("trusted_time")
@@ -181,11 +179,6 @@ class Wake:
         return decision
 
     def apply(self, client, wave: int | None) -> Outcome:
-        import secrets
-
-        from robotfleet.pull.protocol import platforms
-        from robotfleet.pull.robot import prepare, refusals, release_run
-
         record, robot = self.record, self.config.robot
         platform = platforms.platform_key()
         wanted = [record.code, *record.wheels_for(platform)]
@@ -243,8 +236,6 @@ class Wake:
         """The window's prepared switch: the outcome when it failed its gate
         (rolled back, or nothing to go back to); None when it applied, or
         gave way (its release gone: refused), for the whole converge."""
-        from robotfleet.pull.robot import release_run
-
         with self.phases.timed("switch"):
             said = release_run.switch(prepared["switch"])
         if said.get("outcome") in ("rolled-back", "failed"):
@@ -324,8 +315,6 @@ class Wake:
         if not code.exists():
             self.status, self.status_time = {}, None
             return
-        from robotfleet.pull.robot import release_run
-
         fleet = (self.state.get("fleet") or {}).get("path")
         self.read_status(release_run.status(self.state_dir, self.config.robot, fleet), code)
 
@@ -356,8 +345,6 @@ def main(argv=None) -> int:
         for earlier in ("idle.json", *trust_state.EARLIER):  # what earlier releases' shortcuts kept: gone
             (state / earlier).unlink(missing_ok=True)
         if (state / EARLIER_BYTECODE).is_dir():
-            import shutil
-
             shutil.rmtree(state / EARLIER_BYTECODE, ignore_errors=True)
         wake = Wake(config)
         report, outcome = wake.run()
