@@ -100,8 +100,7 @@ class Wake:
     def check_disk(self) -> None:
         for path in (self.config.state_dir, self.config.docker_dir):
             if os.path.isdir(path):
-                fs = os.statvfs(path)  # what shutil.disk_usage says is free, without its import
-                free = fs.f_bavail * fs.f_frsize // (1 << 20)
+                free = shutil.disk_usage(path).free // (1 << 20)
                 if free < self.config.min_free_mb:
                     raise Outcome(
                         "failed",
