@@ -17,24 +17,21 @@ install -e .``); a copy installed without its checkout (a wheel, ``pip
 install .``) has no roles and no deploy.py, and refuses with one line.
 """
 
-import os
 import sys
 from pathlib import Path
 
 __version__ = "0.4.0"
 
-# The checkout's directory, as text and as a Path.
-CHECKOUT_DIR = os.path.dirname(os.path.dirname(os.path.realpath(__file__)))
-CHECKOUT = Path(CHECKOUT_DIR)
+CHECKOUT = Path(__file__).resolve().parent.parent
 NOT_A_CHECKOUT = (
-    f"robotfleet: {os.path.dirname(os.path.realpath(__file__))} is not in a checkout of the robot fleet provisioner "
+    f"robotfleet: {Path(__file__).resolve().parent} is not in a checkout of the robot fleet provisioner "
     "(no deploy.py beside it); it runs from its checkout: in the checkout, "
     "python3 -m venv .venv && .venv/bin/pip install -e .  (README: Install for operators)"
 )
 
-if not os.path.isfile(os.path.join(CHECKOUT_DIR, "deploy.py")):
+if not (CHECKOUT / "deploy.py").is_file():
     print(NOT_A_CHECKOUT, file=sys.stderr)
     raise SystemExit(2)
 
-if CHECKOUT_DIR not in sys.path[:1]:
-    sys.path.insert(0, CHECKOUT_DIR)
+if str(CHECKOUT) not in sys.path[:1]:
+    sys.path.insert(0, str(CHECKOUT))

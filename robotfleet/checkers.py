@@ -9,6 +9,7 @@ contacted and is unit-tested without hosts.
 from __future__ import annotations
 
 import datetime
+import difflib
 import re
 from collections.abc import Callable
 from typing import Any
@@ -294,8 +295,6 @@ HEX4 = r"[0-9a-fA-F]{4}"
 
 
 def did_you_mean(key: str, known) -> str:
-    import difflib  # for a misspelt key only
-
     close = difflib.get_close_matches(key, list(known), n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
 

@@ -5,8 +5,6 @@ robotfleet/pull/robot/agent.py."""
 
 import sys
 
-import robotfleet.pull.robot.bytecode  # noqa: F401 (first: the agent's modules are compiled into its directory)
-
 if __name__ == "__main__":
     from robotfleet.pull.robot.agent import main
 

@@ -95,26 +95,23 @@ def test_a_release_to_try_again_is_verified_in_full_before_it_is_applied(world):
     assert agent_state.load_state(world.state)["applied"]["version"] == 2
 
 
-def test_the_agent_compiles_its_modules_once_outside_the_release_s_tree(world, tmp_path):
-    """robot-pull.service names a bytecode directory: the first check
-    compiles the agent's modules there (one directory per tree, the other
-    trees' removed), the next ones read them; the tree gets none."""
+def test_a_check_removes_the_bytecode_directory_earlier_releases_kept(world, tmp_path):
+    """Earlier releases' units named a bytecode directory in the agent's
+    state directory (ROBOT_PULL_PYCACHE): a check removes what they left,
+    even run by such a unit, and writes no bytecode anywhere."""
     config = tmp_path / "agent.json"
     config.write_text(world.config.to_json())
-    cache = tmp_path / "pycache"
-    other = cache / ("ab" * 32)
-    other.mkdir(parents=True)
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(cache))
-    run = agent_files.start_command(sys.executable, str(config))
-    done = subprocess.run(run, capture_output=True, text=True, env=env, check=True)
-    assert "robot-pull: up-to-date" in done.stdout
-    mine = cache / robotfleet.CHECKOUT.name
-    compiled = {p: p.stat().st_mtime_ns for p in mine.rglob("*.pyc")}
-    assert any(p.name.startswith("transport.") for p in compiled) and not other.exists()
+    left = world.state / "pycache" / ("ab" * 32) / "robotfleet"
+    left.mkdir(parents=True)
+    (left / "__init__.cpython-311.pyc").write_bytes(b"\0")
+    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(world.state / "pycache"))
+    done = subprocess.run(
+        agent_files.start_command(sys.executable, str(config)), capture_output=True, text=True, env=env
+    )
+    assert done.returncode == 0 and "robot-pull: up-to-date" in done.stdout, done.stderr
+    assert not (world.state / "pycache").exists()
     assert not list((robotfleet.CHECKOUT / "robotfleet" / "pull" / "robot").glob("__pycache__/transport.*"))
-    subprocess.run(run, capture_output=True, text=True, env=env, check=True)
-    assert {p: p.stat().st_mtime_ns for p in mine.rglob("*.pyc")} == compiled  # read, not written again
-    assert "ROBOT_PULL_PYCACHE=/var/lib/robot-pull/pycache" in agent_files.service_unit()
+    assert "PYCACHE" not in agent_files.service_unit()
 
 
 def test_the_unit_runs_the_agent_s_entry_point_and_a_unit_of_the_python_s_start_does_too(world, tmp_path):
@@ -134,17 +131,3 @@ def test_the_unit_runs_the_agent_s_entry_point_and_a_unit_of_the_python_s_start_
         env = dict(os.environ, PYTHONPATH=str(robotfleet.CHECKOUT), PYTHONDONTWRITEBYTECODE="1")
         done = subprocess.run(command, cwd=robotfleet.CHECKOUT, env=env, capture_output=True, text=True)
         assert done.returncode == 0 and "robot-pull: up-to-date" in done.stdout, done.stderr
-
-
-def test_a_bytecode_directory_that_cannot_be_made_does_not_stop_the_check(world, tmp_path):
-    """A full disk or a broken path where the unit names the bytecode
-    directory costs the check its cache, not the check: it runs compiled
-    as before (here the directory's parent is a file)."""
-    config = tmp_path / "agent.json"
-    config.write_text(world.config.to_json())
-    blocked = tmp_path / "not-a-directory"
-    blocked.write_text("")
-    env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1", ROBOT_PULL_PYCACHE=str(blocked / "pycache"))
-    run = agent_files.start_command(sys.executable, str(config))
-    done = subprocess.run(run, capture_output=True, text=True, env=env)
-    assert done.returncode == 0 and "robot-pull: up-to-date" in done.stdout, done.stderr

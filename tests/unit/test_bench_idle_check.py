@@ -20,4 +20,4 @@ def test_a_month_is_2880_checks_and_the_heartbeat_720_of_them():
     assert "5.76 MB idle only" in lines[1]  # 2,000 B x 2,880
     assert "10.08 MB with the hour's heartbeat" in lines[1]  # 2,000 x 2,160 + 8,000 x 720
     found["idle"] = [check(0.2, 3000, 2000)] * 3
-    assert "target 0.1 s: NOT met" in idle_check.show("ssh", found)[0]
+    assert "target" not in idle_check.show("ssh", found)[0]  # the CPU targets: withdrawn (issue 53)

@@ -12,9 +12,10 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 from robotfleet.fleet import connection, pull_mode
+from robotfleet.pull.protocol import naming
 from robotfleet.pull.protocol.host_key_alias import HOST_KEY_ALIAS
 
 ETC = "/etc/robot-pull"
@@ -30,7 +31,6 @@ VENVS = f"{STATE}/venvs"
 WHEELS = f"{STATE}/wheels"  # <id>/*.whl: the wheels the venv <id> was made from
 CODE = f"{STATE}/code"  # <tree sha256>/: deploy trees; current -> the one the agent runs
 CURRENT_CODE = f"{CODE}/current"
-PYCACHE = f"{STATE}/pycache"  # <tree>/: the agent's bytecode, outside the tree (robotfleet/pull/agent.py)
 SERVICE = "robot-pull.service"
 TIMER = "robot-pull.timer"
 UNIT_DIR = "/etc/systemd/system"
@@ -152,8 +152,6 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     if not isinstance(raw.get("remote"), str) or not raw["remote"]:
         raise ConfigError(f"{where}: remote: required, a string")
     if raw.get("name_rule") is not None:
-        from robotfleet.pull.protocol import naming
-
         if raw.get("robot"):
             raise ConfigError(f"{where}: robot and name_rule: give one (a name, or the rule that derives it)")
         try:
@@ -193,10 +191,6 @@ def named(config: Config, read=None) -> Config:
     this robot's identity (``read(rule)``: the source's text)."""
     if config.name_rule is None:
         return config
-    from dataclasses import replace
-
-    from robotfleet.pull.protocol import naming
-
     try:
         raw = (read or naming.read)(config.name_rule)
         return replace(config, robot=naming.derive(config.name_rule, config.name_prefix, raw))
@@ -231,7 +225,7 @@ ConditionPathExists={CONFIG}
 [Service]
 Type=oneshot
 WorkingDirectory={CURRENT_CODE}
-Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1 ROBOT_PULL_PYCACHE={PYCACHE}
+Environment=PYTHONPATH={CURRENT_CODE} PYTHONDONTWRITEBYTECODE=1
 ExecStart={VENV}/bin/python -m robotfleet.pull.agent --config {CONFIG}
 # A release may install Docker and pull images: hours, not the default 90 s.
 TimeoutStartSec=4h

@@ -34,24 +34,27 @@ import argparse
 import datetime
 import fcntl
 import os
+import secrets
+import shutil
 import sys
 import time
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files, reports, waves
+from robotfleet.pull.protocol import agent_files, platforms, reports, waves
 from robotfleet.pull.protocol import record as records
 from robotfleet.pull.protocol.path_signatures import watched
-from robotfleet.pull.robot import agent_state, trust_state, wake_report
+from robotfleet.pull.robot import agent_state, prepare, refusals, release_run, trust_state, verify, wake_report
 from robotfleet.pull.robot import decide as deciding
 from robotfleet.pull.robot.journal import Phases, cpu_seconds, journal_line
 from robotfleet.pull.robot.transport import Remote, TransportError
-
-# prepare, wheels, prefetch, release_run, shutil...: imported where a check needs them.
 
 # What ssh says when the git server knows none of the robot's keys: before
 # `robotfleet pull-enroll` registered its own, for a robot that never read
 # a release (one that did was enrolled: its key refused now is a failure).
 ENROLLMENT_PENDING = "Permission denied (publickey"
+# The agent's bytecode directory in its state directory, which earlier
+# releases' units named (ROBOT_PULL_PYCACHE): unused now, and removed.
+EARLIER_BYTECODE = "pycache"
 
 
 def now() -> datetime.datetime:
@@ -97,8 +100,7 @@ class Wake:
     def check_disk(self) -> None:
         for path in (self.config.state_dir, self.config.docker_dir):
             if os.path.isdir(path):
-                fs = os.statvfs(path)  # what shutil.disk_usage says is free, without its import
-                free = fs.f_bavail * fs.f_frsize // (1 << 20)
+                free = shutil.disk_usage(path).free // (1 << 20)
                 if free < self.config.min_free_mb:
                     raise Outcome(
                         "failed",
@@ -131,8 +133,6 @@ class Wake:
 
     def verify(self):
         """The record, verified in full; the trust client (for downloads)."""
-        from robotfleet.pull.robot import refusals, verify
-
         if not (self.state_dir / "tuf" / "root.json").exists():
             root = Path(self.config.etc("root.json")).read_bytes()
             first = self.config.extra.get("trusted_time")
@@ -178,11 +178,6 @@ class Wake:
         return decision
 
     def apply(self, client, wave: int | None) -> Outcome:
-        import secrets
-
-        from robotfleet.pull.protocol import platforms
-        from robotfleet.pull.robot import prepare, refusals, release_run
-
         record, robot = self.record, self.config.robot
         platform = platforms.platform_key()
         wanted = [record.code, *record.wheels_for(platform)]
@@ -240,8 +235,6 @@ class Wake:
         """The window's prepared switch: the outcome when it failed its gate
         (rolled back, or nothing to go back to); None when it applied, or
         gave way (its release gone: refused), for the whole converge."""
-        from robotfleet.pull.robot import release_run
-
         with self.phases.timed("switch"):
             said = release_run.switch(prepared["switch"])
         if said.get("outcome") in ("rolled-back", "failed"):
@@ -321,8 +314,6 @@ class Wake:
         if not code.exists():
             self.status, self.status_time = {}, None
             return
-        from robotfleet.pull.robot import release_run
-
         fleet = (self.state.get("fleet") or {}).get("path")
         self.read_status(release_run.status(self.state_dir, self.config.robot, fleet), code)
 
@@ -352,6 +343,8 @@ def main(argv=None) -> int:
             return 0
         for earlier in ("idle.json", *trust_state.EARLIER):  # what earlier releases' shortcuts kept: gone
             (state / earlier).unlink(missing_ok=True)
+        if (state / EARLIER_BYTECODE).is_dir():
+            shutil.rmtree(state / EARLIER_BYTECODE, ignore_errors=True)
         wake = Wake(config)
         report, outcome = wake.run()
         if wake.record is not None:

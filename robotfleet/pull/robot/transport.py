@@ -47,9 +47,10 @@ from __future__ import annotations
 
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from robotfleet.pull.protocol import agent_files, report_shards, reports
+from robotfleet.pull.protocol import agent_files, report_shards, report_store, reports
 from robotfleet.pull.robot import probe, remote_git, ssh_options, transport_cost
 from robotfleet.pull.robot.remote_git import git_error
 
@@ -236,10 +237,6 @@ class Remote:
         "error"} when it cannot be read (robots without a report ref left out)."""
         if not robots:
             return {}
-        from concurrent.futures import ThreadPoolExecutor  # not at import: an idle wake reads no reports
-
-        from robotfleet.pull.protocol import report_store
-
         self._init()
         # the fleet remote: where robots not moved to their shard report, and the server's read copy of the shards
         fleet = self._reports_of(None, robots)
@@ -261,8 +258,6 @@ class Remote:
         specs = [f"+refs/reports/{robot}*:{local}{robot}*" for robot in robots]
         if len(specs) > PREFIXES_AT_MOST:  # git matches each refspec against each ref: 7,500 of them took 31 s of CPU
             specs = [f"+refs/reports/*:{local}*"]  # every report of the repository, the wanted ones read
-        from robotfleet.pull.protocol import report_store
-
         if shard is None and self.shards:  # the read copy, kept: the next read fetches only what changed
             specs.append(f"+{report_store.COPY}*:{COPY}*")
 

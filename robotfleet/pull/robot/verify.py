@@ -106,11 +106,6 @@ def _sweep(state_dir: Path) -> None:
             shutil.rmtree(entry, ignore_errors=True)
 
 
-def trusted_root(state_dir) -> bytes:
-    """The root.json the robot trusts now (for its report and the bundle)."""
-    return Path(state_dir, "tuf", "root.json").read_bytes()
-
-
 class DirectoryFetcher(FetcherInterface):
     """Reads ``file://`` URLs under one directory (the fetched releases
     branch), never through a link and only regular files

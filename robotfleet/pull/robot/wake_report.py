@@ -14,6 +14,7 @@ import os
 import re
 import time
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import robotfleet
 from robotfleet.pull.protocol import enrollment, reports
@@ -92,8 +93,6 @@ def same_ssh_server(one: str, other: str) -> bool:
 
 def ssh_login(remote: str) -> tuple[str, str, int] | None:
     """(user, host, port) of an SSH remote, None for any other (pure)."""
-    from urllib.parse import urlsplit
-
     scp_like = re.match(r"([^@/:]+)@(\[[^\]/]+\]|[^:/\[]+):(?!//)", remote)
     if scp_like:
         return scp_like[1], scp_like[2].strip("[]").lower(), 22
