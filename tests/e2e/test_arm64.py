@@ -67,7 +67,7 @@ from tests.bench.roundtrips import COUNTING
 from tests.e2e.conftest import BACKGROUND, ROOT, Lab, phase
 from tests.fixtures import pyinfra_argv
 
-pytestmark = pytest.mark.e2e
+pytestmark = [pytest.mark.e2e, pytest.mark.arm64]
 
 PI, NUC = "pi1", "robot1"
 LIMIT = ("--limit", PI, "--limit", NUC)

@@ -12,11 +12,11 @@ def test_every_module_the_groups_name_exists_and_is_in_one_group_only():
 
 
 def test_a_module_no_group_names_runs_in_the_default_group():
-    plan = groups.plan(["test_pull.py", "test_a_new_module.py", "test_arm64.py", "test_fleet.py"])
+    plan = groups.plan(["test_pull.py", "test_a_new_module.py", "test_ros.py", "test_fleet.py"])
     assert plan == {
         groups.DEFAULT_GROUP: ["test_a_new_module.py", "test_fleet.py"],
         "pull": ["test_pull.py"],
-        "arm64": ["test_arm64.py"],
+        "hosts": ["test_ros.py"],
     }
     assert groups.group_of("test_pull_over_something_new.py") == groups.DEFAULT_GROUP
 
