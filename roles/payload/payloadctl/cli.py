@@ -6,7 +6,7 @@ import socket
 import sys
 import time
 
-from . import durable, hold, logs, recovery, results, status
+from . import agent_images, durable, hold, logs, recovery, results, status
 from .apply import apply, prepare, switch
 from .lifecycle import Life, Refused
 from .lock import Busy, Lock, describe
@@ -137,6 +137,14 @@ def cmd_prune_logs(args):
     return logs.main(args.dir, args.max_mb)
 
 
+def cmd_image_pull(args):
+    return agent_images.command(agent_images.pull, args.refs, args.docker_dir, args.min_free_mb)
+
+
+def cmd_image_load(args):
+    return agent_images.command(agent_images.load, args.ref, args.digest, args.image, args.archive)
+
+
 def cmd_wait_devices(args):
     deadline = time.time() + args.timeout
     while True:
@@ -205,6 +213,17 @@ def parser():
     p.add_argument("--dir", required=True)
     p.add_argument("--max-mb", type=int, required=True)
     p.set_defaults(func=cmd_prune_logs)
+    p = sub.add_parser("image-pull", help="the pull agent's: pull each image by its digest, unless here")
+    p.add_argument("--docker-dir", required=True, help="Docker's directory, whose free disk is checked")
+    p.add_argument("--min-free-mb", type=int, required=True)
+    p.add_argument("refs", nargs="+", metavar="REPOSITORY@DIGEST")
+    p.set_defaults(func=cmd_image_pull)
+    p = sub.add_parser("image-load", help="the pull agent's: load an image from a release on media, checked")
+    p.add_argument("ref", help="the image as the release names it")
+    p.add_argument("digest", help="the digest the release pins")
+    p.add_argument("image", help="the image id the release binds")
+    p.add_argument("archive", nargs="?", help="the archive to load (none: only say whether it is here)")
+    p.set_defaults(func=cmd_image_load)
     p = sub.add_parser("wait-devices", help="wait for the sensors' device links")
     p.add_argument("--timeout", type=int, default=30)
     p.add_argument("devices", nargs="+")

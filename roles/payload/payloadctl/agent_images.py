@@ -1,0 +1,116 @@
+"""A pull robot's images put in place before its release runs, by the pull
+agent (robotfleet/pull/robot/prefetch.py, media.py: it runs the argv the
+payload's card names, ``image_helper``):
+
+    payloadctl image-pull --docker-dir DIR --min-free-mb N REPOSITORY@DIGEST...
+    payloadctl image-load REF DIGEST IMAGE_ID [ARCHIVE]
+
+image-pull: each image not here pulled by its digest, the free disk of
+Docker's directory checked before each; exit 3 when there is no Docker yet
+(the release's own converge installs it and pulls its images).
+
+image-load: without ARCHIVE, whether the image is already here (exit 3: it
+is not); with it, ``docker load`` of ARCHIVE, then the image found by REF's
+repository at DIGEST with the id IMAGE_ID the release binds.  The classic
+image store keeps no registry digest for a loaded image: there the id is
+found by REF's tag and, once checked, tagged by the digest (images.media_tag).
+Exit 4 when the load gave the image another id (a tampered archive).
+
+Any other failure: exit 1, its one line last on stderr."""
+
+import json
+import os
+import shutil
+import subprocess
+
+from . import imageref
+from .images import media_tag
+from .system import Failure, log
+
+NOT_HERE, TAMPERED = 3, 4
+MB = 1 << 20
+
+
+def docker(args, timeout):
+    try:
+        return subprocess.run(
+            ["docker"] + args,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            stdin=subprocess.DEVNULL,
+            universal_newlines=True,
+            timeout=timeout,
+        )
+    except subprocess.TimeoutExpired:
+        raise Failure("docker {} {}: no answer within {} s".format(args[0], args[-1], timeout)) from None
+    except OSError as error:
+        raise Failure("docker: {}".format(error)) from None
+
+
+def said(done, otherwise):
+    lines = [line.strip() for line in (done.stderr or done.stdout).splitlines() if line.strip()]
+    return lines[-1][:300] if lines else otherwise
+
+
+def pull(refs, docker_dir, min_free_mb):
+    if shutil.which("docker") is None:
+        return NOT_HERE
+    for ref in refs:
+        if docker(["image", "inspect", ref], 60).returncode == 0:
+            continue
+        free = shutil.disk_usage(docker_dir).free if os.path.isdir(docker_dir) else None
+        if free is not None and free < min_free_mb * MB:
+            raise Failure(
+                "{}: only {} MB free on {}'s file system (pull_min_free_mb: {})".format(
+                    ref, free // MB, docker_dir, min_free_mb
+                )
+            )
+        done = docker(["pull", "-q", ref], 1800)
+        if done.returncode:
+            raise Failure("docker pull {}: {}".format(ref, said(done, "exit {}".format(done.returncode))))
+    return 0
+
+
+def image_id(name):
+    done = docker(["image", "inspect", "--format", "{{json .Id}}", name], 120)
+    try:
+        found = json.loads(done.stdout.strip().splitlines()[0]) if done.returncode == 0 else None
+    except (ValueError, IndexError):
+        return None
+    return found if isinstance(found, str) else None
+
+
+def load(ref, digest, image, archive=None):
+    parsed = imageref.parse(ref)
+    wanted = "{}@{}".format(parsed.repository, digest)
+    tag = media_tag(wanted)
+    if archive is None:
+        return 0 if image_id(wanted) in (image, digest) or image_id(tag) == image else NOT_HERE
+    done = docker(["load", "-q", "-i", archive], 1800)
+    if done.returncode:
+        raise Failure("docker load of {}: {}".format(ref, said(done, "exit status {}".format(done.returncode))))
+    found = image_id(wanted)
+    if found is None:  # the classic store: by the id it loaded, checked, then tagged by the digest
+        found = image_id("{}:{}".format(parsed.repository, parsed.tag) if parsed.tag else image)
+        if found == image:
+            tagged = docker(["tag", image, tag], 120)
+            if tagged.returncode or image_id(tag) != image:
+                raise Failure("docker tag {} {}: {}".format(image, tag, said(tagged, "the tag does not name it")))
+    if found not in (image, digest):
+        raise Tampered(
+            "{}: docker load gave {} the id {}, the release binds {}".format(ref, wanted, found or "none", image)
+        )
+    return 0
+
+
+class Tampered(Failure):
+    code = TAMPERED
+
+
+def command(work, *given):
+    """``work(*given)``'s exit status; a failure's line on stderr."""
+    try:
+        return work(*given)
+    except (Failure, ValueError) as error:
+        log(str(error))
+        return getattr(error, "code", 1)
