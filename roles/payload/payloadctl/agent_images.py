@@ -1,22 +1,13 @@
-"""A pull robot's images put in place before its release runs, by the pull
-agent (robotfleet/pull/robot/prefetch.py, media.py: it runs the argv the
-payload's card names, ``image_helper``):
-
-    payloadctl image-pull --docker-dir DIR --min-free-mb N REPOSITORY@DIGEST...
-    payloadctl image-load REF DIGEST IMAGE_ID [ARCHIVE]
-
-image-pull: each image not here pulled by its digest, the free disk of
-Docker's directory checked before each; exit 3 when there is no Docker yet
-(the release's own converge installs it and pulls its images).
-
-image-load: without ARCHIVE, whether the image is already here (exit 3: it
-is not); with it, ``docker load`` of ARCHIVE, then the image found by REF's
-repository at DIGEST with the id IMAGE_ID the release binds.  The classic
-image store keeps no registry digest for a loaded image: there the id is
-found by REF's tag and, once checked, tagged by the digest (images.media_tag).
-Exit 4 when the load gave the image another id (a tampered archive).
-
-Any other failure: exit 1, its one line last on stderr."""
+"""The pull agent's images, put in place before its release runs (it runs
+the payload card's ``image_helper``: robotfleet/pull/robot/prefetch.py,
+media.py).  ``image-pull REPOSITORY@DIGEST...``: each image not here pulled,
+the free disk of Docker's directory checked first (exit 3: no Docker yet).
+``image-load REF DIGEST IMAGE_ID [ARCHIVE]``: without ARCHIVE, whether the
+image is here (exit 3: not); with it, ``docker load``, then the image found
+by REF's repository at DIGEST with the id the release binds, or (the classic
+store keeps no registry digest for a loaded image) by REF's tag, and once
+checked tagged by the digest (images.media_tag); exit 4: another id (a
+tampered archive).  Any other failure: exit 1, its line on stderr."""
 
 import json
 import os
@@ -25,7 +16,7 @@ import subprocess
 
 from . import imageref
 from .images import media_tag
-from .system import Failure, log
+from .system import Failure, log, run
 
 NOT_HERE, TAMPERED = 3, 4
 MB = 1 << 20
@@ -33,18 +24,11 @@ MB = 1 << 20
 
 def docker(args, timeout):
     try:
-        return subprocess.run(
-            ["docker"] + args,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            stdin=subprocess.DEVNULL,
-            universal_newlines=True,
-            timeout=timeout,
-        )
+        return run(["docker"] + args, check=False, timeout=timeout)
     except subprocess.TimeoutExpired:
-        raise Failure("docker {} {}: no answer within {} s".format(args[0], args[-1], timeout)) from None
+        raise Failure(f"docker {args[0]} {args[-1]}: no answer within {timeout} s") from None
     except OSError as error:
-        raise Failure("docker: {}".format(error)) from None
+        raise Failure(f"docker: {error}") from None
 
 
 def said(done, otherwise):
@@ -61,9 +45,7 @@ def pull(refs, docker_dir, min_free_mb):
         free = shutil.disk_usage(docker_dir).free if os.path.isdir(docker_dir) else None
         if free is not None and free < min_free_mb * MB:
             raise Failure(
-                "{}: only {} MB free on {}'s file system (pull_min_free_mb: {})".format(
-                    ref, free // MB, docker_dir, min_free_mb
-                )
+                f"{ref}: only {free // MB} MB free on {docker_dir}'s file system (pull_min_free_mb: {min_free_mb})"
             )
         done = docker(["pull", "-q", ref], 1800)
         if done.returncode:
@@ -97,14 +79,9 @@ def load(ref, digest, image, archive=None):
             if tagged.returncode or image_id(tag) != image:
                 raise Failure("docker tag {} {}: {}".format(image, tag, said(tagged, "the tag does not name it")))
     if found not in (image, digest):
-        raise Tampered(
-            "{}: docker load gave {} the id {}, the release binds {}".format(ref, wanted, found or "none", image)
-        )
+        log(f"{ref}: docker load gave {wanted} the id {found or 'none'}, the release binds {image}")
+        return TAMPERED
     return 0
-
-
-class Tampered(Failure):
-    code = TAMPERED
 
 
 def command(work, *given):
@@ -113,4 +90,4 @@ def command(work, *given):
         return work(*given)
     except (Failure, ValueError) as error:
         log(str(error))
-        return getattr(error, "code", 1)
+        return 1

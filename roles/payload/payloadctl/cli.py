@@ -137,14 +137,6 @@ def cmd_prune_logs(args):
     return logs.main(args.dir, args.max_mb)
 
 
-def cmd_image_pull(args):
-    return agent_images.command(agent_images.pull, args.refs, args.docker_dir, args.min_free_mb)
-
-
-def cmd_image_load(args):
-    return agent_images.command(agent_images.load, args.ref, args.digest, args.image, args.archive)
-
-
 def cmd_wait_devices(args):
     deadline = time.time() + args.timeout
     while True:
@@ -213,17 +205,17 @@ def parser():
     p.add_argument("--dir", required=True)
     p.add_argument("--max-mb", type=int, required=True)
     p.set_defaults(func=cmd_prune_logs)
-    p = sub.add_parser("image-pull", help="the pull agent's: pull each image by its digest, unless here")
-    p.add_argument("--docker-dir", required=True, help="Docker's directory, whose free disk is checked")
+    p = sub.add_parser("image-pull", help="the pull agent's: pull images by their digest, unless here")
+    p.add_argument("--docker-dir", required=True, help="where Docker keeps images (its free disk is checked)")
     p.add_argument("--min-free-mb", type=int, required=True)
     p.add_argument("refs", nargs="+", metavar="REPOSITORY@DIGEST")
-    p.set_defaults(func=cmd_image_pull)
-    p = sub.add_parser("image-load", help="the pull agent's: load an image from a release on media, checked")
+    p.set_defaults(func=lambda a: agent_images.command(agent_images.pull, a.refs, a.docker_dir, a.min_free_mb))
+    p = sub.add_parser("image-load", help="the pull agent's: load an image of a release on media, checked")
     p.add_argument("ref", help="the image as the release names it")
     p.add_argument("digest", help="the digest the release pins")
     p.add_argument("image", help="the image id the release binds")
     p.add_argument("archive", nargs="?", help="the archive to load (none: only say whether it is here)")
-    p.set_defaults(func=cmd_image_load)
+    p.set_defaults(func=lambda a: agent_images.command(agent_images.load, a.ref, a.digest, a.image, a.archive))
     p = sub.add_parser("wait-devices", help="wait for the sensors' device links")
     p.add_argument("--timeout", type=int, default=30)
     p.add_argument("devices", nargs="+")
