@@ -20,9 +20,8 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
   image digests a pull release binds (robotfleet publish); digests.py: those
   digests applied when the robot runs the release (payload_image_pins);
   hold.py, window_switch.py: its parts in a pull robot's converge (the apply
-  lock held for the run; a release prepared before its window, switched in it);
-  its images pulled ahead of the window or loaded from media by payloadctl
-  (payloadctl/agent_images.py: image_helper, the command the agent runs).
+  lock held for the run; a release prepared before its window, switched in it;
+  its images pulled or loaded from media: image_helper, payloadctl/agent_images.py).
 """
 
 from robotfleet.role import Role

@@ -8,9 +8,10 @@ directory), unpacks and checks the tree (``code/<tree hash>``), makes the
 venv, and has each of the robot's images pulled by the digest the record
 names (``repo@sha256:...``) by the image helper a role declared
 (agent.json's ``image_helper``, run as root: ``image-pull``), which skips
-an image already present by that digest.  The check then reports ``prefetched``; the apply, when the gate
-opens, finds every target cached (python-tuf's ``find_cached_target``), the
-tree and the venv made, and the images present.
+an image already present by that digest.  The check then reports
+``prefetched``; the apply, when the gate opens, finds every target cached
+(python-tuf's ``find_cached_target``), the tree and the venv made, and the
+images present.
 
 Once everything is in place, the release's switch is prepared, once a
 release (``prepare_switch``; robotfleet/pull/robot/window_switch.py): when its plan

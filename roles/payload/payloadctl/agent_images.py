@@ -1,13 +1,7 @@
-"""The pull agent's images, put in place before its release runs (it runs
-the payload card's ``image_helper``: robotfleet/pull/robot/prefetch.py,
-media.py).  ``image-pull REPOSITORY@DIGEST...``: each image not here pulled,
-the free disk of Docker's directory checked first (exit 3: no Docker yet).
-``image-load REF DIGEST IMAGE_ID [ARCHIVE]``: without ARCHIVE, whether the
-image is here (exit 3: not); with it, ``docker load``, then the image found
-by REF's repository at DIGEST with the id the release binds, or (the classic
-store keeps no registry digest for a loaded image) by REF's tag, and once
-checked tagged by the digest (images.media_tag); exit 4: another id (a
-tampered archive).  Any other failure: exit 1, its line on stderr."""
+"""A pull robot's images put in place before its release runs, by the
+command the payload's card names for the pull agent (``image_helper``):
+``image-pull`` ahead of a window, ``image-load`` from a release on media.
+Their arguments and exit statuses: docs/reference/payloadctl.md."""
 
 import json
 import os
@@ -18,7 +12,7 @@ from . import imageref
 from .images import media_tag
 from .system import Failure, log, run
 
-NOT_HERE, TAMPERED = 3, 4
+NOT_HERE, TAMPERED = 3, 4  # what the agent reads (robotfleet/pull/robot/release_run.py)
 MB = 1 << 20
 
 
