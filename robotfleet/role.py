@@ -227,6 +227,9 @@ class Role:
     - ``hold``: its lock, held by the pull agent for a converge run (HoldPart);
     - ``switch``: its release made ready before a pull robot's window and
       switched to in it (SwitchPart);
+    - ``image_helper``: the argv on the robot with which the pull agent puts
+      a release's images in place (``image-pull``, ``image-load``: see
+      robotfleet/pull/robot/prefetch.py and media.py);
     - ``renamed``: older names of its settings, still read (Renamed)."""
 
     name: str
@@ -244,6 +247,7 @@ class Role:
     secrets: Callable[[Any], list[str]] = _no_secrets
     hold: HoldPart | None = None
     switch: SwitchPart | None = None
+    image_helper: tuple[str, ...] = ()
     renamed: tuple[Renamed, ...] = ()
 
 

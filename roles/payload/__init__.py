@@ -20,11 +20,13 @@ waits for health and rolls back on failure.  Nothing changes otherwise.
   image digests a pull release binds (robotfleet publish); digests.py: those
   digests applied when the robot runs the release (payload_image_pins);
   hold.py, window_switch.py: its parts in a pull robot's converge (the apply
-  lock held for the run; a release prepared before its window, switched in it).
+  lock held for the run; a release prepared before its window, switched in it;
+  its images pulled or loaded from media: image_helper, payloadctl/agent_images.py).
 """
 
 from robotfleet.role import Role
 from roles.payload import credentials, hold, pins, report, secret_files, settings, steps, window_switch
+from roles.payload.installed_files import HELPER
 from roles.payload.release import rollback_release
 
 
@@ -47,6 +49,7 @@ ROLE = Role(
     pins=pins.PINS,
     hold=hold.HOLD,
     switch=window_switch.SWITCH,
+    image_helper=(HELPER,),
 )
 
 __all__ = ["ROLE", "rollback_release"]

@@ -85,7 +85,7 @@ def pull_agent(play: Play):
     operations.file(
         name="Write the pull agent's configuration",
         path=agent_files.CONFIG,
-        content=agent_files.for_host(data, name).to_json(),
+        content=agent_files.for_host(data, name, play.roles).to_json(),
         current=snap.files.get(agent_files.CONFIG),
         mode="0600",
     )

@@ -16,7 +16,7 @@ def converged(play, host: str) -> None:
         snap.packages[package] = "1"
     for path in (agent_files.ETC, agent_files.STATE):
         snap.files[path] = FileState("dir", None, "700", "root", "root")
-    snap.files[agent_files.CONFIG] = file_state(agent_files.for_host(data, name).to_json(), "600")
+    snap.files[agent_files.CONFIG] = file_state(agent_files.for_host(data, name, play.roles).to_json(), "600")
     snap.files[agent_files.TRUST_ROOT] = file_state(install.trust_root(CHECKOUT, data.pull_trust_root), "600")
     snap.files[agent_files.KNOWN_HOSTS] = file_state(agent_files.known_hosts(data))
     ca = install.remote_ca(CHECKOUT, data.pull_remote_ca)

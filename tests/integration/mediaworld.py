@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import stat
 import sys
 from pathlib import Path
@@ -81,14 +82,14 @@ def by_its_digest(platform_registry):
 
 
 def fake_docker(tmp_path: Path, monkeypatch):
-    """FAKE_DOCKER as $ROBOTFLEET_DOCKER, its log and store in tmp_path: a function
-    returning the calls made so far."""
+    """FAKE_DOCKER first on PATH (where payloadctl image-load finds docker), its
+    log and store in tmp_path: a function returning the calls made so far."""
     program = tmp_path / "bin" / "docker"
     program.parent.mkdir()
     program.write_text(FAKE_DOCKER.format(python=sys.executable))
     program.chmod(program.stat().st_mode | stat.S_IXUSR)
     log = tmp_path / "docker.log"
-    monkeypatch.setenv("ROBOTFLEET_DOCKER", str(program))
+    monkeypatch.setenv("PATH", f"{program.parent}{os.pathsep}{os.environ['PATH']}")
     monkeypatch.setenv("FAKE_DOCKER_LOG", str(log))
     monkeypatch.setenv("FAKE_DOCKER_STORE", str(tmp_path / "docker-images.json"))
 

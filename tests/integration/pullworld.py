@@ -19,6 +19,7 @@ from pathlib import Path
 
 from robotfleet.pull.protocol import agent_files, path_signatures, reports, tree
 from robotfleet.pull.robot import agent, agent_state, wake_report
+from roles.payload import installed_files
 from tests.integration import httpsgit
 from tests.unit import pullkit
 from tests.unit.pullkit import NOW
@@ -97,6 +98,8 @@ class World:
         venv.mkdir(parents=True)
         os.symlink(sys.executable, venv / "python")
         os.symlink("venvs/stub", self.state / "venv")
+        helper = base / "payloadctl"  # the payload's image helper, as roles/payload installs it
+        helper.write_bytes(installed_files.helper_bytes())
         self.config = agent_files.Config(
             robot="robot1",
             remote=f"file://{self.bare}",
@@ -106,6 +109,7 @@ class World:
             etc_dir=str(self.etc),
             docker_dir=str(base / "none"),
             min_free_mb=0,
+            image_helper=(sys.executable, str(helper)),
         )
 
     def record(self, version: int, robots, canary="1", images=None, wheels=None, pause=0):

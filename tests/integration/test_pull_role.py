@@ -15,6 +15,7 @@ import roles.pull as pull_role
 import roles.pull.plan as plan
 from robotfleet.pull.operator import install
 from robotfleet.pull.protocol import agent_files
+from roles.payload import installed_files
 from tests.unit import pullkit
 from tests.unit.harness import ROBOT, converged, find, fleet_problems, fresh_host, merged, written_files
 from tests.unit.harness import plan as run_plan
@@ -198,7 +199,9 @@ def test_a_fresh_robot_gets_the_agent(pulled, released):
     assert result.failed == set()
     assert find(commands, r"install python3-venv git openssh-client")
     files = written_files(commands)
-    assert json.loads(files[agent_files.CONFIG])["robot"] == "@fake/r1"
+    config = json.loads(files[agent_files.CONFIG])
+    # The images the agent puts in place go through the role that runs them (robotfleet.role Role.image_helper).
+    assert config["robot"] == "@fake/r1" and config["image_helper"] == [installed_files.HELPER]
     assert files[agent_files.TRUST_ROOT] == (released.repository.metadata / "root.json").read_text()
     assert files[f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"] == agent_files.timer_unit(merged("robots", pulled))
     for path in (agent_files.CONFIG, agent_files.TRUST_ROOT):

@@ -1,6 +1,6 @@
 """A release on media, its pure parts: the image index ``media.json``
 (robotfleet/pull/protocol/media.py) is read field by field with one line per
-problem, and the tag the agent gives a checked image on Docker's classic
+problem, and the tag payloadctl image-load gives a checked image on Docker's classic
 store is the one the payload runs (payloadctl/images.py); the processes:
 tests/integration/test_pull_media.py."""
 
@@ -53,11 +53,15 @@ def test_every_bad_field_is_one_line_naming_it(change, line):
     assert str(caught.value).startswith(line) and "\n" not in str(caught.value)
 
 
-def test_the_agent_tags_a_checked_image_by_the_name_the_payload_runs():
-    for ref in ("reg.lan:5000/ros/payload:1.1", "ros/payload:2", "localhost:5000/p"):
-        assert robot_media.media_tag(ref, PIN) == images.media_tag(f"{ref}@{PIN}")
-    assert robot_media.digest_ref("reg.lan:5000/ros/payload:1.1", PIN) == f"reg.lan:5000/ros/payload@{PIN}"
-    assert robot_media.tag_ref("reg.lan:5000/p") is None
+def test_a_checked_image_is_tagged_by_the_name_the_payload_runs():
+    """payloadctl image-load tags it so (agent_images.py) and runs it so (images.py)."""
+    for ref, repository in (
+        ("reg.lan:5000/ros/payload:1.1", "reg.lan:5000/ros/payload"),
+        ("ros/payload:2", "ros/payload"),
+        ("localhost:5000/p", "localhost:5000/p"),
+    ):
+        assert images.media_tag(f"{ref}@{PIN}") == f"{repository}:media-sha256-{PIN[7:]}"
+    assert images.media_tag("reg.lan:5000/p:1") is None
 
 
 def test_the_agent_s_configuration_carries_the_media_directory_when_one_is_set():

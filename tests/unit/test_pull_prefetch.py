@@ -1,10 +1,12 @@
 """Prefetch's pure parts (robotfleet/pull/robot/prefetch.py): what Docker is
-asked to pull, and whether the disk has room; the benchmark's window."""
+asked to pull, and whether the disk has room; the benchmark's window; the
+image helper agent.json names."""
 
 import datetime
 
 import pytest
 
+from robotfleet.pull.protocol import agent_files
 from robotfleet.pull.robot import prefetch
 from tests.bench import prefetch as bench
 
@@ -35,3 +37,12 @@ def test_the_benchmark_s_window_opens_at_a_whole_minute_after_its_lead():
     assert opens == datetime.datetime(2026, 11, 27, 23, 55, tzinfo=datetime.timezone.utc)
     assert window == "daily 23:55-00:25 UTC"  # past midnight: an end before the start
     assert bench.window_ahead(now.replace(second=0), lead=240)[0] == now.replace(minute=54, second=0)
+
+
+def test_agent_json_carries_the_image_helper_a_role_declared_and_checks_it():
+    config = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet", image_helper=("/usr/local/lib/x/helper",))
+    assert agent_files.read_config(config.to_json()) == config
+    assert "image_helper" not in agent_files.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
+    with pytest.raises(agent_files.ConfigError) as caught:
+        agent_files.read_config(config.to_json().replace('"/usr/local/lib/x/helper"', "1"), "agent.json")
+    assert str(caught.value) == "agent.json: image_helper: expected a command (a list of strings)"

@@ -26,10 +26,6 @@ from robotfleet.pull.protocol.record import load_json
 FORMAT = 1
 NAME = "media.json"  # its TUF target path
 MAX_BYTES = 4 << 20
-# Where Docker cannot find a loaded image by the release's digest (the classic
-# image store), the agent tags the image id it checked repository:<MEDIA_TAG><hex>,
-# and the payload runs it by that tag (roles/payload/payloadctl/images.py: the same).
-MEDIA_TAG = "media-sha256-"
 REPORTS = "reports"  # <medium>/reports/<robot>.json: reports written back when the remote is out of reach
 _DIGEST = re.compile(r"sha256:[0-9a-f]{64}")
 _ARCHIVE = re.compile(r"images/[A-Za-z0-9][A-Za-z0-9._-]{0,200}\.tar")

@@ -193,7 +193,7 @@ class Wake:
                 if self.medium is not None:  # its images too, checked (robot/media.py)
                     from robotfleet.pull.robot import media
 
-                    media.load_images(client, record, robot, platform.split("-", 1)[1], self.state_dir / "media")
+                    media.load_images(client, record, self.config, platform.split("-", 1)[1], self.state_dir / "media")
         except refusals.Refused as refused:
             raise Outcome("refused", refused.line, refused.reason, wave) from None
         except prepare.Mismatch as error:

@@ -14,15 +14,11 @@ when it does not, the medium alone is.
 
 To apply, each image the release pins for this robot comes from the media:
 ``media.json`` and the image's archive are TUF targets (length and sha256
-checked as they are read), the archive goes to ``docker load``, and the
-image must then be found by the release's reference ``repository@digest``
-with the id the release binds: the containerd image store keeps the
-registry digest of the archive's OCI index (its image id is that digest).
-The classic store keeps only the image id (the config's digest) and cannot
-find an image by a registry digest it never pulled: there the loaded
-image's id is checked against the one the release binds, and that id is
-tagged ``repository:media-sha256-<the pin's hex>`` (protocol/media.py
-MEDIA_TAG), the name the payload runs it by (payloadctl/images.py).
+checked as they are read), and the archive goes to the image helper a role
+declared (agent.json's ``image_helper``: ``image-load REF DIGEST IMAGE_ID
+ARCHIVE``), which loads it and checks that the image is then found by the
+release's reference ``repository@digest`` with the id the release binds
+(the payload's: roles/payload/payloadctl/agent_images.py).
 
 The report goes to the remote as always; when the remote is out of reach it
 is also written to the medium (``reports/<robot>.json``), and the agent
@@ -31,17 +27,12 @@ pushes it at its next contact (an unsent report is sent at the next wake).
 
 from __future__ import annotations
 
-import json
 import os
 import secrets
-import subprocess
 from pathlib import Path
 
 from robotfleet.pull.protocol import media
 from robotfleet.pull.robot.prepare import PrepareError
-
-DOCKER_ENV = "ROBOTFLEET_DOCKER"  # the docker program (tests give one that records its calls)
-DOCKER_TIMEOUT = 1800
 
 
 class MediaFailure(PrepareError):
@@ -57,54 +48,14 @@ def mounted(media_dir: str | None) -> Path | None:
     return base if (base / "metadata" / "timestamp.json").is_file() else None
 
 
-def split_ref(ref: str) -> tuple[str, str | None]:
-    """An image reference as a release names it -> (repository, tag or None)."""
-    name = ref.split("@", 1)[0]
-    slash, colon = name.rfind("/"), name.rfind(":")
-    return (name[:colon], name[colon + 1 :]) if colon > slash else (name, None)
-
-
-def digest_ref(ref: str, digest: str) -> str:
-    """``ref``'s repository at ``digest``: what the payload runs."""
-    return f"{split_ref(ref)[0]}@{digest}"
-
-
-def tag_ref(ref: str) -> str | None:
-    repository, tag = split_ref(ref)
-    return f"{repository}:{tag}" if tag else None
-
-
-def media_tag(ref: str, digest: str) -> str:
-    return f"{split_ref(ref)[0]}:{media.MEDIA_TAG}{digest.split(':', 1)[1]}"
-
-
-def docker(*args: str, timeout: int = 120) -> subprocess.CompletedProcess:
-    program = os.environ.get(DOCKER_ENV) or "docker"
-    try:
-        return subprocess.run([program, *args], capture_output=True, text=True, timeout=timeout, check=False)
-    except (OSError, subprocess.TimeoutExpired) as error:
-        raise MediaFailure(f"docker {args[0]}: {error}") from None
-
-
-def image_id(name: str) -> str | None:
-    """The id of image ``name`` in the robot's Docker engine, or None."""
-    done = docker("image", "inspect", "--format", "{{json .Id}}", name)
-    if done.returncode:
-        return None
-    try:
-        found = json.loads(done.stdout.strip().splitlines()[0])
-    except (ValueError, IndexError):
-        return None
-    return found if isinstance(found, str) else None
-
-
-def load_images(client, record, robot: str, machine: str, work: Path) -> int:
-    """Each image the release pins for ``robot`` in the engine, from the
-    medium's archives, checked; how many were loaded.  refusals.Refused for
+def load_images(client, record, config, machine: str, work: Path) -> int:
+    """Each image the release pins for ``config.robot`` in the engine, from
+    the medium's archives, checked by the image helper a role declared
+    (agent.json's ``image_helper``); how many were loaded.  refusals.Refused for
     a medium that is not what was signed, MediaFailure otherwise."""
     from robotfleet.pull.robot import refusals
 
-    pins = record.images_of(robot)
+    pins = record.images_of(config.robot)
     if not pins:
         return 0
     index_file = client.download([media.NAME], work)[media.NAME]
@@ -122,32 +73,27 @@ def load_images(client, record, robot: str, machine: str, work: Path) -> int:
         entry = mine.get(ref)
         if entry is None or entry["digest"] != pin:
             raise refusals.Refused(refusals.MALFORMED, f"{media.NAME}: no archive of {ref}@{pin} for {machine}")
-        wanted, tag = digest_ref(ref, pin), media_tag(ref, pin)
-        if image_id(wanted) in (entry["image"], pin) or image_id(tag) == entry["image"]:
+        if _load(config, ref, pin, entry["image"]) == 0:
             continue  # already here, checked
         archive = client.download([entry["archive"]], work)[entry["archive"]]
         try:
-            done = docker("load", "-q", "-i", str(archive), timeout=DOCKER_TIMEOUT)
+            _load(config, ref, pin, entry["image"], str(archive))
         finally:
             archive.unlink(missing_ok=True)
-        if done.returncode:
-            said = (done.stderr or done.stdout).strip().splitlines() or [f"exit status {done.returncode}"]
-            raise MediaFailure(f"docker load of {ref}: {said[-1][:300]}")
-        found = image_id(wanted)
-        if found is None:  # the classic store: by the id it loaded, checked, then tagged by the digest
-            found = image_id(tag_ref(ref) or entry["image"])
-            if found == entry["image"]:
-                tagged = docker("tag", entry["image"], tag)
-                if tagged.returncode or image_id(tag) != entry["image"]:
-                    said = (tagged.stderr or tagged.stdout).strip().splitlines() or ["the tag does not name it"]
-                    raise MediaFailure(f"docker tag {entry['image']} {tag}: {said[-1][:300]}")
-        if found not in (entry["image"], pin):
-            raise refusals.Refused(
-                refusals.TAMPERED,
-                f"{ref}: docker load gave {wanted} the id {found or 'none'}, the release binds {entry['image']}",
-            )
         loaded += 1
     return loaded
+
+
+def _load(config, *args: str) -> int:
+    """The image helper's ``image-load``: 0 (here, checked) or NOT_HERE."""
+    from robotfleet.pull.robot import refusals, release_run
+
+    code, line = release_run.helper(config.image_helper, "image-load", *args)
+    if code == release_run.TAMPERED:
+        raise refusals.Refused(refusals.TAMPERED, line)
+    if code not in (0, release_run.NOT_HERE):
+        raise MediaFailure(line)
+    return code
 
 
 def write_report(medium: Path, robot: str, data: bytes) -> str:

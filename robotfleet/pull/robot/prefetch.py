@@ -5,12 +5,13 @@ When a check decides "waiting" (robotfleet/pull/robot/decide.py), the agent
 asks ``ahead``: it downloads and verifies the code archive and the wheels
 for this robot's platform (TUF targets, kept in the agent's targets
 directory), unpacks and checks the tree (``code/<tree hash>``), makes the
-venv, and pulls each of the robot's images by the digest the record names
-(``docker pull repo@sha256:...``, as root: with the registry logins the
-payload role made on the robot), skipping an image already present by that
-digest.  The check then reports ``prefetched``; the apply, when the gate
-opens, finds every target cached (python-tuf's ``find_cached_target``), the
-tree and the venv made, and the images present.
+venv, and has each of the robot's images pulled by the digest the record
+names (``repo@sha256:...``) by the image helper a role declared
+(agent.json's ``image_helper``, run as root: ``image-pull``), which skips
+an image already present by that digest.  The check then reports
+``prefetched``; the apply, when the gate opens, finds every target cached
+(python-tuf's ``find_cached_target``), the tree and the venv made, and the
+images present.
 
 Once everything is in place, the release's switch is prepared, once a
 release (``prepare_switch``; robotfleet/pull/robot/window_switch.py): when its plan
@@ -33,12 +34,8 @@ from __future__ import annotations
 import os
 import re
 import shutil
-import subprocess
 from pathlib import Path
 
-DOCKER = "docker"  # found on PATH, as the payload role's own pulls find it
-PULL_TIMEOUT = 1800
-INSPECT_TIMEOUT = 60
 # The downloads, and as much again twice: the unpacked tree and the venv's installed wheels.
 UNPACKED_FACTOR = 3
 PREFETCHED = "prefetched"
@@ -103,7 +100,7 @@ def ahead(wake, client, waiting) -> tuple[str, str, str | None]:
         wheels = {p: found[p] for p in found if p != record.code}
         if wheels:
             paths.append(str(prepare.venv_for(state_dir, wheels)))
-        images = pull_images(record.images_of(config.robot), config.docker_dir, config.min_free_mb)
+        images = pull_images(record.images_of(config.robot), config)
     except refusals.Refused as refused:
         if refused.reason != refusals.UNAVAILABLE:
             return "refused", refused.line, refused.reason
@@ -167,40 +164,26 @@ def _targets(record, client, state_dir: Path, min_free_mb: int) -> dict[str, Pat
     return client.download(wanted, directory)
 
 
-def pull_images(images: dict[str, str], docker_dir: str, min_free_mb: int, docker: str = DOCKER) -> list[str] | None:
-    """Each image by its digest, present afterwards; the references (None:
-    no Docker on the robot yet, which the release's own converge installs:
-    its images are pulled then).  Incomplete at the first that cannot be
-    had (the rest: the next check)."""
-    if images and shutil.which(docker) is None:
-        return None
+def pull_images(images: dict[str, str], config) -> list[str] | None:
+    """Each image by its digest, present afterwards, pulled by the image
+    helper a role declared (agent.json's ``image_helper``); the references
+    (None: no Docker or no helper on the robot yet, which the release's own
+    converge installs: its images are pulled then).  Incomplete at the
+    first that cannot be had (the rest: the next check)."""
+    from robotfleet.pull.robot import release_run
+
     wanted = []
     for ref, digest in sorted(images.items()):
         try:
             wanted.append(by_digest(ref, digest))
         except ValueError as error:
             raise Incomplete(str(error)) from None
-    for pinned in wanted:
-        if _docker(docker, ["image", "inspect", pinned], INSPECT_TIMEOUT).returncode == 0:
-            continue
-        free = free_on(docker_dir)
-        if free is not None and free < min_free_mb * MB:
-            raise Incomplete(
-                f"{pinned}: only {free // MB} MB free on {docker_dir}'s file system (pull_min_free_mb: {min_free_mb})"
-            )
-        done = _docker(docker, ["pull", "-q", pinned], PULL_TIMEOUT)
-        if done.returncode:
-            lines = [line.strip() for line in (done.stderr or done.stdout).splitlines() if line.strip()]
-            raise Incomplete(f"docker pull {pinned}: {lines[-1][:300] if lines else f'exit {done.returncode}'}")
+    if not wanted:
+        return wanted
+    free = ("--docker-dir", config.docker_dir, "--min-free-mb", str(config.min_free_mb))
+    code, line = release_run.helper(config.image_helper, "image-pull", *free, *wanted)
+    if code in (None, release_run.NOT_HERE):
+        return None
+    if code:
+        raise Incomplete(line)
     return wanted
-
-
-def _docker(docker: str, args: list[str], timeout: int) -> subprocess.CompletedProcess:
-    try:
-        return subprocess.run(
-            [docker, *args], capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL
-        )
-    except subprocess.TimeoutExpired:
-        raise Incomplete(f"docker {args[0]} {args[-1]}: no answer within {timeout} s") from None
-    except OSError as error:
-        raise Incomplete(f"docker: {error}") from None

@@ -11,6 +11,7 @@ import subprocess
 from pathlib import Path
 
 TIMEOUT = 5 * 3600
+NOT_HERE, TAMPERED = 3, 4  # an image helper's exit statuses (robotfleet.role Role.image_helper)
 
 
 def classify(said: dict, version: int) -> tuple[str, str]:
@@ -112,3 +113,17 @@ def switch(argv: list[str]) -> dict:
     except (OSError, subprocess.TimeoutExpired):
         return {}
     return last_json(done.stdout) or {}
+
+
+def helper(argv, *args: str) -> tuple[int | None, str]:
+    """A role's image helper (agent.json's ``image_helper``) run with
+    ``args``: its exit status (None: no helper on this robot) and its last
+    line on stderr."""
+    if not argv:
+        return None, "no role on this robot declares an image helper"
+    try:
+        done = subprocess.run([*argv, *args], capture_output=True, text=True, timeout=TIMEOUT, stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.TimeoutExpired) as error:
+        return None, f"image helper: {error}"
+    lines = [line.strip() for line in done.stderr.splitlines() if line.strip()]
+    return done.returncode, lines[-1] if lines else f"exit {done.returncode}"

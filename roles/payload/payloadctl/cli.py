@@ -6,7 +6,7 @@ import socket
 import sys
 import time
 
-from . import durable, hold, logs, recovery, results, status
+from . import agent_images, durable, hold, logs, recovery, results, status
 from .apply import apply, prepare, switch
 from .lifecycle import Life, Refused
 from .lock import Busy, Lock, describe
@@ -205,6 +205,17 @@ def parser():
     p.add_argument("--dir", required=True)
     p.add_argument("--max-mb", type=int, required=True)
     p.set_defaults(func=cmd_prune_logs)
+    p = sub.add_parser("image-pull", help="the pull agent's: pull images by their digest, unless here")
+    p.add_argument("--docker-dir", required=True, help="where Docker keeps images (its free disk is checked)")
+    p.add_argument("--min-free-mb", type=int, required=True)
+    p.add_argument("refs", nargs="+", metavar="REPOSITORY@DIGEST")
+    p.set_defaults(func=lambda a: agent_images.command(agent_images.pull, a.refs, a.docker_dir, a.min_free_mb))
+    p = sub.add_parser("image-load", help="the pull agent's: load an image of a release on media, checked")
+    p.add_argument("ref", help="the image as the release names it")
+    p.add_argument("digest", help="the digest the release pins")
+    p.add_argument("image", help="the image id the release binds")
+    p.add_argument("archive", nargs="?", help="the archive to load (none: only say whether it is here)")
+    p.set_defaults(func=lambda a: agent_images.command(agent_images.load, a.ref, a.digest, a.image, a.archive))
     p = sub.add_parser("wait-devices", help="wait for the sensors' device links")
     p.add_argument("--timeout", type=int, default=30)
     p.add_argument("devices", nargs="+")

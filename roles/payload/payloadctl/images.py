@@ -2,10 +2,11 @@
 release keeps running) or already pushed, checked against this robot's
 platform, then pinned by digest.
 
-A release on removable media (docs/guides/pull.md) arrives by ``docker load``:
-the pull agent checks each loaded image's id against the signed release,
-and where Docker cannot find it by the release's digest (the classic image
-store keeps no registry digest for a loaded image) it tags that id
+A release on removable media (docs/guides/pull.md) arrives by ``docker load``
+(agent_images.py, run by the pull agent), each loaded image's id checked
+against the signed release; where Docker cannot find it by the release's
+digest (the classic image store keeps no registry digest for a loaded
+image) that id is tagged
 ``repository:media-sha256-<the digest's hex>`` (MEDIA_TAG): such an image
 runs by that tag, named by the digest it was checked against."""
 
@@ -16,7 +17,7 @@ import time
 from . import imageref, platforms
 from .system import Failure, Refusal, run
 
-MEDIA_TAG = "media-sha256-"  # robotfleet/pull/protocol/media.py writes the same
+MEDIA_TAG = "media-sha256-"
 
 
 def image_info(ref):
