@@ -109,7 +109,7 @@ class World:
             etc_dir=str(self.etc),
             docker_dir=str(base / "none"),
             min_free_mb=0,
-            image_helper=(sys.executable, str(helper)),
+            extra={"image_helper": [sys.executable, str(helper)]},
         )
 
     def record(self, version: int, robots, canary="1", images=None, wheels=None, pause=0):

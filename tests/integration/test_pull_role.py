@@ -201,7 +201,7 @@ def test_a_fresh_robot_gets_the_agent(pulled, released):
     files = written_files(commands)
     config = json.loads(files[agent_files.CONFIG])
     # The images the agent puts in place go through the role that runs them (robotfleet.role Role.image_helper).
-    assert config["robot"] == "@fake/r1" and config["image_helper"] == [installed_files.HELPER]
+    assert config["robot"] == "@fake/r1" and config["extra"]["image_helper"] == [installed_files.HELPER]
     assert files[agent_files.TRUST_ROOT] == (released.repository.metadata / "root.json").read_text()
     assert files[f"{agent_files.UNIT_DIR}/{agent_files.TIMER}"] == agent_files.timer_unit(merged("robots", pulled))
     for path in (agent_files.CONFIG, agent_files.TRUST_ROOT):

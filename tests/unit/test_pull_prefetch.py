@@ -3,6 +3,7 @@ asked to pull, and whether the disk has room; the benchmark's window; the
 image helper agent.json names."""
 
 import datetime
+import json
 
 import pytest
 
@@ -39,10 +40,16 @@ def test_the_benchmark_s_window_opens_at_a_whole_minute_after_its_lead():
     assert bench.window_ahead(now.replace(second=0), lead=240)[0] == now.replace(minute=54, second=0)
 
 
-def test_agent_json_carries_the_image_helper_a_role_declared_and_checks_it():
-    config = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet", image_helper=("/usr/local/lib/x/helper",))
-    assert agent_files.read_config(config.to_json()) == config
-    assert "image_helper" not in agent_files.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
+def test_agent_json_carries_the_image_helper_a_role_declared_in_extra_and_checks_it():
+    """In ``extra``, which every agent since pull mode's first reads: an older agent
+    refuses an unknown field, and a failed release's converge leaves the older
+    agent running with the agent.json that converge wrote."""
+    helper = ["/usr/local/lib/x/helper"]
+    config = agent_files.Config(robot="robot1", remote="ssh://g@h/fleet", extra={"image_helper": helper})
+    written = json.loads(config.to_json())
+    assert written["extra"] == {"image_helper": helper} and "image_helper" not in written
+    assert agent_files.read_config(config.to_json()) == config and config.image_helper == tuple(helper)
+    assert "extra" not in agent_files.Config(robot="robot1", remote="ssh://g@h/fleet").to_json()
     with pytest.raises(agent_files.ConfigError) as caught:
         agent_files.read_config(config.to_json().replace('"/usr/local/lib/x/helper"', "1"), "agent.json")
-    assert str(caught.value) == "agent.json: image_helper: expected a command (a list of strings)"
+    assert str(caught.value) == "agent.json: extra.image_helper: expected a command (a list of strings)"

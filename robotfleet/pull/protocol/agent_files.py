@@ -92,15 +92,20 @@ class Config:
     state_dir: str = STATE
     etc_dir: str = ETC
     docker_dir: str = "/var/lib/docker"
-    image_helper: tuple[str, ...] = ()  # a role's argv that puts images in place (robotfleet/role.py Role)
+    # What an older agent does not read: it refuses unknown fields, and one a failed release's
+    # converge brought back runs with the agent.json that converge wrote.
     extra: dict = field(default_factory=dict)
+
+    @property
+    def image_helper(self) -> tuple[str, ...]:
+        """A role's argv that puts images in place (robotfleet/role.py Role), kept in ``extra``."""
+        return tuple(self.extra.get("image_helper") or ())
 
     def to_json(self) -> str:
         data = {"format": FORMAT, **asdict(self)}
-        data["windows"], data["image_helper"] = list(self.windows), list(self.image_helper)
+        data["windows"] = list(self.windows)
         for name, default in (
             ("extra", {}),
-            ("image_helper", []),
             ("report_remote", None),
             ("report_shards", _DEFAULT["report_shards"]),
             ("name_rule", None),
@@ -129,14 +134,14 @@ def default(name: str):
 def for_host(data, robot: str, roles=(), **extra) -> Config:
     """The agent's configuration for a host with ``data`` (its pull settings)
     and the ``roles`` running on it."""
+    helper = next((list(r.image_helper) for r in roles if r.image_helper), None)
     return Config(
-        image_helper=next((tuple(r.image_helper) for r in roles if r.image_helper), ()),
         robot=robot,
         remote=pull_mode.value(data, "pull_remote"),
         windows=tuple(pull_mode.value(data, "pull_windows")),
         report_remote=pull_mode.value(data, "pull_report_remote"),
         media_dir=pull_mode.value(data, "pull_media_dir"),
-        extra=extra,
+        extra={**extra, **({"image_helper": helper} if helper else {})},
         **{field: pull_mode.value(data, name) for field, name in NUMBERS.items()},
     )
 
@@ -171,11 +176,14 @@ def read_config(text: str, where: str = CONFIG) -> Config:
         value = raw.get(name, default(name))
         if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
             raise ConfigError(f"{where}: {name}: expected a whole number from {low} to {high}, got {value!r}")
-    windows, helper = raw.get("windows", []), raw.get("image_helper", [])
+    windows, extra = raw.get("windows", []), raw.get("extra", {})
+    if not isinstance(extra, dict):
+        raise ConfigError(f"{where}: extra: expected an object")
+    helper = extra.get("image_helper", [])
     if not isinstance(windows, list) or not all(isinstance(w, str) for w in windows):
         raise ConfigError(f"{where}: windows: expected a list of maintenance windows")
     if not isinstance(helper, list) or not all(isinstance(a, str) and a for a in helper):
-        raise ConfigError(f"{where}: image_helper: expected a command (a list of strings)")
+        raise ConfigError(f"{where}: extra.image_helper: expected a command (a list of strings)")
     for name in ("branch", "state_dir", "etc_dir", "docker_dir"):
         if name in raw and (not isinstance(raw[name], str) or not raw[name]):
             raise ConfigError(f"{where}: {name}: expected a string")
@@ -188,7 +196,7 @@ def read_config(text: str, where: str = CONFIG) -> Config:
     if media_dir is not None and (not isinstance(media_dir, str) or not media_dir.startswith("/")):
         raise ConfigError(f"{where}: media_dir: expected an absolute path or null")
     values = {k: v for k, v in raw.items() if k != "format"}
-    values["windows"], values["image_helper"] = tuple(windows), tuple(helper)
+    values["windows"] = tuple(windows)
     return Config(**values)
 
 
