@@ -34,7 +34,7 @@ def converged(play, host: str) -> None:
         for name, content in secret_files.read(data).items():
             snap.files[secret_files.robot_path(data, name)] = file_state(content, "600")
     if ros_logs.enabled(data):
-        for directory, _ in ros_logs.bounded(data):
+        for directory, _, _ in ros_logs.bounded(data):
             snap.files[directory] = FileState("dir", None, "755", "root", "root")
         service, timer = ros_logs.unit_paths(data)
         snap.files[service] = file_state(ros_logs.service_text(data))

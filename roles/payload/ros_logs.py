@@ -31,18 +31,19 @@ def unit_paths(data) -> tuple[str, str]:
     return tuple(f"/etc/systemd/system/{unit_name(data)}.{kind}" for kind in ("service", "timer"))
 
 
-def bounded(data) -> list[tuple[str, int]]:
-    """(directory, MB) the timer keeps: the logs, and the bags where ros_bag_dir is set."""
-    found = [(data.ros_log_dir, data.ros_log_max_mb)]
-    return found + [(data.ros_bag_dir, data.ros_bag_max_mb)] if data.ros_bag_dir else found
+def bounded(data) -> list[tuple[str, int, list[str]]]:
+    """(directory, MB, more arguments) the timer keeps: the logs, and the
+    bags where ros_bag_dir is set (only *.bag files: the directory is the user's)."""
+    found = [(data.ros_log_dir, data.ros_log_max_mb, [])]
+    return found + [(data.ros_bag_dir, data.ros_bag_max_mb, ["--suffix", ".bag"])] if data.ros_bag_dir else found
 
 
 def service_text(data) -> str:
     starts = "".join(
         "ExecStart=/usr/bin/python3 "
-        + shlex.join([installed_files.HELPER, "prune-logs", "--dir", directory, "--max-mb", str(mb)])
+        + shlex.join([installed_files.HELPER, "prune-logs", "--dir", directory, "--max-mb", str(mb), *more])
         + "\n"
-        for directory, mb in bounded(data)
+        for directory, mb, more in bounded(data)
     )
     bags = f" and the bags in {data.ros_bag_dir} under {data.ros_bag_max_mb} MB" if data.ros_bag_dir else ""
     return f"""# Managed by the robot fleet provisioner (roles/payload).
@@ -74,7 +75,7 @@ def declare_reads(data, query: SnapshotQuery) -> None:
     query.files |= set(unit_paths(data))
     query.units.add(f"{unit_name(data)}.timer")
     if enabled(data):
-        query.files |= {directory for directory, _ in bounded(data)}
+        query.files |= {directory for directory, _, _ in bounded(data)}
 
 
 def install(data, snap: Snapshot) -> None:
@@ -89,7 +90,7 @@ def install(data, snap: Snapshot) -> None:
             _if=removed.did_change,
         )
         return
-    for (directory, _), what in zip(bounded(data), ("logs", "bags")):
+    for (directory, _, _), what in zip(bounded(data), ("logs", "bags")):
         operations.directory(
             name=f"ROS {what} directory {directory}", path=directory, current=snap.files.get(directory)
         )

@@ -324,7 +324,7 @@ SETTINGS = (
     ),
     Setting("ros_log_max_mb", 500, c.integer(10), "ROS presets: the logs' size; the oldest files go, every 10 min."),
     Setting("ros_bag_dir", None, c.optional(v.private_path), "ROS presets: host directory at /bags in every service."),
-    Setting("ros_bag_max_mb", 2000, c.integer(10), "ROS presets: ros_bag_dir's size; the oldest files go first."),
+    Setting("ros_bag_max_mb", 2000, c.integer(10), "ROS presets: ros_bag_dir's size; the oldest .bag files go first."),
     Setting(
         "ros_dds_profile",
         None,

@@ -27,7 +27,7 @@ def test_every_service_gets_the_bag_directory_at_bags():
 def test_the_timer_keeps_the_bags_under_their_size_beside_the_logs():
     text = ros_logs.service_text(type("D", (), {"ros_log_dir": "/var/log/ros", "ros_log_max_mb": 500, **BAGS})())
     assert "payloadctl prune-logs --dir /var/log/ros --max-mb 500\n" in text
-    assert "payloadctl prune-logs --dir /var/lib/ros-bags --max-mb 64\n" in text
+    assert "payloadctl prune-logs --dir /var/lib/ros-bags --max-mb 64 --suffix .bag\n" in text
 
 
 def test_a_robot_gets_the_bag_directory_and_a_converged_one_nothing():

@@ -71,3 +71,18 @@ def test_prune_removes_the_oldest_files_until_the_rest_fit(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run-b", "run-c"]  # run-a and its dangling latest gone
     assert (tmp_path / "run-c" / "talker.log").exists() and (tmp_path / "run-b" / "roslaunch.log").exists()
     assert logs.prune(str(tmp_path), 1024 * 1024) == (0, 0)
+
+
+def test_the_bags_prune_touches_only_bag_files(tmp_path):
+    """ros_bag_dir is a directory the user names, maybe one that holds more
+    than bags: only the oldest *.bag files go, not the user's other files,
+    an empty directory, a dangling link, or the bag being written (.active)."""
+    _log(tmp_path / "old_0.bag", 600 * 1024, 0)
+    _log(tmp_path / "new_0.bag", 600 * 1024, 200)
+    _log(tmp_path / "maps" / "site.pgm", 900 * 1024, -100)
+    _log(tmp_path / "run_1.bag.active", 600 * 1024, 300)
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "gone").symlink_to(tmp_path / "nowhere")
+    assert logs.prune(str(tmp_path), 1024 * 1024, ".bag") == (1, 600 * 1024)
+    left = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
+    assert left == ["empty", "gone", "maps", "maps/site.pgm", "new_0.bag", "run_1.bag.active"]

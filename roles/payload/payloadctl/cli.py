@@ -134,7 +134,7 @@ def cmd_start(args):
 
 
 def cmd_prune_logs(args):
-    return logs.main(args.dir, args.max_mb)
+    return logs.main(args.dir, args.max_mb, args.suffix)
 
 
 def cmd_wait_devices(args):
@@ -204,6 +204,7 @@ def parser():
     p = sub.add_parser("prune-logs", help="remove the oldest ROS logs until the rest fit in --max-mb")
     p.add_argument("--dir", required=True)
     p.add_argument("--max-mb", type=int, required=True)
+    p.add_argument("--suffix", help="only files whose names end so (bags: .bag), nothing else touched")
     p.set_defaults(func=cmd_prune_logs)
     p = sub.add_parser("image-pull", help="the pull agent's: pull images by their digest, unless here")
     p.add_argument("--docker-dir", required=True, help="where Docker keeps images (its free disk is checked)")
