@@ -1,7 +1,9 @@
 """The end-to-end lab groups of the test command (tests/e2e/groups.py) and
 its exit code (tests/__main__.py)."""
 
-from tests.__main__ import exit_code, local_paths
+import time
+
+from tests.__main__ import exit_code, local_paths, machine_seconds
 from tests.e2e import groups
 
 
@@ -55,3 +57,12 @@ def test_the_on_demand_modules_exist_and_are_not_in_the_test_command():
     assert not set(groups.ON_DEMAND) & set(groups.modules())
     named = {module for modules in groups.GROUPS.values() for module in modules}
     assert not set(groups.ON_DEMAND) & named
+
+
+def test_the_machine_s_busy_seconds_count_what_this_process_spends():
+    busy, idle = machine_seconds()
+    spin_until = time.process_time() + 0.3
+    while time.process_time() < spin_until:
+        pass
+    busy_after, idle_after = machine_seconds()
+    assert busy_after - busy >= 0.25 and idle_after >= idle
