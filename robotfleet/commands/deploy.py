@@ -119,7 +119,3 @@ def main(argv=None) -> int:
     if code != 1:  # done (0), or refused before any host was contacted (2), as it said
         return code
     return outcome(state)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -285,7 +285,3 @@ def main(argv=None) -> int:
     if outcomes.get("unreachable"):
         return selection.UNREACHABLE
     return selection.OK
-
-
-if __name__ == "__main__":
-    sys.exit(main())

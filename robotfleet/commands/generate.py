@@ -152,7 +152,3 @@ def main(argv=None) -> int:
         verb = "is stale (run: robotfleet generate)" if args.check else "written"
         print(f"{path.relative_to(CHECKOUT)}: {verb}", file=sys.stderr)
     return 1 if stale and args.check else 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

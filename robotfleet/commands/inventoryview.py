@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 from pathlib import Path
 
 from robotfleet import commands, deploy_roles, inventory, secrets, selection
@@ -206,7 +205,3 @@ def main(argv=None) -> int:
             )
         print("\n".join(graph(fleet.tree, args.graph)))
     return selection.OK
-
-
-if __name__ == "__main__":
-    sys.exit(main())

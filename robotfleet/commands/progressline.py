@@ -6,7 +6,6 @@ is none, and the commands print their lines as before."""
 
 from __future__ import annotations
 
-import contextlib
 import sys
 
 
@@ -72,9 +71,3 @@ class Line:
     def say(self, text: str) -> None:
         """A line of its own on stderr: above the progress line while it is drawn."""
         print(text, file=sys.stderr, flush=True)
-
-
-@contextlib.contextmanager
-def nothing():
-    """A Line that draws nothing (for --json and the like)."""
-    yield Line("", enabled=False)

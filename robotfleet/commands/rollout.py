@@ -323,7 +323,3 @@ def run_waves(args, roles, targets, state, path, extra, rows, line):
             break
     waves.save_state(path, state)
     return state
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -289,7 +289,3 @@ def rows_of(inventory: str, limits: list[str], roles=None, answered=None, remote
     for r in rows:
         r["rollout"] = rollout_plan.host_state(rollout, r["host"])
     return rows, rollout
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,40 +9,12 @@ in the same lines."""
 
 from __future__ import annotations
 
-import ast
-import io
 import shlex
-import tokenize
 from pathlib import Path
 
 PROBE = "payload_containers"
 LABEL = "com.docker.compose.project"
-
-
-def _compact(source: str) -> str:
-    """The program without its docstrings, comments and blank lines: it goes
-    over SSH and into sudo's log with every snapshot, and Python compiles it
-    each time.  Its own quotes are kept (double: nothing to escape for sh)."""
-    drop = set()
-    for node in ast.walk(ast.parse(source)):
-        body = getattr(node, "body", None)
-        if (
-            isinstance(body, list)
-            and body
-            and isinstance(body[0], ast.Expr)
-            and isinstance(body[0].value, ast.Constant)
-            and isinstance(body[0].value.value, str)
-        ):
-            drop |= set(range(body[0].lineno, body[0].end_lineno + 1))
-    lines = source.splitlines()
-    for token in tokenize.generate_tokens(io.StringIO(source).readline):
-        if token.type == tokenize.COMMENT:
-            row, col = token.start
-            lines[row - 1] = lines[row - 1][:col].rstrip()
-    return "\n".join(line for number, line in enumerate(lines, 1) if number not in drop and line.strip()) + "\n"
-
-
-_PROGRAM = _compact((Path(__file__).parent / "docker_read.py").read_text())
+_PROGRAM = (Path(__file__).parent / "docker_read.py").read_text()
 _IDENTITY = (
     '{{json (printf "%s\\t%s\\t%s\\t%s\\t%v\\t%s" .Id .Name .Config.Image '
     f'(index .Config.Labels "{LABEL}") .State.Running .HostConfig.RestartPolicy.Name)}}}}'

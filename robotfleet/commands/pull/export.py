@@ -21,7 +21,6 @@ The media are refused once their timestamp expires (--timestamp-expiry,
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 from pathlib import Path
 
@@ -43,10 +42,6 @@ def build_parser() -> argparse.ArgumentParser:
     commandline.add_channel(parser)
     commandline.add_expiry(parser)
     return parser
-
-
-def parse_args(argv: list[str]):
-    return build_parser().parse_args(argv)
 
 
 def export(args) -> int:
@@ -79,5 +74,5 @@ def export(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
     return commandline.run("export", lambda: export(args))

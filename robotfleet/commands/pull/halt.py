@@ -12,7 +12,6 @@ halt.  See docs/guides/pull.md.
 from __future__ import annotations
 
 import argparse
-import sys
 
 from robotfleet import commands, selection
 from robotfleet.pull.operator import commandline, publishing
@@ -25,10 +24,6 @@ def build_parser() -> argparse.ArgumentParser:
     commandline.add_channel(parser)
     commandline.add_expiry(parser)
     return parser
-
-
-def parse_args(argv: list[str]):
-    return build_parser().parse_args(argv)
 
 
 def halt(args) -> int:
@@ -47,5 +42,5 @@ def halt(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
     return commandline.run("halt", lambda: halt(args))

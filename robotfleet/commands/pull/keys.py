@@ -21,7 +21,6 @@ option goes: --remote/--to-dir as for publish.  See docs/guides/pull.md.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from robotfleet import commands, selection
@@ -60,10 +59,6 @@ def build_parser() -> argparse.ArgumentParser:
         commandline.add_channel(each)
         commandline.add_expiry(each)
     return parser
-
-
-def parse_args(argv: list[str]):
-    return build_parser().parse_args(argv)
 
 
 def _says(public) -> str:
@@ -205,5 +200,5 @@ ACTIONS = {
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parse_args(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
     return commandline.run("keys", lambda: ACTIONS[args.action](args))

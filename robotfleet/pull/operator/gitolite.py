@@ -55,7 +55,6 @@ from robotfleet import keepalive
 from robotfleet.pull.operator import gitolite_admin
 from robotfleet.pull.protocol import report_shards
 
-RELEASES_BRANCH = "robotfleet/releases"
 REPORTS = "refs/reports"
 ENROLL_SUFFIX = "@enroll"
 SHARED = "enroll+"  # a shared image's enrollment user: enroll+<rule>+<prefix>

@@ -36,7 +36,6 @@ import fcntl
 import os
 import secrets
 import shutil
-import sys
 import time
 from pathlib import Path
 
@@ -364,7 +363,3 @@ def main(argv=None) -> int:
         phases = wake.phases if outcome.result != "up-to-date" else None
         print(journal_line(report, sent, time.monotonic() - started, phases), flush=True)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

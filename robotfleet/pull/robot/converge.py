@@ -224,7 +224,3 @@ def main(argv=None, more=None) -> int:
         found = {"error": str(error)}
     print(json.dumps(found, sort_keys=True, default=str))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -8,12 +8,12 @@ import os
 import shutil
 import subprocess
 
-from . import imageref
-from .images import media_tag
+from . import imageref, images
 from .system import Failure, log, run
 
 NOT_HERE, TAMPERED = 3, 4  # what the agent reads (robotfleet/pull/robot/release_run.py)
 MB = 1 << 20
+PULL_TIMEOUT = 1800  # an image's pull, all tries
 
 
 def docker(args, timeout):
@@ -34,16 +34,16 @@ def pull(refs, docker_dir, min_free_mb):
     if shutil.which("docker") is None:
         return NOT_HERE
     for ref in refs:
-        if docker(["image", "inspect", ref], 60).returncode == 0:
+        if images.image_info(ref) is not None:
             continue
         free = shutil.disk_usage(docker_dir).free if os.path.isdir(docker_dir) else None
         if free is not None and free < min_free_mb * MB:
             raise Failure(
                 f"{ref}: only {free // MB} MB free on {docker_dir}'s file system (pull_min_free_mb: {min_free_mb})"
             )
-        done = docker(["pull", "-q", ref], 1800)
-        if done.returncode:
-            raise Failure("docker pull {}: {}".format(ref, said(done, "exit {}".format(done.returncode))))
+        error = images.pull(ref, PULL_TIMEOUT, limit="the pull agent's limit")
+        if error is not None:
+            raise Failure("docker pull {}: {}".format(ref, error.splitlines()[-1]))
     return 0
 
 
@@ -59,7 +59,7 @@ def image_id(name):
 def load(ref, digest, image, archive=None):
     parsed = imageref.parse(ref)
     wanted = "{}@{}".format(parsed.repository, digest)
-    tag = media_tag(wanted)
+    tag = images.media_tag(wanted)
     if archive is None:
         return 0 if image_id(wanted) in (image, digest) or image_id(tag) == image else NOT_HERE
     done = docker(["load", "-q", "-i", archive], 1800)
@@ -82,6 +82,6 @@ def command(work, *given):
     """``work(*given)``'s exit status; a failure's line on stderr."""
     try:
         return work(*given)
-    except (Failure, ValueError) as error:
+    except (Failure, ValueError, subprocess.TimeoutExpired) as error:
         log(str(error))
         return 1

@@ -50,11 +50,13 @@ def check_platform(ref, info, robot, arch):
         raise Refusal(platforms.refusal(robot, arch, ref, [platforms.text(info["platform"])]))
 
 
-def pull(ref, timeout, platform=None):
-    """docker pull, three tries, all within `timeout` seconds; the error text."""
+def pull(ref, timeout, platform=None, limit="payload_pull_timeout"):
+    """docker pull, three tries, all within `timeout` seconds (``limit``
+    names what sets it); the error text."""
     deadline = time.time() + timeout
     last = ""
     for attempt in range(3):
+        time.sleep(min(2 * attempt, max(0, deadline - time.time())))
         left = deadline - time.time()
         if left <= 0:
             break
@@ -66,14 +68,12 @@ def pull(ref, timeout, platform=None):
             )
         except subprocess.TimeoutExpired:
             raise Failure(
-                "docker pull {} did not finish within {} s (payload_pull_timeout); "
-                "the old release keeps running".format(ref, timeout)
+                f"docker pull {ref} did not finish within {timeout} s ({limit}); the old release keeps running"
             ) from None
         if proc.returncode == 0:
             return None
         last = (proc.stderr or proc.stdout).strip()[-300:]
-        time.sleep(min(2 * (attempt + 1), max(0, deadline - time.time())))
-    return last or "gave up after {} s (payload_pull_timeout)".format(timeout)
+    return last or "gave up after {} s ({})".format(timeout, limit)
 
 
 def media_tag(ref):

@@ -106,10 +106,6 @@ class Record(collections.namedtuple("Record", FIELDS + ("extra",), defaults=(Non
                 found[name] = value.to_dict() if name == "switch" else value
         return found
 
-    @property
-    def settled(self):
-        return self.state in SETTLED
-
 
 class Life:
     """The releases of one robot (``releases``, a releases.Releases) and
