@@ -16,9 +16,12 @@ replacing the enrollment key), proven by its bundle's enrollment key, and
 answers SSH with strict host keys; last, the fleet a user writes (the
 payload by its tag, no health check) published with publish's defaults goes
 from its canary to every robot, one powered off meanwhile.
-The robots' timers run at the shortest interval (10 s, no jitter), so
-releases reach them by their own checks; a check is started directly
-(systemctl start) only where a test needs its outcome now (the refusals).
+The robots' timers run at an hour: a robot checks by its own timer at boot
+(robot3 and the robot powered off catch up there) and after the agent is
+installed, robot4 at its first boot, and otherwise when a test starts its
+check (systemctl start), once the release it waits on is on the fleet
+remote.  The last release sets the shortest interval (10 s), and its test
+waits each robot's next check by its timer.
 Releases are reused: release 1 (the only one with wheels), release 2 (the
 rollout), the crash-looping one and its halt are the module's publishes;
 the bad repositories are made from the current one.  robot4 boots from its
@@ -191,7 +194,7 @@ def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_
     from tests.lab.engine import client
 
     client().containers.get(f"{lab.prefix}-robot3").stop(timeout=20)
-    result = {}
+    before, result = pull.head(), {}
     follower = threading.Thread(
         target=lambda: result.update(
             done=pull.op.rollout(
@@ -212,17 +215,23 @@ def test_release_2_reaches_every_robot_without_ssh_and_one_that_was_off_catches_
         )
     )
     follower.start()
-    # Published while robot3 was off (a running robot's timer has seen it): robot3 boots and catches up
-    # by its own timer (OnBootSec), while the others apply it.
-    wait_for(
-        lambda: any(
-            ((pull.reports().get(r) or {}).get("seen") or {}).get("version", 0) >= 2 for r in ("robot1", "robot2")
-        ),
-        120,
-        "release 2 seen by a running robot",
-        interval=2,
-    )
-    client().containers.get(f"{lab.prefix}-robot3").start()
+
+    def first_boot_robot() -> None:  # its first check (its whole first deploy, from its image) reported first
+        first = f"{FIRST_BOOT}'s first release"
+        wait_for(lambda: (pull.reports().get(FIRST_BOOT) or {}).get("applied"), 420, first, interval=3)
+        pull.trigger_once_published(before, [FIRST_BOOT])
+
+    robot4 = threading.Thread(target=first_boot_robot)
+    robot4.start()
+    # Published while robot3 was off (the running robots' checks have seen it): robot3 boots and catches
+    # up by its own timer (OnBootSec), while the others apply it.
+    try:
+        pull.trigger_once_published(before, ["robot1", "robot2"])
+        seen = {r: ((pull.reports().get(r) or {}).get("seen") or {}).get("version") for r in ("robot1", "robot2")}
+    finally:
+        client().containers.get(f"{lab.prefix}-robot3").start()
+    assert all((version or 0) >= 2 for version in seen.values()), seen
+    robot4.join(timeout=500)
     follower.join(timeout=500)
     done = result["done"]
     assert done.returncode == 0, done.stdout + done.stderr
@@ -264,7 +273,9 @@ def test_a_bad_repository_is_refused_everywhere_and_changes_nothing(pull, lab, a
 def test_a_crash_looping_release_is_rolled_back_on_the_canary_and_halts_the_rest(pull, lab):
     from robotfleet.pull.protocol import waves
 
-    started = time.monotonic()
+    started, before = time.monotonic(), pull.head()
+    checks = threading.Thread(target=pull.trigger_once_published, args=(before, ROBOTS))  # the canary applies
+    checks.start()
     done = pull.op.rollout(
         pull.fleet("1.2-broken", robots=ROBOTS),
         "release: payload 1.2-broken",
@@ -282,6 +293,7 @@ def test_a_crash_looping_release_is_rolled_back_on_the_canary_and_halts_the_rest
         "300",
         "--publish-option=--no-wheels",
     )
+    checks.join()
     pull.trigger(ROBOTS)  # a check after the halt on each
     assert done.returncode == 1, done.stdout + done.stderr
     assert "halted" in done.stderr
@@ -323,21 +335,25 @@ def test_a_robot_from_a_first_boot_image_converges_reports_healthy_and_is_enroll
     phase("pull: first-boot robot enrolled from its report", started)
 
 
-# publish's default pause is the robots' longest pull_interval + pull_jitter:
-# FAST's 10 s here, shorter than the canary's apply under the test command's
-# load, so a later robot could finish first (seen); with the role's 900 + 300 s
-# it is the canary's whole check period.  This test checks that the canary
-# applies before the rest, which needs a pause longer than its apply.
-CANARY_PAUSE = 150
+# publish's default pause is the robots' longest pull_interval + pull_jitter
+# (the role's 900 + 300 s: the canary's whole check period).  This test checks
+# that the canary applies before the rest: every running robot checks as soon
+# as the release is published, the canary applies and the rest are held until
+# wave 1 opens, when they check again.  The pause needs to outlast only the
+# time from publish to the rest's first decision (seconds), not the canary's
+# apply (a check started once the pause is over waits for the canary's first).
+CANARY_PAUSE = 60
 
 
 def user_fleet(pull, image: str) -> str:
     """The fleet a user writes from docs/guides/pull.md: the payload by its tag in
     all.vars (no digest: publish resolves it), payload_stable_seconds 5 and
-    the pull settings in robots' vars; robot1..4."""
+    the pull settings in robots' vars, the shortest check interval (10 s: the
+    robots' timers tested); robot1..4."""
     fleet = json.loads(pull.fleet("1.1").split("\n", 1)[1])
     fleet["all"]["vars"].update(payload_image=image, payload_stable_seconds=5)
     fleet["robots"]["vars"].pop("payload_stable_seconds")
+    fleet["robots"]["vars"]["pull_interval"] = 10
     return "# The lab's fleet as a user writes it (tests/e2e/test_pull.py).\n" + json.dumps(fleet, indent=1) + "\n"
 
 
@@ -363,6 +379,8 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
     version = Repository(op.base / "releases").record().version + 1
     canary = waves.rank(ALL, version)[0]
     off = next(robot for robot in ROBOTS if robot != canary)
+    on = [robot for robot in ALL if robot != off]
+    rest = [robot for robot in on if robot != canary]
     client().containers.get(f"{lab.prefix}-{off}").stop(timeout=20)
     try:
         op.commit(user_fleet(pull, image), f"release {version}: ros/driver:1.1 by its tag")
@@ -386,6 +404,7 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
         assert f"publish: release {version} (" in done.stdout, done.stdout
         assert f"wave(s); wave k opens at publish + k x {CANARY_PAUSE} s" in done.stdout, done.stdout
         assert f"GET http://{registry}/v2/ros/driver/manifests/1.1" in proxy.requests
+        published = time.monotonic()  # the record's published_at is earlier
 
         def applied(robots) -> bool:
             reports = pull.reports()
@@ -395,15 +414,24 @@ def test_a_release_published_with_the_defaults_goes_from_its_canary_to_every_rob
                 for r in robots
             )
 
-        on = [robot for robot in ALL if robot != off]
-        wait_for(lambda: applied(on), CANARY_PAUSE + 420, f"release {version} on {', '.join(on)}", interval=3)
+        pull.trigger(on)  # every running robot checks now: the canary applies, the rest are held
+        reports = pull.reports()
+        assert applied([canary]), reports[canary]
+        for robot in rest:  # (while held, a robot prefetches the release's image)
+            report = reports[robot]
+            assert report["result"] in ("waiting", "prefetched"), report
+            assert "waiting for wave 1" in report["reason"] and report["applied"]["version"] < version, report
+        time.sleep(max(0.0, published + CANARY_PAUSE + 1 - time.monotonic()))
+        pull.trigger(rest)  # wave 1 open
+        assert applied(on), pull.reports()
     finally:
         client().containers.get(f"{lab.prefix}-{off}").start()  # it boots, and catches up by its own timer
     wait_for(lambda: applied([off]), 300, f"release {version} on {off} after its boot", interval=3)
     reports = pull.reports()
     first = reports[canary]["applied"]["time"]
     assert all(first < reports[r]["applied"]["time"] for r in ALL if r != canary), reports  # canary, then the rest
-    # each robot's next check (10 s on) finds the release it applied: from then on its report says up-to-date
+    # each robot's next check by its timer (10 s on, the release's interval) finds the release it applied:
+    # from then on its report says up-to-date
     wait_for(
         lambda: all(pull.reports()[r]["result"] == "up-to-date" for r in ALL),
         60,
