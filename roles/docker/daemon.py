@@ -91,9 +91,16 @@ def restart_script(
         f'  timeout "$timeout" systemctl {action} docker.service >/dev/null 2>&1 '
         "&& systemctl is-active --quiet docker.service\n"
         "}\n"
+        # journald may store dockerd's last line a moment after systemd records the failure (a loaded robot):
+        # asked again for up to 5 s.
         "dockerd_said() {\n"
-        '  journalctl -u docker.service SYSLOG_IDENTIFIER=dockerd --since "@$1" -o cat --no-pager 2>/dev/null'
-        " | grep -iE 'daemon.json|failed to start|unable to|invalid|level=(error|fatal)' | tail -n 1 | cut -c1-300\n"
+        "  for try in 1 2 3 4 5 6; do\n"
+        '    said=$(journalctl -u docker.service SYSLOG_IDENTIFIER=dockerd --since "@$1" -o cat --no-pager 2>/dev/null'
+        " | grep -iE 'daemon.json|failed to start|unable to|invalid|level=(error|fatal)' | tail -n 1 | cut -c1-300)\n"
+        '    [ -n "$said" ] && { echo "$said"; return; }\n'
+        '    [ "$try" -lt 6 ] && sleep 1\n'
+        "  done\n"
+        "  return 0\n"
         "}\n"
         "since=$(date +%s)\n"
         'docker_up && { rm -f "$pending"; exit 0; }\n'
